@@ -1,0 +1,668 @@
+//! One owner task per bus, and the cheap handle everyone else uses.
+//!
+//! The owner task holds the backend (socket or virtual port). Senders go
+//! through a bounded queue to it; received and transmitted frames fan out to
+//! any number of [`Subscription`]s, each with its own filter and bounded
+//! queue. A subscriber that does not keep up never slows the bus or the
+//! other subscribers: the frames it misses are counted and, as soon as it has
+//! room again, it receives a [`BusItem::Lost`] notice with the exact number
+//! of matching frames it missed, in the position where they were missed.
+
+use crate::filter::FrameSelector;
+use crate::frame::{Frame, Timestamp};
+use crate::socketcan_bus::{SocketCanBus, SocketCanEvent};
+use crate::state::BusStatus;
+use crate::timing::{BitTiming, LoadMeter, Stuffing};
+use crate::virtual_bus::{PortEvent, SendError, VirtualPort};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tokio::sync::{mpsc, oneshot};
+use tokio_util::sync::CancellationToken;
+
+/// Which kind of backend a bus runs on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BackendKind {
+    /// Linux SocketCAN interface.
+    SocketCan,
+    /// In-process virtual bus.
+    Virtual,
+}
+
+/// Static description of a bus.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BusInfo {
+    /// Name clients use (e.g. `can0`).
+    pub name: String,
+    /// Backend kind.
+    pub kind: BackendKind,
+    /// Interface name (SocketCAN) or virtual bus name.
+    pub interface: String,
+    /// Whether CAN FD frames may be sent.
+    pub fd: bool,
+    /// Nominal bitrate in bit/s if known (used for the load figure).
+    pub bitrate: Option<u32>,
+    /// CAN FD data bitrate in bit/s if known.
+    pub data_bitrate: Option<u32>,
+    /// Whether the virtual bus models bit timing.
+    pub bit_timed: bool,
+}
+
+/// The backend a bus task owns.
+pub enum Backend {
+    /// A SocketCAN interface.
+    SocketCan(SocketCanBus),
+    /// A port on a virtual bus, connected with `echo_own = true` so that our
+    /// own transmissions come back stamped with their bus time.
+    Virtual(VirtualPort),
+}
+
+impl std::fmt::Debug for Backend {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Backend::SocketCan(s) => s.fmt(f),
+            Backend::Virtual(v) => v.fmt(f),
+        }
+    }
+}
+
+enum BackendEvent {
+    Frame { frame: Frame, own: bool },
+    State(BusStatus),
+}
+
+impl Backend {
+    async fn next(&mut self, out: &mut Vec<BackendEvent>) {
+        match self {
+            Backend::SocketCan(s) => out.push(match s.recv().await {
+                SocketCanEvent::Frame(frame) => BackendEvent::Frame { frame, own: false },
+                SocketCanEvent::State(st) => BackendEvent::State(st),
+            }),
+            Backend::Virtual(p) => {
+                let mut buf = Vec::with_capacity(256);
+                p.recv_many(&mut buf, 256).await;
+                out.extend(buf.into_iter().map(|ev| match ev {
+                    PortEvent::Frame { frame, own } => BackendEvent::Frame { frame, own },
+                    PortEvent::State(st) => BackendEvent::State(st),
+                }));
+            }
+        }
+    }
+
+    async fn send(&mut self, frame: &Frame) -> Result<(), SendError> {
+        match self {
+            Backend::SocketCan(s) => s.send(frame).await,
+            Backend::Virtual(p) => p.send(frame),
+        }
+    }
+
+    fn echoes_own(&self) -> bool {
+        matches!(self, Backend::Virtual(_))
+    }
+
+    fn status(&self) -> BusStatus {
+        match self {
+            Backend::SocketCan(s) => s.status(),
+            Backend::Virtual(p) => p.bus().status(),
+        }
+    }
+
+    fn overflows(&self) -> u64 {
+        match self {
+            Backend::SocketCan(_) => 0,
+            Backend::Virtual(p) => p.overflows(),
+        }
+    }
+}
+
+/// Whether a frame was received from the bus or sent by this gateway.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Direction {
+    /// Received from another node.
+    Rx,
+    /// Transmitted by this gateway.
+    Tx,
+}
+
+/// What a subscription delivers.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum BusItem {
+    /// A frame that passed the subscription's selector.
+    Frame {
+        /// The frame with its timestamp.
+        frame: Frame,
+        /// Received or transmitted.
+        direction: Direction,
+    },
+    /// This many matching frames were dropped here because the subscriber
+    /// did not keep up.
+    Lost(u64),
+    /// The bus state changed.
+    State(BusStatus),
+}
+
+/// A frame batch could not be sent completely.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{error} ({sent} of {total} frames sent)")]
+pub struct SendFailure {
+    /// Frames of the batch that were sent before the failure.
+    pub sent: usize,
+    /// Frames in the batch.
+    pub total: usize,
+    /// Why sending stopped.
+    pub error: SendError,
+}
+
+/// Live counters of a bus.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BusStats {
+    /// Frames received from other nodes (incl. error frames).
+    pub rx_frames: u64,
+    /// Frames sent by this gateway.
+    pub tx_frames: u64,
+    /// Payload bytes received.
+    pub rx_bytes: u64,
+    /// Payload bytes sent.
+    pub tx_bytes: u64,
+    /// Error frames received.
+    pub error_frames: u64,
+    /// Frames the backend refused to send.
+    pub tx_failed: u64,
+    /// Frames the backend's receive queue overflowed with (virtual bus).
+    pub rx_overflows: u64,
+    /// Frames dropped for subscribers that did not keep up (all subscribers).
+    pub subscriber_drops: u64,
+    /// Bus load in percent over the last second (needs a bitrate).
+    pub load_percent: f64,
+    /// Current subscribers.
+    pub subscribers: usize,
+    /// State and error counters.
+    pub status: BusStatus,
+    /// When the state last changed.
+    pub status_since: Timestamp,
+}
+
+struct Subscriber {
+    selector: FrameSelector,
+    tx: mpsc::Sender<BusItem>,
+    pending_lost: u64,
+    pending_state: bool,
+    lost_total: Arc<AtomicU64>,
+}
+
+impl Subscriber {
+    /// Offers an item; returns false if the subscriber is gone.
+    fn offer(&mut self, item: BusItem, drops: &AtomicU64) -> bool {
+        if self.pending_lost > 0 {
+            match self.tx.try_send(BusItem::Lost(self.pending_lost)) {
+                Ok(()) => self.pending_lost = 0,
+                Err(mpsc::error::TrySendError::Full(_)) => {
+                    self.count_lost(drops);
+                    return true;
+                }
+                Err(mpsc::error::TrySendError::Closed(_)) => return false,
+            }
+        }
+        match self.tx.try_send(item) {
+            Ok(()) => true,
+            Err(mpsc::error::TrySendError::Full(_)) => {
+                self.count_lost(drops);
+                true
+            }
+            Err(mpsc::error::TrySendError::Closed(_)) => false,
+        }
+    }
+
+    fn count_lost(&mut self, drops: &AtomicU64) {
+        self.pending_lost += 1;
+        self.lost_total.fetch_add(1, Ordering::Relaxed);
+        drops.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Delivers pending notices if there is room now.
+    fn flush(&mut self, status: BusStatus) -> bool {
+        if self.pending_lost > 0 {
+            match self.tx.try_send(BusItem::Lost(self.pending_lost)) {
+                Ok(()) => self.pending_lost = 0,
+                Err(mpsc::error::TrySendError::Full(_)) => return true,
+                Err(mpsc::error::TrySendError::Closed(_)) => return false,
+            }
+        }
+        if self.pending_state {
+            match self.tx.try_send(BusItem::State(status)) {
+                Ok(()) => self.pending_state = false,
+                Err(mpsc::error::TrySendError::Full(_)) => return true,
+                Err(mpsc::error::TrySendError::Closed(_)) => return false,
+            }
+        }
+        !self.tx.is_closed()
+    }
+}
+
+#[derive(Default)]
+struct Counters {
+    rx_frames: AtomicU64,
+    tx_frames: AtomicU64,
+    rx_bytes: AtomicU64,
+    tx_bytes: AtomicU64,
+    error_frames: AtomicU64,
+    tx_failed: AtomicU64,
+    rx_overflows: AtomicU64,
+    subscriber_drops: AtomicU64,
+    load_millipercent: AtomicU64,
+}
+
+struct Shared {
+    info: BusInfo,
+    tx: mpsc::Sender<TxRequest>,
+    subscribers: Mutex<Vec<Subscriber>>,
+    counters: Counters,
+    status: Mutex<(BusStatus, Timestamp)>,
+}
+
+struct TxRequest {
+    frames: Vec<Frame>,
+    reply: oneshot::Sender<Result<(), SendFailure>>,
+}
+
+/// A cloneable handle to a running bus.
+#[derive(Clone)]
+pub struct BusHandle {
+    shared: Arc<Shared>,
+}
+
+impl std::fmt::Debug for BusHandle {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("BusHandle")
+            .field("name", &self.shared.info.name)
+            .finish()
+    }
+}
+
+/// Frames a subscriber may have queued before it starts losing frames.
+pub const DEFAULT_SUBSCRIPTION_QUEUE: usize = 8192;
+
+impl BusHandle {
+    /// Starts the owner task of a bus. The task ends when `cancel` fires,
+    /// which also ends every subscription.
+    pub fn spawn(
+        info: BusInfo,
+        backend: Backend,
+        cancel: CancellationToken,
+    ) -> (BusHandle, tokio::task::JoinHandle<()>) {
+        let (tx, rx) = mpsc::channel(1024);
+        let status = backend.status();
+        let shared = Arc::new(Shared {
+            info,
+            tx,
+            subscribers: Mutex::new(Vec::new()),
+            counters: Counters::default(),
+            status: Mutex::new((status, Timestamp::now())),
+        });
+        let task = tokio::spawn(run_bus(backend, shared.clone(), rx, cancel));
+        (BusHandle { shared }, task)
+    }
+
+    /// Static description.
+    pub fn info(&self) -> &BusInfo {
+        &self.shared.info
+    }
+
+    /// The bus name.
+    pub fn name(&self) -> &str {
+        &self.shared.info.name
+    }
+
+    /// Current state and error counters.
+    pub fn status(&self) -> BusStatus {
+        self.shared.status.lock().expect("status lock").0
+    }
+
+    /// Checks a batch against what this bus can carry right now, without
+    /// sending anything.
+    pub fn check(&self, frames: &[Frame]) -> Result<(), SendFailure> {
+        let fail = |error| SendFailure {
+            sent: 0,
+            total: frames.len(),
+            error,
+        };
+        if !self.shared.info.fd && frames.iter().any(|f| f.is_fd()) {
+            return Err(fail(SendError::FdNotSupported(self.name().to_string())));
+        }
+        match self.status().state {
+            crate::state::BusState::BusOff => Err(fail(SendError::BusOff(self.name().to_string()))),
+            crate::state::BusState::Down => Err(fail(SendError::Down(self.name().to_string()))),
+            _ => Ok(()),
+        }
+    }
+
+    /// Sends a batch of frames in order. Checks the whole batch first, so a
+    /// batch that cannot be sent sends nothing; a failure part-way (the
+    /// interface vanished) reports how many frames went out.
+    pub async fn send(&self, frames: Vec<Frame>) -> Result<(), SendFailure> {
+        self.check(&frames)?;
+        let total = frames.len();
+        let (reply, rx) = oneshot::channel();
+        let gone = || SendFailure {
+            sent: 0,
+            total,
+            error: SendError::Down(self.name().to_string()),
+        };
+        self.shared
+            .tx
+            .send(TxRequest { frames, reply })
+            .await
+            .map_err(|_| gone())?;
+        rx.await.map_err(|_| gone())?
+    }
+
+    /// Subscribes to frames passing `selector` and to state changes, with a
+    /// queue of `queue` items.
+    pub fn subscribe(&self, selector: FrameSelector, queue: usize) -> Subscription {
+        let (tx, rx) = mpsc::channel(queue.max(2));
+        let lost_total = Arc::new(AtomicU64::new(0));
+        self.shared
+            .subscribers
+            .lock()
+            .expect("subscriber lock")
+            .push(Subscriber {
+                selector,
+                tx,
+                pending_lost: 0,
+                pending_state: false,
+                lost_total: lost_total.clone(),
+            });
+        Subscription { rx, lost_total }
+    }
+
+    /// Live counters.
+    pub fn stats(&self) -> BusStats {
+        let c = &self.shared.counters;
+        let (status, since) = *self.shared.status.lock().expect("status lock");
+        BusStats {
+            rx_frames: c.rx_frames.load(Ordering::Relaxed),
+            tx_frames: c.tx_frames.load(Ordering::Relaxed),
+            rx_bytes: c.rx_bytes.load(Ordering::Relaxed),
+            tx_bytes: c.tx_bytes.load(Ordering::Relaxed),
+            error_frames: c.error_frames.load(Ordering::Relaxed),
+            tx_failed: c.tx_failed.load(Ordering::Relaxed),
+            rx_overflows: c.rx_overflows.load(Ordering::Relaxed),
+            subscriber_drops: c.subscriber_drops.load(Ordering::Relaxed),
+            load_percent: c.load_millipercent.load(Ordering::Relaxed) as f64 / 1000.0,
+            subscribers: self
+                .shared
+                .subscribers
+                .lock()
+                .expect("subscriber lock")
+                .len(),
+            status,
+            status_since: since,
+        }
+    }
+}
+
+/// A live feed of a bus's frames and state changes. Ends (returns `None`)
+/// when the bus task stops.
+#[derive(Debug)]
+pub struct Subscription {
+    rx: mpsc::Receiver<BusItem>,
+    lost_total: Arc<AtomicU64>,
+}
+
+impl Subscription {
+    /// The next item, or `None` when the bus stopped.
+    pub async fn recv(&mut self) -> Option<BusItem> {
+        self.rx.recv().await
+    }
+
+    /// Up to `limit` items (waits for at least one); 0 when the bus stopped.
+    pub async fn recv_many(&mut self, buf: &mut Vec<BusItem>, limit: usize) -> usize {
+        self.rx.recv_many(buf, limit).await
+    }
+
+    /// An item if one is queued.
+    pub fn try_recv(&mut self) -> Option<BusItem> {
+        self.rx.try_recv().ok()
+    }
+
+    /// All frames this subscription has missed so far.
+    pub fn lost_total(&self) -> u64 {
+        self.lost_total.load(Ordering::Relaxed)
+    }
+}
+
+async fn run_bus(
+    mut backend: Backend,
+    shared: Arc<Shared>,
+    mut requests: mpsc::Receiver<TxRequest>,
+    cancel: CancellationToken,
+) {
+    let name = shared.info.name.clone();
+    let timing = shared.info.bitrate.map(|bitrate| BitTiming {
+        bitrate,
+        data_bitrate: shared.info.data_bitrate.unwrap_or(bitrate),
+        stuffing: Stuffing::Exact,
+    });
+    let mut load = LoadMeter::new(1_000_000_000);
+    let mut events = Vec::with_capacity(256);
+    let mut tick = tokio::time::interval(Duration::from_millis(20));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    tracing::info!(bus = %name, backend = ?shared.info.kind, interface = %shared.info.interface, "bus started");
+    loop {
+        tokio::select! {
+            biased;
+            _ = cancel.cancelled() => break,
+            req = requests.recv() => {
+                let Some(req) = req else { break };
+                let total = req.frames.len();
+                let mut result = Ok(());
+                for (i, frame) in req.frames.iter().enumerate() {
+                    match backend.send(frame).await {
+                        Ok(()) => {
+                            shared.counters.tx_frames.fetch_add(1, Ordering::Relaxed);
+                            shared.counters.tx_bytes.fetch_add(frame.data().len() as u64, Ordering::Relaxed);
+                            if !backend.echoes_own() {
+                                let f = frame.with_timestamp(Timestamp::now());
+                                record_load(&mut load, timing, &f);
+                                fanout(&shared, &f, Direction::Tx);
+                            }
+                        }
+                        Err(error) => {
+                            shared.counters.tx_failed.fetch_add((total - i) as u64, Ordering::Relaxed);
+                            result = Err(SendFailure { sent: i, total, error });
+                            break;
+                        }
+                    }
+                }
+                let _ = req.reply.send(result);
+            }
+            _ = backend.next(&mut events) => {
+                for ev in events.drain(..) {
+                    match ev {
+                        BackendEvent::Frame { frame, own } => {
+                            record_load(&mut load, timing, &frame);
+                            if own {
+                                fanout(&shared, &frame, Direction::Tx);
+                                continue;
+                            }
+                            let c = &shared.counters;
+                            c.rx_frames.fetch_add(1, Ordering::Relaxed);
+                            c.rx_bytes.fetch_add(frame.data().len() as u64, Ordering::Relaxed);
+                            if frame.is_error() {
+                                c.error_frames.fetch_add(1, Ordering::Relaxed);
+                            }
+                            fanout(&shared, &frame, Direction::Rx);
+                        }
+                        BackendEvent::State(status) => {
+                            tracing::info!(bus = %name, state = %status.state, tec = status.tx_errors, rec = status.rx_errors, "bus state changed");
+                            publish_state(&shared, status);
+                        }
+                    }
+                }
+            }
+            _ = tick.tick() => {
+                let status = shared.status.lock().expect("status lock").0;
+                shared.subscribers.lock().expect("subscriber lock").retain_mut(|s| s.flush(status));
+                let pct = load.load_percent(Timestamp::now().as_nanos());
+                shared.counters.load_millipercent.store((pct * 1000.0) as u64, Ordering::Relaxed);
+                shared.counters.rx_overflows.store(backend.overflows(), Ordering::Relaxed);
+            }
+        }
+    }
+    // Dropping the senders ends every subscription's stream.
+    shared.subscribers.lock().expect("subscriber lock").clear();
+    tracing::info!(bus = %name, "bus stopped");
+}
+
+fn record_load(load: &mut LoadMeter, timing: Option<BitTiming>, frame: &Frame) {
+    if let Some(t) = timing {
+        load.record(frame.timestamp().as_nanos(), t.frame_duration_ns(frame));
+    }
+}
+
+fn fanout(shared: &Shared, frame: &Frame, direction: Direction) {
+    let drops = &shared.counters.subscriber_drops;
+    let mut subs = shared.subscribers.lock().expect("subscriber lock");
+    subs.retain_mut(|s| {
+        if direction == Direction::Tx && !s.selector.transmitted {
+            return true;
+        }
+        if !s.selector.matches(frame) {
+            return !s.tx.is_closed();
+        }
+        s.offer(
+            BusItem::Frame {
+                frame: *frame,
+                direction,
+            },
+            drops,
+        )
+    });
+}
+
+fn publish_state(shared: &Shared, status: BusStatus) {
+    {
+        let mut st = shared.status.lock().expect("status lock");
+        if st.0 == status {
+            return;
+        }
+        *st = (status, Timestamp::now());
+    }
+    let mut subs = shared.subscribers.lock().expect("subscriber lock");
+    subs.retain_mut(|s| match s.tx.try_send(BusItem::State(status)) {
+        Ok(()) => true,
+        Err(mpsc::error::TrySendError::Full(_)) => {
+            s.pending_state = true;
+            true
+        }
+        Err(mpsc::error::TrySendError::Closed(_)) => false,
+    });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::filter::Filter;
+    use crate::frame::CanId;
+    use crate::virtual_bus::{VirtualBus, VirtualBusConfig};
+
+    fn start(bus: &VirtualBus) -> (BusHandle, CancellationToken) {
+        let cancel = CancellationToken::new();
+        let info = BusInfo {
+            name: "can0".into(),
+            kind: BackendKind::Virtual,
+            interface: bus.name().into(),
+            fd: true,
+            bitrate: Some(1_000_000),
+            data_bitrate: None,
+            bit_timed: false,
+        };
+        let (h, _) = BusHandle::spawn(info, Backend::Virtual(bus.connect(true)), cancel.clone());
+        (h, cancel)
+    }
+
+    fn frame(id: u32) -> Frame {
+        Frame::new(CanId::standard(id).unwrap(), &[id as u8]).unwrap()
+    }
+
+    #[tokio::test]
+    async fn filtered_subscription_sees_matching_rx_and_tx() {
+        let vbus = VirtualBus::new("v", VirtualBusConfig::default());
+        let (h, _c) = start(&vbus);
+        let mut sub = h.subscribe(
+            FrameSelector {
+                filters: vec![Filter::exact_standard(0x10)],
+                error_frames: false,
+                transmitted: true,
+            },
+            16,
+        );
+        let peer = vbus.connect(false);
+        peer.send(&frame(0x11)).unwrap();
+        peer.send(&frame(0x10)).unwrap();
+        h.send(vec![frame(0x10), frame(0x12)]).await.unwrap();
+        let a = sub.recv().await.unwrap();
+        let b = sub.recv().await.unwrap();
+        assert!(
+            matches!(a, BusItem::Frame { direction: Direction::Rx, frame } if frame.raw_id() == 0x10)
+        );
+        assert!(
+            matches!(b, BusItem::Frame { direction: Direction::Tx, frame } if frame.raw_id() == 0x10)
+        );
+        assert!(sub.try_recv().is_none());
+        let st = h.stats();
+        assert_eq!((st.rx_frames, st.tx_frames), (2, 2));
+    }
+
+    #[tokio::test]
+    async fn slow_subscriber_gets_exact_lost_count_in_place() {
+        let vbus = VirtualBus::new("v", VirtualBusConfig::default());
+        let (h, _c) = start(&vbus);
+        let mut slow = h.subscribe(FrameSelector::default(), 4);
+        let mut fast = h.subscribe(FrameSelector::default(), 10_000);
+        let peer = vbus.connect(false);
+        for i in 0..100 {
+            peer.send(&frame(i)).unwrap();
+        }
+        for _ in 0..100 {
+            assert!(matches!(fast.recv().await, Some(BusItem::Frame { .. })));
+        }
+        // The slow one has the first 4 frames queued, then the notice for
+        // the other 96.
+        for i in 0..4 {
+            assert!(
+                matches!(slow.recv().await, Some(BusItem::Frame { frame, .. }) if frame.raw_id() == i)
+            );
+        }
+        assert_eq!(slow.recv().await, Some(BusItem::Lost(96)));
+        assert_eq!(slow.lost_total(), 96);
+        assert_eq!(h.stats().subscriber_drops, 96);
+        peer.send(&frame(0x7F)).unwrap();
+        assert!(
+            matches!(slow.recv().await, Some(BusItem::Frame { frame, .. }) if frame.raw_id() == 0x7F)
+        );
+    }
+
+    #[tokio::test]
+    async fn bus_off_is_reported_and_refuses_sends() {
+        let vbus = VirtualBus::new("v", VirtualBusConfig::default());
+        let (h, _c) = start(&vbus);
+        let mut sub = h.subscribe(FrameSelector::default(), 16);
+        vbus.force_bus_off();
+        assert!(
+            matches!(sub.recv().await, Some(BusItem::State(s)) if s.state == crate::state::BusState::BusOff)
+        );
+        let err = h.send(vec![frame(1)]).await.unwrap_err();
+        assert_eq!(err.sent, 0);
+        assert!(matches!(err.error, SendError::BusOff(_)));
+    }
+
+    #[tokio::test]
+    async fn cancel_ends_subscriptions() {
+        let vbus = VirtualBus::new("v", VirtualBusConfig::default());
+        let (h, c) = start(&vbus);
+        let mut sub = h.subscribe(FrameSelector::default(), 16);
+        c.cancel();
+        assert_eq!(sub.recv().await, None);
+    }
+}

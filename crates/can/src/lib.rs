@@ -1,0 +1,28 @@
+//! CAN frame model and bus backends.
+//!
+//! - [`frame`]: classic and FD frames, identifiers, `cansend` text syntax.
+//! - [`filter`]: id/mask receive filters (`candump` syntax).
+//! - [`timing`]: bit-exact frame durations, arbitration, bus load (pure).
+//! - [`virtual_bus`]: the in-process bus with bit timing and fault injection.
+//! - [`socketcan_bus`]: Linux SocketCAN with reconnection.
+//! - [`bus`]: one owner task per bus and the handle everyone else uses.
+
+pub mod bus;
+pub mod filter;
+pub mod frame;
+pub mod socketcan_bus;
+pub mod state;
+pub mod timing;
+pub mod virtual_bus;
+
+pub use bus::{
+    Backend, BackendKind, BusHandle, BusInfo, BusItem, BusStats, Direction, SendFailure,
+    Subscription,
+};
+pub use filter::{Filter, FrameSelector};
+pub use frame::{CanId, Frame, FrameError, FrameKind, ParseFrameError, Timestamp};
+pub use state::{BusState, BusStatus};
+pub use timing::{BitTiming, Stuffing};
+pub use virtual_bus::{
+    PortEvent, SendError, VirtualBus, VirtualBusConfig, VirtualNetwork, VirtualPort,
+};

@@ -1,0 +1,528 @@
+//! The bus-time model: how long a frame occupies the wire at a given
+//! bitrate, which queued frame wins arbitration, and how busy the bus is.
+//!
+//! Everything here is pure (no clocks, no threads): times are nanoseconds of
+//! a model clock supplied by the caller, so the virtual bus's timing and the
+//! load figures are tested with exact numbers.
+//!
+//! ## Bit counting
+//!
+//! Classic CAN frames are counted **exactly** by default: the frame is laid
+//! out bit by bit (SOF, identifier, control, data, CRC-15 computed over the
+//! real content), stuff bits are inserted where the real controller would
+//! insert them (after five equal bits, the stuff bit itself counting towards
+//! the next run), and the fixed tail (CRC delimiter, ACK slot and delimiter,
+//! 7 EOF bits and the 3-bit intermission) is added. [`Stuffing::WorstCase`]
+//! instead uses the classic worst-case bound `floor((g - 1) / 4)` stuff bits
+//! over the `g` stuffable bits (34 + 8n standard, 54 + 8n extended), which is
+//! what schedulability analysis uses: a standard 8-byte frame is then 135
+//! bits.
+//!
+//! CAN FD frames always use a worst-case estimate: the arbitration phase
+//! (and the tail) at the nominal bitrate, the data phase (ESI, DLC, data,
+//! stuff count, CRC-17/21 with its fixed stuff bits) at the data bitrate when
+//! BRS is set, with worst-case dynamic stuffing.
+
+use crate::frame::{Frame, FrameKind};
+use std::collections::VecDeque;
+
+/// How stuff bits of classic frames are counted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Stuffing {
+    /// Count the stuff bits this frame's actual bit pattern needs.
+    #[default]
+    Exact,
+    /// Assume the worst case for the frame's length.
+    WorstCase,
+}
+
+/// Bitrates of a bus.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BitTiming {
+    /// Nominal (arbitration) bitrate in bit/s.
+    pub bitrate: u32,
+    /// CAN FD data-phase bitrate in bit/s (used for frames with BRS).
+    pub data_bitrate: u32,
+    /// Stuff bit counting for classic frames.
+    pub stuffing: Stuffing,
+}
+
+impl BitTiming {
+    /// Classic bus at `bitrate`, exact stuffing; the FD data rate defaults to
+    /// the nominal rate.
+    pub fn new(bitrate: u32) -> Self {
+        BitTiming {
+            bitrate,
+            data_bitrate: bitrate,
+            stuffing: Stuffing::Exact,
+        }
+    }
+
+    /// The time the frame occupies the bus, in nanoseconds, including the
+    /// 3-bit intermission that follows it.
+    pub fn frame_duration_ns(&self, frame: &Frame) -> u64 {
+        let (nominal_bits, data_bits) = frame_bits(frame, self.stuffing);
+        let nominal = nominal_bits as u64 * 1_000_000_000 / self.bitrate.max(1) as u64;
+        let data_rate = if frame.brs() {
+            self.data_bitrate
+        } else {
+            self.bitrate
+        };
+        let data = data_bits as u64 * 1_000_000_000 / data_rate.max(1) as u64;
+        nominal + data
+    }
+}
+
+/// Number of bits a frame occupies on the wire, as
+/// `(bits at the nominal rate, bits at the data rate)`. For classic frames
+/// the second number is 0.
+pub fn frame_bits(frame: &Frame, stuffing: Stuffing) -> (u32, u32) {
+    if frame.is_fd() {
+        return fd_frame_bits(frame);
+    }
+    let n = if frame.kind() == FrameKind::Remote {
+        0
+    } else {
+        frame.data().len().min(8) as u32
+    };
+    // Fixed tail after the CRC: CRC delimiter, ACK slot, ACK delimiter,
+    // 7 EOF bits, 3 intermission bits.
+    const TAIL: u32 = 1 + 1 + 1 + 7 + 3;
+    match stuffing {
+        Stuffing::WorstCase => {
+            let g = if frame.is_extended() { 54 } else { 34 } + 8 * n;
+            (g + (g - 1) / 4 + TAIL, 0)
+        }
+        Stuffing::Exact => {
+            let bits = classic_stuffable_bits(frame);
+            (bits.len() as u32 + count_stuff_bits(&bits) + TAIL, 0)
+        }
+    }
+}
+
+/// The bits from SOF through the CRC of a classic frame (0 = dominant).
+fn classic_stuffable_bits(frame: &Frame) -> Vec<bool> {
+    let mut bits = Vec::with_capacity(160);
+    let push = |bits: &mut Vec<bool>, value: u32, width: u32| {
+        for i in (0..width).rev() {
+            bits.push((value >> i) & 1 == 1);
+        }
+    };
+    let remote = frame.kind() == FrameKind::Remote;
+    bits.push(false); // SOF
+    let id = frame.raw_id();
+    if frame.is_extended() {
+        push(&mut bits, id >> 18, 11);
+        bits.push(true); // SRR
+        bits.push(true); // IDE
+        push(&mut bits, id & 0x3FFFF, 18);
+        bits.push(remote); // RTR
+        bits.push(false); // r1
+        bits.push(false); // r0
+    } else {
+        push(&mut bits, id, 11);
+        bits.push(remote); // RTR
+        bits.push(false); // IDE
+        bits.push(false); // r0
+    }
+    push(&mut bits, frame.dlc() as u32 & 0xF, 4);
+    if !remote {
+        for &b in frame.data().iter().take(8) {
+            push(&mut bits, b as u32, 8);
+        }
+    }
+    let crc = crc15(&bits);
+    push(&mut bits, crc as u32, 15);
+    bits
+}
+
+/// CAN CRC-15 (polynomial 0x4599) over a bit sequence.
+fn crc15(bits: &[bool]) -> u16 {
+    let mut crc: u16 = 0;
+    for &bit in bits {
+        let crc_nxt = bit ^ ((crc >> 14) & 1 == 1);
+        crc = (crc << 1) & 0x7FFF;
+        if crc_nxt {
+            crc ^= 0x4599;
+        }
+    }
+    crc
+}
+
+/// Stuff bits a controller inserts into `bits`: one after every run of five
+/// equal bits, the stuff bit starting the next run.
+fn count_stuff_bits(bits: &[bool]) -> u32 {
+    let mut stuffed = 0;
+    let mut run = 0;
+    let mut last: Option<bool> = None;
+    for &b in bits {
+        if Some(b) == last {
+            run += 1;
+        } else {
+            run = 1;
+            last = Some(b);
+        }
+        if run == 5 {
+            stuffed += 1;
+            // The stuff bit has the opposite level and starts a new run.
+            last = Some(!b);
+            run = 1;
+        }
+    }
+    stuffed
+}
+
+fn fd_frame_bits(frame: &Frame) -> (u32, u32) {
+    let n = frame.data().len() as u32;
+    // Arbitration phase up to and including BRS.
+    let arbitration = if frame.is_extended() { 36 } else { 17 };
+    // ESI, DLC and data are stuffed dynamically (worst case one in four,
+    // counted over the whole dynamically stuffed region).
+    let dynamic = arbitration + 1 + 4 + 8 * n;
+    let dynamic_stuff = (dynamic - 1) / 4;
+    // Stuff count (3 bits + parity) and CRC with their fixed stuff bits
+    // (one before the stuff count, then one every 4 bits).
+    let crc_len: u32 = if n > 16 { 21 } else { 17 };
+    let fixed_field = 4 + crc_len;
+    let fixed_stuff = fixed_field.div_ceil(4) + 1;
+    let data_phase = 1 + 4 + 8 * n + dynamic_stuff + fixed_field + fixed_stuff;
+    // CRC delimiter, ACK slot and delimiter, EOF and intermission at the
+    // nominal rate.
+    let tail = 1 + 1 + 1 + 7 + 3;
+    if frame.brs() {
+        (arbitration + tail, data_phase)
+    } else {
+        (arbitration + tail + data_phase, 0)
+    }
+}
+
+/// Bus load over a sliding window, from the bus time each frame occupied.
+///
+/// Time is split into ten buckets per window so that adding a frame is O(1)
+/// at any frame rate.
+#[derive(Debug, Clone)]
+pub struct LoadMeter {
+    bucket_ns: u64,
+    buckets: VecDeque<(u64, u64)>, // (bucket index, busy ns)
+}
+
+impl LoadMeter {
+    /// Buckets of `window_ns / 10`.
+    pub fn new(window_ns: u64) -> Self {
+        LoadMeter {
+            bucket_ns: (window_ns / 10).max(1),
+            buckets: VecDeque::with_capacity(11),
+        }
+    }
+
+    /// Records that the bus was busy for `busy_ns` around time `at_ns`.
+    pub fn record(&mut self, at_ns: u64, busy_ns: u64) {
+        let idx = at_ns / self.bucket_ns;
+        match self.buckets.back_mut() {
+            Some((i, busy)) if *i == idx => *busy += busy_ns,
+            _ => self.buckets.push_back((idx, busy_ns)),
+        }
+        self.expire(idx);
+    }
+
+    fn expire(&mut self, now_idx: u64) {
+        while let Some(&(i, _)) = self.buckets.front() {
+            if i + 10 < now_idx {
+                self.buckets.pop_front();
+            } else {
+                break;
+            }
+        }
+    }
+
+    /// Load in percent over the window ending at `now_ns` (nine complete
+    /// buckets plus the current partial one; shorter at the very start).
+    pub fn load_percent(&mut self, now_ns: u64) -> f64 {
+        let now_idx = now_ns / self.bucket_ns;
+        self.expire(now_idx);
+        let busy: u64 = self
+            .buckets
+            .iter()
+            .filter(|(i, _)| *i + 9 >= now_idx && *i <= now_idx)
+            .map(|(_, b)| *b)
+            .sum();
+        let span = (9 * self.bucket_ns + now_ns % self.bucket_ns).min(now_ns);
+        if span == 0 {
+            return 0.0;
+        }
+        (busy as f64 * 100.0 / span as f64).min(100.0)
+    }
+}
+
+/// A frame that finished transmission on the modelled bus.
+#[derive(Debug, Clone, Copy)]
+pub struct Transmitted<T> {
+    /// The frame.
+    pub frame: Frame,
+    /// Who sent it (opaque to the arbiter).
+    pub sender: T,
+    /// Model time at which the frame won arbitration and started (ns).
+    pub start_ns: u64,
+    /// Model time at which its last bit (incl. intermission) left the bus (ns).
+    pub end_ns: u64,
+}
+
+#[derive(Debug, Clone)]
+struct Pending<T> {
+    key: u64,
+    seq: u64,
+    enqueued_ns: u64,
+    frame: Frame,
+    sender: T,
+}
+
+/// Transmission scheduler of a shared bus: frames queued by any number of
+/// senders go out one at a time, the lowest identifier first among those
+/// waiting when the bus becomes free, each occupying the bus for its modelled
+/// duration.
+///
+/// Decisions depend only on the enqueue times and the model, never on when
+/// [`Arbiter::advance`] happens to be called, so a late runner still yields
+/// exact timestamps.
+#[derive(Debug)]
+pub struct Arbiter<T> {
+    timing: Option<BitTiming>,
+    pending: Vec<Pending<T>>,
+    current: Option<Transmitted<T>>,
+    free_at_ns: u64,
+    seq: u64,
+}
+
+impl<T: Copy> Arbiter<T> {
+    /// An arbiter; `None` timing makes every frame take zero time (an
+    /// ordering-only bus).
+    pub fn new(timing: Option<BitTiming>) -> Self {
+        Arbiter {
+            timing,
+            pending: Vec::new(),
+            current: None,
+            free_at_ns: 0,
+            seq: 0,
+        }
+    }
+
+    /// The bit timing in force.
+    pub fn timing(&self) -> Option<BitTiming> {
+        self.timing
+    }
+
+    /// Queues a frame at model time `now_ns`.
+    pub fn enqueue(&mut self, frame: Frame, sender: T, now_ns: u64) {
+        self.seq += 1;
+        self.pending.push(Pending {
+            key: frame.id().arbitration_key(),
+            seq: self.seq,
+            enqueued_ns: now_ns,
+            frame,
+            sender,
+        });
+    }
+
+    /// Frames waiting for the bus (not counting the one on the wire).
+    pub fn queued(&self) -> usize {
+        self.pending.len()
+    }
+
+    /// Runs the model up to `now_ns` and returns the frames whose
+    /// transmission completed by then, in bus order.
+    pub fn advance(&mut self, now_ns: u64) -> Vec<Transmitted<T>> {
+        let mut done = Vec::new();
+        loop {
+            if let Some(cur) = self.current {
+                if cur.end_ns > now_ns {
+                    break;
+                }
+                done.push(cur);
+                self.free_at_ns = cur.end_ns;
+                self.current = None;
+            }
+            // Arbitration happens when the bus is free and something waits.
+            let Some(earliest) = self.pending.iter().map(|p| p.enqueued_ns).min() else {
+                break;
+            };
+            let start = self.free_at_ns.max(earliest);
+            if start > now_ns {
+                break;
+            }
+            let winner = self
+                .pending
+                .iter()
+                .enumerate()
+                .filter(|(_, p)| p.enqueued_ns <= start)
+                .min_by_key(|(_, p)| (p.key, p.seq))
+                .map(|(i, _)| i)
+                .expect("at least the earliest frame is eligible");
+            let p = self.pending.swap_remove(winner);
+            let duration = self
+                .timing
+                .map(|t| t.frame_duration_ns(&p.frame))
+                .unwrap_or(0);
+            self.current = Some(Transmitted {
+                frame: p.frame,
+                sender: p.sender,
+                start_ns: start,
+                end_ns: start + duration,
+            });
+        }
+        done
+    }
+
+    /// The next model time at which [`Arbiter::advance`] has something to do.
+    pub fn next_deadline(&self) -> Option<u64> {
+        if let Some(cur) = self.current {
+            return Some(cur.end_ns);
+        }
+        self.pending
+            .iter()
+            .map(|p| p.enqueued_ns)
+            .min()
+            .map(|e| e.max(self.free_at_ns))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::CanId;
+
+    fn std_frame(id: u32, data: &[u8]) -> Frame {
+        Frame::new(CanId::standard(id).unwrap(), data).unwrap()
+    }
+
+    #[test]
+    fn worst_case_bits_match_the_textbook_formula() {
+        let f = std_frame(0x123, &[0; 8]);
+        assert_eq!(frame_bits(&f, Stuffing::WorstCase), (135, 0));
+        let f = std_frame(0x123, &[]);
+        assert_eq!(frame_bits(&f, Stuffing::WorstCase), (47 + 8, 0));
+        let f = Frame::new(CanId::extended(0x1234567).unwrap(), &[0; 8]).unwrap();
+        assert_eq!(frame_bits(&f, Stuffing::WorstCase), (67 + 64 + 29, 0));
+    }
+
+    #[test]
+    fn exact_stuffing_counts_real_bit_runs() {
+        // Unstuffed lengths: 47 + 8n (standard), 67 + 8n (extended).
+        let f = std_frame(0x555, &[0x55; 8]); // alternating bits: almost no stuffing
+        let (bits, _) = frame_bits(&f, Stuffing::Exact);
+        assert!((111..=115).contains(&bits), "{bits}");
+        // All-zero payload after id 0: long dominant runs, heavy stuffing.
+        let f = std_frame(0x000, &[0; 8]);
+        let (bits, _) = frame_bits(&f, Stuffing::Exact);
+        assert!(bits > 111 + 15 && bits <= 135, "{bits}");
+    }
+
+    #[test]
+    fn stuff_bit_starts_a_new_run() {
+        // 5 zeros -> stuff (1); then 4 more zeros: the stuff bit broke the run.
+        let bits = [false; 9];
+        assert_eq!(count_stuff_bits(&bits), 1);
+        // 10 zeros: stuff after 5, then after 5 more -> 2.
+        assert_eq!(count_stuff_bits(&[false; 10]), 2);
+        // 1 then 4 zeros then stuff-free: zeros 00001 pattern.
+        assert_eq!(count_stuff_bits(&[true, false, false, false, false]), 0);
+    }
+
+    #[test]
+    fn crc15_of_known_frame() {
+        // Classic example: std id 0x000, DLC 0 frame; the CRC register over
+        // 19 dominant bits stays 0.
+        let f = std_frame(0x000, &[]);
+        let bits = classic_stuffable_bits(&f);
+        assert_eq!(bits.len(), 19 + 15);
+        assert!(bits[19..].iter().all(|b| !b));
+    }
+
+    #[test]
+    fn thousand_frames_take_the_modelled_time() {
+        let timing = BitTiming {
+            bitrate: 1_000_000,
+            data_bitrate: 1_000_000,
+            stuffing: Stuffing::WorstCase,
+        };
+        let mut arb = Arbiter::new(Some(timing));
+        for i in 0..1000u32 {
+            arb.enqueue(std_frame(0x100, &i.to_le_bytes().repeat(2)), (), 0);
+        }
+        // Nothing completes before the first frame's 135 µs.
+        assert!(arb.advance(134_999).is_empty());
+        let done = arb.advance(u64::MAX / 2);
+        assert_eq!(done.len(), 1000);
+        assert_eq!(done.last().unwrap().end_ns, 1000 * 135_000);
+        // Back to back, FIFO among equal ids.
+        for (i, t) in done.iter().enumerate() {
+            assert_eq!(t.start_ns, i as u64 * 135_000);
+            assert_eq!(t.frame.data()[..4], (i as u32).to_le_bytes());
+        }
+    }
+
+    #[test]
+    fn arbitration_picks_lowest_id_among_waiting() {
+        let mut arb = Arbiter::new(Some(BitTiming {
+            stuffing: Stuffing::WorstCase,
+            ..BitTiming::new(1_000_000)
+        }));
+        arb.enqueue(std_frame(0x300, &[0; 8]), 'a', 0);
+        // While 0x300 is on the wire, three more queue up.
+        arb.enqueue(std_frame(0x200, &[0; 8]), 'b', 10_000);
+        arb.enqueue(std_frame(0x100, &[0; 8]), 'c', 20_000);
+        arb.enqueue(std_frame(0x050, &[0; 8]), 'd', 140_000); // after 0x300 ended
+        let done = arb.advance(10_000_000);
+        let order: Vec<char> = done.iter().map(|t| t.sender).collect();
+        // 'd' arrives after the first arbitration (at 135 µs), so 0x100 wins
+        // there; at 270 µs 'd' (0x050) beats 'b' (0x200).
+        assert_eq!(order, vec!['a', 'c', 'd', 'b']);
+        assert_eq!(done[1].start_ns, 135_000);
+    }
+
+    #[test]
+    fn late_advance_gives_same_schedule() {
+        let t = Some(BitTiming::new(500_000));
+        let mut a = Arbiter::new(t);
+        let mut b = Arbiter::new(t);
+        for (i, at) in [0u64, 50_000, 60_000, 400_000].iter().enumerate() {
+            a.enqueue(std_frame(0x700 - i as u32, &[i as u8]), i, *at);
+            b.enqueue(std_frame(0x700 - i as u32, &[i as u8]), i, *at);
+        }
+        let all_at_once: Vec<_> = a
+            .advance(10_000_000)
+            .iter()
+            .map(|t| (t.sender, t.end_ns))
+            .collect();
+        let mut stepwise = Vec::new();
+        for now in (0..10_000_000).step_by(37_000) {
+            stepwise.extend(b.advance(now).iter().map(|t| (t.sender, t.end_ns)));
+        }
+        assert_eq!(all_at_once, stepwise);
+    }
+
+    #[test]
+    fn load_meter_reports_busy_fraction() {
+        let mut m = LoadMeter::new(1_000_000_000);
+        // 500 ms busy spread over the first second.
+        for i in 0..1000u64 {
+            m.record(i * 1_000_000, 500_000);
+        }
+        let load = m.load_percent(1_000_000_000);
+        assert!((load - 50.0).abs() < 0.01, "{load}");
+        // Two seconds later everything has expired.
+        assert_eq!(m.load_percent(3_100_000_000), 0.0);
+    }
+
+    #[test]
+    fn fd_brs_is_faster_than_nominal() {
+        let id = CanId::Standard(0x10);
+        let slow = Frame::new_fd(id, &[0; 64], false, false).unwrap();
+        let fast = Frame::new_fd(id, &[0; 64], true, false).unwrap();
+        let t = BitTiming {
+            bitrate: 1_000_000,
+            data_bitrate: 5_000_000,
+            stuffing: Stuffing::Exact,
+        };
+        assert!(t.frame_duration_ns(&fast) * 3 < t.frame_duration_ns(&slow));
+    }
+}

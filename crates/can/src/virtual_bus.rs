@@ -1,0 +1,765 @@
+//! The in-process virtual CAN bus: any number of named buses, each with any
+//! number of participants ([`VirtualPort`]s). It is the demo's bus and the
+//! test and benchmark bed.
+//!
+//! Without bit timing a frame is delivered to every other port immediately,
+//! in the sender's context, which makes the bus fast (millions of frames/s).
+//! With a [`BitTiming`] each frame occupies the bus for its modelled duration
+//! (see [`crate::timing`]): frames queued by several senders go out one at a
+//! time in arbitration order, delivered by a scheduler thread at their
+//! modelled completion time and stamped with it. Fault injection can drop
+//! frames (by probability or identifier), delay them, and force the bus off.
+
+use crate::frame::{Frame, Timestamp};
+use crate::state::{BusState, BusStatus};
+use crate::timing::{Arbiter, BitTiming, LoadMeter};
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Condvar, Mutex, RwLock, Weak};
+use std::time::{Duration, Instant};
+use tokio::sync::{Notify, mpsc};
+
+/// Configuration of one virtual bus.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VirtualBusConfig {
+    /// Model each frame's duration on the wire; `None` delivers instantly.
+    pub bit_timing: Option<BitTiming>,
+    /// Whether CAN FD frames are allowed.
+    pub fd: bool,
+    /// Receive queue length of each port; frames beyond it are counted as
+    /// that port's overflows (like a socket's receive buffer).
+    pub port_queue: usize,
+    /// Seed of the fault-injection random generator (for reproducible runs).
+    pub seed: u64,
+}
+
+impl Default for VirtualBusConfig {
+    fn default() -> Self {
+        VirtualBusConfig {
+            bit_timing: None,
+            fd: true,
+            port_queue: 16_384,
+            seed: 0x5EED,
+        }
+    }
+}
+
+/// Why a frame was not accepted for transmission.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SendError {
+    /// The controller is bus-off.
+    #[error("bus {0} is bus-off")]
+    BusOff(String),
+    /// The interface is down.
+    #[error("bus {0} is down")]
+    Down(String),
+    /// A CAN FD frame on a bus that is not configured for CAN FD.
+    #[error("bus {0} is not configured for CAN FD")]
+    FdNotSupported(String),
+    /// The operating system refused the frame.
+    #[error("bus {bus}: {message}")]
+    Io {
+        /// Bus name.
+        bus: String,
+        /// What went wrong.
+        message: String,
+    },
+}
+
+/// Something a port receives.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum PortEvent {
+    /// A frame seen on the bus. `own` is true for this port's own frames
+    /// echoed back after transmission (only for ports that asked for it).
+    Frame {
+        /// The frame, timestamped.
+        frame: Frame,
+        /// Sent by this port.
+        own: bool,
+    },
+    /// The bus state changed.
+    State(BusStatus),
+}
+
+/// Counters of a virtual bus.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct VirtualBusStats {
+    /// Frames that completed transmission.
+    pub transmitted: u64,
+    /// Frames dropped by fault injection.
+    pub dropped_by_fault: u64,
+    /// Deliveries lost because a port's receive queue was full.
+    pub port_overflows: u64,
+}
+
+struct FaultState {
+    drop_probability: f64,
+    drop_ids: HashSet<u32>,
+    rng: fastrand::Rng,
+}
+
+struct PortShared {
+    id: u64,
+    tx: mpsc::Sender<PortEvent>,
+    echo_own: bool,
+    overflows: AtomicU64,
+}
+
+struct Inner {
+    name: String,
+    config: VirtualBusConfig,
+    ports: RwLock<Vec<Arc<PortShared>>>,
+    next_port: AtomicU64,
+    faults_active: AtomicBool,
+    faults: Mutex<FaultState>,
+    delay_ns: AtomicU64,
+    status: Mutex<BusStatus>,
+    status_version: AtomicU64,
+    status_notify: Notify,
+    origin: Instant,
+    origin_wall: u64,
+    timed: Mutex<Option<Arc<Timed>>>,
+    transmitted: AtomicU64,
+    dropped: AtomicU64,
+    overflows: AtomicU64,
+}
+
+struct TimedState {
+    arbiter: Arbiter<u64>,
+    delayed: VecDeque<(u64, Frame, u64)>,
+    load: LoadMeter,
+    shutdown: bool,
+}
+
+struct Timed {
+    state: Mutex<TimedState>,
+    wake: Condvar,
+}
+
+/// A named virtual bus. Cheap to clone; all clones are the same bus.
+#[derive(Clone)]
+pub struct VirtualBus {
+    inner: Arc<Inner>,
+}
+
+impl std::fmt::Debug for VirtualBus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("VirtualBus")
+            .field("name", &self.inner.name)
+            .finish()
+    }
+}
+
+impl VirtualBus {
+    /// Creates a bus. Prefer [`VirtualNetwork::bus`] to share buses by name.
+    pub fn new(name: &str, config: VirtualBusConfig) -> Self {
+        let origin_wall = Timestamp::now().as_nanos();
+        let seed = config.seed;
+        let bus = VirtualBus {
+            inner: Arc::new(Inner {
+                name: name.to_string(),
+                config,
+                ports: RwLock::new(Vec::new()),
+                next_port: AtomicU64::new(1),
+                faults_active: AtomicBool::new(false),
+                faults: Mutex::new(FaultState {
+                    drop_probability: 0.0,
+                    drop_ids: HashSet::new(),
+                    rng: fastrand::Rng::with_seed(seed),
+                }),
+                delay_ns: AtomicU64::new(0),
+                status: Mutex::new(BusStatus::UP),
+                status_version: AtomicU64::new(0),
+                status_notify: Notify::new(),
+                origin: Instant::now(),
+                origin_wall,
+                timed: Mutex::new(None),
+                transmitted: AtomicU64::new(0),
+                dropped: AtomicU64::new(0),
+                overflows: AtomicU64::new(0),
+            }),
+        };
+        if bus.inner.config.bit_timing.is_some() {
+            bus.timed();
+        }
+        bus
+    }
+
+    /// The bus name.
+    pub fn name(&self) -> &str {
+        &self.inner.name
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &VirtualBusConfig {
+        &self.inner.config
+    }
+
+    /// Attaches a participant. `echo_own` makes the port receive its own
+    /// frames back once they completed transmission (with the bus timestamp),
+    /// as SocketCAN's `CAN_RAW_RECV_OWN_MSGS` does.
+    pub fn connect(&self, echo_own: bool) -> VirtualPort {
+        let (tx, rx) = mpsc::channel(self.inner.config.port_queue.max(1));
+        let shared = Arc::new(PortShared {
+            id: self.inner.next_port.fetch_add(1, Ordering::Relaxed),
+            tx,
+            echo_own,
+            overflows: AtomicU64::new(0),
+        });
+        self.inner
+            .ports
+            .write()
+            .expect("port list lock")
+            .push(shared.clone());
+        VirtualPort {
+            bus: self.clone(),
+            seen_status: self.inner.status_version.load(Ordering::Acquire),
+            shared,
+            rx,
+        }
+    }
+
+    /// Current state.
+    pub fn status(&self) -> BusStatus {
+        *self.inner.status.lock().expect("status lock")
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> VirtualBusStats {
+        VirtualBusStats {
+            transmitted: self.inner.transmitted.load(Ordering::Relaxed),
+            dropped_by_fault: self.inner.dropped.load(Ordering::Relaxed),
+            port_overflows: self.inner.overflows.load(Ordering::Relaxed),
+        }
+    }
+
+    /// Bus load in percent over the last second (bit-timed buses only).
+    pub fn load_percent(&self) -> Option<f64> {
+        let timed = self.inner.timed.lock().expect("timed lock").clone()?;
+        self.inner.config.bit_timing?;
+        let now = self.model_now();
+        Some(
+            timed
+                .state
+                .lock()
+                .expect("timed state")
+                .load
+                .load_percent(now),
+        )
+    }
+
+    /// Model time: nanoseconds since the bus was created.
+    pub fn model_now(&self) -> u64 {
+        self.inner.origin.elapsed().as_nanos() as u64
+    }
+
+    /// Converts model time to a wall-clock timestamp.
+    pub fn timestamp_of(&self, model_ns: u64) -> Timestamp {
+        Timestamp(self.inner.origin_wall + model_ns)
+    }
+
+    // ---- fault injection ----
+
+    /// Drops each frame with probability `p` (0.0..=1.0).
+    pub fn set_drop_probability(&self, p: f64) {
+        let mut f = self.inner.faults.lock().expect("faults lock");
+        f.drop_probability = p.clamp(0.0, 1.0);
+        self.update_faults_active(&f);
+    }
+
+    /// Drops every frame with one of these identifiers.
+    pub fn set_drop_ids(&self, ids: impl IntoIterator<Item = u32>) {
+        let mut f = self.inner.faults.lock().expect("faults lock");
+        f.drop_ids = ids.into_iter().collect();
+        self.update_faults_active(&f);
+    }
+
+    /// Delays every delivery by `delay` (after its bus time, if any).
+    pub fn set_delay(&self, delay: Duration) {
+        self.inner
+            .delay_ns
+            .store(delay.as_nanos() as u64, Ordering::Release);
+        if !delay.is_zero() {
+            self.timed();
+        }
+        let f = self.inner.faults.lock().expect("faults lock");
+        self.update_faults_active(&f);
+    }
+
+    /// Clears all drop and delay faults.
+    pub fn clear_faults(&self) {
+        self.set_drop_probability(0.0);
+        self.set_drop_ids([]);
+        self.set_delay(Duration::ZERO);
+    }
+
+    /// Forces the bus into bus-off: sends fail until [`VirtualBus::recover`].
+    pub fn force_bus_off(&self) {
+        self.set_status(BusStatus {
+            state: BusState::BusOff,
+            tx_errors: 256,
+            rx_errors: 0,
+        });
+    }
+
+    /// Ends a forced bus-off (or any injected state): the bus is up again.
+    pub fn recover(&self) {
+        self.set_status(BusStatus::UP);
+    }
+
+    /// Injects any state (e.g. error-passive with counters).
+    pub fn set_status(&self, status: BusStatus) {
+        *self.inner.status.lock().expect("status lock") = status;
+        self.inner.status_version.fetch_add(1, Ordering::AcqRel);
+        self.inner.status_notify.notify_waiters();
+    }
+
+    fn update_faults_active(&self, f: &FaultState) {
+        let active = f.drop_probability > 0.0
+            || !f.drop_ids.is_empty()
+            || self.inner.delay_ns.load(Ordering::Acquire) > 0;
+        self.inner.faults_active.store(active, Ordering::Release);
+    }
+
+    fn timed(&self) -> Arc<Timed> {
+        let mut slot = self.inner.timed.lock().expect("timed lock");
+        if let Some(t) = slot.as_ref() {
+            return t.clone();
+        }
+        let timed = Arc::new(Timed {
+            state: Mutex::new(TimedState {
+                arbiter: Arbiter::new(self.inner.config.bit_timing),
+                delayed: VecDeque::new(),
+                load: LoadMeter::new(1_000_000_000),
+                shutdown: false,
+            }),
+            wake: Condvar::new(),
+        });
+        let weak = Arc::downgrade(&self.inner);
+        let t2 = timed.clone();
+        std::thread::Builder::new()
+            .name(format!("vbus-{}", self.inner.name))
+            .spawn(move || scheduler_thread(weak, t2))
+            .expect("spawn virtual bus scheduler thread");
+        *slot = Some(timed.clone());
+        timed
+    }
+
+    fn send_from(&self, port: u64, frame: &Frame) -> Result<(), SendError> {
+        let inner = &self.inner;
+        let state = inner.status.lock().expect("status lock").state;
+        match state {
+            BusState::BusOff => return Err(SendError::BusOff(inner.name.clone())),
+            BusState::Down => return Err(SendError::Down(inner.name.clone())),
+            _ => {}
+        }
+        if frame.is_fd() && !inner.config.fd {
+            return Err(SendError::FdNotSupported(inner.name.clone()));
+        }
+        if inner.faults_active.load(Ordering::Acquire) {
+            let mut f = inner.faults.lock().expect("faults lock");
+            let drop = f.drop_ids.contains(&frame.raw_id())
+                || (f.drop_probability > 0.0 && f.rng.f64() < f.drop_probability);
+            if drop {
+                inner.dropped.fetch_add(1, Ordering::Relaxed);
+                return Ok(());
+            }
+        }
+        let timed = inner.timed.lock().expect("timed lock").clone();
+        match timed {
+            Some(t) => {
+                let now = self.model_now();
+                t.state
+                    .lock()
+                    .expect("timed state")
+                    .arbiter
+                    .enqueue(*frame, port, now);
+                t.wake.notify_one();
+            }
+            None => {
+                let f = frame.with_timestamp(Timestamp::now());
+                inner.transmitted.fetch_add(1, Ordering::Relaxed);
+                deliver(inner, port, &f);
+            }
+        }
+        Ok(())
+    }
+}
+
+fn deliver(inner: &Inner, from: u64, frame: &Frame) {
+    let ports = inner.ports.read().expect("port list lock");
+    for p in ports.iter() {
+        let own = p.id == from;
+        if own && !p.echo_own {
+            continue;
+        }
+        match p.tx.try_send(PortEvent::Frame { frame: *frame, own }) {
+            Ok(()) => {}
+            Err(mpsc::error::TrySendError::Full(_)) => {
+                p.overflows.fetch_add(1, Ordering::Relaxed);
+                inner.overflows.fetch_add(1, Ordering::Relaxed);
+            }
+            Err(mpsc::error::TrySendError::Closed(_)) => {}
+        }
+    }
+}
+
+/// Delivers frames of a timed bus at their modelled completion time.
+fn scheduler_thread(bus: Weak<Inner>, timed: Arc<Timed>) {
+    let mut st = timed.state.lock().expect("timed state");
+    loop {
+        if st.shutdown {
+            return;
+        }
+        let Some(inner) = bus.upgrade() else { return };
+        let now = inner.origin.elapsed().as_nanos() as u64;
+        let delay = inner.delay_ns.load(Ordering::Acquire);
+        let done = st.arbiter.advance(now);
+        if let Some(timing) = st.arbiter.timing() {
+            for t in &done {
+                let busy = timing.frame_duration_ns(&t.frame);
+                st.load.record(t.end_ns, busy);
+            }
+        }
+        for t in done {
+            st.delayed.push_back((t.end_ns + delay, t.frame, t.sender));
+        }
+        let mut due = Vec::new();
+        while let Some(&(at, _, _)) = st.delayed.front() {
+            if at > now {
+                break;
+            }
+            let (at, frame, from) = st.delayed.pop_front().expect("front exists");
+            due.push((
+                frame.with_timestamp(Timestamp(inner.origin_wall + at)),
+                from,
+            ));
+        }
+        let next = [st.arbiter.next_deadline(), st.delayed.front().map(|d| d.0)]
+            .into_iter()
+            .flatten()
+            .min();
+        if !due.is_empty() {
+            drop(st);
+            inner
+                .transmitted
+                .fetch_add(due.len() as u64, Ordering::Relaxed);
+            for (frame, from) in &due {
+                deliver(&inner, *from, frame);
+            }
+            st = timed.state.lock().expect("timed state");
+            continue;
+        }
+        drop(inner);
+        st = match next {
+            Some(deadline) => {
+                let wait = Duration::from_nanos(deadline.saturating_sub(now));
+                timed.wake.wait_timeout(st, wait).expect("timed state").0
+            }
+            // Idle: wake on the next enqueue, and now and then to notice
+            // that the bus was dropped.
+            None => {
+                timed
+                    .wake
+                    .wait_timeout(st, Duration::from_millis(200))
+                    .expect("timed state")
+                    .0
+            }
+        };
+    }
+}
+
+impl Drop for Inner {
+    fn drop(&mut self) {
+        if let Some(t) = self.timed.get_mut().ok().and_then(|t| t.take()) {
+            t.state.lock().expect("timed state").shutdown = true;
+            t.wake.notify_all();
+        }
+    }
+}
+
+/// One participant of a virtual bus: sends frames, receives everyone
+/// else's. Dropping it detaches it from the bus.
+pub struct VirtualPort {
+    bus: VirtualBus,
+    shared: Arc<PortShared>,
+    rx: mpsc::Receiver<PortEvent>,
+    seen_status: u64,
+}
+
+impl std::fmt::Debug for VirtualPort {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("VirtualPort")
+            .field("bus", &self.bus.name())
+            .field("id", &self.shared.id)
+            .finish()
+    }
+}
+
+impl VirtualPort {
+    /// The bus this port is attached to.
+    pub fn bus(&self) -> &VirtualBus {
+        &self.bus
+    }
+
+    /// Queues a frame for transmission.
+    pub fn send(&self, frame: &Frame) -> Result<(), SendError> {
+        self.bus.send_from(self.shared.id, frame)
+    }
+
+    /// Frames this port could not receive because its queue was full.
+    pub fn overflows(&self) -> u64 {
+        self.shared.overflows.load(Ordering::Relaxed)
+    }
+
+    fn status_event(&mut self) -> Option<PortEvent> {
+        let v = self.bus.inner.status_version.load(Ordering::Acquire);
+        if v != self.seen_status {
+            self.seen_status = v;
+            return Some(PortEvent::State(self.bus.status()));
+        }
+        None
+    }
+
+    /// Waits for the next event. State changes are never lost (the latest
+    /// state is reported); frames beyond the queue length are counted in
+    /// [`VirtualPort::overflows`].
+    pub async fn recv(&mut self) -> PortEvent {
+        loop {
+            let inner = self.bus.inner.clone();
+            let notified = inner.status_notify.notified();
+            if let Some(ev) = self.status_event() {
+                return ev;
+            }
+            tokio::select! {
+                biased;
+                _ = notified => continue,
+                ev = self.rx.recv() => {
+                    // The port holds the bus, so the sender side lives as
+                    // long as we do; `None` cannot happen.
+                    if let Some(ev) = ev { return ev; }
+                }
+            }
+        }
+    }
+
+    /// Receives up to `limit` events into `buf` (waiting for at least one).
+    pub async fn recv_many(&mut self, buf: &mut Vec<PortEvent>, limit: usize) -> usize {
+        loop {
+            let inner = self.bus.inner.clone();
+            let notified = inner.status_notify.notified();
+            if let Some(ev) = self.status_event() {
+                buf.push(ev);
+                return 1;
+            }
+            tokio::select! {
+                biased;
+                _ = notified => continue,
+                n = self.rx.recv_many(buf, limit) => {
+                    if n > 0 { return n; }
+                }
+            }
+        }
+    }
+
+    /// Takes an event without waiting.
+    pub fn try_recv(&mut self) -> Option<PortEvent> {
+        if let Some(ev) = self.status_event() {
+            return Some(ev);
+        }
+        self.rx.try_recv().ok()
+    }
+}
+
+impl Drop for VirtualPort {
+    fn drop(&mut self) {
+        if let Ok(mut ports) = self.bus.inner.ports.write() {
+            ports.retain(|p| p.id != self.shared.id);
+        }
+    }
+}
+
+/// A set of named virtual buses, so that the server and simulated devices
+/// find the same bus by name.
+#[derive(Clone, Default)]
+pub struct VirtualNetwork {
+    buses: Arc<Mutex<HashMap<String, VirtualBus>>>,
+}
+
+impl std::fmt::Debug for VirtualNetwork {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("VirtualNetwork").finish()
+    }
+}
+
+impl VirtualNetwork {
+    /// An empty network.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The bus with this name, created with `config` if it does not exist
+    /// (an existing bus keeps its configuration).
+    pub fn bus(&self, name: &str, config: VirtualBusConfig) -> VirtualBus {
+        self.buses
+            .lock()
+            .expect("network lock")
+            .entry(name.to_string())
+            .or_insert_with(|| VirtualBus::new(name, config))
+            .clone()
+    }
+
+    /// The bus with this name, if it exists.
+    pub fn get(&self, name: &str) -> Option<VirtualBus> {
+        self.buses.lock().expect("network lock").get(name).cloned()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::CanId;
+    use crate::timing::Stuffing;
+
+    fn frame(id: u32, data: &[u8]) -> Frame {
+        Frame::new(CanId::standard(id).unwrap(), data).unwrap()
+    }
+
+    async fn next_frame(port: &mut VirtualPort) -> Frame {
+        loop {
+            if let PortEvent::Frame { frame, .. } = port.recv().await {
+                return frame;
+            }
+        }
+    }
+
+    #[tokio::test]
+    async fn frames_reach_every_other_port_but_not_the_sender() {
+        let bus = VirtualBus::new("t", VirtualBusConfig::default());
+        let mut a = bus.connect(false);
+        let mut b = bus.connect(false);
+        let mut c = bus.connect(false);
+        a.send(&frame(0x123, &[1, 2])).unwrap();
+        assert_eq!(next_frame(&mut b).await.data(), &[1, 2]);
+        assert_eq!(next_frame(&mut c).await.data(), &[1, 2]);
+        assert!(a.try_recv().is_none());
+    }
+
+    #[tokio::test]
+    async fn fd_refused_on_classic_bus() {
+        let bus = VirtualBus::new(
+            "classic",
+            VirtualBusConfig {
+                fd: false,
+                ..Default::default()
+            },
+        );
+        let a = bus.connect(false);
+        let fd = Frame::new_fd(CanId::Standard(1), &[0; 12], false, false).unwrap();
+        assert!(matches!(a.send(&fd), Err(SendError::FdNotSupported(_))));
+    }
+
+    #[tokio::test]
+    async fn bus_off_refuses_and_reports() {
+        let bus = VirtualBus::new("t", VirtualBusConfig::default());
+        let a = bus.connect(false);
+        let mut b = bus.connect(false);
+        bus.force_bus_off();
+        assert!(matches!(
+            b.recv().await,
+            PortEvent::State(BusStatus {
+                state: BusState::BusOff,
+                ..
+            })
+        ));
+        assert!(matches!(a.send(&frame(1, &[])), Err(SendError::BusOff(_))));
+        bus.recover();
+        assert_eq!(b.recv().await, PortEvent::State(BusStatus::UP));
+        a.send(&frame(1, &[])).unwrap();
+        assert_eq!(next_frame(&mut b).await.raw_id(), 1);
+    }
+
+    #[tokio::test]
+    async fn drop_faults_count() {
+        let bus = VirtualBus::new("t", VirtualBusConfig::default());
+        let a = bus.connect(false);
+        let mut b = bus.connect(false);
+        bus.set_drop_ids([0x100]);
+        a.send(&frame(0x100, &[])).unwrap();
+        a.send(&frame(0x101, &[])).unwrap();
+        assert_eq!(next_frame(&mut b).await.raw_id(), 0x101);
+        bus.set_drop_ids([]);
+        bus.set_drop_probability(0.5);
+        for _ in 0..1000 {
+            a.send(&frame(0x200, &[])).unwrap();
+        }
+        let dropped = bus.stats().dropped_by_fault - 1;
+        assert!((350..650).contains(&dropped), "{dropped}");
+    }
+
+    #[tokio::test]
+    async fn overflow_is_counted_per_port() {
+        let bus = VirtualBus::new(
+            "t",
+            VirtualBusConfig {
+                port_queue: 4,
+                ..Default::default()
+            },
+        );
+        let a = bus.connect(false);
+        let b = bus.connect(false);
+        for i in 0..10 {
+            a.send(&frame(i, &[])).unwrap();
+        }
+        assert_eq!(b.overflows(), 6);
+        assert_eq!(bus.stats().port_overflows, 6);
+    }
+
+    #[tokio::test]
+    async fn bit_timed_bus_stamps_modelled_times_and_echoes_own() {
+        let bus = VirtualBus::new(
+            "timed",
+            VirtualBusConfig {
+                bit_timing: Some(BitTiming {
+                    stuffing: Stuffing::WorstCase,
+                    ..BitTiming::new(1_000_000)
+                }),
+                ..Default::default()
+            },
+        );
+        let mut a = bus.connect(true);
+        let mut b = bus.connect(false);
+        for i in 0..100u32 {
+            a.send(&frame(0x100, &i.to_le_bytes().repeat(2))).unwrap();
+        }
+        let mut stamps = Vec::new();
+        for _ in 0..100 {
+            stamps.push(next_frame(&mut b).await.timestamp().as_nanos());
+        }
+        for w in stamps.windows(2) {
+            assert_eq!(w[1] - w[0], 135_000);
+        }
+        // The sender sees its own frames with the same bus timestamps.
+        match a.recv().await {
+            PortEvent::Frame { frame, own } => {
+                assert!(own);
+                assert_eq!(frame.timestamp().as_nanos(), stamps[0]);
+            }
+            other => panic!("{other:?}"),
+        }
+        let load = bus.load_percent().unwrap();
+        assert!(load > 0.0 && load <= 100.0);
+    }
+
+    #[tokio::test]
+    async fn delay_fault_delays_delivery() {
+        let bus = VirtualBus::new("t", VirtualBusConfig::default());
+        let a = bus.connect(false);
+        let mut b = bus.connect(false);
+        bus.set_delay(Duration::from_millis(30));
+        let t0 = Instant::now();
+        a.send(&frame(0x7, &[])).unwrap();
+        next_frame(&mut b).await;
+        assert!(t0.elapsed() >= Duration::from_millis(30));
+    }
+}

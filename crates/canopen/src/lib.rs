@@ -1,0 +1,22 @@
+//! Sans-IO CANopen (CiA 301) protocol core.
+//!
+//! Every service here is a state machine over frames and time: it takes a
+//! received [`cangate_can::Frame`] or a tick with the current time and
+//! returns frames to send and events for the application. Nothing here
+//! touches a socket, sleeps or needs an async runtime, so every exchange is
+//! tested with exact byte vectors and a virtual clock.
+//!
+//! Time convention: every `now` is a [`std::time::Duration`] measured from an
+//! arbitrary origin chosen by the runner (monotonic). Tests pass virtual time.
+
+pub mod emcy;
+pub mod eds;
+pub mod heartbeat;
+pub mod ids;
+pub mod nmt;
+pub mod od;
+pub mod sdo;
+pub mod sync;
+pub mod value;
+
+pub use ids::{BadNodeId, CobFunction, NodeId, ObjectAddress};
