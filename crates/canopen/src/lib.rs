@@ -9,8 +9,8 @@
 //! Time convention: every `now` is a [`std::time::Duration`] measured from an
 //! arbitrary origin chosen by the runner (monotonic). Tests pass virtual time.
 
-pub mod emcy;
 pub mod eds;
+pub mod emcy;
 pub mod heartbeat;
 pub mod ids;
 pub mod nmt;
