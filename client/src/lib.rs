@@ -1,1 +1,194 @@
-//! placeholder
+//! Thin typed client for the cangate gateway.
+//!
+//! ```no_run
+//! # async fn demo() -> Result<(), cangate_client::Error> {
+//! let mut client = cangate_client::connect("http://127.0.0.1:50051").await?;
+//! for bus in client.list_buses().await? {
+//!     println!("{} {:?}", bus.name, bus.status);
+//! }
+//! let frame: cangate_client::can::Frame = "123#DEADBEEF".parse().unwrap();
+//! client.send(&"can0", &[frame]).await?;
+//! # Ok(()) }
+//! ```
+//!
+//! The generated stubs and messages are re-exported as [`proto`], so every
+//! RPC is reachable even where no helper exists yet.
+
+pub use cangate_can as can;
+pub use cangate_proto as proto;
+pub use cangate_proto::v1 as pb;
+
+use cangate_can::{Filter, Frame, FrameKind};
+use pb::bus_client::BusClient;
+use tonic::transport::{Channel, Endpoint};
+
+/// Default server address of the CLI and examples.
+pub const DEFAULT_SERVER: &str = "http://127.0.0.1:50051";
+
+/// Client errors.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// The server could not be reached.
+    #[error("cannot connect to {url}: {source}")]
+    Connect {
+        /// Server URL.
+        url: String,
+        /// Transport error.
+        source: tonic::transport::Error,
+    },
+    /// The server refused or failed the call.
+    #[error("{} ({:?})", .0.message(), .0.code())]
+    Status(tonic::Status),
+    /// The URL is malformed.
+    #[error("bad server URL {0:?}")]
+    BadUrl(String),
+}
+
+impl From<tonic::Status> for Error {
+    fn from(s: tonic::Status) -> Self {
+        Error::Status(s)
+    }
+}
+
+impl Error {
+    /// The gRPC status code, if the server answered.
+    pub fn code(&self) -> Option<tonic::Code> {
+        match self {
+            Error::Status(s) => Some(s.code()),
+            _ => None,
+        }
+    }
+}
+
+/// A connection to one gateway. Cheap to clone (one HTTP/2 connection).
+#[derive(Clone, Debug)]
+pub struct Client {
+    channel: Channel,
+}
+
+/// Connects to a gateway (`http://host:port`).
+pub async fn connect(url: &str) -> Result<Client, Error> {
+    let endpoint = Endpoint::from_shared(url.to_string())
+        .map_err(|_| Error::BadUrl(url.to_string()))?
+        .tcp_nodelay(true)
+        .connect_timeout(std::time::Duration::from_secs(5));
+    let channel = endpoint.connect().await.map_err(|source| Error::Connect {
+        url: url.to_string(),
+        source,
+    })?;
+    Ok(Client { channel })
+}
+
+/// Converts a frame to its protobuf form (for SendFrames).
+pub fn frame_to_pb(f: &Frame) -> pb::Frame {
+    pb::Frame {
+        id: f.raw_id(),
+        extended: f.is_extended(),
+        remote: f.is_remote(),
+        fd: f.is_fd(),
+        brs: f.brs(),
+        esi: f.esi(),
+        data: f.data().to_vec(),
+        remote_dlc: if f.is_remote() { f.dlc() as u32 } else { 0 },
+        error: f.is_error(),
+        timestamp_ns: 0,
+        direction: 0,
+    }
+}
+
+/// Converts a received protobuf frame back to a frame (with its timestamp).
+pub fn frame_from_pb(f: &pb::Frame) -> Option<Frame> {
+    let kind = if f.error {
+        FrameKind::Error
+    } else if f.remote {
+        FrameKind::Remote
+    } else {
+        FrameKind::Data
+    };
+    Frame::from_parts(
+        f.id,
+        f.extended,
+        kind,
+        f.fd,
+        f.brs,
+        f.esi,
+        &f.data,
+        f.remote_dlc as u8,
+    )
+    .ok()
+    .map(|fr| fr.with_timestamp(cangate_can::Timestamp(f.timestamp_ns)))
+}
+
+/// Converts a filter to its protobuf form.
+pub fn filter_to_pb(f: &Filter) -> pb::FrameFilter {
+    pb::FrameFilter {
+        id: f.id,
+        mask: f.mask,
+        format: match f.extended {
+            None => pb::IdFormat::Any,
+            Some(false) => pb::IdFormat::Standard,
+            Some(true) => pb::IdFormat::Extended,
+        } as i32,
+        invert: f.inverted,
+    }
+}
+
+impl Client {
+    /// The underlying channel, for the generated clients of other services.
+    pub fn channel(&self) -> Channel {
+        self.channel.clone()
+    }
+
+    /// The generated Bus client.
+    pub fn bus_client(&self) -> BusClient<Channel> {
+        BusClient::new(self.channel.clone()).max_decoding_message_size(64 * 1024 * 1024)
+    }
+
+    /// Every bus with live statistics.
+    pub async fn list_buses(&mut self) -> Result<Vec<pb::BusInfo>, Error> {
+        Ok(self
+            .bus_client()
+            .list_buses(pb::ListBusesRequest {})
+            .await?
+            .into_inner()
+            .buses)
+    }
+
+    /// One bus.
+    pub async fn get_bus(&mut self, bus: &str) -> Result<pb::BusInfo, Error> {
+        Ok(self
+            .bus_client()
+            .get_bus(pb::GetBusRequest {
+                bus: bus.to_string(),
+            })
+            .await?
+            .into_inner())
+    }
+
+    /// Sends frames in order on a bus.
+    pub async fn send(&mut self, bus: &str, frames: &[Frame]) -> Result<u32, Error> {
+        self.send_pb(bus, frames.iter().map(frame_to_pb).collect())
+            .await
+    }
+
+    /// Sends protobuf frames as given (no local validation).
+    pub async fn send_pb(&mut self, bus: &str, frames: Vec<pb::Frame>) -> Result<u32, Error> {
+        Ok(self
+            .bus_client()
+            .send_frames(pb::SendFramesRequest {
+                bus: bus.to_string(),
+                frames,
+            })
+            .await?
+            .into_inner()
+            .sent)
+    }
+
+    /// Opens a frame stream.
+    pub async fn stream_frames(
+        &mut self,
+        request: pb::StreamFramesRequest,
+    ) -> Result<tonic::Streaming<pb::StreamFramesResponse>, Error> {
+        Ok(self.bus_client().stream_frames(request).await?.into_inner())
+    }
+}

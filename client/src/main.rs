@@ -1,1 +1,312 @@
-fn main() {}
+//! `cangate`: command-line client of the cangate gateway.
+
+use anyhow::{Context, Result, bail};
+use cangate_client::can::{Filter, Frame};
+use cangate_client::{Client, DEFAULT_SERVER, pb};
+use clap::{Parser, Subcommand};
+use serde_json::json;
+use std::io::Write;
+
+/// Command-line client of the cangate CAN gateway.
+#[derive(Parser, Debug)]
+#[command(version, about)]
+struct Cli {
+    /// Gateway URL.
+    #[arg(long, global = true, env = "CANGATE_SERVER", default_value = DEFAULT_SERVER)]
+    server: String,
+    /// Machine-readable output: one JSON document, or one JSON object per
+    /// line for streams.
+    #[arg(long, global = true)]
+    json: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// List buses with state and live statistics.
+    Buses,
+    /// Print frames of a bus, like candump.
+    Dump {
+        /// Bus name.
+        bus: String,
+        /// Filters in candump syntax: <id>:<mask> (match) or <id>~<mask>
+        /// (inverted); repeatable, a frame passing any filter is shown.
+        #[arg(long = "filter", short = 'f')]
+        filters: Vec<Filter>,
+        /// Stop after N frames.
+        #[arg(short = 'n')]
+        count: Option<u64>,
+        /// Also show frames the gateway transmitted.
+        #[arg(long)]
+        tx: bool,
+        /// Also show error frames.
+        #[arg(long)]
+        errors: bool,
+    },
+    /// Send frames in cansend syntax: 123#DEADBEEF, 1F334455#11, 123#R,
+    /// 123##1AABB (CAN FD, flags nibble after ##).
+    Send {
+        /// Bus name.
+        bus: String,
+        /// One or more frames, sent in order.
+        #[arg(required = true)]
+        frames: Vec<String>,
+    },
+}
+
+#[tokio::main]
+async fn main() {
+    let cli = Cli::parse();
+    if let Err(e) = run(cli).await {
+        eprintln!("cangate: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+async fn run(cli: Cli) -> Result<()> {
+    let mut client = cangate_client::connect(&cli.server).await?;
+    match cli.command {
+        Command::Buses => buses(&mut client, cli.json).await,
+        Command::Dump {
+            bus,
+            filters,
+            count,
+            tx,
+            errors,
+        } => dump(&mut client, cli.json, &bus, &filters, count, tx, errors).await,
+        Command::Send { bus, frames } => {
+            let frames = frames
+                .iter()
+                .map(|t| t.parse::<Frame>().with_context(|| format!("frame {t:?}")))
+                .collect::<Result<Vec<_>>>()?;
+            let sent = client.send(&bus, &frames).await?;
+            if cli.json {
+                println!("{}", json!({ "bus": bus, "sent": sent }));
+            }
+            Ok(())
+        }
+    }
+}
+
+fn state_name(state: i32) -> &'static str {
+    match pb::BusState::try_from(state) {
+        Ok(pb::BusState::Up) => "up",
+        Ok(pb::BusState::ErrorWarning) => "error-warning",
+        Ok(pb::BusState::ErrorPassive) => "error-passive",
+        Ok(pb::BusState::BusOff) => "bus-off",
+        Ok(pb::BusState::Down) => "down",
+        _ => "unknown",
+    }
+}
+
+async fn buses(client: &mut Client, as_json: bool) -> Result<()> {
+    let buses = client.list_buses().await?;
+    if as_json {
+        let list: Vec<_> = buses
+            .iter()
+            .map(|b| {
+                let st = b.status.clone().unwrap_or_default();
+                let s = b.statistics.clone().unwrap_or_default();
+                json!({
+                    "name": b.name,
+                    "backend": if b.backend == pb::BackendKind::Socketcan as i32 { "socketcan" } else { "virtual" },
+                    "interface": b.interface,
+                    "fd": b.fd,
+                    "bitrate": b.bitrate,
+                    "data_bitrate": b.data_bitrate,
+                    "bit_timed": b.bit_timed,
+                    "state": state_name(st.state),
+                    "tx_errors": st.tx_errors,
+                    "rx_errors": st.rx_errors,
+                    "rx_frames": s.rx_frames,
+                    "tx_frames": s.tx_frames,
+                    "error_frames": s.error_frames,
+                    "tx_failed": s.tx_failed,
+                    "rx_overflows": s.rx_overflows,
+                    "subscriber_drops": s.subscriber_drops,
+                    "load_percent": s.load_percent,
+                    "subscribers": s.subscribers,
+                })
+            })
+            .collect();
+        println!("{}", serde_json::to_string_pretty(&list)?);
+        return Ok(());
+    }
+    println!(
+        "{:<8} {:<9} {:<10} {:<14} {:>9} {:>10} {:>10} {:>7} {:>6}",
+        "BUS", "BACKEND", "INTERFACE", "STATE", "BITRATE", "RX", "TX", "ERRORS", "LOAD%"
+    );
+    for b in buses {
+        let st = b.status.unwrap_or_default();
+        let s = b.statistics.unwrap_or_default();
+        let backend = if b.backend == pb::BackendKind::Socketcan as i32 {
+            "socketcan"
+        } else {
+            "virtual"
+        };
+        let bitrate = if b.bitrate > 0 {
+            format!("{}k{}", b.bitrate / 1000, if b.fd { "/FD" } else { "" })
+        } else {
+            "-".into()
+        };
+        println!(
+            "{:<8} {:<9} {:<10} {:<14} {:>9} {:>10} {:>10} {:>7} {:>6.1}",
+            b.name,
+            backend,
+            b.interface,
+            format!(
+                "{} ({}/{})",
+                state_name(st.state),
+                st.tx_errors,
+                st.rx_errors
+            ),
+            bitrate,
+            s.rx_frames,
+            s.tx_frames,
+            s.error_frames + s.tx_failed,
+            s.load_percent
+        );
+    }
+    Ok(())
+}
+
+fn hex(data: &[u8], sep: &str) -> String {
+    data.iter()
+        .map(|b| format!("{b:02X}"))
+        .collect::<Vec<_>>()
+        .join(sep)
+}
+
+async fn dump(
+    client: &mut Client,
+    as_json: bool,
+    bus: &str,
+    filters: &[Filter],
+    count: Option<u64>,
+    tx: bool,
+    errors: bool,
+) -> Result<()> {
+    let mut stream = client
+        .stream_frames(pb::StreamFramesRequest {
+            bus: bus.to_string(),
+            filters: filters.iter().map(cangate_client::filter_to_pb).collect(),
+            include_transmitted: tx,
+            include_error_frames: errors,
+            max_batch: 0,
+            queue_length: 0,
+        })
+        .await?;
+    let mut seen = 0u64;
+    let stdout = std::io::stdout();
+    loop {
+        let msg = tokio::select! {
+            m = stream.message() => m?,
+            _ = tokio::signal::ctrl_c() => break,
+        };
+        let Some(msg) = msg else { break };
+        let mut out = stdout.lock();
+        for ev in msg.events {
+            use pb::stream_event::Event;
+            match ev.event {
+                Some(Event::Frame(f)) => {
+                    print_frame(&mut out, as_json, bus, &f)?;
+                    seen += 1;
+                    if count.is_some_and(|n| seen >= n) {
+                        out.flush()?;
+                        return Ok(());
+                    }
+                }
+                Some(Event::Lost(l)) => {
+                    if as_json {
+                        writeln!(out, "{}", json!({"bus": bus, "lost": l.count}))?;
+                    } else {
+                        eprintln!(
+                            "cangate: {bus}: {} frames lost (this client read too slowly)",
+                            l.count
+                        );
+                    }
+                }
+                Some(Event::State(s)) => {
+                    if as_json {
+                        writeln!(
+                            out,
+                            "{}",
+                            json!({"bus": bus, "state": state_name(s.state), "tx_errors": s.tx_errors, "rx_errors": s.rx_errors})
+                        )?;
+                    } else {
+                        eprintln!(
+                            "cangate: {bus}: state {} (tx errors {}, rx errors {})",
+                            state_name(s.state),
+                            s.tx_errors,
+                            s.rx_errors
+                        );
+                    }
+                }
+                None => {}
+            }
+        }
+        out.flush()?;
+    }
+    if let Some(n) = count
+        && seen < n
+    {
+        bail!("stream ended after {seen} of {n} frames");
+    }
+    Ok(())
+}
+
+fn print_frame(out: &mut impl Write, as_json: bool, bus: &str, f: &pb::Frame) -> Result<()> {
+    let id = if f.extended {
+        format!("{:08X}", f.id)
+    } else {
+        format!("{:03X}", f.id)
+    };
+    let dir = if f.direction == pb::Direction::Tx as i32 {
+        "TX"
+    } else {
+        "RX"
+    };
+    if as_json {
+        writeln!(
+            out,
+            "{}",
+            json!({
+                "bus": bus,
+                "timestamp_ns": f.timestamp_ns,
+                "direction": dir.to_lowercase(),
+                "id": id,
+                "extended": f.extended,
+                "remote": f.remote,
+                "fd": f.fd,
+                "brs": f.brs,
+                "esi": f.esi,
+                "error": f.error,
+                "dlc": if f.remote { f.remote_dlc as usize } else { f.data.len() },
+                "data": hex(&f.data, ""),
+            })
+        )?;
+        return Ok(());
+    }
+    let secs = f.timestamp_ns / 1_000_000_000;
+    let micros = (f.timestamp_ns % 1_000_000_000) / 1000;
+    let body = if f.remote {
+        format!("[{}]  remote request", f.remote_dlc)
+    } else if f.fd {
+        format!("[{:02}]  {}", f.data.len(), hex(&f.data, " "))
+    } else {
+        format!("[{}]  {}", f.data.len(), hex(&f.data, " "))
+    };
+    let kind = if f.error {
+        " ERROR"
+    } else if f.fd {
+        if f.brs { " FD/BRS" } else { " FD" }
+    } else {
+        ""
+    };
+    writeln!(
+        out,
+        "({secs}.{micros:06})  {bus}  {dir}  {id:>8}{kind}   {body}"
+    )?;
+    Ok(())
+}

@@ -1,1 +1,14 @@
-//! placeholder
+//! cangate-server: owns the CAN buses and serves them over gRPC.
+//!
+//! - [`config`]: configuration file, environment overrides, embedded demo.
+//! - [`gateway`]: start-up, the running server and shutdown.
+//! - [`grpc`]: the gRPC services and protobuf conversions.
+//! - [`error`]: the one mapping from domain errors to gRPC statuses.
+
+pub mod config;
+pub mod error;
+pub mod gateway;
+pub mod grpc;
+
+pub use config::Config;
+pub use gateway::{Gateway, RunningServer, StartError, start};

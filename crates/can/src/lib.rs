@@ -7,14 +7,18 @@
 //! - [`socketcan_bus`]: Linux SocketCAN with reconnection.
 //! - [`bus`]: one owner task per bus and the handle everyone else uses.
 
+#[cfg(feature = "runtime")]
 pub mod bus;
 pub mod filter;
 pub mod frame;
+#[cfg(feature = "runtime")]
 pub mod socketcan_bus;
 pub mod state;
 pub mod timing;
+#[cfg(feature = "runtime")]
 pub mod virtual_bus;
 
+#[cfg(feature = "runtime")]
 pub use bus::{
     Backend, BackendKind, BusHandle, BusInfo, BusItem, BusStats, Direction, SendFailure,
     Subscription,
@@ -23,6 +27,7 @@ pub use filter::{Filter, FrameSelector};
 pub use frame::{CanId, Frame, FrameError, FrameKind, ParseFrameError, Timestamp};
 pub use state::{BusState, BusStatus};
 pub use timing::{BitTiming, Stuffing};
+#[cfg(feature = "runtime")]
 pub use virtual_bus::{
     PortEvent, SendError, VirtualBus, VirtualBusConfig, VirtualNetwork, VirtualPort,
 };

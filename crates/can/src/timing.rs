@@ -293,7 +293,7 @@ pub struct Arbiter<T> {
     seq: u64,
 }
 
-impl<T: Copy> Arbiter<T> {
+impl<T: Copy + PartialEq> Arbiter<T> {
     /// An arbiter; `None` timing makes every frame take zero time (an
     /// ordering-only bus).
     pub fn new(timing: Option<BitTiming>) -> Self {
@@ -349,15 +349,21 @@ impl<T: Copy> Arbiter<T> {
             if start > now_ns {
                 break;
             }
-            let winner = self
-                .pending
+            // Each sender transmits its own frames in order (a FIFO transmit
+            // queue, as SocketCAN keeps); arbitration is between the heads
+            // of the senders' queues that were waiting at `start`.
+            let mut heads: Vec<(T, usize)> = Vec::new();
+            for (i, p) in self.pending.iter().enumerate() {
+                if p.enqueued_ns <= start && !heads.iter().any(|(s, _)| *s == p.sender) {
+                    heads.push((p.sender, i));
+                }
+            }
+            let winner = heads
                 .iter()
-                .enumerate()
-                .filter(|(_, p)| p.enqueued_ns <= start)
-                .min_by_key(|(_, p)| (p.key, p.seq))
-                .map(|(i, _)| i)
+                .map(|&(_, i)| i)
+                .min_by_key(|&i| (self.pending[i].key, self.pending[i].seq))
                 .expect("at least the earliest frame is eligible");
-            let p = self.pending.swap_remove(winner);
+            let p = self.pending.remove(winner);
             let duration = self
                 .timing
                 .map(|t| t.frame_duration_ns(&p.frame))
@@ -477,6 +483,21 @@ mod tests {
         // there; at 270 µs 'd' (0x050) beats 'b' (0x200).
         assert_eq!(order, vec!['a', 'c', 'd', 'b']);
         assert_eq!(done[1].start_ns, 135_000);
+    }
+
+    #[test]
+    fn one_sender_keeps_its_order() {
+        let mut arb = Arbiter::new(Some(BitTiming::new(1_000_000)));
+        arb.enqueue(std_frame(0x300, &[]), 'a', 0);
+        arb.enqueue(std_frame(0x100, &[]), 'a', 0);
+        arb.enqueue(std_frame(0x200, &[]), 'b', 0);
+        let ids: Vec<u32> = arb
+            .advance(u64::MAX / 2)
+            .iter()
+            .map(|t| t.frame.raw_id())
+            .collect();
+        // 'b' (0x200) beats a's head (0x300); a's 0x100 waits behind its 0x300.
+        assert_eq!(ids, vec![0x200, 0x300, 0x100]);
     }
 
     #[test]

@@ -1,0 +1,306 @@
+//! Server configuration: a TOML file (or the embedded demo) plus
+//! `CANGATE_…` environment overrides, validated before anything starts.
+//!
+//! Environment variables map onto keys with `__` between levels:
+//! `CANGATE_LISTEN=0.0.0.0:50051`, `CANGATE_LOG__FORMAT=json`. The
+//! variables the command-line client reads (`CANGATE_SERVER`,
+//! `CANGATE_TOKEN`, `CANGATE_CA`, `CANGATE_CERT`, `CANGATE_KEY`) and
+//! `CANGATE_CONFIG` are not configuration keys and are ignored here.
+
+use serde::{Deserialize, Serialize};
+use std::collections::{HashMap, HashSet};
+use std::net::SocketAddr;
+
+/// The embedded demo configuration, used when no configuration file is given.
+pub const DEMO_CONFIG: &str = include_str!("../../deploy/demo.toml");
+
+/// Environment variables with our prefix that belong to the client, not to
+/// the server's configuration.
+const CLIENT_VARIABLES: &[&str] = &[
+    "CANGATE_SERVER",
+    "CANGATE_TOKEN",
+    "CANGATE_CA",
+    "CANGATE_CERT",
+    "CANGATE_KEY",
+    "CANGATE_CONFIG",
+];
+
+/// The whole configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    /// gRPC listen address.
+    #[serde(default = "default_listen")]
+    pub listen: SocketAddr,
+    /// Logging.
+    #[serde(default)]
+    pub log: LogConfig,
+    /// The CAN buses the gateway owns.
+    #[serde(default, rename = "bus")]
+    pub buses: Vec<BusConfig>,
+}
+
+fn default_listen() -> SocketAddr {
+    SocketAddr::from(([127, 0, 0, 1], 50051))
+}
+
+/// Log output.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LogConfig {
+    /// `human` or `json` (one JSON object per line).
+    #[serde(default)]
+    pub format: LogFormat,
+    /// Filter in `tracing` EnvFilter syntax, e.g. `info,cangate_can=debug`.
+    /// `RUST_LOG` overrides it.
+    #[serde(default = "default_level")]
+    pub level: String,
+}
+
+impl Default for LogConfig {
+    fn default() -> Self {
+        LogConfig {
+            format: LogFormat::Human,
+            level: default_level(),
+        }
+    }
+}
+
+fn default_level() -> String {
+    "info".to_string()
+}
+
+/// Log format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LogFormat {
+    /// Human-readable lines.
+    #[default]
+    Human,
+    /// One JSON object per line.
+    Json,
+}
+
+/// Which backend a bus uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BackendChoice {
+    /// Linux SocketCAN interface.
+    Socketcan,
+    /// In-process virtual bus.
+    Virtual,
+}
+
+/// Stuff-bit counting of the virtual bus's bit-timing model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum StuffingChoice {
+    /// Count the stuff bits each frame really needs.
+    #[default]
+    Exact,
+    /// Assume the worst case.
+    WorstCase,
+}
+
+/// One bus.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BusConfig {
+    /// Name clients use (unique).
+    pub name: String,
+    /// `socketcan` or `virtual`.
+    pub backend: BackendChoice,
+    /// SocketCAN interface (`can0`, `vcan0`); for virtual buses the virtual
+    /// bus name (default: the bus name), so two entries can share one.
+    #[serde(default)]
+    pub interface: Option<String>,
+    /// Allow CAN FD frames.
+    #[serde(default)]
+    pub fd: bool,
+    /// Nominal bitrate in bit/s: the load figure of every backend, and the
+    /// bit-timing model of a virtual bus with `bit_timing = true`.
+    #[serde(default)]
+    pub bitrate: Option<u32>,
+    /// CAN FD data-phase bitrate in bit/s.
+    #[serde(default)]
+    pub data_bitrate: Option<u32>,
+    /// Virtual only: model each frame's time on the wire and arbitration.
+    #[serde(default)]
+    pub bit_timing: bool,
+    /// Virtual only: stuff-bit counting of the timing model.
+    #[serde(default)]
+    pub stuffing: StuffingChoice,
+    /// Virtual only: receive queue length of each participant.
+    #[serde(default)]
+    pub queue: Option<usize>,
+}
+
+impl BusConfig {
+    /// The interface or virtual bus name.
+    pub fn interface(&self) -> &str {
+        self.interface.as_deref().unwrap_or(&self.name)
+    }
+}
+
+/// A configuration that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read or parsed (includes unknown keys, with
+    /// their name).
+    #[error("configuration: {0}")]
+    Load(#[from] config::ConfigError),
+    /// The values are inconsistent.
+    #[error("configuration: {0}")]
+    Invalid(String),
+}
+
+impl Config {
+    /// Loads `path` (or the embedded demo when `None`), applies the
+    /// `CANGATE_…` environment, and validates.
+    pub fn load(path: Option<&std::path::Path>) -> Result<Config, ConfigError> {
+        let env: HashMap<String, String> = std::env::vars()
+            .filter(|(k, _)| k.starts_with("CANGATE_") && !CLIENT_VARIABLES.contains(&k.as_str()))
+            .collect();
+        Self::load_with_env(path, env)
+    }
+
+    /// Like [`Config::load`] with an explicit environment (for tests).
+    pub fn load_with_env(
+        path: Option<&std::path::Path>,
+        env: HashMap<String, String>,
+    ) -> Result<Config, ConfigError> {
+        let builder = config::Config::builder();
+        let builder = match path {
+            Some(p) => builder.add_source(config::File::from(p).format(config::FileFormat::Toml)),
+            None => builder.add_source(config::File::from_str(
+                DEMO_CONFIG,
+                config::FileFormat::Toml,
+            )),
+        };
+        let cfg: Config = builder
+            .add_source(
+                config::Environment::with_prefix("CANGATE")
+                    .prefix_separator("_")
+                    .separator("__")
+                    .try_parsing(true)
+                    .source(Some(env)),
+            )
+            .build()?
+            .try_deserialize()?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Parses TOML text (no environment), and validates.
+    pub fn from_toml(text: &str) -> Result<Config, ConfigError> {
+        let cfg: Config = config::Config::builder()
+            .add_source(config::File::from_str(text, config::FileFormat::Toml))
+            .build()?
+            .try_deserialize()?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// The embedded demo.
+    pub fn demo() -> Config {
+        Self::from_toml(DEMO_CONFIG).expect("the embedded demo configuration is valid")
+    }
+
+    /// Checks what serde cannot: unique names, sensible values.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let mut names = HashSet::new();
+        let mut interfaces = HashSet::new();
+        for b in &self.buses {
+            if b.name.is_empty() {
+                return Err(ConfigError::Invalid("a bus has an empty name".into()));
+            }
+            if !names.insert(b.name.as_str()) {
+                return Err(ConfigError::Invalid(format!(
+                    "bus {:?} is configured twice",
+                    b.name
+                )));
+            }
+            if b.backend == BackendChoice::Socketcan && !interfaces.insert(b.interface()) {
+                return Err(ConfigError::Invalid(format!(
+                    "SocketCAN interface {:?} is used by two buses",
+                    b.interface()
+                )));
+            }
+            if b.bitrate == Some(0) || b.data_bitrate == Some(0) {
+                return Err(ConfigError::Invalid(format!(
+                    "bus {:?}: bitrate must be positive",
+                    b.name
+                )));
+            }
+            if b.bit_timing && b.bitrate.is_none() {
+                return Err(ConfigError::Invalid(format!(
+                    "bus {:?}: bit_timing needs a bitrate",
+                    b.name
+                )));
+            }
+            if b.backend == BackendChoice::Socketcan && (b.bit_timing || b.queue.is_some()) {
+                return Err(ConfigError::Invalid(format!(
+                    "bus {:?}: bit_timing and queue apply to virtual buses only",
+                    b.name
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// The effective configuration as TOML (for `--print-config`).
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).unwrap_or_else(|e| format!("# cannot render: {e}"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn demo_is_valid_and_has_the_demo_buses() {
+        let c = Config::demo();
+        let names: Vec<_> = c.buses.iter().map(|b| b.name.as_str()).collect();
+        assert_eq!(names, ["can0", "smc0", "smc1"]);
+        assert_eq!(c.listen, default_listen());
+    }
+
+    #[test]
+    fn unknown_keys_are_named() {
+        let err = Config::from_toml("listen = \"127.0.0.1:1\"\nlisen = 3\n").unwrap_err();
+        assert!(err.to_string().contains("lisen"), "{err}");
+        let err = Config::from_toml("[[bus]]\nname = \"a\"\nbackend = \"virtual\"\nbitrat = 5\n")
+            .unwrap_err();
+        assert!(err.to_string().contains("bitrat"), "{err}");
+    }
+
+    #[test]
+    fn duplicate_bus_is_refused() {
+        let err = Config::from_toml(
+            "[[bus]]\nname = \"a\"\nbackend = \"virtual\"\n[[bus]]\nname = \"a\"\nbackend = \"virtual\"\n",
+        )
+        .unwrap_err();
+        assert!(
+            err.to_string().contains("\"a\" is configured twice"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn environment_overrides_and_client_variables_are_ignored() {
+        let env = HashMap::from([
+            ("CANGATE_LISTEN".to_string(), "127.0.0.1:6000".to_string()),
+            ("CANGATE_LOG__FORMAT".to_string(), "json".to_string()),
+        ]);
+        let c = Config::load_with_env(None, env).unwrap();
+        assert_eq!(c.listen.port(), 6000);
+        assert_eq!(c.log.format, LogFormat::Json);
+    }
+
+    #[test]
+    fn print_config_round_trips() {
+        let c = Config::demo();
+        assert_eq!(Config::from_toml(&c.to_toml()).unwrap(), c);
+    }
+}

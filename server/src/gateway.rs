@@ -1,0 +1,240 @@
+//! The running gateway: its buses, the gRPC server, and one cancellation
+//! tree from the signal handler through the server, the streams and the bus
+//! tasks.
+
+use crate::config::{BackendChoice, BusConfig, Config, StuffingChoice};
+use crate::error::ApiError;
+use crate::grpc::bus_service::BusService;
+use cangate_can::bus::{Backend, BackendKind, BusHandle, BusInfo};
+use cangate_can::socketcan_bus::SocketCanBus;
+use cangate_can::{BitTiming, Stuffing, VirtualBusConfig, VirtualNetwork};
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::task::JoinHandle;
+use tokio_util::sync::CancellationToken;
+
+/// Why the gateway could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum StartError {
+    /// A bus could not be opened.
+    #[error("bus {bus:?}: {message}")]
+    Bus {
+        /// Bus name.
+        bus: String,
+        /// What went wrong.
+        message: String,
+    },
+    /// The listen address could not be bound.
+    #[error("cannot listen on {addr}: {source}")]
+    Listen {
+        /// The address.
+        addr: SocketAddr,
+        /// The OS error.
+        source: std::io::Error,
+    },
+}
+
+/// The buses and shared state every service uses.
+pub struct Gateway {
+    buses: BTreeMap<String, BusHandle>,
+    network: VirtualNetwork,
+    shutdown: CancellationToken,
+}
+
+impl Gateway {
+    /// Opens every configured bus and starts its owner task.
+    pub fn start(
+        config: &Config,
+        shutdown: CancellationToken,
+    ) -> Result<(Gateway, Vec<JoinHandle<()>>), StartError> {
+        let network = VirtualNetwork::new();
+        let mut buses = BTreeMap::new();
+        let mut tasks = Vec::new();
+        for bc in &config.buses {
+            let (info, backend) = open_bus(bc, &network)?;
+            let (handle, task) = BusHandle::spawn(info, backend, shutdown.child_token());
+            buses.insert(bc.name.clone(), handle);
+            tasks.push(task);
+        }
+        Ok((
+            Gateway {
+                buses,
+                network,
+                shutdown,
+            },
+            tasks,
+        ))
+    }
+
+    /// A bus by name.
+    pub fn bus(&self, name: &str) -> Result<&BusHandle, ApiError> {
+        self.buses.get(name).ok_or_else(|| ApiError::NotFound {
+            kind: "bus",
+            name: name.to_string(),
+            hint: format!(
+                " (buses: {})",
+                self.buses.keys().cloned().collect::<Vec<_>>().join(", ")
+            ),
+        })
+    }
+
+    /// All buses, by name.
+    pub fn buses(&self) -> impl Iterator<Item = &BusHandle> {
+        self.buses.values()
+    }
+
+    /// The in-process virtual buses (simulated devices and tests attach here).
+    pub fn network(&self) -> &VirtualNetwork {
+        &self.network
+    }
+
+    /// Fires when the gateway shuts down; long-lived streams end on it.
+    pub fn shutdown_token(&self) -> CancellationToken {
+        self.shutdown.clone()
+    }
+}
+
+fn open_bus(bc: &BusConfig, network: &VirtualNetwork) -> Result<(BusInfo, Backend), StartError> {
+    let err = |message: String| StartError::Bus {
+        bus: bc.name.clone(),
+        message,
+    };
+    match bc.backend {
+        BackendChoice::Socketcan => {
+            let bus = SocketCanBus::open(bc.interface()).map_err(|e| err(e.to_string()))?;
+            let info = BusInfo {
+                name: bc.name.clone(),
+                kind: BackendKind::SocketCan,
+                interface: bc.interface().to_string(),
+                fd: bc.fd,
+                bitrate: bc.bitrate,
+                data_bitrate: bc.data_bitrate,
+                bit_timed: false,
+            };
+            Ok((info, Backend::SocketCan(bus)))
+        }
+        BackendChoice::Virtual => {
+            let timing = bc.bit_timing.then(|| BitTiming {
+                bitrate: bc.bitrate.unwrap_or(1_000_000),
+                data_bitrate: bc.data_bitrate.or(bc.bitrate).unwrap_or(1_000_000),
+                stuffing: match bc.stuffing {
+                    StuffingChoice::Exact => Stuffing::Exact,
+                    StuffingChoice::WorstCase => Stuffing::WorstCase,
+                },
+            });
+            let vcfg = VirtualBusConfig {
+                bit_timing: timing,
+                fd: bc.fd,
+                port_queue: bc.queue.unwrap_or(VirtualBusConfig::default().port_queue),
+                ..Default::default()
+            };
+            let vbus = network.bus(bc.interface(), vcfg);
+            let info = BusInfo {
+                name: bc.name.clone(),
+                kind: BackendKind::Virtual,
+                interface: bc.interface().to_string(),
+                fd: bc.fd,
+                bitrate: bc.bitrate,
+                data_bitrate: bc.data_bitrate,
+                bit_timed: bc.bit_timing,
+            };
+            Ok((info, Backend::Virtual(vbus.connect(true))))
+        }
+    }
+}
+
+/// A started server.
+pub struct RunningServer {
+    /// The address the gRPC server listens on (useful with port 0).
+    pub addr: SocketAddr,
+    gateway: Arc<Gateway>,
+    shutdown: CancellationToken,
+    server: JoinHandle<Result<(), tonic::transport::Error>>,
+    bus_tasks: Vec<JoinHandle<()>>,
+}
+
+impl RunningServer {
+    /// The gateway (buses, virtual network).
+    pub fn gateway(&self) -> &Arc<Gateway> {
+        &self.gateway
+    }
+
+    /// The token that stops everything.
+    pub fn shutdown_token(&self) -> CancellationToken {
+        self.shutdown.clone()
+    }
+
+    /// Starts a graceful shutdown: streams end, buses close, the server stops.
+    pub fn shutdown(&self) {
+        self.shutdown.cancel();
+    }
+
+    /// Waits until the server has stopped (after [`RunningServer::shutdown`]
+    /// or a signal), at most `limit`; then aborts whatever is left.
+    pub async fn wait(self, limit: Duration) -> Result<(), String> {
+        let all = async {
+            let r = self.server.await;
+            for t in self.bus_tasks {
+                let _ = t.await;
+            }
+            r
+        };
+        match tokio::time::timeout(limit, all).await {
+            Ok(Ok(Ok(()))) => Ok(()),
+            Ok(Ok(Err(e))) => Err(format!("gRPC server failed: {e}")),
+            Ok(Err(e)) => Err(format!("gRPC server task failed: {e}")),
+            Err(_) => Err(format!("shutdown did not finish within {limit:?}")),
+        }
+    }
+}
+
+/// Opens the buses, binds the listen address (`config.listen`; port 0 picks
+/// a free port) and serves the gRPC API until the shutdown token fires.
+pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
+    let shutdown = CancellationToken::new();
+    let (gateway, bus_tasks) = Gateway::start(config, shutdown.clone())?;
+    let gateway = Arc::new(gateway);
+    let listener = tokio::net::TcpListener::bind(config.listen)
+        .await
+        .map_err(|source| StartError::Listen {
+            addr: config.listen,
+            source,
+        })?;
+    let addr = listener.local_addr().map_err(|source| StartError::Listen {
+        addr: config.listen,
+        source,
+    })?;
+
+    let (health_reporter, health_service) = tonic_health::server::health_reporter();
+    health_reporter
+        .set_serving::<cangate_proto::v1::bus_server::BusServer<BusService>>()
+        .await;
+    let reflection = tonic_reflection::server::Builder::configure()
+        .register_encoded_file_descriptor_set(cangate_proto::FILE_DESCRIPTOR_SET)
+        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+        .build_v1()
+        .expect("the embedded descriptor sets are valid");
+
+    let bus_service =
+        cangate_proto::v1::bus_server::BusServer::new(BusService::new(gateway.clone()));
+    let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
+    let token = shutdown.clone();
+    let server = tokio::spawn(
+        tonic::transport::Server::builder()
+            .tcp_nodelay(true)
+            .add_service(health_service)
+            .add_service(reflection)
+            .add_service(bus_service)
+            .serve_with_incoming_shutdown(incoming, async move { token.cancelled().await }),
+    );
+    tracing::info!(%addr, buses = gateway.buses().count(), "cangate gateway listening");
+    Ok(RunningServer {
+        addr,
+        gateway,
+        shutdown,
+        server,
+        bus_tasks,
+    })
+}

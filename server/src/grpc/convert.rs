@@ -1,0 +1,128 @@
+//! Conversions between the protobuf messages and the domain types. Generated
+//! types stop here: nothing below the gRPC layer sees them.
+
+use crate::error::ApiError;
+use cangate_can::bus::{BackendKind, BusItem, BusStats, Direction};
+use cangate_can::{BusInfo, BusState, BusStatus, Filter, Frame, FrameKind};
+use cangate_proto::v1 as pb;
+
+/// A protobuf frame to a validated frame.
+pub fn frame_from_pb(f: &pb::Frame) -> Result<Frame, cangate_can::FrameError> {
+    if f.error {
+        return Err(cangate_can::FrameError::ErrorFrameNotSendable);
+    }
+    if f.remote && !f.data.is_empty() {
+        return Err(cangate_can::FrameError::RemoteWithData(f.data.len()));
+    }
+    let kind = if f.remote {
+        FrameKind::Remote
+    } else {
+        FrameKind::Data
+    };
+    let dlc = u8::try_from(f.remote_dlc).unwrap_or(u8::MAX);
+    Frame::from_parts(f.id, f.extended, kind, f.fd, f.brs, f.esi, &f.data, dlc)
+}
+
+/// A frame to its protobuf form.
+pub fn frame_to_pb(f: &Frame, direction: Option<Direction>) -> pb::Frame {
+    pb::Frame {
+        id: f.raw_id(),
+        extended: f.is_extended(),
+        remote: f.is_remote(),
+        fd: f.is_fd(),
+        brs: f.brs(),
+        esi: f.esi(),
+        data: f.data().to_vec(),
+        remote_dlc: if f.is_remote() { f.dlc() as u32 } else { 0 },
+        error: f.is_error(),
+        timestamp_ns: f.timestamp().as_nanos(),
+        direction: match direction {
+            Some(Direction::Rx) => pb::Direction::Rx,
+            Some(Direction::Tx) => pb::Direction::Tx,
+            None => pb::Direction::Unspecified,
+        } as i32,
+    }
+}
+
+/// A protobuf filter to a domain filter.
+pub fn filter_from_pb(f: &pb::FrameFilter) -> Result<Filter, ApiError> {
+    let extended = match pb::IdFormat::try_from(f.format) {
+        Ok(pb::IdFormat::Any) => None,
+        Ok(pb::IdFormat::Standard) => Some(false),
+        Ok(pb::IdFormat::Extended) => Some(true),
+        Err(_) => {
+            return Err(ApiError::InvalidArgument(format!(
+                "filter format {} is not a known IdFormat",
+                f.format
+            )));
+        }
+    };
+    if f.id > cangate_can::frame::MAX_EXTENDED_ID || f.mask > cangate_can::frame::MAX_EXTENDED_ID {
+        return Err(ApiError::InvalidArgument(format!(
+            "filter {:X}:{:X} has bits above the 29-bit identifier range",
+            f.id, f.mask
+        )));
+    }
+    Ok(Filter {
+        id: f.id,
+        mask: f.mask,
+        extended,
+        inverted: f.invert,
+    })
+}
+
+/// A status to protobuf.
+pub fn status_to_pb(s: BusStatus, since_ns: u64) -> pb::BusStatus {
+    pb::BusStatus {
+        state: match s.state {
+            BusState::Up => pb::BusState::Up,
+            BusState::ErrorWarning => pb::BusState::ErrorWarning,
+            BusState::ErrorPassive => pb::BusState::ErrorPassive,
+            BusState::BusOff => pb::BusState::BusOff,
+            BusState::Down => pb::BusState::Down,
+        } as i32,
+        tx_errors: s.tx_errors as u32,
+        rx_errors: s.rx_errors as u32,
+        since_ns,
+    }
+}
+
+/// A bus description with its live statistics.
+pub fn bus_info_to_pb(info: &BusInfo, stats: &BusStats) -> pb::BusInfo {
+    pb::BusInfo {
+        name: info.name.clone(),
+        backend: match info.kind {
+            BackendKind::SocketCan => pb::BackendKind::Socketcan,
+            BackendKind::Virtual => pb::BackendKind::Virtual,
+        } as i32,
+        interface: info.interface.clone(),
+        fd: info.fd,
+        bitrate: info.bitrate.unwrap_or(0),
+        data_bitrate: info.data_bitrate.unwrap_or(0),
+        bit_timed: info.bit_timed,
+        status: Some(status_to_pb(stats.status, stats.status_since.as_nanos())),
+        statistics: Some(pb::BusStatistics {
+            rx_frames: stats.rx_frames,
+            tx_frames: stats.tx_frames,
+            rx_bytes: stats.rx_bytes,
+            tx_bytes: stats.tx_bytes,
+            error_frames: stats.error_frames,
+            tx_failed: stats.tx_failed,
+            rx_overflows: stats.rx_overflows,
+            subscriber_drops: stats.subscriber_drops,
+            load_percent: stats.load_percent,
+            subscribers: stats.subscribers as u32,
+        }),
+    }
+}
+
+/// A subscription item to a stream event.
+pub fn item_to_pb(item: &BusItem, since_ns: u64) -> pb::StreamEvent {
+    use pb::stream_event::Event;
+    let event = match item {
+        BusItem::Frame { frame, direction } => Event::Frame(frame_to_pb(frame, Some(*direction))),
+        BusItem::Lost(n) => Event::Lost(pb::FramesLost { count: *n }),
+        BusItem::State(s) => Event::State(status_to_pb(*s, since_ns)),
+    };
+    pb::StreamEvent { event: Some(event) }
+}

@@ -1,0 +1,4 @@
+//! gRPC services and the conversions to and from the protobuf types.
+
+pub mod bus_service;
+pub mod convert;
