@@ -112,17 +112,19 @@ fn open_bus(bc: &BusConfig, network: &VirtualNetwork) -> Result<(BusInfo, Backen
                 bitrate: bc.bitrate,
                 data_bitrate: bc.data_bitrate,
                 bit_timed: false,
+                stuffing: Stuffing::Exact,
             };
             Ok((info, Backend::SocketCan(bus)))
         }
         BackendChoice::Virtual => {
+            let stuffing = match bc.stuffing {
+                StuffingChoice::Exact => Stuffing::Exact,
+                StuffingChoice::WorstCase => Stuffing::WorstCase,
+            };
             let timing = bc.bit_timing.then(|| BitTiming {
                 bitrate: bc.bitrate.unwrap_or(1_000_000),
                 data_bitrate: bc.data_bitrate.or(bc.bitrate).unwrap_or(1_000_000),
-                stuffing: match bc.stuffing {
-                    StuffingChoice::Exact => Stuffing::Exact,
-                    StuffingChoice::WorstCase => Stuffing::WorstCase,
-                },
+                stuffing,
             });
             let vcfg = VirtualBusConfig {
                 bit_timing: timing,
@@ -139,6 +141,7 @@ fn open_bus(bc: &BusConfig, network: &VirtualNetwork) -> Result<(BusInfo, Backen
                 bitrate: bc.bitrate,
                 data_bitrate: bc.data_bitrate,
                 bit_timed: bc.bit_timing,
+                stuffing,
             };
             Ok((info, Backend::Virtual(vbus.connect(true))))
         }

@@ -46,6 +46,9 @@ pub struct BusInfo {
     pub data_bitrate: Option<u32>,
     /// Whether the virtual bus models bit timing.
     pub bit_timed: bool,
+    /// Stuff-bit counting used for the load figure (match the virtual bus's
+    /// model; real controllers stuff exactly).
+    pub stuffing: Stuffing,
 }
 
 /// The backend a bus task owns.
@@ -89,10 +92,16 @@ impl Backend {
         }
     }
 
-    async fn send(&mut self, frame: &Frame) -> Result<(), SendError> {
+    /// Sends a batch in order; on failure, how many went out and why.
+    async fn send_batch(&mut self, frames: &[Frame]) -> Result<(), (usize, SendError)> {
         match self {
-            Backend::SocketCan(s) => s.send(frame).await,
-            Backend::Virtual(p) => p.send(frame),
+            Backend::SocketCan(s) => {
+                for (i, f) in frames.iter().enumerate() {
+                    s.send(f).await.map_err(|e| (i, e))?;
+                }
+                Ok(())
+            }
+            Backend::Virtual(p) => p.send_batch(frames).map_err(|e| (0, e)),
         }
     }
 
@@ -441,7 +450,7 @@ async fn run_bus(
     let timing = shared.info.bitrate.map(|bitrate| BitTiming {
         bitrate,
         data_bitrate: shared.info.data_bitrate.unwrap_or(bitrate),
-        stuffing: Stuffing::Exact,
+        stuffing: shared.info.stuffing,
     });
     let mut load = LoadMeter::new(1_000_000_000);
     let mut events = Vec::with_capacity(256);
@@ -455,23 +464,23 @@ async fn run_bus(
             req = requests.recv() => {
                 let Some(req) = req else { break };
                 let total = req.frames.len();
-                let mut result = Ok(());
-                for (i, frame) in req.frames.iter().enumerate() {
-                    match backend.send(frame).await {
-                        Ok(()) => {
-                            shared.counters.tx_frames.fetch_add(1, Ordering::Relaxed);
-                            shared.counters.tx_bytes.fetch_add(frame.data().len() as u64, Ordering::Relaxed);
-                            if !backend.echoes_own() {
-                                let f = frame.with_timestamp(Timestamp::now());
-                                record_load(&mut load, timing, &f);
-                                fanout(&shared, &f, Direction::Tx);
-                            }
-                        }
-                        Err(error) => {
-                            shared.counters.tx_failed.fetch_add((total - i) as u64, Ordering::Relaxed);
-                            result = Err(SendFailure { sent: i, total, error });
-                            break;
-                        }
+                let result = match backend.send_batch(&req.frames).await {
+                    Ok(()) => Ok(()),
+                    Err((sent, error)) => Err(SendFailure { sent, total, error }),
+                };
+                let sent = match &result {
+                    Ok(()) => total,
+                    Err(f) => f.sent,
+                };
+                let c = &shared.counters;
+                c.tx_frames.fetch_add(sent as u64, Ordering::Relaxed);
+                c.tx_failed.fetch_add((total - sent) as u64, Ordering::Relaxed);
+                for frame in &req.frames[..sent] {
+                    c.tx_bytes.fetch_add(frame.data().len() as u64, Ordering::Relaxed);
+                    if !backend.echoes_own() {
+                        let f = frame.with_timestamp(Timestamp::now());
+                        record_load(&mut load, timing, &f);
+                        fanout(&shared, &f, Direction::Tx);
                     }
                 }
                 let _ = req.reply.send(result);
@@ -576,6 +585,7 @@ mod tests {
             bitrate: Some(1_000_000),
             data_bitrate: None,
             bit_timed: false,
+            stuffing: Stuffing::Exact,
         };
         let (h, _) = BusHandle::spawn(info, Backend::Virtual(bus.connect(true)), cancel.clone());
         (h, cancel)

@@ -345,7 +345,10 @@ impl VirtualBus {
         timed
     }
 
-    fn send_from(&self, port: u64, frame: &Frame) -> Result<(), SendError> {
+    /// Queues frames from one port. A batch is queued atomically (one lock,
+    /// one enqueue time), as a controller's transmit FIFO filled in one go:
+    /// on a bit-timed bus the frames then go out back to back.
+    fn send_from(&self, port: u64, frames: &[Frame]) -> Result<(), SendError> {
         let inner = &self.inner;
         let state = inner.status.lock().expect("status lock").state;
         match state {
@@ -353,33 +356,43 @@ impl VirtualBus {
             BusState::Down => return Err(SendError::Down(inner.name.clone())),
             _ => {}
         }
-        if frame.is_fd() && !inner.config.fd {
+        if !inner.config.fd && frames.iter().any(|f| f.is_fd()) {
             return Err(SendError::FdNotSupported(inner.name.clone()));
         }
-        if inner.faults_active.load(Ordering::Acquire) {
-            let mut f = inner.faults.lock().expect("faults lock");
+        let faulty = inner.faults_active.load(Ordering::Acquire);
+        let mut faults = faulty.then(|| inner.faults.lock().expect("faults lock"));
+        let mut dropped = |frame: &Frame| {
+            let Some(f) = faults.as_mut() else {
+                return false;
+            };
             let drop = f.drop_ids.contains(&frame.raw_id())
                 || (f.drop_probability > 0.0 && f.rng.f64() < f.drop_probability);
             if drop {
                 inner.dropped.fetch_add(1, Ordering::Relaxed);
-                return Ok(());
             }
-        }
+            drop
+        };
         let timed = inner.timed.lock().expect("timed lock").clone();
         match timed {
             Some(t) => {
                 let now = self.model_now();
-                t.state
-                    .lock()
-                    .expect("timed state")
-                    .arbiter
-                    .enqueue(*frame, port, now);
+                let mut st = t.state.lock().expect("timed state");
+                for frame in frames {
+                    if !dropped(frame) {
+                        st.arbiter.enqueue(*frame, port, now);
+                    }
+                }
+                drop(st);
                 t.wake.notify_one();
             }
             None => {
-                let f = frame.with_timestamp(Timestamp::now());
-                inner.transmitted.fetch_add(1, Ordering::Relaxed);
-                deliver(inner, port, &f);
+                let now = Timestamp::now();
+                for frame in frames {
+                    if !dropped(frame) {
+                        inner.transmitted.fetch_add(1, Ordering::Relaxed);
+                        deliver(inner, port, &frame.with_timestamp(now));
+                    }
+                }
             }
         }
         Ok(())
@@ -504,7 +517,15 @@ impl VirtualPort {
 
     /// Queues a frame for transmission.
     pub fn send(&self, frame: &Frame) -> Result<(), SendError> {
-        self.bus.send_from(self.shared.id, frame)
+        self.bus
+            .send_from(self.shared.id, std::slice::from_ref(frame))
+    }
+
+    /// Queues frames for transmission in one go (see [`VirtualBus`]: on a
+    /// bit-timed bus they go out back to back). All or nothing: a refusal
+    /// (bus-off, FD on a classic bus) queues none of them.
+    pub fn send_batch(&self, frames: &[Frame]) -> Result<(), SendError> {
+        self.bus.send_from(self.shared.id, frames)
     }
 
     /// Frames this port could not receive because its queue was full.

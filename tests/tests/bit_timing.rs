@@ -1,0 +1,81 @@
+//! The bit-timed virtual bus: frames take their modelled time on the wire
+//! (checked on the bus timestamps, not on wall time), arbitration picks the
+//! lowest identifier among queued senders, and the load figure matches.
+
+mod common;
+
+use cangate_client::can::{CanId, Frame};
+use cangate_client::pb;
+use common::*;
+
+/// A standard 8-byte frame with worst-case stuffing: 111 + 24 stuff bits.
+const FRAME_NS: u64 = 135_000;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn frames_take_modelled_bus_time_in_arbitration_order() {
+    let server = start_server(
+        "[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\nbitrate = 1000000\n\
+         bit_timing = true\nstuffing = \"worst-case\"\n",
+    )
+    .await;
+    let vbus = server.gateway().network().get("can0").unwrap();
+    let mut c = client(&server).await;
+    let mut req = stream_request("can0", vec![]);
+    req.include_transmitted = true;
+    req.queue_length = 10_000;
+    let (mut stream, mut pending) = open_stream(&mut c, req).await;
+
+    // A train of 1,000 8-byte frames with the highest priority id, sent by
+    // the gateway; it occupies the bus for 135 ms of bus time.
+    let train: Vec<Frame> = (0..1000u64)
+        .map(|i| Frame::new(CanId::Standard(0x000), &i.to_le_bytes()).unwrap())
+        .collect();
+    c.send("can0", &train).await.unwrap();
+    // While it runs, four other nodes queue one frame each, in an order
+    // unrelated to their priority.
+    let ports: Vec<_> = (0..4).map(|_| vbus.connect(false)).collect();
+    for (port, id) in ports.iter().zip([0x300u16, 0x100, 0x200, 0x050]) {
+        port.send(&Frame::new(CanId::Standard(id), &[0xAA; 8]).unwrap())
+            .unwrap();
+    }
+
+    let got = read_frames(&mut stream, &mut pending, 1004).await;
+    for (i, f) in got[..1000].iter().enumerate() {
+        assert_eq!(f.id, 0);
+        assert_eq!(
+            f.data,
+            (i as u64).to_le_bytes(),
+            "the train keeps its order"
+        );
+        assert_eq!(f.direction, pb::Direction::Tx as i32);
+    }
+    // Back to back: each frame ends exactly one frame time after the last.
+    for w in got.windows(2) {
+        assert_eq!(w[1].timestamp_ns - w[0].timestamp_ns, FRAME_NS);
+    }
+    assert_eq!(
+        got[999].timestamp_ns - got[0].timestamp_ns,
+        999 * FRAME_NS,
+        "1,000 frames take 1,000 x 135 us of bus time"
+    );
+    // Then the queued nodes, lowest identifier first.
+    let ids: Vec<u32> = got[1000..].iter().map(|f| f.id).collect();
+    assert_eq!(ids, vec![0x050, 0x100, 0x200, 0x300]);
+    assert!(
+        got[1000..]
+            .iter()
+            .all(|f| f.direction == pb::Direction::Rx as i32)
+    );
+
+    // Load: 1,004 x 135 us busy within the last second's window (nine
+    // complete 100 ms buckets plus the current one): 13.5 % to 15.1 %.
+    let load = c
+        .get_bus("can0")
+        .await
+        .unwrap()
+        .statistics
+        .unwrap()
+        .load_percent;
+    assert!((13.0..=15.6).contains(&load), "load {load}");
+    server.shutdown();
+}

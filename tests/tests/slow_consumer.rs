@@ -1,0 +1,122 @@
+//! A client that stops reading never slows the bus or other clients; when
+//! it resumes it is told exactly how many frames it missed.
+
+mod common;
+
+use cangate_client::can::{CanId, Frame};
+use cangate_client::pb::stream_event::Event;
+use common::*;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+const N: u64 = 200_000;
+const MARKER_ID: u32 = 0x7FF;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stalled_consumer_gets_exact_lost_count_and_does_not_delay_others() {
+    let server = start_server(ONE_BUS).await;
+    let vbus = server.gateway().network().get("can0").unwrap();
+    let device = vbus.connect(false);
+
+    // The stalled client: small buffer, opens the stream and stops reading.
+    let mut stalled_client = client(&server).await;
+    let mut req = stream_request("can0", vec![]);
+    req.queue_length = 64;
+    let (mut stalled, mut stalled_pending) = open_stream(&mut stalled_client, req).await;
+
+    // The fast client reads everything with a large buffer.
+    let mut fast_client = client(&server).await;
+    let mut req = stream_request("can0", vec![]);
+    req.queue_length = 1_000_000;
+    let (mut fast, fast_pending) = open_stream(&mut fast_client, req).await;
+    assert!(fast_pending.is_empty());
+    let fast_count = Arc::new(AtomicU64::new(0));
+    let counter = fast_count.clone();
+    let fast_reader = tokio::spawn(async move {
+        let mut next = 0u64;
+        loop {
+            let msg = tokio::time::timeout(WAIT, fast.message()).await;
+            let Ok(Ok(Some(msg))) = msg else {
+                panic!("fast stream broke: {msg:?}")
+            };
+            for ev in msg.events {
+                match ev.event {
+                    Some(Event::Frame(f)) if f.id == MARKER_ID => return next,
+                    Some(Event::Frame(f)) => {
+                        let seq = u64::from_le_bytes(f.data[..8].try_into().unwrap());
+                        assert_eq!(seq, next, "fast client sees every frame in order");
+                        next += 1;
+                        counter.store(next, Ordering::Relaxed);
+                    }
+                    Some(Event::Lost(l)) => panic!("fast client lost {} frames", l.count),
+                    _ => {}
+                }
+            }
+        }
+    });
+
+    // The device sends N frames, paced only by the fast client (so the
+    // gateway's own receive queue never overflows), never by the stalled one.
+    let id = CanId::standard(0x100).unwrap();
+    for seq in 0..N {
+        while seq > fast_count.load(Ordering::Relaxed) + 8_000 {
+            tokio::task::yield_now().await;
+        }
+        device
+            .send(&Frame::new(id, &seq.to_le_bytes()).unwrap())
+            .unwrap();
+    }
+    device
+        .send(&Frame::new(CanId::standard(MARKER_ID).unwrap(), &[]).unwrap())
+        .unwrap();
+    let fast_total = tokio::time::timeout(WAIT, fast_reader)
+        .await
+        .unwrap()
+        .unwrap();
+    assert_eq!(fast_total, N);
+
+    // The stalled client resumes: frames it got plus frames it was told it
+    // lost add up to exactly N (the marker itself was lost too while the
+    // client's buffer was full, so it is counted out).
+    let mut received = 0u64;
+    let mut lost = 0u64;
+    let mut notices = 0;
+    while received + lost < N + 1 {
+        for ev in stalled_pending.drain(..) {
+            match ev.event {
+                Some(Event::Frame(_)) => received += 1,
+                Some(Event::Lost(l)) => {
+                    lost += l.count;
+                    notices += 1;
+                }
+                _ => {}
+            }
+        }
+        if received + lost >= N + 1 {
+            break;
+        }
+        let msg = tokio::time::timeout(WAIT, stalled.message())
+            .await
+            .unwrap_or_else(|_| panic!("stalled client stuck at received {received} + lost {lost}"))
+            .unwrap()
+            .expect("stream open");
+        stalled_pending.extend(msg.events);
+    }
+    assert!(notices >= 1, "the stalled client was told it lost frames");
+    assert!(lost > 0);
+    assert_eq!(
+        received + lost,
+        N + 1,
+        "received {received} + lost {lost} must be N + marker"
+    );
+    // Now that it reads again, the next frame reaches it normally.
+    device
+        .send(&Frame::new(CanId::standard(0x555).unwrap(), &[]).unwrap())
+        .unwrap();
+    let next = read_frames(&mut stalled, &mut stalled_pending, 1).await;
+    assert_eq!(next[0].id, 0x555);
+    let stats = server.gateway().bus("can0").unwrap().stats();
+    assert_eq!(stats.subscriber_drops, lost);
+    assert_eq!(stats.rx_overflows, 0);
+    server.shutdown();
+}
