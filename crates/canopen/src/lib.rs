@@ -13,6 +13,7 @@ pub mod eds;
 pub mod emcy;
 pub mod heartbeat;
 pub mod ids;
+pub mod master;
 pub mod nmt;
 pub mod od;
 pub mod sdo;
