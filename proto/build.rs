@@ -6,7 +6,10 @@ use prost::Message;
 use std::path::PathBuf;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let files = ["proto/cangate/v1/bus.proto"];
+    let files = [
+        "proto/cangate/v1/bus.proto",
+        "proto/cangate/v1/canopen.proto",
+    ];
     for f in &files {
         println!("cargo:rerun-if-changed={f}");
     }

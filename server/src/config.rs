@@ -38,6 +38,70 @@ pub struct Config {
     /// The CAN buses the gateway owns.
     #[serde(default, rename = "bus")]
     pub buses: Vec<BusConfig>,
+    /// CANopen masters, one per bus at most.
+    #[serde(default, rename = "canopen", skip_serializing_if = "Vec::is_empty")]
+    pub canopen: Vec<CanopenConfig>,
+}
+
+/// The CANopen master of one bus.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CanopenConfig {
+    /// The bus (a `[[bus]]` name).
+    pub bus: String,
+    /// Default SDO timeout per answer, in ms.
+    #[serde(default = "default_sdo_timeout_ms")]
+    pub sdo_timeout_ms: u64,
+    /// Known nodes.
+    #[serde(default, rename = "node")]
+    pub nodes: Vec<NodeConfig>,
+}
+
+fn default_sdo_timeout_ms() -> u64 {
+    500
+}
+
+/// A CANopen node the master knows in advance.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NodeConfig {
+    /// Node id, 1..=127.
+    pub id: u32,
+    /// A name for people (e.g. "X axis drive").
+    #[serde(default)]
+    pub name: String,
+    /// Object dictionary: an EDS/DCF file path, or one of the built-in
+    /// device descriptions `builtin:drive`, `builtin:io`, `builtin:handwheel`.
+    #[serde(default)]
+    pub eds: Option<String>,
+    /// Consumer heartbeat timeout in ms (0 = do not monitor).
+    #[serde(default)]
+    pub heartbeat_timeout_ms: u64,
+    /// Virtual buses only: run a simulated device from the EDS at this id.
+    #[serde(default)]
+    pub simulate: bool,
+}
+
+impl NodeConfig {
+    /// Loads the configured EDS.
+    pub fn load_eds(&self) -> Result<Option<cangate_canopen::eds::Eds>, String> {
+        use cangate_canopen::eds::{Eds, SIM_DRIVE_EDS, SIM_HANDWHEEL_EDS, SIM_IO_EDS};
+        let Some(src) = self.eds.as_deref() else {
+            return Ok(None);
+        };
+        let parsed = match src {
+            "builtin:drive" => Eds::parse(SIM_DRIVE_EDS),
+            "builtin:io" => Eds::parse(SIM_IO_EDS),
+            "builtin:handwheel" => Eds::parse(SIM_HANDWHEEL_EDS),
+            path if path.starts_with("builtin:") => {
+                return Err(format!(
+                    "unknown built-in EDS {path:?} (builtin:drive, builtin:io, builtin:handwheel)"
+                ));
+            }
+            path => Eds::from_path(path),
+        };
+        parsed.map(Some).map_err(|e| format!("EDS {src:?}: {e}"))
+    }
 }
 
 fn default_listen() -> SocketAddr {
@@ -245,6 +309,51 @@ impl Config {
                 )));
             }
         }
+        let mut masters = HashSet::new();
+        for c in &self.canopen {
+            let Some(bus) = self.buses.iter().find(|b| b.name == c.bus) else {
+                return Err(ConfigError::Invalid(format!(
+                    "[[canopen]] names bus {:?}, which is not configured",
+                    c.bus
+                )));
+            };
+            if !masters.insert(c.bus.as_str()) {
+                return Err(ConfigError::Invalid(format!(
+                    "bus {:?} has two [[canopen]] sections",
+                    c.bus
+                )));
+            }
+            let mut ids = HashSet::new();
+            for n in &c.nodes {
+                if !(1..=127).contains(&n.id) {
+                    return Err(ConfigError::Invalid(format!(
+                        "bus {:?}: node id {} is out of range (1..=127)",
+                        c.bus, n.id
+                    )));
+                }
+                if !ids.insert(n.id) {
+                    return Err(ConfigError::Invalid(format!(
+                        "bus {:?}: node {} is configured twice",
+                        c.bus, n.id
+                    )));
+                }
+                if n.simulate && bus.backend != BackendChoice::Virtual {
+                    return Err(ConfigError::Invalid(format!(
+                        "bus {:?}: node {} can only be simulated on a virtual bus",
+                        c.bus, n.id
+                    )));
+                }
+                if n.simulate && n.eds.is_none() {
+                    return Err(ConfigError::Invalid(format!(
+                        "bus {:?}: simulated node {} needs an eds",
+                        c.bus, n.id
+                    )));
+                }
+                n.load_eds().map_err(|e| {
+                    ConfigError::Invalid(format!("bus {:?}: node {}: {e}", c.bus, n.id))
+                })?;
+            }
+        }
         Ok(())
     }
 
@@ -263,6 +372,8 @@ mod tests {
         let c = Config::demo();
         let names: Vec<_> = c.buses.iter().map(|b| b.name.as_str()).collect();
         assert_eq!(names, ["can0", "smc0", "smc1"]);
+        let nodes: Vec<_> = c.canopen[0].nodes.iter().map(|n| n.id).collect();
+        assert_eq!(nodes, [1, 2, 3]);
         assert_eq!(c.listen, default_listen());
     }
 

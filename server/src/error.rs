@@ -1,6 +1,8 @@
 //! The one place where domain errors become gRPC statuses.
 
 use cangate_can::{FrameError, SendError, SendFailure};
+use cangate_canopen::sdo::SdoError;
+use prost::Message;
 use tonic::{Code, Status};
 
 /// An error a request can end with, before it becomes a [`Status`].
@@ -28,6 +30,14 @@ pub enum ApiError {
     /// The server is shutting down.
     #[error("the gateway is shutting down")]
     ShuttingDown,
+    /// An SDO transfer failed.
+    #[error("node {node}: {error}")]
+    Sdo {
+        /// Node id.
+        node: u8,
+        /// The failure.
+        error: SdoError,
+    },
 }
 
 impl ApiError {
@@ -58,13 +68,56 @@ impl From<SendFailure> for ApiError {
     }
 }
 
+/// The gRPC code for an SDO abort code: the class of the abort decides.
+fn sdo_code(error: &SdoError) -> Code {
+    let abort = error.abort_code().get();
+    match error {
+        SdoError::Timeout { .. } => Code::DeadlineExceeded,
+        SdoError::Protocol { .. } | SdoError::Cancelled { .. } => Code::Aborted,
+        SdoError::Aborted { .. } => match abort {
+            0x0602_0000 | 0x0609_0011 => Code::NotFound,
+            0x0607_0010..=0x0607_0013 => Code::InvalidArgument,
+            0x0609_0030..=0x0609_0036 => Code::OutOfRange,
+            0x0601_0000..=0x0601_0002 | 0x0800_0020..=0x0800_0024 => Code::FailedPrecondition,
+            _ => Code::Aborted,
+        },
+    }
+}
+
+fn sdo_status(error: &SdoError, message: String) -> Status {
+    let abort = error.abort_code();
+    let addr = match error {
+        SdoError::Aborted { addr, .. }
+        | SdoError::Protocol { addr, .. }
+        | SdoError::Timeout { addr, .. }
+        | SdoError::Cancelled { addr, .. } => *addr,
+    };
+    let details = cangate_proto::v1::SdoAbortDetails {
+        code: abort.get(),
+        name: abort.name().to_string(),
+        index: addr.index as u32,
+        subindex: addr.sub as u32,
+        from_node: matches!(error, SdoError::Aborted { .. }),
+    };
+    let mut status = Status::with_details(sdo_code(error), message, details.encode_to_vec().into());
+    let text = format!("0x{:08X} {}", abort.get(), abort.name());
+    if let Ok(v) = text.parse() {
+        status.metadata_mut().insert("cangate-sdo-abort", v);
+    }
+    status
+}
+
 impl From<ApiError> for Status {
     fn from(e: ApiError) -> Self {
+        if let ApiError::Sdo { error, .. } = &e {
+            return sdo_status(error, e.to_string());
+        }
         let code = match &e {
             ApiError::NotFound { .. } => Code::NotFound,
             ApiError::InvalidArgument(_) => Code::InvalidArgument,
             ApiError::FailedPrecondition(_) => Code::FailedPrecondition,
             ApiError::Unavailable(_) | ApiError::ShuttingDown => Code::Unavailable,
+            ApiError::Sdo { error, .. } => sdo_code(error),
         };
         Status::new(code, e.to_string())
     }

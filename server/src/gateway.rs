@@ -2,7 +2,11 @@
 //! tree from the signal handler through the server, the streams and the bus
 //! tasks.
 
+use crate::canopen::{CanopenBus, NodeFacts};
 use crate::config::{BackendChoice, BusConfig, Config, StuffingChoice};
+use crate::grpc::canopen_service::CanopenService;
+use cangate_canopen::NodeId;
+use cangate_sim::{SimNode, SimNodeOptions};
 use crate::error::ApiError;
 use crate::grpc::bus_service::BusService;
 use cangate_can::bus::{Backend, BackendKind, BusHandle, BusInfo};
@@ -39,6 +43,7 @@ pub enum StartError {
 /// The buses and shared state every service uses.
 pub struct Gateway {
     buses: BTreeMap<String, BusHandle>,
+    canopen: BTreeMap<String, CanopenBus>,
     network: VirtualNetwork,
     shutdown: CancellationToken,
 }
@@ -58,9 +63,54 @@ impl Gateway {
             buses.insert(bc.name.clone(), handle);
             tasks.push(task);
         }
+        let mut canopen = BTreeMap::new();
+        for cc in &config.canopen {
+            let bus = buses[&cc.bus].clone();
+            let mut facts = BTreeMap::new();
+            for nc in &cc.nodes {
+                let err = |message: String| StartError::Bus {
+                    bus: cc.bus.clone(),
+                    message: format!("node {}: {message}", nc.id),
+                };
+                let node = NodeId::new(nc.id).map_err(|e| err(e.to_string()))?;
+                let eds = nc.load_eds().map_err(err)?.map(Arc::new);
+                if nc.simulate {
+                    let eds = eds.as_ref().ok_or_else(|| err("a simulated node needs an eds".into()))?;
+                    let vbus = network
+                        .get(buses[&cc.bus].info().interface.as_str())
+                        .ok_or_else(|| err("simulated nodes need a virtual bus".into()))?;
+                    let device = SimNode::new(eds, node, SimNodeOptions::default());
+                    tasks.push(cangate_sim::spawn_node(
+                        vbus.connect(false),
+                        device,
+                        shutdown.child_token(),
+                    ));
+                }
+                facts.insert(
+                    node,
+                    NodeFacts {
+                        name: nc.name.clone(),
+                        configured: true,
+                        eds,
+                        heartbeat_timeout: (nc.heartbeat_timeout_ms > 0)
+                            .then(|| Duration::from_millis(nc.heartbeat_timeout_ms)),
+                        ..Default::default()
+                    },
+                );
+            }
+            let (master, task) = CanopenBus::spawn(
+                bus,
+                Duration::from_millis(cc.sdo_timeout_ms),
+                facts,
+                shutdown.child_token(),
+            );
+            canopen.insert(cc.bus.clone(), master);
+            tasks.push(task);
+        }
         Ok((
             Gateway {
                 buses,
+                canopen,
                 network,
                 shutdown,
             },
@@ -78,6 +128,16 @@ impl Gateway {
                 self.buses.keys().cloned().collect::<Vec<_>>().join(", ")
             ),
         })
+    }
+
+    /// The CANopen master of a bus, if it has one.
+    pub fn canopen(&self, bus: &str) -> Option<&CanopenBus> {
+        self.canopen.get(bus)
+    }
+
+    /// Every CANopen master, by bus name.
+    pub fn canopen_buses(&self) -> impl Iterator<Item = &CanopenBus> {
+        self.canopen.values()
     }
 
     /// All buses, by name.
@@ -222,6 +282,13 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
 
     let bus_service =
         cangate_proto::v1::bus_server::BusServer::new(BusService::new(gateway.clone()));
+    let canopen_service =
+        cangate_proto::v1::canopen_server::CanopenServer::new(CanopenService::new(gateway.clone()))
+            .max_decoding_message_size(64 * 1024 * 1024)
+            .max_encoding_message_size(64 * 1024 * 1024);
+    health_reporter
+        .set_serving::<cangate_proto::v1::canopen_server::CanopenServer<CanopenService>>()
+        .await;
     let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
     let token = shutdown.clone();
     let server = tokio::spawn(
@@ -230,6 +297,7 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
             .add_service(health_service)
             .add_service(reflection)
             .add_service(bus_service)
+            .add_service(canopen_service)
             .serve_with_incoming_shutdown(incoming, async move { token.cancelled().await }),
     );
     tracing::info!(%addr, buses = gateway.buses().count(), "cangate gateway listening");

@@ -3,8 +3,10 @@
 //! - [`config`]: configuration file, environment overrides, embedded demo.
 //! - [`gateway`]: start-up, the running server and shutdown.
 //! - [`grpc`]: the gRPC services and protobuf conversions.
+//! - [`canopen`]: the CANopen master runtime of each bus.
 //! - [`error`]: the one mapping from domain errors to gRPC statuses.
 
+pub mod canopen;
 pub mod config;
 pub mod error;
 pub mod gateway;

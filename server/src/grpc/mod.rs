@@ -1,4 +1,5 @@
 //! gRPC services and the conversions to and from the protobuf types.
 
 pub mod bus_service;
+pub mod canopen_service;
 pub mod convert;

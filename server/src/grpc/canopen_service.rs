@@ -1,0 +1,514 @@
+//! The `cangate.v1.Canopen` service: nodes, NMT, SDO, events.
+
+use crate::canopen::{CanopenBus, CanopenError, NodeEventKind, NodeSnapshot};
+use crate::error::ApiError;
+use crate::gateway::Gateway;
+use cangate_can::Timestamp;
+use cangate_canopen::emcy::Emcy;
+use cangate_canopen::master::SdoRequest;
+use cangate_canopen::nmt::{NmtCommand, NmtState};
+use cangate_canopen::sdo::{TransferOptions, TransferOutcome};
+use cangate_canopen::value::{DataType, Value};
+use cangate_canopen::{NodeId, ObjectAddress};
+use cangate_proto::v1 as pb;
+use cangate_proto::v1::canopen_server::Canopen;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio_stream::Stream;
+use tonic::{Request, Response, Status};
+
+/// Implementation of the Canopen service.
+#[derive(Clone)]
+pub struct CanopenService {
+    gateway: Arc<Gateway>,
+}
+
+impl CanopenService {
+    /// Serves the gateway's CANopen masters.
+    pub fn new(gateway: Arc<Gateway>) -> Self {
+        CanopenService { gateway }
+    }
+
+    fn master(&self, bus: &str) -> Result<&CanopenBus, ApiError> {
+        self.gateway.bus(bus)?;
+        self.gateway.canopen(bus).ok_or_else(|| {
+            ApiError::FailedPrecondition(format!(
+                "bus {bus:?} has no CANopen master (add a [[canopen]] section for it)"
+            ))
+        })
+    }
+}
+
+fn node_id(n: u32) -> Result<NodeId, ApiError> {
+    NodeId::new(n).map_err(|e| ApiError::InvalidArgument(e.to_string()))
+}
+
+fn known_node(master: &CanopenBus, n: u32) -> Result<NodeId, ApiError> {
+    let id = node_id(n)?;
+    if !master.knows(id) {
+        return Err(ApiError::NotFound {
+            kind: "node",
+            name: format!("{n} on bus {}", master.bus()),
+            hint: " (not configured and never heard of; run ScanNetwork / `cangate scan` first)"
+                .into(),
+        });
+    }
+    Ok(id)
+}
+
+fn address(index: u32, sub: u32) -> Result<ObjectAddress, ApiError> {
+    let index = u16::try_from(index)
+        .map_err(|_| ApiError::InvalidArgument(format!("index 0x{index:X} does not fit 16 bits")))?;
+    let sub = u8::try_from(sub)
+        .map_err(|_| ApiError::InvalidArgument(format!("sub-index {sub} does not fit 8 bits")))?;
+    Ok(ObjectAddress::new(index, sub))
+}
+
+fn options(o: Option<&pb::SdoOptions>) -> TransferOptions {
+    let o = o.cloned().unwrap_or_default();
+    let mut opts = if o.block {
+        TransferOptions::block()
+    } else {
+        TransferOptions::default()
+    };
+    if o.timeout_ms > 0 {
+        opts = opts.with_timeout(Duration::from_millis(o.timeout_ms as u64));
+    }
+    opts
+}
+
+fn map_err(node: NodeId, e: CanopenError) -> ApiError {
+    match e {
+        CanopenError::Sdo(error) => ApiError::Sdo {
+            node: node.get(),
+            error,
+        },
+        CanopenError::Send(f) => f.into(),
+        CanopenError::Stopped => ApiError::ShuttingDown,
+    }
+}
+
+/// The protobuf data type for a CiA type (those the API names).
+pub fn data_type_to_pb(t: DataType) -> pb::DataType {
+    pb::DataType::try_from(t.code() as i32).unwrap_or(pb::DataType::Unspecified)
+}
+
+fn data_type_from_pb(t: i32) -> Result<Option<DataType>, ApiError> {
+    if t == 0 {
+        return Ok(None);
+    }
+    u16::try_from(t)
+        .ok()
+        .and_then(DataType::from_code)
+        .map(Some)
+        .ok_or_else(|| ApiError::InvalidArgument(format!("data type {t} is not a CiA 301 type code")))
+}
+
+/// A CANopen value to protobuf.
+pub fn value_to_pb(v: &Value) -> pb::Value {
+    use pb::value::Value as V;
+    let value = match v {
+        Value::Boolean(b) => V::BoolValue(*b),
+        Value::Real32(f) => V::RealValue(*f as f64),
+        Value::Real64(f) => V::RealValue(*f),
+        Value::VisibleString(s) | Value::UnicodeString(s) => V::StringValue(s.clone()),
+        Value::OctetString(b) | Value::Domain(b) => V::BytesValue(b.clone()),
+        other => {
+            let i = other.as_i128().unwrap_or(0);
+            if other.data_type().integer_range().is_some_and(|(min, _)| min < 0) {
+                V::IntValue(i as i64)
+            } else {
+                V::UintValue(i as u64)
+            }
+        }
+    };
+    pb::Value {
+        r#type: data_type_to_pb(v.data_type()) as i32,
+        value: Some(value),
+    }
+}
+
+/// A protobuf value to a CANopen value, range-checked against its type.
+pub fn value_from_pb(v: &pb::Value) -> Result<Value, ApiError> {
+    use pb::value::Value as V;
+    let ty = data_type_from_pb(v.r#type)?
+        .ok_or_else(|| ApiError::InvalidArgument("the value has no data type".into()))?;
+    let bad = |what: &str| {
+        ApiError::InvalidArgument(format!("a {what} value does not fit the data type {ty}"))
+    };
+    let value = match (v.value.as_ref(), ty) {
+        (Some(V::BoolValue(b)), DataType::Boolean) => Value::Boolean(*b),
+        (Some(V::IntValue(i)), t) if t.is_integer() => Value::from_integer(t, *i as i128)
+            .map_err(|e| ApiError::InvalidArgument(e.to_string()))?,
+        (Some(V::UintValue(u)), t) if t.is_integer() => Value::from_integer(t, *u as i128)
+            .map_err(|e| ApiError::InvalidArgument(e.to_string()))?,
+        (Some(V::RealValue(f)), DataType::Real32) => Value::Real32(*f as f32),
+        (Some(V::RealValue(f)), DataType::Real64) => Value::Real64(*f),
+        (Some(V::StringValue(s)), DataType::VisibleString) => {
+            let v = Value::VisibleString(s.clone());
+            Value::decode(DataType::VisibleString, &v.encode())
+                .map_err(|e| ApiError::InvalidArgument(e.to_string()))?;
+            v
+        }
+        (Some(V::StringValue(s)), DataType::UnicodeString) => Value::UnicodeString(s.clone()),
+        (Some(V::BytesValue(b)), DataType::OctetString) => Value::OctetString(b.clone()),
+        (Some(V::BytesValue(b)), DataType::Domain) => Value::Domain(b.clone()),
+        (Some(V::BoolValue(_)), _) => return Err(bad("boolean")),
+        (Some(V::IntValue(_)), _) | (Some(V::UintValue(_)), _) => return Err(bad("integer")),
+        (Some(V::RealValue(_)), _) => return Err(bad("real")),
+        (Some(V::StringValue(_)), _) => return Err(bad("string")),
+        (Some(V::BytesValue(_)), _) => return Err(bad("bytes")),
+        (None, _) => return Err(ApiError::InvalidArgument("the value is empty".into())),
+    };
+    Ok(value)
+}
+
+fn nmt_state_to_pb(s: Option<NmtState>) -> pb::NmtState {
+    match s {
+        None => pb::NmtState::Unknown,
+        Some(NmtState::Initialising) => pb::NmtState::Initialising,
+        Some(NmtState::Stopped) => pb::NmtState::Stopped,
+        Some(NmtState::Operational) => pb::NmtState::Operational,
+        Some(NmtState::PreOperational) => pb::NmtState::PreOperational,
+    }
+}
+
+fn emcy_to_pb(e: &Emcy, at: Timestamp) -> pb::Emcy {
+    pb::Emcy {
+        node: e.node.get() as u32,
+        code: e.code as u32,
+        code_name: e.code_name().to_string(),
+        register: e.register as u32,
+        register_bits: e.error_register().names().map(str::to_string).collect(),
+        manufacturer: e.manufacturer.to_vec(),
+        timestamp_ns: at.as_nanos(),
+    }
+}
+
+fn node_to_pb(bus: &str, n: &NodeSnapshot) -> pb::Node {
+    pb::Node {
+        bus: bus.to_string(),
+        id: n.id.get() as u32,
+        name: n.facts.name.clone(),
+        state: nmt_state_to_pb(n.state) as i32,
+        heartbeat_age_ms: n.heartbeat_age.map(|a| a.as_millis() as u64),
+        heartbeat_lost: n.heartbeat_lost,
+        heartbeat_timeout_ms: n
+            .facts
+            .heartbeat_timeout
+            .map(|t| t.as_millis() as u32)
+            .unwrap_or(0),
+        device_type: n.facts.device_type,
+        device_name: n.facts.device_name.clone().unwrap_or_default(),
+        identity: n.facts.identity.map(|i| pb::Identity {
+            vendor_id: i[0],
+            product_code: i[1],
+            revision: i[2],
+            serial: i[3],
+        }),
+        active_error: n.active_error.as_ref().map(|(e, t)| emcy_to_pb(e, *t)),
+        emcy_history: n.emcy_history.iter().map(|(e, t)| emcy_to_pb(e, *t)).collect(),
+        boot_ups: n.boot_ups,
+        configured: n.facts.configured,
+    }
+}
+
+async fn read_u32(master: &CanopenBus, node: NodeId, index: u16, sub: u8, timeout: Duration) -> Option<u32> {
+    let req = SdoRequest::Upload {
+        addr: ObjectAddress::new(index, sub),
+        opts: TransferOptions::default().with_timeout(timeout),
+    };
+    match master.sdo(node, req).await {
+        Ok(TransferOutcome::Uploaded(b)) if b.len() >= 4 => {
+            Some(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        }
+        _ => None,
+    }
+}
+
+type EventStream = Pin<Box<dyn Stream<Item = Result<pb::NodeEvent, Status>> + Send>>;
+
+#[tonic::async_trait]
+impl Canopen for CanopenService {
+    async fn list_nodes(
+        &self,
+        req: Request<pb::ListNodesRequest>,
+    ) -> Result<Response<pb::ListNodesResponse>, Status> {
+        let bus = req.into_inner().bus;
+        let masters: Vec<&CanopenBus> = if bus.is_empty() {
+            self.gateway.canopen_buses().collect()
+        } else {
+            vec![self.master(&bus)?]
+        };
+        let mut nodes = Vec::new();
+        for m in masters {
+            let snap = m.snapshot().await.map_err(|_| ApiError::ShuttingDown)?;
+            nodes.extend(snap.iter().map(|n| node_to_pb(m.bus(), n)));
+        }
+        Ok(Response::new(pb::ListNodesResponse { nodes }))
+    }
+
+    async fn get_node(&self, req: Request<pb::GetNodeRequest>) -> Result<Response<pb::Node>, Status> {
+        let req = req.into_inner();
+        let m = self.master(&req.bus)?;
+        let id = known_node(m, req.node)?;
+        let snap = m.snapshot().await.map_err(|_| ApiError::ShuttingDown)?;
+        let n = snap
+            .iter()
+            .find(|n| n.id == id)
+            .ok_or_else(|| ApiError::NotFound {
+                kind: "node",
+                name: req.node.to_string(),
+                hint: String::new(),
+            })?;
+        Ok(Response::new(node_to_pb(m.bus(), n)))
+    }
+
+    async fn send_nmt(
+        &self,
+        req: Request<pb::SendNmtRequest>,
+    ) -> Result<Response<pb::SendNmtResponse>, Status> {
+        let req = req.into_inner();
+        let m = self.master(&req.bus)?;
+        let target = if req.node == 0 {
+            None
+        } else {
+            Some(node_id(req.node)?)
+        };
+        let cmd = match pb::NmtCommand::try_from(req.command) {
+            Ok(pb::NmtCommand::Start) => NmtCommand::Start,
+            Ok(pb::NmtCommand::Stop) => NmtCommand::Stop,
+            Ok(pb::NmtCommand::EnterPreOperational) => NmtCommand::EnterPreOperational,
+            Ok(pb::NmtCommand::ResetNode) => NmtCommand::ResetNode,
+            Ok(pb::NmtCommand::ResetCommunication) => NmtCommand::ResetCommunication,
+            _ => {
+                return Err(ApiError::InvalidArgument(format!(
+                    "NMT command {} is not one of START, STOP, ENTER_PRE_OPERATIONAL, RESET_NODE, RESET_COMMUNICATION",
+                    req.command
+                ))
+                .into());
+            }
+        };
+        m.nmt(cmd, target)
+            .await
+            .map_err(|e| map_err(target.unwrap_or(NodeId::new(1).expect("1 is valid")), e))?;
+        Ok(Response::new(pb::SendNmtResponse {}))
+    }
+
+    async fn read_sdo(
+        &self,
+        req: Request<pb::ReadSdoRequest>,
+    ) -> Result<Response<pb::ReadSdoResponse>, Status> {
+        let req = req.into_inner();
+        let m = self.master(&req.bus)?;
+        let node = known_node(m, req.node)?;
+        let addr = address(req.index, req.subindex)?;
+        let ty = match data_type_from_pb(req.r#type)? {
+            Some(t) => Some(t),
+            None => m
+                .eds(node)
+                .and_then(|e| e.od.get(addr).map(|v| v.data_type)),
+        };
+        let out = m
+            .sdo(
+                node,
+                SdoRequest::Upload {
+                    addr,
+                    opts: options(req.options.as_ref()),
+                },
+            )
+            .await
+            .map_err(|e| map_err(node, e))?;
+        let TransferOutcome::Uploaded(raw) = out else {
+            return Err(ApiError::Unavailable("unexpected SDO outcome".into()).into());
+        };
+        let value = match ty {
+            Some(t) => Some(value_to_pb(&Value::decode(t, &raw).map_err(|e| {
+                ApiError::InvalidArgument(format!("{addr} read {} bytes but: {e}", raw.len()))
+            })?)),
+            None => None,
+        };
+        Ok(Response::new(pb::ReadSdoResponse { raw, value }))
+    }
+
+    async fn write_sdo(
+        &self,
+        req: Request<pb::WriteSdoRequest>,
+    ) -> Result<Response<pb::WriteSdoResponse>, Status> {
+        let req = req.into_inner();
+        let m = self.master(&req.bus)?;
+        let node = known_node(m, req.node)?;
+        let addr = address(req.index, req.subindex)?;
+        let data = match req.data {
+            Some(pb::write_sdo_request::Data::Raw(b)) => b,
+            Some(pb::write_sdo_request::Data::Value(v)) => {
+                let value = value_from_pb(&v)?;
+                if let Some(var) = m.eds(node).and_then(|e| e.od.get(addr).cloned()) {
+                    var.check(&value).map_err(|e| {
+                        ApiError::InvalidArgument(format!("{addr} ({}): {e}", var.name))
+                    })?;
+                }
+                value.encode()
+            }
+            None => {
+                return Err(ApiError::InvalidArgument("nothing to write: give value or raw".into()).into());
+            }
+        };
+        let n = data.len() as u32;
+        m.sdo(
+            node,
+            SdoRequest::Download {
+                addr,
+                data,
+                opts: options(req.options.as_ref()),
+            },
+        )
+        .await
+        .map_err(|e| map_err(node, e))?;
+        Ok(Response::new(pb::WriteSdoResponse { bytes: n }))
+    }
+
+    async fn scan_network(
+        &self,
+        req: Request<pb::ScanNetworkRequest>,
+    ) -> Result<Response<pb::ScanNetworkResponse>, Status> {
+        let req = req.into_inner();
+        let m = self.master(&req.bus)?.clone();
+        let timeout = Duration::from_millis(if req.timeout_ms == 0 { 100 } else { req.timeout_ms as u64 });
+        let probes = (1..=127u32).map(|n| {
+            let m = m.clone();
+            async move {
+                let node = NodeId::new(n).expect("1..=127");
+                let device_type = read_u32(&m, node, 0x1000, 0, timeout).await?;
+                Some((node, device_type))
+            }
+        });
+        let found: Vec<(NodeId, u32)> = futures::future::join_all(probes)
+            .await
+            .into_iter()
+            .flatten()
+            .collect();
+        for &(node, device_type) in &found {
+            let name = match m
+                .sdo(
+                    node,
+                    SdoRequest::Upload {
+                        addr: ObjectAddress::new(0x1008, 0),
+                        opts: TransferOptions::default().with_timeout(timeout),
+                    },
+                )
+                .await
+            {
+                Ok(TransferOutcome::Uploaded(b)) => Some(
+                    String::from_utf8_lossy(&b)
+                        .trim_end_matches('\0')
+                        .to_string(),
+                ),
+                _ => None,
+            };
+            let mut identity = [0u32; 4];
+            let mut have_identity = true;
+            for (i, slot) in identity.iter_mut().enumerate() {
+                match read_u32(&m, node, 0x1018, i as u8 + 1, timeout).await {
+                    Some(v) => *slot = v,
+                    None => {
+                        have_identity = false;
+                        break;
+                    }
+                }
+            }
+            m.learn(node, |f| {
+                f.device_type = Some(device_type);
+                if name.is_some() {
+                    f.device_name = name.clone();
+                }
+                if have_identity {
+                    f.identity = Some(identity);
+                }
+            });
+        }
+        let ids: Vec<NodeId> = found.iter().map(|(n, _)| *n).collect();
+        let snap = m.snapshot().await.map_err(|_| ApiError::ShuttingDown)?;
+        let nodes = snap
+            .iter()
+            .filter(|n| ids.contains(&n.id))
+            .map(|n| node_to_pb(m.bus(), n))
+            .collect();
+        Ok(Response::new(pb::ScanNetworkResponse { nodes }))
+    }
+
+    type StreamNodeEventsStream = EventStream;
+
+    async fn stream_node_events(
+        &self,
+        req: Request<pb::StreamNodeEventsRequest>,
+    ) -> Result<Response<Self::StreamNodeEventsStream>, Status> {
+        let req = req.into_inner();
+        let masters: Vec<CanopenBus> = if req.bus.is_empty() {
+            self.gateway.canopen_buses().cloned().collect()
+        } else {
+            vec![self.master(&req.bus)?.clone()]
+        };
+        let only: Vec<u32> = req.nodes;
+        let (tx, rx) = tokio::sync::mpsc::channel(256);
+        let cancel = self.gateway.shutdown_token();
+        for m in masters {
+            let mut events = m.events();
+            let tx = tx.clone();
+            let only = only.clone();
+            let cancel = cancel.clone();
+            tokio::spawn(async move {
+                loop {
+                    let ev = tokio::select! {
+                        _ = cancel.cancelled() => break,
+                        _ = tx.closed() => break,
+                        ev = events.recv() => ev,
+                    };
+                    use pb::node_event::Event as E;
+                    let msg = match ev {
+                        Ok(ev) => {
+                            if !only.is_empty() && !only.contains(&(ev.node.get() as u32)) {
+                                continue;
+                            }
+                            let event = match &ev.kind {
+                                NodeEventKind::BootUp => E::BootUp(pb::BootUp {}),
+                                NodeEventKind::StateChanged { from, to } => E::StateChanged(pb::StateChange {
+                                    from: nmt_state_to_pb(*from) as i32,
+                                    to: nmt_state_to_pb(Some(*to)) as i32,
+                                }),
+                                NodeEventKind::HeartbeatLost { timeout } => E::HeartbeatLost(pb::HeartbeatLost {
+                                    timeout_ms: timeout.as_millis() as u32,
+                                }),
+                                NodeEventKind::HeartbeatRecovered { state, after } => {
+                                    E::HeartbeatRecovered(pb::HeartbeatRecovered {
+                                        state: nmt_state_to_pb(Some(*state)) as i32,
+                                        silent_ms: after.as_millis() as u64,
+                                    })
+                                }
+                                NodeEventKind::Emcy(e) => E::Emcy(emcy_to_pb(e, ev.at)),
+                            };
+                            pb::NodeEvent {
+                                bus: m.bus().to_string(),
+                                node: ev.node.get() as u32,
+                                timestamp_ns: ev.at.as_nanos(),
+                                event: Some(event),
+                            }
+                        }
+                        Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => pb::NodeEvent {
+                            bus: m.bus().to_string(),
+                            node: 0,
+                            timestamp_ns: Timestamp::now().as_nanos(),
+                            event: Some(E::Lost(pb::EventsLost { count: n })),
+                        },
+                        Err(tokio::sync::broadcast::error::RecvError::Closed) => break,
+                    };
+                    if tx.send(Ok(msg)).await.is_err() {
+                        break;
+                    }
+                }
+            });
+        }
+        Ok(Response::new(Box::pin(tokio_stream::wrappers::ReceiverStream::new(rx))))
+    }
+}
