@@ -144,6 +144,29 @@ impl Client {
         BusClient::new(self.channel.clone()).max_decoding_message_size(64 * 1024 * 1024)
     }
 
+    /// The generated Canopen client.
+    pub fn canopen_client(&self) -> pb::canopen_client::CanopenClient<Channel> {
+        pb::canopen_client::CanopenClient::new(self.channel.clone())
+            .max_decoding_message_size(64 * 1024 * 1024)
+            .max_encoding_message_size(64 * 1024 * 1024)
+    }
+
+    /// Reads an object over SDO.
+    pub async fn read_sdo(
+        &mut self,
+        req: pb::ReadSdoRequest,
+    ) -> Result<pb::ReadSdoResponse, Error> {
+        Ok(self.canopen_client().read_sdo(req).await?.into_inner())
+    }
+
+    /// Writes an object over SDO.
+    pub async fn write_sdo(
+        &mut self,
+        req: pb::WriteSdoRequest,
+    ) -> Result<pb::WriteSdoResponse, Error> {
+        Ok(self.canopen_client().write_sdo(req).await?.into_inner())
+    }
+
     /// Every bus with live statistics.
     pub async fn list_buses(&mut self) -> Result<Vec<pb::BusInfo>, Error> {
         Ok(self

@@ -7,6 +7,9 @@ use clap::{Parser, Subcommand};
 use serde_json::json;
 use std::io::Write;
 
+mod canopen_cli;
+use canopen_cli::{NmtVerb, SdoVerb};
+
 /// Command-line client of the cangate CAN gateway.
 #[derive(Parser, Debug)]
 #[command(version, about)]
@@ -53,6 +56,42 @@ enum Command {
         #[arg(required = true)]
         frames: Vec<String>,
     },
+    /// List CANopen nodes (configured and discovered) with state and errors.
+    Nodes {
+        /// Only this bus.
+        bus: Option<String>,
+    },
+    /// Find the CANopen nodes on a bus (SDO read of 0x1000 at every id).
+    Scan {
+        /// Bus.
+        bus: String,
+        /// Per-node answer timeout in ms.
+        #[arg(long, default_value_t = 100)]
+        timeout_ms: u32,
+    },
+    /// Send an NMT command: `cangate nmt can0 start 5` (node 0: all nodes).
+    Nmt {
+        /// Bus.
+        bus: String,
+        /// Command.
+        command: NmtVerb,
+        /// Node id, 0 for all.
+        node: u32,
+    },
+    /// Read or write CANopen objects over SDO.
+    Sdo {
+        #[command(subcommand)]
+        verb: SdoVerb,
+    },
+    /// Stream CANopen node events (boot-up, state, heartbeat, EMCY).
+    Events {
+        /// Only this bus.
+        #[arg(long)]
+        bus: Option<String>,
+        /// Only these node ids.
+        #[arg(long = "node")]
+        nodes: Vec<u32>,
+    },
 }
 
 #[tokio::main]
@@ -75,6 +114,17 @@ async fn run(cli: Cli) -> Result<()> {
             tx,
             errors,
         } => dump(&mut client, cli.json, &bus, &filters, count, tx, errors).await,
+        Command::Nodes { bus } => canopen_cli::nodes(&mut client, cli.json, bus).await,
+        Command::Scan { bus, timeout_ms } => {
+            canopen_cli::scan(&mut client, cli.json, bus, timeout_ms).await
+        }
+        Command::Nmt { bus, command, node } => {
+            canopen_cli::nmt(&mut client, bus, command, node).await
+        }
+        Command::Sdo { verb } => canopen_cli::sdo(&mut client, cli.json, verb).await,
+        Command::Events { bus, nodes } => {
+            canopen_cli::events(&mut client, cli.json, bus, nodes).await
+        }
         Command::Send { bus, frames } => {
             let frames = frames
                 .iter()

@@ -4,14 +4,14 @@
 
 use crate::canopen::{CanopenBus, NodeFacts};
 use crate::config::{BackendChoice, BusConfig, Config, StuffingChoice};
-use crate::grpc::canopen_service::CanopenService;
-use cangate_canopen::NodeId;
-use cangate_sim::{SimNode, SimNodeOptions};
 use crate::error::ApiError;
 use crate::grpc::bus_service::BusService;
+use crate::grpc::canopen_service::CanopenService;
 use cangate_can::bus::{Backend, BackendKind, BusHandle, BusInfo};
 use cangate_can::socketcan_bus::SocketCanBus;
 use cangate_can::{BitTiming, Stuffing, VirtualBusConfig, VirtualNetwork};
+use cangate_canopen::NodeId;
+use cangate_sim::{SimNode, SimNodeOptions};
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -64,6 +64,9 @@ impl Gateway {
             tasks.push(task);
         }
         let mut canopen = BTreeMap::new();
+        // Simulated devices start after their master listens, so that the
+        // master sees their boot-up.
+        let mut simulated = Vec::new();
         for cc in &config.canopen {
             let bus = buses[&cc.bus].clone();
             let mut facts = BTreeMap::new();
@@ -75,16 +78,23 @@ impl Gateway {
                 let node = NodeId::new(nc.id).map_err(|e| err(e.to_string()))?;
                 let eds = nc.load_eds().map_err(err)?.map(Arc::new);
                 if nc.simulate {
-                    let eds = eds.as_ref().ok_or_else(|| err("a simulated node needs an eds".into()))?;
+                    let eds = eds
+                        .as_ref()
+                        .ok_or_else(|| err("a simulated node needs an eds".into()))?;
                     let vbus = network
                         .get(buses[&cc.bus].info().interface.as_str())
                         .ok_or_else(|| err("simulated nodes need a virtual bus".into()))?;
-                    let device = SimNode::new(eds, node, SimNodeOptions::default());
-                    tasks.push(cangate_sim::spawn_node(
-                        vbus.connect(false),
-                        device,
-                        shutdown.child_token(),
-                    ));
+                    // Simulated devices produce a heartbeat at a third of the
+                    // consumer timeout (100 ms when none is configured).
+                    let heartbeat_ms = match nc.heartbeat_timeout_ms {
+                        0 => 100,
+                        t => (t / 3).clamp(1, u16::MAX as u64) as u16,
+                    };
+                    let options = SimNodeOptions {
+                        heartbeat_ms: Some(heartbeat_ms),
+                        ..SimNodeOptions::default()
+                    };
+                    simulated.push((vbus.connect(false), SimNode::new(eds, node, options)));
                 }
                 facts.insert(
                     node,
@@ -106,6 +116,13 @@ impl Gateway {
             );
             canopen.insert(cc.bus.clone(), master);
             tasks.push(task);
+        }
+        for (port, device) in simulated {
+            tasks.push(cangate_sim::spawn_node(
+                port,
+                device,
+                shutdown.child_token(),
+            ));
         }
         Ok((
             Gateway {

@@ -4,13 +4,13 @@
 //! devices configured on virtual buses.
 
 use cangate_can::{BusHandle, BusItem, FrameSelector, Timestamp};
+use cangate_canopen::NodeId;
 use cangate_canopen::eds::Eds;
 use cangate_canopen::emcy::{Emcy, EmcyEvent};
 use cangate_canopen::heartbeat::HeartbeatEvent;
 use cangate_canopen::master::{Master, MasterEvent, Output, RequestId, SdoRequest};
 use cangate_canopen::nmt::{NmtCommand, NmtState, nmt_frame};
 use cangate_canopen::sdo::{SdoError, TransferOutcome};
-use cangate_canopen::NodeId;
 use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, RwLock};
 use std::time::{Duration, Instant};
@@ -158,7 +158,10 @@ impl CanopenBus {
                 master.monitor_heartbeat(*id, t);
             }
         }
-        let task = tokio::spawn(run_master(master, bus, rx, events, facts, cancel));
+        // Subscribe before returning, so that nothing the nodes send after
+        // this point (their boot-up, typically) is missed.
+        let sub = bus.subscribe(FrameSelector::default(), 65_536);
+        let task = tokio::spawn(run_master(master, bus, sub, rx, events, facts, cancel));
         (handle, task)
     }
 
@@ -188,7 +191,11 @@ impl CanopenBus {
     }
 
     /// Runs one SDO transfer.
-    pub async fn sdo(&self, node: NodeId, req: SdoRequest) -> Result<TransferOutcome, CanopenError> {
+    pub async fn sdo(
+        &self,
+        node: NodeId,
+        req: SdoRequest,
+    ) -> Result<TransferOutcome, CanopenError> {
         let (reply, rx) = oneshot::channel();
         self.commands
             .send(Command::Sdo { node, req, reply })
@@ -230,6 +237,7 @@ struct Pending {
 async fn run_master(
     mut master: Master,
     bus: BusHandle,
+    mut sub: cangate_can::Subscription,
     mut commands: mpsc::Receiver<Command>,
     events: broadcast::Sender<NodeEvent>,
     facts: Arc<RwLock<BTreeMap<NodeId, NodeFacts>>>,
@@ -237,7 +245,6 @@ async fn run_master(
 ) {
     let origin = Instant::now();
     let origin_wall = Timestamp::now();
-    let mut sub = bus.subscribe(FrameSelector::default(), 65_536);
     let mut pending: HashMap<RequestId, Pending> = HashMap::new();
     let mut next_id: RequestId = 1;
     let mut items = Vec::with_capacity(256);
@@ -351,7 +358,12 @@ fn handle_event(
         },
         MasterEvent::Emcy(e) => match e {
             EmcyEvent::Error(emcy) | EmcyEvent::Reset { emcy, .. } => {
-                tracing::warn!(node = emcy.node.get(), code = format!("0x{:04X}", emcy.code), name = emcy.code_name(), "EMCY");
+                tracing::warn!(
+                    node = emcy.node.get(),
+                    code = format!("0x{:04X}", emcy.code),
+                    name = emcy.code_name(),
+                    "EMCY"
+                );
                 (emcy.node, NodeEventKind::Emcy(emcy))
             }
             EmcyEvent::Malformed { .. } => return,
@@ -362,7 +374,6 @@ fn handle_event(
 }
 
 fn snapshot(
-
     master: &Master,
     facts: &RwLock<BTreeMap<NodeId, NodeFacts>>,
     origin_wall: Timestamp,

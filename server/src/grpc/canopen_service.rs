@@ -58,8 +58,9 @@ fn known_node(master: &CanopenBus, n: u32) -> Result<NodeId, ApiError> {
 }
 
 fn address(index: u32, sub: u32) -> Result<ObjectAddress, ApiError> {
-    let index = u16::try_from(index)
-        .map_err(|_| ApiError::InvalidArgument(format!("index 0x{index:X} does not fit 16 bits")))?;
+    let index = u16::try_from(index).map_err(|_| {
+        ApiError::InvalidArgument(format!("index 0x{index:X} does not fit 16 bits"))
+    })?;
     let sub = u8::try_from(sub)
         .map_err(|_| ApiError::InvalidArgument(format!("sub-index {sub} does not fit 8 bits")))?;
     Ok(ObjectAddress::new(index, sub))
@@ -102,7 +103,9 @@ fn data_type_from_pb(t: i32) -> Result<Option<DataType>, ApiError> {
         .ok()
         .and_then(DataType::from_code)
         .map(Some)
-        .ok_or_else(|| ApiError::InvalidArgument(format!("data type {t} is not a CiA 301 type code")))
+        .ok_or_else(|| {
+            ApiError::InvalidArgument(format!("data type {t} is not a CiA 301 type code"))
+        })
 }
 
 /// A CANopen value to protobuf.
@@ -116,7 +119,11 @@ pub fn value_to_pb(v: &Value) -> pb::Value {
         Value::OctetString(b) | Value::Domain(b) => V::BytesValue(b.clone()),
         other => {
             let i = other.as_i128().unwrap_or(0);
-            if other.data_type().integer_range().is_some_and(|(min, _)| min < 0) {
+            if other
+                .data_type()
+                .integer_range()
+                .is_some_and(|(min, _)| min < 0)
+            {
                 V::IntValue(i as i64)
             } else {
                 V::UintValue(i as u64)
@@ -208,13 +215,23 @@ fn node_to_pb(bus: &str, n: &NodeSnapshot) -> pb::Node {
             serial: i[3],
         }),
         active_error: n.active_error.as_ref().map(|(e, t)| emcy_to_pb(e, *t)),
-        emcy_history: n.emcy_history.iter().map(|(e, t)| emcy_to_pb(e, *t)).collect(),
+        emcy_history: n
+            .emcy_history
+            .iter()
+            .map(|(e, t)| emcy_to_pb(e, *t))
+            .collect(),
         boot_ups: n.boot_ups,
         configured: n.facts.configured,
     }
 }
 
-async fn read_u32(master: &CanopenBus, node: NodeId, index: u16, sub: u8, timeout: Duration) -> Option<u32> {
+async fn read_u32(
+    master: &CanopenBus,
+    node: NodeId,
+    index: u16,
+    sub: u8,
+    timeout: Duration,
+) -> Option<u32> {
     let req = SdoRequest::Upload {
         addr: ObjectAddress::new(index, sub),
         opts: TransferOptions::default().with_timeout(timeout),
@@ -249,7 +266,10 @@ impl Canopen for CanopenService {
         Ok(Response::new(pb::ListNodesResponse { nodes }))
     }
 
-    async fn get_node(&self, req: Request<pb::GetNodeRequest>) -> Result<Response<pb::Node>, Status> {
+    async fn get_node(
+        &self,
+        req: Request<pb::GetNodeRequest>,
+    ) -> Result<Response<pb::Node>, Status> {
         let req = req.into_inner();
         let m = self.master(&req.bus)?;
         let id = known_node(m, req.node)?;
@@ -352,7 +372,10 @@ impl Canopen for CanopenService {
                 value.encode()
             }
             None => {
-                return Err(ApiError::InvalidArgument("nothing to write: give value or raw".into()).into());
+                return Err(ApiError::InvalidArgument(
+                    "nothing to write: give value or raw".into(),
+                )
+                .into());
             }
         };
         let n = data.len() as u32;
@@ -375,7 +398,11 @@ impl Canopen for CanopenService {
     ) -> Result<Response<pb::ScanNetworkResponse>, Status> {
         let req = req.into_inner();
         let m = self.master(&req.bus)?.clone();
-        let timeout = Duration::from_millis(if req.timeout_ms == 0 { 100 } else { req.timeout_ms as u64 });
+        let timeout = Duration::from_millis(if req.timeout_ms == 0 {
+            100
+        } else {
+            req.timeout_ms as u64
+        });
         let probes = (1..=127u32).map(|n| {
             let m = m.clone();
             async move {
@@ -473,13 +500,17 @@ impl Canopen for CanopenService {
                             }
                             let event = match &ev.kind {
                                 NodeEventKind::BootUp => E::BootUp(pb::BootUp {}),
-                                NodeEventKind::StateChanged { from, to } => E::StateChanged(pb::StateChange {
-                                    from: nmt_state_to_pb(*from) as i32,
-                                    to: nmt_state_to_pb(Some(*to)) as i32,
-                                }),
-                                NodeEventKind::HeartbeatLost { timeout } => E::HeartbeatLost(pb::HeartbeatLost {
-                                    timeout_ms: timeout.as_millis() as u32,
-                                }),
+                                NodeEventKind::StateChanged { from, to } => {
+                                    E::StateChanged(pb::StateChange {
+                                        from: nmt_state_to_pb(*from) as i32,
+                                        to: nmt_state_to_pb(Some(*to)) as i32,
+                                    })
+                                }
+                                NodeEventKind::HeartbeatLost { timeout } => {
+                                    E::HeartbeatLost(pb::HeartbeatLost {
+                                        timeout_ms: timeout.as_millis() as u32,
+                                    })
+                                }
                                 NodeEventKind::HeartbeatRecovered { state, after } => {
                                     E::HeartbeatRecovered(pb::HeartbeatRecovered {
                                         state: nmt_state_to_pb(Some(*state)) as i32,
@@ -509,6 +540,8 @@ impl Canopen for CanopenService {
                 }
             });
         }
-        Ok(Response::new(Box::pin(tokio_stream::wrappers::ReceiverStream::new(rx))))
+        Ok(Response::new(Box::pin(
+            tokio_stream::wrappers::ReceiverStream::new(rx),
+        )))
     }
 }

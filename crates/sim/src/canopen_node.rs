@@ -1,0 +1,1580 @@
+//! [`SimNode`]: a simulated CANopen (CiA 301) slave built from an EDS.
+//!
+//! The node serves its object dictionary ([`SimStore`]) over SDO, follows
+//! NMT commands, produces heartbeats (0x1017), transmits TPDOs and applies
+//! RPDOs according to the PDO parameters in its object dictionary, reacts
+//! to SYNC and produces EMCY messages on request. It is a pure state
+//! machine: frames and time in, frames and [`SimEvent`]s out.
+//!
+//! | service | behaviour |
+//! |---|---|
+//! | NMT | boot-up on [`SimNode::start`], then pre-operational; start/stop/pre-operational; reset node restores every default, reset communication restores 0x1000..=0x1FFF; both boot up again |
+//! | heartbeat | every 0x1017 ms in every state after boot-up; writes to 0x1017 restart the producer at once |
+//! | SDO | expedited, segmented and block (optional) on 0x600+n/0x580+n, in pre-operational and operational |
+//! | TPDO | operational only; parameters 0x1800+n and mapping 0x1A00+n read when needed; 0xFE/0xFF event-driven (sent on entering operational, on the event timer 0x180x:05, on [`SimNode::trigger_tpdo`] and optionally when a mapped value changes, respecting the inhibit time 0x180x:03), 1..=240 every n-th SYNC, 0 on the SYNC after an event, RTR answered when allowed |
+//! | RPDO | operational only; parameters 0x1400+n and mapping 0x1600+n; 0xFE/0xFF applied at once, 0..=240 at the next SYNC |
+//! | SYNC | COB-ID from 0x1005 (0x080 when absent) |
+//! | EMCY | COB-ID from 0x1014 (0x080+n when absent); sets 0x1001 |
+
+use std::collections::{BTreeMap, VecDeque};
+use std::time::Duration;
+
+use cangate_can::Frame;
+use cangate_canopen::eds::Eds;
+use cangate_canopen::emcy::emcy_frame;
+use cangate_canopen::nmt::{NmtReset, NmtSlave, NmtSlaveEvent, NmtState};
+use cangate_canopen::od::ObjectDictionary;
+use cangate_canopen::sdo::{AbortCode, ObjectStore, SdoServer, ServerOptions};
+use cangate_canopen::value::Value;
+use cangate_canopen::{NodeId, ObjectAddress};
+
+use crate::pdo::{self, Dir, MAX_PDOS, MapEntry, PdoComm, PdoParam, RPDO_COMM, TPDO_COMM};
+use crate::store::SimStore;
+use crate::{Device, SimError};
+
+/// Error register.
+const ERROR_REGISTER: ObjectAddress = ObjectAddress::new(0x1001, 0);
+/// COB-ID SYNC.
+const COB_ID_SYNC: u16 = 0x1005;
+/// COB-ID EMCY.
+const COB_ID_EMCY: u16 = 0x1014;
+/// Producer heartbeat time.
+const HEARTBEAT_TIME: ObjectAddress = ObjectAddress::new(0x1017, 0);
+
+/// How a [`SimNode`] behaves beyond what its EDS says.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SimNodeOptions {
+    /// Serve SDO block transfers; without, block initiates are aborted with
+    /// 0x05040001 as servers without block support do.
+    pub block_transfer: bool,
+    /// Segments per block offered for block downloads (1..=127).
+    pub block_size: u8,
+    /// Announce CRC support in block transfers.
+    pub crc: bool,
+    /// How long the SDO server waits for the client inside a transfer.
+    pub sdo_timeout: Duration,
+    /// Heartbeat producer time in ms replacing the EDS default of 0x1017
+    /// (also what resets restore); `None` keeps the EDS value.
+    pub heartbeat_ms: Option<u16>,
+    /// Enforce the CiA 301 procedure for changing PDO parameters over SDO
+    /// (invalidate the PDO before changing its COB-ID or mapping, mapping
+    /// sub 0 = 0 while writing entries, entries must be mappable, at most 8
+    /// bytes). When false, any value is accepted and a PDO whose mapping is
+    /// unusable is simply not sent or applied.
+    pub strict_pdo_config: bool,
+    /// Treat a change of a value mapped into an event-driven (or type 0)
+    /// TPDO as an event that transmits it (subject to the inhibit time).
+    /// Off by default: a device model updating its position every
+    /// millisecond would otherwise flood the bus unless an inhibit time is
+    /// configured.
+    pub tpdo_on_change: bool,
+    /// Capacity of the event queue ([`SimNode::take_events`]); the oldest
+    /// events are dropped beyond it.
+    pub max_events: usize,
+}
+
+impl Default for SimNodeOptions {
+    fn default() -> Self {
+        SimNodeOptions {
+            block_transfer: true,
+            block_size: 127,
+            crc: true,
+            sdo_timeout: Duration::from_secs(1),
+            heartbeat_ms: None,
+            strict_pdo_config: true,
+            tpdo_on_change: false,
+            max_events: 1024,
+        }
+    }
+}
+
+/// Something that happened to a [`SimNode`], for the device application.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SimEvent {
+    /// The NMT state changed (also reported for the boot-up after
+    /// [`SimNode::start`] and after resets, from the state before).
+    NmtStateChanged {
+        /// The previous state.
+        from: NmtState,
+        /// The new state.
+        to: NmtState,
+    },
+    /// An NMT reset was applied; the node has booted again.
+    Reset {
+        /// Which reset.
+        kind: NmtReset,
+    },
+    /// An SDO download wrote an object.
+    SdoWritten {
+        /// The object.
+        addr: ObjectAddress,
+    },
+    /// An RPDO was applied to the object dictionary.
+    RpdoReceived {
+        /// The RPDO number (1 = RPDO1, communication parameter 0x1400).
+        pdo: u16,
+        /// The objects written, in mapping order (dummy entries left out).
+        objects: Vec<(ObjectAddress, Value)>,
+    },
+    /// An RPDO frame was shorter than its mapping and was not applied.
+    RpdoLengthError {
+        /// The RPDO number (1-based).
+        pdo: u16,
+        /// Mapped bytes.
+        expected: usize,
+        /// Bytes received.
+        got: usize,
+    },
+    /// A SYNC was received (pre-operational or operational).
+    Sync {
+        /// The SYNC counter, if the frame carried one.
+        counter: Option<u8>,
+    },
+}
+
+/// Transmission state of one TPDO.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+struct TpdoState {
+    /// An event waits for transmission (entering operational, trigger,
+    /// change of a mapped value).
+    pending: bool,
+    /// When the event timer elapses.
+    timer: Option<Duration>,
+    /// No event-driven transmission before this.
+    inhibit_until: Duration,
+    /// SYNCs counted towards the transmission type.
+    syncs: u8,
+}
+
+/// The object store as the SDO server sees it: the store's checks plus,
+/// optionally, the PDO configuration rules; remembers what was written.
+struct SdoAccess<'a> {
+    store: &'a mut SimStore,
+    strict: bool,
+    written: &'a mut Vec<(ObjectAddress, bool)>,
+}
+
+impl ObjectStore for SdoAccess<'_> {
+    fn read(&mut self, addr: ObjectAddress) -> Result<Vec<u8>, AbortCode> {
+        self.store.read(addr)
+    }
+
+    fn write(&mut self, addr: ObjectAddress, data: &[u8]) -> Result<(), AbortCode> {
+        let value = self.store.decode_write(addr, data)?;
+        if self.strict {
+            pdo::check_config_write(self.store, addr, &value)?;
+        }
+        let changed = self.store.put(addr, value);
+        self.written.push((addr, changed));
+        Ok(())
+    }
+}
+
+/// A simulated CANopen slave. See the [module documentation](self).
+#[derive(Debug)]
+pub struct SimNode {
+    node: NodeId,
+    options: SimNodeOptions,
+    store: SimStore,
+    nmt: NmtSlave,
+    sdo: SdoServer,
+    /// By 0-based TPDO number, for every 0x1800+n in the dictionary.
+    tpdos: BTreeMap<u16, TpdoState>,
+    /// By 0-based RPDO number, for every 0x1400+n in the dictionary: data
+    /// of a synchronous RPDO waiting for the next SYNC.
+    rpdos: BTreeMap<u16, Option<Vec<u8>>>,
+    events: VecDeque<SimEvent>,
+    dropped_events: u64,
+    /// The latest time seen.
+    now: Duration,
+}
+
+impl SimNode {
+    /// A node with the object dictionary of `eds` (defaults resolved for
+    /// `node`), not yet started: call [`SimNode::start`].
+    pub fn new(eds: &Eds, node: NodeId, options: SimNodeOptions) -> Self {
+        Self::from_od(eds.od.clone(), node, options)
+    }
+
+    /// A node from EDS/DCF text.
+    pub fn from_eds_text(
+        text: &str,
+        node: NodeId,
+        options: SimNodeOptions,
+    ) -> Result<Self, SimError> {
+        Ok(Self::from_od(Eds::parse(text)?.od, node, options))
+    }
+
+    /// A node serving `od`.
+    pub fn from_od(od: ObjectDictionary, node: NodeId, options: SimNodeOptions) -> Self {
+        let mut store = SimStore::new(od, node);
+        if let Some(ms) = options.heartbeat_ms {
+            // Only fails when the EDS has no UNSIGNED16 0x1017; the
+            // producer then runs from the option alone.
+            let _ = store.set_default(HEARTBEAT_TIME, Value::Unsigned16(ms));
+        }
+        let present = |base: u16| -> Vec<u16> {
+            (0..MAX_PDOS)
+                .filter(|n| store.od().object(base + n).is_some())
+                .collect()
+        };
+        let tpdos = present(TPDO_COMM)
+            .into_iter()
+            .map(|n| (n, TpdoState::default()))
+            .collect();
+        let rpdos = present(RPDO_COMM).into_iter().map(|n| (n, None)).collect();
+        SimNode {
+            node,
+            sdo: SdoServer::new(node, Self::server_options(&options)),
+            nmt: NmtSlave::new(node, heartbeat_ms(&store, &options)),
+            options,
+            store,
+            tpdos,
+            rpdos,
+            events: VecDeque::new(),
+            dropped_events: 0,
+            now: Duration::ZERO,
+        }
+    }
+
+    fn server_options(options: &SimNodeOptions) -> ServerOptions {
+        ServerOptions {
+            block_transfer: options.block_transfer,
+            block_size: options.block_size,
+            crc: options.crc,
+            timeout: options.sdo_timeout,
+        }
+    }
+
+    /// The node id.
+    pub fn node_id(&self) -> NodeId {
+        self.node
+    }
+
+    /// The options in force.
+    pub fn options(&self) -> &SimNodeOptions {
+        &self.options
+    }
+
+    /// The NMT state ([`NmtState::Initialising`] until started).
+    pub fn nmt_state(&self) -> NmtState {
+        self.nmt.state()
+    }
+
+    /// The heartbeat producer period, `None` when off.
+    pub fn heartbeat_period(&self) -> Option<Duration> {
+        self.nmt.heartbeat_period()
+    }
+
+    /// The object dictionary structure.
+    pub fn od(&self) -> &ObjectDictionary {
+        self.store.od()
+    }
+
+    /// The object values.
+    pub fn store(&self) -> &SimStore {
+        &self.store
+    }
+
+    /// The current value of an object.
+    pub fn get(&self, addr: ObjectAddress) -> Option<&Value> {
+        self.store.get(addr)
+    }
+
+    /// Sets an object locally, as the device application does (e.g. a
+    /// drive model updating 0x6041 statusword or 0x6064 position): the type
+    /// must match; access rights and limits are not checked. Side effects
+    /// apply as for a write over SDO (0x1017 restarts the heartbeat, PDO
+    /// parameters reconfigure the PDO), timed at the latest `now` the node
+    /// has seen.
+    pub fn set(&mut self, addr: ObjectAddress, value: Value) -> Result<(), SimError> {
+        let changed = self.store.set(addr, value)?;
+        self.after_write(addr, changed, self.now);
+        Ok(())
+    }
+
+    /// Takes the events that happened since the last call, oldest first.
+    pub fn take_events(&mut self) -> Vec<SimEvent> {
+        self.events.drain(..).collect()
+    }
+
+    /// Events dropped because the queue was full.
+    pub fn dropped_events(&self) -> u64 {
+        self.dropped_events
+    }
+
+    /// Powers the node on: returns the boot-up frame (0x700+n `[00]`) and
+    /// enters pre-operational. Does nothing (returns no frame) if already
+    /// started.
+    pub fn start(&mut self, now: Duration) -> Vec<Frame> {
+        self.now = now;
+        if self.nmt.state() != NmtState::Initialising {
+            return Vec::new();
+        }
+        let boot_up = self.nmt.boot(now);
+        self.push_event(SimEvent::NmtStateChanged {
+            from: NmtState::Initialising,
+            to: NmtState::PreOperational,
+        });
+        vec![boot_up]
+    }
+
+    /// Handles a frame received at `now`; returns the frames to send.
+    pub fn on_frame(&mut self, frame: &Frame, now: Duration) -> Vec<Frame> {
+        self.now = now;
+        let mut out = Vec::new();
+        if frame.is_error() {
+            return out;
+        }
+        let before = self.nmt.state();
+        if let Some(event) = self.nmt.on_frame(frame, now) {
+            self.on_nmt(before, event, now, &mut out);
+            self.service_tpdos(now, &mut out);
+            return out;
+        }
+        let state = self.nmt.state();
+        if state == NmtState::Initialising {
+            return out;
+        }
+        if self.is_sync(frame) {
+            self.on_sync(frame, now, &mut out);
+            return out;
+        }
+        if state != NmtState::Stopped {
+            self.on_sdo(frame, now, &mut out);
+        }
+        if state == NmtState::Operational {
+            if frame.is_remote() {
+                self.on_tpdo_request(frame, now, &mut out);
+            } else {
+                self.on_rpdo(frame, now);
+            }
+        }
+        self.service_tpdos(now, &mut out);
+        out
+    }
+
+    /// Runs what is due at `now` (heartbeat, SDO timeout, event-driven
+    /// TPDOs); returns the frames to send.
+    pub fn on_tick(&mut self, now: Duration) -> Vec<Frame> {
+        self.now = now;
+        let mut out = Vec::new();
+        out.extend(self.nmt.on_tick(now));
+        out.extend(self.sdo.on_tick(now));
+        self.service_tpdos(now, &mut out);
+        out
+    }
+
+    /// When [`SimNode::on_tick`] must run next; `None` when nothing is
+    /// scheduled.
+    pub fn next_deadline(&self) -> Option<Duration> {
+        let tpdos = self
+            .tpdos
+            .iter()
+            .filter_map(|(&n, st)| self.tpdo_due(n, st));
+        [self.nmt.next_deadline(), self.sdo.next_deadline()]
+            .into_iter()
+            .flatten()
+            .chain(tpdos)
+            .min()
+    }
+
+    /// Produces an emergency message: sets the error register (0x1001) to
+    /// `register` and returns the EMCY frame `[code lo, code hi, register,
+    /// manufacturer…]` on the COB-ID of 0x1014 (0x080+n when absent).
+    ///
+    /// Returns `None` (after still setting 0x1001) when EMCY may not be
+    /// sent: before start-up, in the stopped state, or with the EMCY COB-ID
+    /// marked invalid (bit 31).
+    pub fn inject_emcy(&mut self, code: u16, register: u8, manufacturer: [u8; 5]) -> Option<Frame> {
+        self.set_error_register(register);
+        self.emcy(code, register, manufacturer)
+    }
+
+    /// Clears the error state: sets 0x1001 to 0 and returns the "error
+    /// reset" EMCY (code 0x0000, all bytes zero); `None` as for
+    /// [`SimNode::inject_emcy`].
+    pub fn clear_emcy(&mut self) -> Option<Frame> {
+        self.set_error_register(0);
+        self.emcy(0, 0, [0; 5])
+    }
+
+    /// Requests transmission of TPDO `pdo` (1-based) as an application
+    /// event: an event-driven TPDO is sent at the next tick (after its
+    /// inhibit time), a type 0 TPDO at the next SYNC. Returns false if the
+    /// node has no such TPDO.
+    pub fn trigger_tpdo(&mut self, pdo: u16) -> bool {
+        let Some(st) = pdo.checked_sub(1).and_then(|n| self.tpdos.get_mut(&n)) else {
+            return false;
+        };
+        st.pending = true;
+        true
+    }
+
+    // ---- NMT ----
+
+    fn on_nmt(
+        &mut self,
+        before: NmtState,
+        event: NmtSlaveEvent,
+        now: Duration,
+        out: &mut Vec<Frame>,
+    ) {
+        match event {
+            NmtSlaveEvent::StateChanged { from, to } => {
+                self.push_event(SimEvent::NmtStateChanged { from, to });
+                if to == NmtState::Operational || from == NmtState::Operational {
+                    self.reset_pdos(to == NmtState::Operational);
+                }
+                if to == NmtState::Stopped {
+                    // SDO is not available while stopped: drop any transfer.
+                    self.sdo = SdoServer::new(self.node, Self::server_options(&self.options));
+                }
+            }
+            NmtSlaveEvent::Reset { kind, boot_up } => {
+                match kind {
+                    NmtReset::Node => self.store.restore_defaults(),
+                    NmtReset::Communication => self.store.restore_range(0x1000..=0x1FFF),
+                }
+                self.sdo = SdoServer::new(self.node, Self::server_options(&self.options));
+                self.reset_pdos(false);
+                self.nmt.set_heartbeat_ms(self.heartbeat_ms(), now);
+                out.push(boot_up);
+                self.push_event(SimEvent::Reset { kind });
+                if before != NmtState::PreOperational {
+                    self.push_event(SimEvent::NmtStateChanged {
+                        from: before,
+                        to: NmtState::PreOperational,
+                    });
+                }
+            }
+        }
+    }
+
+    fn heartbeat_ms(&self) -> u16 {
+        heartbeat_ms(&self.store, &self.options)
+    }
+
+    // ---- SDO and side effects of writes ----
+
+    fn on_sdo(&mut self, frame: &Frame, now: Duration, out: &mut Vec<Frame>) {
+        let mut written = Vec::new();
+        let mut access = SdoAccess {
+            store: &mut self.store,
+            strict: self.options.strict_pdo_config,
+            written: &mut written,
+        };
+        out.extend(self.sdo.on_frame(frame, now, &mut access));
+        for (addr, changed) in written {
+            self.push_event(SimEvent::SdoWritten { addr });
+            self.after_write(addr, changed, now);
+        }
+    }
+
+    /// Applies what a written object changes in the node's behaviour.
+    fn after_write(&mut self, addr: ObjectAddress, changed: bool, now: Duration) {
+        if addr == HEARTBEAT_TIME {
+            self.nmt.set_heartbeat_ms(self.heartbeat_ms(), now);
+        }
+        let operational = self.nmt.state() == NmtState::Operational;
+        match PdoParam::of(addr.index) {
+            Some(PdoParam::Comm(Dir::Tx, n)) if addr.sub == 5 => {
+                let event = pdo::comm(&self.store, Dir::Tx, n).and_then(|c| c.event);
+                if let Some(st) = self.tpdos.get_mut(&n) {
+                    st.timer = event.filter(|_| operational).map(|e| now + e);
+                }
+            }
+            Some(PdoParam::Comm(Dir::Tx, n) | PdoParam::Map(Dir::Tx, n)) => {
+                if let Some(st) = self.tpdos.get_mut(&n) {
+                    *st = TpdoState {
+                        pending: operational,
+                        ..TpdoState::default()
+                    };
+                }
+            }
+            Some(PdoParam::Comm(Dir::Rx, n) | PdoParam::Map(Dir::Rx, n)) => {
+                if let Some(buffered) = self.rpdos.get_mut(&n) {
+                    *buffered = None;
+                }
+            }
+            None if changed && self.options.tpdo_on_change && operational => {
+                self.mark_tpdos_mapping(addr);
+            }
+            None => {}
+        }
+    }
+
+    /// Marks the event-driven and type 0 TPDOs that map `addr` as pending.
+    fn mark_tpdos_mapping(&mut self, addr: ObjectAddress) {
+        let store = &self.store;
+        for (&n, st) in self.tpdos.iter_mut() {
+            let Some(comm) = pdo::comm(store, Dir::Tx, n) else {
+                continue;
+            };
+            let maps =
+                pdo::mapping(store, Dir::Tx, n).is_ok_and(|m| m.iter().any(|e| e.addr == addr));
+            if maps && (comm.event_driven() || comm.ttype == 0) {
+                st.pending = true;
+            }
+        }
+    }
+
+    // ---- PDOs ----
+
+    /// Fresh TPDO states (every event-driven TPDO pending when entering
+    /// operational) and no buffered RPDO data.
+    fn reset_pdos(&mut self, operational: bool) {
+        for st in self.tpdos.values_mut() {
+            *st = TpdoState {
+                pending: operational,
+                ..TpdoState::default()
+            };
+        }
+        for buffered in self.rpdos.values_mut() {
+            *buffered = None;
+        }
+    }
+
+    /// When an event-driven TPDO must be looked at, if it is active.
+    fn tpdo_due(&self, n: u16, st: &TpdoState) -> Option<Duration> {
+        if self.nmt.state() != NmtState::Operational {
+            return None;
+        }
+        pdo::comm(&self.store, Dir::Tx, n).filter(PdoComm::event_driven)?;
+        let due = if st.pending { Some(self.now) } else { st.timer }?;
+        Some(due.max(st.inhibit_until))
+    }
+
+    /// Sends every event-driven TPDO that is due at `now`.
+    fn service_tpdos(&mut self, now: Duration, out: &mut Vec<Frame>) {
+        if self.nmt.state() != NmtState::Operational {
+            return;
+        }
+        let store = &self.store;
+        for (&n, st) in self.tpdos.iter_mut() {
+            let Some(comm) = pdo::comm(store, Dir::Tx, n).filter(PdoComm::event_driven) else {
+                continue;
+            };
+            let timer_due = st.timer.is_some_and(|t| t <= now);
+            if !(st.pending || timer_due) || now < st.inhibit_until {
+                continue;
+            }
+            // The timer restarts with every transmission; a timer that
+            // elapsed keeps its phase unless the tick came a period late.
+            let base = match st.timer {
+                Some(t) if timer_due && !st.pending => t,
+                _ => now,
+            };
+            st.timer = comm.event.map(|e| {
+                let next = base + e;
+                if next > now { next } else { now + e }
+            });
+            st.pending = false;
+            if let Some(frame) = tpdo_frame(store, n, &comm) {
+                st.inhibit_until = now + comm.inhibit;
+                out.push(frame);
+            }
+        }
+    }
+
+    fn is_sync(&self, frame: &Frame) -> bool {
+        let raw = self.store.u32_at(COB_ID_SYNC, 0).unwrap_or(0x80);
+        !frame.is_remote() && !frame.is_fd() && frame.id() == pdo::CobId::decode(raw).id
+    }
+
+    fn on_sync(&mut self, frame: &Frame, now: Duration, out: &mut Vec<Frame>) {
+        self.push_event(SimEvent::Sync {
+            counter: frame.data().first().copied(),
+        });
+        if self.nmt.state() != NmtState::Operational {
+            return;
+        }
+        // Synchronous RPDOs take effect at the SYNC after their reception.
+        let buffered: Vec<(u16, Vec<u8>)> = self
+            .rpdos
+            .iter_mut()
+            .filter_map(|(&n, b)| Some((n, b.take()?)))
+            .collect();
+        for (n, data) in buffered {
+            if let Ok(entries) = pdo::mapping(&self.store, Dir::Rx, n) {
+                self.apply_rpdo(n, &entries, &data, now);
+            }
+        }
+        let store = &self.store;
+        for (&n, st) in self.tpdos.iter_mut() {
+            let Some(comm) = pdo::comm(store, Dir::Tx, n) else {
+                continue;
+            };
+            let send = match comm.ttype {
+                0 => std::mem::take(&mut st.pending),
+                t @ 1..=240 => {
+                    st.syncs = st.syncs.saturating_add(1);
+                    let due = st.syncs >= t;
+                    if due {
+                        st.syncs = 0;
+                    }
+                    due
+                }
+                _ => false,
+            };
+            if send {
+                out.extend(tpdo_frame(store, n, &comm));
+            }
+        }
+        self.service_tpdos(now, out);
+    }
+
+    /// Answers a remote request for a TPDO that allows RTR.
+    fn on_tpdo_request(&mut self, frame: &Frame, now: Duration, out: &mut Vec<Frame>) {
+        let store = &self.store;
+        for (&n, st) in self.tpdos.iter_mut() {
+            let Some(comm) = pdo::comm(store, Dir::Tx, n) else {
+                continue;
+            };
+            if comm.id != frame.id() || !comm.rtr_allowed {
+                continue;
+            }
+            if let Some(f) = tpdo_frame(store, n, &comm) {
+                if comm.event_driven() {
+                    st.inhibit_until = now + comm.inhibit;
+                }
+                out.push(f);
+            }
+        }
+    }
+
+    fn on_rpdo(&mut self, frame: &Frame, now: Duration) {
+        if frame.is_fd() {
+            return;
+        }
+        let matching: Vec<(u16, PdoComm)> = self
+            .rpdos
+            .keys()
+            .filter_map(|&n| Some((n, pdo::comm(&self.store, Dir::Rx, n)?)))
+            .filter(|(_, c)| c.id == frame.id())
+            .collect();
+        for (n, comm) in matching {
+            let Ok(entries) = pdo::mapping(&self.store, Dir::Rx, n) else {
+                continue;
+            };
+            if entries.is_empty() {
+                continue;
+            }
+            let len: usize = entries.iter().map(|e| e.len).sum();
+            let data = frame.data();
+            if data.len() < len {
+                self.push_event(SimEvent::RpdoLengthError {
+                    pdo: n + 1,
+                    expected: len,
+                    got: data.len(),
+                });
+                continue;
+            }
+            if comm.ttype <= 240 {
+                self.rpdos.insert(n, Some(data[..len].to_vec()));
+            } else {
+                self.apply_rpdo(n, &entries, &data[..len], now);
+            }
+        }
+    }
+
+    fn apply_rpdo(&mut self, n: u16, entries: &[MapEntry], data: &[u8], now: Duration) {
+        let mut objects = Vec::with_capacity(entries.len());
+        let mut offset = 0;
+        for e in entries {
+            let bytes = &data[offset..offset + e.len];
+            offset += e.len;
+            if e.dummy {
+                continue;
+            }
+            let Some(var) = self.store.variable(e.addr) else {
+                continue;
+            };
+            let Ok(value) = Value::decode(var.data_type, bytes) else {
+                continue;
+            };
+            let changed = self.store.put(e.addr, value.clone());
+            objects.push((e.addr, value));
+            self.after_write(e.addr, changed, now);
+        }
+        self.push_event(SimEvent::RpdoReceived {
+            pdo: n + 1,
+            objects,
+        });
+    }
+
+    // ---- EMCY ----
+
+    fn set_error_register(&mut self, register: u8) {
+        let changed = self.store.put(ERROR_REGISTER, Value::Unsigned8(register));
+        self.after_write(ERROR_REGISTER, changed, self.now);
+    }
+
+    fn emcy(&self, code: u16, register: u8, manufacturer: [u8; 5]) -> Option<Frame> {
+        if !matches!(
+            self.nmt.state(),
+            NmtState::PreOperational | NmtState::Operational
+        ) {
+            return None;
+        }
+        let standard = emcy_frame(self.node, code, register, manufacturer);
+        let Some(raw) = self.store.u32_at(COB_ID_EMCY, 0) else {
+            return Some(standard);
+        };
+        let cob = pdo::CobId::decode(raw);
+        if !cob.valid {
+            return None;
+        }
+        Frame::new(cob.id, standard.data()).ok()
+    }
+
+    fn push_event(&mut self, event: SimEvent) {
+        if self.options.max_events == 0 {
+            self.dropped_events += 1;
+            return;
+        }
+        while self.events.len() >= self.options.max_events {
+            self.events.pop_front();
+            self.dropped_events += 1;
+        }
+        self.events.push_back(event);
+    }
+}
+
+/// The heartbeat producer time: 0x1017, else the option, else off.
+fn heartbeat_ms(store: &SimStore, options: &SimNodeOptions) -> u16 {
+    match store.get(HEARTBEAT_TIME).and_then(Value::as_u32) {
+        Some(ms) => u16::try_from(ms).unwrap_or(u16::MAX),
+        None => options.heartbeat_ms.unwrap_or(0),
+    }
+}
+
+/// The frame of TPDO `n`: its mapped objects concatenated; `None` when the
+/// mapping is disabled or unusable.
+fn tpdo_frame(store: &SimStore, n: u16, comm: &PdoComm) -> Option<Frame> {
+    let entries = pdo::mapping(store, Dir::Tx, n).ok()?;
+    if entries.is_empty() {
+        return None;
+    }
+    let mut data = Vec::with_capacity(8);
+    for e in &entries {
+        let mut bytes = store.get(e.addr).map(Value::encode).unwrap_or_default();
+        bytes.resize(e.len, 0);
+        data.extend_from_slice(&bytes);
+    }
+    Frame::new(comm.id, &data).ok()
+}
+
+impl Device for SimNode {
+    fn start(&mut self, now: Duration) -> Vec<Frame> {
+        SimNode::start(self, now)
+    }
+    fn on_frame(&mut self, frame: &Frame, now: Duration) -> Vec<Frame> {
+        SimNode::on_frame(self, frame, now)
+    }
+    fn on_tick(&mut self, now: Duration) -> Vec<Frame> {
+        SimNode::on_tick(self, now)
+    }
+    fn next_deadline(&self) -> Option<Duration> {
+        SimNode::next_deadline(self)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::VecDeque;
+
+    use cangate_can::CanId;
+    use cangate_canopen::eds::{SIM_DRIVE_EDS, SIM_IO_EDS};
+    use cangate_canopen::sdo::{SdoClient, SdoError, TransferOptions, TransferOutcome};
+    use proptest::prelude::*;
+
+    use super::*;
+
+    const MS: Duration = Duration::from_millis(1);
+
+    fn node(id: u32) -> NodeId {
+        NodeId::new(id).unwrap()
+    }
+
+    fn at(index: u16, sub: u8) -> ObjectAddress {
+        ObjectAddress::new(index, sub)
+    }
+
+    fn drive_with(options: SimNodeOptions) -> SimNode {
+        SimNode::from_eds_text(SIM_DRIVE_EDS, node(5), options).unwrap()
+    }
+
+    /// The drive at node 5, booted at t = 0, events taken.
+    fn drive() -> SimNode {
+        let mut sim = drive_with(SimNodeOptions::default());
+        sim.start(Duration::ZERO);
+        sim.take_events();
+        sim
+    }
+
+    /// The drive, operational since t = 0 (its first TPDOs discarded).
+    fn operational() -> SimNode {
+        let mut sim = drive();
+        sim.on_frame(&frame(0x000, &[0x01, 0x05]), Duration::ZERO);
+        sim.take_events();
+        sim
+    }
+
+    fn h(s: &str) -> Vec<u8> {
+        s.split_whitespace()
+            .map(|b| u8::from_str_radix(b, 16).unwrap())
+            .collect()
+    }
+
+    fn frame(id: u16, data: &[u8]) -> Frame {
+        Frame::new(CanId::Standard(id), data).unwrap()
+    }
+
+    fn wire(frames: &[Frame]) -> Vec<(u32, Vec<u8>)> {
+        frames
+            .iter()
+            .map(|f| (f.raw_id(), f.data().to_vec()))
+            .collect()
+    }
+
+    /// Sends an SDO request (hex) to node 5; returns the reply bytes.
+    fn sdo(sim: &mut SimNode, request: &str, now: Duration) -> Vec<(u32, Vec<u8>)> {
+        wire(&sim.on_frame(&frame(0x605, &h(request)), now))
+    }
+
+    fn reply(response: &str) -> Vec<(u32, Vec<u8>)> {
+        vec![(0x585, h(response))]
+    }
+
+    #[test]
+    fn boots_up_into_pre_operational() {
+        let mut sim = drive_with(SimNodeOptions::default());
+        assert_eq!(sim.nmt_state(), NmtState::Initialising);
+        // Nothing happens before start-up.
+        assert!(
+            sim.on_frame(&frame(0x605, &h("40 00 10 00 00 00 00 00")), MS)
+                .is_empty()
+        );
+        assert_eq!(sim.next_deadline(), None);
+        assert_eq!(wire(&sim.start(Duration::ZERO)), [(0x705, vec![0x00])]);
+        assert_eq!(sim.nmt_state(), NmtState::PreOperational);
+        assert_eq!(
+            sim.take_events(),
+            [SimEvent::NmtStateChanged {
+                from: NmtState::Initialising,
+                to: NmtState::PreOperational
+            }]
+        );
+        assert!(sim.start(MS).is_empty(), "a second start does nothing");
+        // The EDS heartbeat time is 1000 ms.
+        assert_eq!(sim.next_deadline(), Some(Duration::from_secs(1)));
+        assert_eq!(
+            wire(&sim.on_tick(Duration::from_secs(1))),
+            [(0x705, vec![0x7F])]
+        );
+    }
+
+    #[test]
+    fn expedited_read_of_the_device_type() {
+        let mut sim = drive();
+        assert_eq!(
+            sdo(&mut sim, "40 00 10 00 00 00 00 00", MS),
+            reply("43 00 10 00 92 01 02 00")
+        );
+        assert_eq!(
+            sdo(&mut sim, "40 18 10 02 00 00 00 00", MS),
+            reply("43 18 10 02 02 04 00 00")
+        );
+        // COB-IDs are resolved for the node id.
+        assert_eq!(
+            sdo(&mut sim, "40 00 18 01 00 00 00 00", MS),
+            reply("43 00 18 01 85 01 00 00")
+        );
+    }
+
+    #[test]
+    fn heartbeat_time_write_takes_effect_at_once() {
+        let mut sim = drive();
+        let t0 = 10 * MS;
+        assert_eq!(
+            sdo(&mut sim, "2B 17 10 00 64 00 00 00", t0),
+            reply("60 17 10 00 00 00 00 00")
+        );
+        assert_eq!(
+            sim.take_events(),
+            [SimEvent::SdoWritten {
+                addr: at(0x1017, 0)
+            }]
+        );
+        assert_eq!(sim.get(at(0x1017, 0)), Some(&Value::Unsigned16(100)));
+        for k in 1..=5u32 {
+            let due = t0 + 100 * MS * k;
+            assert_eq!(sim.next_deadline(), Some(due));
+            assert!(sim.on_tick(due - MS).is_empty());
+            assert_eq!(wire(&sim.on_tick(due)), [(0x705, vec![0x7F])]);
+        }
+        // 0 switches the producer off.
+        sdo(&mut sim, "2B 17 10 00 00 00 00 00", Duration::from_secs(1));
+        assert_eq!(sim.next_deadline(), None);
+    }
+
+    #[test]
+    fn sdo_aborts() {
+        let mut sim = drive();
+        let cases = [
+            // Write to a read-only object.
+            ("23 00 10 00 01 02 03 04", "80 00 10 00 02 00 01 06"),
+            // Write to a const object.
+            ("2F 18 10 00 05 00 00 00", "80 18 10 00 02 00 01 06"),
+            // Unknown object.
+            ("40 00 20 00 00 00 00 00", "80 00 20 00 00 00 02 06"),
+            // Unknown sub-index.
+            ("40 18 10 09 00 00 00 00", "80 18 10 09 11 00 09 06"),
+            // UNSIGNED32 written to an UNSIGNED16: too long.
+            ("23 17 10 00 64 00 00 00", "80 17 10 00 12 00 07 06"),
+            // UNSIGNED8 written to an UNSIGNED16: too short.
+            ("2F 17 10 00 64 00 00 00", "80 17 10 00 13 00 07 06"),
+            // Profile velocity above its HighLimit of 1000000.
+            ("23 81 60 00 80 84 1E 00", "80 81 60 00 31 00 09 06"),
+        ];
+        for (request, abort) in cases {
+            assert_eq!(sdo(&mut sim, request, MS), reply(abort), "{request}");
+        }
+        assert_eq!(sim.get(at(0x1017, 0)), Some(&Value::Unsigned16(1000)));
+        assert!(sim.take_events().is_empty());
+    }
+
+    #[test]
+    fn sdo_aborts_for_access_and_limits_of_a_custom_eds() {
+        let text = "[2000]\nParameterName=Limited\nDataType=0x0003\nAccessType=rw\n\
+                    DefaultValue=0\nLowLimit=-10\nHighLimit=10\n\
+                    [2001]\nParameterName=Secret\nDataType=0x0007\nAccessType=wo\nDefaultValue=0\n";
+        let mut sim = SimNode::from_eds_text(text, node(5), SimNodeOptions::default()).unwrap();
+        sim.start(Duration::ZERO);
+        assert_eq!(
+            sdo(&mut sim, "40 01 20 00 00 00 00 00", MS),
+            reply("80 01 20 00 01 00 01 06")
+        );
+        assert_eq!(
+            sdo(&mut sim, "23 01 20 00 01 02 03 04", MS),
+            reply("60 01 20 00 00 00 00 00")
+        );
+        assert_eq!(
+            sdo(&mut sim, "2B 00 20 00 F5 FF 00 00", MS),
+            reply("80 00 20 00 32 00 09 06")
+        );
+        assert_eq!(
+            sdo(&mut sim, "2B 00 20 00 0B 00 00 00", MS),
+            reply("80 00 20 00 31 00 09 06")
+        );
+        assert_eq!(
+            sdo(&mut sim, "2B 00 20 00 F6 FF 00 00", MS),
+            reply("60 00 20 00 00 00 00 00")
+        );
+        assert_eq!(sim.get(at(0x2000, 0)), Some(&Value::Integer16(-10)));
+        // No heartbeat object and no override: no heartbeat.
+        assert_eq!(sim.next_deadline(), None);
+        assert!(matches!(
+            SimNode::from_eds_text("[1000\n", node(1), SimNodeOptions::default()),
+            Err(SimError::Eds(_))
+        ));
+    }
+
+    #[test]
+    fn nmt_start_gives_operational_heartbeats_and_tpdos() {
+        let mut sim = drive();
+        sim.set(at(0x6041, 0), Value::Unsigned16(0x0637)).unwrap();
+        sim.set(at(0x6064, 0), Value::Integer32(0x1234_5678))
+            .unwrap();
+        sim.set(at(0x606C, 0), Value::Integer32(-2)).unwrap();
+        sim.set(at(0x6077, 0), Value::Integer16(300)).unwrap();
+        // Entering operational sends the event-driven TPDOs at once.
+        let tpdo1 = (0x185, h("37 06 78 56 34 12"));
+        let tpdo2 = (0x285, h("FE FF FF FF 2C 01"));
+        assert_eq!(
+            wire(&sim.on_frame(&frame(0x000, &[0x01, 0x05]), Duration::ZERO)),
+            [tpdo1.clone(), tpdo2.clone()]
+        );
+        assert_eq!(
+            sim.take_events(),
+            [SimEvent::NmtStateChanged {
+                from: NmtState::PreOperational,
+                to: NmtState::Operational
+            }]
+        );
+        // Then every 100 ms (event timer 0x1800:05), and the heartbeat says
+        // operational.
+        let mut sent = Vec::new();
+        while let Some(due) = sim.next_deadline().filter(|d| *d <= Duration::from_secs(1)) {
+            for f in wire(&sim.on_tick(due)) {
+                sent.push((due.as_millis(), f));
+            }
+        }
+        let at_ms = |id: u32| -> Vec<u128> {
+            sent.iter()
+                .filter(|(_, (i, _))| *i == id)
+                .map(|(t, _)| *t)
+                .collect()
+        };
+        let every_100: Vec<u128> = (1..=10).map(|k| k * 100).collect();
+        assert_eq!(at_ms(0x185), every_100);
+        assert_eq!(at_ms(0x285), every_100);
+        assert_eq!(at_ms(0x705), [1000]);
+        assert!(sent.contains(&(1000, (0x705, vec![0x05]))));
+        assert!(sent.contains(&(500, tpdo1.clone())));
+        // A new position shows in the next TPDO.
+        sim.set(at(0x6064, 0), Value::Integer32(-1)).unwrap();
+        let next = sim.on_tick(Duration::from_millis(1100));
+        assert_eq!(wire(&next)[0], (0x185, h("37 06 FF FF FF FF")));
+
+        // Stopped: no TPDOs, heartbeat 0x04, SDO ignored.
+        assert!(
+            sim.on_frame(&frame(0x000, &[0x02, 0x05]), Duration::from_millis(1150))
+                .is_empty()
+        );
+        assert_eq!(
+            wire(&sim.on_tick(Duration::from_secs(2))),
+            [(0x705, vec![0x04])]
+        );
+        assert!(sdo(&mut sim, "40 00 10 00 00 00 00 00", Duration::from_secs(2)).is_empty());
+        assert_eq!(sim.next_deadline(), Some(Duration::from_secs(3)));
+        // Commands for other nodes are ignored.
+        assert!(
+            sim.on_frame(&frame(0x000, &[0x01, 0x06]), Duration::from_secs(2))
+                .is_empty()
+        );
+        assert_eq!(sim.nmt_state(), NmtState::Stopped);
+    }
+
+    #[test]
+    fn rpdo_writes_the_object_dictionary() {
+        let mut sim = drive();
+        let rpdo1 = frame(0x205, &h("0F 00 40 E2 01 00"));
+        // Not operational: ignored.
+        assert!(sim.on_frame(&rpdo1, MS).is_empty());
+        assert_eq!(sim.get(at(0x6040, 0)), Some(&Value::Unsigned16(0)));
+        sim.on_frame(&frame(0x000, &[0x01, 0x00]), MS);
+        sim.take_events();
+        sim.on_frame(&rpdo1, 2 * MS);
+        assert_eq!(sim.get(at(0x6040, 0)), Some(&Value::Unsigned16(0x000F)));
+        assert_eq!(sim.get(at(0x607A, 0)), Some(&Value::Integer32(123_456)));
+        assert_eq!(
+            sim.take_events(),
+            [SimEvent::RpdoReceived {
+                pdo: 1,
+                objects: vec![
+                    (at(0x6040, 0), Value::Unsigned16(0x000F)),
+                    (at(0x607A, 0), Value::Integer32(123_456)),
+                ]
+            }]
+        );
+        // RPDO2: controlword + target velocity; longer frames use the
+        // leading bytes.
+        sim.on_frame(&frame(0x305, &h("06 00 E8 03 00 00 AA BB")), 3 * MS);
+        assert_eq!(sim.get(at(0x6040, 0)), Some(&Value::Unsigned16(6)));
+        assert_eq!(sim.get(at(0x60FF, 0)), Some(&Value::Integer32(1000)));
+        sim.take_events();
+        // A short frame is not applied.
+        sim.on_frame(&frame(0x205, &h("07 00 01")), 4 * MS);
+        assert_eq!(sim.get(at(0x6040, 0)), Some(&Value::Unsigned16(6)));
+        assert_eq!(
+            sim.take_events(),
+            [SimEvent::RpdoLengthError {
+                pdo: 1,
+                expected: 6,
+                got: 3
+            }]
+        );
+    }
+
+    #[test]
+    fn synchronous_rpdo_applies_at_the_next_sync() {
+        let mut sim = operational();
+        sdo(&mut sim, "2F 00 14 02 01 00 00 00", MS);
+        sim.on_frame(&frame(0x205, &h("0F 00 01 00 00 00")), 2 * MS);
+        assert_eq!(sim.get(at(0x6040, 0)), Some(&Value::Unsigned16(0)));
+        sim.on_frame(&frame(0x080, &[]), 3 * MS);
+        assert_eq!(sim.get(at(0x6040, 0)), Some(&Value::Unsigned16(0x0F)));
+        assert_eq!(sim.get(at(0x607A, 0)), Some(&Value::Integer32(1)));
+    }
+
+    #[test]
+    fn synchronous_tpdo_every_nth_sync() {
+        let mut sim = operational();
+        // TPDO1 every second SYNC.
+        assert_eq!(
+            sdo(&mut sim, "2F 00 18 02 02 00 00 00", MS),
+            reply("60 00 18 02 00 00 00 00")
+        );
+        sim.set(at(0x6041, 0), Value::Unsigned16(0x0237)).unwrap();
+        sim.take_events();
+        let sync = frame(0x080, &[]);
+        let tpdo1 = (0x185, h("37 02 00 00 00 00"));
+        assert!(sim.on_frame(&sync, 2 * MS).is_empty());
+        assert_eq!(wire(&sim.on_frame(&sync, 3 * MS)), [tpdo1.clone()]);
+        assert!(sim.on_frame(&sync, 4 * MS).is_empty());
+        assert_eq!(wire(&sim.on_frame(&sync, 5 * MS)), [tpdo1.clone()]);
+        assert_eq!(sim.take_events(), vec![SimEvent::Sync { counter: None }; 4]);
+        // TPDO1 is no longer on the event timer; TPDO2 still is.
+        let ticked = wire(&sim.on_tick(Duration::from_millis(100)));
+        assert_eq!(ticked.iter().map(|f| f.0).collect::<Vec<_>>(), [0x285]);
+
+        // Type 0: once per application event, at the next SYNC.
+        sdo(&mut sim, "2F 00 18 02 00 00 00 00", 6 * MS);
+        sim.on_frame(&sync, 7 * MS); // the reconfiguration counts as an event
+        assert!(sim.on_frame(&sync, 8 * MS).is_empty());
+        assert!(sim.trigger_tpdo(1));
+        assert!(!sim.trigger_tpdo(3));
+        assert!(!sim.trigger_tpdo(0));
+        assert_eq!(wire(&sim.on_frame(&frame(0x080, &[7]), 9 * MS)), [tpdo1]);
+        assert!(sim.on_frame(&sync, 10 * MS).is_empty());
+    }
+
+    #[test]
+    fn remote_request_for_a_tpdo() {
+        let mut sim = operational();
+        let rtr = Frame::new_remote(CanId::Standard(0x185), 6).unwrap();
+        assert_eq!(
+            wire(&sim.on_frame(&rtr, MS)),
+            [(0x185, h("00 00 00 00 00 00"))]
+        );
+        // RTR not allowed (bit 30).
+        sdo(&mut sim, "23 00 18 01 85 01 00 40", 2 * MS);
+        assert!(sim.on_frame(&rtr, 3 * MS).is_empty());
+    }
+
+    #[test]
+    fn reset_node_restores_defaults_and_boots() {
+        let mut sim = operational();
+        sdo(&mut sim, "2B 17 10 00 64 00 00 00", MS);
+        sim.set(at(0x6064, 0), Value::Integer32(42)).unwrap();
+        sim.take_events();
+        let out = sim.on_frame(&frame(0x000, &[0x81, 0x05]), 2 * MS);
+        assert_eq!(wire(&out), [(0x705, vec![0x00])]);
+        assert_eq!(sim.nmt_state(), NmtState::PreOperational);
+        assert_eq!(sim.get(at(0x1017, 0)), Some(&Value::Unsigned16(1000)));
+        assert_eq!(sim.get(at(0x6064, 0)), Some(&Value::Integer32(0)));
+        assert_eq!(sim.heartbeat_period(), Some(Duration::from_secs(1)));
+        assert_eq!(sim.next_deadline(), Some(2 * MS + Duration::from_secs(1)));
+        assert_eq!(
+            sim.take_events(),
+            [
+                SimEvent::Reset {
+                    kind: NmtReset::Node
+                },
+                SimEvent::NmtStateChanged {
+                    from: NmtState::Operational,
+                    to: NmtState::PreOperational
+                }
+            ]
+        );
+
+        // Reset communication keeps the application values.
+        sdo(&mut sim, "2B 17 10 00 64 00 00 00", 3 * MS);
+        sim.set(at(0x6064, 0), Value::Integer32(7)).unwrap();
+        let out = sim.on_frame(&frame(0x000, &[0x82, 0x00]), 4 * MS);
+        assert_eq!(wire(&out), [(0x705, vec![0x00])]);
+        assert_eq!(sim.get(at(0x1017, 0)), Some(&Value::Unsigned16(1000)));
+        assert_eq!(sim.get(at(0x6064, 0)), Some(&Value::Integer32(7)));
+    }
+
+    #[test]
+    fn segmented_read_of_the_device_name() {
+        let mut sim = drive();
+        let exchange = [
+            ("40 08 10 00 00 00 00 00", "41 08 10 00 11 00 00 00"),
+            ("60 00 00 00 00 00 00 00", "00 63 61 6E 67 61 74 65"), // "cangate"
+            ("70 00 00 00 00 00 00 00", "10 20 73 69 6D 20 64 72"), // " sim dr"
+            ("60 00 00 00 00 00 00 00", "09 69 76 65 00 00 00 00"), // "ive", last
+        ];
+        for (request, response) in exchange {
+            assert_eq!(sdo(&mut sim, request, MS), reply(response), "{request}");
+        }
+    }
+
+    /// Runs an SDO client against the node until the transfer completes.
+    fn run_client(
+        sim: &mut SimNode,
+        client: &mut SdoClient,
+        first: Vec<Frame>,
+        now: &mut Duration,
+    ) -> Result<TransferOutcome, SdoError> {
+        let mut queue: VecDeque<Frame> = first.into();
+        while let Some(f) = queue.pop_front() {
+            *now += Duration::from_micros(100);
+            if f.raw_id() == 0x605 {
+                let replies = sim.on_frame(&f, *now);
+                queue.extend(replies.into_iter().filter(|r| r.raw_id() == 0x585));
+            } else {
+                let step = client.on_frame(&f, *now);
+                queue.extend(step.frames);
+                if let Some(done) = step.completed {
+                    for rest in queue.drain(..) {
+                        assert!(sim.on_frame(&rest, *now).is_empty());
+                    }
+                    return done;
+                }
+            }
+        }
+        panic!("transfer stalled")
+    }
+
+    #[test]
+    fn block_transfer_of_the_firmware_domain() {
+        let mut sim = drive();
+        let mut client = SdoClient::new(node(5));
+        let mut now = MS;
+        let image: Vec<u8> = (0..4096u32).map(|i| (i * 7 % 251) as u8).collect();
+        let fw = at(0x2100, 0);
+        let first = client
+            .start_download(fw, image.clone(), TransferOptions::block(), now)
+            .unwrap();
+        assert_eq!(first[0].data()[0] & 0xE0, 0xC0, "block download initiate");
+        assert_eq!(
+            run_client(&mut sim, &mut client, first, &mut now),
+            Ok(TransferOutcome::Downloaded)
+        );
+        assert_eq!(sim.get(fw), Some(&Value::Domain(image.clone())));
+        assert_eq!(sim.take_events(), [SimEvent::SdoWritten { addr: fw }]);
+        let first = client
+            .start_upload(fw, TransferOptions::block(), now)
+            .unwrap();
+        assert_eq!(
+            run_client(&mut sim, &mut client, first, &mut now),
+            Ok(TransferOutcome::Uploaded(image.clone()))
+        );
+        // Segmented works as well.
+        let first = client
+            .start_upload(fw, TransferOptions::default(), now)
+            .unwrap();
+        assert_eq!(
+            run_client(&mut sim, &mut client, first, &mut now),
+            Ok(TransferOutcome::Uploaded(image))
+        );
+        assert_eq!(sim.next_deadline(), Some(Duration::from_secs(1)));
+    }
+
+    #[test]
+    fn block_transfer_can_be_switched_off() {
+        let mut sim = drive_with(SimNodeOptions {
+            block_transfer: false,
+            ..SimNodeOptions::default()
+        });
+        sim.start(Duration::ZERO);
+        assert_eq!(
+            sdo(&mut sim, "C6 00 21 00 00 10 00 00", MS),
+            reply("80 00 21 00 01 00 04 05")
+        );
+        // The client falls back to segmented.
+        let mut client = SdoClient::new(node(5));
+        let mut now = MS;
+        let first = client
+            .start_download(at(0x2100, 0), vec![1; 100], TransferOptions::block(), now)
+            .unwrap();
+        assert_eq!(
+            run_client(&mut sim, &mut client, first, &mut now),
+            Ok(TransferOutcome::Downloaded)
+        );
+        assert_eq!(sim.get(at(0x2100, 0)), Some(&Value::Domain(vec![1; 100])));
+    }
+
+    #[test]
+    fn sdo_timeout_aborts_the_transfer() {
+        let mut sim = drive_with(SimNodeOptions {
+            heartbeat_ms: Some(0),
+            sdo_timeout: 50 * MS,
+            ..SimNodeOptions::default()
+        });
+        sim.start(Duration::ZERO);
+        assert_eq!(sim.next_deadline(), None);
+        sdo(&mut sim, "21 00 21 00 10 00 00 00", MS);
+        assert_eq!(sim.next_deadline(), Some(51 * MS));
+        assert_eq!(
+            wire(&sim.on_tick(51 * MS)),
+            reply("80 00 21 00 00 00 04 05")
+        );
+        assert_eq!(sim.next_deadline(), None);
+    }
+
+    #[test]
+    fn emergency_messages() {
+        let mut sim = drive();
+        let f = sim.inject_emcy(0x2310, 0x03, [1, 2, 3, 4, 5]).unwrap();
+        assert_eq!(wire(&[f]), [(0x085, h("10 23 03 01 02 03 04 05"))]);
+        assert_eq!(
+            sdo(&mut sim, "40 01 10 00 00 00 00 00", MS),
+            reply("4F 01 10 00 03 00 00 00")
+        );
+        let f = sim.clear_emcy().unwrap();
+        assert_eq!(wire(&[f]), [(0x085, h("00 00 00 00 00 00 00 00"))]);
+        assert_eq!(sim.get(at(0x1001, 0)), Some(&Value::Unsigned8(0)));
+        // A reconfigured EMCY COB-ID, then an invalid one.
+        sdo(&mut sim, "23 14 10 00 90 00 00 00", MS);
+        assert_eq!(
+            sim.inject_emcy(0x1000, 1, [0; 5]).map(|f| f.raw_id()),
+            Some(0x090)
+        );
+        sdo(&mut sim, "23 14 10 00 85 00 00 80", MS);
+        assert_eq!(sim.inject_emcy(0x1000, 1, [0; 5]), None);
+        sdo(&mut sim, "23 14 10 00 85 00 00 00", MS);
+        // Not in stopped, but 0x1001 is still set.
+        sim.on_frame(&frame(0x000, &[0x02, 0x05]), MS);
+        assert_eq!(sim.inject_emcy(0x4210, 0x09, [0; 5]), None);
+        assert_eq!(sim.get(at(0x1001, 0)), Some(&Value::Unsigned8(0x09)));
+        // Not before start-up.
+        let mut fresh = drive_with(SimNodeOptions::default());
+        assert_eq!(fresh.inject_emcy(0x1000, 1, [0; 5]), None);
+    }
+
+    #[test]
+    fn tpdo_reconfiguration_follows_the_cia_301_procedure() {
+        let mut sim = operational();
+        let t = 5 * MS;
+        // Mapping cannot change while the PDO is valid.
+        assert_eq!(
+            sdo(&mut sim, "2F 00 1A 00 00 00 00 00", t),
+            reply("80 00 1A 00 00 00 01 06")
+        );
+        // Nor can its COB-ID.
+        assert_eq!(
+            sdo(&mut sim, "23 00 18 01 90 01 00 00", t),
+            reply("80 00 18 01 30 00 09 06")
+        );
+        // Nor its inhibit time.
+        assert_eq!(
+            sdo(&mut sim, "2B 00 18 03 0A 00 00 00", t),
+            reply("80 00 18 03 30 00 09 06")
+        );
+        // Reserved transmission types.
+        assert_eq!(
+            sdo(&mut sim, "2F 00 18 02 F1 00 00 00", t),
+            reply("80 00 18 02 30 00 09 06")
+        );
+        // 1. Invalidate.
+        assert_eq!(
+            sdo(&mut sim, "23 00 18 01 85 01 00 80", t),
+            reply("60 00 18 01 00 00 00 00")
+        );
+        assert_eq!(sim.next_deadline(), Some(100 * MS), "only TPDO2 left");
+        // Entries only while sub 0 is 0.
+        assert_eq!(
+            sdo(&mut sim, "23 00 1A 01 20 00 64 60", t),
+            reply("80 00 1A 01 00 00 01 06")
+        );
+        // 2. Disable the mapping, 3. write entries.
+        assert_eq!(
+            sdo(&mut sim, "2F 00 1A 00 00 00 00 00", t),
+            reply("60 00 1A 00 00 00 00 00")
+        );
+        // Not mappable, partial objects, variable-size objects.
+        for entry in ["10 00 17 10", "10 00 64 60", "00 00 08 10"] {
+            assert_eq!(
+                sdo(&mut sim, &format!("23 00 1A 01 {entry}"), t),
+                reply("80 00 1A 01 41 00 04 06"),
+                "{entry}"
+            );
+        }
+        for (sub, entry) in [(1, "20 00 64 60"), (2, "20 00 6C 60"), (3, "10 00 41 60")] {
+            assert_eq!(
+                sdo(&mut sim, &format!("23 00 1A {sub:02X} {entry}"), t),
+                reply(&format!("60 00 1A {sub:02X} 00 00 00 00"))
+            );
+        }
+        // More than 8 bytes.
+        assert_eq!(
+            sdo(&mut sim, "2F 00 1A 00 03 00 00 00", t),
+            reply("80 00 1A 00 42 00 04 06")
+        );
+        // 4. Enable two entries, 5. validate on a new COB-ID.
+        sdo(&mut sim, "2F 00 1A 00 02 00 00 00", t);
+        // Restricted COB-IDs are refused.
+        assert_eq!(
+            sdo(&mut sim, "23 00 18 01 05 06 00 00", t),
+            reply("80 00 18 01 30 00 09 06")
+        );
+        sim.set(at(0x6064, 0), Value::Integer32(1)).unwrap();
+        sim.set(at(0x606C, 0), Value::Integer32(2)).unwrap();
+        let out = wire(&sim.on_frame(&frame(0x605, &h("23 00 18 01 90 01 00 00")), t));
+        assert_eq!(
+            out,
+            [
+                (0x585, h("60 00 18 01 00 00 00 00")),
+                (0x190, h("01 00 00 00 02 00 00 00"))
+            ],
+            "valid again: sent at once, on its new id"
+        );
+        // The event timer follows 0x1800:05.
+        sdo(&mut sim, "2B 00 18 05 0A 00 00 00", 6 * MS);
+        assert_eq!(sim.next_deadline(), Some(16 * MS));
+        assert_eq!(wire(&sim.on_tick(16 * MS))[0].0, 0x190);
+        sdo(&mut sim, "2B 00 18 05 00 00 00 00", 17 * MS);
+        assert_eq!(sim.next_deadline(), Some(100 * MS));
+    }
+
+    #[test]
+    fn lenient_pdo_configuration() {
+        let mut sim = drive_with(SimNodeOptions {
+            strict_pdo_config: false,
+            ..SimNodeOptions::default()
+        });
+        sim.start(Duration::ZERO);
+        sim.on_frame(&frame(0x000, &[0x01, 0x05]), Duration::ZERO);
+        // Mapping changed while valid: accepted, effective at once.
+        sdo(&mut sim, "2F 00 1A 00 01 00 00 00", MS);
+        assert_eq!(wire(&sim.on_tick(MS))[0], (0x185, h("00 00")));
+        // An unusable mapping is not sent (and does not spin the timer).
+        sdo(&mut sim, "23 00 1A 01 10 00 17 10", 2 * MS);
+        let out = sim.on_tick(2 * MS);
+        assert!(out.iter().all(|f| f.raw_id() != 0x185));
+        assert!(sim.next_deadline().unwrap() > 2 * MS);
+    }
+
+    #[test]
+    fn tpdo_on_change_respects_the_inhibit_time() {
+        let mut sim = drive_with(SimNodeOptions {
+            tpdo_on_change: true,
+            ..SimNodeOptions::default()
+        });
+        sim.start(Duration::ZERO);
+        sim.on_frame(&frame(0x000, &[0x01, 0x05]), Duration::ZERO);
+        let t = 10 * MS;
+        sim.on_tick(t);
+        // TPDO1 has no inhibit time: sent at the next tick.
+        sim.set(at(0x6064, 0), Value::Integer32(5)).unwrap();
+        assert_eq!(sim.next_deadline(), Some(t));
+        assert_eq!(wire(&sim.on_tick(t)), [(0x185, h("00 00 05 00 00 00"))]);
+        // Setting the same value again is no change.
+        sim.set(at(0x6064, 0), Value::Integer32(5)).unwrap();
+        assert!(sim.on_tick(t).is_empty());
+        // TPDO2 has an inhibit time of 1 ms.
+        sim.set(at(0x606C, 0), Value::Integer32(1)).unwrap();
+        assert_eq!(wire(&sim.on_tick(t))[0].0, 0x285);
+        sim.set(at(0x606C, 0), Value::Integer32(2)).unwrap();
+        assert_eq!(sim.next_deadline(), Some(t + MS));
+        assert!(sim.on_tick(t + MS / 2).is_empty());
+        assert_eq!(
+            wire(&sim.on_tick(t + MS)),
+            [(0x285, h("02 00 00 00 00 00"))]
+        );
+        // Not operational: no events.
+        sim.on_frame(&frame(0x000, &[0x80, 0x05]), t + 2 * MS);
+        sim.set(at(0x6064, 0), Value::Integer32(6)).unwrap();
+        assert_eq!(sim.next_deadline(), Some(Duration::from_secs(1)));
+    }
+
+    #[test]
+    fn io_node_and_heartbeat_override() {
+        // The I/O EDS has no heartbeat; the option sets one.
+        let mut io = SimNode::from_eds_text(
+            SIM_IO_EDS,
+            node(0x22),
+            SimNodeOptions {
+                heartbeat_ms: Some(250),
+                ..SimNodeOptions::default()
+            },
+        )
+        .unwrap();
+        assert_eq!(wire(&io.start(Duration::ZERO)), [(0x722, vec![0x00])]);
+        assert_eq!(io.next_deadline(), Some(250 * MS));
+        // And resets keep the override.
+        io.on_frame(&frame(0x000, &[0x81, 0x22]), MS);
+        assert_eq!(io.get(at(0x1017, 0)), Some(&Value::Unsigned16(250)));
+        // RPDO1 drives the digital outputs.
+        io.on_frame(&frame(0x000, &[0x01, 0x22]), 2 * MS);
+        io.on_frame(&frame(0x222, &[0xA5, 0x5A]), 3 * MS);
+        assert_eq!(io.get(at(0x6200, 1)), Some(&Value::Unsigned8(0xA5)));
+        assert_eq!(io.get(at(0x6200, 2)), Some(&Value::Unsigned8(0x5A)));
+    }
+
+    #[test]
+    fn event_queue_is_bounded() {
+        let mut sim = drive_with(SimNodeOptions {
+            max_events: 3,
+            ..SimNodeOptions::default()
+        });
+        sim.start(Duration::ZERO);
+        for i in 0..5u8 {
+            sim.on_frame(&frame(0x080, &[i + 1]), MS);
+        }
+        assert_eq!(sim.dropped_events(), 3);
+        assert_eq!(
+            sim.take_events(),
+            [3, 4, 5].map(|c| SimEvent::Sync { counter: Some(c) })
+        );
+    }
+
+    fn arbitrary_frame() -> impl Strategy<Value = Frame> {
+        let ids = prop_oneof![
+            Just(0x000u16),
+            Just(0x080),
+            Just(0x185),
+            Just(0x205),
+            Just(0x305),
+            Just(0x605),
+            0u16..0x800,
+        ];
+        (
+            ids,
+            any::<bool>(),
+            proptest::collection::vec(any::<u8>(), 0..=8),
+        )
+            .prop_map(|(id, remote, data)| {
+                if remote {
+                    Frame::new_remote(CanId::Standard(id), data.len() as u8).unwrap()
+                } else {
+                    Frame::new(CanId::Standard(id), &data).unwrap()
+                }
+            })
+    }
+
+    /// SDO writes that reconfigure the node in interesting ways.
+    fn config_write() -> impl Strategy<Value = Frame> {
+        let requests = [
+            "2B 17 10 00 0A 00 00 00",
+            "2B 17 10 00 00 00 00 00",
+            "2B 00 18 05 01 00 00 00",
+            "2B 00 18 05 00 00 00 00",
+            "2F 00 18 02 01 00 00 00",
+            "2F 00 18 02 00 00 00 00",
+            "2F 00 18 02 FF 00 00 00",
+            "23 00 18 01 85 01 00 80",
+            "23 00 18 01 85 01 00 00",
+            "2F 00 1A 00 00 00 00 00",
+            "2F 00 1A 00 02 00 00 00",
+            "2B 01 18 03 FF FF 00 00",
+        ];
+        proptest::sample::select(requests.to_vec())
+            .prop_map(|r| Frame::new(CanId::Standard(0x605), &h(r)).unwrap())
+    }
+
+    proptest! {
+        #[test]
+        fn random_traffic_never_panics_or_spins(
+            steps in proptest::collection::vec(
+                (prop_oneof![arbitrary_frame(), config_write(), Just(frame(0x000, &[0x01, 0x00]))],
+                 0u64..200_000),
+                1..60,
+            ),
+            strict in any::<bool>(),
+            on_change in any::<bool>(),
+        ) {
+            let mut sim = drive_with(SimNodeOptions {
+                strict_pdo_config: strict,
+                tpdo_on_change: on_change,
+                ..SimNodeOptions::default()
+            });
+            sim.start(Duration::ZERO);
+            let mut now = Duration::ZERO;
+            for (f, dt) in steps {
+                now += Duration::from_micros(dt);
+                let _ = sim.on_frame(&f, now);
+                let _ = sim.set(at(0x6064, 0), Value::Integer32(dt as i32));
+                let _ = sim.on_tick(now);
+                if let Some(d) = sim.next_deadline() {
+                    prop_assert!(d > now, "deadline {d:?} not after {now:?}");
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,313 @@
+//! Runs simulated devices on the in-process virtual bus.
+//!
+//! [`spawn_device`] attaches any [`Device`] to a [`VirtualPort`]: it starts
+//! the device, feeds it every frame the port receives, ticks it at its
+//! [`Device::next_deadline`] and sends whatever it returns, until the
+//! cancellation token fires. Time is measured from the moment the task
+//! starts (`tokio::time`, so tests may pause the clock).
+//!
+//! The device lives in a [`DeviceHandle`] (an `Arc<Mutex<…>>`) shared with
+//! the application, e.g. a drive model that updates the position while the
+//! runner serves the bus:
+//!
+//! ```no_run
+//! # async fn demo() {
+//! use cangate_can::{VirtualBus, VirtualBusConfig};
+//! use cangate_canopen::{NodeId, ObjectAddress, eds::{Eds, SIM_DRIVE_EDS}, value::Value};
+//! use cangate_sim::{DeviceHandle, SimNode, SimNodeOptions, spawn_device};
+//! use tokio_util::sync::CancellationToken;
+//!
+//! let bus = VirtualBus::new("can0", VirtualBusConfig::default());
+//! let eds = Eds::parse(SIM_DRIVE_EDS).unwrap();
+//! let node = SimNode::new(&eds, NodeId::new(5).unwrap(), SimNodeOptions::default());
+//! let handle = DeviceHandle::new(node);
+//! let cancel = CancellationToken::new();
+//! let task = spawn_device(bus.connect(false), handle.clone(), cancel.clone());
+//! handle.with(|n| n.set(ObjectAddress::new(0x6064, 0), Value::Integer32(1000)).unwrap());
+//! handle.send_with(|n| n.inject_emcy(0x2310, 0x03, [0; 5]));
+//! cancel.cancel();
+//! task.await.unwrap();
+//! # }
+//! ```
+
+use std::future::pending;
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+
+use cangate_can::{Frame, PortEvent, VirtualPort};
+use tokio::sync::Notify;
+use tokio::task::JoinHandle;
+use tokio::time::{Instant, sleep_until};
+use tokio_util::sync::CancellationToken;
+
+use crate::Device;
+use crate::canopen_node::SimNode;
+
+/// Frames taken from the port per batch.
+const BATCH: usize = 64;
+
+struct Shared<D> {
+    device: D,
+    /// Frames queued by the application for the runner to send.
+    outbox: Vec<Frame>,
+    /// Frames the bus refused (bus-off, interface down).
+    send_errors: u64,
+}
+
+/// Shared access to a device run by [`spawn_device`]. Cheap to clone; all
+/// clones are the same device.
+///
+/// Every access wakes the runner afterwards, so that changes which move the
+/// device's next deadline (a TPDO event, a new heartbeat time) take effect
+/// at once.
+pub struct DeviceHandle<D> {
+    shared: Arc<Mutex<Shared<D>>>,
+    wake: Arc<Notify>,
+}
+
+impl<D> Clone for DeviceHandle<D> {
+    fn clone(&self) -> Self {
+        DeviceHandle {
+            shared: self.shared.clone(),
+            wake: self.wake.clone(),
+        }
+    }
+}
+
+impl<D> std::fmt::Debug for DeviceHandle<D> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("DeviceHandle").finish_non_exhaustive()
+    }
+}
+
+impl<D: Device> DeviceHandle<D> {
+    /// Wraps a device (not started yet: the runner starts it).
+    pub fn new(device: D) -> Self {
+        DeviceHandle {
+            shared: Arc::new(Mutex::new(Shared {
+                device,
+                outbox: Vec::new(),
+                send_errors: 0,
+            })),
+            wake: Arc::new(Notify::new()),
+        }
+    }
+
+    /// Runs `f` on the device (under the lock; keep it short and never
+    /// await inside) and wakes the runner.
+    pub fn with<R>(&self, f: impl FnOnce(&mut D) -> R) -> R {
+        let r = f(&mut self.lock().device);
+        self.wake.notify_one();
+        r
+    }
+
+    /// Runs `f` on the device and has the runner send the frames it
+    /// returns, e.g. `handle.send_with(|n| n.inject_emcy(0x2310, 3, [0; 5]))`.
+    pub fn send_with<I: IntoIterator<Item = Frame>>(&self, f: impl FnOnce(&mut D) -> I) {
+        {
+            let mut s = self.lock();
+            let frames: Vec<Frame> = f(&mut s.device).into_iter().collect();
+            s.outbox.extend(frames);
+        }
+        self.wake.notify_one();
+    }
+
+    /// Frames the bus refused so far.
+    pub fn send_errors(&self) -> u64 {
+        self.lock().send_errors
+    }
+
+    fn lock(&self) -> MutexGuard<'_, Shared<D>> {
+        self.shared.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+}
+
+/// Runs `device` on `port` until `cancel` fires; see the [module
+/// documentation](self). The port should not echo its own frames (they are
+/// ignored if it does).
+pub fn spawn_device<D: Device + Send + 'static>(
+    port: VirtualPort,
+    device: DeviceHandle<D>,
+    cancel: CancellationToken,
+) -> JoinHandle<()> {
+    tokio::spawn(run(port, device, cancel))
+}
+
+/// Runs a [`SimNode`] on `port` until `cancel` fires. Use [`DeviceHandle`]
+/// and [`spawn_device`] to keep access to the node while it runs.
+pub fn spawn_node(port: VirtualPort, node: SimNode, cancel: CancellationToken) -> JoinHandle<()> {
+    spawn_device(port, DeviceHandle::new(node), cancel)
+}
+
+async fn run<D: Device>(mut port: VirtualPort, handle: DeviceHandle<D>, cancel: CancellationToken) {
+    let origin = Instant::now();
+    let started = handle.lock().device.start(origin.elapsed());
+    send_all(&port, &handle, &started);
+    let mut events = Vec::with_capacity(BATCH);
+    loop {
+        let (queued, deadline) = {
+            let mut s = handle.lock();
+            (std::mem::take(&mut s.outbox), s.device.next_deadline())
+        };
+        send_all(&port, &handle, &queued);
+        let timer = async {
+            match deadline {
+                Some(d) => sleep_until(origin + d).await,
+                None => pending::<()>().await,
+            }
+        };
+        tokio::select! {
+            biased;
+            _ = cancel.cancelled() => break,
+            _ = handle.wake.notified() => {}
+            _ = port.recv_many(&mut events, BATCH) => {
+                let now = origin.elapsed();
+                let mut out = Vec::new();
+                {
+                    let mut s = handle.lock();
+                    for event in events.drain(..) {
+                        if let PortEvent::Frame { frame, own: false } = event {
+                            out.extend(s.device.on_frame(&frame, now));
+                        }
+                    }
+                }
+                send_all(&port, &handle, &out);
+            }
+            _ = timer => {}
+        }
+        let due = handle.lock().device.on_tick(origin.elapsed());
+        send_all(&port, &handle, &due);
+    }
+}
+
+fn send_all<D>(port: &VirtualPort, handle: &DeviceHandle<D>, frames: &[Frame]) {
+    let failed = frames.iter().filter(|f| port.send(f).is_err()).count();
+    if failed > 0 {
+        let mut s = handle.shared.lock().unwrap_or_else(PoisonError::into_inner);
+        s.send_errors += failed as u64;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use cangate_can::{CanId, VirtualBus, VirtualBusConfig};
+    use cangate_canopen::eds::{Eds, SIM_DRIVE_EDS};
+    use cangate_canopen::value::Value;
+    use cangate_canopen::{NodeId, ObjectAddress};
+    use tokio::time::timeout;
+
+    use super::*;
+    use crate::SimNodeOptions;
+
+    fn drive(options: SimNodeOptions) -> SimNode {
+        let eds = Eds::parse(SIM_DRIVE_EDS).unwrap();
+        SimNode::new(&eds, NodeId::new(5).unwrap(), options)
+    }
+
+    fn frame(id: u16, data: &[u8]) -> Frame {
+        Frame::new(CanId::Standard(id), data).unwrap()
+    }
+
+    /// The next frame with `id` the port receives (others are skipped).
+    async fn next_with_id(port: &mut VirtualPort, id: u16) -> Frame {
+        let wait = async {
+            loop {
+                if let PortEvent::Frame { frame, .. } = port.recv().await
+                    && frame.id() == CanId::Standard(id)
+                {
+                    return frame;
+                }
+            }
+        };
+        timeout(Duration::from_secs(5), wait)
+            .await
+            .unwrap_or_else(|_| panic!("no frame {id:03X}"))
+    }
+
+    #[tokio::test]
+    async fn sdo_read_over_the_virtual_bus() {
+        let bus = VirtualBus::new("sim-sdo", VirtualBusConfig::default());
+        let mut tester = bus.connect(false);
+        let cancel = CancellationToken::new();
+        let task = spawn_node(
+            bus.connect(false),
+            drive(SimNodeOptions::default()),
+            cancel.clone(),
+        );
+        assert_eq!(next_with_id(&mut tester, 0x705).await.data(), [0x00]);
+        tester
+            .send(&frame(0x605, &[0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0]))
+            .unwrap();
+        let reply = next_with_id(&mut tester, 0x585).await;
+        assert_eq!(
+            reply.data(),
+            [0x43, 0x00, 0x10, 0x00, 0x92, 0x01, 0x02, 0x00]
+        );
+        cancel.cancel();
+        task.await.unwrap();
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn heartbeats_follow_the_clock() {
+        let bus = VirtualBus::new("sim-hb", VirtualBusConfig::default());
+        let mut tester = bus.connect(false);
+        let cancel = CancellationToken::new();
+        let options = SimNodeOptions {
+            heartbeat_ms: Some(100),
+            ..SimNodeOptions::default()
+        };
+        let task = spawn_node(bus.connect(false), drive(options), cancel.clone());
+        assert_eq!(next_with_id(&mut tester, 0x705).await.data(), [0x00]);
+        let boot = Instant::now();
+        for k in 1..=3u32 {
+            assert_eq!(next_with_id(&mut tester, 0x705).await.data(), [0x7F]);
+            assert_eq!(boot.elapsed(), Duration::from_millis(100) * k);
+        }
+        cancel.cancel();
+        task.await.unwrap();
+    }
+
+    #[tokio::test]
+    async fn handle_shares_the_node_with_the_application() {
+        let bus = VirtualBus::new("sim-handle", VirtualBusConfig::default());
+        let mut tester = bus.connect(false);
+        let cancel = CancellationToken::new();
+        let handle = DeviceHandle::new(drive(SimNodeOptions::default()));
+        let task = spawn_device(bus.connect(false), handle.clone(), cancel.clone());
+        next_with_id(&mut tester, 0x705).await;
+
+        // A process value set by the application is read by the master.
+        handle.with(|n| {
+            n.set(ObjectAddress::new(0x6041, 0), Value::Unsigned16(0x0237))
+                .unwrap()
+        });
+        tester
+            .send(&frame(0x605, &[0x40, 0x41, 0x60, 0x00, 0, 0, 0, 0]))
+            .unwrap();
+        let reply = next_with_id(&mut tester, 0x585).await;
+        assert_eq!(
+            reply.data(),
+            [0x4B, 0x41, 0x60, 0x00, 0x37, 0x02, 0x00, 0x00]
+        );
+
+        // Frames produced outside on_frame/on_tick go out through the runner.
+        handle.send_with(|n| n.inject_emcy(0x2310, 0x03, [1, 2, 3, 4, 5]));
+        let emcy = next_with_id(&mut tester, 0x085).await;
+        assert_eq!(emcy.data(), [0x10, 0x23, 0x03, 1, 2, 3, 4, 5]);
+
+        // An NMT start makes the runner send TPDO1 at once, then per timer.
+        tester.send(&frame(0x000, &[0x01, 0x05])).unwrap();
+        let tpdo = next_with_id(&mut tester, 0x185).await;
+        assert_eq!(tpdo.data(), [0x37, 0x02, 0, 0, 0, 0]);
+        next_with_id(&mut tester, 0x185).await;
+        assert_eq!(
+            handle.with(|n| n.nmt_state()),
+            cangate_canopen::nmt::NmtState::Operational
+        );
+        assert_eq!(handle.send_errors(), 0);
+
+        cancel.cancel();
+        task.await.unwrap();
+    }
+}
