@@ -16,6 +16,7 @@ pub mod ids;
 pub mod master;
 pub mod nmt;
 pub mod od;
+pub mod pdo;
 pub mod sdo;
 pub mod sync;
 pub mod value;

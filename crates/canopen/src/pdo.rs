@@ -1,0 +1,391 @@
+//! PDOs from the master's side (CiA 301 §7.2.2): the SDO write sequence that
+//! configures a remote node's RPDO or TPDO, and encoding/decoding of PDO
+//! payloads with a mapping and the object dictionary.
+
+use crate::ids::{NodeId, ObjectAddress};
+use crate::od::ObjectDictionary;
+use crate::value::{DataType, Value, ValueError};
+
+/// Receive (master → node) or transmit (node → master) PDO.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum PdoKind {
+    /// RPDO: the node receives it.
+    Rpdo,
+    /// TPDO: the node transmits it.
+    Tpdo,
+}
+
+impl PdoKind {
+    /// Communication parameter index of PDO `num` (1-based).
+    pub fn comm_index(self, num: u16) -> u16 {
+        match self {
+            PdoKind::Rpdo => 0x1400 + num - 1,
+            PdoKind::Tpdo => 0x1800 + num - 1,
+        }
+    }
+    /// Mapping parameter index of PDO `num` (1-based).
+    pub fn map_index(self, num: u16) -> u16 {
+        match self {
+            PdoKind::Rpdo => 0x1600 + num - 1,
+            PdoKind::Tpdo => 0x1A00 + num - 1,
+        }
+    }
+    /// The predefined-connection-set COB-ID of PDO 1..=4.
+    pub fn default_cob_id(self, num: u16, node: NodeId) -> Option<u16> {
+        let base = match (self, num) {
+            (PdoKind::Tpdo, 1..=4) => [0x180, 0x280, 0x380, 0x480][num as usize - 1],
+            (PdoKind::Rpdo, 1..=4) => [0x200, 0x300, 0x400, 0x500][num as usize - 1],
+            _ => return None,
+        };
+        Some(base + node.get() as u16)
+    }
+}
+
+/// One mapped object: its address and length in bits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MappedObject {
+    /// The object.
+    pub addr: ObjectAddress,
+    /// Its length in bits (whole bytes: 8, 16, 24, 32, …, 64).
+    pub bits: u8,
+}
+
+impl MappedObject {
+    /// The 32-bit mapping entry `index << 16 | sub << 8 | bits`.
+    pub fn entry(self) -> u32 {
+        (self.addr.index as u32) << 16 | (self.addr.sub as u32) << 8 | self.bits as u32
+    }
+
+    /// Parses a mapping entry.
+    pub fn from_entry(e: u32) -> Self {
+        MappedObject {
+            addr: ObjectAddress::new((e >> 16) as u16, (e >> 8) as u8),
+            bits: e as u8,
+        }
+    }
+}
+
+/// A PDO configuration to apply to a node.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PdoConfig {
+    /// RPDO or TPDO.
+    pub kind: PdoKind,
+    /// PDO number, 1..=512.
+    pub num: u16,
+    /// 11-bit COB-ID.
+    pub cob_id: u16,
+    /// Transmission type: 0 acyclic synchronous, 1..=240 every n-th SYNC,
+    /// 254/255 event-driven.
+    pub transmission_type: u8,
+    /// TPDO inhibit time in units of 100 µs (0 = none).
+    pub inhibit_time: u16,
+    /// Event timer in ms (0 = off).
+    pub event_timer_ms: u16,
+    /// The mapped objects, in payload order.
+    pub mapping: Vec<MappedObject>,
+}
+
+/// Why a PDO configuration or payload is wrong.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PdoError {
+    /// More than 64 bits mapped.
+    #[error("the mapping needs {0} bits; a classic CAN PDO carries at most 64")]
+    TooLong(u32),
+    /// A mapped length that is not whole bytes.
+    #[error("mapped object {0} has {1} bits; only whole bytes are supported")]
+    NotWholeBytes(ObjectAddress, u8),
+    /// PDO number outside 1..=512.
+    #[error("PDO number {0} is out of range (1..=512)")]
+    BadNumber(u16),
+    /// Payload shorter than the mapping.
+    #[error("PDO payload has {got} bytes, the mapping needs {need}")]
+    ShortPayload {
+        /// Bytes needed.
+        need: usize,
+        /// Bytes received.
+        got: usize,
+    },
+    /// A value for an object the mapping does not contain, or missing.
+    #[error("no value given for mapped object {0}")]
+    MissingValue(ObjectAddress),
+    /// A value of the wrong type/size.
+    #[error("mapped object {0}: {1}")]
+    Value(ObjectAddress, ValueError),
+}
+
+impl PdoConfig {
+    /// Checks the mapping fits one classic frame in whole bytes.
+    pub fn validate(&self) -> Result<(), PdoError> {
+        if !(1..=512).contains(&self.num) {
+            return Err(PdoError::BadNumber(self.num));
+        }
+        let mut total = 0u32;
+        for m in &self.mapping {
+            if m.bits == 0 || m.bits % 8 != 0 {
+                return Err(PdoError::NotWholeBytes(m.addr, m.bits));
+            }
+            total += m.bits as u32;
+        }
+        if total > 64 {
+            return Err(PdoError::TooLong(total));
+        }
+        Ok(())
+    }
+
+    /// The SDO writes that apply this configuration, in the order CiA 301
+    /// prescribes: invalidate the PDO (COB-ID bit 31), set the transmission
+    /// parameters, disable the mapping (count 0), write the entries, enable
+    /// the mapping (count n), and finally validate the PDO with its COB-ID.
+    pub fn sdo_writes(&self) -> Result<Vec<(ObjectAddress, Vec<u8>)>, PdoError> {
+        self.validate()?;
+        let comm = self.kind.comm_index(self.num);
+        let map = self.kind.map_index(self.num);
+        let cob = self.cob_id as u32;
+        let mut w = vec![
+            (
+                ObjectAddress::new(comm, 1),
+                (cob | 0x8000_0000).to_le_bytes().to_vec(),
+            ),
+            (ObjectAddress::new(comm, 2), vec![self.transmission_type]),
+        ];
+        if self.kind == PdoKind::Tpdo {
+            w.push((
+                ObjectAddress::new(comm, 3),
+                self.inhibit_time.to_le_bytes().to_vec(),
+            ));
+        }
+        w.push((
+            ObjectAddress::new(comm, 5),
+            self.event_timer_ms.to_le_bytes().to_vec(),
+        ));
+        w.push((ObjectAddress::new(map, 0), vec![0]));
+        for (i, m) in self.mapping.iter().enumerate() {
+            w.push((
+                ObjectAddress::new(map, i as u8 + 1),
+                m.entry().to_le_bytes().to_vec(),
+            ));
+        }
+        w.push((ObjectAddress::new(map, 0), vec![self.mapping.len() as u8]));
+        w.push((ObjectAddress::new(comm, 1), cob.to_le_bytes().to_vec()));
+        Ok(w)
+    }
+
+    /// The PDO configuration an object dictionary holds by default for a
+    /// node (EDS defaults with `$NODEID` resolved); `None` if the PDO does
+    /// not exist or is invalid (COB-ID bit 31).
+    pub fn from_od(od: &ObjectDictionary, kind: PdoKind, num: u16, node: NodeId) -> Option<Self> {
+        let comm = kind.comm_index(num);
+        let map = kind.map_index(num);
+        let u = |addr: ObjectAddress| {
+            od.get(addr)
+                .and_then(|v| v.default_for_node(node))
+                .and_then(|v| v.as_i128())
+        };
+        let cob = u(ObjectAddress::new(comm, 1))? as u32;
+        if cob & 0x8000_0000 != 0 || cob & 0x2000_0000 != 0 {
+            return None;
+        }
+        let count = u(ObjectAddress::new(map, 0)).unwrap_or(0) as u8;
+        let mapping = (1..=count)
+            .filter_map(|i| u(ObjectAddress::new(map, i)))
+            .map(|e| MappedObject::from_entry(e as u32))
+            .filter(|m| m.bits > 0)
+            .collect();
+        Some(PdoConfig {
+            kind,
+            num,
+            cob_id: (cob & 0x7FF) as u16,
+            transmission_type: u(ObjectAddress::new(comm, 2)).unwrap_or(255) as u8,
+            inhibit_time: u(ObjectAddress::new(comm, 3)).unwrap_or(0) as u16,
+            event_timer_ms: u(ObjectAddress::new(comm, 5)).unwrap_or(0) as u16,
+            mapping,
+        })
+    }
+
+    /// Payload bytes of this PDO.
+    pub fn len(&self) -> usize {
+        self.mapping.iter().map(|m| m.bits as usize / 8).sum()
+    }
+
+    /// True when nothing is mapped.
+    pub fn is_empty(&self) -> bool {
+        self.mapping.is_empty()
+    }
+
+    /// Decodes a received payload into one value per mapped object, typed by
+    /// the object dictionary (raw unsigned integers where it does not know
+    /// the object).
+    pub fn decode(
+        &self,
+        od: Option<&ObjectDictionary>,
+        data: &[u8],
+    ) -> Result<Vec<(MappedObject, Value)>, PdoError> {
+        let need = self.len();
+        if data.len() < need {
+            return Err(PdoError::ShortPayload {
+                need,
+                got: data.len(),
+            });
+        }
+        let mut at = 0;
+        let mut out = Vec::with_capacity(self.mapping.len());
+        for m in &self.mapping {
+            let n = m.bits as usize / 8;
+            let bytes = &data[at..at + n];
+            at += n;
+            let ty = od
+                .and_then(|od| od.get(m.addr))
+                .map(|v| v.data_type)
+                .filter(|t| t.fixed_size() == Some(n))
+                .unwrap_or(match n {
+                    1 => DataType::Unsigned8,
+                    2 => DataType::Unsigned16,
+                    3 => DataType::Unsigned24,
+                    4 => DataType::Unsigned32,
+                    5 => DataType::Unsigned40,
+                    6 => DataType::Unsigned48,
+                    7 => DataType::Unsigned56,
+                    _ => DataType::Unsigned64,
+                });
+            let v = Value::decode(ty, bytes).map_err(|e| PdoError::Value(m.addr, e))?;
+            out.push((*m, v));
+        }
+        Ok(out)
+    }
+
+    /// Encodes values (one per mapped object, found by address) into a
+    /// payload.
+    pub fn encode(&self, values: &[(ObjectAddress, Value)]) -> Result<Vec<u8>, PdoError> {
+        let mut data = Vec::with_capacity(self.len());
+        for m in &self.mapping {
+            let (_, v) = values
+                .iter()
+                .find(|(a, _)| *a == m.addr)
+                .ok_or(PdoError::MissingValue(m.addr))?;
+            let bytes = v.encode();
+            if bytes.len() != m.bits as usize / 8 {
+                return Err(PdoError::Value(
+                    m.addr,
+                    ValueError::WrongSize {
+                        ty: v.data_type(),
+                        expected: m.bits as usize / 8,
+                        got: bytes.len(),
+                    },
+                ));
+            }
+            data.extend(bytes);
+        }
+        Ok(data)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::eds::{Eds, SIM_DRIVE_EDS};
+
+    fn node(n: u32) -> NodeId {
+        NodeId::new(n).unwrap()
+    }
+
+    #[test]
+    fn configuration_follows_the_cia301_procedure_write_for_write() {
+        let cfg = PdoConfig {
+            kind: PdoKind::Tpdo,
+            num: 1,
+            cob_id: 0x185,
+            transmission_type: 1,
+            inhibit_time: 10,
+            event_timer_ms: 0,
+            mapping: vec![
+                MappedObject {
+                    addr: ObjectAddress::new(0x6041, 0),
+                    bits: 16,
+                },
+                MappedObject {
+                    addr: ObjectAddress::new(0x6064, 0),
+                    bits: 32,
+                },
+            ],
+        };
+        let writes = cfg.sdo_writes().unwrap();
+        let expect: Vec<(u16, u8, Vec<u8>)> = vec![
+            (0x1800, 1, vec![0x85, 0x01, 0x00, 0x80]), // invalidate
+            (0x1800, 2, vec![0x01]),                   // every SYNC
+            (0x1800, 3, vec![0x0A, 0x00]),             // inhibit 1 ms
+            (0x1800, 5, vec![0x00, 0x00]),             // no event timer
+            (0x1A00, 0, vec![0x00]),                   // disable mapping
+            (0x1A00, 1, vec![0x10, 0x00, 0x41, 0x60]), // 0x60410010
+            (0x1A00, 2, vec![0x20, 0x00, 0x64, 0x60]), // 0x60640020
+            (0x1A00, 0, vec![0x02]),                   // enable mapping
+            (0x1800, 1, vec![0x85, 0x01, 0x00, 0x00]), // validate
+        ];
+        let got: Vec<(u16, u8, Vec<u8>)> = writes
+            .into_iter()
+            .map(|(a, d)| (a.index, a.sub, d))
+            .collect();
+        assert_eq!(got, expect);
+    }
+
+    #[test]
+    fn mapping_limits() {
+        let mut cfg = PdoConfig {
+            kind: PdoKind::Rpdo,
+            num: 1,
+            cob_id: 0x205,
+            transmission_type: 255,
+            inhibit_time: 0,
+            event_timer_ms: 0,
+            mapping: vec![MappedObject {
+                addr: ObjectAddress::new(0x6040, 0),
+                bits: 12,
+            }],
+        };
+        assert!(matches!(cfg.validate(), Err(PdoError::NotWholeBytes(..))));
+        cfg.mapping = vec![
+            MappedObject {
+                addr: ObjectAddress::new(0x607A, 0),
+                bits: 32
+            };
+            3
+        ];
+        assert_eq!(cfg.validate(), Err(PdoError::TooLong(96)));
+        // RPDOs have no inhibit time write.
+        cfg.mapping.truncate(1);
+        assert_eq!(cfg.sdo_writes().unwrap().len(), 7);
+    }
+
+    #[test]
+    fn defaults_from_the_drive_eds_decode_and_encode() {
+        let eds = Eds::parse(SIM_DRIVE_EDS).unwrap();
+        let tpdo1 = PdoConfig::from_od(&eds.od, PdoKind::Tpdo, 1, node(5)).unwrap();
+        assert_eq!(tpdo1.cob_id, 0x185);
+        assert_eq!(
+            tpdo1.mapping.iter().map(|m| m.entry()).collect::<Vec<_>>(),
+            vec![0x6041_0010, 0x6064_0020]
+        );
+        let values = tpdo1
+            .decode(Some(&eds.od), &[0x37, 0x06, 0xE8, 0x03, 0x00, 0x00])
+            .unwrap();
+        assert_eq!(values[0].1, Value::Unsigned16(0x0637));
+        assert_eq!(values[1].1, Value::Integer32(1000));
+        assert!(matches!(
+            tpdo1.decode(Some(&eds.od), &[1, 2, 3]),
+            Err(PdoError::ShortPayload { need: 6, got: 3 })
+        ));
+
+        let rpdo1 = PdoConfig::from_od(&eds.od, PdoKind::Rpdo, 1, node(5)).unwrap();
+        assert_eq!(rpdo1.cob_id, 0x205);
+        let data = rpdo1
+            .encode(&[
+                (ObjectAddress::new(0x607A, 0), Value::Integer32(-2)),
+                (ObjectAddress::new(0x6040, 0), Value::Unsigned16(0x000F)),
+            ])
+            .unwrap();
+        assert_eq!(data, vec![0x0F, 0x00, 0xFE, 0xFF, 0xFF, 0xFF]);
+        assert!(matches!(
+            rpdo1.encode(&[(ObjectAddress::new(0x6040, 0), Value::Unsigned16(0))]),
+            Err(PdoError::MissingValue(_))
+        ));
+    }
+}
