@@ -80,6 +80,132 @@ pub struct NodeConfig {
     /// Virtual buses only: run a simulated device from the EDS at this id.
     #[serde(default)]
     pub simulate: bool,
+    /// Run the boot procedure whenever the node boots: check the identity,
+    /// write the configuration below, then NMT-start it.
+    #[serde(default)]
+    pub boot: bool,
+    /// Boot check: expected device type (0x1000).
+    #[serde(default)]
+    pub device_type: Option<u32>,
+    /// Boot check: expected vendor id (0x1018:01).
+    #[serde(default)]
+    pub vendor_id: Option<u32>,
+    /// Boot check: expected product code (0x1018:02).
+    #[serde(default)]
+    pub product_code: Option<u32>,
+    /// Boot: heartbeat producer time to write to 0x1017, in ms.
+    #[serde(default)]
+    pub heartbeat_producer_ms: Option<u16>,
+    /// Boot: further SDO writes, in order.
+    #[serde(default, rename = "write")]
+    pub writes: Vec<SdoWriteConfig>,
+    /// TPDOs to configure at boot (and to decode); without any, the EDS
+    /// defaults are used for decoding.
+    #[serde(default)]
+    pub tpdo: Vec<PdoConfigEntry>,
+    /// RPDOs to configure at boot (and to encode WritePdo); without any,
+    /// the EDS defaults are used.
+    #[serde(default)]
+    pub rpdo: Vec<PdoConfigEntry>,
+}
+
+/// An SDO write of the boot procedure.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SdoWriteConfig {
+    /// Object, `0x6060:0`.
+    pub object: String,
+    /// Type: bool i8 i16 i32 i64 u8 u16 u32 u64 f32 f64 vs os domain.
+    #[serde(rename = "type")]
+    pub ty: String,
+    /// Value in text (decimal, 0x hex, string, hex bytes).
+    pub value: String,
+}
+
+/// A PDO to configure.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PdoConfigEntry {
+    /// PDO number, 1..=512.
+    pub num: u16,
+    /// COB-ID (default: the predefined connection set for PDOs 1..=4).
+    #[serde(default)]
+    pub cob_id: Option<u16>,
+    /// 0 acyclic sync, 1..=240 every n-th SYNC, 254/255 event-driven.
+    #[serde(default = "default_transmission_type")]
+    pub transmission_type: u8,
+    /// TPDO inhibit time in 100 µs units.
+    #[serde(default)]
+    pub inhibit_time: u16,
+    /// Event timer in ms.
+    #[serde(default)]
+    pub event_timer_ms: u16,
+    /// Mapped objects `INDEX:SUB:BITS` in hex:hex:decimal, e.g. `6041:0:16`.
+    pub mapping: Vec<String>,
+}
+
+fn default_transmission_type() -> u8 {
+    255
+}
+
+/// Parses `6041:0` / `0x6041:00` into an address.
+pub fn parse_object(text: &str) -> Result<cangate_canopen::ObjectAddress, String> {
+    let hex = |t: &str| {
+        u32::from_str_radix(
+            t.trim().trim_start_matches("0x").trim_start_matches("0X"),
+            16,
+        )
+    };
+    let (i, s) = text.split_once(':').unwrap_or((text, "0"));
+    let index = hex(i).map_err(|_| format!("object {text:?}: index is not hex"))?;
+    let sub = hex(s).map_err(|_| format!("object {text:?}: sub-index is not hex"))?;
+    if index > 0xFFFF || sub > 0xFF {
+        return Err(format!("object {text:?} is out of range"));
+    }
+    Ok(cangate_canopen::ObjectAddress::new(index as u16, sub as u8))
+}
+
+impl PdoConfigEntry {
+    /// The PDO configuration for `node`.
+    pub fn to_pdo(
+        &self,
+        kind: cangate_canopen::pdo::PdoKind,
+        node: cangate_canopen::NodeId,
+    ) -> Result<cangate_canopen::pdo::PdoConfig, String> {
+        use cangate_canopen::pdo::{MappedObject, PdoConfig};
+        let mapping = self
+            .mapping
+            .iter()
+            .map(|m| {
+                let (obj, bits) = m
+                    .rsplit_once(':')
+                    .filter(|(o, _)| o.contains(':'))
+                    .ok_or_else(|| format!("mapping entry {m:?} is not INDEX:SUB:BITS"))?;
+                let addr = parse_object(obj)?;
+                let bits: u8 = bits
+                    .parse()
+                    .map_err(|_| format!("mapping entry {m:?}: bits must be a number"))?;
+                Ok(MappedObject { addr, bits })
+            })
+            .collect::<Result<Vec<_>, String>>()?;
+        let cob_id = match self.cob_id {
+            Some(c) => c,
+            None => kind
+                .default_cob_id(self.num, node)
+                .ok_or_else(|| format!("PDO {} has no default COB-ID; give cob_id", self.num))?,
+        };
+        let cfg = PdoConfig {
+            kind,
+            num: self.num,
+            cob_id,
+            transmission_type: self.transmission_type,
+            inhibit_time: self.inhibit_time,
+            event_timer_ms: self.event_timer_ms,
+            mapping,
+        };
+        cfg.validate().map_err(|e| e.to_string())?;
+        Ok(cfg)
+    }
 }
 
 impl NodeConfig {
@@ -349,9 +475,28 @@ impl Config {
                         c.bus, n.id
                     )));
                 }
-                n.load_eds().map_err(|e| {
+                let invalid = |e: String| {
                     ConfigError::Invalid(format!("bus {:?}: node {}: {e}", c.bus, n.id))
-                })?;
+                };
+                n.load_eds().map_err(invalid)?;
+                let node =
+                    cangate_canopen::NodeId::new(n.id).map_err(|e| invalid(e.to_string()))?;
+                for p in &n.tpdo {
+                    p.to_pdo(cangate_canopen::pdo::PdoKind::Tpdo, node)
+                        .map_err(invalid)?;
+                }
+                for p in &n.rpdo {
+                    p.to_pdo(cangate_canopen::pdo::PdoKind::Rpdo, node)
+                        .map_err(invalid)?;
+                }
+                for w in &n.writes {
+                    parse_object(&w.object).map_err(invalid)?;
+                    let ty: cangate_canopen::value::DataType =
+                        w.ty.parse()
+                            .map_err(|e| invalid(format!("write {}: {e}", w.object)))?;
+                    cangate_canopen::value::Value::parse(ty, &w.value)
+                        .map_err(|e| invalid(format!("write {}: {e}", w.object)))?;
+                }
             }
         }
         Ok(())

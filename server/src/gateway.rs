@@ -2,8 +2,8 @@
 //! tree from the signal handler through the server, the streams and the bus
 //! tasks.
 
-use crate::canopen::{CanopenBus, NodeFacts};
-use crate::config::{BackendChoice, BusConfig, Config, StuffingChoice};
+use crate::canopen::{BootPlan, CanopenBus, NodeFacts};
+use crate::config::{BackendChoice, BusConfig, Config, NodeConfig, StuffingChoice, parse_object};
 use crate::error::ApiError;
 use crate::grpc::bus_service::BusService;
 use crate::grpc::canopen_service::CanopenService;
@@ -11,6 +11,10 @@ use cangate_can::bus::{Backend, BackendKind, BusHandle, BusInfo};
 use cangate_can::socketcan_bus::SocketCanBus;
 use cangate_can::{BitTiming, Stuffing, VirtualBusConfig, VirtualNetwork};
 use cangate_canopen::NodeId;
+use cangate_canopen::ObjectAddress;
+use cangate_canopen::eds::Eds;
+use cangate_canopen::pdo::{PdoConfig, PdoKind};
+use cangate_canopen::value::{DataType, Value};
 use cangate_sim::{SimNode, SimNodeOptions};
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
@@ -96,11 +100,15 @@ impl Gateway {
                     };
                     simulated.push((vbus.connect(false), SimNode::new(eds, node, options)));
                 }
+                let (tpdos, rpdos, boot) = node_plan(nc, node, eds.as_deref()).map_err(err)?;
                 facts.insert(
                     node,
                     NodeFacts {
                         name: nc.name.clone(),
                         configured: true,
+                        tpdos,
+                        rpdos,
+                        boot,
                         eds,
                         heartbeat_timeout: (nc.heartbeat_timeout_ms > 0)
                             .then(|| Duration::from_millis(nc.heartbeat_timeout_ms)),
@@ -171,6 +179,61 @@ impl Gateway {
     pub fn shutdown_token(&self) -> CancellationToken {
         self.shutdown.clone()
     }
+}
+
+type NodePlan = (Vec<PdoConfig>, Vec<PdoConfig>, Option<Arc<BootPlan>>);
+
+/// The PDO layouts the master uses for a node, and its boot procedure.
+fn node_plan(nc: &NodeConfig, node: NodeId, eds: Option<&Eds>) -> Result<NodePlan, String> {
+    let layouts = |kind: PdoKind,
+                   entries: &[crate::config::PdoConfigEntry]|
+     -> Result<Vec<PdoConfig>, String> {
+        if entries.is_empty() {
+            // Not configured: the EDS defaults describe what the node sends.
+            return Ok(eds
+                .map(|e| {
+                    (1..=4)
+                        .filter_map(|n| PdoConfig::from_od(&e.od, kind, n, node))
+                        .filter(|p| !p.is_empty())
+                        .collect()
+                })
+                .unwrap_or_default());
+        }
+        entries.iter().map(|p| p.to_pdo(kind, node)).collect()
+    };
+    let tpdos = layouts(PdoKind::Tpdo, &nc.tpdo)?;
+    let rpdos = layouts(PdoKind::Rpdo, &nc.rpdo)?;
+    if !nc.boot {
+        return Ok((tpdos, rpdos, None));
+    }
+    let mut writes = Vec::new();
+    if let Some(ms) = nc.heartbeat_producer_ms {
+        writes.push((ObjectAddress::new(0x1017, 0), ms.to_le_bytes().to_vec()));
+    }
+    // Only PDOs configured explicitly are written; EDS defaults are the
+    // node's own.
+    for (entries, list) in [(&nc.tpdo, &tpdos), (&nc.rpdo, &rpdos)] {
+        if !entries.is_empty() {
+            for p in list {
+                writes.extend(p.sdo_writes().map_err(|e| e.to_string())?);
+            }
+        }
+    }
+    for w in &nc.writes {
+        let addr = parse_object(&w.object)?;
+        let ty: DataType =
+            w.ty.parse()
+                .map_err(|e| format!("write {}: {e}", w.object))?;
+        let v = Value::parse(ty, &w.value).map_err(|e| format!("write {}: {e}", w.object))?;
+        writes.push((addr, v.encode()));
+    }
+    let plan = BootPlan {
+        device_type: nc.device_type,
+        vendor_id: nc.vendor_id,
+        product_code: nc.product_code,
+        writes,
+    };
+    Ok((tpdos, rpdos, Some(Arc::new(plan))))
 }
 
 fn open_bus(bc: &BusConfig, network: &VirtualNetwork) -> Result<(BusInfo, Backend), StartError> {

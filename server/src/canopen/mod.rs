@@ -4,13 +4,15 @@
 //! devices configured on virtual buses.
 
 use cangate_can::{BusHandle, BusItem, FrameSelector, Timestamp};
-use cangate_canopen::NodeId;
 use cangate_canopen::eds::Eds;
 use cangate_canopen::emcy::{Emcy, EmcyEvent};
 use cangate_canopen::heartbeat::HeartbeatEvent;
 use cangate_canopen::master::{Master, MasterEvent, Output, RequestId, SdoRequest};
 use cangate_canopen::nmt::{NmtCommand, NmtState, nmt_frame};
+use cangate_canopen::pdo::{MappedObject, PdoConfig, PdoKind};
 use cangate_canopen::sdo::{SdoError, TransferOutcome};
+use cangate_canopen::value::Value;
+use cangate_canopen::{NodeId, ObjectAddress};
 use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, RwLock};
 use std::time::{Duration, Instant};
@@ -34,6 +36,43 @@ pub struct NodeFacts {
     pub identity: Option<[u32; 4]>,
     /// Consumer heartbeat timeout.
     pub heartbeat_timeout: Option<Duration>,
+    /// TPDOs the master decodes (configured, else the EDS defaults).
+    pub tpdos: Vec<PdoConfig>,
+    /// RPDOs WritePdo encodes (configured, else the EDS defaults).
+    pub rpdos: Vec<PdoConfig>,
+    /// What to do when the node boots, if anything.
+    pub boot: Option<Arc<BootPlan>>,
+}
+
+/// The boot procedure of a node (in the spirit of CiA 302): check, write
+/// the configuration, start.
+#[derive(Debug, Clone, Default)]
+pub struct BootPlan {
+    /// Expected 0x1000.
+    pub device_type: Option<u32>,
+    /// Expected 0x1018:01.
+    pub vendor_id: Option<u32>,
+    /// Expected 0x1018:02.
+    pub product_code: Option<u32>,
+    /// SDO writes in order (heartbeat producer, PDO configuration, extra).
+    pub writes: Vec<(ObjectAddress, Vec<u8>)>,
+}
+
+/// A decoded PDO.
+#[derive(Debug, Clone)]
+pub struct PdoUpdate {
+    /// The node.
+    pub node: NodeId,
+    /// RPDO or TPDO.
+    pub kind: PdoKind,
+    /// PDO number.
+    pub num: u16,
+    /// COB-ID.
+    pub cob_id: u16,
+    /// Bus timestamp.
+    pub at: Timestamp,
+    /// The mapped values.
+    pub values: Vec<(MappedObject, Value, String)>,
 }
 
 /// A node's live state as the master sees it.
@@ -94,6 +133,13 @@ pub enum NodeEventKind {
     },
     /// EMCY error or reset.
     Emcy(Emcy),
+    /// The boot procedure checked, configured and started the node.
+    BootCompleted,
+    /// The boot procedure failed; the node was not started.
+    BootFailed {
+        /// Why.
+        reason: String,
+    },
 }
 
 enum Command {
@@ -130,6 +176,8 @@ pub enum CanopenError {
 #[derive(Clone)]
 pub struct CanopenBus {
     bus: String,
+    handle: BusHandle,
+    pdos: broadcast::Sender<PdoUpdate>,
     commands: mpsc::Sender<Command>,
     events: broadcast::Sender<NodeEvent>,
     facts: Arc<RwLock<BTreeMap<NodeId, NodeFacts>>>,
@@ -145,9 +193,24 @@ impl CanopenBus {
     ) -> (CanopenBus, tokio::task::JoinHandle<()>) {
         let (commands, rx) = mpsc::channel(1024);
         let (events, _) = broadcast::channel(4096);
+        let (pdos, _) = broadcast::channel(16_384);
+        let tpdo_map: HashMap<u16, (NodeId, PdoConfig, Option<Arc<Eds>>)> = configured
+            .iter()
+            .flat_map(|(id, f)| {
+                f.tpdos
+                    .iter()
+                    .map(move |p| (p.cob_id, (*id, p.clone(), f.eds.clone())))
+            })
+            .collect();
+        let boots: Vec<(NodeId, Arc<BootPlan>)> = configured
+            .iter()
+            .filter_map(|(id, f)| f.boot.clone().map(|b| (*id, b)))
+            .collect();
         let facts = Arc::new(RwLock::new(configured));
         let handle = CanopenBus {
             bus: bus.name().to_string(),
+            handle: bus.clone(),
+            pdos: pdos.clone(),
             commands,
             events: events.clone(),
             facts: facts.clone(),
@@ -161,7 +224,26 @@ impl CanopenBus {
         // Subscribe before returning, so that nothing the nodes send after
         // this point (their boot-up, typically) is missed.
         let sub = bus.subscribe(FrameSelector::default(), 65_536);
-        let task = tokio::spawn(run_master(master, bus, sub, rx, events, facts, cancel));
+        let boot_events = handle.events();
+        let task = tokio::spawn(run_master(
+            master,
+            bus,
+            sub,
+            rx,
+            events,
+            pdos,
+            tpdo_map,
+            facts,
+            cancel.clone(),
+        ));
+        if !boots.is_empty() {
+            tokio::spawn(run_boot_supervisor(
+                handle.clone(),
+                boot_events,
+                boots,
+                cancel,
+            ));
+        }
         (handle, task)
     }
 
@@ -228,6 +310,128 @@ impl CanopenBus {
     pub fn events(&self) -> broadcast::Receiver<NodeEvent> {
         self.events.subscribe()
     }
+
+    /// Subscribes to decoded TPDOs.
+    pub fn pdos(&self) -> broadcast::Receiver<PdoUpdate> {
+        self.pdos.subscribe()
+    }
+
+    /// The RPDO configuration of a node.
+    pub fn rpdo(&self, node: NodeId, num: u16) -> Option<PdoConfig> {
+        self.facts
+            .read()
+            .expect("facts lock")
+            .get(&node)
+            .and_then(|f| f.rpdos.iter().find(|p| p.num == num).cloned())
+    }
+
+    /// Sends an RPDO payload.
+    pub async fn send_pdo(&self, cob_id: u16, data: &[u8]) -> Result<(), CanopenError> {
+        let frame =
+            cangate_can::Frame::new(cangate_can::CanId::Standard(cob_id), data).map_err(|e| {
+                CanopenError::Send(cangate_can::SendFailure {
+                    sent: 0,
+                    total: 1,
+                    error: cangate_can::SendError::Io {
+                        bus: self.bus.clone(),
+                        message: e.to_string(),
+                    },
+                })
+            })?;
+        self.handle.send(vec![frame]).await?;
+        Ok(())
+    }
+
+    fn emit(&self, node: NodeId, kind: NodeEventKind) {
+        let _ = self.events.send(NodeEvent {
+            node,
+            at: Timestamp::now(),
+            kind,
+        });
+    }
+}
+
+/// Runs the boot procedure of configured nodes whenever they boot.
+async fn run_boot_supervisor(
+    master: CanopenBus,
+    mut events: broadcast::Receiver<NodeEvent>,
+    plans: Vec<(NodeId, Arc<BootPlan>)>,
+    cancel: CancellationToken,
+) {
+    loop {
+        let ev = tokio::select! {
+            _ = cancel.cancelled() => return,
+            ev = events.recv() => ev,
+        };
+        let ev = match ev {
+            Ok(ev) => ev,
+            Err(broadcast::error::RecvError::Lagged(_)) => continue,
+            Err(broadcast::error::RecvError::Closed) => return,
+        };
+        if !matches!(ev.kind, NodeEventKind::BootUp) {
+            continue;
+        }
+        let Some((node, plan)) = plans.iter().find(|(n, _)| *n == ev.node).cloned() else {
+            continue;
+        };
+        let m = master.clone();
+        tokio::spawn(async move {
+            match boot_node(&m, node, &plan).await {
+                Ok(()) => {
+                    tracing::info!(bus = %m.bus, node = node.get(), "node booted and started");
+                    m.emit(node, NodeEventKind::BootCompleted);
+                }
+                Err(reason) => {
+                    tracing::warn!(bus = %m.bus, node = node.get(), %reason, "boot procedure failed; node not started");
+                    m.emit(node, NodeEventKind::BootFailed { reason });
+                }
+            }
+        });
+    }
+}
+
+async fn boot_node(m: &CanopenBus, node: NodeId, plan: &BootPlan) -> Result<(), String> {
+    let opts = cangate_canopen::sdo::TransferOptions::default();
+    let read_u32 = |index: u16, sub: u8| async move {
+        let addr = ObjectAddress::new(index, sub);
+        match m.sdo(node, SdoRequest::Upload { addr, opts }).await {
+            Ok(TransferOutcome::Uploaded(b)) if b.len() == 4 => {
+                Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            }
+            Ok(_) => Err(format!("reading {addr}: not a 32-bit value")),
+            Err(e) => Err(format!("reading {addr}: {e}")),
+        }
+    };
+    let checks = [
+        (0x1000, 0, plan.device_type, "device type"),
+        (0x1018, 1, plan.vendor_id, "vendor id"),
+        (0x1018, 2, plan.product_code, "product code"),
+    ];
+    for (index, sub, expected, what) in checks {
+        if let Some(want) = expected {
+            let got = read_u32(index, sub).await?;
+            if got != want {
+                return Err(format!(
+                    "{what} mismatch: 0x{index:04X}:{sub:02X} is 0x{got:08X}, configured 0x{want:08X}"
+                ));
+            }
+        }
+    }
+    for (addr, data) in &plan.writes {
+        m.sdo(
+            node,
+            SdoRequest::Download {
+                addr: *addr,
+                data: data.clone(),
+                opts,
+            },
+        )
+        .await
+        .map_err(|e| format!("writing {addr}: {e}"))?;
+    }
+    m.nmt(NmtCommand::Start, Some(node))
+        .await
+        .map_err(|e| format!("NMT start: {e}"))
 }
 
 struct Pending {
@@ -240,6 +444,8 @@ async fn run_master(
     mut sub: cangate_can::Subscription,
     mut commands: mpsc::Receiver<Command>,
     events: broadcast::Sender<NodeEvent>,
+    pdos: broadcast::Sender<PdoUpdate>,
+    tpdo_map: HashMap<u16, (NodeId, PdoConfig, Option<Arc<Eds>>)>,
     facts: Arc<RwLock<BTreeMap<NodeId, NodeFacts>>>,
     cancel: CancellationToken,
 ) {
@@ -264,7 +470,15 @@ async fn run_master(
                 let now = origin.elapsed();
                 for item in items.drain(..) {
                     match item {
-                        BusItem::Frame { frame, .. } => master.on_frame(&frame, now, &mut out),
+                        BusItem::Frame { frame, .. } => {
+                            master.on_frame(&frame, now, &mut out);
+                            if pdos.receiver_count() > 0
+                                && !frame.is_extended()
+                                && let Some((node, cfg, eds)) = tpdo_map.get(&(frame.raw_id() as u16))
+                            {
+                                publish_pdo(&pdos, *node, cfg, eds.as_deref(), &frame);
+                            }
+                        }
                         BusItem::Lost(n) => tracing::warn!(bus = %bus.name(), lost = n, "CANopen master missed frames (overloaded)"),
                         BusItem::State(_) => {}
                     }
@@ -316,6 +530,39 @@ async fn run_master(
         }
     }
     tracing::info!(bus = %bus.name(), "CANopen master stopped");
+}
+
+fn publish_pdo(
+    pdos: &broadcast::Sender<PdoUpdate>,
+    node: NodeId,
+    cfg: &PdoConfig,
+    eds: Option<&Eds>,
+    frame: &cangate_can::Frame,
+) {
+    let od = eds.map(|e| &e.od);
+    match cfg.decode(od, frame.data()) {
+        Ok(values) => {
+            let values = values
+                .into_iter()
+                .map(|(m, v)| {
+                    let name = od
+                        .and_then(|od| od.get(m.addr))
+                        .map(|v| v.name.clone())
+                        .unwrap_or_default();
+                    (m, v, name)
+                })
+                .collect();
+            let _ = pdos.send(PdoUpdate {
+                node,
+                kind: cfg.kind,
+                num: cfg.num,
+                cob_id: cfg.cob_id,
+                at: frame.timestamp(),
+                values,
+            });
+        }
+        Err(e) => tracing::debug!(node = node.get(), pdo = cfg.num, error = %e, "undecodable TPDO"),
+    }
 }
 
 fn handle_event(

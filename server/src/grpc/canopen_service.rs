@@ -245,6 +245,7 @@ async fn read_u32(
 }
 
 type EventStream = Pin<Box<dyn Stream<Item = Result<pb::NodeEvent, Status>> + Send>>;
+type PdoStream = Pin<Box<dyn Stream<Item = Result<pb::PdoMessage, Status>> + Send>>;
 
 #[tonic::async_trait]
 impl Canopen for CanopenService {
@@ -465,6 +466,106 @@ impl Canopen for CanopenService {
         Ok(Response::new(pb::ScanNetworkResponse { nodes }))
     }
 
+    type StreamPdoStream = PdoStream;
+
+    async fn stream_pdo(
+        &self,
+        req: Request<pb::StreamPdoRequest>,
+    ) -> Result<Response<Self::StreamPdoStream>, Status> {
+        let req = req.into_inner();
+        let masters: Vec<CanopenBus> = if req.bus.is_empty() {
+            self.gateway.canopen_buses().cloned().collect()
+        } else {
+            vec![self.master(&req.bus)?.clone()]
+        };
+        let only = req.nodes;
+        let (tx, rx) = tokio::sync::mpsc::channel(1024);
+        let cancel = self.gateway.shutdown_token();
+        for m in masters {
+            let mut pdos = m.pdos();
+            let (tx, only, cancel) = (tx.clone(), only.clone(), cancel.clone());
+            tokio::spawn(async move {
+                let mut lost = 0u64;
+                loop {
+                    let update = tokio::select! {
+                        _ = cancel.cancelled() => break,
+                        _ = tx.closed() => break,
+                        u = pdos.recv() => u,
+                    };
+                    let u = match update {
+                        Ok(u) => u,
+                        Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
+                            lost += n;
+                            continue;
+                        }
+                        Err(tokio::sync::broadcast::error::RecvError::Closed) => break,
+                    };
+                    if !only.is_empty() && !only.contains(&(u.node.get() as u32)) {
+                        continue;
+                    }
+                    let msg = pb::PdoMessage {
+                        bus: m.bus().to_string(),
+                        node: u.node.get() as u32,
+                        pdo: u.num as u32,
+                        cob_id: u.cob_id as u32,
+                        timestamp_ns: u.at.as_nanos(),
+                        values: u
+                            .values
+                            .iter()
+                            .map(|(mo, v, name)| pb::PdoValue {
+                                index: mo.addr.index as u32,
+                                subindex: mo.addr.sub as u32,
+                                name: name.clone(),
+                                value: Some(value_to_pb(v)),
+                            })
+                            .collect(),
+                        lost_before: std::mem::take(&mut lost),
+                    };
+                    if tx.send(Ok(msg)).await.is_err() {
+                        break;
+                    }
+                }
+            });
+        }
+        Ok(Response::new(Box::pin(
+            tokio_stream::wrappers::ReceiverStream::new(rx),
+        )))
+    }
+
+    async fn write_pdo(
+        &self,
+        req: Request<pb::WritePdoRequest>,
+    ) -> Result<Response<pb::WritePdoResponse>, Status> {
+        let req = req.into_inner();
+        let m = self.master(&req.bus)?;
+        let node = known_node(m, req.node)?;
+        let num = u16::try_from(req.pdo).unwrap_or(0);
+        let cfg = m.rpdo(node, num).ok_or_else(|| ApiError::NotFound {
+            kind: "RPDO",
+            name: format!("{} of node {}", req.pdo, req.node),
+            hint: " (configure it under [[canopen.node.rpdo]] or give the node an EDS)".into(),
+        })?;
+        let values =
+            req.values
+                .iter()
+                .map(|v| {
+                    let addr = address(v.index, v.subindex)?;
+                    let value =
+                        value_from_pb(v.value.as_ref().ok_or_else(|| {
+                            ApiError::InvalidArgument(format!("{addr}: no value"))
+                        })?)?;
+                    Ok((addr, value))
+                })
+                .collect::<Result<Vec<_>, ApiError>>()?;
+        let data = cfg
+            .encode(&values)
+            .map_err(|e| ApiError::InvalidArgument(e.to_string()))?;
+        m.send_pdo(cfg.cob_id, &data)
+            .await
+            .map_err(|e| map_err(node, e))?;
+        Ok(Response::new(pb::WritePdoResponse { data }))
+    }
+
     type StreamNodeEventsStream = EventStream;
 
     async fn stream_node_events(
@@ -518,6 +619,14 @@ impl Canopen for CanopenService {
                                     })
                                 }
                                 NodeEventKind::Emcy(e) => E::Emcy(emcy_to_pb(e, ev.at)),
+                                NodeEventKind::BootCompleted => {
+                                    E::BootCompleted(pb::BootCompleted {})
+                                }
+                                NodeEventKind::BootFailed { reason } => {
+                                    E::BootFailed(pb::BootFailed {
+                                        reason: reason.clone(),
+                                    })
+                                }
                             };
                             pb::NodeEvent {
                                 bus: m.bus().to_string(),
