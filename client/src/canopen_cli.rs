@@ -4,6 +4,7 @@ use anyhow::{Context, Result, anyhow, bail};
 use cangate_client::{Client, pb};
 use clap::{Subcommand, ValueEnum};
 use serde_json::json;
+use std::io::Write;
 
 /// NMT commands as typed on the command line.
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -112,7 +113,7 @@ fn parse_hex_bytes(text: &str) -> Result<Vec<u8>> {
         .filter(|c| !c.is_whitespace() && *c != ':')
         .collect();
     let clean = clean.trim_start_matches("0x");
-    if clean.len() % 2 != 0 {
+    if !clean.len().is_multiple_of(2) {
         bail!("{text:?} is not a sequence of hex bytes");
     }
     (0..clean.len())
@@ -219,7 +220,7 @@ pub async fn sdo(client: &mut Client, as_json: bool, verb: SdoVerb) -> Result<()
                 .await?;
             let elapsed = started.elapsed();
             if let Some(path) = &output {
-                std::fs::write(&path, &r.raw)
+                std::fs::write(path, &r.raw)
                     .with_context(|| format!("writing {}", path.display()))?;
                 eprintln!(
                     "{} bytes written to {} in {:.1} ms ({:.1} kB/s)",
@@ -444,20 +445,94 @@ pub async fn events(
                 e.code, e.code_name, e.register
             ),
             Some(E::Lost(l)) => format!("{} events lost (this client read too slowly)", l.count),
+            Some(E::BootCompleted(_)) => "boot procedure completed, node started".to_string(),
+            Some(E::BootFailed(f)) => format!("boot procedure FAILED: {}", f.reason),
             None => continue,
         };
         if as_json {
-            println!(
+            writeln!(
+                std::io::stdout(),
                 "{}",
                 json!({"bus": ev.bus, "node": ev.node, "timestamp_ns": ev.timestamp_ns, "event": what})
-            );
+            )?;
         } else {
             let secs = ev.timestamp_ns / 1_000_000_000;
             let micros = (ev.timestamp_ns % 1_000_000_000) / 1000;
-            println!(
+            writeln!(
+                std::io::stdout(),
                 "({secs}.{micros:06})  {}  node {:>3}  {what}",
-                ev.bus, ev.node
+                ev.bus,
+                ev.node
+            )?;
+        }
+    }
+}
+
+/// `cangate pdo [BUS]`: decoded TPDOs as they arrive.
+pub async fn pdo(
+    client: &mut Client,
+    as_json: bool,
+    bus: Option<String>,
+    nodes: Vec<u32>,
+) -> Result<()> {
+    let mut s = client
+        .canopen_client()
+        .stream_pdo(pb::StreamPdoRequest {
+            bus: bus.unwrap_or_default(),
+            nodes,
+        })
+        .await?
+        .into_inner();
+    loop {
+        let msg = tokio::select! {
+            m = s.message() => m?,
+            _ = tokio::signal::ctrl_c() => return Ok(()),
+        };
+        let Some(m) = msg else { return Ok(()) };
+        if m.lost_before > 0 {
+            eprintln!(
+                "cangate: {} PDOs lost (this client read too slowly)",
+                m.lost_before
             );
+        }
+        if as_json {
+            let values: Vec<_> = m
+                .values
+                .iter()
+                .map(|v| json!({"index": format!("0x{:04X}", v.index), "sub": v.subindex, "name": v.name, "value": v.value.as_ref().map(show_value)}))
+                .collect();
+            writeln!(
+                std::io::stdout(),
+                "{}",
+                json!({"bus": m.bus, "node": m.node, "pdo": m.pdo, "cob_id": format!("0x{:03X}", m.cob_id), "timestamp_ns": m.timestamp_ns, "values": values})
+            )?;
+        } else {
+            let values: Vec<String> = m
+                .values
+                .iter()
+                .map(|v| {
+                    let name = if v.name.is_empty() {
+                        format!("0x{:04X}:{:02X}", v.index, v.subindex)
+                    } else {
+                        v.name.clone()
+                    };
+                    format!(
+                        "{name}={}",
+                        v.value.as_ref().map(show_value).unwrap_or_default()
+                    )
+                })
+                .collect();
+            let secs = m.timestamp_ns / 1_000_000_000;
+            let micros = (m.timestamp_ns % 1_000_000_000) / 1000;
+            writeln!(
+                std::io::stdout(),
+                "({secs}.{micros:06})  {}  node {:>3}  TPDO{} {:03X}  {}",
+                m.bus,
+                m.node,
+                m.pdo,
+                m.cob_id,
+                values.join("  ")
+            )?;
         }
     }
 }

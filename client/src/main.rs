@@ -83,6 +83,14 @@ enum Command {
         #[command(subcommand)]
         verb: SdoVerb,
     },
+    /// Stream decoded TPDOs (named, typed values).
+    Pdo {
+        /// Only this bus.
+        bus: Option<String>,
+        /// Only these node ids.
+        #[arg(long = "node")]
+        nodes: Vec<u32>,
+    },
     /// Stream CANopen node events (boot-up, state, heartbeat, EMCY).
     Events {
         /// Only this bus.
@@ -98,6 +106,15 @@ enum Command {
 async fn main() {
     let cli = Cli::parse();
     if let Err(e) = run(cli).await {
+        // `cangate dump can0 | head` closes our stdout: that is the reader
+        // saying "enough", not an error.
+        let broken_pipe = e
+            .chain()
+            .filter_map(|c| c.downcast_ref::<std::io::Error>())
+            .any(|io| io.kind() == std::io::ErrorKind::BrokenPipe);
+        if broken_pipe {
+            std::process::exit(0);
+        }
         eprintln!("cangate: {e:#}");
         std::process::exit(1);
     }
@@ -122,6 +139,7 @@ async fn run(cli: Cli) -> Result<()> {
             canopen_cli::nmt(&mut client, bus, command, node).await
         }
         Command::Sdo { verb } => canopen_cli::sdo(&mut client, cli.json, verb).await,
+        Command::Pdo { bus, nodes } => canopen_cli::pdo(&mut client, cli.json, bus, nodes).await,
         Command::Events { bus, nodes } => {
             canopen_cli::events(&mut client, cli.json, bus, nodes).await
         }
@@ -156,8 +174,8 @@ async fn buses(client: &mut Client, as_json: bool) -> Result<()> {
         let list: Vec<_> = buses
             .iter()
             .map(|b| {
-                let st = b.status.clone().unwrap_or_default();
-                let s = b.statistics.clone().unwrap_or_default();
+                let st = b.status.unwrap_or_default();
+                let s = b.statistics.unwrap_or_default();
                 json!({
                     "name": b.name,
                     "backend": if b.backend == pb::BackendKind::Socketcan as i32 { "socketcan" } else { "virtual" },

@@ -92,7 +92,7 @@ async fn stalled_consumer_gets_exact_lost_count_and_does_not_delay_others() {
                 _ => {}
             }
         }
-        if received + lost >= N + 1 {
+        if received + lost > N {
             break;
         }
         let msg = tokio::time::timeout(WAIT, stalled.message())

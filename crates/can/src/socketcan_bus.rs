@@ -33,6 +33,10 @@ pub struct SocketCanBus {
     backoff: Duration,
     /// A state change to report before the next frame.
     pending_state: Option<BusStatus>,
+    /// Deadlines kept across calls: `recv` is cancelled whenever the bus
+    /// task's select! picks another branch (every 20 ms tick).
+    next_link_check: Option<tokio::time::Instant>,
+    next_reconnect: Option<tokio::time::Instant>,
 }
 
 impl std::fmt::Debug for SocketCanBus {
@@ -74,6 +78,8 @@ impl SocketCanBus {
             status: BusStatus::DOWN,
             backoff: MIN_BACKOFF,
             pending_state: None,
+            next_link_check: None,
+            next_reconnect: None,
         };
         if interface_is_up(interface) == Some(true) {
             bus.connect()?;
@@ -122,8 +128,12 @@ impl SocketCanBus {
             if let Some(s) = self.pending_state.take() {
                 return SocketCanEvent::State(s);
             }
-            let Some(sock) = self.socket.as_ref() else {
-                tokio::time::sleep(self.backoff).await;
+            if self.socket.is_none() {
+                let at = *self
+                    .next_reconnect
+                    .get_or_insert_with(|| tokio::time::Instant::now() + self.backoff);
+                tokio::time::sleep_until(at).await;
+                self.next_reconnect = None;
                 self.backoff = (self.backoff * 2).min(MAX_BACKOFF);
                 if interface_is_up(&self.interface) == Some(true)
                     && let Err(e) = self.connect()
@@ -131,13 +141,18 @@ impl SocketCanBus {
                     tracing::debug!(interface = %self.interface, error = %e, "reconnect failed");
                 }
                 continue;
-            };
+            }
+            let check_at = *self
+                .next_link_check
+                .get_or_insert_with(|| tokio::time::Instant::now() + LINK_POLL);
+            let sock = self.socket.as_ref().expect("connected");
             let result = tokio::select! {
                 r = sock.read_frame_with_timestamps() => Some(r),
-                _ = tokio::time::sleep(LINK_POLL) => None,
+                _ = tokio::time::sleep_until(check_at) => None,
             };
             match result {
                 None => {
+                    self.next_link_check = None;
                     if interface_is_up(&self.interface) != Some(true) {
                         self.disconnect(&std::io::Error::other("interface is down"));
                     }

@@ -225,17 +225,17 @@ impl CanopenBus {
         // this point (their boot-up, typically) is missed.
         let sub = bus.subscribe(FrameSelector::default(), 65_536);
         let boot_events = handle.events();
-        let task = tokio::spawn(run_master(
+        let task = tokio::spawn(run_master(MasterTask {
             master,
             bus,
             sub,
-            rx,
+            commands: rx,
             events,
             pdos,
             tpdo_map,
             facts,
-            cancel.clone(),
-        ));
+            cancel: cancel.clone(),
+        }));
         if !boots.is_empty() {
             tokio::spawn(run_boot_supervisor(
                 handle.clone(),
@@ -438,17 +438,31 @@ struct Pending {
     reply: oneshot::Sender<Result<TransferOutcome, SdoError>>,
 }
 
-async fn run_master(
-    mut master: Master,
+/// Everything the master task owns.
+struct MasterTask {
+    master: Master,
     bus: BusHandle,
-    mut sub: cangate_can::Subscription,
-    mut commands: mpsc::Receiver<Command>,
+    sub: cangate_can::Subscription,
+    commands: mpsc::Receiver<Command>,
     events: broadcast::Sender<NodeEvent>,
     pdos: broadcast::Sender<PdoUpdate>,
     tpdo_map: HashMap<u16, (NodeId, PdoConfig, Option<Arc<Eds>>)>,
     facts: Arc<RwLock<BTreeMap<NodeId, NodeFacts>>>,
     cancel: CancellationToken,
-) {
+}
+
+async fn run_master(task: MasterTask) {
+    let MasterTask {
+        mut master,
+        bus,
+        mut sub,
+        mut commands,
+        events,
+        pdos,
+        tpdo_map,
+        facts,
+        cancel,
+    } = task;
     let origin = Instant::now();
     let origin_wall = Timestamp::now();
     let mut pending: HashMap<RequestId, Pending> = HashMap::new();
