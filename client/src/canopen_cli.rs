@@ -182,6 +182,46 @@ fn show_value(v: &pb::Value) -> String {
     }
 }
 
+/// Shows the progress of the running transfer of `node` on stderr until
+/// the returned guard is dropped (polls ListSdoTransfers every 100 ms).
+fn progress_bar(client: &Client, bus: &str, node: u32) -> tokio::task::JoinHandle<()> {
+    let mut c = client.canopen_client();
+    let bus = bus.to_string();
+    tokio::spawn(async move {
+        let started = std::time::Instant::now();
+        loop {
+            tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+            let Ok(r) = c
+                .list_sdo_transfers(pb::ListSdoTransfersRequest { bus: bus.clone() })
+                .await
+            else {
+                continue;
+            };
+            let Some(t) = r
+                .into_inner()
+                .transfers
+                .into_iter()
+                .find(|t| t.node == node)
+            else {
+                continue;
+            };
+            let rate = t.transferred as f64 / 1e3 / started.elapsed().as_secs_f64().max(1e-6);
+            let line = match t.total {
+                Some(total) if total > 0 => {
+                    let pct = t.transferred as f64 * 100.0 / total as f64;
+                    let bar = "#".repeat((pct / 5.0) as usize);
+                    format!(
+                        "[{bar:<20}] {pct:5.1} %  {} / {} bytes  {rate:.1} kB/s  ({})",
+                        t.transferred, total, t.protocol
+                    )
+                }
+                _ => format!("{} bytes  {rate:.1} kB/s  ({})", t.transferred, t.protocol),
+            };
+            eprint!("\r{line}   ");
+        }
+    })
+}
+
 fn options(block: bool, timeout_ms: Option<u32>) -> pb::SdoOptions {
     pb::SdoOptions {
         timeout_ms: timeout_ms.unwrap_or(0),
@@ -208,6 +248,7 @@ pub async fn sdo(client: &mut Client, as_json: bool, verb: SdoVerb) -> Result<()
                 .transpose()?
                 .unwrap_or(pb::DataType::Unspecified);
             let started = std::time::Instant::now();
+            let bar = output.as_ref().map(|_| progress_bar(client, &bus, node));
             let r = client
                 .read_sdo(pb::ReadSdoRequest {
                     bus,
@@ -217,7 +258,12 @@ pub async fn sdo(client: &mut Client, as_json: bool, verb: SdoVerb) -> Result<()
                     r#type: ty as i32,
                     options: Some(options(block, timeout_ms)),
                 })
-                .await?;
+                .await;
+            if let Some(bar) = bar {
+                bar.abort();
+                eprintln!();
+            }
+            let r = r?;
             let elapsed = started.elapsed();
             if let Some(path) = &output {
                 std::fs::write(path, &r.raw)
@@ -278,6 +324,7 @@ pub async fn sdo(client: &mut Client, as_json: bool, verb: SdoVerb) -> Result<()
                 (None, None) => bail!("give a value or --file"),
             };
             let started = std::time::Instant::now();
+            let bar = file.as_ref().map(|_| progress_bar(client, &bus, node));
             let r = client
                 .write_sdo(pb::WriteSdoRequest {
                     bus,
@@ -287,7 +334,12 @@ pub async fn sdo(client: &mut Client, as_json: bool, verb: SdoVerb) -> Result<()
                     data: Some(data),
                     options: Some(options(block, timeout_ms)),
                 })
-                .await?;
+                .await;
+            if let Some(bar) = bar {
+                bar.abort();
+                eprintln!();
+            }
+            let r = r?;
             let elapsed = started.elapsed();
             if as_json {
                 println!(

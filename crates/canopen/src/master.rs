@@ -189,6 +189,14 @@ impl Master {
             .and_then(|n| n.client.progress())
     }
 
+    /// Every running transfer with its progress.
+    pub fn transfers(&self) -> Vec<(NodeId, Progress)> {
+        self.sdo
+            .iter()
+            .filter_map(|(&node, n)| n.client.progress().map(|p| (node, p)))
+            .collect()
+    }
+
     /// Feeds a received frame.
     pub fn on_frame(&mut self, frame: &Frame, now: Duration, out: &mut Output) {
         if frame.is_extended() || frame.is_fd() || frame.is_error() {

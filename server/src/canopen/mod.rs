@@ -156,6 +156,9 @@ enum Command {
     Snapshot {
         reply: oneshot::Sender<Vec<NodeSnapshot>>,
     },
+    Transfers {
+        reply: oneshot::Sender<Vec<(NodeId, cangate_canopen::sdo::Progress)>>,
+    },
 }
 
 /// Why a CANopen command did not complete.
@@ -301,6 +304,18 @@ impl CanopenBus {
         let (reply, rx) = oneshot::channel();
         self.commands
             .send(Command::Snapshot { reply })
+            .await
+            .map_err(|_| CanopenError::Stopped)?;
+        rx.await.map_err(|_| CanopenError::Stopped)
+    }
+
+    /// SDO transfers in progress.
+    pub async fn transfers(
+        &self,
+    ) -> Result<Vec<(NodeId, cangate_canopen::sdo::Progress)>, CanopenError> {
+        let (reply, rx) = oneshot::channel();
+        self.commands
+            .send(Command::Transfers { reply })
             .await
             .map_err(|_| CanopenError::Stopped)?;
         rx.await.map_err(|_| CanopenError::Stopped)
@@ -511,6 +526,9 @@ async fn run_master(task: MasterTask) {
                     Command::Nmt { cmd, target, reply } => {
                         let r = bus.send(vec![nmt_frame(cmd, target)]).await;
                         let _ = reply.send(r);
+                    }
+                    Command::Transfers { reply } => {
+                        let _ = reply.send(master.transfers());
                     }
                     Command::Snapshot { reply } => {
                         let _ = reply.send(snapshot(&master, &facts, origin_wall, now));

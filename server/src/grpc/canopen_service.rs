@@ -393,6 +393,34 @@ impl Canopen for CanopenService {
         Ok(Response::new(pb::WriteSdoResponse { bytes: n }))
     }
 
+    async fn list_sdo_transfers(
+        &self,
+        req: Request<pb::ListSdoTransfersRequest>,
+    ) -> Result<Response<pb::ListSdoTransfersResponse>, Status> {
+        use cangate_canopen::sdo::{Direction, Protocol};
+        let m = self.master(&req.get_ref().bus)?;
+        let list = m.transfers().await.map_err(|_| ApiError::ShuttingDown)?;
+        let transfers = list
+            .into_iter()
+            .map(|(node, p)| pb::SdoTransfer {
+                node: node.get() as u32,
+                index: p.addr.index as u32,
+                subindex: p.addr.sub as u32,
+                upload: p.direction == Direction::Upload,
+                protocol: match p.protocol {
+                    Some(Protocol::Expedited) => "expedited",
+                    Some(Protocol::Segmented) => "segmented",
+                    Some(Protocol::Block) => "block",
+                    None => "",
+                }
+                .to_string(),
+                transferred: p.transferred as u64,
+                total: p.total.map(|t| t as u64),
+            })
+            .collect();
+        Ok(Response::new(pb::ListSdoTransfersResponse { transfers }))
+    }
+
     async fn scan_network(
         &self,
         req: Request<pb::ScanNetworkRequest>,
