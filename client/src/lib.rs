@@ -18,7 +18,7 @@ pub use cangate_can as can;
 pub use cangate_proto as proto;
 pub use cangate_proto::v1 as pb;
 
-use cangate_can::{Filter, Frame, FrameKind};
+use cangate_can::Frame;
 use pb::bus_client::BusClient;
 use tonic::transport::{Channel, Endpoint};
 
@@ -81,57 +81,15 @@ pub async fn connect(url: &str) -> Result<Client, Error> {
 
 /// Converts a frame to its protobuf form (for SendFrames).
 pub fn frame_to_pb(f: &Frame) -> pb::Frame {
-    pb::Frame {
-        id: f.raw_id(),
-        extended: f.is_extended(),
-        remote: f.is_remote(),
-        fd: f.is_fd(),
-        brs: f.brs(),
-        esi: f.esi(),
-        data: f.data().to_vec(),
-        remote_dlc: if f.is_remote() { f.dlc() as u32 } else { 0 },
-        error: f.is_error(),
-        timestamp_ns: 0,
-        direction: 0,
-    }
+    cangate_proto::frames::frame_to_pb(f, pb::Direction::Unspecified)
 }
 
 /// Converts a received protobuf frame back to a frame (with its timestamp).
 pub fn frame_from_pb(f: &pb::Frame) -> Option<Frame> {
-    let kind = if f.error {
-        FrameKind::Error
-    } else if f.remote {
-        FrameKind::Remote
-    } else {
-        FrameKind::Data
-    };
-    Frame::from_parts(
-        f.id,
-        f.extended,
-        kind,
-        f.fd,
-        f.brs,
-        f.esi,
-        &f.data,
-        f.remote_dlc as u8,
-    )
-    .ok()
-    .map(|fr| fr.with_timestamp(cangate_can::Timestamp(f.timestamp_ns)))
+    cangate_proto::frames::frame_from_pb(f).ok()
 }
 
-/// Converts a filter to its protobuf form.
-pub fn filter_to_pb(f: &Filter) -> pb::FrameFilter {
-    pb::FrameFilter {
-        id: f.id,
-        mask: f.mask,
-        format: match f.extended {
-            None => pb::IdFormat::Any,
-            Some(false) => pb::IdFormat::Standard,
-            Some(true) => pb::IdFormat::Extended,
-        } as i32,
-        invert: f.inverted,
-    }
-}
+pub use cangate_proto::frames::filter_to_pb;
 
 impl Client {
     /// The underlying channel, for the generated clients of other services.

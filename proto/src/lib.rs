@@ -11,6 +11,8 @@ pub mod v1 {
     tonic::include_proto!("cangate.v1");
 }
 
+pub mod frames;
+
 /// Encoded `FileDescriptorSet` of every cangate proto, for gRPC reflection.
 pub const FILE_DESCRIPTOR_SET: &[u8] =
     include_bytes!(concat!(env!("OUT_DIR"), "/cangate_descriptor.bin"));

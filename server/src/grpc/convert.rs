@@ -3,45 +3,24 @@
 
 use crate::error::ApiError;
 use cangate_can::bus::{BackendKind, BusItem, BusStats, Direction};
-use cangate_can::{BusInfo, BusState, BusStatus, Filter, Frame, FrameKind};
+use cangate_can::{BusInfo, BusState, BusStatus, Filter, Frame};
 use cangate_proto::v1 as pb;
 
-/// A protobuf frame to a validated frame.
+/// A protobuf frame from SendFrames to a validated frame to send.
 pub fn frame_from_pb(f: &pb::Frame) -> Result<Frame, cangate_can::FrameError> {
     if f.error {
         return Err(cangate_can::FrameError::ErrorFrameNotSendable);
     }
-    if f.remote && !f.data.is_empty() {
-        return Err(cangate_can::FrameError::RemoteWithData(f.data.len()));
-    }
-    let kind = if f.remote {
-        FrameKind::Remote
-    } else {
-        FrameKind::Data
-    };
-    let dlc = u8::try_from(f.remote_dlc).unwrap_or(u8::MAX);
-    Frame::from_parts(f.id, f.extended, kind, f.fd, f.brs, f.esi, &f.data, dlc)
+    cangate_proto::frames::frame_from_pb(f)
 }
 
-/// A frame to its protobuf form.
-pub fn frame_to_pb(f: &Frame, direction: Option<Direction>) -> pb::Frame {
-    pb::Frame {
-        id: f.raw_id(),
-        extended: f.is_extended(),
-        remote: f.is_remote(),
-        fd: f.is_fd(),
-        brs: f.brs(),
-        esi: f.esi(),
-        data: f.data().to_vec(),
-        remote_dlc: if f.is_remote() { f.dlc() as u32 } else { 0 },
-        error: f.is_error(),
-        timestamp_ns: f.timestamp().as_nanos(),
-        direction: match direction {
-            Some(Direction::Rx) => pb::Direction::Rx,
-            Some(Direction::Tx) => pb::Direction::Tx,
-            None => pb::Direction::Unspecified,
-        } as i32,
-    }
+/// A frame with its direction to its protobuf form.
+pub fn frame_to_pb(f: &Frame, direction: Direction) -> pb::Frame {
+    let d = match direction {
+        Direction::Rx => pb::Direction::Rx,
+        Direction::Tx => pb::Direction::Tx,
+    };
+    cangate_proto::frames::frame_to_pb(f, d)
 }
 
 /// A protobuf filter to a domain filter.
@@ -120,7 +99,7 @@ pub fn bus_info_to_pb(info: &BusInfo, stats: &BusStats) -> pb::BusInfo {
 pub fn item_to_pb(item: &BusItem, since_ns: u64) -> pb::StreamEvent {
     use pb::stream_event::Event;
     let event = match item {
-        BusItem::Frame { frame, direction } => Event::Frame(frame_to_pb(frame, Some(*direction))),
+        BusItem::Frame { frame, direction } => Event::Frame(frame_to_pb(frame, *direction)),
         BusItem::Lost(n) => Event::Lost(pb::FramesLost { count: *n }),
         BusItem::State(s) => Event::State(status_to_pb(*s, since_ns)),
     };
