@@ -350,8 +350,10 @@ mod tests {
             3
         ];
         assert_eq!(cfg.validate(), Err(PdoError::TooLong(96)));
-        // RPDOs have no inhibit time write.
+        // RPDOs have no inhibit time write, and no event timer unless set.
         cfg.mapping.truncate(1);
+        assert_eq!(cfg.sdo_writes().unwrap().len(), 6);
+        cfg.event_timer_ms = 100;
         assert_eq!(cfg.sdo_writes().unwrap().len(), 7);
     }
 

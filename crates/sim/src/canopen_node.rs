@@ -1112,9 +1112,9 @@ mod tests {
         let sync = frame(0x080, &[]);
         let tpdo1 = (0x185, h("37 02 00 00 00 00"));
         assert!(sim.on_frame(&sync, 2 * MS).is_empty());
-        assert_eq!(wire(&sim.on_frame(&sync, 3 * MS)), [tpdo1.clone()]);
+        assert_eq!(wire(&sim.on_frame(&sync, 3 * MS)), vec![tpdo1.clone()]);
         assert!(sim.on_frame(&sync, 4 * MS).is_empty());
-        assert_eq!(wire(&sim.on_frame(&sync, 5 * MS)), [tpdo1.clone()]);
+        assert_eq!(wire(&sim.on_frame(&sync, 5 * MS)), vec![tpdo1.clone()]);
         assert_eq!(sim.take_events(), vec![SimEvent::Sync { counter: None }; 4]);
         // TPDO1 is no longer on the event timer; TPDO2 still is.
         let ticked = wire(&sim.on_tick(Duration::from_millis(100)));
@@ -1421,12 +1421,21 @@ mod tests {
         sim.start(Duration::ZERO);
         sim.on_frame(&frame(0x000, &[0x01, 0x05]), Duration::ZERO);
         // Mapping changed while valid: accepted, effective at once.
-        sdo(&mut sim, "2F 00 1A 00 01 00 00 00", MS);
-        assert_eq!(wire(&sim.on_tick(MS))[0], (0x185, h("00 00")));
+        assert_eq!(
+            sdo(&mut sim, "2F 00 1A 00 01 00 00 00", MS),
+            [(0x585, h("60 00 1A 00 00 00 00 00")), (0x185, h("00 00"))]
+        );
         // An unusable mapping is not sent (and does not spin the timer).
-        sdo(&mut sim, "23 00 1A 01 10 00 17 10", 2 * MS);
-        let out = sim.on_tick(2 * MS);
-        assert!(out.iter().all(|f| f.raw_id() != 0x185));
+        assert_eq!(
+            sdo(&mut sim, "23 00 1A 01 10 00 17 10", 2 * MS),
+            reply("60 00 1A 01 00 00 00 00")
+        );
+        assert!(sim.on_tick(2 * MS).is_empty());
+        assert!(
+            sim.on_tick(Duration::from_millis(100))
+                .iter()
+                .all(|f| f.raw_id() != 0x185)
+        );
         assert!(sim.next_deadline().unwrap() > 2 * MS);
     }
 

@@ -81,7 +81,7 @@ impl<D: Device + ?Sized> Device for Box<D> {
 pub enum SimError {
     /// The EDS text is invalid.
     #[error("invalid EDS: {0}")]
-    Eds(#[from] EdsError),
+    Eds(#[source] Box<EdsError>),
     /// No variable at this address.
     #[error("object {0} does not exist in the object dictionary")]
     NoSuchObject(ObjectAddress),
@@ -95,4 +95,10 @@ pub enum SimError {
         /// The type of the value given.
         got: DataType,
     },
+}
+
+impl From<EdsError> for SimError {
+    fn from(e: EdsError) -> Self {
+        SimError::Eds(Box::new(e))
+    }
 }
