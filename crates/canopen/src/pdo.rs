@@ -154,10 +154,14 @@ impl PdoConfig {
                 self.inhibit_time.to_le_bytes().to_vec(),
             ));
         }
-        w.push((
-            ObjectAddress::new(comm, 5),
-            self.event_timer_ms.to_le_bytes().to_vec(),
-        ));
+        // RPDO sub-index 5 (deadline monitoring) is optional in CiA 301 and
+        // missing on many devices: only written when asked for.
+        if self.kind == PdoKind::Tpdo || self.event_timer_ms > 0 {
+            w.push((
+                ObjectAddress::new(comm, 5),
+                self.event_timer_ms.to_le_bytes().to_vec(),
+            ));
+        }
         w.push((ObjectAddress::new(map, 0), vec![0]));
         for (i, m) in self.mapping.iter().enumerate() {
             w.push((
