@@ -31,6 +31,9 @@ num = 1
 transmission_type = 255
 event_timer_ms = 20
 mapping = ["6041:0:16", "6081:0:32", "6060:0:8"]
+[[canopen.node.rpdo]]
+num = 1
+mapping = ["6040:0:16", "607A:0:32"]
 [[canopen.node]]
 id = 3
 eds = "builtin:io"
