@@ -784,9 +784,15 @@ impl Transfer {
                 Ok(Flow::Done(Vec::new(), TransferOutcome::Downloaded))
             }
             Phase::BlockUploadInitiate { opts } => {
-                if command & CS_MASK == SCS_INITIATE_UPLOAD && opts.switch_threshold > 0 {
-                    // Protocol switch: the value is small enough for the
-                    // server to answer as a plain upload.
+                // Protocol switch: the value is small enough for the server to
+                // answer as a plain upload. Some servers (python-canopen's
+                // LocalNode, for one) also answer a block upload initiate
+                // that offered no switch with a plain upload response; with
+                // `fallback` on we accept that too, as the server refusing
+                // block transfer, rather than failing the read.
+                if command & CS_MASK == SCS_INITIATE_UPLOAD
+                    && (opts.switch_threshold > 0 || opts.fallback)
+                {
                     return self.upload_initiate_response(p);
                 }
                 let what = "a block upload initiate response";

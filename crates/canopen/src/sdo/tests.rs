@@ -1056,3 +1056,32 @@ proptest! {
         prop_assert_eq!(s.active_transfer(), None);
     }
 }
+
+/// python-canopen's LocalNode answers a block upload initiate (no protocol
+/// switch offered) with a plain expedited upload response. With fallback on
+/// the client takes the value; with fallback off it is a protocol violation.
+#[test]
+fn block_upload_answered_plainly_is_accepted_with_fallback() {
+    let trace = [
+        (T, "a4 00 10 00 7f 00 00 00"),
+        (R, "43 00 10 00 92 01 02 00"),
+    ];
+    assert_eq!(
+        upload(at(0x1000, 0), block(true), &trace),
+        uploaded(&[0x92, 0x01, 0x02, 0x00])
+    );
+    let strict = TransferOptions {
+        mode: Mode::Block(BlockOptions {
+            fallback: false,
+            ..BlockOptions::default()
+        }),
+        ..opts()
+    };
+    let strict_trace = [
+        (T, "a4 00 10 00 7f 00 00 00"),
+        (R, "43 00 10 00 92 01 02 00"),
+        (T, "80 00 10 00 01 00 04 05"),
+    ];
+    let err = upload(at(0x1000, 0), strict, &strict_trace).unwrap_err();
+    assert!(matches!(err, SdoError::Protocol { .. }), "{err:?}");
+}
