@@ -1,0 +1,202 @@
+//! `memory`: resident memory of the real server binary running the embedded
+//! demo.
+//!
+//! Spawns `cangate-server --listen 127.0.0.1:<free port>` (by default the
+//! binary next to this one, i.e. the same target profile), waits until it
+//! answers a gRPC ListBuses call, lets it settle, reads `VmRSS` (and the peak
+//! `VmHWM`) from `/proc/<pid>/status`, then stops it with SIGTERM.
+
+use crate::report::{Measure, Outcome, Target};
+use anyhow::{Context, Result, bail};
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Target: RSS below this many MiB.
+pub const TARGET_MIB: f64 = 40.0;
+/// Settle time before reading the RSS.
+pub const SETTLE: Duration = Duration::from_secs(1);
+/// Settle time with `--quick`.
+pub const QUICK_SETTLE: Duration = Duration::from_millis(200);
+/// How long the server may take to answer its first call.
+const READY_TIMEOUT: Duration = Duration::from_secs(15);
+
+const LABEL: &str = "server RSS (embedded demo)";
+
+/// The server binary next to this executable.
+pub fn default_server_binary() -> Result<PathBuf> {
+    let exe = std::env::current_exe().context("locating this executable")?;
+    let dir = exe
+        .parent()
+        .context("this executable has no parent directory")?;
+    Ok(dir.join(format!("cangate-server{}", std::env::consts::EXE_SUFFIX)))
+}
+
+/// Stops the child on every path out of the benchmark.
+struct Guard(Child);
+
+impl Guard {
+    /// SIGTERM (graceful shutdown), then SIGKILL if it does not exit.
+    fn terminate(&mut self) -> Result<Option<std::process::ExitStatus>> {
+        if let Some(status) = self.0.try_wait()? {
+            return Ok(Some(status));
+        }
+        let _ = Command::new("kill")
+            .args(["-TERM", &self.0.id().to_string()])
+            .stderr(Stdio::null())
+            .status();
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while Instant::now() < deadline {
+            if let Some(status) = self.0.try_wait()? {
+                return Ok(Some(status));
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        self.0.kill()?;
+        self.0.wait()?;
+        Ok(None)
+    }
+}
+
+impl Drop for Guard {
+    fn drop(&mut self) {
+        if let Ok(None) = self.0.try_wait() {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+}
+
+/// A `kB` line of `/proc/<pid>/status`.
+fn status_kib(status: &str, key: &str) -> Option<u64> {
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix(key)?.strip_prefix(':'))
+        .and_then(|rest| rest.split_whitespace().next()?.parse().ok())
+}
+
+fn free_port() -> Result<u16> {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").context("finding a free port")?;
+    Ok(l.local_addr()?.port())
+}
+
+/// Runs the benchmark with `binary` (or the default one).
+pub async fn run(binary: Option<PathBuf>, settle: Duration) -> Result<Vec<Measure>> {
+    let explicit = binary.is_some();
+    let binary = match binary {
+        Some(b) => b,
+        None => default_server_binary()?,
+    };
+    if !binary.is_file() {
+        let profile = if cfg!(debug_assertions) {
+            ""
+        } else {
+            " --release"
+        };
+        let why = if explicit {
+            format!("{} not found", binary.display())
+        } else {
+            format!(
+                "{} not found; build it with `cargo build{profile} -p cangate-server` or pass --server-bin",
+                binary.display()
+            )
+        };
+        println!("memory: skipped: {why}");
+        return Ok(vec![Measure {
+            bench: "memory",
+            label: LABEL,
+            unit: "MiB",
+            target: Target::Below(TARGET_MIB),
+            outcome: Outcome::Skipped(why),
+            details: json!({ "binary": binary.display().to_string() }),
+        }]);
+    }
+    measure(&binary, settle).await
+}
+
+async fn measure(binary: &Path, settle: Duration) -> Result<Vec<Measure>> {
+    let port = free_port()?;
+    let addr = format!("127.0.0.1:{port}");
+    println!(
+        "memory: {} --listen {addr} (embedded demo), RSS {} ms after the first ListBuses answer",
+        binary.display(),
+        settle.as_millis()
+    );
+    let child = Command::new(binary)
+        .args(["--listen", &addr])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .with_context(|| format!("starting {}", binary.display()))?;
+    let mut guard = Guard(child);
+    let pid = guard.0.id();
+
+    let url = format!("http://{addr}");
+    let started = Instant::now();
+    let buses = loop {
+        if let Some(status) = guard.0.try_wait()? {
+            bail!("the server exited before answering: {status}");
+        }
+        if started.elapsed() > READY_TIMEOUT {
+            bail!("the server did not answer ListBuses within {READY_TIMEOUT:?}");
+        }
+        if let Ok(mut client) = cangate_client::connect(&url).await
+            && let Ok(buses) = client.list_buses().await
+        {
+            break buses.len();
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    };
+    let ready = started.elapsed();
+    tokio::time::sleep(settle).await;
+
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .with_context(|| format!("reading /proc/{pid}/status"))?;
+    let rss_kib = status_kib(&status, "VmRSS").context("no VmRSS in /proc/<pid>/status")?;
+    let hwm_kib = status_kib(&status, "VmHWM");
+    let threads = status_kib(&status, "Threads");
+    let exit = guard.terminate()?;
+    let graceful = exit.is_some_and(|s| s.success());
+
+    let mib = rss_kib as f64 / 1024.0;
+    println!(
+        "  RSS {mib:.1} MiB (peak {} MiB, {} threads), {buses} buses, ready after {} ms, SIGTERM shutdown {}",
+        hwm_kib.map_or("?".into(), |k| format!("{:.1}", k as f64 / 1024.0)),
+        threads.map_or("?".into(), |t| t.to_string()),
+        ready.as_millis(),
+        if graceful { "clean" } else { "NOT clean" },
+    );
+    Ok(vec![Measure::value(
+        "memory",
+        LABEL,
+        mib,
+        "MiB",
+        Target::Below(TARGET_MIB),
+        json!({
+            "binary": binary.display().to_string(),
+            "rss_kib": rss_kib,
+            "peak_rss_kib": hwm_kib,
+            "threads": threads,
+            "buses": buses,
+            "ready_ms": ready.as_millis() as u64,
+            "settle_ms": settle.as_millis() as u64,
+            "graceful_shutdown": graceful,
+        }),
+    )])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_proc_status() {
+        let s = "Name:\tcangate-server\nVmHWM:\t   20480 kB\nVmRSS:\t   12345 kB\nThreads:\t5\n";
+        assert_eq!(status_kib(s, "VmRSS"), Some(12345));
+        assert_eq!(status_kib(s, "VmHWM"), Some(20480));
+        assert_eq!(status_kib(s, "Threads"), Some(5));
+        assert_eq!(status_kib(s, "VmSwap"), None);
+    }
+}
