@@ -27,13 +27,16 @@
 //! Every wait is bounded, so a regression shows up as a failure with a
 //! message, never as a hung test run.
 
+#[path = "common/vcan.rs"]
+mod vcan;
+
 use anyhow::{Context, Result, anyhow, bail, ensure};
 use cangate_client::can::Frame;
 use cangate_client::pb;
 use cangate_client::pb::stream_event::Event;
 use std::collections::VecDeque;
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use tokio::sync::mpsc;
@@ -57,192 +60,12 @@ const DOWN_WAIT: Duration = Duration::from_secs(5);
 /// Coming back is paced by the reconnect backoff (100 ms doubling, at most
 /// 5 s), so allow one full maximum backoff period plus slack.
 const UP_WAIT: Duration = Duration::from_secs(12);
-/// The host side of the VM run, including a first-time `apt-get install` of
-/// QEMU in CI. The guest itself is bounded by `VCAN_VM_TIMEOUT` below.
-const VM_RUN_LIMIT: Duration = Duration::from_secs(600);
-
 #[test]
 fn socketcan_vcan_end_to_end() {
-    match decide() {
-        Plan::Here => run_here(),
-        Plan::Vm(runner) => run_in_vm(&runner),
-        Plan::Unavailable(reason) => skip_or_fail(&reason),
-    }
-}
-
-// ------------------------------------------------------------------ where
-
-enum Plan {
-    /// A vcan0 is visible to this process.
-    Here,
-    /// Re-run inside the VM with this command prefix.
-    Vm(Vec<String>),
-    /// No way to get a real SocketCAN interface here.
-    Unavailable(String),
-}
-
-fn in_ci() -> bool {
-    std::env::var("CI").is_ok_and(|v| v.eq_ignore_ascii_case("true") || v == "1")
-}
-
-fn inside_vm() -> bool {
-    std::env::var("VCAN_VM").is_ok_and(|v| v == "1")
-}
-
-fn decide() -> Plan {
-    if Path::new("/sys/class/net").join(IFACE).exists() {
-        return Plan::Here;
-    }
-    if inside_vm() {
-        // The VM always creates vcan0; if it is missing, the tool broke and
-        // quietly passing would hide that.
-        panic!("running inside vcan-vm (VCAN_VM=1) but {IFACE} does not exist");
-    }
-    if let Ok(prefix) = std::env::var("CANGATE_VCAN_RUNNER") {
-        let runner: Vec<String> = prefix.split_whitespace().map(str::to_string).collect();
-        if runner.is_empty() {
-            return Plan::Unavailable("CANGATE_VCAN_RUNNER is set but empty".into());
-        }
-        // An explicit runner is the user's promise that it works: no probing.
-        return Plan::Vm(runner);
-    }
-    // In a fresh clone `shared/` sits beside the repository root, and this
-    // crate is one level below the root.
-    let beside = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/tools/vcan-vm");
-    let Some(tool) = [beside.clone()]
-        .into_iter()
-        .chain(find_on_path("vcan-vm"))
-        .find(|p| p.is_file())
-    else {
-        return Plan::Unavailable(format!(
-            "no {IFACE} on this host and no vcan-vm tool (looked at {} and on PATH); \
-             create one with `ip link add {IFACE} type vcan` or set CANGATE_VCAN_RUNNER",
-            beside.display()
-        ));
-    };
-    // vcan-vm installs QEMU itself with apt. That is what CI wants, but a
-    // plain `cargo test` on a developer machine should not start installing
-    // system packages, so outside CI a missing QEMU means "skip".
-    if !in_ci() && find_on_path("qemu-system-x86_64").is_none() {
-        return Plan::Unavailable(format!(
-            "no {IFACE} on this host and qemu-system-x86_64 is not installed; \
-             run `{} --setup` once to install it",
-            tool.display()
-        ));
-    }
-    Plan::Vm(vec![tool.to_string_lossy().into_owned()])
-}
-
-fn find_on_path(name: &str) -> Option<PathBuf> {
-    std::env::split_paths(&std::env::var_os("PATH")?)
-        .map(|dir| dir.join(name))
-        .find(|p| p.is_file())
-}
-
-fn skip_or_fail(reason: &str) {
-    if in_ci() {
-        panic!("CI=true, so the real SocketCAN test must run, but it cannot: {reason}");
-    }
-    // Straight to the process's stderr, past libtest's output capture: a
-    // skip reported as "ok" must still be visible without --nocapture.
-    use std::io::Write as _;
-    let _ = writeln!(std::io::stderr(), "SKIPPED {TEST_NAME}: {reason}");
-}
-
-// ------------------------------------------------------------ VM re-run
-
-fn run_in_vm(runner: &[String]) {
-    let exe = std::env::current_exe().expect("the path of this test binary");
-    let mut cmd = Command::new(&runner[0]);
-    cmd.args(&runner[1..])
-        .arg(&exe)
-        .args(["--exact", TEST_NAME, "--nocapture", "--test-threads=1"])
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped());
-    // vcan-vm's automatic accelerator choice probes KVM once and caches the
-    // answer, but where /dev/kvm exists and the guest hangs under it (nested
-    // KVM, as on our development machines) the probe currently dies with
-    // exit 1 after 30 s instead of falling back to TCG. A test run under
-    // TCG costs only a few seconds more than under KVM, so default to TCG;
-    // VCAN_VM_ACCEL=auto (or kvm) opts back in.
-    if std::env::var_os("VCAN_VM_ACCEL").is_none() {
-        cmd.env("VCAN_VM_ACCEL", "tcg");
-    }
-    // The guest gets its own limit, so a wedged guest ends with vcan-vm's
-    // exit status 124 and a message rather than our watchdog's kill.
-    if std::env::var_os("VCAN_VM_TIMEOUT").is_none() {
-        cmd.env("VCAN_VM_TIMEOUT", "300");
-    }
-    eprintln!(
-        "no {IFACE} here; re-running {TEST_NAME} in {}",
-        runner.join(" ")
-    );
-    let started = Instant::now();
-    let mut child = cmd
-        .spawn()
-        .unwrap_or_else(|e| panic!("cannot start {}: {e}", runner[0]));
-
-    // Forward through println!/eprintln! rather than inheriting the file
-    // descriptors, so libtest's output capture applies to the guest's output
-    // just like to ours (shown with --nocapture or when the test fails).
-    let out = child.stdout.take().expect("piped stdout");
-    let err = child.stderr.take().expect("piped stderr");
-    let stdout_thread = std::thread::spawn(move || {
-        let mut summary_ok = false;
-        for line in BufReader::new(out).lines().map_while(Result::ok) {
-            summary_ok |= line.contains("test result: ok. 1 passed");
-            println!("[vm] {line}");
-        }
-        summary_ok
-    });
-    let stderr_thread = std::thread::spawn(move || {
-        for line in BufReader::new(err).lines().map_while(Result::ok) {
-            eprintln!("[vm] {line}");
-        }
-    });
-
-    let status = loop {
-        if let Some(status) = child.try_wait().expect("wait for the VM runner") {
-            break status;
-        }
-        if started.elapsed() > VM_RUN_LIMIT {
-            // SIGTERM first: vcan-vm traps it and takes its QEMU down with
-            // it; a SIGKILL would orphan the guest.
-            let _ = Command::new("kill")
-                .args(["-TERM", &child.id().to_string()])
-                .status();
-            let grace = Instant::now() + Duration::from_secs(5);
-            while Instant::now() < grace && matches!(child.try_wait(), Ok(None)) {
-                std::thread::sleep(Duration::from_millis(50));
-            }
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("the VM run did not finish within {VM_RUN_LIMIT:?}; killed it");
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    };
-    let summary_ok = stdout_thread.join().expect("stdout forwarder");
-    stderr_thread.join().expect("stderr forwarder");
-    eprintln!(
-        "VM run finished in {:.1} s with {status}",
-        started.elapsed().as_secs_f64()
-    );
-
-    match status.code() {
-        // vcan-vm: "the VM failed" (QEMU missing and not installable, no
-        // boot, ...): an environment problem, not a gateway bug.
-        Some(125) => skip_or_fail(&format!(
-            "{} could not run a VM (exit 125, see its output above)",
-            runner[0]
-        )),
-        Some(0) => assert!(
-            summary_ok,
-            "the VM run exited 0 but did not report `1 passed`: \
-             the test name {TEST_NAME:?} probably does not match the function"
-        ),
-        Some(124) => panic!("the guest hit VCAN_VM_TIMEOUT (exit 124)"),
-        _ => panic!("{TEST_NAME} failed inside the VM ({status})"),
+    match vcan::plan(IFACE) {
+        vcan::Plan::Here => run_here(),
+        vcan::Plan::Vm(runner) => vcan::run_in_vm(&runner, TEST_NAME, &[]),
+        vcan::Plan::Unavailable(reason) => vcan::skip_or_fail(TEST_NAME, &reason),
     }
 }
 
@@ -279,7 +102,7 @@ async fn scenario() -> Result<()> {
     let t0 = Instant::now();
     let step = |name: &str| eprintln!("[{:>6.2} s] {name}", t0.elapsed().as_secs_f64());
     for tool in ["ip", "cansend", "candump"] {
-        if find_on_path(tool).is_none() {
+        if vcan::find_on_path(tool).is_none() {
             bail!("`{tool}` is not on PATH (packages iproute2 and can-utils)");
         }
     }
