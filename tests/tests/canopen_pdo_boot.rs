@@ -40,6 +40,21 @@ eds = "builtin:io"
 simulate = true
 boot = true
 device_type = 0x12345678
+[[canopen.node]]
+id = 4
+eds = "builtin:io"
+simulate = true
+boot = true
+vendor_id = 0x00000BAD
+[[canopen.node]]
+id = 5
+eds = "builtin:io"
+simulate = true
+boot = true
+[[canopen.node.write]]
+object = "0x1000:0"
+type = "u32"
+value = "1"
 "#;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -162,6 +177,43 @@ async fn boot_procedure_configures_and_starts_and_pdos_flow() {
         .unwrap()
         .into_inner();
     assert_eq!(node3.state, pb::NmtState::PreOperational as i32);
+
+    // The other failure paths: a vendor id mismatch, and a configured SDO
+    // write the node refuses (0x1000 is read-only). Each is reported with
+    // its reason and the node is not started.
+    let mut events = c
+        .canopen_client()
+        .stream_node_events(pb::StreamNodeEventsRequest {
+            bus: "can0".into(),
+            nodes: vec![4, 5],
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    c.canopen_client()
+        .send_nmt(pb::SendNmtRequest {
+            bus: "can0".into(),
+            node: 0,
+            command: pb::NmtCommand::ResetCommunication as i32,
+        })
+        .await
+        .unwrap();
+    let mut reasons = std::collections::BTreeMap::new();
+    tokio::time::timeout(WAIT, async {
+        while reasons.len() < 2 {
+            let ev = events.message().await.unwrap().unwrap();
+            if let Some(Event::BootFailed(f)) = ev.event {
+                reasons.insert(ev.node, f.reason);
+            }
+        }
+    })
+    .await
+    .expect("both boot failures reported");
+    assert!(reasons[&4].contains("vendor id mismatch"), "{reasons:?}");
+    assert!(
+        reasons[&5].contains("writing 0x1000:00") && reasons[&5].contains("0x06010002"),
+        "{reasons:?}"
+    );
 
     // WritePdo: RPDO1 of the drive EDS maps controlword + target position.
     let v = |index, ty: pb::DataType, value| pb::PdoValue {
