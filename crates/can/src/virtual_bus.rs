@@ -118,7 +118,11 @@ struct Inner {
     status_notify: Notify,
     origin: Instant,
     origin_wall: u64,
-    timed: Mutex<Option<Arc<Timed>>>,
+    // Set once (at creation for bit-timed buses, on the first delay fault
+    // otherwise): read lock-free on every send.
+    timed: std::sync::OnceLock<Arc<Timed>>,
+    // The bus-off/down flag read on every send without taking `status`.
+    refusing: AtomicBool,
     transmitted: AtomicU64,
     dropped: AtomicU64,
     overflows: AtomicU64,
@@ -173,7 +177,8 @@ impl VirtualBus {
                 status_notify: Notify::new(),
                 origin: Instant::now(),
                 origin_wall,
-                timed: Mutex::new(None),
+                timed: std::sync::OnceLock::new(),
+                refusing: AtomicBool::new(false),
                 transmitted: AtomicU64::new(0),
                 dropped: AtomicU64::new(0),
                 overflows: AtomicU64::new(0),
@@ -235,7 +240,7 @@ impl VirtualBus {
 
     /// Bus load in percent over the last second (bit-timed buses only).
     pub fn load_percent(&self) -> Option<f64> {
-        let timed = self.inner.timed.lock().expect("timed lock").clone()?;
+        let timed = self.inner.timed.get()?.clone();
         self.inner.config.bit_timing?;
         let now = self.model_now();
         Some(
@@ -310,6 +315,9 @@ impl VirtualBus {
     /// Injects any state (e.g. error-passive with counters).
     pub fn set_status(&self, status: BusStatus) {
         *self.inner.status.lock().expect("status lock") = status;
+        self.inner
+            .refusing
+            .store(!status.state.can_send(), Ordering::Release);
         self.inner.status_version.fetch_add(1, Ordering::AcqRel);
         self.inner.status_notify.notify_waiters();
     }
@@ -322,27 +330,27 @@ impl VirtualBus {
     }
 
     fn timed(&self) -> Arc<Timed> {
-        let mut slot = self.inner.timed.lock().expect("timed lock");
-        if let Some(t) = slot.as_ref() {
-            return t.clone();
-        }
-        let timed = Arc::new(Timed {
-            state: Mutex::new(TimedState {
-                arbiter: Arbiter::new(self.inner.config.bit_timing),
-                delayed: VecDeque::new(),
-                load: LoadMeter::new(1_000_000_000),
-                shutdown: false,
-            }),
-            wake: Condvar::new(),
-        });
-        let weak = Arc::downgrade(&self.inner);
-        let t2 = timed.clone();
-        std::thread::Builder::new()
-            .name(format!("vbus-{}", self.inner.name))
-            .spawn(move || scheduler_thread(weak, t2))
-            .expect("spawn virtual bus scheduler thread");
-        *slot = Some(timed.clone());
-        timed
+        self.inner
+            .timed
+            .get_or_init(|| {
+                let timed = Arc::new(Timed {
+                    state: Mutex::new(TimedState {
+                        arbiter: Arbiter::new(self.inner.config.bit_timing),
+                        delayed: VecDeque::new(),
+                        load: LoadMeter::new(1_000_000_000),
+                        shutdown: false,
+                    }),
+                    wake: Condvar::new(),
+                });
+                let weak = Arc::downgrade(&self.inner);
+                let t2 = timed.clone();
+                std::thread::Builder::new()
+                    .name(format!("vbus-{}", self.inner.name))
+                    .spawn(move || scheduler_thread(weak, t2))
+                    .expect("spawn virtual bus scheduler thread");
+                timed
+            })
+            .clone()
     }
 
     /// Queues frames from one port. A batch is queued atomically (one lock,
@@ -350,11 +358,12 @@ impl VirtualBus {
     /// on a bit-timed bus the frames then go out back to back.
     fn send_from(&self, port: u64, frames: &[Frame]) -> Result<(), SendError> {
         let inner = &self.inner;
-        let state = inner.status.lock().expect("status lock").state;
-        match state {
-            BusState::BusOff => return Err(SendError::BusOff(inner.name.clone())),
-            BusState::Down => return Err(SendError::Down(inner.name.clone())),
-            _ => {}
+        if inner.refusing.load(Ordering::Acquire) {
+            match inner.status.lock().expect("status lock").state {
+                BusState::BusOff => return Err(SendError::BusOff(inner.name.clone())),
+                BusState::Down => return Err(SendError::Down(inner.name.clone())),
+                _ => {}
+            }
         }
         if !inner.config.fd && frames.iter().any(|f| f.is_fd()) {
             return Err(SendError::FdNotSupported(inner.name.clone()));
@@ -372,8 +381,7 @@ impl VirtualBus {
             }
             drop
         };
-        let timed = inner.timed.lock().expect("timed lock").clone();
-        match timed {
+        match inner.timed.get() {
             Some(t) => {
                 let now = self.model_now();
                 let mut st = t.state.lock().expect("timed state");
@@ -484,7 +492,7 @@ fn scheduler_thread(bus: Weak<Inner>, timed: Arc<Timed>) {
 
 impl Drop for Inner {
     fn drop(&mut self) {
-        if let Some(t) = self.timed.get_mut().ok().and_then(|t| t.take()) {
+        if let Some(t) = self.timed.take() {
             t.state.lock().expect("timed state").shutdown = true;
             t.wake.notify_all();
         }
