@@ -5,7 +5,8 @@
 //! `CANGATE_LISTEN=0.0.0.0:50051`, `CANGATE_LOG__FORMAT=json`. The
 //! variables the command-line client reads (`CANGATE_SERVER`,
 //! `CANGATE_TOKEN`, `CANGATE_CA`, `CANGATE_CERT`, `CANGATE_KEY`) and
-//! `CANGATE_CONFIG` are not configuration keys and are ignored here.
+//! `CANGATE_CONFIG` are not configuration keys and are ignored here; any
+//! other `CANGATE_` variable is ignored with a warning on stderr.
 
 use serde::{Deserialize, Serialize};
 use std::collections::{HashMap, HashSet};
@@ -13,6 +14,10 @@ use std::net::SocketAddr;
 
 /// The embedded demo configuration, used when no configuration file is given.
 pub const DEMO_CONFIG: &str = include_str!("../../deploy/demo.toml");
+
+/// Environment variables that override configuration keys (a trailing `__`
+/// stands for every key below that table).
+const ENV_KEYS: &[&str] = &["CANGATE_LISTEN", "CANGATE_LOG__"];
 
 /// Environment variables with our prefix that belong to the client, not to
 /// the server's configuration.
@@ -348,9 +353,27 @@ impl Config {
     /// Loads `path` (or the embedded demo when `None`), applies the
     /// `CANGATE_…` environment, and validates.
     pub fn load(path: Option<&std::path::Path>) -> Result<Config, ConfigError> {
-        let env: HashMap<String, String> = std::env::vars()
-            .filter(|(k, _)| k.starts_with("CANGATE_") && !CLIENT_VARIABLES.contains(&k.as_str()))
-            .collect();
+        let mut env = HashMap::new();
+        for (k, v) in std::env::vars() {
+            if !k.starts_with("CANGATE_") || CLIENT_VARIABLES.contains(&k.as_str()) {
+                continue;
+            }
+            // Only the keys that can be overridden from the environment are
+            // taken; other CANGATE_ variables belong to other tools (tests,
+            // scripts) and must not break start-up, but a typo is reported.
+            if ENV_KEYS
+                .iter()
+                .any(|p| k == *p || (p.ends_with("__") && k.starts_with(p)))
+            {
+                env.insert(k, v);
+            } else {
+                eprintln!(
+                    "cangate-server: ignoring environment variable {k}: not a configuration \
+                     override (those are {})",
+                    ENV_KEYS.join(", ")
+                );
+            }
+        }
         Self::load_with_env(path, env)
     }
 

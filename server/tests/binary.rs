@@ -21,6 +21,7 @@ fn print_config_shows_the_effective_demo_with_overrides() {
         .arg("--print-config")
         .env("CANGATE_LOG__FORMAT", "json")
         .env("CANGATE_SERVER", "http://ignored-by-the-server:1")
+        .env("CANGATE_SOMETHING_ELSE", "belongs to another tool")
         .output()
         .unwrap();
     assert!(
