@@ -30,12 +30,14 @@ use cangate_canopen::eds::EdsError;
 use cangate_canopen::value::DataType;
 
 pub mod canopen_node;
+pub mod drive;
 mod pdo;
 #[cfg(feature = "runtime")]
 pub mod runner;
 pub mod store;
 
 pub use canopen_node::{SimEvent, SimNode, SimNodeOptions};
+pub use drive::{SimDrive, SimDriveOptions};
 #[cfg(feature = "runtime")]
 pub use runner::{DeviceHandle, spawn_device, spawn_node};
 pub use store::SimStore;

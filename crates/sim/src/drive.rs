@@ -1,0 +1,1682 @@
+//! [`SimDrive`]: a simulated CiA 402 servo drive.
+//!
+//! The drive wraps a [`SimNode`] built from the drive EDS (by default the
+//! bundled `cangate-drive.eds`), which serves SDO, NMT, heartbeat, SYNC,
+//! EMCY and the PDOs, and adds a drive model stepped at fixed intervals (1 ms
+//! by default) while the drive is enabled or moving:
+//!
+//! | feature | behaviour |
+//! |---|---|
+//! | state machine | driven by 0x6040 written over SDO or RPDO, evaluated on every write and model step; reflected in 0x6041; transitions 2..=12, 15, 16 (16 only with quick stop option code 5..=8); leaving operation enabled (5, 8, 9) stops the motor at once |
+//! | statusword | state bits, bit 4 voltage enabled while the power stage is on (switched on, operation enabled, quick stop active, and fault reaction active when entered from those), bit 9 remote always set, bits 10..=13 per mode; a change triggers every event-driven TPDO that maps 0x6041 |
+//! | profile position (1) | new set-point handshake (bit 4 rising edge accepts 0x607A, bit 12 set-point acknowledge until bit 4 falls), one buffered set-point, change set immediately (bit 5), relative (bit 6, to the previous target), halt (bit 8), trapezoidal profile with 0x6081/0x6083/0x6084, target reached (bit 10) |
+//! | profile velocity (3) | ramps to 0x60FF with 0x6083 (faster) / 0x6084 (slower); bit 10 at the target velocity, bit 12 at speed 0; halt ramps to 0 |
+//! | homing (6) | bit 4 rising edge starts 0x6098: 35/37 set the position to 0x607C home offset at once; 17..=30 move at 0x6099:01 with 0x609A to a virtual switch at the physical position 0, then set the position to the home offset; any other method ends in homing error (bit 13); bit 4 falling or halt interrupts |
+//! | cyclic synchronous position (8) / velocity (9) | follow 0x607A / 0x60FF (as written by RPDO, at once or at SYNC per the RPDO's transmission type) with a first-order lag; bit 12 set; following error 0x60F4 written when present; with 0x6065 present a following error beyond the window for longer than 0x6066 ms faults with EMCY 0x8611 |
+//! | quick stop | decelerates with 0x6085 (0x6084 when absent, or for option codes 1 and 5), then goes to switch on disabled for quick stop option codes 0..=4 (0x605A, default 2) or stays in quick stop active for 5..=8 |
+//! | faults | [`SimDrive::inject_fault`]: fault reaction active (stops with the quick stop deceleration), then fault; 0x603F and 0x1001 set and an EMCY sent; fault reset (rising edge of bit 7) clears them and sends the EMCY "error reset" |
+//! | limits | software position limits 0x607D (when min < max) bound every mode but homing: profile position clamps the target, the others stop at the limit; bit 11 internal limit |
+//! | process values | 0x6064 position, 0x606C velocity and 0x6077 torque (per mille, proportional to the acceleration) updated every step; TPDOs go out per their configuration (event timer, SYNC) |
+//!
+//! Units are increments, increments/s and increments/s². An NMT reset node
+//! restores the object dictionary and restarts the drive in switch on
+//! disabled at the same physical position (as with an absolute encoder),
+//! with the homing offset cleared.
+
+use std::collections::VecDeque;
+use std::time::Duration;
+
+use cangate_can::Frame;
+use cangate_canopen::ds402::{
+    Controlword, DriveState, ModeOfOperation, Statusword, objects as obj,
+};
+use cangate_canopen::eds::{Eds, SIM_DRIVE_EDS};
+use cangate_canopen::emcy::ErrorRegister;
+use cangate_canopen::nmt::NmtReset;
+use cangate_canopen::od::ObjectDictionary;
+use cangate_canopen::value::Value;
+use cangate_canopen::{NodeId, ObjectAddress};
+
+use crate::canopen_node::{SimEvent, SimNode, SimNodeOptions};
+use crate::{Device, SimError};
+
+/// The first TPDO mapping parameter index.
+const TPDO_MAP: u16 = 0x1A00;
+/// TPDO mapping parameters looked at for the statusword.
+const MAX_TPDOS: u16 = 512;
+/// Per mille of rated torque per increment/s² of acceleration.
+const TORQUE_PER_ACCEL: f64 = 1.0 / 1000.0;
+/// EMCY code of a following error.
+const FOLLOWING_ERROR_CODE: u16 = 0x8611;
+
+/// How a [`SimDrive`] behaves beyond what its EDS says.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SimDriveOptions {
+    /// Options of the CANopen node underneath.
+    pub node: SimNodeOptions,
+    /// The model step (1 ms by default; zero is taken as 1 ms).
+    pub step: Duration,
+    /// Time constant of the first-order lag with which the cyclic
+    /// synchronous modes follow their command (5 ms by default; zero
+    /// follows at once).
+    pub follow_time_constant: Duration,
+    /// Transmit the event-driven TPDOs that map 0x6041 whenever the
+    /// statusword changes (on by default), as drives do.
+    pub tpdo_on_statusword_change: bool,
+    /// The motor's top speed in increments/s when the object dictionary has
+    /// no 0x6080 max motor speed (100 000 by default); every mode is
+    /// limited to it.
+    pub max_speed: u32,
+}
+
+impl Default for SimDriveOptions {
+    fn default() -> Self {
+        SimDriveOptions {
+            node: SimNodeOptions::default(),
+            step: Duration::from_millis(1),
+            follow_time_constant: Duration::from_millis(5),
+            tpdo_on_statusword_change: true,
+            max_speed: 100_000,
+        }
+    }
+}
+
+/// The profile position set-point state.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct ProfilePosition {
+    /// The target being moved to.
+    active: Option<f64>,
+    /// The buffered next target.
+    queued: Option<f64>,
+    /// The latest accepted target (base of relative moves).
+    last_target: f64,
+    /// Set-point acknowledge (statusword bit 12).
+    ack: bool,
+    /// The latest target was clamped to a software limit.
+    limited: bool,
+}
+
+impl ProfilePosition {
+    fn idle(position: f64) -> Self {
+        ProfilePosition {
+            active: None,
+            queued: None,
+            last_target: position,
+            ack: false,
+            limited: false,
+        }
+    }
+}
+
+/// Where a homing procedure stands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Homing {
+    /// Not started or interrupted.
+    Idle,
+    /// Moving to the virtual switch.
+    Running,
+    /// Completed.
+    Attained,
+    /// Failed (unsupported method).
+    Error,
+}
+
+/// What changes from one model step to the next; equal snapshots mean the
+/// model is at rest.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Snapshot {
+    state: DriveState,
+    pos: f64,
+    vel: f64,
+    torque: i16,
+    statusword: u16,
+    follow_error: f64,
+}
+
+/// A simulated CiA 402 servo drive. See the [module documentation](self).
+#[derive(Debug)]
+pub struct SimDrive {
+    node: SimNode,
+    options: SimDriveOptions,
+    started: bool,
+    state: DriveState,
+    /// The power stage is on (statusword bit 4).
+    powered: bool,
+    /// The mode in effect (0x6061) and its code.
+    mode: Option<ModeOfOperation>,
+    mode_code: i8,
+    /// The controlword as last evaluated, for edges.
+    prev_cw: Controlword,
+    /// Position (as reported), velocity, and reported minus physical
+    /// position (set by homing).
+    pos: f64,
+    vel: f64,
+    shift: f64,
+    torque: i16,
+    pp: ProfilePosition,
+    homing: Homing,
+    /// A software limit stopped the motor in the latest step.
+    limit_hit: bool,
+    /// Command minus actual position in cyclic synchronous position mode.
+    follow_error: f64,
+    /// Since when the following error has been beyond the window.
+    follow_over_since: Option<Duration>,
+    error_code: u16,
+    /// The time of the latest model step.
+    model_time: Duration,
+    /// The latest time seen.
+    now: Duration,
+    /// 0-based numbers of the TPDOs present (0x1A00 + n).
+    tpdos: Vec<u16>,
+    outbox: Vec<Frame>,
+    events: VecDeque<SimEvent>,
+}
+
+impl SimDrive {
+    /// A drive with the object dictionary of `eds` at `node`, not yet
+    /// started.
+    pub fn new(eds: &Eds, node: NodeId, options: SimDriveOptions) -> Self {
+        Self::from_od(eds.od.clone(), node, options)
+    }
+
+    /// A drive with the bundled `cangate-drive.eds`.
+    pub fn bundled(node: NodeId, options: SimDriveOptions) -> Self {
+        Self::from_eds_text(SIM_DRIVE_EDS, node, options).expect("the bundled drive EDS is valid")
+    }
+
+    /// A drive from EDS/DCF text.
+    pub fn from_eds_text(
+        text: &str,
+        node: NodeId,
+        options: SimDriveOptions,
+    ) -> Result<Self, SimError> {
+        Ok(Self::from_od(Eds::parse(text)?.od, node, options))
+    }
+
+    /// A drive serving `od`, which should hold the CiA 402 objects the
+    /// model uses (absent ones read as 0 or are not written).
+    pub fn from_od(od: ObjectDictionary, node: NodeId, mut options: SimDriveOptions) -> Self {
+        if options.step.is_zero() {
+            options.step = Duration::from_millis(1);
+        }
+        let tpdos = (0..MAX_TPDOS)
+            .filter(|n| od.object(TPDO_MAP + n).is_some())
+            .collect();
+        SimDrive {
+            node: SimNode::from_od(od, node, options.node.clone()),
+            options,
+            started: false,
+            state: DriveState::NotReadyToSwitchOn,
+            powered: false,
+            mode: None,
+            mode_code: 0,
+            prev_cw: Controlword(0),
+            pos: 0.0,
+            vel: 0.0,
+            shift: 0.0,
+            torque: 0,
+            pp: ProfilePosition::idle(0.0),
+            homing: Homing::Idle,
+            limit_hit: false,
+            follow_error: 0.0,
+            follow_over_since: None,
+            error_code: 0,
+            model_time: Duration::ZERO,
+            now: Duration::ZERO,
+            tpdos,
+            outbox: Vec::new(),
+            events: VecDeque::new(),
+        }
+    }
+
+    /// The CANopen node underneath.
+    pub fn node(&self) -> &SimNode {
+        &self.node
+    }
+
+    /// The CANopen node underneath, e.g. to set parameters locally. The
+    /// model reads its inputs (0x6040, 0x6060, targets, profile
+    /// parameters) at every frame and model step, so local changes take
+    /// effect at the next one.
+    pub fn node_mut(&mut self) -> &mut SimNode {
+        &mut self.node
+    }
+
+    /// The options in force.
+    pub fn options(&self) -> &SimDriveOptions {
+        &self.options
+    }
+
+    /// The state machine state.
+    pub fn state(&self) -> DriveState {
+        self.state
+    }
+
+    /// The statusword the drive reports.
+    pub fn statusword(&self) -> Statusword {
+        Statusword(self.compose_statusword())
+    }
+
+    /// The mode of operation in effect (0x6061), `None` for no mode.
+    pub fn mode(&self) -> Option<ModeOfOperation> {
+        self.mode
+    }
+
+    /// The position in increments (0x6064 is this, rounded).
+    pub fn position(&self) -> f64 {
+        self.pos
+    }
+
+    /// The velocity in increments/s (0x606C is this, rounded).
+    pub fn velocity(&self) -> f64 {
+        self.vel
+    }
+
+    /// The error code of the latest fault (0x603F), 0 when none.
+    pub fn error_code(&self) -> u16 {
+        self.error_code
+    }
+
+    /// The following error in cyclic synchronous position mode.
+    pub fn following_error(&self) -> f64 {
+        self.follow_error
+    }
+
+    /// Takes the node events that happened since the last call, oldest
+    /// first (the drive reads them from the node first).
+    pub fn take_events(&mut self) -> Vec<SimEvent> {
+        self.events.drain(..).collect()
+    }
+
+    /// Injects a fault with EMCY error code `code` (e.g. 0x2310 continuous
+    /// over-current): the drive enters fault reaction active (then fault
+    /// once stopped), 0x603F is set to `code` and 0x1001 to the generic bit
+    /// plus the class bit of the code (current, voltage, temperature,
+    /// communication). Returns the frames to send: the EMCY (when the NMT
+    /// state allows it) and any TPDO carrying the new statusword. Does
+    /// nothing before [`Device::start`].
+    pub fn inject_fault(&mut self, code: u16) -> Vec<Frame> {
+        if !self.started {
+            return Vec::new();
+        }
+        self.fault(code);
+        self.write_outputs();
+        let mut out = std::mem::take(&mut self.outbox);
+        out.extend(self.node.on_tick(self.now));
+        out
+    }
+
+    // ---- inputs and the state machine ----
+
+    fn int(&self, addr: ObjectAddress) -> Option<i128> {
+        self.node.get(addr).and_then(Value::as_i128)
+    }
+
+    fn param(&self, addr: ObjectAddress) -> f64 {
+        self.int(addr).unwrap_or(0) as f64
+    }
+
+    /// An acceleration parameter; 0 (or absent) means "at once".
+    fn rate(&self, addr: ObjectAddress) -> f64 {
+        match self.param(addr) {
+            r if r > 0.0 => r,
+            _ => f64::INFINITY,
+        }
+    }
+
+    /// The top speed: 0x6080 max motor speed, else the option.
+    fn max_speed(&self) -> f64 {
+        match self.int(obj::MAX_MOTOR_SPEED) {
+            Some(v) if v > 0 => v as f64,
+            _ => f64::from(self.options.max_speed),
+        }
+    }
+
+    fn controlword(&self) -> Controlword {
+        Controlword(self.int(obj::CONTROLWORD).unwrap_or(0) as u16)
+    }
+
+    fn quick_stop_option(&self) -> i128 {
+        self.int(obj::QUICK_STOP_OPTION_CODE).unwrap_or(2)
+    }
+
+    /// The software position limits, when enabled (min < max).
+    fn limits(&self) -> Option<(f64, f64)> {
+        let min = self.int(obj::SOFTWARE_POSITION_LIMIT_MIN)?;
+        let max = self.int(obj::SOFTWARE_POSITION_LIMIT_MAX)?;
+        (min < max).then_some((min as f64, max as f64))
+    }
+
+    /// Reads the mode and the controlword and applies them.
+    fn apply_inputs(&mut self) {
+        if !self.started {
+            return;
+        }
+        let requested = self.int(obj::MODES_OF_OPERATION).unwrap_or(0) as i8;
+        if requested != self.mode_code {
+            let supported = self
+                .int(obj::SUPPORTED_DRIVE_MODES)
+                .map_or(u32::MAX, |m| m as u32);
+            match ModeOfOperation::from_code(requested) {
+                Some(m) if supported & m.supported_mask() != 0 => self.set_mode(Some(m), requested),
+                None if requested == 0 => self.set_mode(None, 0),
+                _ => {} // not supported: the display keeps the mode in effect
+            }
+        }
+        let cw = self.controlword();
+        let prev = std::mem::replace(&mut self.prev_cw, cw);
+        if let Some(command) = cw.command_after(prev) {
+            // "Switch on + enable operation" takes two transitions.
+            for _ in 0..2 {
+                let Some(t) = self.state.on_command(command) else {
+                    break;
+                };
+                if t.number == 16 && !(5..=8).contains(&self.quick_stop_option()) {
+                    break;
+                }
+                if t.number == 15 {
+                    self.error_code = 0;
+                    self.follow_over_since = None;
+                    self.outbox.extend(self.node.clear_emcy());
+                }
+                self.enter(t.to);
+            }
+        }
+        if self.state == DriveState::OperationEnabled {
+            self.mode_edges(prev, cw);
+        }
+    }
+
+    fn set_mode(&mut self, mode: Option<ModeOfOperation>, code: i8) {
+        self.mode = mode;
+        self.mode_code = code;
+        self.reset_generators();
+    }
+
+    fn reset_generators(&mut self) {
+        self.pp = ProfilePosition::idle(self.pos);
+        self.homing = Homing::Idle;
+        self.follow_error = 0.0;
+        self.follow_over_since = None;
+    }
+
+    fn enter(&mut self, to: DriveState) {
+        use DriveState as S;
+        let from = self.state;
+        self.state = to;
+        match to {
+            S::NotReadyToSwitchOn | S::SwitchOnDisabled | S::ReadyToSwitchOn | S::Fault => {
+                self.powered = false;
+                self.vel = 0.0;
+            }
+            S::SwitchedOn => {
+                self.powered = true;
+                self.vel = 0.0;
+            }
+            S::OperationEnabled => {
+                self.powered = true;
+                if from != S::OperationEnabled {
+                    self.reset_generators();
+                }
+            }
+            S::QuickStopActive => {
+                if self.quick_stop_option() == 0 {
+                    // Option code 0: disable the drive function at once.
+                    self.enter(S::SwitchOnDisabled);
+                }
+            }
+            S::FaultReactionActive | S::Unknown => {}
+        }
+    }
+
+    /// Handles the mode-specific controlword edges in operation enabled.
+    fn mode_edges(&mut self, prev: Controlword, cw: Controlword) {
+        let rising = cw.new_set_point() && !prev.new_set_point();
+        let falling = !cw.new_set_point() && prev.new_set_point();
+        match self.mode {
+            Some(ModeOfOperation::ProfilePosition) => {
+                if rising {
+                    self.accept_set_point(cw);
+                }
+                if falling {
+                    self.pp.ack = false;
+                }
+            }
+            Some(ModeOfOperation::Homing) => {
+                if rising {
+                    self.start_homing();
+                } else if falling && self.homing == Homing::Running {
+                    self.homing = Homing::Idle;
+                }
+            }
+            _ => {}
+        }
+    }
+
+    fn accept_set_point(&mut self, cw: Controlword) {
+        let busy = self.pp.active.is_some();
+        if busy && !cw.change_set_immediately() && self.pp.queued.is_some() {
+            return; // the buffer is full: not acknowledged
+        }
+        let raw = self.param(obj::TARGET_POSITION);
+        let wanted = if cw.relative() {
+            self.pp.last_target + raw
+        } else {
+            raw
+        };
+        let (target, limited) = match self.limits() {
+            Some((min, max)) => {
+                let t = wanted.clamp(min, max);
+                (t, t != wanted)
+            }
+            None => (wanted, false),
+        };
+        self.pp.last_target = target;
+        self.pp.limited = limited;
+        if !busy || cw.change_set_immediately() {
+            self.pp.active = Some(target);
+            self.pp.queued = None;
+        } else {
+            self.pp.queued = Some(target);
+        }
+        self.pp.ack = true;
+    }
+
+    fn start_homing(&mut self) {
+        let method = self.int(obj::HOMING_METHOD).unwrap_or(0);
+        let offset = self.param(obj::HOME_OFFSET);
+        self.homing = match method {
+            35 | 37 => {
+                self.shift += offset - self.pos;
+                self.pos = offset;
+                Homing::Attained
+            }
+            17..=30 => Homing::Running,
+            _ => Homing::Error,
+        };
+    }
+
+    fn fault(&mut self, code: u16) {
+        self.error_code = code;
+        if !matches!(
+            self.state,
+            DriveState::Fault | DriveState::FaultReactionActive
+        ) {
+            self.enter(DriveState::FaultReactionActive);
+        }
+        self.outbox
+            .extend(self.node.inject_emcy(code, error_register(code), [0; 5]));
+    }
+
+    // ---- the model ----
+
+    fn active(&self) -> bool {
+        self.started
+            && (self.vel != 0.0
+                || matches!(
+                    self.state,
+                    DriveState::OperationEnabled
+                        | DriveState::QuickStopActive
+                        | DriveState::FaultReactionActive
+                ))
+    }
+
+    fn snapshot(&self) -> Snapshot {
+        Snapshot {
+            state: self.state,
+            pos: self.pos,
+            vel: self.vel,
+            torque: self.torque,
+            statusword: self.compose_statusword(),
+            follow_error: self.follow_error,
+        }
+    }
+
+    /// Runs the model steps due up to `now`.
+    fn advance(&mut self, now: Duration) {
+        if !self.active() {
+            self.model_time = self.model_time.max(now);
+            return;
+        }
+        let step = self.options.step;
+        while self.model_time + step <= now {
+            self.model_time += step;
+            let before = self.snapshot();
+            self.step_model();
+            if !self.active() {
+                self.model_time = now;
+                break;
+            }
+            if self.snapshot() == before {
+                // At rest: nothing changes until an input does.
+                let behind = (now - self.model_time).as_nanos();
+                let skip = behind - behind % step.as_nanos();
+                self.model_time += Duration::from_nanos(u64::try_from(skip).unwrap_or(u64::MAX));
+                break;
+            }
+        }
+    }
+
+    fn step_model(&mut self) {
+        self.apply_inputs();
+        let dt = self.options.step.as_secs_f64();
+        let v0 = self.vel;
+        self.limit_hit = false;
+        match self.state {
+            DriveState::OperationEnabled => self.step_enabled(dt),
+            DriveState::QuickStopActive => {
+                let dec = match self.quick_stop_option() {
+                    1 | 5 => self.rate(obj::PROFILE_DECELERATION),
+                    _ => self.quick_stop_deceleration(),
+                };
+                self.stop(dec, dt);
+                if self.vel == 0.0 && (0..=4).contains(&self.quick_stop_option()) {
+                    self.enter(DriveState::SwitchOnDisabled); // transition 12
+                }
+            }
+            DriveState::FaultReactionActive => {
+                let dec = self.quick_stop_deceleration();
+                self.stop(dec, dt);
+                if self.vel == 0.0 {
+                    self.enter(DriveState::Fault); // transition 14
+                }
+            }
+            _ => self.vel = 0.0,
+        }
+        let accel = (self.vel - v0) / dt;
+        self.torque = (accel * TORQUE_PER_ACCEL)
+            .round()
+            .clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16;
+        self.write_outputs();
+    }
+
+    fn quick_stop_deceleration(&self) -> f64 {
+        if self.node.get(obj::QUICK_STOP_DECELERATION).is_some() {
+            self.rate(obj::QUICK_STOP_DECELERATION)
+        } else {
+            self.rate(obj::PROFILE_DECELERATION)
+        }
+    }
+
+    fn stop(&mut self, dec: f64, dt: f64) {
+        self.vel = ramp(self.vel, 0.0, dec, dec, dt);
+        self.pos += self.vel * dt;
+    }
+
+    fn step_enabled(&mut self, dt: f64) {
+        let cw = self.prev_cw;
+        let dec = self.rate(obj::PROFILE_DECELERATION);
+        match self.mode {
+            Some(ModeOfOperation::ProfilePosition) => match self.pp.active {
+                Some(target) if !cw.halt() => {
+                    let vmax = self.param(obj::PROFILE_VELOCITY).min(self.max_speed());
+                    let acc = self.rate(obj::PROFILE_ACCELERATION);
+                    (self.pos, self.vel) =
+                        profile_step(self.pos, self.vel, target, vmax, acc, dec, dt);
+                    if self.pos == target && self.vel == 0.0 {
+                        self.pp.active = self.pp.queued.take();
+                    }
+                }
+                _ => self.stop(dec, dt),
+            },
+            Some(ModeOfOperation::ProfileVelocity) => {
+                let vmax = self.max_speed();
+                let target = if cw.halt() {
+                    0.0
+                } else {
+                    self.param(obj::TARGET_VELOCITY).clamp(-vmax, vmax)
+                };
+                let acc = self.rate(obj::PROFILE_ACCELERATION);
+                self.vel = ramp(self.vel, target, acc, dec, dt);
+                self.pos += self.vel * dt;
+            }
+            Some(ModeOfOperation::Homing) => {
+                let acc = self.rate(obj::HOMING_ACCELERATION);
+                if self.homing == Homing::Running && cw.halt() {
+                    self.homing = Homing::Idle;
+                }
+                if self.homing == Homing::Running {
+                    // The virtual switch is at the physical position 0.
+                    let switch = self.shift;
+                    let speed = self.param(obj::HOMING_SPEED_SWITCH).min(self.max_speed());
+                    (self.pos, self.vel) =
+                        profile_step(self.pos, self.vel, switch, speed, acc, acc, dt);
+                    if self.pos == switch && self.vel == 0.0 {
+                        let offset = self.param(obj::HOME_OFFSET);
+                        self.shift = offset;
+                        self.pos = offset;
+                        self.homing = Homing::Attained;
+                    }
+                } else {
+                    self.stop(acc, dt);
+                }
+                return; // homing ignores the software limits
+            }
+            Some(ModeOfOperation::CyclicSynchronousPosition) => {
+                let mut command = self.param(obj::TARGET_POSITION);
+                if let Some((min, max)) = self.limits() {
+                    command = command.clamp(min, max);
+                }
+                let mut next = self.pos + (command - self.pos) * self.follow_gain(dt);
+                if (command - next).abs() < 1e-3 {
+                    next = command;
+                }
+                let reach = self.max_speed() * dt;
+                next = next.clamp(self.pos - reach, self.pos + reach);
+                self.vel = (next - self.pos) / dt;
+                self.pos = next;
+                self.follow_error = command - self.pos;
+                self.check_following_error();
+            }
+            Some(ModeOfOperation::CyclicSynchronousVelocity) => {
+                let vmax = self.max_speed();
+                let command = self.param(obj::TARGET_VELOCITY).clamp(-vmax, vmax);
+                let mut next = self.vel + (command - self.vel) * self.follow_gain(dt);
+                if (command - next).abs() < 1e-3 {
+                    next = command;
+                }
+                self.vel = next;
+                self.pos += self.vel * dt;
+            }
+            _ => self.stop(dec, dt),
+        }
+        self.apply_limits();
+    }
+
+    /// The fraction of the remaining error a first-order lag closes in `dt`.
+    fn follow_gain(&self, dt: f64) -> f64 {
+        let tau = self.options.follow_time_constant.as_secs_f64();
+        if tau <= 0.0 {
+            1.0
+        } else {
+            1.0 - (-dt / tau).exp()
+        }
+    }
+
+    /// The following error window (0x6065), when present and not off.
+    fn following_window(&self) -> Option<f64> {
+        match self.int(obj::FOLLOWING_ERROR_WINDOW)? {
+            0xFFFF_FFFF => None,
+            w => Some(w as f64),
+        }
+    }
+
+    fn following_error_exceeded(&self) -> bool {
+        self.following_window()
+            .is_some_and(|w| self.follow_error.abs() > w)
+    }
+
+    fn check_following_error(&mut self) {
+        if !self.following_error_exceeded() {
+            self.follow_over_since = None;
+            return;
+        }
+        let since = *self.follow_over_since.get_or_insert(self.model_time);
+        let timeout = Duration::from_millis(
+            self.int(obj::FOLLOWING_ERROR_TIMEOUT)
+                .map_or(0, |t| t.clamp(0, i128::from(u64::MAX)) as u64),
+        );
+        if self.model_time - since >= timeout {
+            self.fault(FOLLOWING_ERROR_CODE);
+        }
+    }
+
+    fn apply_limits(&mut self) {
+        let Some((min, max)) = self.limits() else {
+            return;
+        };
+        if self.pos > max {
+            self.pos = max;
+            self.vel = self.vel.min(0.0);
+            self.limit_hit = true;
+        } else if self.pos < min {
+            self.pos = min;
+            self.vel = self.vel.max(0.0);
+            self.limit_hit = true;
+        }
+    }
+
+    // ---- outputs ----
+
+    fn compose_statusword(&self) -> u16 {
+        if !self.started {
+            return 0;
+        }
+        let mut sw = Statusword::from_state(self.state)
+            .with(Statusword::REMOTE, true)
+            .with(Statusword::VOLTAGE_ENABLED, self.powered);
+        let stopped = self.vel == 0.0;
+        match self.state {
+            DriveState::OperationEnabled => sw = self.mode_bits(sw),
+            DriveState::QuickStopActive => sw = sw.with(Statusword::TARGET_REACHED, stopped),
+            _ => {}
+        }
+        sw.bits()
+    }
+
+    fn mode_bits(&self, sw: Statusword) -> Statusword {
+        let stopped = self.vel == 0.0;
+        let halt = self.prev_cw.halt();
+        let sw = sw.with(Statusword::INTERNAL_LIMIT, self.limit_hit);
+        match self.mode {
+            Some(ModeOfOperation::ProfilePosition) => {
+                let reached = stopped && (self.pp.active.is_none() || halt);
+                sw.with(Statusword::TARGET_REACHED, reached)
+                    .with(Statusword::OMS_12, self.pp.ack)
+                    .with(
+                        Statusword::INTERNAL_LIMIT,
+                        self.limit_hit || self.pp.limited,
+                    )
+            }
+            Some(ModeOfOperation::ProfileVelocity) => {
+                let vmax = self.max_speed();
+                let target = if halt {
+                    0.0
+                } else {
+                    self.param(obj::TARGET_VELOCITY).clamp(-vmax, vmax)
+                };
+                sw.with(Statusword::TARGET_REACHED, self.vel == target)
+                    .with(Statusword::OMS_12, stopped)
+            }
+            Some(ModeOfOperation::Homing) => match self.homing {
+                Homing::Idle => sw.with(Statusword::TARGET_REACHED, stopped),
+                Homing::Running => sw,
+                Homing::Attained => sw
+                    .with(Statusword::TARGET_REACHED, stopped)
+                    .with(Statusword::OMS_12, true),
+                Homing::Error => sw
+                    .with(Statusword::TARGET_REACHED, stopped)
+                    .with(Statusword::OMS_13, true),
+            },
+            Some(ModeOfOperation::CyclicSynchronousPosition) => sw
+                .with(Statusword::OMS_12, true)
+                .with(Statusword::OMS_13, self.following_error_exceeded()),
+            Some(ModeOfOperation::CyclicSynchronousVelocity) => sw.with(Statusword::OMS_12, true),
+            _ => sw,
+        }
+    }
+
+    /// Sets an object when it exists and its value differs.
+    fn put(&mut self, addr: ObjectAddress, value: Value) -> bool {
+        match self.node.get(addr) {
+            Some(current) if *current != value => self.node.set(addr, value).is_ok(),
+            _ => false,
+        }
+    }
+
+    fn write_outputs(&mut self) {
+        let sw = self.compose_statusword();
+        if self.put(obj::STATUSWORD, Value::Unsigned16(sw))
+            && self.started
+            && self.options.tpdo_on_statusword_change
+        {
+            self.trigger_statusword_tpdos();
+        }
+        self.put(
+            obj::MODES_OF_OPERATION_DISPLAY,
+            Value::Integer8(self.mode_code),
+        );
+        self.put(
+            obj::POSITION_ACTUAL,
+            Value::Integer32(self.pos.round() as i32),
+        );
+        self.put(
+            obj::VELOCITY_ACTUAL,
+            Value::Integer32(self.vel.round() as i32),
+        );
+        self.put(obj::TORQUE_ACTUAL, Value::Integer16(self.torque));
+        self.put(obj::ERROR_CODE, Value::Unsigned16(self.error_code));
+        self.put(
+            obj::FOLLOWING_ERROR_ACTUAL,
+            Value::Integer32(self.follow_error.round() as i32),
+        );
+    }
+
+    /// Marks every TPDO that maps the statusword for transmission.
+    fn trigger_statusword_tpdos(&mut self) {
+        let mapping = |n: u16| {
+            let index = TPDO_MAP + n;
+            let count = self
+                .int(ObjectAddress::new(index, 0))
+                .unwrap_or(0)
+                .clamp(0, 64) as u8;
+            (1..=count).any(|sub| {
+                self.int(ObjectAddress::new(index, sub))
+                    .is_some_and(|e| (e as u32) >> 8 == u32::from(obj::STATUSWORD.index) << 8)
+            })
+        };
+        let maps: Vec<u16> = self.tpdos.iter().copied().filter(|&n| mapping(n)).collect();
+        for n in maps {
+            self.node.trigger_tpdo(n + 1);
+        }
+    }
+
+    /// Reads the node's events: a reset node restarts the drive.
+    fn drain_events(&mut self) {
+        for event in self.node.take_events() {
+            if let SimEvent::Reset {
+                kind: NmtReset::Node,
+            } = event
+            {
+                self.power_on();
+            }
+            if self.options.node.max_events > 0 {
+                while self.events.len() >= self.options.node.max_events {
+                    self.events.pop_front();
+                }
+                self.events.push_back(event);
+            }
+        }
+    }
+
+    /// Transitions 0 and 1: initialised, in switch on disabled, at the same
+    /// physical position.
+    fn power_on(&mut self) {
+        self.started = true;
+        self.state = DriveState::SwitchOnDisabled;
+        self.powered = false;
+        self.pos -= self.shift;
+        self.shift = 0.0;
+        self.vel = 0.0;
+        self.torque = 0;
+        self.mode = None;
+        self.mode_code = 0;
+        self.prev_cw = self.controlword();
+        self.error_code = 0;
+        self.limit_hit = false;
+        self.reset_generators();
+        self.write_outputs();
+    }
+}
+
+/// The EMCY error register for an error code: generic, plus current,
+/// voltage, temperature or communication by the code's class.
+fn error_register(code: u16) -> u8 {
+    ErrorRegister::GENERIC
+        | match code >> 12 {
+            0x2 => ErrorRegister::CURRENT,
+            0x3 => ErrorRegister::VOLTAGE,
+            0x4 => ErrorRegister::TEMPERATURE,
+            0x8 if code >> 8 == 0x81 => ErrorRegister::COMMUNICATION,
+            _ => 0,
+        }
+}
+
+/// One step of a velocity ramp towards `target`: `acc` when speeding up,
+/// `dec` when slowing down (or reversing).
+fn ramp(vel: f64, target: f64, acc: f64, dec: f64, dt: f64) -> f64 {
+    if vel == target {
+        return vel;
+    }
+    let speeding_up = target.abs() > vel.abs() && (vel == 0.0 || target.signum() == vel.signum());
+    let rate = if speeding_up { acc } else { dec } * dt;
+    vel + (target - vel).clamp(-rate, rate)
+}
+
+/// One step of a trapezoidal move towards `target` with at most `vmax`,
+/// accelerating with `acc` and braking with `dec` so as to stop at the
+/// target; returns the new position and velocity. Never overshoots: the
+/// step that would pass the target ends on it at standstill.
+fn profile_step(
+    pos: f64,
+    vel: f64,
+    target: f64,
+    vmax: f64,
+    acc: f64,
+    dec: f64,
+    dt: f64,
+) -> (f64, f64) {
+    let d = target - pos;
+    if d == 0.0 && vel == 0.0 {
+        return (target, 0.0);
+    }
+    let dir = if d != 0.0 { d.signum() } else { -vel.signum() };
+    let v_dir = vel * dir;
+    if v_dir < 0.0 {
+        // Moving away from the target: brake first.
+        let v = (v_dir + dec * dt).min(0.0) * dir;
+        return (pos + v * dt, v);
+    }
+    let dist = d.abs();
+    let allowed = vmax.min((2.0 * dec * dist).sqrt());
+    let v = if v_dir < allowed {
+        (v_dir + acc * dt).min(allowed)
+    } else {
+        (v_dir - dec * dt).max(allowed)
+    };
+    if v * dt >= dist {
+        return (target, 0.0);
+    }
+    (pos + dir * v * dt, dir * v)
+}
+
+impl Device for SimDrive {
+    fn start(&mut self, now: Duration) -> Vec<Frame> {
+        self.now = now;
+        self.model_time = now;
+        let out = self.node.start(now);
+        if !self.started {
+            self.power_on();
+        }
+        self.drain_events();
+        out
+    }
+
+    fn on_frame(&mut self, frame: &Frame, now: Duration) -> Vec<Frame> {
+        self.now = now;
+        self.advance(now);
+        let mut out = self.node.on_frame(frame, now);
+        self.drain_events();
+        self.apply_inputs();
+        self.write_outputs();
+        out.append(&mut self.outbox);
+        out.extend(self.node.on_tick(now));
+        out
+    }
+
+    fn on_tick(&mut self, now: Duration) -> Vec<Frame> {
+        self.now = now;
+        self.advance(now);
+        let mut out = std::mem::take(&mut self.outbox);
+        out.extend(self.node.on_tick(now));
+        out
+    }
+
+    fn next_deadline(&self) -> Option<Duration> {
+        let model = self.active().then(|| self.model_time + self.options.step);
+        [model, self.node.next_deadline()]
+            .into_iter()
+            .flatten()
+            .min()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use cangate_can::CanId;
+    use cangate_canopen::ds402::{DriverStep, StateMachineDriver};
+    use cangate_canopen::od::{AccessType, DefaultValue, Object, Variable};
+    use cangate_canopen::value::DataType;
+
+    use super::*;
+
+    const MS: Duration = Duration::from_millis(1);
+
+    fn frame(id: u16, data: &[u8]) -> Frame {
+        Frame::new(CanId::Standard(id), data).unwrap()
+    }
+
+    fn wire(frames: &[Frame]) -> Vec<(u32, Vec<u8>)> {
+        frames
+            .iter()
+            .map(|f| (f.raw_id(), f.data().to_vec()))
+            .collect()
+    }
+
+    /// The bundled drive at node 5, started at t = 0.
+    fn drive() -> SimDrive {
+        let mut d = SimDrive::bundled(NodeId::new(5).unwrap(), SimDriveOptions::default());
+        assert_eq!(wire(&d.start(Duration::ZERO)), [(0x705, vec![0x00])]);
+        d
+    }
+
+    /// The drive, operational since t = 0 (its first TPDOs discarded).
+    fn operational() -> SimDrive {
+        let mut d = drive();
+        d.on_frame(&frame(0x000, &[0x01, 0x05]), Duration::ZERO);
+        d
+    }
+
+    /// An expedited SDO download; checks the confirmation and returns the
+    /// other frames sent.
+    fn sdo_write(d: &mut SimDrive, addr: ObjectAddress, bytes: &[u8], now: Duration) -> Vec<Frame> {
+        let cs = match bytes.len() {
+            1 => 0x2F,
+            2 => 0x2B,
+            4 => 0x23,
+            n => panic!("{n} bytes"),
+        };
+        let [lo, hi] = addr.index.to_le_bytes();
+        let mut data = vec![cs, lo, hi, addr.sub];
+        data.extend_from_slice(bytes);
+        data.resize(8, 0);
+        let mut out = d.on_frame(&frame(0x605, &data), now);
+        assert!(!out.is_empty(), "no reply to the write of {addr}");
+        let reply = out.remove(0);
+        assert_eq!(
+            wire(&[reply]),
+            [(0x585, vec![0x60, lo, hi, addr.sub, 0, 0, 0, 0])],
+            "write of {addr}"
+        );
+        out
+    }
+
+    /// An expedited SDO upload; returns the value bytes.
+    fn sdo_read(d: &mut SimDrive, addr: ObjectAddress, now: Duration) -> Vec<u8> {
+        let [lo, hi] = addr.index.to_le_bytes();
+        let out = d.on_frame(&frame(0x605, &[0x40, lo, hi, addr.sub, 0, 0, 0, 0]), now);
+        let reply = out.iter().find(|f| f.raw_id() == 0x585).expect("SDO reply");
+        let data = reply.data();
+        assert_eq!(
+            data[0] & 0xF3,
+            0x43,
+            "expedited upload of {addr}: {data:02X?}"
+        );
+        let n = 4 - usize::from((data[0] >> 2) & 3);
+        data[4..4 + n].to_vec()
+    }
+
+    fn read_u16(d: &mut SimDrive, addr: ObjectAddress, now: Duration) -> u16 {
+        u16::from_le_bytes(sdo_read(d, addr, now).try_into().unwrap())
+    }
+
+    fn read_i32(d: &mut SimDrive, addr: ObjectAddress, now: Duration) -> i32 {
+        i32::from_le_bytes(sdo_read(d, addr, now).try_into().unwrap())
+    }
+
+    fn statusword(d: &mut SimDrive, now: Duration) -> u16 {
+        read_u16(d, obj::STATUSWORD, now)
+    }
+
+    /// RPDO1: controlword + target position.
+    fn rpdo1(cw: u16, target: i32) -> Frame {
+        let mut data = cw.to_le_bytes().to_vec();
+        data.extend_from_slice(&target.to_le_bytes());
+        frame(0x205, &data)
+    }
+
+    /// RPDO2: controlword + target velocity.
+    fn rpdo2(cw: u16, velocity: i32) -> Frame {
+        let mut data = cw.to_le_bytes().to_vec();
+        data.extend_from_slice(&velocity.to_le_bytes());
+        frame(0x305, &data)
+    }
+
+    /// TPDO1 payload: statusword + position.
+    fn tpdo1(sw: u16, pos: i32) -> (u32, Vec<u8>) {
+        let mut data = sw.to_le_bytes().to_vec();
+        data.extend_from_slice(&pos.to_le_bytes());
+        (0x185, data)
+    }
+
+    /// Ticks the drive at its deadlines from `from` up to `to`; calls
+    /// `each` after every tick. Returns the frames sent with their times.
+    fn run(
+        d: &mut SimDrive,
+        to: Duration,
+        mut each: impl FnMut(&SimDrive, Duration),
+    ) -> Vec<(Duration, Frame)> {
+        let mut out = Vec::new();
+        let mut last = None;
+        while let Some(t) = d.next_deadline().filter(|&t| t <= to) {
+            assert_ne!(last, Some(t), "no progress at {t:?}");
+            last = Some(t);
+            out.extend(d.on_tick(t).into_iter().map(|f| (t, f)));
+            each(d, t);
+        }
+        out
+    }
+
+    /// Enables the drive in `mode` over RPDO1 at `now`, `now + 1 ms` and
+    /// `now + 2 ms` (target position 0).
+    fn enable(d: &mut SimDrive, mode: ModeOfOperation, now: Duration) {
+        sdo_write(d, obj::MODES_OF_OPERATION, &[mode.code() as u8], now);
+        for (k, cw) in [0x0006u16, 0x0007, 0x000F].into_iter().enumerate() {
+            let target = d.position().round() as i32;
+            d.on_frame(&rpdo1(cw, target), now + MS * (k as u32 + 1));
+        }
+        assert_eq!(d.state(), DriveState::OperationEnabled);
+        assert_eq!(d.mode(), Some(mode));
+    }
+
+    #[test]
+    fn enable_sequence_over_sdo_with_exact_statuswords() {
+        let mut d = drive();
+        let cw = obj::CONTROLWORD;
+        assert_eq!(statusword(&mut d, MS), 0x0240);
+        let steps: &[(u16, u16)] = &[
+            (0x0006, 0x0221), // 2: shutdown
+            (0x0007, 0x0233), // 3: switch on
+            (0x000F, 0x0237), // 4: enable operation
+            (0x0007, 0x0233), // 5: disable operation
+            (0x0006, 0x0221), // 6: shutdown
+            (0x000F, 0x0237), // 3+4: switch on + enable operation
+            (0x0006, 0x0221), // 8: shutdown
+            (0x0002, 0x0240), // 7: quick stop
+            (0x0002, 0x0240), // nothing in switch on disabled
+            (0x0007, 0x0240), // switch on needs ready to switch on first
+            (0x0006, 0x0221),
+            (0x0007, 0x0233),
+            (0x0000, 0x0240), // 10: disable voltage
+            (0x0006, 0x0221),
+            (0x000F, 0x0237),
+            (0x0000, 0x0240), // 9: disable voltage
+        ];
+        let mut now = 2 * MS;
+        for &(control, status) in steps {
+            // Pre-operational: no TPDO, only the SDO confirmation.
+            assert!(sdo_write(&mut d, cw, &control.to_le_bytes(), now).is_empty());
+            assert_eq!(
+                statusword(&mut d, now + MS),
+                status,
+                "after 0x{control:04X}"
+            );
+            now += 2 * MS;
+        }
+        assert_eq!(read_u16(&mut d, cw, now), 0x0000);
+        assert_eq!(d.statusword(), Statusword(0x0240));
+    }
+
+    #[test]
+    fn enable_sequence_over_rpdo_sends_the_statusword_tpdo() {
+        let mut d = drive();
+        let started = d.on_frame(&frame(0x000, &[0x01, 0x05]), Duration::ZERO);
+        assert_eq!(
+            wire(&started),
+            [
+                tpdo1(0x0240, 0),
+                (0x285, vec![0, 0, 0, 0, 0, 0]), // velocity + torque
+            ]
+        );
+        let steps = [(0x0006u16, 0x0221u16), (0x0007, 0x0233), (0x000F, 0x0237)];
+        for (k, (cw, sw)) in steps.into_iter().enumerate() {
+            let out = d.on_frame(&rpdo1(cw, 0), MS * (10 + k as u32));
+            assert_eq!(wire(&out), [tpdo1(sw, 0)], "after 0x{cw:04X}");
+        }
+        // Enabled: the model steps every millisecond.
+        assert_eq!(d.next_deadline(), Some(13 * MS));
+        assert!(d.on_tick(13 * MS).is_empty());
+        assert_eq!(d.next_deadline(), Some(14 * MS));
+        // The same controlword again changes nothing and sends nothing.
+        assert!(d.on_frame(&rpdo1(0x000F, 0), 14 * MS).is_empty());
+        assert_eq!(d.next_deadline(), Some(15 * MS));
+        // Disabled: only the node's schedule (TPDO event timers at 100 ms).
+        d.on_frame(&rpdo1(0x0000, 0), 20 * MS);
+        assert_eq!(d.next_deadline(), Some(100 * MS));
+    }
+
+    #[test]
+    fn profile_position_move_reaches_the_target() {
+        let mut d = operational();
+        enable(&mut d, ModeOfOperation::ProfilePosition, 10 * MS);
+        assert_eq!(statusword(&mut d, 13 * MS), 0x0637);
+
+        // New set-point: acknowledged (bit 12) while bit 4 is high.
+        let start = 20 * MS;
+        let out = d.on_frame(&rpdo1(0x001F, 10_000), start);
+        assert_eq!(wire(&out), [tpdo1(0x1237, 0)]);
+        let out = d.on_frame(&rpdo1(0x000F, 10_000), start);
+        assert_eq!(wire(&out), [tpdo1(0x0237, 0)]);
+
+        let mut positions = vec![0];
+        let mut reached_at = None;
+        let mut vmax = 0.0f64;
+        run(&mut d, start + 2000 * MS, |d, t| {
+            positions.push(d.position().round() as i32);
+            vmax = vmax.max(d.velocity());
+            if reached_at.is_none() && d.statusword().target_reached() {
+                reached_at = Some(t - start);
+            }
+        });
+        assert!(positions.windows(2).all(|w| w[0] <= w[1]), "monotonic");
+        assert_eq!(*positions.last().unwrap(), 10_000);
+        assert!(vmax <= 10_000.0, "profile velocity respected: {vmax}");
+        // 0.1 s accelerating, 0.9 s at 10000 inc/s, 0.1 s braking.
+        let reached_at = reached_at.unwrap();
+        assert!(
+            (1090 * MS..=1120 * MS).contains(&reached_at),
+            "reached after {reached_at:?}"
+        );
+        let now = start + 2001 * MS;
+        assert_eq!(statusword(&mut d, now), 0x0637);
+        assert_eq!(read_i32(&mut d, obj::POSITION_ACTUAL, now), 10_000);
+        assert_eq!(read_i32(&mut d, obj::VELOCITY_ACTUAL, now), 0);
+
+        // A relative move adds to the previous target.
+        let start = 3000 * MS;
+        d.on_frame(&rpdo1(0x005F, 500), start);
+        d.on_frame(&rpdo1(0x004F, 500), start + MS);
+        run(&mut d, start + 1000 * MS, |_, _| {});
+        assert_eq!(d.position(), 10_500.0);
+        assert_eq!(d.statusword(), Statusword(0x0637));
+    }
+
+    #[test]
+    fn profile_position_halt_buffer_and_change_immediately() {
+        let mut d = operational();
+        enable(&mut d, ModeOfOperation::ProfilePosition, 10 * MS);
+        d.on_frame(&rpdo1(0x001F, 10_000), 20 * MS);
+        d.on_frame(&rpdo1(0x000F, 10_000), 21 * MS);
+        run(&mut d, 300 * MS, |_, _| {});
+        assert_eq!(d.velocity(), 10_000.0);
+
+        // Halt: brakes to standstill, target reached while halted.
+        d.on_frame(&rpdo1(0x010F, 10_000), 300 * MS);
+        run(&mut d, 450 * MS, |_, _| {});
+        assert_eq!(d.velocity(), 0.0);
+        let halted_at = d.position();
+        assert!(halted_at < 10_000.0);
+        assert_eq!(d.statusword(), Statusword(0x0637));
+        // Released: the move continues to the target.
+        d.on_frame(&rpdo1(0x000F, 10_000), 450 * MS);
+        assert_eq!(d.statusword(), Statusword(0x0237));
+        run(&mut d, 500 * MS, |_, _| {});
+        assert!(d.position() > halted_at);
+
+        // A second set-point without "change set immediately" is buffered
+        // and runs after the first; a third is refused (no acknowledge).
+        d.on_frame(&rpdo1(0x001F, 12_000), 500 * MS);
+        assert!(d.statusword().set_point_acknowledge());
+        d.on_frame(&rpdo1(0x000F, 12_000), 501 * MS);
+        d.on_frame(&rpdo1(0x001F, 99_999), 502 * MS);
+        assert!(!d.statusword().set_point_acknowledge());
+        d.on_frame(&rpdo1(0x000F, 99_999), 503 * MS);
+        let mut passed_first = false;
+        run(&mut d, 3000 * MS, |d, _| {
+            passed_first |= d.position() > 10_000.0;
+        });
+        assert!(passed_first);
+        assert_eq!(d.position(), 12_000.0);
+
+        // "Change set immediately" replaces the target during a move,
+        // here reversing the direction.
+        d.on_frame(&rpdo1(0x001F, 20_000), 3000 * MS);
+        d.on_frame(&rpdo1(0x000F, 20_000), 3001 * MS);
+        run(&mut d, 3200 * MS, |_, _| {});
+        assert!(d.position() > 12_000.0);
+        d.on_frame(&rpdo1(0x003F, 11_000), 3200 * MS);
+        d.on_frame(&rpdo1(0x002F, 11_000), 3201 * MS);
+        run(&mut d, 5000 * MS, |_, _| {});
+        assert_eq!(d.position(), 11_000.0);
+        assert_eq!(d.statusword(), Statusword(0x0637));
+    }
+
+    #[test]
+    fn profile_velocity_ramps_to_the_target_velocity() {
+        let mut d = operational();
+        sdo_write(&mut d, obj::MODES_OF_OPERATION, &[3], 5 * MS);
+        for (k, cw) in [0x0006u16, 0x0007, 0x000F].into_iter().enumerate() {
+            d.on_frame(&rpdo2(cw, 0), MS * (10 + k as u32));
+        }
+        // At rest on a zero target: target reached and speed 0 (bit 12).
+        assert_eq!(statusword(&mut d, 13 * MS), 0x1637);
+
+        // Target velocity set: target no longer reached, still at speed 0.
+        let out = d.on_frame(&rpdo2(0x000F, 5000), 20 * MS);
+        assert_eq!(wire(&out), [tpdo1(0x1237, 0)]);
+        let mut velocities = Vec::new();
+        run(&mut d, 70 * MS, |d, _| velocities.push(d.velocity()));
+        // 100000 inc/s²: 100 inc/s more every millisecond.
+        assert_eq!(velocities[0], 100.0);
+        assert_eq!(velocities[49], 5000.0);
+        assert!(velocities.windows(2).all(|w| w[0] <= w[1]));
+        assert_eq!(statusword(&mut d, 70 * MS), 0x0637);
+        assert_eq!(read_i32(&mut d, obj::VELOCITY_ACTUAL, 70 * MS), 5000);
+        let pos = read_i32(&mut d, obj::POSITION_ACTUAL, 70 * MS);
+        // The 50 ms ramp: 100 + 200 + … + 5000 inc/s for 1 ms each.
+        assert!((127..=128).contains(&pos), "position {pos}");
+
+        // Back to zero with the deceleration.
+        d.on_frame(&rpdo2(0x000F, 0), 100 * MS);
+        run(&mut d, 160 * MS, |_, _| {});
+        assert_eq!(d.velocity(), 0.0);
+        assert_eq!(statusword(&mut d, 160 * MS), 0x1637);
+        // Reversing and halt.
+        d.on_frame(&rpdo2(0x000F, -2000), 200 * MS);
+        run(&mut d, 300 * MS, |_, _| {});
+        assert_eq!(d.velocity(), -2000.0);
+        d.on_frame(&rpdo2(0x010F, -2000), 300 * MS);
+        run(&mut d, 400 * MS, |_, _| {});
+        assert_eq!(d.velocity(), 0.0);
+        assert_eq!(d.statusword(), Statusword(0x1637));
+    }
+
+    #[test]
+    fn homing_method_35_sets_the_home_offset() {
+        let mut d = operational();
+        sdo_write(&mut d, obj::HOME_OFFSET, &1234i32.to_le_bytes(), 2 * MS);
+        enable(&mut d, ModeOfOperation::Homing, 10 * MS);
+        // Not started: "homing interrupted or not started".
+        assert_eq!(statusword(&mut d, 13 * MS), 0x0637);
+        let out = d.on_frame(&rpdo1(0x001F, 0), 20 * MS);
+        // Homing attained + target reached, position = home offset.
+        assert_eq!(wire(&out), [tpdo1(0x1637, 1234)]);
+        assert_eq!(read_i32(&mut d, obj::POSITION_ACTUAL, 21 * MS), 1234);
+        assert_eq!(
+            d.statusword().homing_status(),
+            cangate_canopen::ds402::HomingStatus::Completed
+        );
+        // Attained stays after bit 4 falls.
+        d.on_frame(&rpdo1(0x000F, 0), 22 * MS);
+        assert_eq!(statusword(&mut d, 23 * MS), 0x1637);
+
+        // An unsupported method (1: index pulse) ends in homing error.
+        sdo_write(&mut d, obj::HOMING_METHOD, &[1], 30 * MS);
+        d.on_frame(&rpdo1(0x001F, 0), 31 * MS);
+        assert_eq!(statusword(&mut d, 32 * MS), 0x2637);
+    }
+
+    #[test]
+    fn homing_on_the_virtual_switch() {
+        let mut d = operational();
+        // Move to 3000 first.
+        enable(&mut d, ModeOfOperation::ProfilePosition, 10 * MS);
+        d.on_frame(&rpdo1(0x001F, 3000), 20 * MS);
+        d.on_frame(&rpdo1(0x000F, 3000), 21 * MS);
+        run(&mut d, 1000 * MS, |_, _| {});
+        assert_eq!(d.position(), 3000.0);
+
+        // Method 17 at 0x6099:01 = 1000 inc/s towards the switch at 0,
+        // then the position becomes the home offset.
+        sdo_write(&mut d, obj::HOMING_METHOD, &[17], 1000 * MS);
+        sdo_write(&mut d, obj::HOME_OFFSET, &(-50i32).to_le_bytes(), 1000 * MS);
+        sdo_write(&mut d, obj::MODES_OF_OPERATION, &[6], 1000 * MS);
+        d.on_frame(&rpdo1(0x001F, 0), 1001 * MS);
+        assert_eq!(d.statusword(), Statusword(0x0237)); // in progress
+        let mut positions = Vec::new();
+        let mut vmax = 0.0f64;
+        run(&mut d, 1500 * MS, |d, _| {
+            positions.push(d.position());
+            vmax = vmax.max(d.velocity().abs());
+        });
+        assert!(positions.windows(2).all(|w| w[0] > w[1]), "moving down");
+        assert_eq!(vmax, 1000.0);
+        // Bit 4 low interrupts homing.
+        d.on_frame(&rpdo1(0x000F, 0), 1500 * MS);
+        run(&mut d, 1700 * MS, |_, _| {});
+        assert_eq!(d.velocity(), 0.0);
+        assert_eq!(d.statusword(), Statusword(0x0637));
+        // Restarted, it completes.
+        d.on_frame(&rpdo1(0x001F, 0), 1700 * MS);
+        run(&mut d, 6000 * MS, |_, _| {});
+        assert_eq!(d.position(), -50.0);
+        assert_eq!(statusword(&mut d, 6000 * MS), 0x1637);
+        assert_eq!(read_i32(&mut d, obj::POSITION_ACTUAL, 6000 * MS), -50);
+    }
+
+    #[test]
+    fn fault_injection_emcy_and_fault_reset() {
+        let mut d = operational();
+        enable(&mut d, ModeOfOperation::ProfileVelocity, 10 * MS);
+        d.on_frame(&rpdo2(0x000F, 3000), 20 * MS);
+        run(&mut d, 100 * MS, |_, _| {});
+        assert_eq!(d.velocity(), 3000.0);
+
+        let out = d.inject_fault(0x2310);
+        assert_eq!(
+            wire(&out),
+            [
+                (0x085, vec![0x10, 0x23, 0x03, 0, 0, 0, 0, 0]),
+                tpdo1(0x021F, d.position().round() as i32),
+            ]
+        );
+        assert_eq!(d.state(), DriveState::FaultReactionActive);
+        // The fault reaction brakes with the quick stop deceleration.
+        run(&mut d, 200 * MS, |_, _| {});
+        assert_eq!(d.state(), DriveState::Fault);
+        assert_eq!(d.velocity(), 0.0);
+        assert_eq!(statusword(&mut d, 200 * MS), 0x0208);
+        assert_eq!(read_u16(&mut d, obj::ERROR_CODE, 200 * MS), 0x2310);
+        assert_eq!(
+            sdo_read(&mut d, ObjectAddress::new(0x1001, 0), 200 * MS),
+            [0x03]
+        );
+        // No model steps in fault: the next deadline is TPDO1's event
+        // timer, restarted when the fault statusword went out at 130 ms.
+        assert_eq!(d.next_deadline(), Some(230 * MS));
+
+        // Enabling does nothing in fault.
+        assert!(d.on_frame(&rpdo2(0x000F, 0), 210 * MS).is_empty());
+        assert_eq!(d.state(), DriveState::Fault);
+        // Fault reset: rising edge of bit 7 → switch on disabled, EMCY reset.
+        let out = d.on_frame(&rpdo2(0x0080, 0), 220 * MS);
+        let pos = d.position().round() as i32;
+        assert_eq!(wire(&out), [(0x085, vec![0; 8]), tpdo1(0x0240, pos)]);
+        assert_eq!(read_u16(&mut d, obj::ERROR_CODE, 221 * MS), 0);
+        assert_eq!(
+            sdo_read(&mut d, ObjectAddress::new(0x1001, 0), 221 * MS),
+            [0]
+        );
+
+        // A fault while bit 7 is held needs a new edge.
+        d.inject_fault(0x4310);
+        run(&mut d, 230 * MS, |_, _| {});
+        assert_eq!(d.state(), DriveState::Fault);
+        d.on_frame(&rpdo2(0x0080, 0), 230 * MS);
+        assert_eq!(d.state(), DriveState::Fault);
+        d.on_frame(&rpdo2(0x0000, 0), 231 * MS);
+        d.on_frame(&rpdo2(0x0080, 0), 232 * MS);
+        assert_eq!(d.state(), DriveState::SwitchOnDisabled);
+
+        // Enabled again.
+        for (k, cw) in [0x0006u16, 0x0007, 0x000F].into_iter().enumerate() {
+            d.on_frame(&rpdo2(cw, 0), MS * (240 + k as u32));
+        }
+        assert_eq!(statusword(&mut d, 250 * MS), 0x1637);
+    }
+
+    #[test]
+    fn software_position_limits() {
+        let mut d = operational();
+        let max = obj::SOFTWARE_POSITION_LIMIT_MAX;
+        let min = obj::SOFTWARE_POSITION_LIMIT_MIN;
+        sdo_write(&mut d, max, &2000i32.to_le_bytes(), MS);
+        sdo_write(&mut d, min, &(-1000i32).to_le_bytes(), MS);
+        enable(&mut d, ModeOfOperation::ProfilePosition, 10 * MS);
+        d.on_frame(&rpdo1(0x001F, 5000), 20 * MS);
+        d.on_frame(&rpdo1(0x000F, 5000), 21 * MS);
+        run(&mut d, 1000 * MS, |d, _| assert!(d.position() <= 2000.0));
+        assert_eq!(d.position(), 2000.0);
+        // Target reached + internal limit.
+        assert_eq!(statusword(&mut d, 1000 * MS), 0x0E37);
+
+        // Profile velocity stops at the lower limit.
+        sdo_write(&mut d, obj::MODES_OF_OPERATION, &[3], 1000 * MS);
+        d.on_frame(&rpdo2(0x000F, -10_000), 1001 * MS);
+        run(&mut d, 2000 * MS, |d, _| assert!(d.position() >= -1000.0));
+        assert_eq!(d.position(), -1000.0);
+        let sw = d.statusword();
+        assert!(sw.internal_limit(), "{sw}");
+        assert!(!sw.target_reached(), "{sw}");
+        // Away from the limit, the bit clears.
+        d.on_frame(&rpdo2(0x000F, 1000), 2000 * MS);
+        run(&mut d, 2100 * MS, |_, _| {});
+        assert!(!d.statusword().internal_limit());
+        assert!(d.position() > -1000.0);
+    }
+
+    #[test]
+    fn quick_stop_then_switch_on_disabled_or_stay() {
+        let mut d = operational();
+        enable(&mut d, ModeOfOperation::ProfileVelocity, 10 * MS);
+        d.on_frame(&rpdo2(0x000F, 5000), 20 * MS);
+        run(&mut d, 100 * MS, |_, _| {});
+        // Option code 2 (default): brake, then switch on disabled.
+        let out = d.on_frame(&rpdo2(0x0002, 5000), 100 * MS);
+        let pos = d.position().round() as i32;
+        assert_eq!(wire(&out), [tpdo1(0x0217, pos)]);
+        let mut stopped_at = None;
+        run(&mut d, 200 * MS, |d, t| {
+            if stopped_at.is_none() && d.state() == DriveState::SwitchOnDisabled {
+                stopped_at = Some(t);
+            }
+        });
+        assert_eq!(stopped_at, Some(150 * MS));
+        assert_eq!(statusword(&mut d, 200 * MS), 0x0240);
+
+        // Option code 6: stay in quick stop active; enable operation (16).
+        sdo_write(
+            &mut d,
+            obj::QUICK_STOP_OPTION_CODE,
+            &6i16.to_le_bytes(),
+            200 * MS,
+        );
+        for (k, cw) in [0x0006u16, 0x0007, 0x000F].into_iter().enumerate() {
+            d.on_frame(&rpdo2(cw, 5000), MS * (210 + k as u32));
+        }
+        run(&mut d, 300 * MS, |_, _| {});
+        d.on_frame(&rpdo2(0x0002, 5000), 300 * MS);
+        run(&mut d, 400 * MS, |_, _| {});
+        assert_eq!(d.state(), DriveState::QuickStopActive);
+        assert_eq!(statusword(&mut d, 400 * MS), 0x0617);
+        d.on_frame(&rpdo2(0x000F, 5000), 400 * MS);
+        assert_eq!(d.state(), DriveState::OperationEnabled);
+        run(&mut d, 500 * MS, |_, _| {});
+        assert_eq!(d.velocity(), 5000.0);
+    }
+
+    #[test]
+    fn tpdo_on_sync_carries_the_current_position() {
+        let mut d = operational();
+        // TPDO1 synchronous, every SYNC.
+        sdo_write(&mut d, ObjectAddress::new(0x1800, 2), &[1], MS);
+        enable(&mut d, ModeOfOperation::ProfileVelocity, 10 * MS);
+        d.on_frame(&rpdo2(0x000F, 5000), 20 * MS);
+        run(&mut d, 100 * MS, |_, _| {});
+        let sync = frame(0x080, &[]);
+        let out = d.on_frame(&sync, 100 * MS + MS / 2);
+        let pos = d.position().round() as i32;
+        assert_eq!(pos, 128 + 150); // ramp, then 30 ms at 5000 inc/s
+        assert!(wire(&out).contains(&tpdo1(0x0637, pos)));
+        run(&mut d, 110 * MS, |_, _| {});
+        let out = d.on_frame(&sync, 110 * MS + MS / 2);
+        assert!(wire(&out).contains(&tpdo1(0x0637, pos + 50)));
+        assert!(d.take_events().contains(&SimEvent::Sync { counter: None }));
+    }
+
+    #[test]
+    fn the_drive_can_run_on_the_runner() {
+        fn device<D: Device + Send + 'static>(_: &D) {}
+        device(&drive());
+    }
+
+    /// The drive EDS plus 0x6065 following error window (100) and 0x60F4
+    /// following error actual value.
+    fn with_following_error_objects() -> SimDrive {
+        let mut od = Eds::parse(SIM_DRIVE_EDS).unwrap().od;
+        let mut window = Variable::new(
+            obj::FOLLOWING_ERROR_WINDOW,
+            "Following error window",
+            DataType::Unsigned32,
+            AccessType::Rw,
+        );
+        window.default = Some(DefaultValue::fixed(Value::Unsigned32(100)));
+        od.insert(Object::var(window));
+        let mut actual = Variable::new(
+            obj::FOLLOWING_ERROR_ACTUAL,
+            "Following error actual value",
+            DataType::Integer32,
+            AccessType::Ro,
+        );
+        actual.default = Some(DefaultValue::fixed(Value::Integer32(0)));
+        od.insert(Object::var(actual));
+        let mut d = SimDrive::from_od(od, NodeId::new(5).unwrap(), SimDriveOptions::default());
+        d.start(Duration::ZERO);
+        d.on_frame(&frame(0x000, &[0x01, 0x05]), Duration::ZERO);
+        d
+    }
+
+    #[test]
+    fn cyclic_synchronous_position_follows_with_a_lag() {
+        let mut d = with_following_error_objects();
+        enable(&mut d, ModeOfOperation::CyclicSynchronousPosition, 10 * MS);
+        assert_eq!(d.statusword(), Statusword(0x1237));
+        // A ramp of 10 inc per millisecond, one RPDO per millisecond.
+        let mut lag = 0.0;
+        for k in 1..=100i32 {
+            let t = MS * (20 + k as u32);
+            d.on_frame(&rpdo1(0x000F, 10 * k), t);
+            d.on_tick(t);
+            lag = d.following_error();
+            assert!(d.position() <= f64::from(10 * k));
+        }
+        // Steady lag of a first-order system: about v·τ = 10000 · 5 ms.
+        assert!((45.0..=60.0).contains(&lag), "lag {lag}");
+        assert_eq!(
+            read_i32(&mut d, obj::FOLLOWING_ERROR_ACTUAL, 120 * MS),
+            lag.round() as i32
+        );
+        run(&mut d, 300 * MS, |_, _| {});
+        assert_eq!(d.position(), 1000.0);
+        assert_eq!(d.velocity(), 0.0);
+        assert_eq!(statusword(&mut d, 300 * MS), 0x1237);
+    }
+
+    #[test]
+    fn following_error_beyond_the_window_faults() {
+        let mut d = with_following_error_objects();
+        enable(&mut d, ModeOfOperation::CyclicSynchronousPosition, 10 * MS);
+        d.on_frame(&rpdo1(0x000F, 5000), 20 * MS);
+        // The fault reaction brakes from the top speed (100 000 inc/s).
+        let out = run(&mut d, 1100 * MS, |_, _| {});
+        let emcy: Vec<_> = out
+            .iter()
+            .filter(|(_, f)| f.raw_id() == 0x085)
+            .map(|(t, f)| (*t, f.data().to_vec()))
+            .collect();
+        assert_eq!(emcy, [(21 * MS, vec![0x11, 0x86, 0x01, 0, 0, 0, 0, 0])]);
+        assert_eq!(d.state(), DriveState::Fault);
+        assert_eq!(d.error_code(), 0x8611);
+    }
+
+    #[test]
+    fn nmt_reset_node_restarts_the_drive() {
+        let mut d = operational();
+        sdo_write(&mut d, obj::HOME_OFFSET, &700i32.to_le_bytes(), MS);
+        enable(&mut d, ModeOfOperation::Homing, 10 * MS);
+        d.on_frame(&rpdo1(0x001F, 0), 20 * MS);
+        assert_eq!(d.position(), 700.0);
+        let out = d.on_frame(&frame(0x000, &[0x81, 0x05]), 30 * MS);
+        assert_eq!(wire(&out), [(0x705, vec![0x00])]);
+        assert_eq!(d.state(), DriveState::SwitchOnDisabled);
+        assert_eq!(d.mode(), None);
+        // Same physical place, homing offset gone.
+        assert_eq!(d.position(), 0.0);
+        assert_eq!(statusword(&mut d, 31 * MS), 0x0240);
+        assert!(d.take_events().iter().any(|e| matches!(
+            e,
+            SimEvent::Reset {
+                kind: NmtReset::Node
+            }
+        )));
+    }
+
+    /// The state machine driver of the CiA 402 core enables the simulated
+    /// drive from fault, reading TPDO1 and writing RPDO1.
+    #[test]
+    fn state_machine_driver_enables_the_simulated_drive() {
+        let mut d = operational();
+        d.inject_fault(0x3210);
+        run(&mut d, 5 * MS, |_, _| {});
+        assert_eq!(d.state(), DriveState::Fault);
+
+        let mut driver =
+            StateMachineDriver::new(DriveState::OperationEnabled, 500 * MS, 10 * MS).unwrap();
+        let mut sent = Vec::new();
+        let mut now = 10 * MS;
+        // The first statusword by SDO, the rest from TPDO1.
+        let mut statuswords = vec![statusword(&mut d, now)];
+        let result = loop {
+            let step = match statuswords.pop() {
+                Some(sw) => driver.on_statusword(Statusword(sw), now),
+                None => driver.on_tick(now),
+            };
+            match step {
+                DriverStep::Send(cw) => {
+                    sent.push(cw.bits());
+                    now += MS;
+                    for f in d.on_frame(&rpdo1(cw.bits(), 0), now) {
+                        if f.raw_id() == 0x185 {
+                            statuswords.insert(0, u16::from_le_bytes([f.data()[0], f.data()[1]]));
+                        }
+                    }
+                }
+                DriverStep::Wait => now += MS,
+                DriverStep::Done(result) => break result,
+            }
+        };
+        assert_eq!(result, Ok(()));
+        assert_eq!(sent, [0x0080, 0x0006, 0x0007, 0x000F]);
+        assert_eq!(d.statusword(), Statusword(0x0237));
+    }
+}
