@@ -15,7 +15,7 @@ use cangate_canopen::ObjectAddress;
 use cangate_canopen::eds::Eds;
 use cangate_canopen::pdo::{PdoConfig, PdoKind};
 use cangate_canopen::value::{DataType, Value};
-use cangate_sim::{SimNode, SimNodeOptions};
+use cangate_sim::{SimDrive, SimDriveOptions, SimNode, SimNodeOptions};
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -98,7 +98,28 @@ impl Gateway {
                         heartbeat_ms: Some(heartbeat_ms),
                         ..SimNodeOptions::default()
                     };
-                    simulated.push((vbus.connect(false), SimNode::new(eds, node, options)));
+                    // A CiA 402 device profile (0x1000 low word 0x0192 = 402)
+                    // gets the drive model on top of the CANopen node.
+                    let device_type = eds
+                        .od
+                        .get(ObjectAddress::new(0x1000, 0))
+                        .and_then(|v| v.default_for_node(node))
+                        .and_then(|v| v.as_u32())
+                        .unwrap_or(0);
+                    let device: Box<dyn cangate_sim::Device + Send> = if device_type & 0xFFFF == 402
+                    {
+                        Box::new(SimDrive::new(
+                            eds,
+                            node,
+                            SimDriveOptions {
+                                node: options,
+                                ..SimDriveOptions::default()
+                            },
+                        ))
+                    } else {
+                        Box::new(SimNode::new(eds, node, options))
+                    };
+                    simulated.push((vbus.connect(false), device));
                 }
                 let (tpdos, rpdos, boot) = node_plan(nc, node, eds.as_deref()).map_err(err)?;
                 facts.insert(
@@ -126,9 +147,9 @@ impl Gateway {
             tasks.push(task);
         }
         for (port, device) in simulated {
-            tasks.push(cangate_sim::spawn_node(
+            tasks.push(cangate_sim::spawn_device(
                 port,
-                device,
+                cangate_sim::DeviceHandle::new(device),
                 shutdown.child_token(),
             ));
         }
