@@ -103,8 +103,9 @@ struct Args {
     /// --quick: 2].
     #[arg(long)]
     domain_kib: Option<usize>,
-    /// Python interpreter of the reference.
-    #[arg(long, default_value = "python3")]
+    /// Python interpreter of the reference (scripts/test points
+    /// `CANGATE_PYTHON` at its project-local virtual environment).
+    #[arg(long, env = "CANGATE_PYTHON", default_value = "python3")]
     python: String,
     /// The reference script.
     #[arg(long, default_value = REFERENCE_SCRIPT)]
@@ -964,6 +965,26 @@ async fn in_process(
         );
         out.insert(case.into(), j);
     }
+    // One hop of that path on its own: the master awaits the bus owner
+    // task's confirmation of every batch it sends.
+    let bus = bed
+        .server
+        .gateway()
+        .bus("can0")
+        .map_err(|e| anyhow!("{e}"))?
+        .clone();
+    let probe = frame(0x7E4, &[0; 8]);
+    let s = measure(args.reads(), args.warmup(), || {
+        let bus = bus.clone();
+        async move { Ok(bus.send(vec![probe]).await?) }
+    })
+    .await?;
+    r.row(
+        "BusHandle::send of one frame (awaited)",
+        &s,
+        "per batch the master sends",
+    );
+    out.insert("bus_send".into(), s.to_json());
     bed.stop().await;
 
     // The protocol core alone on a fresh bus, for the diagnosis.
@@ -984,15 +1005,19 @@ async fn in_process(
         } else {
             ref_seg
         };
-        let note = reference
-            .map(|p| format!("{:.1}× python p50", ratio(s.p50_us, p.p50_us)))
-            .unwrap_or_default();
+        let runtime_p50 = out[case]["p50_us"].as_f64().unwrap_or(0.0);
+        let mut note = format!("runtime adds {:.1} µs p50", runtime_p50 - s.p50_us);
+        if let Some(p) = reference {
+            note.push_str(&format!("; {:.1}× python p50", ratio(s.p50_us, p.p50_us)));
+        }
         r.row(
             &format!("sans-IO Master on a VirtualPort: {case}"),
             &s,
             &note,
         );
-        direct.insert(case.into(), s.to_json());
+        let mut j = s.to_json();
+        j["runtime_minus_core_p50_us"] = json!(round2(runtime_p50 - s.p50_us));
+        direct.insert(case.into(), j);
     }
     out.insert("master_core".into(), Json::Object(direct));
     r.json.insert("in_process".into(), Json::Object(out));
@@ -1109,7 +1134,13 @@ async fn bit_timed(args: &Args, r: &mut Report) -> Result<()> {
     dj["response_lateness_p50_us"] = json!(round2(late_p50));
     dj["response_lateness_p99_us"] = json!(round2(late_p99));
     out.insert("expedited_master_core".into(), dj);
+    let bus_share = d_overhead;
+    let gateway_share = (s.p50_us - d.p50_us) / bus_us * 100.0;
+    r.line(format!(
+        "  overhead {overhead:.1} % = virtual bus delivery (the core alone) {bus_share:.1} % + gateway runtime {gateway_share:.1} %"
+    ));
     let mut exp = s.to_json();
+    exp["runtime_share_pct"] = json!(round2(gateway_share));
     exp["bus_time_us"] = json!(round2(bus_us));
     exp["overhead_pct"] = json!(round2(overhead));
     exp["overhead_p99_pct"] = json!(round2((s.p99_us - bus_us) / bus_us * 100.0));
