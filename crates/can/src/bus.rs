@@ -271,7 +271,9 @@ struct Shared {
 
 struct TxRequest {
     frames: Vec<Frame>,
-    reply: oneshot::Sender<Result<(), SendFailure>>,
+    /// `None` for fire-and-forget submissions: failures are counted and
+    /// logged by the bus task instead.
+    reply: Option<oneshot::Sender<Result<(), SendFailure>>>,
 }
 
 /// A cloneable handle to a running bus.
@@ -359,10 +361,39 @@ impl BusHandle {
         };
         self.shared
             .tx
-            .send(TxRequest { frames, reply })
+            .send(TxRequest {
+                frames,
+                reply: Some(reply),
+            })
             .await
             .map_err(|_| gone())?;
         rx.await.map_err(|_| gone())?
+    }
+
+    /// Queues a batch for sending without waiting for the bus task to send
+    /// it (protocol stacks on a hot path: the answer comes back on the bus
+    /// anyway). The same checks as [`BusHandle::send`] run first; a failure
+    /// later is counted in `tx_failed` and logged. Falls back to waiting
+    /// when the bus task's queue is full, so nothing is dropped.
+    pub async fn submit(&self, frames: Vec<Frame>) -> Result<(), SendFailure> {
+        self.check(&frames)?;
+        let total = frames.len();
+        let request = TxRequest {
+            frames,
+            reply: None,
+        };
+        let gone = || SendFailure {
+            sent: 0,
+            total,
+            error: SendError::Down(self.name().to_string()),
+        };
+        match self.shared.tx.try_send(request) {
+            Ok(()) => Ok(()),
+            Err(mpsc::error::TrySendError::Full(request)) => {
+                self.shared.tx.send(request).await.map_err(|_| gone())
+            }
+            Err(mpsc::error::TrySendError::Closed(_)) => Err(gone()),
+        }
     }
 
     /// Subscribes to frames passing `selector` and to state changes, with a
@@ -483,7 +514,16 @@ async fn run_bus(
                         fanout(&shared, &f, Direction::Tx);
                     }
                 }
-                let _ = req.reply.send(result);
+                match req.reply {
+                    Some(reply) => {
+                        let _ = reply.send(result);
+                    }
+                    None => {
+                        if let Err(e) = result {
+                            tracing::warn!(bus = %name, error = %e, "submitted frames not sent");
+                        }
+                    }
+                }
             }
             _ = backend.next(&mut events) => {
                 for ev in events.drain(..) {

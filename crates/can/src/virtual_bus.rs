@@ -473,8 +473,20 @@ fn scheduler_thread(bus: Weak<Inner>, timed: Arc<Timed>) {
         }
         drop(inner);
         st = match next {
+            // Close to the deadline a timed wait overshoots by the kernel's
+            // timer slack and wake-up latency (~50-80 us here), which would
+            // show up as bus time. Wait until just before, then yield-spin.
+            Some(deadline) if deadline.saturating_sub(now) <= SPIN_WINDOW_NS => {
+                drop(st);
+                let Some(inner) = bus.upgrade() else { return };
+                while (inner.origin.elapsed().as_nanos() as u64) < deadline {
+                    std::thread::yield_now();
+                }
+                drop(inner);
+                timed.state.lock().expect("timed state")
+            }
             Some(deadline) => {
-                let wait = Duration::from_nanos(deadline.saturating_sub(now));
+                let wait = Duration::from_nanos(deadline.saturating_sub(now) - SPIN_WINDOW_NS);
                 timed.wake.wait_timeout(st, wait).expect("timed state").0
             }
             // Idle: wake on the next enqueue, and now and then to notice
@@ -489,6 +501,9 @@ fn scheduler_thread(bus: Weak<Inner>, timed: Arc<Timed>) {
         };
     }
 }
+
+/// How close to a deadline the scheduler stops sleeping and yield-spins.
+const SPIN_WINDOW_NS: u64 = 100_000;
 
 impl Drop for Inner {
     fn drop(&mut self) {

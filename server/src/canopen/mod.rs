@@ -553,7 +553,7 @@ async fn run_master(task: MasterTask) {
             }
         }
         if !out.frames.is_empty()
-            && let Err(e) = bus.send(std::mem::take(&mut out.frames)).await
+            && let Err(e) = bus.submit(std::mem::take(&mut out.frames)).await
         {
             tracing::warn!(bus = %bus.name(), error = %e, "CANopen master could not send");
         }
