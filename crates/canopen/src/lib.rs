@@ -12,6 +12,7 @@
 pub mod ds402;
 pub mod eds;
 pub mod emcy;
+pub mod handwheel;
 pub mod heartbeat;
 pub mod ids;
 pub mod master;

@@ -31,6 +31,7 @@ use cangate_canopen::value::DataType;
 
 pub mod canopen_node;
 pub mod drive;
+pub mod handwheel;
 mod pdo;
 #[cfg(feature = "runtime")]
 pub mod runner;
@@ -38,6 +39,7 @@ pub mod store;
 
 pub use canopen_node::{SimEvent, SimNode, SimNodeOptions};
 pub use drive::{SimDrive, SimDriveOptions};
+pub use handwheel::{FrameLoss, Multiplier, SimHandwheel, SimHandwheelOptions};
 #[cfg(feature = "runtime")]
 pub use runner::{DeviceHandle, spawn_device, spawn_node};
 pub use store::SimStore;
