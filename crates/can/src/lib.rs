@@ -29,5 +29,5 @@ pub use state::{BusState, BusStatus};
 pub use timing::{BitTiming, Stuffing};
 #[cfg(feature = "runtime")]
 pub use virtual_bus::{
-    PortEvent, SendError, VirtualBus, VirtualBusConfig, VirtualNetwork, VirtualPort,
+    PortEvent, SendError, VirtualBus, VirtualBusConfig, VirtualNetwork, VirtualPort, VirtualSender,
 };

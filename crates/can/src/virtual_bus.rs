@@ -551,6 +551,15 @@ impl VirtualPort {
         self.bus.send_from(self.shared.id, frames)
     }
 
+    /// A handle that sends as this port from any thread (the port itself
+    /// stays with its owner, which receives).
+    pub fn sender(&self) -> VirtualSender {
+        VirtualSender {
+            bus: self.bus.clone(),
+            id: self.shared.id,
+        }
+    }
+
     /// Frames this port could not receive because its queue was full.
     pub fn overflows(&self) -> u64 {
         self.shared.overflows.load(Ordering::Relaxed)
@@ -620,6 +629,29 @@ impl Drop for VirtualPort {
         if let Ok(mut ports) = self.bus.inner.ports.write() {
             ports.retain(|p| p.id != self.shared.id);
         }
+    }
+}
+
+/// Sends frames as one port of a virtual bus (see [`VirtualPort::sender`]).
+#[derive(Clone)]
+pub struct VirtualSender {
+    bus: VirtualBus,
+    id: u64,
+}
+
+impl std::fmt::Debug for VirtualSender {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("VirtualSender")
+            .field("bus", &self.bus.name())
+            .field("port", &self.id)
+            .finish()
+    }
+}
+
+impl VirtualSender {
+    /// Queues frames as [`VirtualPort::send_batch`] does.
+    pub fn send_batch(&self, frames: &[Frame]) -> Result<(), SendError> {
+        self.bus.send_from(self.id, frames)
     }
 }
 
