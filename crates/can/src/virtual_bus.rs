@@ -473,14 +473,16 @@ fn scheduler_thread(bus: Weak<Inner>, timed: Arc<Timed>) {
         }
         drop(inner);
         st = match next {
-            // Close to the deadline a timed wait overshoots by the kernel's
-            // timer slack and wake-up latency (~50-80 us here), which would
-            // show up as bus time. Wait until just before, then yield-spin.
+            // A timed wait overshoots by the kernel's timer slack and wake-up
+            // latency (50-80 us here), which would show up as bus time. So
+            // the wait ends SPIN_WINDOW before the deadline and the rest is
+            // busy-waited. (Not `yield_now`: on a machine whose cores are
+            // busy, a yield can give the core away for a whole time slice.)
             Some(deadline) if deadline.saturating_sub(now) <= SPIN_WINDOW_NS => {
                 drop(st);
                 let Some(inner) = bus.upgrade() else { return };
                 while (inner.origin.elapsed().as_nanos() as u64) < deadline {
-                    std::thread::yield_now();
+                    std::hint::spin_loop();
                 }
                 drop(inner);
                 timed.state.lock().expect("timed state")
@@ -502,8 +504,10 @@ fn scheduler_thread(bus: Weak<Inner>, timed: Arc<Timed>) {
     }
 }
 
-/// How close to a deadline the scheduler stops sleeping and yield-spins.
-const SPIN_WINDOW_NS: u64 = 100_000;
+/// How close to a deadline the scheduler stops sleeping and busy-waits:
+/// about the wake-up latency of a timed wait, so that a wait that wakes on
+/// time spins briefly and a late one not at all.
+const SPIN_WINDOW_NS: u64 = 60_000;
 
 impl Drop for Inner {
     fn drop(&mut self) {
