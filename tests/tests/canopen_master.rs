@@ -285,25 +285,10 @@ async fn nmt_heartbeat_loss_recovery_and_emcy_events() {
     let server = start_server(CONFIG).await;
     let vbus = server.gateway().network().get("can0").unwrap();
     let c = client(&server).await;
-    let mut events = c
-        .canopen_client()
-        .stream_node_events(pb::StreamNodeEventsRequest {
-            bus: "can0".into(),
-            nodes: vec![1],
-        })
-        .await
-        .unwrap()
-        .into_inner();
+    let mut events = node_events(&c, vec![1]).await;
 
     // NMT start → the node reports operational in its heartbeat.
-    c.canopen_client()
-        .send_nmt(pb::SendNmtRequest {
-            bus: "can0".into(),
-            node: 1,
-            command: pb::NmtCommand::Start as i32,
-        })
-        .await
-        .unwrap();
+    send_nmt(&c, 1, pb::NmtCommand::Start).await;
     wait_event(&mut events, "operational", |e| {
         matches!(&e.event, Some(Event::StateChanged(s)) if s.to == pb::NmtState::Operational as i32)
     })
@@ -317,15 +302,7 @@ async fn nmt_heartbeat_loss_recovery_and_emcy_events() {
     })
     .await;
     assert_eq!(lost.node, 1);
-    let node = c
-        .canopen_client()
-        .get_node(pb::GetNodeRequest {
-            bus: "can0".into(),
-            node: 1,
-        })
-        .await
-        .unwrap()
-        .into_inner();
+    let node = get_node(&c, 1).await;
     assert!(node.heartbeat_lost);
     vbus.set_drop_ids([]);
     wait_event(&mut events, "heartbeat recovered", |e| {
@@ -350,15 +327,7 @@ async fn nmt_heartbeat_loss_recovery_and_emcy_events() {
         "{:?}",
         emcy.register_bits
     );
-    let node = c
-        .canopen_client()
-        .get_node(pb::GetNodeRequest {
-            bus: "can0".into(),
-            node: 1,
-        })
-        .await
-        .unwrap()
-        .into_inner();
+    let node = get_node(&c, 1).await;
     assert_eq!(node.active_error.unwrap().code, 0x2310);
     // Error reset clears it.
     port.send(&"081#0000000000000000".parse().unwrap()).unwrap();
@@ -368,15 +337,7 @@ async fn nmt_heartbeat_loss_recovery_and_emcy_events() {
         |e| matches!(&e.event, Some(Event::Emcy(m)) if m.code == 0),
     )
     .await;
-    let node = c
-        .canopen_client()
-        .get_node(pb::GetNodeRequest {
-            bus: "can0".into(),
-            node: 1,
-        })
-        .await
-        .unwrap()
-        .into_inner();
+    let node = get_node(&c, 1).await;
     assert!(node.active_error.is_none());
     assert_eq!(node.emcy_history.len(), 2);
     server.shutdown();

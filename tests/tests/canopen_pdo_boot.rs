@@ -102,15 +102,7 @@ async fn boot_procedure_configures_and_starts_and_pdos_flow() {
     // (The master learns the state from the node's next heartbeat.)
     tokio::time::timeout(WAIT, async {
         loop {
-            let node1 = c
-                .canopen_client()
-                .get_node(pb::GetNodeRequest {
-                    bus: "can0".into(),
-                    node: 1,
-                })
-                .await
-                .unwrap()
-                .into_inner();
+            let node1 = get_node(&c, 1).await;
             if node1.state == pb::NmtState::Operational as i32 {
                 return;
             }
@@ -135,23 +127,8 @@ async fn boot_procedure_configures_and_starts_and_pdos_flow() {
 
     // Node 3 gets a reset: the boot procedure runs again and fails again,
     // reported as an event with the reason.
-    let mut events = c
-        .canopen_client()
-        .stream_node_events(pb::StreamNodeEventsRequest {
-            bus: "can0".into(),
-            nodes: vec![3],
-        })
-        .await
-        .unwrap()
-        .into_inner();
-    c.canopen_client()
-        .send_nmt(pb::SendNmtRequest {
-            bus: "can0".into(),
-            node: 3,
-            command: pb::NmtCommand::ResetNode as i32,
-        })
-        .await
-        .unwrap();
+    let mut events = node_events(&c, vec![3]).await;
+    send_nmt(&c, 3, pb::NmtCommand::ResetNode).await;
     let reason = tokio::time::timeout(WAIT, async {
         loop {
             let ev = events.message().await.unwrap().unwrap();
@@ -167,37 +144,14 @@ async fn boot_procedure_configures_and_starts_and_pdos_flow() {
         reason.contains("0x000F0191") && reason.contains("0x12345678"),
         "{reason}"
     );
-    let node3 = c
-        .canopen_client()
-        .get_node(pb::GetNodeRequest {
-            bus: "can0".into(),
-            node: 3,
-        })
-        .await
-        .unwrap()
-        .into_inner();
+    let node3 = get_node(&c, 3).await;
     assert_eq!(node3.state, pb::NmtState::PreOperational as i32);
 
     // The other failure paths: a vendor id mismatch, and a configured SDO
     // write the node refuses (0x1000 is read-only). Each is reported with
     // its reason and the node is not started.
-    let mut events = c
-        .canopen_client()
-        .stream_node_events(pb::StreamNodeEventsRequest {
-            bus: "can0".into(),
-            nodes: vec![4, 5],
-        })
-        .await
-        .unwrap()
-        .into_inner();
-    c.canopen_client()
-        .send_nmt(pb::SendNmtRequest {
-            bus: "can0".into(),
-            node: 0,
-            command: pb::NmtCommand::ResetCommunication as i32,
-        })
-        .await
-        .unwrap();
+    let mut events = node_events(&c, vec![4, 5]).await;
+    send_nmt(&c, 0, pb::NmtCommand::ResetCommunication).await;
     let mut reasons = std::collections::BTreeMap::new();
     tokio::time::timeout(WAIT, async {
         while reasons.len() < 2 {

@@ -80,14 +80,7 @@ async fn simulated_drive_enables_and_moves() {
         .unwrap()
         .into_inner();
     // NMT start so the TPDOs flow, then a new set-point (bit 4) to 10,000.
-    c.canopen_client()
-        .send_nmt(pb::SendNmtRequest {
-            bus: "can0".into(),
-            node: 1,
-            command: pb::NmtCommand::Start as i32,
-        })
-        .await
-        .unwrap();
+    send_nmt(&c, 1, pb::NmtCommand::Start).await;
     c.write_sdo(raw(0x607A, 0, 10_000i32.to_le_bytes().to_vec()))
         .await
         .unwrap();

@@ -99,3 +99,42 @@ pub async fn assert_quiet(stream: &mut tonic::Streaming<pb::StreamFramesResponse
         panic!("unexpected stream message: {msg:?}");
     }
 }
+
+/// Node events of `can0` for these nodes.
+pub async fn node_events(
+    c: &cangate_client::Client,
+    nodes: Vec<u32>,
+) -> tonic::Streaming<pb::NodeEvent> {
+    c.canopen_client()
+        .stream_node_events(pb::StreamNodeEventsRequest {
+            bus: "can0".into(),
+            nodes,
+        })
+        .await
+        .expect("node event stream opens")
+        .into_inner()
+}
+
+/// Sends an NMT command on `can0` (node 0: all).
+pub async fn send_nmt(c: &cangate_client::Client, node: u32, command: pb::NmtCommand) {
+    c.canopen_client()
+        .send_nmt(pb::SendNmtRequest {
+            bus: "can0".into(),
+            node,
+            command: command as i32,
+        })
+        .await
+        .expect("NMT command accepted");
+}
+
+/// A node of `can0` as the master sees it.
+pub async fn get_node(c: &cangate_client::Client, node: u32) -> pb::Node {
+    c.canopen_client()
+        .get_node(pb::GetNodeRequest {
+            bus: "can0".into(),
+            node,
+        })
+        .await
+        .expect("GetNode")
+        .into_inner()
+}
