@@ -9,6 +9,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let files = [
         "proto/cangate/v1/bus.proto",
         "proto/cangate/v1/canopen.proto",
+        "proto/cangate/v1/axes.proto",
     ];
     for f in &files {
         println!("cargo:rerun-if-changed={f}");

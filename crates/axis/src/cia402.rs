@@ -1,0 +1,1420 @@
+//! [`Cia402Axis`]: a CiA 402 servo drive as an axis, sans-IO.
+//!
+//! Inputs: the drive's process data ([`Cia402Axis::on_feedback`]), SYNC
+//! ([`Cia402Axis::on_sync`]), time ([`Cia402Axis::on_tick`] at
+//! [`Cia402Axis::next_deadline`]), the outcome of SDO writes it asked for
+//! ([`Cia402Axis::on_sdo_done`]), EMCY codes and node loss. Outputs
+//! ([`Output`]): the process image to send as RPDOs, SDO writes, events.
+//!
+//! How each command runs:
+//!
+//! | command | profile position axis | cyclic (CSP) axis |
+//! |---|---|---|
+//! | enable / disable / reset fault | [`StateMachineDriver`] walk | the same; enable first sets mode 8 and target = actual position so the drive does not jump |
+//! | move | SDO 0x6081/0x6083/0x6084 when they changed; mode 1; target + new set-point (bit 4) with change immediately (bit 5); accepted on set-point acknowledge (bit 12), bit 4 cleared; done on target reached (bit 10) | a trapezoid from the current demand (position and velocity) to the target, sampled every SYNC; done when the profile ended and the actual position is within the in-position window |
+//! | jog | mode 3 (profile velocity), target velocity; the drive's soft limits (0x607D, written at boot) bound it | a trapezoid towards the soft limit at the jog speed |
+//! | stop | halt (bit 8) until the next motion command; done at standstill | a trapezoid to the stopping point |
+//! | quick stop | controlword quick stop; done when the drive left operation enabled and stands still | the same |
+//! | home | mode 6, homing start (bit 4); done on homing attained + target reached, failed on homing error; back to the position mode | the same, then demand = actual position, mode 8 |
+//!
+//! Completion checks look only at process data that left the drive after
+//! it saw the command: the first statusword after each new process image
+//! is skipped (it may have been in flight already).
+
+use std::time::Duration;
+
+use cangate_canopen::ObjectAddress;
+use cangate_canopen::ds402::{
+    Controlword, DriveState, DriverStep, HomingStatus, ModeOfOperation, StateMachineDriver,
+    Statusword, objects as obj,
+};
+use cangate_motion::{Limits, TrapezoidProfile};
+
+use crate::{
+    Activity, AxisCommand, AxisEvent, CommandError, CommandKind, OpId, Outcome, PositionMode, Units,
+};
+
+/// The configuration of one CiA 402 axis, in user units.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Cia402Config {
+    /// Unit conversion.
+    pub units: Units,
+    /// Unit name for messages ("mm").
+    pub unit: String,
+    /// Soft limits.
+    pub min_position: Option<f64>,
+    /// Soft limits.
+    pub max_position: Option<f64>,
+    /// Velocity ceiling (units/s).
+    pub max_velocity: f64,
+    /// Acceleration ceiling (units/s²).
+    pub max_acceleration: f64,
+    /// Velocity of a move without one.
+    pub default_velocity: f64,
+    /// Acceleration of a move without one.
+    pub default_acceleration: f64,
+    /// Profile or cyclic position.
+    pub position_mode: PositionMode,
+    /// Bound of each state of an enable/disable walk, and of the set-point
+    /// acknowledge and mode switches.
+    pub state_timeout: Duration,
+    /// Bound of a homing run.
+    pub homing_timeout: Duration,
+    /// A cyclic move is done when the actual position is this close to
+    /// the target (units) and the drive moves slower than this per 10 ms.
+    pub in_position_window: f64,
+    /// Time allowed beyond the planned duration of a move (and of a stop)
+    /// before it times out.
+    pub settle_timeout: Duration,
+    /// Jog dead-man time.
+    pub jog_deadman: Duration,
+}
+
+impl Cia402Config {
+    /// A configuration with the given scale and defaults suitable for the
+    /// simulated drives (tests, demo).
+    pub fn example(counts_per_unit: f64, position_mode: PositionMode) -> Self {
+        Cia402Config {
+            units: Units { counts_per_unit },
+            unit: "mm".into(),
+            min_position: Some(-500.0),
+            max_position: Some(500.0),
+            max_velocity: 200.0,
+            max_acceleration: 2000.0,
+            default_velocity: 50.0,
+            default_acceleration: 500.0,
+            position_mode,
+            state_timeout: Duration::from_secs(1),
+            homing_timeout: Duration::from_secs(30),
+            in_position_window: 0.01,
+            settle_timeout: Duration::from_secs(2),
+            jog_deadman: Duration::from_millis(500),
+        }
+    }
+}
+
+/// The process data the gateway sends to the drive (RPDOs): controlword,
+/// mode of operation, target position, target velocity.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct ProcessImage {
+    /// 0x6040.
+    pub controlword: u16,
+    /// 0x6060.
+    pub mode: i8,
+    /// 0x607A (counts).
+    pub target_position: i32,
+    /// 0x60FF (counts/s).
+    pub target_velocity: i32,
+}
+
+/// Process data from the drive; `None` fields were not in this update.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Feedback {
+    /// 0x6041.
+    pub statusword: Option<u16>,
+    /// 0x6064 (counts).
+    pub position: Option<i32>,
+    /// 0x606C (counts/s).
+    pub velocity: Option<i32>,
+    /// 0x6061.
+    pub mode_display: Option<i8>,
+    /// 0x60F4 (counts).
+    pub following_error: Option<i32>,
+}
+
+/// What the axis asks its runtime to do.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Output {
+    /// Send the process image (all RPDOs, the one with the target values
+    /// before the one with the controlword).
+    Image(ProcessImage),
+    /// Write these objects by SDO in order, then call
+    /// [`Cia402Axis::on_sdo_done`].
+    SdoWrites(Vec<(ObjectAddress, Vec<u8>)>),
+    /// Report this.
+    Event(AxisEvent),
+}
+
+/// The live state of an axis in user units.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AxisSnapshot {
+    /// Drive state; `None` before the first statusword.
+    pub state: Option<DriveState>,
+    /// Raw statusword.
+    pub statusword: u16,
+    /// Mode displayed (0 unknown).
+    pub mode: i8,
+    /// What the axis is doing.
+    pub activity: Activity,
+    /// Actual position.
+    pub position: f64,
+    /// Actual velocity.
+    pub velocity: f64,
+    /// Demand (cyclic) or latest target (profile).
+    pub demand_position: f64,
+    /// Demand − actual.
+    pub following_error: f64,
+    /// Homed since switched on.
+    pub homed: bool,
+    /// Why the node is lost, if it is.
+    pub node_lost: Option<String>,
+    /// Active fault.
+    pub fault: Option<(u16, String)>,
+}
+
+/// Where a command stands.
+#[derive(Debug)]
+enum Step {
+    /// Walking the state machine.
+    Switch(StateMachineDriver),
+    /// Waiting for SDO writes (profile parameters) to finish.
+    AwaitSdo,
+    /// Waiting for the mode display to show the mode.
+    AwaitMode(ModeOfOperation),
+    /// Profile position: new set-point sent, waiting for the acknowledge.
+    AwaitAck,
+    /// Profile position: moving to the target.
+    ProfileMoving,
+    /// Cyclic: following the trajectory.
+    CyclicMoving,
+    /// Homing started, waiting for attained/error.
+    Homing,
+    /// Homing attained; switching back to the position mode.
+    HomingReturn,
+    /// Profile velocity jog running.
+    Jogging,
+    /// Decelerating (halt, quick stop, cyclic stop ramp).
+    Stopping,
+}
+
+#[derive(Debug)]
+struct Op {
+    id: OpId,
+    kind: CommandKind,
+    step: Step,
+    /// The command as given (for the steps after preparation).
+    command: AxisCommand,
+    /// Target (user units) of a move.
+    target: f64,
+    deadline: Option<Duration>,
+    /// Statuswords seen since the latest process image change.
+    accepted: bool,
+}
+
+/// A cyclic trajectory: a trapezoid, optionally stretched in time (one axis
+/// of a coordinated move).
+#[derive(Debug, Clone)]
+struct Trajectory {
+    profile: TrapezoidProfile,
+    /// Profile time per wall time (≤ 1; 1 for a single-axis move).
+    ratio: f64,
+    /// When sampling started (set at the first SYNC).
+    start: Option<Duration>,
+}
+
+impl Trajectory {
+    fn duration(&self) -> f64 {
+        if self.ratio > 0.0 {
+            self.profile.duration() / self.ratio
+        } else {
+            0.0
+        }
+    }
+
+    fn sample(&self, t: f64) -> (f64, f64) {
+        let (p, v, _) = self.profile.sample(t * self.ratio);
+        (p, v * self.ratio)
+    }
+}
+
+/// One CiA 402 drive as an axis. See the [module documentation](self).
+#[derive(Debug)]
+pub struct Cia402Axis {
+    cfg: Cia402Config,
+    statusword: Option<Statusword>,
+    position: Option<i32>,
+    velocity: i32,
+    mode_display: Option<i8>,
+    drive_following_error: Option<i32>,
+    /// Statuswords received since the image last changed.
+    fresh: u32,
+    image: ProcessImage,
+    /// Demand position and velocity (user units) of a cyclic axis.
+    demand: f64,
+    demand_velocity: f64,
+    trajectory: Option<Trajectory>,
+    jog_deadline: Option<Duration>,
+    /// Latest target of a profile move (user units).
+    last_target: f64,
+    /// Profile velocity / acceleration (counts) the drive holds.
+    profile_written: Option<(u32, u32)>,
+    /// SDO writes in flight and what they write.
+    sdo_in_flight: Option<(u32, u32)>,
+    homed: bool,
+    node_lost: Option<String>,
+    emcy: Option<(u16, String)>,
+    fault_reported: bool,
+    op: Option<Op>,
+    next_id: OpId,
+}
+
+impl Cia402Axis {
+    /// An axis; nothing is sent until the first statusword arrives.
+    pub fn new(cfg: Cia402Config) -> Self {
+        let mode = match cfg.position_mode {
+            PositionMode::Profile => ModeOfOperation::ProfilePosition,
+            PositionMode::Cyclic => ModeOfOperation::CyclicSynchronousPosition,
+        };
+        Cia402Axis {
+            cfg,
+            statusword: None,
+            position: None,
+            velocity: 0,
+            mode_display: None,
+            drive_following_error: None,
+            fresh: 0,
+            image: ProcessImage {
+                controlword: 0,
+                mode: mode.code(),
+                target_position: 0,
+                target_velocity: 0,
+            },
+            demand: 0.0,
+            demand_velocity: 0.0,
+            trajectory: None,
+            jog_deadline: None,
+            last_target: 0.0,
+            profile_written: None,
+            sdo_in_flight: None,
+            homed: false,
+            node_lost: None,
+            emcy: None,
+            fault_reported: false,
+            op: None,
+            next_id: 1,
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &Cia402Config {
+        &self.cfg
+    }
+
+    /// The process image as last computed.
+    pub fn image(&self) -> ProcessImage {
+        self.image
+    }
+
+    /// The SDO writes the gateway makes at boot for this axis: homing is
+    /// configured by the node's own writes; here the soft limits in counts
+    /// (0x607D, when both are configured) and the default profile.
+    pub fn boot_writes(&self) -> Vec<(ObjectAddress, Vec<u8>)> {
+        let mut w = Vec::new();
+        if let (Some(min), Some(max)) = (self.cfg.min_position, self.cfg.max_position) {
+            let (a, b) = (self.cfg.units.to_counts(min), self.cfg.units.to_counts(max));
+            let (lo, hi) = (a.min(b), a.max(b));
+            w.push((obj::SOFTWARE_POSITION_LIMIT_MIN, lo.to_le_bytes().to_vec()));
+            w.push((obj::SOFTWARE_POSITION_LIMIT_MAX, hi.to_le_bytes().to_vec()));
+        }
+        w
+    }
+
+    fn mode_for_position(&self) -> ModeOfOperation {
+        match self.cfg.position_mode {
+            PositionMode::Profile => ModeOfOperation::ProfilePosition,
+            PositionMode::Cyclic => ModeOfOperation::CyclicSynchronousPosition,
+        }
+    }
+
+    fn units(&self) -> Units {
+        self.cfg.units
+    }
+
+    fn actual(&self) -> f64 {
+        self.units()
+            .from_counts(f64::from(self.position.unwrap_or_default()))
+    }
+
+    fn state(&self) -> Option<DriveState> {
+        self.statusword.map(Statusword::state)
+    }
+
+    fn is_fault(&self) -> bool {
+        matches!(
+            self.state(),
+            Some(DriveState::Fault | DriveState::FaultReactionActive)
+        )
+    }
+
+    fn at_rest(&self) -> bool {
+        self.velocity == 0
+    }
+
+    /// In position means also (nearly) at rest: slower than the
+    /// in-position window per 10 ms.
+    fn standing_still(&self) -> bool {
+        self.units().from_counts(f64::from(self.velocity)).abs()
+            <= self.cfg.in_position_window * 100.0
+    }
+
+    /// The live state.
+    pub fn snapshot(&self) -> AxisSnapshot {
+        let u = self.units();
+        let position = self.actual();
+        let demand = match self.cfg.position_mode {
+            PositionMode::Cyclic => self.demand,
+            PositionMode::Profile => self.last_target,
+        };
+        let following_error = match (self.drive_following_error, self.cfg.position_mode) {
+            (Some(fe), _) => u.from_counts(f64::from(fe)),
+            (None, PositionMode::Cyclic) if self.position.is_some() => self.demand - position,
+            _ => 0.0,
+        };
+        AxisSnapshot {
+            state: self.state(),
+            statusword: self.statusword.map(Statusword::bits).unwrap_or_default(),
+            mode: self.mode_display.unwrap_or_default(),
+            activity: self.activity(),
+            position,
+            velocity: u.from_counts(f64::from(self.velocity)),
+            demand_position: demand,
+            following_error,
+            homed: self.homed,
+            node_lost: self.node_lost.clone(),
+            fault: self.fault(),
+        }
+    }
+
+    fn fault(&self) -> Option<(u16, String)> {
+        if let Some(reason) = &self.node_lost {
+            return Some((0, format!("node lost: {reason}")));
+        }
+        if self.is_fault() {
+            return Some(
+                self.emcy
+                    .clone()
+                    .unwrap_or((0, "drive fault (no EMCY received)".into())),
+            );
+        }
+        None
+    }
+
+    /// What the axis is doing.
+    pub fn activity(&self) -> Activity {
+        match self.op.as_ref().map(|o| (&o.kind, &o.step)) {
+            None => Activity::Idle,
+            Some((_, Step::Stopping)) => Activity::Stopping,
+            Some((CommandKind::Enable | CommandKind::Disable | CommandKind::ResetFault, _)) => {
+                Activity::Switching
+            }
+            Some((CommandKind::Home, _)) => Activity::Homing,
+            Some((CommandKind::Jog, _)) => Activity::Jogging,
+            Some((CommandKind::Move, _)) => Activity::Moving,
+            Some((CommandKind::Stop | CommandKind::QuickStop, _)) => Activity::Stopping,
+        }
+    }
+
+    /// The id of the command in progress, if any.
+    pub fn current_op(&self) -> Option<OpId> {
+        self.op.as_ref().map(|o| o.id)
+    }
+
+    // ---------------------------------------------------------------- input
+
+    /// Handles process data received at `now`.
+    pub fn on_feedback(&mut self, fb: Feedback, now: Duration, out: &mut Vec<Output>) {
+        if let Some(p) = fb.position {
+            self.position = Some(p);
+        }
+        if let Some(v) = fb.velocity {
+            self.velocity = v;
+        }
+        if let Some(m) = fb.mode_display {
+            self.mode_display = Some(m);
+        }
+        if let Some(fe) = fb.following_error {
+            self.drive_following_error = Some(fe);
+        }
+        let Some(sw) = fb.statusword else {
+            self.advance(now, out);
+            return;
+        };
+        let first = self.statusword.is_none();
+        self.statusword = Some(Statusword(sw));
+        self.fresh = self.fresh.saturating_add(1);
+        if first {
+            // Start from where the drive is, without a jump.
+            self.demand = self.actual();
+            self.last_target = self.demand;
+            self.image.target_position = self.position.unwrap_or_default();
+        }
+        if self.is_fault() {
+            if !self.fault_reported {
+                self.fault_reported = true;
+                let (code, text) = self.fault().unwrap_or_default();
+                out.push(Output::Event(AxisEvent::Fault { code, text }));
+                self.trajectory = None;
+                self.jog_deadline = None;
+                if let Some(op) = &self.op
+                    && !matches!(op.kind, CommandKind::ResetFault | CommandKind::Disable)
+                {
+                    let (code, text) = self.fault().unwrap_or_default();
+                    self.finish(
+                        Outcome::Fault,
+                        format!("drive fault 0x{code:04X} {text}"),
+                        out,
+                    );
+                }
+            }
+        } else if self.fault_reported {
+            self.fault_reported = false;
+            out.push(Output::Event(AxisEvent::Fault {
+                code: 0,
+                text: String::new(),
+            }));
+        }
+        if matches!(
+            self.state(),
+            Some(
+                DriveState::SwitchOnDisabled
+                    | DriveState::ReadyToSwitchOn
+                    | DriveState::NotReadyToSwitchOn
+            )
+        ) {
+            // Power stage off: the homing reference is not trusted any more
+            // only after a reset; keep `homed`, but no motion continues.
+            self.trajectory = None;
+            self.jog_deadline = None;
+        }
+        self.advance(now, out);
+    }
+
+    /// Handles an EMCY of this drive (`code` 0 = error reset).
+    pub fn on_emcy(&mut self, code: u16, text: &str, out: &mut Vec<Output>) {
+        if code == 0 {
+            self.emcy = None;
+            return;
+        }
+        self.emcy = Some((code, text.to_string()));
+        if self.fault_reported {
+            out.push(Output::Event(AxisEvent::Fault {
+                code,
+                text: text.to_string(),
+            }));
+        }
+    }
+
+    /// The drive's node was lost (heartbeat timeout, boot failure).
+    pub fn on_node_lost(&mut self, reason: &str, out: &mut Vec<Output>) {
+        if self.node_lost.is_some() {
+            return;
+        }
+        self.node_lost = Some(reason.to_string());
+        self.trajectory = None;
+        self.jog_deadline = None;
+        out.push(Output::Event(AxisEvent::Fault {
+            code: 0,
+            text: format!("node lost: {reason}"),
+        }));
+        if self.op.is_some() {
+            self.finish(Outcome::Fault, format!("node lost: {reason}"), out);
+        }
+    }
+
+    /// The node is back (heartbeat recovered, booted). Its drive state is
+    /// taken from the next statusword; after a reset it is not homed.
+    pub fn on_node_back(&mut self, rebooted: bool, out: &mut Vec<Output>) {
+        if self.node_lost.take().is_some() {
+            out.push(Output::Event(AxisEvent::Fault {
+                code: 0,
+                text: String::new(),
+            }));
+        }
+        if rebooted {
+            self.homed = false;
+            self.statusword = None;
+            self.profile_written = None;
+            self.image.controlword = 0;
+        }
+    }
+
+    /// The SDO writes asked for by [`Output::SdoWrites`] finished.
+    pub fn on_sdo_done(
+        &mut self,
+        result: Result<(), String>,
+        now: Duration,
+        out: &mut Vec<Output>,
+    ) {
+        let written = self.sdo_in_flight.take();
+        match result {
+            Ok(()) => self.profile_written = written,
+            Err(e) => {
+                self.profile_written = None;
+                if matches!(self.op.as_ref().map(|o| &o.step), Some(Step::AwaitSdo)) {
+                    self.finish(
+                        Outcome::Fault,
+                        format!("writing the profile parameters failed: {e}"),
+                        out,
+                    );
+                }
+            }
+        }
+        self.advance(now, out);
+    }
+
+    /// A SYNC was sent at `now`: a cyclic axis samples its trajectory and
+    /// sends the set-point (every SYNC while enabled in CSP, also at rest).
+    pub fn on_sync(&mut self, now: Duration, out: &mut Vec<Output>) {
+        if self.cfg.position_mode != PositionMode::Cyclic
+            || self.image.mode != ModeOfOperation::CyclicSynchronousPosition.code()
+            || self.state() != Some(DriveState::OperationEnabled)
+            || self.node_lost.is_some()
+        {
+            return;
+        }
+        if let Some(traj) = &mut self.trajectory {
+            let start = *traj.start.get_or_insert(now);
+            let t = now.saturating_sub(start).as_secs_f64();
+            let (p, v) = traj.sample(t);
+            self.demand = p;
+            self.demand_velocity = v;
+            if t >= traj.duration() {
+                self.trajectory = None;
+                self.demand_velocity = 0.0;
+            }
+        }
+        self.image.target_position = self.units().to_counts(self.demand);
+        out.push(Output::Image(self.image));
+        self.advance(now, out);
+    }
+
+    /// Handles time passing.
+    pub fn on_tick(&mut self, now: Duration, out: &mut Vec<Output>) {
+        self.advance(now, out);
+    }
+
+    /// When [`Cia402Axis::on_tick`] is due next.
+    pub fn next_deadline(&self) -> Option<Duration> {
+        let op = self.op.as_ref().and_then(|o| match &o.step {
+            Step::Switch(d) => d.next_deadline(),
+            _ => o.deadline,
+        });
+        [op, self.jog_deadline].into_iter().flatten().min()
+    }
+
+    // ------------------------------------------------------------- commands
+
+    /// Starts a command at `now`.
+    ///
+    /// # Errors
+    /// [`CommandError`] when the value or the drive's state rules it out;
+    /// nothing is sent then.
+    pub fn command(
+        &mut self,
+        cmd: AxisCommand,
+        now: Duration,
+        out: &mut Vec<Output>,
+    ) -> Result<OpId, CommandError> {
+        self.check(&cmd)?;
+        // A repeated jog re-arms the dead-man of the running jog.
+        if let AxisCommand::Jog {
+            velocity,
+            acceleration,
+        } = cmd
+            && let Some(op) = &self.op
+            && op.kind == CommandKind::Jog
+            && !matches!(op.step, Step::Stopping)
+            && velocity != 0.0
+        {
+            let (id, accepted) = (op.id, op.accepted);
+            self.jog_deadline = Some(now + self.cfg.jog_deadman);
+            self.retarget_jog(velocity, acceleration, now, out)?;
+            if accepted {
+                out.push(Output::Event(AxisEvent::Accepted { op: id }));
+            }
+            return Ok(id);
+        }
+        let id = self.next_id;
+        self.next_id += 1;
+        let kind = cmd.kind();
+        let previous = if matches!(kind, CommandKind::Stop | CommandKind::QuickStop) {
+            Outcome::Stopped
+        } else {
+            Outcome::Superseded
+        };
+        if self.op.is_some() {
+            self.finish(previous, format!("{} by {}", previous.name(), kind), out);
+        }
+        self.jog_deadline = None;
+        let mut op = Op {
+            id,
+            kind,
+            step: Step::Stopping,
+            command: cmd,
+            target: 0.0,
+            deadline: None,
+            accepted: false,
+        };
+        match cmd {
+            AxisCommand::Enable | AxisCommand::Disable | AxisCommand::ResetFault => {
+                let target = match cmd {
+                    AxisCommand::Enable => DriveState::OperationEnabled,
+                    AxisCommand::Disable => DriveState::ReadyToSwitchOn,
+                    _ => DriveState::SwitchOnDisabled,
+                };
+                if matches!(cmd, AxisCommand::Enable) {
+                    self.prepare_enable();
+                }
+                self.image.controlword &= !(Controlword::HALT_BIT | Controlword::NEW_SET_POINT_BIT);
+                let driver = StateMachineDriver::new(target, self.cfg.state_timeout, now)
+                    .map_err(|e| CommandError::FailedPrecondition(e.to_string()))?
+                    .with_previous(Controlword(self.image.controlword));
+                op.step = Step::Switch(driver);
+                op.accepted = true;
+                out.push(Output::Event(AxisEvent::Accepted { op: id }));
+            }
+            AxisCommand::Home => {
+                op.step = Step::AwaitMode(ModeOfOperation::Homing);
+                op.deadline = Some(now + self.cfg.state_timeout);
+                self.trajectory = None;
+                self.set_mode(ModeOfOperation::Homing);
+                self.image.controlword &= !(Controlword::HALT_BIT | Controlword::HOMING_START_BIT);
+                self.send_image(out);
+            }
+            AxisCommand::Move {
+                target,
+                relative,
+                velocity,
+                acceleration,
+            } => {
+                let base = match self.cfg.position_mode {
+                    PositionMode::Cyclic => self.demand,
+                    PositionMode::Profile => self.last_target,
+                };
+                op.target = if relative { base + target } else { target };
+                self.check_limits(op.target)?;
+                let v = velocity.unwrap_or(self.cfg.default_velocity);
+                let a = acceleration.unwrap_or(self.cfg.default_acceleration);
+                match self.cfg.position_mode {
+                    PositionMode::Cyclic => {
+                        let limits = Limits::symmetric(v, a)
+                            .map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+                        let profile = TrapezoidProfile::new(
+                            self.demand,
+                            self.demand_velocity,
+                            op.target,
+                            limits,
+                        )
+                        .map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+                        let total = Duration::from_secs_f64(profile.duration().min(1e6));
+                        self.trajectory = Some(Trajectory {
+                            profile,
+                            ratio: 1.0,
+                            start: None,
+                        });
+                        op.step = Step::CyclicMoving;
+                        op.deadline = Some(now + total + self.cfg.settle_timeout);
+                        op.accepted = true;
+                        out.push(Output::Event(AxisEvent::Accepted { op: id }));
+                    }
+                    PositionMode::Profile => {
+                        self.last_target = op.target;
+                        op.step = Step::AwaitSdo;
+                        op.deadline = Some(now + self.cfg.state_timeout);
+                        self.want_profile(v, a, out);
+                        self.set_mode(ModeOfOperation::ProfilePosition);
+                    }
+                }
+            }
+            AxisCommand::Jog {
+                velocity,
+                acceleration,
+            } => {
+                if velocity == 0.0 {
+                    return self.command(AxisCommand::Stop, now, out);
+                }
+                self.jog_deadline = Some(now + self.cfg.jog_deadman);
+                op.accepted = false;
+                self.op = Some(op);
+                self.retarget_jog(velocity, acceleration, now, out)?;
+                self.advance(now, out);
+                return Ok(id);
+            }
+            AxisCommand::Stop => {
+                op.step = Step::Stopping;
+                op.accepted = true;
+                out.push(Output::Event(AxisEvent::Accepted { op: id }));
+                self.start_stop(now, &mut op);
+                self.send_image(out);
+            }
+            AxisCommand::QuickStop => {
+                op.step = Step::Stopping;
+                op.accepted = true;
+                out.push(Output::Event(AxisEvent::Accepted { op: id }));
+                self.trajectory = None;
+                self.image.controlword = Controlword(self.image.controlword)
+                    .with_command(Controlword::QUICK_STOP)
+                    .0;
+                op.deadline = Some(now + self.cfg.state_timeout + self.cfg.settle_timeout);
+                self.send_image(out);
+            }
+        }
+        self.op = Some(op);
+        self.image_changed();
+        self.advance(now, out);
+        Ok(id)
+    }
+
+    /// Starts one axis of a coordinated cyclic move: `profile` in user
+    /// units (from this axis's demand position, at rest), stretched to wall
+    /// time by `ratio` (profile time per wall time). All axes of the move
+    /// start sampling at the same SYNC.
+    ///
+    /// # Errors
+    /// As [`Cia402Axis::command`].
+    pub fn start_coordinated(
+        &mut self,
+        profile: TrapezoidProfile,
+        ratio: f64,
+        now: Duration,
+        out: &mut Vec<Output>,
+    ) -> Result<OpId, CommandError> {
+        let target = profile.target();
+        self.check(&AxisCommand::Move {
+            target,
+            relative: false,
+            velocity: None,
+            acceleration: None,
+        })?;
+        if self.cfg.position_mode != PositionMode::Cyclic {
+            return Err(CommandError::FailedPrecondition(
+                "coordinated moves need cyclic (CSP) axes".into(),
+            ));
+        }
+        self.check_limits(target)?;
+        if self.demand_velocity != 0.0 {
+            return Err(CommandError::FailedPrecondition(
+                "the axis is moving: stop it before a coordinated move".into(),
+            ));
+        }
+        let id = self.next_id;
+        self.next_id += 1;
+        if self.op.is_some() {
+            self.finish(Outcome::Superseded, "superseded by move".into(), out);
+        }
+        let traj = Trajectory {
+            profile,
+            ratio,
+            start: None,
+        };
+        let total = Duration::from_secs_f64(traj.duration().min(1e6));
+        self.trajectory = Some(traj);
+        self.op = Some(Op {
+            id,
+            kind: CommandKind::Move,
+            step: Step::CyclicMoving,
+            command: AxisCommand::Move {
+                target,
+                relative: false,
+                velocity: None,
+                acceleration: None,
+            },
+            target,
+            deadline: Some(now + total + self.cfg.settle_timeout),
+            accepted: true,
+        });
+        out.push(Output::Event(AxisEvent::Accepted { op: id }));
+        Ok(id)
+    }
+
+    /// The current demand position (cyclic) or latest target (profile), in
+    /// user units.
+    pub fn demand(&self) -> f64 {
+        match self.cfg.position_mode {
+            PositionMode::Cyclic => self.demand,
+            PositionMode::Profile => self.last_target,
+        }
+    }
+
+    fn check(&self, cmd: &AxisCommand) -> Result<(), CommandError> {
+        if let Some(reason) = &self.node_lost {
+            return Err(CommandError::FailedPrecondition(format!(
+                "the drive's node is lost ({reason}): commands are refused until it is back"
+            )));
+        }
+        let Some(state) = self.state() else {
+            return Err(CommandError::FailedPrecondition(
+                "no process data from the drive yet (is its node booted and operational?)".into(),
+            ));
+        };
+        let finite = |name: &str, v: f64| {
+            if v.is_finite() {
+                Ok(())
+            } else {
+                Err(CommandError::InvalidArgument(format!(
+                    "{name} must be a finite number"
+                )))
+            }
+        };
+        let positive = |name: &str, v: Option<f64>, max: f64| -> Result<(), CommandError> {
+            if let Some(v) = v {
+                finite(name, v)?;
+                if v <= 0.0 {
+                    return Err(CommandError::InvalidArgument(format!(
+                        "{name} must be positive (0 = the axis default), got {v}"
+                    )));
+                }
+                if v > max {
+                    return Err(CommandError::OutOfRange(format!(
+                        "{name} {v} exceeds the axis maximum {max}"
+                    )));
+                }
+            }
+            Ok(())
+        };
+        let unit = &self.cfg.unit;
+        match *cmd {
+            AxisCommand::Move {
+                target,
+                velocity,
+                acceleration,
+                ..
+            } => {
+                finite("target", target)?;
+                positive(
+                    &format!("velocity ({unit}/s)"),
+                    velocity,
+                    self.cfg.max_velocity,
+                )?;
+                positive(
+                    &format!("acceleration ({unit}/s²)"),
+                    acceleration,
+                    self.cfg.max_acceleration,
+                )?;
+            }
+            AxisCommand::Jog {
+                velocity,
+                acceleration,
+            } => {
+                finite("velocity", velocity)?;
+                if velocity.abs() > self.cfg.max_velocity {
+                    return Err(CommandError::OutOfRange(format!(
+                        "jog velocity {velocity} {unit}/s exceeds the axis maximum {}",
+                        self.cfg.max_velocity
+                    )));
+                }
+                positive(
+                    &format!("acceleration ({unit}/s²)"),
+                    acceleration,
+                    self.cfg.max_acceleration,
+                )?;
+            }
+            _ => {}
+        }
+        let needs_enabled = matches!(
+            cmd,
+            AxisCommand::Move { .. } | AxisCommand::Jog { .. } | AxisCommand::Home
+        );
+        if self.is_fault() && (needs_enabled || matches!(cmd, AxisCommand::Enable)) {
+            let (code, text) = self.fault().unwrap_or_default();
+            return Err(CommandError::FailedPrecondition(format!(
+                "the drive is in fault (0x{code:04X} {text}): call ResetFault first"
+            )));
+        }
+        if needs_enabled && state != DriveState::OperationEnabled {
+            return Err(CommandError::FailedPrecondition(format!(
+                "the axis is not enabled (drive state: {state}): call Enable first"
+            )));
+        }
+        Ok(())
+    }
+
+    fn check_limits(&self, target: f64) -> Result<(), CommandError> {
+        let unit = &self.cfg.unit;
+        if let Some(max) = self.cfg.max_position
+            && target > max
+        {
+            return Err(CommandError::OutOfRange(format!(
+                "target {target} {unit} is beyond the soft limit max_position = {max} {unit}"
+            )));
+        }
+        if let Some(min) = self.cfg.min_position
+            && target < min
+        {
+            return Err(CommandError::OutOfRange(format!(
+                "target {target} {unit} is beyond the soft limit min_position = {min} {unit}"
+            )));
+        }
+        Ok(())
+    }
+
+    fn prepare_enable(&mut self) {
+        // Enable in the position mode, holding the current position: a
+        // cyclic drive follows 0x607A from the first enabled cycle.
+        let mode = self.mode_for_position();
+        self.set_mode(mode);
+        self.trajectory = None;
+        self.demand = self.actual();
+        self.demand_velocity = 0.0;
+        self.last_target = self.demand;
+        self.image.target_position = self.position.unwrap_or_default();
+        self.image.target_velocity = 0;
+    }
+
+    fn set_mode(&mut self, mode: ModeOfOperation) {
+        if self.image.mode != mode.code() {
+            self.image.mode = mode.code();
+            self.image_changed();
+        }
+    }
+
+    fn mode_is(&self, mode: ModeOfOperation) -> bool {
+        // Without 0x6061 in the process data the mode is taken as applied.
+        self.mode_display.is_none_or(|m| m == mode.code())
+    }
+
+    fn image_changed(&mut self) {
+        self.fresh = 0;
+    }
+
+    /// Asks for the profile velocity/acceleration (user units) unless the
+    /// drive holds them already.
+    fn want_profile(&mut self, v: f64, a: f64, out: &mut Vec<Output>) {
+        let u = self.units();
+        let want = (u.to_counts_unsigned(v), u.to_counts_unsigned(a));
+        if self.profile_written == Some(want) || self.sdo_in_flight == Some(want) {
+            return;
+        }
+        if self.sdo_in_flight.is_some() {
+            // The writes in flight are for an older command; this one
+            // writes after them (see advance).
+            self.profile_written = None;
+            return;
+        }
+        self.sdo_in_flight = Some(want);
+        out.push(Output::SdoWrites(vec![
+            (obj::PROFILE_VELOCITY, want.0.to_le_bytes().to_vec()),
+            (obj::PROFILE_ACCELERATION, want.1.to_le_bytes().to_vec()),
+            (obj::PROFILE_DECELERATION, want.1.to_le_bytes().to_vec()),
+        ]));
+    }
+
+    fn wanted_profile(&self, op: &Op) -> (f64, f64) {
+        match op.command {
+            AxisCommand::Move {
+                velocity,
+                acceleration,
+                ..
+            } => (
+                velocity.unwrap_or(self.cfg.default_velocity),
+                acceleration.unwrap_or(self.cfg.default_acceleration),
+            ),
+            AxisCommand::Jog {
+                velocity,
+                acceleration,
+            } => (
+                velocity.abs(),
+                acceleration.unwrap_or(self.cfg.default_acceleration),
+            ),
+            _ => (self.cfg.default_velocity, self.cfg.default_acceleration),
+        }
+    }
+
+    fn retarget_jog(
+        &mut self,
+        velocity: f64,
+        acceleration: Option<f64>,
+        now: Duration,
+        out: &mut Vec<Output>,
+    ) -> Result<(), CommandError> {
+        let a = acceleration.unwrap_or(self.cfg.default_acceleration);
+        if let Some(op) = &mut self.op {
+            op.command = AxisCommand::Jog {
+                velocity,
+                acceleration,
+            };
+        }
+        match self.cfg.position_mode {
+            PositionMode::Cyclic => {
+                let far = if velocity > 0.0 {
+                    self.cfg.max_position.unwrap_or(self.demand + 1e6)
+                } else {
+                    self.cfg.min_position.unwrap_or(self.demand - 1e6)
+                };
+                let limits = Limits::symmetric(velocity.abs(), a)
+                    .map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+                let profile = TrapezoidProfile::new(self.demand, self.demand_velocity, far, limits)
+                    .map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+                self.trajectory = Some(Trajectory {
+                    profile,
+                    ratio: 1.0,
+                    start: None,
+                });
+                if let Some(op) = &mut self.op {
+                    op.step = Step::Jogging;
+                    if !op.accepted {
+                        op.accepted = true;
+                        out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
+                    }
+                }
+            }
+            PositionMode::Profile => {
+                self.want_profile(velocity.abs(), a, out);
+                self.image.target_velocity = self.units().to_counts(velocity);
+                self.image.controlword &= !Controlword::HALT_BIT;
+                self.set_mode(ModeOfOperation::ProfileVelocity);
+                if let Some(op) = &mut self.op
+                    && !matches!(op.step, Step::Jogging)
+                {
+                    op.step = Step::AwaitSdo;
+                    op.deadline = Some(now + self.cfg.state_timeout);
+                }
+                if matches!(self.op.as_ref().map(|o| &o.step), Some(Step::Jogging)) {
+                    out.push(Output::Image(self.image));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn start_stop(&mut self, now: Duration, op: &mut Op) {
+        match self.cfg.position_mode {
+            PositionMode::Cyclic
+                if self.image.mode == ModeOfOperation::CyclicSynchronousPosition.code() =>
+            {
+                let decel = self
+                    .trajectory
+                    .as_ref()
+                    .map(|t| t.profile.limits().deceleration() * t.ratio * t.ratio)
+                    .unwrap_or(self.cfg.default_acceleration)
+                    .max(f64::MIN_POSITIVE);
+                let v = self.demand_velocity;
+                let stop_at = self.demand + v * v.abs() / (2.0 * decel);
+                let limits = Limits::symmetric(v.abs().max(1e-9), decel);
+                self.trajectory = limits
+                    .ok()
+                    .and_then(|l| TrapezoidProfile::new(self.demand, v, stop_at, l).ok())
+                    .map(|profile| Trajectory {
+                        profile,
+                        ratio: 1.0,
+                        start: None,
+                    });
+                let t = self.trajectory.as_ref().map_or(0.0, Trajectory::duration);
+                op.deadline = Some(now + Duration::from_secs_f64(t) + self.cfg.settle_timeout);
+            }
+            _ => {
+                self.image.controlword |= Controlword::HALT_BIT;
+                self.image.target_velocity = 0;
+                op.deadline = Some(now + self.cfg.state_timeout + self.cfg.settle_timeout);
+            }
+        }
+    }
+
+    fn finish(&mut self, outcome: Outcome, detail: String, out: &mut Vec<Output>) {
+        if let Some(op) = self.op.take() {
+            if matches!(op.kind, CommandKind::Jog) {
+                self.jog_deadline = None;
+            }
+            out.push(Output::Event(AxisEvent::Done {
+                op: op.id,
+                command: op.kind,
+                outcome,
+                detail,
+            }));
+        }
+    }
+
+    fn send_image(&mut self, out: &mut Vec<Output>) {
+        self.image_changed();
+        out.push(Output::Image(self.image));
+    }
+
+    /// Moves the command in progress forward.
+    fn advance(&mut self, now: Duration, out: &mut Vec<Output>) {
+        // The dead-man of a jog.
+        if let Some(d) = self.jog_deadline
+            && now >= d
+        {
+            self.jog_deadline = None;
+            if let Some(op) = &self.op
+                && op.kind == CommandKind::Jog
+            {
+                let mut op = self.op.take().expect("op");
+                op.step = Step::Stopping;
+                self.start_stop(now, &mut op);
+                self.op = Some(op);
+                if self.cfg.position_mode == PositionMode::Profile {
+                    self.send_image(out);
+                }
+            }
+        }
+        let Some(mut op) = self.op.take() else {
+            return;
+        };
+        let result = self.step(&mut op, now, out);
+        match result {
+            None => self.op = Some(op),
+            Some((outcome, detail)) => {
+                self.op = Some(op);
+                self.finish(outcome, detail, out);
+            }
+        }
+    }
+
+    /// One step of `op`; `Some` when it ended.
+    fn step(
+        &mut self,
+        op: &mut Op,
+        now: Duration,
+        out: &mut Vec<Output>,
+    ) -> Option<(Outcome, String)> {
+        let unit = self.cfg.unit.clone();
+        let fresh = self.fresh >= 2;
+        if let Some(d) = op.deadline
+            && now >= d
+            && !matches!(op.step, Step::Switch(_))
+        {
+            let what = match op.step {
+                Step::AwaitSdo => "the profile parameters were not written in time".to_string(),
+                Step::AwaitMode(m) => format!(
+                    "the drive did not switch to {m} mode within {} ms",
+                    self.cfg.state_timeout.as_millis()
+                ),
+                Step::AwaitAck => "the drive did not acknowledge the set-point".to_string(),
+                Step::Homing => "homing did not complete in time".to_string(),
+                _ => format!(
+                    "not in position in time: at {:.3} {unit}, target {:.3} {unit}",
+                    self.actual(),
+                    op.target
+                ),
+            };
+            if matches!(op.step, Step::Jogging) {
+                // A jog has no deadline of its own besides the dead-man.
+                op.deadline = None;
+            } else {
+                return Some((Outcome::Timeout, what));
+            }
+        }
+        loop {
+            match &mut op.step {
+                Step::Switch(driver) => {
+                    let step = match self.statusword {
+                        Some(sw) if self.fresh > 0 || driver.statusword().is_none() => {
+                            self.fresh = 0;
+                            driver.on_statusword(sw, now)
+                        }
+                        _ => driver.on_tick(now),
+                    };
+                    return match step {
+                        DriverStep::Send(cw) => {
+                            self.image.controlword =
+                                (self.image.controlword & !Controlword::COMMAND_MASK) | cw.bits();
+                            self.send_image(out);
+                            None
+                        }
+                        DriverStep::Wait => None,
+                        DriverStep::Done(Ok(())) => {
+                            let state = driver.target();
+                            Some((Outcome::Completed, format!("drive in {state}")))
+                        }
+                        DriverStep::Done(Err(e)) => Some((Outcome::Timeout, e.to_string())),
+                    };
+                }
+                Step::AwaitSdo => {
+                    let (v, a) = self.wanted_profile(op);
+                    let u = self.units();
+                    let want = (u.to_counts_unsigned(v), u.to_counts_unsigned(a));
+                    if self.profile_written == Some(want) {
+                        let mode = match op.kind {
+                            CommandKind::Jog => ModeOfOperation::ProfileVelocity,
+                            _ => ModeOfOperation::ProfilePosition,
+                        };
+                        op.step = Step::AwaitMode(mode);
+                        if !self.mode_is(mode) {
+                            // Switch modes first; the set-point follows
+                            // once the drive displays the new mode.
+                            self.send_image(out);
+                        }
+                        continue;
+                    }
+                    if self.sdo_in_flight.is_none() {
+                        self.want_profile(v, a, out);
+                    }
+                    return None;
+                }
+                Step::AwaitMode(mode) => {
+                    let mode = *mode;
+                    if !self.mode_is(mode) {
+                        return None;
+                    }
+                    match mode {
+                        ModeOfOperation::ProfilePosition => {
+                            self.image.target_position = self.units().to_counts(op.target);
+                            self.image.controlword = (self.image.controlword
+                                & !Controlword::HALT_BIT
+                                & !Controlword::RELATIVE_BIT)
+                                | Controlword::NEW_SET_POINT_BIT
+                                | Controlword::CHANGE_SET_IMMEDIATELY_BIT;
+                            self.send_image(out);
+                            op.step = Step::AwaitAck;
+                            op.deadline = Some(now + self.cfg.state_timeout);
+                            return None;
+                        }
+                        ModeOfOperation::ProfileVelocity => {
+                            op.step = Step::Jogging;
+                            op.deadline = None;
+                            self.send_image(out);
+                            if !op.accepted {
+                                op.accepted = true;
+                                out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
+                            }
+                            return None;
+                        }
+                        ModeOfOperation::Homing => {
+                            self.image.controlword |= Controlword::HOMING_START_BIT;
+                            self.send_image(out);
+                            op.step = Step::Homing;
+                            op.deadline = Some(now + self.cfg.homing_timeout);
+                            op.accepted = true;
+                            out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
+                            return None;
+                        }
+                        _ => return None,
+                    }
+                }
+                Step::AwaitAck => {
+                    let sw = self.statusword?;
+                    if !sw.set_point_acknowledge() {
+                        return None;
+                    }
+                    self.image.controlword &= !Controlword::NEW_SET_POINT_BIT;
+                    self.send_image(out);
+                    op.accepted = true;
+                    out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
+                    op.step = Step::ProfileMoving;
+                    let dist = (op.target - self.actual()).abs();
+                    let (v, a) = self.wanted_profile(op);
+                    let est = Limits::symmetric(v, a)
+                        .ok()
+                        .and_then(|l| TrapezoidProfile::rest_to_rest(0.0, dist, l).ok())
+                        .map_or(0.0, |p| p.duration());
+                    op.deadline =
+                        Some(now + Duration::from_secs_f64(est.min(1e6)) + self.cfg.settle_timeout);
+                    return None;
+                }
+                Step::ProfileMoving => {
+                    let sw = self.statusword?;
+                    if fresh && !sw.set_point_acknowledge() && sw.target_reached() {
+                        return Some((
+                            Outcome::Completed,
+                            format!("target reached at {:.3} {unit}", self.actual()),
+                        ));
+                    }
+                    return None;
+                }
+                Step::CyclicMoving => {
+                    if self.trajectory.is_none()
+                        && fresh
+                        && (self.actual() - op.target).abs() <= self.cfg.in_position_window
+                        && self.standing_still()
+                    {
+                        return Some((
+                            Outcome::Completed,
+                            format!("target reached at {:.3} {unit}", self.actual()),
+                        ));
+                    }
+                    return None;
+                }
+                Step::Homing => {
+                    let sw = self.statusword?;
+                    if !fresh {
+                        return None;
+                    }
+                    match sw.homing_status() {
+                        HomingStatus::Completed => {
+                            self.homed = true;
+                            self.image.controlword &= !Controlword::HOMING_START_BIT;
+                            // Back to the position mode, holding the new
+                            // position.
+                            self.demand = self.actual();
+                            self.demand_velocity = 0.0;
+                            self.last_target = self.demand;
+                            self.image.target_position = self.position.unwrap_or_default();
+                            let mode = self.mode_for_position();
+                            self.image.mode = mode.code();
+                            self.send_image(out);
+                            op.step = Step::HomingReturn;
+                            op.deadline = Some(now + self.cfg.state_timeout);
+                            return None;
+                        }
+                        HomingStatus::ErrorMoving | HomingStatus::ErrorStopped => {
+                            self.image.controlword &= !Controlword::HOMING_START_BIT;
+                            self.send_image(out);
+                            return Some((
+                                Outcome::Fault,
+                                format!("homing error reported by the drive (statusword {sw})"),
+                            ));
+                        }
+                        _ => return None,
+                    }
+                }
+                Step::HomingReturn => {
+                    let mode = self.mode_for_position();
+                    if self.mode_is(mode) && fresh {
+                        return Some((
+                            Outcome::Completed,
+                            format!("homed at {:.3} {unit}", self.actual()),
+                        ));
+                    }
+                    return None;
+                }
+                Step::Jogging => return None,
+                Step::Stopping => {
+                    let done = match op.kind {
+                        CommandKind::QuickStop => {
+                            fresh
+                                && self.state() != Some(DriveState::OperationEnabled)
+                                && self.state() != Some(DriveState::QuickStopActive)
+                                || fresh
+                                    && self.state() == Some(DriveState::QuickStopActive)
+                                    && self.at_rest()
+                        }
+                        _ => match self.cfg.position_mode {
+                            PositionMode::Cyclic
+                                if self.image.mode
+                                    == ModeOfOperation::CyclicSynchronousPosition.code() =>
+                            {
+                                self.trajectory.is_none() && fresh
+                            }
+                            _ => fresh && self.at_rest(),
+                        },
+                    };
+                    if done
+                        || self.state() != Some(DriveState::OperationEnabled)
+                            && fresh
+                            && op.kind != CommandKind::QuickStop
+                    {
+                        let outcome = if op.kind == CommandKind::Jog {
+                            Outcome::Stopped
+                        } else {
+                            Outcome::Completed
+                        };
+                        let detail = if op.kind == CommandKind::Jog {
+                            format!(
+                                "jog dead-man released; at rest at {:.3} {unit}",
+                                self.actual()
+                            )
+                        } else {
+                            format!("at rest at {:.3} {unit}", self.actual())
+                        };
+                        return Some((outcome, detail));
+                    }
+                    return None;
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

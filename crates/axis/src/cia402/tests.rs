@@ -1,0 +1,620 @@
+//! The axis controller in closed loop with the simulated CiA 402 drive
+//! (`cangate-sim`), frame by frame in virtual time: 1 ms model steps, SYNC
+//! every 10 ms, TPDOs decoded per the standard layout.
+
+use super::*;
+use crate::process_data::{FeedbackTrigger, encode_image, feedback_from_values, standard_pdos};
+use cangate_can::{CanId, Frame};
+use cangate_canopen::NodeId;
+use cangate_canopen::pdo::PdoConfig;
+use cangate_canopen::value::Value;
+use cangate_sim::Device;
+use cangate_sim::drive::{SimDrive, SimDriveOptions};
+
+const MS: Duration = Duration::from_millis(1);
+const NODE: u8 = 1;
+
+struct Rig {
+    axis: Cia402Axis,
+    drive: SimDrive,
+    now: Duration,
+    sync_period: Duration,
+    rpdos: Vec<PdoConfig>,
+    tpdos: Vec<PdoConfig>,
+    /// Every RPDO sent: (time, COB-ID, payload).
+    sent: Vec<(Duration, u16, Vec<u8>)>,
+    events: Vec<AxisEvent>,
+    /// Demand sent at each SYNC (cyclic axes).
+    setpoints: Vec<(Duration, i32)>,
+}
+
+fn frame(id: u16, data: &[u8]) -> Frame {
+    Frame::new(CanId::Standard(id), data).unwrap()
+}
+
+impl Rig {
+    fn new(mode: PositionMode) -> Rig {
+        let node = NodeId::new(u32::from(NODE)).unwrap();
+        let mut drive = SimDrive::bundled(node, SimDriveOptions::default());
+        drive.start(Duration::ZERO);
+        let (rpdos, tpdos) = standard_pdos(node, FeedbackTrigger::Sync);
+        // 1000 counts per mm.
+        let axis = Cia402Axis::new(Cia402Config::example(1000.0, mode));
+        let mut rig = Rig {
+            axis,
+            drive,
+            now: Duration::ZERO,
+            sync_period: 10 * MS,
+            rpdos,
+            tpdos,
+            sent: Vec::new(),
+            events: Vec::new(),
+            setpoints: Vec::new(),
+        };
+        let mut writes = Vec::new();
+        for p in rig.rpdos.iter().chain(&rig.tpdos) {
+            writes.extend(p.sdo_writes().unwrap());
+        }
+        writes.extend(rig.axis.boot_writes());
+        // Homing method 35: the current position is the home.
+        writes.push((obj::HOMING_METHOD, vec![35]));
+        for (addr, data) in writes {
+            rig.sdo_write(addr, &data);
+        }
+        let start = rig.drive.on_frame(&frame(0x000, &[0x01, NODE]), rig.now);
+        rig.deliver(start);
+        rig.run(30 * MS);
+        assert!(rig.axis.snapshot().state.is_some(), "process data flows");
+        rig
+    }
+
+    fn sdo_write(&mut self, addr: ObjectAddress, data: &[u8]) {
+        assert!((1..=4).contains(&data.len()));
+        let n = 4 - data.len() as u8;
+        let mut f = vec![
+            0x23 | (n << 2),
+            addr.index as u8,
+            (addr.index >> 8) as u8,
+            addr.sub,
+        ];
+        f.extend_from_slice(data);
+        f.resize(8, 0);
+        let reply = self
+            .drive
+            .on_frame(&frame(0x600 + u16::from(NODE), &f), self.now);
+        let ok = reply
+            .iter()
+            .any(|r| r.raw_id() == 0x580 + u32::from(NODE) && r.data()[0] == 0x60);
+        assert!(ok, "SDO write {addr} accepted: {reply:?}");
+    }
+
+    fn deliver(&mut self, frames: Vec<Frame>) {
+        let mut out = Vec::new();
+        for f in frames {
+            let id = f.raw_id() as u16;
+            if let Some(p) = self.tpdos.iter().find(|p| p.cob_id == id) {
+                let values = p.decode(None, f.data()).unwrap();
+                let fb = feedback_from_values(values.iter().map(|(m, v)| (m.addr, v)));
+                self.axis.on_feedback(fb, self.now, &mut out);
+            }
+        }
+        self.handle(out);
+    }
+
+    fn handle(&mut self, outputs: Vec<Output>) {
+        for o in outputs {
+            match o {
+                Output::Image(image) => {
+                    for (cob, data) in encode_image(&image, &self.rpdos).unwrap() {
+                        self.sent.push((self.now, cob, data.clone()));
+                        let replies = self.drive.on_frame(&frame(cob, &data), self.now);
+                        self.deliver(replies);
+                    }
+                }
+                Output::SdoWrites(writes) => {
+                    for (addr, data) in writes {
+                        self.sdo_write(addr, &data);
+                    }
+                    let mut out = Vec::new();
+                    self.axis.on_sdo_done(Ok(()), self.now, &mut out);
+                    self.handle(out);
+                }
+                Output::Event(e) => self.events.push(e),
+            }
+        }
+    }
+
+    fn command(&mut self, cmd: AxisCommand) -> Result<OpId, CommandError> {
+        let mut out = Vec::new();
+        let r = self.axis.command(cmd, self.now, &mut out);
+        self.handle(out);
+        r
+    }
+
+    fn step(&mut self) {
+        self.now += MS;
+        let frames = self.drive.on_tick(self.now);
+        self.deliver(frames);
+        if self
+            .now
+            .as_millis()
+            .is_multiple_of(self.sync_period.as_millis())
+        {
+            let frames = self.drive.on_frame(&frame(0x080, &[]), self.now);
+            let mut out = Vec::new();
+            self.axis.on_sync(self.now, &mut out);
+            if self.axis.config().position_mode == PositionMode::Cyclic
+                && out.iter().any(|o| matches!(o, Output::Image(_)))
+            {
+                self.setpoints
+                    .push((self.now, self.axis.image().target_position));
+            }
+            self.handle(out);
+            self.deliver(frames);
+        }
+        let mut out = Vec::new();
+        self.axis.on_tick(self.now, &mut out);
+        self.handle(out);
+    }
+
+    fn run(&mut self, d: Duration) {
+        let end = self.now + d;
+        while self.now < end {
+            self.step();
+        }
+    }
+
+    /// Runs until command `op` is done (bounded), returning its outcome.
+    fn run_until_done(&mut self, op: OpId, limit: Duration) -> (Outcome, String) {
+        let end = self.now + limit;
+        while self.now < end {
+            if let Some(r) = self.done(op) {
+                return r;
+            }
+            self.step();
+        }
+        panic!(
+            "op {op} not done within {limit:?}; events {:?}",
+            self.events
+        );
+    }
+
+    fn done(&self, op: OpId) -> Option<(Outcome, String)> {
+        self.events.iter().find_map(|e| match e {
+            AxisEvent::Done {
+                op: o,
+                outcome,
+                detail,
+                ..
+            } if *o == op => Some((*outcome, detail.clone())),
+            _ => None,
+        })
+    }
+
+    fn accepted(&self, op: OpId) -> bool {
+        self.events
+            .iter()
+            .any(|e| matches!(e, AxisEvent::Accepted { op: o } if *o == op))
+    }
+
+    fn enable(&mut self) {
+        let op = self.command(AxisCommand::Enable).unwrap();
+        let (outcome, detail) = self.run_until_done(op, Duration::from_secs(2));
+        assert_eq!(outcome, Outcome::Completed, "{detail}");
+        assert_eq!(self.drive.state(), DriveState::OperationEnabled);
+    }
+
+    fn mv(&mut self, target: f64) -> OpId {
+        self.command(AxisCommand::Move {
+            target,
+            relative: false,
+            velocity: Some(100.0),
+            acceleration: Some(1000.0),
+        })
+        .unwrap()
+    }
+}
+
+#[test]
+fn commands_before_process_data_are_refused_clearly() {
+    let mut axis = Cia402Axis::new(Cia402Config::example(1000.0, PositionMode::Profile));
+    let err = axis
+        .command(AxisCommand::Enable, Duration::ZERO, &mut Vec::new())
+        .unwrap_err();
+    assert!(matches!(err, CommandError::FailedPrecondition(m) if m.contains("no process data")));
+}
+
+#[test]
+fn enable_walks_the_state_machine_and_moves_need_it() {
+    let mut rig = Rig::new(PositionMode::Profile);
+    let refused = rig
+        .command(AxisCommand::Move {
+            target: 1.0,
+            relative: false,
+            velocity: None,
+            acceleration: None,
+        })
+        .unwrap_err();
+    assert!(
+        matches!(&refused, CommandError::FailedPrecondition(m)
+            if m.contains("not enabled") && m.contains("switch on disabled")),
+        "{refused:?}"
+    );
+    rig.enable();
+    // shutdown 0x06, switch on 0x07, enable operation 0x0F on RPDO1.
+    let cws: Vec<u16> = rig
+        .sent
+        .iter()
+        .filter(|(_, cob, _)| *cob == 0x201)
+        .map(|(_, _, d)| u16::from_le_bytes([d[0], d[1]]))
+        .collect();
+    assert!(cws.ends_with(&[0x0006, 0x0007, 0x000F]), "{cws:04X?}");
+}
+
+#[test]
+fn profile_move_handshake_frames_are_exact() {
+    let mut rig = Rig::new(PositionMode::Profile);
+    rig.enable();
+    rig.sent.clear();
+    let op = rig.mv(12.5);
+    let (outcome, detail) = rig.run_until_done(op, Duration::from_secs(3));
+    assert_eq!(outcome, Outcome::Completed, "{detail}");
+    assert!(rig.accepted(op));
+    assert_eq!(rig.drive.position(), 12_500.0);
+    // 1) target 12 500 counts (RPDO2 first), then controlword 0x003F:
+    //    enable operation + new set-point (bit 4) + change set
+    //    immediately (bit 5), mode 1;
+    // 2) after the set-point acknowledge: 0x002F (bit 4 cleared).
+    let frames: Vec<(u16, Vec<u8>)> = rig.sent.iter().map(|(_, c, d)| (*c, d.clone())).collect();
+    assert_eq!(
+        frames,
+        vec![
+            (0x301, vec![0xD4, 0x30, 0, 0, 0, 0, 0, 0]),
+            (0x201, vec![0x3F, 0x00, 0x01]),
+            (0x301, vec![0xD4, 0x30, 0, 0, 0, 0, 0, 0]),
+            (0x201, vec![0x2F, 0x00, 0x01]),
+        ]
+    );
+    assert!(detail.contains("12.500"), "{detail}");
+    // The profile parameters went by SDO first (100 mm/s = 100 000
+    // counts/s).
+    assert_eq!(
+        rig.drive
+            .node()
+            .get(obj::PROFILE_VELOCITY)
+            .and_then(Value::as_u32),
+        Some(100_000)
+    );
+}
+
+#[test]
+fn relative_moves_add_to_the_latest_target() {
+    let mut rig = Rig::new(PositionMode::Profile);
+    rig.enable();
+    let op = rig.mv(5.0);
+    rig.run_until_done(op, Duration::from_secs(3));
+    let op = rig
+        .command(AxisCommand::Move {
+            target: -2.0,
+            relative: true,
+            velocity: Some(100.0),
+            acceleration: Some(1000.0),
+        })
+        .unwrap();
+    assert_eq!(
+        rig.run_until_done(op, Duration::from_secs(3)).0,
+        Outcome::Completed
+    );
+    assert_eq!(rig.drive.position(), 3_000.0);
+}
+
+#[test]
+fn soft_limits_and_maxima_are_enforced_before_anything_is_sent() {
+    let mut rig = Rig::new(PositionMode::Profile);
+    rig.enable();
+    rig.sent.clear();
+    let err = rig
+        .command(AxisCommand::Move {
+            target: 600.0,
+            relative: false,
+            velocity: None,
+            acceleration: None,
+        })
+        .unwrap_err();
+    assert!(
+        matches!(&err, CommandError::OutOfRange(m) if m.contains("max_position = 500 mm")),
+        "{err:?}"
+    );
+    let err = rig
+        .command(AxisCommand::Move {
+            target: 1.0,
+            relative: false,
+            velocity: Some(1e6),
+            acceleration: None,
+        })
+        .unwrap_err();
+    assert!(matches!(err, CommandError::OutOfRange(_)), "{err:?}");
+    let err = rig
+        .command(AxisCommand::Move {
+            target: f64::NAN,
+            relative: false,
+            velocity: None,
+            acceleration: None,
+        })
+        .unwrap_err();
+    assert!(matches!(err, CommandError::InvalidArgument(_)), "{err:?}");
+    let err = rig
+        .command(AxisCommand::Jog {
+            velocity: -300.0,
+            acceleration: None,
+        })
+        .unwrap_err();
+    assert!(matches!(err, CommandError::OutOfRange(_)), "{err:?}");
+    assert!(rig.sent.is_empty());
+}
+
+#[test]
+fn cyclic_move_samples_a_trapezoid_within_the_limits_every_sync() {
+    let mut rig = Rig::new(PositionMode::Cyclic);
+    rig.enable();
+    rig.setpoints.clear();
+    let op = rig.mv(20.0);
+    let (outcome, detail) = rig.run_until_done(op, Duration::from_secs(3));
+    assert_eq!(outcome, Outcome::Completed, "{detail}");
+    assert!((rig.drive.position() - 20_000.0).abs() <= 10.0);
+    // Every SYNC carried a set-point; steps respect v ≤ 100 mm/s (1000
+    // counts per 10 ms cycle) and a ≤ 1000 mm/s² (Δv ≤ 100 counts per
+    // cycle per cycle), plus rounding.
+    let p: Vec<f64> = rig.setpoints.iter().map(|(_, c)| f64::from(*c)).collect();
+    assert!(p.len() > 20);
+    let syncs: Vec<u128> = rig.setpoints.iter().map(|(t, _)| t.as_millis()).collect();
+    assert!(syncs.windows(2).all(|w| w[1] - w[0] == 10), "one per SYNC");
+    let v: Vec<f64> = p.windows(2).map(|w| w[1] - w[0]).collect();
+    assert!(v.iter().all(|dv| dv.abs() <= 1000.0 + 1.0), "{v:?}");
+    let a: Vec<f64> = v.windows(2).map(|w| w[1] - w[0]).collect();
+    assert!(a.iter().all(|da| da.abs() <= 100.0 + 2.0), "{a:?}");
+    assert_eq!(*p.last().unwrap(), 20_000.0);
+    assert!(p.windows(2).all(|w| w[1] >= w[0]), "monotonic");
+}
+
+#[test]
+fn cyclic_enable_holds_the_current_position() {
+    let mut rig = Rig::new(PositionMode::Cyclic);
+    rig.enable();
+    rig.run(100 * MS);
+    assert_eq!(rig.drive.position(), 0.0);
+    assert!(!rig.setpoints.is_empty());
+    assert!(rig.setpoints.iter().all(|(_, c)| *c == 0));
+    assert_eq!(
+        rig.drive.mode(),
+        Some(ModeOfOperation::CyclicSynchronousPosition)
+    );
+}
+
+#[test]
+fn stop_decelerates_a_cyclic_move_to_rest_short_of_the_target() {
+    let mut rig = Rig::new(PositionMode::Cyclic);
+    rig.enable();
+    let mv = rig.mv(100.0);
+    rig.run(300 * MS);
+    let stop = rig.command(AxisCommand::Stop).unwrap();
+    assert_eq!(rig.done(mv).unwrap().0, Outcome::Stopped);
+    assert_eq!(
+        rig.run_until_done(stop, Duration::from_secs(2)).0,
+        Outcome::Completed
+    );
+    rig.run(100 * MS);
+    let p = rig.drive.position();
+    assert!(p > 15_000.0 && p < 100_000.0, "{p}");
+    assert!(rig.drive.velocity().abs() < 1.0);
+}
+
+#[test]
+fn profile_stop_halts_and_the_next_move_runs() {
+    let mut rig = Rig::new(PositionMode::Profile);
+    rig.enable();
+    let mv = rig.mv(100.0);
+    rig.run(300 * MS);
+    let stop = rig.command(AxisCommand::Stop).unwrap();
+    assert_eq!(
+        rig.run_until_done(stop, Duration::from_secs(2)).0,
+        Outcome::Completed
+    );
+    assert_eq!(rig.done(mv).unwrap().0, Outcome::Stopped);
+    let halted_at = rig.drive.position();
+    assert!(halted_at < 100_000.0);
+    rig.run(200 * MS);
+    assert_eq!(rig.drive.position(), halted_at, "stays halted");
+    let op = rig.mv(10.0);
+    assert_eq!(
+        rig.run_until_done(op, Duration::from_secs(3)).0,
+        Outcome::Completed
+    );
+    assert_eq!(rig.drive.position(), 10_000.0);
+}
+
+#[test]
+fn jog_runs_while_repeated_and_stops_at_the_dead_man() {
+    for mode in [PositionMode::Profile, PositionMode::Cyclic] {
+        let mut rig = Rig::new(mode);
+        rig.enable();
+        let jog = AxisCommand::Jog {
+            velocity: 20.0,
+            acceleration: Some(1000.0),
+        };
+        let op = rig.command(jog).unwrap();
+        for _ in 0..5 {
+            rig.run(200 * MS);
+            assert_eq!(rig.command(jog).unwrap(), op, "{mode:?}: same jog");
+        }
+        assert!(rig.done(op).is_none(), "{mode:?}: still jogging");
+        // ~1 s at 20 mm/s.
+        let p = rig.drive.position();
+        assert!(p > 15_000.0, "{mode:?}: {p}");
+        // No renewal: the dead-man (500 ms) stops it.
+        let (outcome, detail) = rig.run_until_done(op, Duration::from_secs(2));
+        assert_eq!(outcome, Outcome::Stopped, "{mode:?}: {detail}");
+        assert!(detail.contains("dead-man"), "{detail}");
+        rig.run(100 * MS);
+        assert!(rig.drive.velocity().abs() < 1.0, "{mode:?}");
+        let stopped_at = rig.drive.position();
+        assert!(stopped_at < 40_000.0, "{mode:?}: {stopped_at}");
+    }
+}
+
+#[test]
+fn quick_stop_leaves_operation_enabled_and_enable_recovers() {
+    let mut rig = Rig::new(PositionMode::Profile);
+    rig.enable();
+    let mv = rig.mv(100.0);
+    rig.run(200 * MS);
+    let qs = rig.command(AxisCommand::QuickStop).unwrap();
+    assert_eq!(rig.done(mv).unwrap().0, Outcome::Stopped);
+    assert_eq!(
+        rig.run_until_done(qs, Duration::from_secs(2)).0,
+        Outcome::Completed
+    );
+    assert_ne!(rig.drive.state(), DriveState::OperationEnabled);
+    rig.enable();
+}
+
+#[test]
+fn homing_runs_the_method_and_returns_to_the_position_mode() {
+    for mode in [PositionMode::Profile, PositionMode::Cyclic] {
+        let mut rig = Rig::new(mode);
+        rig.enable();
+        let op = rig.mv(7.0);
+        rig.run_until_done(op, Duration::from_secs(3));
+        assert!(!rig.axis.snapshot().homed);
+        let home = rig.command(AxisCommand::Home).unwrap();
+        let (outcome, detail) = rig.run_until_done(home, Duration::from_secs(3));
+        assert_eq!(outcome, Outcome::Completed, "{mode:?}: {detail}");
+        let s = rig.axis.snapshot();
+        assert!(s.homed);
+        // Method 35: the current position becomes the home offset (0).
+        assert!(rig.drive.position().abs() < 1.0, "{mode:?}");
+        assert!(s.position.abs() <= 0.001, "{mode:?}");
+        // And the next move runs in the position mode.
+        let op = rig.mv(1.0);
+        assert_eq!(
+            rig.run_until_done(op, Duration::from_secs(3)).0,
+            Outcome::Completed,
+            "{mode:?}"
+        );
+        assert!((rig.drive.position() - 1000.0).abs() <= 10.0, "{mode:?}");
+    }
+}
+
+#[test]
+fn fault_ends_the_move_reports_the_emcy_and_reset_enable_recovers() {
+    let mut rig = Rig::new(PositionMode::Cyclic);
+    rig.enable();
+    let mv = rig.mv(100.0);
+    rig.run(100 * MS);
+    let frames = rig.drive.inject_fault(0x2310);
+    assert!(frames.iter().any(|f| f.raw_id() == 0x081));
+    let mut out = Vec::new();
+    rig.axis
+        .on_emcy(0x2310, "continuous over-current", &mut out);
+    rig.handle(out);
+    rig.run(100 * MS);
+    assert_eq!(rig.done(mv).unwrap().0, Outcome::Fault);
+    assert!(rig.events.iter().any(|e| matches!(e,
+        AxisEvent::Fault { code: 0x2310, text } if text == "continuous over-current")));
+    let s = rig.axis.snapshot();
+    assert_eq!(s.fault, Some((0x2310, "continuous over-current".into())));
+    let err = rig.command(AxisCommand::Enable).unwrap_err();
+    assert!(
+        matches!(&err, CommandError::FailedPrecondition(m) if m.contains("ResetFault")),
+        "{err:?}"
+    );
+    let reset = rig.command(AxisCommand::ResetFault).unwrap();
+    assert_eq!(
+        rig.run_until_done(reset, Duration::from_secs(2)).0,
+        Outcome::Completed
+    );
+    let mut out = Vec::new();
+    rig.axis.on_emcy(0, "", &mut out);
+    assert_eq!(rig.axis.snapshot().fault, None);
+    rig.enable();
+    // Holds where it stopped (no jump back to the old demand).
+    let p = rig.drive.position();
+    rig.run(100 * MS);
+    assert!((rig.drive.position() - p).abs() < 1.0);
+}
+
+#[test]
+fn node_loss_ends_commands_and_refuses_new_ones_until_back() {
+    let mut rig = Rig::new(PositionMode::Profile);
+    rig.enable();
+    let mv = rig.mv(100.0);
+    let mut out = Vec::new();
+    rig.axis.on_node_lost("heartbeat timeout", &mut out);
+    rig.handle(out);
+    assert_eq!(
+        rig.done(mv).unwrap(),
+        (Outcome::Fault, "node lost: heartbeat timeout".into())
+    );
+    assert_eq!(
+        rig.axis.snapshot().fault.unwrap().1,
+        "node lost: heartbeat timeout"
+    );
+    let err = rig.command(AxisCommand::Enable).unwrap_err();
+    assert!(matches!(&err, CommandError::FailedPrecondition(m) if m.contains("node is lost")));
+    let mut out = Vec::new();
+    rig.axis.on_node_back(false, &mut out);
+    rig.handle(out);
+    assert!(rig.axis.snapshot().fault.is_none());
+    rig.run(20 * MS);
+    rig.command(AxisCommand::Stop).unwrap();
+}
+
+#[test]
+fn coordinated_moves_start_and_arrive_together() {
+    use cangate_motion::{AxisMove, SyncedMove};
+    let mut a = Rig::new(PositionMode::Cyclic);
+    let mut b = Rig::new(PositionMode::Cyclic);
+    a.enable();
+    b.enable();
+    a.setpoints.clear();
+    b.setpoints.clear();
+    let limits = Limits::symmetric(100.0, 1000.0).unwrap();
+    let plan = SyncedMove::new([
+        AxisMove::new(0.0, 30.0, limits),
+        AxisMove::new(0.0, 5.0, limits),
+    ])
+    .unwrap();
+    let mut ops = Vec::new();
+    for (i, rig) in [&mut a, &mut b].into_iter().enumerate() {
+        let ratio = 1.0 / plan.time_scale(i).unwrap();
+        let mut out = Vec::new();
+        let profile = plan.profile(i).unwrap().clone();
+        ops.push(
+            rig.axis
+                .start_coordinated(profile, ratio, rig.now, &mut out)
+                .unwrap(),
+        );
+        rig.handle(out);
+    }
+    // Both rigs run in lock-step; note the SYNC each demand arrives.
+    let mut arrived = [None, None];
+    for _ in 0..2000 {
+        for (i, rig) in [&mut a, &mut b].into_iter().enumerate() {
+            rig.step();
+            let target = [30_000, 5_000][i];
+            if arrived[i].is_none() && rig.setpoints.last().map(|s| s.1) == Some(target) {
+                arrived[i] = Some(rig.now);
+            }
+        }
+    }
+    assert!(arrived[0].is_some());
+    assert_eq!(
+        arrived[0], arrived[1],
+        "both demands arrive in the same SYNC"
+    );
+    // And they started in the same SYNC.
+    let first_move = |r: &Rig| r.setpoints.iter().find(|s| s.1 != 0).map(|s| s.0);
+    assert_eq!(first_move(&a), first_move(&b));
+    assert_eq!(a.done(ops[0]).unwrap().0, Outcome::Completed);
+    assert_eq!(b.done(ops[1]).unwrap().0, Outcome::Completed);
+}

@@ -1,0 +1,295 @@
+//! The axis layer, sans-IO: what an axis is and how commands on it run,
+//! independent of sockets, tasks and gRPC.
+//!
+//! - [`cia402::Cia402Axis`]: one CiA 402 servo drive as an axis. It takes
+//!   the drive's process data (statusword, position, velocity, mode
+//!   display), SYNC ticks and commands, and returns the process image to
+//!   send (controlword, mode, target position and velocity), SDO writes and
+//!   events. Moves run either in profile position (the drive plans; the
+//!   new set-point handshake) or cyclic synchronous position (the gateway
+//!   plans a trapezoid and sends a set-point every SYNC).
+//! - [`lease::LeaseTable`]: exclusive control with time-to-live leases.
+//! - [`Units`]: user units (mm, degrees) to drive counts.
+//!
+//! The CANsmc axis (a later issue) implements the same [`AxisCommand`]s
+//! with the same [`AxisEvent`]s.
+
+pub mod cia402;
+pub mod lease;
+pub mod process_data;
+
+use std::fmt;
+
+/// How an axis executes moves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum PositionMode {
+    /// CiA 402 profile position: the drive plans the profile.
+    Profile,
+    /// Cyclic synchronous position: the gateway plans and sends a set-point
+    /// every SYNC period.
+    Cyclic,
+}
+
+/// How a stop decelerates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum StopKind {
+    /// With the profile deceleration.
+    Halt,
+    /// CiA 402 quick stop.
+    QuickStop,
+}
+
+/// What an axis is doing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Activity {
+    /// At rest (enabled or not).
+    Idle,
+    /// Walking the drive state machine.
+    Switching,
+    /// Homing.
+    Homing,
+    /// Moving to a target.
+    Moving,
+    /// Jogging.
+    Jogging,
+    /// Decelerating to rest.
+    Stopping,
+}
+
+/// The commands of the axis API.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum AxisCommand {
+    /// To operation enabled.
+    Enable,
+    /// Power stage off (ready to switch on).
+    Disable,
+    /// Run the configured homing method.
+    Home,
+    /// Move to `target` (or by it when `relative`), user units; `None`
+    /// velocity/acceleration use the axis defaults.
+    Move {
+        /// Target or distance.
+        target: f64,
+        /// `target` is a distance from the latest target.
+        relative: bool,
+        /// Velocity limit.
+        velocity: Option<f64>,
+        /// Acceleration (and deceleration) limit.
+        acceleration: Option<f64>,
+    },
+    /// Move at a signed velocity while repeated (dead-man).
+    Jog {
+        /// Signed velocity; 0 stops.
+        velocity: f64,
+        /// Acceleration limit.
+        acceleration: Option<f64>,
+    },
+    /// Decelerate to rest.
+    Stop,
+    /// CiA 402 quick stop.
+    QuickStop,
+    /// Reset a drive fault.
+    ResetFault,
+}
+
+impl AxisCommand {
+    /// The command's kind.
+    pub fn kind(&self) -> CommandKind {
+        match self {
+            AxisCommand::Enable => CommandKind::Enable,
+            AxisCommand::Disable => CommandKind::Disable,
+            AxisCommand::Home => CommandKind::Home,
+            AxisCommand::Move { .. } => CommandKind::Move,
+            AxisCommand::Jog { .. } => CommandKind::Jog,
+            AxisCommand::Stop => CommandKind::Stop,
+            AxisCommand::QuickStop => CommandKind::QuickStop,
+            AxisCommand::ResetFault => CommandKind::ResetFault,
+        }
+    }
+
+    /// Whether the command needs a control lease: everything but the
+    /// stops (anyone may stop a machine).
+    pub fn needs_control(&self) -> bool {
+        !matches!(self, AxisCommand::Stop | AxisCommand::QuickStop)
+    }
+}
+
+/// The kind of a command, for events and logs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum CommandKind {
+    /// [`AxisCommand::Enable`].
+    Enable,
+    /// [`AxisCommand::Disable`].
+    Disable,
+    /// [`AxisCommand::Home`].
+    Home,
+    /// [`AxisCommand::Move`], also one axis of a coordinated move.
+    Move,
+    /// [`AxisCommand::Jog`].
+    Jog,
+    /// [`AxisCommand::Stop`].
+    Stop,
+    /// [`AxisCommand::QuickStop`].
+    QuickStop,
+    /// [`AxisCommand::ResetFault`].
+    ResetFault,
+}
+
+impl CommandKind {
+    /// Lower-case name: `enable`, `move`, `quick stop`, …
+    pub const fn name(self) -> &'static str {
+        match self {
+            CommandKind::Enable => "enable",
+            CommandKind::Disable => "disable",
+            CommandKind::Home => "home",
+            CommandKind::Move => "move",
+            CommandKind::Jog => "jog",
+            CommandKind::Stop => "stop",
+            CommandKind::QuickStop => "quick stop",
+            CommandKind::ResetFault => "reset fault",
+        }
+    }
+}
+
+impl fmt::Display for CommandKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// How a command ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Outcome {
+    /// Target reached, homing attained, state reached, at rest.
+    Completed,
+    /// Replaced by a later command.
+    Superseded,
+    /// Ended by a drive fault or a lost node.
+    Fault,
+    /// The drive did not follow in time.
+    Timeout,
+    /// Stopped before completing.
+    Stopped,
+}
+
+impl Outcome {
+    /// Lower-case name.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Outcome::Completed => "completed",
+            Outcome::Superseded => "superseded",
+            Outcome::Fault => "fault",
+            Outcome::Timeout => "timeout",
+            Outcome::Stopped => "stopped",
+        }
+    }
+}
+
+/// Identifies one command run on one axis.
+pub type OpId = u64;
+
+/// What an axis reports.
+#[derive(Debug, Clone, PartialEq)]
+pub enum AxisEvent {
+    /// The drive accepted command `op` (a profile move: set-point
+    /// acknowledged; others: at once).
+    Accepted {
+        /// The command.
+        op: OpId,
+    },
+    /// Command `op` ended.
+    Done {
+        /// The command.
+        op: OpId,
+        /// Its kind.
+        command: CommandKind,
+        /// How it ended.
+        outcome: Outcome,
+        /// A sentence for people.
+        detail: String,
+    },
+    /// The drive entered a fault (`code` from its EMCY, 0 if none came) or
+    /// left it (`code` 0, empty text).
+    Fault {
+        /// CiA 301/402 error code.
+        code: u16,
+        /// Its name.
+        text: String,
+    },
+}
+
+/// Why a command was refused before it reached the drive.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum CommandError {
+    /// A value outside a configured limit.
+    #[error("{0}")]
+    OutOfRange(String),
+    /// A malformed value.
+    #[error("{0}")]
+    InvalidArgument(String),
+    /// The axis cannot take the command in its current state.
+    #[error("{0}")]
+    FailedPrecondition(String),
+}
+
+/// Conversion between user units and drive counts.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Units {
+    /// Drive counts per user unit (non-zero; negative inverts the
+    /// direction).
+    pub counts_per_unit: f64,
+}
+
+impl Units {
+    /// Counts of a position in user units, rounded and saturated to the
+    /// INTEGER32 range of the CiA 402 objects.
+    pub fn to_counts(&self, user: f64) -> i32 {
+        let c = (user * self.counts_per_unit).round();
+        c.clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32
+    }
+
+    /// Unsigned counts (velocity and acceleration magnitudes for 0x6081,
+    /// 0x6083, 0x6084), saturated to UNSIGNED32.
+    pub fn to_counts_unsigned(&self, user: f64) -> u32 {
+        let c = (user * self.counts_per_unit).abs().round();
+        c.clamp(0.0, f64::from(u32::MAX)) as u32
+    }
+
+    /// User units of a count value.
+    pub fn from_counts(&self, counts: f64) -> f64 {
+        counts / self.counts_per_unit
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn units_round_trip_and_saturate() {
+        let u = Units {
+            counts_per_unit: 1000.0,
+        };
+        assert_eq!(u.to_counts(12.5), 12_500);
+        assert_eq!(u.to_counts(-0.0004), 0);
+        assert_eq!(u.to_counts(-0.0006), -1);
+        assert_eq!(u.to_counts(1e12), i32::MAX);
+        assert_eq!(u.to_counts(-1e12), i32::MIN);
+        assert_eq!(u.to_counts_unsigned(-20.0), 20_000);
+        assert_eq!(u.from_counts(12_500.0), 12.5);
+    }
+
+    #[test]
+    fn only_stops_need_no_control() {
+        assert!(!AxisCommand::Stop.needs_control());
+        assert!(!AxisCommand::QuickStop.needs_control());
+        assert!(AxisCommand::Enable.needs_control());
+        assert!(
+            AxisCommand::Jog {
+                velocity: 1.0,
+                acceleration: None
+            }
+            .needs_control()
+        );
+    }
+}
