@@ -46,6 +46,223 @@ pub struct Config {
     /// CANopen masters, one per bus at most.
     #[serde(default, rename = "canopen", skip_serializing_if = "Vec::is_empty")]
     pub canopen: Vec<CanopenConfig>,
+    /// Axes (CiA 402 drives on CANopen buses).
+    #[serde(default, rename = "axis", skip_serializing_if = "Vec::is_empty")]
+    pub axes: Vec<AxisConfig>,
+}
+
+/// How an axis executes moves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PositionModeChoice {
+    /// CiA 402 profile position: the drive plans.
+    #[default]
+    Profile,
+    /// Cyclic synchronous position: the gateway plans, a set-point per SYNC
+    /// (needs `sync_period_us` on the bus's `[[canopen]]`).
+    Cyclic,
+}
+
+/// How a lapsed lease or dead-man timeout stops an axis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StopChoice {
+    /// Profile deceleration.
+    #[default]
+    Halt,
+    /// CiA 402 quick stop.
+    QuickStop,
+}
+
+/// One axis: a CiA 402 drive (a configured CANopen node) in user units.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AxisConfig {
+    /// Unique name, e.g. "X".
+    pub name: String,
+    /// The bus (with a `[[canopen]]` master).
+    pub bus: String,
+    /// The drive's node id (configured under that master).
+    pub node: u32,
+    /// User unit name, e.g. "mm" or "deg".
+    #[serde(default = "default_unit")]
+    pub unit: String,
+    /// Drive counts per user unit (negative inverts the direction).
+    pub counts_per_unit: f64,
+    /// `profile` (default) or `cyclic`.
+    #[serde(default)]
+    pub position_mode: PositionModeChoice,
+    /// Soft limits in user units (both or none); also written to the
+    /// drive's 0x607D at boot.
+    #[serde(default)]
+    pub min_position: Option<f64>,
+    /// Soft limits in user units.
+    #[serde(default)]
+    pub max_position: Option<f64>,
+    /// Velocity ceiling, units/s.
+    pub max_velocity: f64,
+    /// Acceleration ceiling, units/s².
+    pub max_acceleration: f64,
+    /// Velocity of moves that give none (default: a quarter of the maximum).
+    #[serde(default)]
+    pub default_velocity: Option<f64>,
+    /// Acceleration of moves that give none (default: a quarter of the
+    /// maximum).
+    #[serde(default)]
+    pub default_acceleration: Option<f64>,
+    /// Homing method written to 0x6098 at boot (CiA 402; e.g. 35 = current
+    /// position is home, 17..=30 = move to a switch).
+    #[serde(default = "default_homing_method")]
+    pub homing_method: i8,
+    /// How a lapsed lease or dead-man timeout stops the axis.
+    #[serde(default)]
+    pub stop_on_loss: StopChoice,
+    /// Jog dead-man time in ms.
+    #[serde(default = "default_jog_deadman_ms")]
+    pub jog_deadman_ms: u32,
+    /// Bound of each CiA 402 state change, set-point acknowledge and mode
+    /// switch, in ms.
+    #[serde(default = "default_state_timeout_ms")]
+    pub state_timeout_ms: u64,
+    /// Bound of a homing run in ms.
+    #[serde(default = "default_homing_timeout_ms")]
+    pub homing_timeout_ms: u64,
+    /// In-position window of cyclic moves, user units (default: 10 counts).
+    #[serde(default)]
+    pub in_position_window: Option<f64>,
+}
+
+fn default_unit() -> String {
+    "mm".into()
+}
+fn default_homing_method() -> i8 {
+    35
+}
+fn default_jog_deadman_ms() -> u32 {
+    500
+}
+fn default_state_timeout_ms() -> u64 {
+    1000
+}
+fn default_homing_timeout_ms() -> u64 {
+    30_000
+}
+
+impl AxisConfig {
+    /// The controller configuration.
+    pub fn controller(&self) -> cangate_axis::cia402::Cia402Config {
+        use cangate_axis::{PositionMode, Units};
+        cangate_axis::cia402::Cia402Config {
+            units: Units {
+                counts_per_unit: self.counts_per_unit,
+            },
+            unit: self.unit.clone(),
+            min_position: self.min_position,
+            max_position: self.max_position,
+            max_velocity: self.max_velocity,
+            max_acceleration: self.max_acceleration,
+            default_velocity: self.default_velocity.unwrap_or(self.max_velocity / 4.0),
+            default_acceleration: self
+                .default_acceleration
+                .unwrap_or(self.max_acceleration / 4.0),
+            position_mode: match self.position_mode {
+                PositionModeChoice::Profile => PositionMode::Profile,
+                PositionModeChoice::Cyclic => PositionMode::Cyclic,
+            },
+            state_timeout: std::time::Duration::from_millis(self.state_timeout_ms),
+            homing_timeout: std::time::Duration::from_millis(self.homing_timeout_ms),
+            in_position_window: self
+                .in_position_window
+                .unwrap_or(10.0 / self.counts_per_unit.abs()),
+            settle_timeout: std::time::Duration::from_secs(2),
+            jog_deadman: std::time::Duration::from_millis(u64::from(self.jog_deadman_ms)),
+        }
+    }
+
+    fn validate(&self, cfg: &Config) -> Result<(), String> {
+        if self.name.is_empty() || self.name.contains(char::is_whitespace) {
+            return Err(format!(
+                "axis name {:?} must be non-empty without spaces",
+                self.name
+            ));
+        }
+        let Some(master) = cfg.canopen.iter().find(|c| c.bus == self.bus) else {
+            return Err(format!(
+                "axis {}: bus {:?} has no [[canopen]] master",
+                self.name, self.bus
+            ));
+        };
+        if !master.nodes.iter().any(|n| n.id == self.node) {
+            return Err(format!(
+                "axis {}: node {} is not configured under [[canopen]] bus {:?}",
+                self.name, self.node, self.bus
+            ));
+        }
+        if self.position_mode == PositionModeChoice::Cyclic && master.sync_period_us == 0 {
+            return Err(format!(
+                "axis {}: position_mode = \"cyclic\" needs a SYNC: set sync_period_us on \
+                 [[canopen]] bus {:?}",
+                self.name, self.bus
+            ));
+        }
+        let positive = |what: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(format!(
+                    "axis {}: {what} must be positive, got {v}",
+                    self.name
+                ))
+            }
+        };
+        if !self.counts_per_unit.is_finite() || self.counts_per_unit == 0.0 {
+            return Err(format!(
+                "axis {}: counts_per_unit must be a non-zero number",
+                self.name
+            ));
+        }
+        positive("max_velocity", self.max_velocity)?;
+        positive("max_acceleration", self.max_acceleration)?;
+        if let Some(v) = self.default_velocity {
+            positive("default_velocity", v)?;
+            if v > self.max_velocity {
+                return Err(format!(
+                    "axis {}: default_velocity {v} exceeds max_velocity {}",
+                    self.name, self.max_velocity
+                ));
+            }
+        }
+        if let Some(a) = self.default_acceleration {
+            positive("default_acceleration", a)?;
+            if a > self.max_acceleration {
+                return Err(format!(
+                    "axis {}: default_acceleration {a} exceeds max_acceleration {}",
+                    self.name, self.max_acceleration
+                ));
+            }
+        }
+        if let Some(w) = self.in_position_window {
+            positive("in_position_window", w)?;
+        }
+        match (self.min_position, self.max_position) {
+            (Some(a), Some(b)) if !(a.is_finite() && b.is_finite() && a < b) => Err(format!(
+                "axis {}: min_position {a} must be below max_position {b}",
+                self.name
+            )),
+            (Some(_), None) | (None, Some(_)) => Err(format!(
+                "axis {}: give both min_position and max_position, or neither",
+                self.name
+            )),
+            _ => Ok(()),
+        }?;
+        if self.jog_deadman_ms == 0 || self.state_timeout_ms == 0 || self.homing_timeout_ms == 0 {
+            return Err(format!(
+                "axis {}: jog_deadman_ms, state_timeout_ms and homing_timeout_ms must be positive",
+                self.name
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// The CANopen master of one bus.
@@ -57,6 +274,10 @@ pub struct CanopenConfig {
     /// Default SDO timeout per answer, in ms.
     #[serde(default = "default_sdo_timeout_ms")]
     pub sdo_timeout_ms: u64,
+    /// SYNC producer period in µs (0 = no SYNC). Drives of axes send their
+    /// process data every SYNC; cyclic axes get a set-point every SYNC.
+    #[serde(default)]
+    pub sync_period_us: u64,
     /// Known nodes.
     #[serde(default, rename = "node")]
     pub nodes: Vec<NodeConfig>,
@@ -522,6 +743,23 @@ impl Config {
                 }
             }
         }
+        let mut axis_names = HashSet::new();
+        let mut axis_nodes = HashSet::new();
+        for a in &self.axes {
+            a.validate(self).map_err(ConfigError::Invalid)?;
+            if !axis_names.insert(a.name.as_str()) {
+                return Err(ConfigError::Invalid(format!(
+                    "axis {:?} is configured twice",
+                    a.name
+                )));
+            }
+            if !axis_nodes.insert((a.bus.as_str(), a.node)) {
+                return Err(ConfigError::Invalid(format!(
+                    "axis {}: node {} on bus {:?} already backs another axis",
+                    a.name, a.node, a.bus
+                )));
+            }
+        }
         Ok(())
     }
 
@@ -541,8 +779,55 @@ mod tests {
         let names: Vec<_> = c.buses.iter().map(|b| b.name.as_str()).collect();
         assert_eq!(names, ["can0", "smc0", "smc1"]);
         let nodes: Vec<_> = c.canopen[0].nodes.iter().map(|n| n.id).collect();
-        assert_eq!(nodes, [1, 2, 3]);
+        assert_eq!(nodes, [1, 2, 3, 4]);
         assert_eq!(c.listen, default_listen());
+        let axes: Vec<_> = c.axes.iter().map(|a| (a.name.as_str(), a.node)).collect();
+        assert_eq!(axes, [("X", 1), ("Y", 2), ("Z", 4)]);
+        assert_eq!(c.canopen[0].sync_period_us, 10_000);
+    }
+
+    const AXIS_BASE: &str = r#"
+[[bus]]
+name = "can0"
+backend = "virtual"
+[[canopen]]
+bus = "can0"
+[[canopen.node]]
+id = 1
+eds = "builtin:drive"
+"#;
+
+    fn axis_err(axis: &str) -> String {
+        Config::from_toml(&format!("{AXIS_BASE}[[axis]]\n{axis}"))
+            .unwrap_err()
+            .to_string()
+    }
+
+    #[test]
+    fn axis_configuration_mistakes_are_named() {
+        let ok = "name = \"X\"\nbus = \"can0\"\nnode = 1\ncounts_per_unit = 1000.0\n\
+                  max_velocity = 10.0\nmax_acceleration = 100.0\n";
+        Config::from_toml(&format!("{AXIS_BASE}[[axis]]\n{ok}")).unwrap();
+        let e = axis_err(&ok.replace("node = 1", "node = 9"));
+        assert!(e.contains("node 9 is not configured"), "{e}");
+        let e = axis_err(&ok.replace("bus = \"can0\"", "bus = \"can9\""));
+        assert!(e.contains("has no [[canopen]] master"), "{e}");
+        let e = axis_err(&format!("{ok}position_mode = \"cyclic\"\n"));
+        assert!(e.contains("needs a SYNC: set sync_period_us"), "{e}");
+        let e = axis_err(&format!("{ok}min_position = 5.0\nmax_position = -5.0\n"));
+        assert!(e.contains("must be below max_position"), "{e}");
+        let e = axis_err(&format!("{ok}min_position = 5.0\n"));
+        assert!(e.contains("give both"), "{e}");
+        let e = axis_err(&ok.replace("counts_per_unit = 1000.0", "counts_per_unit = 0.0"));
+        assert!(e.contains("counts_per_unit"), "{e}");
+        let e = axis_err(&format!("{ok}default_velocity = 20.0\n"));
+        assert!(e.contains("exceeds max_velocity"), "{e}");
+        let two = format!(
+            "{AXIS_BASE}[[axis]]\n{ok}[[axis]]\n{}",
+            ok.replace("\"X\"", "\"Y\"")
+        );
+        let e = Config::from_toml(&two).unwrap_err().to_string();
+        assert!(e.contains("already backs another axis"), "{e}");
     }
 
     #[test]

@@ -27,6 +27,15 @@ pub enum ApiError {
     /// The bus failed while carrying out the request.
     #[error("{0}")]
     Unavailable(String),
+    /// A value beyond a configured limit (soft limit, maximum velocity).
+    #[error("{0}")]
+    OutOfRange(String),
+    /// The device did not follow in time, or a wait ran out.
+    #[error("{0}")]
+    DeadlineExceeded(String),
+    /// A command was cut short (superseded, fault).
+    #[error("{0}")]
+    Aborted(String),
     /// The server is shutting down.
     #[error("the gateway is shutting down")]
     ShuttingDown,
@@ -65,6 +74,23 @@ impl From<SendFailure> for ApiError {
             }
             _ => ApiError::Unavailable(f.to_string()),
         }
+    }
+}
+
+impl From<cangate_axis::CommandError> for ApiError {
+    fn from(e: cangate_axis::CommandError) -> Self {
+        use cangate_axis::CommandError as E;
+        match e {
+            E::OutOfRange(m) => ApiError::OutOfRange(m),
+            E::InvalidArgument(m) => ApiError::InvalidArgument(m),
+            E::FailedPrecondition(m) => ApiError::FailedPrecondition(m),
+        }
+    }
+}
+
+impl From<cangate_axis::lease::LeaseError> for ApiError {
+    fn from(e: cangate_axis::lease::LeaseError) -> Self {
+        ApiError::FailedPrecondition(e.to_string())
     }
 }
 
@@ -117,6 +143,9 @@ impl From<ApiError> for Status {
             ApiError::InvalidArgument(_) => Code::InvalidArgument,
             ApiError::FailedPrecondition(_) => Code::FailedPrecondition,
             ApiError::Unavailable(_) | ApiError::ShuttingDown => Code::Unavailable,
+            ApiError::OutOfRange(_) => Code::OutOfRange,
+            ApiError::DeadlineExceeded(_) => Code::DeadlineExceeded,
+            ApiError::Aborted(_) => Code::Aborted,
             ApiError::Sdo { error, .. } => sdo_code(error),
         };
         Status::new(code, e.to_string())

@@ -2,9 +2,13 @@
 //! tree from the signal handler through the server, the streams and the bus
 //! tasks.
 
+use crate::axes::AxisManager;
 use crate::canopen::{BootPlan, CanopenBus, NodeFacts};
-use crate::config::{BackendChoice, BusConfig, Config, NodeConfig, StuffingChoice, parse_object};
+use crate::config::{
+    AxisConfig, BackendChoice, BusConfig, Config, NodeConfig, StuffingChoice, parse_object,
+};
 use crate::error::ApiError;
+use crate::grpc::axes_service::AxesService;
 use crate::grpc::bus_service::BusService;
 use crate::grpc::canopen_service::CanopenService;
 use cangate_can::bus::{Backend, BackendKind, BusHandle, BusInfo};
@@ -48,6 +52,7 @@ pub enum StartError {
 pub struct Gateway {
     buses: BTreeMap<String, BusHandle>,
     canopen: BTreeMap<String, CanopenBus>,
+    axes: Arc<AxisManager>,
     network: VirtualNetwork,
     shutdown: CancellationToken,
 }
@@ -121,7 +126,13 @@ impl Gateway {
                     };
                     simulated.push((vbus.connect(false), device));
                 }
-                let (tpdos, rpdos, boot) = node_plan(nc, node, eds.as_deref()).map_err(err)?;
+                let axis = config
+                    .axes
+                    .iter()
+                    .find(|a| a.bus == cc.bus && a.node == nc.id);
+                let sync = cc.sync_period_us > 0;
+                let (tpdos, rpdos, boot) =
+                    node_plan(nc, node, eds.as_deref(), axis, sync).map_err(err)?;
                 facts.insert(
                     node,
                     NodeFacts {
@@ -140,12 +151,19 @@ impl Gateway {
             let (master, task) = CanopenBus::spawn(
                 bus,
                 Duration::from_millis(cc.sdo_timeout_ms),
+                (cc.sync_period_us > 0).then(|| Duration::from_micros(cc.sync_period_us)),
                 facts,
                 shutdown.child_token(),
             );
             canopen.insert(cc.bus.clone(), master);
             tasks.push(task);
         }
+        let (axes, axis_tasks) = AxisManager::start(&config.axes, &canopen, shutdown.child_token())
+            .map_err(|message| StartError::Bus {
+                bus: "axes".into(),
+                message,
+            })?;
+        tasks.extend(axis_tasks);
         for (port, device) in simulated {
             tasks.push(cangate_sim::spawn_device(
                 port,
@@ -157,6 +175,7 @@ impl Gateway {
             Gateway {
                 buses,
                 canopen,
+                axes,
                 network,
                 shutdown,
             },
@@ -179,6 +198,11 @@ impl Gateway {
     /// The CANopen master of a bus, if it has one.
     pub fn canopen(&self, bus: &str) -> Option<&CanopenBus> {
         self.canopen.get(bus)
+    }
+
+    /// The axes.
+    pub fn axes(&self) -> &Arc<AxisManager> {
+        &self.axes
     }
 
     /// Every CANopen master, by bus name.
@@ -204,8 +228,58 @@ impl Gateway {
 
 type NodePlan = (Vec<PdoConfig>, Vec<PdoConfig>, Option<Arc<BootPlan>>);
 
-/// The PDO layouts the master uses for a node, and its boot procedure.
-fn node_plan(nc: &NodeConfig, node: NodeId, eds: Option<&Eds>) -> Result<NodePlan, String> {
+/// The PDO layouts the master uses for a node, and its boot procedure. A
+/// node that backs an axis gets the axis process data layout
+/// ([`cangate_axis::process_data`]) and always a boot procedure.
+fn node_plan(
+    nc: &NodeConfig,
+    node: NodeId,
+    eds: Option<&Eds>,
+    axis: Option<&AxisConfig>,
+    sync: bool,
+) -> Result<NodePlan, String> {
+    if let Some(axis) = axis {
+        use cangate_axis::process_data::{FeedbackTrigger, standard_pdos};
+        if !nc.tpdo.is_empty() || !nc.rpdo.is_empty() {
+            return Err(format!(
+                "backs axis {}: its PDOs are set by the axis layer; remove the tpdo/rpdo entries",
+                axis.name
+            ));
+        }
+        let trigger = if sync {
+            FeedbackTrigger::Sync
+        } else {
+            FeedbackTrigger::Event { event_timer_ms: 10 }
+        };
+        let (rpdos, tpdos) = standard_pdos(node, trigger);
+        let mut writes = Vec::new();
+        if let Some(ms) = nc.heartbeat_producer_ms {
+            writes.push((ObjectAddress::new(0x1017, 0), ms.to_le_bytes().to_vec()));
+        }
+        for p in tpdos.iter().chain(&rpdos) {
+            writes.extend(p.sdo_writes().map_err(|e| e.to_string())?);
+        }
+        writes.extend(cangate_axis::cia402::Cia402Axis::new(axis.controller()).boot_writes());
+        writes.push((
+            cangate_canopen::ds402::objects::HOMING_METHOD,
+            vec![axis.homing_method as u8],
+        ));
+        for w in &nc.writes {
+            let addr = parse_object(&w.object)?;
+            let ty: DataType =
+                w.ty.parse()
+                    .map_err(|e| format!("write {}: {e}", w.object))?;
+            let v = Value::parse(ty, &w.value).map_err(|e| format!("write {}: {e}", w.object))?;
+            writes.push((addr, v.encode()));
+        }
+        let plan = BootPlan {
+            device_type: nc.device_type,
+            vendor_id: nc.vendor_id,
+            product_code: nc.product_code,
+            writes,
+        };
+        return Ok((tpdos, rpdos, Some(Arc::new(plan))));
+    }
     let layouts = |kind: PdoKind,
                    entries: &[crate::config::PdoConfigEntry]|
      -> Result<Vec<PdoConfig>, String> {
@@ -390,6 +464,11 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
     health_reporter
         .set_serving::<cangate_proto::v1::canopen_server::CanopenServer<CanopenService>>()
         .await;
+    let axes_service =
+        cangate_proto::v1::axes_server::AxesServer::new(AxesService::new(gateway.clone()));
+    health_reporter
+        .set_serving::<cangate_proto::v1::axes_server::AxesServer<AxesService>>()
+        .await;
     let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
     let token = shutdown.clone();
     let server = tokio::spawn(
@@ -399,6 +478,7 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
             .add_service(reflection)
             .add_service(bus_service)
             .add_service(canopen_service)
+            .add_service(axes_service)
             .serve_with_incoming_shutdown(incoming, async move { token.cancelled().await }),
     );
     tracing::info!(%addr, buses = gateway.buses().count(), "cangate gateway listening");

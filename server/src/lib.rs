@@ -4,8 +4,10 @@
 //! - [`gateway`]: start-up, the running server and shutdown.
 //! - [`grpc`]: the gRPC services and protobuf conversions.
 //! - [`canopen`]: the CANopen master runtime of each bus.
+//! - [`axes`]: the axis layer (CiA 402 drives), control leases.
 //! - [`error`]: the one mapping from domain errors to gRPC statuses.
 
+pub mod axes;
 pub mod canopen;
 pub mod config;
 pub mod error;

@@ -780,23 +780,7 @@ impl Cia402Axis {
         out: &mut Vec<Output>,
     ) -> Result<OpId, CommandError> {
         let target = profile.target();
-        self.check(&AxisCommand::Move {
-            target,
-            relative: false,
-            velocity: None,
-            acceleration: None,
-        })?;
-        if self.cfg.position_mode != PositionMode::Cyclic {
-            return Err(CommandError::FailedPrecondition(
-                "coordinated moves need cyclic (CSP) axes".into(),
-            ));
-        }
-        self.check_limits(target)?;
-        if self.demand_velocity != 0.0 {
-            return Err(CommandError::FailedPrecondition(
-                "the axis is moving: stop it before a coordinated move".into(),
-            ));
-        }
+        self.check_coordinated(target)?;
         let id = self.next_id;
         self.next_id += 1;
         if self.op.is_some() {
@@ -825,6 +809,32 @@ impl Cia402Axis {
         });
         out.push(Output::Event(AxisEvent::Accepted { op: id }));
         Ok(id)
+    }
+
+    /// Whether a coordinated move to `target` could start now.
+    ///
+    /// # Errors
+    /// As [`Cia402Axis::command`]; also when the axis is not cyclic or is
+    /// moving (a coordinated move starts from rest).
+    pub fn check_coordinated(&self, target: f64) -> Result<(), CommandError> {
+        self.check(&AxisCommand::Move {
+            target,
+            relative: false,
+            velocity: None,
+            acceleration: None,
+        })?;
+        if self.cfg.position_mode != PositionMode::Cyclic {
+            return Err(CommandError::FailedPrecondition(
+                "coordinated moves need cyclic (CSP) axes".into(),
+            ));
+        }
+        self.check_limits(target)?;
+        if self.demand_velocity != 0.0 || self.trajectory.is_some() {
+            return Err(CommandError::FailedPrecondition(
+                "the axis is moving: stop it before a coordinated move".into(),
+            ));
+        }
+        Ok(())
     }
 
     /// The current demand position (cyclic) or latest target (profile), in

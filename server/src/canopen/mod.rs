@@ -184,6 +184,7 @@ pub struct CanopenBus {
     commands: mpsc::Sender<Command>,
     events: broadcast::Sender<NodeEvent>,
     facts: Arc<RwLock<BTreeMap<NodeId, NodeFacts>>>,
+    syncs: broadcast::Sender<Instant>,
 }
 
 impl CanopenBus {
@@ -191,12 +192,14 @@ impl CanopenBus {
     pub fn spawn(
         bus: BusHandle,
         sdo_timeout: Duration,
+        sync_period: Option<Duration>,
         configured: BTreeMap<NodeId, NodeFacts>,
         cancel: CancellationToken,
     ) -> (CanopenBus, tokio::task::JoinHandle<()>) {
         let (commands, rx) = mpsc::channel(1024);
         let (events, _) = broadcast::channel(4096);
         let (pdos, _) = broadcast::channel(16_384);
+        let (syncs, _) = broadcast::channel(64);
         let tpdo_map: HashMap<u16, (NodeId, PdoConfig, Option<Arc<Eds>>)> = configured
             .iter()
             .flat_map(|(id, f)| {
@@ -217,8 +220,14 @@ impl CanopenBus {
             commands,
             events: events.clone(),
             facts: facts.clone(),
+            syncs: syncs.clone(),
         };
         let mut master = Master::new(sdo_timeout);
+        if let Some(period) = sync_period
+            && let Ok(producer) = cangate_canopen::sync::SyncProducer::new(period, 0)
+        {
+            master.start_sync(producer, Duration::ZERO);
+        }
         for (id, f) in facts.read().expect("facts lock").iter() {
             if let Some(t) = f.heartbeat_timeout {
                 master.monitor_heartbeat(*id, t);
@@ -237,6 +246,7 @@ impl CanopenBus {
             pdos,
             tpdo_map,
             facts,
+            syncs,
             cancel: cancel.clone(),
         }));
         if !boots.is_empty() {
@@ -248,6 +258,12 @@ impl CanopenBus {
             ));
         }
         (handle, task)
+    }
+
+    /// Fires each time the master has sent a SYNC (when a SYNC period is
+    /// configured), with the time it went out.
+    pub fn syncs(&self) -> broadcast::Receiver<Instant> {
+        self.syncs.subscribe()
     }
 
     /// Bus name.
@@ -338,6 +354,22 @@ impl CanopenBus {
             .expect("facts lock")
             .get(&node)
             .and_then(|f| f.rpdos.iter().find(|p| p.num == num).cloned())
+    }
+
+    /// The RPDO configurations of a node.
+    pub fn rpdos(&self, node: NodeId) -> Vec<PdoConfig> {
+        self.facts
+            .read()
+            .expect("facts lock")
+            .get(&node)
+            .map(|f| f.rpdos.clone())
+            .unwrap_or_default()
+    }
+
+    /// Sends frames (process data) in one batch, in order.
+    pub async fn send_frames(&self, frames: Vec<cangate_can::Frame>) -> Result<(), CanopenError> {
+        self.handle.submit(frames).await?;
+        Ok(())
     }
 
     /// Sends an RPDO payload.
@@ -463,6 +495,7 @@ struct MasterTask {
     pdos: broadcast::Sender<PdoUpdate>,
     tpdo_map: HashMap<u16, (NodeId, PdoConfig, Option<Arc<Eds>>)>,
     facts: Arc<RwLock<BTreeMap<NodeId, NodeFacts>>>,
+    syncs: broadcast::Sender<Instant>,
     cancel: CancellationToken,
 }
 
@@ -476,6 +509,7 @@ async fn run_master(task: MasterTask) {
         pdos,
         tpdo_map,
         facts,
+        syncs,
         cancel,
     } = task;
     let origin = Instant::now();
@@ -552,10 +586,17 @@ async fn run_master(task: MasterTask) {
                 }
             }
         }
+        let sync_sent = out
+            .frames
+            .iter()
+            .any(|f| f.raw_id() == 0x080 && !f.is_extended());
         if !out.frames.is_empty()
             && let Err(e) = bus.submit(std::mem::take(&mut out.frames)).await
         {
             tracing::warn!(bus = %bus.name(), error = %e, "CANopen master could not send");
+        }
+        if sync_sent {
+            let _ = syncs.send(Instant::now());
         }
         for ev in out.events {
             handle_event(ev, &mut pending, &events, &facts);

@@ -1,0 +1,560 @@
+//! The axis layer at run time: every configured axis, control leases, the
+//! update stream, and one task per CANopen bus that runs the bus's CiA 402
+//! axis controllers ([`cia402_task`]).
+//!
+//! The gRPC `Axes` service is a thin shell over [`AxisManager`].
+
+pub mod cia402_task;
+
+use crate::canopen::CanopenBus;
+use crate::config::{AxisConfig, PositionModeChoice, StopChoice};
+use crate::error::ApiError;
+use cangate_axis::cia402::AxisSnapshot;
+use cangate_axis::lease::{Lease, LeaseTable};
+use cangate_axis::{Activity, AxisCommand, CommandKind, Outcome};
+use cangate_can::Timestamp;
+use cangate_canopen::NodeId;
+use std::collections::{BTreeMap, HashMap, HashSet};
+use std::sync::{Arc, Mutex, RwLock};
+use std::time::{Duration, Instant};
+use tokio::sync::{Notify, broadcast, mpsc, oneshot};
+use tokio_util::sync::CancellationToken;
+
+use cia402_task::{BusRequest, CommandReply};
+
+/// Lease TTL bounds (ms).
+pub const MIN_TTL_MS: u32 = 100;
+/// Lease TTL bounds (ms).
+pub const MAX_TTL_MS: u32 = 60_000;
+/// Lease TTL when the client gives none (ms).
+pub const DEFAULT_TTL_MS: u32 = 2_000;
+
+/// Something that happened to an axis, for StreamAxisState.
+#[derive(Debug, Clone)]
+pub enum AxisUpdate {
+    /// New live state (after each process data update or command).
+    Status {
+        /// Axis index.
+        axis: usize,
+        /// The state.
+        snapshot: Arc<AxisSnapshot>,
+        /// Bus time of the process data.
+        at: Timestamp,
+    },
+    /// An event.
+    Event {
+        /// Axis index.
+        axis: usize,
+        /// Wall time.
+        at: Timestamp,
+        /// What.
+        event: AxisEventKind,
+    },
+}
+
+/// The events of an axis.
+#[derive(Debug, Clone)]
+pub enum AxisEventKind {
+    /// A command ended.
+    MotionDone {
+        /// Which command.
+        command: CommandKind,
+        /// How.
+        outcome: Outcome,
+        /// For people.
+        detail: String,
+    },
+    /// Fault entered (code, text) or cleared (0, "").
+    Fault {
+        /// Error code.
+        code: u16,
+        /// Its name.
+        text: String,
+    },
+    /// Control changed hands.
+    Control {
+        /// New holder ("" none).
+        holder: String,
+        /// Previous holder ("" none).
+        previous: String,
+        /// Why.
+        reason: String,
+    },
+    /// The drive's node was lost or is back.
+    Node {
+        /// Lost (true) or back.
+        lost: bool,
+        /// Why.
+        reason: String,
+    },
+}
+
+/// Static facts of an axis.
+#[derive(Debug, Clone)]
+pub struct AxisInfo {
+    /// Its configuration.
+    pub config: AxisConfig,
+    /// The node.
+    pub node: NodeId,
+}
+
+struct AxisEntry {
+    info: AxisInfo,
+    bus: mpsc::Sender<BusRequest>,
+    /// Index within its bus task.
+    local: usize,
+}
+
+/// Latest state of every axis, by axis index.
+pub type LatestStates = Arc<RwLock<Vec<Option<(Arc<AxisSnapshot>, Timestamp)>>>>;
+
+/// Every axis of the gateway.
+pub struct AxisManager {
+    axes: Vec<AxisEntry>,
+    by_name: HashMap<String, usize>,
+    leases: Mutex<LeaseTable>,
+    leases_changed: Notify,
+    origin: Instant,
+    updates: broadcast::Sender<AxisUpdate>,
+    latest: LatestStates,
+}
+
+/// The result of an axis command as the API reports it.
+#[derive(Debug, Clone)]
+pub struct CommandResult {
+    /// `None`: accepted, not waited for.
+    pub outcome: Option<Outcome>,
+    /// For people.
+    pub detail: String,
+    /// The state right after.
+    pub snapshot: Arc<AxisSnapshot>,
+}
+
+impl AxisManager {
+    /// Starts the axis tasks (one per CANopen bus with axes).
+    pub fn start(
+        configs: &[AxisConfig],
+        masters: &BTreeMap<String, CanopenBus>,
+        cancel: CancellationToken,
+    ) -> Result<(Arc<AxisManager>, Vec<tokio::task::JoinHandle<()>>), String> {
+        let (updates, _) = broadcast::channel(8192);
+        let latest: LatestStates = Arc::new(RwLock::new(vec![None; configs.len()]));
+        let mut per_bus: BTreeMap<&str, Vec<(usize, AxisInfo)>> = BTreeMap::new();
+        for (i, c) in configs.iter().enumerate() {
+            let node = NodeId::new(c.node).map_err(|e| format!("axis {}: {e}", c.name))?;
+            per_bus.entry(c.bus.as_str()).or_default().push((
+                i,
+                AxisInfo {
+                    config: c.clone(),
+                    node,
+                },
+            ));
+        }
+        let mut axes: Vec<Option<AxisEntry>> = (0..configs.len()).map(|_| None).collect();
+        let mut tasks = Vec::new();
+        for (bus, list) in per_bus {
+            let master = masters
+                .get(bus)
+                .ok_or_else(|| format!("bus {bus:?} has no CANopen master"))?
+                .clone();
+            let (tx, rx) = mpsc::channel(256);
+            for (local, (global, info)) in list.iter().enumerate() {
+                axes[*global] = Some(AxisEntry {
+                    info: info.clone(),
+                    bus: tx.clone(),
+                    local,
+                });
+            }
+            tasks.push(tokio::spawn(cia402_task::run(
+                master,
+                list,
+                rx,
+                updates.clone(),
+                latest.clone(),
+                cancel.child_token(),
+            )));
+        }
+        let axes: Vec<AxisEntry> = axes
+            .into_iter()
+            .map(|a| a.expect("every axis placed"))
+            .collect();
+        let by_name = axes
+            .iter()
+            .enumerate()
+            .map(|(i, a)| (a.info.config.name.clone(), i))
+            .collect();
+        let manager = Arc::new(AxisManager {
+            axes,
+            by_name,
+            leases: Mutex::new(LeaseTable::new()),
+            leases_changed: Notify::new(),
+            origin: Instant::now(),
+            updates,
+            latest,
+        });
+        tasks.push(tokio::spawn(run_lease_expiry(manager.clone(), cancel)));
+        Ok((manager, tasks))
+    }
+
+    fn now(&self) -> Duration {
+        self.origin.elapsed()
+    }
+
+    /// Number of axes.
+    pub fn len(&self) -> usize {
+        self.axes.len()
+    }
+
+    /// Whether there are no axes.
+    pub fn is_empty(&self) -> bool {
+        self.axes.is_empty()
+    }
+
+    /// The index of a named axis.
+    pub fn index(&self, name: &str) -> Result<usize, ApiError> {
+        self.by_name
+            .get(name)
+            .copied()
+            .ok_or_else(|| ApiError::NotFound {
+                kind: "axis",
+                name: name.to_string(),
+                hint: format!(
+                    " (axes: {})",
+                    self.axes
+                        .iter()
+                        .map(|a| a.info.config.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            })
+    }
+
+    /// Static facts of axis `i`.
+    pub fn info(&self, i: usize) -> &AxisInfo {
+        &self.axes[i].info
+    }
+
+    /// Name of axis `i`.
+    pub fn name(&self, i: usize) -> &str {
+        &self.axes[i].info.config.name
+    }
+
+    /// Latest state of axis `i` (`None` before its first process data).
+    pub fn latest(&self, i: usize) -> Option<(Arc<AxisSnapshot>, Timestamp)> {
+        self.latest.read().expect("latest lock")[i].clone()
+    }
+
+    /// Who controls axis `i` and for how much longer.
+    pub fn control(&self, i: usize) -> Option<(String, Duration)> {
+        let now = self.now();
+        let leases = self.leases.lock().expect("lease lock");
+        leases
+            .holder_of(self.name(i))
+            .map(|l| (l.holder.clone(), l.expires.saturating_sub(now)))
+    }
+
+    /// Subscribes to every axis's updates.
+    pub fn subscribe(&self) -> broadcast::Receiver<AxisUpdate> {
+        self.updates.subscribe()
+    }
+
+    fn publish_control(&self, lease: &Lease, holder: &str, previous: &str, reason: &str) {
+        for a in &lease.axes {
+            if let Some(&i) = self.by_name.get(a) {
+                let _ = self.updates.send(AxisUpdate::Event {
+                    axis: i,
+                    at: Timestamp::now(),
+                    event: AxisEventKind::Control {
+                        holder: holder.to_string(),
+                        previous: previous.to_string(),
+                        reason: reason.to_string(),
+                    },
+                });
+            }
+        }
+    }
+
+    /// Grants control of `axes` (names) to `holder`.
+    pub fn acquire(&self, axes: &[String], ttl_ms: u32, holder: String) -> Result<Lease, ApiError> {
+        if axes.is_empty() {
+            return Err(ApiError::InvalidArgument("name at least one axis".into()));
+        }
+        let mut seen = HashSet::new();
+        for a in axes {
+            self.index(a)?;
+            if !seen.insert(a) {
+                return Err(ApiError::InvalidArgument(format!(
+                    "axis {a} is named twice"
+                )));
+            }
+        }
+        let ttl_ms =
+            if ttl_ms == 0 { DEFAULT_TTL_MS } else { ttl_ms }.clamp(MIN_TTL_MS, MAX_TTL_MS);
+        // The token is the control: 128 bits from the OS, not guessable.
+        let mut raw = [0u8; 16];
+        getrandom::fill(&mut raw).map_err(|e| {
+            ApiError::Unavailable(format!("no OS randomness for a lease token: {e}"))
+        })?;
+        let token: String = raw.iter().map(|b| format!("{b:02x}")).collect();
+        let lease = self.leases.lock().expect("lease lock").acquire(
+            token,
+            holder.clone(),
+            axes.to_vec(),
+            Duration::from_millis(u64::from(ttl_ms)),
+            self.now(),
+        )?;
+        self.leases_changed.notify_one();
+        self.publish_control(&lease, &holder, "", "acquired");
+        Ok(lease)
+    }
+
+    /// Extends a lease.
+    pub fn renew(&self, token: &str) -> Result<Lease, ApiError> {
+        let lease = self
+            .leases
+            .lock()
+            .expect("lease lock")
+            .renew(token, self.now())?;
+        self.leases_changed.notify_one();
+        Ok(lease)
+    }
+
+    /// Ends a lease.
+    pub fn release(&self, token: &str) -> Result<Lease, ApiError> {
+        let lease = self.leases.lock().expect("lease lock").release(token)?;
+        self.leases_changed.notify_one();
+        self.publish_control(&lease, "", &lease.holder, "released");
+        Ok(lease)
+    }
+
+    /// Checks that `token` controls axis `i` (renewing it); the holder's
+    /// name for the audit log.
+    pub fn authorize(&self, i: usize, token: &str) -> Result<String, ApiError> {
+        let mut leases = self.leases.lock().expect("lease lock");
+        let token = (!token.is_empty()).then_some(token);
+        leases.authorize(self.name(i), token, self.now())?;
+        let holder = leases
+            .holder_of(self.name(i))
+            .map(|l| l.holder.clone())
+            .unwrap_or_default();
+        drop(leases);
+        self.leases_changed.notify_one();
+        Ok(holder)
+    }
+
+    /// Runs a command on axis `i`; returns when the drive accepted it, or
+    /// with `wait` when it ended (bounded by `wait_timeout`).
+    pub async fn command(
+        &self,
+        i: usize,
+        cmd: AxisCommand,
+        wait: bool,
+        wait_timeout: Duration,
+    ) -> Result<CommandResult, ApiError> {
+        let entry = &self.axes[i];
+        let (reply, rx) = oneshot::channel();
+        entry
+            .bus
+            .send(BusRequest::Command {
+                local: entry.local,
+                cmd,
+                wait,
+                reply,
+            })
+            .await
+            .map_err(|_| ApiError::ShuttingDown)?;
+        let waiter = rx.await.map_err(|_| ApiError::ShuttingDown)??;
+        self.await_reply(i, waiter, wait, wait_timeout).await
+    }
+
+    async fn await_reply(
+        &self,
+        i: usize,
+        waiter: oneshot::Receiver<CommandReply>,
+        wait: bool,
+        wait_timeout: Duration,
+    ) -> Result<CommandResult, ApiError> {
+        // Without `wait` the command returns at the drive's acceptance,
+        // which takes at most a few state timeouts.
+        let bound = if wait {
+            wait_timeout
+        } else {
+            Duration::from_millis(self.info(i).config.state_timeout_ms * 3 + 1000)
+        };
+        match tokio::time::timeout(bound, waiter).await {
+            Ok(Ok(r)) => Ok(CommandResult {
+                outcome: r.outcome,
+                detail: r.detail,
+                snapshot: Arc::new(r.snapshot),
+            }),
+            Ok(Err(_)) => Err(ApiError::ShuttingDown),
+            Err(_) => Err(ApiError::DeadlineExceeded(format!(
+                "axis {}: no {} within {} ms (the command keeps running; watch StreamAxisState)",
+                self.name(i),
+                if wait { "completion" } else { "acceptance" },
+                bound.as_millis()
+            ))),
+        }
+    }
+
+    /// Stops several axes at once (per bus in one batch of frames).
+    pub async fn stop_many(
+        &self,
+        axes: &[usize],
+        quick: bool,
+        wait: bool,
+    ) -> Result<Vec<Result<CommandResult, ApiError>>, ApiError> {
+        let cmd = if quick {
+            AxisCommand::QuickStop
+        } else {
+            AxisCommand::Stop
+        };
+        let items: Vec<(usize, AxisCommand)> = axes.iter().map(|&i| (i, cmd)).collect();
+        self.many(items, wait).await
+    }
+
+    /// Runs commands on several axes; those on one bus are applied in one
+    /// step of its task, so their frames leave together.
+    async fn many(
+        &self,
+        items: Vec<(usize, AxisCommand)>,
+        wait: bool,
+    ) -> Result<Vec<Result<CommandResult, ApiError>>, ApiError> {
+        // (bus task, [(position in `items`, axis in the task, command)])
+        type BusBatch = (mpsc::Sender<BusRequest>, Vec<(usize, usize, AxisCommand)>);
+        let mut by_bus: Vec<BusBatch> = Vec::new();
+        for (pos, (i, cmd)) in items.iter().enumerate() {
+            let e = &self.axes[*i];
+            match by_bus.iter_mut().find(|(tx, _)| tx.same_channel(&e.bus)) {
+                Some((_, list)) => list.push((pos, e.local, *cmd)),
+                None => by_bus.push((e.bus.clone(), vec![(pos, e.local, *cmd)])),
+            }
+        }
+        let mut waiters: Vec<Option<Result<oneshot::Receiver<CommandReply>, ApiError>>> =
+            (0..items.len()).map(|_| None).collect();
+        for (tx, list) in by_bus {
+            let (reply, rx) = oneshot::channel();
+            let cmds = list.iter().map(|(_, l, c)| (*l, *c)).collect();
+            tx.send(BusRequest::Many { cmds, wait, reply })
+                .await
+                .map_err(|_| ApiError::ShuttingDown)?;
+            let results = rx.await.map_err(|_| ApiError::ShuttingDown)?;
+            for ((pos, _, _), r) in list.iter().zip(results) {
+                waiters[*pos] = Some(r.map_err(ApiError::from));
+            }
+        }
+        let mut out = Vec::new();
+        for ((i, _), w) in items.iter().zip(waiters) {
+            out.push(match w.expect("every item answered") {
+                Ok(rx) => {
+                    self.await_reply(*i, rx, wait, Duration::from_secs(60))
+                        .await
+                }
+                Err(e) => Err(e),
+            });
+        }
+        Ok(out)
+    }
+
+    /// Starts a coordinated cyclic move: (axis, target, velocity,
+    /// acceleration) per axis, all on one bus.
+    pub async fn move_coordinated(
+        &self,
+        targets: Vec<(usize, f64, Option<f64>, Option<f64>)>,
+        wait: bool,
+    ) -> Result<Vec<Result<CommandResult, ApiError>>, ApiError> {
+        if targets.is_empty() {
+            return Err(ApiError::InvalidArgument("name at least one axis".into()));
+        }
+        let first = &self.axes[targets[0].0];
+        for (i, ..) in &targets {
+            let e = &self.axes[*i];
+            if !e.bus.same_channel(&first.bus) {
+                return Err(ApiError::FailedPrecondition(format!(
+                    "a coordinated move needs all axes on one bus: {} is on {}, {} on {}",
+                    first.info.config.name,
+                    first.info.config.bus,
+                    e.info.config.name,
+                    e.info.config.bus
+                )));
+            }
+            if e.info.config.position_mode != PositionModeChoice::Cyclic {
+                return Err(ApiError::FailedPrecondition(format!(
+                    "a coordinated move needs cyclic (CSP) axes; {} is a profile position axis",
+                    e.info.config.name
+                )));
+            }
+        }
+        let (reply, rx) = oneshot::channel();
+        first
+            .bus
+            .send(BusRequest::Coordinated {
+                targets: targets
+                    .iter()
+                    .map(|(i, t, v, a)| (self.axes[*i].local, *t, *v, *a))
+                    .collect(),
+                wait,
+                reply,
+            })
+            .await
+            .map_err(|_| ApiError::ShuttingDown)?;
+        let waiters = rx.await.map_err(|_| ApiError::ShuttingDown)??;
+        let mut out = Vec::new();
+        for ((i, ..), rx) in targets.iter().zip(waiters) {
+            out.push(
+                self.await_reply(*i, rx, wait, Duration::from_secs(120))
+                    .await,
+            );
+        }
+        Ok(out)
+    }
+}
+
+/// Stops the moving axes of leases that lapse, at their expiry.
+async fn run_lease_expiry(m: Arc<AxisManager>, cancel: CancellationToken) {
+    loop {
+        let next = m.leases.lock().expect("lease lock").next_expiry();
+        let sleep = match next {
+            Some(at) => at.saturating_sub(m.now()),
+            None => Duration::from_secs(3600),
+        };
+        tokio::select! {
+            _ = cancel.cancelled() => return,
+            _ = m.leases_changed.notified() => continue,
+            _ = tokio::time::sleep(sleep) => {}
+        }
+        let lapsed = m.leases.lock().expect("lease lock").expire(m.now());
+        for lease in lapsed {
+            let reason = format!("lapsed: not renewed within {} ms", lease.ttl.as_millis());
+            tracing::warn!(target: "cangate::audit", holder = %lease.holder, axes = ?lease.axes, "control lease lapsed; stopping its moving axes");
+            m.publish_control(&lease, "", &lease.holder, &reason);
+            let mut stops = Vec::new();
+            for name in &lease.axes {
+                let Some(&i) = m.by_name.get(name) else {
+                    continue;
+                };
+                let moving = m.latest(i).is_some_and(|(s, _)| {
+                    matches!(
+                        s.activity,
+                        Activity::Moving | Activity::Jogging | Activity::Homing
+                    )
+                });
+                if moving {
+                    let cmd = match m.info(i).config.stop_on_loss {
+                        StopChoice::Halt => AxisCommand::Stop,
+                        StopChoice::QuickStop => AxisCommand::QuickStop,
+                    };
+                    stops.push((i, cmd));
+                }
+            }
+            if !stops.is_empty() {
+                let m2 = m.clone();
+                tokio::spawn(async move {
+                    if let Err(e) = m2.many(stops, false).await {
+                        tracing::error!(error = %e, "could not stop the axes of a lapsed lease");
+                    }
+                });
+            }
+        }
+    }
+}

@@ -1,0 +1,626 @@
+//! The `cangate.v1.Axes` service: a thin shell over
+//! [`AxisManager`](crate::axes::AxisManager): validation of the request,
+//! control check, audit log, conversion to protobuf.
+
+use crate::axes::{AxisEventKind, AxisManager, AxisUpdate, CommandResult};
+use crate::config::{PositionModeChoice, StopChoice};
+use crate::error::ApiError;
+use crate::gateway::Gateway;
+use cangate_axis::cia402::AxisSnapshot;
+use cangate_axis::{Activity, AxisCommand, Outcome};
+use cangate_can::Timestamp;
+use cangate_canopen::ds402::DriveState;
+use cangate_proto::v1 as pb;
+use cangate_proto::v1::axes_server::Axes;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio_stream::Stream;
+use tonic::{Request, Response, Status};
+
+/// Implementation of the Axes service.
+#[derive(Clone)]
+pub struct AxesService {
+    gateway: Arc<Gateway>,
+}
+
+impl AxesService {
+    /// Serves the gateway's axes.
+    pub fn new(gateway: Arc<Gateway>) -> Self {
+        AxesService { gateway }
+    }
+
+    fn axes(&self) -> &AxisManager {
+        self.gateway.axes()
+    }
+
+    fn axis_pb(&self, i: usize) -> pb::Axis {
+        let m = self.axes();
+        let info = m.info(i);
+        let c = &info.config;
+        pb::Axis {
+            name: c.name.clone(),
+            backend: pb::AxisBackend::Cia402 as i32,
+            bus: c.bus.clone(),
+            node: c.node,
+            unit: c.unit.clone(),
+            counts_per_unit: c.counts_per_unit,
+            min_position: c.min_position,
+            max_position: c.max_position,
+            max_velocity: c.max_velocity,
+            max_acceleration: c.max_acceleration,
+            position_mode: match c.position_mode {
+                PositionModeChoice::Profile => pb::PositionMode::Profile,
+                PositionModeChoice::Cyclic => pb::PositionMode::Cyclic,
+            } as i32,
+            stop_on_loss: match c.stop_on_loss {
+                StopChoice::Halt => pb::StopKind::Halt,
+                StopChoice::QuickStop => pb::StopKind::QuickStop,
+            } as i32,
+            jog_deadman_ms: c.jog_deadman_ms,
+            status: Some(self.status_pb(i, None)),
+        }
+    }
+
+    /// The status of axis `i`: `snap` or the latest known.
+    fn status_pb(&self, i: usize, snap: Option<(&AxisSnapshot, Timestamp)>) -> pb::AxisStatus {
+        let m = self.axes();
+        let latest = m.latest(i);
+        let (snapshot, at) = match (snap, &latest) {
+            (Some((s, t)), _) => (Some(s), t),
+            (None, Some((s, t))) => (Some(s.as_ref()), *t),
+            (None, None) => (None, Timestamp(0)),
+        };
+        status_pb(m, i, snapshot, at)
+    }
+
+    fn result_pb(&self, i: usize, r: CommandResult) -> pb::AxisCommandResponse {
+        pb::AxisCommandResponse {
+            outcome: outcome_pb(r.outcome) as i32,
+            detail: r.detail,
+            status: Some(self.status_pb(i, Some((&r.snapshot, Timestamp::now())))),
+        }
+    }
+
+    async fn run(
+        &self,
+        peer: String,
+        axis: &str,
+        cmd: AxisCommand,
+        options: Option<pb::CommandOptions>,
+    ) -> Result<pb::AxisCommandResponse, ApiError> {
+        let m = self.axes();
+        let i = m.index(axis)?;
+        let opts = options.unwrap_or_default();
+        let holder = if cmd.needs_control() {
+            match m.authorize(i, &opts.lease) {
+                Ok(h) => h,
+                Err(e) => {
+                    audit(&peer, "", axis, &cmd, &format!("refused: {e}"));
+                    return Err(e);
+                }
+            }
+        } else {
+            // Renew the lease if one came along.
+            if !opts.lease.is_empty() {
+                let _ = m.renew(&opts.lease);
+            }
+            String::new()
+        };
+        let wait_timeout = Duration::from_millis(match opts.wait_timeout_ms {
+            0 => 60_000,
+            t => u64::from(t),
+        });
+        let r = m.command(i, cmd, opts.wait, wait_timeout).await;
+        match &r {
+            Ok(res) => audit(
+                &peer,
+                &holder,
+                axis,
+                &cmd,
+                &format!(
+                    "{}: {}",
+                    res.outcome.map_or("accepted", Outcome::name),
+                    res.detail
+                ),
+            ),
+            Err(e) => audit(&peer, &holder, axis, &cmd, &format!("refused: {e}")),
+        }
+        let res = r?;
+        if opts.wait {
+            check_outcome(axis, &res)?;
+        }
+        Ok(self.result_pb(i, res))
+    }
+}
+
+/// With `wait`, a command that did not complete ends the call with an
+/// error code that says why (the outcome is in the message).
+fn check_outcome(axis: &str, r: &CommandResult) -> Result<(), ApiError> {
+    match r.outcome {
+        None | Some(Outcome::Completed) => Ok(()),
+        Some(Outcome::Timeout) => Err(ApiError::DeadlineExceeded(format!(
+            "axis {axis}: {}",
+            r.detail
+        ))),
+        Some(o) => Err(ApiError::Aborted(format!(
+            "axis {axis}: {}: {}",
+            o.name(),
+            r.detail
+        ))),
+    }
+}
+
+fn audit(peer: &str, holder: &str, axis: &str, cmd: &AxisCommand, result: &str) {
+    tracing::info!(
+        target: "cangate::audit",
+        %peer,
+        %holder,
+        %axis,
+        command = ?cmd,
+        %result,
+        "axis command"
+    );
+}
+
+fn peer<T>(req: &Request<T>) -> String {
+    req.remote_addr()
+        .map_or_else(|| "unknown".to_string(), |a| a.to_string())
+}
+
+fn outcome_pb(o: Option<Outcome>) -> pb::Outcome {
+    match o {
+        None => pb::Outcome::Accepted,
+        Some(Outcome::Completed) => pb::Outcome::Completed,
+        Some(Outcome::Superseded) => pb::Outcome::Superseded,
+        Some(Outcome::Fault) => pb::Outcome::Fault,
+        Some(Outcome::Timeout) => pb::Outcome::Timeout,
+        Some(Outcome::Stopped) => pb::Outcome::Stopped,
+    }
+}
+
+fn state_pb(s: Option<DriveState>) -> pb::DriveState {
+    match s {
+        None | Some(DriveState::Unknown) => pb::DriveState::Unspecified,
+        Some(DriveState::NotReadyToSwitchOn) => pb::DriveState::NotReadyToSwitchOn,
+        Some(DriveState::SwitchOnDisabled) => pb::DriveState::SwitchOnDisabled,
+        Some(DriveState::ReadyToSwitchOn) => pb::DriveState::ReadyToSwitchOn,
+        Some(DriveState::SwitchedOn) => pb::DriveState::SwitchedOn,
+        Some(DriveState::OperationEnabled) => pb::DriveState::OperationEnabled,
+        Some(DriveState::QuickStopActive) => pb::DriveState::QuickStopActive,
+        Some(DriveState::FaultReactionActive) => pb::DriveState::FaultReactionActive,
+        Some(DriveState::Fault) => pb::DriveState::Fault,
+    }
+}
+
+fn activity_pb(a: Activity) -> pb::AxisActivity {
+    match a {
+        Activity::Idle => pb::AxisActivity::Idle,
+        Activity::Switching => pb::AxisActivity::Switching,
+        Activity::Homing => pb::AxisActivity::Homing,
+        Activity::Moving => pb::AxisActivity::Moving,
+        Activity::Jogging => pb::AxisActivity::Jogging,
+        Activity::Stopping => pb::AxisActivity::Stopping,
+    }
+}
+
+fn status_pb(m: &AxisManager, i: usize, s: Option<&AxisSnapshot>, at: Timestamp) -> pb::AxisStatus {
+    let (controlled_by, lease_remaining_ms) =
+        m.control(i).map_or((String::new(), 0), |(h, left)| {
+            (h, left.as_millis().min(u128::from(u32::MAX)) as u32)
+        });
+    let mut st = pb::AxisStatus {
+        axis: m.name(i).to_string(),
+        controlled_by,
+        lease_remaining_ms,
+        timestamp_us: at.0,
+        ..Default::default()
+    };
+    if let Some(s) = s {
+        st.state = state_pb(s.state) as i32;
+        st.statusword = u32::from(s.statusword);
+        st.mode = i32::from(s.mode);
+        st.activity = activity_pb(s.activity) as i32;
+        st.position = s.position;
+        st.velocity = s.velocity;
+        st.demand_position = s.demand_position;
+        st.following_error = s.following_error;
+        st.homed = s.homed;
+        st.node_lost = s.node_lost.is_some();
+        if let Some((code, text)) = &s.fault {
+            st.fault_code = u32::from(*code);
+            st.fault_text = text.clone();
+        }
+    } else {
+        st.node_lost = true;
+        st.fault_text = "no process data from the drive yet".into();
+    }
+    st
+}
+
+fn positive_or_default(what: &str, v: f64) -> Result<Option<f64>, ApiError> {
+    if v == 0.0 {
+        Ok(None)
+    } else if v.is_finite() && v > 0.0 {
+        Ok(Some(v))
+    } else {
+        Err(ApiError::InvalidArgument(format!(
+            "{what} must be positive (0 = the axis default), got {v}"
+        )))
+    }
+}
+
+type UpdateStream = Pin<Box<dyn Stream<Item = Result<pb::AxisUpdate, Status>> + Send>>;
+
+#[tonic::async_trait]
+impl Axes for AxesService {
+    async fn list_axes(
+        &self,
+        _req: Request<pb::ListAxesRequest>,
+    ) -> Result<Response<pb::ListAxesResponse>, Status> {
+        let axes = (0..self.axes().len()).map(|i| self.axis_pb(i)).collect();
+        Ok(Response::new(pb::ListAxesResponse { axes }))
+    }
+
+    async fn get_axis(
+        &self,
+        req: Request<pb::GetAxisRequest>,
+    ) -> Result<Response<pb::Axis>, Status> {
+        let i = self.axes().index(&req.get_ref().axis)?;
+        Ok(Response::new(self.axis_pb(i)))
+    }
+
+    async fn acquire_control(
+        &self,
+        req: Request<pb::AcquireControlRequest>,
+    ) -> Result<Response<pb::ControlLease>, Status> {
+        let peer = peer(&req);
+        let r = req.into_inner();
+        let holder = if r.client_name.is_empty() {
+            peer.clone()
+        } else {
+            format!("{} ({peer})", r.client_name)
+        };
+        let lease = self.axes().acquire(&r.axes, r.ttl_ms, holder.clone());
+        tracing::info!(target: "cangate::audit", %peer, %holder, axes = ?r.axes, result = %lease.as_ref().map_or_else(|e| format!("refused: {e}"), |_| "granted".into()), "acquire control");
+        let lease = lease?;
+        Ok(Response::new(pb::ControlLease {
+            lease: lease.token,
+            axes: lease.axes,
+            holder: lease.holder,
+            ttl_ms: lease.ttl.as_millis() as u32,
+        }))
+    }
+
+    async fn renew_control(
+        &self,
+        req: Request<pb::RenewControlRequest>,
+    ) -> Result<Response<pb::ControlLease>, Status> {
+        let lease = self.axes().renew(&req.get_ref().lease)?;
+        Ok(Response::new(pb::ControlLease {
+            lease: lease.token,
+            axes: lease.axes,
+            holder: lease.holder,
+            ttl_ms: lease.ttl.as_millis() as u32,
+        }))
+    }
+
+    async fn release_control(
+        &self,
+        req: Request<pb::ReleaseControlRequest>,
+    ) -> Result<Response<pb::ReleaseControlResponse>, Status> {
+        let peer = peer(&req);
+        let lease = self.axes().release(&req.get_ref().lease)?;
+        tracing::info!(target: "cangate::audit", %peer, holder = %lease.holder, axes = ?lease.axes, "release control");
+        Ok(Response::new(pb::ReleaseControlResponse {
+            axes: lease.axes,
+        }))
+    }
+
+    async fn enable(
+        &self,
+        req: Request<pb::AxisCommandRequest>,
+    ) -> Result<Response<pb::AxisCommandResponse>, Status> {
+        let peer = peer(&req);
+        let r = req.into_inner();
+        Ok(Response::new(
+            self.run(peer, &r.axis, AxisCommand::Enable, r.options)
+                .await?,
+        ))
+    }
+
+    async fn disable(
+        &self,
+        req: Request<pb::AxisCommandRequest>,
+    ) -> Result<Response<pb::AxisCommandResponse>, Status> {
+        let peer = peer(&req);
+        let r = req.into_inner();
+        Ok(Response::new(
+            self.run(peer, &r.axis, AxisCommand::Disable, r.options)
+                .await?,
+        ))
+    }
+
+    async fn home(
+        &self,
+        req: Request<pb::AxisCommandRequest>,
+    ) -> Result<Response<pb::AxisCommandResponse>, Status> {
+        let peer = peer(&req);
+        let r = req.into_inner();
+        Ok(Response::new(
+            self.run(peer, &r.axis, AxisCommand::Home, r.options)
+                .await?,
+        ))
+    }
+
+    async fn r#move(
+        &self,
+        req: Request<pb::MoveRequest>,
+    ) -> Result<Response<pb::AxisCommandResponse>, Status> {
+        let peer = peer(&req);
+        let r = req.into_inner();
+        let cmd = AxisCommand::Move {
+            target: r.target,
+            relative: r.relative,
+            velocity: positive_or_default("velocity", r.velocity)?,
+            acceleration: positive_or_default("acceleration", r.acceleration)?,
+        };
+        Ok(Response::new(
+            self.run(peer, &r.axis, cmd, r.options).await?,
+        ))
+    }
+
+    async fn jog(
+        &self,
+        req: Request<pb::JogRequest>,
+    ) -> Result<Response<pb::AxisCommandResponse>, Status> {
+        let peer = peer(&req);
+        let r = req.into_inner();
+        let cmd = AxisCommand::Jog {
+            velocity: r.velocity,
+            acceleration: positive_or_default("acceleration", r.acceleration)?,
+        };
+        Ok(Response::new(
+            self.run(peer, &r.axis, cmd, r.options).await?,
+        ))
+    }
+
+    async fn stop(
+        &self,
+        req: Request<pb::AxisCommandRequest>,
+    ) -> Result<Response<pb::AxisCommandResponse>, Status> {
+        let peer = peer(&req);
+        let r = req.into_inner();
+        Ok(Response::new(
+            self.run(peer, &r.axis, AxisCommand::Stop, r.options)
+                .await?,
+        ))
+    }
+
+    async fn quick_stop(
+        &self,
+        req: Request<pb::AxisCommandRequest>,
+    ) -> Result<Response<pb::AxisCommandResponse>, Status> {
+        let peer = peer(&req);
+        let r = req.into_inner();
+        Ok(Response::new(
+            self.run(peer, &r.axis, AxisCommand::QuickStop, r.options)
+                .await?,
+        ))
+    }
+
+    async fn reset_fault(
+        &self,
+        req: Request<pb::AxisCommandRequest>,
+    ) -> Result<Response<pb::AxisCommandResponse>, Status> {
+        let peer = peer(&req);
+        let r = req.into_inner();
+        Ok(Response::new(
+            self.run(peer, &r.axis, AxisCommand::ResetFault, r.options)
+                .await?,
+        ))
+    }
+
+    async fn stop_axes(
+        &self,
+        req: Request<pb::StopAxesRequest>,
+    ) -> Result<Response<pb::MultiAxisResponse>, Status> {
+        let peer = peer(&req);
+        let r = req.into_inner();
+        let m = self.axes();
+        if r.axes.is_empty() {
+            return Err(ApiError::InvalidArgument("name at least one axis".into()).into());
+        }
+        let idx = r
+            .axes
+            .iter()
+            .map(|a| m.index(a))
+            .collect::<Result<Vec<_>, _>>()?;
+        tracing::info!(target: "cangate::audit", %peer, axes = ?r.axes, quick = r.quick, "stop axes");
+        let results = m.stop_many(&idx, r.quick, r.wait).await?;
+        let mut out = Vec::new();
+        for (i, res) in idx.iter().zip(results) {
+            out.push(match res {
+                Ok(res) => self.result_pb(*i, res),
+                Err(e) => pb::AxisCommandResponse {
+                    outcome: pb::Outcome::Unspecified as i32,
+                    detail: e.to_string(),
+                    status: Some(self.status_pb(*i, None)),
+                },
+            });
+        }
+        Ok(Response::new(pb::MultiAxisResponse { results: out }))
+    }
+
+    async fn move_axes(
+        &self,
+        req: Request<pb::MoveAxesRequest>,
+    ) -> Result<Response<pb::MultiAxisResponse>, Status> {
+        let peer = peer(&req);
+        let r = req.into_inner();
+        let m = self.axes();
+        let mut targets = Vec::new();
+        let mut seen = std::collections::HashSet::new();
+        for t in &r.targets {
+            let i = m.index(&t.axis)?;
+            if !seen.insert(i) {
+                return Err(
+                    ApiError::InvalidArgument(format!("axis {} is named twice", t.axis)).into(),
+                );
+            }
+            if !t.target.is_finite() {
+                return Err(ApiError::InvalidArgument(format!(
+                    "axis {}: target must be finite",
+                    t.axis
+                ))
+                .into());
+            }
+            m.authorize(i, &r.lease)?;
+            targets.push((
+                i,
+                t.target,
+                positive_or_default("velocity", t.velocity)?,
+                positive_or_default("acceleration", t.acceleration)?,
+            ));
+        }
+        tracing::info!(target: "cangate::audit", %peer, targets = ?r.targets.iter().map(|t| (&t.axis, t.target)).collect::<Vec<_>>(), "coordinated move");
+        let results = m.move_coordinated(targets.clone(), r.wait).await?;
+        let mut out = Vec::new();
+        for ((i, ..), res) in targets.iter().zip(results) {
+            let res = res?;
+            if r.wait {
+                check_outcome(m.name(*i), &res)?;
+            }
+            out.push(self.result_pb(*i, res));
+        }
+        Ok(Response::new(pb::MultiAxisResponse { results: out }))
+    }
+
+    type StreamAxisStateStream = UpdateStream;
+
+    async fn stream_axis_state(
+        &self,
+        req: Request<pb::StreamAxisStateRequest>,
+    ) -> Result<Response<Self::StreamAxisStateStream>, Status> {
+        let r = req.into_inner();
+        let gateway = self.gateway.clone();
+        let m = gateway.axes().clone();
+        let wanted: Option<Vec<bool>> = if r.axes.is_empty() {
+            None
+        } else {
+            let mut w = vec![false; m.len()];
+            for a in &r.axes {
+                w[m.index(a)?] = true;
+            }
+            Some(w)
+        };
+        let mut rx = m.subscribe();
+        let changes_only = r.changes_only;
+        let shutdown = gateway.shutdown_token();
+        let (tx, out) = tokio::sync::mpsc::channel(1024);
+        // The current state first, so a watcher sees every axis at once.
+        let initial: Vec<pb::AxisUpdate> = (0..m.len())
+            .filter(|i| wanted.as_ref().is_none_or(|w| w[*i]))
+            .map(|i| {
+                let l = m.latest(i);
+                let at = l.as_ref().map_or(Timestamp(0), |(_, t)| *t);
+                pb::AxisUpdate {
+                    update: Some(pb::axis_update::Update::Status(status_pb(
+                        &m,
+                        i,
+                        l.as_ref().map(|(s, _)| s.as_ref()),
+                        at,
+                    ))),
+                }
+            })
+            .collect();
+        tokio::spawn(async move {
+            let mut last: Vec<Option<Arc<AxisSnapshot>>> = vec![None; m.len()];
+            for u in initial {
+                if tx.send(Ok(u)).await.is_err() {
+                    return;
+                }
+            }
+            loop {
+                let u = tokio::select! {
+                    _ = shutdown.cancelled() => {
+                        let _ = tx.send(Err(Status::unavailable("the gateway is shutting down"))).await;
+                        return;
+                    }
+                    _ = tx.closed() => return,
+                    u = rx.recv() => u,
+                };
+                let item = match u {
+                    Ok(AxisUpdate::Status { axis, snapshot, at }) => {
+                        if wanted.as_ref().is_some_and(|w| !w[axis]) {
+                            continue;
+                        }
+                        if changes_only && last[axis].as_deref() == Some(snapshot.as_ref()) {
+                            continue;
+                        }
+                        last[axis] = Some(snapshot.clone());
+                        pb::axis_update::Update::Status(status_pb(&m, axis, Some(&snapshot), at))
+                    }
+                    Ok(AxisUpdate::Event { axis, at, event }) => {
+                        if wanted.as_ref().is_some_and(|w| !w[axis]) {
+                            continue;
+                        }
+                        pb::axis_update::Update::Event(event_pb(&m, axis, at, event))
+                    }
+                    Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
+                        pb::axis_update::Update::Event(pb::AxisEvent {
+                            axis: String::new(),
+                            timestamp_us: Timestamp::now().0,
+                            kind: Some(pb::axis_event::Kind::Lost(n)),
+                        })
+                    }
+                    Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
+                };
+                if tx
+                    .send(Ok(pb::AxisUpdate { update: Some(item) }))
+                    .await
+                    .is_err()
+                {
+                    return;
+                }
+            }
+        });
+        Ok(Response::new(Box::pin(
+            tokio_stream::wrappers::ReceiverStream::new(out),
+        )))
+    }
+}
+
+fn event_pb(m: &AxisManager, axis: usize, at: Timestamp, e: AxisEventKind) -> pb::AxisEvent {
+    use pb::axis_event::Kind;
+    let kind = match e {
+        AxisEventKind::MotionDone {
+            command,
+            outcome,
+            detail,
+        } => Kind::MotionDone(pb::MotionDone {
+            command: command.name().to_string(),
+            outcome: outcome_pb(Some(outcome)) as i32,
+            detail,
+        }),
+        AxisEventKind::Fault { code, text } => Kind::Fault(pb::Fault {
+            code: u32::from(code),
+            text,
+        }),
+        AxisEventKind::Control {
+            holder,
+            previous,
+            reason,
+        } => Kind::Control(pb::ControlChange {
+            holder,
+            previous,
+            reason,
+        }),
+        AxisEventKind::Node { lost, reason } => Kind::Node(pb::NodeLink { lost, reason }),
+    };
+    pb::AxisEvent {
+        axis: m.name(axis).to_string(),
+        timestamp_us: at.0,
+        kind: Some(kind),
+    }
+}
