@@ -109,6 +109,34 @@ impl Client {
             .max_encoding_message_size(64 * 1024 * 1024)
     }
 
+    /// The generated Axes client.
+    pub fn axes_client(&self) -> pb::axes_client::AxesClient<Channel> {
+        pb::axes_client::AxesClient::new(self.channel.clone())
+            .max_decoding_message_size(64 * 1024 * 1024)
+            .max_encoding_message_size(64 * 1024 * 1024)
+    }
+
+    /// Every configured axis with its live state.
+    pub async fn list_axes(&mut self) -> Result<Vec<pb::Axis>, Error> {
+        Ok(self
+            .axes_client()
+            .list_axes(pb::ListAxesRequest {})
+            .await?
+            .into_inner()
+            .axes)
+    }
+
+    /// One axis.
+    pub async fn get_axis(&mut self, axis: &str) -> Result<pb::Axis, Error> {
+        Ok(self
+            .axes_client()
+            .get_axis(pb::GetAxisRequest {
+                axis: axis.to_string(),
+            })
+            .await?
+            .into_inner())
+    }
+
     /// Reads an object over SDO.
     pub async fn read_sdo(
         &mut self,

@@ -7,6 +7,7 @@ use clap::{Parser, Subcommand};
 use serde_json::json;
 use std::io::Write;
 
+mod axis_cli;
 mod canopen_cli;
 use canopen_cli::{NmtVerb, SdoVerb};
 
@@ -100,6 +101,10 @@ enum Command {
         #[arg(long = "node")]
         nodes: Vec<u32>,
     },
+    /// Axes (CiA 402 drives): list, show, watch, enable, home, move, jog,
+    /// stop: `cangate axis X move 12.5 --wait`, `cangate axis stop X Y`.
+    #[command(after_help = axis_cli::AXIS_HELP)]
+    Axis(axis_cli::AxisArgs),
 }
 
 #[tokio::main]
@@ -121,6 +126,9 @@ async fn main() {
 }
 
 async fn run(cli: Cli) -> Result<()> {
+    if let Command::Axis(args) = &cli.command {
+        axis_cli::validate(args)?;
+    }
     let mut client = cangate_client::connect(&cli.server).await?;
     match cli.command {
         Command::Buses => buses(&mut client, cli.json).await,
@@ -143,6 +151,7 @@ async fn run(cli: Cli) -> Result<()> {
         Command::Events { bus, nodes } => {
             canopen_cli::events(&mut client, cli.json, bus, nodes).await
         }
+        Command::Axis(args) => axis_cli::run(&mut client, cli.json, args).await,
         Command::Send { bus, frames } => {
             let frames = frames
                 .iter()

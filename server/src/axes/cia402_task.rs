@@ -80,6 +80,8 @@ struct Slot {
     waiters: HashMap<OpId, PendingReply>,
     /// Bus time of the latest process data.
     at: Timestamp,
+    /// The latest payload sent per RPDO COB-ID.
+    last_sent: HashMap<u16, Vec<u8>>,
 }
 
 struct Task {
@@ -121,6 +123,7 @@ pub async fn run(
                 rpdos,
                 waiters: HashMap::new(),
                 at: Timestamp(0),
+                last_sent: HashMap::new(),
             }
         })
         .collect::<Vec<_>>();
@@ -162,7 +165,7 @@ pub async fn run(
                 for i in 0..t.slots.len() {
                     let mut out = Vec::new();
                     t.slots[i].axis.on_sync(now, &mut out);
-                    t.handle(i, out);
+                    t.handle_with(i, out, true);
                 }
             }
             p = pdos.recv() => match p {
@@ -367,14 +370,32 @@ impl Task {
     /// Turns the controller's outputs into frames, SDO jobs, events and
     /// waiter replies.
     fn handle(&mut self, i: usize, outputs: Vec<Output>) {
+        self.handle_with(i, outputs, false);
+    }
+
+    /// As [`Task::handle`]; `cyclic` images (the set-point of every SYNC)
+    /// send only the RPDO with the target position and those whose payload
+    /// changed: the controlword RPDO is not repeated 1000 times a second.
+    fn handle_with(&mut self, i: usize, outputs: Vec<Output>, cyclic: bool) {
         for o in outputs {
             match o {
                 Output::Image(image) => match encode_image(&image, &self.slots[i].rpdos) {
                     Ok(frames) => {
+                        let slot = &mut self.slots[i];
                         for (cob, data) in frames {
+                            let setpoint = slot.rpdos.iter().any(|p| {
+                                p.cob_id == cob
+                                    && p.mapping.iter().any(|m| {
+                                        m.addr == cangate_canopen::ds402::objects::TARGET_POSITION
+                                    })
+                            });
+                            if cyclic && !setpoint && slot.last_sent.get(&cob) == Some(&data) {
+                                continue;
+                            }
                             if let Ok(f) = Frame::new(CanId::Standard(cob), &data) {
                                 self.frames.push(f);
                             }
+                            slot.last_sent.insert(cob, data);
                         }
                     }
                     Err(e) => {

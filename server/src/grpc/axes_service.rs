@@ -213,7 +213,7 @@ fn status_pb(m: &AxisManager, i: usize, s: Option<&AxisSnapshot>, at: Timestamp)
         axis: m.name(i).to_string(),
         controlled_by,
         lease_remaining_ms,
-        timestamp_us: at.0,
+        timestamp_us: at.0 / 1000,
         ..Default::default()
     };
     if let Some(s) = s {
@@ -570,7 +570,7 @@ impl Axes for AxesService {
                     Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
                         pb::axis_update::Update::Event(pb::AxisEvent {
                             axis: String::new(),
-                            timestamp_us: Timestamp::now().0,
+                            timestamp_us: Timestamp::now().0 / 1000,
                             kind: Some(pb::axis_event::Kind::Lost(n)),
                         })
                     }
@@ -620,7 +620,7 @@ fn event_pb(m: &AxisManager, axis: usize, at: Timestamp, e: AxisEventKind) -> pb
     };
     pb::AxisEvent {
         axis: m.name(axis).to_string(),
-        timestamp_us: at.0,
+        timestamp_us: at.0 / 1000,
         kind: Some(kind),
     }
 }
