@@ -116,6 +116,41 @@ impl Client {
             .max_encoding_message_size(64 * 1024 * 1024)
     }
 
+    /// The generated Handwheels client.
+    pub fn handwheels_client(&self) -> pb::handwheels_client::HandwheelsClient<Channel> {
+        pb::handwheels_client::HandwheelsClient::new(self.channel.clone())
+            .max_decoding_message_size(64 * 1024 * 1024)
+            .max_encoding_message_size(64 * 1024 * 1024)
+    }
+
+    /// The generated Simulator client (simulated devices of the gateway).
+    pub fn simulator_client(&self) -> pb::simulator_client::SimulatorClient<Channel> {
+        pb::simulator_client::SimulatorClient::new(self.channel.clone())
+            .max_decoding_message_size(64 * 1024 * 1024)
+            .max_encoding_message_size(64 * 1024 * 1024)
+    }
+
+    /// Every configured handwheel with its statistics.
+    pub async fn list_handwheels(&mut self) -> Result<Vec<pb::Handwheel>, Error> {
+        Ok(self
+            .handwheels_client()
+            .list_handwheels(pb::ListHandwheelsRequest {})
+            .await?
+            .into_inner()
+            .handwheels)
+    }
+
+    /// One handwheel.
+    pub async fn get_handwheel(&mut self, handwheel: &str) -> Result<pb::Handwheel, Error> {
+        Ok(self
+            .handwheels_client()
+            .get_handwheel(pb::GetHandwheelRequest {
+                handwheel: handwheel.to_string(),
+            })
+            .await?
+            .into_inner())
+    }
+
     /// Every configured axis with its live state.
     pub async fn list_axes(&mut self) -> Result<Vec<pb::Axis>, Error> {
         Ok(self

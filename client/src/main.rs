@@ -9,6 +9,7 @@ use std::io::Write;
 
 mod axis_cli;
 mod canopen_cli;
+mod wheel_cli;
 use canopen_cli::{NmtVerb, SdoVerb};
 
 /// Command-line client of the cangate CAN gateway.
@@ -105,6 +106,12 @@ enum Command {
     /// stop: `cangate axis X move 12.5 --wait`, `cangate axis stop X Y`.
     #[command(after_help = axis_cli::AXIS_HELP)]
     Axis(axis_cli::AxisArgs),
+    /// Handwheels (manual pulse generators): list, show, mode, watch:
+    /// `cangate wheel mode hw1 manual`, `cangate wheel watch hw1`.
+    #[command(after_help = wheel_cli::WHEEL_HELP)]
+    Wheel(wheel_cli::WheelArgs),
+    /// Simulated devices of the gateway: `cangate sim turn hw1 --detents 20`.
+    Sim(wheel_cli::SimArgs),
 }
 
 #[tokio::main]
@@ -152,6 +159,8 @@ async fn run(cli: Cli) -> Result<()> {
             canopen_cli::events(&mut client, cli.json, bus, nodes).await
         }
         Command::Axis(args) => axis_cli::run(&mut client, cli.json, args).await,
+        Command::Wheel(args) => wheel_cli::run(&mut client, cli.json, args).await,
+        Command::Sim(args) => wheel_cli::sim(&mut client, cli.json, args).await,
         Command::Send { bus, frames } => {
             let frames = frames
                 .iter()

@@ -11,6 +11,8 @@ use crate::error::ApiError;
 use crate::grpc::axes_service::AxesService;
 use crate::grpc::bus_service::BusService;
 use crate::grpc::canopen_service::CanopenService;
+use crate::grpc::handwheel_service::{HandwheelsService, SimulatorService};
+use crate::handwheel::HandwheelManager;
 use cangate_can::bus::{Backend, BackendKind, BusHandle, BusInfo};
 use cangate_can::socketcan_bus::SocketCanBus;
 use cangate_can::{BitTiming, Stuffing, VirtualBusConfig, VirtualNetwork};
@@ -53,6 +55,7 @@ pub struct Gateway {
     buses: BTreeMap<String, BusHandle>,
     canopen: BTreeMap<String, CanopenBus>,
     axes: Arc<AxisManager>,
+    handwheels: Arc<HandwheelManager>,
     network: VirtualNetwork,
     shutdown: CancellationToken,
 }
@@ -76,6 +79,8 @@ impl Gateway {
         // Simulated devices start after their master listens, so that the
         // master sees their boot-up.
         let mut simulated = Vec::new();
+        let mut sim_wheels = std::collections::HashMap::new();
+        let mut wheel_runs = Vec::new();
         for cc in &config.canopen {
             let bus = buses[&cc.bus].clone();
             let mut facts = BTreeMap::new();
@@ -111,28 +116,69 @@ impl Gateway {
                         .and_then(|v| v.default_for_node(node))
                         .and_then(|v| v.as_u32())
                         .unwrap_or(0);
-                    let device: Box<dyn cangate_sim::Device + Send> = if device_type & 0xFFFF == 402
-                    {
-                        Box::new(SimDrive::new(
+                    let is_wheel = nc.eds.as_deref() == Some("builtin:handwheel");
+                    if is_wheel {
+                        let counter = config
+                            .handwheels
+                            .iter()
+                            .find(|h| h.bus == cc.bus && h.node == nc.id)
+                            .map(|h| h.counter)
+                            .unwrap_or_default();
+                        let wheel = cangate_sim::SimHandwheel::new(
                             eds,
                             node,
-                            SimDriveOptions {
+                            cangate_sim::SimHandwheelOptions {
                                 node: options,
-                                ..SimDriveOptions::default()
+                                layout: match counter {
+                                    crate::config::CounterChoice::Nibble => {
+                                        cangate_canopen::handwheel::CounterLayout::Nibble
+                                    }
+                                    crate::config::CounterChoice::Bits67 => {
+                                        cangate_canopen::handwheel::CounterLayout::Bits6_7
+                                    }
+                                },
+                                ..Default::default()
                             },
-                        ))
+                        );
+                        let handle = cangate_sim::DeviceHandle::new(wheel);
+                        sim_wheels.insert((cc.bus.clone(), nc.id), handle.clone());
+                        // Run through the handle the Simulator service
+                        // turns it with.
+                        wheel_runs.push((vbus.connect(false), handle));
                     } else {
-                        Box::new(SimNode::new(eds, node, options))
-                    };
-                    simulated.push((vbus.connect(false), device));
+                        let device: Box<dyn cangate_sim::Device + Send> =
+                            if device_type & 0xFFFF == 402 {
+                                Box::new(SimDrive::new(
+                                    eds,
+                                    node,
+                                    SimDriveOptions {
+                                        node: options,
+                                        ..SimDriveOptions::default()
+                                    },
+                                ))
+                            } else {
+                                Box::new(SimNode::new(eds, node, options))
+                            };
+                        simulated.push((vbus.connect(false), device));
+                    }
                 }
                 let axis = config
                     .axes
                     .iter()
                     .find(|a| a.bus == cc.bus && a.node == nc.id);
                 let sync = cc.sync_period_us > 0;
-                let (tpdos, rpdos, boot) =
+                let (tpdos, rpdos, mut boot) =
                     node_plan(nc, node, eds.as_deref(), axis, sync).map_err(err)?;
+                // A handwheel sends feed only when operational: it is
+                // started at every boot-up like the configured nodes.
+                if boot.is_none()
+                    && config
+                        .handwheels
+                        .iter()
+                        .any(|h| h.bus == cc.bus && h.node == nc.id)
+                {
+                    boot = Some(Arc::new(BootPlan::default()));
+                }
                 facts.insert(
                     node,
                     NodeFacts {
@@ -164,6 +210,26 @@ impl Gateway {
                 message,
             })?;
         tasks.extend(axis_tasks);
+        let (handwheels, wheel_tasks) = HandwheelManager::start(
+            &config.handwheels,
+            &canopen,
+            &buses,
+            &axes,
+            &sim_wheels,
+            shutdown.child_token(),
+        )
+        .map_err(|message| StartError::Bus {
+            bus: "handwheels".into(),
+            message,
+        })?;
+        tasks.extend(wheel_tasks);
+        for (port, handle) in wheel_runs {
+            tasks.push(cangate_sim::spawn_device(
+                port,
+                handle,
+                shutdown.child_token(),
+            ));
+        }
         for (port, device) in simulated {
             tasks.push(cangate_sim::spawn_device(
                 port,
@@ -176,6 +242,7 @@ impl Gateway {
                 buses,
                 canopen,
                 axes,
+                handwheels,
                 network,
                 shutdown,
             },
@@ -203,6 +270,11 @@ impl Gateway {
     /// The axes.
     pub fn axes(&self) -> &Arc<AxisManager> {
         &self.axes
+    }
+
+    /// The handwheels.
+    pub fn handwheels(&self) -> &Arc<HandwheelManager> {
+        &self.handwheels
     }
 
     /// Every CANopen master, by bus name.
@@ -469,6 +541,18 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
     health_reporter
         .set_serving::<cangate_proto::v1::axes_server::AxesServer<AxesService>>()
         .await;
+    let handwheels_service = cangate_proto::v1::handwheels_server::HandwheelsServer::new(
+        HandwheelsService::new(gateway.clone()),
+    );
+    health_reporter
+        .set_serving::<cangate_proto::v1::handwheels_server::HandwheelsServer<HandwheelsService>>()
+        .await;
+    // The Simulator service exists only when there is something to simulate.
+    let simulator_service = gateway.handwheels().any_simulated().then(|| {
+        cangate_proto::v1::simulator_server::SimulatorServer::new(SimulatorService::new(
+            gateway.clone(),
+        ))
+    });
     let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
     let token = shutdown.clone();
     let server = tokio::spawn(
@@ -479,6 +563,8 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
             .add_service(bus_service)
             .add_service(canopen_service)
             .add_service(axes_service)
+            .add_service(handwheels_service)
+            .add_optional_service(simulator_service)
             .serve_with_incoming_shutdown(incoming, async move { token.cancelled().await }),
     );
     tracing::info!(%addr, buses = gateway.buses().count(), "cangate gateway listening");

@@ -5,6 +5,7 @@
 //! - [`grpc`]: the gRPC services and protobuf conversions.
 //! - [`canopen`]: the CANopen master runtime of each bus.
 //! - [`axes`]: the axis layer (CiA 402 drives), control leases.
+//! - [`handwheel`]: CNC handwheels: feed decoding, mode, axis binding.
 //! - [`error`]: the one mapping from domain errors to gRPC statuses.
 
 pub mod axes;
@@ -13,6 +14,7 @@ pub mod config;
 pub mod error;
 pub mod gateway;
 pub mod grpc;
+pub mod handwheel;
 
 pub use config::Config;
 pub use gateway::{Gateway, RunningServer, StartError, start};

@@ -687,8 +687,14 @@ impl Cia402Axis {
                 velocity,
                 acceleration,
             } => {
+                // Relative to where the axis is going: the running
+                // trajectory's end (so consecutive relative moves add up
+                // exactly), else the demand; profile axes: the latest target.
                 let base = match self.cfg.position_mode {
-                    PositionMode::Cyclic => self.demand,
+                    PositionMode::Cyclic => self
+                        .trajectory
+                        .as_ref()
+                        .map_or(self.demand, |t| t.profile.target()),
                     PositionMode::Profile => self.last_target,
                 };
                 op.target = if relative { base + target } else { target };

@@ -84,7 +84,10 @@ pub enum FrameLoss {
     /// when the closure returns true.
     Pattern(Box<dyn FnMut(u64) -> bool + Send>),
     /// Drops each frame with `probability` (0.0..=1.0) from a generator
-    /// seeded with `seed`, but never more than `max_consecutive` in a row.
+    /// seeded with `seed`, but never more than `max_consecutive` in a row,
+    /// and never the frame that empties the accumulator: a receiver learns
+    /// of lost frames only from the next one, so a test that turns the
+    /// wheel and counts the feed needs the last frame to see every loss.
     Random {
         /// Loss probability per frame.
         probability: f64,
@@ -316,7 +319,7 @@ impl SimHandwheel {
         (z >> 11) as f64 / (1u64 << 53) as f64
     }
 
-    fn lost(&mut self, index: u64) -> bool {
+    fn lost(&mut self, index: u64, last: bool) -> bool {
         let drop = match &mut self.loss {
             FrameLoss::None => false,
             FrameLoss::Pattern(f) => f(index),
@@ -326,7 +329,7 @@ impl SimHandwheel {
                 ..
             } => {
                 let (p, max) = (*probability, *max_consecutive);
-                self.next_random() < p && self.consecutive_drops < max
+                self.next_random() < p && self.consecutive_drops < max && !last
             }
         };
         self.consecutive_drops = if drop { self.consecutive_drops + 1 } else { 0 };
@@ -354,7 +357,8 @@ impl SimHandwheel {
             let index = self.stats.frames;
             self.stats.frames += 1;
             self.next_slot += self.period;
-            if self.lost(index) {
+            let last = self.accumulator == 0;
+            if self.lost(index, last) {
                 self.stats.dropped += 1;
                 continue;
             }

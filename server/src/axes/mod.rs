@@ -367,6 +367,26 @@ impl AxisManager {
         self.await_reply(i, waiter, wait, wait_timeout).await
     }
 
+    /// Queues a command on axis `i` without waiting for its acceptance
+    /// (commands of one caller keep their order). For the handwheel
+    /// binding, which must never stall on a drive.
+    ///
+    /// # Errors
+    /// When the axis task's queue is full or closed.
+    pub fn submit(&self, i: usize, cmd: AxisCommand) -> Result<(), ApiError> {
+        let entry = &self.axes[i];
+        let (reply, _rx) = oneshot::channel();
+        entry
+            .bus
+            .try_send(BusRequest::Command {
+                local: entry.local,
+                cmd,
+                wait: false,
+                reply,
+            })
+            .map_err(|e| ApiError::Unavailable(format!("axis {}: {e}", self.name(i))))
+    }
+
     async fn await_reply(
         &self,
         i: usize,

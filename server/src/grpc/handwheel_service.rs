@@ -1,0 +1,393 @@
+//! The `cangate.v1.Handwheels` and `cangate.v1.Simulator` services.
+
+use crate::config::CounterChoice;
+use crate::error::ApiError;
+use crate::gateway::Gateway;
+use crate::handwheel::{HandwheelManager, Mode, WheelFeed};
+use cangate_canopen::handwheel::{BaselineReason, Direction, FeedStats, HandwheelAxis};
+use cangate_proto::v1 as pb;
+use cangate_proto::v1::handwheels_server::Handwheels;
+use cangate_proto::v1::simulator_server::Simulator;
+use cangate_sim::{FrameLoss, Multiplier};
+use std::pin::Pin;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio_stream::Stream;
+use tonic::{Request, Response, Status};
+
+/// Implementation of the Handwheels service.
+#[derive(Clone)]
+pub struct HandwheelsService {
+    gateway: Arc<Gateway>,
+}
+
+impl HandwheelsService {
+    /// Serves the gateway's handwheels.
+    pub fn new(gateway: Arc<Gateway>) -> Self {
+        HandwheelsService { gateway }
+    }
+
+    fn wheels(&self) -> &HandwheelManager {
+        self.gateway.handwheels()
+    }
+}
+
+fn axis_pb(a: HandwheelAxis) -> pb::WheelAxis {
+    match a {
+        HandwheelAxis::X => pb::WheelAxis::X,
+        HandwheelAxis::Y => pb::WheelAxis::Y,
+        HandwheelAxis::Z => pb::WheelAxis::Z,
+        HandwheelAxis::W => pb::WheelAxis::W,
+        HandwheelAxis::V => pb::WheelAxis::V,
+    }
+}
+
+fn stats_pb(s: &FeedStats) -> pb::FeedStats {
+    pb::FeedStats {
+        frames: s.frames,
+        positive_units: HandwheelAxis::ALL
+            .iter()
+            .map(|a| s.units(*a, Direction::Positive))
+            .collect(),
+        negative_units: HandwheelAxis::ALL
+            .iter()
+            .map(|a| s.units(*a, Direction::Negative))
+            .collect(),
+        gaps: s.gaps,
+        compensated_units: s.compensated_units,
+        duplicates: s.duplicates,
+        bad_frames: s.bad_frames,
+        baselines: s.baselines,
+        baseline_resets: s.baseline_resets,
+    }
+}
+
+fn mode_pb(m: Option<Mode>) -> pb::HandwheelMode {
+    match m {
+        None => pb::HandwheelMode::Unspecified,
+        Some(Mode::Automatic) => pb::HandwheelMode::Automatic,
+        Some(Mode::Manual) => pb::HandwheelMode::Manual,
+    }
+}
+
+fn wheel_pb(m: &HandwheelManager, i: usize) -> pb::Handwheel {
+    let w = m.wheel(i);
+    let c = &w.config;
+    let b = w.binding.lock().expect("binding lock").clone();
+    pb::Handwheel {
+        name: c.name.clone(),
+        bus: c.bus.clone(),
+        node: c.node,
+        counter_layout: match c.counter {
+            CounterChoice::Nibble => pb::CounterLayout::Nibble,
+            CounterChoice::Bits67 => pb::CounterLayout::Bits67,
+        } as i32,
+        mode: mode_pb(*w.mode.lock().expect("mode lock")) as i32,
+        node_lost: *w.node_lost.lock().expect("lock"),
+        simulated: w.sim.is_some(),
+        stats: Some(stats_pb(&w.stats.lock().expect("stats lock"))),
+        bindings: w
+            .bindings
+            .iter()
+            .map(|b| pb::AxisBinding {
+                wheel_axis: axis_pb(b.wheel_axis) as i32,
+                axis: b.axis_name.clone(),
+                distance_per_unit: b.distance_per_unit,
+            })
+            .collect(),
+        max_units_per_s: c.max_units_per_s,
+        stop_within_ms: c.stop_within_ms,
+        binding: Some(pb::BindingStats {
+            executed_units: b.executed,
+            dropped_backlog: b.dropped_backlog,
+            dropped_not_enabled: b.dropped_not_enabled,
+            dropped_not_controlled: b.dropped_not_controlled,
+            dropped_unbound: b.dropped_unbound,
+            blocked: b.blocked,
+        }),
+    }
+}
+
+fn baseline_note(r: BaselineReason) -> &'static str {
+    match r {
+        BaselineReason::Startup => "baseline: first frame",
+        BaselineReason::HeartbeatLost => "baseline: after heartbeat loss",
+        BaselineReason::DeviceRestart => "baseline: after the wheel rebooted",
+        BaselineReason::ModeChange => "baseline: after a mode change",
+        BaselineReason::MalformedFrame => "baseline: after a malformed frame",
+        BaselineReason::Other => "baseline: after a gap in reception",
+    }
+}
+
+fn event_pb(m: &HandwheelManager, f: &WheelFeed) -> pb::FeedEvent {
+    let e = &f.event;
+    let note = match (&e.error, e.baseline_reason) {
+        (Some(err), _) => err.to_string(),
+        (None, Some(r)) => baseline_note(r).to_string(),
+        _ => String::new(),
+    };
+    pb::FeedEvent {
+        handwheel: m.wheel(f.wheel).config.name.clone(),
+        timestamp_us: f.at.0 / 1000,
+        axis: e.axis.map_or(pb::WheelAxis::Unspecified, axis_pb) as i32,
+        direction: match e.direction {
+            Some(Direction::Positive) => 1,
+            Some(Direction::Negative) => -1,
+            None => 0,
+        },
+        units: e.units,
+        compensated: e.compensated,
+        sequence: u32::from(e.sequence.unwrap_or(0)),
+        gap: u32::from(e.gap.unwrap_or(0)),
+        duplicate: e.flags.duplicate,
+        compensated_flag: e.flags.compensated,
+        baseline: e.flags.baseline,
+        bad: e.flags.bad,
+        note,
+        raw: u32::from(e.byte.unwrap_or(0)),
+        frames: 1,
+        lost_before: 0,
+    }
+}
+
+/// Adds `b` into the window summary `a` (same wheel, axis and direction).
+fn merge(a: &mut pb::FeedEvent, b: pb::FeedEvent) {
+    a.units += b.units;
+    a.compensated += b.compensated;
+    a.frames += b.frames;
+    a.duplicate |= b.duplicate;
+    a.compensated_flag |= b.compensated_flag;
+    a.baseline |= b.baseline;
+    a.bad |= b.bad;
+    a.sequence = b.sequence;
+    a.gap = a.gap.max(b.gap);
+    a.raw = b.raw;
+    a.timestamp_us = b.timestamp_us;
+    if a.note.is_empty() {
+        a.note = b.note;
+    }
+}
+
+type FeedStream = Pin<Box<dyn Stream<Item = Result<pb::FeedEvent, Status>> + Send>>;
+
+#[tonic::async_trait]
+impl Handwheels for HandwheelsService {
+    async fn list_handwheels(
+        &self,
+        _req: Request<pb::ListHandwheelsRequest>,
+    ) -> Result<Response<pb::ListHandwheelsResponse>, Status> {
+        let m = self.wheels();
+        Ok(Response::new(pb::ListHandwheelsResponse {
+            handwheels: (0..m.len()).map(|i| wheel_pb(m, i)).collect(),
+        }))
+    }
+
+    async fn get_handwheel(
+        &self,
+        req: Request<pb::GetHandwheelRequest>,
+    ) -> Result<Response<pb::Handwheel>, Status> {
+        let m = self.wheels();
+        let i = m.index(&req.get_ref().handwheel)?;
+        // The mode is read from the wheel when not known yet.
+        if m.wheel(i).mode.lock().expect("mode lock").is_none() {
+            let _ = m.read_mode(i).await;
+        }
+        Ok(Response::new(wheel_pb(m, i)))
+    }
+
+    async fn set_mode(
+        &self,
+        req: Request<pb::SetModeRequest>,
+    ) -> Result<Response<pb::Handwheel>, Status> {
+        let peer = req
+            .remote_addr()
+            .map_or_else(|| "unknown".into(), |a| a.to_string());
+        let r = req.into_inner();
+        let m = self.wheels();
+        let i = m.index(&r.handwheel)?;
+        let mode = match pb::HandwheelMode::try_from(r.mode) {
+            Ok(pb::HandwheelMode::Manual) => Mode::Manual,
+            Ok(pb::HandwheelMode::Automatic) => Mode::Automatic,
+            _ => {
+                return Err(
+                    ApiError::InvalidArgument("mode must be MANUAL or AUTOMATIC".into()).into(),
+                );
+            }
+        };
+        let res = m.set_mode(i, mode).await;
+        tracing::info!(target: "cangate::audit", %peer, handwheel = %r.handwheel, ?mode, result = %res.as_ref().map_or_else(|e| e.to_string(), |_| "ok".into()), "handwheel mode");
+        res?;
+        Ok(Response::new(wheel_pb(m, i)))
+    }
+
+    type StreamFeedStream = FeedStream;
+
+    async fn stream_feed(
+        &self,
+        req: Request<pb::StreamFeedRequest>,
+    ) -> Result<Response<Self::StreamFeedStream>, Status> {
+        let r = req.into_inner();
+        let gateway = self.gateway.clone();
+        let m = gateway.handwheels().clone();
+        let wanted: Option<Vec<bool>> = if r.handwheels.is_empty() {
+            None
+        } else {
+            let mut w = vec![false; m.len()];
+            for h in &r.handwheels {
+                w[m.index(h)?] = true;
+            }
+            Some(w)
+        };
+        let mut rx = m.subscribe();
+        let shutdown = gateway.shutdown_token();
+        let coalesce = Duration::from_millis(u64::from(r.coalesce_ms));
+        let (tx, out) = tokio::sync::mpsc::channel(4096);
+        tokio::spawn(async move {
+            let mut lost: u64 = 0;
+            // Open windows: (wheel, axis, direction) → summary.
+            let mut window: Vec<((usize, i32, i32), pb::FeedEvent)> = Vec::new();
+            let mut flush = tokio::time::interval(if coalesce.is_zero() {
+                Duration::from_secs(3600)
+            } else {
+                coalesce
+            });
+            flush.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            loop {
+                tokio::select! {
+                    _ = shutdown.cancelled() => {
+                        let _ = tx.send(Err(Status::unavailable("the gateway is shutting down"))).await;
+                        return;
+                    }
+                    _ = tx.closed() => return,
+                    _ = flush.tick(), if !coalesce.is_zero() => {
+                        for (_, ev) in window.drain(..) {
+                            if tx.send(Ok(ev)).await.is_err() {
+                                return;
+                            }
+                        }
+                    }
+                    f = rx.recv() => {
+                        let f = match f {
+                            Ok(f) => f,
+                            Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
+                                lost += n;
+                                continue;
+                            }
+                            Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
+                        };
+                        if wanted.as_ref().is_some_and(|w| !w[f.wheel]) {
+                            continue;
+                        }
+                        let mut ev = event_pb(&m, &f);
+                        ev.lost_before = std::mem::take(&mut lost);
+                        if coalesce.is_zero() {
+                            if tx.send(Ok(ev)).await.is_err() {
+                                return;
+                            }
+                            continue;
+                        }
+                        let key = (f.wheel, ev.axis, ev.direction);
+                        match window.iter_mut().find(|(k, _)| *k == key) {
+                            Some((_, acc)) => {
+                                let lb = ev.lost_before;
+                                merge(acc, ev);
+                                acc.lost_before += lb;
+                            }
+                            None => window.push((key, ev)),
+                        }
+                    }
+                }
+            }
+        });
+        Ok(Response::new(Box::pin(
+            tokio_stream::wrappers::ReceiverStream::new(out),
+        )))
+    }
+}
+
+/// Implementation of the Simulator service.
+#[derive(Clone)]
+pub struct SimulatorService {
+    gateway: Arc<Gateway>,
+}
+
+impl SimulatorService {
+    /// Serves the gateway's simulated devices.
+    pub fn new(gateway: Arc<Gateway>) -> Self {
+        SimulatorService { gateway }
+    }
+}
+
+#[tonic::async_trait]
+impl Simulator for SimulatorService {
+    async fn turn_handwheel(
+        &self,
+        req: Request<pb::TurnHandwheelRequest>,
+    ) -> Result<Response<pb::TurnHandwheelResponse>, Status> {
+        let r = req.into_inner();
+        let m = self.gateway.handwheels();
+        let i = m.index(&r.handwheel)?;
+        let Some(sim) = m.wheel(i).sim.clone() else {
+            return Err(ApiError::FailedPrecondition(format!(
+                "handwheel {} is not simulated by the gateway",
+                r.handwheel
+            ))
+            .into());
+        };
+        let axis = match pb::WheelAxis::try_from(r.axis) {
+            Ok(pb::WheelAxis::Unspecified) => None,
+            Ok(pb::WheelAxis::X) => Some(HandwheelAxis::X),
+            Ok(pb::WheelAxis::Y) => Some(HandwheelAxis::Y),
+            Ok(pb::WheelAxis::Z) => Some(HandwheelAxis::Z),
+            Ok(pb::WheelAxis::W) => Some(HandwheelAxis::W),
+            Ok(pb::WheelAxis::V) => Some(HandwheelAxis::V),
+            Err(_) => return Err(ApiError::InvalidArgument("unknown axis".into()).into()),
+        };
+        let mult = match r.multiplier {
+            0 => None,
+            1 => Some(Multiplier::X1),
+            10 => Some(Multiplier::X10),
+            100 => Some(Multiplier::X100),
+            other => {
+                return Err(ApiError::InvalidArgument(format!(
+                    "multiplier must be 1, 10 or 100, got {other}"
+                ))
+                .into());
+            }
+        };
+        if !(0.0..=1.0).contains(&r.loss) {
+            return Err(ApiError::InvalidArgument(format!(
+                "loss must be a probability 0..1, got {}",
+                r.loss
+            ))
+            .into());
+        }
+        let loss = if r.loss > 0.0 {
+            FrameLoss::Random {
+                probability: r.loss,
+                max_consecutive: if r.max_consecutive_loss == 0 {
+                    14
+                } else {
+                    r.max_consecutive_loss
+                },
+                seed: fastrand::u64(..),
+            }
+        } else {
+            FrameLoss::None
+        };
+        let pending = sim.with(|w| {
+            if let Some(a) = axis {
+                w.set_axis(a);
+            }
+            if let Some(x) = mult {
+                w.set_multiplier(x);
+            }
+            w.set_frame_loss(loss);
+            w.turn(r.detents);
+            w.pending_units()
+        });
+        Ok(Response::new(pb::TurnHandwheelResponse {
+            pending_units: pending,
+        }))
+    }
+}
