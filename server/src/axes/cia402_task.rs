@@ -475,6 +475,10 @@ impl Task {
             AxisEvent::Fault { code, text } => {
                 if code == 0 && text.is_empty() {
                     tracing::info!(axis = %slot.info.config.name, "axis fault cleared");
+                } else if code == 0 && text.contains("rebooted") {
+                    // Every start-up: the drive boots, the boot procedure
+                    // configures it; not worth a warning.
+                    tracing::info!(axis = %slot.info.config.name, %text, "axis waits for its drive");
                 } else {
                     tracing::warn!(axis = %slot.info.config.name, code = format!("0x{code:04X}"), %text, "axis fault");
                 }

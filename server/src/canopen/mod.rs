@@ -19,6 +19,8 @@ use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio_util::sync::CancellationToken;
 
+pub mod sync_thread;
+
 /// Static facts about a node, from the configuration and from reads.
 #[derive(Debug, Clone, Default)]
 pub struct NodeFacts {
@@ -225,8 +227,9 @@ impl CanopenBus {
         let mut master = Master::new(sdo_timeout);
         if let Some(period) = sync_period
             && let Ok(producer) = cangate_canopen::sync::SyncProducer::new(period, 0)
+            && let Err(e) = sync_thread::spawn(bus.clone(), producer, syncs.clone(), cancel.clone())
         {
-            master.start_sync(producer, Duration::ZERO);
+            tracing::error!(bus = %bus.name(), error = %e, "cannot start the SYNC producer thread");
         }
         for (id, f) in facts.read().expect("facts lock").iter() {
             if let Some(t) = f.heartbeat_timeout {
@@ -246,7 +249,6 @@ impl CanopenBus {
             pdos,
             tpdo_map,
             facts,
-            syncs,
             cancel: cancel.clone(),
         }));
         if !boots.is_empty() {
@@ -495,7 +497,6 @@ struct MasterTask {
     pdos: broadcast::Sender<PdoUpdate>,
     tpdo_map: HashMap<u16, (NodeId, PdoConfig, Option<Arc<Eds>>)>,
     facts: Arc<RwLock<BTreeMap<NodeId, NodeFacts>>>,
-    syncs: broadcast::Sender<Instant>,
     cancel: CancellationToken,
 }
 
@@ -509,7 +510,6 @@ async fn run_master(task: MasterTask) {
         pdos,
         tpdo_map,
         facts,
-        syncs,
         cancel,
     } = task;
     let origin = Instant::now();
@@ -586,17 +586,10 @@ async fn run_master(task: MasterTask) {
                 }
             }
         }
-        let sync_sent = out
-            .frames
-            .iter()
-            .any(|f| f.raw_id() == 0x080 && !f.is_extended());
         if !out.frames.is_empty()
             && let Err(e) = bus.submit(std::mem::take(&mut out.frames)).await
         {
             tracing::warn!(bus = %bus.name(), error = %e, "CANopen master could not send");
-        }
-        if sync_sent {
-            let _ = syncs.send(Instant::now());
         }
         for ev in out.events {
             handle_event(ev, &mut pending, &events, &facts);
