@@ -394,7 +394,11 @@ async fn bursts_are_paced_evenly_excess_is_dropped_and_the_axis_stops_in_time() 
     let nominal = f64::from(expected) / 1000.0;
     assert!(
         duration >= nominal * 0.9 && duration <= nominal + 0.2,
-        "{expected} counts in {duration:.3} s (nominal {nominal:.3} s)"
+        "{expected} counts in {duration:.3} s (nominal {nominal:.3} s): {:?}",
+        setpoints
+            .iter()
+            .map(|(t, c)| (((t - setpoints[0].0) * 1000.0).round(), *c))
+            .collect::<Vec<_>>()
     );
     for (k, a) in setpoints[start..=end].iter().enumerate() {
         for b in &setpoints[start + k..=end] {
@@ -406,9 +410,17 @@ async fn bursts_are_paced_evenly_excess_is_dropped_and_the_axis_stops_in_time() 
             }
         }
     }
-    // Stopped: rest within the backlog time after the burst (plus the ramp).
-    let st = axis_status(&mut b.axes, "Y").await;
-    assert_eq!(st.activity, pb::AxisActivity::Idle as i32, "{st:?}");
+    // The demand stopped with the feed (above); the drive settles in
+    // position right after (its following lag is a few ms).
+    let settled = Instant::now();
+    loop {
+        let st = axis_status(&mut b.axes, "Y").await;
+        if st.activity == pb::AxisActivity::Idle as i32 {
+            break;
+        }
+        assert!(settled.elapsed() < Duration::from_secs(1), "{st:?}");
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

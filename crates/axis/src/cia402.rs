@@ -208,7 +208,8 @@ struct Trajectory {
     profile: TrapezoidProfile,
     /// Profile time per wall time (≤ 1; 1 for a single-axis move).
     ratio: f64,
-    /// When sampling started (set at the first SYNC).
+    /// The time of the state it starts from (the latest SYNC sample), or
+    /// `None` to start at the next SYNC.
     start: Option<Duration>,
 }
 
@@ -242,6 +243,10 @@ pub struct Cia402Axis {
     /// Demand position and velocity (user units) of a cyclic axis.
     demand: f64,
     demand_velocity: f64,
+    /// When the demand was last sampled (the latest SYNC of a cyclic
+    /// axis): new trajectories start from that state at that time, so a
+    /// stream of re-plans between SYNCs (a handwheel) still advances.
+    demand_at: Option<Duration>,
     trajectory: Option<Trajectory>,
     jog_deadline: Option<Duration>,
     /// Latest target of a profile move (user units).
@@ -281,6 +286,7 @@ impl Cia402Axis {
             },
             demand: 0.0,
             demand_velocity: 0.0,
+            demand_at: None,
             trajectory: None,
             jog_deadline: None,
             last_target: 0.0,
@@ -583,6 +589,7 @@ impl Cia402Axis {
                 self.demand_velocity = 0.0;
             }
         }
+        self.demand_at = Some(now);
         self.image.target_position = self.units().to_counts(self.demand);
         out.push(Output::Image(self.image));
         self.advance(now, out);
@@ -716,7 +723,7 @@ impl Cia402Axis {
                         self.trajectory = Some(Trajectory {
                             profile,
                             ratio: 1.0,
-                            start: None,
+                            start: self.demand_at,
                         });
                         op.step = Step::CyclicMoving;
                         op.deadline = Some(now + total + self.cfg.settle_timeout);
@@ -795,7 +802,7 @@ impl Cia402Axis {
         let traj = Trajectory {
             profile,
             ratio,
-            start: None,
+            start: self.demand_at,
         };
         let total = Duration::from_secs_f64(traj.duration().min(1e6));
         self.trajectory = Some(traj);
@@ -972,6 +979,7 @@ impl Cia402Axis {
         self.trajectory = None;
         self.demand = self.actual();
         self.demand_velocity = 0.0;
+        self.demand_at = None;
         self.last_target = self.demand;
         self.image.target_position = self.position.unwrap_or_default();
         self.image.target_velocity = 0;
@@ -1064,7 +1072,7 @@ impl Cia402Axis {
                 self.trajectory = Some(Trajectory {
                     profile,
                     ratio: 1.0,
-                    start: None,
+                    start: self.demand_at,
                 });
                 if let Some(op) = &mut self.op {
                     op.step = Step::Jogging;
@@ -1113,7 +1121,7 @@ impl Cia402Axis {
                     .map(|profile| Trajectory {
                         profile,
                         ratio: 1.0,
-                        start: None,
+                        start: self.demand_at,
                     });
                 let t = self.trajectory.as_ref().map_or(0.0, Trajectory::duration);
                 op.deadline = Some(now + Duration::from_secs_f64(t) + self.cfg.settle_timeout);

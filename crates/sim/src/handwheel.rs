@@ -85,9 +85,10 @@ pub enum FrameLoss {
     Pattern(Box<dyn FnMut(u64) -> bool + Send>),
     /// Drops each frame with `probability` (0.0..=1.0) from a generator
     /// seeded with `seed`, but never more than `max_consecutive` in a row,
-    /// and never the frame that empties the accumulator: a receiver learns
-    /// of lost frames only from the next one, so a test that turns the
-    /// wheel and counts the feed needs the last frame to see every loss.
+    /// and never the first or the last frame of a drain (sending until the
+    /// accumulator is empty): a receiver learns of lost frames only from
+    /// the next one, and a first frame may be its baseline (no gap check),
+    /// so a test that turns the wheel and counts the feed sees every loss.
     Random {
         /// Loss probability per frame.
         probability: f64,
@@ -163,6 +164,8 @@ pub struct SimHandwheel {
     loss: FrameLoss,
     rng: u64,
     consecutive_drops: u32,
+    /// Frames sent (or lost) since the wheel last stopped sending.
+    drain_frames: u64,
     stats: SimHandwheelStats,
 }
 
@@ -209,6 +212,7 @@ impl SimHandwheel {
             loss: FrameLoss::None,
             rng: 0,
             consecutive_drops: 0,
+            drain_frames: 0,
             stats: SimHandwheelStats::default(),
         };
         wheel.publish_switches();
@@ -319,7 +323,7 @@ impl SimHandwheel {
         (z >> 11) as f64 / (1u64 << 53) as f64
     }
 
-    fn lost(&mut self, index: u64, last: bool) -> bool {
+    fn lost(&mut self, index: u64, edge: bool) -> bool {
         let drop = match &mut self.loss {
             FrameLoss::None => false,
             FrameLoss::Pattern(f) => f(index),
@@ -329,7 +333,7 @@ impl SimHandwheel {
                 ..
             } => {
                 let (p, max) = (*probability, *max_consecutive);
-                self.next_random() < p && self.consecutive_drops < max && !last
+                self.next_random() < p && self.consecutive_drops < max && !edge
             }
         };
         self.consecutive_drops = if drop { self.consecutive_drops + 1 } else { 0 };
@@ -357,8 +361,11 @@ impl SimHandwheel {
             let index = self.stats.frames;
             self.stats.frames += 1;
             self.next_slot += self.period;
-            let last = self.accumulator == 0;
-            if self.lost(index, last) {
+            // Never lost: the first frame of a drain (it may be a
+            // receiver's baseline, which has no gap check) and the last.
+            let edge = self.accumulator == 0 || self.drain_frames == 0;
+            self.drain_frames += 1;
+            if self.lost(index, edge) {
                 self.stats.dropped += 1;
                 continue;
             }
@@ -368,6 +375,7 @@ impl SimHandwheel {
         if !self.can_send() {
             // Idle or blocked: the next frame may go as soon as allowed.
             self.next_slot = self.next_slot.max(now);
+            self.drain_frames = 0;
         }
     }
 

@@ -618,3 +618,29 @@ fn coordinated_moves_start_and_arrive_together() {
     assert_eq!(a.done(ops[0]).unwrap().0, Outcome::Completed);
     assert_eq!(b.done(ops[1]).unwrap().0, Outcome::Completed);
 }
+
+#[test]
+fn relative_moves_faster_than_sync_keep_advancing_and_add_up_exactly() {
+    // A handwheel binding re-plans every 2 ms; SYNC is every 10 ms. Each
+    // new trajectory starts from the state of the latest SYNC sample, so
+    // the demand keeps moving at the commanded pace instead of restarting
+    // from rest at every SYNC.
+    let mut rig = Rig::new(PositionMode::Cyclic);
+    rig.enable();
+    rig.setpoints.clear();
+    for _ in 0..100 {
+        rig.command(AxisCommand::Move {
+            target: 0.002,
+            relative: true,
+            velocity: Some(1.0),
+            acceleration: Some(1000.0),
+        })
+        .unwrap();
+        rig.run(2 * MS);
+    }
+    // 0.2 mm commanded over 200 ms at 1 mm/s: nearly all of it is done.
+    let done = rig.setpoints.last().unwrap().1;
+    assert!(done >= 180, "{:?}", rig.setpoints);
+    rig.run(100 * MS);
+    assert_eq!(rig.setpoints.last().unwrap().1, 200);
+}
