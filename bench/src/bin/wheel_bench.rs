@@ -1,0 +1,304 @@
+//! `wheel_bench`: handwheel feed events, bus to gRPC client.
+//!
+//! ```text
+//! cargo run --release -p cangate-bench --bin wheel_bench            # full run
+//! cargo run -p cangate-bench --bin wheel_bench -- --quick            # CI smoke
+//! ```
+//!
+//! A simulated handwheel (run by the benchmark on its own runtime, so the
+//! gateway only sees frames) streams feed TPDOs at a steady rate (7 000
+//! frames/s by default, about what a busy 1 Mbit/s bus carries besides
+//! other traffic) for the measurement time.
+//!
+//! 1. **One subscriber**: latency from the frame's bus timestamp
+//!    (`FeedEvent.timestamp_us`) to the client holding the event, p50/p99;
+//!    events lost anywhere (sent by the wheel − received by the gateway −
+//!    delivered). Target: p99 < 1 ms, zero lost.
+//! 2. **100 concurrent subscribers** (10 HTTP/2 connections × 10 streams):
+//!    events delivered per second in total, p99 latency, lost.
+//!
+//! Human-readable results, then one JSON line. Exit 1 if it could not run;
+//! with `--strict` also if a target is missed.
+
+use anyhow::{Context, Result, anyhow, bail};
+use cangate_client::pb;
+use cangate_server::Config;
+use cangate_sim::{DeviceHandle, SimHandwheel, SimHandwheelOptions, SimNodeOptions};
+use clap::Parser;
+use hdrhistogram::Histogram;
+use serde_json::json;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+use tokio_util::sync::CancellationToken;
+
+/// Handwheel feed latency and fan-out.
+#[derive(Parser, Debug, Clone)]
+#[command(about)]
+struct Args {
+    /// Tiny counts, for CI smoke runs.
+    #[arg(long)]
+    quick: bool,
+    /// Exit 1 when a target is missed.
+    #[arg(long)]
+    strict: bool,
+    /// Feed frames per second.
+    #[arg(long, default_value_t = 7000)]
+    rate: u32,
+    /// Seconds of each measurement.
+    #[arg(long, default_value_t = 10.0)]
+    seconds: f64,
+}
+
+const NODE: u32 = 10;
+
+struct Run {
+    sent: u64,
+    gateway_frames: u64,
+    delivered: u64,
+    lost_reported: u64,
+    hist: Histogram<u64>,
+    wall: f64,
+}
+
+/// Starts the gateway and the wheel, opens `subscribers` streams over
+/// `connections` connections, turns the wheel for `seconds`.
+fn run(rate: u32, seconds: f64, connections: usize, subscribers: usize) -> Result<Run> {
+    let text = format!(
+        "listen = \"127.0.0.1:0\"\n[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\nqueue = 65536\n\
+         [[canopen]]\nbus = \"can0\"\n[[canopen.node]]\nid = {NODE}\neds = \"builtin:handwheel\"\n\
+         [[handwheel]]\nname = \"hw1\"\nbus = \"can0\"\nnode = {NODE}\n"
+    );
+    let config = Config::from_toml(&text).map_err(|e| anyhow!("{e}"))?;
+    let gateway_rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .thread_name("gateway")
+        .enable_all()
+        .build()?;
+    let server = gateway_rt
+        .block_on(cangate_server::start(&config))
+        .map_err(|e| anyhow!("{e}"))?;
+    let sim_rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .thread_name("sim")
+        .enable_all()
+        .build()?;
+    let cancel = CancellationToken::new();
+    let port = server
+        .gateway()
+        .network()
+        .get("can0")
+        .context("can0")?
+        .connect(false);
+    let wheel = SimHandwheel::bundled(
+        cangate_canopen::NodeId::new(NODE).map_err(|e| anyhow!("{e}"))?,
+        SimHandwheelOptions {
+            node: SimNodeOptions {
+                heartbeat_ms: Some(100),
+                ..SimNodeOptions::default()
+            },
+            frame_rate: rate,
+            ..SimHandwheelOptions::default()
+        },
+    );
+    let handle = DeviceHandle::new(wheel);
+    {
+        let _g = sim_rt.enter();
+        cangate_sim::spawn_device(port, handle.clone(), cancel.clone());
+    }
+    let url = format!("http://{}", server.addr);
+    let client_rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .thread_name("client")
+        .enable_all()
+        .build()?;
+    let result = client_rt.block_on(async move {
+        let mut clients = Vec::new();
+        for _ in 0..connections {
+            clients.push(cangate_client::connect(&url).await?);
+        }
+        let mut wheels = clients[0].handwheels_client();
+        // Wait for the wheel to be booted (NMT-started) and switch it on.
+        let t0 = Instant::now();
+        loop {
+            let r = wheels
+                .set_mode(pb::SetModeRequest {
+                    handwheel: "hw1".into(),
+                    mode: pb::HandwheelMode::Manual as i32,
+                })
+                .await;
+            if r.is_ok() {
+                break;
+            }
+            if t0.elapsed() > Duration::from_secs(10) {
+                bail!("the wheel did not come up: {r:?}");
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let frames_before = wheels
+            .get_handwheel(pb::GetHandwheelRequest {
+                handwheel: "hw1".into(),
+            })
+            .await?
+            .into_inner()
+            .stats
+            .map_or(0, |s| s.frames);
+        // Subscribers.
+        let stop = CancellationToken::new();
+        let mut tasks = Vec::new();
+        for k in 0..subscribers {
+            let mut w = clients[k % connections].handwheels_client();
+            let mut s = w
+                .stream_feed(pb::StreamFeedRequest {
+                    handwheels: vec!["hw1".into()],
+                    coalesce_ms: 0,
+                })
+                .await?
+                .into_inner();
+            let stop = stop.clone();
+            tasks.push(tokio::spawn(async move {
+                let mut h = Histogram::<u64>::new(3).expect("histogram");
+                let (mut n, mut lost) = (0u64, 0u64);
+                loop {
+                    let m = tokio::select! {
+                        _ = stop.cancelled() => break,
+                        m = s.message() => m,
+                    };
+                    let Ok(Some(ev)) = m else { break };
+                    let now_us = cangate_can::Timestamp::now().0 / 1000;
+                    n += 1;
+                    lost += ev.lost_before;
+                    let _ = h.record(now_us.saturating_sub(ev.timestamp_us) * 1000);
+                }
+                (n, lost, h)
+            }));
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        // Turn: enough units for the whole measurement at `rate`.
+        let units = (f64::from(rate) * seconds).ceil() as i32;
+        let sent_before = handle.with(|w| w.stats().frames);
+        let t0 = Instant::now();
+        handle.with(|w| w.turn(units));
+        // Wait until the wheel has sent everything, then a little longer.
+        loop {
+            tokio::time::sleep(Duration::from_millis(50)).await;
+            if handle.with(|w| w.pending_units()) == 0 {
+                break;
+            }
+            if t0.elapsed() > Duration::from_secs_f64(seconds * 3.0 + 5.0) {
+                bail!("the wheel did not finish sending");
+            }
+        }
+        let wall = t0.elapsed().as_secs_f64();
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        stop.cancel();
+        let sent = handle.with(|w| w.stats().frames) - sent_before;
+        let gateway_frames = wheels
+            .get_handwheel(pb::GetHandwheelRequest {
+                handwheel: "hw1".into(),
+            })
+            .await?
+            .into_inner()
+            .stats
+            .map_or(0, |s| s.frames)
+            - frames_before;
+        let mut hist = Histogram::<u64>::new(3)?;
+        let (mut delivered, mut lost_reported) = (0, 0);
+        for t in tasks {
+            let (n, lost, h) = t.await?;
+            delivered += n;
+            lost_reported += lost;
+            hist.add(h)?;
+        }
+        Ok::<_, anyhow::Error>(Run {
+            sent,
+            gateway_frames,
+            delivered,
+            lost_reported,
+            hist,
+            wall,
+        })
+    });
+    cancel.cancel();
+    server.shutdown();
+    drop(client_rt);
+    drop(sim_rt);
+    drop(gateway_rt);
+    result
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    match bench(&args) {
+        Ok(true) => ExitCode::SUCCESS,
+        Ok(false) => {
+            if args.strict {
+                ExitCode::from(1)
+            } else {
+                ExitCode::SUCCESS
+            }
+        }
+        Err(e) => {
+            eprintln!("wheel_bench: {e:#}");
+            ExitCode::from(1)
+        }
+    }
+}
+
+fn bench(args: &Args) -> Result<bool> {
+    let seconds = if args.quick { 0.5 } else { args.seconds };
+    let fanout = if args.quick { 10 } else { 100 };
+    println!(
+        "wheel_bench ({} build, {}): {} feed frames/s for {seconds} s",
+        if cfg!(debug_assertions) {
+            "debug"
+        } else {
+            "release"
+        },
+        if args.quick { "quick" } else { "full" },
+        args.rate
+    );
+    let one = run(args.rate, seconds, 1, 1)?;
+    let ms = |h: &Histogram<u64>, q: f64| h.value_at_quantile(q) as f64 / 1e6;
+    let lost_one = one.sent - one.delivered;
+    let ok_one = ms(&one.hist, 0.99) < 1.0 && lost_one == 0 && one.gateway_frames == one.sent;
+    println!(
+        "1. one subscriber: {} frames sent, {} decoded by the gateway, {} delivered ({} lost); p90 {:.3} ms; \
+         bus -> client p50 {:.3} ms, p99 {:.3} ms (target p99 < 1 ms, 0 lost: {})",
+        one.sent,
+        one.gateway_frames,
+        one.delivered,
+        lost_one,
+        ms(&one.hist, 0.9),
+        ms(&one.hist, 0.5),
+        ms(&one.hist, 0.99),
+        if ok_one { "met" } else { "MISSED" }
+    );
+    let many = run(args.rate, seconds, 10.min(fanout), fanout)?;
+    let per_s = many.delivered as f64 / many.wall;
+    let expected = many.sent * fanout as u64;
+    println!(
+        "2. {fanout} subscribers: {:.0} events/s delivered in total ({} of {} expected, {} reported lost); \
+         p50 {:.3} ms, p99 {:.3} ms",
+        per_s,
+        many.delivered,
+        expected,
+        many.lost_reported,
+        ms(&many.hist, 0.5),
+        ms(&many.hist, 0.99)
+    );
+    println!(
+        "{}",
+        json!({
+            "bench": "wheel",
+            "quick": args.quick,
+            "rate": args.rate,
+            "one": {"sent": one.sent, "gateway": one.gateway_frames, "delivered": one.delivered,
+                    "p50_ms": ms(&one.hist, 0.5), "p99_ms": ms(&one.hist, 0.99)},
+            "fanout": {"subscribers": fanout, "delivered": many.delivered, "expected": expected,
+                       "lost_reported": many.lost_reported, "per_s": per_s,
+                       "p50_ms": ms(&many.hist, 0.5), "p99_ms": ms(&many.hist, 0.99)},
+        })
+    );
+    Ok(ok_one)
+}
