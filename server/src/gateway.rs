@@ -476,6 +476,18 @@ impl RunningServer {
         self.shutdown.clone()
     }
 
+    /// Shuts down with the machine in mind: new axis commands are refused,
+    /// moving axes are stopped (halt or quick stop per their
+    /// `stop_on_loss`) and awaited at most `motion_bound`; then streams
+    /// end, buses close and the server stops (see
+    /// [`RunningServer::shutdown`]).
+    pub async fn shutdown_safely(&self, motion_bound: Duration) {
+        for line in self.gateway.axes().stop_for_shutdown(motion_bound).await {
+            tracing::warn!(target: "cangate::audit", "shutdown stopped axis {line}");
+        }
+        self.shutdown();
+    }
+
     /// Starts a graceful shutdown: streams end, buses close, the server stops.
     pub fn shutdown(&self) {
         self.shutdown.cancel();

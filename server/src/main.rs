@@ -116,7 +116,8 @@ async fn main() -> ExitCode {
     };
     signals.wait().await;
     tracing::info!("shutting down");
-    server.shutdown();
+    // Moving axes are brought to rest before the buses close.
+    server.shutdown_safely(Duration::from_secs(5)).await;
     match server.wait(Duration::from_secs(10)).await {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -685,3 +685,44 @@ async fn heartbeat_loss_faults_the_axis_until_the_node_is_back() {
     wait_status(&mut axes, "F", |s| !s.node_lost && s.state != 0).await;
     enable(&mut axes, "F", &lease).await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shutdown_stops_a_jogging_axis_and_refuses_new_commands() {
+    let (server, mut axes) = setup().await;
+    let (drive, _cancel) = run_drive_f(&server);
+    wait_status(&mut axes, "F", |s| s.state != 0 && !s.node_lost).await;
+    let lease = acquire(&mut axes, &["F"], 10_000, "test").await;
+    enable(&mut axes, "F", &lease).await;
+    axes.jog(pb::JogRequest {
+        axis: "F".into(),
+        velocity: 20.0,
+        acceleration: 0.0,
+        options: opts(&lease, false),
+    })
+    .await
+    .unwrap();
+    wait_status(&mut axes, "F", |s| s.velocity > 10.0).await;
+    // What SIGTERM does (main.rs), first step: stop the motion.
+    let report = server
+        .gateway()
+        .axes()
+        .stop_for_shutdown(Duration::from_secs(5))
+        .await;
+    assert_eq!(report.len(), 1, "{report:?}");
+    assert!(report[0].starts_with("F: completed"), "{report:?}");
+    assert!(drive.with(|d| d.velocity()).abs() < 1.0);
+    // New commands are refused from now on.
+    let e = axes.enable(cmd("F", &lease, false)).await.unwrap_err();
+    assert_eq!(e.code(), Code::Unavailable, "{e:?}");
+    let e = axes
+        .acquire_control(pb::AcquireControlRequest {
+            axes: vec!["X".into()],
+            ttl_ms: 1000,
+            client_name: "late".into(),
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::Unavailable);
+    server.shutdown_safely(Duration::from_secs(1)).await;
+    server.wait(Duration::from_secs(10)).await.unwrap();
+}

@@ -117,6 +117,8 @@ pub struct AxisManager {
     origin: Instant,
     updates: broadcast::Sender<AxisUpdate>,
     latest: LatestStates,
+    /// Set when the gateway shuts down: new commands are refused.
+    closing: std::sync::atomic::AtomicBool,
 }
 
 /// The result of an axis command as the API reports it.
@@ -191,6 +193,7 @@ impl AxisManager {
             origin: Instant::now(),
             updates,
             latest,
+            closing: std::sync::atomic::AtomicBool::new(false),
         });
         tasks.push(tokio::spawn(run_lease_expiry(manager.clone(), cancel)));
         Ok((manager, tasks))
@@ -274,8 +277,67 @@ impl AxisManager {
         }
     }
 
+    fn closing(&self) -> bool {
+        self.closing.load(std::sync::atomic::Ordering::SeqCst)
+    }
+
+    /// Shutdown, first step: refuses every new command and control
+    /// request, then stops the axes that move (halt or quick stop per
+    /// their `stop_on_loss`) and waits until they are at rest, at most
+    /// `bound`. Returns one line per stopped axis for the log.
+    pub async fn stop_for_shutdown(&self, bound: Duration) -> Vec<String> {
+        self.closing
+            .store(true, std::sync::atomic::Ordering::SeqCst);
+        let mut stops = Vec::new();
+        for i in 0..self.axes.len() {
+            let moving = self.latest(i).is_some_and(|(s, _)| {
+                matches!(
+                    s.activity,
+                    Activity::Moving | Activity::Jogging | Activity::Homing | Activity::Stopping
+                )
+            });
+            if moving {
+                let cmd = match self.info(i).config.stop_on_loss {
+                    StopChoice::Halt => AxisCommand::Stop,
+                    StopChoice::QuickStop => AxisCommand::QuickStop,
+                };
+                stops.push((i, cmd));
+            }
+        }
+        if stops.is_empty() {
+            return Vec::new();
+        }
+        let names: Vec<String> = stops
+            .iter()
+            .map(|(i, _)| self.name(*i).to_string())
+            .collect();
+        match tokio::time::timeout(bound, self.many(stops, true)).await {
+            Ok(Ok(results)) => names
+                .iter()
+                .zip(results)
+                .map(|(n, r)| match r {
+                    Ok(r) => format!(
+                        "{n}: {} ({})",
+                        r.outcome.map_or("accepted", Outcome::name),
+                        r.detail
+                    ),
+                    Err(e) => format!("{n}: {e}"),
+                })
+                .collect(),
+            Ok(Err(e)) => vec![format!("stopping {}: {e}", names.join(", "))],
+            Err(_) => vec![format!(
+                "{}: not at rest within {} ms",
+                names.join(", "),
+                bound.as_millis()
+            )],
+        }
+    }
+
     /// Grants control of `axes` (names) to `holder`.
     pub fn acquire(&self, axes: &[String], ttl_ms: u32, holder: String) -> Result<Lease, ApiError> {
+        if self.closing() {
+            return Err(ApiError::ShuttingDown);
+        }
         if axes.is_empty() {
             return Err(ApiError::InvalidArgument("name at least one axis".into()));
         }
@@ -351,6 +413,9 @@ impl AxisManager {
         wait: bool,
         wait_timeout: Duration,
     ) -> Result<CommandResult, ApiError> {
+        if self.closing() {
+            return Err(ApiError::ShuttingDown);
+        }
         let entry = &self.axes[i];
         let (reply, rx) = oneshot::channel();
         entry
@@ -374,6 +439,9 @@ impl AxisManager {
     /// # Errors
     /// When the axis task's queue is full or closed.
     pub fn submit(&self, i: usize, cmd: AxisCommand) -> Result<(), ApiError> {
+        if self.closing() {
+            return Err(ApiError::ShuttingDown);
+        }
         let entry = &self.axes[i];
         let (reply, _rx) = oneshot::channel();
         entry
