@@ -17,7 +17,7 @@ pub const DEMO_CONFIG: &str = include_str!("../../deploy/demo.toml");
 
 /// Environment variables that override configuration keys (a trailing `__`
 /// stands for every key below that table).
-const ENV_KEYS: &[&str] = &["CANGATE_LISTEN", "CANGATE_LOG__"];
+const ENV_KEYS: &[&str] = &["CANGATE_LISTEN", "CANGATE_METRICS_LISTEN", "CANGATE_LOG__"];
 
 /// Environment variables with our prefix that belong to the client, not to
 /// the server's configuration.
@@ -37,6 +37,10 @@ pub struct Config {
     /// gRPC listen address.
     #[serde(default = "default_listen")]
     pub listen: SocketAddr,
+    /// Prometheus endpoint (`GET /metrics`), e.g. `127.0.0.1:9464`; none
+    /// when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub metrics_listen: Option<SocketAddr>,
     /// Logging.
     #[serde(default)]
     pub log: LogConfig,

@@ -459,6 +459,8 @@ fn open_bus(bc: &BusConfig, network: &VirtualNetwork) -> Result<(BusInfo, Backen
 pub struct RunningServer {
     /// The address the gRPC server listens on (useful with port 0).
     pub addr: SocketAddr,
+    /// The Prometheus endpoint's address, when configured.
+    pub metrics_addr: Option<SocketAddr>,
     gateway: Arc<Gateway>,
     shutdown: CancellationToken,
     server: JoinHandle<Result<(), tonic::transport::Error>>,
@@ -570,6 +572,7 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
     let server = tokio::spawn(
         tonic::transport::Server::builder()
             .tcp_nodelay(true)
+            .layer(crate::metrics::RpcMetricsLayer)
             .add_service(health_service)
             .add_service(reflection)
             .add_service(bus_service)
@@ -579,9 +582,21 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
             .add_optional_service(simulator_service)
             .serve_with_incoming_shutdown(incoming, async move { token.cancelled().await }),
     );
-    tracing::info!(%addr, buses = gateway.buses().count(), "cangate gateway listening");
+    if config.metrics_listen.is_some() {
+        crate::metrics::handle();
+    }
+    let metrics_addr = match config.metrics_listen {
+        Some(m) => Some(
+            crate::metrics::serve(m, gateway.clone(), shutdown.clone())
+                .await
+                .map_err(|source| StartError::Listen { addr: m, source })?,
+        ),
+        None => None,
+    };
+    tracing::info!(%addr, metrics = ?metrics_addr, buses = gateway.buses().count(), "cangate gateway listening");
     Ok(RunningServer {
         addr,
+        metrics_addr,
         gateway,
         shutdown,
         server,

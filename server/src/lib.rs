@@ -6,6 +6,7 @@
 //! - [`canopen`]: the CANopen master runtime of each bus.
 //! - [`axes`]: the axis layer (CiA 402 drives), control leases.
 //! - [`handwheel`]: CNC handwheels: feed decoding, mode, axis binding.
+//! - [`metrics`]: the Prometheus endpoint.
 //! - [`error`]: the one mapping from domain errors to gRPC statuses.
 
 pub mod axes;
@@ -15,6 +16,7 @@ pub mod error;
 pub mod gateway;
 pub mod grpc;
 pub mod handwheel;
+pub mod metrics;
 
 pub use config::Config;
 pub use gateway::{Gateway, RunningServer, StartError, start};

@@ -300,11 +300,24 @@ impl CanopenBus {
         req: SdoRequest,
     ) -> Result<TransferOutcome, CanopenError> {
         let (reply, rx) = oneshot::channel();
+        let started = Instant::now();
         self.commands
             .send(Command::Sdo { node, req, reply })
             .await
             .map_err(|_| CanopenError::Stopped)?;
-        Ok(rx.await.map_err(|_| CanopenError::Stopped)??)
+        let r = rx.await.map_err(|_| CanopenError::Stopped)?;
+        let result = match &r {
+            Ok(_) => "ok",
+            Err(SdoError::Timeout { .. }) => "timeout",
+            Err(SdoError::Aborted { .. }) => "aborted_by_node",
+            Err(_) => "aborted",
+        };
+        let node_label = node.get().to_string();
+        metrics::counter!("cangate_sdo_requests_total", "bus" => self.bus.clone(), "node" => node_label.clone(), "result" => result)
+            .increment(1);
+        metrics::histogram!("cangate_sdo_duration_seconds", "bus" => self.bus.clone(), "node" => node_label)
+            .record(started.elapsed().as_secs_f64());
+        Ok(r?)
     }
 
     /// Sends an NMT command.
@@ -592,6 +605,7 @@ async fn run_master(task: MasterTask) {
             tracing::warn!(bus = %bus.name(), error = %e, "CANopen master could not send");
         }
         for ev in out.events {
+            count_event(bus.name(), &ev);
             handle_event(ev, &mut pending, &events, &facts);
         }
     }
@@ -628,6 +642,21 @@ fn publish_pdo(
             });
         }
         Err(e) => tracing::debug!(node = node.get(), pdo = cfg.num, error = %e, "undecodable TPDO"),
+    }
+}
+
+/// The event counters of the Prometheus endpoint.
+fn count_event(bus: &str, ev: &MasterEvent) {
+    match ev {
+        MasterEvent::Heartbeat(HeartbeatEvent::HeartbeatLost { node, .. }) => {
+            metrics::counter!("cangate_heartbeat_lost_total", "bus" => bus.to_string(), "node" => node.get().to_string())
+                .increment(1);
+        }
+        MasterEvent::Emcy(EmcyEvent::Error(e)) => {
+            metrics::counter!("cangate_emcy_total", "bus" => bus.to_string(), "node" => e.node.get().to_string())
+                .increment(1);
+        }
+        _ => {}
     }
 }
 

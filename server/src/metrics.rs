@@ -1,0 +1,326 @@
+//! Prometheus metrics: the `metrics` facade with the Prometheus text
+//! renderer, served by a minimal HTTP/1 endpoint of our own (`GET
+//! /metrics`) on `metrics_listen`.
+//!
+//! Two kinds of series:
+//! - counted where things happen (SDO requests, aborts, timeouts and their
+//!   latency; heartbeat losses; EMCYs);
+//! - read from the gateway's live state at each scrape (bus frames, errors,
+//!   load, state, stream drops; handwheel feed statistics and binding drops;
+//!   axis faults and node loss), so they are always exact.
+
+use crate::gateway::Gateway;
+use metrics_exporter_prometheus::{Matcher, PrometheusBuilder, PrometheusHandle};
+use std::net::SocketAddr;
+use std::sync::{Arc, OnceLock};
+use std::time::Duration;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio_util::sync::CancellationToken;
+
+static HANDLE: OnceLock<PrometheusHandle> = OnceLock::new();
+
+/// The process-wide recorder (installed on first use; the metrics facade
+/// has one global recorder per process).
+pub fn handle() -> &'static PrometheusHandle {
+    HANDLE.get_or_init(|| {
+        let builder = PrometheusBuilder::new()
+            .set_buckets_for_metric(
+                Matcher::Suffix("duration_seconds".into()),
+                &[
+                    0.0001, 0.00025, 0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25,
+                    0.5, 1.0,
+                ],
+            )
+            .expect("static buckets are valid");
+        let recorder = builder.build_recorder();
+        let handle = recorder.handle();
+        // Another recorder may be installed already (a host application);
+        // then ours still renders what it is given.
+        let _ = metrics::set_global_recorder(recorder);
+        describe();
+        handle
+    })
+}
+
+fn describe() {
+    use metrics::{describe_counter, describe_gauge, describe_histogram};
+    describe_counter!(
+        "cangate_bus_frames_total",
+        "Frames received (rx) and sent (tx) per bus."
+    );
+    describe_counter!(
+        "cangate_bus_error_frames_total",
+        "Error frames seen per bus."
+    );
+    describe_counter!(
+        "cangate_bus_tx_failed_total",
+        "Frames the bus refused to send."
+    );
+    describe_counter!(
+        "cangate_bus_stream_drops_total",
+        "Frames dropped for slow stream subscribers (each reported to them as lost)."
+    );
+    describe_gauge!(
+        "cangate_bus_load_percent",
+        "Bus load in percent of the bitrate."
+    );
+    describe_gauge!(
+        "cangate_bus_up",
+        "1 when the bus carries frames (up, error warning or error passive)."
+    );
+    describe_counter!(
+        "cangate_sdo_requests_total",
+        "SDO transfers by bus, node and result."
+    );
+    describe_histogram!(
+        "cangate_sdo_duration_seconds",
+        "SDO transfer latency by bus and node."
+    );
+    describe_counter!(
+        "cangate_heartbeat_lost_total",
+        "Heartbeat losses by bus and node."
+    );
+    describe_counter!("cangate_emcy_total", "EMCY messages by bus and node.");
+    describe_counter!(
+        "cangate_handwheel_frames_total",
+        "Feed frames per handwheel."
+    );
+    describe_counter!(
+        "cangate_handwheel_gaps_total",
+        "Feed frames that followed lost ones."
+    );
+    describe_counter!(
+        "cangate_handwheel_compensated_units_total",
+        "Units compensated for lost frames."
+    );
+    describe_counter!(
+        "cangate_handwheel_duplicates_total",
+        "Repeated feed frames (not moved)."
+    );
+    describe_counter!(
+        "cangate_handwheel_bad_frames_total",
+        "Feed frames with an invalid axis or length."
+    );
+    describe_counter!(
+        "cangate_handwheel_dropped_units_total",
+        "Units a binding dropped, by reason."
+    );
+    describe_gauge!(
+        "cangate_axis_fault",
+        "1 while the axis is in fault or its node is lost."
+    );
+    describe_counter!(
+        "cangate_rpc_requests_total",
+        "gRPC calls by method and status code."
+    );
+}
+
+/// Refreshes the series read from live state.
+fn refresh(gateway: &Gateway) {
+    use metrics::{counter, gauge};
+    for bus in gateway.buses() {
+        let name = bus.name().to_string();
+        let s = bus.stats();
+        counter!("cangate_bus_frames_total", "bus" => name.clone(), "direction" => "rx")
+            .absolute(s.rx_frames);
+        counter!("cangate_bus_frames_total", "bus" => name.clone(), "direction" => "tx")
+            .absolute(s.tx_frames);
+        counter!("cangate_bus_error_frames_total", "bus" => name.clone()).absolute(s.error_frames);
+        counter!("cangate_bus_tx_failed_total", "bus" => name.clone()).absolute(s.tx_failed);
+        counter!("cangate_bus_stream_drops_total", "bus" => name.clone())
+            .absolute(s.subscriber_drops);
+        gauge!("cangate_bus_load_percent", "bus" => name.clone()).set(s.load_percent);
+        let up = matches!(
+            bus.status().state,
+            cangate_can::BusState::Up
+                | cangate_can::BusState::ErrorWarning
+                | cangate_can::BusState::ErrorPassive
+        );
+        gauge!("cangate_bus_up", "bus" => name).set(if up { 1.0 } else { 0.0 });
+    }
+    let wheels = gateway.handwheels();
+    for i in 0..wheels.len() {
+        let w = wheels.wheel(i);
+        let name = w.config.name.clone();
+        let s = w.stats.lock().expect("stats lock").clone();
+        counter!("cangate_handwheel_frames_total", "handwheel" => name.clone()).absolute(s.frames);
+        counter!("cangate_handwheel_gaps_total", "handwheel" => name.clone()).absolute(s.gaps);
+        counter!("cangate_handwheel_compensated_units_total", "handwheel" => name.clone())
+            .absolute(s.compensated_units);
+        counter!("cangate_handwheel_duplicates_total", "handwheel" => name.clone())
+            .absolute(s.duplicates);
+        counter!("cangate_handwheel_bad_frames_total", "handwheel" => name.clone())
+            .absolute(s.bad_frames);
+        let b = w.binding.lock().expect("binding lock").clone();
+        for (reason, v) in [
+            ("backlog", b.dropped_backlog),
+            ("not_enabled", b.dropped_not_enabled),
+            ("not_controlled", b.dropped_not_controlled),
+            ("unbound", b.dropped_unbound),
+        ] {
+            counter!("cangate_handwheel_dropped_units_total", "handwheel" => name.clone(), "reason" => reason)
+                .absolute(v);
+        }
+    }
+    let axes = gateway.axes();
+    for i in 0..axes.len() {
+        let fault = axes
+            .latest(i)
+            .is_none_or(|(s, _)| s.fault.is_some() || s.node_lost.is_some());
+        metrics::gauge!("cangate_axis_fault", "axis" => axes.name(i).to_string()).set(if fault {
+            1.0
+        } else {
+            0.0
+        });
+    }
+}
+
+/// Serves `GET /metrics` on `addr` until `cancel` fires; returns the bound
+/// address.
+pub async fn serve(
+    addr: SocketAddr,
+    gateway: Arc<Gateway>,
+    cancel: CancellationToken,
+) -> std::io::Result<SocketAddr> {
+    let listener = tokio::net::TcpListener::bind(addr).await?;
+    let local = listener.local_addr()?;
+    let handle = handle();
+    tokio::spawn(async move {
+        loop {
+            let (mut sock, _) = tokio::select! {
+                _ = cancel.cancelled() => return,
+                a = listener.accept() => match a {
+                    Ok(a) => a,
+                    Err(_) => continue,
+                },
+            };
+            let gateway = gateway.clone();
+            tokio::spawn(async move {
+                // One request per connection, bounded in size and time.
+                let mut buf = Vec::with_capacity(1024);
+                let read = tokio::time::timeout(Duration::from_secs(5), async {
+                    let mut chunk = [0u8; 1024];
+                    while !buf.windows(4).any(|w| w == b"\r\n\r\n") && buf.len() < 8192 {
+                        let n = sock.read(&mut chunk).await?;
+                        if n == 0 {
+                            break;
+                        }
+                        buf.extend_from_slice(&chunk[..n]);
+                    }
+                    Ok::<_, std::io::Error>(())
+                })
+                .await;
+                if !matches!(read, Ok(Ok(()))) {
+                    return;
+                }
+                let line = buf.split(|b| *b == b'\n').next().unwrap_or_default();
+                let (status, ctype, body) =
+                    if line.starts_with(b"GET /metrics ") || line.starts_with(b"GET / ") {
+                        refresh(&gateway);
+                        (
+                            "200 OK",
+                            "text/plain; version=0.0.4; charset=utf-8",
+                            handle.render(),
+                        )
+                    } else {
+                        (
+                            "404 Not Found",
+                            "text/plain; charset=utf-8",
+                            "GET /metrics\n".to_string(),
+                        )
+                    };
+                let head = format!(
+                    "HTTP/1.1 {status}\r\nContent-Type: {ctype}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
+                    body.len()
+                );
+                let _ = sock.write_all(head.as_bytes()).await;
+                let _ = sock.write_all(body.as_bytes()).await;
+                let _ = sock.shutdown().await;
+            });
+        }
+    });
+    Ok(local)
+}
+
+/// A tower layer counting every gRPC call by method and status code
+/// (`cangate_rpc_requests_total`). The code is the one in the response
+/// headers (errors returned at once, "trailers-only"); calls whose status
+/// comes in the trailers (successes, and errors ending a stream) count as
+/// `OK`, as their headers promise no error.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct RpcMetricsLayer;
+
+impl<S> tower::Layer<S> for RpcMetricsLayer {
+    type Service = RpcMetrics<S>;
+    fn layer(&self, inner: S) -> Self::Service {
+        RpcMetrics { inner }
+    }
+}
+
+/// See [`RpcMetricsLayer`].
+#[derive(Debug, Clone)]
+pub struct RpcMetrics<S> {
+    inner: S,
+}
+
+impl<S, B, RB> tower::Service<http::Request<B>> for RpcMetrics<S>
+where
+    S: tower::Service<http::Request<B>, Response = http::Response<RB>>,
+    S::Future: Send + 'static,
+    S::Error: 'static,
+{
+    type Response = S::Response;
+    type Error = S::Error;
+    type Future = std::pin::Pin<
+        Box<dyn std::future::Future<Output = Result<Self::Response, Self::Error>> + Send>,
+    >;
+
+    fn poll_ready(
+        &mut self,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Result<(), Self::Error>> {
+        self.inner.poll_ready(cx)
+    }
+
+    fn call(&mut self, req: http::Request<B>) -> Self::Future {
+        let method = req.uri().path().to_string();
+        let fut = self.inner.call(req);
+        Box::pin(async move {
+            let r = fut.await;
+            if let Ok(resp) = &r {
+                let code = resp
+                    .headers()
+                    .get("grpc-status")
+                    .and_then(|v| v.to_str().ok())
+                    .and_then(|v| v.parse::<i32>().ok())
+                    .map_or("OK", |c| code_name(tonic::Code::from(c)));
+                metrics::counter!("cangate_rpc_requests_total", "method" => method, "code" => code)
+                    .increment(1);
+            }
+            r
+        })
+    }
+}
+
+fn code_name(c: tonic::Code) -> &'static str {
+    use tonic::Code as C;
+    match c {
+        C::Ok => "OK",
+        C::Cancelled => "CANCELLED",
+        C::Unknown => "UNKNOWN",
+        C::InvalidArgument => "INVALID_ARGUMENT",
+        C::DeadlineExceeded => "DEADLINE_EXCEEDED",
+        C::NotFound => "NOT_FOUND",
+        C::AlreadyExists => "ALREADY_EXISTS",
+        C::PermissionDenied => "PERMISSION_DENIED",
+        C::ResourceExhausted => "RESOURCE_EXHAUSTED",
+        C::FailedPrecondition => "FAILED_PRECONDITION",
+        C::Aborted => "ABORTED",
+        C::OutOfRange => "OUT_OF_RANGE",
+        C::Unimplemented => "UNIMPLEMENTED",
+        C::Internal => "INTERNAL",
+        C::Unavailable => "UNAVAILABLE",
+        C::DataLoss => "DATA_LOSS",
+        C::Unauthenticated => "UNAUTHENTICATED",
+    }
+}

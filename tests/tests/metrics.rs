@@ -1,0 +1,93 @@
+//! The Prometheus endpoint: after some traffic the named series are there
+//! with the right values.
+
+mod common;
+
+use cangate_client::pb;
+use common::*;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+const CONFIG: &str = r#"
+metrics_listen = "127.0.0.1:0"
+
+[[bus]]
+name = "can0"
+backend = "virtual"
+
+[[canopen]]
+bus = "can0"
+
+[[canopen.node]]
+id = 1
+eds = "builtin:drive"
+simulate = true
+heartbeat_timeout_ms = 300
+"#;
+
+async fn scrape(addr: std::net::SocketAddr, path: &str) -> String {
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    s.write_all(format!("GET {path} HTTP/1.1\r\nHost: x\r\n\r\n").as_bytes())
+        .await
+        .unwrap();
+    let mut out = String::new();
+    tokio::time::timeout(WAIT, s.read_to_string(&mut out))
+        .await
+        .expect("answer in time")
+        .unwrap();
+    out
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn metrics_endpoint_exposes_bus_and_sdo_series() {
+    let server = start_server(CONFIG).await;
+    let addr = server.metrics_addr.expect("metrics configured");
+    let mut c = client(&server).await;
+    // Traffic: two SDO reads (one ok, one aborted: no such object) and a
+    // frame.
+    c.read_sdo(pb::ReadSdoRequest {
+        bus: "can0".into(),
+        node: 1,
+        index: 0x1000,
+        subindex: 0,
+        r#type: 0,
+        options: None,
+    })
+    .await
+    .unwrap();
+    c.read_sdo(pb::ReadSdoRequest {
+        bus: "can0".into(),
+        node: 1,
+        index: 0x5FFF,
+        subindex: 0,
+        r#type: 0,
+        options: None,
+    })
+    .await
+    .unwrap_err();
+    c.send("can0", &["123#01".parse().unwrap()]).await.unwrap();
+    let text = scrape(addr, "/metrics").await;
+    assert!(text.starts_with("HTTP/1.1 200 OK"), "{text}");
+    for series in [
+        "cangate_bus_frames_total{bus=\"can0\",direction=\"rx\"}",
+        "cangate_bus_frames_total{bus=\"can0\",direction=\"tx\"}",
+        "cangate_bus_up{bus=\"can0\"} 1",
+        "cangate_bus_load_percent{bus=\"can0\"}",
+        "cangate_bus_stream_drops_total{bus=\"can0\"}",
+        "cangate_sdo_requests_total{bus=\"can0\",node=\"1\",result=\"ok\"}",
+        "cangate_sdo_requests_total{bus=\"can0\",node=\"1\",result=\"aborted_by_node\"}",
+        "cangate_sdo_duration_seconds_bucket{bus=\"can0\",node=\"1\",le=\"0.001\"}",
+        "# HELP cangate_sdo_duration_seconds",
+        "cangate_rpc_requests_total{method=\"/cangate.v1.Canopen/ReadSdo\",code=\"OK\"}",
+        "cangate_rpc_requests_total{method=\"/cangate.v1.Canopen/ReadSdo\",code=\"NOT_FOUND\"}",
+    ] {
+        assert!(text.contains(series), "missing {series} in:\n{text}");
+    }
+    let tx: f64 = text
+        .lines()
+        .find(|l| l.starts_with("cangate_bus_frames_total{bus=\"can0\",direction=\"tx\"}"))
+        .and_then(|l| l.rsplit(' ').next())
+        .and_then(|v| v.parse().ok())
+        .unwrap();
+    assert!(tx >= 3.0, "two SDO requests and a frame were sent: {tx}");
+    assert!(scrape(addr, "/nope").await.starts_with("HTTP/1.1 404"));
+}
