@@ -17,7 +17,12 @@ pub const DEMO_CONFIG: &str = include_str!("../../deploy/demo.toml");
 
 /// Environment variables that override configuration keys (a trailing `__`
 /// stands for every key below that table).
-const ENV_KEYS: &[&str] = &["CANGATE_LISTEN", "CANGATE_METRICS_LISTEN", "CANGATE_LOG__"];
+const ENV_KEYS: &[&str] = &[
+    "CANGATE_LISTEN",
+    "CANGATE_METRICS_LISTEN",
+    "CANGATE_SECURITY__",
+    "CANGATE_LOG__",
+];
 
 /// Environment variables with our prefix that belong to the client, not to
 /// the server's configuration.
@@ -41,6 +46,9 @@ pub struct Config {
     /// when absent.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub metrics_listen: Option<SocketAddr>,
+    /// Security settings.
+    #[serde(default)]
+    pub security: SecurityConfig,
     /// Logging.
     #[serde(default)]
     pub log: LogConfig,
@@ -56,6 +64,17 @@ pub struct Config {
     /// CNC handwheels (CANopen nodes) and their axis bindings.
     #[serde(default, rename = "handwheel", skip_serializing_if = "Vec::is_empty")]
     pub handwheels: Vec<HandwheelConfig>,
+}
+
+/// Security settings.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SecurityConfig {
+    /// Allow listening on a non-loopback address without authentication
+    /// (the gateway has no authentication yet, so any non-loopback address
+    /// needs this). Logged as a warning at every start.
+    #[serde(default)]
+    pub insecure: bool,
 }
 
 /// Where the feed counter sits in the handwheel's feed byte.
@@ -782,6 +801,17 @@ impl Config {
 
     /// Checks what serde cannot: unique names, sensible values.
     pub fn validate(&self) -> Result<(), ConfigError> {
+        // A gateway that moves axes must not be reachable from the network
+        // without authentication unless someone said so explicitly.
+        if !self.listen.ip().is_loopback() && !self.security.insecure {
+            return Err(ConfigError::Invalid(format!(
+                "listen = {} is reachable from the network, and this gateway has no \
+                 authentication yet: anyone who reaches it can move the axes. Listen on \
+                 127.0.0.1 (and tunnel), or accept the risk with [security] insecure = true \
+                 (env CANGATE_SECURITY__INSECURE=true)",
+                self.listen
+            )));
+        }
         let mut names = HashSet::new();
         let mut interfaces = HashSet::new();
         for b in &self.buses {
@@ -979,6 +1009,26 @@ eds = "builtin:drive"
         );
         let e = Config::from_toml(&two).unwrap_err().to_string();
         assert!(e.contains("already backs another axis"), "{e}");
+    }
+
+    #[test]
+    fn non_loopback_listen_needs_insecure() {
+        let e = Config::from_toml("listen = \"0.0.0.0:50051\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("no authentication yet") && e.contains("insecure = true"),
+            "{e}"
+        );
+        let c =
+            Config::from_toml("listen = \"0.0.0.0:50051\"\n[security]\ninsecure = true\n").unwrap();
+        assert!(c.security.insecure);
+        let env = HashMap::from([
+            ("CANGATE_LISTEN".to_string(), "0.0.0.0:1".to_string()),
+            ("CANGATE_SECURITY__INSECURE".to_string(), "true".to_string()),
+        ]);
+        assert!(Config::load_with_env(None, env).is_ok());
+        Config::from_toml("listen = \"[::1]:50051\"\n").unwrap();
     }
 
     #[test]

@@ -96,6 +96,12 @@ async fn main() -> ExitCode {
     };
     if let Some(listen) = args.listen {
         config.listen = listen;
+        // The same rules as a configured address (e.g. a network address
+        // needs [security] insecure = true).
+        if let Err(e) = config.validate() {
+            eprintln!("cangate-server: {e}");
+            return ExitCode::from(2);
+        }
     }
     if args.print_config {
         print!("{}", config.to_toml());
@@ -104,6 +110,13 @@ async fn main() -> ExitCode {
     init_logging(&config);
     if args.config.is_none() {
         tracing::info!("no --config given: running the embedded demo configuration");
+    }
+    if config.security.insecure {
+        tracing::warn!(
+            listen = %config.listen,
+            "[security] insecure = true: the gRPC API is open to anyone who can reach {}",
+            config.listen
+        );
     }
     let signals = ShutdownSignals::install();
     let server = match cangate_server::start(&config).await {

@@ -120,3 +120,14 @@ fn sigterm_shuts_down_gracefully() {
     let rest: Vec<String> = rx.try_iter().collect();
     assert!(rest.iter().any(|l| l.contains("shutting down")), "{rest:?}");
 }
+
+#[test]
+fn network_listen_without_insecure_is_refused() {
+    let out = Command::new(BIN)
+        .args(["--listen", "0.0.0.0:0"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("insecure = true"), "{err}");
+}
