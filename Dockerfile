@@ -1,8 +1,8 @@
 # cangate gateway image.
 #
 #   docker build -t cangate .
-#   docker run --rm -p 127.0.0.1:50051:50051 cangate     # the embedded demo
-#   # real CAN: host network so the container sees can0, config mounted
+#   docker run --rm cangate                      # the embedded demo
+#   # real CAN: host network so that the container sees can0, config mounted
 #   docker run --rm --network host --read-only --cap-drop ALL \
 #       -v $PWD/deploy/examples/hardware.toml:/etc/cangate/cangate.toml:ro \
 #       cangate --config /etc/cangate/cangate.toml
@@ -10,10 +10,17 @@
 # deploy/compose.yaml and deploy/kubernetes/ run the same image.
 #
 # Without arguments the image runs the embedded demo (virtual buses,
-# simulated devices) on 0.0.0.0:50051, so that a published port reaches it.
-# Arguments replace that default: with --config the file's `listen` applies
-# (loopback in the examples; add `--listen 0.0.0.0:50051` or set
-# CANGATE_LISTEN when the port must be reachable from outside the container).
+# simulated devices). Like every configuration it listens on loopback, here
+# the container's own, so it is reachable only from inside the container
+# (`docker exec <container> cangate buses`). The gateway has no
+# authentication yet and refuses a network address unless told to accept
+# the risk; to publish the demo port (deploy/compose.yaml does this):
+#
+#   docker run --rm -p 127.0.0.1:50051:50051 \
+#       -e CANGATE_LISTEN=0.0.0.0:50051 -e CANGATE_SECURITY__INSECURE=true cangate
+#
+# Stopping: the server stops moving axes (bounded 5 s), then closes streams
+# and buses (bounded 10 s); give it `docker stop -t 20`.
 #
 # The build runs the same cargo command as CI (--locked). protox compiles
 # the .proto files in Rust, so no protoc is needed.
@@ -42,13 +49,12 @@ COPY --from=build /src/target/release/cangate-server /usr/local/bin/cangate-serv
 COPY --from=build /src/target/release/cangate /usr/local/bin/cangate
 USER 10001:10001
 EXPOSE 50051
-# The server shuts down gracefully on SIGTERM within 10 s; give it
-# `docker stop -t 15` (compose: stop_grace_period) to finish.
+# Graceful shutdown on SIGTERM (at most 15 s, see above).
 STOPSIGNAL SIGTERM
 # A real gRPC round trip (the Bus service's ListBuses) with the bundled
 # client: no extra probe binary in the image. Kubernetes uses its native
 # grpc probe against grpc.health.v1 instead (deploy/kubernetes/).
 HEALTHCHECK --interval=10s --timeout=3s --start-period=5s --retries=3 \
     CMD ["cangate", "--server", "http://127.0.0.1:50051", "buses"]
+# No arguments: the embedded demo.
 ENTRYPOINT ["cangate-server"]
-CMD ["--listen", "0.0.0.0:50051"]
