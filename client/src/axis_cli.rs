@@ -11,6 +11,7 @@
 //! the command ([`Control`]): acquired before, renewed in the background,
 //! released after — also after an error or Ctrl-C.
 
+use crate::cli_common::{Rpc, ctrl_c, positive, sleep_opt, status_error, time_text};
 use anyhow::{Context, Result, anyhow, bail};
 use cangate_client::{Client, pb};
 use clap::{Args, Subcommand, ValueEnum};
@@ -252,13 +253,6 @@ pub struct TargetArg {
     pub target: f64,
 }
 
-fn positive(text: &str) -> Result<f64, String> {
-    match text.parse::<f64>() {
-        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
-        _ => Err(format!("{text:?} is not a positive number")),
-    }
-}
-
 fn parse_target(text: &str) -> Result<TargetArg, String> {
     let (axis, pos) = text
         .split_once('=')
@@ -278,36 +272,6 @@ fn parse_target(text: &str) -> Result<TargetArg, String> {
 }
 
 // ------------------------------------------------------------ rpc helpers
-
-/// A gRPC status as the user should see it: the server's message and code.
-fn status_error(s: tonic::Status) -> anyhow::Error {
-    cangate_client::Error::Status(s).into()
-}
-
-trait Rpc<T> {
-    fn rpc(self) -> Result<T>;
-}
-
-impl<T> Rpc<T> for Result<tonic::Response<T>, tonic::Status> {
-    fn rpc(self) -> Result<T> {
-        self.map(tonic::Response::into_inner).map_err(status_error)
-    }
-}
-
-/// Ctrl-C; never resolves if the handler cannot be installed.
-async fn ctrl_c() {
-    if tokio::signal::ctrl_c().await.is_err() {
-        std::future::pending::<()>().await;
-    }
-}
-
-/// Sleeps `secs`, or forever when `None`.
-async fn sleep_opt(secs: Option<f64>) {
-    match secs {
-        Some(s) => tokio::time::sleep(Duration::from_secs_f64(s)).await,
-        None => std::future::pending().await,
-    }
-}
 
 /// Runs a clean-up call with a bound; a second Ctrl-C leaves at once. A
 /// Ctrl-C in the first half second does not count: it is the same
@@ -616,19 +580,6 @@ fn fault_text(s: &pb::AxisStatus) -> String {
     } else {
         "-".to_string()
     }
-}
-
-/// `(1712345678.123456)`, like the other streams of the CLI; the local
-/// clock when the gateway gave no time.
-fn time_text(us: u64) -> String {
-    let us = if us == 0 {
-        std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_micros() as u64)
-    } else {
-        us
-    };
-    format!("({}.{:06})", us / 1_000_000, us % 1_000_000)
 }
 
 /// One line of `watch` for a status.

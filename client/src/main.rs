@@ -9,6 +9,7 @@ use std::io::Write;
 
 mod axis_cli;
 mod canopen_cli;
+mod cli_common;
 mod wheel_cli;
 use canopen_cli::{NmtVerb, SdoVerb};
 

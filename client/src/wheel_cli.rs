@@ -2,6 +2,7 @@
 //! `Handwheels` service and `cangate sim …` over the `Simulator` service
 //! (`proto/cangate/v1/handwheel.proto`).
 
+use crate::cli_common::{Rpc, ctrl_c, now_us, positive, sleep_opt, status_error, time_text};
 use anyhow::{Context, Result, bail};
 use cangate_client::{Client, pb};
 use clap::{Args, Subcommand, ValueEnum};
@@ -164,13 +165,6 @@ pub struct TurnArgs {
     pub max_consecutive_loss: Option<u32>,
 }
 
-fn positive(text: &str) -> Result<f64, String> {
-    match text.parse::<f64>() {
-        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
-        _ => Err(format!("{text:?} is not a positive number")),
-    }
-}
-
 fn multiplier(text: &str) -> Result<u32, String> {
     match text.parse::<u32>() {
         Ok(m @ (1 | 10 | 100)) => Ok(m),
@@ -186,48 +180,6 @@ fn probability(text: &str) -> Result<f64, String> {
 }
 
 // ------------------------------------------------------------ rpc helpers
-
-/// A gRPC status as the user should see it: the server's message and
-/// code, and the SDO abort when the server attached one the message does
-/// not already name.
-fn status_error(s: tonic::Status) -> anyhow::Error {
-    let abort = s
-        .metadata()
-        .get("cangate-sdo-abort")
-        .and_then(|v| v.to_str().ok())
-        .map(str::to_string);
-    let shown = s.message().to_string();
-    let e = anyhow::Error::from(cangate_client::Error::Status(s));
-    match abort {
-        Some(a) if !shown.contains(&a) => e.context(format!("SDO abort {a}")),
-        _ => e,
-    }
-}
-
-trait Rpc<T> {
-    fn rpc(self) -> Result<T>;
-}
-
-impl<T> Rpc<T> for Result<tonic::Response<T>, tonic::Status> {
-    fn rpc(self) -> Result<T> {
-        self.map(tonic::Response::into_inner).map_err(status_error)
-    }
-}
-
-/// Ctrl-C; never resolves if the handler cannot be installed.
-async fn ctrl_c() {
-    if tokio::signal::ctrl_c().await.is_err() {
-        std::future::pending::<()>().await;
-    }
-}
-
-/// Sleeps `secs`, or forever when `None`.
-async fn sleep_opt(secs: Option<f64>) {
-    match secs {
-        Some(s) => tokio::time::sleep(Duration::from_secs_f64(s)).await,
-        None => std::future::pending().await,
-    }
-}
 
 // ------------------------------------------------------------- formatting
 
@@ -265,19 +217,6 @@ fn layout_name(l: i32) -> &'static str {
         Ok(pb::CounterLayout::Bits67) => "bits6-7",
         _ => "unknown",
     }
-}
-
-/// `(1712345678.123456)`, like the other streams of the CLI; the local
-/// clock when the gateway gave no time.
-fn time_text(us: u64) -> String {
-    let us = if us == 0 { now_us() } else { us };
-    format!("({}.{:06})", us / 1_000_000, us % 1_000_000)
-}
-
-fn now_us() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_micros() as u64)
 }
 
 /// Net units (positive − negative) per wheel axis, X to V.
