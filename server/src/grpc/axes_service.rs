@@ -134,6 +134,21 @@ impl AxesService {
     }
 }
 
+impl AxesService {
+    /// A command without parameters (Enable, Stop, …) on the request's axis.
+    async fn simple(
+        &self,
+        req: Request<pb::AxisCommandRequest>,
+        cmd: AxisCommand,
+    ) -> Result<Response<pb::AxisCommandResponse>, Status> {
+        let peer = peer(&req);
+        let r = req.into_inner();
+        Ok(Response::new(
+            self.run(peer, &r.axis, cmd, r.options).await?,
+        ))
+    }
+}
+
 /// With `wait`, a command that did not complete ends the call with an
 /// error code that says why (the outcome is in the message).
 fn check_outcome(axis: &str, r: &CommandResult) -> Result<(), ApiError> {
@@ -321,36 +336,21 @@ impl Axes for AxesService {
         &self,
         req: Request<pb::AxisCommandRequest>,
     ) -> Result<Response<pb::AxisCommandResponse>, Status> {
-        let peer = peer(&req);
-        let r = req.into_inner();
-        Ok(Response::new(
-            self.run(peer, &r.axis, AxisCommand::Enable, r.options)
-                .await?,
-        ))
+        self.simple(req, AxisCommand::Enable).await
     }
 
     async fn disable(
         &self,
         req: Request<pb::AxisCommandRequest>,
     ) -> Result<Response<pb::AxisCommandResponse>, Status> {
-        let peer = peer(&req);
-        let r = req.into_inner();
-        Ok(Response::new(
-            self.run(peer, &r.axis, AxisCommand::Disable, r.options)
-                .await?,
-        ))
+        self.simple(req, AxisCommand::Disable).await
     }
 
     async fn home(
         &self,
         req: Request<pb::AxisCommandRequest>,
     ) -> Result<Response<pb::AxisCommandResponse>, Status> {
-        let peer = peer(&req);
-        let r = req.into_inner();
-        Ok(Response::new(
-            self.run(peer, &r.axis, AxisCommand::Home, r.options)
-                .await?,
-        ))
+        self.simple(req, AxisCommand::Home).await
     }
 
     async fn r#move(
@@ -389,36 +389,21 @@ impl Axes for AxesService {
         &self,
         req: Request<pb::AxisCommandRequest>,
     ) -> Result<Response<pb::AxisCommandResponse>, Status> {
-        let peer = peer(&req);
-        let r = req.into_inner();
-        Ok(Response::new(
-            self.run(peer, &r.axis, AxisCommand::Stop, r.options)
-                .await?,
-        ))
+        self.simple(req, AxisCommand::Stop).await
     }
 
     async fn quick_stop(
         &self,
         req: Request<pb::AxisCommandRequest>,
     ) -> Result<Response<pb::AxisCommandResponse>, Status> {
-        let peer = peer(&req);
-        let r = req.into_inner();
-        Ok(Response::new(
-            self.run(peer, &r.axis, AxisCommand::QuickStop, r.options)
-                .await?,
-        ))
+        self.simple(req, AxisCommand::QuickStop).await
     }
 
     async fn reset_fault(
         &self,
         req: Request<pb::AxisCommandRequest>,
     ) -> Result<Response<pb::AxisCommandResponse>, Status> {
-        let peer = peer(&req);
-        let r = req.into_inner();
-        Ok(Response::new(
-            self.run(peer, &r.axis, AxisCommand::ResetFault, r.options)
-                .await?,
-        ))
+        self.simple(req, AxisCommand::ResetFault).await
     }
 
     async fn stop_axes(
