@@ -56,13 +56,21 @@ struct Args {
 
 const CPU_TARGET_PERCENT: f64 = 10.0;
 
+/// Consumer heartbeat timeout of the drives: tight in real runs; lenient
+/// in `--quick` smoke runs, where a debug build on a busy CI machine may
+/// delay a simulated drive's heartbeat without anything being wrong.
+static HEARTBEAT_TIMEOUT_MS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(300);
+
 fn axis_toml(name: &str, node: u32, mode: &str) -> String {
+    let hb = HEARTBEAT_TIMEOUT_MS.load(std::sync::atomic::Ordering::Relaxed);
+    // The same leniency for the CiA 402 state changes.
+    let st = if hb > 300 { 5000 } else { 1000 };
     format!(
         r#"
 [[canopen.node]]
 id = {node}
 eds = "builtin:drive"
-heartbeat_timeout_ms = 300
+heartbeat_timeout_ms = {hb}
 
 [[axis]]
 name = "{name}"
@@ -75,6 +83,7 @@ max_position = 1000.0
 max_velocity = 100.0
 max_acceleration = 1000.0
 jog_deadman_ms = 60000
+state_timeout_ms = {st}
 "#
     )
 }
@@ -382,7 +391,14 @@ fn cpu_six_axes(seconds: f64, threads: usize) -> Result<(f64, f64, f64, u64, f64
         .enumerate()
         .map(|(i, n)| (*n, i as u32 + 1, "cyclic"))
         .collect();
-    let bed = Bed::start(1_000, &axes_cfg, threads)?;
+    // Smoke runs (debug build, busy CI machine) use a 5 ms SYNC: they check
+    // that the benchmark works, not the figure.
+    let sync_us = if HEARTBEAT_TIMEOUT_MS.load(std::sync::atomic::Ordering::Relaxed) > 300 {
+        5_000
+    } else {
+        1_000
+    };
+    let bed = Bed::start(sync_us, &axes_cfg, threads)?;
     let url = bed.url();
     let client_rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
@@ -457,6 +473,8 @@ fn cpu_six_axes(seconds: f64, threads: usize) -> Result<(f64, f64, f64, u64, f64
                 }
             })
         };
+        // Let the counter drain what queued on its port before the window.
+        tokio::time::sleep(Duration::from_millis(200)).await;
         let syncs0 = syncs.load(std::sync::atomic::Ordering::Relaxed);
         let frames0 = stats.stats().rx_frames + stats.stats().tx_frames;
         let c0 = cpu_by_thread()?;
@@ -501,6 +519,7 @@ fn main() -> ExitCode {
 
 fn run(args: &Args) -> Result<bool> {
     let (samples, cpu_s) = if args.quick {
+        HEARTBEAT_TIMEOUT_MS.store(5000, std::sync::atomic::Ordering::Relaxed);
         (30, 1.0)
     } else {
         (1000, args.cpu_seconds)
@@ -525,9 +544,14 @@ fn run(args: &Args) -> Result<bool> {
     let (gw, sims, client, fps, sync_rate) = cpu_six_axes(cpu_s, args.gateway_threads)?;
     let ok = gw < CPU_TARGET_PERCENT;
     println!(
-        "3. CPU, 6 CSP axes, SYNC 1 ms ({sync_rate:.0} SYNC/s seen), gateway runtime with {} worker threads, all moving ({cpu_s} s, {fps} frames/s on the bus): \
+        "3. CPU, 6 CSP axes, SYNC {} ({sync_rate:.0} SYNC/s seen), gateway runtime with {} worker threads, all moving ({cpu_s} s, {fps} frames/s on the bus): \
          gateway {gw:.1} % of one core (target < {CPU_TARGET_PERCENT} %: {}), \
          simulated drives {sims:.1} %, benchmark client {client:.1} %",
+        if args.quick {
+            "5 ms (smoke run)"
+        } else {
+            "1 ms"
+        },
         args.gateway_threads,
         if ok { "met" } else { "MISSED" }
     );
