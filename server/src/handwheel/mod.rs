@@ -432,12 +432,11 @@ async fn run_wheel(mut t: WheelTask) {
                     }
                 }
             },
-            _ = tick.tick() => {
-                if manual && !t.state.bindings.is_empty() {
-                    keep_hold(&t.state, &t.axes, &mut hold);
-                    let now = origin.elapsed();
-                    execute(&t.state, &t.axes, &mut pacers, &hold, now);
-                }
+            // Only a wheel in manual mode with bindings has work to pace.
+            _ = tick.tick(), if manual && !t.state.bindings.is_empty() => {
+                keep_hold(&t.state, &t.axes, &mut hold);
+                let now = origin.elapsed();
+                execute(&t.state, &t.axes, &mut pacers, &hold, now);
             }
         }
     }
