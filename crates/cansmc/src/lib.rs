@@ -14,6 +14,8 @@
 //! Nothing here touches a socket, sleeps or needs an async runtime.
 
 pub mod feasibility;
+pub mod master;
+pub mod slave;
 pub mod telegram;
 
 pub use feasibility::{

@@ -30,6 +30,7 @@ use cangate_canopen::eds::EdsError;
 use cangate_canopen::value::DataType;
 
 pub mod canopen_node;
+pub mod cansmc_slave;
 pub mod drive;
 pub mod handwheel;
 mod pdo;

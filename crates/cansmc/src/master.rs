@@ -1,0 +1,1 @@
+//! CANsmc master protocol state machine (sans-IO): phases P0, P1, P2.

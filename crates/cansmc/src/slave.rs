@@ -1,0 +1,1 @@
+//! CANsmc slave protocol state machine (sans-IO).

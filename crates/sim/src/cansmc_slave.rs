@@ -1,0 +1,1 @@
+//! Simulated CANsmc servo slave.
