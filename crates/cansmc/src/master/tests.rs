@@ -1,0 +1,439 @@
+//! The master on a virtual clock against scripted slaves: every frame it
+//! sends is checked, every answer is built by hand.
+
+use super::*;
+use cangate_can::CanId;
+
+fn addr(a: u8) -> SmcAddress {
+    SmcAddress::new(a).unwrap()
+}
+
+fn ms(v: u64) -> Duration {
+    Duration::from_millis(v)
+}
+
+fn us(v: u64) -> Duration {
+    Duration::from_micros(v)
+}
+
+fn decode(frames: &[Frame]) -> Vec<Telegram> {
+    frames
+        .iter()
+        .map(|f| Telegram::decode(f, Channel::Command).unwrap())
+        .collect()
+}
+
+fn dct(a: u8) -> Frame {
+    Telegram::Slave {
+        from: addr(a),
+        status: StatusWord {
+            ready: true,
+            ..StatusWord::default()
+        },
+        feedback: Feedback::Connect {
+            device_type: 0x0402,
+            firmware_version: 0x0107,
+        },
+    }
+    .encode()
+}
+
+fn dt(a: u8, counter: u8, position: i32) -> Frame {
+    Telegram::Slave {
+        from: addr(a),
+        status: StatusWord {
+            ready: true,
+            enabled: true,
+            counter_echo: CycleCounter::new(counter),
+            ..StatusWord::default()
+        },
+        feedback: Feedback::Position(position),
+    }
+    .encode()
+}
+
+fn param_answer(a: u8, number: u16, value: i32, error: bool) -> Frame {
+    Telegram::Slave {
+        from: addr(a),
+        status: StatusWord {
+            ready: true,
+            parameter_error: error,
+            ..StatusWord::default()
+        },
+        feedback: Feedback::Parameter { number, value },
+    }
+    .encode()
+}
+
+fn config(addresses: &[u8]) -> MasterConfig {
+    MasterConfig::new(
+        ms(2),
+        addresses.iter().map(|&a| SlaveSpec::new(addr(a))).collect(),
+    )
+}
+
+/// A master in P2 at t = 0 with all `addresses` connected.
+fn cyclic(addresses: &[u8]) -> Master {
+    let mut m = Master::new(config(addresses)).unwrap();
+    m.start(Duration::ZERO);
+    for &a in addresses {
+        m.on_frame(&dct(a), us(300));
+    }
+    let p = m.poll(us(300));
+    assert_eq!(m.phase(), Phase::Cyclic);
+    assert_eq!(decode(&p.frames), vec![Telegram::Mst]);
+    assert_eq!(p.cycle_started, Some((0, us(300))));
+    m
+}
+
+#[test]
+fn configuration_errors_are_typed() {
+    assert_eq!(
+        Master::new(MasterConfig::new(ms(2), vec![])).unwrap_err(),
+        ConfigError::NoSlaves
+    );
+    assert_eq!(
+        Master::new(config(&[3, 3])).unwrap_err(),
+        ConfigError::DuplicateAddress(3)
+    );
+    let mut c = config(&[1]);
+    c.t_int = ms(2);
+    assert!(matches!(
+        Master::new(c).unwrap_err(),
+        ConfigError::BadTInt { .. }
+    ));
+    let mut c = config(&[1]);
+    c.cycle_time = us(50);
+    assert!(matches!(
+        Master::new(c).unwrap_err(),
+        ConfigError::BadCycleTime(_)
+    ));
+}
+
+#[test]
+fn p0_sends_exact_mcts_and_goes_to_p2_when_all_answer() {
+    let mut m = Master::new(config(&[2, 1])).unwrap();
+    let frames = m.start(Duration::ZERO);
+    // MCT to slave 1: id = 0x01 << 6 | 1 = 0x041; MDTCW 0; cycle time
+    // 2000 µs = D0 07 00 00; slave count 2; reserved 0.
+    assert_eq!(frames[0].id(), CanId::Standard(0x041));
+    assert_eq!(frames[0].data(), &[0, 0, 0xD0, 0x07, 0, 0, 2, 0]);
+    assert_eq!(frames[1].id(), CanId::Standard(0x042));
+    assert_eq!(m.phase(), Phase::Connecting);
+    assert_eq!(m.next_deadline(), Some(ms(50)));
+
+    assert!(m.on_frame(&dct(1), us(200)).is_empty());
+    assert_eq!(m.next_deadline(), Some(ms(50)), "still waiting for 2");
+    m.on_frame(&dct(2), us(400));
+    // Everyone answered: P0 ends at the next poll, without waiting.
+    assert_eq!(m.next_deadline(), Some(Duration::ZERO));
+    let p = m.poll(us(400));
+    assert_eq!(decode(&p.frames), vec![Telegram::Mst]);
+    assert_eq!(m.phase(), Phase::Cyclic);
+    let s = m.slave(addr(2)).unwrap();
+    assert_eq!(s.state, SlaveState::Operational);
+    assert_eq!(s.device_type, Some(0x0402));
+    assert_eq!(s.firmware_version, Some(0x0107));
+    let events = m.take_events();
+    assert!(events.contains(&MasterEvent::SlaveConnected {
+        address: addr(1),
+        device_type: 0x0402,
+        firmware_version: 0x0107
+    }));
+    assert_eq!(events.last(), Some(&MasterEvent::Phase(Phase::Cyclic)));
+}
+
+#[test]
+fn p0_fails_naming_a_missing_required_slave_after_its_retries() {
+    let mut m = Master::new(config(&[1, 7])).unwrap();
+    assert_eq!(m.start(Duration::ZERO).len(), 2);
+    m.on_frame(&dct(1), ms(1));
+    // Two more attempts, only to the silent slave.
+    let retry = m.poll(ms(50)).frames;
+    assert_eq!(decode(&retry).len(), 1);
+    assert_eq!(retry[0].id(), CanId::Standard(0x047));
+    assert_eq!(m.poll(ms(100)).frames.len(), 1);
+    assert!(m.poll(ms(149)).frames.is_empty());
+    assert!(m.poll(ms(150)).frames.is_empty());
+    assert_eq!(m.phase(), Phase::Failed);
+    let events = m.take_events();
+    let failed = events
+        .iter()
+        .find_map(|e| match e {
+            MasterEvent::StartFailed { reason } => Some(reason.clone()),
+            _ => None,
+        })
+        .unwrap();
+    assert!(failed.contains("required slave(s) 7"), "{failed}");
+    assert_eq!(m.next_deadline(), None);
+    assert_eq!(m.slave(addr(7)).unwrap().state, SlaveState::Missing);
+}
+
+#[test]
+fn p0_goes_on_without_a_missing_optional_slave() {
+    let mut c = config(&[1, 4]);
+    c.slaves[1].required = false;
+    let mut m = Master::new(c).unwrap();
+    m.start(Duration::ZERO);
+    m.on_frame(&dct(1), ms(1));
+    m.poll(ms(50));
+    m.poll(ms(100));
+    let p = m.poll(ms(150));
+    assert_eq!(m.phase(), Phase::Cyclic);
+    assert_eq!(decode(&p.frames), vec![Telegram::Mst]);
+    assert!(m.take_events().contains(&MasterEvent::SlaveMissing {
+        address: addr(4),
+        required: false,
+        reason: "no DCT after 3 MCT(s), 50ms apart".into()
+    }));
+    // Only slave 1 gets an MDT.
+    let mdts = decode(&m.poll(ms(150) + us(100)).frames);
+    assert_eq!(mdts.len(), 1);
+    assert_eq!(mdts[0].address(), 1);
+}
+
+#[test]
+fn p1_writes_initial_parameters_one_at_a_time_per_slave() {
+    let mut c = config(&[1]);
+    c.slaves[0].parameters = vec![(4, 5000), (5, 3000)];
+    let mut m = Master::new(c).unwrap();
+    m.start(Duration::ZERO);
+    m.on_frame(&dct(1), us(100));
+    let p = m.poll(us(100));
+    assert_eq!(m.phase(), Phase::Parameterising);
+    // Parameter write 4 = 5000: id 0x141, MDTCW bit 3, number 04 00,
+    // value 88 13 00 00.
+    assert_eq!(p.frames.len(), 1, "one request outstanding per slave");
+    assert_eq!(p.frames[0].id(), CanId::Standard(0x141));
+    assert_eq!(p.frames[0].data(), &[0x08, 0, 4, 0, 0x88, 0x13, 0, 0]);
+    let next = m.on_frame(&param_answer(1, 4, 5000, false), us(300));
+    assert_eq!(next.len(), 1);
+    assert_eq!(next[0].data(), &[0x08, 0, 5, 0, 0xB8, 0x0B, 0, 0]);
+    let mst = m.on_frame(&param_answer(1, 5, 3000, false), us(500));
+    assert_eq!(decode(&mst), vec![Telegram::Mst], "P2 starts at once");
+    assert_eq!(m.phase(), Phase::Cyclic);
+}
+
+#[test]
+fn p1_refused_initial_parameter_fails_a_required_slave() {
+    let mut c = config(&[3]);
+    c.slaves[0].parameters = vec![(3, 1)];
+    let mut m = Master::new(c).unwrap();
+    m.start(Duration::ZERO);
+    m.on_frame(&dct(3), us(100));
+    m.poll(us(100));
+    m.on_frame(&param_answer(3, 3, 0, true), us(300));
+    assert_eq!(m.phase(), Phase::Failed);
+    let reason = m
+        .take_events()
+        .into_iter()
+        .find_map(|e| match e {
+            MasterEvent::StartFailed { reason } => Some(reason),
+            _ => None,
+        })
+        .unwrap();
+    assert!(
+        reason.contains("parameter 3") && reason.contains("unknown, read-only or out of range"),
+        "{reason}"
+    );
+}
+
+#[test]
+fn p2_sends_mdts_in_address_order_with_the_cycle_counter() {
+    let mut m = cyclic(&[9, 2, 5]);
+    assert_eq!(m.next_deadline(), Some(us(400)), "T_int_end = t0 + 100 µs");
+    m.set_command(
+        addr(5),
+        ControlWord {
+            enable: true,
+            ..ControlWord::default()
+        },
+        Command::Position(-2),
+    )
+    .unwrap();
+    assert!(m.poll(us(399)).frames.is_empty());
+    let p = m.poll(us(400));
+    let t = decode(&p.frames);
+    assert_eq!(
+        t.iter().map(Telegram::address).collect::<Vec<_>>(),
+        vec![2, 5, 9]
+    );
+    // Slave 5: id 0x085, MDTCW enable, counter 0; target -2.
+    assert_eq!(p.frames[1].id(), CanId::Standard(0x085));
+    assert_eq!(
+        p.frames[1].data(),
+        &[0x01, 0x00, 0xFE, 0xFF, 0xFF, 0xFF, 0, 0]
+    );
+    assert_eq!(m.next_deadline(), Some(us(2300)));
+
+    // Cycle 17 carries counter 1 in bits 12-15.
+    for k in 1..=17u64 {
+        let p = m.poll(us(300) + ms(2) * k as u32);
+        assert_eq!(p.cycle_started.map(|c| c.0), Some(k));
+        let p = m.poll(us(400) + ms(2) * k as u32);
+        assert_eq!(p.frames.len(), 3);
+        if k == 17 {
+            assert_eq!(p.frames[1].data()[1], 0x10);
+        }
+    }
+    assert_eq!(m.counters().cycles, 18);
+}
+
+#[test]
+fn p2_counts_valid_late_and_mismatched_dts_and_loses_silent_slaves() {
+    let mut m = cyclic(&[1, 2]);
+    m.poll(us(400));
+    // Cycle 0: slave 1 answers in time, slave 2 answers with a wrong
+    // counter (that is not an answer).
+    m.on_frame(&dt(1, 0, 100), us(700));
+    m.on_frame(&dt(2, 9, 200), us(800));
+    let s1 = m.slave(addr(1)).unwrap();
+    assert_eq!(s1.last, Some((dt_status(0), Feedback::Position(100), 0)));
+    // Cycle 1 starts; slave 2's cycle-0 answer comes after MST: late.
+    m.poll(us(2300));
+    m.on_frame(&dt(2, 0, 200), us(2310));
+    m.poll(us(2400));
+    m.on_frame(&dt(1, 1, 101), us(2600));
+    m.poll(us(4300));
+    m.poll(us(4400));
+    m.on_frame(&dt(1, 2, 102), us(4600));
+    m.poll(us(6300));
+    let s2 = m.slave(addr(2)).unwrap();
+    assert_eq!(s2.counters.counter_mismatch, 1);
+    assert_eq!(s2.counters.late, 1);
+    assert_eq!(s2.counters.missed, 3);
+    assert_eq!(s2.counters.dts, 0);
+    assert_eq!(s2.state, SlaveState::Lost, "3 consecutive misses");
+    let s1 = m.slave(addr(1)).unwrap();
+    assert_eq!((s1.counters.dts, s1.counters.missed), (3, 0));
+    assert!(m.take_events().contains(&MasterEvent::SlaveLost {
+        address: addr(2),
+        misses: 3
+    }));
+    // Still sent MDTs; a valid DT brings it back.
+    let p = m.poll(us(6400));
+    assert_eq!(p.frames.len(), 2);
+    m.on_frame(&dt(2, 3, 205), us(6600));
+    assert_eq!(m.slave(addr(2)).unwrap().state, SlaveState::Operational);
+    assert!(
+        m.take_events()
+            .contains(&MasterEvent::SlaveRecovered { address: addr(2) })
+    );
+}
+
+fn dt_status(counter: u8) -> StatusWord {
+    StatusWord {
+        ready: true,
+        enabled: true,
+        counter_echo: CycleCounter::new(counter),
+        ..StatusWord::default()
+    }
+}
+
+#[test]
+fn p2_parameter_access_uses_the_slot_after_the_mdts() {
+    let mut m = cyclic(&[1, 2]);
+    let read = m.read_parameter(addr(2), 3).unwrap();
+    let write = m.write_parameter(addr(2), 77, 1).unwrap();
+    let p = m.poll(us(400));
+    let t = decode(&p.frames);
+    assert_eq!(t.len(), 3, "two MDTs and one parameter telegram");
+    assert_eq!(p.frames[2].id(), CanId::Standard(0x142));
+    assert_eq!(p.frames[2].data(), &[0x00, 0x00, 3, 0, 0, 0, 0, 0]);
+    m.on_frame(&param_answer(2, 3, 10_000, false), us(700));
+    // The write waits for the next cycle's slot and is refused.
+    m.poll(us(2300));
+    let p = m.poll(us(2400));
+    assert_eq!(p.frames.len(), 3);
+    assert_eq!(p.frames[2].data()[0], 0x08);
+    m.on_frame(&param_answer(2, 77, 0, true), us(2700));
+    let events = m.take_events();
+    assert!(events.contains(&MasterEvent::ParameterDone {
+        id: read,
+        address: addr(2),
+        number: 3,
+        result: Ok(10_000)
+    }));
+    assert!(events.contains(&MasterEvent::ParameterDone {
+        id: write,
+        address: addr(2),
+        number: 77,
+        result: Err(ParameterError::Refused {
+            address: 2,
+            number: 77
+        })
+    }));
+    // Parameter answers are not cyclic DTs: both cycles missed for 2.
+    m.poll(us(4300));
+    assert_eq!(m.slave(addr(2)).unwrap().counters.missed, 2);
+}
+
+#[test]
+fn parameter_requests_time_out_and_unknown_slaves_are_refused() {
+    let mut m = cyclic(&[1]);
+    let id = m.read_parameter(addr(1), 5).unwrap();
+    m.poll(us(400));
+    assert_eq!(m.next_deadline(), Some(us(2300)));
+    let mut t = us(2300);
+    while t <= us(400) + ms(100) {
+        m.poll(t);
+        m.poll(t + us(100));
+        t += ms(2);
+    }
+    let done = m.take_events().into_iter().find_map(|e| match e {
+        MasterEvent::ParameterDone { id: i, result, .. } if i == id => Some(result),
+        _ => None,
+    });
+    assert!(matches!(done, Some(Err(ParameterError::Timeout { .. }))));
+    assert_eq!(
+        m.read_parameter(addr(9), 1),
+        Err(ParameterError::UnknownSlave(9))
+    );
+    // A late answer after the timeout is only counted.
+    m.on_frame(&param_answer(1, 5, 1, false), t);
+    assert_eq!(m.counters().stray_parameter_answers, 1);
+}
+
+#[test]
+fn a_late_poll_skips_whole_cycles_and_keeps_mst_on_the_grid() {
+    let mut m = cyclic(&[1]);
+    m.poll(us(400));
+    // Next poll 3.5 cycles late.
+    let p = m.poll(us(300) + ms(7));
+    assert_eq!(p.cycle_started, Some((3, us(300) + ms(6))));
+    assert_eq!(m.counters().overruns, 2);
+    assert_eq!(m.next_deadline(), Some(us(300) + ms(6) + us(100)));
+    // The MDT slot of cycle 3 is already late but inside the cycle: sent.
+    assert_eq!(m.poll(us(300) + ms(7)).frames.len(), 1);
+}
+
+#[test]
+fn malformed_and_foreign_frames_are_counted_not_used() {
+    let mut m = cyclic(&[1]);
+    m.poll(us(400));
+    // DT from slave 1 with a reserved status bit set.
+    let bad = Frame::new(CanId::Standard(0x081), &[0x80, 0, 0, 0, 0, 0, 0, 0]).unwrap();
+    m.on_frame(&bad, us(500));
+    m.on_frame(&dt(33, 0, 1), us(600));
+    assert_eq!(m.slave(addr(1)).unwrap().counters.malformed, 1);
+    assert_eq!(m.counters().foreign_frames, 1);
+    assert_eq!(m.slave(addr(1)).unwrap().counters.dts, 0);
+}
+
+#[test]
+fn restart_goes_back_through_p0_and_cancels_requests() {
+    let mut m = cyclic(&[1]);
+    let id = m.read_parameter(addr(1), 1).unwrap();
+    let frames = m.restart(ms(1));
+    assert_eq!(m.phase(), Phase::Connecting);
+    assert_eq!(frames.len(), 1);
+    assert!(m.take_events().contains(&MasterEvent::ParameterDone {
+        id,
+        address: addr(1),
+        number: 1,
+        result: Err(ParameterError::Cancelled)
+    }));
+    m.stop();
+    assert_eq!(m.next_deadline(), None);
+    assert!(m.read_parameter(addr(1), 1).is_err());
+}
