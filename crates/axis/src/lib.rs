@@ -11,9 +11,12 @@
 //! - [`lease::LeaseTable`]: exclusive control with time-to-live leases.
 //! - [`Units`]: user units (mm, degrees) to drive counts.
 //!
-//! The CANsmc axis (a later issue) implements the same [`AxisCommand`]s
-//! with the same [`AxisEvent`]s.
+//! - [`cansmc::CansmcAxis`]: one CANsmc servo slave as an axis, with the
+//!   same [`AxisCommand`]s and [`AxisEvent`]s: the gateway interpolates a
+//!   position set-point every CANsmc cycle, and can gear an axis to another
+//!   slave's encoder.
 
+pub mod cansmc;
 pub mod cia402;
 pub mod lease;
 pub mod process_data;

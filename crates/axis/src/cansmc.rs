@@ -1,0 +1,1050 @@
+//! One CANsmc servo slave as an axis, sans-IO.
+//!
+//! A CANsmc axis is driven the way an NC interpolator drives a servo: every
+//! cycle the gateway computes the next position set-point and sends it in
+//! the slave's position MDT (function 0x02); the slave applies it at the
+//! following MST. Moves are trapezoids ([`TrapezoidProfile`]), jogs a
+//! velocity ramp with a dead-man, stops a ramp to rest — all planned here,
+//! so position feedback is available every cycle. Homing hands the motion
+//! to the slave (function 0x04) until it reports homed and in position.
+//! Enable, halt and fault reset are MDTCW bits 0, 1 and 2.
+//!
+//! **Electronic gearing**: an axis configured with a [`Gear`] follows the
+//! encoder count of another slave (function 0x07): its set-point in cycle
+//! k+1 is `offset + ratio × count(k)`, the count sampled at the MST of
+//! cycle k — one cycle of data lag, the spec's command pipeline. Gearing
+//! engages when the axis is enabled and at rest (without a jump: the offset
+//! is taken at that instant) and disengages on a stop, a disable or a
+//! fault.
+//!
+//! The runtime calls [`CansmcAxis::on_cycle`] once per cycle, right after
+//! the master started it, with the slave's latest DT (and the gear
+//! source's count), and sends what it returns.
+
+use std::time::Duration;
+
+use cangate_canopen::ds402::DriveState;
+use cangate_cansmc::telegram::{Command, ControlWord, StatusWord};
+use cangate_motion::{Limits, TrapezoidProfile};
+
+use crate::cia402::AxisSnapshot;
+use crate::{Activity, AxisCommand, AxisEvent, CommandError, CommandKind, OpId, Outcome, Units};
+
+/// CiA 402 mode numbers reported in snapshots, so HMIs show one vocabulary
+/// for both drive families: 8 = cyclic synchronous position, 6 = homing.
+const MODE_CYCLIC_POSITION: i8 = 8;
+const MODE_HOMING: i8 = 6;
+
+/// Electronic gearing: follow another slave's encoder count.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Gear {
+    /// Address of the slave whose encoder count (function 0x07) is
+    /// followed.
+    pub source: u8,
+    /// Follower counts per source count (negative reverses).
+    pub ratio: f64,
+}
+
+/// The configuration of one CANsmc axis, in user units.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CansmcAxisConfig {
+    /// Unit conversion (slave encoder counts per user unit).
+    pub units: Units,
+    /// Unit name for messages ("mm").
+    pub unit: String,
+    /// Soft limits.
+    pub min_position: Option<f64>,
+    /// Soft limits.
+    pub max_position: Option<f64>,
+    /// Velocity ceiling (units/s); also bounds a geared axis.
+    pub max_velocity: f64,
+    /// Acceleration ceiling (units/s²); quick stops use it.
+    pub max_acceleration: f64,
+    /// Velocity of a move without one.
+    pub default_velocity: f64,
+    /// Acceleration of a move without one; stops use it.
+    pub default_acceleration: f64,
+    /// The master's cycle time (the set-point spacing).
+    pub cycle_time: Duration,
+    /// Bound of enable, disable and fault reset.
+    pub state_timeout: Duration,
+    /// Bound of a homing run.
+    pub homing_timeout: Duration,
+    /// Time allowed beyond the planned duration of a move or stop.
+    pub settle_timeout: Duration,
+    /// Jog dead-man time.
+    pub jog_deadman: Duration,
+    /// A move is done when the actual position is this close (units).
+    pub in_position_window: f64,
+    /// Homing method byte sent with function 0x04.
+    pub homing_method: u8,
+    /// Follow another slave's encoder.
+    pub gear: Option<Gear>,
+}
+
+impl CansmcAxisConfig {
+    /// A configuration suitable for the simulated slaves (tests, demo).
+    pub fn example(counts_per_unit: f64, cycle_time: Duration) -> Self {
+        CansmcAxisConfig {
+            units: Units { counts_per_unit },
+            unit: "mm".into(),
+            min_position: Some(-1000.0),
+            max_position: Some(1000.0),
+            max_velocity: 200.0,
+            max_acceleration: 2000.0,
+            default_velocity: 50.0,
+            default_acceleration: 500.0,
+            cycle_time,
+            state_timeout: Duration::from_secs(1),
+            homing_timeout: Duration::from_secs(30),
+            settle_timeout: Duration::from_secs(2),
+            jog_deadman: Duration::from_millis(500),
+            in_position_window: 0.01,
+            homing_method: 1,
+            gear: None,
+        }
+    }
+}
+
+/// The slave's latest answer, as the master holds it at a cycle start.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct CycleInput {
+    /// Status word of the latest valid DT (`None` before the first).
+    pub status: Option<StatusWord>,
+    /// Actual position (counts) from the latest position or homing DT.
+    pub position: Option<i32>,
+    /// The gear source's encoder count from its latest DT.
+    pub source_count: Option<i32>,
+}
+
+/// The MDT content for this cycle (the master adds the counter).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CycleOutput {
+    /// Enable, halt, fault reset.
+    pub control: ControlWord,
+    /// Position set-point or homing.
+    pub command: Command,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+enum Motion {
+    /// Hold the demand position.
+    Hold,
+    /// Follow a profile from `start` (time of its first sample), stretched
+    /// by `ratio` (profile time per wall time).
+    Profile {
+        profile: TrapezoidProfile,
+        ratio: f64,
+        elapsed: Duration,
+    },
+    /// Velocity ramp towards `target` (units/s) with `acceleration`.
+    Jog { target: f64, acceleration: f64 },
+    /// The slave homes itself.
+    Homing,
+    /// Electronic gearing: demand counts = offset + ratio × source; the
+    /// offset is set by the first source count after engaging.
+    Geared { offset: Option<f64> },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Step {
+    Enabling,
+    Disabling,
+    Resetting,
+    Homing,
+    Moving,
+    Jogging,
+    Stopping,
+}
+
+#[derive(Debug, Clone)]
+struct Op {
+    id: OpId,
+    kind: CommandKind,
+    step: Step,
+    target: f64,
+    deadline: Option<Duration>,
+    /// Jog: the dead-man expires here.
+    deadman: Option<Duration>,
+}
+
+/// A CANsmc servo slave as an axis.
+#[derive(Debug)]
+pub struct CansmcAxis {
+    cfg: CansmcAxisConfig,
+    status: Option<StatusWord>,
+    /// Actual position, counts.
+    position: Option<i32>,
+    /// Actual velocity estimated from consecutive positions, units/s.
+    velocity: f64,
+    /// Demand position and velocity, user units.
+    demand: f64,
+    demand_velocity: f64,
+    motion: Motion,
+    enable: bool,
+    halt: bool,
+    /// Fault reset bit: set for one cycle (the slave acts on the edge).
+    reset_pulse: bool,
+    op: Option<Op>,
+    next_id: OpId,
+    lost: Option<String>,
+    faulted: bool,
+    homed: bool,
+    /// Cycles the gear demand was clipped to the velocity limit.
+    gear_clipped: u64,
+}
+
+impl CansmcAxis {
+    /// An axis for `cfg`, disabled, before any feedback.
+    pub fn new(cfg: CansmcAxisConfig) -> Self {
+        CansmcAxis {
+            cfg,
+            status: None,
+            position: None,
+            velocity: 0.0,
+            demand: 0.0,
+            demand_velocity: 0.0,
+            motion: Motion::Hold,
+            enable: false,
+            halt: false,
+            reset_pulse: false,
+            op: None,
+            next_id: 1,
+            lost: None,
+            faulted: false,
+            homed: false,
+            gear_clipped: 0,
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &CansmcAxisConfig {
+        &self.cfg
+    }
+
+    fn units(&self) -> Units {
+        self.cfg.units
+    }
+
+    fn actual(&self) -> f64 {
+        self.position
+            .map(|p| self.units().from_counts(f64::from(p)))
+            .unwrap_or(self.demand)
+    }
+
+    /// Cycles the geared demand was limited by the velocity ceiling.
+    pub fn gear_clipped(&self) -> u64 {
+        self.gear_clipped
+    }
+
+    /// Whether the axis currently follows its gear source.
+    pub fn is_geared(&self) -> bool {
+        matches!(self.motion, Motion::Geared { .. })
+    }
+
+    /// The demand position in user units.
+    pub fn demand(&self) -> f64 {
+        self.demand
+    }
+
+    fn state(&self) -> Option<DriveState> {
+        let s = self.status?;
+        Some(if s.fault {
+            DriveState::Fault
+        } else if s.enabled {
+            DriveState::OperationEnabled
+        } else if s.ready {
+            DriveState::SwitchOnDisabled
+        } else {
+            DriveState::NotReadyToSwitchOn
+        })
+    }
+
+    /// What the axis is doing.
+    pub fn activity(&self) -> Activity {
+        match self.op.as_ref().map(|o| o.step) {
+            Some(Step::Enabling | Step::Disabling | Step::Resetting) => Activity::Switching,
+            Some(Step::Homing) => Activity::Homing,
+            Some(Step::Moving) => Activity::Moving,
+            Some(Step::Jogging) => Activity::Jogging,
+            Some(Step::Stopping) => Activity::Stopping,
+            None if self.is_geared() => Activity::Moving,
+            None => Activity::Idle,
+        }
+    }
+
+    /// The id of the command in progress, if any.
+    pub fn current_op(&self) -> Option<OpId> {
+        self.op.as_ref().map(|o| o.id)
+    }
+
+    fn fault_text(&self) -> Option<(u16, String)> {
+        if let Some(reason) = &self.lost {
+            return Some((0, format!("slave lost: {reason}")));
+        }
+        let s = self.status?;
+        if s.fault {
+            return Some(if s.following_error {
+                (0x8611, "following error over limit (DTSW bit 5)".into())
+            } else {
+                (0, "drive fault (DTSW bit 2)".into())
+            });
+        }
+        None
+    }
+
+    /// The live state.
+    pub fn snapshot(&self) -> AxisSnapshot {
+        let position = self.actual();
+        AxisSnapshot {
+            state: self.state(),
+            statusword: self.status.map(StatusWord::to_bits).unwrap_or_default(),
+            mode: if matches!(self.motion, Motion::Homing) {
+                MODE_HOMING
+            } else {
+                MODE_CYCLIC_POSITION
+            },
+            activity: self.activity(),
+            position,
+            velocity: self.velocity,
+            demand_position: self.demand,
+            following_error: if self.position.is_some() {
+                self.demand - position
+            } else {
+                0.0
+            },
+            homed: self.homed,
+            node_lost: self.lost.clone(),
+            fault: self.fault_text(),
+        }
+    }
+
+    // ------------------------------------------------------------ commands
+
+    fn check(&self, cmd: &AxisCommand) -> Result<(), CommandError> {
+        if let Some(reason) = &self.lost
+            && !matches!(cmd, AxisCommand::Stop | AxisCommand::QuickStop)
+        {
+            return Err(CommandError::FailedPrecondition(format!(
+                "the slave is lost ({reason}): commands are refused until it answers again"
+            )));
+        }
+        let Some(status) = self.status else {
+            return Err(CommandError::FailedPrecondition(
+                "no drive telegram from the slave yet (is the CANsmc master in P2?)".into(),
+            ));
+        };
+        let finite = |name: &str, v: f64| {
+            if v.is_finite() {
+                Ok(())
+            } else {
+                Err(CommandError::InvalidArgument(format!(
+                    "{name} must be a finite number"
+                )))
+            }
+        };
+        let positive = |name: &str, v: Option<f64>, max: f64| -> Result<(), CommandError> {
+            if let Some(v) = v {
+                finite(name, v)?;
+                if v <= 0.0 {
+                    return Err(CommandError::InvalidArgument(format!(
+                        "{name} must be positive (0 = the axis default), got {v}"
+                    )));
+                }
+                if v > max {
+                    return Err(CommandError::OutOfRange(format!(
+                        "{name} {v} exceeds the axis maximum {max}"
+                    )));
+                }
+            }
+            Ok(())
+        };
+        let needs_enabled = |what: &str| {
+            if status.fault {
+                Err(CommandError::FailedPrecondition(format!(
+                    "the drive is in fault: reset it before {what}"
+                )))
+            } else if !status.enabled || !self.enable {
+                Err(CommandError::FailedPrecondition(format!(
+                    "the axis is not enabled: enable it before {what}"
+                )))
+            } else {
+                Ok(())
+            }
+        };
+        let not_geared = |what: &str| {
+            if self.is_geared() {
+                Err(CommandError::FailedPrecondition(format!(
+                    "the axis follows slave {}'s encoder: stop it before {what}",
+                    self.cfg.gear.map(|g| g.source).unwrap_or_default()
+                )))
+            } else {
+                Ok(())
+            }
+        };
+        match *cmd {
+            AxisCommand::Move {
+                target,
+                velocity,
+                acceleration,
+                ..
+            } => {
+                finite("target", target)?;
+                positive("velocity", velocity, self.cfg.max_velocity)?;
+                positive("acceleration", acceleration, self.cfg.max_acceleration)?;
+                needs_enabled("a move")?;
+                not_geared("a move")?;
+                if self.op.as_ref().is_some_and(|o| o.step == Step::Homing) {
+                    return Err(CommandError::FailedPrecondition(
+                        "the axis is homing: stop it first".into(),
+                    ));
+                }
+            }
+            AxisCommand::Jog {
+                velocity,
+                acceleration,
+            } => {
+                finite("velocity", velocity)?;
+                if velocity.abs() > self.cfg.max_velocity {
+                    return Err(CommandError::OutOfRange(format!(
+                        "jog velocity {velocity} exceeds the axis maximum {}",
+                        self.cfg.max_velocity
+                    )));
+                }
+                positive("acceleration", acceleration, self.cfg.max_acceleration)?;
+                needs_enabled("a jog")?;
+                not_geared("a jog")?;
+                if self.op.as_ref().is_some_and(|o| o.step == Step::Homing) {
+                    return Err(CommandError::FailedPrecondition(
+                        "the axis is homing: stop it first".into(),
+                    ));
+                }
+            }
+            AxisCommand::Home => {
+                needs_enabled("homing")?;
+                not_geared("homing")?;
+            }
+            AxisCommand::Enable => {
+                if status.fault {
+                    return Err(CommandError::FailedPrecondition(
+                        "the drive is in fault: reset it before enabling".into(),
+                    ));
+                }
+            }
+            AxisCommand::Disable
+            | AxisCommand::Stop
+            | AxisCommand::QuickStop
+            | AxisCommand::ResetFault => {}
+        }
+        Ok(())
+    }
+
+    fn check_limits(&self, target: f64) -> Result<(), CommandError> {
+        let unit = &self.cfg.unit;
+        if let Some(min) = self.cfg.min_position
+            && target < min
+        {
+            return Err(CommandError::OutOfRange(format!(
+                "target {target} {unit} is below the soft limit {min} {unit}"
+            )));
+        }
+        if let Some(max) = self.cfg.max_position
+            && target > max
+        {
+            return Err(CommandError::OutOfRange(format!(
+                "target {target} {unit} is above the soft limit {max} {unit}"
+            )));
+        }
+        Ok(())
+    }
+
+    fn limits(&self, velocity: f64, acceleration: f64) -> Result<Limits, CommandError> {
+        Limits::symmetric(velocity, acceleration)
+            .map_err(|e| CommandError::InvalidArgument(e.to_string()))
+    }
+
+    fn finish(&mut self, outcome: Outcome, detail: String, out: &mut Vec<AxisEvent>) {
+        if let Some(op) = self.op.take() {
+            out.push(AxisEvent::Done {
+                op: op.id,
+                command: op.kind,
+                outcome,
+                detail,
+            });
+        }
+    }
+
+    fn begin(
+        &mut self,
+        kind: CommandKind,
+        step: Step,
+        target: f64,
+        deadline: Option<Duration>,
+        out: &mut Vec<AxisEvent>,
+    ) -> OpId {
+        let id = self.next_id;
+        self.next_id += 1;
+        if self.op.is_some() {
+            self.finish(Outcome::Superseded, format!("superseded by {kind}"), out);
+        }
+        self.op = Some(Op {
+            id,
+            kind,
+            step,
+            target,
+            deadline,
+            deadman: None,
+        });
+        out.push(AxisEvent::Accepted { op: id });
+        id
+    }
+
+    /// Starts `cmd` at `now`.
+    ///
+    /// # Errors
+    /// A typed refusal (limits, state, lost slave); nothing changes then.
+    pub fn command(
+        &mut self,
+        cmd: AxisCommand,
+        now: Duration,
+        out: &mut Vec<AxisEvent>,
+    ) -> Result<OpId, CommandError> {
+        self.check(&cmd)?;
+        let state_deadline = Some(now + self.cfg.state_timeout);
+        match cmd {
+            AxisCommand::Enable => {
+                self.demand = self.actual();
+                self.demand_velocity = 0.0;
+                self.motion = Motion::Hold;
+                self.enable = true;
+                self.halt = false;
+                Ok(self.begin(
+                    CommandKind::Enable,
+                    Step::Enabling,
+                    0.0,
+                    state_deadline,
+                    out,
+                ))
+            }
+            AxisCommand::Disable => {
+                self.enable = false;
+                self.motion = Motion::Hold;
+                self.demand_velocity = 0.0;
+                Ok(self.begin(
+                    CommandKind::Disable,
+                    Step::Disabling,
+                    0.0,
+                    state_deadline,
+                    out,
+                ))
+            }
+            AxisCommand::ResetFault => {
+                self.reset_pulse = true;
+                self.enable = false;
+                if self.lost.is_none() && !self.status.is_some_and(|s| s.fault) {
+                    let id = self.begin(CommandKind::ResetFault, Step::Resetting, 0.0, None, out);
+                    self.finish(Outcome::Completed, "no fault to reset".into(), out);
+                    return Ok(id);
+                }
+                Ok(self.begin(
+                    CommandKind::ResetFault,
+                    Step::Resetting,
+                    0.0,
+                    state_deadline,
+                    out,
+                ))
+            }
+            AxisCommand::Home => {
+                self.motion = Motion::Homing;
+                self.homed = false;
+                self.halt = false;
+                Ok(self.begin(
+                    CommandKind::Home,
+                    Step::Homing,
+                    0.0,
+                    Some(now + self.cfg.homing_timeout),
+                    out,
+                ))
+            }
+            AxisCommand::Move {
+                target,
+                relative,
+                velocity,
+                acceleration,
+            } => {
+                let base = match &self.op {
+                    Some(op) if op.step == Step::Moving => op.target,
+                    _ => self.demand,
+                };
+                let target = if relative { base + target } else { target };
+                self.check_limits(target)?;
+                let limits = self.limits(
+                    velocity.unwrap_or(self.cfg.default_velocity),
+                    acceleration.unwrap_or(self.cfg.default_acceleration),
+                )?;
+                let profile =
+                    TrapezoidProfile::new(self.demand, self.demand_velocity, target, limits)
+                        .map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+                let total = Duration::from_secs_f64(profile.duration().min(1e6));
+                self.motion = Motion::Profile {
+                    profile,
+                    ratio: 1.0,
+                    elapsed: Duration::ZERO,
+                };
+                self.halt = false;
+                Ok(self.begin(
+                    CommandKind::Move,
+                    Step::Moving,
+                    target,
+                    Some(now + total + self.cfg.settle_timeout),
+                    out,
+                ))
+            }
+            AxisCommand::Jog {
+                velocity,
+                acceleration,
+            } => {
+                let acceleration = acceleration.unwrap_or(self.cfg.default_acceleration);
+                let deadman = Some(now + self.cfg.jog_deadman);
+                // A repeated jog only renews the dead-man and the velocity.
+                if let Some(op) = &mut self.op
+                    && op.step == Step::Jogging
+                {
+                    op.deadman = deadman;
+                    self.motion = Motion::Jog {
+                        target: velocity,
+                        acceleration,
+                    };
+                    return Ok(op.id);
+                }
+                self.motion = Motion::Jog {
+                    target: velocity,
+                    acceleration,
+                };
+                self.halt = false;
+                let id = self.begin(CommandKind::Jog, Step::Jogging, 0.0, None, out);
+                if let Some(op) = &mut self.op {
+                    op.deadman = deadman;
+                }
+                Ok(id)
+            }
+            AxisCommand::Stop | AxisCommand::QuickStop => {
+                let quick = matches!(cmd, AxisCommand::QuickStop);
+                let kind = cmd.kind();
+                let id = self.stop(quick, kind, now, out);
+                Ok(id)
+            }
+        }
+    }
+
+    /// Starts a stop ramp (or ends at once when at rest).
+    fn stop(
+        &mut self,
+        quick: bool,
+        kind: CommandKind,
+        now: Duration,
+        out: &mut Vec<AxisEvent>,
+    ) -> OpId {
+        let decel = if quick {
+            self.cfg.max_acceleration
+        } else {
+            self.cfg.default_acceleration
+        };
+        if self.op.is_some() {
+            self.finish(Outcome::Stopped, format!("stopped by {kind}"), out);
+        }
+        let id = self.begin(kind, Step::Stopping, 0.0, None, out);
+        match self.motion {
+            Motion::Homing => {
+                // The slave plans its homing run: halt it, then hold where
+                // it stands.
+                self.halt = true;
+                self.motion = Motion::Hold;
+                self.demand = self.actual();
+                self.demand_velocity = 0.0;
+            }
+            _ => {
+                let v = self.demand_velocity;
+                let stop_at = self.demand + v * v.abs() / (2.0 * decel);
+                let profile = Limits::symmetric(self.cfg.max_velocity.max(v.abs()), decel)
+                    .ok()
+                    .and_then(|l| TrapezoidProfile::new(self.demand, v, stop_at, l).ok());
+                self.motion = match profile {
+                    Some(profile) if v != 0.0 => Motion::Profile {
+                        profile,
+                        ratio: 1.0,
+                        elapsed: Duration::ZERO,
+                    },
+                    _ => Motion::Hold,
+                };
+            }
+        }
+        let bound = self.cfg.settle_timeout
+            + Duration::from_secs_f64((self.demand_velocity.abs() / decel).min(1e6));
+        if let Some(op) = &mut self.op {
+            op.deadline = Some(now + bound);
+        }
+        id
+    }
+
+    /// Starts one axis of a coordinated move: `profile` in user units (from
+    /// this axis's demand position, at rest), stretched to wall time by
+    /// `ratio`. All axes of the move start at the same cycle.
+    ///
+    /// # Errors
+    /// As [`CansmcAxis::command`]; also when the axis is moving.
+    pub fn start_coordinated(
+        &mut self,
+        profile: TrapezoidProfile,
+        ratio: f64,
+        now: Duration,
+        out: &mut Vec<AxisEvent>,
+    ) -> Result<OpId, CommandError> {
+        let target = profile.target();
+        self.check_coordinated(target)?;
+        let duration = if ratio > 0.0 {
+            profile.duration() / ratio
+        } else {
+            0.0
+        };
+        self.motion = Motion::Profile {
+            profile,
+            ratio,
+            elapsed: Duration::ZERO,
+        };
+        self.halt = false;
+        Ok(self.begin(
+            CommandKind::Move,
+            Step::Moving,
+            target,
+            Some(now + Duration::from_secs_f64(duration.min(1e6)) + self.cfg.settle_timeout),
+            out,
+        ))
+    }
+
+    /// Whether a coordinated move to `target` could start now.
+    ///
+    /// # Errors
+    /// As [`CansmcAxis::command`]; also when the axis is moving.
+    pub fn check_coordinated(&self, target: f64) -> Result<(), CommandError> {
+        self.check(&AxisCommand::Move {
+            target,
+            relative: false,
+            velocity: None,
+            acceleration: None,
+        })?;
+        self.check_limits(target)?;
+        if self.demand_velocity != 0.0 || self.op.is_some() {
+            return Err(CommandError::FailedPrecondition(
+                "the axis is moving: stop it before a coordinated move".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    // ---------------------------------------------------------------- input
+
+    /// The master declared the slave lost.
+    pub fn on_slave_lost(&mut self, reason: &str, out: &mut Vec<AxisEvent>) {
+        if self.lost.is_some() {
+            return;
+        }
+        self.lost = Some(reason.to_string());
+        // Nothing reaches the drive now: drop the enable so that a
+        // returning slave does not resume a stale motion.
+        self.enable = false;
+        self.motion = Motion::Hold;
+        self.demand_velocity = 0.0;
+        self.finish(Outcome::Fault, format!("slave lost: {reason}"), out);
+        out.push(AxisEvent::Fault {
+            code: 0,
+            text: format!("slave lost: {reason}"),
+        });
+    }
+
+    /// The slave answers again.
+    pub fn on_slave_back(&mut self, out: &mut Vec<AxisEvent>) {
+        if self.lost.take().is_some() {
+            self.demand = self.actual();
+            if !self.faulted {
+                out.push(AxisEvent::Fault {
+                    code: 0,
+                    text: String::new(),
+                });
+            }
+        }
+    }
+
+    /// One cycle: `input` is the slave's latest answer at the start of the
+    /// cycle (`now`); returns the MDT content of this cycle.
+    pub fn on_cycle(
+        &mut self,
+        now: Duration,
+        input: CycleInput,
+        out: &mut Vec<AxisEvent>,
+    ) -> CycleOutput {
+        let dt = self.cfg.cycle_time.as_secs_f64();
+        if let Some(p) = input.position {
+            if let Some(prev) = self.position {
+                self.velocity = self.units().from_counts(f64::from(p) - f64::from(prev)) / dt;
+            }
+            self.position = Some(p);
+        }
+        if input.status.is_some() {
+            self.status = input.status;
+        }
+        self.track_status(out);
+        self.advance_op(now, out);
+        self.advance_motion(input.source_count, dt);
+        let control = ControlWord {
+            enable: self.enable,
+            halt: self.halt,
+            fault_reset: std::mem::take(&mut self.reset_pulse),
+            ..ControlWord::default()
+        };
+        let command = if matches!(self.motion, Motion::Homing) {
+            Command::Homing {
+                method: self.cfg.homing_method,
+            }
+        } else {
+            Command::Position(self.units().to_counts(self.demand))
+        };
+        CycleOutput { control, command }
+    }
+
+    fn track_status(&mut self, out: &mut Vec<AxisEvent>) {
+        let Some(s) = self.status else {
+            return;
+        };
+        if s.homed && !self.homed && !matches!(self.motion, Motion::Homing) {
+            self.homed = true;
+        }
+        if s.fault && !self.faulted {
+            self.faulted = true;
+            self.enable = false;
+            self.halt = false;
+            self.motion = Motion::Hold;
+            self.demand_velocity = 0.0;
+            let (code, text) = self.fault_text().unwrap_or_default();
+            if self.op.as_ref().is_some_and(|o| o.step != Step::Resetting) {
+                self.finish(Outcome::Fault, format!("drive fault: {text}"), out);
+            }
+            out.push(AxisEvent::Fault { code, text });
+        } else if !s.fault && self.faulted {
+            self.faulted = false;
+            if self.lost.is_none() {
+                out.push(AxisEvent::Fault {
+                    code: 0,
+                    text: String::new(),
+                });
+            }
+        }
+        // Not enabled (or in fault): the set-point tracks the drive, so
+        // that enabling never jumps.
+        if !s.enabled || s.fault {
+            self.demand = self.actual();
+            self.demand_velocity = 0.0;
+            if !matches!(self.motion, Motion::Homing) {
+                self.motion = Motion::Hold;
+            }
+        }
+    }
+
+    fn at_rest(&self) -> bool {
+        self.demand_velocity == 0.0 && self.velocity.abs() <= self.cfg.in_position_window * 100.0
+    }
+
+    fn advance_op(&mut self, now: Duration, out: &mut Vec<AxisEvent>) {
+        let Some(op) = self.op.clone() else {
+            return;
+        };
+        let Some(s) = self.status else {
+            return;
+        };
+        let timed_out = op.deadline.is_some_and(|d| now >= d);
+        match op.step {
+            Step::Enabling if s.enabled => {
+                self.finish(Outcome::Completed, "enabled".into(), out);
+                if self.cfg.gear.is_some() {
+                    self.engage_gear();
+                }
+            }
+            Step::Disabling if !s.enabled => {
+                self.finish(Outcome::Completed, "disabled".into(), out);
+            }
+            Step::Resetting if !s.fault && self.lost.is_none() => {
+                self.finish(Outcome::Completed, "fault reset".into(), out);
+            }
+            Step::Homing if s.homed && s.target_reached => {
+                self.homed = true;
+                self.motion = Motion::Hold;
+                self.demand = self.actual();
+                self.demand_velocity = 0.0;
+                self.finish(Outcome::Completed, "homing attained".into(), out);
+            }
+            Step::Moving => {
+                let planned_done = !matches!(self.motion, Motion::Profile { .. });
+                if planned_done && (self.actual() - op.target).abs() <= self.cfg.in_position_window
+                {
+                    self.finish(Outcome::Completed, "target reached".into(), out);
+                } else if timed_out {
+                    self.finish(
+                        Outcome::Timeout,
+                        format!(
+                            "not in position: {:.4} {} from the target after the planned time",
+                            op.target - self.actual(),
+                            self.cfg.unit
+                        ),
+                        out,
+                    );
+                }
+            }
+            Step::Jogging => {
+                if op.deadman.is_some_and(|d| now >= d)
+                    && let Motion::Jog { target, .. } = &mut self.motion
+                    && *target != 0.0
+                {
+                    *target = 0.0;
+                    if let Some(op) = &mut self.op {
+                        op.deadline = Some(now + self.cfg.settle_timeout);
+                    }
+                }
+                let deadman_expired = op.deadman.is_some_and(|d| now >= d);
+                let requested_zero =
+                    matches!(self.motion, Motion::Jog { target, .. } if target == 0.0);
+                if requested_zero && self.demand_velocity == 0.0 {
+                    self.motion = Motion::Hold;
+                    if deadman_expired {
+                        self.finish(
+                            Outcome::Stopped,
+                            format!(
+                                "dead-man: no jog command within {} ms",
+                                self.cfg.jog_deadman.as_millis()
+                            ),
+                            out,
+                        );
+                    } else {
+                        self.finish(Outcome::Completed, "at rest".into(), out);
+                    }
+                }
+            }
+            Step::Stopping => {
+                if matches!(self.motion, Motion::Hold) && self.at_rest() {
+                    self.halt = false;
+                    self.finish(Outcome::Completed, "at rest".into(), out);
+                } else if timed_out {
+                    self.finish(Outcome::Timeout, "not at rest in time".into(), out);
+                }
+            }
+            _ if timed_out => {
+                let what = match op.step {
+                    Step::Enabling => "the drive did not report enabled",
+                    Step::Disabling => "the drive did not report disabled",
+                    Step::Resetting => "the fault did not clear",
+                    Step::Homing => "homing did not finish",
+                    _ => "no progress",
+                };
+                if op.step == Step::Homing {
+                    self.motion = Motion::Hold;
+                    self.demand = self.actual();
+                }
+                let bound = match op.step {
+                    Step::Homing => self.cfg.homing_timeout,
+                    _ => self.cfg.state_timeout,
+                };
+                self.finish(
+                    Outcome::Timeout,
+                    format!("{what} within {} ms", bound.as_millis()),
+                    out,
+                );
+            }
+            _ => {}
+        }
+    }
+
+    fn engage_gear(&mut self) {
+        // The offset is taken from the first source count, so engaging
+        // never jumps.
+        self.motion = Motion::Geared { offset: None };
+    }
+
+    fn advance_motion(&mut self, source: Option<i32>, dt: f64) {
+        let previous = self.demand;
+        match &mut self.motion {
+            Motion::Hold | Motion::Homing => {
+                self.demand_velocity = 0.0;
+            }
+            Motion::Profile {
+                profile,
+                ratio,
+                elapsed,
+            } => {
+                *elapsed += self.cfg.cycle_time;
+                let t = elapsed.as_secs_f64() * *ratio;
+                let (p, v, _) = profile.sample(t);
+                self.demand = p;
+                self.demand_velocity = v * *ratio;
+                if t >= profile.duration() {
+                    self.demand = profile.target();
+                    self.demand_velocity = 0.0;
+                    self.motion = Motion::Hold;
+                }
+            }
+            Motion::Jog {
+                target,
+                acceleration,
+            } => {
+                // Soft limits: aim for rest in time to stop at the limit.
+                let mut goal = *target;
+                let a = *acceleration;
+                let v = self.demand_velocity;
+                let stopping = v * v.abs() / (2.0 * a);
+                if (v > 0.0
+                    && self
+                        .cfg
+                        .max_position
+                        .is_some_and(|m| self.demand + stopping >= m))
+                    || (v < 0.0
+                        && self
+                            .cfg
+                            .min_position
+                            .is_some_and(|m| self.demand + stopping <= m))
+                {
+                    goal = 0.0;
+                }
+                let dv = (goal - v).clamp(-a * dt, a * dt);
+                let v_new = v + dv;
+                self.demand += (v + v_new) / 2.0 * dt;
+                self.demand_velocity = if v_new.abs() < 1e-9 { 0.0 } else { v_new };
+                if let Some(max) = self.cfg.max_position {
+                    self.demand = self.demand.min(max.max(previous));
+                }
+                if let Some(min) = self.cfg.min_position {
+                    self.demand = self.demand.max(min.min(previous));
+                }
+            }
+            Motion::Geared { offset } => {
+                let Some(count) = source else {
+                    return;
+                };
+                let ratio = self.cfg.gear.map_or(1.0, |g| g.ratio);
+                let demand_counts = self.cfg.units.counts_per_unit * self.demand;
+                let offset = *offset.get_or_insert(demand_counts - ratio * f64::from(count));
+                let wanted = self
+                    .cfg
+                    .units
+                    .from_counts(offset + ratio * f64::from(count));
+                let step = self.cfg.max_velocity * dt;
+                let clipped = (wanted - previous).clamp(-step, step);
+                if clipped != wanted - previous {
+                    self.gear_clipped += 1;
+                }
+                self.demand = previous + clipped;
+                self.demand_velocity = clipped / dt;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,408 @@
+//! The CANsmc axis in closed loop with a minimal ideal servo: the slave
+//! applies the previous cycle's command at each MST (the spec's pipeline),
+//! follows position set-points exactly, homes in a few cycles and faults
+//! on request. Virtual time only.
+
+use super::*;
+
+const CYCLE: Duration = Duration::from_millis(2);
+
+/// An ideal CANsmc servo: state after the MST of each cycle.
+#[derive(Debug, Default)]
+struct Servo {
+    enabled: bool,
+    fault: bool,
+    following_error: bool,
+    homed: bool,
+    homing_cycles: u32,
+    position: i32,
+    /// Command received in the previous cycle, applied at the next MST.
+    pending: Option<CycleOutput>,
+    last_reset: bool,
+    encoder: i32,
+    /// Stop answering (a lost slave).
+    silent: bool,
+}
+
+impl Servo {
+    /// The MST: apply last cycle's command, then sample.
+    fn mst(&mut self) {
+        if let Some(cmd) = self.pending.take() {
+            let c = cmd.control;
+            if c.fault_reset && !self.last_reset {
+                self.fault = false;
+                self.following_error = false;
+            }
+            self.last_reset = c.fault_reset;
+            self.enabled = c.enable && !self.fault;
+            if self.enabled && !c.halt {
+                match cmd.command {
+                    Command::Position(p) => self.position = p,
+                    Command::Homing { .. } => {
+                        self.homing_cycles += 1;
+                        self.position -= self.position.signum() * 100.min(self.position.abs());
+                        if self.position == 0 && self.homing_cycles > 3 {
+                            self.homed = true;
+                        }
+                    }
+                    _ => {}
+                }
+            }
+        }
+    }
+
+    fn input(&self) -> CycleInput {
+        if self.silent {
+            return CycleInput::default();
+        }
+        CycleInput {
+            status: Some(StatusWord {
+                ready: true,
+                enabled: self.enabled,
+                fault: self.fault,
+                target_reached: true,
+                homed: self.homed,
+                following_error: self.following_error,
+                ..StatusWord::default()
+            }),
+            position: Some(self.position),
+            source_count: Some(self.encoder),
+        }
+    }
+}
+
+struct Rig {
+    axis: CansmcAxis,
+    servo: Servo,
+    now: Duration,
+    events: Vec<AxisEvent>,
+}
+
+impl Rig {
+    fn new(cfg: CansmcAxisConfig) -> Self {
+        let mut rig = Rig {
+            axis: CansmcAxis::new(cfg),
+            servo: Servo::default(),
+            now: Duration::ZERO,
+            events: Vec::new(),
+        };
+        rig.cycles(1);
+        rig
+    }
+
+    /// Runs `n` cycles: MST at the slave, then the axis computes the MDT.
+    fn cycles(&mut self, n: usize) {
+        for _ in 0..n {
+            self.servo.mst();
+            let input = self.servo.input();
+            let out = self.axis.on_cycle(self.now, input, &mut self.events);
+            if !self.servo.silent {
+                self.servo.pending = Some(out);
+            }
+            self.now += CYCLE;
+        }
+    }
+
+    fn command(&mut self, cmd: AxisCommand) -> Result<OpId, CommandError> {
+        self.axis.command(cmd, self.now, &mut self.events)
+    }
+
+    /// Runs until op `id` is done (at most `max` cycles); its outcome.
+    fn until_done(&mut self, id: OpId, max: usize) -> (Outcome, String) {
+        for _ in 0..max {
+            if let Some(done) = self.events.iter().find_map(|e| match e {
+                AxisEvent::Done {
+                    op,
+                    outcome,
+                    detail,
+                    ..
+                } if *op == id => Some((*outcome, detail.clone())),
+                _ => None,
+            }) {
+                return done;
+            }
+            self.cycles(1);
+        }
+        panic!("op {id} not done after {max} cycles: {:?}", self.events);
+    }
+
+    fn enabled(cfg: CansmcAxisConfig) -> Self {
+        let mut rig = Rig::new(cfg);
+        let id = rig.command(AxisCommand::Enable).unwrap();
+        assert_eq!(rig.until_done(id, 10).0, Outcome::Completed);
+        rig
+    }
+}
+
+fn cfg() -> CansmcAxisConfig {
+    CansmcAxisConfig::example(1000.0, CYCLE)
+}
+
+fn mv(target: f64) -> AxisCommand {
+    AxisCommand::Move {
+        target,
+        relative: false,
+        velocity: None,
+        acceleration: None,
+    }
+}
+
+#[test]
+fn commands_before_feedback_or_when_disabled_are_refused_clearly() {
+    let mut axis = CansmcAxis::new(cfg());
+    let mut ev = Vec::new();
+    let e = axis.command(mv(1.0), Duration::ZERO, &mut ev).unwrap_err();
+    assert!(e.to_string().contains("no drive telegram"), "{e}");
+    let mut rig = Rig::new(cfg());
+    let e = rig.command(mv(1.0)).unwrap_err();
+    assert!(e.to_string().contains("not enabled"), "{e}");
+    let mut rig = Rig::enabled(cfg());
+    assert!(matches!(
+        rig.command(mv(5000.0)),
+        Err(CommandError::OutOfRange(_))
+    ));
+    assert!(matches!(
+        rig.command(AxisCommand::Move {
+            target: 1.0,
+            relative: false,
+            velocity: Some(-1.0),
+            acceleration: None
+        }),
+        Err(CommandError::InvalidArgument(_))
+    ));
+}
+
+#[test]
+fn enable_sets_the_mdtcw_bit_and_holds_the_actual_position() {
+    let mut rig = Rig::new(cfg());
+    rig.servo.position = 12_345;
+    rig.cycles(1);
+    let id = rig.command(AxisCommand::Enable).unwrap();
+    let (outcome, _) = rig.until_done(id, 10);
+    assert_eq!(outcome, Outcome::Completed);
+    assert_eq!(rig.servo.position, 12_345, "enabling must not jump");
+    let out = rig
+        .axis
+        .on_cycle(rig.now, rig.servo.input(), &mut rig.events);
+    assert!(out.control.enable && !out.control.halt);
+    assert_eq!(out.command, Command::Position(12_345));
+    let snap = rig.axis.snapshot();
+    assert_eq!(snap.state, Some(DriveState::OperationEnabled));
+    assert_eq!(snap.mode, MODE_CYCLIC_POSITION);
+    assert!((snap.position - 12.345).abs() < 1e-9);
+}
+
+#[test]
+fn a_move_interpolates_a_trapezoid_every_cycle_and_completes_in_position() {
+    let mut rig = Rig::enabled(cfg());
+    let id = rig.command(mv(10.0)).unwrap();
+    let mut positions = Vec::new();
+    for _ in 0..400 {
+        rig.cycles(1);
+        positions.push(rig.servo.position);
+        if rig
+            .events
+            .iter()
+            .any(|e| matches!(e, AxisEvent::Done { op, .. } if *op == id))
+        {
+            break;
+        }
+    }
+    let (outcome, detail) = rig.until_done(id, 1);
+    assert_eq!(outcome, Outcome::Completed, "{detail}");
+    assert_eq!(rig.servo.position, 10_000);
+    // 50 mm/s default velocity: at most 0.1 mm (100 counts) per 2 ms.
+    let steps: Vec<i32> = positions.windows(2).map(|w| w[1] - w[0]).collect();
+    assert!(steps.iter().all(|s| (0..=100).contains(s)), "{steps:?}");
+    assert!(steps.contains(&100), "reaches cruise velocity");
+}
+
+#[test]
+fn a_jog_runs_while_renewed_and_the_dead_man_stops_it() {
+    let mut rig = Rig::enabled(cfg());
+    let id = rig
+        .command(AxisCommand::Jog {
+            velocity: 20.0,
+            acceleration: None,
+        })
+        .unwrap();
+    for _ in 0..5 {
+        rig.cycles(100); // 200 ms
+        assert_eq!(
+            rig.command(AxisCommand::Jog {
+                velocity: 20.0,
+                acceleration: None
+            })
+            .unwrap(),
+            id,
+            "a repeated jog renews the same command"
+        );
+    }
+    assert_eq!(rig.axis.activity(), Activity::Jogging);
+    let moving_at = rig.servo.position;
+    assert!(moving_at > 15_000, "about 1 s at 20 mm/s: {moving_at}");
+    let (outcome, detail) = rig.until_done(id, 1000);
+    assert_eq!(outcome, Outcome::Stopped);
+    assert!(detail.contains("dead-man"), "{detail}");
+    let rest = rig.servo.position;
+    rig.cycles(10);
+    assert_eq!(rig.servo.position, rest, "at rest after the dead-man");
+}
+
+#[test]
+fn stop_ramps_a_move_down_without_a_jump() {
+    let mut rig = Rig::enabled(cfg());
+    let id = rig.command(mv(100.0)).unwrap();
+    rig.cycles(200);
+    let stop = rig.command(AxisCommand::Stop).unwrap();
+    let (outcome, _) = rig.until_done(id, 1);
+    assert_eq!(outcome, Outcome::Stopped);
+    let mut last = rig.servo.position;
+    let mut max_step = 0;
+    for _ in 0..500 {
+        rig.cycles(1);
+        max_step = max_step.max(rig.servo.position - last);
+        last = rig.servo.position;
+    }
+    assert_eq!(rig.until_done(stop, 1).0, Outcome::Completed);
+    assert!(max_step <= 100, "no faster than the move: {max_step}");
+    assert!(rig.servo.position < 100_000, "stopped before the target");
+    assert_eq!(rig.axis.activity(), Activity::Idle);
+}
+
+#[test]
+fn homing_hands_over_to_the_slave_and_returns_to_position_mode() {
+    let mut rig = Rig::enabled(cfg());
+    rig.servo.position = 550;
+    rig.cycles(1);
+    let id = rig.command(AxisCommand::Home).unwrap();
+    rig.cycles(2);
+    assert_eq!(rig.axis.snapshot().mode, MODE_HOMING);
+    assert_eq!(
+        rig.servo.pending.unwrap().command,
+        Command::Homing { method: 1 }
+    );
+    let (outcome, detail) = rig.until_done(id, 50);
+    assert_eq!(outcome, Outcome::Completed, "{detail}");
+    assert!(rig.axis.snapshot().homed);
+    rig.cycles(2);
+    assert_eq!(rig.servo.pending.unwrap().command, Command::Position(0));
+}
+
+#[test]
+fn a_fault_ends_the_move_and_a_reset_pulses_the_edge() {
+    let mut rig = Rig::enabled(cfg());
+    let id = rig.command(mv(50.0)).unwrap();
+    rig.cycles(50);
+    rig.servo.fault = true;
+    rig.servo.following_error = true;
+    rig.cycles(2);
+    let (outcome, detail) = rig.until_done(id, 1);
+    assert_eq!(outcome, Outcome::Fault);
+    assert!(detail.contains("following error"), "{detail}");
+    assert!(rig.events.contains(&AxisEvent::Fault {
+        code: 0x8611,
+        text: "following error over limit (DTSW bit 5)".into()
+    }));
+    assert!(rig.command(mv(1.0)).is_err());
+    let reset = rig.command(AxisCommand::ResetFault).unwrap();
+    // The reset bit is set for exactly one cycle.
+    rig.cycles(1);
+    assert!(rig.servo.pending.unwrap().control.fault_reset);
+    rig.cycles(1);
+    assert!(!rig.servo.pending.unwrap().control.fault_reset);
+    assert_eq!(rig.until_done(reset, 10).0, Outcome::Completed);
+    assert!(rig.events.contains(&AxisEvent::Fault {
+        code: 0,
+        text: String::new()
+    }));
+}
+
+#[test]
+fn a_lost_slave_faults_the_axis_and_refuses_commands_until_back() {
+    let mut rig = Rig::enabled(cfg());
+    let id = rig
+        .command(AxisCommand::Jog {
+            velocity: 5.0,
+            acceleration: None,
+        })
+        .unwrap();
+    rig.cycles(5);
+    rig.axis.on_slave_lost("3 DTs missed", &mut rig.events);
+    assert_eq!(rig.until_done(id, 1).0, Outcome::Fault);
+    let e = rig.command(AxisCommand::Enable).unwrap_err();
+    assert!(e.to_string().contains("slave is lost"), "{e}");
+    assert!(
+        rig.command(AxisCommand::Stop).is_ok(),
+        "stops are never refused"
+    );
+    assert_eq!(
+        rig.axis.snapshot().fault,
+        Some((0, "slave lost: 3 DTs missed".into()))
+    );
+    rig.axis.on_slave_back(&mut rig.events);
+    rig.cycles(2);
+    assert!(rig.axis.snapshot().fault.is_none());
+    let enable = rig.command(AxisCommand::Enable).unwrap();
+    assert_eq!(rig.until_done(enable, 10).0, Outcome::Completed);
+}
+
+#[test]
+fn a_geared_axis_follows_its_source_with_one_cycle_of_lag() {
+    let mut c = cfg();
+    c.gear = Some(Gear {
+        source: 3,
+        ratio: 0.5,
+    });
+    let mut rig = Rig::new(c);
+    rig.servo.position = 1_000;
+    rig.servo.encoder = 40_000;
+    rig.cycles(1);
+    let id = rig.command(AxisCommand::Enable).unwrap();
+    rig.until_done(id, 10);
+    assert_eq!(rig.axis.activity(), Activity::Moving);
+    rig.cycles(2);
+    assert_eq!(rig.servo.position, 1_000, "engaging does not jump");
+    // The source turns 20 counts per cycle.
+    for _ in 0..100 {
+        rig.servo.encoder += 20;
+        rig.cycles(1);
+        // The command of this cycle used the count sampled at this MST;
+        // the servo applies it at the next MST.
+        let commanded = match rig.servo.pending.unwrap().command {
+            Command::Position(p) => p,
+            other => panic!("{other:?}"),
+        };
+        assert_eq!(commanded, 1_000 + (rig.servo.encoder - 40_000) / 2);
+    }
+    assert!(rig.command(mv(1.0)).is_err(), "a geared axis refuses moves");
+    let stop = rig.command(AxisCommand::Stop).unwrap();
+    assert_eq!(rig.until_done(stop, 100).0, Outcome::Completed);
+    assert!(!rig.axis.is_geared());
+    let before = rig.servo.position;
+    rig.servo.encoder += 10_000;
+    rig.cycles(3);
+    assert_eq!(rig.servo.position, before, "disengaged after the stop");
+}
+
+#[test]
+fn a_jog_stops_at_the_soft_limit() {
+    let mut c = cfg();
+    c.max_position = Some(2.0);
+    let mut rig = Rig::enabled(c);
+    rig.command(AxisCommand::Jog {
+        velocity: 50.0,
+        acceleration: None,
+    })
+    .unwrap();
+    for _ in 0..10 {
+        rig.cycles(20);
+        rig.command(AxisCommand::Jog {
+            velocity: 50.0,
+            acceleration: None,
+        })
+        .unwrap();
+    }
+    assert!(rig.servo.position <= 2_000, "{}", rig.servo.position);
+    assert!(rig.servo.position > 1_900, "{}", rig.servo.position);
+}
