@@ -22,6 +22,7 @@ pub use feasibility::{
     CycleConfig, FeasibilityError, FeasibilityReport, Infeasibility, frame_bits_worst_case,
     max_slaves,
 };
+pub use slave::{ParameterError, Sample, SlaveApplication, SlavePhase, SlaveProtocol, SlaveStats};
 pub use telegram::{
     BROADCAST, Channel, CodecError, Command, ControlWord, CycleCounter, Feedback, Function,
     ParameterAccess, RejectReason, SmcAddress, StatusWord, Telegram,

@@ -30,6 +30,8 @@ use cangate_canopen::eds::EdsError;
 use cangate_canopen::value::DataType;
 
 pub mod canopen_node;
+#[cfg(feature = "runtime")]
+pub mod cansmc_runner;
 pub mod cansmc_slave;
 pub mod drive;
 pub mod handwheel;
@@ -39,6 +41,12 @@ pub mod runner;
 pub mod store;
 
 pub use canopen_node::{SimEvent, SimNode, SimNodeOptions};
+#[cfg(feature = "runtime")]
+pub use cansmc_runner::{CansmcSlaveHandle, spawn_cansmc_slaves};
+pub use cansmc_slave::{
+    SimCansmcCounters, SimCansmcFault, SimCansmcMode, SimCansmcReply, SimCansmcServo,
+    SimCansmcSlave, SimCansmcSlaveOptions,
+};
 pub use drive::{SimDrive, SimDriveOptions};
 pub use handwheel::{FrameLoss, Multiplier, SimHandwheel, SimHandwheelOptions};
 #[cfg(feature = "runtime")]
