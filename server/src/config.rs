@@ -64,6 +64,9 @@ pub struct Config {
     /// CNC handwheels (CANopen nodes) and their axis bindings.
     #[serde(default, rename = "handwheel", skip_serializing_if = "Vec::is_empty")]
     pub handwheels: Vec<HandwheelConfig>,
+    /// CANsmc masters (dual-bus motion control), their slaves and axes.
+    #[serde(default, rename = "cansmc", skip_serializing_if = "Vec::is_empty")]
+    pub cansmc: Vec<crate::cansmc::CansmcConfig>,
 }
 
 /// Security settings.
@@ -938,6 +941,33 @@ impl Config {
                     "axis {}: node {} on bus {:?} already backs another axis",
                     a.name, a.node, a.bus
                 )));
+            }
+        }
+        let mut smc_names = HashSet::new();
+        let mut smc_buses = HashSet::new();
+        for c in &self.cansmc {
+            c.validate(&self.buses).map_err(ConfigError::Invalid)?;
+            if !smc_names.insert(c.name.as_str()) {
+                return Err(ConfigError::Invalid(format!(
+                    "cansmc {:?} is configured twice",
+                    c.name
+                )));
+            }
+            for bus in [&c.command_bus, &c.status_bus] {
+                if !smc_buses.insert(bus.as_str()) || masters.contains(bus.as_str()) {
+                    return Err(ConfigError::Invalid(format!(
+                        "cansmc {}: bus {bus:?} is already used by another master",
+                        c.name
+                    )));
+                }
+            }
+            for a in &c.axes {
+                if !axis_names.insert(a.name.as_str()) {
+                    return Err(ConfigError::Invalid(format!(
+                        "axis {:?} is configured twice",
+                        a.name
+                    )));
+                }
             }
         }
         Ok(())

@@ -4,6 +4,7 @@
 
 use crate::axes::AxisManager;
 use crate::canopen::{BootPlan, CanopenBus, NodeFacts};
+use crate::cansmc::CansmcMaster;
 use crate::config::{
     AxisConfig, BackendChoice, BusConfig, Config, NodeConfig, StuffingChoice, parse_object,
 };
@@ -54,6 +55,12 @@ pub enum StartError {
 pub struct Gateway {
     buses: BTreeMap<String, BusHandle>,
     canopen: BTreeMap<String, CanopenBus>,
+    cansmc: BTreeMap<String, CansmcMaster>,
+    /// Simulated CANsmc slaves per master (tests and the Simulator reach
+    /// them here).
+    sim_smc: BTreeMap<String, Vec<cangate_sim::cansmc_runner::CansmcSlaveHandle>>,
+    /// The cycle threads, joined at shutdown.
+    cansmc_threads: std::sync::Mutex<Vec<std::thread::JoinHandle<()>>>,
     axes: Arc<AxisManager>,
     handwheels: Arc<HandwheelManager>,
     network: VirtualNetwork,
@@ -80,6 +87,8 @@ impl Gateway {
         // master sees their boot-up.
         let mut simulated = Vec::new();
         let mut sim_wheels = std::collections::HashMap::new();
+        let mut sim_smc = BTreeMap::new();
+        let mut cansmc_threads = Vec::new();
         let mut wheel_runs = Vec::new();
         for cc in &config.canopen {
             let bus = buses[&cc.bus].clone();
@@ -204,12 +213,60 @@ impl Gateway {
             canopen.insert(cc.bus.clone(), master);
             tasks.push(task);
         }
-        let (axes, axis_tasks) = AxisManager::start(&config.axes, &canopen, shutdown.child_token())
-            .map_err(|message| StartError::Bus {
-                bus: "axes".into(),
-                message,
-            })?;
+        let (axes, axis_tasks, mut axis_ports) = AxisManager::start(
+            &config.axes,
+            &canopen,
+            &config.cansmc,
+            shutdown.child_token(),
+        )
+        .map_err(|message| StartError::Bus {
+            bus: "axes".into(),
+            message,
+        })?;
         tasks.extend(axis_tasks);
+        let mut cansmc = BTreeMap::new();
+        for mc in &config.cansmc {
+            let err = |message: String| StartError::Bus {
+                bus: mc.command_bus.clone(),
+                message: format!("cansmc {}: {message}", mc.name),
+            };
+            // Simulated slaves attach to the virtual buses before the
+            // master's first MCT.
+            let sims: Vec<_> = mc
+                .slaves
+                .iter()
+                .filter(|s| s.simulate)
+                .map(crate::cansmc::sim::slave_for)
+                .collect::<Result<_, _>>()
+                .map_err(err)?;
+            if !sims.is_empty() {
+                let vbus = |name: &str| {
+                    network
+                        .get(buses[name].info().interface.as_str())
+                        .ok_or_else(|| err("simulated slaves need virtual buses".into()))
+                };
+                let ch0 = vbus(&mc.command_bus)?.connect(false);
+                let ch1 = vbus(&mc.status_bus)?.connect(false);
+                tasks.push(cangate_sim::cansmc_runner::spawn_cansmc_slaves(
+                    ch0,
+                    ch1,
+                    sims.clone(),
+                    shutdown.child_token(),
+                ));
+                sim_smc.insert(mc.name.clone(), sims);
+            }
+            let (master, thread) = CansmcMaster::start(
+                mc,
+                mc.effective_bitrate(&config.buses),
+                buses[&mc.command_bus].clone(),
+                buses[&mc.status_bus].clone(),
+                axis_ports.remove(&mc.name),
+                shutdown.child_token(),
+            )
+            .map_err(err)?;
+            cansmc.insert(mc.name.clone(), master);
+            cansmc_threads.push(thread);
+        }
         let (handwheels, wheel_tasks) = HandwheelManager::start(
             &config.handwheels,
             &canopen,
@@ -241,6 +298,9 @@ impl Gateway {
             Gateway {
                 buses,
                 canopen,
+                cansmc,
+                sim_smc,
+                cansmc_threads: std::sync::Mutex::new(cansmc_threads),
                 axes,
                 handwheels,
                 network,
@@ -265,6 +325,40 @@ impl Gateway {
     /// The CANopen master of a bus, if it has one.
     pub fn canopen(&self, bus: &str) -> Option<&CanopenBus> {
         self.canopen.get(bus)
+    }
+
+    /// A CANsmc master by name.
+    pub fn cansmc(&self, name: &str) -> Result<&CansmcMaster, ApiError> {
+        self.cansmc.get(name).ok_or_else(|| ApiError::NotFound {
+            kind: "CANsmc master",
+            name: name.to_string(),
+            hint: format!(
+                " (masters: {})",
+                self.cansmc.keys().cloned().collect::<Vec<_>>().join(", ")
+            ),
+        })
+    }
+
+    /// Every CANsmc master, by name.
+    pub fn cansmc_masters(&self) -> impl Iterator<Item = &CansmcMaster> {
+        self.cansmc.values()
+    }
+
+    /// The simulated slaves of a CANsmc master (empty when none).
+    pub fn simulated_cansmc_slaves(
+        &self,
+        master: &str,
+    ) -> &[cangate_sim::cansmc_runner::CansmcSlaveHandle] {
+        self.sim_smc.get(master).map_or(&[], Vec::as_slice)
+    }
+
+    /// Waits for the CANsmc cycle threads to end (after the shutdown
+    /// token fired).
+    pub fn join_cansmc_threads(&self) {
+        let threads = std::mem::take(&mut *self.cansmc_threads.lock().expect("threads lock"));
+        for t in threads {
+            let _ = t.join();
+        }
     }
 
     /// The axes.

@@ -4,6 +4,8 @@
 //! - [`gateway`]: start-up, the running server and shutdown.
 //! - [`grpc`]: the gRPC services and protobuf conversions.
 //! - [`canopen`]: the CANopen master runtime of each bus.
+//! - [`cansmc`]: the CANsmc masters (dual-bus motion control), their cycle
+//!   threads and axes.
 //! - [`axes`]: the axis layer (CiA 402 drives), control leases.
 //! - [`handwheel`]: CNC handwheels: feed decoding, mode, axis binding.
 //! - [`metrics`]: the Prometheus endpoint.
@@ -11,6 +13,7 @@
 
 pub mod axes;
 pub mod canopen;
+pub mod cansmc;
 pub mod config;
 pub mod error;
 pub mod gateway;

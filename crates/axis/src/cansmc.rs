@@ -166,6 +166,10 @@ struct Op {
     deadline: Option<Duration>,
     /// Jog: the dead-man expires here.
     deadman: Option<Duration>,
+    /// Cycles since the command started: a slave applies a command at the
+    /// next MST and reports its effect one cycle later, so status bits
+    /// seen earlier still describe the previous command.
+    cycles: u32,
 }
 
 /// A CANsmc servo slave as an axis.
@@ -494,6 +498,7 @@ impl CansmcAxis {
             target,
             deadline,
             deadman: None,
+            cycles: 0,
         });
         out.push(AxisEvent::Accepted { op: id });
         id
@@ -855,9 +860,11 @@ impl CansmcAxis {
     }
 
     fn advance_op(&mut self, now: Duration, out: &mut Vec<AxisEvent>) {
-        let Some(op) = self.op.clone() else {
+        let Some(op) = self.op.as_mut() else {
             return;
         };
+        op.cycles = op.cycles.saturating_add(1);
+        let op = op.clone();
         let Some(s) = self.status else {
             return;
         };
@@ -875,7 +882,7 @@ impl CansmcAxis {
             Step::Resetting if !s.fault && self.lost.is_none() => {
                 self.finish(Outcome::Completed, "fault reset".into(), out);
             }
-            Step::Homing if s.homed && s.target_reached => {
+            Step::Homing if op.cycles > 2 && s.homed && s.target_reached => {
                 self.homed = true;
                 self.motion = Motion::Hold;
                 self.demand = self.actual();

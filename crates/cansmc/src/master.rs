@@ -16,20 +16,25 @@
 //!          sets commands     DTs arrive on channel 1 ───────────▶|
 //! ```
 //!
-//! - `poll` at `t_k` closes cycle k-1 (every slave that was sent a cyclic
-//!   MDT and did not answer it is counted as missed), sends MST and reports
-//!   [`Poll::cycle_started`]. The application then reads the feedback of
-//!   cycle k-1 ([`Master::slave`]) and sets cycle k's command values
-//!   ([`Master::set_command`]) before `T_int_end`.
-//! - `poll` at `t_k + T_int` sends one MDT per active slave in address
-//!   order, with cycle counter `k mod 16`, then at most one non-cyclic
-//!   parameter telegram (the "parameter slot": parameter access keeps
-//!   working in P2 without disturbing the cyclic telegrams).
-//! - A DT echoing counter `k` that arrives before `t_k+1` is valid. One that
-//!   echoes `k` after `t_k+1` is *late* (counted, not used); any other echo
-//!   is a *counter mismatch*. `lost_after` consecutive misses mark the
-//!   slave lost ([`MasterEvent::SlaveLost`]); a valid DT afterwards brings
-//!   it back ([`MasterEvent::SlaveRecovered`]).
+//! - `poll` at `t_k` sends MST and reports [`Poll::cycle_started`]. The
+//!   application then reads the latest feedback ([`Master::slave`]) and
+//!   sets cycle k's command values ([`Master::set_command`]) before
+//!   `T_int_end`.
+//! - `poll` at `t_k + T_int` first closes cycle k-1 (every slave that was
+//!   sent a cyclic MDT and did not answer it in time is counted as missed),
+//!   then sends one MDT per active slave in address order, with cycle
+//!   counter `k mod 16`, then at most one non-cyclic parameter telegram
+//!   (the "parameter slot": parameter access keeps working in P2 without
+//!   disturbing the cyclic telegrams).
+//! - A DT echoing counter `k` that *arrived* before `t_k+1` is valid, even
+//!   when the runtime hands it over a little after `t_k+1`: the arrival
+//!   time given to [`Master::on_frame`] (the bus timestamp) decides, not
+//!   the moment the runtime got to it. That is why cycle k is closed only
+//!   at `t_k+1 + T_int`. One that echoes `k` and arrived after `t_k+1` is
+//!   *late* (counted, not used); any other echo is a *counter mismatch*.
+//!   `lost_after` consecutive misses mark the slave lost
+//!   ([`MasterEvent::SlaveLost`]); a valid DT afterwards brings it back
+//!   ([`MasterEvent::SlaveRecovered`]).
 //!
 //! Cycle start times are absolute (`t_k = t_0 + k × cycle`), so they never
 //! drift; when the runtime polls more than a whole cycle late, the missed
@@ -257,6 +262,9 @@ pub struct SlaveStatus {
     answered: bool,
     /// Whether a cyclic MDT went out in the current cycle.
     sent: bool,
+    /// `sent` and `answered` of the previous cycle, until it is evaluated.
+    prev_sent: bool,
+    prev_answered: bool,
 }
 
 impl SlaveStatus {
@@ -434,6 +442,9 @@ pub struct Master {
     origin: Duration,
     cycle: u64,
     mdts_sent: bool,
+    /// The previous cycle's DTs are not evaluated yet (see
+    /// [`Master::on_frame`]).
+    pending_close: bool,
     /// Parameter requests per slave; one outstanding each.
     queues: BTreeMap<u8, VecDeque<ParamRequest>>,
     outstanding: BTreeMap<u8, Outstanding>,
@@ -488,6 +499,8 @@ impl Master {
                 command: s.initial_command,
                 answered: false,
                 sent: false,
+                prev_sent: false,
+                prev_answered: false,
             };
             if slaves.insert(a, status).is_some() {
                 return Err(ConfigError::DuplicateAddress(a));
@@ -502,6 +515,7 @@ impl Master {
             origin: Duration::ZERO,
             cycle: 0,
             mdts_sent: false,
+            pending_close: false,
             queues: BTreeMap::new(),
             outstanding: BTreeMap::new(),
             slot_cursor: 0,
@@ -576,7 +590,10 @@ impl Master {
             s.command = s.spec.initial_command;
             s.answered = false;
             s.sent = false;
+            s.prev_sent = false;
+            s.prev_answered = false;
         }
+        self.pending_close = false;
         self.set_phase(Phase::Connecting);
         self.attempts = 0;
         self.send_mcts(now)
@@ -871,12 +888,18 @@ impl Master {
     }
 
     fn start_cycle(&mut self, out: &mut Poll) {
+        if self.pending_close {
+            self.close_previous();
+        }
         self.mdts_sent = false;
         self.counters.cycles += 1;
         for s in self.slaves.values_mut() {
+            s.prev_sent = s.sent;
+            s.prev_answered = s.answered;
             s.answered = false;
             s.sent = false;
         }
+        self.pending_close = true;
         out.frames.push(Telegram::Mst.encode());
         out.cycle_started = Some((self.cycle, self.cycle_start(self.cycle)));
     }
@@ -897,7 +920,6 @@ impl Master {
         if now < next {
             return;
         }
-        self.close_cycle();
         // Skip whole cycles that passed without a poll: start the latest
         // cycle that is due, so MST stays on the grid.
         let elapsed = now.saturating_sub(self.origin);
@@ -911,6 +933,10 @@ impl Master {
 
     fn send_mdts(&mut self, now: Duration, out: &mut Poll) {
         self.mdts_sent = true;
+        // The previous cycle's DTs have had until now to be processed.
+        if self.pending_close {
+            self.close_previous();
+        }
         let counter = CycleCounter::new(self.cycle as u8);
         for s in self.slaves.values_mut() {
             if !s.active() {
@@ -949,10 +975,12 @@ impl Master {
         }
     }
 
-    fn close_cycle(&mut self) {
+    /// Counts the previous cycle's missing DTs.
+    fn close_previous(&mut self) {
+        self.pending_close = false;
         let lost_after = self.config.lost_after;
         for s in self.slaves.values_mut() {
-            if !s.sent || s.answered {
+            if !s.prev_sent || s.prev_answered {
                 continue;
             }
             s.counters.missed += 1;
@@ -1028,8 +1056,10 @@ impl Master {
         }
     }
 
-    /// A frame received on channel 1 at `now`; returns frames to send at
-    /// once on channel 0 (P1: the next parameter request of that slave).
+    /// A frame received on channel 1; `now` is when it arrived (its bus
+    /// timestamp on the master's clock, if the runtime has one). Returns
+    /// frames to send at once on channel 0 (P1: the next parameter request
+    /// of that slave).
     pub fn on_frame(&mut self, frame: &Frame, now: Duration) -> Vec<Frame> {
         let telegram = match Telegram::decode(frame, Channel::Status) {
             Ok(t) => t,
@@ -1076,7 +1106,7 @@ impl Master {
                 }
             }
             Feedback::Reject { function, reason } => {
-                if self.cyclic_answer(a, status) {
+                if self.cyclic_answer(a, status, now).is_some() {
                     self.events.push(MasterEvent::Rejected {
                         address: from,
                         function,
@@ -1088,10 +1118,11 @@ impl Master {
                 }
             }
             other => {
-                if self.cyclic_answer(a, status)
+                if let Some(cycle) = self.cyclic_answer(a, status, now)
                     && let Some(s) = self.slaves.get_mut(&a)
+                    && s.last.is_none_or(|(_, _, c)| c <= cycle)
                 {
-                    s.last = Some((status, other, self.cycle));
+                    s.last = Some((status, other, cycle));
                 }
             }
         }
@@ -1159,18 +1190,35 @@ impl Master {
         self.parameter_done(a, o.request, result);
     }
 
-    /// Classifies a cyclic answer; true when it is valid for this cycle.
-    fn cyclic_answer(&mut self, a: u8, status: StatusWord) -> bool {
+    /// Classifies a cyclic answer that arrived at `at`: the cycle it is
+    /// valid for, or `None` (late or mismatched, counted).
+    fn cyclic_answer(&mut self, a: u8, status: StatusWord, at: Duration) -> Option<u64> {
         if self.phase != Phase::Cyclic {
-            return false;
+            return None;
         }
         let current = CycleCounter::new(self.cycle as u8);
         let previous = CycleCounter::new(self.cycle.wrapping_sub(1) as u8);
-        let Some(s) = self.slaves.get_mut(&a) else {
-            return false;
-        };
-        if s.sent && !s.answered && status.counter_echo == current {
+        let this_start = self.cycle_start(self.cycle);
+        let pending_close = self.pending_close;
+        let cycle = self.cycle;
+        let s = self.slaves.get_mut(&a)?;
+        let valid = if s.sent && !s.answered && status.counter_echo == current {
             s.answered = true;
+            Some(cycle)
+        } else if status.counter_echo == previous
+            && cycle > 0
+            && pending_close
+            && s.prev_sent
+            && !s.prev_answered
+            && at < this_start
+        {
+            // Arrived before this cycle's MST, processed after it.
+            s.prev_answered = true;
+            Some(cycle - 1)
+        } else {
+            None
+        };
+        if valid.is_some() {
             s.counters.dts += 1;
             s.consecutive_misses = 0;
             if s.state == SlaveState::Lost {
@@ -1179,14 +1227,12 @@ impl Master {
                     address: s.spec.address,
                 });
             }
-            true
-        } else if status.counter_echo == previous && self.cycle > 0 {
+        } else if status.counter_echo == previous && cycle > 0 {
             s.counters.late += 1;
-            false
         } else {
             s.counters.counter_mismatch += 1;
-            false
         }
+        valid
     }
 }
 

@@ -45,8 +45,9 @@
 use std::collections::BTreeMap;
 use std::future::pending;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::Duration;
 
-use cangate_can::{Frame, PortEvent, VirtualPort, VirtualSender};
+use cangate_can::{Frame, PortEvent, Timestamp, VirtualPort, VirtualSender};
 use cangate_cansmc::telegram::{BROADCAST, SmcAddress};
 use tokio::task::JoinHandle;
 use tokio::time::{Instant, sleep_until};
@@ -137,6 +138,23 @@ pub fn spawn_cansmc_slaves(
     tokio::spawn(run(channel0, sender, slaves, cancel))
 }
 
+/// When a frame stamped `ts` reached the slave, on the runner's clock: the
+/// bus timestamp (a bit-timed bus stamps the modelled end of frame), so the
+/// slave's time base (MST) and its cycle end (`T_end_s`) do not include the
+/// host's scheduling delay. Unstamped frames, and stamps more than 50 ms
+/// from now (a paused test clock, a wall-clock step), use `now`.
+fn frame_time(ts: Timestamp, origin_wall: i128, now: Duration) -> Duration {
+    if ts.as_nanos() == 0 {
+        return now;
+    }
+    let at = i128::from(ts.as_nanos()) - origin_wall;
+    let now_ns = now.as_nanos() as i128;
+    if at > now_ns || at < now_ns - 50_000_000 {
+        return now;
+    }
+    Duration::from_nanos(at as u64)
+}
+
 async fn run(
     mut channel0: VirtualPort,
     channel1: VirtualSender,
@@ -170,10 +188,13 @@ async fn run(
             _ = channel0.recv_many(&mut events, BATCH) => {
                 let arrival = Instant::now();
                 let now = arrival.duration_since(origin);
+                let origin_wall =
+                    i128::from(Timestamp::now().as_nanos()) - now.as_nanos() as i128;
                 for event in events.drain(..) {
                     let PortEvent::Frame { frame, own: false } = event else {
                         continue;
                     };
+                    let now = frame_time(frame.timestamp(), origin_wall, now);
                     // The identifier's address field; a frame that does not
                     // decode still goes to the slave it names, which counts it.
                     let address = (frame.raw_id() & 0x3F) as usize;
@@ -221,7 +242,6 @@ fn send(channel1: &VirtualSender, slaves: &[CansmcSlaveHandle], out: &mut Vec<(u
 
 #[cfg(test)]
 mod tests {
-    use std::time::Duration;
 
     use cangate_can::{BitTiming, VirtualBus, VirtualBusConfig};
     use cangate_cansmc::telegram::{

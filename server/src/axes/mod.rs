@@ -1,12 +1,15 @@
 //! The axis layer at run time: every configured axis, control leases, the
 //! update stream, and one task per CANopen bus that runs the bus's CiA 402
-//! axis controllers ([`cia402_task`]).
+//! axis controllers ([`cia402_task`]). CANsmc axes are run by their
+//! master's cycle thread ([`crate::cansmc`]), which serves the same
+//! [`cia402_task::BusRequest`]s.
 //!
 //! The gRPC `Axes` service is a thin shell over [`AxisManager`].
 
 pub mod cia402_task;
 
 use crate::canopen::CanopenBus;
+use crate::cansmc::{AxisPort, CansmcConfig};
 use crate::config::{AxisConfig, PositionModeChoice, StopChoice};
 use crate::error::ApiError;
 use cangate_axis::cia402::AxisSnapshot;
@@ -92,10 +95,13 @@ pub enum AxisEventKind {
 /// Static facts of an axis.
 #[derive(Debug, Clone)]
 pub struct AxisInfo {
-    /// Its configuration.
+    /// Its configuration (for a CANsmc axis: the equivalent description,
+    /// `bus` = the master's command bus, `node` = the slave address).
     pub config: AxisConfig,
-    /// The node.
+    /// The node (CiA 402) or slave address (CANsmc).
     pub node: NodeId,
+    /// The CANsmc master's name, for a CANsmc axis.
+    pub cansmc: Option<String>,
 }
 
 struct AxisEntry {
@@ -104,6 +110,14 @@ struct AxisEntry {
     /// Index within its bus task.
     local: usize,
 }
+
+/// What [`AxisManager::start`] returns: the manager, its tasks, and the
+/// CANsmc axes per master name for the cycle threads.
+pub type Started = (
+    Arc<AxisManager>,
+    Vec<tokio::task::JoinHandle<()>>,
+    BTreeMap<String, AxisPort>,
+);
 
 /// Latest state of every axis, by axis index.
 pub type LatestStates = Arc<RwLock<Vec<Option<(Arc<AxisSnapshot>, Timestamp)>>>>;
@@ -133,14 +147,18 @@ pub struct CommandResult {
 }
 
 impl AxisManager {
-    /// Starts the axis tasks (one per CANopen bus with axes).
+    /// Starts the axis tasks (one per CANopen bus with axes) and hands
+    /// over the CANsmc axes: one [`AxisPort`] per `[[cansmc]]` master with
+    /// axes (by master name), for its cycle thread to serve.
     pub fn start(
         configs: &[AxisConfig],
         masters: &BTreeMap<String, CanopenBus>,
+        cansmc: &[CansmcConfig],
         cancel: CancellationToken,
-    ) -> Result<(Arc<AxisManager>, Vec<tokio::task::JoinHandle<()>>), String> {
+    ) -> Result<Started, String> {
         let (updates, _) = broadcast::channel(8192);
-        let latest: LatestStates = Arc::new(RwLock::new(vec![None; configs.len()]));
+        let total = configs.len() + cansmc.iter().map(|c| c.axes.len()).sum::<usize>();
+        let latest: LatestStates = Arc::new(RwLock::new(vec![None; total]));
         let mut per_bus: BTreeMap<&str, Vec<(usize, AxisInfo)>> = BTreeMap::new();
         for (i, c) in configs.iter().enumerate() {
             let node = NodeId::new(c.node).map_err(|e| format!("axis {}: {e}", c.name))?;
@@ -149,10 +167,41 @@ impl AxisManager {
                 AxisInfo {
                     config: c.clone(),
                     node,
+                    cansmc: None,
                 },
             ));
         }
-        let mut axes: Vec<Option<AxisEntry>> = (0..configs.len()).map(|_| None).collect();
+        let mut axes: Vec<Option<AxisEntry>> = (0..total).map(|_| None).collect();
+        let mut ports = BTreeMap::new();
+        let mut next = configs.len();
+        for m in cansmc.iter().filter(|m| !m.axes.is_empty()) {
+            let (tx, rx) = mpsc::channel(256);
+            let mut list = Vec::new();
+            for (local, a) in m.axes.iter().enumerate() {
+                let info = AxisInfo {
+                    config: a.as_axis_config(m),
+                    node: NodeId::new(u32::from(a.address))
+                        .map_err(|e| format!("axis {}: {e}", a.name))?,
+                    cansmc: Some(m.name.clone()),
+                };
+                axes[next] = Some(AxisEntry {
+                    info: info.clone(),
+                    bus: tx.clone(),
+                    local,
+                });
+                list.push((next, info));
+                next += 1;
+            }
+            ports.insert(
+                m.name.clone(),
+                AxisPort {
+                    requests: rx,
+                    axes: list,
+                    updates: updates.clone(),
+                    latest: latest.clone(),
+                },
+            );
+        }
         let mut tasks = Vec::new();
         for (bus, list) in per_bus {
             let master = masters
@@ -196,7 +245,7 @@ impl AxisManager {
             closing: std::sync::atomic::AtomicBool::new(false),
         });
         tasks.push(tokio::spawn(run_lease_expiry(manager.clone(), cancel)));
-        Ok((manager, tasks))
+        Ok((manager, tasks, ports))
     }
 
     fn now(&self) -> Duration {

@@ -40,7 +40,11 @@ impl AxesService {
         let c = &info.config;
         pb::Axis {
             name: c.name.clone(),
-            backend: pb::AxisBackend::Cia402 as i32,
+            backend: if info.cansmc.is_some() {
+                pb::AxisBackend::Cansmc
+            } else {
+                pb::AxisBackend::Cia402
+            } as i32,
             bus: c.bus.clone(),
             node: c.node,
             unit: c.unit.clone(),

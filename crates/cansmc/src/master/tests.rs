@@ -298,6 +298,10 @@ fn p2_counts_valid_late_and_mismatched_dts_and_loses_silent_slaves() {
     m.poll(us(4400));
     m.on_frame(&dt(1, 2, 102), us(4600));
     m.poll(us(6300));
+    // Cycle 2 is closed at T_int_end of cycle 3.
+    assert_eq!(m.slave(addr(2)).unwrap().counters.missed, 2);
+    let p = m.poll(us(6400));
+    assert_eq!(p.frames.len(), 2, "still sent MDTs");
     let s2 = m.slave(addr(2)).unwrap();
     assert_eq!(s2.counters.counter_mismatch, 1);
     assert_eq!(s2.counters.late, 1);
@@ -310,9 +314,7 @@ fn p2_counts_valid_late_and_mismatched_dts_and_loses_silent_slaves() {
         address: addr(2),
         misses: 3
     }));
-    // Still sent MDTs; a valid DT brings it back.
-    let p = m.poll(us(6400));
-    assert_eq!(p.frames.len(), 2);
+    // A valid DT brings it back.
     m.on_frame(&dt(2, 3, 205), us(6600));
     assert_eq!(m.slave(addr(2)).unwrap().state, SlaveState::Operational);
     assert!(
@@ -365,6 +367,7 @@ fn p2_parameter_access_uses_the_slot_after_the_mdts() {
     }));
     // Parameter answers are not cyclic DTs: both cycles missed for 2.
     m.poll(us(4300));
+    m.poll(us(4400));
     assert_eq!(m.slave(addr(2)).unwrap().counters.missed, 2);
 }
 
@@ -436,4 +439,31 @@ fn restart_goes_back_through_p0_and_cancels_requests() {
     m.stop();
     assert_eq!(m.next_deadline(), None);
     assert!(m.read_parameter(addr(1), 1).is_err());
+}
+
+#[test]
+fn a_dt_that_arrived_in_time_counts_even_when_processed_after_the_next_mst() {
+    let mut m = cyclic(&[1]);
+    m.poll(us(400));
+    // Cycle 1 starts at 2300; the cycle-0 DT stamped 2250 is handed over
+    // at 2350 (host scheduling delay): valid for cycle 0.
+    m.poll(us(2300));
+    m.on_frame(&dt(1, 0, 42), us(2250));
+    m.poll(us(2400));
+    let s = m.slave(addr(1)).unwrap();
+    assert_eq!(
+        (s.counters.dts, s.counters.missed, s.counters.late),
+        (1, 0, 0)
+    );
+    assert_eq!(s.last.unwrap().1, Feedback::Position(42));
+    assert_eq!(s.last.unwrap().2, 0);
+    // One stamped after the MST of its next cycle is late.
+    m.poll(us(4300));
+    m.on_frame(&dt(1, 1, 43), us(4310));
+    m.poll(us(4400));
+    let s = m.slave(addr(1)).unwrap();
+    assert_eq!(
+        (s.counters.dts, s.counters.missed, s.counters.late),
+        (1, 1, 1)
+    );
 }

@@ -1,0 +1,470 @@
+//! `[[cansmc]]`: a CANsmc master on two buses, its slaves and its axes.
+//!
+//! ```toml
+//! [[cansmc]]
+//! name = "smc"            # unique; the gRPC Cansmc service and CLI use it
+//! command_bus = "smc0"    # channel 0: MST, MCT, MDT (master → slaves)
+//! status_bus = "smc1"     # channel 1: DCT, DT (slaves → master)
+//! cycle_time_us = 2000
+//!
+//! [[cansmc.slave]]
+//! address = 1
+//! name = "A servo"
+//! simulate = true
+//! parameters = [{ number = 4, value = 20000 }]   # written in P1
+//!
+//! [[cansmc.axis]]
+//! name = "A"
+//! address = 1
+//! counts_per_unit = 1000.0
+//! max_velocity = 200.0
+//! max_acceleration = 2000.0
+//! ```
+
+use serde::{Deserialize, Serialize};
+use std::collections::HashSet;
+use std::time::Duration;
+
+use crate::config::{BusConfig, StopChoice};
+use cangate_axis::Units;
+use cangate_axis::cansmc::{CansmcAxisConfig, Gear};
+use cangate_cansmc::{CycleConfig, SmcAddress};
+
+/// One CANsmc master.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CansmcConfig {
+    /// Unique name of the master.
+    pub name: String,
+    /// Channel 0 (master → slaves), a `[[bus]]` name.
+    pub command_bus: String,
+    /// Channel 1 (slaves → master), a `[[bus]]` name; both channels must
+    /// have the same bit rate.
+    pub status_bus: String,
+    /// Cycle time of phase P2 in µs (default 2000).
+    #[serde(default = "default_cycle_time_us")]
+    pub cycle_time_us: u32,
+    /// Time after MST during which the gateway computes the cycle's
+    /// set-points, before the MDTs go out (`T_int`), µs (default 100).
+    #[serde(default = "default_t_int_us")]
+    pub t_int_us: u32,
+    /// P0: wait for DCTs this long before resending MCTs, ms (default 50).
+    #[serde(default = "default_connect_timeout_ms")]
+    pub connect_timeout_ms: u64,
+    /// P0: MCTs per slave before it is missing (default 3).
+    #[serde(default = "default_connect_attempts")]
+    pub connect_attempts: u32,
+    /// Bound of one parameter request, ms (default 100).
+    #[serde(default = "default_parameter_timeout_ms")]
+    pub parameter_timeout_ms: u64,
+    /// Consecutive missed DTs after which a slave is lost and its axes
+    /// fault (default 3).
+    #[serde(default = "default_lost_after")]
+    pub lost_after: u32,
+    /// The cycle thread sleeps until this long before each MST, then waits
+    /// actively, trading CPU for start-time jitter, µs (default 200; 0 =
+    /// sleep only).
+    #[serde(default = "default_spin_us")]
+    pub spin_us: u32,
+    /// Bit rate for the feasibility check when the buses do not give one
+    /// (default 1 Mbit/s).
+    #[serde(default)]
+    pub bitrate: Option<u32>,
+    /// The slaves.
+    #[serde(default, rename = "slave")]
+    pub slaves: Vec<CansmcSlaveConfig>,
+    /// Axes backed by slaves of this master.
+    #[serde(default, rename = "axis", skip_serializing_if = "Vec::is_empty")]
+    pub axes: Vec<CansmcAxisEntry>,
+}
+
+fn default_cycle_time_us() -> u32 {
+    2000
+}
+fn default_t_int_us() -> u32 {
+    cangate_cansmc::feasibility::DEFAULT_T_INT_US
+}
+fn default_connect_timeout_ms() -> u64 {
+    50
+}
+fn default_connect_attempts() -> u32 {
+    3
+}
+fn default_parameter_timeout_ms() -> u64 {
+    100
+}
+fn default_lost_after() -> u32 {
+    3
+}
+fn default_spin_us() -> u32 {
+    200
+}
+fn default_true() -> bool {
+    true
+}
+
+/// What a slave is asked every cycle when no axis drives it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CyclicChoice {
+    /// Position MDT holding 0, not enabled: the DT reports the position.
+    #[default]
+    Position,
+    /// Encoder request (function 0x07): the DT reports the encoder count
+    /// (a gear source).
+    Encoder,
+    /// Digital I/O (function 0x06): the DT reports the inputs.
+    Io,
+}
+
+/// A parameter written in phase P1.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ParameterWrite {
+    /// Parameter number (1–5 standard, ≥ 0x1000 device specific).
+    pub number: u16,
+    /// Value.
+    pub value: i32,
+}
+
+/// One slave of a master.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CansmcSlaveConfig {
+    /// Address 1..=61.
+    pub address: u8,
+    /// For people.
+    #[serde(default)]
+    pub name: String,
+    /// The master refuses to start without it (default true); an optional
+    /// slave that does not answer is reported and left out.
+    #[serde(default = "default_true")]
+    pub required: bool,
+    /// What it is asked every cycle when no axis drives it.
+    #[serde(default)]
+    pub cyclic: CyclicChoice,
+    /// Written in P1, in order.
+    #[serde(default)]
+    pub parameters: Vec<ParameterWrite>,
+    /// Run a simulated slave at this address on the master's virtual buses.
+    #[serde(default)]
+    pub simulate: bool,
+    /// Simulation: a free-running external encoder, counts/s (the slave's
+    /// encoder count is its motor position otherwise).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sim_encoder_velocity: Option<f64>,
+}
+
+/// An axis backed by a CANsmc slave.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CansmcAxisEntry {
+    /// Unique axis name (among all axes of the gateway).
+    pub name: String,
+    /// The slave (configured under the same master).
+    pub address: u8,
+    /// User unit name.
+    #[serde(default = "default_unit")]
+    pub unit: String,
+    /// Slave encoder counts per user unit (negative inverts).
+    pub counts_per_unit: f64,
+    /// Soft limits in user units (both or none).
+    #[serde(default)]
+    pub min_position: Option<f64>,
+    /// Soft limits in user units.
+    #[serde(default)]
+    pub max_position: Option<f64>,
+    /// Velocity ceiling, units/s.
+    pub max_velocity: f64,
+    /// Acceleration ceiling, units/s² (quick stops use it).
+    pub max_acceleration: f64,
+    /// Velocity of moves that give none (default: a quarter of the maximum).
+    #[serde(default)]
+    pub default_velocity: Option<f64>,
+    /// Acceleration of moves that give none and of stops (default: a
+    /// quarter of the maximum).
+    #[serde(default)]
+    pub default_acceleration: Option<f64>,
+    /// Homing method byte of the homing MDT (default 1).
+    #[serde(default = "default_homing_method")]
+    pub homing_method: u8,
+    /// How a lapsed lease or dead-man timeout stops the axis.
+    #[serde(default)]
+    pub stop_on_loss: StopChoice,
+    /// Jog dead-man time, ms (default 500).
+    #[serde(default = "default_jog_deadman_ms")]
+    pub jog_deadman_ms: u32,
+    /// Bound of enable, disable and fault reset, ms (default 1000).
+    #[serde(default = "default_state_timeout_ms")]
+    pub state_timeout_ms: u64,
+    /// Bound of homing, ms (default 30000).
+    #[serde(default = "default_homing_timeout_ms")]
+    pub homing_timeout_ms: u64,
+    /// In-position window, user units (default: 10 counts).
+    #[serde(default)]
+    pub in_position_window: Option<f64>,
+    /// Electronic gearing: follow this slave's encoder count while enabled.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gear_source: Option<u8>,
+    /// Follower counts per source count (default 1).
+    #[serde(default = "default_ratio")]
+    pub gear_ratio: f64,
+}
+
+fn default_unit() -> String {
+    "mm".into()
+}
+fn default_homing_method() -> u8 {
+    1
+}
+fn default_jog_deadman_ms() -> u32 {
+    500
+}
+fn default_state_timeout_ms() -> u64 {
+    1000
+}
+fn default_homing_timeout_ms() -> u64 {
+    30_000
+}
+fn default_ratio() -> f64 {
+    1.0
+}
+
+impl CansmcAxisEntry {
+    /// The controller configuration for a master with `cycle_time`.
+    pub fn controller(&self, cycle_time: Duration) -> CansmcAxisConfig {
+        CansmcAxisConfig {
+            units: Units {
+                counts_per_unit: self.counts_per_unit,
+            },
+            unit: self.unit.clone(),
+            min_position: self.min_position,
+            max_position: self.max_position,
+            max_velocity: self.max_velocity,
+            max_acceleration: self.max_acceleration,
+            default_velocity: self.default_velocity.unwrap_or(self.max_velocity / 4.0),
+            default_acceleration: self
+                .default_acceleration
+                .unwrap_or(self.max_acceleration / 4.0),
+            cycle_time,
+            state_timeout: Duration::from_millis(self.state_timeout_ms),
+            homing_timeout: Duration::from_millis(self.homing_timeout_ms),
+            settle_timeout: Duration::from_secs(2),
+            jog_deadman: Duration::from_millis(u64::from(self.jog_deadman_ms)),
+            in_position_window: self
+                .in_position_window
+                .unwrap_or(10.0 / self.counts_per_unit.abs()),
+            homing_method: self.homing_method,
+            gear: self.gear_source.map(|source| Gear {
+                source,
+                ratio: self.gear_ratio,
+            }),
+        }
+    }
+
+    /// The equivalent generic axis description (for the axis API's
+    /// listing, soft limits and stop choice).
+    pub fn as_axis_config(&self, master: &CansmcConfig) -> crate::config::AxisConfig {
+        crate::config::AxisConfig {
+            name: self.name.clone(),
+            bus: master.command_bus.clone(),
+            node: u32::from(self.address),
+            unit: self.unit.clone(),
+            counts_per_unit: self.counts_per_unit,
+            position_mode: crate::config::PositionModeChoice::Cyclic,
+            min_position: self.min_position,
+            max_position: self.max_position,
+            max_velocity: self.max_velocity,
+            max_acceleration: self.max_acceleration,
+            default_velocity: self.default_velocity,
+            default_acceleration: self.default_acceleration,
+            homing_method: 0,
+            stop_on_loss: self.stop_on_loss,
+            jog_deadman_ms: self.jog_deadman_ms,
+            state_timeout_ms: self.state_timeout_ms,
+            homing_timeout_ms: self.homing_timeout_ms,
+            in_position_window: self.in_position_window,
+        }
+    }
+}
+
+impl CansmcConfig {
+    /// The cycle time.
+    pub fn cycle_time(&self) -> Duration {
+        Duration::from_micros(u64::from(self.cycle_time_us))
+    }
+
+    /// The bit rate the feasibility check uses.
+    pub fn effective_bitrate(&self, buses: &[BusConfig]) -> u32 {
+        buses
+            .iter()
+            .find(|b| b.name == self.command_bus)
+            .and_then(|b| b.bitrate)
+            .or(self.bitrate)
+            .unwrap_or(1_000_000)
+    }
+
+    /// Checks what serde cannot, including whether the cycle fits the bus
+    /// (the arithmetic is in the message when it does not).
+    pub fn validate(&self, buses: &[BusConfig]) -> Result<(), String> {
+        let name = &self.name;
+        if name.is_empty() || name.contains(char::is_whitespace) {
+            return Err(format!(
+                "[[cansmc]] name {name:?} must be non-empty without spaces"
+            ));
+        }
+        for (what, bus) in [
+            ("command_bus", &self.command_bus),
+            ("status_bus", &self.status_bus),
+        ] {
+            if !buses.iter().any(|b| &b.name == bus) {
+                return Err(format!(
+                    "cansmc {name}: {what} {bus:?} is not a configured [[bus]]"
+                ));
+            }
+        }
+        if self.command_bus == self.status_bus {
+            return Err(format!(
+                "cansmc {name}: command_bus and status_bus must be two different buses"
+            ));
+        }
+        let rate = |b: &str| buses.iter().find(|x| x.name == b).and_then(|x| x.bitrate);
+        if let (Some(a), Some(b)) = (rate(&self.command_bus), rate(&self.status_bus))
+            && a != b
+        {
+            return Err(format!(
+                "cansmc {name}: both channels must run at the same bit rate ({} has {a}, {} has {b})",
+                self.command_bus, self.status_bus
+            ));
+        }
+        if self.cycle_time_us < 100 {
+            return Err(format!(
+                "cansmc {name}: cycle_time_us {} is below 100 µs",
+                self.cycle_time_us
+            ));
+        }
+        if self.t_int_us >= self.cycle_time_us {
+            return Err(format!(
+                "cansmc {name}: t_int_us {} must be shorter than the cycle ({} µs)",
+                self.t_int_us, self.cycle_time_us
+            ));
+        }
+        if self.connect_attempts == 0
+            || self.lost_after == 0
+            || self.connect_timeout_ms == 0
+            || self.parameter_timeout_ms == 0
+        {
+            return Err(format!(
+                "cansmc {name}: connect_attempts, lost_after, connect_timeout_ms and \
+                 parameter_timeout_ms must be positive"
+            ));
+        }
+        if self.slaves.is_empty() {
+            return Err(format!(
+                "cansmc {name}: configure at least one [[cansmc.slave]]"
+            ));
+        }
+        let mut addresses = HashSet::new();
+        for s in &self.slaves {
+            SmcAddress::new(s.address).map_err(|e| format!("cansmc {name}: {e}"))?;
+            if !addresses.insert(s.address) {
+                return Err(format!(
+                    "cansmc {name}: slave address {} is configured twice",
+                    s.address
+                ));
+            }
+        }
+        // One MDT and one DT per slave plus the parameter slot.
+        let mut cycle = CycleConfig::new(
+            self.effective_bitrate(buses),
+            self.slaves.len() as u32 + 1,
+            self.cycle_time_us,
+        );
+        cycle.t_int_us = self.t_int_us;
+        let report = cycle.check().map_err(|e| format!("cansmc {name}: {e}"))?;
+        if !report.is_feasible() {
+            return Err(format!(
+                "cansmc {name}: {} slaves (+1 parameter slot) do not fit a {} µs cycle:\n{report}",
+                self.slaves.len(),
+                self.cycle_time_us
+            ));
+        }
+        let mut axis_slaves = HashSet::new();
+        for a in &self.axes {
+            let an = &a.name;
+            if an.is_empty() || an.contains(char::is_whitespace) {
+                return Err(format!("axis name {an:?} must be non-empty without spaces"));
+            }
+            if !addresses.contains(&a.address) {
+                return Err(format!(
+                    "axis {an}: slave {} is not configured under cansmc {name}",
+                    a.address
+                ));
+            }
+            if !axis_slaves.insert(a.address) {
+                return Err(format!(
+                    "axis {an}: slave {} already backs another axis",
+                    a.address
+                ));
+            }
+            if !a.counts_per_unit.is_finite() || a.counts_per_unit == 0.0 {
+                return Err(format!(
+                    "axis {an}: counts_per_unit must be a non-zero number"
+                ));
+            }
+            for (what, v) in [
+                ("max_velocity", Some(a.max_velocity)),
+                ("max_acceleration", Some(a.max_acceleration)),
+                ("default_velocity", a.default_velocity),
+                ("default_acceleration", a.default_acceleration),
+                ("in_position_window", a.in_position_window),
+            ] {
+                if let Some(v) = v
+                    && !(v.is_finite() && v > 0.0)
+                {
+                    return Err(format!("axis {an}: {what} must be positive, got {v}"));
+                }
+            }
+            if a.default_velocity.is_some_and(|v| v > a.max_velocity)
+                || a.default_acceleration
+                    .is_some_and(|v| v > a.max_acceleration)
+            {
+                return Err(format!(
+                    "axis {an}: default velocity/acceleration exceed the maxima"
+                ));
+            }
+            match (a.min_position, a.max_position) {
+                (Some(lo), Some(hi)) if !(lo.is_finite() && hi.is_finite() && lo < hi) => {
+                    return Err(format!(
+                        "axis {an}: min_position {lo} must be below max_position {hi}"
+                    ));
+                }
+                (Some(_), None) | (None, Some(_)) => {
+                    return Err(format!(
+                        "axis {an}: give both min_position and max_position, or neither"
+                    ));
+                }
+                _ => {}
+            }
+            if a.jog_deadman_ms == 0 || a.state_timeout_ms == 0 || a.homing_timeout_ms == 0 {
+                return Err(format!(
+                    "axis {an}: jog_deadman_ms, state_timeout_ms and homing_timeout_ms must be positive"
+                ));
+            }
+            if let Some(src) = a.gear_source {
+                if !addresses.contains(&src) {
+                    return Err(format!(
+                        "axis {an}: gear_source {src} is not a slave of cansmc {name}"
+                    ));
+                }
+                if src == a.address {
+                    return Err(format!("axis {an}: an axis cannot be geared to itself"));
+                }
+                if !(a.gear_ratio.is_finite() && a.gear_ratio != 0.0) {
+                    return Err(format!("axis {an}: gear_ratio must be a non-zero number"));
+                }
+            }
+        }
+        Ok(())
+    }
+}

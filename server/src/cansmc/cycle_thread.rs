@@ -1,0 +1,789 @@
+//! The cycle thread of one CANsmc master.
+//!
+//! It owns the sans-IO master and the axes of its slaves, and wakes only at
+//! the master's deadlines (MST, `T_int_end`, parameter timeouts). MST
+//! timing is what the slaves synchronise on, so the thread sleeps with the
+//! OS high-resolution timer until `spin_us` before the cycle start, then
+//! waits actively for the exact instant: tokio timers (1 ms resolution)
+//! and a drifting interval are not good enough. Cycle starts are absolute
+//! (`t_k = t_0 + k × cycle`) and every MST's lateness goes into the jitter
+//! histogram.
+//!
+//! At each cycle start the thread drains the channel-1 frames received
+//! since the last wake (the previous cycle's DTs, all due before this MST),
+//! runs the axes on them, sends MST, and at `T_int_end` the MDTs. Commands
+//! from the axis API and parameter requests arrive through queues and are
+//! served at the next wake (within one cycle).
+
+use super::config::{CansmcConfig, CyclicChoice};
+use super::jitter::JitterHistogram;
+use super::{AxisPort, CansmcEvent, CansmcStatus, Request, SlaveView};
+use crate::axes::cia402_task::{BusRequest, CommandReply};
+use crate::axes::{AxisEventKind, AxisUpdate};
+use crate::error::ApiError;
+use cangate_axis::cansmc::{CansmcAxis, CycleInput};
+use cangate_axis::{AxisCommand, AxisEvent, CommandError, OpId};
+use cangate_can::{BusHandle, BusItem, Direction, Frame, FrameSelector, Subscription, Timestamp};
+use cangate_cansmc::master::{
+    Master, MasterConfig, MasterEvent, ParameterError, Phase, RequestId, SlaveSpec, SlaveState,
+};
+use cangate_cansmc::{Command, Feedback, SmcAddress};
+use cangate_motion::{AxisMove, Limits, SyncedMove};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use tokio::sync::{broadcast, oneshot};
+use tokio_util::sync::CancellationToken;
+
+/// Everything the thread needs.
+pub(crate) struct Setup {
+    pub config: CansmcConfig,
+    pub command_bus: BusHandle,
+    pub status_bus: BusHandle,
+    pub requests: std::sync::mpsc::Receiver<Request>,
+    pub axes: Option<AxisPort>,
+    pub status: Arc<Mutex<CansmcStatus>>,
+    pub events: broadcast::Sender<CansmcEvent>,
+    pub cancel: CancellationToken,
+}
+
+struct PendingReply {
+    wait: bool,
+    tx: oneshot::Sender<CommandReply>,
+}
+
+struct Slot {
+    global: usize,
+    name: String,
+    address: SmcAddress,
+    axis: CansmcAxis,
+    waiters: HashMap<OpId, PendingReply>,
+    /// Activity and fault at the latest publication, to publish changes
+    /// at once.
+    published: Option<(cangate_axis::Activity, bool)>,
+}
+
+struct Thread {
+    master: Master,
+    cfg: CansmcConfig,
+    origin: Instant,
+    command_bus: BusHandle,
+    rt: tokio::runtime::Runtime,
+    subscription: Subscription,
+    slots: Vec<Slot>,
+    by_address: HashMap<u8, usize>,
+    /// Gear sources per axis slot.
+    gear_source: Vec<Option<SmcAddress>>,
+    axis_requests: Option<tokio::sync::mpsc::Receiver<BusRequest>>,
+    updates: Option<broadcast::Sender<AxisUpdate>>,
+    latest: Option<crate::axes::LatestStates>,
+    requests: std::sync::mpsc::Receiver<Request>,
+    parameter_waiters: HashMap<RequestId, oneshot::Sender<Result<i32, ApiError>>>,
+    status: Arc<Mutex<CansmcStatus>>,
+    events: broadcast::Sender<CansmcEvent>,
+    jitter: JitterHistogram,
+    start_error: Option<String>,
+    starts: u64,
+    /// Publish axis states every this many cycles (about 10 ms).
+    publish_every: u64,
+    send_errors: u64,
+    rx_lost: u64,
+}
+
+/// Starts the thread.
+pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String> {
+    let name = format!("cansmc-{}", setup.config.name);
+    let master_config = master_config(&setup.config);
+    let master =
+        Master::new(master_config).map_err(|e| format!("cansmc {}: {e}", setup.config.name))?;
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| format!("cansmc {}: {e}", setup.config.name))?;
+    // Subscribe before the first MCT, so that no DCT is missed.
+    let subscription = setup
+        .status_bus
+        .subscribe(FrameSelector::all(), 4 * 64 + 1024);
+    let cycle = setup.config.cycle_time();
+    let publish_every = (Duration::from_millis(10).as_nanos() / cycle.as_nanos()).max(1) as u64;
+    let (mut slots, mut gear_source, mut axis_requests, mut updates, mut latest) =
+        (Vec::new(), Vec::new(), None, None, None);
+    if let Some(port) = setup.axes {
+        for ((global, info), entry) in port.axes.into_iter().zip(&setup.config.axes) {
+            let address = SmcAddress::new(entry.address).map_err(|e| e.to_string())?;
+            slots.push(Slot {
+                global,
+                name: info.config.name.clone(),
+                address,
+                axis: CansmcAxis::new(entry.controller(cycle)),
+                waiters: HashMap::new(),
+                published: None,
+            });
+            gear_source.push(entry.gear_source.and_then(|a| SmcAddress::new(a).ok()));
+        }
+        axis_requests = Some(port.requests);
+        updates = Some(port.updates);
+        latest = Some(port.latest);
+    }
+    let by_address = slots
+        .iter()
+        .enumerate()
+        .map(|(i, s)| (s.address.get(), i))
+        .collect();
+    let mut t = Thread {
+        master,
+        cfg: setup.config,
+        origin: Instant::now(),
+        command_bus: setup.command_bus,
+        rt,
+        subscription,
+        slots,
+        by_address,
+        gear_source,
+        axis_requests,
+        updates,
+        latest,
+        requests: setup.requests,
+        parameter_waiters: HashMap::new(),
+        status: setup.status,
+        events: setup.events,
+        jitter: JitterHistogram::default(),
+        start_error: None,
+        starts: 0,
+        publish_every,
+        send_errors: 0,
+        rx_lost: 0,
+    };
+    let cancel = setup.cancel;
+    std::thread::Builder::new()
+        .name(name)
+        .spawn(move || t.run(&cancel))
+        .map_err(|e| format!("cannot start the CANsmc cycle thread: {e}"))
+}
+
+/// The master configuration: axis slaves start with a position MDT, gear
+/// sources and `cyclic = "encoder"` slaves with an encoder request.
+fn master_config(cfg: &CansmcConfig) -> MasterConfig {
+    let gear_sources: Vec<u8> = cfg.axes.iter().filter_map(|a| a.gear_source).collect();
+    let axis_slaves: Vec<u8> = cfg.axes.iter().map(|a| a.address).collect();
+    let slaves = cfg
+        .slaves
+        .iter()
+        .filter_map(|s| {
+            let address = SmcAddress::new(s.address).ok()?;
+            let initial_command = if axis_slaves.contains(&s.address) {
+                Command::Position(0)
+            } else if gear_sources.contains(&s.address) || s.cyclic == CyclicChoice::Encoder {
+                Command::Encoder
+            } else if s.cyclic == CyclicChoice::Io {
+                Command::Io {
+                    outputs: 0,
+                    mask: 0,
+                }
+            } else {
+                Command::Position(0)
+            };
+            Some(SlaveSpec {
+                address,
+                required: s.required,
+                parameters: s.parameters.iter().map(|p| (p.number, p.value)).collect(),
+                initial_command,
+            })
+        })
+        .collect();
+    let mut m = MasterConfig::new(cfg.cycle_time(), slaves);
+    m.t_int = Duration::from_micros(u64::from(cfg.t_int_us));
+    m.connect_timeout = Duration::from_millis(cfg.connect_timeout_ms);
+    m.connect_attempts = cfg.connect_attempts;
+    m.parameter_timeout = Duration::from_millis(cfg.parameter_timeout_ms);
+    m.lost_after = cfg.lost_after;
+    m
+}
+
+impl Thread {
+    fn now(&self) -> Duration {
+        self.origin.elapsed()
+    }
+
+    fn run(&mut self, cancel: &CancellationToken) {
+        self.start();
+        let spin = Duration::from_micros(u64::from(self.cfg.spin_us));
+        while !cancel.is_cancelled() {
+            let next = self.master.next_deadline();
+            // Idle phases and P0/P1 wake often enough to serve answers and
+            // requests promptly; P2 wakes at its deadlines.
+            let cap = match self.master.phase() {
+                Phase::Connecting | Phase::Parameterising => Duration::from_millis(1),
+                Phase::Cyclic => Duration::from_millis(50),
+                Phase::Idle | Phase::Failed => Duration::from_millis(20),
+            };
+            let now = self.now();
+            let deadline = next.map_or(now + cap, |d| d.min(now + cap));
+            let is_mst = self.master.phase() == Phase::Cyclic
+                && next == Some(self.master.cycle_start(self.master.cycle() + 1));
+            self.wait_until(deadline, if is_mst { spin } else { Duration::ZERO });
+            self.step(is_mst && Some(deadline) == next);
+        }
+        self.master.stop();
+        self.publish_status();
+    }
+
+    /// Sleeps until `spin` before `deadline`, then waits actively.
+    fn wait_until(&self, deadline: Duration, spin: Duration) {
+        let target = self.origin + deadline;
+        loop {
+            let now = Instant::now();
+            if now >= target {
+                return;
+            }
+            let left = target - now;
+            if left > spin {
+                std::thread::sleep(left - spin);
+                continue;
+            }
+            while Instant::now() < target {
+                std::hint::spin_loop();
+            }
+            return;
+        }
+    }
+
+    fn start(&mut self) {
+        self.starts += 1;
+        self.start_error = None;
+        let now = self.now();
+        let frames = self.master.start(now);
+        self.send(frames);
+        self.after_master();
+    }
+
+    fn step(&mut self, mst_due: bool) {
+        // Answers first: the previous cycle's DTs belong before this MST.
+        self.drain_status_channel();
+        let now = self.now();
+        let poll = self.master.poll(now);
+        let mut frames = poll.frames;
+        if let Some((k, scheduled)) = poll.cycle_started {
+            if mst_due || k > 0 {
+                self.jitter
+                    .record(now.saturating_sub(scheduled).as_nanos() as u64);
+            }
+            // MST first, then the axes compute this cycle's set-points.
+            self.send(std::mem::take(&mut frames));
+            self.run_axes(now, k);
+        }
+        self.send(frames);
+        self.serve_requests(now);
+        self.after_master();
+        if poll
+            .cycle_started
+            .is_some_and(|(k, _)| k % self.publish_every == 0)
+        {
+            self.publish_status();
+            for i in 0..self.slots.len() {
+                self.publish_axis(i);
+            }
+        }
+    }
+
+    fn drain_status_channel(&mut self) {
+        let mut answers = Vec::new();
+        let now = self.now();
+        // The wall-clock time of the origin, to put bus timestamps on the
+        // master's clock (taken at each drain: no drift between the two).
+        let origin_wall = i128::from(Timestamp::now().as_nanos()) - now.as_nanos() as i128;
+        while let Some(item) = self.subscription.try_recv() {
+            match item {
+                BusItem::Frame {
+                    frame,
+                    direction: Direction::Rx,
+                } => {
+                    let at = arrival(frame.timestamp(), origin_wall, now);
+                    answers.extend(self.master.on_frame(&frame, at));
+                }
+                BusItem::Frame { .. } | BusItem::State(_) => {}
+                BusItem::Lost(n) => {
+                    self.rx_lost += n;
+                    tracing::warn!(master = %self.cfg.name, lost = n, "CANsmc master lost channel-1 frames (queue overflow)");
+                }
+            }
+        }
+        self.send(answers);
+    }
+
+    fn send(&mut self, frames: Vec<Frame>) {
+        if frames.is_empty() {
+            return;
+        }
+        let bus = self.command_bus.clone();
+        if let Err(e) = self.rt.block_on(bus.submit(frames)) {
+            self.send_errors += 1;
+            if self.send_errors.is_power_of_two() {
+                tracing::warn!(master = %self.cfg.name, error = %e, failures = self.send_errors, "CANsmc telegrams not sent");
+            }
+        }
+    }
+
+    /// Feeds every axis its slave's latest answer; sets the MDT content.
+    fn run_axes(&mut self, now: Duration, cycle: u64) {
+        for i in 0..self.slots.len() {
+            let fresh = |fb: Option<&(cangate_cansmc::StatusWord, Feedback, u64)>| {
+                fb.filter(|(_, _, c)| c + 1 == cycle).copied()
+            };
+            let own = self
+                .master
+                .slave(self.slots[i].address)
+                .and_then(|s| s.last.as_ref());
+            let status = own.map(|(s, _, _)| *s);
+            let position = fresh(own).and_then(|(_, fb, _)| match fb {
+                Feedback::Position(p) | Feedback::Homing(p) => Some(p),
+                _ => None,
+            });
+            let source_count = self.gear_source[i].and_then(|src| {
+                fresh(self.master.slave(src).and_then(|s| s.last.as_ref())).and_then(
+                    |(_, fb, _)| match fb {
+                        Feedback::Encoder(c) | Feedback::Position(c) | Feedback::Homing(c) => {
+                            Some(c)
+                        }
+                        _ => None,
+                    },
+                )
+            });
+            let mut events = Vec::new();
+            let out = self.slots[i].axis.on_cycle(
+                now,
+                CycleInput {
+                    status,
+                    position,
+                    source_count,
+                },
+                &mut events,
+            );
+            let _ = self
+                .master
+                .set_command(self.slots[i].address, out.control, out.command);
+            let changed = !events.is_empty();
+            self.on_axis_events(i, events);
+            let activity = self.slots[i].axis.activity();
+            let fault = self.slots[i].axis.snapshot().fault.is_some();
+            if changed || self.slots[i].published != Some((activity, fault)) {
+                self.publish_axis(i);
+            }
+        }
+    }
+
+    fn serve_requests(&mut self, now: Duration) {
+        while let Ok(r) = self.requests.try_recv() {
+            match r {
+                Request::Parameter {
+                    address,
+                    number,
+                    write,
+                    reply,
+                } => {
+                    let id = match write {
+                        Some(v) => self.master.write_parameter(address, number, v),
+                        None => self.master.read_parameter(address, number),
+                    };
+                    match id {
+                        Ok(id) => {
+                            self.parameter_waiters.insert(id, reply);
+                        }
+                        Err(e) => {
+                            let _ = reply.send(Err(parameter_error(e)));
+                        }
+                    }
+                }
+                Request::Restart { reply } => {
+                    tracing::info!(master = %self.cfg.name, "CANsmc master restarts through P0/P1");
+                    for i in 0..self.slots.len() {
+                        let mut ev = Vec::new();
+                        self.slots[i]
+                            .axis
+                            .on_slave_lost("the master restarts (P0/P1)", &mut ev);
+                        self.on_axis_events(i, ev);
+                        self.publish_axis(i);
+                    }
+                    self.jitter.clear();
+                    self.starts += 1;
+                    self.start_error = None;
+                    let frames = self.master.restart(now);
+                    self.send(frames);
+                    let _ = reply.send(());
+                }
+            }
+        }
+        let Some(mut rx) = self.axis_requests.take() else {
+            return;
+        };
+        while let Ok(r) = rx.try_recv() {
+            self.on_axis_request(r, now);
+        }
+        self.axis_requests = Some(rx);
+    }
+
+    fn after_master(&mut self) {
+        for e in self.master.take_events() {
+            match e {
+                MasterEvent::Phase(p) => {
+                    tracing::info!(master = %self.cfg.name, phase = %p, "CANsmc phase");
+                    if p == Phase::Cyclic {
+                        self.jitter.clear();
+                        for i in 0..self.slots.len() {
+                            let back = self
+                                .master
+                                .slave(self.slots[i].address)
+                                .is_some_and(|s| s.state == SlaveState::Operational);
+                            if back {
+                                let mut ev = Vec::new();
+                                self.slots[i].axis.on_slave_back(&mut ev);
+                                self.on_axis_events(i, ev);
+                                self.node_event(i, false, "the master is in P2".into());
+                            }
+                        }
+                    }
+                    let _ = self.events.send(CansmcEvent::Phase(p));
+                    self.publish_status();
+                }
+                MasterEvent::StartFailed { reason } => {
+                    tracing::error!(master = %self.cfg.name, %reason, "CANsmc start-up failed");
+                    self.start_error = Some(reason);
+                }
+                MasterEvent::SlaveConnected {
+                    address,
+                    device_type,
+                    firmware_version,
+                } => {
+                    tracing::info!(master = %self.cfg.name, slave = address.get(), device_type = format!("0x{device_type:04X}"), firmware = format!("0x{firmware_version:04X}"), "CANsmc slave connected");
+                    self.slave_event(
+                        address,
+                        format!(
+                            "connected (device type 0x{device_type:04X}, firmware 0x{firmware_version:04X})"
+                        ),
+                    );
+                }
+                MasterEvent::SlaveMissing {
+                    address,
+                    required,
+                    reason,
+                } => {
+                    tracing::warn!(master = %self.cfg.name, slave = address.get(), required, %reason, "CANsmc slave missing");
+                    self.slave_event(address, format!("missing: {reason}"));
+                    self.axis_lost(address, &format!("missing: {reason}"));
+                }
+                MasterEvent::SlaveLost { address, misses } => {
+                    let reason = format!("{misses} consecutive DTs missed");
+                    let c = self
+                        .master
+                        .slave(address)
+                        .map(|s| s.counters)
+                        .unwrap_or_default();
+                    tracing::warn!(master = %self.cfg.name, slave = address.get(), misses, dts = c.dts, missed = c.missed, late = c.late, mismatch = c.counter_mismatch, overruns = self.master.counters().overruns, slots_missed = self.master.counters().mdt_slots_missed, "CANsmc slave lost");
+                    self.slave_event(address, format!("lost: {reason}"));
+                    self.axis_lost(address, &reason);
+                }
+                MasterEvent::SlaveRecovered { address } => {
+                    tracing::info!(master = %self.cfg.name, slave = address.get(), "CANsmc slave answers again");
+                    self.slave_event(address, "recovered".into());
+                    if let Some(&i) = self.by_address.get(&address.get()) {
+                        let mut ev = Vec::new();
+                        self.slots[i].axis.on_slave_back(&mut ev);
+                        self.on_axis_events(i, ev);
+                        self.node_event(i, false, "the slave answers again".into());
+                    }
+                }
+                MasterEvent::Rejected {
+                    address,
+                    function,
+                    reason,
+                } => {
+                    tracing::warn!(master = %self.cfg.name, slave = address.get(), %function, ?reason, "CANsmc slave rejected its command");
+                    self.slave_event(address, format!("rejected {function}: {reason:?}"));
+                }
+                MasterEvent::ParameterDone { id, result, .. } => {
+                    if let Some(w) = self.parameter_waiters.remove(&id) {
+                        let _ = w.send(result.map_err(parameter_error));
+                    }
+                }
+            }
+        }
+    }
+
+    fn slave_event(&self, address: SmcAddress, what: String) {
+        let _ = self.events.send(CansmcEvent::Slave {
+            address: address.get(),
+            what,
+        });
+    }
+
+    fn axis_lost(&mut self, address: SmcAddress, reason: &str) {
+        if let Some(&i) = self.by_address.get(&address.get()) {
+            let mut ev = Vec::new();
+            self.slots[i].axis.on_slave_lost(reason, &mut ev);
+            self.on_axis_events(i, ev);
+            self.node_event(i, true, reason.to_string());
+            self.publish_axis(i);
+        }
+    }
+
+    fn node_event(&self, i: usize, lost: bool, reason: String) {
+        if let Some(u) = &self.updates {
+            let _ = u.send(AxisUpdate::Event {
+                axis: self.slots[i].global,
+                at: Timestamp::now(),
+                event: AxisEventKind::Node { lost, reason },
+            });
+        }
+    }
+
+    fn publish_status(&self) {
+        let slaves = self
+            .master
+            .slaves()
+            .map(|s| {
+                let a = s.spec.address.get();
+                let cfg = self.cfg.slaves.iter().find(|c| c.address == a);
+                SlaveView {
+                    address: a,
+                    name: cfg.map(|c| c.name.clone()).unwrap_or_default(),
+                    required: s.spec.required,
+                    state: s.state,
+                    device_type: s.device_type,
+                    firmware_version: s.firmware_version,
+                    status_word: s.last.map(|(w, _, _)| w.to_bits()),
+                    counters: s.counters,
+                    consecutive_misses: s.consecutive_misses,
+                    axis: self.by_address.get(&a).map(|&i| self.slots[i].name.clone()),
+                }
+            })
+            .collect();
+        let mut st = self.status.lock().expect("status lock");
+        *st = CansmcStatus {
+            phase: self.master.phase(),
+            cycle: self.master.cycle(),
+            counters: self.master.counters(),
+            slaves,
+            jitter: self.jitter.stats(),
+            start_error: self.start_error.clone(),
+            starts: self.starts,
+        };
+    }
+
+    fn publish_axis(&mut self, i: usize) {
+        let (Some(updates), Some(latest)) = (&self.updates, &self.latest) else {
+            return;
+        };
+        let slot = &mut self.slots[i];
+        let snapshot = Arc::new(slot.axis.snapshot());
+        slot.published = Some((snapshot.activity, snapshot.fault.is_some()));
+        let at = Timestamp::now();
+        latest.write().expect("latest lock")[slot.global] = Some((snapshot.clone(), at));
+        let _ = updates.send(AxisUpdate::Status {
+            axis: slot.global,
+            snapshot,
+            at,
+        });
+    }
+
+    // ------------------------------------------------------------ axis API
+
+    fn on_axis_request(&mut self, r: BusRequest, now: Duration) {
+        match r {
+            BusRequest::Command {
+                local,
+                cmd,
+                wait,
+                reply,
+            } => {
+                let r = self.start_command(local, cmd, wait, now);
+                let _ = reply.send(r);
+            }
+            BusRequest::Many { cmds, wait, reply } => {
+                let r = cmds
+                    .into_iter()
+                    .map(|(local, cmd)| self.start_command(local, cmd, wait, now))
+                    .collect();
+                let _ = reply.send(r);
+            }
+            BusRequest::Coordinated {
+                targets,
+                wait,
+                reply,
+            } => {
+                let _ = reply.send(self.coordinated(targets, wait, now));
+            }
+        }
+    }
+
+    fn start_command(
+        &mut self,
+        i: usize,
+        cmd: AxisCommand,
+        wait: bool,
+        now: Duration,
+    ) -> Result<oneshot::Receiver<CommandReply>, CommandError> {
+        let mut events = Vec::new();
+        let op = self.slots[i].axis.command(cmd, now, &mut events)?;
+        let (tx, rx) = oneshot::channel();
+        self.slots[i].waiters.insert(op, PendingReply { wait, tx });
+        self.on_axis_events(i, events);
+        self.publish_axis(i);
+        Ok(rx)
+    }
+
+    fn coordinated(
+        &mut self,
+        targets: Vec<(usize, f64, Option<f64>, Option<f64>)>,
+        wait: bool,
+        now: Duration,
+    ) -> Result<Vec<oneshot::Receiver<CommandReply>>, CommandError> {
+        let mut moves = Vec::new();
+        for &(i, target, v, a) in &targets {
+            let cfg = self.slots[i].axis.config();
+            let v = v.unwrap_or(cfg.default_velocity);
+            let a = a.unwrap_or(cfg.default_acceleration);
+            if v > cfg.max_velocity || a > cfg.max_acceleration {
+                return Err(CommandError::OutOfRange(format!(
+                    "axis {}: velocity {v} / acceleration {a} exceed the maxima {} / {}",
+                    self.slots[i].name, cfg.max_velocity, cfg.max_acceleration
+                )));
+            }
+            let limits = Limits::symmetric(v, a).map_err(|e| {
+                CommandError::InvalidArgument(format!("axis {}: {e}", self.slots[i].name))
+            })?;
+            moves.push(AxisMove::new(self.slots[i].axis.demand(), target, limits));
+        }
+        let plan =
+            SyncedMove::new(moves).map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+        for &(i, target, ..) in &targets {
+            self.slots[i]
+                .axis
+                .check_coordinated(target)
+                .map_err(|e| prefix(&self.slots[i].name, e))?;
+        }
+        let mut waiters = Vec::new();
+        for (k, &(i, ..)) in targets.iter().enumerate() {
+            let Some(profile) = plan.profile(k).cloned() else {
+                continue;
+            };
+            let ratio = plan
+                .time_scale(k)
+                .map_or(0.0, |l| if l.is_finite() { 1.0 / l } else { 0.0 });
+            let mut events = Vec::new();
+            let op = self.slots[i]
+                .axis
+                .start_coordinated(profile, ratio, now, &mut events)
+                .map_err(|e| prefix(&self.slots[i].name, e))?;
+            let (tx, rx) = oneshot::channel();
+            self.slots[i].waiters.insert(op, PendingReply { wait, tx });
+            self.on_axis_events(i, events);
+            self.publish_axis(i);
+            waiters.push(rx);
+        }
+        Ok(waiters)
+    }
+
+    fn on_axis_events(&mut self, i: usize, events: Vec<AxisEvent>) {
+        for e in events {
+            let slot = &mut self.slots[i];
+            match e {
+                AxisEvent::Accepted { op } => {
+                    if slot.waiters.get(&op).is_some_and(|w| !w.wait)
+                        && let Some(w) = slot.waiters.remove(&op)
+                    {
+                        let _ = w.tx.send(CommandReply {
+                            outcome: None,
+                            detail: "accepted".into(),
+                            snapshot: slot.axis.snapshot(),
+                        });
+                    }
+                }
+                AxisEvent::Done {
+                    op,
+                    command,
+                    outcome,
+                    detail,
+                } => {
+                    tracing::info!(target: "cangate::audit", axis = %slot.name, command = %command, outcome = outcome.name(), %detail, "axis command ended");
+                    if let Some(w) = slot.waiters.remove(&op) {
+                        let _ = w.tx.send(CommandReply {
+                            outcome: Some(outcome),
+                            detail: detail.clone(),
+                            snapshot: slot.axis.snapshot(),
+                        });
+                    }
+                    if let Some(u) = &self.updates {
+                        let _ = u.send(AxisUpdate::Event {
+                            axis: slot.global,
+                            at: Timestamp::now(),
+                            event: AxisEventKind::MotionDone {
+                                command,
+                                outcome,
+                                detail,
+                            },
+                        });
+                    }
+                }
+                AxisEvent::Fault { code, text } => {
+                    if code == 0 && text.is_empty() {
+                        tracing::info!(axis = %slot.name, "axis fault cleared");
+                    } else {
+                        tracing::warn!(axis = %slot.name, code = format!("0x{code:04X}"), %text, "axis fault");
+                    }
+                    if let Some(u) = &self.updates {
+                        let _ = u.send(AxisUpdate::Event {
+                            axis: slot.global,
+                            at: Timestamp::now(),
+                            event: AxisEventKind::Fault { code, text },
+                        });
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// When a frame stamped `ts` arrived, on the master's clock: the bus
+/// timestamp (the bit-timed virtual bus stamps the modelled end of frame,
+/// SocketCAN the kernel's receive time), so that host scheduling delays
+/// between the wire and this thread do not count against the slave. An
+/// unstamped frame, or a stamp outside the last 100 ms (a clock step),
+/// counts as arriving now.
+fn arrival(ts: Timestamp, origin_wall: i128, now: Duration) -> Duration {
+    if ts.as_nanos() == 0 {
+        return now;
+    }
+    let at = i128::from(ts.as_nanos()) - origin_wall;
+    let now_ns = now.as_nanos() as i128;
+    if at > now_ns || at < now_ns - 100_000_000 {
+        return now;
+    }
+    Duration::from_nanos(at as u64)
+}
+
+fn parameter_error(e: ParameterError) -> ApiError {
+    match e {
+        ParameterError::UnknownSlave(a) => ApiError::NotFound {
+            kind: "CANsmc slave",
+            name: a.to_string(),
+            hint: String::new(),
+        },
+        ParameterError::Refused { .. } => ApiError::FailedPrecondition(e.to_string()),
+        ParameterError::Rejected { .. } => ApiError::FailedPrecondition(e.to_string()),
+        ParameterError::Timeout { .. } => ApiError::DeadlineExceeded(e.to_string()),
+        ParameterError::Unavailable { .. } => ApiError::Unavailable(e.to_string()),
+        ParameterError::Cancelled => ApiError::Aborted(e.to_string()),
+    }
+}
+
+fn prefix(axis: &str, e: CommandError) -> CommandError {
+    match e {
+        CommandError::OutOfRange(m) => CommandError::OutOfRange(format!("axis {axis}: {m}")),
+        CommandError::InvalidArgument(m) => {
+            CommandError::InvalidArgument(format!("axis {axis}: {m}"))
+        }
+        CommandError::FailedPrecondition(m) => {
+            CommandError::FailedPrecondition(format!("axis {axis}: {m}"))
+        }
+    }
+}
