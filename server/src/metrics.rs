@@ -113,6 +113,30 @@ fn describe() {
         "cangate_rpc_requests_total",
         "gRPC calls by method and status code."
     );
+    describe_counter!(
+        "cangate_cansmc_cycles_total",
+        "CANsmc cycles started (MSTs sent), by master."
+    );
+    describe_counter!(
+        "cangate_cansmc_overruns_total",
+        "CANsmc cycles skipped because the cycle thread woke more than a cycle late."
+    );
+    describe_gauge!(
+        "cangate_cansmc_phase",
+        "CANsmc master phase: 0 idle, 1 P0, 2 P1, 3 P2, -1 start failed."
+    );
+    describe_gauge!(
+        "cangate_cansmc_mst_jitter_us",
+        "MST start lateness since P2 began, by master and quantile (0.5, 0.99, 0.999, 1 = max)."
+    );
+    describe_counter!(
+        "cangate_cansmc_dts_total",
+        "Drive telegrams by master, slave and result (valid, missed, late, counter_mismatch, reject)."
+    );
+    describe_counter!(
+        "cangate_cansmc_slave_losses_total",
+        "Times a CANsmc slave was declared lost."
+    );
 }
 
 /// Refreshes the series read from live state.
@@ -160,6 +184,47 @@ fn refresh(gateway: &Gateway) {
         ] {
             counter!("cangate_handwheel_dropped_units_total", "handwheel" => name.clone(), "reason" => reason)
                 .absolute(v);
+        }
+    }
+    for m in gateway.cansmc_masters() {
+        let name = m.name().to_string();
+        let st = m.status();
+        counter!("cangate_cansmc_cycles_total", "master" => name.clone())
+            .absolute(st.counters.cycles);
+        counter!("cangate_cansmc_overruns_total", "master" => name.clone())
+            .absolute(st.counters.overruns);
+        use cangate_cansmc::master::Phase;
+        gauge!("cangate_cansmc_phase", "master" => name.clone()).set(match st.phase {
+            Phase::Idle => 0.0,
+            Phase::Connecting => 1.0,
+            Phase::Parameterising => 2.0,
+            Phase::Cyclic => 3.0,
+            Phase::Failed => -1.0,
+        });
+        for (q, v) in [
+            ("0.5", st.jitter.p50_us),
+            ("0.99", st.jitter.p99_us),
+            ("0.999", st.jitter.p999_us),
+            ("1", st.jitter.max_us),
+        ] {
+            gauge!("cangate_cansmc_mst_jitter_us", "master" => name.clone(), "quantile" => q)
+                .set(v);
+        }
+        for s in &st.slaves {
+            let slave = s.address.to_string();
+            let c = s.counters;
+            for (result, v) in [
+                ("valid", c.dts),
+                ("missed", c.missed),
+                ("late", c.late),
+                ("counter_mismatch", c.counter_mismatch),
+                ("reject", c.rejects),
+            ] {
+                counter!("cangate_cansmc_dts_total", "master" => name.clone(), "slave" => slave.clone(), "result" => result)
+                    .absolute(v);
+            }
+            counter!("cangate_cansmc_slave_losses_total", "master" => name.clone(), "slave" => slave)
+                .absolute(c.losses);
         }
     }
     let axes = gateway.axes();

@@ -91,3 +91,66 @@ async fn metrics_endpoint_exposes_bus_and_sdo_series() {
     assert!(tx >= 3.0, "two SDO requests and a frame were sent: {tx}");
     assert!(scrape(addr, "/nope").await.starts_with("HTTP/1.1 404"));
 }
+
+const CANSMC_CONFIG: &str = r#"
+metrics_listen = "127.0.0.1:0"
+
+[[bus]]
+name = "smc0"
+backend = "virtual"
+
+[[bus]]
+name = "smc1"
+backend = "virtual"
+
+[[cansmc]]
+name = "m"
+command_bus = "smc0"
+status_bus = "smc1"
+cycle_time_us = 4000
+lost_after = 50
+
+[[cansmc.slave]]
+address = 1
+simulate = true
+
+[[cansmc.slave]]
+address = 2
+simulate = true
+"#;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn metrics_endpoint_exposes_cansmc_cycle_series() {
+    let server = start_server(CANSMC_CONFIG).await;
+    let addr = server.metrics_addr.expect("metrics configured");
+    let master = server.gateway().cansmc("m").unwrap().clone();
+    let deadline = tokio::time::Instant::now() + WAIT;
+    while master.status().slaves.iter().any(|s| s.counters.dts < 10) {
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "no DTs: {:?}",
+            master.status()
+        );
+        tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+    }
+    let text = scrape(addr, "/metrics").await;
+    for series in [
+        "cangate_cansmc_phase{master=\"m\"} 3",
+        "cangate_cansmc_cycles_total{master=\"m\"}",
+        "cangate_cansmc_overruns_total{master=\"m\"}",
+        "cangate_cansmc_mst_jitter_us{master=\"m\",quantile=\"0.99\"}",
+        "cangate_cansmc_dts_total{master=\"m\",slave=\"2\",result=\"missed\"}",
+        "cangate_cansmc_slave_losses_total{master=\"m\",slave=\"1\"}",
+    ] {
+        assert!(text.contains(series), "missing {series} in:\n{text}");
+    }
+    let valid: f64 = text
+        .lines()
+        .find(|l| {
+            l.starts_with("cangate_cansmc_dts_total{master=\"m\",slave=\"1\",result=\"valid\"}")
+        })
+        .and_then(|l| l.rsplit(' ').next())
+        .and_then(|v| v.parse().ok())
+        .unwrap();
+    assert!(valid >= 10.0, "{valid}");
+}
