@@ -28,7 +28,7 @@ use std::time::Duration;
 use crate::config::{BusConfig, StopChoice};
 use cangate_axis::Units;
 use cangate_axis::cansmc::{CansmcAxisConfig, Gear};
-use cangate_cansmc::{CycleConfig, SmcAddress};
+use cangate_cansmc::{CycleConfig, Infeasibility, SmcAddress};
 
 /// One CANsmc master.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -382,7 +382,9 @@ impl CansmcConfig {
         );
         cycle.t_int_us = self.t_int_us;
         let report = cycle.check().map_err(|e| format!("cansmc {name}: {e}"))?;
-        if !report.is_feasible() {
+        // The slot is not an address: only the bus time counts here (the
+        // addresses are unique in 1..=61 anyway).
+        if report.problems.contains(&Infeasibility::BusTime) {
             return Err(format!(
                 "cansmc {name}: {} slaves (+1 parameter slot) do not fit a {} µs cycle:\n{report}",
                 self.slaves.len(),
@@ -466,5 +468,76 @@ impl CansmcConfig {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::config::Config;
+
+    fn config(cycle_us: u32, slaves: u8, extra: &str) -> String {
+        let mut t = format!(
+            "[[bus]]\nname = \"smc0\"\nbackend = \"virtual\"\nbitrate = 1000000\n\
+             [[bus]]\nname = \"smc1\"\nbackend = \"virtual\"\nbitrate = 1000000\n\
+             [[cansmc]]\nname = \"m\"\ncommand_bus = \"smc0\"\nstatus_bus = \"smc1\"\n\
+             cycle_time_us = {cycle_us}\n"
+        );
+        for a in 1..=slaves {
+            t.push_str(&format!("[[cansmc.slave]]\naddress = {a}\n"));
+        }
+        t.push_str(extra);
+        t
+    }
+
+    #[test]
+    fn the_papers_slave_counts_are_accepted_and_an_overload_is_refused_with_the_arithmetic() {
+        for (cycle, n) in [(2000, 10), (4000, 20), (8000, 40), (16000, 61)] {
+            Config::from_toml(&config(cycle, n, "")).unwrap();
+        }
+        let e = Config::from_toml(&config(2000, 15, ""))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("15 slaves (+1 parameter slot) do not fit a 2000 µs cycle"),
+            "{e}"
+        );
+        assert!(e.contains("135 bits") && e.contains("NOT feasible"), "{e}");
+    }
+
+    #[test]
+    fn bad_cansmc_configurations_are_refused_with_a_reason() {
+        let cases = [
+            (
+                config(2000, 2, "[[cansmc.slave]]\naddress = 2\n"),
+                "slave address 2 is configured twice",
+            ),
+            (
+                config(2000, 1, "[[cansmc.slave]]\naddress = 62\n"),
+                "outside 1..=61",
+            ),
+            (
+                config(
+                    2000,
+                    2,
+                    "[[cansmc.axis]]\nname = \"A\"\naddress = 1\ncounts_per_unit = 1.0\n\
+                     max_velocity = 1.0\nmax_acceleration = 1.0\ngear_source = 1\n",
+                ),
+                "cannot be geared to itself",
+            ),
+            (
+                config(
+                    2000,
+                    1,
+                    "[[cansmc.axis]]\nname = \"A\"\naddress = 5\ncounts_per_unit = 1.0\n\
+                     max_velocity = 1.0\nmax_acceleration = 1.0\n",
+                ),
+                "slave 5 is not configured under cansmc m",
+            ),
+            (config(50, 1, ""), "below 100 µs"),
+        ];
+        for (text, want) in cases {
+            let e = Config::from_toml(&text).unwrap_err().to_string();
+            assert!(e.contains(want), "{want:?} not in {e}");
+        }
     }
 }
