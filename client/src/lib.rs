@@ -123,6 +123,34 @@ impl Client {
             .max_encoding_message_size(64 * 1024 * 1024)
     }
 
+    /// The generated Cansmc client (CANsmc masters).
+    pub fn cansmc_client(&self) -> pb::cansmc_client::CansmcClient<Channel> {
+        pb::cansmc_client::CansmcClient::new(self.channel.clone())
+            .max_decoding_message_size(64 * 1024 * 1024)
+            .max_encoding_message_size(64 * 1024 * 1024)
+    }
+
+    /// Every CANsmc master, briefly.
+    pub async fn list_cansmc_masters(&mut self) -> Result<Vec<pb::CansmcMasterInfo>, Error> {
+        Ok(self
+            .cansmc_client()
+            .list_masters(pb::ListMastersRequest {})
+            .await?
+            .into_inner()
+            .masters)
+    }
+
+    /// The full state of a CANsmc master ("" = the gateway's only one).
+    pub async fn cansmc_status(&mut self, master: &str) -> Result<pb::CansmcStatus, Error> {
+        Ok(self
+            .cansmc_client()
+            .get_status(pb::GetCansmcStatusRequest {
+                master: master.to_string(),
+            })
+            .await?
+            .into_inner())
+    }
+
     /// The generated Simulator client (simulated devices of the gateway).
     pub fn simulator_client(&self) -> pb::simulator_client::SimulatorClient<Channel> {
         pb::simulator_client::SimulatorClient::new(self.channel.clone())

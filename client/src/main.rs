@@ -10,6 +10,7 @@ use std::io::Write;
 mod axis_cli;
 mod canopen_cli;
 mod cli_common;
+mod smc_cli;
 mod wheel_cli;
 use canopen_cli::{NmtVerb, SdoVerb};
 
@@ -113,6 +114,10 @@ enum Command {
     Wheel(wheel_cli::WheelArgs),
     /// Simulated devices of the gateway: `cangate sim turn hw1 --detents 20`.
     Sim(wheel_cli::SimArgs),
+    /// CANsmc masters (dual-bus motion control): list, status, param,
+    /// restart, watch: `cangate smc status`, `cangate smc param get 1 3`.
+    #[command(after_help = smc_cli::SMC_HELP)]
+    Smc(smc_cli::SmcArgs),
 }
 
 #[tokio::main]
@@ -162,6 +167,7 @@ async fn run(cli: Cli) -> Result<()> {
         Command::Axis(args) => axis_cli::run(&mut client, cli.json, args).await,
         Command::Wheel(args) => wheel_cli::run(&mut client, cli.json, args).await,
         Command::Sim(args) => wheel_cli::sim(&mut client, cli.json, args).await,
+        Command::Smc(args) => smc_cli::run(&client, cli.json, args).await,
         Command::Send { bus, frames } => {
             let frames = frames
                 .iter()

@@ -12,6 +12,7 @@ use crate::error::ApiError;
 use crate::grpc::axes_service::AxesService;
 use crate::grpc::bus_service::BusService;
 use crate::grpc::canopen_service::CanopenService;
+use crate::grpc::cansmc_service::CansmcService;
 use crate::grpc::handwheel_service::{HandwheelsService, SimulatorService};
 use crate::handwheel::HandwheelManager;
 use cangate_can::bus::{Backend, BackendKind, BusHandle, BusInfo};
@@ -655,6 +656,11 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
     health_reporter
         .set_serving::<cangate_proto::v1::handwheels_server::HandwheelsServer<HandwheelsService>>()
         .await;
+    let cansmc_service =
+        cangate_proto::v1::cansmc_server::CansmcServer::new(CansmcService::new(gateway.clone()));
+    health_reporter
+        .set_serving::<cangate_proto::v1::cansmc_server::CansmcServer<CansmcService>>()
+        .await;
     // The Simulator service exists only when there is something to simulate.
     let simulator_service = gateway.handwheels().any_simulated().then(|| {
         cangate_proto::v1::simulator_server::SimulatorServer::new(SimulatorService::new(
@@ -673,6 +679,7 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
             .add_service(canopen_service)
             .add_service(axes_service)
             .add_service(handwheels_service)
+            .add_service(cansmc_service)
             .add_optional_service(simulator_service)
             .serve_with_incoming_shutdown(incoming, async move { token.cancelled().await }),
     );

@@ -30,8 +30,9 @@
 //!   when the runtime hands it over a little after `t_k+1`: the arrival
 //!   time given to [`Master::on_frame`] (the bus timestamp) decides, not
 //!   the moment the runtime got to it. That is why cycle k is closed only
-//!   at `t_k+1 + T_int`. One that echoes `k` and arrived after `t_k+1` is
-//!   *late* (counted, not used); any other echo is a *counter mismatch*.
+//!   at `t_k+1 + T_int`. One that echoes an earlier cycle's counter and
+//!   arrived after that cycle ended is *late* (counted, not used); a
+//!   duplicate or an echo of a counter never sent is a *counter mismatch*.
 //!   `lost_after` consecutive misses mark the slave lost
 //!   ([`MasterEvent::SlaveLost`]); a valid DT afterwards brings it back
 //!   ([`MasterEvent::SlaveRecovered`]).
@@ -1227,10 +1228,18 @@ impl Master {
                     address: s.spec.address,
                 });
             }
-        } else if status.counter_echo == previous && cycle > 0 {
-            s.counters.late += 1;
         } else {
-            s.counters.counter_mismatch += 1;
+            // An echo of a counter sent 1..=15 cycles ago answers an
+            // earlier cycle: late (after 16 cycles the counter wraps and it
+            // cannot be told apart). An echo of the current counter that is
+            // not expected (a duplicate, or no MDT sent) or of a counter
+            // never sent is a mismatch.
+            let age = current.get().wrapping_sub(status.counter_echo.get()) & 0x0F;
+            if age != 0 && u64::from(age) <= cycle {
+                s.counters.late += 1;
+            } else {
+                s.counters.counter_mismatch += 1;
+            }
         }
         valid
     }

@@ -128,7 +128,7 @@ fn run(slaves: u8, cycle: Duration, cycles: u64) -> Run {
                         Command::Position(0),
                     );
                 }
-                if k >= cycles + 1 {
+                if k > cycles {
                     break;
                 }
             }

@@ -66,6 +66,12 @@ pub struct CansmcConfig {
     /// sleep only).
     #[serde(default = "default_spin_us")]
     pub spin_us: u32,
+    /// Real-time priority of the cycle thread (Linux `SCHED_FIFO`, 1..=99;
+    /// 0 = normal scheduling, the default). Without it a busy host can
+    /// delay MSTs by milliseconds; it needs root or `CAP_SYS_NICE`, and a
+    /// refusal is logged and the thread runs normally.
+    #[serde(default)]
+    pub rt_priority: u8,
     /// Bit rate for the feasibility check when the buses do not give one
     /// (default 1 Mbit/s).
     #[serde(default)]
@@ -357,6 +363,12 @@ impl CansmcConfig {
             return Err(format!(
                 "cansmc {name}: connect_attempts, lost_after, connect_timeout_ms and \
                  parameter_timeout_ms must be positive"
+            ));
+        }
+        if self.rt_priority > 99 {
+            return Err(format!(
+                "cansmc {name}: rt_priority {} must be 0 (off) or 1..=99",
+                self.rt_priority
             ));
         }
         if self.slaves.is_empty() {

@@ -35,6 +35,9 @@ use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, oneshot};
 use tokio_util::sync::CancellationToken;
 
+/// How often the status and the axis states are published.
+const PUBLISH_PERIOD: Duration = Duration::from_millis(10);
+
 /// Everything the thread needs.
 pub(crate) struct Setup {
     pub config: CansmcConfig,
@@ -84,8 +87,8 @@ struct Thread {
     jitter: JitterHistogram,
     start_error: Option<String>,
     starts: u64,
-    /// Publish axis states every this many cycles (about 10 ms).
-    publish_every: u64,
+    /// When the status and the axis states are published next.
+    next_publish: Duration,
     send_errors: u64,
     rx_lost: u64,
 }
@@ -105,7 +108,6 @@ pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String>
         .status_bus
         .subscribe(FrameSelector::all(), 4 * 64 + 1024);
     let cycle = setup.config.cycle_time();
-    let publish_every = (Duration::from_millis(10).as_nanos() / cycle.as_nanos()).max(1) as u64;
     let (mut slots, mut gear_source, mut axis_requests, mut updates, mut latest) =
         (Vec::new(), Vec::new(), None, None, None);
     if let Some(port) = setup.axes {
@@ -150,7 +152,7 @@ pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String>
         jitter: JitterHistogram::default(),
         start_error: None,
         starts: 0,
-        publish_every,
+        next_publish: Duration::ZERO,
         send_errors: 0,
         rx_lost: 0,
     };
@@ -206,6 +208,16 @@ impl Thread {
     }
 
     fn run(&mut self, cancel: &CancellationToken) {
+        if self.cfg.rt_priority > 0 {
+            match set_realtime(self.cfg.rt_priority) {
+                Ok(()) => {
+                    tracing::info!(master = %self.cfg.name, priority = self.cfg.rt_priority, "CANsmc cycle thread runs with SCHED_FIFO")
+                }
+                Err(e) => {
+                    tracing::warn!(master = %self.cfg.name, priority = self.cfg.rt_priority, error = %e, "CANsmc cycle thread could not get real-time priority (needs root or CAP_SYS_NICE); MST timing depends on the host's load")
+                }
+            }
+        }
         self.start();
         let spin = Duration::from_micros(u64::from(self.cfg.spin_us));
         while !cancel.is_cancelled() {
@@ -275,10 +287,10 @@ impl Thread {
         self.send(frames);
         self.serve_requests(now);
         self.after_master();
-        if poll
-            .cycle_started
-            .is_some_and(|(k, _)| k % self.publish_every == 0)
-        {
+        if poll.cycle_started.is_some() && now >= self.next_publish {
+            // About every 10 ms, by time: cycle numbers skipped by an
+            // overrun must not delay it.
+            self.next_publish = now + PUBLISH_PERIOD;
             self.publish_status();
             for i in 0..self.slots.len() {
                 self.publish_axis(i);
@@ -402,6 +414,7 @@ impl Thread {
                             .axis
                             .on_slave_lost("the master restarts (P0/P1)", &mut ev);
                         self.on_axis_events(i, ev);
+                        self.node_event(i, true, "the master restarts (P0/P1)".into());
                         self.publish_axis(i);
                     }
                     self.jitter.clear();
@@ -489,7 +502,11 @@ impl Thread {
                         let mut ev = Vec::new();
                         self.slots[i].axis.on_slave_back(&mut ev);
                         self.on_axis_events(i, ev);
-                        self.node_event(i, false, "the slave answers again".into());
+                        self.node_event(
+                            i,
+                            false,
+                            "the slave answers again (the axis was disabled when it was lost: enable it again)".into(),
+                        );
                     }
                 }
                 MasterEvent::Rejected {
@@ -741,6 +758,21 @@ impl Thread {
             }
         }
     }
+}
+
+/// Puts the calling thread under `SCHED_FIFO` at `priority` (1..=99).
+fn set_realtime(priority: u8) -> Result<(), String> {
+    use thread_priority::{
+        RealtimeThreadSchedulePolicy, ThreadPriority, ThreadPriorityValue, ThreadSchedulePolicy,
+        set_thread_priority_and_policy, thread_native_id,
+    };
+    let value = ThreadPriorityValue::try_from(priority)?;
+    set_thread_priority_and_policy(
+        thread_native_id(),
+        ThreadPriority::Crossplatform(value),
+        ThreadSchedulePolicy::Realtime(RealtimeThreadSchedulePolicy::Fifo),
+    )
+    .map_err(|e| format!("{e:?}"))
 }
 
 /// When a frame stamped `ts` arrived, on the master's clock: the bus

@@ -1,0 +1,391 @@
+//! The `cangate.v1.Cansmc` service: the CANsmc masters' phase, counters,
+//! cycle timing and slaves, slave parameters, restarts
+//! (`proto/cangate/v1/cansmc.proto`).
+
+use crate::cansmc::{CansmcEvent, CansmcMaster, CansmcStatus, SlaveView};
+use crate::error::ApiError;
+use crate::gateway::Gateway;
+use cangate_cansmc::master::{Phase, SlaveState};
+use cangate_proto::v1 as pb;
+use cangate_proto::v1::cansmc_server::Cansmc;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio_stream::Stream;
+use tonic::{Request, Response, Status};
+
+/// Period of StreamCycleStats when the request gives none.
+const DEFAULT_INTERVAL_MS: u32 = 1000;
+/// Bounds of the period of StreamCycleStats.
+const INTERVAL_MS: std::ops::RangeInclusive<u32> = 50..=60_000;
+/// Events a stream keeps between two updates; more are counted as lost.
+const MAX_PENDING_EVENTS: usize = 1000;
+
+/// Implementation of the Cansmc service.
+#[derive(Clone)]
+pub struct CansmcService {
+    gateway: Arc<Gateway>,
+}
+
+impl CansmcService {
+    /// Serves the gateway's CANsmc masters.
+    pub fn new(gateway: Arc<Gateway>) -> Self {
+        CansmcService { gateway }
+    }
+
+    /// The master called `name`; "" is the only one.
+    fn master(&self, name: &str) -> Result<&CansmcMaster, ApiError> {
+        if !name.is_empty() {
+            return self.gateway.cansmc(name);
+        }
+        let all: Vec<&CansmcMaster> = self.gateway.cansmc_masters().collect();
+        match all.as_slice() {
+            [one] => Ok(one),
+            [] => Err(ApiError::NotFound {
+                kind: "CANsmc master",
+                name: String::new(),
+                hint: " (this gateway has no [[cansmc]] master)".into(),
+            }),
+            many => Err(ApiError::InvalidArgument(format!(
+                "name a CANsmc master: this gateway has several ({})",
+                many.iter().map(|m| m.name()).collect::<Vec<_>>().join(", ")
+            ))),
+        }
+    }
+}
+
+/// Now, µs since the Unix epoch.
+fn now_us() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_micros() as u64)
+}
+
+fn phase_pb(p: Phase) -> pb::CansmcPhase {
+    match p {
+        Phase::Idle => pb::CansmcPhase::Idle,
+        Phase::Connecting => pb::CansmcPhase::P0,
+        Phase::Parameterising => pb::CansmcPhase::P1,
+        Phase::Cyclic => pb::CansmcPhase::P2,
+        Phase::Failed => pb::CansmcPhase::Failed,
+    }
+}
+
+fn slave_state_pb(s: SlaveState) -> pb::CansmcSlaveState {
+    match s {
+        SlaveState::Connecting => pb::CansmcSlaveState::Connecting,
+        SlaveState::Connected => pb::CansmcSlaveState::Connected,
+        SlaveState::Missing => pb::CansmcSlaveState::Missing,
+        SlaveState::Operational => pb::CansmcSlaveState::Operational,
+        SlaveState::Lost => pb::CansmcSlaveState::Lost,
+    }
+}
+
+/// The DTSW decoded bit by bit (reserved bits are kept in `raw` only).
+fn status_word_pb(w: u16) -> pb::CansmcStatusWord {
+    let bit = |n: u16| w & (1 << n) != 0;
+    pb::CansmcStatusWord {
+        raw: u32::from(w),
+        ready: bit(0),
+        enabled: bit(1),
+        fault: bit(2),
+        target_reached: bit(3),
+        homed: bit(4),
+        following_error: bit(5),
+        parameter_error: bit(6),
+        counter_echo: u32::from(w >> 12),
+    }
+}
+
+fn slave_pb(s: &SlaveView) -> pb::CansmcSlave {
+    let c = &s.counters;
+    pb::CansmcSlave {
+        address: u32::from(s.address),
+        name: s.name.clone(),
+        required: s.required,
+        state: slave_state_pb(s.state) as i32,
+        device_type: s.device_type.map(u32::from),
+        firmware_version: s.firmware_version.map(u32::from),
+        status_word: s.status_word.map(status_word_pb),
+        counters: Some(pb::CansmcSlaveCounters {
+            dts: c.dts,
+            missed: c.missed,
+            late: c.late,
+            counter_mismatch: c.counter_mismatch,
+            rejects: c.rejects,
+            malformed: c.malformed,
+            losses: c.losses,
+            mdts: c.mdts,
+        }),
+        consecutive_misses: s.consecutive_misses,
+        axis: s.axis.clone().unwrap_or_default(),
+    }
+}
+
+fn status_pb(m: &CansmcMaster, st: &CansmcStatus) -> pb::CansmcStatus {
+    let c = &st.counters;
+    let j = &st.jitter;
+    pb::CansmcStatus {
+        master: m.name().to_string(),
+        phase: phase_pb(st.phase) as i32,
+        cycle: st.cycle,
+        cycle_time_us: m.config().cycle_time_us,
+        bitrate: m.bitrate(),
+        start_error: st.start_error.clone(),
+        starts: st.starts,
+        counters: Some(pb::CansmcMasterCounters {
+            cycles: c.cycles,
+            overruns: c.overruns,
+            mdt_slots_missed: c.mdt_slots_missed,
+            foreign_frames: c.foreign_frames,
+            stray_parameter_answers: c.stray_parameter_answers,
+        }),
+        slaves: st.slaves.iter().map(slave_pb).collect(),
+        jitter: Some(pb::CycleJitter {
+            samples: j.samples,
+            p50_us: j.p50_us,
+            p99_us: j.p99_us,
+            p999_us: j.p999_us,
+            max_us: j.max_us,
+            mean_us: j.mean_us,
+        }),
+        timestamp_us: now_us(),
+    }
+}
+
+fn master_info_pb(m: &CansmcMaster) -> pb::CansmcMasterInfo {
+    let cfg = m.config();
+    let mut slaves: Vec<u32> = cfg.slaves.iter().map(|s| u32::from(s.address)).collect();
+    slaves.sort_unstable();
+    pb::CansmcMasterInfo {
+        name: m.name().to_string(),
+        command_bus: cfg.command_bus.clone(),
+        status_bus: cfg.status_bus.clone(),
+        cycle_time_us: cfg.cycle_time_us,
+        phase: phase_pb(m.status().phase) as i32,
+        bitrate: m.bitrate(),
+        slave_addresses: slaves,
+        axes: cfg.axes.iter().map(|a| a.name.clone()).collect(),
+    }
+}
+
+fn event_pb(e: CansmcEvent) -> pb::CansmcEvent {
+    use pb::cansmc_event::Event;
+    pb::CansmcEvent {
+        timestamp_us: now_us(),
+        event: Some(match e {
+            CansmcEvent::Phase(p) => Event::Phase(phase_pb(p) as i32),
+            CansmcEvent::Slave { address, what } => Event::Slave(pb::CansmcSlaveEvent {
+                address: u32::from(address),
+                what,
+            }),
+        }),
+    }
+}
+
+/// Names the master (and, for a refused write, the value) in the errors
+/// the slave or the cycle caused; argument errors are clear as they are.
+fn parameter_context(master: &str, write: Option<i32>, e: ApiError) -> ApiError {
+    let named = |m: String| format!("master {master}: {m}");
+    match e {
+        ApiError::FailedPrecondition(m) => ApiError::FailedPrecondition(match write {
+            Some(v) => format!("{}; {v} was not written", named(m)),
+            None => named(m),
+        }),
+        ApiError::DeadlineExceeded(m) => ApiError::DeadlineExceeded(named(m)),
+        ApiError::Unavailable(m) => ApiError::Unavailable(named(m)),
+        ApiError::Aborted(m) => ApiError::Aborted(named(m)),
+        other => other,
+    }
+}
+
+fn peer<T>(req: &Request<T>) -> String {
+    req.remote_addr()
+        .map_or_else(|| "unknown".into(), |a| a.to_string())
+}
+
+type StatsStream = Pin<Box<dyn Stream<Item = Result<pb::CycleStatsUpdate, Status>> + Send>>;
+
+#[tonic::async_trait]
+impl Cansmc for CansmcService {
+    async fn list_masters(
+        &self,
+        _req: Request<pb::ListMastersRequest>,
+    ) -> Result<Response<pb::ListMastersResponse>, Status> {
+        Ok(Response::new(pb::ListMastersResponse {
+            masters: self.gateway.cansmc_masters().map(master_info_pb).collect(),
+        }))
+    }
+
+    async fn get_status(
+        &self,
+        req: Request<pb::GetCansmcStatusRequest>,
+    ) -> Result<Response<pb::CansmcStatus>, Status> {
+        let m = self.master(&req.get_ref().master)?;
+        Ok(Response::new(status_pb(m, &m.status())))
+    }
+
+    async fn read_parameter(
+        &self,
+        req: Request<pb::ReadParameterRequest>,
+    ) -> Result<Response<pb::ParameterValue>, Status> {
+        let r = req.into_inner();
+        let m = self.master(&r.master)?;
+        let value = m
+            .parameter(r.address, r.number, None)
+            .await
+            .map_err(|e| parameter_context(m.name(), None, e))?;
+        Ok(Response::new(pb::ParameterValue {
+            master: m.name().to_string(),
+            address: r.address,
+            number: r.number,
+            value,
+        }))
+    }
+
+    async fn write_parameter(
+        &self,
+        req: Request<pb::WriteParameterRequest>,
+    ) -> Result<Response<pb::ParameterValue>, Status> {
+        let peer = peer(&req);
+        let r = req.into_inner();
+        let m = self.master(&r.master)?;
+        let res = m
+            .parameter(r.address, r.number, Some(r.value))
+            .await
+            .map_err(|e| parameter_context(m.name(), Some(r.value), e));
+        tracing::info!(target: "cangate::audit", %peer, master = %m.name(), slave = r.address, parameter = r.number, value = r.value, result = %res.as_ref().map_or_else(|e| e.to_string(), |v| format!("ok ({v})")), "CANsmc parameter write");
+        let value = res?;
+        Ok(Response::new(pb::ParameterValue {
+            master: m.name().to_string(),
+            address: r.address,
+            number: r.number,
+            value,
+        }))
+    }
+
+    type StreamCycleStatsStream = StatsStream;
+
+    async fn stream_cycle_stats(
+        &self,
+        req: Request<pb::StreamCycleStatsRequest>,
+    ) -> Result<Response<Self::StreamCycleStatsStream>, Status> {
+        let r = req.into_inner();
+        let m = self.master(&r.master)?.clone();
+        let interval_ms = match r.interval_ms {
+            0 => DEFAULT_INTERVAL_MS,
+            ms if INTERVAL_MS.contains(&ms) => ms,
+            ms => {
+                return Err(ApiError::InvalidArgument(format!(
+                    "interval_ms {ms} is outside {}..={} (0 = {DEFAULT_INTERVAL_MS})",
+                    INTERVAL_MS.start(),
+                    INTERVAL_MS.end()
+                ))
+                .into());
+            }
+        };
+        // Subscribed before the first status: no event falls in between.
+        let mut events = m.events();
+        let shutdown = self.gateway.shutdown_token();
+        let (tx, out) = tokio::sync::mpsc::channel(16);
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(Duration::from_millis(u64::from(interval_ms)));
+            tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            let mut pending = Vec::new();
+            let mut lost: u64 = 0;
+            let mut events_open = true;
+            loop {
+                tokio::select! {
+                    biased;
+                    _ = shutdown.cancelled() => {
+                        let _ = tx.send(Err(Status::unavailable("the gateway is shutting down"))).await;
+                        return;
+                    }
+                    _ = tx.closed() => return,
+                    e = events.recv(), if events_open => match e {
+                        Ok(e) if pending.len() < MAX_PENDING_EVENTS => pending.push(event_pb(e)),
+                        Ok(_) => lost += 1,
+                        Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => lost += n,
+                        Err(tokio::sync::broadcast::error::RecvError::Closed) => events_open = false,
+                    },
+                    _ = tick.tick() => {
+                        let update = pb::CycleStatsUpdate {
+                            status: Some(status_pb(&m, &m.status())),
+                            events: std::mem::take(&mut pending),
+                            events_lost: std::mem::take(&mut lost),
+                        };
+                        if tx.send(Ok(update)).await.is_err() {
+                            return;
+                        }
+                    }
+                }
+            }
+        });
+        Ok(Response::new(Box::pin(
+            tokio_stream::wrappers::ReceiverStream::new(out),
+        )))
+    }
+
+    async fn restart(
+        &self,
+        req: Request<pb::RestartRequest>,
+    ) -> Result<Response<pb::RestartResponse>, Status> {
+        let peer = peer(&req);
+        let r = req.into_inner();
+        let m = self.master(&r.master)?;
+        let res = m.restart().await;
+        tracing::info!(target: "cangate::audit", %peer, master = %m.name(), result = %res.as_ref().map_or_else(|e| e.to_string(), |_| "ok".into()), "CANsmc master restart");
+        res?;
+        Ok(Response::new(pb::RestartResponse {
+            master: m.name().to_string(),
+        }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn status_word_bits() {
+        let w = status_word_pb(0x5000 | 0b101_1011);
+        assert_eq!(w.raw, 0x505B);
+        assert!(w.ready && w.enabled && !w.fault && w.target_reached && w.homed);
+        assert!(!w.following_error && w.parameter_error);
+        assert_eq!(w.counter_echo, 5);
+        let w = status_word_pb(0x0024);
+        assert!(w.fault && w.following_error && !w.ready && !w.enabled);
+        assert_eq!(w.counter_echo, 0);
+    }
+
+    #[test]
+    fn parameter_errors_name_the_master() {
+        let e = parameter_context(
+            "smc",
+            Some(7),
+            ApiError::FailedPrecondition("slave 1 refused parameter 3".into()),
+        );
+        assert_eq!(
+            e.to_string(),
+            "master smc: slave 1 refused parameter 3; 7 was not written"
+        );
+        let e = parameter_context("smc", None, ApiError::DeadlineExceeded("late".into()));
+        assert_eq!(e.to_string(), "master smc: late");
+        let e = parameter_context("smc", None, ApiError::InvalidArgument("bad".into()));
+        assert_eq!(e.to_string(), "bad");
+    }
+
+    #[test]
+    fn phases_and_states_map_one_to_one() {
+        assert_eq!(phase_pb(Phase::Connecting), pb::CansmcPhase::P0);
+        assert_eq!(phase_pb(Phase::Parameterising), pb::CansmcPhase::P1);
+        assert_eq!(phase_pb(Phase::Cyclic), pb::CansmcPhase::P2);
+        assert_eq!(phase_pb(Phase::Failed), pb::CansmcPhase::Failed);
+        assert_eq!(phase_pb(Phase::Idle), pb::CansmcPhase::Idle);
+        assert_eq!(
+            slave_state_pb(SlaveState::Missing),
+            pb::CansmcSlaveState::Missing
+        );
+        assert_eq!(slave_state_pb(SlaveState::Lost), pb::CansmcSlaveState::Lost);
+    }
+}
