@@ -1041,6 +1041,12 @@ eds = "builtin:drive"
         assert_eq!(c.security.limits.burst, 10);
         assert_eq!(c.security.limits.requests_per_second_per_client, 200);
         assert_eq!(Config::from_toml(&c.to_toml()).unwrap(), c);
+        let env = HashMap::from([(
+            "CANGATE_SECURITY__LIMITS__BURST".to_string(),
+            "100".to_string(),
+        )]);
+        let c = Config::load_with_env(None, env).unwrap();
+        assert_eq!(c.security.limits.burst, 100);
         for (bad, why) in [
             (text.replace(&hash, "abc"), "64 hex digits"),
             (text.replace("operator", "admin"), "admin"),

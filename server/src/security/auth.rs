@@ -6,7 +6,7 @@
 //! `cangate::audit`).
 
 use super::config::SecurityConfig;
-use super::limits::{Limits, Permit};
+use super::limits::{Admission, Limits, Permit};
 use super::roles::{self, Access, Rule};
 use super::tls::ConnInfo;
 use super::{Identity, Role};
@@ -277,6 +277,12 @@ impl Audit {
     }
 }
 
+/// A refused call: who it was (when known) and why.
+struct Denied {
+    identity: Option<Identity>,
+    refusal: Refusal,
+}
+
 impl<S> SecurityService<S> {
     /// Decides on a call: its identity and the limits it holds, or why not.
     fn admit(
@@ -285,14 +291,14 @@ impl<S> SecurityService<S> {
         method: &str,
         authorization: Option<&http::HeaderValue>,
         conn: Option<&ConnInfo>,
-    ) -> Result<(Identity, Vec<Permit>, Option<Permit>), (Option<Identity>, Refusal)> {
+    ) -> Result<(Identity, Admission), Denied> {
         let Some(rule) = rule else {
-            return Err((
-                None,
-                Refusal::Unclassified(format!(
+            return Err(Denied {
+                identity: None,
+                refusal: Refusal::Unclassified(format!(
                     "{method} is not classified in the gateway's access table: refused"
                 )),
-            ));
+            });
         };
         let identity = match rule.access {
             Access::Public => Identity {
@@ -305,13 +311,19 @@ impl<S> SecurityService<S> {
                     .shared
                     .auth
                     .identify(authorization, conn)
-                    .map_err(|r| (None, r))?;
+                    .map_err(|refusal| Denied {
+                        identity: None,
+                        refusal,
+                    })?;
                 if id.role < needed {
                     let msg = format!(
                         "{method} needs role {needed}; {} holds role {}",
                         id.name, id.role
                     );
-                    return Err((Some(id), Refusal::PermissionDenied(msg)));
+                    return Err(Denied {
+                        identity: Some(id),
+                        refusal: Refusal::PermissionDenied(msg),
+                    });
                 }
                 id
             }
@@ -326,8 +338,11 @@ impl<S> SecurityService<S> {
             format!("{} {}", identity.method, identity.name)
         };
         match self.shared.limits.admit(&key, rule.streaming) {
-            Ok(a) => Ok((identity, a.in_flight.into_iter().collect(), a.stream)),
-            Err(e) => Err((Some(identity), Refusal::ResourceExhausted(e.0))),
+            Ok(a) => Ok((identity, a)),
+            Err(e) => Err(Denied {
+                identity: Some(identity),
+                refusal: Refusal::ResourceExhausted(e.0),
+            }),
         }
     }
 }
@@ -372,9 +387,9 @@ where
             req.headers().get(http::header::AUTHORIZATION),
             conn.as_ref(),
         );
-        let (identity, in_flight, stream) = match decision {
+        let (identity, Admission { in_flight, stream }) = match decision {
             Ok(d) => d,
-            Err((identity, refusal)) => {
+            Err(Denied { identity, refusal }) => {
                 let status = refusal.status();
                 let audit = Audit {
                     who: identity
