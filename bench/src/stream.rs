@@ -48,6 +48,13 @@ level = "warn"
 name = "can0"
 backend = "virtual"
 fd = true
+
+# The benchmark measures the gateway, not the per-client limits (all its
+# clients share one address).
+[security.limits]
+max_concurrent_requests_per_client = 0
+requests_per_second_per_client = 0
+max_streams_per_client = 0
 "#,
     )?;
     cangate_server::start(&config)

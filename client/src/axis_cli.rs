@@ -19,9 +19,8 @@ use serde_json::{Value, json};
 use std::collections::HashMap;
 use std::io::Write;
 use std::time::Duration;
-use tonic::transport::Channel;
 
-type AxesClient = pb::axes_client::AxesClient<Channel>;
+type AxesClient = pb::axes_client::AxesClient<cangate_client::Transport>;
 
 /// Client name shown to others as the holder of our leases.
 const CLIENT_NAME: &str = "cangate-cli";

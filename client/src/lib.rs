@@ -20,7 +20,9 @@ pub use cangate_proto::v1 as pb;
 
 use cangate_can::Frame;
 use pb::bus_client::BusClient;
-use tonic::transport::{Channel, Endpoint};
+use std::path::PathBuf;
+use tonic::service::interceptor::InterceptedService;
+use tonic::transport::{Certificate, Channel, ClientTlsConfig, Endpoint, Identity};
 
 /// Default server address of the CLI and examples.
 pub const DEFAULT_SERVER: &str = "http://127.0.0.1:50051";
@@ -42,6 +44,10 @@ pub enum Error {
     /// The URL is malformed.
     #[error("bad server URL {0:?}")]
     BadUrl(String),
+    /// The connection options cannot be used (unreadable certificate
+    /// files, a token that is not valid metadata, a key without a cert).
+    #[error("{0}")]
+    Options(String),
 }
 
 impl From<tonic::Status> for Error {
@@ -60,23 +66,137 @@ impl Error {
     }
 }
 
+/// Adds `authorization: Bearer <token>` to every call (when a token is
+/// set). Its `Debug` never shows the token.
+#[derive(Clone, Default)]
+pub struct BearerToken(Option<tonic::metadata::AsciiMetadataValue>);
+
+impl std::fmt::Debug for BearerToken {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(if self.0.is_some() {
+            "BearerToken(<redacted>)"
+        } else {
+            "BearerToken(none)"
+        })
+    }
+}
+
+impl tonic::service::Interceptor for BearerToken {
+    fn call(&mut self, mut req: tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> {
+        if let Some(v) = &self.0 {
+            req.metadata_mut().insert("authorization", v.clone());
+        }
+        Ok(req)
+    }
+}
+
+/// What every generated client of a [`Client`] runs on: the channel with
+/// the bearer token added to each call.
+pub type Transport = InterceptedService<Channel, BearerToken>;
+
+/// How to reach a gateway beyond its URL: credentials and TLS.
+#[derive(Clone, Default)]
+pub struct ConnectOptions {
+    /// Bearer token (`--token`, `CANGATE_TOKEN`).
+    pub token: Option<String>,
+    /// PEM CA certificate to trust; set: TLS (an `http://` URL becomes
+    /// `https://`).
+    pub ca: Option<PathBuf>,
+    /// PEM client certificate for mTLS (with `key`).
+    pub cert: Option<PathBuf>,
+    /// PEM private key of `cert`.
+    pub key: Option<PathBuf>,
+    /// The name the server certificate must carry, when it differs from
+    /// the URL's host.
+    pub tls_domain: Option<String>,
+}
+
+impl std::fmt::Debug for ConnectOptions {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ConnectOptions")
+            .field("token", &self.token.as_ref().map(|_| "<redacted>"))
+            .field("ca", &self.ca)
+            .field("cert", &self.cert)
+            .field("key", &self.key)
+            .field("tls_domain", &self.tls_domain)
+            .finish()
+    }
+}
+
 /// A connection to one gateway. Cheap to clone (one HTTP/2 connection).
 #[derive(Clone, Debug)]
 pub struct Client {
-    channel: Channel,
+    channel: Transport,
 }
 
-/// Connects to a gateway (`http://host:port`).
+/// Connects to a gateway (`http://host:port`) without credentials.
 pub async fn connect(url: &str) -> Result<Client, Error> {
-    let endpoint = Endpoint::from_shared(url.to_string())
-        .map_err(|_| Error::BadUrl(url.to_string()))?
+    connect_with(url, &ConnectOptions::default()).await
+}
+
+/// The hex SHA-256 of a token, as the server's `[[security.tokens]]`
+/// `sha256` wants it (same as `printf %s TOKEN | sha256sum`).
+pub fn hash_token(token: &str) -> String {
+    use sha2::Digest;
+    sha2::Sha256::digest(token.as_bytes())
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// Connects to a gateway with a token and/or TLS.
+pub async fn connect_with(url: &str, options: &ConnectOptions) -> Result<Client, Error> {
+    let read = |p: &PathBuf| {
+        std::fs::read(p).map_err(|e| Error::Options(format!("cannot read {}: {e}", p.display())))
+    };
+    let url = match (&options.ca, url.strip_prefix("http://")) {
+        (Some(_), Some(rest)) => format!("https://{rest}"),
+        _ => url.to_string(),
+    };
+    let mut endpoint = Endpoint::from_shared(url.clone())
+        .map_err(|_| Error::BadUrl(url.clone()))?
         .tcp_nodelay(true)
         .connect_timeout(std::time::Duration::from_secs(5));
+    if options.ca.is_some() || options.cert.is_some() || url.starts_with("https://") {
+        let mut tls = ClientTlsConfig::new();
+        if let Some(ca) = &options.ca {
+            tls = tls.ca_certificate(Certificate::from_pem(read(ca)?));
+        }
+        match (&options.cert, &options.key) {
+            (Some(cert), Some(key)) => {
+                tls = tls.identity(Identity::from_pem(read(cert)?, read(key)?));
+            }
+            (None, None) => {}
+            _ => {
+                return Err(Error::Options(
+                    "a client certificate needs both --cert and --key".into(),
+                ));
+            }
+        }
+        if let Some(d) = &options.tls_domain {
+            tls = tls.domain_name(d.clone());
+        }
+        endpoint = endpoint.tls_config(tls).map_err(|source| Error::Connect {
+            url: url.clone(),
+            source,
+        })?;
+    }
+    let token = options
+        .token
+        .as_deref()
+        .map(|t| {
+            format!("Bearer {t}")
+                .parse::<tonic::metadata::AsciiMetadataValue>()
+                .map_err(|_| Error::Options("the token is not valid gRPC metadata".into()))
+        })
+        .transpose()?;
     let channel = endpoint.connect().await.map_err(|source| Error::Connect {
-        url: url.to_string(),
+        url: url.clone(),
         source,
     })?;
-    Ok(Client { channel })
+    Ok(Client {
+        channel: InterceptedService::new(channel, BearerToken(token)),
+    })
 }
 
 /// Converts a frame to its protobuf form (for SendFrames).
@@ -92,39 +212,40 @@ pub fn frame_from_pb(f: &pb::Frame) -> Option<Frame> {
 pub use cangate_proto::frames::filter_to_pb;
 
 impl Client {
-    /// The underlying channel, for the generated clients of other services.
-    pub fn channel(&self) -> Channel {
+    /// The underlying channel (with the token interceptor), for the
+    /// generated clients of other services.
+    pub fn channel(&self) -> Transport {
         self.channel.clone()
     }
 
     /// The generated Bus client.
-    pub fn bus_client(&self) -> BusClient<Channel> {
+    pub fn bus_client(&self) -> BusClient<Transport> {
         BusClient::new(self.channel.clone()).max_decoding_message_size(64 * 1024 * 1024)
     }
 
     /// The generated Canopen client.
-    pub fn canopen_client(&self) -> pb::canopen_client::CanopenClient<Channel> {
+    pub fn canopen_client(&self) -> pb::canopen_client::CanopenClient<Transport> {
         pb::canopen_client::CanopenClient::new(self.channel.clone())
             .max_decoding_message_size(64 * 1024 * 1024)
             .max_encoding_message_size(64 * 1024 * 1024)
     }
 
     /// The generated Axes client.
-    pub fn axes_client(&self) -> pb::axes_client::AxesClient<Channel> {
+    pub fn axes_client(&self) -> pb::axes_client::AxesClient<Transport> {
         pb::axes_client::AxesClient::new(self.channel.clone())
             .max_decoding_message_size(64 * 1024 * 1024)
             .max_encoding_message_size(64 * 1024 * 1024)
     }
 
     /// The generated Handwheels client.
-    pub fn handwheels_client(&self) -> pb::handwheels_client::HandwheelsClient<Channel> {
+    pub fn handwheels_client(&self) -> pb::handwheels_client::HandwheelsClient<Transport> {
         pb::handwheels_client::HandwheelsClient::new(self.channel.clone())
             .max_decoding_message_size(64 * 1024 * 1024)
             .max_encoding_message_size(64 * 1024 * 1024)
     }
 
     /// The generated Cansmc client (CANsmc masters).
-    pub fn cansmc_client(&self) -> pb::cansmc_client::CansmcClient<Channel> {
+    pub fn cansmc_client(&self) -> pb::cansmc_client::CansmcClient<Transport> {
         pb::cansmc_client::CansmcClient::new(self.channel.clone())
             .max_decoding_message_size(64 * 1024 * 1024)
             .max_encoding_message_size(64 * 1024 * 1024)
@@ -152,7 +273,7 @@ impl Client {
     }
 
     /// The generated Simulator client (simulated devices of the gateway).
-    pub fn simulator_client(&self) -> pb::simulator_client::SimulatorClient<Channel> {
+    pub fn simulator_client(&self) -> pb::simulator_client::SimulatorClient<Transport> {
         pb::simulator_client::SimulatorClient::new(self.channel.clone())
             .max_decoding_message_size(64 * 1024 * 1024)
             .max_encoding_message_size(64 * 1024 * 1024)

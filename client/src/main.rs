@@ -25,6 +25,19 @@ struct Cli {
     /// line for streams.
     #[arg(long, global = true)]
     json: bool,
+    /// Bearer token for a gateway with authentication.
+    #[arg(long, global = true, env = "CANGATE_TOKEN", hide_env_values = true)]
+    token: Option<String>,
+    /// PEM CA certificate that signs the gateway's certificate: connects
+    /// with TLS (http:// becomes https://).
+    #[arg(long, global = true, env = "CANGATE_CA")]
+    ca: Option<std::path::PathBuf>,
+    /// PEM client certificate for mutual TLS (with --key).
+    #[arg(long, global = true, env = "CANGATE_CERT", requires = "key")]
+    cert: Option<std::path::PathBuf>,
+    /// PEM private key of --cert.
+    #[arg(long, global = true, env = "CANGATE_KEY", requires = "cert")]
+    key: Option<std::path::PathBuf>,
     #[command(subcommand)]
     command: Command,
 }
@@ -118,6 +131,13 @@ enum Command {
     /// restart, watch: `cangate smc status`, `cangate smc param get 1 3`.
     #[command(after_help = smc_cli::SMC_HELP)]
     Smc(smc_cli::SmcArgs),
+    /// Print the SHA-256 of a token for the server's [[security.tokens]]
+    /// sha256 (reads the token from standard input when not given, so it
+    /// stays out of the shell history). Needs no gateway.
+    HashToken {
+        /// The token.
+        token: Option<String>,
+    },
 }
 
 #[tokio::main]
@@ -142,8 +162,33 @@ async fn run(cli: Cli) -> Result<()> {
     if let Command::Axis(args) = &cli.command {
         axis_cli::validate(args)?;
     }
-    let mut client = cangate_client::connect(&cli.server).await?;
+    if let Command::HashToken { token } = &cli.command {
+        let token = match token {
+            Some(t) => t.clone(),
+            None => {
+                let mut line = String::new();
+                std::io::stdin()
+                    .read_line(&mut line)
+                    .context("reading the token from standard input")?;
+                line.trim_end_matches(['\r', '\n']).to_string()
+            }
+        };
+        if token.is_empty() {
+            bail!("empty token");
+        }
+        println!("{}", cangate_client::hash_token(&token));
+        return Ok(());
+    }
+    let options = cangate_client::ConnectOptions {
+        token: cli.token.clone(),
+        ca: cli.ca.clone(),
+        cert: cli.cert.clone(),
+        key: cli.key.clone(),
+        tls_domain: None,
+    };
+    let mut client = cangate_client::connect_with(&cli.server, &options).await?;
     match cli.command {
+        Command::HashToken { .. } => Ok(()),
         Command::Buses => buses(&mut client, cli.json).await,
         Command::Dump {
             bus,

@@ -12,6 +12,10 @@ use serde::{Deserialize, Serialize};
 use std::collections::{HashMap, HashSet};
 use std::net::SocketAddr;
 
+pub use crate::security::config::{
+    ClientCertConfig, LimitsConfig, SecurityConfig, TlsConfig, TokenConfig,
+};
+
 /// The embedded demo configuration, used when no configuration file is given.
 pub const DEMO_CONFIG: &str = include_str!("../../deploy/demo.toml");
 
@@ -67,17 +71,6 @@ pub struct Config {
     /// CANsmc masters (dual-bus motion control), their slaves and axes.
     #[serde(default, rename = "cansmc", skip_serializing_if = "Vec::is_empty")]
     pub cansmc: Vec<crate::cansmc::CansmcConfig>,
-}
-
-/// Security settings.
-#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SecurityConfig {
-    /// Allow listening on a non-loopback address without authentication
-    /// (the gateway has no authentication yet, so any non-loopback address
-    /// needs this). Logged as a warning at every start.
-    #[serde(default)]
-    pub insecure: bool,
 }
 
 /// Where the feed counter sits in the handwheel's feed byte.
@@ -804,14 +797,18 @@ impl Config {
 
     /// Checks what serde cannot: unique names, sensible values.
     pub fn validate(&self) -> Result<(), ConfigError> {
+        self.security.validate().map_err(ConfigError::Invalid)?;
         // A gateway that moves axes must not be reachable from the network
         // without authentication unless someone said so explicitly.
-        if !self.listen.ip().is_loopback() && !self.security.insecure {
+        if !self.listen.ip().is_loopback()
+            && !self.security.insecure
+            && !self.security.authentication()
+        {
             return Err(ConfigError::Invalid(format!(
-                "listen = {} is reachable from the network, and this gateway has no \
-                 authentication yet: anyone who reaches it can move the axes. Listen on \
-                 127.0.0.1 (and tunnel), or accept the risk with [security] insecure = true \
-                 (env CANGATE_SECURITY__INSECURE=true)",
+                "listen = {} is reachable from the network without authentication: anyone \
+                 who reaches it can move the axes. Configure [[security.tokens]] or \
+                 [[security.clients]], listen on 127.0.0.1 (and tunnel), or accept the risk \
+                 with [security] insecure = true (env CANGATE_SECURITY__INSECURE=true)",
                 self.listen
             )));
         }
@@ -1047,7 +1044,7 @@ eds = "builtin:drive"
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains("no authentication yet") && e.contains("insecure = true"),
+            e.contains("without authentication") && e.contains("insecure = true"),
             "{e}"
         );
         let c =
@@ -1059,6 +1056,43 @@ eds = "builtin:drive"
         ]);
         assert!(Config::load_with_env(None, env).is_ok());
         Config::from_toml("listen = \"[::1]:50051\"\n").unwrap();
+    }
+
+    #[test]
+    fn security_section_shape_and_checks() {
+        let hash = crate::security::auth::hash_token("t");
+        let text = format!(
+            "listen = \"0.0.0.0:50051\"\n[[security.tokens]]\nname = \"hmi-1\"\nrole = \"operator\"\n\
+             sha256 = \"{hash}\"\n[security.limits]\nburst = 10\n"
+        );
+        // Authentication configured: a network address is fine.
+        let c = Config::from_toml(&text).unwrap();
+        assert_eq!(c.security.tokens[0].role, crate::security::Role::Operator);
+        assert_eq!(c.security.limits.burst, 10);
+        assert_eq!(c.security.limits.requests_per_second_per_client, 200);
+        assert_eq!(Config::from_toml(&c.to_toml()).unwrap(), c);
+        let env = HashMap::from([(
+            "CANGATE_SECURITY__LIMITS__BURST".to_string(),
+            "100".to_string(),
+        )]);
+        let c = Config::load_with_env(None, env).unwrap();
+        assert_eq!(c.security.limits.burst, 100);
+        for (bad, why) in [
+            (text.replace(&hash, "abc"), "64 hex digits"),
+            (text.replace("operator", "admin"), "admin"),
+            (
+                "[[security.clients]]\nsubject_cn = \"a\"\nrole = \"viewer\"\n".to_string(),
+                "client_ca",
+            ),
+            (
+                "[security.tls]\ncert = \"c\"\nkey = \"k\"\nrequire_client_cert = true\n"
+                    .to_string(),
+                "needs client_ca",
+            ),
+        ] {
+            let e = Config::from_toml(&bad).unwrap_err().to_string();
+            assert!(e.contains(why), "{why}: {e}");
+        }
     }
 
     #[test]

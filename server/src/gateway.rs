@@ -50,6 +50,9 @@ pub enum StartError {
         /// The OS error.
         source: std::io::Error,
     },
+    /// The TLS files could not be used.
+    #[error("{0}")]
+    Tls(#[from] crate::security::TlsError),
 }
 
 /// The buses and shared state every service uses.
@@ -560,12 +563,19 @@ pub struct RunningServer {
     shutdown: CancellationToken,
     server: JoinHandle<Result<(), tonic::transport::Error>>,
     bus_tasks: Vec<JoinHandle<()>>,
+    tls: Option<crate::security::TlsReloader>,
 }
 
 impl RunningServer {
     /// The gateway (buses, virtual network).
     pub fn gateway(&self) -> &Arc<Gateway> {
         &self.gateway
+    }
+
+    /// The TLS configuration's reload handle (SIGHUP calls
+    /// [`crate::security::TlsReloader::reload`]); none without TLS.
+    pub fn tls_reloader(&self) -> Option<crate::security::TlsReloader> {
+        self.tls.clone()
     }
 
     /// The token that stops everything.
@@ -612,6 +622,12 @@ impl RunningServer {
 /// Opens the buses, binds the listen address (`config.listen`; port 0 picks
 /// a free port) and serves the gRPC API until the shutdown token fires.
 pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
+    // TLS files first: a bad certificate must stop start-up before any bus
+    // is opened.
+    let tls = match &config.security.tls {
+        Some(t) => Some(crate::security::TlsReloader::new(t.clone())?),
+        None => None,
+    };
     let shutdown = CancellationToken::new();
     let (gateway, bus_tasks) = Gateway::start(config, shutdown.clone())?;
     let gateway = Arc::new(gateway);
@@ -636,23 +652,32 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         .build_v1()
         .expect("the embedded descriptor sets are valid");
 
+    // Requests are bounded by [security.limits] max_message_bytes (the
+    // security layer refuses larger ones first, naming the limit).
+    let max_in = match config.security.limits.max_message_bytes {
+        0 => usize::MAX,
+        n => n as usize,
+    };
     let bus_service =
-        cangate_proto::v1::bus_server::BusServer::new(BusService::new(gateway.clone()));
+        cangate_proto::v1::bus_server::BusServer::new(BusService::new(gateway.clone()))
+            .max_decoding_message_size(max_in);
     let canopen_service =
         cangate_proto::v1::canopen_server::CanopenServer::new(CanopenService::new(gateway.clone()))
-            .max_decoding_message_size(64 * 1024 * 1024)
+            .max_decoding_message_size(max_in)
             .max_encoding_message_size(64 * 1024 * 1024);
     health_reporter
         .set_serving::<cangate_proto::v1::canopen_server::CanopenServer<CanopenService>>()
         .await;
     let axes_service =
-        cangate_proto::v1::axes_server::AxesServer::new(AxesService::new(gateway.clone()));
+        cangate_proto::v1::axes_server::AxesServer::new(AxesService::new(gateway.clone()))
+            .max_decoding_message_size(max_in);
     health_reporter
         .set_serving::<cangate_proto::v1::axes_server::AxesServer<AxesService>>()
         .await;
     let handwheels_service = cangate_proto::v1::handwheels_server::HandwheelsServer::new(
         HandwheelsService::new(gateway.clone()),
-    );
+    )
+    .max_decoding_message_size(max_in);
     health_reporter
         .set_serving::<cangate_proto::v1::handwheels_server::HandwheelsServer<HandwheelsService>>()
         .await;
@@ -666,13 +691,17 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         cangate_proto::v1::simulator_server::SimulatorServer::new(SimulatorService::new(
             gateway.clone(),
         ))
+        .max_decoding_message_size(max_in)
     });
-    let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
+    // Plaintext or TLS connections, each carrying its peer (and client
+    // certificate CN) to the security layer.
+    let incoming = crate::security::tls::incoming(listener, tls.clone(), shutdown.clone());
     let token = shutdown.clone();
     let server = tokio::spawn(
         tonic::transport::Server::builder()
             .tcp_nodelay(true)
             .layer(crate::metrics::RpcMetricsLayer)
+            .layer(crate::security::SecurityLayer::new(&config.security))
             .add_service(health_service)
             .add_service(reflection)
             .add_service(bus_service)
@@ -694,7 +723,20 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         ),
         None => None,
     };
-    tracing::info!(%addr, metrics = ?metrics_addr, buses = gateway.buses().count(), "cangate gateway listening");
+    if config.security.authentication() && tls.is_none() && !addr.ip().is_loopback() {
+        tracing::warn!(
+            %addr,
+            "authentication without [security.tls]: bearer tokens cross the network in clear text"
+        );
+    }
+    tracing::info!(
+        %addr,
+        metrics = ?metrics_addr,
+        buses = gateway.buses().count(),
+        tls = tls.is_some(),
+        authentication = config.security.authentication(),
+        "cangate gateway listening"
+    );
     Ok(RunningServer {
         addr,
         metrics_addr,
@@ -702,5 +744,6 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         shutdown,
         server,
         bus_tasks,
+        tls,
     })
 }

@@ -9,6 +9,7 @@
 //! - [`axes`]: the axis layer (CiA 402 drives), control leases.
 //! - [`handwheel`]: CNC handwheels: feed decoding, mode, axis binding.
 //! - [`metrics`]: the Prometheus endpoint.
+//! - [`security`]: roles, tokens, TLS/mTLS, limits, audit log.
 //! - [`error`]: the one mapping from domain errors to gRPC statuses.
 
 pub mod axes;
@@ -20,6 +21,7 @@ pub mod gateway;
 pub mod grpc;
 pub mod handwheel;
 pub mod metrics;
+pub mod security;
 
 pub use config::Config;
 pub use gateway::{Gateway, RunningServer, StartError, start};

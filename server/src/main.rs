@@ -84,6 +84,35 @@ impl ShutdownSignals {
     }
 }
 
+/// Re-reads the TLS certificate, key and client CA on every SIGHUP; new
+/// connections use them, open ones and the buses are untouched. A failed
+/// reload keeps the old files' configuration and logs why.
+fn spawn_tls_reload_on_sighup(tls: cangate_server::security::TlsReloader) {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{SignalKind, signal};
+        let mut hup = match signal(SignalKind::hangup()) {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::error!("cannot listen for SIGHUP (no TLS reload): {e}");
+                return;
+            }
+        };
+        tokio::spawn(async move {
+            while hup.recv().await.is_some() {
+                match tls.reload() {
+                    Ok(()) => tracing::info!("SIGHUP: TLS certificate, key and client CA reloaded"),
+                    Err(e) => tracing::error!(
+                        "SIGHUP: TLS reload failed, keeping the old configuration: {e}"
+                    ),
+                }
+            }
+        });
+    }
+    #[cfg(not(unix))]
+    let _ = tls;
+}
+
 #[tokio::main]
 async fn main() -> ExitCode {
     let args = Args::parse();
@@ -127,6 +156,9 @@ async fn main() -> ExitCode {
             return ExitCode::from(1);
         }
     };
+    if let Some(tls) = server.tls_reloader() {
+        spawn_tls_reload_on_sighup(tls);
+    }
     signals.wait().await;
     tracing::info!("shutting down");
     // Moving axes are brought to rest before the buses close.

@@ -367,7 +367,8 @@ where
     }
 }
 
-fn code_name(c: tonic::Code) -> &'static str {
+/// The canonical upper-case name of a gRPC status code.
+pub(crate) fn code_name(c: tonic::Code) -> &'static str {
     use tonic::Code as C;
     match c {
         C::Ok => "OK",

@@ -91,7 +91,7 @@ max_velocity = 50.0
 max_acceleration = 500.0
 "#;
 
-type Axes = pb::axes_client::AxesClient<tonic::transport::Channel>;
+type Axes = pb::axes_client::AxesClient<cangate_client::Transport>;
 
 async fn setup() -> (cangate_server::RunningServer, Axes) {
     let server = start_server(CONFIG).await;

@@ -17,8 +17,8 @@ use common::*;
 use std::time::{Duration, Instant};
 use tonic::Code;
 
-type Smc = pb::cansmc_client::CansmcClient<tonic::transport::Channel>;
-type Axes = pb::axes_client::AxesClient<tonic::transport::Channel>;
+type Smc = pb::cansmc_client::CansmcClient<cangate_client::Transport>;
+type Axes = pb::axes_client::AxesClient<cangate_client::Transport>;
 
 /// The demo configuration with only its CANsmc part (the CANopen devices
 /// would only load the machine), on an ephemeral port.

@@ -86,9 +86,9 @@ axis = "Y"
 distance_per_unit = 0.001
 "#;
 
-type Axes = pb::axes_client::AxesClient<tonic::transport::Channel>;
-type Wheels = pb::handwheels_client::HandwheelsClient<tonic::transport::Channel>;
-type Sim = pb::simulator_client::SimulatorClient<tonic::transport::Channel>;
+type Axes = pb::axes_client::AxesClient<cangate_client::Transport>;
+type Wheels = pb::handwheels_client::HandwheelsClient<cangate_client::Transport>;
+type Sim = pb::simulator_client::SimulatorClient<cangate_client::Transport>;
 
 struct Bed {
     server: cangate_server::RunningServer,

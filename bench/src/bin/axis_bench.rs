@@ -108,6 +108,8 @@ impl Bed {
         for (name, node, mode) in axes {
             text.push_str(&axis_toml(name, *node, mode));
         }
+        // The benchmark measures the gateway, not the per-client limits.
+        text.push_str("[security.limits]\nmax_concurrent_requests_per_client = 0\nrequests_per_second_per_client = 0\nmax_streams_per_client = 0\n");
         let config = Config::from_toml(&text).map_err(|e| anyhow!("{e}"))?;
         let gateway_rt = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(threads)
@@ -165,7 +167,7 @@ impl Drop for Bed {
     }
 }
 
-type Axes = pb::axes_client::AxesClient<tonic::transport::Channel>;
+type Axes = pb::axes_client::AxesClient<cangate_client::Transport>;
 
 async fn ready(axes: &mut Axes, names: &[&str]) -> Result<()> {
     let t0 = Instant::now();

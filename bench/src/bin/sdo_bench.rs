@@ -288,6 +288,9 @@ impl Bed {
                 "[[canopen.node]]\nid = {id}\nname = \"drive{id}\"\neds = \"builtin:drive\"\n"
             ));
         }
+        // The benchmark measures the gateway, not the per-client limits
+        // (its 100 clients share one address).
+        toml.push_str("[security.limits]\nmax_concurrent_requests_per_client = 0\nrequests_per_second_per_client = 0\nmax_streams_per_client = 0\n");
         let config = Config::from_toml(&toml).context("benchmark configuration")?;
         let server = cangate_server::start(&config)
             .await

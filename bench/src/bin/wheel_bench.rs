@@ -66,7 +66,8 @@ fn run(rate: u32, seconds: f64, connections: usize, subscribers: usize) -> Resul
     let text = format!(
         "listen = \"127.0.0.1:0\"\n[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\nqueue = 65536\n\
          [[canopen]]\nbus = \"can0\"\n[[canopen.node]]\nid = {NODE}\neds = \"builtin:handwheel\"\n\
-         [[handwheel]]\nname = \"hw1\"\nbus = \"can0\"\nnode = {NODE}\n"
+         [[handwheel]]\nname = \"hw1\"\nbus = \"can0\"\nnode = {NODE}\n\
+         [security.limits]\nmax_concurrent_requests_per_client = 0\nrequests_per_second_per_client = 0\nmax_streams_per_client = 0\n"
     );
     let config = Config::from_toml(&text).map_err(|e| anyhow!("{e}"))?;
     let gateway_rt = tokio::runtime::Builder::new_multi_thread()

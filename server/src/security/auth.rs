@@ -1,0 +1,689 @@
+//! The security layer in front of every service: it finds out who calls
+//! (bearer token, else verified client certificate), checks the role the
+//! [access table](super::roles) asks for, applies the per-client
+//! [limits](super::limits) and the message size limit, and writes
+//! state-changing calls and refusals to the audit log (tracing target
+//! `cangate::audit`).
+
+use super::config::SecurityConfig;
+use super::limits::{Admission, Limits, Permit};
+use super::roles::{self, Access, Rule};
+use super::tls::ConnInfo;
+use super::{Identity, Role};
+use bytes::Buf;
+use http_body::Frame;
+use sha2::{Digest, Sha256};
+use std::collections::HashMap;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::task::{Context, Poll};
+use std::time::Instant;
+use subtle::ConstantTimeEq;
+use tonic::body::Body;
+
+/// The audit log's tracing target.
+pub const AUDIT_TARGET: &str = "cangate::audit";
+
+/// Parses a hex SHA-256 digest (64 hex digits, either case).
+pub fn parse_sha256(hex: &str) -> Option<[u8; 32]> {
+    let hex = hex.as_bytes();
+    if hex.len() != 64 {
+        return None;
+    }
+    let mut out = [0u8; 32];
+    for (i, pair) in hex.chunks_exact(2).enumerate() {
+        let digit = |c: u8| (c as char).to_digit(16);
+        out[i] = u8::try_from(digit(pair[0])? * 16 + digit(pair[1])?).ok()?;
+    }
+    Some(out)
+}
+
+/// The hex SHA-256 of a token, as the configuration stores it.
+pub fn hash_token(token: &str) -> String {
+    Sha256::digest(token.as_bytes())
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+#[derive(Debug)]
+struct TokenEntry {
+    name: String,
+    role: Role,
+    digest: [u8; 32],
+}
+
+/// Why a caller is refused before its call runs.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum Refusal {
+    /// No usable credentials.
+    #[error("{0}")]
+    Unauthenticated(String),
+    /// Known, but not allowed.
+    #[error("{0}")]
+    PermissionDenied(String),
+    /// Over a limit.
+    #[error("{0}")]
+    ResourceExhausted(String),
+    /// The RPC is not in the access table.
+    #[error("{0}")]
+    Unclassified(String),
+}
+
+impl Refusal {
+    fn status(&self) -> tonic::Status {
+        match self {
+            Refusal::Unauthenticated(m) => tonic::Status::unauthenticated(m.clone()),
+            Refusal::PermissionDenied(m) => tonic::Status::permission_denied(m.clone()),
+            Refusal::ResourceExhausted(m) => tonic::Status::resource_exhausted(m.clone()),
+            Refusal::Unclassified(m) => tonic::Status::unimplemented(m.clone()),
+        }
+    }
+}
+
+/// Identities: token hashes and certificate names.
+#[derive(Debug)]
+pub struct Authenticator {
+    tokens: Vec<TokenEntry>,
+    clients: HashMap<String, Role>,
+}
+
+impl Authenticator {
+    /// From the `[security]` section (validated already: bad hashes are
+    /// skipped here, never panicked on).
+    pub fn new(config: &SecurityConfig) -> Self {
+        Authenticator {
+            tokens: config
+                .tokens
+                .iter()
+                .filter_map(|t| {
+                    Some(TokenEntry {
+                        name: t.name.clone(),
+                        role: t.role,
+                        digest: parse_sha256(&t.sha256)?,
+                    })
+                })
+                .collect(),
+            clients: config
+                .clients
+                .iter()
+                .map(|c| (c.subject_cn.clone(), c.role))
+                .collect(),
+        }
+    }
+
+    /// Authentication is on (some identity is configured).
+    pub fn enabled(&self) -> bool {
+        !self.tokens.is_empty() || !self.clients.is_empty()
+    }
+
+    /// The identity behind a token, comparing the digest with every
+    /// configured one in constant time (no early exit, so the time taken
+    /// says nothing about which or how many bytes matched).
+    fn by_token(&self, token: &str) -> Option<Identity> {
+        let digest: [u8; 32] = Sha256::digest(token.as_bytes()).into();
+        let mut found = None;
+        for t in &self.tokens {
+            if bool::from(t.digest.ct_eq(&digest)) {
+                found = Some(t);
+            }
+        }
+        found.map(|t| Identity {
+            name: t.name.clone(),
+            role: t.role,
+            method: "token",
+        })
+    }
+
+    /// Who calls: the bearer token when one is sent, else the verified
+    /// client certificate's CN.
+    pub fn identify(
+        &self,
+        authorization: Option<&http::HeaderValue>,
+        conn: Option<&ConnInfo>,
+    ) -> Result<Identity, Refusal> {
+        if !self.enabled() {
+            return Ok(Identity {
+                name: "anonymous".into(),
+                role: Role::Engineer,
+                method: "none",
+            });
+        }
+        if let Some(value) = authorization {
+            let token = value
+                .to_str()
+                .ok()
+                .and_then(|v| {
+                    v.strip_prefix("Bearer ")
+                        .or_else(|| v.strip_prefix("bearer "))
+                })
+                .map(str::trim)
+                .filter(|t| !t.is_empty())
+                .ok_or_else(|| {
+                    Refusal::Unauthenticated(
+                        "malformed authorization metadata: expected \"Bearer <token>\"".into(),
+                    )
+                })?;
+            return self
+                .by_token(token)
+                .ok_or_else(|| Refusal::Unauthenticated("unknown token".into()));
+        }
+        if let Some(cn) = conn.and_then(|c| c.peer_cn.as_deref()) {
+            return match self.clients.get(cn) {
+                Some(&role) => Ok(Identity {
+                    name: cn.to_string(),
+                    role,
+                    method: "certificate",
+                }),
+                None => Err(Refusal::PermissionDenied(format!(
+                    "client certificate CN {cn:?} has no role ([[security.clients]])"
+                ))),
+            };
+        }
+        Err(Refusal::Unauthenticated(
+            "missing bearer token (metadata \"authorization: Bearer <token>\")".into(),
+        ))
+    }
+}
+
+struct Shared {
+    auth: Authenticator,
+    limits: Limits,
+    max_message_bytes: u32,
+}
+
+/// The tower layer (see the module documentation). Cheap to clone.
+#[derive(Clone)]
+pub struct SecurityLayer {
+    shared: Arc<Shared>,
+}
+
+impl std::fmt::Debug for SecurityLayer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SecurityLayer")
+            .field("authentication", &self.shared.auth.enabled())
+            .finish_non_exhaustive()
+    }
+}
+
+impl SecurityLayer {
+    /// From the `[security]` section.
+    pub fn new(config: &SecurityConfig) -> Self {
+        SecurityLayer {
+            shared: Arc::new(Shared {
+                auth: Authenticator::new(config),
+                limits: Limits::new(config.limits.clone()),
+                max_message_bytes: config.limits.max_message_bytes,
+            }),
+        }
+    }
+}
+
+impl<S> tower::Layer<S> for SecurityLayer {
+    type Service = SecurityService<S>;
+    fn layer(&self, inner: S) -> Self::Service {
+        SecurityService {
+            inner,
+            shared: self.shared.clone(),
+        }
+    }
+}
+
+/// See [`SecurityLayer`].
+#[derive(Clone)]
+pub struct SecurityService<S> {
+    inner: S,
+    shared: Arc<Shared>,
+}
+
+/// What the audit record of one call says.
+#[derive(Debug)]
+struct Audit {
+    who: String,
+    role: &'static str,
+    method: String,
+    peer: String,
+    start: Instant,
+}
+
+impl Audit {
+    fn emit(&self, code: tonic::Code, message: &str) {
+        let duration_ms = self.start.elapsed().as_secs_f64() * 1000.0;
+        let code = crate::metrics::code_name(code);
+        if code == "OK" {
+            tracing::info!(
+                target: AUDIT_TARGET,
+                who = %self.who,
+                role = self.role,
+                method = %self.method,
+                peer = %self.peer,
+                code,
+                duration_ms,
+                "rpc"
+            );
+        } else {
+            tracing::warn!(
+                target: AUDIT_TARGET,
+                who = %self.who,
+                role = self.role,
+                method = %self.method,
+                peer = %self.peer,
+                code,
+                duration_ms,
+                message,
+                "rpc"
+            );
+        }
+    }
+}
+
+/// A refused call: who it was (when known) and why.
+struct Denied {
+    identity: Option<Identity>,
+    refusal: Refusal,
+}
+
+impl<S> SecurityService<S> {
+    /// Decides on a call: its identity and the limits it holds, or why not.
+    fn admit(
+        &self,
+        rule: Option<&'static Rule>,
+        method: &str,
+        authorization: Option<&http::HeaderValue>,
+        conn: Option<&ConnInfo>,
+    ) -> Result<(Identity, Admission), Denied> {
+        let Some(rule) = rule else {
+            return Err(Denied {
+                identity: None,
+                refusal: Refusal::Unclassified(format!(
+                    "{method} is not classified in the gateway's access table: refused"
+                )),
+            });
+        };
+        let identity = match rule.access {
+            Access::Public => Identity {
+                name: "anonymous".into(),
+                role: Role::Viewer,
+                method: "none",
+            },
+            Access::Role(needed) => {
+                let id = self
+                    .shared
+                    .auth
+                    .identify(authorization, conn)
+                    .map_err(|refusal| Denied {
+                        identity: None,
+                        refusal,
+                    })?;
+                if id.role < needed {
+                    let msg = format!(
+                        "{method} needs role {needed}; {} holds role {}",
+                        id.name, id.role
+                    );
+                    return Err(Denied {
+                        identity: Some(id),
+                        refusal: Refusal::PermissionDenied(msg),
+                    });
+                }
+                id
+            }
+        };
+        // Limits count per identity; anonymous callers per peer IP.
+        let key = if identity.method == "none" {
+            conn.and_then(|c| c.remote_addr).map_or_else(
+                || "unknown peer".to_string(),
+                |a| format!("peer {}", a.ip()),
+            )
+        } else {
+            format!("{} {}", identity.method, identity.name)
+        };
+        match self.shared.limits.admit(&key, rule.streaming) {
+            Ok(a) => Ok((identity, a)),
+            Err(e) => Err(Denied {
+                identity: Some(identity),
+                refusal: Refusal::ResourceExhausted(e.0),
+            }),
+        }
+    }
+}
+
+type BoxFuture<T> = Pin<Box<dyn std::future::Future<Output = T> + Send>>;
+
+impl<S> tower::Service<http::Request<Body>> for SecurityService<S>
+where
+    S: tower::Service<http::Request<Body>, Response = http::Response<Body>>,
+    S::Future: Send + 'static,
+    S::Error: Send + 'static,
+{
+    type Response = http::Response<Body>;
+    type Error = S::Error;
+    type Future = BoxFuture<Result<Self::Response, Self::Error>>;
+
+    fn poll_ready(&mut self, cx: &mut Context<'_>) -> Poll<Result<(), Self::Error>> {
+        self.inner.poll_ready(cx)
+    }
+
+    fn call(&mut self, mut req: http::Request<Body>) -> Self::Future {
+        let start = Instant::now();
+        let method = req.uri().path().to_string();
+        let conn = req.extensions().get::<ConnInfo>().cloned();
+        // Services read the peer with `Request::remote_addr`, which knows
+        // tonic's own connection types only.
+        if let Some(c) = &conn {
+            req.extensions_mut()
+                .insert(tonic::transport::server::TcpConnectInfo {
+                    local_addr: c.local_addr,
+                    remote_addr: c.remote_addr,
+                });
+        }
+        let peer = conn
+            .as_ref()
+            .and_then(|c| c.remote_addr)
+            .map_or_else(|| "unknown".to_string(), |a| a.to_string());
+        let rule = roles::lookup(&method);
+        let decision = self.admit(
+            rule,
+            &method,
+            req.headers().get(http::header::AUTHORIZATION),
+            conn.as_ref(),
+        );
+        let (identity, Admission { in_flight, stream }) = match decision {
+            Ok(d) => d,
+            Err(Denied { identity, refusal }) => {
+                let status = refusal.status();
+                let audit = Audit {
+                    who: identity
+                        .as_ref()
+                        .map_or_else(|| "unidentified".to_string(), |i| i.name.clone()),
+                    role: identity.as_ref().map_or("none", |i| i.role.as_str()),
+                    method,
+                    peer,
+                    start,
+                };
+                audit.emit(status.code(), status.message());
+                return Box::pin(std::future::ready(Ok(status.into_http())));
+            }
+        };
+        let audit = rule.filter(|r| roles::state_changing(r)).map(|_| Audit {
+            who: identity.name.clone(),
+            role: identity.role.as_str(),
+            method,
+            peer,
+            start,
+        });
+        req.extensions_mut().insert(identity);
+        let limit = self.shared.max_message_bytes;
+        if limit > 0 {
+            req = req.map(|b| Body::new(SizeLimited::new(b, limit)));
+        }
+        let fut = self.inner.call(req);
+        Box::pin(async move {
+            let resp = fut.await?;
+            // The handler has answered: the call no longer counts as in
+            // progress; a stream keeps its stream slot until it ends.
+            drop(in_flight);
+            let header_code = resp
+                .headers()
+                .get("grpc-status")
+                .and_then(|v| v.to_str().ok())
+                .and_then(|v| v.parse::<i32>().ok())
+                .map(tonic::Code::from);
+            if stream.is_none() && audit.is_none() {
+                return Ok(resp);
+            }
+            Ok(resp.map(|body| {
+                Body::new(Guarded {
+                    inner: body,
+                    _stream: stream,
+                    audit,
+                    code: header_code,
+                })
+            }))
+        })
+    }
+}
+
+/// A response body that holds a stream slot until it ends or is dropped,
+/// and writes the audit record with the call's final status.
+struct Guarded {
+    inner: Body,
+    _stream: Option<Permit>,
+    audit: Option<Audit>,
+    code: Option<tonic::Code>,
+}
+
+impl Guarded {
+    fn finish(&mut self, code: tonic::Code, message: &str) {
+        if let Some(a) = self.audit.take() {
+            a.emit(code, message);
+        }
+    }
+}
+
+impl Drop for Guarded {
+    fn drop(&mut self) {
+        // Ended without trailers: a trailers-only answer (code in the
+        // headers), or the client went away.
+        let code = self.code.unwrap_or(tonic::Code::Cancelled);
+        self.finish(code, "");
+    }
+}
+
+impl http_body::Body for Guarded {
+    type Data = bytes::Bytes;
+    type Error = tonic::Status;
+
+    fn poll_frame(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+    ) -> Poll<Option<Result<Frame<Self::Data>, Self::Error>>> {
+        let polled = Pin::new(&mut self.inner).poll_frame(cx);
+        if let Poll::Ready(Some(Ok(frame))) = &polled
+            && let Some(trailers) = frame.trailers_ref()
+        {
+            let code = trailers
+                .get("grpc-status")
+                .and_then(|v| v.to_str().ok())
+                .and_then(|v| v.parse::<i32>().ok())
+                .map_or(tonic::Code::Unknown, tonic::Code::from);
+            let message = trailers
+                .get("grpc-message")
+                .and_then(|v| v.to_str().ok())
+                .unwrap_or("")
+                .to_string();
+            self.code = Some(code);
+            self.finish(code, &message);
+        }
+        polled
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.inner.is_end_stream()
+    }
+
+    fn size_hint(&self) -> http_body::SizeHint {
+        self.inner.size_hint()
+    }
+}
+
+/// A request body that refuses a gRPC message longer than the limit as
+/// soon as its 5-byte prefix arrives, with RESOURCE_EXHAUSTED naming the
+/// limit (tonic's own check, kept as a second line, says OUT_OF_RANGE).
+struct SizeLimited {
+    inner: Body,
+    limit: u32,
+    /// Bytes of the current message prefix seen so far.
+    prefix: [u8; 5],
+    prefix_len: usize,
+    /// Bytes of the current message body still to pass.
+    remaining: u64,
+}
+
+impl SizeLimited {
+    fn new(inner: Body, limit: u32) -> Self {
+        SizeLimited {
+            inner,
+            limit,
+            prefix: [0; 5],
+            prefix_len: 0,
+            remaining: 0,
+        }
+    }
+
+    /// Walks the message framing through one data chunk.
+    fn check(&mut self, mut data: &[u8]) -> Result<(), tonic::Status> {
+        while !data.is_empty() {
+            if self.remaining > 0 {
+                let n = usize::try_from(self.remaining)
+                    .unwrap_or(usize::MAX)
+                    .min(data.len());
+                self.remaining -= n as u64;
+                data = &data[n..];
+                continue;
+            }
+            let n = (5 - self.prefix_len).min(data.len());
+            self.prefix[self.prefix_len..self.prefix_len + n].copy_from_slice(&data[..n]);
+            self.prefix_len += n;
+            data = &data[n..];
+            if self.prefix_len == 5 {
+                self.prefix_len = 0;
+                let len = u32::from_be_bytes([
+                    self.prefix[1],
+                    self.prefix[2],
+                    self.prefix[3],
+                    self.prefix[4],
+                ]);
+                if len > self.limit {
+                    return Err(tonic::Status::resource_exhausted(format!(
+                        "message size limit: the request message has {len} bytes, more than \
+                         max_message_bytes = {}",
+                        self.limit
+                    )));
+                }
+                self.remaining = u64::from(len);
+            }
+        }
+        Ok(())
+    }
+}
+
+impl http_body::Body for SizeLimited {
+    type Data = bytes::Bytes;
+    type Error = tonic::Status;
+
+    fn poll_frame(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+    ) -> Poll<Option<Result<Frame<Self::Data>, Self::Error>>> {
+        let polled = Pin::new(&mut self.inner).poll_frame(cx);
+        if let Poll::Ready(Some(Ok(frame))) = &polled
+            && let Some(data) = frame.data_ref()
+            && let Err(status) = self.check(data.chunk())
+        {
+            return Poll::Ready(Some(Err(status)));
+        }
+        polled
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.inner.is_end_stream()
+    }
+
+    fn size_hint(&self) -> http_body::SizeHint {
+        self.inner.size_hint()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::security::config::{ClientCertConfig, TokenConfig};
+
+    fn auth() -> Authenticator {
+        Authenticator::new(&SecurityConfig {
+            tokens: vec![TokenConfig {
+                name: "hmi-1".into(),
+                role: Role::Operator,
+                sha256: hash_token("s3cret").to_uppercase(),
+            }],
+            clients: vec![ClientCertConfig {
+                subject_cn: "hmi-2".into(),
+                role: Role::Viewer,
+            }],
+            ..Default::default()
+        })
+    }
+
+    fn bearer(t: &str) -> http::HeaderValue {
+        http::HeaderValue::from_str(&format!("Bearer {t}")).unwrap()
+    }
+
+    fn conn(cn: Option<&str>) -> ConnInfo {
+        ConnInfo {
+            local_addr: None,
+            remote_addr: None,
+            tls: true,
+            peer_cn: cn.map(str::to_string),
+        }
+    }
+
+    #[test]
+    fn hashes_are_sha256_hex() {
+        // printf %s abc | sha256sum
+        assert_eq!(
+            hash_token("abc"),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
+        assert!(parse_sha256(&hash_token("x")).is_some());
+        assert!(parse_sha256("abc").is_none());
+        assert!(parse_sha256(&"g".repeat(64)).is_none());
+    }
+
+    #[test]
+    fn tokens_then_certificates_identify_callers() {
+        let a = auth();
+        let id = a.identify(Some(&bearer("s3cret")), None).unwrap();
+        assert_eq!((id.name.as_str(), id.role), ("hmi-1", Role::Operator));
+        assert_eq!(
+            a.identify(Some(&bearer("wrong")), None),
+            Err(Refusal::Unauthenticated("unknown token".into()))
+        );
+        let e = a.identify(None, None).unwrap_err();
+        assert!(e.to_string().contains("missing bearer token"), "{e}");
+        let e = a
+            .identify(Some(&http::HeaderValue::from_static("Basic x")), None)
+            .unwrap_err();
+        assert!(matches!(e, Refusal::Unauthenticated(_)), "{e}");
+        let id = a.identify(None, Some(&conn(Some("hmi-2")))).unwrap();
+        assert_eq!((id.name.as_str(), id.role), ("hmi-2", Role::Viewer));
+        let e = a.identify(None, Some(&conn(Some("stranger")))).unwrap_err();
+        assert!(matches!(e, Refusal::PermissionDenied(_)), "{e}");
+        // A token decides over the certificate.
+        let id = a
+            .identify(Some(&bearer("s3cret")), Some(&conn(Some("hmi-2"))))
+            .unwrap();
+        assert_eq!(id.name, "hmi-1");
+    }
+
+    #[test]
+    fn without_identities_everyone_is_engineer() {
+        let a = Authenticator::new(&SecurityConfig::default());
+        assert!(!a.enabled());
+        assert_eq!(a.identify(None, None).unwrap().role, Role::Engineer);
+    }
+
+    #[test]
+    fn size_limit_reads_prefixes_across_chunks() {
+        let mut s = SizeLimited::new(Body::empty(), 10);
+        // A 3-byte message, then the prefix of an 11-byte one split in two.
+        s.check(&[0, 0, 0, 0, 3, 1, 2]).unwrap();
+        s.check(&[3, 0, 0]).unwrap();
+        let e = s.check(&[0, 0, 11]).unwrap_err();
+        assert_eq!(e.code(), tonic::Code::ResourceExhausted);
+        assert!(e.message().contains("max_message_bytes = 10"), "{e:?}");
+        let mut s = SizeLimited::new(Body::empty(), 10);
+        s.check(&[0, 0, 0, 0, 10]).unwrap();
+        s.check(&[0; 10]).unwrap();
+        s.check(&[0, 0, 0, 0, 0]).unwrap();
+    }
+}
