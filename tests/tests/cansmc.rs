@@ -682,3 +682,92 @@ async fn a_missing_slave_fails_the_start_only_when_required() {
     assert_eq!(e.code(), Code::Unavailable, "{e:?}");
     bed.server.shutdown();
 }
+
+/// A slave that stops answering (the simulator drops all its replies) is
+/// declared lost after `lost_after` cycles: its axis faults with the reason
+/// and refuses commands; when it answers again the axis must be enabled
+/// again. Meanwhile a StopAxes on A and B (one step of the cycle thread)
+/// stops both, and stops need no lease.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_silent_slave_is_lost_and_faults_its_axis() {
+    let mut config = demo_smc_config();
+    config.cansmc[0].lost_after = 20;
+    let mut bed = start(&config).await;
+    wait_status(&mut bed.smc, "smc", "P2", |s| {
+        s.phase == pb::CansmcPhase::P2 as i32 && s.slaves.iter().all(|x| x.state == operational())
+    })
+    .await;
+    let lease = acquire(&mut bed.axes, &["A", "B"]).await;
+    enable(&mut bed.axes, "A", &lease).await;
+    enable(&mut bed.axes, "B", &lease).await;
+    // Both jog; one StopAxes stops both (no lease needed for stops).
+    for axis in ["A", "B"] {
+        bed.axes
+            .jog(pb::JogRequest {
+                axis: axis.into(),
+                velocity: 2.0,
+                acceleration: 0.0,
+                options: Some(pb::CommandOptions {
+                    lease: lease.clone(),
+                    wait: false,
+                    wait_timeout_ms: 0,
+                }),
+            })
+            .await
+            .unwrap_or_else(|e| panic!("jog {axis}: {e}"));
+    }
+    let stopped = bed
+        .axes
+        .stop_axes(pb::StopAxesRequest {
+            axes: vec!["A".into(), "B".into()],
+            quick: false,
+            wait: true,
+        })
+        .await
+        .expect("StopAxes")
+        .into_inner();
+    assert_eq!(stopped.results.len(), 2, "{stopped:?}");
+    for r in &stopped.results {
+        assert_eq!(r.outcome, pb::Outcome::Completed as i32, "{r:?}");
+    }
+
+    let sims = bed.server.gateway().simulated_cansmc_slaves("smc").to_vec();
+    let a = sims
+        .iter()
+        .find(|s| s.address().get() == 1)
+        .expect("simulated slave 1");
+    a.with(|s| s.set_drop_rate(1.0));
+    let s = wait_status(&mut bed.smc, "smc", "slave 1 lost", |s| {
+        s.slaves[0].state == pb::CansmcSlaveState::Lost as i32
+    })
+    .await;
+    assert!(s.slaves[0].counters.unwrap().losses >= 1);
+    let t0 = Instant::now();
+    let st = loop {
+        let st = axis_status(&mut bed.axes, "A").await;
+        if st.node_lost {
+            break st;
+        }
+        assert!(t0.elapsed() < WAIT, "axis A not faulted: {st:?}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    assert!(st.fault_text.contains("slave lost"), "{st:?}");
+    let e = bed.axes.enable(cmd("A", &lease)).await.unwrap_err();
+    assert_eq!(e.code(), Code::FailedPrecondition, "{e}");
+    assert!(e.message().contains("slave is lost"), "{e}");
+    // B is unaffected.
+    assert!(!axis_status(&mut bed.axes, "B").await.node_lost);
+
+    a.with(|s| s.set_drop_rate(0.0));
+    wait_status(&mut bed.smc, "smc", "slave 1 back", |s| {
+        s.slaves[0].state == operational()
+    })
+    .await;
+    let t0 = Instant::now();
+    while axis_status(&mut bed.axes, "A").await.node_lost {
+        assert!(t0.elapsed() < WAIT, "axis A still lost");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    enable(&mut bed.axes, "A", &lease).await;
+    bed.server.shutdown();
+}
