@@ -50,6 +50,11 @@ pub struct Config {
     /// when absent.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub metrics_listen: Option<SocketAddr>,
+    /// Bound of the motion-safe shutdown on SIGTERM/SIGINT: moving axes get
+    /// this long to come to rest before the rest of the gateway closes, ms
+    /// (default 5000).
+    #[serde(default = "default_shutdown_timeout_ms")]
+    pub shutdown_timeout_ms: u64,
     /// Security settings.
     #[serde(default)]
     pub security: SecurityConfig,
@@ -611,6 +616,10 @@ impl NodeConfig {
     }
 }
 
+fn default_shutdown_timeout_ms() -> u64 {
+    5000
+}
+
 fn default_listen() -> SocketAddr {
     SocketAddr::from(([127, 0, 0, 1], 50051))
 }
@@ -939,6 +948,12 @@ impl Config {
                     a.name, a.node, a.bus
                 )));
             }
+        }
+        if self.shutdown_timeout_ms == 0 || self.shutdown_timeout_ms > 600_000 {
+            return Err(ConfigError::Invalid(format!(
+                "shutdown_timeout_ms = {} must be between 1 and 600000",
+                self.shutdown_timeout_ms
+            )));
         }
         let mut smc_names = HashSet::new();
         let mut smc_buses = HashSet::new();

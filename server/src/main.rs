@@ -162,7 +162,9 @@ async fn main() -> ExitCode {
     signals.wait().await;
     tracing::info!("shutting down");
     // Moving axes are brought to rest before the buses close.
-    server.shutdown_safely(Duration::from_secs(5)).await;
+    server
+        .shutdown_safely(Duration::from_millis(config.shutdown_timeout_ms))
+        .await;
     match server.wait(Duration::from_secs(10)).await {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

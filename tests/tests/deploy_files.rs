@@ -145,6 +145,20 @@ fn example_configurations_validate() {
         match file.as_str() {
             "hardware.toml" => {
                 assert_machine_shape(&file, &cfg, ["can0", "can1", "can2"]);
+                assert_eq!(cfg.cansmc.len(), 1, "{file}: a CANsmc master");
+                let m = &cfg.cansmc[0];
+                assert_eq!(
+                    (m.command_bus.as_str(), m.status_bus.as_str()),
+                    ("smc0", "smc1")
+                );
+                assert!(
+                    m.slaves.iter().all(|s| !s.simulate),
+                    "{file}: nothing simulated"
+                );
+                assert!(
+                    m.axes.iter().any(|a| a.gear_source.is_some()),
+                    "{file}: a geared axis"
+                );
                 assert!(cfg.listen.ip().is_loopback(), "{file}: loopback by default");
                 assert!(!cfg.security.insecure, "{file}: no insecure opt-in");
             }
