@@ -114,6 +114,10 @@ fn describe() {
         "gRPC calls by method and status code."
     );
     describe_counter!(
+        "cangate_pdo_received_total",
+        "TPDOs received by bus, node and PDO number (rate() gives the PDO rate)."
+    );
+    describe_counter!(
         "cangate_cansmc_cycles_total",
         "CANsmc cycles started (MSTs sent), by master."
     );
@@ -184,6 +188,12 @@ fn refresh(gateway: &Gateway) {
         ] {
             counter!("cangate_handwheel_dropped_units_total", "handwheel" => name.clone(), "reason" => reason)
                 .absolute(v);
+        }
+    }
+    for master in gateway.canopen_buses() {
+        for (node, num, n) in master.tpdo_counts() {
+            counter!("cangate_pdo_received_total", "bus" => master.bus().to_string(), "node" => node.get().to_string(), "pdo" => num.to_string())
+                .absolute(n);
         }
     }
     for m in gateway.cansmc_masters() {

@@ -154,3 +154,61 @@ async fn metrics_endpoint_exposes_cansmc_cycle_series() {
         .unwrap();
     assert!(valid >= 10.0, "{valid}");
 }
+
+const PDO_CONFIG: &str = r#"
+metrics_listen = "127.0.0.1:0"
+
+[[bus]]
+name = "can0"
+backend = "virtual"
+
+[[canopen]]
+bus = "can0"
+sync_period_us = 5000
+
+[[canopen.node]]
+id = 1
+eds = "builtin:drive"
+simulate = true
+heartbeat_timeout_ms = 1000
+
+[[axis]]
+name = "X"
+bus = "can0"
+node = 1
+counts_per_unit = 1000.0
+max_velocity = 100.0
+max_acceleration = 1000.0
+"#;
+
+/// The value of the first series line starting with `prefix`.
+fn value(text: &str, prefix: &str) -> Option<f64> {
+    text.lines()
+        .find(|l| l.starts_with(prefix))
+        .and_then(|l| l.rsplit(' ').next())
+        .and_then(|v| v.parse().ok())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn metrics_endpoint_counts_received_pdos() {
+    let server = start_server(PDO_CONFIG).await;
+    let addr = server.metrics_addr.expect("metrics configured");
+    let series = "cangate_pdo_received_total{bus=\"can0\",node=\"1\",pdo=\"1\"}";
+    let deadline = tokio::time::Instant::now() + WAIT;
+    let first = loop {
+        let text = scrape(addr, "/metrics").await;
+        match value(&text, series) {
+            Some(v) if v > 0.0 => break v,
+            _ => {}
+        }
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "no {series}:\n{text}"
+        );
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    };
+    // TPDO1 comes every SYNC (5 ms): the count grows.
+    tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+    let later = value(&scrape(addr, "/metrics").await, series).unwrap();
+    assert!(later > first, "{first} -> {later}");
+}

@@ -14,6 +14,7 @@ use cangate_canopen::sdo::{SdoError, TransferOutcome};
 use cangate_canopen::value::Value;
 use cangate_canopen::{NodeId, ObjectAddress};
 use std::collections::{BTreeMap, HashMap};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, RwLock};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc, oneshot};
@@ -187,7 +188,13 @@ pub struct CanopenBus {
     events: broadcast::Sender<NodeEvent>,
     facts: Arc<RwLock<BTreeMap<NodeId, NodeFacts>>>,
     syncs: broadcast::Sender<Instant>,
+    /// Received TPDOs per configured TPDO: (node, PDO number, count).
+    tpdo_counts: Arc<Vec<(NodeId, u16, Arc<AtomicU64>)>>,
 }
+
+/// A configured TPDO as the master task decodes it, with its receive
+/// counter.
+type TpdoEntry = (NodeId, PdoConfig, Option<Arc<Eds>>, Arc<AtomicU64>);
 
 impl CanopenBus {
     /// Starts the master task of `bus`.
@@ -202,14 +209,22 @@ impl CanopenBus {
         let (events, _) = broadcast::channel(4096);
         let (pdos, _) = broadcast::channel(16_384);
         let (syncs, _) = broadcast::channel(64);
-        let tpdo_map: HashMap<u16, (NodeId, PdoConfig, Option<Arc<Eds>>)> = configured
+        let tpdo_map: HashMap<u16, TpdoEntry> = configured
             .iter()
             .flat_map(|(id, f)| {
-                f.tpdos
-                    .iter()
-                    .map(move |p| (p.cob_id, (*id, p.clone(), f.eds.clone())))
+                f.tpdos.iter().map(move |p| {
+                    (
+                        p.cob_id,
+                        (*id, p.clone(), f.eds.clone(), Arc::new(AtomicU64::new(0))),
+                    )
+                })
             })
             .collect();
+        let mut tpdo_counts: Vec<_> = tpdo_map
+            .values()
+            .map(|(node, p, _, n)| (*node, p.num, n.clone()))
+            .collect();
+        tpdo_counts.sort_by_key(|(node, num, _)| (*node, *num));
         let boots: Vec<(NodeId, Arc<BootPlan>)> = configured
             .iter()
             .filter_map(|(id, f)| f.boot.clone().map(|b| (*id, b)))
@@ -223,6 +238,7 @@ impl CanopenBus {
             events: events.clone(),
             facts: facts.clone(),
             syncs: syncs.clone(),
+            tpdo_counts: Arc::new(tpdo_counts),
         };
         let mut master = Master::new(sdo_timeout);
         if let Some(period) = sync_period
@@ -355,6 +371,14 @@ impl CanopenBus {
     /// Subscribes to node events.
     pub fn events(&self) -> broadcast::Receiver<NodeEvent> {
         self.events.subscribe()
+    }
+
+    /// TPDOs received per configured TPDO: (node, PDO number, count).
+    pub fn tpdo_counts(&self) -> Vec<(NodeId, u16, u64)> {
+        self.tpdo_counts
+            .iter()
+            .map(|(node, num, n)| (*node, *num, n.load(Ordering::Relaxed)))
+            .collect()
     }
 
     /// Subscribes to decoded TPDOs.
@@ -508,7 +532,7 @@ struct MasterTask {
     commands: mpsc::Receiver<Command>,
     events: broadcast::Sender<NodeEvent>,
     pdos: broadcast::Sender<PdoUpdate>,
-    tpdo_map: HashMap<u16, (NodeId, PdoConfig, Option<Arc<Eds>>)>,
+    tpdo_map: HashMap<u16, TpdoEntry>,
     facts: Arc<RwLock<BTreeMap<NodeId, NodeFacts>>>,
     cancel: CancellationToken,
 }
@@ -548,11 +572,13 @@ async fn run_master(task: MasterTask) {
                     match item {
                         BusItem::Frame { frame, .. } => {
                             master.on_frame(&frame, now, &mut out);
-                            if pdos.receiver_count() > 0
-                                && !frame.is_extended()
-                                && let Some((node, cfg, eds)) = tpdo_map.get(&(frame.raw_id() as u16))
+                            if !frame.is_extended()
+                                && let Some((node, cfg, eds, count)) = tpdo_map.get(&(frame.raw_id() as u16))
                             {
-                                publish_pdo(&pdos, *node, cfg, eds.as_deref(), &frame);
+                                count.fetch_add(1, Ordering::Relaxed);
+                                if pdos.receiver_count() > 0 {
+                                    publish_pdo(&pdos, *node, cfg, eds.as_deref(), &frame);
+                                }
                             }
                         }
                         BusItem::Lost(n) => tracing::warn!(bus = %bus.name(), lost = n, "CANopen master missed frames (overloaded)"),
