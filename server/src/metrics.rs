@@ -114,6 +114,10 @@ fn describe() {
         "gRPC calls by method and status code."
     );
     describe_counter!(
+        "cangate_stream_lag_drops_total",
+        "Items gRPC stream subscribers missed because they were too slow, by stream (bus frame streams: cangate_bus_stream_drops_total)."
+    );
+    describe_counter!(
         "cangate_pdo_received_total",
         "TPDOs received by bus, node and PDO number (rate() gives the PDO rate)."
     );
@@ -141,6 +145,12 @@ fn describe() {
         "cangate_cansmc_slave_losses_total",
         "Times a CANsmc slave was declared lost."
     );
+}
+
+/// Counts `n` items a gRPC stream subscriber missed because it was too
+/// slow (the stream itself tells the client how many).
+pub fn stream_lag(stream: &'static str, n: u64) {
+    metrics::counter!("cangate_stream_lag_drops_total", "stream" => stream).increment(n);
 }
 
 /// Refreshes the series read from live state.
@@ -398,5 +408,20 @@ pub(crate) fn code_name(c: tonic::Code) -> &'static str {
         C::Unavailable => "UNAVAILABLE",
         C::DataLoss => "DATA_LOSS",
         C::Unauthenticated => "UNAUTHENTICATED",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn stream_lag_is_counted_per_stream() {
+        let h = super::handle();
+        super::stream_lag("StreamAxisState", 3);
+        super::stream_lag("StreamAxisState", 2);
+        let text = h.render();
+        assert!(
+            text.contains("cangate_stream_lag_drops_total{stream=\"StreamAxisState\"} 5"),
+            "{text}"
+        );
     }
 }

@@ -557,6 +557,7 @@ impl Axes for AxesService {
                         pb::axis_update::Update::Event(event_pb(&m, axis, at, event))
                     }
                     Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
+                        crate::metrics::stream_lag("StreamAxisState", n);
                         pb::axis_update::Update::Event(pb::AxisEvent {
                             axis: String::new(),
                             timestamp_us: Timestamp::now().0 / 1000,

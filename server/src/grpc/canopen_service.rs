@@ -523,6 +523,7 @@ impl Canopen for CanopenService {
                     let u = match update {
                         Ok(u) => u,
                         Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
+                            crate::metrics::stream_lag("StreamPdo", n);
                             lost += n;
                             continue;
                         }
@@ -663,12 +664,15 @@ impl Canopen for CanopenService {
                                 event: Some(event),
                             }
                         }
-                        Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => pb::NodeEvent {
-                            bus: m.bus().to_string(),
-                            node: 0,
-                            timestamp_ns: Timestamp::now().as_nanos(),
-                            event: Some(E::Lost(pb::EventsLost { count: n })),
-                        },
+                        Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
+                            crate::metrics::stream_lag("StreamNodeEvents", n);
+                            pb::NodeEvent {
+                                bus: m.bus().to_string(),
+                                node: 0,
+                                timestamp_ns: Timestamp::now().as_nanos(),
+                                event: Some(E::Lost(pb::EventsLost { count: n })),
+                            }
+                        }
                         Err(tokio::sync::broadcast::error::RecvError::Closed) => break,
                     };
                     if tx.send(Ok(msg)).await.is_err() {

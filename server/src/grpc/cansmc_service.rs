@@ -305,7 +305,10 @@ impl Cansmc for CansmcService {
                     e = events.recv(), if events_open => match e {
                         Ok(e) if pending.len() < MAX_PENDING_EVENTS => pending.push(event_pb(e)),
                         Ok(_) => lost += 1,
-                        Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => lost += n,
+                        Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
+                            crate::metrics::stream_lag("StreamCycleStats", n);
+                            lost += n;
+                        }
                         Err(tokio::sync::broadcast::error::RecvError::Closed) => events_open = false,
                     },
                     _ = tick.tick() => {

@@ -270,6 +270,7 @@ impl Handwheels for HandwheelsService {
                         let f = match f {
                             Ok(f) => f,
                             Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
+                                crate::metrics::stream_lag("StreamFeed", n);
                                 lost += n;
                                 continue;
                             }
