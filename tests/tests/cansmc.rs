@@ -771,3 +771,39 @@ async fn a_silent_slave_is_lost_and_faults_its_axis() {
     enable(&mut bed.axes, "A", &lease).await;
     bed.server.shutdown();
 }
+
+/// Axis B jogs in the slave's velocity mode (demo: `jog_mode =
+/// "velocity"`): the slave moves, the dead-man brakes it, the gateway reads
+/// the encoder back and position control resumes exactly there (a move
+/// afterwards lands on its target).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_velocity_mode_jog_moves_the_slave_and_hands_back_to_position_control() {
+    let mut bed = demo().await;
+    let lease = acquire(&mut bed.axes, &["B"]).await;
+    enable(&mut bed.axes, "B", &lease).await;
+    let start = axis_status(&mut bed.axes, "B").await.position;
+    // One jog, waited for: it runs until the dead-man (500 ms) stops it;
+    // a waited command that was stopped ends ABORTED, saying why.
+    let e = bed
+        .axes
+        .jog(pb::JogRequest {
+            axis: "B".into(),
+            velocity: 5.0,
+            acceleration: 0.0,
+            options: cmd("B", &lease).options,
+        })
+        .await
+        .expect_err("a dead-man stop");
+    assert_eq!(e.code(), Code::Aborted, "{e}");
+    assert!(e.message().contains("dead-man"), "{e}");
+    let after = axis_status(&mut bed.axes, "B").await.position;
+    assert!(after - start > 1.0, "moved {start} -> {after}");
+    // The slave's parameter 2 was set to 0.001 r/min in P1.
+    assert_eq!(read(&mut bed.smc, 2, 2).await.unwrap(), 1);
+    let target = (after + 1.0).min(90.0);
+    let r = move_to(&mut bed.axes, "B", &lease, target).await;
+    assert_eq!(r.outcome, pb::Outcome::Completed as i32, "{r:?}");
+    let st = axis_status(&mut bed.axes, "B").await;
+    assert!((st.position - target).abs() < 0.002, "{st:?}");
+    bed.server.shutdown();
+}

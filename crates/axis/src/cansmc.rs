@@ -80,6 +80,26 @@ pub struct CansmcAxisConfig {
     pub homing_method: u8,
     /// Follow another slave's encoder.
     pub gear: Option<Gear>,
+    /// How jogs run.
+    pub jog_mode: JogMode,
+    /// Slave encoder counts per motor revolution (parameter 3), to convert
+    /// velocities to the slave's unit for [`JogMode::SlaveVelocity`].
+    pub counts_per_rev: u32,
+}
+
+/// How a CANsmc axis jogs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum JogMode {
+    /// The gateway ramps the velocity and sends a position set-point every
+    /// cycle (position feedback all along).
+    #[default]
+    Interpolated,
+    /// The slave's velocity mode (function 0x03, unit 0.001 r/min: the
+    /// runtime writes parameter 2 = 1 in P1): the slave ramps with its own
+    /// acceleration; the position is estimated from the velocity feedback
+    /// while jogging and read back from the slave's encoder count
+    /// (function 0x07) at rest, before position control resumes.
+    SlaveVelocity,
 }
 
 impl CansmcAxisConfig {
@@ -102,6 +122,8 @@ impl CansmcAxisConfig {
             in_position_window: 0.01,
             homing_method: 1,
             gear: None,
+            jog_mode: JogMode::Interpolated,
+            counts_per_rev: 10_000,
         }
     }
 }
@@ -115,6 +137,10 @@ pub struct CycleInput {
     pub position: Option<i32>,
     /// The gear source's encoder count from its latest DT.
     pub source_count: Option<i32>,
+    /// Actual velocity from the latest velocity DT (unit 0.001 r/min).
+    pub velocity: Option<i32>,
+    /// The slave's own encoder count from its latest encoder DT.
+    pub encoder: Option<i32>,
 }
 
 /// The MDT content for this cycle (the master adds the counter).
@@ -144,6 +170,16 @@ enum Motion {
     /// Electronic gearing: demand counts = offset + ratio × source; the
     /// offset is set by the first source count after engaging.
     Geared { offset: Option<f64> },
+    /// The slave's velocity mode: jogging at `target` (units/s), braking to
+    /// 0, or reading the position back before holding it.
+    SlaveVelocity { target: f64, stage: VelocityStage },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum VelocityStage {
+    Running,
+    Braking,
+    ReadingPosition,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -228,6 +264,22 @@ impl CansmcAxis {
 
     fn units(&self) -> Units {
         self.cfg.units
+    }
+
+    /// User units/s to the slave's velocity unit (0.001 r/min).
+    fn to_slave_velocity(&self, v: f64) -> i32 {
+        let rpm_milli = v * self.cfg.units.counts_per_unit
+            / f64::from(self.cfg.counts_per_rev.max(1))
+            * 60_000.0;
+        rpm_milli
+            .round()
+            .clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32
+    }
+
+    /// The slave's velocity unit (0.001 r/min) to user units/s.
+    fn from_slave_velocity(&self, v: i32) -> f64 {
+        self.units()
+            .from_counts(f64::from(v) * f64::from(self.cfg.counts_per_rev.max(1)) / 60_000.0)
     }
 
     fn actual(&self) -> f64 {
@@ -611,21 +663,29 @@ impl CansmcAxis {
             } => {
                 let acceleration = acceleration.unwrap_or(self.cfg.default_acceleration);
                 let deadman = Some(now + self.cfg.jog_deadman);
+                let motion = match self.cfg.jog_mode {
+                    JogMode::Interpolated => Motion::Jog {
+                        target: velocity,
+                        acceleration,
+                    },
+                    JogMode::SlaveVelocity => Motion::SlaveVelocity {
+                        target: velocity,
+                        stage: if velocity == 0.0 {
+                            VelocityStage::Braking
+                        } else {
+                            VelocityStage::Running
+                        },
+                    },
+                };
                 // A repeated jog only renews the dead-man and the velocity.
                 if let Some(op) = &mut self.op
                     && op.step == Step::Jogging
                 {
                     op.deadman = deadman;
-                    self.motion = Motion::Jog {
-                        target: velocity,
-                        acceleration,
-                    };
+                    self.motion = motion;
                     return Ok(op.id);
                 }
-                self.motion = Motion::Jog {
-                    target: velocity,
-                    acceleration,
-                };
+                self.motion = motion;
                 self.halt = false;
                 let id = self.begin(CommandKind::Jog, Step::Jogging, 0.0, None, out);
                 if let Some(op) = &mut self.op {
@@ -660,6 +720,14 @@ impl CansmcAxis {
         }
         let id = self.begin(kind, Step::Stopping, 0.0, None, out);
         match self.motion {
+            Motion::SlaveVelocity { .. } => {
+                // The slave ramps down in its velocity mode; the position
+                // is read back at rest.
+                self.motion = Motion::SlaveVelocity {
+                    target: 0.0,
+                    stage: VelocityStage::Braking,
+                };
+            }
             Motion::Homing => {
                 // The slave plans its homing run: halt it, then hold where
                 // it stands.
@@ -795,6 +863,27 @@ impl CansmcAxis {
             }
             self.position = Some(p);
         }
+        if let Some(v) = input.velocity {
+            // Velocity mode: no position feedback; dead-reckon it.
+            self.velocity = self.from_slave_velocity(v);
+            if let Some(p) = self.position {
+                let moved = (self.velocity * dt * self.cfg.units.counts_per_unit).round();
+                self.position = Some(
+                    (f64::from(p) + moved).clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32,
+                );
+            }
+        }
+        if let (Some(c), Motion::SlaveVelocity { stage, .. }) = (input.encoder, &self.motion)
+            && *stage == VelocityStage::ReadingPosition
+        {
+            // The slave's own count, read at rest: position control resumes
+            // exactly where the motor stands.
+            self.position = Some(c);
+            self.velocity = 0.0;
+            self.demand = self.actual();
+            self.demand_velocity = 0.0;
+            self.motion = Motion::Hold;
+        }
         if input.status.is_some() {
             self.status = input.status;
         }
@@ -807,12 +896,23 @@ impl CansmcAxis {
             fault_reset: std::mem::take(&mut self.reset_pulse),
             ..ControlWord::default()
         };
-        let command = if matches!(self.motion, Motion::Homing) {
-            Command::Homing {
+        let command = match self.motion {
+            Motion::Homing => Command::Homing {
                 method: self.cfg.homing_method,
-            }
-        } else {
-            Command::Position(self.units().to_counts(self.demand))
+            },
+            Motion::SlaveVelocity {
+                target,
+                stage: VelocityStage::Running,
+            } => Command::Velocity(self.to_slave_velocity(target)),
+            Motion::SlaveVelocity {
+                stage: VelocityStage::Braking,
+                ..
+            } => Command::Velocity(0),
+            Motion::SlaveVelocity {
+                stage: VelocityStage::ReadingPosition,
+                ..
+            } => Command::Encoder,
+            _ => Command::Position(self.units().to_counts(self.demand)),
         };
         CycleOutput { control, command }
     }
@@ -907,19 +1007,29 @@ impl CansmcAxis {
                 }
             }
             Step::Jogging => {
-                if op.deadman.is_some_and(|d| now >= d)
-                    && let Motion::Jog { target, .. } = &mut self.motion
-                    && *target != 0.0
-                {
-                    *target = 0.0;
-                    if let Some(op) = &mut self.op {
+                let deadman_expired = op.deadman.is_some_and(|d| now >= d);
+                if deadman_expired {
+                    let braking = match &mut self.motion {
+                        Motion::Jog { target, .. } if *target != 0.0 => {
+                            *target = 0.0;
+                            true
+                        }
+                        Motion::SlaveVelocity { target, stage } if *target != 0.0 => {
+                            *target = 0.0;
+                            *stage = VelocityStage::Braking;
+                            true
+                        }
+                        _ => false,
+                    };
+                    if braking && let Some(op) = &mut self.op {
                         op.deadline = Some(now + self.cfg.settle_timeout);
                     }
                 }
-                let deadman_expired = op.deadman.is_some_and(|d| now >= d);
                 let requested_zero =
                     matches!(self.motion, Motion::Jog { target, .. } if target == 0.0);
-                if requested_zero && self.demand_velocity == 0.0 {
+                let slave_at_rest = matches!(self.motion, Motion::Hold)
+                    && self.cfg.jog_mode == JogMode::SlaveVelocity;
+                if (requested_zero && self.demand_velocity == 0.0) || slave_at_rest {
                     self.motion = Motion::Hold;
                     if deadman_expired {
                         self.finish(
@@ -977,6 +1087,7 @@ impl CansmcAxis {
 
     fn advance_motion(&mut self, source: Option<i32>, dt: f64) {
         let previous = self.demand;
+        let actual = self.actual();
         match &mut self.motion {
             Motion::Hold | Motion::Homing => {
                 self.demand_velocity = 0.0;
@@ -1028,6 +1139,36 @@ impl CansmcAxis {
                 }
                 if let Some(min) = self.cfg.min_position {
                     self.demand = self.demand.max(min.min(previous));
+                }
+            }
+            Motion::SlaveVelocity { target, stage } => {
+                // The demand shows where the motor is (the slave plans).
+                self.demand = actual;
+                self.demand_velocity = match stage {
+                    VelocityStage::Running => *target,
+                    _ => 0.0,
+                };
+                match stage {
+                    VelocityStage::Running => {
+                        // Soft limits: brake in time (at the axis's default
+                        // deceleration; the slave's own ramp must not be
+                        // slower).
+                        let v = self.velocity;
+                        let stopping = v * v.abs() / (2.0 * self.cfg.default_acceleration);
+                        let p = self.demand;
+                        if (v > 0.0 && self.cfg.max_position.is_some_and(|m| p + stopping >= m))
+                            || (v < 0.0 && self.cfg.min_position.is_some_and(|m| p + stopping <= m))
+                        {
+                            *target = 0.0;
+                            *stage = VelocityStage::Braking;
+                        }
+                    }
+                    VelocityStage::Braking => {
+                        if self.velocity.abs() <= self.cfg.in_position_window {
+                            *stage = VelocityStage::ReadingPosition;
+                        }
+                    }
+                    VelocityStage::ReadingPosition => {}
                 }
             }
             Motion::Geared { offset } => {

@@ -27,7 +27,7 @@ use std::time::Duration;
 
 use crate::config::{BusConfig, StopChoice};
 use cangate_axis::Units;
-use cangate_axis::cansmc::{CansmcAxisConfig, Gear};
+use cangate_axis::cansmc::{CansmcAxisConfig, Gear, JogMode};
 use cangate_cansmc::{CycleConfig, Infeasibility, SmcAddress};
 
 /// One CANsmc master.
@@ -215,6 +215,30 @@ pub struct CansmcAxisEntry {
     /// Follower counts per source count (default 1).
     #[serde(default = "default_ratio")]
     pub gear_ratio: f64,
+    /// `interpolated` (default): the gateway ramps jogs and sends position
+    /// set-points; `velocity`: jogs use the slave's velocity mode (the
+    /// gateway writes parameter 2 = 1, unit 0.001 r/min, in P1).
+    #[serde(default)]
+    pub jog_mode: JogModeChoice,
+    /// Encoder counts per motor revolution (the slave's parameter 3), for
+    /// velocity-mode jogs (default 10000).
+    #[serde(default = "default_counts_per_rev")]
+    pub counts_per_rev: u32,
+}
+
+/// How a CANsmc axis jogs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum JogModeChoice {
+    /// Position set-points from the gateway's velocity ramp.
+    #[default]
+    Interpolated,
+    /// The slave's velocity mode (function 0x03).
+    Velocity,
+}
+
+fn default_counts_per_rev() -> u32 {
+    10_000
 }
 
 fn default_unit() -> String {
@@ -265,6 +289,11 @@ impl CansmcAxisEntry {
                 source,
                 ratio: self.gear_ratio,
             }),
+            jog_mode: match self.jog_mode {
+                JogModeChoice::Interpolated => JogMode::Interpolated,
+                JogModeChoice::Velocity => JogMode::SlaveVelocity,
+            },
+            counts_per_rev: self.counts_per_rev,
         }
     }
 
@@ -459,6 +488,9 @@ impl CansmcConfig {
                     ));
                 }
                 _ => {}
+            }
+            if a.counts_per_rev == 0 {
+                return Err(format!("axis {an}: counts_per_rev must be positive"));
             }
             if a.jog_deadman_ms == 0 || a.state_timeout_ms == 0 || a.homing_timeout_ms == 0 {
                 return Err(format!(

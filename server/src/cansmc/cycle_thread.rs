@@ -15,7 +15,7 @@
 //! from the axis API and parameter requests arrive through queues and are
 //! served at the next wake (within one cycle).
 
-use super::config::{CansmcConfig, CyclicChoice};
+use super::config::{CansmcConfig, CyclicChoice, JogModeChoice};
 use super::jitter::JitterHistogram;
 use super::{AxisPort, CansmcEvent, CansmcStatus, Request, SlaveView};
 use crate::axes::cia402_task::{BusRequest, CommandReply};
@@ -167,6 +167,12 @@ pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String>
 /// sources and `cyclic = "encoder"` slaves with an encoder request.
 fn master_config(cfg: &CansmcConfig) -> MasterConfig {
     let gear_sources: Vec<u8> = cfg.axes.iter().filter_map(|a| a.gear_source).collect();
+    let velocity_jogs: Vec<u8> = cfg
+        .axes
+        .iter()
+        .filter(|a| a.jog_mode == JogModeChoice::Velocity)
+        .map(|a| a.address)
+        .collect();
     let axis_slaves: Vec<u8> = cfg.axes.iter().map(|a| a.address).collect();
     let slaves = cfg
         .slaves
@@ -188,7 +194,16 @@ fn master_config(cfg: &CansmcConfig) -> MasterConfig {
             Some(SlaveSpec {
                 address,
                 required: s.required,
-                parameters: s.parameters.iter().map(|p| (p.number, p.value)).collect(),
+                parameters: {
+                    let mut p: Vec<(u16, i32)> =
+                        s.parameters.iter().map(|p| (p.number, p.value)).collect();
+                    // Velocity-mode jogs send 0.001 r/min (parameter 2 = 1)
+                    // unless the configuration sets the unit itself.
+                    if velocity_jogs.contains(&s.address) && !p.iter().any(|(n, _)| *n == 2) {
+                        p.insert(0, (2, 1));
+                    }
+                    p
+                },
                 initial_command,
             })
         })
@@ -347,10 +362,12 @@ impl Thread {
                 .slave(self.slots[i].address)
                 .and_then(|s| s.last.as_ref());
             let status = own.map(|(s, _, _)| *s);
-            let position = fresh(own).and_then(|(_, fb, _)| match fb {
-                Feedback::Position(p) | Feedback::Homing(p) => Some(p),
-                _ => None,
-            });
+            let (position, velocity, encoder) = match fresh(own).map(|(_, fb, _)| fb) {
+                Some(Feedback::Position(p) | Feedback::Homing(p)) => (Some(p), None, None),
+                Some(Feedback::Velocity(v)) => (None, Some(v), None),
+                Some(Feedback::Encoder(c)) => (None, None, Some(c)),
+                _ => (None, None, None),
+            };
             let source_count = self.gear_source[i].and_then(|src| {
                 fresh(self.master.slave(src).and_then(|s| s.last.as_ref())).and_then(
                     |(_, fb, _)| match fb {
@@ -368,6 +385,8 @@ impl Thread {
                     status,
                     position,
                     source_count,
+                    velocity,
+                    encoder,
                 },
                 &mut events,
             );

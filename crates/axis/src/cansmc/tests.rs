@@ -22,6 +22,11 @@ struct Servo {
     encoder: i32,
     /// Stop answering (a lost slave).
     silent: bool,
+    /// Velocity mode: counts/s.
+    velocity: f64,
+    /// The function of the command applied last: the DT carries its
+    /// feedback.
+    last: Option<Command>,
 }
 
 impl Servo {
@@ -36,8 +41,17 @@ impl Servo {
             self.last_reset = c.fault_reset;
             self.enabled = c.enable && !self.fault;
             if self.enabled && !c.halt {
+                self.last = Some(cmd.command);
                 match cmd.command {
-                    Command::Position(p) => self.position = p,
+                    Command::Position(p) => {
+                        self.velocity = 0.0;
+                        self.position = p;
+                    }
+                    // 0.001 r/min at 10 000 counts/rev; no ramp.
+                    Command::Velocity(v) => {
+                        self.velocity = f64::from(v) * 10_000.0 / 60_000.0;
+                        self.position += (self.velocity * CYCLE.as_secs_f64()).round() as i32;
+                    }
                     Command::Homing { .. } => {
                         self.homing_cycles += 1;
                         self.position -= self.position.signum() * 100.min(self.position.abs());
@@ -55,7 +69,14 @@ impl Servo {
         if self.silent {
             return CycleInput::default();
         }
+        let (position, velocity, encoder) = match self.last {
+            Some(Command::Velocity(_)) => (None, Some((self.velocity * 6.0) as i32), None),
+            Some(Command::Encoder) => (None, None, Some(self.position)),
+            _ => (Some(self.position), None, None),
+        };
         CycleInput {
+            velocity,
+            encoder,
             status: Some(StatusWord {
                 ready: true,
                 enabled: self.enabled,
@@ -65,7 +86,7 @@ impl Servo {
                 following_error: self.following_error,
                 ..StatusWord::default()
             }),
-            position: Some(self.position),
+            position,
             source_count: Some(self.encoder),
         }
     }
@@ -405,4 +426,52 @@ fn a_jog_stops_at_the_soft_limit() {
     }
     assert!(rig.servo.position <= 2_000, "{}", rig.servo.position);
     assert!(rig.servo.position > 1_900, "{}", rig.servo.position);
+}
+
+#[test]
+fn a_velocity_mode_jog_runs_in_the_slave_and_resumes_position_control_where_it_stopped() {
+    let mut c = cfg();
+    c.jog_mode = JogMode::SlaveVelocity;
+    let mut rig = Rig::enabled(c);
+    let start = rig.servo.position;
+    // 10 mm/s = 10 000 counts/s = 1 rev/s = 60 r/min = 60 000 × 0.001 r/min.
+    let id = rig
+        .command(AxisCommand::Jog {
+            velocity: 10.0,
+            acceleration: None,
+        })
+        .unwrap();
+    rig.cycles(2);
+    assert_eq!(
+        rig.servo.pending.unwrap().command,
+        Command::Velocity(60_000)
+    );
+    rig.cycles(100);
+    let moved = rig.servo.position - start;
+    assert!(
+        (1_900..=2_100).contains(&moved),
+        "about 200 ms at 10 mm/s: {moved}"
+    );
+    // The position is estimated from the velocity feedback meanwhile.
+    let est = rig.axis.snapshot().position;
+    let real = f64::from(rig.servo.position) / 1000.0;
+    assert!((est - real).abs() < 0.05, "estimate {est} vs {real}");
+    // The dead-man brakes (velocity 0), reads the encoder, then holds
+    // exactly there with a position set-point.
+    let (outcome, detail) = rig.until_done(id, 1000);
+    assert_eq!(outcome, Outcome::Stopped, "{detail}");
+    assert!(detail.contains("dead-man"), "{detail}");
+    rig.cycles(2);
+    assert_eq!(
+        rig.servo.pending.unwrap().command,
+        Command::Position(rig.servo.position)
+    );
+    assert_eq!(rig.axis.activity(), Activity::Idle);
+    let at = rig.servo.position;
+    rig.cycles(10);
+    assert_eq!(rig.servo.position, at, "holding");
+    // A move afterwards starts from the true position.
+    let id = rig.command(mv(f64::from(at) / 1000.0 + 1.0)).unwrap();
+    assert_eq!(rig.until_done(id, 500).0, Outcome::Completed);
+    assert_eq!(rig.servo.position, at + 1000);
 }
