@@ -267,7 +267,7 @@ impl CansmcAxis {
     }
 
     /// User units/s to the slave's velocity unit (0.001 r/min).
-    fn to_slave_velocity(&self, v: f64) -> i32 {
+    fn slave_velocity_of(&self, v: f64) -> i32 {
         let rpm_milli = v * self.cfg.units.counts_per_unit
             / f64::from(self.cfg.counts_per_rev.max(1))
             * 60_000.0;
@@ -277,7 +277,7 @@ impl CansmcAxis {
     }
 
     /// The slave's velocity unit (0.001 r/min) to user units/s.
-    fn from_slave_velocity(&self, v: i32) -> f64 {
+    fn user_velocity_of(&self, v: i32) -> f64 {
         self.units()
             .from_counts(f64::from(v) * f64::from(self.cfg.counts_per_rev.max(1)) / 60_000.0)
     }
@@ -865,7 +865,7 @@ impl CansmcAxis {
         }
         if let Some(v) = input.velocity {
             // Velocity mode: no position feedback; dead-reckon it.
-            self.velocity = self.from_slave_velocity(v);
+            self.velocity = self.user_velocity_of(v);
             if let Some(p) = self.position {
                 let moved = (self.velocity * dt * self.cfg.units.counts_per_unit).round();
                 self.position = Some(
@@ -903,7 +903,7 @@ impl CansmcAxis {
             Motion::SlaveVelocity {
                 target,
                 stage: VelocityStage::Running,
-            } => Command::Velocity(self.to_slave_velocity(target)),
+            } => Command::Velocity(self.slave_velocity_of(target)),
             Motion::SlaveVelocity {
                 stage: VelocityStage::Braking,
                 ..
