@@ -142,7 +142,8 @@ pub fn spawn_cansmc_slaves(
 /// bus timestamp (a bit-timed bus stamps the modelled end of frame), so the
 /// slave's time base (MST) and its cycle end (`T_end_s`) do not include the
 /// host's scheduling delay. Unstamped frames, and stamps more than 50 ms
-/// from now (a paused test clock, a wall-clock step), use `now`.
+/// from now (a wall-clock step), use `now`. Used on bit-timed buses only
+/// (see `run`).
 fn frame_time(ts: Timestamp, origin_wall: i128, now: Duration) -> Duration {
     if ts.as_nanos() == 0 {
         return now;
@@ -162,6 +163,11 @@ async fn run(
     cancel: CancellationToken,
 ) {
     let origin = Instant::now();
+    // On a bit-timed bus a frame's timestamp is the modelled end of its
+    // transmission: the slave's time base. Elsewhere (instant delivery,
+    // and tests on a paused tokio clock, which runs apart from the wall
+    // clock of the stamps) the moment of processing is used.
+    let timed = channel0.bus().config().bit_timing.is_some();
     let mut routes: Vec<Vec<usize>> = vec![Vec::new(); ADDRESSES];
     for (i, slave) in slaves.iter().enumerate() {
         routes[usize::from(slave.address.get())].push(i);
@@ -194,7 +200,11 @@ async fn run(
                     let PortEvent::Frame { frame, own: false } = event else {
                         continue;
                     };
-                    let now = frame_time(frame.timestamp(), origin_wall, now);
+                    let now = if timed {
+                        frame_time(frame.timestamp(), origin_wall, now)
+                    } else {
+                        now
+                    };
                     // The identifier's address field; a frame that does not
                     // decode still goes to the slave it names, which counts it.
                     let address = (frame.raw_id() & 0x3F) as usize;
