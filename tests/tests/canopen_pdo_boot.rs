@@ -219,6 +219,9 @@ async fn boot_procedure_configures_and_starts_and_pdos_flow() {
             if r.raw == vec![0x18, 0xFC, 0xFF, 0xFF] {
                 return r;
             }
+            // Poll, do not hammer: the per-client rate limit applies to
+            // tests too.
+            tokio::time::sleep(std::time::Duration::from_millis(5)).await;
         }
     })
     .await
