@@ -150,19 +150,26 @@ async fn boot_procedure_configures_and_starts_and_pdos_flow() {
     // The other failure paths: a vendor id mismatch, and a configured SDO
     // write the node refuses (0x1000 is read-only). Each is reported with
     // its reason and the node is not started.
-    let mut events = node_events(&c, vec![4, 5]).await;
+    let mut events = node_events(&c, vec![1, 4, 5]).await;
     send_nmt(&c, 0, pb::NmtCommand::ResetCommunication).await;
     let mut reasons = std::collections::BTreeMap::new();
+    // Node 1 reboots too: the RPDO below must wait for its boot procedure
+    // to start it again (an RPDO to a pre-operational node is ignored).
+    let mut node1_booted = false;
     tokio::time::timeout(WAIT, async {
-        while reasons.len() < 2 {
+        while reasons.len() < 2 || !node1_booted {
             let ev = events.message().await.unwrap().unwrap();
-            if let Some(Event::BootFailed(f)) = ev.event {
-                reasons.insert(ev.node, f.reason);
+            match ev.event {
+                Some(Event::BootFailed(f)) => {
+                    reasons.insert(ev.node, f.reason);
+                }
+                Some(Event::BootCompleted(_)) if ev.node == 1 => node1_booted = true,
+                _ => {}
             }
         }
     })
     .await
-    .expect("both boot failures reported");
+    .expect("both boot failures and node 1's boot reported");
     assert!(reasons[&4].contains("vendor id mismatch"), "{reasons:?}");
     assert!(
         reasons[&5].contains("writing 0x1000:00") && reasons[&5].contains("0x06010002"),
