@@ -390,7 +390,9 @@ async fn bursts_are_paced_evenly_excess_is_dropped_and_the_axis_stops_in_time() 
     }
     let start = setpoints.iter().position(|s| s.1 != 0).expect("it moved");
     let end = setpoints.iter().position(|s| s.1 == expected).unwrap();
-    let duration = setpoints[end].0 - setpoints[start - 1].0;
+    // The set-point before the first move (or the first one seen, when the
+    // stream's first frame already moved).
+    let duration = setpoints[end].0 - setpoints[start.saturating_sub(1)].0;
     let nominal = f64::from(expected) / 1000.0;
     assert!(
         duration >= nominal * 0.7 && duration <= nominal + 1.0,
