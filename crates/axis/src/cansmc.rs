@@ -390,31 +390,12 @@ impl CansmcAxis {
                 "no drive telegram from the slave yet (is the CANsmc master in P2?)".into(),
             ));
         };
-        let finite = |name: &str, v: f64| {
-            if v.is_finite() {
-                Ok(())
-            } else {
-                Err(CommandError::InvalidArgument(format!(
-                    "{name} must be a finite number"
-                )))
-            }
-        };
-        let positive = |name: &str, v: Option<f64>, max: f64| -> Result<(), CommandError> {
-            if let Some(v) = v {
-                finite(name, v)?;
-                if v <= 0.0 {
-                    return Err(CommandError::InvalidArgument(format!(
-                        "{name} must be positive (0 = the axis default), got {v}"
-                    )));
-                }
-                if v > max {
-                    return Err(CommandError::OutOfRange(format!(
-                        "{name} {v} exceeds the axis maximum {max}"
-                    )));
-                }
-            }
-            Ok(())
-        };
+        crate::checks::motion_arguments(
+            cmd,
+            self.cfg.max_velocity,
+            self.cfg.max_acceleration,
+            &self.cfg.unit,
+        )?;
         let needs_enabled = |what: &str| {
             if status.fault {
                 Err(CommandError::FailedPrecondition(format!(
@@ -439,37 +420,14 @@ impl CansmcAxis {
             }
         };
         match *cmd {
-            AxisCommand::Move {
-                target,
-                velocity,
-                acceleration,
-                ..
-            } => {
-                finite("target", target)?;
-                positive("velocity", velocity, self.cfg.max_velocity)?;
-                positive("acceleration", acceleration, self.cfg.max_acceleration)?;
-                needs_enabled("a move")?;
-                not_geared("a move")?;
-                if self.op.as_ref().is_some_and(|o| o.step == Step::Homing) {
-                    return Err(CommandError::FailedPrecondition(
-                        "the axis is homing: stop it first".into(),
-                    ));
-                }
-            }
-            AxisCommand::Jog {
-                velocity,
-                acceleration,
-            } => {
-                finite("velocity", velocity)?;
-                if velocity.abs() > self.cfg.max_velocity {
-                    return Err(CommandError::OutOfRange(format!(
-                        "jog velocity {velocity} exceeds the axis maximum {}",
-                        self.cfg.max_velocity
-                    )));
-                }
-                positive("acceleration", acceleration, self.cfg.max_acceleration)?;
-                needs_enabled("a jog")?;
-                not_geared("a jog")?;
+            AxisCommand::Move { .. } | AxisCommand::Jog { .. } => {
+                let what = if matches!(cmd, AxisCommand::Move { .. }) {
+                    "a move"
+                } else {
+                    "a jog"
+                };
+                needs_enabled(what)?;
+                not_geared(what)?;
                 if self.op.as_ref().is_some_and(|o| o.step == Step::Homing) {
                     return Err(CommandError::FailedPrecondition(
                         "the axis is homing: stop it first".into(),
@@ -496,22 +454,12 @@ impl CansmcAxis {
     }
 
     fn check_limits(&self, target: f64) -> Result<(), CommandError> {
-        let unit = &self.cfg.unit;
-        if let Some(min) = self.cfg.min_position
-            && target < min
-        {
-            return Err(CommandError::OutOfRange(format!(
-                "target {target} {unit} is below the soft limit {min} {unit}"
-            )));
-        }
-        if let Some(max) = self.cfg.max_position
-            && target > max
-        {
-            return Err(CommandError::OutOfRange(format!(
-                "target {target} {unit} is above the soft limit {max} {unit}"
-            )));
-        }
-        Ok(())
+        crate::checks::soft_limits(
+            target,
+            self.cfg.min_position,
+            self.cfg.max_position,
+            &self.cfg.unit,
+        )
     }
 
     fn limits(&self, velocity: f64, acceleration: f64) -> Result<Limits, CommandError> {

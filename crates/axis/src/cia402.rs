@@ -870,70 +870,12 @@ impl Cia402Axis {
                 "no process data from the drive yet (is its node booted and operational?)".into(),
             ));
         };
-        let finite = |name: &str, v: f64| {
-            if v.is_finite() {
-                Ok(())
-            } else {
-                Err(CommandError::InvalidArgument(format!(
-                    "{name} must be a finite number"
-                )))
-            }
-        };
-        let positive = |name: &str, v: Option<f64>, max: f64| -> Result<(), CommandError> {
-            if let Some(v) = v {
-                finite(name, v)?;
-                if v <= 0.0 {
-                    return Err(CommandError::InvalidArgument(format!(
-                        "{name} must be positive (0 = the axis default), got {v}"
-                    )));
-                }
-                if v > max {
-                    return Err(CommandError::OutOfRange(format!(
-                        "{name} {v} exceeds the axis maximum {max}"
-                    )));
-                }
-            }
-            Ok(())
-        };
-        let unit = &self.cfg.unit;
-        match *cmd {
-            AxisCommand::Move {
-                target,
-                velocity,
-                acceleration,
-                ..
-            } => {
-                finite("target", target)?;
-                positive(
-                    &format!("velocity ({unit}/s)"),
-                    velocity,
-                    self.cfg.max_velocity,
-                )?;
-                positive(
-                    &format!("acceleration ({unit}/s²)"),
-                    acceleration,
-                    self.cfg.max_acceleration,
-                )?;
-            }
-            AxisCommand::Jog {
-                velocity,
-                acceleration,
-            } => {
-                finite("velocity", velocity)?;
-                if velocity.abs() > self.cfg.max_velocity {
-                    return Err(CommandError::OutOfRange(format!(
-                        "jog velocity {velocity} {unit}/s exceeds the axis maximum {}",
-                        self.cfg.max_velocity
-                    )));
-                }
-                positive(
-                    &format!("acceleration ({unit}/s²)"),
-                    acceleration,
-                    self.cfg.max_acceleration,
-                )?;
-            }
-            _ => {}
-        }
+        crate::checks::motion_arguments(
+            cmd,
+            self.cfg.max_velocity,
+            self.cfg.max_acceleration,
+            &self.cfg.unit,
+        )?;
         let needs_enabled = matches!(
             cmd,
             AxisCommand::Move { .. } | AxisCommand::Jog { .. } | AxisCommand::Home
@@ -953,22 +895,12 @@ impl Cia402Axis {
     }
 
     fn check_limits(&self, target: f64) -> Result<(), CommandError> {
-        let unit = &self.cfg.unit;
-        if let Some(max) = self.cfg.max_position
-            && target > max
-        {
-            return Err(CommandError::OutOfRange(format!(
-                "target {target} {unit} is beyond the soft limit max_position = {max} {unit}"
-            )));
-        }
-        if let Some(min) = self.cfg.min_position
-            && target < min
-        {
-            return Err(CommandError::OutOfRange(format!(
-                "target {target} {unit} is beyond the soft limit min_position = {min} {unit}"
-            )));
-        }
-        Ok(())
+        crate::checks::soft_limits(
+            target,
+            self.cfg.min_position,
+            self.cfg.max_position,
+            &self.cfg.unit,
+        )
     }
 
     fn prepare_enable(&mut self) {

@@ -17,6 +17,7 @@
 //!   slave's encoder.
 
 pub mod cansmc;
+mod checks;
 pub mod cia402;
 pub mod lease;
 pub mod process_data;
