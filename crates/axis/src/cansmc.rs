@@ -334,6 +334,12 @@ impl CansmcAxis {
         self.op.as_ref().map(|o| o.id)
     }
 
+    /// Whether the axis is in fault or its slave is lost (cheap: no
+    /// snapshot).
+    pub fn has_fault(&self) -> bool {
+        self.lost.is_some() || self.status.is_some_and(|s| s.fault)
+    }
+
     fn fault_text(&self) -> Option<(u16, String)> {
         if let Some(reason) = &self.lost {
             return Some((0, format!("slave lost: {reason}")));

@@ -396,7 +396,7 @@ impl Thread {
             let changed = !events.is_empty();
             self.on_axis_events(i, events);
             let activity = self.slots[i].axis.activity();
-            let fault = self.slots[i].axis.snapshot().fault.is_some();
+            let fault = self.slots[i].axis.has_fault();
             if changed || self.slots[i].published != Some((activity, fault)) {
                 self.publish_axis(i);
             }
