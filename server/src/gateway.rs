@@ -203,6 +203,9 @@ impl Gateway {
                         eds,
                         heartbeat_timeout: (nc.heartbeat_timeout_ms > 0)
                             .then(|| Duration::from_millis(nc.heartbeat_timeout_ms)),
+                        // The CiA 402 axis task of the bus reads its drive's
+                        // TPDOs from the bus itself.
+                        tpdos_read_by_axis: axis.is_some(),
                         ..Default::default()
                     },
                 );
