@@ -530,10 +530,15 @@ async fn run_bus(
     let mut tick = tokio::time::interval(Duration::from_millis(20));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     tracing::info!(bus = %name, backend = ?shared.info.kind, interface = %shared.info.interface, "bus started");
+    // One cancellation future for the whole loop: a fresh one per turn
+    // registers with and unregisters from the token's waiter list at every
+    // wake-up of this hot task.
+    let cancelled = cancel.cancelled();
+    tokio::pin!(cancelled);
     loop {
         tokio::select! {
             biased;
-            _ = cancel.cancelled() => break,
+            _ = &mut cancelled => break,
             req = requests.recv() => {
                 let Some(req) = req else { break };
                 let total = req.frames.len();

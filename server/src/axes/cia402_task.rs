@@ -221,6 +221,11 @@ async fn run(
     let sleep = tokio::time::sleep_until((t.origin + far).into());
     tokio::pin!(sleep);
     let mut armed: Option<Option<Duration>> = None;
+    // One cancellation future for the whole loop: a fresh one per turn
+    // registers with and unregisters from the token's waiter list at every
+    // wake-up of this hot task.
+    let cancelled = cancel.cancelled();
+    tokio::pin!(cancelled);
     loop {
         let next = t.slots.iter().filter_map(|s| s.axis.next_deadline()).min();
         if armed != Some(next) {
@@ -230,7 +235,7 @@ async fn run(
         }
         tokio::select! {
             biased;
-            _ = cancel.cancelled() => break,
+            _ = &mut cancelled => break,
             r = requests.recv() => match r {
                 Some(r) => t.on_request(r),
                 None => break,

@@ -635,12 +635,17 @@ async fn run_master(task: MasterTask) {
     let mut gc = tokio::time::interval(Duration::from_millis(100));
     gc.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let far = Duration::from_secs(3600);
+    // One cancellation future for the whole loop: a fresh one per turn
+    // registers with and unregisters from the token's waiter list at every
+    // wake-up of this hot task.
+    let cancelled = cancel.cancelled();
+    tokio::pin!(cancelled);
     loop {
         let mut out = Output::default();
         let deadline = origin + master.next_deadline().unwrap_or(origin.elapsed() + far);
         tokio::select! {
             biased;
-            _ = cancel.cancelled() => break,
+            _ = &mut cancelled => break,
             n = sub.recv_many(&mut items, 256) => {
                 if n == 0 {
                     break;
