@@ -150,19 +150,28 @@ async fn boot_procedure_configures_and_starts_and_pdos_flow() {
     // The other failure paths: a vendor id mismatch, and a configured SDO
     // write the node refuses (0x1000 is read-only). Each is reported with
     // its reason and the node is not started.
-    let mut events = node_events(&c, vec![4, 5]).await;
+    // The reset reaches every node, node 1 too: the WritePdo below needs it
+    // operational again, so its boot procedure is awaited as well (an RPDO
+    // sent while it is still pre-operational is ignored, and the read-back
+    // loop would run into the per-client rate limit).
+    let mut events = node_events(&c, vec![1, 4, 5]).await;
     send_nmt(&c, 0, pb::NmtCommand::ResetCommunication).await;
     let mut reasons = std::collections::BTreeMap::new();
+    let mut node1_booted = false;
     tokio::time::timeout(WAIT, async {
-        while reasons.len() < 2 {
+        while reasons.len() < 2 || !node1_booted {
             let ev = events.message().await.unwrap().unwrap();
-            if let Some(Event::BootFailed(f)) = ev.event {
-                reasons.insert(ev.node, f.reason);
+            match ev.event {
+                Some(Event::BootFailed(f)) => {
+                    reasons.insert(ev.node, f.reason);
+                }
+                Some(Event::BootCompleted(_)) if ev.node == 1 => node1_booted = true,
+                _ => {}
             }
         }
     })
     .await
-    .expect("both boot failures reported");
+    .expect("both boot failures reported and node 1 booted again");
     assert!(reasons[&4].contains("vendor id mismatch"), "{reasons:?}");
     assert!(
         reasons[&5].contains("writing 0x1000:00") && reasons[&5].contains("0x06010002"),
