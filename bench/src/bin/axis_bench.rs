@@ -52,6 +52,9 @@ struct Args {
     /// Worker threads of the gateway's runtime.
     #[arg(long, default_value_t = 2)]
     gateway_threads: usize,
+    /// Only part 3 (the CPU figure): quicker when comparing builds.
+    #[arg(long)]
+    cpu_only: bool,
 }
 
 const CPU_TARGET_PERCENT: f64 = 10.0;
@@ -535,14 +538,17 @@ fn run(args: &Args) -> Result<bool> {
         },
         if args.quick { "quick" } else { "full" }
     );
-    let (c50, c99) = command_latency(samples)?;
-    println!(
-        "1. command latency, gRPC Move -> first RPDO on the bus: p50 {c50:.3} ms, p99 {c99:.3} ms ({samples} moves)"
-    );
-    let (s50, s99) = stream_latency(samples)?;
-    println!(
-        "2. state stream latency, TPDO on the bus -> client: p50 {s50:.3} ms, p99 {s99:.3} ms ({samples} updates)"
-    );
+    let (mut c50, mut c99, mut s50, mut s99) = (f64::NAN, f64::NAN, f64::NAN, f64::NAN);
+    if !args.cpu_only {
+        (c50, c99) = command_latency(samples)?;
+        println!(
+            "1. command latency, gRPC Move -> first RPDO on the bus: p50 {c50:.3} ms, p99 {c99:.3} ms ({samples} moves)"
+        );
+        (s50, s99) = stream_latency(samples)?;
+        println!(
+            "2. state stream latency, TPDO on the bus -> client: p50 {s50:.3} ms, p99 {s99:.3} ms ({samples} updates)"
+        );
+    }
     let (gw, sims, client, fps, sync_rate) = cpu_six_axes(cpu_s, args.gateway_threads)?;
     let ok = gw < CPU_TARGET_PERCENT;
     println!(

@@ -162,6 +162,60 @@ pub fn feedback_from_values<'a>(
     fb
 }
 
+/// The feedback carried by one received TPDO payload, read straight from
+/// its mapping: no intermediate [`Value`]s and no allocation, because the
+/// axis runtime does this for every TPDO of every drive (thousands a
+/// second). Gives the same result as [`PdoConfig::decode`] followed by
+/// [`feedback_from_values`] with a CiA 402 object dictionary: the signed
+/// objects (positions, velocity, mode display) are sign-extended from their
+/// mapped length, the statusword is not.
+///
+/// # Errors
+/// [`PdoError::ShortPayload`] when `data` is shorter than the mapping.
+pub fn feedback_from_pdo(cfg: &PdoConfig, data: &[u8]) -> Result<Feedback, PdoError> {
+    let need = cfg.len();
+    if data.len() < need {
+        return Err(PdoError::ShortPayload {
+            need,
+            got: data.len(),
+        });
+    }
+    let mut fb = Feedback::default();
+    let mut at = 0;
+    for m in &cfg.mapping {
+        let n = m.bits as usize / 8;
+        let bytes = &data[at..at + n];
+        at += n;
+        let a = m.addr;
+        let known = a == obj::STATUSWORD
+            || a == obj::POSITION_ACTUAL
+            || a == obj::VELOCITY_ACTUAL
+            || a == obj::MODES_OF_OPERATION_DISPLAY
+            || a == obj::FOLLOWING_ERROR_ACTUAL;
+        if !known {
+            continue;
+        }
+        // At most 64 bits fit a classic PDO; anything else is not a value
+        // of these objects.
+        if n == 0 || n > 8 {
+            return Err(PdoError::TooLong(u32::from(m.bits)));
+        }
+        let mut raw = [0u8; 8];
+        raw[..n].copy_from_slice(bytes);
+        let unsigned = u64::from_le_bytes(raw);
+        let shift = 64 - 8 * n as u32;
+        let signed = ((unsigned << shift) as i64) >> shift;
+        match a {
+            a if a == obj::STATUSWORD => fb.statusword = Some(unsigned as u16),
+            a if a == obj::POSITION_ACTUAL => fb.position = Some(signed as i32),
+            a if a == obj::VELOCITY_ACTUAL => fb.velocity = Some(signed as i32),
+            a if a == obj::MODES_OF_OPERATION_DISPLAY => fb.mode_display = Some(signed as i8),
+            _ => fb.following_error = Some(signed as i32),
+        }
+    }
+    Ok(fb)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -208,5 +262,33 @@ mod tests {
                 following_error: None
             }
         );
+    }
+
+    #[test]
+    fn feedback_from_pdo_matches_the_generic_decode() {
+        let node = NodeId::new(3).unwrap();
+        let (_, tpdos) = standard_pdos(node, FeedbackTrigger::Sync);
+        let eds = cangate_canopen::eds::Eds::parse(cangate_canopen::eds::SIM_DRIVE_EDS)
+            .expect("bundled drive EDS");
+        let od = &eds.od;
+        let payloads: [&[u8]; 4] = [
+            &[0x37, 0x12, 0xFB, 0xFF, 0xFF, 0xFF, 0x08],
+            &[0x27, 0x06, 0x10, 0x27, 0x00, 0x00, 0xFF],
+            &[0x00, 0x80, 0x00, 0x00, 0x00, 0x80, 0x01],
+            &[0x7F, 0x00, 0x00, 0xFF],
+        ];
+        for p in &tpdos {
+            for data in payloads {
+                let generic = p
+                    .decode(Some(od), data)
+                    .map(|values| feedback_from_values(values.iter().map(|(m, v)| (m.addr, v))));
+                let direct = feedback_from_pdo(p, data);
+                match (generic, direct) {
+                    (Ok(g), Ok(d)) => assert_eq!(g, d, "PDO {} payload {data:02X?}", p.num),
+                    (Err(_), Err(_)) => {}
+                    (g, d) => panic!("PDO {}: generic {g:?}, direct {d:?}", p.num),
+                }
+            }
+        }
     }
 }

@@ -75,16 +75,19 @@ enum BackendEvent {
 }
 
 impl Backend {
-    async fn next(&mut self, out: &mut Vec<BackendEvent>) {
+    /// Waits for events and appends them to `out`. `port_events` is the
+    /// virtual port's receive buffer, owned by the caller so that it is
+    /// allocated once, not at every wake-up (the bus task polls this anew
+    /// each loop turn).
+    async fn next(&mut self, out: &mut Vec<BackendEvent>, port_events: &mut Vec<PortEvent>) {
         match self {
             Backend::SocketCan(s) => out.push(match s.recv().await {
                 SocketCanEvent::Frame(frame) => BackendEvent::Frame { frame, own: false },
                 SocketCanEvent::State(st) => BackendEvent::State(st),
             }),
             Backend::Virtual(p) => {
-                let mut buf = Vec::with_capacity(256);
-                p.recv_many(&mut buf, 256).await;
-                out.extend(buf.into_iter().map(|ev| match ev {
+                p.recv_many(port_events, 256).await;
+                out.extend(port_events.drain(..).map(|ev| match ev {
                     PortEvent::Frame { frame, own } => BackendEvent::Frame { frame, own },
                     PortEvent::State(st) => BackendEvent::State(st),
                 }));
@@ -527,13 +530,19 @@ async fn run_bus(
     });
     let mut load = LoadMeter::new(1_000_000_000);
     let mut events = Vec::with_capacity(256);
+    let mut port_events = Vec::with_capacity(256);
     let mut tick = tokio::time::interval(Duration::from_millis(20));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     tracing::info!(bus = %name, backend = ?shared.info.kind, interface = %shared.info.interface, "bus started");
+    // One cancellation future for the whole loop: a fresh one per turn
+    // registers with and unregisters from the token's waiter list at every
+    // wake-up of this hot task.
+    let cancelled = cancel.cancelled();
+    tokio::pin!(cancelled);
     loop {
         tokio::select! {
             biased;
-            _ = cancel.cancelled() => break,
+            _ = &mut cancelled => break,
             req = requests.recv() => {
                 let Some(req) = req else { break };
                 let total = req.frames.len();
@@ -567,7 +576,7 @@ async fn run_bus(
                     }
                 }
             }
-            _ = backend.next(&mut events) => {
+            _ = backend.next(&mut events, &mut port_events) => {
                 for ev in events.drain(..) {
                     match ev {
                         BackendEvent::Frame { frame, own } => {

@@ -29,6 +29,35 @@ impl Filter {
         }
     }
 
+    /// Filters that together match exactly the standard identifiers
+    /// `first..=last`: the range split into aligned power-of-two blocks
+    /// (at most 20 filters for any range), so a subscriber can take a
+    /// range without its neighbours (EMCY 0x081..=0x0FF without SYNC 0x080).
+    pub fn standard_range(first: u16, last: u16) -> Vec<Filter> {
+        let last = u32::from(last.min(0x7FF));
+        let mut next = u32::from(first);
+        let mut out = Vec::new();
+        while next <= last {
+            // The largest block aligned at `next` that stays inside the range.
+            let mut size = if next == 0 {
+                0x800
+            } else {
+                1 << next.trailing_zeros()
+            };
+            while next + size - 1 > last {
+                size /= 2;
+            }
+            out.push(Filter {
+                id: next,
+                mask: 0x7FF & !(size - 1),
+                extended: Some(false),
+                inverted: false,
+            });
+            next += size;
+        }
+        out
+    }
+
     /// True if the frame passes this filter.
     pub fn matches(&self, frame: &Frame) -> bool {
         let format_ok = self.extended.is_none_or(|e| e == frame.is_extended());
@@ -142,5 +171,31 @@ mod tests {
         let err = Frame::new_error(0x40, [0; 8]);
         assert!(!sel.matches(&err));
         assert!(FrameSelector::all().matches(&err));
+    }
+
+    #[test]
+    fn standard_range_matches_exactly_the_range() {
+        for (first, last) in [
+            (0x081, 0x0FF),
+            (0x580, 0x5FF),
+            (0, 0x7FF),
+            (0x123, 0x123),
+            (5, 0x700),
+        ] {
+            let filters = Filter::standard_range(first, last);
+            assert!(filters.len() <= 20, "{first:X}..{last:X}: {filters:?}");
+            for id in 0..=0x7FFu16 {
+                let hit = filters
+                    .iter()
+                    .any(|flt| flt.matches(&f(CanId::Standard(id))));
+                assert_eq!(hit, (first..=last).contains(&id), "id {id:X}");
+            }
+            assert!(
+                !filters
+                    .iter()
+                    .any(|flt| flt.matches(&f(CanId::Extended(u32::from(first)))))
+            );
+        }
+        assert_eq!(Filter::standard_range(0x081, 0x0FF).len(), 7);
     }
 }

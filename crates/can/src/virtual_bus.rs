@@ -14,9 +14,11 @@ use crate::frame::{Frame, Timestamp};
 use crate::state::{BusState, BusStatus};
 use crate::timing::{Arbiter, BitTiming, LoadMeter};
 use std::collections::{HashMap, HashSet, VecDeque};
+use std::pin::Pin;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex, RwLock, Weak};
 use std::time::{Duration, Instant};
+use tokio::sync::futures::OwnedNotified;
 use tokio::sync::{Notify, mpsc};
 
 /// Configuration of one virtual bus.
@@ -115,7 +117,7 @@ struct Inner {
     delay_ns: AtomicU64,
     status: Mutex<BusStatus>,
     status_version: AtomicU64,
-    status_notify: Notify,
+    status_notify: Arc<Notify>,
     origin: Instant,
     origin_wall: u64,
     // Set once (at creation for bit-timed buses, on the first delay fault
@@ -174,7 +176,7 @@ impl VirtualBus {
                 delay_ns: AtomicU64::new(0),
                 status: Mutex::new(BusStatus::UP),
                 status_version: AtomicU64::new(0),
-                status_notify: Notify::new(),
+                status_notify: Arc::new(Notify::new()),
                 origin: Instant::now(),
                 origin_wall,
                 timed: std::sync::OnceLock::new(),
@@ -221,6 +223,7 @@ impl VirtualBus {
             seen_status: self.inner.status_version.load(Ordering::Acquire),
             shared,
             rx,
+            status_wait: None,
         }
     }
 
@@ -525,6 +528,10 @@ pub struct VirtualPort {
     shared: Arc<PortShared>,
     rx: mpsc::Receiver<PortEvent>,
     seen_status: u64,
+    /// The wait for the next state change, kept from one receive to the
+    /// next until it fires: a fresh one per receive would register with and
+    /// unregister from the bus's state notifier on every frame batch.
+    status_wait: Option<Pin<Box<OwnedNotified>>>,
 }
 
 impl std::fmt::Debug for VirtualPort {
@@ -583,19 +590,24 @@ impl VirtualPort {
     /// [`VirtualPort::overflows`].
     pub async fn recv(&mut self) -> PortEvent {
         loop {
-            let inner = self.bus.inner.clone();
-            let notified = inner.status_notify.notified();
+            // Armed before the check, so a change right after it wakes us.
+            arm(&mut self.status_wait, &self.bus.inner.status_notify);
             if let Some(ev) = self.status_event() {
                 return ev;
             }
-            tokio::select! {
+            let wait = arm(&mut self.status_wait, &self.bus.inner.status_notify);
+            let changed = tokio::select! {
                 biased;
-                _ = notified => continue,
+                _ = wait => true,
                 ev = self.rx.recv() => {
                     // The port holds the bus, so the sender side lives as
                     // long as we do; `None` cannot happen.
                     if let Some(ev) = ev { return ev; }
+                    false
                 }
+            };
+            if changed {
+                self.status_wait = None;
             }
         }
     }
@@ -603,18 +615,23 @@ impl VirtualPort {
     /// Receives up to `limit` events into `buf` (waiting for at least one).
     pub async fn recv_many(&mut self, buf: &mut Vec<PortEvent>, limit: usize) -> usize {
         loop {
-            let inner = self.bus.inner.clone();
-            let notified = inner.status_notify.notified();
+            // Armed before the check, so a change right after it wakes us.
+            arm(&mut self.status_wait, &self.bus.inner.status_notify);
             if let Some(ev) = self.status_event() {
                 buf.push(ev);
                 return 1;
             }
-            tokio::select! {
+            let wait = arm(&mut self.status_wait, &self.bus.inner.status_notify);
+            let changed = tokio::select! {
                 biased;
-                _ = notified => continue,
+                _ = wait => true,
                 n = self.rx.recv_many(buf, limit) => {
                     if n > 0 { return n; }
+                    false
                 }
+            };
+            if changed {
+                self.status_wait = None;
             }
         }
     }
@@ -626,6 +643,18 @@ impl VirtualPort {
         }
         self.rx.try_recv().ok()
     }
+}
+
+/// The armed wait for a state change of a port. A wait that is already
+/// armed was created before the caller's latest check of the state
+/// version, so a change after that check is not missed (`notify_waiters`
+/// reaches every future created before it).
+fn arm<'a>(
+    slot: &'a mut Option<Pin<Box<OwnedNotified>>>,
+    notify: &Arc<Notify>,
+) -> Pin<&'a mut OwnedNotified> {
+    slot.get_or_insert_with(|| Box::pin(notify.clone().notified_owned()))
+        .as_mut()
 }
 
 impl Drop for VirtualPort {

@@ -216,14 +216,14 @@ impl AxisManager {
                     local,
                 });
             }
-            tasks.push(tokio::spawn(cia402_task::run(
+            tasks.push(cia402_task::spawn(
                 master,
                 list,
                 rx,
                 updates.clone(),
                 latest.clone(),
                 cancel.child_token(),
-            )));
+            ));
         }
         let axes: Vec<AxisEntry> = axes
             .into_iter()

@@ -3,7 +3,7 @@
 //! answers the gRPC layer's commands. Also starts the simulated CANopen
 //! devices configured on virtual buses.
 
-use cangate_can::{BusHandle, BusItem, FrameSelector, Timestamp};
+use cangate_can::{BusHandle, BusItem, Filter, FrameSelector, Timestamp};
 use cangate_canopen::eds::Eds;
 use cangate_canopen::emcy::{Emcy, EmcyEvent};
 use cangate_canopen::heartbeat::HeartbeatEvent;
@@ -45,6 +45,11 @@ pub struct NodeFacts {
     pub rpdos: Vec<PdoConfig>,
     /// What to do when the node boots, if anything.
     pub boot: Option<Arc<BootPlan>>,
+    /// An axis task reads this node's TPDOs straight from the bus (and
+    /// counts and relays them with [`CanopenBus::relay_tpdo`]), so the
+    /// master's own subscription leaves them out: at a 1 ms SYNC that takes
+    /// a task wake-up per PDO batch off the master.
+    pub tpdos_read_by_axis: bool,
 }
 
 /// The boot procedure of a node (in the spirit of CiA 302): check, write
@@ -188,13 +193,19 @@ pub struct CanopenBus {
     events: broadcast::Sender<NodeEvent>,
     facts: Arc<RwLock<BTreeMap<NodeId, NodeFacts>>>,
     syncs: broadcast::Sender<Instant>,
-    /// Received TPDOs per configured TPDO: (node, PDO number, count).
-    tpdo_counts: Arc<Vec<(NodeId, u16, Arc<AtomicU64>)>>,
+    /// The COB-ID of the SYNC this master produces, if it produces one.
+    sync_cob_id: Option<u16>,
+    /// Every configured TPDO by COB-ID.
+    tpdos: Arc<HashMap<u16, TpdoRoute>>,
 }
 
-/// A configured TPDO as the master task decodes it, with its receive
-/// counter.
-type TpdoEntry = (NodeId, PdoConfig, Option<Arc<Eds>>, Arc<AtomicU64>);
+/// A configured TPDO: how to decode it, and its receive counter.
+struct TpdoRoute {
+    node: NodeId,
+    cfg: PdoConfig,
+    eds: Option<Arc<Eds>>,
+    count: AtomicU64,
+}
 
 impl CanopenBus {
     /// Starts the master task of `bus`.
@@ -209,27 +220,39 @@ impl CanopenBus {
         let (events, _) = broadcast::channel(4096);
         let (pdos, _) = broadcast::channel(16_384);
         let (syncs, _) = broadcast::channel(64);
-        let tpdo_map: HashMap<u16, TpdoEntry> = configured
+        let tpdos: HashMap<u16, TpdoRoute> = configured
             .iter()
             .flat_map(|(id, f)| {
                 f.tpdos.iter().map(move |p| {
                     (
                         p.cob_id,
-                        (*id, p.clone(), f.eds.clone(), Arc::new(AtomicU64::new(0))),
+                        TpdoRoute {
+                            node: *id,
+                            cfg: p.clone(),
+                            eds: f.eds.clone(),
+                            count: AtomicU64::new(0),
+                        },
                     )
                 })
             })
             .collect();
-        let mut tpdo_counts: Vec<_> = tpdo_map
-            .values()
-            .map(|(node, p, _, n)| (*node, p.num, n.clone()))
-            .collect();
-        tpdo_counts.sort_by_key(|(node, num, _)| (*node, *num));
+        let selector = master_selector(&configured);
         let boots: Vec<(NodeId, Arc<BootPlan>)> = configured
             .iter()
             .filter_map(|(id, f)| f.boot.clone().map(|b| (*id, b)))
             .collect();
         let facts = Arc::new(RwLock::new(configured));
+        let mut sync_cob_id = None;
+        if let Some(period) = sync_period
+            && let Ok(producer) = cangate_canopen::sync::SyncProducer::new(period, 0)
+        {
+            match sync_thread::spawn(bus.clone(), producer, syncs.clone(), cancel.clone()) {
+                Ok(_) => sync_cob_id = Some(cangate_canopen::ids::cob::SYNC),
+                Err(e) => {
+                    tracing::error!(bus = %bus.name(), error = %e, "cannot start the SYNC producer thread")
+                }
+            }
+        }
         let handle = CanopenBus {
             bus: bus.name().to_string(),
             handle: bus.clone(),
@@ -238,15 +261,10 @@ impl CanopenBus {
             events: events.clone(),
             facts: facts.clone(),
             syncs: syncs.clone(),
-            tpdo_counts: Arc::new(tpdo_counts),
+            sync_cob_id,
+            tpdos: Arc::new(tpdos),
         };
         let mut master = Master::new(sdo_timeout);
-        if let Some(period) = sync_period
-            && let Ok(producer) = cangate_canopen::sync::SyncProducer::new(period, 0)
-            && let Err(e) = sync_thread::spawn(bus.clone(), producer, syncs.clone(), cancel.clone())
-        {
-            tracing::error!(bus = %bus.name(), error = %e, "cannot start the SYNC producer thread");
-        }
         for (id, f) in facts.read().expect("facts lock").iter() {
             if let Some(t) = f.heartbeat_timeout {
                 master.monitor_heartbeat(*id, t);
@@ -254,7 +272,7 @@ impl CanopenBus {
         }
         // Subscribe before returning, so that nothing the nodes send after
         // this point (their boot-up, typically) is missed.
-        let sub = bus.subscribe(FrameSelector::default(), 65_536);
+        let sub = bus.subscribe(selector, 65_536);
         let boot_events = handle.events();
         let task = tokio::spawn(run_master(MasterTask {
             master,
@@ -262,8 +280,8 @@ impl CanopenBus {
             sub,
             commands: rx,
             events,
+            tpdos: handle.tpdos.clone(),
             pdos,
-            tpdo_map,
             facts,
             cancel: cancel.clone(),
         }));
@@ -282,6 +300,18 @@ impl CanopenBus {
     /// configured), with the time it went out.
     pub fn syncs(&self) -> broadcast::Receiver<Instant> {
         self.syncs.subscribe()
+    }
+
+    /// The COB-ID of the SYNC this master produces (its SYNC thread
+    /// runs), for tasks that follow the SYNC on the bus itself: with
+    /// `transmitted` in their selector they see each SYNC as it goes out.
+    pub fn sync_cob_id(&self) -> Option<u16> {
+        self.sync_cob_id
+    }
+
+    /// The bus this master runs on.
+    pub fn bus_handle(&self) -> &BusHandle {
+        &self.handle
     }
 
     /// Bus name.
@@ -375,15 +405,38 @@ impl CanopenBus {
 
     /// TPDOs received per configured TPDO: (node, PDO number, count).
     pub fn tpdo_counts(&self) -> Vec<(NodeId, u16, u64)> {
-        self.tpdo_counts
-            .iter()
-            .map(|(node, num, n)| (*node, *num, n.load(Ordering::Relaxed)))
-            .collect()
+        let mut counts: Vec<_> = self
+            .tpdos
+            .values()
+            .map(|r| (r.node, r.cfg.num, r.count.load(Ordering::Relaxed)))
+            .collect();
+        counts.sort_by_key(|(node, num, _)| (*node, *num));
+        counts
+    }
+
+    /// Accounts for a received frame if it is a configured TPDO: counts it
+    /// and, when someone listens ([`CanopenBus::pdos`]), decodes and
+    /// publishes it. The master does this for the TPDOs it subscribes to;
+    /// an axis task that reads its drives' TPDOs itself
+    /// ([`NodeFacts::tpdos_read_by_axis`]) calls it for those. Building the
+    /// update allocates, so nothing is built without a listener.
+    pub fn relay_tpdo(&self, frame: &cangate_can::Frame) {
+        relay_tpdo(&self.tpdos, &self.pdos, frame);
     }
 
     /// Subscribes to decoded TPDOs.
     pub fn pdos(&self) -> broadcast::Receiver<PdoUpdate> {
         self.pdos.subscribe()
+    }
+
+    /// The TPDO configurations of a node.
+    pub fn tpdos(&self, node: NodeId) -> Vec<PdoConfig> {
+        self.facts
+            .read()
+            .expect("facts lock")
+            .get(&node)
+            .map(|f| f.tpdos.clone())
+            .unwrap_or_default()
     }
 
     /// The RPDO configuration of a node.
@@ -531,10 +584,35 @@ struct MasterTask {
     sub: cangate_can::Subscription,
     commands: mpsc::Receiver<Command>,
     events: broadcast::Sender<NodeEvent>,
+    /// The TPDOs the master counts and publishes (not a `CanopenBus`: its
+    /// command sender would keep the task's own command queue open).
+    tpdos: Arc<HashMap<u16, TpdoRoute>>,
     pdos: broadcast::Sender<PdoUpdate>,
-    tpdo_map: HashMap<u16, TpdoEntry>,
     facts: Arc<RwLock<BTreeMap<NodeId, NodeFacts>>>,
     cancel: CancellationToken,
+}
+
+/// What the master task subscribes to: what the sans-IO master reads (EMCY,
+/// SDO responses, heartbeats; not the SYNC, which it ignores) and the
+/// configured TPDOs no axis task reads itself. Leaving out the rest (SYNC,
+/// RPDOs, the axes' TPDOs: nearly all of a cyclic bus's traffic) spares the
+/// task a wake-up per frame batch.
+fn master_selector(configured: &BTreeMap<NodeId, NodeFacts>) -> FrameSelector {
+    use cangate_canopen::ids::cob;
+    let mut filters = Filter::standard_range(cob::EMCY + 1, cob::EMCY + 0x7F);
+    filters.extend(Filter::standard_range(cob::SDO_TX + 1, cob::SDO_TX + 0x7F));
+    filters.extend(Filter::standard_range(
+        cob::HEARTBEAT + 1,
+        cob::HEARTBEAT + 0x7F,
+    ));
+    for f in configured.values().filter(|f| !f.tpdos_read_by_axis) {
+        filters.extend(f.tpdos.iter().map(|p| Filter::exact_standard(p.cob_id)));
+    }
+    FrameSelector {
+        filters,
+        error_frames: false,
+        transmitted: false,
+    }
 }
 
 async fn run_master(task: MasterTask) {
@@ -544,8 +622,8 @@ async fn run_master(task: MasterTask) {
         mut sub,
         mut commands,
         events,
+        tpdos,
         pdos,
-        tpdo_map,
         facts,
         cancel,
     } = task;
@@ -557,12 +635,17 @@ async fn run_master(task: MasterTask) {
     let mut gc = tokio::time::interval(Duration::from_millis(100));
     gc.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let far = Duration::from_secs(3600);
+    // One cancellation future for the whole loop: a fresh one per turn
+    // registers with and unregisters from the token's waiter list at every
+    // wake-up of this hot task.
+    let cancelled = cancel.cancelled();
+    tokio::pin!(cancelled);
     loop {
         let mut out = Output::default();
         let deadline = origin + master.next_deadline().unwrap_or(origin.elapsed() + far);
         tokio::select! {
             biased;
-            _ = cancel.cancelled() => break,
+            _ = &mut cancelled => break,
             n = sub.recv_many(&mut items, 256) => {
                 if n == 0 {
                     break;
@@ -572,14 +655,7 @@ async fn run_master(task: MasterTask) {
                     match item {
                         BusItem::Frame { frame, .. } => {
                             master.on_frame(&frame, now, &mut out);
-                            if !frame.is_extended()
-                                && let Some((node, cfg, eds, count)) = tpdo_map.get(&(frame.raw_id() as u16))
-                            {
-                                count.fetch_add(1, Ordering::Relaxed);
-                                if pdos.receiver_count() > 0 {
-                                    publish_pdo(&pdos, *node, cfg, eds.as_deref(), &frame);
-                                }
-                            }
+                            relay_tpdo(&tpdos, &pdos, &frame);
                         }
                         BusItem::Lost(n) => tracing::warn!(bus = %bus.name(), lost = n, "CANopen master missed frames (overloaded)"),
                         BusItem::State(_) => {}
@@ -636,6 +712,24 @@ async fn run_master(task: MasterTask) {
         }
     }
     tracing::info!(bus = %bus.name(), "CANopen master stopped");
+}
+
+/// See [`CanopenBus::relay_tpdo`].
+fn relay_tpdo(
+    routes: &HashMap<u16, TpdoRoute>,
+    pdos: &broadcast::Sender<PdoUpdate>,
+    frame: &cangate_can::Frame,
+) {
+    if frame.is_extended() {
+        return;
+    }
+    let Some(route) = routes.get(&(frame.raw_id() as u16)) else {
+        return;
+    };
+    route.count.fetch_add(1, Ordering::Relaxed);
+    if pdos.receiver_count() > 0 {
+        publish_pdo(pdos, route.node, &route.cfg, route.eds.as_deref(), frame);
+    }
 }
 
 fn publish_pdo(
