@@ -59,9 +59,10 @@ pub enum StartError {
 }
 
 /// The runtime the bus side runs on: the bus owner tasks, the CANopen and
-/// CANsmc masters, the axis and handwheel tasks (everything
-/// [`Gateway::start`] spawns), one current-thread tokio runtime on its own
-/// thread `gateway-bus`. The gRPC services stay on the caller's runtime.
+/// CANsmc masters, the axis tasks and simulated devices (what
+/// [`Gateway::start`] spawns, except the handwheel tasks, which feed the
+/// gRPC side), one current-thread tokio runtime on its own thread
+/// `gateway-bus`. The gRPC services stay on the caller's runtime.
 ///
 /// Why: the process data path (a frame arrives, the bus task fans it out,
 /// the axis task steps and sends) is a chain of task wake-ups. On a
@@ -140,8 +141,10 @@ impl Gateway {
         )?;
         // Everything spawned from here on (tokio::spawn in the bus, master,
         // axis and handwheel constructors) runs on the bus runtime.
+        // The caller's runtime (the gRPC side), if there is one.
+        let caller = tokio::runtime::Handle::try_current().ok();
         let bus_side = bus_runtime.handle.clone();
-        let _bus_side = bus_side.enter();
+        let _bus_side_guard = bus_side.enter();
         let network = VirtualNetwork::new();
         let mut buses = BTreeMap::new();
         let mut tasks = Vec::new();
@@ -339,14 +342,22 @@ impl Gateway {
             cansmc.insert(mc.name.clone(), master);
             cansmc_threads.push(thread);
         }
-        let (handwheels, wheel_tasks) = HandwheelManager::start(
-            &config.handwheels,
-            &canopen,
-            &buses,
-            &axes,
-            &sim_wheels,
-            shutdown.child_token(),
-        )
+        // The handwheel tasks run with the gRPC side: each feed event is
+        // broadcast to every StreamFeed subscriber, and from the bus
+        // thread each of those wake-ups would be a cross-runtime schedule
+        // (100 subscribers at 7 000 frames/s: 700 000 a second from one
+        // thread). Their input from the bus is one wake-up per batch.
+        let (handwheels, wheel_tasks) = {
+            let _caller_side = caller.as_ref().map(|h| h.enter());
+            HandwheelManager::start(
+                &config.handwheels,
+                &canopen,
+                &buses,
+                &axes,
+                &sim_wheels,
+                shutdown.child_token(),
+            )
+        }
         .map_err(|message| StartError::Bus {
             bus: "handwheels".into(),
             message,

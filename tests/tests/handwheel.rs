@@ -341,6 +341,11 @@ async fn bursts_are_paced_evenly_excess_is_dropped_and_the_axis_stops_in_time() 
         },
     )
     .await;
+    // One idle set-point first (the axis at rest), so the motion's start is
+    // seen after it: without this wait the first set-point on the stream
+    // could already be a moving one when the wheel's feed reaches the axis
+    // before the next SYNC.
+    let idle = read_frames(&mut frames, &mut pending, 1).await;
     // 500 units within ~35 ms (the wheel sends 15 000 frames/s).
     b.sim
         .turn_handwheel(pb::TurnHandwheelRequest {
@@ -372,7 +377,11 @@ async fn bursts_are_paced_evenly_excess_is_dropped_and_the_axis_stops_in_time() 
     let target_of =
         |f: &pb::Frame| i32::from_le_bytes([f.data[0], f.data[1], f.data[2], f.data[3]]);
     let expected = binding.executed_units as i32;
-    let mut setpoints: Vec<(f64, i32)> = Vec::new();
+    let mut setpoints: Vec<(f64, i32)> = idle
+        .iter()
+        .map(|f| (f.timestamp_ns as f64 / 1e9, target_of(f)))
+        .collect();
+    assert_eq!(setpoints[0].1, 0, "the axis rests at 0 before the burst");
     let t0 = Instant::now();
     loop {
         let got = read_frames(&mut frames, &mut pending, 1).await;
