@@ -322,12 +322,26 @@ impl Gateway {
                 };
                 let ch0 = vbus(&mc.command_bus)?.connect(false);
                 let ch1 = vbus(&mc.status_bus)?.connect(false);
-                tasks.push(cangate_sim::cansmc_runner::spawn_cansmc_slaves(
-                    ch0,
-                    ch1,
-                    sims.clone(),
-                    shutdown.child_token(),
-                ));
+                // The simulated slaves stand for other hardware: they get a
+                // thread of their own, so that they neither load nor wait
+                // for the gateway's bus thread.
+                let cancel = shutdown.child_token();
+                let slaves = sims.clone();
+                let rt = tokio::runtime::Builder::new_current_thread()
+                    .enable_time()
+                    .build()
+                    .map_err(|e| err(format!("simulated slaves: {e}")))?;
+                std::thread::Builder::new()
+                    .name(format!("sim-{}", mc.name))
+                    .spawn(move || {
+                        rt.block_on(async move {
+                            let runner = cangate_sim::cansmc_runner::spawn_cansmc_slaves(
+                                ch0, ch1, slaves, cancel,
+                            );
+                            let _ = runner.await;
+                        });
+                    })
+                    .map_err(|e| err(format!("simulated slaves: {e}")))?;
                 sim_smc.insert(mc.name.clone(), sims);
             }
             let (master, thread) = CansmcMaster::start(
