@@ -14,11 +14,12 @@
 //! and SDO, and this task hands it each TPDO for the counters and the
 //! StreamPdo subscribers ([`CanopenBus::relay_tpdo`]).
 
+use super::commands::{CoordinatedAxis, Waiters, for_axis, plan_coordinated};
 use super::{AxisEventKind, AxisInfo, AxisUpdate, LatestStates};
 use crate::canopen::{CanopenBus, NodeEventKind};
 use cangate_axis::cia402::{AxisSnapshot, Cia402Axis, Output};
 use cangate_axis::process_data::{encode_image, feedback_from_pdo};
-use cangate_axis::{AxisCommand, AxisEvent, CommandError, OpId, Outcome};
+use cangate_axis::{AxisCommand, AxisEvent, CommandError, Outcome};
 use cangate_can::{
     BusItem, CanId, Direction, Filter, Frame, FrameSelector, Subscription, Timestamp,
 };
@@ -26,7 +27,6 @@ use cangate_canopen::master::SdoRequest;
 use cangate_canopen::pdo::{PdoConfig, PdoKind};
 use cangate_canopen::sdo::TransferOptions;
 use cangate_canopen::{NodeId, ObjectAddress};
-use cangate_motion::{AxisMove, Limits, SyncedMove};
 use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -79,17 +79,12 @@ pub enum BusRequest {
     },
 }
 
-struct PendingReply {
-    wait: bool,
-    tx: oneshot::Sender<CommandReply>,
-}
-
 struct Slot {
     global: usize,
     info: AxisInfo,
     axis: Cia402Axis,
     rpdos: Vec<PdoConfig>,
-    waiters: HashMap<OpId, PendingReply>,
+    waiters: Waiters,
     /// Bus time of the latest process data.
     at: Timestamp,
     /// The latest payload sent per RPDO COB-ID.
@@ -154,7 +149,7 @@ pub fn spawn(
                 axis: Cia402Axis::new(info.config.controller()),
                 info,
                 rpdos,
-                waiters: HashMap::new(),
+                waiters: Waiters::default(),
                 at: Timestamp(0),
                 last_sent: HashMap::new(),
             }
@@ -394,8 +389,7 @@ impl Task {
     ) -> Result<Waiter, CommandError> {
         let mut out = Vec::new();
         let op = self.slots[i].axis.command(cmd, now, &mut out)?;
-        let (tx, rx) = oneshot::channel();
-        self.slots[i].waiters.insert(op, PendingReply { wait, tx });
+        let rx = self.slots[i].waiters.add(op, wait);
         self.handle(i, out);
         self.publish_status(i);
         Ok(rx)
@@ -407,50 +401,41 @@ impl Task {
         wait: bool,
         now: Duration,
     ) -> Result<Vec<Waiter>, CommandError> {
-        let mut moves = Vec::new();
-        for &(i, target, v, a) in &targets {
-            let cfg = self.slots[i].axis.config();
-            let v = v.unwrap_or(cfg.default_velocity);
-            let a = a.unwrap_or(cfg.default_acceleration);
-            if v > cfg.max_velocity || a > cfg.max_acceleration {
-                return Err(CommandError::OutOfRange(format!(
-                    "axis {}: velocity {v} / acceleration {a} exceed the maxima {} / {}",
-                    self.slots[i].info.config.name, cfg.max_velocity, cfg.max_acceleration
-                )));
-            }
-            let limits = Limits::symmetric(v, a).map_err(|e| {
-                CommandError::InvalidArgument(format!(
-                    "axis {}: {e}",
-                    self.slots[i].info.config.name
-                ))
-            })?;
-            moves.push(AxisMove::new(self.slots[i].axis.demand(), target, limits));
-        }
-        let plan =
-            SyncedMove::new(moves).map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+        let axes: Vec<CoordinatedAxis<'_>> = targets
+            .iter()
+            .map(|&(i, target, velocity, acceleration)| {
+                let cfg = self.slots[i].axis.config();
+                CoordinatedAxis {
+                    name: &self.slots[i].info.config.name,
+                    from: self.slots[i].axis.demand(),
+                    target,
+                    velocity,
+                    acceleration,
+                    default_velocity: cfg.default_velocity,
+                    default_acceleration: cfg.default_acceleration,
+                    max_velocity: cfg.max_velocity,
+                    max_acceleration: cfg.max_acceleration,
+                }
+            })
+            .collect();
+        let plan = plan_coordinated(&axes)?;
         // All or none: check every axis before starting any.
         for &(i, target, ..) in &targets {
             self.slots[i]
                 .axis
                 .check_coordinated(target)
-                .map_err(|e| prefix(&self.slots[i].info.config.name, e))?;
+                .map_err(|e| for_axis(&self.slots[i].info.config.name, e))?;
         }
         let mut waiters = Vec::new();
-        for (k, &(i, ..)) in targets.iter().enumerate() {
-            let profile = plan.profile(k).expect("one profile per axis").clone();
-            let ratio = plan
-                .time_scale(k)
-                .map_or(0.0, |l| if l.is_finite() { 1.0 / l } else { 0.0 });
+        for ((profile, ratio), &(i, ..)) in plan.into_iter().zip(&targets) {
             let mut out = Vec::new();
             let op = self.slots[i]
                 .axis
                 .start_coordinated(profile, ratio, now, &mut out)
-                .map_err(|e| prefix(&self.slots[i].info.config.name, e))?;
-            let (tx, rx) = oneshot::channel();
-            self.slots[i].waiters.insert(op, PendingReply { wait, tx });
+                .map_err(|e| for_axis(&self.slots[i].info.config.name, e))?;
+            waiters.push(self.slots[i].waiters.add(op, wait));
             self.handle(i, out);
             self.publish_status(i);
-            waiters.push(rx);
         }
         Ok(waiters)
     }
@@ -567,59 +552,14 @@ impl Task {
 
     fn on_axis_event(&mut self, i: usize, e: AxisEvent) {
         let slot = &mut self.slots[i];
-        match e {
-            AxisEvent::Accepted { op } => {
-                if slot.waiters.get(&op).is_some_and(|w| !w.wait)
-                    && let Some(w) = slot.waiters.remove(&op)
-                {
-                    let _ = w.tx.send(CommandReply {
-                        outcome: None,
-                        detail: "accepted by the drive".into(),
-                        snapshot: slot.axis.snapshot(),
-                    });
-                }
-            }
-            AxisEvent::Done {
-                op,
-                command,
-                outcome,
-                detail,
-            } => {
-                tracing::info!(target: "cangate::audit", axis = %slot.info.config.name, command = %command, outcome = outcome.name(), %detail, "axis command ended");
-                if let Some(w) = slot.waiters.remove(&op) {
-                    let _ = w.tx.send(CommandReply {
-                        outcome: Some(outcome),
-                        detail: detail.clone(),
-                        snapshot: slot.axis.snapshot(),
-                    });
-                }
-                let _ = self.updates.send(AxisUpdate::Event {
-                    axis: slot.global,
-                    at: Timestamp::now(),
-                    event: AxisEventKind::MotionDone {
-                        command,
-                        outcome,
-                        detail,
-                    },
-                });
-            }
-            AxisEvent::Fault { code, text } => {
-                if code == 0 && text.is_empty() {
-                    tracing::info!(axis = %slot.info.config.name, "axis fault cleared");
-                } else if code == 0 && text.contains("rebooted") {
-                    // Every start-up: the drive boots, the boot procedure
-                    // configures it; not worth a warning.
-                    tracing::info!(axis = %slot.info.config.name, %text, "axis waits for its drive");
-                } else {
-                    tracing::warn!(axis = %slot.info.config.name, code = format!("0x{code:04X}"), %text, "axis fault");
-                }
-                let _ = self.updates.send(AxisUpdate::Event {
-                    axis: slot.global,
-                    at: Timestamp::now(),
-                    event: AxisEventKind::Fault { code, text },
-                });
-            }
-        }
+        let axis = &slot.axis;
+        slot.waiters.dispatch(
+            e,
+            &slot.info.config.name,
+            slot.global,
+            || axis.snapshot(),
+            Some(&self.updates),
+        );
     }
 
     fn publish_status(&mut self, i: usize) {
@@ -646,16 +586,4 @@ impl Task {
 
 fn cob_hex(id: u32) -> String {
     format!("0x{id:03X}")
-}
-
-fn prefix(axis: &str, e: CommandError) -> CommandError {
-    match e {
-        CommandError::OutOfRange(m) => CommandError::OutOfRange(format!("axis {axis}: {m}")),
-        CommandError::InvalidArgument(m) => {
-            CommandError::InvalidArgument(format!("axis {axis}: {m}"))
-        }
-        CommandError::FailedPrecondition(m) => {
-            CommandError::FailedPrecondition(format!("axis {axis}: {m}"))
-        }
-    }
 }

@@ -7,6 +7,7 @@
 //! The gRPC `Axes` service is a thin shell over [`AxisManager`].
 
 pub mod cia402_task;
+pub(crate) mod commands;
 
 use crate::canopen::CanopenBus;
 use crate::cansmc::{AxisPort, CansmcConfig};

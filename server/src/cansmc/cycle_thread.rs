@@ -19,16 +19,16 @@ use super::config::{CansmcConfig, CyclicChoice, JogModeChoice};
 use super::jitter::JitterHistogram;
 use super::{AxisPort, CansmcEvent, CansmcStatus, Request, SlaveView};
 use crate::axes::cia402_task::{BusRequest, CommandReply};
+use crate::axes::commands::{CoordinatedAxis, Waiters, for_axis, plan_coordinated};
 use crate::axes::{AxisEventKind, AxisUpdate};
 use crate::error::ApiError;
 use cangate_axis::cansmc::{CansmcAxis, CycleInput};
-use cangate_axis::{AxisCommand, AxisEvent, CommandError, OpId};
+use cangate_axis::{AxisCommand, AxisEvent, CommandError};
 use cangate_can::{BusHandle, BusItem, Direction, Frame, FrameSelector, Subscription, Timestamp};
 use cangate_cansmc::master::{
     Master, MasterConfig, MasterEvent, ParameterError, Phase, RequestId, SlaveSpec, SlaveState,
 };
 use cangate_cansmc::{Command, Feedback, SmcAddress};
-use cangate_motion::{AxisMove, Limits, SyncedMove};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -50,17 +50,12 @@ pub(crate) struct Setup {
     pub cancel: CancellationToken,
 }
 
-struct PendingReply {
-    wait: bool,
-    tx: oneshot::Sender<CommandReply>,
-}
-
 struct Slot {
     global: usize,
     name: String,
     address: SmcAddress,
     axis: CansmcAxis,
-    waiters: HashMap<OpId, PendingReply>,
+    waiters: Waiters,
     /// Activity and fault at the latest publication, to publish changes
     /// at once.
     published: Option<(cangate_axis::Activity, bool)>,
@@ -118,7 +113,7 @@ pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String>
                 name: info.config.name.clone(),
                 address,
                 axis: CansmcAxis::new(entry.controller(cycle)),
-                waiters: HashMap::new(),
+                waiters: Waiters::default(),
                 published: None,
             });
             gear_source.push(entry.gear_source.and_then(|a| SmcAddress::new(a).ok()));
@@ -660,8 +655,7 @@ impl Thread {
     ) -> Result<oneshot::Receiver<CommandReply>, CommandError> {
         let mut events = Vec::new();
         let op = self.slots[i].axis.command(cmd, now, &mut events)?;
-        let (tx, rx) = oneshot::channel();
-        self.slots[i].waiters.insert(op, PendingReply { wait, tx });
+        let rx = self.slots[i].waiters.add(op, wait);
         self.on_axis_events(i, events);
         self.publish_axis(i);
         Ok(rx)
@@ -673,108 +667,56 @@ impl Thread {
         wait: bool,
         now: Duration,
     ) -> Result<Vec<oneshot::Receiver<CommandReply>>, CommandError> {
-        let mut moves = Vec::new();
-        for &(i, target, v, a) in &targets {
-            let cfg = self.slots[i].axis.config();
-            let v = v.unwrap_or(cfg.default_velocity);
-            let a = a.unwrap_or(cfg.default_acceleration);
-            if v > cfg.max_velocity || a > cfg.max_acceleration {
-                return Err(CommandError::OutOfRange(format!(
-                    "axis {}: velocity {v} / acceleration {a} exceed the maxima {} / {}",
-                    self.slots[i].name, cfg.max_velocity, cfg.max_acceleration
-                )));
-            }
-            let limits = Limits::symmetric(v, a).map_err(|e| {
-                CommandError::InvalidArgument(format!("axis {}: {e}", self.slots[i].name))
-            })?;
-            moves.push(AxisMove::new(self.slots[i].axis.demand(), target, limits));
-        }
-        let plan =
-            SyncedMove::new(moves).map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+        let axes: Vec<CoordinatedAxis<'_>> = targets
+            .iter()
+            .map(|&(i, target, velocity, acceleration)| {
+                let cfg = self.slots[i].axis.config();
+                CoordinatedAxis {
+                    name: &self.slots[i].name,
+                    from: self.slots[i].axis.demand(),
+                    target,
+                    velocity,
+                    acceleration,
+                    default_velocity: cfg.default_velocity,
+                    default_acceleration: cfg.default_acceleration,
+                    max_velocity: cfg.max_velocity,
+                    max_acceleration: cfg.max_acceleration,
+                }
+            })
+            .collect();
+        let plan = plan_coordinated(&axes)?;
+        // All or none: check every axis before starting any.
         for &(i, target, ..) in &targets {
             self.slots[i]
                 .axis
                 .check_coordinated(target)
-                .map_err(|e| prefix(&self.slots[i].name, e))?;
+                .map_err(|e| for_axis(&self.slots[i].name, e))?;
         }
         let mut waiters = Vec::new();
-        for (k, &(i, ..)) in targets.iter().enumerate() {
-            let Some(profile) = plan.profile(k).cloned() else {
-                continue;
-            };
-            let ratio = plan
-                .time_scale(k)
-                .map_or(0.0, |l| if l.is_finite() { 1.0 / l } else { 0.0 });
+        for ((profile, ratio), &(i, ..)) in plan.into_iter().zip(&targets) {
             let mut events = Vec::new();
             let op = self.slots[i]
                 .axis
                 .start_coordinated(profile, ratio, now, &mut events)
-                .map_err(|e| prefix(&self.slots[i].name, e))?;
-            let (tx, rx) = oneshot::channel();
-            self.slots[i].waiters.insert(op, PendingReply { wait, tx });
+                .map_err(|e| for_axis(&self.slots[i].name, e))?;
+            waiters.push(self.slots[i].waiters.add(op, wait));
             self.on_axis_events(i, events);
             self.publish_axis(i);
-            waiters.push(rx);
         }
         Ok(waiters)
     }
 
     fn on_axis_events(&mut self, i: usize, events: Vec<AxisEvent>) {
+        let slot = &mut self.slots[i];
+        let axis = &slot.axis;
         for e in events {
-            let slot = &mut self.slots[i];
-            match e {
-                AxisEvent::Accepted { op } => {
-                    if slot.waiters.get(&op).is_some_and(|w| !w.wait)
-                        && let Some(w) = slot.waiters.remove(&op)
-                    {
-                        let _ = w.tx.send(CommandReply {
-                            outcome: None,
-                            detail: "accepted".into(),
-                            snapshot: slot.axis.snapshot(),
-                        });
-                    }
-                }
-                AxisEvent::Done {
-                    op,
-                    command,
-                    outcome,
-                    detail,
-                } => {
-                    tracing::info!(target: "cangate::audit", axis = %slot.name, command = %command, outcome = outcome.name(), %detail, "axis command ended");
-                    if let Some(w) = slot.waiters.remove(&op) {
-                        let _ = w.tx.send(CommandReply {
-                            outcome: Some(outcome),
-                            detail: detail.clone(),
-                            snapshot: slot.axis.snapshot(),
-                        });
-                    }
-                    if let Some(u) = &self.updates {
-                        let _ = u.send(AxisUpdate::Event {
-                            axis: slot.global,
-                            at: Timestamp::now(),
-                            event: AxisEventKind::MotionDone {
-                                command,
-                                outcome,
-                                detail,
-                            },
-                        });
-                    }
-                }
-                AxisEvent::Fault { code, text } => {
-                    if code == 0 && text.is_empty() {
-                        tracing::info!(axis = %slot.name, "axis fault cleared");
-                    } else {
-                        tracing::warn!(axis = %slot.name, code = format!("0x{code:04X}"), %text, "axis fault");
-                    }
-                    if let Some(u) = &self.updates {
-                        let _ = u.send(AxisUpdate::Event {
-                            axis: slot.global,
-                            at: Timestamp::now(),
-                            event: AxisEventKind::Fault { code, text },
-                        });
-                    }
-                }
-            }
+            slot.waiters.dispatch(
+                e,
+                &slot.name,
+                slot.global,
+                || axis.snapshot(),
+                self.updates.as_ref(),
+            );
         }
     }
 }
@@ -824,17 +766,5 @@ fn parameter_error(e: ParameterError) -> ApiError {
         ParameterError::Timeout { .. } => ApiError::DeadlineExceeded(e.to_string()),
         ParameterError::Unavailable { .. } => ApiError::Unavailable(e.to_string()),
         ParameterError::Cancelled => ApiError::Aborted(e.to_string()),
-    }
-}
-
-fn prefix(axis: &str, e: CommandError) -> CommandError {
-    match e {
-        CommandError::OutOfRange(m) => CommandError::OutOfRange(format!("axis {axis}: {m}")),
-        CommandError::InvalidArgument(m) => {
-            CommandError::InvalidArgument(format!("axis {axis}: {m}"))
-        }
-        CommandError::FailedPrecondition(m) => {
-            CommandError::FailedPrecondition(format!("axis {axis}: {m}"))
-        }
     }
 }

@@ -1,0 +1,166 @@
+//! What both axis runtimes (the CiA 402 task of a CANopen bus, the cycle
+//! thread of a CANsmc master) do with commands the same way: answering the
+//! callers waiting for a command, publishing its events, planning a
+//! coordinated move, naming the axis in a refusal.
+
+use super::{AxisEventKind, AxisUpdate};
+use crate::axes::cia402_task::CommandReply;
+use cangate_axis::cia402::AxisSnapshot;
+use cangate_axis::{AxisEvent, CommandError, OpId};
+use cangate_can::Timestamp;
+use cangate_motion::{AxisMove, Limits, SyncedMove, TrapezoidProfile};
+use std::collections::HashMap;
+use tokio::sync::{broadcast, oneshot};
+
+struct PendingReply {
+    /// Answer at completion (true) or at acceptance.
+    wait: bool,
+    tx: oneshot::Sender<CommandReply>,
+}
+
+/// The callers waiting for the commands of one axis.
+#[derive(Default)]
+pub(crate) struct Waiters(HashMap<OpId, PendingReply>);
+
+impl Waiters {
+    /// Registers a caller of command `op`.
+    pub(crate) fn add(&mut self, op: OpId, wait: bool) -> oneshot::Receiver<CommandReply> {
+        let (tx, rx) = oneshot::channel();
+        self.0.insert(op, PendingReply { wait, tx });
+        rx
+    }
+
+    /// Answers the waiters `event` concerns, writes the audit and fault
+    /// log lines, and publishes it on `updates` as axis `global`.
+    pub(crate) fn dispatch(
+        &mut self,
+        event: AxisEvent,
+        name: &str,
+        global: usize,
+        snapshot: impl Fn() -> AxisSnapshot,
+        updates: Option<&broadcast::Sender<AxisUpdate>>,
+    ) {
+        let publish = |event: AxisEventKind| {
+            if let Some(u) = updates {
+                let _ = u.send(AxisUpdate::Event {
+                    axis: global,
+                    at: Timestamp::now(),
+                    event,
+                });
+            }
+        };
+        match event {
+            AxisEvent::Accepted { op } => {
+                if self.0.get(&op).is_some_and(|w| !w.wait)
+                    && let Some(w) = self.0.remove(&op)
+                {
+                    let _ = w.tx.send(CommandReply {
+                        outcome: None,
+                        detail: "accepted by the drive".into(),
+                        snapshot: snapshot(),
+                    });
+                }
+            }
+            AxisEvent::Done {
+                op,
+                command,
+                outcome,
+                detail,
+            } => {
+                tracing::info!(target: "cangate::audit", axis = %name, command = %command, outcome = outcome.name(), %detail, "axis command ended");
+                if let Some(w) = self.0.remove(&op) {
+                    let _ = w.tx.send(CommandReply {
+                        outcome: Some(outcome),
+                        detail: detail.clone(),
+                        snapshot: snapshot(),
+                    });
+                }
+                publish(AxisEventKind::MotionDone {
+                    command,
+                    outcome,
+                    detail,
+                });
+            }
+            AxisEvent::Fault { code, text } => {
+                if code == 0 && text.is_empty() {
+                    tracing::info!(axis = %name, "axis fault cleared");
+                } else if code == 0 && text.contains("rebooted") {
+                    // Every start-up: the drive boots, the boot procedure
+                    // configures it; not worth a warning.
+                    tracing::info!(axis = %name, %text, "axis waits for its drive");
+                } else {
+                    tracing::warn!(axis = %name, code = format!("0x{code:04X}"), %text, "axis fault");
+                }
+                publish(AxisEventKind::Fault { code, text });
+            }
+        }
+    }
+}
+
+/// One axis of a coordinated move, as the runtime knows it.
+pub(crate) struct CoordinatedAxis<'a> {
+    /// For messages.
+    pub name: &'a str,
+    /// Where it starts (its demand position).
+    pub from: f64,
+    /// Where it goes.
+    pub target: f64,
+    /// The requested velocity and acceleration (`None`: the defaults).
+    pub velocity: Option<f64>,
+    /// See `velocity`.
+    pub acceleration: Option<f64>,
+    /// The axis's defaults and maxima.
+    pub default_velocity: f64,
+    /// See `default_velocity`.
+    pub default_acceleration: f64,
+    /// See `default_velocity`.
+    pub max_velocity: f64,
+    /// See `default_velocity`.
+    pub max_acceleration: f64,
+}
+
+/// Plans a move where all axes start and arrive together: per axis its
+/// profile and the time scale (profile time per wall time) to play it at.
+pub(crate) fn plan_coordinated(
+    axes: &[CoordinatedAxis<'_>],
+) -> Result<Vec<(TrapezoidProfile, f64)>, CommandError> {
+    let mut moves = Vec::new();
+    for a in axes {
+        let v = a.velocity.unwrap_or(a.default_velocity);
+        let acc = a.acceleration.unwrap_or(a.default_acceleration);
+        if v > a.max_velocity || acc > a.max_acceleration {
+            return Err(CommandError::OutOfRange(format!(
+                "axis {}: velocity {v} / acceleration {acc} exceed the maxima {} / {}",
+                a.name, a.max_velocity, a.max_acceleration
+            )));
+        }
+        let limits = Limits::symmetric(v, acc)
+            .map_err(|e| CommandError::InvalidArgument(format!("axis {}: {e}", a.name)))?;
+        moves.push(AxisMove::new(a.from, a.target, limits));
+    }
+    let plan = SyncedMove::new(moves).map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+    (0..axes.len())
+        .map(|k| {
+            let profile = plan.profile(k).cloned().ok_or_else(|| {
+                CommandError::InvalidArgument("the coordinated plan lost an axis".into())
+            })?;
+            let ratio = plan
+                .time_scale(k)
+                .map_or(0.0, |l| if l.is_finite() { 1.0 / l } else { 0.0 });
+            Ok((profile, ratio))
+        })
+        .collect()
+}
+
+/// `e` with the axis named in its message.
+pub(crate) fn for_axis(axis: &str, e: CommandError) -> CommandError {
+    match e {
+        CommandError::OutOfRange(m) => CommandError::OutOfRange(format!("axis {axis}: {m}")),
+        CommandError::InvalidArgument(m) => {
+            CommandError::InvalidArgument(format!("axis {axis}: {m}"))
+        }
+        CommandError::FailedPrecondition(m) => {
+            CommandError::FailedPrecondition(format!("axis {axis}: {m}"))
+        }
+    }
+}
