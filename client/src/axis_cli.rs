@@ -443,6 +443,15 @@ fn position_mode_name(m: i32) -> &'static str {
     }
 }
 
+/// "pdo", "sdo every 10 ms", or "-" (CANsmc axes).
+fn process_data_text(a: &pb::Axis) -> String {
+    match pb::ProcessDataPath::try_from(a.process_data) {
+        Ok(pb::ProcessDataPath::Pdo) => "pdo".into(),
+        Ok(pb::ProcessDataPath::Sdo) => format!("sdo every {} ms", a.sdo_poll_ms),
+        _ => "-".into(),
+    }
+}
+
 fn stop_kind_name(k: i32) -> &'static str {
     match pb::StopKind::try_from(k) {
         Ok(pb::StopKind::Halt) => "halt",
@@ -553,6 +562,7 @@ fn axis_json(a: &pb::Axis) -> Value {
         "max_velocity": a.max_velocity,
         "max_acceleration": a.max_acceleration,
         "position_mode": position_mode_name(a.position_mode),
+        "process_data": process_data_text(a),
         "stop_on_loss": stop_kind_name(a.stop_on_loss),
         "jog_deadman_ms": a.jog_deadman_ms,
         "status": a.status.as_ref().map(|s| status_json(s, None)),
@@ -1308,6 +1318,7 @@ async fn show(ctx: &Ctx, axis: &str) -> Result<()> {
             "position mode",
             position_mode_name(a.position_mode).to_string(),
         ),
+        ("process data", process_data_text(&a)),
         ("stop on loss", stop_kind_name(a.stop_on_loss).to_string()),
         ("jog dead-man", format!("{} ms", a.jog_deadman_ms)),
         (

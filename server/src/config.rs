@@ -223,6 +223,20 @@ pub enum PositionModeChoice {
     Cyclic,
 }
 
+/// How an axis's process data (controlword, targets, statusword, actual
+/// position and velocity) travels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ProcessDataChoice {
+    /// PDOs, mapped by the gateway at the drive's boot (the normal case).
+    #[default]
+    Pdo,
+    /// SDO: the gateway polls the feedback every `sdo_poll_ms` and writes
+    /// changed objects; for drives whose PDOs cannot be mapped, or a bus
+    /// without room for them. Profile position only.
+    Sdo,
+}
+
 /// How a lapsed lease or dead-man timeout stops an axis.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -290,6 +304,19 @@ pub struct AxisConfig {
     /// In-position window of cyclic moves, user units (default: 10 counts).
     #[serde(default)]
     pub in_position_window: Option<f64>,
+    /// `pdo` (default) or `sdo`: the fallback for drives without usable
+    /// PDOs (profile position axes only).
+    #[serde(default)]
+    pub process_data: ProcessDataChoice,
+    /// With `process_data = "sdo"`: how often the statusword, position,
+    /// velocity and mode display are read, in ms (four SDO uploads each
+    /// time).
+    #[serde(default = "default_sdo_poll_ms")]
+    pub sdo_poll_ms: u32,
+}
+
+fn default_sdo_poll_ms() -> u32 {
+    10
 }
 
 fn default_unit() -> String {
@@ -420,6 +447,21 @@ impl AxisConfig {
                 "axis {}: jog_deadman_ms, state_timeout_ms and homing_timeout_ms must be positive",
                 self.name
             ));
+        }
+        if self.process_data == ProcessDataChoice::Sdo {
+            if self.position_mode == PositionModeChoice::Cyclic {
+                return Err(format!(
+                    "axis {}: process_data = \"sdo\" needs position_mode = \"profile\": a \
+                     cyclic set-point every SYNC cannot go by SDO",
+                    self.name
+                ));
+            }
+            if !(1..=10_000).contains(&self.sdo_poll_ms) {
+                return Err(format!(
+                    "axis {}: sdo_poll_ms must be 1..=10000, got {}",
+                    self.name, self.sdo_poll_ms
+                ));
+            }
         }
         Ok(())
     }
@@ -1045,6 +1087,26 @@ eds = "builtin:drive"
         assert!(e.contains("counts_per_unit"), "{e}");
         let e = axis_err(&format!("{ok}default_velocity = 20.0\n"));
         assert!(e.contains("exceeds max_velocity"), "{e}");
+        // The SDO fallback: profile position only, a sane poll period.
+        let sdo = format!("{ok}process_data = \"sdo\"\n");
+        Config::from_toml(&format!("{AXIS_BASE}[[axis]]\n{sdo}")).unwrap();
+        let e = Config::from_toml(&format!(
+            "{}[[axis]]\n{sdo}position_mode = \"cyclic\"\n",
+            AXIS_BASE.replace(
+                "bus = \"can0\"\n[[canopen.node]]",
+                "bus = \"can0\"\nsync_period_us = 1000\n[[canopen.node]]"
+            )
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("process_data = \"sdo\" needs position_mode = \"profile\""),
+            "{e}"
+        );
+        let e = axis_err(&format!("{sdo}sdo_poll_ms = 0\n"));
+        assert!(e.contains("sdo_poll_ms must be 1..=10000"), "{e}");
+        let e = axis_err(&format!("{ok}process_data = \"rpc\"\n"));
+        assert!(e.contains("rpc") && e.contains("process_data"), "{e}");
         let two = format!(
             "{AXIS_BASE}[[axis]]\n{ok}[[axis]]\n{}",
             ok.replace("\"X\"", "\"Y\"")

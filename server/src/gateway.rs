@@ -6,7 +6,8 @@ use crate::axes::AxisManager;
 use crate::canopen::{BootPlan, CanopenBus, NodeFacts};
 use crate::cansmc::CansmcMaster;
 use crate::config::{
-    AxisConfig, BackendChoice, BusConfig, Config, NodeConfig, StuffingChoice, parse_object,
+    AxisConfig, BackendChoice, BusConfig, Config, NodeConfig, ProcessDataChoice, StuffingChoice,
+    parse_object,
 };
 use crate::error::ApiError;
 use crate::grpc::axes_service::AxesService;
@@ -515,7 +516,12 @@ fn node_plan(
         } else {
             FeedbackTrigger::Event { event_timer_ms: 10 }
         };
-        let (rpdos, tpdos) = standard_pdos(node, trigger);
+        // The SDO fallback maps no PDO: whatever the drive's own PDOs
+        // carry is left alone and not used.
+        let (rpdos, tpdos) = match axis.process_data {
+            ProcessDataChoice::Pdo => standard_pdos(node, trigger),
+            ProcessDataChoice::Sdo => (Vec::new(), Vec::new()),
+        };
         let mut writes = Vec::new();
         if let Some(ms) = nc.heartbeat_producer_ms {
             writes.push((ObjectAddress::new(0x1017, 0), ms.to_le_bytes().to_vec()));

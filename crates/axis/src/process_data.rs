@@ -12,6 +12,11 @@
 //!
 //! RPDO2 is sent before RPDO1 so a new set-point bit never arrives before
 //! its target.
+//!
+//! The SDO fallback (`process_data = "sdo"`, profile position axes only):
+//! no PDO is configured; the runtime reads [`SDO_FEEDBACK_OBJECTS`] by SDO
+//! every poll period ([`feedback_from_sdo`]) and writes each changed
+//! process image object by SDO, the controlword last ([`sdo_image_writes`]).
 
 use cangate_canopen::NodeId;
 use cangate_canopen::ObjectAddress;
@@ -216,6 +221,96 @@ pub fn feedback_from_pdo(cfg: &PdoConfig, data: &[u8]) -> Result<Feedback, PdoEr
     Ok(fb)
 }
 
+/// The objects a drive's feedback is read from when its process data goes
+/// by SDO (`process_data = "sdo"`, for drives or buses without usable
+/// PDOs), in the order one poll reads them.
+pub const SDO_FEEDBACK_OBJECTS: [ObjectAddress; 4] = [
+    obj::STATUSWORD,
+    obj::POSITION_ACTUAL,
+    obj::VELOCITY_ACTUAL,
+    obj::MODES_OF_OPERATION_DISPLAY,
+];
+
+/// An SDO upload of a feedback object that does not hold a value of the
+/// object's CiA 402 type.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{addr} answered {got} bytes; CiA 402 defines it as {need} bytes")]
+pub struct SdoFeedbackError {
+    /// The object.
+    pub addr: ObjectAddress,
+    /// Bytes its type has.
+    pub need: usize,
+    /// Bytes the drive sent.
+    pub got: usize,
+}
+
+/// The feedback in one SDO poll: `uploads` are the payloads of
+/// [`SDO_FEEDBACK_OBJECTS`], in that order.
+///
+/// # Errors
+/// [`SdoFeedbackError`] when a payload has the wrong length (a drive that
+/// maps these objects differently is not a CiA 402 drive we can run).
+pub fn feedback_from_sdo(uploads: &[Vec<u8>; 4]) -> Result<Feedback, SdoFeedbackError> {
+    fn exact<const N: usize>(
+        addr: ObjectAddress,
+        data: &[u8],
+    ) -> Result<[u8; N], SdoFeedbackError> {
+        // An expedited upload without size indication brings all 4 bytes
+        // (CiA 301 leaves the unused ones undefined): the value is the
+        // first N.
+        let data = if data.len() == 4 && N < 4 {
+            &data[..N]
+        } else {
+            data
+        };
+        data.try_into().map_err(|_| SdoFeedbackError {
+            addr,
+            need: N,
+            got: data.len(),
+        })
+    }
+    let [sw, pos, vel, mode] = SDO_FEEDBACK_OBJECTS;
+    Ok(Feedback {
+        statusword: Some(u16::from_le_bytes(exact(sw, &uploads[0])?)),
+        position: Some(i32::from_le_bytes(exact(pos, &uploads[1])?)),
+        velocity: Some(i32::from_le_bytes(exact(vel, &uploads[2])?)),
+        mode_display: Some(i8::from_le_bytes(exact(mode, &uploads[3])?)),
+        following_error: None,
+    })
+}
+
+/// The SDO writes that bring a drive from `last` (what was written before;
+/// `None`: unknown, write everything) to `image`: only the objects that
+/// changed, the targets and the mode before the controlword, so a
+/// new-set-point or enable edge never acts on a stale target or mode (the
+/// same order [`encode_image`] gives the RPDOs).
+pub fn sdo_image_writes(
+    last: Option<&ProcessImage>,
+    image: &ProcessImage,
+) -> Vec<(ObjectAddress, Vec<u8>)> {
+    let changed = |f: fn(&ProcessImage) -> i64| last.is_none_or(|l| f(l) != f(image));
+    let mut writes = Vec::with_capacity(4);
+    if changed(|i| i64::from(i.target_position)) {
+        writes.push((
+            obj::TARGET_POSITION,
+            image.target_position.to_le_bytes().to_vec(),
+        ));
+    }
+    if changed(|i| i64::from(i.target_velocity)) {
+        writes.push((
+            obj::TARGET_VELOCITY,
+            image.target_velocity.to_le_bytes().to_vec(),
+        ));
+    }
+    if changed(|i| i64::from(i.mode)) {
+        writes.push((obj::MODES_OF_OPERATION, image.mode.to_le_bytes().to_vec()));
+    }
+    if changed(|i| i64::from(i.controlword)) {
+        writes.push((obj::CONTROLWORD, image.controlword.to_le_bytes().to_vec()));
+    }
+    writes
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -290,5 +385,81 @@ mod tests {
                 }
             }
         }
+    }
+    #[test]
+    fn sdo_image_writes_only_what_changed_controlword_last() {
+        let image = ProcessImage {
+            controlword: 0x001F,
+            mode: 1,
+            target_position: 10_000,
+            target_velocity: -2,
+        };
+        // Nothing known: everything, targets and mode before the controlword.
+        assert_eq!(
+            sdo_image_writes(None, &image),
+            vec![
+                (obj::TARGET_POSITION, vec![0x10, 0x27, 0x00, 0x00]),
+                (obj::TARGET_VELOCITY, vec![0xFE, 0xFF, 0xFF, 0xFF]),
+                (obj::MODES_OF_OPERATION, vec![0x01]),
+                (obj::CONTROLWORD, vec![0x1F, 0x00]),
+            ]
+        );
+        assert!(sdo_image_writes(Some(&image), &image).is_empty());
+        // A new set-point: the target, then the controlword edge.
+        let next = ProcessImage {
+            controlword: 0x003F,
+            target_position: -1,
+            ..image
+        };
+        assert_eq!(
+            sdo_image_writes(Some(&image), &next),
+            vec![
+                (obj::TARGET_POSITION, vec![0xFF, 0xFF, 0xFF, 0xFF]),
+                (obj::CONTROLWORD, vec![0x3F, 0x00]),
+            ]
+        );
+        // Homing: the mode alone.
+        let homing = ProcessImage { mode: 6, ..image };
+        assert_eq!(
+            sdo_image_writes(Some(&image), &homing),
+            vec![(obj::MODES_OF_OPERATION, vec![0x06])]
+        );
+    }
+
+    #[test]
+    fn feedback_from_sdo_uploads_and_wrong_sizes() {
+        let uploads = [
+            vec![0x37, 0x16],
+            vec![0xFB, 0xFF, 0xFF, 0xFF],
+            vec![0x10, 0x27, 0x00, 0x00],
+            vec![0xFA],
+        ];
+        assert_eq!(
+            feedback_from_sdo(&uploads).unwrap(),
+            Feedback {
+                statusword: Some(0x1637),
+                position: Some(-5),
+                velocity: Some(10_000),
+                mode_display: Some(-6),
+                following_error: None,
+            }
+        );
+        // Expedited without size indication: 4 bytes, the value first.
+        let mut unsized_ = uploads.clone();
+        unsized_[0] = vec![0x37, 0x16, 0xAA, 0xBB];
+        unsized_[3] = vec![0xFA, 0, 0, 0];
+        assert_eq!(feedback_from_sdo(&unsized_), feedback_from_sdo(&uploads));
+        let mut short = uploads.clone();
+        short[1] = vec![0x01, 0x02];
+        let e = feedback_from_sdo(&short).unwrap_err();
+        assert_eq!(
+            e,
+            SdoFeedbackError {
+                addr: obj::POSITION_ACTUAL,
+                need: 4,
+                got: 2
+            }
+        );
+        assert!(e.to_string().contains("0x6064"), "{e}");
     }
 }

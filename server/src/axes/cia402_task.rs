@@ -13,10 +13,16 @@
 //! those cross-task wake-ups. The master still does NMT, heartbeats, EMCY
 //! and SDO, and this task hands it each TPDO for the counters and the
 //! StreamPdo subscribers ([`CanopenBus::relay_tpdo`]).
+//!
+//! An axis configured with `process_data = "sdo"` has no PDOs: its images
+//! go to, and its feedback comes from, a worker polling by SDO
+//! ([`super::sdo_process_data`]).
 
 use super::commands::{CoordinatedAxis, Waiters, for_axis, plan_coordinated};
+use super::sdo_process_data::{self, SdoJob, SdoReport};
 use super::{AxisEventKind, AxisInfo, AxisUpdate, LatestStates};
 use crate::canopen::{CanopenBus, NodeEventKind};
+use crate::config::ProcessDataChoice;
 use cangate_axis::cia402::{AxisSnapshot, Cia402Axis, Output};
 use cangate_axis::process_data::{encode_image, feedback_from_pdo};
 use cangate_axis::{AxisCommand, AxisEvent, CommandError, Outcome};
@@ -89,7 +95,32 @@ struct Slot {
     at: Timestamp,
     /// The latest payload sent per RPDO COB-ID.
     last_sent: HashMap<u16, Vec<u8>>,
+    /// The SDO fallback's worker, if the axis uses it.
+    sdo: Option<SdoLink>,
 }
+
+/// The axis task's side of an SDO fallback worker.
+struct SdoLink {
+    jobs: mpsc::Sender<SdoJob>,
+    /// Polls and writes failed in a row.
+    failures: u32,
+    /// This link declared the node lost.
+    lost: bool,
+}
+
+/// What the task's SDO helpers send back.
+struct SdoInbox {
+    /// The end of an axis's parameter writes ([`Output::SdoWrites`]).
+    results: mpsc::Receiver<(usize, Result<(), String>)>,
+    /// The SDO fallback workers' polls and failures.
+    reports: mpsc::Receiver<(usize, SdoReport)>,
+}
+
+/// Failed SDO polls or writes in a row after which the axis reports its
+/// node lost: one failure can be a clash with another SDO client, three at
+/// a 10 ms poll (each waiting for the SDO timeout) are a drive that does
+/// not answer.
+const SDO_FAILURES_LOST: u32 = 3;
 
 struct Task {
     master: CanopenBus,
@@ -127,6 +158,7 @@ pub fn spawn(
 ) -> tokio::task::JoinHandle<()> {
     let events = master.events();
     let (sdo_done, sdo_results) = mpsc::channel(64);
+    let (sdo_reports_tx, sdo_reports) = mpsc::channel(64);
     let mut tpdos = HashMap::new();
     let slots = list
         .into_iter()
@@ -144,6 +176,18 @@ pub fn spawn(
             {
                 tpdos.insert(p.cob_id, (i, p));
             }
+            let sdo = (info.config.process_data == ProcessDataChoice::Sdo).then(|| SdoLink {
+                jobs: sdo_process_data::spawn(
+                    master.clone(),
+                    info.node,
+                    i,
+                    Duration::from_millis(u64::from(info.config.sdo_poll_ms)),
+                    sdo_reports_tx.clone(),
+                    cancel.clone(),
+                ),
+                failures: 0,
+                lost: false,
+            });
             Slot {
                 global,
                 axis: Cia402Axis::new(info.config.controller()),
@@ -152,6 +196,7 @@ pub fn spawn(
                 waiters: Waiters::default(),
                 at: Timestamp(0),
                 last_sent: HashMap::new(),
+                sdo,
             }
         })
         .collect::<Vec<_>>();
@@ -197,7 +242,17 @@ pub fn spawn(
         frames: Vec::new(),
         sdo_done,
     };
-    tokio::spawn(run(t, sub, events, requests, sdo_results, cancel))
+    tokio::spawn(run(
+        t,
+        sub,
+        events,
+        requests,
+        SdoInbox {
+            results: sdo_results,
+            reports: sdo_reports,
+        },
+        cancel,
+    ))
 }
 
 async fn run(
@@ -205,7 +260,10 @@ async fn run(
     mut sub: Subscription,
     mut events: broadcast::Receiver<crate::canopen::NodeEvent>,
     mut requests: mpsc::Receiver<BusRequest>,
-    mut sdo_results: mpsc::Receiver<(usize, Result<(), String>)>,
+    SdoInbox {
+        mut results,
+        mut reports,
+    }: SdoInbox,
     cancel: CancellationToken,
 ) {
     let far = Duration::from_secs(3600);
@@ -256,12 +314,13 @@ async fn run(
                 }
                 Err(broadcast::error::RecvError::Closed) => break,
             },
-            Some((i, result)) = sdo_results.recv() => {
+            Some((i, result)) = results.recv() => {
                 let now = t.now();
                 let mut out = Vec::new();
                 t.slots[i].axis.on_sdo_done(result, now, &mut out);
                 t.handle(i, out);
             }
+            Some((i, report)) = reports.recv() => t.on_sdo_report(i, report),
             _ = &mut sleep => {
                 armed = None;
                 let now = t.now();
@@ -328,6 +387,51 @@ impl Task {
                 tracing::debug!(axis = %self.slots[i].info.config.name, cob_id = cob_hex(frame.raw_id()), error = %e, "undecodable TPDO")
             }
         }
+    }
+
+    /// A report of an axis's SDO fallback worker.
+    fn on_sdo_report(&mut self, i: usize, report: SdoReport) {
+        let mut out = Vec::new();
+        let slot = &mut self.slots[i];
+        let Some(link) = slot.sdo.as_mut() else {
+            return;
+        };
+        let mut node_event = None;
+        match report {
+            SdoReport::Feedback(fb) => {
+                link.failures = 0;
+                if std::mem::take(&mut link.lost) {
+                    slot.axis.on_node_back(false, &mut out);
+                    node_event = Some((false, "the drive answers SDO polls again".to_string()));
+                }
+                slot.at = Timestamp::now();
+                slot.axis.on_feedback(fb, self.origin.elapsed(), &mut out);
+            }
+            SdoReport::Failed(e) => {
+                link.failures += 1;
+                if link.failures == 1 {
+                    tracing::warn!(axis = %slot.info.config.name, error = %e, "SDO process data failed");
+                }
+                if link.failures >= SDO_FAILURES_LOST && !link.lost {
+                    link.lost = true;
+                    let reason = format!(
+                        "process data by SDO failed {} times in a row: {e}",
+                        link.failures
+                    );
+                    slot.axis.on_node_lost(&reason, &mut out);
+                    node_event = Some((true, reason));
+                }
+            }
+        }
+        if let Some((lost, reason)) = node_event {
+            let _ = self.updates.send(AxisUpdate::Event {
+                axis: slot.global,
+                at: Timestamp::now(),
+                event: AxisEventKind::Node { lost, reason },
+            });
+        }
+        self.handle(i, out);
+        self.publish_status(i);
     }
 
     /// Every axis's step of one SYNC; the RPDOs of all go out in one batch.
@@ -458,6 +562,10 @@ impl Task {
                 (true, r)
             }
             NodeEventKind::BootCompleted => {
+                if let Some(link) = &self.slots[i].sdo {
+                    // Queued before any image the reboot leads to.
+                    let _ = link.jobs.try_send(SdoJob::Forget);
+                }
                 self.slots[i].axis.on_node_back(true, &mut out);
                 (false, "boot procedure completed".to_string())
             }
@@ -495,6 +603,9 @@ impl Task {
     fn handle_with(&mut self, i: usize, outputs: &mut Vec<Output>, cyclic: bool) {
         for o in outputs.drain(..) {
             match o {
+                Output::Image(image) if self.slots[i].sdo.is_some() => {
+                    self.send_sdo_image(i, image)
+                }
                 Output::Image(image) => match encode_image(&image, &self.slots[i].rpdos) {
                     Ok(frames) => {
                         let slot = &mut self.slots[i];
@@ -521,6 +632,21 @@ impl Task {
                 Output::SdoWrites(writes) => self.spawn_sdo(i, writes),
                 Output::Event(e) => self.on_axis_event(i, e),
             }
+        }
+    }
+
+    /// Hands an image to the axis's SDO worker. A full queue (the drive
+    /// stopped answering for 64 images) drops it, loudly: the axis's state
+    /// timeout then fails the command that produced it.
+    fn send_sdo_image(&self, i: usize, image: cangate_axis::cia402::ProcessImage) {
+        let Some(link) = &self.slots[i].sdo else {
+            return;
+        };
+        if let Err(mpsc::error::TrySendError::Full(_)) = link.jobs.try_send(SdoJob::Image(image)) {
+            tracing::error!(
+                axis = %self.slots[i].info.config.name,
+                "process image dropped: the drive's SDO queue is full (the drive does not answer)"
+            );
         }
     }
 

@@ -318,6 +318,8 @@ impl CansmcAxisEntry {
             jog_deadman_ms: self.jog_deadman_ms,
             state_timeout_ms: self.state_timeout_ms,
             homing_timeout_ms: self.homing_timeout_ms,
+            process_data: crate::config::ProcessDataChoice::Pdo,
+            sdo_poll_ms: 10,
             in_position_window: self.in_position_window,
         }
     }

@@ -3,7 +3,7 @@
 //! control check, audit log, conversion to protobuf.
 
 use crate::axes::{AxisEventKind, AxisManager, AxisUpdate, CommandResult};
-use crate::config::{PositionModeChoice, StopChoice};
+use crate::config::{PositionModeChoice, ProcessDataChoice, StopChoice};
 use crate::error::ApiError;
 use crate::gateway::Gateway;
 use cangate_axis::cia402::AxisSnapshot;
@@ -63,6 +63,16 @@ impl AxesService {
             } as i32,
             jog_deadman_ms: c.jog_deadman_ms,
             status: Some(self.status_pb(i, None)),
+            process_data: match (&info.cansmc, c.process_data) {
+                (Some(_), _) => pb::ProcessDataPath::Unspecified,
+                (None, ProcessDataChoice::Pdo) => pb::ProcessDataPath::Pdo,
+                (None, ProcessDataChoice::Sdo) => pb::ProcessDataPath::Sdo,
+            } as i32,
+            sdo_poll_ms: if info.cansmc.is_none() && c.process_data == ProcessDataChoice::Sdo {
+                c.sdo_poll_ms
+            } else {
+                0
+            },
         }
     }
 

@@ -1,0 +1,161 @@
+//! The SDO fallback of a CiA 402 axis's process data (`process_data =
+//! "sdo"`): for drives whose PDOs cannot be mapped, or buses without room
+//! for them.
+//!
+//! One task per such axis, beside the bus's axis task: it reads the
+//! feedback objects ([`SDO_FEEDBACK_OBJECTS`]) every poll period and writes
+//! each process image the axis asks for, only the objects that changed,
+//! the controlword last ([`sdo_image_writes`]). Images are written in the
+//! order they were produced and before the next poll, so a handshake edge
+//! (new set-point, fault reset) is never merged away and the poll after it
+//! sees its effect. The master queues the SDO transfers per node, so these
+//! share the drive's SDO server with the boot procedure and with clients'
+//! ReadSdo/WriteSdo; every transfer has the master's timeout.
+//!
+//! Only profile position axes can use it (the config refuses cyclic ones):
+//! a set-point every SYNC does not fit SDO round trips.
+
+use crate::canopen::CanopenBus;
+use cangate_axis::cia402::{Feedback, ProcessImage};
+use cangate_axis::process_data::{SDO_FEEDBACK_OBJECTS, feedback_from_sdo, sdo_image_writes};
+use cangate_canopen::NodeId;
+use cangate_canopen::master::SdoRequest;
+use cangate_canopen::sdo::{TransferOptions, TransferOutcome};
+use std::time::Duration;
+use tokio::sync::mpsc;
+use tokio_util::sync::CancellationToken;
+
+/// What the axis task asks of the worker.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SdoJob {
+    /// Write this process image (the changed objects).
+    Image(ProcessImage),
+    /// The drive rebooted: what it holds is unknown, write the next image
+    /// in full.
+    Forget,
+}
+
+/// What the worker reports to the axis task.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum SdoReport {
+    /// One poll's feedback.
+    Feedback(Feedback),
+    /// A poll or a write failed; for people.
+    Failed(String),
+}
+
+/// Images an axis may have queued: a command produces a handful, so a
+/// full queue means the drive stopped answering and the axis's own
+/// timeouts are already running out.
+const IMAGE_QUEUE: usize = 64;
+
+/// Starts the worker of the axis in slot `slot` of its bus task (node
+/// `node`), polling every `poll`. Reports go to `reports`, tagged with
+/// `slot`. Ends when the returned sender is dropped or `cancel` fires.
+pub fn spawn(
+    master: CanopenBus,
+    node: NodeId,
+    slot: usize,
+    poll: Duration,
+    reports: mpsc::Sender<(usize, SdoReport)>,
+    cancel: CancellationToken,
+) -> mpsc::Sender<SdoJob> {
+    let (jobs, rx) = mpsc::channel(IMAGE_QUEUE);
+    tokio::spawn(run(master, node, slot, poll, rx, reports, cancel));
+    jobs
+}
+
+async fn run(
+    master: CanopenBus,
+    node: NodeId,
+    slot: usize,
+    poll: Duration,
+    mut jobs: mpsc::Receiver<SdoJob>,
+    reports: mpsc::Sender<(usize, SdoReport)>,
+    cancel: CancellationToken,
+) {
+    let mut written: Option<ProcessImage> = None;
+    let mut ticks = tokio::time::interval(poll);
+    // A slow drive (or a lost one, each upload waiting for its timeout)
+    // stretches the period rather than queueing a burst of polls.
+    ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        let report = tokio::select! {
+            biased;
+            _ = cancel.cancelled() => break,
+            job = jobs.recv() => match job {
+                None => break,
+                Some(SdoJob::Forget) => {
+                    written = None;
+                    continue;
+                }
+                Some(SdoJob::Image(image)) => {
+                    match write_image(&master, node, written.as_ref(), &image).await {
+                        Ok(()) => {
+                            written = Some(image);
+                            continue;
+                        }
+                        Err(e) => {
+                            // Part of it may have been written: the next
+                            // image goes out in full.
+                            written = None;
+                            SdoReport::Failed(e)
+                        }
+                    }
+                }
+            },
+            _ = ticks.tick() => match read_feedback(&master, node).await {
+                Ok(fb) => SdoReport::Feedback(fb),
+                Err(e) => SdoReport::Failed(e),
+            },
+        };
+        if reports.send((slot, report)).await.is_err() {
+            break;
+        }
+    }
+}
+
+async fn write_image(
+    master: &CanopenBus,
+    node: NodeId,
+    written: Option<&ProcessImage>,
+    image: &ProcessImage,
+) -> Result<(), String> {
+    for (addr, data) in sdo_image_writes(written, image) {
+        master
+            .sdo(
+                node,
+                SdoRequest::Download {
+                    addr,
+                    data,
+                    opts: TransferOptions::default(),
+                },
+            )
+            .await
+            .map_err(|e| format!("writing {addr} by SDO: {e}"))?;
+    }
+    Ok(())
+}
+
+async fn read_feedback(master: &CanopenBus, node: NodeId) -> Result<Feedback, String> {
+    let mut uploads: [Vec<u8>; 4] = Default::default();
+    for (addr, slot) in SDO_FEEDBACK_OBJECTS.iter().zip(uploads.iter_mut()) {
+        let r = master
+            .sdo(
+                node,
+                SdoRequest::Upload {
+                    addr: *addr,
+                    opts: TransferOptions::default(),
+                },
+            )
+            .await
+            .map_err(|e| format!("reading {addr} by SDO: {e}"))?;
+        match r {
+            TransferOutcome::Uploaded(data) => *slot = data,
+            TransferOutcome::Downloaded => {
+                return Err(format!("reading {addr} by SDO: no value came back"));
+            }
+        }
+    }
+    feedback_from_sdo(&uploads).map_err(|e| e.to_string())
+}

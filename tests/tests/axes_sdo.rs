@@ -1,0 +1,273 @@
+//! CiA 402 axes whose process data goes by SDO (`process_data = "sdo"`),
+//! end to end: the real server on a virtual bus without SYNC, simulated
+//! drives, the real client. No PDO is used; the wire shows the SDO writes
+//! of the set-point handshake; a drive that stops answering faults its
+//! axis and a rebooted one is usable again.
+
+mod common;
+
+use cangate_client::pb;
+use cangate_sim::{DeviceHandle, SimDrive, SimDriveOptions, SimNodeOptions};
+use common::*;
+use std::time::Duration;
+use tokio_util::sync::CancellationToken;
+use tonic::Code;
+
+/// S: a simulated drive run by the server. T: a drive the test runs (to
+/// switch it off), with no heartbeat consumer: only the SDO polls notice.
+const CONFIG: &str = r#"
+[[bus]]
+name = "can0"
+backend = "virtual"
+
+[[canopen]]
+bus = "can0"
+sdo_timeout_ms = 100
+
+[[canopen.node]]
+id = 3
+eds = "builtin:drive"
+simulate = true
+
+[[canopen.node]]
+id = 6
+eds = "builtin:drive"
+
+[[axis]]
+name = "S"
+bus = "can0"
+node = 3
+counts_per_unit = 1000.0
+min_position = -100.0
+max_position = 100.0
+max_velocity = 50.0
+max_acceleration = 500.0
+process_data = "sdo"
+sdo_poll_ms = 5
+
+[[axis]]
+name = "T"
+bus = "can0"
+node = 6
+counts_per_unit = 1000.0
+max_velocity = 50.0
+max_acceleration = 500.0
+process_data = "sdo"
+sdo_poll_ms = 5
+"#;
+
+type Axes = pb::axes_client::AxesClient<cangate_client::Transport>;
+
+fn opts(lease: &str, wait: bool) -> Option<pb::CommandOptions> {
+    Some(pb::CommandOptions {
+        lease: lease.into(),
+        wait,
+        wait_timeout_ms: 10_000,
+    })
+}
+
+fn cmd(axis: &str, lease: &str, wait: bool) -> pb::AxisCommandRequest {
+    pb::AxisCommandRequest {
+        axis: axis.into(),
+        options: opts(lease, wait),
+    }
+}
+
+async fn acquire(axes: &mut Axes, names: &[&str]) -> String {
+    axes.acquire_control(pb::AcquireControlRequest {
+        axes: names.iter().map(|s| s.to_string()).collect(),
+        ttl_ms: 10_000,
+        client_name: "test".into(),
+    })
+    .await
+    .unwrap()
+    .into_inner()
+    .lease
+}
+
+async fn wait_status(
+    axes: &mut Axes,
+    axis: &str,
+    f: impl Fn(&pb::AxisStatus) -> bool,
+) -> pb::AxisStatus {
+    let t0 = std::time::Instant::now();
+    loop {
+        let s = axes
+            .get_axis(pb::GetAxisRequest { axis: axis.into() })
+            .await
+            .unwrap()
+            .into_inner()
+            .status
+            .unwrap();
+        if f(&s) {
+            return s;
+        }
+        assert!(t0.elapsed() < WAIT, "{s:?}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+async fn enable(axes: &mut Axes, axis: &str, lease: &str) {
+    let r = axes
+        .enable(cmd(axis, lease, true))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(r.outcome, pb::Outcome::Completed as i32, "{r:?}");
+    assert_eq!(
+        r.status.unwrap().state,
+        pb::DriveState::OperationEnabled as i32
+    );
+}
+
+/// Runs the drive of axis T (node 6) on the test's side of the bus.
+fn run_drive_t(
+    server: &cangate_server::RunningServer,
+) -> (DeviceHandle<SimDrive>, CancellationToken) {
+    let port = server
+        .gateway()
+        .network()
+        .get("can0")
+        .expect("virtual can0")
+        .connect(false);
+    let drive = SimDrive::bundled(
+        cangate_canopen::NodeId::new(6).unwrap(),
+        SimDriveOptions {
+            node: SimNodeOptions::default(),
+            ..SimDriveOptions::default()
+        },
+    );
+    let handle = DeviceHandle::new(drive);
+    let cancel = CancellationToken::new();
+    cangate_sim::spawn_device(port, handle.clone(), cancel.clone());
+    (handle, cancel)
+}
+
+fn exact(id: u32) -> pb::FrameFilter {
+    pb::FrameFilter {
+        id,
+        mask: 0x7FF,
+        format: 0,
+        invert: false,
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_sdo_axis_enables_homes_and_moves_without_any_pdo() {
+    let server = start_server(CONFIG).await;
+    let mut c = client(&server).await;
+    let mut axes = c.axes_client();
+    let a = axes
+        .get_axis(pb::GetAxisRequest { axis: "S".into() })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(a.process_data, pb::ProcessDataPath::Sdo as i32);
+    assert_eq!(a.sdo_poll_ms, 5);
+    // The state comes from the polls.
+    let s = wait_status(&mut axes, "S", |s| s.state != 0 && !s.node_lost).await;
+    assert_eq!(s.state, pb::DriveState::SwitchOnDisabled as i32, "{s:?}");
+
+    // The axis's RPDO COB-IDs (the gateway must send nothing there) and its
+    // SDO requests. (The drive's own default TPDOs may run: the gateway
+    // neither maps nor uses them.)
+    let (mut frames, mut pending) = open_stream(
+        &mut c,
+        pb::StreamFramesRequest {
+            include_transmitted: true,
+            ..stream_request("can0", vec![exact(0x203), exact(0x303), exact(0x603)])
+        },
+    )
+    .await;
+
+    let lease = acquire(&mut axes, &["S"]).await;
+    enable(&mut axes, "S", &lease).await;
+    let r = axes
+        .home(cmd("S", &lease, true))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(r.outcome, pb::Outcome::Completed as i32, "{r:?}");
+    assert!(r.status.unwrap().homed);
+    let r = axes
+        .r#move(pb::MoveRequest {
+            axis: "S".into(),
+            target: 2.0,
+            relative: false,
+            velocity: 50.0,
+            acceleration: 500.0,
+            options: opts(&lease, true),
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(r.outcome, pb::Outcome::Completed as i32, "{r:?}");
+    let s = wait_status(&mut axes, "S", |s| (s.position - 2.0).abs() < 0.011).await;
+    assert_eq!(s.state, pb::DriveState::OperationEnabled as i32);
+
+    // The wire: the SDO downloads (expedited, size indicated) in order up
+    // to the end of the set-point handshake (controlword 0x2F: bit 4
+    // cleared after the acknowledge), and not one PDO.
+    let mut downloads: Vec<Vec<u8>> = Vec::new();
+    let clear = vec![0x2B, 0x40, 0x60, 0x00, 0x2F, 0x00, 0x00, 0x00];
+    let mut seen_set_point = false;
+    while !(seen_set_point && downloads.last() == Some(&clear)) {
+        for f in read_frames(&mut frames, &mut pending, 1).await {
+            assert_eq!(
+                f.id, 0x603,
+                "the gateway sent an RPDO to the SDO axis: {f:?}"
+            );
+            if matches!(f.data.first(), Some(0x23 | 0x27 | 0x2B | 0x2F)) {
+                if f.data[..6] == [0x2B, 0x40, 0x60, 0x00, 0x3F, 0x00] {
+                    seen_set_point = true;
+                }
+                downloads.push(f.data);
+            }
+        }
+    }
+    // The target (2000 counts) goes before the new set-point edge.
+    let target = [0x23, 0x7A, 0x60, 0x00, 0xD0, 0x07, 0x00, 0x00];
+    let at_target = downloads
+        .iter()
+        .rposition(|d| d[..] == target)
+        .unwrap_or_else(|| panic!("no 0x607A = 2000 write in {downloads:02X?}"));
+    let at_edge = downloads
+        .iter()
+        .rposition(|d| d[..6] == [0x2B, 0x40, 0x60, 0x00, 0x3F, 0x00])
+        .unwrap();
+    assert!(at_target < at_edge, "{downloads:02X?}");
+    assert_eq!(
+        downloads.last().unwrap(),
+        &clear,
+        "handshake ends with bit 4 cleared"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_silent_sdo_drive_faults_its_axis_until_it_is_back() {
+    let server = start_server(CONFIG).await;
+    let c = client(&server).await;
+    let mut axes = c.axes_client();
+    let (_drive, off) = run_drive_t(&server);
+    wait_status(&mut axes, "T", |s| s.state != 0 && !s.node_lost).await;
+    let lease = acquire(&mut axes, &["T"]).await;
+    enable(&mut axes, "T", &lease).await;
+
+    // Switched off: the polls time out, and after three in a row the axis
+    // reports its node lost, naming the SDO failure.
+    off.cancel();
+    let s = wait_status(&mut axes, "T", |s| s.node_lost).await;
+    assert!(
+        s.fault_text.contains("process data by SDO failed"),
+        "{}",
+        s.fault_text
+    );
+    let e = axes.enable(cmd("T", &lease, false)).await.unwrap_err();
+    assert_eq!(e.code(), Code::FailedPrecondition);
+    assert!(e.message().contains("node is lost"), "{}", e.message());
+
+    // Switched on again: boot-up, boot procedure, polls answer, usable.
+    let (_drive, _on) = run_drive_t(&server);
+    wait_status(&mut axes, "T", |s| !s.node_lost && s.state != 0).await;
+    enable(&mut axes, "T", &lease).await;
+}
