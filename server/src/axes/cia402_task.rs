@@ -106,6 +106,9 @@ struct SdoLink {
     failures: u32,
     /// This link declared the node lost.
     lost: bool,
+    /// The drive booted and its boot procedure has not finished: answers
+    /// to polls do not make the axis usable before it has.
+    booting: bool,
 }
 
 /// What the task's SDO helpers send back.
@@ -187,6 +190,7 @@ pub fn spawn(
                 ),
                 failures: 0,
                 lost: false,
+                booting: false,
             });
             Slot {
                 global,
@@ -400,7 +404,7 @@ impl Task {
         match report {
             SdoReport::Feedback(fb) => {
                 link.failures = 0;
-                if std::mem::take(&mut link.lost) {
+                if std::mem::take(&mut link.lost) && !link.booting {
                     slot.axis.on_node_back(false, &mut out);
                     node_event = Some((false, "the drive answers SDO polls again".to_string()));
                 }
@@ -557,12 +561,16 @@ impl Task {
                 (false, "heartbeat back".to_string())
             }
             NodeEventKind::BootUp => {
+                if let Some(link) = &mut self.slots[i].sdo {
+                    link.booting = true;
+                }
                 let r = "node rebooted; waiting for its boot procedure".to_string();
                 self.slots[i].axis.on_node_lost(&r, &mut out);
                 (true, r)
             }
             NodeEventKind::BootCompleted => {
-                if let Some(link) = &self.slots[i].sdo {
+                if let Some(link) = &mut self.slots[i].sdo {
+                    link.booting = false;
                     // Queued before any image the reboot leads to.
                     let _ = link.jobs.try_send(SdoJob::Forget);
                 }
@@ -570,6 +578,10 @@ impl Task {
                 (false, "boot procedure completed".to_string())
             }
             NodeEventKind::BootFailed { reason } => {
+                if let Some(link) = &mut self.slots[i].sdo {
+                    // Not usable until a boot procedure completes.
+                    link.booting = true;
+                }
                 let r = format!("boot failed: {reason}");
                 self.slots[i].axis.on_node_lost(&r, &mut out);
                 (true, r)
