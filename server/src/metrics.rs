@@ -122,6 +122,14 @@ fn describe() {
         "TPDOs received by bus, node and PDO number (rate() gives the PDO rate)."
     );
     describe_counter!(
+        "cangate_sync_sent_total",
+        "SYNC frames sent by the CANopen master, by bus."
+    );
+    describe_counter!(
+        "cangate_sync_skipped_total",
+        "SYNC periods skipped because the SYNC thread woke too late for them, by bus."
+    );
+    describe_counter!(
         "cangate_cansmc_cycles_total",
         "CANsmc cycles started (MSTs sent), by master."
     );
@@ -201,6 +209,12 @@ fn refresh(gateway: &Gateway) {
         }
     }
     for master in gateway.canopen_buses() {
+        if master.sync_cob_id().is_some() {
+            let (sent, skipped) = master.sync_counts();
+            counter!("cangate_sync_sent_total", "bus" => master.bus().to_string()).absolute(sent);
+            counter!("cangate_sync_skipped_total", "bus" => master.bus().to_string())
+                .absolute(skipped);
+        }
         for (node, num, n) in master.tpdo_counts() {
             counter!("cangate_pdo_received_total", "bus" => master.bus().to_string(), "node" => node.get().to_string(), "pdo" => num.to_string())
                 .absolute(n);

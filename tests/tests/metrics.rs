@@ -209,6 +209,15 @@ async fn metrics_endpoint_counts_received_pdos() {
     };
     // TPDO1 comes every SYNC (5 ms): the count grows.
     tokio::time::sleep(std::time::Duration::from_millis(200)).await;
-    let later = value(&scrape(addr, "/metrics").await, series).unwrap();
+    let text = scrape(addr, "/metrics").await;
+    let later = value(&text, series).unwrap();
     assert!(later > first, "{first} -> {later}");
+    // The SYNC producer's counters: at 5 ms, well over 20 SYNCs by now;
+    // the skipped count is there (0 or a few on a busy machine).
+    let sent = value(&text, "cangate_sync_sent_total{bus=\"can0\"}").expect("SYNC counter");
+    assert!(sent >= 20.0, "{sent}");
+    assert!(
+        value(&text, "cangate_sync_skipped_total{bus=\"can0\"}").is_some(),
+        "{text}"
+    );
 }

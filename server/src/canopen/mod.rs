@@ -192,7 +192,8 @@ pub struct CanopenBus {
     commands: mpsc::Sender<Command>,
     events: broadcast::Sender<NodeEvent>,
     facts: Arc<RwLock<BTreeMap<NodeId, NodeFacts>>>,
-    syncs: broadcast::Sender<Instant>,
+    /// SYNCs sent and periods skipped by this master's SYNC thread.
+    sync_counts: Arc<sync_thread::SyncCounts>,
     /// The COB-ID of the SYNC this master produces, if it produces one.
     sync_cob_id: Option<u16>,
     /// Every configured TPDO by COB-ID.
@@ -219,7 +220,7 @@ impl CanopenBus {
         let (commands, rx) = mpsc::channel(1024);
         let (events, _) = broadcast::channel(4096);
         let (pdos, _) = broadcast::channel(16_384);
-        let (syncs, _) = broadcast::channel(64);
+        let sync_counts = Arc::new(sync_thread::SyncCounts::default());
         let tpdos: HashMap<u16, TpdoRoute> = configured
             .iter()
             .flat_map(|(id, f)| {
@@ -246,7 +247,7 @@ impl CanopenBus {
         if let Some(period) = sync_period
             && let Ok(producer) = cangate_canopen::sync::SyncProducer::new(period, 0)
         {
-            match sync_thread::spawn(bus.clone(), producer, syncs.clone(), cancel.clone()) {
+            match sync_thread::spawn(bus.clone(), producer, sync_counts.clone(), cancel.clone()) {
                 Ok(_) => sync_cob_id = Some(cangate_canopen::ids::cob::SYNC),
                 Err(e) => {
                     tracing::error!(bus = %bus.name(), error = %e, "cannot start the SYNC producer thread")
@@ -260,7 +261,7 @@ impl CanopenBus {
             commands,
             events: events.clone(),
             facts: facts.clone(),
-            syncs: syncs.clone(),
+            sync_counts,
             sync_cob_id,
             tpdos: Arc::new(tpdos),
         };
@@ -296,10 +297,13 @@ impl CanopenBus {
         (handle, task)
     }
 
-    /// Fires each time the master has sent a SYNC (when a SYNC period is
-    /// configured), with the time it went out.
-    pub fn syncs(&self) -> broadcast::Receiver<Instant> {
-        self.syncs.subscribe()
+    /// SYNCs sent so far, and SYNC periods skipped because the SYNC thread
+    /// was not scheduled in time (both 0 without a SYNC period).
+    pub fn sync_counts(&self) -> (u64, u64) {
+        (
+            self.sync_counts.sent.load(Ordering::Relaxed),
+            self.sync_counts.skipped.load(Ordering::Relaxed),
+        )
     }
 
     /// The COB-ID of the SYNC this master produces (its SYNC thread

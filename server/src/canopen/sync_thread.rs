@@ -10,15 +10,27 @@
 
 use cangate_can::BusHandle;
 use cangate_canopen::sync::SyncProducer;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
-use tokio::sync::broadcast;
 use tokio_util::sync::CancellationToken;
+
+/// What the thread did, for the metrics (`cangate_sync_sent_total`,
+/// `cangate_sync_skipped_total`) and benchmarks: counters, so that nobody
+/// is woken per SYNC to count it.
+#[derive(Debug, Default)]
+pub struct SyncCounts {
+    /// SYNC frames handed to the bus.
+    pub sent: AtomicU64,
+    /// Periods skipped because the thread woke too late for them.
+    pub skipped: AtomicU64,
+}
 
 /// Starts the thread; it ends when `cancel` fires.
 pub fn spawn(
     bus: BusHandle,
     mut producer: SyncProducer,
-    syncs: broadcast::Sender<Instant>,
+    counts: Arc<SyncCounts>,
     cancel: CancellationToken,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
     let name = format!("sync-{}", bus.name());
@@ -50,8 +62,9 @@ pub fn spawn(
                 if let Err(e) = rt.block_on(bus.submit(vec![frame])) {
                     tracing::warn!(bus = %bus.name(), error = %e, "SYNC not sent");
                 }
-                let _ = syncs.send(Instant::now());
+                counts.sent.fetch_add(1, Ordering::Relaxed);
             }
+            counts.skipped.store(producer.skipped(), Ordering::Relaxed);
             if producer.skipped() != reported_skips
                 && last_report.elapsed() >= Duration::from_secs(10)
             {
