@@ -106,8 +106,9 @@ struct SdoLink {
     failures: u32,
     /// This link declared the node lost.
     lost: bool,
-    /// The drive booted and its boot procedure has not finished: answers
-    /// to polls do not make the axis usable before it has.
+    /// The drive booted and its boot procedure has not completed (or it
+    /// failed): answers to polls do not make the axis usable until one
+    /// completes.
     booting: bool,
 }
 
