@@ -610,12 +610,20 @@ fn status_line(s: &pb::AxisStatus, unit: &str) -> String {
     line
 }
 
+/// Whether a fault event reports a fault (true) or its clearing. Gateways
+/// before `Fault.active` never set it; from them a clearing is code 0 with
+/// no text.
+fn fault_active(f: &pb::Fault) -> bool {
+    f.active || f.code != 0 || !f.text.is_empty()
+}
+
 /// One line of `watch` for an event; `None` for an empty event.
 fn event_line(e: &pb::AxisEvent) -> Option<String> {
     use pb::axis_event::Kind;
     let what = match e.kind.as_ref()? {
         Kind::MotionDone(m) => outcome_text(&m.command, m.outcome, &m.detail),
-        Kind::Fault(f) if f.code == 0 => "fault cleared".to_string(),
+        Kind::Fault(f) if !fault_active(f) => "fault cleared".to_string(),
+        Kind::Fault(f) if f.code == 0 => format!("FAULT {}", f.text),
         Kind::Fault(f) => format!("FAULT 0x{:04X} {}", f.code, f.text),
         Kind::Control(c) => {
             let holder = if c.holder.is_empty() {
@@ -651,6 +659,7 @@ fn event_json(e: &pb::AxisEvent) -> Option<Value> {
         }),
         Kind::Fault(f) => json!({
             "event": "fault",
+            "active": fault_active(f),
             "code": format!("0x{:04X}", f.code),
             "text": f.text,
         }),
@@ -1693,5 +1702,40 @@ mod tests {
         assert_eq!(j["event"], "motion_done");
         assert_eq!(j["outcome"], "completed");
         assert_eq!(j["axis"], "X");
+    }
+
+    #[test]
+    fn fault_events_say_whether_the_fault_is_active() {
+        use pb::axis_event::Kind;
+        let fault = |code: u32, text: &str, active: bool| pb::AxisEvent {
+            axis: "X".into(),
+            timestamp_us: 1_700_000_000_123_456,
+            kind: Some(Kind::Fault(pb::Fault {
+                code,
+                text: text.into(),
+                active,
+            })),
+        };
+        let line = |e: &pb::AxisEvent| event_line(e).unwrap();
+        let e = fault(0x2310, "continuous over-current", true);
+        assert!(line(&e).ends_with("X        FAULT 0x2310 continuous over-current"));
+        assert_eq!(event_json(&e).unwrap()["active"], true);
+        // A lost node has no code, and is no clearing.
+        let e = fault(0, "node lost: no heartbeat for 300 ms", true);
+        assert!(line(&e).ends_with("X        FAULT node lost: no heartbeat for 300 ms"));
+        assert_eq!(event_json(&e).unwrap()["active"], true);
+        let e = fault(0, "", false);
+        assert!(line(&e).ends_with("X        fault cleared"));
+        let j = event_json(&e).unwrap();
+        assert_eq!(
+            (j["event"].as_str(), j["active"].as_bool()),
+            (Some("fault"), Some(false))
+        );
+        // A gateway without `active`: a text still means a fault.
+        assert!(fault_active(&pb::Fault {
+            code: 0,
+            text: "node lost: boot failed".into(),
+            active: false,
+        }));
     }
 }

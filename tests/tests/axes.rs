@@ -651,17 +651,45 @@ async fn fault_then_reset_then_enable_again() {
     })
     .await;
     assert_eq!(fault.text, "continuous over-current");
+    assert!(fault.active, "{fault:?}");
     let s = wait_status(&mut axes, "F", |s| s.state == pb::DriveState::Fault as i32).await;
     assert_eq!(s.fault_code, 0x2310);
     let e = axes.enable(cmd("F", &lease, true)).await.unwrap_err();
     assert_eq!(e.code(), Code::FailedPrecondition);
     assert!(e.message().contains("ResetFault"), "{}", e.message());
+    let reset_at_us = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_micros() as u64;
     let r = axes
         .reset_fault(cmd("F", &lease, true))
         .await
         .unwrap()
         .into_inner();
     assert_eq!(r.outcome, pb::Outcome::Completed as i32, "{r:?}");
+    // The clearing is a fault event too, no longer active, and only after
+    // the reset: every fault event before it says active.
+    let (cleared, at) = until(&mut stream, |u| match &u.update {
+        Some(Update::Event(pb::AxisEvent {
+            kind: Some(pb::axis_event::Kind::Fault(f)),
+            timestamp_us,
+            ..
+        })) => {
+            assert!(
+                f.active || *timestamp_us >= reset_at_us,
+                "fault cleared before the reset: {f:?}"
+            );
+            (!f.active).then(|| (f.clone(), *timestamp_us))
+        }
+        _ => None,
+    })
+    .await;
+    assert_eq!(
+        (cleared.code, cleared.text.as_str()),
+        (0, ""),
+        "{cleared:?}"
+    );
+    assert!(at >= reset_at_us, "{at} < {reset_at_us}");
     enable(&mut axes, "F", &lease).await;
     let s = wait_status(&mut axes, "F", |s| s.fault_code == 0).await;
     assert_eq!(s.fault_text, "");

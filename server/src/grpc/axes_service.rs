@@ -604,6 +604,9 @@ fn event_pb(m: &AxisManager, axis: usize, at: Timestamp, e: AxisEventKind) -> pb
             detail,
         }),
         AxisEventKind::Fault { code, text } => Kind::Fault(pb::Fault {
+            // The axis layer reports a clearing as code 0 with no text;
+            // every fault and lost node carries a text.
+            active: code != 0 || !text.is_empty(),
             code: u32::from(code),
             text,
         }),
