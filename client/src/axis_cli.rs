@@ -517,8 +517,10 @@ pub fn outcome_ok(outcome: i32, waited: bool, is_stop: bool) -> bool {
 
 // ------------------------------------------------------------- formatting
 
+/// The fault of a status: null when there is none. A fault without a code
+/// (a drive fault without an EMCY, a lost node) has its text.
 fn fault_json(code: u32, text: &str) -> Value {
-    if code == 0 {
+    if code == 0 && text.is_empty() {
         Value::Null
     } else {
         json!({"code": format!("0x{code:04X}"), "text": text})
@@ -603,7 +605,7 @@ fn status_line(s: &pb::AxisStatus, unit: &str) -> String {
         s.velocity,
         s.following_error,
     );
-    if s.fault_code != 0 || s.node_lost {
+    if s.fault_code != 0 || s.node_lost || !s.fault_text.is_empty() {
         line.push_str("  FAULT ");
         line.push_str(&fault_text(s));
     }
@@ -1439,6 +1441,32 @@ mod tests {
             Command::Axis(a) => a,
             other => panic!("{other:?}"),
         }
+    }
+
+    #[test]
+    fn a_fault_without_a_code_shows_in_status_lines_and_json() {
+        let s = pb::AxisStatus {
+            axis: "X".into(),
+            state: pb::DriveState::Fault as i32,
+            fault_code: 0,
+            fault_text: "drive fault (no EMCY received)".into(),
+            ..Default::default()
+        };
+        let line = status_line(&s, "mm");
+        assert!(
+            line.contains("FAULT drive fault (no EMCY received)"),
+            "{line}"
+        );
+        assert_eq!(
+            status_json(&s, None)["fault"]["text"],
+            "drive fault (no EMCY received)"
+        );
+        let ok = pb::AxisStatus {
+            axis: "X".into(),
+            ..Default::default()
+        };
+        assert!(!status_line(&ok, "mm").contains("FAULT"));
+        assert!(status_json(&ok, None)["fault"].is_null());
     }
 
     #[test]

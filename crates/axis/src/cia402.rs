@@ -535,12 +535,25 @@ impl Cia402Axis {
                 code: 0,
                 text: String::new(),
             }));
+            // A drive fault that outlasted the loss is still there: the
+            // event stream must not end on "cleared" while the status says
+            // FAULT.
+            if !rebooted
+                && self.fault_reported
+                && let Some((code, text)) = self.fault()
+            {
+                out.push(Output::Event(AxisEvent::Fault { code, text }));
+            }
         }
         if rebooted {
             self.homed = false;
             self.statusword = None;
             self.profile_written = None;
             self.image.controlword = 0;
+            // The rebooted drive's first statusword says afresh whether it
+            // is faulted.
+            self.fault_reported = false;
+            self.emcy = None;
         }
     }
 

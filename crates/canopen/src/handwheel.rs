@@ -41,11 +41,14 @@ use crate::ids::cob;
 /// Where the sequence counter sits in the feed byte.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash)]
 pub enum CounterLayout {
-    /// Bits 4–7, +1 (mod 16) per frame; up to 15 lost frames detectable.
+    /// Bits 4–7, +1 (mod 16) per frame; up to 14 lost frames detectable
+    /// (15 lost make the next counter equal the last one: a repeat; the
+    /// handwheel spec says 15).
     #[default]
     Nibble,
     /// Bits 6–7 only, +1 (mod 4) per frame (the byte moves in steps of
-    /// 0x40); up to 3 lost frames detectable. Bits 4–5 are ignored.
+    /// 0x40); up to 2 lost frames detectable (3 look like a repeat). Bits
+    /// 4–5 are ignored.
     Bits6_7,
 }
 

@@ -570,6 +570,43 @@ fn node_loss_ends_commands_and_refuses_new_ones_until_back() {
 }
 
 #[test]
+fn a_drive_fault_that_outlasts_a_node_loss_is_reported_again_when_the_node_is_back() {
+    let mut rig = Rig::new(PositionMode::Profile);
+    rig.enable();
+    let frames = rig.drive.inject_fault(0x2310);
+    rig.deliver(frames);
+    let mut out = Vec::new();
+    rig.axis
+        .on_emcy(0x2310, "continuous over-current", &mut out);
+    rig.handle(out);
+    rig.run(30 * MS);
+    assert_eq!(rig.axis.snapshot().fault.unwrap().0, 0x2310);
+    let mut out = Vec::new();
+    rig.axis.on_node_lost("heartbeat timeout", &mut out);
+    rig.handle(out);
+    rig.events.clear();
+    let mut out = Vec::new();
+    rig.axis.on_node_back(false, &mut out);
+    rig.handle(out);
+    // "The loss is over", then "the drive is still faulted": the last
+    // fault event agrees with the status.
+    assert_eq!(
+        rig.events,
+        vec![
+            AxisEvent::Fault {
+                code: 0,
+                text: String::new()
+            },
+            AxisEvent::Fault {
+                code: 0x2310,
+                text: "continuous over-current".into()
+            },
+        ]
+    );
+    assert_eq!(rig.axis.snapshot().fault.unwrap().0, 0x2310);
+}
+
+#[test]
 fn coordinated_moves_start_and_arrive_together() {
     use cangate_motion::{AxisMove, SyncedMove};
     let mut a = Rig::new(PositionMode::Cyclic);
