@@ -510,3 +510,50 @@ async fn state_changing_calls_and_refusals_are_audited() {
     );
     server.shutdown();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_lease_holder_names_the_authenticated_identity() {
+    let config = format!(
+        r#"
+[[bus]]
+name = "can0"
+backend = "virtual"
+
+[[canopen]]
+bus = "can0"
+
+[[canopen.node]]
+id = 1
+eds = "builtin:drive"
+simulate = true
+
+[[axis]]
+name = "X"
+bus = "can0"
+node = 1
+counts_per_unit = 1000.0
+max_velocity = 10.0
+max_acceleration = 100.0
+{}"#,
+        tokens_toml(&[("hmi-1", "operator", "o-token")])
+    );
+    let server = start_server(&config).await;
+    let operator = with_token(&server, "o-token").await;
+    let lease = operator
+        .axes_client()
+        .acquire_control(pb::AcquireControlRequest {
+            axes: vec!["X".into()],
+            ttl_ms: 1000,
+            client_name: "panel".into(),
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    // The client's own name, then who the token says it is and from where:
+    // what an HMI showing "controlled by" and the audit log need.
+    assert!(
+        lease.holder.starts_with("panel (hmi-1@127.0.0.1:"),
+        "{}",
+        lease.holder
+    );
+}

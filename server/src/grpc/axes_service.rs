@@ -193,8 +193,7 @@ fn audit(peer: &str, holder: &str, axis: &str, cmd: &AxisCommand, result: &str) 
 }
 
 fn peer<T>(req: &Request<T>) -> String {
-    req.remote_addr()
-        .map_or_else(|| "unknown".to_string(), |a| a.to_string())
+    super::caller(req)
 }
 
 fn outcome_pb(o: Option<Outcome>) -> pb::Outcome {

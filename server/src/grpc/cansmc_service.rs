@@ -200,8 +200,7 @@ fn parameter_context(master: &str, write: Option<i32>, e: ApiError) -> ApiError 
 }
 
 fn peer<T>(req: &Request<T>) -> String {
-    req.remote_addr()
-        .map_or_else(|| "unknown".into(), |a| a.to_string())
+    super::caller(req)
 }
 
 type StatsStream = Pin<Box<dyn Stream<Item = Result<pb::CycleStatsUpdate, Status>> + Send>>;

@@ -199,9 +199,7 @@ impl Handwheels for HandwheelsService {
         &self,
         req: Request<pb::SetModeRequest>,
     ) -> Result<Response<pb::Handwheel>, Status> {
-        let peer = req
-            .remote_addr()
-            .map_or_else(|| "unknown".into(), |a| a.to_string());
+        let peer = super::caller(&req);
         let r = req.into_inner();
         let m = self.wheels();
         let i = m.index(&r.handwheel)?;

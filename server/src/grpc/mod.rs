@@ -6,3 +6,16 @@ pub mod canopen_service;
 pub mod cansmc_service;
 pub mod convert;
 pub mod handwheel_service;
+
+/// Who made a call, for audit lines and lease holders: the authenticated
+/// identity and the peer address (`operator-1@10.0.0.5:41234`), or only
+/// the address when authentication is off.
+pub(crate) fn caller<T>(req: &tonic::Request<T>) -> String {
+    let addr = req
+        .remote_addr()
+        .map_or_else(|| "unknown".to_string(), |a| a.to_string());
+    match req.extensions().get::<crate::security::Identity>() {
+        Some(id) if id.method != "none" => format!("{}@{addr}", id.name),
+        _ => addr,
+    }
+}
