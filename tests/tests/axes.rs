@@ -5,10 +5,9 @@ mod common;
 
 use cangate_client::pb;
 use cangate_client::pb::axis_update::Update;
-use cangate_sim::{DeviceHandle, SimDrive, SimDriveOptions, SimNodeOptions};
+use common::axes::*;
 use common::*;
 use std::time::Duration;
-use tokio_util::sync::CancellationToken;
 use tonic::Code;
 
 /// X, Y: cyclic; Z: profile; F: profile, a drive the test runs itself (to
@@ -91,8 +90,6 @@ max_velocity = 50.0
 max_acceleration = 500.0
 "#;
 
-type Axes = pb::axes_client::AxesClient<cangate_client::Transport>;
-
 async fn setup() -> (cangate_server::RunningServer, Axes) {
     let server = start_server(CONFIG).await;
     let c = client(&server).await;
@@ -118,46 +115,6 @@ async fn setup() -> (cangate_server::RunningServer, Axes) {
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     (server, axes)
-}
-
-async fn acquire(axes: &mut Axes, names: &[&str], ttl_ms: u32, who: &str) -> String {
-    axes.acquire_control(pb::AcquireControlRequest {
-        axes: names.iter().map(|s| s.to_string()).collect(),
-        ttl_ms,
-        client_name: who.into(),
-    })
-    .await
-    .unwrap()
-    .into_inner()
-    .lease
-}
-
-fn opts(lease: &str, wait: bool) -> Option<pb::CommandOptions> {
-    Some(pb::CommandOptions {
-        lease: lease.into(),
-        wait,
-        wait_timeout_ms: 10_000,
-    })
-}
-
-fn cmd(axis: &str, lease: &str, wait: bool) -> pb::AxisCommandRequest {
-    pb::AxisCommandRequest {
-        axis: axis.into(),
-        options: opts(lease, wait),
-    }
-}
-
-async fn enable(axes: &mut Axes, axis: &str, lease: &str) {
-    let r = axes
-        .enable(cmd(axis, lease, true))
-        .await
-        .unwrap()
-        .into_inner();
-    assert_eq!(r.outcome, pb::Outcome::Completed as i32, "{r:?}");
-    assert_eq!(
-        r.status.unwrap().state,
-        pb::DriveState::OperationEnabled as i32
-    );
 }
 
 fn move_req(axis: &str, target: f64, lease: &str, wait: bool) -> pb::MoveRequest {
@@ -580,59 +537,10 @@ async fn coordinated_move_arrives_together() {
     assert_eq!(e.code(), Code::FailedPrecondition, "{e:?}");
 }
 
-/// Runs the drive of axis F (node 5) on the test's side of the bus.
-fn run_drive_f(
-    server: &cangate_server::RunningServer,
-) -> (DeviceHandle<SimDrive>, CancellationToken) {
-    let port = server
-        .gateway()
-        .network()
-        .get("can0")
-        .expect("virtual can0")
-        .connect(false);
-    let node = cangate_canopen::NodeId::new(5).unwrap();
-    let drive = SimDrive::bundled(
-        node,
-        SimDriveOptions {
-            node: SimNodeOptions {
-                heartbeat_ms: Some(100),
-                ..SimNodeOptions::default()
-            },
-            ..SimDriveOptions::default()
-        },
-    );
-    let handle = DeviceHandle::new(drive);
-    let cancel = CancellationToken::new();
-    cangate_sim::spawn_device(port, handle.clone(), cancel.clone());
-    (handle, cancel)
-}
-
-async fn wait_status(
-    axes: &mut Axes,
-    axis: &str,
-    f: impl Fn(&pb::AxisStatus) -> bool,
-) -> pb::AxisStatus {
-    let t0 = std::time::Instant::now();
-    loop {
-        let s = axes
-            .get_axis(pb::GetAxisRequest { axis: axis.into() })
-            .await
-            .unwrap()
-            .into_inner()
-            .status
-            .unwrap();
-        if f(&s) {
-            return s;
-        }
-        assert!(t0.elapsed() < WAIT, "{s:?}");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn fault_then_reset_then_enable_again() {
     let (server, mut axes) = setup().await;
-    let (drive, _cancel) = run_drive_f(&server);
+    let (drive, _cancel) = run_drive(&server, 5, Some(100));
     wait_status(&mut axes, "F", |s| s.state != 0 && !s.node_lost).await;
     let mut stream = status_stream(&mut axes, &["F"]).await;
     let lease = acquire(&mut axes, &["F"], 5000, "test").await;
@@ -698,7 +606,7 @@ async fn fault_then_reset_then_enable_again() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn heartbeat_loss_faults_the_axis_until_the_node_is_back() {
     let (server, mut axes) = setup().await;
-    let (_drive, cancel) = run_drive_f(&server);
+    let (_drive, cancel) = run_drive(&server, 5, Some(100));
     wait_status(&mut axes, "F", |s| s.state != 0 && !s.node_lost).await;
     let lease = acquire(&mut axes, &["F"], 10_000, "test").await;
     enable(&mut axes, "F", &lease).await;
@@ -709,7 +617,7 @@ async fn heartbeat_loss_faults_the_axis_until_the_node_is_back() {
     assert_eq!(e.code(), Code::FailedPrecondition);
     assert!(e.message().contains("node is lost"), "{}", e.message());
     // The drive comes back (power cycle): boot-up, boot procedure, usable.
-    let (_drive, _cancel) = run_drive_f(&server);
+    let (_drive, _cancel) = run_drive(&server, 5, Some(100));
     wait_status(&mut axes, "F", |s| !s.node_lost && s.state != 0).await;
     enable(&mut axes, "F", &lease).await;
 }
@@ -717,7 +625,7 @@ async fn heartbeat_loss_faults_the_axis_until_the_node_is_back() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn shutdown_stops_a_jogging_axis_and_refuses_new_commands() {
     let (server, mut axes) = setup().await;
-    let (drive, _cancel) = run_drive_f(&server);
+    let (drive, _cancel) = run_drive(&server, 5, Some(100));
     wait_status(&mut axes, "F", |s| s.state != 0 && !s.node_lost).await;
     let lease = acquire(&mut axes, &["F"], 10_000, "test").await;
     enable(&mut axes, "F", &lease).await;

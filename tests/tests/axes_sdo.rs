@@ -7,10 +7,8 @@
 mod common;
 
 use cangate_client::pb;
-use cangate_sim::{DeviceHandle, SimDrive, SimDriveOptions, SimNodeOptions};
+use common::axes::*;
 use common::*;
-use std::time::Duration;
-use tokio_util::sync::CancellationToken;
 use tonic::Code;
 
 /// S: a simulated drive run by the server. T: a drive the test runs (to
@@ -56,93 +54,6 @@ process_data = "sdo"
 sdo_poll_ms = 5
 "#;
 
-type Axes = pb::axes_client::AxesClient<cangate_client::Transport>;
-
-fn opts(lease: &str, wait: bool) -> Option<pb::CommandOptions> {
-    Some(pb::CommandOptions {
-        lease: lease.into(),
-        wait,
-        wait_timeout_ms: 10_000,
-    })
-}
-
-fn cmd(axis: &str, lease: &str, wait: bool) -> pb::AxisCommandRequest {
-    pb::AxisCommandRequest {
-        axis: axis.into(),
-        options: opts(lease, wait),
-    }
-}
-
-async fn acquire(axes: &mut Axes, names: &[&str]) -> String {
-    axes.acquire_control(pb::AcquireControlRequest {
-        axes: names.iter().map(|s| s.to_string()).collect(),
-        ttl_ms: 10_000,
-        client_name: "test".into(),
-    })
-    .await
-    .unwrap()
-    .into_inner()
-    .lease
-}
-
-async fn wait_status(
-    axes: &mut Axes,
-    axis: &str,
-    f: impl Fn(&pb::AxisStatus) -> bool,
-) -> pb::AxisStatus {
-    let t0 = std::time::Instant::now();
-    loop {
-        let s = axes
-            .get_axis(pb::GetAxisRequest { axis: axis.into() })
-            .await
-            .unwrap()
-            .into_inner()
-            .status
-            .unwrap();
-        if f(&s) {
-            return s;
-        }
-        assert!(t0.elapsed() < WAIT, "{s:?}");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-}
-
-async fn enable(axes: &mut Axes, axis: &str, lease: &str) {
-    let r = axes
-        .enable(cmd(axis, lease, true))
-        .await
-        .unwrap()
-        .into_inner();
-    assert_eq!(r.outcome, pb::Outcome::Completed as i32, "{r:?}");
-    assert_eq!(
-        r.status.unwrap().state,
-        pb::DriveState::OperationEnabled as i32
-    );
-}
-
-/// Runs the drive of axis T (node 6) on the test's side of the bus.
-fn run_drive_t(
-    server: &cangate_server::RunningServer,
-) -> (DeviceHandle<SimDrive>, CancellationToken) {
-    let port = server
-        .gateway()
-        .network()
-        .get("can0")
-        .expect("virtual can0")
-        .connect(false);
-    let drive = SimDrive::bundled(
-        cangate_canopen::NodeId::new(6).unwrap(),
-        SimDriveOptions {
-            node: SimNodeOptions::default(),
-            ..SimDriveOptions::default()
-        },
-    );
-    let handle = DeviceHandle::new(drive);
-    let cancel = CancellationToken::new();
-    cangate_sim::spawn_device(port, handle.clone(), cancel.clone());
-    (handle, cancel)
-}
-
 fn exact(id: u32) -> pb::FrameFilter {
     pb::FrameFilter {
         id,
@@ -180,7 +91,7 @@ async fn an_sdo_axis_enables_homes_and_moves_without_any_pdo() {
     )
     .await;
 
-    let lease = acquire(&mut axes, &["S"]).await;
+    let lease = acquire(&mut axes, &["S"], 10_000, "test").await;
     enable(&mut axes, "S", &lease).await;
     let r = axes
         .home(cmd("S", &lease, true))
@@ -248,9 +159,9 @@ async fn a_silent_sdo_drive_faults_its_axis_until_it_is_back() {
     let server = start_server(CONFIG).await;
     let c = client(&server).await;
     let mut axes = c.axes_client();
-    let (_drive, off) = run_drive_t(&server);
+    let (_drive, off) = run_drive(&server, 6, None);
     wait_status(&mut axes, "T", |s| s.state != 0 && !s.node_lost).await;
-    let lease = acquire(&mut axes, &["T"]).await;
+    let lease = acquire(&mut axes, &["T"], 10_000, "test").await;
     enable(&mut axes, "T", &lease).await;
 
     // Switched off: the polls time out, and after three in a row the axis
@@ -267,7 +178,7 @@ async fn a_silent_sdo_drive_faults_its_axis_until_it_is_back() {
     assert!(e.message().contains("node is lost"), "{}", e.message());
 
     // Switched on again: boot-up, boot procedure, polls answer, usable.
-    let (_drive, _on) = run_drive_t(&server);
+    let (_drive, _on) = run_drive(&server, 6, None);
     wait_status(&mut axes, "T", |s| !s.node_lost && s.state != 0).await;
     enable(&mut axes, "T", &lease).await;
 }

@@ -3,6 +3,8 @@
 
 #![allow(dead_code)]
 
+pub mod axes;
+
 use cangate_client::pb;
 use cangate_client::pb::stream_event::Event;
 use cangate_server::{Config, RunningServer};
