@@ -505,3 +505,40 @@ async fn bad_requests_are_refused_clearly() {
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
 }
+
+/// Waits (bounded) until the wheel's binding statistics satisfy `f`.
+async fn wait_binding(
+    w: &mut Wheels,
+    wheel: &str,
+    f: impl Fn(&pb::BindingStats) -> bool,
+) -> pb::BindingStats {
+    let t0 = Instant::now();
+    loop {
+        let b = get(w, wheel).await.binding.unwrap_or_default();
+        if f(&b) {
+            return b;
+        }
+        assert!(t0.elapsed() < WAIT, "{b:?}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_blocked_binding_names_the_holder_until_the_wheel_leaves_manual_mode() {
+    let mut b = setup().await;
+    // An HMI holds X: the wheel in manual mode cannot take it, and says why.
+    b.axes
+        .acquire_control(pb::AcquireControlRequest {
+            axes: vec!["X".into()],
+            ttl_ms: 30_000,
+            client_name: "hmi".into(),
+        })
+        .await
+        .unwrap();
+    set_mode(&mut b.wheels, "hw1", pb::HandwheelMode::Manual).await;
+    let blocked = wait_binding(&mut b.wheels, "hw1", |s| !s.blocked.is_empty()).await;
+    assert!(blocked.blocked.contains("hmi"), "{blocked:?}");
+    // In automatic mode the wheel wants nothing: no stale refusal stays.
+    set_mode(&mut b.wheels, "hw1", pb::HandwheelMode::Automatic).await;
+    wait_binding(&mut b.wheels, "hw1", |s| s.blocked.is_empty()).await;
+}

@@ -412,7 +412,7 @@ async fn run_wheel(mut t: WheelTask) {
                         t.decoder.reset_baseline(BaselineReason::DeviceRestart);
                         *t.state.mode.lock().expect("lock") = None;
                         manual = false;
-                        release(&t.axes, &mut hold);
+                        release(&t.state, &t.axes, &mut hold);
                     }
                     _ => {}
                 },
@@ -428,7 +428,7 @@ async fn run_wheel(mut t: WheelTask) {
                         p.clear();
                     }
                     if !manual {
-                        release(&t.axes, &mut hold);
+                        release(&t.state, &t.axes, &mut hold);
                     }
                 }
             },
@@ -440,7 +440,7 @@ async fn run_wheel(mut t: WheelTask) {
             }
         }
     }
-    release(&t.axes, &mut hold);
+    release(&t.state, &t.axes, &mut hold);
 }
 
 /// Queues the units of a feed event on the pacer of its axis.
@@ -509,10 +509,14 @@ fn keep_hold(state: &WheelState, axes: &AxisManager, hold: &mut Hold) {
     }
 }
 
-fn release(axes: &AxisManager, hold: &mut Hold) {
+/// Gives the bound axes back (the wheel left manual mode, rebooted or
+/// stopped); a refusal to take them no longer applies either.
+fn release(state: &WheelState, axes: &AxisManager, hold: &mut Hold) {
     if let Some(token) = hold.lease.take() {
         let _ = axes.release(&token);
     }
+    hold.retry_at = Instant::now();
+    state.binding.lock().expect("lock").blocked.clear();
 }
 
 /// Sends the units now due as relative moves.
