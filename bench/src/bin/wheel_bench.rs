@@ -47,6 +47,14 @@ struct Args {
     /// Seconds of each measurement.
     #[arg(long, default_value_t = 10.0)]
     seconds: f64,
+    /// Writes every event of the one-subscriber run to this file (one line
+    /// each: receive time and bus timestamp in us since the epoch), to see
+    /// when the slow ones happen.
+    #[arg(long)]
+    trace: Option<std::path::PathBuf>,
+    /// Only the one-subscriber run.
+    #[arg(long)]
+    one_only: bool,
 }
 
 const NODE: u32 = 10;
@@ -58,11 +66,19 @@ struct Run {
     lost_reported: u64,
     hist: Histogram<u64>,
     wall: f64,
+    /// (receive us, bus timestamp us) per event, when traced.
+    trace: Vec<(u64, u64)>,
 }
 
 /// Starts the gateway and the wheel, opens `subscribers` streams over
 /// `connections` connections, turns the wheel for `seconds`.
-fn run(rate: u32, seconds: f64, connections: usize, subscribers: usize) -> Result<Run> {
+fn run(
+    rate: u32,
+    seconds: f64,
+    connections: usize,
+    subscribers: usize,
+    trace: bool,
+) -> Result<Run> {
     let text = format!(
         "listen = \"127.0.0.1:0\"\n[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\nqueue = 65536\n\
          [[canopen]]\nbus = \"can0\"\n[[canopen.node]]\nid = {NODE}\neds = \"builtin:handwheel\"\n\
@@ -160,6 +176,10 @@ fn run(rate: u32, seconds: f64, connections: usize, subscribers: usize) -> Resul
             tasks.push(tokio::spawn(async move {
                 let mut h = Histogram::<u64>::new(3).expect("histogram");
                 let (mut n, mut lost) = (0u64, 0u64);
+                let mut tr = Vec::new();
+                if trace {
+                    tr.reserve(2 * (f64::from(rate) * seconds) as usize);
+                }
                 loop {
                     let m = tokio::select! {
                         _ = stop.cancelled() => break,
@@ -170,8 +190,11 @@ fn run(rate: u32, seconds: f64, connections: usize, subscribers: usize) -> Resul
                     n += 1;
                     lost += ev.lost_before;
                     let _ = h.record(now_us.saturating_sub(ev.timestamp_us) * 1000);
+                    if trace {
+                        tr.push((now_us, ev.timestamp_us));
+                    }
                 }
-                (n, lost, h)
+                (n, lost, h, tr)
             }));
         }
         tokio::time::sleep(Duration::from_millis(200)).await;
@@ -205,11 +228,13 @@ fn run(rate: u32, seconds: f64, connections: usize, subscribers: usize) -> Resul
             - frames_before;
         let mut hist = Histogram::<u64>::new(3)?;
         let (mut delivered, mut lost_reported) = (0, 0);
+        let mut trace = Vec::new();
         for t in tasks {
-            let (n, lost, h) = t.await?;
+            let (n, lost, h, tr) = t.await?;
             delivered += n;
             lost_reported += lost;
             hist.add(h)?;
+            trace.extend(tr);
         }
         Ok::<_, anyhow::Error>(Run {
             sent,
@@ -218,6 +243,7 @@ fn run(rate: u32, seconds: f64, connections: usize, subscribers: usize) -> Resul
             lost_reported,
             hist,
             wall,
+            trace,
         })
     });
     cancel.cancel();
@@ -259,46 +285,61 @@ fn bench(args: &Args) -> Result<bool> {
         if args.quick { "quick" } else { "full" },
         args.rate
     );
-    let one = run(args.rate, seconds, 1, 1)?;
+    let one = run(args.rate, seconds, 1, 1, args.trace.is_some())?;
     let ms = |h: &Histogram<u64>, q: f64| h.value_at_quantile(q) as f64 / 1e6;
     let lost_one = one.sent - one.delivered;
     let ok_one = ms(&one.hist, 0.99) < 1.0 && lost_one == 0 && one.gateway_frames == one.sent;
     println!(
-        "1. one subscriber: {} frames sent, {} decoded by the gateway, {} delivered ({} lost); p90 {:.3} ms; \
-         bus -> client p50 {:.3} ms, p99 {:.3} ms (target p99 < 1 ms, 0 lost: {})",
+        "1. one subscriber: {} frames sent, {} decoded by the gateway, {} delivered ({} lost); \
+         bus -> client p50 {:.3} ms, p90 {:.3} ms, p99 {:.3} ms, max {:.3} ms (target p99 < 1 ms, 0 lost: {})",
         one.sent,
         one.gateway_frames,
         one.delivered,
         lost_one,
-        ms(&one.hist, 0.9),
         ms(&one.hist, 0.5),
+        ms(&one.hist, 0.9),
         ms(&one.hist, 0.99),
+        ms(&one.hist, 1.0),
         if ok_one { "met" } else { "MISSED" }
     );
-    let many = run(args.rate, seconds, 10.min(fanout), fanout)?;
-    let per_s = many.delivered as f64 / many.wall;
-    let expected = many.sent * fanout as u64;
-    println!(
-        "2. {fanout} subscribers: {:.0} events/s delivered in total ({} of {} expected, {} reported lost); \
-         p50 {:.3} ms, p99 {:.3} ms",
-        per_s,
-        many.delivered,
-        expected,
-        many.lost_reported,
-        ms(&many.hist, 0.5),
-        ms(&many.hist, 0.99)
-    );
+    if let Some(path) = &args.trace {
+        let mut text = String::from("# receive_us bus_us (since the UNIX epoch)\n");
+        for (rx, bus) in &one.trace {
+            text.push_str(&format!("{rx} {bus}\n"));
+        }
+        std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
+    }
+    let one_json = json!({"sent": one.sent, "gateway": one.gateway_frames, "delivered": one.delivered,
+                          "p50_ms": ms(&one.hist, 0.5), "p90_ms": ms(&one.hist, 0.9),
+                          "p99_ms": ms(&one.hist, 0.99), "max_ms": ms(&one.hist, 1.0)});
+    let fanout_json = if args.one_only {
+        serde_json::Value::Null
+    } else {
+        let many = run(args.rate, seconds, 10.min(fanout), fanout, false)?;
+        let per_s = many.delivered as f64 / many.wall;
+        let expected = many.sent * fanout as u64;
+        println!(
+            "2. {fanout} subscribers: {:.0} events/s delivered in total ({} of {} expected, {} reported lost); \
+             p50 {:.3} ms, p99 {:.3} ms",
+            per_s,
+            many.delivered,
+            expected,
+            many.lost_reported,
+            ms(&many.hist, 0.5),
+            ms(&many.hist, 0.99)
+        );
+        json!({"subscribers": fanout, "delivered": many.delivered, "expected": expected,
+               "lost_reported": many.lost_reported, "per_s": per_s,
+               "p50_ms": ms(&many.hist, 0.5), "p99_ms": ms(&many.hist, 0.99)})
+    };
     println!(
         "{}",
         json!({
             "bench": "wheel",
             "quick": args.quick,
             "rate": args.rate,
-            "one": {"sent": one.sent, "gateway": one.gateway_frames, "delivered": one.delivered,
-                    "p50_ms": ms(&one.hist, 0.5), "p99_ms": ms(&one.hist, 0.99)},
-            "fanout": {"subscribers": fanout, "delivered": many.delivered, "expected": expected,
-                       "lost_reported": many.lost_reported, "per_s": per_s,
-                       "p50_ms": ms(&many.hist, 0.5), "p99_ms": ms(&many.hist, 0.99)},
+            "one": one_json,
+            "fanout": fanout_json,
         })
     );
     Ok(ok_one)
