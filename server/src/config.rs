@@ -55,6 +55,12 @@ pub struct Config {
     /// (default 5000).
     #[serde(default = "default_shutdown_timeout_ms")]
     pub shutdown_timeout_ms: u64,
+    /// `SCHED_FIFO` priority (1..=99) of the gateway's bus thread and of
+    /// the gRPC runtime's threads, so that a frame reaches its streams
+    /// without waiting for other processes' time slices; 0 (default): the
+    /// default policy. Needs root or `CAP_SYS_NICE` (else a warning).
+    #[serde(default, skip_serializing_if = "is_zero_u8")]
+    pub rt_priority: u8,
     /// Security settings.
     #[serde(default)]
     pub security: SecurityConfig,
@@ -658,6 +664,10 @@ impl NodeConfig {
     }
 }
 
+fn is_zero_u8(v: &u8) -> bool {
+    *v == 0
+}
+
 fn default_shutdown_timeout_ms() -> u64 {
     5000
 }
@@ -995,6 +1005,12 @@ impl Config {
             return Err(ConfigError::Invalid(format!(
                 "shutdown_timeout_ms = {} must be between 1 and 600000",
                 self.shutdown_timeout_ms
+            )));
+        }
+        if self.rt_priority > 99 {
+            return Err(ConfigError::Invalid(format!(
+                "rt_priority = {} must be 0 (off) or 1..=99",
+                self.rt_priority
             )));
         }
         let mut smc_names = HashSet::new();

@@ -82,7 +82,8 @@ impl BusRuntime {
     /// `io`: a backend needs the I/O driver (SocketCAN). Without it the
     /// thread parks on a futex instead of in `epoll_wait`, a cheaper sleep
     /// and wake-up, and virtual buses need nothing else.
-    fn start(io: bool) -> Result<BusRuntime, StartError> {
+    /// `rt_priority`: `SCHED_FIFO` for the thread (0: the default policy).
+    fn start(io: bool, rt_priority: u8) -> Result<BusRuntime, StartError> {
         let mut builder = tokio::runtime::Builder::new_current_thread();
         builder.enable_time();
         if io {
@@ -94,7 +95,10 @@ impl BusRuntime {
         let until = stop.clone();
         std::thread::Builder::new()
             .name("gateway-bus".into())
-            .spawn(move || rt.block_on(until.cancelled()))
+            .spawn(move || {
+                crate::realtime::enter(rt_priority, "gateway-bus");
+                rt.block_on(until.cancelled())
+            })
             .map_err(StartError::Runtime)?;
         Ok(BusRuntime { handle, stop })
     }
@@ -139,6 +143,7 @@ impl Gateway {
                 .buses
                 .iter()
                 .any(|b| b.backend == crate::config::BackendChoice::Socketcan),
+            config.rt_priority,
         )?;
         // Everything spawned from here on (tokio::spawn in the bus, master,
         // axis and handwheel constructors) runs on the bus runtime.

@@ -21,6 +21,7 @@ pub mod gateway;
 pub mod grpc;
 pub mod handwheel;
 pub mod metrics;
+pub mod realtime;
 pub mod security;
 
 pub use config::Config;

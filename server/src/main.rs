@@ -113,8 +113,7 @@ fn spawn_tls_reload_on_sighup(tls: cangate_server::security::TlsReloader) {
     let _ = tls;
 }
 
-#[tokio::main]
-async fn main() -> ExitCode {
+fn main() -> ExitCode {
     let args = Args::parse();
     let mut config = match Config::load(args.config.as_deref()) {
         Ok(c) => c,
@@ -137,7 +136,26 @@ async fn main() -> ExitCode {
         return ExitCode::SUCCESS;
     }
     init_logging(&config);
-    if args.config.is_none() {
+    // The gRPC runtime, built here rather than by `#[tokio::main]` so that
+    // its threads can get `rt_priority` as they start.
+    let runtime = match tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .on_thread_start(cangate_server::realtime::on_grpc_thread_start(
+            config.rt_priority,
+        ))
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("cangate-server: cannot start the runtime: {e}");
+            return ExitCode::from(1);
+        }
+    };
+    runtime.block_on(serve(args.config.is_none(), config))
+}
+
+async fn serve(demo: bool, config: Config) -> ExitCode {
+    if demo {
         tracing::info!("no --config given: running the embedded demo configuration");
     }
     if config.security.insecure {

@@ -55,6 +55,16 @@ struct Args {
     /// Only the one-subscriber run.
     #[arg(long)]
     one_only: bool,
+    /// The gateway's `rt_priority` (`SCHED_FIFO` for its bus thread and its
+    /// gRPC runtime; the simulated wheel and the client keep the default
+    /// policy); 0 for the default policy everywhere.
+    #[arg(long, default_value_t = 10)]
+    rt_priority: u8,
+    /// `SCHED_FIFO` for the benchmark's client runtime too (0: default
+    /// policy). The latency includes the client's own wake-up; on a loaded
+    /// host that is the client's scheduling, not the gateway's.
+    #[arg(long, default_value_t = 0)]
+    client_rt_priority: u8,
 }
 
 const NODE: u32 = 10;
@@ -78,18 +88,22 @@ fn run(
     connections: usize,
     subscribers: usize,
     trace: bool,
+    rt_priority: u8,
+    client_rt_priority: u8,
 ) -> Result<Run> {
     let text = format!(
-        "listen = \"127.0.0.1:0\"\n[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\nqueue = 65536\n\
+        "listen = \"127.0.0.1:0\"\nrt_priority = {rt_priority}\n[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\nqueue = 65536\n\
          [[canopen]]\nbus = \"can0\"\n[[canopen.node]]\nid = {NODE}\neds = \"builtin:handwheel\"\n\
          [[handwheel]]\nname = \"hw1\"\nbus = \"can0\"\nnode = {NODE}\n\
          [security.limits]\nmax_concurrent_requests_per_client = 0\nrequests_per_second_per_client = 0\nmax_streams_per_client = 0\n"
     );
     let config = Config::from_toml(&text).map_err(|e| anyhow!("{e}"))?;
+    // As the server's own runtime (`main.rs`), with two workers.
     let gateway_rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .thread_name("gateway")
         .enable_all()
+        .on_thread_start(cangate_server::realtime::on_grpc_thread_start(rt_priority))
         .build()?;
     let server = gateway_rt
         .block_on(cangate_server::start(&config))
@@ -127,6 +141,11 @@ fn run(
         .worker_threads(1)
         .thread_name("client")
         .enable_all()
+        .on_thread_start(move || {
+            if client_rt_priority > 0 {
+                let _ = cangate_server::realtime::set_fifo(client_rt_priority);
+            }
+        })
         .build()?;
     let result = client_rt.block_on(async move {
         let mut clients = Vec::new();
@@ -275,8 +294,20 @@ fn main() -> ExitCode {
 fn bench(args: &Args) -> Result<bool> {
     let seconds = if args.quick { 0.5 } else { args.seconds };
     let fanout = if args.quick { 10 } else { 100 };
+    let rt = match args.rt_priority {
+        0 => "gateway rt_priority 0: default scheduling".to_string(),
+        p => match cangate_server::realtime::available(p) {
+            Ok(()) => format!("gateway rt_priority {p}: SCHED_FIFO"),
+            Err(e) => format!("gateway rt_priority {p}: NOT available ({e}), default scheduling"),
+        },
+    };
+    let rt = if args.client_rt_priority > 0 {
+        format!("{rt}; client rt_priority {}", args.client_rt_priority)
+    } else {
+        rt
+    };
     println!(
-        "wheel_bench ({} build, {}): {} feed frames/s for {seconds} s",
+        "wheel_bench ({} build, {}): {} feed frames/s for {seconds} s; {rt}",
         if cfg!(debug_assertions) {
             "debug"
         } else {
@@ -285,7 +316,15 @@ fn bench(args: &Args) -> Result<bool> {
         if args.quick { "quick" } else { "full" },
         args.rate
     );
-    let one = run(args.rate, seconds, 1, 1, args.trace.is_some())?;
+    let one = run(
+        args.rate,
+        seconds,
+        1,
+        1,
+        args.trace.is_some(),
+        args.rt_priority,
+        args.client_rt_priority,
+    )?;
     let ms = |h: &Histogram<u64>, q: f64| h.value_at_quantile(q) as f64 / 1e6;
     let lost_one = one.sent - one.delivered;
     let ok_one = ms(&one.hist, 0.99) < 1.0 && lost_one == 0 && one.gateway_frames == one.sent;
@@ -315,7 +354,15 @@ fn bench(args: &Args) -> Result<bool> {
     let fanout_json = if args.one_only {
         serde_json::Value::Null
     } else {
-        let many = run(args.rate, seconds, 10.min(fanout), fanout, false)?;
+        let many = run(
+            args.rate,
+            seconds,
+            10.min(fanout),
+            fanout,
+            false,
+            args.rt_priority,
+            args.client_rt_priority,
+        )?;
         let per_s = many.delivered as f64 / many.wall;
         let expected = many.sent * fanout as u64;
         println!(
@@ -338,6 +385,8 @@ fn bench(args: &Args) -> Result<bool> {
             "bench": "wheel",
             "quick": args.quick,
             "rate": args.rate,
+            "rt_priority": args.rt_priority,
+            "client_rt_priority": args.client_rt_priority,
             "one": one_json,
             "fanout": fanout_json,
         })

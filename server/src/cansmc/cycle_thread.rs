@@ -219,7 +219,7 @@ impl Thread {
 
     fn run(&mut self, cancel: &CancellationToken) {
         if self.cfg.rt_priority > 0 {
-            match set_realtime(self.cfg.rt_priority) {
+            match crate::realtime::set_fifo(self.cfg.rt_priority) {
                 Ok(()) => {
                     tracing::info!(master = %self.cfg.name, priority = self.cfg.rt_priority, "CANsmc cycle thread runs with SCHED_FIFO")
                 }
@@ -719,21 +719,6 @@ impl Thread {
             );
         }
     }
-}
-
-/// Puts the calling thread under `SCHED_FIFO` at `priority` (1..=99).
-fn set_realtime(priority: u8) -> Result<(), String> {
-    use thread_priority::{
-        RealtimeThreadSchedulePolicy, ThreadPriority, ThreadPriorityValue, ThreadSchedulePolicy,
-        set_thread_priority_and_policy, thread_native_id,
-    };
-    let value = ThreadPriorityValue::try_from(priority)?;
-    set_thread_priority_and_policy(
-        thread_native_id(),
-        ThreadPriority::Crossplatform(value),
-        ThreadSchedulePolicy::Realtime(RealtimeThreadSchedulePolicy::Fifo),
-    )
-    .map_err(|e| format!("{e:?}"))
 }
 
 /// When a frame stamped `ts` arrived, on the master's clock: the bus
