@@ -55,12 +55,20 @@ pub struct Config {
     /// (default 5000).
     #[serde(default = "default_shutdown_timeout_ms")]
     pub shutdown_timeout_ms: u64,
-    /// `SCHED_FIFO` priority (1..=99) of the gateway's bus thread and of
-    /// the gRPC runtime's threads, so that a frame reaches its streams
-    /// without waiting for other processes' time slices; 0 (default): the
-    /// default policy. Needs root or `CAP_SYS_NICE` (else a warning).
+    /// `SCHED_FIFO` priority (1..=99) of the gateway's bus thread
+    /// (`gateway-bus`: bus owners, CANopen masters, axis tasks), so that a
+    /// frame is handled without waiting for other processes' time slices;
+    /// 0 (default): the default policy. Its work per frame is bounded.
+    /// Needs root or `CAP_SYS_NICE` (else a warning).
     #[serde(default, skip_serializing_if = "is_zero_u8")]
     pub rt_priority: u8,
+    /// `SCHED_FIFO` priority (1..=99) of every thread of the gRPC runtime
+    /// (streams, handwheel tasks); 0 (default): the default policy. Cuts
+    /// the stream latency tail on a busy host, but a saturated gRPC
+    /// runtime then starves every other process on its cores, local
+    /// clients included: only for a host sized for the stream load.
+    #[serde(default, skip_serializing_if = "is_zero_u8")]
+    pub grpc_rt_priority: u8,
     /// Security settings.
     #[serde(default)]
     pub security: SecurityConfig,
@@ -1007,11 +1015,15 @@ impl Config {
                 self.shutdown_timeout_ms
             )));
         }
-        if self.rt_priority > 99 {
-            return Err(ConfigError::Invalid(format!(
-                "rt_priority = {} must be 0 (off) or 1..=99",
-                self.rt_priority
-            )));
+        for (key, v) in [
+            ("rt_priority", self.rt_priority),
+            ("grpc_rt_priority", self.grpc_rt_priority),
+        ] {
+            if v > 99 {
+                return Err(ConfigError::Invalid(format!(
+                    "{key} = {v} must be 0 (off) or 1..=99"
+                )));
+            }
         }
         let mut smc_names = HashSet::new();
         let mut smc_buses = HashSet::new();
@@ -1129,6 +1141,23 @@ eds = "builtin:drive"
         );
         let e = Config::from_toml(&two).unwrap_err().to_string();
         assert!(e.contains("already backs another axis"), "{e}");
+    }
+
+    #[test]
+    fn real_time_priorities_are_off_by_default_and_bounded() {
+        let c = Config::from_toml("").unwrap();
+        assert_eq!((c.rt_priority, c.grpc_rt_priority), (0, 0));
+        let c = Config::from_toml("rt_priority = 10\ngrpc_rt_priority = 5\n").unwrap();
+        assert_eq!((c.rt_priority, c.grpc_rt_priority), (10, 5));
+        for key in ["rt_priority", "grpc_rt_priority"] {
+            let e = Config::from_toml(&format!("{key} = 100\n"))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains(&format!("{key} = 100 must be 0 (off) or 1..=99")),
+                "{e}"
+            );
+        }
     }
 
     #[test]

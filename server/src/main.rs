@@ -137,11 +137,11 @@ fn main() -> ExitCode {
     }
     init_logging(&config);
     // The gRPC runtime, built here rather than by `#[tokio::main]` so that
-    // its threads can get `rt_priority` as they start.
+    // its threads can get `grpc_rt_priority` as they start.
     let runtime = match tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .on_thread_start(cangate_server::realtime::on_grpc_thread_start(
-            config.rt_priority,
+            config.grpc_rt_priority,
         ))
         .build()
     {

@@ -17,6 +17,15 @@
 //! 2. **100 concurrent subscribers** (10 HTTP/2 connections × 10 streams):
 //!    events delivered per second in total, p99 latency, lost.
 //!
+//! Scheduling: by default the gateway runs with `rt_priority = 10` (its bus
+//! thread under `SCHED_FIFO`) and, for run 1, `grpc_rt_priority = 10` (its
+//! gRPC runtime too); run 2 keeps the gRPC runtime at the default policy
+//! (`--grpc-rt-fanout` to change that: saturated, it starves the client).
+//! The benchmark's client and the simulated wheel keep the default policy
+//! unless `--client-rt-priority` is given. Without root or `CAP_SYS_NICE`
+//! the first line says FIFO is not available and everything runs at the
+//! default policy.
+//!
 //! Human-readable results, then one JSON line. Exit 1 if it could not run;
 //! with `--strict` also if a target is missed.
 
@@ -55,11 +64,21 @@ struct Args {
     /// Only the one-subscriber run.
     #[arg(long)]
     one_only: bool,
-    /// The gateway's `rt_priority` (`SCHED_FIFO` for its bus thread and its
-    /// gRPC runtime; the simulated wheel and the client keep the default
-    /// policy); 0 for the default policy everywhere.
+    /// The gateway's `rt_priority` (`SCHED_FIFO` for its bus thread; the
+    /// simulated wheel and the client keep the default policy); 0: the
+    /// default policy.
     #[arg(long, default_value_t = 10)]
     rt_priority: u8,
+    /// The gateway's `grpc_rt_priority` (`SCHED_FIFO` for its gRPC runtime,
+    /// which runs the handwheel task and the streams); 0: the default
+    /// policy. Applies to the one-subscriber run only: the 100-subscriber
+    /// run saturates the gRPC runtime, which under FIFO starves the
+    /// benchmark's own client (see README).
+    #[arg(long, default_value_t = 10)]
+    grpc_rt_priority: u8,
+    /// `SCHED_FIFO` for the 100-subscriber run's gRPC runtime too.
+    #[arg(long)]
+    grpc_rt_fanout: bool,
     /// `SCHED_FIFO` for the benchmark's client runtime too (0: default
     /// policy). The latency includes the client's own wake-up; on a loaded
     /// host that is the client's scheduling, not the gateway's.
@@ -82,15 +101,30 @@ struct Run {
 
 /// Starts the gateway and the wheel, opens `subscribers` streams over
 /// `connections` connections, turns the wheel for `seconds`.
+/// `SCHED_FIFO` priorities of one run (0: the default policy).
+#[derive(Debug, Clone, Copy)]
+struct Sched {
+    /// The gateway's bus thread.
+    rt_priority: u8,
+    /// The gateway's gRPC runtime.
+    grpc_rt_priority: u8,
+    /// The benchmark's client runtime.
+    client_rt_priority: u8,
+}
+
 fn run(
     rate: u32,
     seconds: f64,
     connections: usize,
     subscribers: usize,
     trace: bool,
-    rt_priority: u8,
-    client_rt_priority: u8,
+    sched: Sched,
 ) -> Result<Run> {
+    let Sched {
+        rt_priority,
+        grpc_rt_priority,
+        client_rt_priority,
+    } = sched;
     let text = format!(
         "listen = \"127.0.0.1:0\"\nrt_priority = {rt_priority}\n[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\nqueue = 65536\n\
          [[canopen]]\nbus = \"can0\"\n[[canopen.node]]\nid = {NODE}\neds = \"builtin:handwheel\"\n\
@@ -103,7 +137,9 @@ fn run(
         .worker_threads(2)
         .thread_name("gateway")
         .enable_all()
-        .on_thread_start(cangate_server::realtime::on_grpc_thread_start(rt_priority))
+        .on_thread_start(cangate_server::realtime::on_grpc_thread_start(
+            grpc_rt_priority,
+        ))
         .build()?;
     let server = gateway_rt
         .block_on(cangate_server::start(&config))
@@ -294,13 +330,18 @@ fn main() -> ExitCode {
 fn bench(args: &Args) -> Result<bool> {
     let seconds = if args.quick { 0.5 } else { args.seconds };
     let fanout = if args.quick { 10 } else { 100 };
-    let rt = match args.rt_priority {
-        0 => "gateway rt_priority 0: default scheduling".to_string(),
+    let policy = |key: &str, p: u8| match p {
+        0 => format!("{key} 0: default scheduling"),
         p => match cangate_server::realtime::available(p) {
-            Ok(()) => format!("gateway rt_priority {p}: SCHED_FIFO"),
-            Err(e) => format!("gateway rt_priority {p}: NOT available ({e}), default scheduling"),
+            Ok(()) => format!("{key} {p}: SCHED_FIFO"),
+            Err(e) => format!("{key} {p}: NOT available ({e}), default scheduling"),
         },
     };
+    let rt = format!(
+        "gateway {}, {}",
+        policy("rt_priority", args.rt_priority),
+        policy("grpc_rt_priority", args.grpc_rt_priority)
+    );
     let rt = if args.client_rt_priority > 0 {
         format!("{rt}; client rt_priority {}", args.client_rt_priority)
     } else {
@@ -322,8 +363,11 @@ fn bench(args: &Args) -> Result<bool> {
         1,
         1,
         args.trace.is_some(),
-        args.rt_priority,
-        args.client_rt_priority,
+        Sched {
+            rt_priority: args.rt_priority,
+            grpc_rt_priority: args.grpc_rt_priority,
+            client_rt_priority: args.client_rt_priority,
+        },
     )?;
     let ms = |h: &Histogram<u64>, q: f64| h.value_at_quantile(q) as f64 / 1e6;
     let lost_one = one.sent - one.delivered;
@@ -360,8 +404,15 @@ fn bench(args: &Args) -> Result<bool> {
             10.min(fanout),
             fanout,
             false,
-            args.rt_priority,
-            args.client_rt_priority,
+            Sched {
+                rt_priority: args.rt_priority,
+                grpc_rt_priority: if args.grpc_rt_fanout {
+                    args.grpc_rt_priority
+                } else {
+                    0
+                },
+                client_rt_priority: args.client_rt_priority,
+            },
         )?;
         let per_s = many.delivered as f64 / many.wall;
         let expected = many.sent * fanout as u64;
@@ -386,6 +437,8 @@ fn bench(args: &Args) -> Result<bool> {
             "quick": args.quick,
             "rate": args.rate,
             "rt_priority": args.rt_priority,
+            "grpc_rt_priority": args.grpc_rt_priority,
+            "grpc_rt_fanout": args.grpc_rt_fanout,
             "client_rt_priority": args.client_rt_priority,
             "one": one_json,
             "fanout": fanout_json,
