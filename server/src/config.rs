@@ -56,8 +56,9 @@ pub struct Config {
     #[serde(default = "default_shutdown_timeout_ms")]
     pub shutdown_timeout_ms: u64,
     /// `SCHED_FIFO` priority (1..=99) of the gateway's bus thread
-    /// (`gateway-bus`: bus owners, CANopen masters, axis tasks), so that a
-    /// frame is handled without waiting for other processes' time slices;
+    /// (`gateway-bus`: bus owners, CANopen masters, axis tasks) and of the
+    /// CANopen SYNC producer threads, so that a frame is handled (and a
+    /// SYNC sent) without waiting for other processes' time slices;
     /// 0 (default): the default policy. Its work per frame is bounded.
     /// Needs root or `CAP_SYS_NICE` (else a warning).
     #[serde(default, skip_serializing_if = "is_zero_u8")]

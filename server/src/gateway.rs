@@ -288,6 +288,7 @@ impl Gateway {
                 bus,
                 Duration::from_millis(cc.sdo_timeout_ms),
                 (cc.sync_period_us > 0).then(|| Duration::from_micros(cc.sync_period_us)),
+                config.rt_priority,
                 facts,
                 shutdown.child_token(),
             );

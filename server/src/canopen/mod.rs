@@ -214,6 +214,7 @@ impl CanopenBus {
         bus: BusHandle,
         sdo_timeout: Duration,
         sync_period: Option<Duration>,
+        rt_priority: u8,
         configured: BTreeMap<NodeId, NodeFacts>,
         cancel: CancellationToken,
     ) -> (CanopenBus, tokio::task::JoinHandle<()>) {
@@ -247,7 +248,13 @@ impl CanopenBus {
         if let Some(period) = sync_period
             && let Ok(producer) = cangate_canopen::sync::SyncProducer::new(period, 0)
         {
-            match sync_thread::spawn(bus.clone(), producer, sync_counts.clone(), cancel.clone()) {
+            match sync_thread::spawn(
+                bus.clone(),
+                producer,
+                rt_priority,
+                sync_counts.clone(),
+                cancel.clone(),
+            ) {
                 Ok(_) => sync_cob_id = Some(cangate_canopen::ids::cob::SYNC),
                 Err(e) => {
                     tracing::error!(bus = %bus.name(), error = %e, "cannot start the SYNC producer thread")

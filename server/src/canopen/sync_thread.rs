@@ -30,11 +30,15 @@ pub struct SyncCounts {
 pub fn spawn(
     bus: BusHandle,
     mut producer: SyncProducer,
+    rt_priority: u8,
     counts: Arc<SyncCounts>,
     cancel: CancellationToken,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
     let name = format!("sync-{}", bus.name());
     std::thread::Builder::new().name(name).spawn(move || {
+        // The gateway's `rt_priority` (0: none), as for its bus thread: a
+        // SYNC is the bus's clock, and a late wake-up skips a period.
+        crate::realtime::enter(rt_priority, "sync");
         // The frames go through the bus handle's async API; a tiny runtime
         // of this thread drives those calls.
         let rt = match tokio::runtime::Builder::new_current_thread()
