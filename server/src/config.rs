@@ -24,6 +24,9 @@ pub const DEMO_CONFIG: &str = include_str!("../../deploy/demo.toml");
 const ENV_KEYS: &[&str] = &[
     "CANGATE_LISTEN",
     "CANGATE_METRICS_LISTEN",
+    "CANGATE_SHUTDOWN_TIMEOUT_MS",
+    "CANGATE_RT_PRIORITY",
+    "CANGATE_GRPC_RT_PRIORITY",
     "CANGATE_SECURITY__",
     "CANGATE_LOG__",
 ];
@@ -1244,10 +1247,18 @@ eds = "builtin:drive"
         let env = HashMap::from([
             ("CANGATE_LISTEN".to_string(), "127.0.0.1:6000".to_string()),
             ("CANGATE_LOG__FORMAT".to_string(), "json".to_string()),
+            ("CANGATE_RT_PRIORITY".to_string(), "20".to_string()),
+            ("CANGATE_GRPC_RT_PRIORITY".to_string(), "10".to_string()),
+            (
+                "CANGATE_SHUTDOWN_TIMEOUT_MS".to_string(),
+                "2500".to_string(),
+            ),
         ]);
         let c = Config::load_with_env(None, env).unwrap();
         assert_eq!(c.listen.port(), 6000);
         assert_eq!(c.log.format, LogFormat::Json);
+        assert_eq!((c.rt_priority, c.grpc_rt_priority), (20, 10));
+        assert_eq!(c.shutdown_timeout_ms, 2500);
     }
 
     #[test]
