@@ -408,7 +408,9 @@ async fn run_wheel(mut t: WheelTask) {
                         *t.state.node_lost.lock().expect("lock") = false;
                     }
                     NodeEventKind::BootUp => {
-                        // A rebooted wheel starts in its default mode.
+                        // A rebooted wheel starts in its default mode; its
+                        // boot-up message says it is there again.
+                        *t.state.node_lost.lock().expect("lock") = false;
                         t.decoder.reset_baseline(BaselineReason::DeviceRestart);
                         *t.state.mode.lock().expect("lock") = None;
                         manual = false;
@@ -417,7 +419,12 @@ async fn run_wheel(mut t: WheelTask) {
                     _ => {}
                 },
                 Ok(_) => {}
-                Err(broadcast::error::RecvError::Lagged(_)) => {}
+                Err(broadcast::error::RecvError::Lagged(n)) => {
+                    // A missed heartbeat loss or reboot would leave a stale
+                    // counter baseline: start a new one.
+                    tracing::warn!(handwheel = %t.state.config.name, missed = n, "handwheel task missed node events (overloaded)");
+                    t.decoder.reset_baseline(BaselineReason::Other);
+                }
                 Err(broadcast::error::RecvError::Closed) => break,
             },
             Some(ctl) = t.control.recv() => match ctl {
