@@ -515,7 +515,13 @@ async fn run_boot_supervisor(
         };
         let ev = match ev {
             Ok(ev) => ev,
-            Err(broadcast::error::RecvError::Lagged(_)) => continue,
+            Err(broadcast::error::RecvError::Lagged(n)) => {
+                // A boot-up among them would leave its node unconfigured
+                // and not started: say so (an NMT reset of the node, or of
+                // all, runs the procedure again).
+                tracing::warn!(bus = %master.bus(), missed = n, "boot supervisor missed node events; a node that booted meanwhile may need an NMT reset");
+                continue;
+            }
             Err(broadcast::error::RecvError::Closed) => return,
         };
         if !matches!(ev.kind, NodeEventKind::BootUp) {
