@@ -19,7 +19,7 @@
 //! ([`super::sdo_process_data`]).
 
 use super::commands::{CoordinatedAxis, Waiters, for_axis, plan_coordinated};
-use super::sdo_process_data::{self, SdoJob, SdoReport};
+use super::sdo_process_data::{self, SdoReport, SdoWorker};
 use super::{AxisEventKind, AxisInfo, AxisUpdate, LatestStates};
 use crate::canopen::{CanopenBus, NodeEventKind};
 use crate::config::ProcessDataChoice;
@@ -101,7 +101,7 @@ struct Slot {
 
 /// The axis task's side of an SDO fallback worker.
 struct SdoLink {
-    jobs: mpsc::Sender<SdoJob>,
+    worker: SdoWorker,
     /// Polls and writes failed in a row.
     failures: u32,
     /// This link declared the node lost.
@@ -181,7 +181,7 @@ pub fn spawn(
                 tpdos.insert(p.cob_id, (i, p));
             }
             let sdo = (info.config.process_data == ProcessDataChoice::Sdo).then(|| SdoLink {
-                jobs: sdo_process_data::spawn(
+                worker: sdo_process_data::spawn(
                     master.clone(),
                     info.node,
                     i,
@@ -429,11 +429,7 @@ impl Task {
             }
         }
         if let Some((lost, reason)) = node_event {
-            let _ = self.updates.send(AxisUpdate::Event {
-                axis: slot.global,
-                at: Timestamp::now(),
-                event: AxisEventKind::Node { lost, reason },
-            });
+            self.publish_node_link(i, lost, reason);
         }
         self.handle(i, out);
         self.publish_status(i);
@@ -572,8 +568,10 @@ impl Task {
             NodeEventKind::BootCompleted => {
                 if let Some(link) = &mut self.slots[i].sdo {
                     link.booting = false;
-                    // Queued before any image the reboot leads to.
-                    let _ = link.jobs.try_send(SdoJob::Forget);
+                    // Before any image the reboot leads to.
+                    link.worker
+                        .forget
+                        .store(true, std::sync::atomic::Ordering::Release);
                 }
                 self.slots[i].axis.on_node_back(true, &mut out);
                 (false, "boot procedure completed".to_string())
@@ -595,11 +593,7 @@ impl Task {
             }
             NodeEventKind::StateChanged { .. } => return,
         };
-        let _ = self.updates.send(AxisUpdate::Event {
-            axis: self.slots[i].global,
-            at: Timestamp::now(),
-            event: AxisEventKind::Node { lost, reason },
-        });
+        self.publish_node_link(i, lost, reason);
         self.handle(i, out);
         self.publish_status(i);
     }
@@ -655,7 +649,7 @@ impl Task {
         let Some(link) = &self.slots[i].sdo else {
             return;
         };
-        if let Err(mpsc::error::TrySendError::Full(_)) = link.jobs.try_send(SdoJob::Image(image)) {
+        if let Err(mpsc::error::TrySendError::Full(_)) = link.worker.images.try_send(image) {
             tracing::error!(
                 axis = %self.slots[i].info.config.name,
                 "process image dropped: the drive's SDO queue is full (the drive does not answer)"
@@ -699,6 +693,16 @@ impl Task {
             || axis.snapshot(),
             Some(&self.updates),
         );
+    }
+
+    /// Tells the axis's stream subscribers that its node went away or came
+    /// back, and why.
+    fn publish_node_link(&self, i: usize, lost: bool, reason: String) {
+        let _ = self.updates.send(AxisUpdate::Event {
+            axis: self.slots[i].global,
+            at: Timestamp::now(),
+            event: AxisEventKind::Node { lost, reason },
+        });
     }
 
     fn publish_status(&mut self, i: usize) {

@@ -21,18 +21,20 @@ use cangate_axis::process_data::{SDO_FEEDBACK_OBJECTS, feedback_from_sdo, sdo_im
 use cangate_canopen::NodeId;
 use cangate_canopen::master::SdoRequest;
 use cangate_canopen::sdo::{TransferOptions, TransferOutcome};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
 
-/// What the axis task asks of the worker.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum SdoJob {
-    /// Write this process image (the changed objects).
-    Image(ProcessImage),
-    /// The drive rebooted: what it holds is unknown, write the next image
-    /// in full.
-    Forget,
+/// The axis task's handle on its worker.
+pub struct SdoWorker {
+    /// Process images to write (the changed objects), in order.
+    pub images: mpsc::Sender<ProcessImage>,
+    /// Set when the drive rebooted: what it holds is unknown, so the next
+    /// image goes out in full. A flag, not a queued message, so that it
+    /// cannot be lost to a full queue.
+    pub forget: Arc<AtomicBool>,
 }
 
 /// What the worker reports to the axis task.
@@ -59,21 +61,45 @@ pub fn spawn(
     poll: Duration,
     reports: mpsc::Sender<(usize, SdoReport)>,
     cancel: CancellationToken,
-) -> mpsc::Sender<SdoJob> {
-    let (jobs, rx) = mpsc::channel(IMAGE_QUEUE);
-    tokio::spawn(run(master, node, slot, poll, rx, reports, cancel));
-    jobs
+) -> SdoWorker {
+    let (images, rx) = mpsc::channel(IMAGE_QUEUE);
+    let forget = Arc::new(AtomicBool::new(false));
+    tokio::spawn(run(
+        Link {
+            master,
+            node,
+            slot,
+            forget: forget.clone(),
+        },
+        poll,
+        rx,
+        reports,
+        cancel,
+    ));
+    SdoWorker { images, forget }
 }
 
-async fn run(
+/// What the worker talks to.
+struct Link {
     master: CanopenBus,
     node: NodeId,
     slot: usize,
+    forget: Arc<AtomicBool>,
+}
+
+async fn run(
+    link: Link,
     poll: Duration,
-    mut jobs: mpsc::Receiver<SdoJob>,
+    mut images: mpsc::Receiver<ProcessImage>,
     reports: mpsc::Sender<(usize, SdoReport)>,
     cancel: CancellationToken,
 ) {
+    let Link {
+        master,
+        node,
+        slot,
+        forget,
+    } = link;
     let mut written: Option<ProcessImage> = None;
     let mut ticks = tokio::time::interval(poll);
     // A slow drive (or a lost one, each upload waiting for its timeout)
@@ -83,13 +109,12 @@ async fn run(
         let report = tokio::select! {
             biased;
             _ = cancel.cancelled() => break,
-            job = jobs.recv() => match job {
+            image = images.recv() => match image {
                 None => break,
-                Some(SdoJob::Forget) => {
-                    written = None;
-                    continue;
-                }
-                Some(SdoJob::Image(image)) => {
+                Some(image) => {
+                    if forget.swap(false, Ordering::AcqRel) {
+                        written = None;
+                    }
                     match write_image(&master, node, written.as_ref(), &image).await {
                         Ok(()) => {
                             written = Some(image);
