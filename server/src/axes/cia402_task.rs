@@ -29,9 +29,7 @@ use cangate_axis::{AxisCommand, AxisEvent, CommandError, Outcome};
 use cangate_can::{
     BusItem, CanId, Direction, Filter, Frame, FrameSelector, Subscription, Timestamp,
 };
-use cangate_canopen::master::SdoRequest;
 use cangate_canopen::pdo::{PdoConfig, PdoKind};
-use cangate_canopen::sdo::TransferOptions;
 use cangate_canopen::{NodeId, ObjectAddress};
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -662,23 +660,7 @@ impl Task {
         let node = self.slots[i].info.node;
         let done = self.sdo_done.clone();
         tokio::spawn(async move {
-            let mut result = Ok(());
-            for (addr, data) in writes {
-                let r = master
-                    .sdo(
-                        node,
-                        SdoRequest::Download {
-                            addr,
-                            data,
-                            opts: TransferOptions::default(),
-                        },
-                    )
-                    .await;
-                if let Err(e) = r {
-                    result = Err(format!("writing {addr}: {e}"));
-                    break;
-                }
-            }
+            let result = sdo_process_data::download_all(&master, node, writes).await;
             let _ = done.send((i, result)).await;
         });
     }

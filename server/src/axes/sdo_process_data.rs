@@ -18,9 +18,9 @@
 use crate::canopen::CanopenBus;
 use cangate_axis::cia402::{Feedback, ProcessImage};
 use cangate_axis::process_data::{SDO_FEEDBACK_OBJECTS, feedback_from_sdo, sdo_image_writes};
-use cangate_canopen::NodeId;
 use cangate_canopen::master::SdoRequest;
 use cangate_canopen::sdo::{TransferOptions, TransferOutcome};
+use cangate_canopen::{NodeId, ObjectAddress};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -146,7 +146,17 @@ async fn write_image(
     written: Option<&ProcessImage>,
     image: &ProcessImage,
 ) -> Result<(), String> {
-    for (addr, data) in sdo_image_writes(written, image) {
+    download_all(master, node, sdo_image_writes(written, image)).await
+}
+
+/// Writes `writes` to `node` by SDO one after the other; the first failure
+/// ends it, naming the object. (Also the axes' parameter writes.)
+pub(super) async fn download_all(
+    master: &CanopenBus,
+    node: NodeId,
+    writes: Vec<(ObjectAddress, Vec<u8>)>,
+) -> Result<(), String> {
+    for (addr, data) in writes {
         master
             .sdo(
                 node,
@@ -157,7 +167,7 @@ async fn write_image(
                 },
             )
             .await
-            .map_err(|e| format!("writing {addr} by SDO: {e}"))?;
+            .map_err(|e| format!("writing {addr}: {e}"))?;
     }
     Ok(())
 }
