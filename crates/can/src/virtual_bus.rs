@@ -10,7 +10,8 @@
 //! modelled completion time and stamped with it. Fault injection can drop
 //! frames (by probability or identifier), delay them, and force the bus off.
 
-use crate::frame::{Frame, Timestamp};
+use crate::filter::Filter;
+use crate::frame::{Frame, FrameKind, Timestamp};
 use crate::state::{BusState, BusStatus};
 use crate::timing::{Arbiter, BitTiming, LoadMeter};
 use std::collections::{HashMap, HashSet, VecDeque};
@@ -105,6 +106,22 @@ struct PortShared {
     tx: mpsc::Sender<PortEvent>,
     echo_own: bool,
     overflows: AtomicU64,
+    /// The port's acceptance filters (`None`: every frame), read by the
+    /// sender on every delivery.
+    accept: RwLock<Option<Arc<[Filter]>>>,
+}
+
+impl PortShared {
+    /// Whether a frame is queued to this port. Error frames always are, as
+    /// the filters select identifiers.
+    fn accepts(&self, frame: &Frame) -> bool {
+        match &*self.accept.read().expect("port filter lock") {
+            None => true,
+            Some(filters) => {
+                frame.kind() == FrameKind::Error || filters.iter().any(|f| f.matches(frame))
+            }
+        }
+    }
 }
 
 struct Inner {
@@ -212,6 +229,7 @@ impl VirtualBus {
             tx,
             echo_own,
             overflows: AtomicU64::new(0),
+            accept: RwLock::new(None),
         });
         self.inner
             .ports
@@ -414,7 +432,7 @@ fn deliver(inner: &Inner, from: u64, frame: &Frame) {
     let ports = inner.ports.read().expect("port list lock");
     for p in ports.iter() {
         let own = p.id == from;
-        if own && !p.echo_own {
+        if (own && !p.echo_own) || !p.accepts(frame) {
             continue;
         }
         match p.tx.try_send(PortEvent::Frame { frame: *frame, own }) {
@@ -569,6 +587,22 @@ impl VirtualPort {
             bus: self.bus.clone(),
             id: self.shared.id,
         }
+    }
+
+    /// Sets the port's acceptance filters, as SocketCAN's `CAN_RAW_FILTER`
+    /// or a CAN controller's acceptance registers do: frames that match none
+    /// of `filters` are not queued to this port, so they neither wake its
+    /// owner nor cost their sender the delivery. `None` (the default)
+    /// accepts every frame; an empty list only error frames and state
+    /// changes.
+    ///
+    /// Why: on a real bus a transmitter pays the same whoever listens; here
+    /// the sender's thread delivers to every port itself, so a device that
+    /// declares what it listens to keeps the virtual bus's cost close to a
+    /// real one's (a simulated drive needs its own RPDOs, not the other
+    /// drives').
+    pub fn set_filters(&self, filters: Option<Vec<Filter>>) {
+        *self.shared.accept.write().expect("port filter lock") = filters.map(Arc::from);
     }
 
     /// Frames this port could not receive because its queue was full.
@@ -752,6 +786,40 @@ mod tests {
         assert_eq!(next_frame(&mut b).await.data(), &[1, 2]);
         assert_eq!(next_frame(&mut c).await.data(), &[1, 2]);
         assert!(a.try_recv().is_none());
+    }
+
+    #[tokio::test]
+    async fn acceptance_filters_keep_other_frames_out_of_a_port() {
+        let bus = VirtualBus::new("t", VirtualBusConfig::default());
+        let a = bus.connect(false);
+        let mut drive = bus.connect(false);
+        let mut monitor = bus.connect(false);
+        drive.set_filters(Some(vec![
+            Filter::exact_standard(0x000),
+            Filter::exact_standard(0x205),
+        ]));
+        for id in [0x206, 0x205, 0x000, 0x605] {
+            a.send(&frame(id, &[id as u8])).unwrap();
+        }
+        assert_eq!(next_frame(&mut drive).await.raw_id(), 0x205);
+        assert_eq!(next_frame(&mut drive).await.raw_id(), 0x000);
+        assert!(drive.try_recv().is_none(), "0x206 and 0x605 were filtered");
+        // Error frames pass any filter; other ports see everything.
+        a.send(&Frame::new_error(0x0000_0004, [0; 8])).unwrap();
+        assert!(next_frame(&mut drive).await.is_error());
+        let mut got = Vec::new();
+        for _ in 0..4 {
+            got.push(next_frame(&mut monitor).await.raw_id());
+        }
+        assert_eq!(got, [0x206, 0x205, 0x000, 0x605]);
+        // Back to everything.
+        drive.set_filters(None);
+        a.send(&frame(0x206, &[])).unwrap();
+        assert_eq!(next_frame(&mut drive).await.raw_id(), 0x206);
+        // Nothing but errors and state.
+        drive.set_filters(Some(Vec::new()));
+        a.send(&frame(0x000, &[])).unwrap();
+        assert!(drive.try_recv().is_none());
     }
 
     #[tokio::test]

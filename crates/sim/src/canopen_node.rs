@@ -19,9 +19,10 @@
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
 
-use cangate_can::Frame;
+use cangate_can::{CanId, Filter, Frame};
 use cangate_canopen::eds::Eds;
 use cangate_canopen::emcy::emcy_frame;
+use cangate_canopen::ids::cob;
 use cangate_canopen::nmt::{NmtReset, NmtSlave, NmtSlaveEvent, NmtState};
 use cangate_canopen::od::ObjectDictionary;
 use cangate_canopen::sdo::{AbortCode, ObjectStore, SdoServer, ServerOptions};
@@ -317,6 +318,50 @@ impl SimNode {
             to: NmtState::PreOperational,
         });
         vec![boot_up]
+    }
+
+    /// The identifiers this node acts on, as acceptance filters: NMT, its
+    /// SYNC (0x1005), its SDO requests (0x600+n), the COB-IDs of its valid
+    /// RPDOs and, for remote requests, of its valid TPDOs. Frames outside
+    /// them change nothing in [`SimNode::on_frame`]. They follow the
+    /// dictionary, so ask again after a write to 0x1005 or a PDO parameter.
+    pub fn receive_filters(&self) -> Vec<Filter> {
+        let sync = pdo::CobId::decode(self.store.u32_at(COB_ID_SYNC, 0).unwrap_or(0x80)).id;
+        let store = &self.store;
+        let rpdos = self
+            .rpdos
+            .keys()
+            .filter_map(|&n| pdo::comm(store, Dir::Rx, n));
+        let tpdos = self
+            .tpdos
+            .keys()
+            .filter_map(|&n| pdo::comm(store, Dir::Tx, n));
+        let mut filters: Vec<Filter> = [cob::NMT, cob::SDO_RX + u16::from(self.node.get())]
+            .into_iter()
+            .map(Filter::exact_standard)
+            .chain(
+                std::iter::once(sync)
+                    .chain(rpdos.chain(tpdos).map(|c| c.id))
+                    .map(|id| match id {
+                        CanId::Standard(_) => Filter {
+                            id: id.raw(),
+                            mask: 0x7FF,
+                            extended: Some(false),
+                            inverted: false,
+                        },
+                        // A PDO may have been given an extended COB-ID.
+                        CanId::Extended(_) => Filter {
+                            id: id.raw(),
+                            mask: 0x1FFF_FFFF,
+                            extended: Some(true),
+                            inverted: false,
+                        },
+                    }),
+            )
+            .collect();
+        filters.sort_by_key(|f| (f.extended, f.id));
+        filters.dedup();
+        filters
     }
 
     /// Handles a frame received at `now`; returns the frames to send.
@@ -778,6 +823,9 @@ impl Device for SimNode {
     fn next_deadline(&self) -> Option<Duration> {
         SimNode::next_deadline(self)
     }
+    fn receive_filters(&self) -> Option<Vec<Filter>> {
+        Some(SimNode::receive_filters(self))
+    }
 }
 
 #[cfg(test)]
@@ -873,6 +921,44 @@ mod tests {
             wire(&sim.on_tick(Duration::from_secs(1))),
             [(0x705, vec![0x7F])]
         );
+    }
+
+    /// The identifiers of a node's acceptance filters (all standard, exact).
+    fn accepted(sim: &SimNode) -> Vec<u32> {
+        sim.receive_filters()
+            .iter()
+            .map(|f| {
+                assert_eq!(
+                    (f.mask, f.extended, f.inverted),
+                    (0x7FF, Some(false), false)
+                );
+                f.id
+            })
+            .collect()
+    }
+
+    #[test]
+    fn receive_filters_follow_the_pdo_and_sync_configuration() {
+        let mut sim = drive();
+        // NMT, SYNC, TPDO1/2 (remote requests), RPDO1/2, SDO requests.
+        assert_eq!(
+            accepted(&sim),
+            [0x000, 0x080, 0x185, 0x205, 0x285, 0x305, 0x605]
+        );
+        // RPDO1 invalidated, then moved to 0x2AB (the CiA 301 procedure).
+        assert_eq!(
+            sdo(&mut sim, "23 00 14 01 05 02 00 80", MS),
+            reply("60 00 14 01 00 00 00 00")
+        );
+        assert!(!accepted(&sim).contains(&0x205));
+        sdo(&mut sim, "23 00 14 01 AB 02 00 00", MS);
+        assert_eq!(
+            accepted(&sim),
+            [0x000, 0x080, 0x185, 0x285, 0x2AB, 0x305, 0x605]
+        );
+        // A SYNC COB-ID of 0x081 replaces 0x080.
+        sdo(&mut sim, "23 05 10 00 81 00 00 00", MS);
+        assert!(accepted(&sim).contains(&0x081) && !accepted(&sim).contains(&0x080));
     }
 
     #[test]

@@ -982,6 +982,10 @@ impl Device for SimDrive {
         out
     }
 
+    fn receive_filters(&self) -> Option<Vec<cangate_can::Filter>> {
+        Some(self.node.receive_filters())
+    }
+
     fn next_deadline(&self) -> Option<Duration> {
         let model = self.active().then(|| self.model_time + self.options.step);
         [model, self.node.next_deadline()]

@@ -424,6 +424,10 @@ impl Device for SimHandwheel {
         out
     }
 
+    fn receive_filters(&self) -> Option<Vec<cangate_can::Filter>> {
+        Some(self.node.receive_filters())
+    }
+
     fn next_deadline(&self) -> Option<Duration> {
         let feed = self.can_send().then_some(self.next_slot);
         [feed, self.node.next_deadline()]

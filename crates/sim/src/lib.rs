@@ -24,7 +24,7 @@
 
 use std::time::Duration;
 
-use cangate_can::Frame;
+use cangate_can::{Filter, Frame};
 use cangate_canopen::ObjectAddress;
 use cangate_canopen::eds::EdsError;
 use cangate_canopen::value::DataType;
@@ -71,6 +71,14 @@ pub trait Device {
     /// scheduled. A deadline at or before the last `now` means "as soon as
     /// possible".
     fn next_deadline(&self) -> Option<Duration>;
+    /// The frames the device acts on, as acceptance filters for its port
+    /// (see [`cangate_can::VirtualPort::set_filters`]); `None`: every
+    /// frame. The runner asks again after every batch, before sending the
+    /// batch's answers, so a frame that the answer invites (an RPDO on a
+    /// COB-ID just configured) is already let through.
+    fn receive_filters(&self) -> Option<Vec<Filter>> {
+        None
+    }
 }
 
 impl<D: Device + ?Sized> Device for Box<D> {
@@ -85,6 +93,9 @@ impl<D: Device + ?Sized> Device for Box<D> {
     }
     fn next_deadline(&self) -> Option<Duration> {
         (**self).next_deadline()
+    }
+    fn receive_filters(&self) -> Option<Vec<Filter>> {
+        (**self).receive_filters()
     }
 }
 

@@ -140,7 +140,9 @@ pub fn spawn_node(port: VirtualPort, node: SimNode, cancel: CancellationToken) -
 
 async fn run<D: Device>(mut port: VirtualPort, handle: DeviceHandle<D>, cancel: CancellationToken) {
     let origin = Instant::now();
+    let mut filters = Filters::default();
     let started = handle.lock().device.start(origin.elapsed());
+    filters.refresh(&port, &handle);
     send_all(&port, &handle, &started);
     let mut events = Vec::with_capacity(BATCH);
     loop {
@@ -148,6 +150,8 @@ async fn run<D: Device>(mut port: VirtualPort, handle: DeviceHandle<D>, cancel: 
             let mut s = handle.lock();
             (std::mem::take(&mut s.outbox), s.device.next_deadline())
         };
+        // The application may have changed the device through the handle.
+        filters.refresh(&port, &handle);
         send_all(&port, &handle, &queued);
         let timer = async {
             match deadline {
@@ -170,12 +174,31 @@ async fn run<D: Device>(mut port: VirtualPort, handle: DeviceHandle<D>, cancel: 
                         }
                     }
                 }
+                // Before the answers: one may confirm a new PDO COB-ID.
+                filters.refresh(&port, &handle);
                 send_all(&port, &handle, &out);
             }
             _ = timer => {}
         }
         let due = handle.lock().device.on_tick(origin.elapsed());
         send_all(&port, &handle, &due);
+    }
+}
+
+/// The acceptance filters last set on the device's port.
+#[derive(Default)]
+struct Filters {
+    set: Option<Vec<cangate_can::Filter>>,
+}
+
+impl Filters {
+    /// Gives the port the device's current filters if they changed.
+    fn refresh<D: Device>(&mut self, port: &VirtualPort, handle: &DeviceHandle<D>) {
+        let now = handle.lock().device.receive_filters();
+        if now != self.set {
+            port.set_filters(now.clone());
+            self.set = now;
+        }
     }
 }
 
@@ -264,6 +287,49 @@ mod tests {
             assert_eq!(next_with_id(&mut tester, 0x705).await.data(), [0x7F]);
             assert_eq!(boot.elapsed(), Duration::from_millis(100) * k);
         }
+        cancel.cancel();
+        task.await.unwrap();
+    }
+
+    /// The runner gives the port the node's filters, and the new ones
+    /// before the SDO answer that confirms a PDO's new COB-ID: an RPDO sent
+    /// right after that answer reaches the node.
+    #[tokio::test]
+    async fn port_filters_follow_the_node() {
+        let bus = VirtualBus::new("sim-filters", VirtualBusConfig::default());
+        let mut tester = bus.connect(false);
+        let cancel = CancellationToken::new();
+        let handle = DeviceHandle::new(drive(SimNodeOptions::default()));
+        let task = spawn_device(bus.connect(false), handle.clone(), cancel.clone());
+        next_with_id(&mut tester, 0x705).await;
+        tester.send(&frame(0x000, &[0x01, 0x05])).unwrap();
+        for (request, reply) in [
+            ([0x23, 0x00, 0x14, 0x01, 0x05, 0x02, 0x00, 0x80], 0x60),
+            ([0x23, 0x00, 0x14, 0x01, 0xAB, 0x02, 0x00, 0x00], 0x60),
+        ] {
+            tester.send(&frame(0x605, &request)).unwrap();
+            assert_eq!(next_with_id(&mut tester, 0x585).await.data()[0], reply);
+        }
+        // RPDO1 (controlword, target position) on its new COB-ID at once;
+        // another drive's RPDO is not even queued to this one.
+        tester
+            .send(&frame(0x2AB, &[0x0F, 0x00, 0x40, 0xE2, 0x01, 0x00]))
+            .unwrap();
+        tester
+            .send(&frame(0x206, &[0x06, 0x00, 0x00, 0x00, 0x00, 0x00]))
+            .unwrap();
+        tester
+            .send(&frame(0x605, &[0x40, 0x7A, 0x60, 0x00, 0, 0, 0, 0]))
+            .unwrap();
+        let reply = next_with_id(&mut tester, 0x585).await;
+        assert_eq!(
+            reply.data(),
+            [0x43, 0x7A, 0x60, 0x00, 0x40, 0xE2, 0x01, 0x00]
+        );
+        assert_eq!(
+            handle.with(|n| n.get(ObjectAddress::new(0x6040, 0)).cloned()),
+            Some(Value::Unsigned16(0x000F))
+        );
         cancel.cancel();
         task.await.unwrap();
     }
