@@ -119,10 +119,13 @@ impl Bed {
             .thread_name("gateway")
             .enable_all()
             .build()?;
+        // Timers only: the drives need no I/O driver, and without one a
+        // frame wakes their thread with a futex rather than an eventfd
+        // write, which the sending thread (often the gateway's) pays for.
         let sim_rt = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(1)
             .thread_name("sim-drives")
-            .enable_all()
+            .enable_time()
             .build()?;
         let server = gateway_rt
             .block_on(cangate_server::start(&config))

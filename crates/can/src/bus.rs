@@ -392,26 +392,43 @@ impl BusHandle {
     /// later is counted in `tx_failed` and logged. Falls back to waiting
     /// when the bus task's queue is full, so nothing is dropped.
     pub async fn submit(&self, frames: Vec<Frame>) -> Result<(), SendFailure> {
+        let Some(frames) = self.try_submit(frames)? else {
+            return Ok(());
+        };
+        let total = frames.len();
+        let request = TxRequest {
+            frames,
+            reply: None,
+        };
+        self.shared.tx.send(request).await.map_err(|_| SendFailure {
+            sent: 0,
+            total,
+            error: SendError::Down(self.name().to_string()),
+        })
+    }
+
+    /// [`BusHandle::submit`] without a runtime, for a thread of its own
+    /// (the SYNC producer): `Ok(None)` when the batch was sent or queued,
+    /// `Ok(Some(frames))` when the bus task's queue is full and the caller
+    /// has to wait with [`BusHandle::submit`].
+    pub fn try_submit(&self, frames: Vec<Frame>) -> Result<Option<Vec<Frame>>, SendFailure> {
         self.check(&frames)?;
         if let Some(direct) = &self.shared.direct {
-            return self.send_direct(direct, &frames);
+            return self.send_direct(direct, &frames).map(|()| None);
         }
         let total = frames.len();
         let request = TxRequest {
             frames,
             reply: None,
         };
-        let gone = || SendFailure {
-            sent: 0,
-            total,
-            error: SendError::Down(self.name().to_string()),
-        };
         match self.shared.tx.try_send(request) {
-            Ok(()) => Ok(()),
-            Err(mpsc::error::TrySendError::Full(request)) => {
-                self.shared.tx.send(request).await.map_err(|_| gone())
-            }
-            Err(mpsc::error::TrySendError::Closed(_)) => Err(gone()),
+            Ok(()) => Ok(None),
+            Err(mpsc::error::TrySendError::Full(request)) => Ok(Some(request.frames)),
+            Err(mpsc::error::TrySendError::Closed(_)) => Err(SendFailure {
+                sent: 0,
+                total,
+                error: SendError::Down(self.name().to_string()),
+            }),
         }
     }
 
@@ -756,6 +773,36 @@ mod tests {
         let err = h.send(vec![frame(1)]).await.unwrap_err();
         assert_eq!(err.sent, 0);
         assert!(matches!(err.error, SendError::BusOff(_)));
+        let err = h.try_submit(vec![frame(1)]).unwrap_err();
+        assert!(matches!(err.error, SendError::BusOff(_)));
+    }
+
+    /// The SYNC thread's path: sent from a plain thread, no runtime, and
+    /// published as TX like any other send.
+    #[tokio::test]
+    async fn try_submit_sends_without_a_runtime() {
+        let vbus = VirtualBus::new("v", VirtualBusConfig::default());
+        let mut other = vbus.connect(false);
+        let (h, _c) = start(&vbus);
+        let mut sub = h.subscribe(
+            FrameSelector {
+                transmitted: true,
+                ..FrameSelector::default()
+            },
+            16,
+        );
+        let sender = h.clone();
+        let r = std::thread::spawn(move || sender.try_submit(vec![frame(0x80)]))
+            .join()
+            .unwrap();
+        assert!(matches!(r, Ok(None)));
+        assert!(
+            matches!(other.recv().await, crate::virtual_bus::PortEvent::Frame { frame, .. } if frame.raw_id() == 0x80)
+        );
+        assert!(
+            matches!(sub.recv().await, Some(BusItem::Frame { direction: Direction::Tx, frame }) if frame.raw_id() == 0x80)
+        );
+        assert_eq!(h.stats().tx_frames, 1);
     }
 
     #[tokio::test]
