@@ -342,3 +342,34 @@ async fn nmt_heartbeat_loss_recovery_and_emcy_events() {
     assert_eq!(node.emcy_history.len(), 2);
     server.shutdown();
 }
+
+/// An application embedding the gateway runs a task on its bus runtime
+/// (`Gateway::bus_runtime`): the task is on the `gateway-bus` thread, and
+/// its SDO read is answered without leaving it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_task_on_the_bus_runtime_reads_by_sdo() {
+    use cangate_canopen::master::SdoRequest;
+    use cangate_canopen::sdo::{TransferOptions, TransferOutcome};
+    use cangate_canopen::{NodeId, ObjectAddress};
+
+    let server = start_server(CONFIG).await;
+    let master = server.gateway().canopen("can0").unwrap().clone();
+    let (thread, read) = server
+        .gateway()
+        .bus_runtime()
+        .spawn(async move {
+            let thread = std::thread::current().name().map(str::to_string);
+            let req = SdoRequest::Upload {
+                addr: ObjectAddress::new(0x1000, 0),
+                opts: TransferOptions::default(),
+            };
+            (thread, master.sdo(NodeId::new(1).unwrap(), req).await)
+        })
+        .await
+        .unwrap();
+    assert_eq!(thread.as_deref(), Some("gateway-bus"));
+    match read {
+        Ok(TransferOutcome::Uploaded(bytes)) => assert_eq!(bytes, [0x92, 0x01, 0x02, 0x00]),
+        other => panic!("device type read: {other:?}"),
+    }
+}
