@@ -55,6 +55,10 @@ struct Args {
     /// Only part 3 (the CPU figure): quicker when comparing builds.
     #[arg(long)]
     cpu_only: bool,
+    /// The gateway's `rt_priority` in part 3 (`SCHED_FIFO` for its bus and
+    /// SYNC threads; 0: the default policy, as the server's default).
+    #[arg(long, default_value_t = 0)]
+    rt_priority: u8,
 }
 
 const CPU_TARGET_PERCENT: f64 = 10.0;
@@ -103,9 +107,14 @@ struct Bed {
 }
 
 impl Bed {
-    fn start(sync_us: u64, axes: &[(&str, u32, &str)], threads: usize) -> Result<Bed> {
+    fn start(
+        sync_us: u64,
+        axes: &[(&str, u32, &str)],
+        threads: usize,
+        rt_priority: u8,
+    ) -> Result<Bed> {
         let mut text = format!(
-            "listen = \"127.0.0.1:0\"\n[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\n\
+            "listen = \"127.0.0.1:0\"\nrt_priority = {rt_priority}\n[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\n\
              queue = 65536\n[[canopen]]\nbus = \"can0\"\nsync_period_us = {sync_us}\n"
         );
         for (name, node, mode) in axes {
@@ -244,7 +253,7 @@ fn percentiles(h: &Histogram<u64>) -> (f64, f64) {
 
 /// 1. gRPC Move → first RPDO on the bus.
 fn command_latency(samples: usize) -> Result<(f64, f64)> {
-    let bed = Bed::start(10_000, &[("Z", 4, "profile")], 2)?;
+    let bed = Bed::start(10_000, &[("Z", 4, "profile")], 2, 0)?;
     let url = bed.url();
     let port = bed
         .server
@@ -308,7 +317,7 @@ fn command_latency(samples: usize) -> Result<(f64, f64)> {
 
 /// 2. TPDO on the bus → StreamAxisState update at the client.
 fn stream_latency(samples: usize) -> Result<(f64, f64)> {
-    let bed = Bed::start(5_000, &[("X", 1, "cyclic")], 2)?;
+    let bed = Bed::start(5_000, &[("X", 1, "cyclic")], 2, 0)?;
     let url = bed.url();
     let client_rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
@@ -392,7 +401,11 @@ fn cpu_by_thread() -> Result<HashMap<String, f64>> {
 }
 
 /// 3. CPU of 6 CSP axes at a 1 ms SYNC.
-fn cpu_six_axes(seconds: f64, threads: usize) -> Result<(f64, f64, f64, u64, f64)> {
+fn cpu_six_axes(
+    seconds: f64,
+    threads: usize,
+    rt_priority: u8,
+) -> Result<(f64, f64, f64, u64, f64)> {
     let names = ["A1", "A2", "A3", "A4", "A5", "A6"];
     let axes_cfg: Vec<(&str, u32, &str)> = names
         .iter()
@@ -406,7 +419,7 @@ fn cpu_six_axes(seconds: f64, threads: usize) -> Result<(f64, f64, f64, u64, f64
     } else {
         1_000
     };
-    let bed = Bed::start(sync_us, &axes_cfg, threads)?;
+    let bed = Bed::start(sync_us, &axes_cfg, threads, rt_priority)?;
     let url = bed.url();
     let client_rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
@@ -538,10 +551,11 @@ fn run(args: &Args) -> Result<bool> {
             "2. state stream latency, TPDO on the bus -> client: p50 {s50:.3} ms, p99 {s99:.3} ms ({samples} updates)"
         );
     }
-    let (gw, sims, client, fps, sync_rate) = cpu_six_axes(cpu_s, args.gateway_threads)?;
+    let (gw, sims, client, fps, sync_rate) =
+        cpu_six_axes(cpu_s, args.gateway_threads, args.rt_priority)?;
     let ok = gw < CPU_TARGET_PERCENT;
     println!(
-        "3. CPU, 6 CSP axes, SYNC {} ({sync_rate:.0} SYNC/s seen), gateway runtime with {} worker threads, all moving ({cpu_s} s, {fps} frames/s on the bus): \
+        "3. CPU, 6 CSP axes, SYNC {} ({sync_rate:.0} SYNC/s seen), gateway runtime with {} worker threads, rt_priority {}, all moving ({cpu_s} s, {fps} frames/s on the bus): \
          gateway {gw:.1} % of one core (target < {CPU_TARGET_PERCENT} %: {}), \
          simulated drives {sims:.1} %, benchmark client {client:.1} %",
         if args.quick {
@@ -550,6 +564,7 @@ fn run(args: &Args) -> Result<bool> {
             "1 ms"
         },
         args.gateway_threads,
+        args.rt_priority,
         if ok { "met" } else { "MISSED" }
     );
     println!(
@@ -562,6 +577,7 @@ fn run(args: &Args) -> Result<bool> {
             "cpu_percent": {"gateway": gw, "sim_drives": sims, "client": client, "target": CPU_TARGET_PERCENT},
             "frames_per_s": fps,
             "sync_per_s": sync_rate,
+            "rt_priority": args.rt_priority,
         })
     );
     Ok(ok)
