@@ -188,6 +188,9 @@ pub struct SimNode {
     dropped_events: u64,
     /// The latest time seen.
     now: Duration,
+    /// Bumped by every dictionary write and reset, which may change
+    /// [`SimNode::receive_filters`].
+    filter_generation: u64,
 }
 
 impl SimNode {
@@ -232,6 +235,7 @@ impl SimNode {
             store,
             tpdos,
             rpdos,
+            filter_generation: 0,
             events: VecDeque::new(),
             dropped_events: 0,
             now: Duration::ZERO,
@@ -320,11 +324,17 @@ impl SimNode {
         vec![boot_up]
     }
 
+    /// Changes whenever [`SimNode::receive_filters`] may have changed (a
+    /// dictionary write, a reset), so a runner asks only then.
+    pub fn filter_generation(&self) -> u64 {
+        self.filter_generation
+    }
+
     /// The identifiers this node acts on, as acceptance filters: NMT, its
     /// SYNC (0x1005), its SDO requests (0x600+n), the COB-IDs of its valid
     /// RPDOs and, for remote requests, of its valid TPDOs. Frames outside
     /// them change nothing in [`SimNode::on_frame`]. They follow the
-    /// dictionary, so ask again after a write to 0x1005 or a PDO parameter.
+    /// dictionary (see [`SimNode::filter_generation`]).
     pub fn receive_filters(&self) -> Vec<Filter> {
         let sync = pdo::CobId::decode(self.store.u32_at(COB_ID_SYNC, 0).unwrap_or(0x80)).id;
         let store = &self.store;
@@ -477,6 +487,7 @@ impl SimNode {
                 }
             }
             NmtSlaveEvent::Reset { kind, boot_up } => {
+                self.filter_generation += 1;
                 match kind {
                     NmtReset::Node => self.store.restore_defaults(),
                     NmtReset::Communication => self.store.restore_range(0x1000..=0x1FFF),
@@ -518,6 +529,7 @@ impl SimNode {
 
     /// Applies what a written object changes in the node's behaviour.
     fn after_write(&mut self, addr: ObjectAddress, changed: bool, now: Duration) {
+        self.filter_generation += 1;
         if addr == HEARTBEAT_TIME {
             self.nmt.set_heartbeat_ms(self.heartbeat_ms(), now);
         }
@@ -826,6 +838,9 @@ impl Device for SimNode {
     fn receive_filters(&self) -> Option<Vec<Filter>> {
         Some(SimNode::receive_filters(self))
     }
+    fn filter_generation(&self) -> u64 {
+        SimNode::filter_generation(self)
+    }
 }
 
 #[cfg(test)]
@@ -945,12 +960,15 @@ mod tests {
             accepted(&sim),
             [0x000, 0x080, 0x185, 0x205, 0x285, 0x305, 0x605]
         );
-        // RPDO1 invalidated, then moved to 0x2AB (the CiA 301 procedure).
+        // RPDO1 invalidated, then moved to 0x2AB (the CiA 301 procedure);
+        // every write tells the runner to look again.
+        let generation = sim.filter_generation();
         assert_eq!(
             sdo(&mut sim, "23 00 14 01 05 02 00 80", MS),
             reply("60 00 14 01 00 00 00 00")
         );
         assert!(!accepted(&sim).contains(&0x205));
+        assert!(sim.filter_generation() > generation);
         sdo(&mut sim, "23 00 14 01 AB 02 00 00", MS);
         assert_eq!(
             accepted(&sim),

@@ -986,6 +986,10 @@ impl Device for SimDrive {
         Some(self.node.receive_filters())
     }
 
+    fn filter_generation(&self) -> u64 {
+        self.node.filter_generation()
+    }
+
     fn next_deadline(&self) -> Option<Duration> {
         let model = self.active().then(|| self.model_time + self.options.step);
         [model, self.node.next_deadline()]

@@ -428,6 +428,10 @@ impl Device for SimHandwheel {
         Some(self.node.receive_filters())
     }
 
+    fn filter_generation(&self) -> u64 {
+        self.node.filter_generation()
+    }
+
     fn next_deadline(&self) -> Option<Duration> {
         let feed = self.can_send().then_some(self.next_slot);
         [feed, self.node.next_deadline()]

@@ -79,6 +79,12 @@ pub trait Device {
     fn receive_filters(&self) -> Option<Vec<Filter>> {
         None
     }
+    /// A number that changes whenever [`Device::receive_filters`] may have
+    /// changed: the runner asks for the filters only then (they are built
+    /// from the device's state, and the runner turns at every frame batch).
+    fn filter_generation(&self) -> u64 {
+        0
+    }
 }
 
 impl<D: Device + ?Sized> Device for Box<D> {
@@ -96,6 +102,9 @@ impl<D: Device + ?Sized> Device for Box<D> {
     }
     fn receive_filters(&self) -> Option<Vec<Filter>> {
         (**self).receive_filters()
+    }
+    fn filter_generation(&self) -> u64 {
+        (**self).filter_generation()
     }
 }
 

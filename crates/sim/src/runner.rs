@@ -185,16 +185,27 @@ async fn run<D: Device>(mut port: VirtualPort, handle: DeviceHandle<D>, cancel: 
     }
 }
 
-/// The acceptance filters last set on the device's port.
+/// The acceptance filters last set on the device's port, and the device's
+/// filter generation they were built at.
 #[derive(Default)]
 struct Filters {
     set: Option<Vec<cangate_can::Filter>>,
+    generation: Option<u64>,
 }
 
 impl Filters {
-    /// Gives the port the device's current filters if they changed.
+    /// Gives the port the device's current filters if they may have
+    /// changed and did.
     fn refresh<D: Device>(&mut self, port: &VirtualPort, handle: &DeviceHandle<D>) {
-        let now = handle.lock().device.receive_filters();
+        let now = {
+            let s = handle.lock();
+            let generation = s.device.filter_generation();
+            if self.generation == Some(generation) {
+                return;
+            }
+            self.generation = Some(generation);
+            s.device.receive_filters()
+        };
         if now != self.set {
             port.set_filters(now.clone());
             self.set = now;
