@@ -18,13 +18,14 @@
 //!    CPU time is read per thread from `/proc/self/task/*/stat`, so the
 //!    gateway's share excludes the drives and the client. Target: < 10 % of
 //!    one core (ros2_canopen was reported at 700 %, then 25 %, for six
-//!    drives).
+//!    drives). Then, outside the CPU window, the SYNC's period as sent
+//!    (the virtual bus's send stamps): deviation from nominal, p50/p99/max.
 //!
 //! Human-readable results, then one JSON line. Exit 1 if something could
 //! not run; with `--strict` also if the CPU target is missed.
 
 use anyhow::{Context, Result, anyhow, bail};
-use cangate_can::PortEvent;
+use cangate_can::{Filter, PortEvent};
 use cangate_client::pb;
 use cangate_server::{Config, RunningServer};
 use cangate_sim::{DeviceHandle, SimDrive, SimDriveOptions, SimNodeOptions};
@@ -400,12 +401,22 @@ fn cpu_by_thread() -> Result<HashMap<String, f64>> {
     Ok(out)
 }
 
+/// Part 3's figures.
+struct CpuResult {
+    /// % of one core: the gateway, the simulated drives, the client.
+    gateway: f64,
+    sims: f64,
+    client: f64,
+    frames_per_s: u64,
+    sync_per_s: f64,
+    /// How far the intervals between SYNCs, as stamped by the virtual bus
+    /// when sent, stray from the period: p50, p99, max in us, and the
+    /// number of intervals.
+    sync_jitter_us: (f64, f64, f64, usize),
+}
+
 /// 3. CPU of 6 CSP axes at a 1 ms SYNC.
-fn cpu_six_axes(
-    seconds: f64,
-    threads: usize,
-    rt_priority: u8,
-) -> Result<(f64, f64, f64, u64, f64)> {
+fn cpu_six_axes(seconds: f64, threads: usize, rt_priority: u8) -> Result<CpuResult> {
     let names = ["A1", "A2", "A3", "A4", "A5", "A6"];
     let axes_cfg: Vec<(&str, u32, &str)> = names
         .iter()
@@ -441,6 +452,12 @@ fn cpu_six_axes(
         .canopen("can0")
         .context("CANopen master of can0")?
         .clone();
+    let vbus = bed
+        .server
+        .gateway()
+        .network()
+        .get("can0")
+        .context("virtual can0")?;
     client_rt.block_on(async move {
         let c = cangate_client::connect(&url).await?;
         let mut axes = c.axes_client();
@@ -492,18 +509,45 @@ fn cpu_six_axes(
         let wall = t0.elapsed().as_secs_f64();
         let frames = stats.stats().rx_frames + stats.stats().tx_frames - frames0;
         let sync_rate = (master.sync_counts().0 - syncs0) as f64 / wall;
+        // After the CPU window, since a port of our own is woken by every
+        // SYNC at the sender's expense: the SYNC's period as sent (the
+        // virtual bus stamps each frame in the sending thread).
+        let mut port = vbus.connect(false);
+        port.set_filters(Some(vec![Filter::exact_standard(0x080)]));
+        let mut stamps = Vec::new();
+        let until = Instant::now() + Duration::from_secs(3);
+        while Instant::now() < until {
+            if let Ok(PortEvent::Frame { frame, .. }) =
+                tokio::time::timeout(Duration::from_millis(100), port.recv()).await
+            {
+                stamps.push(frame.timestamp().as_nanos());
+            }
+        }
+        drop(port);
+        let mut dev: Vec<f64> = stamps
+            .windows(2)
+            .map(|w| (w[1] as f64 - w[0] as f64 - sync_us as f64 * 1000.0).abs() / 1000.0)
+            .collect();
+        dev.sort_by(f64::total_cmp);
+        let pick = |q: f64| {
+            dev.get(((dev.len() as f64 - 1.0) * q).round() as usize)
+                .copied()
+                .unwrap_or(0.0)
+        };
+        let sync_jitter_us = (pick(0.5), pick(0.99), pick(1.0), dev.len());
         stop.cancel();
         let _ = tokio::time::timeout(Duration::from_secs(10), mover).await;
         let d = |k: &str| {
             (c1.get(k).copied().unwrap_or(0.0) - c0.get(k).copied().unwrap_or(0.0)) / wall * 100.0
         };
-        Ok::<_, anyhow::Error>((
-            d("gateway"),
-            d("sim-drives"),
-            d("client"),
-            (frames as f64 / wall) as u64,
-            sync_rate,
-        ))
+        Ok::<_, anyhow::Error>(CpuResult {
+            gateway: d("gateway"),
+            sims: d("sim-drives"),
+            client: d("client"),
+            frames_per_s: (frames as f64 / wall) as u64,
+            sync_per_s: sync_rate,
+            sync_jitter_us,
+        })
     })
 }
 
@@ -551,8 +595,14 @@ fn run(args: &Args) -> Result<bool> {
             "2. state stream latency, TPDO on the bus -> client: p50 {s50:.3} ms, p99 {s99:.3} ms ({samples} updates)"
         );
     }
-    let (gw, sims, client, fps, sync_rate) =
-        cpu_six_axes(cpu_s, args.gateway_threads, args.rt_priority)?;
+    let CpuResult {
+        gateway: gw,
+        sims,
+        client,
+        frames_per_s: fps,
+        sync_per_s: sync_rate,
+        sync_jitter_us: (j50, j99, jmax, jn),
+    } = cpu_six_axes(cpu_s, args.gateway_threads, args.rt_priority)?;
     let ok = gw < CPU_TARGET_PERCENT;
     println!(
         "3. CPU, 6 CSP axes, SYNC {} ({sync_rate:.0} SYNC/s seen), gateway runtime with {} worker threads, rt_priority {}, all moving ({cpu_s} s, {fps} frames/s on the bus): \
@@ -568,6 +618,9 @@ fn run(args: &Args) -> Result<bool> {
         if ok { "met" } else { "MISSED" }
     );
     println!(
+        "   SYNC period as sent, deviation from nominal over {jn} intervals: p50 {j50:.1} us, p99 {j99:.1} us, max {jmax:.1} us"
+    );
+    println!(
         "{}",
         json!({
             "bench": "axis",
@@ -578,6 +631,7 @@ fn run(args: &Args) -> Result<bool> {
             "frames_per_s": fps,
             "sync_per_s": sync_rate,
             "rt_priority": args.rt_priority,
+            "sync_jitter_us": {"p50": j50, "p99": j99, "max": jmax, "intervals": jn},
         })
     );
     Ok(ok)
