@@ -371,6 +371,55 @@ async fn axis_moves_and_homes_through_the_axis_api() {
     bed.server.shutdown();
 }
 
+/// A coordinated move of two CANsmc axes (the planning the CiA 402 task
+/// shares): both complete at their targets, and the call is all or none:
+/// a target beyond a soft limit starts neither axis.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn coordinated_move_of_cansmc_axes_arrives_together() {
+    let mut bed = demo().await;
+    let lease = acquire(&mut bed.axes, &["A", "B"]).await;
+    enable(&mut bed.axes, "A", &lease).await;
+    enable(&mut bed.axes, "B", &lease).await;
+    let target = |axis: &str, target: f64| pb::AxisTarget {
+        axis: axis.into(),
+        target,
+        velocity: 0.0,
+        acceleration: 0.0,
+    };
+    let r = bed
+        .axes
+        .move_axes(pb::MoveAxesRequest {
+            targets: vec![target("A", 3.0), target("B", -1.5)],
+            lease: lease.clone(),
+            wait: true,
+        })
+        .await
+        .expect("coordinated move")
+        .into_inner();
+    let window = 10.0 / 10_000.0;
+    for (res, want) in r.results.iter().zip([3.0, -1.5]) {
+        assert_eq!(res.outcome, pb::Outcome::Completed as i32, "{res:?}");
+        let st = res.status.clone().unwrap();
+        assert!((st.position - want).abs() <= window + 1e-9, "{st:?}");
+    }
+    let e = bed
+        .axes
+        .move_axes(pb::MoveAxesRequest {
+            targets: vec![target("A", 0.0), target("B", 1.0e9)],
+            lease,
+            wait: false,
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::OutOfRange, "{e:?}");
+    assert!(e.message().contains("axis B"), "{}", e.message());
+    // A did not start: it is still at 3.
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let a = axis_status(&mut bed.axes, "A").await;
+    assert!((a.position - 3.0).abs() <= window + 1e-9, "{a:?}");
+    bed.server.shutdown();
+}
+
 /// Axis C follows slave 3's free-running encoder (5000 counts/s) at ratio
 /// 0.5 once enabled: 2500 counts/s at 27.78 counts/deg ≈ 90 deg/s, with a
 /// small following error; after Stop it no longer follows.

@@ -18,7 +18,7 @@
 //! go to, and its feedback comes from, a worker polling by SDO
 //! ([`super::sdo_process_data`]).
 
-use super::commands::{CoordinatedAxis, Waiters, for_axis, plan_coordinated};
+use super::commands::{CoordinatedTarget, Waiters, for_axis, prepare_coordinated};
 use super::sdo_process_data::{self, SdoReport, SdoWorker};
 use super::{AxisEventKind, AxisInfo, AxisUpdate, LatestStates};
 use crate::canopen::{CanopenBus, NodeEventKind};
@@ -75,7 +75,7 @@ pub enum BusRequest {
     /// A coordinated cyclic move: (axis, target, velocity, acceleration).
     Coordinated {
         /// Targets.
-        targets: Vec<(usize, f64, Option<f64>, Option<f64>)>,
+        targets: Vec<CoordinatedTarget>,
         /// As above.
         wait: bool,
         /// The waiters (all or none).
@@ -500,35 +500,14 @@ impl Task {
 
     fn coordinated(
         &mut self,
-        targets: Vec<(usize, f64, Option<f64>, Option<f64>)>,
+        targets: Vec<CoordinatedTarget>,
         wait: bool,
         now: Duration,
     ) -> Result<Vec<Waiter>, CommandError> {
-        let axes: Vec<CoordinatedAxis<'_>> = targets
-            .iter()
-            .map(|&(i, target, velocity, acceleration)| {
-                let cfg = self.slots[i].axis.config();
-                CoordinatedAxis {
-                    name: &self.slots[i].info.config.name,
-                    from: self.slots[i].axis.demand(),
-                    target,
-                    velocity,
-                    acceleration,
-                    default_velocity: cfg.default_velocity,
-                    default_acceleration: cfg.default_acceleration,
-                    max_velocity: cfg.max_velocity,
-                    max_acceleration: cfg.max_acceleration,
-                }
-            })
-            .collect();
-        let plan = plan_coordinated(&axes)?;
-        // All or none: check every axis before starting any.
-        for &(i, target, ..) in &targets {
-            self.slots[i]
-                .axis
-                .check_coordinated(target)
-                .map_err(|e| for_axis(&self.slots[i].info.config.name, e))?;
-        }
+        let slots = &self.slots;
+        let plan = prepare_coordinated(&targets, |i| {
+            (slots[i].info.config.name.as_str(), &slots[i].axis)
+        })?;
         let mut waiters = Vec::new();
         for ((profile, ratio), &(i, ..)) in plan.into_iter().zip(&targets) {
             let mut out = Vec::new();

@@ -5,7 +5,8 @@
 
 use super::{AxisEventKind, AxisUpdate};
 use crate::axes::cia402_task::CommandReply;
-use cangate_axis::cia402::AxisSnapshot;
+use cangate_axis::cansmc::CansmcAxis;
+use cangate_axis::cia402::{AxisSnapshot, Cia402Axis};
 use cangate_axis::{AxisEvent, CommandError, OpId};
 use cangate_can::Timestamp;
 use cangate_motion::{AxisMove, Limits, SyncedMove, TrapezoidProfile};
@@ -95,6 +96,97 @@ impl Waiters {
             }
         }
     }
+}
+
+/// What planning a coordinated move needs from an axis controller,
+/// whatever its drive family.
+pub(crate) trait CoordinatedMember {
+    /// Default velocity, default acceleration, maximum velocity, maximum
+    /// acceleration, in user units.
+    fn motion_limits(&self) -> [f64; 4];
+    /// Where a move starts: the demand position.
+    fn demand(&self) -> f64;
+    /// Whether the axis can take part in a coordinated move to `target`.
+    fn check_coordinated(&self, target: f64) -> Result<(), CommandError>;
+}
+
+impl CoordinatedMember for Cia402Axis {
+    fn motion_limits(&self) -> [f64; 4] {
+        let c = self.config();
+        [
+            c.default_velocity,
+            c.default_acceleration,
+            c.max_velocity,
+            c.max_acceleration,
+        ]
+    }
+    fn demand(&self) -> f64 {
+        Cia402Axis::demand(self)
+    }
+    fn check_coordinated(&self, target: f64) -> Result<(), CommandError> {
+        Cia402Axis::check_coordinated(self, target)
+    }
+}
+
+impl CoordinatedMember for CansmcAxis {
+    fn motion_limits(&self) -> [f64; 4] {
+        let c = self.config();
+        [
+            c.default_velocity,
+            c.default_acceleration,
+            c.max_velocity,
+            c.max_acceleration,
+        ]
+    }
+    fn demand(&self) -> f64 {
+        CansmcAxis::demand(self)
+    }
+    fn check_coordinated(&self, target: f64) -> Result<(), CommandError> {
+        CansmcAxis::check_coordinated(self, target)
+    }
+}
+
+/// A coordinated move's target for one axis: the axis's index in its
+/// runtime, the target, and the requested velocity and acceleration
+/// (`None`: the axis's defaults).
+pub(crate) type CoordinatedTarget = (usize, f64, Option<f64>, Option<f64>);
+
+/// Plans a coordinated move ([`plan_coordinated`]) and checks every axis
+/// before any starts, so that it is all or none. `axis(i)` gives the name
+/// and controller of the runtime's axis `i`.
+pub(crate) fn prepare_coordinated<'a, A: CoordinatedMember + 'a>(
+    targets: &[CoordinatedTarget],
+    axis: impl Fn(usize) -> (&'a str, &'a A),
+) -> Result<Vec<(TrapezoidProfile, f64)>, CommandError> {
+    let axes: Vec<CoordinatedAxis<'_>> = targets
+        .iter()
+        .map(|&(i, target, velocity, acceleration)| {
+            let (name, a) = axis(i);
+            let [
+                default_velocity,
+                default_acceleration,
+                max_velocity,
+                max_acceleration,
+            ] = a.motion_limits();
+            CoordinatedAxis {
+                name,
+                from: a.demand(),
+                target,
+                velocity,
+                acceleration,
+                default_velocity,
+                default_acceleration,
+                max_velocity,
+                max_acceleration,
+            }
+        })
+        .collect();
+    let plan = plan_coordinated(&axes)?;
+    for &(i, target, ..) in targets {
+        let (name, a) = axis(i);
+        a.check_coordinated(target).map_err(|e| for_axis(name, e))?;
+    }
+    Ok(plan)
 }
 
 /// One axis of a coordinated move, as the runtime knows it.

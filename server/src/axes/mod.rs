@@ -599,7 +599,7 @@ impl AxisManager {
     /// acceleration) per axis, all on one bus.
     pub async fn move_coordinated(
         &self,
-        targets: Vec<(usize, f64, Option<f64>, Option<f64>)>,
+        targets: Vec<commands::CoordinatedTarget>,
         wait: bool,
     ) -> Result<Vec<Result<CommandResult, ApiError>>, ApiError> {
         if targets.is_empty() {

@@ -19,7 +19,7 @@ use super::config::{CansmcConfig, CyclicChoice, JogModeChoice};
 use super::jitter::JitterHistogram;
 use super::{AxisPort, CansmcEvent, CansmcStatus, Request, SlaveView};
 use crate::axes::cia402_task::{BusRequest, CommandReply};
-use crate::axes::commands::{CoordinatedAxis, Waiters, for_axis, plan_coordinated};
+use crate::axes::commands::{CoordinatedTarget, Waiters, for_axis, prepare_coordinated};
 use crate::axes::{AxisEventKind, AxisUpdate};
 use crate::error::ApiError;
 use cangate_axis::cansmc::{CansmcAxis, CycleInput};
@@ -663,35 +663,12 @@ impl Thread {
 
     fn coordinated(
         &mut self,
-        targets: Vec<(usize, f64, Option<f64>, Option<f64>)>,
+        targets: Vec<CoordinatedTarget>,
         wait: bool,
         now: Duration,
     ) -> Result<Vec<oneshot::Receiver<CommandReply>>, CommandError> {
-        let axes: Vec<CoordinatedAxis<'_>> = targets
-            .iter()
-            .map(|&(i, target, velocity, acceleration)| {
-                let cfg = self.slots[i].axis.config();
-                CoordinatedAxis {
-                    name: &self.slots[i].name,
-                    from: self.slots[i].axis.demand(),
-                    target,
-                    velocity,
-                    acceleration,
-                    default_velocity: cfg.default_velocity,
-                    default_acceleration: cfg.default_acceleration,
-                    max_velocity: cfg.max_velocity,
-                    max_acceleration: cfg.max_acceleration,
-                }
-            })
-            .collect();
-        let plan = plan_coordinated(&axes)?;
-        // All or none: check every axis before starting any.
-        for &(i, target, ..) in &targets {
-            self.slots[i]
-                .axis
-                .check_coordinated(target)
-                .map_err(|e| for_axis(&self.slots[i].name, e))?;
-        }
+        let slots = &self.slots;
+        let plan = prepare_coordinated(&targets, |i| (slots[i].name.as_str(), &slots[i].axis))?;
         let mut waiters = Vec::new();
         for ((profile, ratio), &(i, ..)) in plan.into_iter().zip(&targets) {
             let mut events = Vec::new();
