@@ -110,41 +110,32 @@ pub(crate) trait CoordinatedMember {
     fn check_coordinated(&self, target: f64) -> Result<(), CommandError>;
 }
 
-impl CoordinatedMember for Cia402Axis {
-    fn motion_limits(&self) -> [f64; 4] {
-        let c = self.config();
-        [
-            c.default_velocity,
-            c.default_acceleration,
-            c.max_velocity,
-            c.max_acceleration,
-        ]
-    }
-    fn demand(&self) -> f64 {
-        Cia402Axis::demand(self)
-    }
-    fn check_coordinated(&self, target: f64) -> Result<(), CommandError> {
-        Cia402Axis::check_coordinated(self, target)
-    }
+/// Both controllers have the same configuration fields and methods for
+/// this; one implementation written once.
+macro_rules! coordinated_member {
+    ($axis:ty) => {
+        impl CoordinatedMember for $axis {
+            fn motion_limits(&self) -> [f64; 4] {
+                let c = self.config();
+                [
+                    c.default_velocity,
+                    c.default_acceleration,
+                    c.max_velocity,
+                    c.max_acceleration,
+                ]
+            }
+            fn demand(&self) -> f64 {
+                <$axis>::demand(self)
+            }
+            fn check_coordinated(&self, target: f64) -> Result<(), CommandError> {
+                <$axis>::check_coordinated(self, target)
+            }
+        }
+    };
 }
 
-impl CoordinatedMember for CansmcAxis {
-    fn motion_limits(&self) -> [f64; 4] {
-        let c = self.config();
-        [
-            c.default_velocity,
-            c.default_acceleration,
-            c.max_velocity,
-            c.max_acceleration,
-        ]
-    }
-    fn demand(&self) -> f64 {
-        CansmcAxis::demand(self)
-    }
-    fn check_coordinated(&self, target: f64) -> Result<(), CommandError> {
-        CansmcAxis::check_coordinated(self, target)
-    }
-}
+coordinated_member!(Cia402Axis);
+coordinated_member!(CansmcAxis);
 
 /// A coordinated move's target for one axis: the axis's index in its
 /// runtime, the target, and the requested velocity and acceleration
