@@ -215,7 +215,12 @@ async fn demo_master_runs_p2_with_four_operational_slaves() {
     assert_eq!(m.slave_addresses, vec![1, 2, 3, 4]);
     assert_eq!(m.axes, vec!["A", "B", "C"]);
 
-    let s1 = status(&mut bed.smc, "smc").await;
+    // P2 may have just begun: wait for the first DT of every slave (the
+    // status shows a slave's status word once one arrived).
+    let s1 = wait_status(&mut bed.smc, "smc", "a DT from every slave", |s| {
+        s.slaves.iter().all(|x| x.status_word.is_some())
+    })
+    .await;
     assert_eq!(s1.master, "smc");
     assert_eq!(s1.cycle_time_us, 2000);
     assert_eq!(s1.bitrate, 1_000_000);
