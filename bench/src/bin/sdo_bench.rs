@@ -131,6 +131,11 @@ struct Args {
     /// Run the gRPC clients in this process instead of a child process.
     #[arg(long)]
     in_process_clients: bool,
+    /// Only these sections (comma-separated: in-process, grpc, bit-timed,
+    /// concurrent), for comparing builds or settings quickly; the python
+    /// reference always runs [default: all].
+    #[arg(long, value_delimiter = ',')]
+    only: Vec<String>,
     /// Internal: act as the gRPC client process of `--job` against this
     /// server URL and print one JSON line.
     #[arg(long, hide = true)]
@@ -964,11 +969,26 @@ fn run(args: &Args) -> Result<Report> {
         builder.worker_threads(n.max(1));
     }
     let rt = builder.enable_all().build()?;
+    let wanted = |section: &str| args.only.is_empty() || args.only.iter().any(|o| o == section);
+    for o in &args.only {
+        if !["in-process", "grpc", "bit-timed", "concurrent"].contains(&o.as_str()) {
+            bail!("--only {o}: not a section (in-process, grpc, bit-timed, concurrent)");
+        }
+    }
     rt.block_on(async {
-        in_process(args, &mut r, ref_exp, ref_seg).await?;
-        grpc(args, &mut r, ref_exp, ref_seg).await?;
-        bit_timed(args, &mut r).await?;
-        concurrent(args, &mut r).await
+        if wanted("in-process") {
+            in_process(args, &mut r, ref_exp, ref_seg).await?;
+        }
+        if wanted("grpc") {
+            grpc(args, &mut r, ref_exp, ref_seg).await?;
+        }
+        if wanted("bit-timed") {
+            bit_timed(args, &mut r).await?;
+        }
+        if wanted("concurrent") {
+            concurrent(args, &mut r).await?;
+        }
+        Ok::<_, anyhow::Error>(())
     })?;
 
     println!("\n== targets");
