@@ -8,7 +8,7 @@
 //! room again, it receives a [`BusItem::Lost`] notice with the exact number
 //! of matching frames it missed, in the position where they were missed.
 
-use crate::filter::FrameSelector;
+use crate::filter::{Filter, FrameSelector};
 use crate::frame::{Frame, Timestamp};
 use crate::socketcan_bus::{SocketCanBus, SocketCanEvent};
 use crate::state::BusStatus;
@@ -56,7 +56,10 @@ pub enum Backend {
     /// A SocketCAN interface.
     SocketCan(SocketCanBus),
     /// A port on a virtual bus, connected with `echo_own = true` so that our
-    /// own transmissions come back stamped with their bus time.
+    /// own transmissions come back stamped with their bus time. The bus
+    /// handle narrows that echo to the frames someone needs (see
+    /// [`VirtualPort::set_echo_filters`]): the others would wake the bus
+    /// task for nothing.
     Virtual(VirtualPort),
 }
 
@@ -108,6 +111,10 @@ impl Backend {
         }
     }
 
+    /// Whether the backend reports our own transmissions, so the bus task
+    /// publishes them from that echo instead of at send time. The virtual
+    /// port's echo filter only ever leaves out frames that no subscriber
+    /// and not the load meter needs (see [`echo_filters_for`]).
     fn echoes_own(&self) -> bool {
         matches!(self, Backend::Virtual(_))
     }
@@ -270,8 +277,13 @@ struct Shared {
     /// Virtual buses are sent to directly from the caller's task: the
     /// virtual port is thread-safe, and skipping the hop through the bus
     /// task takes a task wake-up off every request/response exchange. The
-    /// bus task still publishes the frames (as TX) from the bus's echo.
+    /// bus task still publishes the frames (as TX) from the bus's echo,
+    /// whose filter, set through this sender, follows the subscribers (see
+    /// [`update_echo`]).
     direct: Option<crate::virtual_bus::VirtualSender>,
+    /// Guarded by this lock, as is the echo filter derived from them: a
+    /// change and its filter update are one step, so two updates cannot
+    /// land in the wrong order and leave a too narrow filter behind.
     subscribers: Mutex<Vec<Subscriber>>,
     counters: Counters,
     status: Mutex<(BusStatus, Timestamp)>,
@@ -323,6 +335,11 @@ impl BusHandle {
             counters: Counters::default(),
             status: Mutex::new((status, Timestamp::now())),
         });
+        // No subscribers yet: no echo unless the load meter needs it.
+        update_echo(
+            &shared,
+            &shared.subscribers.lock().expect("subscriber lock"),
+        );
         let task = tokio::spawn(run_bus(backend, shared.clone(), rx, cancel));
         (BusHandle { shared }, task)
     }
@@ -463,18 +480,29 @@ impl BusHandle {
     pub fn subscribe(&self, selector: FrameSelector, queue: usize) -> Subscription {
         let (tx, rx) = mpsc::channel(queue.max(2));
         let lost_total = Arc::new(AtomicU64::new(0));
-        self.shared
-            .subscribers
-            .lock()
-            .expect("subscriber lock")
-            .push(Subscriber {
-                selector,
-                tx,
-                pending_lost: 0,
-                pending_state: false,
-                lost_total: lost_total.clone(),
-            });
+        let transmitted = selector.transmitted;
+        let mut subs = self.shared.subscribers.lock().expect("subscriber lock");
+        subs.push(Subscriber {
+            selector,
+            tx,
+            pending_lost: 0,
+            pending_state: false,
+            lost_total: lost_total.clone(),
+        });
+        // Widened before the subscription is returned (and under the lock
+        // the bus task needs to fan out), so that every frame sent after
+        // this call that the new subscriber wants is echoed.
+        if transmitted {
+            update_echo(&self.shared, &subs);
+        }
+        drop(subs);
         Subscription { rx, lost_total }
+    }
+
+    /// The echo filter of the virtual port (see [`update_echo`]).
+    #[cfg(test)]
+    fn echo_filters(&self) -> Option<Vec<Filter>> {
+        self.shared.direct.as_ref().and_then(|d| d.echo_filters())
     }
 
     /// Live counters.
@@ -619,7 +647,9 @@ async fn run_bus(
             }
             _ = tick.tick() => {
                 let status = shared.status.lock().expect("status lock").0;
-                shared.subscribers.lock().expect("subscriber lock").retain_mut(|s| s.flush(status));
+                let mut subs = shared.subscribers.lock().expect("subscriber lock");
+                retain_subscribers(&shared, &mut subs, |s| s.flush(status));
+                drop(subs);
                 let pct = load.load_percent(Timestamp::now().as_nanos());
                 shared.counters.load_millipercent.store((pct * 1000.0) as u64, Ordering::Relaxed);
                 shared.counters.rx_overflows.store(backend.overflows(), Ordering::Relaxed);
@@ -640,7 +670,7 @@ fn record_load(load: &mut LoadMeter, timing: Option<BitTiming>, frame: &Frame) {
 fn fanout(shared: &Shared, frame: &Frame, direction: Direction) {
     let drops = &shared.counters.subscriber_drops;
     let mut subs = shared.subscribers.lock().expect("subscriber lock");
-    subs.retain_mut(|s| {
+    retain_subscribers(shared, &mut subs, |s| {
         if direction == Direction::Tx && !s.selector.transmitted {
             return true;
         }
@@ -666,14 +696,79 @@ fn publish_state(shared: &Shared, status: BusStatus) {
         *st = (status, Timestamp::now());
     }
     let mut subs = shared.subscribers.lock().expect("subscriber lock");
-    subs.retain_mut(|s| match s.tx.try_send(BusItem::State(status)) {
-        Ok(()) => true,
-        Err(mpsc::error::TrySendError::Full(_)) => {
-            s.pending_state = true;
-            true
+    retain_subscribers(shared, &mut subs, |s| {
+        match s.tx.try_send(BusItem::State(status)) {
+            Ok(()) => true,
+            Err(mpsc::error::TrySendError::Full(_)) => {
+                s.pending_state = true;
+                true
+            }
+            Err(mpsc::error::TrySendError::Closed(_)) => false,
         }
-        Err(mpsc::error::TrySendError::Closed(_)) => false,
     });
+}
+
+/// `retain_mut` on the subscriber list (locked by the caller) that narrows
+/// the echo filter when a subscriber to transmitted frames went away. Only
+/// then: the removal count is taken in the same pass, so the hot path
+/// (every frame's fan-out) pays no extra pass and no filter update.
+fn retain_subscribers(
+    shared: &Shared,
+    subs: &mut Vec<Subscriber>,
+    mut keep: impl FnMut(&mut Subscriber) -> bool,
+) {
+    let mut removed_transmitted = 0usize;
+    subs.retain_mut(|s| {
+        let kept = keep(s);
+        if !kept && s.selector.transmitted {
+            removed_transmitted += 1;
+        }
+        kept
+    });
+    if removed_transmitted > 0 {
+        update_echo(shared, subs);
+    }
+}
+
+/// Sets the virtual port's echo filter to what `subs` (the whole, locked
+/// subscriber list) and the load meter need; no-op for SocketCAN, whose
+/// own frames are published at send time.
+///
+/// Why: with the echo on for everything, each frame the gateway sends
+/// (1 kHz SYNC, set-points from other threads) wakes the bus task only to
+/// find no one who wants it. A filter that is too wide is harmless (the
+/// fan-out still applies each subscriber's selector); one too narrow loses
+/// frames, which is why it is widened before a subscriber is added.
+fn update_echo(shared: &Shared, subs: &[Subscriber]) {
+    if let Some(direct) = &shared.direct {
+        // A bitrate means the load meter (`timing` in `run_bus`), which
+        // needs every frame on the bus, own ones included.
+        let load_metered = shared.info.bitrate.is_some();
+        direct.set_echo_filters(echo_filters_for(load_metered, subs));
+    }
+}
+
+/// The echo filter that covers the own frames `subs` want: `None` (all)
+/// for the load meter or a subscriber without filters (which takes every
+/// frame), else the union of the filters of the subscribers to transmitted
+/// frames (empty: none wants any). Own error frames pass any non-empty
+/// echo filter, so subscribers that want them are covered too.
+fn echo_filters_for(load_metered: bool, subs: &[Subscriber]) -> Option<Vec<Filter>> {
+    if load_metered {
+        return None;
+    }
+    let mut union: Vec<Filter> = Vec::new();
+    for s in subs.iter().filter(|s| s.selector.transmitted) {
+        if s.selector.filters.is_empty() {
+            return None;
+        }
+        for f in &s.selector.filters {
+            if !union.contains(f) {
+                union.push(*f);
+            }
+        }
+    }
+    Some(union)
 }
 
 #[cfg(test)]
@@ -684,13 +779,21 @@ mod tests {
     use crate::virtual_bus::{VirtualBus, VirtualBusConfig};
 
     fn start(bus: &VirtualBus) -> (BusHandle, CancellationToken) {
+        start_with_bitrate(bus, Some(1_000_000))
+    }
+
+    /// `bitrate: None`: no load meter, so the echo follows the subscribers.
+    fn start_with_bitrate(
+        bus: &VirtualBus,
+        bitrate: Option<u32>,
+    ) -> (BusHandle, CancellationToken) {
         let cancel = CancellationToken::new();
         let info = BusInfo {
             name: "can0".into(),
             kind: BackendKind::Virtual,
             interface: bus.name().into(),
             fd: true,
-            bitrate: Some(1_000_000),
+            bitrate,
             data_bitrate: None,
             bit_timed: false,
             stuffing: Stuffing::Exact,
@@ -803,6 +906,179 @@ mod tests {
             matches!(sub.recv().await, Some(BusItem::Frame { direction: Direction::Tx, frame }) if frame.raw_id() == 0x80)
         );
         assert_eq!(h.stats().tx_frames, 1);
+    }
+
+    /// A virtual bus whose ports queue a single event: the gateway port's
+    /// overflows then count the echoes sent to it while the bus task did
+    /// not run. (A `#[tokio::test]` runs on one thread, so the bus task
+    /// only runs when the test awaits something pending, and sending on a
+    /// virtual bus never does.)
+    fn one_slot_bus() -> VirtualBus {
+        VirtualBus::new(
+            "v",
+            VirtualBusConfig {
+                port_queue: 1,
+                ..VirtualBusConfig::default()
+            },
+        )
+    }
+
+    fn tx_selector(filters: Vec<Filter>) -> FrameSelector {
+        FrameSelector {
+            filters,
+            error_frames: false,
+            transmitted: true,
+        }
+    }
+
+    /// The next item of a subscription; a test fails rather than hangs
+    /// when it does not come.
+    async fn next_item(sub: &mut Subscription) -> BusItem {
+        tokio::time::timeout(Duration::from_secs(5), sub.recv())
+            .await
+            .expect("an item within 5 s")
+            .expect("bus running")
+    }
+
+    async fn next_frame(sub: &mut Subscription) -> (u32, Direction) {
+        loop {
+            match next_item(sub).await {
+                BusItem::Frame { frame, direction } => return (frame.raw_id(), direction),
+                BusItem::State(_) => {}
+                BusItem::Lost(n) => panic!("lost {n}"),
+            }
+        }
+    }
+
+    #[tokio::test]
+    async fn own_frames_are_echoed_only_for_subscribers_to_transmitted() {
+        let vbus = one_slot_bus();
+        let (h, _c) = start_with_bitrate(&vbus, None);
+        // Set at spawn: no subscriber, so no echo.
+        assert_eq!(h.echo_filters(), Some(Vec::new()));
+        let mut rx_only = h.subscribe(FrameSelector::default(), 16);
+        assert_eq!(h.echo_filters(), Some(Vec::new()));
+
+        // Sent from this task, the bus task not running in between: with
+        // an echo, the second and third frame would overflow the port.
+        h.send(vec![frame(0x080)]).await.unwrap();
+        h.send(vec![frame(0x181)]).await.unwrap();
+        h.try_submit(vec![frame(0x080)]).unwrap();
+        assert_eq!(vbus.stats().port_overflows, 0, "nothing was echoed");
+        assert_eq!(h.stats().tx_frames, 3, "counted at send time");
+
+        // A subscriber to transmitted 0x080: 0x080 is echoed, 0x181 not.
+        let mut tx = h.subscribe(tx_selector(vec![Filter::exact_standard(0x080)]), 16);
+        assert_eq!(h.echo_filters(), Some(vec![Filter::exact_standard(0x080)]));
+        h.send(vec![frame(0x181), frame(0x080), frame(0x181)])
+            .await
+            .unwrap();
+        assert_eq!(vbus.stats().port_overflows, 0, "only 0x080 was echoed");
+        assert_eq!(next_frame(&mut tx).await, (0x080, Direction::Tx));
+        h.submit(vec![frame(0x080), frame(0x181)]).await.unwrap();
+        assert_eq!(next_frame(&mut tx).await, (0x080, Direction::Tx));
+        assert!(tx.try_recv().is_none());
+        assert!(rx_only.try_recv().is_none(), "no Tx for an Rx subscriber");
+
+        // Gone: the next fan-out (a peer's frame) narrows the echo again.
+        drop(tx);
+        let peer = vbus.connect(false);
+        peer.send(&frame(0x700)).unwrap();
+        assert_eq!(next_frame(&mut rx_only).await, (0x700, Direction::Rx));
+        assert_eq!(h.echo_filters(), Some(Vec::new()));
+        drop(peer); // Its one-slot queue would overflow, not ours.
+        h.send(vec![frame(0x080), frame(0x080)]).await.unwrap();
+        assert_eq!(vbus.stats().port_overflows, 0, "nothing was echoed");
+    }
+
+    #[tokio::test]
+    async fn echo_filter_is_the_union_of_the_transmitted_selectors() {
+        let vbus = VirtualBus::new("v", VirtualBusConfig::default());
+        let (h, _c) = start_with_bitrate(&vbus, None);
+        let a = Filter::exact_standard(0x080);
+        let b = Filter::exact_standard(0x181);
+        let _rx_only = h.subscribe(
+            FrameSelector {
+                filters: vec![Filter::exact_standard(0x700)],
+                ..FrameSelector::default()
+            },
+            16,
+        );
+        let sub_a = h.subscribe(tx_selector(vec![a]), 16);
+        let _sub_ab = h.subscribe(tx_selector(vec![a, b]), 16);
+        assert_eq!(h.echo_filters(), Some(vec![a, b]), "deduplicated union");
+        // No filters: every frame, so the whole echo.
+        let all = h.subscribe(tx_selector(Vec::new()), 16);
+        assert_eq!(h.echo_filters(), None);
+        drop((all, sub_a));
+        // A state change fans out too, and drops the closed subscribers.
+        vbus.force_bus_off();
+        tokio::time::timeout(Duration::from_secs(5), async {
+            while h.echo_filters().is_none() {
+                tokio::time::sleep(Duration::from_millis(1)).await;
+            }
+        })
+        .await
+        .expect("echo filter narrowed");
+        assert_eq!(h.echo_filters(), Some(vec![a, b]));
+    }
+
+    /// Transmitted frames from every send path and thread reach a
+    /// subscriber in order with the echo narrowed to its filter.
+    #[tokio::test]
+    async fn filtered_echo_keeps_every_wanted_tx_frame_in_order() {
+        let vbus = VirtualBus::new("v", VirtualBusConfig::default());
+        let (h, _c) = start_with_bitrate(&vbus, None);
+        let mut sub = h.subscribe(tx_selector(vec![Filter::exact_standard(0x080)]), 4096);
+        let sender = h.clone();
+        let thread = std::thread::spawn(move || {
+            for i in 0..500u16 {
+                let f = Frame::new(CanId::Standard(0x080), &i.to_le_bytes()).unwrap();
+                assert!(sender.try_submit(vec![f, frame(0x181)]).unwrap().is_none());
+            }
+        });
+        for i in 0..500u16 {
+            let f = Frame::new(CanId::Standard(0x200), &i.to_le_bytes()).unwrap();
+            h.send(vec![f, frame(0x080)]).await.unwrap();
+        }
+        thread.join().unwrap();
+        let (mut from_thread, mut from_task) = (0u16, 0);
+        while from_thread < 500 || from_task < 500 {
+            match next_item(&mut sub).await {
+                BusItem::Frame { frame, direction } => {
+                    assert_eq!((frame.raw_id(), direction), (0x080, Direction::Tx));
+                    if frame.data().len() == 2 {
+                        let i = u16::from_le_bytes([frame.data()[0], frame.data()[1]]);
+                        assert_eq!(i, from_thread, "in order");
+                        from_thread += 1;
+                    } else {
+                        from_task += 1;
+                    }
+                }
+                other => panic!("{other:?}"),
+            }
+        }
+        assert!(sub.try_recv().is_none());
+        assert_eq!(h.stats().tx_frames, 2000);
+    }
+
+    /// With a bitrate the load meter needs every frame: the echo stays on
+    /// whatever the subscribers want.
+    #[tokio::test]
+    async fn bus_with_bitrate_keeps_echoing_everything() {
+        let vbus = one_slot_bus();
+        let (h, _c) = start_with_bitrate(&vbus, Some(1_000_000));
+        assert_eq!(h.echo_filters(), None);
+        let tx = h.subscribe(tx_selector(vec![Filter::exact_standard(0x080)]), 16);
+        assert_eq!(h.echo_filters(), None);
+        h.send(vec![frame(0x181), frame(0x181), frame(0x181)])
+            .await
+            .unwrap();
+        assert_eq!(vbus.stats().port_overflows, 2, "all three echoed");
+        drop(tx);
+        tokio::time::sleep(Duration::from_millis(60)).await;
+        assert_eq!(h.echo_filters(), None);
+        assert!(h.stats().load_percent > 0.0, "own frames metered");
     }
 
     #[tokio::test]

@@ -109,6 +109,9 @@ struct PortShared {
     /// The port's acceptance filters (`None`: every frame), read by the
     /// sender on every delivery.
     accept: RwLock<Option<Arc<[Filter]>>>,
+    /// Which of its own frames an `echo_own` port gets back (`None`: all),
+    /// read by the sender on every delivery of its own frames.
+    echo: RwLock<Option<Arc<[Filter]>>>,
 }
 
 impl PortShared {
@@ -121,6 +124,33 @@ impl PortShared {
                 frame.kind() == FrameKind::Error || filters.iter().any(|f| f.matches(frame))
             }
         }
+    }
+
+    /// Whether one of this port's own frames passes its echo filter (the
+    /// acceptance filters are checked as well, by [`deliver`]). Error frames
+    /// pass any non-empty list, as filters cannot select them by
+    /// identifier; an empty list echoes nothing at all.
+    fn echoes(&self, frame: &Frame) -> bool {
+        match &*self.echo.read().expect("port echo filter lock") {
+            None => true,
+            Some(filters) => {
+                !filters.is_empty()
+                    && (frame.kind() == FrameKind::Error
+                        || filters.iter().any(|f| f.matches(frame)))
+            }
+        }
+    }
+
+    fn set_echo_filters(&self, filters: Option<Vec<Filter>>) {
+        *self.echo.write().expect("port echo filter lock") = filters.map(Arc::from);
+    }
+
+    fn echo_filters(&self) -> Option<Vec<Filter>> {
+        self.echo
+            .read()
+            .expect("port echo filter lock")
+            .as_deref()
+            .map(<[Filter]>::to_vec)
     }
 }
 
@@ -221,7 +251,8 @@ impl VirtualBus {
 
     /// Attaches a participant. `echo_own` makes the port receive its own
     /// frames back once they completed transmission (with the bus timestamp),
-    /// as SocketCAN's `CAN_RAW_RECV_OWN_MSGS` does.
+    /// as SocketCAN's `CAN_RAW_RECV_OWN_MSGS` does; which of them can be
+    /// narrowed with [`VirtualPort::set_echo_filters`].
     pub fn connect(&self, echo_own: bool) -> VirtualPort {
         let (tx, rx) = mpsc::channel(self.inner.config.port_queue.max(1));
         let shared = Arc::new(PortShared {
@@ -230,6 +261,7 @@ impl VirtualBus {
             echo_own,
             overflows: AtomicU64::new(0),
             accept: RwLock::new(None),
+            echo: RwLock::new(None),
         });
         self.inner
             .ports
@@ -432,7 +464,10 @@ fn deliver(inner: &Inner, from: u64, frame: &Frame) {
     let ports = inner.ports.read().expect("port list lock");
     for p in ports.iter() {
         let own = p.id == from;
-        if (own && !p.echo_own) || !p.accepts(frame) {
+        // Own frames go back only to ports that asked for them, and only
+        // those the echo filter selects; the acceptance filters apply to
+        // them as well (as `CAN_RAW_FILTER` does to looped-back frames).
+        if (own && !(p.echo_own && p.echoes(frame))) || !p.accepts(frame) {
             continue;
         }
         match p.tx.try_send(PortEvent::Frame { frame: *frame, own }) {
@@ -585,7 +620,7 @@ impl VirtualPort {
     pub fn sender(&self) -> VirtualSender {
         VirtualSender {
             bus: self.bus.clone(),
-            id: self.shared.id,
+            port: self.shared.clone(),
         }
     }
 
@@ -603,6 +638,30 @@ impl VirtualPort {
     /// drives').
     pub fn set_filters(&self, filters: Option<Vec<Filter>>) {
         *self.shared.accept.write().expect("port filter lock") = filters.map(Arc::from);
+    }
+
+    /// Selects which of its own frames a port connected with `echo_own`
+    /// gets back: `None` (the default) echoes every own frame, `Some(list)`
+    /// only those matching one of `filters` (and own error frames, which
+    /// filters cannot select by identifier, if the list is not empty); an
+    /// empty list echoes none. The acceptance filters of
+    /// [`VirtualPort::set_filters`] still apply to own frames too, so this
+    /// can only narrow the echo. No effect on a port without `echo_own`, and
+    /// none on what other ports receive.
+    ///
+    /// Why: the sender's thread pays for every delivery, and an echo wakes
+    /// the port's owner. An owner that needs only some of its own frames
+    /// back (the gateway's bus task: only those a subscriber asked to see
+    /// as transmitted) should neither wake for the others nor make its
+    /// senders queue them, as SocketCAN's `CAN_RAW_RECV_OWN_MSGS` left off
+    /// spares a socket its own frames.
+    pub fn set_echo_filters(&self, filters: Option<Vec<Filter>>) {
+        self.shared.set_echo_filters(filters);
+    }
+
+    /// The echo filter set by [`VirtualPort::set_echo_filters`].
+    pub fn echo_filters(&self) -> Option<Vec<Filter>> {
+        self.shared.echo_filters()
     }
 
     /// Frames this port could not receive because its queue was full.
@@ -703,14 +762,16 @@ impl Drop for VirtualPort {
 #[derive(Clone)]
 pub struct VirtualSender {
     bus: VirtualBus,
-    id: u64,
+    /// The port's shared part: its id to send as, and its echo filter, which
+    /// the sender's holder may set while the port itself is owned elsewhere.
+    port: Arc<PortShared>,
 }
 
 impl std::fmt::Debug for VirtualSender {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("VirtualSender")
             .field("bus", &self.bus.name())
-            .field("port", &self.id)
+            .field("port", &self.port.id)
             .finish()
     }
 }
@@ -718,7 +779,19 @@ impl std::fmt::Debug for VirtualSender {
 impl VirtualSender {
     /// Queues frames as [`VirtualPort::send_batch`] does.
     pub fn send_batch(&self, frames: &[Frame]) -> Result<(), SendError> {
-        self.bus.send_from(self.id, frames)
+        self.bus.send_from(self.port.id, frames)
+    }
+
+    /// Sets the port's echo filter, as [`VirtualPort::set_echo_filters`]
+    /// does, for a holder of the sender only (the port's owner is another
+    /// task). Takes effect for every delivery that starts after the call.
+    pub fn set_echo_filters(&self, filters: Option<Vec<Filter>>) {
+        self.port.set_echo_filters(filters);
+    }
+
+    /// The port's echo filter (see [`VirtualPort::set_echo_filters`]).
+    pub fn echo_filters(&self) -> Option<Vec<Filter>> {
+        self.port.echo_filters()
     }
 }
 
@@ -820,6 +893,110 @@ mod tests {
         drive.set_filters(Some(Vec::new()));
         a.send(&frame(0x000, &[])).unwrap();
         assert!(drive.try_recv().is_none());
+    }
+
+    /// The ids of the own frames queued to a port, in order.
+    fn own_ids(port: &mut VirtualPort) -> Vec<u32> {
+        let mut ids = Vec::new();
+        while let Some(ev) = port.try_recv() {
+            if let PortEvent::Frame { frame, own: true } = ev {
+                ids.push(frame.raw_id());
+            }
+        }
+        ids
+    }
+
+    #[tokio::test]
+    async fn echo_filters_select_which_own_frames_come_back() {
+        let bus = VirtualBus::new("t", VirtualBusConfig::default());
+        let mut gw = bus.connect(true);
+        let peer = bus.connect(false);
+        let mut monitor = bus.connect(false);
+        let send_all = |gw: &VirtualPort| {
+            gw.send(&frame(0x123, &[1])).unwrap();
+            gw.send(&frame(0x080, &[])).unwrap();
+            gw.send(&Frame::new_error(0x0000_0004, [0; 8])).unwrap();
+        };
+        let error_id = Frame::new_error(0x0000_0004, [0; 8]).raw_id();
+
+        // Default: every own frame comes back.
+        assert_eq!(gw.echo_filters(), None);
+        send_all(&gw);
+        assert_eq!(own_ids(&mut gw), [0x123, 0x080, error_id]);
+
+        // Only 0x123 (and the error frame, which no id filter selects).
+        gw.set_echo_filters(Some(vec![Filter::exact_standard(0x123)]));
+        assert_eq!(gw.echo_filters(), Some(vec![Filter::exact_standard(0x123)]));
+        send_all(&gw);
+        assert_eq!(own_ids(&mut gw), [0x123, error_id]);
+
+        // An empty list: no echo at all, not even of error frames.
+        gw.set_echo_filters(Some(Vec::new()));
+        send_all(&gw);
+        assert!(gw.try_recv().is_none(), "nothing echoed");
+
+        // Others' frames and what other ports see are not affected.
+        peer.send(&frame(0x080, &[2])).unwrap();
+        peer.send(&frame(0x7FF, &[3])).unwrap();
+        match gw.try_recv() {
+            Some(PortEvent::Frame { frame, own: false }) => assert_eq!(frame.raw_id(), 0x080),
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(next_frame(&mut gw).await.raw_id(), 0x7FF);
+        let mut seen = Vec::new();
+        while let Some(PortEvent::Frame { frame, own }) = monitor.try_recv() {
+            assert!(!own);
+            seen.push(frame.raw_id());
+        }
+        let all = [0x123, 0x080, error_id];
+        let expected: Vec<u32> = [all, all, all]
+            .concat()
+            .into_iter()
+            .chain([0x080, 0x7FF])
+            .collect();
+        assert_eq!(seen, expected);
+
+        // The sender handle sets the same filter; back to everything.
+        let sender = gw.sender();
+        sender.set_echo_filters(Some(vec![Filter::exact_standard(0x080)]));
+        assert_eq!(gw.echo_filters(), Some(vec![Filter::exact_standard(0x080)]));
+        sender
+            .send_batch(&[frame(0x123, &[]), frame(0x080, &[])])
+            .unwrap();
+        assert_eq!(own_ids(&mut gw), [0x080]);
+        sender.set_echo_filters(None);
+        assert_eq!(sender.echo_filters(), None);
+        sender
+            .send_batch(&[frame(0x123, &[]), frame(0x080, &[])])
+            .unwrap();
+        assert_eq!(own_ids(&mut gw), [0x123, 0x080]);
+
+        // The acceptance filters still apply to own frames: the echo filter
+        // only narrows.
+        gw.set_filters(Some(vec![Filter::exact_standard(0x080)]));
+        send_all(&gw);
+        assert_eq!(own_ids(&mut gw), [0x080, error_id]);
+    }
+
+    #[tokio::test]
+    async fn echo_filters_apply_at_completion_on_a_bit_timed_bus() {
+        let bus = VirtualBus::new(
+            "timed",
+            VirtualBusConfig {
+                bit_timing: Some(BitTiming::new(1_000_000)),
+                ..Default::default()
+            },
+        );
+        let mut gw = bus.connect(true);
+        let mut peer = bus.connect(false);
+        gw.set_echo_filters(Some(vec![Filter::exact_standard(0x123)]));
+        gw.send_batch(&[frame(0x080, &[]), frame(0x123, &[]), frame(0x080, &[])])
+            .unwrap();
+        for id in [0x080, 0x123, 0x080] {
+            assert_eq!(next_frame(&mut peer).await.raw_id(), id);
+        }
+        // Delivered to the peer in order, so the echo was decided by now.
+        assert_eq!(own_ids(&mut gw), [0x123]);
     }
 
     #[tokio::test]
