@@ -1,7 +1,10 @@
 //! [`Cia402Axis`]: a CiA 402 servo drive as an axis, sans-IO.
 //!
 //! Inputs: the drive's process data ([`Cia402Axis::on_feedback`]), SYNC
-//! ([`Cia402Axis::on_sync`]), time ([`Cia402Axis::on_tick`] at
+//! ([`Cia402Axis::on_sync`], or split in two where another thread sends
+//! the SYNC: [`Cia402Axis::cyclic_plan`] sampled there, each
+//! [`CyclicSample`] handed back by [`Cia402Axis::on_cyclic_sample`]), time
+//! ([`Cia402Axis::on_tick`] at
 //! [`Cia402Axis::next_deadline`]), the outcome of SDO writes it asked for
 //! ([`Cia402Axis::on_sdo_done`]), EMCY codes and node loss. Outputs
 //! ([`Output`]): the process image to send as RPDOs, SDO writes, events.
@@ -203,7 +206,7 @@ struct Op {
 
 /// A cyclic trajectory: a trapezoid, optionally stretched in time (one axis
 /// of a coordinated move).
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 struct Trajectory {
     profile: TrapezoidProfile,
     /// Profile time per wall time (≤ 1; 1 for a single-axis move).
@@ -225,6 +228,80 @@ impl Trajectory {
     fn sample(&self, t: f64) -> (f64, f64) {
         let (p, v, _) = self.profile.sample(t * self.ratio);
         (p, v * self.ratio)
+    }
+}
+
+/// The set-points a cyclic (CSP) axis sends with every SYNC, as a value:
+/// whoever sends the SYNC samples it right there ([`CyclicPlan::sample`]),
+/// so the set-point leaves with its SYNC without a hand-over to the thread
+/// that runs the axis, and hands each [`CyclicSample`] back to the axis
+/// ([`Cia402Axis::on_cyclic_sample`]). A plan stays valid until the axis's
+/// [`Cia402Axis::cyclic_plan`] differs from it (a new move, a stop, the
+/// drive leaving operation enabled).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CyclicPlan {
+    trajectory: Option<Trajectory>,
+    /// The demand (user units) without a trajectory, and after it ended.
+    hold: f64,
+    units: Units,
+}
+
+/// The set-point a [`CyclicPlan`] gave for one SYNC.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CyclicSample {
+    /// The SYNC's time (the axis's clock).
+    pub at: Duration,
+    /// The set-point in drive counts: the RPDO's target position.
+    pub counts: i32,
+    /// Demand position and velocity (user units).
+    demand: f64,
+    velocity: f64,
+    /// When the trajectory started: its first sample fixes it.
+    start: Option<Duration>,
+    /// The trajectory ended with this sample.
+    finished: bool,
+}
+
+impl CyclicPlan {
+    /// A plan that holds `position` (user units): the set-point of an axis
+    /// at rest.
+    pub fn holding(position: f64, units: Units) -> CyclicPlan {
+        CyclicPlan {
+            trajectory: None,
+            hold: position,
+            units,
+        }
+    }
+
+    /// The set-point of a SYNC sent at `at`; the first sample of a
+    /// trajectory that waits for the next SYNC starts it.
+    pub fn sample(&mut self, at: Duration) -> CyclicSample {
+        let Some(traj) = &mut self.trajectory else {
+            return CyclicSample {
+                at,
+                counts: self.units.to_counts(self.hold),
+                demand: self.hold,
+                velocity: 0.0,
+                start: None,
+                finished: false,
+            };
+        };
+        let start = *traj.start.get_or_insert(at);
+        let t = at.saturating_sub(start).as_secs_f64();
+        let (p, v) = traj.sample(t);
+        let finished = t >= traj.duration();
+        if finished {
+            self.trajectory = None;
+            self.hold = p;
+        }
+        CyclicSample {
+            at,
+            counts: self.units.to_counts(p),
+            demand: p,
+            velocity: if finished { 0.0 } else { v },
+            start: Some(start),
+            finished,
+        }
     }
 }
 
@@ -583,29 +660,71 @@ impl Cia402Axis {
 
     /// A SYNC was sent at `now`: a cyclic axis samples its trajectory and
     /// sends the set-point (every SYNC while enabled in CSP, also at rest).
+    /// The same as sampling [`Cia402Axis::cyclic_plan`] and handing the
+    /// sample to [`Cia402Axis::on_cyclic_sample`], plus the image.
     pub fn on_sync(&mut self, now: Duration, out: &mut Vec<Output>) {
+        let Some(mut plan) = self.cyclic_plan() else {
+            return;
+        };
+        let sample = plan.sample(now);
+        self.apply_sample(&sample);
+        out.push(Output::Image(self.image));
+        self.advance(now, out);
+    }
+
+    /// The set-points this axis wants sent with every SYNC from now on;
+    /// `None` while it sends none (not cyclic, not in CSP, not operation
+    /// enabled, node lost).
+    pub fn cyclic_plan(&self) -> Option<CyclicPlan> {
         if self.cfg.position_mode != PositionMode::Cyclic
             || self.image.mode != ModeOfOperation::CyclicSynchronousPosition.code()
             || self.state() != Some(DriveState::OperationEnabled)
             || self.node_lost.is_some()
         {
-            return;
+            return None;
         }
+        Some(CyclicPlan {
+            trajectory: self.trajectory.clone(),
+            // Unused while a trajectory runs (its end becomes the hold),
+            // and kept constant then: the demand moving with each sample
+            // must not make the plan look changed.
+            hold: if self.trajectory.is_some() {
+                0.0
+            } else {
+                self.demand
+            },
+            units: self.units(),
+        })
+    }
+
+    /// A SYNC went out with `sample` of this axis's current
+    /// [`Cia402Axis::cyclic_plan`]: the demand follows it, and a finished
+    /// trajectory completes its command. A sample of an earlier plan must
+    /// not be handed in: its trajectory may be the one a new command
+    /// replaced.
+    pub fn on_cyclic_sample(
+        &mut self,
+        sample: &CyclicSample,
+        now: Duration,
+        out: &mut Vec<Output>,
+    ) {
+        self.apply_sample(sample);
+        self.advance(now, out);
+    }
+
+    fn apply_sample(&mut self, s: &CyclicSample) {
         if let Some(traj) = &mut self.trajectory {
-            let start = *traj.start.get_or_insert(now);
-            let t = now.saturating_sub(start).as_secs_f64();
-            let (p, v) = traj.sample(t);
-            self.demand = p;
-            self.demand_velocity = v;
-            if t >= traj.duration() {
+            if traj.start.is_none() {
+                traj.start = s.start;
+            }
+            if s.finished {
                 self.trajectory = None;
-                self.demand_velocity = 0.0;
             }
         }
-        self.demand_at = Some(now);
-        self.image.target_position = self.units().to_counts(self.demand);
-        out.push(Output::Image(self.image));
-        self.advance(now, out);
+        self.demand = s.demand;
+        self.demand_velocity = s.velocity;
+        self.demand_at = Some(s.at);
+        self.image.target_position = s.counts;
     }
 
     /// Handles time passing.

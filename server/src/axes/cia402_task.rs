@@ -5,30 +5,34 @@
 //! writes it asks for; and answers command waiters.
 //!
 //! The process data does not go through the CANopen master task: this task
-//! subscribes to its drives' TPDOs and to the master's own SYNC (as
-//! transmitted) on the bus directly and decodes the TPDOs from their
-//! mapping. At a 1 ms SYNC with several drives that saves a task hop and a
-//! decoded, allocated update per PDO, and handles a SYNC and the TPDOs that
-//! arrived with it in one wake-up; the task's CPU was dominated by exactly
-//! those cross-task wake-ups. The master still does NMT, heartbeats, EMCY
-//! and SDO, and this task hands it each TPDO for the counters and the
-//! StreamPdo subscribers ([`CanopenBus::relay_tpdo`]).
+//! subscribes to its drives' TPDOs on the bus directly and decodes them
+//! from their mapping. At a 1 ms SYNC with several drives that saves a task
+//! hop and a decoded, allocated update per PDO; the task's CPU was
+//! dominated by exactly those cross-task wake-ups. The master still does
+//! NMT, heartbeats, EMCY and SDO, and this task hands it each TPDO for the
+//! counters and the StreamPdo subscribers ([`CanopenBus::relay_tpdo`]).
+//!
+//! The cyclic set-points of CSP axes are not sent from here: the master's
+//! SYNC thread samples each axis's published plan and sends the set-point
+//! RPDO with the SYNC ([`super::cyclic_setpoints`]). This task publishes
+//! the plans (all changed ones of a turn at once, so a multi-axis command
+//! starts in one SYNC) and hands the samples back to the axes when it
+//! wakes for the drives' answers: it is not woken by the SYNC itself.
 //!
 //! An axis configured with `process_data = "sdo"` has no PDOs: its images
 //! go to, and its feedback comes from, a worker polling by SDO
 //! ([`super::sdo_process_data`]).
 
 use super::commands::{CoordinatedTarget, Waiters, for_axis, prepare_coordinated};
+use super::cyclic_setpoints::{CyclicSetpoints, SetpointLayout};
 use super::sdo_process_data::{self, SdoReport, SdoWorker};
 use super::{AxisEventKind, AxisInfo, AxisUpdate, LatestStates};
 use crate::canopen::{CanopenBus, NodeEventKind};
-use crate::config::ProcessDataChoice;
-use cangate_axis::cia402::{AxisSnapshot, Cia402Axis, Output};
+use crate::config::{PositionModeChoice, ProcessDataChoice};
+use cangate_axis::cia402::{AxisSnapshot, Cia402Axis, CyclicPlan, CyclicSample, Output};
 use cangate_axis::process_data::{encode_image, feedback_from_pdo};
 use cangate_axis::{AxisCommand, AxisEvent, CommandError, Outcome};
-use cangate_can::{
-    BusItem, CanId, Direction, Filter, Frame, FrameSelector, Subscription, Timestamp,
-};
+use cangate_can::{BusItem, CanId, Filter, Frame, FrameSelector, Subscription, Timestamp};
 use cangate_canopen::pdo::{PdoConfig, PdoKind};
 use cangate_canopen::{NodeId, ObjectAddress};
 use std::collections::HashMap;
@@ -91,10 +95,16 @@ struct Slot {
     waiters: Waiters,
     /// Bus time of the latest process data.
     at: Timestamp,
-    /// The latest payload sent per RPDO COB-ID.
-    last_sent: HashMap<u16, Vec<u8>>,
     /// The SDO fallback's worker, if the axis uses it.
     sdo: Option<SdoLink>,
+    /// A cyclic axis's set-point RPDO, sent by the SYNC thread.
+    setpoint: Option<SetpointLayout>,
+    /// The plan published to the SYNC thread (as published; the SYNC
+    /// thread's copy fixes a trajectory's start when it first samples it).
+    published: Option<CyclicPlan>,
+    /// The set-point RPDO's payload as last handed to the SYNC thread, the
+    /// target position masked.
+    setpoint_payload: Vec<u8>,
 }
 
 /// The axis task's side of an SDO fallback worker.
@@ -130,8 +140,10 @@ struct Task {
     by_node: HashMap<NodeId, usize>,
     /// The drives' TPDOs by COB-ID: (slot, mapping).
     tpdos: HashMap<u16, (usize, PdoConfig)>,
-    /// The master's SYNC, if it produces one.
-    sync_cob_id: Option<u16>,
+    /// The cyclic axes' set-points, shared with the master's SYNC thread.
+    setpoints: Arc<CyclicSetpoints>,
+    /// Reused for the samples taken from `setpoints`.
+    samples: Vec<(usize, CyclicSample)>,
     /// Slots with feedback not yet published.
     dirty: Vec<bool>,
     /// Reused for the controllers' outputs.
@@ -166,7 +178,7 @@ pub fn spawn(
         .into_iter()
         .enumerate()
         .map(|(i, (global, info))| {
-            let rpdos = master
+            let rpdos: Vec<PdoConfig> = master
                 .rpdos(info.node)
                 .into_iter()
                 .filter(|p| p.kind == PdoKind::Rpdo)
@@ -191,6 +203,12 @@ pub fn spawn(
                 lost: false,
                 booting: false,
             });
+            let setpoint = (info.config.position_mode == PositionModeChoice::Cyclic && sdo.is_none())
+                .then(|| SetpointLayout::find(&rpdos))
+                .flatten();
+            if info.config.position_mode == PositionModeChoice::Cyclic && setpoint.is_none() {
+                tracing::error!(axis = %info.config.name, "cyclic axis without an RPDO mapping the target position (0x607A, 32 bits): it gets no set-points");
+            }
             Slot {
                 global,
                 axis: Cia402Axis::new(info.config.controller()),
@@ -198,17 +216,17 @@ pub fn spawn(
                 rpdos,
                 waiters: Waiters::default(),
                 at: Timestamp(0),
-                last_sent: HashMap::new(),
                 sdo,
+                setpoint,
+                published: None,
+                setpoint_payload: Vec::new(),
             }
         })
         .collect::<Vec<_>>();
-    let sync_cob_id = master.sync_cob_id();
     let mut filters: Vec<Filter> = tpdos.keys().map(|&c| Filter::exact_standard(c)).collect();
-    filters.extend(sync_cob_id.map(Filter::exact_standard));
     // Without any filter a selector passes everything; this task wants
-    // nothing then (no PDO-driven axes, no SYNC): an inverted match-all
-    // filter keeps it that way.
+    // nothing then (no PDO-driven axes): an inverted match-all filter
+    // keeps it that way.
     if filters.is_empty() {
         filters.push(Filter {
             id: 0,
@@ -221,8 +239,7 @@ pub fn spawn(
         FrameSelector {
             filters,
             error_frames: false,
-            // Our own SYNC comes back as a transmitted frame.
-            transmitted: true,
+            transmitted: false,
         },
         PROCESS_DATA_QUEUE,
     );
@@ -231,17 +248,28 @@ pub fn spawn(
         .enumerate()
         .map(|(i, s)| (s.info.node, i))
         .collect();
+    let origin = Instant::now();
+    let setpoints = Arc::new(CyclicSetpoints::new(origin, slots.len()));
+    if slots.iter().any(|s| s.setpoint.is_some()) {
+        let rider: Arc<dyn crate::canopen::sync_thread::SyncRider> = setpoints.clone();
+        if !master.add_sync_rider(Arc::downgrade(&rider)) {
+            // The configuration refuses cyclic axes without a SYNC period;
+            // this is a SYNC thread that could not start (logged there).
+            tracing::error!(bus = %master.bus(), "cyclic axes without a SYNC: they get no set-points");
+        }
+    }
     let t = Task {
         master,
         dirty: vec![false; slots.len()],
         slots,
         by_node,
         tpdos,
-        sync_cob_id,
+        setpoints,
+        samples: Vec::new(),
         scratch: Vec::new(),
         updates,
         latest,
-        origin: Instant::now(),
+        origin,
         frames: Vec::new(),
         sdo_done,
     };
@@ -293,7 +321,11 @@ async fn run(
             biased;
             _ = &mut cancelled => break,
             r = requests.recv() => match r {
-                Some(r) => t.on_request(r),
+                Some(r) => {
+                    // New trajectories start from the latest SYNC's demand.
+                    t.take_samples();
+                    t.on_request(r);
+                }
                 None => break,
             },
             n = sub.recv_many(&mut items, 256) => {
@@ -301,6 +333,7 @@ async fn run(
                     // The bus stopped.
                     break;
                 }
+                t.take_samples();
                 for item in items.drain(..) {
                     t.on_bus_item(item);
                 }
@@ -326,6 +359,7 @@ async fn run(
             Some((i, report)) = reports.recv() => t.on_sdo_report(i, report),
             _ = &mut sleep => {
                 armed = None;
+                t.take_samples();
                 let now = t.now();
                 for i in 0..t.slots.len() {
                     if t.slots[i].axis.next_deadline().is_some_and(|d| d <= now) {
@@ -337,6 +371,7 @@ async fn run(
                 }
             }
         }
+        t.publish_plans();
         t.flush().await;
     }
 }
@@ -349,16 +384,8 @@ impl Task {
     /// One frame (or notice) of the process data subscription.
     fn on_bus_item(&mut self, item: BusItem) {
         let frame = match item {
-            BusItem::Frame { frame, direction } => {
+            BusItem::Frame { frame, .. } => {
                 if frame.is_extended() {
-                    return;
-                }
-                let cob = frame.raw_id() as u16;
-                if direction == Direction::Tx {
-                    // Only the SYNC this master sent paces the axes.
-                    if Some(cob) == self.sync_cob_id {
-                        self.on_sync();
-                    }
                     return;
                 }
                 frame
@@ -380,7 +407,7 @@ impl Task {
                 let mut out = std::mem::take(&mut self.scratch);
                 self.slots[i].at = frame.timestamp();
                 self.slots[i].axis.on_feedback(fb, now, &mut out);
-                self.handle_with(i, &mut out, false);
+                self.handle_with(i, &mut out);
                 self.scratch = out;
                 // Published once per batch: a drive's TPDOs of one SYNC
                 // usually arrive together.
@@ -433,15 +460,51 @@ impl Task {
         self.publish_status(i);
     }
 
-    /// Every axis's step of one SYNC; the RPDOs of all go out in one batch.
-    fn on_sync(&mut self) {
-        let now = self.now();
-        let mut out = std::mem::take(&mut self.scratch);
-        for i in 0..self.slots.len() {
-            self.slots[i].axis.on_sync(now, &mut out);
-            self.handle_with(i, &mut out, true);
+    /// Hands the SYNC thread's latest set-point of each cyclic axis to
+    /// the axis: its demand follows, a finished trajectory completes.
+    fn take_samples(&mut self) {
+        let mut samples = std::mem::take(&mut self.samples);
+        self.setpoints.take_samples(&mut samples);
+        if !samples.is_empty() {
+            let now = self.now();
+            let mut out = std::mem::take(&mut self.scratch);
+            for (i, sample) in samples.drain(..) {
+                self.slots[i].axis.on_cyclic_sample(&sample, now, &mut out);
+                self.handle_with(i, &mut out);
+            }
+            self.scratch = out;
         }
-        self.scratch = out;
+        self.samples = samples;
+    }
+
+    /// Publishes to the SYNC thread every cyclic axis's plan that changed
+    /// this turn, in one go: a multi-axis command starts in one SYNC.
+    fn publish_plans(&mut self) {
+        let mut changed = Vec::new();
+        for (i, slot) in self.slots.iter_mut().enumerate() {
+            let Some(layout) = &slot.setpoint else {
+                continue;
+            };
+            let plan = slot.axis.cyclic_plan();
+            if plan == slot.published {
+                continue;
+            }
+            // The RPDO's other values from the image as it stands.
+            let payload = match encode_image(&slot.axis.image(), std::slice::from_ref(&layout.rpdo))
+            {
+                Ok(mut frames) => frames.pop().map(|(_, d)| d).unwrap_or_default(),
+                Err(e) => {
+                    tracing::error!(axis = %slot.info.config.name, error = %e, "cannot encode the set-point RPDO");
+                    continue;
+                }
+            };
+            slot.setpoint_payload = layout.masked(&payload);
+            changed.push((i, plan.clone(), layout.rpdo.cob_id, payload, layout.offset));
+            slot.published = plan;
+        }
+        if !changed.is_empty() {
+            self.setpoints.publish(changed);
+        }
     }
 
     /// Publishes the status of every axis that had feedback since the last
@@ -578,13 +641,15 @@ impl Task {
     /// Turns the controller's outputs into frames, SDO jobs, events and
     /// waiter replies.
     fn handle(&mut self, i: usize, mut outputs: Vec<Output>) {
-        self.handle_with(i, &mut outputs, false);
+        self.handle_with(i, &mut outputs);
     }
 
-    /// As [`Task::handle`]; `cyclic` images (the set-point of every SYNC)
-    /// send only the RPDO with the target position and those whose payload
-    /// changed: the controlword RPDO is not repeated 1000 times a second.
-    fn handle_with(&mut self, i: usize, outputs: &mut Vec<Output>, cyclic: bool) {
+    /// As [`Task::handle`], draining `outputs` (a reused buffer). While the
+    /// SYNC thread sends a cyclic axis's set-points, its set-point RPDO is
+    /// not sent from here: a set-point from this task could be older than
+    /// the one the SYNC thread just sent, and overwrite it in the drive.
+    /// A change of that RPDO's other values goes to the SYNC thread.
+    fn handle_with(&mut self, i: usize, outputs: &mut Vec<Output>) {
         for o in outputs.drain(..) {
             match o {
                 Output::Image(image) if self.slots[i].sdo.is_some() => {
@@ -594,19 +659,20 @@ impl Task {
                     Ok(frames) => {
                         let slot = &mut self.slots[i];
                         for (cob, data) in frames {
-                            let setpoint = slot.rpdos.iter().any(|p| {
-                                p.cob_id == cob
-                                    && p.mapping.iter().any(|m| {
-                                        m.addr == cangate_canopen::ds402::objects::TARGET_POSITION
-                                    })
-                            });
-                            if cyclic && !setpoint && slot.last_sent.get(&cob) == Some(&data) {
+                            if let Some(layout) = &slot.setpoint
+                                && slot.published.is_some()
+                                && layout.rpdo.cob_id == cob
+                            {
+                                let masked = layout.masked(&data);
+                                if masked != slot.setpoint_payload {
+                                    slot.setpoint_payload = masked;
+                                    self.setpoints.set_payload(i, data);
+                                }
                                 continue;
                             }
                             if let Ok(f) = Frame::new(CanId::Standard(cob), &data) {
                                 self.frames.push(f);
                             }
-                            slot.last_sent.insert(cob, data);
                         }
                     }
                     Err(e) => {

@@ -8,6 +8,7 @@
 
 pub mod cia402_task;
 pub(crate) mod commands;
+pub mod cyclic_setpoints;
 pub mod sdo_process_data;
 
 use crate::canopen::CanopenBus;

@@ -194,6 +194,8 @@ pub struct CanopenBus {
     facts: Arc<RwLock<BTreeMap<NodeId, NodeFacts>>>,
     /// SYNCs sent and periods skipped by this master's SYNC thread.
     sync_counts: Arc<sync_thread::SyncCounts>,
+    /// What the SYNC thread sends after each SYNC.
+    sync_riders: sync_thread::SyncRiders,
     /// The COB-ID of the SYNC this master produces, if it produces one.
     sync_cob_id: Option<u16>,
     /// Every configured TPDO by COB-ID.
@@ -222,6 +224,7 @@ impl CanopenBus {
         let (events, _) = broadcast::channel(4096);
         let (pdos, _) = broadcast::channel(16_384);
         let sync_counts = Arc::new(sync_thread::SyncCounts::default());
+        let sync_riders = sync_thread::SyncRiders::default();
         let tpdos: HashMap<u16, TpdoRoute> = configured
             .iter()
             .flat_map(|(id, f)| {
@@ -253,6 +256,7 @@ impl CanopenBus {
                 producer,
                 rt_priority,
                 sync_counts.clone(),
+                sync_riders.clone(),
                 cancel.clone(),
             ) {
                 Ok(_) => sync_cob_id = Some(cangate_canopen::ids::cob::SYNC),
@@ -269,6 +273,7 @@ impl CanopenBus {
             events: events.clone(),
             facts: facts.clone(),
             sync_counts,
+            sync_riders,
             sync_cob_id,
             tpdos: Arc::new(tpdos),
         };
@@ -318,6 +323,20 @@ impl CanopenBus {
     /// `transmitted` in their selector they see each SYNC as it goes out.
     pub fn sync_cob_id(&self) -> Option<u16> {
         self.sync_cob_id
+    }
+
+    /// Has `rider`'s frames sent right after every SYNC of this master, in
+    /// the SYNC's batch, until `rider` is dropped. `false` (and nothing
+    /// registered) when this master produces no SYNC.
+    pub fn add_sync_rider(&self, rider: std::sync::Weak<dyn sync_thread::SyncRider>) -> bool {
+        if self.sync_cob_id.is_none() {
+            return false;
+        }
+        self.sync_riders
+            .lock()
+            .expect("SYNC riders lock")
+            .push(rider);
+        true
     }
 
     /// The bus this master runs on.

@@ -8,12 +8,29 @@
 //! producer and logged, never silently lost. No busy waiting: the thread
 //! costs nothing between SYNCs.
 
-use cangate_can::BusHandle;
+use cangate_can::{BusHandle, Frame};
 use cangate_canopen::sync::SyncProducer;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, Weak};
 use std::time::{Duration, Instant};
 use tokio_util::sync::CancellationToken;
+
+/// Frames that leave with every SYNC, right after it in the same batch: the
+/// cyclic set-points of CSP axes. Called on the SYNC thread, so it must be
+/// quick and never block on anything but a short lock.
+///
+/// Why on this thread: a set-point computed by the task that runs the axes
+/// needs that task woken by every SYNC, a thread hand-over per period that
+/// dominated the gateway's CPU at a 1 ms SYNC. Sampling a trajectory here
+/// costs well under a microsecond per axis.
+pub trait SyncRider: Send + Sync {
+    /// Appends this rider's frames for the SYNC sent at `at`.
+    fn on_sync(&self, at: Instant, frames: &mut Vec<Frame>);
+}
+
+/// The riders of one SYNC producer. Held weakly: a rider whose owner ended
+/// drops out at the next SYNC.
+pub type SyncRiders = Arc<Mutex<Vec<Weak<dyn SyncRider>>>>;
 
 /// What the thread did, for the metrics (`cangate_sync_sent_total`,
 /// `cangate_sync_skipped_total`) and benchmarks: counters, so that nobody
@@ -32,6 +49,7 @@ pub fn spawn(
     mut producer: SyncProducer,
     rt_priority: u8,
     counts: Arc<SyncCounts>,
+    riders: SyncRiders,
     cancel: CancellationToken,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
     let name = format!("sync-{}", bus.name());
@@ -63,9 +81,18 @@ pub fn spawn(
             // Wake at least every 100 ms to notice a shutdown.
             std::thread::sleep(wait.min(Duration::from_millis(100)));
             if let Some(frame) = producer.on_tick(origin.elapsed()) {
+                let mut frames = vec![frame];
+                let at = Instant::now();
+                riders.lock().expect("SYNC riders lock").retain(|r| {
+                    let Some(r) = r.upgrade() else {
+                        return false;
+                    };
+                    r.on_sync(at, &mut frames);
+                    true
+                });
                 // Without entering the runtime unless the bus task's queue
                 // is full (a virtual bus is sent to right here).
-                let sent = match bus.try_submit(vec![frame]) {
+                let sent = match bus.try_submit(frames) {
                     Ok(Some(frames)) => rt.block_on(bus.submit(frames)),
                     Ok(None) => Ok(()),
                     Err(e) => Err(e),

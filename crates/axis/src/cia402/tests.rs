@@ -26,6 +26,12 @@ struct Rig {
     events: Vec<AxisEvent>,
     /// Demand sent at each SYNC (cyclic axes).
     setpoints: Vec<(Duration, i32)>,
+    /// Split SYNC handling, as the gateway runs it: the plan the axis
+    /// published (as published, and as sampled since), sampled "on the SYNC
+    /// thread", each sample handed back; `None` runs [`Cia402Axis::on_sync`].
+    split: Option<(Option<CyclicPlan>, Option<CyclicPlan>)>,
+    /// Plans published in split mode.
+    published: usize,
 }
 
 fn frame(id: u16, data: &[u8]) -> Frame {
@@ -50,6 +56,8 @@ impl Rig {
             sent: Vec::new(),
             events: Vec::new(),
             setpoints: Vec::new(),
+            split: None,
+            published: 0,
         };
         let mut writes = Vec::new();
         for p in rig.rpdos.iter().chain(&rig.tpdos) {
@@ -141,6 +149,14 @@ impl Rig {
             .is_multiple_of(self.sync_period.as_millis())
         {
             let frames = self.drive.on_frame(&frame(0x080, &[]), self.now);
+            if self.split.is_some() {
+                self.split_sync();
+                self.deliver(frames);
+                let mut out = Vec::new();
+                self.axis.on_tick(self.now, &mut out);
+                self.handle(out);
+                return;
+            }
             let mut out = Vec::new();
             self.axis.on_sync(self.now, &mut out);
             if self.axis.config().position_mode == PositionMode::Cyclic
@@ -154,6 +170,41 @@ impl Rig {
         }
         let mut out = Vec::new();
         self.axis.on_tick(self.now, &mut out);
+        self.handle(out);
+    }
+
+    /// One SYNC the way the gateway splits it: the plan is republished when
+    /// the axis's differs from the one published (the task's side), sampled
+    /// (the SYNC thread's side; the target-position RPDO leaves with the
+    /// SYNC), and the sample handed back to the axis.
+    fn split_sync(&mut self) {
+        let (published, sampled) = self.split.as_mut().expect("split");
+        let wanted = self.axis.cyclic_plan();
+        if wanted != *published {
+            published.clone_from(&wanted);
+            *sampled = wanted;
+            self.published += 1;
+        }
+        let Some(plan) = sampled.as_mut() else {
+            return;
+        };
+        let sample = plan.sample(self.now);
+        self.setpoints.push((self.now, sample.counts));
+        let mut image = self.axis.image();
+        image.target_position = sample.counts;
+        let target = self
+            .rpdos
+            .iter()
+            .find(|p| p.mapping.iter().any(|m| m.addr == obj::TARGET_POSITION))
+            .cloned()
+            .expect("target RPDO");
+        for (cob, data) in encode_image(&image, &[target]).unwrap() {
+            self.sent.push((self.now, cob, data.clone()));
+            let replies = self.drive.on_frame(&frame(cob, &data), self.now);
+            self.deliver(replies);
+        }
+        let mut out = Vec::new();
+        self.axis.on_cyclic_sample(&sample, self.now, &mut out);
         self.handle(out);
     }
 
@@ -407,6 +458,81 @@ fn stop_decelerates_a_cyclic_move_to_rest_short_of_the_target() {
     let p = rig.drive.position();
     assert!(p > 15_000.0 && p < 100_000.0, "{p}");
     assert!(rig.drive.velocity().abs() < 1.0);
+}
+
+/// The gateway samples cyclic set-points on its SYNC thread
+/// ([`Cia402Axis::cyclic_plan`] there, [`Cia402Axis::on_cyclic_sample`]
+/// back): enable, a move, a re-targeted move, a stop, a jog to its
+/// dead-man and a coordinated move send exactly the set-points that
+/// [`Cia402Axis::on_sync`] sends, and end the same way.
+#[test]
+fn set_points_sampled_from_the_published_plan_equal_on_sync() {
+    fn scenario(split: bool) -> (Vec<(Duration, i32)>, Vec<Outcome>, f64, usize) {
+        let mut rig = Rig::new(PositionMode::Cyclic);
+        if split {
+            rig.split = Some((None, None));
+        }
+        rig.enable();
+        let mut outcomes = Vec::new();
+        let mv = rig.mv(20.0);
+        outcomes.push(rig.run_until_done(mv, Duration::from_secs(3)).0);
+        let mv = rig.mv(60.0);
+        rig.run(150 * MS);
+        // Re-targeted while moving.
+        let mv2 = rig.mv(-10.0);
+        outcomes.push(rig.done(mv).unwrap().0);
+        rig.run(200 * MS);
+        let stop = rig.command(AxisCommand::Stop).unwrap();
+        outcomes.push(rig.done(mv2).unwrap().0);
+        outcomes.push(rig.run_until_done(stop, Duration::from_secs(2)).0);
+        let jog = rig
+            .command(AxisCommand::Jog {
+                velocity: 5.0,
+                acceleration: None,
+            })
+            .unwrap();
+        outcomes.push(rig.run_until_done(jog, Duration::from_secs(3)).0);
+        let from = rig.axis.demand();
+        let limits = Limits::symmetric(100.0, 1000.0).unwrap();
+        let plan = cangate_motion::SyncedMove::new([
+            cangate_motion::AxisMove::new(from, from + 30.0, limits),
+            cangate_motion::AxisMove::new(0.0, 5.0, limits),
+        ])
+        .unwrap();
+        let ratio = 1.0 / plan.time_scale(1).unwrap();
+        let mut out = Vec::new();
+        let op = rig
+            .axis
+            .start_coordinated(plan.profile(1).unwrap().clone(), ratio, rig.now, &mut out)
+            .unwrap();
+        rig.handle(out);
+        outcomes.push(rig.run_until_done(op, Duration::from_secs(3)).0);
+        rig.run(50 * MS);
+        (rig.setpoints, outcomes, rig.drive.position(), rig.published)
+    }
+    let (on_sync, outcomes, position, _) = scenario(false);
+    let (split, split_outcomes, split_position, published) = scenario(true);
+    // A plan is published when a command changes it (and once more when
+    // its first sample fixes the start, once when it ends), not per SYNC.
+    assert!(
+        published <= 20,
+        "{published} plans for {} SYNCs",
+        split.len()
+    );
+    assert!(on_sync.len() > 100, "{}", on_sync.len());
+    assert_eq!(split_outcomes, outcomes);
+    assert_eq!(split.len(), on_sync.len());
+    for (a, b) in split.iter().zip(&on_sync) {
+        assert_eq!(a, b);
+    }
+    assert_eq!(split_position, position);
+    use Outcome::*;
+    assert_eq!(
+        outcomes,
+        [
+            Completed, Superseded, Stopped, Completed, Stopped, Completed
+        ]
+    );
 }
 
 #[test]

@@ -1,0 +1,236 @@
+//! The cyclic set-points of a bus's CSP axes, sent by the CANopen master's
+//! SYNC thread with every SYNC.
+//!
+//! The axis task publishes each cyclic axis's [`CyclicPlan`] here whenever
+//! it changes (a move, a stop, the drive enabled or lost). At every SYNC
+//! the SYNC thread samples each plan, patches the target position into the
+//! axis's set-point RPDO and sends it in the SYNC's batch, then leaves the
+//! sample for the axis task, which hands it to the axis
+//! ([`cangate_axis::cia402::Cia402Axis::on_cyclic_sample`]) at its next
+//! wake-up (the drives' TPDOs answering that SYNC).
+//!
+//! Why: computed by the axis task, each set-point needed that task woken by
+//! every SYNC, a thread hand-over per period that dominated the gateway's
+//! CPU at a 1 ms SYNC (measured with `axis_bench`, README). The set-point
+//! now also leaves in the same batch as its SYNC, whatever the load on the
+//! gateway's bus thread.
+//!
+//! Only the RPDO that maps the target position (0x607A) is sent here; the
+//! other RPDOs (the controlword) still go out from the axis task the moment
+//! they change. Where a custom mapping puts the controlword into the
+//! target-position RPDO, a controlword change rides with the next SYNC.
+
+use crate::canopen::sync_thread::SyncRider;
+use cangate_axis::cia402::{CyclicPlan, CyclicSample};
+use cangate_can::{CanId, Frame};
+use cangate_canopen::ds402::objects::TARGET_POSITION;
+use cangate_canopen::pdo::PdoConfig;
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// Where the target position sits in an RPDO.
+#[derive(Debug, Clone)]
+pub struct SetpointLayout {
+    /// The RPDO that maps the target position.
+    pub rpdo: PdoConfig,
+    /// Byte offset of the 32-bit target position in its payload.
+    pub offset: usize,
+}
+
+impl SetpointLayout {
+    /// The layout of the first RPDO in `rpdos` that maps the target
+    /// position as 32 bits (PDO mappings here are byte-aligned).
+    pub fn find(rpdos: &[PdoConfig]) -> Option<SetpointLayout> {
+        for p in rpdos {
+            let mut offset = 0;
+            for m in &p.mapping {
+                if m.addr == TARGET_POSITION && m.bits == 32 {
+                    return Some(SetpointLayout {
+                        rpdo: p.clone(),
+                        offset,
+                    });
+                }
+                offset += usize::from(m.bits) / 8;
+            }
+        }
+        None
+    }
+
+    /// `payload` with the target position's bytes cleared: what a change
+    /// of the RPDO's other values is compared on.
+    pub fn masked(&self, payload: &[u8]) -> Vec<u8> {
+        let mut p = payload.to_vec();
+        if let Some(target) = p.get_mut(self.offset..self.offset + 4) {
+            target.fill(0);
+        }
+        p
+    }
+}
+
+/// One axis's entry.
+#[derive(Debug, Default)]
+struct Entry {
+    /// The published plan, as sampled since; `None`: nothing is sent.
+    plan: Option<CyclicPlan>,
+    /// The set-point RPDO: COB-ID, payload (the target position is patched
+    /// in at each SYNC), offset of the target position.
+    rpdo: Option<(u16, Vec<u8>, usize)>,
+    /// The latest sample of `plan`, not yet taken by the axis task.
+    sample: Option<CyclicSample>,
+}
+
+/// The table shared by one bus's axis task and its master's SYNC thread,
+/// indexed by the task's axis index.
+#[derive(Debug)]
+pub struct CyclicSetpoints {
+    /// The axis task's clock: samples are taken in its time.
+    origin: Instant,
+    entries: Mutex<Vec<Entry>>,
+}
+
+impl CyclicSetpoints {
+    /// A table for `axes` axes, all without a plan, on the clock that
+    /// starts at `origin`.
+    pub fn new(origin: Instant, axes: usize) -> CyclicSetpoints {
+        CyclicSetpoints {
+            origin,
+            entries: Mutex::new((0..axes).map(|_| Entry::default()).collect()),
+        }
+    }
+
+    /// Replaces the plans of several axes at once, so that a multi-axis
+    /// command starts in one SYNC: (axis, plan or `None` to stop sending,
+    /// COB-ID and current payload of its set-point RPDO, target offset).
+    /// Drops the samples of the replaced plans.
+    pub fn publish(
+        &self,
+        plans: impl IntoIterator<Item = (usize, Option<CyclicPlan>, u16, Vec<u8>, usize)>,
+    ) {
+        let mut entries = self.entries.lock().expect("set-point table lock");
+        for (i, plan, cob, payload, offset) in plans {
+            let Some(e) = entries.get_mut(i) else {
+                continue;
+            };
+            e.rpdo = plan.is_some().then_some((cob, payload, offset));
+            e.plan = plan;
+            e.sample = None;
+        }
+    }
+
+    /// The set-point RPDO's other values changed (a custom mapping with
+    /// the controlword): the next SYNC carries `payload`.
+    pub fn set_payload(&self, i: usize, payload: Vec<u8>) {
+        let mut entries = self.entries.lock().expect("set-point table lock");
+        if let Some((_, p, _)) = entries.get_mut(i).and_then(|e| e.rpdo.as_mut()) {
+            *p = payload;
+        }
+    }
+
+    /// Moves the samples taken since the last call into `out`.
+    pub fn take_samples(&self, out: &mut Vec<(usize, CyclicSample)>) {
+        let mut entries = self.entries.lock().expect("set-point table lock");
+        for (i, e) in entries.iter_mut().enumerate() {
+            if let Some(s) = e.sample.take() {
+                out.push((i, s));
+            }
+        }
+    }
+}
+
+impl SyncRider for CyclicSetpoints {
+    fn on_sync(&self, at: Instant, frames: &mut Vec<Frame>) {
+        let t = at.saturating_duration_since(self.origin);
+        let mut entries = self.entries.lock().expect("set-point table lock");
+        for e in entries.iter_mut() {
+            let (Some(plan), Some((cob, payload, offset))) = (&mut e.plan, &mut e.rpdo) else {
+                continue;
+            };
+            let sample = plan.sample(t);
+            if let Some(target) = payload.get_mut(*offset..*offset + 4) {
+                target.copy_from_slice(&sample.counts.to_le_bytes());
+            }
+            match Frame::new(CanId::Standard(*cob), payload) {
+                Ok(f) => frames.push(f),
+                Err(e) => tracing::error!(cob_id = *cob, error = %e, "set-point RPDO not sent"),
+            }
+            e.sample = Some(sample);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use cangate_axis::process_data::{FeedbackTrigger, standard_pdos};
+    use cangate_canopen::NodeId;
+
+    #[test]
+    fn the_standard_layout_puts_the_target_position_first_in_rpdo2() {
+        let (rpdos, _) = standard_pdos(NodeId::new(5).unwrap(), FeedbackTrigger::Sync);
+        let l = SetpointLayout::find(&rpdos).expect("target position mapped");
+        assert_eq!(l.rpdo.cob_id, 0x305);
+        assert_eq!(l.offset, 0);
+        assert_eq!(
+            l.masked(&[1, 2, 3, 4, 5, 6, 7, 8]),
+            vec![0, 0, 0, 0, 5, 6, 7, 8]
+        );
+        assert!(SetpointLayout::find(&rpdos[..1]).is_none());
+    }
+
+    #[test]
+    fn each_sync_sends_the_sampled_set_point_and_leaves_the_sample() {
+        let origin = Instant::now();
+        let table = CyclicSetpoints::new(origin, 3);
+        let units = cangate_axis::Units {
+            counts_per_unit: 1000.0,
+        };
+        // Axis 1 holds 1.5 mm; its RPDO also maps a target velocity.
+        table.publish([(
+            1,
+            Some(CyclicPlan::holding(1.5, units)),
+            0x302,
+            vec![0, 0, 0, 0, 9, 8, 7, 6],
+            0,
+        )]);
+        let mut frames = vec![Frame::new(CanId::Standard(0x080), &[]).unwrap()];
+        let at = origin + std::time::Duration::from_millis(3);
+        table.on_sync(at, &mut frames);
+        assert_eq!(frames.len(), 2, "the SYNC first, then the set-point");
+        assert_eq!(frames[1].raw_id(), 0x302);
+        assert_eq!(frames[1].data(), &[0xDC, 0x05, 0, 0, 9, 8, 7, 6]);
+        let mut samples = Vec::new();
+        table.take_samples(&mut samples);
+        assert_eq!(samples.len(), 1);
+        assert_eq!(samples[0].0, 1);
+        assert_eq!(samples[0].1.counts, 1500);
+        assert_eq!(samples[0].1.at, std::time::Duration::from_millis(3));
+        // Taken once.
+        samples.clear();
+        table.take_samples(&mut samples);
+        assert!(samples.is_empty());
+        // A new payload rides with the next SYNC.
+        table.set_payload(1, vec![0, 0, 0, 0, 1, 1, 1, 1]);
+        let mut frames = Vec::new();
+        table.on_sync(at, &mut frames);
+        assert_eq!(frames[0].data(), &[0xDC, 0x05, 0, 0, 1, 1, 1, 1]);
+        // Withdrawn: nothing is sent, and the pending sample of the old
+        // plan is dropped.
+        table.publish([(1, None, 0x302, Vec::new(), 0)]);
+        let mut frames = Vec::new();
+        table.on_sync(at, &mut frames);
+        assert!(frames.is_empty());
+        table.take_samples(&mut samples);
+        assert!(samples.is_empty());
+    }
+
+    #[test]
+    fn a_sync_without_plans_adds_nothing_and_leaves_no_sample() {
+        let table = CyclicSetpoints::new(Instant::now(), 2);
+        let mut frames = Vec::new();
+        table.on_sync(Instant::now(), &mut frames);
+        assert!(frames.is_empty());
+        let mut samples = Vec::new();
+        table.take_samples(&mut samples);
+        assert!(samples.is_empty());
+    }
+}
