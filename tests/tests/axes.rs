@@ -537,6 +537,111 @@ async fn coordinated_move_arrives_together() {
     assert_eq!(e.code(), Code::FailedPrecondition, "{e:?}");
 }
 
+/// The cyclic set-points leave with the SYNC (sent by the master's SYNC
+/// thread): during a coordinated move of X and Y, every SYNC period carries
+/// exactly one set-point RPDO (RPDO2: 0x301, 0x302) per axis, the SYNC
+/// first; the set-points climb the trapezoid within the axis limits; and
+/// at rest the SYNCs keep carrying the target.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cyclic_set_points_ride_every_sync_one_per_axis() {
+    let (server, mut axes) = setup().await;
+    let mut c = client(&server).await;
+    let lease = acquire(&mut axes, &["X", "Y"], 5000, "test").await;
+    enable(&mut axes, "X", &lease).await;
+    enable(&mut axes, "Y", &lease).await;
+    let filter = |id| pb::FrameFilter {
+        id,
+        mask: 0x7FF,
+        format: 0,
+        invert: false,
+    };
+    let (mut frames, mut pending) = open_stream(
+        &mut c,
+        pb::StreamFramesRequest {
+            include_transmitted: true,
+            ..stream_request("can0", vec![filter(0x080), filter(0x301), filter(0x302)])
+        },
+    )
+    .await;
+    let r = axes
+        .move_axes(pb::MoveAxesRequest {
+            targets: vec![
+                pb::AxisTarget {
+                    axis: "X".into(),
+                    target: 20.0,
+                    velocity: 0.0,
+                    acceleration: 0.0,
+                },
+                pb::AxisTarget {
+                    axis: "Y".into(),
+                    target: -4.0,
+                    velocity: 0.0,
+                    acceleration: 0.0,
+                },
+            ],
+            lease,
+            wait: true,
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    for res in &r.results {
+        assert_eq!(res.outcome, pb::Outcome::Completed as i32, "{res:?}");
+    }
+    // The stream from before the move to a few periods at rest after it
+    // (at 5 ms per SYNC, 3 frames a period; the move takes 0.3 s).
+    let mut seen = Vec::new();
+    let mut at_rest = 0;
+    while at_rest < 5 * 3 {
+        assert!(seen.len() < 3 * 1000, "X never held its target");
+        let f = read_frames(&mut frames, &mut pending, 1).await;
+        let arrived = |f: &pb::Frame| f.id == 0x301 && f.data[..4] == 20_000i32.to_le_bytes();
+        if at_rest > 0 || f.iter().any(arrived) {
+            at_rest += f.len();
+        }
+        seen.extend(f);
+    }
+    let first_sync = seen.iter().position(|f| f.id == 0x080).expect("a SYNC");
+    let mut periods: Vec<Vec<(u32, i32)>> = Vec::new();
+    for f in &seen[first_sync..] {
+        if f.id == 0x080 {
+            periods.push(Vec::new());
+        } else {
+            let target = i32::from_le_bytes([f.data[0], f.data[1], f.data[2], f.data[3]]);
+            periods.last_mut().unwrap().push((f.id, target));
+        }
+    }
+    // The last period may still be on its way.
+    periods.pop();
+    assert!(periods.len() >= 60, "{} periods", periods.len());
+    for (k, p) in periods.iter().enumerate() {
+        let mut ids: Vec<u32> = p.iter().map(|(id, _)| *id).collect();
+        ids.sort_unstable();
+        assert_eq!(ids, [0x301, 0x302], "period {k}: {p:?}");
+    }
+    let x: Vec<i32> = periods
+        .iter()
+        .map(|p| p.iter().find(|(id, _)| *id == 0x301).unwrap().1)
+        .collect();
+    // 100 mm/s at 1000 counts/mm: at most 500 counts per 5 ms period. A
+    // SYNC the thread sent late (a loaded CI machine) samples later and
+    // makes a longer step: the bound holds for nearly all periods.
+    let steps: Vec<i32> = x.windows(2).map(|w| w[1] - w[0]).collect();
+    assert!(steps.iter().all(|s| (0..=2500).contains(s)), "{steps:?}");
+    let within = steps.iter().filter(|s| **s <= 501).count();
+    assert!(within * 10 >= steps.len() * 9, "{steps:?}");
+    assert!(steps.iter().filter(|s| **s > 0).count() >= 30, "{steps:?}");
+    assert_eq!(*x.last().unwrap(), 20_000, "X holds its target at rest");
+    let y_last = periods
+        .last()
+        .unwrap()
+        .iter()
+        .find(|(id, _)| *id == 0x302)
+        .unwrap()
+        .1;
+    assert_eq!(y_last, -4_000, "Y holds its target at rest");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn fault_then_reset_then_enable_again() {
     let (server, mut axes) = setup().await;
