@@ -229,7 +229,33 @@ impl Trajectory {
         let (p, v, _) = self.profile.sample(t * self.ratio);
         (p, v * self.ratio)
     }
+
+    /// The deceleration this trajectory runs with (wall time).
+    fn deceleration(&self) -> f64 {
+        self.profile.limits().deceleration() * self.ratio * self.ratio
+    }
+
+    /// The ramp from position `p` at velocity `v` to rest at `decel`,
+    /// starting at `start`; `None` at standstill.
+    fn stop_ramp(p: f64, v: f64, decel: f64, start: Option<Duration>) -> Option<Trajectory> {
+        let decel = decel.max(f64::MIN_POSITIVE);
+        let stop_at = p + v * v.abs() / (2.0 * decel);
+        Limits::symmetric(v.abs().max(1e-9), decel)
+            .ok()
+            .and_then(|l| TrapezoidProfile::new(p, v, stop_at, l).ok())
+            .map(|profile| Trajectory {
+                profile,
+                ratio: 1.0,
+                start,
+            })
+    }
 }
+
+/// How long after a cyclic jog's dead-man deadline the axis stops the jog
+/// itself when no SYNC sample has stopped it (the SYNC is not running).
+/// Normally the first SYNC after the deadline stops it
+/// ([`CyclicPlan::sample`]), whatever the thread that runs the axis does.
+const DEADMAN_GRACE: Duration = Duration::from_millis(50);
 
 /// The set-points a cyclic (CSP) axis sends with every SYNC, as a value:
 /// whoever sends the SYNC samples it right there ([`CyclicPlan::sample`]),
@@ -244,6 +270,11 @@ pub struct CyclicPlan {
     /// The demand (user units) without a trajectory, and after it ended.
     hold: f64,
     units: Units,
+    /// A jog's dead-man: the first sample at or after it replaces the
+    /// trajectory by a stop ramp. Enforced here, where the set-points are
+    /// sampled, so that a jog stops on time even when the thread that runs
+    /// the axis is held up.
+    deadman: Option<Duration>,
 }
 
 /// The set-point a [`CyclicPlan`] gave for one SYNC.
@@ -260,6 +291,9 @@ pub struct CyclicSample {
     start: Option<Duration>,
     /// The trajectory ended with this sample.
     finished: bool,
+    /// The jog's dead-man expired at this sample, which is the first of the
+    /// stop ramp.
+    deadman_stop: bool,
 }
 
 impl CyclicPlan {
@@ -270,12 +304,26 @@ impl CyclicPlan {
             trajectory: None,
             hold: position,
             units,
+            deadman: None,
         }
     }
 
     /// The set-point of a SYNC sent at `at`; the first sample of a
     /// trajectory that waits for the next SYNC starts it.
     pub fn sample(&mut self, at: Duration) -> CyclicSample {
+        let mut deadman_stop = false;
+        if let Some(d) = self.deadman
+            && at >= d
+        {
+            self.deadman = None;
+            if let Some(traj) = &self.trajectory {
+                let start = traj.start.unwrap_or(at);
+                let (p, v) = traj.sample(at.saturating_sub(start).as_secs_f64());
+                self.hold = p;
+                self.trajectory = Trajectory::stop_ramp(p, v, traj.deceleration(), Some(at));
+                deadman_stop = true;
+            }
+        }
         let Some(traj) = &mut self.trajectory else {
             return CyclicSample {
                 at,
@@ -284,6 +332,7 @@ impl CyclicPlan {
                 velocity: 0.0,
                 start: None,
                 finished: false,
+                deadman_stop,
             };
         };
         let start = *traj.start.get_or_insert(at);
@@ -301,6 +350,7 @@ impl CyclicPlan {
             velocity: if finished { 0.0 } else { v },
             start: Some(start),
             finished,
+            deadman_stop,
         }
     }
 }
@@ -667,7 +717,7 @@ impl Cia402Axis {
             return;
         };
         let sample = plan.sample(now);
-        self.apply_sample(&sample);
+        self.apply_sample(&sample, now);
         out.push(Output::Image(self.image));
         self.advance(now, out);
     }
@@ -676,11 +726,7 @@ impl Cia402Axis {
     /// `None` while it sends none (not cyclic, not in CSP, not operation
     /// enabled, node lost).
     pub fn cyclic_plan(&self) -> Option<CyclicPlan> {
-        if self.cfg.position_mode != PositionMode::Cyclic
-            || self.image.mode != ModeOfOperation::CyclicSynchronousPosition.code()
-            || self.state() != Some(DriveState::OperationEnabled)
-            || self.node_lost.is_some()
-        {
+        if !self.cyclic_plan_active() {
             return None;
         }
         Some(CyclicPlan {
@@ -694,6 +740,7 @@ impl Cia402Axis {
                 self.demand
             },
             units: self.units(),
+            deadman: self.trajectory.as_ref().and(self.jog_deadline),
         })
     }
 
@@ -708,11 +755,36 @@ impl Cia402Axis {
         now: Duration,
         out: &mut Vec<Output>,
     ) {
-        self.apply_sample(sample);
+        self.apply_sample(sample, now);
         self.advance(now, out);
     }
 
-    fn apply_sample(&mut self, s: &CyclicSample) {
+    /// Whether this axis sends set-points with every SYNC now.
+    fn cyclic_plan_active(&self) -> bool {
+        self.cfg.position_mode == PositionMode::Cyclic
+            && self.image.mode == ModeOfOperation::CyclicSynchronousPosition.code()
+            && self.state() == Some(DriveState::OperationEnabled)
+            && self.node_lost.is_none()
+    }
+
+    fn apply_sample(&mut self, s: &CyclicSample, now: Duration) {
+        if s.deadman_stop {
+            // The jog's dead-man stopped it at this SYNC: the same stop
+            // ramp as the sampler's, from the same state.
+            self.jog_deadline = None;
+            let decel = self
+                .trajectory
+                .as_ref()
+                .map_or(self.cfg.default_acceleration, Trajectory::deceleration);
+            self.trajectory = Trajectory::stop_ramp(s.demand, s.velocity, decel, Some(s.at));
+            if let Some(op) = &mut self.op
+                && op.kind == CommandKind::Jog
+            {
+                op.step = Step::Stopping;
+                let t = self.trajectory.as_ref().map_or(0.0, Trajectory::duration);
+                op.deadline = Some(now + Duration::from_secs_f64(t) + self.cfg.settle_timeout);
+            }
+        }
         if let Some(traj) = &mut self.trajectory {
             if traj.start.is_none() {
                 traj.start = s.start;
@@ -738,7 +810,20 @@ impl Cia402Axis {
             Step::Switch(d) => d.next_deadline(),
             _ => o.deadline,
         });
-        [op, self.jog_deadline].into_iter().flatten().min()
+        [op, self.jog_deadman_due()].into_iter().flatten().min()
+    }
+
+    /// When the axis stops a jog itself: at the dead-man deadline, except
+    /// for a cyclic jog whose set-points are being sampled, which the first
+    /// SYNC past the deadline stops (its plan carries the deadline); the
+    /// axis steps in only if none came within [`DEADMAN_GRACE`].
+    fn jog_deadman_due(&self) -> Option<Duration> {
+        let d = self.jog_deadline?;
+        if self.trajectory.is_some() && self.cyclic_plan_active() {
+            Some(d + DEADMAN_GRACE)
+        } else {
+            Some(d)
+        }
     }
 
     // ------------------------------------------------------------- commands
@@ -1173,20 +1258,9 @@ impl Cia402Axis {
                 let decel = self
                     .trajectory
                     .as_ref()
-                    .map(|t| t.profile.limits().deceleration() * t.ratio * t.ratio)
-                    .unwrap_or(self.cfg.default_acceleration)
-                    .max(f64::MIN_POSITIVE);
-                let v = self.demand_velocity;
-                let stop_at = self.demand + v * v.abs() / (2.0 * decel);
-                let limits = Limits::symmetric(v.abs().max(1e-9), decel);
-                self.trajectory = limits
-                    .ok()
-                    .and_then(|l| TrapezoidProfile::new(self.demand, v, stop_at, l).ok())
-                    .map(|profile| Trajectory {
-                        profile,
-                        ratio: 1.0,
-                        start: self.demand_at,
-                    });
+                    .map_or(self.cfg.default_acceleration, Trajectory::deceleration);
+                self.trajectory =
+                    Trajectory::stop_ramp(self.demand, self.demand_velocity, decel, self.demand_at);
                 let t = self.trajectory.as_ref().map_or(0.0, Trajectory::duration);
                 op.deadline = Some(now + Duration::from_secs_f64(t) + self.cfg.settle_timeout);
             }
@@ -1220,7 +1294,7 @@ impl Cia402Axis {
     /// Moves the command in progress forward.
     fn advance(&mut self, now: Duration, out: &mut Vec<Output>) {
         // The dead-man of a jog.
-        if let Some(d) = self.jog_deadline
+        if let Some(d) = self.jog_deadman_due()
             && now >= d
         {
             self.jog_deadline = None;

@@ -7,6 +7,10 @@
 //! and sends the frame; periods it cannot make in time are counted by the
 //! producer and logged, never silently lost. No busy waiting: the thread
 //! costs nothing between SYNCs.
+//!
+//! Each SYNC's batch also carries what the [`SyncRider`]s add: the cyclic
+//! set-points of CSP axes, sampled here at the SYNC's time
+//! ([`crate::axes::cyclic_setpoints`]).
 
 use cangate_can::{BusHandle, Frame};
 use cangate_canopen::sync::SyncProducer;
@@ -72,6 +76,7 @@ pub fn spawn(
         let origin = Instant::now();
         producer.start(Duration::ZERO);
         let mut reported_skips = 0;
+        let mut frames_capacity = 1;
         let mut last_report = Instant::now();
         while !cancel.is_cancelled() {
             let Some(deadline) = producer.next_deadline() else {
@@ -81,7 +86,9 @@ pub fn spawn(
             // Wake at least every 100 ms to notice a shutdown.
             std::thread::sleep(wait.min(Duration::from_millis(100)));
             if let Some(frame) = producer.on_tick(origin.elapsed()) {
-                let mut frames = vec![frame];
+                // Room for the riders' set-points without a reallocation.
+                let mut frames = Vec::with_capacity(frames_capacity);
+                frames.push(frame);
                 let at = Instant::now();
                 riders.lock().expect("SYNC riders lock").retain(|r| {
                     let Some(r) = r.upgrade() else {
@@ -92,6 +99,7 @@ pub fn spawn(
                 });
                 // Without entering the runtime unless the bus task's queue
                 // is full (a virtual bus is sent to right here).
+                frames_capacity = frames_capacity.max(frames.len());
                 let sent = match bus.try_submit(frames) {
                     Ok(Some(frames)) => rt.block_on(bus.submit(frames)),
                     Ok(None) => Ok(()),

@@ -588,6 +588,72 @@ fn jog_runs_while_repeated_and_stops_at_the_dead_man() {
     }
 }
 
+/// The set-points of a cyclic jog are sampled where the SYNC is sent, so
+/// the dead-man must hold there too: with the axis's own thread stalled
+/// (no samples handed back, no ticks), the plan alone stops the jog at the
+/// first SYNC past the deadline, at the jog's deceleration; once the axis
+/// runs again its jog ends "stopped" where the drive stands.
+#[test]
+fn a_cyclic_jog_stops_at_its_dead_man_even_while_the_axis_is_stalled() {
+    let mut rig = Rig::new(PositionMode::Cyclic);
+    rig.split = Some((None, None));
+    rig.enable();
+    let op = rig
+        .command(AxisCommand::Jog {
+            velocity: 20.0,
+            acceleration: Some(1000.0),
+        })
+        .unwrap();
+    let jog_start = rig.now;
+    rig.run(200 * MS);
+    assert!(rig.done(op).is_none());
+    // The axis stalls: only the published plan is sampled from here on.
+    let (_, sampled) = rig.split.take().unwrap();
+    let mut plan = sampled.expect("a published plan");
+    let deadline = jog_start + Duration::from_millis(500);
+    let mut stops = Vec::new();
+    let mut last = None;
+    while rig.now < jog_start + Duration::from_secs(3) {
+        rig.now += MS;
+        let _ = rig.drive.on_tick(rig.now);
+        if rig
+            .now
+            .as_millis()
+            .is_multiple_of(rig.sync_period.as_millis())
+        {
+            let _ = rig.drive.on_frame(&frame(0x080, &[]), rig.now);
+            let sample = plan.sample(rig.now);
+            if sample.deadman_stop {
+                stops.push(rig.now);
+            }
+            let mut image = rig.axis.image();
+            image.target_position = sample.counts;
+            for (cob, data) in encode_image(&image, &rig.rpdos[1..]).unwrap() {
+                let _ = rig.drive.on_frame(&frame(cob, &data), rig.now);
+            }
+            last = Some(sample);
+        }
+    }
+    assert_eq!(stops.len(), 1, "{stops:?}");
+    assert!(stops[0] >= deadline && stops[0] < deadline + rig.sync_period);
+    // 20 mm/s for ~0.5 s, then 0.2 mm of ramp at 1000 mm/s²: not 3 s worth.
+    let p = rig.drive.position();
+    assert!(p > 9_000.0 && p < 11_500.0, "{p}");
+    assert!(rig.drive.velocity().abs() < 1.0);
+    // The axis runs again: it takes the latest sample and ends the jog.
+    let mut out = Vec::new();
+    rig.axis.on_cyclic_sample(&last.unwrap(), rig.now, &mut out);
+    rig.handle(out);
+    rig.split = Some((None, None));
+    let (outcome, detail) = rig.run_until_done(op, Duration::from_secs(3));
+    assert_eq!(outcome, Outcome::Stopped, "{detail}");
+    rig.run(100 * MS);
+    assert!(
+        (rig.drive.position() - p).abs() < 5.0,
+        "stays where it stopped"
+    );
+}
+
 #[test]
 fn quick_stop_leaves_operation_enabled_and_enable_recovers() {
     let mut rig = Rig::new(PositionMode::Profile);
