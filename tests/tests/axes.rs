@@ -128,6 +128,34 @@ fn move_req(axis: &str, target: f64, lease: &str, wait: bool) -> pb::MoveRequest
     }
 }
 
+/// A frame stream of `can0` with the gateway's own frames included,
+/// passing exactly the standard identifiers `ids`.
+async fn exact_ids_with_transmitted(
+    c: &mut cangate_client::Client,
+    ids: &[u32],
+) -> (
+    tonic::Streaming<pb::StreamFramesResponse>,
+    Vec<pb::StreamEvent>,
+) {
+    let filters = ids
+        .iter()
+        .map(|&id| pb::FrameFilter {
+            id,
+            mask: 0x7FF,
+            format: 0,
+            invert: false,
+        })
+        .collect();
+    open_stream(
+        c,
+        pb::StreamFramesRequest {
+            include_transmitted: true,
+            ..stream_request("can0", filters)
+        },
+    )
+    .await
+}
+
 async fn status_stream(axes: &mut Axes, names: &[&str]) -> tonic::Streaming<pb::AxisUpdate> {
     axes.stream_axis_state(pb::StreamAxisStateRequest {
         axes: names.iter().map(|s| s.to_string()).collect(),
@@ -431,20 +459,8 @@ async fn synchronised_quick_stop_goes_out_in_one_sync_period() {
         .unwrap();
     }
     tokio::time::sleep(Duration::from_millis(100)).await;
-    let filter = |id| pb::FrameFilter {
-        id,
-        mask: 0x7FF,
-        format: 0,
-        invert: false,
-    };
-    let (mut frames, mut pending) = open_stream(
-        &mut c,
-        pb::StreamFramesRequest {
-            include_transmitted: true,
-            ..stream_request("can0", vec![filter(0x080), filter(0x201), filter(0x202)])
-        },
-    )
-    .await;
+    let (mut frames, mut pending) =
+        exact_ids_with_transmitted(&mut c, &[0x080, 0x201, 0x202]).await;
     let r = axes
         .stop_axes(pb::StopAxesRequest {
             axes: vec!["X".into(), "Y".into()],
@@ -549,20 +565,8 @@ async fn cyclic_set_points_ride_every_sync_one_per_axis() {
     let lease = acquire(&mut axes, &["X", "Y"], 5000, "test").await;
     enable(&mut axes, "X", &lease).await;
     enable(&mut axes, "Y", &lease).await;
-    let filter = |id| pb::FrameFilter {
-        id,
-        mask: 0x7FF,
-        format: 0,
-        invert: false,
-    };
-    let (mut frames, mut pending) = open_stream(
-        &mut c,
-        pb::StreamFramesRequest {
-            include_transmitted: true,
-            ..stream_request("can0", vec![filter(0x080), filter(0x301), filter(0x302)])
-        },
-    )
-    .await;
+    let (mut frames, mut pending) =
+        exact_ids_with_transmitted(&mut c, &[0x080, 0x301, 0x302]).await;
     let r = axes
         .move_axes(pb::MoveAxesRequest {
             targets: vec![
