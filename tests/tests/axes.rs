@@ -156,6 +156,20 @@ async fn exact_ids_with_transmitted(
     .await
 }
 
+/// Coordinated-move targets at each axis's default velocity and
+/// acceleration.
+fn at_default_limits(targets: &[(&str, f64)]) -> Vec<pb::AxisTarget> {
+    targets
+        .iter()
+        .map(|&(axis, target)| pb::AxisTarget {
+            axis: axis.into(),
+            target,
+            velocity: 0.0,
+            acceleration: 0.0,
+        })
+        .collect()
+}
+
 async fn status_stream(axes: &mut Axes, names: &[&str]) -> tonic::Streaming<pb::AxisUpdate> {
     axes.stream_axis_state(pb::StreamAxisStateRequest {
         axes: names.iter().map(|s| s.to_string()).collect(),
@@ -508,20 +522,7 @@ async fn coordinated_move_arrives_together() {
     let t0 = std::time::Instant::now();
     let r = axes
         .move_axes(pb::MoveAxesRequest {
-            targets: vec![
-                pb::AxisTarget {
-                    axis: "X".into(),
-                    target: 30.0,
-                    velocity: 0.0,
-                    acceleration: 0.0,
-                },
-                pb::AxisTarget {
-                    axis: "Y".into(),
-                    target: -5.0,
-                    velocity: 0.0,
-                    acceleration: 0.0,
-                },
-            ],
+            targets: at_default_limits(&[("X", 30.0), ("Y", -5.0)]),
             lease: lease.clone(),
             wait: true,
         })
@@ -569,20 +570,7 @@ async fn cyclic_set_points_ride_every_sync_one_per_axis() {
         exact_ids_with_transmitted(&mut c, &[0x080, 0x301, 0x302]).await;
     let r = axes
         .move_axes(pb::MoveAxesRequest {
-            targets: vec![
-                pb::AxisTarget {
-                    axis: "X".into(),
-                    target: 20.0,
-                    velocity: 0.0,
-                    acceleration: 0.0,
-                },
-                pb::AxisTarget {
-                    axis: "Y".into(),
-                    target: -4.0,
-                    velocity: 0.0,
-                    acceleration: 0.0,
-                },
-            ],
+            targets: at_default_limits(&[("X", 20.0), ("Y", -4.0)]),
             lease,
             wait: true,
         })
