@@ -30,9 +30,10 @@
 //!   when the runtime hands it over a little after `t_k+1`: the arrival
 //!   time given to [`Master::on_frame`] (the bus timestamp) decides, not
 //!   the moment the runtime got to it. That is why cycle k is closed only
-//!   at `t_k+1 + T_int`. One that echoes an earlier cycle's counter and
-//!   arrived after that cycle ended is *late* (counted, not used); a
-//!   duplicate or an echo of a counter never sent is a *counter mismatch*.
+//!   at `t_k+1 + T_int`. One that answers an earlier, still unanswered MDT
+//!   of the last 16 cycles and arrived after that cycle ended is *late*
+//!   (counted, not used); a duplicate, or an echo of a counter that no
+//!   unanswered MDT carried, is a *counter mismatch*.
 //!   `lost_after` consecutive misses mark the slave lost
 //!   ([`MasterEvent::SlaveLost`]); a valid DT afterwards brings it back
 //!   ([`MasterEvent::SlaveRecovered`]).
@@ -266,6 +267,11 @@ pub struct SlaveStatus {
     /// `sent` and `answered` of the previous cycle, until it is evaluated.
     prev_sent: bool,
     prev_answered: bool,
+    /// Per counter value: the cycle whose MDT carried it and is not
+    /// answered yet. An echo of a counter is *late* only when it answers
+    /// such an MDT; any other echo (a duplicate, a counter never sent to
+    /// this slave, a corrupted one) is a counter mismatch.
+    unanswered: [Option<u64>; 16],
 }
 
 impl SlaveStatus {
@@ -502,6 +508,7 @@ impl Master {
                 sent: false,
                 prev_sent: false,
                 prev_answered: false,
+                unanswered: [None; 16],
             };
             if slaves.insert(a, status).is_some() {
                 return Err(ConfigError::DuplicateAddress(a));
@@ -593,6 +600,7 @@ impl Master {
             s.sent = false;
             s.prev_sent = false;
             s.prev_answered = false;
+            s.unanswered = [None; 16];
         }
         self.pending_close = false;
         self.set_phase(Phase::Connecting);
@@ -945,6 +953,7 @@ impl Master {
             }
             s.sent = true;
             s.counters.mdts += 1;
+            s.unanswered[usize::from(counter.get())] = Some(self.cycle);
             out.frames.push(
                 Telegram::Master {
                     to: s.spec.address,
@@ -1219,7 +1228,11 @@ impl Master {
         } else {
             None
         };
-        if valid.is_some() {
+        let echo = usize::from(status.counter_echo.get());
+        if let Some(answered) = valid {
+            if s.unanswered[echo] == Some(answered) {
+                s.unanswered[echo] = None;
+            }
             s.counters.dts += 1;
             s.consecutive_misses = 0;
             if s.state == SlaveState::Lost {
@@ -1229,16 +1242,16 @@ impl Master {
                 });
             }
         } else {
-            // An echo of a counter sent 1..=15 cycles ago answers an
-            // earlier cycle: late (after 16 cycles the counter wraps and it
-            // cannot be told apart). An echo of the current counter that is
-            // not expected (a duplicate, or no MDT sent) or of a counter
-            // never sent is a mismatch.
-            let age = current.get().wrapping_sub(status.counter_echo.get()) & 0x0F;
-            if age != 0 && u64::from(age) <= cycle {
-                s.counters.late += 1;
-            } else {
-                s.counters.counter_mismatch += 1;
+            // Late: the echo answers an MDT of an earlier cycle (within the
+            // counter's 16 cycles) that got no answer yet; that MDT counts
+            // as answered from now on, so a second copy is a mismatch.
+            // Anything else is not an answer to any MDT sent: a mismatch.
+            match s.unanswered[echo] {
+                Some(k) if k < cycle && cycle - k < 16 => {
+                    s.unanswered[echo] = None;
+                    s.counters.late += 1;
+                }
+                _ => s.counters.counter_mismatch += 1,
             }
         }
         valid

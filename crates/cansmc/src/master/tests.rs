@@ -467,3 +467,45 @@ fn a_dt_that_arrived_in_time_counts_even_when_processed_after_the_next_mst() {
         (1, 1, 1)
     );
 }
+
+/// Runs cycle `k` of a master from `cyclic` (MST at 300 µs + k × 2 ms,
+/// MDTs 100 µs later); every slave in `answering` answers in time.
+fn run_cycle(m: &mut Master, k: u64, answering: &[u8]) {
+    let start = 300 + k * 2000;
+    m.poll(us(start));
+    m.poll(us(start + 100));
+    for &a in answering {
+        m.on_frame(&dt(a, (k % 16) as u8, 0), us(start + 300));
+    }
+}
+
+#[test]
+fn a_wrong_counter_echo_is_a_mismatch_not_late_once_the_counter_wrapped() {
+    let mut m = cyclic(&[1, 2]);
+    m.poll(us(400));
+    m.on_frame(&dt(1, 0, 0), us(700));
+    m.on_frame(&dt(2, 0, 0), us(700));
+    for k in 1..40 {
+        run_cycle(&mut m, k, &[1, 2]);
+    }
+    // Cycle 40 (counter 8): slave 2 echoes counters it was sent and
+    // answered long ago, as a slave with a broken counter would: none of
+    // them answers an MDT, so every one is a mismatch, none is late.
+    run_cycle(&mut m, 40, &[1]);
+    for wrong in [3u8, 7, 13] {
+        m.on_frame(&dt(2, wrong, 0), us(300 + 40 * 2000 + 400));
+    }
+    let s2 = m.slave(addr(2)).unwrap().counters;
+    assert_eq!((s2.counter_mismatch, s2.late), (3, 0), "{s2:?}");
+    // A real late answer: cycle 41's DT is missed, its answer comes in
+    // cycle 42 — late once; the same echo again is a mismatch.
+    run_cycle(&mut m, 41, &[1]);
+    run_cycle(&mut m, 42, &[1, 2]);
+    m.on_frame(&dt(2, 41 % 16, 0), us(300 + 42 * 2000 + 500));
+    m.on_frame(&dt(2, 41 % 16, 0), us(300 + 42 * 2000 + 600));
+    run_cycle(&mut m, 43, &[1, 2]);
+    let s2 = m.slave(addr(2)).unwrap().counters;
+    assert_eq!((s2.counter_mismatch, s2.late), (4, 1), "{s2:?}");
+    // Every MDT is accounted for: answered in time or missed.
+    assert_eq!(s2.dts + s2.missed, s2.mdts, "{s2:?}");
+}
