@@ -11,8 +11,13 @@
 //!   is valid and the mode 0x2000 is 1 (manual), one feed frame per unit
 //!   goes out on that COB-ID at an even pace
 //!   ([`SimHandwheelOptions::frame_rate`]) and `S` moves one unit towards
-//!   zero. In any other mode (0 = automatic) the wheel keeps counting but
-//!   sends no feed frame;
+//!   zero. While the feed is closed (any other mode, 0 = automatic; not
+//!   operational; TPDO1 invalid) the wheel counts its turns
+//!   ([`SimHandwheelStats::turned_units`]) but queues nothing: those units
+//!   are discarded ([`SimHandwheelStats::discarded_units`]), and units still
+//!   queued when the feed closes are discarded too. A wheel never replays
+//!   a turn made while it could not send: switching to manual mode later
+//!   must not move an axis by turns made in automatic mode;
 //! - the feed byte is axis (bits 0–2, [`SimHandwheel::set_axis`]),
 //!   direction (bit 3) and the sequence counter in the configured
 //!   [`CounterLayout`], +1 per feed frame; it is also stored in 0x2001, and
@@ -140,13 +145,24 @@ impl Default for SimHandwheelOptions {
     }
 }
 
-/// Counters of a [`SimHandwheel`].
+/// Counters of a [`SimHandwheel`]. They always add up:
+/// `turned_units = frames + discarded_units + cancelled_units +
+/// |pending_units|` ([`SimHandwheel::pending_units`]).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct SimHandwheelStats {
-    /// Feed frames produced (delivered + dropped).
+    /// Feed frames produced (delivered + dropped), one per unit.
     pub frames: u64,
     /// Feed frames dropped by the [`FrameLoss`].
     pub dropped: u64,
+    /// Units turned (`|detents| × multiplier` summed over every turn).
+    pub turned_units: u64,
+    /// Units discarded because the feed was closed (automatic mode, not
+    /// operational, TPDO1 invalid) when they were turned or while they
+    /// were still queued.
+    pub discarded_units: u64,
+    /// Queued units cancelled by a turn in the other direction (the
+    /// accumulator is a signed sum).
+    pub cancelled_units: u64,
 }
 
 /// A simulated CNC handwheel. See the [module documentation](self).
@@ -260,13 +276,26 @@ impl SimHandwheel {
     }
 
     /// Turns the wheel by `detents` (positive: A leads B): `S +=
-    /// detents * multiplier`.
-    pub fn turn(&mut self, detents: i32) {
+    /// detents * multiplier` while the feed is open; otherwise the units
+    /// are counted and discarded (see the [module documentation](self)).
+    /// Returns the units queued by this turn (0 when discarded).
+    pub fn turn(&mut self, detents: i32) -> i64 {
+        let units = i64::from(detents) * i64::from(self.multiplier.factor());
+        self.stats.turned_units += units.unsigned_abs();
+        if !self.feed_open() {
+            self.stats.discarded_units += units.unsigned_abs();
+            return 0;
+        }
         if self.accumulator == 0 {
             // Idle: the first frame may go out at once.
             self.next_slot = self.next_slot.max(self.now);
         }
-        self.accumulator += i64::from(detents) * i64::from(self.multiplier.factor());
+        if self.accumulator.signum() * units.signum() < 0 {
+            self.stats.cancelled_units +=
+                2 * self.accumulator.unsigned_abs().min(units.unsigned_abs());
+        }
+        self.accumulator += units;
+        units
     }
 
     /// Sets the axis switch.
@@ -306,11 +335,16 @@ impl SimHandwheel {
         }
     }
 
-    fn can_send(&self) -> bool {
-        self.accumulator != 0
-            && self.node.nmt_state() == NmtState::Operational
+    /// Whether feed frames may go out now: operational, manual mode and
+    /// a valid TPDO1 COB-ID.
+    pub fn feed_open(&self) -> bool {
+        self.node.nmt_state() == NmtState::Operational
             && self.is_manual()
             && self.feed_cob_id().is_some()
+    }
+
+    fn can_send(&self) -> bool {
+        self.accumulator != 0 && self.feed_open()
     }
 
     fn next_random(&mut self) -> f64 {
@@ -371,6 +405,12 @@ impl SimHandwheel {
             }
             let id = CanId::standard(u32::from(cob)).expect("11-bit COB-ID");
             out.push(Frame::new(id, &[byte]).expect("1-byte frame"));
+        }
+        if !self.feed_open() && self.accumulator != 0 {
+            // Queued units are stale once the feed closes: sending them when
+            // it reopens would move an axis nobody is turning.
+            self.stats.discarded_units += self.accumulator.unsigned_abs();
+            self.accumulator = 0;
         }
         if !self.can_send() {
             // Idle or blocked: the next frame may go as soon as allowed.
@@ -527,20 +567,48 @@ mod tests {
     }
 
     #[test]
-    fn automatic_mode_sends_no_feed() {
+    fn automatic_mode_sends_no_feed_and_replays_nothing() {
         let mut w = wheel(CounterLayout::Nibble, MODE_AUTOMATIC);
-        w.turn(7);
+        assert_eq!(w.turn(7), 0, "nothing queued in automatic mode");
         assert!(run(&mut w, Duration::from_secs(3)).is_empty());
-        assert_eq!(w.pending_units(), 7, "keeps counting");
+        assert_eq!(w.pending_units(), 0);
+        assert_eq!(w.stats().turned_units, 7, "keeps counting its turns");
+        assert_eq!(w.stats().discarded_units, 7);
         assert_eq!(w.stats().frames, 0);
-        // Switching to manual drains the accumulator.
+        // Switching to manual sends nothing of what was turned before.
         let sdo = [0x2F, 0x00, 0x20, 0x00, MODE_MANUAL, 0, 0, 0];
         let out = w.on_frame(
             &frame(0x600 + u32::from(NODE), &sdo),
             Duration::from_secs(3),
         );
-        let at_once = out.iter().filter(|f| f.raw_id() == 0x183).count();
-        assert_eq!(at_once + run(&mut w, Duration::from_secs(4)).len(), 7);
+        assert!(out.iter().all(|f| f.raw_id() != 0x183), "{out:?}");
+        assert!(run(&mut w, Duration::from_secs(4)).is_empty());
+        // A turn in manual mode is sent.
+        w.turn(2);
+        assert_eq!(run(&mut w, Duration::from_secs(5)).len(), 2);
+    }
+
+    #[test]
+    fn units_queued_when_the_feed_closes_are_discarded() {
+        let mut w = wheel(CounterLayout::Nibble, MODE_MANUAL);
+        w.set_multiplier(Multiplier::X100);
+        w.turn(10);
+        // 1000 units at 15 000/s: some went out in the first 10 ms.
+        let sent = run(&mut w, Duration::from_millis(10)).len() as u64;
+        assert!(sent > 0 && sent < 1000, "{sent}");
+        let sdo = [0x2F, 0x00, 0x20, 0x00, MODE_AUTOMATIC, 0, 0, 0];
+        w.on_frame(
+            &frame(0x600 + u32::from(NODE), &sdo),
+            Duration::from_millis(10),
+        );
+        assert_eq!(w.pending_units(), 0);
+        assert_eq!(w.stats().discarded_units, 1000 - w.stats().frames);
+        let sdo = [0x2F, 0x00, 0x20, 0x00, MODE_MANUAL, 0, 0, 0];
+        w.on_frame(
+            &frame(0x600 + u32::from(NODE), &sdo),
+            Duration::from_millis(20),
+        );
+        assert!(run(&mut w, Duration::from_secs(2)).is_empty(), "no replay");
     }
 
     #[test]
@@ -552,16 +620,77 @@ mod tests {
             .unwrap();
         w.turn(3);
         assert!(run(&mut w, Duration::from_secs(1)).is_empty());
-        // Entering operational: the node's own TPDO1 (stale 0x2001) is suppressed.
+        assert_eq!(w.stats().discarded_units, 3, "turned before operational");
+        // Entering operational: the node's own TPDO1 (stale 0x2001) is
+        // suppressed, and the turn made before is not replayed.
         let out = w.on_frame(&frame(0, &[0x01, NODE]), Duration::from_secs(1));
-        let feed: Vec<_> = out.iter().filter(|f| f.raw_id() == 0x183).collect();
-        assert_eq!(feed.len(), 1);
-        assert_eq!(feed[0].data(), [0x08]);
-        assert_eq!(
-            run(&mut w, Duration::from_secs(3)).len(),
-            2,
-            "no event-timer resends"
-        );
+        assert!(out.iter().all(|f| f.raw_id() != 0x183), "{out:?}");
+        w.turn(3);
+        let got = run(&mut w, Duration::from_secs(3));
+        assert_eq!(got.len(), 3, "no event-timer resends");
+        assert_eq!(got[0].1.data(), [0x08]);
+    }
+
+    /// The counters add up after any sequence of turns, mode changes, NMT
+    /// commands and ticks (random sequences, fixed seeds).
+    #[test]
+    fn counters_add_up_under_random_sequences() {
+        for seed in 1..=200u64 {
+            let mut rng = seed;
+            let mut next = move |n: u64| {
+                rng ^= rng << 13;
+                rng ^= rng >> 7;
+                rng ^= rng << 17;
+                rng % n
+            };
+            let mut w = wheel(CounterLayout::Nibble, MODE_MANUAL);
+            let mut now = Duration::ZERO;
+            let mut log = Vec::new();
+            for _ in 0..60 {
+                let step = next(8);
+                log.push(step);
+                match step {
+                    0..=2 => {
+                        w.set_multiplier(
+                            [Multiplier::X1, Multiplier::X10, Multiplier::X100][next(3) as usize],
+                        );
+                        w.turn(next(41) as i32 - 20);
+                    }
+                    3 => {
+                        let mode = next(2) as u8;
+                        let sdo = [0x2F, 0x00, 0x20, 0x00, mode, 0, 0, 0];
+                        w.on_frame(&frame(0x600 + u32::from(NODE), &sdo), now);
+                    }
+                    4 => {
+                        let cs = [0x01, 0x02, 0x80, 0x81][next(4) as usize];
+                        w.on_frame(&frame(0, &[cs, NODE]), now);
+                    }
+                    5 => w.set_frame_loss(FrameLoss::Random {
+                        probability: 0.3,
+                        max_consecutive: 14,
+                        seed: next(1000),
+                    }),
+                    _ => {
+                        now += Duration::from_micros(next(20_000));
+                        run(&mut w, now);
+                    }
+                }
+                let s = w.stats();
+                assert_eq!(
+                    s.turned_units,
+                    s.frames
+                        + s.discarded_units
+                        + s.cancelled_units
+                        + w.pending_units().unsigned_abs(),
+                    "seed {seed}, steps {log:?}: {s:?}, pending {}",
+                    w.pending_units()
+                );
+                assert!(s.dropped <= s.frames);
+                if !w.feed_open() {
+                    assert_eq!(w.pending_units(), 0, "seed {seed}, steps {log:?}");
+                }
+            }
+        }
     }
 
     fn decode_all(d: &mut FeedDecoder, frames: &[(Duration, Frame)]) -> (i64, u64) {
