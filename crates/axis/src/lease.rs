@@ -4,6 +4,11 @@
 //! lapses `ttl` after its latest renewal. The table is pure: time comes in
 //! as an argument and [`LeaseTable::expire`] returns what lapsed, so the
 //! runtime decides what to stop.
+//!
+//! With authentication on, a lease is bound to the identity that acquired
+//! it ([`LeaseTable::bind_owner`]): the token alone is not the control,
+//! so a token seen by another identity (a shared screen, a log) does not
+//! let that identity command the axes ([`LeaseTable::check_owner`]).
 
 use std::collections::BTreeMap;
 use std::time::Duration;
@@ -49,6 +54,17 @@ pub enum LeaseError {
         /// The axis.
         axis: String,
     },
+    /// The lease was acquired by another identity.
+    #[error(
+        "the lease belongs to {owner}, not to {caller}: a lease is bound to the identity that \
+         acquired it"
+    )]
+    OtherIdentity {
+        /// The identity the lease is bound to.
+        owner: String,
+        /// The identity that presented it.
+        caller: String,
+    },
 }
 
 /// All leases of a gateway.
@@ -57,6 +73,9 @@ pub struct LeaseTable {
     leases: BTreeMap<String, Lease>,
     /// axis → token of the lease holding it.
     holders: BTreeMap<String, String>,
+    /// token → the identity the lease is bound to (leases of callers
+    /// without an identity are not bound).
+    owners: BTreeMap<String, String>,
 }
 
 impl LeaseTable {
@@ -110,12 +129,48 @@ impl LeaseTable {
         Ok(lease.clone())
     }
 
+    /// Binds a lease to the identity that acquired it; from then on only
+    /// that identity passes [`LeaseTable::check_owner`].
+    ///
+    /// # Errors
+    /// [`LeaseError::Unknown`].
+    pub fn bind_owner(&mut self, token: &str, owner: String) -> Result<(), LeaseError> {
+        if !self.leases.contains_key(token) {
+            return Err(LeaseError::Unknown);
+        }
+        self.owners.insert(token.to_string(), owner);
+        Ok(())
+    }
+
+    /// The identity a lease is bound to, if any.
+    pub fn owner_of(&self, token: &str) -> Option<&str> {
+        self.owners.get(token).map(String::as_str)
+    }
+
+    /// Checks that `caller` may present `token`: the lease is unbound, or
+    /// bound to `caller`. An unknown token passes here (the lease check
+    /// itself says it is unknown).
+    ///
+    /// # Errors
+    /// [`LeaseError::OtherIdentity`].
+    pub fn check_owner(&self, token: &str, caller: Option<&str>) -> Result<(), LeaseError> {
+        match (self.owners.get(token), caller) {
+            (Some(owner), Some(c)) if owner == c => Ok(()),
+            (Some(owner), c) => Err(LeaseError::OtherIdentity {
+                owner: owner.clone(),
+                caller: c.unwrap_or("an unauthenticated caller").to_string(),
+            }),
+            (None, _) => Ok(()),
+        }
+    }
+
     /// Ends a lease.
     ///
     /// # Errors
     /// [`LeaseError::Unknown`].
     pub fn release(&mut self, token: &str) -> Result<Lease, LeaseError> {
         let lease = self.leases.remove(token).ok_or(LeaseError::Unknown)?;
+        self.owners.remove(token);
         for axis in &lease.axes {
             self.holders.remove(axis);
         }
@@ -304,6 +359,49 @@ mod tests {
         assert_eq!(t.next_expiry(), Some(160 * MS));
         assert_eq!(t.expire(160 * MS)[0].token, "a");
         assert_eq!(t.renew("a", 200 * MS), Err(LeaseError::Unknown));
+    }
+
+    #[test]
+    fn a_bound_lease_serves_only_its_identity() {
+        let mut t = LeaseTable::new();
+        t.acquire(
+            "a".into(),
+            "panel (operator-1@10.0.0.5:1)".into(),
+            axes(&["X"]),
+            100 * MS,
+            Duration::ZERO,
+        )
+        .unwrap();
+        // Unbound: anyone holding the token passes.
+        assert_eq!(t.check_owner("a", Some("token engineer-1")), Ok(()));
+        t.bind_owner("a", "token operator-1".into()).unwrap();
+        assert_eq!(t.owner_of("a"), Some("token operator-1"));
+        assert_eq!(t.check_owner("a", Some("token operator-1")), Ok(()));
+        let e = t.check_owner("a", Some("token engineer-1")).unwrap_err();
+        assert_eq!(
+            e,
+            LeaseError::OtherIdentity {
+                owner: "token operator-1".into(),
+                caller: "token engineer-1".into()
+            }
+        );
+        assert!(e.to_string().contains("bound to the identity"), "{e}");
+        assert!(t.check_owner("a", None).is_err());
+        assert_eq!(t.bind_owner("zz", "x".into()), Err(LeaseError::Unknown));
+        // A released (or lapsed) lease forgets its owner.
+        t.release("a").unwrap();
+        assert_eq!(t.owner_of("a"), None);
+        t.acquire(
+            "b".into(),
+            "h".into(),
+            axes(&["X"]),
+            100 * MS,
+            Duration::ZERO,
+        )
+        .unwrap();
+        t.bind_owner("b", "o".into()).unwrap();
+        t.expire(100 * MS);
+        assert_eq!(t.owner_of("b"), None);
     }
 
     #[test]
