@@ -5,6 +5,16 @@
 //!
 //! The runner feeds it every received frame and ticks it at
 //! [`Master::next_deadline`]; it answers with frames to send and events.
+//!
+//! Each node's SDO channel has two queues: the gateway's own transfers
+//! (boot procedure, process data by SDO) go before those of API clients.
+//! A client transfer that is running when a gateway transfer arrives is
+//! not interrupted while the node answers, but from then on it waits at
+//! most the master's default SDO timeout for each answer: a client cannot
+//! hold a silent node's channel with a long timeout while the gateway
+//! needs it. After a transfer the client side aborted (timeout, protocol
+//! violation, cancel), the channel stays quiet for the SDO client's settle
+//! time (see [`SdoClient::ready_at`]) before the next transfer starts.
 
 use crate::emcy::{EmcyConsumer, EmcyEvent};
 use crate::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
@@ -17,6 +27,16 @@ use std::time::Duration;
 
 /// Identifies one SDO request of the application.
 pub type RequestId = u64;
+
+/// Whose SDO transfer it is, which decides its place in the node's queue.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum SdoPriority {
+    /// The gateway's own work (boot procedure, axis process data by SDO,
+    /// device profiles): served first.
+    Gateway,
+    /// An API client's request: served when no gateway transfer waits.
+    Client,
+}
 
 /// An SDO transfer the application asks for.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -62,6 +82,12 @@ pub enum MasterEvent {
         /// Why.
         error: StartError,
     },
+    /// A response from the node was dropped: a late answer to a transfer
+    /// the master had aborted, or one that came while no transfer ran.
+    SdoResponseIgnored {
+        /// The node.
+        node: NodeId,
+    },
 }
 
 /// Frames to send and events, produced by one input.
@@ -76,8 +102,16 @@ pub struct Output {
 #[derive(Debug)]
 struct NodeSdo {
     client: SdoClient,
-    running: Option<RequestId>,
-    queue: VecDeque<(RequestId, SdoRequest)>,
+    running: Option<(RequestId, SdoPriority)>,
+    /// Waiting requests, the gateway's first.
+    gateway_queue: VecDeque<(RequestId, SdoRequest)>,
+    client_queue: VecDeque<(RequestId, SdoRequest)>,
+}
+
+impl NodeSdo {
+    fn queued(&self) -> bool {
+        !self.gateway_queue.is_empty() || !self.client_queue.is_empty()
+    }
 }
 
 /// The master of one bus.
@@ -128,11 +162,13 @@ impl Master {
         self.sdo.entry(node).or_insert_with(|| NodeSdo {
             client: SdoClient::new(node).with_default_timeout(timeout),
             running: None,
-            queue: VecDeque::new(),
+            gateway_queue: VecDeque::new(),
+            client_queue: VecDeque::new(),
         })
     }
 
-    /// Queues an SDO request; it starts at once if the node's channel is idle.
+    /// Queues an SDO request of the gateway's own ([`SdoPriority::Gateway`]);
+    /// it starts at once if the node's channel is idle (and settled).
     pub fn sdo(
         &mut self,
         id: RequestId,
@@ -141,14 +177,51 @@ impl Master {
         now: Duration,
         out: &mut Output,
     ) {
+        self.sdo_as(id, node, SdoPriority::Gateway, req, now, out);
+    }
+
+    /// Queues an SDO request with `priority`; it starts at once if the
+    /// node's channel is idle (and settled).
+    pub fn sdo_as(
+        &mut self,
+        id: RequestId,
+        node: NodeId,
+        priority: SdoPriority,
+        req: SdoRequest,
+        now: Duration,
+        out: &mut Output,
+    ) {
+        let patience = self.sdo_timeout;
         let n = self.node_sdo(node);
-        n.queue.push_back((id, req));
+        match priority {
+            SdoPriority::Gateway => {
+                n.gateway_queue.push_back((id, req));
+                if matches!(n.running, Some((_, SdoPriority::Client))) {
+                    n.client.limit_timeout(patience);
+                }
+            }
+            SdoPriority::Client => n.client_queue.push_back((id, req)),
+        }
         Self::start_next(n, now, out);
     }
 
+    /// Requests waiting (not running) for `node`'s SDO channel.
+    pub fn queued(&self, node: NodeId) -> usize {
+        self.sdo
+            .get(&node)
+            .map_or(0, |n| n.gateway_queue.len() + n.client_queue.len())
+    }
+
     fn start_next(n: &mut NodeSdo, now: Duration, out: &mut Output) {
+        if n.client.ready_at().is_some_and(|at| now < at) {
+            return;
+        }
         while n.running.is_none() {
-            let Some((id, req)) = n.queue.pop_front() else {
+            let (id, req, priority) = if let Some((id, req)) = n.gateway_queue.pop_front() {
+                (id, req, SdoPriority::Gateway)
+            } else if let Some((id, req)) = n.client_queue.pop_front() {
+                (id, req, SdoPriority::Client)
+            } else {
                 return;
             };
             let started = match req {
@@ -159,7 +232,7 @@ impl Master {
             };
             match started {
                 Ok(frames) => {
-                    n.running = Some(id);
+                    n.running = Some((id, priority));
                     out.frames.extend(frames);
                 }
                 Err(error) => out.events.push(MasterEvent::SdoRejected { id, error }),
@@ -171,9 +244,10 @@ impl Master {
     /// error) if running. The caller stops waiting for it.
     pub fn cancel(&mut self, id: RequestId, now: Duration, out: &mut Output) {
         for n in self.sdo.values_mut() {
-            n.queue.retain(|(q, _)| *q != id);
-            if n.running == Some(id) {
-                let step = n.client.cancel(crate::sdo::AbortCode::GENERAL_ERROR);
+            n.gateway_queue.retain(|(q, _)| *q != id);
+            n.client_queue.retain(|(q, _)| *q != id);
+            if n.running.is_some_and(|(r, _)| r == id) {
+                let step = n.client.cancel(crate::sdo::AbortCode::GENERAL_ERROR, now);
                 out.frames.extend(step.frames);
                 n.running = None;
                 Self::start_next(n, now, out);
@@ -185,7 +259,7 @@ impl Master {
     pub fn progress(&self, id: RequestId) -> Option<Progress> {
         self.sdo
             .values()
-            .find(|n| n.running == Some(id))
+            .find(|n| n.running.is_some_and(|(r, _)| r == id))
             .and_then(|n| n.client.progress())
     }
 
@@ -205,7 +279,11 @@ impl Master {
         match CobFunction::classify(frame.raw_id() as u16) {
             CobFunction::SdoTx(node) => {
                 if let Some(n) = self.sdo.get_mut(&node) {
+                    let ignored = n.client.ignored_responses();
                     let step = n.client.on_frame(frame, now);
+                    if n.client.ignored_responses() != ignored {
+                        out.events.push(MasterEvent::SdoResponseIgnored { node });
+                    }
                     Self::finish_step(node, n, step, now, out);
                 }
             }
@@ -235,7 +313,7 @@ impl Master {
     ) {
         out.frames.extend(step.frames);
         if let Some(result) = step.completed {
-            if let Some(id) = n.running.take() {
+            if let Some((id, _)) = n.running.take() {
                 out.events
                     .push(MasterEvent::SdoCompleted { id, node, result });
             }
@@ -246,9 +324,13 @@ impl Master {
     /// Advances time: SDO timeouts, heartbeat losses, SYNC.
     pub fn on_tick(&mut self, now: Duration, out: &mut Output) {
         for (&node, n) in self.sdo.iter_mut() {
-            if n.client.next_deadline().is_some_and(|d| d <= now) {
+            let settled = n.client.ready_at().is_some_and(|at| at <= now);
+            if settled || n.client.next_deadline().is_some_and(|d| d <= now) {
                 let step = n.client.on_tick(now);
                 Self::finish_step(node, n, step, now, out);
+            }
+            if settled && n.running.is_none() {
+                Self::start_next(n, now, out);
             }
         }
         out.events.extend(
@@ -268,7 +350,12 @@ impl Master {
     pub fn next_deadline(&self) -> Option<Duration> {
         self.sdo
             .values()
-            .filter_map(|n| n.client.next_deadline())
+            .filter_map(|n| {
+                // A settling channel with work waiting must be ticked when
+                // it is quiet again.
+                let settle = n.client.ready_at().filter(|_| n.queued());
+                n.client.next_deadline().into_iter().chain(settle).min()
+            })
             .chain(self.heartbeat.next_deadline())
             .chain(self.sync.as_ref().and_then(|s| s.next_deadline()))
             .min()
@@ -300,9 +387,9 @@ mod tests {
         let mut m = Master::new(Duration::from_millis(500));
         let t = Duration::ZERO;
         let mut out = Output::default();
-        m.sdo(1, node(2), upload(0x1000), t, &mut out);
-        m.sdo(2, node(2), upload(0x1017), t, &mut out);
-        m.sdo(3, node(3), upload(0x1000), t, &mut out);
+        m.sdo_as(1, node(2), SdoPriority::Client, upload(0x1000), t, &mut out);
+        m.sdo_as(2, node(2), SdoPriority::Client, upload(0x1017), t, &mut out);
+        m.sdo_as(3, node(3), SdoPriority::Client, upload(0x1000), t, &mut out);
         // Node 2's second request waits; node 3's starts at once.
         let ids: Vec<u32> = out.frames.iter().map(|f| f.raw_id()).collect();
         assert_eq!(ids, vec![0x602, 0x603]);
@@ -331,7 +418,14 @@ mod tests {
     fn sdo_timeout_with_virtual_time() {
         let mut m = Master::new(Duration::from_millis(500));
         let mut out = Output::default();
-        m.sdo(7, node(9), upload(0x1000), Duration::ZERO, &mut out);
+        m.sdo_as(
+            7,
+            node(9),
+            SdoPriority::Client,
+            upload(0x1000),
+            Duration::ZERO,
+            &mut out,
+        );
         assert_eq!(m.next_deadline(), Some(Duration::from_millis(500)));
         let mut out = Output::default();
         m.on_tick(Duration::from_millis(499), &mut out);
@@ -356,12 +450,32 @@ mod tests {
     fn cancel_aborts_running_and_starts_next() {
         let mut m = Master::new(Duration::from_millis(500));
         let mut out = Output::default();
-        m.sdo(1, node(2), upload(0x1000), Duration::ZERO, &mut out);
-        m.sdo(2, node(2), upload(0x1017), Duration::ZERO, &mut out);
+        m.sdo_as(
+            1,
+            node(2),
+            SdoPriority::Client,
+            upload(0x1000),
+            Duration::ZERO,
+            &mut out,
+        );
+        m.sdo_as(
+            2,
+            node(2),
+            SdoPriority::Client,
+            upload(0x1017),
+            Duration::ZERO,
+            &mut out,
+        );
         let mut out = Output::default();
         m.cancel(1, Duration::ZERO, &mut out);
+        assert_eq!(out.frames.len(), 1);
         assert_eq!(out.frames[0].data()[0], 0x80);
-        assert_eq!(out.frames[1].data()[..4], [0x40, 0x17, 0x10, 0x00]);
+        // The next request waits for the channel to settle.
+        let settle = crate::sdo::DEFAULT_SETTLE_TIME;
+        assert_eq!(m.next_deadline(), Some(settle));
+        let mut out = Output::default();
+        m.on_tick(settle, &mut out);
+        assert_eq!(out.frames[0].data()[..4], [0x40, 0x17, 0x10, 0x00]);
     }
 
     #[test]

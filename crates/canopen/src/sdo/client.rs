@@ -13,6 +13,18 @@ use crate::ids::{NodeId, ObjectAddress, cob};
 /// Default time the client waits for each server frame.
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_millis(500);
 
+/// Default quiet time after the client aborted a transfer itself (timeout,
+/// protocol violation, cancel): the server may still answer frames it got
+/// before the abort, and those answers must not reach the next transfer.
+/// See [`SdoClient::ready_at`].
+pub const DEFAULT_SETTLE_TIME: Duration = Duration::from_millis(50);
+
+/// A settle period is extended by each frame that arrives during it (a
+/// server still sending a sub-block), but never beyond this many settle
+/// times after the abort, so that a chattering server cannot hold the
+/// channel.
+const MAX_SETTLE_FACTOR: u32 = 10;
+
 /// Abort codes that, in answer to a block initiate, make the client retry
 /// the same transfer without block mode (when [`BlockOptions::fallback`]):
 /// - 0x05040001 (command specifier not valid or unknown): what a server
@@ -243,6 +255,22 @@ pub struct SdoClient {
     node: NodeId,
     default_timeout: Duration,
     transfer: Option<Transfer>,
+    settle_time: Duration,
+    /// After a local abort: until when the channel should stay quiet, and
+    /// the latest it may be extended to.
+    settling: Option<Settling>,
+    /// A local abort happened and no response has since been recognised as
+    /// the answer to a new initiate: responses that do not answer the
+    /// running transfer's initiate are late answers to the aborted one.
+    unsettled: bool,
+    /// Responses dropped as stale or unsolicited.
+    ignored: u64,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Settling {
+    until: Duration,
+    cap: Duration,
 }
 
 #[derive(Debug)]
@@ -306,6 +334,10 @@ impl SdoClient {
             node,
             default_timeout: DEFAULT_TIMEOUT,
             transfer: None,
+            settle_time: DEFAULT_SETTLE_TIME,
+            settling: None,
+            unsettled: false,
+            ignored: 0,
         }
     }
 
@@ -313,6 +345,57 @@ impl SdoClient {
     pub fn with_default_timeout(mut self, timeout: Duration) -> Self {
         self.default_timeout = timeout;
         self
+    }
+
+    /// The same client with another settle time (see [`Self::ready_at`]);
+    /// zero turns the quiet period off (stale responses are then only
+    /// recognised by their shape).
+    pub fn with_settle_time(mut self, settle: Duration) -> Self {
+        self.settle_time = settle;
+        self
+    }
+
+    /// When a new transfer should start at the earliest: `Some` for a
+    /// while after the client aborted a transfer itself, so that late
+    /// answers of the server to the aborted transfer arrive while the
+    /// client is idle and are dropped. A transfer started earlier still
+    /// works, but then only responses whose shape cannot answer its
+    /// initiate (another command specifier or object) are recognised as
+    /// stale. `None` when the channel is quiet.
+    pub fn ready_at(&self) -> Option<Duration> {
+        self.settling.map(|s| s.until)
+    }
+
+    /// Responses dropped because they answered an aborted transfer, or
+    /// arrived while no transfer ran.
+    pub fn ignored_responses(&self) -> u64 {
+        self.ignored
+    }
+
+    /// Makes the running transfer wait at most `max` for each server frame
+    /// from now on, counting from the last frame exchanged (the owner of
+    /// the channel needs it for something more urgent). Nothing happens
+    /// when idle or when the transfer's timeout is already shorter.
+    pub fn limit_timeout(&mut self, max: Duration) {
+        if let Some(t) = self.transfer.as_mut()
+            && t.timeout > max
+        {
+            let since = t.deadline.saturating_sub(t.timeout);
+            t.timeout = max;
+            t.deadline = since + max;
+        }
+    }
+
+    /// The transfer ended with an abort the client sent: the server may
+    /// still answer what it received before the abort.
+    fn begin_settling(&mut self, now: Duration) {
+        self.unsettled = true;
+        if !self.settle_time.is_zero() {
+            self.settling = Some(Settling {
+                until: now + self.settle_time,
+                cap: now + self.settle_time * MAX_SETTLE_FACTOR,
+            });
+        }
     }
 
     /// The server node.
@@ -389,8 +472,23 @@ impl SdoClient {
             return Step::default();
         };
         let Some(mut t) = self.transfer.take() else {
+            self.ignored += 1;
+            if let Some(s) = self.settling.as_mut()
+                && now < s.until
+            {
+                s.until = (now + self.settle_time).min(s.cap).max(s.until);
+            }
             return Step::default();
         };
+        if self.unsettled {
+            if !t.answers_initiate(&p) {
+                // A late answer to the aborted transfer: not ours.
+                self.ignored += 1;
+                self.transfer = Some(t);
+                return Step::default();
+            }
+            self.unsettled = false;
+        }
         // Inside a block upload, 0x81..=0xFF are last segments: only 0x80
         // (sequence number 0, which segments never use) is an abort there.
         let in_segments =
@@ -426,6 +524,7 @@ impl SdoClient {
                     code,
                     detail,
                 };
+                self.begin_settling(now);
                 self.step(vec![abort_payload(t.addr, code)], Some(Err(error)))
             }
         }
@@ -433,6 +532,9 @@ impl SdoClient {
 
     /// Checks the timeout; call at [`Self::next_deadline`] (or any time).
     pub fn on_tick(&mut self, now: Duration) -> Step {
+        if self.settling.is_some_and(|s| now >= s.until) {
+            self.settling = None;
+        }
         match self.transfer.take() {
             Some(t) if now >= t.deadline => {
                 let error = SdoError::Timeout {
@@ -440,6 +542,7 @@ impl SdoClient {
                     timeout: t.timeout,
                 };
                 let abort = abort_payload(t.addr, AbortCode::TIMEOUT);
+                self.begin_settling(now);
                 self.step(vec![abort], Some(Err(error)))
             }
             t => {
@@ -456,9 +559,10 @@ impl SdoClient {
 
     /// Cancels the running transfer, sending an abort with `code`
     /// (e.g. 0x08000000 general error). Does nothing when idle.
-    pub fn cancel(&mut self, code: AbortCode) -> Step {
+    pub fn cancel(&mut self, code: AbortCode, now: Duration) -> Step {
         match self.transfer.take() {
             Some(t) => {
+                self.begin_settling(now);
                 let error = SdoError::Cancelled { addr: t.addr, code };
                 self.step(vec![abort_payload(t.addr, code)], Some(Err(error)))
             }
@@ -546,6 +650,7 @@ impl SdoClient {
         now: Duration,
     ) -> Vec<Frame> {
         let timeout = opts.timeout.unwrap_or(self.default_timeout);
+        self.settling = None;
         self.transfer = Some(Transfer {
             addr,
             opts,
@@ -651,6 +756,39 @@ fn check_toggle(command: u8, toggle: bool) -> Result<(), Violation> {
 }
 
 impl Transfer {
+    /// Whether `p` can be the server's answer to this transfer's initiate:
+    /// the right command specifier naming our object, or an abort naming
+    /// it. Past the initiate phases everything is taken (the server has
+    /// answered this transfer, and answers in order).
+    fn answers_initiate(&self, p: &[u8; 8]) -> bool {
+        let command = p[0];
+        let names_us = address_of(p) == self.addr;
+        let cs = command & CS_MASK;
+        let initiating = matches!(
+            self.phase,
+            Phase::UploadInitiate
+                | Phase::DownloadInitiate { .. }
+                | Phase::BlockDownloadInitiate { .. }
+                | Phase::BlockUploadInitiate { .. }
+        );
+        if initiating && cs == CS_ABORT {
+            return names_us;
+        }
+        match &self.phase {
+            Phase::UploadInitiate => cs == SCS_INITIATE_UPLOAD && names_us,
+            Phase::DownloadInitiate { .. } => cs == SCS_INITIATE_DOWNLOAD && names_us,
+            Phase::BlockDownloadInitiate { .. } => {
+                cs == SCS_BLOCK_DOWNLOAD && command & 0x03 == BLOCK_INITIATE && names_us
+            }
+            Phase::BlockUploadInitiate { .. } => {
+                ((cs == SCS_BLOCK_UPLOAD && command & 0x01 == BLOCK_INITIATE)
+                    || cs == SCS_INITIATE_UPLOAD)
+                    && names_us
+            }
+            _ => true,
+        }
+    }
+
     /// The server's reply must name our object; a mismatch means it is
     /// answering something else. No CiA 301 code fits exactly; 0x06040043
     /// (general parameter incompatibility) says "the parameters disagree".

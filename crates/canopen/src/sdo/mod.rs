@@ -37,8 +37,8 @@ mod tests;
 
 pub use abort::AbortCode;
 pub use client::{
-    BlockOptions, DEFAULT_TIMEOUT, Direction, FALLBACK_CODES, Mode, Progress, Protocol, SdoClient,
-    SdoError, StartError, Step, TransferOptions, TransferOutcome,
+    BlockOptions, DEFAULT_SETTLE_TIME, DEFAULT_TIMEOUT, Direction, FALLBACK_CODES, Mode, Progress,
+    Protocol, SdoClient, SdoError, StartError, Step, TransferOptions, TransferOutcome,
 };
 pub use crc::{crc16, crc16_update};
 pub use server::{ObjectStore, SdoServer, ServerOptions};

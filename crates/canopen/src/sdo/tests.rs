@@ -808,7 +808,10 @@ fn client_api_edges() {
         c.on_frame(&frame(0x582, &h("43 00 10 00 00 00 00 00")), MS),
         Step::default()
     );
-    assert_eq!(c.cancel(AbortCode::GENERAL_ERROR), Step::default());
+    assert_eq!(
+        c.cancel(AbortCode::GENERAL_ERROR, Duration::ZERO),
+        Step::default()
+    );
     let _ = c
         .start_upload(at(0x1008, 0), opts(), Duration::ZERO)
         .unwrap();
@@ -841,7 +844,7 @@ fn client_api_edges() {
         (progress.direction, progress.protocol),
         (Direction::Upload, Some(Protocol::Segmented))
     );
-    let step = c.cancel(AbortCode::GENERAL_ERROR);
+    let step = c.cancel(AbortCode::GENERAL_ERROR, Duration::ZERO);
     assert_eq!(step.frames[0].data(), h("80 08 10 00 00 00 00 08"));
     assert!(matches!(
         step.completed,
