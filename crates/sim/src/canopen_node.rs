@@ -10,6 +10,7 @@
 //! |---|---|
 //! | NMT | boot-up on [`SimNode::start`], then pre-operational; start/stop/pre-operational; reset node restores every default, reset communication restores 0x1000..=0x1FFF; both boot up again |
 //! | heartbeat | every 0x1017 ms in every state after boot-up; writes to 0x1017 restart the producer at once |
+//! | heartbeat consumer | every 0x1016 entry (node id in bits 16..=23, time in ms in bits 0..=15) monitors that node, starting with its first heartbeat; when none arrives within the time: [`SimEvent::HeartbeatLost`], EMCY 0x8130 (heartbeat error, error register generic + communication) and the 0x1029:01 communication error behaviour when the dictionary has it (0 pre-operational if operational, 2 stopped, else no change); without 0x1029 the device application reacts (a drive faults); [`SimEvent::HeartbeatRecovered`] on the next heartbeat; writes to 0x1016 and resets restart monitoring |
 //! | SDO | expedited, segmented and block (optional) on 0x600+n/0x580+n, in pre-operational and operational |
 //! | TPDO | operational only; parameters 0x1800+n and mapping 0x1A00+n read when needed; 0xFE/0xFF event-driven (sent on entering operational, on the event timer 0x180x:05, on [`SimNode::trigger_tpdo`] and optionally when a mapped value changes, respecting the inhibit time 0x180x:03), 1..=240 every n-th SYNC, 0 on the SYNC after an event, RTR answered when allowed |
 //! | RPDO | operational only; parameters 0x1400+n and mapping 0x1600+n; 0xFE/0xFF applied at once, 0..=240 at the next SYNC |
@@ -21,9 +22,10 @@ use std::time::Duration;
 
 use cangate_can::{CanId, Filter, Frame};
 use cangate_canopen::eds::Eds;
-use cangate_canopen::emcy::emcy_frame;
+use cangate_canopen::emcy::{ErrorRegister, emcy_frame};
+use cangate_canopen::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
 use cangate_canopen::ids::cob;
-use cangate_canopen::nmt::{NmtReset, NmtSlave, NmtSlaveEvent, NmtState};
+use cangate_canopen::nmt::{NmtCommand, NmtReset, NmtSlave, NmtSlaveEvent, NmtState};
 use cangate_canopen::od::ObjectDictionary;
 use cangate_canopen::sdo::{AbortCode, ObjectStore, SdoServer, ServerOptions};
 use cangate_canopen::value::Value;
@@ -41,6 +43,12 @@ const COB_ID_SYNC: u16 = 0x1005;
 const COB_ID_EMCY: u16 = 0x1014;
 /// Producer heartbeat time.
 const HEARTBEAT_TIME: ObjectAddress = ObjectAddress::new(0x1017, 0);
+/// Consumer heartbeat time (array).
+const CONSUMER_HEARTBEAT: u16 = 0x1016;
+/// Error behaviour, sub 1: communication error.
+const COMMUNICATION_ERROR_BEHAVIOUR: ObjectAddress = ObjectAddress::new(0x1029, 1);
+/// EMCY code of a heartbeat consumer timeout (CiA 301 "heartbeat error").
+pub const HEARTBEAT_ERROR_CODE: u16 = 0x8130;
 
 /// How a [`SimNode`] behaves beyond what its EDS says.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -131,6 +139,19 @@ pub enum SimEvent {
         /// The SYNC counter, if the frame carried one.
         counter: Option<u8>,
     },
+    /// A node monitored by 0x1016 sent no heartbeat within its consumer
+    /// time (reported once per loss; the node sent EMCY 0x8130).
+    HeartbeatLost {
+        /// The silent node.
+        node: NodeId,
+        /// Its consumer time.
+        timeout: Duration,
+    },
+    /// A lost node's heartbeat came back.
+    HeartbeatRecovered {
+        /// The node.
+        node: NodeId,
+    },
 }
 
 /// Transmission state of one TPDO.
@@ -186,6 +207,8 @@ pub struct SimNode {
     rpdos: BTreeMap<u16, Option<Vec<u8>>>,
     events: VecDeque<SimEvent>,
     dropped_events: u64,
+    /// Monitors the nodes of 0x1016.
+    consumer: HeartbeatConsumer,
     /// The latest time seen.
     now: Duration,
     /// Bumped by every dictionary write and reset, which may change
@@ -227,7 +250,9 @@ impl SimNode {
             .map(|n| (n, TpdoState::default()))
             .collect();
         let rpdos = present(RPDO_COMM).into_iter().map(|n| (n, None)).collect();
+        let consumer = consumer_from(&store);
         SimNode {
+            consumer,
             node,
             sdo: SdoServer::new(node, Self::server_options(&options)),
             nmt: NmtSlave::new(node, heartbeat_ms(&store, &options)),
@@ -346,8 +371,14 @@ impl SimNode {
             .tpdos
             .keys()
             .filter_map(|&n| pdo::comm(store, Dir::Tx, n));
+        let consumed = self
+            .consumer
+            .nodes()
+            .filter(|(_, st)| st.timeout.is_some())
+            .map(|(n, _)| cob::HEARTBEAT + u16::from(n.get()));
         let mut filters: Vec<Filter> = [cob::NMT, cob::SDO_RX + u16::from(self.node.get())]
             .into_iter()
+            .chain(consumed)
             .map(Filter::exact_standard)
             .chain(
                 std::iter::once(sync)
@@ -391,6 +422,17 @@ impl SimNode {
         if state == NmtState::Initialising {
             return out;
         }
+        if let Some(node) = heartbeat_sender(frame) {
+            if self
+                .consumer
+                .status(node)
+                .is_some_and(|s| s.timeout.is_some())
+            {
+                let events = self.consumer.on_frame(frame, now);
+                self.on_consumer_events(events, now, &mut out);
+            }
+            return out;
+        }
         if self.is_sync(frame) {
             self.on_sync(frame, now, &mut out);
             return out;
@@ -416,6 +458,10 @@ impl SimNode {
         let mut out = Vec::new();
         out.extend(self.nmt.on_tick(now));
         out.extend(self.sdo.on_tick(now));
+        if self.nmt.state() != NmtState::Initialising {
+            let events = self.consumer.on_tick(now);
+            self.on_consumer_events(events, now, &mut out);
+        }
         self.service_tpdos(now, &mut out);
         out
     }
@@ -427,7 +473,10 @@ impl SimNode {
             .tpdos
             .iter()
             .filter_map(|(&n, st)| self.tpdo_due(n, st));
-        [self.nmt.next_deadline(), self.sdo.next_deadline()]
+        let consumer = (self.nmt.state() != NmtState::Initialising)
+            .then(|| self.consumer.next_deadline())
+            .flatten();
+        [self.nmt.next_deadline(), self.sdo.next_deadline(), consumer]
             .into_iter()
             .flatten()
             .chain(tpdos)
@@ -495,6 +544,7 @@ impl SimNode {
                 self.sdo = SdoServer::new(self.node, Self::server_options(&self.options));
                 self.reset_pdos(false);
                 self.nmt.set_heartbeat_ms(self.heartbeat_ms(), now);
+                self.consumer = consumer_from(&self.store);
                 out.push(boot_up);
                 self.push_event(SimEvent::Reset { kind });
                 if before != NmtState::PreOperational {
@@ -532,6 +582,10 @@ impl SimNode {
         self.filter_generation += 1;
         if addr == HEARTBEAT_TIME {
             self.nmt.set_heartbeat_ms(self.heartbeat_ms(), now);
+        }
+        if addr.index == CONSUMER_HEARTBEAT {
+            // A changed entry restarts monitoring with the next heartbeat.
+            self.consumer = consumer_from(&self.store);
         }
         let operational = self.nmt.state() == NmtState::Operational;
         match PdoParam::of(addr.index) {
@@ -760,6 +814,48 @@ impl SimNode {
         });
     }
 
+    // ---- heartbeat consumer ----
+
+    fn on_consumer_events(
+        &mut self,
+        events: Vec<HeartbeatEvent>,
+        now: Duration,
+        out: &mut Vec<Frame>,
+    ) {
+        for event in events {
+            match event {
+                HeartbeatEvent::HeartbeatLost { node, timeout, .. } => {
+                    self.push_event(SimEvent::HeartbeatLost { node, timeout });
+                    out.extend(self.inject_emcy(
+                        HEARTBEAT_ERROR_CODE,
+                        ErrorRegister::GENERIC | ErrorRegister::COMMUNICATION,
+                        [node.get(), 0, 0, 0, 0],
+                    ));
+                    let command = match self
+                        .get(COMMUNICATION_ERROR_BEHAVIOUR)
+                        .and_then(Value::as_u32)
+                    {
+                        Some(0) if self.nmt.state() == NmtState::Operational => {
+                            Some(NmtCommand::EnterPreOperational)
+                        }
+                        Some(2) => Some(NmtCommand::Stop),
+                        _ => None,
+                    };
+                    if let Some(cmd) = command {
+                        let before = self.nmt.state();
+                        if let Some(e) = self.nmt.on_command(cmd, now) {
+                            self.on_nmt(before, e, now, out);
+                        }
+                    }
+                }
+                HeartbeatEvent::HeartbeatRecovered { node, .. } => {
+                    self.push_event(SimEvent::HeartbeatRecovered { node });
+                }
+                _ => {}
+            }
+        }
+    }
+
     // ---- EMCY ----
 
     fn set_error_register(&mut self, register: u8) {
@@ -796,6 +892,37 @@ impl SimNode {
         }
         self.events.push_back(event);
     }
+}
+
+/// A consumer monitoring every node of the 0x1016 entries in use.
+fn consumer_from(store: &SimStore) -> HeartbeatConsumer {
+    let mut consumer = HeartbeatConsumer::new();
+    let count = store
+        .get(ObjectAddress::new(CONSUMER_HEARTBEAT, 0))
+        .and_then(Value::as_u32)
+        .unwrap_or(0);
+    for sub in 1..=count.min(127) as u8 {
+        let entry = store
+            .get(ObjectAddress::new(CONSUMER_HEARTBEAT, sub))
+            .and_then(Value::as_u32);
+        if let Some((node, timeout)) = entry.and_then(HeartbeatConsumer::parse_od_entry) {
+            consumer.monitor(node, timeout);
+        }
+    }
+    consumer
+}
+
+/// The node of a heartbeat frame (0x701..=0x77F, standard).
+fn heartbeat_sender(frame: &Frame) -> Option<NodeId> {
+    if frame.is_extended() {
+        return None;
+    }
+    let id = frame.raw_id();
+    let base = u32::from(cob::HEARTBEAT);
+    (base + 1..=base + 127)
+        .contains(&id)
+        .then(|| NodeId::new(id - base).ok())
+        .flatten()
 }
 
 /// The heartbeat producer time: 0x1017, else the option, else off.
@@ -1689,5 +1816,148 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Runs `sim` in virtual time until `until`; returns the frames sent
+    /// with their times.
+    fn run_until<D: Device>(sim: &mut D, until: Duration) -> Vec<(Duration, Frame)> {
+        let mut got = Vec::new();
+        while let Some(t) = sim.next_deadline() {
+            if t > until {
+                break;
+            }
+            got.extend(sim.on_tick(t).into_iter().map(|f| (t, f)));
+        }
+        got
+    }
+
+    /// 0x1016:01 = master 127, 300 ms, written over SDO.
+    fn consume_master(sim: &mut SimNode, now: Duration) {
+        // 300 = 0x012C, node 0x7F.
+        assert_eq!(
+            sdo(sim, "23 16 10 01 2C 01 7F 00", now),
+            [(0x585, h("60 16 10 01 00 00 00 00"))]
+        );
+    }
+
+    #[test]
+    fn heartbeat_consumer_times_out_once_with_emcy_8130_and_recovers() {
+        let mut sim = operational();
+        consume_master(&mut sim, Duration::ZERO);
+        assert!(
+            sim.receive_filters()
+                .contains(&Filter::exact_standard(0x77F)),
+            "listens to the master's heartbeat"
+        );
+        // Monitoring starts with the first heartbeat.
+        assert!(
+            run_until(&mut sim, 2000 * MS)
+                .iter()
+                .all(|(_, f)| f.raw_id() != 0x85)
+        );
+        let master_hb = frame(0x77F, &[0x05]);
+        for t in [2000u64, 2100, 2200, 2300] {
+            sim.on_frame(&master_hb, Duration::from_millis(t));
+        }
+        sim.take_events();
+        // Silent from 2300 ms on: lost at 2600 ms exactly, reported once.
+        let out = run_until(&mut sim, 5000 * MS);
+        let emcy: Vec<_> = out.iter().filter(|(_, f)| f.raw_id() == 0x85).collect();
+        assert_eq!(emcy.len(), 1, "{out:?}");
+        assert_eq!(emcy[0].0, 2600 * MS);
+        assert_eq!(emcy[0].1.data(), [0x30, 0x81, 0x11, 0x7F, 0, 0, 0, 0]);
+        assert_eq!(sim.get(ERROR_REGISTER), Some(&Value::Unsigned8(0x11)));
+        let events = sim.take_events();
+        assert!(events.contains(&SimEvent::HeartbeatLost {
+            node: node(127),
+            timeout: 300 * MS
+        }));
+        // No 0x1029 in this dictionary: the NMT state stays.
+        assert_eq!(sim.nmt_state(), NmtState::Operational);
+        sim.on_frame(&master_hb, 6000 * MS);
+        assert_eq!(
+            sim.take_events(),
+            [SimEvent::HeartbeatRecovered { node: node(127) }]
+        );
+        // A zero entry stops monitoring.
+        sdo(&mut sim, "23 16 10 01 00 00 00 00", 6000 * MS);
+        assert!(
+            run_until(&mut sim, 9000 * MS)
+                .iter()
+                .all(|(_, f)| f.raw_id() != 0x85)
+        );
+    }
+
+    #[test]
+    fn heartbeat_in_time_keeps_the_consumer_quiet() {
+        let mut sim = operational();
+        consume_master(&mut sim, Duration::ZERO);
+        let master_hb = frame(0x77F, &[0x05]);
+        let mut t = Duration::ZERO;
+        while t < 10 * 1000 * MS {
+            sim.on_frame(&master_hb, t);
+            // 299 ms apart: always just in time.
+            t += 299 * MS;
+            let out = run_until(&mut sim, t - MS);
+            assert!(out.iter().all(|(_, f)| f.raw_id() != 0x85), "{out:?}");
+        }
+        assert!(
+            sim.take_events()
+                .iter()
+                .all(|e| !matches!(e, SimEvent::HeartbeatLost { .. }))
+        );
+    }
+
+    #[test]
+    fn a_drive_faults_and_stops_when_the_master_heartbeat_stops() {
+        use crate::drive::{SimDrive, SimDriveOptions};
+        use cangate_canopen::ds402::DriveState;
+        let mut d = SimDrive::bundled(node(5), SimDriveOptions::default());
+        d.start(Duration::ZERO);
+        d.on_frame(&frame(0x000, &[0x01, 0x05]), Duration::ZERO);
+        let sdo_w = |d: &mut SimDrive, req: &str, now: Duration| {
+            let out = d.on_frame(&frame(0x605, &h(req)), now);
+            assert!(
+                out.iter()
+                    .any(|f| f.raw_id() == 0x585 && f.data()[0] == 0x60),
+                "{req}: {out:?}"
+            );
+        };
+        // Profile velocity (3) at 20 000 inc/s, then enable.
+        sdo_w(&mut d, "2F 60 60 00 03 00 00 00", Duration::ZERO);
+        sdo_w(&mut d, "23 FF 60 00 20 4E 00 00", Duration::ZERO);
+        for cw in ["06", "07", "0F"] {
+            sdo_w(
+                &mut d,
+                &format!("2B 40 60 00 {cw} 00 00 00"),
+                Duration::ZERO,
+            );
+        }
+        sdo_w(&mut d, "23 16 10 01 2C 01 7F 00", Duration::ZERO);
+        let master_hb = frame(0x77F, &[0x05]);
+        let mut t = Duration::ZERO;
+        while t <= 1000 * MS {
+            d.on_frame(&master_hb, t);
+            t += 100 * MS;
+            run_until(&mut d, t - MS);
+        }
+        assert_eq!(d.state(), DriveState::OperationEnabled);
+        assert!(d.velocity() > 19_000.0, "jogging: {}", d.velocity());
+        // The master dies after its heartbeat at 1000 ms.
+        let out = run_until(&mut d, 1300 * MS - MS);
+        assert!(out.iter().all(|(_, f)| f.raw_id() != 0x85));
+        assert_eq!(d.state(), DriveState::OperationEnabled);
+        let out = run_until(&mut d, 1300 * MS);
+        assert!(
+            out.iter()
+                .any(|(_, f)| f.raw_id() == 0x85 && f.data()[..2] == [0x30, 0x81]),
+            "EMCY 0x8130: {out:?}"
+        );
+        assert_eq!(d.state(), DriveState::FaultReactionActive);
+        assert_eq!(d.error_code(), 0x8130);
+        // It brakes with the quick stop deceleration and ends in fault.
+        run_until(&mut d, 3000 * MS);
+        assert_eq!(d.state(), DriveState::Fault);
+        assert_eq!(d.velocity(), 0.0);
     }
 }

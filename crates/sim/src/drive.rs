@@ -14,6 +14,7 @@
 //! | homing (6) | bit 4 rising edge starts 0x6098: 35/37 set the position to 0x607C home offset at once; 17..=30 move at 0x6099:01 with 0x609A to a virtual switch at the physical position 0, then set the position to the home offset; any other method ends in homing error (bit 13); bit 4 falling or halt interrupts |
 //! | cyclic synchronous position (8) / velocity (9) | follow 0x607A / 0x60FF (as written by RPDO, at once or at SYNC per the RPDO's transmission type) with a first-order lag; bit 12 set; following error 0x60F4 written when present; with 0x6065 present a following error beyond the window for longer than 0x6066 ms faults with EMCY 0x8611 |
 //! | quick stop | decelerates with 0x6085 (0x6084 when absent, or for option codes 1 and 5), then goes to switch on disabled for quick stop option codes 0..=4 (0x605A, default 2) or stays in quick stop active for 5..=8 |
+//! | heartbeat loss | a node monitored by 0x1016 falls silent (the master, when it configured its heartbeat there): the node sends EMCY 0x8130, and the drive enters fault reaction active (stops with the quick stop deceleration), then fault, with 0x603F = 0x8130 |
 //! | faults | [`SimDrive::inject_fault`]: fault reaction active (stops with the quick stop deceleration), then fault; 0x603F and 0x1001 set and an EMCY sent; fault reset (rising edge of bit 7) clears them and sends the EMCY "error reset" |
 //! | limits | software position limits 0x607D (when min < max) bound every mode but homing: profile position clamps the target, the others stop at the limit; bit 11 internal limit |
 //! | process values | 0x6064 position, 0x606C velocity and 0x6077 torque (per mille, proportional to the acceleration) updated every step; TPDOs go out per their configuration (event timer, SYNC) |
@@ -508,6 +509,19 @@ impl SimDrive {
             .extend(self.node.inject_emcy(code, error_register(code), [0; 5]));
     }
 
+    /// The fault reaction to a lost heartbeat: as [`SimDrive::inject_fault`]
+    /// with code 0x8130, except that the node has sent the EMCY already.
+    fn heartbeat_lost(&mut self) {
+        self.error_code = crate::canopen_node::HEARTBEAT_ERROR_CODE;
+        if !matches!(
+            self.state,
+            DriveState::Fault | DriveState::FaultReactionActive
+        ) {
+            self.enter(DriveState::FaultReactionActive);
+        }
+        self.write_outputs();
+    }
+
     // ---- the model ----
 
     fn active(&self) -> bool {
@@ -851,7 +865,8 @@ impl SimDrive {
         }
     }
 
-    /// Reads the node's events: a reset node restarts the drive.
+    /// Reads the node's events: a reset node restarts the drive; the loss
+    /// of a consumed heartbeat faults it.
     fn drain_events(&mut self) {
         for event in self.node.take_events() {
             if let SimEvent::Reset {
@@ -859,6 +874,9 @@ impl SimDrive {
             } = event
             {
                 self.power_on();
+            }
+            if let SimEvent::HeartbeatLost { .. } = event {
+                self.heartbeat_lost();
             }
             if self.options.node.max_events > 0 {
                 while self.events.len() >= self.options.node.max_events {
@@ -979,6 +997,13 @@ impl Device for SimDrive {
         self.advance(now);
         let mut out = std::mem::take(&mut self.outbox);
         out.extend(self.node.on_tick(now));
+        // A heartbeat consumer timeout shows up in a tick.
+        let before = self.state;
+        self.drain_events();
+        if !self.outbox.is_empty() || self.state != before {
+            out.append(&mut self.outbox);
+            out.extend(self.node.on_tick(now));
+        }
         out
     }
 
