@@ -1,4 +1,5 @@
-//! Heartbeat consumer (CiA 301 §7.2.8.3.2) for many nodes.
+//! Heartbeat consumer (CiA 301 §7.2.8.3.2) for many nodes, and the
+//! master's own heartbeat producer ([`HeartbeatProducer`]).
 //!
 //! Every heartbeat or boot-up frame (0x700+n) updates the node's NMT state
 //! and last-seen time. Nodes with a consumer heartbeat time (object 0x1016)
@@ -289,6 +290,80 @@ impl HeartbeatConsumer {
     }
 }
 
+/// A heartbeat producer (CiA 301 §7.2.8.3.2.1) for a node the application
+/// itself is, e.g. the master: one `0x700 + node [state]` frame every
+/// period, the first at once. Devices that consume it (0x1016) stop when it
+/// stops, so it must come from the same place as the rest of the master's
+/// work: if that place hangs, the heartbeat stops too.
+///
+/// Each frame is due one period after the previous one was due (no drift);
+/// after a stall longer than a period the next is due at once and the
+/// schedule restarts from then (no burst of missed frames).
+#[derive(Debug, Clone)]
+pub struct HeartbeatProducer {
+    node: NodeId,
+    period: Duration,
+    state: NmtState,
+    next: Option<Duration>,
+    sent: u64,
+}
+
+impl HeartbeatProducer {
+    /// Produces the heartbeat of `node` every `period` (at least 1 ms),
+    /// reporting [`NmtState::Operational`].
+    pub fn new(node: NodeId, period: Duration) -> Self {
+        HeartbeatProducer {
+            node,
+            period: period.max(Duration::from_millis(1)),
+            state: NmtState::Operational,
+            next: None,
+            sent: 0,
+        }
+    }
+
+    /// The producing node.
+    pub fn node(&self) -> NodeId {
+        self.node
+    }
+
+    /// The period.
+    pub fn period(&self) -> Duration {
+        self.period
+    }
+
+    /// Sets the state the next heartbeats report.
+    pub fn set_state(&mut self, state: NmtState) {
+        self.state = state;
+    }
+
+    /// Heartbeats produced so far.
+    pub fn sent(&self) -> u64 {
+        self.sent
+    }
+
+    /// When [`HeartbeatProducer::on_tick`] produces the next frame; `None`
+    /// before the first tick (due at once).
+    pub fn next_deadline(&self) -> Option<Duration> {
+        self.next
+    }
+
+    /// The heartbeat frame when one is due at `now`.
+    pub fn on_tick(&mut self, now: Duration) -> Option<Frame> {
+        let due = self.next.unwrap_or(now);
+        if now < due {
+            return None;
+        }
+        let after = due + self.period;
+        self.next = Some(if after <= now {
+            now + self.period
+        } else {
+            after
+        });
+        self.sent += 1;
+        Some(crate::nmt::heartbeat_frame(self.node, self.state))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -545,5 +620,44 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn producer_sends_at_once_then_every_period_without_drift_or_bursts() {
+        let mut p = HeartbeatProducer::new(n(127), 100 * MS);
+        let f = p.on_tick(Duration::ZERO).unwrap();
+        assert_eq!((f.raw_id(), f.data()), (0x77F, &[0x05][..]));
+        assert_eq!(p.next_deadline(), Some(100 * MS));
+        assert!(p.on_tick(99 * MS).is_none());
+        // Late by 30 ms: sent, and the next stays on the 100 ms grid.
+        assert!(p.on_tick(130 * MS).is_some());
+        assert_eq!(p.next_deadline(), Some(200 * MS));
+        // A stall of a second: one frame, then every period from now.
+        assert!(p.on_tick(1250 * MS).is_some());
+        assert!(p.on_tick(1250 * MS).is_none());
+        assert_eq!(p.next_deadline(), Some(1350 * MS));
+        p.set_state(NmtState::PreOperational);
+        assert_eq!(p.on_tick(1350 * MS).unwrap().data(), [0x7F]);
+        assert_eq!(p.sent(), 4);
+    }
+
+    #[test]
+    fn producer_feeds_a_consumer_that_never_times_out() {
+        let mut p = HeartbeatProducer::new(n(127), 100 * MS);
+        let mut c = HeartbeatConsumer::new();
+        c.monitor(n(127), 300 * MS);
+        let mut now = Duration::ZERO;
+        while now < 10_000 * MS {
+            if let Some(f) = p.on_tick(now) {
+                assert!(
+                    c.on_frame(&f, now)
+                        .iter()
+                        .all(|e| !matches!(e, HeartbeatEvent::HeartbeatLost { .. }))
+                );
+            }
+            assert!(c.on_tick(now).is_empty());
+            now = p.next_deadline().unwrap();
+        }
+        assert!(!c.is_lost(n(127)));
     }
 }
