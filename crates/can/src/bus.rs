@@ -52,6 +52,8 @@ pub struct BusInfo {
 }
 
 /// The backend a bus task owns.
+// One per bus, moved once into its task: the size difference costs nothing.
+#[allow(clippy::large_enum_variant)]
 pub enum Backend {
     /// A SocketCAN interface.
     SocketCan(SocketCanBus),
@@ -73,8 +75,19 @@ impl std::fmt::Debug for Backend {
 }
 
 enum BackendEvent {
-    Frame { frame: Frame, own: bool },
+    Frame {
+        frame: Frame,
+        own: bool,
+    },
     State(BusStatus),
+    /// Received frames the kernel dropped before the gateway read them
+    /// (SocketCAN), just before the next frame.
+    Lost(u64),
+    /// An own frame accepted for transmission (SocketCAN; the virtual bus
+    /// counts at send time and echoes).
+    Sent(Frame),
+    /// Own frames given up (SocketCAN transmit queue).
+    Unsent(u64),
 }
 
 impl Backend {
@@ -87,6 +100,9 @@ impl Backend {
             Backend::SocketCan(s) => out.push(match s.recv().await {
                 SocketCanEvent::Frame(frame) => BackendEvent::Frame { frame, own: false },
                 SocketCanEvent::State(st) => BackendEvent::State(st),
+                SocketCanEvent::Lost(n) => BackendEvent::Lost(n),
+                SocketCanEvent::Sent(frame) => BackendEvent::Sent(frame),
+                SocketCanEvent::Unsent(n) => BackendEvent::Unsent(n),
             }),
             Backend::Virtual(p) => {
                 p.recv_many(port_events, 256).await;
@@ -99,14 +115,10 @@ impl Backend {
     }
 
     /// Sends a batch in order; on failure, how many went out and why.
-    async fn send_batch(&mut self, frames: &[Frame]) -> Result<(), (usize, SendError)> {
+    /// SocketCAN batches are queued instead (see [`SocketCanBus::queue`]).
+    fn send_batch(&mut self, frames: &[Frame]) -> Result<(), (usize, SendError)> {
         match self {
-            Backend::SocketCan(s) => {
-                for (i, f) in frames.iter().enumerate() {
-                    s.send(f).await.map_err(|e| (i, e))?;
-                }
-                Ok(())
-            }
+            Backend::SocketCan(_) => Ok(()),
             Backend::Virtual(p) => p.send_batch(frames).map_err(|e| (0, e)),
         }
     }
@@ -128,7 +140,7 @@ impl Backend {
 
     fn overflows(&self) -> u64 {
         match self {
-            Backend::SocketCan(_) => 0,
+            Backend::SocketCan(s) => s.rx_dropped(),
             Backend::Virtual(p) => p.overflows(),
         }
     }
@@ -153,8 +165,9 @@ pub enum BusItem {
         /// Received or transmitted.
         direction: Direction,
     },
-    /// This many matching frames were dropped here because the subscriber
-    /// did not keep up.
+    /// This many frames were dropped here: matching frames because the
+    /// subscriber did not keep up, and (SocketCAN) frames the kernel
+    /// dropped before the gateway read them, whatever their identifier.
     Lost(u64),
     /// The bus state changed.
     State(BusStatus),
@@ -185,9 +198,18 @@ pub struct BusStats {
     pub tx_bytes: u64,
     /// Error frames received.
     pub error_frames: u64,
-    /// Frames the backend refused to send.
+    /// Frames the backend refused to send, or gave up on (SocketCAN: held
+    /// past the transmit timeout or pushed out of the full transmit queue).
     pub tx_failed: u64,
-    /// Frames the backend's receive queue overflowed with (virtual bus).
+    /// SocketCAN: times a frame was refused for lack of room in the
+    /// interface's queue (`ENOBUFS`) and kept for another attempt.
+    pub tx_retries: u64,
+    /// SocketCAN: own frames waiting for room in the interface's queue.
+    pub tx_queued: u64,
+    /// Frames lost before the gateway read them: the virtual bus's receive
+    /// queue overflowed, or the kernel dropped them because the SocketCAN
+    /// socket's receive buffer was full (`SO_RXQ_OVFL`). Every subscriber
+    /// was told with a [`BusItem::Lost`] in its stream (SocketCAN).
     pub rx_overflows: u64,
     /// Frames dropped for subscribers that did not keep up (all subscribers).
     pub subscriber_drops: u64,
@@ -266,6 +288,8 @@ struct Counters {
     tx_bytes: AtomicU64,
     error_frames: AtomicU64,
     tx_failed: AtomicU64,
+    tx_retries: AtomicU64,
+    tx_queued: AtomicU64,
     rx_overflows: AtomicU64,
     subscriber_drops: AtomicU64,
     load_millipercent: AtomicU64,
@@ -516,6 +540,8 @@ impl BusHandle {
             tx_bytes: c.tx_bytes.load(Ordering::Relaxed),
             error_frames: c.error_frames.load(Ordering::Relaxed),
             tx_failed: c.tx_failed.load(Ordering::Relaxed),
+            tx_retries: c.tx_retries.load(Ordering::Relaxed),
+            tx_queued: c.tx_queued.load(Ordering::Relaxed),
             rx_overflows: c.rx_overflows.load(Ordering::Relaxed),
             subscriber_drops: c.subscriber_drops.load(Ordering::Relaxed),
             load_percent: c.load_millipercent.load(Ordering::Relaxed) as f64 / 1000.0,
@@ -590,8 +616,16 @@ async fn run_bus(
             _ = &mut cancelled => break,
             req = requests.recv() => {
                 let Some(req) = req else { break };
+                if let Backend::SocketCan(s) = &mut backend {
+                    // Held and retried while the interface is congested:
+                    // the outcomes come back as backend events, the answer
+                    // after them.
+                    s.queue(req.frames, req.reply);
+                    store_tx_counters(&shared, &backend);
+                    continue;
+                }
                 let total = req.frames.len();
-                let result = match backend.send_batch(&req.frames).await {
+                let result = match backend.send_batch(&req.frames) {
                     Ok(()) => Ok(()),
                     Err((sent, error)) => Err(SendFailure { sent, total, error }),
                 };
@@ -638,6 +672,20 @@ async fn run_bus(
                             }
                             fanout(&shared, &frame, Direction::Rx);
                         }
+                        BackendEvent::Sent(frame) => {
+                            let c = &shared.counters;
+                            c.tx_frames.fetch_add(1, Ordering::Relaxed);
+                            c.tx_bytes.fetch_add(frame.data().len() as u64, Ordering::Relaxed);
+                            record_load(&mut load, timing, &frame);
+                            fanout(&shared, &frame, Direction::Tx);
+                        }
+                        BackendEvent::Unsent(n) => {
+                            shared.counters.tx_failed.fetch_add(n, Ordering::Relaxed);
+                        }
+                        BackendEvent::Lost(n) => {
+                            shared.counters.rx_overflows.store(backend.overflows(), Ordering::Relaxed);
+                            fanout_lost(&shared, n);
+                        }
                         BackendEvent::State(status) => {
                             tracing::info!(bus = %name, state = %status.state, tec = status.tx_errors, rec = status.rx_errors, "bus state changed");
                             publish_state(&shared, status);
@@ -653,8 +701,28 @@ async fn run_bus(
                 let pct = load.load_percent(Timestamp::now().as_nanos());
                 shared.counters.load_millipercent.store((pct * 1000.0) as u64, Ordering::Relaxed);
                 shared.counters.rx_overflows.store(backend.overflows(), Ordering::Relaxed);
+                store_tx_counters(&shared, &backend);
             }
         }
+    }
+    if let Backend::SocketCan(s) = &mut backend {
+        // Frames still held are given up and counted, as are outcomes not
+        // yet taken: the counters add up after the bus stopped too.
+        let c = &shared.counters;
+        for ev in s.abandon() {
+            match ev {
+                SocketCanEvent::Sent(f) => {
+                    c.tx_frames.fetch_add(1, Ordering::Relaxed);
+                    c.tx_bytes
+                        .fetch_add(f.data().len() as u64, Ordering::Relaxed);
+                }
+                SocketCanEvent::Unsent(n) => {
+                    c.tx_failed.fetch_add(n, Ordering::Relaxed);
+                }
+                _ => {}
+            }
+        }
+        store_tx_counters(&shared, &backend);
     }
     // Dropping the senders ends every subscription's stream.
     shared.subscribers.lock().expect("subscriber lock").clear();
@@ -685,6 +753,33 @@ fn fanout(shared: &Shared, frame: &Frame, direction: Direction) {
             drops,
         )
     });
+}
+
+/// Frames lost before the gateway read them (their identifiers unknown):
+/// every subscriber learns of them at this position of its stream.
+fn fanout_lost(shared: &Shared, n: u64) {
+    let mut subs = shared.subscribers.lock().expect("subscriber lock");
+    retain_subscribers(shared, &mut subs, |s| {
+        s.pending_lost += n;
+        s.lost_total.fetch_add(n, Ordering::Relaxed);
+        match s.tx.try_send(BusItem::Lost(s.pending_lost)) {
+            Ok(()) => {
+                s.pending_lost = 0;
+                true
+            }
+            Err(mpsc::error::TrySendError::Full(_)) => true,
+            Err(mpsc::error::TrySendError::Closed(_)) => false,
+        }
+    });
+}
+
+fn store_tx_counters(shared: &Shared, backend: &Backend) {
+    if let Backend::SocketCan(s) = backend {
+        let t = s.tx_counters();
+        let c = &shared.counters;
+        c.tx_retries.store(t.retries, Ordering::Relaxed);
+        c.tx_queued.store(t.queued as u64, Ordering::Relaxed);
+    }
 }
 
 fn publish_state(shared: &Shared, status: BusStatus) {
