@@ -26,6 +26,16 @@
 //!   a difference is aborted with 0x06070012 (more) or 0x06070013 (less).
 //! - CRC-16 ([`crc16`]) is used in block transfers only when both sides
 //!   announce support.
+//! - SDO frames carry no transaction number, so after the client aborts a
+//!   transfer itself (timeout, protocol violation, cancel) the server may
+//!   still answer requests it received before the abort. Such late answers
+//!   must not be taken as the next transfer's: the client stays quiet for a
+//!   settle time ([`SdoClient::ready_at`], extended while late frames keep
+//!   coming), and until a response answers the next transfer's initiate
+//!   (right command specifier and object), responses that cannot are
+//!   dropped and counted ([`SdoClient::ignored_responses`]). A late answer
+//!   of the very same shape arriving after the settle time cannot be told
+//!   apart by any SDO client.
 
 mod abort;
 mod block;
