@@ -170,6 +170,11 @@ pub struct AxisSnapshot {
 enum Step {
     /// Walking the state machine.
     Switch(StateMachineDriver),
+    /// Bringing the drive to rest in its current mode (a cyclic stop
+    /// ramp, or halt) before switching it to this mode: a drive never
+    /// changes mode while it moves, so no mode's own ramp (homing's is
+    /// slow) takes over a fast motion.
+    SettleFor(ModeOfOperation),
     /// Waiting for SDO writes (profile parameters) to finish.
     AwaitSdo,
     /// Waiting for the mode display to show the mode.
@@ -199,10 +204,47 @@ struct Op {
     command: AxisCommand,
     /// Target (user units) of a move.
     target: f64,
+    /// When the step times out, once the drive has been heard from after
+    /// it ([`LATE_FEEDBACK`] statuswords): a deadline the host itself was
+    /// late for (a loaded machine) does not fail a drive that is on time.
     deadline: Option<Duration>,
-    /// Statuswords seen since the latest process image change.
+    /// Statuswords received since `deadline` passed.
+    late_feedback: u32,
+    /// `deadline` has passed (its grace runs).
+    overdue: bool,
+    /// A cyclic trajectory ended: the deadline is the settle time.
+    settling: bool,
+    /// Accepted has been reported.
     accepted: bool,
 }
+
+impl Op {
+    fn new(id: OpId, command: AxisCommand, step: Step) -> Op {
+        Op {
+            id,
+            kind: command.kind(),
+            step,
+            command,
+            target: 0.0,
+            deadline: None,
+            late_feedback: 0,
+            overdue: false,
+            settling: false,
+            accepted: false,
+        }
+    }
+
+    /// Sets (or clears) the step's deadline.
+    fn arm(&mut self, deadline: Option<Duration>) {
+        self.deadline = deadline;
+        self.late_feedback = 0;
+        self.overdue = false;
+    }
+}
+
+/// Statuswords that must arrive after a step's deadline before the step
+/// times out: the drive's own word that it is late.
+const LATE_FEEDBACK: u32 = 3;
 
 /// A cyclic trajectory: a trapezoid, optionally stretched in time (one axis
 /// of a coordinated move).
@@ -383,6 +425,8 @@ pub struct Cia402Axis {
     /// SDO writes in flight and what they write.
     sdo_in_flight: Option<(u32, u32)>,
     homed: bool,
+    /// The image requests a mode the drive has not shown since.
+    mode_pending: bool,
     node_lost: Option<String>,
     emcy: Option<(u16, String)>,
     fault_reported: bool,
@@ -420,6 +464,7 @@ impl Cia402Axis {
             profile_written: None,
             sdo_in_flight: None,
             homed: false,
+            mode_pending: false,
             node_lost: None,
             emcy: None,
             fault_reported: false,
@@ -479,15 +524,16 @@ impl Cia402Axis {
         )
     }
 
+    /// At rest: the drive's velocity would not carry it past the
+    /// in-position window within 100 ms (and at least one count/s).
     fn at_rest(&self) -> bool {
-        self.velocity == 0
+        let v = self.units().from_counts(f64::from(self.velocity)).abs();
+        self.velocity == 0 || v <= self.cfg.in_position_window * 10.0
     }
 
-    /// In position means also (nearly) at rest: slower than the
-    /// in-position window per 10 ms.
-    fn standing_still(&self) -> bool {
-        self.units().from_counts(f64::from(self.velocity)).abs()
-            <= self.cfg.in_position_window * 100.0
+    /// At rest within the in-position window of `target`.
+    fn in_position(&self, target: f64) -> bool {
+        (self.actual() - target).abs() <= self.cfg.in_position_window && self.at_rest()
     }
 
     /// The live state.
@@ -575,6 +621,14 @@ impl Cia402Axis {
         let first = self.statusword.is_none();
         self.statusword = Some(Statusword(sw));
         self.fresh = self.fresh.saturating_add(1);
+        if self.fresh >= 2 && self.mode_display.is_none_or(|m| m == self.image.mode) {
+            self.mode_pending = false;
+        }
+        if let Some(op) = &mut self.op
+            && op.deadline.is_some_and(|d| now >= d)
+        {
+            op.late_feedback = op.late_feedback.saturating_add(1);
+        }
         if first {
             // Start from where the drive is, without a jump.
             self.demand = self.actual();
@@ -586,7 +640,7 @@ impl Cia402Axis {
                 self.fault_reported = true;
                 let (code, text) = self.fault().unwrap_or_default();
                 out.push(Output::Event(AxisEvent::Fault { code, text }));
-                self.trajectory = None;
+                self.drop_trajectory();
                 self.jog_deadline = None;
                 if let Some(op) = &self.op
                     && !matches!(op.kind, CommandKind::ResetFault | CommandKind::Disable)
@@ -616,7 +670,7 @@ impl Cia402Axis {
         ) {
             // Power stage off: the homing reference is not trusted any more
             // only after a reset; keep `homed`, but no motion continues.
-            self.trajectory = None;
+            self.drop_trajectory();
             self.jog_deadline = None;
         }
         self.advance(now, out);
@@ -643,7 +697,7 @@ impl Cia402Axis {
             return;
         }
         self.node_lost = Some(reason.to_string());
-        self.trajectory = None;
+        self.drop_trajectory();
         self.jog_deadline = None;
         out.push(Output::Event(AxisEvent::Fault {
             code: 0,
@@ -782,7 +836,9 @@ impl Cia402Axis {
             {
                 op.step = Step::Stopping;
                 let t = self.trajectory.as_ref().map_or(0.0, Trajectory::duration);
-                op.deadline = Some(now + Duration::from_secs_f64(t) + self.cfg.settle_timeout);
+                op.arm(Some(
+                    now + Duration::from_secs_f64(t) + self.cfg.settle_timeout,
+                ));
             }
         }
         if let Some(traj) = &mut self.trajectory {
@@ -790,7 +846,7 @@ impl Cia402Axis {
                 traj.start = s.start;
             }
             if s.finished {
-                self.trajectory = None;
+                self.drop_trajectory();
             }
         }
         self.demand = s.demand;
@@ -806,8 +862,10 @@ impl Cia402Axis {
 
     /// When [`Cia402Axis::on_tick`] is due next.
     pub fn next_deadline(&self) -> Option<Duration> {
+        let grace = self.deadline_grace();
         let op = self.op.as_ref().and_then(|o| match &o.step {
             Step::Switch(d) => d.next_deadline(),
+            _ if o.overdue => o.deadline.map(|d| d + grace),
             _ => o.deadline,
         });
         [op, self.jog_deadman_due()].into_iter().flatten().min()
@@ -850,13 +908,64 @@ impl Cia402Axis {
             && !matches!(op.step, Step::Stopping)
             && velocity != 0.0
         {
+            self.check_jog(velocity)?;
             let (id, accepted) = (op.id, op.accepted);
+            let preparing = matches!(op.step, Step::SettleFor(_))
+                || matches!(op.step, Step::AwaitMode(m) if m == ModeOfOperation::CyclicSynchronousPosition);
             self.jog_deadline = Some(now + self.cfg.jog_deadman);
-            self.retarget_jog(velocity, acceleration, now, out)?;
+            if preparing {
+                // The jog starts with the latest velocity once the drive
+                // is in its mode.
+                if let Some(op) = &mut self.op {
+                    op.command = cmd;
+                }
+            } else {
+                self.retarget_jog(velocity, acceleration, now, out)?;
+            }
             if accepted {
                 out.push(Output::Event(AxisEvent::Accepted { op: id }));
             }
             return Ok(id);
+        }
+        if let AxisCommand::Jog { velocity: 0.0, .. } = cmd {
+            return self.command(AxisCommand::Stop, now, out);
+        }
+        // Everything that can refuse the command is checked before the
+        // running command ends: a refused command changes nothing.
+        let mut target = 0.0;
+        let mut driver = None;
+        match cmd {
+            AxisCommand::Move {
+                target: t,
+                relative,
+                ..
+            } => {
+                // Relative to where the axis is going: the running
+                // trajectory's end (so consecutive relative moves add up
+                // exactly), else the demand; profile axes: the latest target.
+                let base = match self.cfg.position_mode {
+                    PositionMode::Cyclic => self
+                        .trajectory
+                        .as_ref()
+                        .map_or(self.demand, |t| t.profile.target()),
+                    PositionMode::Profile => self.last_target,
+                };
+                target = if relative { base + t } else { t };
+                self.check_limits(target)?;
+            }
+            AxisCommand::Jog { velocity, .. } => self.check_jog(velocity)?,
+            AxisCommand::Enable | AxisCommand::Disable | AxisCommand::ResetFault => {
+                let state = match cmd {
+                    AxisCommand::Enable => DriveState::OperationEnabled,
+                    AxisCommand::Disable => DriveState::ReadyToSwitchOn,
+                    _ => DriveState::SwitchOnDisabled,
+                };
+                driver = Some(
+                    StateMachineDriver::new(state, self.cfg.state_timeout, now)
+                        .map_err(|e| CommandError::FailedPrecondition(e.to_string()))?,
+                );
+            }
+            _ => {}
         }
         let id = self.next_id;
         self.next_id += 1;
@@ -870,105 +979,69 @@ impl Cia402Axis {
             self.finish(previous, format!("{} by {}", previous.name(), kind), out);
         }
         self.jog_deadline = None;
-        let mut op = Op {
-            id,
-            kind,
-            step: Step::Stopping,
-            command: cmd,
-            target: 0.0,
-            deadline: None,
-            accepted: false,
-        };
+        // A set-point or homing start the drive has not seen fall yet
+        // would swallow the next rising edge: every command starts from
+        // bit 4 low, sent.
+        self.release_handshake(out);
+        let mut op = Op::new(id, cmd, Step::Stopping);
+        op.target = target;
         match cmd {
             AxisCommand::Enable | AxisCommand::Disable | AxisCommand::ResetFault => {
-                let target = match cmd {
-                    AxisCommand::Enable => DriveState::OperationEnabled,
-                    AxisCommand::Disable => DriveState::ReadyToSwitchOn,
-                    _ => DriveState::SwitchOnDisabled,
-                };
                 if matches!(cmd, AxisCommand::Enable) {
                     self.prepare_enable();
                 }
                 self.image.controlword &= !(Controlword::HALT_BIT | Controlword::NEW_SET_POINT_BIT);
-                let driver = StateMachineDriver::new(target, self.cfg.state_timeout, now)
-                    .map_err(|e| CommandError::FailedPrecondition(e.to_string()))?
+                let driver = driver
+                    .expect("made above")
                     .with_previous(Controlword(self.image.controlword));
                 op.step = Step::Switch(driver);
                 op.accepted = true;
                 out.push(Output::Event(AxisEvent::Accepted { op: id }));
             }
             AxisCommand::Home => {
-                op.step = Step::AwaitMode(ModeOfOperation::Homing);
-                op.deadline = Some(now + self.cfg.state_timeout);
-                self.trajectory = None;
-                self.set_mode(ModeOfOperation::Homing);
-                self.image.controlword &= !(Controlword::HALT_BIT | Controlword::HOMING_START_BIT);
-                self.send_image(out);
-            }
-            AxisCommand::Move {
-                target,
-                relative,
-                velocity,
-                acceleration,
-            } => {
-                // Relative to where the axis is going: the running
-                // trajectory's end (so consecutive relative moves add up
-                // exactly), else the demand; profile axes: the latest target.
-                let base = match self.cfg.position_mode {
-                    PositionMode::Cyclic => self
-                        .trajectory
-                        .as_ref()
-                        .map_or(self.demand, |t| t.profile.target()),
-                    PositionMode::Profile => self.last_target,
-                };
-                op.target = if relative { base + target } else { target };
-                self.check_limits(op.target)?;
-                let v = velocity.unwrap_or(self.cfg.default_velocity);
-                let a = acceleration.unwrap_or(self.cfg.default_acceleration);
-                match self.cfg.position_mode {
-                    PositionMode::Cyclic => {
-                        let limits = Limits::symmetric(v, a)
-                            .map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
-                        let profile = TrapezoidProfile::new(
-                            self.demand,
-                            self.demand_velocity,
-                            op.target,
-                            limits,
-                        )
-                        .map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
-                        let total = Duration::from_secs_f64(profile.duration().min(1e6));
-                        self.trajectory = Some(Trajectory {
-                            profile,
-                            ratio: 1.0,
-                            start: self.demand_at,
-                        });
-                        op.step = Step::CyclicMoving;
-                        op.deadline = Some(now + total + self.cfg.settle_timeout);
-                        op.accepted = true;
-                        out.push(Output::Event(AxisEvent::Accepted { op: id }));
-                    }
-                    PositionMode::Profile => {
-                        self.last_target = op.target;
-                        op.step = Step::AwaitSdo;
-                        op.deadline = Some(now + self.cfg.state_timeout);
-                        self.want_profile(v, a, out);
-                        self.set_mode(ModeOfOperation::ProfilePosition);
-                    }
+                if self.moving() {
+                    self.settle_for(ModeOfOperation::Homing, now, &mut op);
+                    self.send_image(out);
+                } else {
+                    self.begin_mode(ModeOfOperation::Homing, now, &mut op, out);
                 }
             }
+            AxisCommand::Move {
+                velocity,
+                acceleration,
+                ..
+            } => match self.cfg.position_mode {
+                PositionMode::Cyclic if self.in_cyclic_mode() => {
+                    self.plan_move(&mut op, now, out)?;
+                }
+                PositionMode::Cyclic => {
+                    self.settle_for(ModeOfOperation::CyclicSynchronousPosition, now, &mut op);
+                    self.send_image(out);
+                }
+                PositionMode::Profile => {
+                    self.last_target = op.target;
+                    op.step = Step::AwaitSdo;
+                    op.arm(Some(now + self.cfg.state_timeout));
+                    let v = velocity.unwrap_or(self.cfg.default_velocity);
+                    let a = acceleration.unwrap_or(self.cfg.default_acceleration);
+                    self.want_profile(v, a, out);
+                    self.set_mode(ModeOfOperation::ProfilePosition);
+                }
+            },
             AxisCommand::Jog {
                 velocity,
                 acceleration,
             } => {
-                if velocity == 0.0 {
-                    return self.command(AxisCommand::Stop, now, out);
-                }
                 self.jog_deadline = Some(now + self.cfg.jog_deadman);
-                op.accepted = false;
-                self.op = Some(op);
-                self.retarget_jog(velocity, acceleration, now, out)?;
-                self.advance(now, out);
-                return Ok(id);
+                if self.cfg.position_mode == PositionMode::Cyclic && !self.in_cyclic_mode() {
+                    self.settle_for(ModeOfOperation::CyclicSynchronousPosition, now, &mut op);
+                    self.send_image(out);
+                } else {
+                    self.op = Some(op);
+                    self.retarget_jog(velocity, acceleration, now, out)?;
+                    self.advance(now, out);
+                    return Ok(id);
+                }
             }
             AxisCommand::Stop => {
                 op.step = Step::Stopping;
@@ -981,11 +1054,11 @@ impl Cia402Axis {
                 op.step = Step::Stopping;
                 op.accepted = true;
                 out.push(Output::Event(AxisEvent::Accepted { op: id }));
-                self.trajectory = None;
+                self.drop_trajectory();
                 self.image.controlword = Controlword(self.image.controlword)
                     .with_command(Controlword::QUICK_STOP)
                     .0;
-                op.deadline = Some(now + self.cfg.state_timeout + self.cfg.settle_timeout);
+                op.arm(Some(now + self.cfg.state_timeout + self.cfg.settle_timeout));
                 self.send_image(out);
             }
         }
@@ -993,6 +1066,148 @@ impl Cia402Axis {
         self.image_changed();
         self.advance(now, out);
         Ok(id)
+    }
+
+    /// Whether the axis (or its drive) moves: a trajectory runs, the demand
+    /// or the drive is not at rest.
+    fn moving(&self) -> bool {
+        self.trajectory.is_some() || self.demand_velocity != 0.0 || !self.at_rest()
+    }
+
+    /// Whether the image commands cyclic synchronous position.
+    fn in_cyclic_mode(&self) -> bool {
+        self.image.mode == ModeOfOperation::CyclicSynchronousPosition.code()
+    }
+
+    /// `op` first brings the drive to rest in its current mode, then
+    /// switches to `mode` ([`Step::SettleFor`]).
+    fn settle_for(&mut self, mode: ModeOfOperation, now: Duration, op: &mut Op) {
+        op.step = Step::SettleFor(mode);
+        self.start_stop(now, op);
+    }
+
+    /// Switches the drive to `mode` (at rest) for `op`: the halt is
+    /// released, a cyclic axis holds where the drive stands.
+    fn begin_mode(
+        &mut self,
+        mode: ModeOfOperation,
+        now: Duration,
+        op: &mut Op,
+        out: &mut Vec<Output>,
+    ) {
+        self.drop_trajectory();
+        if mode == ModeOfOperation::CyclicSynchronousPosition {
+            self.demand = self.actual();
+            self.demand_at = None;
+            self.image.target_position = self.position.unwrap_or_default();
+        }
+        self.set_mode(mode);
+        self.image.controlword &= !(Controlword::HALT_BIT | Controlword::HOMING_START_BIT);
+        op.step = Step::AwaitMode(mode);
+        op.arm(Some(now + self.cfg.state_timeout));
+        self.send_image(out);
+    }
+
+    /// Plans a cyclic move of `op` to `op.target` from the demand.
+    fn plan_move(
+        &mut self,
+        op: &mut Op,
+        now: Duration,
+        out: &mut Vec<Output>,
+    ) -> Result<(), CommandError> {
+        let (v, a) = self.wanted_profile(op);
+        let limits =
+            Limits::symmetric(v, a).map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+        let profile = TrapezoidProfile::new(self.demand, self.demand_velocity, op.target, limits)
+            .map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+        let total = Duration::from_secs_f64(profile.duration().min(1e6));
+        self.trajectory = Some(Trajectory {
+            profile,
+            ratio: 1.0,
+            start: self.demand_at,
+        });
+        op.step = Step::CyclicMoving;
+        op.arm(Some(now + total + self.cfg.settle_timeout));
+        if !op.accepted {
+            op.accepted = true;
+            out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
+        }
+        Ok(())
+    }
+
+    /// Plans the cyclic jog of `op` (its command): a trapezoid from the
+    /// demand towards the soft limit at the jog's velocity.
+    fn plan_jog(&mut self, op: &mut Op, out: &mut Vec<Output>) -> Result<(), CommandError> {
+        let AxisCommand::Jog {
+            velocity,
+            acceleration,
+        } = op.command
+        else {
+            return Ok(());
+        };
+        let a = acceleration.unwrap_or(self.cfg.default_acceleration);
+        let far = if velocity > 0.0 {
+            self.cfg.max_position.unwrap_or(self.demand + 1e6)
+        } else {
+            self.cfg.min_position.unwrap_or(self.demand - 1e6)
+        };
+        let limits = Limits::symmetric(velocity.abs(), a)
+            .map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+        let profile = TrapezoidProfile::new(self.demand, self.demand_velocity, far, limits)
+            .map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+        self.trajectory = Some(Trajectory {
+            profile,
+            ratio: 1.0,
+            start: self.demand_at,
+        });
+        op.step = Step::Jogging;
+        op.arm(None);
+        if !op.accepted {
+            op.accepted = true;
+            out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
+        }
+        Ok(())
+    }
+
+    /// Ends any trajectory: the demand holds where it is.
+    fn drop_trajectory(&mut self) {
+        self.trajectory = None;
+        self.demand_velocity = 0.0;
+    }
+
+    /// Clears controlword bit 4 (new set-point, homing start) and sends
+    /// the image when it was set.
+    fn release_handshake(&mut self, out: &mut Vec<Output>) {
+        if self.image.controlword & Controlword::NEW_SET_POINT_BIT != 0 {
+            self.image.controlword &= !Controlword::NEW_SET_POINT_BIT;
+            self.send_image(out);
+        }
+    }
+
+    /// A jog at `velocity` must not head further out of the soft limits.
+    fn check_jog(&self, velocity: f64) -> Result<(), CommandError> {
+        let at = match self.cfg.position_mode {
+            PositionMode::Cyclic => self.demand,
+            PositionMode::Profile => self.actual(),
+        };
+        let unit = &self.cfg.unit;
+        if velocity > 0.0
+            && let Some(max) = self.cfg.max_position
+            && at >= max
+        {
+            return Err(CommandError::OutOfRange(format!(
+                "the axis is at or beyond its soft limit max_position = {max} {unit} ({at:.3} {unit}): it can only jog back"
+            )));
+        }
+        if velocity < 0.0
+            && let Some(min) = self.cfg.min_position
+            && at <= min
+        {
+            return Err(CommandError::OutOfRange(format!(
+                "the axis is at or beyond its soft limit min_position = {min} {unit} ({at:.3} {unit}): it can only jog back"
+            )));
+        }
+        Ok(())
     }
 
     /// Starts one axis of a coordinated cyclic move: `profile` in user
@@ -1016,6 +1231,8 @@ impl Cia402Axis {
         if self.op.is_some() {
             self.finish(Outcome::Superseded, "superseded by move".into(), out);
         }
+        self.jog_deadline = None;
+        self.release_handshake(out);
         let traj = Trajectory {
             profile,
             ratio,
@@ -1023,20 +1240,20 @@ impl Cia402Axis {
         };
         let total = Duration::from_secs_f64(traj.duration().min(1e6));
         self.trajectory = Some(traj);
-        self.op = Some(Op {
+        let mut op = Op::new(
             id,
-            kind: CommandKind::Move,
-            step: Step::CyclicMoving,
-            command: AxisCommand::Move {
+            AxisCommand::Move {
                 target,
                 relative: false,
                 velocity: None,
                 acceleration: None,
             },
-            target,
-            deadline: Some(now + total + self.cfg.settle_timeout),
-            accepted: true,
-        });
+            Step::CyclicMoving,
+        );
+        op.target = target;
+        op.arm(Some(now + total + self.cfg.settle_timeout));
+        op.accepted = true;
+        self.op = Some(op);
         out.push(Output::Event(AxisEvent::Accepted { op: id }));
         Ok(id)
     }
@@ -1059,6 +1276,12 @@ impl Cia402Axis {
             ));
         }
         self.check_limits(target)?;
+        if !self.in_cyclic_mode() || self.activity() == Activity::Homing {
+            return Err(CommandError::FailedPrecondition(
+                "the axis is homing or not in cyclic position mode: wait for the homing or stop it first"
+                    .into(),
+            ));
+        }
         if self.demand_velocity != 0.0 || self.trajectory.is_some() {
             return Err(CommandError::FailedPrecondition(
                 "the axis is moving: stop it before a coordinated move".into(),
@@ -1125,7 +1348,7 @@ impl Cia402Axis {
         // cyclic drive follows 0x607A from the first enabled cycle.
         let mode = self.mode_for_position();
         self.set_mode(mode);
-        self.trajectory = None;
+        self.drop_trajectory();
         self.demand = self.actual();
         self.demand_velocity = 0.0;
         self.demand_at = None;
@@ -1137,13 +1360,19 @@ impl Cia402Axis {
     fn set_mode(&mut self, mode: ModeOfOperation) {
         if self.image.mode != mode.code() {
             self.image.mode = mode.code();
+            self.mode_pending = true;
             self.image_changed();
         }
     }
 
+    /// The drive runs in `mode`, as requested: a display that shows it
+    /// counts only from the second statusword after the request (the
+    /// first may have left before the drive saw it).
     fn mode_is(&self, mode: ModeOfOperation) -> bool {
         // Without 0x6061 in the process data the mode is taken as applied.
-        self.mode_display.is_none_or(|m| m == mode.code())
+        self.image.mode == mode.code()
+            && !self.mode_pending
+            && self.mode_display.is_none_or(|m| m == mode.code())
     }
 
     fn image_changed(&mut self) {
@@ -1209,27 +1438,12 @@ impl Cia402Axis {
         }
         match self.cfg.position_mode {
             PositionMode::Cyclic => {
-                let far = if velocity > 0.0 {
-                    self.cfg.max_position.unwrap_or(self.demand + 1e6)
-                } else {
-                    self.cfg.min_position.unwrap_or(self.demand - 1e6)
+                let Some(mut op) = self.op.take() else {
+                    return Ok(());
                 };
-                let limits = Limits::symmetric(velocity.abs(), a)
-                    .map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
-                let profile = TrapezoidProfile::new(self.demand, self.demand_velocity, far, limits)
-                    .map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
-                self.trajectory = Some(Trajectory {
-                    profile,
-                    ratio: 1.0,
-                    start: self.demand_at,
-                });
-                if let Some(op) = &mut self.op {
-                    op.step = Step::Jogging;
-                    if !op.accepted {
-                        op.accepted = true;
-                        out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
-                    }
-                }
+                let r = self.plan_jog(&mut op, out);
+                self.op = Some(op);
+                r?;
             }
             PositionMode::Profile => {
                 self.want_profile(velocity.abs(), a, out);
@@ -1240,7 +1454,7 @@ impl Cia402Axis {
                     && !matches!(op.step, Step::Jogging)
                 {
                     op.step = Step::AwaitSdo;
-                    op.deadline = Some(now + self.cfg.state_timeout);
+                    op.arm(Some(now + self.cfg.state_timeout));
                 }
                 if matches!(self.op.as_ref().map(|o| &o.step), Some(Step::Jogging)) {
                     out.push(Output::Image(self.image));
@@ -1262,12 +1476,14 @@ impl Cia402Axis {
                 self.trajectory =
                     Trajectory::stop_ramp(self.demand, self.demand_velocity, decel, self.demand_at);
                 let t = self.trajectory.as_ref().map_or(0.0, Trajectory::duration);
-                op.deadline = Some(now + Duration::from_secs_f64(t) + self.cfg.settle_timeout);
+                op.arm(Some(
+                    now + Duration::from_secs_f64(t) + self.cfg.settle_timeout,
+                ));
             }
             _ => {
                 self.image.controlword |= Controlword::HALT_BIT;
                 self.image.target_velocity = 0;
-                op.deadline = Some(now + self.cfg.state_timeout + self.cfg.settle_timeout);
+                op.arm(Some(now + self.cfg.state_timeout + self.cfg.settle_timeout));
             }
         }
     }
@@ -1277,6 +1493,20 @@ impl Cia402Axis {
             if matches!(op.kind, CommandKind::Jog) {
                 self.jog_deadline = None;
             }
+            // An interrupted homing says what it leaves behind.
+            let detail = if op.kind == CommandKind::Home && outcome != Outcome::Completed {
+                let homing = match op.step {
+                    Step::SettleFor(_) => "homing did not start",
+                    _ => "homing interrupted",
+                };
+                if self.homed {
+                    format!("{detail}: {homing}; the earlier homing reference stays")
+                } else {
+                    format!("{detail}: {homing}; the axis is not homed")
+                }
+            } else {
+                detail
+            };
             out.push(Output::Event(AxisEvent::Done {
                 op: op.id,
                 command: op.kind,
@@ -1323,8 +1553,75 @@ impl Cia402Axis {
         }
     }
 
-    /// One step of `op`; `Some` when it ended.
+    /// One step of `op`; `Some` when it ended. Progress is judged first,
+    /// from the latest feedback; a deadline only then, and only once the
+    /// drive has been heard from after it ([`LATE_FEEDBACK`]) or its grace
+    /// ran out without any feedback.
     fn step(
+        &mut self,
+        op: &mut Op,
+        now: Duration,
+        out: &mut Vec<Output>,
+    ) -> Option<(Outcome, String)> {
+        if !op.settling
+            && matches!(op.step, Step::CyclicMoving | Step::Stopping)
+            && self.trajectory.is_none()
+            && self.in_cyclic_mode()
+        {
+            // The trajectory ended (however late the host ran it): the
+            // drive gets its settle time from here.
+            op.settling = true;
+            op.arm(Some(now + self.cfg.settle_timeout));
+        }
+        if let Some(r) = self.progress(op, now, out) {
+            return Some(r);
+        }
+        let d = op.deadline?;
+        if now < d || matches!(op.step, Step::Switch(_) | Step::Jogging) {
+            return None;
+        }
+        op.overdue = true;
+        if op.late_feedback < LATE_FEEDBACK && now < d + self.deadline_grace() {
+            return None;
+        }
+        let unit = &self.cfg.unit;
+        let what = match op.step {
+            Step::AwaitSdo => "the profile parameters were not written in time".to_string(),
+            Step::AwaitMode(m) => format!(
+                "the drive did not switch to {m} mode within {} ms",
+                self.cfg.state_timeout.as_millis()
+            ),
+            Step::AwaitAck => "the drive did not acknowledge the set-point".to_string(),
+            Step::Homing => "homing did not complete in time".to_string(),
+            Step::SettleFor(_) => format!(
+                "the drive did not come to rest in time (at {:.3} {unit}, {:.3} {unit}/s)",
+                self.actual(),
+                self.units().from_counts(f64::from(self.velocity))
+            ),
+            Step::Stopping => format!(
+                "not at rest in time: at {:.3} {unit}, {:.3} {unit}/s",
+                self.actual(),
+                self.units().from_counts(f64::from(self.velocity))
+            ),
+            _ => format!(
+                "not in position in time: at {:.3} {unit}, target {:.3} {unit}",
+                self.actual(),
+                op.target
+            ),
+        };
+        // The next command starts from bit 4 low.
+        self.release_handshake(out);
+        Some((Outcome::Timeout, what))
+    }
+
+    /// How long a deadline waits for the drive's feedback after it passed
+    /// before it fails without any.
+    fn deadline_grace(&self) -> Duration {
+        self.cfg.state_timeout + self.cfg.settle_timeout
+    }
+
+    /// Moves `op` forward on the latest feedback; `Some` when it ended.
+    fn progress(
         &mut self,
         op: &mut Op,
         now: Duration,
@@ -1332,31 +1629,6 @@ impl Cia402Axis {
     ) -> Option<(Outcome, String)> {
         let unit = self.cfg.unit.clone();
         let fresh = self.fresh >= 2;
-        if let Some(d) = op.deadline
-            && now >= d
-            && !matches!(op.step, Step::Switch(_))
-        {
-            let what = match op.step {
-                Step::AwaitSdo => "the profile parameters were not written in time".to_string(),
-                Step::AwaitMode(m) => format!(
-                    "the drive did not switch to {m} mode within {} ms",
-                    self.cfg.state_timeout.as_millis()
-                ),
-                Step::AwaitAck => "the drive did not acknowledge the set-point".to_string(),
-                Step::Homing => "homing did not complete in time".to_string(),
-                _ => format!(
-                    "not in position in time: at {:.3} {unit}, target {:.3} {unit}",
-                    self.actual(),
-                    op.target
-                ),
-            };
-            if matches!(op.step, Step::Jogging) {
-                // A jog has no deadline of its own besides the dead-man.
-                op.deadline = None;
-            } else {
-                return Some((Outcome::Timeout, what));
-            }
-        }
         loop {
             match &mut op.step {
                 Step::Switch(driver) => {
@@ -1419,12 +1691,12 @@ impl Cia402Axis {
                                 | Controlword::CHANGE_SET_IMMEDIATELY_BIT;
                             self.send_image(out);
                             op.step = Step::AwaitAck;
-                            op.deadline = Some(now + self.cfg.state_timeout);
+                            op.arm(Some(now + self.cfg.state_timeout));
                             return None;
                         }
                         ModeOfOperation::ProfileVelocity => {
                             op.step = Step::Jogging;
-                            op.deadline = None;
+                            op.arm(None);
                             self.send_image(out);
                             if !op.accepted {
                                 op.accepted = true;
@@ -1432,11 +1704,21 @@ impl Cia402Axis {
                             }
                             return None;
                         }
+                        ModeOfOperation::CyclicSynchronousPosition => {
+                            let planned = match op.command {
+                                AxisCommand::Jog { .. } => self.plan_jog(op, out),
+                                _ => self.plan_move(op, now, out),
+                            };
+                            return match planned {
+                                Ok(()) => None,
+                                Err(e) => Some((Outcome::Fault, e.to_string())),
+                            };
+                        }
                         ModeOfOperation::Homing => {
                             self.image.controlword |= Controlword::HOMING_START_BIT;
                             self.send_image(out);
                             op.step = Step::Homing;
-                            op.deadline = Some(now + self.cfg.homing_timeout);
+                            op.arm(Some(now + self.cfg.homing_timeout));
                             op.accepted = true;
                             out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
                             return None;
@@ -1460,8 +1742,9 @@ impl Cia402Axis {
                         .ok()
                         .and_then(|l| TrapezoidProfile::rest_to_rest(0.0, dist, l).ok())
                         .map_or(0.0, |p| p.duration());
-                    op.deadline =
-                        Some(now + Duration::from_secs_f64(est.min(1e6)) + self.cfg.settle_timeout);
+                    op.arm(Some(
+                        now + Duration::from_secs_f64(est.min(1e6)) + self.cfg.settle_timeout,
+                    ));
                     return None;
                 }
                 Step::ProfileMoving => {
@@ -1474,12 +1757,16 @@ impl Cia402Axis {
                     }
                     return None;
                 }
+                Step::SettleFor(mode) => {
+                    let mode = *mode;
+                    if self.trajectory.is_some() || !fresh || !self.at_rest() {
+                        return None;
+                    }
+                    self.begin_mode(mode, now, op, out);
+                    continue;
+                }
                 Step::CyclicMoving => {
-                    if self.trajectory.is_none()
-                        && fresh
-                        && (self.actual() - op.target).abs() <= self.cfg.in_position_window
-                        && self.standing_still()
-                    {
+                    if self.trajectory.is_none() && fresh && self.in_position(op.target) {
                         return Some((
                             Outcome::Completed,
                             format!("target reached at {:.3} {unit}", self.actual()),
@@ -1500,13 +1787,13 @@ impl Cia402Axis {
                             // position.
                             self.demand = self.actual();
                             self.demand_velocity = 0.0;
+                            self.demand_at = None;
                             self.last_target = self.demand;
                             self.image.target_position = self.position.unwrap_or_default();
-                            let mode = self.mode_for_position();
-                            self.image.mode = mode.code();
+                            self.set_mode(self.mode_for_position());
                             self.send_image(out);
                             op.step = Step::HomingReturn;
-                            op.deadline = Some(now + self.cfg.state_timeout);
+                            op.arm(Some(now + self.cfg.state_timeout));
                             return None;
                         }
                         HomingStatus::ErrorMoving | HomingStatus::ErrorStopped => {
@@ -1542,11 +1829,8 @@ impl Cia402Axis {
                                     && self.at_rest()
                         }
                         _ => match self.cfg.position_mode {
-                            PositionMode::Cyclic
-                                if self.image.mode
-                                    == ModeOfOperation::CyclicSynchronousPosition.code() =>
-                            {
-                                self.trajectory.is_none() && fresh
+                            PositionMode::Cyclic if self.in_cyclic_mode() => {
+                                self.trajectory.is_none() && fresh && self.in_position(self.demand)
                             }
                             _ => fresh && self.at_rest(),
                         },

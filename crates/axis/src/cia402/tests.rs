@@ -40,12 +40,17 @@ fn frame(id: u16, data: &[u8]) -> Frame {
 
 impl Rig {
     fn new(mode: PositionMode) -> Rig {
+        Rig::with_config(Cia402Config::example(1000.0, mode), 35)
+    }
+
+    /// A rig whose axis has `cfg` (1000 counts per mm) and whose drive
+    /// homes with `homing_method`.
+    fn with_config(cfg: Cia402Config, homing_method: u8) -> Rig {
         let node = NodeId::new(u32::from(NODE)).unwrap();
         let mut drive = SimDrive::bundled(node, SimDriveOptions::default());
         drive.start(Duration::ZERO);
         let (rpdos, tpdos) = standard_pdos(node, FeedbackTrigger::Sync);
-        // 1000 counts per mm.
-        let axis = Cia402Axis::new(Cia402Config::example(1000.0, mode));
+        let axis = Cia402Axis::new(cfg);
         let mut rig = Rig {
             axis,
             drive,
@@ -64,8 +69,7 @@ impl Rig {
             writes.extend(p.sdo_writes().unwrap());
         }
         writes.extend(rig.axis.boot_writes());
-        // Homing method 35: the current position is the home.
-        writes.push((obj::HOMING_METHOD, vec![35]));
+        writes.push((obj::HOMING_METHOD, vec![homing_method]));
         for (addr, data) in writes {
             rig.sdo_write(addr, &data);
         }
@@ -255,12 +259,18 @@ impl Rig {
         assert_eq!(self.drive.state(), DriveState::OperationEnabled);
     }
 
+    /// A move at 100 mm/s and 1000 mm/s², or the axis's maxima when lower.
     fn mv(&mut self, target: f64) -> OpId {
+        let cfg = self.axis.config();
+        let (velocity, acceleration) = (
+            cfg.max_velocity.min(100.0),
+            cfg.max_acceleration.min(1000.0),
+        );
         self.command(AxisCommand::Move {
             target,
             relative: false,
-            velocity: Some(100.0),
-            acceleration: Some(1000.0),
+            velocity: Some(velocity),
+            acceleration: Some(acceleration),
         })
         .unwrap()
     }
@@ -872,4 +882,111 @@ fn relative_moves_faster_than_sync_keep_advancing_and_add_up_exactly() {
     assert!(done >= 180, "{:?}", rig.setpoints);
     rig.run(100 * MS);
     assert_eq!(rig.setpoints.last().unwrap().1, 200);
+}
+
+/// The demo's axes: X cyclic with ±200 mm and 100 mm/s, Z profile with
+/// ±100 mm, 50 mm/s and a homing run to a reference switch.
+fn demo_config(mode: PositionMode) -> Cia402Config {
+    let mut cfg = Cia402Config::example(1000.0, mode);
+    let (limit, vmax, amax) = match mode {
+        PositionMode::Cyclic => (200.0, 100.0, 1000.0),
+        PositionMode::Profile => (100.0, 50.0, 500.0),
+    };
+    cfg.min_position = Some(-limit);
+    cfg.max_position = Some(limit);
+    cfg.max_velocity = vmax;
+    cfg.max_acceleration = amax;
+    cfg.default_velocity = vmax / 4.0;
+    cfg.default_acceleration = amax / 4.0;
+    cfg
+}
+
+/// Issue 14, item 1: move, home (to a switch, slow), stop during the
+/// homing run, move: the axis stays commandable, and the interrupted
+/// homing says so.
+#[test]
+fn a_stop_during_homing_leaves_a_profile_axis_commandable() {
+    let mut rig = Rig::with_config(demo_config(PositionMode::Profile), 19);
+    rig.enable();
+    let mv = rig.mv(10.0);
+    assert_eq!(
+        rig.run_until_done(mv, Duration::from_secs(3)).0,
+        Outcome::Completed
+    );
+    let home = rig.command(AxisCommand::Home).unwrap();
+    rig.run(300 * MS);
+    assert!(rig.done(home).is_none(), "homing runs");
+    let stop = rig.command(AxisCommand::Stop).unwrap();
+    let (outcome, detail) = rig.done(home).expect("the homing ended");
+    assert_eq!(outcome, Outcome::Stopped);
+    assert!(detail.contains("not homed"), "{detail}");
+    assert_eq!(
+        rig.run_until_done(stop, Duration::from_secs(3)).0,
+        Outcome::Completed
+    );
+    for target in [5.0, -3.0] {
+        let mv = rig.mv(target);
+        let (outcome, detail) = rig.run_until_done(mv, Duration::from_secs(5));
+        assert_eq!(outcome, Outcome::Completed, "{detail}");
+        assert!((rig.drive.position() - target * 1000.0).abs() < 1.0);
+    }
+    assert!(!rig.axis.snapshot().homed);
+}
+
+/// Issue 14, item 1: a move sent during homing supersedes it cleanly (the
+/// homing ends saying it was interrupted) and runs.
+#[test]
+fn a_move_during_homing_supersedes_it_and_runs() {
+    let mut rig = Rig::with_config(demo_config(PositionMode::Profile), 19);
+    rig.enable();
+    let mv = rig.mv(10.0);
+    rig.run_until_done(mv, Duration::from_secs(3));
+    let home = rig.command(AxisCommand::Home).unwrap();
+    rig.run(300 * MS);
+    let mv = rig.mv(5.0);
+    let (outcome, detail) = rig.done(home).expect("the homing ended");
+    assert_eq!(outcome, Outcome::Superseded);
+    assert!(detail.contains("not homed"), "{detail}");
+    let (outcome, detail) = rig.run_until_done(mv, Duration::from_secs(5));
+    assert_eq!(outcome, Outcome::Completed, "{detail}");
+    assert!((rig.drive.position() - 5000.0).abs() < 1.0);
+}
+
+/// Issue 14, item 1a: a cyclic axis jogging at nearly full speed is told
+/// to home. It must come to rest under the gateway's trajectory before the
+/// drive switches to homing (whose deceleration is far lower), never pass
+/// its soft limits, and a stop must stop it.
+#[test]
+fn home_while_jogging_does_not_run_a_cyclic_axis_away() {
+    let mut rig = Rig::with_config(demo_config(PositionMode::Cyclic), 35);
+    rig.enable();
+    let jog = AxisCommand::Jog {
+        velocity: -99.0,
+        acceleration: None,
+    };
+    rig.command(jog).unwrap();
+    rig.run(200 * MS);
+    rig.command(jog).unwrap();
+    rig.run(300 * MS);
+    let home = rig.command(AxisCommand::Home).unwrap();
+    let end = rig.now + Duration::from_secs(5);
+    let mut lowest = f64::MAX;
+    while rig.now < end && rig.done(home).is_none() {
+        rig.step();
+        lowest = lowest.min(rig.drive.position());
+    }
+    let (outcome, detail) = rig.done(home).expect("homing ends");
+    assert_eq!(outcome, Outcome::Completed, "{detail}");
+    assert!(lowest >= -200_000.0, "passed the soft limit: {lowest}");
+    assert!(rig.drive.velocity().abs() < 1.0);
+    // A jog, then a stop with wait: the stop completes at rest.
+    rig.command(jog).unwrap();
+    rig.run(300 * MS);
+    let stop = rig.command(AxisCommand::Stop).unwrap();
+    let (outcome, detail) = rig.run_until_done(stop, Duration::from_secs(3));
+    assert_eq!(outcome, Outcome::Completed, "{detail}");
+    // At rest: what is left moves less than the in-position window.
+    let at = rig.drive.position();
+    rig.run(200 * MS);
+    assert!((rig.drive.position() - at).abs() <= 10.0);
 }
