@@ -169,6 +169,8 @@ pub struct SimHandwheelStats {
 #[derive(Debug)]
 pub struct SimHandwheel {
     node: SimNode,
+    /// As built, for [`crate::PowerOn`].
+    options: SimHandwheelOptions,
     layout: CounterLayout,
     period: Duration,
     accumulator: i64,
@@ -215,7 +217,8 @@ impl SimHandwheel {
             options.frame_rate
         };
         let mut wheel = SimHandwheel {
-            node: SimNode::from_od(od, node, options.node),
+            node: SimNode::from_od(od, node, options.node.clone()),
+            options: options.clone(),
             layout: options.layout,
             period: Duration::from_nanos(1_000_000_000 / u64::from(rate))
                 .max(Duration::from_nanos(1)),
@@ -434,6 +437,16 @@ impl SimHandwheel {
                 self.publish_switches();
             }
         }
+    }
+}
+
+impl crate::PowerOn for SimHandwheel {
+    fn powered_on(&self) -> Self {
+        SimHandwheel::from_od(
+            self.node.od().clone(),
+            self.node.node_id(),
+            self.options.clone(),
+        )
     }
 }
 

@@ -108,6 +108,32 @@ impl<D: Device + ?Sized> Device for Box<D> {
     }
 }
 
+/// A device that can be powered on afresh: the state it has after its power
+/// was cut (the power-on defaults of its object dictionary, its options
+/// kept), for [`runner::DeviceHandle::power_cycle`].
+pub trait PowerOn {
+    /// The device as it is when power returns, not yet started.
+    fn powered_on(&self) -> Self;
+}
+
+impl PowerOn for SimNode {
+    fn powered_on(&self) -> Self {
+        SimNode::from_od(self.od().clone(), self.node_id(), self.options().clone())
+    }
+}
+
+/// A drive loses its position with its power, as one with an incremental
+/// encoder does: it must be homed again.
+impl PowerOn for SimDrive {
+    fn powered_on(&self) -> Self {
+        SimDrive::from_od(
+            self.node().od().clone(),
+            self.node().node_id(),
+            self.options().clone(),
+        )
+    }
+}
+
 /// Why a simulated device could not be built or an object not be accessed
 /// locally.
 #[derive(Debug, thiserror::Error)]

@@ -32,6 +32,7 @@
 
 use std::future::pending;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::Duration;
 
 use cangate_can::{Frame, PortEvent, VirtualPort};
 use tokio::sync::Notify;
@@ -51,6 +52,16 @@ struct Shared<D> {
     outbox: Vec<Frame>,
     /// Frames the bus refused (bus-off, interface down).
     send_errors: u64,
+    /// A power cut in progress ([`DeviceHandle::power_cycle`]).
+    power_cut: Option<PowerCut<D>>,
+}
+
+/// The device is off until `until` (set by the runner when it first sees
+/// the cut), then `restart` makes it a freshly powered device.
+struct PowerCut<D> {
+    off_for: Duration,
+    until: Option<Duration>,
+    restart: Box<dyn FnOnce(&mut D) + Send>,
 }
 
 /// Shared access to a device run by [`spawn_device`]. Cheap to clone; all
@@ -87,6 +98,7 @@ impl<D: Device> DeviceHandle<D> {
                 device,
                 outbox: Vec::new(),
                 send_errors: 0,
+                power_cut: None,
             })),
             wake: Arc::new(Notify::new()),
         }
@@ -109,6 +121,29 @@ impl<D: Device> DeviceHandle<D> {
             s.outbox.extend(frames);
         }
         self.wake.notify_one();
+    }
+
+    /// Cuts the device's power for `off`: it receives and sends nothing
+    /// (frames the application queued are lost, as in a real outage), then
+    /// `restart` turns it into a freshly powered device (e.g.
+    /// [`crate::PowerOn::powered_on`]) and the runner starts it (a CANopen
+    /// node boots up). A new cut during one replaces it.
+    pub fn power_cycle(&self, off: Duration, restart: impl FnOnce(&mut D) + Send + 'static) {
+        {
+            let mut s = self.lock();
+            s.outbox.clear();
+            s.power_cut = Some(PowerCut {
+                off_for: off,
+                until: None,
+                restart: Box::new(restart),
+            });
+        }
+        self.wake.notify_one();
+    }
+
+    /// False while a power cut is in progress.
+    pub fn is_powered(&self) -> bool {
+        self.lock().power_cut.is_none()
     }
 
     /// Frames the bus refused so far.
@@ -146,12 +181,31 @@ async fn run<D: Device>(mut port: VirtualPort, handle: DeviceHandle<D>, cancel: 
     send_all(&port, &handle, &started);
     let mut events = Vec::with_capacity(BATCH);
     loop {
-        let (queued, deadline) = {
+        let (queued, deadline, off) = {
             let mut s = handle.lock();
-            (std::mem::take(&mut s.outbox), s.device.next_deadline())
+            match power_state(&mut s, origin.elapsed()) {
+                Some(until) => (Vec::new(), Some(until), true),
+                None => (
+                    std::mem::take(&mut s.outbox),
+                    s.device.next_deadline(),
+                    false,
+                ),
+            }
         };
-        // The application may have changed the device through the handle.
-        filters.refresh(&port, &handle);
+        if off {
+            // Unpowered: the port takes nothing; after power-on the fresh
+            // device's filters are set whatever its generation.
+            if filters.set.as_deref() != Some(&[]) {
+                port.set_filters(Some(Vec::new()));
+                filters = Filters {
+                    set: Some(Vec::new()),
+                    generation: None,
+                };
+            }
+        } else {
+            // The application may have changed the device through the handle.
+            filters.refresh(&port, &handle);
+        }
         send_all(&port, &handle, &queued);
         let timer = async {
             match deadline {
@@ -166,6 +220,10 @@ async fn run<D: Device>(mut port: VirtualPort, handle: DeviceHandle<D>, cancel: 
             _ = port.recv_many(&mut events, BATCH) => {
                 let now = origin.elapsed();
                 let mut out = Vec::new();
+                if off {
+                    events.clear();
+                    continue;
+                }
                 {
                     let mut s = handle.lock();
                     for event in events.drain(..) {
@@ -180,9 +238,28 @@ async fn run<D: Device>(mut port: VirtualPort, handle: DeviceHandle<D>, cancel: 
             }
             _ = timer => {}
         }
+        if off {
+            continue;
+        }
         let due = handle.lock().device.on_tick(origin.elapsed());
         send_all(&port, &handle, &due);
     }
+}
+
+/// Advances a power cut at `now`: `Some(until)` while the device is off;
+/// at the end, restarts the device and queues its start-up frames.
+fn power_state<D: Device>(s: &mut Shared<D>, now: Duration) -> Option<Duration> {
+    let cut = s.power_cut.as_mut()?;
+    let until = *cut.until.get_or_insert(now + cut.off_for);
+    if now < until {
+        s.outbox.clear();
+        return Some(until);
+    }
+    let cut = s.power_cut.take()?;
+    (cut.restart)(&mut s.device);
+    let boot = s.device.start(now);
+    s.outbox = boot;
+    None
 }
 
 /// The acceptance filters last set on the device's port, and the device's
@@ -384,6 +461,52 @@ mod tests {
         );
         assert_eq!(handle.send_errors(), 0);
 
+        cancel.cancel();
+        task.await.unwrap();
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_power_cycle_silences_the_node_then_boots_it_with_its_defaults() {
+        use crate::PowerOn;
+        let bus = VirtualBus::new("sim-power", VirtualBusConfig::default());
+        let mut tester = bus.connect(false);
+        let cancel = CancellationToken::new();
+        let handle = DeviceHandle::new(drive(SimNodeOptions::default()));
+        let task = spawn_device(bus.connect(false), handle.clone(), cancel.clone());
+        assert_eq!(next_with_id(&mut tester, 0x705).await.data(), [0x00]);
+        // Heartbeat 0x1017 = 50 ms over SDO.
+        tester
+            .send(&frame(0x605, &[0x2B, 0x17, 0x10, 0x00, 50, 0, 0, 0]))
+            .unwrap();
+        assert_eq!(next_with_id(&mut tester, 0x585).await.data()[0], 0x60);
+        handle.power_cycle(Duration::from_millis(500), |n| *n = n.powered_on());
+        tokio::task::yield_now().await;
+        assert!(!handle.is_powered());
+        // Off: no heartbeat, no SDO answer, nothing at all.
+        tester
+            .send(&frame(0x605, &[0x40, 0x17, 0x10, 0x00, 0, 0, 0, 0]))
+            .unwrap();
+        let silent = timeout(Duration::from_millis(400), async {
+            loop {
+                if let PortEvent::Frame { frame, .. } = tester.recv().await {
+                    return frame;
+                }
+            }
+        })
+        .await;
+        // The heartbeat already on the bus before the cut may still arrive.
+        if let Ok(f) = silent {
+            assert_eq!(f.raw_id(), 0x705, "{f:?}");
+        }
+        // Power returns: boot-up, and the dictionary's defaults (0x1017 = 1000).
+        let boot = next_with_id(&mut tester, 0x705).await;
+        assert_eq!(boot.data(), [0x00]);
+        assert!(handle.is_powered());
+        tester
+            .send(&frame(0x605, &[0x40, 0x17, 0x10, 0x00, 0, 0, 0, 0]))
+            .unwrap();
+        let reply = next_with_id(&mut tester, 0x585).await;
+        assert_eq!(reply.data()[4..6], 1000u16.to_le_bytes());
         cancel.cancel();
         task.await.unwrap();
     }
