@@ -1,5 +1,6 @@
 //! CAN frame model and bus backends.
 //!
+//! - [`budget`]: traffic classes and the pacing of client and bulk frames.
 //! - [`frame`]: classic and FD frames, identifiers, `cansend` text syntax.
 //! - [`filter`]: id/mask receive filters (`candump` syntax).
 //! - [`timing`]: bit-exact frame durations, arbitration, bus load (pure).
@@ -7,6 +8,7 @@
 //! - [`socketcan_bus`]: Linux SocketCAN with reconnection.
 //! - [`bus`]: one owner task per bus and the handle everyone else uses.
 
+pub mod budget;
 #[cfg(feature = "runtime")]
 pub mod bus;
 pub mod filter;
@@ -18,6 +20,7 @@ pub mod timing;
 #[cfg(feature = "runtime")]
 pub mod virtual_bus;
 
+pub use budget::{TxClass, TxShares};
 #[cfg(feature = "runtime")]
 pub use bus::{
     Backend, BackendKind, BusHandle, BusInfo, BusItem, BusStats, Direction, SendFailure,

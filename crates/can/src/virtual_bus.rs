@@ -59,6 +59,19 @@ pub enum SendError {
     /// A CAN FD frame on a bus that is not configured for CAN FD.
     #[error("bus {0} is not configured for CAN FD")]
     FdNotSupported(String),
+    /// Too many client frames already wait for the bus's client share
+    /// (see [`crate::budget`]).
+    #[error(
+        "bus {bus}: {queued} frames already wait for the client share of the bus ({percent} %); send more slowly, or raise the bus's client_share_percent"
+    )]
+    BudgetExhausted {
+        /// Bus name.
+        bus: String,
+        /// Client and bulk frames waiting when this batch came.
+        queued: u64,
+        /// The client share in percent.
+        percent: u8,
+    },
     /// The operating system refused the frame.
     #[error("bus {bus}: {message}")]
     Io {
@@ -178,7 +191,9 @@ struct Inner {
 }
 
 struct TimedState {
-    arbiter: Arbiter<u64>,
+    /// Senders are (port, lane): each lane of a port is a transmit FIFO of
+    /// its own (see [`VirtualSender::send_batch_in_lane`]).
+    arbiter: Arbiter<(u64, u8)>,
     delayed: VecDeque<(u64, Frame, u64)>,
     load: LoadMeter,
     shutdown: bool,
@@ -409,7 +424,7 @@ impl VirtualBus {
     /// Queues frames from one port. A batch is queued atomically (one lock,
     /// one enqueue time), as a controller's transmit FIFO filled in one go:
     /// on a bit-timed bus the frames then go out back to back.
-    fn send_from(&self, port: u64, frames: &[Frame]) -> Result<(), SendError> {
+    fn send_from(&self, port: u64, lane: u8, frames: &[Frame]) -> Result<(), SendError> {
         let inner = &self.inner;
         if inner.refusing.load(Ordering::Acquire) {
             match inner.status.lock().expect("status lock").state {
@@ -436,11 +451,13 @@ impl VirtualBus {
         };
         match inner.timed.get() {
             Some(t) => {
-                let now = self.model_now();
                 let mut st = t.state.lock().expect("timed state");
+                // Read under the lock, so that enqueue times follow the
+                // enqueue order.
+                let now = self.model_now();
                 for frame in frames {
                     if !dropped(frame) {
-                        st.arbiter.enqueue(*frame, port, now);
+                        st.arbiter.enqueue(*frame, (port, lane), now);
                     }
                 }
                 drop(st);
@@ -499,7 +516,8 @@ fn scheduler_thread(bus: Weak<Inner>, timed: Arc<Timed>) {
             }
         }
         for t in done {
-            st.delayed.push_back((t.end_ns + delay, t.frame, t.sender));
+            st.delayed
+                .push_back((t.end_ns + delay, t.frame, t.sender.0));
         }
         let mut due = Vec::new();
         while let Some(&(at, _, _)) = st.delayed.front() {
@@ -605,14 +623,20 @@ impl VirtualPort {
     /// Queues a frame for transmission.
     pub fn send(&self, frame: &Frame) -> Result<(), SendError> {
         self.bus
-            .send_from(self.shared.id, std::slice::from_ref(frame))
+            .send_from(self.shared.id, 0, std::slice::from_ref(frame))
     }
 
     /// Queues frames for transmission in one go (see [`VirtualBus`]: on a
     /// bit-timed bus they go out back to back). All or nothing: a refusal
     /// (bus-off, FD on a classic bus) queues none of them.
     pub fn send_batch(&self, frames: &[Frame]) -> Result<(), SendError> {
-        self.bus.send_from(self.shared.id, frames)
+        self.bus.send_from(self.shared.id, 0, frames)
+    }
+
+    /// [`VirtualPort::send_batch`] in one of the port's transmit lanes (see
+    /// [`VirtualSender::send_batch_in_lane`]).
+    pub fn send_batch_in_lane(&self, frames: &[Frame], lane: u8) -> Result<(), SendError> {
+        self.bus.send_from(self.shared.id, lane, frames)
     }
 
     /// A handle that sends as this port from any thread (the port itself
@@ -779,7 +803,17 @@ impl std::fmt::Debug for VirtualSender {
 impl VirtualSender {
     /// Queues frames as [`VirtualPort::send_batch`] does.
     pub fn send_batch(&self, frames: &[Frame]) -> Result<(), SendError> {
-        self.bus.send_from(self.port.id, frames)
+        self.bus.send_from(self.port.id, 0, frames)
+    }
+
+    /// Queues frames in one of the port's transmit lanes. On a bit-timed
+    /// bus each lane is a transmit FIFO of its own, whose head takes part
+    /// in arbitration like another node's, as a controller's separate
+    /// transmit mailboxes do: frames in lane 0 (what
+    /// [`VirtualSender::send_batch`] uses) never wait behind a backlog in
+    /// another lane. Without bit timing lanes make no difference.
+    pub fn send_batch_in_lane(&self, frames: &[Frame], lane: u8) -> Result<(), SendError> {
+        self.bus.send_from(self.port.id, lane, frames)
     }
 
     /// Sets the port's echo filter, as [`VirtualPort::set_echo_filters`]
@@ -997,6 +1031,35 @@ mod tests {
         }
         // Delivered to the peer in order, so the echo was decided by now.
         assert_eq!(own_ids(&mut gw), [0x123]);
+    }
+
+    /// Each lane of a port is a transmit FIFO of its own on a bit-timed
+    /// bus: a frame in lane 0 overtakes the backlog in lane 2 (it waits
+    /// only for the frame on the wire), while in the same lane it would
+    /// wait behind all of it.
+    #[tokio::test]
+    async fn lanes_of_a_port_arbitrate_like_separate_nodes() {
+        let bus = VirtualBus::new(
+            "timed",
+            VirtualBusConfig {
+                bit_timing: Some(BitTiming::new(1_000_000)),
+                ..Default::default()
+            },
+        );
+        let gw = bus.connect(false);
+        let mut peer = bus.connect(false);
+        let backlog = vec![frame(0x7F0, &[0; 8]); 50];
+        gw.send_batch_in_lane(&backlog, 2).unwrap();
+        gw.send_batch_in_lane(&[frame(0x080, &[])], 0).unwrap();
+        gw.send_batch_in_lane(&backlog, 2).unwrap();
+        gw.send_batch_in_lane(&[frame(0x081, &[])], 2).unwrap();
+        let mut ids = Vec::new();
+        for _ in 0..102 {
+            ids.push(next_frame(&mut peer).await.raw_id());
+        }
+        assert_eq!(ids[1], 0x080, "lane 0 overtakes lane 2's backlog");
+        assert_eq!(ids[101], 0x081, "lane 2 stays in order");
+        assert!(ids[2..101].iter().all(|&id| id == 0x7F0));
     }
 
     #[tokio::test]
