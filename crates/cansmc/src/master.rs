@@ -1116,7 +1116,16 @@ impl Master {
                 }
             }
             Feedback::Reject { function, reason } => {
-                if self.cyclic_answer(a, status, now).is_some() {
+                if let Some(cycle) = self.cyclic_answer(a, status, now) {
+                    // The reject carries the slave's status word: the
+                    // application must see it (a slave in fault answers a
+                    // homing MDT with a reject every cycle, and its fault
+                    // shows only here).
+                    if let Some(s) = self.slaves.get_mut(&a)
+                        && s.last.is_none_or(|(_, _, c)| c <= cycle)
+                    {
+                        s.last = Some((status, feedback, cycle));
+                    }
                     self.events.push(MasterEvent::Rejected {
                         address: from,
                         function,

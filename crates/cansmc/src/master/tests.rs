@@ -509,3 +509,41 @@ fn a_wrong_counter_echo_is_a_mismatch_not_late_once_the_counter_wrapped() {
     // Every MDT is accounted for: answered in time or missed.
     assert_eq!(s2.dts + s2.missed, s2.mdts, "{s2:?}");
 }
+
+#[test]
+fn a_rejected_mdt_still_delivers_the_slave_status_word() {
+    let mut m = cyclic(&[1]);
+    m.poll(us(400));
+    m.on_frame(&dt(1, 0, 7), us(700));
+    run_cycle(&mut m, 1, &[]);
+    // Cycle 1: the slave is in fault and rejects its homing MDT; the reject
+    // carries the fault in its status word.
+    let reject = Telegram::Slave {
+        from: addr(1),
+        status: StatusWord {
+            ready: true,
+            fault: true,
+            counter_echo: CycleCounter::new(1),
+            ..StatusWord::default()
+        },
+        feedback: Feedback::Reject {
+            function: Function::Homing,
+            reason: RejectReason::Fault,
+        },
+    }
+    .encode();
+    m.on_frame(&reject, us(2300 + 400));
+    let s = m.slave(addr(1)).unwrap();
+    let (status, feedback, cycle) = s.last.unwrap();
+    assert!(status.fault, "the application must see the fault");
+    assert_eq!(cycle, 1);
+    assert!(matches!(feedback, Feedback::Reject { .. }));
+    assert_eq!((s.counters.dts, s.counters.rejects), (2, 1));
+    assert!(m.take_events().iter().any(|e| matches!(
+        e,
+        MasterEvent::Rejected {
+            reason: RejectReason::Fault,
+            ..
+        }
+    )));
+}
