@@ -205,13 +205,6 @@ impl Master {
         Self::start_next(n, now, out);
     }
 
-    /// Requests waiting (not running) for `node`'s SDO channel.
-    pub fn queued(&self, node: NodeId) -> usize {
-        self.sdo
-            .get(&node)
-            .map_or(0, |n| n.gateway_queue.len() + n.client_queue.len())
-    }
-
     fn start_next(n: &mut NodeSdo, now: Duration, out: &mut Output) {
         if n.client.ready_at().is_some_and(|at| now < at) {
             return;
