@@ -157,6 +157,12 @@ impl Gateway {
         for bc in &config.buses {
             let (info, backend) = open_bus(bc, &network)?;
             let (handle, task) = BusHandle::spawn(info, backend, shutdown.child_token());
+            bc.tx_shares()
+                .and_then(|shares| handle.set_tx_shares(shares))
+                .map_err(|message| StartError::Bus {
+                    bus: bc.name.clone(),
+                    message,
+                })?;
             buses.insert(bc.name.clone(), handle);
             tasks.push(task);
         }

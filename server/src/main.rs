@@ -6,6 +6,11 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
+/// Exit status when axes were still moving at the end of
+/// `shutdown_timeout_ms` and had to be quick-stopped through their
+/// controlword (1 is every other failure).
+const EXIT_AXES_NOT_AT_REST: u8 = 3;
+
 /// cangate: CAN bus gateway with a gRPC API. Without --config it runs the
 /// embedded demo (virtual buses, simulated devices, no hardware).
 #[derive(Parser, Debug)]
@@ -180,10 +185,14 @@ async fn serve(demo: bool, config: Config) -> ExitCode {
     signals.wait().await;
     tracing::info!("shutting down");
     // Moving axes are brought to rest before the buses close.
-    server
+    let not_at_rest = server
         .shutdown_safely(Duration::from_millis(config.shutdown_timeout_ms))
         .await;
     match server.wait(Duration::from_secs(10)).await {
+        // A supervisor (systemd, Kubernetes) must see that the machine was
+        // left in motion: the axes were quick-stopped, not stopped as
+        // configured.
+        Ok(()) if !not_at_rest.is_empty() => ExitCode::from(EXIT_AXES_NOT_AT_REST),
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             tracing::error!("{e}");

@@ -741,8 +741,9 @@ async fn shutdown_stops_a_jogging_axis_and_refuses_new_commands() {
         .axes()
         .stop_for_shutdown(Duration::from_secs(5))
         .await;
-    assert_eq!(report.len(), 1, "{report:?}");
-    assert!(report[0].starts_with("F: completed"), "{report:?}");
+    assert_eq!(report.lines.len(), 1, "{report:?}");
+    assert!(report.lines[0].starts_with("F: completed"), "{report:?}");
+    assert!(report.not_at_rest.is_empty(), "{report:?}");
     assert!(drive.with(|d| d.velocity()).abs() < 1.0);
     // New commands are refused from now on.
     let e = axes.enable(cmd("F", &lease, false)).await.unwrap_err();

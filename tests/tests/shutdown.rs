@@ -1,8 +1,10 @@
-//! Shutdown with open streams: the cancellation the signal handler fires
-//! ends the server promptly, and every stream ends cleanly (no error).
+//! Shutdown: the cancellation the signal handler fires ends the server
+//! promptly and every stream cleanly (no error); axes still moving when the
+//! motion bound runs out are quick-stopped through their controlword.
 
 mod common;
 
+use cangate_client::pb;
 use common::*;
 use std::time::Duration;
 
@@ -37,4 +39,109 @@ async fn shutdown_ends_streams_cleanly_and_promptly() {
             .await
             .is_err()
     );
+}
+
+/// A cyclic axis on a drive the test runs itself (node 5), with a gentle
+/// deceleration so that a stop from jog speed outlasts a short shutdown
+/// bound.
+const SLOW_STOP_AXIS: &str = r#"
+[[bus]]
+name = "can0"
+backend = "virtual"
+
+[[canopen]]
+bus = "can0"
+sync_period_us = 5000
+
+[[canopen.node]]
+id = 5
+eds = "builtin:drive"
+heartbeat_timeout_ms = 300
+
+[[axis]]
+name = "S"
+bus = "can0"
+node = 5
+counts_per_unit = 1000.0
+position_mode = "cyclic"
+min_position = -1000.0
+max_position = 1000.0
+max_velocity = 100.0
+max_acceleration = 20.0
+jog_deadman_ms = 5000
+"#;
+
+/// Shutdown whose stop does not finish within the bound: the gateway is a
+/// cyclic drive's trajectory, so before it leaves it quick-stops the drive
+/// through the controlword (the drive then ramps down on its own), and it
+/// reports the axis as not at rest (the server exits non-zero).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shutdown_quick_stops_a_cyclic_axis_that_is_not_at_rest_in_time() {
+    use cangate_canopen::ds402::DriveState;
+    use common::axes::*;
+    let server = start_server(SLOW_STOP_AXIS).await;
+    let c = client(&server).await;
+    let mut axes = c.axes_client();
+    let (drive, _cancel) = run_drive(&server, 5, Some(100));
+    wait_status(&mut axes, "S", |s| s.state != 0 && !s.node_lost).await;
+    let lease = acquire(&mut axes, &["S"], 10_000, "test").await;
+    enable(&mut axes, "S", &lease).await;
+    axes.jog(pb::JogRequest {
+        axis: "S".into(),
+        velocity: 40.0,
+        acceleration: 0.0,
+        options: opts(&lease, false),
+    })
+    .await
+    .unwrap();
+    // At full speed (the ramp to 40 mm/s covers 40 mm).
+    wait_status(&mut axes, "S", |s| s.position > 45.0).await;
+    // 40 mm/s at 20 mm/s² needs 2 s to stop: far more than the bound.
+    let not_at_rest = server.shutdown_safely(Duration::from_millis(200)).await;
+    assert_eq!(not_at_rest, vec!["S".to_string()]);
+    let state = drive.with(|d| d.state());
+    assert!(
+        matches!(
+            state,
+            DriveState::QuickStopActive | DriveState::SwitchOnDisabled
+        ),
+        "the drive got the quick stop through its controlword: {state:?}"
+    );
+    server.wait(Duration::from_secs(10)).await.unwrap();
+}
+
+/// Shutdown with every axis brought to rest in time reports none.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shutdown_reports_no_axis_when_all_came_to_rest() {
+    use common::axes::*;
+    let server = start_server(SLOW_STOP_AXIS).await;
+    let c = client(&server).await;
+    let mut axes = c.axes_client();
+    let (drive, _cancel) = run_drive(&server, 5, Some(100));
+    wait_status(&mut axes, "S", |s| s.state != 0 && !s.node_lost).await;
+    let lease = acquire(&mut axes, &["S"], 10_000, "test").await;
+    enable(&mut axes, "S", &lease).await;
+    axes.jog(pb::JogRequest {
+        axis: "S".into(),
+        velocity: 5.0,
+        acceleration: 0.0,
+        options: opts(&lease, false),
+    })
+    .await
+    .unwrap();
+    // At full speed (the ramp to 5 mm/s covers 0.625 mm).
+    wait_status(&mut axes, "S", |s| s.position > 1.0).await;
+    // 5 mm/s at 20 mm/s² stops in 0.25 s.
+    let stops = server
+        .gateway()
+        .axes()
+        .stop_for_shutdown(Duration::from_secs(5))
+        .await;
+    assert!(stops.not_at_rest.is_empty(), "{stops:?}");
+    assert_eq!(stops.lines.len(), 1, "{stops:?}");
+    assert!(stops.lines[0].starts_with("S: completed"), "{stops:?}");
+    server.shutdown();
+    let v = drive.with(|d| d.velocity());
+    assert!(v.abs() < 0.5, "drive velocity {v} counts/s");
+    server.wait(Duration::from_secs(10)).await.unwrap();
 }

@@ -149,6 +149,21 @@ pub struct CommandResult {
     pub snapshot: Arc<AxisSnapshot>,
 }
 
+/// What shutdown's first step did to the axes in motion.
+#[derive(Debug, Default)]
+pub struct ShutdownStops {
+    /// One line per stopped axis for the log.
+    pub lines: Vec<String>,
+    /// Axes that were not at rest within the bound (and were quick-stopped
+    /// through the controlword); the server exits non-zero when any are.
+    pub not_at_rest: Vec<String>,
+}
+
+/// How long shutdown waits for the quick stop of an axis that did not come
+/// to rest within `shutdown_timeout_ms`: long enough for the controlword to
+/// reach the drive and the drive to confirm, not to wait out its ramp.
+const QUICK_STOP_GRACE: Duration = Duration::from_secs(1);
+
 impl AxisManager {
     /// Starts the axis tasks (one per CANopen bus with axes) and hands
     /// over the CANsmc axes: one [`AxisPort`] per `[[cansmc]]` master with
@@ -336,19 +351,16 @@ impl AxisManager {
     /// Shutdown, first step: refuses every new command and control
     /// request, then stops the axes that move (halt or quick stop per
     /// their `stop_on_loss`) and waits until they are at rest, at most
-    /// `bound`. Returns one line per stopped axis for the log.
-    pub async fn stop_for_shutdown(&self, bound: Duration) -> Vec<String> {
+    /// `bound`. An axis still moving then is quick-stopped through its
+    /// controlword, so its drive ramps down on its own: a cyclic drive
+    /// would otherwise hold or chase its last set-point once the gateway,
+    /// which is its trajectory, has gone.
+    pub async fn stop_for_shutdown(&self, bound: Duration) -> ShutdownStops {
         self.closing
             .store(true, std::sync::atomic::Ordering::SeqCst);
         let mut stops = Vec::new();
         for i in 0..self.axes.len() {
-            let moving = self.latest(i).is_some_and(|(s, _)| {
-                matches!(
-                    s.activity,
-                    Activity::Moving | Activity::Jogging | Activity::Homing | Activity::Stopping
-                )
-            });
-            if moving {
+            if self.in_motion(i) {
                 let cmd = match self.info(i).config.stop_on_loss {
                     StopChoice::Halt => AxisCommand::Stop,
                     StopChoice::QuickStop => AxisCommand::QuickStop,
@@ -356,33 +368,89 @@ impl AxisManager {
                 stops.push((i, cmd));
             }
         }
+        let mut report = ShutdownStops {
+            lines: Vec::new(),
+            not_at_rest: Vec::new(),
+        };
         if stops.is_empty() {
-            return Vec::new();
+            return report;
         }
-        let names: Vec<String> = stops
+        let results: Vec<Option<Result<CommandResult, ApiError>>> =
+            match tokio::time::timeout(bound, self.many(stops.clone(), true)).await {
+                Ok(Ok(results)) => results.into_iter().map(Some).collect(),
+                Ok(Err(e)) => {
+                    report.lines.push(format!("stopping: {e}"));
+                    (0..stops.len()).map(|_| None).collect()
+                }
+                Err(_) => (0..stops.len()).map(|_| None).collect(),
+            };
+        let mut unsettled = Vec::new();
+        for ((i, _), r) in stops.iter().zip(results) {
+            let name = self.name(*i).to_string();
+            let completed = matches!(
+                &r,
+                Some(Ok(CommandResult {
+                    outcome: Some(Outcome::Completed),
+                    ..
+                }))
+            );
+            match r {
+                Some(Ok(r)) => report.lines.push(format!(
+                    "{name}: {} ({})",
+                    r.outcome.map_or("accepted", Outcome::name),
+                    r.detail
+                )),
+                Some(Err(e)) => report.lines.push(format!("{name}: {e}")),
+                None => report.lines.push(format!(
+                    "{name}: not at rest within {} ms",
+                    bound.as_millis()
+                )),
+            }
+            // A completed stop is at rest by definition; the latest
+            // published state may still lag behind it.
+            if !completed {
+                unsettled.push(*i);
+            }
+        }
+        if unsettled.is_empty() {
+            return report;
+        }
+        let quick: Vec<(usize, AxisCommand)> = unsettled
             .iter()
-            .map(|(i, _)| self.name(*i).to_string())
+            .map(|&i| (i, AxisCommand::QuickStop))
             .collect();
-        match tokio::time::timeout(bound, self.many(stops, true)).await {
-            Ok(Ok(results)) => names
-                .iter()
-                .zip(results)
-                .map(|(n, r)| match r {
-                    Ok(r) => format!(
-                        "{n}: {} ({})",
-                        r.outcome.map_or("accepted", Outcome::name),
-                        r.detail
-                    ),
-                    Err(e) => format!("{n}: {e}"),
-                })
-                .collect(),
-            Ok(Err(e)) => vec![format!("stopping {}: {e}", names.join(", "))],
-            Err(_) => vec![format!(
-                "{}: not at rest within {} ms",
-                names.join(", "),
-                bound.as_millis()
-            )],
+        let quick_results: Vec<Option<Result<CommandResult, ApiError>>> =
+            match tokio::time::timeout(QUICK_STOP_GRACE, self.many(quick, true)).await {
+                Ok(Ok(results)) => results.into_iter().map(Some).collect(),
+                _ => (0..unsettled.len()).map(|_| None).collect(),
+            };
+        for (&i, r) in unsettled.iter().zip(quick_results) {
+            let name = self.name(i).to_string();
+            report.lines.push(match r {
+                Some(Ok(r)) => format!(
+                    "{name}: quick stop through the controlword: {} ({})",
+                    r.outcome.map_or("accepted", Outcome::name),
+                    r.detail
+                ),
+                Some(Err(e)) => format!("{name}: quick stop through the controlword: {e}"),
+                None => format!(
+                    "{name}: quick stop sent through the controlword, not at rest within {} ms more",
+                    QUICK_STOP_GRACE.as_millis()
+                ),
+            });
+            report.not_at_rest.push(name);
         }
+        report
+    }
+
+    /// Whether axis `i` was last seen moving, homing, jogging or stopping.
+    fn in_motion(&self, i: usize) -> bool {
+        self.latest(i).is_some_and(|(s, _)| {
+            matches!(
+                s.activity,
+                Activity::Moving | Activity::Jogging | Activity::Homing | Activity::Stopping
+            )
+        })
     }
 
     /// Grants control of `axes` (names) to `holder`.
