@@ -711,12 +711,24 @@ impl RunningServer {
     /// moving axes are stopped (halt or quick stop per their
     /// `stop_on_loss`) and awaited at most `motion_bound`; then streams
     /// end, buses close and the server stops (see
-    /// [`RunningServer::shutdown`]).
-    pub async fn shutdown_safely(&self, motion_bound: Duration) {
-        for line in self.gateway.axes().stop_for_shutdown(motion_bound).await {
+    /// [`RunningServer::shutdown`]). An axis not at rest within
+    /// `motion_bound` is quick-stopped through its controlword first; the
+    /// returned names are those axes (empty: every axis was at rest), for
+    /// the exit status.
+    pub async fn shutdown_safely(&self, motion_bound: Duration) -> Vec<String> {
+        let stops = self.gateway.axes().stop_for_shutdown(motion_bound).await;
+        for line in &stops.lines {
             tracing::warn!(target: "cangate::audit", "shutdown stopped axis {line}");
         }
+        if !stops.not_at_rest.is_empty() {
+            tracing::error!(
+                "shutdown: {} not at rest within {} ms (quick-stopped through the controlword)",
+                stops.not_at_rest.join(", "),
+                motion_bound.as_millis()
+            );
+        }
         self.shutdown();
+        stops.not_at_rest
     }
 
     /// Starts a graceful shutdown: streams end, buses close, the server stops.
