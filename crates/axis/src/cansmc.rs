@@ -131,7 +131,9 @@ impl CansmcAxisConfig {
 /// The slave's latest answer, as the master holds it at a cycle start.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct CycleInput {
-    /// Status word of the latest valid DT (`None` before the first).
+    /// Status word of the DT answering the previous cycle (`None` when it
+    /// did not come: the axis keeps the one before and does not count the
+    /// cycle towards a command's effect).
     pub status: Option<StatusWord>,
     /// Actual position (counts) from the latest position or homing DT.
     pub position: Option<i32>,
@@ -202,9 +204,11 @@ struct Op {
     deadline: Option<Duration>,
     /// Jog: the dead-man expires here.
     deadman: Option<Duration>,
-    /// Cycles since the command started: a slave applies a command at the
-    /// next MST and reports its effect one cycle later, so status bits
-    /// seen earlier still describe the previous command.
+    /// Fresh DTs since the command started: the command goes out in the
+    /// next MDT, the slave applies it at the following MST and the DT of
+    /// that cycle reports it, which the axis sees at the MST after. So the
+    /// first two statuses after a command still describe the slave before
+    /// it; the third is the first that can show its effect.
     cycles: u32,
 }
 
@@ -232,6 +236,10 @@ pub struct CansmcAxis {
     homed: bool,
     /// Cycles the gear demand was clipped to the velocity limit.
     gear_clipped: u64,
+    /// Velocity DTs since a slave-velocity jog began braking: the slave is
+    /// at rest only by a DT that answers the braking command (see
+    /// `Op::cycles`), not by one from before the jog got going.
+    braking_dts: u32,
 }
 
 impl CansmcAxis {
@@ -254,6 +262,7 @@ impl CansmcAxis {
             faulted: false,
             homed: false,
             gear_clipped: 0,
+            braking_dts: 0,
         }
     }
 
@@ -468,6 +477,28 @@ impl CansmcAxis {
         )
     }
 
+    /// The deceleration a motion at `v` (from the demand position) needs
+    /// to come to rest inside the soft limits: `a`, or more when `a` would
+    /// carry it past the limit ahead (a jog near a limit brakes late, at
+    /// its own acceleration; a move or stop taking over must not brake more
+    /// gently). At most the maximum acceleration.
+    fn braking_within_limits(&self, v: f64, a: f64) -> f64 {
+        let room = if v > 0.0 {
+            self.cfg.max_position.map(|m| m - self.demand)
+        } else if v < 0.0 {
+            self.cfg.min_position.map(|m| self.demand - m)
+        } else {
+            None
+        };
+        let ceiling = self.cfg.max_acceleration.max(a);
+        match room {
+            // 1 % margin: the cycle's discretisation.
+            Some(d) if d > 0.0 => a.max(1.01 * v * v / (2.0 * d)).min(ceiling),
+            Some(_) => ceiling,
+            None => a,
+        }
+    }
+
     fn limits(&self, velocity: f64, acceleration: f64) -> Result<Limits, CommandError> {
         Limits::symmetric(velocity, acceleration)
             .map_err(|e| CommandError::InvalidArgument(e.to_string()))
@@ -550,13 +581,22 @@ impl CansmcAxis {
                 ))
             }
             AxisCommand::ResetFault => {
-                self.reset_pulse = true;
-                self.enable = false;
                 if self.lost.is_none() && !self.status.is_some_and(|s| s.fault) {
-                    let id = self.begin(CommandKind::ResetFault, Step::Resetting, 0.0, None, out);
-                    self.finish(Outcome::Completed, "no fault to reset".into(), out);
+                    // Nothing to reset: the axis stays as it is (an enabled
+                    // axis stays enabled, a command in progress runs on).
+                    let id = self.next_id;
+                    self.next_id += 1;
+                    out.push(AxisEvent::Accepted { op: id });
+                    out.push(AxisEvent::Done {
+                        op: id,
+                        command: CommandKind::ResetFault,
+                        outcome: Outcome::Completed,
+                        detail: "no fault to reset".into(),
+                    });
                     return Ok(id);
                 }
+                self.reset_pulse = true;
+                self.enable = false;
                 Ok(self.begin(
                     CommandKind::ResetFault,
                     Step::Resetting,
@@ -589,10 +629,12 @@ impl CansmcAxis {
                 };
                 let target = if relative { base + target } else { target };
                 self.check_limits(target)?;
-                let limits = self.limits(
-                    velocity.unwrap_or(self.cfg.default_velocity),
+                let acceleration = self.braking_within_limits(
+                    self.demand_velocity,
                     acceleration.unwrap_or(self.cfg.default_acceleration),
-                )?;
+                );
+                let limits =
+                    self.limits(velocity.unwrap_or(self.cfg.default_velocity), acceleration)?;
                 let profile =
                     TrapezoidProfile::new(self.demand, self.demand_velocity, target, limits)
                         .map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
@@ -622,6 +664,23 @@ impl CansmcAxis {
                         target: velocity,
                         acceleration,
                     },
+                    // Towards a soft limit it cannot stop before: keep
+                    // braking (a renewal must not restart a jog the limit
+                    // stopped), or stay at rest.
+                    JogMode::SlaveVelocity if self.slave_jog_blocked(velocity) => {
+                        match self.motion {
+                            Motion::SlaveVelocity { stage, .. }
+                                if stage != VelocityStage::Running =>
+                            {
+                                self.motion.clone()
+                            }
+                            Motion::SlaveVelocity { .. } => Motion::SlaveVelocity {
+                                target: 0.0,
+                                stage: VelocityStage::Braking,
+                            },
+                            _ => Motion::Hold,
+                        }
+                    }
                     JogMode::SlaveVelocity => Motion::SlaveVelocity {
                         target: velocity,
                         stage: if velocity == 0.0 {
@@ -631,14 +690,12 @@ impl CansmcAxis {
                         },
                     },
                 };
-                // A repeated jog only renews the dead-man and the velocity.
-                if let Some(op) = &mut self.op
-                    && op.step == Step::Jogging
-                {
-                    op.deadman = deadman;
-                    self.motion = motion;
-                    return Ok(op.id);
-                }
+                // A repeated jog continues the motion (the ramp goes on
+                // from the current velocity) as a new command: it is
+                // acknowledged like any other, and the previous jog ends
+                // superseded. (A renewal without its own acknowledgement
+                // would leave a caller without `wait` waiting for the end
+                // of the jog, so it could not repeat the jog in time.)
                 self.motion = motion;
                 self.halt = false;
                 let id = self.begin(CommandKind::Jog, Step::Jogging, 0.0, None, out);
@@ -667,7 +724,7 @@ impl CansmcAxis {
         let decel = if quick {
             self.cfg.max_acceleration
         } else {
-            self.cfg.default_acceleration
+            self.braking_within_limits(self.demand_velocity, self.cfg.default_acceleration)
         };
         if self.op.is_some() {
             self.finish(Outcome::Stopped, format!("stopped by {kind}"), out);
@@ -842,7 +899,20 @@ impl CansmcAxis {
             self.status = input.status;
         }
         self.track_status(out);
-        self.advance_op(now, out);
+        self.advance_op(now, input.status.is_some(), out);
+        if matches!(
+            self.motion,
+            Motion::SlaveVelocity {
+                stage: VelocityStage::Braking,
+                ..
+            }
+        ) {
+            if input.velocity.is_some() {
+                self.braking_dts = self.braking_dts.saturating_add(1);
+            }
+        } else {
+            self.braking_dts = 0;
+        }
         self.advance_motion(input.source_count, dt);
         let control = ControlWord {
             enable: self.enable,
@@ -913,30 +983,36 @@ impl CansmcAxis {
         self.demand_velocity == 0.0 && self.velocity.abs() <= self.cfg.in_position_window * 100.0
     }
 
-    fn advance_op(&mut self, now: Duration, out: &mut Vec<AxisEvent>) {
+    fn advance_op(&mut self, now: Duration, fresh: bool, out: &mut Vec<AxisEvent>) {
         let Some(op) = self.op.as_mut() else {
             return;
         };
-        op.cycles = op.cycles.saturating_add(1);
+        if fresh {
+            op.cycles = op.cycles.saturating_add(1);
+        }
         let op = op.clone();
         let Some(s) = self.status else {
             return;
         };
         let timed_out = op.deadline.is_some_and(|d| now >= d);
+        // A status that can show the command's effect (see `Op::cycles`):
+        // an enable right after the enable bit was dropped for a cycle
+        // would otherwise complete on the slave's state before the drop.
+        let effective = op.cycles > 2;
         match op.step {
-            Step::Enabling if s.enabled => {
+            Step::Enabling if effective && s.enabled => {
                 self.finish(Outcome::Completed, "enabled".into(), out);
                 if self.cfg.gear.is_some() {
                     self.engage_gear();
                 }
             }
-            Step::Disabling if !s.enabled => {
+            Step::Disabling if effective && !s.enabled => {
                 self.finish(Outcome::Completed, "disabled".into(), out);
             }
             Step::Resetting if !s.fault && self.lost.is_none() => {
                 self.finish(Outcome::Completed, "fault reset".into(), out);
             }
-            Step::Homing if op.cycles > 2 && s.homed && s.target_reached => {
+            Step::Homing if effective && s.homed && s.target_reached => {
                 self.homed = true;
                 self.motion = Motion::Hold;
                 self.demand = self.actual();
@@ -1000,7 +1076,21 @@ impl CansmcAxis {
                 }
             }
             Step::Stopping => {
-                if matches!(self.motion, Motion::Hold) && self.at_rest() {
+                // At rest by a status that answers the stop: a motion
+                // commanded just before (a homing, a jog) may not have
+                // reached the slave yet.
+                if (effective || self.lost.is_some())
+                    && matches!(self.motion, Motion::Hold)
+                    && self.at_rest()
+                {
+                    if self.halt {
+                        // The slave braked on its own ramp (a halted
+                        // homing): hold where it came to rest, or releasing
+                        // the halt would send it back to where it was when
+                        // the stop began.
+                        self.demand = self.actual();
+                        self.demand_velocity = 0.0;
+                    }
                     self.halt = false;
                     self.finish(Outcome::Completed, "at rest".into(), out);
                 } else if timed_out {
@@ -1031,6 +1121,20 @@ impl CansmcAxis {
             }
             _ => {}
         }
+    }
+
+    /// Whether a slave-velocity jog at `v` would run into a soft limit it
+    /// cannot stop before.
+    fn slave_jog_blocked(&self, v: f64) -> bool {
+        let p = self.actual();
+        let u = if v.signum() == self.velocity.signum() {
+            self.velocity.abs().max(v.abs())
+        } else {
+            v.abs()
+        };
+        let stopping = slave_stopping_distance(u, &self.cfg);
+        (v > 0.0 && self.cfg.max_position.is_some_and(|m| p + stopping >= m))
+            || (v < 0.0 && self.cfg.min_position.is_some_and(|m| p - stopping <= m))
     }
 
     fn engage_gear(&mut self) {
@@ -1108,7 +1212,7 @@ impl CansmcAxis {
                         // deceleration; the slave's own ramp must not be
                         // slower).
                         let v = self.velocity;
-                        let stopping = v * v.abs() / (2.0 * self.cfg.default_acceleration);
+                        let stopping = slave_stopping_distance(v, &self.cfg);
                         let p = self.demand;
                         if (v > 0.0 && self.cfg.max_position.is_some_and(|m| p + stopping >= m))
                             || (v < 0.0 && self.cfg.min_position.is_some_and(|m| p + stopping <= m))
@@ -1118,7 +1222,9 @@ impl CansmcAxis {
                         }
                     }
                     VelocityStage::Braking => {
-                        if self.velocity.abs() <= self.cfg.in_position_window {
+                        if self.braking_dts > 2
+                            && self.velocity.abs() <= self.cfg.in_position_window
+                        {
                             *stage = VelocityStage::ReadingPosition;
                         }
                     }
@@ -1146,6 +1252,15 @@ impl CansmcAxis {
             }
         }
     }
+}
+
+/// Signed distance a slave-velocity jog at `v` (units/s) travels before it
+/// is at rest: its ramp at the default deceleration plus the pipeline — the
+/// brake command reaches the slave one cycle later and the velocity the
+/// axis knows is a cycle old.
+fn slave_stopping_distance(v: f64, cfg: &CansmcAxisConfig) -> f64 {
+    let lag = 3.0 * cfg.cycle_time.as_secs_f64();
+    v * v.abs() / (2.0 * cfg.default_acceleration) + v * lag
 }
 
 #[cfg(test)]

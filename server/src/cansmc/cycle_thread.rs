@@ -356,7 +356,9 @@ impl Thread {
                 .master
                 .slave(self.slots[i].address)
                 .and_then(|s| s.last.as_ref());
-            let status = own.map(|(s, _, _)| *s);
+            // Only the DT answering the previous cycle: a stale status
+            // must not pass for the effect of a command sent since.
+            let status = fresh(own).map(|(s, _, _)| s);
             let (position, velocity, encoder) = match fresh(own).map(|(_, fb, _)| fb) {
                 Some(Feedback::Position(p) | Feedback::Homing(p)) => (Some(p), None, None),
                 Some(Feedback::Velocity(v)) => (None, Some(v), None),

@@ -241,7 +241,7 @@ fn a_move_interpolates_a_trapezoid_every_cycle_and_completes_in_position() {
 #[test]
 fn a_jog_runs_while_renewed_and_the_dead_man_stops_it() {
     let mut rig = Rig::enabled(cfg());
-    let id = rig
+    let mut id = rig
         .command(AxisCommand::Jog {
             velocity: 20.0,
             acceleration: None,
@@ -249,15 +249,17 @@ fn a_jog_runs_while_renewed_and_the_dead_man_stops_it() {
         .unwrap();
     for _ in 0..5 {
         rig.cycles(100); // 200 ms
-        assert_eq!(
-            rig.command(AxisCommand::Jog {
+        let previous = id;
+        id = rig
+            .command(AxisCommand::Jog {
                 velocity: 20.0,
-                acceleration: None
+                acceleration: None,
             })
-            .unwrap(),
-            id,
-            "a repeated jog renews the same command"
-        );
+            .unwrap();
+        // A repetition is a command of its own, acknowledged at once (a
+        // caller without wait gets its answer); the previous one ends.
+        assert!(rig.events.contains(&AxisEvent::Accepted { op: id }));
+        assert_eq!(rig.until_done(previous, 1).0, Outcome::Superseded);
     }
     assert_eq!(rig.axis.activity(), Activity::Jogging);
     let moving_at = rig.servo.position;
