@@ -777,6 +777,22 @@ pub struct BusConfig {
     /// Virtual only: receive queue length of each participant.
     #[serde(default)]
     pub queue: Option<usize>,
+    /// SocketCAN only: the socket's receive buffer in bytes (`SO_RCVBUF`,
+    /// 1024..=67108864; the kernel doubles it, and caps it at
+    /// `net.core.rmem_max` unless the gateway has `CAP_NET_ADMIN`). Frames
+    /// the kernel drops when it is full are counted (`rx_overflows`) and
+    /// reported to every stream. Default: the kernel's.
+    #[serde(default)]
+    pub receive_buffer: Option<usize>,
+    /// SocketCAN only: own frames held while the interface's transmit queue
+    /// is full (1..=65536, default 1024); when full, the least urgent
+    /// (highest identifier) frame is given up and counted.
+    #[serde(default)]
+    pub transmit_queue: Option<usize>,
+    /// SocketCAN only: how long a held frame is offered again before it is
+    /// given up and counted (1..=10000 ms, default 250).
+    #[serde(default)]
+    pub transmit_timeout_ms: Option<u32>,
 }
 
 impl BusConfig {
@@ -920,6 +936,37 @@ impl Config {
                     "bus {:?}: bit_timing and queue apply to virtual buses only",
                     b.name
                 )));
+            }
+            if b.backend != BackendChoice::Socketcan
+                && (b.receive_buffer.is_some()
+                    || b.transmit_queue.is_some()
+                    || b.transmit_timeout_ms.is_some())
+            {
+                return Err(ConfigError::Invalid(format!(
+                    "bus {:?}: receive_buffer, transmit_queue and transmit_timeout_ms apply to \
+                     SocketCAN buses only",
+                    b.name
+                )));
+            }
+            for (key, value, range) in [
+                ("receive_buffer", b.receive_buffer, 1024..=64 << 20),
+                ("transmit_queue", b.transmit_queue, 1..=65536),
+                (
+                    "transmit_timeout_ms",
+                    b.transmit_timeout_ms.map(|v| v as usize),
+                    1..=10_000,
+                ),
+            ] {
+                if let Some(v) = value
+                    && !range.contains(&v)
+                {
+                    return Err(ConfigError::Invalid(format!(
+                        "bus {:?}: {key} = {v} is out of range ({}..={})",
+                        b.name,
+                        range.start(),
+                        range.end()
+                    )));
+                }
             }
         }
         let mut masters = HashSet::new();

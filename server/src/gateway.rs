@@ -632,7 +632,18 @@ fn open_bus(bc: &BusConfig, network: &VirtualNetwork) -> Result<(BusInfo, Backen
     };
     match bc.backend {
         BackendChoice::Socketcan => {
-            let bus = SocketCanBus::open(bc.interface()).map_err(|e| err(e.to_string()))?;
+            let options = cangate_can::socketcan_bus::SocketCanOptions {
+                receive_buffer: bc.receive_buffer,
+                transmit_queue: bc
+                    .transmit_queue
+                    .unwrap_or(cangate_can::socketcan_bus::DEFAULT_TRANSMIT_QUEUE),
+                transmit_timeout: bc.transmit_timeout_ms.map_or(
+                    cangate_can::socketcan_bus::DEFAULT_TRANSMIT_TIMEOUT,
+                    |ms| std::time::Duration::from_millis(ms.into()),
+                ),
+            };
+            let bus = SocketCanBus::open_with(bc.interface(), options)
+                .map_err(|e| err(e.to_string()))?;
             let info = BusInfo {
                 name: bc.name.clone(),
                 kind: BackendKind::SocketCan,

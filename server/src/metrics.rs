@@ -57,6 +57,18 @@ fn describe() {
         "Frames the bus refused to send."
     );
     describe_counter!(
+        "cangate_bus_tx_retries_total",
+        "Frames a SocketCAN interface refused for a full transmit queue (ENOBUFS) and the gateway offered again."
+    );
+    describe_gauge!(
+        "cangate_bus_tx_queued",
+        "Own frames waiting for room in a SocketCAN interface's transmit queue."
+    );
+    describe_counter!(
+        "cangate_bus_rx_overflows_total",
+        "Frames lost before the gateway read them (receive queue or SocketCAN receive buffer full), reported to every stream as lost."
+    );
+    describe_counter!(
         "cangate_bus_stream_drops_total",
         "Frames dropped for slow stream subscribers (each reported to them as lost)."
     );
@@ -175,6 +187,10 @@ fn refresh(gateway: &Gateway) {
         counter!("cangate_bus_tx_failed_total", "bus" => name.clone()).absolute(s.tx_failed);
         counter!("cangate_bus_stream_drops_total", "bus" => name.clone())
             .absolute(s.subscriber_drops);
+        counter!("cangate_bus_tx_retries_total", "bus" => name.clone()).absolute(s.tx_retries);
+        gauge!("cangate_bus_tx_queued", "bus" => name.clone()).set(s.tx_queued as f64);
+        counter!("cangate_bus_rx_overflows_total", "bus" => name.clone())
+            .absolute(s.rx_overflows);
         gauge!("cangate_bus_load_percent", "bus" => name.clone()).set(s.load_percent);
         let up = matches!(
             bus.status().state,

@@ -87,6 +87,8 @@ pub fn bus_info_to_pb(info: &BusInfo, stats: &BusStats) -> pb::BusInfo {
             tx_bytes: stats.tx_bytes,
             error_frames: stats.error_frames,
             tx_failed: stats.tx_failed,
+            tx_retries: stats.tx_retries,
+            tx_queued: stats.tx_queued,
             rx_overflows: stats.rx_overflows,
             subscriber_drops: stats.subscriber_drops,
             load_percent: stats.load_percent,
