@@ -12,7 +12,7 @@
 //! | profile position (1) | new set-point handshake (bit 4 rising edge accepts 0x607A, bit 12 set-point acknowledge until bit 4 falls), one buffered set-point, change set immediately (bit 5), relative (bit 6, to the previous target), halt (bit 8), trapezoidal profile with 0x6081/0x6083/0x6084, target reached (bit 10) |
 //! | profile velocity (3) | ramps to 0x60FF with 0x6083 (faster) / 0x6084 (slower); bit 10 at the target velocity, bit 12 at speed 0; halt ramps to 0 |
 //! | homing (6) | bit 4 rising edge starts 0x6098: 35/37 set the position to 0x607C home offset at once; 17..=30 move at 0x6099:01 with 0x609A to a virtual switch at the physical position 0, then set the position to the home offset; any other method ends in homing error (bit 13); bit 4 falling or halt interrupts |
-//! | cyclic synchronous position (8) / velocity (9) | follow 0x607A / 0x60FF (as written by RPDO, at once or at SYNC per the RPDO's transmission type) with a first-order lag; bit 12 set; following error 0x60F4 written when present; with 0x6065 present a following error beyond the window for longer than 0x6066 ms faults with EMCY 0x8611 |
+//! | cyclic synchronous position (8) / velocity (9) | follow 0x607A / 0x60FF (as written by RPDO, at once or at SYNC per the RPDO's transmission type) with a first-order lag; in position mode each new set-point is reached by linear interpolation over the SYNC period (the interval between the latest two SYNCs), as drives interpolate between cyclic set-points, so the motion and 0x606C are smooth, not a step per SYNC; bit 12 set; following error 0x60F4 written when present; with 0x6065 present a following error beyond the window for longer than 0x6066 ms faults with EMCY 0x8611 |
 //! | quick stop | decelerates with 0x6085 (0x6084 when absent, or for option codes 1 and 5), then goes to switch on disabled for quick stop option codes 0..=4 (0x605A, default 2) or stays in quick stop active for 5..=8 |
 //! | heartbeat loss | a node monitored by 0x1016 falls silent (the master, when it configured its heartbeat there): the node sends EMCY 0x8130, and the drive enters fault reaction active (stops with the quick stop deceleration), then fault, with 0x603F = 0x8130 |
 //! | faults | [`SimDrive::inject_fault`]: fault reaction active (stops with the quick stop deceleration), then fault; 0x603F and 0x1001 set and an EMCY sent; fault reset (rising edge of bit 7) clears them and sends the EMCY "error reset" |
@@ -47,6 +47,9 @@ const TPDO_MAP: u16 = 0x1A00;
 const MAX_TPDOS: u16 = 512;
 /// Per mille of rated torque per increment/s² of acceleration.
 const TORQUE_PER_ACCEL: f64 = 1.0 / 1000.0;
+/// The longest SYNC interval taken as the interpolation period; beyond it
+/// a set-point is reached at once.
+const MAX_SYNC_PERIOD: Duration = Duration::from_millis(100);
 /// EMCY code of a following error.
 const FOLLOWING_ERROR_CODE: u16 = 0x8611;
 
@@ -109,6 +112,37 @@ impl ProfilePosition {
     }
 }
 
+/// The interpolated position command of cyclic synchronous position: from
+/// the command at the latest set-point's arrival to the set-point, over
+/// one SYNC period.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Interpolation {
+    from: f64,
+    to: f64,
+    /// Model time of the set-point's arrival.
+    start: Duration,
+    period: Duration,
+}
+
+impl Interpolation {
+    fn holding(position: f64) -> Self {
+        Interpolation {
+            from: position,
+            to: position,
+            start: Duration::ZERO,
+            period: Duration::ZERO,
+        }
+    }
+
+    fn at(&self, t: Duration) -> f64 {
+        if self.period.is_zero() || t >= self.start + self.period {
+            return self.to;
+        }
+        let f = t.saturating_sub(self.start).as_secs_f64() / self.period.as_secs_f64();
+        self.from + (self.to - self.from) * f
+    }
+}
+
 /// Where a homing procedure stands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Homing {
@@ -160,6 +194,11 @@ pub struct SimDrive {
     limit_hit: bool,
     /// Command minus actual position in cyclic synchronous position mode.
     follow_error: f64,
+    /// The interpolated command of cyclic synchronous position.
+    csp: Interpolation,
+    /// The latest SYNC received and the interval to the one before.
+    last_sync: Option<Duration>,
+    sync_period: Option<Duration>,
     /// Since when the following error has been beyond the window.
     follow_over_since: Option<Duration>,
     error_code: u16,
@@ -220,6 +259,9 @@ impl SimDrive {
             homing: Homing::Idle,
             limit_hit: false,
             follow_error: 0.0,
+            csp: Interpolation::holding(0.0),
+            last_sync: None,
+            sync_period: None,
             follow_over_since: None,
             error_code: 0,
             model_time: Duration::ZERO,
@@ -396,6 +438,7 @@ impl SimDrive {
 
     fn reset_generators(&mut self) {
         self.pp = ProfilePosition::idle(self.pos);
+        self.csp = Interpolation::holding(self.pos);
         self.homing = Homing::Idle;
         self.follow_error = 0.0;
         self.follow_over_since = None;
@@ -667,10 +710,22 @@ impl SimDrive {
                 return; // homing ignores the software limits
             }
             Some(ModeOfOperation::CyclicSynchronousPosition) => {
-                let mut command = self.param(obj::TARGET_POSITION);
+                let mut set_point = self.param(obj::TARGET_POSITION);
                 if let Some((min, max)) = self.limits() {
-                    command = command.clamp(min, max);
+                    set_point = set_point.clamp(min, max);
                 }
+                if set_point != self.csp.to {
+                    // A new set-point (it arrived during the step that
+                    // just ended): reach it over one SYNC period.
+                    let arrived = self.model_time.saturating_sub(self.options.step);
+                    self.csp = Interpolation {
+                        from: self.csp.at(arrived),
+                        to: set_point,
+                        start: arrived,
+                        period: self.sync_period.unwrap_or(Duration::ZERO),
+                    };
+                }
+                let command = self.csp.at(self.model_time);
                 let mut next = self.pos + (command - self.pos) * self.follow_gain(dt);
                 if (command - next).abs() < 1e-3 {
                     next = command;
@@ -865,6 +920,14 @@ impl SimDrive {
         }
     }
 
+    /// Whether `frame` is a SYNC (the COB-ID of 0x1005, 0x080 by default).
+    fn is_sync(&self, frame: &Frame) -> bool {
+        let cob = self
+            .int(ObjectAddress::new(0x1005, 0))
+            .map_or(0x080, |v| (v as u32) & 0x7FF);
+        frame.raw_id() == cob && frame.data().len() <= 1 && !frame.is_extended()
+    }
+
     /// Reads the node's events: a reset node restarts the drive; the loss
     /// of a consumed heartbeat faults it.
     fn drain_events(&mut self) {
@@ -983,6 +1046,15 @@ impl Device for SimDrive {
     fn on_frame(&mut self, frame: &Frame, now: Duration) -> Vec<Frame> {
         self.now = now;
         self.advance(now);
+        if self.is_sync(frame) {
+            if let Some(last) = self.last_sync
+                && now > last
+                && now - last <= MAX_SYNC_PERIOD
+            {
+                self.sync_period = Some(now - last);
+            }
+            self.last_sync = Some(now);
+        }
         let mut out = self.node.on_frame(frame, now);
         self.drain_events();
         self.apply_inputs();
@@ -1633,6 +1705,37 @@ mod tests {
         assert_eq!(d.position(), 1000.0);
         assert_eq!(d.velocity(), 0.0);
         assert_eq!(statusword(&mut d, 300 * MS), 0x1237);
+    }
+
+    /// Issue 14, item 4: with set-points every SYNC (10 ms) on a ramp of
+    /// 10 mm/s, the velocity the drive reports (0x606C, read at each SYNC
+    /// as its TPDO would) is the derivative of its position within 2 %.
+    #[test]
+    fn cyclic_position_velocity_feedback_is_the_position_derivative() {
+        let mut d = with_following_error_objects();
+        enable(&mut d, ModeOfOperation::CyclicSynchronousPosition, 10 * MS);
+        let sync = frame(0x080, &[]);
+        let mut samples = Vec::new();
+        for k in 1..=60i32 {
+            let t = MS * (20 + 10 * k as u32);
+            d.on_frame(&sync, t);
+            samples.push((
+                f64::from(read_i32(&mut d, obj::POSITION_ACTUAL, t)),
+                f64::from(read_i32(&mut d, obj::VELOCITY_ACTUAL, t)),
+            ));
+            // The set-point of this SYNC: 10 000 inc/s.
+            d.on_frame(&rpdo1(0x000F, 100 * k), t);
+        }
+        // After the start-up (the first 10 SYNCs), every SYNC.
+        for w in samples[10..].windows(2) {
+            let derivative = (w[1].0 - w[0].0) / 0.010;
+            let reported = w[1].1;
+            assert!(
+                (reported - derivative).abs() <= 0.02 * derivative.abs(),
+                "0x606C {reported} against the position's derivative {derivative}"
+            );
+            assert!((derivative - 10_000.0).abs() <= 200.0, "{derivative}");
+        }
     }
 
     #[test]
