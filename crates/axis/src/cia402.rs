@@ -1820,13 +1820,12 @@ impl Cia402Axis {
                 Step::Jogging => return None,
                 Step::Stopping => {
                     let done = match op.kind {
+                        // Out of operation enabled (quick stop active,
+                        // switch on disabled, a fault) and standing still.
                         CommandKind::QuickStop => {
                             fresh
                                 && self.state() != Some(DriveState::OperationEnabled)
-                                && self.state() != Some(DriveState::QuickStopActive)
-                                || fresh
-                                    && self.state() == Some(DriveState::QuickStopActive)
-                                    && self.at_rest()
+                                && self.at_rest()
                         }
                         _ => match self.cfg.position_mode {
                             PositionMode::Cyclic if self.in_cyclic_mode() => {
@@ -1835,9 +1834,12 @@ impl Cia402Axis {
                             _ => fresh && self.at_rest(),
                         },
                     };
+                    // A drive that left operation enabled (fault
+                    // reaction, disabled) is done when it stands still.
                     if done
                         || self.state() != Some(DriveState::OperationEnabled)
                             && fresh
+                            && self.at_rest()
                             && op.kind != CommandKind::QuickStop
                     {
                         let outcome = if op.kind == CommandKind::Jog {
