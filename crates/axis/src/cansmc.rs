@@ -232,6 +232,11 @@ pub struct CansmcAxis {
     op: Option<Op>,
     next_id: OpId,
     lost: Option<String>,
+    /// Why the axis was disabled behind the user's back: its slave was lost
+    /// while enabled. Kept (and shown as the axis's fault) after the slave
+    /// answers again, until an enable or a fault reset acknowledges it, so
+    /// a disabled axis always says why.
+    disabled_by_loss: Option<String>,
     faulted: bool,
     homed: bool,
     /// Cycles the gear demand was clipped to the velocity limit.
@@ -259,6 +264,7 @@ impl CansmcAxis {
             op: None,
             next_id: 1,
             lost: None,
+            disabled_by_loss: None,
             faulted: false,
             homed: false,
             gear_clipped: 0,
@@ -346,22 +352,32 @@ impl CansmcAxis {
     /// Whether the axis is in fault or its slave is lost (cheap: no
     /// snapshot).
     pub fn has_fault(&self) -> bool {
-        self.lost.is_some() || self.status.is_some_and(|s| s.fault)
+        self.lost.is_some()
+            || self.status.is_some_and(|s| s.fault)
+            || self.disabled_by_loss.is_some()
     }
 
     fn fault_text(&self) -> Option<(u16, String)> {
         if let Some(reason) = &self.lost {
             return Some((0, format!("slave lost: {reason}")));
         }
-        let s = self.status?;
-        if s.fault {
+        if let Some(s) = self.status
+            && s.fault
+        {
             return Some(if s.following_error {
                 (0x8611, "following error over limit (DTSW bit 5)".into())
             } else {
                 (0, "drive fault (DTSW bit 2)".into())
             });
         }
-        None
+        self.disabled_by_loss.as_ref().map(|reason| {
+            (
+                0,
+                format!(
+                    "disabled because the slave was lost ({reason}); it answers again: enable the axis"
+                ),
+            )
+        })
     }
 
     /// The live state.
@@ -552,6 +568,16 @@ impl CansmcAxis {
         out: &mut Vec<AxisEvent>,
     ) -> Result<OpId, CommandError> {
         self.check(&cmd)?;
+        if matches!(cmd, AxisCommand::Enable | AxisCommand::ResetFault)
+            && self.disabled_by_loss.take().is_some()
+            && !self.faulted
+        {
+            // The loss is acknowledged.
+            out.push(AxisEvent::Fault {
+                code: 0,
+                text: String::new(),
+            });
+        }
         let state_deadline = Some(now + self.cfg.state_timeout);
         match cmd {
             AxisCommand::Enable => {
@@ -834,6 +860,9 @@ impl CansmcAxis {
             return;
         }
         self.lost = Some(reason.to_string());
+        if self.enable || self.op.is_some() {
+            self.disabled_by_loss = Some(reason.to_string());
+        }
         // Nothing reaches the drive now: drop the enable so that a
         // returning slave does not resume a stale motion.
         self.enable = false;
@@ -851,10 +880,10 @@ impl CansmcAxis {
         if self.lost.take().is_some() {
             self.demand = self.actual();
             if !self.faulted {
-                out.push(AxisEvent::Fault {
-                    code: 0,
-                    text: String::new(),
-                });
+                // Still disabled by the loss: say so (the loss's fault
+                // text is replaced, not cleared).
+                let (code, text) = self.fault_text().unwrap_or_default();
+                out.push(AxisEvent::Fault { code, text });
             }
         }
     }
@@ -961,7 +990,7 @@ impl CansmcAxis {
             out.push(AxisEvent::Fault { code, text });
         } else if !s.fault && self.faulted {
             self.faulted = false;
-            if self.lost.is_none() {
+            if self.lost.is_none() && self.disabled_by_loss.is_none() {
                 out.push(AxisEvent::Fault {
                     code: 0,
                     text: String::new(),

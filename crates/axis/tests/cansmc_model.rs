@@ -583,11 +583,32 @@ impl Rig {
                 self.tick();
             }
             Step::SlaveLoss { ms } => {
+                let losses =
+                    |rig: &Self| rig.master.slave(address()).map_or(0, |s| s.counters.losses);
+                let before = losses(self);
+                let was_enabled = self.axis.snapshot().state
+                    == Some(cangate_canopen::ds402::DriveState::OperationEnabled);
                 self.slave.set_drop_rate(1.0);
                 self.run_for(Duration::from_millis(ms));
                 self.slave.set_drop_rate(0.0);
                 self.enabled_claim = false;
-                self.tick();
+                self.run_for(4 * CYCLE);
+                // Lost while enabled and back: the axis says why it is
+                // disabled.
+                if losses(self) > before && was_enabled && self.axis.snapshot().node_lost.is_none()
+                {
+                    let fault = self.axis.snapshot().fault;
+                    // (A drive fault, when there is one, is the first
+                    // reason.)
+                    if !fault.as_ref().is_some_and(|(_, text)| {
+                        text.contains("slave was lost") || text.contains("drive fault")
+                    }) {
+                        self.violations.push(format!(
+                            "at {:?}: the slave was lost and is back, the axis does not say why it is disabled: {fault:?}",
+                            self.now
+                        ));
+                    }
+                }
             }
             Step::SlaveFault => {
                 self.slave.inject_fault();

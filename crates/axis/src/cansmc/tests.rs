@@ -365,9 +365,27 @@ fn a_lost_slave_faults_the_axis_and_refuses_commands_until_back() {
     );
     rig.axis.on_slave_back(&mut rig.events);
     rig.cycles(2);
-    assert!(rig.axis.snapshot().fault.is_none());
+    // Back, but disabled by the loss: the axis says why until the enable.
+    let (_, text) = rig
+        .axis
+        .snapshot()
+        .fault
+        .expect("the reason it is disabled");
+    assert!(
+        text.contains("disabled because the slave was lost (3 DTs missed)"),
+        "{text}"
+    );
+    assert!(matches!(
+        rig.events.last(),
+        Some(AxisEvent::Fault { text, .. }) if text.contains("disabled because")
+    ));
     let enable = rig.command(AxisCommand::Enable).unwrap();
+    assert!(rig.events.contains(&AxisEvent::Fault {
+        code: 0,
+        text: String::new()
+    }));
     assert_eq!(rig.until_done(enable, 10).0, Outcome::Completed);
+    assert!(rig.axis.snapshot().fault.is_none());
 }
 
 #[test]
