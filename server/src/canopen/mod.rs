@@ -7,7 +7,7 @@ use cangate_can::{BusHandle, BusItem, Filter, FrameSelector, Timestamp};
 use cangate_canopen::eds::Eds;
 use cangate_canopen::emcy::{Emcy, EmcyEvent};
 use cangate_canopen::heartbeat::HeartbeatEvent;
-use cangate_canopen::master::{Master, MasterEvent, Output, RequestId, SdoRequest};
+use cangate_canopen::master::{Master, MasterEvent, Output, RequestId, SdoPriority, SdoRequest};
 use cangate_canopen::nmt::{NmtCommand, NmtState, nmt_frame};
 use cangate_canopen::pdo::{MappedObject, PdoConfig, PdoKind};
 use cangate_canopen::sdo::{SdoError, TransferOutcome};
@@ -15,11 +15,12 @@ use cangate_canopen::value::Value;
 use cangate_canopen::{NodeId, ObjectAddress};
 use std::collections::{BTreeMap, HashMap};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, RwLock};
+use std::sync::{Arc, Mutex, RwLock};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio_util::sync::CancellationToken;
 
+pub mod master_heartbeat;
 pub mod sync_thread;
 
 /// Static facts about a node, from the configuration and from reads.
@@ -150,9 +151,14 @@ pub enum NodeEventKind {
     },
 }
 
+/// SDO requests one API caller may have queued or running per node: a
+/// caller cannot fill a node's SDO channel for everyone else.
+pub const MAX_CLIENT_SDO_PER_NODE: usize = 8;
+
 enum Command {
     Sdo {
         node: NodeId,
+        priority: SdoPriority,
         req: SdoRequest,
         reply: oneshot::Sender<Result<TransferOutcome, SdoError>>,
     },
@@ -181,6 +187,19 @@ pub enum CanopenError {
     /// The master task stopped (shutdown).
     #[error("the CANopen master of this bus has stopped")]
     Stopped,
+    /// The caller already has as many SDO requests queued or running with
+    /// this node as one caller may.
+    #[error(
+        "{caller} already has {limit} SDO requests queued or running with node {node} (the limit per caller and node); wait for them to finish"
+    )]
+    CallerQueueFull {
+        /// Who asked.
+        caller: String,
+        /// The node.
+        node: u8,
+        /// The limit.
+        limit: usize,
+    },
 }
 
 /// Handle to the CANopen master of one bus.
@@ -200,6 +219,27 @@ pub struct CanopenBus {
     sync_cob_id: Option<u16>,
     /// Every configured TPDO by COB-ID.
     tpdos: Arc<HashMap<u16, TpdoRoute>>,
+    /// SDO requests of API callers in flight, by node and caller.
+    client_sdo: Arc<Mutex<HashMap<(NodeId, String), usize>>>,
+}
+
+/// One API caller's SDO request counted against
+/// [`MAX_CLIENT_SDO_PER_NODE`] while it lives.
+struct ClientSdoSlot {
+    counts: Arc<Mutex<HashMap<(NodeId, String), usize>>>,
+    key: (NodeId, String),
+}
+
+impl Drop for ClientSdoSlot {
+    fn drop(&mut self) {
+        let mut counts = self.counts.lock().expect("client SDO counts lock");
+        if let Some(n) = counts.get_mut(&self.key) {
+            *n -= 1;
+            if *n == 0 {
+                counts.remove(&self.key);
+            }
+        }
+    }
 }
 
 /// A configured TPDO: how to decode it, and its receive counter.
@@ -276,6 +316,7 @@ impl CanopenBus {
             sync_riders,
             sync_cob_id,
             tpdos: Arc::new(tpdos),
+            client_sdo: Arc::default(),
         };
         let mut master = Master::new(sdo_timeout);
         for (id, f) in facts.read().expect("facts lock").iter() {
@@ -369,16 +410,61 @@ impl CanopenBus {
         update(facts.entry(node).or_default());
     }
 
-    /// Runs one SDO transfer.
+    /// Runs one SDO transfer of the gateway's own (boot procedure, axis
+    /// process data, device profiles): it goes before API callers'.
     pub async fn sdo(
         &self,
         node: NodeId,
         req: SdoRequest,
     ) -> Result<TransferOutcome, CanopenError> {
+        self.run_sdo(node, SdoPriority::Gateway, req).await
+    }
+
+    /// Runs one SDO transfer for an API caller (`caller` names it: an
+    /// identity or a peer address): after the gateway's own transfers, and
+    /// refused when the caller already has [`MAX_CLIENT_SDO_PER_NODE`]
+    /// requests with this node.
+    pub async fn client_sdo(
+        &self,
+        node: NodeId,
+        req: SdoRequest,
+        caller: &str,
+    ) -> Result<TransferOutcome, CanopenError> {
+        let key = (node, caller.to_string());
+        let _slot = {
+            let mut counts = self.client_sdo.lock().expect("client SDO counts lock");
+            let n = counts.entry(key.clone()).or_insert(0);
+            if *n >= MAX_CLIENT_SDO_PER_NODE {
+                return Err(CanopenError::CallerQueueFull {
+                    caller: caller.to_string(),
+                    node: node.get(),
+                    limit: MAX_CLIENT_SDO_PER_NODE,
+                });
+            }
+            *n += 1;
+            ClientSdoSlot {
+                counts: self.client_sdo.clone(),
+                key,
+            }
+        };
+        self.run_sdo(node, SdoPriority::Client, req).await
+    }
+
+    async fn run_sdo(
+        &self,
+        node: NodeId,
+        priority: SdoPriority,
+        req: SdoRequest,
+    ) -> Result<TransferOutcome, CanopenError> {
         let (reply, rx) = oneshot::channel();
         let started = Instant::now();
         self.commands
-            .send(Command::Sdo { node, req, reply })
+            .send(Command::Sdo {
+                node,
+                priority,
+                req,
+                reply,
+            })
             .await
             .map_err(|_| CanopenError::Stopped)?;
         let r = rx.await.map_err(|_| CanopenError::Stopped)?;
@@ -573,22 +659,63 @@ async fn boot_node(m: &CanopenBus, node: NodeId, plan: &BootPlan) -> Result<(), 
             Ok(TransferOutcome::Uploaded(b)) if b.len() == 4 => {
                 Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
             }
-            Ok(_) => Err(format!("reading {addr}: not a 32-bit value")),
-            Err(e) => Err(format!("reading {addr}: {e}")),
+            Ok(_) => Err((false, format!("reading {addr}: not a 32-bit value"))),
+            Err(e) => {
+                let timeout = matches!(e, CanopenError::Sdo(SdoError::Timeout { .. }));
+                Err((timeout, format!("reading {addr}: {e}")))
+            }
         }
     };
-    let checks = [
-        (0x1000, 0, plan.device_type, "device type"),
-        (0x1018, 1, plan.vendor_id, "vendor id"),
-        (0x1018, 2, plan.product_code, "product code"),
+    let mismatch = |what: &str, index: u16, sub: u8, got: u32, want: u32| {
+        format!("{what} mismatch: 0x{index:04X}:{sub:02X} is 0x{got:08X}, configured 0x{want:08X}")
+    };
+    // The device type and identity are read whether or not they are
+    // checked, so that GetNode shows them after every boot (0x1000 and
+    // 0x1018:01 are mandatory; the other identity entries read as 0 where
+    // the node lacks them).
+    let device_type = read_u32(0x1000, 0).await;
+    if let Ok(v) = device_type {
+        m.learn(node, |f| f.device_type = Some(v));
+    }
+    let silent = matches!(device_type, Err((true, _)));
+    let mut identity = None;
+    if !silent {
+        let mut read = [0u32; 4];
+        let mut vendor_read = false;
+        for sub in 1..=4u8 {
+            match read_u32(0x1018, sub).await {
+                Ok(v) => {
+                    read[usize::from(sub - 1)] = v;
+                    vendor_read |= sub == 1;
+                }
+                Err(_) if sub == 1 => break,
+                Err(_) => {}
+            }
+        }
+        if vendor_read {
+            identity = Some(read);
+            m.learn(node, |f| f.identity = Some(read));
+        }
+    }
+    if let Some(want) = plan.device_type {
+        let got = device_type.map_err(|(_, e)| e)?;
+        if got != want {
+            return Err(mismatch("device type", 0x1000, 0, got, want));
+        }
+    }
+    let identity_checks = [
+        (1u8, plan.vendor_id, "vendor id"),
+        (2u8, plan.product_code, "product code"),
     ];
-    for (index, sub, expected, what) in checks {
+    for (sub, expected, what) in identity_checks {
         if let Some(want) = expected {
-            let got = read_u32(index, sub).await?;
+            // Read again for the error message when the first read failed.
+            let got = match identity {
+                Some(id) if sub == 1 || id[usize::from(sub - 1)] != 0 => id[usize::from(sub - 1)],
+                _ => read_u32(0x1018, sub).await.map_err(|(_, e)| e)?,
+            };
             if got != want {
-                return Err(format!(
-                    "{what} mismatch: 0x{index:04X}:{sub:02X} is 0x{got:08X}, configured 0x{want:08X}"
-                ));
+                return Err(mismatch(what, 0x1018, sub, got, want));
             }
         }
     }
@@ -702,11 +829,11 @@ async fn run_master(task: MasterTask) {
                 let Some(cmd) = cmd else { break };
                 let now = origin.elapsed();
                 match cmd {
-                    Command::Sdo { node, req, reply } => {
+                    Command::Sdo { node, priority, req, reply } => {
                         let id = next_id;
                         next_id += 1;
                         pending.insert(id, Pending { reply });
-                        master.sdo(id, node, req, now, &mut out);
+                        master.sdo_as(id, node, priority, req, now, &mut out);
                     }
                     Command::Nmt { cmd, target, reply } => {
                         let r = bus.send(vec![nmt_frame(cmd, target)]).await;
@@ -738,7 +865,7 @@ async fn run_master(task: MasterTask) {
             }
         }
         if !out.frames.is_empty()
-            && let Err(e) = bus.submit(std::mem::take(&mut out.frames)).await
+            && let Err(e) = submit_master_frames(&bus, std::mem::take(&mut out.frames)).await
         {
             tracing::warn!(bus = %bus.name(), error = %e, "CANopen master could not send");
         }
@@ -748,6 +875,33 @@ async fn run_master(task: MasterTask) {
         }
     }
     tracing::info!(bus = %bus.name(), "CANopen master stopped");
+}
+
+/// Sends the master's frames. Several SDO requests to one node in one
+/// batch are an SDO block download's sub-block: bulk data, paced to the
+/// bus's bulk share behind the gateway's own frames (see
+/// [`cangate_can::budget`]), in their order; the rest goes at once.
+async fn submit_master_frames(
+    bus: &BusHandle,
+    frames: Vec<cangate_can::Frame>,
+) -> Result<(), cangate_can::SendFailure> {
+    use cangate_canopen::ids::cob;
+    let sdo_request = |f: &cangate_can::Frame| {
+        !f.is_extended() && (cob::SDO_RX + 1..=cob::SDO_RX + 0x7F).contains(&(f.raw_id() as u16))
+    };
+    let repeated =
+        |f: &cangate_can::Frame| frames.iter().filter(|o| o.id() == f.id()).count() > 1;
+    let (bulk, own): (Vec<_>, Vec<_>) = frames
+        .iter()
+        .copied()
+        .partition(|f| sdo_request(f) && repeated(f));
+    if !own.is_empty() {
+        bus.submit(own).await?;
+    }
+    if !bulk.is_empty() {
+        bus.submit_as(cangate_can::TxClass::Bulk, bulk).await?;
+    }
+    Ok(())
 }
 
 /// See [`CanopenBus::relay_tpdo`].
@@ -812,6 +966,10 @@ fn count_event(bus: &str, ev: &MasterEvent) {
             metrics::counter!("cangate_emcy_total", "bus" => bus.to_string(), "node" => e.node.get().to_string())
                 .increment(1);
         }
+        MasterEvent::SdoResponseIgnored { node } => {
+            metrics::counter!("cangate_sdo_responses_ignored_total", "bus" => bus.to_string(), "node" => node.get().to_string())
+                .increment(1);
+        }
         _ => {}
     }
 }
@@ -834,6 +992,13 @@ fn handle_event(
             // Dropping the reply tells the caller the request failed.
             pending.remove(&id);
             tracing::warn!(%error, "SDO request rejected");
+            return;
+        }
+        MasterEvent::SdoResponseIgnored { node } => {
+            tracing::debug!(
+                node = node.get(),
+                "SDO response dropped: a late answer to an aborted transfer, or unsolicited"
+            );
             return;
         }
         MasterEvent::Heartbeat(hb) => match hb {

@@ -66,17 +66,48 @@ fn address(index: u32, sub: u32) -> Result<ObjectAddress, ApiError> {
     Ok(ObjectAddress::new(index, sub))
 }
 
-fn options(o: Option<&pb::SdoOptions>) -> TransferOptions {
+/// The longest SDO timeout a caller may ask for (`SdoOptions.timeout_ms`).
+pub const MAX_SDO_TIMEOUT_MS: u32 = 60_000;
+/// The longest per-node answer timeout of a ScanNetwork.
+pub const MAX_SCAN_TIMEOUT_MS: u32 = 10_000;
+
+fn options(o: Option<&pb::SdoOptions>) -> Result<TransferOptions, ApiError> {
     let o = o.cloned().unwrap_or_default();
     let mut opts = if o.block {
         TransferOptions::block()
     } else {
         TransferOptions::default()
     };
+    if o.timeout_ms > MAX_SDO_TIMEOUT_MS {
+        return Err(ApiError::InvalidArgument(format!(
+            "SDO timeout_ms {} is above the maximum of {MAX_SDO_TIMEOUT_MS} ms",
+            o.timeout_ms
+        )));
+    }
     if o.timeout_ms > 0 {
         opts = opts.with_timeout(Duration::from_millis(o.timeout_ms as u64));
     }
-    opts
+    Ok(opts)
+}
+
+/// Whose SDO requests these are, for the per-caller bound: the
+/// authenticated identity, else the peer's address without the port (one
+/// client with many connections is still one caller).
+fn sdo_caller<T>(req: &Request<T>) -> String {
+    match req.extensions().get::<crate::security::Identity>() {
+        Some(id) if id.method != "none" => id.name.clone(),
+        _ => req
+            .remote_addr()
+            .map_or_else(|| "an unknown peer".to_string(), |a| a.ip().to_string()),
+    }
+}
+
+/// Node ids of a stream filter, each in 1..=127.
+fn node_filter(nodes: &[u32]) -> Result<Vec<u32>, ApiError> {
+    for &n in nodes {
+        node_id(n).map_err(|e| ApiError::InvalidArgument(format!("nodes: {e}")))?;
+    }
+    Ok(nodes.to_vec())
 }
 
 fn map_err(node: NodeId, e: CanopenError) -> ApiError {
@@ -87,6 +118,7 @@ fn map_err(node: NodeId, e: CanopenError) -> ApiError {
         },
         CanopenError::Send(f) => f.into(),
         CanopenError::Stopped => ApiError::ShuttingDown,
+        e @ CanopenError::CallerQueueFull { .. } => ApiError::FailedPrecondition(e.to_string()),
     }
 }
 
@@ -231,12 +263,13 @@ async fn read_u32(
     index: u16,
     sub: u8,
     timeout: Duration,
+    caller: &str,
 ) -> Option<u32> {
     let req = SdoRequest::Upload {
         addr: ObjectAddress::new(index, sub),
         opts: TransferOptions::default().with_timeout(timeout),
     };
-    match master.sdo(node, req).await {
+    match master.client_sdo(node, req, caller).await {
         Ok(TransferOutcome::Uploaded(b)) if b.len() >= 4 => {
             Some(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
         }
@@ -321,6 +354,7 @@ impl Canopen for CanopenService {
         &self,
         req: Request<pb::ReadSdoRequest>,
     ) -> Result<Response<pb::ReadSdoResponse>, Status> {
+        let caller = sdo_caller(&req);
         let req = req.into_inner();
         let m = self.master(&req.bus)?;
         let node = known_node(m, req.node)?;
@@ -331,14 +365,9 @@ impl Canopen for CanopenService {
                 .eds(node)
                 .and_then(|e| e.od.get(addr).map(|v| v.data_type)),
         };
+        let opts = options(req.options.as_ref())?;
         let out = m
-            .sdo(
-                node,
-                SdoRequest::Upload {
-                    addr,
-                    opts: options(req.options.as_ref()),
-                },
-            )
+            .client_sdo(node, SdoRequest::Upload { addr, opts }, &caller)
             .await
             .map_err(|e| map_err(node, e))?;
         let TransferOutcome::Uploaded(raw) = out else {
@@ -357,12 +386,32 @@ impl Canopen for CanopenService {
         &self,
         req: Request<pb::WriteSdoRequest>,
     ) -> Result<Response<pb::WriteSdoResponse>, Status> {
+        let caller = sdo_caller(&req);
         let req = req.into_inner();
         let m = self.master(&req.bus)?;
         let node = known_node(m, req.node)?;
         let addr = address(req.index, req.subindex)?;
+        let opts = options(req.options.as_ref())?;
         let data = match req.data {
-            Some(pb::write_sdo_request::Data::Raw(b)) => b,
+            Some(pb::write_sdo_request::Data::Raw(b)) => {
+                // Checked before anything is sent: a value larger than a
+                // fixed-size object would otherwise stream to the node until
+                // it aborts. Objects the EDS does not know, or of variable
+                // size (strings, domains), take any size.
+                if let Some(var) = m.eds(node).and_then(|e| e.od.get(addr).cloned())
+                    && let Some(size) = var.data_type.fixed_size()
+                    && b.len() > size
+                {
+                    return Err(ApiError::InvalidArgument(format!(
+                        "{addr} ({}) is {} of {size} bytes; {} bytes do not fit",
+                        var.name,
+                        var.data_type,
+                        b.len()
+                    ))
+                    .into());
+                }
+                b
+            }
             Some(pb::write_sdo_request::Data::Value(v)) => {
                 let value = value_from_pb(&v)?;
                 if let Some(var) = m.eds(node).and_then(|e| e.od.get(addr).cloned()) {
@@ -380,16 +429,9 @@ impl Canopen for CanopenService {
             }
         };
         let n = data.len() as u32;
-        m.sdo(
-            node,
-            SdoRequest::Download {
-                addr,
-                data,
-                opts: options(req.options.as_ref()),
-            },
-        )
-        .await
-        .map_err(|e| map_err(node, e))?;
+        m.client_sdo(node, SdoRequest::Download { addr, data, opts }, &caller)
+            .await
+            .map_err(|e| map_err(node, e))?;
         Ok(Response::new(pb::WriteSdoResponse { bytes: n }))
     }
 
@@ -425,18 +467,27 @@ impl Canopen for CanopenService {
         &self,
         req: Request<pb::ScanNetworkRequest>,
     ) -> Result<Response<pb::ScanNetworkResponse>, Status> {
+        let caller = sdo_caller(&req);
         let req = req.into_inner();
         let m = self.master(&req.bus)?.clone();
+        if req.timeout_ms > MAX_SCAN_TIMEOUT_MS {
+            return Err(ApiError::InvalidArgument(format!(
+                "scan timeout_ms {} is above the maximum of {MAX_SCAN_TIMEOUT_MS} ms",
+                req.timeout_ms
+            ))
+            .into());
+        }
         let timeout = Duration::from_millis(if req.timeout_ms == 0 {
             100
         } else {
             req.timeout_ms as u64
         });
+        let caller = caller.as_str();
         let probes = (1..=127u32).map(|n| {
             let m = m.clone();
             async move {
                 let node = NodeId::new(n).expect("1..=127");
-                let device_type = read_u32(&m, node, 0x1000, 0, timeout).await?;
+                let device_type = read_u32(&m, node, 0x1000, 0, timeout, caller).await?;
                 Some((node, device_type))
             }
         });
@@ -447,12 +498,13 @@ impl Canopen for CanopenService {
             .collect();
         for &(node, device_type) in &found {
             let name = match m
-                .sdo(
+                .client_sdo(
                     node,
                     SdoRequest::Upload {
                         addr: ObjectAddress::new(0x1008, 0),
                         opts: TransferOptions::default().with_timeout(timeout),
                     },
+                    caller,
                 )
                 .await
             {
@@ -466,7 +518,7 @@ impl Canopen for CanopenService {
             let mut identity = [0u32; 4];
             let mut have_identity = true;
             for (i, slot) in identity.iter_mut().enumerate() {
-                match read_u32(&m, node, 0x1018, i as u8 + 1, timeout).await {
+                match read_u32(&m, node, 0x1018, i as u8 + 1, timeout, caller).await {
                     Some(v) => *slot = v,
                     None => {
                         have_identity = false;
@@ -506,7 +558,7 @@ impl Canopen for CanopenService {
         } else {
             vec![self.master(&req.bus)?.clone()]
         };
-        let only = req.nodes;
+        let only = node_filter(&req.nodes)?;
         let (tx, rx) = tokio::sync::mpsc::channel(1024);
         let cancel = self.gateway.shutdown_token();
         for m in masters {
@@ -586,6 +638,32 @@ impl Canopen for CanopenService {
                     Ok((addr, value))
                 })
                 .collect::<Result<Vec<_>, ApiError>>()?;
+        // Every value must name a mapped object, once: a value the PDO
+        // does not carry would otherwise be dropped without a word.
+        for (i, (addr, _)) in values.iter().enumerate() {
+            if !cfg.mapping.iter().any(|mo| mo.addr == *addr) {
+                let mapped: Vec<String> =
+                    cfg.mapping.iter().map(|mo| mo.addr.to_string()).collect();
+                return Err(ApiError::InvalidArgument(format!(
+                    "RPDO {} of node {} does not map {addr} (it maps {})",
+                    req.pdo,
+                    req.node,
+                    if mapped.is_empty() {
+                        "nothing".to_string()
+                    } else {
+                        mapped.join(", ")
+                    }
+                ))
+                .into());
+            }
+            if values[..i].iter().any(|(a, _)| a == addr) {
+                return Err(ApiError::InvalidArgument(format!(
+                    "{addr} is given more than once for RPDO {} of node {}",
+                    req.pdo, req.node
+                ))
+                .into());
+            }
+        }
         let data = cfg
             .encode(&values)
             .map_err(|e| ApiError::InvalidArgument(e.to_string()))?;
@@ -607,7 +685,7 @@ impl Canopen for CanopenService {
         } else {
             vec![self.master(&req.bus)?.clone()]
         };
-        let only: Vec<u32> = req.nodes;
+        let only: Vec<u32> = node_filter(&req.nodes)?;
         let (tx, rx) = tokio::sync::mpsc::channel(256);
         let cancel = self.gateway.shutdown_token();
         for m in masters {
