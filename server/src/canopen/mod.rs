@@ -20,7 +20,6 @@ use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio_util::sync::CancellationToken;
 
-pub mod master_heartbeat;
 pub mod sync_thread;
 
 /// Static facts about a node, from the configuration and from reads.
