@@ -324,8 +324,8 @@ async fn congestion() -> Result<()> {
                     // "... (k of n frames sent)"
                     let text = e.to_string();
                     let sent: usize = text
-                        .rsplit_once('(')
-                        .and_then(|(_, t)| t.split_whitespace().next()?.parse().ok())
+                        .split_once(" of ")
+                        .and_then(|(head, _)| head.rsplit_once('(')?.1.parse().ok())
                         .unwrap_or_else(|| panic!("no sent count in {text:?}"));
                     unsent += CLIENT_FRAMES - sent;
                 }
