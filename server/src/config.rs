@@ -333,6 +333,57 @@ pub struct AxisConfig {
     pub sdo_poll_ms: u32,
 }
 
+/// The upper bounds of an axis's motion settings, for both drive
+/// families: `times` are (`jog_deadman_ms`, `state_timeout_ms`,
+/// `homing_timeout_ms`) with their names.
+///
+/// A dead-man that waits longer than [`MAX_JOG_DEADMAN_MS`] no longer
+/// stops a jog whose client went away, and the timeouts bound every
+/// command's wait. A drive takes velocities and accelerations as
+/// UNSIGNED32 counts per second (CiA 402 0x6081, 0x6083, 0x6084): a
+/// maximum beyond that cannot be carried out, and would let any command
+/// through unchecked.
+pub fn motion_bounds(
+    axis: &str,
+    counts_per_unit: f64,
+    max_velocity: f64,
+    max_acceleration: f64,
+    times: [(&str, u64); 3],
+) -> Result<(), String> {
+    for ((what, value), max) in times.into_iter().zip([
+        MAX_JOG_DEADMAN_MS,
+        MAX_STATE_TIMEOUT_MS,
+        MAX_HOMING_TIMEOUT_MS,
+    ]) {
+        if value > max {
+            return Err(format!(
+                "axis {axis}: {what} = {value} is above the maximum of {max} ms"
+            ));
+        }
+    }
+    let counts = counts_per_unit.abs();
+    for (what, value, per) in [
+        ("max_velocity", max_velocity, "s"),
+        ("max_acceleration", max_acceleration, "s²"),
+    ] {
+        if value * counts > f64::from(u32::MAX) {
+            return Err(format!(
+                "axis {axis}: {what} = {value:e} is {:.3e} counts/{per} at counts_per_unit = \
+                 {counts_per_unit}, more than a drive takes (4294967295 counts/{per})",
+                value * counts
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Longest jog dead-man time accepted, ms.
+pub const MAX_JOG_DEADMAN_MS: u64 = 10_000;
+/// Longest CiA 402 state timeout accepted, ms.
+pub const MAX_STATE_TIMEOUT_MS: u64 = 60_000;
+/// Longest homing timeout accepted, ms (one hour).
+pub const MAX_HOMING_TIMEOUT_MS: u64 = 3_600_000;
+
 fn default_sdo_poll_ms() -> u32 {
     10
 }
@@ -466,6 +517,17 @@ impl AxisConfig {
                 self.name
             ));
         }
+        motion_bounds(
+            &self.name,
+            self.counts_per_unit,
+            self.max_velocity,
+            self.max_acceleration,
+            [
+                ("jog_deadman_ms", u64::from(self.jog_deadman_ms)),
+                ("state_timeout_ms", self.state_timeout_ms),
+                ("homing_timeout_ms", self.homing_timeout_ms),
+            ],
+        )?;
         if self.process_data == ProcessDataChoice::Sdo {
             if self.position_mode == PositionModeChoice::Cyclic {
                 return Err(format!(
@@ -1314,3 +1376,16 @@ eds = "builtin:drive"
         assert_eq!(Config::from_toml(&c.to_toml()).unwrap(), c);
     }
 }
+        // Values no drive or dead-man can honour are refused at start-up.
+        let e = axis_err(&format!("{ok}jog_deadman_ms = 4294967295\n"));
+        assert!(
+            e.contains("jog_deadman_ms = 4294967295 is above the maximum of 10000 ms"),
+            "{e}"
+        );
+        let e = axis_err(&ok.replace("max_acceleration = 100.0", "max_acceleration = 1e308"));
+        assert!(
+            e.contains("max_acceleration = 1e308") && e.contains("counts/s²"),
+            "{e}"
+        );
+        let e = axis_err(&format!("{ok}homing_timeout_ms = 9223372036854775807\n"));
+        assert!(e.contains("homing_timeout_ms"), "{e}");

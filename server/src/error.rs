@@ -8,8 +8,9 @@ use tonic::{Code, Status};
 /// An error a request can end with, before it becomes a [`Status`].
 #[derive(Debug, thiserror::Error)]
 pub enum ApiError {
-    /// A named thing (bus, node, axis) does not exist.
-    #[error("{kind} {name:?} not found{hint}")]
+    /// A named thing (bus, node, axis) does not exist. The name is the
+    /// caller's: only its start is quoted.
+    #[error("{kind} {} not found{hint}", quote_prefix(.name))]
     NotFound {
         /// What kind of thing.
         kind: &'static str,
@@ -24,6 +25,10 @@ pub enum ApiError {
     /// The request is valid but the system is not in a state to do it.
     #[error("{0}")]
     FailedPrecondition(String),
+    /// The caller is known but may not do this (e.g. use another
+    /// identity's lease).
+    #[error("{0}")]
+    PermissionDenied(String),
     /// The bus failed while carrying out the request.
     #[error("{0}")]
     Unavailable(String),
@@ -47,6 +52,23 @@ pub enum ApiError {
         /// The failure.
         error: SdoError,
     },
+}
+
+/// At most this many bytes of a caller-chosen string go into a message.
+pub const QUOTE_BYTES: usize = 64;
+
+/// A caller-chosen string quoted for a message: in full when short, else
+/// its start and its length, so that no message grows with the caller's
+/// input.
+pub fn quote_prefix(s: &str) -> String {
+    if s.len() <= QUOTE_BYTES {
+        return format!("{s:?}");
+    }
+    let mut end = QUOTE_BYTES;
+    while !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    format!("{:?}… ({} bytes)", &s[..end], s.len())
 }
 
 impl ApiError {
@@ -90,7 +112,12 @@ impl From<cangate_axis::CommandError> for ApiError {
 
 impl From<cangate_axis::lease::LeaseError> for ApiError {
     fn from(e: cangate_axis::lease::LeaseError) -> Self {
-        ApiError::FailedPrecondition(e.to_string())
+        match e {
+            cangate_axis::lease::LeaseError::OtherIdentity { .. } => {
+                ApiError::PermissionDenied(e.to_string())
+            }
+            _ => ApiError::FailedPrecondition(e.to_string()),
+        }
     }
 }
 
@@ -142,6 +169,7 @@ impl From<ApiError> for Status {
             ApiError::NotFound { .. } => Code::NotFound,
             ApiError::InvalidArgument(_) => Code::InvalidArgument,
             ApiError::FailedPrecondition(_) => Code::FailedPrecondition,
+            ApiError::PermissionDenied(_) => Code::PermissionDenied,
             ApiError::Unavailable(_) | ApiError::ShuttingDown => Code::Unavailable,
             ApiError::OutOfRange(_) => Code::OutOfRange,
             ApiError::DeadlineExceeded(_) => Code::DeadlineExceeded,
@@ -149,5 +177,27 @@ impl From<ApiError> for Status {
             ApiError::Sdo { error, .. } => sdo_code(error),
         };
         Status::new(code, e.to_string())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn caller_names_are_quoted_by_their_start_only() {
+        let long = "x".repeat(20_000);
+        let s = Status::from(ApiError::NotFound {
+            kind: "axis",
+            name: long,
+            hint: " (axes: X)".into(),
+        });
+        assert_eq!(s.code(), Code::NotFound);
+        assert!(s.message().len() < 200, "{}", s.message());
+        assert!(s.message().contains("(20000 bytes)"), "{}", s.message());
+        // Multi-byte characters are cut at a boundary.
+        let q = quote_prefix(&"é".repeat(100));
+        assert!(q.contains("(200 bytes)"), "{q}");
+        assert_eq!(quote_prefix("X"), "\"X\"");
     }
 }

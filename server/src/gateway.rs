@@ -793,9 +793,15 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
     health_reporter
         .set_serving::<cangate_proto::v1::bus_server::BusServer<BusService>>()
         .await;
-    let reflection = tonic_reflection::server::Builder::configure()
-        .register_encoded_file_descriptor_set(cangate_proto::FILE_DESCRIPTOR_SET)
-        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+    // Reflection under both names: grpc.reflection.v1 and the older
+    // v1alpha that many tools (grpcio-reflection, older grpcurl, GUIs)
+    // still speak.
+    let reflection_builder = || {
+        tonic_reflection::server::Builder::configure()
+            .register_encoded_file_descriptor_set(cangate_proto::FILE_DESCRIPTOR_SET)
+            .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+    };
+    let reflection = reflection_builder()
         .build_v1()
         .expect("the embedded descriptor sets are valid");
 
@@ -815,9 +821,11 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
     health_reporter
         .set_serving::<cangate_proto::v1::canopen_server::CanopenServer<CanopenService>>()
         .await;
-    let axes_service =
-        cangate_proto::v1::axes_server::AxesServer::new(AxesService::new(gateway.clone()))
-            .max_decoding_message_size(max_in);
+    let axes_service = cangate_proto::v1::axes_server::AxesServer::new(
+        AxesService::new(gateway.clone())
+            .with_max_name_bytes(config.security.limits.max_name_bytes as usize),
+    )
+    .max_decoding_message_size(max_in);
     health_reporter
         .set_serving::<cangate_proto::v1::axes_server::AxesServer<AxesService>>()
         .await;
@@ -842,7 +850,12 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
     });
     // Plaintext or TLS connections, each carrying its peer (and client
     // certificate CN) to the security layer.
-    let incoming = crate::security::tls::incoming(listener, tls.clone(), shutdown.clone());
+    let incoming = crate::security::tls::incoming(
+        listener,
+        tls.clone(),
+        crate::security::tls::ConnTimeouts::from_limits(&config.security.limits),
+        shutdown.clone(),
+    );
     let token = shutdown.clone();
     let server = tokio::spawn(
         tonic::transport::Server::builder()
@@ -882,6 +895,9 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         buses = gateway.buses().count(),
         tls = tls.is_some(),
         authentication = config.security.authentication(),
+    let reflection_v1alpha = reflection_builder()
+        .build_v1alpha()
+        .expect("the embedded descriptor sets are valid");
         "cangate gateway listening"
     );
     Ok(RunningServer {
@@ -894,3 +910,4 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         tls,
     })
 }
+            .add_service(reflection_v1alpha)

@@ -55,3 +55,46 @@ async fn health_and_reflection() {
     }
     server.shutdown();
 }
+
+/// Tools that speak only the older `grpc.reflection.v1alpha` (Python's
+/// grpcio-reflection, older grpcurl, GUIs) are served too, with the same
+/// answers, and can resolve a service's file.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn reflection_is_served_as_v1alpha_too() {
+    use alpha::server_reflection_request::MessageRequest as AlphaRequest;
+    use alpha::server_reflection_response::MessageResponse as AlphaResponse;
+    use tonic_reflection::pb::v1alpha as alpha;
+    let server = start_server(ONE_BUS).await;
+    let c = client(&server).await;
+    let mut reflection = alpha::server_reflection_client::ServerReflectionClient::new(c.channel());
+    let requests = [
+        alpha::ServerReflectionRequest {
+            host: String::new(),
+            message_request: Some(AlphaRequest::ListServices(String::new())),
+        },
+        alpha::ServerReflectionRequest {
+            host: String::new(),
+            message_request: Some(AlphaRequest::FileContainingSymbol("cangate.v1.Axes".into())),
+        },
+    ];
+    let mut stream = reflection
+        .server_reflection_info(tokio_stream::iter(requests))
+        .await
+        .expect("v1alpha reflection is served")
+        .into_inner();
+    let resp = stream.message().await.unwrap().unwrap();
+    let Some(AlphaResponse::ListServicesResponse(list)) = resp.message_response else {
+        panic!("{resp:?}")
+    };
+    let names: Vec<String> = list.service.into_iter().map(|s| s.name).collect();
+    assert!(
+        names.iter().any(|n| n == "cangate.v1.Axes"),
+        "cangate.v1.Axes missing from {names:?}"
+    );
+    let resp = stream.message().await.unwrap().unwrap();
+    let Some(AlphaResponse::FileDescriptorResponse(files)) = resp.message_response else {
+        panic!("{resp:?}")
+    };
+    assert!(!files.file_descriptor_proto.is_empty());
+    server.shutdown();
+}

@@ -509,6 +509,26 @@ impl AxisManager {
         Ok(lease)
     }
 
+    /// Binds lease `token` to the identity `owner` that acquired it (see
+    /// [`LeaseTable::bind_owner`]).
+    pub fn bind_lease_owner(&self, token: &str, owner: String) -> Result<(), ApiError> {
+        Ok(self
+            .leases
+            .lock()
+            .expect("lease lock")
+            .bind_owner(token, owner)?)
+    }
+
+    /// Checks that `caller` may present lease `token` (see
+    /// [`LeaseTable::check_owner`]).
+    pub fn check_lease_owner(&self, token: &str, caller: Option<&str>) -> Result<(), ApiError> {
+        Ok(self
+            .leases
+            .lock()
+            .expect("lease lock")
+            .check_owner(token, caller)?)
+    }
+
     /// Checks that `token` controls axis `i` (renewing it); the holder's
     /// name for the audit log.
     pub fn authorize(&self, i: usize, token: &str) -> Result<String, ApiError> {

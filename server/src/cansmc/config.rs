@@ -499,6 +499,17 @@ impl CansmcConfig {
                     "axis {an}: jog_deadman_ms, state_timeout_ms and homing_timeout_ms must be positive"
                 ));
             }
+            crate::config::motion_bounds(
+                an,
+                a.counts_per_unit,
+                a.max_velocity,
+                a.max_acceleration,
+                [
+                    ("jog_deadman_ms", u64::from(a.jog_deadman_ms)),
+                    ("state_timeout_ms", a.state_timeout_ms),
+                    ("homing_timeout_ms", a.homing_timeout_ms),
+                ],
+            )?;
             if let Some(src) = a.gear_source {
                 if !addresses.contains(&src) {
                     return Err(format!(

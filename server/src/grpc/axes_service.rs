@@ -22,12 +22,28 @@ use tonic::{Request, Response, Status};
 #[derive(Clone)]
 pub struct AxesService {
     gateway: Arc<Gateway>,
+    /// Longest `client_name` accepted, in bytes.
+    max_name_bytes: usize,
 }
+
+/// `client_name` limit when none is configured (see
+/// `[security.limits] max_name_bytes`).
+pub const DEFAULT_MAX_NAME_BYTES: usize = 128;
 
 impl AxesService {
     /// Serves the gateway's axes.
     pub fn new(gateway: Arc<Gateway>) -> Self {
-        AxesService { gateway }
+        AxesService {
+            gateway,
+            max_name_bytes: DEFAULT_MAX_NAME_BYTES,
+        }
+    }
+
+    /// Accepts `client_name`s of at most `bytes` bytes (names are copied
+    /// into every axis status, so they must stay small).
+    pub fn with_max_name_bytes(mut self, bytes: usize) -> Self {
+        self.max_name_bytes = bytes;
+        self
     }
 
     fn axes(&self) -> &AxisManager {
@@ -99,6 +115,7 @@ impl AxesService {
     async fn run(
         &self,
         peer: String,
+        owner: Option<String>,
         axis: &str,
         cmd: AxisCommand,
         options: Option<pb::CommandOptions>,
@@ -106,7 +123,20 @@ impl AxesService {
         let m = self.axes();
         let i = m.index(axis)?;
         let opts = options.unwrap_or_default();
+        // A lease serves the identity that acquired it only; a stop needs
+        // none, so another identity's lease on a stop is ignored (never
+        // renewed) and the stop goes ahead.
+        let lease_check = if opts.lease.is_empty() {
+            Ok(())
+        } else {
+            m.check_lease_owner(&opts.lease, owner.as_deref())
+        };
+        let lease_ok = lease_check.is_ok();
         let holder = if cmd.needs_control() {
+            if let Err(e) = lease_check {
+                audit(&peer, "", axis, &cmd, &format!("refused: {e}"));
+                return Err(e);
+            }
             match m.authorize(i, &opts.lease) {
                 Ok(h) => h,
                 Err(e) => {
@@ -116,7 +146,7 @@ impl AxesService {
             }
         } else {
             // Renew the lease if one came along.
-            if !opts.lease.is_empty() {
+            if !opts.lease.is_empty() && lease_ok {
                 let _ = m.renew(&opts.lease);
             }
             String::new()
@@ -156,9 +186,10 @@ impl AxesService {
         cmd: AxisCommand,
     ) -> Result<Response<pb::AxisCommandResponse>, Status> {
         let peer = peer(&req);
+        let owner = owner(&req);
         let r = req.into_inner();
         Ok(Response::new(
-            self.run(peer, &r.axis, cmd, r.options).await?,
+            self.run(peer, owner, &r.axis, cmd, r.options).await?,
         ))
     }
 }
@@ -194,6 +225,44 @@ fn audit(peer: &str, holder: &str, axis: &str, cmd: &AxisCommand, result: &str) 
 
 fn peer<T>(req: &Request<T>) -> String {
     super::caller(req)
+}
+
+/// The identity a lease is bound to: the authenticated caller (`token
+/// operator-1`, `certificate hmi-2`), none with authentication off.
+fn owner<T>(req: &Request<T>) -> Option<String> {
+    req.extensions()
+        .get::<crate::security::Identity>()
+        .filter(|id| id.method != "none")
+        .map(|id| format!("{} {}", id.method, id.name))
+}
+
+/// The slowest velocity (or acceleration) a drive can carry out: one
+/// count per second (per second²). Below it the set-point rounds to zero
+/// and a move would never end.
+fn resolution(counts_per_unit: f64) -> f64 {
+    1.0 / counts_per_unit.abs()
+}
+
+/// A move's velocity or acceleration: 0 for the axis default, else
+/// positive, finite and not below the drive's resolution (the maximum is
+/// the axis layer's check).
+fn motion_value(
+    what: &str,
+    v: f64,
+    counts_per_unit: f64,
+    unit: &str,
+) -> Result<Option<f64>, ApiError> {
+    let v = positive_or_default(what, v)?;
+    let least = resolution(counts_per_unit);
+    if let Some(v) = v
+        && v < least
+    {
+        return Err(ApiError::InvalidArgument(format!(
+            "{what} {v:e} {unit} is below what the drive can carry out (one count: {least} \
+             {unit}); the move would never end"
+        )));
+    }
+    Ok(v)
 }
 
 fn outcome_pb(o: Option<Outcome>) -> pb::Outcome {
@@ -303,13 +372,35 @@ impl Axes for AxesService {
         req: Request<pb::AcquireControlRequest>,
     ) -> Result<Response<pb::ControlLease>, Status> {
         let peer = peer(&req);
+        let owner = owner(&req);
         let r = req.into_inner();
+        if r.client_name.len() > self.max_name_bytes {
+            return Err(ApiError::InvalidArgument(format!(
+                "client_name has {} bytes, at most {} are accepted \
+                 ([security.limits] max_name_bytes)",
+                r.client_name.len(),
+                self.max_name_bytes
+            ))
+            .into());
+        }
+        if let Some(bad) = r.client_name.chars().find(|c| c.is_control()) {
+            return Err(ApiError::InvalidArgument(format!(
+                "client_name contains the control character {bad:?}"
+            ))
+            .into());
+        }
         let holder = if r.client_name.is_empty() {
             peer.clone()
         } else {
             format!("{} ({peer})", r.client_name)
         };
         let lease = self.axes().acquire(&r.axes, r.ttl_ms, holder.clone());
+        // Bound before the token leaves the gateway, so no other identity
+        // can ever have used it.
+        let lease = match (lease, owner) {
+            (Ok(l), Some(o)) => self.axes().bind_lease_owner(&l.token, o).map(|()| l),
+            (l, _) => l,
+        };
         tracing::info!(target: "cangate::audit", %peer, %holder, axes = ?r.axes, result = %lease.as_ref().map_or_else(|e| format!("refused: {e}"), |_| "granted".into()), "acquire control");
         let lease = lease?;
         Ok(Response::new(pb::ControlLease {
@@ -324,7 +415,10 @@ impl Axes for AxesService {
         &self,
         req: Request<pb::RenewControlRequest>,
     ) -> Result<Response<pb::ControlLease>, Status> {
-        let lease = self.axes().renew(&req.get_ref().lease)?;
+        let owner = owner(&req);
+        let token = &req.get_ref().lease;
+        self.axes().check_lease_owner(token, owner.as_deref())?;
+        let lease = self.axes().renew(token)?;
         Ok(Response::new(pb::ControlLease {
             lease: lease.token,
             axes: lease.axes,
@@ -338,7 +432,10 @@ impl Axes for AxesService {
         req: Request<pb::ReleaseControlRequest>,
     ) -> Result<Response<pb::ReleaseControlResponse>, Status> {
         let peer = peer(&req);
-        let lease = self.axes().release(&req.get_ref().lease)?;
+        let owner = owner(&req);
+        let token = &req.get_ref().lease;
+        self.axes().check_lease_owner(token, owner.as_deref())?;
+        let lease = self.axes().release(token)?;
         tracing::info!(target: "cangate::audit", %peer, holder = %lease.holder, axes = ?lease.axes, "release control");
         Ok(Response::new(pb::ReleaseControlResponse {
             axes: lease.axes,
@@ -371,15 +468,28 @@ impl Axes for AxesService {
         req: Request<pb::MoveRequest>,
     ) -> Result<Response<pb::AxisCommandResponse>, Status> {
         let peer = peer(&req);
+        let owner = owner(&req);
         let r = req.into_inner();
+        let i = self.axes().index(&r.axis)?;
+        let c = &self.axes().info(i).config;
         let cmd = AxisCommand::Move {
             target: r.target,
             relative: r.relative,
-            velocity: positive_or_default("velocity", r.velocity)?,
-            acceleration: positive_or_default("acceleration", r.acceleration)?,
+            velocity: motion_value(
+                "velocity",
+                r.velocity,
+                c.counts_per_unit,
+                &format!("{}/s", c.unit),
+            )?,
+            acceleration: motion_value(
+                "acceleration",
+                r.acceleration,
+                c.counts_per_unit,
+                &format!("{}/s²", c.unit),
+            )?,
         };
         Ok(Response::new(
-            self.run(peer, &r.axis, cmd, r.options).await?,
+            self.run(peer, owner, &r.axis, cmd, r.options).await?,
         ))
     }
 
@@ -388,13 +498,21 @@ impl Axes for AxesService {
         req: Request<pb::JogRequest>,
     ) -> Result<Response<pb::AxisCommandResponse>, Status> {
         let peer = peer(&req);
+        let owner = owner(&req);
         let r = req.into_inner();
+        let i = self.axes().index(&r.axis)?;
+        let c = &self.axes().info(i).config;
         let cmd = AxisCommand::Jog {
             velocity: r.velocity,
-            acceleration: positive_or_default("acceleration", r.acceleration)?,
+            acceleration: motion_value(
+                "acceleration",
+                r.acceleration,
+                c.counts_per_unit,
+                &format!("{}/s²", c.unit),
+            )?,
         };
         Ok(Response::new(
-            self.run(peer, &r.axis, cmd, r.options).await?,
+            self.run(peer, owner, &r.axis, cmd, r.options).await?,
         ))
     }
 
@@ -434,6 +552,15 @@ impl Axes for AxesService {
             .iter()
             .map(|a| m.index(a))
             .collect::<Result<Vec<_>, _>>()?;
+        let mut seen = std::collections::HashSet::new();
+        for (name, i) in r.axes.iter().zip(&idx) {
+            if !seen.insert(*i) {
+                return Err(ApiError::InvalidArgument(format!(
+                    "axis {name} is named twice (name each axis once)"
+                ))
+                .into());
+            }
+        }
         tracing::info!(target: "cangate::audit", %peer, axes = ?r.axes, quick = r.quick, "stop axes");
         let results = m.stop_many(&idx, r.quick, r.wait).await?;
         let mut out = Vec::new();
@@ -455,8 +582,10 @@ impl Axes for AxesService {
         req: Request<pb::MoveAxesRequest>,
     ) -> Result<Response<pb::MultiAxisResponse>, Status> {
         let peer = peer(&req);
+        let owner = owner(&req);
         let r = req.into_inner();
         let m = self.axes();
+        m.check_lease_owner(&r.lease, owner.as_deref())?;
         let mut targets = Vec::new();
         let mut seen = std::collections::HashSet::new();
         for t in &r.targets {
@@ -474,11 +603,22 @@ impl Axes for AxesService {
                 .into());
             }
             m.authorize(i, &r.lease)?;
+            let c = &m.info(i).config;
             targets.push((
                 i,
                 t.target,
-                positive_or_default("velocity", t.velocity)?,
-                positive_or_default("acceleration", t.acceleration)?,
+                motion_value(
+                    "velocity",
+                    t.velocity,
+                    c.counts_per_unit,
+                    &format!("{}/s", c.unit),
+                )?,
+                motion_value(
+                    "acceleration",
+                    t.acceleration,
+                    c.counts_per_unit,
+                    &format!("{}/s²", c.unit),
+                )?,
             ));
         }
         tracing::info!(target: "cangate::audit", %peer, targets = ?r.targets.iter().map(|t| (&t.axis, t.target)).collect::<Vec<_>>(), "coordinated move");

@@ -105,13 +105,16 @@ impl Bus for BusService {
             0 => MAX_STREAM_BATCH,
             n => n.min(MAX_STREAM_BATCH),
         };
-        let queue = match req.queue_length as usize {
-            0 => DEFAULT_STREAM_QUEUE,
-            n => n.min(MAX_STREAM_QUEUE),
-        };
         let selector = FrameSelector {
             filters,
             error_frames: req.include_error_frames,
+        // The queue comes out of the caller's budget ([security.limits]).
+        let (queue, queue_reservation) = crate::security::stream_queue(
+            &req,
+            req.get_ref().queue_length,
+            DEFAULT_STREAM_QUEUE,
+            MAX_STREAM_QUEUE,
+        )?;
             transmitted: req.include_transmitted,
         };
         let mut sub = bus.subscribe(selector, queue);
@@ -139,6 +142,7 @@ impl Bus for BusService {
                     _ = cancel.cancelled() => break,
                     _ = tx.closed() => break,
                     n = sub.recv_many(&mut items, max_batch) => n,
+            let _queue_reservation = queue_reservation;
                 };
                 if n == 0 {
                     break; // the bus stopped

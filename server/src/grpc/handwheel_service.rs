@@ -15,6 +15,10 @@ use std::time::Duration;
 use tokio_stream::Stream;
 use tonic::{Request, Response, Status};
 
+/// Longest feed window a client may ask for: events are held for this
+/// long, so a window of hours would hold a wheel's events indefinitely.
+pub const MAX_COALESCE_MS: u32 = 10_000;
+
 /// Implementation of the Handwheels service.
 #[derive(Clone)]
 pub struct HandwheelsService {
@@ -241,6 +245,13 @@ impl Handwheels for HandwheelsService {
         let coalesce = Duration::from_millis(u64::from(r.coalesce_ms));
         let (tx, out) = tokio::sync::mpsc::channel(4096);
         tokio::spawn(async move {
+        if r.coalesce_ms > MAX_COALESCE_MS {
+            return Err(ApiError::InvalidArgument(format!(
+                "coalesce_ms {} is above the maximum of {MAX_COALESCE_MS} ms",
+                r.coalesce_ms
+            ))
+            .into());
+        }
             let mut lost: u64 = 0;
             // Open windows: (wheel, axis, direction) → summary.
             let mut window: Vec<((usize, i32, i32), pb::FeedEvent)> = Vec::new();

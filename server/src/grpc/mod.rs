@@ -6,6 +6,7 @@ pub mod canopen_service;
 pub mod cansmc_service;
 pub mod convert;
 pub mod handwheel_service;
+pub mod simulator_service;
 
 /// Who made a call, for audit lines and lease holders: the authenticated
 /// identity and the peer address (`operator-1@10.0.0.5:41234`), or only
@@ -15,7 +16,21 @@ pub(crate) fn caller<T>(req: &tonic::Request<T>) -> String {
         .remote_addr()
         .map_or_else(|| "unknown".to_string(), |a| a.to_string());
     match req.extensions().get::<crate::security::Identity>() {
-        Some(id) if id.method != "none" => format!("{}@{addr}", id.name),
+        // Names come from the configuration or a verified certificate;
+        // still, a certificate's CN is not ours to size.
+        Some(id) if id.method != "none" => format!("{}@{addr}", clip(&id.name, 64)),
         _ => addr,
     }
+}
+
+/// `s` cut to at most `bytes` bytes at a character boundary.
+fn clip(s: &str, bytes: usize) -> &str {
+    if s.len() <= bytes {
+        return s;
+    }
+    let mut end = bytes;
+    while !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    &s[..end]
 }

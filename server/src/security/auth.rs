@@ -6,7 +6,7 @@
 //! `cangate::audit`).
 
 use super::config::SecurityConfig;
-use super::limits::{Admission, Limits, Permit};
+use super::limits::{Admission, CallKind, Limits, PeerRefusals, Permit};
 use super::roles::{self, Access, Rule};
 use super::tls::ConnInfo;
 use super::{Identity, Role};
@@ -14,10 +14,11 @@ use bytes::Buf;
 use http_body::Frame;
 use sha2::{Digest, Sha256};
 use std::collections::HashMap;
+use std::net::IpAddr;
 use std::pin::Pin;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 use subtle::ConstantTimeEq;
 use tonic::body::Body;
 
@@ -190,6 +191,92 @@ struct Shared {
     auth: Authenticator,
     limits: Limits,
     max_message_bytes: u32,
+    refusals: PeerRefusals,
+    audit_gate: AuditGate,
+}
+
+/// Bounds the audit lines of refused calls: a token bucket for all peers
+/// together; refusals beyond it are counted per peer and written as one
+/// summary line per peer every `audit_summary_interval_s`.
+struct AuditGate {
+    rate: f64,
+    state: Mutex<AuditGateState>,
+}
+
+struct AuditGateState {
+    tokens: f64,
+    refilled: Instant,
+    /// Refusals left out since the last summary, per peer.
+    suppressed: HashMap<String, u64>,
+}
+
+/// Peers a summary names one by one; the rest are summed up.
+const SUMMARY_PEERS: usize = 20;
+
+impl AuditGate {
+    fn new(rate: u32) -> Self {
+        let burst = f64::from(rate.max(1)) * 2.0;
+        AuditGate {
+            rate: f64::from(rate),
+            state: Mutex::new(AuditGateState {
+                tokens: burst,
+                refilled: Instant::now(),
+                suppressed: HashMap::new(),
+            }),
+        }
+    }
+
+    /// Whether this refusal of `peer` gets its own audit line (else it is
+    /// counted for the next summary).
+    fn admit(&self, peer: &str) -> bool {
+        if self.rate <= 0.0 {
+            return true;
+        }
+        let mut st = self.state.lock().unwrap_or_else(|p| p.into_inner());
+        let now = Instant::now();
+        let elapsed = now.saturating_duration_since(st.refilled).as_secs_f64();
+        st.tokens = (st.tokens + elapsed * self.rate).min(self.rate * 2.0);
+        st.refilled = now;
+        if st.tokens >= 1.0 {
+            st.tokens -= 1.0;
+            return true;
+        }
+        if st.suppressed.len() < 10 * SUMMARY_PEERS || st.suppressed.contains_key(peer) {
+            *st.suppressed.entry(peer.to_string()).or_default() += 1;
+        } else {
+            *st.suppressed.entry("other peers".to_string()).or_default() += 1;
+        }
+        false
+    }
+
+    /// Writes the summary of the refusals left out, if any.
+    fn summarize(&self, interval: Duration) {
+        let suppressed = {
+            let mut st = self.state.lock().unwrap_or_else(|p| p.into_inner());
+            std::mem::take(&mut st.suppressed)
+        };
+        if suppressed.is_empty() {
+            return;
+        }
+        let total: u64 = suppressed.values().sum();
+        let mut peers: Vec<(String, u64)> = suppressed.into_iter().collect();
+        peers.sort_by(|a, b| b.1.cmp(&a.1));
+        let named: Vec<String> = peers
+            .iter()
+            .take(SUMMARY_PEERS)
+            .map(|(p, n)| format!("{p}: {n}"))
+            .collect();
+        let others = peers.len().saturating_sub(SUMMARY_PEERS);
+        tracing::warn!(
+            target: AUDIT_TARGET,
+            refused = total,
+            peers = peers.len(),
+            by_peer = %named.join(", "),
+            others,
+            interval_s = interval.as_secs(),
+            "refused calls not logged one by one (audit_refusals_per_second)"
+        );
+    }
 }
 
 /// The tower layer (see the module documentation). Cheap to clone.
@@ -207,15 +294,34 @@ impl std::fmt::Debug for SecurityLayer {
 }
 
 impl SecurityLayer {
-    /// From the `[security]` section.
+    /// From the `[security]` section. Within a tokio runtime, a task
+    /// writes the summaries of refusals left out of the audit log; it ends
+    /// with the last clone of the layer.
     pub fn new(config: &SecurityConfig) -> Self {
-        SecurityLayer {
-            shared: Arc::new(Shared {
-                auth: Authenticator::new(config),
-                limits: Limits::new(config.limits.clone()),
-                max_message_bytes: config.limits.max_message_bytes,
-            }),
+        let l = &config.limits;
+        let shared = Arc::new(Shared {
+            auth: Authenticator::new(config),
+            limits: Limits::new(l.clone()),
+            max_message_bytes: l.max_message_bytes,
+            refusals: PeerRefusals::new(l.refusals_per_second_per_peer, l.refusal_burst),
+            audit_gate: AuditGate::new(l.audit_refusals_per_second),
+        });
+        let interval = Duration::from_secs(u64::from(l.audit_summary_interval_s.max(1)));
+        if let Ok(rt) = tokio::runtime::Handle::try_current() {
+            let weak = Arc::downgrade(&shared);
+            rt.spawn(async move {
+                let mut tick = tokio::time::interval(interval);
+                tick.tick().await;
+                loop {
+                    tick.tick().await;
+                    let Some(shared) = weak.upgrade() else {
+                        return;
+                    };
+                    shared.audit_gate.summarize(interval);
+                }
+            });
         }
+        SecurityLayer { shared }
     }
 }
 
@@ -283,6 +389,22 @@ struct Denied {
     refusal: Refusal,
 }
 
+/// At most this much of a caller-chosen string (a method path) goes into
+/// a message or an audit line.
+const QUOTE_BYTES: usize = 96;
+
+/// The start of a caller-chosen string, cut at a character boundary.
+fn clipped(s: &str) -> std::borrow::Cow<'_, str> {
+    if s.len() <= QUOTE_BYTES {
+        return s.into();
+    }
+    let mut end = QUOTE_BYTES;
+    while !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    format!("{}… ({} bytes)", &s[..end], s.len()).into()
+}
+
 impl<S> SecurityService<S> {
     /// Decides on a call: its identity and the limits it holds, or why not.
     fn admit(
@@ -296,10 +418,30 @@ impl<S> SecurityService<S> {
             return Err(Denied {
                 identity: None,
                 refusal: Refusal::Unclassified(format!(
-                    "{method} is not classified in the gateway's access table: refused"
+                    "{} is not classified in the gateway's access table: refused",
+                    clipped(method)
                 )),
             });
         };
+        let peer_ip: Option<IpAddr> = conn.and_then(|c| c.remote_addr).map(|a| a.ip());
+        // A peer that keeps failing to authenticate is refused before its
+        // credentials are looked at. Public RPCs stay open to it, and so do
+        // stops: an operator behind the same address must still be able to
+        // stop a machine.
+        if let (Access::Role(_), Some(ip)) = (rule.access, peer_ip)
+            && !roles::is_stop(rule)
+            && self.shared.auth.enabled()
+            && self.shared.refusals.blocked(ip)
+        {
+            return Err(Denied {
+                identity: None,
+                refusal: Refusal::ResourceExhausted(format!(
+                    "too many refused calls from {ip}: its calls are refused without checking \
+                     credentials until fewer arrive (refusals_per_second_per_peer = {})",
+                    self.shared.refusals.rate()
+                )),
+            });
+        }
         let identity = match rule.access {
             Access::Public => Identity {
                 name: "anonymous".into(),
@@ -311,14 +453,21 @@ impl<S> SecurityService<S> {
                     .shared
                     .auth
                     .identify(authorization, conn)
-                    .map_err(|refusal| Denied {
-                        identity: None,
-                        refusal,
+                    .map_err(|refusal| {
+                        if let Some(ip) = peer_ip {
+                            self.shared.refusals.record(ip);
+                        }
+                        Denied {
+                            identity: None,
+                            refusal,
+                        }
                     })?;
                 if id.role < needed {
                     let msg = format!(
-                        "{method} needs role {needed}; {} holds role {}",
-                        id.name, id.role
+                        "{} needs role {needed}; {} holds role {}",
+                        clipped(method),
+                        id.name,
+                        id.role
                     );
                     return Err(Denied {
                         identity: Some(id),
@@ -337,7 +486,14 @@ impl<S> SecurityService<S> {
         } else {
             format!("{} {}", identity.method, identity.name)
         };
-        match self.shared.limits.admit(&key, rule.streaming) {
+        let kind = if roles::is_stop(rule) {
+            CallKind::Stop
+        } else if rule.streaming {
+            CallKind::Streaming
+        } else {
+            CallKind::Unary
+        };
+        match self.shared.limits.admit(&key, kind) {
             Ok(a) => Ok((identity, a)),
             Err(e) => Err(Denied {
                 identity: Some(identity),
@@ -380,6 +536,12 @@ where
             .as_ref()
             .and_then(|c| c.remote_addr)
             .map_or_else(|| "unknown".to_string(), |a| a.to_string());
+        // The call counts as open on its connection until its response
+        // ends (for the idle-connection timeout).
+        let call_guard = conn
+            .as_ref()
+            .and_then(|c| c.calls.as_ref())
+            .map(|c| c.0.begin());
         let rule = roles::lookup(&method);
         let decision = self.admit(
             rule,
@@ -387,20 +549,34 @@ where
             req.headers().get(http::header::AUTHORIZATION),
             conn.as_ref(),
         );
-        let (identity, Admission { in_flight, stream }) = match decision {
+        let (
+            identity,
+            Admission {
+                in_flight,
+                stream,
+                queue_budget,
+            },
+        ) = match decision {
             Ok(d) => d,
             Err(Denied { identity, refusal }) => {
                 let status = refusal.status();
-                let audit = Audit {
-                    who: identity
-                        .as_ref()
-                        .map_or_else(|| "unidentified".to_string(), |i| i.name.clone()),
-                    role: identity.as_ref().map_or("none", |i| i.role.as_str()),
-                    method,
-                    peer,
-                    start,
-                };
-                audit.emit(status.code(), status.message());
+                let peer_ip = conn
+                    .as_ref()
+                    .and_then(|c| c.remote_addr)
+                    .map_or_else(|| "unknown".to_string(), |a| a.ip().to_string());
+                if self.shared.audit_gate.admit(&peer_ip) {
+                    let audit = Audit {
+                        who: identity
+                            .as_ref()
+                            .map_or_else(|| "unidentified".to_string(), |i| i.name.clone()),
+                        role: identity.as_ref().map_or("none", |i| i.role.as_str()),
+                        method: clipped(&method).into_owned(),
+                        peer,
+                        start,
+                    };
+                    audit.emit(status.code(), status.message());
+                }
+                drop(call_guard);
                 return Box::pin(std::future::ready(Ok(status.into_http())));
             }
         };
@@ -412,29 +588,31 @@ where
             start,
         });
         req.extensions_mut().insert(identity);
+        if let Some(b) = queue_budget {
+            req.extensions_mut().insert(b);
+        }
         let limit = self.shared.max_message_bytes;
         if limit > 0 {
             req = req.map(|b| Body::new(SizeLimited::new(b, limit)));
         }
         let fut = self.inner.call(req);
         Box::pin(async move {
-            let resp = fut.await?;
+            let mut resp = fut.await?;
             // The handler has answered: the call no longer counts as in
             // progress; a stream keeps its stream slot until it ends.
             drop(in_flight);
+            super::status::tidy(resp.headers_mut());
             let header_code = resp
                 .headers()
                 .get("grpc-status")
                 .and_then(|v| v.to_str().ok())
                 .and_then(|v| v.parse::<i32>().ok())
                 .map(tonic::Code::from);
-            if stream.is_none() && audit.is_none() {
-                return Ok(resp);
-            }
             Ok(resp.map(|body| {
                 Body::new(Guarded {
                     inner: body,
                     _stream: stream,
+                    _call: call_guard,
                     audit,
                     code: header_code,
                 })
@@ -443,11 +621,13 @@ where
     }
 }
 
-/// A response body that holds a stream slot until it ends or is dropped,
-/// and writes the audit record with the call's final status.
+/// A response body that holds a stream slot and the connection's open
+/// call until it ends or is dropped, tidies the final status (see
+/// [`super::status`]) and writes the audit record with it.
 struct Guarded {
     inner: Body,
     _stream: Option<Permit>,
+    _call: Option<super::tls::CallGuard>,
     audit: Option<Audit>,
     code: Option<tonic::Code>,
 }
@@ -477,10 +657,11 @@ impl http_body::Body for Guarded {
         mut self: Pin<&mut Self>,
         cx: &mut Context<'_>,
     ) -> Poll<Option<Result<Frame<Self::Data>, Self::Error>>> {
-        let polled = Pin::new(&mut self.inner).poll_frame(cx);
-        if let Poll::Ready(Some(Ok(frame))) = &polled
-            && let Some(trailers) = frame.trailers_ref()
+        let mut polled = Pin::new(&mut self.inner).poll_frame(cx);
+        if let Poll::Ready(Some(Ok(frame))) = &mut polled
+            && let Some(trailers) = frame.trailers_mut()
         {
+            super::status::tidy(trailers);
             let code = trailers
                 .get("grpc-status")
                 .and_then(|v| v.to_str().ok())
@@ -624,6 +805,7 @@ mod tests {
             remote_addr: None,
             tls: true,
             peer_cn: cn.map(str::to_string),
+            calls: None,
         }
     }
 

@@ -93,6 +93,54 @@ pub struct LimitsConfig {
     /// data in one message).
     #[serde(default = "default_message_bytes")]
     pub max_message_bytes: u32,
+    /// Sustained stops (`Stop`, `QuickStop`, `StopAxes`) per second of one
+    /// client: a budget of their own that other calls never use up.
+    #[serde(default = "default_stop_rate")]
+    pub stop_requests_per_second_per_client: u32,
+    /// Stops one client may make at once above their rate.
+    #[serde(default = "default_stop_burst")]
+    pub stop_burst: u32,
+    /// Stops of one client being handled at once (a waited stop counts
+    /// until the axis is at rest).
+    #[serde(default = "default_concurrent_stops")]
+    pub max_concurrent_stops_per_client: u32,
+    /// Largest `queue_length` of one stream, in events; a larger request
+    /// is served with this many.
+    #[serde(default = "default_stream_queue")]
+    pub max_stream_queue: u32,
+    /// Sum of the `queue_length`s of one client's open streams; a stream
+    /// beyond it is refused (RESOURCE_EXHAUSTED).
+    #[serde(default = "default_stream_queue_per_client")]
+    pub max_stream_queue_per_client: u32,
+    /// Longest caller-chosen name (`client_name`), in bytes (1..=4096).
+    #[serde(default = "default_name_bytes")]
+    pub max_name_bytes: u32,
+    /// Refused calls (bad or missing credentials) one peer address may
+    /// make per second; beyond this and `refusal_burst`, its calls are
+    /// refused at once, without checking credentials or writing an audit
+    /// line each.
+    #[serde(default = "default_refusal_rate")]
+    pub refusals_per_second_per_peer: u32,
+    /// Refused calls one peer address may make at once above the rate.
+    #[serde(default = "default_refusal_burst")]
+    pub refusal_burst: u32,
+    /// Audit lines for refused calls per second (all peers together);
+    /// those beyond are counted and summed up per peer in one line every
+    /// `audit_summary_interval_s`.
+    #[serde(default = "default_audit_refusals")]
+    pub audit_refusals_per_second: u32,
+    /// Seconds between the summaries of refusals left out of the audit log.
+    #[serde(default = "default_audit_summary")]
+    pub audit_summary_interval_s: u32,
+    /// Seconds a connection may take from accept to a complete HTTP/2
+    /// preface (after TLS, which is bounded by the same time); then it is
+    /// closed.
+    #[serde(default = "default_handshake_s")]
+    pub handshake_timeout_s: u32,
+    /// Seconds a connection may stay open with no call in progress (no
+    /// request, no open stream); then it is closed. 0: never.
+    #[serde(default = "default_idle_s")]
+    pub idle_connection_timeout_s: u32,
 }
 
 fn default_concurrent() -> u32 {
@@ -110,6 +158,42 @@ fn default_streams() -> u32 {
 fn default_message_bytes() -> u32 {
     4 * 1024 * 1024
 }
+fn default_stop_rate() -> u32 {
+    50
+}
+fn default_stop_burst() -> u32 {
+    100
+}
+fn default_concurrent_stops() -> u32 {
+    32
+}
+fn default_stream_queue() -> u32 {
+    65_536
+}
+fn default_stream_queue_per_client() -> u32 {
+    262_144
+}
+fn default_name_bytes() -> u32 {
+    128
+}
+fn default_refusal_rate() -> u32 {
+    10
+}
+fn default_refusal_burst() -> u32 {
+    20
+}
+fn default_audit_refusals() -> u32 {
+    10
+}
+fn default_audit_summary() -> u32 {
+    10
+}
+fn default_handshake_s() -> u32 {
+    10
+}
+fn default_idle_s() -> u32 {
+    300
+}
 
 impl Default for LimitsConfig {
     fn default() -> Self {
@@ -119,6 +203,18 @@ impl Default for LimitsConfig {
             burst: default_burst(),
             max_streams_per_client: default_streams(),
             max_message_bytes: default_message_bytes(),
+            stop_requests_per_second_per_client: default_stop_rate(),
+            stop_burst: default_stop_burst(),
+            max_concurrent_stops_per_client: default_concurrent_stops(),
+            max_stream_queue: default_stream_queue(),
+            max_stream_queue_per_client: default_stream_queue_per_client(),
+            max_name_bytes: default_name_bytes(),
+            refusals_per_second_per_peer: default_refusal_rate(),
+            refusal_burst: default_refusal_burst(),
+            audit_refusals_per_second: default_audit_refusals(),
+            audit_summary_interval_s: default_audit_summary(),
+            handshake_timeout_s: default_handshake_s(),
+            idle_connection_timeout_s: default_idle_s(),
         }
     }
 }
@@ -183,12 +279,45 @@ impl SecurityConfig {
         {
             return Err("[security.tls] require_client_cert = true needs client_ca".into());
         }
-        if self.limits.burst == 0 && self.limits.requests_per_second_per_client > 0 {
+        let l = &self.limits;
+        if l.burst == 0 && l.requests_per_second_per_client > 0 {
             return Err(
                 "[security.limits] burst must be at least 1 when requests_per_second_per_client \
                  is set"
                     .into(),
             );
+        }
+        if l.stop_burst == 0 && l.stop_requests_per_second_per_client > 0 {
+            return Err("[security.limits] stop_burst must be at least 1 when \
+                 stop_requests_per_second_per_client is set"
+                .into());
+        }
+        if l.refusal_burst == 0 && l.refusals_per_second_per_peer > 0 {
+            return Err("[security.limits] refusal_burst must be at least 1 when \
+                 refusals_per_second_per_peer is set"
+                .into());
+        }
+        if l.max_stream_queue == 0 || l.max_stream_queue_per_client < l.max_stream_queue {
+            return Err(format!(
+                "[security.limits] max_stream_queue must be at least 1 and at most \
+                 max_stream_queue_per_client ({} and {} given)",
+                l.max_stream_queue, l.max_stream_queue_per_client
+            ));
+        }
+        if !(1..=4096).contains(&l.max_name_bytes) {
+            return Err(format!(
+                "[security.limits] max_name_bytes must be 1..=4096, got {}",
+                l.max_name_bytes
+            ));
+        }
+        if !(1..=3600).contains(&l.handshake_timeout_s)
+            || !(1..=3600).contains(&l.audit_summary_interval_s)
+        {
+            return Err(format!(
+                "[security.limits] handshake_timeout_s and audit_summary_interval_s must be \
+                 1..=3600 s, got {} and {}",
+                l.handshake_timeout_s, l.audit_summary_interval_s
+            ));
         }
         Ok(())
     }

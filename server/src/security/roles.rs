@@ -110,6 +110,12 @@ pub fn lookup(path: &str) -> Option<&'static Rule> {
 }
 
 /// True for calls that change state (role operator or above): these are
+    // The same service under its older name, which many tools still speak.
+    rule(
+        "/grpc.reflection.v1alpha.ServerReflection/ServerReflectionInfo",
+        Public,
+        true,
+    ),
 /// written to the audit log.
 pub fn state_changing(rule: &Rule) -> bool {
     matches!(rule.access, Access::Role(r) if r >= Role::Operator)
@@ -117,6 +123,16 @@ pub fn state_changing(rule: &Rule) -> bool {
 
 #[cfg(test)]
 mod tests {
+/// True for the stops, which the limits give a budget of their own (see
+/// [`super::limits`]): a machine must be stoppable by a client that is at
+/// its limits for everything else.
+pub fn is_stop(rule: &Rule) -> bool {
+    matches!(
+        rule.path,
+        "/cangate.v1.Axes/Stop" | "/cangate.v1.Axes/QuickStop" | "/cangate.v1.Axes/StopAxes"
+    )
+}
+
     use super::*;
     use prost::Message;
     use std::collections::BTreeMap;
@@ -137,6 +153,7 @@ mod tests {
                     for m in &service.method {
                         out.insert(
                             format!("/{package}.{}/{}", service.name(), m.name()),
+            tonic_reflection::pb::v1alpha::FILE_DESCRIPTOR_SET,
                             m.server_streaming(),
                         );
                     }
@@ -192,3 +209,9 @@ mod tests {
         ));
     }
 }
+        let stops: Vec<&str> = TABLE
+            .iter()
+            .filter(|r| is_stop(r))
+            .map(|r| r.path)
+            .collect();
+        assert_eq!(stops.len(), 3, "{stops:?}");

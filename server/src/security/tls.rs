@@ -21,9 +21,76 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio_rustls::rustls;
 use tokio_util::sync::CancellationToken;
 
-/// A TLS handshake must finish within this, or the connection is closed
-/// (a client that never speaks must not hold a socket forever).
-const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
+/// The HTTP/2 client connection preface (RFC 9113, 3.4): a connection
+/// has completed its handshake once this many bytes have arrived.
+const PREFACE_LEN: usize = 24;
+
+/// How long connections may take to start speaking HTTP/2 and may stay
+/// without any call: a client that never speaks, or one that connected and
+/// went quiet, must not hold a socket forever.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ConnTimeouts {
+    /// From accept to the end of the TLS handshake, and again from then
+    /// to the complete HTTP/2 preface.
+    pub handshake: Duration,
+    /// With no call in progress for this long, the connection is closed
+    /// (`None`: never).
+    pub idle: Option<Duration>,
+}
+
+impl ConnTimeouts {
+    /// From the `[security.limits]` section.
+    pub fn from_limits(l: &super::config::LimitsConfig) -> Self {
+        ConnTimeouts {
+            handshake: Duration::from_secs(u64::from(l.handshake_timeout_s.max(1))),
+            idle: (l.idle_connection_timeout_s > 0)
+                .then(|| Duration::from_secs(u64::from(l.idle_connection_timeout_s))),
+        }
+    }
+}
+
+/// The calls in progress on one connection, so that the connection can
+/// tell when it has been idle (counted by the security layer).
+#[derive(Debug, Default)]
+pub struct ConnCalls {
+    open: std::sync::atomic::AtomicU32,
+    /// When the last call ended (or the connection was accepted).
+    idle_since: std::sync::Mutex<Option<tokio::time::Instant>>,
+}
+
+/// One call on a connection; ends it when dropped.
+#[derive(Debug)]
+pub struct CallGuard(Arc<ConnCalls>);
+
+impl ConnCalls {
+    /// A call begins; it lasts until the guard is dropped.
+    pub fn begin(self: &Arc<Self>) -> CallGuard {
+        self.open.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+        CallGuard(self.clone())
+    }
+
+    /// Since when no call has been open, or `None` while one is.
+    fn idle_since(&self) -> Option<tokio::time::Instant> {
+        if self.open.load(std::sync::atomic::Ordering::SeqCst) > 0 {
+            return None;
+        }
+        *self.idle_since.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+impl Drop for CallGuard {
+    fn drop(&mut self) {
+        let mut since = self.0.idle_since.lock().unwrap_or_else(|p| p.into_inner());
+        if self
+            .0
+            .open
+            .fetch_sub(1, std::sync::atomic::Ordering::SeqCst)
+            == 1
+        {
+            *since = Some(tokio::time::Instant::now());
+        }
+    }
+}
 
 /// Why the TLS files could not be used.
 #[derive(Debug, thiserror::Error)]
@@ -55,7 +122,22 @@ pub struct ConnInfo {
     /// Subject CN of the client certificate rustls verified against
     /// `client_ca` (none without mTLS or without a client certificate).
     pub peer_cn: Option<String>,
+    /// The calls in progress on this connection (none for connections
+    /// made elsewhere, e.g. in tests).
+    pub calls: Option<CallsHandle>,
 }
+
+/// A shared handle on a connection's [`ConnCalls`]; equal when it is the
+/// same connection.
+#[derive(Debug, Clone)]
+pub struct CallsHandle(pub Arc<ConnCalls>);
+
+impl PartialEq for CallsHandle {
+    fn eq(&self, other: &Self) -> bool {
+        Arc::ptr_eq(&self.0, &other.0)
+    }
+}
+impl Eq for CallsHandle {}
 
 fn file_error(what: &'static str, path: &std::path::Path, message: String) -> TlsError {
     TlsError::File {
@@ -165,10 +247,61 @@ impl TlsReloader {
     }
 }
 
-/// One accepted connection, plaintext or TLS.
+/// One accepted connection, plaintext or TLS, that closes itself when it
+/// does not complete its HTTP/2 preface in time or stays idle too long
+/// (see [`ConnTimeouts`]).
 pub struct Conn {
     io: ConnIo,
     info: ConnInfo,
+    calls: Arc<ConnCalls>,
+    timeouts: ConnTimeouts,
+    /// Bytes read so far, up to the preface's length.
+    preface_seen: usize,
+    /// When the preface must be complete.
+    handshake_deadline: tokio::time::Instant,
+    /// Wakes the connection to check its deadlines.
+    timer: Pin<Box<tokio::time::Sleep>>,
+}
+
+impl Conn {
+    fn new(io: ConnIo, mut info: ConnInfo, timeouts: ConnTimeouts) -> Self {
+        let now = tokio::time::Instant::now();
+        let calls = Arc::new(ConnCalls::default());
+        *calls.idle_since.lock().unwrap_or_else(|p| p.into_inner()) = Some(now);
+        info.calls = Some(CallsHandle(calls.clone()));
+        let handshake_deadline = now + timeouts.handshake;
+        Conn {
+            io,
+            info,
+            calls,
+            timeouts,
+            preface_seen: 0,
+            handshake_deadline,
+            timer: Box::pin(tokio::time::sleep_until(handshake_deadline)),
+        }
+    }
+
+    /// Whether the connection must close now, and why; else when to look
+    /// again.
+    fn check(&self, now: tokio::time::Instant) -> Result<tokio::time::Instant, &'static str> {
+        if self.preface_seen < PREFACE_LEN {
+            if now >= self.handshake_deadline {
+                return Err("no HTTP/2 preface within handshake_timeout_s");
+            }
+            return Ok(self.handshake_deadline);
+        }
+        let Some(idle) = self.timeouts.idle else {
+            // Nothing to watch: look again rarely.
+            return Ok(now + Duration::from_secs(3600));
+        };
+        match self.calls.idle_since() {
+            // A call is open; a call's end sets `idle_since`, which the
+            // next look (at most `idle` later) sees.
+            None => Ok(now + idle),
+            Some(since) if now >= since + idle => Err("idle for idle_connection_timeout_s"),
+            Some(since) => Ok(since + idle),
+        }
+    }
 }
 
 enum ConnIo {
@@ -189,9 +322,31 @@ impl AsyncRead for Conn {
         cx: &mut Context<'_>,
         buf: &mut ReadBuf<'_>,
     ) -> Poll<io::Result<()>> {
-        match &mut self.get_mut().io {
+        let this = self.get_mut();
+        let before = buf.filled().len();
+        let polled = match &mut this.io {
             ConnIo::Plain(s) => Pin::new(s).poll_read(cx, buf),
             ConnIo::Tls(s) => Pin::new(s.as_mut()).poll_read(cx, buf),
+        };
+        if polled.is_ready() {
+            this.preface_seen =
+                (this.preface_seen + (buf.filled().len() - before)).min(PREFACE_LEN);
+            return polled;
+        }
+        // Nothing to read: the connection waits, so look at its deadlines
+        // (the timer wakes this task when the next one is due).
+        loop {
+            if this.timer.as_mut().poll(cx).is_pending() {
+                return Poll::Pending;
+            }
+            match this.check(tokio::time::Instant::now()) {
+                Ok(next) => this.timer.as_mut().reset(next),
+                Err(why) => {
+                    tracing::info!(peer = ?this.info.remote_addr, "connection closed: {why}");
+                    // End of stream: the HTTP/2 server closes the connection.
+                    return Poll::Ready(Ok(()));
+                }
+            }
         }
     }
 }
@@ -247,6 +402,7 @@ impl AsyncWrite for Conn {
 pub fn incoming(
     listener: TcpListener,
     tls: Option<TlsReloader>,
+    timeouts: ConnTimeouts,
     shutdown: CancellationToken,
 ) -> tokio_stream::wrappers::ReceiverStream<Result<Conn, io::Error>> {
     let (tx, rx) = tokio::sync::mpsc::channel(64);
@@ -274,13 +430,11 @@ pub fn incoming(
                 remote_addr: Some(peer),
                 tls: false,
                 peer_cn: None,
+                calls: None,
             };
             match &tls {
                 None => {
-                    let conn = Conn {
-                        io: ConnIo::Plain(stream),
-                        info,
-                    };
+                    let conn = Conn::new(ConnIo::Plain(stream), info, timeouts);
                     if tx.send(Ok(conn)).await.is_err() {
                         return;
                     }
@@ -290,7 +444,7 @@ pub fn incoming(
                     let tx = tx.clone();
                     tokio::spawn(async move {
                         let tls_stream =
-                            match tokio::time::timeout(HANDSHAKE_TIMEOUT, acceptor.accept(stream))
+                            match tokio::time::timeout(timeouts.handshake, acceptor.accept(stream))
                                 .await
                             {
                                 Ok(Ok(s)) => s,
@@ -310,10 +464,7 @@ pub fn incoming(
                             .peer_certificates()
                             .and_then(|c| c.first())
                             .and_then(|c| subject_cn(c.as_ref()));
-                        let conn = Conn {
-                            io: ConnIo::Tls(Box::new(tls_stream)),
-                            info,
-                        };
+                        let conn = Conn::new(ConnIo::Tls(Box::new(tls_stream)), info, timeouts);
                         let _ = tx.send(Ok(conn)).await;
                     });
                 }
