@@ -419,6 +419,10 @@ impl std::str::FromStr for Frame {
             8 => true,
             _ => return Err(ParseFrameError::Id(id_txt.to_string())),
         };
+        // from_str_radix alone would also take a sign.
+        if !id_txt.bytes().all(|b| b.is_ascii_hexdigit()) {
+            return Err(ParseFrameError::Id(id_txt.to_string()));
+        }
         let id =
             u32::from_str_radix(id_txt, 16).map_err(|_| ParseFrameError::Id(id_txt.to_string()))?;
         let cid = CanId::new(id, extended)?;
@@ -447,7 +451,9 @@ impl std::str::FromStr for Frame {
 
 fn parse_hex(s: &str) -> Result<Vec<u8>, ParseFrameError> {
     let clean: String = s.chars().filter(|&c| c != '.').collect();
-    if !clean.len().is_multiple_of(2) {
+    // Only ASCII hex digits: byte pairs are then character pairs (a
+    // multi-byte character would be cut), and no sign is taken as a digit.
+    if !clean.len().is_multiple_of(2) || !clean.bytes().all(|b| b.is_ascii_hexdigit()) {
         return Err(ParseFrameError::Data(s.to_string()));
     }
     (0..clean.len())
@@ -582,6 +588,29 @@ mod tests {
         assert!(matches!(
             "123#001122334455667788".parse::<Frame>(),
             Err(ParseFrameError::Frame(FrameError::ClassicTooLong(9)))
+        ));
+    }
+
+    /// Found by the `cansend` fuzz target: a multi-byte character in the
+    /// data panicked (a string slice inside the character); a sign was
+    /// taken as a digit. Both are errors, as in cansend.
+    #[test]
+    fn non_hex_text_is_an_error_not_a_panic() {
+        assert!(matches!(
+            "123#1\u{e9}1".parse::<Frame>(),
+            Err(ParseFrameError::Data(_))
+        ));
+        assert!(matches!(
+            "123##1\u{e9}\u{e9}".parse::<Frame>(),
+            Err(ParseFrameError::Data(_))
+        ));
+        assert!(matches!(
+            "123#+1".parse::<Frame>(),
+            Err(ParseFrameError::Data(_))
+        ));
+        assert!(matches!(
+            "+12#00".parse::<Frame>(),
+            Err(ParseFrameError::Id(_))
         ));
     }
 
