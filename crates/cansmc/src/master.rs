@@ -27,13 +27,15 @@
 //!   (the "parameter slot": parameter access keeps working in P2 without
 //!   disturbing the cyclic telegrams).
 //! - A DT echoing counter `k` that *arrived* before `t_k+1` is valid, even
-//!   when the runtime hands it over a little after `t_k+1`: the arrival
-//!   time given to [`Master::on_frame`] (the bus timestamp) decides, not
-//!   the moment the runtime got to it. That is why cycle k is closed only
-//!   at `t_k+1 + T_int`. One that answers an earlier, still unanswered MDT
-//!   of the last 16 cycles and arrived after that cycle ended is *late*
-//!   (counted, not used); a duplicate, or an echo of a counter that no
-//!   unanswered MDT carried, is a *counter mismatch*.
+//!   when the runtime hands it over after `t_k+1`: the arrival time given
+//!   to [`Master::on_frame`] (the bus timestamp) decides, not the moment
+//!   the runtime got to it. That is why cycle k is closed only at `T_int`
+//!   of cycle `k + 1 + g`, `g` being [`MasterConfig::handover_grace`] in
+//!   cycles: then every slave sent an MDT in cycle k and not answered in
+//!   time is counted as missed. A DT that answers an open MDT but arrived
+//!   after the end of its cycle is *late* (counted, not used, and the cycle
+//!   is still missed); a duplicate, or an echo of a counter that no open
+//!   MDT carried, is a *counter mismatch*.
 //!   `lost_after` consecutive misses mark the slave lost
 //!   ([`MasterEvent::SlaveLost`]); a valid DT afterwards brings it back
 //!   ([`MasterEvent::SlaveRecovered`]).
@@ -106,6 +108,12 @@ pub struct MasterConfig {
     pub parameter_timeout: Duration,
     /// Consecutive missed DTs after which a slave is lost (≥ 1).
     pub lost_after: u32,
+    /// How long after the end of a cycle a DT that *arrived* in time (by
+    /// its bus timestamp) may still be handed over and count: the time
+    /// between the wire and the runtime (a receive thread, a bus scheduler
+    /// under host load) is not the slave's. A cycle's misses are counted
+    /// this much later (rounded up to whole cycles, at most 14).
+    pub handover_grace: Duration,
     /// The slaves, in any order (MDTs go out in address order).
     pub slaves: Vec<SlaveSpec>,
 }
@@ -113,7 +121,7 @@ pub struct MasterConfig {
 impl MasterConfig {
     /// A configuration with the given cycle and slaves and defaults for the
     /// rest: `T_int` 100 µs, 3 connection attempts 50 ms apart, parameter
-    /// timeout 100 ms, lost after 3 misses.
+    /// timeout 100 ms, lost after 3 misses, 10 ms hand-over grace.
     pub fn new(cycle_time: Duration, slaves: Vec<SlaveSpec>) -> Self {
         MasterConfig {
             cycle_time,
@@ -122,8 +130,17 @@ impl MasterConfig {
             connect_attempts: 3,
             parameter_timeout: Duration::from_millis(100),
             lost_after: 3,
+            handover_grace: Duration::from_millis(10),
             slaves,
         }
+    }
+
+    /// [`MasterConfig::handover_grace`] in whole cycles (the counter's 16
+    /// values must tell the open cycles apart).
+    pub fn handover_grace_cycles(&self) -> u64 {
+        let cycle = self.cycle_time.as_nanos().max(1);
+        let n = self.handover_grace.as_nanos().div_ceil(cycle);
+        u64::try_from(n).unwrap_or(u64::MAX).min(14)
     }
 }
 
@@ -238,6 +255,18 @@ pub struct SlaveCounters {
     pub losses: u64,
 }
 
+/// A cyclic MDT waiting for its DT.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct OpenMdt {
+    /// The cycle it was sent in.
+    cycle: u64,
+    /// A late answer came (counted as late; the cycle is still missed).
+    late: bool,
+    /// Counted as missed; kept until the counter comes round again, so a
+    /// late answer is still recognised as one.
+    closed: bool,
+}
+
 /// What the master knows of one slave.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SlaveStatus {
@@ -260,18 +289,13 @@ pub struct SlaveStatus {
     pub control: ControlWord,
     /// See `control`.
     pub command: Command,
-    /// Whether the current cycle's DT came.
-    answered: bool,
-    /// Whether a cyclic MDT went out in the current cycle.
-    sent: bool,
-    /// `sent` and `answered` of the previous cycle, until it is evaluated.
-    prev_sent: bool,
-    prev_answered: bool,
-    /// Per counter value: the cycle whose MDT carried it and is not
-    /// answered yet. An echo of a counter is *late* only when it answers
-    /// such an MDT; any other echo (a duplicate, a counter never sent to
-    /// this slave, a corrupted one) is a counter mismatch.
-    unanswered: [Option<u64>; 16],
+    /// Per counter value: the cyclic MDT that carried it and is not
+    /// closed yet (answered in time, or closed as missed). An echo is
+    /// valid when it answers an open MDT and arrived before the end of
+    /// that MDT's cycle; *late* when it answers an open MDT after that;
+    /// anything else (a duplicate, a counter that no open MDT carried, a
+    /// corrupted one) is a counter mismatch.
+    open: [Option<OpenMdt>; 16],
 }
 
 impl SlaveStatus {
@@ -451,7 +475,6 @@ pub struct Master {
     mdts_sent: bool,
     /// The previous cycle's DTs are not evaluated yet (see
     /// [`Master::on_frame`]).
-    pending_close: bool,
     /// Parameter requests per slave; one outstanding each.
     queues: BTreeMap<u8, VecDeque<ParamRequest>>,
     outstanding: BTreeMap<u8, Outstanding>,
@@ -504,11 +527,7 @@ impl Master {
                 counters: SlaveCounters::default(),
                 control: ControlWord::default(),
                 command: s.initial_command,
-                answered: false,
-                sent: false,
-                prev_sent: false,
-                prev_answered: false,
-                unanswered: [None; 16],
+                open: [None; 16],
             };
             if slaves.insert(a, status).is_some() {
                 return Err(ConfigError::DuplicateAddress(a));
@@ -523,7 +542,6 @@ impl Master {
             origin: Duration::ZERO,
             cycle: 0,
             mdts_sent: false,
-            pending_close: false,
             queues: BTreeMap::new(),
             outstanding: BTreeMap::new(),
             slot_cursor: 0,
@@ -596,13 +614,8 @@ impl Master {
             s.consecutive_misses = 0;
             s.control = ControlWord::default();
             s.command = s.spec.initial_command;
-            s.answered = false;
-            s.sent = false;
-            s.prev_sent = false;
-            s.prev_answered = false;
-            s.unanswered = [None; 16];
+            s.open = [None; 16];
         }
-        self.pending_close = false;
         self.set_phase(Phase::Connecting);
         self.attempts = 0;
         self.send_mcts(now)
@@ -897,18 +910,8 @@ impl Master {
     }
 
     fn start_cycle(&mut self, out: &mut Poll) {
-        if self.pending_close {
-            self.close_previous();
-        }
         self.mdts_sent = false;
         self.counters.cycles += 1;
-        for s in self.slaves.values_mut() {
-            s.prev_sent = s.sent;
-            s.prev_answered = s.answered;
-            s.answered = false;
-            s.sent = false;
-        }
-        self.pending_close = true;
         out.frames.push(Telegram::Mst.encode());
         out.cycle_started = Some((self.cycle, self.cycle_start(self.cycle)));
     }
@@ -942,18 +945,18 @@ impl Master {
 
     fn send_mdts(&mut self, now: Duration, out: &mut Poll) {
         self.mdts_sent = true;
-        // The previous cycle's DTs have had until now to be processed.
-        if self.pending_close {
-            self.close_previous();
-        }
+        self.close_open_cycles();
         let counter = CycleCounter::new(self.cycle as u8);
         for s in self.slaves.values_mut() {
             if !s.active() {
                 continue;
             }
-            s.sent = true;
             s.counters.mdts += 1;
-            s.unanswered[usize::from(counter.get())] = Some(self.cycle);
+            s.open[usize::from(counter.get())] = Some(OpenMdt {
+                cycle: self.cycle,
+                late: false,
+                closed: false,
+            });
             out.frames.push(
                 Telegram::Master {
                     to: s.spec.address,
@@ -985,23 +988,39 @@ impl Master {
         }
     }
 
-    /// Counts the previous cycle's missing DTs.
-    fn close_previous(&mut self) {
-        self.pending_close = false;
+    /// Closes the cycles whose DTs have had their hand-over time: each
+    /// open MDT of cycle `k` is closed at `T_int` of cycle `k + 1 + grace`
+    /// and counted as missed; `lost_after` consecutive misses lose the
+    /// slave.
+    fn close_open_cycles(&mut self) {
+        let grace = self.config.handover_grace_cycles();
+        let Some(last) = self.cycle.checked_sub(1 + grace) else {
+            return;
+        };
         let lost_after = self.config.lost_after;
         for s in self.slaves.values_mut() {
-            if !s.prev_sent || s.prev_answered {
-                continue;
-            }
-            s.counters.missed += 1;
-            s.consecutive_misses += 1;
-            if s.consecutive_misses >= lost_after && s.state == SlaveState::Operational {
-                s.state = SlaveState::Lost;
-                s.counters.losses += 1;
-                self.events.push(MasterEvent::SlaveLost {
-                    address: s.spec.address,
-                    misses: s.consecutive_misses,
-                });
+            let mut due: Vec<u64> = s
+                .open
+                .iter()
+                .flatten()
+                .filter(|o| !o.closed && o.cycle <= last)
+                .map(|o| o.cycle)
+                .collect();
+            due.sort_unstable();
+            for k in due {
+                if let Some(o) = &mut s.open[(k % 16) as usize] {
+                    o.closed = true;
+                }
+                s.counters.missed += 1;
+                s.consecutive_misses += 1;
+                if s.consecutive_misses >= lost_after && s.state == SlaveState::Operational {
+                    s.state = SlaveState::Lost;
+                    s.counters.losses += 1;
+                    self.events.push(MasterEvent::SlaveLost {
+                        address: s.spec.address,
+                        misses: s.consecutive_misses,
+                    });
+                }
             }
         }
     }
@@ -1215,53 +1234,31 @@ impl Master {
         if self.phase != Phase::Cyclic {
             return None;
         }
-        let current = CycleCounter::new(self.cycle as u8);
-        let previous = CycleCounter::new(self.cycle.wrapping_sub(1) as u8);
-        let this_start = self.cycle_start(self.cycle);
-        let pending_close = self.pending_close;
-        let cycle = self.cycle;
-        let s = self.slaves.get_mut(&a)?;
-        let valid = if s.sent && !s.answered && status.counter_echo == current {
-            s.answered = true;
-            Some(cycle)
-        } else if status.counter_echo == previous
-            && cycle > 0
-            && pending_close
-            && s.prev_sent
-            && !s.prev_answered
-            && at < this_start
-        {
-            // Arrived before this cycle's MST, processed after it.
-            s.prev_answered = true;
-            Some(cycle - 1)
-        } else {
-            None
-        };
         let echo = usize::from(status.counter_echo.get());
-        if let Some(answered) = valid {
-            if s.unanswered[echo] == Some(answered) {
-                s.unanswered[echo] = None;
-            }
-            s.counters.dts += 1;
-            s.consecutive_misses = 0;
-            if s.state == SlaveState::Lost {
-                s.state = SlaveState::Operational;
-                self.events.push(MasterEvent::SlaveRecovered {
-                    address: s.spec.address,
-                });
-            }
-        } else {
-            // Late: the echo answers an MDT of an earlier cycle (within the
-            // counter's 16 cycles) that got no answer yet; that MDT counts
-            // as answered from now on, so a second copy is a mismatch.
-            // Anything else is not an answer to any MDT sent: a mismatch.
-            match s.unanswered[echo] {
-                Some(k) if k < cycle && cycle - k < 16 => {
-                    s.unanswered[echo] = None;
-                    s.counters.late += 1;
+        let open = self.slaves.get(&a)?.open[echo];
+        let valid = match open {
+            Some(o) if !o.late && !o.closed && at < self.cycle_start(o.cycle + 1) => Some(o.cycle),
+            _ => None,
+        };
+        let s = self.slaves.get_mut(&a)?;
+        match (open, valid) {
+            (_, Some(_)) => {
+                s.open[echo] = None;
+                s.counters.dts += 1;
+                s.consecutive_misses = 0;
+                if s.state == SlaveState::Lost {
+                    s.state = SlaveState::Operational;
+                    self.events.push(MasterEvent::SlaveRecovered {
+                        address: s.spec.address,
+                    });
                 }
-                _ => s.counters.counter_mismatch += 1,
             }
+            // After the end of its cycle: late, once.
+            (Some(o), None) if !o.late => {
+                s.open[echo] = Some(OpenMdt { late: true, ..o });
+                s.counters.late += 1;
+            }
+            _ => s.counters.counter_mismatch += 1,
         }
         valid
     }

@@ -65,11 +65,14 @@ fn param_answer(a: u8, number: u16, value: i32, error: bool) -> Frame {
     .encode()
 }
 
+/// No hand-over grace: a cycle is closed at `T_int` of the next one.
 fn config(addresses: &[u8]) -> MasterConfig {
-    MasterConfig::new(
+    let mut c = MasterConfig::new(
         ms(2),
         addresses.iter().map(|&a| SlaveSpec::new(addr(a))).collect(),
-    )
+    );
+    c.handover_grace = Duration::ZERO;
+    c
 }
 
 /// A master in P2 at t = 0 with all `addresses` connected.
@@ -546,4 +549,39 @@ fn a_rejected_mdt_still_delivers_the_slave_status_word() {
             ..
         }
     )));
+}
+
+#[test]
+fn a_dt_stamped_in_time_counts_when_handed_over_within_the_grace() {
+    let mut c = config(&[1]);
+    c.handover_grace = ms(5); // 3 cycles of 2 ms
+    let mut m = Master::new(c).unwrap();
+    m.start(Duration::ZERO);
+    m.on_frame(&dct(1), us(300));
+    m.poll(us(300));
+    assert_eq!(m.phase(), Phase::Cyclic);
+    m.poll(us(400));
+    // Cycles 1..=3 pass without the DT of cycle 0 (the host delayed its
+    // delivery); it was stamped 700 µs into cycle 0.
+    for k in 1..=3 {
+        run_cycle(&mut m, k, &[1]);
+    }
+    assert_eq!(m.slave(addr(1)).unwrap().counters.missed, 0);
+    m.on_frame(&dt(1, 0, 5), us(700));
+    let s = m.slave(addr(1)).unwrap().counters;
+    assert_eq!((s.dts, s.missed, s.late), (4, 0, 0), "{s:?}");
+    // Cycle 4's DT never comes: missed at T_int of cycle 8, not before.
+    run_cycle(&mut m, 4, &[]);
+    for k in 5..=7 {
+        run_cycle(&mut m, k, &[1]);
+    }
+    assert_eq!(m.slave(addr(1)).unwrap().counters.missed, 0);
+    run_cycle(&mut m, 8, &[1]);
+    let s = m.slave(addr(1)).unwrap().counters;
+    assert_eq!((s.dts, s.missed), (8, 1), "{s:?}");
+    // Stamped after the end of its cycle: late, whenever it is handed over.
+    run_cycle(&mut m, 9, &[]);
+    m.on_frame(&dt(1, 9, 0), us(300 + 10 * 2000 + 10));
+    let s = m.slave(addr(1)).unwrap().counters;
+    assert_eq!((s.late, s.counter_mismatch), (1, 0), "{s:?}");
 }
