@@ -1632,6 +1632,16 @@ impl Cia402Axis {
         loop {
             match &mut op.step {
                 Step::Switch(driver) => {
+                    if driver.target() == DriveState::OperationEnabled
+                        && self.state() != Some(DriveState::OperationEnabled)
+                        && self.cfg.position_mode == PositionMode::Cyclic
+                    {
+                        // Until the drive is enabled it may still move (a
+                        // quick stop's ramp): it holds where it stands
+                        // when enabled, not where it stood at the command.
+                        self.demand = self.actual();
+                        self.image.target_position = self.position.unwrap_or_default();
+                    }
                     let step = match self.statusword {
                         Some(sw) if self.fresh > 0 || driver.statusword().is_none() => {
                             self.fresh = 0;
