@@ -112,6 +112,122 @@ pub enum SimVerb {
     /// Turn a simulated handwheel: `cangate sim turn hw1 --detents -20
     /// --axis X --mult 10`.
     Turn(TurnArgs),
+    /// The gateway's simulated CANopen devices.
+    List,
+    /// Show a virtual bus's faults, or replace them: `cangate sim faults
+    /// can0 --drop 0.01 --drop-id 0x77F --delay-us 500` (`--clear`: none).
+    Faults(FaultArgs),
+    /// Force a virtual bus off (`--recover`: back to error-active).
+    BusOff {
+        /// A virtual bus.
+        bus: String,
+        /// Recover instead.
+        #[arg(long)]
+        recover: bool,
+    },
+    /// Cut a simulated device's power: `cangate sim power-cycle can0 1
+    /// --off-ms 500`; it boots with its power-on defaults.
+    PowerCycle {
+        /// The bus.
+        bus: String,
+        /// The node id.
+        node: u32,
+        /// How long the power stays off (default 100 ms).
+        #[arg(long, value_name = "MS", default_value_t = 100)]
+        off_ms: u32,
+    },
+    /// Make a simulated device send an EMCY: `cangate sim emcy can0 4
+    /// 0x5000 --register 0x01 --data 0102`.
+    Emcy {
+        /// The bus.
+        bus: String,
+        /// The node id.
+        node: u32,
+        /// The error code (0x… or decimal).
+        #[arg(value_parser = int_arg)]
+        code: u32,
+        /// The error register (default: generic error).
+        #[arg(long, value_parser = int_arg, default_value = "0")]
+        register: u32,
+        /// Manufacturer bytes as hex, at most 5 (e.g. 0102).
+        #[arg(long, value_parser = hex_bytes, default_value = "")]
+        data: HexBytes,
+    },
+    /// Raise a fault in a simulated drive: `cangate sim drive-fault can0 1
+    /// 0x2310`.
+    DriveFault {
+        /// The bus.
+        bus: String,
+        /// The node id.
+        node: u32,
+        /// The fault's EMCY code (0x1000..=0xFFFF).
+        #[arg(value_parser = int_arg)]
+        code: u32,
+    },
+    /// Set the inputs of a simulated I/O node: `cangate sim inputs can0 4
+    /// --digital 0x01,0x80 --analogue 1000,-5`.
+    Inputs {
+        /// The bus.
+        bus: String,
+        /// The node id.
+        node: u32,
+        /// Digital input bytes for 0x6000 sub 1, 2, …
+        #[arg(long, value_delimiter = ',', value_parser = byte_arg)]
+        digital: Vec<u8>,
+        /// Analogue inputs for 0x6401 sub 1, 2, …
+        #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+        analogue: Vec<i32>,
+    },
+}
+
+/// `sim faults BUS …`
+#[derive(Args, Debug, PartialEq)]
+pub struct FaultArgs {
+    /// A virtual bus.
+    pub bus: String,
+    /// Drop each frame with this probability (0..1).
+    #[arg(long = "drop", value_name = "P", value_parser = probability)]
+    pub drop_probability: Option<f64>,
+    /// Drop every frame with this identifier (repeatable).
+    #[arg(long = "drop-id", value_name = "ID", value_parser = int_arg)]
+    pub drop_ids: Vec<u32>,
+    /// Deliver every frame this many µs late.
+    #[arg(long, value_name = "US")]
+    pub delay_us: Option<u64>,
+    /// Remove every drop and delay fault.
+    #[arg(long, conflicts_with_all = ["drop_probability", "drop_ids", "delay_us"])]
+    pub clear: bool,
+}
+
+/// Bytes typed as hex.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct HexBytes(pub Vec<u8>);
+
+/// `0x…` hex or decimal.
+fn int_arg(text: &str) -> Result<u32, String> {
+    let t = text.trim();
+    let parsed = match t.strip_prefix("0x").or_else(|| t.strip_prefix("0X")) {
+        Some(hex) => u32::from_str_radix(hex, 16),
+        None => t.parse(),
+    };
+    parsed.map_err(|_| format!("{text:?} is not a number (decimal or 0x…)"))
+}
+
+fn byte_arg(text: &str) -> Result<u8, String> {
+    let v = int_arg(text)?;
+    u8::try_from(v).map_err(|_| format!("{text:?} does not fit a byte"))
+}
+
+fn hex_bytes(text: &str) -> Result<HexBytes, String> {
+    let t: String = text.chars().filter(|c| !c.is_whitespace()).collect();
+    if !t.len().is_multiple_of(2) {
+        return Err(format!("{text:?}: hex bytes come in pairs of digits"));
+    }
+    (0..t.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&t[i..i + 2], 16).map_err(|_| format!("{text:?} is not hex")))
+        .collect::<Result<Vec<u8>, String>>()
+        .map(HexBytes)
 }
 
 /// The wheel's axis selector as typed (any case).
@@ -242,7 +358,11 @@ fn net_units_text(s: &pb::FeedStats) -> String {
 
 /// All units dropped by the binding, whatever the reason.
 fn dropped(b: &pb::BindingStats) -> u64 {
-    b.dropped_backlog + b.dropped_not_enabled + b.dropped_not_controlled + b.dropped_unbound
+    b.dropped_backlog
+        + b.dropped_not_manual
+        + b.dropped_not_enabled
+        + b.dropped_not_controlled
+        + b.dropped_unbound
 }
 
 /// `X->X 0.001mm` (the unit when known).
@@ -354,7 +474,7 @@ pub fn counters_line(w: &pb::Handwheel, now_us: u64) -> String {
     let s = w.stats.clone().unwrap_or_default();
     let b = w.binding.clone().unwrap_or_default();
     let mut line = format!(
-        "{}  {:<8} counters: frames {}  units {}  gaps {} (compensated {})  duplicates {}  bad {}  binding executed {} dropped {}",
+        "{}  {:<8} counters: frames {}  units {}  gaps {} (compensated {})  duplicates {}  bad {}  binding executed {} dropped {} pending {}",
         time_text(now_us),
         w.name,
         s.frames,
@@ -365,6 +485,7 @@ pub fn counters_line(w: &pb::Handwheel, now_us: u64) -> String {
         s.bad_frames,
         b.executed_units,
         dropped(&b),
+        b.pending_units,
     );
     if w.node_lost {
         line.push_str("  NODE LOST");
@@ -426,7 +547,10 @@ fn wheel_json(w: &pb::Handwheel) -> Value {
         "max_units_per_s": w.max_units_per_s,
         "stop_within_ms": w.stop_within_ms,
         "binding": {
+            "units": b.units,
             "executed_units": b.executed_units,
+            "pending_units": b.pending_units,
+            "dropped_not_manual": b.dropped_not_manual,
             "dropped_backlog": b.dropped_backlog,
             "dropped_not_enabled": b.dropped_not_enabled,
             "dropped_not_controlled": b.dropped_not_controlled,
@@ -451,9 +575,209 @@ pub async fn run(client: &mut Client, as_json: bool, args: WheelArgs) -> Result<
 
 /// `cangate sim …`
 pub async fn sim(client: &mut Client, as_json: bool, args: SimArgs) -> Result<()> {
+    let mut sim = client.simulator_client();
+    let print = |text: String, value: Value| -> Result<()> {
+        let mut out = std::io::stdout().lock();
+        if as_json {
+            writeln!(out, "{value}")?;
+        } else {
+            writeln!(out, "{text}")?;
+        }
+        out.flush()?;
+        Ok(())
+    };
     match args.verb {
         SimVerb::Turn(t) => turn(client, as_json, t).await,
+        SimVerb::List => {
+            let r = sim
+                .list_simulated_devices(pb::ListSimulatedDevicesRequest {})
+                .await
+                .rpc()?;
+            let text = r
+                .devices
+                .iter()
+                .map(device_text)
+                .collect::<Vec<_>>()
+                .join("\n");
+            let json = Value::Array(r.devices.iter().map(device_json).collect());
+            print(
+                if text.is_empty() {
+                    "no simulated devices".into()
+                } else {
+                    text
+                },
+                json,
+            )
+        }
+        SimVerb::Faults(f) => {
+            let changing = f.clear
+                || f.drop_probability.is_some()
+                || !f.drop_ids.is_empty()
+                || f.delay_us.is_some();
+            let r = if changing {
+                sim.set_bus_faults(pb::SetBusFaultsRequest {
+                    bus: f.bus.clone(),
+                    drop_probability: f.drop_probability.unwrap_or(0.0),
+                    drop_ids: f.drop_ids,
+                    delay_us: f.delay_us.unwrap_or(0),
+                })
+                .await
+                .rpc()
+            } else {
+                sim.get_bus_faults(pb::GetBusFaultsRequest { bus: f.bus.clone() })
+                    .await
+                    .rpc()
+            }
+            .with_context(|| format!("{}: faults", f.bus))?;
+            print(faults_text(&r), faults_json(&r))
+        }
+        SimVerb::BusOff { bus, recover } => {
+            let r = sim
+                .set_bus_off(pb::SetBusOffRequest {
+                    bus: bus.clone(),
+                    bus_off: !recover,
+                })
+                .await
+                .rpc()
+                .with_context(|| format!("{bus}: bus-off"))?;
+            print(faults_text(&r), faults_json(&r))
+        }
+        SimVerb::PowerCycle { bus, node, off_ms } => {
+            let r = sim
+                .power_cycle_device(pb::PowerCycleDeviceRequest {
+                    bus: bus.clone(),
+                    node,
+                    off_ms,
+                })
+                .await
+                .rpc()
+                .with_context(|| format!("{bus} node {node}: power cycle"))?;
+            print(
+                format!(
+                    "{}: power off for {off_ms} ms, then it boots",
+                    device_text(&r)
+                ),
+                device_json(&r),
+            )
+        }
+        SimVerb::Emcy {
+            bus,
+            node,
+            code,
+            register,
+            data,
+        } => {
+            let r = sim
+                .send_emcy(pb::SendEmcyRequest {
+                    bus: bus.clone(),
+                    node,
+                    code,
+                    error_register: register,
+                    manufacturer: data.0,
+                })
+                .await
+                .rpc()
+                .with_context(|| format!("{bus} node {node}: EMCY"))?;
+            print(
+                format!("{}: sent EMCY {code:#06x}", device_text(&r)),
+                device_json(&r),
+            )
+        }
+        SimVerb::DriveFault { bus, node, code } => {
+            let r = sim
+                .raise_drive_fault(pb::RaiseDriveFaultRequest {
+                    bus: bus.clone(),
+                    node,
+                    code,
+                })
+                .await
+                .rpc()
+                .with_context(|| format!("{bus} node {node}: drive fault"))?;
+            print(
+                format!("{}: fault {code:#06x} raised", device_text(&r)),
+                device_json(&r),
+            )
+        }
+        SimVerb::Inputs {
+            bus,
+            node,
+            digital,
+            analogue,
+        } => {
+            let r = sim
+                .set_io_inputs(pb::SetIoInputsRequest {
+                    bus: bus.clone(),
+                    node,
+                    digital,
+                    analogue,
+                })
+                .await
+                .rpc()
+                .with_context(|| format!("{bus} node {node}: inputs"))?;
+            let digital: Vec<String> = r.digital.iter().map(|b| format!("{b:#04x}")).collect();
+            print(
+                format!(
+                    "{bus} node {node}: digital [{}] analogue {:?}",
+                    digital.join(", "),
+                    r.analogue
+                ),
+                json!({"bus": bus, "node": node, "digital": r.digital, "analogue": r.analogue}),
+            )
+        }
     }
+}
+
+fn device_kind_name(k: i32) -> &'static str {
+    match pb::SimulatedDeviceKind::try_from(k) {
+        Ok(pb::SimulatedDeviceKind::Node) => "node",
+        Ok(pb::SimulatedDeviceKind::Drive) => "drive",
+        Ok(pb::SimulatedDeviceKind::Handwheel) => "handwheel",
+        _ => "?",
+    }
+}
+
+fn device_text(d: &pb::SimulatedDevice) -> String {
+    format!(
+        "{} node {} ({}): {}",
+        d.bus,
+        d.node,
+        device_kind_name(d.kind),
+        d.nmt_state
+    )
+}
+
+fn device_json(d: &pb::SimulatedDevice) -> Value {
+    json!({
+        "bus": d.bus,
+        "node": d.node,
+        "kind": device_kind_name(d.kind),
+        "powered": d.powered,
+        "nmt_state": d.nmt_state,
+    })
+}
+
+fn faults_text(f: &pb::BusFaults) -> String {
+    let ids: Vec<String> = f.drop_ids.iter().map(|id| format!("{id:#x}")).collect();
+    format!(
+        "{}: drop {} ids [{}] delay {} µs{}  ({} frames dropped so far)",
+        f.bus,
+        f.drop_probability,
+        ids.join(", "),
+        f.delay_us,
+        if f.bus_off { "  BUS-OFF" } else { "" },
+        f.dropped_by_fault
+    )
+}
+
+fn faults_json(f: &pb::BusFaults) -> Value {
+    json!({
+        "bus": f.bus,
+        "drop_probability": f.drop_probability,
+        "drop_ids": f.drop_ids,
+        "delay_us": f.delay_us,
+        "bus_off": f.bus_off,
+        "dropped_by_fault": f.dropped_by_fault,
+    })
 }
 
 /// The user unit of every axis, for the bindings; empty when the axes
@@ -639,12 +963,19 @@ async fn show(client: &Client, as_json: bool, wheel: &str) -> Result<()> {
                 w.max_units_per_s, w.stop_within_ms
             ),
         ),
-        ("executed", format!("{} units", b.executed_units)),
+        (
+            "executed",
+            format!(
+                "{} of {} units ({} pending)",
+                b.executed_units, b.units, b.pending_units
+            ),
+        ),
         (
             "dropped",
             format!(
-                "{} units (backlog {}, axis not enabled {}, not controlled {}, unbound {})",
+                "{} units (not manual {}, backlog {}, axis not enabled {}, not controlled {}, unbound {})",
                 dropped(&b),
+                b.dropped_not_manual,
                 b.dropped_backlog,
                 b.dropped_not_enabled,
                 b.dropped_not_controlled,
@@ -825,13 +1156,24 @@ async fn turn(client: &Client, as_json: bool, t: TurnArgs) -> Result<()> {
                 "handwheel": t.wheel,
                 "detents": t.detents,
                 "pending_units": r.pending_units,
+                "discarded_units": r.discarded_units,
             })
         )?;
     } else {
         writeln!(
             out,
-            "{}: turned {:+} detents, {} units pending",
-            t.wheel, t.detents, r.pending_units
+            "{}: turned {:+} detents, {} units pending{}",
+            t.wheel,
+            t.detents,
+            r.pending_units,
+            if r.discarded_units > 0 {
+                format!(
+                    ", {} discarded (the wheel sends feed only in manual mode)",
+                    r.discarded_units
+                )
+            } else {
+                String::new()
+            }
         )?;
     }
     out.flush()?;
@@ -860,6 +1202,96 @@ mod tests {
             }) => t,
             other => panic!("{other:?}"),
         }
+    }
+
+    fn sim_verb(argv: &[&str]) -> SimVerb {
+        let cli = Cli::try_parse_from(argv).unwrap_or_else(|e| panic!("{argv:?}: {e}"));
+        match cli.command {
+            Command::Sim(SimArgs { verb }) => verb,
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn parses_the_fault_verbs() {
+        assert_eq!(
+            sim_verb(&[
+                "cangate",
+                "sim",
+                "faults",
+                "can0",
+                "--drop",
+                "0.25",
+                "--drop-id",
+                "0x77F",
+                "--drop-id",
+                "1",
+                "--delay-us",
+                "500"
+            ]),
+            SimVerb::Faults(FaultArgs {
+                bus: "can0".into(),
+                drop_probability: Some(0.25),
+                drop_ids: vec![0x77F, 1],
+                delay_us: Some(500),
+                clear: false,
+            })
+        );
+        assert!(
+            Cli::try_parse_from(["cangate", "sim", "faults", "can0", "--clear", "--drop", "1"])
+                .is_err()
+        );
+        assert!(Cli::try_parse_from(["cangate", "sim", "faults", "can0", "--drop", "2"]).is_err());
+        assert_eq!(
+            sim_verb(&[
+                "cangate", "sim", "emcy", "can0", "4", "0x5000", "--data", "0102"
+            ]),
+            SimVerb::Emcy {
+                bus: "can0".into(),
+                node: 4,
+                code: 0x5000,
+                register: 0,
+                data: HexBytes(vec![1, 2]),
+            }
+        );
+        assert_eq!(
+            sim_verb(&[
+                "cangate",
+                "sim",
+                "inputs",
+                "can0",
+                "4",
+                "--digital",
+                "0x01,128",
+                "--analogue",
+                "-5,7"
+            ]),
+            SimVerb::Inputs {
+                bus: "can0".into(),
+                node: 4,
+                digital: vec![1, 128],
+                analogue: vec![-5, 7],
+            }
+        );
+        assert_eq!(
+            sim_verb(&["cangate", "sim", "power-cycle", "can0", "1"]),
+            SimVerb::PowerCycle {
+                bus: "can0".into(),
+                node: 1,
+                off_ms: 100
+            }
+        );
+        assert_eq!(
+            sim_verb(&["cangate", "sim", "bus-off", "can0", "--recover"]),
+            SimVerb::BusOff {
+                bus: "can0".into(),
+                recover: true
+            }
+        );
+        assert!(matches!(
+            sim_verb(&["cangate", "sim", "drive-fault", "can0", "1", "8960"]),
+            SimVerb::DriveFault { code: 8960, .. }
+        ));
     }
 
     #[test]
@@ -1160,7 +1592,7 @@ mod tests {
         assert_eq!(
             counters_line(&w, 1_700_000_001_000_000),
             "(1700000001.000000)  hw1      counters: frames 120  units X+98 Y-3  \
-             gaps 2 (compensated 5)  duplicates 1  bad 0  binding executed 90 dropped 3"
+             gaps 2 (compensated 5)  duplicates 1  bad 0  binding executed 90 dropped 3 pending 0"
         );
         let units = HashMap::from([("X".to_string(), "mm".to_string())]);
         assert_eq!(bindings_text(&w, &units), "X->X 0.001mm");

@@ -189,8 +189,7 @@ fn refresh(gateway: &Gateway) {
             .absolute(s.subscriber_drops);
         counter!("cangate_bus_tx_retries_total", "bus" => name.clone()).absolute(s.tx_retries);
         gauge!("cangate_bus_tx_queued", "bus" => name.clone()).set(s.tx_queued as f64);
-        counter!("cangate_bus_rx_overflows_total", "bus" => name.clone())
-            .absolute(s.rx_overflows);
+        counter!("cangate_bus_rx_overflows_total", "bus" => name.clone()).absolute(s.rx_overflows);
         gauge!("cangate_bus_load_percent", "bus" => name.clone()).set(s.load_percent);
         let up = matches!(
             bus.status().state,
@@ -216,6 +215,7 @@ fn refresh(gateway: &Gateway) {
         let b = w.binding.lock().expect("binding lock").clone();
         for (reason, v) in [
             ("backlog", b.dropped_backlog),
+            ("not_manual", b.dropped_not_manual),
             ("not_enabled", b.dropped_not_enabled),
             ("not_controlled", b.dropped_not_controlled),
             ("unbound", b.dropped_unbound),

@@ -256,6 +256,7 @@ async fn lossy_feed_is_compensated_exactly_and_moves_the_bound_axis_exactly() {
     assert_eq!(s.frames + s.compensated_units, 2000);
     let binding = h.binding.unwrap();
     assert_eq!(binding.executed_units, 2000, "{binding:?}");
+    assert_balanced(&binding);
     // The bound axis moved exactly 2000 × 1 µm.
     let t0 = Instant::now();
     loop {
@@ -270,9 +271,25 @@ async fn lossy_feed_is_compensated_exactly_and_moves_the_bound_axis_exactly() {
     }
 }
 
+/// `units = executed + dropped + pending`, as the API reports them.
+fn assert_balanced(b: &pb::BindingStats) {
+    let dropped = b.dropped_backlog
+        + b.dropped_not_manual
+        + b.dropped_not_enabled
+        + b.dropped_not_controlled
+        + b.dropped_unbound;
+    assert_eq!(
+        b.units,
+        b.executed_units + dropped + b.pending_units,
+        "the binding counters do not add up: {b:?}"
+    );
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn automatic_mode_sends_no_feed() {
+async fn automatic_mode_sends_no_feed_and_nothing_is_replayed_in_manual_mode() {
     let mut b = setup().await;
+    enable(&mut b.axes, "X").await;
+    let start = axis_status(&mut b.axes, "X").await.position;
     let h = set_mode(&mut b.wheels, "hw1", pb::HandwheelMode::Automatic).await;
     assert_eq!(h.mode, pb::HandwheelMode::Automatic as i32);
     let frames_before = h.stats.unwrap().frames;
@@ -285,17 +302,21 @@ async fn automatic_mode_sends_no_feed() {
         .await
         .unwrap()
         .into_inner();
+    // 100 000 units turned in automatic mode.
     let r = b
         .sim
         .turn_handwheel(pb::TurnHandwheelRequest {
             handwheel: "hw1".into(),
-            detents: 10,
+            detents: 1000,
+            axis: pb::WheelAxis::X as i32,
+            multiplier: 100,
             ..Default::default()
         })
         .await
         .unwrap()
         .into_inner();
-    assert_eq!(r.pending_units, 10, "the wheel keeps counting");
+    assert_eq!(r.pending_units, 0, "nothing queued in automatic mode");
+    assert_eq!(r.discarded_units, 100_000);
     assert!(
         tokio::time::timeout(Duration::from_millis(300), feed.message())
             .await
@@ -306,8 +327,26 @@ async fn automatic_mode_sends_no_feed() {
         get(&mut b.wheels, "hw1").await.stats.unwrap().frames,
         frames_before
     );
-    // Switching to manual releases the counted units as feed.
+    // Switching to manual replays nothing: no feed, the axis stays put.
     set_mode(&mut b.wheels, "hw1", pb::HandwheelMode::Manual).await;
+    assert!(
+        tokio::time::timeout(Duration::from_millis(500), feed.message())
+            .await
+            .is_err(),
+        "turns made in automatic mode were replayed in manual mode"
+    );
+    let st = axis_status(&mut b.axes, "X").await;
+    assert!((st.position - start).abs() < 0.01, "X moved: {st:?}");
+    // A turn in manual mode moves it, and the counters add up.
+    b.sim
+        .turn_handwheel(pb::TurnHandwheelRequest {
+            handwheel: "hw1".into(),
+            detents: 50,
+            multiplier: 1,
+            ..Default::default()
+        })
+        .await
+        .unwrap();
     let ev = tokio::time::timeout(WAIT, feed.message())
         .await
         .expect("feed after manual")
@@ -317,6 +356,10 @@ async fn automatic_mode_sends_no_feed() {
         ev.baseline,
         "the first frame after a mode change is a baseline: {ev:?}"
     );
+    let binding = wait_binding(&mut b.wheels, "hw1", |x| x.executed_units == 50).await;
+    assert_balanced(&binding);
+    let s = get(&mut b.wheels, "hw1").await.stats.unwrap();
+    assert_eq!(s.positive_units[0], binding.units, "{s:?} {binding:?}");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

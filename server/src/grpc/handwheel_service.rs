@@ -108,6 +108,9 @@ fn wheel_pb(m: &HandwheelManager, i: usize) -> pb::Handwheel {
             dropped_not_controlled: b.dropped_not_controlled,
             dropped_unbound: b.dropped_unbound,
             blocked: b.blocked,
+            units: b.units,
+            dropped_not_manual: b.dropped_not_manual,
+            pending_units: b.pending,
         }),
     }
 }
@@ -242,9 +245,6 @@ impl Handwheels for HandwheelsService {
         };
         let mut rx = m.subscribe();
         let shutdown = gateway.shutdown_token();
-        let coalesce = Duration::from_millis(u64::from(r.coalesce_ms));
-        let (tx, out) = tokio::sync::mpsc::channel(4096);
-        tokio::spawn(async move {
         if r.coalesce_ms > MAX_COALESCE_MS {
             return Err(ApiError::InvalidArgument(format!(
                 "coalesce_ms {} is above the maximum of {MAX_COALESCE_MS} ms",
@@ -252,6 +252,9 @@ impl Handwheels for HandwheelsService {
             ))
             .into());
         }
+        let coalesce = Duration::from_millis(u64::from(r.coalesce_ms));
+        let (tx, out) = tokio::sync::mpsc::channel(4096);
+        tokio::spawn(async move {
             let mut lost: u64 = 0;
             // Open windows: (wheel, axis, direction) → summary.
             let mut window: Vec<((usize, i32, i32), pb::FeedEvent)> = Vec::new();
@@ -385,7 +388,7 @@ impl Simulator for SimulatorService {
         } else {
             FrameLoss::None
         };
-        let pending = sim.with(|w| {
+        let (pending, discarded) = sim.with(|w| {
             if let Some(a) = axis {
                 w.set_axis(a);
             }
@@ -393,11 +396,69 @@ impl Simulator for SimulatorService {
                 w.set_multiplier(x);
             }
             w.set_frame_loss(loss);
+            let before = w.stats().discarded_units;
             w.turn(r.detents);
-            w.pending_units()
+            (w.pending_units(), w.stats().discarded_units - before)
         });
         Ok(Response::new(pb::TurnHandwheelResponse {
             pending_units: pending,
+            discarded_units: discarded,
         }))
+    }
+
+    async fn list_simulated_devices(
+        &self,
+        _req: Request<pb::ListSimulatedDevicesRequest>,
+    ) -> Result<Response<pb::ListSimulatedDevicesResponse>, Status> {
+        super::simulator_service::list(&self.gateway)
+    }
+
+    async fn set_bus_faults(
+        &self,
+        req: Request<pb::SetBusFaultsRequest>,
+    ) -> Result<Response<pb::BusFaults>, Status> {
+        super::simulator_service::set_bus_faults(&self.gateway, req.into_inner())
+    }
+
+    async fn get_bus_faults(
+        &self,
+        req: Request<pb::GetBusFaultsRequest>,
+    ) -> Result<Response<pb::BusFaults>, Status> {
+        super::simulator_service::get_bus_faults(&self.gateway, req.into_inner())
+    }
+
+    async fn set_bus_off(
+        &self,
+        req: Request<pb::SetBusOffRequest>,
+    ) -> Result<Response<pb::BusFaults>, Status> {
+        super::simulator_service::set_bus_off(&self.gateway, req.into_inner())
+    }
+
+    async fn power_cycle_device(
+        &self,
+        req: Request<pb::PowerCycleDeviceRequest>,
+    ) -> Result<Response<pb::SimulatedDevice>, Status> {
+        super::simulator_service::power_cycle(&self.gateway, req.into_inner())
+    }
+
+    async fn send_emcy(
+        &self,
+        req: Request<pb::SendEmcyRequest>,
+    ) -> Result<Response<pb::SimulatedDevice>, Status> {
+        super::simulator_service::send_emcy(&self.gateway, req.into_inner())
+    }
+
+    async fn raise_drive_fault(
+        &self,
+        req: Request<pb::RaiseDriveFaultRequest>,
+    ) -> Result<Response<pb::SimulatedDevice>, Status> {
+        super::simulator_service::raise_drive_fault(&self.gateway, req.into_inner())
+    }
+
+    async fn set_io_inputs(
+        &self,
+        req: Request<pb::SetIoInputsRequest>,
+    ) -> Result<Response<pb::SetIoInputsResponse>, Status> {
+        super::simulator_service::set_io_inputs(&self.gateway, req.into_inner())
     }
 }

@@ -5,6 +5,8 @@
 //! the feed onto the bound axes ([`JogPacer`]: even output, bounded backlog)
 //! as relative moves under the wheel's own control lease.
 
+mod ledger;
+
 use crate::axes::AxisManager;
 use crate::canopen::{CanopenBus, NodeEventKind};
 use crate::config::{CounterChoice, HandwheelConfig};
@@ -18,8 +20,8 @@ use cangate_canopen::handwheel::{
 use cangate_canopen::master::SdoRequest;
 use cangate_canopen::sdo::{TransferOptions, TransferOutcome};
 use cangate_canopen::{NodeId, ObjectAddress};
-use cangate_motion::JogPacer;
 use cangate_sim::{DeviceHandle, SimHandwheel};
+use ledger::{BindingLedger, Executed};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -40,13 +42,24 @@ pub enum Mode {
     Manual,
 }
 
-/// What a binding did with the feed.
+/// What the bindings did with the feed. Every decoded unit is counted once
+/// in `units` and ends in exactly one other counter or in `pending`:
+/// [`BindingStats::balance`] is always 0.
 #[derive(Debug, Clone, Default)]
 pub struct BindingStats {
+    /// Feed units decoded (any mode, any wheel axis; compensated ones
+    /// included).
+    pub units: u64,
     /// Units passed to axes.
     pub executed: u64,
-    /// Dropped: the backlog was full.
+    /// Dropped: the backlog was full, queued units discarded at a
+    /// reversal or a mode change, units that would have run late, or a move
+    /// the axis refused.
     pub dropped_backlog: u64,
+    /// Dropped: the wheel was not in manual mode when they arrived.
+    pub dropped_not_manual: u64,
+    /// Units queued in the pacers, neither executed nor dropped yet.
+    pub pending: u64,
     /// Dropped: axis not enabled.
     pub dropped_not_enabled: u64,
     /// Dropped: the wheel does not hold the axis.
@@ -55,6 +68,26 @@ pub struct BindingStats {
     pub dropped_unbound: u64,
     /// Why the binding cannot move now.
     pub blocked: String,
+}
+
+impl BindingStats {
+    /// `units − executed − dropped − pending`: 0 when every unit is
+    /// accounted for.
+    pub fn balance(&self) -> i128 {
+        i128::from(self.units)
+            - i128::from(self.executed)
+            - i128::from(self.dropped())
+            - i128::from(self.pending)
+    }
+
+    /// Every dropped unit, whatever the reason.
+    pub fn dropped(&self) -> u64 {
+        self.dropped_backlog
+            + self.dropped_not_manual
+            + self.dropped_not_enabled
+            + self.dropped_not_controlled
+            + self.dropped_unbound
+    }
 }
 
 /// A binding resolved to an axis index.
@@ -346,15 +379,11 @@ async fn run_wheel(mut t: WheelTask) {
     let origin = Instant::now();
     let mut items = Vec::with_capacity(256);
     let c = &t.state.config;
-    let mut pacers: HashMap<usize, JogPacer> = HashMap::new();
-    for (k, _) in t.state.bindings.iter().enumerate() {
-        if let Ok(p) = JogPacer::stop_within(
-            c.max_units_per_s,
-            Duration::from_millis(u64::from(c.stop_within_ms)),
-        ) {
-            pacers.insert(k, p);
-        }
-    }
+    let mut ledger = BindingLedger::new(
+        t.state.bindings.len(),
+        c.max_units_per_s,
+        Duration::from_millis(u64::from(c.stop_within_ms)),
+    );
     let mut manual = false;
     let mut hold = Hold {
         lease: None,
@@ -366,8 +395,22 @@ async fn run_wheel(mut t: WheelTask) {
     let mut tick = tokio::time::interval(Duration::from_millis(2));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     loop {
+        // Biased: a mode change confirmed before feed frames were read is
+        // applied first, so those frames count in the new mode.
         tokio::select! {
+            biased;
             _ = t.cancel.cancelled() => break,
+            Some(ctl) = t.control.recv() => match ctl {
+                Control::ModeChanged(mode) => {
+                    t.decoder.reset_baseline(BaselineReason::ModeChange);
+                    manual = mode == Mode::Manual;
+                    ledger.clear();
+                    if !manual {
+                        release(&mut ledger, &t.axes, &mut hold);
+                    }
+                    publish(&t.state, &ledger);
+                }
+            },
             n = t.sub.recv_many(&mut items, 256) => {
                 if n == 0 {
                     break;
@@ -377,8 +420,8 @@ async fn run_wheel(mut t: WheelTask) {
                     match item {
                         BusItem::Frame { frame, .. } => {
                             if let Some(ev) = t.decoder.on_frame(&frame, now) {
-                                if manual {
-                                    feed_binding(&t.state, &mut pacers, &ev, now);
+                                if let Some(axis) = ev.axis {
+                                    ledger.feed(&t.state.bindings, axis, ev.signed_units(), manual, now);
                                 }
                                 let _ = t.feed.send(WheelFeed {
                                     wheel: t.index,
@@ -397,6 +440,7 @@ async fn run_wheel(mut t: WheelTask) {
                     }
                 }
                 *t.state.stats.lock().expect("stats lock") = t.decoder.stats().clone();
+                publish(&t.state, &ledger);
             }
             e = t.events.recv() => match e {
                 Ok(e) if e.node == t.state.node => match e.kind {
@@ -414,7 +458,9 @@ async fn run_wheel(mut t: WheelTask) {
                         t.decoder.reset_baseline(BaselineReason::DeviceRestart);
                         *t.state.mode.lock().expect("lock") = None;
                         manual = false;
-                        release(&t.state, &t.axes, &mut hold);
+                        ledger.clear();
+                        release(&mut ledger, &t.axes, &mut hold);
+                        publish(&t.state, &ledger);
                     }
                     _ => {}
                 },
@@ -427,58 +473,26 @@ async fn run_wheel(mut t: WheelTask) {
                 }
                 Err(broadcast::error::RecvError::Closed) => break,
             },
-            Some(ctl) = t.control.recv() => match ctl {
-                Control::ModeChanged(mode) => {
-                    t.decoder.reset_baseline(BaselineReason::ModeChange);
-                    manual = mode == Mode::Manual;
-                    for p in pacers.values_mut() {
-                        p.clear();
-                    }
-                    if !manual {
-                        release(&t.state, &t.axes, &mut hold);
-                    }
-                }
-            },
             // Only a wheel in manual mode with bindings has work to pace.
             _ = tick.tick(), if manual && !t.state.bindings.is_empty() => {
-                keep_hold(&t.state, &t.axes, &mut hold);
+                keep_hold(&t.state, &mut ledger, &t.axes, &mut hold);
                 let now = origin.elapsed();
-                execute(&t.state, &t.axes, &mut pacers, &hold, now);
+                execute(&t.state, &t.axes, &mut ledger, &hold, now);
+                publish(&t.state, &ledger);
             }
         }
     }
-    release(&t.state, &t.axes, &mut hold);
+    release(&mut ledger, &t.axes, &mut hold);
+    publish(&t.state, &ledger);
 }
 
-/// Queues the units of a feed event on the pacer of its axis.
-fn feed_binding(
-    state: &WheelState,
-    pacers: &mut HashMap<usize, JogPacer>,
-    ev: &FeedEvent,
-    now: Duration,
-) {
-    let units = ev.signed_units();
-    if units == 0 {
-        return;
-    }
-    let Some(axis) = ev.axis else { return };
-    let Some(k) = state.bindings.iter().position(|b| b.wheel_axis == axis) else {
-        state.binding.lock().expect("lock").dropped_unbound += units.unsigned_abs();
-        return;
-    };
-    if let Some(p) = pacers.get_mut(&k) {
-        let r = p.push(units, now);
-        // Units refused by a full backlog, and queued units of the other
-        // direction discarded at a reversal: both never run late.
-        let gone = r.dropped.unsigned_abs() + r.flushed.unsigned_abs();
-        if gone != 0 {
-            state.binding.lock().expect("lock").dropped_backlog += gone;
-        }
-    }
+/// Shows the ledger's counters to the API (one consistent snapshot).
+fn publish(state: &WheelState, ledger: &BindingLedger) {
+    *state.binding.lock().expect("binding lock") = ledger.stats();
 }
 
 /// Takes (and keeps renewing) control of the bound axes.
-fn keep_hold(state: &WheelState, axes: &AxisManager, hold: &mut Hold) {
+fn keep_hold(state: &WheelState, ledger: &mut BindingLedger, axes: &AxisManager, hold: &mut Hold) {
     let now = Instant::now();
     match &hold.lease {
         Some(token) => {
@@ -505,11 +519,11 @@ fn keep_hold(state: &WheelState, axes: &AxisManager, hold: &mut Hold) {
                 Ok(l) => {
                     hold.lease = Some(l.token);
                     hold.renewed = now;
-                    state.binding.lock().expect("lock").blocked.clear();
+                    ledger.set_blocked(String::new());
                 }
                 Err(e) => {
                     hold.retry_at = now + Duration::from_millis(500);
-                    state.binding.lock().expect("lock").blocked = e.to_string();
+                    ledger.set_blocked(e.to_string());
                 }
             }
         }
@@ -518,45 +532,35 @@ fn keep_hold(state: &WheelState, axes: &AxisManager, hold: &mut Hold) {
 
 /// Gives the bound axes back (the wheel left manual mode, rebooted or
 /// stopped); a refusal to take them no longer applies either.
-fn release(state: &WheelState, axes: &AxisManager, hold: &mut Hold) {
+fn release(ledger: &mut BindingLedger, axes: &AxisManager, hold: &mut Hold) {
     if let Some(token) = hold.lease.take() {
         let _ = axes.release(&token);
     }
     hold.retry_at = Instant::now();
-    state.binding.lock().expect("lock").blocked.clear();
+    ledger.set_blocked(String::new());
 }
 
 /// Sends the units now due as relative moves.
 fn execute(
     state: &WheelState,
     axes: &AxisManager,
-    pacers: &mut HashMap<usize, JogPacer>,
+    ledger: &mut BindingLedger,
     hold: &Hold,
     now: Duration,
 ) {
-    for (k, b) in state.bindings.iter().enumerate() {
-        let Some(p) = pacers.get_mut(&k) else {
-            continue;
-        };
-        let units = p.poll(now);
-        if units == 0 {
-            continue;
-        }
-        let mut stats = state.binding.lock().expect("lock");
+    ledger.poll(now, |k, units| {
+        let b = &state.bindings[k];
         let Some(token) = &hold.lease else {
-            stats.dropped_not_controlled += units.unsigned_abs();
-            continue;
+            return Executed::NotControlled;
         };
         let enabled = axes.latest(b.axis).is_some_and(|(s, _)| {
             s.state == Some(DriveState::OperationEnabled) && s.node_lost.is_none()
         });
         if !enabled {
-            stats.dropped_not_enabled += units.unsigned_abs();
-            continue;
+            return Executed::NotEnabled;
         }
         if axes.authorize(b.axis, token).is_err() {
-            stats.dropped_not_controlled += units.unsigned_abs();
-            continue;
+            return Executed::NotControlled;
         }
         let cfg = &axes.info(b.axis).config;
         // The paced rate as the move's velocity, so consecutive small moves
@@ -569,8 +573,8 @@ fn execute(
             acceleration: Some(cfg.max_acceleration),
         };
         match axes.submit(b.axis, cmd) {
-            Ok(()) => stats.executed += units.unsigned_abs(),
-            Err(_) => stats.dropped_backlog += units.unsigned_abs(),
+            Ok(()) => Executed::Done,
+            Err(_) => Executed::Refused,
         }
-    }
+    });
 }
