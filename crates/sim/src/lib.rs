@@ -50,7 +50,7 @@ pub use cansmc_slave::{
 pub use drive::{SimDrive, SimDriveOptions};
 pub use handwheel::{FrameLoss, Multiplier, SimHandwheel, SimHandwheelOptions};
 #[cfg(feature = "runtime")]
-pub use runner::{DeviceHandle, spawn_device, spawn_node};
+pub use runner::{DeviceHandle, spawn_device, spawn_device_on_bus, spawn_node};
 pub use store::SimStore;
 
 /// A simulated device as a sans-IO state machine.

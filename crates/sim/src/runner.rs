@@ -34,7 +34,7 @@ use std::future::pending;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
-use cangate_can::{Frame, PortEvent, VirtualPort};
+use cangate_can::{BusHandle, BusItem, Direction, Frame, FrameSelector, PortEvent, VirtualPort};
 use tokio::sync::Notify;
 use tokio::task::JoinHandle;
 use tokio::time::{Instant, sleep_until};
@@ -165,6 +165,63 @@ pub fn spawn_device<D: Device + Send + 'static>(
     cancel: CancellationToken,
 ) -> JoinHandle<()> {
     tokio::spawn(run(port, device, cancel))
+}
+
+/// Runs `device` on any bus the gateway's bus layer owns (e.g. a SocketCAN
+/// `vcan0` shared with a gateway in another process) until `cancel` fires:
+/// the same loop as [`spawn_device`] over a [`BusHandle`] (it receives
+/// every frame, ignores its own, and sends through the bus's queue). Power
+/// cuts are not modelled here.
+pub fn spawn_device_on_bus<D: Device + Send + 'static>(
+    bus: BusHandle,
+    device: DeviceHandle<D>,
+    cancel: CancellationToken,
+) -> JoinHandle<()> {
+    tokio::spawn(async move {
+        let mut sub = bus.subscribe(FrameSelector::default(), 4096);
+        let origin = Instant::now();
+        let started = device.lock().device.start(origin.elapsed());
+        let _ = bus.send(started).await;
+        let mut items = Vec::with_capacity(BATCH);
+        loop {
+            let (queued, deadline) = {
+                let mut s = device.lock();
+                (std::mem::take(&mut s.outbox), s.device.next_deadline())
+            };
+            if !queued.is_empty() {
+                let _ = bus.send(queued).await;
+            }
+            let timer = async {
+                match deadline {
+                    Some(d) => sleep_until(origin + d).await,
+                    None => pending::<()>().await,
+                }
+            };
+            let mut out = Vec::new();
+            tokio::select! {
+                biased;
+                _ = cancel.cancelled() => break,
+                _ = device.wake.notified() => {}
+                n = sub.recv_many(&mut items, BATCH) => {
+                    if n == 0 {
+                        break;
+                    }
+                    let now = origin.elapsed();
+                    let mut s = device.lock();
+                    for item in items.drain(..) {
+                        if let BusItem::Frame { frame, direction: Direction::Rx } = item {
+                            out.extend(s.device.on_frame(&frame, now));
+                        }
+                    }
+                }
+                _ = timer => {}
+            }
+            out.extend(device.lock().device.on_tick(origin.elapsed()));
+            if !out.is_empty() {
+                let _ = bus.send(out).await;
+            }
+        }
+    })
 }
 
 /// Runs a [`SimNode`] on `port` until `cancel` fires. Use [`DeviceHandle`]

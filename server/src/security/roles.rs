@@ -86,6 +86,14 @@ pub const TABLE: &[Rule] = &[
     rule("/cangate.v1.Handwheels/StreamFeed", V, true),
     // The simulator injects frames as a device would: engineering.
     rule("/cangate.v1.Simulator/TurnHandwheel", E, false),
+    rule("/cangate.v1.Simulator/ListSimulatedDevices", V, false),
+    rule("/cangate.v1.Simulator/SetBusFaults", E, false),
+    rule("/cangate.v1.Simulator/GetBusFaults", V, false),
+    rule("/cangate.v1.Simulator/SetBusOff", E, false),
+    rule("/cangate.v1.Simulator/PowerCycleDevice", E, false),
+    rule("/cangate.v1.Simulator/SendEmcy", E, false),
+    rule("/cangate.v1.Simulator/RaiseDriveFault", E, false),
+    rule("/cangate.v1.Simulator/SetIoInputs", E, false),
     // CANsmc: reading parameters is viewing; writing them and restarting
     // the master (its axes drop out of the cycle) is engineering.
     rule("/cangate.v1.Cansmc/ListMasters", V, false),
@@ -102,6 +110,12 @@ pub const TABLE: &[Rule] = &[
         Public,
         true,
     ),
+    // The same service under its older name, which many tools still speak.
+    rule(
+        "/grpc.reflection.v1alpha.ServerReflection/ServerReflectionInfo",
+        Public,
+        true,
+    ),
 ];
 
 /// The entry of an RPC path, if it is classified.
@@ -109,20 +123,6 @@ pub fn lookup(path: &str) -> Option<&'static Rule> {
     TABLE.iter().find(|r| r.path == path)
 }
 
-/// True for calls that change state (role operator or above): these are
-    // The same service under its older name, which many tools still speak.
-    rule(
-        "/grpc.reflection.v1alpha.ServerReflection/ServerReflectionInfo",
-        Public,
-        true,
-    ),
-/// written to the audit log.
-pub fn state_changing(rule: &Rule) -> bool {
-    matches!(rule.access, Access::Role(r) if r >= Role::Operator)
-}
-
-#[cfg(test)]
-mod tests {
 /// True for the stops, which the limits give a budget of their own (see
 /// [`super::limits`]): a machine must be stoppable by a client that is at
 /// its limits for everything else.
@@ -133,6 +133,14 @@ pub fn is_stop(rule: &Rule) -> bool {
     )
 }
 
+/// True for calls that change state (role operator or above): these are
+/// written to the audit log.
+pub fn state_changing(rule: &Rule) -> bool {
+    matches!(rule.access, Access::Role(r) if r >= Role::Operator)
+}
+
+#[cfg(test)]
+mod tests {
     use super::*;
     use prost::Message;
     use std::collections::BTreeMap;
@@ -145,6 +153,7 @@ pub fn is_stop(rule: &Rule) -> bool {
             cangate_proto::FILE_DESCRIPTOR_SET,
             tonic_health::pb::FILE_DESCRIPTOR_SET,
             tonic_reflection::pb::v1::FILE_DESCRIPTOR_SET,
+            tonic_reflection::pb::v1alpha::FILE_DESCRIPTOR_SET,
         ] {
             let fds = prost_types::FileDescriptorSet::decode(set).expect("descriptor set decodes");
             for file in fds.file {
@@ -153,7 +162,6 @@ pub fn is_stop(rule: &Rule) -> bool {
                     for m in &service.method {
                         out.insert(
                             format!("/{package}.{}/{}", service.name(), m.name()),
-            tonic_reflection::pb::v1alpha::FILE_DESCRIPTOR_SET,
                             m.server_streaming(),
                         );
                     }
@@ -207,11 +215,11 @@ pub fn is_stop(rule: &Rule) -> bool {
         assert!(state_changing(
             lookup("/cangate.v1.Axes/AcquireControl").unwrap()
         ));
-    }
-}
         let stops: Vec<&str> = TABLE
             .iter()
             .filter(|r| is_stop(r))
             .map(|r| r.path)
             .collect();
         assert_eq!(stops.len(), 3, "{stops:?}");
+    }
+}
