@@ -20,6 +20,7 @@ use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio_util::sync::CancellationToken;
 
+pub mod master_heartbeat;
 pub mod sync_thread;
 
 /// Static facts about a node, from the configuration and from reads.
@@ -888,8 +889,7 @@ async fn submit_master_frames(
     let sdo_request = |f: &cangate_can::Frame| {
         !f.is_extended() && (cob::SDO_RX + 1..=cob::SDO_RX + 0x7F).contains(&(f.raw_id() as u16))
     };
-    let repeated =
-        |f: &cangate_can::Frame| frames.iter().filter(|o| o.id() == f.id()).count() > 1;
+    let repeated = |f: &cangate_can::Frame| frames.iter().filter(|o| o.id() == f.id()).count() > 1;
     let (bulk, own): (Vec<_>, Vec<_>) = frames
         .iter()
         .copied()
