@@ -144,6 +144,26 @@ pub fn hash_token(token: &str) -> String {
         .collect()
 }
 
+/// HTTP/2 flow-control window of each call (stream) of a connection.
+///
+/// Why this size: the HTTP/2 layer (h2) guards against peers that send
+/// many small DATA frames by limiting how much framing overhead may wait
+/// unread, to half the connection window (256 bytes per frame less its
+/// payload). A caller that stops reading a frame stream (`cangate dump |
+/// less`) lets the gateway fill the stream's window, in the worst case
+/// with one small message per CAN frame; above the limit h2 closes the
+/// whole connection ("too_many_data_frames"). A stream window this small
+/// keeps that worst case (128 KiB of 35-byte messages: about 0.8 MiB of
+/// overhead) well below the limit of [`CONNECTION_WINDOW`] / 2, even with
+/// two paused streams; the gateway then holds back and reports the frames
+/// the reader missed as `FramesLost`. It still carries a saturated CAN FD
+/// bus over a 50 ms round trip.
+pub const STREAM_WINDOW: u32 = 128 * 1024;
+
+/// HTTP/2 flow-control window of a whole connection (see
+/// [`STREAM_WINDOW`]).
+pub const CONNECTION_WINDOW: u32 = 4 * 1024 * 1024;
+
 /// Connects to a gateway with a token and/or TLS.
 pub async fn connect_with(url: &str, options: &ConnectOptions) -> Result<Client, Error> {
     let read = |p: &PathBuf| {
@@ -156,7 +176,9 @@ pub async fn connect_with(url: &str, options: &ConnectOptions) -> Result<Client,
     let mut endpoint = Endpoint::from_shared(url.clone())
         .map_err(|_| Error::BadUrl(url.clone()))?
         .tcp_nodelay(true)
-        .connect_timeout(std::time::Duration::from_secs(5));
+        .connect_timeout(std::time::Duration::from_secs(5))
+        .initial_stream_window_size(STREAM_WINDOW)
+        .initial_connection_window_size(CONNECTION_WINDOW);
     if options.ca.is_some() || options.cert.is_some() || url.starts_with("https://") {
         let mut tls = ClientTlsConfig::new();
         if let Some(ca) = &options.ca {

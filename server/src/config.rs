@@ -563,10 +563,85 @@ pub struct CanopenConfig {
     /// Known nodes.
     #[serde(default, rename = "node")]
     pub nodes: Vec<NodeConfig>,
+    // ---- the master's own heartbeat (see `master_heartbeat_check`) ----
+    /// The gateway's node id as NMT master, for its own heartbeat
+    /// (`0x700 + id`); no configured node may use it. Default 127, the
+    /// highest id, where masters customarily sit, free in the demo.
+    #[serde(default = "default_master_node_id")]
+    pub master_node_id: u8,
+    /// Period of the master's heartbeat in ms (default 100); 0: none, and
+    /// drives are not told to watch it.
+    #[serde(default = "default_master_heartbeat_ms")]
+    pub master_heartbeat_ms: u16,
+    /// Heartbeat consumer time the boot procedure writes into each axis
+    /// drive's 0x1016:01 for the master's heartbeat, in ms (default 3 ×
+    /// `master_heartbeat_ms`): a drive that hears no master heartbeat for
+    /// this long faults (EMCY 0x8130) and stops with its quick stop ramp.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drive_heartbeat_timeout_ms: Option<u16>,
 }
 
 fn default_sdo_timeout_ms() -> u64 {
     500
+}
+
+fn default_master_node_id() -> u8 {
+    127
+}
+
+fn default_master_heartbeat_ms() -> u16 {
+    100
+}
+
+impl CanopenConfig {
+    /// The master's heartbeat node and period, when it produces one.
+    pub fn master_heartbeat(&self) -> Option<(u8, u16)> {
+        (self.master_heartbeat_ms > 0).then_some((self.master_node_id, self.master_heartbeat_ms))
+    }
+
+    /// The consumer time written into axis drives' 0x1016, when the
+    /// master produces a heartbeat.
+    pub fn drive_heartbeat_timeout_ms(&self) -> Option<u16> {
+        self.master_heartbeat()?;
+        Some(
+            self.drive_heartbeat_timeout_ms
+                .unwrap_or(self.master_heartbeat_ms.saturating_mul(3)),
+        )
+    }
+
+    fn master_heartbeat_check(&self) -> Result<(), String> {
+        let at = |m: String| format!("[[canopen]] bus {:?}: {m}", self.bus);
+        if !(1..=127).contains(&self.master_node_id) {
+            return Err(at(format!(
+                "master_node_id {} is out of range (1..=127)",
+                self.master_node_id
+            )));
+        }
+        if self.master_heartbeat_ms == 0 {
+            return Ok(());
+        }
+        if let Some(n) = self
+            .nodes
+            .iter()
+            .find(|n| n.id == u32::from(self.master_node_id))
+        {
+            return Err(at(format!(
+                "node {} is the master's own node id (master_node_id, default 127); give the \
+                 master another one",
+                n.id
+            )));
+        }
+        if let Some(t) = self.drive_heartbeat_timeout_ms
+            && t <= self.master_heartbeat_ms
+        {
+            return Err(at(format!(
+                "drive_heartbeat_timeout_ms = {t} must exceed master_heartbeat_ms = {} (2-3 \
+                 periods are usual), or drives fault while the master is alive",
+                self.master_heartbeat_ms
+            )));
+        }
+        Ok(())
+    }
 }
 
 /// A CANopen node the master knows in advance.
@@ -836,6 +911,18 @@ pub struct BusConfig {
     /// Virtual only: stuff-bit counting of the timing model.
     #[serde(default)]
     pub stuffing: StuffingChoice,
+    /// Share of the bus's time, in percent (1..=100, default 30), that
+    /// client raw frames (`SendFrames`) may use; beyond it they wait, behind
+    /// the gateway's own SYNC, set-points and NMT. 100: no limit. Applies
+    /// where frames take time on a wire: SocketCAN with a `bitrate`, and
+    /// virtual buses with `bit_timing`.
+    #[serde(default)]
+    pub client_share_percent: Option<u8>,
+    /// Share of the bus's time, in percent (1..=100, default 50), that bulk
+    /// SDO data (block download sub-blocks) may use (as
+    /// `client_share_percent`).
+    #[serde(default)]
+    pub bulk_share_percent: Option<u8>,
     /// Virtual only: receive queue length of each participant.
     #[serde(default)]
     pub queue: Option<usize>,
@@ -855,12 +942,86 @@ pub struct BusConfig {
     /// given up and counted (1..=10000 ms, default 250).
     #[serde(default)]
     pub transmit_timeout_ms: Option<u32>,
+    // ---- fault injection, virtual only (see `fault_check`); also at run
+    // time through the Simulator service ----
+    /// Virtual only: drop each frame with this probability (0..=1) before
+    /// any participant receives it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drop_probability: Option<f64>,
+    /// Virtual only: drop every frame with one of these identifiers.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub drop_ids: Vec<u32>,
+    /// Virtual only: deliver every frame this many µs late (at most 10 s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub delay_us: Option<u64>,
+    /// Virtual only: seed of the drop generator, for reproducible runs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fault_seed: Option<u64>,
 }
 
 impl BusConfig {
     /// The interface or virtual bus name.
     pub fn interface(&self) -> &str {
         self.interface.as_deref().unwrap_or(&self.name)
+    }
+
+    /// Whether any fault injection is configured.
+    pub fn has_faults(&self) -> bool {
+        self.drop_probability.is_some_and(|p| p > 0.0)
+            || !self.drop_ids.is_empty()
+            || self.delay_us.is_some_and(|d| d > 0)
+    }
+
+    fn fault_check(&self) -> Result<(), String> {
+        let configured = self.has_faults() || self.fault_seed.is_some();
+        if configured && self.backend != BackendChoice::Virtual {
+            return Err(format!(
+                "bus {:?}: drop_probability, drop_ids, delay_us and fault_seed apply to virtual \
+                 buses only",
+                self.name
+            ));
+        }
+        if let Some(p) = self.drop_probability
+            && !(0.0..=1.0).contains(&p)
+        {
+            return Err(format!(
+                "bus {:?}: drop_probability = {p} is not a probability (0..=1)",
+                self.name
+            ));
+        }
+        if let Some(id) = self.drop_ids.iter().find(|&&id| id > 0x1FFF_FFFF) {
+            return Err(format!(
+                "bus {:?}: drop_ids: {id:#x} is no CAN identifier (at most 0x1FFFFFFF)",
+                self.name
+            ));
+        }
+        if let Some(d) = self.delay_us
+            && d > MAX_FAULT_DELAY_US
+        {
+            return Err(format!(
+                "bus {:?}: delay_us = {d} exceeds {MAX_FAULT_DELAY_US} (10 s)",
+                self.name
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The longest injected delivery delay, µs.
+pub const MAX_FAULT_DELAY_US: u64 = 10_000_000;
+
+impl BusConfig {
+    /// The bus's shares for client raw frames and bulk data, checked.
+    pub fn tx_shares(&self) -> Result<cangate_can::TxShares, String> {
+        let defaults = cangate_can::TxShares::default();
+        let shares = cangate_can::TxShares {
+            client_percent: self.client_share_percent.unwrap_or(defaults.client_percent),
+            bulk_percent: self.bulk_share_percent.unwrap_or(defaults.bulk_percent),
+        };
+        shares
+            .validate()
+            .map_err(|e| format!("bus {:?}: {e}", self.name))?;
+        Ok(shares)
     }
 }
 
@@ -993,6 +1154,8 @@ impl Config {
                     b.name
                 )));
             }
+            b.fault_check().map_err(ConfigError::Invalid)?;
+            b.tx_shares().map_err(ConfigError::Invalid)?;
             if b.backend == BackendChoice::Socketcan && (b.bit_timing || b.queue.is_some()) {
                 return Err(ConfigError::Invalid(format!(
                     "bus {:?}: bit_timing and queue apply to virtual buses only",
@@ -1039,6 +1202,7 @@ impl Config {
                     c.bus
                 )));
             };
+            c.master_heartbeat_check().map_err(ConfigError::Invalid)?;
             if !masters.insert(c.bus.as_str()) {
                 return Err(ConfigError::Invalid(format!(
                     "bus {:?} has two [[canopen]] sections",
@@ -1228,6 +1392,19 @@ eds = "builtin:drive"
         assert!(e.contains("counts_per_unit"), "{e}");
         let e = axis_err(&format!("{ok}default_velocity = 20.0\n"));
         assert!(e.contains("exceeds max_velocity"), "{e}");
+        // Values no drive or dead-man can honour are refused at start-up.
+        let e = axis_err(&format!("{ok}jog_deadman_ms = 4294967295\n"));
+        assert!(
+            e.contains("jog_deadman_ms = 4294967295 is above the maximum of 10000 ms"),
+            "{e}"
+        );
+        let e = axis_err(&ok.replace("max_acceleration = 100.0", "max_acceleration = 1e308"));
+        assert!(
+            e.contains("max_acceleration = 1e308") && e.contains("counts/s²"),
+            "{e}"
+        );
+        let e = axis_err(&format!("{ok}homing_timeout_ms = 9223372036854775807\n"));
+        assert!(e.contains("homing_timeout_ms"), "{e}");
         // The SDO fallback: profile position only, a sane poll period.
         let sdo = format!("{ok}process_data = \"sdo\"\n");
         Config::from_toml(&format!("{AXIS_BASE}[[axis]]\n{sdo}")).unwrap();
@@ -1376,16 +1553,3 @@ eds = "builtin:drive"
         assert_eq!(Config::from_toml(&c.to_toml()).unwrap(), c);
     }
 }
-        // Values no drive or dead-man can honour are refused at start-up.
-        let e = axis_err(&format!("{ok}jog_deadman_ms = 4294967295\n"));
-        assert!(
-            e.contains("jog_deadman_ms = 4294967295 is above the maximum of 10000 ms"),
-            "{e}"
-        );
-        let e = axis_err(&ok.replace("max_acceleration = 100.0", "max_acceleration = 1e308"));
-        assert!(
-            e.contains("max_acceleration = 1e308") && e.contains("counts/s²"),
-            "{e}"
-        );
-        let e = axis_err(&format!("{ok}homing_timeout_ms = 9223372036854775807\n"));
-        assert!(e.contains("homing_timeout_ms"), "{e}");

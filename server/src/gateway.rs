@@ -127,6 +127,8 @@ pub struct Gateway {
     axes: Arc<AxisManager>,
     handwheels: Arc<HandwheelManager>,
     network: VirtualNetwork,
+    /// Simulated devices and virtual-bus faults (the Simulator service).
+    simulation: crate::simulation::Simulation,
     shutdown: CancellationToken,
     /// Declared last so it is dropped last: the bus side runs on it.
     bus_runtime: BusRuntime,
@@ -171,6 +173,28 @@ impl Gateway {
         // master sees their boot-up.
         let mut simulated = Vec::new();
         let mut sim_wheels = std::collections::HashMap::new();
+        let mut simulation = crate::simulation::Simulation::new();
+        for bc in &config.buses {
+            let vbus = (bc.backend == BackendChoice::Virtual)
+                .then(|| network.get(bc.interface()))
+                .flatten();
+            simulation.add_bus(&bc.name, vbus);
+            if bc.has_faults() {
+                simulation
+                    .set_faults(
+                        &bc.name,
+                        crate::simulation::BusFaults {
+                            drop_probability: bc.drop_probability.unwrap_or(0.0),
+                            drop_ids: bc.drop_ids.clone(),
+                            delay: Duration::from_micros(bc.delay_us.unwrap_or(0)),
+                        },
+                    )
+                    .map_err(|e| StartError::Bus {
+                        bus: bc.name.clone(),
+                        message: e.to_string(),
+                    })?;
+            }
+        }
         let mut sim_smc = BTreeMap::new();
         let mut cansmc_threads = Vec::new();
         let mut wheel_runs = Vec::new();
@@ -235,23 +259,31 @@ impl Gateway {
                         );
                         let handle = cangate_sim::DeviceHandle::new(wheel);
                         sim_wheels.insert((cc.bus.clone(), nc.id), handle.clone());
+                        simulation.add_device(
+                            &cc.bus,
+                            node,
+                            crate::simulation::SimulatedDevice::Handwheel(handle.clone()),
+                        );
                         // Run through the handle the Simulator service
                         // turns it with.
                         wheel_runs.push((vbus.connect(false), handle));
                     } else {
-                        let device: Box<dyn cangate_sim::Device + Send> =
-                            if device_type & 0xFFFF == 402 {
-                                Box::new(SimDrive::new(
-                                    eds,
-                                    node,
-                                    SimDriveOptions {
-                                        node: options,
-                                        ..SimDriveOptions::default()
-                                    },
-                                ))
-                            } else {
-                                Box::new(SimNode::new(eds, node, options))
-                            };
+                        use crate::simulation::SimulatedDevice;
+                        let device = if device_type & 0xFFFF == 402 {
+                            SimulatedDevice::Drive(cangate_sim::DeviceHandle::new(SimDrive::new(
+                                eds,
+                                node,
+                                SimDriveOptions {
+                                    node: options,
+                                    ..SimDriveOptions::default()
+                                },
+                            )))
+                        } else {
+                            SimulatedDevice::Node(cangate_sim::DeviceHandle::new(SimNode::new(
+                                eds, node, options,
+                            )))
+                        };
+                        simulation.add_device(&cc.bus, node, device.clone());
                         simulated.push((vbus.connect(false), device));
                     }
                 }
@@ -260,8 +292,13 @@ impl Gateway {
                     .iter()
                     .find(|a| a.bus == cc.bus && a.node == nc.id);
                 let sync = cc.sync_period_us > 0;
+                let master_heartbeat = cc
+                    .master_heartbeat()
+                    .zip(cc.drive_heartbeat_timeout_ms())
+                    .map(|((id, _), timeout)| (id, timeout));
                 let (tpdos, rpdos, mut boot) =
-                    node_plan(nc, node, eds.as_deref(), axis, sync).map_err(err)?;
+                    node_plan(nc, node, eds.as_deref(), axis, sync, master_heartbeat)
+                        .map_err(err)?;
                 // A handwheel sends feed only when operational: it is
                 // started at every boot-up like the configured nodes.
                 if boot.is_none()
@@ -300,6 +337,19 @@ impl Gateway {
             );
             canopen.insert(cc.bus.clone(), master);
             tasks.push(task);
+            // The master's own heartbeat, which the axis drives consume.
+            if let Some((id, ms)) = cc.master_heartbeat() {
+                let id = NodeId::new(u32::from(id)).map_err(|e| StartError::Bus {
+                    bus: cc.bus.clone(),
+                    message: format!("master_node_id: {e}"),
+                })?;
+                tasks.push(crate::canopen::master_heartbeat::spawn(
+                    buses[&cc.bus].clone(),
+                    id,
+                    Duration::from_millis(u64::from(ms)),
+                    shutdown.child_token(),
+                ));
+            }
         }
         let (axes, axis_tasks, mut axis_ports) = AxisManager::start(
             &config.axes,
@@ -398,11 +448,13 @@ impl Gateway {
             ));
         }
         for (port, device) in simulated {
-            tasks.push(cangate_sim::spawn_device(
-                port,
-                cangate_sim::DeviceHandle::new(device),
-                shutdown.child_token(),
-            ));
+            use crate::simulation::SimulatedDevice;
+            let cancel = shutdown.child_token();
+            tasks.push(match device {
+                SimulatedDevice::Node(h) => cangate_sim::spawn_device(port, h, cancel),
+                SimulatedDevice::Drive(h) => cangate_sim::spawn_device(port, h, cancel),
+                SimulatedDevice::Handwheel(h) => cangate_sim::spawn_device(port, h, cancel),
+            });
         }
         Ok((
             Gateway {
@@ -414,6 +466,7 @@ impl Gateway {
                 axes,
                 handwheels,
                 network,
+                simulation,
                 shutdown,
                 bus_runtime,
             },
@@ -504,6 +557,11 @@ impl Gateway {
         &self.bus_runtime.handle
     }
 
+    /// The simulated devices and the virtual buses' fault injection.
+    pub fn simulation(&self) -> &crate::simulation::Simulation {
+        &self.simulation
+    }
+
     /// The in-process virtual buses (simulated devices and tests attach here).
     pub fn network(&self) -> &VirtualNetwork {
         &self.network
@@ -526,6 +584,7 @@ fn node_plan(
     eds: Option<&Eds>,
     axis: Option<&AxisConfig>,
     sync: bool,
+    master_heartbeat: Option<(u8, u16)>,
 ) -> Result<NodePlan, String> {
     if let Some(axis) = axis {
         use cangate_axis::process_data::{FeedbackTrigger, standard_pdos};
@@ -550,6 +609,7 @@ fn node_plan(
         if let Some(ms) = nc.heartbeat_producer_ms {
             writes.push((ObjectAddress::new(0x1017, 0), ms.to_le_bytes().to_vec()));
         }
+        writes.extend(master_heartbeat_consumer(eds, master_heartbeat, axis));
         for p in tpdos.iter().chain(&rpdos) {
             writes.extend(p.sdo_writes().map_err(|e| e.to_string())?);
         }
@@ -625,6 +685,29 @@ fn node_plan(
     Ok((tpdos, rpdos, Some(Arc::new(plan))))
 }
 
+/// The boot write that makes an axis drive watch the master's heartbeat:
+/// 0x1016:01 = master node << 16 | consumer time in ms. Left out when the
+/// drive's EDS is unknown or has no 0x1016:01 (a write it might abort would
+/// fail its boot; warned).
+fn master_heartbeat_consumer(
+    eds: Option<&Eds>,
+    master: Option<(u8, u16)>,
+    axis: &AxisConfig,
+) -> Option<(ObjectAddress, Vec<u8>)> {
+    let (id, timeout_ms) = master?;
+    let addr = ObjectAddress::new(0x1016, 1);
+    if eds.is_none_or(|e| e.od.get(addr).is_none()) {
+        tracing::warn!(
+            axis = %axis.name,
+            "no 0x1016:01 in the drive's EDS (or no EDS): it is not told to watch the \
+             master's heartbeat and will not stop on its own if the gateway dies"
+        );
+        return None;
+    }
+    let value = (u32::from(id) << 16) | u32::from(timeout_ms);
+    Some((addr, value.to_le_bytes().to_vec()))
+}
+
 fn open_bus(bc: &BusConfig, network: &VirtualNetwork) -> Result<(BusInfo, Backend), StartError> {
     let err = |message: String| StartError::Bus {
         bus: bc.name.clone(),
@@ -637,13 +720,14 @@ fn open_bus(bc: &BusConfig, network: &VirtualNetwork) -> Result<(BusInfo, Backen
                 transmit_queue: bc
                     .transmit_queue
                     .unwrap_or(cangate_can::socketcan_bus::DEFAULT_TRANSMIT_QUEUE),
-                transmit_timeout: bc.transmit_timeout_ms.map_or(
-                    cangate_can::socketcan_bus::DEFAULT_TRANSMIT_TIMEOUT,
-                    |ms| std::time::Duration::from_millis(ms.into()),
-                ),
+                transmit_timeout: bc
+                    .transmit_timeout_ms
+                    .map_or(cangate_can::socketcan_bus::DEFAULT_TRANSMIT_TIMEOUT, |ms| {
+                        std::time::Duration::from_millis(ms.into())
+                    }),
             };
-            let bus = SocketCanBus::open_with(bc.interface(), options)
-                .map_err(|e| err(e.to_string()))?;
+            let bus =
+                SocketCanBus::open_with(bc.interface(), options).map_err(|e| err(e.to_string()))?;
             let info = BusInfo {
                 name: bc.name.clone(),
                 kind: BackendKind::SocketCan,
@@ -670,7 +754,7 @@ fn open_bus(bc: &BusConfig, network: &VirtualNetwork) -> Result<(BusInfo, Backen
                 bit_timing: timing,
                 fd: bc.fd,
                 port_queue: bc.queue.unwrap_or(VirtualBusConfig::default().port_queue),
-                ..Default::default()
+                seed: bc.fault_seed.unwrap_or(VirtualBusConfig::default().seed),
             };
             let vbus = network.bus(bc.interface(), vcfg);
             let info = BusInfo {
@@ -804,6 +888,9 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
     let reflection = reflection_builder()
         .build_v1()
         .expect("the embedded descriptor sets are valid");
+    let reflection_v1alpha = reflection_builder()
+        .build_v1alpha()
+        .expect("the embedded descriptor sets are valid");
 
     // Requests are bounded by [security.limits] max_message_bytes (the
     // security layer refuses larger ones first, naming the limit).
@@ -842,12 +929,13 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         .set_serving::<cangate_proto::v1::cansmc_server::CansmcServer<CansmcService>>()
         .await;
     // The Simulator service exists only when there is something to simulate.
-    let simulator_service = gateway.handwheels().any_simulated().then(|| {
-        cangate_proto::v1::simulator_server::SimulatorServer::new(SimulatorService::new(
-            gateway.clone(),
-        ))
-        .max_decoding_message_size(max_in)
-    });
+    let simulator_service =
+        (gateway.handwheels().any_simulated() || !gateway.simulation().is_empty()).then(|| {
+            cangate_proto::v1::simulator_server::SimulatorServer::new(SimulatorService::new(
+                gateway.clone(),
+            ))
+            .max_decoding_message_size(max_in)
+        });
     // Plaintext or TLS connections, each carrying its peer (and client
     // certificate CN) to the security layer.
     let incoming = crate::security::tls::incoming(
@@ -864,6 +952,7 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
             .layer(crate::security::SecurityLayer::new(&config.security))
             .add_service(health_service)
             .add_service(reflection)
+            .add_service(reflection_v1alpha)
             .add_service(bus_service)
             .add_service(canopen_service)
             .add_service(axes_service)
@@ -895,9 +984,6 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         buses = gateway.buses().count(),
         tls = tls.is_some(),
         authentication = config.security.authentication(),
-    let reflection_v1alpha = reflection_builder()
-        .build_v1alpha()
-        .expect("the embedded descriptor sets are valid");
         "cangate gateway listening"
     );
     Ok(RunningServer {
@@ -910,4 +996,3 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         tls,
     })
 }
-            .add_service(reflection_v1alpha)

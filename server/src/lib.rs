@@ -10,6 +10,7 @@
 //! - [`handwheel`]: CNC handwheels: feed decoding, mode, axis binding.
 //! - [`metrics`]: the Prometheus endpoint.
 //! - [`security`]: roles, tokens, TLS/mTLS, limits, audit log.
+//! - [`simulation`]: simulated devices and virtual-bus faults at run time.
 //! - [`error`]: the one mapping from domain errors to gRPC statuses.
 
 pub mod axes;
@@ -23,6 +24,7 @@ pub mod handwheel;
 pub mod metrics;
 pub mod realtime;
 pub mod security;
+pub mod simulation;
 
 pub use config::Config;
 pub use gateway::{Gateway, RunningServer, StartError, start};

@@ -13,9 +13,12 @@ const FRAME_NS: u64 = 135_000;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn frames_take_modelled_bus_time_in_arbitration_order() {
+    // The train is a client's (SendFrames): without a client share (100 %)
+    // it goes to the wire at once, back to back (bus_budget.rs tests the
+    // share).
     let server = start_server(
         "[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\nbitrate = 1000000\n\
-         bit_timing = true\nstuffing = \"worst-case\"\n",
+         bit_timing = true\nstuffing = \"worst-case\"\nclient_share_percent = 100\n",
     )
     .await;
     let vbus = server.gateway().network().get("can0").unwrap();

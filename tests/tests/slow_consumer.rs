@@ -120,3 +120,87 @@ async fn stalled_consumer_gets_exact_lost_count_and_does_not_delay_others() {
     assert_eq!(stats.rx_overflows, 0);
     server.shutdown();
 }
+
+/// A reader that pauses while frames trickle in one by one (each its own
+/// small stream message, as on a bus at a few thousand frames/s) keeps
+/// its stream: when it reads again it gets the frames that were buffered
+/// and `FramesLost` for the rest, never a transport error. (HTTP/2 peers
+/// limit how many small DATA frames may wait unread; the gateway and the
+/// client keep below that limit.)
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn paused_reader_of_a_trickle_gets_lost_notices_not_a_transport_error() {
+    let server = start_server(ONE_BUS).await;
+    let vbus = server.gateway().network().get("can0").unwrap();
+    let device = vbus.connect(false);
+    let mut c = client(&server).await;
+    let (mut paused, mut pending) = open_stream(&mut c, stream_request("can0", vec![])).await;
+
+    // One frame at a time with a pause in between, so that the gateway's
+    // stream task wakes for nearly every frame; the reader does not read
+    // meanwhile.
+    const TRICKLE: u64 = 40_000;
+    let sender = std::thread::spawn(move || {
+        let id = CanId::standard(0x100).unwrap();
+        for seq in 0..TRICKLE {
+            device
+                .send(&Frame::new(id, &seq.to_le_bytes()).unwrap())
+                .unwrap();
+            std::thread::sleep(std::time::Duration::from_micros(50));
+        }
+        device
+    });
+    let device = tokio::task::spawn_blocking(move || sender.join().unwrap())
+        .await
+        .unwrap();
+
+    // Resume: every frame is either received in order or counted lost.
+    let mut received = 0u64;
+    let mut lost = 0u64;
+    let mut next_seq = 0u64;
+    while received + lost < TRICKLE {
+        for ev in pending.drain(..) {
+            match ev.event {
+                Some(Event::Frame(f)) => {
+                    let seq = u64::from_le_bytes(f.data[..8].try_into().unwrap());
+                    assert!(seq >= next_seq, "in order");
+                    // Frames are missing only where a notice before
+                    // this frame covered them.
+                    assert!(
+                        seq - received <= lost,
+                        "frames before {seq} missing without a FramesLost notice"
+                    );
+                    next_seq = seq + 1;
+                    received += 1;
+                }
+                Some(Event::Lost(l)) => lost += l.count,
+                _ => {}
+            }
+        }
+        if received + lost >= TRICKLE {
+            break;
+        }
+        let msg = tokio::time::timeout(WAIT, paused.message())
+            .await
+            .unwrap_or_else(|_| panic!("stuck at received {received} + lost {lost}"));
+        match msg {
+            Ok(Some(msg)) => pending.extend(msg.events),
+            Ok(None) => panic!("stream ended after {received} received + {lost} lost"),
+            Err(status) => {
+                panic!("transport error after {received} received + {lost} lost: {status:?}")
+            }
+        }
+    }
+    assert_eq!(received + lost, TRICKLE);
+    // The stream is still alive.
+    device
+        .send(&Frame::new(CanId::standard(MARKER_ID).unwrap(), &[]).unwrap())
+        .unwrap();
+    let next = read_frames(&mut paused, &mut pending, 1).await;
+    assert_eq!(next[0].id, MARKER_ID);
+    let stats = server.gateway().bus("can0").unwrap().stats();
+    assert_eq!(
+        stats.subscriber_drops, lost,
+        "every loss counted on the bus"
+    );
+    server.shutdown();
+}

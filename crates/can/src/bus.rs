@@ -347,9 +347,12 @@ struct PacedRequest {
 pub const MAX_BUDGET_QUEUED: u64 = 50_000;
 
 /// The largest burst of a share, in time of its pacer (see [`Pacer`]): the
-/// bus task wakes about every millisecond and releases what accumulated,
-/// so a released chunk occupies the bus for at most this times the share.
-const PACER_TOLERANCE_NS: u64 = 2_000_000;
+/// bus task wakes about every millisecond (the timer's resolution) and
+/// releases what accumulated, so a released chunk occupies the bus for at
+/// most this times the share, plus one frame: a chunk of client frames that
+/// win every arbitration holds a SYNC back by at most that (300 us at the
+/// default 30 % share), well within its period.
+const PACER_TOLERANCE_NS: u64 = 1_000_000;
 
 /// Whether a bus paces client and bulk frames: where frames take time on a
 /// wire (a SocketCAN interface with a known bitrate, a bit-timed virtual

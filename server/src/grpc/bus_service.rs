@@ -5,7 +5,7 @@ use crate::gateway::Gateway;
 use crate::grpc::convert::{
     bus_info_to_pb, filter_from_pb, frame_from_pb, item_to_pb, status_to_pb,
 };
-use cangate_can::FrameSelector;
+use cangate_can::{FrameSelector, TxClass};
 use cangate_proto::v1 as pb;
 use cangate_proto::v1::bus_server::Bus;
 use std::pin::Pin;
@@ -19,6 +19,21 @@ pub const MAX_SEND_BATCH: usize = 10_000;
 pub const MAX_STREAM_BATCH: usize = 1024;
 /// Default per-client stream buffer.
 pub const DEFAULT_STREAM_QUEUE: usize = 8192;
+/// A stream message with fewer events than this waits up to
+/// [`COALESCE_LINGER`] for more.
+///
+/// Why: every message is at least one HTTP/2 DATA frame, and a client's
+/// HTTP/2 layer limits how many small frames may wait unread before it
+/// drops the connection (h2's "too_many_data_frames"). A bus at a few
+/// thousand frames/s otherwise yields one tiny message per frame, which a
+/// reader that pauses (`cangate dump | less`) collects by the thousand.
+/// Sixteen events make a message of several hundred bytes, above h2's
+/// small-frame threshold of 256 bytes; the linger caps the rate of small
+/// messages on a quiet bus at 200/s, and adds at most 5 ms to a frame's
+/// way to a viewer.
+pub const COALESCE_EVENTS: usize = 16;
+/// See [`COALESCE_EVENTS`].
+pub const COALESCE_LINGER: std::time::Duration = std::time::Duration::from_millis(5);
 /// Largest per-client stream buffer a client may ask for.
 pub const MAX_STREAM_QUEUE: usize = 1_000_000;
 
@@ -84,7 +99,10 @@ impl Bus for BusService {
             .map(|(i, f)| frame_from_pb(f).map_err(|e| ApiError::bad_frame(i, e)))
             .collect::<Result<Vec<_>, _>>()?;
         let n = frames.len() as u32;
-        bus.send(frames).await.map_err(ApiError::from)?;
+        // Within the bus's client share, behind the gateway's own frames.
+        bus.send_as(TxClass::Client, frames)
+            .await
+            .map_err(ApiError::from)?;
         Ok(Response::new(pb::SendFramesResponse { sent: n }))
     }
 
@@ -94,6 +112,13 @@ impl Bus for BusService {
         &self,
         req: Request<pb::StreamFramesRequest>,
     ) -> Result<Response<Self::StreamFramesStream>, Status> {
+        // The queue comes out of the caller's budget ([security.limits]).
+        let (queue, queue_reservation) = crate::security::stream_queue(
+            &req,
+            req.get_ref().queue_length,
+            DEFAULT_STREAM_QUEUE,
+            MAX_STREAM_QUEUE,
+        )?;
         let req = req.into_inner();
         let bus = self.gateway.bus(&req.bus)?.clone();
         let filters = req
@@ -108,13 +133,6 @@ impl Bus for BusService {
         let selector = FrameSelector {
             filters,
             error_frames: req.include_error_frames,
-        // The queue comes out of the caller's budget ([security.limits]).
-        let (queue, queue_reservation) = crate::security::stream_queue(
-            &req,
-            req.get_ref().queue_length,
-            DEFAULT_STREAM_QUEUE,
-            MAX_STREAM_QUEUE,
-        )?;
             transmitted: req.include_transmitted,
         };
         let mut sub = bus.subscribe(selector, queue);
@@ -124,6 +142,7 @@ impl Bus for BusService {
         let (tx, rx) = tokio::sync::mpsc::channel::<Result<pb::StreamFramesResponse, Status>>(4);
         let stats = bus.stats();
         tokio::spawn(async move {
+            let _queue_reservation = queue_reservation;
             let first = pb::StreamFramesResponse {
                 events: vec![pb::StreamEvent {
                     event: Some(pb::stream_event::Event::State(status_to_pb(
@@ -142,10 +161,22 @@ impl Bus for BusService {
                     _ = cancel.cancelled() => break,
                     _ = tx.closed() => break,
                     n = sub.recv_many(&mut items, max_batch) => n,
-            let _queue_reservation = queue_reservation;
                 };
                 if n == 0 {
                     break; // the bus stopped
+                }
+                // A few events: give more a moment to join them (see
+                // COALESCE_EVENTS), unless the stream is ending.
+                if items.len() < COALESCE_EVENTS.min(max_batch) {
+                    let deadline = tokio::time::Instant::now() + COALESCE_LINGER;
+                    while items.len() < COALESCE_EVENTS.min(max_batch) {
+                        let room = max_batch - items.len();
+                        tokio::select! {
+                            _ = cancel.cancelled() => break,
+                            _ = tokio::time::sleep_until(deadline) => break,
+                            n = sub.recv_many(&mut items, room) => if n == 0 { break },
+                        }
+                    }
                 }
                 let since = bus.stats().status_since.as_nanos();
                 let events = items.iter().map(|i| item_to_pb(i, since)).collect();

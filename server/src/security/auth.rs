@@ -260,7 +260,7 @@ impl AuditGate {
         }
         let total: u64 = suppressed.values().sum();
         let mut peers: Vec<(String, u64)> = suppressed.into_iter().collect();
-        peers.sort_by(|a, b| b.1.cmp(&a.1));
+        peers.sort_by_key(|p| std::cmp::Reverse(p.1));
         let named: Vec<String> = peers
             .iter()
             .take(SUMMARY_PEERS)
