@@ -90,7 +90,7 @@ min_position = -1000.0
 max_position = 1000.0
 max_velocity = 100.0
 max_acceleration = 1000.0
-jog_deadman_ms = 60000
+jog_deadman_ms = 10000
 state_timeout_ms = {st}
 "#
     )

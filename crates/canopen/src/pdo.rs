@@ -258,13 +258,29 @@ impl PdoConfig {
     }
 
     /// Encodes values (one per mapped object, found by address) into a
-    /// payload.
+    /// payload. An object mapped more than once (dummy entries filling
+    /// gaps, often of different sizes) takes its values in order: the
+    /// n-th entry of an address the n-th value given for it, or the last
+    /// one when fewer are given.
     pub fn encode(&self, values: &[(ObjectAddress, Value)]) -> Result<Vec<u8>, PdoError> {
         let mut data = Vec::with_capacity(self.len());
+        let mut used: Vec<(ObjectAddress, usize)> = Vec::new();
         for m in &self.mapping {
-            let (_, v) = values
-                .iter()
-                .find(|(a, _)| *a == m.addr)
+            let nth = match used.iter_mut().find(|(a, _)| *a == m.addr) {
+                Some((_, n)) => {
+                    *n += 1;
+                    *n - 1
+                }
+                None => {
+                    used.push((m.addr, 1));
+                    0
+                }
+            };
+            let mut given = values.iter().filter(|(a, _)| *a == m.addr);
+            let (_, v) = given
+                .clone()
+                .nth(nth)
+                .or_else(|| given.next_back())
                 .ok_or(PdoError::MissingValue(m.addr))?;
             let bytes = v.encode();
             if bytes.len() != m.bits as usize / 8 {
@@ -290,6 +306,41 @@ mod tests {
 
     fn node(n: u32) -> NodeId {
         NodeId::new(n).unwrap()
+    }
+
+    #[test]
+    fn an_object_mapped_twice_with_different_sizes_encodes_what_it_decoded() {
+        // Found by the `pdo` fuzz target: two dummy entries for UNSIGNED8
+        // (0x0005), one of 24 and one of 8 bits; encoding took the first
+        // decoded value for both and refused the 3-byte value for the
+        // 1-byte entry.
+        let dummy = ObjectAddress::new(0x0005, 0);
+        let cfg = PdoConfig {
+            kind: PdoKind::Rpdo,
+            num: 1,
+            cob_id: 0x205,
+            transmission_type: 255,
+            inhibit_time: 0,
+            event_timer_ms: 0,
+            mapping: vec![
+                MappedObject {
+                    addr: dummy,
+                    bits: 24,
+                },
+                MappedObject {
+                    addr: ObjectAddress::new(0x6040, 0),
+                    bits: 16,
+                },
+                MappedObject {
+                    addr: dummy,
+                    bits: 8,
+                },
+            ],
+        };
+        let payload = [1, 2, 3, 0x0F, 0x00, 9];
+        let values = cfg.decode(None, &payload).unwrap();
+        let pairs: Vec<_> = values.iter().map(|(m, v)| (m.addr, v.clone())).collect();
+        assert_eq!(cfg.encode(&pairs).unwrap(), payload);
     }
 
     #[test]

@@ -19,19 +19,28 @@ pub const MAX_SEND_BATCH: usize = 10_000;
 pub const MAX_STREAM_BATCH: usize = 1024;
 /// Default per-client stream buffer.
 pub const DEFAULT_STREAM_QUEUE: usize = 8192;
-/// A stream message with fewer events than this waits up to
-/// [`COALESCE_LINGER`] for more.
+/// A stream message with fewer events than this is "small"; small
+/// messages come out of a budget ([`SMALL_MESSAGE_BURST`],
+/// [`SMALL_MESSAGES_PER_S`]), and once it is spent a small message waits up
+/// to [`COALESCE_LINGER`] for more events to join it.
 ///
 /// Why: every message is at least one HTTP/2 DATA frame, and a client's
-/// HTTP/2 layer limits how many small frames may wait unread before it
-/// drops the connection (h2's "too_many_data_frames"). A bus at a few
-/// thousand frames/s otherwise yields one tiny message per frame, which a
-/// reader that pauses (`cangate dump | less`) collects by the thousand.
-/// Sixteen events make a message of several hundred bytes, above h2's
-/// small-frame threshold of 256 bytes; the linger caps the rate of small
-/// messages on a quiet bus at 200/s, and adds at most 5 ms to a frame's
-/// way to a viewer.
+/// HTTP/2 layer (h2, the Rust one) limits how many small frames may wait
+/// unread before it drops the connection ("too_many_data_frames"). A bus at
+/// a few thousand frames/s otherwise yields one tiny message per frame,
+/// which a reader that pauses (`cangate dump | less`) collects by the
+/// thousand. Sixteen events make a message of several hundred bytes, above
+/// h2's small-frame threshold of 256 bytes. The budget keeps the latency of
+/// a reader that keeps up at zero (a request/response exchange over a
+/// stream sends one small message per frame), and bounds the small
+/// messages a paused reader can collect to the burst plus 200 per second.
 pub const COALESCE_EVENTS: usize = 16;
+/// Small messages sent at once, before lingering starts (see
+/// [`COALESCE_EVENTS`]): about 256 KiB of h2 overhead at most.
+pub const SMALL_MESSAGE_BURST: f64 = 1000.0;
+/// Rate at which the small-message budget refills (see
+/// [`COALESCE_EVENTS`]).
+pub const SMALL_MESSAGES_PER_S: f64 = 200.0;
 /// See [`COALESCE_EVENTS`].
 pub const COALESCE_LINGER: std::time::Duration = std::time::Duration::from_millis(5);
 /// Largest per-client stream buffer a client may ask for.
@@ -155,6 +164,8 @@ impl Bus for BusService {
                 return;
             }
             let mut items = Vec::with_capacity(max_batch);
+            let mut small_budget = SMALL_MESSAGE_BURST;
+            let mut refilled = tokio::time::Instant::now();
             loop {
                 items.clear();
                 let n = tokio::select! {
@@ -165,9 +176,17 @@ impl Bus for BusService {
                 if n == 0 {
                     break; // the bus stopped
                 }
-                // A few events: give more a moment to join them (see
-                // COALESCE_EVENTS), unless the stream is ending.
-                if items.len() < COALESCE_EVENTS.min(max_batch) {
+                // A few events: from the small-message budget, or give more
+                // a moment to join them (see COALESCE_EVENTS).
+                let now = tokio::time::Instant::now();
+                small_budget = (small_budget
+                    + now.duration_since(refilled).as_secs_f64() * SMALL_MESSAGES_PER_S)
+                    .min(SMALL_MESSAGE_BURST);
+                refilled = now;
+                let small = items.len() < COALESCE_EVENTS.min(max_batch);
+                if small && small_budget >= 1.0 {
+                    small_budget -= 1.0;
+                } else if small {
                     let deadline = tokio::time::Instant::now() + COALESCE_LINGER;
                     while items.len() < COALESCE_EVENTS.min(max_batch) {
                         let room = max_batch - items.len();
