@@ -425,6 +425,18 @@ impl VirtualBus {
     /// one enqueue time), as a controller's transmit FIFO filled in one go:
     /// on a bit-timed bus the frames then go out back to back.
     fn send_from(&self, port: u64, lane: u8, frames: &[Frame]) -> Result<(), SendError> {
+        self.send_from_at(port, lane, frames, None)
+    }
+
+    /// [`VirtualBus::send_from`], queued at model time `ready_ns` (at most
+    /// now) instead of now on a bit-timed bus.
+    fn send_from_at(
+        &self,
+        port: u64,
+        lane: u8,
+        frames: &[Frame],
+        ready_ns: Option<u64>,
+    ) -> Result<(), SendError> {
         let inner = &self.inner;
         if inner.refusing.load(Ordering::Acquire) {
             match inner.status.lock().expect("status lock").state {
@@ -455,6 +467,7 @@ impl VirtualBus {
                 // Read under the lock, so that enqueue times follow the
                 // enqueue order.
                 let now = self.model_now();
+                let now = ready_ns.map_or(now, |t| t.min(now));
                 for frame in frames {
                     if !dropped(frame) {
                         st.arbiter.enqueue(*frame, (port, lane), now);
@@ -804,6 +817,21 @@ impl VirtualSender {
     /// Queues frames as [`VirtualPort::send_batch`] does.
     pub fn send_batch(&self, frames: &[Frame]) -> Result<(), SendError> {
         self.bus.send_from(self.port.id, 0, frames)
+    }
+
+    /// Queues frames that became ready at `ready` (a timestamp of this
+    /// bus's clock, e.g. the modelled end of the frame they answer) rather
+    /// than now: on a bit-timed bus they contend for the bus from then on,
+    /// so their modelled transmission and timestamps do not depend on how
+    /// late the host ran the sender. For simulated devices, which answer on
+    /// the model's time. A `ready` in the future counts as now; frames
+    /// queued earlier by any port are not overtaken (model time never runs
+    /// backwards in the arbiter). Without bit timing: as
+    /// [`VirtualSender::send_batch`].
+    pub fn send_batch_ready_at(&self, frames: &[Frame], ready: Timestamp) -> Result<(), SendError> {
+        let ready_ns = ready.as_nanos().saturating_sub(self.bus.inner.origin_wall);
+        self.bus
+            .send_from_at(self.port.id, 0, frames, Some(ready_ns))
     }
 
     /// Queues frames in one of the port's transmit lanes. On a bit-timed
@@ -1166,6 +1194,45 @@ mod tests {
         }
         let load = bus.load_percent().unwrap();
         assert!(load > 0.0 && load <= 100.0);
+    }
+
+    #[tokio::test]
+    async fn an_answer_ready_at_its_request_is_stamped_on_model_time_however_late_it_is_sent() {
+        let bus = VirtualBus::new(
+            "timed",
+            VirtualBusConfig {
+                bit_timing: Some(BitTiming {
+                    stuffing: Stuffing::WorstCase,
+                    ..BitTiming::new(1_000_000)
+                }),
+                ..Default::default()
+            },
+        );
+        let master = bus.connect(false);
+        let mut device = bus.connect(false);
+        let mut observer = bus.connect(false);
+        master.send(&frame(0x100, &[0; 8])).unwrap();
+        let request = next_frame(&mut device).await;
+        let ended = request.timestamp();
+        // The device's host thread runs 20 ms late: its answer is still
+        // stamped one frame time after the request, as if sent at once.
+        std::thread::sleep(Duration::from_millis(20));
+        device
+            .sender()
+            .send_batch_ready_at(&[frame(0x200, &[1; 8])], ended)
+            .unwrap();
+        // A ready time in the future counts as now.
+        device
+            .sender()
+            .send_batch_ready_at(&[frame(0x201, &[2; 8])], Timestamp(u64::MAX))
+            .unwrap();
+        assert_eq!(next_frame(&mut observer).await.raw_id(), 0x100);
+        let answer = next_frame(&mut observer).await;
+        assert_eq!(answer.raw_id(), 0x200);
+        assert_eq!(answer.timestamp().as_nanos() - ended.as_nanos(), 135_000);
+        let later = next_frame(&mut observer).await;
+        assert_eq!(later.raw_id(), 0x201);
+        assert!(later.timestamp().as_nanos() >= ended.as_nanos() + 20_000_000);
     }
 
     #[tokio::test]

@@ -179,7 +179,9 @@ async fn run(
     let mut delayed: BTreeMap<(Instant, u64), (usize, Frame)> = BTreeMap::new();
     let mut sequence = 0u64;
     let mut events = Vec::with_capacity(BATCH);
-    let mut out: Vec<(usize, Frame)> = Vec::new();
+    // Replies to send: slave, frame, and the model time it became ready
+    // (see `send`).
+    let mut out: Vec<(usize, Frame, Option<Timestamp>)> = Vec::new();
     loop {
         let next_due = delayed.first_key_value().map(|(&(due, _), _)| due);
         let timer = async {
@@ -212,7 +214,14 @@ async fn run(
                         let reply = slaves[i].lock().slave.on_frame_with_faults(&frame, now);
                         let Some(reply) = reply else { continue };
                         if reply.delay.is_zero() {
-                            out.push((i, reply.frame));
+                            // On a bit-timed bus the answer is ready when
+                            // the telegram it answers ended, on the model's
+                            // clock: how late this task ran does not move
+                            // it (a loaded host must not make the
+                            // simulated slaves miss their cycle).
+                            let ready = (timed && frame.timestamp().as_nanos() != 0)
+                                .then(|| frame.timestamp());
+                            out.push((i, reply.frame, ready));
                         } else {
                             delayed.insert((arrival + reply.delay, sequence), (i, reply.frame));
                             sequence += 1;
@@ -227,27 +236,47 @@ async fn run(
             if entry.key().0 > now {
                 break;
             }
-            out.push(entry.remove());
+            let (i, frame) = entry.remove();
+            out.push((i, frame, None));
         }
         send(&channel1, &slaves, &mut out);
     }
 }
 
-/// Sends the replies in one batch. On a bit-timed bus they are queued at
-/// the same instant; arbitration then orders them by identifier, as it would
-/// order several slaves' simultaneous DTs.
-fn send(channel1: &VirtualSender, slaves: &[CansmcSlaveHandle], out: &mut Vec<(usize, Frame)>) {
+/// Sends the replies. Those with a ready time (answers on a bit-timed bus)
+/// are queued at that model time, each on its own, so that a reply is
+/// stamped as if sent the moment its telegram ended however late this task
+/// ran (they share one transmit queue, in the order they became ready).
+/// The others go in one batch, queued now.
+fn send(
+    channel1: &VirtualSender,
+    slaves: &[CansmcSlaveHandle],
+    out: &mut Vec<(usize, Frame, Option<Timestamp>)>,
+) {
     if out.is_empty() {
         return;
     }
-    let frames: Vec<Frame> = out.iter().map(|(_, frame)| *frame).collect();
+    let mut now_batch: Vec<(usize, Frame)> = Vec::new();
+    for (i, frame, ready) in out.drain(..) {
+        match ready {
+            Some(at) => {
+                if channel1.send_batch_ready_at(&[frame], at).is_err() {
+                    slaves[i].lock().send_errors += 1;
+                }
+            }
+            None => now_batch.push((i, frame)),
+        }
+    }
+    if now_batch.is_empty() {
+        return;
+    }
+    let frames: Vec<Frame> = now_batch.iter().map(|(_, frame)| *frame).collect();
     if channel1.send_batch(&frames).is_err() {
         // All or nothing: every slave of the batch lost its reply.
-        for (i, _) in out.iter() {
+        for (i, _) in &now_batch {
             slaves[*i].lock().send_errors += 1;
         }
     }
-    out.clear();
 }
 
 #[cfg(test)]
