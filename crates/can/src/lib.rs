@@ -7,12 +7,15 @@
 //! - [`virtual_bus`]: the in-process bus with bit timing and fault injection.
 //! - [`socketcan_bus`]: Linux SocketCAN with reconnection.
 //! - [`bus`]: one owner task per bus and the handle everyone else uses.
+//! - [`precise_wait`]: waiting for an instant with little CPU.
 
 pub mod budget;
 #[cfg(feature = "runtime")]
 pub mod bus;
 pub mod filter;
 pub mod frame;
+#[cfg(feature = "runtime")]
+pub mod precise_wait;
 #[cfg(feature = "runtime")]
 pub mod socketcan_bus;
 pub mod state;

@@ -513,6 +513,8 @@ fn deliver(inner: &Inner, from: u64, frame: &Frame) {
 
 /// Delivers frames of a timed bus at their modelled completion time.
 fn scheduler_thread(bus: Weak<Inner>, timed: Arc<Timed>) {
+    // Timed waits end within a µs of the deadline, not the default 50 µs.
+    crate::precise_wait::fine_timer_slack();
     let mut st = timed.state.lock().expect("timed state");
     loop {
         if st.shutdown {
@@ -560,22 +562,12 @@ fn scheduler_thread(bus: Weak<Inner>, timed: Arc<Timed>) {
         }
         drop(inner);
         st = match next {
-            // A timed wait overshoots by the kernel's timer slack and wake-up
-            // latency (50-80 us here), which would show up as bus time. So
-            // the wait ends SPIN_WINDOW before the deadline and the rest is
-            // busy-waited. (Not `yield_now`: on a machine whose cores are
-            // busy, a yield can give the core away for a whole time slice.)
-            Some(deadline) if deadline.saturating_sub(now) <= SPIN_WINDOW_NS => {
-                drop(st);
-                let Some(inner) = bus.upgrade() else { return };
-                while (inner.origin.elapsed().as_nanos() as u64) < deadline {
-                    std::hint::spin_loop();
-                }
-                drop(inner);
-                timed.state.lock().expect("timed state")
-            }
+            // No active wait for the exact instant: timestamps are the
+            // model's, so a wake-up some µs late (timer slack 1 µs, set at
+            // the thread's start) delays only the hand-over, and spinning
+            // for every frame cost an idle demo a tenth of a core per bus.
             Some(deadline) => {
-                let wait = Duration::from_nanos(deadline.saturating_sub(now) - SPIN_WINDOW_NS);
+                let wait = Duration::from_nanos(deadline.saturating_sub(now));
                 timed.wake.wait_timeout(st, wait).expect("timed state").0
             }
             // Idle: wake on the next enqueue, and now and then to notice
@@ -590,11 +582,6 @@ fn scheduler_thread(bus: Weak<Inner>, timed: Arc<Timed>) {
         };
     }
 }
-
-/// How close to a deadline the scheduler stops sleeping and busy-waits:
-/// about the wake-up latency of a timed wait, so that a wait that wakes on
-/// time spins briefly and a late one not at all.
-const SPIN_WINDOW_NS: u64 = 60_000;
 
 impl Drop for Inner {
     fn drop(&mut self) {

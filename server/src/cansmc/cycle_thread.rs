@@ -24,6 +24,7 @@ use crate::axes::{AxisEventKind, AxisUpdate};
 use crate::error::ApiError;
 use cangate_axis::cansmc::{CansmcAxis, CycleInput};
 use cangate_axis::{AxisCommand, AxisEvent, CommandError};
+use cangate_can::precise_wait::SpinMargin;
 use cangate_can::{BusHandle, BusItem, Direction, Frame, FrameSelector, Subscription, Timestamp};
 use cangate_cansmc::master::{
     Master, MasterConfig, MasterEvent, ParameterError, Phase, RequestId, SlaveSpec, SlaveState,
@@ -34,6 +35,9 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, oneshot};
 use tokio_util::sync::CancellationToken;
+
+/// The least active wait before an MST, in µs (when `spin_us` is larger).
+const SPIN_FLOOR_US: u64 = 20;
 
 /// How often the status and the axis states are published.
 const PUBLISH_PERIOD: Duration = Duration::from_millis(10);
@@ -80,6 +84,9 @@ struct Thread {
     status: Arc<Mutex<CansmcStatus>>,
     events: broadcast::Sender<CansmcEvent>,
     jitter: JitterHistogram,
+    /// How long before each MST the thread stops sleeping (up to
+    /// `spin_us`, learnt from its wake-ups).
+    spin: SpinMargin,
     start_error: Option<String>,
     starts: u64,
     /// When the status and the axis states are published next.
@@ -127,6 +134,11 @@ pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String>
         .enumerate()
         .map(|(i, s)| (s.address.get(), i))
         .collect();
+    let spin_us = u64::from(setup.config.spin_us);
+    let spin = SpinMargin::new(
+        Duration::from_micros(spin_us.min(SPIN_FLOOR_US)),
+        Duration::from_micros(spin_us),
+    );
     let mut t = Thread {
         master,
         cfg: setup.config,
@@ -145,6 +157,7 @@ pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String>
         status: setup.status,
         events: setup.events,
         jitter: JitterHistogram::default(),
+        spin,
         start_error: None,
         starts: 0,
         next_publish: Duration::ZERO,
@@ -228,8 +241,11 @@ impl Thread {
                 }
             }
         }
+        // Timed sleeps end within a µs of the deadline, not the default
+        // 50 µs: the active wait before each MST then only covers the
+        // wake-up latency.
+        cangate_can::precise_wait::fine_timer_slack();
         self.start();
-        let spin = Duration::from_micros(u64::from(self.cfg.spin_us));
         while !cancel.is_cancelled() {
             let next = self.master.next_deadline();
             // Idle phases and P0/P1 wake often enough to serve answers and
@@ -243,30 +259,26 @@ impl Thread {
             let deadline = next.map_or(now + cap, |d| d.min(now + cap));
             let is_mst = self.master.phase() == Phase::Cyclic
                 && next == Some(self.master.cycle_start(self.master.cycle() + 1));
-            self.wait_until(deadline, if is_mst { spin } else { Duration::ZERO });
+            self.wait_until(deadline, is_mst);
             self.step(is_mst && Some(deadline) == next);
         }
         self.master.stop();
         self.publish_status();
     }
 
-    /// Sleeps until `spin` before `deadline`, then waits actively.
-    fn wait_until(&self, deadline: Duration, spin: Duration) {
+    /// Waits until `deadline`: for an MST (`exact`) by sleeping until a
+    /// learnt margin before it, then actively (see [`SpinMargin`]: the
+    /// margin follows this host's wake-up latency, within `spin_us`);
+    /// otherwise by sleeping.
+    fn wait_until(&mut self, deadline: Duration, exact: bool) {
         let target = self.origin + deadline;
-        loop {
-            let now = Instant::now();
-            if now >= target {
-                return;
-            }
-            let left = target - now;
-            if left > spin {
-                std::thread::sleep(left - spin);
-                continue;
-            }
-            while Instant::now() < target {
-                std::hint::spin_loop();
-            }
+        if exact && !self.spin.margin().is_zero() {
+            self.spin.wait_until(target);
             return;
+        }
+        let now = Instant::now();
+        if now < target {
+            std::thread::sleep(target - now);
         }
     }
 
