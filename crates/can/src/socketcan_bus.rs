@@ -507,6 +507,14 @@ impl SocketCanBus {
                     deadline: now + self.options.transmit_timeout,
                 },
             );
+            // Nothing else held: the interface has room, so this frame goes
+            // to the socket now, before the next of its batch is looked
+            // at. A batch keeps its order (a sender's frames leave in the
+            // order it sent them, as on a socket of its own); arbitration
+            // order applies only to frames held while the queue is full.
+            if self.tx.held.len() == 1 {
+                self.flush(now);
+            }
         }
         self.flush(now);
         self.log_unsent(now, false);

@@ -1,0 +1,360 @@
+//! Random command sequences end to end: the embedded demo (a cyclic and a
+//! profile CiA 402 axis, a CANsmc axis) driven through gRPC by the real
+//! client, one task per axis at once. The model-based tests in
+//! `crates/axis/tests` run thousands of sequences in virtual time; this is
+//! the smaller run through the whole server, with the same invariants:
+//!
+//! - no call hangs (each is bounded) and none fails with an internal or
+//!   unknown error;
+//! - a waited-for command on a healthy simulated drive never ends TIMEOUT;
+//! - the position never leaves the soft limits;
+//! - never wedged: after stop, reset fault and enable, a move to 0
+//!   completes there.
+//!
+//! A failure names the seed and the actions up to it; the sequence is a
+//! function of the seed (`AXES_RANDOM_SEED=<n>` runs one seed).
+
+mod common;
+
+use cangate_client::pb;
+use common::axes::{Axes, acquire, cmd, opts};
+use std::time::Duration;
+use tonic::Code;
+
+/// Sequences per axis and actions per sequence.
+const SEEDS: u64 = 4;
+const ACTIONS: usize = 25;
+/// Bound of any call (waited commands wait up to 10 s in the gateway).
+const CALL_BOUND: Duration = Duration::from_secs(20);
+
+struct Limits {
+    min: f64,
+    max: f64,
+    max_velocity: f64,
+}
+
+/// SplitMix64: sequences reproducible from the seed alone.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    fn u8(&mut self, r: std::ops::Range<u8>) -> u8 {
+        r.start + (self.next() % u64::from(r.end - r.start)) as u8
+    }
+    fn u64(&mut self, r: std::ops::Range<u64>) -> u64 {
+        r.start + self.next() % (r.end - r.start)
+    }
+    fn f64(&mut self) -> f64 {
+        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn bool(&mut self) -> bool {
+        self.next() & 1 == 1
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+enum Action {
+    Enable,
+    Disable,
+    Home,
+    Move {
+        target: f64,
+        relative: bool,
+        wait: bool,
+    },
+    Jog {
+        velocity: f64,
+    },
+    Stop {
+        wait: bool,
+    },
+    QuickStop,
+    ResetFault,
+    Pause {
+        ms: u64,
+    },
+}
+
+fn action(rng: &mut Rng, l: &Limits) -> Action {
+    // Targets near the middle, so that waited moves end in seconds; some
+    // beyond the limits, which must be refused.
+    let span = (l.max - l.min) / 2.0;
+    match rng.u8(0..20) {
+        0..=2 => Action::Enable,
+        3 => Action::Disable,
+        4 => Action::Home,
+        5..=9 => Action::Move {
+            target: if rng.u8(0..8) == 0 {
+                l.max + span
+            } else {
+                (rng.f64() - 0.5) * 0.2 * span
+            },
+            relative: rng.bool(),
+            wait: rng.bool(),
+        },
+        10..=11 => Action::Jog {
+            velocity: (rng.f64() - 0.5) * l.max_velocity,
+        },
+        12..=13 => Action::Stop { wait: rng.bool() },
+        14 => Action::QuickStop,
+        15..=16 => Action::ResetFault,
+        _ => Action::Pause {
+            ms: rng.u64(0..300),
+        },
+    }
+}
+
+async fn bounded<T>(
+    what: &str,
+    f: impl std::future::Future<Output = Result<tonic::Response<T>, tonic::Status>>,
+) -> Result<Result<T, tonic::Status>, String> {
+    match tokio::time::timeout(CALL_BOUND, f).await {
+        Err(_) => Err(format!("{what} did not return within {CALL_BOUND:?}")),
+        Ok(Ok(r)) => Ok(Ok(r.into_inner())),
+        Ok(Err(s)) if matches!(s.code(), Code::Internal | Code::Unknown | Code::Unavailable) => {
+            Err(format!("{what} failed: {:?} {}", s.code(), s.message()))
+        }
+        Ok(Err(s)) => Ok(Err(s)),
+    }
+}
+
+fn check_outcome(
+    what: &str,
+    r: &Result<pb::AxisCommandResponse, tonic::Status>,
+    waited: bool,
+) -> Result<(), String> {
+    if let Ok(r) = r
+        && waited
+        && r.outcome == pb::Outcome::Timeout as i32
+    {
+        return Err(format!(
+            "{what} ended TIMEOUT on a healthy drive: {}",
+            r.detail
+        ));
+    }
+    Ok(())
+}
+
+/// What a call ended with, for the summary: an outcome or a status code.
+fn ended(r: &Result<pb::AxisCommandResponse, tonic::Status>) -> String {
+    match r {
+        Ok(r) => format!("{:?}", pb::Outcome::try_from(r.outcome).unwrap_or_default()),
+        Err(s) => format!("{:?}", s.code()),
+    }
+}
+
+async fn run_action(
+    axes: &mut Axes,
+    axis: &str,
+    lease: &str,
+    a: Action,
+    l: &Limits,
+) -> Result<String, String> {
+    let what = format!("{a:?}");
+    match a {
+        Action::Enable => {
+            let r = bounded(&what, axes.enable(cmd(axis, lease, true))).await?;
+            check_outcome(&what, &r, true).map(|()| ended(&r))
+        }
+        Action::Disable => {
+            let r = bounded(&what, axes.disable(cmd(axis, lease, true))).await?;
+            check_outcome(&what, &r, true).map(|()| ended(&r))
+        }
+        Action::Home => bounded(&what, axes.home(cmd(axis, lease, false)))
+            .await
+            .map(|r| ended(&r)),
+        Action::Move {
+            target,
+            relative,
+            wait,
+        } => {
+            let r = bounded(
+                &what,
+                axes.r#move(pb::MoveRequest {
+                    axis: axis.into(),
+                    target,
+                    relative,
+                    velocity: l.max_velocity / 2.0,
+                    acceleration: 0.0,
+                    options: opts(lease, wait),
+                }),
+            )
+            .await?;
+            check_outcome(&what, &r, wait).map(|()| ended(&r))
+        }
+        Action::Jog { velocity } => bounded(
+            &what,
+            axes.jog(pb::JogRequest {
+                axis: axis.into(),
+                velocity,
+                acceleration: 0.0,
+                options: opts(lease, false),
+            }),
+        )
+        .await
+        .map(|r| ended(&r)),
+        Action::Stop { wait } => {
+            let r = bounded(&what, axes.stop(cmd(axis, lease, wait))).await?;
+            check_outcome(&what, &r, wait).map(|()| ended(&r))
+        }
+        Action::QuickStop => {
+            let r = bounded(&what, axes.quick_stop(cmd(axis, lease, true))).await?;
+            check_outcome(&what, &r, true).map(|()| ended(&r))
+        }
+        Action::ResetFault => {
+            let r = bounded(&what, axes.reset_fault(cmd(axis, lease, true))).await?;
+            check_outcome(&what, &r, true).map(|()| ended(&r))
+        }
+        Action::Pause { ms } => {
+            tokio::time::sleep(Duration::from_millis(ms)).await;
+            Ok("paused".into())
+        }
+    }
+}
+
+async fn position(axes: &mut Axes, axis: &str) -> Result<f64, String> {
+    let a = bounded(
+        "GetAxis",
+        axes.get_axis(pb::GetAxisRequest { axis: axis.into() }),
+    )
+    .await?
+    .map_err(|s| format!("GetAxis: {s:?}"))?;
+    Ok(a.status.map_or(0.0, |s| s.position))
+}
+
+/// One seeded sequence on `axis`, then the recovery; the actions so far
+/// in the error.
+async fn sequence(axes: &mut Axes, axis: &str, seed: u64, l: &Limits) -> Result<(), String> {
+    // Each axis its own sequence of the seed.
+    let mut rng = Rng(seed.wrapping_mul(1_000_003) ^ u64::from(axis.as_bytes()[0]));
+    let lease = acquire(axes, &[axis], 30_000, "random sequences").await;
+    let mut done = Vec::new();
+    let tolerance = (l.max - l.min) * 0.01;
+    let fail =
+        |done: &[Action], e: String| format!("axis {axis}, seed {seed}: {e}\n  after {done:?}");
+    let mut tally = std::collections::BTreeMap::<String, u32>::new();
+    for _ in 0..ACTIONS {
+        let a = action(&mut rng, l);
+        done.push(a);
+        let how = run_action(axes, axis, &lease, a, l)
+            .await
+            .map_err(|e| fail(&done, e))?;
+        let kind = format!("{a:?}");
+        let kind = kind.split([' ', '{']).next().unwrap_or_default();
+        *tally.entry(format!("{kind} {how}")).or_default() += 1;
+        let p = position(axes, axis).await.map_err(|e| fail(&done, e))?;
+        if p < l.min - tolerance || p > l.max + tolerance {
+            return Err(fail(
+                &done,
+                format!("position {p} outside [{}, {}]", l.min, l.max),
+            ));
+        }
+        let _ = axes
+            .renew_control(pb::RenewControlRequest {
+                lease: lease.clone(),
+            })
+            .await;
+    }
+    // Never wedged: stop, reset, enable, and a move to 0 completes there.
+    let recover = [
+        Action::Stop { wait: true },
+        Action::ResetFault,
+        Action::Enable,
+    ];
+    for a in recover {
+        done.push(a);
+        run_action(axes, axis, &lease, a, l)
+            .await
+            .map_err(|e| fail(&done, e))?;
+    }
+    let r = bounded(
+        "final Move",
+        axes.r#move(pb::MoveRequest {
+            axis: axis.into(),
+            target: 0.0,
+            relative: false,
+            velocity: l.max_velocity / 2.0,
+            acceleration: 0.0,
+            options: opts(&lease, true),
+        }),
+    )
+    .await
+    .map_err(|e| fail(&done, e))?
+    .map_err(|s| {
+        fail(
+            &done,
+            format!("final Move refused: {:?} {}", s.code(), s.message()),
+        )
+    })?;
+    if r.outcome != pb::Outcome::Completed as i32 {
+        return Err(fail(
+            &done,
+            format!("final Move ended {:?}: {}", r.outcome, r.detail),
+        ));
+    }
+    let p = position(axes, axis).await.map_err(|e| fail(&done, e))?;
+    if p.abs() > 0.05 {
+        return Err(fail(&done, format!("final Move completed at {p}, not 0")));
+    }
+    let _ = axes
+        .release_control(pb::ReleaseControlRequest { lease })
+        .await;
+    eprintln!("axis {axis}, seed {seed}: {tally:?}");
+    Ok(())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn random_command_sequences_leave_every_axis_commandable() {
+    let mut config = cangate_server::Config::demo();
+    config.listen = "127.0.0.1:0".parse().unwrap();
+    config.metrics_listen = None;
+    let server = cangate_server::start(&config).await.expect("demo starts");
+    let client = common::client(&server).await;
+    let mut axes = client.axes_client();
+    // Each axis once its drive reports.
+    let list = axes
+        .list_axes(pb::ListAxesRequest {})
+        .await
+        .unwrap()
+        .into_inner();
+    let seeds: Vec<u64> = match std::env::var("AXES_RANDOM_SEED") {
+        Ok(s) => vec![s.parse().expect("AXES_RANDOM_SEED is a number")],
+        Err(_) => (1..=SEEDS).collect(),
+    };
+    let mut tasks = Vec::new();
+    for name in ["X", "Z", "A"] {
+        let a = list
+            .axes
+            .iter()
+            .find(|a| a.name == name)
+            .unwrap_or_else(|| panic!("the demo has axis {name}"))
+            .clone();
+        let limits = Limits {
+            min: a.min_position.unwrap_or(-100.0),
+            max: a.max_position.unwrap_or(100.0),
+            max_velocity: a.max_velocity,
+        };
+        let mut axes = client.axes_client();
+        let seeds = seeds.clone();
+        tasks.push(tokio::spawn(async move {
+            common::axes::wait_status(&mut axes, name, |s| s.state != 0 && !s.node_lost).await;
+            for seed in seeds {
+                sequence(&mut axes, name, seed, &limits).await?;
+            }
+            Ok::<(), String>(())
+        }));
+    }
+    let mut failures = Vec::new();
+    for t in tasks {
+        if let Err(e) = t.await.expect("sequence task") {
+            failures.push(e);
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
