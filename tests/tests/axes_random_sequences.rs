@@ -358,3 +358,48 @@ async fn random_command_sequences_leave_every_axis_commandable() {
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
+
+/// The demo's profile axis Z homes on the drive's reference switch
+/// (method 19): from either end of its range the homing completes within
+/// its bound (the simulated drive's search speed covers the range well
+/// within `homing_timeout_ms`; at 1 mm/s a homing from 30 mm ran out of
+/// time), and an axis that homed moves on.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_demo_profile_axis_homes_from_both_ends_of_its_range() {
+    let mut config = cangate_server::Config::demo();
+    config.listen = "127.0.0.1:0".parse().unwrap();
+    config.metrics_listen = None;
+    let server = cangate_server::start(&config).await.expect("demo starts");
+    let client = common::client(&server).await;
+    let mut axes = client.axes_client();
+    common::axes::wait_status(&mut axes, "Z", |s| s.state != 0 && !s.node_lost).await;
+    let lease = acquire(&mut axes, &["Z"], 60_000, "homing test").await;
+    common::axes::enable(&mut axes, "Z", &lease).await;
+    for end in [90.0, -90.0] {
+        let r = axes
+            .r#move(pb::MoveRequest {
+                axis: "Z".into(),
+                target: end,
+                relative: false,
+                velocity: 50.0,
+                acceleration: 0.0,
+                options: opts(&lease, true),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(r.outcome, pb::Outcome::Completed as i32, "{r:?}");
+        let r = axes
+            .home(cmd("Z", &lease, true))
+            .await
+            .unwrap_or_else(|s| panic!("home from {end} mm: {:?} {}", s.code(), s.message()))
+            .into_inner();
+        assert_eq!(
+            r.outcome,
+            pb::Outcome::Completed as i32,
+            "from {end} mm: {r:?}"
+        );
+        let status = r.status.unwrap();
+        assert!(status.homed, "{status:?}");
+    }
+}

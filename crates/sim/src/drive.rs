@@ -1474,6 +1474,18 @@ mod tests {
         // Method 17 at 0x6099:01 = 1000 inc/s towards the switch at 0,
         // then the position becomes the home offset.
         sdo_write(&mut d, obj::HOMING_METHOD, &[17], 1000 * MS);
+        sdo_write(
+            &mut d,
+            obj::HOMING_SPEED_SWITCH,
+            &1000u32.to_le_bytes(),
+            1000 * MS,
+        );
+        sdo_write(
+            &mut d,
+            obj::HOMING_ACCELERATION,
+            &10_000u32.to_le_bytes(),
+            1000 * MS,
+        );
         sdo_write(&mut d, obj::HOME_OFFSET, &(-50i32).to_le_bytes(), 1000 * MS);
         sdo_write(&mut d, obj::MODES_OF_OPERATION, &[6], 1000 * MS);
         d.on_frame(&rpdo1(0x001F, 0), 1001 * MS);
