@@ -65,6 +65,9 @@ struct Args {
 struct Seen {
     /// Calls by "method: code".
     calls: Mutex<BTreeMap<String, u64>>,
+    /// Failed calls by "method: code: message" (messages as the server
+    /// wrote them, so the printout says what went wrong).
+    errors: Mutex<BTreeMap<String, u64>>,
     /// Axis command outcomes by "axis command outcome".
     outcomes: Mutex<BTreeMap<String, u64>>,
     stream_frames: AtomicU64,
@@ -79,6 +82,14 @@ impl Seen {
             Ok(_) => "OK".to_string(),
             Err(s) => format!("{:?}", s.code()),
         };
+        if let Err(s) = r {
+            *self
+                .errors
+                .lock()
+                .expect("errors")
+                .entry(format!("{method}: {code}: {}", s.message()))
+                .or_default() += 1;
+        }
         *self
             .calls
             .lock()
@@ -256,6 +267,14 @@ fn run(args: &Args) -> Result<bool> {
     for (k, n) in seen.calls.lock().expect("calls").iter() {
         println!("    {k:<40} {n}");
     }
+    let failed = seen.errors.lock().expect("errors");
+    if !failed.is_empty() {
+        println!("  failed calls:");
+        for (k, n) in failed.iter() {
+            println!("    {n:>6} x {k}");
+        }
+    }
+    drop(failed);
     println!("  axis command outcomes:");
     for (k, n) in seen.outcomes.lock().expect("outcomes").iter() {
         println!("    {k:<40} {n}");
@@ -604,7 +623,7 @@ async fn axis_load(
                 options: opts(!interrupt),
             })
             .await;
-        seen.call("Move", &r);
+        seen.call(&format!("{axis} Move"), &r);
         match &r {
             Ok(r) => seen.outcome(axis, "Move", r.get_ref()),
             Err(s) if s.code() == tonic::Code::FailedPrecondition => enabled = false,
