@@ -579,7 +579,9 @@ async fn axis_load(
         Some(pb::CommandOptions {
             lease: lease.clone(),
             wait,
-            wait_timeout_ms: 30_000,
+            // Longer than the longest move: A and B cross their ±90 mm at
+            // their default 5 mm/s in 36 s.
+            wait_timeout_ms: 60_000,
         })
     };
     let simple = |wait: bool| pb::AxisCommandRequest {
