@@ -71,6 +71,40 @@ max_acceleration = 20.0
 jog_deadman_ms = 5000
 "#;
 
+/// The server of [`SLOW_STOP_AXIS`] with its drive, the axis enabled and
+/// jogging at `velocity` mm/s (its lease held by the caller's test).
+async fn jogging_slow_stop_axis(
+    velocity: f64,
+) -> (
+    cangate_server::RunningServer,
+    cangate_sim::DeviceHandle<cangate_sim::SimDrive>,
+    tokio_util::sync::CancellationToken,
+) {
+    use common::axes::*;
+    let server = start_server(SLOW_STOP_AXIS).await;
+    let c = client(&server).await;
+    let mut axes = c.axes_client();
+    let (drive, cancel) = run_drive(&server, 5, Some(100));
+    wait_status(&mut axes, "S", |s| s.state != 0 && !s.node_lost).await;
+    let lease = acquire(&mut axes, &["S"], 10_000, "test").await;
+    enable(&mut axes, "S", &lease).await;
+    axes.jog(pb::JogRequest {
+        axis: "S".into(),
+        velocity,
+        acceleration: 0.0,
+        options: opts(&lease, false),
+    })
+    .await
+    .unwrap();
+    (server, drive, cancel)
+}
+
+/// Waits until axis S is beyond `position` mm.
+async fn wait_position_above(server: &cangate_server::RunningServer, position: f64) {
+    let mut axes = client(server).await.axes_client();
+    common::axes::wait_status(&mut axes, "S", |s| s.position > position).await;
+}
+
 /// Shutdown whose stop does not finish within the bound: the gateway is a
 /// cyclic drive's trajectory, so before it leaves it quick-stops the drive
 /// through the controlword (the drive then ramps down on its own), and it
@@ -78,24 +112,9 @@ jog_deadman_ms = 5000
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn shutdown_quick_stops_a_cyclic_axis_that_is_not_at_rest_in_time() {
     use cangate_canopen::ds402::DriveState;
-    use common::axes::*;
-    let server = start_server(SLOW_STOP_AXIS).await;
-    let c = client(&server).await;
-    let mut axes = c.axes_client();
-    let (drive, _cancel) = run_drive(&server, 5, Some(100));
-    wait_status(&mut axes, "S", |s| s.state != 0 && !s.node_lost).await;
-    let lease = acquire(&mut axes, &["S"], 10_000, "test").await;
-    enable(&mut axes, "S", &lease).await;
-    axes.jog(pb::JogRequest {
-        axis: "S".into(),
-        velocity: 40.0,
-        acceleration: 0.0,
-        options: opts(&lease, false),
-    })
-    .await
-    .unwrap();
-    // At full speed (the ramp to 40 mm/s covers 40 mm).
-    wait_status(&mut axes, "S", |s| s.position > 45.0).await;
+    let (server, drive, _cancel) = jogging_slow_stop_axis(40.0).await;
+    // Past the ramp to 40 mm/s (it covers 40 mm).
+    wait_position_above(&server, 45.0).await;
     // 40 mm/s at 20 mm/s² needs 2 s to stop: far more than the bound.
     let not_at_rest = server.shutdown_safely(Duration::from_millis(200)).await;
     assert_eq!(not_at_rest, vec!["S".to_string()]);
@@ -113,24 +132,9 @@ async fn shutdown_quick_stops_a_cyclic_axis_that_is_not_at_rest_in_time() {
 /// Shutdown with every axis brought to rest in time reports none.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn shutdown_reports_no_axis_when_all_came_to_rest() {
-    use common::axes::*;
-    let server = start_server(SLOW_STOP_AXIS).await;
-    let c = client(&server).await;
-    let mut axes = c.axes_client();
-    let (drive, _cancel) = run_drive(&server, 5, Some(100));
-    wait_status(&mut axes, "S", |s| s.state != 0 && !s.node_lost).await;
-    let lease = acquire(&mut axes, &["S"], 10_000, "test").await;
-    enable(&mut axes, "S", &lease).await;
-    axes.jog(pb::JogRequest {
-        axis: "S".into(),
-        velocity: 5.0,
-        acceleration: 0.0,
-        options: opts(&lease, false),
-    })
-    .await
-    .unwrap();
-    // At full speed (the ramp to 5 mm/s covers 0.625 mm).
-    wait_status(&mut axes, "S", |s| s.position > 1.0).await;
+    let (server, drive, _cancel) = jogging_slow_stop_axis(5.0).await;
+    // Past the ramp to 5 mm/s (it covers 0.625 mm).
+    wait_position_above(&server, 1.0).await;
     // 5 mm/s at 20 mm/s² stops in 0.25 s.
     let stops = server
         .gateway()
