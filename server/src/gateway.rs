@@ -615,7 +615,7 @@ fn node_plan(
         }
         writes.extend(cangate_axis::cia402::Cia402Axis::new(axis.controller()).boot_writes());
         writes.push((
-            cangate_canopen::ds402::objects::HOMING_METHOD,
+            cangate_canopen::cia402::objects::HOMING_METHOD,
             vec![axis.homing_method as u8],
         ));
         for w in &nc.writes {

@@ -276,7 +276,7 @@ impl Drop for ChildGuard {
 }
 
 fn run_kill_test() {
-    use cangate_canopen::ds402::DriveState;
+    use cangate_canopen::cia402::DriveState;
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()

@@ -111,7 +111,7 @@ async fn wait_position_above(server: &cangate_server::RunningServer, position: f
 /// reports the axis as not at rest (the server exits non-zero).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn shutdown_quick_stops_a_cyclic_axis_that_is_not_at_rest_in_time() {
-    use cangate_canopen::ds402::DriveState;
+    use cangate_canopen::cia402::DriveState;
     let (server, drive, _cancel) = jogging_slow_stop_axis(40.0).await;
     // Past the ramp to 40 mm/s (it covers 40 mm).
     wait_position_above(&server, 45.0).await;

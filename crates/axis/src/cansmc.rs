@@ -23,7 +23,7 @@
 
 use std::time::Duration;
 
-use cangate_canopen::ds402::DriveState;
+use cangate_canopen::cia402::DriveState;
 use cangate_cansmc::telegram::{Command, ControlWord, StatusWord};
 use cangate_motion::{Limits, TrapezoidProfile};
 

@@ -27,7 +27,7 @@
 use std::time::Duration;
 
 use cangate_canopen::ObjectAddress;
-use cangate_canopen::ds402::{
+use cangate_canopen::cia402::{
     Controlword, DriveState, DriverStep, HomingStatus, ModeOfOperation, StateMachineDriver,
     Statusword, objects as obj,
 };

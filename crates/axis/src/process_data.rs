@@ -20,7 +20,7 @@
 
 use cangate_canopen::NodeId;
 use cangate_canopen::ObjectAddress;
-use cangate_canopen::ds402::objects as obj;
+use cangate_canopen::cia402::objects as obj;
 use cangate_canopen::pdo::{MappedObject, PdoConfig, PdoError, PdoKind};
 use cangate_canopen::value::Value;
 

@@ -587,7 +587,7 @@ impl Rig {
                     |rig: &Self| rig.master.slave(address()).map_or(0, |s| s.counters.losses);
                 let before = losses(self);
                 let was_enabled = self.axis.snapshot().state
-                    == Some(cangate_canopen::ds402::DriveState::OperationEnabled);
+                    == Some(cangate_canopen::cia402::DriveState::OperationEnabled);
                 self.slave.set_drop_rate(1.0);
                 self.run_for(Duration::from_millis(ms));
                 self.slave.set_drop_rate(0.0);

@@ -34,7 +34,7 @@ use cangate_axis::process_data::{
 };
 use cangate_axis::{Activity, AxisCommand, AxisEvent, CommandError, OpId, Outcome};
 use cangate_can::{CanId, Frame};
-use cangate_canopen::ds402::{DriveState, objects as obj};
+use cangate_canopen::cia402::{DriveState, objects as obj};
 use cangate_canopen::pdo::PdoConfig;
 use cangate_canopen::{NodeId, ObjectAddress};
 use cangate_sim::Device;

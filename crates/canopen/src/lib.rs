@@ -9,7 +9,7 @@
 //! Time convention: every `now` is a [`std::time::Duration`] measured from an
 //! arbitrary origin chosen by the runner (monotonic). Tests pass virtual time.
 
-pub mod ds402;
+pub mod cia402;
 pub mod eds;
 pub mod emcy;
 pub mod handwheel;

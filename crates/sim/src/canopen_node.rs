@@ -1911,7 +1911,7 @@ mod tests {
     #[test]
     fn a_drive_faults_and_stops_when_the_master_heartbeat_stops() {
         use crate::drive::{SimDrive, SimDriveOptions};
-        use cangate_canopen::ds402::DriveState;
+        use cangate_canopen::cia402::DriveState;
         let mut d = SimDrive::bundled(node(5), SimDriveOptions::default());
         d.start(Duration::ZERO);
         d.on_frame(&frame(0x000, &[0x01, 0x05]), Duration::ZERO);

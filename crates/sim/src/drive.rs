@@ -28,7 +28,7 @@ use std::collections::VecDeque;
 use std::time::Duration;
 
 use cangate_can::Frame;
-use cangate_canopen::ds402::{
+use cangate_canopen::cia402::{
     Controlword, DriveState, ModeOfOperation, Statusword, objects as obj,
 };
 use cangate_canopen::eds::{Eds, SIM_DRIVE_EDS};
@@ -1099,7 +1099,7 @@ impl Device for SimDrive {
 #[cfg(test)]
 mod tests {
     use cangate_can::CanId;
-    use cangate_canopen::ds402::{DriverStep, StateMachineDriver};
+    use cangate_canopen::cia402::{DriverStep, StateMachineDriver};
     use cangate_canopen::od::{AccessType, DefaultValue, Object, Variable};
     use cangate_canopen::value::DataType;
 
@@ -1449,7 +1449,7 @@ mod tests {
         assert_eq!(read_i32(&mut d, obj::POSITION_ACTUAL, 21 * MS), 1234);
         assert_eq!(
             d.statusword().homing_status(),
-            cangate_canopen::ds402::HomingStatus::Completed
+            cangate_canopen::cia402::HomingStatus::Completed
         );
         // Attained stays after bit 4 falls.
         d.on_frame(&rpdo1(0x000F, 0), 22 * MS);

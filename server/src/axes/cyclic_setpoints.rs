@@ -23,7 +23,7 @@
 use crate::canopen::sync_thread::SyncRider;
 use cangate_axis::cia402::{CyclicPlan, CyclicSample};
 use cangate_can::{CanId, Frame};
-use cangate_canopen::ds402::objects::TARGET_POSITION;
+use cangate_canopen::cia402::objects::TARGET_POSITION;
 use cangate_canopen::pdo::PdoConfig;
 use std::sync::Mutex;
 use std::time::Instant;

@@ -9,7 +9,7 @@ use crate::gateway::Gateway;
 use cangate_axis::cia402::AxisSnapshot;
 use cangate_axis::{Activity, AxisCommand, Outcome};
 use cangate_can::Timestamp;
-use cangate_canopen::ds402::DriveState;
+use cangate_canopen::cia402::DriveState;
 use cangate_proto::v1 as pb;
 use cangate_proto::v1::axes_server::Axes;
 use std::pin::Pin;

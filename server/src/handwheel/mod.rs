@@ -13,7 +13,7 @@ use crate::config::{CounterChoice, HandwheelConfig};
 use crate::error::ApiError;
 use cangate_axis::AxisCommand;
 use cangate_can::{BusHandle, BusItem, Filter, FrameSelector, Timestamp};
-use cangate_canopen::ds402::DriveState;
+use cangate_canopen::cia402::DriveState;
 use cangate_canopen::handwheel::{
     BaselineReason, CounterLayout, FeedDecoder, FeedEvent, FeedStats, HandwheelAxis,
 };

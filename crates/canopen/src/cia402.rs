@@ -33,7 +33,7 @@
 //!
 //! ```
 //! use std::time::Duration;
-//! use cangate_canopen::ds402::{
+//! use cangate_canopen::cia402::{
 //!     Controlword, DriveState, DriverStep, StateMachineDriver, Statusword,
 //! };
 //!
