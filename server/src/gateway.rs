@@ -10,11 +10,6 @@ use crate::config::{
     parse_object,
 };
 use crate::error::ApiError;
-use crate::grpc::axes_service::AxesService;
-use crate::grpc::bus_service::BusService;
-use crate::grpc::canopen_service::CanopenService;
-use crate::grpc::cansmc_service::CansmcService;
-use crate::grpc::handwheel_service::{HandwheelsService, SimulatorService};
 use crate::handwheel::HandwheelManager;
 use cangate_can::bus::{Backend, BackendKind, BusHandle, BusInfo};
 use cangate_can::socketcan_bus::SocketCanBus;
@@ -26,13 +21,12 @@ use cangate_canopen::pdo::{PdoConfig, PdoKind};
 use cangate_canopen::value::{DataType, Value};
 use cangate_sim::{SimDrive, SimDriveOptions, SimNode, SimNodeOptions};
 use std::collections::BTreeMap;
-use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
-/// Why the gateway could not start.
+/// Why the gateway's runtime could not start.
 #[derive(Debug, thiserror::Error)]
 pub enum StartError {
     /// A bus could not be opened.
@@ -43,17 +37,6 @@ pub enum StartError {
         /// What went wrong.
         message: String,
     },
-    /// The listen address could not be bound.
-    #[error("cannot listen on {addr}: {source}")]
-    Listen {
-        /// The address.
-        addr: SocketAddr,
-        /// The OS error.
-        source: std::io::Error,
-    },
-    /// The TLS files could not be used.
-    #[error("{0}")]
-    Tls(#[from] crate::security::TlsError),
     /// The thread of the bus runtime could not be started.
     #[error("cannot start the bus runtime thread: {0}")]
     Runtime(std::io::Error),
@@ -770,229 +753,4 @@ fn open_bus(bc: &BusConfig, network: &VirtualNetwork) -> Result<(BusInfo, Backen
             Ok((info, Backend::Virtual(vbus.connect(true))))
         }
     }
-}
-
-/// A started server.
-pub struct RunningServer {
-    /// The address the gRPC server listens on (useful with port 0).
-    pub addr: SocketAddr,
-    /// The Prometheus endpoint's address, when configured.
-    pub metrics_addr: Option<SocketAddr>,
-    gateway: Arc<Gateway>,
-    shutdown: CancellationToken,
-    server: JoinHandle<Result<(), tonic::transport::Error>>,
-    bus_tasks: Vec<JoinHandle<()>>,
-    tls: Option<crate::security::TlsReloader>,
-}
-
-impl RunningServer {
-    /// The gateway (buses, virtual network).
-    pub fn gateway(&self) -> &Arc<Gateway> {
-        &self.gateway
-    }
-
-    /// The TLS configuration's reload handle (SIGHUP calls
-    /// [`crate::security::TlsReloader::reload`]); none without TLS.
-    pub fn tls_reloader(&self) -> Option<crate::security::TlsReloader> {
-        self.tls.clone()
-    }
-
-    /// The token that stops everything.
-    pub fn shutdown_token(&self) -> CancellationToken {
-        self.shutdown.clone()
-    }
-
-    /// Shuts down with the machine in mind: new axis commands are refused,
-    /// moving axes are stopped (halt or quick stop per their
-    /// `stop_on_loss`) and awaited at most `motion_bound`; then streams
-    /// end, buses close and the server stops (see
-    /// [`RunningServer::shutdown`]). An axis not at rest within
-    /// `motion_bound` is quick-stopped through its controlword first; the
-    /// returned names are those axes (empty: every axis was at rest), for
-    /// the exit status.
-    pub async fn shutdown_safely(&self, motion_bound: Duration) -> Vec<String> {
-        let stops = self.gateway.axes().stop_for_shutdown(motion_bound).await;
-        for line in &stops.lines {
-            tracing::warn!(target: "cangate::audit", "shutdown stopped axis {line}");
-        }
-        if !stops.not_at_rest.is_empty() {
-            tracing::error!(
-                "shutdown: {} not at rest within {} ms (quick-stopped through the controlword)",
-                stops.not_at_rest.join(", "),
-                motion_bound.as_millis()
-            );
-        }
-        self.shutdown();
-        stops.not_at_rest
-    }
-
-    /// Starts a graceful shutdown: streams end, buses close, the server stops.
-    pub fn shutdown(&self) {
-        self.shutdown.cancel();
-    }
-
-    /// Waits until the server has stopped (after [`RunningServer::shutdown`]
-    /// or a signal), at most `limit`; then aborts whatever is left.
-    pub async fn wait(self, limit: Duration) -> Result<(), String> {
-        let all = async {
-            let r = self.server.await;
-            for t in self.bus_tasks {
-                let _ = t.await;
-            }
-            r
-        };
-        match tokio::time::timeout(limit, all).await {
-            Ok(Ok(Ok(()))) => Ok(()),
-            Ok(Ok(Err(e))) => Err(format!("gRPC server failed: {e}")),
-            Ok(Err(e)) => Err(format!("gRPC server task failed: {e}")),
-            Err(_) => Err(format!("shutdown did not finish within {limit:?}")),
-        }
-    }
-}
-
-/// Opens the buses, binds the listen address (`config.listen`; port 0 picks
-/// a free port) and serves the gRPC API until the shutdown token fires.
-pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
-    // TLS files first: a bad certificate must stop start-up before any bus
-    // is opened.
-    let tls = match &config.security.tls {
-        Some(t) => Some(crate::security::TlsReloader::new(t.clone())?),
-        None => None,
-    };
-    let shutdown = CancellationToken::new();
-    let (gateway, bus_tasks) = Gateway::start(config, shutdown.clone())?;
-    let gateway = Arc::new(gateway);
-    let listener = tokio::net::TcpListener::bind(config.listen)
-        .await
-        .map_err(|source| StartError::Listen {
-            addr: config.listen,
-            source,
-        })?;
-    let addr = listener.local_addr().map_err(|source| StartError::Listen {
-        addr: config.listen,
-        source,
-    })?;
-
-    let (health_reporter, health_service) = tonic_health::server::health_reporter();
-    health_reporter
-        .set_serving::<cangate_proto::v1::bus_server::BusServer<BusService>>()
-        .await;
-    // Reflection under both names: grpc.reflection.v1 and the older
-    // v1alpha that many tools (grpcio-reflection, older grpcurl, GUIs)
-    // still speak.
-    let reflection_builder = || {
-        tonic_reflection::server::Builder::configure()
-            .register_encoded_file_descriptor_set(cangate_proto::FILE_DESCRIPTOR_SET)
-            .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
-    };
-    let reflection = reflection_builder()
-        .build_v1()
-        .expect("the embedded descriptor sets are valid");
-    let reflection_v1alpha = reflection_builder()
-        .build_v1alpha()
-        .expect("the embedded descriptor sets are valid");
-
-    // Requests are bounded by [security.limits] max_message_bytes (the
-    // security layer refuses larger ones first, naming the limit).
-    let max_in = match config.security.limits.max_message_bytes {
-        0 => usize::MAX,
-        n => n as usize,
-    };
-    let bus_service =
-        cangate_proto::v1::bus_server::BusServer::new(BusService::new(gateway.clone()))
-            .max_decoding_message_size(max_in);
-    let canopen_service =
-        cangate_proto::v1::canopen_server::CanopenServer::new(CanopenService::new(gateway.clone()))
-            .max_decoding_message_size(max_in)
-            .max_encoding_message_size(64 * 1024 * 1024);
-    health_reporter
-        .set_serving::<cangate_proto::v1::canopen_server::CanopenServer<CanopenService>>()
-        .await;
-    let axes_service = cangate_proto::v1::axes_server::AxesServer::new(
-        AxesService::new(gateway.clone())
-            .with_max_name_bytes(config.security.limits.max_name_bytes as usize),
-    )
-    .max_decoding_message_size(max_in);
-    health_reporter
-        .set_serving::<cangate_proto::v1::axes_server::AxesServer<AxesService>>()
-        .await;
-    let handwheels_service = cangate_proto::v1::handwheels_server::HandwheelsServer::new(
-        HandwheelsService::new(gateway.clone()),
-    )
-    .max_decoding_message_size(max_in);
-    health_reporter
-        .set_serving::<cangate_proto::v1::handwheels_server::HandwheelsServer<HandwheelsService>>()
-        .await;
-    let cansmc_service =
-        cangate_proto::v1::cansmc_server::CansmcServer::new(CansmcService::new(gateway.clone()));
-    health_reporter
-        .set_serving::<cangate_proto::v1::cansmc_server::CansmcServer<CansmcService>>()
-        .await;
-    // The Simulator service exists only when there is something to simulate.
-    let simulator_service =
-        (gateway.handwheels().any_simulated() || !gateway.simulation().is_empty()).then(|| {
-            cangate_proto::v1::simulator_server::SimulatorServer::new(SimulatorService::new(
-                gateway.clone(),
-            ))
-            .max_decoding_message_size(max_in)
-        });
-    // Plaintext or TLS connections, each carrying its peer (and client
-    // certificate CN) to the security layer.
-    let incoming = crate::security::tls::incoming(
-        listener,
-        tls.clone(),
-        crate::security::tls::ConnTimeouts::from_limits(&config.security.limits),
-        shutdown.clone(),
-    );
-    let token = shutdown.clone();
-    let server = tokio::spawn(
-        tonic::transport::Server::builder()
-            .tcp_nodelay(true)
-            .layer(crate::metrics::RpcMetricsLayer)
-            .layer(crate::security::SecurityLayer::new(&config.security))
-            .add_service(health_service)
-            .add_service(reflection)
-            .add_service(reflection_v1alpha)
-            .add_service(bus_service)
-            .add_service(canopen_service)
-            .add_service(axes_service)
-            .add_service(handwheels_service)
-            .add_service(cansmc_service)
-            .add_optional_service(simulator_service)
-            .serve_with_incoming_shutdown(incoming, async move { token.cancelled().await }),
-    );
-    if config.metrics_listen.is_some() {
-        crate::metrics::handle();
-    }
-    let metrics_addr = match config.metrics_listen {
-        Some(m) => Some(
-            crate::metrics::serve(m, gateway.clone(), shutdown.clone())
-                .await
-                .map_err(|source| StartError::Listen { addr: m, source })?,
-        ),
-        None => None,
-    };
-    if config.security.authentication() && tls.is_none() && !addr.ip().is_loopback() {
-        tracing::warn!(
-            %addr,
-            "authentication without [security.tls]: bearer tokens cross the network in clear text"
-        );
-    }
-    tracing::info!(
-        %addr,
-        metrics = ?metrics_addr,
-        buses = gateway.buses().count(),
-        tls = tls.is_some(),
-        authentication = config.security.authentication(),
-        "cangate gateway listening"
-    );
-    Ok(RunningServer {
-        addr,
-        metrics_addr,
-        gateway,
-        shutdown,
-        server,
-        bus_tasks,
-        tls,
-    })
 }

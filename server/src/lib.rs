@@ -1,7 +1,9 @@
 //! cangate-server: owns the CAN buses and serves them over gRPC.
 //!
 //! - [`config`]: configuration file, environment overrides, embedded demo.
-//! - [`gateway`]: start-up, the running server and shutdown.
+//! - [`serve`]: the API edge: the gRPC server, its layers, start-up and
+//!   shutdown of the running server.
+//! - [`gateway`]: the runtime's registry: buses, masters, axes, handwheels.
 //! - [`grpc`]: the gRPC services and protobuf conversions.
 //! - [`canopen`]: the CANopen master runtime of each bus.
 //! - [`cansmc`]: the CANsmc masters (dual-bus motion control), their cycle
@@ -24,7 +26,9 @@ pub mod handwheel;
 pub mod metrics;
 pub mod realtime;
 pub mod security;
+pub mod serve;
 pub mod simulation;
 
 pub use config::Config;
-pub use gateway::{Gateway, RunningServer, StartError, start};
+pub use gateway::Gateway;
+pub use serve::{RunningServer, StartError, start};
