@@ -15,12 +15,12 @@
 //! from the axis API and parameter requests arrive through queues and are
 //! served at the next wake (within one cycle).
 
-use super::config::{CansmcConfig, CyclicChoice, JogModeChoice};
 use super::jitter::JitterHistogram;
 use super::{AxisPort, CansmcEvent, CansmcStatus, Request, SlaveView};
 use crate::axes::cia402_task::{BusRequest, CommandReply};
 use crate::axes::commands::{CoordinatedTarget, Waiters, for_axis, prepare_coordinated};
 use crate::axes::{AxisEventKind, AxisUpdate};
+use crate::config::{CansmcConfig, CyclicChoice, JogModeChoice};
 use crate::error::ApiError;
 use cangate_axis::cansmc::{CansmcAxis, CycleInput};
 use cangate_axis::{AxisCommand, AxisEvent, CommandError};

@@ -5,7 +5,6 @@
 //! [`CansmcMaster`] is the handle the gRPC `Cansmc` service and the axis
 //! layer use.
 
-pub mod config;
 pub mod cycle_thread;
 pub mod jitter;
 pub mod sim;
@@ -21,7 +20,7 @@ use std::time::Duration;
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio_util::sync::CancellationToken;
 
-pub use config::CansmcConfig;
+pub use crate::config::CansmcConfig;
 pub use jitter::JitterStats;
 
 /// What a slave looks like from outside.

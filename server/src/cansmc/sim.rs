@@ -1,6 +1,6 @@
 //! Simulated CANsmc slaves of a configuration (`simulate = true`).
 
-use super::config::CansmcSlaveConfig;
+use crate::config::CansmcSlaveConfig;
 use cangate_cansmc::SmcAddress;
 use cangate_sim::cansmc_runner::CansmcSlaveHandle;
 use cangate_sim::cansmc_slave::{SimCansmcSlave, SimCansmcSlaveOptions};

@@ -5,11 +5,11 @@
 //! state-changing calls and refusals to the audit log (tracing target
 //! `cangate::audit`).
 
-use super::config::SecurityConfig;
 use super::limits::{Admission, CallKind, Limits, PeerRefusals, Permit};
 use super::roles::{self, Access, Rule};
 use super::tls::ConnInfo;
 use super::{Identity, Role};
+use crate::config::{SecurityConfig, parse_sha256};
 use bytes::Buf;
 use http_body::Frame;
 use sha2::{Digest, Sha256};
@@ -24,20 +24,6 @@ use tonic::body::Body;
 
 /// The audit log's tracing target.
 pub const AUDIT_TARGET: &str = "cangate::audit";
-
-/// Parses a hex SHA-256 digest (64 hex digits, either case).
-pub fn parse_sha256(hex: &str) -> Option<[u8; 32]> {
-    let hex = hex.as_bytes();
-    if hex.len() != 64 {
-        return None;
-    }
-    let mut out = [0u8; 32];
-    for (i, pair) in hex.chunks_exact(2).enumerate() {
-        let digit = |c: u8| (c as char).to_digit(16);
-        out[i] = u8::try_from(digit(pair[0])? * 16 + digit(pair[1])?).ok()?;
-    }
-    Some(out)
-}
 
 /// The hex SHA-256 of a token, as the configuration stores it.
 pub fn hash_token(token: &str) -> String {
@@ -778,7 +764,7 @@ impl http_body::Body for SizeLimited {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::security::config::{ClientCertConfig, TokenConfig};
+    use crate::config::{ClientCertConfig, TokenConfig};
 
     fn auth() -> Authenticator {
         Authenticator::new(&SecurityConfig {

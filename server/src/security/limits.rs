@@ -8,7 +8,7 @@
 //! client polling at its rate limit, or holding its every concurrency slot,
 //! can still stop its machine. Stops do not use the general budget either.
 
-use super::config::LimitsConfig;
+use crate::config::LimitsConfig;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};

@@ -7,7 +7,7 @@
 //! the verified client certificate's subject CN) into every request's
 //! extensions, where the security layer reads it.
 
-use super::config::TlsConfig;
+use crate::config::TlsConfig;
 use rustls_pki_types::pem::PemObject;
 use rustls_pki_types::{CertificateDer, PrivateKeyDer};
 use std::io;
@@ -40,7 +40,7 @@ pub struct ConnTimeouts {
 
 impl ConnTimeouts {
     /// From the `[security.limits]` section.
-    pub fn from_limits(l: &super::config::LimitsConfig) -> Self {
+    pub fn from_limits(l: &crate::config::LimitsConfig) -> Self {
         ConnTimeouts {
             handshake: Duration::from_secs(u64::from(l.handshake_timeout_s.max(1))),
             idle: (l.idle_connection_timeout_s > 0)

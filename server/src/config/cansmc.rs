@@ -25,7 +25,7 @@ use serde::{Deserialize, Serialize};
 use std::collections::HashSet;
 use std::time::Duration;
 
-use crate::config::{BusConfig, StopChoice};
+use super::{BusConfig, StopChoice};
 use cangate_axis::Units;
 use cangate_axis::cansmc::{CansmcAxisConfig, Gear, JogMode};
 use cangate_cansmc::{CycleConfig, Infeasibility, SmcAddress};
@@ -299,14 +299,14 @@ impl CansmcAxisEntry {
 
     /// The equivalent generic axis description (for the axis API's
     /// listing, soft limits and stop choice).
-    pub fn as_axis_config(&self, master: &CansmcConfig) -> crate::config::AxisConfig {
-        crate::config::AxisConfig {
+    pub fn as_axis_config(&self, master: &CansmcConfig) -> super::AxisConfig {
+        super::AxisConfig {
             name: self.name.clone(),
             bus: master.command_bus.clone(),
             node: u32::from(self.address),
             unit: self.unit.clone(),
             counts_per_unit: self.counts_per_unit,
-            position_mode: crate::config::PositionModeChoice::Cyclic,
+            position_mode: super::PositionModeChoice::Cyclic,
             min_position: self.min_position,
             max_position: self.max_position,
             max_velocity: self.max_velocity,
@@ -318,7 +318,7 @@ impl CansmcAxisEntry {
             jog_deadman_ms: self.jog_deadman_ms,
             state_timeout_ms: self.state_timeout_ms,
             homing_timeout_ms: self.homing_timeout_ms,
-            process_data: crate::config::ProcessDataChoice::Pdo,
+            process_data: super::ProcessDataChoice::Pdo,
             sdo_poll_ms: 10,
             in_position_window: self.in_position_window,
         }
@@ -499,7 +499,7 @@ impl CansmcConfig {
                     "axis {an}: jog_deadman_ms, state_timeout_ms and homing_timeout_ms must be positive"
                 ));
             }
-            crate::config::motion_bounds(
+            super::motion_bounds(
                 an,
                 a.counts_per_unit,
                 a.max_velocity,

@@ -1,7 +1,6 @@
 //! The `[security]` section of the configuration: tokens, client
 //! certificate names, TLS files and per-client limits.
 
-use super::Role;
 use serde::{Deserialize, Serialize};
 use std::collections::HashSet;
 use std::path::PathBuf;
@@ -239,7 +238,7 @@ impl SecurityConfig {
                     t.name
                 ));
             }
-            if super::auth::parse_sha256(&t.sha256).is_none() {
+            if parse_sha256(&t.sha256).is_none() {
                 return Err(format!(
                     "[[security.tokens]] {:?}: sha256 must be 64 hex digits (the SHA-256 of the \
                      token: `cangate hash-token` or `printf %s TOKEN | sha256sum`)",
@@ -321,4 +320,47 @@ impl SecurityConfig {
         }
         Ok(())
     }
+}
+
+/// What a caller may do. Ordered: `Engineer` ⊇ `Operator` ⊇ `Viewer`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Role {
+    /// Read and stream only.
+    Viewer,
+    /// Axis commands, handwheel modes, control leases.
+    Operator,
+    /// SDO/PDO writes, NMT, raw frames, the simulator.
+    Engineer,
+}
+
+impl Role {
+    /// The name used in the configuration and in messages.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Role::Viewer => "viewer",
+            Role::Operator => "operator",
+            Role::Engineer => "engineer",
+        }
+    }
+}
+
+impl std::fmt::Display for Role {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// Parses a hex SHA-256 digest (64 hex digits, either case).
+pub fn parse_sha256(hex: &str) -> Option<[u8; 32]> {
+    let hex = hex.as_bytes();
+    if hex.len() != 64 {
+        return None;
+    }
+    let mut out = [0u8; 32];
+    for (i, pair) in hex.chunks_exact(2).enumerate() {
+        let digit = |c: u8| (c as char).to_digit(16);
+        out[i] = u8::try_from(digit(pair[0])? * 16 + digit(pair[1])?).ok()?;
+    }
+    Some(out)
 }

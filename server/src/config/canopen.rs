@@ -1,0 +1,270 @@
+//! `[[canopen]]` and `[[canopen.node]]`: the CANopen master of a bus, its
+//! nodes, their boot-time SDO writes and PDOs.
+
+use serde::{Deserialize, Serialize};
+
+/// The CANopen master of one bus.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CanopenConfig {
+    /// The bus (a `[[bus]]` name).
+    pub bus: String,
+    /// Default SDO timeout per answer, in ms.
+    #[serde(default = "default_sdo_timeout_ms")]
+    pub sdo_timeout_ms: u64,
+    /// SYNC producer period in µs (0 = no SYNC). Drives of axes send their
+    /// process data every SYNC; cyclic axes get a set-point every SYNC.
+    #[serde(default)]
+    pub sync_period_us: u64,
+    /// Known nodes.
+    #[serde(default, rename = "node")]
+    pub nodes: Vec<NodeConfig>,
+    // ---- the master's own heartbeat (see `master_heartbeat_check`) ----
+    /// The gateway's node id as NMT master, for its own heartbeat
+    /// (`0x700 + id`); no configured node may use it. Default 127, the
+    /// highest id, where masters customarily sit, free in the demo.
+    #[serde(default = "default_master_node_id")]
+    pub master_node_id: u8,
+    /// Period of the master's heartbeat in ms (default 100); 0: none, and
+    /// drives are not told to watch it.
+    #[serde(default = "default_master_heartbeat_ms")]
+    pub master_heartbeat_ms: u16,
+    /// Heartbeat consumer time the boot procedure writes into each axis
+    /// drive's 0x1016:01 for the master's heartbeat, in ms (default 3 ×
+    /// `master_heartbeat_ms`): a drive that hears no master heartbeat for
+    /// this long faults (EMCY 0x8130) and stops with its quick stop ramp.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drive_heartbeat_timeout_ms: Option<u16>,
+}
+
+fn default_sdo_timeout_ms() -> u64 {
+    500
+}
+
+fn default_master_node_id() -> u8 {
+    127
+}
+
+fn default_master_heartbeat_ms() -> u16 {
+    100
+}
+
+impl CanopenConfig {
+    /// The master's heartbeat node and period, when it produces one.
+    pub fn master_heartbeat(&self) -> Option<(u8, u16)> {
+        (self.master_heartbeat_ms > 0).then_some((self.master_node_id, self.master_heartbeat_ms))
+    }
+
+    /// The consumer time written into axis drives' 0x1016, when the
+    /// master produces a heartbeat.
+    pub fn drive_heartbeat_timeout_ms(&self) -> Option<u16> {
+        self.master_heartbeat()?;
+        Some(
+            self.drive_heartbeat_timeout_ms
+                .unwrap_or(self.master_heartbeat_ms.saturating_mul(3)),
+        )
+    }
+
+    pub(super) fn master_heartbeat_check(&self) -> Result<(), String> {
+        let at = |m: String| format!("[[canopen]] bus {:?}: {m}", self.bus);
+        if !(1..=127).contains(&self.master_node_id) {
+            return Err(at(format!(
+                "master_node_id {} is out of range (1..=127)",
+                self.master_node_id
+            )));
+        }
+        if self.master_heartbeat_ms == 0 {
+            return Ok(());
+        }
+        if let Some(n) = self
+            .nodes
+            .iter()
+            .find(|n| n.id == u32::from(self.master_node_id))
+        {
+            return Err(at(format!(
+                "node {} is the master's own node id (master_node_id, default 127); give the \
+                 master another one",
+                n.id
+            )));
+        }
+        if let Some(t) = self.drive_heartbeat_timeout_ms
+            && t <= self.master_heartbeat_ms
+        {
+            return Err(at(format!(
+                "drive_heartbeat_timeout_ms = {t} must exceed master_heartbeat_ms = {} (2-3 \
+                 periods are usual), or drives fault while the master is alive",
+                self.master_heartbeat_ms
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// A CANopen node the master knows in advance.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NodeConfig {
+    /// Node id, 1..=127.
+    pub id: u32,
+    /// A name for people (e.g. "X axis drive").
+    #[serde(default)]
+    pub name: String,
+    /// Object dictionary: an EDS/DCF file path, or one of the built-in
+    /// device descriptions `builtin:drive`, `builtin:io`, `builtin:handwheel`.
+    #[serde(default)]
+    pub eds: Option<String>,
+    /// Consumer heartbeat timeout in ms (0 = do not monitor).
+    #[serde(default)]
+    pub heartbeat_timeout_ms: u64,
+    /// Virtual buses only: run a simulated device from the EDS at this id.
+    #[serde(default)]
+    pub simulate: bool,
+    /// Run the boot procedure whenever the node boots: check the identity,
+    /// write the configuration below, then NMT-start it.
+    #[serde(default)]
+    pub boot: bool,
+    /// Boot check: expected device type (0x1000).
+    #[serde(default)]
+    pub device_type: Option<u32>,
+    /// Boot check: expected vendor id (0x1018:01).
+    #[serde(default)]
+    pub vendor_id: Option<u32>,
+    /// Boot check: expected product code (0x1018:02).
+    #[serde(default)]
+    pub product_code: Option<u32>,
+    /// Boot: heartbeat producer time to write to 0x1017, in ms.
+    #[serde(default)]
+    pub heartbeat_producer_ms: Option<u16>,
+    /// Boot: further SDO writes, in order.
+    #[serde(default, rename = "write")]
+    pub writes: Vec<SdoWriteConfig>,
+    /// TPDOs to configure at boot (and to decode); without any, the EDS
+    /// defaults are used for decoding.
+    #[serde(default)]
+    pub tpdo: Vec<PdoConfigEntry>,
+    /// RPDOs to configure at boot (and to encode WritePdo); without any,
+    /// the EDS defaults are used.
+    #[serde(default)]
+    pub rpdo: Vec<PdoConfigEntry>,
+}
+
+/// An SDO write of the boot procedure.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SdoWriteConfig {
+    /// Object, `0x6060:0`.
+    pub object: String,
+    /// Type: bool i8 i16 i32 i64 u8 u16 u32 u64 f32 f64 vs os domain.
+    #[serde(rename = "type")]
+    pub ty: String,
+    /// Value in text (decimal, 0x hex, string, hex bytes).
+    pub value: String,
+}
+
+/// A PDO to configure.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PdoConfigEntry {
+    /// PDO number, 1..=512.
+    pub num: u16,
+    /// COB-ID (default: the predefined connection set for PDOs 1..=4).
+    #[serde(default)]
+    pub cob_id: Option<u16>,
+    /// 0 acyclic sync, 1..=240 every n-th SYNC, 254/255 event-driven.
+    #[serde(default = "default_transmission_type")]
+    pub transmission_type: u8,
+    /// TPDO inhibit time in 100 µs units.
+    #[serde(default)]
+    pub inhibit_time: u16,
+    /// Event timer in ms.
+    #[serde(default)]
+    pub event_timer_ms: u16,
+    /// Mapped objects `INDEX:SUB:BITS` in hex:hex:decimal, e.g. `6041:0:16`.
+    pub mapping: Vec<String>,
+}
+
+fn default_transmission_type() -> u8 {
+    255
+}
+
+/// Parses `6041:0` / `0x6041:00` into an address.
+pub fn parse_object(text: &str) -> Result<cangate_canopen::ObjectAddress, String> {
+    let hex = |t: &str| {
+        u32::from_str_radix(
+            t.trim().trim_start_matches("0x").trim_start_matches("0X"),
+            16,
+        )
+    };
+    let (i, s) = text.split_once(':').unwrap_or((text, "0"));
+    let index = hex(i).map_err(|_| format!("object {text:?}: index is not hex"))?;
+    let sub = hex(s).map_err(|_| format!("object {text:?}: sub-index is not hex"))?;
+    if index > 0xFFFF || sub > 0xFF {
+        return Err(format!("object {text:?} is out of range"));
+    }
+    Ok(cangate_canopen::ObjectAddress::new(index as u16, sub as u8))
+}
+
+impl PdoConfigEntry {
+    /// The PDO configuration for `node`.
+    pub fn to_pdo(
+        &self,
+        kind: cangate_canopen::pdo::PdoKind,
+        node: cangate_canopen::NodeId,
+    ) -> Result<cangate_canopen::pdo::PdoConfig, String> {
+        use cangate_canopen::pdo::{MappedObject, PdoConfig};
+        let mapping = self
+            .mapping
+            .iter()
+            .map(|m| {
+                let (obj, bits) = m
+                    .rsplit_once(':')
+                    .filter(|(o, _)| o.contains(':'))
+                    .ok_or_else(|| format!("mapping entry {m:?} is not INDEX:SUB:BITS"))?;
+                let addr = parse_object(obj)?;
+                let bits: u8 = bits
+                    .parse()
+                    .map_err(|_| format!("mapping entry {m:?}: bits must be a number"))?;
+                Ok(MappedObject { addr, bits })
+            })
+            .collect::<Result<Vec<_>, String>>()?;
+        let cob_id = match self.cob_id {
+            Some(c) => c,
+            None => kind
+                .default_cob_id(self.num, node)
+                .ok_or_else(|| format!("PDO {} has no default COB-ID; give cob_id", self.num))?,
+        };
+        let cfg = PdoConfig {
+            kind,
+            num: self.num,
+            cob_id,
+            transmission_type: self.transmission_type,
+            inhibit_time: self.inhibit_time,
+            event_timer_ms: self.event_timer_ms,
+            mapping,
+        };
+        cfg.validate().map_err(|e| e.to_string())?;
+        Ok(cfg)
+    }
+}
+
+impl NodeConfig {
+    /// Loads the configured EDS.
+    pub fn load_eds(&self) -> Result<Option<cangate_canopen::eds::Eds>, String> {
+        use cangate_canopen::eds::{Eds, SIM_DRIVE_EDS, SIM_HANDWHEEL_EDS, SIM_IO_EDS};
+        let Some(src) = self.eds.as_deref() else {
+            return Ok(None);
+        };
+        let parsed = match src {
+            "builtin:drive" => Eds::parse(SIM_DRIVE_EDS),
+            "builtin:io" => Eds::parse(SIM_IO_EDS),
+            "builtin:handwheel" => Eds::parse(SIM_HANDWHEEL_EDS),
+            path if path.starts_with("builtin:") => {
+                return Err(format!(
+                    "unknown built-in EDS {path:?} (builtin:drive, builtin:io, builtin:handwheel)"
+                ));
+            }
+            path => Eds::from_path(path),
+        };
+        parsed.map(Some).map_err(|e| format!("EDS {src:?}: {e}"))
+    }
+}
