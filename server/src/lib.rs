@@ -16,6 +16,7 @@
 //! - [`error`]: the one mapping from domain errors to gRPC statuses.
 
 pub mod axes;
+pub mod axis_runner;
 pub mod canopen;
 pub mod cansmc;
 pub mod config;

@@ -23,69 +23,25 @@
 //! go to, and its feedback comes from, a worker polling by SDO
 //! ([`super::sdo_process_data`]).
 
-use super::commands::{CoordinatedTarget, Waiters, for_axis, prepare_coordinated};
 use super::cyclic_setpoints::{CyclicSetpoints, SetpointLayout};
 use super::sdo_process_data::{self, SdoReport, SdoWorker};
-use super::{AxisEventKind, AxisInfo, AxisUpdate, LatestStates};
+use crate::axis_runner::{
+    AxisEventKind, AxisInfo, AxisRunner, AxisUpdate, BusRequest, CoordinatedTarget, LatestStates,
+    Waiter, Waiters, for_axis, prepare_coordinated,
+};
 use crate::canopen::{CanopenBus, NodeEventKind};
 use crate::config::{PositionModeChoice, ProcessDataChoice};
-use cangate_axis::cia402::{AxisSnapshot, Cia402Axis, CyclicPlan, CyclicSample, Output};
+use cangate_axis::cia402::{Cia402Axis, CyclicPlan, CyclicSample, Output};
 use cangate_axis::process_data::{encode_image, feedback_from_pdo};
-use cangate_axis::{AxisCommand, AxisEvent, CommandError, Outcome};
+use cangate_axis::{AxisCommand, AxisEvent, CommandError};
 use cangate_can::{BusItem, CanId, Filter, Frame, FrameSelector, Subscription, Timestamp};
 use cangate_canopen::pdo::{PdoConfig, PdoKind};
 use cangate_canopen::{NodeId, ObjectAddress};
 use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use tokio::sync::{broadcast, mpsc, oneshot};
+use tokio::sync::{broadcast, mpsc};
 use tokio_util::sync::CancellationToken;
-
-/// How a command ended, for its caller.
-#[derive(Debug)]
-pub struct CommandReply {
-    /// `None`: accepted (not waited for).
-    pub outcome: Option<Outcome>,
-    /// For people.
-    pub detail: String,
-    /// The axis right after.
-    pub snapshot: AxisSnapshot,
-}
-
-type Waiter = oneshot::Receiver<CommandReply>;
-
-/// Requests to a bus task.
-pub enum BusRequest {
-    /// One command.
-    Command {
-        /// Axis index in this task.
-        local: usize,
-        /// The command.
-        cmd: AxisCommand,
-        /// Reply at completion instead of acceptance.
-        wait: bool,
-        /// The waiter, or why the command was refused.
-        reply: oneshot::Sender<Result<Waiter, CommandError>>,
-    },
-    /// Several commands applied in one step.
-    Many {
-        /// (axis, command).
-        cmds: Vec<(usize, AxisCommand)>,
-        /// As above.
-        wait: bool,
-        /// One result per command.
-        reply: oneshot::Sender<Vec<Result<Waiter, CommandError>>>,
-    },
-    /// A coordinated cyclic move: (axis, target, velocity, acceleration).
-    Coordinated {
-        /// Targets.
-        targets: Vec<CoordinatedTarget>,
-        /// As above.
-        wait: bool,
-        /// The waiters (all or none).
-        reply: oneshot::Sender<Result<Vec<Waiter>, CommandError>>,
-    },
-}
 
 struct Slot {
     global: usize,
@@ -519,70 +475,7 @@ impl Task {
 
     fn on_request(&mut self, r: BusRequest) {
         let now = self.now();
-        match r {
-            BusRequest::Command {
-                local,
-                cmd,
-                wait,
-                reply,
-            } => {
-                let r = self.start(local, cmd, wait, now);
-                let _ = reply.send(r);
-            }
-            BusRequest::Many { cmds, wait, reply } => {
-                let r = cmds
-                    .into_iter()
-                    .map(|(local, cmd)| self.start(local, cmd, wait, now))
-                    .collect();
-                let _ = reply.send(r);
-            }
-            BusRequest::Coordinated {
-                targets,
-                wait,
-                reply,
-            } => {
-                let _ = reply.send(self.coordinated(targets, wait, now));
-            }
-        }
-    }
-
-    fn start(
-        &mut self,
-        i: usize,
-        cmd: AxisCommand,
-        wait: bool,
-        now: Duration,
-    ) -> Result<Waiter, CommandError> {
-        let mut out = Vec::new();
-        let op = self.slots[i].axis.command(cmd, now, &mut out)?;
-        let rx = self.slots[i].waiters.add(op, wait);
-        self.handle(i, out);
-        self.publish_status(i);
-        Ok(rx)
-    }
-
-    fn coordinated(
-        &mut self,
-        targets: Vec<CoordinatedTarget>,
-        wait: bool,
-        now: Duration,
-    ) -> Result<Vec<Waiter>, CommandError> {
-        let slots = &self.slots;
-        let plan = prepare_coordinated(&targets, |i| {
-            (slots[i].info.config.name.as_str(), &slots[i].axis)
-        })?;
-        let mut waiters = Vec::new();
-        for ((profile, ratio), &(i, ..)) in plan.into_iter().zip(&targets) {
-            let mut out = Vec::new();
-            let op = self.slots[i]
-                .axis
-                .start_coordinated(profile, ratio, now, &mut out)
-                .map_err(|e| for_axis(&self.slots[i].info.config.name, e))?;
-            waiters.push(self.slots[i].waiters.add(op, wait));
-            self.handle(i, out);
-            self.publish_status(i);
-        }
-        Ok(waiters)
+        self.dispatch(r, now);
     }
 
     fn on_node_event(&mut self, i: usize, kind: NodeEventKind) {
@@ -756,4 +649,45 @@ impl Task {
 
 fn cob_hex(id: u32) -> String {
     format!("0x{id:03X}")
+}
+
+impl AxisRunner for Task {
+    fn start_command(
+        &mut self,
+        i: usize,
+        cmd: AxisCommand,
+        wait: bool,
+        now: Duration,
+    ) -> Result<Waiter, CommandError> {
+        let mut out = Vec::new();
+        let op = self.slots[i].axis.command(cmd, now, &mut out)?;
+        let rx = self.slots[i].waiters.add(op, wait);
+        self.handle(i, out);
+        self.publish_status(i);
+        Ok(rx)
+    }
+
+    fn start_coordinated(
+        &mut self,
+        targets: Vec<CoordinatedTarget>,
+        wait: bool,
+        now: Duration,
+    ) -> Result<Vec<Waiter>, CommandError> {
+        let slots = &self.slots;
+        let plan = prepare_coordinated(&targets, |i| {
+            (slots[i].info.config.name.as_str(), &slots[i].axis)
+        })?;
+        let mut waiters = Vec::new();
+        for ((profile, ratio), &(i, ..)) in plan.into_iter().zip(&targets) {
+            let mut out = Vec::new();
+            let op = self.slots[i]
+                .axis
+                .start_coordinated(profile, ratio, now, &mut out)
+                .map_err(|e| for_axis(&self.slots[i].info.config.name, e))?;
+            waiters.push(self.slots[i].waiters.add(op, wait));
+            self.handle(i, out);
+            self.publish_status(i);
+        }
+        Ok(waiters)
+    }
 }

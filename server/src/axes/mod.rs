@@ -2,22 +2,21 @@
 //! update stream, and one task per CANopen bus that runs the bus's CiA 402
 //! axis controllers ([`cia402_task`]). CANsmc axes are run by their
 //! master's cycle thread ([`crate::cansmc`]), which serves the same
-//! [`cia402_task::BusRequest`]s.
+//! [`crate::axis_runner::BusRequest`]s.
 //!
 //! The gRPC `Axes` service is a thin shell over [`AxisManager`].
 
 pub mod cia402_task;
-pub(crate) mod commands;
 pub mod cyclic_setpoints;
 pub mod sdo_process_data;
 
 use crate::canopen::CanopenBus;
-use crate::cansmc::{AxisPort, CansmcConfig};
+use crate::config::CansmcConfig;
 use crate::config::{AxisConfig, PositionModeChoice, StopChoice};
 use crate::error::ApiError;
 use cangate_axis::cia402::AxisSnapshot;
 use cangate_axis::lease::{Lease, LeaseTable};
-use cangate_axis::{Activity, AxisCommand, CommandKind, Outcome};
+use cangate_axis::{Activity, AxisCommand, Outcome};
 use cangate_can::Timestamp;
 use cangate_canopen::NodeId;
 use std::collections::{BTreeMap, HashMap, HashSet};
@@ -26,7 +25,8 @@ use std::time::{Duration, Instant};
 use tokio::sync::{Notify, broadcast, mpsc, oneshot};
 use tokio_util::sync::CancellationToken;
 
-use cia402_task::{BusRequest, CommandReply};
+pub use crate::axis_runner::{AxisEventKind, AxisInfo, AxisUpdate, LatestStates};
+use crate::axis_runner::{AxisPort, BusRequest, CommandReply};
 
 /// Lease TTL bounds (ms).
 pub const MIN_TTL_MS: u32 = 100;
@@ -34,78 +34,6 @@ pub const MIN_TTL_MS: u32 = 100;
 pub const MAX_TTL_MS: u32 = 60_000;
 /// Lease TTL when the client gives none (ms).
 pub const DEFAULT_TTL_MS: u32 = 2_000;
-
-/// Something that happened to an axis, for StreamAxisState.
-#[derive(Debug, Clone)]
-pub enum AxisUpdate {
-    /// New live state (after each process data update or command).
-    Status {
-        /// Axis index.
-        axis: usize,
-        /// The state.
-        snapshot: Arc<AxisSnapshot>,
-        /// Bus time of the process data.
-        at: Timestamp,
-    },
-    /// An event.
-    Event {
-        /// Axis index.
-        axis: usize,
-        /// Wall time.
-        at: Timestamp,
-        /// What.
-        event: AxisEventKind,
-    },
-}
-
-/// The events of an axis.
-#[derive(Debug, Clone)]
-pub enum AxisEventKind {
-    /// A command ended.
-    MotionDone {
-        /// Which command.
-        command: CommandKind,
-        /// How.
-        outcome: Outcome,
-        /// For people.
-        detail: String,
-    },
-    /// Fault entered (code, text) or cleared (0, "").
-    Fault {
-        /// Error code.
-        code: u16,
-        /// Its name.
-        text: String,
-    },
-    /// Control changed hands.
-    Control {
-        /// New holder ("" none).
-        holder: String,
-        /// Previous holder ("" none).
-        previous: String,
-        /// Why.
-        reason: String,
-    },
-    /// The drive's node was lost or is back.
-    Node {
-        /// Lost (true) or back.
-        lost: bool,
-        /// Why.
-        reason: String,
-    },
-}
-
-/// Static facts of an axis.
-#[derive(Debug, Clone)]
-pub struct AxisInfo {
-    /// Its configuration (for a CANsmc axis: the equivalent description,
-    /// `bus` = the master's command bus, `node` = the slave address).
-    pub config: AxisConfig,
-    /// The node (CiA 402) or slave address (CANsmc).
-    pub node: NodeId,
-    /// The CANsmc master's name, for a CANsmc axis.
-    pub cansmc: Option<String>,
-}
 
 struct AxisEntry {
     info: AxisInfo,
@@ -121,9 +49,6 @@ pub type Started = (
     Vec<tokio::task::JoinHandle<()>>,
     BTreeMap<String, AxisPort>,
 );
-
-/// Latest state of every axis, by axis index.
-pub type LatestStates = Arc<RwLock<Vec<Option<(Arc<AxisSnapshot>, Timestamp)>>>>;
 
 /// Every axis of the gateway.
 pub struct AxisManager {
@@ -688,7 +613,7 @@ impl AxisManager {
     /// acceleration) per axis, all on one bus.
     pub async fn move_coordinated(
         &self,
-        targets: Vec<commands::CoordinatedTarget>,
+        targets: Vec<crate::axis_runner::CoordinatedTarget>,
         wait: bool,
     ) -> Result<Vec<Result<CommandResult, ApiError>>, ApiError> {
         if targets.is_empty() {

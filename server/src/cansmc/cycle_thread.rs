@@ -17,9 +17,10 @@
 
 use super::jitter::JitterHistogram;
 use super::{AxisPort, CansmcEvent, CansmcStatus, Request, SlaveView};
-use crate::axes::cia402_task::{BusRequest, CommandReply};
-use crate::axes::commands::{CoordinatedTarget, Waiters, for_axis, prepare_coordinated};
-use crate::axes::{AxisEventKind, AxisUpdate};
+use crate::axis_runner::{
+    AxisEventKind, AxisRunner, AxisUpdate, BusRequest, CommandReply, CoordinatedTarget, Waiters,
+    for_axis, prepare_coordinated,
+};
 use crate::config::{CansmcConfig, CyclicChoice, JogModeChoice};
 use crate::error::ApiError;
 use cangate_axis::cansmc::{CansmcAxis, CycleInput};
@@ -78,7 +79,7 @@ struct Thread {
     gear_source: Vec<Option<SmcAddress>>,
     axis_requests: Option<tokio::sync::mpsc::Receiver<BusRequest>>,
     updates: Option<broadcast::Sender<AxisUpdate>>,
-    latest: Option<crate::axes::LatestStates>,
+    latest: Option<crate::axis_runner::LatestStates>,
     requests: std::sync::mpsc::Receiver<Request>,
     parameter_waiters: HashMap<RequestId, oneshot::Sender<Result<i32, ApiError>>>,
     status: Arc<Mutex<CansmcStatus>>,
@@ -633,68 +634,7 @@ impl Thread {
     // ------------------------------------------------------------ axis API
 
     fn on_axis_request(&mut self, r: BusRequest, now: Duration) {
-        match r {
-            BusRequest::Command {
-                local,
-                cmd,
-                wait,
-                reply,
-            } => {
-                let r = self.start_command(local, cmd, wait, now);
-                let _ = reply.send(r);
-            }
-            BusRequest::Many { cmds, wait, reply } => {
-                let r = cmds
-                    .into_iter()
-                    .map(|(local, cmd)| self.start_command(local, cmd, wait, now))
-                    .collect();
-                let _ = reply.send(r);
-            }
-            BusRequest::Coordinated {
-                targets,
-                wait,
-                reply,
-            } => {
-                let _ = reply.send(self.coordinated(targets, wait, now));
-            }
-        }
-    }
-
-    fn start_command(
-        &mut self,
-        i: usize,
-        cmd: AxisCommand,
-        wait: bool,
-        now: Duration,
-    ) -> Result<oneshot::Receiver<CommandReply>, CommandError> {
-        let mut events = Vec::new();
-        let op = self.slots[i].axis.command(cmd, now, &mut events)?;
-        let rx = self.slots[i].waiters.add(op, wait);
-        self.on_axis_events(i, events);
-        self.publish_axis(i);
-        Ok(rx)
-    }
-
-    fn coordinated(
-        &mut self,
-        targets: Vec<CoordinatedTarget>,
-        wait: bool,
-        now: Duration,
-    ) -> Result<Vec<oneshot::Receiver<CommandReply>>, CommandError> {
-        let slots = &self.slots;
-        let plan = prepare_coordinated(&targets, |i| (slots[i].name.as_str(), &slots[i].axis))?;
-        let mut waiters = Vec::new();
-        for ((profile, ratio), &(i, ..)) in plan.into_iter().zip(&targets) {
-            let mut events = Vec::new();
-            let op = self.slots[i]
-                .axis
-                .start_coordinated(profile, ratio, now, &mut events)
-                .map_err(|e| for_axis(&self.slots[i].name, e))?;
-            waiters.push(self.slots[i].waiters.add(op, wait));
-            self.on_axis_events(i, events);
-            self.publish_axis(i);
-        }
-        Ok(waiters)
+        self.dispatch(r, now);
     }
 
     fn on_axis_events(&mut self, i: usize, events: Vec<AxisEvent>) {
@@ -742,5 +682,44 @@ fn parameter_error(e: ParameterError) -> ApiError {
         ParameterError::Timeout { .. } => ApiError::DeadlineExceeded(e.to_string()),
         ParameterError::Unavailable { .. } => ApiError::Unavailable(e.to_string()),
         ParameterError::Cancelled => ApiError::Aborted(e.to_string()),
+    }
+}
+
+impl AxisRunner for Thread {
+    fn start_command(
+        &mut self,
+        i: usize,
+        cmd: AxisCommand,
+        wait: bool,
+        now: Duration,
+    ) -> Result<oneshot::Receiver<CommandReply>, CommandError> {
+        let mut events = Vec::new();
+        let op = self.slots[i].axis.command(cmd, now, &mut events)?;
+        let rx = self.slots[i].waiters.add(op, wait);
+        self.on_axis_events(i, events);
+        self.publish_axis(i);
+        Ok(rx)
+    }
+
+    fn start_coordinated(
+        &mut self,
+        targets: Vec<CoordinatedTarget>,
+        wait: bool,
+        now: Duration,
+    ) -> Result<Vec<oneshot::Receiver<CommandReply>>, CommandError> {
+        let slots = &self.slots;
+        let plan = prepare_coordinated(&targets, |i| (slots[i].name.as_str(), &slots[i].axis))?;
+        let mut waiters = Vec::new();
+        for ((profile, ratio), &(i, ..)) in plan.into_iter().zip(&targets) {
+            let mut events = Vec::new();
+            let op = self.slots[i]
+                .axis
+                .start_coordinated(profile, ratio, now, &mut events)
+                .map_err(|e| for_axis(&self.slots[i].name, e))?;
+            waiters.push(self.slots[i].waiters.add(op, wait));
+            self.on_axis_events(i, events);
+            self.publish_axis(i);
+        }
+        Ok(waiters)
     }
 }

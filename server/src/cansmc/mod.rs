@@ -9,15 +9,14 @@ pub mod cycle_thread;
 pub mod jitter;
 pub mod sim;
 
-use crate::axes::cia402_task::BusRequest;
-use crate::axes::{AxisInfo, AxisUpdate, LatestStates};
+pub use crate::axis_runner::AxisPort;
 use crate::error::ApiError;
 use cangate_can::BusHandle;
 use cangate_cansmc::SmcAddress;
 use cangate_cansmc::master::{MasterCounters, Phase, SlaveCounters, SlaveState};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
-use tokio::sync::{broadcast, mpsc, oneshot};
+use tokio::sync::{broadcast, oneshot};
 use tokio_util::sync::CancellationToken;
 
 pub use crate::config::CansmcConfig;
@@ -113,18 +112,6 @@ impl std::fmt::Debug for CansmcMaster {
             .field("name", &self.inner.config.name)
             .finish()
     }
-}
-
-/// The axes of one master, as the axis layer hands them over.
-pub struct AxisPort {
-    /// Commands from the axis API.
-    pub requests: mpsc::Receiver<BusRequest>,
-    /// (global index, facts) in configuration order of `[[cansmc.axis]]`.
-    pub axes: Vec<(usize, AxisInfo)>,
-    /// Where updates go.
-    pub updates: broadcast::Sender<AxisUpdate>,
-    /// Latest state of every axis.
-    pub latest: LatestStates,
 }
 
 impl CansmcMaster {

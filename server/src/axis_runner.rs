@@ -1,17 +1,23 @@
-//! What both axis runtimes (the CiA 402 task of a CANopen bus, the cycle
-//! thread of a CANsmc master) do with commands the same way: answering the
-//! callers waiting for a command, publishing its events, planning a
-//! coordinated move, naming the axis in a refusal.
+//! What an axis runner is: the CiA 402 task of a CANopen bus
+//! ([`crate::axes::cia402_task`]) and the cycle thread of a CANsmc master
+//! ([`crate::cansmc::cycle_thread`]) both run axis controllers for the axis
+//! layer ([`crate::axes`]). This module holds what passes between them:
+//! the requests the axis layer sends ([`BusRequest`]), the replies and
+//! updates it gets back, the waiters of commands, coordinated-move
+//! planning, and the one dispatch of a request ([`AxisRunner::dispatch`]).
+//! Both runners depend on it; it depends on neither.
 
-use super::{AxisEventKind, AxisUpdate};
-use crate::axes::cia402_task::CommandReply;
+use crate::config::AxisConfig;
 use cangate_axis::cansmc::CansmcAxis;
 use cangate_axis::cia402::{AxisSnapshot, Cia402Axis};
-use cangate_axis::{AxisEvent, CommandError, OpId};
+use cangate_axis::{AxisCommand, AxisEvent, CommandError, CommandKind, OpId, Outcome};
 use cangate_can::Timestamp;
+use cangate_canopen::NodeId;
 use cangate_motion::{AxisMove, Limits, SyncedMove, TrapezoidProfile};
 use std::collections::HashMap;
-use tokio::sync::{broadcast, oneshot};
+use std::sync::{Arc, RwLock};
+use std::time::Duration;
+use tokio::sync::{broadcast, mpsc, oneshot};
 
 struct PendingReply {
     /// Answer at completion (true) or at acceptance.
@@ -244,6 +250,192 @@ pub(crate) fn for_axis(axis: &str, e: CommandError) -> CommandError {
         }
         CommandError::FailedPrecondition(m) => {
             CommandError::FailedPrecondition(format!("axis {axis}: {m}"))
+        }
+    }
+}
+
+/// How a command ended, for its caller.
+#[derive(Debug)]
+pub struct CommandReply {
+    /// `None`: accepted (not waited for).
+    pub outcome: Option<Outcome>,
+    /// For people.
+    pub detail: String,
+    /// The axis right after.
+    pub snapshot: AxisSnapshot,
+}
+
+/// The receiving end of a command: its [`CommandReply`].
+pub type Waiter = oneshot::Receiver<CommandReply>;
+
+/// Requests to a bus task.
+pub enum BusRequest {
+    /// One command.
+    Command {
+        /// Axis index in this task.
+        local: usize,
+        /// The command.
+        cmd: AxisCommand,
+        /// Reply at completion instead of acceptance.
+        wait: bool,
+        /// The waiter, or why the command was refused.
+        reply: oneshot::Sender<Result<Waiter, CommandError>>,
+    },
+    /// Several commands applied in one step.
+    Many {
+        /// (axis, command).
+        cmds: Vec<(usize, AxisCommand)>,
+        /// As above.
+        wait: bool,
+        /// One result per command.
+        reply: oneshot::Sender<Vec<Result<Waiter, CommandError>>>,
+    },
+    /// A coordinated cyclic move: (axis, target, velocity, acceleration).
+    Coordinated {
+        /// Targets.
+        targets: Vec<CoordinatedTarget>,
+        /// As above.
+        wait: bool,
+        /// The waiters (all or none).
+        reply: oneshot::Sender<Result<Vec<Waiter>, CommandError>>,
+    },
+}
+
+/// Something that happened to an axis, for StreamAxisState.
+#[derive(Debug, Clone)]
+pub enum AxisUpdate {
+    /// New live state (after each process data update or command).
+    Status {
+        /// Axis index.
+        axis: usize,
+        /// The state.
+        snapshot: Arc<AxisSnapshot>,
+        /// Bus time of the process data.
+        at: Timestamp,
+    },
+    /// An event.
+    Event {
+        /// Axis index.
+        axis: usize,
+        /// Wall time.
+        at: Timestamp,
+        /// What.
+        event: AxisEventKind,
+    },
+}
+
+/// The events of an axis.
+#[derive(Debug, Clone)]
+pub enum AxisEventKind {
+    /// A command ended.
+    MotionDone {
+        /// Which command.
+        command: CommandKind,
+        /// How.
+        outcome: Outcome,
+        /// For people.
+        detail: String,
+    },
+    /// Fault entered (code, text) or cleared (0, "").
+    Fault {
+        /// Error code.
+        code: u16,
+        /// Its name.
+        text: String,
+    },
+    /// Control changed hands.
+    Control {
+        /// New holder ("" none).
+        holder: String,
+        /// Previous holder ("" none).
+        previous: String,
+        /// Why.
+        reason: String,
+    },
+    /// The drive's node was lost or is back.
+    Node {
+        /// Lost (true) or back.
+        lost: bool,
+        /// Why.
+        reason: String,
+    },
+}
+
+/// Static facts of an axis.
+#[derive(Debug, Clone)]
+pub struct AxisInfo {
+    /// Its configuration (for a CANsmc axis: the equivalent description,
+    /// `bus` = the master's command bus, `node` = the slave address).
+    pub config: AxisConfig,
+    /// The node (CiA 402) or slave address (CANsmc).
+    pub node: NodeId,
+    /// The CANsmc master's name, for a CANsmc axis.
+    pub cansmc: Option<String>,
+}
+
+/// Latest state of every axis, by axis index.
+pub type LatestStates = Arc<RwLock<Vec<Option<(Arc<AxisSnapshot>, Timestamp)>>>>;
+
+/// The axes of one master, as the axis layer hands them over.
+pub struct AxisPort {
+    /// Commands from the axis API.
+    pub requests: mpsc::Receiver<BusRequest>,
+    /// (global index, facts) in configuration order of `[[cansmc.axis]]`.
+    pub axes: Vec<(usize, AxisInfo)>,
+    /// Where updates go.
+    pub updates: broadcast::Sender<AxisUpdate>,
+    /// Latest state of every axis.
+    pub latest: LatestStates,
+}
+
+/// A runner of axis controllers, as the axis layer drives it. Axes are
+/// numbered within the runner (`local`).
+pub(crate) trait AxisRunner {
+    /// Starts `cmd` on axis `local`. The waiter answers at acceptance, or
+    /// at completion with `wait`; a refused command changes nothing.
+    fn start_command(
+        &mut self,
+        local: usize,
+        cmd: AxisCommand,
+        wait: bool,
+        now: Duration,
+    ) -> Result<Waiter, CommandError>;
+
+    /// Starts a coordinated move of several axes: all or none.
+    fn start_coordinated(
+        &mut self,
+        targets: Vec<CoordinatedTarget>,
+        wait: bool,
+        now: Duration,
+    ) -> Result<Vec<Waiter>, CommandError>;
+
+    /// Serves one request of the axis layer: the one dispatch both
+    /// runners share.
+    fn dispatch(&mut self, request: BusRequest, now: Duration) {
+        match request {
+            BusRequest::Command {
+                local,
+                cmd,
+                wait,
+                reply,
+            } => {
+                let r = self.start_command(local, cmd, wait, now);
+                let _ = reply.send(r);
+            }
+            BusRequest::Many { cmds, wait, reply } => {
+                let r = cmds
+                    .into_iter()
+                    .map(|(local, cmd)| self.start_command(local, cmd, wait, now))
+                    .collect();
+                let _ = reply.send(r);
+            }
+            BusRequest::Coordinated {
+                targets,
+                wait,
+                reply,
+            } => {
+                let _ = reply.send(self.start_coordinated(targets, wait, now));
+            }
         }
     }
 }
