@@ -9,8 +9,8 @@ use crate::config::{
     AxisConfig, BackendChoice, BusConfig, Config, NodeConfig, ProcessDataChoice, StuffingChoice,
     parse_object,
 };
-use crate::error::ApiError;
 use crate::handwheel::HandwheelManager;
+use crate::not_found::NotFound;
 use cangate_can::bus::{Backend, BackendKind, BusHandle, BusInfo};
 use cangate_can::socketcan_bus::SocketCanBus;
 use cangate_can::{BitTiming, Stuffing, VirtualBusConfig, VirtualNetwork};
@@ -458,14 +458,9 @@ impl Gateway {
     }
 
     /// A bus by name.
-    pub fn bus(&self, name: &str) -> Result<&BusHandle, ApiError> {
-        self.buses.get(name).ok_or_else(|| ApiError::NotFound {
-            kind: "bus",
-            name: name.to_string(),
-            hint: format!(
-                " (buses: {})",
-                self.buses.keys().cloned().collect::<Vec<_>>().join(", ")
-            ),
+    pub fn bus(&self, name: &str) -> Result<&BusHandle, NotFound> {
+        self.buses.get(name).ok_or_else(|| {
+            NotFound::among("bus", "buses", name, self.buses.keys().map(String::as_str))
         })
     }
 
@@ -475,14 +470,14 @@ impl Gateway {
     }
 
     /// A CANsmc master by name.
-    pub fn cansmc(&self, name: &str) -> Result<&CansmcMaster, ApiError> {
-        self.cansmc.get(name).ok_or_else(|| ApiError::NotFound {
-            kind: "CANsmc master",
-            name: name.to_string(),
-            hint: format!(
-                " (masters: {})",
-                self.cansmc.keys().cloned().collect::<Vec<_>>().join(", ")
-            ),
+    pub fn cansmc(&self, name: &str) -> Result<&CansmcMaster, NotFound> {
+        self.cansmc.get(name).ok_or_else(|| {
+            NotFound::among(
+                "CANsmc master",
+                "masters",
+                name,
+                self.cansmc.keys().map(String::as_str),
+            )
         })
     }
 

@@ -25,6 +25,7 @@ pub mod gateway;
 pub mod grpc;
 pub mod handwheel;
 pub mod metrics;
+pub mod not_found;
 pub mod realtime;
 pub mod security;
 pub mod serve;

@@ -13,8 +13,10 @@ pub mod sdo_process_data;
 use crate::canopen::CanopenBus;
 use crate::config::CansmcConfig;
 use crate::config::{AxisConfig, PositionModeChoice, StopChoice};
-use crate::error::ApiError;
+use crate::not_found::NotFound;
+use cangate_axis::CommandError;
 use cangate_axis::cia402::AxisSnapshot;
+use cangate_axis::lease::LeaseError;
 use cangate_axis::lease::{Lease, LeaseTable};
 use cangate_axis::{Activity, AxisCommand, Outcome};
 use cangate_can::Timestamp;
@@ -206,22 +208,15 @@ impl AxisManager {
     }
 
     /// The index of a named axis.
-    pub fn index(&self, name: &str) -> Result<usize, ApiError> {
-        self.by_name
-            .get(name)
-            .copied()
-            .ok_or_else(|| ApiError::NotFound {
-                kind: "axis",
-                name: name.to_string(),
-                hint: format!(
-                    " (axes: {})",
-                    self.axes
-                        .iter()
-                        .map(|a| a.info.config.name.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            })
+    pub fn index(&self, name: &str) -> Result<usize, AxisError> {
+        self.by_name.get(name).copied().ok_or_else(|| {
+            AxisError::NotFound(NotFound::among(
+                "axis",
+                "axes",
+                name,
+                self.axes.iter().map(|a| a.info.config.name.as_str()),
+            ))
+        })
     }
 
     /// Static facts of axis `i`.
@@ -300,7 +295,7 @@ impl AxisManager {
         if stops.is_empty() {
             return report;
         }
-        let results: Vec<Option<Result<CommandResult, ApiError>>> =
+        let results: Vec<Option<Result<CommandResult, AxisError>>> =
             match tokio::time::timeout(bound, self.many(stops.clone(), true)).await {
                 Ok(Ok(results)) => results.into_iter().map(Some).collect(),
                 Ok(Err(e)) => {
@@ -344,7 +339,7 @@ impl AxisManager {
             .iter()
             .map(|&i| (i, AxisCommand::QuickStop))
             .collect();
-        let quick_results: Vec<Option<Result<CommandResult, ApiError>>> =
+        let quick_results: Vec<Option<Result<CommandResult, AxisError>>> =
             match tokio::time::timeout(QUICK_STOP_GRACE, self.many(quick, true)).await {
                 Ok(Ok(results)) => results.into_iter().map(Some).collect(),
                 _ => (0..unsettled.len()).map(|_| None).collect(),
@@ -379,18 +374,23 @@ impl AxisManager {
     }
 
     /// Grants control of `axes` (names) to `holder`.
-    pub fn acquire(&self, axes: &[String], ttl_ms: u32, holder: String) -> Result<Lease, ApiError> {
+    pub fn acquire(
+        &self,
+        axes: &[String],
+        ttl_ms: u32,
+        holder: String,
+    ) -> Result<Lease, AxisError> {
         if self.closing() {
-            return Err(ApiError::ShuttingDown);
+            return Err(AxisError::ShuttingDown);
         }
         if axes.is_empty() {
-            return Err(ApiError::InvalidArgument("name at least one axis".into()));
+            return Err(AxisError::InvalidArgument("name at least one axis".into()));
         }
         let mut seen = HashSet::new();
         for a in axes {
             self.index(a)?;
             if !seen.insert(a) {
-                return Err(ApiError::InvalidArgument(format!(
+                return Err(AxisError::InvalidArgument(format!(
                     "axis {a} is named twice"
                 )));
             }
@@ -400,7 +400,7 @@ impl AxisManager {
         // The token is the control: 128 bits from the OS, not guessable.
         let mut raw = [0u8; 16];
         getrandom::fill(&mut raw).map_err(|e| {
-            ApiError::Unavailable(format!("no OS randomness for a lease token: {e}"))
+            AxisError::Unavailable(format!("no OS randomness for a lease token: {e}"))
         })?;
         let token: String = raw.iter().map(|b| format!("{b:02x}")).collect();
         let lease = self.leases.lock().expect("lease lock").acquire(
@@ -416,7 +416,7 @@ impl AxisManager {
     }
 
     /// Extends a lease.
-    pub fn renew(&self, token: &str) -> Result<Lease, ApiError> {
+    pub fn renew(&self, token: &str) -> Result<Lease, AxisError> {
         let lease = self
             .leases
             .lock()
@@ -427,7 +427,7 @@ impl AxisManager {
     }
 
     /// Ends a lease.
-    pub fn release(&self, token: &str) -> Result<Lease, ApiError> {
+    pub fn release(&self, token: &str) -> Result<Lease, AxisError> {
         let lease = self.leases.lock().expect("lease lock").release(token)?;
         self.leases_changed.notify_one();
         self.publish_control(&lease, "", &lease.holder, "released");
@@ -436,7 +436,7 @@ impl AxisManager {
 
     /// Binds lease `token` to the identity `owner` that acquired it (see
     /// [`LeaseTable::bind_owner`]).
-    pub fn bind_lease_owner(&self, token: &str, owner: String) -> Result<(), ApiError> {
+    pub fn bind_lease_owner(&self, token: &str, owner: String) -> Result<(), AxisError> {
         Ok(self
             .leases
             .lock()
@@ -446,7 +446,7 @@ impl AxisManager {
 
     /// Checks that `caller` may present lease `token` (see
     /// [`LeaseTable::check_owner`]).
-    pub fn check_lease_owner(&self, token: &str, caller: Option<&str>) -> Result<(), ApiError> {
+    pub fn check_lease_owner(&self, token: &str, caller: Option<&str>) -> Result<(), AxisError> {
         Ok(self
             .leases
             .lock()
@@ -456,7 +456,7 @@ impl AxisManager {
 
     /// Checks that `token` controls axis `i` (renewing it); the holder's
     /// name for the audit log.
-    pub fn authorize(&self, i: usize, token: &str) -> Result<String, ApiError> {
+    pub fn authorize(&self, i: usize, token: &str) -> Result<String, AxisError> {
         let mut leases = self.leases.lock().expect("lease lock");
         let token = (!token.is_empty()).then_some(token);
         leases.authorize(self.name(i), token, self.now())?;
@@ -477,9 +477,9 @@ impl AxisManager {
         cmd: AxisCommand,
         wait: bool,
         wait_timeout: Duration,
-    ) -> Result<CommandResult, ApiError> {
+    ) -> Result<CommandResult, AxisError> {
         if self.closing() {
-            return Err(ApiError::ShuttingDown);
+            return Err(AxisError::ShuttingDown);
         }
         let entry = &self.axes[i];
         let (reply, rx) = oneshot::channel();
@@ -492,8 +492,8 @@ impl AxisManager {
                 reply,
             })
             .await
-            .map_err(|_| ApiError::ShuttingDown)?;
-        let waiter = rx.await.map_err(|_| ApiError::ShuttingDown)??;
+            .map_err(|_| AxisError::ShuttingDown)?;
+        let waiter = rx.await.map_err(|_| AxisError::ShuttingDown)??;
         self.await_reply(i, waiter, wait, wait_timeout).await
     }
 
@@ -503,9 +503,9 @@ impl AxisManager {
     ///
     /// # Errors
     /// When the axis task's queue is full or closed.
-    pub fn submit(&self, i: usize, cmd: AxisCommand) -> Result<(), ApiError> {
+    pub fn submit(&self, i: usize, cmd: AxisCommand) -> Result<(), AxisError> {
         if self.closing() {
-            return Err(ApiError::ShuttingDown);
+            return Err(AxisError::ShuttingDown);
         }
         let entry = &self.axes[i];
         let (reply, _rx) = oneshot::channel();
@@ -517,7 +517,7 @@ impl AxisManager {
                 wait: false,
                 reply,
             })
-            .map_err(|e| ApiError::Unavailable(format!("axis {}: {e}", self.name(i))))
+            .map_err(|e| AxisError::Unavailable(format!("axis {}: {e}", self.name(i))))
     }
 
     async fn await_reply(
@@ -526,7 +526,7 @@ impl AxisManager {
         waiter: oneshot::Receiver<CommandReply>,
         wait: bool,
         wait_timeout: Duration,
-    ) -> Result<CommandResult, ApiError> {
+    ) -> Result<CommandResult, AxisError> {
         // Without `wait` the command returns at the drive's acceptance,
         // which takes at most a few state timeouts.
         let bound = if wait {
@@ -540,8 +540,8 @@ impl AxisManager {
                 detail: r.detail,
                 snapshot: Arc::new(r.snapshot),
             }),
-            Ok(Err(_)) => Err(ApiError::ShuttingDown),
-            Err(_) => Err(ApiError::DeadlineExceeded(format!(
+            Ok(Err(_)) => Err(AxisError::ShuttingDown),
+            Err(_) => Err(AxisError::NoAnswer(format!(
                 "axis {}: no {} within {} ms (the command keeps running; watch StreamAxisState)",
                 self.name(i),
                 if wait { "completion" } else { "acceptance" },
@@ -556,7 +556,7 @@ impl AxisManager {
         axes: &[usize],
         quick: bool,
         wait: bool,
-    ) -> Result<Vec<Result<CommandResult, ApiError>>, ApiError> {
+    ) -> Result<Vec<Result<CommandResult, AxisError>>, AxisError> {
         let cmd = if quick {
             AxisCommand::QuickStop
         } else {
@@ -572,7 +572,7 @@ impl AxisManager {
         &self,
         items: Vec<(usize, AxisCommand)>,
         wait: bool,
-    ) -> Result<Vec<Result<CommandResult, ApiError>>, ApiError> {
+    ) -> Result<Vec<Result<CommandResult, AxisError>>, AxisError> {
         // (bus task, [(position in `items`, axis in the task, command)])
         type BusBatch = (mpsc::Sender<BusRequest>, Vec<(usize, usize, AxisCommand)>);
         let mut by_bus: Vec<BusBatch> = Vec::new();
@@ -583,17 +583,17 @@ impl AxisManager {
                 None => by_bus.push((e.bus.clone(), vec![(pos, e.local, *cmd)])),
             }
         }
-        let mut waiters: Vec<Option<Result<oneshot::Receiver<CommandReply>, ApiError>>> =
+        let mut waiters: Vec<Option<Result<oneshot::Receiver<CommandReply>, AxisError>>> =
             (0..items.len()).map(|_| None).collect();
         for (tx, list) in by_bus {
             let (reply, rx) = oneshot::channel();
             let cmds = list.iter().map(|(_, l, c)| (*l, *c)).collect();
             tx.send(BusRequest::Many { cmds, wait, reply })
                 .await
-                .map_err(|_| ApiError::ShuttingDown)?;
-            let results = rx.await.map_err(|_| ApiError::ShuttingDown)?;
+                .map_err(|_| AxisError::ShuttingDown)?;
+            let results = rx.await.map_err(|_| AxisError::ShuttingDown)?;
             for ((pos, _, _), r) in list.iter().zip(results) {
-                waiters[*pos] = Some(r.map_err(ApiError::from));
+                waiters[*pos] = Some(r.map_err(AxisError::from));
             }
         }
         let mut out = Vec::new();
@@ -615,15 +615,15 @@ impl AxisManager {
         &self,
         targets: Vec<crate::axis_runner::CoordinatedTarget>,
         wait: bool,
-    ) -> Result<Vec<Result<CommandResult, ApiError>>, ApiError> {
+    ) -> Result<Vec<Result<CommandResult, AxisError>>, AxisError> {
         if targets.is_empty() {
-            return Err(ApiError::InvalidArgument("name at least one axis".into()));
+            return Err(AxisError::InvalidArgument("name at least one axis".into()));
         }
         let first = &self.axes[targets[0].0];
         for (i, ..) in &targets {
             let e = &self.axes[*i];
             if !e.bus.same_channel(&first.bus) {
-                return Err(ApiError::FailedPrecondition(format!(
+                return Err(AxisError::NotCoordinable(format!(
                     "a coordinated move needs all axes on one bus: {} is on {}, {} on {}",
                     first.info.config.name,
                     first.info.config.bus,
@@ -632,7 +632,7 @@ impl AxisManager {
                 )));
             }
             if e.info.config.position_mode != PositionModeChoice::Cyclic {
-                return Err(ApiError::FailedPrecondition(format!(
+                return Err(AxisError::NotCoordinable(format!(
                     "a coordinated move needs cyclic (CSP) axes; {} is a profile position axis",
                     e.info.config.name
                 )));
@@ -650,8 +650,8 @@ impl AxisManager {
                 reply,
             })
             .await
-            .map_err(|_| ApiError::ShuttingDown)?;
-        let waiters = rx.await.map_err(|_| ApiError::ShuttingDown)??;
+            .map_err(|_| AxisError::ShuttingDown)?;
+        let waiters = rx.await.map_err(|_| AxisError::ShuttingDown)??;
         let mut out = Vec::new();
         for ((i, ..), rx) in targets.iter().zip(waiters) {
             out.push(
@@ -710,4 +710,39 @@ async fn run_lease_expiry(m: Arc<AxisManager>, cancel: CancellationToken) {
             }
         }
     }
+}
+
+/// Why an axis request failed, by reason; the API edge maps each to its
+/// gRPC status.
+#[derive(Debug, thiserror::Error)]
+pub enum AxisError {
+    /// No such axis.
+    #[error(transparent)]
+    NotFound(#[from] NotFound),
+    /// The request is malformed (no axis named, an axis named twice).
+    #[error("{0}")]
+    InvalidArgument(String),
+    /// The axis controller refused the command (out of range, invalid,
+    /// not possible in the axis's state); nothing changed.
+    #[error(transparent)]
+    Refused(#[from] CommandError),
+    /// The control lease does not allow it (missing, expired, held by
+    /// another, presented by another identity).
+    #[error(transparent)]
+    Lease(#[from] LeaseError),
+    /// A coordinated move over axes that cannot move together (another
+    /// bus, a profile-position axis).
+    #[error("{0}")]
+    NotCoordinable(String),
+    /// The axis's runner cannot take the request (queue full, no OS
+    /// randomness for a lease token).
+    #[error("{0}")]
+    Unavailable(String),
+    /// No acceptance or completion within the bound (the command keeps
+    /// running).
+    #[error("{0}")]
+    NoAnswer(String),
+    /// The gateway is shutting down.
+    #[error("the gateway is shutting down")]
+    ShuttingDown,
 }

@@ -15,6 +15,7 @@
 //! from the axis API and parameter requests arrive through queues and are
 //! served at the next wake (within one cycle).
 
+use super::CansmcError;
 use super::jitter::JitterHistogram;
 use super::{AxisPort, CansmcEvent, CansmcStatus, Request, SlaveView};
 use crate::axis_runner::{
@@ -22,13 +23,12 @@ use crate::axis_runner::{
     for_axis, prepare_coordinated,
 };
 use crate::config::{CansmcConfig, CyclicChoice, JogModeChoice};
-use crate::error::ApiError;
 use cangate_axis::cansmc::{CansmcAxis, CycleInput};
 use cangate_axis::{AxisCommand, AxisEvent, CommandError};
 use cangate_can::precise_wait::SpinMargin;
 use cangate_can::{BusHandle, BusItem, Direction, Frame, FrameSelector, Subscription, Timestamp};
 use cangate_cansmc::master::{
-    Master, MasterConfig, MasterEvent, ParameterError, Phase, RequestId, SlaveSpec, SlaveState,
+    Master, MasterConfig, MasterEvent, Phase, RequestId, SlaveSpec, SlaveState,
 };
 use cangate_cansmc::{Command, Feedback, SmcAddress};
 use std::collections::HashMap;
@@ -81,7 +81,7 @@ struct Thread {
     updates: Option<broadcast::Sender<AxisUpdate>>,
     latest: Option<crate::axis_runner::LatestStates>,
     requests: std::sync::mpsc::Receiver<Request>,
-    parameter_waiters: HashMap<RequestId, oneshot::Sender<Result<i32, ApiError>>>,
+    parameter_waiters: HashMap<RequestId, oneshot::Sender<Result<i32, CansmcError>>>,
     status: Arc<Mutex<CansmcStatus>>,
     events: broadcast::Sender<CansmcEvent>,
     jitter: JitterHistogram,
@@ -431,7 +431,7 @@ impl Thread {
                             self.parameter_waiters.insert(id, reply);
                         }
                         Err(e) => {
-                            let _ = reply.send(Err(parameter_error(e)));
+                            let _ = reply.send(Err(CansmcError::Parameter(e)));
                         }
                     }
                 }
@@ -548,7 +548,7 @@ impl Thread {
                 }
                 MasterEvent::ParameterDone { id, result, .. } => {
                     if let Some(w) = self.parameter_waiters.remove(&id) {
-                        let _ = w.send(result.map_err(parameter_error));
+                        let _ = w.send(result.map_err(CansmcError::Parameter));
                     }
                 }
             }
@@ -668,21 +668,6 @@ fn arrival(ts: Timestamp, origin_wall: i128, now: Duration) -> Duration {
         return now;
     }
     Duration::from_nanos(at as u64)
-}
-
-fn parameter_error(e: ParameterError) -> ApiError {
-    match e {
-        ParameterError::UnknownSlave(a) => ApiError::NotFound {
-            kind: "CANsmc slave",
-            name: a.to_string(),
-            hint: String::new(),
-        },
-        ParameterError::Refused { .. } => ApiError::FailedPrecondition(e.to_string()),
-        ParameterError::Rejected { .. } => ApiError::FailedPrecondition(e.to_string()),
-        ParameterError::Timeout { .. } => ApiError::DeadlineExceeded(e.to_string()),
-        ParameterError::Unavailable { .. } => ApiError::Unavailable(e.to_string()),
-        ParameterError::Cancelled => ApiError::Aborted(e.to_string()),
-    }
 }
 
 impl AxisRunner for Thread {

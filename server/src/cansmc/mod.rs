@@ -10,7 +10,7 @@ pub mod jitter;
 pub mod sim;
 
 pub use crate::axis_runner::AxisPort;
-use crate::error::ApiError;
+use crate::not_found::NotFound;
 use cangate_can::BusHandle;
 use cangate_cansmc::SmcAddress;
 use cangate_cansmc::master::{MasterCounters, Phase, SlaveCounters, SlaveState};
@@ -85,7 +85,7 @@ pub(crate) enum Request {
         address: SmcAddress,
         number: u16,
         write: Option<i32>,
-        reply: oneshot::Sender<Result<i32, ApiError>>,
+        reply: oneshot::Sender<Result<i32, CansmcError>>,
     },
     Restart {
         reply: oneshot::Sender<()>,
@@ -184,12 +184,12 @@ impl CansmcMaster {
         self.inner.events.subscribe()
     }
 
-    fn address(&self, address: u32) -> Result<SmcAddress, ApiError> {
+    fn address(&self, address: u32) -> Result<SmcAddress, CansmcError> {
         let a = u8::try_from(address)
             .ok()
             .and_then(|a| SmcAddress::new(a).ok())
             .ok_or_else(|| {
-                ApiError::InvalidArgument(format!("slave address {address} is outside 1..=61"))
+                CansmcError::InvalidArgument(format!("slave address {address} is outside 1..=61"))
             })?;
         if !self
             .inner
@@ -198,21 +198,14 @@ impl CansmcMaster {
             .iter()
             .any(|s| s.address == a.get())
         {
-            return Err(ApiError::NotFound {
+            let slaves: Vec<String> = (self.inner.config.slaves.iter())
+                .map(|s| s.address.to_string())
+                .collect();
+            return Err(CansmcError::NotFound(NotFound {
                 kind: "CANsmc slave",
                 name: address.to_string(),
-                hint: format!(
-                    " on master {} (slaves: {})",
-                    self.name(),
-                    self.inner
-                        .config
-                        .slaves
-                        .iter()
-                        .map(|s| s.address.to_string())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            });
+                hint: format!(" on master {} (slaves: {})", self.name(), slaves.join(", ")),
+            }));
         }
         Ok(a)
     }
@@ -224,10 +217,10 @@ impl CansmcMaster {
         address: u32,
         number: u32,
         write: Option<i32>,
-    ) -> Result<i32, ApiError> {
+    ) -> Result<i32, CansmcError> {
         let address = self.address(address)?;
         let number = u16::try_from(number).map_err(|_| {
-            ApiError::InvalidArgument(format!("parameter number {number} exceeds 65535"))
+            CansmcError::InvalidArgument(format!("parameter number {number} exceeds 65535"))
         })?;
         let (reply, rx) = oneshot::channel();
         self.inner
@@ -238,14 +231,14 @@ impl CansmcMaster {
                 write,
                 reply,
             })
-            .map_err(|_| ApiError::ShuttingDown)?;
+            .map_err(|_| CansmcError::ShuttingDown)?;
         let bound = Duration::from_millis(self.inner.config.parameter_timeout_ms)
             + self.inner.config.cycle_time() * 4
             + Duration::from_millis(500);
         match tokio::time::timeout(bound, rx).await {
             Ok(Ok(r)) => r,
-            Ok(Err(_)) => Err(ApiError::ShuttingDown),
-            Err(_) => Err(ApiError::DeadlineExceeded(format!(
+            Ok(Err(_)) => Err(CansmcError::ShuttingDown),
+            Err(_) => Err(CansmcError::NoAnswer(format!(
                 "master {}: the cycle thread did not answer within {} ms",
                 self.name(),
                 bound.as_millis()
@@ -254,15 +247,37 @@ impl CansmcMaster {
     }
 
     /// Goes back through P0 and P1; returns when the restart began.
-    pub async fn restart(&self) -> Result<(), ApiError> {
+    pub async fn restart(&self) -> Result<(), CansmcError> {
         let (reply, rx) = oneshot::channel();
         self.inner
             .requests
             .send(Request::Restart { reply })
-            .map_err(|_| ApiError::ShuttingDown)?;
+            .map_err(|_| CansmcError::ShuttingDown)?;
         tokio::time::timeout(Duration::from_secs(2), rx)
             .await
-            .map_err(|_| ApiError::DeadlineExceeded("the cycle thread did not answer".into()))?
-            .map_err(|_| ApiError::ShuttingDown)
+            .map_err(|_| CansmcError::NoAnswer("the cycle thread did not answer".into()))?
+            .map_err(|_| CansmcError::ShuttingDown)
     }
+}
+
+/// Why a CANsmc request failed, by reason.
+#[derive(Debug, thiserror::Error)]
+pub enum CansmcError {
+    /// No such slave on this master.
+    #[error(transparent)]
+    NotFound(#[from] NotFound),
+    /// The request is malformed (an address outside 1..=61, a parameter
+    /// number beyond 16 bits).
+    #[error("{0}")]
+    InvalidArgument(String),
+    /// The parameter service failed: refused, rejected, timed out, the
+    /// slave missing or the master not running.
+    #[error(transparent)]
+    Parameter(#[from] cangate_cansmc::master::ParameterError),
+    /// The cycle thread did not answer within the bound.
+    #[error("{0}")]
+    NoAnswer(String),
+    /// The gateway is shutting down.
+    #[error("the gateway is shutting down")]
+    ShuttingDown,
 }

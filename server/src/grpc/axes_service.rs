@@ -135,13 +135,13 @@ impl AxesService {
         let holder = if cmd.needs_control() {
             if let Err(e) = lease_check {
                 audit(&peer, "", axis, &cmd, &format!("refused: {e}"));
-                return Err(e);
+                return Err(e.into());
             }
             match m.authorize(i, &opts.lease) {
                 Ok(h) => h,
                 Err(e) => {
                     audit(&peer, "", axis, &cmd, &format!("refused: {e}"));
-                    return Err(e);
+                    return Err(e.into());
                 }
             }
         } else {

@@ -36,7 +36,7 @@ impl CansmcService {
     /// The master called `name`; "" is the only one.
     fn master(&self, name: &str) -> Result<&CansmcMaster, ApiError> {
         if !name.is_empty() {
-            return self.gateway.cansmc(name);
+            return Ok(self.gateway.cansmc(name)?);
         }
         let all: Vec<&CansmcMaster> = self.gateway.cansmc_masters().collect();
         match all.as_slice() {
@@ -233,7 +233,7 @@ impl Cansmc for CansmcService {
         let value = m
             .parameter(r.address, r.number, None)
             .await
-            .map_err(|e| parameter_context(m.name(), None, e))?;
+            .map_err(|e| parameter_context(m.name(), None, e.into()))?;
         Ok(Response::new(pb::ParameterValue {
             master: m.name().to_string(),
             address: r.address,
@@ -252,7 +252,7 @@ impl Cansmc for CansmcService {
         let res = m
             .parameter(r.address, r.number, Some(r.value))
             .await
-            .map_err(|e| parameter_context(m.name(), Some(r.value), e));
+            .map_err(|e| parameter_context(m.name(), Some(r.value), e.into()));
         tracing::info!(target: "cangate::audit", %peer, master = %m.name(), slave = r.address, parameter = r.number, value = r.value, result = %res.as_ref().map_or_else(|e| e.to_string(), |v| format!("ok ({v})")), "CANsmc parameter write");
         let value = res?;
         Ok(Response::new(pb::ParameterValue {

@@ -6,6 +6,7 @@ pub mod canopen_service;
 pub mod cansmc_service;
 pub mod convert;
 pub mod handwheel_service;
+mod runtime_errors;
 pub mod simulator_service;
 
 /// Who made a call, for audit lines and lease holders: the authenticated

@@ -10,7 +10,7 @@ mod ledger;
 use crate::axes::AxisManager;
 use crate::canopen::{CanopenBus, NodeEventKind};
 use crate::config::{CounterChoice, HandwheelConfig};
-use crate::error::ApiError;
+use crate::not_found::NotFound;
 use cangate_axis::AxisCommand;
 use cangate_can::{BusHandle, BusItem, Filter, FrameSelector, Timestamp};
 use cangate_canopen::cia402::DriveState;
@@ -253,21 +253,17 @@ impl HandwheelManager {
     }
 
     /// The index of a named wheel.
-    pub fn index(&self, name: &str) -> Result<usize, ApiError> {
+    pub fn index(&self, name: &str) -> Result<usize, HandwheelError> {
         self.wheels
             .iter()
             .position(|w| w.config.name == name)
-            .ok_or_else(|| ApiError::NotFound {
-                kind: "handwheel",
-                name: name.to_string(),
-                hint: format!(
-                    " (handwheels: {})",
-                    self.wheels
-                        .iter()
-                        .map(|w| w.config.name.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
+            .ok_or_else(|| {
+                HandwheelError::NotFound(NotFound::among(
+                    "handwheel",
+                    "handwheels",
+                    name,
+                    self.wheels.iter().map(|w| w.config.name.as_str()),
+                ))
             })
     }
 
@@ -277,7 +273,7 @@ impl HandwheelManager {
     }
 
     /// Reads the mode from the wheel (0x2000).
-    pub async fn read_mode(&self, i: usize) -> Result<Mode, ApiError> {
+    pub async fn read_mode(&self, i: usize) -> Result<Mode, HandwheelError> {
         let w = &self.wheels[i];
         let r = self.masters[i]
             .sdo(
@@ -291,23 +287,21 @@ impl HandwheelManager {
         let data = match r {
             Ok(TransferOutcome::Uploaded(d)) => d,
             Ok(_) => {
-                return Err(ApiError::FailedPrecondition(
-                    "unexpected SDO outcome".into(),
-                ));
+                return Err(HandwheelError::Device("unexpected SDO outcome".into()));
             }
             Err(crate::canopen::CanopenError::Sdo(error)) => {
-                return Err(ApiError::Sdo {
+                return Err(HandwheelError::Sdo {
                     node: w.config.node as u8,
                     error,
                 });
             }
-            Err(e) => return Err(ApiError::Unavailable(e.to_string())),
+            Err(e) => return Err(HandwheelError::Unavailable(e.to_string())),
         };
         let mode = match data.first() {
             Some(0) => Mode::Automatic,
             Some(1) => Mode::Manual,
             other => {
-                return Err(ApiError::FailedPrecondition(format!(
+                return Err(HandwheelError::Device(format!(
                     "handwheel {}: 0x2000 reads {other:?}, neither 0 (automatic) nor 1 (manual)",
                     w.config.name
                 )));
@@ -318,7 +312,7 @@ impl HandwheelManager {
     }
 
     /// Writes the mode (0x2000) and confirms it by reading it back.
-    pub async fn set_mode(&self, i: usize, mode: Mode) -> Result<Mode, ApiError> {
+    pub async fn set_mode(&self, i: usize, mode: Mode) -> Result<Mode, HandwheelError> {
         let w = &self.wheels[i];
         let value = match mode {
             Mode::Automatic => 0u8,
@@ -337,16 +331,16 @@ impl HandwheelManager {
         match r {
             Ok(_) => {}
             Err(crate::canopen::CanopenError::Sdo(error)) => {
-                return Err(ApiError::Sdo {
+                return Err(HandwheelError::Sdo {
                     node: w.config.node as u8,
                     error,
                 });
             }
-            Err(e) => return Err(ApiError::Unavailable(e.to_string())),
+            Err(e) => return Err(HandwheelError::Unavailable(e.to_string())),
         }
         let read = self.read_mode(i).await?;
         if read != mode {
-            return Err(ApiError::FailedPrecondition(format!(
+            return Err(HandwheelError::Device(format!(
                 "handwheel {}: wrote mode {mode:?} but it reads back {read:?}",
                 w.config.name
             )));
@@ -577,4 +571,27 @@ fn execute(
             Err(_) => Executed::Refused,
         }
     });
+}
+
+/// Why a handwheel request failed, by reason.
+#[derive(Debug, thiserror::Error)]
+pub enum HandwheelError {
+    /// No such handwheel.
+    #[error(transparent)]
+    NotFound(#[from] NotFound),
+    /// The wheel answered something it should not (a mode that is neither
+    /// automatic nor manual, a write that does not read back).
+    #[error("{0}")]
+    Device(String),
+    /// An SDO transfer to the wheel failed.
+    #[error("node {node}: {error}")]
+    Sdo {
+        /// The wheel's node id.
+        node: u8,
+        /// The failure (abort code, timeout).
+        error: cangate_canopen::sdo::SdoError,
+    },
+    /// The wheel's bus or master cannot carry the request.
+    #[error("{0}")]
+    Unavailable(String),
 }

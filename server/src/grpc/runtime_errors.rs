@@ -1,0 +1,81 @@
+//! The runtime's typed errors as API errors: each reason gets its gRPC
+//! code here, at the edge, and nowhere in the runtime.
+
+use crate::axes::AxisError;
+use crate::cansmc::CansmcError;
+use crate::error::ApiError;
+use crate::handwheel::HandwheelError;
+use crate::not_found::NotFound;
+use cangate_cansmc::master::ParameterError;
+
+impl From<NotFound> for ApiError {
+    fn from(e: NotFound) -> Self {
+        ApiError::NotFound {
+            kind: e.kind,
+            name: e.name,
+            hint: e.hint,
+        }
+    }
+}
+
+impl From<AxisError> for ApiError {
+    fn from(e: AxisError) -> Self {
+        match e {
+            AxisError::NotFound(e) => e.into(),
+            AxisError::InvalidArgument(m) => ApiError::InvalidArgument(m),
+            AxisError::Refused(e) => e.into(),
+            AxisError::Lease(e) => e.into(),
+            AxisError::NotCoordinable(m) => ApiError::FailedPrecondition(m),
+            AxisError::Unavailable(m) => ApiError::Unavailable(m),
+            AxisError::NoAnswer(m) => ApiError::DeadlineExceeded(m),
+            AxisError::ShuttingDown => ApiError::ShuttingDown,
+        }
+    }
+}
+
+impl From<CansmcError> for ApiError {
+    fn from(e: CansmcError) -> Self {
+        match e {
+            CansmcError::NotFound(e) => e.into(),
+            CansmcError::InvalidArgument(m) => ApiError::InvalidArgument(m),
+            CansmcError::Parameter(e) => match e {
+                ParameterError::UnknownSlave(a) => ApiError::NotFound {
+                    kind: "CANsmc slave",
+                    name: a.to_string(),
+                    hint: String::new(),
+                },
+                ParameterError::Refused { .. } | ParameterError::Rejected { .. } => {
+                    ApiError::FailedPrecondition(e.to_string())
+                }
+                ParameterError::Timeout { .. } => ApiError::DeadlineExceeded(e.to_string()),
+                ParameterError::Unavailable { .. } => ApiError::Unavailable(e.to_string()),
+                ParameterError::Cancelled => ApiError::Aborted(e.to_string()),
+            },
+            CansmcError::NoAnswer(m) => ApiError::DeadlineExceeded(m),
+            CansmcError::ShuttingDown => ApiError::ShuttingDown,
+        }
+    }
+}
+
+impl From<HandwheelError> for ApiError {
+    fn from(e: HandwheelError) -> Self {
+        match e {
+            HandwheelError::NotFound(e) => e.into(),
+            HandwheelError::Device(m) => ApiError::FailedPrecondition(m),
+            HandwheelError::Sdo { node, error } => ApiError::Sdo { node, error },
+            HandwheelError::Unavailable(m) => ApiError::Unavailable(m),
+        }
+    }
+}
+
+/// For handlers that return a [`tonic::Status`] directly.
+macro_rules! into_status {
+    ($($t:ty),*) => {$(
+        impl From<$t> for tonic::Status {
+            fn from(e: $t) -> Self {
+                ApiError::from(e).into()
+            }
+        }
+    )*};
+}
+into_status!(NotFound, AxisError, CansmcError, HandwheelError);
