@@ -2,14 +2,14 @@
 //! tree from the signal handler through the server, the streams and the bus
 //! tasks.
 
-use crate::axes::AxisManager;
+use crate::axes::Axes;
 use crate::canopen::{BootPlan, CanopenBus, NodeFacts};
 use crate::cansmc::CansmcMaster;
 use crate::config::{
     AxisConfig, BackendChoice, BusConfig, Config, NodeConfig, ProcessDataChoice, StuffingChoice,
     parse_object,
 };
-use crate::handwheel::HandwheelManager;
+use crate::handwheel::Handwheels;
 use crate::not_found::NotFound;
 use cangate_can::bus::{Backend, BackendKind, BusHandle, BusInfo};
 use cangate_can::socketcan_bus::SocketCanBus;
@@ -107,8 +107,8 @@ pub struct Gateway {
     sim_smc: BTreeMap<String, Vec<cangate_sim::cansmc_runner::CansmcSlaveHandle>>,
     /// The cycle threads, joined at shutdown.
     cansmc_threads: std::sync::Mutex<Vec<std::thread::JoinHandle<()>>>,
-    axes: Arc<AxisManager>,
-    handwheels: Arc<HandwheelManager>,
+    axes: Arc<Axes>,
+    handwheels: Arc<Handwheels>,
     network: VirtualNetwork,
     /// Simulated devices and virtual-bus faults (the Simulator service).
     simulation: crate::simulation::Simulation,
@@ -334,7 +334,7 @@ impl Gateway {
                 ));
             }
         }
-        let (axes, axis_tasks, mut axis_ports) = AxisManager::start(
+        let (axes, axis_tasks, mut axis_ports) = Axes::start(
             &config.axes,
             &canopen,
             &config.cansmc,
@@ -409,7 +409,7 @@ impl Gateway {
         // thread). Their input from the bus is one wake-up per batch.
         let (handwheels, wheel_tasks) = {
             let _caller_side = caller.as_ref().map(|h| h.enter());
-            HandwheelManager::start(
+            Handwheels::start(
                 &config.handwheels,
                 &canopen,
                 &buses,
@@ -504,12 +504,12 @@ impl Gateway {
     }
 
     /// The axes.
-    pub fn axes(&self) -> &Arc<AxisManager> {
+    pub fn axes(&self) -> &Arc<Axes> {
         &self.axes
     }
 
     /// The handwheels.
-    pub fn handwheels(&self) -> &Arc<HandwheelManager> {
+    pub fn handwheels(&self) -> &Arc<Handwheels> {
         &self.handwheels
     }
 

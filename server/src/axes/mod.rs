@@ -4,7 +4,7 @@
 //! master's cycle thread ([`crate::cansmc`]), which serves the same
 //! [`crate::axis_runner::BusRequest`]s.
 //!
-//! The gRPC `Axes` service is a thin shell over [`AxisManager`].
+//! The gRPC `Axes` service is a thin shell over [`Axes`].
 
 pub mod cia402_task;
 pub mod cyclic_setpoints;
@@ -44,16 +44,16 @@ struct AxisEntry {
     local: usize,
 }
 
-/// What [`AxisManager::start`] returns: the manager, its tasks, and the
+/// What [`Axes::start`] returns: the manager, its tasks, and the
 /// CANsmc axes per master name for the cycle threads.
 pub type Started = (
-    Arc<AxisManager>,
+    Arc<Axes>,
     Vec<tokio::task::JoinHandle<()>>,
     BTreeMap<String, AxisPort>,
 );
 
 /// Every axis of the gateway.
-pub struct AxisManager {
+pub struct Axes {
     axes: Vec<AxisEntry>,
     by_name: HashMap<String, usize>,
     leases: Mutex<LeaseTable>,
@@ -91,7 +91,7 @@ pub struct ShutdownStops {
 /// reach the drive and the drive to confirm, not to wait out its ramp.
 const QUICK_STOP_GRACE: Duration = Duration::from_secs(1);
 
-impl AxisManager {
+impl Axes {
     /// Starts the axis tasks (one per CANopen bus with axes) and hands
     /// over the CANsmc axes: one [`AxisPort`] per `[[cansmc]]` master with
     /// axes (by master name), for its cycle thread to serve.
@@ -179,7 +179,7 @@ impl AxisManager {
             .enumerate()
             .map(|(i, a)| (a.info.config.name.clone(), i))
             .collect();
-        let manager = Arc::new(AxisManager {
+        let manager = Arc::new(Axes {
             axes,
             by_name,
             leases: Mutex::new(LeaseTable::new()),
@@ -664,7 +664,7 @@ impl AxisManager {
 }
 
 /// Stops the moving axes of leases that lapse, at their expiry.
-async fn run_lease_expiry(m: Arc<AxisManager>, cancel: CancellationToken) {
+async fn run_lease_expiry(m: Arc<Axes>, cancel: CancellationToken) {
     loop {
         let next = m.leases.lock().expect("lease lock").next_expiry();
         let sleep = match next {

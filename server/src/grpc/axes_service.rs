@@ -1,8 +1,8 @@
 //! The `cangate.v1.Axes` service: a thin shell over
-//! [`AxisManager`](crate::axes::AxisManager): validation of the request,
+//! [`Axes`](crate::axes::Axes): validation of the request,
 //! control check, audit log, conversion to protobuf.
 
-use crate::axes::{AxisEventKind, AxisManager, AxisUpdate, CommandResult};
+use crate::axes::{Axes, AxisEventKind, AxisUpdate, CommandResult};
 use crate::config::{PositionModeChoice, ProcessDataChoice, StopChoice};
 use crate::error::ApiError;
 use crate::gateway::Gateway;
@@ -11,7 +11,7 @@ use cangate_axis::{Activity, AxisCommand, Outcome};
 use cangate_can::Timestamp;
 use cangate_canopen::cia402::DriveState;
 use cangate_proto::v1 as pb;
-use cangate_proto::v1::axes_server::Axes;
+use cangate_proto::v1::axes_server::Axes as AxesRpc;
 use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
@@ -46,7 +46,7 @@ impl AxesService {
         self
     }
 
-    fn axes(&self) -> &AxisManager {
+    fn axes(&self) -> &Axes {
         self.gateway.axes()
     }
 
@@ -301,7 +301,7 @@ fn activity_pb(a: Activity) -> pb::AxisActivity {
     }
 }
 
-fn status_pb(m: &AxisManager, i: usize, s: Option<&AxisSnapshot>, at: Timestamp) -> pb::AxisStatus {
+fn status_pb(m: &Axes, i: usize, s: Option<&AxisSnapshot>, at: Timestamp) -> pb::AxisStatus {
     let (controlled_by, lease_remaining_ms) =
         m.control(i).map_or((String::new(), 0), |(h, left)| {
             (h, left.as_millis().min(u128::from(u32::MAX)) as u32)
@@ -350,7 +350,7 @@ fn positive_or_default(what: &str, v: f64) -> Result<Option<f64>, ApiError> {
 type UpdateStream = Pin<Box<dyn Stream<Item = Result<pb::AxisUpdate, Status>> + Send>>;
 
 #[tonic::async_trait]
-impl Axes for AxesService {
+impl AxesRpc for AxesService {
     async fn list_axes(
         &self,
         _req: Request<pb::ListAxesRequest>,
@@ -730,7 +730,7 @@ impl Axes for AxesService {
     }
 }
 
-fn event_pb(m: &AxisManager, axis: usize, at: Timestamp, e: AxisEventKind) -> pb::AxisEvent {
+fn event_pb(m: &Axes, axis: usize, at: Timestamp, e: AxisEventKind) -> pb::AxisEvent {
     use pb::axis_event::Kind;
     let kind = match e {
         AxisEventKind::MotionDone {

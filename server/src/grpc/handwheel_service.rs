@@ -3,10 +3,10 @@
 use crate::config::CounterChoice;
 use crate::error::ApiError;
 use crate::gateway::Gateway;
-use crate::handwheel::{HandwheelManager, Mode, WheelFeed};
+use crate::handwheel::{Handwheels, Mode, WheelFeed};
 use cangate_canopen::handwheel::{BaselineReason, Direction, FeedStats, HandwheelAxis};
 use cangate_proto::v1 as pb;
-use cangate_proto::v1::handwheels_server::Handwheels;
+use cangate_proto::v1::handwheels_server::Handwheels as HandwheelsRpc;
 use cangate_proto::v1::simulator_server::Simulator;
 use cangate_sim::{FrameLoss, Multiplier};
 use std::pin::Pin;
@@ -31,7 +31,7 @@ impl HandwheelsService {
         HandwheelsService { gateway }
     }
 
-    fn wheels(&self) -> &HandwheelManager {
+    fn wheels(&self) -> &Handwheels {
         self.gateway.handwheels()
     }
 }
@@ -74,7 +74,7 @@ fn mode_pb(m: Option<Mode>) -> pb::HandwheelMode {
     }
 }
 
-fn wheel_pb(m: &HandwheelManager, i: usize) -> pb::Handwheel {
+fn wheel_pb(m: &Handwheels, i: usize) -> pb::Handwheel {
     let w = m.wheel(i);
     let c = &w.config;
     let b = w.binding.lock().expect("binding lock").clone();
@@ -126,7 +126,7 @@ fn baseline_note(r: BaselineReason) -> &'static str {
     }
 }
 
-fn event_pb(m: &HandwheelManager, f: &WheelFeed) -> pb::FeedEvent {
+fn event_pb(m: &Handwheels, f: &WheelFeed) -> pb::FeedEvent {
     let e = &f.event;
     let note = match (&e.error, e.baseline_reason) {
         (Some(err), _) => err.to_string(),
@@ -178,7 +178,7 @@ fn merge(a: &mut pb::FeedEvent, b: pb::FeedEvent) {
 type FeedStream = Pin<Box<dyn Stream<Item = Result<pb::FeedEvent, Status>> + Send>>;
 
 #[tonic::async_trait]
-impl Handwheels for HandwheelsService {
+impl HandwheelsRpc for HandwheelsService {
     async fn list_handwheels(
         &self,
         _req: Request<pb::ListHandwheelsRequest>,

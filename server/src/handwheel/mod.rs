@@ -7,7 +7,7 @@
 
 mod ledger;
 
-use crate::axes::AxisManager;
+use crate::axes::Axes;
 use crate::canopen::{CanopenBus, NodeEventKind};
 use crate::config::{CounterChoice, HandwheelConfig};
 use crate::not_found::NotFound;
@@ -95,7 +95,7 @@ impl BindingStats {
 pub struct Binding {
     /// Wheel selector position.
     pub wheel_axis: HandwheelAxis,
-    /// Axis index in the [`AxisManager`].
+    /// Axis index in the [`Axes`].
     pub axis: usize,
     /// Axis name.
     pub axis_name: String,
@@ -140,22 +140,22 @@ pub struct WheelFeed {
 }
 
 /// Every handwheel of the gateway.
-pub struct HandwheelManager {
+pub struct Handwheels {
     wheels: Vec<Arc<WheelState>>,
     masters: Vec<CanopenBus>,
     feed: broadcast::Sender<WheelFeed>,
 }
 
-impl HandwheelManager {
+impl Handwheels {
     /// Starts one task per configured wheel.
     pub fn start(
         configs: &[HandwheelConfig],
         masters: &std::collections::BTreeMap<String, CanopenBus>,
         buses: &std::collections::BTreeMap<String, BusHandle>,
-        axes: &Arc<AxisManager>,
+        axes: &Arc<Axes>,
         sims: &HashMap<(String, u32), DeviceHandle<SimHandwheel>>,
         cancel: CancellationToken,
-    ) -> Result<(Arc<HandwheelManager>, Vec<tokio::task::JoinHandle<()>>), String> {
+    ) -> Result<(Arc<Handwheels>, Vec<tokio::task::JoinHandle<()>>), String> {
         let (feed, _) = broadcast::channel(65_536);
         let mut wheels = Vec::new();
         let mut wheel_masters = Vec::new();
@@ -223,7 +223,7 @@ impl HandwheelManager {
             wheel_masters.push(master);
         }
         Ok((
-            Arc::new(HandwheelManager {
+            Arc::new(Handwheels {
                 wheels,
                 masters: wheel_masters,
                 feed,
@@ -358,7 +358,7 @@ struct WheelTask {
     events: broadcast::Receiver<crate::canopen::NodeEvent>,
     control: mpsc::Receiver<Control>,
     feed: broadcast::Sender<WheelFeed>,
-    axes: Arc<AxisManager>,
+    axes: Arc<Axes>,
     cancel: CancellationToken,
 }
 
@@ -486,7 +486,7 @@ fn publish(state: &WheelState, ledger: &BindingLedger) {
 }
 
 /// Takes (and keeps renewing) control of the bound axes.
-fn keep_hold(state: &WheelState, ledger: &mut BindingLedger, axes: &AxisManager, hold: &mut Hold) {
+fn keep_hold(state: &WheelState, ledger: &mut BindingLedger, axes: &Axes, hold: &mut Hold) {
     let now = Instant::now();
     match &hold.lease {
         Some(token) => {
@@ -526,7 +526,7 @@ fn keep_hold(state: &WheelState, ledger: &mut BindingLedger, axes: &AxisManager,
 
 /// Gives the bound axes back (the wheel left manual mode, rebooted or
 /// stopped); a refusal to take them no longer applies either.
-fn release(ledger: &mut BindingLedger, axes: &AxisManager, hold: &mut Hold) {
+fn release(ledger: &mut BindingLedger, axes: &Axes, hold: &mut Hold) {
     if let Some(token) = hold.lease.take() {
         let _ = axes.release(&token);
     }
@@ -537,7 +537,7 @@ fn release(ledger: &mut BindingLedger, axes: &AxisManager, hold: &mut Hold) {
 /// Sends the units now due as relative moves.
 fn execute(
     state: &WheelState,
-    axes: &AxisManager,
+    axes: &Axes,
     ledger: &mut BindingLedger,
     hold: &Hold,
     now: Duration,
