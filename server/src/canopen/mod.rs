@@ -21,6 +21,7 @@ use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio_util::sync::CancellationToken;
 
 pub mod master_heartbeat;
+pub mod scan;
 pub mod sync_thread;
 
 /// Static facts about a node, from the configuration and from reads.

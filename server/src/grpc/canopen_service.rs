@@ -257,26 +257,6 @@ fn node_to_pb(bus: &str, n: &NodeSnapshot) -> pb::Node {
     }
 }
 
-async fn read_u32(
-    master: &CanopenBus,
-    node: NodeId,
-    index: u16,
-    sub: u8,
-    timeout: Duration,
-    caller: &str,
-) -> Option<u32> {
-    let req = SdoRequest::Upload {
-        addr: ObjectAddress::new(index, sub),
-        opts: TransferOptions::default().with_timeout(timeout),
-    };
-    match master.client_sdo(node, req, caller).await {
-        Ok(TransferOutcome::Uploaded(b)) if b.len() >= 4 => {
-            Some(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-        }
-        _ => None,
-    }
-}
-
 type EventStream = Pin<Box<dyn Stream<Item = Result<pb::NodeEvent, Status>> + Send>>;
 type PdoStream = Pin<Box<dyn Stream<Item = Result<pb::PdoMessage, Status>> + Send>>;
 
@@ -482,61 +462,7 @@ impl Canopen for CanopenService {
         } else {
             req.timeout_ms as u64
         });
-        let caller = caller.as_str();
-        let probes = (1..=127u32).map(|n| {
-            let m = m.clone();
-            async move {
-                let node = NodeId::new(n).expect("1..=127");
-                let device_type = read_u32(&m, node, 0x1000, 0, timeout, caller).await?;
-                Some((node, device_type))
-            }
-        });
-        let found: Vec<(NodeId, u32)> = futures::future::join_all(probes)
-            .await
-            .into_iter()
-            .flatten()
-            .collect();
-        for &(node, device_type) in &found {
-            let name = match m
-                .client_sdo(
-                    node,
-                    SdoRequest::Upload {
-                        addr: ObjectAddress::new(0x1008, 0),
-                        opts: TransferOptions::default().with_timeout(timeout),
-                    },
-                    caller,
-                )
-                .await
-            {
-                Ok(TransferOutcome::Uploaded(b)) => Some(
-                    String::from_utf8_lossy(&b)
-                        .trim_end_matches('\0')
-                        .to_string(),
-                ),
-                _ => None,
-            };
-            let mut identity = [0u32; 4];
-            let mut have_identity = true;
-            for (i, slot) in identity.iter_mut().enumerate() {
-                match read_u32(&m, node, 0x1018, i as u8 + 1, timeout, caller).await {
-                    Some(v) => *slot = v,
-                    None => {
-                        have_identity = false;
-                        break;
-                    }
-                }
-            }
-            m.learn(node, |f| {
-                f.device_type = Some(device_type);
-                if name.is_some() {
-                    f.device_name = name.clone();
-                }
-                if have_identity {
-                    f.identity = Some(identity);
-                }
-            });
-        }
-        let ids: Vec<NodeId> = found.iter().map(|(n, _)| *n).collect();
+        let ids = m.scan(timeout, caller.as_str()).await;
         let snap = m.snapshot().await.map_err(|_| ApiError::ShuttingDown)?;
         let nodes = snap
             .iter()
