@@ -6,11 +6,12 @@ use crate::axes::Axes;
 use crate::canopen::{BootPlan, CanopenBus, NodeFacts};
 use crate::cansmc::CansmcMaster;
 use crate::config::{
-    AxisConfig, BackendChoice, BusConfig, Config, NodeConfig, ProcessDataChoice, StuffingChoice,
-    parse_object,
+    AxisConfig, BackendChoice, BusConfig, CanopenConfig, Config, NodeConfig, ProcessDataChoice,
+    StuffingChoice, parse_object,
 };
 use crate::handwheel::Handwheels;
 use crate::not_found::NotFound;
+use crate::simulation::SimulatedDevice;
 use cangate_can::bus::{Backend, BackendKind, BusHandle, BusInfo};
 use cangate_can::socketcan_bus::SocketCanBus;
 use cangate_can::{BitTiming, Stuffing, VirtualBusConfig, VirtualNetwork};
@@ -19,7 +20,6 @@ use cangate_canopen::ObjectAddress;
 use cangate_canopen::eds::Eds;
 use cangate_canopen::pdo::{PdoConfig, PdoKind};
 use cangate_canopen::value::{DataType, Value};
-use cangate_sim::{SimDrive, SimDriveOptions, SimNode, SimNodeOptions};
 use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Duration;
@@ -156,31 +156,10 @@ impl Gateway {
         // master sees their boot-up.
         let mut simulated = Vec::new();
         let mut sim_wheels = std::collections::HashMap::new();
-        let mut simulation = crate::simulation::Simulation::new();
-        for bc in &config.buses {
-            let vbus = (bc.backend == BackendChoice::Virtual)
-                .then(|| network.get(bc.interface()))
-                .flatten();
-            simulation.add_bus(&bc.name, vbus);
-            if bc.has_faults() {
-                simulation
-                    .set_faults(
-                        &bc.name,
-                        crate::simulation::BusFaults {
-                            drop_probability: bc.drop_probability.unwrap_or(0.0),
-                            drop_ids: bc.drop_ids.clone(),
-                            delay: Duration::from_micros(bc.delay_us.unwrap_or(0)),
-                        },
-                    )
-                    .map_err(|e| StartError::Bus {
-                        bus: bc.name.clone(),
-                        message: e.to_string(),
-                    })?;
-            }
-        }
+        let mut simulation = crate::simulation::wiring::bus_faults(&config.buses, &network)
+            .map_err(|(bus, message)| StartError::Bus { bus, message })?;
         let mut sim_smc = BTreeMap::new();
         let mut cansmc_threads = Vec::new();
-        let mut wheel_runs = Vec::new();
         for cc in &config.canopen {
             let bus = buses[&cc.bus].clone();
             let mut facts = BTreeMap::new();
@@ -198,117 +177,24 @@ impl Gateway {
                     let vbus = network
                         .get(buses[&cc.bus].info().interface.as_str())
                         .ok_or_else(|| err("simulated nodes need a virtual bus".into()))?;
-                    // Simulated devices produce a heartbeat at a third of the
-                    // consumer timeout (100 ms when none is configured).
-                    let heartbeat_ms = match nc.heartbeat_timeout_ms {
-                        0 => 100,
-                        t => (t / 3).clamp(1, u16::MAX as u64) as u16,
-                    };
-                    let options = SimNodeOptions {
-                        heartbeat_ms: Some(heartbeat_ms),
-                        ..SimNodeOptions::default()
-                    };
-                    // A CiA 402 device profile (0x1000 low word 0x0192 = 402)
-                    // gets the drive model on top of the CANopen node.
-                    let device_type = eds
-                        .od
-                        .get(ObjectAddress::new(0x1000, 0))
-                        .and_then(|v| v.default_for_node(node))
-                        .and_then(|v| v.as_u32())
-                        .unwrap_or(0);
-                    let is_wheel = nc.eds.as_deref() == Some("builtin:handwheel");
-                    if is_wheel {
-                        let counter = config
-                            .handwheels
-                            .iter()
-                            .find(|h| h.bus == cc.bus && h.node == nc.id)
-                            .map(|h| h.counter)
-                            .unwrap_or_default();
-                        let wheel = cangate_sim::SimHandwheel::new(
-                            eds,
-                            node,
-                            cangate_sim::SimHandwheelOptions {
-                                node: options,
-                                layout: match counter {
-                                    crate::config::CounterChoice::Nibble => {
-                                        cangate_canopen::handwheel::CounterLayout::Nibble
-                                    }
-                                    crate::config::CounterChoice::Bits67 => {
-                                        cangate_canopen::handwheel::CounterLayout::Bits6_7
-                                    }
-                                },
-                                ..Default::default()
-                            },
-                        );
-                        let handle = cangate_sim::DeviceHandle::new(wheel);
-                        sim_wheels.insert((cc.bus.clone(), nc.id), handle.clone());
-                        simulation.add_device(
-                            &cc.bus,
-                            node,
-                            crate::simulation::SimulatedDevice::Handwheel(handle.clone()),
-                        );
-                        // Run through the handle the Simulator service
-                        // turns it with.
-                        wheel_runs.push((vbus.connect(false), handle));
-                    } else {
-                        use crate::simulation::SimulatedDevice;
-                        let device = if device_type & 0xFFFF == 402 {
-                            SimulatedDevice::Drive(cangate_sim::DeviceHandle::new(SimDrive::new(
-                                eds,
-                                node,
-                                SimDriveOptions {
-                                    node: options,
-                                    ..SimDriveOptions::default()
-                                },
-                            )))
-                        } else {
-                            SimulatedDevice::Node(cangate_sim::DeviceHandle::new(SimNode::new(
-                                eds, node, options,
-                            )))
-                        };
-                        simulation.add_device(&cc.bus, node, device.clone());
-                        simulated.push((vbus.connect(false), device));
-                    }
-                }
-                let axis = config
-                    .axes
-                    .iter()
-                    .find(|a| a.bus == cc.bus && a.node == nc.id);
-                let sync = cc.sync_period_us > 0;
-                let master_heartbeat = cc
-                    .master_heartbeat()
-                    .zip(cc.drive_heartbeat_timeout_ms())
-                    .map(|((id, _), timeout)| (id, timeout));
-                let (tpdos, rpdos, mut boot) =
-                    node_plan(nc, node, eds.as_deref(), axis, sync, master_heartbeat)
-                        .map_err(err)?;
-                // A handwheel sends feed only when operational: it is
-                // started at every boot-up like the configured nodes.
-                if boot.is_none()
-                    && config
+                    let wheel_counter = config
                         .handwheels
                         .iter()
-                        .any(|h| h.bus == cc.bus && h.node == nc.id)
-                {
-                    boot = Some(Arc::new(BootPlan::default()));
+                        .find(|h| h.bus == cc.bus && h.node == nc.id)
+                        .map(|h| h.counter);
+                    let device = crate::simulation::wiring::canopen_device(
+                        nc,
+                        node,
+                        eds.clone(),
+                        wheel_counter,
+                    );
+                    if let SimulatedDevice::Handwheel(handle) = &device {
+                        sim_wheels.insert((cc.bus.clone(), nc.id), handle.clone());
+                    }
+                    simulation.add_device(&cc.bus, node, device.clone());
+                    simulated.push((vbus.connect(false), device));
                 }
-                facts.insert(
-                    node,
-                    NodeFacts {
-                        name: nc.name.clone(),
-                        configured: true,
-                        tpdos,
-                        rpdos,
-                        boot,
-                        eds,
-                        heartbeat_timeout: (nc.heartbeat_timeout_ms > 0)
-                            .then(|| Duration::from_millis(nc.heartbeat_timeout_ms)),
-                        // The CiA 402 axis task of the bus reads its drive's
-                        // TPDOs from the bus itself.
-                        tpdos_read_by_axis: axis.is_some(),
-                        ..Default::default()
-                    },
-                );
+                facts.insert(node, node_facts(config, cc, nc, node, eds).map_err(err)?);
             }
             let (master, task) = CanopenBus::spawn(
                 bus,
@@ -353,41 +239,13 @@ impl Gateway {
             };
             // Simulated slaves attach to the virtual buses before the
             // master's first MCT.
-            let sims: Vec<_> = mc
-                .slaves
-                .iter()
-                .filter(|s| s.simulate)
-                .map(crate::cansmc::sim::slave_for)
-                .collect::<Result<_, _>>()
-                .map_err(err)?;
+            let sims = crate::simulation::wiring::start_cansmc_slaves(
+                mc,
+                |name| network.get(buses[name].info().interface.as_str()),
+                shutdown.child_token(),
+            )
+            .map_err(err)?;
             if !sims.is_empty() {
-                let vbus = |name: &str| {
-                    network
-                        .get(buses[name].info().interface.as_str())
-                        .ok_or_else(|| err("simulated slaves need virtual buses".into()))
-                };
-                let ch0 = vbus(&mc.command_bus)?.connect(false);
-                let ch1 = vbus(&mc.status_bus)?.connect(false);
-                // The simulated slaves stand for other hardware: they get a
-                // thread of their own, so that they neither load nor wait
-                // for the gateway's bus thread.
-                let cancel = shutdown.child_token();
-                let slaves = sims.clone();
-                let rt = tokio::runtime::Builder::new_current_thread()
-                    .enable_time()
-                    .build()
-                    .map_err(|e| err(format!("simulated slaves: {e}")))?;
-                std::thread::Builder::new()
-                    .name(format!("sim-{}", mc.name))
-                    .spawn(move || {
-                        rt.block_on(async move {
-                            let runner = cangate_sim::cansmc_runner::spawn_cansmc_slaves(
-                                ch0, ch1, slaves, cancel,
-                            );
-                            let _ = runner.await;
-                        });
-                    })
-                    .map_err(|e| err(format!("simulated slaves: {e}")))?;
                 sim_smc.insert(mc.name.clone(), sims);
             }
             let (master, thread) = CansmcMaster::start(
@@ -423,21 +281,12 @@ impl Gateway {
             message,
         })?;
         tasks.extend(wheel_tasks);
-        for (port, handle) in wheel_runs {
-            tasks.push(cangate_sim::spawn_device(
+        for (port, device) in simulated {
+            tasks.push(crate::simulation::wiring::spawn(
                 port,
-                handle,
+                device,
                 shutdown.child_token(),
             ));
-        }
-        for (port, device) in simulated {
-            use crate::simulation::SimulatedDevice;
-            let cancel = shutdown.child_token();
-            tasks.push(match device {
-                SimulatedDevice::Node(h) => cangate_sim::spawn_device(port, h, cancel),
-                SimulatedDevice::Drive(h) => cangate_sim::spawn_device(port, h, cancel),
-                SimulatedDevice::Handwheel(h) => cangate_sim::spawn_device(port, h, cancel),
-            });
         }
         Ok((
             Gateway {
@@ -552,6 +401,52 @@ impl Gateway {
 }
 
 type NodePlan = (Vec<PdoConfig>, Vec<PdoConfig>, Option<Arc<BootPlan>>);
+
+/// What the master knows of configured node `nc` before it is heard of:
+/// its PDOs and boot procedure (from `node_plan`), EDS and heartbeat.
+fn node_facts(
+    config: &Config,
+    cc: &CanopenConfig,
+    nc: &NodeConfig,
+    node: NodeId,
+    eds: Option<Arc<Eds>>,
+) -> Result<NodeFacts, String> {
+    let axis = config
+        .axes
+        .iter()
+        .find(|a| a.bus == cc.bus && a.node == nc.id);
+    let sync = cc.sync_period_us > 0;
+    let master_heartbeat = cc
+        .master_heartbeat()
+        .zip(cc.drive_heartbeat_timeout_ms())
+        .map(|((id, _), timeout)| (id, timeout));
+    let (tpdos, rpdos, mut boot) =
+        node_plan(nc, node, eds.as_deref(), axis, sync, master_heartbeat)?;
+    // A handwheel sends feed only when operational: it is started at every
+    // boot-up like the configured nodes.
+    if boot.is_none()
+        && config
+            .handwheels
+            .iter()
+            .any(|h| h.bus == cc.bus && h.node == nc.id)
+    {
+        boot = Some(Arc::new(BootPlan::default()));
+    }
+    Ok(NodeFacts {
+        name: nc.name.clone(),
+        configured: true,
+        tpdos,
+        rpdos,
+        boot,
+        eds,
+        heartbeat_timeout: (nc.heartbeat_timeout_ms > 0)
+            .then(|| Duration::from_millis(nc.heartbeat_timeout_ms)),
+        // The CiA 402 axis task of the bus reads its drive's TPDOs from
+        // the bus itself.
+        tpdos_read_by_axis: axis.is_some(),
+        ..Default::default()
+    })
+}
 
 /// The PDO layouts the master uses for a node, and its boot procedure. A
 /// node that backs an axis gets the axis process data layout

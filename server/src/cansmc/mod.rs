@@ -7,7 +7,6 @@
 
 pub mod cycle_thread;
 pub mod jitter;
-pub mod sim;
 
 pub use crate::axis_runner::AxisPort;
 use crate::not_found::NotFound;

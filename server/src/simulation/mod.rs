@@ -9,6 +9,12 @@
 //! real failure would: a power cut silences it and it boots with its
 //! power-on defaults; an EMCY or a drive fault goes out on the bus; I/O
 //! inputs change the objects its TPDOs carry.
+//!
+//! [`wiring`] creates the simulated devices of a configuration at start-up
+//! and runs them; [`cansmc_slaves`] builds the simulated CANsmc slaves.
+
+pub mod cansmc_slaves;
+pub mod wiring;
 
 use cangate_can::{BusState, VirtualBus};
 use cangate_canopen::NodeId;
