@@ -2,6 +2,7 @@
 //! [`Axes`](crate::axes::Axes): validation of the request,
 //! control check, audit log, conversion to protobuf.
 
+use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_of};
 use crate::axes::{Axes, AxisEventKind, AxisUpdate, CommandResult};
 use crate::config::{PositionModeChoice, ProcessDataChoice, StopChoice};
 use crate::error::ApiError;
@@ -12,10 +13,8 @@ use cangate_can::Timestamp;
 use cangate_canopen::cia402::DriveState;
 use cangate_proto::v1 as pb;
 use cangate_proto::v1::axes_server::Axes as AxesRpc;
-use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
-use tokio_stream::Stream;
 use tonic::{Request, Response, Status};
 
 /// Implementation of the Axes service.
@@ -347,7 +346,7 @@ fn positive_or_default(what: &str, v: f64) -> Result<Option<f64>, ApiError> {
     }
 }
 
-type UpdateStream = Pin<Box<dyn Stream<Item = Result<pb::AxisUpdate, Status>> + Send>>;
+type UpdateStream = MessageStream<pb::AxisUpdate>;
 
 #[tonic::async_trait]
 impl AxesRpc for AxesService {
@@ -652,7 +651,7 @@ impl AxesRpc for AxesService {
             }
             Some(w)
         };
-        let mut rx = m.subscribe();
+        let rx = m.subscribe();
         let changes_only = r.changes_only;
         let shutdown = gateway.shutdown_token();
         let (tx, out) = tokio::sync::mpsc::channel(1024);
@@ -672,61 +671,43 @@ impl AxesRpc for AxesService {
                 }
             })
             .collect();
-        tokio::spawn(async move {
-            let mut last: Vec<Option<Arc<AxisSnapshot>>> = vec![None; m.len()];
-            for u in initial {
-                if tx.send(Ok(u)).await.is_err() {
-                    return;
-                }
-            }
-            loop {
-                let u = tokio::select! {
-                    _ = shutdown.cancelled() => {
-                        let _ = tx.send(Err(Status::unavailable("the gateway is shutting down"))).await;
-                        return;
-                    }
-                    _ = tx.closed() => return,
-                    u = rx.recv() => u,
-                };
-                let item = match u {
-                    Ok(AxisUpdate::Status { axis, snapshot, at }) => {
-                        if wanted.as_ref().is_some_and(|w| !w[axis]) {
-                            continue;
-                        }
-                        if changes_only && last[axis].as_deref() == Some(snapshot.as_ref()) {
-                            continue;
+        let mut last: Vec<Option<Arc<AxisSnapshot>>> = vec![None; m.len()];
+        spawn_forward(
+            "StreamAxisState",
+            rx,
+            tx,
+            initial,
+            shutdown,
+            AtShutdown::Unavailable,
+            move |received| {
+                let update = match received {
+                    Received::Item(AxisUpdate::Status { axis, snapshot, at }) => {
+                        if wanted.as_ref().is_some_and(|w| !w[axis])
+                            || (changes_only && last[axis].as_deref() == Some(snapshot.as_ref()))
+                        {
+                            return None;
                         }
                         last[axis] = Some(snapshot.clone());
                         pb::axis_update::Update::Status(status_pb(&m, axis, Some(&snapshot), at))
                     }
-                    Ok(AxisUpdate::Event { axis, at, event }) => {
+                    Received::Item(AxisUpdate::Event { axis, at, event }) => {
                         if wanted.as_ref().is_some_and(|w| !w[axis]) {
-                            continue;
+                            return None;
                         }
                         pb::axis_update::Update::Event(event_pb(&m, axis, at, event))
                     }
-                    Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
-                        crate::metrics::stream_lag("StreamAxisState", n);
-                        pb::axis_update::Update::Event(pb::AxisEvent {
-                            axis: String::new(),
-                            timestamp_us: Timestamp::now().0 / 1000,
-                            kind: Some(pb::axis_event::Kind::Lost(n)),
-                        })
-                    }
-                    Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
+                    Received::Lost(n) => pb::axis_update::Update::Event(pb::AxisEvent {
+                        axis: String::new(),
+                        timestamp_us: Timestamp::now().0 / 1000,
+                        kind: Some(pb::axis_event::Kind::Lost(n)),
+                    }),
                 };
-                if tx
-                    .send(Ok(pb::AxisUpdate { update: Some(item) }))
-                    .await
-                    .is_err()
-                {
-                    return;
-                }
-            }
-        });
-        Ok(Response::new(Box::pin(
-            tokio_stream::wrappers::ReceiverStream::new(out),
-        )))
+                Some(pb::AxisUpdate {
+                    update: Some(update),
+                })
+            },
+        );
+        Ok(Response::new(stream_of(out)))
     }
 }
 

@@ -1,5 +1,6 @@
 //! The `cangate.v1.Canopen` service: nodes, NMT, SDO, events.
 
+use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_of};
 use crate::canopen::{CanopenBus, CanopenError, NodeEventKind, NodeSnapshot};
 use crate::error::ApiError;
 use crate::gateway::Gateway;
@@ -12,10 +13,8 @@ use cangate_canopen::value::{DataType, Value};
 use cangate_canopen::{NodeId, ObjectAddress};
 use cangate_proto::v1 as pb;
 use cangate_proto::v1::canopen_server::Canopen;
-use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
-use tokio_stream::Stream;
 use tonic::{Request, Response, Status};
 
 /// Implementation of the Canopen service.
@@ -257,8 +256,8 @@ fn node_to_pb(bus: &str, n: &NodeSnapshot) -> pb::Node {
     }
 }
 
-type EventStream = Pin<Box<dyn Stream<Item = Result<pb::NodeEvent, Status>> + Send>>;
-type PdoStream = Pin<Box<dyn Stream<Item = Result<pb::PdoMessage, Status>> + Send>>;
+type EventStream = MessageStream<pb::NodeEvent>;
+type PdoStream = MessageStream<pb::PdoMessage>;
 
 #[tonic::async_trait]
 impl Canopen for CanopenService {
@@ -488,29 +487,28 @@ impl Canopen for CanopenService {
         let (tx, rx) = tokio::sync::mpsc::channel(1024);
         let cancel = self.gateway.shutdown_token();
         for m in masters {
-            let mut pdos = m.pdos();
-            let (tx, only, cancel) = (tx.clone(), only.clone(), cancel.clone());
-            tokio::spawn(async move {
-                let mut lost = 0u64;
-                loop {
-                    let update = tokio::select! {
-                        _ = cancel.cancelled() => break,
-                        _ = tx.closed() => break,
-                        u = pdos.recv() => u,
-                    };
-                    let u = match update {
-                        Ok(u) => u,
-                        Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
-                            crate::metrics::stream_lag("StreamPdo", n);
+            let only = only.clone();
+            let mut lost = 0u64;
+            spawn_forward(
+                "StreamPdo",
+                m.pdos(),
+                tx.clone(),
+                Vec::new(),
+                cancel.clone(),
+                AtShutdown::End,
+                move |received| {
+                    let u = match received {
+                        Received::Item(u) => u,
+                        // Told with the next message (lost_before).
+                        Received::Lost(n) => {
                             lost += n;
-                            continue;
+                            return None;
                         }
-                        Err(tokio::sync::broadcast::error::RecvError::Closed) => break,
                     };
                     if !only.is_empty() && !only.contains(&(u.node.get() as u32)) {
-                        continue;
+                        return None;
                     }
-                    let msg = pb::PdoMessage {
+                    Some(pb::PdoMessage {
                         bus: m.bus().to_string(),
                         node: u.node.get() as u32,
                         pdo: u.num as u32,
@@ -527,16 +525,11 @@ impl Canopen for CanopenService {
                             })
                             .collect(),
                         lost_before: std::mem::take(&mut lost),
-                    };
-                    if tx.send(Ok(msg)).await.is_err() {
-                        break;
-                    }
-                }
-            });
+                    })
+                },
+            );
         }
-        Ok(Response::new(Box::pin(
-            tokio_stream::wrappers::ReceiverStream::new(rx),
-        )))
+        Ok(Response::new(stream_of(rx)))
     }
 
     async fn write_pdo(
@@ -615,78 +608,64 @@ impl Canopen for CanopenService {
         let (tx, rx) = tokio::sync::mpsc::channel(256);
         let cancel = self.gateway.shutdown_token();
         for m in masters {
-            let mut events = m.events();
-            let tx = tx.clone();
             let only = only.clone();
-            let cancel = cancel.clone();
-            tokio::spawn(async move {
-                loop {
-                    let ev = tokio::select! {
-                        _ = cancel.cancelled() => break,
-                        _ = tx.closed() => break,
-                        ev = events.recv() => ev,
-                    };
+            spawn_forward(
+                "StreamNodeEvents",
+                m.events(),
+                tx.clone(),
+                Vec::new(),
+                cancel.clone(),
+                AtShutdown::End,
+                move |received| {
                     use pb::node_event::Event as E;
-                    let msg = match ev {
-                        Ok(ev) => {
-                            if !only.is_empty() && !only.contains(&(ev.node.get() as u32)) {
-                                continue;
-                            }
-                            let event = match &ev.kind {
-                                NodeEventKind::BootUp => E::BootUp(pb::BootUp {}),
-                                NodeEventKind::StateChanged { from, to } => {
-                                    E::StateChanged(pb::StateChange {
-                                        from: nmt_state_to_pb(*from) as i32,
-                                        to: nmt_state_to_pb(Some(*to)) as i32,
-                                    })
-                                }
-                                NodeEventKind::HeartbeatLost { timeout } => {
-                                    E::HeartbeatLost(pb::HeartbeatLost {
-                                        timeout_ms: timeout.as_millis() as u32,
-                                    })
-                                }
-                                NodeEventKind::HeartbeatRecovered { state, after } => {
-                                    E::HeartbeatRecovered(pb::HeartbeatRecovered {
-                                        state: nmt_state_to_pb(Some(*state)) as i32,
-                                        silent_ms: after.as_millis() as u64,
-                                    })
-                                }
-                                NodeEventKind::Emcy(e) => E::Emcy(emcy_to_pb(e, ev.at)),
-                                NodeEventKind::BootCompleted => {
-                                    E::BootCompleted(pb::BootCompleted {})
-                                }
-                                NodeEventKind::BootFailed { reason } => {
-                                    E::BootFailed(pb::BootFailed {
-                                        reason: reason.clone(),
-                                    })
-                                }
-                            };
-                            pb::NodeEvent {
-                                bus: m.bus().to_string(),
-                                node: ev.node.get() as u32,
-                                timestamp_ns: ev.at.as_nanos(),
-                                event: Some(event),
-                            }
-                        }
-                        Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
-                            crate::metrics::stream_lag("StreamNodeEvents", n);
-                            pb::NodeEvent {
+                    let ev = match received {
+                        Received::Item(ev) => ev,
+                        Received::Lost(n) => {
+                            return Some(pb::NodeEvent {
                                 bus: m.bus().to_string(),
                                 node: 0,
                                 timestamp_ns: Timestamp::now().as_nanos(),
                                 event: Some(E::Lost(pb::EventsLost { count: n })),
-                            }
+                            });
                         }
-                        Err(tokio::sync::broadcast::error::RecvError::Closed) => break,
                     };
-                    if tx.send(Ok(msg)).await.is_err() {
-                        break;
+                    if !only.is_empty() && !only.contains(&(ev.node.get() as u32)) {
+                        return None;
                     }
-                }
-            });
+                    let event = match &ev.kind {
+                        NodeEventKind::BootUp => E::BootUp(pb::BootUp {}),
+                        NodeEventKind::StateChanged { from, to } => {
+                            E::StateChanged(pb::StateChange {
+                                from: nmt_state_to_pb(*from) as i32,
+                                to: nmt_state_to_pb(Some(*to)) as i32,
+                            })
+                        }
+                        NodeEventKind::HeartbeatLost { timeout } => {
+                            E::HeartbeatLost(pb::HeartbeatLost {
+                                timeout_ms: timeout.as_millis() as u32,
+                            })
+                        }
+                        NodeEventKind::HeartbeatRecovered { state, after } => {
+                            E::HeartbeatRecovered(pb::HeartbeatRecovered {
+                                state: nmt_state_to_pb(Some(*state)) as i32,
+                                silent_ms: after.as_millis() as u64,
+                            })
+                        }
+                        NodeEventKind::Emcy(e) => E::Emcy(emcy_to_pb(e, ev.at)),
+                        NodeEventKind::BootCompleted => E::BootCompleted(pb::BootCompleted {}),
+                        NodeEventKind::BootFailed { reason } => E::BootFailed(pb::BootFailed {
+                            reason: reason.clone(),
+                        }),
+                    };
+                    Some(pb::NodeEvent {
+                        bus: m.bus().to_string(),
+                        node: ev.node.get() as u32,
+                        timestamp_ns: ev.at.as_nanos(),
+                        event: Some(event),
+                    })
+                },
+            );
         }
-        Ok(Response::new(Box::pin(
-            tokio_stream::wrappers::ReceiverStream::new(rx),
-        )))
+        Ok(Response::new(stream_of(rx)))
     }
 }

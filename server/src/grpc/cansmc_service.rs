@@ -2,16 +2,15 @@
 //! cycle timing and slaves, slave parameters, restarts
 //! (`proto/cangate/v1/cansmc.proto`).
 
+use super::forward::{MessageStream, Received, recv_counted, stream_of};
 use crate::cansmc::{CansmcEvent, CansmcMaster, CansmcStatus, SlaveView};
 use crate::error::ApiError;
 use crate::gateway::Gateway;
 use cangate_cansmc::master::{Phase, SlaveState};
 use cangate_proto::v1 as pb;
 use cangate_proto::v1::cansmc_server::Cansmc;
-use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
-use tokio_stream::Stream;
 use tonic::{Request, Response, Status};
 
 /// Period of StreamCycleStats when the request gives none.
@@ -203,7 +202,7 @@ fn peer<T>(req: &Request<T>) -> String {
     super::caller(req)
 }
 
-type StatsStream = Pin<Box<dyn Stream<Item = Result<pb::CycleStatsUpdate, Status>> + Send>>;
+type StatsStream = MessageStream<pb::CycleStatsUpdate>;
 
 #[tonic::async_trait]
 impl Cansmc for CansmcService {
@@ -301,14 +300,11 @@ impl Cansmc for CansmcService {
                         return;
                     }
                     _ = tx.closed() => return,
-                    e = events.recv(), if events_open => match e {
-                        Ok(e) if pending.len() < MAX_PENDING_EVENTS => pending.push(event_pb(e)),
-                        Ok(_) => lost += 1,
-                        Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
-                            crate::metrics::stream_lag("StreamCycleStats", n);
-                            lost += n;
-                        }
-                        Err(tokio::sync::broadcast::error::RecvError::Closed) => events_open = false,
+                    e = recv_counted("StreamCycleStats", &mut events), if events_open => match e {
+                        Some(Received::Item(e)) if pending.len() < MAX_PENDING_EVENTS => pending.push(event_pb(e)),
+                        Some(Received::Item(_)) => lost += 1,
+                        Some(Received::Lost(n)) => lost += n,
+                        None => events_open = false,
                     },
                     _ = tick.tick() => {
                         let update = pb::CycleStatsUpdate {
@@ -323,9 +319,7 @@ impl Cansmc for CansmcService {
                 }
             }
         });
-        Ok(Response::new(Box::pin(
-            tokio_stream::wrappers::ReceiverStream::new(out),
-        )))
+        Ok(Response::new(stream_of(out)))
     }
 
     async fn restart(

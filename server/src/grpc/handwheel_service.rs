@@ -1,5 +1,6 @@
 //! The `cangate.v1.Handwheels` and `cangate.v1.Simulator` services.
 
+use super::forward::{MessageStream, Received, recv_counted, stream_of};
 use crate::config::CounterChoice;
 use crate::error::ApiError;
 use crate::gateway::Gateway;
@@ -9,10 +10,8 @@ use cangate_proto::v1 as pb;
 use cangate_proto::v1::handwheels_server::Handwheels as HandwheelsRpc;
 use cangate_proto::v1::simulator_server::Simulator;
 use cangate_sim::{FrameLoss, Multiplier};
-use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
-use tokio_stream::Stream;
 use tonic::{Request, Response, Status};
 
 /// Longest feed window a client may ask for: events are held for this
@@ -175,7 +174,7 @@ fn merge(a: &mut pb::FeedEvent, b: pb::FeedEvent) {
     }
 }
 
-type FeedStream = Pin<Box<dyn Stream<Item = Result<pb::FeedEvent, Status>> + Send>>;
+type FeedStream = MessageStream<pb::FeedEvent>;
 
 #[tonic::async_trait]
 impl HandwheelsRpc for HandwheelsService {
@@ -278,15 +277,14 @@ impl HandwheelsRpc for HandwheelsService {
                             }
                         }
                     }
-                    f = rx.recv() => {
+                    f = recv_counted("StreamFeed", &mut rx) => {
                         let f = match f {
-                            Ok(f) => f,
-                            Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
-                                crate::metrics::stream_lag("StreamFeed", n);
+                            Some(Received::Item(f)) => f,
+                            Some(Received::Lost(n)) => {
                                 lost += n;
                                 continue;
                             }
-                            Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
+                            None => return,
                         };
                         if wanted.as_ref().is_some_and(|w| !w[f.wheel]) {
                             continue;
@@ -312,9 +310,7 @@ impl HandwheelsRpc for HandwheelsService {
                 }
             }
         });
-        Ok(Response::new(Box::pin(
-            tokio_stream::wrappers::ReceiverStream::new(out),
-        )))
+        Ok(Response::new(stream_of(out)))
     }
 }
 
