@@ -233,6 +233,23 @@ pub fn frame_from_pb(f: &pb::Frame) -> Option<Frame> {
 
 pub use cangate_proto::frames::filter_to_pb;
 
+/// Type URL of the `cangate.v1.SdoAbortDetails` detail of SDO errors.
+pub const SDO_ABORT_DETAILS_TYPE_URL: &str = "type.googleapis.com/cangate.v1.SdoAbortDetails";
+
+/// The `cangate.v1.SdoAbortDetails` an error status carries: the gateway
+/// packs it as a `google.protobuf.Any` in the `google.rpc.Status` of
+/// `grpc-status-details-bin` (the standard richer error model), next to a
+/// `google.rpc.ErrorInfo`. `None` for errors not caused by an SDO transfer.
+pub fn sdo_abort_details(status: &tonic::Status) -> Option<pb::SdoAbortDetails> {
+    use prost::Message;
+    tonic_types::Status::decode(status.details())
+        .ok()?
+        .details
+        .iter()
+        .find(|any| any.type_url == SDO_ABORT_DETAILS_TYPE_URL)
+        .and_then(|any| pb::SdoAbortDetails::decode(any.value.as_slice()).ok())
+}
+
 impl Client {
     /// The underlying channel (with the token interceptor), for the
     /// generated clients of other services.

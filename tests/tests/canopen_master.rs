@@ -7,7 +7,6 @@ mod common;
 use cangate_client::pb;
 use cangate_client::pb::node_event::Event;
 use common::*;
-use prost::Message;
 use std::time::Duration;
 use tonic::Code;
 
@@ -150,7 +149,7 @@ async fn sdo_errors_reach_the_client_typed() {
         panic!("{err}")
     };
     assert_eq!(status.code(), Code::FailedPrecondition);
-    let details = pb::SdoAbortDetails::decode(status.details()).unwrap();
+    let details = cangate_client::sdo_abort_details(&status).expect("SdoAbortDetails");
     assert_eq!(details.code, 0x0601_0002);
     assert_eq!(details.name, "attempt to write a read only object");
     assert_eq!((details.index, details.subindex), (0x1000, 0));
