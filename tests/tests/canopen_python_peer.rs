@@ -38,7 +38,6 @@ use anyhow::{Context, Result, anyhow, bail, ensure};
 use cangate_client::pb;
 use cangate_client::pb::node_event::Event as NodeEv;
 use cangate_client::pb::stream_event::Event as BusEv;
-use prost::Message;
 use std::collections::VecDeque;
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
@@ -595,8 +594,8 @@ fn expect_abort(
         status.code() == grpc,
         "abort 0x{code:08X} should be {grpc:?}: {status:?}"
     );
-    let details = pb::SdoAbortDetails::decode(status.details())
-        .with_context(|| format!("decoding the details of {status:?}"))?;
+    let details = cangate_client::sdo_abort_details(status)
+        .with_context(|| format!("no SdoAbortDetails in the details of {status:?}"))?;
     ensure!(
         details.code == code
             && details.index == index
