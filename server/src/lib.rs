@@ -1,26 +1,31 @@
 //! cangate-server: owns the CAN buses and serves them over gRPC.
 //!
-//! - [`config`]: configuration file, environment overrides, embedded demo.
-//! - [`serve`]: the API edge: the gRPC server, its layers, start-up and
-//!   shutdown of the running server.
-//! - [`gateway`]: the runtime's registry: buses, masters, axes, handwheels.
-//! - [`grpc`]: the gRPC services and protobuf conversions.
-//! - [`canopen`]: the CANopen master runtime of each bus.
-//! - [`cansmc`]: the CANsmc masters (dual-bus motion control), their cycle
-//!   threads and axes.
-//! - [`axes`]: the axis layer (CiA 402 drives), control leases.
-//! - [`handwheel`]: CNC handwheels: feed decoding, mode, axis binding.
-//! - [`metrics`]: the Prometheus endpoint.
-//! - [`security`]: roles, tokens, TLS/mTLS, limits, audit log.
-//! - [`simulation`]: simulated devices and virtual-bus faults at run time.
-//! - [`error`]: the one mapping from domain errors to gRPC statuses.
+//! Three layers; every arrow points down (`server/tests/import_graph.rs`
+//! fails on a module that names one above it or on a circle):
+//!
+//! 1. **API edge**: [`serve`] starts the gRPC server (services, health,
+//!    reflection, the [`security`] and [`metrics`] layers, the Prometheus
+//!    endpoint) and stops it; [`grpc`] holds the services, every protobuf
+//!    conversion, the stream forwarding and the one mapping of errors to
+//!    gRPC statuses (`grpc::error::ApiError` exists only there).
+//! 2. **Runtime**: [`gateway`] is the registry that starts and holds the
+//!    buses and everything on them: the CANopen masters ([`canopen`]), the
+//!    axis layer ([`axes`]) and its runners (the CiA 402 task of each bus,
+//!    the cycle thread of each CANsmc master in [`cansmc`], both speaking
+//!    [`axis_runner`]), the handwheels ([`handwheel`]) and the simulated
+//!    devices ([`simulation`]). Its handles return typed errors
+//!    ([`axes::AxisError`], [`cansmc::CansmcError`],
+//!    [`handwheel::HandwheelError`], [`not_found::NotFound`]).
+//! 3. **Configuration**: [`config`], one file per section, validated before
+//!    anything starts; it names nothing else of the server.
+//!
+//! [`realtime`] (thread priorities) is used by the runtime's threads.
 
 pub mod axes;
 pub mod axis_runner;
 pub mod canopen;
 pub mod cansmc;
 pub mod config;
-pub mod error;
 pub mod gateway;
 pub mod grpc;
 pub mod handwheel;

@@ -2,10 +2,10 @@
 //! [`Axes`](crate::axes::Axes): validation of the request,
 //! control check, audit log, conversion to protobuf.
 
+use super::error::ApiError;
 use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_of};
 use crate::axes::{Axes, AxisEventKind, AxisUpdate, CommandResult};
 use crate::config::{PositionModeChoice, ProcessDataChoice, StopChoice};
-use crate::error::ApiError;
 use crate::gateway::Gateway;
 use cangate_axis::cia402::AxisSnapshot;
 use cangate_axis::{Activity, AxisCommand, Outcome};

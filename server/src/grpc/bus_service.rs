@@ -1,6 +1,6 @@
 //! The `cangate.v1.Bus` service: list, send, stream.
 
-use crate::error::ApiError;
+use super::error::ApiError;
 use crate::gateway::Gateway;
 use crate::grpc::convert::{
     bus_info_to_pb, filter_from_pb, frame_from_pb, item_to_pb, status_to_pb,

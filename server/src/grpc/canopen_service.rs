@@ -1,8 +1,8 @@
 //! The `cangate.v1.Canopen` service: nodes, NMT, SDO, events.
 
+use super::error::ApiError;
 use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_of};
 use crate::canopen::{CanopenBus, CanopenError, NodeEventKind, NodeSnapshot};
-use crate::error::ApiError;
 use crate::gateway::Gateway;
 use cangate_can::Timestamp;
 use cangate_canopen::emcy::Emcy;

@@ -2,9 +2,9 @@
 //! cycle timing and slaves, slave parameters, restarts
 //! (`proto/cangate/v1/cansmc.proto`).
 
+use super::error::ApiError;
 use super::forward::{MessageStream, Received, recv_counted, stream_of};
 use crate::cansmc::{CansmcEvent, CansmcMaster, CansmcStatus, SlaveView};
-use crate::error::ApiError;
 use crate::gateway::Gateway;
 use cangate_cansmc::master::{Phase, SlaveState};
 use cangate_proto::v1 as pb;

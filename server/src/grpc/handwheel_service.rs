@@ -1,8 +1,8 @@
 //! The `cangate.v1.Handwheels` and `cangate.v1.Simulator` services.
 
+use super::error::ApiError;
 use super::forward::{MessageStream, Received, recv_counted, stream_of};
 use crate::config::CounterChoice;
-use crate::error::ApiError;
 use crate::gateway::Gateway;
 use crate::handwheel::{Handwheels, Mode, WheelFeed};
 use cangate_canopen::handwheel::{BaselineReason, Direction, FeedStats, HandwheelAxis};

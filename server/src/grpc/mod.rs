@@ -5,6 +5,7 @@ pub mod bus_service;
 pub mod canopen_service;
 pub mod cansmc_service;
 pub mod convert;
+pub mod error;
 mod forward;
 pub mod handwheel_service;
 mod runtime_errors;

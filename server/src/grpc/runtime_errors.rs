@@ -1,9 +1,9 @@
 //! The runtime's typed errors as API errors: each reason gets its gRPC
 //! code here, at the edge, and nowhere in the runtime.
 
+use super::error::ApiError;
 use crate::axes::AxisError;
 use crate::cansmc::CansmcError;
-use crate::error::ApiError;
 use crate::handwheel::HandwheelError;
 use crate::not_found::NotFound;
 use cangate_cansmc::master::ParameterError;

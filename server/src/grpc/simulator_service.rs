@@ -3,7 +3,7 @@
 //! type (`SimulatorService`) lives with the handwheels, whose wheels it
 //! turns; its methods call these.
 
-use crate::error::ApiError;
+use super::error::ApiError;
 use crate::gateway::Gateway;
 use crate::simulation::{BusFaultState, BusFaults, DeviceKind, DeviceState, SimulationError};
 use cangate_proto::v1 as pb;

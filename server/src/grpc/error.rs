@@ -100,22 +100,7 @@ pub enum ApiError {
     },
 }
 
-/// At most this many bytes of a caller-chosen string go into a message.
-pub const QUOTE_BYTES: usize = 64;
-
-/// A caller-chosen string quoted for a message: in full when short, else
-/// its start and its length, so that no message grows with the caller's
-/// input.
-pub fn quote_prefix(s: &str) -> String {
-    if s.len() <= QUOTE_BYTES {
-        return format!("{s:?}");
-    }
-    let mut end = QUOTE_BYTES;
-    while !s.is_char_boundary(end) {
-        end -= 1;
-    }
-    format!("{:?}… ({} bytes)", &s[..end], s.len())
-}
+pub use crate::not_found::{QUOTE_BYTES, quote_prefix};
 
 /// The start of `s`, at most `max` bytes, cut at a character boundary.
 fn cut(s: &str, max: usize) -> &str {
