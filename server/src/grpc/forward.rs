@@ -77,10 +77,10 @@ pub(crate) fn spawn_forward<T, M>(
                 r = recv_counted(rpc, &mut rx) => r,
             };
             let Some(received) = received else { return };
-            if let Some(m) = map(received) {
-                if tx.send(Ok(m)).await.is_err() {
-                    return;
-                }
+            if let Some(m) = map(received)
+                && tx.send(Ok(m)).await.is_err()
+            {
+                return;
             }
         }
     });
