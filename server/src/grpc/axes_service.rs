@@ -2,15 +2,15 @@
 //! [`Axes`](crate::axes::Axes): validation of the request,
 //! control check, audit log, conversion to protobuf.
 
+use super::convert::axes::{event_pb, outcome_pb, resolution, status_pb};
 use super::error::ApiError;
 use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_of};
-use crate::axes::{Axes, AxisEventKind, AxisUpdate, CommandResult};
+use crate::axes::{Axes, AxisUpdate, CommandResult};
 use crate::config::{PositionModeChoice, ProcessDataChoice, StopChoice};
 use crate::gateway::Gateway;
 use cangate_axis::cia402::AxisSnapshot;
-use cangate_axis::{Activity, AxisCommand, Outcome};
+use cangate_axis::{AxisCommand, Outcome};
 use cangate_can::Timestamp;
-use cangate_canopen::cia402::DriveState;
 use cangate_proto::v1 as pb;
 use cangate_proto::v1::axes_server::Axes as AxesRpc;
 use std::sync::Arc;
@@ -235,13 +235,6 @@ fn owner<T>(req: &Request<T>) -> Option<String> {
         .map(|id| format!("{} {}", id.method, id.name))
 }
 
-/// The slowest velocity (or acceleration) a drive can carry out: one
-/// count per second (per second²). Below it the set-point rounds to zero
-/// and a move would never end.
-fn resolution(counts_per_unit: f64) -> f64 {
-    1.0 / counts_per_unit.abs()
-}
-
 /// A move's velocity or acceleration: 0 for the axis default, else
 /// positive, finite and not below the drive's resolution (the maximum is
 /// the axis layer's check).
@@ -262,76 +255,6 @@ fn motion_value(
         )));
     }
     Ok(v)
-}
-
-fn outcome_pb(o: Option<Outcome>) -> pb::Outcome {
-    match o {
-        None => pb::Outcome::Accepted,
-        Some(Outcome::Completed) => pb::Outcome::Completed,
-        Some(Outcome::Superseded) => pb::Outcome::Superseded,
-        Some(Outcome::Fault) => pb::Outcome::Fault,
-        Some(Outcome::Timeout) => pb::Outcome::Timeout,
-        Some(Outcome::Stopped) => pb::Outcome::Stopped,
-    }
-}
-
-fn state_pb(s: Option<DriveState>) -> pb::DriveState {
-    match s {
-        None | Some(DriveState::Unknown) => pb::DriveState::Unspecified,
-        Some(DriveState::NotReadyToSwitchOn) => pb::DriveState::NotReadyToSwitchOn,
-        Some(DriveState::SwitchOnDisabled) => pb::DriveState::SwitchOnDisabled,
-        Some(DriveState::ReadyToSwitchOn) => pb::DriveState::ReadyToSwitchOn,
-        Some(DriveState::SwitchedOn) => pb::DriveState::SwitchedOn,
-        Some(DriveState::OperationEnabled) => pb::DriveState::OperationEnabled,
-        Some(DriveState::QuickStopActive) => pb::DriveState::QuickStopActive,
-        Some(DriveState::FaultReactionActive) => pb::DriveState::FaultReactionActive,
-        Some(DriveState::Fault) => pb::DriveState::Fault,
-    }
-}
-
-fn activity_pb(a: Activity) -> pb::AxisActivity {
-    match a {
-        Activity::Idle => pb::AxisActivity::Idle,
-        Activity::Switching => pb::AxisActivity::Switching,
-        Activity::Homing => pb::AxisActivity::Homing,
-        Activity::Moving => pb::AxisActivity::Moving,
-        Activity::Jogging => pb::AxisActivity::Jogging,
-        Activity::Stopping => pb::AxisActivity::Stopping,
-    }
-}
-
-fn status_pb(m: &Axes, i: usize, s: Option<&AxisSnapshot>, at: Timestamp) -> pb::AxisStatus {
-    let (controlled_by, lease_remaining_ms) =
-        m.control(i).map_or((String::new(), 0), |(h, left)| {
-            (h, left.as_millis().min(u128::from(u32::MAX)) as u32)
-        });
-    let mut st = pb::AxisStatus {
-        axis: m.name(i).to_string(),
-        controlled_by,
-        lease_remaining_ms,
-        timestamp_us: at.0 / 1000,
-        ..Default::default()
-    };
-    if let Some(s) = s {
-        st.state = state_pb(s.state) as i32;
-        st.statusword = u32::from(s.statusword);
-        st.mode = i32::from(s.mode);
-        st.activity = activity_pb(s.activity) as i32;
-        st.position = s.position;
-        st.velocity = s.velocity;
-        st.demand_position = s.demand_position;
-        st.following_error = s.following_error;
-        st.homed = s.homed;
-        st.node_lost = s.node_lost.is_some();
-        if let Some((code, text)) = &s.fault {
-            st.fault_code = u32::from(*code);
-            st.fault_text = text.clone();
-        }
-    } else {
-        st.node_lost = true;
-        st.fault_text = "no process data from the drive yet".into();
-    }
-    st
 }
 
 fn positive_or_default(what: &str, v: f64) -> Result<Option<f64>, ApiError> {
@@ -708,42 +631,5 @@ impl AxesRpc for AxesService {
             },
         );
         Ok(Response::new(stream_of(out)))
-    }
-}
-
-fn event_pb(m: &Axes, axis: usize, at: Timestamp, e: AxisEventKind) -> pb::AxisEvent {
-    use pb::axis_event::Kind;
-    let kind = match e {
-        AxisEventKind::MotionDone {
-            command,
-            outcome,
-            detail,
-        } => Kind::MotionDone(pb::MotionDone {
-            command: command.name().to_string(),
-            outcome: outcome_pb(Some(outcome)) as i32,
-            detail,
-        }),
-        AxisEventKind::Fault { code, text } => Kind::Fault(pb::Fault {
-            // The axis layer reports a clearing as code 0 with no text;
-            // every fault and lost node carries a text.
-            active: code != 0 || !text.is_empty(),
-            code: u32::from(code),
-            text,
-        }),
-        AxisEventKind::Control {
-            holder,
-            previous,
-            reason,
-        } => Kind::Control(pb::ControlChange {
-            holder,
-            previous,
-            reason,
-        }),
-        AxisEventKind::Node { lost, reason } => Kind::Node(pb::NodeLink { lost, reason }),
-    };
-    pb::AxisEvent {
-        axis: m.name(axis).to_string(),
-        timestamp_us: at.0 / 1000,
-        kind: Some(kind),
     }
 }

@@ -2,7 +2,7 @@
 
 use super::error::ApiError;
 use crate::gateway::Gateway;
-use crate::grpc::convert::{
+use crate::grpc::convert::bus::{
     bus_info_to_pb, filter_from_pb, frame_from_pb, item_to_pb, status_to_pb,
 };
 use cangate_can::{FrameSelector, TxClass};

@@ -3,9 +3,10 @@
 //! type (`SimulatorService`) lives with the handwheels, whose wheels it
 //! turns; its methods call these.
 
+use super::convert::simulation::{device_pb, faults_pb};
 use super::error::ApiError;
 use crate::gateway::Gateway;
-use crate::simulation::{BusFaultState, BusFaults, DeviceKind, DeviceState, SimulationError};
+use crate::simulation::{BusFaults, SimulationError};
 use cangate_proto::v1 as pb;
 use std::time::Duration;
 use tonic::{Response, Status};
@@ -33,31 +34,6 @@ fn api_error(e: SimulationError) -> Status {
         | SimulationError::NotNow { .. }) => ApiError::FailedPrecondition(e.to_string()),
     };
     api.into()
-}
-
-fn device_pb(d: DeviceState) -> pb::SimulatedDevice {
-    pb::SimulatedDevice {
-        bus: d.bus,
-        node: u32::from(d.node),
-        kind: match d.kind {
-            DeviceKind::Node => pb::SimulatedDeviceKind::Node,
-            DeviceKind::Drive => pb::SimulatedDeviceKind::Drive,
-            DeviceKind::Handwheel => pb::SimulatedDeviceKind::Handwheel,
-        } as i32,
-        powered: d.powered,
-        nmt_state: d.nmt.map_or("off", |s| s.name()).to_string(),
-    }
-}
-
-fn faults_pb(f: BusFaultState) -> pb::BusFaults {
-    pb::BusFaults {
-        bus: f.bus,
-        drop_probability: f.faults.drop_probability,
-        drop_ids: f.faults.drop_ids,
-        delay_us: u64::try_from(f.faults.delay.as_micros()).unwrap_or(u64::MAX),
-        bus_off: f.bus_off,
-        dropped_by_fault: f.dropped_by_fault,
-    }
 }
 
 fn u16_arg(what: &str, v: u32) -> Result<u16, Status> {

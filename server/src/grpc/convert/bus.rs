@@ -1,7 +1,7 @@
 //! Conversions between the protobuf messages and the domain types. Generated
 //! types stop here: nothing below the gRPC layer sees them.
 
-use super::error::ApiError;
+use crate::grpc::error::ApiError;
 use cangate_can::bus::{BackendKind, BusItem, BusStats, Direction};
 use cangate_can::{BusInfo, BusState, BusStatus, Filter, Frame};
 use cangate_proto::v1 as pb;

@@ -1,0 +1,145 @@
+//! CANopen values, data types, NMT states, EMCY and nodes as protobuf
+//! messages, and typed values from them.
+
+use crate::canopen::NodeSnapshot;
+use crate::grpc::error::ApiError;
+use cangate_can::Timestamp;
+use cangate_canopen::emcy::Emcy;
+use cangate_canopen::nmt::NmtState;
+use cangate_canopen::value::{DataType, Value};
+use cangate_proto::v1 as pb;
+
+/// The protobuf data type for a CiA type (those the API names).
+pub(crate) fn data_type_to_pb(t: DataType) -> pb::DataType {
+    pb::DataType::try_from(t.code() as i32).unwrap_or(pb::DataType::Unspecified)
+}
+
+pub(crate) fn data_type_from_pb(t: i32) -> Result<Option<DataType>, ApiError> {
+    if t == 0 {
+        return Ok(None);
+    }
+    u16::try_from(t)
+        .ok()
+        .and_then(DataType::from_code)
+        .map(Some)
+        .ok_or_else(|| {
+            ApiError::InvalidArgument(format!("data type {t} is not a CiA 301 type code"))
+        })
+}
+
+/// A CANopen value to protobuf.
+pub(crate) fn value_to_pb(v: &Value) -> pb::Value {
+    use pb::value::Value as V;
+    let value = match v {
+        Value::Boolean(b) => V::BoolValue(*b),
+        Value::Real32(f) => V::RealValue(*f as f64),
+        Value::Real64(f) => V::RealValue(*f),
+        Value::VisibleString(s) | Value::UnicodeString(s) => V::StringValue(s.clone()),
+        Value::OctetString(b) | Value::Domain(b) => V::BytesValue(b.clone()),
+        other => {
+            let i = other.as_i128().unwrap_or(0);
+            if other
+                .data_type()
+                .integer_range()
+                .is_some_and(|(min, _)| min < 0)
+            {
+                V::IntValue(i as i64)
+            } else {
+                V::UintValue(i as u64)
+            }
+        }
+    };
+    pb::Value {
+        r#type: data_type_to_pb(v.data_type()) as i32,
+        value: Some(value),
+    }
+}
+
+/// A protobuf value to a CANopen value, range-checked against its type.
+pub(crate) fn value_from_pb(v: &pb::Value) -> Result<Value, ApiError> {
+    use pb::value::Value as V;
+    let ty = data_type_from_pb(v.r#type)?
+        .ok_or_else(|| ApiError::InvalidArgument("the value has no data type".into()))?;
+    let bad = |what: &str| {
+        ApiError::InvalidArgument(format!("a {what} value does not fit the data type {ty}"))
+    };
+    let value = match (v.value.as_ref(), ty) {
+        (Some(V::BoolValue(b)), DataType::Boolean) => Value::Boolean(*b),
+        (Some(V::IntValue(i)), t) if t.is_integer() => Value::from_integer(t, *i as i128)
+            .map_err(|e| ApiError::InvalidArgument(e.to_string()))?,
+        (Some(V::UintValue(u)), t) if t.is_integer() => Value::from_integer(t, *u as i128)
+            .map_err(|e| ApiError::InvalidArgument(e.to_string()))?,
+        (Some(V::RealValue(f)), DataType::Real32) => Value::Real32(*f as f32),
+        (Some(V::RealValue(f)), DataType::Real64) => Value::Real64(*f),
+        (Some(V::StringValue(s)), DataType::VisibleString) => {
+            let v = Value::VisibleString(s.clone());
+            Value::decode(DataType::VisibleString, &v.encode())
+                .map_err(|e| ApiError::InvalidArgument(e.to_string()))?;
+            v
+        }
+        (Some(V::StringValue(s)), DataType::UnicodeString) => Value::UnicodeString(s.clone()),
+        (Some(V::BytesValue(b)), DataType::OctetString) => Value::OctetString(b.clone()),
+        (Some(V::BytesValue(b)), DataType::Domain) => Value::Domain(b.clone()),
+        (Some(V::BoolValue(_)), _) => return Err(bad("boolean")),
+        (Some(V::IntValue(_)), _) | (Some(V::UintValue(_)), _) => return Err(bad("integer")),
+        (Some(V::RealValue(_)), _) => return Err(bad("real")),
+        (Some(V::StringValue(_)), _) => return Err(bad("string")),
+        (Some(V::BytesValue(_)), _) => return Err(bad("bytes")),
+        (None, _) => return Err(ApiError::InvalidArgument("the value is empty".into())),
+    };
+    Ok(value)
+}
+
+pub(crate) fn nmt_state_to_pb(s: Option<NmtState>) -> pb::NmtState {
+    match s {
+        None => pb::NmtState::Unknown,
+        Some(NmtState::Initialising) => pb::NmtState::Initialising,
+        Some(NmtState::Stopped) => pb::NmtState::Stopped,
+        Some(NmtState::Operational) => pb::NmtState::Operational,
+        Some(NmtState::PreOperational) => pb::NmtState::PreOperational,
+    }
+}
+
+pub(crate) fn emcy_to_pb(e: &Emcy, at: Timestamp) -> pb::Emcy {
+    pb::Emcy {
+        node: e.node.get() as u32,
+        code: e.code as u32,
+        code_name: e.code_name().to_string(),
+        register: e.register as u32,
+        register_bits: e.error_register().names().map(str::to_string).collect(),
+        manufacturer: e.manufacturer.to_vec(),
+        timestamp_ns: at.as_nanos(),
+    }
+}
+
+pub(crate) fn node_to_pb(bus: &str, n: &NodeSnapshot) -> pb::Node {
+    pb::Node {
+        bus: bus.to_string(),
+        id: n.id.get() as u32,
+        name: n.facts.name.clone(),
+        state: nmt_state_to_pb(n.state) as i32,
+        heartbeat_age_ms: n.heartbeat_age.map(|a| a.as_millis() as u64),
+        heartbeat_lost: n.heartbeat_lost,
+        heartbeat_timeout_ms: n
+            .facts
+            .heartbeat_timeout
+            .map(|t| t.as_millis() as u32)
+            .unwrap_or(0),
+        device_type: n.facts.device_type,
+        device_name: n.facts.device_name.clone().unwrap_or_default(),
+        identity: n.facts.identity.map(|i| pb::Identity {
+            vendor_id: i[0],
+            product_code: i[1],
+            revision: i[2],
+            serial: i[3],
+        }),
+        active_error: n.active_error.as_ref().map(|(e, t)| emcy_to_pb(e, *t)),
+        emcy_history: n
+            .emcy_history
+            .iter()
+            .map(|(e, t)| emcy_to_pb(e, *t))
+            .collect(),
+        boot_ups: n.boot_ups,
+        configured: n.facts.configured,
+    }
+}
