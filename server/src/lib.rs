@@ -21,6 +21,8 @@
 //!
 //! [`realtime`] (thread priorities) is used by the runtime's threads.
 
+#![deny(missing_docs, unreachable_pub)]
+
 pub mod axes;
 pub mod axis_runner;
 pub mod canopen;

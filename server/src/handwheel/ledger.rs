@@ -15,7 +15,7 @@ use std::time::Duration;
 
 /// What became of units handed to an axis.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Executed {
+pub(crate) enum Executed {
     /// The axis took them as a relative move.
     Done,
     /// The axis is not in operation enabled, or its node is lost.
@@ -28,7 +28,7 @@ pub enum Executed {
 
 /// The pacers of a wheel's bindings and their accounting.
 #[derive(Debug)]
-pub struct BindingLedger {
+pub(crate) struct BindingLedger {
     /// By binding index; `None` when the binding's rate and backlog make no
     /// pacer (refused by the configuration check, kept for safety).
     pacers: Vec<Option<JogPacer>>,
@@ -40,7 +40,7 @@ pub struct BindingLedger {
 impl BindingLedger {
     /// One pacer per binding: at most `max_units_per_s`, a backlog of
     /// `stop_within` worth of units.
-    pub fn new(bindings: usize, max_units_per_s: f64, stop_within: Duration) -> Self {
+    pub(crate) fn new(bindings: usize, max_units_per_s: f64, stop_within: Duration) -> Self {
         BindingLedger {
             pacers: (0..bindings)
                 .map(|_| JogPacer::stop_within(max_units_per_s, stop_within).ok())
@@ -52,7 +52,7 @@ impl BindingLedger {
 
     /// Accounts for `units` (signed) of wheel axis `axis` arriving at `now`,
     /// and queues them on the axis's pacer when the wheel is in manual mode.
-    pub fn feed(
+    pub(crate) fn feed(
         &mut self,
         bindings: &[Binding],
         axis: HandwheelAxis,
@@ -84,7 +84,7 @@ impl BindingLedger {
     }
 
     /// Discards every queued unit (mode change, the wheel rebooted).
-    pub fn clear(&mut self) {
+    pub(crate) fn clear(&mut self) {
         for p in self.pacers.iter_mut().flatten() {
             self.stats.dropped_backlog += p.clear().unsigned_abs();
         }
@@ -93,7 +93,7 @@ impl BindingLedger {
     /// Hands the units now due to `execute(binding index, signed units)`
     /// and accounts for the outcome; units the pacers let expire (the task
     /// polled too late) count as dropped by the backlog.
-    pub fn poll(&mut self, now: Duration, mut execute: impl FnMut(usize, i64) -> Executed) {
+    pub(crate) fn poll(&mut self, now: Duration, mut execute: impl FnMut(usize, i64) -> Executed) {
         for (k, slot) in self.pacers.iter_mut().enumerate() {
             let Some(p) = slot else { continue };
             let units = p.poll(now);
@@ -114,12 +114,12 @@ impl BindingLedger {
     }
 
     /// Sets why the bindings cannot move now ("" when they can).
-    pub fn set_blocked(&mut self, why: String) {
+    pub(crate) fn set_blocked(&mut self, why: String) {
         self.stats.blocked = why;
     }
 
     /// The counters now, with the units still queued as `pending`.
-    pub fn stats(&self) -> BindingStats {
+    pub(crate) fn stats(&self) -> BindingStats {
         let mut s = self.stats.clone();
         s.pending = self
             .pacers
