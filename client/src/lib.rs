@@ -64,6 +64,14 @@ impl Error {
             _ => None,
         }
     }
+
+    /// The status as received, if the server answered.
+    pub fn status(&self) -> Option<&tonic::Status> {
+        match self {
+            Error::Status(s) => Some(s),
+            _ => None,
+        }
+    }
 }
 
 /// Adds `authorization: Bearer <token>` to every call (when a token is
