@@ -587,7 +587,7 @@ fn expect_abort(
     index: u32,
     sub: u32,
 ) -> Result<()> {
-    let cangate_client::Error::Status(status) = err else {
+    let Some(status) = err.status() else {
         bail!("expected a status for abort 0x{code:08X}, got {err}");
     };
     ensure!(
