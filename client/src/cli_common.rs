@@ -14,7 +14,7 @@ pub fn status_error(s: tonic::Status) -> anyhow::Error {
         .and_then(|v| v.to_str().ok())
         .map(str::to_string);
     let shown = s.message().to_string();
-    let e = anyhow::Error::from(cangate_client::Error::Status(s));
+    let e = anyhow::Error::from(cangate_client::Error::from(s));
     match abort {
         Some(a) if !shown.contains(&a) => e.context(format!("SDO abort {a}")),
         _ => e,

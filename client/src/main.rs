@@ -185,6 +185,7 @@ async fn run(cli: Cli) -> Result<()> {
         cert: cli.cert.clone(),
         key: cli.key.clone(),
         tls_domain: None,
+        ..Default::default()
     };
     let mut client = cangate_client::connect_with(&cli.server, &options).await?;
     match cli.command {

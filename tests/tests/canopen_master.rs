@@ -145,11 +145,11 @@ async fn sdo_errors_reach_the_client_typed() {
         false,
     );
     let err = c.write_sdo(w).await.unwrap_err();
-    let cangate_client::Error::Status(status) = err else {
+    let Some(status) = err.status() else {
         panic!("{err}")
     };
     assert_eq!(status.code(), Code::FailedPrecondition);
-    let details = cangate_client::sdo_abort_details(&status).expect("SdoAbortDetails");
+    let details = cangate_client::sdo_abort_details(status).expect("SdoAbortDetails");
     assert_eq!(details.code, 0x0601_0002);
     assert_eq!(details.name, "attempt to write a read only object");
     assert_eq!((details.index, details.subindex), (0x1000, 0));
