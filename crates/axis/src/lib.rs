@@ -16,6 +16,8 @@
 //!   position set-point every CANsmc cycle, and can gear an axis to another
 //!   slave's encoder.
 
+#![deny(missing_docs, unreachable_pub)]
+
 pub mod cansmc;
 mod checks;
 pub mod cia402;

@@ -9,6 +9,8 @@
 //! - [`bus`]: one owner task per bus and the handle everyone else uses.
 //! - [`precise_wait`]: waiting for an instant with little CPU.
 
+#![deny(missing_docs, unreachable_pub)]
+
 pub mod budget;
 #[cfg(feature = "runtime")]
 pub mod bus;

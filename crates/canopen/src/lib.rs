@@ -9,6 +9,8 @@
 //! Time convention: every `now` is a [`std::time::Duration`] measured from an
 //! arbitrary origin chosen by the runner (monotonic). Tests pass virtual time.
 
+#![deny(missing_docs, unreachable_pub)]
+
 pub mod cia402;
 pub mod eds;
 pub mod emcy;

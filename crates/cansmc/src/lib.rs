@@ -13,6 +13,8 @@
 //!
 //! Nothing here touches a socket, sleeps or needs an async runtime.
 
+#![deny(missing_docs, unreachable_pub)]
+
 pub mod feasibility;
 pub mod master;
 pub mod slave;

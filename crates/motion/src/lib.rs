@@ -21,6 +21,8 @@
 //! Sign conventions: "acceleration" limits speeding up (|v| growing),
 //! "deceleration" limits slowing down (|v| shrinking); both are magnitudes.
 
+#![deny(missing_docs, unreachable_pub)]
+
 mod interpolator;
 mod jog;
 mod limits;

@@ -64,13 +64,15 @@ pub(crate) struct Piecewise {
 }
 
 impl Piecewise {
-    pub fn duration(&self) -> f64 {
+    /// Seconds from the start of the plan to rest on the target (0 for a
+    /// plan with no segments: already there).
+    pub(crate) fn duration(&self) -> f64 {
         self.segments.last().map_or(0.0, |s| s.t1)
     }
 
     /// `(pos, vel, acc)` at `t`: clamped to the start state for `t <= 0`
     /// (or NaN) and to `(target, 0, 0)` for `t >= duration()`.
-    pub fn sample(&self, t: f64) -> (f64, f64, f64) {
+    pub(crate) fn sample(&self, t: f64) -> (f64, f64, f64) {
         let Some(first) = self.segments.first() else {
             return (self.target, 0.0, 0.0);
         };
@@ -87,7 +89,7 @@ impl Piecewise {
 
     /// Largest speed reached (velocity extrema are at segment boundaries for
     /// every plan built here, since acceleration changes sign only there).
-    pub fn peak_speed(&self) -> f64 {
+    pub(crate) fn peak_speed(&self) -> f64 {
         self.segments
             .iter()
             .map(|s| s.start.v.abs().max(s.end.v.abs()))
@@ -95,7 +97,7 @@ impl Piecewise {
     }
 
     /// Whether every boundary state is finite.
-    pub fn is_finite(&self) -> bool {
+    pub(crate) fn is_finite(&self) -> bool {
         self.duration().is_finite()
             && self.segments.iter().all(|s| {
                 [s.start.p, s.start.v, s.start.a, s.end.p, s.end.v, s.end.a]
@@ -115,7 +117,9 @@ pub(crate) struct Builder {
 }
 
 impl Builder {
-    pub fn new(p: f64, v: f64) -> Self {
+    /// A builder at position `p` moving at `v` with no acceleration, at
+    /// `t = 0`; segments are appended from there.
+    pub(crate) fn new(p: f64, v: f64) -> Self {
         let start = State { p, v, a: 0.0 };
         Self {
             t: 0.0,
@@ -125,17 +129,19 @@ impl Builder {
         }
     }
 
-    pub fn position(&self) -> f64 {
+    /// Position at the end of the segments appended so far.
+    pub(crate) fn position(&self) -> f64 {
         self.state.p
     }
 
-    pub fn velocity(&self) -> f64 {
+    /// Velocity at the end of the segments appended so far.
+    pub(crate) fn velocity(&self) -> f64 {
         self.state.v
     }
 
     /// Append a segment of `duration` starting with acceleration `a0` and
     /// constant `jerk`. Non-positive (or NaN) durations are skipped.
-    pub fn push(&mut self, duration: f64, a0: f64, jerk: f64) {
+    pub(crate) fn push(&mut self, duration: f64, a0: f64, jerk: f64) {
         if duration.is_nan() || duration <= 0.0 {
             return;
         }
@@ -157,7 +163,7 @@ impl Builder {
     }
 
     /// Overwrite the current velocity (removes rounding at phase ends).
-    pub fn snap_velocity(&mut self, v: f64) {
+    pub(crate) fn snap_velocity(&mut self, v: f64) {
         self.state.v = v;
         if let Some(last) = self.segments.last_mut() {
             last.end.v = v;
@@ -165,7 +171,7 @@ impl Builder {
     }
 
     /// Overwrite the current acceleration (removes rounding at phase ends).
-    pub fn snap_acceleration(&mut self, a: f64) {
+    pub(crate) fn snap_acceleration(&mut self, a: f64) {
         self.state.a = a;
         if let Some(last) = self.segments.last_mut() {
             last.end.a = a;
@@ -174,7 +180,7 @@ impl Builder {
 
     /// Finish at rest exactly on `target` (the last segment's end
     /// acceleration is kept: a trapezoid's final segment ends braking).
-    pub fn finish(mut self, target: f64) -> Piecewise {
+    pub(crate) fn finish(mut self, target: f64) -> Piecewise {
         if let Some(last) = self.segments.last_mut() {
             last.end.p = target;
             last.end.v = 0.0;

@@ -22,6 +22,8 @@
 //! ([`SimNode::set`]) and implement [`Device`] themselves, so the same runner
 //! drives them.
 
+#![deny(missing_docs, unreachable_pub)]
+
 use std::time::Duration;
 
 use cangate_can::{Filter, Frame};

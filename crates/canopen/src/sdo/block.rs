@@ -67,7 +67,9 @@ pub(super) struct BlockSender {
 }
 
 impl BlockSender {
-    pub fn new(data: Vec<u8>, blksize: u8) -> Self {
+    /// A sender of `data` whose first block has `blksize` segments (the
+    /// size the peer asked for at initiation).
+    pub(crate) fn new(data: Vec<u8>, blksize: u8) -> Self {
         BlockSender {
             data,
             acked: 0,
@@ -76,17 +78,19 @@ impl BlockSender {
         }
     }
 
-    pub fn len(&self) -> usize {
+    /// Size of the whole transfer in bytes.
+    pub(crate) fn len(&self) -> usize {
         self.data.len()
     }
 
-    pub fn acked(&self) -> usize {
+    /// Bytes the peer has acknowledged so far, for progress reports.
+    pub(crate) fn acked(&self) -> usize {
         self.acked
     }
 
     /// The segments of the next block, numbered from 1, starting after the
     /// last acknowledged byte; the one holding the final byte has c=1.
-    pub fn next_block(&mut self) -> Vec<[u8; 8]> {
+    pub(crate) fn next_block(&mut self) -> Vec<[u8; 8]> {
         let rest = &self.data[self.acked..];
         let mut out = Vec::new();
         for seq in 1..=self.blksize {
@@ -108,7 +112,7 @@ impl BlockSender {
     /// Takes a block ack: `ackseq` segments arrived in order (the peer wants
     /// the rest again) and `blksize` applies to the next block. Returns true
     /// once every segment, including the last, is acknowledged.
-    pub fn on_ack(&mut self, ackseq: u8, blksize: u8) -> Result<bool, Violation> {
+    pub(crate) fn on_ack(&mut self, ackseq: u8, blksize: u8) -> Result<bool, Violation> {
         if ackseq > self.sent {
             return Err(violation(
                 AbortCode::INVALID_SEQUENCE_NUMBER,
@@ -123,7 +127,7 @@ impl BlockSender {
     }
 
     /// Byte 0 bits for the end frame (n << 2) and the CRC of all data.
-    pub fn end_fields(&self) -> (u8, u16) {
+    pub(crate) fn end_fields(&self) -> (u8, u16) {
         (
             unused_in_last_segment(self.data.len()) << 2,
             crc16(&self.data),
@@ -153,7 +157,9 @@ pub(super) struct BlockReceiver {
 }
 
 impl BlockReceiver {
-    pub fn new(size: Option<usize>, blksize: u8) -> Self {
+    /// A receiver expecting `size` bytes if the peer indicated it, in blocks
+    /// of `blksize` segments (the size this side asked for).
+    pub(crate) fn new(size: Option<usize>, blksize: u8) -> Self {
         BlockReceiver {
             // The indicated size comes from the peer: never trust it for a
             // large allocation.
@@ -167,27 +173,31 @@ impl BlockReceiver {
         }
     }
 
-    pub fn blksize(&self) -> u8 {
+    /// Segments per block this side asks for in its acks.
+    pub(crate) fn blksize(&self) -> u8 {
         self.blksize
     }
 
-    pub fn size(&self) -> Option<usize> {
+    /// The size the peer indicated at initiation, if it did.
+    pub(crate) fn size(&self) -> Option<usize> {
         self.size
     }
 
-    pub fn awaiting_end(&self) -> bool {
+    /// Whether the last segment arrived and was acknowledged, so only the
+    /// end frame may follow.
+    pub(crate) fn awaiting_end(&self) -> bool {
         self.awaiting_end
     }
 
     /// Data bytes received so far (padding of a last segment excluded when
     /// the size is known).
-    pub fn received(&self) -> usize {
+    pub(crate) fn received(&self) -> usize {
         self.size.map_or(self.buf.len(), |s| self.buf.len().min(s))
     }
 
     /// Takes one segment. Returns `Some(ackseq)` when the block is over
     /// (last sequence number of the block, or c=1), i.e. an ack is due.
-    pub fn on_segment(&mut self, p: &[u8; 8]) -> Result<Option<u8>, Violation> {
+    pub(crate) fn on_segment(&mut self, p: &[u8; 8]) -> Result<Option<u8>, Violation> {
         let seq = p[0] & !LAST_SEGMENT;
         let last = p[0] & LAST_SEGMENT != 0;
         if seq == 0 || seq > self.blksize {
@@ -226,7 +236,7 @@ impl BlockReceiver {
 
     /// Applies the end frame: drops the `unused` padding bytes, checks the
     /// size and, if `crc` is given, the CRC; returns the data.
-    pub fn finish(mut self, unused: u8, crc: Option<u16>) -> Result<Vec<u8>, Violation> {
+    pub(crate) fn finish(mut self, unused: u8, crc: Option<u16>) -> Result<Vec<u8>, Violation> {
         // The last segment contributed 7 bytes, so this cannot underflow.
         let len = self.buf.len().saturating_sub(usize::from(unused));
         self.buf.truncate(len);
