@@ -128,6 +128,8 @@ async fn tokens_give_roles_and_refusals_name_them() {
     let e = anon.list_buses().await.unwrap_err();
     assert_eq!(e.code(), Some(Code::Unauthenticated), "{e}");
     assert!(e.to_string().contains("missing bearer token"), "{e}");
+    // Refusals carry the richer error model's reason like every error.
+    assert_eq!(e.reason().as_deref(), Some("UNAUTHENTICATED"), "{e:?}");
     let e = with_token(&server, "guess")
         .await
         .list_buses()
@@ -348,6 +350,7 @@ async fn the_rate_limit_refuses_one_client_and_not_the_others() {
     }
     let e = busy.list_buses().await.unwrap_err();
     assert_eq!(e.code(), Some(Code::ResourceExhausted), "{e}");
+    assert_eq!(e.reason().as_deref(), Some("RATE_LIMIT"), "{e:?}");
     assert!(
         e.to_string().contains("rate limit") && e.to_string().contains("busy"),
         "{e}"

@@ -174,7 +174,7 @@ impl Cansmc for CansmcService {
                 tokio::select! {
                     biased;
                     _ = shutdown.cancelled() => {
-                        let _ = tx.send(Err(Status::unavailable("the gateway is shutting down"))).await;
+                        let _ = tx.send(Err(super::error::ApiError::ShuttingDown.into())).await;
                         return;
                     }
                     _ = tx.closed() => return,

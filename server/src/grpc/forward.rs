@@ -69,7 +69,7 @@ pub(crate) fn spawn_forward<T, M>(
             let received = tokio::select! {
                 _ = shutdown.cancelled() => {
                     if let AtShutdown::Unavailable = at_shutdown {
-                        let _ = tx.send(Err(Status::unavailable("the gateway is shutting down"))).await;
+                        let _ = tx.send(Err(super::error::ApiError::ShuttingDown.into())).await;
                     }
                     return;
                 }

@@ -127,7 +127,7 @@ impl HandwheelsRpc for HandwheelsService {
             loop {
                 tokio::select! {
                     _ = shutdown.cancelled() => {
-                        let _ = tx.send(Err(Status::unavailable("the gateway is shutting down"))).await;
+                        let _ = tx.send(Err(super::error::ApiError::ShuttingDown.into())).await;
                         return;
                     }
                     _ = tx.closed() => return,

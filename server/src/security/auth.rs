@@ -60,10 +60,22 @@ pub enum Refusal {
 impl Refusal {
     fn status(&self) -> tonic::Status {
         match self {
-            Refusal::Unauthenticated(m) => tonic::Status::unauthenticated(m.clone()),
-            Refusal::PermissionDenied(m) => tonic::Status::permission_denied(m.clone()),
-            Refusal::ResourceExhausted(m) => tonic::Status::resource_exhausted(m.clone()),
-            Refusal::Unclassified(m) => tonic::Status::unimplemented(m.clone()),
+            Refusal::Unauthenticated(m) => {
+                super::refused(tonic::Code::Unauthenticated, "UNAUTHENTICATED", m.clone())
+            }
+            Refusal::PermissionDenied(m) => super::refused(
+                tonic::Code::PermissionDenied,
+                "PERMISSION_DENIED",
+                m.clone(),
+            ),
+            Refusal::ResourceExhausted(m) => super::refused(
+                tonic::Code::ResourceExhausted,
+                super::limit_reason(m),
+                m.clone(),
+            ),
+            Refusal::Unclassified(m) => {
+                super::refused(tonic::Code::Unimplemented, "NOT_CLASSIFIED", m.clone())
+            }
         }
     }
 }
@@ -721,11 +733,15 @@ impl SizeLimited {
                     self.prefix[4],
                 ]);
                 if len > self.limit {
-                    return Err(tonic::Status::resource_exhausted(format!(
-                        "message size limit: the request message has {len} bytes, more than \
-                         max_message_bytes = {}",
-                        self.limit
-                    )));
+                    return Err(super::refused(
+                        tonic::Code::ResourceExhausted,
+                        "MESSAGE_SIZE_LIMIT",
+                        format!(
+                            "message size limit: the request message has {len} bytes, more \
+                             than max_message_bytes = {}",
+                            self.limit
+                        ),
+                    ));
                 }
                 self.remaining = u64::from(len);
             }

@@ -52,7 +52,7 @@ pub fn stream_queue<T>(
         Some(budget) => budget
             .reserve(requested, default)
             .map(|(n, r)| (n.min(max), Some(r)))
-            .map_err(|e| tonic::Status::resource_exhausted(e.0)),
+            .map_err(|e| refused(tonic::Code::ResourceExhausted, "STREAM_QUEUE_LIMIT", e.0)),
         None => Ok((
             match requested as usize {
                 0 => default,
@@ -61,4 +61,29 @@ pub fn stream_queue<T>(
             None,
         )),
     }
+}
+
+/// A refusal of the security layer as a status with the richer error
+/// model's `ErrorInfo` (domain `cangate.v1`, `reason`), like every other
+/// error of the gateway, so that clients can match on the reason.
+pub fn refused(code: tonic::Code, reason: &str, message: impl Into<String>) -> tonic::Status {
+    use tonic_types::{ErrorDetails, StatusExt};
+    tonic::Status::with_error_details(
+        code,
+        message,
+        ErrorDetails::with_error_info(reason, "cangate.v1", std::collections::HashMap::new()),
+    )
+}
+
+/// The reason of a limit refusal, from the limit its message names.
+pub(crate) fn limit_reason(message: &str) -> &'static str {
+    [
+        ("concurrency limit", "CONCURRENCY_LIMIT"),
+        ("rate limit", "RATE_LIMIT"),
+        ("stream limit", "STREAM_LIMIT"),
+        ("message size limit", "MESSAGE_SIZE_LIMIT"),
+    ]
+    .into_iter()
+    .find(|(prefix, _)| message.starts_with(prefix))
+    .map_or("RESOURCE_EXHAUSTED", |(_, reason)| reason)
 }
