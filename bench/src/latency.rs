@@ -7,8 +7,10 @@
 //! stops when B's stream yields the frame with that sequence number. The
 //! SendFrames round trip (until A's call returns) is recorded as well.
 
-use crate::report::{Measure, Target};
 use anyhow::{Context, Result, bail};
+use cangate_bench::gateway;
+use cangate_bench::report::{Measure, Target};
+use cangate_bench::stats::{self, Percentiles};
 use cangate_can::{CanId, Frame};
 use cangate_client::pb;
 use cangate_client::pb::stream_event::Event;
@@ -48,28 +50,10 @@ async fn wait_for(
     }
 }
 
-fn percentiles(h: &Histogram<u64>) -> serde_json::Value {
-    let us = |ns: u64| ns as f64 / 1000.0;
-    json!({
-        "p50_us": us(h.value_at_quantile(0.50)),
-        "p90_us": us(h.value_at_quantile(0.90)),
-        "p99_us": us(h.value_at_quantile(0.99)),
-        "p999_us": us(h.value_at_quantile(0.999)),
-        "max_us": us(h.max()),
-        "min_us": us(h.min()),
-        "mean_us": h.mean() / 1000.0,
-        "samples": h.len(),
-    })
-}
-
-fn print_hist(name: &str, h: &Histogram<u64>) {
-    let us = |q: f64| h.value_at_quantile(q) as f64 / 1000.0;
+fn print_hist(name: &str, p: &Percentiles) {
     println!(
         "  {name:<22} p50 {:>8.1} µs   p90 {:>8.1} µs   p99 {:>8.1} µs   max {:>8.1} µs",
-        us(0.5),
-        us(0.9),
-        us(0.99),
-        h.max() as f64 / 1000.0
+        p.p50_us, p.p90_us, p.p99_us, p.max_us
     );
 }
 
@@ -78,10 +62,9 @@ pub async fn run(samples: u64, warmup: u64) -> Result<Vec<Measure>> {
     println!(
         "latency: {samples} samples after {warmup} warm-up, client A SendFrames(1 frame) -> client B StreamFrames (include_transmitted), one at a time"
     );
-    let server = crate::stream::start_server().await?;
+    let server = gateway::start_can0().await?;
     let result = measure(&server, samples, warmup).await;
-    server.shutdown();
-    let _ = server.wait(Duration::from_secs(5)).await;
+    gateway::stop(server).await;
     result
 }
 
@@ -90,7 +73,7 @@ async fn measure(
     samples: u64,
     warmup: u64,
 ) -> Result<Vec<Measure>> {
-    let url = format!("http://{}", server.addr);
+    let url = gateway::url(server);
     let mut a = cangate_client::connect(&url).await?;
     let mut b = cangate_client::connect(&url).await?;
     let mut stream = b
@@ -111,8 +94,8 @@ async fn measure(
     }
 
     let id = CanId::standard(0x100)?;
-    let mut e2e = Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3)?;
-    let mut rpc = Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3)?;
+    let mut e2e: Histogram<u64> = stats::histogram();
+    let mut rpc: Histogram<u64> = stats::histogram();
     let start = Instant::now();
     for seq in 0..warmup + samples {
         let frame = Frame::new(id, &seq.to_le_bytes())?;
@@ -130,24 +113,24 @@ async fn measure(
         sent.with_context(|| format!("SendFrames of sample {seq}"))?;
         let received = received?;
         if seq >= warmup {
-            e2e.record((received - t0).as_nanos().max(1) as u64)?;
-            rpc.record((sent_at - t0).as_nanos().max(1) as u64)?;
+            stats::record(&mut e2e, received - t0);
+            stats::record(&mut rpc, sent_at - t0);
         }
     }
     let secs = start.elapsed().as_secs_f64();
+    let (e2e, rpc) = (Percentiles::of(&e2e), Percentiles::of(&rpc));
     print_hist("send -> stream receipt", &e2e);
     print_hist("SendFrames round trip", &rpc);
     println!("  {} round trips in {secs:.2} s", warmup + samples);
-    let p99_us = e2e.value_at_quantile(0.99) as f64 / 1000.0;
     Ok(vec![Measure::value(
         "latency",
         "send->receive latency p99",
-        p99_us,
+        e2e.p99_us,
         "µs",
         Target::Below(TARGET_P99_US),
         json!({
-            "send_to_receive": percentiles(&e2e),
-            "send_frames_rpc": percentiles(&rpc),
+            "send_to_receive": e2e.to_json(),
+            "send_frames_rpc": rpc.to_json(),
             "warmup": warmup,
             "seconds": secs,
         }),

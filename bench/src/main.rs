@@ -13,13 +13,12 @@
 
 mod latency;
 mod memory;
-mod report;
 mod stream;
 mod vbus;
 
 use anyhow::Result;
+use cangate_bench::report::{self, Measure, Outcome, Target, Verdict};
 use clap::{Parser, Subcommand};
-use report::{Measure, Outcome, Target, Verdict};
 use serde_json::json;
 use std::future::Future;
 use std::path::PathBuf;
@@ -99,14 +98,14 @@ where
         Err(e) => {
             let msg = format!("{e:#}");
             eprintln!("{bench}: error: {msg}");
-            vec![Measure {
+            vec![Measure::new(
                 bench,
                 label,
                 unit,
                 target,
-                outcome: Outcome::Error(msg),
-                details: serde_json::Value::Null,
-            }]
+                Outcome::Error(msg),
+                serde_json::Value::Null,
+            )]
         }
     }
 }
@@ -180,11 +179,7 @@ async fn main() -> ExitCode {
         Command::Memory { .. } => "memory",
         Command::All { .. } => "all",
     };
-    let profile = if cfg!(debug_assertions) {
-        "debug"
-    } else {
-        "release"
-    };
+    let profile = report::build_profile();
     println!(
         "cangate-bench {command} ({profile} build{}, {} CPUs)",
         if quick { ", --quick" } else { "" },

@@ -6,8 +6,9 @@
 //! answers a gRPC ListBuses call, lets it settle, reads `VmRSS` (and the peak
 //! `VmHWM`) from `/proc/<pid>/status`, then stops it with SIGTERM.
 
-use crate::report::{Measure, Outcome, Target};
 use anyhow::{Context, Result, bail};
+use cangate_bench::host::status_kib;
+use cangate_bench::report::{Measure, Outcome, Target};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -68,14 +69,6 @@ impl Drop for Guard {
     }
 }
 
-/// A `kB` line of `/proc/<pid>/status`.
-fn status_kib(status: &str, key: &str) -> Option<u64> {
-    status
-        .lines()
-        .find_map(|l| l.strip_prefix(key)?.strip_prefix(':'))
-        .and_then(|rest| rest.split_whitespace().next()?.parse().ok())
-}
-
 fn free_port() -> Result<u16> {
     let l = std::net::TcpListener::bind("127.0.0.1:0").context("finding a free port")?;
     Ok(l.local_addr()?.port())
@@ -103,14 +96,15 @@ pub async fn run(binary: Option<PathBuf>, settle: Duration) -> Result<Vec<Measur
             )
         };
         println!("memory: skipped: {why}");
-        return Ok(vec![Measure {
-            bench: "memory",
-            label: LABEL,
-            unit: "MiB",
-            target: Target::Below(TARGET_MIB),
-            outcome: Outcome::Skipped(why),
-            details: json!({ "binary": binary.display().to_string() }),
-        }]);
+        let details = json!({ "binary": binary.display().to_string() });
+        return Ok(vec![Measure::new(
+            "memory",
+            LABEL,
+            "MiB",
+            Target::Below(TARGET_MIB),
+            Outcome::Skipped(why),
+            details,
+        )]);
     }
     measure(&binary, settle).await
 }
@@ -185,18 +179,4 @@ async fn measure(binary: &Path, settle: Duration) -> Result<Vec<Measure>> {
             "graceful_shutdown": graceful,
         }),
     )])
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn parses_proc_status() {
-        let s = "Name:\tcangate-server\nVmHWM:\t   20480 kB\nVmRSS:\t   12345 kB\nThreads:\t5\n";
-        assert_eq!(status_kib(s, "VmRSS"), Some(12345));
-        assert_eq!(status_kib(s, "VmHWM"), Some(20480));
-        assert_eq!(status_kib(s, "Threads"), Some(5));
-        assert_eq!(status_kib(s, "VmSwap"), None);
-    }
 }

@@ -1,5 +1,6 @@
 //! Results of the benchmarks: one [`Measure`] per headline figure, the
-//! summary table and the final JSON line.
+//! summary table and the final JSON line; the banner every benchmark
+//! starts with.
 
 use serde_json::{Value, json};
 
@@ -88,6 +89,25 @@ impl Verdict {
 }
 
 impl Measure {
+    /// A figure with its outcome, whatever it is.
+    pub fn new(
+        bench: &'static str,
+        label: &'static str,
+        unit: &'static str,
+        target: Target,
+        outcome: Outcome,
+        details: Value,
+    ) -> Self {
+        Measure {
+            bench,
+            label,
+            unit,
+            target,
+            outcome,
+            details,
+        }
+    }
+
     /// A measured figure.
     pub fn value(
         bench: &'static str,
@@ -97,14 +117,7 @@ impl Measure {
         target: Target,
         details: Value,
     ) -> Self {
-        Measure {
-            bench,
-            label,
-            unit,
-            target,
-            outcome: Outcome::Value(value),
-            details,
-        }
+        Measure::new(bench, label, unit, target, Outcome::Value(value), details)
     }
 
     /// Pass, fail, skip or error.
@@ -164,6 +177,27 @@ pub fn human(v: f64) -> String {
     } else {
         format!("{v:.3}")
     }
+}
+
+/// `debug` or `release`: which build produced the figures (a debug build's
+/// are no measure of the gateway).
+pub fn build_profile() -> &'static str {
+    if cfg!(debug_assertions) {
+        "debug"
+    } else {
+        "release"
+    }
+}
+
+/// The first line of a benchmark binary's output: its name, the build and
+/// whether the counts are the `--quick` smoke run's, e.g.
+/// `axis_bench (release build, full)`.
+pub fn banner(bench: &str, quick: bool) -> String {
+    format!(
+        "{bench} ({} build, {})",
+        build_profile(),
+        if quick { "quick" } else { "full" }
+    )
 }
 
 /// Prints the summary table.

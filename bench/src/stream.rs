@@ -10,8 +10,9 @@
 //! lossless end-to-end throughput. The server batches up to 1024 events per
 //! StreamFrames message; frames per message is reported.
 
-use crate::report::{Measure, Target, human};
 use anyhow::{Context, Result, bail};
+use cangate_bench::gateway;
+use cangate_bench::report::{Measure, Target, human};
 use cangate_can::{CanId, Frame, VirtualBusConfig};
 use cangate_client::pb;
 use cangate_client::pb::stream_event::Event;
@@ -34,33 +35,6 @@ pub const QUEUE_LENGTH: u32 = 65_536;
 const SEND_CHUNK: u64 = 1024;
 /// Gives up when the client sees nothing for this long.
 const STALL: Duration = Duration::from_secs(10);
-
-/// Starts the gateway in-process with one virtual bus `can0`, no bit timing.
-pub async fn start_server() -> Result<RunningServer> {
-    let config = cangate_server::Config::from_toml(
-        r#"
-listen = "127.0.0.1:0"
-
-[log]
-level = "warn"
-
-[[bus]]
-name = "can0"
-backend = "virtual"
-fd = true
-
-# The benchmark measures the gateway, not the per-client limits (all its
-# clients share one address).
-[security.limits]
-max_concurrent_requests_per_client = 0
-requests_per_second_per_client = 0
-max_streams_per_client = 0
-"#,
-    )?;
-    cangate_server::start(&config)
-        .await
-        .context("starting the in-process server")
-}
 
 /// Counts shared between the client reader and the device sender.
 #[derive(Default)]
@@ -94,21 +68,15 @@ pub async fn run(frames: u64, window: Option<u64>) -> Result<Vec<Measure>> {
     println!(
         "stream: {frames} frames, device port -> server -> StreamFrames -> 1 client, window {window}, subscription queue {QUEUE_LENGTH}"
     );
-    let server = start_server().await?;
+    let server = gateway::start_can0().await?;
     let result = measure(&server, frames, window).await;
-    server.shutdown();
-    let _ = server.wait(Duration::from_secs(5)).await;
+    gateway::stop(server).await;
     result
 }
 
 async fn measure(server: &RunningServer, frames: u64, window: u64) -> Result<Vec<Measure>> {
-    let vbus = server
-        .gateway()
-        .network()
-        .get("can0")
-        .context("the server has no virtual bus can0")?;
-    let device = vbus.connect(false);
-    let mut client = cangate_client::connect(&format!("http://{}", server.addr)).await?;
+    let device = gateway::virtual_bus(server, "can0")?.connect(false);
+    let mut client = cangate_client::connect(&gateway::url(server)).await?;
     let mut stream = client
         .stream_frames(pb::StreamFramesRequest {
             bus: "can0".into(),

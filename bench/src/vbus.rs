@@ -14,8 +14,8 @@
 //! - **unthrottled**: the sender blasts; frames that find the queue full are
 //!   counted by the port as overflows.
 
-use crate::report::{Measure, Target};
 use anyhow::{Context, Result, bail};
+use cangate_bench::report::{Measure, Target};
 use cangate_can::{CanId, Frame, PortEvent, VirtualBus, VirtualBusConfig};
 use serde_json::json;
 use std::sync::Arc;
@@ -159,7 +159,7 @@ async fn pass(frames: u64, window: Option<u64>, batch: u64) -> Result<Pass> {
 fn print_pass(name: &str, p: &Pass) {
     println!(
         "  {name:<12} {:>10} frames/s delivered  ({} of {} frames in {:.3} s, {} overflows, {} out of order, {:.1} frames per recv_many, sender waited {} times)",
-        crate::report::human(p.rate()),
+        cangate_bench::report::human(p.rate()),
         p.received,
         p.sent,
         p.elapsed.as_secs_f64(),

@@ -24,15 +24,18 @@
 //! Human-readable results, then one JSON line. Exit 1 if something could
 //! not run; with `--strict` also if the CPU target is missed.
 
-use anyhow::{Context, Result, anyhow, bail};
+use anyhow::{Context, Result, anyhow};
+use cangate_bench::axes::{self, AxesClient};
+use cangate_bench::host::{self, cpu_seconds};
+use cangate_bench::stats::{self, Percentiles};
+use cangate_bench::{gateway, report};
 use cangate_can::{Filter, PortEvent};
 use cangate_client::pb;
-use cangate_server::{Config, RunningServer};
+use cangate_server::RunningServer;
 use cangate_sim::{DeviceHandle, SimDrive, SimDriveOptions, SimNodeOptions};
 use clap::Parser;
 use hdrhistogram::Histogram;
 use serde_json::json;
-use std::collections::HashMap;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 use tokio_util::sync::CancellationToken;
@@ -121,14 +124,9 @@ impl Bed {
         for (name, node, mode) in axes {
             text.push_str(&axis_toml(name, *node, mode));
         }
-        // The benchmark measures the gateway, not the per-client limits.
-        text.push_str("[security.limits]\nmax_concurrent_requests_per_client = 0\nrequests_per_second_per_client = 0\nmax_streams_per_client = 0\n");
-        let config = Config::from_toml(&text).map_err(|e| anyhow!("{e}"))?;
-        let gateway_rt = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(threads)
-            .thread_name("gateway")
-            .enable_all()
-            .build()?;
+        text.push_str(gateway::NO_CLIENT_LIMITS);
+        let config = gateway::config(&text)?;
+        let gateway_rt = gateway::runtime("gateway", threads)?;
         // Timers only: the drives need no I/O driver, and without one a
         // frame wakes their thread with a futex rather than an eventfd
         // write, which the sending thread (often the gateway's) pays for.
@@ -137,15 +135,9 @@ impl Bed {
             .thread_name("sim-drives")
             .enable_time()
             .build()?;
-        let server = gateway_rt
-            .block_on(cangate_server::start(&config))
-            .map_err(|e| anyhow!("{e}"))?;
+        let server = gateway::start_on(&gateway_rt, &config)?;
         let cancel = CancellationToken::new();
-        let vbus = server
-            .gateway()
-            .network()
-            .get("can0")
-            .context("virtual can0")?;
+        let vbus = gateway::virtual_bus(&server, "can0")?;
         for (_, node, _) in axes {
             let id = cangate_canopen::NodeId::new(*node).map_err(|e| anyhow!("{e}"))?;
             let drive = SimDrive::bundled(
@@ -172,7 +164,7 @@ impl Bed {
     }
 
     fn url(&self) -> String {
-        format!("http://{}", self.server.addr)
+        gateway::url(&self.server)
     }
 }
 
@@ -183,96 +175,38 @@ impl Drop for Bed {
     }
 }
 
-type Axes = pb::axes_client::AxesClient<cangate_client::Transport>;
-
-async fn ready(axes: &mut Axes, names: &[&str]) -> Result<()> {
-    let t0 = Instant::now();
-    loop {
-        let list = axes
-            .list_axes(pb::ListAxesRequest {})
-            .await?
-            .into_inner()
-            .axes;
-        if list
-            .iter()
-            .filter(|a| names.contains(&a.name.as_str()))
-            .all(|a| {
-                a.status
-                    .as_ref()
-                    .is_some_and(|s| s.state != 0 && !s.node_lost)
-            })
-        {
-            return Ok(());
-        }
-        if t0.elapsed() > Duration::from_secs(20) {
-            bail!("axes did not come up");
-        }
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+/// Waits for the axes and takes them, enabled, under a lease.
+async fn ready(axes: &mut AxesClient, names: &[&str]) -> Result<String> {
+    axes::wait_up(axes, names, Duration::from_secs(20)).await?;
+    axes::take(axes, names, "axis_bench").await
 }
 
 fn opts(lease: &str, wait: bool) -> Option<pb::CommandOptions> {
-    Some(pb::CommandOptions {
-        lease: lease.into(),
-        wait,
-        wait_timeout_ms: 30_000,
-    })
-}
-
-async fn take(axes: &mut Axes, names: &[&str]) -> Result<String> {
-    let lease = axes
-        .acquire_control(pb::AcquireControlRequest {
-            axes: names.iter().map(|s| s.to_string()).collect(),
-            ttl_ms: 60_000,
-            client_name: "axis_bench".into(),
-        })
-        .await?
-        .into_inner()
-        .lease;
-    for n in names {
-        let r = axes
-            .enable(pb::AxisCommandRequest {
-                axis: n.to_string(),
-                options: opts(&lease, true),
-            })
-            .await?
-            .into_inner();
-        if r.outcome != pb::Outcome::Completed as i32 {
-            bail!("enable {n}: {}", r.detail);
-        }
-    }
-    Ok(lease)
+    axes::command_options(lease, wait, Duration::from_secs(30))
 }
 
 /// p50 and p99 in ms of a histogram of nanoseconds.
 fn percentiles(h: &Histogram<u64>) -> (f64, f64) {
-    (
-        h.value_at_quantile(0.5) as f64 / 1e6,
-        h.value_at_quantile(0.99) as f64 / 1e6,
-    )
+    let p = Percentiles::of(h);
+    (p.p50_us / 1000.0, p.p99_us / 1000.0)
+}
+
+/// The runtime of the benchmark's client: its own threads (`bench-client`),
+/// so that its CPU time is not counted as the gateway's.
+fn client_runtime() -> Result<tokio::runtime::Runtime> {
+    gateway::runtime("bench-client", 1)
 }
 
 /// 1. gRPC Move → first RPDO on the bus.
 fn command_latency(samples: usize) -> Result<(f64, f64)> {
     let bed = Bed::start(10_000, &[("Z", 4, "profile")], 2, 0)?;
     let url = bed.url();
-    let port = bed
-        .server
-        .gateway()
-        .network()
-        .get("can0")
-        .context("can0")?
-        .connect(false);
-    let client_rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .thread_name("bench-client")
-        .enable_all()
-        .build()?;
+    let port = gateway::virtual_bus(&bed.server, "can0")?.connect(false);
+    let client_rt = client_runtime()?;
     client_rt.block_on(async move {
         let c = cangate_client::connect(&url).await?;
         let mut axes = c.axes_client();
-        ready(&mut axes, &["Z"]).await?;
-        let lease = take(&mut axes, &["Z"]).await?;
+        let lease = ready(&mut axes, &["Z"]).await?;
         // A watcher notes when each target-position RPDO (0x304) appears
         // on the bus, independently of when the Move call returns (at the
         // drive's set-point acknowledge, one TPDO later).
@@ -288,7 +222,7 @@ fn command_latency(samples: usize) -> Result<(f64, f64)> {
                 }
             }
         });
-        let mut h = Histogram::<u64>::new(3)?;
+        let mut h = stats::histogram();
         // The first move writes the profile parameters by SDO; later ones
         // with the same velocity do not.
         for k in 0..samples + 1 {
@@ -309,7 +243,7 @@ fn command_latency(samples: usize) -> Result<(f64, f64)> {
                 .context("no RPDO after Move")?
                 .context("bus watcher ended")?;
             if k > 0 {
-                h.record(seen.duration_since(t0).as_nanos() as u64)?;
+                stats::record(&mut h, seen.duration_since(t0));
             }
         }
         Ok::<_, anyhow::Error>(percentiles(&h))
@@ -320,16 +254,11 @@ fn command_latency(samples: usize) -> Result<(f64, f64)> {
 fn stream_latency(samples: usize) -> Result<(f64, f64)> {
     let bed = Bed::start(5_000, &[("X", 1, "cyclic")], 2, 0)?;
     let url = bed.url();
-    let client_rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .thread_name("bench-client")
-        .enable_all()
-        .build()?;
+    let client_rt = client_runtime()?;
     client_rt.block_on(async move {
         let c = cangate_client::connect(&url).await?;
         let mut axes = c.axes_client();
-        ready(&mut axes, &["X"]).await?;
-        let lease = take(&mut axes, &["X"]).await?;
+        let lease = ready(&mut axes, &["X"]).await?;
         axes.jog(pb::JogRequest {
             axis: "X".into(),
             velocity: 10.0,
@@ -344,7 +273,7 @@ fn stream_latency(samples: usize) -> Result<(f64, f64)> {
             })
             .await?
             .into_inner();
-        let mut h = Histogram::<u64>::new(3)?;
+        let mut h = stats::histogram();
         let mut n = 0;
         while n < samples {
             let u = tokio::time::timeout(Duration::from_secs(2), s.message())
@@ -358,7 +287,7 @@ fn stream_latency(samples: usize) -> Result<(f64, f64)> {
                 n += 1;
                 if n > 10 {
                     // µs → ns: the histogram holds ns like the others.
-                    h.record(now_us.saturating_sub(st.timestamp_us) * 1000)?;
+                    stats::record_ns(&mut h, now_us.saturating_sub(st.timestamp_us) * 1000);
                 }
             }
         }
@@ -366,40 +295,12 @@ fn stream_latency(samples: usize) -> Result<(f64, f64)> {
     })
 }
 
-/// CPU seconds per thread name, from /proc.
-fn cpu_by_thread() -> Result<HashMap<String, f64>> {
-    let tick = 100.0; // USER_HZ on Linux
-    let mut out = HashMap::new();
-    for entry in std::fs::read_dir("/proc/self/task")? {
-        let dir = entry?.path();
-        let comm = std::fs::read_to_string(dir.join("comm")).unwrap_or_default();
-        let stat = std::fs::read_to_string(dir.join("stat")).unwrap_or_default();
-        // Fields after the ")" of the command name: utime is the 12th, stime
-        // the 13th (fields 14 and 15 of the whole line).
-        let Some(rest) = stat.rsplit_once(')').map(|(_, r)| r) else {
-            continue;
-        };
-        let f: Vec<&str> = rest.split_whitespace().collect();
-        if f.len() < 13 {
-            continue;
-        }
-        let secs =
-            (f[11].parse::<f64>().unwrap_or(0.0) + f[12].parse::<f64>().unwrap_or(0.0)) / tick;
-        let name = comm.trim().to_string();
-        // The SYNC producer thread ("sync-<bus>") is the gateway's too.
-        let key = if name.starts_with("gateway") || name.starts_with("sync-") {
-            "gateway"
-        } else if name.starts_with("sim-drives") {
-            "sim-drives"
-        } else if name.starts_with("bench-client") {
-            "client"
-        } else {
-            "other"
-        };
-        *out.entry(key.to_string()).or_insert(0.0) += secs;
-    }
-    Ok(out)
-}
+/// The threads of each share of part 3's CPU figure, by name prefix: the
+/// gateway's runtime with its SYNC producer thread (`sync-<bus>`), the
+/// simulated drives' runtime, the benchmark client's runtime.
+const GATEWAY_THREADS: &[&str] = &["gateway", "sync-"];
+const SIM_THREADS: &[&str] = &["sim-drives"];
+const CLIENT_THREADS: &[&str] = &["bench-client"];
 
 /// Part 3's figures.
 struct CpuResult {
@@ -432,11 +333,7 @@ fn cpu_six_axes(seconds: f64, threads: usize, rt_priority: u8) -> Result<CpuResu
     };
     let bed = Bed::start(sync_us, &axes_cfg, threads, rt_priority)?;
     let url = bed.url();
-    let client_rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .thread_name("bench-client")
-        .enable_all()
-        .build()?;
+    let client_rt = client_runtime()?;
     let stats = bed
         .server
         .gateway()
@@ -452,17 +349,11 @@ fn cpu_six_axes(seconds: f64, threads: usize, rt_priority: u8) -> Result<CpuResu
         .canopen("can0")
         .context("CANopen master of can0")?
         .clone();
-    let vbus = bed
-        .server
-        .gateway()
-        .network()
-        .get("can0")
-        .context("virtual can0")?;
+    let vbus = gateway::virtual_bus(&bed.server, "can0")?;
     client_rt.block_on(async move {
         let c = cangate_client::connect(&url).await?;
         let mut axes = c.axes_client();
-        ready(&mut axes, &names).await?;
-        let lease = take(&mut axes, &names).await?;
+        let lease = ready(&mut axes, &names).await?;
         // Everyone moves back and forth (±50 mm at 100 mm/s) for the whole
         // measurement: a new coordinated move whenever the previous one
         // arrived.
@@ -502,10 +393,10 @@ fn cpu_six_axes(seconds: f64, threads: usize, rt_priority: u8) -> Result<CpuResu
         // Count the SYNCs actually on the bus during the window.
         let syncs0 = master.sync_counts().0;
         let frames0 = stats.stats().rx_frames + stats.stats().tx_frames;
-        let c0 = cpu_by_thread()?;
+        let c0 = host::thread_cpu()?;
         let t0 = Instant::now();
         tokio::time::sleep(Duration::from_secs_f64(seconds)).await;
-        let c1 = cpu_by_thread()?;
+        let c1 = host::thread_cpu()?;
         let wall = t0.elapsed().as_secs_f64();
         let frames = stats.stats().rx_frames + stats.stats().tx_frames - frames0;
         let sync_rate = (master.sync_counts().0 - syncs0) as f64 / wall;
@@ -537,13 +428,13 @@ fn cpu_six_axes(seconds: f64, threads: usize, rt_priority: u8) -> Result<CpuResu
         let sync_jitter_us = (pick(0.5), pick(0.99), pick(1.0), dev.len());
         stop.cancel();
         let _ = tokio::time::timeout(Duration::from_secs(10), mover).await;
-        let d = |k: &str| {
-            (c1.get(k).copied().unwrap_or(0.0) - c0.get(k).copied().unwrap_or(0.0)) / wall * 100.0
+        let d = |threads: &[&str]| {
+            (cpu_seconds(&c1, threads) - cpu_seconds(&c0, threads)) / wall * 100.0
         };
         Ok::<_, anyhow::Error>(CpuResult {
-            gateway: d("gateway"),
-            sims: d("sim-drives"),
-            client: d("client"),
+            gateway: d(GATEWAY_THREADS),
+            sims: d(SIM_THREADS),
+            client: d(CLIENT_THREADS),
             frames_per_s: (frames as f64 / wall) as u64,
             sync_per_s: sync_rate,
             sync_jitter_us,
@@ -553,19 +444,7 @@ fn cpu_six_axes(seconds: f64, threads: usize, rt_priority: u8) -> Result<CpuResu
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    match run(&args) {
-        Ok(ok) => {
-            if ok || !args.strict {
-                ExitCode::SUCCESS
-            } else {
-                ExitCode::from(1)
-            }
-        }
-        Err(e) => {
-            eprintln!("axis_bench: {e:#}");
-            ExitCode::from(1)
-        }
-    }
+    host::exit_code("axis_bench", args.strict, run(&args))
 }
 
 fn run(args: &Args) -> Result<bool> {
@@ -575,15 +454,7 @@ fn run(args: &Args) -> Result<bool> {
     } else {
         (1000, args.cpu_seconds)
     };
-    println!(
-        "axis_bench ({} build, {})",
-        if cfg!(debug_assertions) {
-            "debug"
-        } else {
-            "release"
-        },
-        if args.quick { "quick" } else { "full" }
-    );
+    println!("{}", report::banner("axis_bench", args.quick));
     let (mut c50, mut c99, mut s50, mut s99) = (f64::NAN, f64::NAN, f64::NAN, f64::NAN);
     if !args.cpu_only {
         (c50, c99) = command_latency(samples)?;

@@ -25,6 +25,8 @@
 //! not run; with `--strict` also if the jitter target is missed.
 
 use anyhow::{Result, anyhow, bail};
+use cangate_bench::host::{self, cpu_seconds};
+use cangate_bench::{gateway, report};
 use cangate_server::Config;
 use clap::Parser;
 use serde_json::json;
@@ -84,32 +86,12 @@ lost_after = {lost_after}
             "\n[[cansmc.slave]]\naddress = {a}\nsimulate = true\n"
         ));
     }
-    Config::from_toml(&text).map_err(|e| anyhow!("{e}"))
+    gateway::config(&text)
 }
 
-/// CPU seconds of the threads whose name starts with `prefix`.
-fn thread_cpu(prefix: &str) -> f64 {
-    let mut total = 0.0;
-    let Ok(dir) = std::fs::read_dir("/proc/self/task") else {
-        return 0.0;
-    };
-    for entry in dir.flatten() {
-        let path = entry.path();
-        let comm = std::fs::read_to_string(path.join("comm")).unwrap_or_default();
-        if !comm.trim().starts_with(prefix) {
-            continue;
-        }
-        let stat = std::fs::read_to_string(path.join("stat")).unwrap_or_default();
-        let Some((_, rest)) = stat.rsplit_once(')') else {
-            continue;
-        };
-        let f: Vec<&str> = rest.split_whitespace().collect();
-        if f.len() > 12 {
-            total +=
-                (f[11].parse::<f64>().unwrap_or(0.0) + f[12].parse::<f64>().unwrap_or(0.0)) / 100.0;
-        }
-    }
-    total
+/// CPU seconds of the master's cycle thread (`cansmc-<name>`).
+fn master_cpu() -> f64 {
+    cpu_seconds(&host::thread_cpu().unwrap_or_default(), &["cansmc-"])
 }
 
 /// What one run of a master measured.
@@ -131,14 +113,8 @@ struct Measured {
 /// Runs a master until `cycles` P2 cycles passed.
 fn run_master(cycle_us: u32, slaves: u8, spin_us: u32, cycles: u64) -> Result<Measured> {
     let cfg = config(cycle_us, slaves, spin_us, 1_000_000)?;
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .thread_name("gateway")
-        .enable_all()
-        .build()?;
-    let server = rt
-        .block_on(cangate_server::start(&cfg))
-        .map_err(|e| anyhow!("{e}"))?;
+    let rt = gateway::runtime("gateway", 2)?;
+    let server = gateway::start_on(&rt, &cfg)?;
     let master = server
         .gateway()
         .cansmc("bench")
@@ -160,7 +136,7 @@ fn run_master(cycle_us: u32, slaves: u8, spin_us: u32, cycles: u64) -> Result<Me
         std::thread::sleep(Duration::from_millis(5));
     }
     let first = master.status();
-    let cpu0 = thread_cpu("cansmc-");
+    let cpu0 = master_cpu();
     let t0 = Instant::now();
     let want = first.cycle + cycles;
     let bound = Duration::from_micros(u64::from(cycle_us) * cycles) * 2 + Duration::from_secs(5);
@@ -171,7 +147,7 @@ fn run_master(cycle_us: u32, slaves: u8, spin_us: u32, cycles: u64) -> Result<Me
         }
     }
     let wall = t0.elapsed().as_secs_f64();
-    let cpu = thread_cpu("cansmc-") - cpu0;
+    let cpu = master_cpu() - cpu0;
     let st = master.status();
     let mut m = Measured {
         cycles: st.cycle - first.cycle,
@@ -202,32 +178,12 @@ fn run_master(cycle_us: u32, slaves: u8, spin_us: u32, cycles: u64) -> Result<Me
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    match run(&args) {
-        Ok(ok) => {
-            if ok || !args.strict {
-                ExitCode::SUCCESS
-            } else {
-                ExitCode::from(1)
-            }
-        }
-        Err(e) => {
-            eprintln!("cansmc_bench: {e:#}");
-            ExitCode::from(1)
-        }
-    }
+    host::exit_code("cansmc_bench", args.strict, run(&args))
 }
 
 fn run(args: &Args) -> Result<bool> {
     let cycles = if args.quick { 250 } else { args.cycles };
-    println!(
-        "cansmc_bench ({} build, {})",
-        if cfg!(debug_assertions) {
-            "debug"
-        } else {
-            "release"
-        },
-        if args.quick { "quick" } else { "full" }
-    );
+    println!("{}", report::banner("cansmc_bench", args.quick));
     let spin = run_master(2000, 10, 200, cycles)?;
     let ok = spin.p99 < P99_TARGET_US;
     println!(

@@ -46,6 +46,8 @@
 //! failed, and with `--strict` also if a target is missed.
 
 use anyhow::{Context, Result, anyhow, bail};
+use cangate_bench::gateway;
+use cangate_bench::stats::{self, Percentiles, histogram, quantile_us};
 use cangate_can::{
     BitTiming, BusItem, CanId, Direction, Filter, Frame, FrameSelector, PortEvent, Timestamp,
     VirtualBus, VirtualBusConfig, VirtualPort,
@@ -56,8 +58,8 @@ use cangate_canopen::sdo::{TransferOptions, TransferOutcome};
 use cangate_canopen::value::Value;
 use cangate_canopen::{NodeId, ObjectAddress};
 use cangate_client::pb;
+use cangate_server::RunningServer;
 use cangate_server::canopen::CanopenBus;
-use cangate_server::{Config, RunningServer};
 use cangate_sim::{SimNode, SimNodeOptions};
 use clap::Parser;
 use hdrhistogram::Histogram;
@@ -205,14 +207,14 @@ struct Stats {
 
 impl Stats {
     fn from_histogram(h: &Histogram<u64>, elapsed: Duration) -> Stats {
-        let us = |ns: u64| ns as f64 / 1000.0;
+        let p = Percentiles::of(h);
         Stats {
-            n: h.len(),
-            p50_us: us(h.value_at_quantile(0.50)),
-            p99_us: us(h.value_at_quantile(0.99)),
-            max_us: us(h.max()),
-            mean_us: h.mean() / 1000.0,
-            reads_per_s: h.len() as f64 / elapsed.as_secs_f64().max(1e-9),
+            n: p.samples,
+            p50_us: p.p50_us,
+            p99_us: p.p99_us,
+            max_us: p.max_us,
+            mean_us: p.mean_us,
+            reads_per_s: p.samples as f64 / elapsed.as_secs_f64().max(1e-9),
         }
     }
 
@@ -244,10 +246,6 @@ fn round2(x: f64) -> f64 {
     (x * 100.0).round() / 100.0
 }
 
-fn histogram() -> Histogram<u64> {
-    Histogram::new_with_bounds(1, 120_000_000_000, 3).expect("valid histogram bounds")
-}
-
 /// Times `n` sequential calls of `op` after `warmup` untimed ones.
 async fn measure<F, Fut>(n: u64, warmup: u64, mut op: F) -> Result<Stats>
 where
@@ -262,7 +260,7 @@ where
     for _ in 0..n {
         let t0 = Instant::now();
         op().await?;
-        h.record(t0.elapsed().as_nanos().max(1) as u64)?;
+        stats::record(&mut h, t0.elapsed());
     }
     Ok(Stats::from_histogram(&h, start.elapsed()))
 }
@@ -358,18 +356,10 @@ impl Bed {
                 "[[canopen.node]]\nid = {id}\nname = \"drive{id}\"\neds = \"{eds}\n"
             ));
         }
-        // The benchmark measures the gateway, not the per-client limits
-        // (its 100 clients share one address).
-        toml.push_str("[security.limits]\nmax_concurrent_requests_per_client = 0\nrequests_per_second_per_client = 0\nmax_streams_per_client = 0\n");
-        let config = Config::from_toml(&toml).context("benchmark configuration")?;
-        let server = cangate_server::start(&config)
-            .await
-            .context("starting the gateway")?;
-        let vbus = server
-            .gateway()
-            .network()
-            .get("can0")
-            .ok_or_else(|| anyhow!("the gateway has no virtual bus can0"))?;
+        // Its 100 clients share one address.
+        toml.push_str(gateway::NO_CLIENT_LIMITS);
+        let server = gateway::start(&gateway::config(&toml)?).await?;
+        let vbus = gateway::virtual_bus(&server, "can0")?;
         let nodes = CancellationToken::new();
         if host == NodeHost::Separate {
             for &id in ids {
@@ -393,13 +383,12 @@ impl Bed {
     }
 
     fn url(&self) -> String {
-        format!("http://{}", self.server.addr)
+        gateway::url(&self.server)
     }
 
     async fn stop(self) {
         self.nodes.cancel();
-        self.server.shutdown();
-        let _ = self.server.wait(Duration::from_secs(5)).await;
+        gateway::stop(self.server).await;
         if let Some(path) = self.eds_file {
             let _ = std::fs::remove_file(path);
         }
@@ -508,7 +497,7 @@ impl DirectMaster {
                         let late = Timestamp::now()
                             .as_nanos()
                             .saturating_sub(frame.timestamp().as_nanos());
-                        self.lateness.record(late.max(1))?;
+                        stats::record_ns(&mut self.lateness, late);
                     }
                     self.master
                         .on_frame(&frame, self.origin.elapsed(), &mut out)
@@ -556,7 +545,7 @@ async fn direct_bench(
         for _ in 0..reads {
             let t0 = Instant::now();
             let b = dm.upload(node, addr).await?;
-            h.record(t0.elapsed().as_nanos().max(1) as u64)?;
+            stats::record(&mut h, t0.elapsed());
             check_len(addr, b.len(), len)?;
         }
         results.push((case, Stats::from_histogram(&h, start.elapsed())));
@@ -634,9 +623,7 @@ async fn grpc_concurrent(url: &str, clients: usize, nodes: u8, reads: u64) -> Re
             for _ in 0..reads {
                 let t0 = Instant::now();
                 match c.read_sdo(read_request(node, HEARTBEAT_TIME)).await {
-                    Ok(r) if r.raw.len() == 2 => {
-                        let _ = h.record(t0.elapsed().as_nanos().max(1) as u64);
-                    }
+                    Ok(r) if r.raw.len() == 2 => stats::record(&mut h, t0.elapsed()),
                     Ok(r) => {
                         errors += 1;
                         first_error.get_or_insert(format!("node {node}: {} bytes", r.raw.len()));
@@ -1276,12 +1263,12 @@ async fn bit_timed(args: &Args, r: &mut Report) -> Result<()> {
                         .timestamp()
                         .as_nanos()
                         .saturating_sub(timing.frame_duration_ns(&frame));
-                    turnaround.record(start.saturating_sub(end).max(1))?;
+                    stats::record_ns(&mut turnaround, start.saturating_sub(end));
                 }
             }
         }
     }
-    let device_us = turnaround.value_at_quantile(0.5) as f64 / 1000.0;
+    let device_us = quantile_us(&turnaround, 0.5);
     let overhead = (s.p50_us - bus_us) / bus_us * 100.0;
     let gateway_overhead = (s.p50_us - bus_us - device_us) / bus_us * 100.0;
     r.row(
@@ -1307,8 +1294,8 @@ async fn bit_timed(args: &Args, r: &mut Report) -> Result<()> {
     )
     .await?;
     let (_, d) = results[0];
-    let late_p50 = lateness.value_at_quantile(0.5) as f64 / 1000.0;
-    let late_p99 = lateness.value_at_quantile(0.99) as f64 / 1000.0;
+    let late_p50 = quantile_us(&lateness, 0.5);
+    let late_p99 = quantile_us(&lateness, 0.99);
     let d_overhead = (d.p50_us - bus_us) / bus_us * 100.0;
     r.row(
         "sans-IO Master on the timed VirtualPort",

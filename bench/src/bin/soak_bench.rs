@@ -28,10 +28,12 @@
 //! `--strict` also if a SYNC period or heartbeat was lost, a CANsmc DT was
 //! missed or a stream broke.
 
-use anyhow::{Context, Result, anyhow};
+use anyhow::{Context, Result};
+use cangate_bench::axes::{self, AxesClient};
+use cangate_bench::{gateway, host};
 use cangate_client::pb;
 use cangate_server::RunningServer;
-use cangate_server::config::{Config, DEMO_CONFIG};
+use cangate_server::config::DEMO_CONFIG;
 use clap::Parser;
 use serde_json::json;
 use std::collections::BTreeMap;
@@ -141,14 +143,7 @@ impl Rng {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    match run(&args) {
-        Ok(ok) if ok || !args.strict => ExitCode::SUCCESS,
-        Ok(_) => ExitCode::from(1),
-        Err(e) => {
-            eprintln!("soak_bench: {e:#}");
-            ExitCode::from(1)
-        }
-    }
+    host::exit_code("soak_bench", args.strict, run(&args))
 }
 
 fn run(args: &Args) -> Result<bool> {
@@ -170,27 +165,15 @@ fn run(args: &Args) -> Result<bool> {
         "listen = \"127.0.0.1:0\"\nmetrics_listen = \"127.0.0.1:0\"",
         1,
     );
-    let mut config = Config::from_toml(&text).map_err(|e| anyhow!("{e}"))?;
-    config.security.limits.max_concurrent_requests_per_client = 0;
-    config.security.limits.requests_per_second_per_client = 0;
-    config.security.limits.max_streams_per_client = 0;
-    let gateway_rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .thread_name("gateway")
-        .enable_all()
-        .build()?;
-    let server = gateway_rt
-        .block_on(cangate_server::start(&config))
-        .map_err(|e| anyhow!("{e}"))?;
+    let mut config = gateway::config(&text)?;
+    gateway::lift_client_limits(&mut config);
+    let gateway_rt = gateway::runtime("gateway", 2)?;
+    let server = gateway::start_on(&gateway_rt, &config)?;
     let metrics_addr = server.metrics_addr.context("metrics endpoint")?;
-    let load_rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .thread_name("load")
-        .enable_all()
-        .build()?;
+    let load_rt = gateway::runtime("load", 2)?;
     let seen = Arc::new(Seen::default());
     let ready = load_rt.block_on(wait_ready(&server))?;
-    let rss_start = rss_kib();
+    let rss_start = host::rss_kib();
     let before = scrape(metrics_addr)?;
     let started = Instant::now();
     let stop = Arc::new(AtomicBool::new(false));
@@ -217,7 +200,7 @@ fn run(args: &Args) -> Result<bool> {
     }
     let elapsed = started.elapsed();
     let after = scrape(metrics_addr)?;
-    let rss_end = rss_kib();
+    let rss_end = host::rss_kib();
     server.shutdown();
     let _ = gateway_rt.block_on(server.wait(Duration::from_secs(10)));
 
@@ -347,22 +330,16 @@ fn run(args: &Args) -> Result<bool> {
     Ok(clean)
 }
 
-/// Waits until every axis reports a drive state; returns their names.
+/// Waits until every axis reports a drive state (20 s at most); returns the
+/// names of those that do.
 async fn wait_ready(server: &RunningServer) -> Result<Vec<String>> {
-    let mut c = cangate_client::connect(&format!("http://{}", server.addr)).await?;
+    let mut c: AxesClient = cangate_client::connect(&gateway::url(server))
+        .await?
+        .axes_client();
     let t0 = Instant::now();
     loop {
-        let list = c.list_axes().await?;
-        let up: Vec<String> = list
-            .iter()
-            .filter(|a| {
-                a.status
-                    .as_ref()
-                    .is_some_and(|s| s.state != 0 && !s.node_lost)
-            })
-            .map(|a| a.name.clone())
-            .collect();
-        if up.len() == list.len() || t0.elapsed() > Duration::from_secs(20) {
+        let (up, total) = axes::axes_up(&mut c).await?;
+        if up.len() == total || t0.elapsed() > Duration::from_secs(20) {
             return Ok(up);
         }
         tokio::time::sleep(Duration::from_millis(50)).await;
@@ -370,7 +347,7 @@ async fn wait_ready(server: &RunningServer) -> Result<Vec<String>> {
 }
 
 async fn load(server: &RunningServer, seen: &Arc<Seen>, duration: Duration, ready: &[String]) {
-    let url = format!("http://{}", server.addr);
+    let url = gateway::url(server);
     let deadline = tokio::time::Instant::now() + duration;
     let mut tasks = tokio::task::JoinSet::new();
     for (bus, tx, pause) in [
@@ -547,16 +524,15 @@ async fn axis_load(
     };
     let mut axes = c.axes_client();
     let mut rng = Rng(0x9E37_79B9_7F4A_7C15 ^ seed);
-    let lease = axes
-        .acquire_control(pb::AcquireControlRequest {
-            axes: vec![axis.into()],
-            ttl_ms: 5000,
-            client_name: format!("soak-{axis}"),
-        })
-        .await;
+    let lease = axes::acquire(
+        &mut axes,
+        &[axis],
+        Duration::from_secs(5),
+        &format!("soak-{axis}"),
+    )
+    .await;
     seen.call("AcquireControl", &lease);
     let Ok(lease) = lease else { return };
-    let lease = lease.into_inner().lease;
     // Renewal beside the commands, as an HMI keeps its lease.
     let renew = {
         let mut axes = axes.clone();
@@ -575,15 +551,9 @@ async fn axis_load(
             }
         })
     };
-    let opts = |wait: bool| {
-        Some(pb::CommandOptions {
-            lease: lease.clone(),
-            wait,
-            // Longer than the longest move: A and B cross their ±90 mm at
-            // their default 5 mm/s in 36 s.
-            wait_timeout_ms: 60_000,
-        })
-    };
+    // Longer than the longest move: A and B cross their ±90 mm at their
+    // default 5 mm/s in 36 s.
+    let opts = |wait: bool| axes::command_options(&lease, wait, Duration::from_secs(60));
     let simple = |wait: bool| pb::AxisCommandRequest {
         axis: axis.into(),
         options: opts(wait),
@@ -671,17 +641,4 @@ fn scrape(addr: std::net::SocketAddr) -> Result<BTreeMap<String, f64>> {
 
 fn metric_name(series: &str) -> &str {
     series.split('{').next().unwrap_or(series)
-}
-
-/// This process's resident set size (gateway and load clients).
-fn rss_kib() -> Option<u64> {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()?
-        .lines()
-        .find_map(|l| l.strip_prefix("VmRSS:"))?
-        .trim()
-        .trim_end_matches("kB")
-        .trim()
-        .parse()
-        .ok()
 }

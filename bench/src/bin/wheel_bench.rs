@@ -30,8 +30,9 @@
 //! with `--strict` also if a target is missed.
 
 use anyhow::{Context, Result, anyhow, bail};
+use cangate_bench::stats::{self, Percentiles};
+use cangate_bench::{gateway, host, report};
 use cangate_client::pb;
-use cangate_server::Config;
 use cangate_sim::{DeviceHandle, SimHandwheel, SimHandwheelOptions, SimNodeOptions};
 use clap::Parser;
 use hdrhistogram::Histogram;
@@ -128,34 +129,20 @@ fn run(
     let text = format!(
         "listen = \"127.0.0.1:0\"\nrt_priority = {rt_priority}\n[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\nqueue = 65536\n\
          [[canopen]]\nbus = \"can0\"\n[[canopen.node]]\nid = {NODE}\neds = \"builtin:handwheel\"\n\
-         [[handwheel]]\nname = \"hw1\"\nbus = \"can0\"\nnode = {NODE}\n\
-         [security.limits]\nmax_concurrent_requests_per_client = 0\nrequests_per_second_per_client = 0\nmax_streams_per_client = 0\n"
+         [[handwheel]]\nname = \"hw1\"\nbus = \"can0\"\nnode = {NODE}\n{}",
+        gateway::NO_CLIENT_LIMITS
     );
-    let config = Config::from_toml(&text).map_err(|e| anyhow!("{e}"))?;
+    let config = gateway::config(&text)?;
     // As the server's own runtime (`main.rs`), with two workers.
-    let gateway_rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .thread_name("gateway")
-        .enable_all()
+    let gateway_rt = gateway::runtime_builder("gateway", 2)
         .on_thread_start(cangate_server::realtime::on_grpc_thread_start(
             grpc_rt_priority,
         ))
         .build()?;
-    let server = gateway_rt
-        .block_on(cangate_server::start(&config))
-        .map_err(|e| anyhow!("{e}"))?;
-    let sim_rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .thread_name("sim")
-        .enable_all()
-        .build()?;
+    let server = gateway::start_on(&gateway_rt, &config)?;
+    let sim_rt = gateway::runtime("sim", 1)?;
     let cancel = CancellationToken::new();
-    let port = server
-        .gateway()
-        .network()
-        .get("can0")
-        .context("can0")?
-        .connect(false);
+    let port = gateway::virtual_bus(&server, "can0")?.connect(false);
     let wheel = SimHandwheel::bundled(
         cangate_canopen::NodeId::new(NODE).map_err(|e| anyhow!("{e}"))?,
         SimHandwheelOptions {
@@ -172,11 +159,8 @@ fn run(
         let _g = sim_rt.enter();
         cangate_sim::spawn_device(port, handle.clone(), cancel.clone());
     }
-    let url = format!("http://{}", server.addr);
-    let client_rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .thread_name("client")
-        .enable_all()
+    let url = gateway::url(&server);
+    let client_rt = gateway::runtime_builder("client", 1)
         .on_thread_start(move || {
             if client_rt_priority > 0 {
                 let _ = cangate_server::realtime::set_fifo(client_rt_priority);
@@ -229,7 +213,7 @@ fn run(
                 .into_inner();
             let stop = stop.clone();
             tasks.push(tokio::spawn(async move {
-                let mut h = Histogram::<u64>::new(3).expect("histogram");
+                let mut h = stats::histogram();
                 let (mut n, mut lost) = (0u64, 0u64);
                 let mut tr = Vec::new();
                 if trace {
@@ -244,7 +228,7 @@ fn run(
                     let now_us = cangate_can::Timestamp::now().0 / 1000;
                     n += 1;
                     lost += ev.lost_before;
-                    let _ = h.record(now_us.saturating_sub(ev.timestamp_us) * 1000);
+                    stats::record_ns(&mut h, now_us.saturating_sub(ev.timestamp_us) * 1000);
                     if trace {
                         tr.push((now_us, ev.timestamp_us));
                     }
@@ -281,7 +265,7 @@ fn run(
             .stats
             .map_or(0, |s| s.frames)
             - frames_before;
-        let mut hist = Histogram::<u64>::new(3)?;
+        let mut hist = stats::histogram();
         let (mut delivered, mut lost_reported) = (0, 0);
         let mut trace = Vec::new();
         for t in tasks {
@@ -311,20 +295,7 @@ fn run(
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    match bench(&args) {
-        Ok(true) => ExitCode::SUCCESS,
-        Ok(false) => {
-            if args.strict {
-                ExitCode::from(1)
-            } else {
-                ExitCode::SUCCESS
-            }
-        }
-        Err(e) => {
-            eprintln!("wheel_bench: {e:#}");
-            ExitCode::from(1)
-        }
-    }
+    host::exit_code("wheel_bench", args.strict, bench(&args))
 }
 
 fn bench(args: &Args) -> Result<bool> {
@@ -348,13 +319,8 @@ fn bench(args: &Args) -> Result<bool> {
         rt
     };
     println!(
-        "wheel_bench ({} build, {}): {} feed frames/s for {seconds} s; {rt}",
-        if cfg!(debug_assertions) {
-            "debug"
-        } else {
-            "release"
-        },
-        if args.quick { "quick" } else { "full" },
+        "{}: {} feed frames/s for {seconds} s; {rt}",
+        report::banner("wheel_bench", args.quick),
         args.rate
     );
     let one = run(
@@ -369,9 +335,14 @@ fn bench(args: &Args) -> Result<bool> {
             client_rt_priority: args.client_rt_priority,
         },
     )?;
-    let ms = |h: &Histogram<u64>, q: f64| h.value_at_quantile(q) as f64 / 1e6;
+    // Latencies in ms.
+    let ms = |h: &Histogram<u64>| {
+        let p = Percentiles::of(h);
+        [p.p50_us, p.p90_us, p.p99_us, p.max_us].map(|us| us / 1000.0)
+    };
+    let [p50, p90, p99, max] = ms(&one.hist);
     let lost_one = one.sent - one.delivered;
-    let ok_one = ms(&one.hist, 0.99) < 1.0 && lost_one == 0 && one.gateway_frames == one.sent;
+    let ok_one = p99 < 1.0 && lost_one == 0 && one.gateway_frames == one.sent;
     println!(
         "1. one subscriber: {} frames sent, {} decoded by the gateway, {} delivered ({} lost); \
          bus -> client p50 {:.3} ms, p90 {:.3} ms, p99 {:.3} ms, max {:.3} ms (target p99 < 1 ms, 0 lost: {})",
@@ -379,10 +350,10 @@ fn bench(args: &Args) -> Result<bool> {
         one.gateway_frames,
         one.delivered,
         lost_one,
-        ms(&one.hist, 0.5),
-        ms(&one.hist, 0.9),
-        ms(&one.hist, 0.99),
-        ms(&one.hist, 1.0),
+        p50,
+        p90,
+        p99,
+        max,
         if ok_one { "met" } else { "MISSED" }
     );
     if let Some(path) = &args.trace {
@@ -393,8 +364,8 @@ fn bench(args: &Args) -> Result<bool> {
         std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
     }
     let one_json = json!({"sent": one.sent, "gateway": one.gateway_frames, "delivered": one.delivered,
-                          "p50_ms": ms(&one.hist, 0.5), "p90_ms": ms(&one.hist, 0.9),
-                          "p99_ms": ms(&one.hist, 0.99), "max_ms": ms(&one.hist, 1.0)});
+                          "p50_ms": p50, "p90_ms": p90,
+                          "p99_ms": p99, "max_ms": max});
     let fanout_json = if args.one_only {
         serde_json::Value::Null
     } else {
@@ -415,20 +386,16 @@ fn bench(args: &Args) -> Result<bool> {
             },
         )?;
         let per_s = many.delivered as f64 / many.wall;
+        let [p50, _, p99, _] = ms(&many.hist);
         let expected = many.sent * fanout as u64;
         println!(
             "2. {fanout} subscribers: {:.0} events/s delivered in total ({} of {} expected, {} reported lost); \
              p50 {:.3} ms, p99 {:.3} ms",
-            per_s,
-            many.delivered,
-            expected,
-            many.lost_reported,
-            ms(&many.hist, 0.5),
-            ms(&many.hist, 0.99)
+            per_s, many.delivered, expected, many.lost_reported, p50, p99
         );
         json!({"subscribers": fanout, "delivered": many.delivered, "expected": expected,
                "lost_reported": many.lost_reported, "per_s": per_s,
-               "p50_ms": ms(&many.hist, 0.5), "p99_ms": ms(&many.hist, 0.99)})
+               "p50_ms": p50, "p99_ms": p99})
     };
     println!(
         "{}",

@@ -1,0 +1,26 @@
+//! `cangate_bench`: the measuring code the benchmark binaries share.
+//!
+//! Every benchmark here (the `cangate-bench` binary and `sdo_bench`,
+//! `axis_bench`, `wheel_bench`, `cansmc_bench`, `soak_bench`) starts the real
+//! gateway in its own process, drives it through the real client or its
+//! runtime handles, and prints human-readable figures and one JSON line. What
+//! they have in common lives here, so that a percentile, a "no client
+//! limits" configuration or a CPU reading means the same thing in every
+//! figure:
+//!
+//! - [`stats`]: HDR histograms of latencies and their percentiles;
+//! - [`report`]: headline figures against their targets, the summary table,
+//!   the banner line;
+//! - [`gateway`]: the gateway's configuration, its runtimes, starting and
+//!   stopping it, the handles a benchmark takes from it;
+//! - [`axes`]: waiting for axes and holding a control lease to command them;
+//! - [`host`]: this process's threads' CPU time and memory, and the exit
+//!   status of a benchmark.
+
+#![deny(missing_docs, unreachable_pub)]
+
+pub mod axes;
+pub mod gateway;
+pub mod host;
+pub mod report;
+pub mod stats;
