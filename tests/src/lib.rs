@@ -1,1 +1,157 @@
-//! End-to-end tests live in tests/.
+//! The end-to-end test harness of cangate: what the tests in `tests/tests/`
+//! share to run the real server in-process and drive it with the real
+//! client.
+//!
+//! - this module: a server on `127.0.0.1:0` with virtual buses
+//!   ([`start_server`], [`ONE_BUS`]), a connected [`client`], frame streams
+//!   read with timeouts ([`open_stream`], [`read_frames`], [`assert_quiet`])
+//!   and the CANopen calls most tests make on `can0` ([`node_events`],
+//!   [`send_nmt`], [`get_node`]);
+//! - [`axes`]: commands under a control lease, waiting for an axis status,
+//!   a simulated drive the test runs itself (to fault it or switch it off).
+//!
+//! Every helper panics with a message on failure (these are tests), and
+//! every wait is bounded by [`WAIT`], so that a broken build fails instead
+//! of hanging. A test file uses it as `use cangate_tests::*;`. Running
+//! against a real SocketCAN `vcan0` is `tests/tests/common/vcan.rs`,
+//! included by path by the tests that need it.
+
+#![deny(missing_docs, unreachable_pub)]
+
+pub mod axes;
+
+use cangate_client::pb;
+use cangate_client::pb::stream_event::Event;
+use cangate_server::{Config, RunningServer};
+use std::time::Duration;
+
+/// Every wait in these tests is bounded by this, so a broken build fails
+/// instead of hanging.
+pub const WAIT: Duration = Duration::from_secs(10);
+
+/// A server on an ephemeral port with the given `[[bus]]` sections.
+pub async fn start_server(buses_toml: &str) -> RunningServer {
+    let text = format!("listen = \"127.0.0.1:0\"\n{buses_toml}");
+    let config = Config::from_toml(&text).expect("test configuration is valid");
+    cangate_server::start(&config).await.expect("server starts")
+}
+
+/// One fast virtual bus `can0` (FD, no bit timing).
+pub const ONE_BUS: &str =
+    "[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\nfd = true\nbitrate = 1000000\n";
+
+/// A client connected to the server.
+pub async fn client(server: &RunningServer) -> cangate_client::Client {
+    cangate_client::connect(&format!("http://{}", server.addr))
+        .await
+        .expect("client connects")
+}
+
+/// A stream request for `bus` with filters.
+pub fn stream_request(bus: &str, filters: Vec<pb::FrameFilter>) -> pb::StreamFramesRequest {
+    pb::StreamFramesRequest {
+        bus: bus.to_string(),
+        filters,
+        include_transmitted: false,
+        include_error_frames: false,
+        max_batch: 0,
+        queue_length: 0,
+    }
+}
+
+/// Opens a stream and consumes the initial state event, so that the
+/// subscription is known to be in place before the test sends anything.
+pub async fn open_stream(
+    client: &mut cangate_client::Client,
+    req: pb::StreamFramesRequest,
+) -> (
+    tonic::Streaming<pb::StreamFramesResponse>,
+    Vec<pb::StreamEvent>,
+) {
+    let mut s = client.stream_frames(req).await.expect("stream opens");
+    let first = tokio::time::timeout(WAIT, s.message())
+        .await
+        .expect("initial state in time")
+        .expect("stream ok")
+        .expect("stream not ended");
+    assert!(
+        matches!(
+            first.events.first().and_then(|e| e.event.as_ref()),
+            Some(Event::State(_))
+        ),
+        "a stream starts with the bus state"
+    );
+    let rest = first.events[1..].to_vec();
+    (s, rest)
+}
+
+/// Reads events until `n` frames arrived (other events are returned too).
+pub async fn read_frames(
+    stream: &mut tonic::Streaming<pb::StreamFramesResponse>,
+    pending: &mut Vec<pb::StreamEvent>,
+    n: usize,
+) -> Vec<pb::Frame> {
+    let mut frames = Vec::new();
+    loop {
+        for ev in pending.drain(..) {
+            if let Some(Event::Frame(f)) = ev.event {
+                frames.push(f);
+            }
+        }
+        if frames.len() >= n {
+            return frames;
+        }
+        let msg = tokio::time::timeout(WAIT, stream.message())
+            .await
+            .unwrap_or_else(|_| panic!("only {} of {n} frames arrived in time", frames.len()))
+            .expect("stream ok")
+            .expect("stream not ended");
+        pending.extend(msg.events);
+    }
+}
+
+/// Asserts that nothing more arrives within a short while.
+pub async fn assert_quiet(stream: &mut tonic::Streaming<pb::StreamFramesResponse>) {
+    if let Ok(msg) = tokio::time::timeout(Duration::from_millis(200), stream.message()).await {
+        panic!("unexpected stream message: {msg:?}");
+    }
+}
+
+/// Node events of `can0` for these nodes.
+pub async fn node_events(
+    c: &cangate_client::Client,
+    nodes: Vec<u32>,
+) -> tonic::Streaming<pb::NodeEvent> {
+    c.canopen_client()
+        .stream_node_events(pb::StreamNodeEventsRequest {
+            bus: "can0".into(),
+            nodes,
+        })
+        .await
+        .expect("node event stream opens")
+        .into_inner()
+}
+
+/// Sends an NMT command on `can0` (node 0: all).
+pub async fn send_nmt(c: &cangate_client::Client, node: u32, command: pb::NmtCommand) {
+    c.canopen_client()
+        .send_nmt(pb::SendNmtRequest {
+            bus: "can0".into(),
+            node,
+            command: command as i32,
+        })
+        .await
+        .expect("NMT command accepted");
+}
+
+/// A node of `can0` as the master sees it.
+pub async fn get_node(c: &cangate_client::Client, node: u32) -> pb::Node {
+    c.canopen_client()
+        .get_node(pb::GetNodeRequest {
+            bus: "can0".into(),
+            node,
+        })
+        .await
+        .expect("GetNode")
+        .into_inner()
+}

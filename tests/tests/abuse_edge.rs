@@ -5,11 +5,9 @@
 //! v1alpha). The real server in-process on the virtual bus, the real
 //! client (or raw bytes where a client would refuse to send them).
 
-mod common;
-
 use cangate_client::{ConnectOptions, pb};
-use common::axes::{Axes, acquire, cmd, enable};
-use common::*;
+use cangate_tests::axes::{Axes, acquire, cmd, enable};
+use cangate_tests::*;
 use prost::Message;
 use prost::bytes::{Buf, BufMut};
 use std::sync::{Arc, Mutex};
@@ -219,7 +217,7 @@ async fn a_lease_token_does_not_work_for_another_identity() {
         .r#move(pb::MoveRequest {
             axis: "X".into(),
             target: 1.0,
-            options: common::axes::opts(&lease, false),
+            options: cangate_tests::axes::opts(&lease, false),
             ..Default::default()
         })
         .await
@@ -549,7 +547,7 @@ async fn unchecked_values_are_refused_with_a_reason() {
         relative: false,
         velocity,
         acceleration,
-        options: common::axes::opts(&lease, false),
+        options: cangate_tests::axes::opts(&lease, false),
     };
     for (req, code, words) in [
         (

@@ -1,12 +1,10 @@
 //! The Axes service end to end: the real server on a virtual bus with
 //! simulated CiA 402 drives, driven by the real client.
 
-mod common;
-
 use cangate_client::pb;
 use cangate_client::pb::axis_update::Update;
-use common::axes::*;
-use common::*;
+use cangate_tests::axes::*;
+use cangate_tests::*;
 use std::time::Duration;
 use tonic::Code;
 

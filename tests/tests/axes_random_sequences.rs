@@ -14,10 +14,8 @@
 //! A failure names the seed and the actions up to it; the sequence is a
 //! function of the seed (`AXES_RANDOM_SEED=<n>` runs one seed).
 
-mod common;
-
 use cangate_client::pb;
-use common::axes::{Axes, acquire, cmd, opts};
+use cangate_tests::axes::{Axes, acquire, cmd, opts};
 use std::time::Duration;
 use tonic::Code;
 
@@ -315,7 +313,7 @@ async fn random_command_sequences_leave_every_axis_commandable() {
     config.listen = "127.0.0.1:0".parse().unwrap();
     config.metrics_listen = None;
     let server = cangate_server::start(&config).await.expect("demo starts");
-    let client = common::client(&server).await;
+    let client = cangate_tests::client(&server).await;
     let mut axes = client.axes_client();
     // Each axis once its drive reports.
     let list = axes
@@ -343,7 +341,8 @@ async fn random_command_sequences_leave_every_axis_commandable() {
         let mut axes = client.axes_client();
         let seeds = seeds.clone();
         tasks.push(tokio::spawn(async move {
-            common::axes::wait_status(&mut axes, name, |s| s.state != 0 && !s.node_lost).await;
+            cangate_tests::axes::wait_status(&mut axes, name, |s| s.state != 0 && !s.node_lost)
+                .await;
             for seed in seeds {
                 sequence(&mut axes, name, seed, &limits).await?;
             }
@@ -370,11 +369,11 @@ async fn the_demo_profile_axis_homes_from_both_ends_of_its_range() {
     config.listen = "127.0.0.1:0".parse().unwrap();
     config.metrics_listen = None;
     let server = cangate_server::start(&config).await.expect("demo starts");
-    let client = common::client(&server).await;
+    let client = cangate_tests::client(&server).await;
     let mut axes = client.axes_client();
-    common::axes::wait_status(&mut axes, "Z", |s| s.state != 0 && !s.node_lost).await;
+    cangate_tests::axes::wait_status(&mut axes, "Z", |s| s.state != 0 && !s.node_lost).await;
     let lease = acquire(&mut axes, &["Z"], 60_000, "homing test").await;
-    common::axes::enable(&mut axes, "Z", &lease).await;
+    cangate_tests::axes::enable(&mut axes, "Z", &lease).await;
     for end in [90.0, -90.0] {
         let r = axes
             .r#move(pb::MoveRequest {

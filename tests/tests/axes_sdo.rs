@@ -4,11 +4,9 @@
 //! of the set-point handshake; a drive that stops answering faults its
 //! axis and a rebooted one is usable again.
 
-mod common;
-
 use cangate_client::pb;
-use common::axes::*;
-use common::*;
+use cangate_tests::axes::*;
+use cangate_tests::*;
 use tonic::Code;
 
 /// S: a simulated drive run by the server. T: a drive the test runs (to

@@ -3,11 +3,9 @@
 //! still happen: StreamPdo shows them decoded and named, and the per-TPDO
 //! receive counters count them; the axis itself follows the drive.
 
-mod common;
-
 use cangate_client::pb;
 use cangate_client::pb::axis_update::Update;
-use common::*;
+use cangate_tests::*;
 
 const CONFIG: &str = r#"
 [[bus]]

@@ -1,10 +1,8 @@
 //! Invalid requests are refused with the right code and a message naming
 //! the problem, and nothing reaches the bus.
 
-mod common;
-
 use cangate_client::pb;
-use common::*;
+use cangate_tests::*;
 use tonic::Code;
 
 fn frame(id: u32, extended: bool, data: &[u8]) -> pb::Frame {

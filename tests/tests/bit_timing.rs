@@ -2,11 +2,9 @@
 //! (checked on the bus timestamps, not on wall time), arbitration picks the
 //! lowest identifier among queued senders, and the load figure matches.
 
-mod common;
-
 use cangate_client::can::{CanId, Frame};
 use cangate_client::pb;
-use common::*;
+use cangate_tests::*;
 
 /// A standard 8-byte frame with worst-case stuffing: 111 + 24 stuff bits.
 const FRAME_NS: u64 = 135_000;

@@ -5,12 +5,10 @@
 //! held back are counted. `SendFrames` refuses fields that do not belong to
 //! the frame's kind.
 
-mod common;
-
 use cangate_can::{BitTiming, BusItem, FrameSelector, TxShares};
 use cangate_client::can::{CanId, Frame};
 use cangate_client::pb;
-use common::*;
+use cangate_tests::*;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;

@@ -2,11 +2,9 @@
 //! matching frames, in order, with timestamps; extended ids, remote frames
 //! and CAN FD round-trip unchanged.
 
-mod common;
-
 use cangate_client::can::{Filter, Frame};
 use cangate_client::pb;
-use common::*;
+use cangate_tests::*;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn filtered_stream_sees_exactly_the_matching_frames_in_order() {

@@ -3,11 +3,9 @@
 //! that used to be accepted silently. One test per defect of the hardening
 //! issue (items 8, 9, 10, 11 and the CANopen part of 17).
 
-mod common;
-
 use cangate_client::pb;
 use cangate_client::pb::node_event::Event;
-use common::*;
+use cangate_tests::*;
 use std::time::Duration;
 use tonic::Code;
 

@@ -2,11 +2,9 @@
 //! the virtual bus, driven through the gRPC Canopen service by the real
 //! client.
 
-mod common;
-
 use cangate_client::pb;
 use cangate_client::pb::node_event::Event;
-use common::*;
+use cangate_tests::*;
 use std::time::Duration;
 use tonic::Code;
 

@@ -2,11 +2,9 @@
 //! PDOs end to end: the configured TPDO arrives decoded and named on
 //! StreamPdo; WritePdo reaches the node's object dictionary.
 
-mod common;
-
 use cangate_client::pb;
 use cangate_client::pb::node_event::Event;
-use common::*;
+use cangate_tests::*;
 
 const CONFIG: &str = r#"
 [[bus]]

@@ -7,13 +7,11 @@
 //! every wait polls until its condition holds, bounded by [`WAIT`], and
 //! rates are checked with wide tolerances.
 
-mod common;
-
 use cangate_client::pb;
 use cangate_client::pb::axis_update::Update;
 use cangate_client::pb::cansmc_event::Event;
 use cangate_server::{Config, RunningServer};
-use common::*;
+use cangate_tests::*;
 use std::time::{Duration, Instant};
 use tonic::Code;
 

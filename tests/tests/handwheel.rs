@@ -1,10 +1,8 @@
 //! Handwheels end to end: simulated wheels on the virtual bus, the real
 //! server, the real client; feed events, compensation, mode, axis binding.
 
-mod common;
-
 use cangate_client::pb;
-use common::*;
+use cangate_tests::*;
 use std::time::{Duration, Instant};
 use tonic::Code;
 

@@ -1,9 +1,7 @@
 //! gRPC health and reflection are served, so standard tools (grpcurl,
 //! grpc_health_probe, Kubernetes probes) work against the gateway.
 
-mod common;
-
-use common::*;
+use cangate_tests::*;
 use tonic_health::pb::HealthCheckRequest;
 use tonic_health::pb::health_check_response::ServingStatus;
 use tonic_health::pb::health_client::HealthClient;

@@ -9,13 +9,12 @@
 //! another process on a kernel `vcan0` (in the VM when the host has none;
 //! see `common/vcan.rs`).
 
-mod common;
 #[path = "common/vcan.rs"]
 mod vcan;
 
 use cangate_client::pb;
-use common::axes::{Axes, acquire, enable, opts, wait_status};
-use common::*;
+use cangate_tests::axes::{Axes, acquire, enable, opts, wait_status};
+use cangate_tests::*;
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};

@@ -1,10 +1,8 @@
 //! The Prometheus endpoint: after some traffic the named series are there
 //! with the right values.
 
-mod common;
-
 use cangate_client::pb;
-use common::*;
+use cangate_tests::*;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
 const CONFIG: &str = r#"

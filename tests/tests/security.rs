@@ -2,10 +2,8 @@
 //! client names, per-client limits, the audit log. The real server
 //! in-process, the real client; certificates are made here with rcgen.
 
-mod common;
-
 use cangate_client::{ConnectOptions, pb};
-use common::*;
+use cangate_tests::*;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};

@@ -2,10 +2,8 @@
 //! promptly and every stream cleanly (no error); axes still moving when the
 //! motion bound runs out are quick-stopped through their controlword.
 
-mod common;
-
 use cangate_client::pb;
-use common::*;
+use cangate_tests::*;
 use std::time::Duration;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -80,7 +78,7 @@ async fn jogging_slow_stop_axis(
     cangate_sim::DeviceHandle<cangate_sim::SimDrive>,
     tokio_util::sync::CancellationToken,
 ) {
-    use common::axes::*;
+    use cangate_tests::axes::*;
     let server = start_server(SLOW_STOP_AXIS).await;
     let c = client(&server).await;
     let mut axes = c.axes_client();
@@ -102,7 +100,7 @@ async fn jogging_slow_stop_axis(
 /// Waits until axis S is beyond `position` mm.
 async fn wait_position_above(server: &cangate_server::RunningServer, position: f64) {
     let mut axes = client(server).await.axes_client();
-    common::axes::wait_status(&mut axes, "S", |s| s.position > position).await;
+    cangate_tests::axes::wait_status(&mut axes, "S", |s| s.position > position).await;
 }
 
 /// Shutdown whose stop does not finish within the bound: the gateway is a

@@ -2,10 +2,8 @@
 //! controlword writes over SDO, a profile-position move reaches its target
 //! and the TPDO stream shows the position getting there.
 
-mod common;
-
 use cangate_client::pb;
-use common::*;
+use cangate_tests::*;
 
 const CONFIG: &str = r#"
 [[bus]]

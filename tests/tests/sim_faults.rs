@@ -3,10 +3,8 @@
 //! delay, bus-off), and device faults (power cycle, EMCY, drive fault, I/O
 //! inputs), each seen the way the gateway sees a real failure.
 
-mod common;
-
 use cangate_client::pb;
-use common::*;
+use cangate_tests::*;
 use std::time::{Duration, Instant};
 use tonic::Code;
 

@@ -1,11 +1,9 @@
 //! A client that stops reading never slows the bus or other clients; when
 //! it resumes it is told exactly how many frames it missed.
 
-mod common;
-
 use cangate_client::can::{CanId, Frame};
 use cangate_client::pb::stream_event::Event;
-use common::*;
+use cangate_tests::*;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 

@@ -2,7 +2,7 @@
 //! for a status, a drive the test runs itself (to fault it or switch it
 //! off).
 
-use super::WAIT;
+use crate::WAIT;
 use cangate_client::pb;
 use cangate_sim::{DeviceHandle, SimDrive, SimDriveOptions, SimNodeOptions};
 use std::time::Duration;
