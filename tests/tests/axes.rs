@@ -195,11 +195,13 @@ async fn until<T>(
     .expect("the awaited update arrives")
 }
 
+/// The lease outlives the waited homing and move however slow the host
+/// (a lapsed lease would stop the axis, as it should).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn enable_home_move_reaches_the_target_on_the_stream() {
     let (_server, mut axes) = setup().await;
     let mut stream = status_stream(&mut axes, &["X"]).await;
-    let lease = acquire(&mut axes, &["X"], 2000, "test").await;
+    let lease = acquire(&mut axes, &["X"], 30_000, "test").await;
     enable(&mut axes, "X", &lease).await;
     let r = axes
         .home(cmd("X", &lease, true))
@@ -249,7 +251,7 @@ async fn enable_home_move_reaches_the_target_on_the_stream() {
 async fn profile_move_uses_the_set_point_handshake_on_the_wire() {
     let (server, mut axes) = setup().await;
     let mut c = client(&server).await;
-    let lease = acquire(&mut axes, &["Z"], 2000, "test").await;
+    let lease = acquire(&mut axes, &["Z"], 30_000, "test").await;
     enable(&mut axes, "Z", &lease).await;
     // Homing method 19 runs to the reference switch.
     let r = axes
