@@ -147,6 +147,15 @@ pub struct CommandResult {
 }
 
 impl CommandResult {
+    /// The proto response it was made from.
+    pub fn to_pb(&self) -> pb::AxisCommandResponse {
+        pb::AxisCommandResponse {
+            outcome: self.outcome as i32,
+            detail: self.detail.clone(),
+            status: self.status.clone(),
+        }
+    }
+
     fn from_pb(r: pb::AxisCommandResponse) -> CommandResult {
         CommandResult {
             outcome: pb::Outcome::try_from(r.outcome).unwrap_or(pb::Outcome::Unspecified),

@@ -29,13 +29,16 @@ pub struct LeaseStatus {
     pub lost: bool,
 }
 
-/// Exclusive control of some axes ([`Client::acquire_control`]).
+/// Exclusive control of some axes ([`Client::acquire_control`], or a
+/// lease taken elsewhere adopted with [`Client::adopt_control`]).
 ///
 /// A task on the current tokio runtime renews the lease every third of
 /// its TTL; [`ControlLease::status`] and [`ControlLease::lost`] tell how
 /// that goes. Dropping the guard stops renewing and releases the lease
 /// (best effort, in a spawned task); [`ControlLease::release`] releases it
-/// and reports the result. Pass it to commands with
+/// and reports the result; an adopted lease is not released on drop, and
+/// [`ControlLease::keep`] hands a lease on (stops renewing, keeps it). Pass
+/// it to commands with
 /// [`ControlLease::options`], [`ControlLease::move_options`],
 /// [`ControlLease::jog_options`] or the options' `lease` methods.
 pub struct ControlLease {
@@ -46,6 +49,7 @@ pub struct ControlLease {
     client: Client,
     status: watch::Receiver<LeaseStatus>,
     renewer: Option<JoinHandle<()>>,
+    /// Released (or kept, or adopted): nothing to do on drop.
     released: bool,
 }
 
@@ -95,10 +99,55 @@ impl Client {
                 self.axes_client().acquire_control(req),
             )
             .await?;
+        Ok(self.guard(lease, false))
+    }
+
+    /// Renews a lease this client holds as a token (taken by another
+    /// program, e.g. `cangate lease acquire`) in the background while the
+    /// guard lives. The token is checked by renewing it at once; dropping
+    /// the guard stops renewing and does not release it
+    /// ([`ControlLease::release`] still does).
+    pub async fn adopt_control(&self, token: &str) -> Result<ControlLease, Error> {
+        let lease = self.renew_control(token).await?;
+        Ok(self.guard(lease, true))
+    }
+
+    /// Renews a lease once (no guard): the lease as the gateway now has it.
+    /// Refused with FAILED_PRECONDITION when it lapsed or was released.
+    pub async fn renew_control(&self, token: &str) -> Result<pb::ControlLease, Error> {
+        let req = pb::RenewControlRequest {
+            lease: token.to_string(),
+        };
+        let mut lease = self
+            .call("RenewControl", None, self.axes_client().renew_control(req))
+            .await?;
+        if lease.lease.is_empty() {
+            lease.lease = token.to_string();
+        }
+        Ok(lease)
+    }
+
+    /// Releases a lease given as a token (no guard); the axes released.
+    pub async fn release_control(&self, token: &str) -> Result<Vec<String>, Error> {
+        let req = pb::ReleaseControlRequest {
+            lease: token.to_string(),
+        };
+        let r = self
+            .call(
+                "ReleaseControl",
+                None,
+                self.axes_client().release_control(req),
+            )
+            .await?;
+        Ok(r.axes)
+    }
+
+    /// The guard of `lease`, renewing it; `adopted`: not released on drop.
+    fn guard(&self, lease: pb::ControlLease, adopted: bool) -> ControlLease {
         let ttl = Duration::from_millis(u64::from(lease.ttl_ms.max(1)));
         let (tx, rx) = watch::channel(LeaseStatus::default());
         let renewer = tokio::spawn(renew(self.clone(), lease.lease.clone(), ttl, tx));
-        Ok(ControlLease {
+        ControlLease {
             token: lease.lease,
             axes: lease.axes,
             holder: lease.holder,
@@ -106,8 +155,8 @@ impl Client {
             client: self.clone(),
             status: rx,
             renewer: Some(renewer),
-            released: false,
-        })
+            released: adopted,
+        }
     }
 }
 
@@ -231,6 +280,22 @@ impl ControlLease {
         JogOptions::with_lease(self)
     }
 
+    /// Stops renewing and keeps the lease: the gateway's lease as granted
+    /// (token, axes, holder, TTL), for another program to use and renew
+    /// within its TTL. Nothing is sent.
+    pub fn keep(mut self) -> pb::ControlLease {
+        if let Some(r) = self.renewer.take() {
+            r.abort();
+        }
+        self.released = true;
+        pb::ControlLease {
+            lease: std::mem::take(&mut self.token),
+            axes: std::mem::take(&mut self.axes),
+            holder: std::mem::take(&mut self.holder),
+            ttl_ms: u32::try_from(self.ttl.as_millis()).unwrap_or(u32::MAX),
+        }
+    }
+
     /// Stops renewing and gives control back; the axes released. The axes
     /// keep their state (a moving axis keeps moving unless stopped).
     pub async fn release(mut self) -> Result<Vec<String>, Error> {
@@ -238,18 +303,7 @@ impl ControlLease {
             r.abort();
         }
         self.released = true;
-        let req = pb::ReleaseControlRequest {
-            lease: self.token.clone(),
-        };
-        let r = self
-            .client
-            .call(
-                "ReleaseControl",
-                None,
-                self.client.axes_client().release_control(req),
-            )
-            .await?;
-        Ok(r.axes)
+        self.client.release_control(&self.token).await
     }
 }
 

@@ -155,9 +155,22 @@ impl Client {
             .max_encoding_message_size(MAX_MESSAGE)
     }
 
-    /// Runs one unary call (or the opening of a stream) within the request
-    /// timeout plus `extra` (a wait the gateway was asked to do).
-    pub(crate) async fn call<T>(
+    /// Runs one call of a generated client (unary, or the opening of a
+    /// stream) within the request timeout plus `extra` (a wait the gateway
+    /// was asked to do), its error typed: for the RPCs without a helper.
+    /// `what` names the call in a timeout's message.
+    ///
+    /// ```no_run
+    /// # async fn demo(client: cangate_client::Client) -> Result<(), cangate_client::Error> {
+    /// use cangate_client::pb;
+    /// let faults = client
+    ///     .call("GetBusFaults", None, client.simulator_client().get_bus_faults(
+    ///         pb::GetBusFaultsRequest { bus: "can0".into() },
+    ///     ))
+    ///     .await?;
+    /// # let _ = faults; Ok(()) }
+    /// ```
+    pub async fn call<T>(
         &self,
         what: &str,
         extra: Option<Duration>,

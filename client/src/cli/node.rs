@@ -1,0 +1,453 @@
+//! CANopen nodes: `cangate node list|show`, `nmt`, `scan`, `events`,
+//! `pdo watch`.
+
+use super::{App, Context, Result, ctrl_c, label, node_id, print_json};
+use cangate_client::{NmtCommand, NodeId, SdoValue, pb};
+use clap::{Args, Subcommand, ValueEnum};
+use futures::StreamExt;
+use std::time::Duration;
+
+/// `cangate node …`
+#[derive(Args, Debug)]
+pub(crate) struct NodeArgs {
+    #[command(subcommand)]
+    verb: NodeVerb,
+}
+
+#[derive(Subcommand, Debug)]
+enum NodeVerb {
+    /// Table of CANopen nodes (configured and heard of): state, heartbeat,
+    /// device, active error.
+    List {
+        /// Only this bus.
+        bus: Option<String>,
+    },
+    /// One node in detail: identity, heartbeat, EMCY history.
+    Show {
+        /// Bus.
+        bus: String,
+        /// Node id.
+        #[arg(value_parser = node_id)]
+        node: NodeId,
+    },
+}
+
+/// `cangate nmt BUS COMMAND NODE|all`
+#[derive(Args, Debug)]
+pub(crate) struct NmtArgs {
+    /// Bus.
+    bus: String,
+    /// The command.
+    command: NmtArg,
+    /// Node id, or `all` (broadcast; also 0).
+    #[arg(value_parser = nmt_target, value_name = "NODE|all")]
+    node: Target,
+}
+
+/// One node, or every node (`None`).
+#[derive(Debug, Clone, Copy)]
+struct Target(Option<NodeId>);
+
+/// NMT commands as typed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum NmtArg {
+    /// Start (operational).
+    Start,
+    /// Stop.
+    Stop,
+    /// Enter pre-operational.
+    Preop,
+    /// Reset node.
+    Reset,
+    /// Reset communication.
+    ResetComm,
+}
+
+impl NmtArg {
+    fn command(self) -> NmtCommand {
+        match self {
+            NmtArg::Start => NmtCommand::Start,
+            NmtArg::Stop => NmtCommand::Stop,
+            NmtArg::Preop => NmtCommand::EnterPreOperational,
+            NmtArg::Reset => NmtCommand::ResetNode,
+            NmtArg::ResetComm => NmtCommand::ResetCommunication,
+        }
+    }
+}
+
+/// `all` or 0: every node (`None`); else a node id.
+fn nmt_target(text: &str) -> Result<Target, String> {
+    match text.trim() {
+        "all" | "0" => Ok(Target(None)),
+        t => node_id(t).map(|n| Target(Some(n))),
+    }
+}
+
+/// `cangate scan BUS`
+#[derive(Args, Debug)]
+pub(crate) struct ScanArgs {
+    /// Bus.
+    bus: String,
+    /// Answer timeout per node id in ms (the gateway's default: 100).
+    #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    node_timeout_ms: Option<u32>,
+}
+
+/// `cangate events`
+#[derive(Args, Debug)]
+pub(crate) struct EventsArgs {
+    /// Only this bus (default: every CANopen bus).
+    #[arg(long)]
+    bus: Option<String>,
+    /// Only these node ids (repeatable).
+    #[arg(long = "node", value_parser = node_id)]
+    nodes: Vec<NodeId>,
+}
+
+/// `cangate pdo …`
+#[derive(Args, Debug)]
+pub(crate) struct PdoArgs {
+    #[command(subcommand)]
+    verb: PdoVerb,
+}
+
+#[derive(Subcommand, Debug)]
+enum PdoVerb {
+    /// Decoded TPDOs (named, typed values) as they arrive, until Ctrl-C.
+    Watch {
+        /// Only this bus (default: every CANopen bus).
+        bus: Option<String>,
+        /// Only these node ids (repeatable).
+        #[arg(long = "node", value_parser = node_id)]
+        nodes: Vec<NodeId>,
+    },
+}
+
+/// `(secs.micros)` of a nanosecond timestamp.
+fn ns_text(ns: u64) -> String {
+    super::time_text(ns / 1000)
+}
+
+fn nodes_table(nodes: &[pb::Node]) -> String {
+    let mut text = format!(
+        "{:<6} {:>4}  {:<16} {:<16} {:>8}  {:<10} {:<24} ERROR",
+        "BUS", "NODE", "NAME", "STATE", "HB AGE", "DEVTYPE", "DEVICE"
+    );
+    for n in nodes {
+        let age = match (n.heartbeat_age_ms, n.heartbeat_lost) {
+            (_, true) => "LOST".to_string(),
+            (Some(a), _) => format!("{a} ms"),
+            (None, _) => "-".into(),
+        };
+        text.push_str(&format!(
+            "\n{:<6} {:>4}  {:<16} {:<16} {:>8}  {:<10} {:<24} {}",
+            n.bus,
+            n.id,
+            n.name,
+            label::<pb::NmtState>(n.state),
+            age,
+            n.device_type
+                .map_or_else(|| "-".into(), |d| format!("0x{d:08X}")),
+            n.device_name,
+            n.active_error
+                .as_ref()
+                .map(|e| format!("0x{:04X} {}", e.code, e.code_name))
+                .unwrap_or_default()
+        ));
+    }
+    text
+}
+
+fn node_text(n: &pb::Node) -> String {
+    let mut rows: Vec<(&str, String)> = vec![
+        ("node", format!("{}/{} {}", n.bus, n.id, n.name)),
+        ("state", label::<pb::NmtState>(n.state)),
+        (
+            "heartbeat",
+            match (n.heartbeat_age_ms, n.heartbeat_lost) {
+                (_, true) => format!("LOST (timeout {} ms)", n.heartbeat_timeout_ms),
+                (Some(a), _) => format!("{a} ms ago (timeout {} ms)", n.heartbeat_timeout_ms),
+                (None, _) => "-".into(),
+            },
+        ),
+        (
+            "device type",
+            n.device_type
+                .map_or_else(|| "-".into(), |d| format!("0x{d:08X}")),
+        ),
+        ("device name", n.device_name.clone()),
+        (
+            "identity",
+            n.identity.as_ref().map_or_else(
+                || "-".into(),
+                |i| {
+                    format!(
+                        "vendor 0x{:08X} product 0x{:08X} revision 0x{:08X} serial 0x{:08X}",
+                        i.vendor_id, i.product_code, i.revision, i.serial
+                    )
+                },
+            ),
+        ),
+        (
+            "active error",
+            n.active_error.as_ref().map_or_else(
+                || "-".into(),
+                |e| format!("0x{:04X} {}", e.code, e.code_name),
+            ),
+        ),
+        ("boot-ups", n.boot_ups.to_string()),
+        ("configured", if n.configured { "yes" } else { "no" }.into()),
+    ];
+    for e in &n.emcy_history {
+        rows.push((
+            "emcy",
+            format!(
+                "{} 0x{:04X} {} (register 0x{:02X})",
+                ns_text(e.timestamp_ns),
+                e.code,
+                e.code_name,
+                e.register
+            ),
+        ));
+    }
+    rows.iter()
+        .map(|(k, v)| format!("{:<13} {v}", format!("{k}:")))
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// `cangate node …`
+pub(crate) async fn run(app: &App, args: NodeArgs) -> Result<()> {
+    match args.verb {
+        NodeVerb::List { bus } => {
+            let bus = bus.unwrap_or_default();
+            let nodes = app
+                .client
+                .canopen(&bus)
+                .nodes()
+                .await
+                .ctx("listing the nodes")?;
+            if app.json {
+                return print_json(&pb::ListNodesResponse { nodes });
+            }
+            app.line(nodes_table(&nodes))
+        }
+        NodeVerb::Show { bus, node } => {
+            let n = app
+                .client
+                .canopen(&bus)
+                .node(node)
+                .await
+                .ctx(format!("{bus} node {node}"))?;
+            app.show(node_text(&n), &n)
+        }
+    }
+}
+
+/// `cangate nmt BUS COMMAND NODE|all`
+pub(crate) async fn nmt(app: &App, a: NmtArgs) -> Result<()> {
+    let can = app.client.canopen(&a.bus);
+    let command = a.command.command();
+    let what = format!(
+        "nmt {} to {} on {}",
+        label::<NmtCommand>(command as i32),
+        a.node.0.map_or("all nodes".into(), |n| format!("node {n}")),
+        a.bus
+    );
+    match a.node.0 {
+        Some(n) => can.nmt(n, command).await,
+        None => can.nmt_all(command).await,
+    }
+    .ctx(what)?;
+    if app.json {
+        print_json(&pb::SendNmtResponse {})?;
+    }
+    Ok(())
+}
+
+/// `cangate scan BUS`
+pub(crate) async fn scan(app: &App, a: ScanArgs) -> Result<()> {
+    let timeout = a
+        .node_timeout_ms
+        .map(|ms| Duration::from_millis(u64::from(ms)));
+    // 127 node ids, one after the other: the request bound grows with them.
+    let per_node = timeout.unwrap_or(Duration::from_millis(100));
+    let client = match app.client.request_timeout() {
+        Some(bound) => app
+            .client
+            .with_request_timeout(Some(bound + per_node * 127)),
+        None => app.client.clone(),
+    };
+    let nodes = client
+        .canopen(&a.bus)
+        .scan(timeout)
+        .await
+        .ctx(format!("scanning {}", a.bus))?;
+    if app.json {
+        return print_json(&pb::ScanNetworkResponse { nodes });
+    }
+    app.line(nodes_table(&nodes))
+}
+
+/// One line of `events`.
+fn event_text(ev: &pb::NodeEvent) -> Option<String> {
+    use pb::node_event::Event as E;
+    let state = label::<pb::NmtState>;
+    let what = match ev.event.as_ref()? {
+        E::BootUp(_) => "boot-up".to_string(),
+        E::StateChanged(c) => format!("state {} -> {}", state(c.from), state(c.to)),
+        E::HeartbeatLost(l) => format!("heartbeat lost (timeout {} ms)", l.timeout_ms),
+        E::HeartbeatRecovered(r) => format!(
+            "heartbeat recovered after {} ms ({})",
+            r.silent_ms,
+            state(r.state)
+        ),
+        E::Emcy(e) => format!(
+            "EMCY 0x{:04X} {} (register 0x{:02X})",
+            e.code, e.code_name, e.register
+        ),
+        E::Lost(l) => format!("{} events lost (this client read too slowly)", l.count),
+        E::BootCompleted(_) => "boot procedure completed, node started".to_string(),
+        E::BootFailed(f) => format!("boot procedure FAILED: {}", f.reason),
+    };
+    Some(format!(
+        "{}  {}  node {:>3}  {what}",
+        ns_text(ev.timestamp_ns),
+        ev.bus,
+        ev.node
+    ))
+}
+
+/// `cangate events [--bus B] [--node N]`
+pub(crate) async fn events(app: &App, a: EventsArgs) -> Result<()> {
+    let bus = a.bus.unwrap_or_default();
+    let mut s = app
+        .client
+        .canopen(&bus)
+        .events(&a.nodes)
+        .await
+        .ctx("node events")?;
+    loop {
+        let ev = tokio::select! {
+            e = s.next() => e,
+            _ = ctrl_c() => return Ok(()),
+        };
+        let Some(ev) = ev else { return Ok(()) };
+        let ev = ev.ctx("node events")?;
+        if let Some(text) = event_text(&ev) {
+            app.item(text, &ev)?;
+        }
+    }
+}
+
+/// One line of `pdo watch`.
+fn pdo_text(m: &pb::PdoMessage) -> String {
+    let values: Vec<String> = m
+        .values
+        .iter()
+        .map(|v| {
+            let name = if v.name.is_empty() {
+                format!("0x{:04X}:{:02X}", v.index, v.subindex)
+            } else {
+                v.name.clone()
+            };
+            let value = v
+                .value
+                .as_ref()
+                .and_then(|v| SdoValue::from_pb(v).ok())
+                .map_or_else(|| "-".to_string(), |v| v.to_string());
+            format!("{name}={value}")
+        })
+        .collect();
+    format!(
+        "{}  {}  node {:>3}  TPDO{} {:03X}  {}",
+        ns_text(m.timestamp_ns),
+        m.bus,
+        m.node,
+        m.pdo,
+        m.cob_id,
+        values.join("  ")
+    )
+}
+
+/// `cangate pdo watch [BUS] [--node N]`
+pub(crate) async fn pdo(app: &App, a: PdoArgs) -> Result<()> {
+    let PdoVerb::Watch { bus, nodes } = a.verb;
+    let req = pb::StreamPdoRequest {
+        bus: bus.unwrap_or_default(),
+        nodes: nodes.iter().map(|n| u32::from(*n)).collect(),
+    };
+    let mut s = app
+        .client
+        .call(
+            "StreamPdo",
+            None,
+            app.client.canopen_client().stream_pdo(req),
+        )
+        .await
+        .ctx("watching PDOs")?;
+    loop {
+        let m = tokio::select! {
+            m = s.message() => m.map_err(cangate_client::Error::from).ctx("watching PDOs")?,
+            _ = ctrl_c() => return Ok(()),
+        };
+        let Some(m) = m else { return Ok(()) };
+        if m.lost_before > 0 && !app.json {
+            eprintln!(
+                "cangate: {} PDOs lost (this client read too slowly)",
+                m.lost_before
+            );
+        }
+        app.item(pdo_text(&m), &m)?;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{Cli, Command};
+    use super::*;
+    use clap::Parser;
+
+    #[test]
+    fn nmt_takes_a_node_or_all() {
+        let parse = |argv: &[&str]| {
+            let mut all = vec!["cangate", "nmt"];
+            all.extend_from_slice(argv);
+            Cli::try_parse_from(&all).map(|c| match c.command {
+                Command::Nmt(a) => (a.command, a.node.0.map(NodeId::get)),
+                other => panic!("{other:?}"),
+            })
+        };
+        assert_eq!(
+            parse(&["can0", "start", "5"]).unwrap(),
+            (NmtArg::Start, Some(5))
+        );
+        assert_eq!(
+            parse(&["can0", "reset-comm", "all"]).unwrap(),
+            (NmtArg::ResetComm, None)
+        );
+        assert_eq!(
+            parse(&["can0", "preop", "0"]).unwrap(),
+            (NmtArg::Preop, None)
+        );
+        assert!(parse(&["can0", "start", "128"]).is_err());
+        assert!(parse(&["can0", "jump", "1"]).is_err());
+    }
+
+    #[test]
+    fn event_lines() {
+        let ev = pb::NodeEvent {
+            bus: "can0".into(),
+            node: 3,
+            timestamp_ns: 1_700_000_000_123_456_789,
+            event: Some(pb::node_event::Event::StateChanged(pb::StateChange {
+                from: pb::NmtState::PreOperational as i32,
+                to: pb::NmtState::Operational as i32,
+            })),
+        };
+        assert_eq!(
+            event_text(&ev).unwrap(),
+            "(1700000000.123456)  can0  node   3  state pre-operational -> operational"
+        );
+    }
+}
