@@ -546,11 +546,11 @@ async fn run(cli: Cli) -> Result<()> {
             clap_complete::generate(*shell, &mut cmd, "cangate", &mut std::io::stdout());
             return Ok(());
         }
+        // Input clap cannot check alone, refused before connecting.
+        Command::Sdo(a) => a.check()?,
         _ => {}
     }
-    let client = cangate_client::connect_with(&cli.connection.server, &cli.connection.options())
-        .await
-        .ctx("")?;
+    let client = connect(&cli.connection).await?;
     let app = App {
         client,
         json: cli.json,
@@ -572,6 +572,34 @@ async fn run(cli: Cli) -> Result<()> {
         Command::Sim(a) => sim::run(&app, a).await,
         Command::Smc(a) => smc::run(&app, a).await,
         Command::HashToken { .. } | Command::Completions { .. } => Ok(()),
+    }
+}
+
+/// Connects, and checks that a gateway answers within the connect
+/// timeout: a plaintext HTTP/2 connection is "made" as soon as TCP is, so
+/// a peer that accepts and never answers would otherwise hold the first
+/// request for its whole bound. Any answer counts (also a refusal: the
+/// token may not allow ListBuses); only silence or a broken connection
+/// fails, with exit 4 or 5.
+async fn connect(c: &Connection) -> Result<Client> {
+    let client = cangate_client::connect_with(&c.server, &c.options())
+        .await
+        .ctx("")?;
+    let bound = Duration::from_millis(c.connect_timeout_ms);
+    let probe = client.with_request_timeout(Some(bound));
+    match probe.clone().list_buses().await {
+        Err(Error::Timeout { status: None, .. }) => Err(Failure {
+            what: format!("connecting to {}", c.server),
+            cause: Cause::Api(Error::Timeout {
+                message: format!(
+                    "the peer accepted the connection but no gateway answered within {} ms",
+                    bound.as_millis()
+                ),
+                status: None,
+            }),
+        }),
+        Err(e @ Error::Transport { .. }) => Err(e).ctx(format!("connecting to {}", c.server)),
+        Ok(_) | Err(_) => Ok(client),
     }
 }
 

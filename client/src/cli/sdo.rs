@@ -64,6 +64,26 @@ enum SdoVerb {
     },
 }
 
+impl SdoArgs {
+    /// A value that does not fit its type, refused before connecting.
+    pub(crate) fn check(&self) -> Result<()> {
+        if let SdoVerb::Write {
+            bus,
+            ty,
+            value: Some(text),
+            ..
+        } = &self.verb
+        {
+            let parsed = match ty {
+                TypeArg::Raw => hex_bytes(text).map(|_| ()),
+                _ => parse_value(*ty, text).map(|_| ()),
+            };
+            parsed.map_err(|e| Failure::usage(format!("sdo write on {bus}"), e))?;
+        }
+        Ok(())
+    }
+}
+
 /// Transfer options.
 #[derive(Args, Debug, Clone, Copy)]
 struct Transfer {

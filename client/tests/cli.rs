@@ -1,0 +1,343 @@
+//! The real `cangate` binary against a real gateway (in this process, on a
+//! virtual bus with a simulated CiA 402 drive as axis X): the grammar
+//! (negative values without `--`), connecting (host:port, a silent
+//! listener within the connect timeout), --json of typed SDO values, SDO
+//! aborts and unknown names with their messages and exit statuses, a lease
+//! acquired, used and released from the shell, completions.
+
+use std::net::SocketAddr;
+use std::process::{Command, Output};
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+/// One bus, one simulated drive (node 1) as axis X; generous heartbeat
+/// timeout for loaded test machines.
+const CONFIG: &str = r#"
+listen = "127.0.0.1:0"
+
+[[bus]]
+name = "can0"
+backend = "virtual"
+fd = true
+bitrate = 1000000
+
+[[canopen]]
+bus = "can0"
+sdo_timeout_ms = 500
+sync_period_us = 10000
+
+[[canopen.node]]
+id = 1
+name = "X axis drive"
+eds = "builtin:drive"
+heartbeat_timeout_ms = 2000
+simulate = true
+
+[[axis]]
+name = "X"
+bus = "can0"
+node = 1
+unit = "mm"
+counts_per_unit = 1000.0
+position_mode = "cyclic"
+min_position = -200.0
+max_position = 200.0
+max_velocity = 100.0
+max_acceleration = 1000.0
+homing_method = 35
+stop_on_loss = "halt"
+jog_deadman_ms = 500
+"#;
+
+/// The gateway all tests share: started once on its own runtime thread,
+/// running until the test process ends.
+fn gateway() -> SocketAddr {
+    static ADDR: OnceLock<SocketAddr> = OnceLock::new();
+    *ADDR.get_or_init(|| {
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let rt = tokio::runtime::Builder::new_multi_thread()
+                .worker_threads(2)
+                .enable_all()
+                .build()
+                .expect("runtime");
+            rt.block_on(async move {
+                let config = cangate_server::Config::from_toml(CONFIG).expect("config");
+                let server = cangate_server::start(&config).await.expect("server starts");
+                tx.send(server.addr).expect("test waits");
+                std::future::pending::<()>().await;
+            });
+        });
+        rx.recv_timeout(Duration::from_secs(30))
+            .expect("the gateway starts")
+    })
+}
+
+/// Runs `cangate --server HOST:PORT ARGS…` (no `CANGATE_*` from the
+/// environment).
+fn cangate(args: &[&str]) -> Output {
+    let addr = gateway().to_string();
+    run(&["--server", &addr], args)
+}
+
+fn run(first: &[&str], args: &[&str]) -> Output {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_cangate"));
+    for (k, _) in std::env::vars() {
+        if k.starts_with("CANGATE_") {
+            cmd.env_remove(k);
+        }
+    }
+    cmd.args(first).args(args).output().expect("cangate runs")
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Asserts the exit status, showing the output when it differs.
+#[track_caller]
+fn assert_status(o: &Output, code: i32) {
+    assert_eq!(
+        o.status.code(),
+        Some(code),
+        "stdout: {}\nstderr: {}",
+        stdout(o),
+        stderr(o)
+    );
+}
+
+/// Every error is one line `cangate: …`, no raw tonic text, no repeats.
+#[track_caller]
+fn assert_one_clean_error(o: &Output) {
+    let err = stderr(o);
+    let lines: Vec<&str> = err.lines().collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(lines[0].starts_with("cangate: "), "{err}");
+    for raw in ["status:", "Status {", "code:", "details:", "metadata:"] {
+        assert!(!err.contains(raw), "raw tonic text in {err}");
+    }
+    assert!(!err.contains("transport error: transport error"), "{err}");
+}
+
+#[test]
+fn negative_values_need_no_double_dash_and_json_keeps_the_type() {
+    // Home offset: an INTEGER32 nobody else in these tests touches.
+    let o = cangate(&["sdo", "write", "can0", "1", "0x607C", "i32", "-5000"]);
+    assert_status(&o, 0);
+    let o = cangate(&["sdo", "read", "can0", "1", "0x607C"]);
+    assert_status(&o, 0);
+    assert_eq!(stdout(&o).trim(), "-5000");
+    let o = cangate(&[
+        "sdo", "read", "can0", "1", "0x607C", "--type", "i32", "--json",
+    ]);
+    assert_status(&o, 0);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON");
+    assert_eq!(v["value"]["type"], "DATA_TYPE_INTEGER32", "{v}");
+    // Canonical proto3 JSON: 64-bit integers are strings.
+    assert_eq!(v["value"]["intValue"], "-5000", "{v}");
+    // The bytes as they are, base64: -5000 little-endian is 78 EC FF FF.
+    assert_eq!(v["raw"], "eOz//w==", "{v}");
+}
+
+#[test]
+fn unsigned_and_string_values_keep_their_type_too() {
+    let o = cangate(&[
+        "sdo", "read", "can0", "1", "0x1008", "--type", "vs", "--json",
+    ]);
+    assert_status(&o, 0);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON");
+    assert_eq!(v["value"]["type"], "DATA_TYPE_VISIBLE_STRING", "{v}");
+    assert_eq!(v["value"]["stringValue"], "cangate sim drive", "{v}");
+    let o = cangate(&["sdo", "read", "can0", "1", "0x1000", "--type", "u32"]);
+    assert_status(&o, 0);
+    assert_eq!(stdout(&o).trim(), "131474 (0x20192)");
+}
+
+#[test]
+fn host_port_and_urls_both_work() {
+    let addr = gateway().to_string();
+    for server in [addr.clone(), format!("http://{addr}")] {
+        let o = run(&["--server", &server], &["bus", "list", "--json"]);
+        assert_status(&o, 0);
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON");
+        assert_eq!(v["buses"][0]["name"], "can0", "{v}");
+        assert_eq!(v["buses"][0]["status"]["state"], "BUS_STATE_UP", "{v}");
+    }
+    // The environment variable is the same flag.
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_cangate"));
+    let o = cmd
+        .env("CANGATE_SERVER", &addr)
+        .args(["node", "list"])
+        .output()
+        .unwrap();
+    assert_status(&o, 0);
+    assert!(stdout(&o).contains("X axis drive"), "{}", stdout(&o));
+}
+
+#[test]
+fn a_silent_listener_times_out_within_the_connect_bound() {
+    // Accepts connections (the kernel does) and never answers.
+    let silent = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = silent.local_addr().unwrap().to_string();
+    let started = Instant::now();
+    let o = run(
+        &["--server", &addr, "--connect-timeout-ms", "300"],
+        &["bus", "list"],
+    );
+    let took = started.elapsed();
+    assert_status(&o, 4);
+    assert!(took < Duration::from_secs(5), "took {took:?}");
+    assert_one_clean_error(&o);
+    let err = stderr(&o);
+    assert!(
+        err.contains(&format!("connecting to {addr}")) && err.contains("within 300 ms"),
+        "{err}"
+    );
+    drop(silent);
+}
+
+#[test]
+fn a_refused_connection_says_so_once() {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let o = run(
+        &["--server", &format!("127.0.0.1:{port}")],
+        &["bus", "list"],
+    );
+    assert_status(&o, 5);
+    assert_one_clean_error(&o);
+    assert!(
+        stderr(&o).contains("cannot connect to http://127.0.0.1:"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
+fn an_sdo_abort_shows_code_and_name_and_exits_6() {
+    let o = cangate(&["sdo", "read", "can0", "1", "0x5555"]);
+    assert_status(&o, 6);
+    assert_one_clean_error(&o);
+    let err = stderr(&o);
+    assert!(
+        err.contains("SDO abort 0x06020000 object does not exist in the object dictionary"),
+        "{err}"
+    );
+    assert!(
+        err.starts_with("cangate: sdo read on can0: node 1, object 0x5555:00"),
+        "{err}"
+    );
+    assert_eq!(err.matches("0x06020000").count(), 1, "{err}");
+}
+
+#[test]
+fn unknown_names_are_not_found_with_exit_3() {
+    for args in [
+        &["axis", "show", "Q"][..],
+        &["axis", "move", "Q", "1"],
+        &["bus", "show", "nope"],
+    ] {
+        let o = cangate(args);
+        assert_status(&o, 3);
+        assert_one_clean_error(&o);
+        assert!(stderr(&o).contains("not found"), "{args:?}: {}", stderr(&o));
+    }
+}
+
+#[test]
+fn usage_errors_exit_2_before_connecting() {
+    for args in [
+        &["axis", "move", "X"][..],
+        &["sdo", "read", "can0", "0", "0x1000"],
+        &["sdo", "write", "can0", "1", "0x607C", "u8", "300"],
+        &["nmt", "can0", "jump", "1"],
+    ] {
+        // A server nobody listens on: a usage error never gets that far.
+        let o = run(&["--server", "127.0.0.1:1"], args);
+        assert_status(&o, 2);
+    }
+}
+
+#[test]
+fn a_lease_from_the_shell_drives_an_axis_and_is_released() {
+    let o = cangate(&["lease", "acquire", "X", "--ttl-ms", "20000"]);
+    assert_status(&o, 0);
+    let token = stdout(&o).trim().to_string();
+    assert!(token.len() >= 16 && !token.contains(' '), "{token:?}");
+
+    // Someone without the lease is refused while it is held.
+    let o = cangate(&["axis", "enable", "X"]);
+    assert_status(&o, 1);
+    assert!(
+        stderr(&o).contains("AXIS_CONTROLLED_BY_OTHER"),
+        "{}",
+        stderr(&o)
+    );
+
+    // With it: a drive that faulted on a loaded machine is reset first.
+    let _ = cangate(&["axis", "reset-fault", "X", "--wait", "--lease", &token]);
+    let o = cangate(&["axis", "enable", "X", "--wait", "--lease", &token]);
+    assert_status(&o, 0);
+    let o = cangate(&["axis", "move", "X", "-1.5", "--wait", "--lease", &token]);
+    assert_status(&o, 0);
+    assert!(stdout(&o).contains("X: move completed"), "{}", stdout(&o));
+    let o = cangate(&[
+        "axis", "move", "X", "0.5", "--rel", "--wait", "--json", "--lease", &token,
+    ]);
+    assert_status(&o, 0);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON");
+    assert_eq!(v["outcome"], "OUTCOME_COMPLETED", "{v}");
+    assert_eq!(v["status"]["axis"], "X", "{v}");
+
+    // The lease was kept by the commands: renew and release it.
+    let o = cangate(&["lease", "renew", &token, "--json"]);
+    assert_status(&o, 0);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON");
+    assert_eq!(v["axes"][0], "X", "{v}");
+    let o = cangate(&["lease", "release", &token]);
+    assert_status(&o, 0);
+    assert_eq!(stdout(&o).trim(), "released: X");
+    let o = cangate(&["lease", "release", &token]);
+    assert_status(&o, 1);
+    assert_one_clean_error(&o);
+
+    // Free again: a command takes (and gives back) its own lease.
+    let o = cangate(&["axis", "move", "X", "0", "--wait"]);
+    assert_status(&o, 0);
+    let o = cangate(&["axis", "list", "X", "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON");
+    assert_eq!(v["axes"][0]["status"]["controlledBy"], "", "{v}");
+}
+
+#[test]
+fn streams_print_one_json_object_per_line() {
+    let o = cangate(&["dump", "can0", "-n", "3", "--json"]);
+    assert_status(&o, 0);
+    let out = stdout(&o);
+    let frames = out
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).expect("one object per line"))
+        .filter(|v| v.get("frame").is_some())
+        .count();
+    assert_eq!(frames, 3, "{out}");
+}
+
+#[test]
+fn completions_are_generated() {
+    for shell in ["bash", "zsh", "fish"] {
+        let o = run(&[], &["completions", shell]);
+        assert_status(&o, 0);
+        let out = stdout(&o);
+        assert!(
+            out.contains("cangate") && out.contains("move-all"),
+            "{shell}: {out}"
+        );
+    }
+}
