@@ -455,8 +455,23 @@ async fn simple(app: &App, given: &Option<String>, cmd: Cmd, s: Simple) -> Resul
         }
     };
     held.finish().await;
-    let results = results.into_iter().collect::<Result<Vec<_>>>()?;
-    report(app, &axes, cmd.name(), &results, s.wait.wait, false)
+    let (done, mut failed): (Vec<_>, Vec<_>) = results.into_iter().partition(Result::is_ok);
+    match failed.len() {
+        0 => {
+            let done: Vec<CommandResult> = done.into_iter().flatten().collect();
+            report(app, &axes, cmd.name(), &done, s.wait.wait, false)
+        }
+        1 => Err(failed.pop().and_then(Result::err).expect("one failure")),
+        n => Err(Failure::failed(
+            format!("{} of {n} of {} axes", cmd.name(), axes.len()),
+            failed
+                .into_iter()
+                .filter_map(Result::err)
+                .map(|e| e.to_string())
+                .collect::<Vec<_>>()
+                .join("; "),
+        )),
+    }
 }
 
 /// `move AXIS POS`

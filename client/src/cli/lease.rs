@@ -33,10 +33,13 @@ enum LeaseVerb {
         /// The name others see as the holder (with this client's address).
         #[arg(long, default_value = "cangate-cli")]
         name: String,
-        /// Keep renewing until Ctrl-C or this many seconds, then release
-        /// (instead of printing the token and leaving the lease to lapse).
-        #[arg(long, value_name = "SECONDS", value_parser = positive)]
-        hold: Option<f64>,
+        /// Keep the lease here instead of printing it: renew it until
+        /// Ctrl-C (or --for), then release it.
+        #[arg(long)]
+        hold: bool,
+        /// With --hold: release after this many seconds.
+        #[arg(long = "for", value_name = "SECONDS", value_parser = positive, requires = "hold")]
+        for_secs: Option<f64>,
     },
     /// Renew a lease now (its TTL starts again).
     Renew {
@@ -60,6 +63,7 @@ pub(crate) async fn run(app: &App, args: LeaseArgs) -> Result<()> {
             ttl_ms,
             name,
             hold,
+            for_secs,
         } => {
             let names: Vec<&str> = axes.iter().map(String::as_str).collect();
             let what = format!("taking control of {}", names.join(", "));
@@ -69,7 +73,7 @@ pub(crate) async fn run(app: &App, args: LeaseArgs) -> Result<()> {
                 .acquire_control_as(&names, ttl, &name)
                 .await
                 .ctx(what.clone())?;
-            if hold.is_none() {
+            if !hold {
                 let kept = lease.keep();
                 return app.show(&kept.lease, &kept);
             }
@@ -82,7 +86,7 @@ pub(crate) async fn run(app: &App, args: LeaseArgs) -> Result<()> {
             }
             let ended = tokio::select! {
                 _ = super::ctrl_c() => None,
-                _ = super::sleep_opt(hold) => None,
+                _ = super::sleep_opt(for_secs) => None,
                 s = lease.lost() => Some(s),
             };
             if let Some(s) = ended {

@@ -57,13 +57,13 @@ Exit status: 0 success; 1 refused by the gateway or did not complete;
 
 /// Command-line client of the cangate CAN gateway.
 #[derive(Parser, Debug)]
-#[command(name = "cangate", version, about, after_help = AFTER_HELP)]
+#[command(name = "cangate", version, after_help = AFTER_HELP)]
 pub(crate) struct Cli {
     #[command(flatten)]
     pub(crate) connection: Connection,
     /// Print the response as canonical proto3 JSON (streams: one object
     /// per line).
-    #[arg(long, global = true)]
+    #[arg(long, global = true, help_heading = "Output")]
     pub(crate) json: bool,
     #[command(subcommand)]
     pub(crate) command: Command,
@@ -71,6 +71,7 @@ pub(crate) struct Cli {
 
 /// Where the gateway is and how to reach it.
 #[derive(Args, Debug, Clone)]
+#[command(next_help_heading = "Connection (every verb)")]
 pub(crate) struct Connection {
     /// Gateway address: host:port, or a URL (http://, https://).
     #[arg(
