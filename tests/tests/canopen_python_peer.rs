@@ -27,9 +27,9 @@
 //!
 //! The device needs `python3 -m pip install -r tests/python/requirements.txt`
 //! and a real SocketCAN interface. Where the host has no vcan0 the test
-//! re-runs itself in `shared/tools/vcan-vm` (see `common/vcan.rs`); without
-//! the python packages or the VM it is skipped, except under `CI=true`, where
-//! it fails instead.
+//! re-runs itself in a VM with `scripts/vcan-vm` (see `common/vcan.rs`);
+//! without the python packages or the VM it is skipped, except under
+//! `CI=true`, where it fails instead.
 
 #[path = "common/vcan.rs"]
 mod vcan;

@@ -14,15 +14,15 @@
 //!
 //! 1. `/sys/class/net/vcan0` exists: run the checks right here. This is also
 //!    what happens inside the VM below.
-//! 2. Otherwise (and not already inside the VM, where `VCAN_VM=1`): re-run
-//!    this very test binary, limited to this test, inside a throw-away QEMU
-//!    guest with the vcan driver (`shared/tools/vcan-vm`, or the command
-//!    prefix in `CANGATE_VCAN_RUNNER`), stream its output and require exit
-//!    status 0 and a "1 passed" summary.
-//! 3. Neither is possible (no vcan-vm, or no QEMU and we are not allowed to
-//!    install it, or the VM itself fails with status 125): print why and pass
-//!    as skipped - unless `CI=true`, where the same situation fails the test,
-//!    so that CI can never silently stop exercising real SocketCAN.
+//! 2. Otherwise (and not already inside the VM, where `CANGATE_VM=1`):
+//!    re-run this very test binary, limited to this test, inside a
+//!    throw-away QEMU guest with the vcan driver (the repository's
+//!    `scripts/vcan-vm`, or the command prefix in `CANGATE_VCAN_RUNNER`),
+//!    stream its output and require exit status 0 and a "1 passed" summary.
+//! 3. Neither is possible (no QEMU and we are not allowed to install it, or
+//!    the VM itself fails with status 125): print why and pass as skipped -
+//!    unless `CI=true`, where the same situation fails the test, so that CI
+//!    can never silently stop exercising real SocketCAN.
 //!
 //! Every wait is bounded, so a regression shows up as a failure with a
 //! message, never as a hung test run.

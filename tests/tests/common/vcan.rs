@@ -15,19 +15,19 @@
 //! 1. [`Plan::Here`]: the interface exists, run the checks in this process.
 //!    This is also what happens inside the VM below.
 //! 2. [`Plan::Vm`]: otherwise (and not already inside the VM, where
-//!    `VCAN_VM=1`), [`run_in_vm`] re-runs this very test binary, limited to
-//!    the one test, inside a throw-away QEMU guest with the vcan driver
-//!    (`shared/tools/vcan-vm`, or the command prefix in
-//!    `CANGATE_VCAN_RUNNER`), streams its output and requires exit status 0
-//!    and a "1 passed" summary.
-//! 3. [`Plan::Unavailable`]: neither is possible (no vcan-vm, or no QEMU and
-//!    we are not allowed to install it, or the VM itself fails with status
-//!    125): [`skip_or_fail`] prints why and passes as skipped - unless
-//!    `CI=true`, where the same situation fails the test, so that CI can
-//!    never silently stop exercising real SocketCAN.
-//!
-//! The same logic as in `socketcan_vcan.rs`, made generic over the test name
-//! and interface.
+//!    `CANGATE_VM=1`), [`run_in_vm`] re-runs this very test binary, limited
+//!    to the one test, inside a throw-away QEMU guest with vcan0 and vcan1:
+//!    the repository's own `scripts/vcan-vm`, or the command prefix in
+//!    `CANGATE_VCAN_RUNNER`. It streams the guest's output and requires exit
+//!    status 0 and a "1 passed" summary.
+//! 3. [`Plan::Unavailable`]: no VM can start here: outside CI, when
+//!    `qemu-system-x86_64` is not installed (`scripts/vcan-vm --setup`
+//!    installs it; a plain `cargo test` does not install system packages),
+//!    or when the runner exits with 125 (the VM itself failed).
+//!    [`skip_or_fail`] prints why and passes as skipped - unless `CI=true`,
+//!    where `scripts/vcan-vm` installs what it needs and any failure to run
+//!    fails the test, so that CI never silently stops exercising real
+//!    SocketCAN.
 
 #![allow(dead_code)]
 
@@ -37,10 +37,10 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 /// The host side of the VM run, including a first-time `apt-get install` of
-/// QEMU in CI. The guest itself is bounded by `VCAN_VM_TIMEOUT` (default
+/// QEMU in CI. The guest itself is bounded by `CANGATE_VM_TIMEOUT` (default
 /// below), so this only catches a wedged runner.
 pub const VM_RUN_LIMIT: Duration = Duration::from_secs(600);
-/// `VCAN_VM_TIMEOUT` unless the caller's environment sets it.
+/// `CANGATE_VM_TIMEOUT` unless the caller's environment sets it.
 pub const GUEST_TIMEOUT_SECS: &str = "300";
 
 /// Where the test can run.
@@ -58,9 +58,9 @@ pub fn in_ci() -> bool {
     std::env::var("CI").is_ok_and(|v| v.eq_ignore_ascii_case("true") || v == "1")
 }
 
-/// This process runs inside vcan-vm.
+/// This process runs inside the VM (`scripts/vcan-vm` sets `CANGATE_VM=1`).
 pub fn inside_vm() -> bool {
-    std::env::var("VCAN_VM").is_ok_and(|v| v == "1")
+    std::env::var("CANGATE_VM").is_ok_and(|v| v == "1")
 }
 
 /// The first executable file `name` on PATH.
@@ -70,15 +70,20 @@ pub fn find_on_path(name: &str) -> Option<PathBuf> {
         .find(|p| p.is_file())
 }
 
+/// The repository's VM runner; this crate is one level below the root.
+pub fn repo_runner() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/vcan-vm")
+}
+
 /// Decides where a test that needs `iface` runs.
 pub fn plan(iface: &str) -> Plan {
     if Path::new("/sys/class/net").join(iface).exists() {
         return Plan::Here;
     }
     if inside_vm() {
-        // The VM always creates vcan0; if it is missing, the tool broke and
+        // The VM always creates vcan0; if it is missing, the runner broke and
         // quietly passing would hide that.
-        panic!("running inside vcan-vm (VCAN_VM=1) but {iface} does not exist");
+        panic!("running inside the VM (CANGATE_VM=1) but {iface} does not exist");
     }
     if let Ok(prefix) = std::env::var("CANGATE_VCAN_RUNNER") {
         let runner: Vec<String> = prefix.split_whitespace().map(str::to_string).collect();
@@ -88,31 +93,17 @@ pub fn plan(iface: &str) -> Plan {
         // An explicit runner is the user's promise that it works: no probing.
         return Plan::Vm(runner);
     }
-    // In a fresh clone `shared/` sits beside the repository root, and this
-    // crate is one level below the root.
-    let beside = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/tools/vcan-vm");
-    let Some(tool) = [beside.clone()]
-        .into_iter()
-        .chain(find_on_path("vcan-vm"))
-        .find(|p| p.is_file())
-    else {
-        return Plan::Unavailable(format!(
-            "no {iface} on this host and no vcan-vm tool (looked at {} and on PATH); \
-             create one with `ip link add {iface} type vcan` or set CANGATE_VCAN_RUNNER",
-            beside.display()
-        ));
-    };
-    // vcan-vm installs QEMU itself with apt. That is what CI wants, but a
-    // plain `cargo test` on a developer machine should not start installing
-    // system packages, so outside CI a missing QEMU means "skip".
+    let runner = repo_runner();
+    // scripts/vcan-vm installs QEMU itself with apt. That is what CI wants,
+    // but a plain `cargo test` on a developer machine should not start
+    // installing system packages, so outside CI a missing QEMU means "skip".
     if !in_ci() && find_on_path("qemu-system-x86_64").is_none() {
         return Plan::Unavailable(format!(
             "no {iface} on this host and qemu-system-x86_64 is not installed; \
-             run `{} --setup` once to install it",
-            tool.display()
+             run `scripts/vcan-vm --setup` once to install what the VM needs"
         ));
     }
-    Plan::Vm(vec![tool.to_string_lossy().into_owned()])
+    Plan::Vm(vec![runner.to_string_lossy().into_owned()])
 }
 
 /// Passes as skipped with the reason on stderr, or fails under CI.
@@ -126,8 +117,8 @@ pub fn skip_or_fail(test_name: &str, reason: &str) {
     let _ = writeln!(std::io::stderr(), "SKIPPED {test_name}: {reason}");
 }
 
-/// Re-runs `test_name` of this test binary under `runner` (vcan-vm), with
-/// `extra_env` added to the environment (vcan-vm passes the host
+/// Re-runs `test_name` of this test binary under `runner` (`scripts/vcan-vm`),
+/// with `extra_env` added to the environment (the runner passes the host
 /// environment into the guest). Panics unless it passed there; an exit 125
 /// (the VM could not run) goes through [`skip_or_fail`].
 pub fn run_in_vm(runner: &[String], test_name: &str, extra_env: &[(&str, &str)]) {
@@ -140,19 +131,15 @@ pub fn run_in_vm(runner: &[String], test_name: &str, extra_env: &[(&str, &str)])
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped());
-    // vcan-vm's automatic accelerator choice probes KVM once and caches the
-    // answer, but where /dev/kvm exists and the guest hangs under it (nested
-    // KVM, as on our development machines) the probe currently dies with
-    // exit 1 after 30 s instead of falling back to TCG. A test run under
-    // TCG costs only a few seconds more than under KVM, so default to TCG;
-    // VCAN_VM_ACCEL=auto (or kvm) opts back in.
-    if std::env::var_os("VCAN_VM_ACCEL").is_none() {
-        cmd.env("VCAN_VM_ACCEL", "tcg");
-    }
-    // The guest gets its own limit, so a wedged guest ends with vcan-vm's
+    // The guest gets its own limit, so a wedged guest ends with the runner's
     // exit status 124 and a message rather than our watchdog's kill.
-    if std::env::var_os("VCAN_VM_TIMEOUT").is_none() {
-        cmd.env("VCAN_VM_TIMEOUT", GUEST_TIMEOUT_SECS);
+    if std::env::var_os("CANGATE_VM_TIMEOUT").is_none() {
+        cmd.env("CANGATE_VM_TIMEOUT", GUEST_TIMEOUT_SECS);
+    }
+    // Outside CI the runner may use what is installed but must not install
+    // packages (it exits 125 and names `scripts/vcan-vm --setup` instead).
+    if !in_ci() && std::env::var_os("CANGATE_VM_INSTALL").is_none() {
+        cmd.env("CANGATE_VM_INSTALL", "0");
     }
     eprintln!(
         "no vcan here; re-running {test_name} in {}",
@@ -177,9 +164,16 @@ pub fn run_in_vm(runner: &[String], test_name: &str, extra_env: &[(&str, &str)])
         summary_ok
     });
     let stderr_thread = std::thread::spawn(move || {
+        // The runner's first own message says why it could not run a VM;
+        // it goes into the skip reason, which stays visible.
+        let mut first_note = None;
         for line in BufReader::new(err).lines().map_while(Result::ok) {
+            if first_note.is_none() && line.starts_with("vcan-vm: ") {
+                first_note = Some(line.clone());
+            }
             eprintln!("[vm] {line}");
         }
+        first_note
     });
 
     let status = loop {
@@ -187,8 +181,8 @@ pub fn run_in_vm(runner: &[String], test_name: &str, extra_env: &[(&str, &str)])
             break status;
         }
         if started.elapsed() > VM_RUN_LIMIT {
-            // SIGTERM first: vcan-vm traps it and takes its QEMU down with
-            // it; a SIGKILL would orphan the guest.
+            // SIGTERM first: scripts/vcan-vm traps it and takes its QEMU
+            // down with it; a SIGKILL would orphan the guest.
             let _ = Command::new("kill")
                 .args(["-TERM", &child.id().to_string()])
                 .status();
@@ -203,20 +197,22 @@ pub fn run_in_vm(runner: &[String], test_name: &str, extra_env: &[(&str, &str)])
         std::thread::sleep(Duration::from_millis(50));
     };
     let summary_ok = stdout_thread.join().expect("stdout forwarder");
-    stderr_thread.join().expect("stderr forwarder");
+    let runner_note = stderr_thread.join().expect("stderr forwarder");
     eprintln!(
         "VM run finished in {:.1} s with {status}",
         started.elapsed().as_secs_f64()
     );
 
     match status.code() {
-        // vcan-vm: "the VM failed" (QEMU missing and not installable, no
-        // boot, ...): an environment problem, not a gateway bug.
+        // scripts/vcan-vm: "the VM failed" (QEMU missing and not
+        // installable, no boot, ...): an environment problem, not a gateway
+        // bug.
         Some(125) => skip_or_fail(
             test_name,
             &format!(
-                "{} could not run a VM (exit 125, see its output above)",
-                runner[0]
+                "{} could not run a VM (exit 125): {}",
+                runner[0],
+                runner_note.as_deref().unwrap_or("see its output above")
             ),
         ),
         Some(0) => assert!(
@@ -224,7 +220,7 @@ pub fn run_in_vm(runner: &[String], test_name: &str, extra_env: &[(&str, &str)])
             "the VM run exited 0 but did not report `1 passed`: \
              the test name {test_name:?} probably does not match the function"
         ),
-        Some(124) => panic!("the guest hit VCAN_VM_TIMEOUT (exit 124)"),
+        Some(124) => panic!("the guest hit CANGATE_VM_TIMEOUT (exit 124)"),
         _ => panic!("{test_name} failed inside the VM ({status})"),
     }
 }
