@@ -341,3 +341,33 @@ fn completions_are_generated() {
         );
     }
 }
+
+#[test]
+fn a_reader_that_stops_reading_ends_a_stream_quietly() {
+    use std::io::{BufRead, BufReader};
+    let addr = gateway().to_string();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_cangate"))
+        .args(["--server", &addr, "dump", "can0", "--json"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("cangate runs");
+    let mut lines = BufReader::new(child.stdout.take().expect("piped"));
+    let mut first = String::new();
+    lines.read_line(&mut first).expect("a line");
+    assert!(first.starts_with('{'), "{first}");
+    // `| head -1`: the reader goes away; the next write fails.
+    drop(lines);
+    let started = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().expect("wait") {
+            break s;
+        }
+        assert!(started.elapsed() < Duration::from_secs(10), "still running");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+    assert_eq!(status.code(), Some(0), "{err}");
+    assert!(err.is_empty(), "{err}");
+}

@@ -297,7 +297,9 @@ impl From<std::io::Error> for Failure {
 
 impl From<serde_json::Error> for Failure {
     fn from(e: serde_json::Error) -> Failure {
-        Failure::from(std::io::Error::other(e))
+        // Keeps the kind: a closed pipe stays a closed pipe.
+        let kind = e.io_error_kind().unwrap_or(std::io::ErrorKind::Other);
+        Failure::from(std::io::Error::new(kind, e))
     }
 }
 
