@@ -10,7 +10,7 @@
 //! cargo run -p cangate-server &                      # the demo on 127.0.0.1:50051
 //! cargo run -p cangate-client --example jog_from_feed -- --axis Z --turn 40
 //! # or turn the simulated wheel yourself meanwhile:
-//! cangate sim turn hw1 --detents 20 --axis Z --mult 10
+//! cangate sim turn hw1 20 --axis Z --mult 10
 //! ```
 //!
 //! Options: `--server ADDR`, `--wheel NAME` (hw1), `--axis NAME` (Z: the

@@ -26,7 +26,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-/// Exit statuses (also in `cangate --help` and client/CLI.md).
+/// Exit statuses (also in `cangate --help` and docs/cli.md).
 pub(crate) mod exit {
     /// Success.
     pub(crate) const OK: u8 = 0;
