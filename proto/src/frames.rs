@@ -4,7 +4,8 @@
 use crate::v1 as pb;
 use cangate_can::{Filter, Frame, FrameError, FrameKind, Timestamp};
 
-/// A frame to its protobuf form, with the direction code (`pb::Direction`).
+/// A frame to its protobuf form, with the direction code (`pb::Direction`);
+/// its origin and sender are left unset (the server sets them for streams).
 pub fn frame_to_pb(f: &Frame, direction: pb::Direction) -> pb::Frame {
     pb::Frame {
         id: f.raw_id(),
@@ -18,6 +19,8 @@ pub fn frame_to_pb(f: &Frame, direction: pb::Direction) -> pb::Frame {
         error: f.is_error(),
         timestamp_ns: f.timestamp().as_nanos(),
         direction: direction as i32,
+        origin: pb::FrameOrigin::Unspecified as i32,
+        sender: None,
     }
 }
 

@@ -209,4 +209,13 @@ impl Bus for BusService {
             tokio_stream::wrappers::ReceiverStream::new(rx),
         )))
     }
+
+    type AttachStream = Pin<Box<dyn Stream<Item = Result<pb::AttachResponse, Status>> + Send>>;
+
+    async fn attach(
+        &self,
+        _req: Request<tonic::Streaming<pb::AttachRequest>>,
+    ) -> Result<Response<Self::AttachStream>, Status> {
+        Err(Status::unimplemented("Attach is not served yet"))
+    }
 }

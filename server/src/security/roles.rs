@@ -49,6 +49,7 @@ pub const TABLE: &[Rule] = &[
     rule("/cangate.v1.Bus/GetBus", V, false),
     rule("/cangate.v1.Bus/SendFrames", E, false),
     rule("/cangate.v1.Bus/StreamFrames", V, true),
+    rule("/cangate.v1.Bus/Attach", E, true),
     // CANopen: reads (SDO reads and scans change nothing on the devices)
     // are viewing; NMT and SDO/PDO writes change devices: engineering.
     rule("/cangate.v1.Canopen/ListNodes", V, false),
@@ -201,6 +202,7 @@ mod tests {
             "/cangate.v1.Canopen/SendNmt",
             "/cangate.v1.Canopen/WritePdo",
             "/cangate.v1.Bus/SendFrames",
+            "/cangate.v1.Bus/Attach",
             "/cangate.v1.Simulator/TurnHandwheel",
             "/cangate.v1.Cansmc/WriteParameter",
             "/cangate.v1.Cansmc/Restart",
