@@ -7,10 +7,25 @@
 //! other subscribers: the frames it misses are counted and, as soon as it has
 //! room again, it receives a [`BusItem::Lost`] notice with the exact number
 //! of matching frames it missed, in the position where they were missed.
+//!
+//! Clients of the gateway are participants of the bus, with the loopback
+//! semantics of SocketCAN, which delivers the frames one socket sends to the
+//! host's other sockets. A client's frames ([`BusHandle::send_as_client`])
+//! are marked with its [`ClientId`] ([`Frame::sender`]) and go out in the
+//! client class (see [`crate::budget`]); once they are on the bus (the
+//! virtual bus's echo, stamped with their bus time; SocketCAN: when the
+//! interface took them) the bus task delivers them, still marked, to every
+//! other subscriber as received frames ([`Direction::Rx`]), whether or not
+//! it asked for the gateway's own transmissions: so the gateway's protocol
+//! stacks see them as they see a device's frames. The client's own
+//! subscription ([`BusHandle::attach`]) gets them back only if it asked
+//! ([`AttachOptions::receive_own`]), as [`Direction::Tx`]. An attached
+//! client receives the gateway's own transmissions as any node would (they
+//! come as [`Direction::Tx`] without a sender: the gateway's, not its own).
 
 use crate::budget::{Pacer, TxClass, TxShares};
 use crate::filter::{Filter, FrameSelector};
-use crate::frame::{Frame, Timestamp};
+use crate::frame::{ClientId, Frame, Timestamp};
 use crate::socketcan_bus::{SocketCanBus, SocketCanEvent};
 use crate::state::BusStatus;
 use crate::timing::{BitTiming, LoadMeter, Stuffing};
@@ -140,13 +155,33 @@ impl Backend {
     }
 }
 
-/// Whether a frame was received from the bus or sent by this gateway.
+/// Whether a subscriber received a frame or its side sent it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Direction {
-    /// Received from another node.
+    /// Received: from another node, or sent by a client of the gateway
+    /// other than the subscriber's own ([`Frame::sender`] says which).
     Rx,
-    /// Transmitted by this gateway.
+    /// Transmitted: by the gateway's own stacks (no [`Frame::sender`]), or,
+    /// for an attached client's subscription, by that client itself.
     Tx,
+}
+
+/// How a client of the gateway attached to a bus receives
+/// ([`BusHandle::attach`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct AttachOptions {
+    /// The frames it receives. `transmitted` is ignored: a participant
+    /// receives the gateway's own transmissions as any node on the bus does.
+    pub selector: FrameSelector,
+    /// Also its own frames, once they are on the bus, as [`Direction::Tx`]
+    /// (SocketCAN's `CAN_RAW_RECV_OWN_MSGS`).
+    pub receive_own: bool,
+    /// Whether CAN FD frames are delivered to it (SocketCAN's
+    /// `CAN_RAW_FD_FRAMES`); without, they are left out like frames its
+    /// filters do not pass.
+    pub fd: bool,
+    /// Items it may have queued before it starts losing frames.
+    pub queue: usize,
 }
 
 /// What a subscription delivers.
@@ -229,6 +264,13 @@ pub struct BusStats {
 
 struct Subscriber {
     selector: FrameSelector,
+    /// The attached client this subscription belongs to: its own frames
+    /// come back only with `receive_own`.
+    client: Option<ClientId>,
+    receive_own: bool,
+    /// CAN FD frames are delivered (false only for an attached client that
+    /// did not ask for them).
+    fd: bool,
     tx: mpsc::Sender<BusItem>,
     pending_lost: u64,
     pending_state: bool,
@@ -301,6 +343,10 @@ struct Counters {
     client_refused: AtomicU64,
     bulk_delayed: AtomicU64,
     budget_queued: AtomicU64,
+    /// Client frames sent on a virtual bus whose echo has not come back
+    /// yet; while there are any, the echo filter lets every own frame
+    /// through (see [`client_echo_begin`]).
+    client_echo: AtomicU64,
 }
 
 struct Shared {
@@ -518,6 +564,35 @@ impl BusHandle {
         rx.await.map_err(|_| gone())?
     }
 
+    /// Sends a client's frames as [`BusHandle::send_as`] does in the client
+    /// class, marked as sent by `client` ([`Frame::sender`]): once they are
+    /// on the bus, every other subscriber receives them as received frames,
+    /// and the client's own subscription, if it asked, as transmitted (see
+    /// the module documentation). Returns when the last of them went to the
+    /// interface, within the bus's client share.
+    pub async fn send_as_client(
+        &self,
+        client: ClientId,
+        frames: Vec<Frame>,
+    ) -> Result<(), SendFailure> {
+        let frames: Vec<Frame> = frames
+            .into_iter()
+            .map(|f| f.with_sender(Some(client)))
+            .collect();
+        // On the virtual bus the frames are published from the port's
+        // echo, which must let them through until they are back.
+        let echoed = self.shared.direct.is_some();
+        if echoed {
+            client_echo_begin(&self.shared, frames.len() as u64);
+        }
+        let result = self.send_as(TxClass::Client, frames).await;
+        if echoed && let Err(f) = &result {
+            // Frames that were not sent have no echo to wait for.
+            client_echo_end(&self.shared, (f.total - f.sent) as u64);
+        }
+        result
+    }
+
     /// Queues a batch as [`BusHandle::submit`] does, in its class (see
     /// [`BusHandle::send_as`]), without waiting for it to be sent.
     pub async fn submit_as(&self, class: TxClass, frames: Vec<Frame>) -> Result<(), SendFailure> {
@@ -696,14 +771,47 @@ impl BusHandle {
     }
 
     /// Subscribes to frames passing `selector` and to state changes, with a
-    /// queue of `queue` items.
+    /// queue of `queue` items. Frames of the gateway's clients come as
+    /// received ([`Direction::Rx`], marked with their [`Frame::sender`]).
     pub fn subscribe(&self, selector: FrameSelector, queue: usize) -> Subscription {
+        self.add_subscriber(selector, queue, None, false, true)
+    }
+
+    /// Attaches a client of the gateway to the bus as a participant: the
+    /// subscription through which it receives (see the module
+    /// documentation). What it sends goes through
+    /// [`BusHandle::send_as_client`] with the same `client`.
+    pub fn attach(&self, client: ClientId, options: AttachOptions) -> Subscription {
+        let selector = FrameSelector {
+            transmitted: true,
+            ..options.selector
+        };
+        self.add_subscriber(
+            selector,
+            options.queue,
+            Some(client),
+            options.receive_own,
+            options.fd,
+        )
+    }
+
+    fn add_subscriber(
+        &self,
+        selector: FrameSelector,
+        queue: usize,
+        client: Option<ClientId>,
+        receive_own: bool,
+        fd: bool,
+    ) -> Subscription {
         let (tx, rx) = mpsc::channel(queue.max(2));
         let lost_total = Arc::new(AtomicU64::new(0));
         let transmitted = selector.transmitted;
         let mut subs = self.shared.subscribers.lock().expect("subscriber lock");
         subs.push(Subscriber {
             selector,
+            client,
+            receive_own,
+            fd,
             tx,
             pending_lost: 0,
             pending_state: false,
@@ -844,9 +952,16 @@ async fn run_bus(
                         BackendEvent::Frame { frame, own } => {
                             record_load(&mut load, timing, &frame);
                             if own {
+                                if frame.sender().is_some() {
+                                    client_echo_end(&shared, 1);
+                                }
                                 fanout(&shared, &frame, Direction::Tx);
                                 continue;
                             }
+                            // Another node's: a mark of another process's
+                            // client (a second gateway on the same virtual
+                            // bus) means nothing here.
+                            let frame = frame.with_sender(None);
                             let c = &shared.counters;
                             c.rx_frames.fetch_add(1, Ordering::Relaxed);
                             c.rx_bytes.fetch_add(frame.data().len() as u64, Ordering::Relaxed);
@@ -1117,14 +1232,34 @@ fn record_load(load: &mut LoadMeter, timing: Option<BitTiming>, frame: &Frame) {
     }
 }
 
-fn fanout(shared: &Shared, frame: &Frame, direction: Direction) {
+/// Delivers a frame to the subscribers that want it. `on_bus` says how the
+/// bus task got it: [`Direction::Rx`] from another node (to everyone, as
+/// received), [`Direction::Tx`] one of this gateway's own, which is either
+/// its stacks' (to the subscribers to transmitted frames, attached clients
+/// among them, as transmitted) or a client's (see [`Frame::sender`]: to
+/// every other subscriber as received, to the client's own subscription as
+/// transmitted if it asked for its own frames).
+fn fanout(shared: &Shared, frame: &Frame, on_bus: Direction) {
     let drops = &shared.counters.subscriber_drops;
+    let sender = match on_bus {
+        Direction::Rx => None,
+        Direction::Tx => frame.sender(),
+    };
     let mut subs = shared.subscribers.lock().expect("subscriber lock");
     retain_subscribers(shared, &mut subs, |s| {
-        if direction == Direction::Tx && !s.selector.transmitted {
-            return true;
-        }
-        if !s.selector.matches(frame) {
+        let direction = match (on_bus, sender) {
+            (Direction::Rx, _) => Direction::Rx,
+            (Direction::Tx, None) if s.selector.transmitted => Direction::Tx,
+            (Direction::Tx, None) => return true,
+            (Direction::Tx, Some(c)) if s.client == Some(c) => {
+                if !s.receive_own {
+                    return true;
+                }
+                Direction::Tx
+            }
+            (Direction::Tx, Some(_)) => Direction::Rx,
+        };
+        if !s.selector.matches(frame) || (frame.is_fd() && !s.fd) {
             return !s.tx.is_closed();
         }
         s.offer(
@@ -1135,6 +1270,49 @@ fn fanout(shared: &Shared, frame: &Frame, direction: Direction) {
             drops,
         )
     });
+}
+
+/// Counts `n` client frames about to be sent on a virtual bus, whose echo
+/// the bus task needs to publish them. The first of them opens the echo
+/// filter to every own frame, before they are sent; the counting happens
+/// under the subscriber lock, as every change of the echo filter does, so a
+/// second sender cannot send before the filter is open.
+///
+/// Why not a filter by identifier, as for the subscribers to transmitted
+/// frames: a client's frame goes to every subscriber whose selector it
+/// passes, the gateway's stacks included, whose filters together are wide.
+/// An echo that never comes (a frame dropped by fault injection, an echo
+/// lost to a full receive queue) leaves the filter open: the bus task then
+/// wakes for own frames no one wants, which costs time, not frames.
+fn client_echo_begin(shared: &Shared, n: u64) {
+    if n == 0 {
+        return;
+    }
+    let subs = shared.subscribers.lock().expect("subscriber lock");
+    if shared.counters.client_echo.fetch_add(n, Ordering::AcqRel) == 0 {
+        update_echo(shared, &subs);
+    }
+}
+
+/// `n` counted client frames came back (or were not sent after all): when
+/// none is outstanding any more, the echo filter narrows again. Lock-free
+/// unless the count reaches zero; a sender counting anew meanwhile holds
+/// the lock while it opens the filter, and the count is read again under
+/// it.
+fn client_echo_end(shared: &Shared, n: u64) {
+    if n == 0 {
+        return;
+    }
+    let c = &shared.counters.client_echo;
+    let before = c
+        .fetch_update(Ordering::AcqRel, Ordering::Acquire, |v| {
+            Some(v.saturating_sub(n))
+        })
+        .unwrap_or(0);
+    if before <= n {
+        let subs = shared.subscribers.lock().expect("subscriber lock");
+        update_echo(shared, &subs);
+    }
 }
 
 /// Frames lost before the gateway read them (their identifiers unknown):
@@ -1219,19 +1397,23 @@ fn retain_subscribers(
 fn update_echo(shared: &Shared, subs: &[Subscriber]) {
     if let Some(direct) = &shared.direct {
         // A bitrate means the load meter (`timing` in `run_bus`), which
-        // needs every frame on the bus, own ones included.
-        let load_metered = shared.info.bitrate.is_some();
-        direct.set_echo_filters(echo_filters_for(load_metered, subs));
+        // needs every frame on the bus, own ones included; client frames
+        // on their way need their echo too (see [`client_echo_begin`]).
+        let all = shared.info.bitrate.is_some()
+            || shared.counters.client_echo.load(Ordering::Acquire) > 0;
+        direct.set_echo_filters(echo_filters_for(all, subs));
     }
 }
 
 /// The echo filter that covers the own frames `subs` want: `None` (all)
-/// for the load meter or a subscriber without filters (which takes every
-/// frame), else the union of the filters of the subscribers to transmitted
-/// frames (empty: none wants any). Own error frames pass any non-empty
-/// echo filter, so subscribers that want them are covered too.
-fn echo_filters_for(load_metered: bool, subs: &[Subscriber]) -> Option<Vec<Filter>> {
-    if load_metered {
+/// when `all` is asked for (the load meter, client frames on their way) or
+/// for a subscriber without filters (which takes every frame), else the
+/// union of the filters of the subscribers to transmitted frames (empty:
+/// none wants any; attached clients are among them). Own error frames pass
+/// any non-empty echo filter, so subscribers that want them are covered
+/// too.
+fn echo_filters_for(all: bool, subs: &[Subscriber]) -> Option<Vec<Filter>> {
+    if all {
         return None;
     }
     let mut union: Vec<Filter> = Vec::new();
@@ -1694,6 +1876,207 @@ mod tests {
             assert!(matches!(peer.recv().await, PortEvent::Frame { .. }));
         }
         assert_eq!(h.stats().client_frames_delayed, 0);
+    }
+
+    fn attach_options(filters: Vec<Filter>, receive_own: bool, fd: bool) -> AttachOptions {
+        AttachOptions {
+            selector: FrameSelector {
+                filters,
+                ..FrameSelector::default()
+            },
+            receive_own,
+            fd,
+            queue: 64,
+        }
+    }
+
+    /// The next frame of a subscription with its direction and sender.
+    async fn next_marked(sub: &mut Subscription) -> (u32, Direction, Option<ClientId>) {
+        loop {
+            match next_item(sub).await {
+                BusItem::Frame { frame, direction } => {
+                    return (frame.raw_id(), direction, frame.sender());
+                }
+                BusItem::State(_) => {}
+                BusItem::Lost(n) => panic!("lost {n}"),
+            }
+        }
+    }
+
+    /// Loopback: a client's frame reaches the wire, every other subscriber
+    /// as received (also one that did not ask for transmitted frames, as
+    /// the gateway's stacks do not), marked with its sender, and its own
+    /// subscription only when asked, as transmitted.
+    #[tokio::test]
+    async fn client_frames_reach_the_other_subscribers_as_received() {
+        let vbus = VirtualBus::new("v", VirtualBusConfig::default());
+        let (h, _c) = start(&vbus);
+        let mut wire = vbus.connect(false);
+        let mut stack = h.subscribe(FrameSelector::default(), 16);
+        let mut monitor = h.subscribe(tx_selector(Vec::new()), 16);
+        let (a, b) = (ClientId::next(), ClientId::next());
+        assert_ne!(a, b);
+        let mut own = h.attach(a, attach_options(Vec::new(), true, true));
+        let mut quiet = h.attach(a, attach_options(Vec::new(), false, true));
+        let mut other = h.attach(b, attach_options(Vec::new(), false, true));
+
+        h.send_as_client(a, vec![frame(0x123)]).await.unwrap();
+        assert!(
+            matches!(wire.recv().await, PortEvent::Frame { frame, .. } if frame.raw_id() == 0x123)
+        );
+        let rx = (0x123, Direction::Rx, Some(a));
+        assert_eq!(next_marked(&mut stack).await, rx);
+        assert_eq!(next_marked(&mut monitor).await, rx);
+        assert_eq!(next_marked(&mut other).await, rx);
+        assert_eq!(
+            next_marked(&mut own).await,
+            (0x123, Direction::Tx, Some(a)),
+            "its own frame, asked for"
+        );
+
+        // The gateway's own frame: transmitted, to the monitor and to the
+        // attached clients (nodes on the bus), not to the plain subscriber.
+        h.send(vec![frame(0x080)]).await.unwrap();
+        let tx = (0x080, Direction::Tx, None);
+        assert_eq!(next_marked(&mut monitor).await, tx);
+        assert_eq!(next_marked(&mut own).await, tx);
+        assert_eq!(next_marked(&mut quiet).await, tx, "not its own frame");
+        assert_eq!(next_marked(&mut other).await, tx);
+        assert!(stack.try_recv().is_none());
+
+        // A device's frame: received by everyone, unmarked.
+        vbus.connect(false).send(&frame(0x701)).unwrap();
+        for sub in [&mut stack, &mut monitor, &mut own, &mut quiet, &mut other] {
+            assert_eq!(next_marked(sub).await, (0x701, Direction::Rx, None));
+        }
+        for sub in [&mut stack, &mut monitor, &mut own, &mut quiet, &mut other] {
+            assert!(sub.try_recv().is_none());
+        }
+        let st = h.stats();
+        assert_eq!((st.tx_frames, st.rx_frames), (2, 1));
+    }
+
+    /// An attached client's filters apply to what it receives, and without
+    /// `fd` it gets no CAN FD frames (as a SocketCAN socket without
+    /// `CAN_RAW_FD_FRAMES`); the others still get its FD frames.
+    #[tokio::test]
+    async fn attached_client_filters_and_fd() {
+        let vbus = VirtualBus::new("v", VirtualBusConfig::default());
+        let (h, _c) = start(&vbus);
+        let (a, b) = (ClientId::next(), ClientId::next());
+        let mut classic = h.attach(
+            a,
+            attach_options(vec![Filter::exact_standard(0x100)], true, false),
+        );
+        let mut all = h.attach(b, attach_options(Vec::new(), false, true));
+        let fd = Frame::new_fd(CanId::Standard(0x100), &[1; 12], true, false).unwrap();
+        h.send_as_client(b, vec![fd, frame(0x200), frame(0x100)])
+            .await
+            .unwrap();
+        assert_eq!(
+            next_marked(&mut classic).await,
+            (0x100, Direction::Rx, Some(b))
+        );
+        assert!(classic.try_recv().is_none(), "no FD frame, nothing else");
+        assert!(all.try_recv().is_none(), "its own frames, not asked for");
+        h.send_as_client(a, vec![fd]).await.unwrap();
+        let (id, direction, sender) = next_marked(&mut all).await;
+        assert_eq!((id, direction, sender), (0x100, Direction::Rx, Some(a)));
+        h.send(vec![frame(0x100)]).await.unwrap();
+        assert_eq!(
+            next_marked(&mut classic).await,
+            (0x100, Direction::Tx, None),
+            "not its own FD frame, but the gateway's next one"
+        );
+    }
+
+    /// On a bus whose echo follows the subscribers (no load meter), client
+    /// frames still reach the subscribers that did not ask for transmitted
+    /// frames: the echo opens for them and narrows again once they are
+    /// back.
+    #[tokio::test]
+    async fn client_frames_open_a_narrowed_echo_until_they_are_back() {
+        let vbus = VirtualBus::new("v", VirtualBusConfig::default());
+        let (h, _c) = start_with_bitrate(&vbus, None);
+        let mut stack = h.subscribe(
+            FrameSelector {
+                filters: vec![Filter::exact_standard(0x581)],
+                ..FrameSelector::default()
+            },
+            16,
+        );
+        assert_eq!(h.echo_filters(), Some(Vec::new()));
+        let client = ClientId::next();
+        for round in 0..3u8 {
+            h.send_as_client(client, vec![frame(0x581), frame(0x582)])
+                .await
+                .unwrap();
+            assert_eq!(
+                next_marked(&mut stack).await,
+                (0x581, Direction::Rx, Some(client)),
+                "round {round}"
+            );
+            // Both echoes are back once the bus task handled the second.
+            tokio::time::timeout(Duration::from_secs(5), async {
+                while h.echo_filters() != Some(Vec::new()) {
+                    tokio::time::sleep(Duration::from_millis(1)).await;
+                }
+            })
+            .await
+            .expect("echo narrowed again");
+        }
+        // A refused batch does not leave the echo open either.
+        vbus.force_bus_off();
+        assert!(h.send_as_client(client, vec![frame(0x581)]).await.is_err());
+        assert_eq!(h.echo_filters(), Some(Vec::new()));
+        assert!(stack.try_recv().is_none());
+    }
+
+    /// A frame of another node that carries a client mark (another gateway
+    /// on the same virtual bus) is received like any other frame: unmarked.
+    #[tokio::test]
+    async fn marks_of_other_nodes_are_dropped() {
+        let vbus = VirtualBus::new("v", VirtualBusConfig::default());
+        let (h, _c) = start(&vbus);
+        let mut sub = h.subscribe(FrameSelector::default(), 16);
+        let marked = frame(0x321).with_sender(Some(ClientId::next()));
+        vbus.connect(false).send(&marked).unwrap();
+        assert_eq!(next_marked(&mut sub).await, (0x321, Direction::Rx, None));
+    }
+
+    /// Paced client frames on a bit-timed bus reach the other subscribers
+    /// with their bus time, in order; a dropped attachment leaves no
+    /// subscriber behind.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn paced_client_frames_are_delivered_with_their_bus_time() {
+        let (_vbus, h, _c) = start_bit_timed();
+        let mut stack = h.subscribe(FrameSelector::default(), 256);
+        let client = ClientId::next();
+        let own = h.attach(client, attach_options(Vec::new(), true, false));
+        assert_eq!(h.stats().subscribers, 2);
+        let before = Timestamp::now();
+        let batch: Vec<Frame> = (0..100u8)
+            .map(|i| Frame::new(CanId::Standard(0x123), &[i; 8]).unwrap())
+            .collect();
+        h.send_as_client(client, batch).await.unwrap();
+        let mut last = before;
+        for i in 0..100u8 {
+            let BusItem::Frame { frame, direction } = next_item(&mut stack).await else {
+                panic!("a frame");
+            };
+            assert_eq!((direction, frame.sender()), (Direction::Rx, Some(client)));
+            assert_eq!(frame.data(), [i; 8], "in order");
+            assert!(frame.timestamp() > last, "bus time");
+            last = frame.timestamp();
+        }
+        drop(own);
+        tokio::time::timeout(Duration::from_secs(5), async {
+            while h.stats().subscribers != 1 {
+                tokio::time::sleep(Duration::from_millis(5)).await;
+            }
+        })
+        .await
+        .expect("the attachment's subscription is gone");
     }
 
     #[tokio::test]

@@ -6,6 +6,8 @@
 //! frame the wire can carry.
 
 use std::fmt;
+use std::num::NonZeroU64;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{SystemTime, UNIX_EPOCH};
 
 /// Largest 11-bit identifier.
@@ -168,6 +170,37 @@ impl Timestamp {
     }
 }
 
+/// A client of the gateway that sends raw frames as a participant of a bus:
+/// one `SendFrames` call or one `Attach` stream, as one SocketCAN socket is
+/// one sender on a host. Its frames carry it ([`Frame::sender`]) from the
+/// moment they are sent until every receiver got them, so that the bus can
+/// deliver them to the other receivers as received frames (and back to the
+/// client itself only if it asked), and receivers can tell who sent them.
+/// Numbers are unique within the process ([`ClientId::next`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct ClientId(NonZeroU64);
+
+impl ClientId {
+    /// A number no other client of this process has had.
+    pub fn next() -> Self {
+        static NEXT: AtomicU64 = AtomicU64::new(1);
+        let n = NEXT.fetch_add(1, Ordering::Relaxed);
+        // 2^64 clients would take longer than the process can run.
+        ClientId(NonZeroU64::new(n).unwrap_or(NonZeroU64::MIN))
+    }
+
+    /// The number (never 0).
+    pub fn get(self) -> u64 {
+        self.0.get()
+    }
+}
+
+impl fmt::Display for ClientId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "client {}", self.0)
+    }
+}
+
 /// One CAN frame.
 #[derive(Clone, Copy, PartialEq, Eq)]
 pub struct Frame {
@@ -180,6 +213,8 @@ pub struct Frame {
     len: u8,
     data: [u8; FD_MAX_LEN],
     timestamp: Timestamp,
+    /// Not on the wire: which client of the gateway sent the frame.
+    sender: Option<ClientId>,
 }
 
 impl Frame {
@@ -275,6 +310,7 @@ impl Frame {
             len: data.len() as u8,
             data: buf,
             timestamp: Timestamp::default(),
+            sender: None,
         }
     }
 
@@ -346,11 +382,27 @@ impl Frame {
     pub fn set_timestamp(&mut self, ts: Timestamp) {
         self.timestamp = ts;
     }
+    /// The client of the gateway that sent this frame, if one did (see
+    /// [`ClientId`]). Not part of the frame on the wire: the gateway marks
+    /// its clients' frames when they are sent, and the mark travels with
+    /// them to the receivers inside the process; frames received from
+    /// other nodes have none.
+    pub fn sender(&self) -> Option<ClientId> {
+        self.sender
+    }
+    /// The same frame marked as sent by `client` (`None`: by no client).
+    pub fn with_sender(mut self, client: Option<ClientId>) -> Self {
+        self.sender = client;
+        self
+    }
 }
 
 impl fmt::Debug for Frame {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "Frame({self})")
+        match self.sender {
+            Some(c) => write!(f, "Frame({self} from {c})"),
+            None => write!(f, "Frame({self})"),
+        }
     }
 }
 

@@ -28,11 +28,11 @@ pub mod virtual_bus;
 pub use budget::{TxClass, TxShares};
 #[cfg(feature = "runtime")]
 pub use bus::{
-    Backend, BackendKind, BusHandle, BusInfo, BusItem, BusStats, Direction, SendFailure,
-    Subscription,
+    AttachOptions, Backend, BackendKind, BusHandle, BusInfo, BusItem, BusStats, Direction,
+    SendFailure, Subscription,
 };
 pub use filter::{Filter, FrameSelector};
-pub use frame::{CanId, Frame, FrameError, FrameKind, ParseFrameError, Timestamp};
+pub use frame::{CanId, ClientId, Frame, FrameError, FrameKind, ParseFrameError, Timestamp};
 pub use state::{BusState, BusStatus};
 pub use timing::{BitTiming, Stuffing};
 #[cfg(feature = "runtime")]
