@@ -228,10 +228,22 @@ async fn position(axes: &mut Axes, axis: &str) -> Result<f64, String> {
 
 /// One seeded sequence on `axis`, then the recovery; the actions so far
 /// in the error.
-async fn sequence(axes: &mut Axes, axis: &str, seed: u64, l: &Limits) -> Result<(), String> {
+async fn sequence(
+    client: &cangate_client::Client,
+    axes: &mut Axes,
+    axis: &str,
+    seed: u64,
+    l: &Limits,
+) -> Result<(), String> {
     // Each axis its own sequence of the seed.
     let mut rng = Rng(seed.wrapping_mul(1_000_003) ^ u64::from(axis.as_bytes()[0]));
-    let lease = acquire(axes, &[axis], 30_000, "random sequences").await;
+    // The client library's guard renews the lease in the background for
+    // the whole sequence (a waited command may outlast a short TTL).
+    let guard = client
+        .acquire_control_as(&[axis], Duration::from_secs(30), "random sequences")
+        .await
+        .map_err(|e| format!("axis {axis}: AcquireControl: {e}"))?;
+    let lease = guard.token().to_string();
     let mut done = Vec::new();
     let tolerance = (l.max - l.min) * 0.01;
     let fail =
@@ -253,11 +265,6 @@ async fn sequence(axes: &mut Axes, axis: &str, seed: u64, l: &Limits) -> Result<
                 format!("position {p} outside [{}, {}]", l.min, l.max),
             ));
         }
-        let _ = axes
-            .renew_control(pb::RenewControlRequest {
-                lease: lease.clone(),
-            })
-            .await;
     }
     // Never wedged: stop, reset, enable, and a move to 0 completes there.
     let recover = [
@@ -300,9 +307,10 @@ async fn sequence(axes: &mut Axes, axis: &str, seed: u64, l: &Limits) -> Result<
     if p.abs() > 0.05 {
         return Err(fail(&done, format!("final Move completed at {p}, not 0")));
     }
-    let _ = axes
-        .release_control(pb::ReleaseControlRequest { lease })
-        .await;
+    guard
+        .release()
+        .await
+        .map_err(|e| fail(&done, format!("ReleaseControl: {e}")))?;
     eprintln!("axis {axis}, seed {seed}: {tally:?}");
     Ok(())
 }
@@ -340,11 +348,12 @@ async fn random_command_sequences_leave_every_axis_commandable() {
         };
         let mut axes = client.axes_client();
         let seeds = seeds.clone();
+        let client = client.clone();
         tasks.push(tokio::spawn(async move {
             cangate_tests::axes::wait_status(&mut axes, name, |s| s.state != 0 && !s.node_lost)
                 .await;
             for seed in seeds {
-                sequence(&mut axes, name, seed, &limits).await?;
+                sequence(&client, &mut axes, name, seed, &limits).await?;
             }
             Ok::<(), String>(())
         }));

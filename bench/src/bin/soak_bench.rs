@@ -100,6 +100,21 @@ impl Seen {
             .or_default() += 1;
     }
 
+    /// Counts the background renewals of a lease guard: each success as
+    /// a RenewControl call, and the latest failure (if the renewing ended
+    /// failing) as an error.
+    fn renewals(&self, status: &cangate_client::LeaseStatus) {
+        *self
+            .calls
+            .lock()
+            .expect("calls")
+            .entry("RenewControl: OK".into())
+            .or_default() += status.renewals;
+        if let Some(e) = &status.last_error {
+            self.call::<()>("RenewControl", &Err(status_of(e)));
+        }
+    }
+
     fn outcome(&self, axis: &str, command: &str, r: &pb::AxisCommandResponse) {
         let name = pb::Outcome::try_from(r.outcome)
             .map(|o| o.as_str_name().trim_start_matches("OUTCOME_").to_string())
@@ -524,33 +539,14 @@ async fn axis_load(
     };
     let mut axes = c.axes_client();
     let mut rng = Rng(0x9E37_79B9_7F4A_7C15 ^ seed);
-    let lease = axes::acquire(
-        &mut axes,
-        &[axis],
-        Duration::from_secs(5),
-        &format!("soak-{axis}"),
-    )
-    .await;
-    seen.call("AcquireControl", &lease);
-    let Ok(lease) = lease else { return };
-    // Renewal beside the commands, as an HMI keeps its lease.
-    let renew = {
-        let mut axes = axes.clone();
-        let lease = lease.clone();
-        let seen = seen.clone();
-        tokio::spawn(async move {
-            let mut tick = tokio::time::interval(Duration::from_secs(1));
-            loop {
-                tick.tick().await;
-                let r = axes
-                    .renew_control(pb::RenewControlRequest {
-                        lease: lease.clone(),
-                    })
-                    .await;
-                seen.call("RenewControl", &r);
-            }
-        })
-    };
+    // The client library's lease guard renews it beside the commands, as
+    // an HMI keeps its lease; what the renewals met is counted at the end.
+    let lease = c
+        .acquire_control_as(&[axis], Duration::from_secs(5), &format!("soak-{axis}"))
+        .await;
+    seen.call("AcquireControl", &lease.as_ref().map_err(status_of));
+    let Ok(guard) = lease else { return };
+    let lease = guard.token().to_string();
     // Longer than the longest move: A and B cross their ±90 mm at their
     // default 5 mm/s in 36 s.
     let opts = |wait: bool| axes::command_options(&lease, wait, Duration::from_secs(60));
@@ -610,9 +606,19 @@ async fn axis_load(
             }
         }
     }
-    renew.abort();
     let r = axes.stop(simple(true)).await;
     seen.call("Stop", &r);
+    seen.renewals(&guard.status());
+    let r = guard.release().await;
+    seen.call("ReleaseControl", &r.map_err(|e| status_of(&e)));
+}
+
+/// A client library error as the gRPC status it carries (a transport
+/// failure as UNAVAILABLE), to count it like the other calls.
+fn status_of(e: &cangate_client::Error) -> tonic::Status {
+    e.status()
+        .cloned()
+        .unwrap_or_else(|| tonic::Status::unavailable(e.to_string()))
 }
 
 /// The gateway's Prometheus text as (series, value).
