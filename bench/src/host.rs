@@ -13,8 +13,30 @@ const TICKS_PER_SECOND: f64 = 100.0;
 /// The CPU time of every thread of this process: (thread name, user plus
 /// system seconds). Thread names come from the runtimes' `thread_name`.
 pub fn thread_cpu() -> std::io::Result<Vec<(String, f64)>> {
+    threads_cpu_of("self")
+}
+
+/// [`thread_cpu`] of another process (`pid`): (thread id, name, seconds).
+pub fn process_thread_cpu(pid: u32) -> std::io::Result<Vec<(u32, String, f64)>> {
     let mut out = Vec::new();
-    for entry in std::fs::read_dir("/proc/self/task")? {
+    for entry in std::fs::read_dir(format!("/proc/{pid}/task"))? {
+        let entry = entry?;
+        let Some(tid) = entry.file_name().to_str().and_then(|t| t.parse().ok()) else {
+            continue;
+        };
+        let dir = entry.path();
+        let comm = std::fs::read_to_string(dir.join("comm")).unwrap_or_default();
+        let stat = std::fs::read_to_string(dir.join("stat")).unwrap_or_default();
+        if let Some(secs) = stat_cpu_seconds(&stat) {
+            out.push((tid, comm.trim().to_string(), secs));
+        }
+    }
+    Ok(out)
+}
+
+fn threads_cpu_of(pid: &str) -> std::io::Result<Vec<(String, f64)>> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir(format!("/proc/{pid}/task"))? {
         let dir = entry?.path();
         let comm = std::fs::read_to_string(dir.join("comm")).unwrap_or_default();
         let stat = std::fs::read_to_string(dir.join("stat")).unwrap_or_default();

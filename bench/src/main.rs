@@ -3,7 +3,8 @@
 //! - `virtual-bus`: lossless frames/s between two ports of a virtual bus;
 //! - `stream`: frames/s a gRPC StreamFrames client receives;
 //! - `latency`: SendFrames → StreamFrames latency percentiles;
-//! - `memory`: resident memory of the server binary running the demo;
+//! - `memory`: resident memory and idle CPU of the server binary running
+//!   the demo;
 //! - `all`: everything, with a summary table.
 //!
 //! Human-readable results go to stdout, followed by one JSON line with every
@@ -67,7 +68,8 @@ enum Command {
         #[arg(long)]
         warmup: Option<u64>,
     },
-    /// Resident memory of the server binary running the embedded demo.
+    /// Resident memory and idle CPU of the server binary running the
+    /// embedded demo.
     Memory {
         /// Server binary [default: cangate-server next to this executable].
         #[arg(long)]
@@ -162,7 +164,15 @@ async fn memory_bench(quick: bool, server_bin: Option<PathBuf>) -> Vec<Measure> 
         "server RSS (embedded demo)",
         "MiB",
         Target::Below(memory::TARGET_MIB),
-        memory::run(server_bin, settle),
+        memory::run(
+            server_bin,
+            settle,
+            if quick {
+                memory::QUICK_IDLE_WINDOW
+            } else {
+                memory::IDLE_WINDOW
+            },
+        ),
     )
     .await
 }

@@ -1,13 +1,16 @@
-//! `memory`: resident memory of the real server binary running the embedded
-//! demo.
+//! `memory`: resident memory and idle CPU of the real server binary running
+//! the embedded demo.
 //!
 //! Spawns `cangate-server --listen 127.0.0.1:<free port>` (by default the
 //! binary next to this one, i.e. the same target profile), waits until it
 //! answers a gRPC ListBuses call, lets it settle, reads `VmRSS` (and the peak
-//! `VmHWM`) from `/proc/<pid>/status`, then stops it with SIGTERM.
+//! `VmHWM`) from `/proc/<pid>/status`, then the CPU time its threads use
+//! over an idle window with no client (the demo at rest: SYNC, heartbeats,
+//! the CANsmc cycle and the simulated devices answering them), per thread
+//! from `/proc/<pid>/task`, and stops it with SIGTERM.
 
 use anyhow::{Context, Result, bail};
-use cangate_bench::host::status_kib;
+use cangate_bench::host::{process_thread_cpu, status_kib};
 use cangate_bench::report::{Measure, Outcome, Target};
 use serde_json::json;
 use std::path::{Path, PathBuf};
@@ -24,6 +27,13 @@ pub const QUICK_SETTLE: Duration = Duration::from_millis(200);
 const READY_TIMEOUT: Duration = Duration::from_secs(15);
 
 const LABEL: &str = "server RSS (embedded demo)";
+const IDLE_LABEL: &str = "idle demo CPU (% of one core)";
+/// Target: the demo at rest below this share of one core.
+pub const IDLE_TARGET_PERCENT: f64 = 10.0;
+/// The idle window over which CPU time is measured.
+pub const IDLE_WINDOW: Duration = Duration::from_secs(10);
+/// The idle window with `--quick`.
+pub const QUICK_IDLE_WINDOW: Duration = Duration::from_millis(500);
 
 /// The server binary next to this executable.
 pub fn default_server_binary() -> Result<PathBuf> {
@@ -75,7 +85,11 @@ fn free_port() -> Result<u16> {
 }
 
 /// Runs the benchmark with `binary` (or the default one).
-pub async fn run(binary: Option<PathBuf>, settle: Duration) -> Result<Vec<Measure>> {
+pub async fn run(
+    binary: Option<PathBuf>,
+    settle: Duration,
+    idle: Duration,
+) -> Result<Vec<Measure>> {
     let explicit = binary.is_some();
     let binary = match binary {
         Some(b) => b,
@@ -97,19 +111,29 @@ pub async fn run(binary: Option<PathBuf>, settle: Duration) -> Result<Vec<Measur
         };
         println!("memory: skipped: {why}");
         let details = json!({ "binary": binary.display().to_string() });
-        return Ok(vec![Measure::new(
-            "memory",
-            LABEL,
-            "MiB",
-            Target::Below(TARGET_MIB),
-            Outcome::Skipped(why),
-            details,
-        )]);
+        return Ok(vec![
+            Measure::new(
+                "memory",
+                LABEL,
+                "MiB",
+                Target::Below(TARGET_MIB),
+                Outcome::Skipped(why.clone()),
+                details.clone(),
+            ),
+            Measure::new(
+                "memory",
+                IDLE_LABEL,
+                "%",
+                Target::Below(IDLE_TARGET_PERCENT),
+                Outcome::Skipped(why),
+                details,
+            ),
+        ]);
     }
-    measure(&binary, settle).await
+    measure(&binary, settle, idle).await
 }
 
-async fn measure(binary: &Path, settle: Duration) -> Result<Vec<Measure>> {
+async fn measure(binary: &Path, settle: Duration, idle: Duration) -> Result<Vec<Measure>> {
     let port = free_port()?;
     let addr = format!("127.0.0.1:{port}");
     println!(
@@ -151,6 +175,39 @@ async fn measure(binary: &Path, settle: Duration) -> Result<Vec<Measure>> {
     let rss_kib = status_kib(&status, "VmRSS").context("no VmRSS in /proc/<pid>/status")?;
     let hwm_kib = status_kib(&status, "VmHWM");
     let threads = status_kib(&status, "Threads");
+
+    // Idle CPU: every thread's CPU time at both ends of the window (a
+    // thread that started or ended inside it counts from zero / not at
+    // all; the demo's threads all start before it is ready).
+    let before = process_thread_cpu(pid).context("reading the server's threads")?;
+    let window_start = Instant::now();
+    tokio::time::sleep(idle).await;
+    let after = process_thread_cpu(pid).context("reading the server's threads")?;
+    let window = window_start.elapsed().as_secs_f64();
+    let mut per_thread: Vec<(String, f64)> = after
+        .iter()
+        .map(|(tid, name, secs)| {
+            let start = before
+                .iter()
+                .find(|(t, _, _)| t == tid)
+                .map_or(0.0, |(_, _, s)| *s);
+            (name.clone(), (secs - start) / window * 100.0)
+        })
+        .collect();
+    // Threads of one name together (the runtime's workers, the buses'
+    // schedulers), the busiest first.
+    per_thread.sort_by(|a, b| a.0.cmp(&b.0));
+    per_thread.dedup_by(|later, first| {
+        if later.0 == first.0 {
+            first.1 += later.1;
+            true
+        } else {
+            false
+        }
+    });
+    per_thread.sort_by(|a, b| b.1.total_cmp(&a.1));
+    let idle_percent: f64 = per_thread.iter().map(|(_, p)| p).sum();
+
     let exit = guard.terminate()?;
     let graceful = exit.is_some_and(|s| s.success());
 
@@ -162,21 +219,51 @@ async fn measure(binary: &Path, settle: Duration) -> Result<Vec<Measure>> {
         ready.as_millis(),
         if graceful { "clean" } else { "NOT clean" },
     );
-    Ok(vec![Measure::value(
+    let busiest: Vec<String> = per_thread
+        .iter()
+        .filter(|(_, p)| *p >= 0.05)
+        .map(|(n, p)| format!("{n} {p:.1} %"))
+        .collect();
+    println!(
+        "  idle CPU over {window:.1} s: {idle_percent:.1} % of one core ({})",
+        if busiest.is_empty() {
+            "no thread above 0.05 %".to_string()
+        } else {
+            busiest.join(", ")
+        }
+    );
+    let idle_measure = Measure::value(
         "memory",
-        LABEL,
-        mib,
-        "MiB",
-        Target::Below(TARGET_MIB),
+        IDLE_LABEL,
+        idle_percent,
+        "%",
+        Target::Below(IDLE_TARGET_PERCENT),
         json!({
-            "binary": binary.display().to_string(),
-            "rss_kib": rss_kib,
-            "peak_rss_kib": hwm_kib,
-            "threads": threads,
-            "buses": buses,
-            "ready_ms": ready.as_millis() as u64,
-            "settle_ms": settle.as_millis() as u64,
-            "graceful_shutdown": graceful,
+            "window_s": window,
+            "threads_percent": per_thread
+                .iter()
+                .map(|(n, p)| json!({ "thread": n, "percent": p }))
+                .collect::<Vec<_>>(),
         }),
-    )])
+    );
+    Ok(vec![
+        Measure::value(
+            "memory",
+            LABEL,
+            mib,
+            "MiB",
+            Target::Below(TARGET_MIB),
+            json!({
+                "binary": binary.display().to_string(),
+                "rss_kib": rss_kib,
+                "peak_rss_kib": hwm_kib,
+                "threads": threads,
+                "buses": buses,
+                "ready_ms": ready.as_millis() as u64,
+                "settle_ms": settle.as_millis() as u64,
+                "graceful_shutdown": graceful,
+            }),
+        ),
+        idle_measure,
+    ])
 }
