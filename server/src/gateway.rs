@@ -628,6 +628,7 @@ fn open_bus(bc: &BusConfig, network: &VirtualNetwork) -> Result<(BusInfo, Backen
                 fd: bc.fd,
                 port_queue: bc.queue.unwrap_or(VirtualBusConfig::default().port_queue),
                 seed: bc.fault_seed.unwrap_or(VirtualBusConfig::default().seed),
+                rx_coalesce: std::time::Duration::from_micros(u64::from(bc.rx_coalesce_us)),
             };
             let vbus = network.bus(bc.interface(), vcfg);
             let info = BusInfo {

@@ -207,7 +207,7 @@ async fn demo_master_runs_p2_with_four_operational_slaves() {
         ),
         ("smc", "smc0", "smc1")
     );
-    assert_eq!(m.cycle_time_us, 2000);
+    assert_eq!(m.cycle_time_us, 4000);
     assert_eq!(m.bitrate, 1_000_000);
     assert_eq!(m.phase, pb::CansmcPhase::P2 as i32);
     assert_eq!(m.slave_addresses, vec![1, 2, 3, 4]);
@@ -220,7 +220,7 @@ async fn demo_master_runs_p2_with_four_operational_slaves() {
     })
     .await;
     assert_eq!(s1.master, "smc");
-    assert_eq!(s1.cycle_time_us, 2000);
+    assert_eq!(s1.cycle_time_us, 4000);
     assert_eq!(s1.bitrate, 1_000_000);
     assert_eq!(s1.starts, 1);
     assert_eq!(s1.start_error, None);

@@ -59,6 +59,15 @@ impl BitTiming {
         }
     }
 
+    /// A lower bound of any frame's time on the wire, cheap to compute:
+    /// the bits every frame sends at the nominal bitrate, CAN FD with a
+    /// switched bitrate too (SOF, an 11-bit identifier, 3 control bits,
+    /// CRC delimiter, ACK slot and delimiter, EOF and the interframe
+    /// space: 28 bits).
+    pub fn shortest_frame_ns(&self) -> u64 {
+        28 * 1_000_000_000 / u64::from(self.bitrate.max(1))
+    }
+
     /// The time the frame occupies the bus, in nanoseconds, including the
     /// 3-bit intermission that follows it.
     pub fn frame_duration_ns(&self, frame: &Frame) -> u64 {
@@ -515,6 +524,26 @@ impl<T: Copy + Eq + Hash> Arbiter<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn no_frame_is_shorter_than_the_shortest_frame_bound() {
+        let mut t = BitTiming::new(1_000_000);
+        t.data_bitrate = 8_000_000;
+        let bound = t.shortest_frame_ns();
+        let frames = [
+            Frame::new(CanId::standard(0).unwrap(), &[]).unwrap(),
+            Frame::new_remote(CanId::standard(0x7FF).unwrap(), 0).unwrap(),
+            Frame::new_fd(CanId::standard(0).unwrap(), &[], true, false).unwrap(),
+            Frame::new_fd(CanId::standard(0x123).unwrap(), &[0; 1], true, false).unwrap(),
+        ];
+        for f in &frames {
+            assert!(
+                t.frame_duration_ns(f) >= bound,
+                "{f:?}: {} < {bound}",
+                t.frame_duration_ns(f)
+            );
+        }
+    }
     use crate::frame::CanId;
 
     fn std_frame(id: u32, data: &[u8]) -> Frame {

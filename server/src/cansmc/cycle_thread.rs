@@ -4,7 +4,8 @@
 //! the master's deadlines (MST, `T_int_end`, parameter timeouts). MST
 //! timing is what the slaves synchronise on, so the thread sleeps with the
 //! OS high-resolution timer until `spin_us` before the cycle start, then
-//! waits actively for the exact instant: tokio timers (1 ms resolution)
+//! waits actively for the exact instant (by default only under
+//! `SCHED_FIFO`; see [`spin_ceiling_us`]): tokio timers (1 ms resolution)
 //! and a drifting interval are not good enough. Cycle starts are absolute
 //! (`t_k = t_0 + k × cycle`) and every MST's lateness goes into the jitter
 //! histogram.
@@ -22,7 +23,7 @@ use crate::axis_runner::{
     AxisEventKind, AxisRunner, AxisUpdate, BusRequest, CommandReply, CoordinatedTarget, Waiters,
     for_axis, prepare_coordinated,
 };
-use crate::config::{CansmcConfig, CyclicChoice, JogModeChoice};
+use crate::config::{CansmcConfig, CyclicChoice, DEFAULT_FIFO_SPIN_US, JogModeChoice};
 use cangate_axis::cansmc::{CansmcAxis, CycleInput};
 use cangate_axis::{AxisCommand, AxisEvent, CommandError};
 use cangate_can::precise_wait::SpinMargin;
@@ -39,6 +40,13 @@ use tokio_util::sync::CancellationToken;
 
 /// The least active wait before an MST, in µs (when `spin_us` is larger).
 const SPIN_FLOOR_US: u64 = 20;
+
+/// The longest active wait before an MST: the configured `spin_us`, else
+/// [`DEFAULT_FIFO_SPIN_US`] under `SCHED_FIFO` and none without (see
+/// [`CansmcConfig::spin_us`]).
+fn spin_ceiling_us(configured: Option<u32>, fifo: bool) -> u32 {
+    configured.unwrap_or(if fifo { DEFAULT_FIFO_SPIN_US } else { 0 })
+}
 
 /// How often the status and the axis states are published.
 const PUBLISH_PERIOD: Duration = Duration::from_millis(10);
@@ -135,11 +143,9 @@ pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String>
         .enumerate()
         .map(|(i, s)| (s.address.get(), i))
         .collect();
-    let spin_us = u64::from(setup.config.spin_us);
-    let spin = SpinMargin::new(
-        Duration::from_micros(spin_us.min(SPIN_FLOOR_US)),
-        Duration::from_micros(spin_us),
-    );
+    // Set when the thread starts: the default depends on whether it gets
+    // SCHED_FIFO.
+    let spin = SpinMargin::new(Duration::ZERO, Duration::ZERO);
     let mut t = Thread {
         master,
         cfg: setup.config,
@@ -232,9 +238,11 @@ impl Thread {
     }
 
     fn run(&mut self, cancel: &CancellationToken) {
+        let mut fifo = false;
         if self.cfg.rt_priority > 0 {
             match crate::realtime::set_fifo(self.cfg.rt_priority) {
                 Ok(()) => {
+                    fifo = true;
                     tracing::info!(master = %self.cfg.name, priority = self.cfg.rt_priority, "CANsmc cycle thread runs with SCHED_FIFO")
                 }
                 Err(e) => {
@@ -242,6 +250,12 @@ impl Thread {
                 }
             }
         }
+        let spin_us = u64::from(spin_ceiling_us(self.cfg.spin_us, fifo));
+        self.spin = SpinMargin::new(
+            Duration::from_micros(spin_us.min(SPIN_FLOOR_US)),
+            Duration::from_micros(spin_us),
+        );
+        tracing::debug!(master = %self.cfg.name, spin_us, "CANsmc cycle thread: active wait before each MST at most this long");
         // Timed sleeps end within a µs of the deadline, not the default
         // 50 µs: the active wait before each MST then only covers the
         // wake-up latency.
@@ -706,5 +720,19 @@ impl AxisRunner for Thread {
             self.publish_axis(i);
         }
         Ok(waiters)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_cycle_thread_spins_by_default_only_under_sched_fifo() {
+        assert_eq!(spin_ceiling_us(None, true), DEFAULT_FIFO_SPIN_US);
+        assert_eq!(spin_ceiling_us(None, false), 0);
+        // A configured value holds either way.
+        assert_eq!(spin_ceiling_us(Some(150), false), 150);
+        assert_eq!(spin_ceiling_us(Some(0), true), 0);
     }
 }

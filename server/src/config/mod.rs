@@ -360,6 +360,23 @@ eds = "builtin:drive"
     }
 
     #[test]
+    fn receive_coalescing_needs_a_bit_timed_virtual_bus_and_is_bounded() {
+        let bus = |extra: &str| {
+            format!("[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\nbitrate = 1000000\n{extra}")
+        };
+        let c = Config::from_toml(&bus("bit_timing = true\nrx_coalesce_us = 500\n")).unwrap();
+        assert_eq!(c.buses[0].rx_coalesce_us, 500);
+        let e = Config::from_toml(&bus("rx_coalesce_us = 500\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("bit_timing = true only"), "{e}");
+        let e = Config::from_toml(&bus("bit_timing = true\nrx_coalesce_us = 20000\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("exceeds 10000"), "{e}");
+    }
+
+    #[test]
     fn non_loopback_listen_needs_insecure() {
         let e = Config::from_toml("listen = \"0.0.0.0:50051\"\n")
             .unwrap_err()
