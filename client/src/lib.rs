@@ -60,7 +60,9 @@ mod sdo;
 mod streams;
 
 pub use axes::{AxisUpdate, CommandOptions, CommandResult, JogOptions, MoveOptions, StopOptions};
-pub use bus::{FrameEvent, FrameStreamOptions};
+pub use bus::{
+    AttachEvent, AttachOptions, AttachSender, Attachment, FrameEvent, FrameStreamOptions,
+};
 pub use canopen::Canopen;
 pub use connect::{
     BearerToken, CONNECTION_WINDOW, ConnectOptions, DEFAULT_CONNECT_TIMEOUT, DEFAULT_SERVER,

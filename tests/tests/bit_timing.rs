@@ -27,7 +27,7 @@ async fn frames_take_modelled_bus_time_in_arbitration_order() {
     let (mut stream, mut pending) = open_stream(&mut c, req).await;
 
     // A train of 1,000 8-byte frames with the highest priority id, sent by
-    // the gateway; it occupies the bus for 135 ms of bus time.
+    // a client; it occupies the bus for 135 ms of bus time.
     let train: Vec<Frame> = (0..1000u64)
         .map(|i| Frame::new(CanId::Standard(0x000), &i.to_le_bytes()).unwrap())
         .collect();
@@ -48,7 +48,7 @@ async fn frames_take_modelled_bus_time_in_arbitration_order() {
             (i as u64).to_le_bytes(),
             "the train keeps its order"
         );
-        assert_eq!(f.direction, pb::Direction::Tx as i32);
+        assert_eq!(f.origin, pb::FrameOrigin::Client as i32);
     }
     // Back to back: each frame ends exactly one frame time after the last.
     for w in got.windows(2) {

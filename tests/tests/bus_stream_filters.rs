@@ -1,6 +1,7 @@
 //! Client A streams with filters, client B sends: A sees exactly the
-//! matching frames, in order, with timestamps; extended ids, remote frames
-//! and CAN FD round-trip unchanged.
+//! matching frames, in order, with timestamps, as received frames of a
+//! client (B) marked with its sender; extended ids, remote frames and CAN
+//! FD round-trip unchanged.
 
 use cangate_client::can::{Filter, Frame};
 use cangate_client::pb;
@@ -48,9 +49,19 @@ async fn filtered_stream_sees_exactly_the_matching_frames_in_order() {
         let back = cangate_client::frame_from_pb(g).expect("valid frame");
         assert_eq!(back.to_string(), want.to_string());
         assert_eq!(
-            g.direction,
-            pb::Direction::Tx as i32,
-            "B's frames are the gateway's transmissions"
+            (g.direction, g.origin),
+            (pb::Direction::Rx as i32, pb::FrameOrigin::Client as i32),
+            "B's frames are received from a client, as a socket receives another's"
+        );
+        let sender = g.sender.as_ref().expect("B is named");
+        assert!(
+            sender.id > 0 && sender.client.starts_with("127.0.0.1:"),
+            "{sender:?}"
+        );
+        assert_eq!(
+            sender.id,
+            got[0].sender.as_ref().unwrap().id,
+            "one call, one sender"
         );
         assert!(g.timestamp_ns >= before, "timestamp is set and recent");
         assert!(g.timestamp_ns >= last_ts, "timestamps are monotonic");
@@ -72,16 +83,33 @@ async fn frames_from_a_device_arrive_as_rx() {
     device.send(&f).unwrap();
     let got = read_frames(&mut stream, &mut pending, 1).await;
     assert_eq!(got[0].direction, pb::Direction::Rx as i32);
+    assert_eq!(got[0].origin, pb::FrameOrigin::Bus as i32);
+    assert_eq!(got[0].sender, None);
     assert!(got[0].extended);
     assert_eq!(got[0].id, 0x1F33_4455);
     assert_eq!(got[0].data, vec![1, 2, 3, 4, 5, 6, 7, 8]);
     assert!(got[0].timestamp_ns > 0);
-    // Without include_transmitted, the gateway's own frames are not shown.
+    // Without include_transmitted, the gateway's own frames are not shown;
+    // a client's are (they are received frames, as on a SocketCAN host).
+    let own: Frame = "080#".parse().unwrap();
+    server
+        .gateway()
+        .bus("can0")
+        .unwrap()
+        .send(vec![own])
+        .await
+        .unwrap();
     let mut b = client(&server).await;
     b.send("can0", &["123#00".parse().unwrap()]).await.unwrap();
+    let got = read_frames(&mut stream, &mut pending, 1).await;
+    assert_eq!(
+        (got[0].id, got[0].direction),
+        (0x123, pb::Direction::Rx as i32)
+    );
+    assert_eq!(got[0].origin, pb::FrameOrigin::Client as i32);
     assert_quiet(&mut stream).await;
     let info = b.get_bus("can0").await.unwrap();
     let stats = info.statistics.unwrap();
-    assert_eq!((stats.rx_frames, stats.tx_frames), (1, 1));
+    assert_eq!((stats.rx_frames, stats.tx_frames), (1, 2));
     server.shutdown();
 }

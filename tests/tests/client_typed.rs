@@ -9,7 +9,7 @@ mod common;
 
 use cangate_client::{
     AxisUpdate, Client, ConnectOptions, DataType, Error, FrameEvent, FrameStreamOptions, NodeId,
-    ObjectAddress, SdoOptions, SdoValue, can,
+    ObjectAddress, SdoOptions, SdoValue, can, pb,
 };
 use common::*;
 use futures::StreamExt;
@@ -432,7 +432,8 @@ async fn streams_of_axis_updates_and_frames() {
     }
     lease.release().await.unwrap();
 
-    // Frames: the bus state first, then our own frame (transmitted).
+    // Frames: the bus state first, then the other call's frame (received
+    // from a client, marked with its sender).
     let mut c2 = c.clone();
     let mut frames = c
         .frames(
@@ -461,11 +462,15 @@ async fn streams_of_axis_updates_and_frames() {
     let FrameEvent::Frame {
         frame: f,
         transmitted,
+        origin,
+        sender,
     } = got
     else {
         panic!("{got:?}");
     };
-    assert!(transmitted);
+    assert!(!transmitted);
+    assert_eq!(origin, pb::FrameOrigin::Client);
+    assert!(sender.is_some_and(|s| s.id > 0), "named sender");
     assert_eq!(f.data(), frame.data());
     assert_eq!(f.raw_id(), 0x123);
     server.shutdown();

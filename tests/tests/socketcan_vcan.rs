@@ -190,26 +190,28 @@ async fn scenario() -> Result<()> {
     );
     dump.expect_in_order(&classic).await?;
 
-    // The TX stream shows our own 0x123 frames as TX (the extended 0x1F334455
-    // and the 0x7FF frames are filtered out), with a nonzero time.
+    // The gateway delivers our 0x123 frames to its streams as a client's
+    // (received, marked with their sender; the extended 0x1F334455 and the
+    // 0x7FF frames are filtered out), with a nonzero time: loopback done by
+    // the gateway, not by the kernel.
     let f = txs
-        .frame("our 123#CAFE as TX", |f| {
-            f.direction == pb::Direction::Tx as i32
+        .frame("our 123#CAFE as a client's", |f| {
+            f.origin == pb::FrameOrigin::Client as i32
         })
         .await?;
     ensure!(
-        key_pb(&f) == "123#CAFE",
-        "first TX frame should be 123#CAFE: {f:?}"
+        key_pb(&f) == "123#CAFE" && f.sender.is_some(),
+        "first client frame should be 123#CAFE with its sender: {f:?}"
     );
-    ensure!(f.timestamp_ns > 0, "TX frame without timestamp: {f:?}");
+    ensure!(f.timestamp_ns > 0, "client frame without timestamp: {f:?}");
     let f = txs
-        .frame("our 123#R4 as TX", |f| {
-            f.direction == pb::Direction::Tx as i32
+        .frame("our 123#R4 as a client's", |f| {
+            f.origin == pb::FrameOrigin::Client as i32
         })
         .await?;
     ensure!(
         key_pb(&f) == "123#R4",
-        "second TX frame should be 123#R4: {f:?}"
+        "second client frame should be 123#R4: {f:?}"
     );
 
     // (c) CAN FD both ways: 12 bytes with BRS, and a full 64-byte frame
@@ -281,13 +283,13 @@ async fn scenario() -> Result<()> {
     rx.sent.push(good.to_string());
     client.send(BUS, &[good]).await?;
     let f = txs
-        .frame("123#600D as TX after the reconnect", |f| {
+        .frame("123#600D as a client's after the reconnect", |f| {
             key_pb(f) == "123#600D"
         })
         .await?;
     ensure!(
-        f.direction == pb::Direction::Tx as i32,
-        "should be TX: {f:?}"
+        f.direction == pb::Direction::Rx as i32 && f.origin == pb::FrameOrigin::Client as i32,
+        "should be a client's frame, received: {f:?}"
     );
 
     // (e) A clean shutdown ends the open streams and stops everything
@@ -414,7 +416,8 @@ impl Events {
 
     /// The next frame matching `pred`. Other frames and state changes are
     /// skipped (a native vcan0 may carry foreign traffic) but reported; our
-    /// own transmissions seen as RX and lost-frame notices are errors.
+    /// own transmissions seen as another node's (the kernel's loopback to
+    /// the gateway's own socket) and lost-frame notices are errors.
     async fn frame(&mut self, what: &str, pred: impl Fn(&pb::Frame) -> bool) -> Result<pb::Frame> {
         let deadline = Instant::now() + EVENT_WAIT;
         loop {
@@ -426,7 +429,7 @@ impl Events {
                 Event::Frame(f) if pred(&f) => return Ok(f),
                 Event::Frame(f) => {
                     let key = key_pb(&f);
-                    if f.direction == pb::Direction::Rx as i32 && self.sent.contains(&key) {
+                    if f.origin == pb::FrameOrigin::Bus as i32 && self.sent.contains(&key) {
                         bail!(
                             "stream {}: the gateway's own frame {key} came back as RX \
                              (while waiting for {what})",

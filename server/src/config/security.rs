@@ -80,11 +80,23 @@ pub struct LimitsConfig {
     #[serde(default = "default_concurrent")]
     pub max_concurrent_requests_per_client: u32,
     /// Sustained calls per second of one client (token bucket rate).
+    /// `SendFrames` calls are not counted here but by their frames
+    /// (`raw_frames_per_second_per_client`).
     #[serde(default = "default_rate")]
     pub requests_per_second_per_client: u32,
     /// Calls one client may make at once above the rate (bucket size).
     #[serde(default = "default_burst")]
     pub burst: u32,
+    /// Sustained raw frames per second one client may send through
+    /// `SendFrames` and `Attach` (token bucket rate, one token per frame);
+    /// a batch beyond it is refused as a whole (RESOURCE_EXHAUSTED,
+    /// FRAME_RATE_LIMIT).
+    #[serde(default = "default_frame_rate")]
+    pub raw_frames_per_second_per_client: u32,
+    /// Raw frames one client may send at once above that rate (bucket
+    /// size; also the largest batch that can pass).
+    #[serde(default = "default_frame_burst")]
+    pub raw_frame_burst: u32,
     /// Server-streaming calls one client may hold open.
     #[serde(default = "default_streams")]
     pub max_streams_per_client: u32,
@@ -157,6 +169,12 @@ fn default_streams() -> u32 {
 fn default_message_bytes() -> u32 {
     4 * 1024 * 1024
 }
+fn default_frame_rate() -> u32 {
+    5_000
+}
+fn default_frame_burst() -> u32 {
+    10_000
+}
 fn default_stop_rate() -> u32 {
     50
 }
@@ -200,6 +218,8 @@ impl Default for LimitsConfig {
             max_concurrent_requests_per_client: default_concurrent(),
             requests_per_second_per_client: default_rate(),
             burst: default_burst(),
+            raw_frames_per_second_per_client: default_frame_rate(),
+            raw_frame_burst: default_frame_burst(),
             max_streams_per_client: default_streams(),
             max_message_bytes: default_message_bytes(),
             stop_requests_per_second_per_client: default_stop_rate(),
@@ -285,6 +305,11 @@ impl SecurityConfig {
                  is set"
                     .into(),
             );
+        }
+        if l.raw_frame_burst == 0 && l.raw_frames_per_second_per_client > 0 {
+            return Err("[security.limits] raw_frame_burst must be at least 1 when \
+                 raw_frames_per_second_per_client is set"
+                .into());
         }
         if l.stop_burst == 0 && l.stop_requests_per_second_per_client > 0 {
             return Err("[security.limits] stop_burst must be at least 1 when \

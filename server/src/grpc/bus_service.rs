@@ -1,17 +1,31 @@
-//! The `cangate.v1.Bus` service: list, send, stream.
+//! The `cangate.v1.Bus` service: list, send, stream, attach.
+//!
+//! Clients send as bus participants (see "Clients are bus participants" in
+//! bus.proto): each `SendFrames` call and each `Attach` stream is one
+//! sender, a [`ClientId`] whose frames the bus delivers to everyone else as
+//! received; [`SenderNames`] says who each sender is, for the streams that
+//! show its frames.
 
 use super::error::ApiError;
 use crate::gateway::Gateway;
 use crate::grpc::convert::bus::{
-    bus_info_to_pb, filter_from_pb, frame_from_pb, item_to_pb, status_to_pb,
+    bus_info_to_pb, filter_from_pb, frame_from_pb, item_to_attach_pb, item_to_pb,
+    send_refused_to_pb, status_to_pb,
 };
-use cangate_can::{FrameSelector, TxClass};
+use crate::security::{FrameBudget, StreamQueueBudget};
+use cangate_can::{
+    AttachOptions, BusHandle, BusItem, ClientId, Frame, FrameSelector, SendFailure, Subscription,
+};
 use cangate_proto::v1 as pb;
 use cangate_proto::v1::bus_server::Bus;
+use std::collections::{HashMap, VecDeque};
 use std::pin::Pin;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tokio::sync::mpsc;
 use tokio_stream::Stream;
-use tonic::{Request, Response, Status};
+use tokio_util::sync::CancellationToken;
+use tonic::{Code, Request, Response, Status};
 
 /// Most frames in one SendFrames call.
 pub const MAX_SEND_BATCH: usize = 10_000;
@@ -45,21 +59,322 @@ pub const SMALL_MESSAGES_PER_S: f64 = 200.0;
 pub const COALESCE_LINGER: std::time::Duration = std::time::Duration::from_millis(5);
 /// Largest per-client stream buffer a client may ask for.
 pub const MAX_STREAM_QUEUE: usize = 1_000_000;
+/// How long an Attach stream may take to send its AttachOpen.
+pub const ATTACH_OPEN_TIMEOUT: Duration = Duration::from_secs(10);
+/// Names of senders that ended, kept for the frames of theirs still on
+/// their way to slow streams (see [`SenderNames`]).
+pub const ENDED_SENDER_NAMES: usize = 4096;
+
+/// Who each sender of client frames is (`FrameSender.client`): the caller
+/// of every `SendFrames` call and `Attach` stream in progress, and of the
+/// last [`ENDED_SENDER_NAMES`] that ended, whose frames may still wait in
+/// the queue of a slow stream. Bounded: an older sender's frames are shown
+/// with its number only.
+#[derive(Debug, Default)]
+pub struct SenderNames {
+    inner: Mutex<SenderNamesInner>,
+}
+
+#[derive(Debug, Default)]
+struct SenderNamesInner {
+    names: HashMap<ClientId, Arc<str>>,
+    ended: VecDeque<ClientId>,
+}
+
+impl SenderNames {
+    /// Registers a sender while the returned guard lives.
+    fn register(self: &Arc<Self>, id: ClientId, name: String) -> SenderGuard {
+        self.lock().names.insert(id, Arc::from(name));
+        SenderGuard {
+            names: self.clone(),
+            id,
+        }
+    }
+
+    /// The name of a sender, if it is still known.
+    pub fn name(&self, id: ClientId) -> Option<Arc<str>> {
+        self.lock().names.get(&id).cloned()
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, SenderNamesInner> {
+        self.inner.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// A name lookup for one stream's conversions: it remembers the last
+    /// sender, so a run of one client's frames takes the lock once.
+    fn lookup(self: &Arc<Self>) -> impl FnMut(ClientId) -> String + Send + 'static {
+        let names = self.clone();
+        let mut last: Option<(ClientId, String)> = None;
+        move |id| {
+            if let Some((l, name)) = &last
+                && *l == id
+            {
+                return name.clone();
+            }
+            let name = names.name(id).map(|n| n.to_string()).unwrap_or_default();
+            last = Some((id, name.clone()));
+            name
+        }
+    }
+}
+
+/// A registered sender; ends its registration when dropped.
+struct SenderGuard {
+    names: Arc<SenderNames>,
+    id: ClientId,
+}
+
+impl Drop for SenderGuard {
+    fn drop(&mut self) {
+        let mut inner = self.names.lock();
+        inner.ended.push_back(self.id);
+        while inner.ended.len() > ENDED_SENDER_NAMES {
+            if let Some(old) = inner.ended.pop_front() {
+                inner.names.remove(&old);
+            }
+        }
+    }
+}
 
 /// Implementation of the Bus service.
 #[derive(Clone)]
 pub struct BusService {
     gateway: Arc<Gateway>,
+    senders: Arc<SenderNames>,
 }
 
 impl BusService {
     /// Serves the gateway's buses.
     pub fn new(gateway: Arc<Gateway>) -> Self {
-        BusService { gateway }
+        BusService {
+            gateway,
+            senders: Arc::default(),
+        }
     }
 }
 
 type FrameStream = Pin<Box<dyn Stream<Item = Result<pb::StreamFramesResponse, Status>> + Send>>;
+
+/// A batch of client frames that was not (completely) sent.
+struct Refusal {
+    error: ApiError,
+    sent: usize,
+    total: usize,
+}
+
+impl From<SendFailure> for Refusal {
+    fn from(f: SendFailure) -> Self {
+        Refusal {
+            sent: f.sent,
+            total: f.total,
+            error: ApiError::from(f),
+        }
+    }
+}
+
+/// Sends a client's batch as a bus participant: a batch of 1..=10,000
+/// frames, within the client's raw frame budget (one token per frame, taken
+/// before the frames are validated: a batch refused for a malformed frame
+/// costs its size too), validated as a whole, then in the client class of
+/// the bus. With `fd` false (an attachment without CAN FD), FD frames are
+/// refused.
+async fn send_client_frames(
+    bus: &BusHandle,
+    client: ClientId,
+    frames: &[pb::Frame],
+    fd: bool,
+    budget: Option<&FrameBudget>,
+) -> Result<(), Refusal> {
+    let total = frames.len();
+    let refuse = |error| Refusal {
+        error,
+        sent: 0,
+        total,
+    };
+    if frames.is_empty() {
+        return Err(refuse(ApiError::InvalidArgument(
+            "no frames to send: the batch is empty".into(),
+        )));
+    }
+    if total > MAX_SEND_BATCH {
+        return Err(refuse(ApiError::InvalidArgument(format!(
+            "{total} frames in one batch; at most {MAX_SEND_BATCH}"
+        ))));
+    }
+    if let Some(b) = budget {
+        b.take(total as u64).map_err(|e| {
+            refuse(ApiError::refused(
+                Code::ResourceExhausted,
+                "FRAME_RATE_LIMIT",
+                e.0,
+                vec![("frames", total.to_string())],
+            ))
+        })?;
+    }
+    let frames = frames
+        .iter()
+        .enumerate()
+        .map(|(i, f)| match frame_from_pb(f) {
+            Ok(frame) if frame.is_fd() && !fd => Err(ApiError::bad_frame(
+                i,
+                "a CAN FD frame, and this stream was attached without fd",
+            )),
+            Ok(frame) => Ok(frame),
+            Err(e) => Err(ApiError::bad_frame(i, e)),
+        })
+        .collect::<Result<Vec<Frame>, _>>()
+        .map_err(refuse)?;
+    // Within the bus's client share, behind the gateway's own frames.
+    bus.send_as_client(client, frames)
+        .await
+        .map_err(Refusal::from)
+}
+
+/// Forwards a subscription into a stream: `first` messages, then the items
+/// in batches of at most `max_batch`, each batch made a message by
+/// `message`. Ends when the client goes away, the bus stops or the gateway
+/// shuts down (`at_shutdown`: a last message, e.g. a status).
+#[allow(clippy::too_many_arguments)]
+fn spawn_subscription_forward<M: Send + 'static>(
+    mut sub: Subscription,
+    bus: BusHandle,
+    tx: mpsc::Sender<Result<M, Status>>,
+    first: Vec<M>,
+    max_batch: usize,
+    cancel: CancellationToken,
+    at_shutdown: Option<Status>,
+    mut message: impl FnMut(&[BusItem], u64) -> M + Send + 'static,
+    hold: impl Send + 'static,
+) {
+    tokio::spawn(async move {
+        let _hold = hold;
+        for m in first {
+            if tx.send(Ok(m)).await.is_err() {
+                return;
+            }
+        }
+        let mut items = Vec::with_capacity(max_batch);
+        let mut small_budget = SMALL_MESSAGE_BURST;
+        let mut refilled = tokio::time::Instant::now();
+        loop {
+            items.clear();
+            let n = tokio::select! {
+                _ = cancel.cancelled() => break,
+                _ = tx.closed() => return,
+                n = sub.recv_many(&mut items, max_batch) => n,
+            };
+            if n == 0 {
+                return; // the bus stopped
+            }
+            // A few events: from the small-message budget, or give more
+            // a moment to join them (see COALESCE_EVENTS).
+            let now = tokio::time::Instant::now();
+            small_budget = (small_budget
+                + now.duration_since(refilled).as_secs_f64() * SMALL_MESSAGES_PER_S)
+                .min(SMALL_MESSAGE_BURST);
+            refilled = now;
+            let small = items.len() < COALESCE_EVENTS.min(max_batch);
+            if small && small_budget >= 1.0 {
+                small_budget -= 1.0;
+            } else if small {
+                let deadline = tokio::time::Instant::now() + COALESCE_LINGER;
+                while items.len() < COALESCE_EVENTS.min(max_batch) {
+                    let room = max_batch - items.len();
+                    tokio::select! {
+                        _ = cancel.cancelled() => break,
+                        _ = tokio::time::sleep_until(deadline) => break,
+                        n = sub.recv_many(&mut items, room) => if n == 0 { break },
+                    }
+                }
+            }
+            let since = bus.stats().status_since.as_nanos();
+            let m = message(&items, since);
+            tokio::select! {
+                _ = cancel.cancelled() => break,
+                r = tx.send(Ok(m)) => if r.is_err() { return },
+            }
+        }
+        // Shutting down.
+        if let Some(status) = at_shutdown {
+            let _ = tokio::time::timeout(Duration::from_secs(1), tx.send(Err(status))).await;
+        }
+    });
+}
+
+/// An Attach stream that broke its protocol.
+fn attach_protocol(message: impl Into<String>) -> Status {
+    ApiError::refused(Code::InvalidArgument, "ATTACH_PROTOCOL", message, vec![]).into()
+}
+
+/// The sending half of an Attach stream: each AttachSend in order, its
+/// refusal reported in the stream; ends when the client goes away, breaks
+/// the protocol or the gateway shuts down. After the client's half-close
+/// it only holds the sender's name until the stream ends.
+#[allow(clippy::too_many_arguments)]
+async fn attach_sends(
+    mut inbound: tonic::Streaming<pb::AttachRequest>,
+    bus: BusHandle,
+    client: ClientId,
+    fd: bool,
+    budget: Option<FrameBudget>,
+    tx: mpsc::Sender<Result<pb::AttachResponse, Status>>,
+    cancel: CancellationToken,
+    _name: SenderGuard,
+) {
+    use pb::attach_request::Message;
+    loop {
+        let msg = tokio::select! {
+            biased;
+            _ = cancel.cancelled() => return,
+            _ = tx.closed() => return,
+            m = inbound.message() => m,
+        };
+        let send = match msg {
+            Ok(Some(pb::AttachRequest {
+                message: Some(Message::Send(send)),
+            })) => send,
+            Ok(Some(pb::AttachRequest { message })) => {
+                let what = if message.is_some() {
+                    "a second AttachOpen: the stream is open already"
+                } else {
+                    "a message with neither open nor send"
+                };
+                let _ = tokio::time::timeout(
+                    Duration::from_secs(1),
+                    tx.send(Err(attach_protocol(what))),
+                )
+                .await;
+                return;
+            }
+            Ok(None) => {
+                // Half-closed: nothing more to send; receiving goes on.
+                tokio::select! {
+                    _ = cancel.cancelled() => {}
+                    _ = tx.closed() => {}
+                }
+                return;
+            }
+            // The client went away (cancelled, reset).
+            Err(_) => return,
+        };
+        let sending = send_client_frames(&bus, client, &send.frames, fd, budget.as_ref());
+        let result = tokio::select! {
+            _ = cancel.cancelled() => return,
+            _ = tx.closed() => return,
+            r = sending => r,
+        };
+        if let Err(r) = result {
+            let event = send_refused_to_pb(send.sequence, r.sent, r.total, &r.error);
+            let message = pb::AttachResponse {
+                events: vec![event],
+            };
+            tokio::select! {
+                _ = cancel.cancelled() => return,
+                r = tx.send(Ok(message)) => if r.is_err() { return },
+            }
+        }
+    }
+}
 
 #[tonic::async_trait]
 impl Bus for BusService {
@@ -87,32 +402,19 @@ impl Bus for BusService {
         &self,
         req: Request<pb::SendFramesRequest>,
     ) -> Result<Response<pb::SendFramesResponse>, Status> {
+        let who = super::caller(&req);
+        let budget = req.extensions().get::<FrameBudget>().cloned();
         let req = req.into_inner();
         let bus = self.gateway.bus(&req.bus)?;
-        if req.frames.is_empty() {
-            return Err(
-                ApiError::InvalidArgument("no frames to send: the batch is empty".into()).into(),
-            );
-        }
-        if req.frames.len() > MAX_SEND_BATCH {
-            return Err(ApiError::InvalidArgument(format!(
-                "{} frames in one batch; at most {MAX_SEND_BATCH}",
-                req.frames.len()
-            ))
-            .into());
-        }
-        let frames = req
-            .frames
-            .iter()
-            .enumerate()
-            .map(|(i, f)| frame_from_pb(f).map_err(|e| ApiError::bad_frame(i, e)))
-            .collect::<Result<Vec<_>, _>>()?;
-        let n = frames.len() as u32;
-        // Within the bus's client share, behind the gateway's own frames.
-        bus.send_as(TxClass::Client, frames)
+        // This call is one sender, as one socket is.
+        let client = ClientId::next();
+        let _name = self.senders.register(client, who);
+        send_client_frames(bus, client, &req.frames, true, budget.as_ref())
             .await
-            .map_err(ApiError::from)?;
-        Ok(Response::new(pb::SendFramesResponse { sent: n }))
+            .map_err(|r| r.error)?;
+        Ok(Response::new(pb::SendFramesResponse {
+            sent: req.frames.len() as u32,
+        }))
     }
 
     type StreamFramesStream = FrameStream;
@@ -144,67 +446,37 @@ impl Bus for BusService {
             error_frames: req.include_error_frames,
             transmitted: req.include_transmitted,
         };
-        let mut sub = bus.subscribe(selector, queue);
+        let sub = bus.subscribe(selector, queue);
         let cancel = self.gateway.shutdown_token();
         // A small channel: when the client reads slowly, back-pressure reaches
         // the subscription, whose drops are counted and reported in-stream.
-        let (tx, rx) = tokio::sync::mpsc::channel::<Result<pb::StreamFramesResponse, Status>>(4);
+        let (tx, rx) = mpsc::channel::<Result<pb::StreamFramesResponse, Status>>(4);
         let stats = bus.stats();
-        tokio::spawn(async move {
-            let _queue_reservation = queue_reservation;
-            let first = pb::StreamFramesResponse {
-                events: vec![pb::StreamEvent {
-                    event: Some(pb::stream_event::Event::State(status_to_pb(
-                        stats.status,
-                        stats.status_since.as_nanos(),
-                    ))),
-                }],
-            };
-            if tx.send(Ok(first)).await.is_err() {
-                return;
-            }
-            let mut items = Vec::with_capacity(max_batch);
-            let mut small_budget = SMALL_MESSAGE_BURST;
-            let mut refilled = tokio::time::Instant::now();
-            loop {
-                items.clear();
-                let n = tokio::select! {
-                    _ = cancel.cancelled() => break,
-                    _ = tx.closed() => break,
-                    n = sub.recv_many(&mut items, max_batch) => n,
-                };
-                if n == 0 {
-                    break; // the bus stopped
-                }
-                // A few events: from the small-message budget, or give more
-                // a moment to join them (see COALESCE_EVENTS).
-                let now = tokio::time::Instant::now();
-                small_budget = (small_budget
-                    + now.duration_since(refilled).as_secs_f64() * SMALL_MESSAGES_PER_S)
-                    .min(SMALL_MESSAGE_BURST);
-                refilled = now;
-                let small = items.len() < COALESCE_EVENTS.min(max_batch);
-                if small && small_budget >= 1.0 {
-                    small_budget -= 1.0;
-                } else if small {
-                    let deadline = tokio::time::Instant::now() + COALESCE_LINGER;
-                    while items.len() < COALESCE_EVENTS.min(max_batch) {
-                        let room = max_batch - items.len();
-                        tokio::select! {
-                            _ = cancel.cancelled() => break,
-                            _ = tokio::time::sleep_until(deadline) => break,
-                            n = sub.recv_many(&mut items, room) => if n == 0 { break },
-                        }
-                    }
-                }
-                let since = bus.stats().status_since.as_nanos();
-                let events = items.iter().map(|i| item_to_pb(i, since)).collect();
-                tokio::select! {
-                    _ = cancel.cancelled() => break,
-                    r = tx.send(Ok(pb::StreamFramesResponse { events })) => if r.is_err() { break },
-                }
-            }
-        });
+        let first = pb::StreamFramesResponse {
+            events: vec![pb::StreamEvent {
+                event: Some(pb::stream_event::Event::State(status_to_pb(
+                    stats.status,
+                    stats.status_since.as_nanos(),
+                ))),
+            }],
+        };
+        let mut name_of = self.senders.lookup();
+        spawn_subscription_forward(
+            sub,
+            bus,
+            tx,
+            vec![first],
+            max_batch,
+            cancel,
+            None,
+            move |items, since| pb::StreamFramesResponse {
+                events: items
+                    .iter()
+                    .map(|i| item_to_pb(i, since, &mut name_of))
+                    .collect(),
+            },
+            queue_reservation,
+        );
         Ok(Response::new(Box::pin(
             tokio_stream::wrappers::ReceiverStream::new(rx),
         )))
@@ -214,8 +486,124 @@ impl Bus for BusService {
 
     async fn attach(
         &self,
-        _req: Request<tonic::Streaming<pb::AttachRequest>>,
+        req: Request<tonic::Streaming<pb::AttachRequest>>,
     ) -> Result<Response<Self::AttachStream>, Status> {
-        Err(Status::unimplemented("Attach is not served yet"))
+        use pb::attach_request::Message;
+        let who = super::caller(&req);
+        let budget = req.extensions().get::<FrameBudget>().cloned();
+        let queue_budget = req.extensions().get::<StreamQueueBudget>().cloned();
+        let mut inbound = req.into_inner();
+        let cancel = self.gateway.shutdown_token();
+        let first = tokio::select! {
+            _ = cancel.cancelled() => return Err(ApiError::ShuttingDown.into()),
+            m = tokio::time::timeout(ATTACH_OPEN_TIMEOUT, inbound.message()) => m,
+        };
+        let open = match first {
+            Err(_) => {
+                return Err(attach_protocol(format!(
+                    "no AttachOpen within {} s",
+                    ATTACH_OPEN_TIMEOUT.as_secs()
+                )));
+            }
+            Ok(Err(status)) => return Err(status),
+            Ok(Ok(None)) => {
+                return Err(attach_protocol(
+                    "the client ended its messages before an AttachOpen",
+                ));
+            }
+            Ok(Ok(Some(pb::AttachRequest {
+                message: Some(Message::Open(open)),
+            }))) => open,
+            Ok(Ok(Some(_))) => {
+                return Err(attach_protocol("the first message must be an AttachOpen"));
+            }
+        };
+        let bus = self.gateway.bus(&open.bus)?.clone();
+        let filters = open
+            .filters
+            .iter()
+            .map(filter_from_pb)
+            .collect::<Result<Vec<_>, _>>()?;
+        if open.fd && !bus.info().fd {
+            return Err(ApiError::refused(
+                Code::InvalidArgument,
+                "CAN_FD_NOT_SUPPORTED",
+                format!(
+                    "bus {} is not configured for CAN FD; attach without fd",
+                    bus.name()
+                ),
+                vec![("bus", bus.name().to_string())],
+            )
+            .into());
+        }
+        let max_batch = match open.max_batch as usize {
+            0 => MAX_STREAM_BATCH,
+            n => n.min(MAX_STREAM_BATCH),
+        };
+        // The queue comes out of the caller's budget ([security.limits]).
+        let (queue, queue_reservation) = crate::security::stream_queue_from(
+            queue_budget.as_ref(),
+            open.queue_length,
+            DEFAULT_STREAM_QUEUE,
+            MAX_STREAM_QUEUE,
+        )?;
+        let client = ClientId::next();
+        let name = self.senders.register(client, who.clone());
+        let sub = bus.attach(
+            client,
+            AttachOptions {
+                selector: FrameSelector {
+                    filters,
+                    error_frames: open.include_error_frames,
+                    transmitted: true,
+                },
+                receive_own: open.receive_own,
+                fd: open.fd,
+                queue,
+            },
+        );
+        let stats = bus.stats();
+        let first = pb::AttachResponse {
+            events: vec![
+                pb::AttachEvent {
+                    event: Some(pb::attach_event::Event::Opened(pb::AttachOpened {
+                        bus: Some(bus_info_to_pb(bus.info(), &stats)),
+                        sender_id: client.get(),
+                        client: who,
+                        queue_length: queue as u32,
+                    })),
+                },
+                pb::AttachEvent {
+                    event: Some(pb::attach_event::Event::State(status_to_pb(
+                        stats.status,
+                        stats.status_since.as_nanos(),
+                    ))),
+                },
+            ],
+        };
+        let (tx, rx) = mpsc::channel::<Result<pb::AttachResponse, Status>>(4);
+        let mut name_of = self.senders.lookup();
+        spawn_subscription_forward(
+            sub,
+            bus.clone(),
+            tx.clone(),
+            vec![first],
+            max_batch,
+            cancel.clone(),
+            Some(ApiError::ShuttingDown.into()),
+            move |items, since| pb::AttachResponse {
+                events: items
+                    .iter()
+                    .map(|i| item_to_attach_pb(i, since, client, &mut name_of))
+                    .collect(),
+            },
+            queue_reservation,
+        );
+        tokio::spawn(attach_sends(
+            inbound, bus, client, open.fd, budget, tx, cancel, name,
+        ));
+        Ok(Response::new(Box::pin(
+            tokio_stream::wrappers::ReceiverStream::new(rx),
+        )))
     }
 }

@@ -185,7 +185,7 @@ impl ApiError {
     }
 
     /// The `ErrorInfo.metadata`.
-    fn metadata(&self) -> Vec<(&'static str, String)> {
+    pub fn metadata(&self) -> Vec<(&'static str, String)> {
         match self {
             ApiError::NotFound { kind, name, .. } => vec![
                 ("kind", (*kind).to_string()),

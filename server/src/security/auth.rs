@@ -486,6 +486,8 @@ impl<S> SecurityService<S> {
         };
         let kind = if roles::is_stop(rule) {
             CallKind::Stop
+        } else if roles::sends_raw_frames(rule) && !rule.streaming {
+            CallKind::RawFrames
         } else if rule.streaming {
             CallKind::Streaming
         } else {
@@ -553,6 +555,7 @@ where
                 in_flight,
                 stream,
                 queue_budget,
+                frame_budget,
             },
         ) = match decision {
             Ok(d) => d,
@@ -587,6 +590,11 @@ where
         });
         req.extensions_mut().insert(identity);
         if let Some(b) = queue_budget {
+            req.extensions_mut().insert(b);
+        }
+        if let Some(b) = frame_budget
+            && rule.is_some_and(roles::sends_raw_frames)
+        {
             req.extensions_mut().insert(b);
         }
         let limit = self.shared.max_message_bytes;

@@ -1,7 +1,9 @@
-//! Per-client limits: calls in progress, call rate (token bucket) and open
-//! streams. A client over a limit is refused at once with
-//! RESOURCE_EXHAUSTED naming the limit; nobody waits, so one busy client
-//! never stalls the others.
+//! Per-client limits: calls in progress, call rate (token bucket), open
+//! streams, and raw frames per second (a token bucket of frames, for
+//! `SendFrames` and `Attach`: raw traffic is counted by its frames, not by
+//! its calls, see [`FrameBudget`]). A client over a limit is refused at
+//! once with RESOURCE_EXHAUSTED naming the limit; nobody waits, so one busy
+//! client never stalls the others.
 //!
 //! Stops (`Stop`, `QuickStop`, `StopAxes`) have a budget of their own
 //! (rate, burst and calls in progress): other calls never use it up, so a
@@ -28,6 +30,25 @@ struct ClientState {
     /// Sum of the queue lengths of the client's open streams.
     queued: u64,
     refilled: Instant,
+    /// The raw frame bucket and when it was last refilled.
+    frame_tokens: f64,
+    frames_refilled: Instant,
+}
+
+impl ClientState {
+    fn new(cfg: &LimitsConfig, now: Instant) -> Self {
+        ClientState {
+            in_flight: 0,
+            streams: 0,
+            tokens: f64::from(cfg.burst),
+            stops_in_flight: 0,
+            stop_tokens: f64::from(cfg.stop_burst),
+            queued: 0,
+            refilled: now,
+            frame_tokens: f64::from(cfg.raw_frame_burst),
+            frames_refilled: now,
+        }
+    }
 }
 
 /// What kind of call asks to be admitted: which budget it uses.
@@ -39,6 +60,10 @@ pub enum CallKind {
     Streaming,
     /// A stop: its own budget, see the module documentation.
     Stop,
+    /// A unary call that sends raw frames (`SendFrames`): it counts as a
+    /// call in progress, but not against the call rate; its frames are
+    /// counted instead ([`FrameBudget`]).
+    RawFrames,
 }
 
 #[derive(Debug)]
@@ -98,6 +123,9 @@ pub struct Admission {
     pub stream: Option<Permit>,
     /// For a streaming call: the client's queue budget.
     pub queue_budget: Option<StreamQueueBudget>,
+    /// The client's raw frame budget (every admission but a stop's; the
+    /// security layer hands it to the RPCs that send raw frames).
+    pub frame_budget: Option<FrameBudget>,
 }
 
 impl Limits {
@@ -139,18 +167,7 @@ impl Limits {
             Some((k, _)) => k.clone(),
             None => {
                 let k: Arc<str> = Arc::from(client);
-                clients.insert(
-                    k.clone(),
-                    ClientState {
-                        in_flight: 0,
-                        streams: 0,
-                        tokens: f64::from(cfg.burst),
-                        stops_in_flight: 0,
-                        stop_tokens: f64::from(cfg.stop_burst),
-                        queued: 0,
-                        refilled: now,
-                    },
-                );
+                clients.insert(k.clone(), ClientState::new(cfg, now));
                 k
             }
         };
@@ -198,6 +215,7 @@ impl Limits {
                 }),
                 stream: None,
                 queue_budget: None,
+                frame_budget: None,
             });
         }
         if cfg.max_concurrent_requests_per_client > 0
@@ -215,7 +233,7 @@ impl Limits {
                 c.streams, cfg.max_streams_per_client
             )));
         }
-        if rate > 0.0 {
+        if rate > 0.0 && kind != CallKind::RawFrames {
             if c.tokens < 1.0 {
                 return Err(LimitExceeded(format!(
                     "rate limit: {client} exceeds requests_per_second_per_client = {} \
@@ -227,6 +245,10 @@ impl Limits {
         }
         c.in_flight += 1;
         let queue_budget = streaming.then(|| StreamQueueBudget {
+            limits: self.clone(),
+            key: key.clone(),
+        });
+        let frame_budget = Some(FrameBudget {
             limits: self.clone(),
             key: key.clone(),
         });
@@ -249,6 +271,7 @@ impl Limits {
             in_flight,
             stream,
             queue_budget,
+            frame_budget,
         })
     }
 }
@@ -326,6 +349,73 @@ impl StreamQueueBudget {
                 events,
             },
         ))
+    }
+}
+
+/// The raw frame budget of the client making a call that sends raw frames
+/// (`SendFrames`, `Attach`): put into the request's extensions by the
+/// security layer, charged by the service per batch, one token per frame
+/// (`raw_frames_per_second_per_client`, `raw_frame_burst`).
+///
+/// Why frames and not calls: one call may carry 10,000 frames, and an
+/// attached client sends many batches over one call; what a client costs
+/// the bus and the gateway is its frames.
+#[derive(Debug, Clone)]
+pub struct FrameBudget {
+    limits: Limits,
+    key: Arc<str>,
+}
+
+impl FrameBudget {
+    /// Takes `frames` tokens for a batch, or refuses the whole batch
+    /// (nothing taken) saying which limit it exceeds.
+    ///
+    /// # Errors
+    /// When the client's bucket holds fewer than `frames` tokens (a batch
+    /// larger than `raw_frame_burst` never passes).
+    pub fn take(&self, frames: u64) -> Result<(), LimitExceeded> {
+        self.take_at(frames, Instant::now())
+    }
+
+    fn take_at(&self, frames: u64, now: Instant) -> Result<(), LimitExceeded> {
+        let cfg = &self.limits.inner.config;
+        let rate = f64::from(cfg.raw_frames_per_second_per_client);
+        if rate <= 0.0 {
+            return Ok(());
+        }
+        let burst = f64::from(cfg.raw_frame_burst);
+        let mut clients = self
+            .limits
+            .inner
+            .clients
+            .lock()
+            .unwrap_or_else(|p| p.into_inner());
+        // Pruned meanwhile (idle for a minute): a fresh, full bucket.
+        let c = clients
+            .entry(self.key.clone())
+            .or_insert_with(|| ClientState::new(cfg, now));
+        let elapsed = now.saturating_duration_since(c.frames_refilled);
+        c.frame_tokens = (c.frame_tokens + elapsed.as_secs_f64() * rate).min(burst);
+        c.frames_refilled = now;
+        // Activity keeps the entry from being pruned.
+        c.refilled = c.refilled.max(now);
+        let wanted = frames as f64;
+        if wanted > burst {
+            return Err(LimitExceeded(format!(
+                "frame rate limit: a batch of {frames} frames is larger than raw_frame_burst = \
+                 {} of {}: send smaller batches",
+                cfg.raw_frame_burst, self.key
+            )));
+        }
+        if c.frame_tokens < wanted {
+            return Err(LimitExceeded(format!(
+                "frame rate limit: {} exceeds raw_frames_per_second_per_client = {} \
+                 (raw_frame_burst = {}); {frames} frames refused, none sent",
+                self.key, cfg.raw_frames_per_second_per_client, cfg.raw_frame_burst
+            )));
+        }
+        c.frame_tokens -= wanted;
+        Ok(())
     }
 }
 
@@ -536,6 +626,55 @@ mod tests {
         // A closed stream gives its share back.
         drop((r1, r3));
         budget.reserve(1000, 8192).unwrap();
+    }
+
+    #[test]
+    fn raw_frames_are_counted_by_frames_not_calls() {
+        let l = Limits::new(LimitsConfig {
+            requests_per_second_per_client: 1,
+            burst: 1,
+            raw_frames_per_second_per_client: 1000,
+            raw_frame_burst: 2000,
+            ..LimitsConfig::default()
+        });
+        let t0 = Instant::now();
+        // SendFrames calls do not use the call budget (1/s here)...
+        let mut budget = None;
+        for _ in 0..10 {
+            let a = l.admit_at("a", CallKind::RawFrames, t0).unwrap();
+            budget = a.frame_budget;
+        }
+        let budget = budget.unwrap();
+        // ...their frames use the frame budget: the burst, then the rate.
+        budget.take_at(1500, t0).unwrap();
+        let e = budget.take_at(600, t0).unwrap_err();
+        assert!(e.0.starts_with("frame rate limit"), "{e}");
+        assert!(
+            e.0.contains("raw_frames_per_second_per_client = 1000"),
+            "{e}"
+        );
+        budget.take_at(500, t0).unwrap();
+        // 100 ms at 1000/s gives 100 frames back.
+        budget
+            .take_at(100, t0 + Duration::from_millis(100))
+            .unwrap();
+        assert!(budget.take_at(1, t0 + Duration::from_millis(100)).is_err());
+        // A batch larger than the burst never passes, and says why.
+        let e = budget
+            .take_at(2001, t0 + Duration::from_secs(60))
+            .unwrap_err();
+        assert!(e.0.contains("larger than raw_frame_burst"), "{e}");
+        // Other clients have their own; a unary call still takes a token.
+        let b = l.admit_at("b", UNARY, t0).unwrap();
+        b.frame_budget.unwrap().take_at(2000, t0).unwrap();
+        assert!(l.admit_at("b", UNARY, t0).is_err());
+        // 0 turns the frame limit off.
+        let off = Limits::new(LimitsConfig {
+            raw_frames_per_second_per_client: 0,
+            ..LimitsConfig::default()
+        });
+        let a = off.admit_at("a", UNARY, t0).unwrap();
+        a.frame_budget.unwrap().take_at(1_000_000, t0).unwrap();
     }
 
     #[test]

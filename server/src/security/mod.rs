@@ -17,7 +17,7 @@ pub mod tls;
 
 pub use crate::config::{Role, SecurityConfig};
 pub use auth::{SecurityLayer, SecurityService};
-pub use limits::{QueueReservation, StreamQueueBudget};
+pub use limits::{FrameBudget, QueueReservation, StreamQueueBudget};
 pub use tls::{ConnInfo, TlsError, TlsReloader};
 
 /// Who made a call; put into the request extensions by the security
@@ -48,7 +48,26 @@ pub fn stream_queue<T>(
     default: usize,
     max: usize,
 ) -> Result<(usize, Option<QueueReservation>), tonic::Status> {
-    match req.extensions().get::<StreamQueueBudget>() {
+    stream_queue_from(
+        req.extensions().get::<StreamQueueBudget>(),
+        requested,
+        default,
+        max,
+    )
+}
+
+/// [`stream_queue`] with the budget taken from the request beforehand (a
+/// bidirectional stream whose first message asks for the queue).
+///
+/// # Errors
+/// As [`stream_queue`].
+pub fn stream_queue_from(
+    budget: Option<&StreamQueueBudget>,
+    requested: u32,
+    default: usize,
+    max: usize,
+) -> Result<(usize, Option<QueueReservation>), tonic::Status> {
+    match budget {
         Some(budget) => budget
             .reserve(requested, default)
             .map(|(n, r)| (n.min(max), Some(r)))
@@ -80,6 +99,7 @@ pub(crate) fn limit_reason(message: &str) -> &'static str {
     [
         ("concurrency limit", "CONCURRENCY_LIMIT"),
         ("rate limit", "RATE_LIMIT"),
+        ("frame rate limit", "FRAME_RATE_LIMIT"),
         ("stream limit", "STREAM_LIMIT"),
         ("message size limit", "MESSAGE_SIZE_LIMIT"),
     ]

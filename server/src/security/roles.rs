@@ -134,6 +134,16 @@ pub fn is_stop(rule: &Rule) -> bool {
     )
 }
 
+/// True for the RPCs that send raw frames: the limits count their frames
+/// (see [`super::limits::FrameBudget`]); `SendFrames` is not counted as a
+/// call against the call rate.
+pub fn sends_raw_frames(rule: &Rule) -> bool {
+    matches!(
+        rule.path,
+        "/cangate.v1.Bus/SendFrames" | "/cangate.v1.Bus/Attach"
+    )
+}
+
 /// True for calls that change state (role operator or above): these are
 /// written to the audit log.
 pub fn state_changing(rule: &Rule) -> bool {
@@ -223,5 +233,15 @@ mod tests {
             .map(|r| r.path)
             .collect();
         assert_eq!(stops.len(), 3, "{stops:?}");
+        let raw: Vec<&str> = TABLE
+            .iter()
+            .filter(|r| sends_raw_frames(r))
+            .map(|r| r.path)
+            .collect();
+        assert_eq!(
+            raw,
+            ["/cangate.v1.Bus/SendFrames", "/cangate.v1.Bus/Attach"],
+            "the RPCs whose frames the limits count"
+        );
     }
 }

@@ -3,7 +3,7 @@
 
 use crate::grpc::error::ApiError;
 use cangate_can::bus::{BackendKind, BusItem, BusStats, Direction};
-use cangate_can::{BusInfo, BusState, BusStatus, Filter, Frame};
+use cangate_can::{BusInfo, BusState, BusStatus, ClientId, Filter, Frame};
 use cangate_proto::v1 as pb;
 
 /// A protobuf frame from SendFrames to a validated frame to send.
@@ -14,13 +14,40 @@ pub fn frame_from_pb(f: &pb::Frame) -> Result<Frame, cangate_can::FrameError> {
     cangate_proto::frames::frame_from_pb(f)
 }
 
-/// A frame with its direction to its protobuf form.
-pub fn frame_to_pb(f: &Frame, direction: Direction) -> pb::Frame {
+/// A frame of a subscription to its protobuf form, as the stream's
+/// receiver sees it: `viewer` is the attached client whose stream it is
+/// (`None`: a StreamFrames stream, the gateway's view). The origin follows
+/// from the frame's sender and direction: a client's frame (marked), the
+/// gateway's own (transmitted, unmarked) or another node's; an attached
+/// client receives everything but its own frames (see `Direction` in
+/// bus.proto). `name_of` names a sender (FrameSender.client).
+pub fn frame_to_pb(
+    f: &Frame,
+    direction: Direction,
+    viewer: Option<ClientId>,
+    name_of: &mut impl FnMut(ClientId) -> String,
+) -> pb::Frame {
+    let sender = f.sender();
+    let origin = match (sender, direction) {
+        (Some(_), _) => pb::FrameOrigin::Client,
+        (None, Direction::Tx) => pb::FrameOrigin::Gateway,
+        (None, Direction::Rx) => pb::FrameOrigin::Bus,
+    };
+    let direction = match viewer {
+        Some(me) if sender != Some(me) => Direction::Rx,
+        _ => direction,
+    };
     let d = match direction {
         Direction::Rx => pb::Direction::Rx,
         Direction::Tx => pb::Direction::Tx,
     };
-    cangate_proto::frames::frame_to_pb(f, d)
+    let mut p = cangate_proto::frames::frame_to_pb(f, d);
+    p.origin = origin as i32;
+    p.sender = sender.map(|c| pb::FrameSender {
+        id: c.get(),
+        client: name_of(c),
+    });
+    p
 }
 
 /// A protobuf filter to a domain filter.
@@ -97,13 +124,62 @@ pub fn bus_info_to_pb(info: &BusInfo, stats: &BusStats) -> pb::BusInfo {
     }
 }
 
-/// A subscription item to a stream event.
-pub fn item_to_pb(item: &BusItem, since_ns: u64) -> pb::StreamEvent {
+/// A subscription item to a StreamFrames event (see [`frame_to_pb`]).
+pub fn item_to_pb(
+    item: &BusItem,
+    since_ns: u64,
+    name_of: &mut impl FnMut(ClientId) -> String,
+) -> pb::StreamEvent {
     use pb::stream_event::Event;
     let event = match item {
-        BusItem::Frame { frame, direction } => Event::Frame(frame_to_pb(frame, *direction)),
+        BusItem::Frame { frame, direction } => {
+            Event::Frame(frame_to_pb(frame, *direction, None, name_of))
+        }
         BusItem::Lost(n) => Event::Lost(pb::FramesLost { count: *n }),
         BusItem::State(s) => Event::State(status_to_pb(*s, since_ns)),
     };
     pb::StreamEvent { event: Some(event) }
+}
+
+/// A subscription item to an event of the Attach stream of `viewer`.
+pub fn item_to_attach_pb(
+    item: &BusItem,
+    since_ns: u64,
+    viewer: ClientId,
+    name_of: &mut impl FnMut(ClientId) -> String,
+) -> pb::AttachEvent {
+    use pb::attach_event::Event;
+    let event = match item {
+        BusItem::Frame { frame, direction } => {
+            Event::Frame(frame_to_pb(frame, *direction, Some(viewer), name_of))
+        }
+        BusItem::Lost(n) => Event::Lost(pb::FramesLost { count: *n }),
+        BusItem::State(s) => Event::State(status_to_pb(*s, since_ns)),
+    };
+    pb::AttachEvent { event: Some(event) }
+}
+
+/// A refused (or part-sent) AttachSend as its in-stream notice: the
+/// error's code, reason and metadata as the richer error model has them.
+pub fn send_refused_to_pb(
+    sequence: u64,
+    sent: usize,
+    total: usize,
+    error: &ApiError,
+) -> pb::AttachEvent {
+    pb::AttachEvent {
+        event: Some(pb::attach_event::Event::Refused(pb::SendRefused {
+            sequence,
+            sent: sent as u32,
+            total: total as u32,
+            code: error.code() as i32,
+            message: error.to_string(),
+            reason: error.reason(),
+            metadata: error
+                .metadata()
+                .into_iter()
+                .map(|(k, v)| (k.to_string(), v))
+                .collect(),
+        })),
+    }
 }
