@@ -35,7 +35,8 @@ pub(crate) struct DumpArgs {
     /// Stop after N frames.
     #[arg(short = 'n', value_name = "N")]
     count: Option<u64>,
-    /// Also show frames the gateway transmitted.
+    /// Also show the frames the gateway's own protocol stacks transmit
+    /// (frames other clients send are always shown, marked).
     #[arg(long)]
     tx: bool,
     /// Also show error frames.
@@ -148,17 +149,31 @@ pub(crate) async fn send(app: &App, a: SendArgs) -> Result<()> {
     Ok(())
 }
 
-/// A frame like candump: `(secs.micros)  can0  RX       123   [4]  DE AD BE EF`.
+/// A frame like `candump -x`: `(secs.micros)  can0  RX - -       123   [4]
+/// DE AD BE EF`. The column after the bus says where the frame came from as
+/// candump's does on the gateway's host: `RX` from another node on the
+/// wire, `TX` sent from the host (the gateway's own stacks, or a client of
+/// the gateway, whose frames end with `< sender N NAME`); then BRS and ESI
+/// (`B`/`E` or `-`).
 fn frame_line(bus: &str, f: &pb::Frame) -> String {
     let id = if f.extended {
         format!("{:08X}", f.id)
     } else {
         format!("{:03X}", f.id)
     };
-    let dir = if f.direction == pb::Direction::Tx as i32 {
-        "TX"
-    } else {
-        "RX"
+    let local = f.direction == pb::Direction::Tx as i32
+        || f.origin == pb::FrameOrigin::Client as i32
+        || f.origin == pb::FrameOrigin::Gateway as i32;
+    let dir = format!(
+        "{} {} {}",
+        if local { "TX" } else { "RX" },
+        if f.brs { "B" } else { "-" },
+        if f.esi { "E" } else { "-" }
+    );
+    let from = match &f.sender {
+        Some(s) if s.client.is_empty() => format!("  < sender {}", s.id),
+        Some(s) => format!("  < sender {} {}", s.id, s.client),
+        None => String::new(),
     };
     let body = if f.remote {
         format!("[{}]  remote request", f.remote_dlc)
@@ -170,12 +185,12 @@ fn frame_line(bus: &str, f: &pb::Frame) -> String {
     let kind = if f.error {
         " ERROR"
     } else if f.fd {
-        if f.brs { " FD/BRS" } else { " FD" }
+        " FD"
     } else {
         ""
     };
     format!(
-        "{}  {bus}  {dir}  {id:>8}{kind}   {body}",
+        "{}  {bus}  {dir}  {id:>8}{kind}   {body}{from}",
         super::time_text(f.timestamp_ns / 1000)
     )
 }
@@ -238,5 +253,46 @@ pub(crate) async fn dump(app: &App, a: DumpArgs) -> Result<()> {
             format!("the stream ended after {seen} of {n} frames"),
         )),
         _ => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pb_frame(text: &str, direction: pb::Direction, origin: pb::FrameOrigin) -> pb::Frame {
+        let f: Frame = text.parse().unwrap();
+        let mut p = cangate_client::proto::frames::frame_to_pb(&f, direction);
+        p.origin = origin as i32;
+        p
+    }
+
+    /// The candump -x columns: RX for other nodes, TX for what the
+    /// gateway's host sent (its stacks, its clients, who are named).
+    #[test]
+    fn frame_lines_mark_where_frames_came_from() {
+        let wire = pb_frame("123#DEADBEEF", pb::Direction::Rx, pb::FrameOrigin::Bus);
+        let line = frame_line("can0", &wire);
+        assert!(
+            line.contains("  can0  RX - -       123   [4]  DE AD BE EF"),
+            "{line}"
+        );
+        assert!(!line.contains('<'), "{line}");
+        let own = pb_frame("080#", pb::Direction::Tx, pb::FrameOrigin::Gateway);
+        assert!(frame_line("can0", &own).contains("  can0  TX - -       080   [0]"));
+        let mut client = pb_frame("7FF##3AA", pb::Direction::Rx, pb::FrameOrigin::Client);
+        client.sender = Some(pb::FrameSender {
+            id: 7,
+            client: "hmi-1@10.0.0.5:41234".into(),
+        });
+        let line = frame_line("can0", &client);
+        assert!(
+            line.contains(
+                "  can0  TX B E       7FF FD   [01]  AA  < sender 7 hmi-1@10.0.0.5:41234"
+            ),
+            "{line}"
+        );
+        client.sender.as_mut().unwrap().client.clear();
+        assert!(frame_line("can0", &client).ends_with("  < sender 7"));
     }
 }
