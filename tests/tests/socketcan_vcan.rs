@@ -5,7 +5,9 @@
 //! Everything else in this crate runs on the in-process virtual bus. This
 //! test is the only one that proves the SocketCAN backend against a real
 //! kernel: frame conversion both ways (classic, extended, remote, CAN FD with
-//! BRS), kernel receive timestamps, and the down/up reconnect logic.
+//! BRS), kernel receive timestamps, clients as bus participants (SendFrames
+//! and an Attach stream: their frames reach other processes and the other
+//! streams, marked, never twice), and the down/up reconnect logic.
 //!
 //! # Where it runs
 //!
@@ -242,6 +244,48 @@ async fn scenario() -> Result<()> {
         "should be RX: {f:?}"
     );
     check_timestamp(&f)?;
+
+    // (c2) A client attached as a bus participant: what it sends reaches
+    // another process (candump) and the other streams as a client's frame
+    // (loopback by the gateway, not by the kernel), its own frame comes back
+    // because it asked, and another process's frame reaches it as another
+    // node's.
+    step("(c2) Attach: attached client -> candump and streams, cansend -> attached client");
+    let mut node = client
+        .attach(
+            BUS,
+            &cangate_client::AttachOptions {
+                filters: vec!["2A0:7F0".parse().expect("valid filter")],
+                receive_own: true,
+                fd: true,
+                ..Default::default()
+            },
+        )
+        .await?;
+    let mut dump = Candump::spawn()?;
+    dump.wait_ready(&mut client, &mut rx).await?;
+    let mine: Frame = "2A5#A77AC4ED".parse().expect("valid frame text");
+    rx.sent.push(mine.to_string());
+    node.sender.send(&[mine]).await?;
+    dump.expect_in_order(&[mine]).await?;
+    drop(dump);
+    let f = rx
+        .frame("the attached client's 2A5#A77AC4ED", |f| f.id == 0x2A5)
+        .await?;
+    ensure!(
+        f.origin == pb::FrameOrigin::Client as i32
+            && f.sender.as_ref().map(|s| s.id) == Some(node.sender_id),
+        "should be the attached client's frame: {f:?}"
+    );
+    let (own, _) = attached_frame(&mut node, |f| f.raw_id() == 0x2A5).await?;
+    ensure!(own, "its own frame should come back as its own");
+    cansend("2A6#0102").await?;
+    let (own, origin) = attached_frame(&mut node, |f| f.raw_id() == 0x2A6).await?;
+    ensure!(
+        !own && origin == pb::FrameOrigin::Bus,
+        "another process's frame should be another node's: {origin:?}"
+    );
+    drop(node);
 
     // (d) The interface goes away under the gateway and comes back.
     step("(d) ip link set vcan0 down");
@@ -617,6 +661,30 @@ async fn run_ok(program: &str, args: &[&str]) -> Result<()> {
         String::from_utf8_lossy(&out.stderr).trim()
     );
     Ok(())
+}
+
+/// The next frame of an attachment that matches `pred`: whether it is the
+/// client's own, and its origin. Other frames are skipped; losses and
+/// refusals are errors.
+async fn attached_frame(
+    node: &mut cangate_client::Attachment,
+    pred: impl Fn(&Frame) -> bool,
+) -> Result<(bool, pb::FrameOrigin)> {
+    use futures::StreamExt;
+    let deadline = Instant::now() + EVENT_WAIT;
+    loop {
+        let ev = tokio::time::timeout_at(deadline.into(), node.events.next())
+            .await
+            .map_err(|_| anyhow!("the attached client got nothing in time"))?
+            .ok_or_else(|| anyhow!("the attachment ended"))??;
+        match ev {
+            cangate_client::AttachEvent::Frame {
+                frame, own, origin, ..
+            } if pred(&frame) => return Ok((own, origin)),
+            cangate_client::AttachEvent::Frame { .. } | cangate_client::AttachEvent::State(_) => {}
+            other => bail!("the attached client got {other:?}"),
+        }
+    }
 }
 
 async fn cansend(frame: &str) -> Result<()> {
