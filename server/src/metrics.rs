@@ -69,6 +69,10 @@ fn describe() {
         "Frames lost before the gateway read them (receive queue or SocketCAN receive buffer full), reported to every stream as lost."
     );
     describe_counter!(
+        "cangate_client_frames_refused_total",
+        "Client raw frames (SendFrames, Attach) not sent because their batch was refused, by bus and reason (FRAME_RATE_LIMIT, BUS_BUDGET_EXHAUSTED, INVALID_FRAME, BUS_OFF, ...)."
+    );
+    describe_counter!(
         "cangate_bus_stream_drops_total",
         "Frames dropped for slow stream subscribers (each reported to them as lost)."
     );
@@ -165,6 +169,18 @@ fn describe() {
         "cangate_cansmc_slave_losses_total",
         "Times a CANsmc slave was declared lost."
     );
+}
+
+/// Counts `n` client raw frames of a refused (or part-sent) `SendFrames`
+/// or `Attach` batch that were not sent, by bus and reason (the client
+/// itself is told by the refusal).
+pub fn client_frames_refused(bus: &str, reason: String, n: u64) {
+    metrics::counter!(
+        "cangate_client_frames_refused_total",
+        "bus" => bus.to_string(),
+        "reason" => reason
+    )
+    .increment(n);
 }
 
 /// Counts `n` items a gRPC stream subscriber missed because it was too

@@ -63,6 +63,12 @@ async fn metrics_endpoint_exposes_bus_and_sdo_series() {
     .await
     .unwrap_err();
     c.send("can0", &["123#01".parse().unwrap()]).await.unwrap();
+    // A refused batch: its frame is counted by reason.
+    let bad = pb::Frame {
+        id: 0x800,
+        ..Default::default()
+    };
+    c.send_pb("can0", vec![bad]).await.unwrap_err();
     let text = scrape(addr, "/metrics").await;
     assert!(text.starts_with("HTTP/1.1 200 OK"), "{text}");
     for series in [
@@ -71,6 +77,7 @@ async fn metrics_endpoint_exposes_bus_and_sdo_series() {
         "cangate_bus_up{bus=\"can0\"} 1",
         "cangate_bus_load_percent{bus=\"can0\"}",
         "cangate_bus_stream_drops_total{bus=\"can0\"}",
+        "cangate_client_frames_refused_total{bus=\"can0\",reason=\"INVALID_FRAME\"} 1",
         "cangate_sdo_requests_total{bus=\"can0\",node=\"1\",result=\"ok\"}",
         "cangate_sdo_requests_total{bus=\"can0\",node=\"1\",result=\"aborted_by_node\"}",
         "cangate_sdo_duration_seconds_bucket{bus=\"can0\",node=\"1\",le=\"0.001\"}",

@@ -185,6 +185,25 @@ async fn send_client_frames(
     fd: bool,
     budget: Option<&FrameBudget>,
 ) -> Result<(), Refusal> {
+    let result = try_send_client_frames(bus, client, frames, fd, budget).await;
+    if let Err(r) = &result {
+        crate::metrics::client_frames_refused(
+            bus.name(),
+            r.error.reason(),
+            (r.total - r.sent) as u64,
+        );
+    }
+    result
+}
+
+/// [`send_client_frames`] before the refusal is counted.
+async fn try_send_client_frames(
+    bus: &BusHandle,
+    client: ClientId,
+    frames: &[pb::Frame],
+    fd: bool,
+    budget: Option<&FrameBudget>,
+) -> Result<(), Refusal> {
     let total = frames.len();
     let refuse = |error| Refusal {
         error,
