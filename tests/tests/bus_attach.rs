@@ -866,6 +866,34 @@ async fn protocol_errors_end_the_stream_with_their_reason() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_message_too_large_ends_the_stream_with_its_reason() {
+    let server = start_server(&format!(
+        "{ONE_BUS}[security.limits]\nmax_message_bytes = 1024\n"
+    ))
+    .await;
+    let c = client(&server).await;
+    let mut a = c.attach("can0", &AttachOptions::default()).await.unwrap();
+    let big: Vec<Frame> = (0..100u32)
+        .map(|i| Frame::new(CanId::Standard(0x100), &i.to_le_bytes()).unwrap())
+        .collect();
+    a.sender.send(&big).await.unwrap();
+    let e = loop {
+        match tokio::time::timeout(WAIT, a.events.next())
+            .await
+            .expect("in time")
+            .expect("an end with a status")
+        {
+            Ok(AttachEvent::State(_)) => {}
+            Ok(other) => panic!("unexpected {other:?}"),
+            Err(e) => break e,
+        }
+    };
+    assert_eq!(e.code(), Some(Code::ResourceExhausted), "{e}");
+    assert_eq!(e.reason().as_deref(), Some("MESSAGE_SIZE_LIMIT"), "{e:?}");
+    server.shutdown();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_cancelled_attachment_leaves_nothing_behind() {
     // Two open streams at most: a leaked stream slot would refuse the
     // attachments after the first two.

@@ -373,8 +373,13 @@ async fn attach_sends(
                 }
                 return;
             }
-            // The client went away (cancelled, reset).
-            Err(_) => return,
+            // The client went away (cancelled, reset: nobody to tell), or
+            // its messages failed (too large, undecodable): the stream ends
+            // with that status.
+            Err(status) => {
+                let _ = tokio::time::timeout(Duration::from_secs(1), tx.send(Err(status))).await;
+                return;
+            }
         };
         let sending = send_client_frames(&bus, client, &send.frames, fd, budget.as_ref());
         let result = tokio::select! {
