@@ -420,6 +420,9 @@ async fn stream_concurrency_and_message_size_limits() {
             })
             .await
     });
+    // Let the slow call be admitted first (it runs 1.5 s): a list_buses
+    // in flight when it arrives would get it refused instead.
+    tokio::time::sleep(Duration::from_millis(300)).await;
     let refused = tokio::time::timeout(WAIT, async {
         loop {
             match slow2.list_buses().await {

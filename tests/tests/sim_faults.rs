@@ -221,7 +221,18 @@ async fn bus_faults_at_run_time_drop_delay_and_bus_off() {
         .unwrap()
         .into_inner();
     assert!(!f.bus_off);
-    c.send("can0", &[frame]).await.expect("recovered");
+    // The bus task takes the recovery up asynchronously (as a controller
+    // needs its recovery sequence): sends work again within a bound.
+    let deadline = tokio::time::Instant::now() + cangate_tests::WAIT;
+    loop {
+        match c.send("can0", std::slice::from_ref(&frame)).await {
+            Ok(_) => break,
+            Err(_) if tokio::time::Instant::now() < deadline => {
+                tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+            }
+            Err(e) => panic!("not recovered within {:?}: {e}", cangate_tests::WAIT),
+        }
+    }
     // Refusals say why.
     let e = sim
         .set_bus_faults(pb::SetBusFaultsRequest {
