@@ -184,27 +184,17 @@ async fn measure(binary: &Path, settle: Duration, idle: Duration) -> Result<Vec<
     tokio::time::sleep(idle).await;
     let after = process_thread_cpu(pid).context("reading the server's threads")?;
     let window = window_start.elapsed().as_secs_f64();
-    let mut per_thread: Vec<(String, f64)> = after
-        .iter()
-        .map(|(tid, name, secs)| {
-            let start = before
-                .iter()
-                .find(|(t, _, _)| t == tid)
-                .map_or(0.0, |(_, _, s)| *s);
-            (name.clone(), (secs - start) / window * 100.0)
-        })
-        .collect();
     // Threads of one name together (the runtime's workers, the buses'
     // schedulers), the busiest first.
-    per_thread.sort_by(|a, b| a.0.cmp(&b.0));
-    per_thread.dedup_by(|later, first| {
-        if later.0 == first.0 {
-            first.1 += later.1;
-            true
-        } else {
-            false
-        }
-    });
+    let mut by_name = std::collections::BTreeMap::<String, f64>::new();
+    for (tid, name, secs) in &after {
+        let start = before
+            .iter()
+            .find(|(t, _, _)| t == tid)
+            .map_or(0.0, |(_, _, s)| *s);
+        *by_name.entry(name.clone()).or_default() += (secs - start) / window * 100.0;
+    }
+    let mut per_thread: Vec<(String, f64)> = by_name.into_iter().collect();
     per_thread.sort_by(|a, b| b.1.total_cmp(&a.1));
     let idle_percent: f64 = per_thread.iter().map(|(_, p)| p).sum();
 
