@@ -5,8 +5,11 @@
 //! aborts and unknown names with their messages and exit statuses, a lease
 //! acquired, used and released from the shell, completions.
 
+mod common;
+
+use common::{assert_status, command, run, stderr, stdout};
 use std::net::SocketAddr;
-use std::process::{Command, Output};
+use std::process::Output;
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
@@ -49,28 +52,11 @@ stop_on_loss = "halt"
 jog_deadman_ms = 500
 "#;
 
-/// The gateway all tests share: started once on its own runtime thread,
-/// running until the test process ends.
+/// The gateway all tests share: started once, running until the test
+/// process ends.
 fn gateway() -> SocketAddr {
     static ADDR: OnceLock<SocketAddr> = OnceLock::new();
-    *ADDR.get_or_init(|| {
-        let (tx, rx) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            let rt = tokio::runtime::Builder::new_multi_thread()
-                .worker_threads(2)
-                .enable_all()
-                .build()
-                .expect("runtime");
-            rt.block_on(async move {
-                let config = cangate_server::Config::from_toml(CONFIG).expect("config");
-                let server = cangate_server::start(&config).await.expect("server starts");
-                tx.send(server.addr).expect("test waits");
-                std::future::pending::<()>().await;
-            });
-        });
-        rx.recv_timeout(Duration::from_secs(30))
-            .expect("the gateway starts")
-    })
+    *ADDR.get_or_init(|| common::start_gateway(CONFIG))
 }
 
 /// Runs `cangate --server HOST:PORT ARGS…` (no `CANGATE_*` from the
@@ -78,36 +64,6 @@ fn gateway() -> SocketAddr {
 fn cangate(args: &[&str]) -> Output {
     let addr = gateway().to_string();
     run(&["--server", &addr], args)
-}
-
-fn run(first: &[&str], args: &[&str]) -> Output {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_cangate"));
-    for (k, _) in std::env::vars() {
-        if k.starts_with("CANGATE_") {
-            cmd.env_remove(k);
-        }
-    }
-    cmd.args(first).args(args).output().expect("cangate runs")
-}
-
-fn stdout(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-/// Asserts the exit status, showing the output when it differs.
-#[track_caller]
-fn assert_status(o: &Output, code: i32) {
-    assert_eq!(
-        o.status.code(),
-        Some(code),
-        "stdout: {}\nstderr: {}",
-        stdout(o),
-        stderr(o)
-    );
 }
 
 /// Every error is one line `cangate: …`, no raw tonic text, no repeats.
@@ -168,7 +124,7 @@ fn host_port_and_urls_both_work() {
         assert_eq!(v["buses"][0]["status"]["state"], "BUS_STATE_UP", "{v}");
     }
     // The environment variable is the same flag.
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_cangate"));
+    let mut cmd = command();
     let o = cmd
         .env("CANGATE_SERVER", &addr)
         .args(["node", "list"])
@@ -346,7 +302,7 @@ fn completions_are_generated() {
 fn a_reader_that_stops_reading_ends_a_stream_quietly() {
     use std::io::{BufRead, BufReader};
     let addr = gateway().to_string();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_cangate"))
+    let mut child = command()
         .args(["--server", &addr, "dump", "can0", "--json"])
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())

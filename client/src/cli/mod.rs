@@ -5,13 +5,21 @@
 //! status per kind of failure, see [`exit`]).
 //!
 //! One module per command: [`axis`], [`lease`], [`sdo`], [`node`] (node,
-//! nmt, scan, events, pdo), [`bus`] (bus, dump, send), [`wheel`], [`sim`],
-//! [`smc`].
+//! nmt, scan, events, pdo), [`bus`] (bus, send), [`dump`], [`replay`],
+//! [`generate`] (gen), [`wheel`], [`sim`], [`smc`]; [`candump_log`] and
+//! [`pcapng`] are the file formats of dump and replay, [`bus_writer`] the
+//! Attach stream replay and gen send through.
 
 pub(crate) mod axis;
 pub(crate) mod bus;
+pub(crate) mod bus_writer;
+pub(crate) mod candump_log;
+pub(crate) mod dump;
+pub(crate) mod generate;
 pub(crate) mod lease;
 pub(crate) mod node;
+pub(crate) mod pcapng;
+pub(crate) mod replay;
 pub(crate) mod sdo;
 pub(crate) mod sim;
 pub(crate) mod smc;
@@ -172,11 +180,18 @@ pub(crate) enum Command {
     /// Same as `bus list`.
     #[command(hide = true)]
     Buses,
-    /// Print the frames of a bus, like candump, until Ctrl-C.
-    Dump(bus::DumpArgs),
+    /// Print the frames of buses, like candump, until Ctrl-C: text, candump
+    /// log (--log), pcapng for Wireshark (--pcap FILE), JSON.
+    Dump(dump::DumpArgs),
     /// Send frames in cansend syntax: 123#DEADBEEF 1F334455#11 123#R
     /// 123##1AABB (CAN FD: flags nibble after ##).
     Send(bus::SendArgs),
+    /// Play a candump log onto buses, like canplayer: timing kept (or
+    /// --fast), buses renamed with TARGET=SOURCE.
+    Replay(replay::ReplayArgs),
+    /// Send generated frames, like cangen: identifiers, lengths and data
+    /// random, incrementing or fixed, at a rate.
+    Gen(generate::GenArgs),
     /// Handwheels (manual pulse generators): list, show, mode, watch.
     Wheel(wheel::WheelArgs),
     /// Simulated devices of the gateway: turn a wheel, bus faults, power
@@ -551,6 +566,7 @@ async fn run(cli: Cli) -> Result<()> {
         }
         // Input clap cannot check alone, refused before connecting.
         Command::Sdo(a) => a.check()?,
+        Command::Replay(a) => a.check()?,
         _ => {}
     }
     let client = connect(&cli.connection).await?;
@@ -569,8 +585,10 @@ async fn run(cli: Cli) -> Result<()> {
         Command::Pdo(a) => node::pdo(&app, a).await,
         Command::Bus(a) => bus::run(&app, a).await,
         Command::Buses => bus::list(&app).await,
-        Command::Dump(a) => bus::dump(&app, a).await,
+        Command::Dump(a) => dump::dump(&app, a).await,
         Command::Send(a) => bus::send(&app, a).await,
+        Command::Replay(a) => replay::replay(&app, a).await,
+        Command::Gen(a) => generate::generate(&app, a).await,
         Command::Wheel(a) => wheel::run(&app, a).await,
         Command::Sim(a) => sim::run(&app, a).await,
         Command::Smc(a) => smc::run(&app, a).await,
