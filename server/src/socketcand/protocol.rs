@@ -10,7 +10,8 @@
 //! - **Framing.** A command is everything from a `<` to the next `>`;
 //!   bytes outside elements are dropped (as `receive_command` in
 //!   socketcand.c does), so `< a >< b >` and `< a >\n< b >` are two
-//!   commands. Words are separated by any run of ASCII whitespace
+//!   commands; a `<` inside an element starts it anew (`< open ca< echo >`
+//!   is `< echo >`; socketcand would read `open ca< echo`). Words are separated by any run of ASCII whitespace
 //!   (socketcand's `sscanf` does the same). An element longer than the
 //!   limit is an error that ends the connection.
 //! - **`< open bus [token] >`.** socketcand reads the bus with `sscanf("%s")`
@@ -96,11 +97,19 @@ impl Deframer {
             }
         }
         match self.buf.iter().position(|&b| b == b'>') {
-            Some(end) if end < self.max => {
-                let element: Vec<u8> = self.buf.drain(..=end).collect();
+            Some(end) => {
+                // A '<' inside starts the element anew: what came before
+                // it was cut off (socketcand would take it whole).
+                let start = self.buf[..end]
+                    .iter()
+                    .rposition(|&b| b == b'<')
+                    .unwrap_or(0);
+                if end - start >= self.max {
+                    return Err(TooLong(self.max));
+                }
+                let element: Vec<u8> = self.buf.drain(..=end).skip(start).collect();
                 Ok(Some(element))
             }
-            Some(_) => Err(TooLong(self.max)),
             None if self.buf.len() > self.max => Err(TooLong(self.max)),
             None => Ok(None),
         }
@@ -443,6 +452,7 @@ mod tests {
             elements(b"junk< echo >\r\n  < send 123 0 >trailing"),
             ["< echo >", "< send 123 0 >"]
         );
+        assert_eq!(elements(b"< open ca< echo >"), ["< echo >"]);
         // Split across reads.
         let mut d = Deframer::new(64);
         d.push(b"< sen");
