@@ -424,7 +424,7 @@ async fn tokens_and_roles_apply_to_socketcand_clients() {
     drop(peer);
     // A viewer opens (receives) but cannot send.
     let mut c = client_with(&server, ENGINEER).await;
-    let (mut stream, mut pending) =
+    let (mut stream, pending) =
         open_stream(&mut c, stream_request("can0", vec![exact(0x124, false)])).await;
     let mut peer = Peer::start(&py, addr, &format!("can0 {VIEWER}"), "refused_send", &[]);
     assert_eq!(peer.line().await, "OPEN");
