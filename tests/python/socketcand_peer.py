@@ -68,7 +68,8 @@ def unfiltered(host, port, channel):
     bus = bus_for(host, port, channel)
     ids = set()
     deadline = time.monotonic() + 5
-    while len(ids) < 3 and time.monotonic() < deadline:
+    # Until the master's SYNC (0x80) and two more identifiers were seen.
+    while (len(ids) < 3 or 0x80 not in ids) and time.monotonic() < deadline:
         msg = bus.recv(timeout=1.0)
         if msg is not None:
             ids.add(msg.arbitration_id)
