@@ -7,7 +7,9 @@
 //!    reflection, the [`security`] and [`metrics`] layers, the Prometheus
 //!    endpoint) and stops it; [`grpc`] holds the services, every protobuf
 //!    conversion, the stream forwarding and the one mapping of errors to
-//!    gRPC statuses (`grpc::error::ApiError` exists only there).
+//!    gRPC statuses (`grpc::error::ApiError` exists only there);
+//!    [`socketcand`] is a second edge beside gRPC (the socketcand text
+//!    protocol for tools that speak it), under the same security.
 //! 2. **Runtime**: [`gateway`] is the registry that starts and holds the
 //!    buses and everything on them: the CANopen masters ([`canopen`]), the
 //!    axis layer ([`axes`]) and its runners (the CiA 402 task of each bus,
@@ -37,6 +39,7 @@ pub mod realtime;
 pub mod security;
 pub mod serve;
 pub mod simulation;
+pub mod socketcand;
 
 pub use config::Config;
 pub use gateway::Gateway;

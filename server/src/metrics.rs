@@ -169,6 +169,26 @@ fn describe() {
         "cangate_cansmc_slave_losses_total",
         "Times a CANsmc slave was declared lost."
     );
+    describe_gauge!(
+        "cangate_socketcand_connections",
+        "Open connections of the socketcand endpoint."
+    );
+    describe_counter!(
+        "cangate_socketcand_sessions_total",
+        "socketcand connections by outcome (opened, refused_auth, refused_limit, refused_bus, too_many_connections, handshake_timeout)."
+    );
+    describe_counter!(
+        "cangate_socketcand_frames_total",
+        "Frames through the socketcand endpoint by bus and direction (in: sent by clients, out: reported to clients)."
+    );
+    describe_counter!(
+        "cangate_socketcand_frames_lost_total",
+        "Frames socketcand clients missed because they read too slowly, by bus."
+    );
+    describe_counter!(
+        "cangate_socketcand_command_errors_total",
+        "socketcand commands answered with an error, by kind (unknown, syntax, not_supported, too_long)."
+    );
 }
 
 /// Counts `n` client raw frames of a refused (or part-sent) `SendFrames`
@@ -181,6 +201,37 @@ pub fn client_frames_refused(bus: &str, reason: String, n: u64) {
         "reason" => reason
     )
     .increment(n);
+}
+
+/// One more (`+1`) or one fewer (`-1`) open socketcand connection.
+pub fn socketcand_connections(delta: f64) {
+    metrics::gauge!("cangate_socketcand_connections").increment(delta);
+}
+
+/// A socketcand connection's outcome (see the metric's description).
+pub fn socketcand_session(result: &'static str) {
+    metrics::counter!("cangate_socketcand_sessions_total", "result" => result).increment(1);
+}
+
+/// `n` frames through the socketcand endpoint (`in` or `out`).
+pub fn socketcand_frames(bus: &str, direction: &'static str, n: u64) {
+    metrics::counter!(
+        "cangate_socketcand_frames_total",
+        "bus" => bus.to_string(),
+        "direction" => direction
+    )
+    .increment(n);
+}
+
+/// `n` frames a slow socketcand client missed.
+pub fn socketcand_lost(bus: &str, n: u64) {
+    metrics::counter!("cangate_socketcand_frames_lost_total", "bus" => bus.to_string())
+        .increment(n);
+}
+
+/// A socketcand command answered with an error.
+pub fn socketcand_command_error(kind: &'static str) {
+    metrics::counter!("cangate_socketcand_command_errors_total", "kind" => kind).increment(1);
 }
 
 /// Counts `n` items a gRPC stream subscriber missed because it was too

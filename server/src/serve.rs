@@ -44,10 +44,13 @@ pub struct RunningServer {
     pub addr: SocketAddr,
     /// The Prometheus endpoint's address, when configured.
     pub metrics_addr: Option<SocketAddr>,
+    /// The socketcand endpoint's address, when configured.
+    pub socketcand_addr: Option<SocketAddr>,
     gateway: Arc<Gateway>,
     shutdown: CancellationToken,
     server: JoinHandle<Result<(), tonic::transport::Error>>,
     bus_tasks: Vec<JoinHandle<()>>,
+    socketcand: Option<JoinHandle<()>>,
     tls: Option<crate::security::TlsReloader>,
 }
 
@@ -102,6 +105,9 @@ impl RunningServer {
     pub async fn wait(self, limit: Duration) -> Result<(), String> {
         let all = async {
             let r = self.server.await;
+            if let Some(t) = self.socketcand {
+                let _ = t.await;
+            }
             for t in self.bus_tasks {
                 let _ = t.await;
             }
@@ -164,9 +170,14 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         0 => usize::MAX,
         n => n as usize,
     };
-    let bus_service =
-        cangate_proto::v1::bus_server::BusServer::new(BusService::new(gateway.clone()))
-            .max_decoding_message_size(max_in);
+    // One register of client senders for every edge that has them, so
+    // that a stream names a socketcand client's frames too.
+    let senders = Arc::new(crate::grpc::bus_service::SenderNames::default());
+    let bus_service = cangate_proto::v1::bus_server::BusServer::new(BusService::with_senders(
+        gateway.clone(),
+        senders.clone(),
+    ))
+    .max_decoding_message_size(max_in);
     let canopen_service =
         cangate_proto::v1::canopen_server::CanopenServer::new(CanopenService::new(gateway.clone()))
             .max_decoding_message_size(max_in)
@@ -210,12 +221,13 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         crate::security::tls::ConnTimeouts::from_limits(&config.security.limits),
         shutdown.clone(),
     );
+    let security = crate::security::SecurityLayer::new(&config.security);
     let token = shutdown.clone();
     let server = tokio::spawn(
         tonic::transport::Server::builder()
             .tcp_nodelay(true)
             .layer(crate::metrics::RpcMetricsLayer)
-            .layer(crate::security::SecurityLayer::new(&config.security))
+            .layer(security.clone())
             .add_service(health_service)
             .add_service(reflection)
             .add_service(reflection_v1alpha)
@@ -238,6 +250,25 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         ),
         None => None,
     };
+    // The socketcand endpoint shares the security layer (identities,
+    // limits per client, refusal throttling) with gRPC.
+    let (socketcand_addr, socketcand) = match &config.socketcand {
+        Some(s) => {
+            let (a, task) =
+                crate::socketcand::start(s, gateway.clone(), security, senders, shutdown.clone())
+                    .await
+                    .map_err(|source| {
+                        // Nothing of this start-up may stay running.
+                        shutdown.cancel();
+                        StartError::Listen {
+                            addr: s.listen,
+                            source,
+                        }
+                    })?;
+            (Some(a), Some(task))
+        }
+        None => (None, None),
+    };
     if config.security.authentication() && tls.is_none() && !addr.ip().is_loopback() {
         tracing::warn!(
             %addr,
@@ -247,6 +278,7 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
     tracing::info!(
         %addr,
         metrics = ?metrics_addr,
+        socketcand = ?socketcand_addr,
         buses = gateway.buses().count(),
         tls = tls.is_some(),
         authentication = config.security.authentication(),
@@ -255,10 +287,12 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
     Ok(RunningServer {
         addr,
         metrics_addr,
+        socketcand_addr,
         gateway,
         shutdown,
         server,
         bus_tasks,
+        socketcand,
         tls,
     })
 }

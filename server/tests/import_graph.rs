@@ -22,6 +22,7 @@ const LAYERS: &[(&str, u8)] = &[
     ("security", 2),
     ("grpc", 2),
     ("serve", 2),
+    ("socketcand", 2),
 ];
 
 fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {

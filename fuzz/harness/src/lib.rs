@@ -49,6 +49,8 @@ pub const TARGETS: &[(&str, EntryFn)] = &[
     ("cansmc_telegram", cansmc_telegram),
     #[cfg(feature = "config")]
     ("config", config),
+    #[cfg(feature = "config")]
+    ("socketcand", socketcand),
 ];
 
 /// A cursor over the input; reads past the end yield zeros.
@@ -552,5 +554,56 @@ pub fn config(data: &[u8]) {
     let printed = cfg.to_toml();
     if let Err(e) = cangate_server::config::Config::from_toml(&printed) {
         panic!("the printed configuration does not load: {e}\n{printed}");
+    }
+}
+
+#[cfg(feature = "config")]
+/// The socketcand endpoint's protocol (server/src/socketcand/protocol.rs):
+/// the bytes a client sends, in chunks cut where the first byte says, through
+/// the deframer and the session. Every element is within the limit, every
+/// line the gateway would write is one element (`< ` … ` >`, no other
+/// bracket), and every frame a `send` yields is reported as one too.
+pub fn socketcand(data: &[u8]) {
+    use cangate_server::socketcand::protocol::{Action, Deframer, Session, format_frame};
+    const MAX: usize = 128;
+    let one_element = |line: &str| {
+        assert!(
+            line.starts_with("< ")
+                && line.ends_with(" >")
+                && line.matches('<').count() == 1
+                && line.matches('>').count() == 1,
+            "not one element: {line:?}"
+        );
+    };
+    let (chunk, rest) = match data.split_first() {
+        Some((c, rest)) => (usize::from(*c % 32) + 1, rest),
+        None => return,
+    };
+    let mut deframer = Deframer::new(MAX);
+    let mut session = Session::new();
+    for piece in rest.chunks(chunk) {
+        deframer.push(piece);
+        loop {
+            let element = match deframer.next_element() {
+                Ok(Some(e)) => e,
+                Ok(None) => break,
+                Err(_) => return,
+            };
+            assert!(element.len() <= MAX, "{} bytes", element.len());
+            match session.on_element(&element) {
+                Action::Reply(line) | Action::Close(line) => one_element(&line),
+                Action::Open { bus, token } => {
+                    assert!(!bus.is_empty() && !bus.contains(['<', '>', ' ']));
+                    assert!(token.is_none_or(|t| !t.is_empty()));
+                    session.opened();
+                }
+                Action::Send(frame) => {
+                    assert!(!frame.is_remote() && !frame.is_error());
+                    let line = format_frame(&frame).expect("a data frame is reported");
+                    one_element(&line);
+                }
+                Action::Feed(_) => {}
+            }
+        }
     }
 }

@@ -21,6 +21,7 @@ mod canopen;
 mod cansmc;
 mod handwheel;
 mod security;
+mod socketcand;
 mod validate;
 
 pub use axis::*;
@@ -29,6 +30,7 @@ pub use canopen::*;
 pub use cansmc::*;
 pub use handwheel::*;
 pub use security::*;
+pub use socketcand::*;
 
 /// The embedded demo configuration, used when no configuration file is given.
 pub const DEMO_CONFIG: &str = include_str!("../../../deploy/demo.toml");
@@ -42,6 +44,7 @@ const ENV_KEYS: &[&str] = &[
     "CANGATE_RT_PRIORITY",
     "CANGATE_GRPC_RT_PRIORITY",
     "CANGATE_SECURITY__",
+    "CANGATE_SOCKETCAND__",
     "CANGATE_LOG__",
 ];
 
@@ -87,6 +90,9 @@ pub struct Config {
     /// clients included: only for a host sized for the stream load.
     #[serde(default, skip_serializing_if = "is_zero_u8")]
     pub grpc_rt_priority: u8,
+    /// The socketcand listener (`[socketcand]`); absent: off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub socketcand: Option<SocketcandConfig>,
     /// Security settings.
     #[serde(default)]
     pub security: SecurityConfig,

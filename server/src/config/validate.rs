@@ -226,6 +226,28 @@ impl Config {
                 }
             }
         }
+        if let Some(s) = &self.socketcand {
+            s.check(
+                self.security.authentication(),
+                !self.security.tokens.is_empty(),
+            )
+            .map_err(ConfigError::Invalid)?;
+            for b in &s.buses {
+                if !self.buses.iter().any(|c| &c.name == b) {
+                    return Err(ConfigError::Invalid(format!(
+                        "[socketcand] buses names {b:?}, which is not configured"
+                    )));
+                }
+            }
+            if s.listen.port() != 0
+                && (s.listen == self.listen || self.metrics_listen == Some(s.listen))
+            {
+                return Err(ConfigError::Invalid(format!(
+                    "[socketcand] listen = {} is already the address of another listener",
+                    s.listen
+                )));
+            }
+        }
         Ok(())
     }
 }

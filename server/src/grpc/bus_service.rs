@@ -82,8 +82,9 @@ struct SenderNamesInner {
 }
 
 impl SenderNames {
-    /// Registers a sender while the returned guard lives.
-    fn register(self: &Arc<Self>, id: ClientId, name: String) -> SenderGuard {
+    /// Registers a sender while the returned guard lives (the gRPC calls
+    /// here, and the sessions of the socketcand endpoint).
+    pub fn register(self: &Arc<Self>, id: ClientId, name: String) -> SenderGuard {
         self.lock().names.insert(id, Arc::from(name));
         SenderGuard {
             names: self.clone(),
@@ -119,7 +120,8 @@ impl SenderNames {
 }
 
 /// A registered sender; ends its registration when dropped.
-struct SenderGuard {
+#[derive(Debug)]
+pub struct SenderGuard {
     names: Arc<SenderNames>,
     id: ClientId,
 }
@@ -146,10 +148,14 @@ pub struct BusService {
 impl BusService {
     /// Serves the gateway's buses.
     pub fn new(gateway: Arc<Gateway>) -> Self {
-        BusService {
-            gateway,
-            senders: Arc::default(),
-        }
+        Self::with_senders(gateway, Arc::default())
+    }
+
+    /// Serves the gateway's buses, naming client frames from `senders`,
+    /// which other edges (the socketcand endpoint) register their clients
+    /// in too.
+    pub fn with_senders(gateway: Arc<Gateway>, senders: Arc<SenderNames>) -> Self {
+        BusService { gateway, senders }
     }
 }
 

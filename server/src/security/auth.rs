@@ -5,7 +5,9 @@
 //! state-changing calls and refusals to the audit log (tracing target
 //! `cangate::audit`).
 
-use super::limits::{Admission, CallKind, Limits, PeerRefusals, Permit};
+use super::limits::{
+    Admission, CallKind, FrameBudget, Limits, PeerRefusals, Permit, StreamQueueBudget,
+};
 use super::roles::{self, Access, Rule};
 use super::tls::ConnInfo;
 use super::{Identity, Role};
@@ -320,6 +322,93 @@ impl SecurityLayer {
             });
         }
         SecurityLayer { shared }
+    }
+}
+
+/// What a session on a listener other than gRPC (the socketcand
+/// endpoint) holds once admitted: counted as one streaming call of its
+/// client, with the same keys, budgets and stream slot as an `Attach`.
+#[derive(Debug)]
+pub struct SessionAdmission {
+    /// Who it is.
+    pub identity: Identity,
+    /// Its stream slot (`max_streams_per_client`), held while it is open.
+    pub stream: Option<Permit>,
+    /// Its client's queue budget.
+    pub queue_budget: Option<StreamQueueBudget>,
+    /// Its client's raw frame budget.
+    pub frame_budget: Option<FrameBudget>,
+}
+
+impl SecurityLayer {
+    /// Authentication is on (tokens or client certificates configured).
+    pub fn authentication(&self) -> bool {
+        self.shared.auth.enabled()
+    }
+
+    /// Admits a session of a peer that identifies itself with a bearer
+    /// token given in its own protocol (socketcand's `< open BUS TOKEN >`)
+    /// rather than in gRPC metadata: the same identities, the same
+    /// refusal throttling per peer address, the same per-client limits as
+    /// a streaming call (one call against the call rate, one stream slot).
+    /// With authentication off every session is `anonymous` with role
+    /// engineer, counted by its peer address, as gRPC calls are.
+    ///
+    /// # Errors
+    /// No or an unknown token (Unauthenticated), a peer refused too often
+    /// or a client over its limits (ResourceExhausted).
+    pub fn admit_session(
+        &self,
+        token: Option<&str>,
+        peer: IpAddr,
+    ) -> Result<SessionAdmission, Refusal> {
+        let shared = &self.shared;
+        let identity = if shared.auth.enabled() {
+            if shared.refusals.blocked(peer) {
+                return Err(Refusal::ResourceExhausted(format!(
+                    "too many refused attempts from {peer}: refused without checking \
+                     credentials until fewer arrive (refusals_per_second_per_peer = {})",
+                    shared.refusals.rate()
+                )));
+            }
+            let found = token.and_then(|t| shared.auth.by_token(t));
+            match (token, found) {
+                (_, Some(id)) => id,
+                (None, None) => {
+                    shared.refusals.record(peer);
+                    return Err(Refusal::Unauthenticated(
+                        "missing token: the gateway has authentication on; open with \
+                         < open BUS TOKEN >"
+                            .into(),
+                    ));
+                }
+                (Some(_), None) => {
+                    shared.refusals.record(peer);
+                    return Err(Refusal::Unauthenticated("unknown token".into()));
+                }
+            }
+        } else {
+            Identity {
+                name: "anonymous".into(),
+                role: Role::Engineer,
+                method: "none",
+            }
+        };
+        let key = if identity.method == "none" {
+            format!("peer {peer}")
+        } else {
+            format!("{} {}", identity.method, identity.name)
+        };
+        let admission = shared
+            .limits
+            .admit(&key, CallKind::Streaming)
+            .map_err(|e| Refusal::ResourceExhausted(e.0))?;
+        Ok(SessionAdmission {
+            identity,
+            stream: admission.stream,
+            queue_budget: admission.queue_budget,
+            frame_budget: admission.frame_budget,
+        })
     }
 }
 

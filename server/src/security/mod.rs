@@ -16,7 +16,7 @@ pub mod status;
 pub mod tls;
 
 pub use crate::config::{Role, SecurityConfig};
-pub use auth::{SecurityLayer, SecurityService};
+pub use auth::{Refusal, SecurityLayer, SecurityService, SessionAdmission};
 pub use limits::{FrameBudget, QueueReservation, StreamQueueBudget};
 pub use tls::{ConnInfo, TlsError, TlsReloader};
 

@@ -1,0 +1,602 @@
+//! The socketcand endpoint: an API edge beside gRPC for the tools that
+//! already speak socketcand's text protocol over TCP (python-can's
+//! `socketcand` interface, SavvyCAN, Kayak), configured by `[socketcand]`.
+//!
+//! [`protocol`] is the protocol without I/O; this module is the listener
+//! and one task per connection. A connection is a client of the gateway
+//! exactly as an `Bus.Attach` stream is:
+//!
+//! - **Who.** With authentication on, the client gives a bearer token in
+//!   the open command, `< open can0 TOKEN >` (with python-can:
+//!   `channel="can0 TOKEN"`); no token or an unknown one is answered with
+//!   `< error … >` and the connection closes, and the peer's refusals are
+//!   throttled as gRPC's are. Without authentication the configuration
+//!   only lets the listener bind a loopback address, and every session is
+//!   `anonymous` (engineer), counted by peer address.
+//! - **Roles.** Opening a bus (receiving its frames) needs viewer, as
+//!   `StreamFrames` does; each `send` needs engineer, as `SendFrames` and
+//!   `Attach` do: a lower role's send is answered with `< error … >`,
+//!   counted in `cangate_client_frames_refused_total` (reason
+//!   `PERMISSION_DENIED`) and the connection goes on.
+//! - **Limits.** A session counts as one streaming call of its client
+//!   (call rate, `max_streams_per_client`), its queue comes out of
+//!   `max_stream_queue_per_client`, and every frame it sends is charged to
+//!   the client's raw frame budget and sent with
+//!   [`cangate_can::BusHandle::send_as_client`] within the bus's client
+//!   share, the budgets of gRPC clients with the same identity included.
+//! - **A bus participant.** Each connection is one [`ClientId`]: other
+//!   clients see its frames as received, marked with its sender (named
+//!   `WHO via socketcand`); it does not receive its own frames (a
+//!   SocketCAN raw socket's default).
+//! - **Slow readers.** Frames wait in the connection's queue; a client
+//!   that reads too slowly loses frames (counted in
+//!   `cangate_socketcand_frames_lost_total`; the protocol cannot tell it),
+//!   never slowing the bus or anyone else. A write that does not complete
+//!   within `write_timeout_ms` ends the connection.
+//! - **python-can's handshake.** python-can reads each answer of the
+//!   handshake with one `recv` and compares it whole, so the first frames
+//!   after `< rawmode >`'s `< ok >` are held back [`RAW_SETTLE`] to keep
+//!   them out of that read.
+//! - **Shutdown.** Every connection ends with the gateway's cancellation
+//!   token; the listener waits for them.
+
+pub mod protocol;
+
+use crate::config::SocketcandConfig;
+use crate::gateway::Gateway;
+use crate::grpc::bus_service::{SenderGuard, SenderNames};
+use crate::security::auth::AUDIT_TARGET;
+use crate::security::{FrameBudget, QueueReservation, Refusal, Role, SecurityLayer};
+use cangate_can::{
+    AttachOptions, BusHandle, BusItem, ClientId, Frame, FrameSelector, SendError, Subscription,
+};
+use protocol::{Action, Deframer, Session, format_error, format_frame};
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::tcp::OwnedWriteHalf;
+use tokio::net::{TcpListener, TcpStream};
+use tokio::task::{JoinHandle, JoinSet};
+use tokio::time::Instant;
+use tokio_util::sync::CancellationToken;
+
+/// How long the frame feed waits after `< rawmode >` is answered (see the
+/// module documentation).
+pub const RAW_SETTLE: Duration = Duration::from_millis(50);
+/// Most frames written at once.
+const FEED_BATCH: usize = 256;
+
+/// What every connection shares.
+struct Shared {
+    config: SocketcandConfig,
+    gateway: Arc<Gateway>,
+    security: SecurityLayer,
+    senders: Arc<SenderNames>,
+}
+
+/// Binds `[socketcand] listen` and serves until `shutdown`; returns the
+/// bound address and the listener's task (it ends once every connection
+/// has).
+///
+/// # Errors
+/// The address cannot be bound.
+pub async fn start(
+    config: &SocketcandConfig,
+    gateway: Arc<Gateway>,
+    security: SecurityLayer,
+    senders: Arc<SenderNames>,
+    shutdown: CancellationToken,
+) -> std::io::Result<(SocketAddr, JoinHandle<()>)> {
+    let listener = TcpListener::bind(config.listen).await?;
+    let addr = listener.local_addr()?;
+    if security.authentication() && !addr.ip().is_loopback() {
+        tracing::warn!(
+            %addr,
+            "socketcand listens on the network: its tokens cross it in clear text (socketcand has no TLS)"
+        );
+    }
+    let shared = Arc::new(Shared {
+        config: config.clone(),
+        gateway,
+        security,
+        senders,
+    });
+    let task = tokio::spawn(accept_loop(listener, shared, shutdown));
+    Ok((addr, task))
+}
+
+async fn accept_loop(listener: TcpListener, shared: Arc<Shared>, shutdown: CancellationToken) {
+    let mut connections = JoinSet::new();
+    let max = shared.config.max_connections as usize;
+    loop {
+        while connections.try_join_next().is_some() {}
+        let accepted = tokio::select! {
+            biased;
+            _ = shutdown.cancelled() => break,
+            a = listener.accept() => a,
+        };
+        let (stream, peer) = match accepted {
+            Ok(a) => a,
+            Err(e) => {
+                // Out of descriptors and the like: try again shortly.
+                tracing::warn!("socketcand accept: {e}");
+                tokio::time::sleep(Duration::from_millis(100)).await;
+                continue;
+            }
+        };
+        if connections.len() >= max {
+            crate::metrics::socketcand_session("too_many_connections");
+            let write_timeout = Duration::from_millis(shared.config.write_timeout_ms);
+            connections.spawn(async move {
+                let mut stream = stream;
+                let line = format_error(&format!("too many connections (max_connections = {max})"));
+                let _ =
+                    tokio::time::timeout(write_timeout, stream.write_all(line.as_bytes())).await;
+            });
+            continue;
+        }
+        connections.spawn(connection(stream, peer, shared.clone(), shutdown.clone()));
+    }
+    drop(listener);
+    while connections.join_next().await.is_some() {}
+}
+
+/// Counts an open connection while it lives.
+struct Open;
+
+impl Open {
+    fn new() -> Self {
+        crate::metrics::socketcand_connections(1.0);
+        Open
+    }
+}
+
+impl Drop for Open {
+    fn drop(&mut self) {
+        crate::metrics::socketcand_connections(-1.0);
+    }
+}
+
+/// A bus opened by a session.
+struct Opened {
+    bus: BusHandle,
+    client: ClientId,
+    who: String,
+    role: Role,
+    budget: Option<FrameBudget>,
+    queue: usize,
+    /// Held while the session is open: its stream slot, queue share and
+    /// sender name.
+    _stream: Option<crate::security::limits::Permit>,
+    _queue: Option<QueueReservation>,
+    _name: SenderGuard,
+    /// Sends refused for the role (logged once, summed up at the end).
+    refused_role: u64,
+}
+
+/// Why a connection ends.
+enum End {
+    /// The peer closed, or reading failed.
+    PeerGone,
+    /// Writing failed or timed out.
+    WriteFailed,
+    /// The protocol or a limit ended it (the reason was written).
+    Closed,
+    /// The gateway shuts down.
+    Shutdown,
+}
+
+/// The writing half with its timeout.
+struct Writer {
+    half: OwnedWriteHalf,
+    timeout: Duration,
+}
+
+impl Writer {
+    async fn write(&mut self, bytes: &[u8]) -> Result<(), End> {
+        match tokio::time::timeout(self.timeout, self.half.write_all(bytes)).await {
+            Ok(Ok(())) => Ok(()),
+            _ => Err(End::WriteFailed),
+        }
+    }
+}
+
+/// What woke the connection's loop.
+enum Event {
+    Shutdown,
+    Deadline,
+    Read(std::io::Result<usize>),
+    Items(usize),
+    FeedReady,
+}
+
+/// The next items of an active feed (never returns without one).
+async fn next_items(sub: &mut Option<Subscription>, items: &mut Vec<BusItem>) -> usize {
+    match sub {
+        Some(s) => s.recv_many(items, FEED_BATCH).await,
+        None => std::future::pending().await,
+    }
+}
+
+async fn connection(
+    stream: TcpStream,
+    peer: SocketAddr,
+    shared: Arc<Shared>,
+    shutdown: CancellationToken,
+) {
+    let _open = Open::new();
+    let _ = stream.set_nodelay(true);
+    let (mut reader, half) = stream.into_split();
+    let mut writer = Writer {
+        half,
+        timeout: Duration::from_millis(shared.config.write_timeout_ms),
+    };
+    let mut opened: Option<Opened> = None;
+    let end = serve(
+        &mut reader,
+        &mut writer,
+        peer,
+        &shared,
+        &shutdown,
+        &mut opened,
+    )
+    .await;
+    if let Some(o) = &opened {
+        if o.refused_role > 0 {
+            tracing::warn!(
+                target: AUDIT_TARGET,
+                who = %o.who,
+                role = o.role.as_str(),
+                bus = o.bus.name(),
+                refused = o.refused_role,
+                "socketcand session ended; its sends were refused: they need role engineer"
+            );
+        }
+        tracing::info!(
+            who = %o.who,
+            bus = o.bus.name(),
+            reason = match end {
+                End::PeerGone => "peer closed",
+                End::WriteFailed => "write failed or timed out",
+                End::Closed => "closed by the gateway",
+                End::Shutdown => "shutdown",
+            },
+            "socketcand session ended"
+        );
+    }
+}
+
+/// The connection's loop; returns why it ended.
+async fn serve(
+    reader: &mut tokio::net::tcp::OwnedReadHalf,
+    writer: &mut Writer,
+    peer: SocketAddr,
+    shared: &Shared,
+    shutdown: &CancellationToken,
+    opened: &mut Option<Opened>,
+) -> End {
+    let cfg = &shared.config;
+    if let Err(e) = writer.write(b"< hi >").await {
+        return e;
+    }
+    let mut session = Session::new();
+    let mut deframer = Deframer::new(cfg.max_command_bytes as usize);
+    let handshake_deadline = Instant::now() + Duration::from_millis(cfg.handshake_timeout_ms);
+    let idle = (cfg.idle_timeout_s > 0).then(|| Duration::from_secs(cfg.idle_timeout_s));
+    let mut last_read = Instant::now();
+    let mut feed: Option<Subscription> = None;
+    let mut feed_from = Instant::now();
+    let mut buf = vec![0u8; 4096];
+    let mut items: Vec<BusItem> = Vec::with_capacity(FEED_BATCH);
+    let mut out = String::new();
+    loop {
+        let deadline = match (&opened, feed.is_some()) {
+            (None, _) => Some(handshake_deadline),
+            (Some(_), false) => idle.map(|i| last_read + i),
+            (Some(_), true) => None,
+        };
+        let waiting_to_feed = feed.is_some() && Instant::now() < feed_from;
+        let feeding = feed.is_some() && !waiting_to_feed;
+        let event = tokio::select! {
+            biased;
+            _ = shutdown.cancelled() => Event::Shutdown,
+            _ = tokio::time::sleep_until(deadline.unwrap_or_else(Instant::now)),
+                if deadline.is_some() => Event::Deadline,
+            r = reader.read(&mut buf) => Event::Read(r),
+            _ = tokio::time::sleep_until(feed_from), if waiting_to_feed => Event::FeedReady,
+            n = next_items(&mut feed, &mut items), if feeding => Event::Items(n),
+        };
+        match event {
+            Event::Shutdown => return End::Shutdown,
+            Event::FeedReady => {}
+            Event::Deadline => {
+                let what = if opened.is_none() {
+                    crate::metrics::socketcand_session("handshake_timeout");
+                    format!(
+                        "no bus opened within {} ms (handshake_timeout_ms)",
+                        cfg.handshake_timeout_ms
+                    )
+                } else {
+                    format!(
+                        "idle for {} s without a command (idle_timeout_s)",
+                        cfg.idle_timeout_s
+                    )
+                };
+                let _ = writer.write(format_error(&what).as_bytes()).await;
+                return End::Closed;
+            }
+            Event::Items(0) => {
+                // The bus stopped: the gateway shuts down.
+                return End::Shutdown;
+            }
+            Event::Items(_) => {
+                let Some(o) = opened.as_ref() else {
+                    items.clear();
+                    continue;
+                };
+                out.clear();
+                let mut frames = 0u64;
+                for item in items.drain(..) {
+                    match item {
+                        BusItem::Frame { frame, .. } => {
+                            if let Some(line) = format_frame(&frame) {
+                                out.push_str(&line);
+                                frames += 1;
+                            }
+                        }
+                        BusItem::Lost(n) => {
+                            crate::metrics::socketcand_lost(o.bus.name(), n);
+                            tracing::debug!(who = %o.who, lost = n, "socketcand client too slow");
+                        }
+                        BusItem::State(_) => {}
+                    }
+                }
+                if frames > 0 {
+                    crate::metrics::socketcand_frames(o.bus.name(), "out", frames);
+                    if let Err(e) = writer.write(out.as_bytes()).await {
+                        return e;
+                    }
+                }
+            }
+            Event::Read(Ok(0) | Err(_)) => return End::PeerGone,
+            Event::Read(Ok(n)) => {
+                last_read = Instant::now();
+                deframer.push(&buf[..n]);
+                loop {
+                    let element = match deframer.next_element() {
+                        Ok(Some(e)) => e,
+                        Ok(None) => break,
+                        Err(e) => {
+                            crate::metrics::socketcand_command_error("too_long");
+                            let _ = writer.write(format_error(&e.to_string()).as_bytes()).await;
+                            return End::Closed;
+                        }
+                    };
+                    let action = session.on_element(&element);
+                    match action {
+                        Action::Reply(line) => {
+                            if line.starts_with("< error") {
+                                crate::metrics::socketcand_command_error(
+                                    if line.contains("not supported") {
+                                        "not_supported"
+                                    } else if line.contains("unknown command") {
+                                        "unknown"
+                                    } else {
+                                        "syntax"
+                                    },
+                                );
+                            }
+                            if let Err(e) = writer.write(line.as_bytes()).await {
+                                return e;
+                            }
+                        }
+                        Action::Close(line) => {
+                            crate::metrics::socketcand_command_error("not_supported");
+                            let _ = writer.write(line.as_bytes()).await;
+                            return End::Closed;
+                        }
+                        Action::Open { bus, token } => {
+                            match open(shared, peer, &bus, token.as_deref()) {
+                                Ok(o) => {
+                                    *opened = Some(o);
+                                    session.opened();
+                                    if let Err(e) = writer.write(b"< ok >").await {
+                                        return e;
+                                    }
+                                }
+                                Err(message) => {
+                                    let _ = writer.write(format_error(&message).as_bytes()).await;
+                                    return End::Closed;
+                                }
+                            }
+                        }
+                        Action::Feed(on) => {
+                            let Some(o) = opened.as_ref() else {
+                                return End::Closed;
+                            };
+                            if on && feed.is_none() {
+                                feed = Some(o.bus.attach(
+                                    o.client,
+                                    AttachOptions {
+                                        selector: FrameSelector {
+                                            filters: Vec::new(),
+                                            error_frames: false,
+                                            transmitted: true,
+                                        },
+                                        receive_own: false,
+                                        fd: o.bus.info().fd,
+                                        queue: o.queue,
+                                    },
+                                ));
+                                feed_from = Instant::now() + RAW_SETTLE;
+                            } else if !on {
+                                feed = None;
+                            }
+                            if let Err(e) = writer.write(b"< ok >").await {
+                                return e;
+                            }
+                        }
+                        Action::Send(frame) => {
+                            let Some(o) = opened.as_mut() else {
+                                return End::Closed;
+                            };
+                            let sent = tokio::select! {
+                                biased;
+                                _ = shutdown.cancelled() => return End::Shutdown,
+                                r = send(o, frame) => r,
+                            };
+                            if let Err(message) = sent
+                                && let Err(e) =
+                                    writer.write(format_error(&message).as_bytes()).await
+                            {
+                                return e;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Authorises the session and opens the bus, or says why not (the
+/// connection then closes, as socketcand's does after a failed open).
+fn open(
+    shared: &Shared,
+    peer: SocketAddr,
+    bus: &str,
+    token: Option<&str>,
+) -> Result<Opened, String> {
+    let cfg = &shared.config;
+    let allowed = cfg.buses.is_empty() || cfg.buses.iter().any(|b| b == bus);
+    let handle = match shared.gateway.bus(bus) {
+        Ok(h) if allowed => h.clone(),
+        _ => {
+            crate::metrics::socketcand_session("refused_bus");
+            tracing::info!(%peer, bus, "socketcand: no such bus (or not in [socketcand] buses)");
+            // socketcand's own answer.
+            return Err("could not open bus".into());
+        }
+    };
+    let admission = shared
+        .security
+        .admit_session(token, peer.ip())
+        .map_err(|refusal| {
+            let (result, message) = match &refusal {
+                Refusal::ResourceExhausted(m) => ("refused_limit", m.clone()),
+                other => ("refused_auth", other.to_string()),
+            };
+            crate::metrics::socketcand_session(result);
+            tracing::warn!(
+                target: AUDIT_TARGET,
+                who = "unidentified",
+                method = "socketcand open",
+                bus,
+                %peer,
+                message = %message,
+                "socketcand session refused"
+            );
+            message
+        })?;
+    let identity = admission.identity;
+    // Receiving needs viewer, which every role holds; sending is checked
+    // per frame.
+    let (queue, reservation) = match &admission.queue_budget {
+        Some(b) => b
+            .reserve(cfg.queue_length, cfg.queue_length as usize)
+            .map(|(n, r)| (n, Some(r)))
+            .map_err(|e| {
+                crate::metrics::socketcand_session("refused_limit");
+                e.0
+            })?,
+        None => (cfg.queue_length as usize, None),
+    };
+    let who = if identity.method == "none" {
+        peer.to_string()
+    } else {
+        format!("{}@{peer}", identity.name)
+    };
+    let client = ClientId::next();
+    let name = shared
+        .senders
+        .register(client, format!("{who} via socketcand"));
+    crate::metrics::socketcand_session("opened");
+    tracing::info!(
+        target: AUDIT_TARGET,
+        who = %who,
+        role = identity.role.as_str(),
+        method = "socketcand open",
+        bus,
+        sender = client.get(),
+        "socketcand session opened"
+    );
+    Ok(Opened {
+        bus: handle,
+        client,
+        who,
+        role: identity.role,
+        budget: admission.frame_budget,
+        queue,
+        _stream: admission.stream,
+        _queue: reservation,
+        _name: name,
+        refused_role: 0,
+    })
+}
+
+/// Sends one frame of the session as a bus participant, or says why not
+/// (counted as a refused client frame, as gRPC's refusals are).
+async fn send(o: &mut Opened, frame: Frame) -> Result<(), String> {
+    let bus = o.bus.name().to_string();
+    let refuse = |reason: &str, message: String| {
+        crate::metrics::client_frames_refused(&bus, reason.to_string(), 1);
+        message
+    };
+    if o.role < Role::Engineer {
+        o.refused_role += 1;
+        if o.refused_role == 1 {
+            tracing::warn!(
+                target: AUDIT_TARGET,
+                who = %o.who,
+                role = o.role.as_str(),
+                method = "socketcand send",
+                bus = %bus,
+                "refused: sending raw frames needs role engineer"
+            );
+        }
+        return Err(refuse(
+            "PERMISSION_DENIED",
+            format!(
+                "send needs role engineer; {} holds role {}",
+                o.who,
+                o.role.as_str()
+            ),
+        ));
+    }
+    if frame.is_fd() && !o.bus.info().fd {
+        return Err(refuse(
+            "CAN_FD_NOT_SUPPORTED",
+            format!("bus {bus} is not configured for CAN FD"),
+        ));
+    }
+    if let Some(b) = &o.budget {
+        b.take(1).map_err(|e| refuse("FRAME_RATE_LIMIT", e.0))?;
+    }
+    match o.bus.send_as_client(o.client, vec![frame]).await {
+        Ok(()) => {
+            crate::metrics::socketcand_frames(&bus, "in", 1);
+            Ok(())
+        }
+        Err(f) => {
+            let reason = match &f.error {
+                SendError::BusOff(_) => "BUS_OFF",
+                SendError::Down(_) => "BUS_DOWN",
+                SendError::FdNotSupported(_) => "CAN_FD_NOT_SUPPORTED",
+                SendError::BudgetExhausted { .. } => "BUS_BUDGET_EXHAUSTED",
+                _ => "SEND_FAILED",
+            };
+            Err(refuse(reason, f.error.to_string()))
+        }
+    }
+}

@@ -1,0 +1,602 @@
+//! The socketcand endpoint with independent clients: the real server
+//! in-process (the demo configuration, `[socketcand]` on `127.0.0.1:0`)
+//! and python-can 4.6.1's `socketcand` interface and python `canopen`
+//! (`tests/python/socketcand_peer.py`) as its clients:
+//!
+//! - python-can sends (standard, extended, empty frames): a gRPC stream
+//!   sees them as client frames, named `… via socketcand`;
+//! - python-can receives frames a gRPC client sends, through python-can's
+//!   filters (python-can filters in software: the socketcand protocol has
+//!   no filter command in raw mode), and the demo bus's own traffic;
+//! - python `canopen` SDO uploads and downloads, expedited and segmented,
+//!   and an abort, against the demo's simulated I/O module (node 3);
+//! - tokens and roles: no token and an unknown token are refused at open,
+//!   a viewer's send is refused (python-can raises the `< error … >` line)
+//!   and never reaches the bus, an engineer's goes through;
+//! - malformed input from a plain TCP client, answered line by line.
+//!
+//! The python interpreter is `CANGATE_PYTHON` (the venv `scripts/test`
+//! builds in `target/python`), else `python3`. Without python-can and
+//! canopen the python tests are skipped, except under `CI=true`, where
+//! they fail instead.
+
+use cangate_client::pb;
+use cangate_server::{Config, RunningServer};
+use cangate_tests::*;
+use std::io::{BufRead, BufReader, Write};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdin, Command, Stdio};
+use std::time::Duration;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::sync::mpsc;
+
+const PYTHON_ENV: &str = "CANGATE_PYTHON";
+/// Starting python and importing python-can/canopen takes a second or two;
+/// a loaded CI runner more.
+const PY_WAIT: Duration = Duration::from_secs(60);
+
+fn in_ci() -> bool {
+    std::env::var("CI").is_ok_and(|v| v.eq_ignore_ascii_case("true") || v == "1")
+}
+
+/// The python interpreter with python-can and canopen, or why not (then
+/// the caller skips, or fails under CI).
+fn python(test: &str) -> Option<PathBuf> {
+    let python =
+        std::env::var_os(PYTHON_ENV).map_or_else(|| PathBuf::from("python3"), PathBuf::from);
+    let out = Command::new(&python)
+        .args([
+            "-c",
+            "import sys, can, canopen; print(sys.executable); \
+             print('python-can', can.__version__, 'canopen', canopen.__version__)",
+        ])
+        .stdin(Stdio::null())
+        .output();
+    let reason = match out {
+        Ok(o) if o.status.success() => {
+            let stdout = String::from_utf8_lossy(&o.stdout).to_string();
+            let mut lines = stdout.lines();
+            if let Some(exe) = lines.next().filter(|e| !e.is_empty()) {
+                eprintln!("python: {exe} with {}", lines.next().unwrap_or("?"));
+                return Some(PathBuf::from(exe));
+            }
+            "no output".to_string()
+        }
+        Ok(o) => String::from_utf8_lossy(&o.stderr)
+            .lines()
+            .last()
+            .unwrap_or("no error output")
+            .to_string(),
+        Err(e) => e.to_string(),
+    };
+    let reason = format!(
+        "{} cannot import python-can and canopen ({reason}); install them with \
+         `python3 -m pip install -r tests/python/requirements.txt` and set {PYTHON_ENV}",
+        python.display()
+    );
+    if in_ci() {
+        panic!("CI=true, so {test} must run, but it cannot: {reason}");
+    }
+    let _ = writeln!(std::io::stderr(), "SKIPPED {test}: {reason}");
+    None
+}
+
+/// A running `socketcand_peer.py`: its stdout lines, its stdin.
+struct Peer {
+    child: Child,
+    stdin: Option<ChildStdin>,
+    lines: mpsc::UnboundedReceiver<String>,
+    seen: Vec<String>,
+}
+
+impl Peer {
+    fn start(python: &Path, addr: SocketAddr, channel: &str, mode: &str, rest: &[&str]) -> Peer {
+        let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/socketcand_peer.py");
+        let mut child = Command::new(python)
+            .arg(script)
+            .arg(addr.ip().to_string())
+            .arg(addr.port().to_string())
+            .arg(channel)
+            .arg(mode)
+            .args(rest)
+            .env("PYTHONDONTWRITEBYTECODE", "1")
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("python starts");
+        let stdout = child.stdout.take().expect("stdout");
+        let (tx, lines) = mpsc::unbounded_channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                eprintln!("peer: {line}");
+                if tx.send(line).is_err() {
+                    return;
+                }
+            }
+        });
+        Peer {
+            stdin: child.stdin.take(),
+            child,
+            lines,
+            seen: Vec::new(),
+        }
+    }
+
+    /// The next line, bounded.
+    async fn line(&mut self) -> String {
+        let line = tokio::time::timeout(PY_WAIT, self.lines.recv())
+            .await
+            .unwrap_or_else(|_| panic!("no line from the peer in time; so far {:?}", self.seen))
+            .unwrap_or_else(|| panic!("the peer ended early; its lines: {:?}", self.seen));
+        self.seen.push(line.clone());
+        line
+    }
+
+    /// Lines up to (without) `DONE`, which must come.
+    async fn rest(&mut self) -> Vec<String> {
+        let mut out = Vec::new();
+        loop {
+            let l = self.line().await;
+            if l == "DONE" {
+                return out;
+            }
+            out.push(l);
+        }
+    }
+
+    fn say(&mut self, line: &str) {
+        let stdin = self.stdin.as_mut().expect("stdin");
+        writeln!(stdin, "{line}").expect("write to the peer");
+        stdin.flush().expect("flush");
+    }
+}
+
+impl Drop for Peer {
+    fn drop(&mut self) {
+        drop(self.stdin.take());
+        // Bounded: the scenarios end by themselves; a hung one is killed.
+        for _ in 0..100 {
+            if let Ok(Some(_)) = self.child.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// The demo configuration with the socketcand endpoint on a free port.
+async fn demo_server() -> RunningServer {
+    let mut c = Config::demo();
+    c.listen = "127.0.0.1:0".parse().unwrap();
+    c.socketcand = Some(cangate_server::config::SocketcandConfig::new(
+        "127.0.0.1:0".parse().unwrap(),
+    ));
+    cangate_server::start(&c).await.expect("server starts")
+}
+
+const VIEWER: &str = "viewer-secret";
+const ENGINEER: &str = "engineer-secret";
+
+/// One fast bus, tokens for a viewer and an engineer.
+async fn token_server() -> RunningServer {
+    use cangate_server::security::auth::hash_token;
+    let text = format!(
+        "listen = \"127.0.0.1:0\"\n{ONE_BUS}\
+         [socketcand]\nlisten = \"127.0.0.1:0\"\n\
+         [[security.tokens]]\nname = \"viewer-1\"\nrole = \"viewer\"\nsha256 = \"{}\"\n\
+         [[security.tokens]]\nname = \"eng-1\"\nrole = \"engineer\"\nsha256 = \"{}\"\n",
+        hash_token(VIEWER),
+        hash_token(ENGINEER)
+    );
+    let c = Config::from_toml(&text).expect("valid");
+    cangate_server::start(&c).await.expect("server starts")
+}
+
+fn exact(id: u32, extended: bool) -> pb::FrameFilter {
+    pb::FrameFilter {
+        id,
+        mask: if extended { 0x1FFF_FFFF } else { 0x7FF },
+        format: if extended {
+            pb::IdFormat::Extended as i32
+        } else {
+            pb::IdFormat::Standard as i32
+        },
+        invert: false,
+    }
+}
+
+fn data_frame(id: u32, extended: bool, data: &[u8]) -> pb::Frame {
+    pb::Frame {
+        id,
+        extended,
+        data: data.to_vec(),
+        ..Default::default()
+    }
+}
+
+async fn client_with(server: &RunningServer, token: &str) -> cangate_client::Client {
+    cangate_client::connect_with(
+        &format!("http://{}", server.addr),
+        &cangate_client::ConnectOptions {
+            token: Some(token.to_string()),
+            ..Default::default()
+        },
+    )
+    .await
+    .expect("client connects")
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn python_can_sends_and_grpc_streams_see_a_marked_client() {
+    let Some(py) = python("python_can_sends_and_grpc_streams_see_a_marked_client") else {
+        return;
+    };
+    let server = demo_server().await;
+    let addr = server.socketcand_addr.expect("socketcand listens");
+    let mut c = client(&server).await;
+    let (mut stream, mut pending) = open_stream(
+        &mut c,
+        stream_request(
+            "can0",
+            vec![
+                exact(0x123, false),
+                exact(0x1ABC_DEF0, true),
+                exact(0x7FF, false),
+            ],
+        ),
+    )
+    .await;
+    let mut peer = Peer::start(&py, addr, "can0", "send", &[]);
+    assert_eq!(peer.line().await, "OPEN");
+    assert_eq!(peer.line().await, "SENT 3");
+    let frames = read_frames(&mut stream, &mut pending, 3).await;
+    let got: Vec<(u32, bool, Vec<u8>)> = frames
+        .iter()
+        .map(|f| (f.id, f.extended, f.data.clone()))
+        .collect();
+    assert_eq!(
+        got,
+        [
+            (0x123, false, vec![1, 2, 3]),
+            (0x1ABC_DEF0, true, vec![0xDE, 0xAD]),
+            (0x7FF, false, vec![]),
+        ]
+    );
+    for f in &frames {
+        assert_eq!(f.origin, pb::FrameOrigin::Client as i32, "{f:?}");
+        let sender = f.sender.as_ref().expect("a client frame names its sender");
+        assert!(sender.id > 0);
+        assert!(
+            sender.client.ends_with(" via socketcand") && sender.client.starts_with("127.0.0.1:"),
+            "{sender:?}"
+        );
+    }
+    // One connection is one sender.
+    assert!(frames.windows(2).all(|w| w[0].sender == w[1].sender));
+    peer.say("seen");
+    assert!(peer.rest().await.is_empty());
+    server.shutdown();
+    server.wait(WAIT).await.expect("clean shutdown");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn python_can_receives_grpc_frames_through_its_filters() {
+    let Some(py) = python("python_can_receives_grpc_frames_through_its_filters") else {
+        return;
+    };
+    let server = demo_server().await;
+    let addr = server.socketcand_addr.expect("socketcand listens");
+    let c = client(&server).await;
+    let mut peer = Peer::start(&py, addr, "can0", "receive", &[]);
+    assert_eq!(peer.line().await, "READY");
+    let sent_after = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64();
+    c.bus_client()
+        .send_frames(pb::SendFramesRequest {
+            bus: "can0".into(),
+            frames: vec![
+                data_frame(0x322, false, &[0]),
+                data_frame(0x321, false, &[1]),
+                data_frame(0x1BAD_CAFE, true, &[2, 2]),
+                data_frame(0x1BAD_CAFF, true, &[0]),
+                data_frame(0x321, false, &[]),
+            ],
+        })
+        .await
+        .expect("frames sent");
+    let rx = peer.rest().await;
+    let fields: Vec<Vec<&str>> = rx.iter().map(|l| l.split(' ').collect()).collect();
+    let summary: Vec<String> = fields.iter().map(|f| f[..4].join(" ")).collect();
+    assert_eq!(
+        summary,
+        ["RX 321 std 01", "RX 1BADCAFE ext 0202", "RX 321 std -"],
+        "only the filtered frames, in order, the demo bus's own traffic left out"
+    );
+    // Timestamps: the gateway's wall-clock receive time, secs.usecs.
+    for f in &fields {
+        let ts: f64 = f[4].parse().expect("a timestamp");
+        assert!((ts - sent_after).abs() < 30.0, "{ts} vs {sent_after}");
+    }
+    server.shutdown();
+    server.wait(WAIT).await.expect("clean shutdown");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn python_can_sees_the_demo_bus_traffic() {
+    let Some(py) = python("python_can_sees_the_demo_bus_traffic") else {
+        return;
+    };
+    let server = demo_server().await;
+    let addr = server.socketcand_addr.expect("socketcand listens");
+    let mut peer = Peer::start(&py, addr, "can0", "unfiltered", &[]);
+    let ids = peer.line().await;
+    assert!(ids.starts_with("IDS "), "{ids}");
+    // The master's SYNC (0x80) every 10 ms, and more.
+    let ids: Vec<&str> = ids[4..].split(' ').collect();
+    assert!(ids.contains(&"80"), "{ids:?}");
+    assert!(ids.len() >= 3, "{ids:?}");
+    assert!(peer.rest().await.is_empty());
+    server.shutdown();
+    server.wait(WAIT).await.expect("clean shutdown");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn python_canopen_sdo_over_socketcand_against_a_simulated_node() {
+    let Some(py) = python("python_canopen_sdo_over_socketcand_against_a_simulated_node") else {
+        return;
+    };
+    let server = demo_server().await;
+    let addr = server.socketcand_addr.expect("socketcand listens");
+    let c = client(&server).await;
+    // Node 3 has booted and the master heard its heartbeat.
+    let until = tokio::time::Instant::now() + WAIT;
+    loop {
+        let n = get_node(&c, 3).await;
+        if n.heartbeat_age_ms.is_some()
+            && ![
+                pb::NmtState::Unknown as i32,
+                pb::NmtState::Initialising as i32,
+            ]
+            .contains(&n.state)
+        {
+            break;
+        }
+        assert!(tokio::time::Instant::now() < until, "node 3 booted: {n:?}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let mut peer = Peer::start(&py, addr, "can0", "sdo", &["3"]);
+    let lines = peer.rest().await;
+    assert_eq!(
+        lines,
+        [
+            "UPLOAD 1008 cangate_sim_io",
+            "UPLOAD 1018.1 d2040000",
+            "READBACK 6200.1 5a",
+            "READBACK 6200.2 a5",
+            "ABORT 06020000",
+        ]
+    );
+    // The gateway's own master reads what python wrote.
+    let read = c
+        .canopen_client()
+        .read_sdo(pb::ReadSdoRequest {
+            bus: "can0".into(),
+            node: 3,
+            index: 0x6200,
+            subindex: 2,
+            ..Default::default()
+        })
+        .await
+        .expect("ReadSdo")
+        .into_inner();
+    assert_eq!(read.raw, [0xA5]);
+    server.shutdown();
+    server.wait(WAIT).await.expect("clean shutdown");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn tokens_and_roles_apply_to_socketcand_clients() {
+    let Some(py) = python("tokens_and_roles_apply_to_socketcand_clients") else {
+        return;
+    };
+    let server = token_server().await;
+    let addr = server.socketcand_addr.expect("socketcand listens");
+    // No token, an unknown token: refused at open.
+    let mut peer = Peer::start(&py, addr, "can0", "refused_open", &[]);
+    let l = peer.line().await;
+    assert!(
+        l.starts_with("REFUSED") && l.contains("missing token") && l.contains("open BUS TOKEN"),
+        "{l}"
+    );
+    drop(peer);
+    let mut peer = Peer::start(&py, addr, "can0 not-a-token", "refused_open", &[]);
+    let l = peer.line().await;
+    assert!(
+        l.starts_with("REFUSED") && l.contains("unknown token"),
+        "{l}"
+    );
+    drop(peer);
+    // A viewer opens (receives) but cannot send.
+    let mut c = client_with(&server, ENGINEER).await;
+    let (mut stream, pending) =
+        open_stream(&mut c, stream_request("can0", vec![exact(0x124, false)])).await;
+    let mut peer = Peer::start(&py, addr, &format!("can0 {VIEWER}"), "refused_send", &[]);
+    assert_eq!(peer.line().await, "OPEN");
+    let l = peer.line().await;
+    assert!(
+        l.starts_with("REFUSED") && l.contains("send needs role engineer"),
+        "{l}"
+    );
+    assert!(l.contains("viewer-1@127.0.0.1:"), "{l}");
+    assert!(peer.rest().await.is_empty());
+    assert!(pending.is_empty());
+    assert_quiet(&mut stream).await;
+    // An engineer's frames go through.
+    let (mut stream, mut pending) = open_stream(
+        &mut c,
+        stream_request("can0", vec![exact(0x123, false), exact(0x7FF, false)]),
+    )
+    .await;
+    let mut peer = Peer::start(&py, addr, &format!("can0 {ENGINEER}"), "send", &[]);
+    assert_eq!(peer.line().await, "OPEN");
+    assert_eq!(peer.line().await, "SENT 3");
+    let frames = read_frames(&mut stream, &mut pending, 2).await;
+    let sender = frames[0].sender.as_ref().expect("sender");
+    assert!(
+        sender.client.starts_with("eng-1@127.0.0.1:") && sender.client.ends_with("via socketcand"),
+        "{sender:?}"
+    );
+    peer.say("seen");
+    assert!(peer.rest().await.is_empty());
+    server.shutdown();
+    server.wait(WAIT).await.expect("clean shutdown");
+}
+
+/// A plain TCP client of the endpoint.
+struct Raw {
+    stream: tokio::net::TcpStream,
+    buf: Vec<u8>,
+}
+
+impl Raw {
+    async fn connect(addr: SocketAddr) -> Raw {
+        let stream = tokio::net::TcpStream::connect(addr)
+            .await
+            .expect("connects");
+        Raw {
+            stream,
+            buf: Vec::new(),
+        }
+    }
+
+    async fn send(&mut self, bytes: &[u8]) {
+        self.stream.write_all(bytes).await.expect("write");
+    }
+
+    /// The next `< … >` element, or None when the server closed.
+    async fn element(&mut self) -> Option<String> {
+        loop {
+            if let Some(end) = self.buf.iter().position(|&b| b == b'>') {
+                let e: Vec<u8> = self.buf.drain(..=end).collect();
+                return Some(String::from_utf8(e).expect("ASCII").trim().to_string());
+            }
+            let mut chunk = [0u8; 4096];
+            let n = tokio::time::timeout(WAIT, self.stream.read(&mut chunk))
+                .await
+                .expect("an answer in time")
+                .unwrap_or(0);
+            if n == 0 {
+                return None;
+            }
+            self.buf.extend_from_slice(&chunk[..n]);
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn malformed_input_is_answered_and_the_endpoint_goes_on() {
+    let text = format!(
+        "listen = \"127.0.0.1:0\"\n{ONE_BUS}[socketcand]\nlisten = \"127.0.0.1:0\"\n\
+         max_command_bytes = 64\nhandshake_timeout_ms = 500\n"
+    );
+    let server = cangate_server::start(&Config::from_toml(&text).unwrap())
+        .await
+        .expect("server starts");
+    let addr = server.socketcand_addr.expect("socketcand listens");
+    let mut r = Raw::connect(addr).await;
+    assert_eq!(r.element().await.as_deref(), Some("< hi >"));
+    // Before a bus is open.
+    r.send(b"garbage< send 123 0 >< echo >").await;
+    assert_eq!(
+        r.element().await.as_deref(),
+        Some("< error open a bus first (open BUS) >")
+    );
+    assert_eq!(r.element().await.as_deref(), Some("< echo >"));
+    r.send(b"< open can0 >").await;
+    assert_eq!(r.element().await.as_deref(), Some("< ok >"));
+    // In BCM mode every line is answered, in order; valid sends are silent.
+    r.send(
+        b"< send 800 0 >< send 123 9 1 2 3 4 5 6 7 8 9 >< frobnicate >< subscribe 0 0 123 >\
+          < controlmode >< isotpmode >< send 123 1 zz >< \xff >< open can0 >< send 1 0 >< echo >",
+    )
+    .await;
+    let mut answers = Vec::new();
+    for _ in 0..10 {
+        answers.push(r.element().await.expect("an answer"));
+    }
+    assert_eq!(
+        answers,
+        [
+            "< error send: identifier 0x800 does not fit in 11 bits (standard ids are 0x000..=0x7FF; use an extended id) >",
+            "< error send: the length must be a decimal number 0..=8 (sendfd for CAN FD) >",
+            "< error unknown command >",
+            "< error subscribe is not supported by cangate (it serves raw mode only) >",
+            "< error controlmode is not supported by cangate (it serves raw mode only) >",
+            "< error isotpmode is not supported by cangate (it serves raw mode only) >",
+            "< error send: bad data byte zz >",
+            "< error a command must be ASCII text >",
+            "< error a bus is open already: one bus per connection >",
+            "< echo >",
+        ]
+    );
+    // Raw mode: frames of others arrive as < frame … > lines.
+    r.send(b"< rawmode >").await;
+    assert_eq!(r.element().await.as_deref(), Some("< ok >"));
+    let c = client(&server).await;
+    c.bus_client()
+        .send_frames(pb::SendFramesRequest {
+            bus: "can0".into(),
+            frames: vec![data_frame(0x1A, false, &[0xAB, 0x01])],
+        })
+        .await
+        .expect("sent");
+    let line = r.element().await.expect("a frame");
+    let words: Vec<&str> = line.split(' ').collect();
+    assert_eq!(
+        (words[0], words[1], words[2], words[4], words[5]),
+        ("<", "frame", "01A", "AB01", ">"),
+        "{line}"
+    );
+    assert!(words[3].len() > 7 && words[3].as_bytes()[words[3].len() - 7] == b'.');
+    // A command longer than max_command_bytes ends the connection.
+    r.send(&[b'<'; 100]).await;
+    assert_eq!(
+        r.element().await.as_deref(),
+        Some("< error a command longer than 64 bytes >")
+    );
+    assert_eq!(r.element().await, None);
+    // A connection that never opens a bus is closed after the handshake
+    // timeout.
+    let mut idle = Raw::connect(addr).await;
+    assert_eq!(idle.element().await.as_deref(), Some("< hi >"));
+    assert_eq!(
+        idle.element().await.as_deref(),
+        Some("< error no bus opened within 500 ms (handshake_timeout_ms) >")
+    );
+    assert_eq!(idle.element().await, None);
+    // An unknown bus: socketcand's answer, then closed.
+    let mut r = Raw::connect(addr).await;
+    assert_eq!(r.element().await.as_deref(), Some("< hi >"));
+    r.send(b"< open nope >").await;
+    assert_eq!(
+        r.element().await.as_deref(),
+        Some("< error could not open bus >")
+    );
+    assert_eq!(r.element().await, None);
+    // The endpoint is still there.
+    let mut r = Raw::connect(addr).await;
+    assert_eq!(r.element().await.as_deref(), Some("< hi >"));
+    // A raw-mode client is let go at shutdown.
+    r.send(b"< open can0 >< rawmode >").await;
+    assert_eq!(r.element().await.as_deref(), Some("< ok >"));
+    assert_eq!(r.element().await.as_deref(), Some("< ok >"));
+    server.shutdown();
+    assert_eq!(r.element().await, None);
+    server.wait(WAIT).await.expect("clean shutdown");
+}
