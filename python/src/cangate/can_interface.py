@@ -182,7 +182,8 @@ class _Attachment:
                 self.error = can.CanOperationError(
                     f"cangate: the attachment to {self.bus!r} ended: {self._status}"
                 )
-                log.error("%s", self.error)
+                if self.opened is not None:  # else the constructor raises it
+                    log.error("%s", self.error)
                 try:
                     self.received.put_nowait(_END)
                 except queue.Full:
