@@ -469,6 +469,30 @@ fn python_canopen_local_node_through_attach() {
     });
 }
 
+#[test]
+fn python_client_api() {
+    let Some(python) = python_or_skip("python_client_api") else {
+        return;
+    };
+    run("python_client_api", async {
+        let server = cangate_server::start(&demo_can0()).await?;
+        let api_script = script("client_api.py");
+        let mut p = Peer::spawn(
+            &python,
+            &[&api_script.to_string_lossy()],
+            &[("CANGATE_SERVER", format!("http://{}", server.addr))],
+        )?;
+        p.expect_line("client api: all checks passed", READY_WAIT)
+            .await?;
+        p.finish(WAIT).await?;
+        server.shutdown();
+        server
+            .wait(Duration::from_secs(5))
+            .await
+            .map_err(|e| anyhow!("shutdown: {e}"))
+    });
+}
+
 /// Must equal the function name below: the VM re-runs exactly this test.
 const VCAN_TEST: &str = "python_canopen_local_node_through_attach_on_vcan";
 

@@ -414,6 +414,12 @@ class Client:
         r = self._call(self.handwheels_stub.ListHandwheels, handwheel_pb2.ListHandwheelsRequest())
         return list(r.handwheels)
 
+    def set_handwheel_mode(self, handwheel: str, manual: bool) -> handwheel_pb2.Handwheel:
+        """Manual (the wheel sends feed) or automatic mode."""
+        mode = handwheel_pb2.HANDWHEEL_MODE_MANUAL if manual else handwheel_pb2.HANDWHEEL_MODE_AUTOMATIC
+        request = handwheel_pb2.SetModeRequest(handwheel=handwheel, mode=mode)
+        return self._call(self.handwheels_stub.SetMode, request)
+
     def feed(self, handwheels: Sequence[str] = (), *, coalesce_ms: int = 0) -> Stream[handwheel_pb2.FeedEvent]:
         """Feed events of handwheels (all when empty), one per frame or per
         `coalesce_ms` window."""
