@@ -177,6 +177,12 @@ def main():
             print(f"ok refused: {e}", file=sys.stderr)
             break
         expect(time.time() < deadline, "the refusal never surfaced")
+    # New filters: the interface attaches again with them.
+    a.set_filters([{"can_id": 0x124, "can_mask": 0x7FF, "extended": False}])
+    b.send(can.Message(arbitration_id=0x124, is_extended_id=False, data=b"\x03"))
+    m = a.recv(WAIT)
+    expect(m is not None and m.arbitration_id == 0x124 and bytes(m.data) == b"\x03", f"A got {m}")
+    quiet(a, "A after its new filter")
     a.shutdown()
     # Drain what B got meanwhile (its own 0x124 frames).
     while b.recv(0.2) is not None:

@@ -36,6 +36,7 @@ How it maps onto Attach (proto/cangate/v1/bus.proto):
 from __future__ import annotations
 
 import collections
+import itertools
 import logging
 import queue
 import threading
@@ -285,7 +286,7 @@ class CangateBus(can.BusABC):
         self._queue_length = int(queue_length)
         self._buffers = (int(receive_buffer), int(send_buffer))
         self._timeout = float(connect_timeout)
-        self._sequence = 0
+        self._sequence = itertools.count(1)  # next() is atomic under the GIL
         self._lost_before = 0
         self._attachment: Optional[_Attachment] = None
         self._grpc = open_channel(self._server, token, ca=ca, cert=cert, key=key)
@@ -416,9 +417,8 @@ class CangateBus(can.BusABC):
             raise err
         if msg.is_fd and not self._fd:
             raise can.CanOperationError("cangate: CAN FD frame on a bus opened without fd")
-        self._sequence += 1
         request = bus_pb2.AttachRequest(
-            send=bus_pb2.AttachSend(frames=[message_to_frame(msg)], sequence=self._sequence)
+            send=bus_pb2.AttachSend(frames=[message_to_frame(msg)], sequence=next(self._sequence))
         )
         try:
             a.requests.put(request, timeout=timeout)
