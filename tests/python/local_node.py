@@ -13,6 +13,8 @@ stdout
   ``READY``                         set up, boot-up sent, heartbeat running
   ``WRITE iiii:ss <hex>``           an SDO download the device stored
   ``NMT <state>``                   state after an NMT command for this node
+  ``LOST <n>``                      (--interface cangate) frames the gateway
+                                    dropped for the device, before BYE
   ``BYE``                           clean exit follows
 stdin
   ``QUIT`` or end of input          shut down
@@ -20,6 +22,11 @@ stdin
 Everything else (logging, tracebacks) goes to stderr. The process also ends
 by itself after ``--max-seconds``, so a test that dies cannot leave it on
 the bus for ever.
+
+With ``--interface cangate`` (tests/tests/python_package.rs) the device is
+not on SocketCAN but attached to a bus of a cangate gateway through the
+cangate python-can interface (CANGATE_SERVER, CANGATE_TOKEN), receiving only
+its SDO requests and NMT commands (gateway-side filters).
 """
 
 import argparse
@@ -40,6 +47,7 @@ def main() -> int:
     here = os.path.dirname(os.path.abspath(__file__))
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--channel", default="vcan0")
+    ap.add_argument("--interface", default="socketcan", help="python-can interface")
     ap.add_argument("--node-id", type=int, default=42)
     ap.add_argument("--eds", default=os.path.join(here, "device.eds"))
     ap.add_argument("--max-seconds", type=float, default=300.0)
@@ -54,7 +62,15 @@ def main() -> int:
     import canopen  # slow under TCG: several seconds
 
     network = canopen.Network()
-    network.connect(interface="socketcan", channel=args.channel)
+    if args.interface == "cangate":
+        # Only what a CANopen slave needs: its SDO requests and NMT.
+        filters = [
+            {"can_id": 0x600 + args.node_id, "can_mask": 0x7FF, "extended": False},
+            {"can_id": 0x000, "can_mask": 0x7FF, "extended": False},
+        ]
+        network.connect(interface="cangate", channel=args.channel, can_filters=filters)
+    else:
+        network.connect(interface=args.interface, channel=args.channel)
     node = canopen.LocalNode(args.node_id, args.eds)
 
     def on_write(index, subindex, od, data, **_):
@@ -95,7 +111,10 @@ def main() -> int:
         print(f"local_node: --max-seconds {args.max_seconds} reached", file=sys.stderr)
 
     node.nmt.stop_heartbeat()
+    lost = getattr(network.bus, "frames_lost", None)
     network.disconnect()
+    if lost is not None:
+        say(f"LOST {lost}")
     say("BYE")
     return 0 if finished else 3
 

@@ -1,0 +1,473 @@
+"""A python-can interface on the gateway's ``Bus.Attach``: any python-can
+program (python-canopen, cantools, can.logger, ...) becomes a node on a bus
+of a remote cangate gateway::
+
+    import can
+    with can.Bus(interface="cangate", channel="can0") as bus:
+        bus.send(can.Message(arbitration_id=0x123, data=b"\\x01\\x02"))
+        print(bus.recv(timeout=1.0))
+
+Registered through the ``can.interface`` entry point as ``cangate``. The
+server is the ``server`` argument, else ``CANGATE_SERVER``, else
+``http://127.0.0.1:50051``; the token ``token``, else ``CANGATE_TOKEN``.
+
+How it maps onto Attach (proto/cangate/v1/bus.proto):
+
+- the bus is one Attach stream, owned by a background thread; frames are
+  received with the gateway's timestamps (``Message.timestamp``: seconds
+  since the UNIX epoch) and ``is_rx`` False for own frames;
+- ``can_filters`` become the AttachOpen filters: the gateway applies them,
+  exactly (same semantics as python-can's); setting other filters later
+  re-attaches with them;
+- ``receive_own_messages`` is AttachOpen.receive_own;
+- CAN FD (``fd``, default: what the gateway's bus is), BRS, ESI, remote and
+  extended frames, error frames with ``error_frames=True``;
+- the gateway processes sent messages in order and reports a refused one
+  (raw frame budget spent, bus off, malformed frame) in the stream, after
+  ``send`` returned: the refusal is logged at once and raised by the next
+  ``send`` as ``can.CanOperationError``;
+- frames the gateway dropped because this program read too slowly are
+  counted in ``frames_lost`` and logged as warnings;
+- the stream ending with an error (gateway shutdown, a protocol error) is
+  raised by the next ``recv``/``send`` as ``can.CanOperationError`` with the
+  server's message, once the frames received before it were read.
+"""
+
+from __future__ import annotations
+
+import collections
+import itertools
+import logging
+import queue
+import threading
+from typing import Any, Optional
+
+import can
+import grpc
+from can import CanProtocol
+
+from cangate._channel import open_channel, resolve
+from cangate.errors import from_rpc_error
+from cangate.v1 import bus_pb2, bus_pb2_grpc
+
+log = logging.getLogger("can.cangate")
+
+_MAX_ID = 0x1FFF_FFFF
+_END = object()
+
+
+def _filters_to_pb(filters: Optional[Any]) -> Optional[list]:
+    """python-can filters as AttachOpen filters, or None when the gateway
+    cannot apply them exactly (bits above the 29-bit range)."""
+    out = []
+    for f in filters or ():
+        can_id, mask = int(f["can_id"]), int(f["can_mask"])
+        if (can_id & mask) > _MAX_ID:
+            return None
+        fmt = bus_pb2.ID_FORMAT_ANY
+        if "extended" in f:
+            fmt = bus_pb2.ID_FORMAT_EXTENDED if f["extended"] else bus_pb2.ID_FORMAT_STANDARD
+        out.append(bus_pb2.FrameFilter(id=can_id & mask & _MAX_ID, mask=mask & _MAX_ID, format=fmt))
+    return out
+
+
+def message_to_frame(msg: can.Message) -> bus_pb2.Frame:
+    """A python-can message as a frame to send."""
+    if msg.is_error_frame:
+        raise ValueError("error frames cannot be sent")
+    if msg.is_remote_frame:
+        return bus_pb2.Frame(
+            id=msg.arbitration_id,
+            extended=msg.is_extended_id,
+            remote=True,
+            remote_dlc=msg.dlc,
+        )
+    return bus_pb2.Frame(
+        id=msg.arbitration_id,
+        extended=msg.is_extended_id,
+        fd=msg.is_fd,
+        brs=msg.bitrate_switch,
+        esi=msg.error_state_indicator,
+        data=bytes(msg.data or b""),
+    )
+
+
+def frame_to_message(frame: bus_pb2.Frame, channel: str) -> can.Message:
+    """A streamed frame as a python-can message (timestamp in seconds since
+    the UNIX epoch, from the gateway)."""
+    return can.Message(
+        timestamp=frame.timestamp_ns / 1e9,
+        arbitration_id=frame.id,
+        is_extended_id=frame.extended,
+        is_remote_frame=frame.remote,
+        is_error_frame=frame.error,
+        is_fd=frame.fd,
+        bitrate_switch=frame.brs,
+        error_state_indicator=frame.esi,
+        dlc=frame.remote_dlc if frame.remote else None,
+        data=None if frame.remote else frame.data,
+        channel=channel,
+        is_rx=frame.direction != bus_pb2.DIRECTION_TX,
+        check=False,
+    )
+
+
+class _Attachment:
+    """One Attach stream: requests go through a bounded queue that gRPC's
+    sending thread drains; a reader thread puts received messages into a
+    bounded queue (when it is full the reader waits, flow control reaches
+    the gateway, and the gateway drops and counts frames for this client)."""
+
+    def __init__(
+        self,
+        stub: bus_pb2_grpc.BusStub,
+        open_msg: bus_pb2.AttachOpen,
+        *,
+        receive_buffer: int,
+        send_buffer: int,
+        timeout: float,
+    ) -> None:
+        self.bus = open_msg.bus
+        self.requests: queue.Queue = queue.Queue(maxsize=send_buffer)
+        self.received: queue.Queue = queue.Queue(maxsize=receive_buffer)
+        self.refusals: collections.deque = collections.deque(maxlen=100)
+        self.lost = 0
+        self.state: Optional[bus_pb2.BusStatus] = None
+        self.opened: Optional[bus_pb2.AttachOpened] = None
+        self.error: Optional[can.CanOperationError] = None
+        self._status: Optional[Exception] = None
+        self._closing = threading.Event()
+        self._open_done = threading.Event()
+        self.requests.put(bus_pb2.AttachRequest(open=open_msg))
+        self._call = stub.Attach(self._outgoing())
+        self._reader = threading.Thread(
+            target=self._read, name=f"cangate-attach-{self.bus}", daemon=True
+        )
+        self._reader.start()
+        if not self._open_done.wait(timeout):
+            self.close()
+            raise can.CanInitializationError(
+                f"cangate: no answer to attaching to {self.bus!r} within {timeout} s"
+            )
+        if self.opened is None:
+            self.close()
+            raise can.CanInitializationError(
+                f"cangate: attaching to {self.bus!r} failed: {self._status}"
+            )
+
+    def _outgoing(self):
+        # Runs in gRPC's sending thread; wakes up regularly so that it ends
+        # with the attachment.
+        while not self._closing.is_set():
+            try:
+                item = self.requests.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            if item is None:
+                return
+            yield item
+
+    def _read(self) -> None:
+        try:
+            for response in self._call:
+                for ev in response.events:
+                    self._on_event(ev)
+            self._status = "the gateway ended the stream"
+        except grpc.RpcError as err:
+            self._status = from_rpc_error(err)
+        except Exception as err:  # noqa: BLE001 - reported, not lost
+            self._status = err
+        finally:
+            self._open_done.set()
+            if not self._closing.is_set():
+                self.error = can.CanOperationError(
+                    f"cangate: the attachment to {self.bus!r} ended: {self._status}"
+                )
+                if self.opened is not None:  # else the constructor raises it
+                    log.error("%s", self.error)
+                try:
+                    self.received.put_nowait(_END)
+                except queue.Full:
+                    pass  # the reader of the full queue finds the error after it
+
+    def _on_event(self, ev: bus_pb2.AttachEvent) -> None:
+        kind = ev.WhichOneof("event")
+        if kind == "frame":
+            msg = frame_to_message(ev.frame, self.bus)
+            while not self._closing.is_set():
+                try:
+                    self.received.put(msg, timeout=0.1)
+                    return
+                except queue.Full:
+                    continue
+        elif kind == "lost":
+            self.lost += ev.lost.count
+            log.warning(
+                "cangate %s: the gateway dropped %d frames for this client (read too slowly); "
+                "%d in all",
+                self.bus,
+                ev.lost.count,
+                self.lost,
+            )
+        elif kind == "state":
+            self.state = ev.state
+            log.info("cangate %s: bus state %s", self.bus, bus_pb2.BusState.Name(ev.state.state))
+        elif kind == "refused":
+            self.refusals.append(ev.refused)
+            r = ev.refused
+            log.warning(
+                "cangate %s: message %d refused (%d of %d frames sent): %s %s",
+                self.bus,
+                r.sequence,
+                r.sent,
+                r.total,
+                r.reason,
+                r.message,
+            )
+        elif kind == "opened":
+            self.opened = ev.opened
+            self._open_done.set()
+
+    def close(self) -> None:
+        """Ends the stream: no more messages, then cancels the call."""
+        self._closing.set()
+        self._call.cancel()
+        self._reader.join(timeout=2.0)
+
+
+class CangateBus(can.BusABC):
+    """A python-can bus on a cangate gateway's bus, through ``Bus.Attach``.
+
+    :param channel: the gateway's bus name ("can0").
+    :param can_filters: python-can filters, applied by the gateway.
+    :param server: the gateway ("host:port", "http://…", "https://…");
+        default ``CANGATE_SERVER``, else ``http://127.0.0.1:50051``.
+    :param token: bearer token; default ``CANGATE_TOKEN``.
+    :param receive_own_messages: also receive the frames this bus sent (as
+        ``is_rx=False``, once they went out).
+    :param fd: handle CAN FD frames; None (default): when the gateway's bus
+        is configured for CAN FD.
+    :param error_frames: also receive SocketCAN error frames.
+    :param queue_length: events the gateway buffers for this client (0: its
+        default, 8192).
+    :param receive_buffer: received frames held here before the reader
+        waits (and the gateway starts dropping, counted in ``frames_lost``).
+    :param send_buffer: messages waiting to be sent before ``send`` blocks.
+    :param connect_timeout: seconds to wait for the gateway when opening.
+    :param ca: PEM file of the CA to trust (enables TLS).
+    :param cert: PEM client certificate (mTLS), with ``key``.
+    :param key: PEM private key of ``cert``.
+    """
+
+    def __init__(
+        self,
+        channel: Any = "can0",
+        can_filters: Optional[Any] = None,
+        *,
+        server: Optional[str] = None,
+        token: Optional[str] = None,
+        receive_own_messages: bool = False,
+        fd: Optional[bool] = None,
+        error_frames: bool = False,
+        queue_length: int = 0,
+        receive_buffer: int = 10_000,
+        send_buffer: int = 1_000,
+        connect_timeout: float = 5.0,
+        ca: Optional[str] = None,
+        cert: Optional[str] = None,
+        key: Optional[str] = None,
+        **kwargs: Any,
+    ) -> None:
+        self._server, token = resolve(server, token)
+        self.channel = str(channel or "can0")
+        self.channel_info = f"cangate {self.channel} on {self._server}"
+        self._receive_own = bool(receive_own_messages)
+        self._error_frames = bool(error_frames)
+        self._queue_length = int(queue_length)
+        self._buffers = (int(receive_buffer), int(send_buffer))
+        self._timeout = float(connect_timeout)
+        self._sequence = itertools.count(1)  # next() is atomic under the GIL
+        self._lost_before = 0
+        self._attachment: Optional[_Attachment] = None
+        self._grpc = open_channel(self._server, token, ca=ca, cert=cert, key=key)
+        self._stub = bus_pb2_grpc.BusStub(self._grpc)
+        try:
+            if fd is None:
+                try:
+                    info = self._stub.GetBus(
+                        bus_pb2.GetBusRequest(bus=self.channel), timeout=self._timeout
+                    )
+                except grpc.RpcError as err:
+                    raise can.CanInitializationError(
+                        f"cangate: bus {self.channel!r} on {self._server}: {from_rpc_error(err)}"
+                    ) from err
+                fd = info.fd
+            self._fd = bool(fd)
+            self._can_protocol = CanProtocol.CAN_FD if self._fd else CanProtocol.CAN_20
+            self._server_filters = _filters_to_pb(can_filters)
+            self._attachment = self._attach(self._server_filters or [])
+        except BaseException:
+            self._grpc.close()
+            raise
+        super().__init__(channel=self.channel, can_filters=can_filters, **kwargs)
+
+    def _attach(self, filters: list) -> _Attachment:
+        open_msg = bus_pb2.AttachOpen(
+            bus=self.channel,
+            filters=filters,
+            receive_own=self._receive_own,
+            fd=self._fd,
+            include_error_frames=self._error_frames,
+            queue_length=self._queue_length,
+        )
+        return _Attachment(
+            self._stub,
+            open_msg,
+            receive_buffer=self._buffers[0],
+            send_buffer=self._buffers[1],
+            timeout=self._timeout,
+        )
+
+    # ------------------------------------------------------------ state
+
+    @property
+    def frames_lost(self) -> int:
+        """Frames the gateway dropped for this bus because it read too
+        slowly (FramesLost notices), since it was opened."""
+        a = self._attachment
+        return self._lost_before + (a.lost if a else 0)
+
+    @property
+    def sender_id(self) -> int:
+        """This attachment's sender number (FrameSender.id of its frames as
+        the gateway's other clients see them)."""
+        return self._attachment.opened.sender_id if self._attachment else 0
+
+    @property
+    def bus_info(self) -> bus_pb2.BusInfo:
+        """The gateway's description of the bus when it was attached."""
+        return self._attachment.opened.bus
+
+    @property
+    def state(self) -> can.BusState:
+        """The bus state as the gateway last reported it."""
+        s = self._attachment.state if self._attachment else None
+        if s is None:
+            return can.BusState.ACTIVE
+        if s.state == bus_pb2.BUS_STATE_ERROR_PASSIVE:
+            return can.BusState.PASSIVE
+        if s.state in (bus_pb2.BUS_STATE_BUS_OFF, bus_pb2.BUS_STATE_DOWN):
+            return can.BusState.ERROR
+        return can.BusState.ACTIVE
+
+    # ------------------------------------------------------------ filters
+
+    def _apply_filters(self, filters: Optional[Any]) -> None:
+        pb = _filters_to_pb(filters)
+        if self._attachment is None or pb == self._server_filters:
+            return
+        # The gateway takes filters when attaching only: attach again with
+        # the new ones (frames in between are not received).
+        log.info("cangate %s: new filters, attaching again", self.channel)
+        old = self._attachment
+        self._lost_before += old.lost
+        old.close()
+        self._server_filters = pb
+        self._attachment = self._attach(pb or [])
+
+    # ------------------------------------------------------------ receive
+
+    def _recv_internal(self, timeout: Optional[float]) -> tuple[Optional[can.Message], bool]:
+        a = self._attachment
+        if a is None:
+            raise can.CanOperationError("cangate: the bus is shut down")
+        filtered = self._server_filters is not None
+        if a.error is not None and a.received.empty():
+            raise a.error
+        try:
+            item = a.received.get(timeout=timeout) if timeout != 0 else a.received.get_nowait()
+        except queue.Empty:
+            return None, filtered
+        if item is _END:
+            raise a.error
+        return item, filtered
+
+    # ------------------------------------------------------------ send
+
+    def send(self, msg: can.Message, timeout: Optional[float] = None) -> None:
+        """Queues `msg` for the gateway. Raises ``can.CanOperationError``
+        when the stream has ended, when the send buffer stays full for
+        `timeout` seconds, or for a message the gateway refused since the
+        previous call (a refusal arrives after the call that queued it)."""
+        a = self._attachment
+        if a is None:
+            raise can.CanOperationError("cangate: the bus is shut down")
+        if a.error is not None:
+            raise a.error
+        if a.refusals:
+            refused = list(a.refusals)
+            a.refusals.clear()
+            r = refused[-1]
+            more = f" ({len(refused)} messages refused)" if len(refused) > 1 else ""
+            err = can.CanOperationError(
+                f"cangate: message {r.sequence} was refused by the gateway{more}: "
+                f"{r.reason}: {r.message}"
+            )
+            err.refusals = refused  # type: ignore[attr-defined]
+            raise err
+        if msg.is_fd and not self._fd:
+            raise can.CanOperationError("cangate: CAN FD frame on a bus opened without fd")
+        request = bus_pb2.AttachRequest(
+            send=bus_pb2.AttachSend(frames=[message_to_frame(msg)], sequence=next(self._sequence))
+        )
+        try:
+            a.requests.put(request, timeout=timeout)
+        except queue.Full:
+            raise can.CanOperationError(
+                f"cangate: send buffer full for {timeout} s (the bus is slower than the sender)"
+            ) from None
+
+    def flush_tx_buffer(self) -> None:
+        """Drops the messages not yet handed to gRPC."""
+        a = self._attachment
+        while a is not None:
+            try:
+                a.requests.get_nowait()
+            except queue.Empty:
+                return
+
+    # ------------------------------------------------------------ lifecycle
+
+    def shutdown(self) -> None:
+        """Ends the Attach stream and closes the connection."""
+        if self._is_shutdown:
+            return
+        super().shutdown()
+        a, self._attachment = self._attachment, None
+        if a is not None:
+            self._lost_before += a.lost
+            a.close()
+        self._grpc.close()
+
+    @staticmethod
+    def _detect_available_configs() -> list:
+        """The buses of the gateway at ``CANGATE_SERVER`` (a ListBuses call
+        bounded by 1 s; nothing when it does not answer)."""
+        server, token = resolve(None, None)
+        try:
+            channel = open_channel(server, token)
+        except Exception:  # noqa: BLE001 - detection never fails
+            return []
+        try:
+            buses = bus_pb2_grpc.BusStub(channel).ListBuses(bus_pb2.ListBusesRequest(), timeout=1.0)
+        except grpc.RpcError:
+            return []
+        finally:
+            channel.close()
+        return [
+            {"interface": "cangate", "channel": b.name, "server": server, "fd": b.fd}
+            for b in buses.buses
+        ]
+
+
+__all__ = ["CangateBus", "frame_to_message", "message_to_frame"]

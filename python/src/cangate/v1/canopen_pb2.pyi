@@ -1,0 +1,430 @@
+from google.protobuf.internal import containers as _containers
+from google.protobuf.internal import enum_type_wrapper as _enum_type_wrapper
+from google.protobuf import descriptor as _descriptor
+from google.protobuf import message as _message
+from collections.abc import Iterable as _Iterable, Mapping as _Mapping
+from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
+
+DESCRIPTOR: _descriptor.FileDescriptor
+
+class NmtState(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    NMT_STATE_UNKNOWN: _ClassVar[NmtState]
+    NMT_STATE_INITIALISING: _ClassVar[NmtState]
+    NMT_STATE_STOPPED: _ClassVar[NmtState]
+    NMT_STATE_OPERATIONAL: _ClassVar[NmtState]
+    NMT_STATE_PRE_OPERATIONAL: _ClassVar[NmtState]
+
+class NmtCommand(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    NMT_COMMAND_UNSPECIFIED: _ClassVar[NmtCommand]
+    NMT_COMMAND_START: _ClassVar[NmtCommand]
+    NMT_COMMAND_STOP: _ClassVar[NmtCommand]
+    NMT_COMMAND_ENTER_PRE_OPERATIONAL: _ClassVar[NmtCommand]
+    NMT_COMMAND_RESET_NODE: _ClassVar[NmtCommand]
+    NMT_COMMAND_RESET_COMMUNICATION: _ClassVar[NmtCommand]
+
+class DataType(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    DATA_TYPE_UNSPECIFIED: _ClassVar[DataType]
+    DATA_TYPE_BOOLEAN: _ClassVar[DataType]
+    DATA_TYPE_INTEGER8: _ClassVar[DataType]
+    DATA_TYPE_INTEGER16: _ClassVar[DataType]
+    DATA_TYPE_INTEGER32: _ClassVar[DataType]
+    DATA_TYPE_UNSIGNED8: _ClassVar[DataType]
+    DATA_TYPE_UNSIGNED16: _ClassVar[DataType]
+    DATA_TYPE_UNSIGNED32: _ClassVar[DataType]
+    DATA_TYPE_REAL32: _ClassVar[DataType]
+    DATA_TYPE_VISIBLE_STRING: _ClassVar[DataType]
+    DATA_TYPE_OCTET_STRING: _ClassVar[DataType]
+    DATA_TYPE_UNICODE_STRING: _ClassVar[DataType]
+    DATA_TYPE_DOMAIN: _ClassVar[DataType]
+    DATA_TYPE_REAL64: _ClassVar[DataType]
+    DATA_TYPE_INTEGER64: _ClassVar[DataType]
+    DATA_TYPE_UNSIGNED64: _ClassVar[DataType]
+NMT_STATE_UNKNOWN: NmtState
+NMT_STATE_INITIALISING: NmtState
+NMT_STATE_STOPPED: NmtState
+NMT_STATE_OPERATIONAL: NmtState
+NMT_STATE_PRE_OPERATIONAL: NmtState
+NMT_COMMAND_UNSPECIFIED: NmtCommand
+NMT_COMMAND_START: NmtCommand
+NMT_COMMAND_STOP: NmtCommand
+NMT_COMMAND_ENTER_PRE_OPERATIONAL: NmtCommand
+NMT_COMMAND_RESET_NODE: NmtCommand
+NMT_COMMAND_RESET_COMMUNICATION: NmtCommand
+DATA_TYPE_UNSPECIFIED: DataType
+DATA_TYPE_BOOLEAN: DataType
+DATA_TYPE_INTEGER8: DataType
+DATA_TYPE_INTEGER16: DataType
+DATA_TYPE_INTEGER32: DataType
+DATA_TYPE_UNSIGNED8: DataType
+DATA_TYPE_UNSIGNED16: DataType
+DATA_TYPE_UNSIGNED32: DataType
+DATA_TYPE_REAL32: DataType
+DATA_TYPE_VISIBLE_STRING: DataType
+DATA_TYPE_OCTET_STRING: DataType
+DATA_TYPE_UNICODE_STRING: DataType
+DATA_TYPE_DOMAIN: DataType
+DATA_TYPE_REAL64: DataType
+DATA_TYPE_INTEGER64: DataType
+DATA_TYPE_UNSIGNED64: DataType
+
+class Value(_message.Message):
+    __slots__ = ("type", "bool_value", "int_value", "uint_value", "real_value", "string_value", "bytes_value")
+    TYPE_FIELD_NUMBER: _ClassVar[int]
+    BOOL_VALUE_FIELD_NUMBER: _ClassVar[int]
+    INT_VALUE_FIELD_NUMBER: _ClassVar[int]
+    UINT_VALUE_FIELD_NUMBER: _ClassVar[int]
+    REAL_VALUE_FIELD_NUMBER: _ClassVar[int]
+    STRING_VALUE_FIELD_NUMBER: _ClassVar[int]
+    BYTES_VALUE_FIELD_NUMBER: _ClassVar[int]
+    type: DataType
+    bool_value: bool
+    int_value: int
+    uint_value: int
+    real_value: float
+    string_value: str
+    bytes_value: bytes
+    def __init__(self, type: _Optional[_Union[DataType, str]] = ..., bool_value: _Optional[bool] = ..., int_value: _Optional[int] = ..., uint_value: _Optional[int] = ..., real_value: _Optional[float] = ..., string_value: _Optional[str] = ..., bytes_value: _Optional[bytes] = ...) -> None: ...
+
+class Identity(_message.Message):
+    __slots__ = ("vendor_id", "product_code", "revision", "serial")
+    VENDOR_ID_FIELD_NUMBER: _ClassVar[int]
+    PRODUCT_CODE_FIELD_NUMBER: _ClassVar[int]
+    REVISION_FIELD_NUMBER: _ClassVar[int]
+    SERIAL_FIELD_NUMBER: _ClassVar[int]
+    vendor_id: int
+    product_code: int
+    revision: int
+    serial: int
+    def __init__(self, vendor_id: _Optional[int] = ..., product_code: _Optional[int] = ..., revision: _Optional[int] = ..., serial: _Optional[int] = ...) -> None: ...
+
+class Emcy(_message.Message):
+    __slots__ = ("node", "code", "code_name", "register", "register_bits", "manufacturer", "timestamp_ns")
+    NODE_FIELD_NUMBER: _ClassVar[int]
+    CODE_FIELD_NUMBER: _ClassVar[int]
+    CODE_NAME_FIELD_NUMBER: _ClassVar[int]
+    REGISTER_FIELD_NUMBER: _ClassVar[int]
+    REGISTER_BITS_FIELD_NUMBER: _ClassVar[int]
+    MANUFACTURER_FIELD_NUMBER: _ClassVar[int]
+    TIMESTAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    node: int
+    code: int
+    code_name: str
+    register: int
+    register_bits: _containers.RepeatedScalarFieldContainer[str]
+    manufacturer: bytes
+    timestamp_ns: int
+    def __init__(self, node: _Optional[int] = ..., code: _Optional[int] = ..., code_name: _Optional[str] = ..., register: _Optional[int] = ..., register_bits: _Optional[_Iterable[str]] = ..., manufacturer: _Optional[bytes] = ..., timestamp_ns: _Optional[int] = ...) -> None: ...
+
+class Node(_message.Message):
+    __slots__ = ("bus", "id", "name", "state", "heartbeat_age_ms", "heartbeat_lost", "heartbeat_timeout_ms", "device_type", "device_name", "identity", "active_error", "emcy_history", "boot_ups", "configured")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    ID_FIELD_NUMBER: _ClassVar[int]
+    NAME_FIELD_NUMBER: _ClassVar[int]
+    STATE_FIELD_NUMBER: _ClassVar[int]
+    HEARTBEAT_AGE_MS_FIELD_NUMBER: _ClassVar[int]
+    HEARTBEAT_LOST_FIELD_NUMBER: _ClassVar[int]
+    HEARTBEAT_TIMEOUT_MS_FIELD_NUMBER: _ClassVar[int]
+    DEVICE_TYPE_FIELD_NUMBER: _ClassVar[int]
+    DEVICE_NAME_FIELD_NUMBER: _ClassVar[int]
+    IDENTITY_FIELD_NUMBER: _ClassVar[int]
+    ACTIVE_ERROR_FIELD_NUMBER: _ClassVar[int]
+    EMCY_HISTORY_FIELD_NUMBER: _ClassVar[int]
+    BOOT_UPS_FIELD_NUMBER: _ClassVar[int]
+    CONFIGURED_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    id: int
+    name: str
+    state: NmtState
+    heartbeat_age_ms: int
+    heartbeat_lost: bool
+    heartbeat_timeout_ms: int
+    device_type: int
+    device_name: str
+    identity: Identity
+    active_error: Emcy
+    emcy_history: _containers.RepeatedCompositeFieldContainer[Emcy]
+    boot_ups: int
+    configured: bool
+    def __init__(self, bus: _Optional[str] = ..., id: _Optional[int] = ..., name: _Optional[str] = ..., state: _Optional[_Union[NmtState, str]] = ..., heartbeat_age_ms: _Optional[int] = ..., heartbeat_lost: _Optional[bool] = ..., heartbeat_timeout_ms: _Optional[int] = ..., device_type: _Optional[int] = ..., device_name: _Optional[str] = ..., identity: _Optional[_Union[Identity, _Mapping]] = ..., active_error: _Optional[_Union[Emcy, _Mapping]] = ..., emcy_history: _Optional[_Iterable[_Union[Emcy, _Mapping]]] = ..., boot_ups: _Optional[int] = ..., configured: _Optional[bool] = ...) -> None: ...
+
+class ListNodesRequest(_message.Message):
+    __slots__ = ("bus",)
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    def __init__(self, bus: _Optional[str] = ...) -> None: ...
+
+class ListNodesResponse(_message.Message):
+    __slots__ = ("nodes",)
+    NODES_FIELD_NUMBER: _ClassVar[int]
+    nodes: _containers.RepeatedCompositeFieldContainer[Node]
+    def __init__(self, nodes: _Optional[_Iterable[_Union[Node, _Mapping]]] = ...) -> None: ...
+
+class GetNodeRequest(_message.Message):
+    __slots__ = ("bus", "node")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    NODE_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    node: int
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ...) -> None: ...
+
+class SendNmtRequest(_message.Message):
+    __slots__ = ("bus", "node", "command")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    NODE_FIELD_NUMBER: _ClassVar[int]
+    COMMAND_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    node: int
+    command: NmtCommand
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., command: _Optional[_Union[NmtCommand, str]] = ...) -> None: ...
+
+class SendNmtResponse(_message.Message):
+    __slots__ = ()
+    def __init__(self) -> None: ...
+
+class SdoOptions(_message.Message):
+    __slots__ = ("timeout_ms", "block")
+    TIMEOUT_MS_FIELD_NUMBER: _ClassVar[int]
+    BLOCK_FIELD_NUMBER: _ClassVar[int]
+    timeout_ms: int
+    block: bool
+    def __init__(self, timeout_ms: _Optional[int] = ..., block: _Optional[bool] = ...) -> None: ...
+
+class ReadSdoRequest(_message.Message):
+    __slots__ = ("bus", "node", "index", "subindex", "type", "options")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    NODE_FIELD_NUMBER: _ClassVar[int]
+    INDEX_FIELD_NUMBER: _ClassVar[int]
+    SUBINDEX_FIELD_NUMBER: _ClassVar[int]
+    TYPE_FIELD_NUMBER: _ClassVar[int]
+    OPTIONS_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    node: int
+    index: int
+    subindex: int
+    type: DataType
+    options: SdoOptions
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., index: _Optional[int] = ..., subindex: _Optional[int] = ..., type: _Optional[_Union[DataType, str]] = ..., options: _Optional[_Union[SdoOptions, _Mapping]] = ...) -> None: ...
+
+class ReadSdoResponse(_message.Message):
+    __slots__ = ("raw", "value")
+    RAW_FIELD_NUMBER: _ClassVar[int]
+    VALUE_FIELD_NUMBER: _ClassVar[int]
+    raw: bytes
+    value: Value
+    def __init__(self, raw: _Optional[bytes] = ..., value: _Optional[_Union[Value, _Mapping]] = ...) -> None: ...
+
+class WriteSdoRequest(_message.Message):
+    __slots__ = ("bus", "node", "index", "subindex", "value", "raw", "options")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    NODE_FIELD_NUMBER: _ClassVar[int]
+    INDEX_FIELD_NUMBER: _ClassVar[int]
+    SUBINDEX_FIELD_NUMBER: _ClassVar[int]
+    VALUE_FIELD_NUMBER: _ClassVar[int]
+    RAW_FIELD_NUMBER: _ClassVar[int]
+    OPTIONS_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    node: int
+    index: int
+    subindex: int
+    value: Value
+    raw: bytes
+    options: SdoOptions
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., index: _Optional[int] = ..., subindex: _Optional[int] = ..., value: _Optional[_Union[Value, _Mapping]] = ..., raw: _Optional[bytes] = ..., options: _Optional[_Union[SdoOptions, _Mapping]] = ...) -> None: ...
+
+class WriteSdoResponse(_message.Message):
+    __slots__ = ("bytes",)
+    BYTES_FIELD_NUMBER: _ClassVar[int]
+    bytes: int
+    def __init__(self, bytes: _Optional[int] = ...) -> None: ...
+
+class ScanNetworkRequest(_message.Message):
+    __slots__ = ("bus", "timeout_ms")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    TIMEOUT_MS_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    timeout_ms: int
+    def __init__(self, bus: _Optional[str] = ..., timeout_ms: _Optional[int] = ...) -> None: ...
+
+class ScanNetworkResponse(_message.Message):
+    __slots__ = ("nodes",)
+    NODES_FIELD_NUMBER: _ClassVar[int]
+    nodes: _containers.RepeatedCompositeFieldContainer[Node]
+    def __init__(self, nodes: _Optional[_Iterable[_Union[Node, _Mapping]]] = ...) -> None: ...
+
+class StreamNodeEventsRequest(_message.Message):
+    __slots__ = ("bus", "nodes")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    NODES_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    nodes: _containers.RepeatedScalarFieldContainer[int]
+    def __init__(self, bus: _Optional[str] = ..., nodes: _Optional[_Iterable[int]] = ...) -> None: ...
+
+class NodeEvent(_message.Message):
+    __slots__ = ("bus", "node", "timestamp_ns", "boot_up", "state_changed", "heartbeat_lost", "heartbeat_recovered", "emcy", "lost", "boot_completed", "boot_failed")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    NODE_FIELD_NUMBER: _ClassVar[int]
+    TIMESTAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    BOOT_UP_FIELD_NUMBER: _ClassVar[int]
+    STATE_CHANGED_FIELD_NUMBER: _ClassVar[int]
+    HEARTBEAT_LOST_FIELD_NUMBER: _ClassVar[int]
+    HEARTBEAT_RECOVERED_FIELD_NUMBER: _ClassVar[int]
+    EMCY_FIELD_NUMBER: _ClassVar[int]
+    LOST_FIELD_NUMBER: _ClassVar[int]
+    BOOT_COMPLETED_FIELD_NUMBER: _ClassVar[int]
+    BOOT_FAILED_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    node: int
+    timestamp_ns: int
+    boot_up: BootUp
+    state_changed: StateChange
+    heartbeat_lost: HeartbeatLost
+    heartbeat_recovered: HeartbeatRecovered
+    emcy: Emcy
+    lost: EventsLost
+    boot_completed: BootCompleted
+    boot_failed: BootFailed
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., timestamp_ns: _Optional[int] = ..., boot_up: _Optional[_Union[BootUp, _Mapping]] = ..., state_changed: _Optional[_Union[StateChange, _Mapping]] = ..., heartbeat_lost: _Optional[_Union[HeartbeatLost, _Mapping]] = ..., heartbeat_recovered: _Optional[_Union[HeartbeatRecovered, _Mapping]] = ..., emcy: _Optional[_Union[Emcy, _Mapping]] = ..., lost: _Optional[_Union[EventsLost, _Mapping]] = ..., boot_completed: _Optional[_Union[BootCompleted, _Mapping]] = ..., boot_failed: _Optional[_Union[BootFailed, _Mapping]] = ...) -> None: ...
+
+class BootCompleted(_message.Message):
+    __slots__ = ()
+    def __init__(self) -> None: ...
+
+class BootFailed(_message.Message):
+    __slots__ = ("reason",)
+    REASON_FIELD_NUMBER: _ClassVar[int]
+    reason: str
+    def __init__(self, reason: _Optional[str] = ...) -> None: ...
+
+class StreamPdoRequest(_message.Message):
+    __slots__ = ("bus", "nodes")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    NODES_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    nodes: _containers.RepeatedScalarFieldContainer[int]
+    def __init__(self, bus: _Optional[str] = ..., nodes: _Optional[_Iterable[int]] = ...) -> None: ...
+
+class PdoValue(_message.Message):
+    __slots__ = ("index", "subindex", "name", "value")
+    INDEX_FIELD_NUMBER: _ClassVar[int]
+    SUBINDEX_FIELD_NUMBER: _ClassVar[int]
+    NAME_FIELD_NUMBER: _ClassVar[int]
+    VALUE_FIELD_NUMBER: _ClassVar[int]
+    index: int
+    subindex: int
+    name: str
+    value: Value
+    def __init__(self, index: _Optional[int] = ..., subindex: _Optional[int] = ..., name: _Optional[str] = ..., value: _Optional[_Union[Value, _Mapping]] = ...) -> None: ...
+
+class PdoMessage(_message.Message):
+    __slots__ = ("bus", "node", "pdo", "cob_id", "timestamp_ns", "values", "lost_before")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    NODE_FIELD_NUMBER: _ClassVar[int]
+    PDO_FIELD_NUMBER: _ClassVar[int]
+    COB_ID_FIELD_NUMBER: _ClassVar[int]
+    TIMESTAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    VALUES_FIELD_NUMBER: _ClassVar[int]
+    LOST_BEFORE_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    node: int
+    pdo: int
+    cob_id: int
+    timestamp_ns: int
+    values: _containers.RepeatedCompositeFieldContainer[PdoValue]
+    lost_before: int
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., pdo: _Optional[int] = ..., cob_id: _Optional[int] = ..., timestamp_ns: _Optional[int] = ..., values: _Optional[_Iterable[_Union[PdoValue, _Mapping]]] = ..., lost_before: _Optional[int] = ...) -> None: ...
+
+class WritePdoRequest(_message.Message):
+    __slots__ = ("bus", "node", "pdo", "values")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    NODE_FIELD_NUMBER: _ClassVar[int]
+    PDO_FIELD_NUMBER: _ClassVar[int]
+    VALUES_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    node: int
+    pdo: int
+    values: _containers.RepeatedCompositeFieldContainer[PdoValue]
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., pdo: _Optional[int] = ..., values: _Optional[_Iterable[_Union[PdoValue, _Mapping]]] = ...) -> None: ...
+
+class WritePdoResponse(_message.Message):
+    __slots__ = ("data",)
+    DATA_FIELD_NUMBER: _ClassVar[int]
+    data: bytes
+    def __init__(self, data: _Optional[bytes] = ...) -> None: ...
+
+class BootUp(_message.Message):
+    __slots__ = ()
+    def __init__(self) -> None: ...
+
+class StateChange(_message.Message):
+    __slots__ = ("to",)
+    FROM_FIELD_NUMBER: _ClassVar[int]
+    TO_FIELD_NUMBER: _ClassVar[int]
+    to: NmtState
+    def __init__(self, to: _Optional[_Union[NmtState, str]] = ..., **kwargs) -> None: ...
+
+class HeartbeatLost(_message.Message):
+    __slots__ = ("timeout_ms",)
+    TIMEOUT_MS_FIELD_NUMBER: _ClassVar[int]
+    timeout_ms: int
+    def __init__(self, timeout_ms: _Optional[int] = ...) -> None: ...
+
+class HeartbeatRecovered(_message.Message):
+    __slots__ = ("state", "silent_ms")
+    STATE_FIELD_NUMBER: _ClassVar[int]
+    SILENT_MS_FIELD_NUMBER: _ClassVar[int]
+    state: NmtState
+    silent_ms: int
+    def __init__(self, state: _Optional[_Union[NmtState, str]] = ..., silent_ms: _Optional[int] = ...) -> None: ...
+
+class EventsLost(_message.Message):
+    __slots__ = ("count",)
+    COUNT_FIELD_NUMBER: _ClassVar[int]
+    count: int
+    def __init__(self, count: _Optional[int] = ...) -> None: ...
+
+class SdoAbortDetails(_message.Message):
+    __slots__ = ("code", "name", "index", "subindex", "from_node")
+    CODE_FIELD_NUMBER: _ClassVar[int]
+    NAME_FIELD_NUMBER: _ClassVar[int]
+    INDEX_FIELD_NUMBER: _ClassVar[int]
+    SUBINDEX_FIELD_NUMBER: _ClassVar[int]
+    FROM_NODE_FIELD_NUMBER: _ClassVar[int]
+    code: int
+    name: str
+    index: int
+    subindex: int
+    from_node: bool
+    def __init__(self, code: _Optional[int] = ..., name: _Optional[str] = ..., index: _Optional[int] = ..., subindex: _Optional[int] = ..., from_node: _Optional[bool] = ...) -> None: ...
+
+class ListSdoTransfersRequest(_message.Message):
+    __slots__ = ("bus",)
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    def __init__(self, bus: _Optional[str] = ...) -> None: ...
+
+class SdoTransfer(_message.Message):
+    __slots__ = ("node", "index", "subindex", "upload", "protocol", "transferred", "total")
+    NODE_FIELD_NUMBER: _ClassVar[int]
+    INDEX_FIELD_NUMBER: _ClassVar[int]
+    SUBINDEX_FIELD_NUMBER: _ClassVar[int]
+    UPLOAD_FIELD_NUMBER: _ClassVar[int]
+    PROTOCOL_FIELD_NUMBER: _ClassVar[int]
+    TRANSFERRED_FIELD_NUMBER: _ClassVar[int]
+    TOTAL_FIELD_NUMBER: _ClassVar[int]
+    node: int
+    index: int
+    subindex: int
+    upload: bool
+    protocol: str
+    transferred: int
+    total: int
+    def __init__(self, node: _Optional[int] = ..., index: _Optional[int] = ..., subindex: _Optional[int] = ..., upload: _Optional[bool] = ..., protocol: _Optional[str] = ..., transferred: _Optional[int] = ..., total: _Optional[int] = ...) -> None: ...
+
+class ListSdoTransfersResponse(_message.Message):
+    __slots__ = ("transfers",)
+    TRANSFERS_FIELD_NUMBER: _ClassVar[int]
+    transfers: _containers.RepeatedCompositeFieldContainer[SdoTransfer]
+    def __init__(self, transfers: _Optional[_Iterable[_Union[SdoTransfer, _Mapping]]] = ...) -> None: ...

@@ -1,0 +1,163 @@
+#!/usr/bin/env python3
+"""The cangate package's typed client against a gateway on the demo
+configuration (can0: simulated drives X/Y/Z, I/O node 3, handwheel hw1).
+
+Run by tests/tests/python_package.rs: ``python client_api.py`` with
+CANGATE_SERVER set. Prints ``ok ...`` per check and ``client api: all
+checks passed`` at the end; any failed check raises (non-zero exit).
+"""
+
+import signal
+import sys
+import threading
+import time
+
+import grpc
+
+import cangate
+from cangate import CangateError, DataType, SdoAbortError
+from cangate.v1 import axes_pb2, handwheel_pb2
+
+
+def expect(cond, what):
+    if not cond:
+        raise AssertionError(what)
+
+
+def wait_until(stream, pred, what, poke=None, limit=10.0):
+    """The first item of `stream` that `pred` accepts, while `poke` runs in
+    a thread every 0.2 s (so the subscription is certainly in place)."""
+    stop = threading.Event()
+
+    def poker():
+        while not stop.wait(0.2):
+            poke()
+
+    t = threading.Thread(target=poker, daemon=True) if poke else None
+    timer = threading.Timer(limit, stream.cancel)
+    timer.start()
+    if t:
+        t.start()
+    try:
+        for item in stream:
+            if pred(item):
+                return item
+        raise AssertionError(f"no {what} within {limit} s")
+    finally:
+        stop.set()
+        timer.cancel()
+        stream.cancel()
+        if t:
+            t.join()
+
+
+def main():
+    # Never outlive the test that started us.
+    signal.alarm(120)
+    with cangate.Client(timeout=10.0) as c:
+        # Buses.
+        buses = c.list_buses()
+        expect([b.name for b in buses] == ["can0"], buses)
+        expect(c.get_bus("can0").fd, "can0 is FD")
+        try:
+            c.get_bus("nope")
+            raise AssertionError("an unknown bus was found")
+        except CangateError as e:
+            expect(e.code == grpc.StatusCode.NOT_FOUND and e.reason == "BUS_NOT_FOUND", e)
+            expect(e.metadata == {"kind": "bus", "name": "nope"}, e.metadata)
+        print("ok buses")
+
+        # SDO: typed by the node's EDS, by the request, errors with the abort.
+        r = c.read_sdo("can0", 1, 0x1008)
+        expect(r.type == DataType.VISIBLE_STRING and r.value == "cangate sim drive", r)
+        hb = c.read_sdo("can0", 1, 0x1017, 0, DataType.UNSIGNED16)
+        expect(r.raw and isinstance(hb.value, int), hb)
+        expect(c.write_sdo("can0", 1, 0x1017, 0, hb.value, DataType.UNSIGNED16) == 2, "wrote 2")
+        expect(c.read_sdo("can0", 1, 0x1017, 0, DataType.UNSIGNED16).value == hb.value, "read back")
+        try:
+            c.read_sdo("can0", 1, 0x5555)
+            raise AssertionError("0x5555 was read")
+        except SdoAbortError as e:
+            expect(e.code == grpc.StatusCode.NOT_FOUND and e.reason == "SDO_ABORT", e)
+            expect((e.abort_code, e.index, e.subindex, e.from_node, e.node)
+                   == (0x06020000, 0x5555, 0, True, 1), vars(e))
+            expect(e.abort_name == "object does not exist in the object dictionary", e.abort_name)
+            abort = e.abort_code
+        print(f"ok sdo: {r.value!r}, heartbeat {hb.value} ms, abort 0x{abort:08X}")
+
+        # Axes: a move under a lease, released on exit.
+        names = [a.name for a in c.list_axes()]
+        expect({"X", "Y", "Z"} <= set(names), names)
+        x = c.axis("X")
+        with x.control(name="python client test", ttl_ms=500) as ax:
+            expect("python client test" in ax.holder, ax.holder)
+            ax.enable(wait=True)
+            # Longer than the TTL: the lease stays alive by the renewals.
+            r = ax.move(2.0, velocity=2.0, wait=True)
+            expect(r.outcome == axes_pb2.OUTCOME_COMPLETED, r)
+            st = x.get().status
+            expect(abs(st.position - 2.0) < 0.01, st)
+            expect("python client test" in st.controlled_by, st)
+        expect(x.get().status.controlled_by == "", "released on exit")
+        print(f"ok lease: moved X to {st.position:.3f} over more than its TTL")
+
+        # An exception in the block stops the axis and releases the lease.
+        try:
+            with x.control(name="python client test") as ax:
+                ax.move(-150.0, velocity=20.0)
+                time.sleep(0.2)
+                raise RuntimeError("the program failed")
+        except RuntimeError:
+            pass
+        st = wait_until(
+            x.states(),
+            lambda u: u.WhichOneof("update") == "status"
+            and u.status.activity == axes_pb2.AXIS_ACTIVITY_IDLE,
+            "X at rest after the stop",
+        ).status
+        expect(st.position > -100.0 and st.controlled_by == "", st)
+        print(f"ok exception in the lease block: X stopped at {st.position:.3f}, released")
+
+        # Node events: NMT state changes of the I/O node.
+        flip = [False]
+
+        def nmt():
+            flip[0] = not flip[0]
+            c.send_nmt("can0", 3, "preop" if flip[0] else "start")
+
+        ev = wait_until(
+            c.node_events("can0", [3]),
+            lambda e: e.WhichOneof("event") == "state_changed",
+            "a state change of node 3",
+            poke=nmt,
+        )
+        c.send_nmt("can0", 3, "start")
+        print(f"ok node events: {ev.state_changed}".replace("\n", " "))
+
+        # Handwheel feed: the simulated wheel turned in manual mode.
+        c.set_handwheel_mode("hw1", manual=True)
+        turn = handwheel_pb2.TurnHandwheelRequest(handwheel="hw1", detents=1, axis=handwheel_pb2.WHEEL_AXIS_Y)
+        feed = wait_until(
+            c.feed(["hw1"]),
+            lambda f: f.units > 0,
+            "a feed event",
+            poke=lambda: c.simulator_stub.TurnHandwheel(turn, timeout=5),
+        )
+        c.set_handwheel_mode("hw1", manual=False)
+        expect(feed.handwheel == "hw1" and feed.direction == 1, feed)
+        print(f"ok feed: {feed.units} units on {handwheel_pb2.WheelAxis.Name(feed.axis)}")
+
+        # The frame stream (the gateway's own SYNC: transmitted).
+        frames = wait_until(
+            c.stream_frames("can0", [(0x080, 0x7FF)], include_transmitted=True),
+            lambda f: isinstance(f, cangate.Frame),
+            "a SYNC frame",
+        )
+        expect(frames.id == 0x80 and frames.timestamp_ns > 0, frames)
+        print("ok frame stream: SYNC")
+    print("client api: all checks passed")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
