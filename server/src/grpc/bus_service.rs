@@ -289,7 +289,13 @@ fn spawn_subscription_forward<M: Send + 'static>(
                 n = sub.recv_many(&mut items, max_batch) => n,
             };
             if n == 0 {
-                return; // the bus stopped
+                // The bus stopped: at shutdown (its task may end before
+                // this one sees the token), the stream still ends with the
+                // shutdown status, not as if it had completed.
+                if cancel.is_cancelled() {
+                    break;
+                }
+                return;
             }
             // A few events: from the small-message budget, or give more
             // a moment to join them (see COALESCE_EVENTS).
