@@ -31,6 +31,8 @@
 //! without the python packages or the VM it is skipped, except under
 //! `CI=true`, where it fails instead.
 
+#[path = "common/python_peer.rs"]
+mod python_peer;
 #[path = "common/vcan.rs"]
 mod vcan;
 
@@ -39,11 +41,8 @@ use cangate_client::pb;
 use cangate_client::pb::node_event::Event as NodeEv;
 use cangate_client::pb::stream_event::Event as BusEv;
 use std::collections::VecDeque;
-use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdin, Command, Stdio};
 use std::time::{Duration, Instant};
-use tokio::sync::mpsc;
 use tonic::Code;
 
 /// Must equal the function name below: the VM re-runs exactly this test.
@@ -55,10 +54,6 @@ const NODE: u32 = 42;
 const HEARTBEAT_MS: u64 = 100;
 /// The master's consumer timeout for the device.
 const HEARTBEAT_TIMEOUT_MS: u64 = 1000;
-/// The python interpreter that has the packages, found on the host and
-/// handed to the VM run (so the guest skips the pyenv shim, ~5 s under TCG,
-/// and a second import probe).
-const PYTHON_ENV: &str = "CANGATE_PYTHON";
 
 /// One budget for the whole scenario; the waits below are much shorter.
 const SCENARIO_LIMIT: Duration = Duration::from_secs(180);
@@ -74,7 +69,7 @@ fn python_canopen_local_node_interoperates() {
     if let vcan::Plan::Unavailable(reason) = &plan {
         return vcan::skip_or_fail(TEST_NAME, reason);
     }
-    let python = match find_python() {
+    let python = match python_peer::find_python(MODULES) {
         Ok(p) => p,
         Err(reason) => return vcan::skip_or_fail(TEST_NAME, &reason),
     };
@@ -82,53 +77,20 @@ fn python_canopen_local_node_interoperates() {
         vcan::Plan::Here => run_here(&python),
         vcan::Plan::Vm(runner) => {
             let python = python.to_string_lossy().into_owned();
-            vcan::run_in_vm(&runner, TEST_NAME, &[(PYTHON_ENV, python.as_str())]);
+            // The host's interpreter, handed to the guest (which then skips
+            // the pyenv shim, ~5 s under TCG, and a second import probe).
+            vcan::run_in_vm(
+                &runner,
+                TEST_NAME,
+                &[(python_peer::PYTHON_ENV, python.as_str())],
+            );
         }
         vcan::Plan::Unavailable(_) => unreachable!(),
     }
 }
 
-/// The python interpreter with `can` and `canopen` importable: the one in
-/// `CANGATE_PYTHON`, else `python3`, resolved to its real executable.
-fn find_python() -> Result<PathBuf, String> {
-    let given = std::env::var_os(PYTHON_ENV).map(PathBuf::from);
-    if vcan::inside_vm()
-        && let Some(p) = given.clone()
-    {
-        // The host already checked it; a second import costs seconds here.
-        return Ok(p);
-    }
-    let python = given.unwrap_or_else(|| PathBuf::from("python3"));
-    let out = Command::new(&python)
-        .args([
-            "-c",
-            "import sys, can, canopen; print(sys.executable); \
-             print('python-can', can.__version__, 'canopen', canopen.__version__)",
-        ])
-        .stdin(Stdio::null())
-        .output()
-        .map_err(|e| format!("cannot run {}: {e}", python.display()))?;
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let mut lines = stdout.lines();
-    match (out.status.success(), lines.next()) {
-        (true, Some(exe)) if !exe.is_empty() => {
-            eprintln!(
-                "device: {exe} with {}",
-                lines.next().unwrap_or("unknown versions")
-            );
-            Ok(PathBuf::from(exe))
-        }
-        _ => Err(format!(
-            "{} cannot import python-can and canopen ({}); install them with \
-             `python3 -m pip install -r tests/python/requirements.txt`",
-            python.display(),
-            String::from_utf8_lossy(&out.stderr)
-                .lines()
-                .last()
-                .unwrap_or("no error output")
-        )),
-    }
-}
+/// What the device needs.
+const MODULES: &[&str] = &["can", "canopen"];
 
 fn run_here(python: &Path) {
     let rt = tokio::runtime::Builder::new_multi_thread()
@@ -746,52 +708,27 @@ impl HeartbeatFrames {
 
 // ------------------------------------------------------------ the device
 
-/// The running `local_node.py`: its stdout lines arrive on a channel, its
-/// stderr is forwarded to ours. Killed on drop if it did not quit.
-struct Device {
-    child: Child,
-    stdin: Option<ChildStdin>,
-    lines: mpsc::UnboundedReceiver<String>,
-}
+/// The running `local_node.py` (on vcan0, through python-can's socketcan
+/// interface).
+struct Device(python_peer::Peer);
 
 impl Device {
     fn spawn(python: &Path) -> Result<Device> {
-        let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/local_node.py");
-        let mut child = Command::new(python)
-            .arg("-u")
-            .arg(&script)
-            .args(["--channel", IFACE, "--node-id", &NODE.to_string()])
-            .arg("--eds")
-            .arg(eds_path())
+        let eds = eds_path();
+        let node = NODE.to_string();
+        let args: [&std::ffi::OsStr; 8] = [
+            "--channel".as_ref(),
+            IFACE.as_ref(),
+            "--node-id".as_ref(),
+            node.as_ref(),
+            "--eds".as_ref(),
+            eds.as_ref(),
             // Outlives no failed test for long.
-            .args(["--max-seconds", "240"])
-            .env("PYTHONDONTWRITEBYTECODE", "1")
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .with_context(|| format!("starting {} {}", python.display(), script.display()))?;
-        let out = child.stdout.take().expect("piped stdout");
-        let err = child.stderr.take().expect("piped stderr");
-        let (tx, lines) = mpsc::unbounded_channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(out).lines().map_while(Result::ok) {
-                eprintln!("  [device] {line}");
-                if tx.send(line).is_err() {
-                    break;
-                }
-            }
-        });
-        std::thread::spawn(move || {
-            for line in BufReader::new(err).lines().map_while(Result::ok) {
-                eprintln!("  [device stderr] {line}");
-            }
-        });
-        Ok(Device {
-            stdin: child.stdin.take(),
-            child,
-            lines,
-        })
+            "--max-seconds".as_ref(),
+            "240".as_ref(),
+        ];
+        let script = python_peer::script("local_node.py");
+        python_peer::Peer::spawn(python, &script, &args, &[]).map(Device)
     }
 
     /// The next stdout line matching `pred`; others are skipped (they were
@@ -802,21 +739,7 @@ impl Device {
         limit: Duration,
         pred: impl Fn(&str) -> bool,
     ) -> Result<String> {
-        let deadline = Instant::now() + limit;
-        loop {
-            match tokio::time::timeout_at(deadline.into(), self.lines.recv()).await {
-                Err(_) => bail!("the device did not print {what} within {limit:?}"),
-                Ok(None) => {
-                    let status = self.child.wait().ok();
-                    bail!(
-                        "the device exited ({status:?}) before printing {what}; \
-                         see its stderr above"
-                    )
-                }
-                Ok(Some(line)) if pred(&line) => return Ok(line),
-                Ok(Some(_)) => {}
-            }
-        }
+        self.0.expect(what, limit, pred).await
     }
 
     /// The device stored exactly `data` at `index:sub`.
@@ -836,30 +759,8 @@ impl Device {
 
     /// Asks the device to stop and requires a clean exit.
     async fn quit(&mut self) -> Result<()> {
-        if let Some(mut stdin) = self.stdin.take() {
-            writeln!(stdin, "QUIT").context("writing to the device")?;
-        }
-        self.expect("BYE", WAIT, |l| l == "BYE").await?;
-        let deadline = Instant::now() + WAIT;
-        loop {
-            if let Some(status) = self.child.try_wait()? {
-                ensure!(status.success(), "the device exited with {status}");
-                return Ok(());
-            }
-            ensure!(
-                Instant::now() < deadline,
-                "the device did not exit after BYE"
-            );
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
-    }
-}
-
-impl Drop for Device {
-    fn drop(&mut self) {
-        if matches!(self.child.try_wait(), Ok(None)) {
-            let _ = self.child.kill();
-            let _ = self.child.wait();
-        }
+        self.0.say("QUIT")?;
+        self.0.expect_line("BYE", WAIT).await?;
+        self.0.finish(WAIT).await
     }
 }

@@ -36,20 +36,19 @@
 //! package the tests are skipped with the reason, except under `CI=true`,
 //! where they fail instead.
 
+#[path = "common/python_peer.rs"]
+mod python_peer;
 #[path = "common/vcan.rs"]
 mod vcan;
 
-use anyhow::{Context, Result, anyhow, bail, ensure};
+use anyhow::{Context, Result, anyhow, ensure};
 use cangate_client::pb;
 use cangate_client::pb::node_event::Event as NodeEv;
 use cangate_server::Config;
-use std::io::{BufRead, BufReader, Write};
+use python_peer::{PYTHON_ENV, Peer, python_or_skip, script};
 use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdin, Command, Stdio};
 use std::time::{Duration, Instant};
-use tokio::sync::mpsc;
 
-const PYTHON_ENV: &str = "CANGATE_PYTHON";
 /// The device's node id on can0 (the demo's own nodes are 1-4 and 10).
 const NODE: u32 = 42;
 /// Starting python and importing grpc, can and canopen: seconds on a loaded
@@ -66,181 +65,8 @@ fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-fn script(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("python")
-        .join(name)
-}
-
-/// The interpreter that has python-can, canopen, grpc_tools and the
-/// `cangate` package with its python-can entry point.
-fn find_python() -> Result<PathBuf, String> {
-    let given = std::env::var_os(PYTHON_ENV).map(PathBuf::from);
-    if vcan::inside_vm()
-        && let Some(p) = given.clone()
-    {
-        // The host already checked it; an import probe costs seconds here.
-        return Ok(p);
-    }
-    let python = given.unwrap_or_else(|| PathBuf::from("python3"));
-    let out = Command::new(&python)
-        .args([
-            "-c",
-            "import sys, can, canopen, grpc_tools, cangate, can.interfaces; \
-             assert 'cangate' in can.interfaces.BACKENDS, 'no can.interface entry point'; \
-             print(sys.executable); \
-             print('cangate', cangate.__version__, 'python-can', can.__version__, \
-             'canopen', canopen.__version__)",
-        ])
-        .stdin(Stdio::null())
-        .output()
-        .map_err(|e| format!("cannot run {}: {e}", python.display()))?;
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let mut lines = stdout.lines();
-    match (out.status.success(), lines.next()) {
-        (true, Some(exe)) if !exe.is_empty() => {
-            eprintln!("python: {exe} with {}", lines.next().unwrap_or("?"));
-            Ok(PathBuf::from(exe))
-        }
-        _ => Err(format!(
-            "{} cannot import python-can, canopen, grpc_tools and the cangate package ({}); \
-             install them with `python3 -m pip install -r tests/python/requirements.txt ./python` \
-             (scripts/test does, into target/python)",
-            python.display(),
-            String::from_utf8_lossy(&out.stderr)
-                .lines()
-                .last()
-                .unwrap_or("no error output")
-        )),
-    }
-}
-
-/// The python interpreter, or `None` after a skip (a failure under CI).
-fn python_or_skip(test: &str) -> Option<PathBuf> {
-    match find_python() {
-        Ok(p) => Some(p),
-        Err(reason) => {
-            vcan::skip_or_fail(test, &reason);
-            None
-        }
-    }
-}
-
-/// A running python script: its stdout lines on a channel (and echoed), its
-/// stderr echoed; killed on drop if it is still running.
-struct Peer {
-    name: String,
-    child: Child,
-    stdin: Option<ChildStdin>,
-    lines: mpsc::UnboundedReceiver<String>,
-}
-
-impl Peer {
-    fn spawn(python: &Path, args: &[&str], env: &[(&str, String)]) -> Result<Peer> {
-        let name = Path::new(args[0])
-            .file_stem()
-            .map_or_else(|| "python".into(), |s| s.to_string_lossy().into_owned());
-        let mut child = Command::new(python)
-            .arg("-u")
-            .args(args)
-            .env("PYTHONDONTWRITEBYTECODE", "1")
-            .envs(env.iter().map(|(k, v)| (k, v)))
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .with_context(|| format!("starting {} {args:?}", python.display()))?;
-        let out = child.stdout.take().expect("piped stdout");
-        let err = child.stderr.take().expect("piped stderr");
-        let (tx, lines) = mpsc::unbounded_channel();
-        let label = name.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(out).lines().map_while(Result::ok) {
-                if line.len() > 200 {
-                    eprintln!("  [{label}] {}... ({} chars)", &line[..120], line.len());
-                } else {
-                    eprintln!("  [{label}] {line}");
-                }
-                if tx.send(line).is_err() {
-                    break;
-                }
-            }
-        });
-        let label = name.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(err).lines().map_while(Result::ok) {
-                eprintln!("  [{label} stderr] {line}");
-            }
-        });
-        Ok(Peer {
-            name,
-            stdin: child.stdin.take(),
-            child,
-            lines,
-        })
-    }
-
-    /// The next stdout line matching `pred` (others skipped); fails early
-    /// when the script exits.
-    async fn expect(
-        &mut self,
-        what: &str,
-        limit: Duration,
-        pred: impl Fn(&str) -> bool,
-    ) -> Result<String> {
-        let deadline = Instant::now() + limit;
-        loop {
-            match tokio::time::timeout_at(deadline.into(), self.lines.recv()).await {
-                Err(_) => bail!("{} did not print {what} within {limit:?}", self.name),
-                Ok(None) => {
-                    let status = self.child.wait().ok();
-                    bail!(
-                        "{} exited ({status:?}) before printing {what}; see its stderr above",
-                        self.name
-                    )
-                }
-                Ok(Some(line)) if pred(&line) => return Ok(line),
-                Ok(Some(_)) => {}
-            }
-        }
-    }
-
-    async fn expect_line(&mut self, line: &str, limit: Duration) -> Result<()> {
-        self.expect(line, limit, |l| l == line).await.map(|_| ())
-    }
-
-    fn say(&mut self, line: &str) -> Result<()> {
-        let stdin = self.stdin.as_mut().context("stdin already closed")?;
-        writeln!(stdin, "{line}").context("writing to the python script")
-    }
-
-    /// Closes stdin and requires a clean exit within `limit`.
-    async fn finish(&mut self, limit: Duration) -> Result<()> {
-        self.stdin.take();
-        let deadline = Instant::now() + limit;
-        loop {
-            if let Some(status) = self.child.try_wait()? {
-                ensure!(status.success(), "{} exited with {status}", self.name);
-                return Ok(());
-            }
-            ensure!(
-                Instant::now() < deadline,
-                "{} did not exit within {limit:?}",
-                self.name
-            );
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
-    }
-}
-
-impl Drop for Peer {
-    fn drop(&mut self) {
-        if matches!(self.child.try_wait(), Ok(None)) {
-            let _ = self.child.kill();
-            let _ = self.child.wait();
-        }
-    }
-}
+/// What the tests here import: the independent peers and the package.
+const MODULES: &[&str] = &["can", "canopen", "grpc_tools", "cangate"];
 
 /// Runs an async scenario on its own runtime, bounded, and panics with its
 /// error.
@@ -270,12 +96,12 @@ fn run(test: &str, scenario: impl std::future::Future<Output = Result<()>>) {
 
 #[test]
 fn python_stubs_match_the_protos() {
-    let Some(python) = python_or_skip("python_stubs_match_the_protos") else {
+    let Some(python) = python_or_skip("python_stubs_match_the_protos", MODULES) else {
         return;
     };
     run("python_stubs_match_the_protos", async {
         let generator = repo().join("python/generate_stubs.py");
-        let mut p = Peer::spawn(&python, &[&generator.to_string_lossy(), "--check"], &[])?;
+        let mut p = Peer::spawn(&python, &generator, &["--check"], &[])?;
         p.expect("stubs up to date", READY_WAIT, |l| {
             l.starts_with("stubs up to date")
         })
@@ -307,7 +133,7 @@ fn std_frame(id: u32, data: &[u8]) -> pb::Frame {
 
 #[test]
 fn python_can_interface_through_attach() {
-    let Some(python) = python_or_skip("python_can_interface_through_attach") else {
+    let Some(python) = python_or_skip("python_can_interface_through_attach", MODULES) else {
         return;
     };
     run(
@@ -332,7 +158,8 @@ async fn python_can_scenario(python: PathBuf) -> Result<()> {
     let peer_script = script("python_can_peer.py");
     let mut p = Peer::spawn(
         &python,
-        &[&peer_script.to_string_lossy()],
+        &peer_script,
+        &[] as &[&str],
         &[
             ("CANGATE_SERVER", format!("http://{}", server.addr)),
             ("CANGATE_TOKEN", TOKEN.into()),
@@ -451,7 +278,7 @@ fn demo_can0() -> Config {
 
 #[test]
 fn python_canopen_local_node_through_attach() {
-    let Some(python) = python_or_skip("python_canopen_local_node_through_attach") else {
+    let Some(python) = python_or_skip("python_canopen_local_node_through_attach", MODULES) else {
         return;
     };
     run("python_canopen_local_node_through_attach", async {
@@ -467,7 +294,7 @@ fn python_canopen_local_node_through_attach() {
 
 #[test]
 fn python_client_api() {
-    let Some(python) = python_or_skip("python_client_api") else {
+    let Some(python) = python_or_skip("python_client_api", MODULES) else {
         return;
     };
     run("python_client_api", async {
@@ -475,7 +302,8 @@ fn python_client_api() {
         let api_script = script("client_api.py");
         let mut p = Peer::spawn(
             &python,
-            &[&api_script.to_string_lossy()],
+            &api_script,
+            &[] as &[&str],
             &[("CANGATE_SERVER", format!("http://{}", server.addr))],
         )?;
         p.expect_line("client api: all checks passed", READY_WAIT)
@@ -498,7 +326,7 @@ fn python_canopen_local_node_through_attach_on_vcan() {
     if let vcan::Plan::Unavailable(reason) = &plan {
         return vcan::skip_or_fail(VCAN_TEST, reason);
     }
-    let Some(python) = python_or_skip(VCAN_TEST) else {
+    let Some(python) = python_or_skip(VCAN_TEST, MODULES) else {
         return;
     };
     match plan {
@@ -675,8 +503,8 @@ async fn local_node_scenario(python: &Path, server: &cangate_server::RunningServ
     let eds = script("all_types.eds");
     let mut dev = Peer::spawn(
         python,
+        &node_script,
         &[
-            &node_script.to_string_lossy(),
             "--interface",
             "cangate",
             "--channel",

@@ -16,14 +16,17 @@
 //! `CI=true`, where it fails instead.
 
 mod common;
+#[path = "common/python_peer.rs"]
+mod python_peer;
+#[path = "common/vcan.rs"]
+mod vcan;
 
 use common::*;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
 const TEST_NAME: &str = "python_client_decodes_rich_errors";
-const PYTHON_ENV: &str = "CANGATE_PYTHON";
 /// Starting python, generating the stubs and four calls (one an SDO
 /// timeout of 200 ms) take a few seconds; a loaded CI runner more.
 const LIMIT: Duration = Duration::from_secs(150);
@@ -46,56 +49,16 @@ id = 10
 name = "absent"
 "#;
 
-fn in_ci() -> bool {
-    std::env::var("CI").is_ok_and(|v| v.eq_ignore_ascii_case("true") || v == "1")
-}
-
-/// Skips with a visible line, or fails under CI.
-fn skip_or_fail(reason: &str) {
-    if in_ci() {
-        panic!("CI=true, so {TEST_NAME} must run, but it cannot: {reason}");
-    }
-    use std::io::Write as _;
-    let _ = writeln!(std::io::stderr(), "SKIPPED {TEST_NAME}: {reason}");
-}
-
-/// The python interpreter that has the gRPC packages.
-fn find_python() -> Result<PathBuf, String> {
-    let python =
-        std::env::var_os(PYTHON_ENV).map_or_else(|| PathBuf::from("python3"), PathBuf::from);
-    let out = Command::new(&python)
-        .args([
-            "-c",
-            "import sys, grpc, grpc_tools, grpc_status, google.rpc.error_details_pb2; \
-             print(sys.executable); print('grpcio', grpc.__version__)",
-        ])
-        .stdin(Stdio::null())
-        .output()
-        .map_err(|e| format!("cannot run {}: {e}", python.display()))?;
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let mut lines = stdout.lines();
-    match (out.status.success(), lines.next()) {
-        (true, Some(exe)) if !exe.is_empty() => {
-            eprintln!("python: {exe} with {}", lines.next().unwrap_or("?"));
-            Ok(PathBuf::from(exe))
-        }
-        _ => Err(format!(
-            "{} cannot import grpc, grpc_tools, grpc_status and google.rpc ({}); install them \
-             with `python3 -m pip install -r tests/python/requirements.txt`",
-            python.display(),
-            String::from_utf8_lossy(&out.stderr)
-                .lines()
-                .last()
-                .unwrap_or("no error output")
-        )),
-    }
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn python_client_decodes_rich_errors() {
-    let python = match find_python() {
-        Ok(p) => p,
-        Err(reason) => return skip_or_fail(&reason),
+    let modules = [
+        "grpc",
+        "grpc_tools",
+        "grpc_status",
+        "google.rpc.error_details_pb2",
+    ];
+    let Some(python) = python_peer::python_or_skip(TEST_NAME, &modules) else {
+        return;
     };
     let server = start_server(CONFIG).await;
     let here = Path::new(env!("CARGO_MANIFEST_DIR"));

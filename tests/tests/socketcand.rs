@@ -20,151 +20,59 @@
 //! canopen the python tests are skipped, except under `CI=true`, where
 //! they fail instead.
 
+#[path = "common/python_peer.rs"]
+mod python_peer;
+#[path = "common/vcan.rs"]
+mod vcan;
+
 use cangate_client::pb;
 use cangate_server::{Config, RunningServer};
 use cangate_tests::*;
-use std::io::{BufRead, BufReader, Write};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdin, Command, Stdio};
 use std::time::Duration;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::sync::mpsc;
 
-const PYTHON_ENV: &str = "CANGATE_PYTHON";
 /// Starting python and importing python-can/canopen takes a second or two;
 /// a loaded CI runner more.
 const PY_WAIT: Duration = Duration::from_secs(60);
 
-fn in_ci() -> bool {
-    std::env::var("CI").is_ok_and(|v| v.eq_ignore_ascii_case("true") || v == "1")
-}
-
-/// The python interpreter with python-can and canopen, or why not (then
-/// the caller skips, or fails under CI).
+/// The python interpreter with python-can and canopen, or `None` after
+/// reporting the skip (a failure under CI).
 fn python(test: &str) -> Option<PathBuf> {
-    let python =
-        std::env::var_os(PYTHON_ENV).map_or_else(|| PathBuf::from("python3"), PathBuf::from);
-    let out = Command::new(&python)
-        .args([
-            "-c",
-            "import sys, can, canopen; print(sys.executable); \
-             print('python-can', can.__version__, 'canopen', canopen.__version__)",
-        ])
-        .stdin(Stdio::null())
-        .output();
-    let reason = match out {
-        Ok(o) if o.status.success() => {
-            let stdout = String::from_utf8_lossy(&o.stdout).to_string();
-            let mut lines = stdout.lines();
-            if let Some(exe) = lines.next().filter(|e| !e.is_empty()) {
-                eprintln!("python: {exe} with {}", lines.next().unwrap_or("?"));
-                return Some(PathBuf::from(exe));
-            }
-            "no output".to_string()
-        }
-        Ok(o) => String::from_utf8_lossy(&o.stderr)
-            .lines()
-            .last()
-            .unwrap_or("no error output")
-            .to_string(),
-        Err(e) => e.to_string(),
-    };
-    let reason = format!(
-        "{} cannot import python-can and canopen ({reason}); install them with \
-         `python3 -m pip install -r tests/python/requirements.txt` and set {PYTHON_ENV}",
-        python.display()
-    );
-    if in_ci() {
-        panic!("CI=true, so {test} must run, but it cannot: {reason}");
-    }
-    let _ = writeln!(std::io::stderr(), "SKIPPED {test}: {reason}");
-    None
+    python_peer::python_or_skip(test, &["can", "canopen"])
 }
 
 /// A running `socketcand_peer.py`: its stdout lines, its stdin.
-struct Peer {
-    child: Child,
-    stdin: Option<ChildStdin>,
-    lines: mpsc::UnboundedReceiver<String>,
-    seen: Vec<String>,
-}
+struct Peer(python_peer::Peer);
 
 impl Peer {
     fn start(python: &Path, addr: SocketAddr, channel: &str, mode: &str, rest: &[&str]) -> Peer {
-        let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/socketcand_peer.py");
-        let mut child = Command::new(python)
-            .arg(script)
-            .arg(addr.ip().to_string())
-            .arg(addr.port().to_string())
-            .arg(channel)
-            .arg(mode)
-            .args(rest)
-            .env("PYTHONDONTWRITEBYTECODE", "1")
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("python starts");
-        let stdout = child.stdout.take().expect("stdout");
-        let (tx, lines) = mpsc::unbounded_channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                eprintln!("peer: {line}");
-                if tx.send(line).is_err() {
-                    return;
-                }
-            }
-        });
-        Peer {
-            stdin: child.stdin.take(),
-            child,
-            lines,
-            seen: Vec::new(),
-        }
+        let (ip, port) = (addr.ip().to_string(), addr.port().to_string());
+        let mut args = vec![ip.as_str(), port.as_str(), channel, mode];
+        args.extend_from_slice(rest);
+        let script = python_peer::script("socketcand_peer.py");
+        Peer(python_peer::Peer::spawn(python, &script, &args, &[]).expect("python starts"))
     }
 
     /// The next line, bounded.
     async fn line(&mut self) -> String {
-        let line = tokio::time::timeout(PY_WAIT, self.lines.recv())
+        self.0
+            .next_line(PY_WAIT)
             .await
-            .unwrap_or_else(|_| panic!("no line from the peer in time; so far {:?}", self.seen))
-            .unwrap_or_else(|| panic!("the peer ended early; its lines: {:?}", self.seen));
-        self.seen.push(line.clone());
-        line
+            .expect("a line from the peer")
     }
 
     /// Lines up to (without) `DONE`, which must come.
     async fn rest(&mut self) -> Vec<String> {
-        let mut out = Vec::new();
-        loop {
-            let l = self.line().await;
-            if l == "DONE" {
-                return out;
-            }
-            out.push(l);
-        }
+        self.0
+            .lines_until("DONE", PY_WAIT)
+            .await
+            .expect("the peer's lines up to DONE")
     }
 
     fn say(&mut self, line: &str) {
-        let stdin = self.stdin.as_mut().expect("stdin");
-        writeln!(stdin, "{line}").expect("write to the peer");
-        stdin.flush().expect("flush");
-    }
-}
-
-impl Drop for Peer {
-    fn drop(&mut self) {
-        drop(self.stdin.take());
-        // Bounded: the scenarios end by themselves; a hung one is killed.
-        for _ in 0..100 {
-            if let Ok(Some(_)) = self.child.try_wait() {
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        self.0.say(line).expect("write to the peer");
     }
 }
 
