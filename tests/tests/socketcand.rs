@@ -508,3 +508,85 @@ async fn malformed_input_is_answered_and_the_endpoint_goes_on() {
     assert_eq!(r.element().await, None);
     server.wait(WAIT).await.expect("clean shutdown");
 }
+
+/// The per-client raw frame budget and the connection limit hold for
+/// socketcand clients as for gRPC ones: frames beyond the budget are
+/// answered with an error line naming the limit and never reach the bus;
+/// a connection beyond `max_connections` is told why and closed; the
+/// others go on.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn frame_budget_and_connection_limit_apply_to_socketcand_clients() {
+    let text = format!(
+        "listen = \"127.0.0.1:0\"\n{ONE_BUS}[socketcand]\nlisten = \"127.0.0.1:0\"\n\
+         max_connections = 2\n\
+         [security.limits]\nraw_frames_per_second_per_client = 1\nraw_frame_burst = 10\n"
+    );
+    let server = cangate_server::start(&Config::from_toml(&text).unwrap())
+        .await
+        .expect("server starts");
+    let addr = server.socketcand_addr.expect("socketcand listens");
+    let mut c = client(&server).await;
+    let (mut watch, mut pending) =
+        open_stream(&mut c, stream_request("can0", vec![exact(0x123, false)])).await;
+
+    let mut r = Raw::connect(addr).await;
+    assert_eq!(r.element().await.as_deref(), Some("< hi >"));
+    r.send(b"< open can0 >< rawmode >").await;
+    assert_eq!(r.element().await.as_deref(), Some("< ok >"));
+    assert_eq!(r.element().await.as_deref(), Some("< ok >"));
+    // 30 frames at once against a burst of 10 (and 1 more per second).
+    let sends: String = (0..30).map(|i| format!("< send 123 1 {i:02x} >")).collect();
+    r.send(sends.as_bytes()).await;
+    r.send(b"< echo >").await;
+    let mut refused = 0;
+    loop {
+        let e = r.element().await.expect("an answer");
+        if e == "< echo >" {
+            break;
+        }
+        assert!(
+            e.starts_with("< error ") && e.contains("raw_frames_per_second_per_client = 1"),
+            "{e}"
+        );
+        refused += 1;
+    }
+    // The burst, and what one per second refilled meanwhile (a loaded
+    // machine may take a few seconds over the 30).
+    assert!((15..=20).contains(&refused), "{refused} refused");
+    let sent = 30 - refused;
+    let frames = read_frames(&mut watch, &mut pending, sent).await;
+    assert_eq!(frames.len(), sent);
+    // The burst went first, in order; whatever went later kept its order.
+    let data: Vec<u8> = frames.iter().map(|f| f.data[0]).collect();
+    assert_eq!(data[..10], (0..10).collect::<Vec<u8>>());
+    assert!(data.windows(2).all(|w| w[0] < w[1]), "{data:?}");
+    // Nothing beyond them reached the bus.
+    let more = tokio::time::timeout(Duration::from_millis(300), watch.message()).await;
+    if let Ok(Ok(Some(m))) = more {
+        assert!(
+            !m.events
+                .iter()
+                .any(|e| matches!(e.event, Some(pb::stream_event::Event::Frame(_)))),
+            "a refused frame reached the bus: {m:?}"
+        );
+    }
+
+    // A second connection fits, a third is told why and closed.
+    let mut second = Raw::connect(addr).await;
+    assert_eq!(second.element().await.as_deref(), Some("< hi >"));
+    let mut third = Raw::connect(addr).await;
+    assert_eq!(
+        third.element().await.as_deref(),
+        Some("< error too many connections (max_connections = 2) >")
+    );
+    assert_eq!(
+        third.element().await,
+        None,
+        "the third connection is closed"
+    );
+    // The first one goes on.
+    r.send(b"< echo >").await;
+    assert_eq!(r.element().await.as_deref(), Some("< echo >"));
+    drop(second);
+    server.shutdown();
+}
