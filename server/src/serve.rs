@@ -3,7 +3,8 @@
 //! Prometheus endpoint) in front of the gateway's runtime, and the running
 //! server's shutdown.
 //!
-//! The layers, outermost first: CORS (only for `[web] allowed_origins`),
+//! The layers, outermost first: the dashboard's static files (`GET`/`HEAD`
+//! only, [`crate::web`]), CORS (only for `[web] allowed_origins`),
 //! gRPC-Web translation, metrics, security, the services. gRPC-Web is
 //! translated before the security layer, so a browser's call is checked
 //! exactly as a gRPC call is (token, roles, limits, audit, message size)
@@ -275,6 +276,7 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
             // Browsers speak gRPC-Web over HTTP/1.1 (over TLS too, as
             // long as the certificate offers no h2 ALPN to them).
             .accept_http1(true)
+            .layer(crate::web::StaticLayer::new(config.web.enabled))
             .layer(tower::util::option_layer(cors_layer(&config.web)))
             .layer(tonic_web::GrpcWebLayer::new())
             .layer(crate::metrics::RpcMetricsLayer)

@@ -3,7 +3,8 @@
 //! and `application/grpc-web-text` bodies, the status in the trailer frame
 //! (or in the headers of a trailers-only answer). Calls pass the same
 //! security layer as gRPC (tokens, roles); CORS answers only the origins
-//! `[web] allowed_origins` names.
+//! `[web] allowed_origins` names. The dashboard's files are served at `/`
+//! beside the API.
 
 use base64::Engine;
 use base64::engine::general_purpose::STANDARD as BASE64;
@@ -490,5 +491,62 @@ async fn cors_answers_the_configured_origins_only() {
     let resp = preflight(server.addr, hmi).await;
     assert_eq!(resp.header("access-control-allow-origin"), None);
     assert!(resp.status >= 400, "{}", resp.status);
+    server.shutdown();
+}
+
+#[tokio::test]
+async fn the_dashboard_is_served_beside_the_api() {
+    let server = start_server(ONE_BUS).await;
+    let mut page = http(server.addr, "GET", "/", &[], &[]).await;
+    assert_eq!(page.status, 200);
+    assert_eq!(
+        page.header("content-type"),
+        Some("text/html; charset=utf-8")
+    );
+    let csp = page
+        .header("content-security-policy")
+        .expect("a Content-Security-Policy")
+        .to_string();
+    assert!(csp.contains("script-src 'self'"), "{csp}");
+    assert!(csp.contains("connect-src 'self'"), "{csp}");
+    let html = String::from_utf8(page.body().await).unwrap();
+    assert!(html.contains("<script defer src=\"/app.js\">"), "{html}");
+    for (path, ct) in [
+        ("/app.js", "text/javascript; charset=utf-8"),
+        ("/app.css", "text/css; charset=utf-8"),
+    ] {
+        let mut r = http(server.addr, "GET", path, &[], &[]).await;
+        assert_eq!(r.status, 200, "{path}");
+        assert_eq!(r.header("content-type"), Some(ct), "{path}");
+        assert!(!r.body().await.is_empty(), "{path}");
+    }
+    // HEAD answers the headers only.
+    let head = http(server.addr, "HEAD", "/app.js", &[], &[]).await;
+    assert_eq!(head.status, 200);
+    // Unknown paths, gRPC paths included, are 404 for GET.
+    for path in ["/nope", "/app.js.map", LIST_BUSES] {
+        let mut r = http(server.addr, "GET", path, &[], &[]).await;
+        assert_eq!(r.status, 404, "{path}");
+        r.body().await;
+    }
+    // The API still answers beside the files.
+    let (resp, frames) = unary(
+        server.addr,
+        LIST_BUSES,
+        PROTO,
+        &pb::ListBusesRequest {},
+        &[],
+    )
+    .await;
+    assert_eq!(grpc_status(&resp, &frames).0, 0);
+    server.shutdown();
+
+    // [web] enabled = false: no files, the API as before.
+    let server = start_server(&format!("[web]\nenabled = false\n{ONE_BUS}")).await;
+    let mut r = http(server.addr, "GET", "/", &[], &[]).await;
+    assert_eq!(r.status, 404);
+    r.body().await;
+    let (resp, frames) = unary(server.addr, LIST_BUSES, TEXT, &pb::ListBusesRequest {}, &[]).await;
+    assert_eq!(grpc_status(&resp, &frames).0, 0);
     server.shutdown();
 }
