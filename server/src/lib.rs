@@ -9,7 +9,8 @@
 //!    conversion, the stream forwarding and the one mapping of errors to
 //!    gRPC statuses (`grpc::error::ApiError` exists only there);
 //!    [`socketcand`] is a second edge beside gRPC (the socketcand text
-//!    protocol for tools that speak it), under the same security.
+//!    protocol for tools that speak it), under the same security; [`web`]
+//!    serves the embedded dashboard's static files on the gRPC listener.
 //! 2. **Runtime**: [`gateway`] is the registry that starts and holds the
 //!    buses and everything on them: the CANopen masters ([`canopen`]), the
 //!    axis layer ([`axes`]) and its runners (the CiA 402 task of each bus,
@@ -40,6 +41,7 @@ pub mod security;
 pub mod serve;
 pub mod simulation;
 pub mod socketcand;
+pub mod web;
 
 pub use config::Config;
 pub use gateway::Gateway;

@@ -1,6 +1,14 @@
 //! The API edge: the gRPC server (services, health, reflection, the
-//! security and metrics layers, the Prometheus endpoint) in front of the
-//! gateway's runtime, and the running server's shutdown.
+//! security and metrics layers, gRPC-Web and CORS for browsers, the
+//! Prometheus endpoint) in front of the gateway's runtime, and the running
+//! server's shutdown.
+//!
+//! The layers, outermost first: the dashboard's static files (`GET`/`HEAD`
+//! only, [`crate::web`]), CORS (only for `[web] allowed_origins`),
+//! gRPC-Web translation, metrics, security, the services. gRPC-Web is
+//! translated before the security layer, so a browser's call is checked
+//! exactly as a gRPC call is (token, roles, limits, audit, message size)
+//! and its refusal travels back as a gRPC-Web status.
 //!
 //! Arrows run one way: this module uses [`crate::grpc`],
 //! [`crate::security`], [`crate::metrics`] and the runtime
@@ -122,6 +130,45 @@ impl RunningServer {
     }
 }
 
+/// CORS for the origins `[web] allowed_origins` names; none (no layer)
+/// when it names none: the gateway's own page is same-origin. A preflight
+/// from any other origin is answered without `access-control-allow-*`
+/// headers, which browsers take as a refusal.
+fn cors_layer(web: &crate::config::WebConfig) -> Option<tower_http::cors::CorsLayer> {
+    use http::{HeaderName, HeaderValue, Method};
+    use tower_http::cors::{AllowOrigin, CorsLayer};
+    if web.allowed_origins.is_empty() {
+        return None;
+    }
+    let origins: Vec<HeaderValue> = web
+        .allowed_origins
+        .iter()
+        // Validated already ([web] allowed_origins holds origins only).
+        .filter_map(|o| HeaderValue::from_str(o).ok())
+        .collect();
+    let header = HeaderName::from_static;
+    Some(
+        CorsLayer::new()
+            .allow_origin(AllowOrigin::list(origins))
+            .allow_methods([Method::POST])
+            .allow_headers([
+                http::header::AUTHORIZATION,
+                http::header::CONTENT_TYPE,
+                header("x-grpc-web"),
+                header("x-user-agent"),
+                header("grpc-timeout"),
+                header("connect-protocol-version"),
+                header("connect-timeout-ms"),
+            ])
+            .expose_headers([
+                header("grpc-status"),
+                header("grpc-message"),
+                header("grpc-status-details-bin"),
+            ])
+            .max_age(Duration::from_secs(600)),
+    )
+}
+
 /// Opens the buses, binds the listen address (`config.listen`; port 0 picks
 /// a free port) and serves the gRPC API until the shutdown token fires.
 pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
@@ -226,6 +273,12 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
     let server = tokio::spawn(
         tonic::transport::Server::builder()
             .tcp_nodelay(true)
+            // Browsers speak gRPC-Web over HTTP/1.1 (over TLS too, as
+            // long as the certificate offers no h2 ALPN to them).
+            .accept_http1(true)
+            .layer(crate::web::StaticLayer::new(config.web.enabled))
+            .layer(tower::util::option_layer(cors_layer(&config.web)))
+            .layer(tonic_web::GrpcWebLayer::new())
             .layer(crate::metrics::RpcMetricsLayer)
             .layer(security.clone())
             .add_service(health_service)

@@ -23,6 +23,7 @@ const LAYERS: &[(&str, u8)] = &[
     ("grpc", 2),
     ("serve", 2),
     ("socketcand", 2),
+    ("web", 2),
 ];
 
 fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {

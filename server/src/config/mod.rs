@@ -23,6 +23,7 @@ mod handwheel;
 mod security;
 mod socketcand;
 mod validate;
+mod web;
 
 pub use axis::*;
 pub use bus::*;
@@ -31,6 +32,7 @@ pub use cansmc::*;
 pub use handwheel::*;
 pub use security::*;
 pub use socketcand::*;
+pub use web::*;
 
 /// The embedded demo configuration, used when no configuration file is given.
 pub const DEMO_CONFIG: &str = include_str!("../../../deploy/demo.toml");
@@ -45,6 +47,7 @@ const ENV_KEYS: &[&str] = &[
     "CANGATE_GRPC_RT_PRIORITY",
     "CANGATE_SECURITY__",
     "CANGATE_SOCKETCAND__",
+    "CANGATE_WEB__",
     "CANGATE_LOG__",
 ];
 
@@ -93,6 +96,9 @@ pub struct Config {
     /// The socketcand listener (`[socketcand]`); absent: off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub socketcand: Option<SocketcandConfig>,
+    /// Browser access: gRPC-Web CORS origins and the dashboard (`[web]`).
+    #[serde(default)]
+    pub web: WebConfig,
     /// Security settings.
     #[serde(default)]
     pub security: SecurityConfig,

@@ -7,6 +7,7 @@ impl Config {
     /// Checks what serde cannot: unique names, sensible values.
     pub fn validate(&self) -> Result<(), ConfigError> {
         self.security.validate().map_err(ConfigError::Invalid)?;
+        self.web.validate().map_err(ConfigError::Invalid)?;
         // A gateway that moves axes must not be reachable from the network
         // without authentication unless someone said so explicitly.
         if !self.listen.ip().is_loopback()

@@ -1,0 +1,249 @@
+//! The dashboard in a real browser: Debian's headless Chromium, driven by
+//! `web/tests/dashboard.mjs` (puppeteer-core from `web/node_modules`),
+//! against the real demo server in-process on port 0. The page's clicks
+//! are checked on the page by the script and over gRPC here; screenshots
+//! go to `target/web-screenshots/`.
+//!
+//! Needs `/usr/bin/chromium` (or `CANGATE_CHROMIUM`), `node`, and
+//! `web/node_modules` (`scripts/web-build`); `scripts/test` installs them.
+//! Outside CI a missing one skips the test, saying why; under `CI` it
+//! fails.
+
+use cangate_client::{ConnectOptions, pb};
+use cangate_server::{Config, RunningServer};
+use cangate_tests::*;
+use std::path::{Path, PathBuf};
+use std::process::Stdio;
+use std::time::Duration;
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn chromium() -> PathBuf {
+    std::env::var_os("CANGATE_CHROMIUM").map_or_else(|| "/usr/bin/chromium".into(), PathBuf::from)
+}
+
+/// Why the browser test cannot run here, if it cannot.
+fn missing() -> Option<String> {
+    if !chromium().exists() {
+        return Some(format!(
+            "{} not found (apt-get install chromium; scripts/test does)",
+            chromium().display()
+        ));
+    }
+    if !repo().join("web/node_modules/puppeteer-core").exists() {
+        return Some("web/node_modules missing (run scripts/web-build)".into());
+    }
+    if std::process::Command::new("node")
+        .arg("--version")
+        .output()
+        .is_err()
+    {
+        return Some("node not found".into());
+    }
+    None
+}
+
+/// Skips (outside CI) or fails (under CI) when something is missing.
+fn can_run(test: &str) -> bool {
+    match missing() {
+        None => true,
+        Some(why) if std::env::var_os("CI").is_some() => panic!("{test}: {why}"),
+        Some(why) => {
+            eprintln!("skipping {test}: {why}");
+            false
+        }
+    }
+}
+
+async fn demo_server() -> RunningServer {
+    let mut c = Config::demo();
+    c.listen = "127.0.0.1:0".parse().unwrap();
+    cangate_server::start(&c).await.expect("server starts")
+}
+
+fn screenshots() -> PathBuf {
+    let dir = repo().join("target/web-screenshots");
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Runs the browser script; `on_need` answers its requests. Returns the
+/// steps it reported.
+async fn drive<F, Fut>(args: &[String], mut on_need: F) -> Vec<String>
+where
+    F: FnMut(String) -> Fut,
+    Fut: std::future::Future<Output = ()>,
+{
+    let mut child = tokio::process::Command::new("node")
+        .arg(repo().join("web/tests/dashboard.mjs"))
+        .args(args)
+        .env("CANGATE_CHROMIUM", chromium())
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .kill_on_drop(true)
+        .spawn()
+        .expect("node starts");
+    let mut stdin = child.stdin.take().unwrap();
+    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
+    let mut stderr = child.stderr.take().unwrap();
+    let mut steps = Vec::new();
+    let run = async {
+        while let Some(line) = lines.next_line().await.unwrap() {
+            eprintln!("browser: {line}");
+            if let Some(need) = line.strip_prefix("need ") {
+                on_need(need.to_string()).await;
+                stdin.write_all(b"ok\n").await.unwrap();
+            } else if let Some(step) = line.strip_prefix("step ") {
+                steps.push(step.to_string());
+            }
+        }
+    };
+    tokio::time::timeout(Duration::from_secs(120), run)
+        .await
+        .expect("the browser script finished in time");
+    let status = child.wait().await.unwrap();
+    let mut err = String::new();
+    tokio::io::AsyncReadExt::read_to_string(&mut stderr, &mut err)
+        .await
+        .unwrap();
+    assert!(status.success(), "browser script failed: {err}");
+    steps
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
+    if !can_run("the_dashboard_moves_jogs_stops_and_shows_frames") {
+        return;
+    }
+    let server = demo_server().await;
+    let c = client(&server).await;
+    let url = format!("http://{}/", server.addr);
+    let shots = screenshots();
+    let steps = drive(&["demo".into(), url, shots.display().to_string()], |need| {
+        let c = c.clone();
+        async move {
+            assert_eq!(need, "send-frame");
+            c.bus_client()
+                .send_frames(pb::SendFramesRequest {
+                    bus: "can0".into(),
+                    frames: vec![pb::Frame {
+                        id: 0x7E5,
+                        data: vec![0xC0, 0xFF, 0xEE],
+                        ..Default::default()
+                    }],
+                })
+                .await
+                .expect("frame sent over gRPC");
+        }
+    })
+    .await;
+    let names: Vec<&str> = steps.iter().map(|s| s.split(' ').next().unwrap()).collect();
+    assert_eq!(
+        names,
+        [
+            "axes-listed",
+            "x-moved",
+            "y-jog",
+            "stop-all",
+            "frame-shown",
+            "no-console-errors"
+        ]
+    );
+    // What the page did, seen over gRPC: Y came to rest after the jog,
+    // and X was stopped by STOP ALL on its way from 12.5 to -150 (the move
+    // to 12.5 was checked on the page; the stop moved X on since).
+    let mut axes = c.axes_client();
+    for name in ["X", "Y"] {
+        let a = axes
+            .get_axis(pb::GetAxisRequest { axis: name.into() })
+            .await
+            .expect("GetAxis")
+            .into_inner();
+        let st = a.status.expect("status");
+        assert_eq!(st.velocity, 0.0, "{name} at rest");
+        assert_eq!(st.activity, pb::AxisActivity::Idle as i32, "{name} idle");
+        assert_eq!(st.state, pb::DriveState::OperationEnabled as i32);
+    }
+    let x = axes
+        .get_axis(pb::GetAxisRequest { axis: "X".into() })
+        .await
+        .unwrap()
+        .into_inner()
+        .status
+        .unwrap()
+        .position;
+    let on_page: f64 = steps[3]
+        .strip_prefix("stop-all x=")
+        .and_then(|v| v.parse().ok())
+        .expect("the page reports where X stopped");
+    assert!((x - on_page).abs() < 1e-3, "page {on_page}, gRPC {x}");
+    assert!(x < 12.5 && x > -140.0, "{x}");
+    for f in ["axes.png", "axes-x-moved.png", "buses.png"] {
+        assert!(shots.join(f).exists(), "{f}");
+    }
+    server.shutdown();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_gateway_with_tokens_asks_for_one_and_honours_the_role() {
+    if !can_run("a_gateway_with_tokens_asks_for_one_and_honours_the_role") {
+        return;
+    }
+    let tokens = format!(
+        "[[security.tokens]]\nname = \"wall-screen\"\nrole = \"viewer\"\nsha256 = \"{}\"\n",
+        cangate_client::hash_token("viewer-secret")
+    );
+    // The token tables go after the demo's own [security] keys.
+    let server = {
+        let mut c = Config::demo();
+        let extra = Config::from_toml(&format!(
+            "{tokens}[[bus]]\nname = \"x\"\nbackend = \"virtual\"\n"
+        ))
+        .expect("token configuration is valid");
+        c.security.tokens = extra.security.tokens;
+        c.listen = "127.0.0.1:0".parse().unwrap();
+        cangate_server::start(&c).await.expect("server starts")
+    };
+    let url = format!("http://{}/", server.addr);
+    let steps = drive(
+        &[
+            "tokens".into(),
+            url,
+            screenshots().display().to_string(),
+            "viewer-secret".into(),
+        ],
+        |need| async move { panic!("unexpected request {need}") },
+    )
+    .await;
+    assert_eq!(
+        steps,
+        [
+            "refused-without-token",
+            "accepted-with-token",
+            "role-honoured",
+            "no-console-errors"
+        ]
+    );
+    // Nobody took control of X through the page.
+    let c = cangate_client::connect_with(
+        &format!("http://{}", server.addr),
+        &ConnectOptions {
+            token: Some("viewer-secret".into()),
+            ..Default::default()
+        },
+    )
+    .await
+    .unwrap();
+    let x = c
+        .axes_client()
+        .get_axis(pb::GetAxisRequest { axis: "X".into() })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(x.status.unwrap().controlled_by, "");
+    server.shutdown();
+}

@@ -1,0 +1,95 @@
+// The gateway's API over gRPC-Web on the page's own origin, with the
+// user's bearer token, and the page's one place for errors.
+import { Code, ConnectError, createClient, type Interceptor } from "@connectrpc/connect";
+import { createGrpcWebTransport } from "@connectrpc/connect-web";
+import { Axes } from "./gen/cangate/v1/axes_pb";
+import { Bus } from "./gen/cangate/v1/bus_pb";
+
+const TOKEN_KEY = "cangate-token";
+let token = sessionStorage.getItem(TOKEN_KEY) ?? "";
+
+/** Sets the token sent with every call (kept for this tab only). */
+export function setToken(t: string): void {
+  token = t.trim();
+  if (token) sessionStorage.setItem(TOKEN_KEY, token);
+  else sessionStorage.removeItem(TOKEN_KEY);
+}
+
+const auth: Interceptor = (next) => async (req) => {
+  if (token) req.header.set("authorization", `Bearer ${token}`);
+  return next(req);
+};
+
+const transport = createGrpcWebTransport({
+  baseUrl: location.origin,
+  useBinaryFormat: true,
+  interceptors: [auth],
+});
+
+export const bus = createClient(Bus, transport);
+export const axes = createClient(Axes, transport);
+
+/** The connection line in the header and the notice bar. */
+export function showError(what: string, e: unknown): void {
+  const err = ConnectError.from(e);
+  if (err.code === Code.Canceled) return;
+  const conn = document.getElementById("conn")!;
+  const notice = document.getElementById("notice")!;
+  if (err.code === Code.Unauthenticated) {
+    conn.textContent = "token needed";
+    conn.classList.add("bad");
+    notice.textContent = `The gateway needs a token: enter it above (${err.rawMessage}).`;
+  } else if (err.code === Code.PermissionDenied) {
+    notice.textContent = `${what}: not allowed for this token's role (${err.rawMessage})`;
+  } else {
+    notice.textContent = `${what}: ${Code[err.code]}: ${err.rawMessage}`;
+  }
+  notice.hidden = false;
+}
+
+/** Marks the gateway reachable and authorised. */
+export function showConnected(): void {
+  const conn = document.getElementById("conn")!;
+  conn.textContent = "connected";
+  conn.classList.remove("bad");
+}
+
+export function clearNotice(): void {
+  document.getElementById("notice")!.hidden = true;
+}
+
+/**
+ * Runs a server stream until `signal` aborts, reopening it a second after
+ * it fails (an Unauthenticated stream waits for a new token instead: the
+ * caller restarts everything then).
+ */
+export async function keepStreaming<T>(
+  what: string,
+  signal: AbortSignal,
+  open: (signal: AbortSignal) => AsyncIterable<T>,
+  onMessage: (m: T) => void,
+): Promise<void> {
+  while (!signal.aborted) {
+    try {
+      for await (const m of open(signal)) {
+        showConnected();
+        onMessage(m);
+      }
+    } catch (e) {
+      if (signal.aborted) return;
+      showError(what, e);
+      if (ConnectError.from(e).code === Code.Unauthenticated) return;
+    }
+    await new Promise((r) => setTimeout(r, 1000));
+  }
+}
+
+export function el<K extends keyof HTMLElementTagNameMap>(
+  tag: K,
+  props: Partial<HTMLElementTagNameMap[K]> = {},
+  ...children: (Node | string)[]
+): HTMLElementTagNameMap[K] {
+  const e = Object.assign(document.createElement(tag), props);
+  e.append(...children);
+  return e;
+}

@@ -1,0 +1,233 @@
+// Axes: live state from one StreamAxisState stream, control leases
+// (acquired, renewed with RenewControl, released), enable/disable, move,
+// hold-to-jog (a repeated Jog while the button is held; released, left,
+// window blurred or tab hidden: Stop), stop, and the always-visible
+// stop-all (StopAxes, which needs no lease).
+import { AxisActivity, DriveState, type Axis, type AxisStatus } from "./gen/cangate/v1/axes_pb";
+import { axes, clearNotice, el, keepStreaming, showError } from "./api";
+
+interface Row {
+  axis: Axis;
+  tr: HTMLTableRowElement;
+  cells: Record<string, HTMLTableCellElement>;
+  leaseButtons: HTMLButtonElement[];
+  acquire: HTMLButtonElement;
+  target: HTMLInputElement;
+}
+
+const rows = new Map<string, Row>();
+/** Leases this page holds, by axis. */
+const leases = new Map<string, { lease: string; timer: number }>();
+let names: string[] = [];
+let jog: { axis: string; timer: number } | null = null;
+
+const enumName = (e: Record<number, string>, v: number) =>
+  (e[v] ?? String(v)).toLowerCase().replace(/_/g, " ");
+
+async function run(what: string, f: () => Promise<unknown>): Promise<boolean> {
+  try {
+    await f();
+    clearNotice();
+    return true;
+  } catch (e) {
+    showError(what, e);
+    return false;
+  }
+}
+
+function options(name: string) {
+  return { lease: leases.get(name)?.lease ?? "", wait: false, waitTimeoutMs: 0 };
+}
+
+function setLeaseState(name: string): void {
+  const row = rows.get(name);
+  if (!row) return;
+  const held = leases.has(name);
+  row.acquire.textContent = held ? "Release" : "Acquire";
+  for (const b of row.leaseButtons) {
+    b.disabled = !held;
+    b.title = held ? "" : "acquire control of the axis first";
+  }
+}
+
+function dropLease(name: string): void {
+  const l = leases.get(name);
+  if (l) clearInterval(l.timer);
+  leases.delete(name);
+  setLeaseState(name);
+}
+
+async function toggleControl(name: string): Promise<void> {
+  const held = leases.get(name);
+  if (held) {
+    dropLease(name);
+    await run(`release ${name}`, () => axes.releaseControl({ lease: held.lease }));
+    return;
+  }
+  await run(`acquire ${name}`, async () => {
+    const l = await axes.acquireControl({ axes: [name], ttlMs: 3000, clientName: "dashboard" });
+    const timer = window.setInterval(async () => {
+      try {
+        await axes.renewControl({ lease: l.lease });
+      } catch (e) {
+        dropLease(name);
+        showError(`lease of ${name}`, e);
+      }
+    }, 1000);
+    leases.set(name, { lease: l.lease, timer });
+    setLeaseState(name);
+  });
+}
+
+function stopJog(): void {
+  if (!jog) return;
+  const { axis, timer } = jog;
+  jog = null;
+  clearInterval(timer);
+  void run(`stop ${axis}`, () => axes.stop({ axis }));
+}
+
+function startJog(row: Row, sign: number): void {
+  stopJog();
+  const name = row.axis.name;
+  const velocity = sign * row.axis.maxVelocity * 0.2;
+  const send = () => axes.jog({ axis: name, velocity, acceleration: 0, options: options(name) });
+  // Re-armed well within the dead-man time, so one late call does not
+  // stop the axis; the gateway stops it when the calls stop.
+  const period = Math.max(50, Math.floor((row.axis.jogDeadmanMs || 500) / 3));
+  const timer = window.setInterval(() => {
+    send().catch((e) => {
+      showError(`jog ${name}`, e);
+      stopJog();
+    });
+  }, period);
+  jog = { axis: name, timer };
+  void run(`jog ${name}`, send);
+}
+
+function button(label: string, cmd: string, onClick: () => void): HTMLButtonElement {
+  const b = el("button", { type: "button", textContent: label });
+  b.dataset.cmd = cmd;
+  b.addEventListener("click", onClick);
+  return b;
+}
+
+function jogButton(row: () => Row, label: string, sign: number): HTMLButtonElement {
+  const b = el("button", { type: "button", textContent: label, className: "jog" });
+  b.dataset.cmd = sign < 0 ? "jog-minus" : "jog-plus";
+  b.addEventListener("pointerdown", (e) => {
+    if (b.disabled) return;
+    b.setPointerCapture(e.pointerId);
+    startJog(row(), sign);
+  });
+  for (const ev of ["pointerup", "pointercancel", "lostpointercapture"]) {
+    b.addEventListener(ev, stopJog);
+  }
+  return b;
+}
+
+function buildRow(axis: Axis): Row {
+  const name = axis.name;
+  const cell = (cls: string) => el("td", { className: cls });
+  const cells: Record<string, HTMLTableCellElement> = {
+    state: cell("state"),
+    activity: cell("activity"),
+    position: cell("num position"),
+    velocity: cell("num velocity"),
+    ferr: cell("num ferr"),
+    control: cell("control"),
+    fault: cell("fault"),
+  };
+  const target = el("input", { type: "number", step: "any", value: "0" });
+  target.setAttribute("aria-label", `${name} target`);
+  target.dataset.field = "target";
+  const getRow = () => rows.get(name)!;
+  const opts = () => options(name);
+  const enable = button("Enable", "enable", () => run(`enable ${name}`, () => axes.enable({ axis: name, options: opts() })));
+  const disable = button("Disable", "disable", () => run(`disable ${name}`, () => axes.disable({ axis: name, options: opts() })));
+  const move = button("Move", "move", () =>
+    run(`move ${name}`, () =>
+      axes.move({ axis: name, target: Number(target.value), relative: false, velocity: 0, acceleration: 0, options: opts() }),
+    ),
+  );
+  const jogMinus = jogButton(getRow, "◀ Jog", -1);
+  const jogPlus = jogButton(getRow, "Jog ▶", 1);
+  const stop = button("Stop", "stop", () => run(`stop ${name}`, () => axes.stop({ axis: name })));
+  const acquire = button("Acquire", "acquire", () => void toggleControl(name));
+  const tr = el(
+    "tr",
+    {},
+    el("td", {}, `${name} (${axis.unit})`),
+    cells.state,
+    cells.activity,
+    cells.position,
+    cells.velocity,
+    cells.ferr,
+    cells.control,
+    cells.fault,
+    el("td", { className: "cmds" }, acquire, enable, disable, target, move, jogMinus, jogPlus, stop),
+  );
+  tr.dataset.axis = name;
+  return { axis, tr, cells, leaseButtons: [enable, disable, move, jogMinus, jogPlus], acquire, target };
+}
+
+function update(s: AxisStatus): void {
+  const row = rows.get(s.axis);
+  if (!row) return;
+  row.cells.state.textContent = enumName(DriveState, s.state);
+  row.cells.activity.textContent = enumName(AxisActivity, s.activity);
+  row.cells.position.textContent = s.position.toFixed(3);
+  row.cells.velocity.textContent = s.velocity.toFixed(3);
+  row.cells.ferr.textContent = s.followingError.toFixed(4);
+  row.cells.control.textContent = leases.has(s.axis) ? "this page" : s.controlledBy || "—";
+  row.cells.fault.textContent = s.faultText;
+  row.tr.dataset.state = enumName(DriveState, s.state);
+  row.tr.dataset.activity = enumName(AxisActivity, s.activity);
+}
+
+/** Stops every axis (no lease needed). */
+export async function stopAll(): Promise<void> {
+  stopJog();
+  if (names.length === 0) return;
+  await run("stop all", () => axes.stopAxes({ axes: names, quick: false, wait: false }));
+}
+
+/** Lists the axes and streams their state until `signal` aborts. */
+export async function startAxes(signal: AbortSignal): Promise<void> {
+  for (const name of [...leases.keys()]) dropLease(name);
+  let list: Axis[];
+  try {
+    list = (await axes.listAxes({}, { signal })).axes;
+  } catch (e) {
+    showError("axes", e);
+    return;
+  }
+  rows.clear();
+  names = list.map((a) => a.name);
+  const tbody = document.querySelector("#axes tbody")!;
+  tbody.replaceChildren();
+  for (const a of list) {
+    const row = buildRow(a);
+    rows.set(a.name, row);
+    tbody.append(row.tr);
+    setLeaseState(a.name);
+    if (a.status) update(a.status);
+  }
+  void keepStreaming(
+    "axis stream",
+    signal,
+    (sig) => axes.streamAxisState({ axes: [], changesOnly: true }, { signal: sig }),
+    (u) => {
+      if (u.update.case === "status") update(u.update.value);
+    },
+  );
+}
+
+export function initAxes(): void {
+  // The dead-man side of the page: a held jog ends when the page loses
+  // the user's attention.
+  window.addEventListener("blur", stopJog);
+  document.addEventListener("visibilitychange", () => {
+    if (document.hidden) stopJog();
+  });
+}

@@ -1,0 +1,153 @@
+// Buses: state and counters (polled), and a live frame view of one bus
+// (one server stream) that coalesces rendering to animation frames, shows
+// the rate, can pause, and shows frames the gateway reports lost.
+import { BusState, type BusInfo, type Frame } from "./gen/cangate/v1/bus_pb";
+import { bus, el, keepStreaming, showConnected, showError } from "./api";
+
+const MAX_LINES = 500;
+let lines: string[] = [];
+let received = 0;
+let lost = 0n;
+let paused = false;
+let renderPending = false;
+let selected = "";
+let streamAbort: AbortController | null = null;
+let parent: AbortSignal | null = null;
+
+function hex(n: number, width: number): string {
+  return n.toString(16).toUpperCase().padStart(width, "0");
+}
+
+/** A frame as candump prints it: `can0  123   [2]  DE AD`. */
+export function candump(name: string, f: Frame): string {
+  const id = f.extended ? hex(f.id, 8) : hex(f.id, 3).padEnd(8, " ");
+  if (f.remote) return `${name}  ${id}   [${f.remoteDlc}]  remote request`;
+  const len = f.fd ? `[${String(f.data.length).padStart(2, "0")}]` : `[${f.data.length}]`;
+  const data = Array.from(f.data, (b) => hex(b, 2)).join(" ");
+  return `${name}  ${id}   ${len}  ${data}`;
+}
+
+function render(): void {
+  renderPending = false;
+  const pre = document.getElementById("frames")!;
+  pre.textContent = lines.join("\n");
+  pre.scrollTop = pre.scrollHeight;
+}
+
+function scheduleRender(): void {
+  if (renderPending || paused) return;
+  renderPending = true;
+  requestAnimationFrame(render);
+}
+
+function openFrames(): void {
+  streamAbort?.abort();
+  if (!parent || !selected) return;
+  const ctl = new AbortController();
+  parent.addEventListener("abort", () => ctl.abort(), { once: true });
+  streamAbort = ctl;
+  lines = [];
+  lost = 0n;
+  document.getElementById("frames-lost")!.hidden = true;
+  const name = selected;
+  void keepStreaming(
+    "frame stream",
+    ctl.signal,
+    (signal) => bus.streamFrames({ bus: name, queueLength: 0 }, { signal }),
+    (m) => {
+      for (const ev of m.events) {
+        if (ev.event.case === "frame") {
+          received++;
+          if (!paused) {
+            lines.push(candump(name, ev.event.value));
+          }
+        } else if (ev.event.case === "lost") {
+          lost += ev.event.value.count;
+          const l = document.getElementById("frames-lost")!;
+          l.textContent = `${lost} frames lost`;
+          l.hidden = false;
+        }
+      }
+      if (lines.length > MAX_LINES) lines = lines.slice(-MAX_LINES);
+      scheduleRender();
+    },
+  );
+}
+
+function stateName(b: BusInfo): string {
+  const s = b.status?.state ?? BusState.UNSPECIFIED;
+  return (BusState[s] ?? String(s)).toLowerCase().replace(/_/g, " ");
+}
+
+function renderTable(list: BusInfo[]): void {
+  const tbody = document.querySelector("#buses tbody")!;
+  tbody.replaceChildren(
+    ...list.map((b) => {
+      const st = b.statistics;
+      const num = (v: bigint | number | undefined) => el("td", { className: "num" }, String(v ?? 0));
+      const row = el(
+        "tr",
+        {},
+        el("td", {}, b.name),
+        el("td", { className: "state" }, stateName(b)),
+        el("td", { className: "num" }, (st?.loadPercent ?? 0).toFixed(1)),
+        num(st?.rxFrames),
+        num(st?.txFrames),
+        num(b.status?.txErrors),
+        num(b.status?.rxErrors),
+        num(st?.errorFrames),
+        num(st?.subscriberDrops),
+      );
+      row.dataset.bus = b.name;
+      return row;
+    }),
+  );
+  const select = document.getElementById("frame-bus") as HTMLSelectElement;
+  if (select.options.length !== list.length) {
+    select.replaceChildren(...list.map((b) => el("option", { value: b.name }, b.name)));
+    if (!selected && list.length > 0) {
+      selected = list[0].name;
+      select.value = selected;
+      openFrames();
+    }
+  }
+}
+
+/** Starts the page's polling and its frame stream until `signal` aborts. */
+export function startBuses(signal: AbortSignal): void {
+  parent = signal;
+  selected = "";
+  (document.getElementById("frame-bus") as HTMLSelectElement).replaceChildren();
+  const poll = async () => {
+    if (signal.aborted) return;
+    try {
+      const r = await bus.listBuses({}, { signal });
+      showConnected();
+      renderTable(r.buses);
+    } catch (e) {
+      if (signal.aborted) return;
+      showError("buses", e);
+    }
+    setTimeout(poll, 1000);
+  };
+  void poll();
+}
+
+export function initBuses(): void {
+  const select = document.getElementById("frame-bus") as HTMLSelectElement;
+  select.addEventListener("change", () => {
+    selected = select.value;
+    openFrames();
+  });
+  const pause = document.getElementById("frames-pause")!;
+  pause.addEventListener("click", () => {
+    paused = !paused;
+    pause.textContent = paused ? "Resume" : "Pause";
+    if (!paused) scheduleRender();
+  });
+  let last = 0;
+  setInterval(() => {
+    document.getElementById("frames-rate")!.textContent = `${received - last} frames/s`;
+    last = received;
+  }, 1000);
+}

@@ -1,0 +1,1810 @@
+// cangate gRPC API: CANopen (CiA 301) master.
+//
+// The gateway runs a CANopen master on each bus configured with a
+// [[canopen]] section: it tracks nodes (boot-up, heartbeat, EMCY), reads and
+// writes their object dictionaries over SDO, and sends NMT commands.
+//
+// Errors (google.rpc status codes):
+//   NOT_FOUND           unknown bus, a bus without a CANopen master, or a
+//                       node that is neither configured nor ever heard of
+//                       (run ScanNetwork first); also SDO abort 0x06020000
+//                       (object does not exist) and 0x06090011 (sub-index
+//                       does not exist).
+//   INVALID_ARGUMENT    node id outside 1..=127, a value that does not fit
+//                       the object's type, a malformed request; SDO aborts
+//                       0x0607xxxx (type/length mismatch).
+//   OUT_OF_RANGE        SDO aborts 0x0609003x (value range).
+//   FAILED_PRECONDITION SDO aborts 0x0601xxxx (access: read-only,
+//                       write-only) and 0x0800002x (device state); the bus
+//                       is bus-off or down; the caller already has 8 SDO
+//                       requests queued or running with the node (the
+//                       limit per caller - identity, else peer address -
+//                       and node).
+//   ABORTED             any other SDO abort, and protocol violations by the
+//                       node (the gateway sent the abort).
+//   DEADLINE_EXCEEDED   the node did not answer within the SDO timeout.
+//
+// The error model (every service of the gateway). Errors follow the
+// standard gRPC richer error model: the status code and message as above,
+// and in the trailer "grpc-status-details-bin" an encoded
+// google.rpc.Status (the same code and message) whose `details` are
+// google.protobuf.Any messages. Read it with any gRPC library's
+// richer-error support (Python: grpc_status.rpc_status.from_call; Go:
+// status.FromError(err).Details(); Rust: tonic_types::StatusExt; Java:
+// io.grpc.protobuf.StatusProto.fromThrowable). The details are:
+//
+// 1. Always first, a google.rpc.ErrorInfo
+//    (type.googleapis.com/google.rpc.ErrorInfo):
+//    domain    "cangate.v1" on every error of the gateway.
+//    reason    what went wrong, UPPER_SNAKE_CASE and stable (match on it,
+//              not on the message):
+//      <KIND>_NOT_FOUND  a named thing does not exist: BUS_NOT_FOUND,
+//                        NODE_NOT_FOUND, RPDO_NOT_FOUND, AXIS_NOT_FOUND,
+//                        HANDWHEEL_NOT_FOUND, CANSMC_MASTER_NOT_FOUND,
+//                        CANSMC_SLAVE_NOT_FOUND,
+//                        SIMULATED_DEVICE_NOT_FOUND.
+//                        Metadata: "kind" (the thing: "bus", "node",
+//                        "axis", "CANsmc master", ...), "name" (the name
+//                        asked for, at most its first 64 bytes; for a node
+//                        "<id> on bus <bus>" or the id).
+//      SDO_ABORT         the node aborted the SDO transfer (code by the
+//                        abort's class, see above).
+//      SDO_TIMEOUT       the node did not answer in time; the gateway
+//                        sent abort 0x05040000 (DEADLINE_EXCEEDED).
+//      SDO_PROTOCOL_ERROR the node broke the SDO protocol; the gateway
+//                        sent the abort (ABORTED).
+//      SDO_CANCELLED     the gateway cancelled the transfer and sent the
+//                        abort (ABORTED).
+//                        Metadata of the four SDO reasons: "abort_code"
+//                        (8 hex digits, "0x06070013"), "abort_name" (the
+//                        CiA 301 text, "unknown abort code" for others),
+//                        "node" (decimal node id, "5"), "index" (4 hex
+//                        digits, "0x607A"), "subindex" (decimal, "0"),
+//                        "aborted_by" ("node" when the node sent the
+//                        abort, "gateway" when the gateway did).
+//      INVALID_FRAME     a frame of SendFrames is malformed (metadata
+//                        "frame": its position in the batch, from 0).
+//      BUS_OFF, BUS_DOWN the bus is bus-off or its interface is down
+//                        (FAILED_PRECONDITION when nothing was sent,
+//                        UNAVAILABLE when part of the batch was).
+//      CAN_FD_NOT_SUPPORTED a CAN FD frame for a classic bus.
+//      BUS_BUDGET_EXHAUSTED too many client frames already wait for the
+//                        bus's client share (UNAVAILABLE).
+//      SEND_FAILED       the interface refused a frame (UNAVAILABLE).
+//                        Metadata of the five bus reasons: "bus", "sent"
+//                        (frames of the batch sent before the failure),
+//                        "total" (frames in the batch).
+//      AXIS_CONTROLLED_BY_OTHER the axis is held by another lease
+//                        (metadata "axis", "holder" as
+//                        ControlLease.holder).
+//      LEASE_REQUIRED    the command needs a lease and carried none
+//                        (metadata "axis").
+//      LEASE_UNKNOWN     the lease token is unknown, released or lapsed.
+//      LEASE_NOT_COVERING_AXIS the lease does not cover the axis
+//                        (metadata "axis").
+//      LEASE_OTHER_IDENTITY the lease belongs to another identity
+//                        (PERMISSION_DENIED).
+//      SHUTTING_DOWN     the gateway is shutting down (UNAVAILABLE;
+//                        also how open streams end then).
+//      UNAUTHENTICATED   no token or certificate, or an unknown token.
+//      PERMISSION_DENIED the caller's role may not call this RPC (the
+//                        message names the role needed and the role held).
+//      CONCURRENCY_LIMIT, RATE_LIMIT, STREAM_LIMIT, MESSAGE_SIZE_LIMIT,
+//      STREAM_QUEUE_LIMIT a per-client limit of [security.limits] was hit
+//                        (RESOURCE_EXHAUSTED; nothing ran).
+//      FRAME_RATE_LIMIT  the client's raw frame budget of [security.limits]
+//                        is spent (RESOURCE_EXHAUSTED; nothing of the batch
+//                        was sent; metadata "frames": the frames refused).
+//      ATTACH_PROTOCOL   an Attach stream's messages break its protocol
+//                        (INVALID_ARGUMENT; see Bus.Attach).
+//      NOT_CLASSIFIED    the RPC is not in the gateway's access table
+//                        (UNIMPLEMENTED).
+//      otherwise         the code's name: INVALID_ARGUMENT,
+//                        FAILED_PRECONDITION, PERMISSION_DENIED,
+//                        UNAVAILABLE, OUT_OF_RANGE, DEADLINE_EXCEEDED,
+//                        ABORTED (the message says what and why).
+//    metadata  string keys and values as listed per reason; empty for
+//              the others. New keys and reasons may be added; existing
+//              ones keep their meaning.
+// 2. For the four SDO reasons, a cangate.v1.SdoAbortDetails
+//    (type.googleapis.com/cangate.v1.SdoAbortDetails): the abort typed, for
+//    clients that generated code from these protos.
+//
+// SDO errors also carry the abort as text in the response metadata key
+// "cangate-sdo-abort" ("0x06070013 data type does not match, length of
+// service parameter too low"), for tools that show metadata only.
+//
+// Statuses that do not come from a service, but from the gateway's
+// security layer (UNAUTHENTICATED, a role's PERMISSION_DENIED,
+// RESOURCE_EXHAUSTED limits), from the gRPC stack (an undecodable request,
+// CANCELLED, a client's own deadline) or that end a stream at shutdown,
+// may have no details: clients must accept a status without them.
+
+// @generated by protoc-gen-es v2.13.0 with parameter "target=ts,import_extension=none"
+// @generated from file cangate/v1/canopen.proto (package cangate.v1, syntax proto3)
+/* eslint-disable */
+
+import type { GenEnum, GenFile, GenMessage, GenService } from "@bufbuild/protobuf/codegenv2";
+import { enumDesc, fileDesc, messageDesc, serviceDesc } from "@bufbuild/protobuf/codegenv2";
+import type { Message } from "@bufbuild/protobuf";
+
+/**
+ * Describes the file cangate/v1/canopen.proto.
+ */
+export const file_cangate_v1_canopen: GenFile = /*@__PURE__*/
+  fileDesc("ChhjYW5nYXRlL3YxL2Nhbm9wZW4ucHJvdG8SCmNhbmdhdGUudjEiugEKBVZhbHVlEiIKBHR5cGUYASABKA4yFC5jYW5nYXRlLnYxLkRhdGFUeXBlEhQKCmJvb2xfdmFsdWUYAiABKAhIABITCglpbnRfdmFsdWUYAyABKBJIABIUCgp1aW50X3ZhbHVlGAQgASgESAASFAoKcmVhbF92YWx1ZRgFIAEoAUgAEhYKDHN0cmluZ192YWx1ZRgGIAEoCUgAEhUKC2J5dGVzX3ZhbHVlGAcgASgMSABCBwoFdmFsdWUiVQoISWRlbnRpdHkSEQoJdmVuZG9yX2lkGAEgASgNEhQKDHByb2R1Y3RfY29kZRgCIAEoDRIQCghyZXZpc2lvbhgDIAEoDRIOCgZzZXJpYWwYBCABKA0iigEKBEVtY3kSDAoEbm9kZRgBIAEoDRIMCgRjb2RlGAIgASgNEhEKCWNvZGVfbmFtZRgDIAEoCRIQCghyZWdpc3RlchgEIAEoDRIVCg1yZWdpc3Rlcl9iaXRzGAUgAygJEhQKDG1hbnVmYWN0dXJlchgGIAEoDBIUCgx0aW1lc3RhbXBfbnMYByABKAQimQMKBE5vZGUSCwoDYnVzGAEgASgJEgoKAmlkGAIgASgNEgwKBG5hbWUYAyABKAkSIwoFc3RhdGUYBCABKA4yFC5jYW5nYXRlLnYxLk5tdFN0YXRlEh0KEGhlYXJ0YmVhdF9hZ2VfbXMYBSABKARIAIgBARIWCg5oZWFydGJlYXRfbG9zdBgGIAEoCBIcChRoZWFydGJlYXRfdGltZW91dF9tcxgHIAEoDRIYCgtkZXZpY2VfdHlwZRgIIAEoDUgBiAEBEhMKC2RldmljZV9uYW1lGAkgASgJEiYKCGlkZW50aXR5GAogASgLMhQuY2FuZ2F0ZS52MS5JZGVudGl0eRImCgxhY3RpdmVfZXJyb3IYCyABKAsyEC5jYW5nYXRlLnYxLkVtY3kSJgoMZW1jeV9oaXN0b3J5GAwgAygLMhAuY2FuZ2F0ZS52MS5FbWN5EhAKCGJvb3RfdXBzGA0gASgEEhIKCmNvbmZpZ3VyZWQYDiABKAhCEwoRX2hlYXJ0YmVhdF9hZ2VfbXNCDgoMX2RldmljZV90eXBlIh8KEExpc3ROb2Rlc1JlcXVlc3QSCwoDYnVzGAEgASgJIjQKEUxpc3ROb2Rlc1Jlc3BvbnNlEh8KBW5vZGVzGAEgAygLMhAuY2FuZ2F0ZS52MS5Ob2RlIisKDkdldE5vZGVSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNIlQKDlNlbmRObXRSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEicKB2NvbW1hbmQYAyABKA4yFi5jYW5nYXRlLnYxLk5tdENvbW1hbmQiEQoPU2VuZE5tdFJlc3BvbnNlIi8KClNkb09wdGlvbnMSEgoKdGltZW91dF9tcxgBIAEoDRINCgVibG9jaxgCIAEoCCKZAQoOUmVhZFNkb1JlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SDQoFaW5kZXgYAyABKA0SEAoIc3ViaW5kZXgYBCABKA0SIgoEdHlwZRgFIAEoDjIULmNhbmdhdGUudjEuRGF0YVR5cGUSJwoHb3B0aW9ucxgGIAEoCzIWLmNhbmdhdGUudjEuU2RvT3B0aW9ucyJACg9SZWFkU2RvUmVzcG9uc2USCwoDcmF3GAEgASgMEiAKBXZhbHVlGAIgASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZSKxAQoPV3JpdGVTZG9SZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEg0KBWluZGV4GAMgASgNEhAKCHN1YmluZGV4GAQgASgNEiIKBXZhbHVlGAUgASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZUgAEg0KA3JhdxgGIAEoDEgAEicKB29wdGlvbnMYByABKAsyFi5jYW5nYXRlLnYxLlNkb09wdGlvbnNCBgoEZGF0YSIhChBXcml0ZVNkb1Jlc3BvbnNlEg0KBWJ5dGVzGAEgASgNIjUKElNjYW5OZXR3b3JrUmVxdWVzdBILCgNidXMYASABKAkSEgoKdGltZW91dF9tcxgCIAEoDSI2ChNTY2FuTmV0d29ya1Jlc3BvbnNlEh8KBW5vZGVzGAEgAygLMhAuY2FuZ2F0ZS52MS5Ob2RlIjUKF1N0cmVhbU5vZGVFdmVudHNSZXF1ZXN0EgsKA2J1cxgBIAEoCRINCgVub2RlcxgCIAMoDSLAAwoJTm9kZUV2ZW50EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEhQKDHRpbWVzdGFtcF9ucxgDIAEoBBIlCgdib290X3VwGAQgASgLMhIuY2FuZ2F0ZS52MS5Cb290VXBIABIwCg1zdGF0ZV9jaGFuZ2VkGAUgASgLMhcuY2FuZ2F0ZS52MS5TdGF0ZUNoYW5nZUgAEjMKDmhlYXJ0YmVhdF9sb3N0GAYgASgLMhkuY2FuZ2F0ZS52MS5IZWFydGJlYXRMb3N0SAASPQoTaGVhcnRiZWF0X3JlY292ZXJlZBgHIAEoCzIeLmNhbmdhdGUudjEuSGVhcnRiZWF0UmVjb3ZlcmVkSAASIAoEZW1jeRgIIAEoCzIQLmNhbmdhdGUudjEuRW1jeUgAEiYKBGxvc3QYCSABKAsyFi5jYW5nYXRlLnYxLkV2ZW50c0xvc3RIABIzCg5ib290X2NvbXBsZXRlZBgKIAEoCzIZLmNhbmdhdGUudjEuQm9vdENvbXBsZXRlZEgAEi0KC2Jvb3RfZmFpbGVkGAsgASgLMhYuY2FuZ2F0ZS52MS5Cb290RmFpbGVkSABCBwoFZXZlbnQiDwoNQm9vdENvbXBsZXRlZCIcCgpCb290RmFpbGVkEg4KBnJlYXNvbhgBIAEoCSIuChBTdHJlYW1QZG9SZXF1ZXN0EgsKA2J1cxgBIAEoCRINCgVub2RlcxgCIAMoDSJbCghQZG9WYWx1ZRINCgVpbmRleBgBIAEoDRIQCghzdWJpbmRleBgCIAEoDRIMCgRuYW1lGAMgASgJEiAKBXZhbHVlGAQgASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZSKVAQoKUGRvTWVzc2FnZRILCgNidXMYASABKAkSDAoEbm9kZRgCIAEoDRILCgNwZG8YAyABKA0SDgoGY29iX2lkGAQgASgNEhQKDHRpbWVzdGFtcF9ucxgFIAEoBBIkCgZ2YWx1ZXMYBiADKAsyFC5jYW5nYXRlLnYxLlBkb1ZhbHVlEhMKC2xvc3RfYmVmb3JlGAcgASgEIl8KD1dyaXRlUGRvUmVxdWVzdBILCgNidXMYASABKAkSDAoEbm9kZRgCIAEoDRILCgNwZG8YAyABKA0SJAoGdmFsdWVzGAQgAygLMhQuY2FuZ2F0ZS52MS5QZG9WYWx1ZSIgChBXcml0ZVBkb1Jlc3BvbnNlEgwKBGRhdGEYASABKAwiCAoGQm9vdFVwIlMKC1N0YXRlQ2hhbmdlEiIKBGZyb20YASABKA4yFC5jYW5nYXRlLnYxLk5tdFN0YXRlEiAKAnRvGAIgASgOMhQuY2FuZ2F0ZS52MS5ObXRTdGF0ZSIjCg1IZWFydGJlYXRMb3N0EhIKCnRpbWVvdXRfbXMYASABKA0iTAoSSGVhcnRiZWF0UmVjb3ZlcmVkEiMKBXN0YXRlGAEgASgOMhQuY2FuZ2F0ZS52MS5ObXRTdGF0ZRIRCglzaWxlbnRfbXMYAiABKAQiGwoKRXZlbnRzTG9zdBINCgVjb3VudBgBIAEoBCJhCg9TZG9BYm9ydERldGFpbHMSDAoEY29kZRgBIAEoDRIMCgRuYW1lGAIgASgJEg0KBWluZGV4GAMgASgNEhAKCHN1YmluZGV4GAQgASgNEhEKCWZyb21fbm9kZRgFIAEoCCImChdMaXN0U2RvVHJhbnNmZXJzUmVxdWVzdBILCgNidXMYASABKAkikQEKC1Nkb1RyYW5zZmVyEgwKBG5vZGUYASABKA0SDQoFaW5kZXgYAiABKA0SEAoIc3ViaW5kZXgYAyABKA0SDgoGdXBsb2FkGAQgASgIEhAKCHByb3RvY29sGAUgASgJEhMKC3RyYW5zZmVycmVkGAYgASgEEhIKBXRvdGFsGAcgASgESACIAQFCCAoGX3RvdGFsIkYKGExpc3RTZG9UcmFuc2ZlcnNSZXNwb25zZRIqCgl0cmFuc2ZlcnMYASADKAsyFy5jYW5nYXRlLnYxLlNkb1RyYW5zZmVyKo4BCghObXRTdGF0ZRIVChFOTVRfU1RBVEVfVU5LTk9XThAAEhoKFk5NVF9TVEFURV9JTklUSUFMSVNJTkcQARIVChFOTVRfU1RBVEVfU1RPUFBFRBACEhkKFU5NVF9TVEFURV9PUEVSQVRJT05BTBADEh0KGU5NVF9TVEFURV9QUkVfT1BFUkFUSU9OQUwQBCq+AQoKTm10Q29tbWFuZBIbChdOTVRfQ09NTUFORF9VTlNQRUNJRklFRBAAEhUKEU5NVF9DT01NQU5EX1NUQVJUEAESFAoQTk1UX0NPTU1BTkRfU1RPUBACEiUKIU5NVF9DT01NQU5EX0VOVEVSX1BSRV9PUEVSQVRJT05BTBADEhoKFk5NVF9DT01NQU5EX1JFU0VUX05PREUQBBIjCh9OTVRfQ09NTUFORF9SRVNFVF9DT01NVU5JQ0FUSU9OEAUqoAMKCERhdGFUeXBlEhkKFURBVEFfVFlQRV9VTlNQRUNJRklFRBAAEhUKEURBVEFfVFlQRV9CT09MRUFOEAESFgoSREFUQV9UWVBFX0lOVEVHRVI4EAISFwoTREFUQV9UWVBFX0lOVEVHRVIxNhADEhcKE0RBVEFfVFlQRV9JTlRFR0VSMzIQBBIXChNEQVRBX1RZUEVfVU5TSUdORUQ4EAUSGAoUREFUQV9UWVBFX1VOU0lHTkVEMTYQBhIYChREQVRBX1RZUEVfVU5TSUdORUQzMhAHEhQKEERBVEFfVFlQRV9SRUFMMzIQCBIcChhEQVRBX1RZUEVfVklTSUJMRV9TVFJJTkcQCRIaChZEQVRBX1RZUEVfT0NURVRfU1RSSU5HEAoSHAoYREFUQV9UWVBFX1VOSUNPREVfU1RSSU5HEAsSFAoQREFUQV9UWVBFX0RPTUFJThAPEhQKEERBVEFfVFlQRV9SRUFMNjQQERIXChNEQVRBX1RZUEVfSU5URUdFUjY0EBUSGAoUREFUQV9UWVBFX1VOU0lHTkVENjQQGzLoBQoHQ2Fub3BlbhJICglMaXN0Tm9kZXMSHC5jYW5nYXRlLnYxLkxpc3ROb2Rlc1JlcXVlc3QaHS5jYW5nYXRlLnYxLkxpc3ROb2Rlc1Jlc3BvbnNlEjcKB0dldE5vZGUSGi5jYW5nYXRlLnYxLkdldE5vZGVSZXF1ZXN0GhAuY2FuZ2F0ZS52MS5Ob2RlEkIKB1NlbmRObXQSGi5jYW5nYXRlLnYxLlNlbmRObXRSZXF1ZXN0GhsuY2FuZ2F0ZS52MS5TZW5kTm10UmVzcG9uc2USQgoHUmVhZFNkbxIaLmNhbmdhdGUudjEuUmVhZFNkb1JlcXVlc3QaGy5jYW5nYXRlLnYxLlJlYWRTZG9SZXNwb25zZRJFCghXcml0ZVNkbxIbLmNhbmdhdGUudjEuV3JpdGVTZG9SZXF1ZXN0GhwuY2FuZ2F0ZS52MS5Xcml0ZVNkb1Jlc3BvbnNlEl0KEExpc3RTZG9UcmFuc2ZlcnMSIy5jYW5nYXRlLnYxLkxpc3RTZG9UcmFuc2ZlcnNSZXF1ZXN0GiQuY2FuZ2F0ZS52MS5MaXN0U2RvVHJhbnNmZXJzUmVzcG9uc2USTgoLU2Nhbk5ldHdvcmsSHi5jYW5nYXRlLnYxLlNjYW5OZXR3b3JrUmVxdWVzdBofLmNhbmdhdGUudjEuU2Nhbk5ldHdvcmtSZXNwb25zZRJQChBTdHJlYW1Ob2RlRXZlbnRzEiMuY2FuZ2F0ZS52MS5TdHJlYW1Ob2RlRXZlbnRzUmVxdWVzdBoVLmNhbmdhdGUudjEuTm9kZUV2ZW50MAESQwoJU3RyZWFtUGRvEhwuY2FuZ2F0ZS52MS5TdHJlYW1QZG9SZXF1ZXN0GhYuY2FuZ2F0ZS52MS5QZG9NZXNzYWdlMAESRQoIV3JpdGVQZG8SGy5jYW5nYXRlLnYxLldyaXRlUGRvUmVxdWVzdBocLmNhbmdhdGUudjEuV3JpdGVQZG9SZXNwb25zZWIGcHJvdG8z");
+
+/**
+ * A typed value. Integers of every width travel as int64/uint64; the
+ * DataType says how they are encoded on the bus.
+ *
+ * @generated from message cangate.v1.Value
+ */
+export type Value = Message<"cangate.v1.Value"> & {
+  /**
+   * The CiA 301 type.
+   *
+   * @generated from field: cangate.v1.DataType type = 1;
+   */
+  type: DataType;
+
+  /**
+   * The value.
+   *
+   * @generated from oneof cangate.v1.Value.value
+   */
+  value: {
+    /**
+     * BOOLEAN.
+     *
+     * @generated from field: bool bool_value = 2;
+     */
+    value: boolean;
+    case: "boolValue";
+  } | {
+    /**
+     * INTEGER8..INTEGER64.
+     *
+     * @generated from field: sint64 int_value = 3;
+     */
+    value: bigint;
+    case: "intValue";
+  } | {
+    /**
+     * UNSIGNED8..UNSIGNED64.
+     *
+     * @generated from field: uint64 uint_value = 4;
+     */
+    value: bigint;
+    case: "uintValue";
+  } | {
+    /**
+     * REAL32, REAL64.
+     *
+     * @generated from field: double real_value = 5;
+     */
+    value: number;
+    case: "realValue";
+  } | {
+    /**
+     * VISIBLE_STRING, UNICODE_STRING.
+     *
+     * @generated from field: string string_value = 6;
+     */
+    value: string;
+    case: "stringValue";
+  } | {
+    /**
+     * OCTET_STRING, DOMAIN.
+     *
+     * @generated from field: bytes bytes_value = 7;
+     */
+    value: Uint8Array;
+    case: "bytesValue";
+  } | { case: undefined; value?: undefined };
+};
+
+/**
+ * Describes the message cangate.v1.Value.
+ * Use `create(ValueSchema)` to create a new message.
+ */
+export const ValueSchema: GenMessage<Value> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 0);
+
+/**
+ * The device identity (object 0x1018).
+ *
+ * @generated from message cangate.v1.Identity
+ */
+export type Identity = Message<"cangate.v1.Identity"> & {
+  /**
+   * 0x1018:01 vendor id.
+   *
+   * @generated from field: uint32 vendor_id = 1;
+   */
+  vendorId: number;
+
+  /**
+   * 0x1018:02 product code.
+   *
+   * @generated from field: uint32 product_code = 2;
+   */
+  productCode: number;
+
+  /**
+   * 0x1018:03 revision number.
+   *
+   * @generated from field: uint32 revision = 3;
+   */
+  revision: number;
+
+  /**
+   * 0x1018:04 serial number.
+   *
+   * @generated from field: uint32 serial = 4;
+   */
+  serial: number;
+};
+
+/**
+ * Describes the message cangate.v1.Identity.
+ * Use `create(IdentitySchema)` to create a new message.
+ */
+export const IdentitySchema: GenMessage<Identity> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 1);
+
+/**
+ * An emergency message.
+ *
+ * @generated from message cangate.v1.Emcy
+ */
+export type Emcy = Message<"cangate.v1.Emcy"> & {
+  /**
+   * Node id.
+   *
+   * @generated from field: uint32 node = 1;
+   */
+  node: number;
+
+  /**
+   * Error code (0x0000 = error reset / no error).
+   *
+   * @generated from field: uint32 code = 2;
+   */
+  code: number;
+
+  /**
+   * Name of the error code (CiA 301 / CiA 402 tables).
+   *
+   * @generated from field: string code_name = 3;
+   */
+  codeName: string;
+
+  /**
+   * Error register (object 0x1001).
+   *
+   * @generated from field: uint32 register = 4;
+   */
+  register: number;
+
+  /**
+   * Names of the bits set in the error register.
+   *
+   * @generated from field: repeated string register_bits = 5;
+   */
+  registerBits: string[];
+
+  /**
+   * Manufacturer-specific bytes (5).
+   *
+   * @generated from field: bytes manufacturer = 6;
+   */
+  manufacturer: Uint8Array;
+
+  /**
+   * Receive time in nanoseconds since the UNIX epoch.
+   *
+   * @generated from field: uint64 timestamp_ns = 7;
+   */
+  timestampNs: bigint;
+};
+
+/**
+ * Describes the message cangate.v1.Emcy.
+ * Use `create(EmcySchema)` to create a new message.
+ */
+export const EmcySchema: GenMessage<Emcy> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 2);
+
+/**
+ * A node as the master knows it.
+ *
+ * @generated from message cangate.v1.Node
+ */
+export type Node = Message<"cangate.v1.Node"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * Node id (1..=127).
+   *
+   * @generated from field: uint32 id = 2;
+   */
+  id: number;
+
+  /**
+   * Configured name, if any.
+   *
+   * @generated from field: string name = 3;
+   */
+  name: string;
+
+  /**
+   * Last NMT state reported by heartbeat / boot-up.
+   *
+   * @generated from field: cangate.v1.NmtState state = 4;
+   */
+  state: NmtState;
+
+  /**
+   * Milliseconds since the last heartbeat (absent if never heard).
+   *
+   * @generated from field: optional uint64 heartbeat_age_ms = 5;
+   */
+  heartbeatAgeMs?: bigint | undefined;
+
+  /**
+   * The heartbeat is monitored and overdue.
+   *
+   * @generated from field: bool heartbeat_lost = 6;
+   */
+  heartbeatLost: boolean;
+
+  /**
+   * Consumer heartbeat timeout in ms (0 = not monitored).
+   *
+   * @generated from field: uint32 heartbeat_timeout_ms = 7;
+   */
+  heartbeatTimeoutMs: number;
+
+  /**
+   * Device type (0x1000) if read (by the boot procedure of a configured
+   * node, or by a scan).
+   *
+   * @generated from field: optional uint32 device_type = 8;
+   */
+  deviceType?: number | undefined;
+
+  /**
+   * Manufacturer device name (0x1008) if read.
+   *
+   * @generated from field: string device_name = 9;
+   */
+  deviceName: string;
+
+  /**
+   * Identity (0x1018) if read (by the boot procedure or a scan); entries
+   * the node does not have are 0.
+   *
+   * @generated from field: cangate.v1.Identity identity = 10;
+   */
+  identity?: Identity | undefined;
+
+  /**
+   * The active error (last EMCY not followed by a reset), if any.
+   *
+   * @generated from field: cangate.v1.Emcy active_error = 11;
+   */
+  activeError?: Emcy | undefined;
+
+  /**
+   * Recent EMCY messages, oldest first (at most 32).
+   *
+   * @generated from field: repeated cangate.v1.Emcy emcy_history = 12;
+   */
+  emcyHistory: Emcy[];
+
+  /**
+   * Boot-up messages received.
+   *
+   * @generated from field: uint64 boot_ups = 13;
+   */
+  bootUps: bigint;
+
+  /**
+   * The node is configured (as opposed to only discovered).
+   *
+   * @generated from field: bool configured = 14;
+   */
+  configured: boolean;
+};
+
+/**
+ * Describes the message cangate.v1.Node.
+ * Use `create(NodeSchema)` to create a new message.
+ */
+export const NodeSchema: GenMessage<Node> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 3);
+
+/**
+ * ListNodes request.
+ *
+ * @generated from message cangate.v1.ListNodesRequest
+ */
+export type ListNodesRequest = Message<"cangate.v1.ListNodesRequest"> & {
+  /**
+   * Bus name; empty for every CANopen bus.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+};
+
+/**
+ * Describes the message cangate.v1.ListNodesRequest.
+ * Use `create(ListNodesRequestSchema)` to create a new message.
+ */
+export const ListNodesRequestSchema: GenMessage<ListNodesRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 4);
+
+/**
+ * ListNodes response.
+ *
+ * @generated from message cangate.v1.ListNodesResponse
+ */
+export type ListNodesResponse = Message<"cangate.v1.ListNodesResponse"> & {
+  /**
+   * Nodes sorted by bus and id.
+   *
+   * @generated from field: repeated cangate.v1.Node nodes = 1;
+   */
+  nodes: Node[];
+};
+
+/**
+ * Describes the message cangate.v1.ListNodesResponse.
+ * Use `create(ListNodesResponseSchema)` to create a new message.
+ */
+export const ListNodesResponseSchema: GenMessage<ListNodesResponse> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 5);
+
+/**
+ * GetNode request.
+ *
+ * @generated from message cangate.v1.GetNodeRequest
+ */
+export type GetNodeRequest = Message<"cangate.v1.GetNodeRequest"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * Node id.
+   *
+   * @generated from field: uint32 node = 2;
+   */
+  node: number;
+};
+
+/**
+ * Describes the message cangate.v1.GetNodeRequest.
+ * Use `create(GetNodeRequestSchema)` to create a new message.
+ */
+export const GetNodeRequestSchema: GenMessage<GetNodeRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 6);
+
+/**
+ * SendNmt request.
+ *
+ * @generated from message cangate.v1.SendNmtRequest
+ */
+export type SendNmtRequest = Message<"cangate.v1.SendNmtRequest"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * Node id, or 0 for all nodes (broadcast).
+   *
+   * @generated from field: uint32 node = 2;
+   */
+  node: number;
+
+  /**
+   * The command.
+   *
+   * @generated from field: cangate.v1.NmtCommand command = 3;
+   */
+  command: NmtCommand;
+};
+
+/**
+ * Describes the message cangate.v1.SendNmtRequest.
+ * Use `create(SendNmtRequestSchema)` to create a new message.
+ */
+export const SendNmtRequestSchema: GenMessage<SendNmtRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 7);
+
+/**
+ * SendNmt response.
+ *
+ * @generated from message cangate.v1.SendNmtResponse
+ */
+export type SendNmtResponse = Message<"cangate.v1.SendNmtResponse"> & {
+};
+
+/**
+ * Describes the message cangate.v1.SendNmtResponse.
+ * Use `create(SendNmtResponseSchema)` to create a new message.
+ */
+export const SendNmtResponseSchema: GenMessage<SendNmtResponse> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 8);
+
+/**
+ * SDO transfer options common to reads and writes.
+ *
+ * A node's SDO channel carries one transfer at a time. The gateway's own
+ * transfers (boot procedure, axis process data by SDO) go before those of
+ * API calls; while one of them waits, a running API transfer gets at most
+ * the bus default timeout for each answer of the node.
+ *
+ * @generated from message cangate.v1.SdoOptions
+ */
+export type SdoOptions = Message<"cangate.v1.SdoOptions"> & {
+  /**
+   * Timeout for each answer of the node in ms (0 = the bus default,
+   * normally 500 ms; at most 60000, more is INVALID_ARGUMENT).
+   *
+   * @generated from field: uint32 timeout_ms = 1;
+   */
+  timeoutMs: number;
+
+  /**
+   * Use SDO block transfer (falls back to segmented if the node refuses).
+   *
+   * @generated from field: bool block = 2;
+   */
+  block: boolean;
+};
+
+/**
+ * Describes the message cangate.v1.SdoOptions.
+ * Use `create(SdoOptionsSchema)` to create a new message.
+ */
+export const SdoOptionsSchema: GenMessage<SdoOptions> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 9);
+
+/**
+ * ReadSdo request.
+ *
+ * @generated from message cangate.v1.ReadSdoRequest
+ */
+export type ReadSdoRequest = Message<"cangate.v1.ReadSdoRequest"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * Node id.
+   *
+   * @generated from field: uint32 node = 2;
+   */
+  node: number;
+
+  /**
+   * Object index.
+   *
+   * @generated from field: uint32 index = 3;
+   */
+  index: number;
+
+  /**
+   * Sub-index.
+   *
+   * @generated from field: uint32 subindex = 4;
+   */
+  subindex: number;
+
+  /**
+   * Decode the bytes as this type (otherwise the node's EDS type is used
+   * when known; else only raw bytes are returned).
+   *
+   * @generated from field: cangate.v1.DataType type = 5;
+   */
+  type: DataType;
+
+  /**
+   * Options.
+   *
+   * @generated from field: cangate.v1.SdoOptions options = 6;
+   */
+  options?: SdoOptions | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.ReadSdoRequest.
+ * Use `create(ReadSdoRequestSchema)` to create a new message.
+ */
+export const ReadSdoRequestSchema: GenMessage<ReadSdoRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 10);
+
+/**
+ * ReadSdo response.
+ *
+ * @generated from message cangate.v1.ReadSdoResponse
+ */
+export type ReadSdoResponse = Message<"cangate.v1.ReadSdoResponse"> & {
+  /**
+   * The bytes read.
+   *
+   * @generated from field: bytes raw = 1;
+   */
+  raw: Uint8Array;
+
+  /**
+   * The decoded value, when a type was given or known.
+   *
+   * @generated from field: cangate.v1.Value value = 2;
+   */
+  value?: Value | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.ReadSdoResponse.
+ * Use `create(ReadSdoResponseSchema)` to create a new message.
+ */
+export const ReadSdoResponseSchema: GenMessage<ReadSdoResponse> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 11);
+
+/**
+ * WriteSdo request.
+ *
+ * @generated from message cangate.v1.WriteSdoRequest
+ */
+export type WriteSdoRequest = Message<"cangate.v1.WriteSdoRequest"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * Node id.
+   *
+   * @generated from field: uint32 node = 2;
+   */
+  node: number;
+
+  /**
+   * Object index.
+   *
+   * @generated from field: uint32 index = 3;
+   */
+  index: number;
+
+  /**
+   * Sub-index.
+   *
+   * @generated from field: uint32 subindex = 4;
+   */
+  subindex: number;
+
+  /**
+   * What to write: a typed value (encoded per its type; integers are range
+   * checked) or raw bytes sent as they are.
+   *
+   * @generated from oneof cangate.v1.WriteSdoRequest.data
+   */
+  data: {
+    /**
+     * A typed value.
+     *
+     * @generated from field: cangate.v1.Value value = 5;
+     */
+    value: Value;
+    case: "value";
+  } | {
+    /**
+     * Raw bytes. More bytes than a fixed-size object of the node's EDS
+     * holds is INVALID_ARGUMENT, refused before anything is sent; objects
+     * the EDS does not describe and strings/domains take any size.
+     *
+     * @generated from field: bytes raw = 6;
+     */
+    value: Uint8Array;
+    case: "raw";
+  } | { case: undefined; value?: undefined };
+
+  /**
+   * Options.
+   *
+   * @generated from field: cangate.v1.SdoOptions options = 7;
+   */
+  options?: SdoOptions | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.WriteSdoRequest.
+ * Use `create(WriteSdoRequestSchema)` to create a new message.
+ */
+export const WriteSdoRequestSchema: GenMessage<WriteSdoRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 12);
+
+/**
+ * WriteSdo response.
+ *
+ * @generated from message cangate.v1.WriteSdoResponse
+ */
+export type WriteSdoResponse = Message<"cangate.v1.WriteSdoResponse"> & {
+  /**
+   * Bytes written.
+   *
+   * @generated from field: uint32 bytes = 1;
+   */
+  bytes: number;
+};
+
+/**
+ * Describes the message cangate.v1.WriteSdoResponse.
+ * Use `create(WriteSdoResponseSchema)` to create a new message.
+ */
+export const WriteSdoResponseSchema: GenMessage<WriteSdoResponse> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 13);
+
+/**
+ * ScanNetwork request.
+ *
+ * @generated from message cangate.v1.ScanNetworkRequest
+ */
+export type ScanNetworkRequest = Message<"cangate.v1.ScanNetworkRequest"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * Per-node answer timeout in ms (0 = 100; at most 10000, more is
+   * INVALID_ARGUMENT).
+   *
+   * @generated from field: uint32 timeout_ms = 2;
+   */
+  timeoutMs: number;
+};
+
+/**
+ * Describes the message cangate.v1.ScanNetworkRequest.
+ * Use `create(ScanNetworkRequestSchema)` to create a new message.
+ */
+export const ScanNetworkRequestSchema: GenMessage<ScanNetworkRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 14);
+
+/**
+ * ScanNetwork response.
+ *
+ * @generated from message cangate.v1.ScanNetworkResponse
+ */
+export type ScanNetworkResponse = Message<"cangate.v1.ScanNetworkResponse"> & {
+  /**
+   * The nodes that answered, by id.
+   *
+   * @generated from field: repeated cangate.v1.Node nodes = 1;
+   */
+  nodes: Node[];
+};
+
+/**
+ * Describes the message cangate.v1.ScanNetworkResponse.
+ * Use `create(ScanNetworkResponseSchema)` to create a new message.
+ */
+export const ScanNetworkResponseSchema: GenMessage<ScanNetworkResponse> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 15);
+
+/**
+ * StreamNodeEvents request.
+ *
+ * @generated from message cangate.v1.StreamNodeEventsRequest
+ */
+export type StreamNodeEventsRequest = Message<"cangate.v1.StreamNodeEventsRequest"> & {
+  /**
+   * Bus name; empty for every CANopen bus.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * Only these node ids, each 1..=127 (empty: all).
+   *
+   * @generated from field: repeated uint32 nodes = 2;
+   */
+  nodes: number[];
+};
+
+/**
+ * Describes the message cangate.v1.StreamNodeEventsRequest.
+ * Use `create(StreamNodeEventsRequestSchema)` to create a new message.
+ */
+export const StreamNodeEventsRequestSchema: GenMessage<StreamNodeEventsRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 16);
+
+/**
+ * Something that happened to a node.
+ *
+ * @generated from message cangate.v1.NodeEvent
+ */
+export type NodeEvent = Message<"cangate.v1.NodeEvent"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * Node id.
+   *
+   * @generated from field: uint32 node = 2;
+   */
+  node: number;
+
+  /**
+   * When the gateway saw it, nanoseconds since the UNIX epoch.
+   *
+   * @generated from field: uint64 timestamp_ns = 3;
+   */
+  timestampNs: bigint;
+
+  /**
+   * What happened.
+   *
+   * @generated from oneof cangate.v1.NodeEvent.event
+   */
+  event: {
+    /**
+     * A boot-up message.
+     *
+     * @generated from field: cangate.v1.BootUp boot_up = 4;
+     */
+    value: BootUp;
+    case: "bootUp";
+  } | {
+    /**
+     * The NMT state changed.
+     *
+     * @generated from field: cangate.v1.StateChange state_changed = 5;
+     */
+    value: StateChange;
+    case: "stateChanged";
+  } | {
+    /**
+     * The heartbeat is overdue.
+     *
+     * @generated from field: cangate.v1.HeartbeatLost heartbeat_lost = 6;
+     */
+    value: HeartbeatLost;
+    case: "heartbeatLost";
+  } | {
+    /**
+     * The heartbeat came back.
+     *
+     * @generated from field: cangate.v1.HeartbeatRecovered heartbeat_recovered = 7;
+     */
+    value: HeartbeatRecovered;
+    case: "heartbeatRecovered";
+  } | {
+    /**
+     * An EMCY (error or reset).
+     *
+     * @generated from field: cangate.v1.Emcy emcy = 8;
+     */
+    value: Emcy;
+    case: "emcy";
+  } | {
+    /**
+     * This client missed events because it read too slowly.
+     *
+     * @generated from field: cangate.v1.EventsLost lost = 9;
+     */
+    value: EventsLost;
+    case: "lost";
+  } | {
+    /**
+     * The boot procedure checked, configured and NMT-started the node.
+     *
+     * @generated from field: cangate.v1.BootCompleted boot_completed = 10;
+     */
+    value: BootCompleted;
+    case: "bootCompleted";
+  } | {
+    /**
+     * The boot procedure failed; the node was not started.
+     *
+     * @generated from field: cangate.v1.BootFailed boot_failed = 11;
+     */
+    value: BootFailed;
+    case: "bootFailed";
+  } | { case: undefined; value?: undefined };
+};
+
+/**
+ * Describes the message cangate.v1.NodeEvent.
+ * Use `create(NodeEventSchema)` to create a new message.
+ */
+export const NodeEventSchema: GenMessage<NodeEvent> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 17);
+
+/**
+ * Boot procedure succeeded.
+ *
+ * @generated from message cangate.v1.BootCompleted
+ */
+export type BootCompleted = Message<"cangate.v1.BootCompleted"> & {
+};
+
+/**
+ * Describes the message cangate.v1.BootCompleted.
+ * Use `create(BootCompletedSchema)` to create a new message.
+ */
+export const BootCompletedSchema: GenMessage<BootCompleted> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 18);
+
+/**
+ * Boot procedure failed.
+ *
+ * @generated from message cangate.v1.BootFailed
+ */
+export type BootFailed = Message<"cangate.v1.BootFailed"> & {
+  /**
+   * What went wrong (identity mismatch with both values, the SDO write that
+   * failed with its abort, ...).
+   *
+   * @generated from field: string reason = 1;
+   */
+  reason: string;
+};
+
+/**
+ * Describes the message cangate.v1.BootFailed.
+ * Use `create(BootFailedSchema)` to create a new message.
+ */
+export const BootFailedSchema: GenMessage<BootFailed> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 19);
+
+/**
+ * StreamPdo request.
+ *
+ * @generated from message cangate.v1.StreamPdoRequest
+ */
+export type StreamPdoRequest = Message<"cangate.v1.StreamPdoRequest"> & {
+  /**
+   * Bus name; empty for every CANopen bus.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * Only these node ids, each 1..=127 (empty: all).
+   *
+   * @generated from field: repeated uint32 nodes = 2;
+   */
+  nodes: number[];
+};
+
+/**
+ * Describes the message cangate.v1.StreamPdoRequest.
+ * Use `create(StreamPdoRequestSchema)` to create a new message.
+ */
+export const StreamPdoRequestSchema: GenMessage<StreamPdoRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 20);
+
+/**
+ * One mapped object of a PDO.
+ *
+ * @generated from message cangate.v1.PdoValue
+ */
+export type PdoValue = Message<"cangate.v1.PdoValue"> & {
+  /**
+   * Object index.
+   *
+   * @generated from field: uint32 index = 1;
+   */
+  index: number;
+
+  /**
+   * Sub-index.
+   *
+   * @generated from field: uint32 subindex = 2;
+   */
+  subindex: number;
+
+  /**
+   * Object name from the EDS (empty if unknown).
+   *
+   * @generated from field: string name = 3;
+   */
+  name: string;
+
+  /**
+   * The value.
+   *
+   * @generated from field: cangate.v1.Value value = 4;
+   */
+  value?: Value | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.PdoValue.
+ * Use `create(PdoValueSchema)` to create a new message.
+ */
+export const PdoValueSchema: GenMessage<PdoValue> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 21);
+
+/**
+ * A decoded PDO, or a notice of missed PDOs.
+ *
+ * @generated from message cangate.v1.PdoMessage
+ */
+export type PdoMessage = Message<"cangate.v1.PdoMessage"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * Node id.
+   *
+   * @generated from field: uint32 node = 2;
+   */
+  node: number;
+
+  /**
+   * PDO number (1-based).
+   *
+   * @generated from field: uint32 pdo = 3;
+   */
+  pdo: number;
+
+  /**
+   * COB-ID.
+   *
+   * @generated from field: uint32 cob_id = 4;
+   */
+  cobId: number;
+
+  /**
+   * Bus timestamp, nanoseconds since the UNIX epoch.
+   *
+   * @generated from field: uint64 timestamp_ns = 5;
+   */
+  timestampNs: bigint;
+
+  /**
+   * The mapped values in payload order.
+   *
+   * @generated from field: repeated cangate.v1.PdoValue values = 6;
+   */
+  values: PdoValue[];
+
+  /**
+   * PDOs this client missed (read too slowly) before this one; 0 normally.
+   *
+   * @generated from field: uint64 lost_before = 7;
+   */
+  lostBefore: bigint;
+};
+
+/**
+ * Describes the message cangate.v1.PdoMessage.
+ * Use `create(PdoMessageSchema)` to create a new message.
+ */
+export const PdoMessageSchema: GenMessage<PdoMessage> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 22);
+
+/**
+ * WritePdo request.
+ *
+ * @generated from message cangate.v1.WritePdoRequest
+ */
+export type WritePdoRequest = Message<"cangate.v1.WritePdoRequest"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * Node id.
+   *
+   * @generated from field: uint32 node = 2;
+   */
+  node: number;
+
+  /**
+   * RPDO number (1-based).
+   *
+   * @generated from field: uint32 pdo = 3;
+   */
+  pdo: number;
+
+  /**
+   * One value per mapped object (index/subindex identify it; name
+   * ignored). A value for an object the RPDO does not map, or a second
+   * value for one, is INVALID_ARGUMENT.
+   *
+   * @generated from field: repeated cangate.v1.PdoValue values = 4;
+   */
+  values: PdoValue[];
+};
+
+/**
+ * Describes the message cangate.v1.WritePdoRequest.
+ * Use `create(WritePdoRequestSchema)` to create a new message.
+ */
+export const WritePdoRequestSchema: GenMessage<WritePdoRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 23);
+
+/**
+ * WritePdo response.
+ *
+ * @generated from message cangate.v1.WritePdoResponse
+ */
+export type WritePdoResponse = Message<"cangate.v1.WritePdoResponse"> & {
+  /**
+   * The payload sent.
+   *
+   * @generated from field: bytes data = 1;
+   */
+  data: Uint8Array;
+};
+
+/**
+ * Describes the message cangate.v1.WritePdoResponse.
+ * Use `create(WritePdoResponseSchema)` to create a new message.
+ */
+export const WritePdoResponseSchema: GenMessage<WritePdoResponse> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 24);
+
+/**
+ * Boot-up message received.
+ *
+ * @generated from message cangate.v1.BootUp
+ */
+export type BootUp = Message<"cangate.v1.BootUp"> & {
+};
+
+/**
+ * Describes the message cangate.v1.BootUp.
+ * Use `create(BootUpSchema)` to create a new message.
+ */
+export const BootUpSchema: GenMessage<BootUp> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 25);
+
+/**
+ * NMT state change.
+ *
+ * @generated from message cangate.v1.StateChange
+ */
+export type StateChange = Message<"cangate.v1.StateChange"> & {
+  /**
+   * Previous state (UNKNOWN the first time).
+   *
+   * @generated from field: cangate.v1.NmtState from = 1;
+   */
+  from: NmtState;
+
+  /**
+   * New state.
+   *
+   * @generated from field: cangate.v1.NmtState to = 2;
+   */
+  to: NmtState;
+};
+
+/**
+ * Describes the message cangate.v1.StateChange.
+ * Use `create(StateChangeSchema)` to create a new message.
+ */
+export const StateChangeSchema: GenMessage<StateChange> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 26);
+
+/**
+ * Heartbeat overdue.
+ *
+ * @generated from message cangate.v1.HeartbeatLost
+ */
+export type HeartbeatLost = Message<"cangate.v1.HeartbeatLost"> & {
+  /**
+   * The consumer timeout in ms.
+   *
+   * @generated from field: uint32 timeout_ms = 1;
+   */
+  timeoutMs: number;
+};
+
+/**
+ * Describes the message cangate.v1.HeartbeatLost.
+ * Use `create(HeartbeatLostSchema)` to create a new message.
+ */
+export const HeartbeatLostSchema: GenMessage<HeartbeatLost> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 27);
+
+/**
+ * Heartbeat back after a loss.
+ *
+ * @generated from message cangate.v1.HeartbeatRecovered
+ */
+export type HeartbeatRecovered = Message<"cangate.v1.HeartbeatRecovered"> & {
+  /**
+   * Reported state.
+   *
+   * @generated from field: cangate.v1.NmtState state = 1;
+   */
+  state: NmtState;
+
+  /**
+   * How long the node was silent, in ms.
+   *
+   * @generated from field: uint64 silent_ms = 2;
+   */
+  silentMs: bigint;
+};
+
+/**
+ * Describes the message cangate.v1.HeartbeatRecovered.
+ * Use `create(HeartbeatRecoveredSchema)` to create a new message.
+ */
+export const HeartbeatRecoveredSchema: GenMessage<HeartbeatRecovered> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 28);
+
+/**
+ * Events this client missed.
+ *
+ * @generated from message cangate.v1.EventsLost
+ */
+export type EventsLost = Message<"cangate.v1.EventsLost"> & {
+  /**
+   * How many.
+   *
+   * @generated from field: uint64 count = 1;
+   */
+  count: bigint;
+};
+
+/**
+ * Describes the message cangate.v1.EventsLost.
+ * Use `create(EventsLostSchema)` to create a new message.
+ */
+export const EventsLostSchema: GenMessage<EventsLost> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 29);
+
+/**
+ * The SDO abort of an error caused by an SDO transfer (ErrorInfo reason
+ * SDO_ABORT, SDO_TIMEOUT, SDO_PROTOCOL_ERROR or SDO_CANCELLED): packed as a
+ * google.protobuf.Any with type URL
+ * "type.googleapis.com/cangate.v1.SdoAbortDetails" in the details of the
+ * google.rpc.Status in "grpc-status-details-bin", after the ErrorInfo (see
+ * "The error model" at the top of this file). The node id is in the
+ * ErrorInfo metadata ("node").
+ *
+ * @generated from message cangate.v1.SdoAbortDetails
+ */
+export type SdoAbortDetails = Message<"cangate.v1.SdoAbortDetails"> & {
+  /**
+   * The CiA 301 abort code on the wire, whoever sent it (0x05040000 for a
+   * timeout).
+   *
+   * @generated from field: uint32 code = 1;
+   */
+  code: number;
+
+  /**
+   * Its CiA 301 name ("object does not exist in the object dictionary");
+   * "unknown abort code" for a code the standard does not define.
+   *
+   * @generated from field: string name = 2;
+   */
+  name: string;
+
+  /**
+   * Object index of the transfer.
+   *
+   * @generated from field: uint32 index = 3;
+   */
+  index: number;
+
+  /**
+   * Sub-index of the transfer.
+   *
+   * @generated from field: uint32 subindex = 4;
+   */
+  subindex: number;
+
+  /**
+   * True when the node sent the abort (ErrorInfo "aborted_by" = "node");
+   * false when the gateway detected a protocol violation or timeout, or
+   * cancelled the transfer, and sent it ("gateway").
+   *
+   * @generated from field: bool from_node = 5;
+   */
+  fromNode: boolean;
+};
+
+/**
+ * Describes the message cangate.v1.SdoAbortDetails.
+ * Use `create(SdoAbortDetailsSchema)` to create a new message.
+ */
+export const SdoAbortDetailsSchema: GenMessage<SdoAbortDetails> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 30);
+
+/**
+ * ListSdoTransfers request.
+ *
+ * @generated from message cangate.v1.ListSdoTransfersRequest
+ */
+export type ListSdoTransfersRequest = Message<"cangate.v1.ListSdoTransfersRequest"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+};
+
+/**
+ * Describes the message cangate.v1.ListSdoTransfersRequest.
+ * Use `create(ListSdoTransfersRequestSchema)` to create a new message.
+ */
+export const ListSdoTransfersRequestSchema: GenMessage<ListSdoTransfersRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 31);
+
+/**
+ * One running SDO transfer.
+ *
+ * @generated from message cangate.v1.SdoTransfer
+ */
+export type SdoTransfer = Message<"cangate.v1.SdoTransfer"> & {
+  /**
+   * Node id.
+   *
+   * @generated from field: uint32 node = 1;
+   */
+  node: number;
+
+  /**
+   * Object index.
+   *
+   * @generated from field: uint32 index = 2;
+   */
+  index: number;
+
+  /**
+   * Sub-index.
+   *
+   * @generated from field: uint32 subindex = 3;
+   */
+  subindex: number;
+
+  /**
+   * True for a read (upload), false for a write (download).
+   *
+   * @generated from field: bool upload = 4;
+   */
+  upload: boolean;
+
+  /**
+   * "expedited", "segmented", "block", or "" while not yet decided.
+   *
+   * @generated from field: string protocol = 5;
+   */
+  protocol: string;
+
+  /**
+   * Bytes confirmed so far.
+   *
+   * @generated from field: uint64 transferred = 6;
+   */
+  transferred: bigint;
+
+  /**
+   * Total bytes, when known.
+   *
+   * @generated from field: optional uint64 total = 7;
+   */
+  total?: bigint | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.SdoTransfer.
+ * Use `create(SdoTransferSchema)` to create a new message.
+ */
+export const SdoTransferSchema: GenMessage<SdoTransfer> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 32);
+
+/**
+ * ListSdoTransfers response.
+ *
+ * @generated from message cangate.v1.ListSdoTransfersResponse
+ */
+export type ListSdoTransfersResponse = Message<"cangate.v1.ListSdoTransfersResponse"> & {
+  /**
+   * Transfers in progress, by node.
+   *
+   * @generated from field: repeated cangate.v1.SdoTransfer transfers = 1;
+   */
+  transfers: SdoTransfer[];
+};
+
+/**
+ * Describes the message cangate.v1.ListSdoTransfersResponse.
+ * Use `create(ListSdoTransfersResponseSchema)` to create a new message.
+ */
+export const ListSdoTransfersResponseSchema: GenMessage<ListSdoTransfersResponse> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 33);
+
+/**
+ * NMT states (CiA 301).
+ *
+ * @generated from enum cangate.v1.NmtState
+ */
+export enum NmtState {
+  /**
+   * Never heard of.
+   *
+   * @generated from enum value: NMT_STATE_UNKNOWN = 0;
+   */
+  UNKNOWN = 0,
+
+  /**
+   * Boot-up / initialising (0x00).
+   *
+   * @generated from enum value: NMT_STATE_INITIALISING = 1;
+   */
+  INITIALISING = 1,
+
+  /**
+   * Stopped (0x04).
+   *
+   * @generated from enum value: NMT_STATE_STOPPED = 2;
+   */
+  STOPPED = 2,
+
+  /**
+   * Operational (0x05).
+   *
+   * @generated from enum value: NMT_STATE_OPERATIONAL = 3;
+   */
+  OPERATIONAL = 3,
+
+  /**
+   * Pre-operational (0x7F).
+   *
+   * @generated from enum value: NMT_STATE_PRE_OPERATIONAL = 4;
+   */
+  PRE_OPERATIONAL = 4,
+}
+
+/**
+ * Describes the enum cangate.v1.NmtState.
+ */
+export const NmtStateSchema: GenEnum<NmtState> = /*@__PURE__*/
+  enumDesc(file_cangate_v1_canopen, 0);
+
+/**
+ * NMT commands (CiA 301 command specifiers).
+ *
+ * @generated from enum cangate.v1.NmtCommand
+ */
+export enum NmtCommand {
+  /**
+   * Not set (refused).
+   *
+   * @generated from enum value: NMT_COMMAND_UNSPECIFIED = 0;
+   */
+  UNSPECIFIED = 0,
+
+  /**
+   * Start remote node (0x01): enter operational.
+   *
+   * @generated from enum value: NMT_COMMAND_START = 1;
+   */
+  START = 1,
+
+  /**
+   * Stop remote node (0x02).
+   *
+   * @generated from enum value: NMT_COMMAND_STOP = 2;
+   */
+  STOP = 2,
+
+  /**
+   * Enter pre-operational (0x80).
+   *
+   * @generated from enum value: NMT_COMMAND_ENTER_PRE_OPERATIONAL = 3;
+   */
+  ENTER_PRE_OPERATIONAL = 3,
+
+  /**
+   * Reset node (0x81): application and communication reset, then boot-up.
+   *
+   * @generated from enum value: NMT_COMMAND_RESET_NODE = 4;
+   */
+  RESET_NODE = 4,
+
+  /**
+   * Reset communication (0x82), then boot-up.
+   *
+   * @generated from enum value: NMT_COMMAND_RESET_COMMUNICATION = 5;
+   */
+  RESET_COMMUNICATION = 5,
+}
+
+/**
+ * Describes the enum cangate.v1.NmtCommand.
+ */
+export const NmtCommandSchema: GenEnum<NmtCommand> = /*@__PURE__*/
+  enumDesc(file_cangate_v1_canopen, 1);
+
+/**
+ * CiA 301 basic data types (codes as in the object dictionary).
+ *
+ * @generated from enum cangate.v1.DataType
+ */
+export enum DataType {
+  /**
+   * Not given: raw bytes only.
+   *
+   * @generated from enum value: DATA_TYPE_UNSPECIFIED = 0;
+   */
+  UNSPECIFIED = 0,
+
+  /**
+   * BOOLEAN (0x0001).
+   *
+   * @generated from enum value: DATA_TYPE_BOOLEAN = 1;
+   */
+  BOOLEAN = 1,
+
+  /**
+   * INTEGER8 (0x0002).
+   *
+   * @generated from enum value: DATA_TYPE_INTEGER8 = 2;
+   */
+  INTEGER8 = 2,
+
+  /**
+   * INTEGER16 (0x0003).
+   *
+   * @generated from enum value: DATA_TYPE_INTEGER16 = 3;
+   */
+  INTEGER16 = 3,
+
+  /**
+   * INTEGER32 (0x0004).
+   *
+   * @generated from enum value: DATA_TYPE_INTEGER32 = 4;
+   */
+  INTEGER32 = 4,
+
+  /**
+   * UNSIGNED8 (0x0005).
+   *
+   * @generated from enum value: DATA_TYPE_UNSIGNED8 = 5;
+   */
+  UNSIGNED8 = 5,
+
+  /**
+   * UNSIGNED16 (0x0006).
+   *
+   * @generated from enum value: DATA_TYPE_UNSIGNED16 = 6;
+   */
+  UNSIGNED16 = 6,
+
+  /**
+   * UNSIGNED32 (0x0007).
+   *
+   * @generated from enum value: DATA_TYPE_UNSIGNED32 = 7;
+   */
+  UNSIGNED32 = 7,
+
+  /**
+   * REAL32 (0x0008).
+   *
+   * @generated from enum value: DATA_TYPE_REAL32 = 8;
+   */
+  REAL32 = 8,
+
+  /**
+   * VISIBLE_STRING (0x0009).
+   *
+   * @generated from enum value: DATA_TYPE_VISIBLE_STRING = 9;
+   */
+  VISIBLE_STRING = 9,
+
+  /**
+   * OCTET_STRING (0x000A).
+   *
+   * @generated from enum value: DATA_TYPE_OCTET_STRING = 10;
+   */
+  OCTET_STRING = 10,
+
+  /**
+   * UNICODE_STRING (0x000B).
+   *
+   * @generated from enum value: DATA_TYPE_UNICODE_STRING = 11;
+   */
+  UNICODE_STRING = 11,
+
+  /**
+   * DOMAIN (0x000F).
+   *
+   * @generated from enum value: DATA_TYPE_DOMAIN = 15;
+   */
+  DOMAIN = 15,
+
+  /**
+   * REAL64 (0x0011).
+   *
+   * @generated from enum value: DATA_TYPE_REAL64 = 17;
+   */
+  REAL64 = 17,
+
+  /**
+   * INTEGER64 (0x0015).
+   *
+   * @generated from enum value: DATA_TYPE_INTEGER64 = 21;
+   */
+  INTEGER64 = 21,
+
+  /**
+   * UNSIGNED64 (0x001B).
+   *
+   * @generated from enum value: DATA_TYPE_UNSIGNED64 = 27;
+   */
+  UNSIGNED64 = 27,
+}
+
+/**
+ * Describes the enum cangate.v1.DataType.
+ */
+export const DataTypeSchema: GenEnum<DataType> = /*@__PURE__*/
+  enumDesc(file_cangate_v1_canopen, 2);
+
+/**
+ * CANopen master: nodes, NMT, SDO, events.
+ *
+ * @generated from service cangate.v1.Canopen
+ */
+export const Canopen: GenService<{
+  /**
+   * Nodes known on one bus (or all CANopen buses when `bus` is empty):
+   * configured nodes and every node heard of (boot-up, heartbeat, EMCY,
+   * scan).
+   *
+   * @generated from rpc cangate.v1.Canopen.ListNodes
+   */
+  listNodes: {
+    methodKind: "unary";
+    input: typeof ListNodesRequestSchema;
+    output: typeof ListNodesResponseSchema;
+  },
+  /**
+   * One node.
+   *
+   * @generated from rpc cangate.v1.Canopen.GetNode
+   */
+  getNode: {
+    methodKind: "unary";
+    input: typeof GetNodeRequestSchema;
+    output: typeof NodeSchema;
+  },
+  /**
+   * Sends an NMT command to one node or to all nodes (node 0).
+   *
+   * @generated from rpc cangate.v1.Canopen.SendNmt
+   */
+  sendNmt: {
+    methodKind: "unary";
+    input: typeof SendNmtRequestSchema;
+    output: typeof SendNmtResponseSchema;
+  },
+  /**
+   * Reads an object over SDO (expedited, segmented or block).
+   *
+   * @generated from rpc cangate.v1.Canopen.ReadSdo
+   */
+  readSdo: {
+    methodKind: "unary";
+    input: typeof ReadSdoRequestSchema;
+    output: typeof ReadSdoResponseSchema;
+  },
+  /**
+   * Writes an object over SDO.
+   *
+   * @generated from rpc cangate.v1.Canopen.WriteSdo
+   */
+  writeSdo: {
+    methodKind: "unary";
+    input: typeof WriteSdoRequestSchema;
+    output: typeof WriteSdoResponseSchema;
+  },
+  /**
+   * SDO transfers in progress on a bus (for progress bars of large
+   * transfers: poll while a ReadSdo/WriteSdo call runs).
+   *
+   * @generated from rpc cangate.v1.Canopen.ListSdoTransfers
+   */
+  listSdoTransfers: {
+    methodKind: "unary";
+    input: typeof ListSdoTransfersRequestSchema;
+    output: typeof ListSdoTransfersResponseSchema;
+  },
+  /**
+   * Finds the nodes that answer an SDO read of 0x1000 (device type), all
+   * 127 node ids concurrently with a short timeout, and reads their name
+   * (0x1008) and identity (0x1018) where they have them.
+   *
+   * @generated from rpc cangate.v1.Canopen.ScanNetwork
+   */
+  scanNetwork: {
+    methodKind: "unary";
+    input: typeof ScanNetworkRequestSchema;
+    output: typeof ScanNetworkResponseSchema;
+  },
+  /**
+   * Node events as they happen: boot-up, NMT state changes, heartbeat lost
+   * and recovered, EMCY. The stream ends when the client cancels it or the
+   * server shuts down.
+   *
+   * @generated from rpc cangate.v1.Canopen.StreamNodeEvents
+   */
+  streamNodeEvents: {
+    methodKind: "server_streaming";
+    input: typeof StreamNodeEventsRequestSchema;
+    output: typeof NodeEventSchema;
+  },
+  /**
+   * Decoded TPDOs as they arrive: each mapped object with its name and
+   * typed value (typed by the node's EDS; raw unsigned where unknown). The
+   * TPDO layouts come from the node's configuration or its EDS defaults.
+   *
+   * @generated from rpc cangate.v1.Canopen.StreamPdo
+   */
+  streamPdo: {
+    methodKind: "server_streaming";
+    input: typeof StreamPdoRequestSchema;
+    output: typeof PdoMessageSchema;
+  },
+  /**
+   * Sends an RPDO built from named values (every mapped object must be
+   * given; values are range-checked against the mapping's types).
+   *
+   * @generated from rpc cangate.v1.Canopen.WritePdo
+   */
+  writePdo: {
+    methodKind: "unary";
+    input: typeof WritePdoRequestSchema;
+    output: typeof WritePdoResponseSchema;
+  },
+}> = /*@__PURE__*/
+  serviceDesc(file_cangate_v1_canopen, 0);
+

@@ -1,0 +1,186 @@
+// Drives the dashboard in the system's headless Chromium (puppeteer-core)
+// against a running gateway; started by tests/tests/dashboard_browser.rs,
+// which owns the server and checks over gRPC what the page did.
+//
+//   node web/tests/dashboard.mjs demo URL SCREENSHOT_DIR
+//   node web/tests/dashboard.mjs tokens URL SCREENSHOT_DIR VIEWER_TOKEN
+//
+// Talks to the Rust test on stdout/stdin, one line each: "step NAME" when a
+// step passed, "need send-frame" and then it waits for a line on stdin (the
+// test sent the frame over gRPC), "done" at the end. Any failure throws
+// (exit status 1, the reason on stderr).
+import puppeteer from "puppeteer-core";
+import { createInterface } from "node:readline";
+
+const [mode, url, shots, token] = process.argv.slice(2);
+const chromium = process.env.CANGATE_CHROMIUM || "/usr/bin/chromium";
+const WAIT = 10_000;
+const rl = createInterface({ input: process.stdin });
+const stdin = rl[Symbol.asyncIterator]();
+function say(line) {
+  process.stdout.write(line + "\n");
+}
+
+const browser = await puppeteer.launch({
+  executablePath: chromium,
+  headless: true,
+  args: ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"],
+});
+const errors = [];
+let currentPage = null;
+try {
+  const page = await browser.newPage();
+  currentPage = page;
+  await page.setViewport({ width: 1400, height: 800 });
+  page.on("console", (m) => {
+    if (m.type() === "error") errors.push(`console: ${m.text()}`);
+  });
+  page.on("pageerror", (e) => errors.push(`page error: ${e.message}`));
+  page.on("requestfailed", (r) => {
+    // Streams the page ends itself (a new token restarts them) are aborted.
+    if (r.failure()?.errorText !== "net::ERR_ABORTED") {
+      errors.push(`request failed: ${r.url()} ${r.failure()?.errorText}`);
+    }
+  });
+  await page.goto(url, { waitUntil: "load" });
+  if (mode === "demo") await demo(page);
+  else if (mode === "tokens") await tokens(page);
+  else throw new Error(`unknown mode ${mode}`);
+  if (errors.length > 0) throw new Error(`the page reported errors:\n${errors.join("\n")}`);
+  say("step no-console-errors");
+  say("done");
+} finally {
+  // The open stdin would keep node running.
+  rl.close();
+  await browser.close();
+}
+
+// Function declarations (hoisted): the top-level code above calls them.
+function cell(page, axis, cls) {
+  return page.$eval(`tr[data-axis="${axis}"] td.${cls}`, (td) => td.textContent ?? "");
+}
+async function num(page, axis, cls) {
+  return Number(await cell(page, axis, cls));
+}
+function sleep(ms) {
+  return new Promise((r) => setTimeout(r, ms));
+}
+
+async function until(what, f, timeout = WAIT) {
+  const end = Date.now() + timeout;
+  for (;;) {
+    const v = await f();
+    if (v) return v;
+    if (Date.now() > end) {
+      const notice = await currentPage
+        ?.$eval("#notice", (n) => (n.hidden ? "" : n.textContent))
+        .catch(() => "");
+      await currentPage?.screenshot({ path: `${shots}/failure-${mode}.png` }).catch(() => {});
+      throw new Error(`timed out: ${what} (page notice: ${notice || "none"}; ${errors.join("; ")})`);
+    }
+    await sleep(25);
+  }
+}
+
+/** X, Y and Z (the demo's CiA 402 axes) are listed (its CANsmc axes too). */
+function axesListed(page) {
+  return page.$$eval("#axes tbody tr", (rows) => {
+    const names = rows.map((r) => r.dataset.axis);
+    return ["X", "Y", "Z"].every((n) => names.includes(n));
+  });
+}
+
+async function click(page, axis, cmd) {
+  await page.click(`tr[data-axis="${axis}"] button[data-cmd="${cmd}"]`);
+}
+
+async function acquireAndEnable(page, axis) {
+  await click(page, axis, "acquire");
+  await until(`${axis} acquired`, async () =>
+    (await page.$eval(`tr[data-axis="${axis}"] button[data-cmd="acquire"]`, (b) => b.textContent)) === "Release");
+  await click(page, axis, "enable");
+  await until(`${axis} enabled`, async () => (await cell(page, axis, "state")) === "operation enabled");
+}
+
+async function demo(page) {
+  await until("axes X, Y, Z listed", () => axesListed(page));
+  say("step axes-listed");
+  await page.screenshot({ path: `${shots}/axes.png` });
+
+  // Enable, then move X to 12.5.
+  await acquireAndEnable(page, "X");
+  await page.$eval(`tr[data-axis="X"] input[data-field="target"]`, (i) => { i.value = ""; });
+  await page.type(`tr[data-axis="X"] input[data-field="target"]`, "12.5");
+  await click(page, "X", "move");
+  await until("X at 12.5 on the page", async () =>
+    Math.abs((await num(page, "X", "position")) - 12.5) < 0.002 && (await cell(page, "X", "activity")) === "idle");
+  say("step x-moved");
+  await page.screenshot({ path: `${shots}/axes-x-moved.png` });
+
+  // Hold jog+ on Y: it moves while held and stops after release.
+  await acquireAndEnable(page, "Y");
+  const y0 = await num(page, "Y", "position");
+  const jog = await page.$(`tr[data-axis="Y"] button[data-cmd="jog-plus"]`);
+  const box = await jog.boundingBox();
+  await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
+  await page.mouse.down();
+  await until("Y jogging", async () => (await cell(page, "Y", "activity")) === "jogging");
+  // Held for longer than the dead-man time: the repeated Jog keeps it going.
+  await sleep(1200);
+  const yHeld = await num(page, "Y", "position");
+  if (!((await cell(page, "Y", "activity")) === "jogging" && yHeld > y0 + 1)) {
+    throw new Error(`Y stopped while the jog button was held (from ${y0} to ${yHeld})`);
+  }
+  await page.mouse.up();
+  const released = Date.now();
+  await until("Y at rest after release", async () =>
+    (await cell(page, "Y", "activity")) === "idle" && Math.abs(await num(page, "Y", "velocity")) < 1e-6);
+  say(`step y-jog held=${yHeld - y0} stop_ms=${Date.now() - released}`);
+  const yRest = await num(page, "Y", "position");
+  await sleep(300);
+  if ((await num(page, "Y", "position")) !== yRest) throw new Error("Y moved on after the jog stopped");
+
+  // STOP ALL stops a long move of X.
+  await page.$eval(`tr[data-axis="X"] input[data-field="target"]`, (i) => { i.value = ""; });
+  await page.type(`tr[data-axis="X"] input[data-field="target"]`, "-150");
+  await click(page, "X", "move");
+  await until("X moving", async () => (await cell(page, "X", "activity")) === "moving");
+  await sleep(200);
+  await page.click("#stop-all");
+  await until("X stopped by STOP ALL", async () =>
+    (await cell(page, "X", "activity")) === "idle" && Math.abs(await num(page, "X", "velocity")) < 1e-6);
+  const xStopped = await num(page, "X", "position");
+  if (!(xStopped < 12.5 && xStopped > -140)) throw new Error(`X not stopped mid-way: ${xStopped}`);
+  say(`step stop-all x=${xStopped}`);
+
+  // The live frame view shows a frame the test sends over gRPC.
+  await page.click(`button[data-page="buses"]`);
+  await until("can0 listed", () => page.$(`#buses tr[data-bus="can0"]`));
+  await until("frames arriving", async () => (await page.$eval("#frames", (p) => p.textContent ?? "")).length > 0);
+  say("need send-frame");
+  await stdin.next();
+  await until("the sent frame shown", async () =>
+    (await page.$eval("#frames", (p) => p.textContent ?? "")).includes("can0  7E5        [3]  C0 FF EE"));
+  say("step frame-shown");
+  await page.screenshot({ path: `${shots}/buses.png` });
+}
+
+async function tokens(page) {
+  await until("the page asks for a token", async () =>
+    (await page.$eval("#conn", (c) => c.textContent)) === "token needed");
+  const rows = await page.$$eval("#axes tbody tr", (r) => r.length);
+  if (rows !== 0) throw new Error("axes listed without a token");
+  say("step refused-without-token");
+  await page.screenshot({ path: `${shots}/token-needed.png` });
+  await page.type("#token", token);
+  await page.click("#token-use");
+  await until("axes listed with the token", () => axesListed(page));
+  await until("connected", async () => (await page.$eval("#conn", (c) => c.textContent)) === "connected");
+  say("step accepted-with-token");
+  // A viewer may watch but not take control.
+  await click(page, "X", "acquire");
+  await until("the role's refusal shown", async () =>
+    (await page.$eval("#notice", (n) => (n.hidden ? "" : n.textContent ?? ""))).includes("not allowed for this token's role"));
+  say("step role-honoured");
+  await page.screenshot({ path: `${shots}/token-viewer.png` });
+}
