@@ -126,18 +126,34 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
     let steps = drive(&["demo".into(), url, shots.display().to_string()], |need| {
         let c = c.clone();
         async move {
-            assert_eq!(need, "send-frame");
-            c.bus_client()
-                .send_frames(pb::SendFramesRequest {
-                    bus: "can0".into(),
-                    frames: vec![pb::Frame {
-                        id: 0x7E5,
-                        data: vec![0xC0, 0xFF, 0xEE],
-                        ..Default::default()
-                    }],
-                })
-                .await
-                .expect("frame sent over gRPC");
+            match need.as_str() {
+                "send-frame" => {
+                    c.bus_client()
+                        .send_frames(pb::SendFramesRequest {
+                            bus: "can0".into(),
+                            frames: vec![pb::Frame {
+                                id: 0x7E5,
+                                data: vec![0xC0, 0xFF, 0xEE],
+                                ..Default::default()
+                            }],
+                        })
+                        .await
+                        .expect("frame sent over gRPC");
+                }
+                "emcy" => {
+                    c.simulator_client()
+                        .send_emcy(pb::SendEmcyRequest {
+                            bus: "can0".into(),
+                            node: 4,
+                            code: 0x2310,
+                            error_register: 0x03,
+                            manufacturer: vec![],
+                        })
+                        .await
+                        .expect("EMCY sent by the simulated node 4");
+                }
+                other => panic!("unexpected request {other}"),
+            }
         }
     })
     .await;
@@ -150,9 +166,22 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
             "y-jog",
             "stop-all",
             "frame-shown",
+            "canopen-nodes",
+            "nmt",
+            "emcy-shown",
+            "sdo-read",
+            "sdo-abort",
+            "streams",
             "no-console-errors"
         ]
     );
+    let step = |name: &str| {
+        steps
+            .iter()
+            .find_map(|s| s.strip_prefix(name)?.strip_prefix(' '))
+            .unwrap_or_else(|| panic!("step {name}"))
+            .to_string()
+    };
     // What the page did, seen over gRPC: Y came to rest after the jog,
     // and X was stopped by STOP ALL on its way from 12.5 to -150 (the move
     // to 12.5 was checked on the page; the stop moved X on since).
@@ -176,13 +205,109 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
         .status
         .unwrap()
         .position;
-    let on_page: f64 = steps[3]
-        .strip_prefix("stop-all x=")
+    let on_page: f64 = step("stop-all")
+        .strip_prefix("x=")
         .and_then(|v| v.parse().ok())
         .expect("the page reports where X stopped");
     assert!((x - on_page).abs() < 1e-3, "page {on_page}, gRPC {x}");
     assert!(x < 12.5 && x > -140.0, "{x}");
-    for f in ["axes.png", "axes-x-moved.png", "buses.png"] {
+    // The CANopen page, against the gateway's own answers: node 1's
+    // identity and device name, the EMCY of node 4 as the master decoded
+    // it, and the abort of a write to the read-only 0x1000.
+    let mut co = c.canopen_client();
+    let node1 = co
+        .get_node(pb::GetNodeRequest {
+            bus: "can0".into(),
+            node: 1,
+        })
+        .await
+        .expect("GetNode")
+        .into_inner();
+    let id = node1.identity.expect("node 1 identity read at boot");
+    assert_eq!(
+        step("canopen-nodes"),
+        format!(
+            "identity=\"vendor 0x{:08X} product 0x{:08X} rev 0x{:08X} serial {}\"",
+            id.vendor_id, id.product_code, id.revision, id.serial
+        )
+    );
+    let name = co
+        .read_sdo(pb::ReadSdoRequest {
+            bus: "can0".into(),
+            node: 1,
+            index: 0x1008,
+            subindex: 0,
+            ..Default::default()
+        })
+        .await
+        .expect("ReadSdo 0x1008")
+        .into_inner();
+    let Some(pb::value::Value::StringValue(device_name)) = name.value.and_then(|v| v.value) else {
+        panic!("0x1008 of node 1 is a string")
+    };
+    assert!(!device_name.is_empty());
+    assert_eq!(
+        step("sdo-read"),
+        format!(
+            "read can0 node 1 0x1008:0: VISIBLE_STRING {device_name:?}; raw [{}] {}",
+            name.raw.len(),
+            name.raw
+                .iter()
+                .map(|b| format!("{b:02X}"))
+                .collect::<Vec<_>>()
+                .join(" ")
+        )
+    );
+    let node4 = co
+        .get_node(pb::GetNodeRequest {
+            bus: "can0".into(),
+            node: 4,
+        })
+        .await
+        .expect("GetNode")
+        .into_inner();
+    let emcy = node4
+        .active_error
+        .expect("node 4's EMCY is its active error");
+    assert_eq!(emcy.code, 0x2310);
+    assert!(
+        step("emcy-shown").contains(&format!("0x2310 {}", emcy.code_name)),
+        "{} / {}",
+        step("emcy-shown"),
+        emcy.code_name
+    );
+    let refused = co
+        .write_sdo(pb::WriteSdoRequest {
+            bus: "can0".into(),
+            node: 1,
+            index: 0x1000,
+            subindex: 0,
+            data: Some(pb::write_sdo_request::Data::Value(pb::Value {
+                r#type: pb::DataType::Unsigned32 as i32,
+                value: Some(pb::value::Value::UintValue(1)),
+            })),
+            options: None,
+        })
+        .await
+        .expect_err("0x1000 is read-only");
+    let abort = cangate_client::sdo_abort_details(&refused).expect("SdoAbortDetails");
+    assert_eq!(abort.code, 0x0601_0002);
+    assert_eq!(
+        step("sdo-abort"),
+        format!("SDO abort 0x{:08X} {}", abort.code, abort.name)
+    );
+    // Node 3 is pre-operational again after the page's NMT start, stop
+    // and pre-operational.
+    let node3 = co
+        .get_node(pb::GetNodeRequest {
+            bus: "can0".into(),
+            node: 3,
+        })
+        .await
+        .expect("GetNode")
+        .into_inner();
+    assert_eq!(node3.state, pb::NmtState::PreOperational as i32);
+    for f in ["axes.png", "axes-x-moved.png", "buses.png", "canopen.png"] {
         assert!(shots.join(f).exists(), "{f}");
     }
     server.shutdown();

@@ -1,5 +1,5 @@
 // Buses: state and counters (polled), and a live frame view of one bus
-// (one server stream) that coalesces rendering to animation frames, shows
+// (one server stream, while the page is shown) that coalesces rendering to animation frames, shows
 // the rate, can pause, and shows frames the gateway reports lost.
 import { BusState, type BusInfo, type Frame } from "./gen/cangate/v1/bus_pb";
 import { bus, el, keepStreaming, showConnected, showError } from "./api";
@@ -42,7 +42,7 @@ function scheduleRender(): void {
 
 function openFrames(): void {
   streamAbort?.abort();
-  if (!parent || !selected) return;
+  if (!parent || parent.aborted || !selected) return;
   const ctl = new AbortController();
   parent.addEventListener("abort", () => ctl.abort(), { once: true });
   streamAbort = ctl;
@@ -113,9 +113,14 @@ function renderTable(list: BusInfo[]): void {
   }
 }
 
-/** Starts the page's polling and its frame stream until `signal` aborts. */
-export function startBuses(signal: AbortSignal): void {
+/** Streams the selected bus's frames while the page is shown. */
+export function enterBuses(signal: AbortSignal): void {
   parent = signal;
+  openFrames();
+}
+
+/** Starts polling the buses until `signal` aborts. */
+export function startBuses(signal: AbortSignal): void {
   selected = "";
   (document.getElementById("frame-bus") as HTMLSelectElement).replaceChildren();
   const poll = async () => {

@@ -163,6 +163,87 @@ async function demo(page) {
     (await page.$eval("#frames", (p) => p.textContent ?? "")).includes("can0  7E5        [3]  C0 FF EE"));
   say("step frame-shown");
   await page.screenshot({ path: `${shots}/buses.png` });
+
+  await canopenPage(page);
+  const most = await page.$eval("body", (b) => Number(b.dataset.streamsMax));
+  if (!(most >= 2 && most <= 3)) throw new Error(`the page held ${most} streams at once (at most 3)`);
+  say(`step streams max=${most}`);
+}
+
+function nodeCell(page, node, cls) {
+  return page.$eval(`#nodes tr[data-bus="can0"][data-node="${node}"] td.${cls}`, (td) => td.textContent ?? "");
+}
+function text(page, sel) {
+  return page.$eval(sel, (e) => (e.hidden ? "" : e.textContent ?? ""));
+}
+
+async function canopenPage(page) {
+  await page.click(`button[data-page="canopen"]`);
+  // The demo's nodes, operational, with heartbeats and identities.
+  // (The boot procedure starts the drives and the handwheel; the I/O node
+  // stays pre-operational.)
+  await until("CANopen nodes 1, 2, 4 and 10 operational, 3 pre-operational", async () => {
+    const nmt = await page.$$eval("#nodes tbody tr", (rows) =>
+      Object.fromEntries(rows.filter((r) => r.dataset.bus === "can0").map((r) => [r.dataset.node, r.dataset.nmt])));
+    return ["1", "2", "4", "10"].every((n) => nmt[n] === "operational") && nmt["3"] === "pre operational";
+  });
+  const hb = await nodeCell(page, 1, "hb");
+  const age = Number(hb.replace(/ ms.*/, ""));
+  if (!(age >= 0 && age < 1000)) throw new Error(`node 1 heartbeat age ${hb}`);
+  const identity = await nodeCell(page, 1, "identity");
+  if (!/vendor 0x[0-9A-F]{8} product 0x[0-9A-F]{8} rev 0x[0-9A-F]{8} serial \d+/.test(identity)) {
+    throw new Error(`node 1 identity ${identity}`);
+  }
+  say(`step canopen-nodes identity=${JSON.stringify(identity)}`);
+
+  // NMT: start the I/O node (3), stop it, and put it back in
+  // pre-operational.
+  await page.click(`#nodes tr[data-node="3"] button[data-cmd="nmt-start"]`);
+  await until("node 3 operational", async () => (await nodeCell(page, 3, "nmt")) === "operational");
+  await page.click(`#nodes tr[data-node="3"] button[data-cmd="nmt-stop"]`);
+  await until("node 3 stopped", async () => (await nodeCell(page, 3, "nmt")) === "stopped");
+  await page.click(`#nodes tr[data-node="3"] button[data-cmd="nmt-enter_pre_operational"]`);
+  await until("node 3 pre-operational again", async () => (await nodeCell(page, 3, "nmt")) === "pre operational");
+  await until("the NMT changes in the event log", async () => {
+    const log = await text(page, "#node-events");
+    return ["pre operational → operational", "operational → stopped", "stopped → pre operational"].every((c) =>
+      log.includes(`can0 node 3: NMT ${c}`));
+  });
+  say("step nmt");
+
+  // An EMCY (sent by the simulated node 4 on the test's request) appears
+  // in the history and the event log.
+  say("need emcy");
+  await stdin.next();
+  await until("the EMCY shown", async () =>
+    (await text(page, "#emcy-history")).includes("can0 node 4: 0x2310") &&
+    (await text(page, "#node-events")).includes("can0 node 4: EMCY 0x2310"));
+  say(`step emcy-shown ${JSON.stringify(await nodeCell(page, 4, "fault"))}`);
+
+  // SDO read of 0x1008 (device name) of node 1, with the EDS type.
+  await page.select("#sdo-node", "can0/1");
+  await setInput(page, "#sdo-index", "1008");
+  await setInput(page, "#sdo-sub", "0");
+  await page.select("#sdo-type", "0");
+  await page.click("#sdo-read");
+  await until("the SDO read shown", async () =>
+    (await page.$eval("#sdo-result", (e) => e.dataset.outcome)) === "ok");
+  say(`step sdo-read ${await text(page, "#sdo-result")}`);
+
+  // A write to the read-only 0x1000 (device type): the node's abort,
+  // with its code and CiA 301 name.
+  await setInput(page, "#sdo-index", "1000");
+  await setInput(page, "#sdo-value", "1");
+  await page.click("#sdo-write");
+  await until("the SDO abort shown", async () => (await text(page, "#sdo-abort")) !== "");
+  if ((await page.$eval("#sdo-result", (e) => e.dataset.outcome)) !== "error") throw new Error("the write was not refused");
+  say(`step sdo-abort ${await text(page, "#sdo-abort")}`);
+  await page.screenshot({ path: `${shots}/canopen.png` });
+}
+
+async function setInput(page, sel, value) {
+  await page.$eval(sel, (i) => { i.value = ""; });
+  await page.type(sel, value);
 }
 
 async function tokens(page) {
