@@ -164,6 +164,7 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
             "axes-listed",
             "x-moved",
             "y-jog",
+            "home-move",
             "stop-all",
             "frame-shown",
             "canopen-nodes",
@@ -211,6 +212,24 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
         .expect("the page reports where X stopped");
     assert!((x - on_page).abs() < 1e-3, "page {on_page}, gRPC {x}");
     assert!(x < 12.5 && x > -140.0, "{x}");
+    // The move after Home ran at the velocity given on the page (20, not
+    // the axis's 100: the drive's actual velocity, which overshoots the
+    // profile's a little) and X is homed.
+    let home_move = step("home-move");
+    let vmax: f64 = home_move
+        .rsplit_once("vmax=")
+        .and_then(|(_, v)| v.parse().ok())
+        .expect("vmax");
+    assert!(vmax > 15.0 && vmax < 25.0, "{home_move}");
+    let x_status = axes
+        .get_axis(pb::GetAxisRequest { axis: "X".into() })
+        .await
+        .unwrap()
+        .into_inner()
+        .status
+        .unwrap();
+    assert!(x_status.homed, "X homed by the page");
+
     // The CANopen page, against the gateway's own answers: node 1's
     // identity and device name, the EMCY of node 4 as the master decoded
     // it, and the abort of a write to the read-only 0x1000.
@@ -319,8 +338,10 @@ async fn a_gateway_with_tokens_asks_for_one_and_honours_the_role() {
         return;
     }
     let tokens = format!(
-        "[[security.tokens]]\nname = \"wall-screen\"\nrole = \"viewer\"\nsha256 = \"{}\"\n",
-        cangate_client::hash_token("viewer-secret")
+        "[[security.tokens]]\nname = \"wall-screen\"\nrole = \"viewer\"\nsha256 = \"{}\"\n\
+         [[security.tokens]]\nname = \"hmi\"\nrole = \"operator\"\nsha256 = \"{}\"\n",
+        cangate_client::hash_token("viewer-secret"),
+        cangate_client::hash_token("operator-secret")
     );
     // The token tables go after the demo's own [security] keys.
     let server = {
@@ -340,17 +361,25 @@ async fn a_gateway_with_tokens_asks_for_one_and_honours_the_role() {
             url,
             screenshots().display().to_string(),
             "viewer-secret".into(),
+            "operator-secret".into(),
         ],
         |need| async move { panic!("unexpected request {need}") },
     )
     .await;
+    // The roles the page shows and the buttons it disables, as the access
+    // table (server/src/security/roles.rs) gives them.
+    let viewer = r#"{"acquire":"AcquireControl needs role operator; this token has role viewer","enable":"Enable needs role operator; this token has role viewer","stopAll":"StopAxes needs role operator; this token has role viewer","nmt":"SendNmt needs role engineer; this token has role viewer","sdoRead":"enabled","sdoWrite":"WriteSdo needs role engineer; this token has role viewer"}"#;
+    let operator = r#"{"acquire":"enabled","enable":"enabled","stopAll":"enabled","nmt":"SendNmt needs role engineer; this token has role operator","sdoRead":"enabled","sdoWrite":"WriteSdo needs role engineer; this token has role operator"}"#;
     assert_eq!(
         steps,
         [
-            "refused-without-token",
-            "accepted-with-token",
-            "role-honoured",
-            "no-console-errors"
+            "refused-without-token".to_string(),
+            "accepted-with-token".into(),
+            "role role: viewer (wall-screen)".into(),
+            format!("viewer-buttons {viewer}"),
+            "role role: operator (hmi)".into(),
+            format!("operator-buttons {operator}"),
+            "no-console-errors".into(),
         ]
     );
     // Nobody took control of X through the page.

@@ -8,7 +8,7 @@ import { initAxes, startAxes, stopAll } from "./axes";
 import { enterBuses, initBuses, startBuses } from "./buses";
 import { enterCanopen, initCanopen } from "./canopen";
 import { NmtCommand } from "./gen/cangate/v1/canopen_pb";
-import { probeRole } from "./roles";
+import { guard, probeRole } from "./roles";
 
 const PAGES: Record<string, ((signal: AbortSignal) => void) | null> = {
   buses: enterBuses,
@@ -72,7 +72,9 @@ document.addEventListener("DOMContentLoaded", () => {
     document.getElementById("notice")!.hidden = true;
     start();
   });
-  document.getElementById("stop-all")!.addEventListener("click", () => void stopAll());
+  const stopAllButton = document.getElementById("stop-all") as HTMLButtonElement;
+  stopAllButton.addEventListener("click", () => void stopAll());
+  guard(stopAllButton, "StopAxes");
   initAxes();
   initBuses();
   initCanopen();

@@ -34,7 +34,15 @@ export type Rpc = keyof typeof NEEDS;
 
 let role: Role | null = null;
 let who = "";
-const guarded: { button: HTMLButtonElement; rpc: Rpc; other: () => string }[] = [];
+interface Guarded {
+  button: HTMLButtonElement;
+  rpc: Rpc;
+  /** Another reason to disable the button ("" for none). */
+  other: () => string;
+  /** The button's own tooltip, shown while it is enabled. */
+  title: string;
+}
+const guarded: Guarded[] = [];
 
 /** Why the role may not call `rpc`, or "" when it may (or is not known yet). */
 export function refusal(rpc: Rpc): string {
@@ -49,14 +57,15 @@ export function refusal(rpc: Rpc): string {
  * disable it, e.g. no lease held; "" for none).
  */
 export function guard(button: HTMLButtonElement, rpc: Rpc, other: () => string = () => ""): void {
-  guarded.push({ button, rpc, other });
-  refresh(button, rpc, other);
+  const g = { button, rpc, other, title: button.title };
+  guarded.push(g);
+  refresh(g);
 }
 
-function refresh(button: HTMLButtonElement, rpc: Rpc, other: () => string): void {
-  const why = refusal(rpc) || other();
-  button.disabled = why !== "";
-  button.title = why;
+function refresh(g: Guarded): void {
+  const why = refusal(g.rpc) || g.other();
+  g.button.disabled = why !== "";
+  g.button.title = why || g.title;
 }
 
 /** Re-applies the role and the other reasons to every guarded button. */
@@ -64,7 +73,7 @@ export function applyRoles(): void {
   for (let i = guarded.length - 1; i >= 0; i--) {
     const g = guarded[i];
     if (!g.button.isConnected) guarded.splice(i, 1);
-    else refresh(g.button, g.rpc, g.other);
+    else refresh(g);
   }
   const badge = document.getElementById("role")!;
   badge.textContent = role === null ? "" : `role: ${role}${who ? ` (${who})` : ""}`;

@@ -3,7 +3,7 @@
 // which owns the server and checks over gRPC what the page did.
 //
 //   node web/tests/dashboard.mjs demo URL SCREENSHOT_DIR
-//   node web/tests/dashboard.mjs tokens URL SCREENSHOT_DIR VIEWER_TOKEN
+//   node web/tests/dashboard.mjs tokens URL SCREENSHOT_DIR VIEWER_TOKEN OPERATOR_TOKEN
 //
 // Talks to the Rust test on stdout/stdin, one line each: "step NAME" when a
 // step passed, "need send-frame" and then it waits for a line on stdin (the
@@ -12,7 +12,7 @@
 import puppeteer from "puppeteer-core";
 import { createInterface } from "node:readline";
 
-const [mode, url, shots, token] = process.argv.slice(2);
+const [mode, url, shots, token, operatorToken] = process.argv.slice(2);
 const chromium = process.env.CANGATE_CHROMIUM || "/usr/bin/chromium";
 const WAIT = 10_000;
 const rl = createInterface({ input: process.stdin });
@@ -140,6 +140,26 @@ async function demo(page) {
   await sleep(300);
   if ((await num(page, "Y", "position")) !== yRest) throw new Error("Y moved on after the jog stopped");
 
+  // Home X (the demo's method 35: here is home), then a move with the
+  // velocity and acceleration given on the page.
+  await click(page, "X", "home");
+  await until("X homed", async () =>
+    (await page.$eval(`tr[data-axis="X"]`, (r) => r.dataset.homed)) === "true" && (await cell(page, "X", "activity")) === "idle");
+  const xHome = await num(page, "X", "position");
+  await setInput(page, `tr[data-axis="X"] input[data-field="target"]`, String(xHome + 10));
+  await setInput(page, `tr[data-axis="X"] input[data-field="velocity"]`, "20");
+  await setInput(page, `tr[data-axis="X"] input[data-field="acceleration"]`, "200");
+  await click(page, "X", "move");
+  await until("X moving", async () => (await cell(page, "X", "activity")) === "moving");
+  let vmax = 0;
+  await until("X 10 further at rest", async () => {
+    vmax = Math.max(vmax, Math.abs(await num(page, "X", "velocity")));
+    return (await cell(page, "X", "activity")) === "idle" && Math.abs((await num(page, "X", "position")) - xHome - 10) < 0.002;
+  });
+  say(`step home-move home=${xHome} vmax=${vmax}`);
+  await setInput(page, `tr[data-axis="X"] input[data-field="velocity"]`, "");
+  await setInput(page, `tr[data-axis="X"] input[data-field="acceleration"]`, "");
+
   // STOP ALL stops a long move of X.
   await page.$eval(`tr[data-axis="X"] input[data-field="target"]`, (i) => { i.value = ""; });
   await page.type(`tr[data-axis="X"] input[data-field="target"]`, "-150");
@@ -258,10 +278,42 @@ async function tokens(page) {
   await until("axes listed with the token", () => axesListed(page));
   await until("connected", async () => (await page.$eval("#conn", (c) => c.textContent)) === "connected");
   say("step accepted-with-token");
-  // A viewer may watch but not take control.
-  await click(page, "X", "acquire");
-  await until("the role's refusal shown", async () =>
-    (await page.$eval("#notice", (n) => (n.hidden ? "" : n.textContent ?? ""))).includes("not allowed for this token's role"));
-  say("step role-honoured");
+  // A viewer may watch but not take control: the page shows the role and
+  // disables what it may not use, saying why.
+  await until("the role shown", async () => (await text(page, "#role")).startsWith("role: viewer"));
+  say(`step role ${await text(page, "#role")}`);
+  say(`step viewer-buttons ${JSON.stringify(await buttonStates(page))}`);
   await page.screenshot({ path: `${shots}/token-viewer.png` });
+
+  // An operator may take control and stop, but not send NMT or write SDO.
+  await page.type("#token", operatorToken);
+  await page.click("#token-use");
+  await until("the operator's role shown", async () => (await text(page, "#role")).startsWith("role: operator"));
+  await until("axes listed again", () => axesListed(page));
+  say(`step role ${await text(page, "#role")}`);
+  await click(page, "X", "acquire");
+  await until("X acquired by the operator", async () =>
+    (await page.$eval(`tr[data-axis="X"] button[data-cmd="acquire"]`, (b) => b.textContent)) === "Release");
+  say(`step operator-buttons ${JSON.stringify(await buttonStates(page))}`);
+  await click(page, "X", "acquire");
+  await until("X released", async () =>
+    (await page.$eval(`tr[data-axis="X"] button[data-cmd="acquire"]`, (b) => b.textContent)) === "Acquire");
+  await page.screenshot({ path: `${shots}/token-operator.png` });
+}
+
+/** Disabled buttons' tooltips (or "enabled") of a few buttons the roles tell apart. */
+async function buttonStates(page) {
+  await page.click(`button[data-page="canopen"]`);
+  await until("nodes listed", () => page.$(`#nodes tr[data-node="1"]`));
+  const state = (sel) => page.$eval(sel, (b) => (b.disabled ? b.title : "enabled"));
+  const out = {
+    acquire: await state(`tr[data-axis="X"] button[data-cmd="acquire"]`),
+    enable: await state(`tr[data-axis="X"] button[data-cmd="enable"]`),
+    stopAll: await state("#stop-all"),
+    nmt: await state(`#nodes tr[data-node="1"] button[data-cmd="nmt-start"]`),
+    sdoRead: await state("#sdo-read"),
+    sdoWrite: await state("#sdo-write"),
+  };
+  await page.click(`button[data-page="axes"]`);
+  return out;
 }
