@@ -163,10 +163,12 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
         [
             "axes-listed",
             "x-moved",
+            "x-traced",
             "y-jog",
             "home-move",
             "stop-all",
             "frame-shown",
+            "load-chart",
             "canopen-nodes",
             "nmt",
             "emcy-shown",
@@ -229,6 +231,26 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
         .status
         .unwrap();
     assert!(x_status.homed, "X homed by the page");
+
+    // can0 carries the demo's SYNC and process data: its charted load
+    // is above zero, as GetBus says.
+    let can0_load: f64 = step("load-chart")
+        .strip_prefix("can0=")
+        .and_then(|v| v.parse().ok())
+        .expect("can0 load");
+    let grpc_load = c
+        .bus_client()
+        .get_bus(pb::GetBusRequest { bus: "can0".into() })
+        .await
+        .expect("GetBus")
+        .into_inner()
+        .statistics
+        .expect("statistics")
+        .load_percent;
+    assert!(
+        can0_load > 0.0 && grpc_load > 0.0,
+        "page {can0_load}, gRPC {grpc_load}"
+    );
 
     // The CANopen page, against the gateway's own answers: node 1's
     // identity and device name, the EMCY of node 4 as the master decoded

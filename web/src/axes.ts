@@ -8,6 +8,7 @@
 import { AxisActivity, DriveState, type Axis, type AxisStatus } from "./gen/cangate/v1/axes_pb";
 import { axes, clearNotice, el, keepStreaming, showError } from "./api";
 import { applyRoles, guard, type Rpc } from "./roles";
+import { TimeChart } from "./chart";
 
 interface Row {
   axis: Axis;
@@ -22,6 +23,10 @@ const rows = new Map<string, Row>();
 const leases = new Map<string, { lease: string; timer: number }>();
 let names: string[] = [];
 let jog: { axis: string; timer: number } | null = null;
+/** The latest position of every axis, for the trace. */
+const positions = new Map<string, number>();
+let traced = "";
+let trace: TimeChart | null = null;
 
 const enumName = (e: Record<number, string>, v: number) =>
   (e[v] ?? String(v)).toLowerCase().replace(/_/g, " ");
@@ -201,6 +206,7 @@ function buildRow(axis: Axis): Row {
 function update(s: AxisStatus): void {
   const row = rows.get(s.axis);
   if (!row) return;
+  positions.set(s.axis, s.position);
   row.cells.state.textContent = enumName(DriveState, s.state);
   row.cells.activity.textContent = enumName(AxisActivity, s.activity);
   row.cells.position.textContent = s.position.toFixed(3);
@@ -233,6 +239,11 @@ export async function startAxes(signal: AbortSignal): Promise<void> {
   }
   rows.clear();
   names = list.map((a) => a.name);
+  const select = document.getElementById("trace-axis") as HTMLSelectElement;
+  select.replaceChildren(...list.map((a) => el("option", { value: a.name }, `${a.name} (${a.unit})`)));
+  if (!names.includes(traced)) traced = names[0] ?? "";
+  select.value = traced;
+  trace?.setSeries([`${traced} position`]);
   const tbody = document.querySelector("#axes tbody")!;
   tbody.replaceChildren();
   for (const a of list) {
@@ -253,6 +264,18 @@ export async function startAxes(signal: AbortSignal): Promise<void> {
 }
 
 export function initAxes(): void {
+  trace = new TimeChart(document.getElementById("trace-chart")!, "position", 120);
+  const select = document.getElementById("trace-axis") as HTMLSelectElement;
+  select.addEventListener("change", () => {
+    traced = select.value;
+    trace?.setSeries([`${traced} position`]);
+  });
+  // Sampled at 20 Hz from the latest state (the stream sends changes
+  // only, so an axis at rest sends nothing).
+  setInterval(() => {
+    const p = positions.get(traced);
+    if (p !== undefined) trace?.push(Date.now() / 1000, [p]);
+  }, 50);
   // The dead-man side of the page: a held jog ends when the page loses
   // the user's attention.
   window.addEventListener("blur", stopJog);

@@ -1,8 +1,10 @@
-// Buses: state and counters (polled), and a live frame view of one bus
+// Buses: state and counters (polled every second; the load % charted
+// over the last five minutes), and a live frame view of one bus
 // (one server stream, while the page is shown) that coalesces rendering to animation frames, shows
 // the rate, can pause, and shows frames the gateway reports lost.
 import { BusState, type BusInfo, type Frame } from "./gen/cangate/v1/bus_pb";
 import { bus, el, keepStreaming, showConnected, showError } from "./api";
+import { TimeChart } from "./chart";
 
 const MAX_LINES = 500;
 let lines: string[] = [];
@@ -13,6 +15,7 @@ let renderPending = false;
 let selected = "";
 let streamAbort: AbortController | null = null;
 let parent: AbortSignal | null = null;
+let loadChart: TimeChart | null = null;
 
 function hex(n: number, width: number): string {
   return n.toString(16).toUpperCase().padStart(width, "0");
@@ -80,6 +83,8 @@ function stateName(b: BusInfo): string {
 }
 
 function renderTable(list: BusInfo[]): void {
+  loadChart?.setSeries(list.map((b) => b.name));
+  loadChart?.push(Date.now() / 1000, list.map((b) => b.statistics?.loadPercent ?? 0));
   const tbody = document.querySelector("#buses tbody")!;
   tbody.replaceChildren(
     ...list.map((b) => {
@@ -139,6 +144,7 @@ export function startBuses(signal: AbortSignal): void {
 }
 
 export function initBuses(): void {
+  loadChart = new TimeChart(document.getElementById("load-chart")!, "load %", 300);
   const select = document.getElementById("frame-bus") as HTMLSelectElement;
   select.addEventListener("change", () => {
     selected = select.value;

@@ -115,6 +115,12 @@ async function demo(page) {
   await until("X at 12.5 on the page", async () =>
     Math.abs((await num(page, "X", "position")) - 12.5) < 0.002 && (await cell(page, "X", "activity")) === "idle");
   say("step x-moved");
+  // The position trace (X is traced by default) went from 0 to 12.5.
+  await until("the trace shows X's move", async () => {
+    const d = await page.$eval("#trace-chart", (c) => ({ ...c.dataset, canvas: !!c.querySelector("canvas") }));
+    return d.canvas && Math.abs(Number(d.min)) < 0.01 && Math.abs(Number(d.max) - 12.5) < 0.01;
+  });
+  say("step x-traced");
   await page.screenshot({ path: `${shots}/axes-x-moved.png` });
 
   // Hold jog+ on Y: it moves while held and stops after release.
@@ -182,6 +188,14 @@ async function demo(page) {
   await until("the sent frame shown", async () =>
     (await page.$eval("#frames", (p) => p.textContent ?? "")).includes("can0  7E5        [3]  C0 FF EE"));
   say("step frame-shown");
+  // The load chart has a series per bus; its latest point is the table's.
+  await until("a few load points", async () => Number(await page.$eval("#load-chart", (c) => c.dataset.points)) >= 3);
+  const load = await page.$eval("#load-chart", (c) => JSON.parse(c.dataset.last));
+  const table = await page.$$eval("#buses tbody tr", (rows) => rows.map((r) => Number(r.children[2].textContent)));
+  if (load.length !== table.length || load.some((v, i) => Math.abs(v - table[i]) > 0.051)) {
+    throw new Error(`load chart ${load} and table ${table} differ`);
+  }
+  say(`step load-chart can0=${load[0]}`);
   await page.screenshot({ path: `${shots}/buses.png` });
 
   await canopenPage(page);
