@@ -70,12 +70,12 @@ fn screenshots() -> PathBuf {
     dir
 }
 
-/// Runs the browser script; `on_need` answers its requests. Returns the
-/// steps it reported.
+/// Runs the browser script; `on_need` answers its requests (with the line
+/// to send back). Returns the steps it reported.
 async fn drive<F, Fut>(args: &[String], mut on_need: F) -> Vec<String>
 where
     F: FnMut(String) -> Fut,
-    Fut: std::future::Future<Output = ()>,
+    Fut: std::future::Future<Output = String>,
 {
     let mut child = tokio::process::Command::new("node")
         .arg(repo().join("web/tests/dashboard.mjs"))
@@ -95,8 +95,11 @@ where
         while let Some(line) = lines.next_line().await.unwrap() {
             eprintln!("browser: {line}");
             if let Some(need) = line.strip_prefix("need ") {
-                on_need(need.to_string()).await;
-                stdin.write_all(b"ok\n").await.unwrap();
+                let answer = on_need(need.to_string()).await;
+                stdin
+                    .write_all(format!("{answer}\n").as_bytes())
+                    .await
+                    .unwrap();
             } else if let Some(step) = line.strip_prefix("step ") {
                 steps.push(step.to_string());
             }
@@ -112,6 +115,50 @@ where
         .unwrap();
     assert!(status.success(), "browser script failed: {err}");
     steps
+}
+
+fn unexpected(need: String) -> String {
+    panic!("unexpected request {need}")
+}
+
+/// Turns the simulated wheel hw1 (in manual mode, set by the page) 40
+/// detents on X with 30 % frame loss, waits until its statistics settle
+/// and returns them as the page shows them (JSON by the page's keys).
+async fn turn_wheel(c: &cangate_client::Client) -> String {
+    c.simulator_client()
+        .turn_handwheel(pb::TurnHandwheelRequest {
+            handwheel: "hw1".into(),
+            detents: 40,
+            axis: pb::WheelAxis::X as i32,
+            multiplier: 1,
+            loss: 0.3,
+            max_consecutive_loss: 3,
+        })
+        .await
+        .expect("TurnHandwheel");
+    let mut hw = c.handwheels_client();
+    let mut last = None;
+    loop {
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let w = hw
+            .get_handwheel(pb::GetHandwheelRequest {
+                handwheel: "hw1".into(),
+            })
+            .await
+            .expect("GetHandwheel")
+            .into_inner();
+        let s = w.stats.expect("stats");
+        let b = w.binding.expect("binding stats");
+        let now = format!(
+            r#"{{"frames":{},"gaps":{},"compensated":{},"duplicates":{},"units":{}}}"#,
+            s.frames, s.gaps, s.compensated_units, s.duplicates, b.units
+        );
+        if last.as_ref() == Some(&now) && b.pending_units == 0 {
+            assert!(s.frames > 0 && s.gaps > 0, "{now}");
+            return now;
+        }
+        last = Some(now);
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -152,8 +199,10 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
                         .await
                         .expect("EMCY sent by the simulated node 4");
                 }
+                "turn" => return turn_wheel(&c).await,
                 other => panic!("unexpected request {other}"),
             }
+            "ok".to_string()
         }
     })
     .await;
@@ -174,6 +223,9 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
             "emcy-shown",
             "sdo-read",
             "sdo-abort",
+            "handwheel",
+            "handwheel-automatic",
+            "cansmc",
             "streams",
             "no-console-errors"
         ]
@@ -348,7 +400,61 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
         .expect("GetNode")
         .into_inner();
     assert_eq!(node3.state, pb::NmtState::PreOperational as i32);
-    for f in ["axes.png", "axes-x-moved.png", "buses.png", "canopen.png"] {
+    // The handwheel: every gap the gateway counted is a line of the page's
+    // feed, and the wheel is back in automatic mode.
+    let hw = c
+        .handwheels_client()
+        .get_handwheel(pb::GetHandwheelRequest {
+            handwheel: "hw1".into(),
+        })
+        .await
+        .expect("GetHandwheel")
+        .into_inner();
+    assert_eq!(hw.mode, pb::HandwheelMode::Automatic as i32);
+    let gaps = hw.stats.expect("stats").gaps;
+    assert!(
+        step("handwheel").ends_with(&format!("compensated_lines={gaps}")),
+        "{} / {gaps} gaps",
+        step("handwheel")
+    );
+    // The CANsmc slaves the page lists are the master's.
+    let st = c
+        .cansmc_client()
+        .get_status(pb::GetCansmcStatusRequest {
+            master: String::new(),
+        })
+        .await
+        .expect("GetStatus")
+        .into_inner();
+    assert_eq!(st.phase, pb::CansmcPhase::P2 as i32);
+    let slaves: Vec<String> = st
+        .slaves
+        .iter()
+        .map(|s| {
+            let opt = if s.required { "" } else { " (optional)" };
+            format!("{}:{}{opt}", s.address, s.name)
+        })
+        .collect();
+    // (The names are plain ASCII: Debug quotes them as JSON does.)
+    assert_eq!(
+        step("cansmc"),
+        format!(
+            "[{}]",
+            slaves
+                .iter()
+                .map(|s| format!("{s:?}"))
+                .collect::<Vec<_>>()
+                .join(",")
+        )
+    );
+    for f in [
+        "axes.png",
+        "axes-x-moved.png",
+        "buses.png",
+        "canopen.png",
+        "handwheel.png",
+        "cansmc.png",
+    ] {
         assert!(shots.join(f).exists(), "{f}");
     }
     server.shutdown();
@@ -385,7 +491,7 @@ async fn a_gateway_with_tokens_asks_for_one_and_honours_the_role() {
             "viewer-secret".into(),
             "operator-secret".into(),
         ],
-        |need| async move { panic!("unexpected request {need}") },
+        |need| async move { unexpected(need) },
     )
     .await;
     // The roles the page shows and the buttons it disables, as the access

@@ -7,13 +7,17 @@ import { canopen, setToken } from "./api";
 import { initAxes, startAxes, stopAll } from "./axes";
 import { enterBuses, initBuses, startBuses } from "./buses";
 import { enterCanopen, initCanopen } from "./canopen";
+import { enterCansmc } from "./cansmc";
 import { NmtCommand } from "./gen/cangate/v1/canopen_pb";
+import { enterHandwheels } from "./handwheel";
 import { guard, probeRole } from "./roles";
 
 const PAGES: Record<string, ((signal: AbortSignal) => void) | null> = {
   buses: enterBuses,
   axes: null,
   canopen: enterCanopen,
+  handwheel: enterHandwheels,
+  cansmc: enterCansmc,
 };
 
 let session: AbortController | null = null;

@@ -6,8 +6,10 @@
 //   node web/tests/dashboard.mjs tokens URL SCREENSHOT_DIR VIEWER_TOKEN OPERATOR_TOKEN
 //
 // Talks to the Rust test on stdout/stdin, one line each: "step NAME" when a
-// step passed, "need send-frame" and then it waits for a line on stdin (the
-// test sent the frame over gRPC), "done" at the end. Any failure throws
+// step passed, "need send-frame" (or "need emcy", "need turn") and then it
+// waits for a line on stdin (the test did it over gRPC; for "turn" the line
+// is the wheel's statistics as GetHandwheel gives them once the turn has
+// settled), "done" at the end. Any failure throws
 // (exit status 1, the reason on stderr).
 import puppeteer from "puppeteer-core";
 import { createInterface } from "node:readline";
@@ -199,6 +201,8 @@ async function demo(page) {
   await page.screenshot({ path: `${shots}/buses.png` });
 
   await canopenPage(page);
+  await handwheelPage(page);
+  await cansmcPage(page);
   const most = await page.$eval("body", (b) => Number(b.dataset.streamsMax));
   if (!(most >= 2 && most <= 3)) throw new Error(`the page held ${most} streams at once (at most 3)`);
   say(`step streams max=${most}`);
@@ -273,6 +277,55 @@ async function canopenPage(page) {
   if ((await page.$eval("#sdo-result", (e) => e.dataset.outcome)) !== "error") throw new Error("the write was not refused");
   say(`step sdo-abort ${await text(page, "#sdo-abort")}`);
   await page.screenshot({ path: `${shots}/canopen.png` });
+}
+
+function wheelStats(page) {
+  return page.$$eval(`section[data-handwheel="hw1"] tr[data-key]`, (rows) =>
+    Object.fromEntries(rows.map((r) => [r.dataset.key, r.querySelector("td").textContent])));
+}
+
+async function handwheelPage(page) {
+  await page.click(`button[data-page="handwheel"]`);
+  await until("hw1 shown", () => page.$(`section[data-handwheel="hw1"] tr[data-key="frames"]`));
+  await page.click(`section[data-handwheel="hw1"] button[data-cmd="mode-manual"]`);
+  await until("hw1 in manual mode", async () =>
+    (await page.$eval(`section[data-handwheel="hw1"]`, (c) => c.dataset.mode)) === "manual");
+  // The test turns the simulated wheel with random frame loss, waits for
+  // the gateway's counters to settle and says what they are.
+  say("need turn");
+  const want = JSON.parse((await stdin.next()).value);
+  await until("the page's counters are the gateway's", async () => {
+    const got = await wheelStats(page);
+    return Object.entries(want).every(([k, v]) => got[k] === String(v));
+  });
+  await until("every feed frame in the live feed", async () =>
+    (await text(page, "#feed")).split("\n").filter((l) => l.includes("  hw1  X+")).length === want.frames);
+  const feed = await text(page, "#feed");
+  const compensatedLines = feed.split("\n").filter((l) => l.includes("compensated")).length;
+  say(`step handwheel ${JSON.stringify(await wheelStats(page))} compensated_lines=${compensatedLines}`);
+  await page.screenshot({ path: `${shots}/handwheel.png` });
+  await page.click(`section[data-handwheel="hw1"] button[data-cmd="mode-automatic"]`);
+  await until("hw1 in automatic mode", async () =>
+    (await page.$eval(`section[data-handwheel="hw1"]`, (c) => c.dataset.mode)) === "automatic");
+  say("step handwheel-automatic");
+}
+
+async function cansmcPage(page) {
+  await page.click(`button[data-page="cansmc"]`);
+  await until("the CANsmc master in P2 with its slaves operational", async () => {
+    const phase = await page.$eval("#cansmc-master", (b) => b.dataset.phase);
+    const states = await page.$$eval("#cansmc-slaves tbody tr", (rows) => rows.map((r) => r.dataset.state));
+    return phase === "p2" && states.length > 0 && states.every((s) => s === "operational");
+  });
+  const dts = () => page.$$eval("#cansmc-slaves tbody tr", (rows) => rows.map((r) => Number(r.dataset.dts)));
+  const first = await dts();
+  await until("DT counters going up", async () => (await dts()).every((d, i) => d > first[i]));
+  const j = await page.$$eval("#cansmc-jitter .jrow", (rows) => Object.fromEntries(rows.map((r) => [r.dataset.stat, Number(r.dataset.us)])));
+  if (!(j.p50 <= j.p99 && j.p99 <= j["p99.9"] && j["p99.9"] <= j.max)) throw new Error(`jitter ${JSON.stringify(j)}`);
+  const slaves = await page.$$eval("#cansmc-slaves tbody tr", (rows) =>
+    rows.map((r) => `${r.dataset.address}:${r.children[1].textContent}`));
+  say(`step cansmc ${JSON.stringify(slaves)}`);
+  await page.screenshot({ path: `${shots}/cansmc.png` });
 }
 
 async function setInput(page, sel, value) {
