@@ -217,6 +217,7 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
             "home-move",
             "stop-all",
             "frame-shown",
+            "filters",
             "load-chart",
             "canopen-nodes",
             "nmt",

@@ -185,11 +185,31 @@ async function demo(page) {
   await page.click(`button[data-page="buses"]`);
   await until("can0 listed", () => page.$(`#buses tr[data-bus="can0"]`));
   await until("frames arriving", async () => (await page.$eval("#frames", (p) => p.textContent ?? "")).length > 0);
+  // A candump-style filter for 0x7E5 only: the view empties, then shows
+  // exactly the frame the test sends.
+  await setFilter(page, "7E5:7FF");
+  await until("the filtered view empty", async () => (await page.$eval("#frames", (p) => p.textContent)) === "");
   say("need send-frame");
   await stdin.next();
   await until("the sent frame shown", async () =>
-    (await page.$eval("#frames", (p) => p.textContent ?? "")).includes("can0  7E5        [3]  C0 FF EE"));
+    (await page.$eval("#frames", (p) => p.textContent ?? "")) === "can0  7E5        [3]  C0 FF EE");
   say("step frame-shown");
+  // Node 1's TPDO1 only; then everything but it (inverted). (The view
+  // shows received frames: the gateway's own SYNC is not among them.)
+  const ids = async () =>
+    (await page.$eval("#frames", (p) => p.textContent ?? "")).split("\n").filter((l) => l).map((l) => l.slice(6, 14).trim());
+  await setFilter(page, "181:7FF");
+  await until("only 181 frames", async () => { const i = await ids(); return i.length >= 3 && i.every((x) => x === "181"); });
+  await setFilter(page, "181~7FF");
+  await until("frames but none of 181", async () => {
+    const i = await ids();
+    return i.length >= 20 && !i.includes("181") && i.includes("182");
+  });
+  await setFilter(page, "12G:7FF");
+  await until("a bad filter refused", async () => (await text(page, "#frames-filter-error")).includes("12G:7FF"));
+  await setFilter(page, "");
+  await until("181 back unfiltered", async () => (await ids()).includes("181"));
+  say("step filters");
   // The load chart has a series per bus; its latest point is the table's.
   await until("a few load points", async () => Number(await page.$eval("#load-chart", (c) => c.dataset.points)) >= 3);
   const load = await page.$eval("#load-chart", (c) => JSON.parse(c.dataset.last));
@@ -326,6 +346,13 @@ async function cansmcPage(page) {
     rows.map((r) => `${r.dataset.address}:${r.children[1].textContent}`));
   say(`step cansmc ${JSON.stringify(slaves)}`);
   await page.screenshot({ path: `${shots}/cansmc.png` });
+}
+
+async function setFilter(page, value) {
+  await page.$eval("#frames-filter", (i, v) => {
+    i.value = v;
+    i.dispatchEvent(new Event("change"));
+  }, value);
 }
 
 async function setInput(page, sel, value) {
