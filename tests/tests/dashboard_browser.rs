@@ -70,12 +70,12 @@ fn screenshots() -> PathBuf {
     dir
 }
 
-/// Runs the browser script; `on_need` answers its requests. Returns the
-/// steps it reported.
+/// Runs the browser script; `on_need` answers its requests (with the line
+/// to send back). Returns the steps it reported.
 async fn drive<F, Fut>(args: &[String], mut on_need: F) -> Vec<String>
 where
     F: FnMut(String) -> Fut,
-    Fut: std::future::Future<Output = ()>,
+    Fut: std::future::Future<Output = String>,
 {
     let mut child = tokio::process::Command::new("node")
         .arg(repo().join("web/tests/dashboard.mjs"))
@@ -95,8 +95,11 @@ where
         while let Some(line) = lines.next_line().await.unwrap() {
             eprintln!("browser: {line}");
             if let Some(need) = line.strip_prefix("need ") {
-                on_need(need.to_string()).await;
-                stdin.write_all(b"ok\n").await.unwrap();
+                let answer = on_need(need.to_string()).await;
+                stdin
+                    .write_all(format!("{answer}\n").as_bytes())
+                    .await
+                    .unwrap();
             } else if let Some(step) = line.strip_prefix("step ") {
                 steps.push(step.to_string());
             }
@@ -114,6 +117,50 @@ where
     steps
 }
 
+fn unexpected(need: String) -> String {
+    panic!("unexpected request {need}")
+}
+
+/// Turns the simulated wheel hw1 (in manual mode, set by the page) 40
+/// detents on X with 30 % frame loss, waits until its statistics settle
+/// and returns them as the page shows them (JSON by the page's keys).
+async fn turn_wheel(c: &cangate_client::Client) -> String {
+    c.simulator_client()
+        .turn_handwheel(pb::TurnHandwheelRequest {
+            handwheel: "hw1".into(),
+            detents: 40,
+            axis: pb::WheelAxis::X as i32,
+            multiplier: 1,
+            loss: 0.3,
+            max_consecutive_loss: 3,
+        })
+        .await
+        .expect("TurnHandwheel");
+    let mut hw = c.handwheels_client();
+    let mut last = None;
+    loop {
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let w = hw
+            .get_handwheel(pb::GetHandwheelRequest {
+                handwheel: "hw1".into(),
+            })
+            .await
+            .expect("GetHandwheel")
+            .into_inner();
+        let s = w.stats.expect("stats");
+        let b = w.binding.expect("binding stats");
+        let now = format!(
+            r#"{{"frames":{},"gaps":{},"compensated":{},"duplicates":{},"units":{}}}"#,
+            s.frames, s.gaps, s.compensated_units, s.duplicates, b.units
+        );
+        if last.as_ref() == Some(&now) && b.pending_units == 0 {
+            assert!(s.frames > 0 && s.gaps > 0, "{now}");
+            return now;
+        }
+        last = Some(now);
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
     if !can_run("the_dashboard_moves_jogs_stops_and_shows_frames") {
@@ -126,18 +173,36 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
     let steps = drive(&["demo".into(), url, shots.display().to_string()], |need| {
         let c = c.clone();
         async move {
-            assert_eq!(need, "send-frame");
-            c.bus_client()
-                .send_frames(pb::SendFramesRequest {
-                    bus: "can0".into(),
-                    frames: vec![pb::Frame {
-                        id: 0x7E5,
-                        data: vec![0xC0, 0xFF, 0xEE],
-                        ..Default::default()
-                    }],
-                })
-                .await
-                .expect("frame sent over gRPC");
+            match need.as_str() {
+                "send-frame" => {
+                    c.bus_client()
+                        .send_frames(pb::SendFramesRequest {
+                            bus: "can0".into(),
+                            frames: vec![pb::Frame {
+                                id: 0x7E5,
+                                data: vec![0xC0, 0xFF, 0xEE],
+                                ..Default::default()
+                            }],
+                        })
+                        .await
+                        .expect("frame sent over gRPC");
+                }
+                "emcy" => {
+                    c.simulator_client()
+                        .send_emcy(pb::SendEmcyRequest {
+                            bus: "can0".into(),
+                            node: 4,
+                            code: 0x2310,
+                            error_register: 0x03,
+                            manufacturer: vec![],
+                        })
+                        .await
+                        .expect("EMCY sent by the simulated node 4");
+                }
+                "turn" => return turn_wheel(&c).await,
+                other => panic!("unexpected request {other}"),
+            }
+            "ok".to_string()
         }
     })
     .await;
@@ -147,12 +212,32 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
         [
             "axes-listed",
             "x-moved",
+            "x-traced",
             "y-jog",
+            "home-move",
             "stop-all",
             "frame-shown",
+            "filters",
+            "load-chart",
+            "canopen-nodes",
+            "nmt",
+            "emcy-shown",
+            "sdo-read",
+            "sdo-abort",
+            "handwheel",
+            "handwheel-automatic",
+            "cansmc",
+            "streams",
             "no-console-errors"
         ]
     );
+    let step = |name: &str| {
+        steps
+            .iter()
+            .find_map(|s| s.strip_prefix(name)?.strip_prefix(' '))
+            .unwrap_or_else(|| panic!("step {name}"))
+            .to_string()
+    };
     // What the page did, seen over gRPC: Y came to rest after the jog,
     // and X was stopped by STOP ALL on its way from 12.5 to -150 (the move
     // to 12.5 was checked on the page; the stop moved X on since).
@@ -176,13 +261,201 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
         .status
         .unwrap()
         .position;
-    let on_page: f64 = steps[3]
-        .strip_prefix("stop-all x=")
+    let on_page: f64 = step("stop-all")
+        .strip_prefix("x=")
         .and_then(|v| v.parse().ok())
         .expect("the page reports where X stopped");
     assert!((x - on_page).abs() < 1e-3, "page {on_page}, gRPC {x}");
     assert!(x < 12.5 && x > -140.0, "{x}");
-    for f in ["axes.png", "axes-x-moved.png", "buses.png"] {
+    // The move after Home ran at the velocity given on the page (20, not
+    // the axis's 100: the drive's actual velocity, which overshoots the
+    // profile's a little) and X is homed.
+    let home_move = step("home-move");
+    let vmax: f64 = home_move
+        .rsplit_once("vmax=")
+        .and_then(|(_, v)| v.parse().ok())
+        .expect("vmax");
+    assert!(vmax > 15.0 && vmax < 25.0, "{home_move}");
+    let x_status = axes
+        .get_axis(pb::GetAxisRequest { axis: "X".into() })
+        .await
+        .unwrap()
+        .into_inner()
+        .status
+        .unwrap();
+    assert!(x_status.homed, "X homed by the page");
+
+    // can0 carries the demo's SYNC and process data: its charted load
+    // is above zero, as GetBus says.
+    let can0_load: f64 = step("load-chart")
+        .strip_prefix("can0=")
+        .and_then(|v| v.parse().ok())
+        .expect("can0 load");
+    let grpc_load = c
+        .bus_client()
+        .get_bus(pb::GetBusRequest { bus: "can0".into() })
+        .await
+        .expect("GetBus")
+        .into_inner()
+        .statistics
+        .expect("statistics")
+        .load_percent;
+    assert!(
+        can0_load > 0.0 && grpc_load > 0.0,
+        "page {can0_load}, gRPC {grpc_load}"
+    );
+
+    // The CANopen page, against the gateway's own answers: node 1's
+    // identity and device name, the EMCY of node 4 as the master decoded
+    // it, and the abort of a write to the read-only 0x1000.
+    let mut co = c.canopen_client();
+    let node1 = co
+        .get_node(pb::GetNodeRequest {
+            bus: "can0".into(),
+            node: 1,
+        })
+        .await
+        .expect("GetNode")
+        .into_inner();
+    let id = node1.identity.expect("node 1 identity read at boot");
+    assert_eq!(
+        step("canopen-nodes"),
+        format!(
+            "identity=\"vendor 0x{:08X} product 0x{:08X} rev 0x{:08X} serial {}\"",
+            id.vendor_id, id.product_code, id.revision, id.serial
+        )
+    );
+    let name = co
+        .read_sdo(pb::ReadSdoRequest {
+            bus: "can0".into(),
+            node: 1,
+            index: 0x1008,
+            subindex: 0,
+            ..Default::default()
+        })
+        .await
+        .expect("ReadSdo 0x1008")
+        .into_inner();
+    let Some(pb::value::Value::StringValue(device_name)) = name.value.and_then(|v| v.value) else {
+        panic!("0x1008 of node 1 is a string")
+    };
+    assert!(!device_name.is_empty());
+    assert_eq!(
+        step("sdo-read"),
+        format!(
+            "read can0 node 1 0x1008:0: VISIBLE_STRING {device_name:?}; raw [{}] {}",
+            name.raw.len(),
+            name.raw
+                .iter()
+                .map(|b| format!("{b:02X}"))
+                .collect::<Vec<_>>()
+                .join(" ")
+        )
+    );
+    let node4 = co
+        .get_node(pb::GetNodeRequest {
+            bus: "can0".into(),
+            node: 4,
+        })
+        .await
+        .expect("GetNode")
+        .into_inner();
+    let emcy = node4
+        .active_error
+        .expect("node 4's EMCY is its active error");
+    assert_eq!(emcy.code, 0x2310);
+    assert!(
+        step("emcy-shown").contains(&format!("0x2310 {}", emcy.code_name)),
+        "{} / {}",
+        step("emcy-shown"),
+        emcy.code_name
+    );
+    let refused = co
+        .write_sdo(pb::WriteSdoRequest {
+            bus: "can0".into(),
+            node: 1,
+            index: 0x1000,
+            subindex: 0,
+            data: Some(pb::write_sdo_request::Data::Value(pb::Value {
+                r#type: pb::DataType::Unsigned32 as i32,
+                value: Some(pb::value::Value::UintValue(1)),
+            })),
+            options: None,
+        })
+        .await
+        .expect_err("0x1000 is read-only");
+    let abort = cangate_client::sdo_abort_details(&refused).expect("SdoAbortDetails");
+    assert_eq!(abort.code, 0x0601_0002);
+    assert_eq!(
+        step("sdo-abort"),
+        format!("SDO abort 0x{:08X} {}", abort.code, abort.name)
+    );
+    // Node 3 is pre-operational again after the page's NMT start, stop
+    // and pre-operational.
+    let node3 = co
+        .get_node(pb::GetNodeRequest {
+            bus: "can0".into(),
+            node: 3,
+        })
+        .await
+        .expect("GetNode")
+        .into_inner();
+    assert_eq!(node3.state, pb::NmtState::PreOperational as i32);
+    // The handwheel: every gap the gateway counted is a line of the page's
+    // feed, and the wheel is back in automatic mode.
+    let hw = c
+        .handwheels_client()
+        .get_handwheel(pb::GetHandwheelRequest {
+            handwheel: "hw1".into(),
+        })
+        .await
+        .expect("GetHandwheel")
+        .into_inner();
+    assert_eq!(hw.mode, pb::HandwheelMode::Automatic as i32);
+    let gaps = hw.stats.expect("stats").gaps;
+    assert!(
+        step("handwheel").ends_with(&format!("compensated_lines={gaps}")),
+        "{} / {gaps} gaps",
+        step("handwheel")
+    );
+    // The CANsmc slaves the page lists are the master's.
+    let st = c
+        .cansmc_client()
+        .get_status(pb::GetCansmcStatusRequest {
+            master: String::new(),
+        })
+        .await
+        .expect("GetStatus")
+        .into_inner();
+    assert_eq!(st.phase, pb::CansmcPhase::P2 as i32);
+    let slaves: Vec<String> = st
+        .slaves
+        .iter()
+        .map(|s| {
+            let opt = if s.required { "" } else { " (optional)" };
+            format!("{}:{}{opt}", s.address, s.name)
+        })
+        .collect();
+    // (The names are plain ASCII: Debug quotes them as JSON does.)
+    assert_eq!(
+        step("cansmc"),
+        format!(
+            "[{}]",
+            slaves
+                .iter()
+                .map(|s| format!("{s:?}"))
+                .collect::<Vec<_>>()
+                .join(",")
+        )
+    );
+    for f in [
+        "axes.png",
+        "axes-x-moved.png",
+        "buses.png",
+        "canopen.png",
+        "handwheel.png",
+        "cansmc.png",
+    ] {
         assert!(shots.join(f).exists(), "{f}");
     }
     server.shutdown();
@@ -194,8 +467,10 @@ async fn a_gateway_with_tokens_asks_for_one_and_honours_the_role() {
         return;
     }
     let tokens = format!(
-        "[[security.tokens]]\nname = \"wall-screen\"\nrole = \"viewer\"\nsha256 = \"{}\"\n",
-        cangate_client::hash_token("viewer-secret")
+        "[[security.tokens]]\nname = \"wall-screen\"\nrole = \"viewer\"\nsha256 = \"{}\"\n\
+         [[security.tokens]]\nname = \"hmi\"\nrole = \"operator\"\nsha256 = \"{}\"\n",
+        cangate_client::hash_token("viewer-secret"),
+        cangate_client::hash_token("operator-secret")
     );
     // The token tables go after the demo's own [security] keys.
     let server = {
@@ -215,17 +490,25 @@ async fn a_gateway_with_tokens_asks_for_one_and_honours_the_role() {
             url,
             screenshots().display().to_string(),
             "viewer-secret".into(),
+            "operator-secret".into(),
         ],
-        |need| async move { panic!("unexpected request {need}") },
+        |need| async move { unexpected(need) },
     )
     .await;
+    // The roles the page shows and the buttons it disables, as the access
+    // table (server/src/security/roles.rs) gives them.
+    let viewer = r#"{"acquire":"AcquireControl needs role operator; this token has role viewer","enable":"Enable needs role operator; this token has role viewer","stopAll":"StopAxes needs role operator; this token has role viewer","nmt":"SendNmt needs role engineer; this token has role viewer","sdoRead":"enabled","sdoWrite":"WriteSdo needs role engineer; this token has role viewer"}"#;
+    let operator = r#"{"acquire":"enabled","enable":"enabled","stopAll":"enabled","nmt":"SendNmt needs role engineer; this token has role operator","sdoRead":"enabled","sdoWrite":"WriteSdo needs role engineer; this token has role operator"}"#;
     assert_eq!(
         steps,
         [
-            "refused-without-token",
-            "accepted-with-token",
-            "role-honoured",
-            "no-console-errors"
+            "refused-without-token".to_string(),
+            "accepted-with-token".into(),
+            "role role: viewer (wall-screen)".into(),
+            format!("viewer-buttons {viewer}"),
+            "role role: operator (hmi)".into(),
+            format!("operator-buttons {operator}"),
+            "no-console-errors".into(),
         ]
     );
     // Nobody took control of X through the page.

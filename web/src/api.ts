@@ -4,6 +4,10 @@ import { Code, ConnectError, createClient, type Interceptor } from "@connectrpc/
 import { createGrpcWebTransport } from "@connectrpc/connect-web";
 import { Axes } from "./gen/cangate/v1/axes_pb";
 import { Bus } from "./gen/cangate/v1/bus_pb";
+import { Canopen, SdoAbortDetailsSchema, type SdoAbortDetails } from "./gen/cangate/v1/canopen_pb";
+import { Cansmc } from "./gen/cangate/v1/cansmc_pb";
+import { Handwheels } from "./gen/cangate/v1/handwheel_pb";
+import { learnFromRefusal } from "./roles";
 
 const TOKEN_KEY = "cangate-token";
 let token = sessionStorage.getItem(TOKEN_KEY) ?? "";
@@ -28,6 +32,22 @@ const transport = createGrpcWebTransport({
 
 export const bus = createClient(Bus, transport);
 export const axes = createClient(Axes, transport);
+export const canopen = createClient(Canopen, transport);
+export const handwheels = createClient(Handwheels, transport);
+export const cansmc = createClient(Cansmc, transport);
+
+/**
+ * The SDO abort of an error, from the SdoAbortDetails the gateway puts in
+ * the grpc-status-details-bin trailer (canopen.proto, "The error model").
+ */
+export function sdoAbort(e: unknown): SdoAbortDetails | undefined {
+  return ConnectError.from(e).findDetails(SdoAbortDetailsSchema)[0];
+}
+
+/** An SDO abort as people read it: `0x06010002 attempt to write a read only object`. */
+export function abortText(a: SdoAbortDetails): string {
+  return `0x${a.code.toString(16).toUpperCase().padStart(8, "0")} ${a.name}`;
+}
 
 /** The connection line in the header and the notice bar. */
 export function showError(what: string, e: unknown): void {
@@ -40,9 +60,12 @@ export function showError(what: string, e: unknown): void {
     conn.classList.add("bad");
     notice.textContent = `The gateway needs a token: enter it above (${err.rawMessage}).`;
   } else if (err.code === Code.PermissionDenied) {
+    learnFromRefusal(err);
     notice.textContent = `${what}: not allowed for this token's role (${err.rawMessage})`;
   } else {
-    notice.textContent = `${what}: ${Code[err.code]}: ${err.rawMessage}`;
+    const abort = sdoAbort(err);
+    const sdo = abort ? ` (SDO abort ${abortText(abort)})` : "";
+    notice.textContent = `${what}: ${Code[err.code]}: ${err.rawMessage}${sdo}`;
   }
   notice.hidden = false;
 }
@@ -70,6 +93,7 @@ export async function keepStreaming<T>(
   onMessage: (m: T) => void,
 ): Promise<void> {
   while (!signal.aborted) {
+    countStream(+1);
     try {
       for await (const m of open(signal)) {
         showConnected();
@@ -79,9 +103,27 @@ export async function keepStreaming<T>(
       if (signal.aborted) return;
       showError(what, e);
       if (ConnectError.from(e).code === Code.Unauthenticated) return;
+    } finally {
+      countStream(-1);
     }
     await new Promise((r) => setTimeout(r, 1000));
   }
+}
+
+let openStreams = 0;
+let mostStreams = 0;
+
+/**
+ * Counts the page's open server streams (on <body data-streams> and, the
+ * most at once, data-streams-max): the page keeps at most three, well
+ * within the 6 connections per origin of HTTP/1.1 (the browser test
+ * checks it).
+ */
+function countStream(delta: number): void {
+  openStreams += delta;
+  mostStreams = Math.max(mostStreams, openStreams);
+  document.body.dataset.streams = String(openStreams);
+  document.body.dataset.streamsMax = String(mostStreams);
 }
 
 export function el<K extends keyof HTMLElementTagNameMap>(

@@ -1,16 +1,19 @@
 // Axes: live state from one StreamAxisState stream, control leases
-// (acquired, renewed with RenewControl, released), enable/disable, move,
+// (acquired, renewed with RenewControl, released), enable/disable, home,
+// move (target, and velocity and acceleration: empty or 0 for the axis's
+// maxima),
 // hold-to-jog (a repeated Jog while the button is held; released, left,
 // window blurred or tab hidden: Stop), stop, and the always-visible
 // stop-all (StopAxes, which needs no lease).
 import { AxisActivity, DriveState, type Axis, type AxisStatus } from "./gen/cangate/v1/axes_pb";
 import { axes, clearNotice, el, keepStreaming, showError } from "./api";
+import { applyRoles, guard, type Rpc } from "./roles";
+import { TimeChart } from "./chart";
 
 interface Row {
   axis: Axis;
   tr: HTMLTableRowElement;
   cells: Record<string, HTMLTableCellElement>;
-  leaseButtons: HTMLButtonElement[];
   acquire: HTMLButtonElement;
   target: HTMLInputElement;
 }
@@ -20,6 +23,10 @@ const rows = new Map<string, Row>();
 const leases = new Map<string, { lease: string; timer: number }>();
 let names: string[] = [];
 let jog: { axis: string; timer: number } | null = null;
+/** The latest position of every axis, for the trace. */
+const positions = new Map<string, number>();
+let traced = "";
+let trace: TimeChart | null = null;
 
 const enumName = (e: Record<number, string>, v: number) =>
   (e[v] ?? String(v)).toLowerCase().replace(/_/g, " ");
@@ -39,15 +46,16 @@ function options(name: string) {
   return { lease: leases.get(name)?.lease ?? "", wait: false, waitTimeoutMs: 0 };
 }
 
+/** The buttons that need a lease are enabled while the page holds one (and the role allows them). */
 function setLeaseState(name: string): void {
   const row = rows.get(name);
   if (!row) return;
-  const held = leases.has(name);
-  row.acquire.textContent = held ? "Release" : "Acquire";
-  for (const b of row.leaseButtons) {
-    b.disabled = !held;
-    b.title = held ? "" : "acquire control of the axis first";
-  }
+  row.acquire.textContent = leases.has(name) ? "Release" : "Acquire";
+  applyRoles();
+}
+
+function needsLease(name: string): () => string {
+  return () => (leases.has(name) ? "" : "acquire control of the axis first");
 }
 
 function dropLease(name: string): void {
@@ -105,16 +113,18 @@ function startJog(row: Row, sign: number): void {
   void run(`jog ${name}`, send);
 }
 
-function button(label: string, cmd: string, onClick: () => void): HTMLButtonElement {
+function button(label: string, cmd: string, rpc: Rpc, onClick: () => void, other?: () => string): HTMLButtonElement {
   const b = el("button", { type: "button", textContent: label });
   b.dataset.cmd = cmd;
   b.addEventListener("click", onClick);
+  guard(b, rpc, other);
   return b;
 }
 
-function jogButton(row: () => Row, label: string, sign: number): HTMLButtonElement {
+function jogButton(row: () => Row, label: string, sign: number, lease: () => string): HTMLButtonElement {
   const b = el("button", { type: "button", textContent: label, className: "jog" });
   b.dataset.cmd = sign < 0 ? "jog-minus" : "jog-plus";
+  guard(b, "Jog", lease);
   b.addEventListener("pointerdown", (e) => {
     if (b.disabled) return;
     b.setPointerCapture(e.pointerId);
@@ -138,22 +148,44 @@ function buildRow(axis: Axis): Row {
     control: cell("control"),
     fault: cell("fault"),
   };
-  const target = el("input", { type: "number", step: "any", value: "0" });
-  target.setAttribute("aria-label", `${name} target`);
-  target.dataset.field = "target";
+  const input = (field: string, label: string, value: string, placeholder = "") => {
+    const i = el("input", { type: "number", step: "any", value, placeholder });
+    i.setAttribute("aria-label", `${name} ${label}`);
+    i.dataset.field = field;
+    return i;
+  };
+  const target = input("target", "target", "0");
+  const velocity = input("velocity", "velocity", "", `v ≤ ${axis.maxVelocity}`);
+  velocity.title = `velocity in ${axis.unit}/s (empty: the axis's maximum, ${axis.maxVelocity})`;
+  const accel = input("acceleration", "acceleration", "", `a ≤ ${axis.maxAcceleration}`);
+  accel.title = `acceleration in ${axis.unit}/s² (empty: the axis's maximum, ${axis.maxAcceleration})`;
   const getRow = () => rows.get(name)!;
   const opts = () => options(name);
-  const enable = button("Enable", "enable", () => run(`enable ${name}`, () => axes.enable({ axis: name, options: opts() })));
-  const disable = button("Disable", "disable", () => run(`disable ${name}`, () => axes.disable({ axis: name, options: opts() })));
-  const move = button("Move", "move", () =>
-    run(`move ${name}`, () =>
-      axes.move({ axis: name, target: Number(target.value), relative: false, velocity: 0, acceleration: 0, options: opts() }),
-    ),
+  const lease = needsLease(name);
+  const enable = button("Enable", "enable", "Enable", () => run(`enable ${name}`, () => axes.enable({ axis: name, options: opts() })), lease);
+  const disable = button("Disable", "disable", "Disable", () => run(`disable ${name}`, () => axes.disable({ axis: name, options: opts() })), lease);
+  const home = button("Home", "home", "Home", () => run(`home ${name}`, () => axes.home({ axis: name, options: opts() })), lease);
+  const move = button(
+    "Move",
+    "move",
+    "Move",
+    () =>
+      run(`move ${name}`, () =>
+        axes.move({
+          axis: name,
+          target: Number(target.value),
+          relative: false,
+          velocity: Number(velocity.value) || 0,
+          acceleration: Number(accel.value) || 0,
+          options: opts(),
+        }),
+      ),
+    lease,
   );
-  const jogMinus = jogButton(getRow, "◀ Jog", -1);
-  const jogPlus = jogButton(getRow, "Jog ▶", 1);
-  const stop = button("Stop", "stop", () => run(`stop ${name}`, () => axes.stop({ axis: name })));
-  const acquire = button("Acquire", "acquire", () => void toggleControl(name));
+  const jogMinus = jogButton(getRow, "◀ Jog", -1, lease);
+  const jogPlus = jogButton(getRow, "Jog ▶", 1, lease);
+  const stop = button("Stop", "stop", "Stop", () => run(`stop ${name}`, () => axes.stop({ axis: name })));
+  const acquire = button("Acquire", "acquire", "AcquireControl", () => void toggleControl(name));
   const tr = el(
     "tr",
     {},
@@ -165,15 +197,16 @@ function buildRow(axis: Axis): Row {
     cells.ferr,
     cells.control,
     cells.fault,
-    el("td", { className: "cmds" }, acquire, enable, disable, target, move, jogMinus, jogPlus, stop),
+    el("td", { className: "cmds" }, acquire, enable, disable, home, target, velocity, accel, move, jogMinus, jogPlus, stop),
   );
   tr.dataset.axis = name;
-  return { axis, tr, cells, leaseButtons: [enable, disable, move, jogMinus, jogPlus], acquire, target };
+  return { axis, tr, cells, acquire, target };
 }
 
 function update(s: AxisStatus): void {
   const row = rows.get(s.axis);
   if (!row) return;
+  positions.set(s.axis, s.position);
   row.cells.state.textContent = enumName(DriveState, s.state);
   row.cells.activity.textContent = enumName(AxisActivity, s.activity);
   row.cells.position.textContent = s.position.toFixed(3);
@@ -183,6 +216,8 @@ function update(s: AxisStatus): void {
   row.cells.fault.textContent = s.faultText;
   row.tr.dataset.state = enumName(DriveState, s.state);
   row.tr.dataset.activity = enumName(AxisActivity, s.activity);
+  row.tr.dataset.homed = String(s.homed);
+  row.cells.state.title = s.homed ? "homed" : "not homed";
 }
 
 /** Stops every axis (no lease needed). */
@@ -204,6 +239,11 @@ export async function startAxes(signal: AbortSignal): Promise<void> {
   }
   rows.clear();
   names = list.map((a) => a.name);
+  const select = document.getElementById("trace-axis") as HTMLSelectElement;
+  select.replaceChildren(...list.map((a) => el("option", { value: a.name }, `${a.name} (${a.unit})`)));
+  if (!names.includes(traced)) traced = names[0] ?? "";
+  select.value = traced;
+  trace?.setSeries([`${traced} position`]);
   const tbody = document.querySelector("#axes tbody")!;
   tbody.replaceChildren();
   for (const a of list) {
@@ -224,6 +264,18 @@ export async function startAxes(signal: AbortSignal): Promise<void> {
 }
 
 export function initAxes(): void {
+  trace = new TimeChart(document.getElementById("trace-chart")!, "position", 120);
+  const select = document.getElementById("trace-axis") as HTMLSelectElement;
+  select.addEventListener("change", () => {
+    traced = select.value;
+    trace?.setSeries([`${traced} position`]);
+  });
+  // Sampled at 20 Hz from the latest state (the stream sends changes
+  // only, so an axis at rest sends nothing).
+  setInterval(() => {
+    const p = positions.get(traced);
+    if (p !== undefined) trace?.push(Date.now() / 1000, [p]);
+  }, 50);
   // The dead-man side of the page: a held jog ends when the page loses
   // the user's attention.
   window.addEventListener("blur", stopJog);

@@ -1,8 +1,11 @@
-// Buses: state and counters (polled), and a live frame view of one bus
-// (one server stream) that coalesces rendering to animation frames, shows
+// Buses: state and counters (polled every second; the load % charted
+// over the last five minutes), and a live frame view of one bus
+// (one server stream, while the page is shown) that coalesces rendering to animation frames, shows
 // the rate, can pause, and shows frames the gateway reports lost.
-import { BusState, type BusInfo, type Frame } from "./gen/cangate/v1/bus_pb";
+import { create } from "@bufbuild/protobuf";
+import { BusState, FrameFilterSchema, IdFormat, type BusInfo, type Frame, type FrameFilter } from "./gen/cangate/v1/bus_pb";
 import { bus, el, keepStreaming, showConnected, showError } from "./api";
+import { TimeChart } from "./chart";
 
 const MAX_LINES = 500;
 let lines: string[] = [];
@@ -13,6 +16,38 @@ let renderPending = false;
 let selected = "";
 let streamAbort: AbortController | null = null;
 let parent: AbortSignal | null = null;
+let loadChart: TimeChart | null = null;
+let filters: FrameFilter[] = [];
+
+/**
+ * candump-style filters, comma or space separated: `ID:MASK` passes a
+ * frame when (frame id & MASK) == (ID & MASK), `ID~MASK` when it does not;
+ * a frame passes if any filter passes it. Hex; an ID of up to 3 digits is
+ * a standard (11-bit) filter, more digits an extended (29-bit) one, as
+ * candump reads them. The gateway applies them (StreamFrames filters), so
+ * filtered-out frames never reach the page. candump's error-frame filter
+ * (`#MASK`) and `j` (join) are not supported.
+ */
+export function parseFilters(text: string): FrameFilter[] | string {
+  const out: FrameFilter[] = [];
+  for (const part of text.split(/[\s,]+/).filter((p) => p !== "")) {
+    const m = /^([0-9a-fA-F]{1,8})([:~])([0-9a-fA-F]{1,8})$/.exec(part);
+    if (!m) return `"${part}": not ID:MASK or ID~MASK (hex), e.g. 123:7FF or 18FF0000~1FFF0000`;
+    const id = Number.parseInt(m[1], 16);
+    const mask = Number.parseInt(m[3], 16);
+    const extended = m[1].length > 3;
+    if (id > 0x1fffffff || mask > 0x1fffffff) return `"${part}": more than 29 bits`;
+    out.push(
+      create(FrameFilterSchema, {
+        id,
+        mask,
+        format: extended ? IdFormat.EXTENDED : IdFormat.STANDARD,
+        invert: m[2] === "~",
+      }),
+    );
+  }
+  return out;
+}
 
 function hex(n: number, width: number): string {
   return n.toString(16).toUpperCase().padStart(width, "0");
@@ -42,18 +77,19 @@ function scheduleRender(): void {
 
 function openFrames(): void {
   streamAbort?.abort();
-  if (!parent || !selected) return;
+  if (!parent || parent.aborted || !selected) return;
   const ctl = new AbortController();
   parent.addEventListener("abort", () => ctl.abort(), { once: true });
   streamAbort = ctl;
   lines = [];
+  scheduleRender();
   lost = 0n;
   document.getElementById("frames-lost")!.hidden = true;
   const name = selected;
   void keepStreaming(
     "frame stream",
     ctl.signal,
-    (signal) => bus.streamFrames({ bus: name, queueLength: 0 }, { signal }),
+    (signal) => bus.streamFrames({ bus: name, queueLength: 0, filters }, { signal }),
     (m) => {
       for (const ev of m.events) {
         if (ev.event.case === "frame") {
@@ -80,6 +116,8 @@ function stateName(b: BusInfo): string {
 }
 
 function renderTable(list: BusInfo[]): void {
+  loadChart?.setSeries(list.map((b) => b.name));
+  loadChart?.push(Date.now() / 1000, list.map((b) => b.statistics?.loadPercent ?? 0));
   const tbody = document.querySelector("#buses tbody")!;
   tbody.replaceChildren(
     ...list.map((b) => {
@@ -113,9 +151,14 @@ function renderTable(list: BusInfo[]): void {
   }
 }
 
-/** Starts the page's polling and its frame stream until `signal` aborts. */
-export function startBuses(signal: AbortSignal): void {
+/** Streams the selected bus's frames while the page is shown. */
+export function enterBuses(signal: AbortSignal): void {
   parent = signal;
+  openFrames();
+}
+
+/** Starts polling the buses until `signal` aborts. */
+export function startBuses(signal: AbortSignal): void {
   selected = "";
   (document.getElementById("frame-bus") as HTMLSelectElement).replaceChildren();
   const poll = async () => {
@@ -134,9 +177,21 @@ export function startBuses(signal: AbortSignal): void {
 }
 
 export function initBuses(): void {
+  loadChart = new TimeChart(document.getElementById("load-chart")!, "load %", 300);
   const select = document.getElementById("frame-bus") as HTMLSelectElement;
   select.addEventListener("change", () => {
     selected = select.value;
+    openFrames();
+  });
+  const filter = document.getElementById("frames-filter") as HTMLInputElement;
+  filter.addEventListener("change", () => {
+    const f = parseFilters(filter.value);
+    const bad = document.getElementById("frames-filter-error")!;
+    bad.textContent = typeof f === "string" ? f : "";
+    bad.hidden = typeof f !== "string";
+    if (typeof f === "string") return;
+    filters = f;
+    filter.dataset.applied = filter.value;
     openFrames();
   });
   const pause = document.getElementById("frames-pause")!;

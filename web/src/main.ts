@@ -1,16 +1,46 @@
-// The dashboard's entry: tabs, token entry, stop-all, and the page's
-// long-lived streams (at most two: axis state and one bus's frames).
-import { setToken } from "./api";
+// The dashboard's entry: tabs, token entry, the role, stop-all, and the
+// page's long-lived streams: the axes' state (always: the axes page and
+// stop-all need it) and at most one more for the page shown (a bus's
+// frames, node events, ...), opened when its tab is shown and closed when
+// it is left. Three at most (data-streams-max on <body>).
+import { canopen, setToken } from "./api";
 import { initAxes, startAxes, stopAll } from "./axes";
-import { initBuses, startBuses } from "./buses";
+import { enterBuses, initBuses, startBuses } from "./buses";
+import { enterCanopen, initCanopen } from "./canopen";
+import { enterCansmc } from "./cansmc";
+import { NmtCommand } from "./gen/cangate/v1/canopen_pb";
+import { enterHandwheels } from "./handwheel";
+import { guard, probeRole } from "./roles";
+
+const PAGES: Record<string, ((signal: AbortSignal) => void) | null> = {
+  buses: enterBuses,
+  axes: null,
+  canopen: enterCanopen,
+  handwheel: enterHandwheels,
+  cansmc: enterCansmc,
+};
 
 let session: AbortController | null = null;
+let pageCtl: AbortController | null = null;
+let current = "";
 
 function start(): void {
   session?.abort();
   session = new AbortController();
-  void startAxes(session.signal);
-  startBuses(session.signal);
+  const signal = session.signal;
+  void probeRole(() => canopen.sendNmt({ bus: "", node: 0, command: NmtCommand.UNSPECIFIED }, { signal }));
+  void startAxes(signal);
+  startBuses(signal);
+  enter(current);
+}
+
+/** Opens the shown page's own polling and stream, closing the last one's. */
+function enter(page: string): void {
+  pageCtl?.abort();
+  pageCtl = new AbortController();
+  const ctl = pageCtl;
+  session?.signal.addEventListener("abort", () => ctl.abort(), { once: true });
+  PAGES[page]?.(ctl.signal);
 }
 
 function show(page: string): void {
@@ -20,10 +50,15 @@ function show(page: string): void {
   for (const t of document.querySelectorAll<HTMLElement>(".tab")) {
     t.classList.toggle("active", t.dataset.page === page);
   }
+  if (page !== current) {
+    current = page;
+    enter(page);
+  }
 }
 
 function route(): void {
-  show(location.hash === "#buses" ? "buses" : "axes");
+  const page = location.hash.slice(1);
+  show(page in PAGES ? page : "axes");
 }
 
 document.addEventListener("DOMContentLoaded", () => {
@@ -33,7 +68,6 @@ document.addEventListener("DOMContentLoaded", () => {
     });
   }
   window.addEventListener("hashchange", route);
-  route();
   document.getElementById("token-form")!.addEventListener("submit", (e) => {
     e.preventDefault();
     const input = document.getElementById("token") as HTMLInputElement;
@@ -42,8 +76,12 @@ document.addEventListener("DOMContentLoaded", () => {
     document.getElementById("notice")!.hidden = true;
     start();
   });
-  document.getElementById("stop-all")!.addEventListener("click", () => void stopAll());
+  const stopAllButton = document.getElementById("stop-all") as HTMLButtonElement;
+  stopAllButton.addEventListener("click", () => void stopAll());
+  guard(stopAllButton, "StopAxes");
   initAxes();
   initBuses();
+  initCanopen();
+  route();
   start();
 });

@@ -3,16 +3,18 @@
 // which owns the server and checks over gRPC what the page did.
 //
 //   node web/tests/dashboard.mjs demo URL SCREENSHOT_DIR
-//   node web/tests/dashboard.mjs tokens URL SCREENSHOT_DIR VIEWER_TOKEN
+//   node web/tests/dashboard.mjs tokens URL SCREENSHOT_DIR VIEWER_TOKEN OPERATOR_TOKEN
 //
 // Talks to the Rust test on stdout/stdin, one line each: "step NAME" when a
-// step passed, "need send-frame" and then it waits for a line on stdin (the
-// test sent the frame over gRPC), "done" at the end. Any failure throws
+// step passed, "need send-frame" (or "need emcy", "need turn") and then it
+// waits for a line on stdin (the test did it over gRPC; for "turn" the line
+// is the wheel's statistics as GetHandwheel gives them once the turn has
+// settled), "done" at the end. Any failure throws
 // (exit status 1, the reason on stderr).
 import puppeteer from "puppeteer-core";
 import { createInterface } from "node:readline";
 
-const [mode, url, shots, token] = process.argv.slice(2);
+const [mode, url, shots, token, operatorToken] = process.argv.slice(2);
 const chromium = process.env.CANGATE_CHROMIUM || "/usr/bin/chromium";
 const WAIT = 10_000;
 const rl = createInterface({ input: process.stdin });
@@ -115,6 +117,12 @@ async function demo(page) {
   await until("X at 12.5 on the page", async () =>
     Math.abs((await num(page, "X", "position")) - 12.5) < 0.002 && (await cell(page, "X", "activity")) === "idle");
   say("step x-moved");
+  // The position trace (X is traced by default) went from 0 to 12.5.
+  await until("the trace shows X's move", async () => {
+    const d = await page.$eval("#trace-chart", (c) => ({ ...c.dataset, canvas: !!c.querySelector("canvas") }));
+    return d.canvas && Math.abs(Number(d.min)) < 0.01 && Math.abs(Number(d.max) - 12.5) < 0.01;
+  });
+  say("step x-traced");
   await page.screenshot({ path: `${shots}/axes-x-moved.png` });
 
   // Hold jog+ on Y: it moves while held and stops after release.
@@ -140,6 +148,26 @@ async function demo(page) {
   await sleep(300);
   if ((await num(page, "Y", "position")) !== yRest) throw new Error("Y moved on after the jog stopped");
 
+  // Home X (the demo's method 35: here is home), then a move with the
+  // velocity and acceleration given on the page.
+  await click(page, "X", "home");
+  await until("X homed", async () =>
+    (await page.$eval(`tr[data-axis="X"]`, (r) => r.dataset.homed)) === "true" && (await cell(page, "X", "activity")) === "idle");
+  const xHome = await num(page, "X", "position");
+  await setInput(page, `tr[data-axis="X"] input[data-field="target"]`, String(xHome + 10));
+  await setInput(page, `tr[data-axis="X"] input[data-field="velocity"]`, "20");
+  await setInput(page, `tr[data-axis="X"] input[data-field="acceleration"]`, "200");
+  await click(page, "X", "move");
+  await until("X moving", async () => (await cell(page, "X", "activity")) === "moving");
+  let vmax = 0;
+  await until("X 10 further at rest", async () => {
+    vmax = Math.max(vmax, Math.abs(await num(page, "X", "velocity")));
+    return (await cell(page, "X", "activity")) === "idle" && Math.abs((await num(page, "X", "position")) - xHome - 10) < 0.002;
+  });
+  say(`step home-move home=${xHome} vmax=${vmax}`);
+  await setInput(page, `tr[data-axis="X"] input[data-field="velocity"]`, "");
+  await setInput(page, `tr[data-axis="X"] input[data-field="acceleration"]`, "");
+
   // STOP ALL stops a long move of X.
   await page.$eval(`tr[data-axis="X"] input[data-field="target"]`, (i) => { i.value = ""; });
   await page.type(`tr[data-axis="X"] input[data-field="target"]`, "-150");
@@ -157,12 +185,179 @@ async function demo(page) {
   await page.click(`button[data-page="buses"]`);
   await until("can0 listed", () => page.$(`#buses tr[data-bus="can0"]`));
   await until("frames arriving", async () => (await page.$eval("#frames", (p) => p.textContent ?? "")).length > 0);
+  // A candump-style filter for 0x7E5 only: the view empties, then shows
+  // exactly the frame the test sends.
+  await setFilter(page, "7E5:7FF");
+  await until("the filtered view empty", async () => (await page.$eval("#frames", (p) => p.textContent)) === "");
   say("need send-frame");
   await stdin.next();
   await until("the sent frame shown", async () =>
-    (await page.$eval("#frames", (p) => p.textContent ?? "")).includes("can0  7E5        [3]  C0 FF EE"));
+    (await page.$eval("#frames", (p) => p.textContent ?? "")) === "can0  7E5        [3]  C0 FF EE");
   say("step frame-shown");
+  // Node 1's TPDO1 only; then everything but it (inverted). (The view
+  // shows received frames: the gateway's own SYNC is not among them.)
+  const ids = async () =>
+    (await page.$eval("#frames", (p) => p.textContent ?? "")).split("\n").filter((l) => l).map((l) => l.slice(6, 14).trim());
+  await setFilter(page, "181:7FF");
+  await until("only 181 frames", async () => { const i = await ids(); return i.length >= 3 && i.every((x) => x === "181"); });
+  await setFilter(page, "181~7FF");
+  await until("frames but none of 181", async () => {
+    const i = await ids();
+    return i.length >= 20 && !i.includes("181") && i.includes("182");
+  });
+  await setFilter(page, "12G:7FF");
+  await until("a bad filter refused", async () => (await text(page, "#frames-filter-error")).includes("12G:7FF"));
+  await setFilter(page, "");
+  await until("181 back unfiltered", async () => (await ids()).includes("181"));
+  say("step filters");
+  // The load chart has a series per bus; its latest point is the table's.
+  await until("a few load points", async () => Number(await page.$eval("#load-chart", (c) => c.dataset.points)) >= 3);
+  const load = await page.$eval("#load-chart", (c) => JSON.parse(c.dataset.last));
+  const table = await page.$$eval("#buses tbody tr", (rows) => rows.map((r) => Number(r.children[2].textContent)));
+  if (load.length !== table.length || load.some((v, i) => Math.abs(v - table[i]) > 0.051)) {
+    throw new Error(`load chart ${load} and table ${table} differ`);
+  }
+  say(`step load-chart can0=${load[0]}`);
   await page.screenshot({ path: `${shots}/buses.png` });
+
+  await canopenPage(page);
+  await handwheelPage(page);
+  await cansmcPage(page);
+  const most = await page.$eval("body", (b) => Number(b.dataset.streamsMax));
+  if (!(most >= 2 && most <= 3)) throw new Error(`the page held ${most} streams at once (at most 3)`);
+  say(`step streams max=${most}`);
+}
+
+function nodeCell(page, node, cls) {
+  return page.$eval(`#nodes tr[data-bus="can0"][data-node="${node}"] td.${cls}`, (td) => td.textContent ?? "");
+}
+function text(page, sel) {
+  return page.$eval(sel, (e) => (e.hidden ? "" : e.textContent ?? ""));
+}
+
+async function canopenPage(page) {
+  await page.click(`button[data-page="canopen"]`);
+  // The demo's nodes, operational, with heartbeats and identities.
+  // (The boot procedure starts the drives and the handwheel; the I/O node
+  // stays pre-operational.)
+  await until("CANopen nodes 1, 2, 4 and 10 operational, 3 pre-operational", async () => {
+    const nmt = await page.$$eval("#nodes tbody tr", (rows) =>
+      Object.fromEntries(rows.filter((r) => r.dataset.bus === "can0").map((r) => [r.dataset.node, r.dataset.nmt])));
+    return ["1", "2", "4", "10"].every((n) => nmt[n] === "operational") && nmt["3"] === "pre operational";
+  });
+  const hb = await nodeCell(page, 1, "hb");
+  const age = Number(hb.replace(/ ms.*/, ""));
+  if (!(age >= 0 && age < 1000)) throw new Error(`node 1 heartbeat age ${hb}`);
+  const identity = await nodeCell(page, 1, "identity");
+  if (!/vendor 0x[0-9A-F]{8} product 0x[0-9A-F]{8} rev 0x[0-9A-F]{8} serial \d+/.test(identity)) {
+    throw new Error(`node 1 identity ${identity}`);
+  }
+  say(`step canopen-nodes identity=${JSON.stringify(identity)}`);
+
+  // NMT: start the I/O node (3), stop it, and put it back in
+  // pre-operational.
+  await page.click(`#nodes tr[data-node="3"] button[data-cmd="nmt-start"]`);
+  await until("node 3 operational", async () => (await nodeCell(page, 3, "nmt")) === "operational");
+  await page.click(`#nodes tr[data-node="3"] button[data-cmd="nmt-stop"]`);
+  await until("node 3 stopped", async () => (await nodeCell(page, 3, "nmt")) === "stopped");
+  await page.click(`#nodes tr[data-node="3"] button[data-cmd="nmt-enter_pre_operational"]`);
+  await until("node 3 pre-operational again", async () => (await nodeCell(page, 3, "nmt")) === "pre operational");
+  await until("the NMT changes in the event log", async () => {
+    const log = await text(page, "#node-events");
+    return ["pre operational → operational", "operational → stopped", "stopped → pre operational"].every((c) =>
+      log.includes(`can0 node 3: NMT ${c}`));
+  });
+  say("step nmt");
+
+  // An EMCY (sent by the simulated node 4 on the test's request) appears
+  // in the history and the event log.
+  say("need emcy");
+  await stdin.next();
+  await until("the EMCY shown", async () =>
+    (await text(page, "#emcy-history")).includes("can0 node 4: 0x2310") &&
+    (await text(page, "#node-events")).includes("can0 node 4: EMCY 0x2310"));
+  say(`step emcy-shown ${JSON.stringify(await nodeCell(page, 4, "fault"))}`);
+
+  // SDO read of 0x1008 (device name) of node 1, with the EDS type.
+  await page.select("#sdo-node", "can0/1");
+  await setInput(page, "#sdo-index", "1008");
+  await setInput(page, "#sdo-sub", "0");
+  await page.select("#sdo-type", "0");
+  await page.click("#sdo-read");
+  await until("the SDO read shown", async () =>
+    (await page.$eval("#sdo-result", (e) => e.dataset.outcome)) === "ok");
+  say(`step sdo-read ${await text(page, "#sdo-result")}`);
+
+  // A write to the read-only 0x1000 (device type): the node's abort,
+  // with its code and CiA 301 name.
+  await setInput(page, "#sdo-index", "1000");
+  await setInput(page, "#sdo-value", "1");
+  await page.click("#sdo-write");
+  await until("the SDO abort shown", async () => (await text(page, "#sdo-abort")) !== "");
+  if ((await page.$eval("#sdo-result", (e) => e.dataset.outcome)) !== "error") throw new Error("the write was not refused");
+  say(`step sdo-abort ${await text(page, "#sdo-abort")}`);
+  await page.screenshot({ path: `${shots}/canopen.png` });
+}
+
+function wheelStats(page) {
+  return page.$$eval(`section[data-handwheel="hw1"] tr[data-key]`, (rows) =>
+    Object.fromEntries(rows.map((r) => [r.dataset.key, r.querySelector("td").textContent])));
+}
+
+async function handwheelPage(page) {
+  await page.click(`button[data-page="handwheel"]`);
+  await until("hw1 shown", () => page.$(`section[data-handwheel="hw1"] tr[data-key="frames"]`));
+  await page.click(`section[data-handwheel="hw1"] button[data-cmd="mode-manual"]`);
+  await until("hw1 in manual mode", async () =>
+    (await page.$eval(`section[data-handwheel="hw1"]`, (c) => c.dataset.mode)) === "manual");
+  // The test turns the simulated wheel with random frame loss, waits for
+  // the gateway's counters to settle and says what they are.
+  say("need turn");
+  const want = JSON.parse((await stdin.next()).value);
+  await until("the page's counters are the gateway's", async () => {
+    const got = await wheelStats(page);
+    return Object.entries(want).every(([k, v]) => got[k] === String(v));
+  });
+  await until("every feed frame in the live feed", async () =>
+    (await text(page, "#feed")).split("\n").filter((l) => l.includes("  hw1  X+")).length === want.frames);
+  const feed = await text(page, "#feed");
+  const compensatedLines = feed.split("\n").filter((l) => l.includes("compensated")).length;
+  say(`step handwheel ${JSON.stringify(await wheelStats(page))} compensated_lines=${compensatedLines}`);
+  await page.screenshot({ path: `${shots}/handwheel.png` });
+  await page.click(`section[data-handwheel="hw1"] button[data-cmd="mode-automatic"]`);
+  await until("hw1 in automatic mode", async () =>
+    (await page.$eval(`section[data-handwheel="hw1"]`, (c) => c.dataset.mode)) === "automatic");
+  say("step handwheel-automatic");
+}
+
+async function cansmcPage(page) {
+  await page.click(`button[data-page="cansmc"]`);
+  await until("the CANsmc master in P2 with its slaves operational", async () => {
+    const phase = await page.$eval("#cansmc-master", (b) => b.dataset.phase);
+    const states = await page.$$eval("#cansmc-slaves tbody tr", (rows) => rows.map((r) => r.dataset.state));
+    return phase === "p2" && states.length > 0 && states.every((s) => s === "operational");
+  });
+  const dts = () => page.$$eval("#cansmc-slaves tbody tr", (rows) => rows.map((r) => Number(r.dataset.dts)));
+  const first = await dts();
+  await until("DT counters going up", async () => (await dts()).every((d, i) => d > first[i]));
+  const j = await page.$$eval("#cansmc-jitter .jrow", (rows) => Object.fromEntries(rows.map((r) => [r.dataset.stat, Number(r.dataset.us)])));
+  if (!(j.p50 <= j.p99 && j.p99 <= j["p99.9"] && j["p99.9"] <= j.max)) throw new Error(`jitter ${JSON.stringify(j)}`);
+  const slaves = await page.$$eval("#cansmc-slaves tbody tr", (rows) =>
+    rows.map((r) => `${r.dataset.address}:${r.children[1].textContent}`));
+  say(`step cansmc ${JSON.stringify(slaves)}`);
+  await page.screenshot({ path: `${shots}/cansmc.png` });
+}
+
+async function setFilter(page, value) {
+  await page.$eval("#frames-filter", (i, v) => {
+    i.value = v;
+    i.dispatchEvent(new Event("change"));
+  }, value);
+}
+
+async function setInput(page, sel, value) {
+  await page.$eval(sel, (i) => { i.value = ""; });
+  await page.type(sel, value);
 }
 
 async function tokens(page) {
@@ -177,10 +372,42 @@ async function tokens(page) {
   await until("axes listed with the token", () => axesListed(page));
   await until("connected", async () => (await page.$eval("#conn", (c) => c.textContent)) === "connected");
   say("step accepted-with-token");
-  // A viewer may watch but not take control.
-  await click(page, "X", "acquire");
-  await until("the role's refusal shown", async () =>
-    (await page.$eval("#notice", (n) => (n.hidden ? "" : n.textContent ?? ""))).includes("not allowed for this token's role"));
-  say("step role-honoured");
+  // A viewer may watch but not take control: the page shows the role and
+  // disables what it may not use, saying why.
+  await until("the role shown", async () => (await text(page, "#role")).startsWith("role: viewer"));
+  say(`step role ${await text(page, "#role")}`);
+  say(`step viewer-buttons ${JSON.stringify(await buttonStates(page))}`);
   await page.screenshot({ path: `${shots}/token-viewer.png` });
+
+  // An operator may take control and stop, but not send NMT or write SDO.
+  await page.type("#token", operatorToken);
+  await page.click("#token-use");
+  await until("the operator's role shown", async () => (await text(page, "#role")).startsWith("role: operator"));
+  await until("axes listed again", () => axesListed(page));
+  say(`step role ${await text(page, "#role")}`);
+  await click(page, "X", "acquire");
+  await until("X acquired by the operator", async () =>
+    (await page.$eval(`tr[data-axis="X"] button[data-cmd="acquire"]`, (b) => b.textContent)) === "Release");
+  say(`step operator-buttons ${JSON.stringify(await buttonStates(page))}`);
+  await click(page, "X", "acquire");
+  await until("X released", async () =>
+    (await page.$eval(`tr[data-axis="X"] button[data-cmd="acquire"]`, (b) => b.textContent)) === "Acquire");
+  await page.screenshot({ path: `${shots}/token-operator.png` });
+}
+
+/** Disabled buttons' tooltips (or "enabled") of a few buttons the roles tell apart. */
+async function buttonStates(page) {
+  await page.click(`button[data-page="canopen"]`);
+  await until("nodes listed", () => page.$(`#nodes tr[data-node="1"]`));
+  const state = (sel) => page.$eval(sel, (b) => (b.disabled ? b.title : "enabled"));
+  const out = {
+    acquire: await state(`tr[data-axis="X"] button[data-cmd="acquire"]`),
+    enable: await state(`tr[data-axis="X"] button[data-cmd="enable"]`),
+    stopAll: await state("#stop-all"),
+    nmt: await state(`#nodes tr[data-node="1"] button[data-cmd="nmt-start"]`),
+    sdoRead: await state("#sdo-read"),
+    sdoWrite: await state("#sdo-write"),
+  };
+  await page.click(`button[data-page="axes"]`);
+  return out;
 }

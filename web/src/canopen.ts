@@ -1,0 +1,393 @@
+// CANopen: the nodes of every CANopen bus (NMT state, heartbeat age,
+// identity, active error, EMCY history; polled with ListNodes while the
+// page is shown), their events as they happen (one StreamNodeEvents
+// stream while the page is shown), NMT buttons per node, and an SDO panel
+// (read/write by index:subindex with a typed value; an abort is shown with
+// its code and CiA 301 name from the SdoAbortDetails of the error).
+//
+// The API addresses objects by index and sub-index only: it has no call
+// that lists a node's EDS objects or finds one by name, so the panel
+// cannot offer names. The type defaults to the EDS type, which the gateway
+// applies to reads itself; for a write the page learns it from a read of
+// the object first (the value's type in ReadSdoResponse).
+import { Code, ConnectError } from "@connectrpc/connect";
+import { create } from "@bufbuild/protobuf";
+import {
+  DataType,
+  NmtCommand,
+  NmtState,
+  ValueSchema,
+  type Emcy,
+  type Node,
+  type NodeEvent,
+  type Value,
+} from "./gen/cangate/v1/canopen_pb";
+import { abortText, canopen, clearNotice, el, keepStreaming, sdoAbort, showConnected, showError } from "./api";
+import { guard } from "./roles";
+
+const enumName = (e: Record<number, string>, v: number) =>
+  (e[v] ?? String(v)).toLowerCase().replace(/_/g, " ");
+const hex = (n: number | bigint, width: number) => `0x${n.toString(16).toUpperCase().padStart(width, "0")}`;
+
+/** NMT buttons: label, command. */
+const NMT: [string, NmtCommand][] = [
+  ["Start", NmtCommand.START],
+  ["Stop", NmtCommand.STOP],
+  ["Pre-op", NmtCommand.ENTER_PRE_OPERATIONAL],
+  ["Reset", NmtCommand.RESET_NODE],
+];
+
+const MAX_EVENTS = 200;
+let events: string[] = [];
+/** EDS types learnt from reads, by "bus/node/index/sub". */
+const edsTypes = new Map<string, DataType>();
+
+function time(ns: bigint): string {
+  return new Date(Number(ns / 1_000_000n)).toLocaleTimeString();
+}
+
+function emcyText(e: Emcy): string {
+  const bits = e.registerBits.length > 0 ? ` [${e.registerBits.join(", ")}]` : "";
+  return `${hex(e.code, 4)} ${e.codeName}, register ${hex(e.register, 2)}${bits}`;
+}
+
+function nodeKey(n: { bus: string; id: number }): string {
+  return `${n.bus}/${n.id}`;
+}
+
+function renderNodes(list: Node[]): void {
+  const tbody = document.querySelector("#nodes tbody")!;
+  // Rows are rebuilt only when the set of nodes changes, so that a
+  // button under the pointer stays the same element.
+  const keys = list.map(nodeKey).join(",");
+  if (tbody.getAttribute("data-keys") !== keys) {
+    tbody.setAttribute("data-keys", keys);
+    tbody.replaceChildren(...list.map(buildRow));
+    const select = document.getElementById("sdo-node") as HTMLSelectElement;
+    const before = select.value;
+    select.replaceChildren(
+      ...list.map((n) => el("option", { value: nodeKey(n) }, `${n.bus} node ${n.id}${n.name ? ` (${n.name})` : ""}`)),
+    );
+    if (before && list.some((n) => nodeKey(n) === before)) select.value = before;
+  }
+  for (const n of list) updateRow(n);
+  const hist = list.flatMap((n) => n.emcyHistory.map((e) => ({ n, e })));
+  hist.sort((a, b) => (a.e.timestampNs < b.e.timestampNs ? 1 : -1));
+  document.getElementById("emcy-history")!.replaceChildren(
+    ...(hist.length === 0
+      ? [el("li", { className: "meta" }, "no EMCY received")]
+      : hist.map(({ n, e }) => el("li", {}, `${time(e.timestampNs)}  ${n.bus} node ${n.id}: ${emcyText(e)}`))),
+  );
+}
+
+function buildRow(n: Node): HTMLTableRowElement {
+  const cmds = el("td", { className: "cmds" });
+  for (const [label, command] of NMT) {
+    const b = el("button", { type: "button", textContent: label });
+    b.dataset.cmd = `nmt-${NmtCommand[command].toLowerCase()}`;
+    b.addEventListener("click", () => void nmt(n.bus, n.id, command, label));
+    guard(b, "SendNmt");
+    cmds.append(b);
+  }
+  const cell = (cls: string) => el("td", { className: cls });
+  const tr = el(
+    "tr",
+    {},
+    el("td", {}, n.bus),
+    el("td", { className: "num" }, String(n.id)),
+    el("td", {}, n.name || n.deviceName),
+    cell("nmt"),
+    cell("num hb"),
+    cell("device"),
+    cell("identity"),
+    cell("fault"),
+    cell("num emcys"),
+    cmds,
+  );
+  tr.dataset.bus = n.bus;
+  tr.dataset.node = String(n.id);
+  return tr;
+}
+
+function updateRow(n: Node): void {
+  const tr = document.querySelector<HTMLTableRowElement>(`#nodes tr[data-bus="${n.bus}"][data-node="${n.id}"]`);
+  if (!tr) return;
+  const set = (cls: string, text: string) => {
+    tr.querySelector(`td.${cls.split(" ").join(".")}`)!.textContent = text;
+  };
+  const state = enumName(NmtState, n.state);
+  set("nmt", state);
+  tr.dataset.nmt = state;
+  set(
+    "num hb",
+    n.heartbeatAgeMs === undefined ? "—" : `${n.heartbeatAgeMs} ms${n.heartbeatLost ? " (lost)" : ""}`,
+  );
+  tr.classList.toggle("lost", n.heartbeatLost);
+  set("device", n.deviceName + (n.deviceType === undefined ? "" : ` (type ${hex(n.deviceType, 8)})`));
+  const id = n.identity;
+  set(
+    "identity",
+    id ? `vendor ${hex(id.vendorId, 8)} product ${hex(id.productCode, 8)} rev ${hex(id.revision, 8)} serial ${id.serial}` : "—",
+  );
+  set("fault", n.activeError ? emcyText(n.activeError) : "");
+  set("num emcys", String(n.emcyHistory.length));
+}
+
+async function nmt(bus: string, node: number, command: NmtCommand, label: string): Promise<void> {
+  try {
+    await canopen.sendNmt({ bus, node, command });
+    clearNotice();
+    logEvent(`${new Date().toLocaleTimeString()}  ${bus} node ${node}: NMT ${label} sent`);
+  } catch (e) {
+    showError(`NMT ${label} to ${bus} node ${node}`, e);
+  }
+}
+
+function logEvent(line: string): void {
+  events.push(line);
+  if (events.length > MAX_EVENTS) events = events.slice(-MAX_EVENTS);
+  const pre = document.getElementById("node-events")!;
+  pre.textContent = events.join("\n");
+  pre.scrollTop = pre.scrollHeight;
+}
+
+function eventText(ev: NodeEvent): string {
+  const e = ev.event;
+  switch (e.case) {
+    case "bootUp":
+      return "boot-up";
+    case "stateChanged":
+      return `NMT ${enumName(NmtState, e.value.from)} → ${enumName(NmtState, e.value.to)}`;
+    case "heartbeatLost":
+      return `heartbeat lost (timeout ${e.value.timeoutMs} ms)`;
+    case "heartbeatRecovered":
+      return `heartbeat back after ${e.value.silentMs} ms (${enumName(NmtState, e.value.state)})`;
+    case "emcy":
+      return `EMCY ${emcyText(e.value)}`;
+    case "lost":
+      return `${e.value.count} events missed (read too slowly)`;
+    case "bootCompleted":
+      return "boot procedure completed";
+    case "bootFailed":
+      return `boot procedure failed: ${e.value.reason}`;
+    default:
+      return "unknown event";
+  }
+}
+
+// ---- SDO panel ----
+
+function sdoTarget(): { bus: string; node: number; index: number; subindex: number } | string {
+  const key = (document.getElementById("sdo-node") as HTMLSelectElement).value;
+  const slash = key.lastIndexOf("/");
+  if (slash < 0) return "no node selected";
+  const index = Number.parseInt((document.getElementById("sdo-index") as HTMLInputElement).value.replace(/^0x/i, ""), 16);
+  const subText = (document.getElementById("sdo-sub") as HTMLInputElement).value.trim();
+  const subindex = /^0x/i.test(subText) ? Number.parseInt(subText.slice(2), 16) : Number.parseInt(subText || "0", 10);
+  if (!(index >= 0 && index <= 0xffff)) return "index: 1 to 4 hex digits, e.g. 1008";
+  if (!(subindex >= 0 && subindex <= 0xff)) return "sub-index: 0 to 255 (or 0x..)";
+  return { bus: key.slice(0, slash), node: Number(key.slice(slash + 1)), index, subindex };
+}
+
+function objectKey(t: { bus: string; node: number; index: number; subindex: number }): string {
+  return `${t.bus}/${t.node}/${t.index}/${t.subindex}`;
+}
+
+function chosenType(): DataType {
+  return Number((document.getElementById("sdo-type") as HTMLSelectElement).value) as DataType;
+}
+
+function typeName(t: DataType): string {
+  return DataType[t] ?? String(t);
+}
+
+/** A read value for people; integers in decimal and hex. */
+export function formatValue(v: Value): string {
+  const x = v.value;
+  switch (x.case) {
+    case "boolValue":
+      return String(x.value);
+    case "intValue":
+      return String(x.value);
+    case "uintValue":
+      return `${x.value} (0x${x.value.toString(16).toUpperCase()})`;
+    case "realValue":
+      return String(x.value);
+    case "stringValue":
+      return JSON.stringify(x.value);
+    case "bytesValue":
+      return bytesHex(x.value);
+    default:
+      return "(no value)";
+  }
+}
+
+function bytesHex(b: Uint8Array): string {
+  return Array.from(b, (x) => x.toString(16).toUpperCase().padStart(2, "0")).join(" ");
+}
+
+/** The typed value of the value field for `type`, or why it is not one. */
+export function parseValue(type: DataType, text: string): Value | string {
+  const t = text.trim();
+  const v = (value: Value["value"]) => create(ValueSchema, { type, value });
+  const int = () => {
+    try {
+      return BigInt(t);
+    } catch {
+      return null;
+    }
+  };
+  switch (type) {
+    case DataType.BOOLEAN:
+      if (/^(true|1)$/i.test(t)) return v({ case: "boolValue", value: true });
+      if (/^(false|0)$/i.test(t)) return v({ case: "boolValue", value: false });
+      return "BOOLEAN: true or false";
+    case DataType.INTEGER8:
+    case DataType.INTEGER16:
+    case DataType.INTEGER32:
+    case DataType.INTEGER64: {
+      const n = int();
+      return n === null ? `${typeName(type)}: an integer (or 0x..)` : v({ case: "intValue", value: n });
+    }
+    case DataType.UNSIGNED8:
+    case DataType.UNSIGNED16:
+    case DataType.UNSIGNED32:
+    case DataType.UNSIGNED64: {
+      const n = int();
+      return n === null || n < 0n ? `${typeName(type)}: a non-negative integer (or 0x..)` : v({ case: "uintValue", value: n });
+    }
+    case DataType.REAL32:
+    case DataType.REAL64: {
+      const n = Number(t);
+      return t === "" || Number.isNaN(n) ? `${typeName(type)}: a number` : v({ case: "realValue", value: n });
+    }
+    case DataType.VISIBLE_STRING:
+    case DataType.UNICODE_STRING:
+      return v({ case: "stringValue", value: text });
+    case DataType.OCTET_STRING:
+    case DataType.DOMAIN: {
+      const digits = t.replace(/\s+/g, "");
+      if (!/^([0-9a-fA-F]{2})*$/.test(digits)) return `${typeName(type)}: hex bytes, e.g. DE AD BE EF`;
+      const bytes = new Uint8Array(digits.length / 2);
+      for (let i = 0; i < bytes.length; i++) bytes[i] = Number.parseInt(digits.slice(2 * i, 2 * i + 2), 16);
+      return v({ case: "bytesValue", value: bytes });
+    }
+    default:
+      return "choose a type";
+  }
+}
+
+function showSdo(ok: boolean, text: string, abort?: string): void {
+  const out = document.getElementById("sdo-result")!;
+  out.textContent = text;
+  out.className = ok ? "sdo-ok" : "sdo-error";
+  out.dataset.outcome = ok ? "ok" : "error";
+  const ab = document.getElementById("sdo-abort")!;
+  ab.textContent = abort ?? "";
+  ab.hidden = !abort;
+}
+
+function showSdoError(what: string, e: unknown): void {
+  const err = ConnectError.from(e);
+  if (err.code === Code.PermissionDenied || err.code === Code.Unauthenticated) showError(what, e);
+  const a = sdoAbort(err);
+  showSdo(false, `${what}: ${Code[err.code]}: ${err.rawMessage}`, a ? `SDO abort ${abortText(a)}${a.fromNode ? "" : " (sent by the gateway)"}` : undefined);
+}
+
+async function readSdo(): Promise<void> {
+  const t = sdoTarget();
+  if (typeof t === "string") return showSdo(false, t);
+  const what = `read ${t.bus} node ${t.node} ${hex(t.index, 4)}:${t.subindex}`;
+  try {
+    const r = await canopen.readSdo({ ...t, type: chosenType() });
+    if (r.value && chosenType() === DataType.UNSPECIFIED) {
+      edsTypes.set(objectKey(t), r.value.type);
+      edsOption(r.value.type);
+    }
+    const typed = r.value ? `${typeName(r.value.type)} ${formatValue(r.value)}` : "(type unknown)";
+    showSdo(true, `${what}: ${typed}; raw [${r.raw.length}] ${bytesHex(r.raw)}`);
+    const input = document.getElementById("sdo-value") as HTMLInputElement;
+    if (r.value?.value.case === "stringValue") input.value = r.value.value.value;
+    else if (r.value?.value.case === "bytesValue") input.value = bytesHex(r.value.value.value);
+    else if (r.value?.value.case !== undefined && r.value) input.value = String(r.value.value.value);
+  } catch (e) {
+    showSdoError(what, e);
+  }
+}
+
+/** The default type option names the EDS type once a read told it. */
+function edsOption(t: DataType | undefined): void {
+  const opt = document.querySelector<HTMLOptionElement>(`#sdo-type option[value="0"]`)!;
+  opt.textContent = t === undefined ? "EDS type" : `EDS type (${typeName(t)})`;
+}
+
+async function writeSdo(): Promise<void> {
+  const t = sdoTarget();
+  if (typeof t === "string") return showSdo(false, t);
+  const what = `write ${t.bus} node ${t.node} ${hex(t.index, 4)}:${t.subindex}`;
+  try {
+    let type = chosenType();
+    if (type === DataType.UNSPECIFIED) {
+      type = edsTypes.get(objectKey(t)) ?? DataType.UNSPECIFIED;
+      if (type === DataType.UNSPECIFIED) {
+        // The EDS type, from a read (a write-only object cannot be read:
+        // then the type must be chosen).
+        const r = await canopen.readSdo({ ...t, type: DataType.UNSPECIFIED });
+        if (!r.value) return showSdo(false, `${what}: the EDS does not type this object: choose a type`);
+        type = r.value.type;
+        edsTypes.set(objectKey(t), type);
+        edsOption(type);
+      }
+    }
+    const value = parseValue(type, (document.getElementById("sdo-value") as HTMLInputElement).value);
+    if (typeof value === "string") return showSdo(false, `${what}: ${value}`);
+    const r = await canopen.writeSdo({ ...t, data: { case: "value", value } });
+    showSdo(true, `${what}: ${typeName(type)} ${formatValue(value)} written (${r.bytes} bytes)`);
+  } catch (e) {
+    showSdoError(what, e);
+  }
+}
+
+export function initCanopen(): void {
+  const select = document.getElementById("sdo-type") as HTMLSelectElement;
+  const types = Object.values(DataType).filter((v): v is DataType => typeof v === "number" && v !== DataType.UNSPECIFIED);
+  select.replaceChildren(
+    el("option", { value: "0" }, "EDS type"),
+    ...types.map((t) => el("option", { value: String(t) }, typeName(t))),
+  );
+  const forget = () => edsOption(undefined);
+  for (const id of ["sdo-node", "sdo-index", "sdo-sub"]) document.getElementById(id)!.addEventListener("change", forget);
+  const read = document.getElementById("sdo-read") as HTMLButtonElement;
+  const write = document.getElementById("sdo-write") as HTMLButtonElement;
+  read.addEventListener("click", () => void readSdo());
+  write.addEventListener("click", () => void writeSdo());
+  guard(read, "ReadSdo");
+  guard(write, "WriteSdo");
+  document.getElementById("sdo-form")!.addEventListener("submit", (e) => {
+    e.preventDefault();
+    void readSdo();
+  });
+}
+
+/** Polls the nodes and streams their events while the page is shown. */
+export function enterCanopen(signal: AbortSignal): void {
+  const poll = async () => {
+    if (signal.aborted) return;
+    try {
+      const r = await canopen.listNodes({ bus: "" }, { signal });
+      showConnected();
+      renderNodes(r.nodes);
+    } catch (e) {
+      if (signal.aborted) return;
+      showError("CANopen nodes", e);
+    }
+    setTimeout(poll, 1000);
+  };
+  void poll();
+  void keepStreaming(
+    "node events",
+    signal,
+    (sig) => canopen.streamNodeEvents({ bus: "", nodes: [] }, { signal: sig }),
+    (ev) => logEvent(`${time(ev.timestampNs)}  ${ev.bus} node ${ev.node}: ${eventText(ev)}`),
+  );
+}

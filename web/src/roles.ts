@@ -1,0 +1,117 @@
+// The caller's role and which of the page's buttons it may use.
+//
+// The gateway has no RPC that says who the caller is. The page learns the
+// role from one harmless probe: SendNmt (engineer) with the command left
+// unspecified, which the service itself refuses (INVALID_ARGUMENT) and so
+// never reaches a device. A caller below engineer is refused by the
+// security layer first, and its PERMISSION_DENIED message names the role
+// held ("... needs role engineer; wall-screen holds role viewer"). Any
+// later refusal of the same kind updates the role too.
+//
+// NEEDS mirrors the access table (server/src/security/roles.rs) for the
+// RPCs the page's buttons call.
+import { Code, ConnectError } from "@connectrpc/connect";
+
+export type Role = "viewer" | "operator" | "engineer";
+const RANK: Record<Role, number> = { viewer: 0, operator: 1, engineer: 2 };
+
+/** The least role each RPC the page calls needs (roles.rs). */
+export const NEEDS = {
+  AcquireControl: "operator",
+  Enable: "operator",
+  Disable: "operator",
+  Home: "operator",
+  Move: "operator",
+  Jog: "operator",
+  Stop: "operator",
+  StopAxes: "operator",
+  SetMode: "operator",
+  SendNmt: "engineer",
+  ReadSdo: "viewer",
+  WriteSdo: "engineer",
+} as const satisfies Record<string, Role>;
+export type Rpc = keyof typeof NEEDS;
+
+let role: Role | null = null;
+let who = "";
+interface Guarded {
+  button: HTMLButtonElement;
+  rpc: Rpc;
+  /** Another reason to disable the button ("" for none). */
+  other: () => string;
+  /** The button's own tooltip, shown while it is enabled. */
+  title: string;
+}
+const guarded: Guarded[] = [];
+
+/** Why the role may not call `rpc`, or "" when it may (or is not known yet). */
+export function refusal(rpc: Rpc): string {
+  const needed = NEEDS[rpc];
+  if (role === null || RANK[role] >= RANK[needed]) return "";
+  return `${rpc} needs role ${needed}; this token has role ${role}`;
+}
+
+/**
+ * Puts a button under the role: disabled with the reason in its tooltip
+ * when the role may not call `rpc`, else by `other` (another reason to
+ * disable it, e.g. no lease held; "" for none).
+ */
+export function guard(button: HTMLButtonElement, rpc: Rpc, other: () => string = () => ""): void {
+  const g = { button, rpc, other, title: button.title };
+  guarded.push(g);
+  refresh(g);
+}
+
+function refresh(g: Guarded): void {
+  const why = refusal(g.rpc) || g.other();
+  g.button.disabled = why !== "";
+  g.button.title = why || g.title;
+}
+
+/** Re-applies the role and the other reasons to every guarded button. */
+export function applyRoles(): void {
+  for (let i = guarded.length - 1; i >= 0; i--) {
+    const g = guarded[i];
+    if (!g.button.isConnected) guarded.splice(i, 1);
+    else refresh(g);
+  }
+  const badge = document.getElementById("role")!;
+  badge.textContent = role === null ? "" : `role: ${role}${who ? ` (${who})` : ""}`;
+  badge.hidden = role === null;
+  if (role !== null) document.body.dataset.role = role;
+  else delete document.body.dataset.role;
+}
+
+function setRole(r: Role, name: string): void {
+  role = r;
+  who = name;
+  applyRoles();
+}
+
+/** Learns the role from a PERMISSION_DENIED of the security layer. */
+export function learnFromRefusal(e: unknown): void {
+  const err = ConnectError.from(e);
+  if (err.code !== Code.PermissionDenied) return;
+  const m = /; (.*) holds role (viewer|operator|engineer)/.exec(err.rawMessage);
+  if (m) setRole(m[2] as Role, m[1]);
+}
+
+/**
+ * Finds out the role (see the top of this file) with `probe`, the
+ * unspecified SendNmt; forgets the role first.
+ */
+export async function probeRole(probe: () => Promise<unknown>): Promise<void> {
+  role = null;
+  who = "";
+  applyRoles();
+  try {
+    await probe();
+    // Not expected (the command is refused), but it passed the role check.
+    setRole("engineer", "");
+  } catch (e) {
+    const err = ConnectError.from(e);
+    if (err.code === Code.PermissionDenied) learnFromRefusal(e);
+    // The service's own refusal: the security layer let the call through.
+    else if (err.code === Code.InvalidArgument || err.code === Code.NotFound) setRole("engineer", "");
+  }
+}
