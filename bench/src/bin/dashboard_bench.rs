@@ -126,10 +126,22 @@ fn run(args: &Args) -> Result<()> {
         .as_array()
         .map(|a| a.iter().filter_map(serde_json::Value::as_i64).collect())
         .unwrap_or_default();
-    delays.sort_unstable();
     if delays.is_empty() {
         bail!("no marker reached the screen");
     }
+    // In the order they were shown: a delay that grows through the run is
+    // a backlog (the page falls behind), a steady one is latency.
+    let median = |d: &[i64]| {
+        let mut d = d.to_vec();
+        d.sort_unstable();
+        d[d.len() / 2] as f64 / 1000.0
+    };
+    let tenth = delays.len().div_ceil(10);
+    let (first, last) = (
+        median(&delays[..tenth]),
+        median(&delays[delays.len() - tenth..]),
+    );
+    delays.sort_unstable();
     let q = |p: f64| delays[((delays.len() - 1) as f64 * p).round() as usize] as f64 / 1000.0;
     let (p50, p99) = (q(0.50), q(0.99));
     let rate = report["rate_text"].as_str().unwrap_or("");
@@ -144,7 +156,8 @@ fn run(args: &Args) -> Result<()> {
         }
     );
     println!(
-        "bus to screen: p50 {p50:.1} ms, p99 {p99:.1} ms over {} markers ({} load frames queued{})",
+        "bus to screen: p50 {p50:.1} ms, p99 {p99:.1} ms over {} markers (median of the first \
+         tenth {first:.1} ms, of the last {last:.1} ms; {} load frames queued{})",
         delays.len(),
         sent.0,
         stats.map_or(String::new(), |s| format!(
@@ -160,6 +173,8 @@ fn run(args: &Args) -> Result<()> {
             "loaded_browser_cpu": loaded,
             "delay_ms_p50": p50,
             "delay_ms_p99": p99,
+            "delay_ms_first_tenth": first,
+            "delay_ms_last_tenth": last,
             "markers": delays.len(),
             "rate_text": rate,
             "lost_text": lost,
