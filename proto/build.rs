@@ -17,6 +17,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "proto/cangate/v1/axes.proto",
         "proto/cangate/v1/handwheel.proto",
         "proto/cangate/v1/cansmc.proto",
+        "proto/cangate/v1/session.proto",
     ];
     for f in &files {
         println!("cargo:rerun-if-changed={f}");

@@ -157,6 +157,23 @@ impl Client {
             .max_encoding_message_size(MAX_MESSAGE)
     }
 
+    /// The generated Session client.
+    pub fn session_client(&self) -> pb::session_client::SessionClient<Transport> {
+        pb::session_client::SessionClient::new(self.channel.clone())
+    }
+
+    /// Who this client is to the gateway: its token's (or certificate's)
+    /// name and role, or `anonymous` when the gateway has authentication
+    /// off.
+    pub async fn caller(&self) -> Result<pb::Caller, Error> {
+        self.call(
+            "GetCaller",
+            None,
+            self.session_client().get_caller(pb::GetCallerRequest {}),
+        )
+        .await
+    }
+
     /// Runs one call of a generated client (unary, or the opening of a
     /// stream) within the request timeout plus `extra` (a wait the gateway
     /// was asked to do), its error typed: for the RPCs without a helper.

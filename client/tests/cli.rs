@@ -286,6 +286,16 @@ fn streams_print_one_json_object_per_line() {
 }
 
 #[test]
+fn whoami_says_who_the_client_is() {
+    let o = cangate(&["whoami"]);
+    assert_status(&o, 0);
+    assert_eq!(
+        stdout(&o).trim(),
+        "anonymous: engineer (none, the gateway has authentication off)"
+    );
+}
+
+#[test]
 fn completions_are_generated() {
     for shell in ["bash", "zsh", "fish"] {
         let o = run(&[], &["completions", shell]);

@@ -249,6 +249,9 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         .await;
     let cansmc_service =
         cangate_proto::v1::cansmc_server::CansmcServer::new(CansmcService::new(gateway.clone()));
+    let session_service = cangate_proto::v1::session_server::SessionServer::new(
+        crate::grpc::session_service::SessionService::new(config.security.authentication()),
+    );
     health_reporter
         .set_serving::<cangate_proto::v1::cansmc_server::CansmcServer<CansmcService>>()
         .await;
@@ -289,6 +292,7 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
             .add_service(axes_service)
             .add_service(handwheels_service)
             .add_service(cansmc_service)
+            .add_service(session_service)
             .add_optional_service(simulator_service)
             .serve_with_incoming_shutdown(incoming, async move { token.cancelled().await }),
     );

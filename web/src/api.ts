@@ -7,6 +7,7 @@ import { Bus } from "./gen/cangate/v1/bus_pb";
 import { Canopen, SdoAbortDetailsSchema, type SdoAbortDetails } from "./gen/cangate/v1/canopen_pb";
 import { Cansmc } from "./gen/cangate/v1/cansmc_pb";
 import { Handwheels } from "./gen/cangate/v1/handwheel_pb";
+import { Session } from "./gen/cangate/v1/session_pb";
 import { learnFromRefusal } from "./roles";
 
 const TOKEN_KEY = "cangate-token";
@@ -35,6 +36,7 @@ export const axes = createClient(Axes, transport);
 export const canopen = createClient(Canopen, transport);
 export const handwheels = createClient(Handwheels, transport);
 export const cansmc = createClient(Cansmc, transport);
+export const session = createClient(Session, transport);
 
 /**
  * The SDO abort of an error, from the SdoAbortDetails the gateway puts in

@@ -3,14 +3,13 @@
 // stop-all need it) and at most one more for the page shown (a bus's
 // frames, node events, ...), opened when its tab is shown and closed when
 // it is left. Three at most (data-streams-max on <body>).
-import { canopen, setToken } from "./api";
+import { session as sessionApi, setToken } from "./api";
 import { initAxes, startAxes, stopAll } from "./axes";
 import { enterBuses, initBuses, startBuses } from "./buses";
 import { enterCanopen, initCanopen } from "./canopen";
 import { enterCansmc } from "./cansmc";
-import { NmtCommand } from "./gen/cangate/v1/canopen_pb";
 import { enterHandwheels } from "./handwheel";
-import { guard, probeRole } from "./roles";
+import { guard, loadRole } from "./roles";
 
 const PAGES: Record<string, ((signal: AbortSignal) => void) | null> = {
   buses: enterBuses,
@@ -28,7 +27,7 @@ function start(): void {
   session?.abort();
   session = new AbortController();
   const signal = session.signal;
-  void probeRole(() => canopen.sendNmt({ bus: "", node: 0, command: NmtCommand.UNSPECIFIED }, { signal }));
+  void loadRole(() => sessionApi.getCaller({}, { signal }));
   void startAxes(signal);
   startBuses(signal);
   enter(current);

@@ -1,16 +1,14 @@
 // The caller's role and which of the page's buttons it may use.
 //
-// The gateway has no RPC that says who the caller is. The page learns the
-// role from one harmless probe: SendNmt (engineer) with the command left
-// unspecified, which the service itself refuses (INVALID_ARGUMENT) and so
-// never reaches a device. A caller below engineer is refused by the
-// security layer first, and its PERMISSION_DENIED message names the role
-// held ("... needs role engineer; wall-screen holds role viewer"). Any
-// later refusal of the same kind updates the role too.
+// The page asks the gateway who it is (Session.GetCaller) whenever it
+// starts or the token changes. A later PERMISSION_DENIED of the security
+// layer names the role held ("... needs role engineer; wall-screen holds
+// role viewer") and updates it too (a token's role changed meanwhile).
 //
 // NEEDS mirrors the access table (server/src/security/roles.rs) for the
 // RPCs the page's buttons call.
 import { Code, ConnectError } from "@connectrpc/connect";
+import { type Caller, CallerRole } from "./gen/cangate/v1/session_pb";
 
 export type Role = "viewer" | "operator" | "engineer";
 const RANK: Record<Role, number> = { viewer: 0, operator: 1, engineer: 2 };
@@ -96,22 +94,24 @@ export function learnFromRefusal(e: unknown): void {
   if (m) setRole(m[2] as Role, m[1]);
 }
 
-/**
- * Finds out the role (see the top of this file) with `probe`, the
- * unspecified SendNmt; forgets the role first.
- */
-export async function probeRole(probe: () => Promise<unknown>): Promise<void> {
+/** Asks the gateway who the caller is (`getCaller`); forgets the role
+ * first. Refused (no or a wrong token) the role stays unknown: the page
+ * asks for a token. */
+export async function loadRole(getCaller: () => Promise<Caller>): Promise<void> {
   role = null;
   who = "";
   applyRoles();
   try {
-    await probe();
-    // Not expected (the command is refused), but it passed the role check.
-    setRole("engineer", "");
-  } catch (e) {
-    const err = ConnectError.from(e);
-    if (err.code === Code.PermissionDenied) learnFromRefusal(e);
-    // The service's own refusal: the security layer let the call through.
-    else if (err.code === Code.InvalidArgument || err.code === Code.NotFound) setRole("engineer", "");
+    const c = await getCaller();
+    const r = ROLE_OF[c.role];
+    if (r) setRole(r, c.method === "none" ? "" : c.name);
+  } catch {
+    // Shown by the calls that need the role; nothing to add here.
   }
 }
+
+const ROLE_OF: Partial<Record<CallerRole, Role>> = {
+  [CallerRole.VIEWER]: "viewer",
+  [CallerRole.OPERATOR]: "operator",
+  [CallerRole.ENGINEER]: "engineer",
+};

@@ -199,6 +199,8 @@ pub(crate) enum Command {
     Sim(sim::SimArgs),
     /// CANsmc masters: list, status, param, restart, watch.
     Smc(smc::SmcArgs),
+    /// Who this client is to the gateway: its token's name and role.
+    Whoami,
     /// Print the SHA-256 of a token for the server's [[security.tokens]]
     /// sha256 (reads the token from standard input when not given). Needs
     /// no gateway.
@@ -592,6 +594,7 @@ async fn run(cli: Cli) -> Result<()> {
         Command::Wheel(a) => wheel::run(&app, a).await,
         Command::Sim(a) => sim::run(&app, a).await,
         Command::Smc(a) => smc::run(&app, a).await,
+        Command::Whoami => whoami(&app).await,
         Command::HashToken { .. } | Command::Completions { .. } => Ok(()),
     }
 }
@@ -622,6 +625,23 @@ async fn connect(c: &Connection) -> Result<Client> {
         Err(e @ Error::Transport { .. }) => Err(e).ctx(format!("connecting to {}", c.server)),
         Ok(_) | Err(_) => Ok(client),
     }
+}
+
+/// `cangate whoami`: `wall-screen: viewer (token)`.
+async fn whoami(app: &App) -> Result<()> {
+    let c = app.client.caller().await.ctx("asking who this client is")?;
+    let text = format!(
+        "{}: {} ({}{})",
+        c.name,
+        label::<cangate_client::pb::CallerRole>(c.role),
+        c.method,
+        if c.authentication {
+            ""
+        } else {
+            ", the gateway has authentication off"
+        }
+    );
+    app.show(text, &c)
 }
 
 /// `cangate hash-token [TOKEN]`

@@ -9,6 +9,7 @@ pub mod error;
 mod forward;
 pub mod handwheel_service;
 mod runtime_errors;
+pub mod session_service;
 pub mod simulator_service;
 
 /// Who made a call, for audit lines and lease holders: the authenticated

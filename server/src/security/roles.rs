@@ -95,6 +95,8 @@ pub const TABLE: &[Rule] = &[
     rule("/cangate.v1.Simulator/SendEmcy", E, false),
     rule("/cangate.v1.Simulator/RaiseDriveFault", E, false),
     rule("/cangate.v1.Simulator/SetIoInputs", E, false),
+    // Session: the caller's own identity, for any valid credentials.
+    rule("/cangate.v1.Session/GetCaller", V, false),
     // CANsmc: reading parameters is viewing; writing them and restarting
     // the master (its axes drop out of the cycle) is engineering.
     rule("/cangate.v1.Cansmc/ListMasters", V, false),
