@@ -3,7 +3,11 @@
 // `dashboard_bench`, which owns the gateway, loads its bus, and reads the
 // browser's CPU time from /proc.
 //
-//   node web/tests/frame_view_perf.mjs URL MARKER_ID_HEX
+//   node web/tests/frame_view_perf.mjs URL MARKER_ID_HEX [profile]
+//
+// With "profile", the page's main thread is profiled (Chrome DevTools
+// protocol) from "profile-start" on stdin to the report, whose JSON then
+// has "profile_top": the functions with the most self time, in ms.
 //
 // Opens URL#buses (the live view of the first bus) and watches the view's
 // text: each line of the marker identifier carries, in its 8 data bytes
@@ -16,7 +20,7 @@
 import puppeteer from "puppeteer-core";
 import { createInterface } from "node:readline";
 
-const [url, markerHex] = process.argv.slice(2);
+const [url, markerHex, profiling] = process.argv.slice(2);
 const chromium = process.env.CANGATE_CHROMIUM || "/usr/bin/chromium";
 const rl = createInterface({ input: process.stdin });
 const say = (line) => process.stdout.write(line + "\n");
@@ -57,9 +61,14 @@ try {
       }
     }).observe(pre, { childList: true, characterData: true, subtree: true });
   }, markerHex.toUpperCase());
+  const cdp = profiling === "profile" ? await page.createCDPSession() : null;
   say("ready");
   for await (const line of rl) {
-    if (line === "report") {
+    if (line === "profile-start" && cdp) {
+      await cdp.send("Profiler.enable");
+      await cdp.send("Profiler.start");
+    } else if (line === "report") {
+      const top = cdp ? topFunctions((await cdp.send("Profiler.stop")).profile) : undefined;
       const r = await page.evaluate(() => ({
         delays_us: window.__delays,
         rate_text: document.getElementById("frames-rate")?.textContent ?? "",
@@ -67,7 +76,7 @@ try {
           ? ""
           : (document.getElementById("frames-lost")?.textContent ?? ""),
       }));
-      say(JSON.stringify(r));
+      say(JSON.stringify({ ...r, profile_top: top }));
     } else if (line === "quit") {
       break;
     }
@@ -75,4 +84,19 @@ try {
 } finally {
   rl.close();
   await browser.close();
+}
+
+/** The 15 functions with the most self time in a CPU profile, in ms. */
+function topFunctions(profile) {
+  const byId = new Map(profile.nodes.map((n) => [n.id, n]));
+  const self = new Map();
+  profile.samples.forEach((id, i) => {
+    const f = byId.get(id).callFrame;
+    const key = `${f.functionName || "(anonymous)"} ${f.url.split("/").pop()}:${f.lineNumber}:${f.columnNumber}`;
+    self.set(key, (self.get(key) ?? 0) + (profile.timeDeltas[i] ?? 0) / 1000);
+  });
+  return [...self.entries()]
+    .sort((a, b) => b[1] - a[1])
+    .slice(0, 15)
+    .map(([f, ms]) => [f, Math.round(ms)]);
 }

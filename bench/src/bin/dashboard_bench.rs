@@ -49,6 +49,10 @@ struct Args {
     /// Short phases (2 s), for a smoke run.
     #[arg(long)]
     quick: bool,
+    /// Profile the page's main thread during the loaded phase and print the
+    /// functions with the most self time.
+    #[arg(long)]
+    profile: bool,
 }
 
 /// The marker's identifier: above the load in priority, so that it waits
@@ -88,7 +92,7 @@ fn run(args: &Args) -> Result<()> {
     let url = gateway::url(&server);
     let bus = gateway::virtual_bus(&server, "can0")?;
 
-    let mut page = Page::start(&web, &url)?;
+    let mut page = Page::start(&web, &url, args.profile)?;
     page.wait_for("ready", Duration::from_secs(60))?;
 
     // Idle: the demo's own traffic only.
@@ -107,6 +111,9 @@ fn run(args: &Args) -> Result<()> {
     };
     // Let the page settle into the load before measuring.
     std::thread::sleep(Duration::from_secs(1));
+    if args.profile {
+        page.say("profile-start")?;
+    }
     let loaded = browser_cpu_over(page.pid(), seconds)?;
     let report = page.report()?;
     let stats = server
@@ -144,6 +151,12 @@ fn run(args: &Args) -> Result<()> {
     delays.sort_unstable();
     let q = |p: f64| delays[((delays.len() - 1) as f64 * p).round() as usize] as f64 / 1000.0;
     let (p50, p99) = (q(0.50), q(0.99));
+    if let Some(top) = report["profile_top"].as_array() {
+        println!("page main thread, self time during the loaded phase:");
+        for f in top {
+            println!("  {:>6} ms  {}", f[1], f[0].as_str().unwrap_or("?"));
+        }
+    }
     let rate = report["rate_text"].as_str().unwrap_or("");
     let lost = report["lost_text"].as_str().unwrap_or("");
     println!(
@@ -272,11 +285,12 @@ struct Page {
 }
 
 impl Page {
-    fn start(web: &Path, url: &str) -> Result<Page> {
+    fn start(web: &Path, url: &str, profile: bool) -> Result<Page> {
         let marker = format!("{MARKER_ID:03X}");
         let mut child = Command::new("node")
             .arg(web.join("tests/frame_view_perf.mjs"))
             .args([url, marker.as_str()])
+            .args(profile.then_some("profile"))
             .current_dir(web)
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
@@ -315,9 +329,14 @@ impl Page {
         }
     }
 
-    fn report(&mut self) -> Result<serde_json::Value> {
+    fn say(&mut self, line: &str) -> Result<()> {
         let stdin = self.stdin.as_mut().context("stdin closed")?;
-        writeln!(stdin, "report")?;
+        writeln!(stdin, "{line}")?;
+        Ok(())
+    }
+
+    fn report(&mut self) -> Result<serde_json::Value> {
+        self.say("report")?;
         let line = self.wait_for("{", Duration::from_secs(30))?;
         serde_json::from_str(&line).context("the browser script's report")
     }
