@@ -161,6 +161,57 @@ async fn turn_wheel(c: &cangate_client::Client) -> String {
     }
 }
 
+/// The `cangate` binary of this build: `cargo test --workspace` builds it
+/// (the client's own tests need it) before any test runs.
+fn cangate_binary() -> Option<PathBuf> {
+    let dir = std::env::current_exe()
+        .ok()?
+        .parent()?
+        .parent()?
+        .to_path_buf();
+    Some(dir.join("cangate")).filter(|p| p.is_file())
+}
+
+/// Sends can0 7E5#C0FFEE as a user would, with `cangate send`; without the
+/// binary (this crate's tests built alone), over gRPC, saying so, except
+/// under CI.
+async fn send_with_the_cli(c: &cangate_client::Client, server: &str) {
+    match cangate_binary() {
+        Some(bin) => {
+            let out = tokio::process::Command::new(&bin)
+                .args(["--server", server, "send", "can0", "7E5#C0FFEE"])
+                .output()
+                .await
+                .expect("cangate runs");
+            assert!(
+                out.status.success(),
+                "cangate send failed: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        }
+        None => {
+            assert!(
+                std::env::var_os("CI").is_none(),
+                "CI=true: the cangate binary must be built beside this test"
+            );
+            eprintln!(
+                "no cangate binary beside this test (build the workspace): sending over gRPC"
+            );
+            c.bus_client()
+                .send_frames(pb::SendFramesRequest {
+                    bus: "can0".into(),
+                    frames: vec![pb::Frame {
+                        id: 0x7E5,
+                        data: vec![0xC0, 0xFF, 0xEE],
+                        ..Default::default()
+                    }],
+                })
+                .await
+                .expect("frame sent over gRPC");
+        }
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
     if !can_run("the_dashboard_moves_jogs_stops_and_shows_frames") {
@@ -172,21 +223,10 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
     let shots = screenshots();
     let steps = drive(&["demo".into(), url, shots.display().to_string()], |need| {
         let c = c.clone();
+        let server_addr = server.addr.to_string();
         async move {
             match need.as_str() {
-                "send-frame" => {
-                    c.bus_client()
-                        .send_frames(pb::SendFramesRequest {
-                            bus: "can0".into(),
-                            frames: vec![pb::Frame {
-                                id: 0x7E5,
-                                data: vec![0xC0, 0xFF, 0xEE],
-                                ..Default::default()
-                            }],
-                        })
-                        .await
-                        .expect("frame sent over gRPC");
-                }
+                "send-frame" => send_with_the_cli(&c, &server_addr).await,
                 "emcy" => {
                     c.simulator_client()
                         .send_emcy(pb::SendEmcyRequest {
