@@ -212,6 +212,29 @@ async fn send_with_the_cli(c: &cangate_client::Client, server: &str) {
     }
 }
 
+/// X is free well before its lease (3 s, renewed every second) could have
+/// lapsed: the page gave it back as it went away.
+async fn released_at_once(c: &cangate_client::Client) {
+    let started = std::time::Instant::now();
+    loop {
+        let x = c
+            .axes_client()
+            .get_axis(pb::GetAxisRequest { axis: "X".into() })
+            .await
+            .expect("GetAxis")
+            .into_inner();
+        let holder = x.status.expect("status").controlled_by;
+        if holder.is_empty() {
+            return;
+        }
+        assert!(
+            started.elapsed() < std::time::Duration::from_millis(1500),
+            "X still controlled by {holder} after the page was left"
+        );
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
     if !can_run("the_dashboard_moves_jogs_stops_and_shows_frames") {
@@ -240,6 +263,7 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
                         .expect("EMCY sent by the simulated node 4");
                 }
                 "turn" => return turn_wheel(&c).await,
+                "lease-released" => released_at_once(&c).await,
                 other => panic!("unexpected request {other}"),
             }
             "ok".to_string()
@@ -268,6 +292,7 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
             "handwheel-automatic",
             "cansmc",
             "streams",
+            "lease-released",
             "no-console-errors"
         ]
     );

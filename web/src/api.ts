@@ -31,6 +31,19 @@ const transport = createGrpcWebTransport({
   interceptors: [auth],
 });
 
+/** Axes calls that must outlive the page (the release of its leases when
+ * it is closed or reloaded): fetch's keepalive lets a request finish after
+ * the page is gone. */
+export const axesOnExit = createClient(
+  Axes,
+  createGrpcWebTransport({
+    baseUrl: location.origin,
+    useBinaryFormat: true,
+    interceptors: [auth],
+    fetch: (input, init) => globalThis.fetch(input, { ...init, keepalive: true }),
+  }),
+);
+
 export const bus = createClient(Bus, transport);
 export const axes = createClient(Axes, transport);
 export const canopen = createClient(Canopen, transport);

@@ -6,7 +6,7 @@
 // window blurred or tab hidden: Stop), stop, and the always-visible
 // stop-all (StopAxes, which needs no lease).
 import { AxisActivity, DriveState, type Axis, type AxisStatus } from "./gen/cangate/v1/axes_pb";
-import { axes, clearNotice, el, keepStreaming, showError } from "./api";
+import { axes, axesOnExit, clearNotice, el, keepStreaming, showError } from "./api";
 import { applyRoles, guard, type Rpc } from "./roles";
 import { TimeChart } from "./chart";
 
@@ -263,7 +263,18 @@ export async function startAxes(signal: AbortSignal): Promise<void> {
   );
 }
 
+/** Gives the page's leases back when it goes away (closed, reloaded, left)
+ * instead of letting them lapse: the calls outlive the page (keepalive). */
+function releaseOnExit(): void {
+  for (const [name, l] of leases) {
+    clearInterval(l.timer);
+    void axesOnExit.releaseControl({ lease: l.lease }).catch(() => undefined);
+    leases.delete(name);
+  }
+}
+
 export function initAxes(): void {
+  window.addEventListener("pagehide", releaseOnExit);
   trace = new TimeChart(document.getElementById("trace-chart")!, "position", 120);
   const select = document.getElementById("trace-axis") as HTMLSelectElement;
   select.addEventListener("change", () => {
