@@ -607,3 +607,85 @@ async fn a_gateway_with_tokens_asks_for_one_and_honours_the_role() {
     assert_eq!(x.status.unwrap().controlled_by, "");
     server.shutdown();
 }
+
+/// The dashboard over HTTPS: the demo gateway with `[security.tls]` (a
+/// throwaway self-signed certificate for 127.0.0.1, made here with rcgen),
+/// Chromium trusting exactly that certificate's public key
+/// (`--ignore-certificate-errors-spki-list`): the page loads from
+/// `https://127.0.0.1:PORT/` and lists the axes over gRPC-Web on TLS (over
+/// HTTP/2: the gateway's ALPN offers h2 only).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_dashboard_works_over_tls() {
+    if !can_run("the_dashboard_works_over_tls") {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("cangate-dashboard-tls-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let key = rcgen::KeyPair::generate().unwrap();
+    let mut params =
+        rcgen::CertificateParams::new(vec!["127.0.0.1".to_string(), "localhost".to_string()])
+            .unwrap();
+    params
+        .distinguished_name
+        .push(rcgen::DnType::CommonName, "cangate dashboard test");
+    let cert = params.self_signed(&key).unwrap();
+    let (cert_file, key_file) = (dir.join("server.pem"), dir.join("server.key"));
+    std::fs::write(&cert_file, cert.pem()).unwrap();
+    std::fs::write(&key_file, key.serialize_pem()).unwrap();
+    let server = {
+        let mut c = Config::demo();
+        c.security.tls = Config::from_toml(&format!(
+            "[security.tls]\ncert = \"{}\"\nkey = \"{}\"\n[[bus]]\nname = \"x\"\nbackend = \"virtual\"\n",
+            cert_file.display(),
+            key_file.display()
+        ))
+        .expect("TLS configuration is valid")
+        .security
+        .tls;
+        c.listen = "127.0.0.1:0".parse().unwrap();
+        cangate_server::start(&c).await.expect("server starts")
+    };
+    let url = format!("https://127.0.0.1:{}/", server.addr.port());
+    let steps = drive(
+        &[
+            "tls".into(),
+            url,
+            screenshots().display().to_string(),
+            cert_file.display().to_string(),
+        ],
+        |need| async move { unexpected(need) },
+    )
+    .await;
+    // The axes the page lists are the gateway's, in its order.
+    let c = cangate_client::connect_with(
+        &format!("https://127.0.0.1:{}", server.addr.port()),
+        &ConnectOptions {
+            ca: Some(cert_file.clone()),
+            tls_domain: Some("localhost".into()),
+            ..Default::default()
+        },
+    )
+    .await
+    .expect("a TLS client trusting the certificate connects");
+    let axes: Vec<String> = c
+        .axes_client()
+        .list_axes(pb::ListAxesRequest {})
+        .await
+        .expect("ListAxes")
+        .into_inner()
+        .axes
+        .iter()
+        .map(|a| format!("{:?}", a.name))
+        .collect();
+    assert_eq!(
+        steps,
+        [
+            format!("tls-axes [{}] protocol=h2", axes.join(",")),
+            "no-console-errors".into(),
+        ]
+    );
+    assert!(screenshots().join("tls.png").exists());
+    server.shutdown();
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -4,6 +4,10 @@
 //
 //   node web/tests/dashboard.mjs demo URL SCREENSHOT_DIR
 //   node web/tests/dashboard.mjs tokens URL SCREENSHOT_DIR VIEWER_TOKEN OPERATOR_TOKEN
+//   node web/tests/dashboard.mjs tls https://127.0.0.1:PORT/ SCREENSHOT_DIR CERT_PEM
+//
+// (tls: Chromium trusts the gateway's self-signed certificate CERT_PEM by
+// its public key, --ignore-certificate-errors-spki-list, and no other.)
 //
 // Talks to the Rust test on stdout/stdin, one line each: "step NAME" when a
 // step passed, "need send-frame" (or "need emcy", "need turn") and then it
@@ -13,6 +17,8 @@
 // (exit status 1, the reason on stderr).
 import puppeteer from "puppeteer-core";
 import { createInterface } from "node:readline";
+import { createHash, X509Certificate } from "node:crypto";
+import { readFileSync } from "node:fs";
 
 const [mode, url, shots, token, operatorToken] = process.argv.slice(2);
 const chromium = process.env.CANGATE_CHROMIUM || "/usr/bin/chromium";
@@ -26,7 +32,7 @@ function say(line) {
 const browser = await puppeteer.launch({
   executablePath: chromium,
   headless: true,
-  args: ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"],
+  args: ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", ...tlsTrust()],
 });
 const errors = [];
 let currentPage = null;
@@ -47,6 +53,7 @@ try {
   await page.goto(url, { waitUntil: "load" });
   if (mode === "demo") await demo(page);
   else if (mode === "tokens") await tokens(page);
+  else if (mode === "tls") await tls(page);
   else throw new Error(`unknown mode ${mode}`);
   if (errors.length > 0) throw new Error(`the page reported errors:\n${errors.join("\n")}`);
   say("step no-console-errors");
@@ -495,3 +502,30 @@ async function buttonStates(page) {
   return out;
 }
 
+/** Chromium's flag trusting the certificate of the tls mode by its SPKI (base64 SHA-256), or nothing. */
+function tlsTrust() {
+  if (mode !== "tls") return [];
+  const cert = new X509Certificate(readFileSync(token));
+  const spki = cert.publicKey.export({ type: "spki", format: "der" });
+  return [`--ignore-certificate-errors-spki-list=${createHash("sha256").update(spki).digest("base64")}`];
+}
+
+/** The page over HTTPS: loaded, axes listed over gRPC-Web on TLS (HTTP/2, the gateway's ALPN). */
+async function tls(page) {
+  const protocol = await page.evaluate(() => location.protocol);
+  if (protocol !== "https:") throw new Error(`loaded over ${protocol}`);
+  await until("axes X, Y, Z listed over TLS", () => axesListed(page));
+  await until("connected", async () => (await page.$eval("#conn", (c) => c.textContent)) === "connected");
+  const axes = await page.$$eval("#axes tbody tr", (rows) => rows.map((r) => r.dataset.axis));
+  // How the gRPC-Web calls went: the resource timing's protocol.
+  const hops = await page.evaluate(() => [
+    ...new Set(
+      performance
+        .getEntriesByType("resource")
+        .filter((e) => e.name.includes("/cangate.v1."))
+        .map((e) => e.nextHopProtocol),
+    ),
+  ]);
+  say(`step tls-axes ${JSON.stringify(axes)} protocol=${hops.join(",")}`);
+  await page.screenshot({ path: `${shots}/tls.png` });
+}
