@@ -245,6 +245,18 @@ async fn demo_master_runs_p2_with_four_operational_slaves() {
     let j = s2.jitter.unwrap();
     assert!(j.samples > 0, "{j:?}");
     assert!(j.p50_us <= j.p99_us && j.p99_us <= j.max_us, "{j:?}");
+    // The histogram: every cycle counted once, in at most 100 buckets of
+    // a listed width reaching the worst MST, the last one not empty.
+    assert_eq!(j.histogram.iter().sum::<u64>(), j.samples, "{j:?}");
+    assert!(
+        [1, 2, 5, 10, 20, 50, 100].contains(&j.histogram_bucket_us),
+        "{j:?}"
+    );
+    assert!(!j.histogram.is_empty() && j.histogram.len() <= 100, "{j:?}");
+    assert!(j.histogram.last() > Some(&0), "{j:?}");
+    let width = f64::from(j.histogram_bucket_us);
+    assert!(j.max_us < width * j.histogram.len() as f64 || j.histogram.len() == 100);
+    assert!(j.max_us >= width * (j.histogram.len() - 1) as f64, "{j:?}");
     let c = s2.counters.unwrap();
     assert!(c.cycles > 0, "{c:?}");
     for (a, b) in s1.slaves.iter().zip(&s2.slaves) {

@@ -288,9 +288,13 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
             "emcy-shown",
             "sdo-read",
             "sdo-abort",
+            "canopen-scan",
             "handwheel",
             "handwheel-automatic",
             "cansmc",
+            "cansmc-histogram",
+            "cansmc-restart",
+            "cansmc-parameters",
             "streams",
             "lease-released",
             "no-console-errors"
@@ -513,6 +517,21 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
                 .join(",")
         )
     );
+    cansmc_page_against_grpc(&c, &step).await;
+    // The page's scan of can0 found the nodes ScanNetwork finds.
+    let scanned: Vec<String> = co
+        .scan_network(pb::ScanNetworkRequest {
+            bus: "can0".into(),
+            timeout_ms: 0,
+        })
+        .await
+        .expect("ScanNetwork")
+        .into_inner()
+        .nodes
+        .iter()
+        .map(|n| n.id.to_string())
+        .collect();
+    assert_eq!(step("canopen-scan"), format!("[{}]", scanned.join(",")));
     for f in [
         "axes.png",
         "axes-x-moved.png",
@@ -520,10 +539,68 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
         "canopen.png",
         "handwheel.png",
         "cansmc.png",
+        "cansmc-parameters.png",
     ] {
         assert!(shots.join(f).exists(), "{f}");
     }
     server.shutdown();
+}
+
+/// The CANsmc page's histogram, Restart and parameter panel, against the
+/// gateway's answers: the histogram the page drew summed to its samples,
+/// as GetStatus's does; the master went through P0 once more (starts 2,
+/// P2); parameter 4 of slave 1 reads back what the page wrote, and the
+/// page read the encoder resolution GetStatus's slave reads.
+async fn cansmc_page_against_grpc(c: &cangate_client::Client, step: &impl Fn(&str) -> String) {
+    let hist = step("cansmc-histogram");
+    let field = |name: &str| -> u64 {
+        hist.split(' ')
+            .find_map(|kv| kv.strip_prefix(name)?.strip_prefix('='))
+            .and_then(|v| v.parse().ok())
+            .unwrap_or_else(|| panic!("{name} in {hist}"))
+    };
+    assert_eq!(field("samples"), field("total"), "{hist}");
+    assert!(field("samples") > 0 && field("drawn") > 0, "{hist}");
+    assert!(
+        field("buckets") <= 100 && field("drawn") <= field("buckets"),
+        "{hist}"
+    );
+    let mut smc = c.cansmc_client();
+    let st = smc
+        .get_status(pb::GetCansmcStatusRequest {
+            master: String::new(),
+        })
+        .await
+        .expect("GetStatus")
+        .into_inner();
+    assert_eq!(st.phase, pb::CansmcPhase::P2 as i32);
+    assert_eq!(st.starts, 2, "restarted once by the page");
+    assert_eq!(step("cansmc-restart"), "starts=2");
+    let j = st.jitter.expect("jitter");
+    assert_eq!(j.histogram.iter().sum::<u64>(), j.samples);
+    let read = |number: u32| {
+        let mut smc = smc.clone();
+        async move {
+            smc.read_parameter(pb::ReadParameterRequest {
+                master: String::new(),
+                address: 1,
+                number,
+            })
+            .await
+            .expect("ReadParameter")
+            .into_inner()
+            .value
+        }
+    };
+    let resolution = read(3).await;
+    assert_eq!(read(4).await, 23456, "the page's write of parameter 4");
+    let params = step("cansmc-parameters");
+    assert!(
+        params.starts_with(&format!("resolution={resolution} refused="))
+            && params.ends_with(" written=23456"),
+        "{params}"
+    );
+    assert!(params.contains("read-only"), "{params}");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -562,8 +639,8 @@ async fn a_gateway_with_tokens_asks_for_one_and_honours_the_role() {
     .await;
     // The roles the page shows and the buttons it disables, as the access
     // table (server/src/security/roles.rs) gives them.
-    let viewer = r#"{"acquire":"AcquireControl needs role operator; this token has role viewer","enable":"Enable needs role operator; this token has role viewer","stopAll":"StopAxes needs role operator; this token has role viewer","nmt":"SendNmt needs role engineer; this token has role viewer","sdoRead":"enabled","sdoWrite":"WriteSdo needs role engineer; this token has role viewer"}"#;
-    let operator = r#"{"acquire":"enabled","enable":"enabled","stopAll":"enabled","nmt":"SendNmt needs role engineer; this token has role operator","sdoRead":"enabled","sdoWrite":"WriteSdo needs role engineer; this token has role operator"}"#;
+    let viewer = r#"{"acquire":"AcquireControl needs role operator; this token has role viewer","enable":"Enable needs role operator; this token has role viewer","stopAll":"StopAxes needs role operator; this token has role viewer","nmt":"SendNmt needs role engineer; this token has role viewer","sdoRead":"enabled","sdoWrite":"WriteSdo needs role engineer; this token has role viewer","scan":"enabled","smcRestart":"Restart needs role engineer; this token has role viewer","paramRead":"enabled","paramWrite":"WriteParameter needs role engineer; this token has role viewer"}"#;
+    let operator = r#"{"acquire":"enabled","enable":"enabled","stopAll":"enabled","nmt":"SendNmt needs role engineer; this token has role operator","sdoRead":"enabled","sdoWrite":"WriteSdo needs role engineer; this token has role operator","scan":"enabled","smcRestart":"Restart needs role engineer; this token has role operator","paramRead":"enabled","paramWrite":"WriteParameter needs role engineer; this token has role operator"}"#;
     assert_eq!(
         steps,
         [
@@ -594,4 +671,86 @@ async fn a_gateway_with_tokens_asks_for_one_and_honours_the_role() {
         .into_inner();
     assert_eq!(x.status.unwrap().controlled_by, "");
     server.shutdown();
+}
+
+/// The dashboard over HTTPS: the demo gateway with `[security.tls]` (a
+/// throwaway self-signed certificate for 127.0.0.1, made here with rcgen),
+/// Chromium trusting exactly that certificate's public key
+/// (`--ignore-certificate-errors-spki-list`): the page loads from
+/// `https://127.0.0.1:PORT/` and lists the axes over gRPC-Web on TLS (over
+/// HTTP/2: the gateway's ALPN offers h2 only).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_dashboard_works_over_tls() {
+    if !can_run("the_dashboard_works_over_tls") {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("cangate-dashboard-tls-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let key = rcgen::KeyPair::generate().unwrap();
+    let mut params =
+        rcgen::CertificateParams::new(vec!["127.0.0.1".to_string(), "localhost".to_string()])
+            .unwrap();
+    params
+        .distinguished_name
+        .push(rcgen::DnType::CommonName, "cangate dashboard test");
+    let cert = params.self_signed(&key).unwrap();
+    let (cert_file, key_file) = (dir.join("server.pem"), dir.join("server.key"));
+    std::fs::write(&cert_file, cert.pem()).unwrap();
+    std::fs::write(&key_file, key.serialize_pem()).unwrap();
+    let server = {
+        let mut c = Config::demo();
+        c.security.tls = Config::from_toml(&format!(
+            "[security.tls]\ncert = \"{}\"\nkey = \"{}\"\n[[bus]]\nname = \"x\"\nbackend = \"virtual\"\n",
+            cert_file.display(),
+            key_file.display()
+        ))
+        .expect("TLS configuration is valid")
+        .security
+        .tls;
+        c.listen = "127.0.0.1:0".parse().unwrap();
+        cangate_server::start(&c).await.expect("server starts")
+    };
+    let url = format!("https://127.0.0.1:{}/", server.addr.port());
+    let steps = drive(
+        &[
+            "tls".into(),
+            url,
+            screenshots().display().to_string(),
+            cert_file.display().to_string(),
+        ],
+        |need| async move { unexpected(need) },
+    )
+    .await;
+    // The axes the page lists are the gateway's, in its order.
+    let c = cangate_client::connect_with(
+        &format!("https://127.0.0.1:{}", server.addr.port()),
+        &ConnectOptions {
+            ca: Some(cert_file.clone()),
+            tls_domain: Some("localhost".into()),
+            ..Default::default()
+        },
+    )
+    .await
+    .expect("a TLS client trusting the certificate connects");
+    let axes: Vec<String> = c
+        .axes_client()
+        .list_axes(pb::ListAxesRequest {})
+        .await
+        .expect("ListAxes")
+        .into_inner()
+        .axes
+        .iter()
+        .map(|a| format!("{:?}", a.name))
+        .collect();
+    assert_eq!(
+        steps,
+        [
+            format!("tls-axes [{}] protocol=h2", axes.join(",")),
+            "no-console-errors".into(),
+        ]
+    );
+    assert!(screenshots().join("tls.png").exists());
+    server.shutdown();
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -5,6 +5,9 @@
 // (read/write by index:subindex with a typed value; an abort is shown with
 // its code and CiA 301 name from the SdoAbortDetails of the error).
 //
+// A "Scan network" button runs ScanNetwork on a CANopen bus (those of the
+// listed nodes) and lists the nodes that answered (<li data-node>).
+//
 // The API addresses objects by index and sub-index only: it has no call
 // that lists a node's EDS objects or finds one by name, so the panel
 // cannot offer names. The type defaults to the EDS type, which the gateway
@@ -23,7 +26,7 @@ import {
   type Value,
 } from "./gen/cangate/v1/canopen_pb";
 import { abortText, canopen, clearNotice, el, keepStreaming, sdoAbort, showConnected, showError } from "./api";
-import { guard } from "./roles";
+import { applyRoles, guard } from "./roles";
 
 const enumName = (e: Record<number, string>, v: number) =>
   (e[v] ?? String(v)).toLowerCase().replace(/_/g, " ");
@@ -69,6 +72,11 @@ function renderNodes(list: Node[]): void {
       ...list.map((n) => el("option", { value: nodeKey(n) }, `${n.bus} node ${n.id}${n.name ? ` (${n.name})` : ""}`)),
     );
     if (before && list.some((n) => nodeKey(n) === before)) select.value = before;
+    const scanBus = document.getElementById("scan-bus") as HTMLSelectElement;
+    const buses = [...new Set(list.map((n) => n.bus))];
+    const was = scanBus.value;
+    scanBus.replaceChildren(...buses.map((b) => el("option", { value: b }, b)));
+    if (buses.includes(was)) scanBus.value = was;
   }
   for (const n of list) updateRow(n);
   const hist = list.flatMap((n) => n.emcyHistory.map((e) => ({ n, e })));
@@ -348,7 +356,55 @@ async function writeSdo(): Promise<void> {
   }
 }
 
+// ---- Scan ----
+
+async function scan(button: HTMLButtonElement): Promise<void> {
+  const bus = (document.getElementById("scan-bus") as HTMLSelectElement).value;
+  const status = document.getElementById("scan-status")!;
+  const out = document.getElementById("scan-result")!;
+  if (!bus) {
+    status.textContent = "no CANopen bus listed yet";
+    return;
+  }
+  button.disabled = true;
+  status.textContent = `scanning ${bus}…`;
+  delete out.dataset.bus;
+  const t0 = performance.now();
+  try {
+    const r = await canopen.scanNetwork({ bus, timeoutMs: 0 });
+    clearNotice();
+    const ms = Math.round(performance.now() - t0);
+    status.textContent = `${bus}: ${r.nodes.length} node${r.nodes.length === 1 ? "" : "s"} answered (${ms} ms)`;
+    out.replaceChildren(
+      ...r.nodes.map((n) => {
+        const id = n.identity;
+        const li = el(
+          "li",
+          {},
+          `node ${n.id}${n.name ? ` (${n.name})` : ""}: ${n.deviceName || "no device name"}` +
+            (n.deviceType === undefined ? "" : `, type ${hex(n.deviceType, 8)}`) +
+            (id ? `, vendor ${hex(id.vendorId, 8)} product ${hex(id.productCode, 8)}` : "") +
+            (n.configured ? "" : " (not configured)"),
+        );
+        li.dataset.node = String(n.id);
+        return li;
+      }),
+    );
+    out.dataset.bus = bus;
+  } catch (e) {
+    status.textContent = "";
+    showError(`Scan of ${bus}`, e);
+  } finally {
+    button.disabled = false;
+    // The role may still forbid it (re-applied by the guard's refresh).
+    applyRoles();
+  }
+}
+
 export function initCanopen(): void {
+  const scanButton = document.getElementById("scan") as HTMLButtonElement;
+  scanButton.addEventListener("click", () => void scan(scanButton));
+  guard(scanButton, "ScanNetwork");
   const select = document.getElementById("sdo-type") as HTMLSelectElement;
   const types = Object.values(DataType).filter((v): v is DataType => typeof v === "number" && v !== DataType.UNSPECIFIED);
   select.replaceChildren(

@@ -2,13 +2,21 @@
 // DT counters and status words, the MST jitter, and the master's events,
 // from one StreamCycleStats stream per master while the page is shown (the
 // demo has one master; a gateway with several would hold one stream each,
-// so the page shows the first master and a selector).
+// so the page shows the first master and a selector). Restart (engineer)
+// and a parameter panel (ReadParameter; WriteParameter engineer) are unary
+// calls.
 //
 // The jitter: cansmc.proto's CycleJitter gives percentiles (p50, p99,
-// p99.9, max, mean) of the MST lateness, not the histogram the gateway
-// keeps (1 µs buckets); the page draws those figures as bars.
+// p99.9, max, mean) of the MST lateness, drawn as bars, and the gateway's
+// histogram coarsened to at most 100 buckets (`histogram`,
+// `histogram_bucket_us`), drawn on a canvas with a logarithmic count axis
+// (a jitter histogram is one tall peak and a thin tail). The canvas
+// carries the figures for tests and tools: data-samples, data-total (the
+// sum of the bars), data-bucket-us, data-buckets, data-drawn (bars drawn).
 import { CansmcPhase, CansmcSlaveState, type CansmcSlave, type CansmcStatus, type CansmcEvent } from "./gen/cangate/v1/cansmc_pb";
-import { cansmc, el, keepStreaming, showConnected, showError } from "./api";
+import { Code, ConnectError } from "@connectrpc/connect";
+import { cansmc, clearNotice, el, keepStreaming, showConnected, showError } from "./api";
+import { guard } from "./roles";
 
 const enumName = (e: Record<number, string>, v: number) =>
   (e[v] ?? String(v)).toLowerCase().replace(/_/g, " ");
@@ -51,6 +59,7 @@ function slaveRow(s: CansmcSlave): HTMLTableRowElement {
 function renderStatus(st: CansmcStatus): void {
   const box = document.getElementById("cansmc-master")!;
   box.dataset.phase = enumName(CansmcPhase, st.phase);
+  box.dataset.starts = String(st.starts);
   const k = st.counters;
   box.replaceChildren(
     el("b", { className: "phase" }, `phase ${enumName(CansmcPhase, st.phase)}`),
@@ -59,7 +68,82 @@ function renderStatus(st: CansmcStatus): void {
     st.startError ? el("span", { className: "fault" }, ` start failed: ${st.startError}`) : "",
   );
   document.querySelector("#cansmc-slaves tbody")!.replaceChildren(...st.slaves.map(slaveRow));
+  paramSlaves(st.slaves);
   renderJitter(st);
+  drawHistogram(st);
+}
+
+/** The parameter panel's slave choice follows the master's slaves. */
+function paramSlaves(slaves: CansmcSlave[]): void {
+  const select = document.getElementById("param-slave") as HTMLSelectElement;
+  const keys = slaves.map((s) => `${s.address}:${s.name}`).join(",");
+  if (select.dataset.keys === keys) return;
+  select.dataset.keys = keys;
+  const before = select.value;
+  select.replaceChildren(
+    ...slaves.map((s) => el("option", { value: String(s.address) }, `${s.address}${s.name ? ` ${s.name}` : ""}`)),
+  );
+  if (slaves.some((s) => String(s.address) === before)) select.value = before;
+}
+
+/** The MST lateness histogram on its canvas: bars of `histogram_bucket_us`, log counts. */
+function drawHistogram(st: CansmcStatus): void {
+  const canvas = document.getElementById("cansmc-histogram") as HTMLCanvasElement;
+  const j = st.jitter;
+  const counts = (j?.histogram ?? []).map(Number);
+  const width = j?.histogramBucketUs ?? 1;
+  const d = canvas.dataset;
+  d.samples = String(j?.samples ?? 0n);
+  d.total = String((j?.histogram ?? []).reduce((a, b) => a + b, 0n));
+  d.bucketUs = String(width);
+  d.buckets = String(counts.length);
+  const w = Math.max(300, canvas.parentElement?.clientWidth ?? 400);
+  const h = 160;
+  const dpr = window.devicePixelRatio || 1;
+  if (canvas.width !== Math.round(w * dpr)) {
+    canvas.width = Math.round(w * dpr);
+    canvas.height = Math.round(h * dpr);
+    canvas.style.width = `${w}px`;
+    canvas.style.height = `${h}px`;
+  }
+  const g = canvas.getContext("2d")!;
+  g.setTransform(dpr, 0, 0, dpr, 0, 0);
+  g.clearRect(0, 0, w, h);
+  g.font = "11px system-ui, sans-serif";
+  g.fillStyle = "#57606a";
+  const left = 8;
+  const bottom = h - 18;
+  const top = 14;
+  // Always 100 slots wide, so the bars keep their width as buckets come.
+  const slot = (w - 2 * left) / 100;
+  const peak = Math.max(1, ...counts);
+  const scale = (bottom - top) / Math.log10(peak + 1);
+  let drawn = 0;
+  g.fillStyle = "#4c8df6";
+  counts.forEach((n, i) => {
+    if (n === 0) return;
+    const bh = Math.max(1, Math.log10(n + 1) * scale);
+    g.fillRect(left + i * slot, bottom - bh, Math.max(1, slot - 1), bh);
+    drawn++;
+  });
+  d.drawn = String(drawn);
+  g.fillStyle = "#57606a";
+  g.fillRect(left, bottom, w - 2 * left, 1);
+  g.textBaseline = "top";
+  for (const i of [0, 25, 50, 75, 100]) {
+    const label = i === 100 ? `${100 * width} µs` : `${i * width}`;
+    g.textAlign = i === 0 ? "left" : i === 100 ? "right" : "center";
+    g.fillText(label, left + i * slot, bottom + 3);
+  }
+  g.textAlign = "left";
+  g.textBaseline = "alphabetic";
+  g.fillText(
+    counts.length === 0
+      ? "no cycles measured yet"
+      : `MSTs per ${width} µs of lateness (log scale, peak ${peak}); the last bar counts every later MST`,
+    left,
+    11,
+  );
 }
 
 function renderJitter(st: CansmcStatus): void {
@@ -126,6 +210,95 @@ function openStream(signal: AbortSignal, master: string): void {
       logEvents(lines);
     },
   );
+}
+
+// ---- Restart and parameters ----
+
+let restartArmed: ReturnType<typeof setTimeout> | undefined;
+
+/** Restart asks once more (the button turns into "Confirm restart" for 3 s). */
+async function restart(button: HTMLButtonElement): Promise<void> {
+  if (restartArmed === undefined) {
+    button.textContent = "Confirm restart";
+    button.dataset.armed = "true";
+    restartArmed = setTimeout(disarm, 3000);
+    return;
+  }
+  disarm();
+  try {
+    const r = await cansmc.restart({ master: selected });
+    clearNotice();
+    logEvents([`${new Date().toLocaleTimeString()}  restart of ${r.master} requested`]);
+  } catch (e) {
+    showError(`Restart of ${selected || "the master"}`, e);
+  }
+  function disarm(): void {
+    clearTimeout(restartArmed);
+    restartArmed = undefined;
+    button.textContent = "Restart";
+    delete button.dataset.armed;
+  }
+}
+
+function showParam(ok: boolean, text: string): void {
+  const out = document.getElementById("param-result")!;
+  out.textContent = text;
+  out.className = ok ? "sdo-result sdo-ok" : "sdo-result sdo-error";
+  out.dataset.outcome = ok ? "ok" : "error";
+}
+
+/** The panel's slave and parameter number, or why they are not valid. */
+function paramTarget(): { address: number; number: number } | string {
+  const address = Number((document.getElementById("param-slave") as HTMLSelectElement).value);
+  const text = (document.getElementById("param-number") as HTMLInputElement).value.trim();
+  const number = /^0x/i.test(text) ? Number.parseInt(text.slice(2), 16) : Number(text);
+  if (!(address >= 1)) return "no slave selected";
+  if (!(Number.isInteger(number) && number >= 0 && number <= 0xffff)) return "parameter number: 0 to 65535 (or 0x..)";
+  return { address, number };
+}
+
+async function parameter(write: boolean): Promise<void> {
+  const t = paramTarget();
+  if (typeof t === "string") return showParam(false, t);
+  const what = `${write ? "write" : "read"} slave ${t.address} parameter ${t.number}`;
+  try {
+    let r;
+    if (write) {
+      const text = (document.getElementById("param-value") as HTMLInputElement).value.trim();
+      const value = Number(text);
+      if (text === "" || !Number.isInteger(value) || value < -(2 ** 31) || value >= 2 ** 31) {
+        return showParam(false, `${what}: the value is a 32-bit signed integer`);
+      }
+      r = await cansmc.writeParameter({ master: selected, ...t, value });
+    } else {
+      r = await cansmc.readParameter({ master: selected, ...t });
+    }
+    (document.getElementById("param-value") as HTMLInputElement).value = String(r.value);
+    const out = document.getElementById("param-result")!;
+    showParam(true, `${what}: ${r.value}${write ? " (confirmed by the slave)" : ""}`);
+    out.dataset.value = String(r.value);
+  } catch (e) {
+    const err = ConnectError.from(e);
+    if (err.code === Code.PermissionDenied || err.code === Code.Unauthenticated) showError(what, e);
+    showParam(false, `${what}: ${Code[err.code]}: ${err.rawMessage}`);
+  }
+}
+
+/** The page's buttons, once. */
+export function initCansmc(): void {
+  const restartButton = document.getElementById("cansmc-restart") as HTMLButtonElement;
+  restartButton.addEventListener("click", () => void restart(restartButton));
+  guard(restartButton, "Restart");
+  const read = document.getElementById("param-read") as HTMLButtonElement;
+  const write = document.getElementById("param-write") as HTMLButtonElement;
+  read.addEventListener("click", () => void parameter(false));
+  write.addEventListener("click", () => void parameter(true));
+  guard(read, "ReadParameter");
+  guard(write, "WriteParameter");
+  document.getElementById("param-form")!.addEventListener("submit", (e) => {
+    e.preventDefault();
+    void parameter(false);
+  });
 }
 
 /** Lists the masters and streams the selected one's state while the page is shown. */

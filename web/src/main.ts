@@ -7,7 +7,7 @@ import { session as sessionApi, setToken } from "./api";
 import { initAxes, startAxes, stopAll } from "./axes";
 import { enterBuses, initBuses, startBuses } from "./buses";
 import { enterCanopen, initCanopen } from "./canopen";
-import { enterCansmc } from "./cansmc";
+import { enterCansmc, initCansmc } from "./cansmc";
 import { enterHandwheels } from "./handwheel";
 import { guard, loadRole } from "./roles";
 
@@ -81,6 +81,7 @@ document.addEventListener("DOMContentLoaded", () => {
   initAxes();
   initBuses();
   initCanopen();
+  initCansmc();
   route();
   start();
 });

@@ -27,6 +27,10 @@ export const NEEDS = {
   SendNmt: "engineer",
   ReadSdo: "viewer",
   WriteSdo: "engineer",
+  ScanNetwork: "viewer",
+  Restart: "engineer",
+  ReadParameter: "viewer",
+  WriteParameter: "engineer",
 } as const satisfies Record<string, Role>;
 export type Rpc = keyof typeof NEEDS;
 

@@ -4,6 +4,10 @@
 //
 //   node web/tests/dashboard.mjs demo URL SCREENSHOT_DIR
 //   node web/tests/dashboard.mjs tokens URL SCREENSHOT_DIR VIEWER_TOKEN OPERATOR_TOKEN
+//   node web/tests/dashboard.mjs tls https://127.0.0.1:PORT/ SCREENSHOT_DIR CERT_PEM
+//
+// (tls: Chromium trusts the gateway's self-signed certificate CERT_PEM by
+// its public key, --ignore-certificate-errors-spki-list, and no other.)
 //
 // Talks to the Rust test on stdout/stdin, one line each: "step NAME" when a
 // step passed, "need send-frame" (or "need emcy", "need turn") and then it
@@ -13,6 +17,8 @@
 // (exit status 1, the reason on stderr).
 import puppeteer from "puppeteer-core";
 import { createInterface } from "node:readline";
+import { createHash, X509Certificate } from "node:crypto";
+import { readFileSync } from "node:fs";
 
 const [mode, url, shots, token, operatorToken] = process.argv.slice(2);
 const chromium = process.env.CANGATE_CHROMIUM || "/usr/bin/chromium";
@@ -26,7 +32,7 @@ function say(line) {
 const browser = await puppeteer.launch({
   executablePath: chromium,
   headless: true,
-  args: ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"],
+  args: ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", ...tlsTrust()],
 });
 const errors = [];
 let currentPage = null;
@@ -47,6 +53,7 @@ try {
   await page.goto(url, { waitUntil: "load" });
   if (mode === "demo") await demo(page);
   else if (mode === "tokens") await tokens(page);
+  else if (mode === "tls") await tls(page);
   else throw new Error(`unknown mode ${mode}`);
   if (errors.length > 0) throw new Error(`the page reported errors:\n${errors.join("\n")}`);
   say("step no-console-errors");
@@ -309,7 +316,19 @@ async function canopenPage(page) {
   await until("the SDO abort shown", async () => (await text(page, "#sdo-abort")) !== "");
   if ((await page.$eval("#sdo-result", (e) => e.dataset.outcome)) !== "error") throw new Error("the write was not refused");
   say(`step sdo-abort ${await text(page, "#sdo-abort")}`);
+  await canopenScan(page);
   await page.screenshot({ path: `${shots}/canopen.png` });
+}
+
+/** Scan network on can0: the nodes that answered, by id (compared with ScanNetwork over gRPC). */
+async function canopenScan(page) {
+  await page.select("#scan-bus", "can0");
+  await page.click("#scan");
+  await until("the scan's nodes listed", async () =>
+    (await page.$eval("#scan-result", (u) => u.dataset.bus ?? "")) === "can0");
+  const ids = await page.$$eval("#scan-result li", (li) => li.map((l) => Number(l.dataset.node)));
+  if (ids.length === 0) throw new Error(`the scan found nothing: ${await text(page, "#scan-status")}`);
+  say(`step canopen-scan ${JSON.stringify(ids)}`);
 }
 
 function wheelStats(page) {
@@ -358,7 +377,74 @@ async function cansmcPage(page) {
   const slaves = await page.$$eval("#cansmc-slaves tbody tr", (rows) =>
     rows.map((r) => `${r.dataset.address}:${r.children[1].textContent}`));
   say(`step cansmc ${JSON.stringify(slaves)}`);
+  await cansmcHistogram(page);
   await page.screenshot({ path: `${shots}/cansmc.png` });
+  await cansmcRestart(page);
+  await cansmcParameters(page);
+}
+
+/** The MST jitter histogram is drawn: its bars sum to the samples of the same status, and the canvas has them. */
+async function cansmcHistogram(page) {
+  const h = () => page.$eval("#cansmc-histogram", (c) => ({ ...c.dataset }));
+  await until("the jitter histogram drawn", async () => Number((await h()).drawn) > 0);
+  const d = await h();
+  if (!(d.total === d.samples && Number(d.samples) > 0)) throw new Error(`histogram ${JSON.stringify(d)}`);
+  // Bars on the canvas: pixels of the bars' colour.
+  const blue = await page.$eval("#cansmc-histogram", (c) => {
+    const px = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
+    let n = 0;
+    for (let i = 0; i < px.length; i += 4) if (px[i] === 0x4c && px[i + 1] === 0x8d && px[i + 2] === 0xf6) n++;
+    return n;
+  });
+  if (blue === 0) throw new Error("no bars on the histogram's canvas");
+  say(`step cansmc-histogram samples=${d.samples} total=${d.total} buckets=${d.buckets} bucket_us=${d.bucketUs} drawn=${d.drawn}`);
+}
+
+/** Restart (asked twice) takes the master through P0 and P1 back to P2. */
+async function cansmcRestart(page) {
+  const starts = Number(await page.$eval("#cansmc-master", (b) => b.dataset.starts));
+  await page.click("#cansmc-restart");
+  await until("the restart asks for confirmation", async () =>
+    (await page.$eval("#cansmc-restart", (b) => b.dataset.armed)) === "true");
+  await page.click("#cansmc-restart");
+  await until("the master restarted and back in P2", async () => {
+    const b = await page.$eval("#cansmc-master", (m) => ({ ...m.dataset }));
+    return Number(b.starts) === starts + 1 && b.phase === "p2";
+  });
+  const log = await text(page, "#cansmc-events");
+  const at = (p) => log.indexOf(`  phase ${p}`);
+  if (!(at("p0") >= 0 && at("p0") < at("p1") && at("p1") < log.lastIndexOf("  phase p2"))) {
+    throw new Error(`phases not P0, P1, P2 in the events:\n${log}`);
+  }
+  await until("the slaves operational again", async () => {
+    const states = await page.$$eval("#cansmc-slaves tbody tr", (rows) => rows.map((r) => r.dataset.state));
+    return states.length > 0 && states.every((s) => s === "operational");
+  });
+  say(`step cansmc-restart starts=${starts + 1}`);
+}
+
+/** Parameters: read 3 (read-only), a write of 3 refused, a write of 4 confirmed (read back over gRPC by the test). */
+async function cansmcParameters(page) {
+  const result = async () => page.$eval("#param-result", (r) => ({ ...r.dataset, text: r.textContent }));
+  const run = async (button) => {
+    await page.$eval("#param-result", (r) => { delete r.dataset.outcome; });
+    await page.click(button);
+    await until(`${button} answered`, async () => (await result()).outcome !== undefined);
+    return result();
+  };
+  await page.select("#param-slave", "1");
+  await setInput(page, "#param-number", "3");
+  const res = await run("#param-read");
+  if (res.outcome !== "ok") throw new Error(`read of parameter 3: ${res.text}`);
+  await setInput(page, "#param-value", "5");
+  const refused = await run("#param-write");
+  if (refused.outcome !== "error" || !refused.text.includes("FailedPrecondition")) throw new Error(`write of 3: ${refused.text}`);
+  await setInput(page, "#param-number", "4");
+  await setInput(page, "#param-value", "23456");
+  const written = await run("#param-write");
+  if (written.outcome !== "ok" || written.value !== "23456") throw new Error(`write of 4: ${written.text}`);
+  say(`step cansmc-parameters resolution=${res.value} refused=${JSON.stringify(refused.text)} written=${written.value}`);
+  await page.screenshot({ path: `${shots}/cansmc-parameters.png` });
 }
 
 async function setFilter(page, value) {
@@ -420,7 +506,39 @@ async function buttonStates(page) {
     nmt: await state(`#nodes tr[data-node="1"] button[data-cmd="nmt-start"]`),
     sdoRead: await state("#sdo-read"),
     sdoWrite: await state("#sdo-write"),
+    scan: await state("#scan"),
+    smcRestart: await state("#cansmc-restart"),
+    paramRead: await state("#param-read"),
+    paramWrite: await state("#param-write"),
   };
   await page.click(`button[data-page="axes"]`);
   return out;
+}
+
+/** Chromium's flag trusting the certificate of the tls mode by its SPKI (base64 SHA-256), or nothing. */
+function tlsTrust() {
+  if (mode !== "tls") return [];
+  const cert = new X509Certificate(readFileSync(token));
+  const spki = cert.publicKey.export({ type: "spki", format: "der" });
+  return [`--ignore-certificate-errors-spki-list=${createHash("sha256").update(spki).digest("base64")}`];
+}
+
+/** The page over HTTPS: loaded, axes listed over gRPC-Web on TLS (HTTP/2, the gateway's ALPN). */
+async function tls(page) {
+  const protocol = await page.evaluate(() => location.protocol);
+  if (protocol !== "https:") throw new Error(`loaded over ${protocol}`);
+  await until("axes X, Y, Z listed over TLS", () => axesListed(page));
+  await until("connected", async () => (await page.$eval("#conn", (c) => c.textContent)) === "connected");
+  const axes = await page.$$eval("#axes tbody tr", (rows) => rows.map((r) => r.dataset.axis));
+  // How the gRPC-Web calls went: the resource timing's protocol.
+  const hops = await page.evaluate(() => [
+    ...new Set(
+      performance
+        .getEntriesByType("resource")
+        .filter((e) => e.name.includes("/cangate.v1."))
+        .map((e) => e.nextHopProtocol),
+    ),
+  ]);
+  say(`step tls-axes ${JSON.stringify(axes)} protocol=${hops.join(",")}`);
+  await page.screenshot({ path: `${shots}/tls.png` });
 }

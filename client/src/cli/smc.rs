@@ -285,7 +285,7 @@ fn status_text(st: &pb::CansmcStatus) -> String {
     ));
     out.push_str(&format!(
         "jitter:  {}\n",
-        jitter_text(&st.jitter.unwrap_or_default())
+        jitter_text(&st.jitter.clone().unwrap_or_default())
     ));
     out.push_str(&slave_table(&st.slaves));
     out
@@ -361,8 +361,8 @@ fn watch_line(st: &pb::CansmcStatus, prev: Option<Totals>) -> String {
         d(t.rejects, |p| p.rejects),
         d(t.overruns, |p| p.overruns),
         d(t.slots_missed, |p| p.slots_missed),
-        us(st.jitter.unwrap_or_default().p99_us),
-        us(st.jitter.unwrap_or_default().max_us),
+        us(st.jitter.as_ref().map_or(0.0, |j| j.p99_us)),
+        us(st.jitter.as_ref().map_or(0.0, |j| j.max_us)),
     );
     for s in &st.slaves {
         if s.state != pb::CansmcSlaveState::Operational as i32 {

@@ -180,20 +180,24 @@ class CansmcSlaveCounters(_message.Message):
     def __init__(self, dts: _Optional[int] = ..., missed: _Optional[int] = ..., late: _Optional[int] = ..., counter_mismatch: _Optional[int] = ..., rejects: _Optional[int] = ..., malformed: _Optional[int] = ..., losses: _Optional[int] = ..., mdts: _Optional[int] = ...) -> None: ...
 
 class CycleJitter(_message.Message):
-    __slots__ = ("samples", "p50_us", "p99_us", "p999_us", "max_us", "mean_us")
+    __slots__ = ("samples", "p50_us", "p99_us", "p999_us", "max_us", "mean_us", "histogram", "histogram_bucket_us")
     SAMPLES_FIELD_NUMBER: _ClassVar[int]
     P50_US_FIELD_NUMBER: _ClassVar[int]
     P99_US_FIELD_NUMBER: _ClassVar[int]
     P999_US_FIELD_NUMBER: _ClassVar[int]
     MAX_US_FIELD_NUMBER: _ClassVar[int]
     MEAN_US_FIELD_NUMBER: _ClassVar[int]
+    HISTOGRAM_FIELD_NUMBER: _ClassVar[int]
+    HISTOGRAM_BUCKET_US_FIELD_NUMBER: _ClassVar[int]
     samples: int
     p50_us: float
     p99_us: float
     p999_us: float
     max_us: float
     mean_us: float
-    def __init__(self, samples: _Optional[int] = ..., p50_us: _Optional[float] = ..., p99_us: _Optional[float] = ..., p999_us: _Optional[float] = ..., max_us: _Optional[float] = ..., mean_us: _Optional[float] = ...) -> None: ...
+    histogram: _containers.RepeatedScalarFieldContainer[int]
+    histogram_bucket_us: int
+    def __init__(self, samples: _Optional[int] = ..., p50_us: _Optional[float] = ..., p99_us: _Optional[float] = ..., p999_us: _Optional[float] = ..., max_us: _Optional[float] = ..., mean_us: _Optional[float] = ..., histogram: _Optional[_Iterable[int]] = ..., histogram_bucket_us: _Optional[int] = ...) -> None: ...
 
 class ReadParameterRequest(_message.Message):
     __slots__ = ("master", "address", "number")

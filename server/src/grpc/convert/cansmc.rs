@@ -92,6 +92,8 @@ pub(crate) fn status_pb(m: &CansmcMaster, st: &CansmcStatus) -> pb::CansmcStatus
             p999_us: j.p999_us,
             max_us: j.max_us,
             mean_us: j.mean_us,
+            histogram: j.histogram.counts().to_vec(),
+            histogram_bucket_us: j.histogram.bucket_us,
         }),
         timestamp_us: now_us(),
     }
