@@ -264,6 +264,23 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
                 }
                 "turn" => return turn_wheel(&c).await,
                 "lease-released" => released_at_once(&c).await,
+                "x-at-12.5" => {
+                    let st = c
+                        .axes_client()
+                        .get_axis(pb::GetAxisRequest { axis: "X".into() })
+                        .await
+                        .expect("GetAxis")
+                        .into_inner()
+                        .status
+                        .expect("status");
+                    assert!(
+                        (st.position - 12.5).abs() < 0.002,
+                        "X over gRPC at {} after the page's move to 12.5",
+                        st.position
+                    );
+                    assert_eq!(st.activity, pb::AxisActivity::Idle as i32, "X idle");
+                    assert_eq!(st.state, pb::DriveState::OperationEnabled as i32);
+                }
                 other => panic!("unexpected request {other}"),
             }
             "ok".to_string()

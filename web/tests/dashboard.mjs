@@ -123,6 +123,9 @@ async function demo(page) {
   await click(page, "X", "move");
   await until("X at 12.5 on the page", async () =>
     Math.abs((await num(page, "X", "position")) - 12.5) < 0.002 && (await cell(page, "X", "activity")) === "idle");
+  // The test checks over gRPC that X is there too.
+  say("need x-at-12.5");
+  await stdin.next();
   say("step x-moved");
   // The position trace (X is traced by default) went from 0 to 12.5.
   await until("the trace shows X's move", async () => {
