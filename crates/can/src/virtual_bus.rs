@@ -1119,15 +1119,16 @@ mod tests {
             frame(0x101, &[2; 8]),
             frame(0x102, &[3; 8]),
         ];
-        let sent = Instant::now();
         gw.send_batch(&burst).unwrap();
         // A frame of another sender, queued while the scheduler waits.
         let other = bus.connect(false);
         other.send(&frame(0x200, &[])).unwrap();
         let first = next_frame(&mut peer).await;
-        // The hand-over came no earlier than the coalescing window after the
-        // first completion.
-        assert!(sent.elapsed() >= Duration::from_millis(300));
+        // No lower bound on the hand-over's time: the window is the longest
+        // a completed frame waits, and a scheduler woken early (an enqueue
+        // before it went to sleep, a spurious wake-up) hands over what has
+        // completed by then. What the window guarantees is tested below:
+        // nothing is lost or reordered, and timestamps stay the model's.
         let mut rest = Vec::new();
         for _ in 0..3 {
             rest.push(next_frame(&mut peer).await);
