@@ -450,6 +450,7 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
                 value: Some(pb::value::Value::UintValue(1)),
             })),
             options: None,
+            object: String::new(),
         })
         .await
         .expect_err("0x1000 is read-only");
