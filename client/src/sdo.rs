@@ -182,19 +182,21 @@ impl From<String> for Object {
 
 impl FromStr for Object {
     type Err = Error;
-    /// An address when the text starts with a digit and parses as one
-    /// (`0x1018:01`, `1017`), else a name (`Producer heartbeat time`; a
-    /// name made of hex letters such as `Feed` stays a name). Empty text
-    /// is refused.
+    /// An address when the text starts with a digit and has only hex
+    /// digits, `x` and `:` (`0x1018:01`, `1017`; refused when it does not
+    /// parse as one, `0x10000`), else a name (`Producer heartbeat time`,
+    /// `0x1018.Vendor-ID`; a name of hex letters such as `Feed` stays a
+    /// name). Empty text is refused.
     fn from_str(s: &str) -> Result<Object, Error> {
         let t = s.trim();
         if t.is_empty() {
             return Err(Error::invalid("an empty object name"));
         }
-        if t.starts_with(|c: char| c.is_ascii_digit())
-            && let Ok(a) = t.parse::<ObjectAddress>()
-        {
-            return Ok(Object::Address(a));
+        let address_like = t.starts_with(|c: char| c.is_ascii_digit())
+            && t.chars()
+                .all(|c| c.is_ascii_hexdigit() || matches!(c, 'x' | 'X' | ':'));
+        if address_like {
+            return t.parse().map(Object::Address);
         }
         Ok(Object::Name(t.to_string()))
     }
