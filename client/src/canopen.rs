@@ -1,7 +1,7 @@
 //! The Canopen service: nodes, NMT, scan, SDO (typed), node events.
 
 use crate::error::Error;
-use crate::sdo::{DataType, NodeId, ObjectAddress, SdoOptions, SdoValue};
+use crate::sdo::{DataType, NodeId, Object, ObjectAddress, SdoOptions, SdoValue};
 use crate::streams::{self, EventStream};
 use crate::{Client, pb};
 use std::time::Duration;
@@ -136,7 +136,7 @@ impl Canopen {
         ty: DataType,
         options: SdoOptions,
     ) -> Result<SdoValue, Error> {
-        let r = self.read_response(node, addr, ty, options).await?;
+        let r = self.read_response(node, &addr.into(), ty, options).await?;
         match r.value {
             Some(v) => SdoValue::from_pb(&v),
             None => Ok(SdoValue::Domain(r.raw)),
@@ -151,25 +151,46 @@ impl Canopen {
         options: SdoOptions,
     ) -> Result<Vec<u8>, Error> {
         let r = self
-            .read_response(node, addr, DataType::Unspecified, options)
+            .read_response(node, &addr.into(), DataType::Unspecified, options)
             .await?;
         Ok(r.raw)
+    }
+
+    /// Reads an object given by address or by name (resolved by the
+    /// gateway with the node's EDS: `"Manufacturer device name"`,
+    /// `"Identity object.Serial number"`), as `ty`
+    /// ([`DataType::Unspecified`]: the EDS type).
+    pub async fn read_object(
+        &self,
+        node: NodeId,
+        object: impl Into<Object>,
+        ty: DataType,
+    ) -> Result<SdoValue, Error> {
+        let r = self
+            .read_response(node, &object.into(), ty, SdoOptions::default())
+            .await?;
+        match r.value {
+            Some(v) => SdoValue::from_pb(&v),
+            None => Ok(SdoValue::Domain(r.raw)),
+        }
     }
 
     async fn read_response(
         &self,
         node: NodeId,
-        addr: ObjectAddress,
+        object: &Object,
         ty: DataType,
         options: SdoOptions,
     ) -> Result<pb::ReadSdoResponse, Error> {
+        let (index, subindex, object) = object.fields();
         let req = pb::ReadSdoRequest {
             bus: self.bus.clone(),
             node: node.into(),
-            index: addr.index.into(),
-            subindex: addr.sub.into(),
+            index,
+            subindex,
             r#type: ty as i32,
             options: Some(options.to_pb()),
+            object,
         };
         self.client
             .call("ReadSdo", None, self.client.canopen_client().read_sdo(req))
@@ -197,7 +218,56 @@ impl Canopen {
         options: SdoOptions,
     ) -> Result<u32, Error> {
         let data = pb::write_sdo_request::Data::Value(value.into().to_pb());
-        self.write_data(node, addr, data, options).await
+        self.write_data(node, &addr.into(), data, options).await
+    }
+
+    /// Writes a typed value to an object given by address or by name
+    /// (see [`Canopen::read_object`]).
+    pub async fn write_object(
+        &self,
+        node: NodeId,
+        object: impl Into<Object>,
+        value: impl Into<SdoValue>,
+    ) -> Result<u32, Error> {
+        let data = pb::write_sdo_request::Data::Value(value.into().to_pb());
+        self.write_data(node, &object.into(), data, SdoOptions::default())
+            .await
+    }
+
+    /// Writes a value typed as a person types it (`"100"`, `"0x64"`,
+    /// `"-5"`, `"true"`, text for strings, hex bytes) to an object given
+    /// by address or by name: the gateway takes the type from the node's
+    /// EDS (INVALID_ARGUMENT when the EDS does not have the object).
+    pub async fn write_text(
+        &self,
+        node: NodeId,
+        object: impl Into<Object>,
+        text: &str,
+    ) -> Result<u32, Error> {
+        let data = pb::write_sdo_request::Data::Value(pb::Value {
+            r#type: DataType::Unspecified as i32,
+            value: Some(pb::value::Value::StringValue(text.to_string())),
+        });
+        self.write_data(node, &object.into(), data, SdoOptions::default())
+            .await
+    }
+
+    /// The node's object dictionary from its EDS (no SDO transfer): every
+    /// sub-object with name, type, access, default and limits.
+    pub async fn objects(&self, node: NodeId) -> Result<Vec<pb::ObjectInfo>, Error> {
+        let req = pb::ListObjectsRequest {
+            bus: self.bus.clone(),
+            node: node.into(),
+        };
+        let r = self
+            .client
+            .call(
+                "ListObjects",
+                None,
+                self.client.canopen_client().list_objects(req),
+            )
+            .await?;
+        Ok(r.objects)
     }
 
     /// Writes bytes as they are.
@@ -209,23 +279,25 @@ impl Canopen {
         options: SdoOptions,
     ) -> Result<u32, Error> {
         let data = pb::write_sdo_request::Data::Raw(bytes);
-        self.write_data(node, addr, data, options).await
+        self.write_data(node, &addr.into(), data, options).await
     }
 
     async fn write_data(
         &self,
         node: NodeId,
-        addr: ObjectAddress,
+        object: &Object,
         data: pb::write_sdo_request::Data,
         options: SdoOptions,
     ) -> Result<u32, Error> {
+        let (index, subindex, object) = object.fields();
         let req = pb::WriteSdoRequest {
             bus: self.bus.clone(),
             node: node.into(),
-            index: addr.index.into(),
-            subindex: addr.sub.into(),
+            index,
+            subindex,
             data: Some(data),
             options: Some(options.to_pb()),
+            object,
         };
         let r = self
             .client

@@ -74,7 +74,7 @@ pub use error::{
 };
 pub use lease::{ControlLease, LeaseStatus};
 pub use pb::{AxisActivity, DriveState, HandwheelMode, NmtCommand, Outcome};
-pub use sdo::{DataType, NodeId, ObjectAddress, SdoOptions, SdoValue};
+pub use sdo::{DataType, NodeId, Object, ObjectAddress, SdoOptions, SdoValue};
 pub use streams::EventStream;
 
 use std::future::Future;

@@ -1,5 +1,6 @@
 //! CANopen addressing and typed SDO values: [`NodeId`], [`ObjectAddress`],
-//! [`SdoValue`], [`SdoOptions`].
+//! [`Object`] (an address or a name from the EDS), [`SdoValue`],
+//! [`SdoOptions`].
 
 use crate::error::Error;
 use crate::pb;
@@ -127,6 +128,86 @@ impl fmt::Display for ObjectAddress {
 impl From<(u16, u8)> for ObjectAddress {
     fn from((index, sub): (u16, u8)) -> ObjectAddress {
         ObjectAddress { index, sub }
+    }
+}
+
+/// An object as a request names it: by address, or by name from the
+/// node's EDS (resolved by the gateway: `Manufacturer device name`,
+/// `Identity object.Serial number`, `0x1018.Vendor-ID`).
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub enum Object {
+    /// Index and sub-index.
+    Address(ObjectAddress),
+    /// A name the gateway resolves with the node's EDS
+    /// (`ReadSdoRequest.object`); the node needs an EDS.
+    Name(String),
+}
+
+impl Object {
+    /// The request fields `(index, subindex, object)`.
+    pub(crate) fn fields(&self) -> (u32, u32, String) {
+        match self {
+            Object::Address(a) => (a.index.into(), a.sub.into(), String::new()),
+            Object::Name(n) => (0, 0, n.clone()),
+        }
+    }
+}
+
+impl From<ObjectAddress> for Object {
+    fn from(a: ObjectAddress) -> Object {
+        Object::Address(a)
+    }
+}
+
+impl From<(u16, u8)> for Object {
+    fn from(a: (u16, u8)) -> Object {
+        Object::Address(a.into())
+    }
+}
+
+impl From<&str> for Object {
+    /// As [`Object::from_str`].
+    fn from(text: &str) -> Object {
+        text.parse()
+            .unwrap_or_else(|_| Object::Name(text.to_string()))
+    }
+}
+
+impl From<String> for Object {
+    /// As [`Object::from_str`].
+    fn from(text: String) -> Object {
+        Object::from(text.as_str())
+    }
+}
+
+impl FromStr for Object {
+    type Err = Error;
+    /// An address when the text starts with a digit and has only hex
+    /// digits, `x` and `:` (`0x1018:01`, `1017`; refused when it does not
+    /// parse as one, `0x10000`), else a name (`Producer heartbeat time`,
+    /// `0x1018.Vendor-ID`; a name of hex letters such as `Feed` stays a
+    /// name). Empty text is refused.
+    fn from_str(s: &str) -> Result<Object, Error> {
+        let t = s.trim();
+        if t.is_empty() {
+            return Err(Error::invalid("an empty object name"));
+        }
+        let address_like = t.starts_with(|c: char| c.is_ascii_digit())
+            && t.chars()
+                .all(|c| c.is_ascii_hexdigit() || matches!(c, 'x' | 'X' | ':'));
+        if address_like {
+            return t.parse().map(Object::Address);
+        }
+        Ok(Object::Name(t.to_string()))
+    }
+}
+
+impl fmt::Display for Object {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Object::Address(a) => a.fmt(f),
+            Object::Name(n) => write!(f, "{n:?}"),
+        }
     }
 }
 

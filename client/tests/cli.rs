@@ -114,6 +114,87 @@ fn unsigned_and_string_values_keep_their_type_too() {
 }
 
 #[test]
+fn objects_by_name_from_the_eds() {
+    // A read by ParameterName is the read by address.
+    let o = cangate(&["sdo", "read", "can0", "1", "Manufacturer device name"]);
+    assert_status(&o, 0);
+    assert_eq!(stdout(&o).trim(), "\"cangate sim drive\"");
+    let o = cangate(&["sdo", "read", "can0", "1", "identity object.vendor-id"]);
+    assert_status(&o, 0);
+    let by_address = cangate(&["sdo", "read", "can0", "1", "0x1018:01"]);
+    assert_eq!(stdout(&o), stdout(&by_address));
+
+    // A write by name needs no type: the gateway takes the EDS's
+    // (UNSIGNED16); then back to the EDS default.
+    let o = cangate(&[
+        "sdo",
+        "write",
+        "can0",
+        "1",
+        "Producer heartbeat time",
+        "100",
+    ]);
+    assert_status(&o, 0);
+    let o = cangate(&["sdo", "read", "can0", "1", "0x1017", "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON");
+    assert_eq!(v["value"]["type"], "DATA_TYPE_UNSIGNED16", "{v}");
+    assert_eq!(v["value"]["uintValue"], "100", "{v}");
+    let o = cangate(&[
+        "sdo",
+        "write",
+        "can0",
+        "1",
+        "Producer heartbeat time",
+        "1000",
+    ]);
+    assert_status(&o, 0);
+
+    // An unknown name: NOT_FOUND, exit 3, one line naming it.
+    let o = cangate(&["sdo", "read", "can0", "1", "Flux capacitor"]);
+    assert_status(&o, 3);
+    assert_one_clean_error(&o);
+    assert!(stderr(&o).contains("Flux capacitor"), "{}", stderr(&o));
+    // A value that does not fit the EDS type: INVALID_ARGUMENT.
+    let o = cangate(&["sdo", "write", "can0", "1", "Producer heartbeat time", "-1"]);
+    assert_status(&o, 1);
+    assert_one_clean_error(&o);
+}
+
+#[test]
+fn node_objects_lists_the_dictionary() {
+    let o = cangate(&["node", "objects", "can0", "1"]);
+    assert_status(&o, 0);
+    let out = stdout(&o);
+    let line = |start: &str| {
+        out.lines()
+            .find(|l| l.starts_with(start))
+            .unwrap_or_else(|| panic!("{start} in\n{out}"))
+            .to_string()
+    };
+    let name = line("0x1008:00 Manufacturer device name");
+    assert!(
+        name.contains("visible-string") && name.contains("const"),
+        "{name}"
+    );
+    let cw = line("0x6040:00 Controlword");
+    assert!(
+        cw.contains("unsigned16") && cw.contains("rww") && cw.contains("yes"),
+        "{cw}"
+    );
+    assert!(line("0x1018:04").contains("Identity object.Serial number"));
+    // --filter and --json.
+    let o = cangate(&[
+        "--json", "node", "objects", "can0", "1", "--filter", "identity",
+    ]);
+    assert_status(&o, 0);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON");
+    let objects = v["objects"].as_array().expect("objects");
+    assert_eq!(objects.len(), 5, "{v}");
+    assert_eq!(objects[1]["name"], "Identity object.Vendor-ID", "{v}");
+    assert_eq!(objects[1]["access"], "OBJECT_ACCESS_RO", "{v}");
+}
+
+#[test]
 fn host_port_and_urls_both_work() {
     let addr = gateway().to_string();
     for server in [addr.clone(), format!("http://{addr}")] {
@@ -213,6 +294,8 @@ fn usage_errors_exit_2_before_connecting() {
         &["axis", "move", "X"][..],
         &["sdo", "read", "can0", "0", "0x1000"],
         &["sdo", "write", "can0", "1", "0x607C", "u8", "300"],
+        // A type without its value.
+        &["sdo", "write", "can0", "1", "0x607C", "u8"],
         &["nmt", "can0", "jump", "1"],
     ] {
         // A server nobody listens on: a usage error never gets that far.

@@ -49,6 +49,7 @@ fn read(node: u32, index: u32, timeout_ms: u32) -> pb::ReadSdoRequest {
             timeout_ms,
             block: false,
         }),
+        object: String::new(),
     }
 }
 
@@ -60,6 +61,7 @@ fn write_raw(node: u32, index: u32, data: Vec<u8>) -> pb::WriteSdoRequest {
         subindex: 0,
         data: Some(pb::write_sdo_request::Data::Raw(data)),
         options: None,
+        object: String::new(),
     }
 }
 

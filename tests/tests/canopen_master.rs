@@ -39,6 +39,7 @@ fn read(node: u32, index: u32, sub: u32, ty: pb::DataType) -> pb::ReadSdoRequest
         subindex: sub,
         r#type: ty as i32,
         options: None,
+        object: String::new(),
     }
 }
 
@@ -66,6 +67,7 @@ fn write(
             timeout_ms: 0,
             block,
         }),
+        object: String::new(),
     }
 }
 

@@ -118,6 +118,7 @@ async fn boot_procedure_configures_and_starts_and_pdos_flow() {
             subindex: 0,
             r#type: 0,
             options: None,
+            object: String::new(),
         })
         .await
         .unwrap();
@@ -218,6 +219,7 @@ async fn boot_procedure_configures_and_starts_and_pdos_flow() {
                     subindex: 0,
                     r#type: 0,
                     options: None,
+                    object: String::new(),
                 })
                 .await
                 .unwrap();

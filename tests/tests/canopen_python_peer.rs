@@ -494,6 +494,7 @@ fn read(index: u32, subindex: u32) -> pb::ReadSdoRequest {
         subindex,
         r#type: pb::DataType::Unspecified as i32,
         options: None,
+        object: String::new(),
     }
 }
 
@@ -513,6 +514,7 @@ fn write(
             timeout_ms: 0,
             block,
         }),
+        object: String::new(),
     }
 }
 

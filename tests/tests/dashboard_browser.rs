@@ -305,6 +305,7 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
             "emcy-shown",
             "sdo-read",
             "sdo-abort",
+            "sdo-read-by-name",
             "canopen-scan",
             "handwheel",
             "handwheel-automatic",
@@ -438,6 +439,23 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
                 .join(" ")
         )
     );
+    // The picker read 0x1008 by its EDS name: the same value, typed by the
+    // EDS (its type preselected), the object's facts from ListObjects.
+    let raw_hex = name
+        .raw
+        .iter()
+        .map(|b| format!("{b:02X}"))
+        .collect::<Vec<_>>()
+        .join(" ");
+    assert_eq!(
+        step("sdo-read-by-name"),
+        format!(
+            "read can0 node 1 \"Manufacturer device name\": VISIBLE_STRING {device_name:?}; raw [{}] {raw_hex} \
+             | 0x1008:00 Manufacturer device name: VISIBLE_STRING, const, default {device_name:?} \
+             | Producer heartbeat time",
+            name.raw.len(),
+        )
+    );
     let node4 = co
         .get_node(pb::GetNodeRequest {
             bus: "can0".into(),
@@ -467,6 +485,7 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
                 value: Some(pb::value::Value::UintValue(1)),
             })),
             options: None,
+            object: String::new(),
         })
         .await
         .expect_err("0x1000 is read-only");

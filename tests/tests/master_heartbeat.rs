@@ -108,6 +108,7 @@ async fn the_master_heartbeat_is_produced_and_the_drive_told_to_watch_it() {
             subindex: 1,
             r#type: 0,
             options: None,
+            object: String::new(),
         })
         .await
         .unwrap();

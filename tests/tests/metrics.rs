@@ -49,6 +49,7 @@ async fn metrics_endpoint_exposes_bus_and_sdo_series() {
         subindex: 0,
         r#type: 0,
         options: None,
+        object: String::new(),
     })
     .await
     .unwrap();
@@ -59,6 +60,7 @@ async fn metrics_endpoint_exposes_bus_and_sdo_series() {
         subindex: 0,
         r#type: 0,
         options: None,
+        object: String::new(),
     })
     .await
     .unwrap_err();

@@ -549,6 +549,7 @@ async fn local_node_scenario(python: &Path, server: &cangate_server::RunningServ
         subindex: 0,
         r#type: ty as i32,
         options: None,
+        object: String::new(),
     };
     let write = |index: u32, v: pb::Value| pb::WriteSdoRequest {
         bus: "can0".into(),
@@ -557,6 +558,7 @@ async fn local_node_scenario(python: &Path, server: &cangate_server::RunningServ
         subindex: 0,
         data: Some(pb::write_sdo_request::Data::Value(v)),
         options: None,
+        object: String::new(),
     };
     let mut canopen = c.canopen_client();
 

@@ -417,6 +417,7 @@ async fn stream_concurrency_and_message_size_limits() {
                 subindex: 0,
                 r#type: 0,
                 options: None,
+                object: String::new(),
             })
             .await
     });

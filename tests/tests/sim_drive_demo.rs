@@ -25,6 +25,7 @@ fn raw(index: u32, sub: u32, data: Vec<u8>) -> pb::WriteSdoRequest {
         subindex: sub,
         data: Some(pb::write_sdo_request::Data::Raw(data)),
         options: None,
+        object: String::new(),
     }
 }
 
@@ -37,6 +38,7 @@ async fn statusword(c: &mut cangate_client::Client) -> u16 {
             subindex: 0,
             r#type: 0,
             options: None,
+            object: String::new(),
         })
         .await
         .unwrap();

@@ -184,6 +184,7 @@ async fn bus_faults_at_run_time_drop_delay_and_bus_off() {
             timeout_ms: 2000,
             block: false,
         }),
+        object: String::new(),
     })
     .await
     .expect("SDO read through the delay");

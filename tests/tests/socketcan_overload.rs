@@ -345,6 +345,7 @@ async fn congestion() -> Result<()> {
                 timeout_ms: 10_000,
                 block: true,
             }),
+            object: String::new(),
         })
         .await
         .context("the SDO block download under congestion")?;

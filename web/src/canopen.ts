@@ -2,17 +2,21 @@
 // identity, active error, EMCY history; polled with ListNodes while the
 // page is shown), their events as they happen (one StreamNodeEvents
 // stream while the page is shown), NMT buttons per node, and an SDO panel
-// (read/write by index:subindex with a typed value; an abort is shown with
-// its code and CiA 301 name from the SdoAbortDetails of the error).
+// (read/write by index:subindex or by the object's name from the node's
+// EDS, with a typed value; an abort is shown with its code and CiA 301 name
+// from the SdoAbortDetails of the error).
 //
 // A "Scan network" button runs ScanNetwork on a CANopen bus (those of the
 // listed nodes) and lists the nodes that answered (<li data-node>).
 //
-// The API addresses objects by index and sub-index only: it has no call
-// that lists a node's EDS objects or finds one by name, so the panel
-// cannot offer names. The type defaults to the EDS type, which the gateway
-// applies to reads itself; for a write the page learns it from a read of
-// the object first (the value's type in ReadSdoResponse).
+// The object picker is fed by ListObjects for the chosen node (once per
+// node while the page lives): "Find" filters it by name or address, and
+// choosing an object fills index and sub-index, preselects its EDS type and
+// shows its access, PDO mappability, default and limits; reads and writes
+// then name it (ReadSdoRequest.object), so the gateway resolves it with the
+// EDS. Typing an index or sub-index goes back to addressing by number. With
+// "EDS type" and an address, a write learns the type from a read of the
+// object first (the value's type in ReadSdoResponse).
 import { Code, ConnectError } from "@connectrpc/connect";
 import { create } from "@bufbuild/protobuf";
 import {
@@ -23,6 +27,8 @@ import {
   type Emcy,
   type Node,
   type NodeEvent,
+  ObjectAccess,
+  type ObjectInfo,
   type Value,
 } from "./gen/cangate/v1/canopen_pb";
 import { abortText, canopen, clearNotice, el, keepStreaming, sdoAbort, showConnected, showError } from "./api";
@@ -44,6 +50,10 @@ const MAX_EVENTS = 200;
 let events: string[] = [];
 /** EDS types learnt from reads, by "bus/node/index/sub". */
 const edsTypes = new Map<string, DataType>();
+/** Each node's dictionary (ListObjects), by "bus/node"; a string says why there is none. */
+const dictionaries = new Map<string, ObjectInfo[] | string>();
+/** Options shown in the picker at most. */
+const MAX_PICKS = 200;
 
 function time(ns: bigint): string {
   return new Date(Number(ns / 1_000_000n)).toLocaleTimeString();
@@ -72,6 +82,7 @@ function renderNodes(list: Node[]): void {
       ...list.map((n) => el("option", { value: nodeKey(n) }, `${n.bus} node ${n.id}${n.name ? ` (${n.name})` : ""}`)),
     );
     if (before && list.some((n) => nodeKey(n) === before)) select.value = before;
+    if (select.value !== before) void loadObjects();
     const scanBus = document.getElementById("scan-bus") as HTMLSelectElement;
     const buses = [...new Set(list.map((n) => n.bus))];
     const was = scanBus.value;
@@ -185,20 +196,129 @@ function eventText(ev: NodeEvent): string {
 
 // ---- SDO panel ----
 
-function sdoTarget(): { bus: string; node: number; index: number; subindex: number } | string {
+type Target = { bus: string; node: number; index: number; subindex: number; object: string };
+
+/** The object chosen in the picker ("" when addressing by number). */
+function pickedName(): string {
+  return (document.getElementById("sdo-object") as HTMLSelectElement).value;
+}
+
+/** What a request targets: the picked object by name, else index:subindex. */
+function sdoTarget(): Target | string {
   const key = (document.getElementById("sdo-node") as HTMLSelectElement).value;
   const slash = key.lastIndexOf("/");
   if (slash < 0) return "no node selected";
+  const object = pickedName();
+  if (object) return { bus: key.slice(0, slash), node: Number(key.slice(slash + 1)), index: 0, subindex: 0, object };
   const index = Number.parseInt((document.getElementById("sdo-index") as HTMLInputElement).value.replace(/^0x/i, ""), 16);
   const subText = (document.getElementById("sdo-sub") as HTMLInputElement).value.trim();
   const subindex = /^0x/i.test(subText) ? Number.parseInt(subText.slice(2), 16) : Number.parseInt(subText || "0", 10);
   if (!(index >= 0 && index <= 0xffff)) return "index: 1 to 4 hex digits, e.g. 1008";
   if (!(subindex >= 0 && subindex <= 0xff)) return "sub-index: 0 to 255 (or 0x..)";
-  return { bus: key.slice(0, slash), node: Number(key.slice(slash + 1)), index, subindex };
+  return { bus: key.slice(0, slash), node: Number(key.slice(slash + 1)), index, subindex, object: "" };
 }
 
-function objectKey(t: { bus: string; node: number; index: number; subindex: number }): string {
-  return `${t.bus}/${t.node}/${t.index}/${t.subindex}`;
+function objectKey(t: Target): string {
+  return t.object ? `${t.bus}/${t.node}/${t.object}` : `${t.bus}/${t.node}/${t.index}/${t.subindex}`;
+}
+
+/** "0x1008:00" */
+function address(o: { index: number; subindex: number }): string {
+  return `${hex(o.index, 4)}:${o.subindex.toString(16).toUpperCase().padStart(2, "0")}`;
+}
+
+/** What a request is about, for its result line. */
+function targetText(t: Target): string {
+  return `${t.bus} node ${t.node} ${t.object ? JSON.stringify(t.object) : `${hex(t.index, 4)}:${t.subindex}`}`;
+}
+
+// ---- Object picker (ListObjects) ----
+
+function chosenNodeKey(): string {
+  return (document.getElementById("sdo-node") as HTMLSelectElement).value;
+}
+
+/** Loads the chosen node's dictionary once, then fills the picker. */
+async function loadObjects(): Promise<void> {
+  const key = chosenNodeKey();
+  const slash = key.lastIndexOf("/");
+  if (slash < 0) return;
+  if (!dictionaries.has(key)) {
+    try {
+      const r = await canopen.listObjects({ bus: key.slice(0, slash), node: Number(key.slice(slash + 1)) });
+      dictionaries.set(key, r.objects);
+    } catch (e) {
+      const err = ConnectError.from(e);
+      // Not kept when it may pass later (a role, the connection).
+      const why = err.code === Code.FailedPrecondition ? "no EDS: address objects by index" : `no object list: ${err.rawMessage}`;
+      if (err.code === Code.FailedPrecondition) dictionaries.set(key, why);
+      if (key === chosenNodeKey()) fillPicker(why);
+      return;
+    }
+  }
+  if (key === chosenNodeKey()) fillPicker();
+}
+
+/** The picker's options: the chosen node's objects matching "Find". */
+function fillPicker(why?: string): void {
+  const select = document.getElementById("sdo-object") as HTMLSelectElement;
+  const dict = dictionaries.get(chosenNodeKey());
+  const before = select.value;
+  const query = (document.getElementById("sdo-search") as HTMLInputElement).value.trim().toLowerCase();
+  const bare = query.replace(/^0x/, "");
+  const all = Array.isArray(dict) ? dict : [];
+  const matches = all.filter(
+    (o) =>
+      query === "" ||
+      o.name.toLowerCase().includes(query) ||
+      address(o).toLowerCase().replace("0x", "").startsWith(bare),
+  );
+  const note = why ?? (typeof dict === "string" ? dict : `${matches.length} of ${all.length} objects`);
+  select.replaceChildren(
+    el("option", { value: "" }, `by index/sub-index (${note})`),
+    ...matches.slice(0, MAX_PICKS).map((o) => {
+      const opt = el("option", { value: o.name }, `${address(o)} ${o.name} — ${typeLabel(o)}, ${accessName(o.access)}`);
+      opt.dataset.index = String(o.index);
+      opt.dataset.sub = String(o.subindex);
+      return opt;
+    }),
+  );
+  // Keep the choice while it still matches; a search with one match picks it.
+  if (before && matches.some((o) => o.name === before)) select.value = before;
+  else if (query !== "" && matches.length === 1) select.value = matches[0].name;
+  else select.value = "";
+  if (select.value !== before) picked();
+}
+
+function typeLabel(o: ObjectInfo): string {
+  return o.type === DataType.UNSPECIFIED ? `type ${hex(o.typeCode, 4)}` : typeName(o.type);
+}
+
+function accessName(a: ObjectAccess): string {
+  return (ObjectAccess[a] ?? String(a)).toLowerCase();
+}
+
+/** An object was picked (or unpicked): fill address, type and its facts. */
+function picked(): void {
+  const name = pickedName();
+  const info = document.getElementById("sdo-object-info")!;
+  const dict = dictionaries.get(chosenNodeKey());
+  const o = name && Array.isArray(dict) ? dict.find((x) => x.name === name) : undefined;
+  if (!o) {
+    info.textContent = "";
+    delete info.dataset.object;
+    return;
+  }
+  (document.getElementById("sdo-index") as HTMLInputElement).value = o.index.toString(16).toUpperCase().padStart(4, "0");
+  (document.getElementById("sdo-sub") as HTMLInputElement).value = String(o.subindex);
+  (document.getElementById("sdo-type") as HTMLSelectElement).value = String(o.type);
+  edsOption(o.type === DataType.UNSPECIFIED ? undefined : o.type);
+  const limits = o.lowLimit || o.highLimit ? `, limits ${o.lowLimit ? formatValue(o.lowLimit) : "…"} to ${o.highLimit ? formatValue(o.highLimit) : "…"}` : "";
+  const dflt = o.defaultValue ? formatValue(o.defaultValue) : o.defaultText;
+  info.textContent =
+    `${address(o)} ${o.name}: ${typeLabel(o)}, ${accessName(o.access)}` +
+    `${o.pdoMappable ? ", PDO-mappable" : ""}${dflt ? `, default ${dflt}` : ""}${limits}`;
+  info.dataset.object = o.name;
 }
 
 function chosenType(): DataType {
@@ -305,7 +425,7 @@ function showSdoError(what: string, e: unknown): void {
 async function readSdo(): Promise<void> {
   const t = sdoTarget();
   if (typeof t === "string") return showSdo(false, t);
-  const what = `read ${t.bus} node ${t.node} ${hex(t.index, 4)}:${t.subindex}`;
+  const what = `read ${targetText(t)}`;
   try {
     const r = await canopen.readSdo({ ...t, type: chosenType() });
     if (r.value && chosenType() === DataType.UNSPECIFIED) {
@@ -332,7 +452,7 @@ function edsOption(t: DataType | undefined): void {
 async function writeSdo(): Promise<void> {
   const t = sdoTarget();
   if (typeof t === "string") return showSdo(false, t);
-  const what = `write ${t.bus} node ${t.node} ${hex(t.index, 4)}:${t.subindex}`;
+  const what = `write ${targetText(t)}`;
   try {
     let type = chosenType();
     if (type === DataType.UNSPECIFIED) {
@@ -413,6 +533,18 @@ export function initCanopen(): void {
   );
   const forget = () => edsOption(undefined);
   for (const id of ["sdo-node", "sdo-index", "sdo-sub"]) document.getElementById(id)!.addEventListener("change", forget);
+  // Typing an address goes back to addressing by number.
+  const unpick = () => {
+    const obj = document.getElementById("sdo-object") as HTMLSelectElement;
+    if (obj.value) {
+      obj.value = "";
+      picked();
+    }
+  };
+  for (const id of ["sdo-index", "sdo-sub"]) document.getElementById(id)!.addEventListener("input", unpick);
+  document.getElementById("sdo-node")!.addEventListener("change", () => void loadObjects());
+  document.getElementById("sdo-search")!.addEventListener("input", () => fillPicker());
+  document.getElementById("sdo-object")!.addEventListener("change", picked);
   const read = document.getElementById("sdo-read") as HTMLButtonElement;
   const write = document.getElementById("sdo-write") as HTMLButtonElement;
   read.addEventListener("click", () => void readSdo());

@@ -319,8 +319,36 @@ async function canopenPage(page) {
   await until("the SDO abort shown", async () => (await text(page, "#sdo-abort")) !== "");
   if ((await page.$eval("#sdo-result", (e) => e.dataset.outcome)) !== "error") throw new Error("the write was not refused");
   say(`step sdo-abort ${await text(page, "#sdo-abort")}`);
+  await sdoByName(page);
   await canopenScan(page);
   await page.screenshot({ path: `${shots}/canopen.png` });
+}
+
+/**
+ * The SDO panel's object picker (ListObjects of node 1): "device name"
+ * found by name, picked, its EDS type preselected, read by name; then
+ * "1017" found by index (one match: picked by itself). Reports the read's
+ * result, the picked object's facts and the object found by index.
+ */
+async function sdoByName(page) {
+  await page.select("#sdo-node", "can0/1");
+  await setInput(page, "#sdo-search", "device name");
+  const name = "Manufacturer device name";
+  await until(`${name} offered by the picker`, async () =>
+    (await page.$$eval("#sdo-object option", (os) => os.map((o) => o.value))).includes(name));
+  await page.select("#sdo-object", name);
+  const type = await page.$eval("#sdo-type", (s) => s.selectedOptions[0]?.textContent ?? "");
+  if (!type.includes("VISIBLE_STRING")) throw new Error(`the EDS type was not preselected: ${type}`);
+  await page.click("#sdo-read");
+  await until("the read by name shown", async () =>
+    (await text(page, "#sdo-result")).startsWith(`read can0 node 1 "${name}"`) &&
+    (await page.$eval("#sdo-result", (e) => e.dataset.outcome)) === "ok");
+  const result = await text(page, "#sdo-result");
+  const info = await text(page, "#sdo-object-info");
+  await setInput(page, "#sdo-search", "1017");
+  await until("0x1017 found by index", async () => (await page.$eval("#sdo-object", (s) => s.value)) !== "");
+  const byIndex = await page.$eval("#sdo-object", (s) => s.value);
+  say(`step sdo-read-by-name ${result} | ${info} | ${byIndex}`);
 }
 
 /** Scan network on can0: the nodes that answered, by id (compared with ScanNetwork over gRPC). */

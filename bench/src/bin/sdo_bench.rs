@@ -435,6 +435,7 @@ fn read_request(node: u8, addr: ObjectAddress) -> pb::ReadSdoRequest {
         subindex: addr.sub.into(),
         r#type: 0,
         options: None,
+        object: String::new(),
     }
 }
 

@@ -1,5 +1,5 @@
-//! CANopen nodes: `cangate node list|show`, `nmt`, `scan`, `events`,
-//! `pdo watch`.
+//! CANopen nodes: `cangate node list|show|objects`, `nmt`, `scan`,
+//! `events`, `pdo watch`.
 
 use super::{App, Context, Result, ctrl_c, label, node_id, print_json};
 use cangate_client::{NmtCommand, NodeId, SdoValue, pb};
@@ -29,6 +29,20 @@ enum NodeVerb {
         /// Node id.
         #[arg(value_parser = node_id)]
         node: NodeId,
+    },
+    /// The node's object dictionary from its EDS (no SDO transfer):
+    /// address, name (as `sdo read`/`write` take it), type, access, PDO
+    /// mappability, default and limits.
+    Objects {
+        /// Bus.
+        bus: String,
+        /// Node id.
+        #[arg(value_parser = node_id)]
+        node: NodeId,
+        /// Only objects whose name or address contains this text
+        /// (case-insensitive).
+        #[arg(long, short = 'f', value_name = "TEXT")]
+        filter: Option<String>,
     },
 }
 
@@ -216,6 +230,58 @@ fn node_text(n: &pb::Node) -> String {
         .join("\n")
 }
 
+/// A value of ObjectInfo as text ("-" when absent).
+fn value_text(v: Option<&pb::Value>) -> String {
+    v.and_then(|v| SdoValue::from_pb(v).ok())
+        .map_or_else(|| "-".into(), |v| v.to_string())
+}
+
+/// True when `o`'s name or address contains `filter` (any case).
+fn object_matches(o: &pb::ObjectInfo, filter: &str) -> bool {
+    let f = filter.to_lowercase();
+    o.name.to_lowercase().contains(&f)
+        || format!("0x{:04x}:{:02x}", o.index, o.subindex).contains(&f)
+}
+
+fn objects_table(objects: &[pb::ObjectInfo]) -> String {
+    let mut text = format!(
+        "{:<10} {:<44} {:<15} {:<6} {:<3}  {:<18} LIMITS",
+        "OBJECT", "NAME", "TYPE", "ACCESS", "PDO", "DEFAULT"
+    );
+    for o in objects {
+        let ty = if o.r#type == 0 {
+            format!("0x{:04X}", o.type_code)
+        } else {
+            label::<pb::DataType>(o.r#type)
+        };
+        let default = match (&o.default_value, o.default_text.as_str()) {
+            (Some(v), _) => value_text(Some(v)),
+            (None, "") => "-".into(),
+            (None, t) => t.to_string(),
+        };
+        let limits = match (&o.low_limit, &o.high_limit) {
+            (None, None) => String::new(),
+            (low, high) => format!(
+                "{}..{}",
+                value_text(low.as_ref()),
+                value_text(high.as_ref())
+            ),
+        };
+        text.push_str(&format!(
+            "\n0x{:04X}:{:02X} {:<44} {:<15} {:<6} {:<3}  {:<18} {}",
+            o.index,
+            o.subindex,
+            o.name,
+            ty,
+            label::<pb::ObjectAccess>(o.access),
+            if o.pdo_mappable { "yes" } else { "" },
+            default,
+            limits
+        ));
+    }
+    text
+}
+
 /// `cangate node …`
 pub(crate) async fn run(app: &App, args: NodeArgs) -> Result<()> {
     match args.verb {
@@ -240,6 +306,21 @@ pub(crate) async fn run(app: &App, args: NodeArgs) -> Result<()> {
                 .await
                 .ctx(format!("{bus} node {node}"))?;
             app.show(node_text(&n), &n)
+        }
+        NodeVerb::Objects { bus, node, filter } => {
+            let mut objects = app
+                .client
+                .canopen(&bus)
+                .objects(node)
+                .await
+                .ctx(format!("objects of {bus} node {node}"))?;
+            if let Some(f) = &filter {
+                objects.retain(|o| object_matches(o, f));
+            }
+            if app.json {
+                return print_json(&pb::ListObjectsResponse { objects });
+            }
+            app.line(objects_table(&objects))
         }
     }
 }

@@ -3,7 +3,7 @@
 //! 301 type in --json, the proto's `Value`).
 
 use super::{App, Context, Failure, Result, hex, hex_bytes, node_id};
-use cangate_client::{Client, DataType, NodeId, ObjectAddress, SdoValue, pb};
+use cangate_client::{Client, DataType, NodeId, Object, SdoValue, pb};
 use clap::{Args, Subcommand, ValueEnum};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -17,16 +17,19 @@ pub(crate) struct SdoArgs {
 
 #[derive(Subcommand, Debug)]
 enum SdoVerb {
-    /// Read an object: `cangate sdo read can0 1 0x1008 --type vs`.
+    /// Read an object: `cangate sdo read can0 1 0x1008 --type vs`,
+    /// `cangate sdo read can0 1 "Manufacturer device name"`.
     Read {
         /// Bus.
         bus: String,
         /// Node id (1..=127).
         #[arg(value_parser = node_id)]
         node: NodeId,
-        /// Object: INDEX[:SUB] in hex (0x1018:01, 1017).
+        /// Object: INDEX[:SUB] in hex (0x1018:01, 1017), or its name in the
+        /// node's EDS ("Producer heartbeat time", "Identity object.Serial
+        /// number"; `cangate node objects` lists them).
         #[arg(value_parser = object)]
-        object: ObjectAddress,
+        object: Object,
         /// Decode as this type (default: the node's EDS type when the
         /// gateway knows it, else the bytes).
         #[arg(long = "type", short = 't')]
@@ -38,26 +41,27 @@ enum SdoVerb {
         #[arg(long, value_name = "FILE")]
         output: Option<PathBuf>,
     },
-    /// Write an object: `cangate sdo write can0 1 0x607A i32 -5000`.
+    /// Write an object: `cangate sdo write can0 1 0x607A i32 -5000`,
+    /// `cangate sdo write can0 1 "Producer heartbeat time" 100`.
     Write {
         /// Bus.
         bus: String,
         /// Node id (1..=127).
         #[arg(value_parser = node_id)]
         node: NodeId,
-        /// Object: INDEX[:SUB] in hex.
+        /// Object: INDEX[:SUB] in hex, or its name in the node's EDS.
         #[arg(value_parser = object)]
-        object: ObjectAddress,
-        /// The value's type (`raw`: hex bytes as they are).
-        #[arg(value_name = "TYPE")]
-        ty: TypeArg,
-        /// The value: decimal or 0x hex for integers (negative ones as
+        object: Object,
+        /// [TYPE] VALUE. TYPE: bool i8 i16 i32 i64 u8 u16 u32 u64 f32 f64
+        /// vs us os domain, or raw (hex bytes as they are); leave it out
+        /// when the node's EDS has the object (the gateway takes its
+        /// type). VALUE: decimal or 0x hex for integers (negative ones as
         /// they are: -5000), true/false for bool, text for strings, hex
-        /// bytes for os, domain and raw. Omit with --file.
-        #[arg(allow_hyphen_values = true, required_unless_present = "file")]
-        value: Option<String>,
+        /// bytes for os, domain and raw. With --file only TYPE, if any.
+        #[arg(value_name = "[TYPE] VALUE", num_args = 0..=2, allow_hyphen_values = true)]
+        words: Vec<String>,
         /// Take the bytes from this file (domains, firmware images).
-        #[arg(long, value_name = "FILE", conflicts_with = "value")]
+        #[arg(long, value_name = "FILE")]
         file: Option<PathBuf>,
         #[command(flatten)]
         transfer: Transfer,
@@ -68,19 +72,47 @@ impl SdoArgs {
     /// A value that does not fit its type, refused before connecting.
     pub(crate) fn check(&self) -> Result<()> {
         if let SdoVerb::Write {
-            bus,
-            ty,
-            value: Some(text),
-            ..
+            bus, words, file, ..
         } = &self.verb
         {
-            let parsed = match ty {
-                TypeArg::Raw => hex_bytes(text).map(|_| ()),
-                _ => parse_value(*ty, text).map(|_| ()),
-            };
-            parsed.map_err(|e| Failure::usage(format!("sdo write on {bus}"), e))?;
+            let usage = |e| Failure::usage(format!("sdo write on {bus}"), e);
+            if let (Some(ty), Some(text)) = type_and_value(words, file.is_some()).map_err(usage)? {
+                let parsed = match ty {
+                    TypeArg::Raw => hex_bytes(&text).map(|_| ()),
+                    _ => parse_value(ty, &text).map(|_| ()),
+                };
+                parsed.map_err(usage)?;
+            }
         }
         Ok(())
+    }
+}
+
+/// The `[TYPE] VALUE` words of `sdo write` (only `[TYPE]` with a file).
+/// A lone word is the value, unless it names a type: that is more likely
+/// a forgotten value than a text to write (write it as `vs u8`).
+fn type_and_value(
+    words: &[String],
+    file: bool,
+) -> Result<(Option<TypeArg>, Option<String>), String> {
+    let ty = |w: &str| {
+        TypeArg::from_str(w, true).map_err(|_| {
+            format!("{w:?} is not a type (bool i8 i16 i32 i64 u8 u16 u32 u64 f32 f64 vs us os domain raw)")
+        })
+    };
+    match (words, file) {
+        ([], true) => Ok((None, None)),
+        ([t], true) => Ok((Some(ty(t)?), None)),
+        (_, true) => Err("with --file give at most the type, not a value".into()),
+        ([], false) => Err("give a value (or --file)".into()),
+        ([v], false) => match TypeArg::from_str(v, true) {
+            Ok(_) => Err(format!(
+                "{v:?} is a type: give the value after it (to write the text {v:?}, give its type: vs {v})"
+            )),
+            Err(_) => Ok((None, Some(v.clone()))),
+        },
+        ([t, v], false) => Ok((Some(ty(t)?), Some(v.clone()))),
+        _ => Err("give [TYPE] VALUE".into()),
     }
 }
 
@@ -180,11 +212,21 @@ impl TypeArg {
     }
 }
 
-fn object(text: &str) -> Result<ObjectAddress, String> {
-    text.parse::<ObjectAddress>().map_err(|e| match e {
+/// An address (`0x1018:01`, `1017`: text starting with a digit) or an
+/// EDS name (anything else), see [`Object`]'s `FromStr`.
+fn object(text: &str) -> Result<Object, String> {
+    text.parse::<Object>().map_err(|e| match e {
         cangate_client::Error::InvalidInput { message } => message,
         other => other.to_string(),
     })
+}
+
+/// The request fields `(index, subindex, object)` of an object.
+fn fields(object: &Object) -> (u32, u32, String) {
+    match object {
+        Object::Address(a) => (a.index.into(), a.sub.into(), String::new()),
+        Object::Name(n) => (0, 0, n.clone()),
+    }
 }
 
 /// An integer as typed: decimal (signed) or 0x hex.
@@ -325,13 +367,15 @@ pub(crate) async fn run(app: &App, args: SdoArgs) -> Result<()> {
             output,
         } => {
             let what = format!("sdo read on {bus}");
+            let (index, subindex, object) = fields(&object);
             let req = pb::ReadSdoRequest {
                 bus: bus.clone(),
                 node: node.into(),
-                index: object.index.into(),
-                subindex: object.sub.into(),
+                index,
+                subindex,
                 r#type: ty.map_or(DataType::Unspecified, TypeArg::data_type) as i32,
                 options: Some(transfer.to_pb()),
+                object,
             };
             let mut client = transfer.client(&app.client, output.is_some());
             let started = Instant::now();
@@ -363,33 +407,39 @@ pub(crate) async fn run(app: &App, args: SdoArgs) -> Result<()> {
             bus,
             node,
             object,
-            ty,
-            value,
+            words,
             file,
             transfer,
         } => {
             let what = format!("sdo write on {bus}");
-            let data = match (&file, value) {
-                (Some(path), _) => pb::write_sdo_request::Data::Raw(
+            let usage = |e| Failure::usage(what.clone(), e);
+            let (ty, value) = type_and_value(&words, file.is_some()).map_err(usage)?;
+            let data = match (&file, ty, value) {
+                (Some(path), _, _) => pb::write_sdo_request::Data::Raw(
                     std::fs::read(path).ctx(format!("reading {}", path.display()))?,
                 ),
-                (None, Some(text)) if ty == TypeArg::Raw => pb::write_sdo_request::Data::Raw(
-                    hex_bytes(&text).map_err(|e| Failure::usage(what.clone(), e))?,
+                (None, Some(TypeArg::Raw), Some(text)) => {
+                    pb::write_sdo_request::Data::Raw(hex_bytes(&text).map_err(usage)?)
+                }
+                (None, Some(ty), Some(text)) => pb::write_sdo_request::Data::Value(
+                    parse_value(ty, &text).map_err(usage)?.to_pb(),
                 ),
-                (None, Some(text)) => pb::write_sdo_request::Data::Value(
-                    parse_value(ty, &text)
-                        .map_err(|e| Failure::usage(what.clone(), e))?
-                        .to_pb(),
-                ),
-                (None, None) => return Err(Failure::usage(what, "give a value or --file")),
+                // No type: the gateway parses the text as the EDS type.
+                (None, None, Some(text)) => pb::write_sdo_request::Data::Value(pb::Value {
+                    r#type: DataType::Unspecified as i32,
+                    value: Some(pb::value::Value::StringValue(text)),
+                }),
+                (None, _, None) => return Err(usage("give a value or --file".into())),
             };
+            let (index, subindex, object) = fields(&object);
             let req = pb::WriteSdoRequest {
                 bus: bus.clone(),
                 node: node.into(),
-                index: object.index.into(),
-                subindex: object.sub.into(),
+                index,
+                subindex,
                 data: Some(data),
                 options: Some(transfer.to_pb()),
+                object,
             };
             let mut client = transfer.client(&app.client, file.is_some());
             let started = Instant::now();
@@ -411,6 +461,7 @@ pub(crate) async fn run(app: &App, args: SdoArgs) -> Result<()> {
 mod tests {
     use super::super::{Cli, Command};
     use super::*;
+    use cangate_client::ObjectAddress;
     use clap::Parser;
 
     fn sdo(argv: &[&str]) -> SdoVerb {
@@ -426,30 +477,72 @@ mod tests {
         }
     }
 
+    /// The object, type and value of an `sdo write`.
+    fn write(argv: &[&str]) -> (Object, Option<TypeArg>, Option<String>) {
+        let SdoVerb::Write {
+            object,
+            words,
+            file,
+            ..
+        } = sdo(argv)
+        else {
+            panic!()
+        };
+        let (ty, value) = type_and_value(&words, file.is_some()).unwrap();
+        (object, ty, value)
+    }
+
     #[test]
     fn negative_values_need_no_double_dash() {
-        let SdoVerb::Write {
-            node,
-            object,
-            ty,
-            value,
-            ..
-        } = sdo(&["write", "can0", "1", "0x607A", "i32", "-5000"])
-        else {
-            panic!()
-        };
-        assert_eq!((node.get(), object), (1, ObjectAddress::new(0x607A, 0)));
-        assert_eq!(ty, TypeArg::I32);
+        let (object, ty, value) = write(&["write", "can0", "1", "0x607A", "i32", "-5000"]);
+        assert_eq!(object, Object::Address(ObjectAddress::new(0x607A, 0)));
+        assert_eq!(ty, Some(TypeArg::I32));
         assert_eq!(
-            parse_value(ty, value.as_deref().unwrap()).unwrap(),
+            parse_value(TypeArg::I32, value.as_deref().unwrap()).unwrap(),
             SdoValue::I32(-5000)
         );
-        // A string starting with a dash is a value too.
-        let SdoVerb::Write { value, .. } = sdo(&["write", "can0", "1", "0x2000", "vs", "-x-"])
+        // A string starting with a dash is a value too, with a type or not.
+        let (_, _, value) = write(&["write", "can0", "1", "0x2000", "vs", "-x-"]);
+        assert_eq!(value.as_deref(), Some("-x-"));
+        let (_, ty, value) = write(&["write", "can0", "1", "0x607A", "-5000"]);
+        assert_eq!((ty, value.as_deref()), (None, Some("-5000")));
+    }
+
+    #[test]
+    fn objects_by_name_and_writes_without_a_type() {
+        let (object, ty, value) = write(&["write", "can0", "1", "Producer heartbeat time", "100"]);
+        assert_eq!(object, Object::Name("Producer heartbeat time".into()));
+        assert_eq!((ty, value.as_deref()), (None, Some("100")));
+        let SdoVerb::Read { object, .. } = sdo(&["read", "can0", "1", "Identity object.Vendor-ID"])
         else {
             panic!()
         };
-        assert_eq!(value.as_deref(), Some("-x-"));
+        assert_eq!(object, Object::Name("Identity object.Vendor-ID".into()));
+        // Addresses stay addresses; a name of hex letters stays a name.
+        for (text, want) in [
+            ("0x1018:01", Object::Address(ObjectAddress::new(0x1018, 1))),
+            ("1017", Object::Address(ObjectAddress::new(0x1017, 0))),
+            ("Feed", Object::Name("Feed".into())),
+        ] {
+            assert_eq!(object_of(text), want, "{text}");
+        }
+        // A lone type name is a forgotten value; `vs u8` writes the text.
+        let words = |w: &[&str]| w.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        assert!(
+            type_and_value(&words(&["u8"]), false)
+                .unwrap_err()
+                .contains("vs u8")
+        );
+        assert!(type_and_value(&words(&["i7", "1"]), false).is_err());
+        assert_eq!(
+            type_and_value(&words(&["domain"]), true).unwrap(),
+            (Some(TypeArg::Domain), None)
+        );
+        assert!(type_and_value(&words(&["u8", "1"]), true).is_err());
+    }
+
+    fn object_of(text: &str) -> Object {
+        object(text).unwrap()
     }
 
     #[test]
@@ -460,14 +553,17 @@ mod tests {
         };
         assert_eq!(
             (object, ty),
-            (ObjectAddress::new(0x1018, 1), Some(TypeArg::U32))
+            (
+                Object::Address(ObjectAddress::new(0x1018, 1)),
+                Some(TypeArg::U32)
+            )
         );
         for bad in [
             &["read", "can0", "0", "0x1000"][..],
             &["read", "can0", "128", "0x1000"],
             &["read", "can0", "1", "0x10000"],
             &["read", "can0", "1", "0x1000", "--type", "i7"],
-            &["write", "can0", "1", "0x1000", "u8"],
+            &["write", "can0", "1", "0x1000", "u8", "1", "2"],
         ] {
             let mut all = vec!["cangate", "sdo"];
             all.extend_from_slice(bad);

@@ -514,6 +514,21 @@ impl ObjectDictionary {
             .filter_map(move |v| Some((v.address, v.default_for_node(node)?)))
     }
 
+    /// The name a person gives the variable at `address`, which
+    /// [`ObjectDictionary::resolve`] takes back: the object's name for a
+    /// single-value object (VAR, DOMAIN, DEFTYPE: `Producer heartbeat
+    /// time`), `object.sub` for a sub-object of an ARRAY, RECORD or
+    /// DEFSTRUCT (`Identity object.Vendor-ID`).
+    pub fn full_name(&self, address: ObjectAddress) -> Option<String> {
+        let object = self.object(address.index)?;
+        let variable = object.sub(address.sub)?;
+        Some(if object.object_type.is_compound() {
+            format!("{}.{}", object.name, variable.name)
+        } else {
+            object.name.clone()
+        })
+    }
+
     /// The variable named by `query` (see [`ObjectDictionary::resolve`]).
     pub fn find(&self, query: &str) -> Option<&Variable> {
         self.resolve(query).ok().and_then(|a| self.get(a))
@@ -728,6 +743,32 @@ mod tests {
             od.resolve("SDO server parameter.highest sub-index supported"),
             Ok(ObjectAddress::new(0x1200, 0))
         );
+    }
+
+    #[test]
+    fn full_names_resolve_back() {
+        let od = sample();
+        assert_eq!(
+            od.full_name(ObjectAddress::new(0x1018, 1)).as_deref(),
+            Some("Identity object.Vendor-ID")
+        );
+        assert_eq!(
+            od.full_name(ObjectAddress::new(0x1017, 0)).as_deref(),
+            Some("Producer heartbeat time")
+        );
+        assert_eq!(od.full_name(ObjectAddress::new(0x1017, 1)), None);
+        // Every name of the built-in device descriptions finds its object.
+        for text in [
+            crate::eds::SIM_DRIVE_EDS,
+            crate::eds::SIM_IO_EDS,
+            crate::eds::SIM_HANDWHEEL_EDS,
+        ] {
+            let od = crate::eds::Eds::parse(text).unwrap().od;
+            for v in od.variables() {
+                let name = od.full_name(v.address).unwrap();
+                assert_eq!(od.resolve(&name), Ok(v.address), "{name}");
+            }
+        }
     }
 
     #[test]

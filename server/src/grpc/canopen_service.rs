@@ -1,13 +1,16 @@
 //! The `cangate.v1.Canopen` service: nodes, NMT, SDO, events.
 
 use super::convert::canopen::{
-    data_type_from_pb, emcy_to_pb, nmt_state_to_pb, node_to_pb, value_from_pb, value_to_pb,
+    data_type_from_pb, emcy_to_pb, nmt_state_to_pb, node_to_pb, object_info_to_pb, value_from_pb,
+    value_from_pb_as, value_to_pb,
 };
 use super::error::ApiError;
 use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_of};
+use super::runtime_errors::lookup_error;
 use crate::canopen::{CanopenBus, CanopenError, NodeEventKind};
 use crate::gateway::Gateway;
 use cangate_can::Timestamp;
+use cangate_canopen::eds::Eds;
 use cangate_canopen::master::SdoRequest;
 use cangate_canopen::nmt::NmtCommand;
 use cangate_canopen::sdo::{TransferOptions, TransferOutcome};
@@ -65,6 +68,43 @@ fn address(index: u32, sub: u32) -> Result<ObjectAddress, ApiError> {
     let sub = u8::try_from(sub)
         .map_err(|_| ApiError::InvalidArgument(format!("sub-index {sub} does not fit 8 bits")))?;
     Ok(ObjectAddress::new(index, sub))
+}
+
+/// A node's EDS, or FAILED_PRECONDITION saying it has none (`why`: what
+/// needed it).
+fn node_eds(master: &CanopenBus, node: NodeId, why: &str) -> Result<Arc<Eds>, ApiError> {
+    master.eds(node).ok_or_else(|| {
+        ApiError::FailedPrecondition(format!(
+            "node {node} on bus {} has no EDS, so {why} (give it one with `eds` in its \
+             [[canopen.node]] section, or address objects by index and sub-index)",
+            master.bus()
+        ))
+    })
+}
+
+/// The object of an SDO request: `object` resolved with the node's EDS
+/// when given (index and sub-index must then be 0), else index:subindex.
+fn target(
+    master: &CanopenBus,
+    node: NodeId,
+    object: &str,
+    index: u32,
+    sub: u32,
+) -> Result<ObjectAddress, ApiError> {
+    if object.is_empty() {
+        return address(index, sub);
+    }
+    if index != 0 || sub != 0 {
+        return Err(ApiError::InvalidArgument(format!(
+            "give the object either by name (object = {}) or by index/subindex \
+             (0x{index:04X}:{sub:02X}), not both",
+            crate::not_found::quote_prefix(object)
+        )));
+    }
+    let eds = node_eds(master, node, "objects cannot be named")?;
+    eds.od
+        .resolve(object)
+        .map_err(|e| lookup_error(e, master.bus(), node, &eds.od))
 }
 
 /// The longest SDO timeout a caller may ask for (`SdoOptions.timeout_ms`).
@@ -204,7 +244,7 @@ impl Canopen for CanopenService {
         let req = req.into_inner();
         let m = self.master(&req.bus)?;
         let node = known_node(m, req.node)?;
-        let addr = address(req.index, req.subindex)?;
+        let addr = target(m, node, &req.object, req.index, req.subindex)?;
         let ty = match data_type_from_pb(req.r#type)? {
             Some(t) => Some(t),
             None => m
@@ -236,7 +276,7 @@ impl Canopen for CanopenService {
         let req = req.into_inner();
         let m = self.master(&req.bus)?;
         let node = known_node(m, req.node)?;
-        let addr = address(req.index, req.subindex)?;
+        let addr = target(m, node, &req.object, req.index, req.subindex)?;
         let opts = options(req.options.as_ref())?;
         let data = match req.data {
             Some(pb::write_sdo_request::Data::Raw(b)) => {
@@ -259,8 +299,25 @@ impl Canopen for CanopenService {
                 b
             }
             Some(pb::write_sdo_request::Data::Value(v)) => {
-                let value = value_from_pb(&v)?;
-                if let Some(var) = m.eds(node).and_then(|e| e.od.get(addr).cloned()) {
+                let var = m.eds(node).and_then(|e| e.od.get(addr).cloned());
+                let value = match (data_type_from_pb(v.r#type)?, &var) {
+                    (Some(_), _) => value_from_pb(&v)?,
+                    // No type given: the EDS has it.
+                    (None, Some(var)) => value_from_pb_as(&v, var.data_type).map_err(|e| {
+                        ApiError::InvalidArgument(format!(
+                            "{addr} ({}, {}): {e}",
+                            var.name, var.data_type
+                        ))
+                    })?,
+                    (None, None) => {
+                        return Err(ApiError::InvalidArgument(format!(
+                            "the value has no data type, and the gateway has no EDS entry \
+                             for {addr} of node {node} to take it from: give the type"
+                        ))
+                        .into());
+                    }
+                };
+                if let Some(var) = var {
                     var.check(&value).map_err(|e| {
                         ApiError::InvalidArgument(format!("{addr} ({}): {e}", var.name))
                     })?;
@@ -279,6 +336,22 @@ impl Canopen for CanopenService {
             .await
             .map_err(|e| map_err(node, e))?;
         Ok(Response::new(pb::WriteSdoResponse { bytes: n }))
+    }
+
+    async fn list_objects(
+        &self,
+        req: Request<pb::ListObjectsRequest>,
+    ) -> Result<Response<pb::ListObjectsResponse>, Status> {
+        let req = req.into_inner();
+        let m = self.master(&req.bus)?;
+        let node = known_node(m, req.node)?;
+        let eds = node_eds(m, node, "its objects are not known")?;
+        let objects = eds
+            .od
+            .variables()
+            .map(|v| object_info_to_pb(&eds.od, v, node))
+            .collect();
+        Ok(Response::new(pb::ListObjectsResponse { objects }))
     }
 
     async fn list_sdo_transfers(

@@ -6,6 +6,9 @@ use crate::axes::AxisError;
 use crate::cansmc::CansmcError;
 use crate::handwheel::HandwheelError;
 use crate::not_found::NotFound;
+use crate::not_found::quote_prefix;
+use cangate_canopen::NodeId;
+use cangate_canopen::od::{LookupError, ObjectDictionary};
 use cangate_cansmc::master::ParameterError;
 
 impl From<NotFound> for ApiError {
@@ -64,6 +67,47 @@ impl From<HandwheelError> for ApiError {
             HandwheelError::Device(m) => ApiError::FailedPrecondition(m),
             HandwheelError::Sdo { node, error } => ApiError::Sdo { node, error },
             HandwheelError::Unavailable(m) => ApiError::Unavailable(m),
+        }
+    }
+}
+
+/// An object name (`ReadSdoRequest.object`) that the EDS of node `node`
+/// on `bus` does not resolve to one object: OBJECT_NOT_FOUND, or
+/// INVALID_ARGUMENT naming every candidate by address and full name.
+pub(crate) fn lookup_error(
+    e: LookupError,
+    bus: &str,
+    node: NodeId,
+    od: &ObjectDictionary,
+) -> ApiError {
+    match e {
+        LookupError::NotFound(query) => ApiError::NotFound {
+            kind: "object",
+            name: query,
+            hint: format!(
+                " in the EDS of node {node} on bus {bus} (`cangate node objects {bus} {node}` \
+                 lists its objects)"
+            ),
+        },
+        LookupError::Ambiguous { query, matches } => {
+            const SHOWN: usize = 12;
+            let mut candidates: Vec<String> = matches
+                .iter()
+                .take(SHOWN)
+                .map(|a| match od.full_name(*a) {
+                    Some(name) => format!("{a} ({name})"),
+                    None => a.to_string(),
+                })
+                .collect();
+            if matches.len() > SHOWN {
+                candidates.push(format!("and {} more", matches.len() - SHOWN));
+            }
+            ApiError::InvalidArgument(format!(
+                "object {} is ambiguous on node {node} on bus {bus}: it names {}; give one \
+                 of them in full",
+                quote_prefix(&query),
+                candidates.join(", ")
+            ))
         }
     }
 }

@@ -57,6 +57,7 @@ pub const TABLE: &[Rule] = &[
     rule("/cangate.v1.Canopen/SendNmt", E, false),
     rule("/cangate.v1.Canopen/ReadSdo", V, false),
     rule("/cangate.v1.Canopen/WriteSdo", E, false),
+    rule("/cangate.v1.Canopen/ListObjects", V, false),
     rule("/cangate.v1.Canopen/ListSdoTransfers", V, false),
     rule("/cangate.v1.Canopen/ScanNetwork", V, false),
     rule("/cangate.v1.Canopen/StreamNodeEvents", V, true),

@@ -42,6 +42,16 @@ class DataType(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     DATA_TYPE_REAL64: _ClassVar[DataType]
     DATA_TYPE_INTEGER64: _ClassVar[DataType]
     DATA_TYPE_UNSIGNED64: _ClassVar[DataType]
+
+class ObjectAccess(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    OBJECT_ACCESS_UNSPECIFIED: _ClassVar[ObjectAccess]
+    OBJECT_ACCESS_RO: _ClassVar[ObjectAccess]
+    OBJECT_ACCESS_WO: _ClassVar[ObjectAccess]
+    OBJECT_ACCESS_RW: _ClassVar[ObjectAccess]
+    OBJECT_ACCESS_RWR: _ClassVar[ObjectAccess]
+    OBJECT_ACCESS_RWW: _ClassVar[ObjectAccess]
+    OBJECT_ACCESS_CONST: _ClassVar[ObjectAccess]
 NMT_STATE_UNKNOWN: NmtState
 NMT_STATE_INITIALISING: NmtState
 NMT_STATE_STOPPED: NmtState
@@ -69,6 +79,13 @@ DATA_TYPE_DOMAIN: DataType
 DATA_TYPE_REAL64: DataType
 DATA_TYPE_INTEGER64: DataType
 DATA_TYPE_UNSIGNED64: DataType
+OBJECT_ACCESS_UNSPECIFIED: ObjectAccess
+OBJECT_ACCESS_RO: ObjectAccess
+OBJECT_ACCESS_WO: ObjectAccess
+OBJECT_ACCESS_RW: ObjectAccess
+OBJECT_ACCESS_RWR: ObjectAccess
+OBJECT_ACCESS_RWW: ObjectAccess
+OBJECT_ACCESS_CONST: ObjectAccess
 
 class Value(_message.Message):
     __slots__ = ("type", "bool_value", "int_value", "uint_value", "real_value", "string_value", "bytes_value")
@@ -193,20 +210,22 @@ class SdoOptions(_message.Message):
     def __init__(self, timeout_ms: _Optional[int] = ..., block: _Optional[bool] = ...) -> None: ...
 
 class ReadSdoRequest(_message.Message):
-    __slots__ = ("bus", "node", "index", "subindex", "type", "options")
+    __slots__ = ("bus", "node", "index", "subindex", "type", "options", "object")
     BUS_FIELD_NUMBER: _ClassVar[int]
     NODE_FIELD_NUMBER: _ClassVar[int]
     INDEX_FIELD_NUMBER: _ClassVar[int]
     SUBINDEX_FIELD_NUMBER: _ClassVar[int]
     TYPE_FIELD_NUMBER: _ClassVar[int]
     OPTIONS_FIELD_NUMBER: _ClassVar[int]
+    OBJECT_FIELD_NUMBER: _ClassVar[int]
     bus: str
     node: int
     index: int
     subindex: int
     type: DataType
     options: SdoOptions
-    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., index: _Optional[int] = ..., subindex: _Optional[int] = ..., type: _Optional[_Union[DataType, str]] = ..., options: _Optional[_Union[SdoOptions, _Mapping]] = ...) -> None: ...
+    object: str
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., index: _Optional[int] = ..., subindex: _Optional[int] = ..., type: _Optional[_Union[DataType, str]] = ..., options: _Optional[_Union[SdoOptions, _Mapping]] = ..., object: _Optional[str] = ...) -> None: ...
 
 class ReadSdoResponse(_message.Message):
     __slots__ = ("raw", "value")
@@ -217,7 +236,7 @@ class ReadSdoResponse(_message.Message):
     def __init__(self, raw: _Optional[bytes] = ..., value: _Optional[_Union[Value, _Mapping]] = ...) -> None: ...
 
 class WriteSdoRequest(_message.Message):
-    __slots__ = ("bus", "node", "index", "subindex", "value", "raw", "options")
+    __slots__ = ("bus", "node", "index", "subindex", "value", "raw", "options", "object")
     BUS_FIELD_NUMBER: _ClassVar[int]
     NODE_FIELD_NUMBER: _ClassVar[int]
     INDEX_FIELD_NUMBER: _ClassVar[int]
@@ -225,6 +244,7 @@ class WriteSdoRequest(_message.Message):
     VALUE_FIELD_NUMBER: _ClassVar[int]
     RAW_FIELD_NUMBER: _ClassVar[int]
     OPTIONS_FIELD_NUMBER: _ClassVar[int]
+    OBJECT_FIELD_NUMBER: _ClassVar[int]
     bus: str
     node: int
     index: int
@@ -232,13 +252,60 @@ class WriteSdoRequest(_message.Message):
     value: Value
     raw: bytes
     options: SdoOptions
-    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., index: _Optional[int] = ..., subindex: _Optional[int] = ..., value: _Optional[_Union[Value, _Mapping]] = ..., raw: _Optional[bytes] = ..., options: _Optional[_Union[SdoOptions, _Mapping]] = ...) -> None: ...
+    object: str
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., index: _Optional[int] = ..., subindex: _Optional[int] = ..., value: _Optional[_Union[Value, _Mapping]] = ..., raw: _Optional[bytes] = ..., options: _Optional[_Union[SdoOptions, _Mapping]] = ..., object: _Optional[str] = ...) -> None: ...
 
 class WriteSdoResponse(_message.Message):
     __slots__ = ("bytes",)
     BYTES_FIELD_NUMBER: _ClassVar[int]
     bytes: int
     def __init__(self, bytes: _Optional[int] = ...) -> None: ...
+
+class ListObjectsRequest(_message.Message):
+    __slots__ = ("bus", "node")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    NODE_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    node: int
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ...) -> None: ...
+
+class ObjectInfo(_message.Message):
+    __slots__ = ("index", "subindex", "name", "object_name", "sub_name", "object_type", "type", "type_code", "access", "pdo_mappable", "default_value", "default_text", "low_limit", "high_limit")
+    INDEX_FIELD_NUMBER: _ClassVar[int]
+    SUBINDEX_FIELD_NUMBER: _ClassVar[int]
+    NAME_FIELD_NUMBER: _ClassVar[int]
+    OBJECT_NAME_FIELD_NUMBER: _ClassVar[int]
+    SUB_NAME_FIELD_NUMBER: _ClassVar[int]
+    OBJECT_TYPE_FIELD_NUMBER: _ClassVar[int]
+    TYPE_FIELD_NUMBER: _ClassVar[int]
+    TYPE_CODE_FIELD_NUMBER: _ClassVar[int]
+    ACCESS_FIELD_NUMBER: _ClassVar[int]
+    PDO_MAPPABLE_FIELD_NUMBER: _ClassVar[int]
+    DEFAULT_VALUE_FIELD_NUMBER: _ClassVar[int]
+    DEFAULT_TEXT_FIELD_NUMBER: _ClassVar[int]
+    LOW_LIMIT_FIELD_NUMBER: _ClassVar[int]
+    HIGH_LIMIT_FIELD_NUMBER: _ClassVar[int]
+    index: int
+    subindex: int
+    name: str
+    object_name: str
+    sub_name: str
+    object_type: str
+    type: DataType
+    type_code: int
+    access: ObjectAccess
+    pdo_mappable: bool
+    default_value: Value
+    default_text: str
+    low_limit: Value
+    high_limit: Value
+    def __init__(self, index: _Optional[int] = ..., subindex: _Optional[int] = ..., name: _Optional[str] = ..., object_name: _Optional[str] = ..., sub_name: _Optional[str] = ..., object_type: _Optional[str] = ..., type: _Optional[_Union[DataType, str]] = ..., type_code: _Optional[int] = ..., access: _Optional[_Union[ObjectAccess, str]] = ..., pdo_mappable: _Optional[bool] = ..., default_value: _Optional[_Union[Value, _Mapping]] = ..., default_text: _Optional[str] = ..., low_limit: _Optional[_Union[Value, _Mapping]] = ..., high_limit: _Optional[_Union[Value, _Mapping]] = ...) -> None: ...
+
+class ListObjectsResponse(_message.Message):
+    __slots__ = ("objects",)
+    OBJECTS_FIELD_NUMBER: _ClassVar[int]
+    objects: _containers.RepeatedCompositeFieldContainer[ObjectInfo]
+    def __init__(self, objects: _Optional[_Iterable[_Union[ObjectInfo, _Mapping]]] = ...) -> None: ...
 
 class ScanNetworkRequest(_message.Message):
     __slots__ = ("bus", "timeout_ms")

@@ -60,6 +60,11 @@ class CanopenStub:
                 request_serializer=cangate_dot_v1_dot_canopen__pb2.WriteSdoRequest.SerializeToString,
                 response_deserializer=cangate_dot_v1_dot_canopen__pb2.WriteSdoResponse.FromString,
                 _registered_method=True)
+        self.ListObjects = channel.unary_unary(
+                '/cangate.v1.Canopen/ListObjects',
+                request_serializer=cangate_dot_v1_dot_canopen__pb2.ListObjectsRequest.SerializeToString,
+                response_deserializer=cangate_dot_v1_dot_canopen__pb2.ListObjectsResponse.FromString,
+                _registered_method=True)
         self.ListSdoTransfers = channel.unary_unary(
                 '/cangate.v1.Canopen/ListSdoTransfers',
                 request_serializer=cangate_dot_v1_dot_canopen__pb2.ListSdoTransfersRequest.SerializeToString,
@@ -123,6 +128,16 @@ class CanopenServicer:
 
     def WriteSdo(self, request, context):
         """Writes an object over SDO.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def ListObjects(self, request, context):
+        """A node's object dictionary as its EDS describes it (no SDO transfer):
+        every sub-object with its name, type, access, PDO mappability,
+        default and limits, in index/sub-index order. NOT_FOUND for an unknown
+        bus or node, FAILED_PRECONDITION for a node without an EDS.
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')
@@ -198,6 +213,11 @@ def add_CanopenServicer_to_server(servicer, server):
                     servicer.WriteSdo,
                     request_deserializer=cangate_dot_v1_dot_canopen__pb2.WriteSdoRequest.FromString,
                     response_serializer=cangate_dot_v1_dot_canopen__pb2.WriteSdoResponse.SerializeToString,
+            ),
+            'ListObjects': grpc.unary_unary_rpc_method_handler(
+                    servicer.ListObjects,
+                    request_deserializer=cangate_dot_v1_dot_canopen__pb2.ListObjectsRequest.FromString,
+                    response_serializer=cangate_dot_v1_dot_canopen__pb2.ListObjectsResponse.SerializeToString,
             ),
             'ListSdoTransfers': grpc.unary_unary_rpc_method_handler(
                     servicer.ListSdoTransfers,
@@ -361,6 +381,33 @@ class Canopen:
             '/cangate.v1.Canopen/WriteSdo',
             cangate_dot_v1_dot_canopen__pb2.WriteSdoRequest.SerializeToString,
             cangate_dot_v1_dot_canopen__pb2.WriteSdoResponse.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def ListObjects(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/cangate.v1.Canopen/ListObjects',
+            cangate_dot_v1_dot_canopen__pb2.ListObjectsRequest.SerializeToString,
+            cangate_dot_v1_dot_canopen__pb2.ListObjectsResponse.FromString,
             options,
             channel_credentials,
             insecure,

@@ -1,11 +1,13 @@
-//! CANopen values, data types, NMT states, EMCY and nodes as protobuf
-//! messages, and typed values from them.
+//! CANopen values, data types, NMT states, EMCY, nodes and object
+//! dictionary entries as protobuf messages, and typed values from them.
 
 use crate::canopen::NodeSnapshot;
 use crate::grpc::error::ApiError;
 use cangate_can::Timestamp;
+use cangate_canopen::NodeId;
 use cangate_canopen::emcy::Emcy;
 use cangate_canopen::nmt::NmtState;
+use cangate_canopen::od::{AccessType, ObjectDictionary, Variable};
 use cangate_canopen::value::{DataType, Value};
 use cangate_proto::v1 as pb;
 
@@ -141,5 +143,151 @@ pub(crate) fn node_to_pb(bus: &str, n: &NodeSnapshot) -> pb::Node {
             .collect(),
         boot_ups: n.boot_ups,
         configured: n.facts.configured,
+    }
+}
+
+/// A value given without a type (`Value.type` unspecified) as the EDS type
+/// `ty`: numbers, booleans and bytes converted (range-checked), a string
+/// for a non-string type parsed as a person types it.
+pub(crate) fn value_from_pb_as(v: &pb::Value, ty: DataType) -> Result<Value, ApiError> {
+    use pb::value::Value as V;
+    let string_type = matches!(ty, DataType::VisibleString | DataType::UnicodeString);
+    if let Some(V::StringValue(text)) = &v.value
+        && !string_type
+    {
+        return Value::parse(ty, text).map_err(|e| ApiError::InvalidArgument(e.to_string()));
+    }
+    let typed = pb::Value {
+        r#type: ty.code() as i32,
+        value: v.value.clone(),
+    };
+    value_from_pb(&typed)
+}
+
+/// The protobuf access rights.
+pub(crate) fn access_to_pb(a: AccessType) -> pb::ObjectAccess {
+    match a {
+        AccessType::Ro => pb::ObjectAccess::Ro,
+        AccessType::Wo => pb::ObjectAccess::Wo,
+        AccessType::Rw => pb::ObjectAccess::Rw,
+        AccessType::Rwr => pb::ObjectAccess::Rwr,
+        AccessType::Rww => pb::ObjectAccess::Rww,
+        AccessType::Const => pb::ObjectAccess::Const,
+    }
+}
+
+/// A value for a field of ObjectInfo: only for types the API names.
+fn known_value_to_pb(v: &Value) -> Option<pb::Value> {
+    (data_type_to_pb(v.data_type()) != pb::DataType::Unspecified).then(|| value_to_pb(v))
+}
+
+/// One sub-object of a node's dictionary (`var` must be in `od`).
+pub(crate) fn object_info_to_pb(
+    od: &ObjectDictionary,
+    var: &Variable,
+    node: NodeId,
+) -> pb::ObjectInfo {
+    let object = od.object(var.address.index);
+    pb::ObjectInfo {
+        index: var.address.index.into(),
+        subindex: var.address.sub.into(),
+        name: od
+            .full_name(var.address)
+            .unwrap_or_else(|| var.name.clone()),
+        object_name: object.map(|o| o.name.clone()).unwrap_or_default(),
+        sub_name: var.name.clone(),
+        object_type: object
+            .map(|o| o.object_type.to_string())
+            .unwrap_or_default(),
+        r#type: data_type_to_pb(var.data_type) as i32,
+        type_code: var.data_type.code().into(),
+        access: access_to_pb(var.access) as i32,
+        pdo_mappable: var.pdo_mappable,
+        default_value: var
+            .default_for_node(node)
+            .as_ref()
+            .and_then(known_value_to_pb),
+        default_text: var
+            .parameter_value
+            .as_ref()
+            .or(var.default.as_ref())
+            .map(ToString::to_string)
+            .unwrap_or_default(),
+        low_limit: var.low_limit.as_ref().and_then(known_value_to_pb),
+        high_limit: var.high_limit.as_ref().and_then(known_value_to_pb),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use cangate_canopen::ObjectAddress;
+    use cangate_canopen::eds::{Eds, SIM_DRIVE_EDS};
+
+    fn untyped(value: pb::value::Value) -> pb::Value {
+        pb::Value {
+            r#type: 0,
+            value: Some(value),
+        }
+    }
+
+    #[test]
+    fn untyped_values_take_the_eds_type() {
+        use pb::value::Value as V;
+        let as_ = |v, ty| value_from_pb_as(&untyped(v), ty);
+        assert_eq!(
+            as_(V::UintValue(100), DataType::Unsigned16).unwrap(),
+            Value::Unsigned16(100)
+        );
+        assert_eq!(
+            as_(V::StringValue("0x64".into()), DataType::Unsigned16).unwrap(),
+            Value::Unsigned16(100)
+        );
+        assert_eq!(
+            as_(V::StringValue("-5".into()), DataType::Integer32).unwrap(),
+            Value::Integer32(-5)
+        );
+        assert_eq!(
+            as_(V::StringValue("0x64".into()), DataType::VisibleString).unwrap(),
+            Value::VisibleString("0x64".into())
+        );
+        assert_eq!(
+            as_(V::StringValue("true".into()), DataType::Boolean).unwrap(),
+            Value::Boolean(true)
+        );
+        assert!(as_(V::StringValue("70000".into()), DataType::Unsigned16).is_err());
+        assert!(as_(V::UintValue(70000), DataType::Unsigned16).is_err());
+        assert!(as_(V::RealValue(1.0), DataType::Unsigned16).is_err());
+    }
+
+    #[test]
+    fn object_infos_of_the_drive() {
+        let od = Eds::parse(SIM_DRIVE_EDS).unwrap().od;
+        let node = NodeId::new(5).unwrap();
+        let info = |index, sub| {
+            object_info_to_pb(&od, od.get(ObjectAddress::new(index, sub)).unwrap(), node)
+        };
+        let name = info(0x1008, 0);
+        assert_eq!(name.name, "Manufacturer device name");
+        assert_eq!(name.r#type, pb::DataType::VisibleString as i32);
+        assert_eq!(name.access, pb::ObjectAccess::Const as i32);
+        assert_eq!(name.object_type, "VAR");
+        let vendor = info(0x1018, 1);
+        assert_eq!(
+            (vendor.name.as_str(), vendor.object_name.as_str()),
+            ("Identity object.Vendor-ID", "Identity object")
+        );
+        assert_eq!(vendor.sub_name, "Vendor-ID");
+        let cw = info(0x6040, 0);
+        assert!(cw.pdo_mappable);
+        assert_eq!(cw.access, pb::ObjectAccess::Rww as i32);
+        assert_eq!(cw.type_code, 6);
+        // $NODEID defaults are resolved for the node; the text keeps them.
+        let cob = info(0x1800, 1);
+        assert!(cob.default_text.contains("$NODEID"), "{}", cob.default_text);
+        let Some(pb::value::Value::UintValue(v)) = cob.default_value.unwrap().value else {
+            panic!()
+        };
+        assert_eq!(v & 0x7FF, 0x185);
     }
 }

@@ -9,17 +9,22 @@
 //                       node that is neither configured nor ever heard of
 //                       (run ScanNetwork first); also SDO abort 0x06020000
 //                       (object does not exist) and 0x06090011 (sub-index
-//                       does not exist).
+//                       does not exist); an object named (`object`) that
+//                       the node's EDS does not have (OBJECT_NOT_FOUND).
 //   INVALID_ARGUMENT    node id outside 1..=127, a value that does not fit
 //                       the object's type, a malformed request; SDO aborts
-//                       0x0607xxxx (type/length mismatch).
+//                       0x0607xxxx (type/length mismatch); an `object`
+//                       name that several objects of the EDS carry (the
+//                       message lists them), or `object` given together
+//                       with index/subindex.
 //   OUT_OF_RANGE        SDO aborts 0x0609003x (value range).
 //   FAILED_PRECONDITION SDO aborts 0x0601xxxx (access: read-only,
 //                       write-only) and 0x0800002x (device state); the bus
 //                       is bus-off or down; the caller already has 8 SDO
 //                       requests queued or running with the node (the
 //                       limit per caller - identity, else peer address -
-//                       and node).
+//                       and node); an object named (`object`, ListObjects)
+//                       on a node the gateway has no EDS for.
 //   ABORTED             any other SDO abort, and protocol violations by the
 //                       node (the gateway sent the abort).
 //   DEADLINE_EXCEEDED   the node did not answer within the SDO timeout.
@@ -41,7 +46,8 @@
 //      <KIND>_NOT_FOUND  a named thing does not exist: BUS_NOT_FOUND,
 //                        NODE_NOT_FOUND, RPDO_NOT_FOUND, AXIS_NOT_FOUND,
 //                        HANDWHEEL_NOT_FOUND, CANSMC_MASTER_NOT_FOUND,
-//                        CANSMC_SLAVE_NOT_FOUND,
+//                        CANSMC_SLAVE_NOT_FOUND, OBJECT_NOT_FOUND (an
+//                        object name a node's EDS does not have),
 //                        SIMULATED_DEVICE_NOT_FOUND.
 //                        Metadata: "kind" (the thing: "bus", "node",
 //                        "axis", "CANsmc master", ...), "name" (the name
@@ -132,7 +138,7 @@ import type { Message } from "@bufbuild/protobuf";
  * Describes the file cangate/v1/canopen.proto.
  */
 export const file_cangate_v1_canopen: GenFile = /*@__PURE__*/
-  fileDesc("ChhjYW5nYXRlL3YxL2Nhbm9wZW4ucHJvdG8SCmNhbmdhdGUudjEiugEKBVZhbHVlEiIKBHR5cGUYASABKA4yFC5jYW5nYXRlLnYxLkRhdGFUeXBlEhQKCmJvb2xfdmFsdWUYAiABKAhIABITCglpbnRfdmFsdWUYAyABKBJIABIUCgp1aW50X3ZhbHVlGAQgASgESAASFAoKcmVhbF92YWx1ZRgFIAEoAUgAEhYKDHN0cmluZ192YWx1ZRgGIAEoCUgAEhUKC2J5dGVzX3ZhbHVlGAcgASgMSABCBwoFdmFsdWUiVQoISWRlbnRpdHkSEQoJdmVuZG9yX2lkGAEgASgNEhQKDHByb2R1Y3RfY29kZRgCIAEoDRIQCghyZXZpc2lvbhgDIAEoDRIOCgZzZXJpYWwYBCABKA0iigEKBEVtY3kSDAoEbm9kZRgBIAEoDRIMCgRjb2RlGAIgASgNEhEKCWNvZGVfbmFtZRgDIAEoCRIQCghyZWdpc3RlchgEIAEoDRIVCg1yZWdpc3Rlcl9iaXRzGAUgAygJEhQKDG1hbnVmYWN0dXJlchgGIAEoDBIUCgx0aW1lc3RhbXBfbnMYByABKAQimQMKBE5vZGUSCwoDYnVzGAEgASgJEgoKAmlkGAIgASgNEgwKBG5hbWUYAyABKAkSIwoFc3RhdGUYBCABKA4yFC5jYW5nYXRlLnYxLk5tdFN0YXRlEh0KEGhlYXJ0YmVhdF9hZ2VfbXMYBSABKARIAIgBARIWCg5oZWFydGJlYXRfbG9zdBgGIAEoCBIcChRoZWFydGJlYXRfdGltZW91dF9tcxgHIAEoDRIYCgtkZXZpY2VfdHlwZRgIIAEoDUgBiAEBEhMKC2RldmljZV9uYW1lGAkgASgJEiYKCGlkZW50aXR5GAogASgLMhQuY2FuZ2F0ZS52MS5JZGVudGl0eRImCgxhY3RpdmVfZXJyb3IYCyABKAsyEC5jYW5nYXRlLnYxLkVtY3kSJgoMZW1jeV9oaXN0b3J5GAwgAygLMhAuY2FuZ2F0ZS52MS5FbWN5EhAKCGJvb3RfdXBzGA0gASgEEhIKCmNvbmZpZ3VyZWQYDiABKAhCEwoRX2hlYXJ0YmVhdF9hZ2VfbXNCDgoMX2RldmljZV90eXBlIh8KEExpc3ROb2Rlc1JlcXVlc3QSCwoDYnVzGAEgASgJIjQKEUxpc3ROb2Rlc1Jlc3BvbnNlEh8KBW5vZGVzGAEgAygLMhAuY2FuZ2F0ZS52MS5Ob2RlIisKDkdldE5vZGVSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNIlQKDlNlbmRObXRSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEicKB2NvbW1hbmQYAyABKA4yFi5jYW5nYXRlLnYxLk5tdENvbW1hbmQiEQoPU2VuZE5tdFJlc3BvbnNlIi8KClNkb09wdGlvbnMSEgoKdGltZW91dF9tcxgBIAEoDRINCgVibG9jaxgCIAEoCCKZAQoOUmVhZFNkb1JlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SDQoFaW5kZXgYAyABKA0SEAoIc3ViaW5kZXgYBCABKA0SIgoEdHlwZRgFIAEoDjIULmNhbmdhdGUudjEuRGF0YVR5cGUSJwoHb3B0aW9ucxgGIAEoCzIWLmNhbmdhdGUudjEuU2RvT3B0aW9ucyJACg9SZWFkU2RvUmVzcG9uc2USCwoDcmF3GAEgASgMEiAKBXZhbHVlGAIgASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZSKxAQoPV3JpdGVTZG9SZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEg0KBWluZGV4GAMgASgNEhAKCHN1YmluZGV4GAQgASgNEiIKBXZhbHVlGAUgASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZUgAEg0KA3JhdxgGIAEoDEgAEicKB29wdGlvbnMYByABKAsyFi5jYW5nYXRlLnYxLlNkb09wdGlvbnNCBgoEZGF0YSIhChBXcml0ZVNkb1Jlc3BvbnNlEg0KBWJ5dGVzGAEgASgNIjUKElNjYW5OZXR3b3JrUmVxdWVzdBILCgNidXMYASABKAkSEgoKdGltZW91dF9tcxgCIAEoDSI2ChNTY2FuTmV0d29ya1Jlc3BvbnNlEh8KBW5vZGVzGAEgAygLMhAuY2FuZ2F0ZS52MS5Ob2RlIjUKF1N0cmVhbU5vZGVFdmVudHNSZXF1ZXN0EgsKA2J1cxgBIAEoCRINCgVub2RlcxgCIAMoDSLAAwoJTm9kZUV2ZW50EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEhQKDHRpbWVzdGFtcF9ucxgDIAEoBBIlCgdib290X3VwGAQgASgLMhIuY2FuZ2F0ZS52MS5Cb290VXBIABIwCg1zdGF0ZV9jaGFuZ2VkGAUgASgLMhcuY2FuZ2F0ZS52MS5TdGF0ZUNoYW5nZUgAEjMKDmhlYXJ0YmVhdF9sb3N0GAYgASgLMhkuY2FuZ2F0ZS52MS5IZWFydGJlYXRMb3N0SAASPQoTaGVhcnRiZWF0X3JlY292ZXJlZBgHIAEoCzIeLmNhbmdhdGUudjEuSGVhcnRiZWF0UmVjb3ZlcmVkSAASIAoEZW1jeRgIIAEoCzIQLmNhbmdhdGUudjEuRW1jeUgAEiYKBGxvc3QYCSABKAsyFi5jYW5nYXRlLnYxLkV2ZW50c0xvc3RIABIzCg5ib290X2NvbXBsZXRlZBgKIAEoCzIZLmNhbmdhdGUudjEuQm9vdENvbXBsZXRlZEgAEi0KC2Jvb3RfZmFpbGVkGAsgASgLMhYuY2FuZ2F0ZS52MS5Cb290RmFpbGVkSABCBwoFZXZlbnQiDwoNQm9vdENvbXBsZXRlZCIcCgpCb290RmFpbGVkEg4KBnJlYXNvbhgBIAEoCSIuChBTdHJlYW1QZG9SZXF1ZXN0EgsKA2J1cxgBIAEoCRINCgVub2RlcxgCIAMoDSJbCghQZG9WYWx1ZRINCgVpbmRleBgBIAEoDRIQCghzdWJpbmRleBgCIAEoDRIMCgRuYW1lGAMgASgJEiAKBXZhbHVlGAQgASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZSKVAQoKUGRvTWVzc2FnZRILCgNidXMYASABKAkSDAoEbm9kZRgCIAEoDRILCgNwZG8YAyABKA0SDgoGY29iX2lkGAQgASgNEhQKDHRpbWVzdGFtcF9ucxgFIAEoBBIkCgZ2YWx1ZXMYBiADKAsyFC5jYW5nYXRlLnYxLlBkb1ZhbHVlEhMKC2xvc3RfYmVmb3JlGAcgASgEIl8KD1dyaXRlUGRvUmVxdWVzdBILCgNidXMYASABKAkSDAoEbm9kZRgCIAEoDRILCgNwZG8YAyABKA0SJAoGdmFsdWVzGAQgAygLMhQuY2FuZ2F0ZS52MS5QZG9WYWx1ZSIgChBXcml0ZVBkb1Jlc3BvbnNlEgwKBGRhdGEYASABKAwiCAoGQm9vdFVwIlMKC1N0YXRlQ2hhbmdlEiIKBGZyb20YASABKA4yFC5jYW5nYXRlLnYxLk5tdFN0YXRlEiAKAnRvGAIgASgOMhQuY2FuZ2F0ZS52MS5ObXRTdGF0ZSIjCg1IZWFydGJlYXRMb3N0EhIKCnRpbWVvdXRfbXMYASABKA0iTAoSSGVhcnRiZWF0UmVjb3ZlcmVkEiMKBXN0YXRlGAEgASgOMhQuY2FuZ2F0ZS52MS5ObXRTdGF0ZRIRCglzaWxlbnRfbXMYAiABKAQiGwoKRXZlbnRzTG9zdBINCgVjb3VudBgBIAEoBCJhCg9TZG9BYm9ydERldGFpbHMSDAoEY29kZRgBIAEoDRIMCgRuYW1lGAIgASgJEg0KBWluZGV4GAMgASgNEhAKCHN1YmluZGV4GAQgASgNEhEKCWZyb21fbm9kZRgFIAEoCCImChdMaXN0U2RvVHJhbnNmZXJzUmVxdWVzdBILCgNidXMYASABKAkikQEKC1Nkb1RyYW5zZmVyEgwKBG5vZGUYASABKA0SDQoFaW5kZXgYAiABKA0SEAoIc3ViaW5kZXgYAyABKA0SDgoGdXBsb2FkGAQgASgIEhAKCHByb3RvY29sGAUgASgJEhMKC3RyYW5zZmVycmVkGAYgASgEEhIKBXRvdGFsGAcgASgESACIAQFCCAoGX3RvdGFsIkYKGExpc3RTZG9UcmFuc2ZlcnNSZXNwb25zZRIqCgl0cmFuc2ZlcnMYASADKAsyFy5jYW5nYXRlLnYxLlNkb1RyYW5zZmVyKo4BCghObXRTdGF0ZRIVChFOTVRfU1RBVEVfVU5LTk9XThAAEhoKFk5NVF9TVEFURV9JTklUSUFMSVNJTkcQARIVChFOTVRfU1RBVEVfU1RPUFBFRBACEhkKFU5NVF9TVEFURV9PUEVSQVRJT05BTBADEh0KGU5NVF9TVEFURV9QUkVfT1BFUkFUSU9OQUwQBCq+AQoKTm10Q29tbWFuZBIbChdOTVRfQ09NTUFORF9VTlNQRUNJRklFRBAAEhUKEU5NVF9DT01NQU5EX1NUQVJUEAESFAoQTk1UX0NPTU1BTkRfU1RPUBACEiUKIU5NVF9DT01NQU5EX0VOVEVSX1BSRV9PUEVSQVRJT05BTBADEhoKFk5NVF9DT01NQU5EX1JFU0VUX05PREUQBBIjCh9OTVRfQ09NTUFORF9SRVNFVF9DT01NVU5JQ0FUSU9OEAUqoAMKCERhdGFUeXBlEhkKFURBVEFfVFlQRV9VTlNQRUNJRklFRBAAEhUKEURBVEFfVFlQRV9CT09MRUFOEAESFgoSREFUQV9UWVBFX0lOVEVHRVI4EAISFwoTREFUQV9UWVBFX0lOVEVHRVIxNhADEhcKE0RBVEFfVFlQRV9JTlRFR0VSMzIQBBIXChNEQVRBX1RZUEVfVU5TSUdORUQ4EAUSGAoUREFUQV9UWVBFX1VOU0lHTkVEMTYQBhIYChREQVRBX1RZUEVfVU5TSUdORUQzMhAHEhQKEERBVEFfVFlQRV9SRUFMMzIQCBIcChhEQVRBX1RZUEVfVklTSUJMRV9TVFJJTkcQCRIaChZEQVRBX1RZUEVfT0NURVRfU1RSSU5HEAoSHAoYREFUQV9UWVBFX1VOSUNPREVfU1RSSU5HEAsSFAoQREFUQV9UWVBFX0RPTUFJThAPEhQKEERBVEFfVFlQRV9SRUFMNjQQERIXChNEQVRBX1RZUEVfSU5URUdFUjY0EBUSGAoUREFUQV9UWVBFX1VOU0lHTkVENjQQGzLoBQoHQ2Fub3BlbhJICglMaXN0Tm9kZXMSHC5jYW5nYXRlLnYxLkxpc3ROb2Rlc1JlcXVlc3QaHS5jYW5nYXRlLnYxLkxpc3ROb2Rlc1Jlc3BvbnNlEjcKB0dldE5vZGUSGi5jYW5nYXRlLnYxLkdldE5vZGVSZXF1ZXN0GhAuY2FuZ2F0ZS52MS5Ob2RlEkIKB1NlbmRObXQSGi5jYW5nYXRlLnYxLlNlbmRObXRSZXF1ZXN0GhsuY2FuZ2F0ZS52MS5TZW5kTm10UmVzcG9uc2USQgoHUmVhZFNkbxIaLmNhbmdhdGUudjEuUmVhZFNkb1JlcXVlc3QaGy5jYW5nYXRlLnYxLlJlYWRTZG9SZXNwb25zZRJFCghXcml0ZVNkbxIbLmNhbmdhdGUudjEuV3JpdGVTZG9SZXF1ZXN0GhwuY2FuZ2F0ZS52MS5Xcml0ZVNkb1Jlc3BvbnNlEl0KEExpc3RTZG9UcmFuc2ZlcnMSIy5jYW5nYXRlLnYxLkxpc3RTZG9UcmFuc2ZlcnNSZXF1ZXN0GiQuY2FuZ2F0ZS52MS5MaXN0U2RvVHJhbnNmZXJzUmVzcG9uc2USTgoLU2Nhbk5ldHdvcmsSHi5jYW5nYXRlLnYxLlNjYW5OZXR3b3JrUmVxdWVzdBofLmNhbmdhdGUudjEuU2Nhbk5ldHdvcmtSZXNwb25zZRJQChBTdHJlYW1Ob2RlRXZlbnRzEiMuY2FuZ2F0ZS52MS5TdHJlYW1Ob2RlRXZlbnRzUmVxdWVzdBoVLmNhbmdhdGUudjEuTm9kZUV2ZW50MAESQwoJU3RyZWFtUGRvEhwuY2FuZ2F0ZS52MS5TdHJlYW1QZG9SZXF1ZXN0GhYuY2FuZ2F0ZS52MS5QZG9NZXNzYWdlMAESRQoIV3JpdGVQZG8SGy5jYW5nYXRlLnYxLldyaXRlUGRvUmVxdWVzdBocLmNhbmdhdGUudjEuV3JpdGVQZG9SZXNwb25zZWIGcHJvdG8z");
+  fileDesc("ChhjYW5nYXRlL3YxL2Nhbm9wZW4ucHJvdG8SCmNhbmdhdGUudjEiugEKBVZhbHVlEiIKBHR5cGUYASABKA4yFC5jYW5nYXRlLnYxLkRhdGFUeXBlEhQKCmJvb2xfdmFsdWUYAiABKAhIABITCglpbnRfdmFsdWUYAyABKBJIABIUCgp1aW50X3ZhbHVlGAQgASgESAASFAoKcmVhbF92YWx1ZRgFIAEoAUgAEhYKDHN0cmluZ192YWx1ZRgGIAEoCUgAEhUKC2J5dGVzX3ZhbHVlGAcgASgMSABCBwoFdmFsdWUiVQoISWRlbnRpdHkSEQoJdmVuZG9yX2lkGAEgASgNEhQKDHByb2R1Y3RfY29kZRgCIAEoDRIQCghyZXZpc2lvbhgDIAEoDRIOCgZzZXJpYWwYBCABKA0iigEKBEVtY3kSDAoEbm9kZRgBIAEoDRIMCgRjb2RlGAIgASgNEhEKCWNvZGVfbmFtZRgDIAEoCRIQCghyZWdpc3RlchgEIAEoDRIVCg1yZWdpc3Rlcl9iaXRzGAUgAygJEhQKDG1hbnVmYWN0dXJlchgGIAEoDBIUCgx0aW1lc3RhbXBfbnMYByABKAQimQMKBE5vZGUSCwoDYnVzGAEgASgJEgoKAmlkGAIgASgNEgwKBG5hbWUYAyABKAkSIwoFc3RhdGUYBCABKA4yFC5jYW5nYXRlLnYxLk5tdFN0YXRlEh0KEGhlYXJ0YmVhdF9hZ2VfbXMYBSABKARIAIgBARIWCg5oZWFydGJlYXRfbG9zdBgGIAEoCBIcChRoZWFydGJlYXRfdGltZW91dF9tcxgHIAEoDRIYCgtkZXZpY2VfdHlwZRgIIAEoDUgBiAEBEhMKC2RldmljZV9uYW1lGAkgASgJEiYKCGlkZW50aXR5GAogASgLMhQuY2FuZ2F0ZS52MS5JZGVudGl0eRImCgxhY3RpdmVfZXJyb3IYCyABKAsyEC5jYW5nYXRlLnYxLkVtY3kSJgoMZW1jeV9oaXN0b3J5GAwgAygLMhAuY2FuZ2F0ZS52MS5FbWN5EhAKCGJvb3RfdXBzGA0gASgEEhIKCmNvbmZpZ3VyZWQYDiABKAhCEwoRX2hlYXJ0YmVhdF9hZ2VfbXNCDgoMX2RldmljZV90eXBlIh8KEExpc3ROb2Rlc1JlcXVlc3QSCwoDYnVzGAEgASgJIjQKEUxpc3ROb2Rlc1Jlc3BvbnNlEh8KBW5vZGVzGAEgAygLMhAuY2FuZ2F0ZS52MS5Ob2RlIisKDkdldE5vZGVSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNIlQKDlNlbmRObXRSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEicKB2NvbW1hbmQYAyABKA4yFi5jYW5nYXRlLnYxLk5tdENvbW1hbmQiEQoPU2VuZE5tdFJlc3BvbnNlIi8KClNkb09wdGlvbnMSEgoKdGltZW91dF9tcxgBIAEoDRINCgVibG9jaxgCIAEoCCKpAQoOUmVhZFNkb1JlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SDQoFaW5kZXgYAyABKA0SEAoIc3ViaW5kZXgYBCABKA0SIgoEdHlwZRgFIAEoDjIULmNhbmdhdGUudjEuRGF0YVR5cGUSJwoHb3B0aW9ucxgGIAEoCzIWLmNhbmdhdGUudjEuU2RvT3B0aW9ucxIOCgZvYmplY3QYByABKAkiQAoPUmVhZFNkb1Jlc3BvbnNlEgsKA3JhdxgBIAEoDBIgCgV2YWx1ZRgCIAEoCzIRLmNhbmdhdGUudjEuVmFsdWUiwQEKD1dyaXRlU2RvUmVxdWVzdBILCgNidXMYASABKAkSDAoEbm9kZRgCIAEoDRINCgVpbmRleBgDIAEoDRIQCghzdWJpbmRleBgEIAEoDRIiCgV2YWx1ZRgFIAEoCzIRLmNhbmdhdGUudjEuVmFsdWVIABINCgNyYXcYBiABKAxIABInCgdvcHRpb25zGAcgASgLMhYuY2FuZ2F0ZS52MS5TZG9PcHRpb25zEg4KBm9iamVjdBgIIAEoCUIGCgRkYXRhIiEKEFdyaXRlU2RvUmVzcG9uc2USDQoFYnl0ZXMYASABKA0iLwoSTGlzdE9iamVjdHNSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNIvsCCgpPYmplY3RJbmZvEg0KBWluZGV4GAEgASgNEhAKCHN1YmluZGV4GAIgASgNEgwKBG5hbWUYAyABKAkSEwoLb2JqZWN0X25hbWUYBCABKAkSEAoIc3ViX25hbWUYBSABKAkSEwoLb2JqZWN0X3R5cGUYBiABKAkSIgoEdHlwZRgHIAEoDjIULmNhbmdhdGUudjEuRGF0YVR5cGUSEQoJdHlwZV9jb2RlGAggASgNEigKBmFjY2VzcxgJIAEoDjIYLmNhbmdhdGUudjEuT2JqZWN0QWNjZXNzEhQKDHBkb19tYXBwYWJsZRgKIAEoCBIoCg1kZWZhdWx0X3ZhbHVlGAsgASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZRIUCgxkZWZhdWx0X3RleHQYDCABKAkSJAoJbG93X2xpbWl0GA0gASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZRIlCgpoaWdoX2xpbWl0GA4gASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZSI+ChNMaXN0T2JqZWN0c1Jlc3BvbnNlEicKB29iamVjdHMYASADKAsyFi5jYW5nYXRlLnYxLk9iamVjdEluZm8iNQoSU2Nhbk5ldHdvcmtSZXF1ZXN0EgsKA2J1cxgBIAEoCRISCgp0aW1lb3V0X21zGAIgASgNIjYKE1NjYW5OZXR3b3JrUmVzcG9uc2USHwoFbm9kZXMYASADKAsyEC5jYW5nYXRlLnYxLk5vZGUiNQoXU3RyZWFtTm9kZUV2ZW50c1JlcXVlc3QSCwoDYnVzGAEgASgJEg0KBW5vZGVzGAIgAygNIsADCglOb2RlRXZlbnQSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SFAoMdGltZXN0YW1wX25zGAMgASgEEiUKB2Jvb3RfdXAYBCABKAsyEi5jYW5nYXRlLnYxLkJvb3RVcEgAEjAKDXN0YXRlX2NoYW5nZWQYBSABKAsyFy5jYW5nYXRlLnYxLlN0YXRlQ2hhbmdlSAASMwoOaGVhcnRiZWF0X2xvc3QYBiABKAsyGS5jYW5nYXRlLnYxLkhlYXJ0YmVhdExvc3RIABI9ChNoZWFydGJlYXRfcmVjb3ZlcmVkGAcgASgLMh4uY2FuZ2F0ZS52MS5IZWFydGJlYXRSZWNvdmVyZWRIABIgCgRlbWN5GAggASgLMhAuY2FuZ2F0ZS52MS5FbWN5SAASJgoEbG9zdBgJIAEoCzIWLmNhbmdhdGUudjEuRXZlbnRzTG9zdEgAEjMKDmJvb3RfY29tcGxldGVkGAogASgLMhkuY2FuZ2F0ZS52MS5Cb290Q29tcGxldGVkSAASLQoLYm9vdF9mYWlsZWQYCyABKAsyFi5jYW5nYXRlLnYxLkJvb3RGYWlsZWRIAEIHCgVldmVudCIPCg1Cb290Q29tcGxldGVkIhwKCkJvb3RGYWlsZWQSDgoGcmVhc29uGAEgASgJIi4KEFN0cmVhbVBkb1JlcXVlc3QSCwoDYnVzGAEgASgJEg0KBW5vZGVzGAIgAygNIlsKCFBkb1ZhbHVlEg0KBWluZGV4GAEgASgNEhAKCHN1YmluZGV4GAIgASgNEgwKBG5hbWUYAyABKAkSIAoFdmFsdWUYBCABKAsyES5jYW5nYXRlLnYxLlZhbHVlIpUBCgpQZG9NZXNzYWdlEgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEgsKA3BkbxgDIAEoDRIOCgZjb2JfaWQYBCABKA0SFAoMdGltZXN0YW1wX25zGAUgASgEEiQKBnZhbHVlcxgGIAMoCzIULmNhbmdhdGUudjEuUGRvVmFsdWUSEwoLbG9zdF9iZWZvcmUYByABKAQiXwoPV3JpdGVQZG9SZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEgsKA3BkbxgDIAEoDRIkCgZ2YWx1ZXMYBCADKAsyFC5jYW5nYXRlLnYxLlBkb1ZhbHVlIiAKEFdyaXRlUGRvUmVzcG9uc2USDAoEZGF0YRgBIAEoDCIICgZCb290VXAiUwoLU3RhdGVDaGFuZ2USIgoEZnJvbRgBIAEoDjIULmNhbmdhdGUudjEuTm10U3RhdGUSIAoCdG8YAiABKA4yFC5jYW5nYXRlLnYxLk5tdFN0YXRlIiMKDUhlYXJ0YmVhdExvc3QSEgoKdGltZW91dF9tcxgBIAEoDSJMChJIZWFydGJlYXRSZWNvdmVyZWQSIwoFc3RhdGUYASABKA4yFC5jYW5nYXRlLnYxLk5tdFN0YXRlEhEKCXNpbGVudF9tcxgCIAEoBCIbCgpFdmVudHNMb3N0Eg0KBWNvdW50GAEgASgEImEKD1Nkb0Fib3J0RGV0YWlscxIMCgRjb2RlGAEgASgNEgwKBG5hbWUYAiABKAkSDQoFaW5kZXgYAyABKA0SEAoIc3ViaW5kZXgYBCABKA0SEQoJZnJvbV9ub2RlGAUgASgIIiYKF0xpc3RTZG9UcmFuc2ZlcnNSZXF1ZXN0EgsKA2J1cxgBIAEoCSKRAQoLU2RvVHJhbnNmZXISDAoEbm9kZRgBIAEoDRINCgVpbmRleBgCIAEoDRIQCghzdWJpbmRleBgDIAEoDRIOCgZ1cGxvYWQYBCABKAgSEAoIcHJvdG9jb2wYBSABKAkSEwoLdHJhbnNmZXJyZWQYBiABKAQSEgoFdG90YWwYByABKARIAIgBAUIICgZfdG90YWwiRgoYTGlzdFNkb1RyYW5zZmVyc1Jlc3BvbnNlEioKCXRyYW5zZmVycxgBIAMoCzIXLmNhbmdhdGUudjEuU2RvVHJhbnNmZXIqjgEKCE5tdFN0YXRlEhUKEU5NVF9TVEFURV9VTktOT1dOEAASGgoWTk1UX1NUQVRFX0lOSVRJQUxJU0lORxABEhUKEU5NVF9TVEFURV9TVE9QUEVEEAISGQoVTk1UX1NUQVRFX09QRVJBVElPTkFMEAMSHQoZTk1UX1NUQVRFX1BSRV9PUEVSQVRJT05BTBAEKr4BCgpObXRDb21tYW5kEhsKF05NVF9DT01NQU5EX1VOU1BFQ0lGSUVEEAASFQoRTk1UX0NPTU1BTkRfU1RBUlQQARIUChBOTVRfQ09NTUFORF9TVE9QEAISJQohTk1UX0NPTU1BTkRfRU5URVJfUFJFX09QRVJBVElPTkFMEAMSGgoWTk1UX0NPTU1BTkRfUkVTRVRfTk9ERRAEEiMKH05NVF9DT01NQU5EX1JFU0VUX0NPTU1VTklDQVRJT04QBSqgAwoIRGF0YVR5cGUSGQoVREFUQV9UWVBFX1VOU1BFQ0lGSUVEEAASFQoRREFUQV9UWVBFX0JPT0xFQU4QARIWChJEQVRBX1RZUEVfSU5URUdFUjgQAhIXChNEQVRBX1RZUEVfSU5URUdFUjE2EAMSFwoTREFUQV9UWVBFX0lOVEVHRVIzMhAEEhcKE0RBVEFfVFlQRV9VTlNJR05FRDgQBRIYChREQVRBX1RZUEVfVU5TSUdORUQxNhAGEhgKFERBVEFfVFlQRV9VTlNJR05FRDMyEAcSFAoQREFUQV9UWVBFX1JFQUwzMhAIEhwKGERBVEFfVFlQRV9WSVNJQkxFX1NUUklORxAJEhoKFkRBVEFfVFlQRV9PQ1RFVF9TVFJJTkcQChIcChhEQVRBX1RZUEVfVU5JQ09ERV9TVFJJTkcQCxIUChBEQVRBX1RZUEVfRE9NQUlOEA8SFAoQREFUQV9UWVBFX1JFQUw2NBAREhcKE0RBVEFfVFlQRV9JTlRFR0VSNjQQFRIYChREQVRBX1RZUEVfVU5TSUdORUQ2NBAbKrYBCgxPYmplY3RBY2Nlc3MSHQoZT0JKRUNUX0FDQ0VTU19VTlNQRUNJRklFRBAAEhQKEE9CSkVDVF9BQ0NFU1NfUk8QARIUChBPQkpFQ1RfQUNDRVNTX1dPEAISFAoQT0JKRUNUX0FDQ0VTU19SVxADEhUKEU9CSkVDVF9BQ0NFU1NfUldSEAQSFQoRT0JKRUNUX0FDQ0VTU19SV1cQBRIXChNPQkpFQ1RfQUNDRVNTX0NPTlNUEAYyuAYKB0Nhbm9wZW4SSAoJTGlzdE5vZGVzEhwuY2FuZ2F0ZS52MS5MaXN0Tm9kZXNSZXF1ZXN0Gh0uY2FuZ2F0ZS52MS5MaXN0Tm9kZXNSZXNwb25zZRI3CgdHZXROb2RlEhouY2FuZ2F0ZS52MS5HZXROb2RlUmVxdWVzdBoQLmNhbmdhdGUudjEuTm9kZRJCCgdTZW5kTm10EhouY2FuZ2F0ZS52MS5TZW5kTm10UmVxdWVzdBobLmNhbmdhdGUudjEuU2VuZE5tdFJlc3BvbnNlEkIKB1JlYWRTZG8SGi5jYW5nYXRlLnYxLlJlYWRTZG9SZXF1ZXN0GhsuY2FuZ2F0ZS52MS5SZWFkU2RvUmVzcG9uc2USRQoIV3JpdGVTZG8SGy5jYW5nYXRlLnYxLldyaXRlU2RvUmVxdWVzdBocLmNhbmdhdGUudjEuV3JpdGVTZG9SZXNwb25zZRJOCgtMaXN0T2JqZWN0cxIeLmNhbmdhdGUudjEuTGlzdE9iamVjdHNSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5MaXN0T2JqZWN0c1Jlc3BvbnNlEl0KEExpc3RTZG9UcmFuc2ZlcnMSIy5jYW5nYXRlLnYxLkxpc3RTZG9UcmFuc2ZlcnNSZXF1ZXN0GiQuY2FuZ2F0ZS52MS5MaXN0U2RvVHJhbnNmZXJzUmVzcG9uc2USTgoLU2Nhbk5ldHdvcmsSHi5jYW5nYXRlLnYxLlNjYW5OZXR3b3JrUmVxdWVzdBofLmNhbmdhdGUudjEuU2Nhbk5ldHdvcmtSZXNwb25zZRJQChBTdHJlYW1Ob2RlRXZlbnRzEiMuY2FuZ2F0ZS52MS5TdHJlYW1Ob2RlRXZlbnRzUmVxdWVzdBoVLmNhbmdhdGUudjEuTm9kZUV2ZW50MAESQwoJU3RyZWFtUGRvEhwuY2FuZ2F0ZS52MS5TdHJlYW1QZG9SZXF1ZXN0GhYuY2FuZ2F0ZS52MS5QZG9NZXNzYWdlMAESRQoIV3JpdGVQZG8SGy5jYW5nYXRlLnYxLldyaXRlUGRvUmVxdWVzdBocLmNhbmdhdGUudjEuV3JpdGVQZG9SZXNwb25zZWIGcHJvdG8z");
 
 /**
  * A typed value. Integers of every width travel as int64/uint64; the
@@ -605,14 +611,14 @@ export type ReadSdoRequest = Message<"cangate.v1.ReadSdoRequest"> & {
   node: number;
 
   /**
-   * Object index.
+   * Object index (0 when `object` is given).
    *
    * @generated from field: uint32 index = 3;
    */
   index: number;
 
   /**
-   * Sub-index.
+   * Sub-index (0 when `object` is given).
    *
    * @generated from field: uint32 subindex = 4;
    */
@@ -632,6 +638,19 @@ export type ReadSdoRequest = Message<"cangate.v1.ReadSdoRequest"> & {
    * @generated from field: cangate.v1.SdoOptions options = 6;
    */
   options?: SdoOptions | undefined;
+
+  /**
+   * The object as a person names it, resolved with the node's EDS instead
+   * of index/subindex (which must then be 0): a ParameterName ("Producer
+   * heartbeat time"; a sub-object's alone when only one object has it),
+   * "object.sub" ("Identity object.Serial number", "0x1018.Vendor-ID") or
+   * an address ("0x1018:04", "1017"). Names match case-insensitively,
+   * with "_", "-" and spaces alike; as ObjectInfo.name shows them they
+   * always work. Empty: index/subindex. See the errors at the top.
+   *
+   * @generated from field: string object = 7;
+   */
+  object: string;
 };
 
 /**
@@ -690,14 +709,14 @@ export type WriteSdoRequest = Message<"cangate.v1.WriteSdoRequest"> & {
   node: number;
 
   /**
-   * Object index.
+   * Object index (0 when `object` is given).
    *
    * @generated from field: uint32 index = 3;
    */
   index: number;
 
   /**
-   * Sub-index.
+   * Sub-index (0 when `object` is given).
    *
    * @generated from field: uint32 subindex = 4;
    */
@@ -711,7 +730,11 @@ export type WriteSdoRequest = Message<"cangate.v1.WriteSdoRequest"> & {
    */
   data: {
     /**
-     * A typed value.
+     * A typed value. With type DATA_TYPE_UNSPECIFIED the object's type in
+     * the node's EDS is used (INVALID_ARGUMENT when the EDS does not have
+     * the object): numbers, booleans and bytes are converted to it, and a
+     * string_value for a non-string type is parsed as a person types it
+     * ("100", "0x64", "-5", "true", "1.5", hex bytes "DE AD").
      *
      * @generated from field: cangate.v1.Value value = 5;
      */
@@ -735,6 +758,14 @@ export type WriteSdoRequest = Message<"cangate.v1.WriteSdoRequest"> & {
    * @generated from field: cangate.v1.SdoOptions options = 7;
    */
   options?: SdoOptions | undefined;
+
+  /**
+   * The object by name instead of index/subindex, as in
+   * ReadSdoRequest.object.
+   *
+   * @generated from field: string object = 8;
+   */
+  object: string;
 };
 
 /**
@@ -766,6 +797,176 @@ export const WriteSdoResponseSchema: GenMessage<WriteSdoResponse> = /*@__PURE__*
   messageDesc(file_cangate_v1_canopen, 13);
 
 /**
+ * ListObjects request.
+ *
+ * @generated from message cangate.v1.ListObjectsRequest
+ */
+export type ListObjectsRequest = Message<"cangate.v1.ListObjectsRequest"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * Node id.
+   *
+   * @generated from field: uint32 node = 2;
+   */
+  node: number;
+};
+
+/**
+ * Describes the message cangate.v1.ListObjectsRequest.
+ * Use `create(ListObjectsRequestSchema)` to create a new message.
+ */
+export const ListObjectsRequestSchema: GenMessage<ListObjectsRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 14);
+
+/**
+ * One sub-object of a node's object dictionary (from its EDS/DCF).
+ *
+ * @generated from message cangate.v1.ObjectInfo
+ */
+export type ObjectInfo = Message<"cangate.v1.ObjectInfo"> & {
+  /**
+   * Object index.
+   *
+   * @generated from field: uint32 index = 1;
+   */
+  index: number;
+
+  /**
+   * Sub-index (0 for a VAR).
+   *
+   * @generated from field: uint32 subindex = 2;
+   */
+  subindex: number;
+
+  /**
+   * The name to give ReadSdoRequest.object / WriteSdoRequest.object: the
+   * ParameterName for a single-value object ("Producer heartbeat time"),
+   * "object.sub" for a sub-object of an ARRAY or RECORD ("Identity
+   * object.Vendor-ID").
+   *
+   * @generated from field: string name = 3;
+   */
+  name: string;
+
+  /**
+   * The object's ParameterName ("Identity object").
+   *
+   * @generated from field: string object_name = 4;
+   */
+  objectName: string;
+
+  /**
+   * The sub-object's ParameterName ("Vendor-ID"; for a VAR the same as
+   * object_name).
+   *
+   * @generated from field: string sub_name = 5;
+   */
+  subName: string;
+
+  /**
+   * The object's code: "VAR", "ARRAY", "RECORD", "DOMAIN", "DEFTYPE",
+   * "DEFSTRUCT" or "NULL".
+   *
+   * @generated from field: string object_type = 6;
+   */
+  objectType: string;
+
+  /**
+   * Data type (DATA_TYPE_UNSPECIFIED for a type this enum does not name;
+   * type_code has it).
+   *
+   * @generated from field: cangate.v1.DataType type = 7;
+   */
+  type: DataType;
+
+  /**
+   * The CiA 301 data type code (0x0007 for UNSIGNED32).
+   *
+   * @generated from field: uint32 type_code = 8;
+   */
+  typeCode: number;
+
+  /**
+   * Access rights.
+   *
+   * @generated from field: cangate.v1.ObjectAccess access = 9;
+   */
+  access: ObjectAccess;
+
+  /**
+   * May be mapped into a PDO.
+   *
+   * @generated from field: bool pdo_mappable = 10;
+   */
+  pdoMappable: boolean;
+
+  /**
+   * The initial value on this node (a DCF's ParameterValue, else the
+   * DefaultValue, with $NODEID resolved), when the EDS gives one and its
+   * type is one DataType names.
+   *
+   * @generated from field: cangate.v1.Value default_value = 11;
+   */
+  defaultValue?: Value | undefined;
+
+  /**
+   * The default as the EDS writes it ("$NODEID+0x180", "1000"); empty
+   * when there is none.
+   *
+   * @generated from field: string default_text = 12;
+   */
+  defaultText: string;
+
+  /**
+   * LowLimit, when given.
+   *
+   * @generated from field: cangate.v1.Value low_limit = 13;
+   */
+  lowLimit?: Value | undefined;
+
+  /**
+   * HighLimit, when given.
+   *
+   * @generated from field: cangate.v1.Value high_limit = 14;
+   */
+  highLimit?: Value | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.ObjectInfo.
+ * Use `create(ObjectInfoSchema)` to create a new message.
+ */
+export const ObjectInfoSchema: GenMessage<ObjectInfo> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 15);
+
+/**
+ * ListObjects response.
+ *
+ * @generated from message cangate.v1.ListObjectsResponse
+ */
+export type ListObjectsResponse = Message<"cangate.v1.ListObjectsResponse"> & {
+  /**
+   * Every sub-object, by index and sub-index.
+   *
+   * @generated from field: repeated cangate.v1.ObjectInfo objects = 1;
+   */
+  objects: ObjectInfo[];
+};
+
+/**
+ * Describes the message cangate.v1.ListObjectsResponse.
+ * Use `create(ListObjectsResponseSchema)` to create a new message.
+ */
+export const ListObjectsResponseSchema: GenMessage<ListObjectsResponse> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 16);
+
+/**
  * ScanNetwork request.
  *
  * @generated from message cangate.v1.ScanNetworkRequest
@@ -792,7 +993,7 @@ export type ScanNetworkRequest = Message<"cangate.v1.ScanNetworkRequest"> & {
  * Use `create(ScanNetworkRequestSchema)` to create a new message.
  */
 export const ScanNetworkRequestSchema: GenMessage<ScanNetworkRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 14);
+  messageDesc(file_cangate_v1_canopen, 17);
 
 /**
  * ScanNetwork response.
@@ -813,7 +1014,7 @@ export type ScanNetworkResponse = Message<"cangate.v1.ScanNetworkResponse"> & {
  * Use `create(ScanNetworkResponseSchema)` to create a new message.
  */
 export const ScanNetworkResponseSchema: GenMessage<ScanNetworkResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 15);
+  messageDesc(file_cangate_v1_canopen, 18);
 
 /**
  * StreamNodeEvents request.
@@ -841,7 +1042,7 @@ export type StreamNodeEventsRequest = Message<"cangate.v1.StreamNodeEventsReques
  * Use `create(StreamNodeEventsRequestSchema)` to create a new message.
  */
 export const StreamNodeEventsRequestSchema: GenMessage<StreamNodeEventsRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 16);
+  messageDesc(file_cangate_v1_canopen, 19);
 
 /**
  * Something that happened to a node.
@@ -947,7 +1148,7 @@ export type NodeEvent = Message<"cangate.v1.NodeEvent"> & {
  * Use `create(NodeEventSchema)` to create a new message.
  */
 export const NodeEventSchema: GenMessage<NodeEvent> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 17);
+  messageDesc(file_cangate_v1_canopen, 20);
 
 /**
  * Boot procedure succeeded.
@@ -962,7 +1163,7 @@ export type BootCompleted = Message<"cangate.v1.BootCompleted"> & {
  * Use `create(BootCompletedSchema)` to create a new message.
  */
 export const BootCompletedSchema: GenMessage<BootCompleted> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 18);
+  messageDesc(file_cangate_v1_canopen, 21);
 
 /**
  * Boot procedure failed.
@@ -984,7 +1185,7 @@ export type BootFailed = Message<"cangate.v1.BootFailed"> & {
  * Use `create(BootFailedSchema)` to create a new message.
  */
 export const BootFailedSchema: GenMessage<BootFailed> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 19);
+  messageDesc(file_cangate_v1_canopen, 22);
 
 /**
  * StreamPdo request.
@@ -1012,7 +1213,7 @@ export type StreamPdoRequest = Message<"cangate.v1.StreamPdoRequest"> & {
  * Use `create(StreamPdoRequestSchema)` to create a new message.
  */
 export const StreamPdoRequestSchema: GenMessage<StreamPdoRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 20);
+  messageDesc(file_cangate_v1_canopen, 23);
 
 /**
  * One mapped object of a PDO.
@@ -1054,7 +1255,7 @@ export type PdoValue = Message<"cangate.v1.PdoValue"> & {
  * Use `create(PdoValueSchema)` to create a new message.
  */
 export const PdoValueSchema: GenMessage<PdoValue> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 21);
+  messageDesc(file_cangate_v1_canopen, 24);
 
 /**
  * A decoded PDO, or a notice of missed PDOs.
@@ -1117,7 +1318,7 @@ export type PdoMessage = Message<"cangate.v1.PdoMessage"> & {
  * Use `create(PdoMessageSchema)` to create a new message.
  */
 export const PdoMessageSchema: GenMessage<PdoMessage> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 22);
+  messageDesc(file_cangate_v1_canopen, 25);
 
 /**
  * WritePdo request.
@@ -1161,7 +1362,7 @@ export type WritePdoRequest = Message<"cangate.v1.WritePdoRequest"> & {
  * Use `create(WritePdoRequestSchema)` to create a new message.
  */
 export const WritePdoRequestSchema: GenMessage<WritePdoRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 23);
+  messageDesc(file_cangate_v1_canopen, 26);
 
 /**
  * WritePdo response.
@@ -1182,7 +1383,7 @@ export type WritePdoResponse = Message<"cangate.v1.WritePdoResponse"> & {
  * Use `create(WritePdoResponseSchema)` to create a new message.
  */
 export const WritePdoResponseSchema: GenMessage<WritePdoResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 24);
+  messageDesc(file_cangate_v1_canopen, 27);
 
 /**
  * Boot-up message received.
@@ -1197,7 +1398,7 @@ export type BootUp = Message<"cangate.v1.BootUp"> & {
  * Use `create(BootUpSchema)` to create a new message.
  */
 export const BootUpSchema: GenMessage<BootUp> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 25);
+  messageDesc(file_cangate_v1_canopen, 28);
 
 /**
  * NMT state change.
@@ -1225,7 +1426,7 @@ export type StateChange = Message<"cangate.v1.StateChange"> & {
  * Use `create(StateChangeSchema)` to create a new message.
  */
 export const StateChangeSchema: GenMessage<StateChange> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 26);
+  messageDesc(file_cangate_v1_canopen, 29);
 
 /**
  * Heartbeat overdue.
@@ -1246,7 +1447,7 @@ export type HeartbeatLost = Message<"cangate.v1.HeartbeatLost"> & {
  * Use `create(HeartbeatLostSchema)` to create a new message.
  */
 export const HeartbeatLostSchema: GenMessage<HeartbeatLost> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 27);
+  messageDesc(file_cangate_v1_canopen, 30);
 
 /**
  * Heartbeat back after a loss.
@@ -1274,7 +1475,7 @@ export type HeartbeatRecovered = Message<"cangate.v1.HeartbeatRecovered"> & {
  * Use `create(HeartbeatRecoveredSchema)` to create a new message.
  */
 export const HeartbeatRecoveredSchema: GenMessage<HeartbeatRecovered> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 28);
+  messageDesc(file_cangate_v1_canopen, 31);
 
 /**
  * Events this client missed.
@@ -1295,7 +1496,7 @@ export type EventsLost = Message<"cangate.v1.EventsLost"> & {
  * Use `create(EventsLostSchema)` to create a new message.
  */
 export const EventsLostSchema: GenMessage<EventsLost> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 29);
+  messageDesc(file_cangate_v1_canopen, 32);
 
 /**
  * The SDO abort of an error caused by an SDO transfer (ErrorInfo reason
@@ -1354,7 +1555,7 @@ export type SdoAbortDetails = Message<"cangate.v1.SdoAbortDetails"> & {
  * Use `create(SdoAbortDetailsSchema)` to create a new message.
  */
 export const SdoAbortDetailsSchema: GenMessage<SdoAbortDetails> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 30);
+  messageDesc(file_cangate_v1_canopen, 33);
 
 /**
  * ListSdoTransfers request.
@@ -1375,7 +1576,7 @@ export type ListSdoTransfersRequest = Message<"cangate.v1.ListSdoTransfersReques
  * Use `create(ListSdoTransfersRequestSchema)` to create a new message.
  */
 export const ListSdoTransfersRequestSchema: GenMessage<ListSdoTransfersRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 31);
+  messageDesc(file_cangate_v1_canopen, 34);
 
 /**
  * One running SDO transfer.
@@ -1438,7 +1639,7 @@ export type SdoTransfer = Message<"cangate.v1.SdoTransfer"> & {
  * Use `create(SdoTransferSchema)` to create a new message.
  */
 export const SdoTransferSchema: GenMessage<SdoTransfer> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 32);
+  messageDesc(file_cangate_v1_canopen, 35);
 
 /**
  * ListSdoTransfers response.
@@ -1459,7 +1660,7 @@ export type ListSdoTransfersResponse = Message<"cangate.v1.ListSdoTransfersRespo
  * Use `create(ListSdoTransfersResponseSchema)` to create a new message.
  */
 export const ListSdoTransfersResponseSchema: GenMessage<ListSdoTransfersResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 33);
+  messageDesc(file_cangate_v1_canopen, 36);
 
 /**
  * NMT states (CiA 301).
@@ -1690,6 +1891,68 @@ export const DataTypeSchema: GenEnum<DataType> = /*@__PURE__*/
   enumDesc(file_cangate_v1_canopen, 2);
 
 /**
+ * Access rights of an object (EDS AccessType).
+ *
+ * @generated from enum cangate.v1.ObjectAccess
+ */
+export enum ObjectAccess {
+  /**
+   * Not given.
+   *
+   * @generated from enum value: OBJECT_ACCESS_UNSPECIFIED = 0;
+   */
+  UNSPECIFIED = 0,
+
+  /**
+   * "ro": read only.
+   *
+   * @generated from enum value: OBJECT_ACCESS_RO = 1;
+   */
+  RO = 1,
+
+  /**
+   * "wo": write only.
+   *
+   * @generated from enum value: OBJECT_ACCESS_WO = 2;
+   */
+  WO = 2,
+
+  /**
+   * "rw": read and write.
+   *
+   * @generated from enum value: OBJECT_ACCESS_RW = 3;
+   */
+  RW = 3,
+
+  /**
+   * "rwr": read and write, mappable into TPDOs (the device writes it).
+   *
+   * @generated from enum value: OBJECT_ACCESS_RWR = 4;
+   */
+  RWR = 4,
+
+  /**
+   * "rww": read and write, mappable into RPDOs (the bus writes it).
+   *
+   * @generated from enum value: OBJECT_ACCESS_RWW = 5;
+   */
+  RWW = 5,
+
+  /**
+   * "const": read only, never changes.
+   *
+   * @generated from enum value: OBJECT_ACCESS_CONST = 6;
+   */
+  CONST = 6,
+}
+
+/**
+ * Describes the enum cangate.v1.ObjectAccess.
+ */
+export const ObjectAccessSchema: GenEnum<ObjectAccess> = /*@__PURE__*/
+  enumDesc(file_cangate_v1_canopen, 3);
+
+/**
  * CANopen master: nodes, NMT, SDO, events.
  *
  * @generated from service cangate.v1.Canopen
@@ -1746,6 +2009,19 @@ export const Canopen: GenService<{
     methodKind: "unary";
     input: typeof WriteSdoRequestSchema;
     output: typeof WriteSdoResponseSchema;
+  },
+  /**
+   * A node's object dictionary as its EDS describes it (no SDO transfer):
+   * every sub-object with its name, type, access, PDO mappability,
+   * default and limits, in index/sub-index order. NOT_FOUND for an unknown
+   * bus or node, FAILED_PRECONDITION for a node without an EDS.
+   *
+   * @generated from rpc cangate.v1.Canopen.ListObjects
+   */
+  listObjects: {
+    methodKind: "unary";
+    input: typeof ListObjectsRequestSchema;
+    output: typeof ListObjectsResponseSchema;
   },
   /**
    * SDO transfers in progress on a bus (for progress bars of large
