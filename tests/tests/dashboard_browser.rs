@@ -212,18 +212,23 @@ async fn send_with_the_cli(c: &cangate_client::Client, server: &str) {
     }
 }
 
+/// An axis's live status over gRPC.
+async fn axis_status(c: &cangate_client::Client, axis: &str) -> pb::AxisStatus {
+    c.axes_client()
+        .get_axis(pb::GetAxisRequest { axis: axis.into() })
+        .await
+        .expect("GetAxis")
+        .into_inner()
+        .status
+        .expect("status")
+}
+
 /// X is free well before its lease (3 s, renewed every second) could have
 /// lapsed: the page gave it back as it went away.
 async fn released_at_once(c: &cangate_client::Client) {
     let started = std::time::Instant::now();
     loop {
-        let x = c
-            .axes_client()
-            .get_axis(pb::GetAxisRequest { axis: "X".into() })
-            .await
-            .expect("GetAxis")
-            .into_inner();
-        let holder = x.status.expect("status").controlled_by;
+        let holder = axis_status(c, "X").await.controlled_by;
         if holder.is_empty() {
             return;
         }
@@ -265,14 +270,7 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
                 "turn" => return turn_wheel(&c).await,
                 "lease-released" => released_at_once(&c).await,
                 "x-at-12.5" => {
-                    let st = c
-                        .axes_client()
-                        .get_axis(pb::GetAxisRequest { axis: "X".into() })
-                        .await
-                        .expect("GetAxis")
-                        .into_inner()
-                        .status
-                        .expect("status");
+                    let st = axis_status(&c, "X").await;
                     assert!(
                         (st.position - 12.5).abs() < 0.002,
                         "X over gRPC at {} after the page's move to 12.5",
@@ -328,26 +326,13 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
     // What the page did, seen over gRPC: Y came to rest after the jog,
     // and X was stopped by STOP ALL on its way from 12.5 to -150 (the move
     // to 12.5 was checked on the page; the stop moved X on since).
-    let mut axes = c.axes_client();
     for name in ["X", "Y"] {
-        let a = axes
-            .get_axis(pb::GetAxisRequest { axis: name.into() })
-            .await
-            .expect("GetAxis")
-            .into_inner();
-        let st = a.status.expect("status");
+        let st = axis_status(&c, name).await;
         assert_eq!(st.velocity, 0.0, "{name} at rest");
         assert_eq!(st.activity, pb::AxisActivity::Idle as i32, "{name} idle");
         assert_eq!(st.state, pb::DriveState::OperationEnabled as i32);
     }
-    let x = axes
-        .get_axis(pb::GetAxisRequest { axis: "X".into() })
-        .await
-        .unwrap()
-        .into_inner()
-        .status
-        .unwrap()
-        .position;
+    let x = axis_status(&c, "X").await.position;
     let on_page: f64 = step("stop-all")
         .strip_prefix("x=")
         .and_then(|v| v.parse().ok())
@@ -366,13 +351,7 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
     // the plateau, so only the bound the velocity input sets is checked
     // (the axis's maximum is 100).
     assert!(vmax > 1.0 && vmax < 25.0, "{home_move}");
-    let x_status = axes
-        .get_axis(pb::GetAxisRequest { axis: "X".into() })
-        .await
-        .unwrap()
-        .into_inner()
-        .status
-        .unwrap();
+    let x_status = axis_status(&c, "X").await;
     assert!(x_status.homed, "X homed by the page");
 
     // can0 carries the demo's SYNC and process data: its charted load
@@ -702,13 +681,7 @@ async fn a_gateway_with_tokens_asks_for_one_and_honours_the_role() {
     )
     .await
     .unwrap();
-    let x = c
-        .axes_client()
-        .get_axis(pb::GetAxisRequest { axis: "X".into() })
-        .await
-        .unwrap()
-        .into_inner();
-    assert_eq!(x.status.unwrap().controlled_by, "");
+    assert_eq!(axis_status(&c, "X").await.controlled_by, "");
     server.shutdown();
 }
 
