@@ -590,3 +590,150 @@ async fn frame_budget_and_connection_limit_apply_to_socketcand_clients() {
     drop(second);
     server.shutdown();
 }
+
+/// `cangate_socketcand_frames_lost_total` of bus can0 on the gateway's
+/// metrics endpoint (0 before the first loss).
+async fn socketcand_lost(metrics: SocketAddr) -> u64 {
+    let mut s = tokio::net::TcpStream::connect(metrics)
+        .await
+        .expect("metrics");
+    s.write_all(b"GET /metrics HTTP/1.1\r\nHost: x\r\n\r\n")
+        .await
+        .expect("request");
+    let mut text = String::new();
+    tokio::time::timeout(WAIT, s.read_to_string(&mut text))
+        .await
+        .expect("metrics in time")
+        .expect("metrics read");
+    text.lines()
+        .find(|l| {
+            l.starts_with("cangate_socketcand_frames_lost_total{") && l.contains("bus=\"can0\"")
+        })
+        .and_then(|l| l.rsplit(' ').next()?.parse::<f64>().ok())
+        .map_or(0, |v| v as u64)
+}
+
+/// A socketcand client that stops reading loses frames at the gateway
+/// (counted in the metric; socketcand's protocol cannot tell it) and hurts
+/// nobody: a gRPC client streaming the same frames loses only what the
+/// gateway itself could not take from the flood (reported to it as lost
+/// frames, as to every subscriber), and the slow client's connection works
+/// again once it reads. Every frame is accounted for on both.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_slow_socketcand_reader_loses_frames_and_nobody_else_does() {
+    const FLOOD: u64 = 200_000;
+    let text = format!(
+        "listen = \"127.0.0.1:0\"\nmetrics_listen = \"127.0.0.1:0\"\n{ONE_BUS}\
+         [socketcand]\nlisten = \"127.0.0.1:0\"\nqueue_length = 1024\n\
+         [security.limits]\nraw_frames_per_second_per_client = 0\n\
+         max_stream_queue = 1000000\nmax_stream_queue_per_client = 1000000\n"
+    );
+    let server = cangate_server::start(&Config::from_toml(&text).unwrap())
+        .await
+        .expect("server starts");
+    let addr = server.socketcand_addr.expect("socketcand listens");
+    let metrics = server.metrics_addr.expect("metrics listen");
+    let lost_before = socketcand_lost(metrics).await;
+
+    // The slow client: a small receive buffer, so that the kernel's
+    // buffers do not absorb the flood; it opens can0 and stops reading.
+    let socket = tokio::net::TcpSocket::new_v4().expect("socket");
+    socket.set_recv_buffer_size(4096).expect("SO_RCVBUF");
+    let stream = socket.connect(addr).await.expect("connects");
+    let mut slow = Raw {
+        stream,
+        buf: Vec::new(),
+    };
+    assert_eq!(slow.element().await.as_deref(), Some("< hi >"));
+    slow.send(b"< open can0 >< rawmode >").await;
+    assert_eq!(slow.element().await.as_deref(), Some("< ok >"));
+    assert_eq!(slow.element().await.as_deref(), Some("< ok >"));
+    // Past the frames' hold after rawmode (RAW_SETTLE).
+    tokio::time::sleep(Duration::from_millis(100)).await;
+
+    // A gRPC client streaming the same frames with room for all of them.
+    let mut c = client(&server).await;
+    let mut req = stream_request("can0", vec![exact(0x321, false)]);
+    req.queue_length = FLOOD as u32 + 1000;
+    let (mut watch, mut pending) = open_stream(&mut c, req).await;
+    let sender = client(&server).await;
+    let flood = tokio::spawn(async move {
+        for batch in 0..FLOOD / 10_000 {
+            let frames = (0..10_000)
+                .map(|i| data_frame(0x321, false, &((batch * 10_000 + i) as u32).to_le_bytes()))
+                .collect();
+            sender
+                .bus_client()
+                .send_frames(pb::SendFramesRequest {
+                    bus: "can0".into(),
+                    frames,
+                })
+                .await
+                .expect("flood batch sent");
+        }
+    });
+    let (mut seen, mut grpc_lost) = (0u64, 0u64);
+    while seen + grpc_lost < FLOOD {
+        let m = tokio::time::timeout(WAIT, watch.message())
+            .await
+            .unwrap_or_else(|_| panic!("the gRPC stream stalled: {seen} frames, {grpc_lost} lost"))
+            .expect("stream ok")
+            .expect("stream open");
+        pending.extend(m.events);
+        for ev in pending.drain(..) {
+            match ev.event {
+                Some(pb::stream_event::Event::Frame(_)) => seen += 1,
+                Some(pb::stream_event::Event::Lost(l)) => grpc_lost += l.count,
+                _ => {}
+            }
+        }
+    }
+    flood.await.expect("flood");
+    // The gRPC client lost only what the gateway itself lost.
+    let gateway_lost = server
+        .gateway()
+        .buses()
+        .find(|b| b.name() == "can0")
+        .expect("can0")
+        .stats()
+        .rx_overflows;
+    assert_eq!(grpc_lost, gateway_lost, "{seen} frames seen");
+
+    // Reading again, the slow client gets the frames still queued for it
+    // and the answer to its echo (which may overtake the last queued
+    // frames): the connection survived.
+    slow.send(b"< echo >").await;
+    let mut frames = 0u64;
+    let mut echoed = false;
+    loop {
+        let next = tokio::time::timeout(Duration::from_millis(500), slow.element()).await;
+        let Ok(e) = next else { break }; // quiet: everything was read
+        let e = e.expect("the connection is open");
+        if e == "< echo >" {
+            echoed = true;
+            continue;
+        }
+        assert!(e.starts_with("< frame 321 "), "{e}");
+        frames += 1;
+    }
+    assert!(echoed, "the slow client's echo was answered");
+    // The loss notice reaches the connection (and the metric) once its
+    // queue has room again: within the bus task's next tick after the
+    // reading resumed.
+    let deadline = tokio::time::Instant::now() + WAIT;
+    let mut lost = socketcand_lost(metrics).await - lost_before;
+    while frames + lost < FLOOD && tokio::time::Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        lost = socketcand_lost(metrics).await - lost_before;
+    }
+    assert!(
+        lost > gateway_lost,
+        "the slow client lost {lost}, no more than the gateway's own {gateway_lost}"
+    );
+    assert_eq!(
+        frames + lost,
+        FLOOD,
+        "what the slow client received and what it lost are the flood"
+    );
+    server.shutdown();
+}

@@ -912,6 +912,10 @@ async fn run_bus(
     let mut events = Vec::with_capacity(256);
     let mut port_events = Vec::with_capacity(256);
     let mut tick = tokio::time::interval(Duration::from_millis(20));
+    // A virtual port's receive overflows as far as the subscribers were
+    // told (SocketCAN reports its drops as events; a virtual port only
+    // counts them).
+    let mut virtual_lost_told = 0u64;
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     tracing::info!(bus = %name, backend = ?shared.info.kind, interface = %shared.info.interface, "bus started");
     // One cancellation future for the whole loop: a fresh one per turn
@@ -990,6 +994,7 @@ async fn run_bus(
                         }
                     }
                 }
+                tell_virtual_losses(&backend, &shared, &mut virtual_lost_told);
             }
             req = recv_paced(&mut paced_rx) => {
                 match req {
@@ -1009,6 +1014,7 @@ async fn run_bus(
                 let pct = load.load_percent(Timestamp::now().as_nanos());
                 shared.counters.load_millipercent.store((pct * 1000.0) as u64, Ordering::Relaxed);
                 shared.counters.rx_overflows.store(backend.overflows(), Ordering::Relaxed);
+                tell_virtual_losses(&backend, &shared, &mut virtual_lost_told);
                 store_tx_counters(&shared, &backend);
             }
         }
@@ -1312,6 +1318,22 @@ fn client_echo_end(shared: &Shared, n: u64) {
     if before <= n {
         let subs = shared.subscribers.lock().expect("subscriber lock");
         update_echo(shared, &subs);
+    }
+}
+
+/// Frames a virtual port dropped because its receive queue was full since
+/// the subscribers were last told (`told`): every subscriber learns of
+/// them, as of a SocketCAN interface's drops. (Among them may be echoes of
+/// client frames: those frames went out on the bus, but the gateway could
+/// not publish them.)
+fn tell_virtual_losses(backend: &Backend, shared: &Shared, told: &mut u64) {
+    if let Backend::Virtual(p) = backend {
+        let now = p.overflows();
+        if now > *told {
+            shared.counters.rx_overflows.store(now, Ordering::Relaxed);
+            fanout_lost(shared, now - *told);
+            *told = now;
+        }
     }
 }
 
