@@ -357,14 +357,16 @@ export type Node = Message<"cangate.v1.Node"> & {
   state: NmtState;
 
   /**
-   * Milliseconds since the last heartbeat (absent if never heard).
+   * Milliseconds since the last heartbeat (absent if never heard); for a
+   * guarded node since its last valid guarding answer.
    *
    * @generated from field: optional uint64 heartbeat_age_ms = 5;
    */
   heartbeatAgeMs?: bigint | undefined;
 
   /**
-   * The heartbeat is monitored and overdue.
+   * The heartbeat is monitored and overdue, or the guarded node answered
+   * no request within its life time.
    *
    * @generated from field: bool heartbeat_lost = 6;
    */
