@@ -441,6 +441,7 @@ fn node_facts(
         eds,
         heartbeat_timeout: (nc.heartbeat_timeout_ms > 0)
             .then(|| Duration::from_millis(nc.heartbeat_timeout_ms)),
+        guarding: nc.guarding(),
         // The CiA 402 axis task of the bus reads its drive's TPDOs from
         // the bus itself.
         tpdos_read_by_axis: axis.is_some(),

@@ -210,6 +210,17 @@ fn node_text(n: &pb::Node) -> String {
             ),
         ),
         ("boot-ups", n.boot_ups.to_string()),
+        (
+            "guarding",
+            if n.monitoring == pb::LifeMonitoring::NodeGuarding as i32 {
+                format!(
+                    "guard time {} ms x {} (the heartbeat row is its answers), {} toggle errors",
+                    n.guard_time_ms, n.life_time_factor, n.guarding_toggle_errors
+                )
+            } else {
+                "-".into()
+            },
+        ),
         ("configured", if n.configured { "yes" } else { "no" }.into()),
     ];
     for e in &n.emcy_history {
@@ -377,11 +388,25 @@ fn event_text(ev: &pb::NodeEvent) -> Option<String> {
     let what = match ev.event.as_ref()? {
         E::BootUp(_) => "boot-up".to_string(),
         E::StateChanged(c) => format!("state {} -> {}", state(c.from), state(c.to)),
+        E::HeartbeatLost(l) if l.monitoring == pb::LifeMonitoring::NodeGuarding as i32 => {
+            format!("node guarding lost (life time {} ms)", l.timeout_ms)
+        }
         E::HeartbeatLost(l) => format!("heartbeat lost (timeout {} ms)", l.timeout_ms),
         E::HeartbeatRecovered(r) => format!(
-            "heartbeat recovered after {} ms ({})",
+            "{} recovered after {} ms ({})",
+            if r.monitoring == pb::LifeMonitoring::NodeGuarding as i32 {
+                "node guarding"
+            } else {
+                "heartbeat"
+            },
             r.silent_ms,
             state(r.state)
+        ),
+        E::GuardingToggleError(t) => format!(
+            "node guarding toggle error: answer 0x{:02X}, toggle {} expected ({} so far)",
+            t.data,
+            u8::from(t.expected_toggle),
+            t.count
         ),
         E::Emcy(e) => format!(
             "EMCY 0x{:04X} {} (register 0x{:02X})",

@@ -11,8 +11,9 @@
 //! A boot-up message (`[0x00]`) means the node has entered pre-operational:
 //! the consumer records it as [`NmtState::PreOperational`].
 //!
-//! TODO: node guarding (master RTR to 0x700+n, reply `[toggle | state]`,
-//! guard time × life time factor) is not implemented; node-guarding replies
+//! Node guarding (master RTR to 0x700+n, reply `[toggle | state]`, guard
+//! time × life time factor) is [`crate::node_guarding`]; the master routes a
+//! guarded node's 0x700+n frames there instead. Seen here, guarding replies
 //! with bit 7 set and RTR frames are reported as [`HeartbeatEvent::Malformed`].
 
 use std::collections::BTreeMap;

@@ -19,6 +19,7 @@ pub mod heartbeat;
 pub mod ids;
 pub mod master;
 pub mod nmt;
+pub mod node_guarding;
 pub mod od;
 pub mod pdo;
 pub mod sdo;

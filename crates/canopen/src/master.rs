@@ -1,6 +1,7 @@
 //! The CANopen master of one bus, as one sans-IO state machine: SDO clients
 //! for every node (one transfer at a time per node, queued; different nodes
-//! concurrently), the heartbeat consumer, the EMCY consumer and the SYNC
+//! concurrently), the heartbeat consumer, node guarding (for nodes guarded
+//! instead of producing a heartbeat), the EMCY consumer and the SYNC
 //! producer.
 //!
 //! The runner feeds it every received frame and ticks it at
@@ -19,6 +20,7 @@
 use crate::emcy::{EmcyConsumer, EmcyEvent};
 use crate::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
 use crate::ids::{CobFunction, NodeId, ObjectAddress};
+use crate::node_guarding::{GuardingEvent, NodeGuarding};
 use crate::sdo::{Progress, SdoClient, SdoError, StartError, TransferOptions, TransferOutcome};
 use crate::sync::SyncProducer;
 use cangate_can::Frame;
@@ -64,6 +66,8 @@ pub enum SdoRequest {
 pub enum MasterEvent {
     /// From the heartbeat consumer.
     Heartbeat(HeartbeatEvent),
+    /// From node guarding.
+    Guarding(GuardingEvent),
     /// From the EMCY consumer.
     Emcy(EmcyEvent),
     /// An SDO request ended.
@@ -120,6 +124,7 @@ pub struct Master {
     sdo: BTreeMap<NodeId, NodeSdo>,
     sdo_timeout: Duration,
     heartbeat: HeartbeatConsumer,
+    guarding: NodeGuarding,
     emcy: EmcyConsumer,
     sync: Option<SyncProducer>,
 }
@@ -131,6 +136,7 @@ impl Master {
             sdo: BTreeMap::new(),
             sdo_timeout,
             heartbeat: HeartbeatConsumer::new(),
+            guarding: NodeGuarding::new(),
             emcy: EmcyConsumer::default(),
             sync: None,
         }
@@ -139,6 +145,20 @@ impl Master {
     /// Monitors a node's heartbeat with a consumer timeout.
     pub fn monitor_heartbeat(&mut self, node: NodeId, timeout: Duration) {
         self.heartbeat.monitor(node, timeout);
+    }
+
+    /// Guards a node (CiA 301 node guarding): an RTR to 0x700+n every
+    /// `guard_time`, lost after `life_time_factor` unanswered requests in a
+    /// row. The node's 0x700+n frames go to the guarding, not to the
+    /// heartbeat consumer (a node uses one or the other).
+    pub fn guard_node(&mut self, node: NodeId, guard_time: Duration, life_time_factor: u8) {
+        self.heartbeat.unmonitor(node);
+        self.guarding.guard(node, guard_time, life_time_factor);
+    }
+
+    /// Node guarding (states, toggle errors, losses).
+    pub fn guarding(&self) -> &NodeGuarding {
+        &self.guarding
     }
 
     /// Starts producing SYNC.
@@ -280,6 +300,14 @@ impl Master {
                     Self::finish_step(node, n, step, now, out);
                 }
             }
+            CobFunction::Heartbeat(node) if self.guarding.is_guarded(node) => {
+                out.events.extend(
+                    self.guarding
+                        .on_frame(frame, now)
+                        .into_iter()
+                        .map(MasterEvent::Guarding),
+                );
+            }
             CobFunction::Heartbeat(_) => {
                 out.events.extend(
                     self.heartbeat
@@ -314,7 +342,8 @@ impl Master {
         }
     }
 
-    /// Advances time: SDO timeouts, heartbeat losses, SYNC.
+    /// Advances time: SDO timeouts, heartbeat losses, guarding requests and
+    /// losses, SYNC.
     pub fn on_tick(&mut self, now: Duration, out: &mut Output) {
         for (&node, n) in self.sdo.iter_mut() {
             let settled = n.client.ready_at().is_some_and(|at| at <= now);
@@ -331,6 +360,12 @@ impl Master {
                 .on_tick(now)
                 .into_iter()
                 .map(MasterEvent::Heartbeat),
+        );
+        out.events.extend(
+            self.guarding
+                .on_tick(now, &mut out.frames)
+                .into_iter()
+                .map(MasterEvent::Guarding),
         );
         if let Some(sync) = self.sync.as_mut()
             && let Some(f) = sync.on_tick(now)
@@ -350,6 +385,7 @@ impl Master {
                 n.client.next_deadline().into_iter().chain(settle).min()
             })
             .chain(self.heartbeat.next_deadline())
+            .chain(self.guarding.next_deadline())
             .chain(self.sync.as_ref().and_then(|s| s.next_deadline()))
             .min()
     }
@@ -495,6 +531,43 @@ mod tests {
         assert!(matches!(
             out.events[0],
             MasterEvent::Heartbeat(HeartbeatEvent::HeartbeatLost { .. })
+        ));
+    }
+
+    #[test]
+    fn guarded_nodes_are_polled_and_their_answers_go_to_the_guarding() {
+        let ms = Duration::from_millis(1);
+        let mut m = Master::new(500 * ms);
+        m.guard_node(node(5), 100 * ms, 2);
+        assert_eq!(m.next_deadline(), Some(Duration::ZERO));
+        let mut out = Output::default();
+        m.on_tick(Duration::ZERO, &mut out);
+        assert_eq!(out.frames.len(), 1);
+        assert_eq!(out.frames[0].raw_id(), 0x705);
+        assert!(out.frames[0].is_remote());
+        let mut out = Output::default();
+        m.on_frame(&frame(0x705, &[0x05]), ms, &mut out);
+        assert_eq!(
+            out.events,
+            vec![MasterEvent::Guarding(GuardingEvent::StateChanged {
+                node: node(5),
+                from: None,
+                to: crate::nmt::NmtState::Operational
+            })]
+        );
+        // The heartbeat consumer did not see it.
+        assert_eq!(m.heartbeat().state(node(5)), None);
+        assert_eq!(m.next_deadline(), Some(100 * ms));
+        for t in [100, 200] {
+            let mut out = Output::default();
+            m.on_tick(t * ms, &mut out);
+            assert!(out.events.is_empty());
+        }
+        let mut out = Output::default();
+        m.on_tick(300 * ms, &mut out);
+        assert!(matches!(
+            out.events[..],
+            [MasterEvent::Guarding(GuardingEvent::Lost { .. })]
         ));
     }
 }

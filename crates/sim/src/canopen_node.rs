@@ -10,6 +10,7 @@
 //! |---|---|
 //! | NMT | boot-up on [`SimNode::start`], then pre-operational; start/stop/pre-operational; reset node restores every default, reset communication restores 0x1000..=0x1FFF; both boot up again |
 //! | heartbeat | every 0x1017 ms in every state after boot-up; writes to 0x1017 restart the producer at once |
+//! | node guarding | a remote frame to 0x700+n is answered with `[toggle << 7 \| state]` in every state after boot-up; the toggle bit starts at 0 after every boot-up and alternates with each answer. Life guarding (the node watching the master's requests, 0x100C/0x100D) is not simulated |
 //! | heartbeat consumer | every 0x1016 entry (node id in bits 16..=23, time in ms in bits 0..=15) monitors that node, starting with its first heartbeat; when none arrives within the time: [`SimEvent::HeartbeatLost`], EMCY 0x8130 (heartbeat error, error register generic + communication) and the 0x1029:01 communication error behaviour when the dictionary has it (0 pre-operational if operational, 2 stopped, else no change); without 0x1029 the device application reacts (a drive faults); [`SimEvent::HeartbeatRecovered`] on the next heartbeat; writes to 0x1016 and resets restart monitoring |
 //! | SDO | expedited, segmented and block (optional) on 0x600+n/0x580+n, in pre-operational and operational |
 //! | TPDO | operational only; parameters 0x1800+n and mapping 0x1A00+n read when needed; 0xFE/0xFF event-driven (sent on entering operational, on the event timer 0x180x:05, on [`SimNode::trigger_tpdo`] and optionally when a mapped value changes, respecting the inhibit time 0x180x:03), 1..=240 every n-th SYNC, 0 on the SYNC after an event, RTR answered when allowed |
@@ -214,6 +215,8 @@ pub struct SimNode {
     /// Bumped by every dictionary write and reset, which may change
     /// [`SimNode::receive_filters`].
     filter_generation: u64,
+    /// The toggle bit of the next node guarding answer.
+    guard_toggle: bool,
 }
 
 impl SimNode {
@@ -264,6 +267,7 @@ impl SimNode {
             events: VecDeque::new(),
             dropped_events: 0,
             now: Duration::ZERO,
+            guard_toggle: false,
         }
     }
 
@@ -342,6 +346,7 @@ impl SimNode {
             return Vec::new();
         }
         let boot_up = self.nmt.boot(now);
+        self.guard_toggle = false;
         self.push_event(SimEvent::NmtStateChanged {
             from: NmtState::Initialising,
             to: NmtState::PreOperational,
@@ -376,30 +381,35 @@ impl SimNode {
             .nodes()
             .filter(|(_, st)| st.timeout.is_some())
             .map(|(n, _)| cob::HEARTBEAT + u16::from(n.get()));
-        let mut filters: Vec<Filter> = [cob::NMT, cob::SDO_RX + u16::from(self.node.get())]
-            .into_iter()
-            .chain(consumed)
-            .map(Filter::exact_standard)
-            .chain(
-                std::iter::once(sync)
-                    .chain(rpdos.chain(tpdos).map(|c| c.id))
-                    .map(|id| match id {
-                        CanId::Standard(_) => Filter {
-                            id: id.raw(),
-                            mask: 0x7FF,
-                            extended: Some(false),
-                            inverted: false,
-                        },
-                        // A PDO may have been given an extended COB-ID.
-                        CanId::Extended(_) => Filter {
-                            id: id.raw(),
-                            mask: 0x1FFF_FFFF,
-                            extended: Some(true),
-                            inverted: false,
-                        },
-                    }),
-            )
-            .collect();
+        let mut filters: Vec<Filter> = [
+            cob::NMT,
+            cob::SDO_RX + u16::from(self.node.get()),
+            // Node guarding requests.
+            cob::HEARTBEAT + u16::from(self.node.get()),
+        ]
+        .into_iter()
+        .chain(consumed)
+        .map(Filter::exact_standard)
+        .chain(
+            std::iter::once(sync)
+                .chain(rpdos.chain(tpdos).map(|c| c.id))
+                .map(|id| match id {
+                    CanId::Standard(_) => Filter {
+                        id: id.raw(),
+                        mask: 0x7FF,
+                        extended: Some(false),
+                        inverted: false,
+                    },
+                    // A PDO may have been given an extended COB-ID.
+                    CanId::Extended(_) => Filter {
+                        id: id.raw(),
+                        mask: 0x1FFF_FFFF,
+                        extended: Some(true),
+                        inverted: false,
+                    },
+                }),
+        )
+        .collect();
         filters.sort_by_key(|f| (f.extended, f.id));
         filters.dedup();
         filters
@@ -423,6 +433,19 @@ impl SimNode {
             return out;
         }
         if let Some(node) = heartbeat_sender(frame) {
+            if node == self.node && frame.is_remote() {
+                // Node guarding: answer with the toggle bit and the state.
+                let toggle = if self.guard_toggle { 0x80 } else { 0x00 };
+                self.guard_toggle = !self.guard_toggle;
+                out.push(
+                    Frame::new(
+                        CanId::Standard(cob::HEARTBEAT + u16::from(self.node.get())),
+                        &[toggle | state.to_byte()],
+                    )
+                    .expect("a one-byte frame"),
+                );
+                return out;
+            }
             if self
                 .consumer
                 .status(node)
@@ -545,6 +568,7 @@ impl SimNode {
                 self.reset_pdos(false);
                 self.nmt.set_heartbeat_ms(self.heartbeat_ms(), now);
                 self.consumer = consumer_from(&self.store);
+                self.guard_toggle = false;
                 out.push(boot_up);
                 self.push_event(SimEvent::Reset { kind });
                 if before != NmtState::PreOperational {
@@ -1065,6 +1089,33 @@ mod tests {
         );
     }
 
+    #[test]
+    fn answers_node_guarding_with_toggle_and_state() {
+        let mut sim = drive_with(SimNodeOptions {
+            heartbeat_ms: Some(0),
+            ..SimNodeOptions::default()
+        });
+        let rtr = Frame::new_remote(CanId::Standard(0x705), 1).unwrap();
+        // Not before boot-up.
+        assert!(sim.on_frame(&rtr, MS).is_empty());
+        sim.start(Duration::ZERO);
+        // No heartbeat: guarding is the only sign of life.
+        assert_eq!(sim.next_deadline(), None);
+        assert!(accepted(&sim).contains(&0x705));
+        assert_eq!(wire(&sim.on_frame(&rtr, 10 * MS)), [(0x705, vec![0x7F])]);
+        assert_eq!(wire(&sim.on_frame(&rtr, 20 * MS)), [(0x705, vec![0xFF])]);
+        sim.on_frame(&frame(0x000, &[0x01, 0x05]), 25 * MS);
+        assert_eq!(wire(&sim.on_frame(&rtr, 30 * MS)), [(0x705, vec![0x05])]);
+        sim.on_frame(&frame(0x000, &[0x02, 0x05]), 35 * MS);
+        assert_eq!(wire(&sim.on_frame(&rtr, 40 * MS)), [(0x705, vec![0x84])]);
+        // Other nodes' requests are not answered.
+        let other = Frame::new_remote(CanId::Standard(0x706), 1).unwrap();
+        assert!(sim.on_frame(&other, 45 * MS).is_empty());
+        // A reset restarts the toggle at 0.
+        sim.on_frame(&frame(0x000, &[0x82, 0x05]), 50 * MS);
+        assert_eq!(wire(&sim.on_frame(&rtr, 60 * MS)), [(0x705, vec![0x7F])]);
+    }
+
     /// The identifiers of a node's acceptance filters (all standard, exact).
     fn accepted(sim: &SimNode) -> Vec<u32> {
         sim.receive_filters()
@@ -1085,7 +1136,7 @@ mod tests {
         // NMT, SYNC, TPDO1/2 (remote requests), RPDO1/2, SDO requests.
         assert_eq!(
             accepted(&sim),
-            [0x000, 0x080, 0x185, 0x205, 0x285, 0x305, 0x605]
+            [0x000, 0x080, 0x185, 0x205, 0x285, 0x305, 0x605, 0x705]
         );
         // RPDO1 invalidated, then moved to 0x2AB (the CiA 301 procedure);
         // every write tells the runner to look again.
@@ -1099,7 +1150,7 @@ mod tests {
         sdo(&mut sim, "23 00 14 01 AB 02 00 00", MS);
         assert_eq!(
             accepted(&sim),
-            [0x000, 0x080, 0x185, 0x285, 0x2AB, 0x305, 0x605]
+            [0x000, 0x080, 0x185, 0x285, 0x2AB, 0x305, 0x605, 0x705]
         );
         // A SYNC COB-ID of 0x081 replaces 0x080.
         sdo(&mut sim, "23 05 10 00 81 00 00 00", MS);

@@ -481,8 +481,15 @@ impl Task {
     fn on_node_event(&mut self, i: usize, kind: NodeEventKind) {
         let mut out = Vec::new();
         let (lost, reason) = match kind {
-            NodeEventKind::HeartbeatLost { timeout } => {
-                let r = format!("no heartbeat for {} ms", timeout.as_millis());
+            NodeEventKind::HeartbeatLost { timeout, guarding } => {
+                let r = if guarding {
+                    format!(
+                        "no node guarding answer for {} ms (life time)",
+                        timeout.as_millis()
+                    )
+                } else {
+                    format!("no heartbeat for {} ms", timeout.as_millis())
+                };
                 self.slots[i].axis.on_node_lost(&r, &mut out);
                 (true, r)
             }
@@ -524,7 +531,9 @@ impl Task {
                 self.publish_status(i);
                 return;
             }
-            NodeEventKind::StateChanged { .. } => return,
+            NodeEventKind::StateChanged { .. } | NodeEventKind::GuardingToggleError { .. } => {
+                return;
+            }
         };
         self.publish_node_link(i, lost, reason);
         self.handle(i, out);

@@ -9,6 +9,7 @@ use cangate_canopen::emcy::{Emcy, EmcyEvent};
 use cangate_canopen::heartbeat::HeartbeatEvent;
 use cangate_canopen::master::{Master, MasterEvent, Output, RequestId, SdoPriority, SdoRequest};
 use cangate_canopen::nmt::{NmtCommand, NmtState, nmt_frame};
+use cangate_canopen::node_guarding::GuardingEvent;
 use cangate_canopen::pdo::{MappedObject, PdoConfig, PdoKind};
 use cangate_canopen::sdo::{SdoError, TransferOutcome};
 use cangate_canopen::value::Value;
@@ -41,6 +42,9 @@ pub struct NodeFacts {
     pub identity: Option<[u32; 4]>,
     /// Consumer heartbeat timeout.
     pub heartbeat_timeout: Option<Duration>,
+    /// Node guarding instead of the heartbeat: guard time and life time
+    /// factor.
+    pub guarding: Option<(Duration, u8)>,
     /// TPDOs the master decodes (configured, else the EDS defaults).
     pub tpdos: Vec<PdoConfig>,
     /// RPDOs WritePdo encodes (configured, else the EDS defaults).
@@ -96,8 +100,10 @@ pub struct NodeSnapshot {
     pub state: Option<NmtState>,
     /// Time since the last heartbeat.
     pub heartbeat_age: Option<Duration>,
-    /// Heartbeat overdue.
+    /// Heartbeat overdue (for a guarded node: its life time ran out).
     pub heartbeat_lost: bool,
+    /// Node guarding answers with a wrong toggle bit.
+    pub guarding_toggle_errors: u64,
     /// Boot-ups seen.
     pub boot_ups: u64,
     /// Active error.
@@ -129,17 +135,30 @@ pub enum NodeEventKind {
         /// New state.
         to: NmtState,
     },
-    /// Heartbeat overdue.
+    /// Heartbeat overdue, or node guarding lost (`guarding`).
     HeartbeatLost {
-        /// Timeout.
+        /// Timeout (for node guarding the node life time).
         timeout: Duration,
+        /// Detected by node guarding rather than the heartbeat consumer.
+        guarding: bool,
     },
-    /// Heartbeat back.
+    /// Heartbeat back, or a guarding answer after a guarding loss.
     HeartbeatRecovered {
         /// Reported state.
         state: NmtState,
         /// Silence.
         after: Duration,
+        /// Seen by node guarding rather than the heartbeat consumer.
+        guarding: bool,
+    },
+    /// A node guarding answer with the wrong toggle bit.
+    GuardingToggleError {
+        /// The answer byte.
+        data: u8,
+        /// The toggle bit expected.
+        expected: bool,
+        /// Toggle errors of the node so far.
+        count: u64,
     },
     /// EMCY error or reset.
     Emcy(Emcy),
@@ -323,6 +342,9 @@ impl CanopenBus {
         for (id, f) in facts.read().expect("facts lock").iter() {
             if let Some(t) = f.heartbeat_timeout {
                 master.monitor_heartbeat(*id, t);
+            }
+            if let Some((guard_time, factor)) = f.guarding {
+                master.guard_node(*id, guard_time, factor);
             }
         }
         // Subscribe before returning, so that nothing the nodes send after
@@ -872,7 +894,7 @@ async fn run_master(task: MasterTask) {
         }
         for ev in out.events {
             count_event(bus.name(), &ev);
-            handle_event(ev, &mut pending, &events, &facts);
+            handle_event(ev, &master, &mut pending, &events, &facts);
         }
     }
     tracing::info!(bus = %bus.name(), "CANopen master stopped");
@@ -958,7 +980,8 @@ fn publish_pdo(
 /// The event counters of the Prometheus endpoint.
 fn count_event(bus: &str, ev: &MasterEvent) {
     match ev {
-        MasterEvent::Heartbeat(HeartbeatEvent::HeartbeatLost { node, .. }) => {
+        MasterEvent::Heartbeat(HeartbeatEvent::HeartbeatLost { node, .. })
+        | MasterEvent::Guarding(GuardingEvent::Lost { node, .. }) => {
             metrics::counter!("cangate_heartbeat_lost_total", "bus" => bus.to_string(), "node" => node.get().to_string())
                 .increment(1);
         }
@@ -976,6 +999,7 @@ fn count_event(bus: &str, ev: &MasterEvent) {
 
 fn handle_event(
     ev: MasterEvent,
+    master: &Master,
     pending: &mut HashMap<RequestId, Pending>,
     events: &broadcast::Sender<NodeEvent>,
     facts: &RwLock<BTreeMap<NodeId, NodeFacts>>,
@@ -1008,14 +1032,83 @@ fn handle_event(
             }
             HeartbeatEvent::HeartbeatLost { node, timeout, .. } => {
                 tracing::warn!(node = node.get(), ?timeout, "heartbeat lost");
-                (node, NodeEventKind::HeartbeatLost { timeout })
+                (
+                    node,
+                    NodeEventKind::HeartbeatLost {
+                        timeout,
+                        guarding: false,
+                    },
+                )
             }
             HeartbeatEvent::HeartbeatRecovered { node, state, after } => {
                 tracing::info!(node = node.get(), ?after, "heartbeat recovered");
-                (node, NodeEventKind::HeartbeatRecovered { state, after })
+                (
+                    node,
+                    NodeEventKind::HeartbeatRecovered {
+                        state,
+                        after,
+                        guarding: false,
+                    },
+                )
             }
             HeartbeatEvent::Malformed { node, .. } => {
                 tracing::debug!(node = node.get(), "malformed heartbeat");
+                return;
+            }
+        },
+        MasterEvent::Guarding(g) => match g {
+            GuardingEvent::BootUp { node } => (node, NodeEventKind::BootUp),
+            GuardingEvent::StateChanged { node, from, to } => {
+                (node, NodeEventKind::StateChanged { from, to })
+            }
+            GuardingEvent::Lost {
+                node, life_time, ..
+            } => {
+                tracing::warn!(node = node.get(), ?life_time, "node guarding lost");
+                (
+                    node,
+                    NodeEventKind::HeartbeatLost {
+                        timeout: life_time,
+                        guarding: true,
+                    },
+                )
+            }
+            GuardingEvent::Recovered { node, state, after } => {
+                tracing::info!(node = node.get(), ?after, "node guarding recovered");
+                (
+                    node,
+                    NodeEventKind::HeartbeatRecovered {
+                        state,
+                        after,
+                        guarding: true,
+                    },
+                )
+            }
+            GuardingEvent::ToggleError {
+                node,
+                expected,
+                data,
+            } => {
+                tracing::warn!(
+                    node = node.get(),
+                    expected,
+                    data,
+                    "node guarding toggle error"
+                );
+                (
+                    node,
+                    NodeEventKind::GuardingToggleError {
+                        data,
+                        expected,
+                        count: master
+                            .guarding()
+                            .status(node)
+                            .map_or(0, |s| s.toggle_errors),
+                    },
+                )
+            }
+            GuardingEvent::Malformed { node, .. } => {
+                tracing::debug!(node = node.get(), "malformed node guarding answer");
                 return;
             }
         },
@@ -1049,6 +1142,7 @@ fn snapshot(
         .iter()
         .map(|(&id, f)| {
             let hb = master.heartbeat().status(id);
+            let guard = master.guarding().status(id);
             let emcy = master.emcy().node(id);
             let history: Vec<(Emcy, Timestamp)> = emcy
                 .map(|e| e.history.iter().map(|r| (r.emcy, wall(r.at))).collect())
@@ -1065,10 +1159,23 @@ fn snapshot(
             NodeSnapshot {
                 id,
                 facts: f.clone(),
-                state: hb.and_then(|s| s.state),
-                heartbeat_age: hb.and_then(|s| s.age(now)),
-                heartbeat_lost: hb.is_some_and(|s| s.lost),
-                boot_ups: hb.map(|s| s.boot_ups).unwrap_or(0),
+                state: match guard {
+                    Some(g) => g.state,
+                    None => hb.and_then(|s| s.state),
+                },
+                heartbeat_age: match guard {
+                    Some(g) => g.age(now),
+                    None => hb.and_then(|s| s.age(now)),
+                },
+                heartbeat_lost: match guard {
+                    Some(g) => g.lost,
+                    None => hb.is_some_and(|s| s.lost),
+                },
+                guarding_toggle_errors: guard.map(|g| g.toggle_errors).unwrap_or(0),
+                boot_ups: match guard {
+                    Some(g) => g.boot_ups,
+                    None => hb.map(|s| s.boot_ups).unwrap_or(0),
+                },
                 active_error: active,
                 emcy_history: history,
             }

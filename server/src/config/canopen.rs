@@ -116,6 +116,16 @@ pub struct NodeConfig {
     /// Consumer heartbeat timeout in ms (0 = do not monitor).
     #[serde(default)]
     pub heartbeat_timeout_ms: u64,
+    /// Node guarding (CiA 301) instead of the heartbeat: the master sends
+    /// an RTR to 0x700+n every `guard_time_ms` (0 = not guarded). Needs
+    /// `life_time_factor`; excludes `heartbeat_timeout_ms` and
+    /// `heartbeat_producer_ms`.
+    #[serde(default)]
+    pub guard_time_ms: u64,
+    /// Node guarding: unanswered requests in a row after which the node is
+    /// lost (node life time = guard time × life time factor), 1..=255.
+    #[serde(default)]
+    pub life_time_factor: u8,
     /// Virtual buses only: run a simulated device from the EDS at this id.
     #[serde(default)]
     pub simulate: bool,
@@ -248,6 +258,54 @@ impl PdoConfigEntry {
 }
 
 impl NodeConfig {
+    /// Node guarding as (guard time, life time factor), when configured.
+    pub fn guarding(&self) -> Option<(std::time::Duration, u8)> {
+        (self.guard_time_ms > 0 && self.life_time_factor > 0).then(|| {
+            (
+                std::time::Duration::from_millis(self.guard_time_ms),
+                self.life_time_factor,
+            )
+        })
+    }
+
+    /// The node guarding keys: both or neither, and not together with the
+    /// heartbeat (a CiA 301 node uses one or the other).
+    pub(super) fn guarding_check(&self) -> Result<(), String> {
+        match (self.guard_time_ms > 0, self.life_time_factor > 0) {
+            (false, false) => return Ok(()),
+            (true, false) => {
+                return Err(format!(
+                    "node {}: guard_time_ms needs life_time_factor (1..=255; the node is lost \
+                     after that many unanswered guarding requests)",
+                    self.id
+                ));
+            }
+            (false, true) => {
+                return Err(format!(
+                    "node {}: life_time_factor needs guard_time_ms (the guarding request \
+                     period)",
+                    self.id
+                ));
+            }
+            (true, true) => {}
+        }
+        if self.guard_time_ms > u64::from(u16::MAX) {
+            return Err(format!(
+                "node {}: guard_time_ms = {} is out of range (1..=65535, object 0x100C)",
+                self.id, self.guard_time_ms
+            ));
+        }
+        if self.heartbeat_timeout_ms > 0 || self.heartbeat_producer_ms.is_some_and(|t| t > 0) {
+            return Err(format!(
+                "node {}: node guarding (guard_time_ms, life_time_factor) and the heartbeat \
+                 (heartbeat_timeout_ms, heartbeat_producer_ms) exclude each other: a CiA 301 \
+                 node is watched by one or the other; remove one",
+                self.id
+            ));
+        }
+        Ok(())
+    }
+
     /// Loads the configured EDS.
     pub fn load_eds(&self) -> Result<Option<cangate_canopen::eds::Eds>, String> {
         use cangate_canopen::eds::{Eds, SIM_DRIVE_EDS, SIM_HANDWHEEL_EDS, SIM_IO_EDS};

@@ -115,6 +115,8 @@ impl Config {
                         c.bus, n.id
                     )));
                 }
+                n.guarding_check()
+                    .map_err(|m| ConfigError::Invalid(format!("bus {:?}: {m}", c.bus)))?;
                 if !ids.insert(n.id) {
                     return Err(ConfigError::Invalid(format!(
                         "bus {:?}: node {} is configured twice",

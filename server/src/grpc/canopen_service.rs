@@ -1,8 +1,8 @@
 //! The `cangate.v1.Canopen` service: nodes, NMT, SDO, events.
 
 use super::convert::canopen::{
-    data_type_from_pb, emcy_to_pb, nmt_state_to_pb, node_to_pb, object_info_to_pb, value_from_pb,
-    value_from_pb_as, value_to_pb,
+    data_type_from_pb, emcy_to_pb, monitoring_to_pb, nmt_state_to_pb, node_to_pb,
+    object_info_to_pb, value_from_pb, value_from_pb_as, value_to_pb,
 };
 use super::error::ApiError;
 use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_of};
@@ -580,17 +580,30 @@ impl Canopen for CanopenService {
                                 to: nmt_state_to_pb(Some(*to)) as i32,
                             })
                         }
-                        NodeEventKind::HeartbeatLost { timeout } => {
+                        NodeEventKind::HeartbeatLost { timeout, guarding } => {
                             E::HeartbeatLost(pb::HeartbeatLost {
                                 timeout_ms: timeout.as_millis() as u32,
+                                monitoring: monitoring_to_pb(*guarding) as i32,
                             })
                         }
-                        NodeEventKind::HeartbeatRecovered { state, after } => {
-                            E::HeartbeatRecovered(pb::HeartbeatRecovered {
-                                state: nmt_state_to_pb(Some(*state)) as i32,
-                                silent_ms: after.as_millis() as u64,
-                            })
-                        }
+                        NodeEventKind::HeartbeatRecovered {
+                            state,
+                            after,
+                            guarding,
+                        } => E::HeartbeatRecovered(pb::HeartbeatRecovered {
+                            state: nmt_state_to_pb(Some(*state)) as i32,
+                            silent_ms: after.as_millis() as u64,
+                            monitoring: monitoring_to_pb(*guarding) as i32,
+                        }),
+                        NodeEventKind::GuardingToggleError {
+                            data,
+                            expected,
+                            count,
+                        } => E::GuardingToggleError(pb::GuardingToggleError {
+                            data: u32::from(*data),
+                            expected_toggle: *expected,
+                            count: *count,
+                        }),
                         NodeEventKind::Emcy(e) => E::Emcy(emcy_to_pb(e, ev.at)),
                         NodeEventKind::BootCompleted => E::BootCompleted(pb::BootCompleted {}),
                         NodeEventKind::BootFailed { reason } => E::BootFailed(pb::BootFailed {

@@ -29,8 +29,11 @@ pub fn canopen_device(
     wheel_counter: Option<CounterChoice>,
 ) -> SimulatedDevice {
     // The device's heartbeat comes at a third of the consumer timeout
-    // (100 ms when none is configured), so one late frame is not a loss.
+    // (100 ms when none is configured), so one late frame is not a loss. A
+    // guarded node produces none: it answers the master's guarding
+    // requests instead (CiA 301: heartbeat or node guarding).
     let heartbeat_ms = match nc.heartbeat_timeout_ms {
+        _ if nc.guarding().is_some() => 0,
         0 => 100,
         t => (t / 3).clamp(1, u16::MAX as u64) as u16,
     };

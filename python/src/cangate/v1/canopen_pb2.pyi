@@ -43,6 +43,12 @@ class DataType(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     DATA_TYPE_INTEGER64: _ClassVar[DataType]
     DATA_TYPE_UNSIGNED64: _ClassVar[DataType]
 
+class LifeMonitoring(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    LIFE_MONITORING_NONE: _ClassVar[LifeMonitoring]
+    LIFE_MONITORING_HEARTBEAT: _ClassVar[LifeMonitoring]
+    LIFE_MONITORING_NODE_GUARDING: _ClassVar[LifeMonitoring]
+
 class ObjectAccess(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     __slots__ = ()
     OBJECT_ACCESS_UNSPECIFIED: _ClassVar[ObjectAccess]
@@ -79,6 +85,9 @@ DATA_TYPE_DOMAIN: DataType
 DATA_TYPE_REAL64: DataType
 DATA_TYPE_INTEGER64: DataType
 DATA_TYPE_UNSIGNED64: DataType
+LIFE_MONITORING_NONE: LifeMonitoring
+LIFE_MONITORING_HEARTBEAT: LifeMonitoring
+LIFE_MONITORING_NODE_GUARDING: LifeMonitoring
 OBJECT_ACCESS_UNSPECIFIED: ObjectAccess
 OBJECT_ACCESS_RO: ObjectAccess
 OBJECT_ACCESS_WO: ObjectAccess
@@ -136,7 +145,7 @@ class Emcy(_message.Message):
     def __init__(self, node: _Optional[int] = ..., code: _Optional[int] = ..., code_name: _Optional[str] = ..., register: _Optional[int] = ..., register_bits: _Optional[_Iterable[str]] = ..., manufacturer: _Optional[bytes] = ..., timestamp_ns: _Optional[int] = ...) -> None: ...
 
 class Node(_message.Message):
-    __slots__ = ("bus", "id", "name", "state", "heartbeat_age_ms", "heartbeat_lost", "heartbeat_timeout_ms", "device_type", "device_name", "identity", "active_error", "emcy_history", "boot_ups", "configured")
+    __slots__ = ("bus", "id", "name", "state", "heartbeat_age_ms", "heartbeat_lost", "heartbeat_timeout_ms", "device_type", "device_name", "identity", "active_error", "emcy_history", "boot_ups", "configured", "monitoring", "guard_time_ms", "life_time_factor", "guarding_toggle_errors")
     BUS_FIELD_NUMBER: _ClassVar[int]
     ID_FIELD_NUMBER: _ClassVar[int]
     NAME_FIELD_NUMBER: _ClassVar[int]
@@ -151,6 +160,10 @@ class Node(_message.Message):
     EMCY_HISTORY_FIELD_NUMBER: _ClassVar[int]
     BOOT_UPS_FIELD_NUMBER: _ClassVar[int]
     CONFIGURED_FIELD_NUMBER: _ClassVar[int]
+    MONITORING_FIELD_NUMBER: _ClassVar[int]
+    GUARD_TIME_MS_FIELD_NUMBER: _ClassVar[int]
+    LIFE_TIME_FACTOR_FIELD_NUMBER: _ClassVar[int]
+    GUARDING_TOGGLE_ERRORS_FIELD_NUMBER: _ClassVar[int]
     bus: str
     id: int
     name: str
@@ -165,7 +178,11 @@ class Node(_message.Message):
     emcy_history: _containers.RepeatedCompositeFieldContainer[Emcy]
     boot_ups: int
     configured: bool
-    def __init__(self, bus: _Optional[str] = ..., id: _Optional[int] = ..., name: _Optional[str] = ..., state: _Optional[_Union[NmtState, str]] = ..., heartbeat_age_ms: _Optional[int] = ..., heartbeat_lost: _Optional[bool] = ..., heartbeat_timeout_ms: _Optional[int] = ..., device_type: _Optional[int] = ..., device_name: _Optional[str] = ..., identity: _Optional[_Union[Identity, _Mapping]] = ..., active_error: _Optional[_Union[Emcy, _Mapping]] = ..., emcy_history: _Optional[_Iterable[_Union[Emcy, _Mapping]]] = ..., boot_ups: _Optional[int] = ..., configured: _Optional[bool] = ...) -> None: ...
+    monitoring: LifeMonitoring
+    guard_time_ms: int
+    life_time_factor: int
+    guarding_toggle_errors: int
+    def __init__(self, bus: _Optional[str] = ..., id: _Optional[int] = ..., name: _Optional[str] = ..., state: _Optional[_Union[NmtState, str]] = ..., heartbeat_age_ms: _Optional[int] = ..., heartbeat_lost: _Optional[bool] = ..., heartbeat_timeout_ms: _Optional[int] = ..., device_type: _Optional[int] = ..., device_name: _Optional[str] = ..., identity: _Optional[_Union[Identity, _Mapping]] = ..., active_error: _Optional[_Union[Emcy, _Mapping]] = ..., emcy_history: _Optional[_Iterable[_Union[Emcy, _Mapping]]] = ..., boot_ups: _Optional[int] = ..., configured: _Optional[bool] = ..., monitoring: _Optional[_Union[LifeMonitoring, str]] = ..., guard_time_ms: _Optional[int] = ..., life_time_factor: _Optional[int] = ..., guarding_toggle_errors: _Optional[int] = ...) -> None: ...
 
 class ListNodesRequest(_message.Message):
     __slots__ = ("bus",)
@@ -330,7 +347,7 @@ class StreamNodeEventsRequest(_message.Message):
     def __init__(self, bus: _Optional[str] = ..., nodes: _Optional[_Iterable[int]] = ...) -> None: ...
 
 class NodeEvent(_message.Message):
-    __slots__ = ("bus", "node", "timestamp_ns", "boot_up", "state_changed", "heartbeat_lost", "heartbeat_recovered", "emcy", "lost", "boot_completed", "boot_failed")
+    __slots__ = ("bus", "node", "timestamp_ns", "boot_up", "state_changed", "heartbeat_lost", "heartbeat_recovered", "emcy", "lost", "boot_completed", "boot_failed", "guarding_toggle_error")
     BUS_FIELD_NUMBER: _ClassVar[int]
     NODE_FIELD_NUMBER: _ClassVar[int]
     TIMESTAMP_NS_FIELD_NUMBER: _ClassVar[int]
@@ -342,6 +359,7 @@ class NodeEvent(_message.Message):
     LOST_FIELD_NUMBER: _ClassVar[int]
     BOOT_COMPLETED_FIELD_NUMBER: _ClassVar[int]
     BOOT_FAILED_FIELD_NUMBER: _ClassVar[int]
+    GUARDING_TOGGLE_ERROR_FIELD_NUMBER: _ClassVar[int]
     bus: str
     node: int
     timestamp_ns: int
@@ -353,7 +371,18 @@ class NodeEvent(_message.Message):
     lost: EventsLost
     boot_completed: BootCompleted
     boot_failed: BootFailed
-    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., timestamp_ns: _Optional[int] = ..., boot_up: _Optional[_Union[BootUp, _Mapping]] = ..., state_changed: _Optional[_Union[StateChange, _Mapping]] = ..., heartbeat_lost: _Optional[_Union[HeartbeatLost, _Mapping]] = ..., heartbeat_recovered: _Optional[_Union[HeartbeatRecovered, _Mapping]] = ..., emcy: _Optional[_Union[Emcy, _Mapping]] = ..., lost: _Optional[_Union[EventsLost, _Mapping]] = ..., boot_completed: _Optional[_Union[BootCompleted, _Mapping]] = ..., boot_failed: _Optional[_Union[BootFailed, _Mapping]] = ...) -> None: ...
+    guarding_toggle_error: GuardingToggleError
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., timestamp_ns: _Optional[int] = ..., boot_up: _Optional[_Union[BootUp, _Mapping]] = ..., state_changed: _Optional[_Union[StateChange, _Mapping]] = ..., heartbeat_lost: _Optional[_Union[HeartbeatLost, _Mapping]] = ..., heartbeat_recovered: _Optional[_Union[HeartbeatRecovered, _Mapping]] = ..., emcy: _Optional[_Union[Emcy, _Mapping]] = ..., lost: _Optional[_Union[EventsLost, _Mapping]] = ..., boot_completed: _Optional[_Union[BootCompleted, _Mapping]] = ..., boot_failed: _Optional[_Union[BootFailed, _Mapping]] = ..., guarding_toggle_error: _Optional[_Union[GuardingToggleError, _Mapping]] = ...) -> None: ...
+
+class GuardingToggleError(_message.Message):
+    __slots__ = ("data", "expected_toggle", "count")
+    DATA_FIELD_NUMBER: _ClassVar[int]
+    EXPECTED_TOGGLE_FIELD_NUMBER: _ClassVar[int]
+    COUNT_FIELD_NUMBER: _ClassVar[int]
+    data: int
+    expected_toggle: bool
+    count: int
+    def __init__(self, data: _Optional[int] = ..., expected_toggle: _Optional[bool] = ..., count: _Optional[int] = ...) -> None: ...
 
 class BootCompleted(_message.Message):
     __slots__ = ()
@@ -433,18 +462,22 @@ class StateChange(_message.Message):
     def __init__(self, to: _Optional[_Union[NmtState, str]] = ..., **kwargs) -> None: ...
 
 class HeartbeatLost(_message.Message):
-    __slots__ = ("timeout_ms",)
+    __slots__ = ("timeout_ms", "monitoring")
     TIMEOUT_MS_FIELD_NUMBER: _ClassVar[int]
+    MONITORING_FIELD_NUMBER: _ClassVar[int]
     timeout_ms: int
-    def __init__(self, timeout_ms: _Optional[int] = ...) -> None: ...
+    monitoring: LifeMonitoring
+    def __init__(self, timeout_ms: _Optional[int] = ..., monitoring: _Optional[_Union[LifeMonitoring, str]] = ...) -> None: ...
 
 class HeartbeatRecovered(_message.Message):
-    __slots__ = ("state", "silent_ms")
+    __slots__ = ("state", "silent_ms", "monitoring")
     STATE_FIELD_NUMBER: _ClassVar[int]
     SILENT_MS_FIELD_NUMBER: _ClassVar[int]
+    MONITORING_FIELD_NUMBER: _ClassVar[int]
     state: NmtState
     silent_ms: int
-    def __init__(self, state: _Optional[_Union[NmtState, str]] = ..., silent_ms: _Optional[int] = ...) -> None: ...
+    monitoring: LifeMonitoring
+    def __init__(self, state: _Optional[_Union[NmtState, str]] = ..., silent_ms: _Optional[int] = ..., monitoring: _Optional[_Union[LifeMonitoring, str]] = ...) -> None: ...
 
 class EventsLost(_message.Message):
     __slots__ = ("count",)

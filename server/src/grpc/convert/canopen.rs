@@ -114,6 +114,15 @@ pub(crate) fn emcy_to_pb(e: &Emcy, at: Timestamp) -> pb::Emcy {
     }
 }
 
+/// The mechanism of a loss or recovery event: node guarding or heartbeat.
+pub(crate) fn monitoring_to_pb(guarding: bool) -> pb::LifeMonitoring {
+    if guarding {
+        pb::LifeMonitoring::NodeGuarding
+    } else {
+        pb::LifeMonitoring::Heartbeat
+    }
+}
+
 pub(crate) fn node_to_pb(bus: &str, n: &NodeSnapshot) -> pb::Node {
     pb::Node {
         bus: bus.to_string(),
@@ -142,6 +151,14 @@ pub(crate) fn node_to_pb(bus: &str, n: &NodeSnapshot) -> pb::Node {
             .map(|(e, t)| emcy_to_pb(e, *t))
             .collect(),
         boot_ups: n.boot_ups,
+        monitoring: match (n.facts.guarding, n.facts.heartbeat_timeout) {
+            (Some(_), _) => pb::LifeMonitoring::NodeGuarding,
+            (None, Some(_)) => pb::LifeMonitoring::Heartbeat,
+            (None, None) => pb::LifeMonitoring::None,
+        } as i32,
+        guard_time_ms: n.facts.guarding.map_or(0, |(t, _)| t.as_millis() as u32),
+        life_time_factor: n.facts.guarding.map_or(0, |(_, f)| u32::from(f)),
+        guarding_toggle_errors: n.guarding_toggle_errors,
         configured: n.facts.configured,
     }
 }

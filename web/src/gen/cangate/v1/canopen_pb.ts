@@ -138,7 +138,7 @@ import type { Message } from "@bufbuild/protobuf";
  * Describes the file cangate/v1/canopen.proto.
  */
 export const file_cangate_v1_canopen: GenFile = /*@__PURE__*/
-  fileDesc("ChhjYW5nYXRlL3YxL2Nhbm9wZW4ucHJvdG8SCmNhbmdhdGUudjEiugEKBVZhbHVlEiIKBHR5cGUYASABKA4yFC5jYW5nYXRlLnYxLkRhdGFUeXBlEhQKCmJvb2xfdmFsdWUYAiABKAhIABITCglpbnRfdmFsdWUYAyABKBJIABIUCgp1aW50X3ZhbHVlGAQgASgESAASFAoKcmVhbF92YWx1ZRgFIAEoAUgAEhYKDHN0cmluZ192YWx1ZRgGIAEoCUgAEhUKC2J5dGVzX3ZhbHVlGAcgASgMSABCBwoFdmFsdWUiVQoISWRlbnRpdHkSEQoJdmVuZG9yX2lkGAEgASgNEhQKDHByb2R1Y3RfY29kZRgCIAEoDRIQCghyZXZpc2lvbhgDIAEoDRIOCgZzZXJpYWwYBCABKA0iigEKBEVtY3kSDAoEbm9kZRgBIAEoDRIMCgRjb2RlGAIgASgNEhEKCWNvZGVfbmFtZRgDIAEoCRIQCghyZWdpc3RlchgEIAEoDRIVCg1yZWdpc3Rlcl9iaXRzGAUgAygJEhQKDG1hbnVmYWN0dXJlchgGIAEoDBIUCgx0aW1lc3RhbXBfbnMYByABKAQimQMKBE5vZGUSCwoDYnVzGAEgASgJEgoKAmlkGAIgASgNEgwKBG5hbWUYAyABKAkSIwoFc3RhdGUYBCABKA4yFC5jYW5nYXRlLnYxLk5tdFN0YXRlEh0KEGhlYXJ0YmVhdF9hZ2VfbXMYBSABKARIAIgBARIWCg5oZWFydGJlYXRfbG9zdBgGIAEoCBIcChRoZWFydGJlYXRfdGltZW91dF9tcxgHIAEoDRIYCgtkZXZpY2VfdHlwZRgIIAEoDUgBiAEBEhMKC2RldmljZV9uYW1lGAkgASgJEiYKCGlkZW50aXR5GAogASgLMhQuY2FuZ2F0ZS52MS5JZGVudGl0eRImCgxhY3RpdmVfZXJyb3IYCyABKAsyEC5jYW5nYXRlLnYxLkVtY3kSJgoMZW1jeV9oaXN0b3J5GAwgAygLMhAuY2FuZ2F0ZS52MS5FbWN5EhAKCGJvb3RfdXBzGA0gASgEEhIKCmNvbmZpZ3VyZWQYDiABKAhCEwoRX2hlYXJ0YmVhdF9hZ2VfbXNCDgoMX2RldmljZV90eXBlIh8KEExpc3ROb2Rlc1JlcXVlc3QSCwoDYnVzGAEgASgJIjQKEUxpc3ROb2Rlc1Jlc3BvbnNlEh8KBW5vZGVzGAEgAygLMhAuY2FuZ2F0ZS52MS5Ob2RlIisKDkdldE5vZGVSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNIlQKDlNlbmRObXRSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEicKB2NvbW1hbmQYAyABKA4yFi5jYW5nYXRlLnYxLk5tdENvbW1hbmQiEQoPU2VuZE5tdFJlc3BvbnNlIi8KClNkb09wdGlvbnMSEgoKdGltZW91dF9tcxgBIAEoDRINCgVibG9jaxgCIAEoCCKpAQoOUmVhZFNkb1JlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SDQoFaW5kZXgYAyABKA0SEAoIc3ViaW5kZXgYBCABKA0SIgoEdHlwZRgFIAEoDjIULmNhbmdhdGUudjEuRGF0YVR5cGUSJwoHb3B0aW9ucxgGIAEoCzIWLmNhbmdhdGUudjEuU2RvT3B0aW9ucxIOCgZvYmplY3QYByABKAkiQAoPUmVhZFNkb1Jlc3BvbnNlEgsKA3JhdxgBIAEoDBIgCgV2YWx1ZRgCIAEoCzIRLmNhbmdhdGUudjEuVmFsdWUiwQEKD1dyaXRlU2RvUmVxdWVzdBILCgNidXMYASABKAkSDAoEbm9kZRgCIAEoDRINCgVpbmRleBgDIAEoDRIQCghzdWJpbmRleBgEIAEoDRIiCgV2YWx1ZRgFIAEoCzIRLmNhbmdhdGUudjEuVmFsdWVIABINCgNyYXcYBiABKAxIABInCgdvcHRpb25zGAcgASgLMhYuY2FuZ2F0ZS52MS5TZG9PcHRpb25zEg4KBm9iamVjdBgIIAEoCUIGCgRkYXRhIiEKEFdyaXRlU2RvUmVzcG9uc2USDQoFYnl0ZXMYASABKA0iLwoSTGlzdE9iamVjdHNSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNIvsCCgpPYmplY3RJbmZvEg0KBWluZGV4GAEgASgNEhAKCHN1YmluZGV4GAIgASgNEgwKBG5hbWUYAyABKAkSEwoLb2JqZWN0X25hbWUYBCABKAkSEAoIc3ViX25hbWUYBSABKAkSEwoLb2JqZWN0X3R5cGUYBiABKAkSIgoEdHlwZRgHIAEoDjIULmNhbmdhdGUudjEuRGF0YVR5cGUSEQoJdHlwZV9jb2RlGAggASgNEigKBmFjY2VzcxgJIAEoDjIYLmNhbmdhdGUudjEuT2JqZWN0QWNjZXNzEhQKDHBkb19tYXBwYWJsZRgKIAEoCBIoCg1kZWZhdWx0X3ZhbHVlGAsgASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZRIUCgxkZWZhdWx0X3RleHQYDCABKAkSJAoJbG93X2xpbWl0GA0gASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZRIlCgpoaWdoX2xpbWl0GA4gASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZSI+ChNMaXN0T2JqZWN0c1Jlc3BvbnNlEicKB29iamVjdHMYASADKAsyFi5jYW5nYXRlLnYxLk9iamVjdEluZm8iNQoSU2Nhbk5ldHdvcmtSZXF1ZXN0EgsKA2J1cxgBIAEoCRISCgp0aW1lb3V0X21zGAIgASgNIjYKE1NjYW5OZXR3b3JrUmVzcG9uc2USHwoFbm9kZXMYASADKAsyEC5jYW5nYXRlLnYxLk5vZGUiNQoXU3RyZWFtTm9kZUV2ZW50c1JlcXVlc3QSCwoDYnVzGAEgASgJEg0KBW5vZGVzGAIgAygNIsADCglOb2RlRXZlbnQSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SFAoMdGltZXN0YW1wX25zGAMgASgEEiUKB2Jvb3RfdXAYBCABKAsyEi5jYW5nYXRlLnYxLkJvb3RVcEgAEjAKDXN0YXRlX2NoYW5nZWQYBSABKAsyFy5jYW5nYXRlLnYxLlN0YXRlQ2hhbmdlSAASMwoOaGVhcnRiZWF0X2xvc3QYBiABKAsyGS5jYW5nYXRlLnYxLkhlYXJ0YmVhdExvc3RIABI9ChNoZWFydGJlYXRfcmVjb3ZlcmVkGAcgASgLMh4uY2FuZ2F0ZS52MS5IZWFydGJlYXRSZWNvdmVyZWRIABIgCgRlbWN5GAggASgLMhAuY2FuZ2F0ZS52MS5FbWN5SAASJgoEbG9zdBgJIAEoCzIWLmNhbmdhdGUudjEuRXZlbnRzTG9zdEgAEjMKDmJvb3RfY29tcGxldGVkGAogASgLMhkuY2FuZ2F0ZS52MS5Cb290Q29tcGxldGVkSAASLQoLYm9vdF9mYWlsZWQYCyABKAsyFi5jYW5nYXRlLnYxLkJvb3RGYWlsZWRIAEIHCgVldmVudCIPCg1Cb290Q29tcGxldGVkIhwKCkJvb3RGYWlsZWQSDgoGcmVhc29uGAEgASgJIi4KEFN0cmVhbVBkb1JlcXVlc3QSCwoDYnVzGAEgASgJEg0KBW5vZGVzGAIgAygNIlsKCFBkb1ZhbHVlEg0KBWluZGV4GAEgASgNEhAKCHN1YmluZGV4GAIgASgNEgwKBG5hbWUYAyABKAkSIAoFdmFsdWUYBCABKAsyES5jYW5nYXRlLnYxLlZhbHVlIpUBCgpQZG9NZXNzYWdlEgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEgsKA3BkbxgDIAEoDRIOCgZjb2JfaWQYBCABKA0SFAoMdGltZXN0YW1wX25zGAUgASgEEiQKBnZhbHVlcxgGIAMoCzIULmNhbmdhdGUudjEuUGRvVmFsdWUSEwoLbG9zdF9iZWZvcmUYByABKAQiXwoPV3JpdGVQZG9SZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEgsKA3BkbxgDIAEoDRIkCgZ2YWx1ZXMYBCADKAsyFC5jYW5nYXRlLnYxLlBkb1ZhbHVlIiAKEFdyaXRlUGRvUmVzcG9uc2USDAoEZGF0YRgBIAEoDCIICgZCb290VXAiUwoLU3RhdGVDaGFuZ2USIgoEZnJvbRgBIAEoDjIULmNhbmdhdGUudjEuTm10U3RhdGUSIAoCdG8YAiABKA4yFC5jYW5nYXRlLnYxLk5tdFN0YXRlIiMKDUhlYXJ0YmVhdExvc3QSEgoKdGltZW91dF9tcxgBIAEoDSJMChJIZWFydGJlYXRSZWNvdmVyZWQSIwoFc3RhdGUYASABKA4yFC5jYW5nYXRlLnYxLk5tdFN0YXRlEhEKCXNpbGVudF9tcxgCIAEoBCIbCgpFdmVudHNMb3N0Eg0KBWNvdW50GAEgASgEImEKD1Nkb0Fib3J0RGV0YWlscxIMCgRjb2RlGAEgASgNEgwKBG5hbWUYAiABKAkSDQoFaW5kZXgYAyABKA0SEAoIc3ViaW5kZXgYBCABKA0SEQoJZnJvbV9ub2RlGAUgASgIIiYKF0xpc3RTZG9UcmFuc2ZlcnNSZXF1ZXN0EgsKA2J1cxgBIAEoCSKRAQoLU2RvVHJhbnNmZXISDAoEbm9kZRgBIAEoDRINCgVpbmRleBgCIAEoDRIQCghzdWJpbmRleBgDIAEoDRIOCgZ1cGxvYWQYBCABKAgSEAoIcHJvdG9jb2wYBSABKAkSEwoLdHJhbnNmZXJyZWQYBiABKAQSEgoFdG90YWwYByABKARIAIgBAUIICgZfdG90YWwiRgoYTGlzdFNkb1RyYW5zZmVyc1Jlc3BvbnNlEioKCXRyYW5zZmVycxgBIAMoCzIXLmNhbmdhdGUudjEuU2RvVHJhbnNmZXIqjgEKCE5tdFN0YXRlEhUKEU5NVF9TVEFURV9VTktOT1dOEAASGgoWTk1UX1NUQVRFX0lOSVRJQUxJU0lORxABEhUKEU5NVF9TVEFURV9TVE9QUEVEEAISGQoVTk1UX1NUQVRFX09QRVJBVElPTkFMEAMSHQoZTk1UX1NUQVRFX1BSRV9PUEVSQVRJT05BTBAEKr4BCgpObXRDb21tYW5kEhsKF05NVF9DT01NQU5EX1VOU1BFQ0lGSUVEEAASFQoRTk1UX0NPTU1BTkRfU1RBUlQQARIUChBOTVRfQ09NTUFORF9TVE9QEAISJQohTk1UX0NPTU1BTkRfRU5URVJfUFJFX09QRVJBVElPTkFMEAMSGgoWTk1UX0NPTU1BTkRfUkVTRVRfTk9ERRAEEiMKH05NVF9DT01NQU5EX1JFU0VUX0NPTU1VTklDQVRJT04QBSqgAwoIRGF0YVR5cGUSGQoVREFUQV9UWVBFX1VOU1BFQ0lGSUVEEAASFQoRREFUQV9UWVBFX0JPT0xFQU4QARIWChJEQVRBX1RZUEVfSU5URUdFUjgQAhIXChNEQVRBX1RZUEVfSU5URUdFUjE2EAMSFwoTREFUQV9UWVBFX0lOVEVHRVIzMhAEEhcKE0RBVEFfVFlQRV9VTlNJR05FRDgQBRIYChREQVRBX1RZUEVfVU5TSUdORUQxNhAGEhgKFERBVEFfVFlQRV9VTlNJR05FRDMyEAcSFAoQREFUQV9UWVBFX1JFQUwzMhAIEhwKGERBVEFfVFlQRV9WSVNJQkxFX1NUUklORxAJEhoKFkRBVEFfVFlQRV9PQ1RFVF9TVFJJTkcQChIcChhEQVRBX1RZUEVfVU5JQ09ERV9TVFJJTkcQCxIUChBEQVRBX1RZUEVfRE9NQUlOEA8SFAoQREFUQV9UWVBFX1JFQUw2NBAREhcKE0RBVEFfVFlQRV9JTlRFR0VSNjQQFRIYChREQVRBX1RZUEVfVU5TSUdORUQ2NBAbKrYBCgxPYmplY3RBY2Nlc3MSHQoZT0JKRUNUX0FDQ0VTU19VTlNQRUNJRklFRBAAEhQKEE9CSkVDVF9BQ0NFU1NfUk8QARIUChBPQkpFQ1RfQUNDRVNTX1dPEAISFAoQT0JKRUNUX0FDQ0VTU19SVxADEhUKEU9CSkVDVF9BQ0NFU1NfUldSEAQSFQoRT0JKRUNUX0FDQ0VTU19SV1cQBRIXChNPQkpFQ1RfQUNDRVNTX0NPTlNUEAYyuAYKB0Nhbm9wZW4SSAoJTGlzdE5vZGVzEhwuY2FuZ2F0ZS52MS5MaXN0Tm9kZXNSZXF1ZXN0Gh0uY2FuZ2F0ZS52MS5MaXN0Tm9kZXNSZXNwb25zZRI3CgdHZXROb2RlEhouY2FuZ2F0ZS52MS5HZXROb2RlUmVxdWVzdBoQLmNhbmdhdGUudjEuTm9kZRJCCgdTZW5kTm10EhouY2FuZ2F0ZS52MS5TZW5kTm10UmVxdWVzdBobLmNhbmdhdGUudjEuU2VuZE5tdFJlc3BvbnNlEkIKB1JlYWRTZG8SGi5jYW5nYXRlLnYxLlJlYWRTZG9SZXF1ZXN0GhsuY2FuZ2F0ZS52MS5SZWFkU2RvUmVzcG9uc2USRQoIV3JpdGVTZG8SGy5jYW5nYXRlLnYxLldyaXRlU2RvUmVxdWVzdBocLmNhbmdhdGUudjEuV3JpdGVTZG9SZXNwb25zZRJOCgtMaXN0T2JqZWN0cxIeLmNhbmdhdGUudjEuTGlzdE9iamVjdHNSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5MaXN0T2JqZWN0c1Jlc3BvbnNlEl0KEExpc3RTZG9UcmFuc2ZlcnMSIy5jYW5nYXRlLnYxLkxpc3RTZG9UcmFuc2ZlcnNSZXF1ZXN0GiQuY2FuZ2F0ZS52MS5MaXN0U2RvVHJhbnNmZXJzUmVzcG9uc2USTgoLU2Nhbk5ldHdvcmsSHi5jYW5nYXRlLnYxLlNjYW5OZXR3b3JrUmVxdWVzdBofLmNhbmdhdGUudjEuU2Nhbk5ldHdvcmtSZXNwb25zZRJQChBTdHJlYW1Ob2RlRXZlbnRzEiMuY2FuZ2F0ZS52MS5TdHJlYW1Ob2RlRXZlbnRzUmVxdWVzdBoVLmNhbmdhdGUudjEuTm9kZUV2ZW50MAESQwoJU3RyZWFtUGRvEhwuY2FuZ2F0ZS52MS5TdHJlYW1QZG9SZXF1ZXN0GhYuY2FuZ2F0ZS52MS5QZG9NZXNzYWdlMAESRQoIV3JpdGVQZG8SGy5jYW5nYXRlLnYxLldyaXRlUGRvUmVxdWVzdBocLmNhbmdhdGUudjEuV3JpdGVQZG9SZXNwb25zZWIGcHJvdG8z");
+  fileDesc("ChhjYW5nYXRlL3YxL2Nhbm9wZW4ucHJvdG8SCmNhbmdhdGUudjEiugEKBVZhbHVlEiIKBHR5cGUYASABKA4yFC5jYW5nYXRlLnYxLkRhdGFUeXBlEhQKCmJvb2xfdmFsdWUYAiABKAhIABITCglpbnRfdmFsdWUYAyABKBJIABIUCgp1aW50X3ZhbHVlGAQgASgESAASFAoKcmVhbF92YWx1ZRgFIAEoAUgAEhYKDHN0cmluZ192YWx1ZRgGIAEoCUgAEhUKC2J5dGVzX3ZhbHVlGAcgASgMSABCBwoFdmFsdWUiVQoISWRlbnRpdHkSEQoJdmVuZG9yX2lkGAEgASgNEhQKDHByb2R1Y3RfY29kZRgCIAEoDRIQCghyZXZpc2lvbhgDIAEoDRIOCgZzZXJpYWwYBCABKA0iigEKBEVtY3kSDAoEbm9kZRgBIAEoDRIMCgRjb2RlGAIgASgNEhEKCWNvZGVfbmFtZRgDIAEoCRIQCghyZWdpc3RlchgEIAEoDRIVCg1yZWdpc3Rlcl9iaXRzGAUgAygJEhQKDG1hbnVmYWN0dXJlchgGIAEoDBIUCgx0aW1lc3RhbXBfbnMYByABKAQimgQKBE5vZGUSCwoDYnVzGAEgASgJEgoKAmlkGAIgASgNEgwKBG5hbWUYAyABKAkSIwoFc3RhdGUYBCABKA4yFC5jYW5nYXRlLnYxLk5tdFN0YXRlEh0KEGhlYXJ0YmVhdF9hZ2VfbXMYBSABKARIAIgBARIWCg5oZWFydGJlYXRfbG9zdBgGIAEoCBIcChRoZWFydGJlYXRfdGltZW91dF9tcxgHIAEoDRIYCgtkZXZpY2VfdHlwZRgIIAEoDUgBiAEBEhMKC2RldmljZV9uYW1lGAkgASgJEiYKCGlkZW50aXR5GAogASgLMhQuY2FuZ2F0ZS52MS5JZGVudGl0eRImCgxhY3RpdmVfZXJyb3IYCyABKAsyEC5jYW5nYXRlLnYxLkVtY3kSJgoMZW1jeV9oaXN0b3J5GAwgAygLMhAuY2FuZ2F0ZS52MS5FbWN5EhAKCGJvb3RfdXBzGA0gASgEEhIKCmNvbmZpZ3VyZWQYDiABKAgSLgoKbW9uaXRvcmluZxgPIAEoDjIaLmNhbmdhdGUudjEuTGlmZU1vbml0b3JpbmcSFQoNZ3VhcmRfdGltZV9tcxgQIAEoDRIYChBsaWZlX3RpbWVfZmFjdG9yGBEgASgNEh4KFmd1YXJkaW5nX3RvZ2dsZV9lcnJvcnMYEiABKARCEwoRX2hlYXJ0YmVhdF9hZ2VfbXNCDgoMX2RldmljZV90eXBlIh8KEExpc3ROb2Rlc1JlcXVlc3QSCwoDYnVzGAEgASgJIjQKEUxpc3ROb2Rlc1Jlc3BvbnNlEh8KBW5vZGVzGAEgAygLMhAuY2FuZ2F0ZS52MS5Ob2RlIisKDkdldE5vZGVSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNIlQKDlNlbmRObXRSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEicKB2NvbW1hbmQYAyABKA4yFi5jYW5nYXRlLnYxLk5tdENvbW1hbmQiEQoPU2VuZE5tdFJlc3BvbnNlIi8KClNkb09wdGlvbnMSEgoKdGltZW91dF9tcxgBIAEoDRINCgVibG9jaxgCIAEoCCKpAQoOUmVhZFNkb1JlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SDQoFaW5kZXgYAyABKA0SEAoIc3ViaW5kZXgYBCABKA0SIgoEdHlwZRgFIAEoDjIULmNhbmdhdGUudjEuRGF0YVR5cGUSJwoHb3B0aW9ucxgGIAEoCzIWLmNhbmdhdGUudjEuU2RvT3B0aW9ucxIOCgZvYmplY3QYByABKAkiQAoPUmVhZFNkb1Jlc3BvbnNlEgsKA3JhdxgBIAEoDBIgCgV2YWx1ZRgCIAEoCzIRLmNhbmdhdGUudjEuVmFsdWUiwQEKD1dyaXRlU2RvUmVxdWVzdBILCgNidXMYASABKAkSDAoEbm9kZRgCIAEoDRINCgVpbmRleBgDIAEoDRIQCghzdWJpbmRleBgEIAEoDRIiCgV2YWx1ZRgFIAEoCzIRLmNhbmdhdGUudjEuVmFsdWVIABINCgNyYXcYBiABKAxIABInCgdvcHRpb25zGAcgASgLMhYuY2FuZ2F0ZS52MS5TZG9PcHRpb25zEg4KBm9iamVjdBgIIAEoCUIGCgRkYXRhIiEKEFdyaXRlU2RvUmVzcG9uc2USDQoFYnl0ZXMYASABKA0iLwoSTGlzdE9iamVjdHNSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNIvsCCgpPYmplY3RJbmZvEg0KBWluZGV4GAEgASgNEhAKCHN1YmluZGV4GAIgASgNEgwKBG5hbWUYAyABKAkSEwoLb2JqZWN0X25hbWUYBCABKAkSEAoIc3ViX25hbWUYBSABKAkSEwoLb2JqZWN0X3R5cGUYBiABKAkSIgoEdHlwZRgHIAEoDjIULmNhbmdhdGUudjEuRGF0YVR5cGUSEQoJdHlwZV9jb2RlGAggASgNEigKBmFjY2VzcxgJIAEoDjIYLmNhbmdhdGUudjEuT2JqZWN0QWNjZXNzEhQKDHBkb19tYXBwYWJsZRgKIAEoCBIoCg1kZWZhdWx0X3ZhbHVlGAsgASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZRIUCgxkZWZhdWx0X3RleHQYDCABKAkSJAoJbG93X2xpbWl0GA0gASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZRIlCgpoaWdoX2xpbWl0GA4gASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZSI+ChNMaXN0T2JqZWN0c1Jlc3BvbnNlEicKB29iamVjdHMYASADKAsyFi5jYW5nYXRlLnYxLk9iamVjdEluZm8iNQoSU2Nhbk5ldHdvcmtSZXF1ZXN0EgsKA2J1cxgBIAEoCRISCgp0aW1lb3V0X21zGAIgASgNIjYKE1NjYW5OZXR3b3JrUmVzcG9uc2USHwoFbm9kZXMYASADKAsyEC5jYW5nYXRlLnYxLk5vZGUiNQoXU3RyZWFtTm9kZUV2ZW50c1JlcXVlc3QSCwoDYnVzGAEgASgJEg0KBW5vZGVzGAIgAygNIoIECglOb2RlRXZlbnQSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SFAoMdGltZXN0YW1wX25zGAMgASgEEiUKB2Jvb3RfdXAYBCABKAsyEi5jYW5nYXRlLnYxLkJvb3RVcEgAEjAKDXN0YXRlX2NoYW5nZWQYBSABKAsyFy5jYW5nYXRlLnYxLlN0YXRlQ2hhbmdlSAASMwoOaGVhcnRiZWF0X2xvc3QYBiABKAsyGS5jYW5nYXRlLnYxLkhlYXJ0YmVhdExvc3RIABI9ChNoZWFydGJlYXRfcmVjb3ZlcmVkGAcgASgLMh4uY2FuZ2F0ZS52MS5IZWFydGJlYXRSZWNvdmVyZWRIABIgCgRlbWN5GAggASgLMhAuY2FuZ2F0ZS52MS5FbWN5SAASJgoEbG9zdBgJIAEoCzIWLmNhbmdhdGUudjEuRXZlbnRzTG9zdEgAEjMKDmJvb3RfY29tcGxldGVkGAogASgLMhkuY2FuZ2F0ZS52MS5Cb290Q29tcGxldGVkSAASLQoLYm9vdF9mYWlsZWQYCyABKAsyFi5jYW5nYXRlLnYxLkJvb3RGYWlsZWRIABJAChVndWFyZGluZ190b2dnbGVfZXJyb3IYDCABKAsyHy5jYW5nYXRlLnYxLkd1YXJkaW5nVG9nZ2xlRXJyb3JIAEIHCgVldmVudCJLChNHdWFyZGluZ1RvZ2dsZUVycm9yEgwKBGRhdGEYASABKA0SFwoPZXhwZWN0ZWRfdG9nZ2xlGAIgASgIEg0KBWNvdW50GAMgASgEIg8KDUJvb3RDb21wbGV0ZWQiHAoKQm9vdEZhaWxlZBIOCgZyZWFzb24YASABKAkiLgoQU3RyZWFtUGRvUmVxdWVzdBILCgNidXMYASABKAkSDQoFbm9kZXMYAiADKA0iWwoIUGRvVmFsdWUSDQoFaW5kZXgYASABKA0SEAoIc3ViaW5kZXgYAiABKA0SDAoEbmFtZRgDIAEoCRIgCgV2YWx1ZRgEIAEoCzIRLmNhbmdhdGUudjEuVmFsdWUilQEKClBkb01lc3NhZ2USCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SCwoDcGRvGAMgASgNEg4KBmNvYl9pZBgEIAEoDRIUCgx0aW1lc3RhbXBfbnMYBSABKAQSJAoGdmFsdWVzGAYgAygLMhQuY2FuZ2F0ZS52MS5QZG9WYWx1ZRITCgtsb3N0X2JlZm9yZRgHIAEoBCJfCg9Xcml0ZVBkb1JlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SCwoDcGRvGAMgASgNEiQKBnZhbHVlcxgEIAMoCzIULmNhbmdhdGUudjEuUGRvVmFsdWUiIAoQV3JpdGVQZG9SZXNwb25zZRIMCgRkYXRhGAEgASgMIggKBkJvb3RVcCJTCgtTdGF0ZUNoYW5nZRIiCgRmcm9tGAEgASgOMhQuY2FuZ2F0ZS52MS5ObXRTdGF0ZRIgCgJ0bxgCIAEoDjIULmNhbmdhdGUudjEuTm10U3RhdGUiUwoNSGVhcnRiZWF0TG9zdBISCgp0aW1lb3V0X21zGAEgASgNEi4KCm1vbml0b3JpbmcYAiABKA4yGi5jYW5nYXRlLnYxLkxpZmVNb25pdG9yaW5nInwKEkhlYXJ0YmVhdFJlY292ZXJlZBIjCgVzdGF0ZRgBIAEoDjIULmNhbmdhdGUudjEuTm10U3RhdGUSEQoJc2lsZW50X21zGAIgASgEEi4KCm1vbml0b3JpbmcYAyABKA4yGi5jYW5nYXRlLnYxLkxpZmVNb25pdG9yaW5nIhsKCkV2ZW50c0xvc3QSDQoFY291bnQYASABKAQiYQoPU2RvQWJvcnREZXRhaWxzEgwKBGNvZGUYASABKA0SDAoEbmFtZRgCIAEoCRINCgVpbmRleBgDIAEoDRIQCghzdWJpbmRleBgEIAEoDRIRCglmcm9tX25vZGUYBSABKAgiJgoXTGlzdFNkb1RyYW5zZmVyc1JlcXVlc3QSCwoDYnVzGAEgASgJIpEBCgtTZG9UcmFuc2ZlchIMCgRub2RlGAEgASgNEg0KBWluZGV4GAIgASgNEhAKCHN1YmluZGV4GAMgASgNEg4KBnVwbG9hZBgEIAEoCBIQCghwcm90b2NvbBgFIAEoCRITCgt0cmFuc2ZlcnJlZBgGIAEoBBISCgV0b3RhbBgHIAEoBEgAiAEBQggKBl90b3RhbCJGChhMaXN0U2RvVHJhbnNmZXJzUmVzcG9uc2USKgoJdHJhbnNmZXJzGAEgAygLMhcuY2FuZ2F0ZS52MS5TZG9UcmFuc2ZlciqOAQoITm10U3RhdGUSFQoRTk1UX1NUQVRFX1VOS05PV04QABIaChZOTVRfU1RBVEVfSU5JVElBTElTSU5HEAESFQoRTk1UX1NUQVRFX1NUT1BQRUQQAhIZChVOTVRfU1RBVEVfT1BFUkFUSU9OQUwQAxIdChlOTVRfU1RBVEVfUFJFX09QRVJBVElPTkFMEAQqvgEKCk5tdENvbW1hbmQSGwoXTk1UX0NPTU1BTkRfVU5TUEVDSUZJRUQQABIVChFOTVRfQ09NTUFORF9TVEFSVBABEhQKEE5NVF9DT01NQU5EX1NUT1AQAhIlCiFOTVRfQ09NTUFORF9FTlRFUl9QUkVfT1BFUkFUSU9OQUwQAxIaChZOTVRfQ09NTUFORF9SRVNFVF9OT0RFEAQSIwofTk1UX0NPTU1BTkRfUkVTRVRfQ09NTVVOSUNBVElPThAFKqADCghEYXRhVHlwZRIZChVEQVRBX1RZUEVfVU5TUEVDSUZJRUQQABIVChFEQVRBX1RZUEVfQk9PTEVBThABEhYKEkRBVEFfVFlQRV9JTlRFR0VSOBACEhcKE0RBVEFfVFlQRV9JTlRFR0VSMTYQAxIXChNEQVRBX1RZUEVfSU5URUdFUjMyEAQSFwoTREFUQV9UWVBFX1VOU0lHTkVEOBAFEhgKFERBVEFfVFlQRV9VTlNJR05FRDE2EAYSGAoUREFUQV9UWVBFX1VOU0lHTkVEMzIQBxIUChBEQVRBX1RZUEVfUkVBTDMyEAgSHAoYREFUQV9UWVBFX1ZJU0lCTEVfU1RSSU5HEAkSGgoWREFUQV9UWVBFX09DVEVUX1NUUklORxAKEhwKGERBVEFfVFlQRV9VTklDT0RFX1NUUklORxALEhQKEERBVEFfVFlQRV9ET01BSU4QDxIUChBEQVRBX1RZUEVfUkVBTDY0EBESFwoTREFUQV9UWVBFX0lOVEVHRVI2NBAVEhgKFERBVEFfVFlQRV9VTlNJR05FRDY0EBsqbAoOTGlmZU1vbml0b3JpbmcSGAoUTElGRV9NT05JVE9SSU5HX05PTkUQABIdChlMSUZFX01PTklUT1JJTkdfSEVBUlRCRUFUEAESIQodTElGRV9NT05JVE9SSU5HX05PREVfR1VBUkRJTkcQAiq2AQoMT2JqZWN0QWNjZXNzEh0KGU9CSkVDVF9BQ0NFU1NfVU5TUEVDSUZJRUQQABIUChBPQkpFQ1RfQUNDRVNTX1JPEAESFAoQT0JKRUNUX0FDQ0VTU19XTxACEhQKEE9CSkVDVF9BQ0NFU1NfUlcQAxIVChFPQkpFQ1RfQUNDRVNTX1JXUhAEEhUKEU9CSkVDVF9BQ0NFU1NfUldXEAUSFwoTT0JKRUNUX0FDQ0VTU19DT05TVBAGMrgGCgdDYW5vcGVuEkgKCUxpc3ROb2RlcxIcLmNhbmdhdGUudjEuTGlzdE5vZGVzUmVxdWVzdBodLmNhbmdhdGUudjEuTGlzdE5vZGVzUmVzcG9uc2USNwoHR2V0Tm9kZRIaLmNhbmdhdGUudjEuR2V0Tm9kZVJlcXVlc3QaEC5jYW5nYXRlLnYxLk5vZGUSQgoHU2VuZE5tdBIaLmNhbmdhdGUudjEuU2VuZE5tdFJlcXVlc3QaGy5jYW5nYXRlLnYxLlNlbmRObXRSZXNwb25zZRJCCgdSZWFkU2RvEhouY2FuZ2F0ZS52MS5SZWFkU2RvUmVxdWVzdBobLmNhbmdhdGUudjEuUmVhZFNkb1Jlc3BvbnNlEkUKCFdyaXRlU2RvEhsuY2FuZ2F0ZS52MS5Xcml0ZVNkb1JlcXVlc3QaHC5jYW5nYXRlLnYxLldyaXRlU2RvUmVzcG9uc2USTgoLTGlzdE9iamVjdHMSHi5jYW5nYXRlLnYxLkxpc3RPYmplY3RzUmVxdWVzdBofLmNhbmdhdGUudjEuTGlzdE9iamVjdHNSZXNwb25zZRJdChBMaXN0U2RvVHJhbnNmZXJzEiMuY2FuZ2F0ZS52MS5MaXN0U2RvVHJhbnNmZXJzUmVxdWVzdBokLmNhbmdhdGUudjEuTGlzdFNkb1RyYW5zZmVyc1Jlc3BvbnNlEk4KC1NjYW5OZXR3b3JrEh4uY2FuZ2F0ZS52MS5TY2FuTmV0d29ya1JlcXVlc3QaHy5jYW5nYXRlLnYxLlNjYW5OZXR3b3JrUmVzcG9uc2USUAoQU3RyZWFtTm9kZUV2ZW50cxIjLmNhbmdhdGUudjEuU3RyZWFtTm9kZUV2ZW50c1JlcXVlc3QaFS5jYW5nYXRlLnYxLk5vZGVFdmVudDABEkMKCVN0cmVhbVBkbxIcLmNhbmdhdGUudjEuU3RyZWFtUGRvUmVxdWVzdBoWLmNhbmdhdGUudjEuUGRvTWVzc2FnZTABEkUKCFdyaXRlUGRvEhsuY2FuZ2F0ZS52MS5Xcml0ZVBkb1JlcXVlc3QaHC5jYW5nYXRlLnYxLldyaXRlUGRvUmVzcG9uc2ViBnByb3RvMw");
 
 /**
  * A typed value. Integers of every width travel as int64/uint64; the
@@ -357,14 +357,16 @@ export type Node = Message<"cangate.v1.Node"> & {
   state: NmtState;
 
   /**
-   * Milliseconds since the last heartbeat (absent if never heard).
+   * Milliseconds since the last heartbeat (absent if never heard); for a
+   * guarded node since its last valid guarding answer.
    *
    * @generated from field: optional uint64 heartbeat_age_ms = 5;
    */
   heartbeatAgeMs?: bigint | undefined;
 
   /**
-   * The heartbeat is monitored and overdue.
+   * The heartbeat is monitored and overdue, or the guarded node answered
+   * no request within its life time.
    *
    * @generated from field: bool heartbeat_lost = 6;
    */
@@ -427,6 +429,38 @@ export type Node = Message<"cangate.v1.Node"> & {
    * @generated from field: bool configured = 14;
    */
   configured: boolean;
+
+  /**
+   * How the master watches the node: heartbeat consumer or node guarding
+   * (a node uses one or the other, CiA 301). For a guarded node
+   * heartbeat_age_ms and heartbeat_lost describe its guarding answers
+   * (time since the last valid answer; life time run out).
+   *
+   * @generated from field: cangate.v1.LifeMonitoring monitoring = 15;
+   */
+  monitoring: LifeMonitoring;
+
+  /**
+   * Node guarding: guard time in ms, the request period (0 = not guarded).
+   *
+   * @generated from field: uint32 guard_time_ms = 16;
+   */
+  guardTimeMs: number;
+
+  /**
+   * Node guarding: life time factor (lost after this many unanswered
+   * requests in a row).
+   *
+   * @generated from field: uint32 life_time_factor = 17;
+   */
+  lifeTimeFactor: number;
+
+  /**
+   * Node guarding: answers with a wrong toggle bit so far.
+   *
+   * @generated from field: uint64 guarding_toggle_errors = 18;
+   */
+  guardingToggleErrors: bigint;
 };
 
 /**
@@ -1094,7 +1128,8 @@ export type NodeEvent = Message<"cangate.v1.NodeEvent"> & {
     case: "stateChanged";
   } | {
     /**
-     * The heartbeat is overdue.
+     * The heartbeat is overdue, or (monitoring = NODE_GUARDING) the node
+     * answered no guarding request within its life time.
      *
      * @generated from field: cangate.v1.HeartbeatLost heartbeat_lost = 6;
      */
@@ -1102,7 +1137,7 @@ export type NodeEvent = Message<"cangate.v1.NodeEvent"> & {
     case: "heartbeatLost";
   } | {
     /**
-     * The heartbeat came back.
+     * The heartbeat came back, or the node answered guarding again.
      *
      * @generated from field: cangate.v1.HeartbeatRecovered heartbeat_recovered = 7;
      */
@@ -1140,6 +1175,15 @@ export type NodeEvent = Message<"cangate.v1.NodeEvent"> & {
      */
     value: BootFailed;
     case: "bootFailed";
+  } | {
+    /**
+     * A node guarding answer with the wrong toggle bit (not accepted as a
+     * sign of life).
+     *
+     * @generated from field: cangate.v1.GuardingToggleError guarding_toggle_error = 12;
+     */
+    value: GuardingToggleError;
+    case: "guardingToggleError";
   } | { case: undefined; value?: undefined };
 };
 
@@ -1149,6 +1193,41 @@ export type NodeEvent = Message<"cangate.v1.NodeEvent"> & {
  */
 export const NodeEventSchema: GenMessage<NodeEvent> = /*@__PURE__*/
   messageDesc(file_cangate_v1_canopen, 20);
+
+/**
+ * A node guarding answer whose toggle bit was not the expected one.
+ *
+ * @generated from message cangate.v1.GuardingToggleError
+ */
+export type GuardingToggleError = Message<"cangate.v1.GuardingToggleError"> & {
+  /**
+   * The answer byte (bit 7 toggle, bits 0..=6 NMT state).
+   *
+   * @generated from field: uint32 data = 1;
+   */
+  data: number;
+
+  /**
+   * The toggle bit expected.
+   *
+   * @generated from field: bool expected_toggle = 2;
+   */
+  expectedToggle: boolean;
+
+  /**
+   * Toggle errors of this node so far.
+   *
+   * @generated from field: uint64 count = 3;
+   */
+  count: bigint;
+};
+
+/**
+ * Describes the message cangate.v1.GuardingToggleError.
+ * Use `create(GuardingToggleErrorSchema)` to create a new message.
+ */
+export const GuardingToggleErrorSchema: GenMessage<GuardingToggleError> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 21);
 
 /**
  * Boot procedure succeeded.
@@ -1163,7 +1242,7 @@ export type BootCompleted = Message<"cangate.v1.BootCompleted"> & {
  * Use `create(BootCompletedSchema)` to create a new message.
  */
 export const BootCompletedSchema: GenMessage<BootCompleted> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 21);
+  messageDesc(file_cangate_v1_canopen, 22);
 
 /**
  * Boot procedure failed.
@@ -1185,7 +1264,7 @@ export type BootFailed = Message<"cangate.v1.BootFailed"> & {
  * Use `create(BootFailedSchema)` to create a new message.
  */
 export const BootFailedSchema: GenMessage<BootFailed> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 22);
+  messageDesc(file_cangate_v1_canopen, 23);
 
 /**
  * StreamPdo request.
@@ -1213,7 +1292,7 @@ export type StreamPdoRequest = Message<"cangate.v1.StreamPdoRequest"> & {
  * Use `create(StreamPdoRequestSchema)` to create a new message.
  */
 export const StreamPdoRequestSchema: GenMessage<StreamPdoRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 23);
+  messageDesc(file_cangate_v1_canopen, 24);
 
 /**
  * One mapped object of a PDO.
@@ -1255,7 +1334,7 @@ export type PdoValue = Message<"cangate.v1.PdoValue"> & {
  * Use `create(PdoValueSchema)` to create a new message.
  */
 export const PdoValueSchema: GenMessage<PdoValue> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 24);
+  messageDesc(file_cangate_v1_canopen, 25);
 
 /**
  * A decoded PDO, or a notice of missed PDOs.
@@ -1318,7 +1397,7 @@ export type PdoMessage = Message<"cangate.v1.PdoMessage"> & {
  * Use `create(PdoMessageSchema)` to create a new message.
  */
 export const PdoMessageSchema: GenMessage<PdoMessage> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 25);
+  messageDesc(file_cangate_v1_canopen, 26);
 
 /**
  * WritePdo request.
@@ -1362,7 +1441,7 @@ export type WritePdoRequest = Message<"cangate.v1.WritePdoRequest"> & {
  * Use `create(WritePdoRequestSchema)` to create a new message.
  */
 export const WritePdoRequestSchema: GenMessage<WritePdoRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 26);
+  messageDesc(file_cangate_v1_canopen, 27);
 
 /**
  * WritePdo response.
@@ -1383,7 +1462,7 @@ export type WritePdoResponse = Message<"cangate.v1.WritePdoResponse"> & {
  * Use `create(WritePdoResponseSchema)` to create a new message.
  */
 export const WritePdoResponseSchema: GenMessage<WritePdoResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 27);
+  messageDesc(file_cangate_v1_canopen, 28);
 
 /**
  * Boot-up message received.
@@ -1398,7 +1477,7 @@ export type BootUp = Message<"cangate.v1.BootUp"> & {
  * Use `create(BootUpSchema)` to create a new message.
  */
 export const BootUpSchema: GenMessage<BootUp> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 28);
+  messageDesc(file_cangate_v1_canopen, 29);
 
 /**
  * NMT state change.
@@ -1426,20 +1505,28 @@ export type StateChange = Message<"cangate.v1.StateChange"> & {
  * Use `create(StateChangeSchema)` to create a new message.
  */
 export const StateChangeSchema: GenMessage<StateChange> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 29);
+  messageDesc(file_cangate_v1_canopen, 30);
 
 /**
- * Heartbeat overdue.
+ * Heartbeat overdue, or node guarding lost.
  *
  * @generated from message cangate.v1.HeartbeatLost
  */
 export type HeartbeatLost = Message<"cangate.v1.HeartbeatLost"> & {
   /**
-   * The consumer timeout in ms.
+   * The consumer timeout in ms; for node guarding the node life time
+   * (guard time × life time factor).
    *
    * @generated from field: uint32 timeout_ms = 1;
    */
   timeoutMs: number;
+
+  /**
+   * Which mechanism detected the loss (HEARTBEAT or NODE_GUARDING).
+   *
+   * @generated from field: cangate.v1.LifeMonitoring monitoring = 2;
+   */
+  monitoring: LifeMonitoring;
 };
 
 /**
@@ -1447,10 +1534,11 @@ export type HeartbeatLost = Message<"cangate.v1.HeartbeatLost"> & {
  * Use `create(HeartbeatLostSchema)` to create a new message.
  */
 export const HeartbeatLostSchema: GenMessage<HeartbeatLost> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 30);
+  messageDesc(file_cangate_v1_canopen, 31);
 
 /**
- * Heartbeat back after a loss.
+ * Heartbeat back after a loss, or the first valid guarding answer after
+ * a guarding loss.
  *
  * @generated from message cangate.v1.HeartbeatRecovered
  */
@@ -1463,11 +1551,19 @@ export type HeartbeatRecovered = Message<"cangate.v1.HeartbeatRecovered"> & {
   state: NmtState;
 
   /**
-   * How long the node was silent, in ms.
+   * How long the node was silent, in ms (since its last heartbeat or
+   * valid guarding answer).
    *
    * @generated from field: uint64 silent_ms = 2;
    */
   silentMs: bigint;
+
+  /**
+   * Which mechanism saw it again (HEARTBEAT or NODE_GUARDING).
+   *
+   * @generated from field: cangate.v1.LifeMonitoring monitoring = 3;
+   */
+  monitoring: LifeMonitoring;
 };
 
 /**
@@ -1475,7 +1571,7 @@ export type HeartbeatRecovered = Message<"cangate.v1.HeartbeatRecovered"> & {
  * Use `create(HeartbeatRecoveredSchema)` to create a new message.
  */
 export const HeartbeatRecoveredSchema: GenMessage<HeartbeatRecovered> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 31);
+  messageDesc(file_cangate_v1_canopen, 32);
 
 /**
  * Events this client missed.
@@ -1496,7 +1592,7 @@ export type EventsLost = Message<"cangate.v1.EventsLost"> & {
  * Use `create(EventsLostSchema)` to create a new message.
  */
 export const EventsLostSchema: GenMessage<EventsLost> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 32);
+  messageDesc(file_cangate_v1_canopen, 33);
 
 /**
  * The SDO abort of an error caused by an SDO transfer (ErrorInfo reason
@@ -1555,7 +1651,7 @@ export type SdoAbortDetails = Message<"cangate.v1.SdoAbortDetails"> & {
  * Use `create(SdoAbortDetailsSchema)` to create a new message.
  */
 export const SdoAbortDetailsSchema: GenMessage<SdoAbortDetails> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 33);
+  messageDesc(file_cangate_v1_canopen, 34);
 
 /**
  * ListSdoTransfers request.
@@ -1576,7 +1672,7 @@ export type ListSdoTransfersRequest = Message<"cangate.v1.ListSdoTransfersReques
  * Use `create(ListSdoTransfersRequestSchema)` to create a new message.
  */
 export const ListSdoTransfersRequestSchema: GenMessage<ListSdoTransfersRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 34);
+  messageDesc(file_cangate_v1_canopen, 35);
 
 /**
  * One running SDO transfer.
@@ -1639,7 +1735,7 @@ export type SdoTransfer = Message<"cangate.v1.SdoTransfer"> & {
  * Use `create(SdoTransferSchema)` to create a new message.
  */
 export const SdoTransferSchema: GenMessage<SdoTransfer> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 35);
+  messageDesc(file_cangate_v1_canopen, 36);
 
 /**
  * ListSdoTransfers response.
@@ -1660,7 +1756,7 @@ export type ListSdoTransfersResponse = Message<"cangate.v1.ListSdoTransfersRespo
  * Use `create(ListSdoTransfersResponseSchema)` to create a new message.
  */
 export const ListSdoTransfersResponseSchema: GenMessage<ListSdoTransfersResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 36);
+  messageDesc(file_cangate_v1_canopen, 37);
 
 /**
  * NMT states (CiA 301).
@@ -1891,6 +1987,41 @@ export const DataTypeSchema: GenEnum<DataType> = /*@__PURE__*/
   enumDesc(file_cangate_v1_canopen, 2);
 
 /**
+ * How the master watches that a node is alive (CiA 301).
+ *
+ * @generated from enum cangate.v1.LifeMonitoring
+ */
+export enum LifeMonitoring {
+  /**
+   * Not watched (no heartbeat timeout, not guarded).
+   *
+   * @generated from enum value: LIFE_MONITORING_NONE = 0;
+   */
+  NONE = 0,
+
+  /**
+   * Heartbeat consumer: the node produces 0x700+n every producer time.
+   *
+   * @generated from enum value: LIFE_MONITORING_HEARTBEAT = 1;
+   */
+  HEARTBEAT = 1,
+
+  /**
+   * Node guarding: the master sends an RTR to 0x700+n every guard time,
+   * the node answers with a toggle bit and its NMT state.
+   *
+   * @generated from enum value: LIFE_MONITORING_NODE_GUARDING = 2;
+   */
+  NODE_GUARDING = 2,
+}
+
+/**
+ * Describes the enum cangate.v1.LifeMonitoring.
+ */
+export const LifeMonitoringSchema: GenEnum<LifeMonitoring> = /*@__PURE__*/
+  enumDesc(file_cangate_v1_canopen, 3);
+
+/**
  * Access rights of an object (EDS AccessType).
  *
  * @generated from enum cangate.v1.ObjectAccess
@@ -1950,7 +2081,7 @@ export enum ObjectAccess {
  * Describes the enum cangate.v1.ObjectAccess.
  */
 export const ObjectAccessSchema: GenEnum<ObjectAccess> = /*@__PURE__*/
-  enumDesc(file_cangate_v1_canopen, 3);
+  enumDesc(file_cangate_v1_canopen, 4);
 
 /**
  * CANopen master: nodes, NMT, SDO, events.
