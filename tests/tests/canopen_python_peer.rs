@@ -746,17 +746,7 @@ impl Device {
 
     /// The device stored exactly `data` at `index:sub`.
     async fn expect_write(&mut self, index: u16, sub: u8, data: &[u8]) -> Result<()> {
-        let prefix = format!("WRITE {index:04X}:{sub:02X} ");
-        let line = self
-            .expect(&prefix, WAIT, |l| l.starts_with(&prefix))
-            .await?;
-        let hex: String = data.iter().map(|b| format!("{b:02x}")).collect();
-        ensure!(
-            line[prefix.len()..] == hex,
-            "the device stored {} at {index:04X}:{sub:02X}, expected {hex}",
-            &line[prefix.len()..]
-        );
-        Ok(())
+        self.0.expect_stored(index, sub, data, WAIT).await
     }
 
     /// Asks the device to stop and requires a clean exit.

@@ -471,20 +471,6 @@ fn every_type() -> Vec<(
 
 /// The device's protocol: `WRITE iiii:ss <hex>` for each SDO download it
 /// stored; exactly `data` at `index:00`.
-async fn expect_write(dev: &mut Peer, index: u32, data: &[u8]) -> Result<()> {
-    let prefix = format!("WRITE {index:04X}:00 ");
-    let line = dev
-        .expect(&prefix, WAIT, |l| l.starts_with(&prefix))
-        .await?;
-    let hex: String = data.iter().map(|b| format!("{b:02x}")).collect();
-    ensure!(
-        line[prefix.len()..] == hex,
-        "the device stored {} at {index:04X}:00, expected {hex}",
-        &line[prefix.len()..]
-    );
-    Ok(())
-}
-
 async fn local_node_scenario(python: &Path, server: &cangate_server::RunningServer) -> Result<()> {
     let t0 = Instant::now();
     let step = |name: &str| eprintln!("[{:>6.2} s] {name}", t0.elapsed().as_secs_f64());
@@ -594,7 +580,8 @@ async fn local_node_scenario(python: &Path, server: &cangate_server::RunningServ
             "0x{index:04X}: wrote {} bytes",
             w.bytes
         );
-        expect_write(&mut dev, index, &bytes).await?;
+        dev.expect_stored(u16::try_from(index)?, 0, &bytes, WAIT)
+            .await?;
         let r = canopen.read_sdo(read(index, ty)).await?.into_inner();
         ensure!(
             r.value == Some(value(ty, new.clone())),
@@ -619,7 +606,7 @@ async fn local_node_scenario(python: &Path, server: &cangate_server::RunningServ
         .into_inner();
     let write_time = started.elapsed();
     ensure!(w.bytes == 4096, "wrote {} bytes", w.bytes);
-    expect_write(&mut dev, 0x210D, &image).await?;
+    dev.expect_stored(0x210D, 0, &image, WAIT).await?;
     let started = Instant::now();
     let r = canopen
         .read_sdo(read(0x210D, pb::DataType::Domain))

@@ -198,6 +198,28 @@ impl Peer {
         }
     }
 
+    /// `tests/python/local_node.py` stored exactly `data` at `index:sub`
+    /// (its `WRITE IIII:SS hex` line).
+    pub async fn expect_stored(
+        &mut self,
+        index: u16,
+        sub: u8,
+        data: &[u8],
+        limit: Duration,
+    ) -> Result<()> {
+        let prefix = format!("WRITE {index:04X}:{sub:02X} ");
+        let line = self
+            .expect(&prefix, limit, |l| l.starts_with(&prefix))
+            .await?;
+        let hex: String = data.iter().map(|b| format!("{b:02x}")).collect();
+        ensure!(
+            line[prefix.len()..] == hex,
+            "the device stored {} at {index:04X}:{sub:02X}, expected {hex}",
+            &line[prefix.len()..]
+        );
+        Ok(())
+    }
+
     /// Writes a line to the script's stdin.
     pub fn say(&mut self, line: &str) -> Result<()> {
         let stdin = self.stdin.as_mut().context("stdin already closed")?;
