@@ -199,7 +199,18 @@ impl Gateway {
             let (master, task) = CanopenBus::spawn(
                 bus,
                 Duration::from_millis(cc.sdo_timeout_ms),
-                (cc.sync_period_us > 0).then(|| Duration::from_micros(cc.sync_period_us)),
+                crate::canopen::sync_thread::SyncSettings {
+                    running: cc.sync_period_us > 0,
+                    // A stopped SYNC started at run time without a period
+                    // runs at 10 ms until one is given.
+                    period: Duration::from_micros(if cc.sync_period_us > 0 {
+                        cc.sync_period_us
+                    } else {
+                        10_000
+                    }),
+                    counter_overflow: cc.sync_counter_overflow,
+                },
+                (cc.time_period_ms > 0).then(|| Duration::from_millis(cc.time_period_ms)),
                 config.rt_priority,
                 facts,
                 shutdown.child_token(),

@@ -24,6 +24,7 @@ pub mod od;
 pub mod pdo;
 pub mod sdo;
 pub mod sync;
+pub mod time_of_day;
 pub mod value;
 
 pub use ids::{BadNodeId, CobFunction, NodeId, ObjectAddress};

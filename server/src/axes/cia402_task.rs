@@ -205,7 +205,10 @@ pub fn spawn(
         .map(|(i, s)| (s.info.node, i))
         .collect();
     let origin = Instant::now();
-    let setpoints = Arc::new(CyclicSetpoints::new(origin, slots.len()));
+    let setpoints = Arc::new(CyclicSetpoints::new(
+        origin,
+        slots.iter().map(|s| s.info.config.name.clone()),
+    ));
     if slots.iter().any(|s| s.setpoint.is_some()) {
         let rider: Arc<dyn crate::canopen::sync_thread::SyncRider> = setpoints.clone();
         if !master.add_sync_rider(Arc::downgrade(&rider)) {

@@ -16,10 +16,19 @@ pub struct CanopenConfig {
     /// process data every SYNC; cyclic axes get a set-point every SYNC.
     #[serde(default)]
     pub sync_period_us: u64,
+    /// SYNC counter overflow value (0x1019): 0 sends SYNCs without data,
+    /// 2..=240 adds a one-byte counter that runs 1..=value. Changeable at
+    /// run time with `Canopen.SetSync`.
+    #[serde(default)]
+    pub sync_counter_overflow: u8,
+    /// TIME producer period in ms (0 = TIME only on request): the master
+    /// sends the host's UTC time as a CiA 301 TIME_OF_DAY on 0x100.
+    #[serde(default)]
+    pub time_period_ms: u64,
     /// Known nodes.
     #[serde(default, rename = "node")]
     pub nodes: Vec<NodeConfig>,
-    // ---- the master's own heartbeat (see `master_heartbeat_check`) ----
+    // ---- the master's own heartbeat (see `check`) ----
     /// The gateway's node id as NMT master, for its own heartbeat
     /// (`0x700 + id`); no configured node may use it. Default 127, the
     /// highest id, where masters customarily sit, free in the demo.
@@ -65,8 +74,14 @@ impl CanopenConfig {
         )
     }
 
-    pub(super) fn master_heartbeat_check(&self) -> Result<(), String> {
+    pub(super) fn check(&self) -> Result<(), String> {
         let at = |m: String| format!("[[canopen]] bus {:?}: {m}", self.bus);
+        if self.sync_counter_overflow == 1 || self.sync_counter_overflow > 240 {
+            return Err(at(format!(
+                "sync_counter_overflow {} is reserved: use 0 (no counter) or 2..=240",
+                self.sync_counter_overflow
+            )));
+        }
         if !(1..=127).contains(&self.master_node_id) {
             return Err(at(format!(
                 "master_node_id {} is out of range (1..=127)",

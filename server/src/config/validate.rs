@@ -100,7 +100,7 @@ impl Config {
                     c.bus
                 )));
             };
-            c.master_heartbeat_check().map_err(ConfigError::Invalid)?;
+            c.check().map_err(ConfigError::Invalid)?;
             if !masters.insert(c.bus.as_str()) {
                 return Err(ConfigError::Invalid(format!(
                     "bus {:?} has two [[canopen]] sections",
