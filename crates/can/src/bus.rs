@@ -833,10 +833,7 @@ impl BusHandle {
     /// the subscription has ended.
     pub fn reselect(&self, key: &SubscriptionKey, selector: FrameSelector) -> bool {
         let mut subs = self.shared.subscribers.lock().expect("subscriber lock");
-        let Some(s) = subs
-            .iter_mut()
-            .find(|s| Arc::ptr_eq(&s.lost_total, &key.0))
-        else {
+        let Some(s) = subs.iter_mut().find(|s| Arc::ptr_eq(&s.lost_total, &key.0)) else {
             return false;
         };
         let transmitted = s.selector.transmitted || selector.transmitted;

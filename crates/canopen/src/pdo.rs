@@ -230,7 +230,10 @@ impl PdoConfig {
                 transmission_type,
                 inhibit_time,
                 event_timer_ms,
-                mapping: entries.iter().map(|&e| MappedObject::from_entry(e)).collect(),
+                mapping: entries
+                    .iter()
+                    .map(|&e| MappedObject::from_entry(e))
+                    .collect(),
             },
             cob_entry & 0x8000_0000 == 0,
         )
@@ -393,17 +396,13 @@ mod parameter_tests {
         let on = cfg.sdo_writes().unwrap();
         let off = cfg.sdo_writes_leaving(false).unwrap();
         assert_eq!(&on[..on.len() - 1], &off[..]);
-        assert_eq!(off[0], (ObjectAddress::new(0x1800, 1), vec![0x85, 0x01, 0, 0x80]));
-        assert_eq!(on.last().unwrap().1, vec![0x85, 0x01, 0, 0]);
-        let (read, valid) = PdoConfig::from_parameters(
-            PdoKind::Tpdo,
-            1,
-            0x8000_0185,
-            1,
-            0,
-            0,
-            &[0x6041_0010],
+        assert_eq!(
+            off[0],
+            (ObjectAddress::new(0x1800, 1), vec![0x85, 0x01, 0, 0x80])
         );
+        assert_eq!(on.last().unwrap().1, vec![0x85, 0x01, 0, 0]);
+        let (read, valid) =
+            PdoConfig::from_parameters(PdoKind::Tpdo, 1, 0x8000_0185, 1, 0, 0, &[0x6041_0010]);
         assert_eq!((read, valid), (cfg, false));
     }
 }

@@ -114,14 +114,26 @@ mod tests {
         // One day and 3,600.5 s after the epoch: 3,600,500 ms = 0x0036F074.
         let unix = Duration::from_millis(EPOCH_1984_UNIX_SECS * 1000 + 86_400_000 + 3_600_500);
         let t = TimeOfDay::from_unix(unix).unwrap();
-        assert_eq!(t, TimeOfDay { ms: 3_600_500, days: 1 });
+        assert_eq!(
+            t,
+            TimeOfDay {
+                ms: 3_600_500,
+                days: 1
+            }
+        );
         assert_eq!(t.encode(), [0x74, 0xF0, 0x36, 0x00, 0x01, 0x00]);
         assert_eq!(t.frame().raw_id(), 0x100);
         assert_eq!(TimeOfDay::decode(&t.encode()), Ok(t));
         assert_eq!(t.to_unix(), unix);
         // 2025-11-24 00:00:00 UTC is Unix day 20,416: day 15,303 since 1984.
         let t = TimeOfDay::from_unix(Duration::from_secs(20_416 * 86_400 + 1)).unwrap();
-        assert_eq!(t, TimeOfDay { ms: 1000, days: 15_303 });
+        assert_eq!(
+            t,
+            TimeOfDay {
+                ms: 1000,
+                days: 15_303
+            }
+        );
         assert_eq!(t.encode(), [0xE8, 0x03, 0, 0, 0xC7, 0x3B]);
     }
 

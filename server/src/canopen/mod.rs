@@ -22,8 +22,8 @@ use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio_util::sync::CancellationToken;
 
 pub mod master_heartbeat;
-pub mod scan;
 pub mod pdo_config;
+pub mod scan;
 pub mod sync_thread;
 mod time_producer;
 
@@ -438,8 +438,8 @@ impl CanopenBus {
         if settings == current {
             return Ok(current);
         }
-        let interrupts = current.running
-            && (!settings.running || settings.period != current.period);
+        let interrupts =
+            current.running && (!settings.running || settings.period != current.period);
         if interrupts {
             let riders = self.sync_riders.lock().expect("SYNC riders lock");
             if let Some(why) = riders

@@ -200,7 +200,10 @@ impl CanopenBus {
             PdoKind::Tpdo => &mut f.tpdos,
             PdoKind::Rpdo => &mut f.rpdos,
         };
-        let old = list.iter().position(|p| p.num == cfg.num).map(|i| list.remove(i));
+        let old = list
+            .iter()
+            .position(|p| p.num == cfg.num)
+            .map(|i| list.remove(i));
         if enabled {
             list.push(cfg.clone());
             list.sort_by_key(|p| p.num);
@@ -226,7 +229,10 @@ impl CanopenBus {
                 );
             }
         }
-        if !self.handle.reselect(&self.master_sub, master_selector(&facts)) {
+        if !self
+            .handle
+            .reselect(&self.master_sub, master_selector(&facts))
+        {
             tracing::warn!(bus = %self.bus, "the master's subscription has ended");
         }
     }

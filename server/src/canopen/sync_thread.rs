@@ -208,9 +208,7 @@ pub fn spawn(
             }
             let skipped = skipped_before + producer.skipped();
             counts.skipped.store(skipped, Ordering::Relaxed);
-            if skipped != reported_skips
-                && last_report.elapsed() >= Duration::from_secs(10)
-            {
+            if skipped != reported_skips && last_report.elapsed() >= Duration::from_secs(10) {
                 tracing::warn!(
                     bus = %bus.name(),
                     skipped = skipped - reported_skips,

@@ -10,12 +10,12 @@ use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_
 use super::runtime_errors::lookup_error;
 use crate::canopen::pdo_config::PdoConfigError;
 use crate::canopen::{CanopenBus, CanopenError, NodeEventKind, SyncChangeError, TimeSendError};
-use cangate_canopen::pdo::PdoKind;
 use crate::gateway::Gateway;
 use cangate_can::Timestamp;
 use cangate_canopen::eds::Eds;
 use cangate_canopen::master::SdoRequest;
 use cangate_canopen::nmt::NmtCommand;
+use cangate_canopen::pdo::PdoKind;
 use cangate_canopen::sdo::{TransferOptions, TransferOutcome};
 use cangate_canopen::value::Value;
 use cangate_canopen::{NodeId, ObjectAddress};
@@ -159,6 +159,7 @@ fn map_err(node: NodeId, e: CanopenError) -> ApiError {
         CanopenError::Sdo(error) => ApiError::Sdo {
             node: node.get(),
             error,
+            context: None,
         },
         CanopenError::Send(f) => f.into(),
         CanopenError::Stopped => ApiError::ShuttingDown,
@@ -207,29 +208,14 @@ fn pdo_config_err(node: NodeId, e: PdoConfigError) -> ApiError {
     match e {
         e @ PdoConfigError::AxisDrive(_) => ApiError::FailedPrecondition(e.to_string()),
         PdoConfigError::Invalid(e) => ApiError::InvalidArgument(e.to_string()),
-        PdoConfigError::Object { addr, what, source } => {
-            // The SDO error's code, reason and metadata, with the PDO
-            // parameter it failed on in the message.
-            match map_err(node, source) {
-                ApiError::Sdo { node, error } => {
-                    use cangate_canopen::sdo::SdoError;
-                    let reason = match &error {
-                        SdoError::Aborted { .. } => "SDO_ABORT",
-                        SdoError::Timeout { .. } => "SDO_TIMEOUT",
-                        SdoError::Protocol { .. } => "SDO_PROTOCOL_ERROR",
-                        SdoError::Cancelled { .. } => "SDO_CANCELLED",
-                    };
-                    let e = ApiError::Sdo { node, error };
-                    ApiError::refused(
-                        e.code(),
-                        reason,
-                        format!("configuring {addr} ({what}) failed: {e}"),
-                        e.metadata(),
-                    )
-                }
-                other => other,
-            }
-        }
+        PdoConfigError::Object { addr, what, source } => match map_err(node, source) {
+            ApiError::Sdo { node, error, .. } => ApiError::Sdo {
+                node,
+                error,
+                context: Some(format!("{addr} ({what})")),
+            },
+            other => other,
+        },
     }
 }
 
@@ -621,9 +607,16 @@ impl Canopen for CanopenService {
         for kind in kinds {
             let nums: Vec<u16> = match req.pdo {
                 0 => pdo_numbers(od, kind),
-                n => vec![u16::try_from(n).ok().filter(|n| (1..=512).contains(n)).ok_or_else(
-                    || ApiError::InvalidArgument(format!("PDO number {n} is out of range (1..=512)")),
-                )?],
+                n => vec![
+                    u16::try_from(n)
+                        .ok()
+                        .filter(|n| (1..=512).contains(n))
+                        .ok_or_else(|| {
+                            ApiError::InvalidArgument(format!(
+                                "PDO number {n} is out of range (1..=512)"
+                            ))
+                        })?,
+                ],
             };
             for num in nums {
                 match m.read_pdo(node, kind, num, opts, &caller).await {
@@ -645,10 +638,9 @@ impl Canopen for CanopenService {
         let m = self.master(&req.bus)?;
         let node = known_node(m, req.node)?;
         let opts = options(req.options.as_ref())?;
-        let given = req
-            .pdo
-            .as_ref()
-            .ok_or_else(|| ApiError::InvalidArgument("pdo: the PDO's parameters are missing".into()))?;
+        let given = req.pdo.as_ref().ok_or_else(|| {
+            ApiError::InvalidArgument("pdo: the PDO's parameters are missing".into())
+        })?;
         let eds = m.eds(node);
         let od = eds.as_deref().map(|e| &e.od);
         let pdo = pdo_from_pb(given, node, od)?;
