@@ -10,6 +10,10 @@ use std::time::Duration;
 /// a dozen SDO transfers with the node.
 const PDO_CONFIG_WAIT: Duration = Duration::from_secs(10);
 
+/// What a DCF export may wait for beyond the request timeout: an SDO read
+/// of every object of a large dictionary.
+const DCF_EXPORT_WAIT: Duration = Duration::from_secs(120);
+
 /// The CANopen master of one bus ([`Client::canopen`]). Cheap to clone.
 #[derive(Clone, Debug)]
 pub struct Canopen {
@@ -319,6 +323,23 @@ impl Canopen {
                 "ConfigurePdo",
                 Some(PDO_CONFIG_WAIT),
                 self.client.canopen_client().configure_pdo(req),
+            )
+            .await
+    }
+
+    /// The node's live values as a DCF (every readable object of its EDS
+    /// read over SDO); the objects left out are listed in the response.
+    pub async fn export_dcf(&self, node: NodeId) -> Result<pb::ExportDcfResponse, Error> {
+        let req = pb::ExportDcfRequest {
+            bus: self.bus.clone(),
+            node: node.into(),
+            options: None,
+        };
+        self.client
+            .call(
+                "ExportDcf",
+                Some(DCF_EXPORT_WAIT),
+                self.client.canopen_client().export_dcf(req),
             )
             .await
     }

@@ -169,7 +169,10 @@ impl Gateway {
                     message: format!("node {}: {message}", nc.id),
                 };
                 let node = NodeId::new(nc.id).map_err(|e| err(e.to_string()))?;
-                let eds = nc.load_eds().map_err(err)?.map(Arc::new);
+                let (eds, eds_text) = match nc.load_eds().map_err(err)? {
+                    Some((eds, text)) => (Some(Arc::new(eds)), Some(text)),
+                    None => (None, None),
+                };
                 if nc.simulate {
                     let eds = eds
                         .as_ref()
@@ -194,7 +197,10 @@ impl Gateway {
                     simulation.add_device(&cc.bus, node, device.clone());
                     simulated.push((vbus.connect(false), device));
                 }
-                facts.insert(node, node_facts(config, cc, nc, node, eds).map_err(err)?);
+                facts.insert(
+                    node,
+                    node_facts(config, cc, nc, node, eds, eds_text).map_err(err)?,
+                );
             }
             let (master, task) = CanopenBus::spawn(
                 bus,
@@ -421,6 +427,7 @@ fn node_facts(
     nc: &NodeConfig,
     node: NodeId,
     eds: Option<Arc<Eds>>,
+    eds_text: Option<Arc<str>>,
 ) -> Result<NodeFacts, String> {
     let axis = config
         .axes
@@ -450,6 +457,7 @@ fn node_facts(
         rpdos,
         boot,
         eds,
+        eds_text,
         heartbeat_timeout: (nc.heartbeat_timeout_ms > 0)
             .then(|| Duration::from_millis(nc.heartbeat_timeout_ms)),
         guarding: nc.guarding(),
@@ -490,7 +498,7 @@ fn node_plan(
             ProcessDataChoice::Pdo => standard_pdos(node, trigger),
             ProcessDataChoice::Sdo => (Vec::new(), Vec::new()),
         };
-        let mut writes = Vec::new();
+        let mut writes = dcf_writes(nc, node)?;
         if let Some(ms) = nc.heartbeat_producer_ms {
             writes.push((ObjectAddress::new(0x1017, 0), ms.to_le_bytes().to_vec()));
         }
@@ -540,7 +548,7 @@ fn node_plan(
     if !nc.boot {
         return Ok((tpdos, rpdos, None));
     }
-    let mut writes = Vec::new();
+    let mut writes = dcf_writes(nc, node)?;
     if let Some(ms) = nc.heartbeat_producer_ms {
         writes.push((ObjectAddress::new(0x1017, 0), ms.to_le_bytes().to_vec()));
     }
@@ -568,6 +576,17 @@ fn node_plan(
         writes,
     };
     Ok((tpdos, rpdos, Some(Arc::new(plan))))
+}
+
+/// The boot writes of the node's `dcf` (its `ParameterValue`s, see
+/// [`cangate_canopen::dcf::configuration_writes`]), first of the boot
+/// procedure so that the configuration's own writes win.
+fn dcf_writes(nc: &NodeConfig, node: NodeId) -> Result<Vec<(ObjectAddress, Vec<u8>)>, String> {
+    let Some(dcf) = nc.load_dcf()? else {
+        return Ok(Vec::new());
+    };
+    cangate_canopen::dcf::configuration_writes(&dcf.od, node)
+        .map_err(|e| format!("dcf {:?}: {e}", nc.dcf.as_deref().unwrap_or_default()))
 }
 
 /// The boot write that makes an axis drive watch the master's heartbeat:

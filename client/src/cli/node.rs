@@ -1,4 +1,4 @@
-//! CANopen nodes: `cangate node list|show|objects`, `nmt`, `scan`,
+//! CANopen nodes: `cangate node list|show|objects|dcf`, `nmt`, `scan`,
 //! `events`.
 
 use super::{App, Context, Result, ctrl_c, label, node_id, print_json};
@@ -43,6 +43,19 @@ enum NodeVerb {
         /// (case-insensitive).
         #[arg(long, short = 'f', value_name = "TEXT")]
         filter: Option<String>,
+    },
+    /// The node's live values as a DCF (CiA 306): every readable object
+    /// of its EDS read over SDO. Give the file to the node's `dcf` in the
+    /// configuration and the boot procedure writes the values back.
+    Dcf {
+        /// Bus.
+        bus: String,
+        /// Node id.
+        #[arg(value_parser = node_id)]
+        node: NodeId,
+        /// Write the DCF to this file (default: standard output).
+        #[arg(long, short = 'o', value_name = "FILE")]
+        output: Option<std::path::PathBuf>,
     },
 }
 
@@ -277,6 +290,42 @@ fn objects_table(objects: &[pb::ObjectInfo]) -> String {
 /// `cangate node …`
 pub(crate) async fn run(app: &App, args: NodeArgs) -> Result<()> {
     match args.verb {
+        NodeVerb::Dcf { bus, node, output } => {
+            let r = app
+                .client
+                .canopen(&bus)
+                .export_dcf(node)
+                .await
+                .ctx(format!("exporting node {node} on {bus} as a DCF"))?;
+            if app.json {
+                return print_json(&r);
+            }
+            for s in &r.skipped {
+                eprintln!(
+                    "cangate: 0x{:04X}:{:02X} left out: {}",
+                    s.index, s.subindex, s.reason
+                );
+            }
+            match output {
+                Some(path) => {
+                    std::fs::write(&path, &r.dcf).ctx(format!("writing {}", path.display()))?;
+                    eprintln!(
+                        "cangate: {} values of node {node} written to {} ({} left out)",
+                        r.objects_read,
+                        path.display(),
+                        r.skipped.len()
+                    );
+                    Ok(())
+                }
+                None => {
+                    use std::io::Write;
+                    let mut out = std::io::stdout().lock();
+                    out.write_all(r.dcf.as_bytes())?;
+                    out.flush()?;
+                    Ok(())
+                }
+            }
+        }
         NodeVerb::List { bus } => {
             let bus = bus.unwrap_or_default();
             let nodes = app

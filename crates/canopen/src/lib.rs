@@ -12,6 +12,7 @@
 #![deny(missing_docs, unreachable_pub)]
 
 pub mod cia402;
+pub mod dcf;
 pub mod eds;
 pub mod emcy;
 pub mod handwheel;

@@ -21,6 +21,7 @@ use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio_util::sync::CancellationToken;
 
+pub mod dcf_export;
 pub mod master_heartbeat;
 pub mod pdo_config;
 pub mod scan;
@@ -36,6 +37,8 @@ pub struct NodeFacts {
     pub configured: bool,
     /// The node's object dictionary, if an EDS is configured.
     pub eds: Option<Arc<Eds>>,
+    /// The text of that EDS (a DCF export writes the values into it).
+    pub eds_text: Option<Arc<str>>,
     /// 0x1000 device type, once read.
     pub device_type: Option<u32>,
     /// 0x1008 device name, once read.

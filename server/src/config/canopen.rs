@@ -128,6 +128,11 @@ pub struct NodeConfig {
     /// device descriptions `builtin:drive`, `builtin:io`, `builtin:handwheel`.
     #[serde(default)]
     pub eds: Option<String>,
+    /// A DCF (CiA 306) whose `ParameterValue`s the boot procedure writes
+    /// before the other boot writes (needs `boot = true`; `rw` objects
+    /// only, PDOs as whole PDOs). Without `eds` it is the node's EDS too.
+    #[serde(default)]
+    pub dcf: Option<String>,
     /// Consumer heartbeat timeout in ms (0 = do not monitor).
     #[serde(default)]
     pub heartbeat_timeout_ms: u64,
@@ -321,23 +326,38 @@ impl NodeConfig {
         Ok(())
     }
 
-    /// Loads the configured EDS.
-    pub fn load_eds(&self) -> Result<Option<cangate_canopen::eds::Eds>, String> {
+    /// Loads the configured EDS (the DCF of `dcf` when no `eds` is
+    /// given): what it parses to, and its text (for a DCF export).
+    pub fn load_eds(
+        &self,
+    ) -> Result<Option<(cangate_canopen::eds::Eds, std::sync::Arc<str>)>, String> {
         use cangate_canopen::eds::{Eds, SIM_DRIVE_EDS, SIM_HANDWHEEL_EDS, SIM_IO_EDS};
-        let Some(src) = self.eds.as_deref() else {
+        let Some(src) = self.eds.as_deref().or(self.dcf.as_deref()) else {
             return Ok(None);
         };
-        let parsed = match src {
-            "builtin:drive" => Eds::parse(SIM_DRIVE_EDS),
-            "builtin:io" => Eds::parse(SIM_IO_EDS),
-            "builtin:handwheel" => Eds::parse(SIM_HANDWHEEL_EDS),
+        let text = match src {
+            "builtin:drive" => Ok(SIM_DRIVE_EDS.to_string()),
+            "builtin:io" => Ok(SIM_IO_EDS.to_string()),
+            "builtin:handwheel" => Ok(SIM_HANDWHEEL_EDS.to_string()),
             path if path.starts_with("builtin:") => {
                 return Err(format!(
                     "unknown built-in EDS {path:?} (builtin:drive, builtin:io, builtin:handwheel)"
                 ));
             }
-            path => Eds::from_path(path),
+            path => Eds::read_text(path),
         };
-        parsed.map(Some).map_err(|e| format!("EDS {src:?}: {e}"))
+        let text = text.map_err(|e| format!("EDS {src:?}: {e}"))?;
+        let eds = Eds::parse(&text).map_err(|e| format!("EDS {src:?}: {e}"))?;
+        Ok(Some((eds, text.into())))
+    }
+
+    /// Loads the DCF whose `ParameterValue`s the boot procedure writes.
+    pub fn load_dcf(&self) -> Result<Option<cangate_canopen::eds::Eds>, String> {
+        let Some(path) = self.dcf.as_deref() else {
+            return Ok(None);
+        };
+        cangate_canopen::eds::Eds::from_path(path)
+            .map(Some)
+            .map_err(|e| format!("DCF {path:?}: {e}"))
     }
 }

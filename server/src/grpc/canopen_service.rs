@@ -8,6 +8,7 @@ use super::convert::canopen::{
 use super::error::ApiError;
 use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_of};
 use super::runtime_errors::lookup_error;
+use crate::canopen::dcf_export::DcfExportError;
 use crate::canopen::pdo_config::PdoConfigError;
 use crate::canopen::{CanopenBus, CanopenError, NodeEventKind, SyncChangeError, TimeSendError};
 use crate::gateway::Gateway;
@@ -739,6 +740,37 @@ impl Canopen for CanopenService {
         Ok(Response::new(pb::SetTimeResponse {
             sent,
             time_period_ms: time_period_ms(m),
+        }))
+    }
+
+    async fn export_dcf(
+        &self,
+        req: Request<pb::ExportDcfRequest>,
+    ) -> Result<Response<pb::ExportDcfResponse>, Status> {
+        let caller = sdo_caller(&req);
+        let req = req.into_inner();
+        let m = self.master(&req.bus)?;
+        let node = known_node(m, req.node)?;
+        let opts = options(req.options.as_ref())?;
+        let export = m
+            .export_dcf(node, opts, &caller)
+            .await
+            .map_err(|e| match e {
+                e @ DcfExportError::NoEds(_) => ApiError::FailedPrecondition(e.to_string()),
+                DcfExportError::Canopen(e) => map_err(node, e),
+            })?;
+        Ok(Response::new(pb::ExportDcfResponse {
+            dcf: export.text,
+            objects_read: export.read as u32,
+            skipped: export
+                .skipped
+                .into_iter()
+                .map(|(a, reason)| pb::SkippedObject {
+                    index: u32::from(a.index),
+                    subindex: u32::from(a.sub),
+                    reason,
+                })
+                .collect(),
         }))
     }
 

@@ -68,6 +68,7 @@ pub const TABLE: &[Rule] = &[
     rule("/cangate.v1.Canopen/GetSync", V, false),
     rule("/cangate.v1.Canopen/SetSync", E, false),
     rule("/cangate.v1.Canopen/SetTime", E, false),
+    rule("/cangate.v1.Canopen/ExportDcf", V, false),
     // Axes: state is viewing; leases and every command (stops included:
     // a viewer is read-only) are operating.
     rule("/cangate.v1.Axes/ListAxes", V, false),
