@@ -97,7 +97,6 @@ async fn scenario(python: &Path) -> Result<()> {
                     ..Default::default()
                 },
             ],
-            ..Default::default()
         },
     )
     .await?;
