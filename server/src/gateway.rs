@@ -502,6 +502,7 @@ fn node_plan(
         if let Some(ms) = nc.heartbeat_producer_ms {
             writes.push((ObjectAddress::new(0x1017, 0), ms.to_le_bytes().to_vec()));
         }
+        writes.extend(life_guarding_writes(nc, eds));
         writes.extend(master_heartbeat_consumer(eds, master_heartbeat, axis));
         for p in tpdos.iter().chain(&rpdos) {
             writes.extend(p.sdo_writes().map_err(|e| e.to_string())?);
@@ -552,6 +553,7 @@ fn node_plan(
     if let Some(ms) = nc.heartbeat_producer_ms {
         writes.push((ObjectAddress::new(0x1017, 0), ms.to_le_bytes().to_vec()));
     }
+    writes.extend(life_guarding_writes(nc, eds));
     // Only PDOs configured explicitly are written; EDS defaults are the
     // node's own.
     for (entries, list) in [(&nc.tpdo, &tpdos), (&nc.rpdo, &rpdos)] {
@@ -576,6 +578,30 @@ fn node_plan(
         writes,
     };
     Ok((tpdos, rpdos, Some(Arc::new(plan))))
+}
+
+/// The boot writes that let a guarded node watch the master's guarding
+/// (life guarding): its guard time (0x100C, ms) and life time factor
+/// (0x100D) as configured. Left out when the node's EDS does not have
+/// both (a write the node aborts would fail its boot).
+fn life_guarding_writes(nc: &NodeConfig, eds: Option<&Eds>) -> Vec<(ObjectAddress, Vec<u8>)> {
+    let guard = ObjectAddress::new(0x100C, 0);
+    let factor = ObjectAddress::new(0x100D, 0);
+    let Some((guard_time, life_time_factor)) = nc.guarding() else {
+        return Vec::new();
+    };
+    if !eds.is_some_and(|e| e.od.get(guard).is_some() && e.od.get(factor).is_some()) {
+        tracing::info!(
+            node = nc.id,
+            "guarded node without 0x100C/0x100D in its EDS: its life guarding is not configured"
+        );
+        return Vec::new();
+    }
+    let ms = u16::try_from(guard_time.as_millis()).unwrap_or(u16::MAX);
+    vec![
+        (guard, ms.to_le_bytes().to_vec()),
+        (factor, vec![life_time_factor]),
+    ]
 }
 
 /// The boot writes of the node's `dcf` (its `ParameterValue`s, see
