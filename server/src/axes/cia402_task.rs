@@ -496,9 +496,14 @@ impl Task {
                 self.slots[i].axis.on_node_lost(&r, &mut out);
                 (true, r)
             }
-            NodeEventKind::HeartbeatRecovered { .. } => {
+            NodeEventKind::HeartbeatRecovered { guarding, .. } => {
                 self.slots[i].axis.on_node_back(false, &mut out);
-                (false, "heartbeat back".to_string())
+                let back = if guarding {
+                    "node guarding answers back"
+                } else {
+                    "heartbeat back"
+                };
+                (false, back.to_string())
             }
             NodeEventKind::BootUp => {
                 if let Some(link) = &mut self.slots[i].sdo {
