@@ -10,7 +10,8 @@
 //!   refused.
 //! - SetSync starts a stopped SYNC with a counter (the frames carry
 //!   1..=N), drops the counter, stops; a moving cyclic axis vetoes a stop
-//!   and a new period, and a still one does not.
+//!   and a new period, and a still one does not; without a SYNC a cyclic
+//!   axis refuses moves but takes stops.
 //! - SetTime sends the host's time as a TIME_OF_DAY on 0x100 (decoded
 //!   and compared with the clock), periodically, and stops.
 
@@ -550,6 +551,39 @@ async fn a_moving_cyclic_axis_vetoes_a_sync_stop_and_a_new_period() {
     assert_eq!(s.period_us, 4000);
     let s = co.set_sync(Some(false), None, None).await.unwrap();
     assert!(!s.running);
+
+    // Without a SYNC the cyclic axis takes no move (it would wait for
+    // set-points for ever); a stop is never refused.
+    let refused = axes
+        .r#move(pb::MoveRequest {
+            axis: "X".into(),
+            target: 10.0,
+            options: opts(&lease, false),
+            ..Default::default()
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(refused.code(), tonic::Code::FailedPrecondition);
+    assert!(
+        refused.message().contains("SYNC of bus can0 is stopped"),
+        "{refused:?}"
+    );
+    axes.stop(cmd("X", &lease, false))
+        .await
+        .expect("a stop is taken");
+    // Started again: it moves.
+    co.set_sync(Some(true), None, None).await.unwrap();
+    let r = axes
+        .r#move(pb::MoveRequest {
+            axis: "X".into(),
+            target: 1.0,
+            options: opts(&lease, true),
+            ..Default::default()
+        })
+        .await
+        .expect("moves with the SYNC back")
+        .into_inner();
+    assert_eq!(r.outcome, pb::Outcome::Completed as i32, "{r:?}");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
