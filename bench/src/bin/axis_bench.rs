@@ -20,6 +20,10 @@
 //!    one core (ros2_canopen was reported at 700 %, then 25 %, for six
 //!    drives). Then, outside the CPU window, the SYNC's period as sent
 //!    (the virtual bus's send stamps): deviation from nominal, p50/p99/max.
+//! 4. **Scale** (`--scale`): part 3 with 6, 12 and 24 CSP axes on 1, 2 and
+//!    4 buses (6 drives per bus, a master and a 1 ms SYNC each): the
+//!    gateway's CPU and its cost per axis, which must stay flat (linear
+//!    growth) and at most 1 % of one core per axis at 24 axes.
 //!
 //! Human-readable results, then one JSON line. Exit 1 if something could
 //! not run; with `--strict` also if the CPU target is missed.
@@ -59,6 +63,9 @@ struct Args {
     /// Only part 3 (the CPU figure): quicker when comparing builds.
     #[arg(long)]
     cpu_only: bool,
+    /// Also part 4: CPU of 6, 12 and 24 CSP axes on 1, 2 and 4 buses.
+    #[arg(long)]
+    scale: bool,
     /// The gateway's `rt_priority` in part 3 (`SCHED_FIFO` for its bus and
     /// SYNC threads; 0: the default policy, as the server's default).
     #[arg(long, default_value_t = 0)]
@@ -72,20 +79,54 @@ const CPU_TARGET_PERCENT: f64 = 10.0;
 /// delay a simulated drive's heartbeat without anything being wrong.
 static HEARTBEAT_TIMEOUT_MS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(300);
 
-fn axis_toml(name: &str, node: u32, mode: &str) -> String {
+/// One axis of a bed: its name, bus, node and position mode.
+#[derive(Debug, Clone)]
+struct AxisSpec {
+    name: String,
+    bus: String,
+    node: u32,
+    mode: &'static str,
+}
+
+impl AxisSpec {
+    fn on_can0(name: &str, node: u32, mode: &'static str) -> AxisSpec {
+        AxisSpec {
+            name: name.into(),
+            bus: "can0".into(),
+            node,
+            mode,
+        }
+    }
+}
+
+/// The node of an axis (under its bus's `[[canopen]]`).
+fn node_toml(node: u32) -> String {
     let hb = HEARTBEAT_TIMEOUT_MS.load(std::sync::atomic::Ordering::Relaxed);
-    // The same leniency for the CiA 402 state changes.
-    let st = if hb > 300 { 5000 } else { 1000 };
     format!(
         r#"
 [[canopen.node]]
 id = {node}
 eds = "builtin:drive"
 heartbeat_timeout_ms = {hb}
+"#
+    )
+}
 
+fn axis_toml(a: &AxisSpec) -> String {
+    let hb = HEARTBEAT_TIMEOUT_MS.load(std::sync::atomic::Ordering::Relaxed);
+    // The same leniency for the CiA 402 state changes.
+    let st = if hb > 300 { 5000 } else { 1000 };
+    let AxisSpec {
+        name,
+        bus,
+        node,
+        mode,
+    } = a;
+    format!(
+        r#"
 [[axis]]
 name = "{name}"
-bus = "can0"
+bus = "{bus}"
 node = {node}
 counts_per_unit = 1000.0
 position_mode = "{mode}"
@@ -99,8 +140,8 @@ state_timeout_ms = {st}
     )
 }
 
-/// A server on its own runtime with `axes` (name, node, mode); the drives
-/// run on a second runtime.
+/// A server on its own runtime with `axes`, each bus with its CANopen
+/// master and the same SYNC; the drives run on a second runtime.
 struct Bed {
     server: RunningServer,
     /// Kept alive for the bed's lifetime: the gateway's runtime.
@@ -111,18 +152,26 @@ struct Bed {
 }
 
 impl Bed {
-    fn start(
-        sync_us: u64,
-        axes: &[(&str, u32, &str)],
-        threads: usize,
-        rt_priority: u8,
-    ) -> Result<Bed> {
-        let mut text = format!(
-            "listen = \"127.0.0.1:0\"\nrt_priority = {rt_priority}\n[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\n\
-             queue = 65536\n[[canopen]]\nbus = \"can0\"\nsync_period_us = {sync_us}\n"
-        );
-        for (name, node, mode) in axes {
-            text.push_str(&axis_toml(name, *node, mode));
+    fn start(sync_us: u64, axes: &[AxisSpec], threads: usize, rt_priority: u8) -> Result<Bed> {
+        let mut text = format!("listen = \"127.0.0.1:0\"\nrt_priority = {rt_priority}\n");
+        let mut buses: Vec<&str> = axes.iter().map(|a| a.bus.as_str()).collect();
+        buses.dedup();
+        for bus in &buses {
+            text.push_str(&format!(
+                "[[bus]]\nname = \"{bus}\"\nbackend = \"virtual\"\nqueue = 65536\n"
+            ));
+        }
+        // Every master with its nodes, then the axes.
+        for bus in &buses {
+            text.push_str(&format!(
+                "[[canopen]]\nbus = \"{bus}\"\nsync_period_us = {sync_us}\n"
+            ));
+            for a in axes.iter().filter(|a| a.bus == *bus) {
+                text.push_str(&node_toml(a.node));
+            }
+        }
+        for a in axes {
+            text.push_str(&axis_toml(a));
         }
         text.push_str(gateway::NO_CLIENT_LIMITS);
         let config = gateway::config(&text)?;
@@ -137,9 +186,9 @@ impl Bed {
             .build()?;
         let server = gateway::start_on(&gateway_rt, &config)?;
         let cancel = CancellationToken::new();
-        let vbus = gateway::virtual_bus(&server, "can0")?;
-        for (_, node, _) in axes {
-            let id = cangate_canopen::NodeId::new(*node).map_err(|e| anyhow!("{e}"))?;
+        for a in axes {
+            let vbus = gateway::virtual_bus(&server, &a.bus)?;
+            let id = cangate_canopen::NodeId::new(a.node).map_err(|e| anyhow!("{e}"))?;
             let drive = SimDrive::bundled(
                 id,
                 SimDriveOptions {
@@ -199,7 +248,7 @@ fn client_runtime() -> Result<tokio::runtime::Runtime> {
 
 /// 1. gRPC Move → first RPDO on the bus.
 fn command_latency(samples: usize) -> Result<(f64, f64)> {
-    let bed = Bed::start(10_000, &[("Z", 4, "profile")], 2, 0)?;
+    let bed = Bed::start(10_000, &[AxisSpec::on_can0("Z", 4, "profile")], 2, 0)?;
     let url = bed.url();
     let port = gateway::virtual_bus(&bed.server, "can0")?.connect(false);
     let client_rt = client_runtime()?;
@@ -252,7 +301,7 @@ fn command_latency(samples: usize) -> Result<(f64, f64)> {
 
 /// 2. TPDO on the bus → StreamAxisState update at the client.
 fn stream_latency(samples: usize) -> Result<(f64, f64)> {
-    let bed = Bed::start(5_000, &[("X", 1, "cyclic")], 2, 0)?;
+    let bed = Bed::start(5_000, &[AxisSpec::on_can0("X", 1, "cyclic")], 2, 0)?;
     let url = bed.url();
     let client_rt = client_runtime()?;
     client_rt.block_on(async move {
@@ -316,14 +365,26 @@ struct CpuResult {
     sync_jitter_us: (f64, f64, f64, usize),
 }
 
-/// 3. CPU of 6 CSP axes at a 1 ms SYNC.
-fn cpu_six_axes(seconds: f64, threads: usize, rt_priority: u8) -> Result<CpuResult> {
-    let names = ["A1", "A2", "A3", "A4", "A5", "A6"];
-    let axes_cfg: Vec<(&str, u32, &str)> = names
-        .iter()
-        .enumerate()
-        .map(|(i, n)| (*n, i as u32 + 1, "cyclic"))
+/// 3. CPU of 6 CSP axes at a 1 ms SYNC on one bus; 4. the same with
+/// `n_axes` axes spread over `n_buses` buses (6 per bus), each bus with its
+/// own master and SYNC.
+fn cpu_axes(
+    n_axes: usize,
+    n_buses: usize,
+    seconds: f64,
+    threads: usize,
+    rt_priority: u8,
+) -> Result<CpuResult> {
+    let per_bus = n_axes.div_ceil(n_buses);
+    let specs: Vec<AxisSpec> = (0..n_axes)
+        .map(|i| AxisSpec {
+            name: format!("A{}", i + 1),
+            bus: format!("can{}", i / per_bus),
+            node: (i % per_bus) as u32 + 1,
+            mode: "cyclic",
+        })
         .collect();
+    let buses: Vec<String> = (0..n_buses).map(|b| format!("can{b}")).collect();
     // Smoke runs (debug build, busy CI machine) use a 5 ms SYNC: they check
     // that the benchmark works, not the figure.
     let sync_us = if HEARTBEAT_TIMEOUT_MS.load(std::sync::atomic::Ordering::Relaxed) > 300 {
@@ -331,78 +392,95 @@ fn cpu_six_axes(seconds: f64, threads: usize, rt_priority: u8) -> Result<CpuResu
     } else {
         1_000
     };
-    let bed = Bed::start(sync_us, &axes_cfg, threads, rt_priority)?;
+    let bed = Bed::start(sync_us, &specs, threads, rt_priority)?;
     let url = bed.url();
     let client_rt = client_runtime()?;
-    let stats = bed
-        .server
-        .gateway()
-        .bus("can0")
-        .map_err(|e| anyhow!("{e}"))?
-        .clone();
-    // SYNCs are counted by the master itself: a counting port here would
-    // be woken by every frame, and the virtual bus charges the delivery
-    // (and the wake-up) to the sending thread, i.e. to the gateway.
-    let master = bed
-        .server
-        .gateway()
-        .canopen("can0")
-        .context("CANopen master of can0")?
-        .clone();
+    let handles = buses
+        .iter()
+        .map(|b| {
+            let g = bed.server.gateway();
+            let bus = g.bus(b).map_err(|e| anyhow!("{e}"))?.clone();
+            // SYNCs are counted by the masters themselves: a counting port
+            // here would be woken by every frame, and the virtual bus
+            // charges the delivery (and the wake-up) to the sending
+            // thread, i.e. to the gateway.
+            let master = g
+                .canopen(b)
+                .with_context(|| format!("CANopen master of {b}"))?
+                .clone();
+            Ok((bus, master))
+        })
+        .collect::<Result<Vec<_>>>()?;
     let vbus = gateway::virtual_bus(&bed.server, "can0")?;
     client_rt.block_on(async move {
         let c = cangate_client::connect(&url).await?;
         let mut axes = c.axes_client();
+        let names: Vec<&str> = specs.iter().map(|a| a.name.as_str()).collect();
         let lease = ready(&mut axes, &names).await?;
         // Everyone moves back and forth (±50 mm at 100 mm/s) for the whole
-        // measurement: a new coordinated move whenever the previous one
-        // arrived.
+        // measurement: per bus, a new coordinated move whenever the
+        // previous one arrived.
         let stop = CancellationToken::new();
-        let mover = {
-            let mut axes = axes.clone();
-            let lease = lease.clone();
-            let stop = stop.clone();
-            tokio::spawn(async move {
-                let mut k = 0u32;
-                while !stop.is_cancelled() {
-                    k += 1;
-                    let target = if k.is_multiple_of(2) { 50.0 } else { -50.0 };
-                    let r = axes
-                        .move_axes(pb::MoveAxesRequest {
-                            targets: names
-                                .iter()
-                                .map(|n| pb::AxisTarget {
-                                    axis: n.to_string(),
-                                    target,
-                                    velocity: 100.0,
-                                    acceleration: 1000.0,
-                                })
-                                .collect(),
-                            lease: lease.clone(),
-                            wait: true,
-                        })
-                        .await;
-                    if let Err(e) = r {
-                        return Err(anyhow!("coordinated move: {e}"));
+        let movers: Vec<_> = buses
+            .iter()
+            .map(|bus| {
+                let on_bus: Vec<String> = specs
+                    .iter()
+                    .filter(|a| &a.bus == bus)
+                    .map(|a| a.name.clone())
+                    .collect();
+                let mut axes = axes.clone();
+                let lease = lease.clone();
+                let stop = stop.clone();
+                tokio::spawn(async move {
+                    let mut k = 0u32;
+                    while !stop.is_cancelled() {
+                        k += 1;
+                        let target = if k.is_multiple_of(2) { 50.0 } else { -50.0 };
+                        let r = axes
+                            .move_axes(pb::MoveAxesRequest {
+                                targets: on_bus
+                                    .iter()
+                                    .map(|n| pb::AxisTarget {
+                                        axis: n.clone(),
+                                        target,
+                                        velocity: 100.0,
+                                        acceleration: 1000.0,
+                                    })
+                                    .collect(),
+                                lease: lease.clone(),
+                                wait: true,
+                            })
+                            .await;
+                        if let Err(e) = r {
+                            return Err(anyhow!("coordinated move: {e}"));
+                        }
                     }
-                }
-                Ok(())
+                    Ok(())
+                })
             })
-        };
+            .collect();
         tokio::time::sleep(Duration::from_millis(500)).await;
-        // Count the SYNCs actually on the bus during the window.
-        let syncs0 = master.sync_counts().0;
-        let frames0 = stats.stats().rx_frames + stats.stats().tx_frames;
+        let syncs = || handles.iter().map(|(_, m)| m.sync_counts().0).sum::<u64>();
+        let frames = || {
+            handles
+                .iter()
+                .map(|(b, _)| b.stats().rx_frames + b.stats().tx_frames)
+                .sum::<u64>()
+        };
+        // Count the SYNCs actually on the buses during the window.
+        let syncs0 = syncs();
+        let frames0 = frames();
         let c0 = host::thread_cpu()?;
         let t0 = Instant::now();
         tokio::time::sleep(Duration::from_secs_f64(seconds)).await;
         let c1 = host::thread_cpu()?;
         let wall = t0.elapsed().as_secs_f64();
-        let frames = stats.stats().rx_frames + stats.stats().tx_frames - frames0;
-        let sync_rate = (master.sync_counts().0 - syncs0) as f64 / wall;
+        let frames = frames() - frames0;
+        let sync_rate = (syncs() - syncs0) as f64 / wall;
         // After the CPU window, since a port of our own is woken by every
-        // SYNC at the sender's expense: the SYNC's period as sent (the
-        // virtual bus stamps each frame in the sending thread).
+        // SYNC at the sender's expense: the SYNC's period as sent on can0
+        // (the virtual bus stamps each frame in the sending thread).
         let mut port = vbus.connect(false);
         port.set_filters(Some(vec![Filter::exact_standard(0x080)]));
         let mut stamps = Vec::new();
@@ -427,7 +505,9 @@ fn cpu_six_axes(seconds: f64, threads: usize, rt_priority: u8) -> Result<CpuResu
         };
         let sync_jitter_us = (pick(0.5), pick(0.99), pick(1.0), dev.len());
         stop.cancel();
-        let _ = tokio::time::timeout(Duration::from_secs(10), mover).await;
+        for m in movers {
+            let _ = tokio::time::timeout(Duration::from_secs(10), m).await;
+        }
         let d = |threads: &[&str]| {
             (cpu_seconds(&c1, threads) - cpu_seconds(&c0, threads)) / wall * 100.0
         };
@@ -441,6 +521,11 @@ fn cpu_six_axes(seconds: f64, threads: usize, rt_priority: u8) -> Result<CpuResu
         })
     })
 }
+
+/// Part 4's configurations: (axes, buses).
+const SCALE: [(usize, usize); 3] = [(6, 1), (12, 2), (24, 4)];
+/// Part 4's target: CPU per axis at 24 axes.
+const PER_AXIS_TARGET_PERCENT: f64 = 1.0;
 
 fn main() -> ExitCode {
     let args = Args::parse();
@@ -473,8 +558,8 @@ fn run(args: &Args) -> Result<bool> {
         frames_per_s: fps,
         sync_per_s: sync_rate,
         sync_jitter_us: (j50, j99, jmax, jn),
-    } = cpu_six_axes(cpu_s, args.gateway_threads, args.rt_priority)?;
-    let ok = gw < CPU_TARGET_PERCENT;
+    } = cpu_axes(6, 1, cpu_s, args.gateway_threads, args.rt_priority)?;
+    let mut ok = gw < CPU_TARGET_PERCENT;
     println!(
         "3. CPU, 6 CSP axes, SYNC {} ({sync_rate:.0} SYNC/s seen), gateway runtime with {} worker threads, rt_priority {}, all moving ({cpu_s} s, {fps} frames/s on the bus): \
          gateway {gw:.1} % of one core (target < {CPU_TARGET_PERCENT} %: {}), \
@@ -491,10 +576,36 @@ fn run(args: &Args) -> Result<bool> {
     println!(
         "   SYNC period as sent, deviation from nominal over {jn} intervals: p50 {j50:.1} us, p99 {j99:.1} us, max {jmax:.1} us"
     );
+    let mut scale = Vec::new();
+    if args.scale {
+        for (n, buses) in SCALE {
+            let r = cpu_axes(n, buses, cpu_s, args.gateway_threads, args.rt_priority)?;
+            let per_axis = r.gateway / n as f64;
+            println!(
+                "4. scale: {n} CSP axes on {buses} bus(es) ({:.0} SYNC/s, {} frames/s): gateway {:.1} % of one core, {per_axis:.2} % per axis",
+                r.sync_per_s, r.frames_per_s, r.gateway
+            );
+            scale.push(json!({"axes": n, "buses": buses, "gateway_percent": r.gateway,
+                "per_axis_percent": per_axis, "sync_per_s": r.sync_per_s, "frames_per_s": r.frames_per_s}));
+        }
+        let per = |i: usize| scale[i]["per_axis_percent"].as_f64().unwrap_or(f64::NAN);
+        let at_24 = per(2);
+        let scale_ok = at_24 <= PER_AXIS_TARGET_PERCENT;
+        println!(
+            "   per-axis cost 6 -> 12 -> 24 axes: {:.2} -> {:.2} -> {:.2} % (x{:.2} from 6 to 24; linear growth keeps it flat); at 24: target <= {PER_AXIS_TARGET_PERCENT} %: {}",
+            per(0),
+            per(1),
+            at_24,
+            at_24 / per(0),
+            if scale_ok { "met" } else { "MISSED" }
+        );
+        ok &= scale_ok;
+    }
     println!(
         "{}",
         json!({
             "bench": "axis",
+            "scale": scale,
             "quick": args.quick,
             "command_latency_ms": {"p50": c50, "p99": c99},
             "stream_latency_ms": {"p50": s50, "p99": s99},
