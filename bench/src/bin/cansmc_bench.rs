@@ -20,6 +20,9 @@
 //!    late and counter mismatches. (The exact, load-independent version of
 //!    this table is the test `crates/sim/tests/cansmc_paper_table.rs`; here
 //!    the host's scheduling is part of the result.)
+//! 4. **Scale**: 10 / 25 / 55 slaves at 2 / 4 / 8 ms, the master sleeping
+//!    only (`spin_us = 0`, the spin being a fixed cost per cycle): CPU of
+//!    its cycle thread and per slave.
 //!
 //! Human-readable results, then one JSON line. Exit 1 if something could
 //! not run; with `--strict` also if the jitter target is missed.
@@ -50,6 +53,9 @@ struct Args {
 }
 
 const P99_TARGET_US: f64 = 100.0;
+
+/// Part 4's configurations: (cycle µs, slaves).
+const SCALE: [(u32, u8); 3] = [(2000, 10), (4000, 25), (8000, 55)];
 
 /// A gateway config: one master on bit-timed smc0/smc1 with `slaves`
 /// simulated slaves.
@@ -94,6 +100,15 @@ fn master_cpu() -> f64 {
     cpu_seconds(&host::thread_cpu().unwrap_or_default(), &["cansmc-"])
 }
 
+/// How many master cycle threads run.
+fn master_threads() -> usize {
+    host::thread_cpu()
+        .unwrap_or_default()
+        .iter()
+        .filter(|(name, _)| name.starts_with("cansmc-"))
+        .count()
+}
+
 /// What one run of a master measured.
 #[derive(Debug, Clone, Default)]
 struct Measured {
@@ -112,6 +127,12 @@ struct Measured {
 
 /// Runs a master until `cycles` P2 cycles passed.
 fn run_master(cycle_us: u32, slaves: u8, spin_us: u32, cycles: u64) -> Result<Measured> {
+    // The previous run's cycle thread ends after its server: until then
+    // its CPU time would be counted into (and drop out of) this run's.
+    let t = Instant::now();
+    while master_threads() > 0 && t.elapsed() < Duration::from_secs(5) {
+        std::thread::sleep(Duration::from_millis(10));
+    }
     let cfg = config(cycle_us, slaves, spin_us, 1_000_000)?;
     let rt = gateway::runtime("gateway", 2)?;
     let server = gateway::start_on(&rt, &cfg)?;
@@ -241,10 +262,37 @@ fn run(args: &Args) -> Result<bool> {
         );
         rows.push(json!({"cycle_us": cycle_us, "slaves": slaves, "dts": m.dts, "missed": m.missed, "late": m.late, "mismatch": m.mismatch, "p99_us": m.p99}));
     }
+    // 4. Cost per slave: sleeping only (the spin is a fixed cost per cycle,
+    // measured in part 2), so the figure is the master's work.
+    let scale: Vec<(u32, u8)> = if args.quick {
+        vec![(2000, 10)]
+    } else {
+        SCALE.to_vec()
+    };
+    let scale_cycles = if args.quick { 100 } else { 2000 };
+    let mut scale_rows = Vec::new();
+    println!("4. scale, the master's cycle thread sleeping only ({scale_cycles} cycles each):");
+    for (cycle_us, slaves) in scale {
+        let m = run_master(cycle_us, slaves, 0, scale_cycles)?;
+        let per_slave = m.cpu_percent / f64::from(slaves);
+        println!(
+            "   {:>2} ms, {slaves:>2} slaves: {:.2} % of one core, {:.3} % per slave ({:.1} µs per slave and cycle); {} DTs, {} missed, {} late",
+            cycle_us / 1000,
+            m.cpu_percent,
+            per_slave,
+            m.cpu_percent / 100.0 * f64::from(cycle_us) / f64::from(slaves),
+            m.dts,
+            m.missed,
+            m.late
+        );
+        scale_rows.push(json!({"cycle_us": cycle_us, "slaves": slaves, "cpu_percent": m.cpu_percent,
+            "per_slave_percent": per_slave, "dts": m.dts, "missed": m.missed, "late": m.late}));
+    }
     println!(
         "{}",
         json!({
             "bench": "cansmc",
+            "scale": scale_rows,
             "quick": args.quick,
             "jitter_us": {
                 "spin": {"p50": spin.p50, "p99": spin.p99, "p999": spin.p999, "max": spin.max, "cycles": spin.cycles},
