@@ -20,6 +20,7 @@ max_concurrent_requests_per_client = 0
 requests_per_second_per_client = 0
 max_streams_per_client = 0
 raw_frames_per_second_per_client = 0
+sdo_requests_per_client_and_node = 0
 ";
 
 /// The same as [`NO_CLIENT_LIMITS`] on a parsed configuration (the demo's,
@@ -29,6 +30,7 @@ pub fn lift_client_limits(config: &mut Config) {
     config.security.limits.requests_per_second_per_client = 0;
     config.security.limits.max_streams_per_client = 0;
     config.security.limits.raw_frames_per_second_per_client = 0;
+    config.security.limits.sdo_requests_per_client_and_node = 0;
 }
 
 /// Parses a configuration written by a benchmark.

@@ -24,3 +24,4 @@ pub mod gateway;
 pub mod host;
 pub mod report;
 pub mod stats;
+pub mod suite;

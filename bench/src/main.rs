@@ -81,6 +81,66 @@ enum Command {
         #[arg(long)]
         server_bin: Option<PathBuf>,
     },
+    /// `all` and every benchmark binary (sdo_bench, axis_bench --scale,
+    /// wheel_bench, cansmc_bench; built beside this one), then one table
+    /// of their headline figures with targets, ratios and pass/fail.
+    Report {
+        /// Server binary for the memory benchmark.
+        #[arg(long)]
+        server_bin: Option<PathBuf>,
+    },
+}
+
+/// `cangate-bench report`: see [`cangate_bench::suite`].
+async fn report_all(quick: bool, strict: bool, server_bin: Option<PathBuf>) -> ExitCode {
+    use cangate_bench::suite;
+    let mut measures = virtual_bus(quick, None).await;
+    measures.extend(stream_bench(quick, None, None).await);
+    measures.extend(latency_bench(quick, None, None).await);
+    measures.extend(memory_bench(quick, server_bin).await);
+    let mut rows = suite::measure_rows(&measures);
+    let q: &[&str] = if quick { &["--quick"] } else { &[] };
+    // The binaries block this thread while they run: nothing else runs
+    // here meanwhile, and their CPU figures want the machine to themselves.
+    let with = |extra: &[&'static str]| [q, extra].concat();
+    rows.extend(tokio::task::block_in_place(|| {
+        let mut r = suite::bin_rows("sdo_bench", q, suite::sdo_rows);
+        r.extend(suite::bin_rows(
+            "axis_bench",
+            &with(&["--scale"]),
+            suite::axis_rows,
+        ));
+        r.extend(suite::bin_rows("wheel_bench", q, suite::wheel_rows));
+        r.extend(suite::bin_rows("cansmc_bench", q, suite::cansmc_rows));
+        r
+    }));
+    println!(
+        "\n## cangate-bench report ({} build{})",
+        report::build_profile(),
+        if quick {
+            ", --quick: smoke counts, not figures"
+        } else {
+            ""
+        }
+    );
+    suite::print_rows(&rows);
+    let failures = rows.iter().filter(|r| r.is_failure()).count();
+    println!(
+        "{}",
+        json!({
+            "cangate_bench": "report",
+            "quick": quick,
+            "failures": failures,
+            "rows": rows.iter().map(|r| json!({"measure": r.measure, "result": r.result,
+                "target": r.target, "ratio": r.ratio, "verdict": r.verdict})).collect::<Vec<_>>(),
+        })
+    );
+    let errors = rows.iter().filter(|r| r.verdict == "ERROR").count();
+    if errors > 0 || (strict && failures > 0) {
+        ExitCode::FAILURE
+    } else {
+        ExitCode::SUCCESS
+    }
 }
 
 /// Runs one benchmark; an error becomes an error measure so that `all`
@@ -188,6 +248,7 @@ async fn main() -> ExitCode {
         Command::Latency { .. } => "latency",
         Command::Memory { .. } => "memory",
         Command::All { .. } => "all",
+        Command::Report { .. } => "report",
     };
     let profile = report::build_profile();
     println!(
@@ -215,6 +276,7 @@ async fn main() -> ExitCode {
             all.extend(memory_bench(quick, server_bin).await);
             all
         }
+        Command::Report { server_bin } => return report_all(quick, cli.strict, server_bin).await,
     };
 
     report::print_table(&measures);

@@ -221,6 +221,9 @@ impl Gateway {
                 facts,
                 shutdown.child_token(),
             );
+            let master = master.with_client_sdo_limit(
+                config.security.limits.sdo_requests_per_client_and_node as usize,
+            );
             canopen.insert(cc.bus.clone(), master);
             tasks.push(task);
             // The master's own heartbeat, which the axis drives consume.

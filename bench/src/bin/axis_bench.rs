@@ -365,9 +365,9 @@ struct CpuResult {
     sync_jitter_us: (f64, f64, f64, usize),
 }
 
-/// 3. CPU of 6 CSP axes at a 1 ms SYNC on one bus; 4. the same with
-/// `n_axes` axes spread over `n_buses` buses (6 per bus), each bus with its
-/// own master and SYNC.
+/// CPU of `n_axes` CSP axes at a 1 ms SYNC spread over `n_buses` buses
+/// (6 per bus), each bus with its own master and SYNC: part 3 with 6 axes
+/// on one bus, part 4 with more.
 fn cpu_axes(
     n_axes: usize,
     n_buses: usize,

@@ -285,8 +285,10 @@ fn run(args: &Args) -> Result<bool> {
             m.missed,
             m.late
         );
-        scale_rows.push(json!({"cycle_us": cycle_us, "slaves": slaves, "cpu_percent": m.cpu_percent,
-            "per_slave_percent": per_slave, "dts": m.dts, "missed": m.missed, "late": m.late}));
+        scale_rows.push(
+            json!({"cycle_us": cycle_us, "slaves": slaves, "cpu_percent": m.cpu_percent,
+            "per_slave_percent": per_slave, "dts": m.dts, "missed": m.missed, "late": m.late}),
+        );
     }
     println!(
         "{}",

@@ -176,7 +176,8 @@ pub enum NodeEventKind {
     },
 }
 
-/// SDO requests one API caller may have queued or running per node: a
+/// SDO requests one API caller may have queued or running per node by
+/// default (`[security.limits] sdo_requests_per_client_and_node`): a
 /// caller cannot fill a node's SDO channel for everyone else.
 pub const MAX_CLIENT_SDO_PER_NODE: usize = 8;
 
@@ -278,6 +279,8 @@ pub struct CanopenBus {
     master_sub: cangate_can::SubscriptionKey,
     /// SDO requests of API callers in flight, by node and caller.
     client_sdo: Arc<Mutex<HashMap<(NodeId, String), usize>>>,
+    /// The most of them per caller and node (0: no limit).
+    client_sdo_limit: usize,
 }
 
 /// One API caller's SDO request counted against
@@ -386,6 +389,7 @@ impl CanopenBus {
             tpdos: Arc::new(RwLock::new(tpdos)),
             master_sub: sub.key(),
             client_sdo: Arc::default(),
+            client_sdo_limit: MAX_CLIENT_SDO_PER_NODE,
         };
         let mut master = Master::new(sdo_timeout);
         for (id, f) in facts.read().expect("facts lock").iter() {
@@ -484,6 +488,13 @@ impl CanopenBus {
         self.time_period.send_replace(period);
     }
 
+    /// This master with `limit` SDO requests per API caller and node (0: no
+    /// limit) instead of [`MAX_CLIENT_SDO_PER_NODE`].
+    pub fn with_client_sdo_limit(mut self, limit: usize) -> CanopenBus {
+        self.client_sdo_limit = limit;
+        self
+    }
+
     /// SYNCs sent so far, and SYNC periods skipped because the SYNC thread
     /// was not scheduled in time (both 0 without a SYNC period).
     pub fn sync_counts(&self) -> (u64, u64) {
@@ -556,8 +567,8 @@ impl CanopenBus {
 
     /// Runs one SDO transfer for an API caller (`caller` names it: an
     /// identity or a peer address): after the gateway's own transfers, and
-    /// refused when the caller already has [`MAX_CLIENT_SDO_PER_NODE`]
-    /// requests with this node.
+    /// refused when the caller already has its limit of requests with this
+    /// node ([`CanopenBus::with_client_sdo_limit`]).
     pub async fn client_sdo(
         &self,
         node: NodeId,
@@ -568,11 +579,11 @@ impl CanopenBus {
         let _slot = {
             let mut counts = self.client_sdo.lock().expect("client SDO counts lock");
             let n = counts.entry(key.clone()).or_insert(0);
-            if *n >= MAX_CLIENT_SDO_PER_NODE {
+            if self.client_sdo_limit > 0 && *n >= self.client_sdo_limit {
                 return Err(CanopenError::CallerQueueFull {
                     caller: caller.to_string(),
                     node: node.get(),
-                    limit: MAX_CLIENT_SDO_PER_NODE,
+                    limit: self.client_sdo_limit,
                 });
             }
             *n += 1;

@@ -115,6 +115,12 @@ pub struct LimitsConfig {
     /// until the axis is at rest).
     #[serde(default = "default_concurrent_stops")]
     pub max_concurrent_stops_per_client: u32,
+    /// SDO requests one client may have queued or running with one node
+    /// (0: no limit): one client cannot fill a node's SDO channel for
+    /// everyone else. Clients without an identity are told apart by their
+    /// address, so many unauthenticated clients on one host share it.
+    #[serde(default = "default_sdo_per_node")]
+    pub sdo_requests_per_client_and_node: u32,
     /// Largest `queue_length` of one stream, in events; a larger request
     /// is served with this many.
     #[serde(default = "default_stream_queue")]
@@ -208,6 +214,9 @@ fn default_audit_summary() -> u32 {
 fn default_handshake_s() -> u32 {
     10
 }
+fn default_sdo_per_node() -> u32 {
+    8
+}
 fn default_idle_s() -> u32 {
     300
 }
@@ -225,6 +234,7 @@ impl Default for LimitsConfig {
             stop_requests_per_second_per_client: default_stop_rate(),
             stop_burst: default_stop_burst(),
             max_concurrent_stops_per_client: default_concurrent_stops(),
+            sdo_requests_per_client_and_node: default_sdo_per_node(),
             max_stream_queue: default_stream_queue(),
             max_stream_queue_per_client: default_stream_queue_per_client(),
             max_name_bytes: default_name_bytes(),
