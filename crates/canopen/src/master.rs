@@ -20,6 +20,7 @@
 use crate::emcy::{EmcyConsumer, EmcyEvent};
 use crate::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
 use crate::ids::{CobFunction, NodeId, ObjectAddress};
+use crate::lss::{LSS_RESPONSE_COB_ID, LssCommand, LssError, LssMaster, LssOutcome, LssStep};
 use crate::node_guarding::{GuardingEvent, NodeGuarding};
 use crate::sdo::{Progress, SdoClient, SdoError, StartError, TransferOptions, TransferOutcome};
 use crate::sync::SyncProducer;
@@ -92,6 +93,13 @@ pub enum MasterEvent {
         /// The node.
         node: NodeId,
     },
+    /// An LSS command ended (or was refused at once: busy, invalid).
+    LssCompleted {
+        /// The request.
+        id: RequestId,
+        /// The outcome.
+        result: Result<LssOutcome, LssError>,
+    },
 }
 
 /// Frames to send and events, produced by one input.
@@ -127,6 +135,9 @@ pub struct Master {
     guarding: NodeGuarding,
     emcy: EmcyConsumer,
     sync: Option<SyncProducer>,
+    lss: LssMaster,
+    /// The request of the running LSS command.
+    lss_request: Option<RequestId>,
 }
 
 impl Master {
@@ -139,6 +150,8 @@ impl Master {
             guarding: NodeGuarding::new(),
             emcy: EmcyConsumer::default(),
             sync: None,
+            lss: LssMaster::new(),
+            lss_request: None,
         }
     }
 
@@ -268,6 +281,50 @@ impl Master {
         }
     }
 
+    /// Starts an LSS command (CiA 305, bus-global: one at a time; a second
+    /// one completes at once with [`LssError::Busy`]). Its end comes as
+    /// [`MasterEvent::LssCompleted`] with `id`.
+    pub fn lss(
+        &mut self,
+        id: RequestId,
+        command: LssCommand,
+        timeout: Duration,
+        now: Duration,
+        out: &mut Output,
+    ) {
+        let busy = self.lss.running().is_some();
+        let step = self.lss.start(command, timeout, now);
+        if !busy && step.completed.is_none() {
+            self.lss_request = Some(id);
+        }
+        out.frames.extend(step.frames);
+        if let Some(result) = step.completed {
+            out.events.push(MasterEvent::LssCompleted { id, result });
+        }
+    }
+
+    /// Drops the running LSS command if it is `id` (its caller gave up).
+    pub fn lss_cancel(&mut self, id: RequestId) {
+        if self.lss_request == Some(id) {
+            self.lss.cancel();
+            self.lss_request = None;
+        }
+    }
+
+    /// The running LSS command's name, if any.
+    pub fn lss_running(&self) -> Option<&'static str> {
+        self.lss.running()
+    }
+
+    fn lss_step(&mut self, step: LssStep, out: &mut Output) {
+        out.frames.extend(step.frames);
+        if let Some(result) = step.completed
+            && let Some(id) = self.lss_request.take()
+        {
+            out.events.push(MasterEvent::LssCompleted { id, result });
+        }
+    }
+
     /// Progress of a running request.
     pub fn progress(&self, id: RequestId) -> Option<Progress> {
         self.sdo
@@ -287,6 +344,11 @@ impl Master {
     /// Feeds a received frame.
     pub fn on_frame(&mut self, frame: &Frame, now: Duration, out: &mut Output) {
         if frame.is_extended() || frame.is_fd() || frame.is_error() {
+            return;
+        }
+        if frame.raw_id() == u32::from(LSS_RESPONSE_COB_ID) {
+            let step = self.lss.on_frame(frame, now);
+            self.lss_step(step, out);
             return;
         }
         match CobFunction::classify(frame.raw_id() as u16) {
@@ -372,6 +434,10 @@ impl Master {
         {
             out.frames.push(f);
         }
+        if self.lss.next_deadline().is_some_and(|d| d <= now) {
+            let step = self.lss.on_tick(now);
+            self.lss_step(step, out);
+        }
     }
 
     /// When [`Master::on_tick`] next has something to do.
@@ -387,6 +453,7 @@ impl Master {
             .chain(self.heartbeat.next_deadline())
             .chain(self.guarding.next_deadline())
             .chain(self.sync.as_ref().and_then(|s| s.next_deadline()))
+            .chain(self.lss.next_deadline())
             .min()
     }
 }
