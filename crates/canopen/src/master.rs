@@ -2,7 +2,8 @@
 //! for every node (one transfer at a time per node, queued; different nodes
 //! concurrently), the heartbeat consumer, node guarding (for nodes guarded
 //! instead of producing a heartbeat), the EMCY consumer and the SYNC
-//! producer.
+//! producer, and the LSS master (CiA 305, see [`crate::lss`]): one LSS
+//! command at a time, its answers (0x7E4) taken here like SDO responses.
 //!
 //! The runner feeds it every received frame and ticks it at
 //! [`Master::next_deadline`]; it answers with frames to send and events.
