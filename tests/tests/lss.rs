@@ -116,7 +116,10 @@ async fn unconfigured_nodes_are_found_given_ids_and_booted() {
         if node.state == pb::NmtState::Operational as i32 {
             break node;
         }
-        assert!(Instant::now() < deadline, "node 20 never operational: {node:?}");
+        assert!(
+            Instant::now() < deadline,
+            "node 20 never operational: {node:?}"
+        );
         tokio::time::sleep(Duration::from_millis(20)).await;
     };
     assert!(node.configured);
