@@ -285,3 +285,23 @@ async fn one_lss_operation_per_bus_at_a_time() {
     assert!(lss.identify_non_configured().await.unwrap());
     server.shutdown();
 }
+
+#[test]
+fn sim_lss_is_validated() {
+    let cfg = |node: &str| {
+        cangate_server::Config::from_toml(&format!(
+            "[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\n[[canopen]]\nbus = \"can0\"\n\
+             [[canopen.node]]\nid = 5\neds = \"builtin:io\"\n{node}"
+        ))
+    };
+    let err = |node: &str| cfg(node).unwrap_err().to_string();
+    assert!(err("sim_lss = { serial = 1 }").contains("add simulate = true"));
+    assert!(err("simulate = true\nsim_lss = { }").contains("serial"));
+    assert!(err("simulate = true\nsim_lss = { serial = 1, colour = 2 }").contains("colour"));
+    let c = cfg("simulate = true\nsim_lss = { serial = 0xCAFE, vendor_id = 7 }").unwrap();
+    let l = c.canopen[0].nodes[0].sim_lss.as_ref().unwrap();
+    assert_eq!(
+        (l.serial, l.vendor_id, l.configured),
+        (0xCAFE, Some(7), false)
+    );
+}

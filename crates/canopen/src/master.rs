@@ -603,6 +603,83 @@ mod tests {
     }
 
     #[test]
+    fn lss_runs_beside_sdo_one_command_at_a_time() {
+        use crate::lss::{LssCommand, LssError, LssOutcome};
+        let ms = Duration::from_millis(1);
+        let mut m = Master::new(500 * ms);
+        let mut out = Output::default();
+        m.lss(
+            1,
+            LssCommand::ConfigureNodeId(20),
+            100 * ms,
+            Duration::ZERO,
+            &mut out,
+        );
+        assert_eq!(out.frames.len(), 1);
+        assert_eq!(out.frames[0].raw_id(), 0x7E5);
+        assert_eq!(m.lss_running(), Some("configure node-ID"));
+        // A second command is refused at once; the first keeps running.
+        m.lss(
+            2,
+            LssCommand::StoreConfiguration,
+            100 * ms,
+            Duration::ZERO,
+            &mut out,
+        );
+        assert!(matches!(
+            &out.events[..],
+            [MasterEvent::LssCompleted {
+                id: 2,
+                result: Err(LssError::Busy { .. })
+            }]
+        ));
+        // SDO goes on meanwhile.
+        let mut out = Output::default();
+        m.sdo_as(
+            3,
+            node(2),
+            SdoPriority::Client,
+            upload(0x1000),
+            ms,
+            &mut out,
+        );
+        assert_eq!(out.frames[0].raw_id(), 0x602);
+        assert_eq!(m.next_deadline(), Some(100 * ms));
+        let mut out = Output::default();
+        m.on_frame(
+            &frame(0x7E4, &[0x11, 0, 0, 0, 0, 0, 0, 0]),
+            2 * ms,
+            &mut out,
+        );
+        assert_eq!(
+            out.events,
+            vec![MasterEvent::LssCompleted {
+                id: 1,
+                result: Ok(LssOutcome::Confirmed)
+            }]
+        );
+        assert_eq!(m.lss_running(), None);
+        // A cancelled command frees the master; its late answer is dropped.
+        let mut out = Output::default();
+        m.lss(
+            4,
+            LssCommand::StoreConfiguration,
+            100 * ms,
+            3 * ms,
+            &mut out,
+        );
+        m.lss_cancel(4);
+        assert_eq!(m.lss_running(), None);
+        let mut out = Output::default();
+        m.on_frame(
+            &frame(0x7E4, &[0x17, 0, 0, 0, 0, 0, 0, 0]),
+            4 * ms,
+            &mut out,
+        );
+        assert!(out.events.is_empty());
+    }
+
+    #[test]
     fn guarded_nodes_are_polled_and_their_answers_go_to_the_guarding() {
         let ms = Duration::from_millis(1);
         let mut m = Master::new(500 * ms);

@@ -375,3 +375,82 @@ impl Lss for LssService {
         }))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lss_errors_map_to_codes_and_reasons() {
+        let cases = [
+            (
+                CanopenError::Lss(LssError::Timeout {
+                    command: "inquire",
+                    after: Duration::from_millis(500),
+                }),
+                Code::DeadlineExceeded,
+                "LSS_TIMEOUT",
+            ),
+            (
+                CanopenError::Lss(LssError::Refused {
+                    command: "store configuration",
+                    error: 1,
+                    spec_error: 0,
+                }),
+                Code::FailedPrecondition,
+                "LSS_REFUSED",
+            ),
+            (
+                CanopenError::Lss(LssError::Protocol {
+                    command: "fastscan",
+                    reason: "lost".into(),
+                }),
+                Code::Aborted,
+                "LSS_PROTOCOL_ERROR",
+            ),
+            (
+                CanopenError::LssBusy {
+                    bus: "can0".into(),
+                    operation: "fastscan",
+                },
+                Code::FailedPrecondition,
+                "LSS_BUSY",
+            ),
+            (
+                CanopenError::LssDeviceNotFound {
+                    bus: "can0".into(),
+                    serial: 7,
+                    found: "no unconfigured device".into(),
+                },
+                Code::NotFound,
+                "LSS_DEVICE_NOT_FOUND",
+            ),
+            (
+                CanopenError::Lss(LssError::Invalid {
+                    command: "configure node-ID",
+                    reason: "0".into(),
+                }),
+                Code::InvalidArgument,
+                "INVALID_ARGUMENT",
+            ),
+        ];
+        for (e, code, reason) in cases {
+            let a = lss_error(e);
+            assert_eq!((a.code(), a.reason().as_str()), (code, reason), "{a}");
+        }
+        let a = lss_error(CanopenError::Lss(LssError::Refused {
+            command: "configure node-ID",
+            error: 0xFF,
+            spec_error: 9,
+        }));
+        assert!(
+            a.metadata().contains(&("spec_error", "9".into())),
+            "{:?}",
+            a.metadata()
+        );
+        assert!(
+            a.to_string().contains("implementation-specific error 9"),
+            "{a}"
+        );
+    }
+}
