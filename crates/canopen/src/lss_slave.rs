@@ -167,7 +167,7 @@ impl LssSlave {
         let answer = match req.cs {
             cs::SWITCH_GLOBAL => {
                 match p[0] {
-                    0 => self.to_waiting(&mut events),
+                    0 => self.enter_waiting(&mut events),
                     1 => self.set_mode(LssMode::Configuration, &mut events),
                     _ => {}
                 }
@@ -312,7 +312,7 @@ impl LssSlave {
         self.selective = 0;
     }
 
-    fn to_waiting(&mut self, events: &mut Vec<LssSlaveEvent>) {
+    fn enter_waiting(&mut self, events: &mut Vec<LssSlaveEvent>) {
         self.set_mode(LssMode::Waiting, events);
         if self.active == UNCONFIGURED_NODE_ID && self.pending != UNCONFIGURED_NODE_ID {
             self.active = self.pending;

@@ -310,10 +310,10 @@ fn fastscan_lost_slave_is_a_protocol_error() {
     loop {
         for f in &step.frames {
             n += 1;
-            if n <= 20 {
-                if let (Some(a), _) = slave.on_frame(f) {
-                    m.on_frame(&a, now);
-                }
+            if n <= 20
+                && let (Some(a), _) = slave.on_frame(f)
+            {
+                m.on_frame(&a, now);
             }
         }
         if let Some(r) = step.completed {
