@@ -93,6 +93,7 @@ pub(crate) async fn run(app: &App, a: LssArgs) -> Result<()> {
     match a.verb {
         LssVerb::Scan { bus, step_ms } => {
             let step = step_ms.map(|ms| Duration::from_millis(u64::from(ms)));
+            let started = std::time::Instant::now();
             let found = app
                 .client
                 .lss(&bus)
@@ -102,7 +103,7 @@ pub(crate) async fn run(app: &App, a: LssArgs) -> Result<()> {
             if app.json {
                 return print_json(&pb::FastscanResponse {
                     devices: found,
-                    elapsed_ms: 0,
+                    elapsed_ms: started.elapsed().as_millis() as u64,
                 });
             }
             if found.is_empty() {
