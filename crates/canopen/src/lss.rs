@@ -56,8 +56,12 @@
 //!   slaves may answer the same query (on a real bus their identical frames
 //!   merge, on a virtual bus they do not), every fastscan step lasts its
 //!   full step time and counts any 0x4F in it, as CANopenNode's master
-//!   does; a step ends early only never. A failed confirmation (a slave
-//!   lost mid-scan, an answer that came too late) is a
+//!   does; a step never ends early. A failed confirmation (a slave lost
+//!   mid-scan, or an answer that came after its step and was counted for
+//!   the next one, which makes a bit wrong) restarts the search with a
+//!   reset query, which also resets the slave being searched (slaves
+//!   already found sit in the configuration state and stay out), at most
+//!   [`FASTSCAN_RESTARTS`] times per scan; one more is a
 //!   [`LssError::Protocol`] error naming the part. Scanning for all slaves
 //!   repeats the search: a slave found sits in the configuration state and
 //!   no longer answers, so the next reset query finds the next, until
@@ -130,6 +134,10 @@ pub mod cs {
     /// Inquire node-ID.
     pub const INQUIRE_NODE_ID: u8 = 0x5E;
 }
+
+/// How often one fastscan restarts its search after a failed
+/// confirmation before it gives up.
+pub const FASTSCAN_RESTARTS: u8 = 3;
 
 /// Fastscan BitChecked value of the reset query.
 pub const FASTSCAN_RESET: u8 = 0x80;
@@ -469,6 +477,8 @@ struct Fastscan {
     step: ScanStep,
     /// A 0x4F arrived during the current step.
     answered: bool,
+    /// Restarts after failed confirmations so far.
+    restarts: u8,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -655,6 +665,7 @@ impl LssMaster {
                     id: [0; 4],
                     step: ScanStep::Reset,
                     answered: false,
+                    restarts: 0,
                 };
                 let frames = vec![scan.query()];
                 self.running = Some(Running {
@@ -824,11 +835,17 @@ fn advance(scan: &mut Fastscan) -> Result<bool, String> {
                     "revision number",
                     "serial number",
                 ];
-                return Err(format!(
-                    "no slave confirmed the {} 0x{:08X} found (a slave left mid-scan, or answered too late for the step time)",
-                    PART[usize::from(sub)],
-                    scan.id[usize::from(sub)]
-                ));
+                if scan.restarts >= FASTSCAN_RESTARTS {
+                    return Err(format!(
+                        "no slave confirmed the {} 0x{:08X} found, after {} restarts (a slave left mid-scan, or answers too late for the step time)",
+                        PART[usize::from(sub)],
+                        scan.id[usize::from(sub)],
+                        scan.restarts
+                    ));
+                }
+                scan.restarts += 1;
+                scan.step = ScanStep::Reset;
+                return Ok(true);
             }
             if sub < 3 {
                 scan.step = ScanStep::Bit {

@@ -300,26 +300,56 @@ fn fastscan_ignores_configured_slaves_and_reports_silence() {
 }
 
 #[test]
-fn fastscan_lost_slave_is_a_protocol_error() {
+fn fastscan_restarts_after_a_failed_confirmation() {
+    // The slave's answer to one bit query is lost (as if it came after
+    // the step): the bit reads 1, the confirmation fails, the search
+    // restarts and then finds the slave.
     let mut m = LssMaster::new();
     let mut slave = LssSlave::new(ID, UNCONFIGURED_NODE_ID);
     let mut now = Duration::ZERO;
     let mut step = m.start(fastscan_all(), 100 * MS, now);
-    // The slave answers the reset and the vendor bits, then goes silent.
-    let mut n = 0;
+    let (mut n, mut resets) = (0, 0);
     loop {
         for f in &step.frames {
             n += 1;
-            if n <= 20
-                && let (Some(a), _) = slave.on_frame(f)
+            resets += usize::from(f.data()[5] == FASTSCAN_RESET);
+            // Query 3 asks whether vendor bit 30 is 0, which it is.
+            if let (Some(a), _) = slave.on_frame(f)
+                && n != 3
             {
                 m.on_frame(&a, now);
             }
         }
         if let Some(r) = step.completed {
+            assert_eq!(r, Ok(LssOutcome::Found(vec![ID])));
+            // The first search, its restart, and the final silent query.
+            assert_eq!(resets, 3);
+            return;
+        }
+        now = m.next_deadline().unwrap();
+        step = m.on_tick(now);
+    }
+}
+
+#[test]
+fn fastscan_gives_up_after_its_restarts() {
+    // Something answers the reset queries and nothing else.
+    let mut m = LssMaster::new();
+    let mut now = Duration::ZERO;
+    let mut step = m.start(fastscan_all(), 100 * MS, now);
+    let mut resets = 0;
+    loop {
+        for f in &step.frames {
+            if f.data()[5] == FASTSCAN_RESET {
+                resets += 1;
+                m.on_frame(&answer("4F 00 00 00 00 00 00 00"), now);
+            }
+        }
+        if let Some(r) = step.completed {
             let e = r.unwrap_err();
             assert!(matches!(e, LssError::Protocol { .. }), "{e}");
-            assert!(e.to_string().contains("vendor-ID"), "{e}");
+            assert!(e.to_string().contains("vendor-ID 0xFFFFFFFF"), "{e}");
+            assert_eq!(resets, 1 + usize::from(FASTSCAN_RESTARTS));
             return;
         }
         now = m.next_deadline().unwrap();
