@@ -305,3 +305,74 @@ fn sim_lss_is_validated() {
         (0xCAFE, Some(7), false)
     );
 }
+
+/// The single commands, step by step as a tool would send them: the
+/// devices stay in their LSS state between calls.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn single_commands_step_by_step_and_refusals() {
+    let server = start_server(CONFIG).await;
+    let c = client(&server).await;
+    let lss = c.lss("can0");
+    let mut raw = c.lss_client();
+    let mut events = node_events(&c, vec![]).await;
+    let found = lss.fastscan(None).await.unwrap();
+    let cafe = *found.iter().find(|i| i.serial == 0xCAFE).unwrap();
+
+    // Identify remote: a range around the serial, and one beside it.
+    let identify = |low: u32, high: u32| pb::IdentifyRemoteRequest {
+        bus: "can0".into(),
+        vendor_id: cafe.vendor_id,
+        product_code: cafe.product_code,
+        revision_low: 0,
+        revision_high: u32::MAX,
+        serial_low: low,
+        serial_high: high,
+        timeout_ms: 100,
+    };
+    let r = raw.identify_remote(identify(0xC000, 0xCFFF)).await.unwrap();
+    assert!(r.into_inner().present);
+    let r = raw.identify_remote(identify(0xD000, 0xDFFF)).await.unwrap();
+    assert!(!r.into_inner().present);
+
+    // Select one device, configure it, step by step.
+    lss.switch_selective(cafe).await.expect("switch selective");
+    lss.configure_bit_timing(0, 3).await.expect("250 kbit/s");
+    // Index 5 is reserved in the CiA 301 table: the device refuses (1).
+    let e = lss.configure_bit_timing(0, 5).await.unwrap_err();
+    match &e {
+        cangate_client::Error::Refused {
+            code,
+            reason,
+            status,
+            ..
+        } => {
+            assert_eq!(
+                (*code, reason.as_str()),
+                (tonic::Code::FailedPrecondition, "LSS_REFUSED")
+            );
+            assert!(status.message().contains("error 1"), "{status:?}");
+        }
+        other => panic!("{other:?}"),
+    }
+    lss.activate_bit_timing(100).await.expect("unconfirmed");
+    lss.configure_node_id(33).await.expect("configure node-ID");
+    lss.store_configuration().await.expect("store");
+    // Back to waiting: the unconfigured device takes node-ID 33.
+    lss.switch_global(pb::LssMode::Waiting).await.unwrap();
+    wait_event(&mut events, "boot-up of node 33", |e| {
+        e.node == 33 && matches!(e.event, Some(Event::BootUp(_)))
+    })
+    .await;
+    // A device that has a node-ID: AssignNodeId moves it with NMT reset
+    // communication.
+    let r = lss
+        .assign_node_id(LssDevice::Identity(cafe), NodeId::new(34).unwrap(), true)
+        .await
+        .expect("move 33 to 34");
+    assert_eq!(r.previous_node_id, 33);
+    wait_event(&mut events, "boot-up of node 34", |e| {
+        e.node == 34 && matches!(e.event, Some(Event::BootUp(_)))
+    })
+    .await;
+    server.shutdown();
+}

@@ -17,7 +17,7 @@
 //! | RPDO | operational only; parameters 0x1400+n and mapping 0x1600+n; 0xFE/0xFF applied at once, 0..=240 at the next SYNC |
 //! | SYNC | COB-ID from 0x1005 (0x080 when absent) |
 //! | EMCY | COB-ID from 0x1014 (0x080+n when absent); sets 0x1001 |
-//! | LSS (CiA 305) | with [`SimNodeOptions::lss`]: an [`LssSlave`] with that identity (also the defaults of 0x1018:01..=04) on 0x7E5/0x7E4. With [`SimNodeOptions::lss_unconfigured`] the node starts without a node-ID: no boot-up, no heartbeat, no SDO, nothing but LSS, until a node-ID is configured and applied (switching back to the LSS waiting state applies it at once; an NMT reset node or reset communication applies a pending id, reset node first reloading the stored one). A new id rebuilds the node at that id (the dictionary back to its defaults) and boots it up |
+//! | LSS (CiA 305) | with [`SimNodeOptions::lss`]: an [`LssSlave`] with that identity (also the defaults of 0x1018:01..=04) on 0x7E5/0x7E4. With [`SimNodeOptions::lss_unconfigured`] the node starts without a node-ID: no boot-up, no heartbeat, no SDO, nothing but LSS, until a node-ID is configured and applied (switching back to the LSS waiting state applies it at once; an NMT reset node or reset communication applies a pending id, reset node first reloading the stored one). A new id rebuilds the node at that id (the dictionary back to its defaults) and boots it up. Bit timings are accepted (CiA 301 table, see [`LssSlave`]) but activating one changes nothing: the virtual bus has one bit timing |
 
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
