@@ -55,7 +55,7 @@ impl Lss {
 
     /// Every unconfigured device by fastscan, lowest identity first.
     /// `step_time`: how long each step listens (the gateway's default, 20
-    /// ms, when `None`); about 134 steps per device.
+    /// ms, when `None`); 133 steps per device.
     pub async fn fastscan(
         &self,
         step_time: Option<Duration>,

@@ -20,7 +20,7 @@ enum LssVerb {
         /// Bus.
         bus: String,
         /// How long each fastscan step listens, in ms (the gateway's
-        /// default: 20); a scan takes about 134 steps per device.
+        /// default: 20); a scan takes 133 steps per device.
         #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u32).range(1..=1000))]
         step_ms: Option<u32>,
     },
