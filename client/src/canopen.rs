@@ -6,6 +6,14 @@ use crate::streams::{self, EventStream};
 use crate::{Client, pb};
 use std::time::Duration;
 
+/// What a PDO configuration call may wait for beyond the request timeout:
+/// a dozen SDO transfers with the node.
+const PDO_CONFIG_WAIT: Duration = Duration::from_secs(10);
+
+/// What a DCF export may wait for beyond the request timeout: an SDO read
+/// of every object of a large dictionary.
+const DCF_EXPORT_WAIT: Duration = Duration::from_secs(120);
+
 /// The CANopen master of one bus ([`Client::canopen`]). Cheap to clone.
 #[derive(Clone, Debug)]
 pub struct Canopen {
@@ -268,6 +276,118 @@ impl Canopen {
             )
             .await?;
         Ok(r.objects)
+    }
+
+    /// A node's PDOs as the node holds them (read over SDO): `kind`
+    /// `None` for both, `pdo` 0 for every PDO (those its EDS lists, else
+    /// 1..=4).
+    pub async fn pdo_config(
+        &self,
+        node: NodeId,
+        kind: Option<pb::PdoKind>,
+        pdo: u32,
+    ) -> Result<Vec<pb::PdoConfiguration>, Error> {
+        let req = pb::ReadPdoConfigRequest {
+            bus: self.bus.clone(),
+            node: node.into(),
+            kind: kind.unwrap_or(pb::PdoKind::Unspecified) as i32,
+            pdo,
+            options: None,
+        };
+        let r = self
+            .client
+            .call(
+                "ReadPdoConfig",
+                Some(PDO_CONFIG_WAIT),
+                self.client.canopen_client().read_pdo_config(req),
+            )
+            .await?;
+        Ok(r.pdos)
+    }
+
+    /// Changes one PDO of a node (CiA 301 sequence); the gateway decodes
+    /// or encodes the PDO with the new layout at once.
+    pub async fn configure_pdo(
+        &self,
+        node: NodeId,
+        pdo: pb::PdoConfiguration,
+    ) -> Result<pb::ConfigurePdoResponse, Error> {
+        let req = pb::ConfigurePdoRequest {
+            bus: self.bus.clone(),
+            node: node.into(),
+            pdo: Some(pdo),
+            options: None,
+        };
+        self.client
+            .call(
+                "ConfigurePdo",
+                Some(PDO_CONFIG_WAIT),
+                self.client.canopen_client().configure_pdo(req),
+            )
+            .await
+    }
+
+    /// The node's live values as a DCF (every readable object of its EDS
+    /// read over SDO); the objects left out are listed in the response.
+    pub async fn export_dcf(&self, node: NodeId) -> Result<pb::ExportDcfResponse, Error> {
+        let req = pb::ExportDcfRequest {
+            bus: self.bus.clone(),
+            node: node.into(),
+            options: None,
+        };
+        self.client
+            .call(
+                "ExportDcf",
+                Some(DCF_EXPORT_WAIT),
+                self.client.canopen_client().export_dcf(req),
+            )
+            .await
+    }
+
+    /// The bus's SYNC and TIME producers.
+    pub async fn sync_status(&self) -> Result<pb::SyncStatus, Error> {
+        let req = pb::GetSyncRequest {
+            bus: self.bus.clone(),
+        };
+        self.client
+            .call("GetSync", None, self.client.canopen_client().get_sync(req))
+            .await
+    }
+
+    /// Starts/stops the SYNC producer, or changes its period or counter
+    /// (`None`: unchanged).
+    pub async fn set_sync(
+        &self,
+        running: Option<bool>,
+        period: Option<Duration>,
+        counter_overflow: Option<u8>,
+    ) -> Result<pb::SyncStatus, Error> {
+        let req = pb::SetSyncRequest {
+            bus: self.bus.clone(),
+            running,
+            period_us: period.map(|p| u32::try_from(p.as_micros()).unwrap_or(u32::MAX)),
+            counter_overflow: counter_overflow.map(u32::from),
+        };
+        self.client
+            .call("SetSync", None, self.client.canopen_client().set_sync(req))
+            .await
+    }
+
+    /// Sends a TIME now (`send_now`) and/or sets the TIME period
+    /// (`Some(Duration::ZERO)` stops periodic TIMEs, `None` leaves it).
+    pub async fn set_time(
+        &self,
+        send_now: bool,
+        period: Option<Duration>,
+    ) -> Result<pb::SetTimeResponse, Error> {
+        let req = pb::SetTimeRequest {
+            bus: self.bus.clone(),
+            send_now,
+            period_ms: period.map(|p| u32::try_from(p.as_millis()).unwrap_or(u32::MAX)),
+        };
+        self.client
+            .call("SetTime", None, self.client.canopen_client().set_time(req))
+            .await
     }
 
     /// Writes bytes as they are.

@@ -169,7 +169,10 @@ impl Gateway {
                     message: format!("node {}: {message}", nc.id),
                 };
                 let node = NodeId::new(nc.id).map_err(|e| err(e.to_string()))?;
-                let eds = nc.load_eds().map_err(err)?.map(Arc::new);
+                let (eds, eds_text) = match nc.load_eds().map_err(err)? {
+                    Some((eds, text)) => (Some(Arc::new(eds)), Some(text)),
+                    None => (None, None),
+                };
                 if nc.simulate {
                     let eds = eds
                         .as_ref()
@@ -194,12 +197,26 @@ impl Gateway {
                     simulation.add_device(&cc.bus, node, device.clone());
                     simulated.push((vbus.connect(false), device));
                 }
-                facts.insert(node, node_facts(config, cc, nc, node, eds).map_err(err)?);
+                facts.insert(
+                    node,
+                    node_facts(config, cc, nc, node, eds, eds_text).map_err(err)?,
+                );
             }
             let (master, task) = CanopenBus::spawn(
                 bus,
                 Duration::from_millis(cc.sdo_timeout_ms),
-                (cc.sync_period_us > 0).then(|| Duration::from_micros(cc.sync_period_us)),
+                crate::canopen::sync_thread::SyncSettings {
+                    running: cc.sync_period_us > 0,
+                    // A stopped SYNC started at run time without a period
+                    // runs at 10 ms until one is given.
+                    period: Duration::from_micros(if cc.sync_period_us > 0 {
+                        cc.sync_period_us
+                    } else {
+                        10_000
+                    }),
+                    counter_overflow: cc.sync_counter_overflow,
+                },
+                (cc.time_period_ms > 0).then(|| Duration::from_millis(cc.time_period_ms)),
                 config.rt_priority,
                 facts,
                 shutdown.child_token(),
@@ -410,6 +427,7 @@ fn node_facts(
     nc: &NodeConfig,
     node: NodeId,
     eds: Option<Arc<Eds>>,
+    eds_text: Option<Arc<str>>,
 ) -> Result<NodeFacts, String> {
     let axis = config
         .axes
@@ -439,6 +457,7 @@ fn node_facts(
         rpdos,
         boot,
         eds,
+        eds_text,
         heartbeat_timeout: (nc.heartbeat_timeout_ms > 0)
             .then(|| Duration::from_millis(nc.heartbeat_timeout_ms)),
         guarding: nc.guarding(),
@@ -479,10 +498,11 @@ fn node_plan(
             ProcessDataChoice::Pdo => standard_pdos(node, trigger),
             ProcessDataChoice::Sdo => (Vec::new(), Vec::new()),
         };
-        let mut writes = Vec::new();
+        let mut writes = dcf_writes(nc, node)?;
         if let Some(ms) = nc.heartbeat_producer_ms {
             writes.push((ObjectAddress::new(0x1017, 0), ms.to_le_bytes().to_vec()));
         }
+        writes.extend(life_guarding_writes(nc, eds));
         writes.extend(master_heartbeat_consumer(eds, master_heartbeat, axis));
         for p in tpdos.iter().chain(&rpdos) {
             writes.extend(p.sdo_writes().map_err(|e| e.to_string())?);
@@ -529,10 +549,11 @@ fn node_plan(
     if !nc.boot {
         return Ok((tpdos, rpdos, None));
     }
-    let mut writes = Vec::new();
+    let mut writes = dcf_writes(nc, node)?;
     if let Some(ms) = nc.heartbeat_producer_ms {
         writes.push((ObjectAddress::new(0x1017, 0), ms.to_le_bytes().to_vec()));
     }
+    writes.extend(life_guarding_writes(nc, eds));
     // Only PDOs configured explicitly are written; EDS defaults are the
     // node's own.
     for (entries, list) in [(&nc.tpdo, &tpdos), (&nc.rpdo, &rpdos)] {
@@ -557,6 +578,41 @@ fn node_plan(
         writes,
     };
     Ok((tpdos, rpdos, Some(Arc::new(plan))))
+}
+
+/// The boot writes that let a guarded node watch the master's guarding
+/// (life guarding): its guard time (0x100C, ms) and life time factor
+/// (0x100D) as configured. Left out when the node's EDS does not have
+/// both (a write the node aborts would fail its boot).
+fn life_guarding_writes(nc: &NodeConfig, eds: Option<&Eds>) -> Vec<(ObjectAddress, Vec<u8>)> {
+    let guard = ObjectAddress::new(0x100C, 0);
+    let factor = ObjectAddress::new(0x100D, 0);
+    let Some((guard_time, life_time_factor)) = nc.guarding() else {
+        return Vec::new();
+    };
+    if !eds.is_some_and(|e| e.od.get(guard).is_some() && e.od.get(factor).is_some()) {
+        tracing::info!(
+            node = nc.id,
+            "guarded node without 0x100C/0x100D in its EDS: its life guarding is not configured"
+        );
+        return Vec::new();
+    }
+    let ms = u16::try_from(guard_time.as_millis()).unwrap_or(u16::MAX);
+    vec![
+        (guard, ms.to_le_bytes().to_vec()),
+        (factor, vec![life_time_factor]),
+    ]
+}
+
+/// The boot writes of the node's `dcf` (its `ParameterValue`s, see
+/// [`cangate_canopen::dcf::configuration_writes`]), first of the boot
+/// procedure so that the configuration's own writes win.
+fn dcf_writes(nc: &NodeConfig, node: NodeId) -> Result<Vec<(ObjectAddress, Vec<u8>)>, String> {
+    let Some(dcf) = nc.load_dcf()? else {
+        return Ok(Vec::new());
+    };
+    cangate_canopen::dcf::configuration_writes(&dcf.od, node)
+        .map_err(|e| format!("dcf {:?}: {e}", nc.dcf.as_deref().unwrap_or_default()))
 }
 
 /// The boot write that makes an axis drive watch the master's heartbeat:

@@ -194,6 +194,92 @@ async fn a_guarded_node_is_polled_lost_and_recovered() {
     assert_eq!(node.state, pb::NmtState::Operational as i32);
 }
 
+const LIFE_GUARDING: &str = r#"
+[[bus]]
+name = "can0"
+backend = "virtual"
+
+[[canopen]]
+bus = "can0"
+
+[[canopen.node]]
+id = 6
+name = "guarded io, booted"
+eds = "builtin:io"
+simulate = true
+boot = true
+guard_time_ms = 100
+life_time_factor = 3
+"#;
+
+/// Life guarding, the node's side: the boot procedure writes the guard
+/// time and life time factor into 0x100C/0x100D, and when the master's
+/// requests stop reaching the node it reports a life guard error (EMCY
+/// 0x8130), and the error reset when they come back.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_booted_guarded_node_life_guards_the_master() {
+    let server = start_server(LIFE_GUARDING).await;
+    let c = client(&server).await;
+    let mut events = node_events(&c, vec![6]).await;
+    // Booted (maybe before the stream opened): started by the master.
+    tokio::time::timeout(WAIT, async {
+        while get_node(&c, 6).await.state != pb::NmtState::Operational as i32 {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("node 6 booted and started");
+    let co = c.canopen("can0");
+    let node = cangate_client::NodeId::new(6).unwrap();
+    let read = |index| {
+        let co = co.clone();
+        async move {
+            co.read_bytes(
+                node,
+                cangate_client::ObjectAddress::new(index, 0),
+                Default::default(),
+            )
+            .await
+            .unwrap()
+        }
+    };
+    assert_eq!(
+        read(0x100C).await,
+        vec![100, 0],
+        "guard time written at boot"
+    );
+    assert_eq!(
+        read(0x100D).await,
+        vec![3],
+        "life time factor written at boot"
+    );
+
+    // The requests (and answers) vanish: the node's life guarding fires.
+    set_drop_ids(&c, vec![0x706]).await;
+    let ev = wait_event(
+        &mut events,
+        "life guard EMCY",
+        |e| matches!(&e.event, Some(Event::Emcy(m)) if m.code == 0x8130),
+    )
+    .await;
+    let Some(Event::Emcy(emcy)) = ev.event else {
+        unreachable!()
+    };
+    assert_eq!(
+        emcy.register & 0x11,
+        0x11,
+        "generic + communication: {emcy:?}"
+    );
+    // Requests again: the node resets the error.
+    set_drop_ids(&c, vec![]).await;
+    wait_event(
+        &mut events,
+        "EMCY error reset",
+        |e| matches!(&e.event, Some(Event::Emcy(m)) if m.code == 0),
+    )
+    .await;
+}
+
 #[test]
 fn guarding_keys_are_validated() {
     let cfg = |node: &str| {

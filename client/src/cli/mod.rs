@@ -20,10 +20,12 @@ pub(crate) mod lease;
 pub(crate) mod lss;
 pub(crate) mod node;
 pub(crate) mod pcapng;
+pub(crate) mod pdo;
 pub(crate) mod replay;
 pub(crate) mod sdo;
 pub(crate) mod sim;
 pub(crate) mod smc;
+pub(crate) mod sync;
 pub(crate) mod wheel;
 
 use cangate_client::{Client, ConnectOptions, Error};
@@ -174,8 +176,15 @@ pub(crate) enum Command {
     Scan(node::ScanArgs),
     /// CANopen node events (boot-up, state, heartbeat, EMCY), until Ctrl-C.
     Events(node::EventsArgs),
-    /// Process data objects: watch decoded TPDOs.
-    Pdo(node::PdoArgs),
+    /// Process data objects: watch decoded TPDOs; show, map and disable a
+    /// node's PDOs at run time.
+    Pdo(pdo::PdoArgs),
+    /// The SYNC producer of a CANopen bus: status, start, stop, period,
+    /// counter.
+    Sync(sync::SyncArgs),
+    /// The TIME producer of a CANopen bus: send the time now, or every
+    /// period.
+    Time(sync::TimeArgs),
     /// Layer setting services (CiA 305): find unconfigured devices
     /// (fastscan), give them node-IDs, inquire.
     Lss(lss::LssArgs),
@@ -589,7 +598,9 @@ async fn run(cli: Cli) -> Result<()> {
         Command::Scan(a) => node::scan(&app, a).await,
         Command::Lss(a) => lss::run(&app, a).await,
         Command::Events(a) => node::events(&app, a).await,
-        Command::Pdo(a) => node::pdo(&app, a).await,
+        Command::Pdo(a) => pdo::run(&app, a).await,
+        Command::Sync(a) => sync::sync(&app, a).await,
+        Command::Time(a) => sync::time(&app, a).await,
         Command::Bus(a) => bus::run(&app, a).await,
         Command::Buses => bus::list(&app).await,
         Command::Dump(a) => dump::dump(&app, a).await,

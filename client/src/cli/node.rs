@@ -1,5 +1,5 @@
-//! CANopen nodes: `cangate node list|show|objects`, `nmt`, `scan`,
-//! `events`, `pdo watch`.
+//! CANopen nodes: `cangate node list|show|objects|dcf`, `nmt`, `scan`,
+//! `events`.
 
 use super::{App, Context, Result, ctrl_c, label, node_id, print_json};
 use cangate_client::{NmtCommand, NodeId, SdoValue, pb};
@@ -43,6 +43,19 @@ enum NodeVerb {
         /// (case-insensitive).
         #[arg(long, short = 'f', value_name = "TEXT")]
         filter: Option<String>,
+    },
+    /// The node's live values as a DCF (CiA 306): every readable object
+    /// of its EDS read over SDO. Give the file to the node's `dcf` in the
+    /// configuration and the boot procedure writes the values back.
+    Dcf {
+        /// Bus.
+        bus: String,
+        /// Node id.
+        #[arg(value_parser = node_id)]
+        node: NodeId,
+        /// Write the DCF to this file (default: standard output).
+        #[arg(long, short = 'o', value_name = "FILE")]
+        output: Option<std::path::PathBuf>,
     },
 }
 
@@ -118,27 +131,8 @@ pub(crate) struct EventsArgs {
     nodes: Vec<NodeId>,
 }
 
-/// `cangate pdo …`
-#[derive(Args, Debug)]
-pub(crate) struct PdoArgs {
-    #[command(subcommand)]
-    verb: PdoVerb,
-}
-
-#[derive(Subcommand, Debug)]
-enum PdoVerb {
-    /// Decoded TPDOs (named, typed values) as they arrive, until Ctrl-C.
-    Watch {
-        /// Only this bus (default: every CANopen bus).
-        bus: Option<String>,
-        /// Only these node ids (repeatable).
-        #[arg(long = "node", value_parser = node_id)]
-        nodes: Vec<NodeId>,
-    },
-}
-
 /// `(secs.micros)` of a nanosecond timestamp.
-fn ns_text(ns: u64) -> String {
+pub(super) fn ns_text(ns: u64) -> String {
     super::time_text(ns / 1000)
 }
 
@@ -296,6 +290,42 @@ fn objects_table(objects: &[pb::ObjectInfo]) -> String {
 /// `cangate node …`
 pub(crate) async fn run(app: &App, args: NodeArgs) -> Result<()> {
     match args.verb {
+        NodeVerb::Dcf { bus, node, output } => {
+            let r = app
+                .client
+                .canopen(&bus)
+                .export_dcf(node)
+                .await
+                .ctx(format!("exporting node {node} on {bus} as a DCF"))?;
+            if app.json {
+                return print_json(&r);
+            }
+            for s in &r.skipped {
+                eprintln!(
+                    "cangate: 0x{:04X}:{:02X} left out: {}",
+                    s.index, s.subindex, s.reason
+                );
+            }
+            match output {
+                Some(path) => {
+                    std::fs::write(&path, &r.dcf).ctx(format!("writing {}", path.display()))?;
+                    eprintln!(
+                        "cangate: {} values of node {node} written to {} ({} left out)",
+                        r.objects_read,
+                        path.display(),
+                        r.skipped.len()
+                    );
+                    Ok(())
+                }
+                None => {
+                    use std::io::Write;
+                    let mut out = std::io::stdout().lock();
+                    out.write_all(r.dcf.as_bytes())?;
+                    out.flush()?;
+                    Ok(())
+                }
+            }
+        }
         NodeVerb::List { bus } => {
             let bus = bus.unwrap_or_default();
             let nodes = app
@@ -447,67 +477,6 @@ pub(crate) async fn events(app: &App, a: EventsArgs) -> Result<()> {
 }
 
 /// One line of `pdo watch`.
-fn pdo_text(m: &pb::PdoMessage) -> String {
-    let values: Vec<String> = m
-        .values
-        .iter()
-        .map(|v| {
-            let name = if v.name.is_empty() {
-                format!("0x{:04X}:{:02X}", v.index, v.subindex)
-            } else {
-                v.name.clone()
-            };
-            let value = v
-                .value
-                .as_ref()
-                .and_then(|v| SdoValue::from_pb(v).ok())
-                .map_or_else(|| "-".to_string(), |v| v.to_string());
-            format!("{name}={value}")
-        })
-        .collect();
-    format!(
-        "{}  {}  node {:>3}  TPDO{} {:03X}  {}",
-        ns_text(m.timestamp_ns),
-        m.bus,
-        m.node,
-        m.pdo,
-        m.cob_id,
-        values.join("  ")
-    )
-}
-
-/// `cangate pdo watch [BUS] [--node N]`
-pub(crate) async fn pdo(app: &App, a: PdoArgs) -> Result<()> {
-    let PdoVerb::Watch { bus, nodes } = a.verb;
-    let req = pb::StreamPdoRequest {
-        bus: bus.unwrap_or_default(),
-        nodes: nodes.iter().map(|n| u32::from(*n)).collect(),
-    };
-    let mut s = app
-        .client
-        .call(
-            "StreamPdo",
-            None,
-            app.client.canopen_client().stream_pdo(req),
-        )
-        .await
-        .ctx("watching PDOs")?;
-    loop {
-        let m = tokio::select! {
-            m = s.message() => m.map_err(cangate_client::Error::from).ctx("watching PDOs")?,
-            _ = ctrl_c() => return Ok(()),
-        };
-        let Some(m) = m else { return Ok(()) };
-        if m.lost_before > 0 && !app.json {
-            eprintln!(
-                "cangate: {} PDOs lost (this client read too slowly)",
-                m.lost_before
-            );
-        }
-        app.item(pdo_text(&m), &m)?;
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::super::{Cli, Command};

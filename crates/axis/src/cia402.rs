@@ -350,6 +350,12 @@ impl CyclicPlan {
         }
     }
 
+    /// True while a trajectory runs (the axis moves, or waits for the SYNC
+    /// that starts its move).
+    pub fn is_moving(&self) -> bool {
+        self.trajectory.is_some()
+    }
+
     /// The set-point of a SYNC sent at `at`; the first sample of a
     /// trajectory that waits for the next SYNC starts it.
     pub fn sample(&mut self, at: Duration) -> CyclicSample {

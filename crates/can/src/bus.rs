@@ -827,6 +827,23 @@ impl BusHandle {
         Subscription { rx, lost_total }
     }
 
+    /// Replaces the selector of the subscription `key` names, under the
+    /// fan-out's lock: every frame after this call is matched with the new
+    /// selector, none is lost or delivered twice in the change. `false` if
+    /// the subscription has ended.
+    pub fn reselect(&self, key: &SubscriptionKey, selector: FrameSelector) -> bool {
+        let mut subs = self.shared.subscribers.lock().expect("subscriber lock");
+        let Some(s) = subs.iter_mut().find(|s| Arc::ptr_eq(&s.lost_total, &key.0)) else {
+            return false;
+        };
+        let transmitted = s.selector.transmitted || selector.transmitted;
+        s.selector = selector;
+        if transmitted {
+            update_echo(&self.shared, &subs);
+        }
+        true
+    }
+
     /// The echo filter of the virtual port (see [`update_echo`]).
     #[cfg(test)]
     fn echo_filters(&self) -> Option<Vec<Filter>> {
@@ -893,7 +910,18 @@ impl Subscription {
     pub fn lost_total(&self) -> u64 {
         self.lost_total.load(Ordering::Relaxed)
     }
+
+    /// What names this subscription for [`BusHandle::reselect`].
+    pub fn key(&self) -> SubscriptionKey {
+        SubscriptionKey(self.lost_total.clone())
+    }
 }
+
+/// Names a [`Subscription`] for [`BusHandle::reselect`] without holding
+/// its queue. (The loss counter is shared by exactly one subscription and
+/// its subscriber entry, so it identifies both.)
+#[derive(Debug, Clone)]
+pub struct SubscriptionKey(Arc<AtomicU64>);
 
 async fn run_bus(
     mut backend: Backend,
@@ -1629,6 +1657,45 @@ mod tests {
                 BusItem::Lost(n) => panic!("lost {n}"),
             }
         }
+    }
+
+    #[tokio::test]
+    async fn reselect_changes_what_a_subscription_gets_from_the_next_frame() {
+        let vbus = VirtualBus::new("v", VirtualBusConfig::default());
+        let (h, _c) = start_with_bitrate(&vbus, None);
+        let mut sub = h.subscribe(
+            FrameSelector {
+                filters: vec![Filter::exact_standard(0x181)],
+                ..FrameSelector::default()
+            },
+            16,
+        );
+        let peer = vbus.connect(false);
+        peer.send(&frame(0x181)).unwrap();
+        peer.send(&frame(0x1A0)).unwrap();
+        assert_eq!(next_frame(&mut sub).await, (0x181, Direction::Rx));
+        assert!(h.reselect(
+            &sub.key(),
+            FrameSelector {
+                filters: vec![Filter::exact_standard(0x1A0)],
+                ..FrameSelector::default()
+            }
+        ));
+        peer.send(&frame(0x181)).unwrap();
+        peer.send(&frame(0x1A0)).unwrap();
+        assert_eq!(next_frame(&mut sub).await, (0x1A0, Direction::Rx));
+        assert!(sub.try_recv().is_none(), "0x181 no longer passes");
+        let key = sub.key();
+        drop(sub);
+        peer.send(&frame(0x1A0)).unwrap();
+        // The bus task drops an ended subscriber at its next fan-out.
+        for _ in 0..100 {
+            if !h.reselect(&key, FrameSelector::default()) {
+                return;
+            }
+            tokio::time::sleep(std::time::Duration::from_millis(5)).await;
+        }
+        panic!("an ended subscription is still reselectable");
     }
 
     #[tokio::test]

@@ -810,14 +810,19 @@ impl Eds {
     /// Reads and parses an EDS/DCF file (UTF-8, or Latin-1 as older tools
     /// write).
     pub fn from_path(path: impl AsRef<Path>) -> Result<Eds, EdsError> {
+        Eds::parse(&Eds::read_text(path)?)
+    }
+
+    /// The text of an EDS/DCF file, as [`Eds::from_path`] reads it (bytes
+    /// that are not UTF-8 taken as Latin-1).
+    pub fn read_text(path: impl AsRef<Path>) -> Result<String, EdsError> {
         let path = path.as_ref();
         let bytes = std::fs::read(path).map_err(|source| EdsError::Io {
             path: path.to_owned(),
             source,
         })?;
-        let text = String::from_utf8(bytes)
-            .unwrap_or_else(|e| e.into_bytes().iter().map(|&b| char::from(b)).collect());
-        Eds::parse(&text)
+        Ok(String::from_utf8(bytes)
+            .unwrap_or_else(|e| e.into_bytes().iter().map(|&b| char::from(b)).collect()))
     }
 
     /// The node id configured by a DCF's `[DeviceComissioning]`.

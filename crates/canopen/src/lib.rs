@@ -12,6 +12,7 @@
 #![deny(missing_docs, unreachable_pub)]
 
 pub mod cia402;
+pub mod dcf;
 pub mod eds;
 pub mod emcy;
 pub mod handwheel;
@@ -26,6 +27,7 @@ pub mod od;
 pub mod pdo;
 pub mod sdo;
 pub mod sync;
+pub mod time_of_day;
 pub mod value;
 
 pub use ids::{BadNodeId, CobFunction, NodeId, ObjectAddress};

@@ -41,6 +41,28 @@ impl PdoKind {
     }
 }
 
+/// What a PDO parameter object is, for messages that name the object a
+/// configuration step failed on: "COB-ID", "mapping entry 2", …; `None`
+/// outside the PDO parameter ranges.
+pub fn parameter_name(addr: ObjectAddress) -> Option<String> {
+    let (index, sub) = (addr.index, addr.sub);
+    let comm = matches!(index, 0x1400..=0x15FF | 0x1800..=0x19FF);
+    let map = matches!(index, 0x1600..=0x17FF | 0x1A00..=0x1BFF);
+    let what = match (comm, map, sub) {
+        (true, _, 0) => "highest sub-index".to_string(),
+        (true, _, 1) => "COB-ID".to_string(),
+        (true, _, 2) => "transmission type".to_string(),
+        (true, _, 3) => "inhibit time".to_string(),
+        (true, _, 5) => "event timer".to_string(),
+        (true, _, 6) => "SYNC start value".to_string(),
+        (true, _, n) => format!("sub-index {n}"),
+        (_, true, 0) => "number of mapped objects".to_string(),
+        (_, true, n) => format!("mapping entry {n}"),
+        _ => return None,
+    };
+    Some(what)
+}
+
 /// One mapped object: its address and length in bits.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct MappedObject {
@@ -137,6 +159,16 @@ impl PdoConfig {
     /// parameters, disable the mapping (count 0), write the entries, enable
     /// the mapping (count n), and finally validate the PDO with its COB-ID.
     pub fn sdo_writes(&self) -> Result<Vec<(ObjectAddress, Vec<u8>)>, PdoError> {
+        self.sdo_writes_leaving(true)
+    }
+
+    /// [`PdoConfig::sdo_writes`], with the last write (the COB-ID made
+    /// valid) left out when `enable` is false: the PDO is configured but
+    /// stays disabled.
+    pub fn sdo_writes_leaving(
+        &self,
+        enable: bool,
+    ) -> Result<Vec<(ObjectAddress, Vec<u8>)>, PdoError> {
         self.validate()?;
         let comm = self.kind.comm_index(self.num);
         let map = self.kind.map_index(self.num);
@@ -170,8 +202,41 @@ impl PdoConfig {
             ));
         }
         w.push((ObjectAddress::new(map, 0), vec![self.mapping.len() as u8]));
-        w.push((ObjectAddress::new(comm, 1), cob.to_le_bytes().to_vec()));
+        if enable {
+            w.push((ObjectAddress::new(comm, 1), cob.to_le_bytes().to_vec()));
+        }
         Ok(w)
+    }
+
+    /// A PDO as read from a node: the raw COB-ID entry (sub 1, with its
+    /// flag bits), transmission type, inhibit time, event timer and the
+    /// mapping entries. Returns the configuration and whether the PDO is
+    /// valid (bit 31 clear). Entries of 0 bits (dummy gaps some devices
+    /// report for unused slots) are kept, so the layout stays exact.
+    pub fn from_parameters(
+        kind: PdoKind,
+        num: u16,
+        cob_entry: u32,
+        transmission_type: u8,
+        inhibit_time: u16,
+        event_timer_ms: u16,
+        entries: &[u32],
+    ) -> (PdoConfig, bool) {
+        (
+            PdoConfig {
+                kind,
+                num,
+                cob_id: (cob_entry & 0x7FF) as u16,
+                transmission_type,
+                inhibit_time,
+                event_timer_ms,
+                mapping: entries
+                    .iter()
+                    .map(|&e| MappedObject::from_entry(e))
+                    .collect(),
+            },
+            cob_entry & 0x8000_0000 == 0,
+        )
     }
 
     /// The PDO configuration an object dictionary holds by default for a
@@ -296,6 +361,49 @@ impl PdoConfig {
             data.extend(bytes);
         }
         Ok(data)
+    }
+}
+
+#[cfg(test)]
+mod parameter_tests {
+    use super::*;
+
+    #[test]
+    fn parameter_names() {
+        let n = |i, s| parameter_name(ObjectAddress::new(i, s));
+        assert_eq!(n(0x1800, 1).as_deref(), Some("COB-ID"));
+        assert_eq!(n(0x1401, 2).as_deref(), Some("transmission type"));
+        assert_eq!(n(0x1A03, 0).as_deref(), Some("number of mapped objects"));
+        assert_eq!(n(0x1600, 4).as_deref(), Some("mapping entry 4"));
+        assert_eq!(n(0x6041, 0), None);
+    }
+
+    #[test]
+    fn a_disabled_configuration_leaves_the_cob_id_invalid() {
+        let node = NodeId::new(5).unwrap();
+        let cfg = PdoConfig {
+            kind: PdoKind::Tpdo,
+            num: 1,
+            cob_id: PdoKind::Tpdo.default_cob_id(1, node).unwrap(),
+            transmission_type: 1,
+            inhibit_time: 0,
+            event_timer_ms: 0,
+            mapping: vec![MappedObject {
+                addr: ObjectAddress::new(0x6041, 0),
+                bits: 16,
+            }],
+        };
+        let on = cfg.sdo_writes().unwrap();
+        let off = cfg.sdo_writes_leaving(false).unwrap();
+        assert_eq!(&on[..on.len() - 1], &off[..]);
+        assert_eq!(
+            off[0],
+            (ObjectAddress::new(0x1800, 1), vec![0x85, 0x01, 0, 0x80])
+        );
+        assert_eq!(on.last().unwrap().1, vec![0x85, 0x01, 0, 0]);
+        let (read, valid) =
+            PdoConfig::from_parameters(PdoKind::Tpdo, 1, 0x8000_0185, 1, 0, 0, &[0x6041_0010]);
+        assert_eq!((read, valid), (cfg, false));
     }
 }
 

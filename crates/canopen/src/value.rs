@@ -226,6 +226,11 @@ impl DataType {
         self.row().5
     }
 
+    /// True for INTEGER8..INTEGER64.
+    pub const fn is_signed(self) -> bool {
+        matches!(self.kind(), Kind::Signed)
+    }
+
     /// The CiA 301 code (`UNSIGNED32` → `0x0007`).
     pub const fn code(self) -> u16 {
         self.row().1

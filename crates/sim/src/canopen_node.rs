@@ -10,7 +10,7 @@
 //! |---|---|
 //! | NMT | boot-up on [`SimNode::start`], then pre-operational; start/stop/pre-operational; reset node restores every default, reset communication restores 0x1000..=0x1FFF; both boot up again |
 //! | heartbeat | every 0x1017 ms in every state after boot-up; writes to 0x1017 restart the producer at once |
-//! | node guarding | a remote frame to 0x700+n is answered with `[toggle << 7 \| state]` in every state after boot-up; the toggle bit starts at 0 after every boot-up and alternates with each answer. Life guarding (the node watching the master's requests, 0x100C/0x100D) is not simulated |
+//! | node guarding | a remote frame to 0x700+n is answered with `[toggle << 7 \| state]` in every state after boot-up; the toggle bit starts at 0 after every boot-up and alternates with each answer. Life guarding: with 0x100C (guard time, ms) and 0x100D (life time factor) set, from the first request on, no request within their product sends EMCY 0x8130 once and applies 0x1029:01 like a heartbeat loss; the next request sends the EMCY reset |
 //! | heartbeat consumer | every 0x1016 entry (node id in bits 16..=23, time in ms in bits 0..=15) monitors that node, starting with its first heartbeat; when none arrives within the time: [`SimEvent::HeartbeatLost`], EMCY 0x8130 (heartbeat error, error register generic + communication) and the 0x1029:01 communication error behaviour when the dictionary has it (0 pre-operational if operational, 2 stopped, else no change); without 0x1029 the device application reacts (a drive faults); [`SimEvent::HeartbeatRecovered`] on the next heartbeat; writes to 0x1016 and resets restart monitoring |
 //! | SDO | expedited, segmented and block (optional) on 0x600+n/0x580+n, in pre-operational and operational |
 //! | TPDO | operational only; parameters 0x1800+n and mapping 0x1A00+n read when needed; 0xFE/0xFF event-driven (sent on entering operational, on the event timer 0x180x:05, on [`SimNode::trigger_tpdo`] and optionally when a mapped value changes, respecting the inhibit time 0x180x:03), 1..=240 every n-th SYNC, 0 on the SYNC after an event, RTR answered when allowed |
@@ -51,6 +51,10 @@ const HEARTBEAT_TIME: ObjectAddress = ObjectAddress::new(0x1017, 0);
 const CONSUMER_HEARTBEAT: u16 = 0x1016;
 /// Error behaviour, sub 1: communication error.
 const COMMUNICATION_ERROR_BEHAVIOUR: ObjectAddress = ObjectAddress::new(0x1029, 1);
+/// Guard time in ms (life guarding).
+const GUARD_TIME: ObjectAddress = ObjectAddress::new(0x100C, 0);
+/// Life time factor (life guarding).
+const LIFE_TIME_FACTOR: ObjectAddress = ObjectAddress::new(0x100D, 0);
 /// EMCY code of a heartbeat consumer timeout (CiA 301 "heartbeat error").
 pub const HEARTBEAT_ERROR_CODE: u16 = 0x8130;
 
@@ -164,6 +168,15 @@ pub enum SimEvent {
         /// The node.
         node: NodeId,
     },
+    /// Life guarding: no node guarding request from the master within the
+    /// node life time (0x100C × 0x100D); the node sent EMCY 0x8130.
+    LifeGuardingLost {
+        /// The node life time.
+        life_time: Duration,
+    },
+    /// A guarding request came after a life guarding event; the node sent
+    /// the EMCY error reset.
+    LifeGuardingRecovered,
 }
 
 /// Transmission state of one TPDO.
@@ -232,6 +245,11 @@ pub struct SimNode {
     lss: Option<LssSlave>,
     /// False while the node has no node-ID (LSS only).
     configured: bool,
+    /// Life guarding: the latest guarding request (life guarding starts
+    /// with the first one after boot-up), and whether its loss was
+    /// reported.
+    last_guarded: Option<Duration>,
+    life_guarding_lost: bool,
 }
 
 impl SimNode {
@@ -300,6 +318,8 @@ impl SimNode {
             dropped_events: 0,
             now: Duration::ZERO,
             guard_toggle: false,
+            last_guarded: None,
+            life_guarding_lost: false,
         }
     }
 
@@ -445,6 +465,8 @@ impl SimNode {
         }
         let boot_up = self.nmt.boot(now);
         self.guard_toggle = false;
+        self.last_guarded = None;
+        self.life_guarding_lost = false;
         self.push_event(SimEvent::NmtStateChanged {
             from: NmtState::Initialising,
             to: NmtState::PreOperational,
@@ -549,6 +571,11 @@ impl SimNode {
                 // Node guarding: answer with the toggle bit and the state.
                 let toggle = if self.guard_toggle { 0x80 } else { 0x00 };
                 self.guard_toggle = !self.guard_toggle;
+                self.last_guarded = Some(now);
+                if std::mem::take(&mut self.life_guarding_lost) {
+                    self.push_event(SimEvent::LifeGuardingRecovered);
+                    out.extend(self.clear_emcy());
+                }
                 out.push(
                     Frame::new(
                         CanId::Standard(cob::HEARTBEAT + u16::from(self.node.get())),
@@ -599,9 +626,48 @@ impl SimNode {
         if self.nmt.state() != NmtState::Initialising {
             let events = self.consumer.on_tick(now);
             self.on_consumer_events(events, now, &mut out);
+            self.life_guard(now, &mut out);
         }
         self.service_tpdos(now, &mut out);
         out
+    }
+
+    /// The node life time (0x100C guard time × 0x100D life time factor),
+    /// when both are set.
+    fn life_time(&self) -> Option<Duration> {
+        let guard_ms = self.get(GUARD_TIME).and_then(Value::as_u32)?;
+        let factor = self.get(LIFE_TIME_FACTOR).and_then(Value::as_u32)?;
+        (guard_ms > 0 && factor > 0)
+            .then(|| Duration::from_millis(u64::from(guard_ms) * u64::from(factor)))
+    }
+
+    /// When life guarding reports a loss, if it is watching.
+    fn life_guard_deadline(&self) -> Option<Duration> {
+        if self.life_guarding_lost {
+            return None;
+        }
+        Some(self.last_guarded? + self.life_time()?)
+    }
+
+    /// Life guarding (CiA 301): the master's guarding requests stopped for
+    /// the node life time: EMCY 0x8130 (life guard error), once, and the
+    /// communication error behaviour (0x1029:01) as for a heartbeat loss.
+    fn life_guard(&mut self, now: Duration, out: &mut Vec<Frame>) {
+        let Some(deadline) = self.life_guard_deadline() else {
+            return;
+        };
+        if now < deadline {
+            return;
+        }
+        self.life_guarding_lost = true;
+        let life_time = self.life_time().unwrap_or_default();
+        self.push_event(SimEvent::LifeGuardingLost { life_time });
+        out.extend(self.inject_emcy(
+            HEARTBEAT_ERROR_CODE,
+            ErrorRegister::GENERIC | ErrorRegister::COMMUNICATION,
+            [0; 5],
+        ));
+        self.communication_error(now, out);
     }
 
     /// When [`SimNode::on_tick`] must run next; `None` when nothing is
@@ -614,14 +680,19 @@ impl SimNode {
             .tpdos
             .iter()
             .filter_map(|(&n, st)| self.tpdo_due(n, st));
-        let consumer = (self.nmt.state() != NmtState::Initialising)
-            .then(|| self.consumer.next_deadline())
-            .flatten();
-        [self.nmt.next_deadline(), self.sdo.next_deadline(), consumer]
-            .into_iter()
-            .flatten()
-            .chain(tpdos)
-            .min()
+        let running = self.nmt.state() != NmtState::Initialising;
+        let consumer = running.then(|| self.consumer.next_deadline()).flatten();
+        let life_guard = running.then(|| self.life_guard_deadline()).flatten();
+        [
+            self.nmt.next_deadline(),
+            self.sdo.next_deadline(),
+            consumer,
+            life_guard,
+        ]
+        .into_iter()
+        .flatten()
+        .chain(tpdos)
+        .min()
     }
 
     /// Produces an emergency message: sets the error register (0x1001) to
@@ -687,6 +758,8 @@ impl SimNode {
                 self.nmt.set_heartbeat_ms(self.heartbeat_ms(), now);
                 self.consumer = consumer_from(&self.store);
                 self.guard_toggle = false;
+                self.last_guarded = None;
+                self.life_guarding_lost = false;
                 out.push(boot_up);
                 self.push_event(SimEvent::Reset { kind });
                 if before != NmtState::PreOperational {
@@ -973,27 +1046,33 @@ impl SimNode {
                         ErrorRegister::GENERIC | ErrorRegister::COMMUNICATION,
                         [node.get(), 0, 0, 0, 0],
                     ));
-                    let command = match self
-                        .get(COMMUNICATION_ERROR_BEHAVIOUR)
-                        .and_then(Value::as_u32)
-                    {
-                        Some(0) if self.nmt.state() == NmtState::Operational => {
-                            Some(NmtCommand::EnterPreOperational)
-                        }
-                        Some(2) => Some(NmtCommand::Stop),
-                        _ => None,
-                    };
-                    if let Some(cmd) = command {
-                        let before = self.nmt.state();
-                        if let Some(e) = self.nmt.on_command(cmd, now) {
-                            self.on_nmt(before, e, now, out);
-                        }
-                    }
+                    self.communication_error(now, out);
                 }
                 HeartbeatEvent::HeartbeatRecovered { node, .. } => {
                     self.push_event(SimEvent::HeartbeatRecovered { node });
                 }
                 _ => {}
+            }
+        }
+    }
+
+    /// The communication error behaviour (0x1029:01): 0 pre-operational
+    /// (from operational), 1 no change, 2 stopped.
+    fn communication_error(&mut self, now: Duration, out: &mut Vec<Frame>) {
+        let command = match self
+            .get(COMMUNICATION_ERROR_BEHAVIOUR)
+            .and_then(Value::as_u32)
+        {
+            Some(0) if self.nmt.state() == NmtState::Operational => {
+                Some(NmtCommand::EnterPreOperational)
+            }
+            Some(2) => Some(NmtCommand::Stop),
+            _ => None,
+        };
+        if let Some(cmd) = command {
+            let before = self.nmt.state();
+            if let Some(e) = self.nmt.on_command(cmd, now) {
+                self.on_nmt(before, e, now, out);
             }
         }
     }
@@ -1232,6 +1311,45 @@ mod tests {
         // A reset restarts the toggle at 0.
         sim.on_frame(&frame(0x000, &[0x82, 0x05]), 50 * MS);
         assert_eq!(wire(&sim.on_frame(&rtr, 60 * MS)), [(0x705, vec![0x7F])]);
+    }
+
+    #[test]
+    fn life_guarding_reports_a_silent_master_once_and_its_return() {
+        let mut sim = drive_with(SimNodeOptions {
+            heartbeat_ms: Some(0),
+            ..SimNodeOptions::default()
+        });
+        sim.start(Duration::ZERO);
+        sim.set(GUARD_TIME, Value::Unsigned16(100)).unwrap();
+        sim.set(LIFE_TIME_FACTOR, Value::Unsigned8(3)).unwrap();
+        sim.take_events();
+        // Not watching before the first request.
+        assert_eq!(sim.next_deadline(), None);
+        let rtr = Frame::new_remote(CanId::Standard(0x705), 1).unwrap();
+        sim.on_frame(&rtr, 1000 * MS);
+        sim.on_frame(&rtr, 1100 * MS);
+        // The node life time runs from the latest request: 300 ms.
+        assert_eq!(sim.next_deadline(), Some(1400 * MS));
+        assert!(sim.on_tick(1399 * MS).is_empty());
+        let out = sim.on_tick(1400 * MS);
+        assert_eq!(wire(&out), [(0x085, vec![0x30, 0x81, 0x11, 0, 0, 0, 0, 0])]);
+        assert_eq!(
+            sim.take_events(),
+            [SimEvent::LifeGuardingLost {
+                life_time: 300 * MS
+            }]
+        );
+        // Once.
+        assert_eq!(sim.next_deadline(), None);
+        assert!(sim.on_tick(2000 * MS).is_empty());
+        // The next request: the error reset, then the answer.
+        let out = sim.on_frame(&rtr, 2100 * MS);
+        assert_eq!(wire(&out), [(0x085, vec![0; 8]), (0x705, vec![0x7F])]);
+        assert_eq!(sim.take_events(), [SimEvent::LifeGuardingRecovered]);
+        assert_eq!(sim.next_deadline(), Some(2400 * MS));
+        // A guard time of 0 stops life guarding.
+        sim.set(GUARD_TIME, Value::Unsigned16(0)).unwrap();
+        assert_eq!(sim.next_deadline(), None);
     }
 
     /// The identifiers of a node's acceptance filters (all standard, exact).

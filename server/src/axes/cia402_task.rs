@@ -205,7 +205,10 @@ pub fn spawn(
         .map(|(i, s)| (s.info.node, i))
         .collect();
     let origin = Instant::now();
-    let setpoints = Arc::new(CyclicSetpoints::new(origin, slots.len()));
+    let setpoints = Arc::new(CyclicSetpoints::new(
+        origin,
+        slots.iter().map(|s| s.info.config.name.clone()),
+    ));
     if slots.iter().any(|s| s.setpoint.is_some()) {
         let rider: Arc<dyn crate::canopen::sync_thread::SyncRider> = setpoints.clone();
         if !master.add_sync_rider(Arc::downgrade(&rider)) {
@@ -493,9 +496,14 @@ impl Task {
                 self.slots[i].axis.on_node_lost(&r, &mut out);
                 (true, r)
             }
-            NodeEventKind::HeartbeatRecovered { .. } => {
+            NodeEventKind::HeartbeatRecovered { guarding, .. } => {
                 self.slots[i].axis.on_node_back(false, &mut out);
-                (false, "heartbeat back".to_string())
+                let back = if guarding {
+                    "node guarding answers back"
+                } else {
+                    "heartbeat back"
+                };
+                (false, back.to_string())
             }
             NodeEventKind::BootUp => {
                 if let Some(link) = &mut self.slots[i].sdo {
@@ -660,6 +668,29 @@ fn cob_hex(id: u32) -> String {
     format!("0x{id:03X}")
 }
 
+impl Task {
+    /// A cyclic axis gets its set-points with every SYNC and its drive
+    /// reports with every SYNC: with the bus's SYNC stopped (SetSync) it
+    /// takes no command but a stop or a disable, which would otherwise
+    /// wait for a SYNC that never comes.
+    fn check_sync(&self, i: usize, cmd: &AxisCommand) -> Result<(), CommandError> {
+        let stopping = matches!(
+            cmd,
+            AxisCommand::Stop | AxisCommand::QuickStop | AxisCommand::Disable
+        );
+        if stopping || self.slots[i].setpoint.is_none() || self.master.sync_settings().running {
+            return Ok(());
+        }
+        Err(CommandError::FailedPrecondition(format!(
+            "axis {} is cyclic and the SYNC of bus {} is stopped (start it: `cangate sync {} \
+             start`, SetSync)",
+            self.slots[i].info.config.name,
+            self.master.bus(),
+            self.master.bus()
+        )))
+    }
+}
+
 impl AxisRunner for Task {
     fn start_command(
         &mut self,
@@ -668,6 +699,7 @@ impl AxisRunner for Task {
         wait: bool,
         now: Duration,
     ) -> Result<Waiter, CommandError> {
+        self.check_sync(i, &cmd)?;
         let mut out = Vec::new();
         let op = self.slots[i].axis.command(cmd, now, &mut out)?;
         let rx = self.slots[i].waiters.add(op, wait);
@@ -682,6 +714,9 @@ impl AxisRunner for Task {
         wait: bool,
         now: Duration,
     ) -> Result<Vec<Waiter>, CommandError> {
+        for t in &targets {
+            self.check_sync(t.0, &AxisCommand::Enable)?;
+        }
         let slots = &self.slots;
         let plan = prepare_coordinated(&targets, |i| {
             (slots[i].info.config.name.as_str(), &slots[i].axis)

@@ -77,6 +77,8 @@ struct Entry {
     rpdo: Option<(u16, Vec<u8>, usize)>,
     /// The latest sample of `plan`, not yet taken by the axis task.
     sample: Option<CyclicSample>,
+    /// The axis's name, for a veto's reason.
+    name: String,
 }
 
 /// The table shared by one bus's axis task and its master's SYNC thread,
@@ -89,12 +91,20 @@ pub struct CyclicSetpoints {
 }
 
 impl CyclicSetpoints {
-    /// A table for `axes` axes, all without a plan, on the clock that
+    /// A table for the named axes, all without a plan, on the clock that
     /// starts at `origin`.
-    pub fn new(origin: Instant, axes: usize) -> CyclicSetpoints {
+    pub fn new(origin: Instant, names: impl IntoIterator<Item = String>) -> CyclicSetpoints {
         CyclicSetpoints {
             origin,
-            entries: Mutex::new((0..axes).map(|_| Entry::default()).collect()),
+            entries: Mutex::new(
+                names
+                    .into_iter()
+                    .map(|name| Entry {
+                        name,
+                        ..Entry::default()
+                    })
+                    .collect(),
+            ),
         }
     }
 
@@ -138,6 +148,22 @@ impl CyclicSetpoints {
 }
 
 impl SyncRider for CyclicSetpoints {
+    fn sync_change_veto(&self) -> Option<String> {
+        let entries = self.entries.lock().expect("set-point table lock");
+        let moving: Vec<&str> = entries
+            .iter()
+            .filter(|e| e.plan.as_ref().is_some_and(CyclicPlan::is_moving))
+            .map(|e| e.name.as_str())
+            .collect();
+        (!moving.is_empty()).then(|| {
+            format!(
+                "cyclic axis {} is moving on this SYNC; stop it first (its set-points ride \
+                 every SYNC)",
+                moving.join(", ")
+            )
+        })
+    }
+
     fn on_sync(&self, at: Instant, frames: &mut Vec<Frame>) {
         let t = at.saturating_duration_since(self.origin);
         let mut entries = self.entries.lock().expect("set-point table lock");
@@ -180,7 +206,7 @@ mod tests {
     #[test]
     fn each_sync_sends_the_sampled_set_point_and_leaves_the_sample() {
         let origin = Instant::now();
-        let table = CyclicSetpoints::new(origin, 3);
+        let table = CyclicSetpoints::new(origin, ["a", "b", "c"].map(String::from));
         let units = cangate_axis::Units {
             counts_per_unit: 1000.0,
         };
@@ -225,7 +251,7 @@ mod tests {
 
     #[test]
     fn a_sync_without_plans_adds_nothing_and_leaves_no_sample() {
-        let table = CyclicSetpoints::new(Instant::now(), 2);
+        let table = CyclicSetpoints::new(Instant::now(), ["a", "b"].map(String::from));
         let mut frames = Vec::new();
         table.on_sync(Instant::now(), &mut frames);
         assert!(frames.is_empty());

@@ -21,10 +21,13 @@ use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio_util::sync::CancellationToken;
 
+pub mod dcf_export;
 pub mod lss;
 pub mod master_heartbeat;
+pub mod pdo_config;
 pub mod scan;
 pub mod sync_thread;
+mod time_producer;
 
 /// Static facts about a node, from the configuration and from reads.
 #[derive(Debug, Clone, Default)]
@@ -35,6 +38,8 @@ pub struct NodeFacts {
     pub configured: bool,
     /// The node's object dictionary, if an EDS is configured.
     pub eds: Option<Arc<Eds>>,
+    /// The text of that EDS (a DCF export writes the values into it).
+    pub eds_text: Option<Arc<str>>,
     /// 0x1000 device type, once read.
     pub device_type: Option<u32>,
     /// 0x1008 device name, once read.
@@ -257,6 +262,31 @@ pub enum CanopenError {
     },
 }
 
+/// Why the SYNC producer's settings were not changed.
+#[derive(Debug, thiserror::Error)]
+pub enum SyncChangeError {
+    /// This master has no SYNC thread (it could not start; logged).
+    #[error("this bus's SYNC producer is not running (its thread could not start; see the log)")]
+    NoProducer,
+    /// A period or counter the producer cannot use.
+    #[error(transparent)]
+    Invalid(cangate_canopen::sync::SyncConfigError),
+    /// A SYNC rider refuses the stop or the new period now.
+    #[error("{0}")]
+    Vetoed(String),
+}
+
+/// Why a TIME frame was not sent.
+#[derive(Debug, thiserror::Error)]
+pub enum TimeSendError {
+    /// The host's clock is before 1984.
+    #[error("the host's clock cannot be sent: {0}")]
+    Clock(#[from] cangate_canopen::time_of_day::TimeOfDayError),
+    /// The bus refused the frame.
+    #[error(transparent)]
+    Send(#[from] cangate_can::SendFailure),
+}
+
 /// Handle to the CANopen master of one bus.
 #[derive(Clone)]
 pub struct CanopenBus {
@@ -268,12 +298,19 @@ pub struct CanopenBus {
     facts: Arc<RwLock<BTreeMap<NodeId, NodeFacts>>>,
     /// SYNCs sent and periods skipped by this master's SYNC thread.
     sync_counts: Arc<sync_thread::SyncCounts>,
+    /// The SYNC thread's settings, changed at run time.
+    sync_control: Arc<sync_thread::SyncControl>,
+    /// The TIME producer's period (`None`: only on request).
+    time_period: Arc<tokio::sync::watch::Sender<Option<Duration>>>,
     /// What the SYNC thread sends after each SYNC.
     sync_riders: sync_thread::SyncRiders,
     /// The COB-ID of the SYNC this master produces, if it produces one.
     sync_cob_id: Option<u16>,
     /// Every configured TPDO by COB-ID.
-    tpdos: Arc<HashMap<u16, TpdoRoute>>,
+    tpdos: TpdoRoutes,
+    /// The master task's subscription, widened or narrowed when a TPDO's
+    /// COB-ID changes at run time.
+    master_sub: cangate_can::SubscriptionKey,
     /// SDO requests of API callers in flight, by node and caller.
     client_sdo: Arc<Mutex<HashMap<(NodeId, String), usize>>>,
     /// The LSS operation running on this bus, if any (see [`lss`]).
@@ -299,6 +336,10 @@ impl Drop for ClientSdoSlot {
     }
 }
 
+/// Every decoded TPDO by COB-ID, changed when a PDO is reconfigured at run
+/// time ([`CanopenBus::configure_pdo`]).
+type TpdoRoutes = Arc<RwLock<HashMap<u16, TpdoRoute>>>;
+
 /// A configured TPDO: how to decode it, and its receive counter.
 struct TpdoRoute {
     node: NodeId,
@@ -312,7 +353,8 @@ impl CanopenBus {
     pub fn spawn(
         bus: BusHandle,
         sdo_timeout: Duration,
-        sync_period: Option<Duration>,
+        sync: sync_thread::SyncSettings,
+        time_period: Option<Duration>,
         rt_priority: u8,
         configured: BTreeMap<NodeId, NodeFacts>,
         cancel: CancellationToken,
@@ -338,30 +380,34 @@ impl CanopenBus {
                 })
             })
             .collect();
-        let selector = master_selector(&configured);
+        // Subscribe before returning, so that nothing the nodes send after
+        // this point (their boot-up, typically) is missed.
+        let sub = bus.subscribe(master_selector(&configured), 65_536);
         let boots: Vec<(NodeId, Arc<BootPlan>)> = configured
             .iter()
             .filter_map(|(id, f)| f.boot.clone().map(|b| (*id, b)))
             .collect();
         let facts = Arc::new(RwLock::new(configured));
+        // The SYNC thread runs on every master, stopped without a period,
+        // so that the SYNC can be started at run time.
         let mut sync_cob_id = None;
-        if let Some(period) = sync_period
-            && let Ok(producer) = cangate_canopen::sync::SyncProducer::new(period, 0)
-        {
-            match sync_thread::spawn(
-                bus.clone(),
-                producer,
-                rt_priority,
-                sync_counts.clone(),
-                sync_riders.clone(),
-                cancel.clone(),
-            ) {
-                Ok(_) => sync_cob_id = Some(cangate_canopen::ids::cob::SYNC),
-                Err(e) => {
-                    tracing::error!(bus = %bus.name(), error = %e, "cannot start the SYNC producer thread")
-                }
+        let sync_control = Arc::new(sync_thread::SyncControl::new(sync));
+        match sync_thread::spawn(
+            bus.clone(),
+            sync_control.clone(),
+            rt_priority,
+            sync_counts.clone(),
+            sync_riders.clone(),
+            cancel.clone(),
+        ) {
+            Ok(_) => sync_cob_id = Some(cangate_canopen::ids::cob::SYNC),
+            Err(e) => {
+                tracing::error!(bus = %bus.name(), error = %e, "cannot start the SYNC producer thread")
             }
         }
+        let (time_period, time_rx) = tokio::sync::watch::channel(time_period);
+        let time_period = Arc::new(time_period);
+        tokio::spawn(time_producer::run(bus.clone(), time_rx, cancel.clone()));
         let handle = CanopenBus {
             bus: bus.name().to_string(),
             handle: bus.clone(),
@@ -370,9 +416,12 @@ impl CanopenBus {
             events: events.clone(),
             facts: facts.clone(),
             sync_counts,
+            sync_control,
+            time_period,
             sync_riders,
             sync_cob_id,
-            tpdos: Arc::new(tpdos),
+            tpdos: Arc::new(RwLock::new(tpdos)),
+            master_sub: sub.key(),
             client_sdo: Arc::default(),
             lss_operation: Arc::default(),
         };
@@ -385,9 +434,6 @@ impl CanopenBus {
                 master.guard_node(*id, guard_time, factor);
             }
         }
-        // Subscribe before returning, so that nothing the nodes send after
-        // this point (their boot-up, typically) is missed.
-        let sub = bus.subscribe(selector, 65_536);
         let boot_events = handle.events();
         let task = tokio::spawn(run_master(MasterTask {
             master,
@@ -409,6 +455,71 @@ impl CanopenBus {
             ));
         }
         (handle, task)
+    }
+
+    /// The SYNC producer's settings now.
+    pub fn sync_settings(&self) -> sync_thread::SyncSettings {
+        self.sync_control.get()
+    }
+
+    /// Starts, stops or re-times the SYNC producer. A stop or a change of
+    /// period is refused while a SYNC rider vetoes it (a cyclic axis
+    /// moving); a start, or a change of the counter alone while running,
+    /// never is. Settings equal to the current ones change nothing.
+    pub fn set_sync(
+        &self,
+        settings: sync_thread::SyncSettings,
+    ) -> Result<sync_thread::SyncSettings, SyncChangeError> {
+        if self.sync_cob_id.is_none() {
+            return Err(SyncChangeError::NoProducer);
+        }
+        cangate_canopen::sync::SyncProducer::new(settings.period, settings.counter_overflow)
+            .map_err(SyncChangeError::Invalid)?;
+        let current = self.sync_control.get();
+        if settings == current {
+            return Ok(current);
+        }
+        let interrupts =
+            current.running && (!settings.running || settings.period != current.period);
+        if interrupts {
+            let riders = self.sync_riders.lock().expect("SYNC riders lock");
+            if let Some(why) = riders
+                .iter()
+                .filter_map(std::sync::Weak::upgrade)
+                .find_map(|r| r.sync_change_veto())
+            {
+                return Err(SyncChangeError::Vetoed(why));
+            }
+        }
+        self.sync_control.set(settings);
+        tracing::info!(
+            bus = %self.bus,
+            running = settings.running,
+            period_us = settings.period.as_micros() as u64,
+            counter_overflow = settings.counter_overflow,
+            "SYNC producer changed"
+        );
+        Ok(settings)
+    }
+
+    /// Sends one TIME frame with the host's time now; returns what it sent.
+    pub async fn send_time(
+        &self,
+    ) -> Result<cangate_canopen::time_of_day::TimeOfDay, TimeSendError> {
+        let t = time_producer::now()?;
+        self.handle.submit(vec![t.frame()]).await?;
+        Ok(t)
+    }
+
+    /// The TIME producer's period (`None`: only on request).
+    pub fn time_period(&self) -> Option<Duration> {
+        *self.time_period.borrow()
+    }
+
+    /// Sets the TIME producer's period (`None`: stop); the next TIME goes
+    /// out one period from now.
+    pub fn set_time_period(&self, period: Option<Duration>) {
+        self.time_period.send_replace(period);
     }
 
     /// SYNCs sent so far, and SYNC periods skipped because the SYNC thread
@@ -584,6 +695,8 @@ impl CanopenBus {
     pub fn tpdo_counts(&self) -> Vec<(NodeId, u16, u64)> {
         let mut counts: Vec<_> = self
             .tpdos
+            .read()
+            .expect("TPDO routes lock")
             .values()
             .map(|r| (r.node, r.cfg.num, r.count.load(Ordering::Relaxed)))
             .collect();
@@ -810,7 +923,7 @@ struct MasterTask {
     events: broadcast::Sender<NodeEvent>,
     /// The TPDOs the master counts and publishes (not a `CanopenBus`: its
     /// command sender would keep the task's own command queue open).
-    tpdos: Arc<HashMap<u16, TpdoRoute>>,
+    tpdos: TpdoRoutes,
     pdos: broadcast::Sender<PdoUpdate>,
     facts: Arc<RwLock<BTreeMap<NodeId, NodeFacts>>>,
     cancel: CancellationToken,
@@ -993,13 +1106,14 @@ async fn submit_master_frames(
 
 /// See [`CanopenBus::relay_tpdo`].
 fn relay_tpdo(
-    routes: &HashMap<u16, TpdoRoute>,
+    routes: &RwLock<HashMap<u16, TpdoRoute>>,
     pdos: &broadcast::Sender<PdoUpdate>,
     frame: &cangate_can::Frame,
 ) {
     if frame.is_extended() {
         return;
     }
+    let routes = routes.read().expect("TPDO routes lock");
     let Some(route) = routes.get(&(frame.raw_id() as u16)) else {
         return;
     };

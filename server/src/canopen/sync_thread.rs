@@ -15,7 +15,7 @@
 use cangate_can::{BusHandle, Frame};
 use cangate_canopen::sync::SyncProducer;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, Weak};
+use std::sync::{Arc, Condvar, Mutex, Weak};
 use std::time::{Duration, Instant};
 use tokio_util::sync::CancellationToken;
 
@@ -30,6 +30,12 @@ use tokio_util::sync::CancellationToken;
 pub trait SyncRider: Send + Sync {
     /// Appends this rider's frames for the SYNC sent at `at`.
     fn on_sync(&self, at: Instant, frames: &mut Vec<Frame>);
+
+    /// Why the SYNC may not stop or change its period now (a cyclic axis
+    /// that is moving would lose its set-points mid-move), or `None`.
+    fn sync_change_veto(&self) -> Option<String> {
+        None
+    }
 }
 
 /// The riders of one SYNC producer. Held weakly: a rider whose owner ended
@@ -47,10 +53,87 @@ pub struct SyncCounts {
     pub skipped: AtomicU64,
 }
 
-/// Starts the thread; it ends when `cancel` fires.
+/// What the SYNC producer should do: changed at run time through
+/// [`SyncControl::set`], taken up by the thread at its next wake-up (at the
+/// latest one period or 100 ms later).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SyncSettings {
+    /// Producing, or stopped.
+    pub running: bool,
+    /// Communication cycle period (0x1006).
+    pub period: Duration,
+    /// Counter overflow value (0x1019): 0 = no counter, 2..=240.
+    pub counter_overflow: u8,
+}
+
+/// The shared settings of one SYNC thread and the condition variable that
+/// wakes a stopped thread when they change.
+#[derive(Debug)]
+pub struct SyncControl {
+    settings: Mutex<(SyncSettings, u64)>,
+    changed: Condvar,
+}
+
+impl SyncControl {
+    /// Settings as given, generation 0.
+    pub fn new(settings: SyncSettings) -> SyncControl {
+        SyncControl {
+            settings: Mutex::new((settings, 0)),
+            changed: Condvar::new(),
+        }
+    }
+
+    /// The current settings.
+    pub fn get(&self) -> SyncSettings {
+        self.settings.lock().expect("SYNC settings lock").0
+    }
+
+    /// Replaces the settings; the thread restarts its schedule (and the
+    /// counter at 1) with them.
+    pub fn set(&self, settings: SyncSettings) {
+        let mut s = self.settings.lock().expect("SYNC settings lock");
+        s.0 = settings;
+        s.1 += 1;
+        self.changed.notify_all();
+    }
+
+    fn generation(&self) -> (SyncSettings, u64) {
+        *self.settings.lock().expect("SYNC settings lock")
+    }
+
+    /// Blocks while stopped and unchanged since `generation`, at most
+    /// `max`.
+    fn wait_while_stopped(&self, generation: u64, max: Duration) {
+        let s = self.settings.lock().expect("SYNC settings lock");
+        if s.1 == generation && !s.0.running {
+            let _ = self.changed.wait_timeout(s, max);
+        }
+    }
+}
+
+/// A producer for `settings`, started at `now`; `None` when stopped or
+/// invalid (the API checks settings before they get here).
+fn producer_for(settings: SyncSettings, now: Duration) -> Option<SyncProducer> {
+    if !settings.running {
+        return None;
+    }
+    match SyncProducer::new(settings.period, settings.counter_overflow) {
+        Ok(mut p) => {
+            p.start(now);
+            Some(p)
+        }
+        Err(e) => {
+            tracing::error!(error = %e, "SYNC settings refused");
+            None
+        }
+    }
+}
+
+/// Starts the thread; it ends when `cancel` fires. It produces while
+/// `control`'s settings say `running`, and waits without cost otherwise.
 pub fn spawn(
     bus: BusHandle,
-    mut producer: SyncProducer,
+    control: Arc<SyncControl>,
     rt_priority: u8,
     counts: Arc<SyncCounts>,
     riders: SyncRiders,
@@ -74,13 +157,26 @@ pub fn spawn(
             }
         };
         let origin = Instant::now();
-        producer.start(Duration::ZERO);
+        let (settings, mut generation) = control.generation();
+        let mut producer = producer_for(settings, Duration::ZERO);
+        // Skips of producers replaced by a change of settings.
+        let mut skipped_before = 0;
         let mut reported_skips = 0;
         let mut frames_capacity = 1;
         let mut last_report = Instant::now();
         while !cancel.is_cancelled() {
+            let (settings, now_generation) = control.generation();
+            if now_generation != generation {
+                generation = now_generation;
+                skipped_before += producer.as_ref().map_or(0, SyncProducer::skipped);
+                producer = producer_for(settings, origin.elapsed());
+            }
+            let Some(producer) = producer.as_mut() else {
+                control.wait_while_stopped(generation, Duration::from_millis(100));
+                continue;
+            };
             let Some(deadline) = producer.next_deadline() else {
-                break;
+                continue;
             };
             let wait = (origin + deadline).saturating_duration_since(Instant::now());
             // Wake at least every 100 ms to notice a shutdown.
@@ -110,17 +206,16 @@ pub fn spawn(
                 }
                 counts.sent.fetch_add(1, Ordering::Relaxed);
             }
-            counts.skipped.store(producer.skipped(), Ordering::Relaxed);
-            if producer.skipped() != reported_skips
-                && last_report.elapsed() >= Duration::from_secs(10)
-            {
+            let skipped = skipped_before + producer.skipped();
+            counts.skipped.store(skipped, Ordering::Relaxed);
+            if skipped != reported_skips && last_report.elapsed() >= Duration::from_secs(10) {
                 tracing::warn!(
                     bus = %bus.name(),
-                    skipped = producer.skipped() - reported_skips,
-                    sent = producer.sent(),
+                    skipped = skipped - reported_skips,
+                    sent = counts.sent.load(Ordering::Relaxed),
                     "SYNC periods skipped: the producer thread was not scheduled in time"
                 );
-                reported_skips = producer.skipped();
+                reported_skips = skipped;
                 last_report = Instant::now();
             }
         }

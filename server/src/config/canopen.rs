@@ -16,10 +16,19 @@ pub struct CanopenConfig {
     /// process data every SYNC; cyclic axes get a set-point every SYNC.
     #[serde(default)]
     pub sync_period_us: u64,
+    /// SYNC counter overflow value (0x1019): 0 sends SYNCs without data,
+    /// 2..=240 adds a one-byte counter that runs 1..=value. Changeable at
+    /// run time with `Canopen.SetSync`.
+    #[serde(default)]
+    pub sync_counter_overflow: u8,
+    /// TIME producer period in ms (0 = TIME only on request): the master
+    /// sends the host's UTC time as a CiA 301 TIME_OF_DAY on 0x100.
+    #[serde(default)]
+    pub time_period_ms: u64,
     /// Known nodes.
     #[serde(default, rename = "node")]
     pub nodes: Vec<NodeConfig>,
-    // ---- the master's own heartbeat (see `master_heartbeat_check`) ----
+    // ---- the master's own heartbeat (see `check`) ----
     /// The gateway's node id as NMT master, for its own heartbeat
     /// (`0x700 + id`); no configured node may use it. Default 127, the
     /// highest id, where masters customarily sit, free in the demo.
@@ -65,8 +74,14 @@ impl CanopenConfig {
         )
     }
 
-    pub(super) fn master_heartbeat_check(&self) -> Result<(), String> {
+    pub(super) fn check(&self) -> Result<(), String> {
         let at = |m: String| format!("[[canopen]] bus {:?}: {m}", self.bus);
+        if self.sync_counter_overflow == 1 || self.sync_counter_overflow > 240 {
+            return Err(at(format!(
+                "sync_counter_overflow {} is reserved: use 0 (no counter) or 2..=240",
+                self.sync_counter_overflow
+            )));
+        }
         if !(1..=127).contains(&self.master_node_id) {
             return Err(at(format!(
                 "master_node_id {} is out of range (1..=127)",
@@ -113,6 +128,11 @@ pub struct NodeConfig {
     /// device descriptions `builtin:drive`, `builtin:io`, `builtin:handwheel`.
     #[serde(default)]
     pub eds: Option<String>,
+    /// A DCF (CiA 306) whose `ParameterValue`s the boot procedure writes
+    /// before the other boot writes (needs `boot = true`; `rw` objects
+    /// only, PDOs as whole PDOs). Without `eds` it is the node's EDS too.
+    #[serde(default)]
+    pub dcf: Option<String>,
     /// Consumer heartbeat timeout in ms (0 = do not monitor).
     #[serde(default)]
     pub heartbeat_timeout_ms: u64,
@@ -334,23 +354,38 @@ impl NodeConfig {
         Ok(())
     }
 
-    /// Loads the configured EDS.
-    pub fn load_eds(&self) -> Result<Option<cangate_canopen::eds::Eds>, String> {
+    /// Loads the configured EDS (the DCF of `dcf` when no `eds` is
+    /// given): what it parses to, and its text (for a DCF export).
+    pub fn load_eds(
+        &self,
+    ) -> Result<Option<(cangate_canopen::eds::Eds, std::sync::Arc<str>)>, String> {
         use cangate_canopen::eds::{Eds, SIM_DRIVE_EDS, SIM_HANDWHEEL_EDS, SIM_IO_EDS};
-        let Some(src) = self.eds.as_deref() else {
+        let Some(src) = self.eds.as_deref().or(self.dcf.as_deref()) else {
             return Ok(None);
         };
-        let parsed = match src {
-            "builtin:drive" => Eds::parse(SIM_DRIVE_EDS),
-            "builtin:io" => Eds::parse(SIM_IO_EDS),
-            "builtin:handwheel" => Eds::parse(SIM_HANDWHEEL_EDS),
+        let text = match src {
+            "builtin:drive" => Ok(SIM_DRIVE_EDS.to_string()),
+            "builtin:io" => Ok(SIM_IO_EDS.to_string()),
+            "builtin:handwheel" => Ok(SIM_HANDWHEEL_EDS.to_string()),
             path if path.starts_with("builtin:") => {
                 return Err(format!(
                     "unknown built-in EDS {path:?} (builtin:drive, builtin:io, builtin:handwheel)"
                 ));
             }
-            path => Eds::from_path(path),
+            path => Eds::read_text(path),
         };
-        parsed.map(Some).map_err(|e| format!("EDS {src:?}: {e}"))
+        let text = text.map_err(|e| format!("EDS {src:?}: {e}"))?;
+        let eds = Eds::parse(&text).map_err(|e| format!("EDS {src:?}: {e}"))?;
+        Ok(Some((eds, text.into())))
+    }
+
+    /// Loads the DCF whose `ParameterValue`s the boot procedure writes.
+    pub fn load_dcf(&self) -> Result<Option<cangate_canopen::eds::Eds>, String> {
+        let Some(path) = self.dcf.as_deref() else {
+            return Ok(None);
+        };
+        cangate_canopen::eds::Eds::from_path(path)
+            .map(Some)
+            .map_err(|e| format!("DCF {path:?}: {e}"))
     }
 }

@@ -100,7 +100,7 @@ impl Config {
                     c.bus
                 )));
             };
-            c.master_heartbeat_check().map_err(ConfigError::Invalid)?;
+            c.check().map_err(ConfigError::Invalid)?;
             if !masters.insert(c.bus.as_str()) {
                 return Err(ConfigError::Invalid(format!(
                     "bus {:?} has two [[canopen]] sections",
@@ -135,7 +135,7 @@ impl Config {
                         c.bus, n.id
                     )));
                 }
-                if n.simulate && n.eds.is_none() {
+                if n.simulate && n.eds.is_none() && n.dcf.is_none() {
                     return Err(ConfigError::Invalid(format!(
                         "bus {:?}: simulated node {} needs an eds",
                         c.bus, n.id
@@ -145,6 +145,13 @@ impl Config {
                     ConfigError::Invalid(format!("bus {:?}: node {}: {e}", c.bus, n.id))
                 };
                 n.load_eds().map_err(invalid)?;
+                let backs_axis = self.axes.iter().any(|a| a.bus == c.bus && a.node == n.id);
+                if n.dcf.is_some() && !n.boot && !backs_axis {
+                    return Err(invalid(
+                        "dcf is applied by the boot procedure: set boot = true".into(),
+                    ));
+                }
+                n.load_dcf().map_err(invalid)?;
                 let node =
                     cangate_canopen::NodeId::new(n.id).map_err(|e| invalid(e.to_string()))?;
                 for p in &n.tpdo {

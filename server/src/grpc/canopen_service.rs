@@ -2,17 +2,21 @@
 
 use super::convert::canopen::{
     data_type_from_pb, emcy_to_pb, monitoring_to_pb, nmt_state_to_pb, node_to_pb,
-    object_info_to_pb, value_from_pb, value_from_pb_as, value_to_pb,
+    object_info_to_pb, pdo_from_pb, pdo_kind_from_pb, pdo_to_pb, value_from_pb, value_from_pb_as,
+    value_to_pb,
 };
 use super::error::ApiError;
 use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_of};
 use super::runtime_errors::lookup_error;
-use crate::canopen::{CanopenBus, CanopenError, NodeEventKind};
+use crate::canopen::dcf_export::DcfExportError;
+use crate::canopen::pdo_config::PdoConfigError;
+use crate::canopen::{CanopenBus, CanopenError, NodeEventKind, SyncChangeError, TimeSendError};
 use crate::gateway::Gateway;
 use cangate_can::Timestamp;
 use cangate_canopen::eds::Eds;
 use cangate_canopen::master::SdoRequest;
 use cangate_canopen::nmt::NmtCommand;
+use cangate_canopen::pdo::PdoKind;
 use cangate_canopen::sdo::{TransferOptions, TransferOutcome};
 use cangate_canopen::value::Value;
 use cangate_canopen::{NodeId, ObjectAddress};
@@ -156,6 +160,7 @@ fn map_err(node: NodeId, e: CanopenError) -> ApiError {
         CanopenError::Sdo(error) => ApiError::Sdo {
             node: node.get(),
             error,
+            context: None,
         },
         CanopenError::Send(f) => f.into(),
         CanopenError::Stopped => ApiError::ShuttingDown,
@@ -163,6 +168,58 @@ fn map_err(node: NodeId, e: CanopenError) -> ApiError {
         e @ (CanopenError::Lss(_)
         | CanopenError::LssBusy { .. }
         | CanopenError::LssDeviceNotFound { .. }) => super::lss_service::lss_error(e),
+    }
+}
+
+/// The shortest SYNC period SetSync accepts (0x1006 is in µs; below
+/// 100 µs a classic CAN bus has no room for anything else).
+pub const MIN_SYNC_PERIOD_US: u32 = 100;
+/// The longest SYNC period SetSync accepts.
+pub const MAX_SYNC_PERIOD_US: u32 = 10_000_000;
+/// The longest TIME period: a day.
+pub const MAX_TIME_PERIOD_MS: u32 = 86_400_000;
+
+fn time_period_ms(m: &CanopenBus) -> u32 {
+    m.time_period().map_or(0, |p| p.as_millis() as u32)
+}
+
+fn sync_status(m: &CanopenBus) -> pb::SyncStatus {
+    let s = m.sync_settings();
+    let (sent, skipped) = m.sync_counts();
+    pb::SyncStatus {
+        bus: m.bus().to_string(),
+        running: s.running,
+        period_us: s.period.as_micros() as u32,
+        counter_overflow: u32::from(s.counter_overflow),
+        sent,
+        skipped,
+        time_period_ms: time_period_ms(m),
+    }
+}
+
+/// The PDO numbers ReadPdoConfig reads without a number: those the EDS
+/// lists, or 1..=4 (the predefined connection set) without an EDS.
+fn pdo_numbers(od: Option<&cangate_canopen::od::ObjectDictionary>, kind: PdoKind) -> Vec<u16> {
+    match od {
+        Some(od) => (1..=512)
+            .filter(|&n| od.object(kind.comm_index(n)).is_some())
+            .collect(),
+        None => (1..=4).collect(),
+    }
+}
+
+fn pdo_config_err(node: NodeId, e: PdoConfigError) -> ApiError {
+    match e {
+        e @ PdoConfigError::AxisDrive(_) => ApiError::FailedPrecondition(e.to_string()),
+        PdoConfigError::Invalid(e) => ApiError::InvalidArgument(e.to_string()),
+        PdoConfigError::Object { addr, what, source } => match map_err(node, source) {
+            ApiError::Sdo { node, error, .. } => ApiError::Sdo {
+                node,
+                error,
+                context: Some(format!("{addr} ({what})")),
+            },
+            other => other,
+        },
     }
 }
 
@@ -533,6 +590,191 @@ impl Canopen for CanopenService {
             .await
             .map_err(|e| map_err(node, e))?;
         Ok(Response::new(pb::WritePdoResponse { data }))
+    }
+
+    async fn read_pdo_config(
+        &self,
+        req: Request<pb::ReadPdoConfigRequest>,
+    ) -> Result<Response<pb::ReadPdoConfigResponse>, Status> {
+        let caller = sdo_caller(&req);
+        let req = req.into_inner();
+        let m = self.master(&req.bus)?;
+        let node = known_node(m, req.node)?;
+        let opts = options(req.options.as_ref())?;
+        let kinds = match pdo_kind_from_pb(req.kind)? {
+            Some(k) => vec![k],
+            None => vec![PdoKind::Rpdo, PdoKind::Tpdo],
+        };
+        let eds = m.eds(node);
+        let od = eds.as_deref().map(|e| &e.od);
+        let mut pdos = Vec::new();
+        for kind in kinds {
+            let nums: Vec<u16> = match req.pdo {
+                0 => pdo_numbers(od, kind),
+                n => vec![
+                    u16::try_from(n)
+                        .ok()
+                        .filter(|n| (1..=512).contains(n))
+                        .ok_or_else(|| {
+                            ApiError::InvalidArgument(format!(
+                                "PDO number {n} is out of range (1..=512)"
+                            ))
+                        })?,
+                ],
+            };
+            for num in nums {
+                match m.read_pdo(node, kind, num, opts, &caller).await {
+                    Ok(Some(p)) => pdos.push(pdo_to_pb(&p, od)),
+                    Ok(None) => {}
+                    Err(e) => return Err(pdo_config_err(node, e).into()),
+                }
+            }
+        }
+        Ok(Response::new(pb::ReadPdoConfigResponse { pdos }))
+    }
+
+    async fn configure_pdo(
+        &self,
+        req: Request<pb::ConfigurePdoRequest>,
+    ) -> Result<Response<pb::ConfigurePdoResponse>, Status> {
+        let caller = sdo_caller(&req);
+        let req = req.into_inner();
+        let m = self.master(&req.bus)?;
+        let node = known_node(m, req.node)?;
+        let opts = options(req.options.as_ref())?;
+        let given = req.pdo.as_ref().ok_or_else(|| {
+            ApiError::InvalidArgument("pdo: the PDO's parameters are missing".into())
+        })?;
+        let eds = m.eds(node);
+        let od = eds.as_deref().map(|e| &e.od);
+        let pdo = pdo_from_pb(given, node, od)?;
+        let writes = m
+            .configure_pdo(node, &pdo, opts, &caller)
+            .await
+            .map_err(|e| pdo_config_err(node, e))?;
+        Ok(Response::new(pb::ConfigurePdoResponse {
+            pdo: Some(pdo_to_pb(&pdo, od)),
+            writes: writes
+                .iter()
+                .map(|(addr, data)| {
+                    let hex: Vec<String> = data.iter().map(|b| format!("{b:02X}")).collect();
+                    format!("{addr} = {}", hex.join(" "))
+                })
+                .collect(),
+        }))
+    }
+
+    async fn get_sync(
+        &self,
+        req: Request<pb::GetSyncRequest>,
+    ) -> Result<Response<pb::SyncStatus>, Status> {
+        let m = self.master(&req.get_ref().bus)?;
+        Ok(Response::new(sync_status(m)))
+    }
+
+    async fn set_sync(
+        &self,
+        req: Request<pb::SetSyncRequest>,
+    ) -> Result<Response<pb::SyncStatus>, Status> {
+        let req = req.into_inner();
+        let m = self.master(&req.bus)?;
+        let mut s = m.sync_settings();
+        if let Some(running) = req.running {
+            s.running = running;
+        }
+        if let Some(us) = req.period_us {
+            if !(MIN_SYNC_PERIOD_US..=MAX_SYNC_PERIOD_US).contains(&us) {
+                return Err(ApiError::InvalidArgument(format!(
+                    "SYNC period {us} µs is outside {MIN_SYNC_PERIOD_US}..={MAX_SYNC_PERIOD_US} µs"
+                ))
+                .into());
+            }
+            s.period = Duration::from_micros(u64::from(us));
+        }
+        if let Some(c) = req.counter_overflow {
+            s.counter_overflow = u8::try_from(c)
+                .ok()
+                .filter(|c| *c == 0 || (2..=240).contains(c))
+                .ok_or_else(|| {
+                    ApiError::InvalidArgument(format!(
+                        "SYNC counter overflow {c} is reserved: use 0 (no counter) or 2..=240"
+                    ))
+                })?;
+        }
+        m.set_sync(s).map_err(|e| match e {
+            SyncChangeError::Invalid(e) => ApiError::InvalidArgument(e.to_string()),
+            SyncChangeError::Vetoed(why) => ApiError::FailedPrecondition(format!(
+                "the SYNC of bus {} cannot stop or change its period now: {why}",
+                m.bus()
+            )),
+            e @ SyncChangeError::NoProducer => ApiError::Unavailable(e.to_string()),
+        })?;
+        Ok(Response::new(sync_status(m)))
+    }
+
+    async fn set_time(
+        &self,
+        req: Request<pb::SetTimeRequest>,
+    ) -> Result<Response<pb::SetTimeResponse>, Status> {
+        let req = req.into_inner();
+        let m = self.master(&req.bus)?;
+        if let Some(ms) = req.period_ms {
+            if ms > MAX_TIME_PERIOD_MS {
+                return Err(ApiError::InvalidArgument(format!(
+                    "TIME period {ms} ms is above one day ({MAX_TIME_PERIOD_MS} ms)"
+                ))
+                .into());
+            }
+            m.set_time_period((ms > 0).then(|| Duration::from_millis(u64::from(ms))));
+        }
+        let sent = if req.send_now {
+            let t = m.send_time().await.map_err(|e| match e {
+                TimeSendError::Send(f) => ApiError::from(f),
+                e @ TimeSendError::Clock(_) => ApiError::FailedPrecondition(e.to_string()),
+            })?;
+            Some(pb::TimeOfDay {
+                ms_after_midnight: t.ms,
+                days_since_1984: u32::from(t.days),
+                unix_ms: t.to_unix().as_millis() as u64,
+            })
+        } else {
+            None
+        };
+        Ok(Response::new(pb::SetTimeResponse {
+            sent,
+            time_period_ms: time_period_ms(m),
+        }))
+    }
+
+    async fn export_dcf(
+        &self,
+        req: Request<pb::ExportDcfRequest>,
+    ) -> Result<Response<pb::ExportDcfResponse>, Status> {
+        let caller = sdo_caller(&req);
+        let req = req.into_inner();
+        let m = self.master(&req.bus)?;
+        let node = known_node(m, req.node)?;
+        let opts = options(req.options.as_ref())?;
+        let export = m
+            .export_dcf(node, opts, &caller)
+            .await
+            .map_err(|e| match e {
+                e @ DcfExportError::NoEds(_) => ApiError::FailedPrecondition(e.to_string()),
+                DcfExportError::Canopen(e) => map_err(node, e),
+            })?;
+        Ok(Response::new(pb::ExportDcfResponse {
+            dcf: export.text,
+            objects_read: export.read as u32,
+            skipped: export
+                .skipped
+                .into_iter()
+                .map(|(a, reason)| pb::SkippedObject {
+                    index: u32::from(a.index),
+                    subindex: u32::from(a.sub),
+                    reason,
+                })
+                .collect(),
+        }))
     }
 
     type StreamNodeEventsStream = EventStream;

@@ -78,12 +78,15 @@ pub enum ApiError {
     #[error("the gateway is shutting down")]
     ShuttingDown,
     /// An SDO transfer failed.
-    #[error("node {node}: {error}")]
+    #[error("{}node {node}: {error}", .context.as_deref().map(|c| format!("{c}: ")).unwrap_or_default())]
     Sdo {
         /// Node id.
         node: u8,
         /// The failure.
         error: SdoError,
+        /// What the transfer was part of ("configuring 0x1A00:01 (mapping
+        /// entry 1)"), said before the failure.
+        context: Option<String>,
     },
     /// A refusal with a reason finer than its code (see
     /// [`ApiError::refused`]).
@@ -191,7 +194,7 @@ impl ApiError {
                 ("kind", (*kind).to_string()),
                 ("name", cut(name, QUOTE_BYTES).to_string()),
             ],
-            ApiError::Sdo { node, error } => {
+            ApiError::Sdo { node, error, .. } => {
                 let abort = error.abort_code();
                 let addr = sdo_address(error);
                 vec![
@@ -559,7 +562,11 @@ mod tests {
     }
 
     fn sdo_error(error: SdoError) -> Status {
-        Status::from(ApiError::Sdo { node: 5, error })
+        Status::from(ApiError::Sdo {
+            node: 5,
+            error,
+            context: None,
+        })
     }
 
     #[test]

@@ -63,6 +63,12 @@ pub const TABLE: &[Rule] = &[
     rule("/cangate.v1.Canopen/StreamNodeEvents", V, true),
     rule("/cangate.v1.Canopen/StreamPdo", V, true),
     rule("/cangate.v1.Canopen/WritePdo", E, false),
+    rule("/cangate.v1.Canopen/ReadPdoConfig", V, false),
+    rule("/cangate.v1.Canopen/ConfigurePdo", E, false),
+    rule("/cangate.v1.Canopen/GetSync", V, false),
+    rule("/cangate.v1.Canopen/SetSync", E, false),
+    rule("/cangate.v1.Canopen/SetTime", E, false),
+    rule("/cangate.v1.Canopen/ExportDcf", V, false),
     // Axes: state is viewing; leases and every command (stops included:
     // a viewer is read-only) are operating.
     rule("/cangate.v1.Axes/ListAxes", V, false),
@@ -229,6 +235,9 @@ mod tests {
             "/cangate.v1.Canopen/WriteSdo",
             "/cangate.v1.Canopen/SendNmt",
             "/cangate.v1.Canopen/WritePdo",
+            "/cangate.v1.Canopen/ConfigurePdo",
+            "/cangate.v1.Canopen/SetSync",
+            "/cangate.v1.Canopen/SetTime",
             "/cangate.v1.Bus/SendFrames",
             "/cangate.v1.Bus/Attach",
             "/cangate.v1.Simulator/TurnHandwheel",

@@ -235,6 +235,152 @@ pub(crate) fn object_info_to_pb(
     }
 }
 
+/// A node's PDO as a message, its mapped objects named from `od`.
+pub(crate) fn pdo_to_pb(
+    pdo: &crate::canopen::pdo_config::NodePdo,
+    od: Option<&ObjectDictionary>,
+) -> pb::PdoConfiguration {
+    use cangate_canopen::pdo::PdoKind;
+    let c = &pdo.config;
+    pb::PdoConfiguration {
+        kind: match c.kind {
+            PdoKind::Rpdo => pb::PdoKind::Rpdo,
+            PdoKind::Tpdo => pb::PdoKind::Tpdo,
+        } as i32,
+        pdo: u32::from(c.num),
+        cob_id: u32::from(c.cob_id),
+        enabled: pdo.enabled,
+        transmission_type: u32::from(c.transmission_type),
+        inhibit_time_100us: u32::from(c.inhibit_time),
+        event_timer_ms: u32::from(c.event_timer_ms),
+        mapping: c
+            .mapping
+            .iter()
+            .map(|m| pb::PdoMappedObject {
+                index: u32::from(m.addr.index),
+                subindex: u32::from(m.addr.sub),
+                bits: u32::from(m.bits),
+                name: od.and_then(|od| od.full_name(m.addr)).unwrap_or_default(),
+                object: String::new(),
+            })
+            .collect(),
+    }
+}
+
+/// The PDO kind of a request (UNSPECIFIED: `None`).
+pub(crate) fn pdo_kind_from_pb(
+    kind: i32,
+) -> Result<Option<cangate_canopen::pdo::PdoKind>, ApiError> {
+    use cangate_canopen::pdo::PdoKind;
+    match pb::PdoKind::try_from(kind) {
+        Ok(pb::PdoKind::Unspecified) => Ok(None),
+        Ok(pb::PdoKind::Rpdo) => Ok(Some(PdoKind::Rpdo)),
+        Ok(pb::PdoKind::Tpdo) => Ok(Some(PdoKind::Tpdo)),
+        Err(_) => Err(ApiError::InvalidArgument(format!(
+            "PDO kind {kind} is not RPDO (1) or TPDO (2)"
+        ))),
+    }
+}
+
+/// A ConfigurePdo request's PDO for `node`: objects named by `object` are
+/// resolved in `od`, a missing bit length is the EDS type's, a COB-ID of
+/// 0 is the predefined one. Every field is range-checked here, so that
+/// nothing reaches the node that CiA 301 would refuse for its form.
+pub(crate) fn pdo_from_pb(
+    p: &pb::PdoConfiguration,
+    node: NodeId,
+    od: Option<&ObjectDictionary>,
+) -> Result<crate::canopen::pdo_config::NodePdo, ApiError> {
+    use cangate_canopen::ObjectAddress;
+    use cangate_canopen::pdo::{MappedObject, PdoConfig};
+    let bad = |m: String| ApiError::InvalidArgument(m);
+    let kind =
+        pdo_kind_from_pb(p.kind)?.ok_or_else(|| bad("pdo.kind: give RPDO or TPDO".into()))?;
+    let num = u16::try_from(p.pdo)
+        .ok()
+        .filter(|n| (1..=512).contains(n))
+        .ok_or_else(|| bad(format!("PDO number {} is out of range (1..=512)", p.pdo)))?;
+    let cob_id = match p.cob_id {
+        0 => kind.default_cob_id(num, node).ok_or_else(|| {
+            bad(format!(
+                "PDO {num} has no predefined COB-ID (only 1..=4 do): give cob_id"
+            ))
+        })?,
+        c @ 0x001..=0x7FF => c as u16,
+        c => return Err(bad(format!("COB-ID 0x{c:X} is not an 11-bit identifier"))),
+    };
+    let field = |v: u32, max: u32, what: &str| {
+        if v > max {
+            Err(bad(format!("{what} {v} is above its maximum {max}")))
+        } else {
+            Ok(v)
+        }
+    };
+    let transmission_type = field(p.transmission_type, 255, "transmission_type")? as u8;
+    if (241..=251).contains(&transmission_type) {
+        return Err(bad(format!(
+            "transmission type {transmission_type} is reserved (CiA 301: 241..=251)"
+        )));
+    }
+    let inhibit_time = field(p.inhibit_time_100us, 0xFFFF, "inhibit_time_100us")? as u16;
+    let event_timer_ms = field(p.event_timer_ms, 0xFFFF, "event_timer_ms")? as u16;
+    let mut mapping = Vec::with_capacity(p.mapping.len());
+    for (i, m) in p.mapping.iter().enumerate() {
+        let at = |e: String| bad(format!("mapping entry {}: {e}", i + 1));
+        let addr = if m.object.is_empty() {
+            let index = u16::try_from(m.index)
+                .map_err(|_| at(format!("index 0x{:X} does not fit 16 bits", m.index)))?;
+            let sub = u8::try_from(m.subindex)
+                .map_err(|_| at(format!("sub-index {} does not fit 8 bits", m.subindex)))?;
+            ObjectAddress::new(index, sub)
+        } else {
+            let od = od.ok_or_else(|| {
+                at(format!(
+                    "the node has no EDS, so {:?} cannot be resolved; give index and subindex",
+                    m.object
+                ))
+            })?;
+            od.resolve(&m.object).map_err(|e| at(e.to_string()))?
+        };
+        let bits = if m.bits != 0 {
+            u8::try_from(m.bits).map_err(|_| at(format!("{} bits is not a length", m.bits)))?
+        } else {
+            let var = od.and_then(|od| od.get(addr)).ok_or_else(|| {
+                at(format!(
+                    "{addr} is not in the node's EDS: give its length in bits"
+                ))
+            })?;
+            var.data_type
+                .bit_len()
+                .and_then(|b| u8::try_from(b).ok())
+                .ok_or_else(|| at(format!("{addr} has no fixed size and cannot be mapped")))?
+        };
+        if let Some(var) = od.and_then(|od| od.get(addr))
+            && !var.pdo_mappable
+        {
+            return Err(at(format!(
+                "{addr} ({}) is not PDO-mappable according to the node's EDS",
+                var.name
+            )));
+        }
+        mapping.push(MappedObject { addr, bits });
+    }
+    let config = PdoConfig {
+        kind,
+        num,
+        cob_id,
+        transmission_type,
+        inhibit_time,
+        event_timer_ms,
+        mapping,
+    };
+    config.validate().map_err(|e| bad(e.to_string()))?;
+    Ok(crate::canopen::pdo_config::NodePdo {
+        config,
+        enabled: p.enabled,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
