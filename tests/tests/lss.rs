@@ -40,8 +40,11 @@ simulate = true
 sim_lss = { serial = 0xBEEF }
 "#;
 
-/// A bus with a CANopen master and no LSS device.
+/// A bus with a CANopen master and no LSS device (and the metrics
+/// endpoint).
 const SILENT: &str = r#"
+metrics_listen = "127.0.0.1:0"
+
 [[bus]]
 name = "can0"
 backend = "virtual"
@@ -65,6 +68,20 @@ async fn wait_event(
     })
     .await
     .unwrap_or_else(|_| panic!("no {what} event in time"))
+}
+
+async fn scrape_metrics(addr: std::net::SocketAddr) -> String {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    s.write_all(b"GET /metrics HTTP/1.1\r\nHost: x\r\n\r\n")
+        .await
+        .unwrap();
+    let mut out = String::new();
+    tokio::time::timeout(WAIT, s.read_to_string(&mut out))
+        .await
+        .expect("answer in time")
+        .unwrap();
+    out
 }
 
 fn refused_reason(e: &Error) -> Option<&str> {
@@ -241,6 +258,19 @@ async fn silence_is_a_timeout_and_bad_requests_are_refused() {
     // Unknown bus: NOT_FOUND.
     let e = c.lss("nope").fastscan(None).await.unwrap_err();
     assert!(matches!(e, Error::NotFound { .. }), "{e:?}");
+
+    // The commands are counted by result.
+    let metrics = scrape_metrics(server.metrics_addr.expect("metrics configured")).await;
+    let line = |command: &str, result: &str| {
+        metrics.lines().find(|l| {
+            l.starts_with("cangate_lss_commands_total{")
+                && l.contains(&format!("command=\"{command}\""))
+                && l.contains(&format!("result=\"{result}\""))
+        })
+    };
+    assert!(line("inquire", "timeout").is_some(), "{metrics}");
+    assert!(line("fastscan", "ok").is_some(), "{metrics}");
+    assert!(line("switch state global", "ok").is_some(), "{metrics}");
     server.shutdown();
 }
 

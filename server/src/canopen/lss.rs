@@ -13,7 +13,7 @@
 use super::{CanopenBus, CanopenError, Command};
 use cangate_canopen::NodeId;
 use cangate_canopen::lss::{
-    InquireWhat, LssCommand, LssIdentity, LssMode, LssOutcome, UNCONFIGURED_NODE_ID,
+    InquireWhat, LssCommand, LssError, LssIdentity, LssMode, LssOutcome, UNCONFIGURED_NODE_ID,
 };
 use cangate_canopen::nmt::NmtCommand;
 use std::time::Duration;
@@ -74,6 +74,7 @@ impl LssSession {
         command: LssCommand,
         timeout: Duration,
     ) -> Result<LssOutcome, CanopenError> {
+        let name = command.name();
         let (reply, rx) = oneshot::channel();
         self.bus
             .commands
@@ -85,6 +86,19 @@ impl LssSession {
             .await
             .map_err(|_| CanopenError::Stopped)?;
         let r = rx.await.map_err(|_| CanopenError::Stopped)?;
+        let result = match &r {
+            Ok(_) => "ok",
+            Err(LssError::Timeout { .. }) => "timeout",
+            Err(LssError::Refused { .. }) => "refused",
+            Err(LssError::Protocol { .. }) => "protocol_error",
+            Err(LssError::Busy { .. }) => "busy",
+            Err(LssError::Invalid { .. }) => "invalid",
+        };
+        metrics::counter!("cangate_lss_commands_total", "bus" => self.bus.bus.clone(), "command" => name, "result" => result)
+            .increment(1);
+        if let Err(e) = &r {
+            tracing::debug!(bus = %self.bus.bus, error = %e, "LSS command failed");
+        }
         Ok(r?)
     }
 
@@ -218,6 +232,14 @@ impl LssSession {
                 .nmt(NmtCommand::ResetCommunication, Some(old))
                 .await?;
         }
+        tracing::info!(
+            bus = %self.bus.bus,
+            node = node.get(),
+            previous,
+            stored = store,
+            %identity,
+            "LSS: node-ID given"
+        );
         Ok(Assigned {
             identity,
             previous,
