@@ -56,6 +56,7 @@ mod connect;
 mod error;
 mod handwheel;
 mod lease;
+mod lss;
 mod sdo;
 mod streams;
 
@@ -73,6 +74,7 @@ pub use error::{
     error_metadata, sdo_abort_details,
 };
 pub use lease::{ControlLease, LeaseStatus};
+pub use lss::{Lss, LssDevice};
 pub use pb::{AxisActivity, DriveState, HandwheelMode, NmtCommand, Outcome};
 pub use sdo::{DataType, NodeId, Object, ObjectAddress, SdoOptions, SdoValue};
 pub use streams::EventStream;

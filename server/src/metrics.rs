@@ -93,6 +93,10 @@ fn describe() {
         "SDO transfer latency by bus and node."
     );
     describe_counter!(
+        "cangate_lss_commands_total",
+        "LSS (CiA 305) commands by bus, command and result (ok, timeout, refused, protocol_error, busy, invalid)."
+    );
+    describe_counter!(
         "cangate_heartbeat_lost_total",
         "Heartbeat losses by bus and node."
     );

@@ -249,6 +249,13 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         .await;
     let cansmc_service =
         cangate_proto::v1::cansmc_server::CansmcServer::new(CansmcService::new(gateway.clone()));
+    let lss_service = cangate_proto::v1::lss_server::LssServer::new(
+        crate::grpc::lss_service::LssService::new(gateway.clone()),
+    )
+    .max_decoding_message_size(max_in);
+    health_reporter
+        .set_serving::<cangate_proto::v1::lss_server::LssServer<crate::grpc::lss_service::LssService>>()
+        .await;
     let session_service = cangate_proto::v1::session_server::SessionServer::new(
         crate::grpc::session_service::SessionService::new(config.security.authentication()),
     );
@@ -293,6 +300,7 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
             .add_service(handwheels_service)
             .add_service(cansmc_service)
             .add_service(session_service)
+            .add_service(lss_service)
             .add_optional_service(simulator_service)
             .serve_with_incoming_shutdown(incoming, async move { token.cancelled().await }),
     );

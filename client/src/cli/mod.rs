@@ -5,7 +5,7 @@
 //! status per kind of failure, see [`exit`]).
 //!
 //! One module per command: [`axis`], [`lease`], [`sdo`], [`node`] (node,
-//! nmt, scan, events, pdo), [`bus`] (bus, send), [`dump`], [`replay`],
+//! nmt, scan, events, pdo), [`lss`] (LSS scan, set-id, inquire), [`bus`] (bus, send), [`dump`], [`replay`],
 //! [`generate`] (gen), [`wheel`], [`sim`], [`smc`]; [`candump_log`] and
 //! [`pcapng`] are the file formats of dump and replay, [`bus_writer`] the
 //! Attach stream replay and gen send through.
@@ -17,6 +17,7 @@ pub(crate) mod candump_log;
 pub(crate) mod dump;
 pub(crate) mod generate;
 pub(crate) mod lease;
+pub(crate) mod lss;
 pub(crate) mod node;
 pub(crate) mod pcapng;
 pub(crate) mod pdo;
@@ -184,6 +185,9 @@ pub(crate) enum Command {
     /// The TIME producer of a CANopen bus: send the time now, or every
     /// period.
     Time(sync::TimeArgs),
+    /// Layer setting services (CiA 305): find unconfigured devices
+    /// (fastscan), give them node-IDs, inquire.
+    Lss(lss::LssArgs),
     /// Buses: list, show.
     Bus(bus::BusArgs),
     /// Same as `bus list`.
@@ -592,6 +596,7 @@ async fn run(cli: Cli) -> Result<()> {
         Command::Node(a) => node::run(&app, a).await,
         Command::Nmt(a) => node::nmt(&app, a).await,
         Command::Scan(a) => node::scan(&app, a).await,
+        Command::Lss(a) => lss::run(&app, a).await,
         Command::Events(a) => node::events(&app, a).await,
         Command::Pdo(a) => pdo::run(&app, a).await,
         Command::Sync(a) => sync::sync(&app, a).await,

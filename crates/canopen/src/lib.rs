@@ -18,6 +18,8 @@ pub mod emcy;
 pub mod handwheel;
 pub mod heartbeat;
 pub mod ids;
+pub mod lss;
+pub mod lss_slave;
 pub mod master;
 pub mod nmt;
 pub mod node_guarding;

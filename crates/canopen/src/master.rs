@@ -2,7 +2,8 @@
 //! for every node (one transfer at a time per node, queued; different nodes
 //! concurrently), the heartbeat consumer, node guarding (for nodes guarded
 //! instead of producing a heartbeat), the EMCY consumer and the SYNC
-//! producer.
+//! producer, and the LSS master (CiA 305, see [`crate::lss`]): one LSS
+//! command at a time, its answers (0x7E4) taken here like SDO responses.
 //!
 //! The runner feeds it every received frame and ticks it at
 //! [`Master::next_deadline`]; it answers with frames to send and events.
@@ -20,6 +21,7 @@
 use crate::emcy::{EmcyConsumer, EmcyEvent};
 use crate::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
 use crate::ids::{CobFunction, NodeId, ObjectAddress};
+use crate::lss::{LSS_RESPONSE_COB_ID, LssCommand, LssError, LssMaster, LssOutcome, LssStep};
 use crate::node_guarding::{GuardingEvent, NodeGuarding};
 use crate::sdo::{Progress, SdoClient, SdoError, StartError, TransferOptions, TransferOutcome};
 use crate::sync::SyncProducer;
@@ -92,6 +94,13 @@ pub enum MasterEvent {
         /// The node.
         node: NodeId,
     },
+    /// An LSS command ended (or was refused at once: busy, invalid).
+    LssCompleted {
+        /// The request.
+        id: RequestId,
+        /// The outcome.
+        result: Result<LssOutcome, LssError>,
+    },
 }
 
 /// Frames to send and events, produced by one input.
@@ -127,6 +136,9 @@ pub struct Master {
     guarding: NodeGuarding,
     emcy: EmcyConsumer,
     sync: Option<SyncProducer>,
+    lss: LssMaster,
+    /// The request of the running LSS command.
+    lss_request: Option<RequestId>,
 }
 
 impl Master {
@@ -139,6 +151,8 @@ impl Master {
             guarding: NodeGuarding::new(),
             emcy: EmcyConsumer::default(),
             sync: None,
+            lss: LssMaster::new(),
+            lss_request: None,
         }
     }
 
@@ -268,6 +282,50 @@ impl Master {
         }
     }
 
+    /// Starts an LSS command (CiA 305, bus-global: one at a time; a second
+    /// one completes at once with [`LssError::Busy`]). Its end comes as
+    /// [`MasterEvent::LssCompleted`] with `id`.
+    pub fn lss(
+        &mut self,
+        id: RequestId,
+        command: LssCommand,
+        timeout: Duration,
+        now: Duration,
+        out: &mut Output,
+    ) {
+        let busy = self.lss.running().is_some();
+        let step = self.lss.start(command, timeout, now);
+        if !busy && step.completed.is_none() {
+            self.lss_request = Some(id);
+        }
+        out.frames.extend(step.frames);
+        if let Some(result) = step.completed {
+            out.events.push(MasterEvent::LssCompleted { id, result });
+        }
+    }
+
+    /// Drops the running LSS command if it is `id` (its caller gave up).
+    pub fn lss_cancel(&mut self, id: RequestId) {
+        if self.lss_request == Some(id) {
+            self.lss.cancel();
+            self.lss_request = None;
+        }
+    }
+
+    /// The running LSS command's name, if any.
+    pub fn lss_running(&self) -> Option<&'static str> {
+        self.lss.running()
+    }
+
+    fn lss_step(&mut self, step: LssStep, out: &mut Output) {
+        out.frames.extend(step.frames);
+        if let Some(result) = step.completed
+            && let Some(id) = self.lss_request.take()
+        {
+            out.events.push(MasterEvent::LssCompleted { id, result });
+        }
+    }
+
     /// Progress of a running request.
     pub fn progress(&self, id: RequestId) -> Option<Progress> {
         self.sdo
@@ -287,6 +345,11 @@ impl Master {
     /// Feeds a received frame.
     pub fn on_frame(&mut self, frame: &Frame, now: Duration, out: &mut Output) {
         if frame.is_extended() || frame.is_fd() || frame.is_error() {
+            return;
+        }
+        if frame.raw_id() == u32::from(LSS_RESPONSE_COB_ID) {
+            let step = self.lss.on_frame(frame, now);
+            self.lss_step(step, out);
             return;
         }
         match CobFunction::classify(frame.raw_id() as u16) {
@@ -372,6 +435,10 @@ impl Master {
         {
             out.frames.push(f);
         }
+        if self.lss.next_deadline().is_some_and(|d| d <= now) {
+            let step = self.lss.on_tick(now);
+            self.lss_step(step, out);
+        }
     }
 
     /// When [`Master::on_tick`] next has something to do.
@@ -387,6 +454,7 @@ impl Master {
             .chain(self.heartbeat.next_deadline())
             .chain(self.guarding.next_deadline())
             .chain(self.sync.as_ref().and_then(|s| s.next_deadline()))
+            .chain(self.lss.next_deadline())
             .min()
     }
 }
@@ -532,6 +600,83 @@ mod tests {
             out.events[0],
             MasterEvent::Heartbeat(HeartbeatEvent::HeartbeatLost { .. })
         ));
+    }
+
+    #[test]
+    fn lss_runs_beside_sdo_one_command_at_a_time() {
+        use crate::lss::{LssCommand, LssError, LssOutcome};
+        let ms = Duration::from_millis(1);
+        let mut m = Master::new(500 * ms);
+        let mut out = Output::default();
+        m.lss(
+            1,
+            LssCommand::ConfigureNodeId(20),
+            100 * ms,
+            Duration::ZERO,
+            &mut out,
+        );
+        assert_eq!(out.frames.len(), 1);
+        assert_eq!(out.frames[0].raw_id(), 0x7E5);
+        assert_eq!(m.lss_running(), Some("configure node-ID"));
+        // A second command is refused at once; the first keeps running.
+        m.lss(
+            2,
+            LssCommand::StoreConfiguration,
+            100 * ms,
+            Duration::ZERO,
+            &mut out,
+        );
+        assert!(matches!(
+            &out.events[..],
+            [MasterEvent::LssCompleted {
+                id: 2,
+                result: Err(LssError::Busy { .. })
+            }]
+        ));
+        // SDO goes on meanwhile.
+        let mut out = Output::default();
+        m.sdo_as(
+            3,
+            node(2),
+            SdoPriority::Client,
+            upload(0x1000),
+            ms,
+            &mut out,
+        );
+        assert_eq!(out.frames[0].raw_id(), 0x602);
+        assert_eq!(m.next_deadline(), Some(100 * ms));
+        let mut out = Output::default();
+        m.on_frame(
+            &frame(0x7E4, &[0x11, 0, 0, 0, 0, 0, 0, 0]),
+            2 * ms,
+            &mut out,
+        );
+        assert_eq!(
+            out.events,
+            vec![MasterEvent::LssCompleted {
+                id: 1,
+                result: Ok(LssOutcome::Confirmed)
+            }]
+        );
+        assert_eq!(m.lss_running(), None);
+        // A cancelled command frees the master; its late answer is dropped.
+        let mut out = Output::default();
+        m.lss(
+            4,
+            LssCommand::StoreConfiguration,
+            100 * ms,
+            3 * ms,
+            &mut out,
+        );
+        m.lss_cancel(4);
+        assert_eq!(m.lss_running(), None);
+        let mut out = Output::default();
+        m.on_frame(
+            &frame(0x7E4, &[0x17, 0, 0, 0, 0, 0, 0, 0]),
+            4 * ms,
+            &mut out,
+        );
+        assert!(out.events.is_empty());
     }
 
     #[test]

@@ -17,6 +17,7 @@
 //! | RPDO | operational only; parameters 0x1400+n and mapping 0x1600+n; 0xFE/0xFF applied at once, 0..=240 at the next SYNC |
 //! | SYNC | COB-ID from 0x1005 (0x080 when absent) |
 //! | EMCY | COB-ID from 0x1014 (0x080+n when absent); sets 0x1001 |
+//! | LSS (CiA 305) | with [`SimNodeOptions::lss`]: an [`LssSlave`] with that identity (also the defaults of 0x1018:01..=04) on 0x7E5/0x7E4. With [`SimNodeOptions::lss_unconfigured`] the node starts without a node-ID: no boot-up, no heartbeat, no SDO, nothing but LSS, until a node-ID is configured and applied (switching back to the LSS waiting state applies it at once; an NMT reset node or reset communication applies a pending id, reset node first reloading the stored one). A new id rebuilds the node at that id (the dictionary back to its defaults) and boots it up. Bit timings are accepted (CiA 301 table, see [`LssSlave`]) but activating one changes nothing: the virtual bus has one bit timing |
 
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
@@ -26,6 +27,8 @@ use cangate_canopen::eds::Eds;
 use cangate_canopen::emcy::{ErrorRegister, emcy_frame};
 use cangate_canopen::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
 use cangate_canopen::ids::cob;
+use cangate_canopen::lss::{LSS_REQUEST_COB_ID, LssIdentity, UNCONFIGURED_NODE_ID};
+use cangate_canopen::lss_slave::{LssSlave, LssSlaveEvent};
 use cangate_canopen::nmt::{NmtCommand, NmtReset, NmtSlave, NmtSlaveEvent, NmtState};
 use cangate_canopen::od::ObjectDictionary;
 use cangate_canopen::sdo::{AbortCode, ObjectStore, SdoServer, ServerOptions};
@@ -85,6 +88,12 @@ pub struct SimNodeOptions {
     /// Capacity of the event queue ([`SimNode::take_events`]); the oldest
     /// events are dropped beyond it.
     pub max_events: usize,
+    /// Serve LSS (CiA 305) with this identity; it also becomes the default
+    /// of 0x1018:01..=04 where the dictionary has them.
+    pub lss: Option<LssIdentity>,
+    /// With [`SimNodeOptions::lss`]: start without a node-ID (255), silent
+    /// but for LSS, until one is configured.
+    pub lss_unconfigured: bool,
 }
 
 impl Default for SimNodeOptions {
@@ -98,6 +107,8 @@ impl Default for SimNodeOptions {
             strict_pdo_config: true,
             tpdo_on_change: false,
             max_events: 1024,
+            lss: None,
+            lss_unconfigured: false,
         }
     }
 }
@@ -230,6 +241,10 @@ pub struct SimNode {
     filter_generation: u64,
     /// The toggle bit of the next node guarding answer.
     guard_toggle: bool,
+    /// The LSS slave, with [`SimNodeOptions::lss`].
+    lss: Option<LssSlave>,
+    /// False while the node has no node-ID (LSS only).
+    configured: bool,
     /// Life guarding: the latest guarding request (life guarding starts
     /// with the first one after boot-up), and whether its loss was
     /// reported.
@@ -271,8 +286,25 @@ impl SimNode {
             .map(|n| (n, TpdoState::default()))
             .collect();
         let rpdos = present(RPDO_COMM).into_iter().map(|n| (n, None)).collect();
+        if let Some(id) = options.lss {
+            for (sub, v) in (1u8..).zip(id.parts()) {
+                // Only where the dictionary has the entry as UNSIGNED32.
+                let _ = store.set_default(ObjectAddress::new(0x1018, sub), Value::Unsigned32(v));
+            }
+        }
+        let lss = options.lss.map(|id| {
+            let stored = if options.lss_unconfigured {
+                UNCONFIGURED_NODE_ID
+            } else {
+                node.get()
+            };
+            LssSlave::new(id, stored)
+        });
+        let configured = lss.is_none() || !options.lss_unconfigured;
         let consumer = consumer_from(&store);
         SimNode {
+            lss,
+            configured,
             consumer,
             node,
             sdo: SdoServer::new(node, Self::server_options(&options)),
@@ -300,9 +332,75 @@ impl SimNode {
         }
     }
 
-    /// The node id.
+    /// The node id (while [`SimNode::is_configured`] is false, the id the
+    /// node was created with, not in use).
     pub fn node_id(&self) -> NodeId {
         self.node
+    }
+
+    /// False while the node has no node-ID (LSS unconfigured).
+    pub fn is_configured(&self) -> bool {
+        self.configured
+    }
+
+    /// The LSS slave, if the node serves LSS.
+    pub fn lss(&self) -> Option<&LssSlave> {
+        self.lss.as_ref()
+    }
+
+    /// Handles an LSS request (0x7E5).
+    fn on_lss(&mut self, frame: &Frame, now: Duration) -> Vec<Frame> {
+        let Some(lss) = self.lss.as_mut() else {
+            return Vec::new();
+        };
+        let (answer, events) = lss.on_frame(frame);
+        let mut out: Vec<Frame> = answer.into_iter().collect();
+        for ev in events {
+            if let LssSlaveEvent::ApplyNodeId(id) = ev {
+                out.extend(self.become_node(id, now));
+            }
+        }
+        out
+    }
+
+    /// An NMT reset addressed to this LSS node: applies the pending (reset
+    /// communication) or stored (reset node) node-ID when it differs from
+    /// the one in use. `None`: nothing changed, handle the reset as usual.
+    fn lss_reset(&mut self, frame: &Frame, now: Duration) -> Option<Vec<Frame>> {
+        let lss = self.lss.as_mut()?;
+        let (cmd, target) = cangate_canopen::nmt::parse_nmt(frame)?;
+        let reset_node = match cmd {
+            NmtCommand::ResetNode => true,
+            NmtCommand::ResetCommunication => false,
+            _ => return None,
+        };
+        if !self.configured || target.is_some_and(|t| t != self.node) {
+            return None;
+        }
+        let active = lss.on_reset(reset_node);
+        (active != self.node.get()).then(|| self.become_node(active, now))
+    }
+
+    /// Rebuilds the node at node-ID `id` (255: unconfigured, silent) and
+    /// boots it up.
+    fn become_node(&mut self, id: u8, now: Duration) -> Vec<Frame> {
+        let node = NodeId::new(u32::from(id)).ok();
+        let mut fresh = SimNode::from_od(
+            self.store.od().clone(),
+            node.unwrap_or(self.node),
+            self.options.clone(),
+        );
+        fresh.lss = self.lss.take();
+        fresh.configured = node.is_some();
+        fresh.events = std::mem::take(&mut self.events);
+        fresh.dropped_events = self.dropped_events;
+        fresh.filter_generation = self.filter_generation + 1;
+        *self = fresh;
+        if self.configured {
+            self.start(now)
+        } else {
+            Vec::new()
+        }
     }
 
     /// The options in force.
@@ -362,7 +460,7 @@ impl SimNode {
     /// started.
     pub fn start(&mut self, now: Duration) -> Vec<Frame> {
         self.now = now;
-        if self.nmt.state() != NmtState::Initialising {
+        if self.nmt.state() != NmtState::Initialising || !self.configured {
             return Vec::new();
         }
         let boot_up = self.nmt.boot(now);
@@ -403,6 +501,10 @@ impl SimNode {
             .nodes()
             .filter(|(_, st)| st.timeout.is_some())
             .map(|(n, _)| cob::HEARTBEAT + u16::from(n.get()));
+        if !self.configured {
+            return vec![Filter::exact_standard(LSS_REQUEST_COB_ID)];
+        }
+        let lss = self.lss.is_some().then_some(LSS_REQUEST_COB_ID);
         let mut filters: Vec<Filter> = [
             cob::NMT,
             cob::SDO_RX + u16::from(self.node.get()),
@@ -410,6 +512,7 @@ impl SimNode {
             cob::HEARTBEAT + u16::from(self.node.get()),
         ]
         .into_iter()
+        .chain(lss)
         .chain(consumed)
         .map(Filter::exact_standard)
         .chain(
@@ -443,6 +546,15 @@ impl SimNode {
         let mut out = Vec::new();
         if frame.is_error() {
             return out;
+        }
+        if !frame.is_extended() && frame.raw_id() == u32::from(LSS_REQUEST_COB_ID) {
+            return self.on_lss(frame, now);
+        }
+        if !self.configured {
+            return out;
+        }
+        if let Some(frames) = self.lss_reset(frame, now) {
+            return frames;
         }
         let before = self.nmt.state();
         if let Some(event) = self.nmt.on_frame(frame, now) {
@@ -506,6 +618,9 @@ impl SimNode {
     pub fn on_tick(&mut self, now: Duration) -> Vec<Frame> {
         self.now = now;
         let mut out = Vec::new();
+        if !self.configured {
+            return out;
+        }
         out.extend(self.nmt.on_tick(now));
         out.extend(self.sdo.on_tick(now));
         if self.nmt.state() != NmtState::Initialising {
@@ -558,6 +673,9 @@ impl SimNode {
     /// When [`SimNode::on_tick`] must run next; `None` when nothing is
     /// scheduled.
     pub fn next_deadline(&self) -> Option<Duration> {
+        if !self.configured {
+            return None;
+        }
         let tpdos = self
             .tpdos
             .iter()
@@ -2128,5 +2246,126 @@ mod tests {
         run_until(&mut d, 3000 * MS);
         assert_eq!(d.state(), DriveState::Fault);
         assert_eq!(d.velocity(), 0.0);
+    }
+}
+
+#[cfg(test)]
+mod lss_tests {
+    use super::*;
+    use cangate_canopen::eds::SIM_IO_EDS;
+    use cangate_canopen::lss::{LssCommand, LssMaster, LssOutcome, request_frame};
+
+    const MS: Duration = Duration::from_millis(1);
+    const ID: LssIdentity = LssIdentity {
+        vendor_id: 0x4D2,
+        product_code: 0x10,
+        revision: 1,
+        serial: 0xCAFE,
+    };
+
+    fn unconfigured() -> SimNode {
+        let options = SimNodeOptions {
+            lss: Some(ID),
+            lss_unconfigured: true,
+            heartbeat_ms: Some(100),
+            ..SimNodeOptions::default()
+        };
+        SimNode::from_eds_text(SIM_IO_EDS, NodeId::new(20).unwrap(), options).unwrap()
+    }
+
+    fn frame(id: u16, data: &[u8]) -> Frame {
+        Frame::new(CanId::Standard(id), data).unwrap()
+    }
+
+    /// Runs an LSS command of a master against the node.
+    fn lss(
+        sim: &mut SimNode,
+        cmd: LssCommand,
+    ) -> (
+        Result<LssOutcome, cangate_canopen::lss::LssError>,
+        Vec<Frame>,
+    ) {
+        let mut m = LssMaster::new();
+        let mut now = Duration::ZERO;
+        let mut step = m.start(cmd, 100 * MS, now);
+        let mut other = Vec::new();
+        loop {
+            for f in &step.frames {
+                for a in sim.on_frame(f, now) {
+                    if a.raw_id() == 0x7E4 {
+                        if let Some(r) = m.on_frame(&a, now).completed {
+                            return (r, other);
+                        }
+                    } else {
+                        other.push(a);
+                    }
+                }
+            }
+            if let Some(r) = step.completed {
+                return (r, other);
+            }
+            now = m.next_deadline().unwrap();
+            step = m.on_tick(now);
+        }
+    }
+
+    #[test]
+    fn an_unconfigured_node_is_silent_until_given_an_id() {
+        let mut sim = unconfigured();
+        assert!(sim.start(Duration::ZERO).is_empty());
+        assert_eq!(sim.next_deadline(), None);
+        assert_eq!(sim.receive_filters(), vec![Filter::exact_standard(0x7E5)]);
+        // No SDO server, no NMT.
+        assert!(
+            sim.on_frame(&frame(0x614, &[0x40, 0, 0x10, 0, 0, 0, 0, 0]), MS)
+                .is_empty()
+        );
+        assert!(sim.on_frame(&frame(0x000, &[0x81, 0]), MS).is_empty());
+
+        let (r, _) = lss(
+            &mut sim,
+            LssCommand::Fastscan {
+                step_time: 10 * MS,
+                max_nodes: 4,
+            },
+        );
+        assert_eq!(r, Ok(LssOutcome::Found(vec![ID])));
+        // Found: in the configuration state.
+        let (r, _) = lss(&mut sim, LssCommand::ConfigureNodeId(20));
+        assert_eq!(r, Ok(LssOutcome::Confirmed));
+        let (r, _) = lss(&mut sim, LssCommand::StoreConfiguration);
+        assert_eq!(r, Ok(LssOutcome::Confirmed));
+        // Back to waiting: boots as node 20.
+        let out = sim.on_frame(&request_frame(0x04, &[0]), 2 * MS);
+        assert_eq!(out, vec![frame(0x714, &[0x00])]);
+        assert!(sim.is_configured());
+        assert_eq!(sim.nmt_state(), NmtState::PreOperational);
+        // 0x1018 carries the LSS identity.
+        assert_eq!(
+            sim.get(ObjectAddress::new(0x1018, 4)),
+            Some(&Value::Unsigned32(0xCAFE))
+        );
+        // Reset node: the stored id, boots again as 20.
+        let out = sim.on_frame(&frame(0x000, &[0x81, 20]), 3 * MS);
+        assert_eq!(out, vec![frame(0x714, &[0x00])]);
+    }
+
+    #[test]
+    fn an_id_not_stored_is_lost_with_reset_node_and_moved_with_reset_communication() {
+        let mut sim = unconfigured();
+        sim.start(Duration::ZERO);
+        lss(&mut sim, LssCommand::SwitchSelective(ID)).0.unwrap();
+        lss(&mut sim, LssCommand::ConfigureNodeId(20)).0.unwrap();
+        sim.on_frame(&request_frame(0x04, &[0]), MS);
+        assert_eq!(sim.node_id().get(), 20);
+        // Configured: a new pending id moves with reset communication.
+        lss(&mut sim, LssCommand::SwitchSelective(ID)).0.unwrap();
+        lss(&mut sim, LssCommand::ConfigureNodeId(21)).0.unwrap();
+        assert!(sim.on_frame(&request_frame(0x04, &[0]), MS).is_empty());
+        let out = sim.on_frame(&frame(0x000, &[0x82, 20]), 2 * MS);
+        assert_eq!(out, vec![frame(0x715, &[0x00])]);
+        // Nothing stored: reset node leaves it without an id.
+        assert!(sim.on_frame(&frame(0x000, &[0x81, 0]), 3 * MS).is_empty());
+        assert!(!sim.is_configured());
     }
 }

@@ -22,6 +22,11 @@ use cangate_can::{CanId, Frame};
 use cangate_canopen::eds::Eds;
 use cangate_canopen::emcy::{Emcy, EmcyConsumer, EmcyEvent};
 use cangate_canopen::handwheel::{BaselineReason, CounterLayout, FeedDecoder};
+use cangate_canopen::lss::{
+    IdentifyRange, InquireWhat, LSS_REQUEST_COB_ID, LSS_RESPONSE_COB_ID, LssCommand, LssIdentity,
+    LssMaster, LssMode, LssOutcome, UNCONFIGURED_NODE_ID,
+};
+use cangate_canopen::lss_slave::LssSlave;
 use cangate_canopen::od::ObjectDictionary;
 use cangate_canopen::pdo::{MappedObject, PdoConfig, PdoKind};
 use cangate_canopen::sdo::{
@@ -44,6 +49,8 @@ pub const TARGETS: &[(&str, EntryFn)] = &[
     ("sdo_server", sdo_server),
     ("pdo", pdo),
     ("emcy", emcy),
+    ("lss_master", lss_master),
+    ("lss_slave", lss_slave),
     ("eds", eds),
     ("handwheel", handwheel),
     ("cansmc_telegram", cansmc_telegram),
@@ -416,6 +423,189 @@ pub fn emcy(data: &[u8]) {
         for e in consumer.active_errors() {
             assert!(consumer.history(e.node).count() <= limit);
         }
+    }
+}
+
+/// An LSS command chosen by the input.
+fn lss_command(r: &mut Input) -> LssCommand {
+    match r.u8() % 11 {
+        0 => LssCommand::SwitchGlobal(if r.u8() & 1 == 0 {
+            LssMode::Waiting
+        } else {
+            LssMode::Configuration
+        }),
+        1 => LssCommand::SwitchSelective(LssIdentity::from_parts([
+            r.u32(),
+            r.u32(),
+            r.u32(),
+            r.u32(),
+        ])),
+        2 => LssCommand::ConfigureNodeId(r.u8()),
+        3 => LssCommand::ConfigureBitTiming {
+            table: r.u8(),
+            index: r.u8(),
+        },
+        4 => LssCommand::ActivateBitTiming {
+            switch_delay_ms: r.u16(),
+        },
+        5 => LssCommand::StoreConfiguration,
+        6 => LssCommand::Inquire(match r.u8() % 5 {
+            0 => InquireWhat::VendorId,
+            1 => InquireWhat::ProductCode,
+            2 => InquireWhat::Revision,
+            3 => InquireWhat::Serial,
+            _ => InquireWhat::NodeId,
+        }),
+        7 => LssCommand::IdentifyRemote(IdentifyRange {
+            vendor_id: r.u32(),
+            product_code: r.u32(),
+            revision_low: r.u32(),
+            revision_high: r.u32(),
+            serial_low: r.u32(),
+            serial_high: r.u32(),
+        }),
+        8 => LssCommand::IdentifyNonConfigured,
+        _ => LssCommand::Fastscan {
+            step_time: Duration::from_millis(u64::from(r.u8() % 4)),
+            max_nodes: usize::from(r.u8() % 3),
+        },
+    }
+}
+
+/// Every frame an LSS peer sends: 8 bytes on its COB-ID.
+fn assert_lss_frames(frames: &[Frame], cob: u16) {
+    for f in frames {
+        assert_eq!(
+            f.raw_id(),
+            u32::from(cob),
+            "LSS frame on the wrong id: {f:?}"
+        );
+        assert_eq!(f.data().len(), 8, "LSS frames are 8 bytes: {f:?}");
+        assert!(!f.is_extended() && !f.is_remote() && !f.is_fd());
+    }
+}
+
+/// The LSS master (CiA 305): commands chosen by the input, arbitrary
+/// answers around 0x7E4, timer ticks and cancels. A command completes once,
+/// a busy master refuses another, deadlines are kept.
+pub fn lss_master(data: &[u8]) {
+    let mut r = Input::new(data);
+    let mut m = LssMaster::new();
+    let mut now = Duration::ZERO;
+    while !r.is_empty() {
+        let op = r.u8();
+        let was_running = m.running().is_some();
+        let step = match op % 8 {
+            0 => {
+                let cmd = lss_command(&mut r);
+                let timeout = Duration::from_millis(u64::from(r.u8()));
+                let step = m.start(cmd, timeout, now);
+                if was_running {
+                    assert!(
+                        matches!(
+                            step.completed,
+                            Some(Err(cangate_canopen::lss::LssError::Busy { .. }))
+                        ),
+                        "a busy master started another command: {step:?}"
+                    );
+                    assert!(step.frames.is_empty());
+                    assert!(m.running().is_some(), "the running command was dropped");
+                } else {
+                    assert_eq!(
+                        step.completed.is_none(),
+                        m.running().is_some(),
+                        "completion and running state disagree: {step:?}"
+                    );
+                }
+                step
+            }
+            1..=4 => {
+                let sel = r.u8();
+                let cob = if op & 0x80 == 0 {
+                    LSS_RESPONSE_COB_ID
+                } else {
+                    LSS_REQUEST_COB_ID
+                };
+                let f = frame(&mut r, cob, sel);
+                let step = m.on_frame(&f, now);
+                assert!(step.frames.is_empty(), "answers never make the master send");
+                step
+            }
+            5 | 6 => {
+                now += Duration::from_millis(u64::from(op >> 3));
+                let deadline = m.next_deadline();
+                let step = m.on_tick(now);
+                if deadline.is_none_or(|d| now < d) {
+                    assert_eq!(step, Default::default(), "acted before its deadline");
+                }
+                step
+            }
+            _ => {
+                m.cancel();
+                assert!(m.running().is_none());
+                continue;
+            }
+        };
+        assert_lss_frames(&step.frames, LSS_REQUEST_COB_ID);
+        if op % 8 != 0 {
+            assert_eq!(
+                step.completed.is_some(),
+                was_running && m.running().is_none(),
+                "completion and running state disagree: {step:?}"
+            );
+        }
+        if let Some(done) = &step.completed {
+            match done {
+                Ok(LssOutcome::Value(v)) => {
+                    let _ = v;
+                }
+                Ok(LssOutcome::Found(ids)) => assert!(ids.len() <= 2),
+                Ok(_) => {}
+                Err(e) => {
+                    let _ = e.to_string();
+                }
+            }
+        }
+        assert_eq!(m.next_deadline().is_some(), m.running().is_some());
+    }
+}
+
+/// The LSS slave: an identity and a stored node-ID from the header, then
+/// arbitrary requests around 0x7E5 and resets. Answers are 8 bytes on
+/// 0x7E4; node-IDs stay 1..=127 or 255.
+pub fn lss_slave(data: &[u8]) {
+    let mut r = Input::new(data);
+    let identity = LssIdentity::from_parts([
+        u32::from(r.u8() & 3),
+        u32::from(r.u8()),
+        u32::from(r.u8() & 1),
+        r.u32(),
+    ]);
+    let stored = match r.u8() {
+        b @ 1..=127 => b,
+        _ => UNCONFIGURED_NODE_ID,
+    };
+    let mut s = LssSlave::new(identity, stored);
+    let valid = |id: u8| (1..=127).contains(&id) || id == UNCONFIGURED_NODE_ID;
+    while !r.is_empty() {
+        let op = r.u8();
+        match op % 8 {
+            0 => {
+                let _ = s.on_reset(op & 0x80 != 0);
+            }
+            1 => s.power_on(),
+            _ => {
+                let sel = r.u8();
+                let f = frame(&mut r, LSS_REQUEST_COB_ID, sel);
+                let (answer, events) = s.on_frame(&f);
+                assert_lss_frames(answer.as_slice(), LSS_RESPONSE_COB_ID);
+                let _ = format!("{events:?}");
+            }
+        }
+        assert!(valid(s.active_node_id()), "{:?}", s.active_node_id());
+        assert!(valid(s.pending_node_id()));
+        assert!(valid(s.stored_node_id()));
+        assert_eq!(s.identity(), identity);
     }
 }
 

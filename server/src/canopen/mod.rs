@@ -22,6 +22,7 @@ use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio_util::sync::CancellationToken;
 
 pub mod dcf_export;
+pub mod lss;
 pub mod master_heartbeat;
 pub mod pdo_config;
 pub mod scan;
@@ -199,6 +200,13 @@ enum Command {
     Transfers {
         reply: oneshot::Sender<Vec<(NodeId, cangate_canopen::sdo::Progress)>>,
     },
+    Lss {
+        command: cangate_canopen::lss::LssCommand,
+        timeout: Duration,
+        reply: oneshot::Sender<
+            Result<cangate_canopen::lss::LssOutcome, cangate_canopen::lss::LssError>,
+        >,
+    },
 }
 
 /// Why a CANopen command did not complete.
@@ -213,6 +221,33 @@ pub enum CanopenError {
     /// The master task stopped (shutdown).
     #[error("the CANopen master of this bus has stopped")]
     Stopped,
+    /// An LSS command failed (timeout, refusal, protocol violation, bad
+    /// argument).
+    #[error(transparent)]
+    Lss(#[from] cangate_canopen::lss::LssError),
+    /// Another LSS operation runs on this bus (LSS is bus-global: one at a
+    /// time).
+    #[error(
+        "bus {bus}: an LSS operation ({operation}) is already running; LSS is bus-global, one operation at a time"
+    )]
+    LssBusy {
+        /// The bus.
+        bus: String,
+        /// The running operation.
+        operation: &'static str,
+    },
+    /// No unconfigured device with this serial number answered a fastscan.
+    #[error(
+        "bus {bus}: no unconfigured device with serial number 0x{serial:08X} (fastscan found {found})"
+    )]
+    LssDeviceNotFound {
+        /// The bus.
+        bus: String,
+        /// The serial asked for.
+        serial: u32,
+        /// What the scan found, for the message.
+        found: String,
+    },
     /// The caller already has as many SDO requests queued or running with
     /// this node as one caller may.
     #[error(
@@ -281,6 +316,8 @@ pub struct CanopenBus {
     client_sdo: Arc<Mutex<HashMap<(NodeId, String), usize>>>,
     /// The most of them per caller and node (0: no limit).
     client_sdo_limit: usize,
+    /// The LSS operation running on this bus, if any (see [`lss`]).
+    lss_operation: Arc<Mutex<Option<&'static str>>>,
 }
 
 /// One API caller's SDO request counted against
@@ -390,6 +427,7 @@ impl CanopenBus {
             master_sub: sub.key(),
             client_sdo: Arc::default(),
             client_sdo_limit: MAX_CLIENT_SDO_PER_NODE,
+            lss_operation: Arc::default(),
         };
         let mut master = Master::new(sdo_timeout);
         for (id, f) in facts.read().expect("facts lock").iter() {
@@ -915,6 +953,10 @@ fn master_selector(configured: &BTreeMap<NodeId, NodeFacts>) -> FrameSelector {
         cob::HEARTBEAT + 1,
         cob::HEARTBEAT + 0x7F,
     ));
+    // LSS answers (CiA 305).
+    filters.push(Filter::exact_standard(
+        cangate_canopen::lss::LSS_RESPONSE_COB_ID,
+    ));
     for f in configured.values().filter(|f| !f.tpdos_read_by_axis) {
         filters.extend(f.tpdos.iter().map(|p| Filter::exact_standard(p.cob_id)));
     }
@@ -924,6 +966,9 @@ fn master_selector(configured: &BTreeMap<NodeId, NodeFacts>) -> FrameSelector {
         transmitted: false,
     }
 }
+
+type LssReply =
+    oneshot::Sender<Result<cangate_canopen::lss::LssOutcome, cangate_canopen::lss::LssError>>;
 
 async fn run_master(task: MasterTask) {
     let MasterTask {
@@ -940,6 +985,7 @@ async fn run_master(task: MasterTask) {
     let origin = Instant::now();
     let origin_wall = Timestamp::now();
     let mut pending: HashMap<RequestId, Pending> = HashMap::new();
+    let mut lss_pending: HashMap<RequestId, LssReply> = HashMap::new();
     let mut next_id: RequestId = 1;
     let mut items = Vec::with_capacity(256);
     let mut gc = tokio::time::interval(Duration::from_millis(100));
@@ -992,6 +1038,12 @@ async fn run_master(task: MasterTask) {
                     Command::Snapshot { reply } => {
                         let _ = reply.send(snapshot(&master, &facts, origin_wall, now));
                     }
+                    Command::Lss { command, timeout, reply } => {
+                        let id = next_id;
+                        next_id += 1;
+                        lss_pending.insert(id, reply);
+                        master.lss(id, command, timeout, now, &mut out);
+                    }
                 }
             }
             _ = tokio::time::sleep_until(deadline.into()) => {
@@ -1009,6 +1061,13 @@ async fn run_master(task: MasterTask) {
                     pending.remove(&id);
                     master.cancel(id, origin.elapsed(), &mut out);
                 }
+                lss_pending.retain(|id, reply| {
+                    let open = !reply.is_closed();
+                    if !open {
+                        master.lss_cancel(*id);
+                    }
+                    open
+                });
             }
         }
         if !out.frames.is_empty()
@@ -1018,6 +1077,12 @@ async fn run_master(task: MasterTask) {
         }
         for ev in out.events {
             count_event(bus.name(), &ev);
+            if let MasterEvent::LssCompleted { id, result } = ev {
+                if let Some(reply) = lss_pending.remove(&id) {
+                    let _ = reply.send(result);
+                }
+                continue;
+            }
             handle_event(ev, &master, &mut pending, &events, &facts);
         }
     }
@@ -1143,6 +1208,7 @@ fn handle_event(
             tracing::warn!(%error, "SDO request rejected");
             return;
         }
+        MasterEvent::LssCompleted { .. } => return,
         MasterEvent::SdoResponseIgnored { node } => {
             tracing::debug!(
                 node = node.get(),

@@ -149,6 +149,13 @@ pub struct NodeConfig {
     /// Virtual buses only: run a simulated device from the EDS at this id.
     #[serde(default)]
     pub simulate: bool,
+    /// Simulation only (`simulate = true`): the simulated device also
+    /// serves LSS (CiA 305) with this identity and, unless `configured`,
+    /// starts without a node-ID (255: silent but for LSS) until one is
+    /// given to it over LSS (`cangate lss set-id`). `id` is then the id the
+    /// master expects it at.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sim_lss: Option<SimLssConfig>,
     /// Run the boot procedure whenever the node boots: check the identity,
     /// write the configuration below, then NMT-start it.
     #[serde(default)]
@@ -176,6 +183,27 @@ pub struct NodeConfig {
     /// the EDS defaults are used.
     #[serde(default)]
     pub rpdo: Vec<PdoConfigEntry>,
+}
+
+/// The LSS identity of a simulated node (`sim_lss = { serial = 1234 }`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimLssConfig {
+    /// 0x1018:01 vendor-ID (default: the EDS's).
+    #[serde(default)]
+    pub vendor_id: Option<u32>,
+    /// 0x1018:02 product code (default: the EDS's).
+    #[serde(default)]
+    pub product_code: Option<u32>,
+    /// 0x1018:03 revision number (default: the EDS's).
+    #[serde(default)]
+    pub revision: Option<u32>,
+    /// 0x1018:04 serial number.
+    pub serial: u32,
+    /// Start with the node's `id` (LSS only changes it) rather than
+    /// without a node-ID.
+    #[serde(default)]
+    pub configured: bool,
 }
 
 /// An SDO write of the boot procedure.

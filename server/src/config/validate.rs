@@ -129,6 +129,12 @@ impl Config {
                         c.bus, n.id
                     )));
                 }
+                if n.sim_lss.is_some() && !n.simulate {
+                    return Err(ConfigError::Invalid(format!(
+                        "bus {:?}: node {}: sim_lss describes a simulated device; add simulate = true",
+                        c.bus, n.id
+                    )));
+                }
                 if n.simulate && n.eds.is_none() && n.dcf.is_none() {
                     return Err(ConfigError::Invalid(format!(
                         "bus {:?}: simulated node {} needs an eds",

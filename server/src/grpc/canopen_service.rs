@@ -165,6 +165,9 @@ fn map_err(node: NodeId, e: CanopenError) -> ApiError {
         CanopenError::Send(f) => f.into(),
         CanopenError::Stopped => ApiError::ShuttingDown,
         e @ CanopenError::CallerQueueFull { .. } => ApiError::FailedPrecondition(e.to_string()),
+        e @ (CanopenError::Lss(_)
+        | CanopenError::LssBusy { .. }
+        | CanopenError::LssDeviceNotFound { .. }) => super::lss_service::lss_error(e),
     }
 }
 

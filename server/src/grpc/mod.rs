@@ -8,6 +8,7 @@ pub mod convert;
 pub mod error;
 mod forward;
 pub mod handwheel_service;
+pub mod lss_service;
 mod runtime_errors;
 pub mod session_service;
 pub mod simulator_service;

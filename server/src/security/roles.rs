@@ -112,6 +112,21 @@ pub const TABLE: &[Rule] = &[
     rule("/cangate.v1.Cansmc/WriteParameter", E, false),
     rule("/cangate.v1.Cansmc/StreamCycleStats", V, true),
     rule("/cangate.v1.Cansmc/Restart", E, false),
+    // LSS (CiA 305) is bus-global. Finding and inquiring devices moves
+    // them between LSS states and back but configures nothing: operating.
+    // Configuring node-IDs and bit timings, storing, and switching devices
+    // explicitly: engineering.
+    rule("/cangate.v1.Lss/Fastscan", O, false),
+    rule("/cangate.v1.Lss/Inquire", O, false),
+    rule("/cangate.v1.Lss/IdentifyRemote", O, false),
+    rule("/cangate.v1.Lss/IdentifyNonConfigured", O, false),
+    rule("/cangate.v1.Lss/SwitchGlobal", E, false),
+    rule("/cangate.v1.Lss/SwitchSelective", E, false),
+    rule("/cangate.v1.Lss/ConfigureNodeId", E, false),
+    rule("/cangate.v1.Lss/ConfigureBitTiming", E, false),
+    rule("/cangate.v1.Lss/ActivateBitTiming", E, false),
+    rule("/cangate.v1.Lss/StoreConfiguration", E, false),
+    rule("/cangate.v1.Lss/AssignNodeId", E, false),
     // Standard services for probes and tools.
     rule("/grpc.health.v1.Health/Check", Public, false),
     rule("/grpc.health.v1.Health/Watch", Public, true),
@@ -228,6 +243,9 @@ mod tests {
             "/cangate.v1.Simulator/TurnHandwheel",
             "/cangate.v1.Cansmc/WriteParameter",
             "/cangate.v1.Cansmc/Restart",
+            "/cangate.v1.Lss/AssignNodeId",
+            "/cangate.v1.Lss/ConfigureNodeId",
+            "/cangate.v1.Lss/StoreConfiguration",
         ] {
             assert_eq!(lookup(p).map(|r| r.access), Some(E), "{p}");
         }

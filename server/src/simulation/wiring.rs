@@ -7,6 +7,7 @@ use crate::config::{BackendChoice, BusConfig, CansmcConfig, CounterChoice, NodeC
 use cangate_can::{VirtualBus, VirtualNetwork, VirtualPort};
 use cangate_canopen::eds::Eds;
 use cangate_canopen::handwheel::CounterLayout;
+use cangate_canopen::lss::LssIdentity;
 use cangate_canopen::{NodeId, ObjectAddress};
 use cangate_sim::cansmc_runner::CansmcSlaveHandle;
 use cangate_sim::{
@@ -37,8 +38,23 @@ pub fn canopen_device(
         0 => 100,
         t => (t / 3).clamp(1, u16::MAX as u64) as u16,
     };
+    let eds_u32 = |sub: u8| {
+        eds.od
+            .get(ObjectAddress::new(0x1018, sub))
+            .and_then(|v| v.default_for_node(node))
+            .and_then(|v| v.as_u32())
+            .unwrap_or(0)
+    };
+    let lss = nc.sim_lss.as_ref().map(|l| LssIdentity {
+        vendor_id: l.vendor_id.unwrap_or_else(|| eds_u32(1)),
+        product_code: l.product_code.unwrap_or_else(|| eds_u32(2)),
+        revision: l.revision.unwrap_or_else(|| eds_u32(3)),
+        serial: l.serial,
+    });
     let options = SimNodeOptions {
         heartbeat_ms: Some(heartbeat_ms),
+        lss,
+        lss_unconfigured: nc.sim_lss.as_ref().is_some_and(|l| !l.configured),
         ..SimNodeOptions::default()
     };
     if nc.eds.as_deref() == Some("builtin:handwheel") {
