@@ -17,6 +17,7 @@
 //! | RPDO | operational only; parameters 0x1400+n and mapping 0x1600+n; 0xFE/0xFF applied at once, 0..=240 at the next SYNC |
 //! | SYNC | COB-ID from 0x1005 (0x080 when absent) |
 //! | EMCY | COB-ID from 0x1014 (0x080+n when absent); sets 0x1001 |
+//! | program download (CiA 302-3) | 0x1F50/0x1F51/0x1F56/0x1F57 sub 1 whatever the EDS says, with a flash delay and injectable faults: see [`crate::program`] |
 
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
@@ -28,11 +29,13 @@ use cangate_canopen::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
 use cangate_canopen::ids::cob;
 use cangate_canopen::nmt::{NmtCommand, NmtReset, NmtSlave, NmtSlaveEvent, NmtState};
 use cangate_canopen::od::ObjectDictionary;
+use cangate_canopen::program_download::PROGRAM_DATA;
 use cangate_canopen::sdo::{AbortCode, ObjectStore, SdoServer, ServerOptions};
 use cangate_canopen::value::Value;
 use cangate_canopen::{NodeId, ObjectAddress};
 
 use crate::pdo::{self, Dir, MAX_PDOS, MapEntry, PdoComm, PdoParam, RPDO_COMM, TPDO_COMM};
+use crate::program::{ProgramEffect, ProgramFaults, ProgramOptions, SimProgram};
 use crate::store::SimStore;
 use crate::{Device, SimError};
 
@@ -81,6 +84,8 @@ pub struct SimNodeOptions {
     /// Capacity of the event queue ([`SimNode::take_events`]); the oldest
     /// events are dropped beyond it.
     pub max_events: usize,
+    /// The simulated flash of program download (CiA 302-3).
+    pub program: ProgramOptions,
 }
 
 impl Default for SimNodeOptions {
@@ -94,6 +99,7 @@ impl Default for SimNodeOptions {
             strict_pdo_config: true,
             tpdo_on_change: false,
             max_events: 1024,
+            program: ProgramOptions::default(),
         }
     }
 }
@@ -175,14 +181,28 @@ struct SdoAccess<'a> {
     store: &'a mut SimStore,
     strict: bool,
     written: &'a mut Vec<(ObjectAddress, bool)>,
+    program: &'a mut SimProgram,
+    effect: &'a mut ProgramEffect,
+    now: Duration,
 }
 
 impl ObjectStore for SdoAccess<'_> {
     fn read(&mut self, addr: ObjectAddress) -> Result<Vec<u8>, AbortCode> {
+        if SimProgram::serves(addr) {
+            return self.program.read(addr, self.now);
+        }
         self.store.read(addr)
     }
 
     fn write(&mut self, addr: ObjectAddress, data: &[u8]) -> Result<(), AbortCode> {
+        if SimProgram::serves(addr) {
+            let effect = self.program.write(addr, data, self.now)?;
+            if effect != ProgramEffect::None {
+                *self.effect = effect;
+            }
+            self.written.push((addr, true));
+            return Ok(());
+        }
         let value = self.store.decode_write(addr, data)?;
         if self.strict {
             pdo::check_config_write(self.store, addr, &value)?;
@@ -217,6 +237,8 @@ pub struct SimNode {
     filter_generation: u64,
     /// The toggle bit of the next node guarding answer.
     guard_toggle: bool,
+    /// Program download (CiA 302-3).
+    program: SimProgram,
 }
 
 impl SimNode {
@@ -254,6 +276,7 @@ impl SimNode {
             .collect();
         let rpdos = present(RPDO_COMM).into_iter().map(|n| (n, None)).collect();
         let consumer = consumer_from(&store);
+        let program = options.program;
         SimNode {
             consumer,
             node,
@@ -268,6 +291,7 @@ impl SimNode {
             dropped_events: 0,
             now: Duration::ZERO,
             guard_toggle: false,
+            program: SimProgram::new(program),
         }
     }
 
@@ -481,6 +505,8 @@ impl SimNode {
         let mut out = Vec::new();
         out.extend(self.nmt.on_tick(now));
         out.extend(self.sdo.on_tick(now));
+        // Ends a finished flashing (its deadline passes).
+        let _ = self.program.flash_status(now);
         if self.nmt.state() != NmtState::Initialising {
             let events = self.consumer.on_tick(now);
             self.on_consumer_events(events, now, &mut out);
@@ -499,11 +525,16 @@ impl SimNode {
         let consumer = (self.nmt.state() != NmtState::Initialising)
             .then(|| self.consumer.next_deadline())
             .flatten();
-        [self.nmt.next_deadline(), self.sdo.next_deadline(), consumer]
-            .into_iter()
-            .flatten()
-            .chain(tpdos)
-            .min()
+        [
+            self.nmt.next_deadline(),
+            self.sdo.next_deadline(),
+            consumer,
+            self.program.next_deadline(),
+        ]
+        .into_iter()
+        .flatten()
+        .chain(tpdos)
+        .min()
     }
 
     /// Produces an emergency message: sets the error register (0x1001) to
@@ -588,17 +619,93 @@ impl SimNode {
     // ---- SDO and side effects of writes ----
 
     fn on_sdo(&mut self, frame: &Frame, now: Duration, out: &mut Vec<Frame>) {
+        if self.program_gate(frame, now, out) {
+            return;
+        }
         let mut written = Vec::new();
+        let mut effect = ProgramEffect::None;
         let mut access = SdoAccess {
             store: &mut self.store,
             strict: self.options.strict_pdo_config,
             written: &mut written,
+            program: &mut self.program,
+            effect: &mut effect,
+            now,
         };
         out.extend(self.sdo.on_frame(frame, now, &mut access));
         for (addr, changed) in written {
             self.push_event(SimEvent::SdoWritten { addr });
             self.after_write(addr, changed, now);
         }
+        if effect == ProgramEffect::Reset {
+            // The start was confirmed above; now the node resets into the
+            // program.
+            let before = self.nmt.state();
+            if let Some(event) = self.nmt.on_command(NmtCommand::ResetNode, now) {
+                self.on_nmt(before, event, now, out);
+            }
+        }
+    }
+
+    /// Program download checks before the SDO server sees `frame`: a
+    /// download of 0x1F50 refused at its initiate (program running,
+    /// flashing), and the injected abort during the data download. True
+    /// when the frame was handled here.
+    fn program_gate(&mut self, frame: &Frame, now: Duration, out: &mut Vec<Frame>) -> bool {
+        let request = cob::SDO_RX + u16::from(self.node.get());
+        if frame.id() != CanId::Standard(request) || frame.is_remote() || frame.data().is_empty() {
+            return false;
+        }
+        let mut p = [0u8; 8];
+        let n = frame.data().len().min(8);
+        p[..n].copy_from_slice(&frame.data()[..n]);
+        let addr = ObjectAddress::new(u16::from_le_bytes([p[1], p[2]]), p[3]);
+        let response = cob::SDO_TX + u16::from(self.node.get());
+        let abort = |addr: ObjectAddress, code: AbortCode| {
+            let [lo, hi] = addr.index.to_le_bytes();
+            let c = code.get().to_le_bytes();
+            Frame::new(
+                CanId::Standard(response),
+                &[0x80, lo, hi, addr.sub, c[0], c[1], c[2], c[3]],
+            )
+            .expect("an 8-byte frame")
+        };
+        let initiate_download = p[0] & 0xE0 == 0x20;
+        let initiate_block_download = p[0] & 0xE0 == 0xC0 && p[0] & 0x01 == 0;
+        let idle = self.sdo.active_transfer().is_none();
+        if idle && (initiate_download || initiate_block_download) && addr.index == PROGRAM_DATA {
+            if let Err(code) = self.program.check_download_start(addr.sub, now) {
+                out.push(abort(addr, code));
+                return true;
+            }
+            return false;
+        }
+        if let Some(active) = self.sdo.active_transfer()
+            && active.index == PROGRAM_DATA
+            && p[0] != 0x80
+            && let Some(code) = self.program.on_data(7)
+        {
+            out.push(abort(active, code));
+            self.sdo = SdoServer::new(self.node, Self::server_options(&self.options));
+            return true;
+        }
+        false
+    }
+
+    /// Arms faults of the next program download (see [`crate::program`]).
+    pub fn set_program_faults(&mut self, faults: ProgramFaults) {
+        self.program.set_faults(faults);
+    }
+
+    /// The program download state (0x1F5x).
+    pub fn program(&self) -> &SimProgram {
+        &self.program
+    }
+
+    /// Takes over the program of `other` (its "flash"): what survives a
+    /// power cycle.
+    pub fn keep_program_of(&mut self, other: &SimNode) {
+        self.program = other.program.clone();
     }
 
     /// Applies what a written object changes in the node's behaviour.
@@ -1500,6 +1607,126 @@ mod tests {
             }
         }
         panic!("transfer stalled")
+    }
+
+    /// Runs a transfer until the client completes; frames still queued
+    /// then are delivered to the node (as on a bus) and its answers
+    /// returned.
+    fn run_to_end(
+        sim: &mut SimNode,
+        client: &mut SdoClient,
+        first: Vec<Frame>,
+        now: &mut Duration,
+    ) -> (Result<TransferOutcome, SdoError>, Vec<Frame>) {
+        let mut queue: VecDeque<Frame> = first.into();
+        while let Some(f) = queue.pop_front() {
+            *now += Duration::from_micros(100);
+            if f.raw_id() == 0x605 {
+                let replies = sim.on_frame(&f, *now);
+                queue.extend(replies.into_iter().filter(|r| r.raw_id() == 0x585));
+            } else {
+                let step = client.on_frame(&f, *now);
+                queue.extend(step.frames);
+                if let Some(done) = step.completed {
+                    let late = queue
+                        .drain(..)
+                        .filter(|f| f.raw_id() == 0x605)
+                        .flat_map(|f| sim.on_frame(&f, *now))
+                        .collect();
+                    return (done, late);
+                }
+            }
+        }
+        panic!("transfer stalled")
+    }
+
+    #[test]
+    fn program_download_by_block_transfer_with_flash_delay_and_faults() {
+        use crate::program::{INITIAL_IDENTIFICATION, ProgramFaults, crc32};
+        let mut sim = drive();
+        let mut client = SdoClient::new(node(5));
+        let mut now = MS;
+        let data = at(0x1F50, 1);
+        let image: Vec<u8> = (0..10_000u32).map(|i| (i * 13 % 251) as u8).collect();
+        // Refused at the initiate while the program runs.
+        let first = client
+            .start_download(data, image.clone(), TransferOptions::block(), now)
+            .unwrap();
+        let (r, _) = run_to_end(&mut sim, &mut client, first, &mut now);
+        assert_eq!(
+            r,
+            Err(SdoError::Aborted {
+                addr: data,
+                code: AbortCode::CANNOT_TRANSFER_DEVICE_STATE
+            })
+        );
+        assert_eq!(
+            sdo(&mut sim, "40 56 1F 01 00 00 00 00", now),
+            reply("43 56 1F 01 00 00 01 00")
+        );
+        // Stop, then the abort injected at byte 1000.
+        assert_eq!(
+            sdo(&mut sim, "2F 51 1F 01 00 00 00 00", now),
+            reply("60 51 1F 01 00 00 00 00")
+        );
+        sim.set_program_faults(ProgramFaults {
+            abort_at: Some((1000, AbortCode::HARDWARE_ERROR)),
+            ..ProgramFaults::default()
+        });
+        let first = client
+            .start_download(data, image.clone(), TransferOptions::block(), now)
+            .unwrap();
+        let (r, _) = run_to_end(&mut sim, &mut client, first, &mut now);
+        assert_eq!(
+            r,
+            Err(SdoError::Aborted {
+                addr: data,
+                code: AbortCode::HARDWARE_ERROR
+            })
+        );
+        // Once: the next download goes through, the flash is busy for
+        // 10 KiB x 1 ms.
+        now += Duration::from_millis(100);
+        let first = client
+            .start_download(data, image.clone(), TransferOptions::block(), now)
+            .unwrap();
+        let (r, _) = run_to_end(&mut sim, &mut client, first, &mut now);
+        assert_eq!(r, Ok(TransferOutcome::Downloaded));
+        assert_eq!(
+            sdo(&mut sim, "40 57 1F 01 00 00 00 00", now),
+            reply("43 57 1F 01 01 00 00 00")
+        );
+        // Starting while flashing is refused.
+        assert_eq!(
+            sdo(&mut sim, "2F 51 1F 01 01 00 00 00", now),
+            reply("80 51 1F 01 22 00 00 08")
+        );
+        now += Duration::from_millis(10);
+        assert!(sim.next_deadline().is_some_and(|d| d <= now));
+        let _ = sim.on_tick(now);
+        assert_eq!(
+            sdo(&mut sim, "40 57 1F 01 00 00 00 00", now),
+            reply("43 57 1F 01 00 00 00 00")
+        );
+        let id = crc32(&image);
+        assert_ne!(id, INITIAL_IDENTIFICATION);
+        sim.take_events();
+        // Start: confirmed, then the boot-up.
+        let out = wire(&sim.on_frame(&frame(0x605, &h("2F 51 1F 01 01 00 00 00")), now));
+        assert_eq!(
+            out,
+            vec![(0x585, h("60 51 1F 01 00 00 00 00")), (0x705, vec![0x00])]
+        );
+        assert_eq!(sim.nmt_state(), NmtState::PreOperational);
+        let mut expect = h("43 56 1F 01");
+        expect.extend(id.to_le_bytes());
+        assert_eq!(
+            sdo(&mut sim, "40 56 1F 01 00 00 00 00", now),
+            vec![(0x585, expect)]
+        );
+        // The program survives a power cycle.
+        let fresh = crate::PowerOn::powered_on(&sim);
+        assert_eq!(fresh.program().identification(), id);
     }
 
     #[test]
