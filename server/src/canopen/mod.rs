@@ -22,6 +22,7 @@ use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio_util::sync::CancellationToken;
 
 pub mod master_heartbeat;
+pub mod program;
 pub mod scan;
 pub mod sync_thread;
 
@@ -241,6 +242,8 @@ pub struct CanopenBus {
     tpdos: Arc<HashMap<u16, TpdoRoute>>,
     /// SDO requests of API callers in flight, by node and caller.
     client_sdo: Arc<Mutex<HashMap<(NodeId, String), usize>>>,
+    /// Nodes with a program download running.
+    programs: program::Downloads,
 }
 
 /// One API caller's SDO request counted against
@@ -337,6 +340,7 @@ impl CanopenBus {
             sync_cob_id,
             tpdos: Arc::new(tpdos),
             client_sdo: Arc::default(),
+            programs: program::Downloads::default(),
         };
         let mut master = Master::new(sdo_timeout);
         for (id, f) in facts.read().expect("facts lock").iter() {

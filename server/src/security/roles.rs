@@ -63,6 +63,7 @@ pub const TABLE: &[Rule] = &[
     rule("/cangate.v1.Canopen/StreamNodeEvents", V, true),
     rule("/cangate.v1.Canopen/StreamPdo", V, true),
     rule("/cangate.v1.Canopen/WritePdo", E, false),
+    rule("/cangate.v1.Canopen/DownloadProgram", E, true),
     // Axes: state is viewing; leases and every command (stops included:
     // a viewer is read-only) are operating.
     rule("/cangate.v1.Axes/ListAxes", V, false),
@@ -96,6 +97,7 @@ pub const TABLE: &[Rule] = &[
     rule("/cangate.v1.Simulator/SendEmcy", E, false),
     rule("/cangate.v1.Simulator/RaiseDriveFault", E, false),
     rule("/cangate.v1.Simulator/SetIoInputs", E, false),
+    rule("/cangate.v1.Simulator/SetProgramFaults", E, false),
     // Session: the caller's own identity, for any valid credentials.
     rule("/cangate.v1.Session/GetCaller", V, false),
     // CANsmc: reading parameters is viewing; writing them and restarting
