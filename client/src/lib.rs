@@ -56,6 +56,7 @@ mod connect;
 mod error;
 mod handwheel;
 mod lease;
+mod program;
 mod sdo;
 mod streams;
 
@@ -74,6 +75,7 @@ pub use error::{
 };
 pub use lease::{ControlLease, LeaseStatus};
 pub use pb::{AxisActivity, DriveState, HandwheelMode, NmtCommand, Outcome};
+pub use program::ProgramOptions;
 pub use sdo::{DataType, NodeId, Object, ObjectAddress, SdoOptions, SdoValue};
 pub use streams::EventStream;
 
