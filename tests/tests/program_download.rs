@@ -488,3 +488,42 @@ async fn a_viewer_may_not_download_a_program() {
         .expect("an engineer may");
     assert_eq!(o.new_identification, crc32(&img));
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn after_an_abort_by_the_node_the_next_download_works_at_once() {
+    // On the timed bus the rest of the sub-block is still on its way when
+    // the node aborts; the node answers those segments as new requests.
+    // Those answers must not fail the next download.
+    let server = start_server(CONFIG).await;
+    let c = client(&server).await;
+    let mut sim = pb::simulator_client::SimulatorClient::new(c.channel());
+    let img = image(20_000, 21);
+    for _ in 0..2 {
+        faults(
+            &mut sim,
+            "slow",
+            7,
+            pb::SetProgramFaultsRequest {
+                abort_at_byte: Some(2_000),
+                ..Default::default()
+            },
+        )
+        .await;
+        let (r, _) = download(&c, "slow", 7, img.clone(), &Default::default()).await;
+        assert!(
+            matches!(
+                r,
+                Err(Error::SdoAbort {
+                    code: 0x0606_0000,
+                    ..
+                })
+            ),
+            "{r:?}"
+        );
+        let (r, _) = download(&c, "slow", 7, img.clone(), &Default::default()).await;
+        assert_eq!(
+            r.expect("the next download").new_identification,
+            crc32(&img)
+        );
+    }
+}
