@@ -164,7 +164,12 @@ fn flash_failures_exit_with_their_status_and_one_line() {
     let o = cangate(&["flash", "can0", "7", file]);
     assert_status(&o, 6);
     let err = stderr(&o);
-    assert!(err.contains("0x06060000"), "{err}");
+    let last = err.lines().last().unwrap();
+    assert!(
+        last.starts_with("cangate: flash node 7 on can0, step download-data: node 7, object 0x1F50:01: SDO abort 0x06060000"),
+        "{err}"
+    );
+    assert_eq!(err.matches("cangate: ").count(), 1, "{err}");
     assert!(err.contains("hardware error"), "{err}");
     // An unknown node: exit 3; a missing file: exit 1 before connecting.
     let o = cangate(&["flash", "can0", "99", file]);

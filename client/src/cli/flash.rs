@@ -3,7 +3,7 @@
 //! an outcome line.
 
 use super::{App, Context, Failure, Result, ctrl_c, int_arg, label, node_id, print_json_line};
-use cangate_client::{NodeId, ProgramOptions, pb};
+use cangate_client::{Error, NodeId, ProgramOptions, pb};
 use clap::Args;
 use futures::StreamExt;
 use std::io::{IsTerminal, Write};
@@ -144,6 +144,15 @@ pub(crate) async fn run(app: &App, a: FlashArgs) -> Result<()> {
             }
             Some(Err(e)) => {
                 progress.end();
+                // An SDO abort's line is the client's own (node, object,
+                // code): say which step it broke.
+                let step = cangate_client::error_metadata(&e).remove("step");
+                let what = match step {
+                    Some(step) if matches!(e, Error::SdoAbort { .. }) => {
+                        format!("{what}, step {step}")
+                    }
+                    _ => what,
+                };
                 return Err(e).ctx(what);
             }
             Some(Ok(m)) => m,
