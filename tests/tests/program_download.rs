@@ -118,7 +118,7 @@ async fn download(
     let r = tokio::time::timeout(
         WAIT * 3,
         c.canopen(bus)
-            .download_program_with(node(n), img, opts, |m| seen.push(m.clone())),
+            .download_program_with(node(n), img, opts, |m| seen.push(*m)),
     )
     .await
     .expect("the download ends in time");

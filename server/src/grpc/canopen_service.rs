@@ -218,7 +218,7 @@ impl Canopen for CanopenService {
                         last.step = program_step_to_pb(step) as i32;
                         last.bytes_done = bytes_done as u64;
                         last.bytes_total = total as u64;
-                        Ok(last.clone())
+                        Ok(last)
                     }
                     Some(ProgramEvent::Finished(Ok(o))) => {
                         let secs = o.download_duration.as_secs_f64();
@@ -235,7 +235,7 @@ impl Canopen for CanopenService {
                                 0.0
                             },
                         });
-                        Ok(last.clone())
+                        Ok(last)
                     }
                     Some(ProgramEvent::Finished(Err(e))) => Err(program_error(node, e).into()),
                 };
