@@ -24,6 +24,10 @@ use cangate_canopen::emcy::{Emcy, EmcyConsumer, EmcyEvent};
 use cangate_canopen::handwheel::{BaselineReason, CounterLayout, FeedDecoder};
 use cangate_canopen::od::ObjectDictionary;
 use cangate_canopen::pdo::{MappedObject, PdoConfig, PdoKind};
+use cangate_canopen::program_download::{
+    ProgramAction, ProgramDownload, ProgramPlan, ProgramStep, ProgramTimeouts,
+};
+use cangate_canopen::sdo::TransferOutcome;
 use cangate_canopen::sdo::{
     AbortCode, BlockOptions, Mode, ObjectStore, SdoClient, SdoError, SdoServer, ServerOptions,
     Step, TransferOptions,
@@ -31,10 +35,6 @@ use cangate_canopen::sdo::{
 use cangate_canopen::value::DataType;
 use cangate_canopen::{NodeId, ObjectAddress};
 use cangate_cansmc::telegram::{Channel, ControlWord, StatusWord, Telegram};
-use cangate_canopen::program_download::{
-    ProgramAction, ProgramDownload, ProgramPlan, ProgramStep, ProgramTimeouts,
-};
-use cangate_canopen::sdo::TransferOutcome;
 use cangate_sim::{SimNode, SimNodeOptions, SimStore};
 
 /// An entry function: takes any bytes, panics only on a defect.
