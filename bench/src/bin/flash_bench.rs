@@ -30,7 +30,12 @@
 //! is above the default 4 MiB max_message_bytes), to show it works and how
 //! long the gateway itself takes.
 //!
-//! Prints a table and one JSON line with every figure.
+//! Prints a table and one JSON line with every figure. Measured on the
+//! development machine (2 cores, release build, 3 runs each): ceiling
+//! 59.0 KiB/s (segment frames 115 bits on average, ack 121 bits);
+//! `share100` 58.1 KiB/s (98.5 % of it), `share50` 23.7 KiB/s (40 % of it,
+//! 80 % of its half share); 4 MiB untimed: data 0.26 s, whole download
+//! 4.4 s (of which 4.1 s the simulated flash time).
 
 use anyhow::{Context, Result, bail};
 use cangate_can::{BitTiming, CanId, Frame, Stuffing};
