@@ -527,3 +527,17 @@ async fn after_an_abort_by_the_node_the_next_download_works_at_once() {
         );
     }
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_4_mib_image_passes_the_message_limit_and_is_downloaded() {
+    // 4 MiB of image plus the request's other fields is above the default
+    // max_message_bytes (4 MiB): DownloadProgram may carry it.
+    let server = start_server(CONFIG).await;
+    let c = client(&server).await;
+    let img = image(4 * 1024 * 1024, 44);
+    let (r, seen) = download(&c, "can0", 6, img.clone(), &Default::default()).await;
+    let o = r.expect("the 4 MiB download succeeds");
+    assert_eq!(o.bytes, img.len() as u64);
+    assert_eq!(o.new_identification, crc32(&img));
+    assert_eq!(seen.last().unwrap().bytes_done, img.len() as u64);
+}
