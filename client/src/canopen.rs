@@ -57,6 +57,10 @@ impl Canopen {
         &self.bus
     }
 
+    pub(crate) fn client(&self) -> &Client {
+        &self.client
+    }
+
     /// The nodes the master knows (configured and heard of), by id.
     pub async fn nodes(&self) -> Result<Vec<pb::Node>, Error> {
         let req = pb::ListNodesRequest {

@@ -57,6 +57,7 @@ mod error;
 mod handwheel;
 mod lease;
 mod lss;
+mod program;
 mod sdo;
 mod streams;
 
@@ -76,6 +77,7 @@ pub use error::{
 pub use lease::{ControlLease, LeaseStatus};
 pub use lss::{Lss, LssDevice};
 pub use pb::{AxisActivity, DriveState, HandwheelMode, NmtCommand, Outcome};
+pub use program::ProgramOptions;
 pub use sdo::{DataType, NodeId, Object, ObjectAddress, SdoOptions, SdoValue};
 pub use streams::EventStream;
 

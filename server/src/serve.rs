@@ -227,7 +227,11 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
     .max_decoding_message_size(max_in);
     let canopen_service =
         cangate_proto::v1::canopen_server::CanopenServer::new(CanopenService::new(gateway.clone()))
-            .max_decoding_message_size(max_in)
+            // DownloadProgram carries an image in one message; the security
+            // layer keeps max_message_bytes for every other method.
+            .max_decoding_message_size(
+                max_in.max(crate::security::auth::MAX_PROGRAM_MESSAGE_BYTES as usize),
+            )
             .max_encoding_message_size(64 * 1024 * 1024);
     health_reporter
         .set_serving::<cangate_proto::v1::canopen_server::CanopenServer<CanopenService>>()

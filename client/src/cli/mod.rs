@@ -5,7 +5,7 @@
 //! status per kind of failure, see [`exit`]).
 //!
 //! One module per command: [`axis`], [`lease`], [`sdo`], [`node`] (node,
-//! nmt, scan, events, pdo), [`lss`] (LSS scan, set-id, inquire), [`bus`] (bus, send), [`dump`], [`replay`],
+//! nmt, scan, events, pdo), [`lss`] (LSS scan, set-id, inquire), [`flash`], [`bus`] (bus, send), [`dump`], [`replay`],
 //! [`generate`] (gen), [`wheel`], [`sim`], [`smc`]; [`candump_log`] and
 //! [`pcapng`] are the file formats of dump and replay, [`bus_writer`] the
 //! Attach stream replay and gen send through.
@@ -15,6 +15,7 @@ pub(crate) mod bus;
 pub(crate) mod bus_writer;
 pub(crate) mod candump_log;
 pub(crate) mod dump;
+pub(crate) mod flash;
 pub(crate) mod generate;
 pub(crate) mod lease;
 pub(crate) mod lss;
@@ -172,6 +173,9 @@ pub(crate) enum Command {
     Node(node::NodeArgs),
     /// Send an NMT command: `cangate nmt can0 start 5` (`all`: every node).
     Nmt(node::NmtArgs),
+    /// Download a program into a CANopen node (CiA 302-3): `cangate flash
+    /// can0 5 fw.bin [--program 1] [--expect-id 0x..] [--clear]`.
+    Flash(flash::FlashArgs),
     /// Find the CANopen nodes on a bus (SDO read of 0x1000 at every id).
     Scan(node::ScanArgs),
     /// CANopen node events (boot-up, state, heartbeat, EMCY), until Ctrl-C.
@@ -597,6 +601,7 @@ async fn run(cli: Cli) -> Result<()> {
         Command::Nmt(a) => node::nmt(&app, a).await,
         Command::Scan(a) => node::scan(&app, a).await,
         Command::Lss(a) => lss::run(&app, a).await,
+        Command::Flash(a) => flash::run(&app, a).await,
         Command::Events(a) => node::events(&app, a).await,
         Command::Pdo(a) => pdo::run(&app, a).await,
         Command::Sync(a) => sync::sync(&app, a).await,

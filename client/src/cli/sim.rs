@@ -87,6 +87,30 @@ enum SimVerb {
         #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
         analogue: Vec<i32>,
     },
+    /// Arm faults of a simulated device's next program download (each acts
+    /// once): `cangate sim program-faults can0 5 --flash-error 5`,
+    /// `--abort-at 10000 [--abort-code 0x06060000]`, `--no-boot`; none
+    /// given: clear them.
+    ProgramFaults {
+        /// The bus.
+        bus: String,
+        /// The node id.
+        #[arg(value_parser = node_id)]
+        node: NodeId,
+        /// The flashing ends with this error code in 0x1F57 (1..=127, e.g.
+        /// 5 flash write error).
+        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=127))]
+        flash_error: Option<u32>,
+        /// The node aborts the data download once this many bytes arrived.
+        #[arg(long, value_name = "BYTES")]
+        abort_at: Option<u64>,
+        /// The abort code of --abort-at (default 0x06060000).
+        #[arg(long, value_parser = int_arg, requires = "abort_at")]
+        abort_code: Option<u32>,
+        /// The start is confirmed but the node never boots.
+        #[arg(long)]
+        no_boot: bool,
+    },
 }
 
 /// `sim turn WHEEL DETENTS …`
@@ -358,6 +382,50 @@ pub(crate) async fn run(app: &App, args: SimArgs) -> Result<()> {
                     "{bus} node {node}: digital [{}] analogue {:?}",
                     digital.join(", "),
                     r.analogue
+                ),
+                &r,
+            )
+        }
+        SimVerb::ProgramFaults {
+            bus,
+            node,
+            flash_error,
+            abort_at,
+            abort_code,
+            no_boot,
+        } => {
+            let req = pb::SetProgramFaultsRequest {
+                bus: bus.clone(),
+                node: node.into(),
+                flash_error: flash_error.unwrap_or(0),
+                abort_at_byte: abort_at,
+                abort_code: abort_code.unwrap_or(0),
+                no_boot,
+            };
+            let r = c
+                .call("SetProgramFaults", None, sim().set_program_faults(req))
+                .await
+                .ctx(format!("program faults of {bus} node {node}"))?;
+            let mut armed = Vec::new();
+            if r.flash_error != 0 {
+                armed.push(format!("flash error {}", r.flash_error));
+            }
+            if let Some(at) = r.abort_at_byte {
+                armed.push(format!("abort 0x{:08X} at byte {at}", r.abort_code));
+            }
+            if r.no_boot {
+                armed.push("no boot-up after the start".into());
+            }
+            if armed.is_empty() {
+                armed.push("none".into());
+            }
+            app.show(
+                format!(
+                    "{bus} node {node}: program 0x{:08X} {}, {} downloads; next download faults: {}",
+                    r.identification,
+                    if r.running { "running" } else { "stopped" },
+                    r.downloads,
+                    armed.join(", ")
                 ),
                 &r,
             )

@@ -25,6 +25,7 @@ pub mod nmt;
 pub mod node_guarding;
 pub mod od;
 pub mod pdo;
+pub mod program_download;
 pub mod sdo;
 pub mod sync;
 pub mod time_of_day;

@@ -18,6 +18,7 @@
 //! | SYNC | COB-ID from 0x1005 (0x080 when absent) |
 //! | EMCY | COB-ID from 0x1014 (0x080+n when absent); sets 0x1001 |
 //! | LSS (CiA 305) | with [`SimNodeOptions::lss`]: an [`LssSlave`] with that identity (also the defaults of 0x1018:01..=04) on 0x7E5/0x7E4. With [`SimNodeOptions::lss_unconfigured`] the node starts without a node-ID: no boot-up, no heartbeat, no SDO, nothing but LSS, until a node-ID is configured and applied (switching back to the LSS waiting state applies it at once; an NMT reset node or reset communication applies a pending id, reset node first reloading the stored one). A new id rebuilds the node at that id (the dictionary back to its defaults) and boots it up. Bit timings are accepted (CiA 301 table, see [`LssSlave`]) but activating one changes nothing: the virtual bus has one bit timing |
+//! | program download (CiA 302-3) | 0x1F50/0x1F51/0x1F56/0x1F57 sub 1 whatever the EDS says, with a flash delay and injectable faults: see [`crate::program`] |
 
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
@@ -31,11 +32,13 @@ use cangate_canopen::lss::{LSS_REQUEST_COB_ID, LssIdentity, UNCONFIGURED_NODE_ID
 use cangate_canopen::lss_slave::{LssSlave, LssSlaveEvent};
 use cangate_canopen::nmt::{NmtCommand, NmtReset, NmtSlave, NmtSlaveEvent, NmtState};
 use cangate_canopen::od::ObjectDictionary;
+use cangate_canopen::program_download::PROGRAM_DATA;
 use cangate_canopen::sdo::{AbortCode, ObjectStore, SdoServer, ServerOptions};
 use cangate_canopen::value::Value;
 use cangate_canopen::{NodeId, ObjectAddress};
 
 use crate::pdo::{self, Dir, MAX_PDOS, MapEntry, PdoComm, PdoParam, RPDO_COMM, TPDO_COMM};
+use crate::program::{ProgramEffect, ProgramFaults, ProgramOptions, SimProgram};
 use crate::store::SimStore;
 use crate::{Device, SimError};
 
@@ -94,6 +97,8 @@ pub struct SimNodeOptions {
     /// With [`SimNodeOptions::lss`]: start without a node-ID (255), silent
     /// but for LSS, until one is configured.
     pub lss_unconfigured: bool,
+    /// The simulated flash of program download (CiA 302-3).
+    pub program: ProgramOptions,
 }
 
 impl Default for SimNodeOptions {
@@ -109,6 +114,7 @@ impl Default for SimNodeOptions {
             max_events: 1024,
             lss: None,
             lss_unconfigured: false,
+            program: ProgramOptions::default(),
         }
     }
 }
@@ -199,14 +205,28 @@ struct SdoAccess<'a> {
     store: &'a mut SimStore,
     strict: bool,
     written: &'a mut Vec<(ObjectAddress, bool)>,
+    program: &'a mut SimProgram,
+    effect: &'a mut ProgramEffect,
+    now: Duration,
 }
 
 impl ObjectStore for SdoAccess<'_> {
     fn read(&mut self, addr: ObjectAddress) -> Result<Vec<u8>, AbortCode> {
+        if SimProgram::serves(addr) {
+            return self.program.read(addr, self.now);
+        }
         self.store.read(addr)
     }
 
     fn write(&mut self, addr: ObjectAddress, data: &[u8]) -> Result<(), AbortCode> {
+        if SimProgram::serves(addr) {
+            let effect = self.program.write(addr, data, self.now)?;
+            if effect != ProgramEffect::None {
+                *self.effect = effect;
+            }
+            self.written.push((addr, true));
+            return Ok(());
+        }
         let value = self.store.decode_write(addr, data)?;
         if self.strict {
             pdo::check_config_write(self.store, addr, &value)?;
@@ -250,6 +270,8 @@ pub struct SimNode {
     /// reported.
     last_guarded: Option<Duration>,
     life_guarding_lost: bool,
+    /// Program download (CiA 302-3).
+    program: SimProgram,
 }
 
 impl SimNode {
@@ -302,6 +324,7 @@ impl SimNode {
         });
         let configured = lss.is_none() || !options.lss_unconfigured;
         let consumer = consumer_from(&store);
+        let program = options.program;
         SimNode {
             lss,
             configured,
@@ -320,6 +343,7 @@ impl SimNode {
             guard_toggle: false,
             last_guarded: None,
             life_guarding_lost: false,
+            program: SimProgram::new(program),
         }
     }
 
@@ -623,6 +647,8 @@ impl SimNode {
         }
         out.extend(self.nmt.on_tick(now));
         out.extend(self.sdo.on_tick(now));
+        // Ends a finished flashing (its deadline passes).
+        let _ = self.program.flash_status(now);
         if self.nmt.state() != NmtState::Initialising {
             let events = self.consumer.on_tick(now);
             self.on_consumer_events(events, now, &mut out);
@@ -688,6 +714,7 @@ impl SimNode {
             self.sdo.next_deadline(),
             consumer,
             life_guard,
+            self.program.next_deadline(),
         ]
         .into_iter()
         .flatten()
@@ -779,17 +806,93 @@ impl SimNode {
     // ---- SDO and side effects of writes ----
 
     fn on_sdo(&mut self, frame: &Frame, now: Duration, out: &mut Vec<Frame>) {
+        if self.program_gate(frame, now, out) {
+            return;
+        }
         let mut written = Vec::new();
+        let mut effect = ProgramEffect::None;
         let mut access = SdoAccess {
             store: &mut self.store,
             strict: self.options.strict_pdo_config,
             written: &mut written,
+            program: &mut self.program,
+            effect: &mut effect,
+            now,
         };
         out.extend(self.sdo.on_frame(frame, now, &mut access));
         for (addr, changed) in written {
             self.push_event(SimEvent::SdoWritten { addr });
             self.after_write(addr, changed, now);
         }
+        if effect == ProgramEffect::Reset {
+            // The start was confirmed above; now the node resets into the
+            // program.
+            let before = self.nmt.state();
+            if let Some(event) = self.nmt.on_command(NmtCommand::ResetNode, now) {
+                self.on_nmt(before, event, now, out);
+            }
+        }
+    }
+
+    /// Program download checks before the SDO server sees `frame`: a
+    /// download of 0x1F50 refused at its initiate (program running,
+    /// flashing), and the injected abort during the data download. True
+    /// when the frame was handled here.
+    fn program_gate(&mut self, frame: &Frame, now: Duration, out: &mut Vec<Frame>) -> bool {
+        let request = cob::SDO_RX + u16::from(self.node.get());
+        if frame.id() != CanId::Standard(request) || frame.is_remote() || frame.data().is_empty() {
+            return false;
+        }
+        let mut p = [0u8; 8];
+        let n = frame.data().len().min(8);
+        p[..n].copy_from_slice(&frame.data()[..n]);
+        let addr = ObjectAddress::new(u16::from_le_bytes([p[1], p[2]]), p[3]);
+        let response = cob::SDO_TX + u16::from(self.node.get());
+        let abort = |addr: ObjectAddress, code: AbortCode| {
+            let [lo, hi] = addr.index.to_le_bytes();
+            let c = code.get().to_le_bytes();
+            Frame::new(
+                CanId::Standard(response),
+                &[0x80, lo, hi, addr.sub, c[0], c[1], c[2], c[3]],
+            )
+            .expect("an 8-byte frame")
+        };
+        let initiate_download = p[0] & 0xE0 == 0x20;
+        let initiate_block_download = p[0] & 0xE0 == 0xC0 && p[0] & 0x01 == 0;
+        let idle = self.sdo.active_transfer().is_none();
+        if idle && (initiate_download || initiate_block_download) && addr.index == PROGRAM_DATA {
+            if let Err(code) = self.program.check_download_start(addr.sub, now) {
+                out.push(abort(addr, code));
+                return true;
+            }
+            return false;
+        }
+        if let Some(active) = self.sdo.active_transfer()
+            && active.index == PROGRAM_DATA
+            && p[0] != 0x80
+            && let Some(code) = self.program.on_data(7)
+        {
+            out.push(abort(active, code));
+            self.sdo = SdoServer::new(self.node, Self::server_options(&self.options));
+            return true;
+        }
+        false
+    }
+
+    /// Arms faults of the next program download (see [`crate::program`]).
+    pub fn set_program_faults(&mut self, faults: ProgramFaults) {
+        self.program.set_faults(faults);
+    }
+
+    /// The program download state (0x1F5x).
+    pub fn program(&self) -> &SimProgram {
+        &self.program
+    }
+
+    /// Takes over the program of `other` (its "flash"): what survives a
+    /// power cycle.
+    pub fn keep_program_of(&mut self, other: &SimNode) {
+        self.program = other.program.clone();
     }
 
     /// Applies what a written object changes in the node's behaviour.
@@ -1736,6 +1839,126 @@ mod tests {
             }
         }
         panic!("transfer stalled")
+    }
+
+    /// Runs a transfer until the client completes; frames still queued
+    /// then are delivered to the node (as on a bus) and its answers
+    /// returned.
+    fn run_to_end(
+        sim: &mut SimNode,
+        client: &mut SdoClient,
+        first: Vec<Frame>,
+        now: &mut Duration,
+    ) -> (Result<TransferOutcome, SdoError>, Vec<Frame>) {
+        let mut queue: VecDeque<Frame> = first.into();
+        while let Some(f) = queue.pop_front() {
+            *now += Duration::from_micros(100);
+            if f.raw_id() == 0x605 {
+                let replies = sim.on_frame(&f, *now);
+                queue.extend(replies.into_iter().filter(|r| r.raw_id() == 0x585));
+            } else {
+                let step = client.on_frame(&f, *now);
+                queue.extend(step.frames);
+                if let Some(done) = step.completed {
+                    let late = queue
+                        .drain(..)
+                        .filter(|f| f.raw_id() == 0x605)
+                        .flat_map(|f| sim.on_frame(&f, *now))
+                        .collect();
+                    return (done, late);
+                }
+            }
+        }
+        panic!("transfer stalled")
+    }
+
+    #[test]
+    fn program_download_by_block_transfer_with_flash_delay_and_faults() {
+        use crate::program::{INITIAL_IDENTIFICATION, ProgramFaults, crc32};
+        let mut sim = drive();
+        let mut client = SdoClient::new(node(5));
+        let mut now = MS;
+        let data = at(0x1F50, 1);
+        let image: Vec<u8> = (0..10_000u32).map(|i| (i * 13 % 251) as u8).collect();
+        // Refused at the initiate while the program runs.
+        let first = client
+            .start_download(data, image.clone(), TransferOptions::block(), now)
+            .unwrap();
+        let (r, _) = run_to_end(&mut sim, &mut client, first, &mut now);
+        assert_eq!(
+            r,
+            Err(SdoError::Aborted {
+                addr: data,
+                code: AbortCode::CANNOT_TRANSFER_DEVICE_STATE
+            })
+        );
+        assert_eq!(
+            sdo(&mut sim, "40 56 1F 01 00 00 00 00", now),
+            reply("43 56 1F 01 00 00 01 00")
+        );
+        // Stop, then the abort injected at byte 1000.
+        assert_eq!(
+            sdo(&mut sim, "2F 51 1F 01 00 00 00 00", now),
+            reply("60 51 1F 01 00 00 00 00")
+        );
+        sim.set_program_faults(ProgramFaults {
+            abort_at: Some((1000, AbortCode::HARDWARE_ERROR)),
+            ..ProgramFaults::default()
+        });
+        let first = client
+            .start_download(data, image.clone(), TransferOptions::block(), now)
+            .unwrap();
+        let (r, _) = run_to_end(&mut sim, &mut client, first, &mut now);
+        assert_eq!(
+            r,
+            Err(SdoError::Aborted {
+                addr: data,
+                code: AbortCode::HARDWARE_ERROR
+            })
+        );
+        // Once: the next download goes through, the flash is busy for
+        // 10 KiB x 1 ms.
+        now += Duration::from_millis(100);
+        let first = client
+            .start_download(data, image.clone(), TransferOptions::block(), now)
+            .unwrap();
+        let (r, _) = run_to_end(&mut sim, &mut client, first, &mut now);
+        assert_eq!(r, Ok(TransferOutcome::Downloaded));
+        assert_eq!(
+            sdo(&mut sim, "40 57 1F 01 00 00 00 00", now),
+            reply("43 57 1F 01 01 00 00 00")
+        );
+        // Starting while flashing is refused.
+        assert_eq!(
+            sdo(&mut sim, "2F 51 1F 01 01 00 00 00", now),
+            reply("80 51 1F 01 22 00 00 08")
+        );
+        now += Duration::from_millis(10);
+        assert!(sim.next_deadline().is_some_and(|d| d <= now));
+        let _ = sim.on_tick(now);
+        assert_eq!(
+            sdo(&mut sim, "40 57 1F 01 00 00 00 00", now),
+            reply("43 57 1F 01 00 00 00 00")
+        );
+        let id = crc32(&image);
+        assert_ne!(id, INITIAL_IDENTIFICATION);
+        sim.take_events();
+        // Start: confirmed, then the boot-up.
+        let out = wire(&sim.on_frame(&frame(0x605, &h("2F 51 1F 01 01 00 00 00")), now));
+        assert_eq!(
+            out,
+            vec![(0x585, h("60 51 1F 01 00 00 00 00")), (0x705, vec![0x00])]
+        );
+        assert_eq!(sim.nmt_state(), NmtState::PreOperational);
+        let mut expect = h("43 56 1F 01");
+        expect.extend(id.to_le_bytes());
+        assert_eq!(
+            sdo(&mut sim, "40 56 1F 01 00 00 00 00", now),
+            vec![(0x585, expect)]
+        );
+        // The program survives a power cycle.
+        let fresh = crate::PowerOn::powered_on(&sim);
+        assert_eq!(fresh.program().identification(), id);
     }
 
     #[test]

@@ -442,11 +442,14 @@ impl SimHandwheel {
 
 impl crate::PowerOn for SimHandwheel {
     fn powered_on(&self) -> Self {
-        SimHandwheel::from_od(
+        let mut wheel = SimHandwheel::from_od(
             self.node.od().clone(),
             self.node.node_id(),
             self.options.clone(),
-        )
+        );
+        // The program is in flash: it survives the power cut.
+        wheel.node.keep_program_of(&self.node);
+        wheel
     }
 }
 

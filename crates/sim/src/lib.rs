@@ -38,6 +38,7 @@ pub mod cansmc_slave;
 pub mod drive;
 pub mod handwheel;
 mod pdo;
+pub mod program;
 #[cfg(feature = "runtime")]
 pub mod runner;
 pub mod store;
@@ -120,7 +121,9 @@ pub trait PowerOn {
 
 impl PowerOn for SimNode {
     fn powered_on(&self) -> Self {
-        SimNode::from_od(self.od().clone(), self.node_id(), self.options().clone())
+        let mut node = SimNode::from_od(self.od().clone(), self.node_id(), self.options().clone());
+        node.keep_program_of(self);
+        node
     }
 }
 
@@ -128,11 +131,13 @@ impl PowerOn for SimNode {
 /// encoder does: it must be homed again.
 impl PowerOn for SimDrive {
     fn powered_on(&self) -> Self {
-        SimDrive::from_od(
+        let mut drive = SimDrive::from_od(
             self.node().od().clone(),
             self.node().node_id(),
             self.options().clone(),
-        )
+        );
+        drive.node_mut().keep_program_of(self.node());
+        drive
     }
 }
 

@@ -29,6 +29,10 @@ use cangate_canopen::lss::{
 use cangate_canopen::lss_slave::LssSlave;
 use cangate_canopen::od::ObjectDictionary;
 use cangate_canopen::pdo::{MappedObject, PdoConfig, PdoKind};
+use cangate_canopen::program_download::{
+    ProgramAction, ProgramDownload, ProgramPlan, ProgramStep, ProgramTimeouts,
+};
+use cangate_canopen::sdo::TransferOutcome;
 use cangate_canopen::sdo::{
     AbortCode, BlockOptions, Mode, ObjectStore, SdoClient, SdoError, SdoServer, ServerOptions,
     Step, TransferOptions,
@@ -36,7 +40,7 @@ use cangate_canopen::sdo::{
 use cangate_canopen::value::DataType;
 use cangate_canopen::{NodeId, ObjectAddress};
 use cangate_cansmc::telegram::{Channel, ControlWord, StatusWord, Telegram};
-use cangate_sim::SimStore;
+use cangate_sim::{SimNode, SimNodeOptions, SimStore};
 
 /// An entry function: takes any bytes, panics only on a defect.
 pub type EntryFn = fn(&[u8]);
@@ -54,6 +58,7 @@ pub const TARGETS: &[(&str, EntryFn)] = &[
     ("eds", eds),
     ("handwheel", handwheel),
     ("cansmc_telegram", cansmc_telegram),
+    ("program_download", program_download),
     #[cfg(feature = "config")]
     ("config", config),
     #[cfg(feature = "config")]
@@ -795,5 +800,131 @@ pub fn socketcand(data: &[u8]) {
                 Action::Feed(_) => {}
             }
         }
+    }
+}
+
+/// Program download (CiA 302-3): the master's state machine fed arbitrary
+/// SDO results (values of any length read from the node, aborts with any
+/// code, timeouts), boot-ups and time; then a simulated node's program
+/// objects (0x1F50..0x1F57, the block download gate and its faults) fed
+/// arbitrary frames on its SDO COB-ID. Steps only move forward, the end
+/// comes once, and nothing is asked after it.
+pub fn program_download(data: &[u8]) {
+    let mut r = Input::new(data);
+    let ms = |v: u64| Duration::from_millis(v);
+    let node = node_id(r.u8());
+    let program = r.u8().max(1);
+    let len = usize::from(r.u8());
+    let image = r.take(len).to_vec();
+    let expected = (r.u8() & 1 == 1).then(|| r.u32());
+    let clear = r.u8() & 1 == 1;
+    let timeouts = ProgramTimeouts {
+        flash: ms(u64::from(r.u16())),
+        poll_interval: ms(u64::from(r.u8())),
+        boot: ms(u64::from(r.u16())),
+    };
+    let plan = ProgramPlan {
+        node,
+        program,
+        image,
+        expected_identification: expected,
+        clear,
+        timeouts,
+    };
+    let mut pd = ProgramDownload::new(plan);
+    let mut now = Duration::ZERO;
+    let mut last: Option<ProgramStep> = None;
+    let mut finished = false;
+    let mut check = |actions: Vec<ProgramAction>, finished: &mut bool| {
+        for a in actions {
+            assert!(!*finished, "an action after the end: {a:?}");
+            match a {
+                ProgramAction::Step(s) => {
+                    assert!(last.is_none_or(|l| l <= s), "{last:?} then {s:?}");
+                    last = Some(s);
+                }
+                ProgramAction::Sdo(req) => {
+                    let _ = format!("{req:?}");
+                }
+                ProgramAction::Finished(r) => {
+                    if let Err(e) = &r {
+                        let _ = (e.to_string(), e.step(), e.abort_code());
+                    }
+                    *finished = true;
+                }
+            }
+        }
+    };
+    check(pd.start(now), &mut finished);
+    let addr = ObjectAddress::new(0x1F50, program);
+    let mut frames_left = 0;
+    while !r.is_empty() && frames_left == 0 {
+        let op = r.u8();
+        let actions = match op % 9 {
+            0..=2 => {
+                let n = usize::from(r.u8() % 9);
+                let value = r.take(n).to_vec();
+                pd.on_sdo_result(Ok(TransferOutcome::Uploaded(value)), now)
+            }
+            3 => pd.on_sdo_result(Ok(TransferOutcome::Downloaded), now),
+            4 => pd.on_sdo_result(
+                Err(SdoError::Aborted {
+                    addr,
+                    code: AbortCode(r.u32()),
+                }),
+                now,
+            ),
+            5 => pd.on_sdo_result(
+                Err(SdoError::Timeout {
+                    addr,
+                    timeout: ms(500),
+                }),
+                now,
+            ),
+            6 => pd.on_boot_up(now),
+            7 => {
+                now += ms(u64::from(r.u16()));
+                pd.on_tick(now)
+            }
+            _ => {
+                frames_left = 1;
+                Vec::new()
+            }
+        };
+        check(actions, &mut finished);
+        if finished {
+            assert_eq!(pd.step(), None);
+            assert_eq!(pd.next_deadline(), None);
+            assert!(pd.is_finished());
+        }
+        if let Some(d) = pd.next_deadline() {
+            assert!(d <= now + ms(70_000) + ms(u64::from(u16::MAX)) * 2);
+        }
+    }
+    // The rest of the input: frames to a simulated node's SDO server.
+    let mut sim = SimNode::new(drive_eds(), node, SimNodeOptions::default());
+    let _ = sim.start(now);
+    let cob = 0x600 + u16::from(node.get());
+    let rx = 0x580 + u16::from(node.get());
+    while !r.is_empty() {
+        let sel = r.u8();
+        if sel == 0xFF {
+            now += ms(u64::from(r.u8()));
+            let _ = sim.on_tick(now);
+            continue;
+        }
+        let f = frame(&mut r, cob, sel);
+        now += Duration::from_micros(100);
+        for out in sim.on_frame(&f, now) {
+            assert!(!out.is_fd() && !out.is_extended());
+            if out.raw_id() == u32::from(rx) {
+                assert_eq!(out.data().len(), 8);
+            }
+        }
+        if let Some(d) = sim.next_deadline() {
+            let _ = sim.on_tick(d.max(now));
+        }
+        let p = sim.program();
+        let _ = (p.running(), p.identification(), p.downloads());
     }
 }

@@ -25,6 +25,7 @@ pub mod dcf_export;
 pub mod lss;
 pub mod master_heartbeat;
 pub mod pdo_config;
+pub mod program;
 pub mod scan;
 pub mod sync_thread;
 mod time_producer;
@@ -318,6 +319,8 @@ pub struct CanopenBus {
     client_sdo_limit: usize,
     /// The LSS operation running on this bus, if any (see [`lss`]).
     lss_operation: Arc<Mutex<Option<&'static str>>>,
+    /// Nodes with a program download running.
+    programs: program::Downloads,
 }
 
 /// One API caller's SDO request counted against
@@ -428,6 +431,7 @@ impl CanopenBus {
             client_sdo: Arc::default(),
             client_sdo_limit: MAX_CLIENT_SDO_PER_NODE,
             lss_operation: Arc::default(),
+            programs: program::Downloads::default(),
         };
         let mut master = Master::new(sdo_timeout);
         for (id, f) in facts.read().expect("facts lock").iter() {

@@ -10,6 +10,7 @@ use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_
 use super::runtime_errors::lookup_error;
 use crate::canopen::dcf_export::DcfExportError;
 use crate::canopen::pdo_config::PdoConfigError;
+use crate::canopen::program::{ProgramEvent, ProgramFailure};
 use crate::canopen::{CanopenBus, CanopenError, NodeEventKind, SyncChangeError, TimeSendError};
 use crate::gateway::Gateway;
 use cangate_can::Timestamp;
@@ -17,6 +18,7 @@ use cangate_canopen::eds::Eds;
 use cangate_canopen::master::SdoRequest;
 use cangate_canopen::nmt::NmtCommand;
 use cangate_canopen::pdo::PdoKind;
+use cangate_canopen::program_download::{ProgramError, ProgramPlan, ProgramStep, ProgramTimeouts};
 use cangate_canopen::sdo::{TransferOptions, TransferOutcome};
 use cangate_canopen::value::Value;
 use cangate_canopen::{NodeId, ObjectAddress};
@@ -224,10 +226,90 @@ fn pdo_config_err(node: NodeId, e: PdoConfigError) -> ApiError {
 }
 
 type EventStream = MessageStream<pb::NodeEvent>;
+type ProgramStream = MessageStream<pb::DownloadProgramProgress>;
 type PdoStream = MessageStream<pb::PdoMessage>;
 
 #[tonic::async_trait]
 impl Canopen for CanopenService {
+    type DownloadProgramStream = ProgramStream;
+
+    async fn download_program(
+        &self,
+        req: Request<pb::DownloadProgramRequest>,
+    ) -> Result<Response<Self::DownloadProgramStream>, Status> {
+        let caller = sdo_caller(&req);
+        let req = req.into_inner();
+        let m = self.master(&req.bus)?;
+        let node = known_node(m, req.node)?;
+        let plan = program_plan(node, req)?;
+        let total = plan.image.len() as u64;
+        let mut events = m.download_program(plan, &caller).map_err(|e| {
+            ApiError::refused(
+                tonic::Code::FailedPrecondition,
+                "PROGRAM_DOWNLOAD_RUNNING",
+                e.to_string(),
+                vec![("node", node.get().to_string())],
+            )
+        })?;
+        let (tx, rx) = tokio::sync::mpsc::channel(64);
+        let shutdown = self.gateway.shutdown_token();
+        tokio::spawn(async move {
+            let mut last = pb::DownloadProgramProgress {
+                bytes_total: total,
+                ..Default::default()
+            };
+            loop {
+                let ev = tokio::select! {
+                    biased;
+                    _ = shutdown.cancelled() => {
+                        let _ = tx.send(Err(ApiError::ShuttingDown.into())).await;
+                        return;
+                    }
+                    _ = tx.closed() => return,
+                    ev = events.recv() => ev,
+                };
+                let msg = match ev {
+                    None => Err(ApiError::ShuttingDown.into()),
+                    Some(ProgramEvent::Progress {
+                        step,
+                        bytes_done,
+                        total,
+                    }) => {
+                        last.step = program_step_to_pb(step) as i32;
+                        last.bytes_done = bytes_done as u64;
+                        last.bytes_total = total as u64;
+                        Ok(last)
+                    }
+                    Some(ProgramEvent::Finished(Ok(o))) => {
+                        let secs = o.download_duration.as_secs_f64();
+                        last.bytes_done = o.bytes as u64;
+                        last.outcome = Some(pb::DownloadProgramOutcome {
+                            old_identification: o.old_identification,
+                            new_identification: o.new_identification,
+                            bytes: o.bytes as u64,
+                            duration_ms: o.duration.as_millis() as u64,
+                            data_duration_ms: o.download_duration.as_millis() as u64,
+                            data_bytes_per_second: if secs > 0.0 {
+                                o.bytes as f64 / secs
+                            } else {
+                                0.0
+                            },
+                        });
+                        Ok(last)
+                    }
+                    Some(ProgramEvent::Finished(Err(e))) => Err(program_error(node, e).into()),
+                };
+                let end = msg.is_err() || last.outcome.is_some();
+                if tx.send(msg).await.is_err() || end {
+                    return;
+                }
+            }
+        });
+        Ok(Response::new(Box::pin(
+            tokio_stream::wrappers::ReceiverStream::new(rx),
+        )))
+    }
+
     async fn list_nodes(
         &self,
         req: Request<pb::ListNodesRequest>,
@@ -865,5 +947,136 @@ impl Canopen for CanopenService {
             );
         }
         Ok(Response::new(stream_of(rx)))
+    }
+}
+
+/// The longest flash or boot timeout of DownloadProgram, ms.
+const MAX_PROGRAM_WAIT_MS: u32 = 600_000;
+/// The largest program image.
+const MAX_PROGRAM_IMAGE: usize = 16 * 1024 * 1024;
+
+fn program_plan(node: NodeId, req: pb::DownloadProgramRequest) -> Result<ProgramPlan, ApiError> {
+    if req.image.is_empty() {
+        return Err(ApiError::InvalidArgument(
+            "the program image is empty".into(),
+        ));
+    }
+    if req.image.len() > MAX_PROGRAM_IMAGE {
+        return Err(ApiError::InvalidArgument(format!(
+            "the program image has {} bytes, at most {MAX_PROGRAM_IMAGE} are accepted",
+            req.image.len()
+        )));
+    }
+    let program = match req.program {
+        0 => 1,
+        p @ 1..=254 => p as u8,
+        p => {
+            return Err(ApiError::InvalidArgument(format!(
+                "program number {p} is outside 1..=254"
+            )));
+        }
+    };
+    let wait = |what: &str, ms: u32, default: Duration| -> Result<Duration, ApiError> {
+        match ms {
+            0 => Ok(default),
+            ms if ms > MAX_PROGRAM_WAIT_MS => Err(ApiError::InvalidArgument(format!(
+                "{what} {ms} is above the maximum of {MAX_PROGRAM_WAIT_MS} ms"
+            ))),
+            ms => Ok(Duration::from_millis(u64::from(ms))),
+        }
+    };
+    let defaults = ProgramTimeouts::default();
+    let timeouts = ProgramTimeouts {
+        flash: wait("flash_timeout_ms", req.flash_timeout_ms, defaults.flash)?,
+        boot: wait("boot_timeout_ms", req.boot_timeout_ms, defaults.boot)?,
+        poll_interval: defaults.poll_interval,
+    };
+    Ok(ProgramPlan {
+        node,
+        program,
+        image: req.image,
+        expected_identification: req.expected_identification,
+        clear: req.clear,
+        timeouts,
+    })
+}
+
+fn program_step_to_pb(step: ProgramStep) -> pb::ProgramStep {
+    match step {
+        ProgramStep::ReadIdentificationBefore => pb::ProgramStep::ReadIdentificationBefore,
+        ProgramStep::StopProgram => pb::ProgramStep::StopProgram,
+        ProgramStep::ClearProgram => pb::ProgramStep::ClearProgram,
+        ProgramStep::DownloadData => pb::ProgramStep::DownloadData,
+        ProgramStep::WaitFlash => pb::ProgramStep::WaitFlash,
+        ProgramStep::StartProgram => pb::ProgramStep::StartProgram,
+        ProgramStep::WaitBootUp => pb::ProgramStep::WaitBootUp,
+        ProgramStep::ReadIdentificationAfter => pb::ProgramStep::ReadIdentificationAfter,
+    }
+}
+
+/// A failed program download as the API reports it (see DownloadProgram
+/// in canopen.proto).
+fn program_error(node: NodeId, f: ProgramFailure) -> ApiError {
+    let step_meta = |step: ProgramStep| ("step", step.name().to_string());
+    match f {
+        ProgramFailure::Program(ProgramError::Sdo { step, error })
+        | ProgramFailure::Gateway {
+            step,
+            error: CanopenError::Sdo(error),
+        } => ApiError::SdoInStep {
+            node: node.get(),
+            step: step.name(),
+            context: step.to_string(),
+            error,
+        },
+        ProgramFailure::Gateway { error, .. } => map_err(node, error),
+        ProgramFailure::Program(e) => {
+            let message = format!("node {node}, {e}");
+            match e {
+                ProgramError::Flash { status } => ApiError::refused(
+                    tonic::Code::Aborted,
+                    "PROGRAM_FLASH_ERROR",
+                    message,
+                    vec![
+                        step_meta(ProgramStep::WaitFlash),
+                        ("flash_status", format!("0x{:08X}", status.0)),
+                        ("flash_error", status.error_code().to_string()),
+                        ("flash_error_name", status.error_name().to_string()),
+                    ],
+                ),
+                ProgramError::FlashTimeout { last, .. } => ApiError::refused(
+                    tonic::Code::DeadlineExceeded,
+                    "PROGRAM_FLASH_TIMEOUT",
+                    message,
+                    vec![
+                        step_meta(ProgramStep::WaitFlash),
+                        ("flash_status", format!("0x{:08X}", last.0)),
+                    ],
+                ),
+                ProgramError::NoBootUp { .. } => ApiError::refused(
+                    tonic::Code::DeadlineExceeded,
+                    "PROGRAM_NO_BOOT_UP",
+                    message,
+                    vec![step_meta(ProgramStep::WaitBootUp)],
+                ),
+                ProgramError::IdentificationMismatch { expected, found } => ApiError::refused(
+                    tonic::Code::Aborted,
+                    "PROGRAM_IDENTIFICATION_MISMATCH",
+                    message,
+                    vec![
+                        step_meta(ProgramStep::ReadIdentificationAfter),
+                        ("expected", format!("0x{expected:08X}")),
+                        ("found", format!("0x{found:08X}")),
+                    ],
+                ),
+                ProgramError::BadValue { step, .. } => ApiError::refused(
+                    tonic::Code::Aborted,
+                    "ABORTED",
+                    message,
+                    vec![step_meta(step)],
+                ),
+                ProgramError::Sdo { .. } => unreachable!("matched above"),
+            }
+        }
     }
 }

@@ -88,6 +88,20 @@ pub enum ApiError {
         /// entry 1)"), said before the failure.
         context: Option<String>,
     },
+    /// An SDO transfer of one step of a longer procedure (a program
+    /// download) failed: as [`ApiError::Sdo`], with the step in the message
+    /// and in the metadata key "step".
+    #[error("node {node}, {context}: {error}")]
+    SdoInStep {
+        /// Node id.
+        node: u8,
+        /// The step's stable name ("download-data").
+        step: &'static str,
+        /// The step for people ("downloading the program data 0x1F50").
+        context: String,
+        /// The failure.
+        error: SdoError,
+    },
     /// A refusal with a reason finer than its code (see
     /// [`ApiError::refused`]).
     #[error("{message}")]
@@ -155,7 +169,7 @@ impl ApiError {
             ApiError::OutOfRange(_) => Code::OutOfRange,
             ApiError::DeadlineExceeded(_) => Code::DeadlineExceeded,
             ApiError::Aborted(_) => Code::Aborted,
-            ApiError::Sdo { error, .. } => sdo_code(error),
+            ApiError::Sdo { error, .. } | ApiError::SdoInStep { error, .. } => sdo_code(error),
             ApiError::Refused { code, .. } => *code,
         }
     }
@@ -176,7 +190,7 @@ impl ApiError {
             ApiError::DeadlineExceeded(_) => "DEADLINE_EXCEEDED".into(),
             ApiError::Aborted(_) => "ABORTED".into(),
             ApiError::ShuttingDown => "SHUTTING_DOWN".into(),
-            ApiError::Sdo { error, .. } => match error {
+            ApiError::Sdo { error, .. } | ApiError::SdoInStep { error, .. } => match error {
                 SdoError::Aborted { .. } => "SDO_ABORT",
                 SdoError::Timeout { .. } => "SDO_TIMEOUT",
                 SdoError::Protocol { .. } => "SDO_PROTOCOL_ERROR",
@@ -194,6 +208,18 @@ impl ApiError {
                 ("kind", (*kind).to_string()),
                 ("name", cut(name, QUOTE_BYTES).to_string()),
             ],
+            ApiError::SdoInStep {
+                node, step, error, ..
+            } => {
+                let mut m = ApiError::Sdo {
+                    node: *node,
+                    error: error.clone(),
+                    context: None,
+                }
+                .metadata();
+                m.push(("step", (*step).to_string()));
+                m
+            }
             ApiError::Sdo { node, error, .. } => {
                 let abort = error.abort_code();
                 let addr = sdo_address(error);
@@ -402,7 +428,7 @@ impl From<ApiError> for Status {
         let reason = e.reason();
         let metadata = e.metadata();
         let message = e.to_string();
-        let ApiError::Sdo { error, .. } = &e else {
+        let (ApiError::Sdo { error, .. } | ApiError::SdoInStep { error, .. }) = &e else {
             return rich_status(code, message, reason, metadata, Vec::new());
         };
         let details = sdo_details(error);

@@ -318,4 +318,11 @@ impl Simulator for SimulatorService {
     ) -> Result<Response<pb::SetIoInputsResponse>, Status> {
         super::simulator_service::set_io_inputs(&self.gateway, req.into_inner())
     }
+
+    async fn set_program_faults(
+        &self,
+        req: Request<pb::SetProgramFaultsRequest>,
+    ) -> Result<Response<pb::ProgramFaults>, Status> {
+        super::simulator_service::set_program_faults(&self.gateway, req.into_inner())
+    }
 }

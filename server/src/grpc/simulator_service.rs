@@ -158,3 +158,53 @@ pub fn set_io_inputs(g: &Gateway, r: pb::SetIoInputsRequest) -> Reply<pb::SetIoI
         analogue: analogue.into_iter().map(i32::from).collect(),
     }))
 }
+
+/// SetProgramFaults.
+pub fn set_program_faults(g: &Gateway, r: pb::SetProgramFaultsRequest) -> Reply<pb::ProgramFaults> {
+    let flash_error = match r.flash_error {
+        0 => None,
+        e @ 1..=127 => Some(e as u8),
+        e => {
+            return Err(ApiError::InvalidArgument(format!(
+                "flash_error {e} is outside 1..=127 (0: none)"
+            ))
+            .into());
+        }
+    };
+    let code = match r.abort_code {
+        0 => cangate_canopen::sdo::AbortCode::HARDWARE_ERROR,
+        c => cangate_canopen::sdo::AbortCode(c),
+    };
+    let abort_at = match r.abort_at_byte {
+        None => None,
+        Some(n) => Some((
+            usize::try_from(n).map_err(|_| {
+                Status::from(ApiError::InvalidArgument(format!(
+                    "abort_at_byte {n} is too large"
+                )))
+            })?,
+            code,
+        )),
+    };
+    let faults = cangate_sim::program::ProgramFaults {
+        flash_error,
+        abort_at,
+        no_boot: r.no_boot,
+    };
+    let p = g
+        .simulation()
+        .set_program_faults(&r.bus, r.node, faults)
+        .map_err(api_error)?;
+    let armed = p.faults();
+    Ok(Response::new(pb::ProgramFaults {
+        bus: r.bus,
+        node: r.node,
+        flash_error: armed.flash_error.map_or(0, u32::from),
+        abort_at_byte: armed.abort_at.map(|(n, _)| n as u64),
+        abort_code: armed.abort_at.map_or(0, |(_, c)| c.get()),
+        no_boot: armed.no_boot,
+        identification: p.identification(),
+        running: p.running(),
+        downloads: p.downloads(),
+    }))
+}

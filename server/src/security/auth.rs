@@ -211,6 +211,12 @@ struct AuditGateState {
 }
 
 /// Peers a summary names one by one; the rest are summed up.
+/// The RPC whose requests may exceed `max_message_bytes`: a program image
+/// travels in one message.
+pub const PROGRAM_DOWNLOAD_METHOD: &str = "/cangate.v1.Canopen/DownloadProgram";
+/// Its largest request: a 16 MiB image plus the other fields.
+pub const MAX_PROGRAM_MESSAGE_BYTES: u32 = 16 * 1024 * 1024 + 64 * 1024;
+
 const SUMMARY_PEERS: usize = 20;
 
 impl AuditGate {
@@ -611,6 +617,7 @@ where
     fn call(&mut self, mut req: http::Request<Body>) -> Self::Future {
         let start = Instant::now();
         let method = req.uri().path().to_string();
+        let program_download = method == PROGRAM_DOWNLOAD_METHOD;
         let conn = req.extensions().get::<ConnInfo>().cloned();
         // Services read the peer with `Request::remote_addr`, which knows
         // tonic's own connection types only.
@@ -686,7 +693,12 @@ where
         {
             req.extensions_mut().insert(b);
         }
-        let limit = self.shared.max_message_bytes;
+        let mut limit = self.shared.max_message_bytes;
+        if limit > 0 && program_download {
+            // A program image travels in one message (see
+            // Canopen.DownloadProgram); engineers only, checked above.
+            limit = limit.max(MAX_PROGRAM_MESSAGE_BYTES);
+        }
         if limit > 0 {
             req = req.map(|b| Body::new(SizeLimited::new(b, limit)));
         }

@@ -69,6 +69,7 @@ pub const TABLE: &[Rule] = &[
     rule("/cangate.v1.Canopen/SetSync", E, false),
     rule("/cangate.v1.Canopen/SetTime", E, false),
     rule("/cangate.v1.Canopen/ExportDcf", V, false),
+    rule("/cangate.v1.Canopen/DownloadProgram", E, true),
     // Axes: state is viewing; leases and every command (stops included:
     // a viewer is read-only) are operating.
     rule("/cangate.v1.Axes/ListAxes", V, false),
@@ -102,6 +103,7 @@ pub const TABLE: &[Rule] = &[
     rule("/cangate.v1.Simulator/SendEmcy", E, false),
     rule("/cangate.v1.Simulator/RaiseDriveFault", E, false),
     rule("/cangate.v1.Simulator/SetIoInputs", E, false),
+    rule("/cangate.v1.Simulator/SetProgramFaults", E, false),
     // Session: the caller's own identity, for any valid credentials.
     rule("/cangate.v1.Session/GetCaller", V, false),
     // CANsmc: reading parameters is viewing; writing them and restarting

@@ -21,6 +21,7 @@ use cangate_canopen::NodeId;
 use cangate_canopen::nmt::NmtState;
 use cangate_canopen::value::Value;
 use cangate_canopen::{ObjectAddress, emcy::ErrorRegister};
+use cangate_sim::program::{ProgramFaults, SimProgram};
 use cangate_sim::{DeviceHandle, PowerOn, SimDrive, SimHandwheel, SimNode};
 use std::collections::BTreeMap;
 use std::sync::Mutex;
@@ -329,6 +330,31 @@ impl Simulation {
             });
         }
         Ok(state(bus, n, device))
+    }
+
+    /// Arms the program download faults of a device (replacing those
+    /// armed); returns its program state after.
+    pub fn set_program_faults(
+        &self,
+        bus: &str,
+        node: u32,
+        faults: ProgramFaults,
+    ) -> Result<SimProgram, SimulationError> {
+        let (_, device) = self.device(bus, node)?;
+        Ok(match device {
+            SimulatedDevice::Node(h) => h.with(|d| {
+                d.set_program_faults(faults);
+                d.program().clone()
+            }),
+            SimulatedDevice::Drive(h) => h.with(|d| {
+                d.node_mut().set_program_faults(faults);
+                d.node().program().clone()
+            }),
+            SimulatedDevice::Handwheel(h) => h.with(|d| {
+                d.node_mut().set_program_faults(faults);
+                d.node().program().clone()
+            }),
+        })
     }
 
     /// Raises a fault with `code` in a simulated drive.

@@ -386,7 +386,8 @@ impl SdoClient {
         }
     }
 
-    /// The transfer ended with an abort the client sent: the server may
+    /// The transfer ended with an abort the client sent (or the server's
+    /// abort of a block download with segments in flight): the server may
     /// still answer what it received before the abort.
     fn begin_settling(&mut self, now: Duration) {
         self.unsettled = true;
@@ -507,6 +508,13 @@ impl SdoClient {
                     frames: vec![self.frame(payload)],
                     completed: None,
                 };
+            }
+            // A server that aborts a block download mid sub-block still
+            // gets the segments already on their way, and a server that is
+            // idle again takes them for new requests and answers them:
+            // those answers must not reach the next transfer.
+            if matches!(t.phase, Phase::BlockDownload { .. }) {
+                self.begin_settling(now);
             }
             let error = SdoError::Aborted { addr: t.addr, code };
             return self.step(Vec::new(), Some(Err(error)));

@@ -35,7 +35,10 @@
 //!   (right command specifier and object), responses that cannot are
 //!   dropped and counted ([`SdoClient::ignored_responses`]). A late answer
 //!   of the very same shape arriving after the settle time cannot be told
-//!   apart by any SDO client.
+//!   apart by any SDO client. The same holds after the server aborts a
+//!   block download: the rest of the sub-block is already on its way, and
+//!   a server idle again answers those segments as if they were requests
+//!   (a segment's sequence number reads as a command specifier).
 
 mod abort;
 mod block;

@@ -615,6 +615,40 @@ fn block_download_retransmits_from_ackseq() {
 }
 
 #[test]
+fn answers_to_segments_after_a_server_abort_do_not_reach_the_next_transfer() {
+    let mut c = SdoClient::new(node2());
+    let t0 = Duration::ZERO;
+    let data: Vec<u8> = (0..7 * 10).map(|i| i as u8).collect();
+    let sent = c
+        .start_download(at(0x1F50, 1), data, block(false), t0)
+        .unwrap();
+    assert_eq!(sent[0].data(), h("c2 50 1f 01 46 00 00 00"));
+    let step = c.on_frame(&frame(0x582, &h("a0 50 1f 01 7f 00 00 00")), t0);
+    assert_eq!(step.frames.len(), 10, "the whole sub-block goes out");
+    // The server aborts after the first segment; segments 2..10 are still
+    // on the bus and the server, idle again, answers one of them (0x23:
+    // an expedited download initiate to 0x0A09:0B) with an abort.
+    let step = c.on_frame(&frame(0x582, &h("80 50 1f 01 00 00 06 06")), t0);
+    assert_eq!(
+        step.completed,
+        Some(Err(SdoError::Aborted {
+            addr: at(0x1F50, 1),
+            code: AbortCode::HARDWARE_ERROR
+        }))
+    );
+    assert_eq!(c.ready_at(), Some(DEFAULT_SETTLE_TIME));
+    // The next transfer (started at once, as a caller may) drops that
+    // answer and takes its own.
+    let ms = Duration::from_millis(1);
+    let _ = c.start_upload(at(0x1F51, 1), opts(), ms).unwrap();
+    let step = c.on_frame(&frame(0x582, &h("80 09 0a 0b 00 00 02 06")), ms);
+    assert_eq!(step, Step::default());
+    assert_eq!(c.ignored_responses(), 1);
+    let step = c.on_frame(&frame(0x582, &h("4f 51 1f 01 00 00 00 00")), ms);
+    assert_eq!(step.completed, Some(Ok(TransferOutcome::Uploaded(vec![0]))));
+}
+
+#[test]
 fn block_crc_and_sequence_errors() {
     // Server detects a wrong CRC in the block download end.
     let trace = [
