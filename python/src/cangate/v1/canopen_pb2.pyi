@@ -58,6 +58,24 @@ class ObjectAccess(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     OBJECT_ACCESS_RWR: _ClassVar[ObjectAccess]
     OBJECT_ACCESS_RWW: _ClassVar[ObjectAccess]
     OBJECT_ACCESS_CONST: _ClassVar[ObjectAccess]
+
+class PdoKind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    PDO_KIND_UNSPECIFIED: _ClassVar[PdoKind]
+    PDO_KIND_RPDO: _ClassVar[PdoKind]
+    PDO_KIND_TPDO: _ClassVar[PdoKind]
+
+class ProgramStep(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    PROGRAM_STEP_UNSPECIFIED: _ClassVar[ProgramStep]
+    PROGRAM_STEP_READ_IDENTIFICATION_BEFORE: _ClassVar[ProgramStep]
+    PROGRAM_STEP_STOP_PROGRAM: _ClassVar[ProgramStep]
+    PROGRAM_STEP_CLEAR_PROGRAM: _ClassVar[ProgramStep]
+    PROGRAM_STEP_DOWNLOAD_DATA: _ClassVar[ProgramStep]
+    PROGRAM_STEP_WAIT_FLASH: _ClassVar[ProgramStep]
+    PROGRAM_STEP_START_PROGRAM: _ClassVar[ProgramStep]
+    PROGRAM_STEP_WAIT_BOOT_UP: _ClassVar[ProgramStep]
+    PROGRAM_STEP_READ_IDENTIFICATION_AFTER: _ClassVar[ProgramStep]
 NMT_STATE_UNKNOWN: NmtState
 NMT_STATE_INITIALISING: NmtState
 NMT_STATE_STOPPED: NmtState
@@ -95,6 +113,18 @@ OBJECT_ACCESS_RW: ObjectAccess
 OBJECT_ACCESS_RWR: ObjectAccess
 OBJECT_ACCESS_RWW: ObjectAccess
 OBJECT_ACCESS_CONST: ObjectAccess
+PDO_KIND_UNSPECIFIED: PdoKind
+PDO_KIND_RPDO: PdoKind
+PDO_KIND_TPDO: PdoKind
+PROGRAM_STEP_UNSPECIFIED: ProgramStep
+PROGRAM_STEP_READ_IDENTIFICATION_BEFORE: ProgramStep
+PROGRAM_STEP_STOP_PROGRAM: ProgramStep
+PROGRAM_STEP_CLEAR_PROGRAM: ProgramStep
+PROGRAM_STEP_DOWNLOAD_DATA: ProgramStep
+PROGRAM_STEP_WAIT_FLASH: ProgramStep
+PROGRAM_STEP_START_PROGRAM: ProgramStep
+PROGRAM_STEP_WAIT_BOOT_UP: ProgramStep
+PROGRAM_STEP_READ_IDENTIFICATION_AFTER: ProgramStep
 
 class Value(_message.Message):
     __slots__ = ("type", "bool_value", "int_value", "uint_value", "real_value", "string_value", "bytes_value")
@@ -450,6 +480,174 @@ class WritePdoResponse(_message.Message):
     data: bytes
     def __init__(self, data: _Optional[bytes] = ...) -> None: ...
 
+class PdoMappedObject(_message.Message):
+    __slots__ = ("index", "subindex", "bits", "name", "object")
+    INDEX_FIELD_NUMBER: _ClassVar[int]
+    SUBINDEX_FIELD_NUMBER: _ClassVar[int]
+    BITS_FIELD_NUMBER: _ClassVar[int]
+    NAME_FIELD_NUMBER: _ClassVar[int]
+    OBJECT_FIELD_NUMBER: _ClassVar[int]
+    index: int
+    subindex: int
+    bits: int
+    name: str
+    object: str
+    def __init__(self, index: _Optional[int] = ..., subindex: _Optional[int] = ..., bits: _Optional[int] = ..., name: _Optional[str] = ..., object: _Optional[str] = ...) -> None: ...
+
+class PdoConfiguration(_message.Message):
+    __slots__ = ("kind", "pdo", "cob_id", "enabled", "transmission_type", "inhibit_time_100us", "event_timer_ms", "mapping")
+    KIND_FIELD_NUMBER: _ClassVar[int]
+    PDO_FIELD_NUMBER: _ClassVar[int]
+    COB_ID_FIELD_NUMBER: _ClassVar[int]
+    ENABLED_FIELD_NUMBER: _ClassVar[int]
+    TRANSMISSION_TYPE_FIELD_NUMBER: _ClassVar[int]
+    INHIBIT_TIME_100US_FIELD_NUMBER: _ClassVar[int]
+    EVENT_TIMER_MS_FIELD_NUMBER: _ClassVar[int]
+    MAPPING_FIELD_NUMBER: _ClassVar[int]
+    kind: PdoKind
+    pdo: int
+    cob_id: int
+    enabled: bool
+    transmission_type: int
+    inhibit_time_100us: int
+    event_timer_ms: int
+    mapping: _containers.RepeatedCompositeFieldContainer[PdoMappedObject]
+    def __init__(self, kind: _Optional[_Union[PdoKind, str]] = ..., pdo: _Optional[int] = ..., cob_id: _Optional[int] = ..., enabled: _Optional[bool] = ..., transmission_type: _Optional[int] = ..., inhibit_time_100us: _Optional[int] = ..., event_timer_ms: _Optional[int] = ..., mapping: _Optional[_Iterable[_Union[PdoMappedObject, _Mapping]]] = ...) -> None: ...
+
+class ReadPdoConfigRequest(_message.Message):
+    __slots__ = ("bus", "node", "kind", "pdo", "options")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    NODE_FIELD_NUMBER: _ClassVar[int]
+    KIND_FIELD_NUMBER: _ClassVar[int]
+    PDO_FIELD_NUMBER: _ClassVar[int]
+    OPTIONS_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    node: int
+    kind: PdoKind
+    pdo: int
+    options: SdoOptions
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., kind: _Optional[_Union[PdoKind, str]] = ..., pdo: _Optional[int] = ..., options: _Optional[_Union[SdoOptions, _Mapping]] = ...) -> None: ...
+
+class ReadPdoConfigResponse(_message.Message):
+    __slots__ = ("pdos",)
+    PDOS_FIELD_NUMBER: _ClassVar[int]
+    pdos: _containers.RepeatedCompositeFieldContainer[PdoConfiguration]
+    def __init__(self, pdos: _Optional[_Iterable[_Union[PdoConfiguration, _Mapping]]] = ...) -> None: ...
+
+class ConfigurePdoRequest(_message.Message):
+    __slots__ = ("bus", "node", "pdo", "options")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    NODE_FIELD_NUMBER: _ClassVar[int]
+    PDO_FIELD_NUMBER: _ClassVar[int]
+    OPTIONS_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    node: int
+    pdo: PdoConfiguration
+    options: SdoOptions
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., pdo: _Optional[_Union[PdoConfiguration, _Mapping]] = ..., options: _Optional[_Union[SdoOptions, _Mapping]] = ...) -> None: ...
+
+class ConfigurePdoResponse(_message.Message):
+    __slots__ = ("pdo", "writes")
+    PDO_FIELD_NUMBER: _ClassVar[int]
+    WRITES_FIELD_NUMBER: _ClassVar[int]
+    pdo: PdoConfiguration
+    writes: _containers.RepeatedScalarFieldContainer[str]
+    def __init__(self, pdo: _Optional[_Union[PdoConfiguration, _Mapping]] = ..., writes: _Optional[_Iterable[str]] = ...) -> None: ...
+
+class GetSyncRequest(_message.Message):
+    __slots__ = ("bus",)
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    def __init__(self, bus: _Optional[str] = ...) -> None: ...
+
+class SetSyncRequest(_message.Message):
+    __slots__ = ("bus", "running", "period_us", "counter_overflow")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    RUNNING_FIELD_NUMBER: _ClassVar[int]
+    PERIOD_US_FIELD_NUMBER: _ClassVar[int]
+    COUNTER_OVERFLOW_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    running: bool
+    period_us: int
+    counter_overflow: int
+    def __init__(self, bus: _Optional[str] = ..., running: _Optional[bool] = ..., period_us: _Optional[int] = ..., counter_overflow: _Optional[int] = ...) -> None: ...
+
+class SyncStatus(_message.Message):
+    __slots__ = ("bus", "running", "period_us", "counter_overflow", "sent", "skipped", "time_period_ms")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    RUNNING_FIELD_NUMBER: _ClassVar[int]
+    PERIOD_US_FIELD_NUMBER: _ClassVar[int]
+    COUNTER_OVERFLOW_FIELD_NUMBER: _ClassVar[int]
+    SENT_FIELD_NUMBER: _ClassVar[int]
+    SKIPPED_FIELD_NUMBER: _ClassVar[int]
+    TIME_PERIOD_MS_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    running: bool
+    period_us: int
+    counter_overflow: int
+    sent: int
+    skipped: int
+    time_period_ms: int
+    def __init__(self, bus: _Optional[str] = ..., running: _Optional[bool] = ..., period_us: _Optional[int] = ..., counter_overflow: _Optional[int] = ..., sent: _Optional[int] = ..., skipped: _Optional[int] = ..., time_period_ms: _Optional[int] = ...) -> None: ...
+
+class SetTimeRequest(_message.Message):
+    __slots__ = ("bus", "send_now", "period_ms")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    SEND_NOW_FIELD_NUMBER: _ClassVar[int]
+    PERIOD_MS_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    send_now: bool
+    period_ms: int
+    def __init__(self, bus: _Optional[str] = ..., send_now: _Optional[bool] = ..., period_ms: _Optional[int] = ...) -> None: ...
+
+class TimeOfDay(_message.Message):
+    __slots__ = ("ms_after_midnight", "days_since_1984", "unix_ms")
+    MS_AFTER_MIDNIGHT_FIELD_NUMBER: _ClassVar[int]
+    DAYS_SINCE_1984_FIELD_NUMBER: _ClassVar[int]
+    UNIX_MS_FIELD_NUMBER: _ClassVar[int]
+    ms_after_midnight: int
+    days_since_1984: int
+    unix_ms: int
+    def __init__(self, ms_after_midnight: _Optional[int] = ..., days_since_1984: _Optional[int] = ..., unix_ms: _Optional[int] = ...) -> None: ...
+
+class SetTimeResponse(_message.Message):
+    __slots__ = ("sent", "time_period_ms")
+    SENT_FIELD_NUMBER: _ClassVar[int]
+    TIME_PERIOD_MS_FIELD_NUMBER: _ClassVar[int]
+    sent: TimeOfDay
+    time_period_ms: int
+    def __init__(self, sent: _Optional[_Union[TimeOfDay, _Mapping]] = ..., time_period_ms: _Optional[int] = ...) -> None: ...
+
+class ExportDcfRequest(_message.Message):
+    __slots__ = ("bus", "node", "options")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    NODE_FIELD_NUMBER: _ClassVar[int]
+    OPTIONS_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    node: int
+    options: SdoOptions
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., options: _Optional[_Union[SdoOptions, _Mapping]] = ...) -> None: ...
+
+class SkippedObject(_message.Message):
+    __slots__ = ("index", "subindex", "reason")
+    INDEX_FIELD_NUMBER: _ClassVar[int]
+    SUBINDEX_FIELD_NUMBER: _ClassVar[int]
+    REASON_FIELD_NUMBER: _ClassVar[int]
+    index: int
+    subindex: int
+    reason: str
+    def __init__(self, index: _Optional[int] = ..., subindex: _Optional[int] = ..., reason: _Optional[str] = ...) -> None: ...
+
+class ExportDcfResponse(_message.Message):
+    __slots__ = ("dcf", "objects_read", "skipped")
+    DCF_FIELD_NUMBER: _ClassVar[int]
+    OBJECTS_READ_FIELD_NUMBER: _ClassVar[int]
+    SKIPPED_FIELD_NUMBER: _ClassVar[int]
+    dcf: str
+    objects_read: int
+    skipped: _containers.RepeatedCompositeFieldContainer[SkippedObject]
+    def __init__(self, dcf: _Optional[str] = ..., objects_read: _Optional[int] = ..., skipped: _Optional[_Iterable[_Union[SkippedObject, _Mapping]]] = ...) -> None: ...
+
 class BootUp(_message.Message):
     __slots__ = ()
     def __init__(self) -> None: ...
@@ -528,3 +726,51 @@ class ListSdoTransfersResponse(_message.Message):
     TRANSFERS_FIELD_NUMBER: _ClassVar[int]
     transfers: _containers.RepeatedCompositeFieldContainer[SdoTransfer]
     def __init__(self, transfers: _Optional[_Iterable[_Union[SdoTransfer, _Mapping]]] = ...) -> None: ...
+
+class DownloadProgramRequest(_message.Message):
+    __slots__ = ("bus", "node", "image", "program", "expected_identification", "clear", "flash_timeout_ms", "boot_timeout_ms")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    NODE_FIELD_NUMBER: _ClassVar[int]
+    IMAGE_FIELD_NUMBER: _ClassVar[int]
+    PROGRAM_FIELD_NUMBER: _ClassVar[int]
+    EXPECTED_IDENTIFICATION_FIELD_NUMBER: _ClassVar[int]
+    CLEAR_FIELD_NUMBER: _ClassVar[int]
+    FLASH_TIMEOUT_MS_FIELD_NUMBER: _ClassVar[int]
+    BOOT_TIMEOUT_MS_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    node: int
+    image: bytes
+    program: int
+    expected_identification: int
+    clear: bool
+    flash_timeout_ms: int
+    boot_timeout_ms: int
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., image: _Optional[bytes] = ..., program: _Optional[int] = ..., expected_identification: _Optional[int] = ..., clear: _Optional[bool] = ..., flash_timeout_ms: _Optional[int] = ..., boot_timeout_ms: _Optional[int] = ...) -> None: ...
+
+class DownloadProgramProgress(_message.Message):
+    __slots__ = ("step", "bytes_done", "bytes_total", "outcome")
+    STEP_FIELD_NUMBER: _ClassVar[int]
+    BYTES_DONE_FIELD_NUMBER: _ClassVar[int]
+    BYTES_TOTAL_FIELD_NUMBER: _ClassVar[int]
+    OUTCOME_FIELD_NUMBER: _ClassVar[int]
+    step: ProgramStep
+    bytes_done: int
+    bytes_total: int
+    outcome: DownloadProgramOutcome
+    def __init__(self, step: _Optional[_Union[ProgramStep, str]] = ..., bytes_done: _Optional[int] = ..., bytes_total: _Optional[int] = ..., outcome: _Optional[_Union[DownloadProgramOutcome, _Mapping]] = ...) -> None: ...
+
+class DownloadProgramOutcome(_message.Message):
+    __slots__ = ("old_identification", "new_identification", "bytes", "duration_ms", "data_duration_ms", "data_bytes_per_second")
+    OLD_IDENTIFICATION_FIELD_NUMBER: _ClassVar[int]
+    NEW_IDENTIFICATION_FIELD_NUMBER: _ClassVar[int]
+    BYTES_FIELD_NUMBER: _ClassVar[int]
+    DURATION_MS_FIELD_NUMBER: _ClassVar[int]
+    DATA_DURATION_MS_FIELD_NUMBER: _ClassVar[int]
+    DATA_BYTES_PER_SECOND_FIELD_NUMBER: _ClassVar[int]
+    old_identification: int
+    new_identification: int
+    bytes: int
+    duration_ms: int
+    data_duration_ms: int
+    data_bytes_per_second: float
+    def __init__(self, old_identification: _Optional[int] = ..., new_identification: _Optional[int] = ..., bytes: _Optional[int] = ..., duration_ms: _Optional[int] = ..., data_duration_ms: _Optional[int] = ..., data_bytes_per_second: _Optional[float] = ...) -> None: ...

@@ -90,6 +90,41 @@ class CanopenStub:
                 request_serializer=cangate_dot_v1_dot_canopen__pb2.WritePdoRequest.SerializeToString,
                 response_deserializer=cangate_dot_v1_dot_canopen__pb2.WritePdoResponse.FromString,
                 _registered_method=True)
+        self.ReadPdoConfig = channel.unary_unary(
+                '/cangate.v1.Canopen/ReadPdoConfig',
+                request_serializer=cangate_dot_v1_dot_canopen__pb2.ReadPdoConfigRequest.SerializeToString,
+                response_deserializer=cangate_dot_v1_dot_canopen__pb2.ReadPdoConfigResponse.FromString,
+                _registered_method=True)
+        self.ConfigurePdo = channel.unary_unary(
+                '/cangate.v1.Canopen/ConfigurePdo',
+                request_serializer=cangate_dot_v1_dot_canopen__pb2.ConfigurePdoRequest.SerializeToString,
+                response_deserializer=cangate_dot_v1_dot_canopen__pb2.ConfigurePdoResponse.FromString,
+                _registered_method=True)
+        self.GetSync = channel.unary_unary(
+                '/cangate.v1.Canopen/GetSync',
+                request_serializer=cangate_dot_v1_dot_canopen__pb2.GetSyncRequest.SerializeToString,
+                response_deserializer=cangate_dot_v1_dot_canopen__pb2.SyncStatus.FromString,
+                _registered_method=True)
+        self.SetSync = channel.unary_unary(
+                '/cangate.v1.Canopen/SetSync',
+                request_serializer=cangate_dot_v1_dot_canopen__pb2.SetSyncRequest.SerializeToString,
+                response_deserializer=cangate_dot_v1_dot_canopen__pb2.SyncStatus.FromString,
+                _registered_method=True)
+        self.SetTime = channel.unary_unary(
+                '/cangate.v1.Canopen/SetTime',
+                request_serializer=cangate_dot_v1_dot_canopen__pb2.SetTimeRequest.SerializeToString,
+                response_deserializer=cangate_dot_v1_dot_canopen__pb2.SetTimeResponse.FromString,
+                _registered_method=True)
+        self.ExportDcf = channel.unary_unary(
+                '/cangate.v1.Canopen/ExportDcf',
+                request_serializer=cangate_dot_v1_dot_canopen__pb2.ExportDcfRequest.SerializeToString,
+                response_deserializer=cangate_dot_v1_dot_canopen__pb2.ExportDcfResponse.FromString,
+                _registered_method=True)
+        self.DownloadProgram = channel.unary_stream(
+                '/cangate.v1.Canopen/DownloadProgram',
+                request_serializer=cangate_dot_v1_dot_canopen__pb2.DownloadProgramRequest.SerializeToString,
+                response_deserializer=cangate_dot_v1_dot_canopen__pb2.DownloadProgramProgress.FromString,
+                _registered_method=True)
 
 
 class CanopenServicer:
@@ -186,6 +221,106 @@ class CanopenServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def ReadPdoConfig(self, request, context):
+        """A node's PDO configuration as the node holds it now, read over SDO
+        (communication parameters 0x1400+/0x1800+ and mapping 0x1600+/0x1A00+):
+        every PDO asked for, valid or not, with its mapped objects named from
+        the EDS. PDOs the node does not have (SDO abort "object does not
+        exist") are left out. Viewer.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def ConfigurePdo(self, request, context):
+        """Changes one PDO of a node at run time with the CiA 301 sequence:
+        invalidate (COB-ID bit 31), transmission type, inhibit time, event
+        timer, mapping count 0, the entries, the count, then the COB-ID valid
+        (or left invalid to disable the PDO). On success StreamPdo decodes the
+        node's TPDO and WritePdo encodes its RPDO with the new layout at once.
+        A failed write is reported with the object that failed (e.g. "0x1A00:01
+        (mapping entry 1): SDO abort 0x06040041 ...") and the PDO is left
+        invalid. FAILED_PRECONDITION for the PDOs of an axis's drive (the axis
+        owns its process data). Engineer.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def GetSync(self, request, context):
+        """The SYNC producer of a bus: running, period, counter, SYNCs sent and
+        periods skipped, and the TIME producer's period. Viewer.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def SetSync(self, request, context):
+        """Starts, stops or re-times the SYNC producer (0x1005/0x1006/0x1019 of
+        the master); unset fields keep their value. A stop or a new period is
+        FAILED_PRECONDITION while a cyclic (CSP) axis on the bus is moving:
+        its set-points ride every SYNC. The counter restarts at 1 after every
+        change. Engineer.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def SetTime(self, request, context):
+        """The TIME producer (CiA 301 TIME_OF_DAY on 0x100, the host's UTC time):
+        sends one TIME now and/or sets the period of periodic TIMEs.
+        Engineer.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def ExportDcf(self, request, context):
+        """A node's live values as a DCF (CiA 306): every readable object of its
+        EDS read over SDO and written into the EDS text as ParameterValue, with
+        a [DeviceComissioning] section. Objects the node refuses are left out
+        and listed; a node that stops answering ends the call
+        (DEADLINE_EXCEEDED). FAILED_PRECONDITION for a node without an EDS.
+        A DCF given to a node's `dcf` in the configuration is written back by
+        its boot procedure. Viewer.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def DownloadProgram(self, request, context):
+        """Downloads a program into a node (CiA 302-3 program download): reads
+        0x1F56 (software identification), stops the program (0x1F51 = 0),
+        optionally clears it (0x1F51 = 3), writes the image to 0x1F50 by SDO
+        block download, polls 0x1F57 (flash status) until it is no longer
+        busy, starts the program (0x1F51 = 1), waits for the node's boot-up
+        and reads 0x1F56 again. The stream yields a message when each step
+        begins and as the node confirms data bytes; the last message carries
+        the outcome. Role: engineer.
+
+        The image travels in the request, one message: this RPC accepts
+        requests up to 16 MiB + 64 KiB even when [security.limits]
+        max_message_bytes is smaller (larger images are INVALID_ARGUMENT).
+
+        Errors end the stream: FAILED_PRECONDITION another download to the
+        node runs (reason PROGRAM_DOWNLOAD_RUNNING); NOT_FOUND unknown bus or
+        node; an SDO failure of a step as for WriteSdo (reasons SDO_ABORT,
+        SDO_TIMEOUT, ...; the message names the step and ErrorInfo metadata
+        "step" has its ProgramStep name in lower case with dashes,
+        "download-data"); ABORTED with reason PROGRAM_FLASH_ERROR when 0x1F57
+        reports an error (metadata "flash_status" 8 hex digits,
+        "flash_error" the error code in decimal, "flash_error_name" its
+        CiA 302-3 name) or PROGRAM_IDENTIFICATION_MISMATCH (metadata
+        "expected", "found"); DEADLINE_EXCEEDED with PROGRAM_FLASH_TIMEOUT or
+        PROGRAM_NO_BOOT_UP. A client that cancels the call stops the download:
+        the SDO transfer running is aborted on the bus, and once the stop step
+        was done the node's program stays stopped (not running a half-written
+        image); a new download can follow at once.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
 
 def add_CanopenServicer_to_server(servicer, server):
     rpc_method_handlers = {
@@ -243,6 +378,41 @@ def add_CanopenServicer_to_server(servicer, server):
                     servicer.WritePdo,
                     request_deserializer=cangate_dot_v1_dot_canopen__pb2.WritePdoRequest.FromString,
                     response_serializer=cangate_dot_v1_dot_canopen__pb2.WritePdoResponse.SerializeToString,
+            ),
+            'ReadPdoConfig': grpc.unary_unary_rpc_method_handler(
+                    servicer.ReadPdoConfig,
+                    request_deserializer=cangate_dot_v1_dot_canopen__pb2.ReadPdoConfigRequest.FromString,
+                    response_serializer=cangate_dot_v1_dot_canopen__pb2.ReadPdoConfigResponse.SerializeToString,
+            ),
+            'ConfigurePdo': grpc.unary_unary_rpc_method_handler(
+                    servicer.ConfigurePdo,
+                    request_deserializer=cangate_dot_v1_dot_canopen__pb2.ConfigurePdoRequest.FromString,
+                    response_serializer=cangate_dot_v1_dot_canopen__pb2.ConfigurePdoResponse.SerializeToString,
+            ),
+            'GetSync': grpc.unary_unary_rpc_method_handler(
+                    servicer.GetSync,
+                    request_deserializer=cangate_dot_v1_dot_canopen__pb2.GetSyncRequest.FromString,
+                    response_serializer=cangate_dot_v1_dot_canopen__pb2.SyncStatus.SerializeToString,
+            ),
+            'SetSync': grpc.unary_unary_rpc_method_handler(
+                    servicer.SetSync,
+                    request_deserializer=cangate_dot_v1_dot_canopen__pb2.SetSyncRequest.FromString,
+                    response_serializer=cangate_dot_v1_dot_canopen__pb2.SyncStatus.SerializeToString,
+            ),
+            'SetTime': grpc.unary_unary_rpc_method_handler(
+                    servicer.SetTime,
+                    request_deserializer=cangate_dot_v1_dot_canopen__pb2.SetTimeRequest.FromString,
+                    response_serializer=cangate_dot_v1_dot_canopen__pb2.SetTimeResponse.SerializeToString,
+            ),
+            'ExportDcf': grpc.unary_unary_rpc_method_handler(
+                    servicer.ExportDcf,
+                    request_deserializer=cangate_dot_v1_dot_canopen__pb2.ExportDcfRequest.FromString,
+                    response_serializer=cangate_dot_v1_dot_canopen__pb2.ExportDcfResponse.SerializeToString,
+            ),
+            'DownloadProgram': grpc.unary_stream_rpc_method_handler(
+                    servicer.DownloadProgram,
+                    request_deserializer=cangate_dot_v1_dot_canopen__pb2.DownloadProgramRequest.FromString,
+                    response_serializer=cangate_dot_v1_dot_canopen__pb2.DownloadProgramProgress.SerializeToString,
             ),
     }
     generic_handler = grpc.method_handlers_generic_handler(
@@ -543,6 +713,195 @@ class Canopen:
             '/cangate.v1.Canopen/WritePdo',
             cangate_dot_v1_dot_canopen__pb2.WritePdoRequest.SerializeToString,
             cangate_dot_v1_dot_canopen__pb2.WritePdoResponse.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def ReadPdoConfig(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/cangate.v1.Canopen/ReadPdoConfig',
+            cangate_dot_v1_dot_canopen__pb2.ReadPdoConfigRequest.SerializeToString,
+            cangate_dot_v1_dot_canopen__pb2.ReadPdoConfigResponse.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def ConfigurePdo(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/cangate.v1.Canopen/ConfigurePdo',
+            cangate_dot_v1_dot_canopen__pb2.ConfigurePdoRequest.SerializeToString,
+            cangate_dot_v1_dot_canopen__pb2.ConfigurePdoResponse.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def GetSync(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/cangate.v1.Canopen/GetSync',
+            cangate_dot_v1_dot_canopen__pb2.GetSyncRequest.SerializeToString,
+            cangate_dot_v1_dot_canopen__pb2.SyncStatus.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def SetSync(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/cangate.v1.Canopen/SetSync',
+            cangate_dot_v1_dot_canopen__pb2.SetSyncRequest.SerializeToString,
+            cangate_dot_v1_dot_canopen__pb2.SyncStatus.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def SetTime(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/cangate.v1.Canopen/SetTime',
+            cangate_dot_v1_dot_canopen__pb2.SetTimeRequest.SerializeToString,
+            cangate_dot_v1_dot_canopen__pb2.SetTimeResponse.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def ExportDcf(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/cangate.v1.Canopen/ExportDcf',
+            cangate_dot_v1_dot_canopen__pb2.ExportDcfRequest.SerializeToString,
+            cangate_dot_v1_dot_canopen__pb2.ExportDcfResponse.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def DownloadProgram(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_stream(
+            request,
+            target,
+            '/cangate.v1.Canopen/DownloadProgram',
+            cangate_dot_v1_dot_canopen__pb2.DownloadProgramRequest.SerializeToString,
+            cangate_dot_v1_dot_canopen__pb2.DownloadProgramProgress.FromString,
             options,
             channel_credentials,
             insecure,

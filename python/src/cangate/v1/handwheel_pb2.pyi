@@ -346,3 +346,41 @@ class SetIoInputsResponse(_message.Message):
     digital: bytes
     analogue: _containers.RepeatedScalarFieldContainer[int]
     def __init__(self, device: _Optional[_Union[SimulatedDevice, _Mapping]] = ..., digital: _Optional[bytes] = ..., analogue: _Optional[_Iterable[int]] = ...) -> None: ...
+
+class SetProgramFaultsRequest(_message.Message):
+    __slots__ = ("bus", "node", "flash_error", "abort_at_byte", "abort_code", "no_boot")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    NODE_FIELD_NUMBER: _ClassVar[int]
+    FLASH_ERROR_FIELD_NUMBER: _ClassVar[int]
+    ABORT_AT_BYTE_FIELD_NUMBER: _ClassVar[int]
+    ABORT_CODE_FIELD_NUMBER: _ClassVar[int]
+    NO_BOOT_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    node: int
+    flash_error: int
+    abort_at_byte: int
+    abort_code: int
+    no_boot: bool
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., flash_error: _Optional[int] = ..., abort_at_byte: _Optional[int] = ..., abort_code: _Optional[int] = ..., no_boot: _Optional[bool] = ...) -> None: ...
+
+class ProgramFaults(_message.Message):
+    __slots__ = ("bus", "node", "flash_error", "abort_at_byte", "abort_code", "no_boot", "identification", "running", "downloads")
+    BUS_FIELD_NUMBER: _ClassVar[int]
+    NODE_FIELD_NUMBER: _ClassVar[int]
+    FLASH_ERROR_FIELD_NUMBER: _ClassVar[int]
+    ABORT_AT_BYTE_FIELD_NUMBER: _ClassVar[int]
+    ABORT_CODE_FIELD_NUMBER: _ClassVar[int]
+    NO_BOOT_FIELD_NUMBER: _ClassVar[int]
+    IDENTIFICATION_FIELD_NUMBER: _ClassVar[int]
+    RUNNING_FIELD_NUMBER: _ClassVar[int]
+    DOWNLOADS_FIELD_NUMBER: _ClassVar[int]
+    bus: str
+    node: int
+    flash_error: int
+    abort_at_byte: int
+    abort_code: int
+    no_boot: bool
+    identification: int
+    running: bool
+    downloads: int
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., flash_error: _Optional[int] = ..., abort_at_byte: _Optional[int] = ..., abort_code: _Optional[int] = ..., no_boot: _Optional[bool] = ..., identification: _Optional[int] = ..., running: _Optional[bool] = ..., downloads: _Optional[int] = ...) -> None: ...

@@ -303,6 +303,11 @@ class SimulatorStub:
                 request_serializer=cangate_dot_v1_dot_handwheel__pb2.SetIoInputsRequest.SerializeToString,
                 response_deserializer=cangate_dot_v1_dot_handwheel__pb2.SetIoInputsResponse.FromString,
                 _registered_method=True)
+        self.SetProgramFaults = channel.unary_unary(
+                '/cangate.v1.Simulator/SetProgramFaults',
+                request_serializer=cangate_dot_v1_dot_handwheel__pb2.SetProgramFaultsRequest.SerializeToString,
+                response_deserializer=cangate_dot_v1_dot_handwheel__pb2.ProgramFaults.FromString,
+                _registered_method=True)
 
 
 class SimulatorServicer:
@@ -389,6 +394,17 @@ class SimulatorServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def SetProgramFaults(self, request, context):
+        """Arms faults of the next program download (CiA 302-3,
+        Canopen.DownloadProgram) of a simulated device, replacing those still
+        armed; each acts once and then clears itself. Every simulated device
+        serves program download (0x1F50/0x1F51/0x1F56/0x1F57 sub 1; 0x1F56 is
+        the CRC-32 of the image, 0x1F57 busy 1 ms per KiB after the data).
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
 
 def add_SimulatorServicer_to_server(servicer, server):
     rpc_method_handlers = {
@@ -436,6 +452,11 @@ def add_SimulatorServicer_to_server(servicer, server):
                     servicer.SetIoInputs,
                     request_deserializer=cangate_dot_v1_dot_handwheel__pb2.SetIoInputsRequest.FromString,
                     response_serializer=cangate_dot_v1_dot_handwheel__pb2.SetIoInputsResponse.SerializeToString,
+            ),
+            'SetProgramFaults': grpc.unary_unary_rpc_method_handler(
+                    servicer.SetProgramFaults,
+                    request_deserializer=cangate_dot_v1_dot_handwheel__pb2.SetProgramFaultsRequest.FromString,
+                    response_serializer=cangate_dot_v1_dot_handwheel__pb2.ProgramFaults.SerializeToString,
             ),
     }
     generic_handler = grpc.method_handlers_generic_handler(
@@ -695,6 +716,33 @@ class Simulator:
             '/cangate.v1.Simulator/SetIoInputs',
             cangate_dot_v1_dot_handwheel__pb2.SetIoInputsRequest.SerializeToString,
             cangate_dot_v1_dot_handwheel__pb2.SetIoInputsResponse.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def SetProgramFaults(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/cangate.v1.Simulator/SetProgramFaults',
+            cangate_dot_v1_dot_handwheel__pb2.SetProgramFaultsRequest.SerializeToString,
+            cangate_dot_v1_dot_handwheel__pb2.ProgramFaults.FromString,
             options,
             channel_credentials,
             insecure,

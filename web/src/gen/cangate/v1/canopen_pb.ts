@@ -20,10 +20,12 @@
 //   OUT_OF_RANGE        SDO aborts 0x0609003x (value range).
 //   FAILED_PRECONDITION SDO aborts 0x0601xxxx (access: read-only,
 //                       write-only) and 0x0800002x (device state); the bus
-//                       is bus-off or down; the caller already has 8 SDO
-//                       requests queued or running with the node (the
-//                       limit per caller - identity, else peer address -
-//                       and node); an object named (`object`, ListObjects)
+//                       is bus-off or down; the caller already has its
+//                       limit of SDO requests queued or running with the
+//                       node (per caller - identity, else peer address -
+//                       and node: 8 unless [security.limits]
+//                       sdo_requests_per_client_and_node says otherwise);
+//                       an object named (`object`, ListObjects)
 //                       on a node the gateway has no EDS for.
 //   ABORTED             any other SDO abort, and protocol violations by the
 //                       node (the gateway sent the abort).
@@ -138,7 +140,7 @@ import type { Message } from "@bufbuild/protobuf";
  * Describes the file cangate/v1/canopen.proto.
  */
 export const file_cangate_v1_canopen: GenFile = /*@__PURE__*/
-  fileDesc("ChhjYW5nYXRlL3YxL2Nhbm9wZW4ucHJvdG8SCmNhbmdhdGUudjEiugEKBVZhbHVlEiIKBHR5cGUYASABKA4yFC5jYW5nYXRlLnYxLkRhdGFUeXBlEhQKCmJvb2xfdmFsdWUYAiABKAhIABITCglpbnRfdmFsdWUYAyABKBJIABIUCgp1aW50X3ZhbHVlGAQgASgESAASFAoKcmVhbF92YWx1ZRgFIAEoAUgAEhYKDHN0cmluZ192YWx1ZRgGIAEoCUgAEhUKC2J5dGVzX3ZhbHVlGAcgASgMSABCBwoFdmFsdWUiVQoISWRlbnRpdHkSEQoJdmVuZG9yX2lkGAEgASgNEhQKDHByb2R1Y3RfY29kZRgCIAEoDRIQCghyZXZpc2lvbhgDIAEoDRIOCgZzZXJpYWwYBCABKA0iigEKBEVtY3kSDAoEbm9kZRgBIAEoDRIMCgRjb2RlGAIgASgNEhEKCWNvZGVfbmFtZRgDIAEoCRIQCghyZWdpc3RlchgEIAEoDRIVCg1yZWdpc3Rlcl9iaXRzGAUgAygJEhQKDG1hbnVmYWN0dXJlchgGIAEoDBIUCgx0aW1lc3RhbXBfbnMYByABKAQimgQKBE5vZGUSCwoDYnVzGAEgASgJEgoKAmlkGAIgASgNEgwKBG5hbWUYAyABKAkSIwoFc3RhdGUYBCABKA4yFC5jYW5nYXRlLnYxLk5tdFN0YXRlEh0KEGhlYXJ0YmVhdF9hZ2VfbXMYBSABKARIAIgBARIWCg5oZWFydGJlYXRfbG9zdBgGIAEoCBIcChRoZWFydGJlYXRfdGltZW91dF9tcxgHIAEoDRIYCgtkZXZpY2VfdHlwZRgIIAEoDUgBiAEBEhMKC2RldmljZV9uYW1lGAkgASgJEiYKCGlkZW50aXR5GAogASgLMhQuY2FuZ2F0ZS52MS5JZGVudGl0eRImCgxhY3RpdmVfZXJyb3IYCyABKAsyEC5jYW5nYXRlLnYxLkVtY3kSJgoMZW1jeV9oaXN0b3J5GAwgAygLMhAuY2FuZ2F0ZS52MS5FbWN5EhAKCGJvb3RfdXBzGA0gASgEEhIKCmNvbmZpZ3VyZWQYDiABKAgSLgoKbW9uaXRvcmluZxgPIAEoDjIaLmNhbmdhdGUudjEuTGlmZU1vbml0b3JpbmcSFQoNZ3VhcmRfdGltZV9tcxgQIAEoDRIYChBsaWZlX3RpbWVfZmFjdG9yGBEgASgNEh4KFmd1YXJkaW5nX3RvZ2dsZV9lcnJvcnMYEiABKARCEwoRX2hlYXJ0YmVhdF9hZ2VfbXNCDgoMX2RldmljZV90eXBlIh8KEExpc3ROb2Rlc1JlcXVlc3QSCwoDYnVzGAEgASgJIjQKEUxpc3ROb2Rlc1Jlc3BvbnNlEh8KBW5vZGVzGAEgAygLMhAuY2FuZ2F0ZS52MS5Ob2RlIisKDkdldE5vZGVSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNIlQKDlNlbmRObXRSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEicKB2NvbW1hbmQYAyABKA4yFi5jYW5nYXRlLnYxLk5tdENvbW1hbmQiEQoPU2VuZE5tdFJlc3BvbnNlIi8KClNkb09wdGlvbnMSEgoKdGltZW91dF9tcxgBIAEoDRINCgVibG9jaxgCIAEoCCKpAQoOUmVhZFNkb1JlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SDQoFaW5kZXgYAyABKA0SEAoIc3ViaW5kZXgYBCABKA0SIgoEdHlwZRgFIAEoDjIULmNhbmdhdGUudjEuRGF0YVR5cGUSJwoHb3B0aW9ucxgGIAEoCzIWLmNhbmdhdGUudjEuU2RvT3B0aW9ucxIOCgZvYmplY3QYByABKAkiQAoPUmVhZFNkb1Jlc3BvbnNlEgsKA3JhdxgBIAEoDBIgCgV2YWx1ZRgCIAEoCzIRLmNhbmdhdGUudjEuVmFsdWUiwQEKD1dyaXRlU2RvUmVxdWVzdBILCgNidXMYASABKAkSDAoEbm9kZRgCIAEoDRINCgVpbmRleBgDIAEoDRIQCghzdWJpbmRleBgEIAEoDRIiCgV2YWx1ZRgFIAEoCzIRLmNhbmdhdGUudjEuVmFsdWVIABINCgNyYXcYBiABKAxIABInCgdvcHRpb25zGAcgASgLMhYuY2FuZ2F0ZS52MS5TZG9PcHRpb25zEg4KBm9iamVjdBgIIAEoCUIGCgRkYXRhIiEKEFdyaXRlU2RvUmVzcG9uc2USDQoFYnl0ZXMYASABKA0iLwoSTGlzdE9iamVjdHNSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNIvsCCgpPYmplY3RJbmZvEg0KBWluZGV4GAEgASgNEhAKCHN1YmluZGV4GAIgASgNEgwKBG5hbWUYAyABKAkSEwoLb2JqZWN0X25hbWUYBCABKAkSEAoIc3ViX25hbWUYBSABKAkSEwoLb2JqZWN0X3R5cGUYBiABKAkSIgoEdHlwZRgHIAEoDjIULmNhbmdhdGUudjEuRGF0YVR5cGUSEQoJdHlwZV9jb2RlGAggASgNEigKBmFjY2VzcxgJIAEoDjIYLmNhbmdhdGUudjEuT2JqZWN0QWNjZXNzEhQKDHBkb19tYXBwYWJsZRgKIAEoCBIoCg1kZWZhdWx0X3ZhbHVlGAsgASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZRIUCgxkZWZhdWx0X3RleHQYDCABKAkSJAoJbG93X2xpbWl0GA0gASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZRIlCgpoaWdoX2xpbWl0GA4gASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZSI+ChNMaXN0T2JqZWN0c1Jlc3BvbnNlEicKB29iamVjdHMYASADKAsyFi5jYW5nYXRlLnYxLk9iamVjdEluZm8iNQoSU2Nhbk5ldHdvcmtSZXF1ZXN0EgsKA2J1cxgBIAEoCRISCgp0aW1lb3V0X21zGAIgASgNIjYKE1NjYW5OZXR3b3JrUmVzcG9uc2USHwoFbm9kZXMYASADKAsyEC5jYW5nYXRlLnYxLk5vZGUiNQoXU3RyZWFtTm9kZUV2ZW50c1JlcXVlc3QSCwoDYnVzGAEgASgJEg0KBW5vZGVzGAIgAygNIoIECglOb2RlRXZlbnQSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SFAoMdGltZXN0YW1wX25zGAMgASgEEiUKB2Jvb3RfdXAYBCABKAsyEi5jYW5nYXRlLnYxLkJvb3RVcEgAEjAKDXN0YXRlX2NoYW5nZWQYBSABKAsyFy5jYW5nYXRlLnYxLlN0YXRlQ2hhbmdlSAASMwoOaGVhcnRiZWF0X2xvc3QYBiABKAsyGS5jYW5nYXRlLnYxLkhlYXJ0YmVhdExvc3RIABI9ChNoZWFydGJlYXRfcmVjb3ZlcmVkGAcgASgLMh4uY2FuZ2F0ZS52MS5IZWFydGJlYXRSZWNvdmVyZWRIABIgCgRlbWN5GAggASgLMhAuY2FuZ2F0ZS52MS5FbWN5SAASJgoEbG9zdBgJIAEoCzIWLmNhbmdhdGUudjEuRXZlbnRzTG9zdEgAEjMKDmJvb3RfY29tcGxldGVkGAogASgLMhkuY2FuZ2F0ZS52MS5Cb290Q29tcGxldGVkSAASLQoLYm9vdF9mYWlsZWQYCyABKAsyFi5jYW5nYXRlLnYxLkJvb3RGYWlsZWRIABJAChVndWFyZGluZ190b2dnbGVfZXJyb3IYDCABKAsyHy5jYW5nYXRlLnYxLkd1YXJkaW5nVG9nZ2xlRXJyb3JIAEIHCgVldmVudCJLChNHdWFyZGluZ1RvZ2dsZUVycm9yEgwKBGRhdGEYASABKA0SFwoPZXhwZWN0ZWRfdG9nZ2xlGAIgASgIEg0KBWNvdW50GAMgASgEIg8KDUJvb3RDb21wbGV0ZWQiHAoKQm9vdEZhaWxlZBIOCgZyZWFzb24YASABKAkiLgoQU3RyZWFtUGRvUmVxdWVzdBILCgNidXMYASABKAkSDQoFbm9kZXMYAiADKA0iWwoIUGRvVmFsdWUSDQoFaW5kZXgYASABKA0SEAoIc3ViaW5kZXgYAiABKA0SDAoEbmFtZRgDIAEoCRIgCgV2YWx1ZRgEIAEoCzIRLmNhbmdhdGUudjEuVmFsdWUilQEKClBkb01lc3NhZ2USCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SCwoDcGRvGAMgASgNEg4KBmNvYl9pZBgEIAEoDRIUCgx0aW1lc3RhbXBfbnMYBSABKAQSJAoGdmFsdWVzGAYgAygLMhQuY2FuZ2F0ZS52MS5QZG9WYWx1ZRITCgtsb3N0X2JlZm9yZRgHIAEoBCJfCg9Xcml0ZVBkb1JlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SCwoDcGRvGAMgASgNEiQKBnZhbHVlcxgEIAMoCzIULmNhbmdhdGUudjEuUGRvVmFsdWUiIAoQV3JpdGVQZG9SZXNwb25zZRIMCgRkYXRhGAEgASgMIggKBkJvb3RVcCJTCgtTdGF0ZUNoYW5nZRIiCgRmcm9tGAEgASgOMhQuY2FuZ2F0ZS52MS5ObXRTdGF0ZRIgCgJ0bxgCIAEoDjIULmNhbmdhdGUudjEuTm10U3RhdGUiUwoNSGVhcnRiZWF0TG9zdBISCgp0aW1lb3V0X21zGAEgASgNEi4KCm1vbml0b3JpbmcYAiABKA4yGi5jYW5nYXRlLnYxLkxpZmVNb25pdG9yaW5nInwKEkhlYXJ0YmVhdFJlY292ZXJlZBIjCgVzdGF0ZRgBIAEoDjIULmNhbmdhdGUudjEuTm10U3RhdGUSEQoJc2lsZW50X21zGAIgASgEEi4KCm1vbml0b3JpbmcYAyABKA4yGi5jYW5nYXRlLnYxLkxpZmVNb25pdG9yaW5nIhsKCkV2ZW50c0xvc3QSDQoFY291bnQYASABKAQiYQoPU2RvQWJvcnREZXRhaWxzEgwKBGNvZGUYASABKA0SDAoEbmFtZRgCIAEoCRINCgVpbmRleBgDIAEoDRIQCghzdWJpbmRleBgEIAEoDRIRCglmcm9tX25vZGUYBSABKAgiJgoXTGlzdFNkb1RyYW5zZmVyc1JlcXVlc3QSCwoDYnVzGAEgASgJIpEBCgtTZG9UcmFuc2ZlchIMCgRub2RlGAEgASgNEg0KBWluZGV4GAIgASgNEhAKCHN1YmluZGV4GAMgASgNEg4KBnVwbG9hZBgEIAEoCBIQCghwcm90b2NvbBgFIAEoCRITCgt0cmFuc2ZlcnJlZBgGIAEoBBISCgV0b3RhbBgHIAEoBEgAiAEBQggKBl90b3RhbCJGChhMaXN0U2RvVHJhbnNmZXJzUmVzcG9uc2USKgoJdHJhbnNmZXJzGAEgAygLMhcuY2FuZ2F0ZS52MS5TZG9UcmFuc2ZlciqOAQoITm10U3RhdGUSFQoRTk1UX1NUQVRFX1VOS05PV04QABIaChZOTVRfU1RBVEVfSU5JVElBTElTSU5HEAESFQoRTk1UX1NUQVRFX1NUT1BQRUQQAhIZChVOTVRfU1RBVEVfT1BFUkFUSU9OQUwQAxIdChlOTVRfU1RBVEVfUFJFX09QRVJBVElPTkFMEAQqvgEKCk5tdENvbW1hbmQSGwoXTk1UX0NPTU1BTkRfVU5TUEVDSUZJRUQQABIVChFOTVRfQ09NTUFORF9TVEFSVBABEhQKEE5NVF9DT01NQU5EX1NUT1AQAhIlCiFOTVRfQ09NTUFORF9FTlRFUl9QUkVfT1BFUkFUSU9OQUwQAxIaChZOTVRfQ09NTUFORF9SRVNFVF9OT0RFEAQSIwofTk1UX0NPTU1BTkRfUkVTRVRfQ09NTVVOSUNBVElPThAFKqADCghEYXRhVHlwZRIZChVEQVRBX1RZUEVfVU5TUEVDSUZJRUQQABIVChFEQVRBX1RZUEVfQk9PTEVBThABEhYKEkRBVEFfVFlQRV9JTlRFR0VSOBACEhcKE0RBVEFfVFlQRV9JTlRFR0VSMTYQAxIXChNEQVRBX1RZUEVfSU5URUdFUjMyEAQSFwoTREFUQV9UWVBFX1VOU0lHTkVEOBAFEhgKFERBVEFfVFlQRV9VTlNJR05FRDE2EAYSGAoUREFUQV9UWVBFX1VOU0lHTkVEMzIQBxIUChBEQVRBX1RZUEVfUkVBTDMyEAgSHAoYREFUQV9UWVBFX1ZJU0lCTEVfU1RSSU5HEAkSGgoWREFUQV9UWVBFX09DVEVUX1NUUklORxAKEhwKGERBVEFfVFlQRV9VTklDT0RFX1NUUklORxALEhQKEERBVEFfVFlQRV9ET01BSU4QDxIUChBEQVRBX1RZUEVfUkVBTDY0EBESFwoTREFUQV9UWVBFX0lOVEVHRVI2NBAVEhgKFERBVEFfVFlQRV9VTlNJR05FRDY0EBsqbAoOTGlmZU1vbml0b3JpbmcSGAoUTElGRV9NT05JVE9SSU5HX05PTkUQABIdChlMSUZFX01PTklUT1JJTkdfSEVBUlRCRUFUEAESIQodTElGRV9NT05JVE9SSU5HX05PREVfR1VBUkRJTkcQAiq2AQoMT2JqZWN0QWNjZXNzEh0KGU9CSkVDVF9BQ0NFU1NfVU5TUEVDSUZJRUQQABIUChBPQkpFQ1RfQUNDRVNTX1JPEAESFAoQT0JKRUNUX0FDQ0VTU19XTxACEhQKEE9CSkVDVF9BQ0NFU1NfUlcQAxIVChFPQkpFQ1RfQUNDRVNTX1JXUhAEEhUKEU9CSkVDVF9BQ0NFU1NfUldXEAUSFwoTT0JKRUNUX0FDQ0VTU19DT05TVBAGMrgGCgdDYW5vcGVuEkgKCUxpc3ROb2RlcxIcLmNhbmdhdGUudjEuTGlzdE5vZGVzUmVxdWVzdBodLmNhbmdhdGUudjEuTGlzdE5vZGVzUmVzcG9uc2USNwoHR2V0Tm9kZRIaLmNhbmdhdGUudjEuR2V0Tm9kZVJlcXVlc3QaEC5jYW5nYXRlLnYxLk5vZGUSQgoHU2VuZE5tdBIaLmNhbmdhdGUudjEuU2VuZE5tdFJlcXVlc3QaGy5jYW5nYXRlLnYxLlNlbmRObXRSZXNwb25zZRJCCgdSZWFkU2RvEhouY2FuZ2F0ZS52MS5SZWFkU2RvUmVxdWVzdBobLmNhbmdhdGUudjEuUmVhZFNkb1Jlc3BvbnNlEkUKCFdyaXRlU2RvEhsuY2FuZ2F0ZS52MS5Xcml0ZVNkb1JlcXVlc3QaHC5jYW5nYXRlLnYxLldyaXRlU2RvUmVzcG9uc2USTgoLTGlzdE9iamVjdHMSHi5jYW5nYXRlLnYxLkxpc3RPYmplY3RzUmVxdWVzdBofLmNhbmdhdGUudjEuTGlzdE9iamVjdHNSZXNwb25zZRJdChBMaXN0U2RvVHJhbnNmZXJzEiMuY2FuZ2F0ZS52MS5MaXN0U2RvVHJhbnNmZXJzUmVxdWVzdBokLmNhbmdhdGUudjEuTGlzdFNkb1RyYW5zZmVyc1Jlc3BvbnNlEk4KC1NjYW5OZXR3b3JrEh4uY2FuZ2F0ZS52MS5TY2FuTmV0d29ya1JlcXVlc3QaHy5jYW5nYXRlLnYxLlNjYW5OZXR3b3JrUmVzcG9uc2USUAoQU3RyZWFtTm9kZUV2ZW50cxIjLmNhbmdhdGUudjEuU3RyZWFtTm9kZUV2ZW50c1JlcXVlc3QaFS5jYW5nYXRlLnYxLk5vZGVFdmVudDABEkMKCVN0cmVhbVBkbxIcLmNhbmdhdGUudjEuU3RyZWFtUGRvUmVxdWVzdBoWLmNhbmdhdGUudjEuUGRvTWVzc2FnZTABEkUKCFdyaXRlUGRvEhsuY2FuZ2F0ZS52MS5Xcml0ZVBkb1JlcXVlc3QaHC5jYW5nYXRlLnYxLldyaXRlUGRvUmVzcG9uc2ViBnByb3RvMw");
+  fileDesc("ChhjYW5nYXRlL3YxL2Nhbm9wZW4ucHJvdG8SCmNhbmdhdGUudjEiugEKBVZhbHVlEiIKBHR5cGUYASABKA4yFC5jYW5nYXRlLnYxLkRhdGFUeXBlEhQKCmJvb2xfdmFsdWUYAiABKAhIABITCglpbnRfdmFsdWUYAyABKBJIABIUCgp1aW50X3ZhbHVlGAQgASgESAASFAoKcmVhbF92YWx1ZRgFIAEoAUgAEhYKDHN0cmluZ192YWx1ZRgGIAEoCUgAEhUKC2J5dGVzX3ZhbHVlGAcgASgMSABCBwoFdmFsdWUiVQoISWRlbnRpdHkSEQoJdmVuZG9yX2lkGAEgASgNEhQKDHByb2R1Y3RfY29kZRgCIAEoDRIQCghyZXZpc2lvbhgDIAEoDRIOCgZzZXJpYWwYBCABKA0iigEKBEVtY3kSDAoEbm9kZRgBIAEoDRIMCgRjb2RlGAIgASgNEhEKCWNvZGVfbmFtZRgDIAEoCRIQCghyZWdpc3RlchgEIAEoDRIVCg1yZWdpc3Rlcl9iaXRzGAUgAygJEhQKDG1hbnVmYWN0dXJlchgGIAEoDBIUCgx0aW1lc3RhbXBfbnMYByABKAQimgQKBE5vZGUSCwoDYnVzGAEgASgJEgoKAmlkGAIgASgNEgwKBG5hbWUYAyABKAkSIwoFc3RhdGUYBCABKA4yFC5jYW5nYXRlLnYxLk5tdFN0YXRlEh0KEGhlYXJ0YmVhdF9hZ2VfbXMYBSABKARIAIgBARIWCg5oZWFydGJlYXRfbG9zdBgGIAEoCBIcChRoZWFydGJlYXRfdGltZW91dF9tcxgHIAEoDRIYCgtkZXZpY2VfdHlwZRgIIAEoDUgBiAEBEhMKC2RldmljZV9uYW1lGAkgASgJEiYKCGlkZW50aXR5GAogASgLMhQuY2FuZ2F0ZS52MS5JZGVudGl0eRImCgxhY3RpdmVfZXJyb3IYCyABKAsyEC5jYW5nYXRlLnYxLkVtY3kSJgoMZW1jeV9oaXN0b3J5GAwgAygLMhAuY2FuZ2F0ZS52MS5FbWN5EhAKCGJvb3RfdXBzGA0gASgEEhIKCmNvbmZpZ3VyZWQYDiABKAgSLgoKbW9uaXRvcmluZxgPIAEoDjIaLmNhbmdhdGUudjEuTGlmZU1vbml0b3JpbmcSFQoNZ3VhcmRfdGltZV9tcxgQIAEoDRIYChBsaWZlX3RpbWVfZmFjdG9yGBEgASgNEh4KFmd1YXJkaW5nX3RvZ2dsZV9lcnJvcnMYEiABKARCEwoRX2hlYXJ0YmVhdF9hZ2VfbXNCDgoMX2RldmljZV90eXBlIh8KEExpc3ROb2Rlc1JlcXVlc3QSCwoDYnVzGAEgASgJIjQKEUxpc3ROb2Rlc1Jlc3BvbnNlEh8KBW5vZGVzGAEgAygLMhAuY2FuZ2F0ZS52MS5Ob2RlIisKDkdldE5vZGVSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNIlQKDlNlbmRObXRSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEicKB2NvbW1hbmQYAyABKA4yFi5jYW5nYXRlLnYxLk5tdENvbW1hbmQiEQoPU2VuZE5tdFJlc3BvbnNlIi8KClNkb09wdGlvbnMSEgoKdGltZW91dF9tcxgBIAEoDRINCgVibG9jaxgCIAEoCCKpAQoOUmVhZFNkb1JlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SDQoFaW5kZXgYAyABKA0SEAoIc3ViaW5kZXgYBCABKA0SIgoEdHlwZRgFIAEoDjIULmNhbmdhdGUudjEuRGF0YVR5cGUSJwoHb3B0aW9ucxgGIAEoCzIWLmNhbmdhdGUudjEuU2RvT3B0aW9ucxIOCgZvYmplY3QYByABKAkiQAoPUmVhZFNkb1Jlc3BvbnNlEgsKA3JhdxgBIAEoDBIgCgV2YWx1ZRgCIAEoCzIRLmNhbmdhdGUudjEuVmFsdWUiwQEKD1dyaXRlU2RvUmVxdWVzdBILCgNidXMYASABKAkSDAoEbm9kZRgCIAEoDRINCgVpbmRleBgDIAEoDRIQCghzdWJpbmRleBgEIAEoDRIiCgV2YWx1ZRgFIAEoCzIRLmNhbmdhdGUudjEuVmFsdWVIABINCgNyYXcYBiABKAxIABInCgdvcHRpb25zGAcgASgLMhYuY2FuZ2F0ZS52MS5TZG9PcHRpb25zEg4KBm9iamVjdBgIIAEoCUIGCgRkYXRhIiEKEFdyaXRlU2RvUmVzcG9uc2USDQoFYnl0ZXMYASABKA0iLwoSTGlzdE9iamVjdHNSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNIvsCCgpPYmplY3RJbmZvEg0KBWluZGV4GAEgASgNEhAKCHN1YmluZGV4GAIgASgNEgwKBG5hbWUYAyABKAkSEwoLb2JqZWN0X25hbWUYBCABKAkSEAoIc3ViX25hbWUYBSABKAkSEwoLb2JqZWN0X3R5cGUYBiABKAkSIgoEdHlwZRgHIAEoDjIULmNhbmdhdGUudjEuRGF0YVR5cGUSEQoJdHlwZV9jb2RlGAggASgNEigKBmFjY2VzcxgJIAEoDjIYLmNhbmdhdGUudjEuT2JqZWN0QWNjZXNzEhQKDHBkb19tYXBwYWJsZRgKIAEoCBIoCg1kZWZhdWx0X3ZhbHVlGAsgASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZRIUCgxkZWZhdWx0X3RleHQYDCABKAkSJAoJbG93X2xpbWl0GA0gASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZRIlCgpoaWdoX2xpbWl0GA4gASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZSI+ChNMaXN0T2JqZWN0c1Jlc3BvbnNlEicKB29iamVjdHMYASADKAsyFi5jYW5nYXRlLnYxLk9iamVjdEluZm8iNQoSU2Nhbk5ldHdvcmtSZXF1ZXN0EgsKA2J1cxgBIAEoCRISCgp0aW1lb3V0X21zGAIgASgNIjYKE1NjYW5OZXR3b3JrUmVzcG9uc2USHwoFbm9kZXMYASADKAsyEC5jYW5nYXRlLnYxLk5vZGUiNQoXU3RyZWFtTm9kZUV2ZW50c1JlcXVlc3QSCwoDYnVzGAEgASgJEg0KBW5vZGVzGAIgAygNIoIECglOb2RlRXZlbnQSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SFAoMdGltZXN0YW1wX25zGAMgASgEEiUKB2Jvb3RfdXAYBCABKAsyEi5jYW5nYXRlLnYxLkJvb3RVcEgAEjAKDXN0YXRlX2NoYW5nZWQYBSABKAsyFy5jYW5nYXRlLnYxLlN0YXRlQ2hhbmdlSAASMwoOaGVhcnRiZWF0X2xvc3QYBiABKAsyGS5jYW5nYXRlLnYxLkhlYXJ0YmVhdExvc3RIABI9ChNoZWFydGJlYXRfcmVjb3ZlcmVkGAcgASgLMh4uY2FuZ2F0ZS52MS5IZWFydGJlYXRSZWNvdmVyZWRIABIgCgRlbWN5GAggASgLMhAuY2FuZ2F0ZS52MS5FbWN5SAASJgoEbG9zdBgJIAEoCzIWLmNhbmdhdGUudjEuRXZlbnRzTG9zdEgAEjMKDmJvb3RfY29tcGxldGVkGAogASgLMhkuY2FuZ2F0ZS52MS5Cb290Q29tcGxldGVkSAASLQoLYm9vdF9mYWlsZWQYCyABKAsyFi5jYW5nYXRlLnYxLkJvb3RGYWlsZWRIABJAChVndWFyZGluZ190b2dnbGVfZXJyb3IYDCABKAsyHy5jYW5nYXRlLnYxLkd1YXJkaW5nVG9nZ2xlRXJyb3JIAEIHCgVldmVudCJLChNHdWFyZGluZ1RvZ2dsZUVycm9yEgwKBGRhdGEYASABKA0SFwoPZXhwZWN0ZWRfdG9nZ2xlGAIgASgIEg0KBWNvdW50GAMgASgEIg8KDUJvb3RDb21wbGV0ZWQiHAoKQm9vdEZhaWxlZBIOCgZyZWFzb24YASABKAkiLgoQU3RyZWFtUGRvUmVxdWVzdBILCgNidXMYASABKAkSDQoFbm9kZXMYAiADKA0iWwoIUGRvVmFsdWUSDQoFaW5kZXgYASABKA0SEAoIc3ViaW5kZXgYAiABKA0SDAoEbmFtZRgDIAEoCRIgCgV2YWx1ZRgEIAEoCzIRLmNhbmdhdGUudjEuVmFsdWUilQEKClBkb01lc3NhZ2USCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SCwoDcGRvGAMgASgNEg4KBmNvYl9pZBgEIAEoDRIUCgx0aW1lc3RhbXBfbnMYBSABKAQSJAoGdmFsdWVzGAYgAygLMhQuY2FuZ2F0ZS52MS5QZG9WYWx1ZRITCgtsb3N0X2JlZm9yZRgHIAEoBCJfCg9Xcml0ZVBkb1JlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SCwoDcGRvGAMgASgNEiQKBnZhbHVlcxgEIAMoCzIULmNhbmdhdGUudjEuUGRvVmFsdWUiIAoQV3JpdGVQZG9SZXNwb25zZRIMCgRkYXRhGAEgASgMIl4KD1Bkb01hcHBlZE9iamVjdBINCgVpbmRleBgBIAEoDRIQCghzdWJpbmRleBgCIAEoDRIMCgRiaXRzGAMgASgNEgwKBG5hbWUYBCABKAkSDgoGb2JqZWN0GAUgASgJIuABChBQZG9Db25maWd1cmF0aW9uEiEKBGtpbmQYASABKA4yEy5jYW5nYXRlLnYxLlBkb0tpbmQSCwoDcGRvGAIgASgNEg4KBmNvYl9pZBgDIAEoDRIPCgdlbmFibGVkGAQgASgIEhkKEXRyYW5zbWlzc2lvbl90eXBlGAUgASgNEhoKEmluaGliaXRfdGltZV8xMDB1cxgGIAEoDRIWCg5ldmVudF90aW1lcl9tcxgHIAEoDRIsCgdtYXBwaW5nGAggAygLMhsuY2FuZ2F0ZS52MS5QZG9NYXBwZWRPYmplY3QiigEKFFJlYWRQZG9Db25maWdSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEiEKBGtpbmQYAyABKA4yEy5jYW5nYXRlLnYxLlBkb0tpbmQSCwoDcGRvGAQgASgNEicKB29wdGlvbnMYBSABKAsyFi5jYW5nYXRlLnYxLlNkb09wdGlvbnMiQwoVUmVhZFBkb0NvbmZpZ1Jlc3BvbnNlEioKBHBkb3MYASADKAsyHC5jYW5nYXRlLnYxLlBkb0NvbmZpZ3VyYXRpb24ihAEKE0NvbmZpZ3VyZVBkb1JlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SKQoDcGRvGAMgASgLMhwuY2FuZ2F0ZS52MS5QZG9Db25maWd1cmF0aW9uEicKB29wdGlvbnMYBCABKAsyFi5jYW5nYXRlLnYxLlNkb09wdGlvbnMiUQoUQ29uZmlndXJlUGRvUmVzcG9uc2USKQoDcGRvGAEgASgLMhwuY2FuZ2F0ZS52MS5QZG9Db25maWd1cmF0aW9uEg4KBndyaXRlcxgCIAMoCSIdCg5HZXRTeW5jUmVxdWVzdBILCgNidXMYASABKAkimQEKDlNldFN5bmNSZXF1ZXN0EgsKA2J1cxgBIAEoCRIUCgdydW5uaW5nGAIgASgISACIAQESFgoJcGVyaW9kX3VzGAMgASgNSAGIAQESHQoQY291bnRlcl9vdmVyZmxvdxgEIAEoDUgCiAEBQgoKCF9ydW5uaW5nQgwKCl9wZXJpb2RfdXNCEwoRX2NvdW50ZXJfb3ZlcmZsb3cijgEKClN5bmNTdGF0dXMSCwoDYnVzGAEgASgJEg8KB3J1bm5pbmcYAiABKAgSEQoJcGVyaW9kX3VzGAMgASgNEhgKEGNvdW50ZXJfb3ZlcmZsb3cYBCABKA0SDAoEc2VudBgFIAEoBBIPCgdza2lwcGVkGAYgASgEEhYKDnRpbWVfcGVyaW9kX21zGAcgASgNIlUKDlNldFRpbWVSZXF1ZXN0EgsKA2J1cxgBIAEoCRIQCghzZW5kX25vdxgCIAEoCBIWCglwZXJpb2RfbXMYAyABKA1IAIgBAUIMCgpfcGVyaW9kX21zIlAKCVRpbWVPZkRheRIZChFtc19hZnRlcl9taWRuaWdodBgBIAEoDRIXCg9kYXlzX3NpbmNlXzE5ODQYAiABKA0SDwoHdW5peF9tcxgDIAEoBCJOCg9TZXRUaW1lUmVzcG9uc2USIwoEc2VudBgBIAEoCzIVLmNhbmdhdGUudjEuVGltZU9mRGF5EhYKDnRpbWVfcGVyaW9kX21zGAIgASgNIlYKEEV4cG9ydERjZlJlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SJwoHb3B0aW9ucxgDIAEoCzIWLmNhbmdhdGUudjEuU2RvT3B0aW9ucyJACg1Ta2lwcGVkT2JqZWN0Eg0KBWluZGV4GAEgASgNEhAKCHN1YmluZGV4GAIgASgNEg4KBnJlYXNvbhgDIAEoCSJiChFFeHBvcnREY2ZSZXNwb25zZRILCgNkY2YYASABKAkSFAoMb2JqZWN0c19yZWFkGAIgASgNEioKB3NraXBwZWQYAyADKAsyGS5jYW5nYXRlLnYxLlNraXBwZWRPYmplY3QiCAoGQm9vdFVwIlMKC1N0YXRlQ2hhbmdlEiIKBGZyb20YASABKA4yFC5jYW5nYXRlLnYxLk5tdFN0YXRlEiAKAnRvGAIgASgOMhQuY2FuZ2F0ZS52MS5ObXRTdGF0ZSJTCg1IZWFydGJlYXRMb3N0EhIKCnRpbWVvdXRfbXMYASABKA0SLgoKbW9uaXRvcmluZxgCIAEoDjIaLmNhbmdhdGUudjEuTGlmZU1vbml0b3JpbmcifAoSSGVhcnRiZWF0UmVjb3ZlcmVkEiMKBXN0YXRlGAEgASgOMhQuY2FuZ2F0ZS52MS5ObXRTdGF0ZRIRCglzaWxlbnRfbXMYAiABKAQSLgoKbW9uaXRvcmluZxgDIAEoDjIaLmNhbmdhdGUudjEuTGlmZU1vbml0b3JpbmciGwoKRXZlbnRzTG9zdBINCgVjb3VudBgBIAEoBCJhCg9TZG9BYm9ydERldGFpbHMSDAoEY29kZRgBIAEoDRIMCgRuYW1lGAIgASgJEg0KBWluZGV4GAMgASgNEhAKCHN1YmluZGV4GAQgASgNEhEKCWZyb21fbm9kZRgFIAEoCCImChdMaXN0U2RvVHJhbnNmZXJzUmVxdWVzdBILCgNidXMYASABKAkikQEKC1Nkb1RyYW5zZmVyEgwKBG5vZGUYASABKA0SDQoFaW5kZXgYAiABKA0SEAoIc3ViaW5kZXgYAyABKA0SDgoGdXBsb2FkGAQgASgIEhAKCHByb3RvY29sGAUgASgJEhMKC3RyYW5zZmVycmVkGAYgASgEEhIKBXRvdGFsGAcgASgESACIAQFCCAoGX3RvdGFsIkYKGExpc3RTZG9UcmFuc2ZlcnNSZXNwb25zZRIqCgl0cmFuc2ZlcnMYASADKAsyFy5jYW5nYXRlLnYxLlNkb1RyYW5zZmVyItcBChZEb3dubG9hZFByb2dyYW1SZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEg0KBWltYWdlGAMgASgMEg8KB3Byb2dyYW0YBCABKA0SJAoXZXhwZWN0ZWRfaWRlbnRpZmljYXRpb24YBSABKA1IAIgBARINCgVjbGVhchgGIAEoCBIYChBmbGFzaF90aW1lb3V0X21zGAcgASgNEhcKD2Jvb3RfdGltZW91dF9tcxgIIAEoDUIaChhfZXhwZWN0ZWRfaWRlbnRpZmljYXRpb24ingEKF0Rvd25sb2FkUHJvZ3JhbVByb2dyZXNzEiUKBHN0ZXAYASABKA4yFy5jYW5nYXRlLnYxLlByb2dyYW1TdGVwEhIKCmJ5dGVzX2RvbmUYAiABKAQSEwoLYnl0ZXNfdG90YWwYAyABKAQSMwoHb3V0Y29tZRgEIAEoCzIiLmNhbmdhdGUudjEuRG93bmxvYWRQcm9ncmFtT3V0Y29tZSLJAQoWRG93bmxvYWRQcm9ncmFtT3V0Y29tZRIfChJvbGRfaWRlbnRpZmljYXRpb24YASABKA1IAIgBARIaChJuZXdfaWRlbnRpZmljYXRpb24YAiABKA0SDQoFYnl0ZXMYAyABKAQSEwoLZHVyYXRpb25fbXMYBCABKAQSGAoQZGF0YV9kdXJhdGlvbl9tcxgFIAEoBBIdChVkYXRhX2J5dGVzX3Blcl9zZWNvbmQYBiABKAFCFQoTX29sZF9pZGVudGlmaWNhdGlvbiqOAQoITm10U3RhdGUSFQoRTk1UX1NUQVRFX1VOS05PV04QABIaChZOTVRfU1RBVEVfSU5JVElBTElTSU5HEAESFQoRTk1UX1NUQVRFX1NUT1BQRUQQAhIZChVOTVRfU1RBVEVfT1BFUkFUSU9OQUwQAxIdChlOTVRfU1RBVEVfUFJFX09QRVJBVElPTkFMEAQqvgEKCk5tdENvbW1hbmQSGwoXTk1UX0NPTU1BTkRfVU5TUEVDSUZJRUQQABIVChFOTVRfQ09NTUFORF9TVEFSVBABEhQKEE5NVF9DT01NQU5EX1NUT1AQAhIlCiFOTVRfQ09NTUFORF9FTlRFUl9QUkVfT1BFUkFUSU9OQUwQAxIaChZOTVRfQ09NTUFORF9SRVNFVF9OT0RFEAQSIwofTk1UX0NPTU1BTkRfUkVTRVRfQ09NTVVOSUNBVElPThAFKqADCghEYXRhVHlwZRIZChVEQVRBX1RZUEVfVU5TUEVDSUZJRUQQABIVChFEQVRBX1RZUEVfQk9PTEVBThABEhYKEkRBVEFfVFlQRV9JTlRFR0VSOBACEhcKE0RBVEFfVFlQRV9JTlRFR0VSMTYQAxIXChNEQVRBX1RZUEVfSU5URUdFUjMyEAQSFwoTREFUQV9UWVBFX1VOU0lHTkVEOBAFEhgKFERBVEFfVFlQRV9VTlNJR05FRDE2EAYSGAoUREFUQV9UWVBFX1VOU0lHTkVEMzIQBxIUChBEQVRBX1RZUEVfUkVBTDMyEAgSHAoYREFUQV9UWVBFX1ZJU0lCTEVfU1RSSU5HEAkSGgoWREFUQV9UWVBFX09DVEVUX1NUUklORxAKEhwKGERBVEFfVFlQRV9VTklDT0RFX1NUUklORxALEhQKEERBVEFfVFlQRV9ET01BSU4QDxIUChBEQVRBX1RZUEVfUkVBTDY0EBESFwoTREFUQV9UWVBFX0lOVEVHRVI2NBAVEhgKFERBVEFfVFlQRV9VTlNJR05FRDY0EBsqbAoOTGlmZU1vbml0b3JpbmcSGAoUTElGRV9NT05JVE9SSU5HX05PTkUQABIdChlMSUZFX01PTklUT1JJTkdfSEVBUlRCRUFUEAESIQodTElGRV9NT05JVE9SSU5HX05PREVfR1VBUkRJTkcQAiq2AQoMT2JqZWN0QWNjZXNzEh0KGU9CSkVDVF9BQ0NFU1NfVU5TUEVDSUZJRUQQABIUChBPQkpFQ1RfQUNDRVNTX1JPEAESFAoQT0JKRUNUX0FDQ0VTU19XTxACEhQKEE9CSkVDVF9BQ0NFU1NfUlcQAxIVChFPQkpFQ1RfQUNDRVNTX1JXUhAEEhUKEU9CSkVDVF9BQ0NFU1NfUldXEAUSFwoTT0JKRUNUX0FDQ0VTU19DT05TVBAGKkkKB1Bkb0tpbmQSGAoUUERPX0tJTkRfVU5TUEVDSUZJRUQQABIRCg1QRE9fS0lORF9SUERPEAESEQoNUERPX0tJTkRfVFBETxACKr8CCgtQcm9ncmFtU3RlcBIcChhQUk9HUkFNX1NURVBfVU5TUEVDSUZJRUQQABIrCidQUk9HUkFNX1NURVBfUkVBRF9JREVOVElGSUNBVElPTl9CRUZPUkUQARIdChlQUk9HUkFNX1NURVBfU1RPUF9QUk9HUkFNEAISHgoaUFJPR1JBTV9TVEVQX0NMRUFSX1BST0dSQU0QAxIeChpQUk9HUkFNX1NURVBfRE9XTkxPQURfREFUQRAEEhsKF1BST0dSQU1fU1RFUF9XQUlUX0ZMQVNIEAUSHgoaUFJPR1JBTV9TVEVQX1NUQVJUX1BST0dSQU0QBhIdChlQUk9HUkFNX1NURVBfV0FJVF9CT09UX1VQEAcSKgomUFJPR1JBTV9TVEVQX1JFQURfSURFTlRJRklDQVRJT05fQUZURVIQCDLLCgoHQ2Fub3BlbhJICglMaXN0Tm9kZXMSHC5jYW5nYXRlLnYxLkxpc3ROb2Rlc1JlcXVlc3QaHS5jYW5nYXRlLnYxLkxpc3ROb2Rlc1Jlc3BvbnNlEjcKB0dldE5vZGUSGi5jYW5nYXRlLnYxLkdldE5vZGVSZXF1ZXN0GhAuY2FuZ2F0ZS52MS5Ob2RlEkIKB1NlbmRObXQSGi5jYW5nYXRlLnYxLlNlbmRObXRSZXF1ZXN0GhsuY2FuZ2F0ZS52MS5TZW5kTm10UmVzcG9uc2USQgoHUmVhZFNkbxIaLmNhbmdhdGUudjEuUmVhZFNkb1JlcXVlc3QaGy5jYW5nYXRlLnYxLlJlYWRTZG9SZXNwb25zZRJFCghXcml0ZVNkbxIbLmNhbmdhdGUudjEuV3JpdGVTZG9SZXF1ZXN0GhwuY2FuZ2F0ZS52MS5Xcml0ZVNkb1Jlc3BvbnNlEk4KC0xpc3RPYmplY3RzEh4uY2FuZ2F0ZS52MS5MaXN0T2JqZWN0c1JlcXVlc3QaHy5jYW5nYXRlLnYxLkxpc3RPYmplY3RzUmVzcG9uc2USXQoQTGlzdFNkb1RyYW5zZmVycxIjLmNhbmdhdGUudjEuTGlzdFNkb1RyYW5zZmVyc1JlcXVlc3QaJC5jYW5nYXRlLnYxLkxpc3RTZG9UcmFuc2ZlcnNSZXNwb25zZRJOCgtTY2FuTmV0d29yaxIeLmNhbmdhdGUudjEuU2Nhbk5ldHdvcmtSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5TY2FuTmV0d29ya1Jlc3BvbnNlElAKEFN0cmVhbU5vZGVFdmVudHMSIy5jYW5nYXRlLnYxLlN0cmVhbU5vZGVFdmVudHNSZXF1ZXN0GhUuY2FuZ2F0ZS52MS5Ob2RlRXZlbnQwARJDCglTdHJlYW1QZG8SHC5jYW5nYXRlLnYxLlN0cmVhbVBkb1JlcXVlc3QaFi5jYW5nYXRlLnYxLlBkb01lc3NhZ2UwARJFCghXcml0ZVBkbxIbLmNhbmdhdGUudjEuV3JpdGVQZG9SZXF1ZXN0GhwuY2FuZ2F0ZS52MS5Xcml0ZVBkb1Jlc3BvbnNlElQKDVJlYWRQZG9Db25maWcSIC5jYW5nYXRlLnYxLlJlYWRQZG9Db25maWdSZXF1ZXN0GiEuY2FuZ2F0ZS52MS5SZWFkUGRvQ29uZmlnUmVzcG9uc2USUQoMQ29uZmlndXJlUGRvEh8uY2FuZ2F0ZS52MS5Db25maWd1cmVQZG9SZXF1ZXN0GiAuY2FuZ2F0ZS52MS5Db25maWd1cmVQZG9SZXNwb25zZRI9CgdHZXRTeW5jEhouY2FuZ2F0ZS52MS5HZXRTeW5jUmVxdWVzdBoWLmNhbmdhdGUudjEuU3luY1N0YXR1cxI9CgdTZXRTeW5jEhouY2FuZ2F0ZS52MS5TZXRTeW5jUmVxdWVzdBoWLmNhbmdhdGUudjEuU3luY1N0YXR1cxJCCgdTZXRUaW1lEhouY2FuZ2F0ZS52MS5TZXRUaW1lUmVxdWVzdBobLmNhbmdhdGUudjEuU2V0VGltZVJlc3BvbnNlEkgKCUV4cG9ydERjZhIcLmNhbmdhdGUudjEuRXhwb3J0RGNmUmVxdWVzdBodLmNhbmdhdGUudjEuRXhwb3J0RGNmUmVzcG9uc2USXAoPRG93bmxvYWRQcm9ncmFtEiIuY2FuZ2F0ZS52MS5Eb3dubG9hZFByb2dyYW1SZXF1ZXN0GiMuY2FuZ2F0ZS52MS5Eb3dubG9hZFByb2dyYW1Qcm9ncmVzczABYgZwcm90bzM");
 
 /**
  * A typed value. Integers of every width travel as int64/uint64; the
@@ -1465,6 +1467,603 @@ export const WritePdoResponseSchema: GenMessage<WritePdoResponse> = /*@__PURE__*
   messageDesc(file_cangate_v1_canopen, 28);
 
 /**
+ * One mapped object of a PDO.
+ *
+ * @generated from message cangate.v1.PdoMappedObject
+ */
+export type PdoMappedObject = Message<"cangate.v1.PdoMappedObject"> & {
+  /**
+   * Object index.
+   *
+   * @generated from field: uint32 index = 1;
+   */
+  index: number;
+
+  /**
+   * Sub-index.
+   *
+   * @generated from field: uint32 subindex = 2;
+   */
+  subindex: number;
+
+  /**
+   * Length in bits (whole bytes: 8..64).
+   *
+   * @generated from field: uint32 bits = 3;
+   */
+  bits: number;
+
+  /**
+   * The object's name from the node's EDS ("" without one; ignored in
+   * requests).
+   *
+   * @generated from field: string name = 4;
+   */
+  name: string;
+
+  /**
+   * In a ConfigurePdo request instead of index/subindex: the object's name
+   * from the EDS ("Statusword", "Identity object.Serial number"); `bits`
+   * may then be 0 and is taken from the EDS type.
+   *
+   * @generated from field: string object = 5;
+   */
+  object: string;
+};
+
+/**
+ * Describes the message cangate.v1.PdoMappedObject.
+ * Use `create(PdoMappedObjectSchema)` to create a new message.
+ */
+export const PdoMappedObjectSchema: GenMessage<PdoMappedObject> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 29);
+
+/**
+ * One PDO's communication and mapping parameters.
+ *
+ * @generated from message cangate.v1.PdoConfiguration
+ */
+export type PdoConfiguration = Message<"cangate.v1.PdoConfiguration"> & {
+  /**
+   * RPDO or TPDO.
+   *
+   * @generated from field: cangate.v1.PdoKind kind = 1;
+   */
+  kind: PdoKind;
+
+  /**
+   * PDO number, 1..=512.
+   *
+   * @generated from field: uint32 pdo = 2;
+   */
+  pdo: number;
+
+  /**
+   * 11-bit COB-ID (0 in ConfigurePdo: the predefined one of PDO 1..4,
+   * e.g. 0x180 + node for TPDO 1).
+   *
+   * @generated from field: uint32 cob_id = 3;
+   */
+  cobId: number;
+
+  /**
+   * The PDO is valid (COB-ID bit 31 clear): the node sends or accepts it.
+   *
+   * @generated from field: bool enabled = 4;
+   */
+  enabled: boolean;
+
+  /**
+   * Transmission type: 0 acyclic synchronous, 1..=240 every n-th SYNC,
+   * 252/253 on RTR, 254/255 event-driven.
+   *
+   * @generated from field: uint32 transmission_type = 5;
+   */
+  transmissionType: number;
+
+  /**
+   * TPDO inhibit time in units of 100 µs (0 = none).
+   *
+   * @generated from field: uint32 inhibit_time_100us = 6;
+   */
+  inhibitTime100us: number;
+
+  /**
+   * Event timer in ms (0 = off).
+   *
+   * @generated from field: uint32 event_timer_ms = 7;
+   */
+  eventTimerMs: number;
+
+  /**
+   * The mapped objects in payload order (at most 64 bits in all).
+   *
+   * @generated from field: repeated cangate.v1.PdoMappedObject mapping = 8;
+   */
+  mapping: PdoMappedObject[];
+};
+
+/**
+ * Describes the message cangate.v1.PdoConfiguration.
+ * Use `create(PdoConfigurationSchema)` to create a new message.
+ */
+export const PdoConfigurationSchema: GenMessage<PdoConfiguration> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 30);
+
+/**
+ * ReadPdoConfig request.
+ *
+ * @generated from message cangate.v1.ReadPdoConfigRequest
+ */
+export type ReadPdoConfigRequest = Message<"cangate.v1.ReadPdoConfigRequest"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * Node id.
+   *
+   * @generated from field: uint32 node = 2;
+   */
+  node: number;
+
+  /**
+   * Only this kind (UNSPECIFIED: both).
+   *
+   * @generated from field: cangate.v1.PdoKind kind = 3;
+   */
+  kind: PdoKind;
+
+  /**
+   * Only this PDO number (0: PDOs 1..=4, or all the node's EDS lists).
+   *
+   * @generated from field: uint32 pdo = 4;
+   */
+  pdo: number;
+
+  /**
+   * SDO options of the reads.
+   *
+   * @generated from field: cangate.v1.SdoOptions options = 5;
+   */
+  options?: SdoOptions | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.ReadPdoConfigRequest.
+ * Use `create(ReadPdoConfigRequestSchema)` to create a new message.
+ */
+export const ReadPdoConfigRequestSchema: GenMessage<ReadPdoConfigRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 31);
+
+/**
+ * ReadPdoConfig response.
+ *
+ * @generated from message cangate.v1.ReadPdoConfigResponse
+ */
+export type ReadPdoConfigResponse = Message<"cangate.v1.ReadPdoConfigResponse"> & {
+  /**
+   * The node's PDOs, RPDOs then TPDOs, by number.
+   *
+   * @generated from field: repeated cangate.v1.PdoConfiguration pdos = 1;
+   */
+  pdos: PdoConfiguration[];
+};
+
+/**
+ * Describes the message cangate.v1.ReadPdoConfigResponse.
+ * Use `create(ReadPdoConfigResponseSchema)` to create a new message.
+ */
+export const ReadPdoConfigResponseSchema: GenMessage<ReadPdoConfigResponse> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 32);
+
+/**
+ * ConfigurePdo request.
+ *
+ * @generated from message cangate.v1.ConfigurePdoRequest
+ */
+export type ConfigurePdoRequest = Message<"cangate.v1.ConfigurePdoRequest"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * Node id.
+   *
+   * @generated from field: uint32 node = 2;
+   */
+  node: number;
+
+  /**
+   * The PDO's new parameters (kind and number say which PDO).
+   *
+   * @generated from field: cangate.v1.PdoConfiguration pdo = 3;
+   */
+  pdo?: PdoConfiguration | undefined;
+
+  /**
+   * SDO options of the writes.
+   *
+   * @generated from field: cangate.v1.SdoOptions options = 4;
+   */
+  options?: SdoOptions | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.ConfigurePdoRequest.
+ * Use `create(ConfigurePdoRequestSchema)` to create a new message.
+ */
+export const ConfigurePdoRequestSchema: GenMessage<ConfigurePdoRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 33);
+
+/**
+ * ConfigurePdo response.
+ *
+ * @generated from message cangate.v1.ConfigurePdoResponse
+ */
+export type ConfigurePdoResponse = Message<"cangate.v1.ConfigurePdoResponse"> & {
+  /**
+   * The configuration written, as the gateway now decodes or encodes the
+   * PDO (COB-ID and bit lengths filled in).
+   *
+   * @generated from field: cangate.v1.PdoConfiguration pdo = 1;
+   */
+  pdo?: PdoConfiguration | undefined;
+
+  /**
+   * The SDO writes done, in order, e.g. "0x1A00:00 = 0".
+   *
+   * @generated from field: repeated string writes = 2;
+   */
+  writes: string[];
+};
+
+/**
+ * Describes the message cangate.v1.ConfigurePdoResponse.
+ * Use `create(ConfigurePdoResponseSchema)` to create a new message.
+ */
+export const ConfigurePdoResponseSchema: GenMessage<ConfigurePdoResponse> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 34);
+
+/**
+ * GetSync request.
+ *
+ * @generated from message cangate.v1.GetSyncRequest
+ */
+export type GetSyncRequest = Message<"cangate.v1.GetSyncRequest"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+};
+
+/**
+ * Describes the message cangate.v1.GetSyncRequest.
+ * Use `create(GetSyncRequestSchema)` to create a new message.
+ */
+export const GetSyncRequestSchema: GenMessage<GetSyncRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 35);
+
+/**
+ * SetSync request. Unset fields keep their current value.
+ *
+ * @generated from message cangate.v1.SetSyncRequest
+ */
+export type SetSyncRequest = Message<"cangate.v1.SetSyncRequest"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * Start (true) or stop (false) the SYNC producer.
+   *
+   * @generated from field: optional bool running = 2;
+   */
+  running?: boolean | undefined;
+
+  /**
+   * Communication cycle period in µs (0x1006), 100..=10,000,000.
+   *
+   * @generated from field: optional uint32 period_us = 3;
+   */
+  periodUs?: number | undefined;
+
+  /**
+   * SYNC counter overflow value (0x1019): 0 no counter, 2..=240 a
+   * one-byte counter running 1..=value.
+   *
+   * @generated from field: optional uint32 counter_overflow = 4;
+   */
+  counterOverflow?: number | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.SetSyncRequest.
+ * Use `create(SetSyncRequestSchema)` to create a new message.
+ */
+export const SetSyncRequestSchema: GenMessage<SetSyncRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 36);
+
+/**
+ * The SYNC and TIME producers of a bus.
+ *
+ * @generated from message cangate.v1.SyncStatus
+ */
+export type SyncStatus = Message<"cangate.v1.SyncStatus"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * The SYNC producer runs.
+   *
+   * @generated from field: bool running = 2;
+   */
+  running: boolean;
+
+  /**
+   * Communication cycle period in µs (also when stopped: the period a
+   * start uses).
+   *
+   * @generated from field: uint32 period_us = 3;
+   */
+  periodUs: number;
+
+  /**
+   * Counter overflow value (0: SYNC without data).
+   *
+   * @generated from field: uint32 counter_overflow = 4;
+   */
+  counterOverflow: number;
+
+  /**
+   * SYNC frames sent since the gateway started.
+   *
+   * @generated from field: uint64 sent = 5;
+   */
+  sent: bigint;
+
+  /**
+   * SYNC periods skipped because the producer thread woke too late.
+   *
+   * @generated from field: uint64 skipped = 6;
+   */
+  skipped: bigint;
+
+  /**
+   * TIME producer period in ms (0: TIME only on request).
+   *
+   * @generated from field: uint32 time_period_ms = 7;
+   */
+  timePeriodMs: number;
+};
+
+/**
+ * Describes the message cangate.v1.SyncStatus.
+ * Use `create(SyncStatusSchema)` to create a new message.
+ */
+export const SyncStatusSchema: GenMessage<SyncStatus> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 37);
+
+/**
+ * SetTime request.
+ *
+ * @generated from message cangate.v1.SetTimeRequest
+ */
+export type SetTimeRequest = Message<"cangate.v1.SetTimeRequest"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * Send one TIME now.
+   *
+   * @generated from field: bool send_now = 2;
+   */
+  sendNow: boolean;
+
+  /**
+   * New period of periodic TIMEs in ms (0 stops them; unset: unchanged),
+   * at most 86,400,000.
+   *
+   * @generated from field: optional uint32 period_ms = 3;
+   */
+  periodMs?: number | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.SetTimeRequest.
+ * Use `create(SetTimeRequestSchema)` to create a new message.
+ */
+export const SetTimeRequestSchema: GenMessage<SetTimeRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 38);
+
+/**
+ * A CiA 301 TIME_OF_DAY.
+ *
+ * @generated from message cangate.v1.TimeOfDay
+ */
+export type TimeOfDay = Message<"cangate.v1.TimeOfDay"> & {
+  /**
+   * Milliseconds after midnight (UTC).
+   *
+   * @generated from field: uint32 ms_after_midnight = 1;
+   */
+  msAfterMidnight: number;
+
+  /**
+   * Days since 1984-01-01.
+   *
+   * @generated from field: uint32 days_since_1984 = 2;
+   */
+  daysSince1984: number;
+
+  /**
+   * The same instant in ms since the UNIX epoch.
+   *
+   * @generated from field: uint64 unix_ms = 3;
+   */
+  unixMs: bigint;
+};
+
+/**
+ * Describes the message cangate.v1.TimeOfDay.
+ * Use `create(TimeOfDaySchema)` to create a new message.
+ */
+export const TimeOfDaySchema: GenMessage<TimeOfDay> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 39);
+
+/**
+ * SetTime response.
+ *
+ * @generated from message cangate.v1.SetTimeResponse
+ */
+export type SetTimeResponse = Message<"cangate.v1.SetTimeResponse"> & {
+  /**
+   * The TIME sent (when `send_now`).
+   *
+   * @generated from field: cangate.v1.TimeOfDay sent = 1;
+   */
+  sent?: TimeOfDay | undefined;
+
+  /**
+   * TIME producer period in ms now (0: only on request).
+   *
+   * @generated from field: uint32 time_period_ms = 2;
+   */
+  timePeriodMs: number;
+};
+
+/**
+ * Describes the message cangate.v1.SetTimeResponse.
+ * Use `create(SetTimeResponseSchema)` to create a new message.
+ */
+export const SetTimeResponseSchema: GenMessage<SetTimeResponse> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 40);
+
+/**
+ * ExportDcf request.
+ *
+ * @generated from message cangate.v1.ExportDcfRequest
+ */
+export type ExportDcfRequest = Message<"cangate.v1.ExportDcfRequest"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * Node id.
+   *
+   * @generated from field: uint32 node = 2;
+   */
+  node: number;
+
+  /**
+   * SDO options of the reads.
+   *
+   * @generated from field: cangate.v1.SdoOptions options = 3;
+   */
+  options?: SdoOptions | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.ExportDcfRequest.
+ * Use `create(ExportDcfRequestSchema)` to create a new message.
+ */
+export const ExportDcfRequestSchema: GenMessage<ExportDcfRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 41);
+
+/**
+ * An object a DCF export left out.
+ *
+ * @generated from message cangate.v1.SkippedObject
+ */
+export type SkippedObject = Message<"cangate.v1.SkippedObject"> & {
+  /**
+   * Object index.
+   *
+   * @generated from field: uint32 index = 1;
+   */
+  index: number;
+
+  /**
+   * Sub-index.
+   *
+   * @generated from field: uint32 subindex = 2;
+   */
+  subindex: number;
+
+  /**
+   * Why ("write-only", "DOMAIN (not kept in a DCF)", the SDO abort).
+   *
+   * @generated from field: string reason = 3;
+   */
+  reason: string;
+};
+
+/**
+ * Describes the message cangate.v1.SkippedObject.
+ * Use `create(SkippedObjectSchema)` to create a new message.
+ */
+export const SkippedObjectSchema: GenMessage<SkippedObject> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 42);
+
+/**
+ * ExportDcf response.
+ *
+ * @generated from message cangate.v1.ExportDcfResponse
+ */
+export type ExportDcfResponse = Message<"cangate.v1.ExportDcfResponse"> & {
+  /**
+   * The DCF text.
+   *
+   * @generated from field: string dcf = 1;
+   */
+  dcf: string;
+
+  /**
+   * Objects read and written into it.
+   *
+   * @generated from field: uint32 objects_read = 2;
+   */
+  objectsRead: number;
+
+  /**
+   * Objects left out.
+   *
+   * @generated from field: repeated cangate.v1.SkippedObject skipped = 3;
+   */
+  skipped: SkippedObject[];
+};
+
+/**
+ * Describes the message cangate.v1.ExportDcfResponse.
+ * Use `create(ExportDcfResponseSchema)` to create a new message.
+ */
+export const ExportDcfResponseSchema: GenMessage<ExportDcfResponse> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 43);
+
+/**
  * Boot-up message received.
  *
  * @generated from message cangate.v1.BootUp
@@ -1477,7 +2076,7 @@ export type BootUp = Message<"cangate.v1.BootUp"> & {
  * Use `create(BootUpSchema)` to create a new message.
  */
 export const BootUpSchema: GenMessage<BootUp> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 29);
+  messageDesc(file_cangate_v1_canopen, 44);
 
 /**
  * NMT state change.
@@ -1505,7 +2104,7 @@ export type StateChange = Message<"cangate.v1.StateChange"> & {
  * Use `create(StateChangeSchema)` to create a new message.
  */
 export const StateChangeSchema: GenMessage<StateChange> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 30);
+  messageDesc(file_cangate_v1_canopen, 45);
 
 /**
  * Heartbeat overdue, or node guarding lost.
@@ -1534,7 +2133,7 @@ export type HeartbeatLost = Message<"cangate.v1.HeartbeatLost"> & {
  * Use `create(HeartbeatLostSchema)` to create a new message.
  */
 export const HeartbeatLostSchema: GenMessage<HeartbeatLost> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 31);
+  messageDesc(file_cangate_v1_canopen, 46);
 
 /**
  * Heartbeat back after a loss, or the first valid guarding answer after
@@ -1571,7 +2170,7 @@ export type HeartbeatRecovered = Message<"cangate.v1.HeartbeatRecovered"> & {
  * Use `create(HeartbeatRecoveredSchema)` to create a new message.
  */
 export const HeartbeatRecoveredSchema: GenMessage<HeartbeatRecovered> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 32);
+  messageDesc(file_cangate_v1_canopen, 47);
 
 /**
  * Events this client missed.
@@ -1592,7 +2191,7 @@ export type EventsLost = Message<"cangate.v1.EventsLost"> & {
  * Use `create(EventsLostSchema)` to create a new message.
  */
 export const EventsLostSchema: GenMessage<EventsLost> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 33);
+  messageDesc(file_cangate_v1_canopen, 48);
 
 /**
  * The SDO abort of an error caused by an SDO transfer (ErrorInfo reason
@@ -1651,7 +2250,7 @@ export type SdoAbortDetails = Message<"cangate.v1.SdoAbortDetails"> & {
  * Use `create(SdoAbortDetailsSchema)` to create a new message.
  */
 export const SdoAbortDetailsSchema: GenMessage<SdoAbortDetails> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 34);
+  messageDesc(file_cangate_v1_canopen, 49);
 
 /**
  * ListSdoTransfers request.
@@ -1672,7 +2271,7 @@ export type ListSdoTransfersRequest = Message<"cangate.v1.ListSdoTransfersReques
  * Use `create(ListSdoTransfersRequestSchema)` to create a new message.
  */
 export const ListSdoTransfersRequestSchema: GenMessage<ListSdoTransfersRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 35);
+  messageDesc(file_cangate_v1_canopen, 50);
 
 /**
  * One running SDO transfer.
@@ -1735,7 +2334,7 @@ export type SdoTransfer = Message<"cangate.v1.SdoTransfer"> & {
  * Use `create(SdoTransferSchema)` to create a new message.
  */
 export const SdoTransferSchema: GenMessage<SdoTransfer> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 36);
+  messageDesc(file_cangate_v1_canopen, 51);
 
 /**
  * ListSdoTransfers response.
@@ -1756,7 +2355,181 @@ export type ListSdoTransfersResponse = Message<"cangate.v1.ListSdoTransfersRespo
  * Use `create(ListSdoTransfersResponseSchema)` to create a new message.
  */
 export const ListSdoTransfersResponseSchema: GenMessage<ListSdoTransfersResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 37);
+  messageDesc(file_cangate_v1_canopen, 52);
+
+/**
+ * DownloadProgram request.
+ *
+ * @generated from message cangate.v1.DownloadProgramRequest
+ */
+export type DownloadProgramRequest = Message<"cangate.v1.DownloadProgramRequest"> & {
+  /**
+   * Bus name.
+   *
+   * @generated from field: string bus = 1;
+   */
+  bus: string;
+
+  /**
+   * Node id.
+   *
+   * @generated from field: uint32 node = 2;
+   */
+  node: number;
+
+  /**
+   * The program image, at most 16 MiB, at least 1 byte.
+   *
+   * @generated from field: bytes image = 3;
+   */
+  image: Uint8Array;
+
+  /**
+   * Program number: the sub-index of 0x1F50/0x1F51/0x1F56/0x1F57
+   * (0 = 1; at most 254).
+   *
+   * @generated from field: uint32 program = 4;
+   */
+  program: number;
+
+  /**
+   * The software identification (0x1F56) the node must report after the
+   * download; a different one fails the download with
+   * PROGRAM_IDENTIFICATION_MISMATCH. Unset: not checked.
+   *
+   * @generated from field: optional uint32 expected_identification = 5;
+   */
+  expectedIdentification?: number | undefined;
+
+  /**
+   * Clear the program (0x1F51 = 3) before writing the image.
+   *
+   * @generated from field: bool clear = 6;
+   */
+  clear: boolean;
+
+  /**
+   * Longest wait for the flash status to leave "busy" after the data
+   * download, ms (0 = 60000; at most 600000).
+   *
+   * @generated from field: uint32 flash_timeout_ms = 7;
+   */
+  flashTimeoutMs: number;
+
+  /**
+   * Longest wait for the boot-up after the start request, ms (0 = 10000;
+   * at most 600000).
+   *
+   * @generated from field: uint32 boot_timeout_ms = 8;
+   */
+  bootTimeoutMs: number;
+};
+
+/**
+ * Describes the message cangate.v1.DownloadProgramRequest.
+ * Use `create(DownloadProgramRequestSchema)` to create a new message.
+ */
+export const DownloadProgramRequestSchema: GenMessage<DownloadProgramRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 53);
+
+/**
+ * One message of the DownloadProgram stream.
+ *
+ * @generated from message cangate.v1.DownloadProgramProgress
+ */
+export type DownloadProgramProgress = Message<"cangate.v1.DownloadProgramProgress"> & {
+  /**
+   * The step running (of the last message: the last step done).
+   *
+   * @generated from field: cangate.v1.ProgramStep step = 1;
+   */
+  step: ProgramStep;
+
+  /**
+   * Image bytes the node confirmed so far (never decreasing; equal to
+   * bytes_total once the data download is done).
+   *
+   * @generated from field: uint64 bytes_done = 2;
+   */
+  bytesDone: bigint;
+
+  /**
+   * The image's size.
+   *
+   * @generated from field: uint64 bytes_total = 3;
+   */
+  bytesTotal: bigint;
+
+  /**
+   * Set on the last message only, when the download succeeded.
+   *
+   * @generated from field: cangate.v1.DownloadProgramOutcome outcome = 4;
+   */
+  outcome?: DownloadProgramOutcome | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.DownloadProgramProgress.
+ * Use `create(DownloadProgramProgressSchema)` to create a new message.
+ */
+export const DownloadProgramProgressSchema: GenMessage<DownloadProgramProgress> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 54);
+
+/**
+ * How a successful program download ended.
+ *
+ * @generated from message cangate.v1.DownloadProgramOutcome
+ */
+export type DownloadProgramOutcome = Message<"cangate.v1.DownloadProgramOutcome"> & {
+  /**
+   * 0x1F56 before the download; unset when the node refused the read.
+   *
+   * @generated from field: optional uint32 old_identification = 1;
+   */
+  oldIdentification?: number | undefined;
+
+  /**
+   * 0x1F56 after the node booted with the new program.
+   *
+   * @generated from field: uint32 new_identification = 2;
+   */
+  newIdentification: number;
+
+  /**
+   * Image bytes downloaded.
+   *
+   * @generated from field: uint64 bytes = 3;
+   */
+  bytes: bigint;
+
+  /**
+   * The whole download, all steps, ms.
+   *
+   * @generated from field: uint64 duration_ms = 4;
+   */
+  durationMs: bigint;
+
+  /**
+   * The data download step alone (0x1F50 block download), ms.
+   *
+   * @generated from field: uint64 data_duration_ms = 5;
+   */
+  dataDurationMs: bigint;
+
+  /**
+   * Image bytes per second of the data download step.
+   *
+   * @generated from field: double data_bytes_per_second = 6;
+   */
+  dataBytesPerSecond: number;
+};
+
+/**
+ * Describes the message cangate.v1.DownloadProgramOutcome.
+ * Use `create(DownloadProgramOutcomeSchema)` to create a new message.
+ */
+export const DownloadProgramOutcomeSchema: GenMessage<DownloadProgramOutcome> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 55);
 
 /**
  * NMT states (CiA 301).
@@ -2084,6 +2857,117 @@ export const ObjectAccessSchema: GenEnum<ObjectAccess> = /*@__PURE__*/
   enumDesc(file_cangate_v1_canopen, 4);
 
 /**
+ * RPDO (the node receives it) or TPDO (the node transmits it).
+ *
+ * @generated from enum cangate.v1.PdoKind
+ */
+export enum PdoKind {
+  /**
+   * Not given: INVALID_ARGUMENT.
+   *
+   * @generated from enum value: PDO_KIND_UNSPECIFIED = 0;
+   */
+  UNSPECIFIED = 0,
+
+  /**
+   * Receive PDO (0x1400+/0x1600+).
+   *
+   * @generated from enum value: PDO_KIND_RPDO = 1;
+   */
+  RPDO = 1,
+
+  /**
+   * Transmit PDO (0x1800+/0x1A00+).
+   *
+   * @generated from enum value: PDO_KIND_TPDO = 2;
+   */
+  TPDO = 2,
+}
+
+/**
+ * Describes the enum cangate.v1.PdoKind.
+ */
+export const PdoKindSchema: GenEnum<PdoKind> = /*@__PURE__*/
+  enumDesc(file_cangate_v1_canopen, 5);
+
+/**
+ * A step of a program download, in the order they run.
+ *
+ * @generated from enum cangate.v1.ProgramStep
+ */
+export enum ProgramStep {
+  /**
+   * Never sent.
+   *
+   * @generated from enum value: PROGRAM_STEP_UNSPECIFIED = 0;
+   */
+  UNSPECIFIED = 0,
+
+  /**
+   * Reading 0x1F56 before (an SDO abort here is no failure: the old
+   * identification is then unknown).
+   *
+   * @generated from enum value: PROGRAM_STEP_READ_IDENTIFICATION_BEFORE = 1;
+   */
+  READ_IDENTIFICATION_BEFORE = 1,
+
+  /**
+   * Writing 0x1F51 = 0 (stop).
+   *
+   * @generated from enum value: PROGRAM_STEP_STOP_PROGRAM = 2;
+   */
+  STOP_PROGRAM = 2,
+
+  /**
+   * Writing 0x1F51 = 3 (clear), only with `clear`.
+   *
+   * @generated from enum value: PROGRAM_STEP_CLEAR_PROGRAM = 3;
+   */
+  CLEAR_PROGRAM = 3,
+
+  /**
+   * Writing the image to 0x1F50 by SDO block download.
+   *
+   * @generated from enum value: PROGRAM_STEP_DOWNLOAD_DATA = 4;
+   */
+  DOWNLOAD_DATA = 4,
+
+  /**
+   * Polling 0x1F57 until it is no longer busy.
+   *
+   * @generated from enum value: PROGRAM_STEP_WAIT_FLASH = 5;
+   */
+  WAIT_FLASH = 5,
+
+  /**
+   * Writing 0x1F51 = 1 (start).
+   *
+   * @generated from enum value: PROGRAM_STEP_START_PROGRAM = 6;
+   */
+  START_PROGRAM = 6,
+
+  /**
+   * Waiting for the node's boot-up.
+   *
+   * @generated from enum value: PROGRAM_STEP_WAIT_BOOT_UP = 7;
+   */
+  WAIT_BOOT_UP = 7,
+
+  /**
+   * Reading 0x1F56 after.
+   *
+   * @generated from enum value: PROGRAM_STEP_READ_IDENTIFICATION_AFTER = 8;
+   */
+  READ_IDENTIFICATION_AFTER = 8,
+}
+
+/**
+ * Describes the enum cangate.v1.ProgramStep.
+ */
+export const ProgramStepSchema: GenEnum<ProgramStep> = /*@__PURE__*/
+  enumDesc(file_cangate_v1_canopen, 6);
+
+/**
  * CANopen master: nodes, NMT, SDO, events.
  *
  * @generated from service cangate.v1.Canopen
@@ -2211,6 +3095,127 @@ export const Canopen: GenService<{
     methodKind: "unary";
     input: typeof WritePdoRequestSchema;
     output: typeof WritePdoResponseSchema;
+  },
+  /**
+   * A node's PDO configuration as the node holds it now, read over SDO
+   * (communication parameters 0x1400+/0x1800+ and mapping 0x1600+/0x1A00+):
+   * every PDO asked for, valid or not, with its mapped objects named from
+   * the EDS. PDOs the node does not have (SDO abort "object does not
+   * exist") are left out. Viewer.
+   *
+   * @generated from rpc cangate.v1.Canopen.ReadPdoConfig
+   */
+  readPdoConfig: {
+    methodKind: "unary";
+    input: typeof ReadPdoConfigRequestSchema;
+    output: typeof ReadPdoConfigResponseSchema;
+  },
+  /**
+   * Changes one PDO of a node at run time with the CiA 301 sequence:
+   * invalidate (COB-ID bit 31), transmission type, inhibit time, event
+   * timer, mapping count 0, the entries, the count, then the COB-ID valid
+   * (or left invalid to disable the PDO). On success StreamPdo decodes the
+   * node's TPDO and WritePdo encodes its RPDO with the new layout at once.
+   * A failed write is reported with the object that failed (e.g. "0x1A00:01
+   * (mapping entry 1): SDO abort 0x06040041 ...") and the PDO is left
+   * invalid. FAILED_PRECONDITION for the PDOs of an axis's drive (the axis
+   * owns its process data). Engineer.
+   *
+   * @generated from rpc cangate.v1.Canopen.ConfigurePdo
+   */
+  configurePdo: {
+    methodKind: "unary";
+    input: typeof ConfigurePdoRequestSchema;
+    output: typeof ConfigurePdoResponseSchema;
+  },
+  /**
+   * The SYNC producer of a bus: running, period, counter, SYNCs sent and
+   * periods skipped, and the TIME producer's period. Viewer.
+   *
+   * @generated from rpc cangate.v1.Canopen.GetSync
+   */
+  getSync: {
+    methodKind: "unary";
+    input: typeof GetSyncRequestSchema;
+    output: typeof SyncStatusSchema;
+  },
+  /**
+   * Starts, stops or re-times the SYNC producer (0x1005/0x1006/0x1019 of
+   * the master); unset fields keep their value. A stop or a new period is
+   * FAILED_PRECONDITION while a cyclic (CSP) axis on the bus is moving:
+   * its set-points ride every SYNC. The counter restarts at 1 after every
+   * change. Engineer.
+   *
+   * @generated from rpc cangate.v1.Canopen.SetSync
+   */
+  setSync: {
+    methodKind: "unary";
+    input: typeof SetSyncRequestSchema;
+    output: typeof SyncStatusSchema;
+  },
+  /**
+   * The TIME producer (CiA 301 TIME_OF_DAY on 0x100, the host's UTC time):
+   * sends one TIME now and/or sets the period of periodic TIMEs.
+   * Engineer.
+   *
+   * @generated from rpc cangate.v1.Canopen.SetTime
+   */
+  setTime: {
+    methodKind: "unary";
+    input: typeof SetTimeRequestSchema;
+    output: typeof SetTimeResponseSchema;
+  },
+  /**
+   * A node's live values as a DCF (CiA 306): every readable object of its
+   * EDS read over SDO and written into the EDS text as ParameterValue, with
+   * a [DeviceComissioning] section. Objects the node refuses are left out
+   * and listed; a node that stops answering ends the call
+   * (DEADLINE_EXCEEDED). FAILED_PRECONDITION for a node without an EDS.
+   * A DCF given to a node's `dcf` in the configuration is written back by
+   * its boot procedure. Viewer.
+   *
+   * @generated from rpc cangate.v1.Canopen.ExportDcf
+   */
+  exportDcf: {
+    methodKind: "unary";
+    input: typeof ExportDcfRequestSchema;
+    output: typeof ExportDcfResponseSchema;
+  },
+  /**
+   * Downloads a program into a node (CiA 302-3 program download): reads
+   * 0x1F56 (software identification), stops the program (0x1F51 = 0),
+   * optionally clears it (0x1F51 = 3), writes the image to 0x1F50 by SDO
+   * block download, polls 0x1F57 (flash status) until it is no longer
+   * busy, starts the program (0x1F51 = 1), waits for the node's boot-up
+   * and reads 0x1F56 again. The stream yields a message when each step
+   * begins and as the node confirms data bytes; the last message carries
+   * the outcome. Role: engineer.
+   *
+   * The image travels in the request, one message: this RPC accepts
+   * requests up to 16 MiB + 64 KiB even when [security.limits]
+   * max_message_bytes is smaller (larger images are INVALID_ARGUMENT).
+   *
+   * Errors end the stream: FAILED_PRECONDITION another download to the
+   * node runs (reason PROGRAM_DOWNLOAD_RUNNING); NOT_FOUND unknown bus or
+   * node; an SDO failure of a step as for WriteSdo (reasons SDO_ABORT,
+   * SDO_TIMEOUT, ...; the message names the step and ErrorInfo metadata
+   * "step" has its ProgramStep name in lower case with dashes,
+   * "download-data"); ABORTED with reason PROGRAM_FLASH_ERROR when 0x1F57
+   * reports an error (metadata "flash_status" 8 hex digits,
+   * "flash_error" the error code in decimal, "flash_error_name" its
+   * CiA 302-3 name) or PROGRAM_IDENTIFICATION_MISMATCH (metadata
+   * "expected", "found"); DEADLINE_EXCEEDED with PROGRAM_FLASH_TIMEOUT or
+   * PROGRAM_NO_BOOT_UP. A client that cancels the call stops the download:
+   * the SDO transfer running is aborted on the bus, and once the stop step
+   * was done the node's program stays stopped (not running a half-written
+   * image); a new download can follow at once.
+   *
+   * @generated from rpc cangate.v1.Canopen.DownloadProgram
+   */
+  downloadProgram: {
+    methodKind: "server_streaming";
+    input: typeof DownloadProgramRequestSchema;
+    output: typeof DownloadProgramProgressSchema;
   },
 }> = /*@__PURE__*/
   serviceDesc(file_cangate_v1_canopen, 0);
