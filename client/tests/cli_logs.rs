@@ -421,7 +421,10 @@ fn gen_counts_what_the_frame_budget_refused() {
     let sent = number_before(" frames sent");
     let refused = number_before(" refused (FRAME_RATE_LIMIT");
     assert_eq!(sent + refused, 60, "{summary}");
-    assert!((20..60).contains(&sent), "{summary}");
+    // About the burst (20) gets through; a batch is refused whole when the
+    // bucket holds fewer tokens than it has frames, so the burst may end a
+    // frame or two early when gen's frames went out in batches.
+    assert!((15..60).contains(&sent), "{summary}");
     assert!(err.contains("not every frame went out"), "{err}");
 }
 
