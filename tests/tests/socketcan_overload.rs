@@ -465,10 +465,19 @@ async fn run_node(stop: tokio_util::sync::CancellationToken) -> Result<()> {
     use cangate_can::socketcan_bus::{SocketCanBus, SocketCanEvent};
     use cangate_sim::{SimNode, SimNodeOptions};
     let mut bus = SocketCanBus::open(IFACE)?;
+    // The node's answers wait for room in the same 10-frame kernel queue
+    // as the gateway's flood (the qdisc is FIFO across sockets), retried on
+    // ENOBUFS: under emulation a block acknowledge can wait long enough
+    // that the node's default 1 s SDO timeout expires before the next
+    // segment, which tests the VM's scheduling, not the gateway. The
+    // gateway's side keeps its own timeouts.
     let mut node = SimNode::from_eds_text(
         cangate_canopen::eds::SIM_DRIVE_EDS,
         cangate_canopen::NodeId::new(NODE.into()).map_err(|e| anyhow!("{e:?}"))?,
-        SimNodeOptions::default(),
+        SimNodeOptions {
+            sdo_timeout: Duration::from_secs(5),
+            ..SimNodeOptions::default()
+        },
     )?;
     let t0 = Instant::now();
     let out = node.start(t0.elapsed());
