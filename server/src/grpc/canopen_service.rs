@@ -162,7 +162,6 @@ fn map_err(node: NodeId, e: CanopenError) -> ApiError {
         CanopenError::Sdo(error) => ApiError::Sdo {
             node: node.get(),
             error,
-            context: None,
         },
         CanopenError::Send(f) => f.into(),
         CanopenError::Stopped => ApiError::ShuttingDown,
@@ -215,10 +214,13 @@ fn pdo_config_err(node: NodeId, e: PdoConfigError) -> ApiError {
         e @ PdoConfigError::AxisDrive(_) => ApiError::FailedPrecondition(e.to_string()),
         PdoConfigError::Invalid(e) => ApiError::InvalidArgument(e.to_string()),
         PdoConfigError::Object { addr, what, source } => match map_err(node, source) {
-            ApiError::Sdo { node, error, .. } => ApiError::Sdo {
+            // The SDO error's code, reason and details, with the PDO
+            // parameter it failed on.
+            ApiError::Sdo { node, error } => ApiError::SdoInStep {
                 node,
+                step: "configure-pdo",
+                context: format!("{addr} ({what})"),
                 error,
-                context: Some(format!("{addr} ({what})")),
             },
             other => other,
         },

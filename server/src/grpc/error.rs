@@ -78,19 +78,16 @@ pub enum ApiError {
     #[error("the gateway is shutting down")]
     ShuttingDown,
     /// An SDO transfer failed.
-    #[error("{}node {node}: {error}", .context.as_deref().map(|c| format!("{c}: ")).unwrap_or_default())]
+    #[error("node {node}: {error}")]
     Sdo {
         /// Node id.
         node: u8,
         /// The failure.
         error: SdoError,
-        /// What the transfer was part of ("configuring 0x1A00:01 (mapping
-        /// entry 1)"), said before the failure.
-        context: Option<String>,
     },
     /// An SDO transfer of one step of a longer procedure (a program
-    /// download) failed: as [`ApiError::Sdo`], with the step in the message
-    /// and in the metadata key "step".
+    /// download, a PDO configuration) failed: as [`ApiError::Sdo`], with
+    /// the step in the message and in the metadata key "step".
     #[error("node {node}, {context}: {error}")]
     SdoInStep {
         /// Node id.
@@ -214,13 +211,12 @@ impl ApiError {
                 let mut m = ApiError::Sdo {
                     node: *node,
                     error: error.clone(),
-                    context: None,
                 }
                 .metadata();
                 m.push(("step", (*step).to_string()));
                 m
             }
-            ApiError::Sdo { node, error, .. } => {
+            ApiError::Sdo { node, error } => {
                 let abort = error.abort_code();
                 let addr = sdo_address(error);
                 vec![
@@ -588,11 +584,7 @@ mod tests {
     }
 
     fn sdo_error(error: SdoError) -> Status {
-        Status::from(ApiError::Sdo {
-            node: 5,
-            error,
-            context: None,
-        })
+        Status::from(ApiError::Sdo { node: 5, error })
     }
 
     #[test]

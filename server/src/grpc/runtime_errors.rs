@@ -65,11 +65,7 @@ impl From<HandwheelError> for ApiError {
         match e {
             HandwheelError::NotFound(e) => e.into(),
             HandwheelError::Device(m) => ApiError::FailedPrecondition(m),
-            HandwheelError::Sdo { node, error } => ApiError::Sdo {
-                node,
-                error,
-                context: None,
-            },
+            HandwheelError::Sdo { node, error } => ApiError::Sdo { node, error },
             HandwheelError::Unavailable(m) => ApiError::Unavailable(m),
         }
     }

@@ -238,8 +238,9 @@ class CanopenServicer:
         timer, mapping count 0, the entries, the count, then the COB-ID valid
         (or left invalid to disable the PDO). On success StreamPdo decodes the
         node's TPDO and WritePdo encodes its RPDO with the new layout at once.
-        A failed write is reported with the object that failed (e.g. "0x1A00:01
-        (mapping entry 1): SDO abort 0x06040041 ...") and the PDO is left
+        A failed write is reported as an SDO error naming the object that
+        failed (e.g. "node 5, 0x1A00:01 (mapping entry 1): ... 0x06040041 ...";
+        ErrorInfo metadata "step" = "configure-pdo") and the PDO is left
         invalid. FAILED_PRECONDITION for the PDOs of an axis's drive (the axis
         owns its process data). Engineer.
         """
