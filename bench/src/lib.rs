@@ -23,5 +23,6 @@ pub mod axes;
 pub mod gateway;
 pub mod host;
 pub mod report;
+pub mod sdo_wire;
 pub mod stats;
 pub mod suite;

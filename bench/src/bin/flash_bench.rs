@@ -38,7 +38,8 @@
 //! 4.4 s (of which 4.1 s the simulated flash time).
 
 use anyhow::{Context, Result, bail};
-use cangate_can::{BitTiming, CanId, Frame, Stuffing};
+use cangate_bench::sdo_wire::{firmware, frame, transfer_bus_ns};
+use cangate_can::{BitTiming, Stuffing};
 use cangate_client::{NodeId, ProgramOptions};
 use clap::Parser;
 use serde_json::json;
@@ -77,50 +78,6 @@ fn config() -> String {
         ));
     }
     t
-}
-
-fn frame(id: u16, data: &[u8]) -> Frame {
-    Frame::new(CanId::Standard(id), data).expect("classic SDO frame")
-}
-
-/// Deterministic pseudo-random bytes (realistic bit stuffing).
-fn firmware(len: usize) -> Vec<u8> {
-    let mut x: u32 = 0x2545_F491;
-    (0..len)
-        .map(|_| {
-            x ^= x << 13;
-            x ^= x >> 17;
-            x ^= x << 5;
-            (x >> 24) as u8
-        })
-        .collect()
-}
-
-/// Bus time of every frame of a block download of `data` (blocks of 127).
-fn transfer_ns(t: &BitTiming, data: &[u8]) -> u64 {
-    let (req, resp) = (0x600 + u16::from(NODE), 0x580 + u16::from(NODE));
-    let d = |f: &Frame| t.frame_duration_ns(f);
-    let len = (data.len() as u32).to_le_bytes();
-    let mut total = d(&frame(
-        req,
-        &[0xC6, 0x50, 0x1F, 0x01, len[0], len[1], len[2], len[3]],
-    )) + d(&frame(resp, &[0xA4, 0x50, 0x1F, 0x01, 127, 0, 0, 0]));
-    let chunks: Vec<&[u8]> = data.chunks(7).collect();
-    for (k, c) in chunks.iter().enumerate() {
-        let seq = (k % 127) as u8 + 1;
-        let last = if k + 1 == chunks.len() { 0x80 } else { 0 };
-        let mut p = [0u8; 8];
-        p[0] = seq | last;
-        p[1..1 + c.len()].copy_from_slice(c);
-        total += d(&frame(req, &p));
-        if seq == 127 || last != 0 {
-            total += d(&frame(resp, &[0xA2, seq, 127, 0, 0, 0, 0, 0]));
-        }
-    }
-    let unused = ((7 - chunks.last().map_or(7, |c| c.len())) as u8) << 2;
-    total += d(&frame(req, &[0xC1 | unused, 0x12, 0x34, 0, 0, 0, 0, 0]));
-    total += d(&frame(resp, &[0xA1, 0, 0, 0, 0, 0, 0, 0]));
-    total
 }
 
 /// Bytes per second of whole blocks: 889 bytes per 127 segments + 1 ack,
@@ -190,7 +147,8 @@ async fn main() -> Result<()> {
     };
     let (block_exact, seg_ns, ack_ns) = block_ceiling(&exact, &image);
     let (block_worst, _, _) = block_ceiling(&worst, &image);
-    let transfer = image.len() as f64 / (transfer_ns(&exact, &image) as f64 / 1e9);
+    let transfer =
+        image.len() as f64 / (transfer_bus_ns(&exact, NODE, &image, true, false) as f64 / 1e9);
     let kib = |bps: f64| bps / 1024.0;
 
     println!(

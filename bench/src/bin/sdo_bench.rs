@@ -47,10 +47,11 @@
 
 use anyhow::{Context, Result, anyhow, bail};
 use cangate_bench::gateway;
+use cangate_bench::sdo_wire::{firmware, frame, transfer_bus_ns};
 use cangate_bench::stats::{self, Percentiles, histogram, quantile_us};
 use cangate_can::{
-    BitTiming, BusItem, CanId, Direction, Filter, Frame, FrameSelector, PortEvent, Timestamp,
-    VirtualBus, VirtualBusConfig, VirtualPort,
+    BitTiming, BusItem, Direction, Filter, FrameSelector, PortEvent, Timestamp, VirtualBus,
+    VirtualBusConfig, VirtualPort,
 };
 use cangate_canopen::eds::{Eds, SIM_DRIVE_EDS};
 use cangate_canopen::master::{Master, MasterEvent, Output, RequestId, SdoRequest};
@@ -769,79 +770,12 @@ fn run_reference(args: &Args) -> Reference {
 // Bus time
 // ---------------------------------------------------------------------------
 
-fn frame(id: u16, data: &[u8]) -> Frame {
-    Frame::new(CanId::Standard(id), data).expect("classic SDO frame")
-}
-
 /// Bus time of the two frames of the expedited read of 0x1017 (= 1000).
 fn expedited_bus_ns(t: &BitTiming) -> u64 {
     let node = u16::from(NODE);
     let req = frame(0x600 + node, &[0x40, 0x17, 0x10, 0x00, 0, 0, 0, 0]);
     let resp = frame(0x580 + node, &[0x4B, 0x17, 0x10, 0x00, 0xE8, 0x03, 0, 0]);
     t.frame_duration_ns(&req) + t.frame_duration_ns(&resp)
-}
-
-/// Bus time of the frames of a transfer of `data`, protocol by protocol
-/// (the data frames and their confirmations; the initiate and end frames
-/// are included as plain 8-byte frames).
-fn transfer_bus_ns(t: &BitTiming, data: &[u8], block: bool, upload: bool) -> u64 {
-    let node = u16::from(NODE);
-    let (data_id, confirm_id) = if upload {
-        (0x580 + node, 0x600 + node)
-    } else {
-        (0x600 + node, 0x580 + node)
-    };
-    let d = |f: &Frame| t.frame_duration_ns(f);
-    let plain = |id: u16, cmd: u8| d(&frame(id, &[cmd, 0, 0x21, 0, 0, 0, 0, 0]));
-    let chunks: Vec<&[u8]> = data.chunks(7).collect();
-    let mut total = 0;
-    if block {
-        // Initiate (2), start (upload only), segments, one ack per
-        // sub-block of 127, end (2).
-        total += plain(confirm_id, 0xA0) + plain(data_id, 0xC0);
-        if upload {
-            total += plain(confirm_id, 0xA3);
-        }
-        for (k, c) in chunks.iter().enumerate() {
-            let seq = (k % 127) as u8 + 1;
-            let last = if k + 1 == chunks.len() { 0x80 } else { 0 };
-            let mut p = [0u8; 8];
-            p[0] = seq | last;
-            p[1..1 + c.len()].copy_from_slice(c);
-            total += d(&frame(data_id, &p));
-            if seq == 127 || last != 0 {
-                total += d(&frame(confirm_id, &[0xA2, seq, 127, 0, 0, 0, 0, 0]));
-            }
-        }
-        total += plain(data_id, 0xC1) + plain(confirm_id, 0xA1);
-    } else {
-        total += plain(confirm_id, 0x40) + plain(data_id, 0x41);
-        for (k, c) in chunks.iter().enumerate() {
-            let toggle = if k % 2 == 1 { 0x10 } else { 0 };
-            let last = u8::from(k + 1 == chunks.len());
-            let unused = ((7 - c.len()) as u8) << 1;
-            let mut p = [0u8; 8];
-            p[0] = toggle | unused | last;
-            p[1..1 + c.len()].copy_from_slice(c);
-            total += d(&frame(data_id, &p));
-            let ack = if upload { 0x60 | toggle } else { 0x20 | toggle };
-            total += d(&frame(confirm_id, &[ack, 0, 0, 0, 0, 0, 0, 0]));
-        }
-    }
-    total
-}
-
-/// Deterministic pseudo-random bytes (realistic bit stuffing).
-fn firmware(len: usize) -> Vec<u8> {
-    let mut x: u32 = 0x2545_F491;
-    (0..len)
-        .map(|_| {
-            x ^= x << 13;
-            x ^= x >> 17;
-            x ^= x << 5;
-            (x >> 24) as u8
-        })
-        .collect()
 }
 
 // ---------------------------------------------------------------------------
@@ -1379,7 +1313,7 @@ async fn bit_timed(args: &Args, r: &mut Report) -> Result<()> {
                 bail!("{proto} read-back of 0x2100 differs from what was written");
             }
             let kbs = data.len() as f64 / elapsed.as_secs_f64() / 1000.0;
-            let ceiling_ns = transfer_bus_ns(&timing, &data, proto == "block", upload);
+            let ceiling_ns = transfer_bus_ns(&timing, NODE, &data, proto == "block", upload);
             let ceiling = data.len() as f64 / (ceiling_ns as f64 / 1e9) / 1000.0;
             r.line(format!(
                 "{:<46} {:>9} {:>10.1} {:>12.1} {:>10.1} {:>8}",
