@@ -91,6 +91,34 @@ fn refused_reason(e: &Error) -> Option<&str> {
     }
 }
 
+/// The embedded demo has one device without a node-ID, so that the
+/// README's `cangate lss scan can0` and `lss set-id can0 --serial 0xCAFE 20`
+/// work on it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_demo_has_a_device_for_lss() {
+    let mut config = cangate_server::Config::demo();
+    config.listen = "127.0.0.1:0".parse().unwrap();
+    config.cansmc.clear();
+    config.buses.retain(|b| b.name == "can0");
+    let server = cangate_server::start(&config).await.expect("demo starts");
+    let c = client(&server).await;
+    let lss = c.lss("can0");
+    let found = lss.fastscan(None).await.expect("fastscan");
+    assert_eq!(
+        found.iter().map(|i| i.serial).collect::<Vec<_>>(),
+        vec![0xCAFE],
+        "{found:?}"
+    );
+    lss.assign_node_id(LssDevice::Serial(0xCAFE), NodeId::new(20).unwrap(), true)
+        .await
+        .expect("assign node-ID 20");
+    let deadline = Instant::now() + WAIT;
+    while get_node(&c, 20).await.state != pb::NmtState::Operational as i32 {
+        assert!(Instant::now() < deadline, "demo node 20 never operational");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn unconfigured_nodes_are_found_given_ids_and_booted() {
     let server = start_server(CONFIG).await;

@@ -269,7 +269,7 @@ mod tests {
         let names: Vec<_> = c.buses.iter().map(|b| b.name.as_str()).collect();
         assert_eq!(names, ["can0", "smc0", "smc1"]);
         let nodes: Vec<_> = c.canopen[0].nodes.iter().map(|n| n.id).collect();
-        assert_eq!(nodes, [1, 2, 3, 4, 10]);
+        assert_eq!(nodes, [1, 2, 3, 4, 10, 20]);
         assert_eq!(c.handwheels[0].name, "hw1");
         assert_eq!(c.listen, default_listen());
         let axes: Vec<_> = c.axes.iter().map(|a| (a.name.as_str(), a.node)).collect();
