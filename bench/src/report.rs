@@ -21,10 +21,18 @@ impl Target {
         }
     }
 
-    fn describe(self, unit: &str) -> String {
+    /// The target for people, e.g. `>= 1,000,000 frames/s`.
+    pub fn describe(self, unit: &str) -> String {
         match self {
             Target::AtLeast(t) => format!(">= {} {unit}", human(t)),
             Target::Below(t) => format!("< {} {unit}", human(t)),
+        }
+    }
+
+    /// The value the target compares with.
+    pub fn reference(self) -> f64 {
+        match self {
+            Target::AtLeast(t) | Target::Below(t) => t,
         }
     }
 

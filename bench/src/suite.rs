@@ -8,7 +8,7 @@
 //! line each prints last. A binary that is not built, or fails, is a row
 //! saying so; the others still run.
 
-use crate::report::{Measure, Verdict};
+use crate::report::{Measure, Outcome, Verdict};
 use serde_json::Value;
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
@@ -60,32 +60,18 @@ pub fn measure_rows(measures: &[Measure]) -> Vec<Row> {
     measures
         .iter()
         .map(|m| {
-            let j = m.to_json();
-            let target = match (
-                j["target"]["at_least"].as_f64(),
-                j["target"]["below"].as_f64(),
-            ) {
-                (Some(t), _) => format!(">= {} {}", crate::report::human(t), m.unit),
-                (_, Some(t)) => format!("< {} {}", crate::report::human(t), m.unit),
-                _ => String::new(),
-            };
-            let (result, ratio) = match (j["value"].as_f64(), j["target"].clone()) {
-                (Some(v), t) => {
-                    let reference = t["at_least"].as_f64().or(t["below"].as_f64());
-                    (
-                        format!("{} {}", crate::report::human(v), m.unit),
-                        reference.map_or(String::new(), |r| format!("{:.2}× target", v / r)),
-                    )
-                }
-                _ => (
-                    j["note"].as_str().unwrap_or_default().to_string(),
-                    String::new(),
+            let (result, ratio) = match &m.outcome {
+                Outcome::Value(v) => (
+                    format!("{} {}", crate::report::human(*v), m.unit),
+                    format!("{:.2}× target", v / m.target.reference()),
                 ),
+                Outcome::Skipped(why) => (format!("skipped: {why}"), String::new()),
+                Outcome::Error(e) => (format!("error: {e}"), String::new()),
             };
             Row {
                 measure: m.label.to_string(),
                 result,
-                target,
+                target: m.target.describe(m.unit),
                 ratio,
                 verdict: match m.verdict() {
                     Verdict::Pass => "pass",
