@@ -41,6 +41,30 @@ pub fn cmd(axis: &str, lease: &str, wait: bool) -> pb::AxisCommandRequest {
     }
 }
 
+/// Waits (polling slowly: some tests run under a low rate limit) until
+/// every axis of `names` has process data from its booted drive.
+pub async fn wait_ready(axes: &mut Axes, names: &[&str]) {
+    let t0 = std::time::Instant::now();
+    for name in names {
+        loop {
+            let s = axes
+                .get_axis(pb::GetAxisRequest {
+                    axis: name.to_string(),
+                })
+                .await
+                .unwrap()
+                .into_inner()
+                .status
+                .unwrap();
+            if !s.node_lost && s.state != pb::DriveState::Unspecified as i32 {
+                break;
+            }
+            assert!(t0.elapsed() < 3 * WAIT, "axis {name} never came up: {s:?}");
+            tokio::time::sleep(Duration::from_millis(250)).await;
+        }
+    }
+}
+
 /// Enables `axis` and checks it reached OPERATION_ENABLED.
 pub async fn enable(axes: &mut Axes, axis: &str, lease: &str) {
     let r = axes

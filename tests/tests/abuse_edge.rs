@@ -6,7 +6,7 @@
 //! client (or raw bytes where a client would refuse to send them).
 
 use cangate_client::{ConnectOptions, pb};
-use cangate_tests::axes::{Axes, acquire, cmd, enable};
+use cangate_tests::axes::{Axes, acquire, cmd, enable, wait_ready};
 use cangate_tests::*;
 use prost::Message;
 use prost::bytes::{Buf, BufMut};
@@ -84,30 +84,6 @@ async fn with_token(server: &cangate_server::RunningServer, token: &str) -> cang
     )
     .await
     .expect("client connects")
-}
-
-/// Waits (polling slowly: some tests run under a low rate limit) until
-/// every axis of `names` has process data from its booted drive.
-async fn wait_ready(axes: &mut Axes, names: &[&str]) {
-    let t0 = std::time::Instant::now();
-    for name in names {
-        loop {
-            let s = axes
-                .get_axis(pb::GetAxisRequest {
-                    axis: name.to_string(),
-                })
-                .await
-                .unwrap()
-                .into_inner()
-                .status
-                .unwrap();
-            if !s.node_lost && s.state != pb::DriveState::Unspecified as i32 {
-                break;
-            }
-            assert!(t0.elapsed() < 3 * WAIT, "axis {name} never came up: {s:?}");
-            tokio::time::sleep(Duration::from_millis(250)).await;
-        }
-    }
 }
 
 fn stop(axis: &str) -> pb::AxisCommandRequest {

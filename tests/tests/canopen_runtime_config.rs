@@ -17,7 +17,7 @@
 
 use cangate_client::pb;
 use cangate_client::{Error, NodeId};
-use cangate_tests::axes::{acquire, cmd, enable, opts, wait_status};
+use cangate_tests::axes::{acquire, cmd, enable, opts, wait_ready, wait_status};
 use cangate_tests::*;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
@@ -517,6 +517,7 @@ async fn a_moving_cyclic_axis_vetoes_a_sync_stop_and_a_new_period() {
     let c = client(&server).await;
     let co = c.canopen("can0");
     let mut axes = c.axes_client();
+    wait_ready(&mut axes, &["X"]).await;
     let lease = acquire(&mut axes, &["X"], 10_000, "sync-test").await;
     enable(&mut axes, "X", &lease).await;
     // A long move: 200 mm at 20 mm/s.
