@@ -84,6 +84,8 @@ async fn measure(
             include_error_frames: false,
             max_batch: 0,
             queue_length: 0,
+            // One frame at a time, each read at once: the case it is for.
+            low_latency: true,
         })
         .await?;
     let first = tokio::time::timeout(SAMPLE_TIMEOUT, stream.message())

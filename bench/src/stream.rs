@@ -85,6 +85,7 @@ async fn measure(server: &RunningServer, frames: u64, window: u64) -> Result<Vec
             include_error_frames: false,
             max_batch: 0,
             queue_length: QUEUE_LENGTH,
+            low_latency: false,
         })
         .await?;
     // The first message is the bus state: the subscription is live.

@@ -24,6 +24,14 @@ pub struct FrameStreamOptions {
     /// Events the gateway buffers for this stream before it drops (and
     /// reports) frames; `None`: the gateway's default (8192).
     pub queue_length: Option<u32>,
+    /// Every event at once, however small the message (the request's
+    /// `low_latency`). Without it the gateway, after a burst, lets a few
+    /// events wait up to 5 ms for more. This client tolerates small
+    /// messages (its stream window bounds what waits unread), but with
+    /// more than two such streams on one connection a reader that pauses
+    /// can exhaust the HTTP/2 limit on unread small frames and lose the
+    /// connection: set it for request/response exchanges and live views.
+    pub low_latency: bool,
 }
 
 /// One item of a frame stream.
@@ -83,6 +91,14 @@ pub struct AttachOptions {
     /// Events the gateway buffers for it before it drops (and reports)
     /// frames; `None`: the gateway's default (8192).
     pub queue_length: Option<u32>,
+    /// Every event at once, however small the message (the request's
+    /// `low_latency`). Without it the gateway, after a burst, lets a few
+    /// events wait up to 5 ms for more. This client tolerates small
+    /// messages (its stream window bounds what waits unread), but with
+    /// more than two such streams on one connection a reader that pauses
+    /// can exhaust the HTTP/2 limit on unread small frames and lose the
+    /// connection: set it for request/response exchanges and live views.
+    pub low_latency: bool,
 }
 
 /// One item an attached client receives ([`Attachment::events`]).
@@ -235,6 +251,7 @@ impl Client {
                 include_error_frames: options.include_error_frames,
                 max_batch: 0,
                 queue_length: options.queue_length.unwrap_or(0),
+                low_latency: options.low_latency,
             })),
         };
         tx.try_send(open).map_err(|_| Error::Transport {
@@ -350,6 +367,7 @@ impl Client {
             include_error_frames: options.include_error_frames,
             max_batch: 0,
             queue_length: options.queue_length.unwrap_or(0),
+            low_latency: options.low_latency,
         };
         let s = self
             .call("StreamFrames", None, self.bus_client().stream_frames(req))

@@ -76,6 +76,10 @@ fn describe() {
         "cangate_bus_stream_drops_total",
         "Frames dropped for slow stream subscribers (each reported to them as lost)."
     );
+    describe_counter!(
+        "cangate_stream_messages_held_total",
+        "Frame-stream messages of a few events that waited for more, after the stream's small-message burst, per bus (a reader can ask for low_latency)."
+    );
     describe_gauge!(
         "cangate_bus_load_percent",
         "Bus load in percent of the bitrate."

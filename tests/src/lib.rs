@@ -56,6 +56,7 @@ pub fn stream_request(bus: &str, filters: Vec<pb::FrameFilter>) -> pb::StreamFra
         include_error_frames: false,
         max_batch: 0,
         queue_length: 0,
+        low_latency: false,
     }
 }
 
@@ -154,4 +155,19 @@ pub async fn get_node(c: &cangate_client::Client, node: u32) -> pb::Node {
         .await
         .expect("GetNode")
         .into_inner()
+}
+
+/// The gateway's Prometheus metrics text (`metrics_listen` at `addr`).
+pub async fn scrape_metrics(addr: std::net::SocketAddr) -> String {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    s.write_all(b"GET /metrics HTTP/1.1\r\nHost: x\r\n\r\n")
+        .await
+        .unwrap();
+    let mut out = String::new();
+    tokio::time::timeout(WAIT, s.read_to_string(&mut out))
+        .await
+        .expect("answer in time")
+        .unwrap();
+    out
 }

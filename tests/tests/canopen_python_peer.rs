@@ -650,6 +650,7 @@ impl HeartbeatFrames {
                 include_error_frames: false,
                 max_batch: 0,
                 queue_length: 0,
+                low_latency: false,
             }),
         )
         .await

@@ -70,20 +70,6 @@ async fn wait_event(
     .unwrap_or_else(|_| panic!("no {what} event in time"))
 }
 
-async fn scrape_metrics(addr: std::net::SocketAddr) -> String {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
-    s.write_all(b"GET /metrics HTTP/1.1\r\nHost: x\r\n\r\n")
-        .await
-        .unwrap();
-    let mut out = String::new();
-    tokio::time::timeout(WAIT, s.read_to_string(&mut out))
-        .await
-        .expect("answer in time")
-        .unwrap();
-    out
-}
-
 fn refused_reason(e: &Error) -> Option<&str> {
     match e {
         Error::Refused { reason, .. } => Some(reason),

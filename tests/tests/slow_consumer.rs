@@ -202,3 +202,94 @@ async fn paused_reader_of_a_trickle_gets_lost_notices_not_a_transport_error() {
     );
     server.shutdown();
 }
+
+/// Two buses, the metrics endpoint: which stream messages waited for more
+/// events shows per bus (`cangate_stream_messages_held_total`).
+const TWO_BUSES_WITH_METRICS: &str = r#"
+metrics_listen = "127.0.0.1:0"
+
+[[bus]]
+name = "quick0"
+backend = "virtual"
+
+[[bus]]
+name = "paced0"
+backend = "virtual"
+"#;
+
+/// Frames one at a time, each read before the next is sent (a
+/// request/response exchange over the stream), past the small-message
+/// burst: a `low_latency` stream sends every one at once; a default one
+/// makes some wait for company (and counts them), which is what keeps a
+/// paused reader's HTTP/2 connection alive.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_low_latency_stream_never_holds_a_frame_back_a_default_one_does_past_its_burst() {
+    let server = start_server(TWO_BUSES_WITH_METRICS).await;
+    let metrics = server.metrics_addr.expect("metrics configured");
+    let mut c = client(&server).await;
+    let held = |text: &str, bus: &str| -> u64 {
+        let prefix = format!("cangate_stream_messages_held_total{{bus=\"{bus}\"}} ");
+        text.lines()
+            .find_map(|l| l.strip_prefix(&prefix))
+            .map_or(0, |v| v.trim().parse().unwrap())
+    };
+    // The default stream first, until it holds one back: past the burst of
+    // 1,000 plus what refilled meanwhile (more on a slow host).
+    let mut needed = 0;
+    let (mut paced, mut paced_pending) =
+        open_stream(&mut c, stream_request("paced0", vec![])).await;
+    let paced_device = server
+        .gateway()
+        .network()
+        .get("paced0")
+        .unwrap()
+        .connect(false);
+    while held(&scrape_metrics(metrics).await, "paced0") == 0 {
+        assert!(
+            needed < 50_000,
+            "the default stream never paced its small messages"
+        );
+        exchange(&paced_device, &mut paced, &mut paced_pending, needed, 100).await;
+        needed += 100;
+    }
+    // The low-latency one, as many and more: nothing held back.
+    let mut req = stream_request("quick0", vec![]);
+    req.low_latency = true;
+    let (mut quick, mut quick_pending) = open_stream(&mut c, req).await;
+    let quick_device = server
+        .gateway()
+        .network()
+        .get("quick0")
+        .unwrap()
+        .connect(false);
+    exchange(
+        &quick_device,
+        &mut quick,
+        &mut quick_pending,
+        0,
+        needed + 500,
+    )
+    .await;
+    let text = scrape_metrics(metrics).await;
+    assert_eq!(held(&text, "quick0"), 0, "{text}");
+    server.shutdown();
+}
+
+/// `count` frames numbered from `first`, each sent once the previous one
+/// came back on `stream`.
+async fn exchange(
+    device: &cangate_can::virtual_bus::VirtualPort,
+    stream: &mut tonic::Streaming<cangate_client::pb::StreamFramesResponse>,
+    pending: &mut Vec<cangate_client::pb::StreamEvent>,
+    first: u64,
+    count: u64,
+) {
+    let id = CanId::standard(0x181).unwrap();
+    for seq in first..first + count {
+        device
+            .send(&Frame::new(id, &seq.to_le_bytes()).unwrap())
+            .unwrap();
+        let got = read_frames(stream, pending, 1).await;
+        assert_eq!(got[0].data, seq.to_le_bytes(), "in order, none lost");
+    }
+}

@@ -125,6 +125,7 @@ async fn flood() -> Result<()> {
             max_batch: 0,
             // Room for the whole flood: any loss here is the kernel's.
             queue_length: 100_000,
+            low_latency: false,
         })
         .await?;
     // The first event (the state) means the subscription is registered.

@@ -382,6 +382,7 @@ fn stream_request(
         include_error_frames: false,
         max_batch: 0,
         queue_length: 0,
+        low_latency: false,
     }
 }
 

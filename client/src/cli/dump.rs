@@ -272,6 +272,9 @@ pub(crate) async fn dump(app: &App, a: DumpArgs) -> Result<()> {
             include_error_frames: a.errors,
             max_batch: 0,
             queue_length: 0,
+            // dump's reader pauses (`| less`) on many buses at once: the
+            // gateway's small-message budget keeps the connection.
+            low_latency: false,
         };
         let stream = app
             .client

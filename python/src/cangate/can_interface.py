@@ -319,6 +319,10 @@ class CangateBus(can.BusABC):
             fd=self._fd,
             include_error_frames=self._error_frames,
             queue_length=self._queue_length,
+            # Every frame at once: a python-can program waits for answers
+            # (an SDO response) one by one, and grpcio tolerates the small
+            # messages this makes (see AttachOpen.low_latency).
+            low_latency=True,
         )
         return _Attachment(
             self._stub,

@@ -255,8 +255,77 @@ async fn try_send_client_frames(
         .map_err(Refusal::from)
 }
 
+/// How a stream batches its events into messages.
+#[derive(Clone, Copy, Debug)]
+struct Batching {
+    /// Most events per message.
+    max_batch: usize,
+    /// Every event at once, without the small-message budget (the
+    /// request's `low_latency`, see [`COALESCE_EVENTS`]).
+    low_latency: bool,
+}
+
+impl Batching {
+    /// From a request's `max_batch` (0: the default) and `low_latency`.
+    fn from_request(max_batch: u32, low_latency: bool) -> Self {
+        let max_batch = match max_batch as usize {
+            0 => MAX_STREAM_BATCH,
+            n => n.min(MAX_STREAM_BATCH),
+        };
+        Batching {
+            max_batch,
+            low_latency,
+        }
+    }
+}
+
+/// Which stream messages may go out with only a few events (see
+/// [`COALESCE_EVENTS`]): pure, so its arithmetic is tested with explicit
+/// instants.
+#[derive(Debug)]
+struct SmallMessagePacer {
+    /// Small messages that may go at once; refills at
+    /// [`SMALL_MESSAGES_PER_S`] up to [`SMALL_MESSAGE_BURST`].
+    budget: f64,
+    refilled: tokio::time::Instant,
+    /// The reader asked for every event at once.
+    low_latency: bool,
+}
+
+impl SmallMessagePacer {
+    fn new(low_latency: bool, now: tokio::time::Instant) -> Self {
+        SmallMessagePacer {
+            budget: SMALL_MESSAGE_BURST,
+            refilled: now,
+            low_latency,
+        }
+    }
+
+    /// For a message of `events` events (`enough` make it not small):
+    /// `None` to send it now, or how long to wait for more events.
+    fn linger(
+        &mut self,
+        now: tokio::time::Instant,
+        events: usize,
+        enough: usize,
+    ) -> Option<Duration> {
+        self.budget = (self.budget
+            + now.saturating_duration_since(self.refilled).as_secs_f64() * SMALL_MESSAGES_PER_S)
+            .min(SMALL_MESSAGE_BURST);
+        self.refilled = now;
+        if self.low_latency || events >= enough {
+            None
+        } else if self.budget >= 1.0 {
+            self.budget -= 1.0;
+            None
+        } else {
+            Some(COALESCE_LINGER)
+        }
+    }
+}
+
 /// Forwards a subscription into a stream: `first` messages, then the items
-/// in batches of at most `max_batch`, each batch made a message by
+/// in batches as `batching` says, each batch made a message by
 /// `message`. Ends when the client goes away, the bus stops or the gateway
 /// shuts down (`at_shutdown`: a last message, e.g. a status).
 #[allow(clippy::too_many_arguments)]
@@ -265,7 +334,7 @@ fn spawn_subscription_forward<M: Send + 'static>(
     bus: BusHandle,
     tx: mpsc::Sender<Result<M, Status>>,
     first: Vec<M>,
-    max_batch: usize,
+    batching: Batching,
     cancel: CancellationToken,
     at_shutdown: Option<Status>,
     mut message: impl FnMut(&[BusItem], u64) -> M + Send + 'static,
@@ -278,9 +347,12 @@ fn spawn_subscription_forward<M: Send + 'static>(
                 return;
             }
         }
+        let Batching {
+            max_batch,
+            low_latency,
+        } = batching;
         let mut items = Vec::with_capacity(max_batch);
-        let mut small_budget = SMALL_MESSAGE_BURST;
-        let mut refilled = tokio::time::Instant::now();
+        let mut pacer = SmallMessagePacer::new(low_latency, tokio::time::Instant::now());
         loop {
             items.clear();
             let n = tokio::select! {
@@ -297,19 +369,13 @@ fn spawn_subscription_forward<M: Send + 'static>(
                 }
                 return;
             }
-            // A few events: from the small-message budget, or give more
-            // a moment to join them (see COALESCE_EVENTS).
+            let enough = COALESCE_EVENTS.min(max_batch);
             let now = tokio::time::Instant::now();
-            small_budget = (small_budget
-                + now.duration_since(refilled).as_secs_f64() * SMALL_MESSAGES_PER_S)
-                .min(SMALL_MESSAGE_BURST);
-            refilled = now;
-            let small = items.len() < COALESCE_EVENTS.min(max_batch);
-            if small && small_budget >= 1.0 {
-                small_budget -= 1.0;
-            } else if small {
-                let deadline = tokio::time::Instant::now() + COALESCE_LINGER;
-                while items.len() < COALESCE_EVENTS.min(max_batch) {
+            if let Some(linger) = pacer.linger(now, items.len(), enough) {
+                metrics::counter!("cangate_stream_messages_held_total", "bus" => bus.name().to_string())
+                    .increment(1);
+                let deadline = now + linger;
+                while items.len() < enough {
                     let room = max_batch - items.len();
                     tokio::select! {
                         _ = cancel.cancelled() => break,
@@ -473,10 +539,7 @@ impl Bus for BusService {
             .iter()
             .map(filter_from_pb)
             .collect::<Result<Vec<_>, _>>()?;
-        let max_batch = match req.max_batch as usize {
-            0 => MAX_STREAM_BATCH,
-            n => n.min(MAX_STREAM_BATCH),
-        };
+        let batching = Batching::from_request(req.max_batch, req.low_latency);
         let selector = FrameSelector {
             filters,
             error_frames: req.include_error_frames,
@@ -502,7 +565,7 @@ impl Bus for BusService {
             bus,
             tx,
             vec![first],
-            max_batch,
+            batching,
             cancel,
             None,
             move |items, since| pb::StreamFramesResponse {
@@ -572,10 +635,7 @@ impl Bus for BusService {
             )
             .into());
         }
-        let max_batch = match open.max_batch as usize {
-            0 => MAX_STREAM_BATCH,
-            n => n.min(MAX_STREAM_BATCH),
-        };
+        let batching = Batching::from_request(open.max_batch, open.low_latency);
         // The queue comes out of the caller's budget ([security.limits]).
         let (queue, queue_reservation) = crate::security::stream_queue_from(
             queue_budget.as_ref(),
@@ -624,7 +684,7 @@ impl Bus for BusService {
             bus.clone(),
             tx.clone(),
             vec![first],
-            max_batch,
+            batching,
             cancel.clone(),
             Some(ApiError::ShuttingDown.into()),
             move |items, since| pb::AttachResponse {
@@ -641,5 +701,56 @@ impl Bus for BusService {
         Ok(Response::new(Box::pin(
             tokio_stream::wrappers::ReceiverStream::new(rx),
         )))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tokio::time::Instant;
+
+    #[test]
+    fn small_messages_go_at_once_for_a_burst_then_at_the_refill_rate() {
+        let t0 = Instant::now();
+        let mut p = SmallMessagePacer::new(false, t0);
+        for _ in 0..SMALL_MESSAGE_BURST as usize {
+            assert_eq!(p.linger(t0, 1, COALESCE_EVENTS), None);
+        }
+        assert_eq!(p.linger(t0, 1, COALESCE_EVENTS), Some(COALESCE_LINGER));
+        // A message of enough events never waits.
+        assert_eq!(p.linger(t0, COALESCE_EVENTS, COALESCE_EVENTS), None);
+        // One small message per 1/SMALL_MESSAGES_PER_S.
+        let step = Duration::from_secs_f64(1.0 / SMALL_MESSAGES_PER_S);
+        assert_eq!(p.linger(t0 + step, 1, COALESCE_EVENTS), None);
+        assert_eq!(
+            p.linger(t0 + step, 1, COALESCE_EVENTS),
+            Some(COALESCE_LINGER)
+        );
+        // A long pause refills the burst, no more.
+        let later = t0 + Duration::from_secs(3600);
+        for _ in 0..SMALL_MESSAGE_BURST as usize {
+            assert_eq!(p.linger(later, 1, COALESCE_EVENTS), None);
+        }
+        assert_eq!(p.linger(later, 1, COALESCE_EVENTS), Some(COALESCE_LINGER));
+    }
+
+    #[test]
+    fn a_low_latency_reader_never_waits() {
+        let t0 = Instant::now();
+        let mut p = SmallMessagePacer::new(true, t0);
+        for _ in 0..10 * SMALL_MESSAGE_BURST as usize {
+            assert_eq!(p.linger(t0, 1, COALESCE_EVENTS), None);
+        }
+    }
+
+    #[test]
+    fn batching_defaults_and_caps_max_batch() {
+        assert_eq!(Batching::from_request(0, false).max_batch, MAX_STREAM_BATCH);
+        assert_eq!(Batching::from_request(5, true).max_batch, 5);
+        assert_eq!(
+            Batching::from_request(u32::MAX, false).max_batch,
+            MAX_STREAM_BATCH
+        );
+        assert!(Batching::from_request(0, true).low_latency);
     }
 }

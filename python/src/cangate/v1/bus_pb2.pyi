@@ -203,20 +203,22 @@ class SendFramesResponse(_message.Message):
     def __init__(self, sent: _Optional[int] = ...) -> None: ...
 
 class StreamFramesRequest(_message.Message):
-    __slots__ = ("bus", "filters", "include_transmitted", "include_error_frames", "max_batch", "queue_length")
+    __slots__ = ("bus", "filters", "include_transmitted", "include_error_frames", "max_batch", "queue_length", "low_latency")
     BUS_FIELD_NUMBER: _ClassVar[int]
     FILTERS_FIELD_NUMBER: _ClassVar[int]
     INCLUDE_TRANSMITTED_FIELD_NUMBER: _ClassVar[int]
     INCLUDE_ERROR_FRAMES_FIELD_NUMBER: _ClassVar[int]
     MAX_BATCH_FIELD_NUMBER: _ClassVar[int]
     QUEUE_LENGTH_FIELD_NUMBER: _ClassVar[int]
+    LOW_LATENCY_FIELD_NUMBER: _ClassVar[int]
     bus: str
     filters: _containers.RepeatedCompositeFieldContainer[FrameFilter]
     include_transmitted: bool
     include_error_frames: bool
     max_batch: int
     queue_length: int
-    def __init__(self, bus: _Optional[str] = ..., filters: _Optional[_Iterable[_Union[FrameFilter, _Mapping]]] = ..., include_transmitted: _Optional[bool] = ..., include_error_frames: _Optional[bool] = ..., max_batch: _Optional[int] = ..., queue_length: _Optional[int] = ...) -> None: ...
+    low_latency: bool
+    def __init__(self, bus: _Optional[str] = ..., filters: _Optional[_Iterable[_Union[FrameFilter, _Mapping]]] = ..., include_transmitted: _Optional[bool] = ..., include_error_frames: _Optional[bool] = ..., max_batch: _Optional[int] = ..., queue_length: _Optional[int] = ..., low_latency: _Optional[bool] = ...) -> None: ...
 
 class FramesLost(_message.Message):
     __slots__ = ("count",)
@@ -249,7 +251,7 @@ class AttachRequest(_message.Message):
     def __init__(self, open: _Optional[_Union[AttachOpen, _Mapping]] = ..., send: _Optional[_Union[AttachSend, _Mapping]] = ...) -> None: ...
 
 class AttachOpen(_message.Message):
-    __slots__ = ("bus", "filters", "receive_own", "fd", "include_error_frames", "max_batch", "queue_length")
+    __slots__ = ("bus", "filters", "receive_own", "fd", "include_error_frames", "max_batch", "queue_length", "low_latency")
     BUS_FIELD_NUMBER: _ClassVar[int]
     FILTERS_FIELD_NUMBER: _ClassVar[int]
     RECEIVE_OWN_FIELD_NUMBER: _ClassVar[int]
@@ -257,6 +259,7 @@ class AttachOpen(_message.Message):
     INCLUDE_ERROR_FRAMES_FIELD_NUMBER: _ClassVar[int]
     MAX_BATCH_FIELD_NUMBER: _ClassVar[int]
     QUEUE_LENGTH_FIELD_NUMBER: _ClassVar[int]
+    LOW_LATENCY_FIELD_NUMBER: _ClassVar[int]
     bus: str
     filters: _containers.RepeatedCompositeFieldContainer[FrameFilter]
     receive_own: bool
@@ -264,7 +267,8 @@ class AttachOpen(_message.Message):
     include_error_frames: bool
     max_batch: int
     queue_length: int
-    def __init__(self, bus: _Optional[str] = ..., filters: _Optional[_Iterable[_Union[FrameFilter, _Mapping]]] = ..., receive_own: _Optional[bool] = ..., fd: _Optional[bool] = ..., include_error_frames: _Optional[bool] = ..., max_batch: _Optional[int] = ..., queue_length: _Optional[int] = ...) -> None: ...
+    low_latency: bool
+    def __init__(self, bus: _Optional[str] = ..., filters: _Optional[_Iterable[_Union[FrameFilter, _Mapping]]] = ..., receive_own: _Optional[bool] = ..., fd: _Optional[bool] = ..., include_error_frames: _Optional[bool] = ..., max_batch: _Optional[int] = ..., queue_length: _Optional[int] = ..., low_latency: _Optional[bool] = ...) -> None: ...
 
 class AttachSend(_message.Message):
     __slots__ = ("frames", "sequence")
