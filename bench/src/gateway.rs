@@ -38,6 +38,13 @@ pub fn config(text: &str) -> Result<Config> {
     Config::from_toml(text).map_err(|e| anyhow!("benchmark configuration: {e}"))
 }
 
+/// Worker threads of the gateway's runtime, as the server binary has
+/// them (tokio's default: one per CPU). The benchmarks that run the
+/// gateway in their own process give its runtime this many.
+pub fn gateway_workers() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
 /// A multi-threaded runtime builder with `workers` threads named `name`
 /// and every driver enabled, for what the caller still wants to set
 /// (thread start hooks). The names matter: CPU time is read per thread
@@ -110,4 +117,30 @@ pub fn virtual_bus(server: &RunningServer, name: &str) -> Result<VirtualBus> {
 pub async fn stop(server: RunningServer) {
     server.shutdown();
     let _ = server.wait(Duration::from_secs(5)).await;
+}
+
+/// The gateway with `can0` ([`start_can0`]) on a runtime of its own, with
+/// the server binary's worker count ([`gateway_workers`]), so
+/// that the benchmark's clients, on the caller's runtime, reach it across
+/// threads as a client process would.
+pub struct OwnRuntimeGateway {
+    runtime: tokio::runtime::Runtime,
+    /// The gateway.
+    pub server: RunningServer,
+}
+
+impl OwnRuntimeGateway {
+    /// Starts it (from a task on another runtime).
+    pub async fn start_can0() -> Result<OwnRuntimeGateway> {
+        let runtime = runtime("gateway", gateway_workers())?;
+        let server = runtime.spawn(start_can0()).await??;
+        Ok(OwnRuntimeGateway { runtime, server })
+    }
+
+    /// Stops the gateway, then its runtime.
+    pub async fn stop(self) {
+        let _ = self.runtime.spawn(stop(self.server)).await;
+        // Dropping a runtime inside another one's task would block it.
+        self.runtime.shutdown_background();
+    }
 }

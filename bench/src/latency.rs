@@ -62,9 +62,9 @@ pub async fn run(samples: u64, warmup: u64) -> Result<Vec<Measure>> {
     println!(
         "latency: {samples} samples after {warmup} warm-up, client A SendFrames(1 frame) -> client B StreamFrames (include_transmitted), one at a time"
     );
-    let server = gateway::start_can0().await?;
-    let result = measure(&server, samples, warmup).await;
-    gateway::stop(server).await;
+    let gateway = gateway::OwnRuntimeGateway::start_can0().await?;
+    let result = measure(&gateway.server, samples, warmup).await;
+    gateway.stop().await;
     result
 }
 

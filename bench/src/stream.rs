@@ -68,9 +68,9 @@ pub async fn run(frames: u64, window: Option<u64>) -> Result<Vec<Measure>> {
     println!(
         "stream: {frames} frames, device port -> server -> StreamFrames -> 1 client, window {window}, subscription queue {QUEUE_LENGTH}"
     );
-    let server = gateway::start_can0().await?;
-    let result = measure(&server, frames, window).await;
-    gateway::stop(server).await;
+    let gateway = gateway::OwnRuntimeGateway::start_can0().await?;
+    let result = measure(&gateway.server, frames, window).await;
+    gateway.stop().await;
     result
 }
 

@@ -57,8 +57,9 @@ struct Args {
     /// Seconds of the CPU measurement.
     #[arg(long, default_value_t = 10.0)]
     cpu_seconds: f64,
-    /// Worker threads of the gateway's runtime.
-    #[arg(long, default_value_t = 2)]
+    /// Worker threads of the gateway's runtime (default: one per CPU, as
+    /// the server binary).
+    #[arg(long, default_value_t = gateway::gateway_workers())]
     gateway_threads: usize,
     /// Only part 3 (the CPU figure): quicker when comparing builds.
     #[arg(long)]

@@ -134,7 +134,7 @@ fn run_master(cycle_us: u32, slaves: u8, spin_us: u32, cycles: u64) -> Result<Me
         std::thread::sleep(Duration::from_millis(10));
     }
     let cfg = config(cycle_us, slaves, spin_us, 1_000_000)?;
-    let rt = gateway::runtime("gateway", 2)?;
+    let rt = gateway::runtime("gateway", gateway::gateway_workers())?;
     let server = gateway::start_on(&rt, &cfg)?;
     let master = server
         .gateway()

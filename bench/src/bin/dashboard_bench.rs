@@ -85,7 +85,7 @@ fn run(args: &Args) -> Result<()> {
         );
     }
     println!("{}", report::banner("dashboard_bench", args.quick));
-    let rt = gateway::runtime("gateway", 2)?;
+    let rt = gateway::runtime("gateway", gateway::gateway_workers())?;
     let mut config = cangate_server::Config::demo();
     config.listen = "127.0.0.1:0".parse().expect("address");
     gateway::lift_client_limits(&mut config);

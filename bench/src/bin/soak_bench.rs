@@ -182,7 +182,7 @@ fn run(args: &Args) -> Result<bool> {
     );
     let mut config = gateway::config(&text)?;
     gateway::lift_client_limits(&mut config);
-    let gateway_rt = gateway::runtime("gateway", 2)?;
+    let gateway_rt = gateway::runtime("gateway", gateway::gateway_workers())?;
     let server = gateway::start_on(&gateway_rt, &config)?;
     let metrics_addr = server.metrics_addr.context("metrics endpoint")?;
     let load_rt = gateway::runtime("load", 2)?;

@@ -134,7 +134,7 @@ fn run(
     );
     let config = gateway::config(&text)?;
     // As the server's own runtime (`main.rs`), with two workers.
-    let gateway_rt = gateway::runtime_builder("gateway", 2)
+    let gateway_rt = gateway::runtime_builder("gateway", gateway::gateway_workers())
         .on_thread_start(cangate_server::realtime::on_grpc_thread_start(
             grpc_rt_priority,
         ))
