@@ -64,14 +64,16 @@ impl Client {
             handwheels: handwheels.iter().map(|h| h.to_string()).collect(),
             coalesce_ms: coalesce.map_or(0, millis),
         };
+        // Batches: cheaper for the gateway when it falls behind (many
+        // subscribers); the events come out one by one all the same.
         let s = self
             .call(
-                "StreamFeed",
+                "StreamFeedBatches",
                 None,
-                self.handwheels_client().stream_feed(req),
+                self.handwheels_client().stream_feed_batches(req),
             )
             .await?;
-        Ok(streams::map(s, |e| e))
+        Ok(streams::flat_map(s, |b: pb::FeedEventBatch| b.events))
     }
 
     /// Turns a simulated handwheel by `detents` (signed) on wheel axis

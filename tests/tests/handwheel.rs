@@ -3,6 +3,7 @@
 
 use cangate_client::pb;
 use cangate_tests::*;
+use futures::StreamExt;
 use std::time::{Duration, Instant};
 use tonic::Code;
 
@@ -267,6 +268,76 @@ async fn lossy_feed_is_compensated_exactly_and_moves_the_bound_axis_exactly() {
         assert!(t0.elapsed() < WAIT, "{st:?}");
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
+}
+
+/// StreamFeedBatches carries StreamFeed's events, in the same order, a
+/// batch at a time; the typed client's feed (on batches) yields them one
+/// by one.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn batched_feed_carries_the_same_events_in_order() {
+    let mut b = setup().await;
+    set_mode(&mut b.wheels, "hw1", pb::HandwheelMode::Manual).await;
+    let req = pb::StreamFeedRequest {
+        handwheels: vec!["hw1".into()],
+        coalesce_ms: 0,
+    };
+    let mut single = b
+        .wheels
+        .stream_feed(req.clone())
+        .await
+        .unwrap()
+        .into_inner();
+    let mut batches = b
+        .wheels
+        .stream_feed_batches(req)
+        .await
+        .unwrap()
+        .into_inner();
+    let typed_client = client(&b.server).await;
+    let mut typed = typed_client.handwheel_feed(&["hw1"], None).await.unwrap();
+    b.sim
+        .turn_handwheel(pb::TurnHandwheelRequest {
+            handwheel: "hw1".into(),
+            detents: 300,
+            axis: pb::WheelAxis::Y as i32,
+            multiplier: 1,
+            loss: 0.0,
+            max_consecutive_loss: 0,
+        })
+        .await
+        .unwrap();
+    let key = |e: &pb::FeedEvent| (e.sequence, e.timestamp_us, e.units, e.axis, e.direction);
+    let mut one_by_one = Vec::new();
+    while one_by_one.len() < 300 {
+        let ev = tokio::time::timeout(WAIT, single.message())
+            .await
+            .expect("StreamFeed in time")
+            .unwrap()
+            .expect("StreamFeed open");
+        one_by_one.push(key(&ev));
+    }
+    let mut batched = Vec::new();
+    while batched.len() < 300 {
+        let batch = tokio::time::timeout(WAIT, batches.message())
+            .await
+            .expect("StreamFeedBatches in time")
+            .unwrap()
+            .expect("StreamFeedBatches open");
+        assert!(!batch.events.is_empty(), "a batch has at least one event");
+        batched.extend(batch.events.iter().map(key));
+    }
+    let mut from_typed = Vec::new();
+    while from_typed.len() < 300 {
+        let ev = tokio::time::timeout(WAIT, typed.next())
+            .await
+            .expect("typed feed in time")
+            .expect("typed feed open")
+            .unwrap();
+        from_typed.push(key(&ev));
+    }
+    assert_eq!(batched, one_by_one);
+    assert_eq!(from_typed, one_by_one);
+    assert_eq!(one_by_one.iter().map(|k| k.2).sum::<u32>(), 300);
 }
 
 /// `units = executed + dropped + pending`, as the API reports them.

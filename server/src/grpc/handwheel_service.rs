@@ -2,7 +2,7 @@
 
 use super::convert::handwheel::{event_pb, merge, wheel_pb};
 use super::error::ApiError;
-use super::forward::{MessageStream, Received, recv_counted, stream_of};
+use super::forward::{MessageStream, Received, batches_of, recv_counted, stream_of};
 use crate::gateway::Gateway;
 use crate::handwheel::{Handwheels, Mode};
 use cangate_canopen::handwheel::HandwheelAxis;
@@ -17,6 +17,8 @@ use tonic::{Request, Response, Status};
 /// Longest feed window a client may ask for: events are held for this
 /// long, so a window of hours would hold a wheel's events indefinitely.
 pub const MAX_COALESCE_MS: u32 = 10_000;
+/// Most events per StreamFeedBatches message.
+pub const MAX_FEED_BATCH: usize = 1024;
 
 /// Implementation of the Handwheels service.
 #[derive(Clone)]
@@ -91,7 +93,31 @@ impl HandwheelsRpc for HandwheelsService {
         &self,
         req: Request<pb::StreamFeedRequest>,
     ) -> Result<Response<Self::StreamFeedStream>, Status> {
-        let r = req.into_inner();
+        Ok(Response::new(stream_of(self.feed(req.into_inner())?)))
+    }
+
+    type StreamFeedBatchesStream = MessageStream<pb::FeedEventBatch>;
+
+    async fn stream_feed_batches(
+        &self,
+        req: Request<pb::StreamFeedRequest>,
+    ) -> Result<Response<Self::StreamFeedBatchesStream>, Status> {
+        Ok(Response::new(batches_of(
+            self.feed(req.into_inner())?,
+            MAX_FEED_BATCH,
+            |events| pb::FeedEventBatch { events },
+        )))
+    }
+}
+
+impl HandwheelsService {
+    /// The feed events `r` asks for, from a task of their own; the
+    /// receiver ends when the client goes away or the gateway shuts down.
+    #[allow(clippy::result_large_err)]
+    fn feed(
+        &self,
+        r: pb::StreamFeedRequest,
+    ) -> Result<tokio::sync::mpsc::Receiver<Result<pb::FeedEvent, Status>>, Status> {
         let gateway = self.gateway.clone();
         let m = gateway.handwheels().clone();
         let wanted: Option<Vec<bool>> = if r.handwheels.is_empty() {
@@ -171,7 +197,7 @@ impl HandwheelsRpc for HandwheelsService {
                 }
             }
         });
-        Ok(Response::new(stream_of(out)))
+        Ok(out)
     }
 }
 

@@ -93,6 +93,7 @@ pub const TABLE: &[Rule] = &[
     rule("/cangate.v1.Handwheels/GetHandwheel", V, false),
     rule("/cangate.v1.Handwheels/SetMode", O, false),
     rule("/cangate.v1.Handwheels/StreamFeed", V, true),
+    rule("/cangate.v1.Handwheels/StreamFeedBatches", V, true),
     // The simulator injects frames as a device would: engineering.
     rule("/cangate.v1.Simulator/TurnHandwheel", E, false),
     rule("/cangate.v1.Simulator/ListSimulatedDevices", V, false),

@@ -165,6 +165,12 @@ class StreamFeedRequest(_message.Message):
     coalesce_ms: int
     def __init__(self, handwheels: _Optional[_Iterable[str]] = ..., coalesce_ms: _Optional[int] = ...) -> None: ...
 
+class FeedEventBatch(_message.Message):
+    __slots__ = ("events",)
+    EVENTS_FIELD_NUMBER: _ClassVar[int]
+    events: _containers.RepeatedCompositeFieldContainer[FeedEvent]
+    def __init__(self, events: _Optional[_Iterable[_Union[FeedEvent, _Mapping]]] = ...) -> None: ...
+
 class FeedEvent(_message.Message):
     __slots__ = ("handwheel", "timestamp_us", "axis", "direction", "units", "compensated", "sequence", "gap", "duplicate", "compensated_flag", "baseline", "bad", "note", "raw", "frames", "lost_before")
     HANDWHEEL_FIELD_NUMBER: _ClassVar[int]

@@ -55,6 +55,11 @@ class HandwheelsStub:
                 request_serializer=cangate_dot_v1_dot_handwheel__pb2.StreamFeedRequest.SerializeToString,
                 response_deserializer=cangate_dot_v1_dot_handwheel__pb2.FeedEvent.FromString,
                 _registered_method=True)
+        self.StreamFeedBatches = channel.unary_stream(
+                '/cangate.v1.Handwheels/StreamFeedBatches',
+                request_serializer=cangate_dot_v1_dot_handwheel__pb2.StreamFeedRequest.SerializeToString,
+                response_deserializer=cangate_dot_v1_dot_handwheel__pb2.FeedEventBatch.FromString,
+                _registered_method=True)
 
 
 class HandwheelsServicer:
@@ -91,6 +96,17 @@ class HandwheelsServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def StreamFeedBatches(self, request, context):
+        """The same events as StreamFeed, in the same order, but each message
+        carries every event that was ready when it was sent (at least one, at
+        most 1024). A subscriber that falls behind (a busy host, many
+        subscribers) catches up with fewer, larger messages instead of one
+        message per event: prefer it when many clients watch the feed.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
 
 def add_HandwheelsServicer_to_server(servicer, server):
     rpc_method_handlers = {
@@ -113,6 +129,11 @@ def add_HandwheelsServicer_to_server(servicer, server):
                     servicer.StreamFeed,
                     request_deserializer=cangate_dot_v1_dot_handwheel__pb2.StreamFeedRequest.FromString,
                     response_serializer=cangate_dot_v1_dot_handwheel__pb2.FeedEvent.SerializeToString,
+            ),
+            'StreamFeedBatches': grpc.unary_stream_rpc_method_handler(
+                    servicer.StreamFeedBatches,
+                    request_deserializer=cangate_dot_v1_dot_handwheel__pb2.StreamFeedRequest.FromString,
+                    response_serializer=cangate_dot_v1_dot_handwheel__pb2.FeedEventBatch.SerializeToString,
             ),
     }
     generic_handler = grpc.method_handlers_generic_handler(
@@ -224,6 +245,33 @@ class Handwheels:
             '/cangate.v1.Handwheels/StreamFeed',
             cangate_dot_v1_dot_handwheel__pb2.StreamFeedRequest.SerializeToString,
             cangate_dot_v1_dot_handwheel__pb2.FeedEvent.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def StreamFeedBatches(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_stream(
+            request,
+            target,
+            '/cangate.v1.Handwheels/StreamFeedBatches',
+            cangate_dot_v1_dot_handwheel__pb2.StreamFeedRequest.SerializeToString,
+            cangate_dot_v1_dot_handwheel__pb2.FeedEventBatch.FromString,
             options,
             channel_credentials,
             insecure,

@@ -28,7 +28,7 @@ import type { Message } from "@bufbuild/protobuf";
  * Describes the file cangate/v1/handwheel.proto.
  */
 export const file_cangate_v1_handwheel: GenFile = /*@__PURE__*/
-  fileDesc("ChpjYW5nYXRlL3YxL2hhbmR3aGVlbC5wcm90bxIKY2FuZ2F0ZS52MSLIAQoJRmVlZFN0YXRzEg4KBmZyYW1lcxgBIAEoBBIWCg5wb3NpdGl2ZV91bml0cxgCIAMoBBIWCg5uZWdhdGl2ZV91bml0cxgDIAMoBBIMCgRnYXBzGAQgASgEEhkKEWNvbXBlbnNhdGVkX3VuaXRzGAUgASgEEhIKCmR1cGxpY2F0ZXMYBiABKAQSEgoKYmFkX2ZyYW1lcxgHIAEoBBIRCgliYXNlbGluZXMYCCABKAQSFwoPYmFzZWxpbmVfcmVzZXRzGAkgASgEIugBCgxCaW5kaW5nU3RhdHMSFgoOZXhlY3V0ZWRfdW5pdHMYASABKAQSFwoPZHJvcHBlZF9iYWNrbG9nGAIgASgEEhsKE2Ryb3BwZWRfbm90X2VuYWJsZWQYAyABKAQSHgoWZHJvcHBlZF9ub3RfY29udHJvbGxlZBgEIAEoBBIXCg9kcm9wcGVkX3VuYm91bmQYBSABKAQSDwoHYmxvY2tlZBgGIAEoCRINCgV1bml0cxgHIAEoBBIaChJkcm9wcGVkX25vdF9tYW51YWwYCCABKAQSFQoNcGVuZGluZ191bml0cxgJIAEoBCJhCgtBeGlzQmluZGluZxIpCgp3aGVlbF9heGlzGAEgASgOMhUuY2FuZ2F0ZS52MS5XaGVlbEF4aXMSDAoEYXhpcxgCIAEoCRIZChFkaXN0YW5jZV9wZXJfdW5pdBgDIAEoASLjAgoJSGFuZHdoZWVsEgwKBG5hbWUYASABKAkSCwoDYnVzGAIgASgJEgwKBG5vZGUYAyABKA0SMQoOY291bnRlcl9sYXlvdXQYBCABKA4yGS5jYW5nYXRlLnYxLkNvdW50ZXJMYXlvdXQSJwoEbW9kZRgFIAEoDjIZLmNhbmdhdGUudjEuSGFuZHdoZWVsTW9kZRIRCglub2RlX2xvc3QYBiABKAgSEQoJc2ltdWxhdGVkGAcgASgIEiQKBXN0YXRzGAggASgLMhUuY2FuZ2F0ZS52MS5GZWVkU3RhdHMSKQoIYmluZGluZ3MYCSADKAsyFy5jYW5nYXRlLnYxLkF4aXNCaW5kaW5nEhcKD21heF91bml0c19wZXJfcxgKIAEoARIWCg5zdG9wX3dpdGhpbl9tcxgLIAEoDRIpCgdiaW5kaW5nGAwgASgLMhguY2FuZ2F0ZS52MS5CaW5kaW5nU3RhdHMiFwoVTGlzdEhhbmR3aGVlbHNSZXF1ZXN0IkMKFkxpc3RIYW5kd2hlZWxzUmVzcG9uc2USKQoKaGFuZHdoZWVscxgBIAMoCzIVLmNhbmdhdGUudjEuSGFuZHdoZWVsIigKE0dldEhhbmR3aGVlbFJlcXVlc3QSEQoJaGFuZHdoZWVsGAEgASgJIkwKDlNldE1vZGVSZXF1ZXN0EhEKCWhhbmR3aGVlbBgBIAEoCRInCgRtb2RlGAIgASgOMhkuY2FuZ2F0ZS52MS5IYW5kd2hlZWxNb2RlIjwKEVN0cmVhbUZlZWRSZXF1ZXN0EhIKCmhhbmR3aGVlbHMYASADKAkSEwoLY29hbGVzY2VfbXMYAiABKA0iuwIKCUZlZWRFdmVudBIRCgloYW5kd2hlZWwYASABKAkSFAoMdGltZXN0YW1wX3VzGAIgASgEEiMKBGF4aXMYAyABKA4yFS5jYW5nYXRlLnYxLldoZWVsQXhpcxIRCglkaXJlY3Rpb24YBCABKAUSDQoFdW5pdHMYBSABKA0SEwoLY29tcGVuc2F0ZWQYBiABKA0SEAoIc2VxdWVuY2UYByABKA0SCwoDZ2FwGAggASgNEhEKCWR1cGxpY2F0ZRgJIAEoCBIYChBjb21wZW5zYXRlZF9mbGFnGAogASgIEhAKCGJhc2VsaW5lGAsgASgIEgsKA2JhZBgMIAEoCBIMCgRub3RlGA0gASgJEgsKA3JhdxgOIAEoDRIOCgZmcmFtZXMYDyABKA0SEwoLbG9zdF9iZWZvcmUYECABKAQinwEKFFR1cm5IYW5kd2hlZWxSZXF1ZXN0EhEKCWhhbmR3aGVlbBgBIAEoCRIPCgdkZXRlbnRzGAIgASgFEiMKBGF4aXMYAyABKA4yFS5jYW5nYXRlLnYxLldoZWVsQXhpcxISCgptdWx0aXBsaWVyGAQgASgNEgwKBGxvc3MYBSABKAESHAoUbWF4X2NvbnNlY3V0aXZlX2xvc3MYBiABKA0iRwoVVHVybkhhbmR3aGVlbFJlc3BvbnNlEhUKDXBlbmRpbmdfdW5pdHMYASABKAMSFwoPZGlzY2FyZGVkX3VuaXRzGAIgASgEIh0KG0xpc3RTaW11bGF0ZWREZXZpY2VzUmVxdWVzdCJMChxMaXN0U2ltdWxhdGVkRGV2aWNlc1Jlc3BvbnNlEiwKB2RldmljZXMYASADKAsyGy5jYW5nYXRlLnYxLlNpbXVsYXRlZERldmljZSJ/Cg9TaW11bGF0ZWREZXZpY2USCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SLQoEa2luZBgDIAEoDjIfLmNhbmdhdGUudjEuU2ltdWxhdGVkRGV2aWNlS2luZBIPCgdwb3dlcmVkGAQgASgIEhEKCW5tdF9zdGF0ZRgFIAEoCSKBAQoJQnVzRmF1bHRzEgsKA2J1cxgBIAEoCRIYChBkcm9wX3Byb2JhYmlsaXR5GAIgASgBEhAKCGRyb3BfaWRzGAMgAygNEhAKCGRlbGF5X3VzGAQgASgEEg8KB2J1c19vZmYYBSABKAgSGAoQZHJvcHBlZF9ieV9mYXVsdBgGIAEoBCJgChNTZXRCdXNGYXVsdHNSZXF1ZXN0EgsKA2J1cxgBIAEoCRIYChBkcm9wX3Byb2JhYmlsaXR5GAIgASgBEhAKCGRyb3BfaWRzGAMgAygNEhAKCGRlbGF5X3VzGAQgASgEIiIKE0dldEJ1c0ZhdWx0c1JlcXVlc3QSCwoDYnVzGAEgASgJIjAKEFNldEJ1c09mZlJlcXVlc3QSCwoDYnVzGAEgASgJEg8KB2J1c19vZmYYAiABKAgiRAoXUG93ZXJDeWNsZURldmljZVJlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SDgoGb2ZmX21zGAMgASgNImgKD1NlbmRFbWN5UmVxdWVzdBILCgNidXMYASABKAkSDAoEbm9kZRgCIAEoDRIMCgRjb2RlGAMgASgNEhYKDmVycm9yX3JlZ2lzdGVyGAQgASgNEhQKDG1hbnVmYWN0dXJlchgFIAEoDCJBChZSYWlzZURyaXZlRmF1bHRSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEgwKBGNvZGUYAyABKA0iUgoSU2V0SW9JbnB1dHNSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEg8KB2RpZ2l0YWwYAyABKAwSEAoIYW5hbG9ndWUYBCADKAUiZQoTU2V0SW9JbnB1dHNSZXNwb25zZRIrCgZkZXZpY2UYASABKAsyGy5jYW5nYXRlLnYxLlNpbXVsYXRlZERldmljZRIPCgdkaWdpdGFsGAIgASgMEhAKCGFuYWxvZ3VlGAMgAygFIpwBChdTZXRQcm9ncmFtRmF1bHRzUmVxdWVzdBILCgNidXMYASABKAkSDAoEbm9kZRgCIAEoDRITCgtmbGFzaF9lcnJvchgDIAEoDRIaCg1hYm9ydF9hdF9ieXRlGAQgASgESACIAQESEgoKYWJvcnRfY29kZRgFIAEoDRIPCgdub19ib290GAYgASgIQhAKDl9hYm9ydF9hdF9ieXRlIs4BCg1Qcm9ncmFtRmF1bHRzEgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEhMKC2ZsYXNoX2Vycm9yGAMgASgNEhoKDWFib3J0X2F0X2J5dGUYBCABKARIAIgBARISCgphYm9ydF9jb2RlGAUgASgNEg8KB25vX2Jvb3QYBiABKAgSFgoOaWRlbnRpZmljYXRpb24YByABKA0SDwoHcnVubmluZxgIIAEoCBIRCglkb3dubG9hZHMYCSABKARCEAoOX2Fib3J0X2F0X2J5dGUqaAoNSGFuZHdoZWVsTW9kZRIeChpIQU5EV0hFRUxfTU9ERV9VTlNQRUNJRklFRBAAEhwKGEhBTkRXSEVFTF9NT0RFX0FVVE9NQVRJQxABEhkKFUhBTkRXSEVFTF9NT0RFX01BTlVBTBACKoEBCglXaGVlbEF4aXMSGgoWV0hFRUxfQVhJU19VTlNQRUNJRklFRBAAEhAKDFdIRUVMX0FYSVNfWBABEhAKDFdIRUVMX0FYSVNfWRACEhAKDFdIRUVMX0FYSVNfWhADEhAKDFdIRUVMX0FYSVNfVxAEEhAKDFdIRUVMX0FYSVNfVhAFKmYKDUNvdW50ZXJMYXlvdXQSHgoaQ09VTlRFUl9MQVlPVVRfVU5TUEVDSUZJRUQQABIZChVDT1VOVEVSX0xBWU9VVF9OSUJCTEUQARIaChZDT1VOVEVSX0xBWU9VVF9CSVRTNl83EAIqogEKE1NpbXVsYXRlZERldmljZUtpbmQSJQohU0lNVUxBVEVEX0RFVklDRV9LSU5EX1VOU1BFQ0lGSUVEEAASHgoaU0lNVUxBVEVEX0RFVklDRV9LSU5EX05PREUQARIfChtTSU1VTEFURURfREVWSUNFX0tJTkRfRFJJVkUQAhIjCh9TSU1VTEFURURfREVWSUNFX0tJTkRfSEFORFdIRUVMEAMysQIKCkhhbmR3aGVlbHMSVwoOTGlzdEhhbmR3aGVlbHMSIS5jYW5nYXRlLnYxLkxpc3RIYW5kd2hlZWxzUmVxdWVzdBoiLmNhbmdhdGUudjEuTGlzdEhhbmR3aGVlbHNSZXNwb25zZRJGCgxHZXRIYW5kd2hlZWwSHy5jYW5nYXRlLnYxLkdldEhhbmR3aGVlbFJlcXVlc3QaFS5jYW5nYXRlLnYxLkhhbmR3aGVlbBI8CgdTZXRNb2RlEhouY2FuZ2F0ZS52MS5TZXRNb2RlUmVxdWVzdBoVLmNhbmdhdGUudjEuSGFuZHdoZWVsEkQKClN0cmVhbUZlZWQSHS5jYW5nYXRlLnYxLlN0cmVhbUZlZWRSZXF1ZXN0GhUuY2FuZ2F0ZS52MS5GZWVkRXZlbnQwATKyBgoJU2ltdWxhdG9yElQKDVR1cm5IYW5kd2hlZWwSIC5jYW5nYXRlLnYxLlR1cm5IYW5kd2hlZWxSZXF1ZXN0GiEuY2FuZ2F0ZS52MS5UdXJuSGFuZHdoZWVsUmVzcG9uc2USaQoUTGlzdFNpbXVsYXRlZERldmljZXMSJy5jYW5nYXRlLnYxLkxpc3RTaW11bGF0ZWREZXZpY2VzUmVxdWVzdBooLmNhbmdhdGUudjEuTGlzdFNpbXVsYXRlZERldmljZXNSZXNwb25zZRJGCgxTZXRCdXNGYXVsdHMSHy5jYW5nYXRlLnYxLlNldEJ1c0ZhdWx0c1JlcXVlc3QaFS5jYW5nYXRlLnYxLkJ1c0ZhdWx0cxJGCgxHZXRCdXNGYXVsdHMSHy5jYW5nYXRlLnYxLkdldEJ1c0ZhdWx0c1JlcXVlc3QaFS5jYW5nYXRlLnYxLkJ1c0ZhdWx0cxJACglTZXRCdXNPZmYSHC5jYW5nYXRlLnYxLlNldEJ1c09mZlJlcXVlc3QaFS5jYW5nYXRlLnYxLkJ1c0ZhdWx0cxJUChBQb3dlckN5Y2xlRGV2aWNlEiMuY2FuZ2F0ZS52MS5Qb3dlckN5Y2xlRGV2aWNlUmVxdWVzdBobLmNhbmdhdGUudjEuU2ltdWxhdGVkRGV2aWNlEkQKCFNlbmRFbWN5EhsuY2FuZ2F0ZS52MS5TZW5kRW1jeVJlcXVlc3QaGy5jYW5nYXRlLnYxLlNpbXVsYXRlZERldmljZRJSCg9SYWlzZURyaXZlRmF1bHQSIi5jYW5nYXRlLnYxLlJhaXNlRHJpdmVGYXVsdFJlcXVlc3QaGy5jYW5nYXRlLnYxLlNpbXVsYXRlZERldmljZRJOCgtTZXRJb0lucHV0cxIeLmNhbmdhdGUudjEuU2V0SW9JbnB1dHNSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5TZXRJb0lucHV0c1Jlc3BvbnNlElIKEFNldFByb2dyYW1GYXVsdHMSIy5jYW5nYXRlLnYxLlNldFByb2dyYW1GYXVsdHNSZXF1ZXN0GhkuY2FuZ2F0ZS52MS5Qcm9ncmFtRmF1bHRzYgZwcm90bzM");
+  fileDesc("ChpjYW5nYXRlL3YxL2hhbmR3aGVlbC5wcm90bxIKY2FuZ2F0ZS52MSLIAQoJRmVlZFN0YXRzEg4KBmZyYW1lcxgBIAEoBBIWCg5wb3NpdGl2ZV91bml0cxgCIAMoBBIWCg5uZWdhdGl2ZV91bml0cxgDIAMoBBIMCgRnYXBzGAQgASgEEhkKEWNvbXBlbnNhdGVkX3VuaXRzGAUgASgEEhIKCmR1cGxpY2F0ZXMYBiABKAQSEgoKYmFkX2ZyYW1lcxgHIAEoBBIRCgliYXNlbGluZXMYCCABKAQSFwoPYmFzZWxpbmVfcmVzZXRzGAkgASgEIugBCgxCaW5kaW5nU3RhdHMSFgoOZXhlY3V0ZWRfdW5pdHMYASABKAQSFwoPZHJvcHBlZF9iYWNrbG9nGAIgASgEEhsKE2Ryb3BwZWRfbm90X2VuYWJsZWQYAyABKAQSHgoWZHJvcHBlZF9ub3RfY29udHJvbGxlZBgEIAEoBBIXCg9kcm9wcGVkX3VuYm91bmQYBSABKAQSDwoHYmxvY2tlZBgGIAEoCRINCgV1bml0cxgHIAEoBBIaChJkcm9wcGVkX25vdF9tYW51YWwYCCABKAQSFQoNcGVuZGluZ191bml0cxgJIAEoBCJhCgtBeGlzQmluZGluZxIpCgp3aGVlbF9heGlzGAEgASgOMhUuY2FuZ2F0ZS52MS5XaGVlbEF4aXMSDAoEYXhpcxgCIAEoCRIZChFkaXN0YW5jZV9wZXJfdW5pdBgDIAEoASLjAgoJSGFuZHdoZWVsEgwKBG5hbWUYASABKAkSCwoDYnVzGAIgASgJEgwKBG5vZGUYAyABKA0SMQoOY291bnRlcl9sYXlvdXQYBCABKA4yGS5jYW5nYXRlLnYxLkNvdW50ZXJMYXlvdXQSJwoEbW9kZRgFIAEoDjIZLmNhbmdhdGUudjEuSGFuZHdoZWVsTW9kZRIRCglub2RlX2xvc3QYBiABKAgSEQoJc2ltdWxhdGVkGAcgASgIEiQKBXN0YXRzGAggASgLMhUuY2FuZ2F0ZS52MS5GZWVkU3RhdHMSKQoIYmluZGluZ3MYCSADKAsyFy5jYW5nYXRlLnYxLkF4aXNCaW5kaW5nEhcKD21heF91bml0c19wZXJfcxgKIAEoARIWCg5zdG9wX3dpdGhpbl9tcxgLIAEoDRIpCgdiaW5kaW5nGAwgASgLMhguY2FuZ2F0ZS52MS5CaW5kaW5nU3RhdHMiFwoVTGlzdEhhbmR3aGVlbHNSZXF1ZXN0IkMKFkxpc3RIYW5kd2hlZWxzUmVzcG9uc2USKQoKaGFuZHdoZWVscxgBIAMoCzIVLmNhbmdhdGUudjEuSGFuZHdoZWVsIigKE0dldEhhbmR3aGVlbFJlcXVlc3QSEQoJaGFuZHdoZWVsGAEgASgJIkwKDlNldE1vZGVSZXF1ZXN0EhEKCWhhbmR3aGVlbBgBIAEoCRInCgRtb2RlGAIgASgOMhkuY2FuZ2F0ZS52MS5IYW5kd2hlZWxNb2RlIjwKEVN0cmVhbUZlZWRSZXF1ZXN0EhIKCmhhbmR3aGVlbHMYASADKAkSEwoLY29hbGVzY2VfbXMYAiABKA0iNwoORmVlZEV2ZW50QmF0Y2gSJQoGZXZlbnRzGAEgAygLMhUuY2FuZ2F0ZS52MS5GZWVkRXZlbnQiuwIKCUZlZWRFdmVudBIRCgloYW5kd2hlZWwYASABKAkSFAoMdGltZXN0YW1wX3VzGAIgASgEEiMKBGF4aXMYAyABKA4yFS5jYW5nYXRlLnYxLldoZWVsQXhpcxIRCglkaXJlY3Rpb24YBCABKAUSDQoFdW5pdHMYBSABKA0SEwoLY29tcGVuc2F0ZWQYBiABKA0SEAoIc2VxdWVuY2UYByABKA0SCwoDZ2FwGAggASgNEhEKCWR1cGxpY2F0ZRgJIAEoCBIYChBjb21wZW5zYXRlZF9mbGFnGAogASgIEhAKCGJhc2VsaW5lGAsgASgIEgsKA2JhZBgMIAEoCBIMCgRub3RlGA0gASgJEgsKA3JhdxgOIAEoDRIOCgZmcmFtZXMYDyABKA0SEwoLbG9zdF9iZWZvcmUYECABKAQinwEKFFR1cm5IYW5kd2hlZWxSZXF1ZXN0EhEKCWhhbmR3aGVlbBgBIAEoCRIPCgdkZXRlbnRzGAIgASgFEiMKBGF4aXMYAyABKA4yFS5jYW5nYXRlLnYxLldoZWVsQXhpcxISCgptdWx0aXBsaWVyGAQgASgNEgwKBGxvc3MYBSABKAESHAoUbWF4X2NvbnNlY3V0aXZlX2xvc3MYBiABKA0iRwoVVHVybkhhbmR3aGVlbFJlc3BvbnNlEhUKDXBlbmRpbmdfdW5pdHMYASABKAMSFwoPZGlzY2FyZGVkX3VuaXRzGAIgASgEIh0KG0xpc3RTaW11bGF0ZWREZXZpY2VzUmVxdWVzdCJMChxMaXN0U2ltdWxhdGVkRGV2aWNlc1Jlc3BvbnNlEiwKB2RldmljZXMYASADKAsyGy5jYW5nYXRlLnYxLlNpbXVsYXRlZERldmljZSJ/Cg9TaW11bGF0ZWREZXZpY2USCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SLQoEa2luZBgDIAEoDjIfLmNhbmdhdGUudjEuU2ltdWxhdGVkRGV2aWNlS2luZBIPCgdwb3dlcmVkGAQgASgIEhEKCW5tdF9zdGF0ZRgFIAEoCSKBAQoJQnVzRmF1bHRzEgsKA2J1cxgBIAEoCRIYChBkcm9wX3Byb2JhYmlsaXR5GAIgASgBEhAKCGRyb3BfaWRzGAMgAygNEhAKCGRlbGF5X3VzGAQgASgEEg8KB2J1c19vZmYYBSABKAgSGAoQZHJvcHBlZF9ieV9mYXVsdBgGIAEoBCJgChNTZXRCdXNGYXVsdHNSZXF1ZXN0EgsKA2J1cxgBIAEoCRIYChBkcm9wX3Byb2JhYmlsaXR5GAIgASgBEhAKCGRyb3BfaWRzGAMgAygNEhAKCGRlbGF5X3VzGAQgASgEIiIKE0dldEJ1c0ZhdWx0c1JlcXVlc3QSCwoDYnVzGAEgASgJIjAKEFNldEJ1c09mZlJlcXVlc3QSCwoDYnVzGAEgASgJEg8KB2J1c19vZmYYAiABKAgiRAoXUG93ZXJDeWNsZURldmljZVJlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SDgoGb2ZmX21zGAMgASgNImgKD1NlbmRFbWN5UmVxdWVzdBILCgNidXMYASABKAkSDAoEbm9kZRgCIAEoDRIMCgRjb2RlGAMgASgNEhYKDmVycm9yX3JlZ2lzdGVyGAQgASgNEhQKDG1hbnVmYWN0dXJlchgFIAEoDCJBChZSYWlzZURyaXZlRmF1bHRSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEgwKBGNvZGUYAyABKA0iUgoSU2V0SW9JbnB1dHNSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEg8KB2RpZ2l0YWwYAyABKAwSEAoIYW5hbG9ndWUYBCADKAUiZQoTU2V0SW9JbnB1dHNSZXNwb25zZRIrCgZkZXZpY2UYASABKAsyGy5jYW5nYXRlLnYxLlNpbXVsYXRlZERldmljZRIPCgdkaWdpdGFsGAIgASgMEhAKCGFuYWxvZ3VlGAMgAygFIpwBChdTZXRQcm9ncmFtRmF1bHRzUmVxdWVzdBILCgNidXMYASABKAkSDAoEbm9kZRgCIAEoDRITCgtmbGFzaF9lcnJvchgDIAEoDRIaCg1hYm9ydF9hdF9ieXRlGAQgASgESACIAQESEgoKYWJvcnRfY29kZRgFIAEoDRIPCgdub19ib290GAYgASgIQhAKDl9hYm9ydF9hdF9ieXRlIs4BCg1Qcm9ncmFtRmF1bHRzEgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEhMKC2ZsYXNoX2Vycm9yGAMgASgNEhoKDWFib3J0X2F0X2J5dGUYBCABKARIAIgBARISCgphYm9ydF9jb2RlGAUgASgNEg8KB25vX2Jvb3QYBiABKAgSFgoOaWRlbnRpZmljYXRpb24YByABKA0SDwoHcnVubmluZxgIIAEoCBIRCglkb3dubG9hZHMYCSABKARCEAoOX2Fib3J0X2F0X2J5dGUqaAoNSGFuZHdoZWVsTW9kZRIeChpIQU5EV0hFRUxfTU9ERV9VTlNQRUNJRklFRBAAEhwKGEhBTkRXSEVFTF9NT0RFX0FVVE9NQVRJQxABEhkKFUhBTkRXSEVFTF9NT0RFX01BTlVBTBACKoEBCglXaGVlbEF4aXMSGgoWV0hFRUxfQVhJU19VTlNQRUNJRklFRBAAEhAKDFdIRUVMX0FYSVNfWBABEhAKDFdIRUVMX0FYSVNfWRACEhAKDFdIRUVMX0FYSVNfWhADEhAKDFdIRUVMX0FYSVNfVxAEEhAKDFdIRUVMX0FYSVNfVhAFKmYKDUNvdW50ZXJMYXlvdXQSHgoaQ09VTlRFUl9MQVlPVVRfVU5TUEVDSUZJRUQQABIZChVDT1VOVEVSX0xBWU9VVF9OSUJCTEUQARIaChZDT1VOVEVSX0xBWU9VVF9CSVRTNl83EAIqogEKE1NpbXVsYXRlZERldmljZUtpbmQSJQohU0lNVUxBVEVEX0RFVklDRV9LSU5EX1VOU1BFQ0lGSUVEEAASHgoaU0lNVUxBVEVEX0RFVklDRV9LSU5EX05PREUQARIfChtTSU1VTEFURURfREVWSUNFX0tJTkRfRFJJVkUQAhIjCh9TSU1VTEFURURfREVWSUNFX0tJTkRfSEFORFdIRUVMEAMygwMKCkhhbmR3aGVlbHMSVwoOTGlzdEhhbmR3aGVlbHMSIS5jYW5nYXRlLnYxLkxpc3RIYW5kd2hlZWxzUmVxdWVzdBoiLmNhbmdhdGUudjEuTGlzdEhhbmR3aGVlbHNSZXNwb25zZRJGCgxHZXRIYW5kd2hlZWwSHy5jYW5nYXRlLnYxLkdldEhhbmR3aGVlbFJlcXVlc3QaFS5jYW5nYXRlLnYxLkhhbmR3aGVlbBI8CgdTZXRNb2RlEhouY2FuZ2F0ZS52MS5TZXRNb2RlUmVxdWVzdBoVLmNhbmdhdGUudjEuSGFuZHdoZWVsEkQKClN0cmVhbUZlZWQSHS5jYW5nYXRlLnYxLlN0cmVhbUZlZWRSZXF1ZXN0GhUuY2FuZ2F0ZS52MS5GZWVkRXZlbnQwARJQChFTdHJlYW1GZWVkQmF0Y2hlcxIdLmNhbmdhdGUudjEuU3RyZWFtRmVlZFJlcXVlc3QaGi5jYW5nYXRlLnYxLkZlZWRFdmVudEJhdGNoMAEysgYKCVNpbXVsYXRvchJUCg1UdXJuSGFuZHdoZWVsEiAuY2FuZ2F0ZS52MS5UdXJuSGFuZHdoZWVsUmVxdWVzdBohLmNhbmdhdGUudjEuVHVybkhhbmR3aGVlbFJlc3BvbnNlEmkKFExpc3RTaW11bGF0ZWREZXZpY2VzEicuY2FuZ2F0ZS52MS5MaXN0U2ltdWxhdGVkRGV2aWNlc1JlcXVlc3QaKC5jYW5nYXRlLnYxLkxpc3RTaW11bGF0ZWREZXZpY2VzUmVzcG9uc2USRgoMU2V0QnVzRmF1bHRzEh8uY2FuZ2F0ZS52MS5TZXRCdXNGYXVsdHNSZXF1ZXN0GhUuY2FuZ2F0ZS52MS5CdXNGYXVsdHMSRgoMR2V0QnVzRmF1bHRzEh8uY2FuZ2F0ZS52MS5HZXRCdXNGYXVsdHNSZXF1ZXN0GhUuY2FuZ2F0ZS52MS5CdXNGYXVsdHMSQAoJU2V0QnVzT2ZmEhwuY2FuZ2F0ZS52MS5TZXRCdXNPZmZSZXF1ZXN0GhUuY2FuZ2F0ZS52MS5CdXNGYXVsdHMSVAoQUG93ZXJDeWNsZURldmljZRIjLmNhbmdhdGUudjEuUG93ZXJDeWNsZURldmljZVJlcXVlc3QaGy5jYW5nYXRlLnYxLlNpbXVsYXRlZERldmljZRJECghTZW5kRW1jeRIbLmNhbmdhdGUudjEuU2VuZEVtY3lSZXF1ZXN0GhsuY2FuZ2F0ZS52MS5TaW11bGF0ZWREZXZpY2USUgoPUmFpc2VEcml2ZUZhdWx0EiIuY2FuZ2F0ZS52MS5SYWlzZURyaXZlRmF1bHRSZXF1ZXN0GhsuY2FuZ2F0ZS52MS5TaW11bGF0ZWREZXZpY2USTgoLU2V0SW9JbnB1dHMSHi5jYW5nYXRlLnYxLlNldElvSW5wdXRzUmVxdWVzdBofLmNhbmdhdGUudjEuU2V0SW9JbnB1dHNSZXNwb25zZRJSChBTZXRQcm9ncmFtRmF1bHRzEiMuY2FuZ2F0ZS52MS5TZXRQcm9ncmFtRmF1bHRzUmVxdWVzdBoZLmNhbmdhdGUudjEuUHJvZ3JhbUZhdWx0c2IGcHJvdG8z");
 
 /**
  * Running feed statistics since the gateway started (in either mode: they
@@ -460,6 +460,27 @@ export const StreamFeedRequestSchema: GenMessage<StreamFeedRequest> = /*@__PURE_
   messageDesc(file_cangate_v1_handwheel, 8);
 
 /**
+ * Feed events that were ready together (StreamFeedBatches), in order.
+ *
+ * @generated from message cangate.v1.FeedEventBatch
+ */
+export type FeedEventBatch = Message<"cangate.v1.FeedEventBatch"> & {
+  /**
+   * The events, oldest first (at least one).
+   *
+   * @generated from field: repeated cangate.v1.FeedEvent events = 1;
+   */
+  events: FeedEvent[];
+};
+
+/**
+ * Describes the message cangate.v1.FeedEventBatch.
+ * Use `create(FeedEventBatchSchema)` to create a new message.
+ */
+export const FeedEventBatchSchema: GenMessage<FeedEventBatch> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_handwheel, 9);
+
+/**
  * A feed frame (or a coalesced window of them).
  *
  * @generated from message cangate.v1.FeedEvent
@@ -600,7 +621,7 @@ export type FeedEvent = Message<"cangate.v1.FeedEvent"> & {
  * Use `create(FeedEventSchema)` to create a new message.
  */
 export const FeedEventSchema: GenMessage<FeedEvent> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_handwheel, 9);
+  messageDesc(file_cangate_v1_handwheel, 10);
 
 /**
  * TurnHandwheel request.
@@ -661,7 +682,7 @@ export type TurnHandwheelRequest = Message<"cangate.v1.TurnHandwheelRequest"> & 
  * Use `create(TurnHandwheelRequestSchema)` to create a new message.
  */
 export const TurnHandwheelRequestSchema: GenMessage<TurnHandwheelRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_handwheel, 10);
+  messageDesc(file_cangate_v1_handwheel, 11);
 
 /**
  * TurnHandwheel response.
@@ -691,7 +712,7 @@ export type TurnHandwheelResponse = Message<"cangate.v1.TurnHandwheelResponse"> 
  * Use `create(TurnHandwheelResponseSchema)` to create a new message.
  */
 export const TurnHandwheelResponseSchema: GenMessage<TurnHandwheelResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_handwheel, 11);
+  messageDesc(file_cangate_v1_handwheel, 12);
 
 /**
  * ListSimulatedDevices request (no parameters).
@@ -706,7 +727,7 @@ export type ListSimulatedDevicesRequest = Message<"cangate.v1.ListSimulatedDevic
  * Use `create(ListSimulatedDevicesRequestSchema)` to create a new message.
  */
 export const ListSimulatedDevicesRequestSchema: GenMessage<ListSimulatedDevicesRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_handwheel, 12);
+  messageDesc(file_cangate_v1_handwheel, 13);
 
 /**
  * ListSimulatedDevices response.
@@ -727,7 +748,7 @@ export type ListSimulatedDevicesResponse = Message<"cangate.v1.ListSimulatedDevi
  * Use `create(ListSimulatedDevicesResponseSchema)` to create a new message.
  */
 export const ListSimulatedDevicesResponseSchema: GenMessage<ListSimulatedDevicesResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_handwheel, 13);
+  messageDesc(file_cangate_v1_handwheel, 14);
 
 /**
  * A simulated CANopen device.
@@ -777,7 +798,7 @@ export type SimulatedDevice = Message<"cangate.v1.SimulatedDevice"> & {
  * Use `create(SimulatedDeviceSchema)` to create a new message.
  */
 export const SimulatedDeviceSchema: GenMessage<SimulatedDevice> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_handwheel, 14);
+  messageDesc(file_cangate_v1_handwheel, 15);
 
 /**
  * Fault injection on a virtual bus.
@@ -834,7 +855,7 @@ export type BusFaults = Message<"cangate.v1.BusFaults"> & {
  * Use `create(BusFaultsSchema)` to create a new message.
  */
 export const BusFaultsSchema: GenMessage<BusFaults> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_handwheel, 15);
+  messageDesc(file_cangate_v1_handwheel, 16);
 
 /**
  * SetBusFaults request: the new faults replace the old ones.
@@ -876,7 +897,7 @@ export type SetBusFaultsRequest = Message<"cangate.v1.SetBusFaultsRequest"> & {
  * Use `create(SetBusFaultsRequestSchema)` to create a new message.
  */
 export const SetBusFaultsRequestSchema: GenMessage<SetBusFaultsRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_handwheel, 16);
+  messageDesc(file_cangate_v1_handwheel, 17);
 
 /**
  * GetBusFaults request.
@@ -897,7 +918,7 @@ export type GetBusFaultsRequest = Message<"cangate.v1.GetBusFaultsRequest"> & {
  * Use `create(GetBusFaultsRequestSchema)` to create a new message.
  */
 export const GetBusFaultsRequestSchema: GenMessage<GetBusFaultsRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_handwheel, 17);
+  messageDesc(file_cangate_v1_handwheel, 18);
 
 /**
  * SetBusOff request.
@@ -925,7 +946,7 @@ export type SetBusOffRequest = Message<"cangate.v1.SetBusOffRequest"> & {
  * Use `create(SetBusOffRequestSchema)` to create a new message.
  */
 export const SetBusOffRequestSchema: GenMessage<SetBusOffRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_handwheel, 18);
+  messageDesc(file_cangate_v1_handwheel, 19);
 
 /**
  * PowerCycleDevice request.
@@ -960,7 +981,7 @@ export type PowerCycleDeviceRequest = Message<"cangate.v1.PowerCycleDeviceReques
  * Use `create(PowerCycleDeviceRequestSchema)` to create a new message.
  */
 export const PowerCycleDeviceRequestSchema: GenMessage<PowerCycleDeviceRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_handwheel, 19);
+  messageDesc(file_cangate_v1_handwheel, 20);
 
 /**
  * SendEmcy request.
@@ -1011,7 +1032,7 @@ export type SendEmcyRequest = Message<"cangate.v1.SendEmcyRequest"> & {
  * Use `create(SendEmcyRequestSchema)` to create a new message.
  */
 export const SendEmcyRequestSchema: GenMessage<SendEmcyRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_handwheel, 20);
+  messageDesc(file_cangate_v1_handwheel, 21);
 
 /**
  * RaiseDriveFault request.
@@ -1047,7 +1068,7 @@ export type RaiseDriveFaultRequest = Message<"cangate.v1.RaiseDriveFaultRequest"
  * Use `create(RaiseDriveFaultRequestSchema)` to create a new message.
  */
 export const RaiseDriveFaultRequestSchema: GenMessage<RaiseDriveFaultRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_handwheel, 21);
+  messageDesc(file_cangate_v1_handwheel, 22);
 
 /**
  * SetIoInputs request.
@@ -1090,7 +1111,7 @@ export type SetIoInputsRequest = Message<"cangate.v1.SetIoInputsRequest"> & {
  * Use `create(SetIoInputsRequestSchema)` to create a new message.
  */
 export const SetIoInputsRequestSchema: GenMessage<SetIoInputsRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_handwheel, 22);
+  messageDesc(file_cangate_v1_handwheel, 23);
 
 /**
  * SetIoInputs response.
@@ -1125,7 +1146,7 @@ export type SetIoInputsResponse = Message<"cangate.v1.SetIoInputsResponse"> & {
  * Use `create(SetIoInputsResponseSchema)` to create a new message.
  */
 export const SetIoInputsResponseSchema: GenMessage<SetIoInputsResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_handwheel, 23);
+  messageDesc(file_cangate_v1_handwheel, 24);
 
 /**
  * SetProgramFaults request: the faults of the next program download.
@@ -1184,7 +1205,7 @@ export type SetProgramFaultsRequest = Message<"cangate.v1.SetProgramFaultsReques
  * Use `create(SetProgramFaultsRequestSchema)` to create a new message.
  */
 export const SetProgramFaultsRequestSchema: GenMessage<SetProgramFaultsRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_handwheel, 24);
+  messageDesc(file_cangate_v1_handwheel, 25);
 
 /**
  * The program download state of a simulated device.
@@ -1261,7 +1282,7 @@ export type ProgramFaults = Message<"cangate.v1.ProgramFaults"> & {
  * Use `create(ProgramFaultsSchema)` to create a new message.
  */
 export const ProgramFaultsSchema: GenMessage<ProgramFaults> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_handwheel, 25);
+  messageDesc(file_cangate_v1_handwheel, 26);
 
 /**
  * The wheel's operating mode (object 0x2000).
@@ -1481,6 +1502,20 @@ export const Handwheels: GenService<{
     methodKind: "server_streaming";
     input: typeof StreamFeedRequestSchema;
     output: typeof FeedEventSchema;
+  },
+  /**
+   * The same events as StreamFeed, in the same order, but each message
+   * carries every event that was ready when it was sent (at least one, at
+   * most 1024). A subscriber that falls behind (a busy host, many
+   * subscribers) catches up with fewer, larger messages instead of one
+   * message per event: prefer it when many clients watch the feed.
+   *
+   * @generated from rpc cangate.v1.Handwheels.StreamFeedBatches
+   */
+  streamFeedBatches: {
+    methodKind: "server_streaming";
+    input: typeof StreamFeedRequestSchema;
+    output: typeof FeedEventBatchSchema;
   },
 }> = /*@__PURE__*/
   serviceDesc(file_cangate_v1_handwheel, 0);
