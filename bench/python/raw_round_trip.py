@@ -5,6 +5,7 @@ python-can interface differs:
 
     python raw_round_trip.py socketcand --host 127.0.0.1 --port 29536 --channel vcan0
     python raw_round_trip.py cangate --server http://127.0.0.1:50051 --channel can0
+    python raw_round_trip.py socketcan --channel vcan0      # no gateway: the floor
 
 A responder on the bus answers each frame 0x100 with a frame 0x101 carrying
 the same data. The script connects, then reads block sizes from stdin, one
@@ -43,6 +44,10 @@ def open_bus(args: argparse.Namespace) -> can.BusABC:
             channel=args.channel,
             tcp_tune=True,
         )
+    if args.interface == "socketcan":
+        # No gateway: python-can on the kernel interface itself, the floor
+        # under both gateways' figures.
+        return can.Bus(interface="socketcan", channel=args.channel)
     return can.Bus(interface="cangate", server=args.server, channel=args.channel)
 
 
@@ -63,7 +68,7 @@ def round_trip(bus: can.BusABC, seq: int) -> int:
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("interface", choices=["socketcand", "cangate"])
+    p.add_argument("interface", choices=["socketcand", "cangate", "socketcan"])
     p.add_argument("--channel", required=True)
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=int, default=29536)

@@ -16,7 +16,8 @@
 //!    benchmark on a raw SocketCAN socket): through `socketcand` (python-can
 //!    interface `socketcand`) and through `cangate-server` (interface
 //!    `cangate`, Bus.Attach). One script for both,
-//!    `bench/python/raw_round_trip.py`.
+//!    `bench/python/raw_round_trip.py`; the same script on python-can's
+//!    own `socketcan` interface, no gateway, gives the floor of the path.
 //! 2. **SDO expedited read** of 0x1017 from node 5 (the same responder
 //!    thread plays the node): CANopenNode's `canopend` over its CiA 309-3
 //!    ASCII gateway on TCP (`[seq] 5 r 0x1017 0 u16`) against `ReadSdo`,
@@ -147,13 +148,19 @@ impl Args {
 fn main() -> ExitCode {
     let args = Args::parse();
     let strict = args.strict || in_ci();
+    if strict {
+        // A strict run that would skip a comparison fails before anything
+        // starts, saying why.
+        if let Err(why) = peer_binary("CANGATE_PEER_SOCKETCAND", args.socketcand.as_ref())
+            .and(peer_binary("CANGATE_PEER_CANOPEND", args.canopend.as_ref()))
+        {
+            eprintln!("peer_bench: --strict / CI=true, and {why}");
+            return ExitCode::FAILURE;
+        }
+    }
     match plan(&args.iface, strict) {
         Ok(Plan::Here) => match run(&args) {
-            Ok(skipped) if skipped && strict => {
-                eprintln!("peer_bench: a comparison was skipped (--strict / CI=true)");
-                ExitCode::FAILURE
-            }
-            Ok(_) => ExitCode::SUCCESS,
+            Ok(()) => ExitCode::SUCCESS,
             Err(e) => {
                 eprintln!("peer_bench: {e:#}");
                 ExitCode::FAILURE
@@ -843,6 +850,8 @@ struct Comparison {
     peer: &'static str,
     peer_side: std::result::Result<Measured, String>,
     cangate: Measured,
+    /// The same calls without a gateway, where the path has that.
+    floor: Option<Measured>,
 }
 
 /// A peer's binary from its variable, or why there is none.
@@ -854,8 +863,8 @@ fn peer_binary(var: &str, path: Option<&PathBuf>) -> std::result::Result<PathBuf
     }
 }
 
-/// Measures every path; returns whether a comparison was skipped.
-fn run(args: &Args) -> Result<bool> {
+/// Measures every path.
+fn run(args: &Args) -> Result<()> {
     let (samples, blocks, warmup) = (args.samples(), args.blocks(), args.warmup());
     println!(
         "peer_bench on {} ({}): {samples} calls per gateway and path in {blocks} alternating blocks, {warmup} warm-up calls",
@@ -888,7 +897,7 @@ fn run(args: &Args) -> Result<bool> {
     let mut json = to_json(args, &comparisons);
     json["idle_cpu_percent"] = json!(idle);
     println!("{json}");
-    Ok(comparisons.iter().any(|c| c.peer_side.is_err()))
+    Ok(())
 }
 
 /// The idle CPU of each server (% of one core) by name.
@@ -944,7 +953,18 @@ fn raw_round_trip(args: &Args, dir: &Path, cangate: &Server, url: &str) -> Resul
         calls: Box::new(|n| ours.block(n)),
         cpu: Box::new(|| cangate.cpu(false)),
     };
-    let measured = match peer {
+    let mut direct = PythonClient::start(
+        &python,
+        warmup,
+        &["socketcan".into(), format!("--channel={}", args.iface)],
+    )?;
+    // Timed in the same alternation, so that it is the floor of the same
+    // moments; no server, so no CPU.
+    let floor_side = Side {
+        calls: Box::new(|n| direct.block(n)),
+        cpu: Box::new(|| None),
+    };
+    let (peer_side, cangate, floor) = match peer {
         Ok(bin) => {
             let port = free_port()?;
             // -l lo: listen on loopback; -n: no discovery beacon.
@@ -977,24 +997,30 @@ fn raw_round_trip(args: &Args, dir: &Path, cangate: &Server, url: &str) -> Resul
                 calls: Box::new(|n| theirs.block(n)),
                 cpu: Box::new(|| socketcand.cpu(true)),
             };
-            let mut sides = [peer_side, cangate_side];
-            let mut m = alternate(&mut sides, samples, blocks, 0)?.into_iter();
-            let (p, c) = (m.next().context("peer")?, m.next().context("cangate")?);
-            (Ok(p), c)
+            let mut sides = [peer_side, cangate_side, floor_side];
+            let [p, c, f] = three(alternate(&mut sides, samples, blocks, 0)?)?;
+            (Ok(p), c, f)
         }
         Err(why) => {
             println!("  skipped: socketcand: {why}");
-            let mut m = alternate(&mut [cangate_side], samples, blocks, 0)?;
-            (Err(why), m.remove(0))
+            let mut m = alternate(&mut [cangate_side, floor_side], samples, blocks, 0)?;
+            let f = m.pop().context("floor")?;
+            (Err(why), m.pop().context("cangate")?, f)
         }
     };
     Ok(Comparison {
         key: "raw_round_trip",
         path: "raw frame round trip, python-can client",
         peer: "socketcand",
-        peer_side: measured.0,
-        cangate: measured.1,
+        peer_side,
+        cangate,
+        floor: Some(floor),
     })
+}
+
+fn three(m: Vec<Measured>) -> Result<[Measured; 3]> {
+    m.try_into()
+        .map_err(|m: Vec<Measured>| anyhow!("{} results for 3 sides", m.len()))
 }
 
 /// Paths 2 and 3: an SDO read and a call without bus, canopend against
@@ -1114,6 +1140,7 @@ fn canopen_paths(
             peer: "canopend (CiA 309-3 over TCP)",
             peer_side: sdo.0,
             cangate: sdo.1,
+            floor: None,
         },
         Comparison {
             key: "no_bus_call",
@@ -1121,6 +1148,7 @@ fn canopen_paths(
             peer: "canopend (CiA 309-3 over TCP)",
             peer_side: no_bus.0,
             cangate: no_bus.1,
+            floor: None,
         },
     ))
 }
@@ -1178,6 +1206,14 @@ fn print_table(comparisons: &[Comparison]) {
             cell(theirs_cpu),
             cell(ours_cpu)
         );
+        if let Some(floor) = &c.floor {
+            let f = floor.percentiles();
+            println!(
+                "| … the same without a gateway | python-can `socketcan` | {} / {} µs | – | – |",
+                us(f.p50_us),
+                us(f.p99_us)
+            );
+        }
     }
     println!();
 }
@@ -1206,6 +1242,7 @@ fn to_json(args: &Args, comparisons: &[Comparison]) -> Json {
                 "peer_name": c.peer,
                 "peer": peer,
                 "cangate": c.cangate.to_json(),
+                "without_gateway": c.floor.as_ref().map(|f| f.percentiles().to_json()),
                 "cangate_over_peer": ratios,
             }),
         );
