@@ -51,7 +51,7 @@ def open_bus(args: argparse.Namespace) -> can.BusABC:
     return can.Bus(interface="cangate", server=args.server, channel=args.channel)
 
 
-def round_trip(bus: can.BusABC, seq: int) -> int:
+def round_trip(bus: can.BusABC, seq: int, via: str) -> int:
     data = seq.to_bytes(8, "little")
     start = time.perf_counter_ns()
     bus.send(can.Message(arbitration_id=REQUEST_ID, data=data, is_extended_id=False))
@@ -59,7 +59,7 @@ def round_trip(bus: can.BusABC, seq: int) -> int:
     while True:
         left = deadline - time.monotonic()
         if left <= 0:
-            raise TimeoutError(f"no response to round trip {seq}")
+            raise TimeoutError(f"{via}: no response to round trip {seq} within {TIMEOUT_S} s")
         msg = bus.recv(timeout=left)
         # Anything else on the bus (or a late answer) is not this answer.
         if msg is not None and msg.arbitration_id == RESPONSE_ID and bytes(msg.data) == data:
@@ -84,14 +84,14 @@ def main() -> int:
     try:
         for _ in range(args.warmup):
             seq += 1
-            round_trip(bus, seq)
+            round_trip(bus, seq, args.interface)
         print("ready", flush=True)
         for line in sys.stdin:
             n = int(line)
             ns = []
             for _ in range(n):
                 seq += 1
-                ns.append(round_trip(bus, seq))
+                ns.append(round_trip(bus, seq, args.interface))
             print(json.dumps({"ns": ns}), flush=True)
     finally:
         bus.shutdown()

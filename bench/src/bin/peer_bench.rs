@@ -314,9 +314,12 @@ impl Responder {
                             Err(e) if is_timeout(&e) => continue,
                             Err(e) => return Err(anyhow!("responder: reading: {e}")),
                         };
-                        if let Some(reply) = answer(&frame) {
-                            sock.write_frame(&reply)
-                                .map_err(|e| anyhow!("responder: writing: {e}"))?;
+                        // A lost answer shows as the client's timeout; this
+                        // says whose it was, and the responder carries on.
+                        if let Some(reply) = answer(&frame)
+                            && let Err(e) = sock.write_frame_insist(&reply)
+                        {
+                            eprintln!("responder: answering {:03X}: {e}", frame.raw_id());
                         }
                     }
                     Ok(())
