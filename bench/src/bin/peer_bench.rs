@@ -11,8 +11,8 @@
 //! gateways alternate in blocks, each going first in turn, so that drift
 //! of the machine hits both):
 //!
-//! 1. **raw round trip**: a python-can program sends a frame 0x100 and
-//!    waits for the answer 0x101 of a responder on vcan0 (a thread of this
+//! 1. **raw round trip**: a python-can program sends a frame and waits
+//!    for the answer (the next identifier) of a responder on vcan0 (a thread of this
 //!    benchmark on a raw SocketCAN socket): through `socketcand` (python-can
 //!    interface `socketcand`) and through `cangate-server` (interface
 //!    `cangate`, Bus.Attach). One script for both,
@@ -60,9 +60,16 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-/// The frame the raw round trip sends, and the responder's answer.
+/// The raw round trip's requests: even identifiers 0x100..=0x10E (this
+/// value under [`RAW_REQUEST_MASK`]), each answered with the next
+/// identifier. Each client of the path has its own pair, so that none
+/// receives the others' traffic.
 const RAW_REQUEST: u16 = 0x100;
-const RAW_RESPONSE: u16 = 0x101;
+const RAW_REQUEST_MASK: u16 = 0x7F1;
+/// The request identifiers of the raw round trip's three clients.
+const RAW_VIA_SOCKETCAND: u16 = 0x100;
+const RAW_VIA_CANGATE: u16 = 0x102;
+const RAW_DIRECT: u16 = 0x104;
 /// The node the SDO reads go to (played by the responder thread).
 const NODE: u8 = 5;
 /// SDO request (client → server) and response COB-IDs of [`NODE`].
@@ -283,7 +290,7 @@ fn rerun_in_vm(runner: &Path, strict: bool) -> ExitCode {
 // The responder: the far end of every path, one for both gateways
 // ---------------------------------------------------------------------------
 
-/// A thread on a raw socket answering [`RAW_REQUEST`] with [`RAW_RESPONSE`]
+/// A thread on a raw socket answering the raw round trip's requests
 /// and playing an SDO server as node [`NODE`].
 struct Responder {
     stop: Arc<AtomicBool>,
@@ -296,7 +303,7 @@ impl Responder {
         // Woken only by what it answers: the gateways' own traffic
         // (canopend's heartbeats, their echoes) stays in the kernel.
         sock.set_filters(&[
-            CanFilter::new(RAW_REQUEST.into(), 0x7FF),
+            CanFilter::new(RAW_REQUEST.into(), RAW_REQUEST_MASK.into()),
             CanFilter::new(SDO_RX.into(), 0x7FF),
         ])?;
         // A blocking read with a timeout, not a poll per frame: the stop
@@ -356,7 +363,7 @@ fn answer(frame: &CanFrame) -> Option<CanFrame> {
     let data = frame.data();
     let reply = |id: u16, data: &[u8]| CanFrame::new(StandardId::new(id)?, data);
     match id {
-        RAW_REQUEST => reply(RAW_RESPONSE, data),
+        _ if id & RAW_REQUEST_MASK == RAW_REQUEST => reply(id + 1, data),
         SDO_RX if data.len() == 8 => reply(SDO_TX, &sdo_answer(data)),
         _ => None,
     }
@@ -612,10 +619,18 @@ struct PythonClient {
 }
 
 impl PythonClient {
-    fn start(python: &Path, warmup: usize, gateway_args: &[String]) -> Result<PythonClient> {
+    /// The script sending requests `request_id` (see [`RAW_REQUEST`])
+    /// through the interface and gateway of `gateway_args`.
+    fn start(
+        python: &Path,
+        warmup: usize,
+        request_id: u16,
+        gateway_args: &[String],
+    ) -> Result<PythonClient> {
         let mut child = Command::new(python)
             .arg(RAW_SCRIPT)
             .args(gateway_args)
+            .arg(format!("--request-id={request_id:#x}"))
             .arg(format!("--warmup={warmup}"))
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
@@ -946,6 +961,7 @@ fn raw_round_trip(args: &Args, dir: &Path, cangate: &Server, url: &str) -> Resul
     let mut ours = PythonClient::start(
         &python,
         warmup,
+        RAW_VIA_CANGATE,
         &[
             "cangate".into(),
             "--channel=can0".into(),
@@ -959,6 +975,7 @@ fn raw_round_trip(args: &Args, dir: &Path, cangate: &Server, url: &str) -> Resul
     let mut direct = PythonClient::start(
         &python,
         warmup,
+        RAW_DIRECT,
         &["socketcan".into(), format!("--channel={}", args.iface)],
     )?;
     // Timed in the same alternation, so that it is the floor of the same
@@ -990,6 +1007,7 @@ fn raw_round_trip(args: &Args, dir: &Path, cangate: &Server, url: &str) -> Resul
             let mut theirs = PythonClient::start(
                 &python,
                 warmup,
+                RAW_VIA_SOCKETCAND,
                 &[
                     "socketcand".into(),
                     format!("--channel={}", args.iface),
@@ -1272,6 +1290,9 @@ mod tests {
     #[test]
     fn responder_answers_raw_and_sdo() {
         let r = answer(&frame(RAW_REQUEST, &[1, 2, 3])).unwrap();
+        assert_eq!(answer(&frame(0x10E, &[])).unwrap().raw_id(), 0x10F);
+        assert!(answer(&frame(0x101, &[])).is_none());
+        assert!(answer(&frame(0x110, &[])).is_none());
         assert_eq!((r.raw_id(), r.data()), (0x101, &[1u8, 2, 3][..]));
         let r = answer(&frame(0x605, &[0x40, 0x17, 0x10, 0, 0, 0, 0, 0])).unwrap();
         assert_eq!(r.raw_id(), 0x585);
