@@ -95,7 +95,7 @@ struct Args {
     #[arg(long)]
     samples: Option<usize>,
     /// Blocks the samples are split into; the gateways alternate block by
-    /// block [default: 5; --quick: 2].
+    /// block [default: 10; --quick: 2].
     #[arg(long)]
     blocks: Option<usize>,
     /// Untimed calls per gateway and path first [default: 50; --quick: 10].
@@ -130,7 +130,7 @@ impl Args {
     }
     fn blocks(&self) -> usize {
         self.blocks
-            .unwrap_or(if self.quick { 2 } else { 5 })
+            .unwrap_or(if self.quick { 2 } else { 10 })
             .clamp(1, self.samples().max(1))
     }
     /// How long each server's idle CPU is measured.
