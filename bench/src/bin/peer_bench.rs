@@ -2,20 +2,20 @@
 //! real SocketCAN (`vcan0`), each path measured the same way for both.
 //!
 //! ```text
-//! cargo build --release -p cangate-bench --bin peer_bench -p cangate-server
+//! cargo build --release -p cangate-server     # started from beside this binary
 //! CANGATE_PEER_SOCKETCAND=/path/socketcand CANGATE_PEER_CANOPEND=/path/canopend \
 //!     cargo run --release -p cangate-bench --bin peer_bench      # --samples N, --quick
 //! ```
 //!
-//! Paths (each latency is one complete call, timed by the caller; the two
+//! Paths (each latency is one complete call, timed by the caller; the
 //! gateways alternate in blocks, each going first in turn, so that drift
-//! of the machine hits both):
+//! of the machine hits all alike):
 //!
-//! 1. **raw round trip**: a python-can program sends a frame and waits
-//!    for the answer (the next identifier) of a responder on vcan0 (a thread of this
-//!    benchmark on a raw SocketCAN socket): through `socketcand` (python-can
-//!    interface `socketcand`) and through `cangate-server` (interface
-//!    `cangate`, Bus.Attach). One script for both,
+//! 1. **raw round trip**: a python-can program sends a frame and waits for
+//!    the answer (the next identifier) of a responder on vcan0 (a thread
+//!    of this benchmark on a raw SocketCAN socket): through `socketcand`
+//!    (python-can interface `socketcand`) and through `cangate-server`
+//!    (interface `cangate`, Bus.Attach). One script for both,
 //!    `bench/python/raw_round_trip.py`; the same script on python-can's
 //!    own `socketcan` interface, no gateway, gives the floor of the path.
 //! 2. **SDO expedited read** of 0x1017 from node 5 (the same responder
