@@ -47,6 +47,30 @@ fn threads_cpu_of(pid: &str) -> std::io::Result<Vec<(String, f64)>> {
     Ok(out)
 }
 
+/// User plus system seconds of process `pid` so far, all its threads
+/// (those that ended included) from `/proc/<pid>/stat`: the CPU a server
+/// spent, for a process that is not this one.
+pub fn process_cpu_seconds(pid: u32) -> std::io::Result<f64> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat"))?;
+    stat_cpu_seconds(&stat).ok_or_else(|| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            "unexpected /proc stat line",
+        )
+    })
+}
+
+/// The processes `pid` started that still run, from
+/// `/proc/<pid>/task/<pid>/children` (empty when the kernel does not
+/// provide that file).
+pub fn child_pids(pid: u32) -> Vec<u32> {
+    std::fs::read_to_string(format!("/proc/{pid}/task/{pid}/children"))
+        .unwrap_or_default()
+        .split_whitespace()
+        .filter_map(|p| p.parse().ok())
+        .collect()
+}
+
 /// User plus system seconds of a `/proc/<pid>/task/<tid>/stat` line.
 fn stat_cpu_seconds(stat: &str) -> Option<f64> {
     // Fields after the ")" of the command name (which may hold spaces):

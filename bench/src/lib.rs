@@ -3,7 +3,9 @@
 //! Every benchmark here (the `cangate-bench` binary and `sdo_bench`,
 //! `axis_bench`, `wheel_bench`, `cansmc_bench`, `soak_bench`) starts the real
 //! gateway in its own process, drives it through the real client or its
-//! runtime handles, and prints human-readable figures and one JSON line. What
+//! runtime handles, and prints human-readable figures and one JSON line.
+//! `peer_bench` is the exception: it runs the release `cangate-server` as a
+//! child process on SocketCAN, beside the other gateways it compares with. What
 //! they have in common lives here, so that a percentile, a "no client
 //! limits" configuration or a CPU reading means the same thing in every
 //! figure:
