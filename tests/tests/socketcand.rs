@@ -625,6 +625,7 @@ async fn a_slow_socketcand_reader_loses_frames_and_nobody_else_does() {
     let text = format!(
         "listen = \"127.0.0.1:0\"\nmetrics_listen = \"127.0.0.1:0\"\n{ONE_BUS}\
          [socketcand]\nlisten = \"127.0.0.1:0\"\nqueue_length = 1024\n\
+         write_timeout_ms = 600000\n\
          [security.limits]\nraw_frames_per_second_per_client = 0\n\
          max_stream_queue = 1000000\nmax_stream_queue_per_client = 1000000\n"
     );
@@ -637,6 +638,9 @@ async fn a_slow_socketcand_reader_loses_frames_and_nobody_else_does() {
 
     // The slow client: a small receive buffer, so that the kernel's
     // buffers do not absorb the flood; it opens can0 and stops reading.
+    // (For as long as the flood takes, which on a loaded host exceeds the
+    // default write_timeout_ms of 10 s that would end its connection: the
+    // configuration above allows 10 minutes.)
     let socket = tokio::net::TcpSocket::new_v4().expect("socket");
     socket.set_recv_buffer_size(4096).expect("SO_RCVBUF");
     let stream = socket.connect(addr).await.expect("connects");
