@@ -157,11 +157,12 @@ pub async fn get_node(c: &cangate_client::Client, node: u32) -> pb::Node {
         .into_inner()
 }
 
-/// The gateway's Prometheus metrics text (`metrics_listen` at `addr`).
-pub async fn scrape_metrics(addr: std::net::SocketAddr) -> String {
+/// The answer (status line, headers, body) of a plain HTTP GET of `path`
+/// from `addr` (the metrics endpoint).
+pub async fn http_get(addr: std::net::SocketAddr, path: &str) -> String {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
-    s.write_all(b"GET /metrics HTTP/1.1\r\nHost: x\r\n\r\n")
+    s.write_all(format!("GET {path} HTTP/1.1\r\nHost: x\r\n\r\n").as_bytes())
         .await
         .unwrap();
     let mut out = String::new();
@@ -170,4 +171,9 @@ pub async fn scrape_metrics(addr: std::net::SocketAddr) -> String {
         .expect("answer in time")
         .unwrap();
     out
+}
+
+/// The gateway's Prometheus metrics text (`metrics_listen` at `addr`).
+pub async fn scrape_metrics(addr: std::net::SocketAddr) -> String {
+    http_get(addr, "/metrics").await
 }

@@ -3,7 +3,6 @@
 
 use cangate_client::pb;
 use cangate_tests::*;
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
 const CONFIG: &str = r#"
 metrics_listen = "127.0.0.1:0"
@@ -21,19 +20,6 @@ eds = "builtin:drive"
 simulate = true
 heartbeat_timeout_ms = 300
 "#;
-
-async fn scrape(addr: std::net::SocketAddr, path: &str) -> String {
-    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
-    s.write_all(format!("GET {path} HTTP/1.1\r\nHost: x\r\n\r\n").as_bytes())
-        .await
-        .unwrap();
-    let mut out = String::new();
-    tokio::time::timeout(WAIT, s.read_to_string(&mut out))
-        .await
-        .expect("answer in time")
-        .unwrap();
-    out
-}
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn metrics_endpoint_exposes_bus_and_sdo_series() {
@@ -71,7 +57,7 @@ async fn metrics_endpoint_exposes_bus_and_sdo_series() {
         ..Default::default()
     };
     c.send_pb("can0", vec![bad]).await.unwrap_err();
-    let text = scrape(addr, "/metrics").await;
+    let text = http_get(addr, "/metrics").await;
     assert!(text.starts_with("HTTP/1.1 200 OK"), "{text}");
     for series in [
         "cangate_bus_frames_total{bus=\"can0\",direction=\"rx\"}",
@@ -96,7 +82,7 @@ async fn metrics_endpoint_exposes_bus_and_sdo_series() {
         .and_then(|v| v.parse().ok())
         .unwrap();
     assert!(tx >= 3.0, "two SDO requests and a frame were sent: {tx}");
-    assert!(scrape(addr, "/nope").await.starts_with("HTTP/1.1 404"));
+    assert!(http_get(addr, "/nope").await.starts_with("HTTP/1.1 404"));
 }
 
 const CANSMC_CONFIG: &str = r#"
@@ -140,7 +126,7 @@ async fn metrics_endpoint_exposes_cansmc_cycle_series() {
         );
         tokio::time::sleep(std::time::Duration::from_millis(20)).await;
     }
-    let text = scrape(addr, "/metrics").await;
+    let text = http_get(addr, "/metrics").await;
     for series in [
         "cangate_cansmc_phase{master=\"m\"} 3",
         "cangate_cansmc_cycles_total{master=\"m\"}",
@@ -203,7 +189,7 @@ async fn metrics_endpoint_counts_received_pdos() {
     let series = "cangate_pdo_received_total{bus=\"can0\",node=\"1\",pdo=\"1\"}";
     let deadline = tokio::time::Instant::now() + WAIT;
     let first = loop {
-        let text = scrape(addr, "/metrics").await;
+        let text = http_get(addr, "/metrics").await;
         match value(&text, series) {
             Some(v) if v > 0.0 => break v,
             _ => {}
@@ -216,7 +202,7 @@ async fn metrics_endpoint_counts_received_pdos() {
     };
     // TPDO1 comes every SYNC (5 ms): the count grows.
     tokio::time::sleep(std::time::Duration::from_millis(200)).await;
-    let text = scrape(addr, "/metrics").await;
+    let text = http_get(addr, "/metrics").await;
     let later = value(&text, series).unwrap();
     assert!(later > first, "{first} -> {later}");
     // The SYNC producer's counters: at 5 ms, well over 20 SYNCs by now;

@@ -594,17 +594,7 @@ async fn frame_budget_and_connection_limit_apply_to_socketcand_clients() {
 /// `cangate_socketcand_frames_lost_total` of bus can0 on the gateway's
 /// metrics endpoint (0 before the first loss).
 async fn socketcand_lost(metrics: SocketAddr) -> u64 {
-    let mut s = tokio::net::TcpStream::connect(metrics)
-        .await
-        .expect("metrics");
-    s.write_all(b"GET /metrics HTTP/1.1\r\nHost: x\r\n\r\n")
-        .await
-        .expect("request");
-    let mut text = String::new();
-    tokio::time::timeout(WAIT, s.read_to_string(&mut text))
-        .await
-        .expect("metrics in time")
-        .expect("metrics read");
+    let text = scrape_metrics(metrics).await;
     text.lines()
         .find(|l| {
             l.starts_with("cangate_socketcand_frames_lost_total{") && l.contains("bus=\"can0\"")
