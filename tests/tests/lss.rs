@@ -291,14 +291,30 @@ async fn silence_is_a_timeout_and_bad_requests_are_refused() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn one_lss_operation_per_bus_at_a_time() {
     let server = start_server(CONFIG).await;
-    let c = client(&server).await;
+    let mut c = client(&server).await;
     let lss = c.lss("can0");
+    // The master's LSS requests (0x7E5), to see the fastscan under way
+    // before probing: a probe sent first would hold the bus's LSS itself
+    // and refuse the scan instead.
+    let mut req = stream_request(
+        "can0",
+        vec![pb::FrameFilter {
+            id: 0x7E5,
+            mask: 0x7FF,
+            format: pb::IdFormat::Standard as i32,
+            invert: false,
+        }],
+    );
+    req.include_transmitted = true;
+    let (mut lss_requests, mut pending) = open_stream(&mut c, req).await;
     // A fastscan of two devices takes a few hundred steps; meanwhile every
     // other LSS call on the bus is refused with LSS_BUSY.
     let scan = tokio::spawn({
         let lss = lss.clone();
         async move { lss.fastscan(None).await }
     });
+    const FASTSCAN: u8 = 0x51; // CiA 305 command specifier
+    while read_frames(&mut lss_requests, &mut pending, 1).await[0].data[0] != FASTSCAN {}
     let deadline = Instant::now() + WAIT;
     let busy = loop {
         match lss.identify_non_configured().await {
