@@ -190,6 +190,10 @@ def _one(message: Any) -> Iterator[Any]:
     yield message
 
 
+def _batch_events(batch: Any) -> Iterator[Any]:
+    yield from batch.events
+
+
 def _frame_events(response: Any) -> Iterator[Union[Frame, FramesLost, bus_pb2.BusStatus]]:
     for ev in response.events:
         kind = ev.WhichOneof("event")
@@ -290,6 +294,9 @@ class Client:
             include_transmitted=include_transmitted,
             include_error_frames=error_frames,
             queue_length=queue_length,
+            # Each frame at once: grpcio has no limit on small messages
+            # (see StreamFramesRequest.low_latency).
+            low_latency=True,
         )
         return Stream(self.bus_stub.StreamFrames(request), _frame_events)
 
@@ -424,7 +431,9 @@ class Client:
         """Feed events of handwheels (all when empty), one per frame or per
         `coalesce_ms` window."""
         request = handwheel_pb2.StreamFeedRequest(handwheels=list(handwheels), coalesce_ms=coalesce_ms)
-        return Stream(self.handwheels_stub.StreamFeed(request), _one)
+        # Batches: fewer messages when the gateway falls behind; the events
+        # come out one by one all the same.
+        return Stream(self.handwheels_stub.StreamFeedBatches(request), _batch_events)
 
 
 class AxisHandle:
