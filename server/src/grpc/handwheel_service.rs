@@ -113,7 +113,6 @@ impl HandwheelsRpc for HandwheelsService {
 impl HandwheelsService {
     /// The feed events `r` asks for, from a task of their own; the
     /// receiver ends when the client goes away or the gateway shuts down.
-    #[allow(clippy::result_large_err)]
     fn feed(
         &self,
         r: pb::StreamFeedRequest,
