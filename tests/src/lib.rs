@@ -60,6 +60,24 @@ pub fn stream_request(bus: &str, filters: Vec<pb::FrameFilter>) -> pb::StreamFra
     }
 }
 
+/// A filter passing exactly the standard (11-bit) identifier `id`.
+pub fn standard_id(id: u32) -> pb::FrameFilter {
+    pb::FrameFilter {
+        id,
+        mask: 0x7FF,
+        format: pb::IdFormat::Standard as i32,
+        invert: false,
+    }
+}
+
+/// A stream request for the frames on standard identifier `id` of `bus`,
+/// the gateway's own included (its requests to a node, say).
+pub fn frames_on(bus: &str, id: u32) -> pb::StreamFramesRequest {
+    let mut r = stream_request(bus, vec![standard_id(id)]);
+    r.include_transmitted = true;
+    r
+}
+
 /// Opens a stream and consumes the initial state event, so that the
 /// subscription is known to be in place before the test sends anything.
 pub async fn open_stream(

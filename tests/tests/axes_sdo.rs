@@ -52,15 +52,6 @@ process_data = "sdo"
 sdo_poll_ms = 5
 "#;
 
-fn exact(id: u32) -> pb::FrameFilter {
-    pb::FrameFilter {
-        id,
-        mask: 0x7FF,
-        format: 0,
-        invert: false,
-    }
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_sdo_axis_enables_homes_and_moves_without_any_pdo() {
     let server = start_server(CONFIG).await;
@@ -84,7 +75,10 @@ async fn an_sdo_axis_enables_homes_and_moves_without_any_pdo() {
         &mut c,
         pb::StreamFramesRequest {
             include_transmitted: true,
-            ..stream_request("can0", vec![exact(0x203), exact(0x303), exact(0x603)])
+            ..stream_request(
+                "can0",
+                vec![standard_id(0x203), standard_id(0x303), standard_id(0x603)],
+            )
         },
     )
     .await;

@@ -296,17 +296,7 @@ async fn one_lss_operation_per_bus_at_a_time() {
     // The master's LSS requests (0x7E5), to see the fastscan under way
     // before probing: a probe sent first would hold the bus's LSS itself
     // and refuse the scan instead.
-    let mut req = stream_request(
-        "can0",
-        vec![pb::FrameFilter {
-            id: 0x7E5,
-            mask: 0x7FF,
-            format: pb::IdFormat::Standard as i32,
-            invert: false,
-        }],
-    );
-    req.include_transmitted = true;
-    let (mut lss_requests, mut pending) = open_stream(&mut c, req).await;
+    let (mut lss_requests, mut pending) = open_stream(&mut c, frames_on("can0", 0x7E5)).await;
     // A fastscan of two devices takes a few hundred steps; meanwhile every
     // other LSS call on the bus is refused with LSS_BUSY.
     let scan = tokio::spawn({

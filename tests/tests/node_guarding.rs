@@ -49,17 +49,7 @@ async fn wait_event(
 
 /// Frames on 0x705, the gateway's own requests included.
 fn guarding_frames() -> pb::StreamFramesRequest {
-    let mut r = stream_request(
-        "can0",
-        vec![pb::FrameFilter {
-            id: 0x705,
-            mask: 0x7FF,
-            format: pb::IdFormat::Standard as i32,
-            invert: false,
-        }],
-    );
-    r.include_transmitted = true;
-    r
+    frames_on("can0", 0x705)
 }
 
 async fn set_drop_ids(c: &cangate_client::Client, ids: Vec<u32>) {
