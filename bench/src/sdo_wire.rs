@@ -60,15 +60,8 @@ pub fn transfer_bus_ns(t: &BitTiming, node: u8, data: &[u8], block: bool, upload
     total
 }
 
-/// Deterministic pseudo-random bytes (realistic bit stuffing).
+/// Deterministic pseudo-random bytes (realistic bit stuffing): the
+/// simulated node's test image.
 pub fn firmware(len: usize) -> Vec<u8> {
-    let mut x: u32 = 0x2545_F491;
-    (0..len)
-        .map(|_| {
-            x ^= x << 13;
-            x ^= x >> 17;
-            x ^= x << 5;
-            (x >> 24) as u8
-        })
-        .collect()
+    cangate_sim::program::test_image(len, 0x2545_F491)
 }

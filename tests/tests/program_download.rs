@@ -11,7 +11,7 @@
 //! viewer refused; a request above max_message_bytes accepted.
 
 use cangate_client::{Error, NodeId, ProgramOptions, pb};
-use cangate_sim::program::{INITIAL_IDENTIFICATION, crc32};
+use cangate_sim::program::{INITIAL_IDENTIFICATION, crc32, test_image};
 use cangate_tests::*;
 use futures::StreamExt;
 use std::time::{Duration, Instant};
@@ -59,19 +59,6 @@ type Sim = pb::simulator_client::SimulatorClient<cangate_client::Transport>;
 
 fn node(n: u32) -> NodeId {
     NodeId::new(n).unwrap()
-}
-
-/// Deterministic pseudo-random bytes.
-fn image(len: usize, seed: u32) -> Vec<u8> {
-    let mut x = seed | 1;
-    (0..len)
-        .map(|_| {
-            x ^= x << 13;
-            x ^= x >> 17;
-            x ^= x << 5;
-            (x >> 24) as u8
-        })
-        .collect()
 }
 
 async fn read_u32(c: &cangate_client::Client, bus: &str, node: u32, index: u32) -> u32 {
@@ -130,7 +117,7 @@ async fn a_256_kib_image_is_downloaded_and_the_node_boots_with_it() {
     let server = start_server(CONFIG).await;
     let c = client(&server).await;
     let mut events = node_events(&c, vec![5]).await;
-    let img = image(256 * 1024, 7);
+    let img = test_image(256 * 1024, 7);
     let want = crc32(&img);
     assert_eq!(
         read_u32(&c, "can0", 5, 0x1F56).await,
@@ -200,7 +187,7 @@ async fn failures_are_typed_and_name_their_step() {
     let server = start_server(CONFIG).await;
     let c = client(&server).await;
     let mut sim = pb::simulator_client::SimulatorClient::new(c.channel());
-    let img = image(20_000, 3);
+    let img = test_image(20_000, 3);
 
     // A flash error: ABORTED, PROGRAM_FLASH_ERROR, the CiA 302-3 name.
     faults(
@@ -324,7 +311,7 @@ async fn a_cancelled_download_stops_on_the_bus_and_a_new_one_works() {
     )
     .await;
     // 64 KiB at 1 Mbit/s: over a second of data.
-    let img = image(64 * 1024, 11);
+    let img = test_image(64 * 1024, 11);
     let mut s = c
         .canopen("slow")
         .download_program(node(7), img.clone(), &Default::default())
@@ -379,7 +366,7 @@ async fn a_cancelled_download_stops_on_the_bus_and_a_new_one_works() {
         INITIAL_IDENTIFICATION
     );
     // A new download goes through.
-    let small = image(4096, 5);
+    let small = test_image(4096, 5);
     let (r, _) = download(&c, "slow", 7, small.clone(), &Default::default()).await;
     let o = r.expect("the download after the cancel succeeds");
     assert_eq!(o.new_identification, crc32(&small));
@@ -389,7 +376,7 @@ async fn a_cancelled_download_stops_on_the_bus_and_a_new_one_works() {
 async fn downloads_to_two_nodes_run_side_by_side() {
     let server = start_server(CONFIG).await;
     let c = client(&server).await;
-    let (a, b) = (image(30_000, 1), image(30_000, 2));
+    let (a, b) = (test_image(30_000, 1), test_image(30_000, 2));
     let opts = ProgramOptions::default();
     let ((ra, _), (rb, _)) = tokio::join!(
         download(&c, "can0", 5, a.clone(), &opts),
@@ -480,7 +467,7 @@ async fn a_viewer_may_not_download_a_program() {
     assert_eq!(e.code(), Some(Code::PermissionDenied), "{e:?}");
     assert!(e.to_string().contains("engineer"), "{e}");
     let engineer = with("e-token").await;
-    let img = image(2000, 9);
+    let img = test_image(2000, 9);
     let o = engineer
         .canopen("can0")
         .download_program_with(node(5), img.clone(), &Default::default(), |_| {})
@@ -497,7 +484,7 @@ async fn after_an_abort_by_the_node_the_next_download_works_at_once() {
     let server = start_server(CONFIG).await;
     let c = client(&server).await;
     let mut sim = pb::simulator_client::SimulatorClient::new(c.channel());
-    let img = image(20_000, 21);
+    let img = test_image(20_000, 21);
     for _ in 0..2 {
         faults(
             &mut sim,
@@ -534,7 +521,7 @@ async fn a_4_mib_image_passes_the_message_limit_and_is_downloaded() {
     // max_message_bytes (4 MiB): DownloadProgram may carry it.
     let server = start_server(CONFIG).await;
     let c = client(&server).await;
-    let img = image(4 * 1024 * 1024, 44);
+    let img = test_image(4 * 1024 * 1024, 44);
     let (r, seen) = download(&c, "can0", 6, img.clone(), &Default::default()).await;
     let o = r.expect("the 4 MiB download succeeds");
     assert_eq!(o.bytes, img.len() as u64);

@@ -1814,31 +1814,17 @@ mod tests {
         }
     }
 
-    /// Runs an SDO client against the node until the transfer completes.
+    /// Runs an SDO client against the node until the transfer completes;
+    /// the node answers nothing that was still queued then.
     fn run_client(
         sim: &mut SimNode,
         client: &mut SdoClient,
         first: Vec<Frame>,
         now: &mut Duration,
     ) -> Result<TransferOutcome, SdoError> {
-        let mut queue: VecDeque<Frame> = first.into();
-        while let Some(f) = queue.pop_front() {
-            *now += Duration::from_micros(100);
-            if f.raw_id() == 0x605 {
-                let replies = sim.on_frame(&f, *now);
-                queue.extend(replies.into_iter().filter(|r| r.raw_id() == 0x585));
-            } else {
-                let step = client.on_frame(&f, *now);
-                queue.extend(step.frames);
-                if let Some(done) = step.completed {
-                    for rest in queue.drain(..) {
-                        assert!(sim.on_frame(&rest, *now).is_empty());
-                    }
-                    return done;
-                }
-            }
-        }
-        panic!("transfer stalled")
+        let (done, late) = run_to_end(sim, client, first, now);
+        assert!(late.is_empty(), "answers after the end: {late:?}");
+        done
     }
 
     /// Runs a transfer until the client completes; frames still queued

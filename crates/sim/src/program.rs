@@ -323,6 +323,21 @@ pub fn crc32(data: &[u8]) -> u32 {
     !c
 }
 
+/// A deterministic pseudo-random program image of `len` bytes (xorshift32
+/// from `seed`): realistic bit stuffing on the wire, reproducible
+/// identification (0x1F56), for tests and benchmarks of program download.
+pub fn test_image(len: usize, seed: u32) -> Vec<u8> {
+    let mut x = seed | 1;
+    (0..len)
+        .map(|_| {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            (x >> 24) as u8
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
