@@ -1119,6 +1119,19 @@ async fn grpc(
         "in-process client",
         grpc_latency(&url, args.reads(), args.warmup()).await?,
     ));
+    // The in-process SDO from the gateway's runtime, once for both runs'
+    // breakdowns below.
+    let sdo = measure(args.reads(), args.warmup(), || async {
+        runtime_upload(&bed.master()?, node_id(NODE)?, HEARTBEAT_TIME)
+            .await
+            .map(drop)
+    })
+    .await?;
+    r.row(
+        "in-process SDO from the gateway's runtime (same drive)",
+        &sdo,
+        "",
+    );
     for (who, j) in runs {
         let mut entry = serde_json::Map::new();
         for (case, reference) in [("expedited", ref_exp), ("segmented", ref_seg)] {
@@ -1158,18 +1171,7 @@ async fn grpc(
         // the drive on its own thread), and the rest (the handler).
         if let Some(unary) = j.get("unary").and_then(Stats::from_json) {
             let exp = j.get("expedited").and_then(Stats::from_json);
-            let sdo = measure(args.reads(), args.warmup(), || async {
-                runtime_upload(&bed.master()?, node_id(NODE)?, HEARTBEAT_TIME)
-                    .await
-                    .map(drop)
-            })
-            .await?;
             r.row(&format!("gRPC, {who}: unary GetBus"), &unary, "");
-            r.row(
-                "in-process SDO from the gateway's runtime (same drive)",
-                &sdo,
-                "",
-            );
             if let Some(exp) = exp {
                 let share = exp.p50_us - unary.p50_us;
                 let handler = share - sdo.p50_us;
