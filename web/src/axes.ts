@@ -214,6 +214,9 @@ function update(s: AxisStatus): void {
   row.cells.ferr.textContent = s.followingError.toFixed(4);
   row.cells.control.textContent = leases.has(s.axis) ? "this page" : s.controlledBy || "—";
   row.cells.fault.textContent = s.faultText;
+  // The full text where a fixed column cuts it.
+  row.cells.fault.title = s.faultText;
+  row.cells.control.title = row.cells.control.textContent;
   row.tr.dataset.state = enumName(DriveState, s.state);
   row.tr.dataset.activity = enumName(AxisActivity, s.activity);
   row.tr.dataset.homed = String(s.homed);
