@@ -70,6 +70,11 @@ fn screenshots() -> PathBuf {
     dir
 }
 
+/// One browser at a time: three Chromiums at once on a 2-core CI host
+/// starved each other's pages for seconds (a page then lost its 3 s axis
+/// lease between two renewals).
+static ONE_BROWSER: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
+
 /// Runs the browser script; `on_need` answers its requests (with the line
 /// to send back). Returns the steps it reported.
 async fn drive<F, Fut>(args: &[String], mut on_need: F) -> Vec<String>
@@ -77,6 +82,7 @@ where
     F: FnMut(String) -> Fut,
     Fut: std::future::Future<Output = String>,
 {
+    let _one = ONE_BROWSER.lock().await;
     let mut child = tokio::process::Command::new("node")
         .arg(repo().join("web/tests/dashboard.mjs"))
         .args(args)

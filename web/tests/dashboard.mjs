@@ -22,7 +22,7 @@ import { readFileSync } from "node:fs";
 
 const [mode, url, shots, token, operatorToken] = process.argv.slice(2);
 const chromium = process.env.CANGATE_CHROMIUM || "/usr/bin/chromium";
-const WAIT = 10_000;
+const WAIT = 30_000;
 const rl = createInterface({ input: process.stdin });
 const stdin = rl[Symbol.asyncIterator]();
 function say(line) {
@@ -100,7 +100,20 @@ function axesListed(page) {
 }
 
 async function click(page, axis, cmd) {
-  await page.click(`tr[data-axis="${axis}"] button[data-cmd="${cmd}"]`);
+  await press(page, `tr[data-axis="${axis}"] button[data-cmd="${cmd}"]`);
+}
+
+// Clicks `sel` once it is visible, enabled and laid out where it stays
+// (puppeteer's locator: the axes table reflows while positions change, and
+// a plain page.click measured a button mid-reflow on a loaded host: "Node
+// is either not clickable"). Timed out, it fails like `until`.
+async function press(page, sel) {
+  try {
+    await page.locator(sel).setTimeout(WAIT).click();
+  } catch (e) {
+    await currentPage?.screenshot({ path: `${shots}/failure-${mode}.png` }).catch(() => {});
+    throw new Error(`could not click ${sel}: ${e.message} (${errors.join("; ")})`);
+  }
 }
 
 async function acquireAndEnable(page, axis) {
@@ -184,7 +197,7 @@ async function demo(page) {
   await click(page, "X", "move");
   await until("X moving", async () => (await cell(page, "X", "activity")) === "moving");
   await sleep(200);
-  await page.click("#stop-all");
+  await press(page, "#stop-all");
   await until("X stopped by STOP ALL", async () =>
     (await cell(page, "X", "activity")) === "idle" && Math.abs(await num(page, "X", "velocity")) < 1e-6);
   const xStopped = await num(page, "X", "position");
@@ -192,7 +205,7 @@ async function demo(page) {
   say(`step stop-all x=${xStopped}`);
 
   // The live frame view shows a frame the test sends over gRPC.
-  await page.click(`button[data-page="buses"]`);
+  await press(page, `button[data-page="buses"]`);
   await until("can0 listed", () => page.$(`#buses tr[data-bus="can0"]`));
   await until("frames arriving", async () => (await page.$eval("#frames", (p) => p.textContent ?? "")).length > 0);
   // A candump-style filter for 0x7E5 only: the view empties, then shows
@@ -271,7 +284,7 @@ function text(page, sel) {
 }
 
 async function canopenPage(page) {
-  await page.click(`button[data-page="canopen"]`);
+  await press(page, `button[data-page="canopen"]`);
   // The demo's nodes, operational, with heartbeats and identities.
   // (The boot procedure starts the drives and the handwheel; the I/O node
   // stays pre-operational.)
@@ -291,11 +304,11 @@ async function canopenPage(page) {
 
   // NMT: start the I/O node (3), stop it, and put it back in
   // pre-operational.
-  await page.click(`#nodes tr[data-node="3"] button[data-cmd="nmt-start"]`);
+  await press(page, `#nodes tr[data-node="3"] button[data-cmd="nmt-start"]`);
   await until("node 3 operational", async () => (await nodeCell(page, 3, "nmt")) === "operational");
-  await page.click(`#nodes tr[data-node="3"] button[data-cmd="nmt-stop"]`);
+  await press(page, `#nodes tr[data-node="3"] button[data-cmd="nmt-stop"]`);
   await until("node 3 stopped", async () => (await nodeCell(page, 3, "nmt")) === "stopped");
-  await page.click(`#nodes tr[data-node="3"] button[data-cmd="nmt-enter_pre_operational"]`);
+  await press(page, `#nodes tr[data-node="3"] button[data-cmd="nmt-enter_pre_operational"]`);
   await until("node 3 pre-operational again", async () => (await nodeCell(page, 3, "nmt")) === "pre operational");
   await until("the NMT changes in the event log", async () => {
     const log = await text(page, "#node-events");
@@ -318,7 +331,7 @@ async function canopenPage(page) {
   await setInput(page, "#sdo-index", "1008");
   await setInput(page, "#sdo-sub", "0");
   await page.select("#sdo-type", "0");
-  await page.click("#sdo-read");
+  await press(page, "#sdo-read");
   await until("the SDO read shown", async () =>
     (await page.$eval("#sdo-result", (e) => e.dataset.outcome)) === "ok");
   say(`step sdo-read ${await text(page, "#sdo-result")}`);
@@ -327,7 +340,7 @@ async function canopenPage(page) {
   // with its code and CiA 301 name.
   await setInput(page, "#sdo-index", "1000");
   await setInput(page, "#sdo-value", "1");
-  await page.click("#sdo-write");
+  await press(page, "#sdo-write");
   await until("the SDO abort shown", async () => (await text(page, "#sdo-abort")) !== "");
   if ((await page.$eval("#sdo-result", (e) => e.dataset.outcome)) !== "error") throw new Error("the write was not refused");
   say(`step sdo-abort ${await text(page, "#sdo-abort")}`);
@@ -351,7 +364,7 @@ async function sdoByName(page) {
   await page.select("#sdo-object", name);
   const type = await page.$eval("#sdo-type", (s) => s.selectedOptions[0]?.textContent ?? "");
   if (!type.includes("VISIBLE_STRING")) throw new Error(`the EDS type was not preselected: ${type}`);
-  await page.click("#sdo-read");
+  await press(page, "#sdo-read");
   await until("the read by name shown", async () =>
     (await text(page, "#sdo-result")).startsWith(`read can0 node 1 "${name}"`) &&
     (await page.$eval("#sdo-result", (e) => e.dataset.outcome)) === "ok");
@@ -366,7 +379,7 @@ async function sdoByName(page) {
 /** Scan network on can0: the nodes that answered, by id (compared with ScanNetwork over gRPC). */
 async function canopenScan(page) {
   await page.select("#scan-bus", "can0");
-  await page.click("#scan");
+  await press(page, "#scan");
   await until("the scan's nodes listed", async () =>
     (await page.$eval("#scan-result", (u) => u.dataset.bus ?? "")) === "can0");
   const ids = await page.$$eval("#scan-result li", (li) => li.map((l) => Number(l.dataset.node)));
@@ -380,9 +393,9 @@ function wheelStats(page) {
 }
 
 async function handwheelPage(page) {
-  await page.click(`button[data-page="handwheel"]`);
+  await press(page, `button[data-page="handwheel"]`);
   await until("hw1 shown", () => page.$(`section[data-handwheel="hw1"] tr[data-key="frames"]`));
-  await page.click(`section[data-handwheel="hw1"] button[data-cmd="mode-manual"]`);
+  await press(page, `section[data-handwheel="hw1"] button[data-cmd="mode-manual"]`);
   await until("hw1 in manual mode", async () =>
     (await page.$eval(`section[data-handwheel="hw1"]`, (c) => c.dataset.mode)) === "manual");
   // The test turns the simulated wheel with random frame loss, waits for
@@ -399,14 +412,14 @@ async function handwheelPage(page) {
   const compensatedLines = feed.split("\n").filter((l) => l.includes("compensated")).length;
   say(`step handwheel ${JSON.stringify(await wheelStats(page))} compensated_lines=${compensatedLines}`);
   await page.screenshot({ path: `${shots}/handwheel.png` });
-  await page.click(`section[data-handwheel="hw1"] button[data-cmd="mode-automatic"]`);
+  await press(page, `section[data-handwheel="hw1"] button[data-cmd="mode-automatic"]`);
   await until("hw1 in automatic mode", async () =>
     (await page.$eval(`section[data-handwheel="hw1"]`, (c) => c.dataset.mode)) === "automatic");
   say("step handwheel-automatic");
 }
 
 async function cansmcPage(page) {
-  await page.click(`button[data-page="cansmc"]`);
+  await press(page, `button[data-page="cansmc"]`);
   await until("the CANsmc master in P2 with its slaves operational", async () => {
     const phase = await page.$eval("#cansmc-master", (b) => b.dataset.phase);
     const states = await page.$$eval("#cansmc-slaves tbody tr", (rows) => rows.map((r) => r.dataset.state));
@@ -446,10 +459,10 @@ async function cansmcHistogram(page) {
 /** Restart (asked twice) takes the master through P0 and P1 back to P2. */
 async function cansmcRestart(page) {
   const starts = Number(await page.$eval("#cansmc-master", (b) => b.dataset.starts));
-  await page.click("#cansmc-restart");
+  await press(page, "#cansmc-restart");
   await until("the restart asks for confirmation", async () =>
     (await page.$eval("#cansmc-restart", (b) => b.dataset.armed)) === "true");
-  await page.click("#cansmc-restart");
+  await press(page, "#cansmc-restart");
   await until("the master restarted and back in P2", async () => {
     const b = await page.$eval("#cansmc-master", (m) => ({ ...m.dataset }));
     return Number(b.starts) === starts + 1 && b.phase === "p2";
@@ -471,7 +484,7 @@ async function cansmcParameters(page) {
   const result = async () => page.$eval("#param-result", (r) => ({ ...r.dataset, text: r.textContent }));
   const run = async (button) => {
     await page.$eval("#param-result", (r) => { delete r.dataset.outcome; });
-    await page.click(button);
+    await press(page, button);
     await until(`${button} answered`, async () => (await result()).outcome !== undefined);
     return result();
   };
@@ -510,7 +523,7 @@ async function tokens(page) {
   say("step refused-without-token");
   await page.screenshot({ path: `${shots}/token-needed.png` });
   await page.type("#token", token);
-  await page.click("#token-use");
+  await press(page, "#token-use");
   await until("axes listed with the token", () => axesListed(page));
   await until("connected", async () => (await page.$eval("#conn", (c) => c.textContent)) === "connected");
   say("step accepted-with-token");
@@ -523,7 +536,7 @@ async function tokens(page) {
 
   // An operator may take control and stop, but not send NMT or write SDO.
   await page.type("#token", operatorToken);
-  await page.click("#token-use");
+  await press(page, "#token-use");
   await until("the operator's role shown", async () => (await text(page, "#role")).startsWith("role: operator"));
   await until("axes listed again", () => axesListed(page));
   say(`step role ${await text(page, "#role")}`);
@@ -539,7 +552,7 @@ async function tokens(page) {
 
 /** Disabled buttons' tooltips (or "enabled") of a few buttons the roles tell apart. */
 async function buttonStates(page) {
-  await page.click(`button[data-page="canopen"]`);
+  await press(page, `button[data-page="canopen"]`);
   await until("nodes listed", () => page.$(`#nodes tr[data-node="1"]`));
   const state = (sel) => page.$eval(sel, (b) => (b.disabled ? b.title : "enabled"));
   const out = {
@@ -554,7 +567,7 @@ async function buttonStates(page) {
     paramRead: await state("#param-read"),
     paramWrite: await state("#param-write"),
   };
-  await page.click(`button[data-page="axes"]`);
+  await press(page, `button[data-page="axes"]`);
   return out;
 }
 
