@@ -224,6 +224,7 @@ impl Gateway {
             let master = master.with_client_sdo_limit(
                 config.security.limits.sdo_requests_per_client_and_node as usize,
             );
+            master.set_handover_spin(Duration::from_micros(config.handover_spin_us));
             canopen.insert(cc.bus.clone(), master);
             tasks.push(task);
             // The master's own heartbeat, which the axis drives consume.

@@ -19,10 +19,11 @@
 //!    The drive as the gateway simulates it (`simulate = true`, on its bus
 //!    thread, as in the demo), read by a client task on the gateway's bus
 //!    runtime (`Gateway::bus_runtime`, as an embedding application's
-//!    control loop would; no thread crossing: the target is judged on
-//!    this) and by a client on the benchmark's own runtime (every read
-//!    hands over to the bus thread and back: two thread wake-ups); then
-//!    the drive as a device on another thread (each SDO round trip also
+//!    control loop would; no thread crossing) and by a client on the
+//!    benchmark's own runtime (every read hands over to the bus thread and
+//!    back; judged too), with the default `handover_spin_us` and without
+//!    it (two thread wake-ups per read); then the drive as a device on
+//!    another thread (each SDO round trip also
 //!    crosses threads). Also the sans-IO `Master` driven by a minimal loop on a
 //!    `VirtualPort` (no runtime tasks), which isolates the protocol core.
 //!    Target: ≥ 10× the reference (p50 and reads/s).
@@ -71,6 +72,9 @@ use std::process::{ExitCode, Stdio};
 use std::time::{Duration, Instant};
 use tokio_util::sync::CancellationToken;
 
+/// The gateway's default `handover_spin_us` (restored after the run
+/// without it).
+const HANDOVER_SPIN_US: u64 = 100;
 /// The node of the single-node benchmarks (as in the python reference).
 const NODE: u8 = 5;
 /// What 0x1008 is set to on every simulated drive (and in the reference):
@@ -296,8 +300,11 @@ enum Caller {
     /// as an embedding application's control loop would: no thread crossing.
     BusRuntime,
     /// A task on the benchmark's own runtime: every read crosses to the bus
-    /// thread and back, two thread wake-ups.
+    /// thread and back; both sides poll instead of sleeping while answers
+    /// come fast (the default `handover_spin_us`).
     OwnRuntime,
+    /// The same with `handover_spin_us = 0`: two thread wake-ups per read.
+    OwnRuntimeSleeping,
 }
 
 impl Caller {
@@ -305,6 +312,7 @@ impl Caller {
         match self {
             Caller::BusRuntime => "client on the bus runtime",
             Caller::OwnRuntime => "client on its own runtime",
+            Caller::OwnRuntimeSleeping => "client on its own runtime, no spin",
         }
     }
 }
@@ -972,7 +980,11 @@ async fn in_process(
         // judged here) and from the benchmark's own runtime (two crossings
         // per read: caller -> bus thread -> caller).
         let callers: &[Caller] = match host {
-            NodeHost::Gateway => &[Caller::BusRuntime, Caller::OwnRuntime],
+            NodeHost::Gateway => &[
+                Caller::BusRuntime,
+                Caller::OwnRuntime,
+                Caller::OwnRuntimeSleeping,
+            ],
             NodeHost::Separate => &[Caller::OwnRuntime],
         };
         for &caller in callers {
@@ -985,8 +997,15 @@ async fn in_process(
                     let b = runtime_upload(&m, node, addr).await?;
                     check_len(addr, b.len(), len)
                 };
+                // The spin budget is the master's (every clone of it).
+                m.set_handover_spin(Duration::from_micros(match caller {
+                    Caller::OwnRuntimeSleeping => 0,
+                    _ => HANDOVER_SPIN_US,
+                }));
                 let s = match caller {
-                    Caller::OwnRuntime => measure(reads, warmup, || read(m.clone())).await?,
+                    Caller::OwnRuntime | Caller::OwnRuntimeSleeping => {
+                        measure(reads, warmup, || read(m.clone())).await?
+                    }
                     Caller::BusRuntime => {
                         let m = m.clone();
                         bus_runtime
@@ -1001,7 +1020,7 @@ async fn in_process(
                     j["p50_ratio"] = json!(round2(lat));
                     j["rate_ratio"] = json!(round2(rate));
                     if host == NodeHost::Gateway {
-                        let judged = caller == Caller::BusRuntime;
+                        let judged = caller != Caller::OwnRuntimeSleeping;
                         let pass = (!args.quick && judged).then_some(lat >= 10.0 && rate >= 10.0);
                         r.check(
                             &format!("in-process {case}, {}: × python", caller.short()),
@@ -1026,6 +1045,7 @@ async fn in_process(
                 let key = match caller {
                     Caller::OwnRuntime => case.to_string(),
                     Caller::BusRuntime => format!("{case}_from_bus_runtime"),
+                    Caller::OwnRuntimeSleeping => format!("{case}_without_spin"),
                 };
                 cases.insert(key, j);
             }

@@ -22,6 +22,7 @@ use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio_util::sync::CancellationToken;
 
 pub mod dcf_export;
+pub mod handover;
 pub mod lss;
 pub mod master_heartbeat;
 pub mod pdo_config;
@@ -189,6 +190,9 @@ enum Command {
         priority: SdoPriority,
         req: SdoRequest,
         reply: oneshot::Sender<Result<TransferOutcome, SdoError>>,
+        /// The caller polls for the answer ([`handover`]): the bus thread
+        /// stays awake for its next request.
+        spins: bool,
     },
     Nmt {
         cmd: NmtCommand,
@@ -321,6 +325,8 @@ pub struct CanopenBus {
     lss_operation: Arc<Mutex<Option<&'static str>>>,
     /// Nodes with a program download running.
     programs: program::Downloads,
+    /// How requests and answers cross to the bus thread and back.
+    handover: handover::Handover,
 }
 
 /// One API caller's SDO request counted against
@@ -432,7 +438,9 @@ impl CanopenBus {
             client_sdo_limit: MAX_CLIENT_SDO_PER_NODE,
             lss_operation: Arc::default(),
             programs: program::Downloads::default(),
+            handover: handover::Handover::off(),
         };
+        tokio::spawn(handle.handover.clone().keep_awake(cancel.clone()));
         let mut master = Master::new(sdo_timeout);
         for (id, f) in facts.read().expect("facts lock").iter() {
             if let Some(t) = f.heartbeat_timeout {
@@ -452,6 +460,7 @@ impl CanopenBus {
             tpdos: handle.tpdos.clone(),
             pdos,
             facts,
+            handover: handle.handover.clone(),
             cancel: cancel.clone(),
         }));
         if !boots.is_empty() {
@@ -535,6 +544,13 @@ impl CanopenBus {
     pub fn with_client_sdo_limit(mut self, limit: usize) -> CanopenBus {
         self.client_sdo_limit = limit;
         self
+    }
+
+    /// Callers off the bus thread poll up to `budget` for an SDO answer due
+    /// that soon (see [`handover`]; 0: they sleep), on every clone of this
+    /// master.
+    pub fn set_handover_spin(&self, budget: Duration) {
+        self.handover.set_budget(budget);
     }
 
     /// SYNCs sent so far, and SYNC periods skipped because the SYNC thread
@@ -645,16 +661,22 @@ impl CanopenBus {
     ) -> Result<TransferOutcome, CanopenError> {
         let (reply, rx) = oneshot::channel();
         let started = Instant::now();
+        let spins = self.handover.spins();
         self.commands
             .send(Command::Sdo {
                 node,
                 priority,
                 req,
                 reply,
+                spins,
             })
             .await
             .map_err(|_| CanopenError::Stopped)?;
-        let r = rx.await.map_err(|_| CanopenError::Stopped)?;
+        let r = self
+            .handover
+            .reply(rx, spins)
+            .await
+            .ok_or(CanopenError::Stopped)?;
         let result = match &r {
             Ok(_) => "ok",
             Err(SdoError::Timeout { .. }) => "timeout",
@@ -941,6 +963,7 @@ struct MasterTask {
     tpdos: TpdoRoutes,
     pdos: broadcast::Sender<PdoUpdate>,
     facts: Arc<RwLock<BTreeMap<NodeId, NodeFacts>>>,
+    handover: handover::Handover,
     cancel: CancellationToken,
 }
 
@@ -984,6 +1007,7 @@ async fn run_master(task: MasterTask) {
         tpdos,
         pdos,
         facts,
+        handover,
         cancel,
     } = task;
     let origin = Instant::now();
@@ -1026,7 +1050,10 @@ async fn run_master(task: MasterTask) {
                 let Some(cmd) = cmd else { break };
                 let now = origin.elapsed();
                 match cmd {
-                    Command::Sdo { node, priority, req, reply } => {
+                    Command::Sdo { node, priority, req, reply, spins } => {
+                        if spins {
+                            handover.spinning_caller_arrived();
+                        }
                         let id = next_id;
                         next_id += 1;
                         pending.insert(id, Pending { reply });

@@ -45,6 +45,7 @@ const ENV_KEYS: &[&str] = &[
     "CANGATE_SHUTDOWN_TIMEOUT_MS",
     "CANGATE_RT_PRIORITY",
     "CANGATE_GRPC_RT_PRIORITY",
+    "CANGATE_HANDOVER_SPIN_US",
     "CANGATE_SECURITY__",
     "CANGATE_SOCKETCAND__",
     "CANGATE_WEB__",
@@ -93,6 +94,14 @@ pub struct Config {
     /// clients included: only for a host sized for the stream load.
     #[serde(default, skip_serializing_if = "is_zero_u8")]
     pub grpc_rt_priority: u8,
+    /// How long, µs, a caller off the bus thread (a gRPC handler, an
+    /// embedding application) polls for its SDO answer before it sleeps,
+    /// and the bus thread stays awake after its request, when this bus's
+    /// recent answers came that fast (a virtual bus; a real bus answers
+    /// slower and nobody spins). Saves two thread wake-ups per request;
+    /// 0: always sleep. Default 100, at most 10000.
+    #[serde(default = "default_handover_spin_us")]
+    pub handover_spin_us: u64,
     /// The socketcand listener (`[socketcand]`); absent: off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub socketcand: Option<SocketcandConfig>,
@@ -128,6 +137,10 @@ fn is_zero_u8(v: &u8) -> bool {
 
 fn default_shutdown_timeout_ms() -> u64 {
     5000
+}
+
+fn default_handover_spin_us() -> u64 {
+    100
 }
 
 fn default_listen() -> SocketAddr {
@@ -352,6 +365,20 @@ eds = "builtin:drive"
         );
         let e = Config::from_toml(&two).unwrap_err().to_string();
         assert!(e.contains("already backs another axis"), "{e}");
+    }
+
+    #[test]
+    fn the_handover_spin_is_100_us_by_default_can_be_off_and_is_bounded() {
+        assert_eq!(Config::from_toml("").unwrap().handover_spin_us, 100);
+        let c = Config::from_toml("handover_spin_us = 0\n").unwrap();
+        assert_eq!(c.handover_spin_us, 0);
+        let e = Config::from_toml("handover_spin_us = 20000\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("handover_spin_us = 20000") && e.contains("10000"),
+            "{e}"
+        );
     }
 
     #[test]

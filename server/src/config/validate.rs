@@ -205,6 +205,12 @@ impl Config {
                 self.shutdown_timeout_ms
             )));
         }
+        if self.handover_spin_us > 10_000 {
+            return Err(ConfigError::Invalid(format!(
+                "handover_spin_us = {} must be at most 10000 (0: off)",
+                self.handover_spin_us
+            )));
+        }
         for (key, v) in [
             ("rt_priority", self.rt_priority),
             ("grpc_rt_priority", self.grpc_rt_priority),
