@@ -32,7 +32,7 @@ pub struct Handover {
 }
 
 struct Inner {
-    /// How long a side spins in ns (0: never); set once at start.
+    /// How long a side spins in ns (0: never).
     budget_ns: AtomicU64,
     /// The runtime of the bus thread (its callers must not spin).
     bus_runtime: Option<tokio::runtime::Id>,
