@@ -52,7 +52,7 @@ impl Handover {
     pub fn new(budget: Duration) -> Handover {
         Handover {
             inner: Arc::new(Inner {
-                budget_ns: AtomicU64::new(budget.as_nanos().min(u64::MAX as u128) as u64),
+                budget_ns: AtomicU64::new(nanos(budget)),
                 bus_runtime: tokio::runtime::Handle::try_current().ok().map(|h| h.id()),
                 recent_ns: AtomicU64::new(0),
                 origin: Instant::now(),
@@ -84,10 +84,7 @@ impl Handover {
 
     /// Changes the budget (0: never spin).
     pub fn set_budget(&self, budget: Duration) {
-        self.inner.budget_ns.store(
-            budget.as_nanos().min(u64::MAX as u128) as u64,
-            Ordering::Relaxed,
-        );
+        self.inner.budget_ns.store(nanos(budget), Ordering::Relaxed);
     }
 
     fn budget_ns(&self) -> u64 {
@@ -111,7 +108,7 @@ impl Handover {
     /// Folds one answer time into the moving average (1/8 weight): one slow
     /// answer does not stop the spinning, a run of them does.
     fn learn(&self, took: Duration) {
-        let ns = took.as_nanos().min(u64::MAX as u128) as u64;
+        let ns = nanos(took);
         let old = self.inner.recent_ns.load(Ordering::Relaxed);
         let new = if old == 0 { ns } else { old - old / 8 + ns / 8 };
         self.inner.recent_ns.store(new, Ordering::Relaxed);
@@ -128,7 +125,7 @@ impl Handover {
         let until = self.inner.origin.elapsed() + Duration::from_nanos(budget);
         self.inner
             .awake_until_ns
-            .store(until.as_nanos() as u64, Ordering::Relaxed);
+            .store(nanos(until), Ordering::Relaxed);
         self.inner.wake.notify_one();
     }
 
@@ -141,13 +138,18 @@ impl Handover {
                 _ = cancel.cancelled() => return,
                 _ = self.inner.wake.notified() => {}
             }
-            while (self.inner.origin.elapsed().as_nanos() as u64)
+            while nanos(self.inner.origin.elapsed())
                 < self.inner.awake_until_ns.load(Ordering::Relaxed)
             {
                 tokio::task::yield_now().await;
             }
         }
     }
+}
+
+/// `d` in ns, saturating (a u64 of ns is 584 years).
+fn nanos(d: Duration) -> u64 {
+    d.as_nanos().min(u128::from(u64::MAX)) as u64
 }
 
 enum Polled<T> {
