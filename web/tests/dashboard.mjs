@@ -104,9 +104,9 @@ async function click(page, axis, cmd) {
 }
 
 // Clicks `sel` once it is visible, enabled and laid out where it stays
-// (puppeteer's locator: the axes table reflows while positions change, and
-// a plain page.click measured a button mid-reflow on a loaded host: "Node
-// is either not clickable"). Timed out, it fails like `until`.
+// (puppeteer's locator: a plain page.click measured a button while the
+// layout changed, on a loaded host: "Node is either not clickable"). Timed
+// out, it fails like `until`.
 async function press(page, sel) {
   try {
     await page.locator(sel).setTimeout(WAIT).click();
