@@ -133,6 +133,88 @@ pub(crate) fn batches_of<M: Send + 'static, B: Send + 'static>(
     ))
 }
 
+/// A server stream of batches read straight from a broadcast by the
+/// transport's own task, with no forwarding task between them: each
+/// message takes every item ready when the transport asks for the next one
+/// (at least one mapped item, at most `max`), items and losses mapped by
+/// `map` (`None`: nothing to send). With many subscribers to one source
+/// this halves the task wake-ups per item (the forwarding task of
+/// [`spawn_forward`] is woken for each item, then wakes the transport's),
+/// which is most of a fan-out's cost. Losses are counted in the metrics
+/// under `rpc`; the stream ends when the source closes, or with
+/// UNAVAILABLE when the gateway shuts down. A paused reader leaves its
+/// items in the broadcast until it lags, then is told how many it lost.
+pub(crate) fn broadcast_batches<T, M, B>(
+    rpc: &'static str,
+    rx: broadcast::Receiver<T>,
+    shutdown: CancellationToken,
+    max: usize,
+    map: impl FnMut(Received<T>) -> Option<M> + Send + 'static,
+    batch: fn(Vec<M>) -> B,
+) -> MessageStream<B>
+where
+    T: Clone + Send + 'static,
+    M: Send + 'static,
+    B: Send + 'static,
+{
+    /// What one subscriber carries from message to message.
+    struct Subscriber<T, F> {
+        rx: broadcast::Receiver<T>,
+        map: F,
+        /// Registered once: a fresh `cancelled()` per message would take
+        /// the token's lock on every item for every subscriber.
+        shutdown: Pin<Box<tokio_util::sync::WaitForCancellationFutureOwned>>,
+        ended: bool,
+    }
+    let max = max.max(1);
+    let first = Subscriber {
+        rx,
+        map,
+        shutdown: Box::pin(shutdown.cancelled_owned()),
+        ended: false,
+    };
+    Box::pin(futures::stream::unfold(first, move |mut sub| async move {
+        if sub.ended {
+            return None;
+        }
+        loop {
+            // The source first: the shutdown is only polled (and its waker
+            // refreshed) when nothing is ready.
+            let received = tokio::select! {
+                biased;
+                r = recv_counted(rpc, &mut sub.rx) => r,
+                _ = sub.shutdown.as_mut() => {
+                    sub.ended = true;
+                    return Some((Err(super::error::ApiError::ShuttingDown.into()), sub));
+                }
+            };
+            let received = received?;
+            let mut items: Vec<M> = (sub.map)(received).into_iter().collect();
+            while items.len() < max {
+                let next = match sub.rx.try_recv() {
+                    Ok(item) => Received::Item(item),
+                    Err(broadcast::error::TryRecvError::Lagged(n)) => {
+                        crate::metrics::stream_lag(rpc, n);
+                        Received::Lost(n)
+                    }
+                    Err(broadcast::error::TryRecvError::Empty) => break,
+                    Err(broadcast::error::TryRecvError::Closed) => {
+                        sub.ended = true;
+                        break;
+                    }
+                };
+                items.extend((sub.map)(next));
+            }
+            if !items.is_empty() {
+                return Some((Ok(batch(items)), sub));
+            }
+            if sub.ended {
+                return None;
+            }
+        }
+    }))
+}
+
 /// The receiving end of `tx` as a server stream.
 pub(crate) fn stream_of<M: Send + 'static>(
     rx: mpsc::Receiver<Result<M, Status>>,
@@ -162,6 +244,62 @@ mod tests {
         let e = s.next().await.unwrap().unwrap_err();
         assert_eq!(e.code(), tonic::Code::Unavailable);
         assert!(s.next().await.is_none(), "nothing after the error");
+    }
+
+    #[tokio::test]
+    async fn broadcast_batches_take_what_is_ready_map_losses_and_end_with_the_source() {
+        let (tx, rx) = broadcast::channel(4);
+        let shutdown = CancellationToken::new();
+        // Odd items only; a loss becomes -n.
+        let map = |r: Received<i32>| match r {
+            Received::Item(i) => (i % 2 == 1).then_some(i),
+            Received::Lost(n) => Some(-(n as i32)),
+        };
+        let mut s = broadcast_batches("test", rx, shutdown, 2, map, |v: Vec<i32>| v);
+        for i in 0..4 {
+            tx.send(i).unwrap();
+        }
+        // 0 is dropped by the map; at most 2 items per message.
+        assert_eq!(s.next().await.unwrap().unwrap(), vec![1, 3]);
+        // Six more into a capacity of 4: the two oldest are lost.
+        for i in 4..10 {
+            tx.send(i).unwrap();
+        }
+        assert_eq!(s.next().await.unwrap().unwrap(), vec![-2, 7]);
+        assert_eq!(s.next().await.unwrap().unwrap(), vec![9]);
+        // Nothing ready: the next message waits for the next mapped item.
+        let next = tokio::spawn(async move { (s.next().await, s) });
+        tokio::task::yield_now().await;
+        tx.send(10).unwrap();
+        tx.send(11).unwrap();
+        drop(tx);
+        let (m, mut s) = next.await.unwrap();
+        assert_eq!(m.unwrap().unwrap(), vec![11]);
+        assert!(s.next().await.is_none(), "the source closed");
+    }
+
+    #[tokio::test]
+    async fn broadcast_batches_end_with_unavailable_at_shutdown() {
+        let (tx, rx) = broadcast::channel::<i32>(4);
+        let shutdown = CancellationToken::new();
+        let mut s = broadcast_batches(
+            "test",
+            rx,
+            shutdown.clone(),
+            8,
+            |r| match r {
+                Received::Item(i) => Some(i),
+                Received::Lost(_) => None,
+            },
+            |v: Vec<i32>| v,
+        );
+        tx.send(1).unwrap();
+        assert_eq!(s.next().await.unwrap().unwrap(), vec![1]);
+        shutdown.cancel();
+        let e = s.next().await.unwrap().unwrap_err();
+        assert_eq!(e.code(), tonic::Code::Unavailable);
+        assert!(s.next().await.is_none());
+        drop(tx);
     }
 
     #[tokio::test]

@@ -2,9 +2,11 @@
 
 use super::convert::handwheel::{event_pb, merge, wheel_pb};
 use super::error::ApiError;
-use super::forward::{MessageStream, Received, batches_of, recv_counted, stream_of};
+use super::forward::{
+    MessageStream, Received, batches_of, broadcast_batches, recv_counted, stream_of,
+};
 use crate::gateway::Gateway;
-use crate::handwheel::{Handwheels, Mode};
+use crate::handwheel::{Handwheels, Mode, WheelFeed};
 use cangate_canopen::handwheel::HandwheelAxis;
 use cangate_proto::v1 as pb;
 use cangate_proto::v1::handwheels_server::Handwheels as HandwheelsRpc;
@@ -102,24 +104,66 @@ impl HandwheelsRpc for HandwheelsService {
         &self,
         req: Request<pb::StreamFeedRequest>,
     ) -> Result<Response<Self::StreamFeedBatchesStream>, Status> {
-        Ok(Response::new(batches_of(
-            self.feed(req.into_inner())?,
+        let r = req.into_inner();
+        let batch = |events| pb::FeedEventBatch { events };
+        if r.coalesce_ms != 0 {
+            return Ok(Response::new(batches_of(
+                self.feed(r)?,
+                MAX_FEED_BATCH,
+                batch,
+            )));
+        }
+        // Without a window, the transport's task reads the feed itself:
+        // no forwarding task per subscriber, half the wake-ups per event.
+        let sub = self.subscription(&r)?;
+        let m = self.gateway.handwheels().clone();
+        let mut lost: u64 = 0;
+        let map = move |received| match received {
+            Received::Item(f) => sub.wants(&f).then(|| {
+                let mut ev = event_pb(&m, &f);
+                ev.lost_before = std::mem::take(&mut lost);
+                ev
+            }),
+            Received::Lost(n) => {
+                lost += n;
+                None
+            }
+        };
+        Ok(Response::new(broadcast_batches(
+            "StreamFeed",
+            self.wheels().subscribe(),
+            self.gateway.shutdown_token(),
             MAX_FEED_BATCH,
-            |events| pb::FeedEventBatch { events },
+            map,
+            batch,
         )))
     }
 }
 
+/// Which wheels a feed subscriber asked for.
+struct Subscription {
+    /// Per wheel index; `None`: every wheel.
+    wanted: Option<Vec<bool>>,
+}
+
+impl Subscription {
+    fn wants(&self, f: &WheelFeed) -> bool {
+        self.wanted.as_ref().is_none_or(|w| w[f.wheel])
+    }
+}
+
 impl HandwheelsService {
-    /// The feed events `r` asks for, from a task of their own; the
-    /// receiver ends when the client goes away or the gateway shuts down.
-    fn feed(
-        &self,
-        r: pb::StreamFeedRequest,
-    ) -> Result<tokio::sync::mpsc::Receiver<Result<pb::FeedEvent, Status>>, Status> {
-        let gateway = self.gateway.clone();
-        let m = gateway.handwheels().clone();
-        let wanted: Option<Vec<bool>> = if r.handwheels.is_empty() {
+    /// The wheels `r` asks for, after checking its names and window.
+    fn subscription(&self, r: &pb::StreamFeedRequest) -> Result<Subscription, Status> {
+        let m = self.wheels();
+        if r.coalesce_ms > MAX_COALESCE_MS {
+            return Err(ApiError::InvalidArgument(format!(
+                "coalesce_ms {} is above the maximum of {MAX_COALESCE_MS} ms",
+                r.coalesce_ms
+            ))
+            .into());
+        }
+        let wanted = if r.handwheels.is_empty() {
             None
         } else {
             let mut w = vec![false; m.len()];
@@ -128,15 +172,20 @@ impl HandwheelsService {
             }
             Some(w)
         };
+        Ok(Subscription { wanted })
+    }
+
+    /// The feed events `r` asks for, from a task of their own; the
+    /// receiver ends when the client goes away or the gateway shuts down.
+    fn feed(
+        &self,
+        r: pb::StreamFeedRequest,
+    ) -> Result<tokio::sync::mpsc::Receiver<Result<pb::FeedEvent, Status>>, Status> {
+        let sub = self.subscription(&r)?;
+        let gateway = self.gateway.clone();
+        let m = gateway.handwheels().clone();
         let mut rx = m.subscribe();
         let shutdown = gateway.shutdown_token();
-        if r.coalesce_ms > MAX_COALESCE_MS {
-            return Err(ApiError::InvalidArgument(format!(
-                "coalesce_ms {} is above the maximum of {MAX_COALESCE_MS} ms",
-                r.coalesce_ms
-            ))
-            .into());
-        }
         let coalesce = Duration::from_millis(u64::from(r.coalesce_ms));
         let (tx, out) = tokio::sync::mpsc::channel(4096);
         tokio::spawn(async move {
@@ -172,7 +221,7 @@ impl HandwheelsService {
                             }
                             None => return,
                         };
-                        if wanted.as_ref().is_some_and(|w| !w[f.wheel]) {
+                        if !sub.wants(&f) {
                             continue;
                         }
                         let mut ev = event_pb(&m, &f);
