@@ -14,7 +14,8 @@
 //!    (`FeedEvent.timestamp_us`) to the client holding the event, p50/p99;
 //!    events lost anywhere (sent by the wheel − received by the gateway −
 //!    delivered). Target: p99 < 1 ms, zero lost.
-//! 2. **100 concurrent subscribers** (10 HTTP/2 connections × 10 streams):
+//! 2. **100 concurrent subscribers** (10 HTTP/2 connections × 10 streams;
+//!    `--connections N` to share them otherwise):
 //!    events delivered per second in total, p99 latency, lost.
 //!
 //! Scheduling: by default the gateway runs with `rt_priority = 10` (its bus
@@ -85,6 +86,10 @@ struct Args {
     /// host that is the client's scheduling, not the gateway's.
     #[arg(long, default_value_t = 0)]
     client_rt_priority: u8,
+    /// HTTP/2 connections the fan-out run's subscribers share (each event
+    /// costs the gateway one socket write per connection).
+    #[arg(long, default_value_t = 10)]
+    connections: usize,
 }
 
 const NODE: u32 = 10;
@@ -376,7 +381,7 @@ fn bench(args: &Args) -> Result<bool> {
         let many = run(
             args.rate,
             seconds,
-            10.min(fanout),
+            args.connections.clamp(1, fanout),
             fanout,
             false,
             Sched {
