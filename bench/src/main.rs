@@ -81,9 +81,10 @@ enum Command {
         #[arg(long)]
         server_bin: Option<PathBuf>,
     },
-    /// `all` and every benchmark binary (sdo_bench, axis_bench --scale,
-    /// wheel_bench, cansmc_bench; built beside this one), then one table
-    /// of their headline figures with targets, ratios and pass/fail.
+    /// `all` and every benchmark binary (sdo_bench, unary_bench,
+    /// axis_bench --scale, wheel_bench, cansmc_bench; built beside this
+    /// one), then one table of their headline figures with targets, ratios
+    /// and pass/fail.
     Report {
         /// Server binary for the memory benchmark.
         #[arg(long)]
@@ -105,6 +106,7 @@ async fn report_all(quick: bool, strict: bool, server_bin: Option<PathBuf>) -> E
     let with = |extra: &[&'static str]| [q, extra].concat();
     rows.extend(tokio::task::block_in_place(|| {
         let mut r = suite::bin_rows("sdo_bench", q, suite::sdo_rows);
+        r.extend(suite::bin_rows("unary_bench", q, suite::unary_rows));
         r.extend(suite::bin_rows(
             "axis_bench",
             &with(&["--scale"]),

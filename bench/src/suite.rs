@@ -2,10 +2,10 @@
 //! their headline figures with targets, ratios and pass/fail.
 //!
 //! The in-process benchmarks (`all`) run here; the benchmark binaries
-//! (`sdo_bench`, `axis_bench --scale`, `wheel_bench`, `cansmc_bench`) run
-//! as child processes from the directory of this executable, each with
-//! its own output shown as it comes, and the table is built from the JSON
-//! line each prints last. A binary that is not built, or fails, is a row
+//! (`sdo_bench`, `unary_bench`, `axis_bench --scale`, `wheel_bench`,
+//! `cansmc_bench`) run as child processes from the directory of this
+//! executable, each with its own output shown as it comes, and the table
+//! is built from the JSON line each prints last. A binary that is not built, or fails, is a row
 //! saying so; the others still run.
 
 use crate::report::{Measure, Outcome, Verdict};
@@ -191,6 +191,21 @@ pub fn axis_rows(v: &Value) -> Vec<Row> {
         ));
     }
     rows
+}
+
+/// `unary_bench`: the gateway's CPU per gRPC call that touches no bus
+/// (reported: its target is against canopend, in `peer_bench`).
+pub fn unary_rows(v: &Value) -> Vec<Row> {
+    let (Some(cpu), Some(p50)) = (f(&v["server_cpu_us_per_call"]), f(&v["p50_us"])) else {
+        return Vec::new();
+    };
+    vec![Row {
+        measure: "gRPC unary call without bus (GetBus): gateway CPU per call".into(),
+        result: format!("{cpu:.1} µs (round trip p50 {p50:.0} µs)"),
+        target: "half canopend's ratio (peer_bench)".into(),
+        ratio: String::new(),
+        verdict: "-".into(),
+    }]
 }
 
 /// `wheel_bench`: one feed subscriber's p99, and 100 subscribers' p99
