@@ -387,6 +387,11 @@ impl Raw {
         self.stream.write_all(bytes).await.expect("write");
     }
 
+    /// The next `< … >` element within `d`, or None.
+    async fn element_within(&mut self, d: Duration) -> Option<String> {
+        tokio::time::timeout(d, self.element()).await.ok().flatten()
+    }
+
     /// The next `< … >` element, or None when the server closed.
     async fn element(&mut self) -> Option<String> {
         loop {
@@ -730,4 +735,58 @@ async fn a_slow_socketcand_reader_loses_frames_and_nobody_else_does() {
         "what the slow client received and what it lost are the flood"
     );
     server.shutdown();
+}
+
+/// Every frame a session sends is accounted for: on the bus, or answered
+/// with an error line, also when the bus fails while the session's frame
+/// waits in the bus's queue (here its client share of 1 % paces the
+/// frames, and the bus goes off while they trickle out). Each session has
+/// one frame in flight, whose outcome it reports later.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_socketcand_send_reaches_the_bus_or_is_answered_with_an_error() {
+    let text = "listen = \"127.0.0.1:0\"\n[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\n\
+         bitrate = 1000000\nbit_timing = true\nclient_share_percent = 1\n\
+         [socketcand]\nlisten = \"127.0.0.1:0\"\n";
+    let server = cangate_server::start(&Config::from_toml(text).unwrap())
+        .await
+        .expect("server starts");
+    let vbus = server.gateway().network().get("can0").unwrap();
+    let mut peer = vbus.connect(false);
+    let addr = server.socketcand_addr.expect("socketcand listens");
+    let mut r = Raw::connect(addr).await;
+    assert_eq!(r.element().await.as_deref(), Some("< hi >"));
+    r.send(b"< open can0 >").await;
+    assert_eq!(r.element().await.as_deref(), Some("< ok >"));
+    r.send(b"< rawmode >").await;
+    assert_eq!(r.element().await.as_deref(), Some("< ok >"));
+    const SENDS: usize = 20;
+    let mut sends = Vec::new();
+    for i in 0..SENDS {
+        sends.extend_from_slice(format!("< send 123 1 {i:02X} >").as_bytes());
+    }
+    r.send(&sends).await;
+    tokio::time::sleep(Duration::from_millis(30)).await;
+    vbus.force_bus_off();
+    let mut errors = Vec::new();
+    let mut on_bus = 0;
+    let deadline = tokio::time::Instant::now() + WAIT;
+    while on_bus + errors.len() < SENDS && tokio::time::Instant::now() < deadline {
+        while let Some(event) = peer.try_recv() {
+            if matches!(event, cangate_can::PortEvent::Frame { frame, .. } if frame.raw_id() == 0x123)
+            {
+                on_bus += 1;
+            }
+        }
+        if let Some(e) = r.element_within(Duration::from_millis(50)).await {
+            assert!(e.starts_with("< error"), "{e}");
+            errors.push(e);
+        }
+    }
+    assert_eq!(
+        on_bus + errors.len(),
+        SENDS,
+        "{on_bus} frames on the bus, errors: {errors:?}"
+    );
+    assert!(!errors.is_empty(), "the bus went off before all were sent");
+    assert!(errors.iter().all(|e| e.contains("bus-off")), "{errors:?}");
 }

@@ -214,6 +214,86 @@ pub struct SendFailure {
     pub error: SendError,
 }
 
+/// A client's batch queued by [`BusHandle::queue_as_client`], whose
+/// outcome is still to be learnt.
+pub struct PendingSend {
+    state: Pending,
+    /// The bus, when its echo filter counts this batch (a virtual bus).
+    shared: Option<Arc<Shared>>,
+}
+
+impl std::fmt::Debug for PendingSend {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PendingSend")
+            .field("state", &self.state)
+            .finish()
+    }
+}
+
+#[derive(Debug)]
+enum Pending {
+    Done(Result<(), SendFailure>),
+    Waiting {
+        rx: oneshot::Receiver<Result<(), SendFailure>>,
+        total: usize,
+    },
+}
+
+impl PendingSend {
+    /// The outcome, if it is known already (without waiting or being woken
+    /// for it); `None`: still queued, ask again or await
+    /// [`PendingSend::outcome`].
+    pub fn try_outcome(&mut self) -> Option<Result<(), SendFailure>> {
+        let r = match &mut self.state {
+            Pending::Done(r) => r.clone(),
+            Pending::Waiting { rx, total } => match rx.try_recv() {
+                Ok(r) => r,
+                Err(oneshot::error::TryRecvError::Empty) => return None,
+                Err(oneshot::error::TryRecvError::Closed) => Err(SendFailure {
+                    sent: 0,
+                    total: *total,
+                    error: SendError::Down("the bus task stopped".into()),
+                }),
+            },
+        };
+        self.state = Pending::Done(Ok(()));
+        Some(self.settle(r))
+    }
+
+    /// What [`BusHandle::send_as_client`] would have returned.
+    pub async fn outcome(mut self) -> Result<(), SendFailure> {
+        self.wait().await
+    }
+
+    /// [`PendingSend::outcome`] without giving the batch up: cancel-safe
+    /// (dropped before it is ready, it can be awaited or asked again).
+    pub async fn wait(&mut self) -> Result<(), SendFailure> {
+        let r = match &mut self.state {
+            Pending::Done(r) => r.clone(),
+            Pending::Waiting { rx, total } => {
+                let total = *total;
+                rx.await.unwrap_or_else(|_| {
+                    Err(SendFailure {
+                        sent: 0,
+                        total,
+                        error: SendError::Down("the bus task stopped".into()),
+                    })
+                })
+            }
+        };
+        self.state = Pending::Done(Ok(()));
+        self.settle(r)
+    }
+
+    /// Frames that were not sent have no echo to wait for.
+    fn settle(&mut self, r: Result<(), SendFailure>) -> Result<(), SendFailure> {
+        if let (Some(shared), Err(f)) = (self.shared.take(), &r) {
+            client_echo_end(&shared, (f.total - f.sent) as u64);
+        }
+        r
+    }
+}
+
 /// Live counters of a bus.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BusStats {
@@ -575,6 +655,18 @@ impl BusHandle {
         client: ClientId,
         frames: Vec<Frame>,
     ) -> Result<(), SendFailure> {
+        self.queue_as_client(client, frames).await.outcome().await
+    }
+
+    /// Queues a client's frames as [`BusHandle::send_as_client`] sends
+    /// them and returns once they are in the bus task's queue (waiting
+    /// only while it is full); their outcome comes later from the
+    /// [`PendingSend`]. A session that keeps one batch pending at a time
+    /// (awaiting the last outcome before it queues the next) keeps the
+    /// backpressure of waiting for each send, without being woken when a
+    /// frame leaves: a request/response client's next wake-up is then its
+    /// answer, not its own frame's confirmation.
+    pub async fn queue_as_client(&self, client: ClientId, frames: Vec<Frame>) -> PendingSend {
         let frames: Vec<Frame> = frames
             .into_iter()
             .map(|f| f.with_sender(Some(client)))
@@ -585,12 +677,59 @@ impl BusHandle {
         if echoed {
             client_echo_begin(&self.shared, frames.len() as u64);
         }
-        let result = self.send_as(TxClass::Client, frames).await;
-        if echoed && let Err(f) = &result {
-            // Frames that were not sent have no echo to wait for.
-            client_echo_end(&self.shared, (f.total - f.sent) as u64);
+        let total = frames.len();
+        let state = match self.queue_client_frames(frames).await {
+            Ok(Some(rx)) => Pending::Waiting { rx, total },
+            Ok(None) => Pending::Done(Ok(())),
+            Err(f) => Pending::Done(Err(f)),
+        };
+        PendingSend {
+            state,
+            shared: echoed.then(|| self.shared.clone()),
         }
-        result
+    }
+
+    /// [`BusHandle::queue_as_client`]'s queueing: the receiver of the
+    /// outcome, or `None` when the frames were sent at once (a virtual bus
+    /// not paced).
+    async fn queue_client_frames(
+        &self,
+        frames: Vec<Frame>,
+    ) -> Result<Option<oneshot::Receiver<Result<(), SendFailure>>>, SendFailure> {
+        self.check(&frames)?;
+        let total = frames.len();
+        let gone = || SendFailure {
+            sent: 0,
+            total,
+            error: SendError::Down(self.name().to_string()),
+        };
+        let (reply, rx) = oneshot::channel();
+        if let Some(paced) = self.paced_sender(TxClass::Client) {
+            self.admit_client(total)?;
+            let c = &self.shared.counters;
+            c.budget_queued.fetch_add(total as u64, Ordering::Relaxed);
+            let request = PacedRequest {
+                class: TxClass::Client,
+                frames,
+                released: 0,
+                held: false,
+                reply: Some(reply),
+            };
+            if paced.send(request).await.is_err() {
+                c.budget_queued.fetch_sub(total as u64, Ordering::Relaxed);
+                return Err(gone());
+            }
+            return Ok(Some(rx));
+        }
+        if let Some(direct) = &self.shared.direct {
+            return self.send_direct(direct, &frames).map(|()| None);
+        }
+        let request = TxRequest {
+            frames,
+            reply: Some(reply),
+        };
+        self.shared.tx.send(request).await.map_err(|_| gone())?;
+        Ok(Some(rx))
     }
 
     /// Queues a batch as [`BusHandle::submit`] does, in its class (see
@@ -1916,6 +2055,52 @@ mod tests {
         assert!(st.client_frames_delayed >= 90, "{st:?}");
         assert_eq!(st.budget_queued, 0);
         assert_eq!(st.tx_frames, 101);
+    }
+
+    /// A queued client batch comes back at once; its outcome is known
+    /// without waiting once it is on the bus, and a batch the bus could
+    /// not send reports why (and leaves no echo outstanding).
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn queued_client_frames_report_their_outcome_later() {
+        let (vbus, h, _c) = start_bit_timed();
+        h.set_tx_shares(TxShares {
+            client_percent: 1,
+            bulk_percent: 50,
+        })
+        .unwrap();
+        let mut peer = vbus.connect(false);
+        let client = ClientId::next();
+        let mut one = h.queue_as_client(client, vec![frame(0x123)]).await;
+        let got = tokio::time::timeout(Duration::from_secs(5), peer.recv())
+            .await
+            .expect("the queued frame arrives");
+        assert!(matches!(got, PortEvent::Frame { frame, .. } if frame.raw_id() == 0x123));
+        let outcome = loop {
+            if let Some(o) = one.try_outcome() {
+                break o;
+            }
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        };
+        assert_eq!(outcome, Ok(()));
+        // At 1 % of 1 Mbit/s, 200 frames take about 2 s: bus-off comes
+        // first and the rest are not sent.
+        let many = h.queue_as_client(client, vec![frame(0x124); 200]).await;
+        vbus.force_bus_off();
+        let err = tokio::time::timeout(Duration::from_secs(10), many.outcome())
+            .await
+            .expect("an outcome, not a hang")
+            .unwrap_err();
+        assert!(err.sent < 200, "{err}");
+        assert_eq!(h.shared.counters.client_echo.load(Ordering::Relaxed), 0);
+        // Refused before the queue: known at once.
+        let mut refused = h.queue_as_client(client, vec![frame(0x125)]).await;
+        assert!(matches!(
+            refused.try_outcome(),
+            Some(Err(SendFailure {
+                error: SendError::BusOff(_),
+                ..
+            }))
+        ));
     }
 
     /// A client that keeps queueing while its share is used up is refused

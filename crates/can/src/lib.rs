@@ -29,7 +29,7 @@ pub use budget::{TxClass, TxShares};
 #[cfg(feature = "runtime")]
 pub use bus::{
     AttachOptions, Backend, BackendKind, BusHandle, BusInfo, BusItem, BusStats, Direction,
-    SendFailure, Subscription, SubscriptionKey,
+    PendingSend, SendFailure, Subscription, SubscriptionKey,
 };
 pub use filter::{Filter, FrameSelector};
 pub use frame::{CanId, ClientId, Frame, FrameError, FrameKind, ParseFrameError, Timestamp};

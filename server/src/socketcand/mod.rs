@@ -48,7 +48,8 @@ use crate::grpc::bus_service::{SenderGuard, SenderNames};
 use crate::security::auth::AUDIT_TARGET;
 use crate::security::{FrameBudget, QueueReservation, Refusal, Role, SecurityLayer};
 use cangate_can::{
-    AttachOptions, BusHandle, BusItem, ClientId, Frame, FrameSelector, SendError, Subscription,
+    AttachOptions, BusHandle, BusItem, ClientId, Frame, FrameSelector, PendingSend, SendError,
+    SendFailure, Subscription,
 };
 use protocol::{Action, Deframer, Session, format_error, format_frame};
 use std::net::SocketAddr;
@@ -209,6 +210,15 @@ enum Event {
     Read(std::io::Result<usize>),
     Items(usize),
     FeedReady,
+    Sent(Result<(), SendFailure>),
+}
+
+/// The outcome of the frame in flight (never returns without one).
+async fn outcome_of(in_flight: &mut Option<PendingSend>) -> Result<(), SendFailure> {
+    match in_flight {
+        Some(p) => p.wait().await,
+        None => std::future::pending().await,
+    }
 }
 
 /// The next items of an active feed (never returns without one).
@@ -290,7 +300,23 @@ async fn serve(
     let mut buf = vec![0u8; 4096];
     let mut items: Vec<BusItem> = Vec::with_capacity(FEED_BATCH);
     let mut out = String::new();
+    // The last frame sent, until its outcome is known: one at a time, so a
+    // flooding client waits for the bus as before. A session with a feed is
+    // not woken when a frame leaves (its next wake-up is usually the
+    // answer): the outcome is picked up at its next wake-up or before its
+    // next send; the bus's failures (bus-off, down) reach the feed too.
+    let mut in_flight: Option<PendingSend> = None;
     loop {
+        if let (Some(o), Some(p)) = (opened.as_ref(), in_flight.as_mut())
+            && let Some(outcome) = p.try_outcome()
+        {
+            in_flight = None;
+            if let Err(message) = sent(o, outcome)
+                && let Err(e) = writer.write(format_error(&message).as_bytes()).await
+            {
+                return e;
+            }
+        }
         let deadline = match (&opened, feed.is_some()) {
             (None, _) => Some(handshake_deadline),
             (Some(_), false) => idle.map(|i| last_read + i),
@@ -306,10 +332,20 @@ async fn serve(
             r = reader.read(&mut buf) => Event::Read(r),
             _ = tokio::time::sleep_until(feed_from), if waiting_to_feed => Event::FeedReady,
             n = next_items(&mut feed, &mut items), if feeding => Event::Items(n),
+            r = outcome_of(&mut in_flight), if in_flight.is_some() && !feeding => Event::Sent(r),
         };
         match event {
             Event::Shutdown => return End::Shutdown,
             Event::FeedReady => {}
+            Event::Sent(outcome) => {
+                in_flight = None;
+                if let Some(o) = opened.as_ref()
+                    && let Err(message) = sent(o, outcome)
+                    && let Err(e) = writer.write(format_error(&message).as_bytes()).await
+                {
+                    return e;
+                }
+            }
             Event::Deadline => {
                 let what = if opened.is_none() {
                     crate::metrics::socketcand_session("handshake_timeout");
@@ -441,16 +477,35 @@ async fn serve(
                             let Some(o) = opened.as_mut() else {
                                 return End::Closed;
                             };
-                            let sent = tokio::select! {
+                            let mut refused = Vec::new();
+                            if let Some(p) = in_flight.take() {
+                                let outcome = tokio::select! {
+                                    biased;
+                                    _ = shutdown.cancelled() => return End::Shutdown,
+                                    r = p.outcome() => r,
+                                };
+                                refused.extend(sent(o, outcome).err());
+                            }
+                            let queued = tokio::select! {
                                 biased;
                                 _ = shutdown.cancelled() => return End::Shutdown,
-                                r = send(o, frame) => r,
+                                r = queue(o, frame) => r,
                             };
-                            if let Err(message) = sent
-                                && let Err(e) =
+                            match queued {
+                                // Known at once: refused before the queue,
+                                // or sent right away (an unpaced virtual bus).
+                                Ok(mut p) => match p.try_outcome() {
+                                    Some(outcome) => refused.extend(sent(o, outcome).err()),
+                                    None => in_flight = Some(p),
+                                },
+                                Err(message) => refused.push(message),
+                            }
+                            for message in refused {
+                                if let Err(e) =
                                     writer.write(format_error(&message).as_bytes()).await
-                            {
-                                return e;
+                                {
+                                    return e;
+                                }
                             }
                         }
                     }
@@ -545,9 +600,10 @@ fn open(
     })
 }
 
-/// Sends one frame of the session as a bus participant, or says why not
-/// (counted as a refused client frame, as gRPC's refusals are).
-async fn send(o: &mut Opened, frame: Frame) -> Result<(), String> {
+/// Queues one frame of the session as a bus participant, or says why not
+/// (counted as a refused client frame, as gRPC's refusals are); its
+/// outcome goes through [`sent`].
+async fn queue(o: &mut Opened, frame: Frame) -> Result<PendingSend, String> {
     let bus = o.bus.name().to_string();
     let refuse = |reason: &str, message: String| {
         crate::metrics::client_frames_refused(&bus, reason.to_string(), 1);
@@ -583,9 +639,16 @@ async fn send(o: &mut Opened, frame: Frame) -> Result<(), String> {
     if let Some(b) = &o.budget {
         b.take(1).map_err(|e| refuse("FRAME_RATE_LIMIT", e.0))?;
     }
-    match o.bus.send_as_client(o.client, vec![frame]).await {
+    Ok(o.bus.queue_as_client(o.client, vec![frame]).await)
+}
+
+/// Counts a queued frame's outcome; a failure becomes the error line's
+/// message.
+fn sent(o: &Opened, outcome: Result<(), SendFailure>) -> Result<(), String> {
+    let bus = o.bus.name();
+    match outcome {
         Ok(()) => {
-            crate::metrics::socketcand_frames(&bus, "in", 1);
+            crate::metrics::socketcand_frames(bus, "in", 1);
             Ok(())
         }
         Err(f) => {
@@ -596,7 +659,8 @@ async fn send(o: &mut Opened, frame: Frame) -> Result<(), String> {
                 SendError::BudgetExhausted { .. } => "BUS_BUDGET_EXHAUSTED",
                 _ => "SEND_FAILED",
             };
-            Err(refuse(reason, f.error.to_string()))
+            crate::metrics::client_frames_refused(bus, reason.to_string(), 1);
+            Err(f.error.to_string())
         }
     }
 }
