@@ -17,7 +17,9 @@
 //!    (python-can interface `socketcand`) and through `cangate-server`
 //!    (interface `cangate`, Bus.Attach). One script for both,
 //!    `bench/python/raw_round_trip.py`; the same script on python-can's
-//!    own `socketcan` interface, no gateway, gives the floor of the path.
+//!    own `socketcan` interface, no gateway, gives the floor of the path,
+//!    and on its `socketcand` interface to cangate's socketcand endpoint
+//!    the same client against both servers.
 //! 2. **SDO expedited read** of 0x1017 from node 5 (the same responder
 //!    thread plays the node): CANopenNode's `canopend` over its CiA 309-3
 //!    ASCII gateway on TCP (`[seq] 5 r 0x1017 0 u16`) against `ReadSdo`,
@@ -66,10 +68,11 @@ use std::time::{Duration, Instant};
 /// receives the others' traffic.
 const RAW_REQUEST: u16 = 0x100;
 const RAW_REQUEST_MASK: u16 = 0x7F1;
-/// The request identifiers of the raw round trip's three clients.
+/// The request identifiers of the raw round trip's four clients.
 const RAW_VIA_SOCKETCAND: u16 = 0x100;
 const RAW_VIA_CANGATE: u16 = 0x102;
 const RAW_DIRECT: u16 = 0x104;
+const RAW_VIA_CANGATE_SOCKETCAND: u16 = 0x106;
 /// The node the SDO reads go to (played by the responder thread).
 const NODE: u8 = 5;
 /// SDO request (client → server) and response COB-IDs of [`NODE`].
@@ -545,7 +548,7 @@ fn start_cangate(
     dir: &Path,
     iface: &str,
     rt: &tokio::runtime::Runtime,
-) -> Result<(Server, Client, String)> {
+) -> Result<(Server, Client, String, u16)> {
     let exe = std::env::current_exe()?.with_file_name("cangate-server");
     if !exe.is_file() {
         bail!(
@@ -554,6 +557,7 @@ fn start_cangate(
         );
     }
     let port = free_port()?;
+    let socketcand_port = free_port()?;
     let config = dir.join("cangate.toml");
     std::fs::write(
         &config,
@@ -562,6 +566,9 @@ fn start_cangate(
 
 [log]
 level = "error"
+
+[socketcand]
+listen = "127.0.0.1:{socketcand_port}"
 
 [[bus]]
 name = "can0"
@@ -598,7 +605,7 @@ heartbeat_timeout_ms = 0
             Ok::<_, cangate_client::Error>(c)
         });
         match attempt {
-            Ok(client) => return Ok((server, client, url)),
+            Ok(client) => return Ok((server, client, url, socketcand_port)),
             Err(_) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(100)),
             Err(e) => bail!("cangate-server did not answer on {url}: {e}"),
         }
@@ -870,6 +877,8 @@ struct Comparison {
     cangate: Measured,
     /// The same calls without a gateway, where the path has that.
     floor: Option<Measured>,
+    /// cangate through the peer's protocol and client, where it speaks it.
+    cangate_as_peer: Option<Measured>,
 }
 
 /// A peer's binary from its variable, or why there is none.
@@ -926,12 +935,12 @@ fn run_in(args: &Args, dir: &Path) -> Result<(Vec<Comparison>, Idle)> {
         .enable_all()
         .build()?;
     let responder = Responder::start(&args.iface)?;
-    let (cangate, client, url) = start_cangate(dir, &args.iface, &rt)?;
+    let (cangate, client, url, socketcand_port) = start_cangate(dir, &args.iface, &rt)?;
     let mut idle = Idle::new();
     if let Some(p) = idle_percent(&cangate, args.idle_secs()) {
         idle.insert("cangate-server", p);
     }
-    let mut out = vec![raw_round_trip(args, dir, &cangate, &url)?];
+    let mut out = vec![raw_round_trip(args, dir, &cangate, &url, socketcand_port)?];
     let (sdo, no_bus) = canopen_paths(args, dir, &rt, &cangate, &client, &mut idle)?;
     out.push(sdo);
     out.push(no_bus);
@@ -943,8 +952,15 @@ fn run_in(args: &Args, dir: &Path) -> Result<(Vec<Comparison>, Idle)> {
     Ok((out, idle))
 }
 
-/// Path 1: python-can through socketcand and through cangate's Attach.
-fn raw_round_trip(args: &Args, dir: &Path, cangate: &Server, url: &str) -> Result<Comparison> {
+/// Path 1: python-can through socketcand and through cangate's Attach
+/// (and through cangate's socketcand endpoint, on port `cangate_socketcand`).
+fn raw_round_trip(
+    args: &Args,
+    dir: &Path,
+    cangate: &Server,
+    url: &str,
+    cangate_socketcand: u16,
+) -> Result<Comparison> {
     let (samples, blocks, warmup) = (args.samples(), args.blocks(), args.warmup());
     let python = args.python();
     let probe = Command::new(&python)
@@ -972,6 +988,20 @@ fn raw_round_trip(args: &Args, dir: &Path, cangate: &Server, url: &str) -> Resul
         calls: Box::new(|n| ours.block(n)),
         cpu: Box::new(|| cangate.cpu(false)),
     };
+    let mut ours_as_socketcand = PythonClient::start(
+        &python,
+        warmup,
+        RAW_VIA_CANGATE_SOCKETCAND,
+        &[
+            "socketcand".into(),
+            "--channel=can0".into(),
+            format!("--port={cangate_socketcand}"),
+        ],
+    )?;
+    let cangate_as_peer_side = Side {
+        calls: Box::new(|n| ours_as_socketcand.block(n)),
+        cpu: Box::new(|| cangate.cpu(false)),
+    };
     let mut direct = PythonClient::start(
         &python,
         warmup,
@@ -984,7 +1014,7 @@ fn raw_round_trip(args: &Args, dir: &Path, cangate: &Server, url: &str) -> Resul
         calls: Box::new(|n| direct.block(n)),
         cpu: Box::new(|| None),
     };
-    let (peer_side, cangate, floor) = match peer {
+    let (peer_side, cangate, floor, cangate_as_peer) = match peer {
         Ok(bin) => {
             let port = free_port()?;
             // -l lo: listen on loopback; -n: no discovery beacon.
@@ -1018,15 +1048,15 @@ fn raw_round_trip(args: &Args, dir: &Path, cangate: &Server, url: &str) -> Resul
                 calls: Box::new(|n| theirs.block(n)),
                 cpu: Box::new(|| socketcand.cpu(true)),
             };
-            let mut sides = [peer_side, cangate_side, floor_side];
-            let [p, c, f] = three(alternate(&mut sides, samples, blocks, 0)?)?;
-            (Ok(p), c, f)
+            let mut sides = [peer_side, cangate_side, floor_side, cangate_as_peer_side];
+            let [p, c, f, s] = four(alternate(&mut sides, samples, blocks, 0)?)?;
+            (Ok(p), c, f, s)
         }
         Err(why) => {
             println!("  skipped: socketcand: {why}");
-            let mut m = alternate(&mut [cangate_side, floor_side], samples, blocks, 0)?;
-            let f = m.pop().context("floor")?;
-            (Err(why), m.pop().context("cangate")?, f)
+            let mut sides = [cangate_side, floor_side, cangate_as_peer_side];
+            let [c, f, s] = three(alternate(&mut sides, samples, blocks, 0)?)?;
+            (Err(why), c, f, s)
         }
     };
     Ok(Comparison {
@@ -1036,12 +1066,18 @@ fn raw_round_trip(args: &Args, dir: &Path, cangate: &Server, url: &str) -> Resul
         peer_side,
         cangate,
         floor: Some(floor),
+        cangate_as_peer: Some(cangate_as_peer),
     })
 }
 
 fn three(m: Vec<Measured>) -> Result<[Measured; 3]> {
     m.try_into()
         .map_err(|m: Vec<Measured>| anyhow!("{} results for 3 sides", m.len()))
+}
+
+fn four(m: Vec<Measured>) -> Result<[Measured; 4]> {
+    m.try_into()
+        .map_err(|m: Vec<Measured>| anyhow!("{} results for 4 sides", m.len()))
 }
 
 /// Paths 2 and 3: an SDO read and a call without bus, canopend against
@@ -1162,6 +1198,7 @@ fn canopen_paths(
             peer_side: sdo.0,
             cangate: sdo.1,
             floor: None,
+            cangate_as_peer: None,
         },
         Comparison {
             key: "no_bus_call",
@@ -1170,6 +1207,7 @@ fn canopen_paths(
             peer_side: no_bus.0,
             cangate: no_bus.1,
             floor: None,
+            cangate_as_peer: None,
         },
     ))
 }
@@ -1227,6 +1265,32 @@ fn print_table(comparisons: &[Comparison]) {
             cell(theirs_cpu),
             cell(ours_cpu)
         );
+        if let Some(via) = &c.cangate_as_peer {
+            let v = via.percentiles();
+            let (ratio, cpu_ratio) = match &c.peer_side {
+                Ok(peer) => {
+                    let t = peer.percentiles();
+                    let cpu = match (via.cpu_us_per_call(), peer.cpu_us_per_call()) {
+                        (Some(o), Some(t)) if t > 0.0 => format!("{:.2}×", o / t),
+                        _ => "–".into(),
+                    };
+                    (
+                        format!("{:.2}× / {:.2}×", v.p50_us / t.p50_us, v.p99_us / t.p99_us),
+                        cpu,
+                    )
+                }
+                Err(_) => ("–".into(), "–".into()),
+            };
+            println!(
+                "| … the same client to cangate's socketcand endpoint | | | {} / {} µs | {ratio} |",
+                us(v.p50_us),
+                us(v.p99_us)
+            );
+            println!(
+                "| … its server CPU per call | | | {} | {cpu_ratio} |",
+                cell(via.cpu_us_per_call())
+            );
+        }
         if let Some(floor) = &c.floor {
             let f = floor.percentiles();
             println!(
@@ -1264,6 +1328,7 @@ fn to_json(args: &Args, comparisons: &[Comparison]) -> Json {
                 "peer": peer,
                 "cangate": c.cangate.to_json(),
                 "without_gateway": c.floor.as_ref().map(|f| f.percentiles().to_json()),
+                "cangate_as_peer": c.cangate_as_peer.as_ref().map(Measured::to_json),
                 "cangate_over_peer": ratios,
             }),
         );
