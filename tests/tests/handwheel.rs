@@ -654,3 +654,44 @@ async fn a_blocked_binding_names_the_holder_until_the_wheel_leaves_manual_mode()
     set_mode(&mut b.wheels, "hw1", pb::HandwheelMode::Automatic).await;
     wait_binding(&mut b.wheels, "hw1", |s| s.blocked.is_empty()).await;
 }
+
+/// Every feed variant (one event per message, batches, a window) ends with
+/// UNAVAILABLE "shutting down" when the gateway shuts down, also without a
+/// single event, and the server stops in time.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn feeds_end_with_unavailable_at_shutdown() {
+    let mut b = setup().await;
+    let req = |coalesce_ms| pb::StreamFeedRequest {
+        handwheels: vec!["hw1".into()],
+        coalesce_ms,
+    };
+    let mut single = b.wheels.stream_feed(req(0)).await.unwrap().into_inner();
+    let mut windowed = b.wheels.stream_feed(req(20)).await.unwrap().into_inner();
+    let mut batches = b
+        .wheels
+        .stream_feed_batches(req(0))
+        .await
+        .unwrap()
+        .into_inner();
+    b.server.shutdown();
+    // How each ended: the gateway's own status, not a broken connection.
+    fn end<T: std::fmt::Debug>(r: Result<Option<T>, tonic::Status>, which: &str) {
+        match r {
+            Err(s) => {
+                assert_eq!(s.code(), tonic::Code::Unavailable, "{which}: {s:?}");
+                assert!(s.message().contains("shutting down"), "{which}: {s:?}");
+            }
+            Ok(m) => panic!("{which}: expected UNAVAILABLE, got {m:?}"),
+        }
+    }
+    let single = tokio::time::timeout(WAIT, single.message()).await;
+    let windowed = tokio::time::timeout(WAIT, windowed.message()).await;
+    let batches = tokio::time::timeout(WAIT, batches.message()).await;
+    end(single.expect("in time"), "StreamFeed");
+    end(windowed.expect("in time"), "StreamFeed with a window");
+    end(batches.expect("in time"), "StreamFeedBatches");
+    b.server
+        .wait(Duration::from_secs(5))
+        .await
+        .expect("server stops within 5 s");
+}

@@ -95,7 +95,13 @@ impl HandwheelsRpc for HandwheelsService {
         &self,
         req: Request<pb::StreamFeedRequest>,
     ) -> Result<Response<Self::StreamFeedStream>, Status> {
-        Ok(Response::new(stream_of(self.feed(req.into_inner())?)))
+        let r = req.into_inner();
+        if r.coalesce_ms != 0 {
+            return Ok(Response::new(stream_of(self.feed(r)?)));
+        }
+        // One event per message: batches of one.
+        let one = |mut events: Vec<pb::FeedEvent>| events.remove(0);
+        Ok(Response::new(self.direct_feed(&r, 1, one)?))
     }
 
     type StreamFeedBatchesStream = MessageStream<pb::FeedEventBatch>;
@@ -113,30 +119,11 @@ impl HandwheelsRpc for HandwheelsService {
                 batch,
             )));
         }
-        // Without a window, the transport's task reads the feed itself:
-        // no forwarding task per subscriber, half the wake-ups per event.
-        let sub = self.subscription(&r)?;
-        let m = self.gateway.handwheels().clone();
-        let mut lost: u64 = 0;
-        let map = move |received| match received {
-            Received::Item(f) => sub.wants(&f).then(|| {
-                let mut ev = event_pb(&m, &f);
-                ev.lost_before = std::mem::take(&mut lost);
-                ev
-            }),
-            Received::Lost(n) => {
-                lost += n;
-                None
-            }
-        };
-        Ok(Response::new(broadcast_batches(
-            "StreamFeed",
-            self.wheels().subscribe(),
-            self.gateway.shutdown_token(),
+        Ok(Response::new(self.direct_feed(
+            &r,
             MAX_FEED_BATCH,
-            map,
             batch,
-        )))
+        )?))
     }
 }
 
@@ -175,7 +162,41 @@ impl HandwheelsService {
         Ok(Subscription { wanted })
     }
 
-    /// The feed events `r` asks for, from a task of their own; the
+    /// The feed events `r` asks for without a window, in messages of up to
+    /// `max` events, read from the feed by the transport's task itself: no
+    /// forwarding task per subscriber, half the wake-ups per event.
+    fn direct_feed<B: Send + 'static>(
+        &self,
+        r: &pb::StreamFeedRequest,
+        max: usize,
+        batch: fn(Vec<pb::FeedEvent>) -> B,
+    ) -> Result<MessageStream<B>, Status> {
+        let sub = self.subscription(r)?;
+        let m = self.gateway.handwheels().clone();
+        let mut lost: u64 = 0;
+        let map = move |received| match received {
+            Received::Item(f) => sub.wants(&f).then(|| {
+                let mut ev = event_pb(&m, &f);
+                ev.lost_before = std::mem::take(&mut lost);
+                ev
+            }),
+            Received::Lost(n) => {
+                lost += n;
+                None
+            }
+        };
+        Ok(broadcast_batches(
+            "StreamFeed",
+            self.wheels().subscribe(),
+            self.gateway.shutdown_token(),
+            max,
+            map,
+            batch,
+        ))
+    }
+
+    /// The feed events `r` asks for, summed per window of `coalesce_ms`
+    /// (not 0: see [`Self::direct_feed`]) by a task of their own; the
     /// receiver ends when the client goes away or the gateway shuts down.
     fn feed(
         &self,
@@ -186,17 +207,13 @@ impl HandwheelsService {
         let m = gateway.handwheels().clone();
         let mut rx = m.subscribe();
         let shutdown = gateway.shutdown_token();
-        let coalesce = Duration::from_millis(u64::from(r.coalesce_ms));
+        let coalesce = Duration::from_millis(u64::from(r.coalesce_ms.max(1)));
         let (tx, out) = tokio::sync::mpsc::channel(4096);
         tokio::spawn(async move {
             let mut lost: u64 = 0;
             // Open windows: (wheel, axis, direction) → summary.
             let mut window: Vec<((usize, i32, i32), pb::FeedEvent)> = Vec::new();
-            let mut flush = tokio::time::interval(if coalesce.is_zero() {
-                Duration::from_secs(3600)
-            } else {
-                coalesce
-            });
+            let mut flush = tokio::time::interval(coalesce);
             flush.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
             loop {
                 tokio::select! {
@@ -205,7 +222,7 @@ impl HandwheelsService {
                         return;
                     }
                     _ = tx.closed() => return,
-                    _ = flush.tick(), if !coalesce.is_zero() => {
+                    _ = flush.tick() => {
                         for (_, ev) in window.drain(..) {
                             if tx.send(Ok(ev)).await.is_err() {
                                 return;
@@ -226,12 +243,6 @@ impl HandwheelsService {
                         }
                         let mut ev = event_pb(&m, &f);
                         ev.lost_before = std::mem::take(&mut lost);
-                        if coalesce.is_zero() {
-                            if tx.send(Ok(ev)).await.is_err() {
-                                return;
-                            }
-                            continue;
-                        }
                         let key = (f.wheel, ev.axis, ev.direction);
                         match window.iter_mut().find(|(k, _)| *k == key) {
                             Some((_, acc)) => {
