@@ -152,6 +152,11 @@ impl Gateway {
             tasks.push(task);
         }
         let mut canopen = BTreeMap::new();
+        // One SYNC thread for every CANopen bus (started with the first).
+        let sync_thread = crate::canopen::sync_thread::SyncThread::new(
+            config.rt_priority,
+            shutdown.child_token(),
+        );
         // Simulated devices start after their master listens, so that the
         // master sees their boot-up.
         let mut simulated = Vec::new();
@@ -217,7 +222,7 @@ impl Gateway {
                     counter_overflow: cc.sync_counter_overflow,
                 },
                 (cc.time_period_ms > 0).then(|| Duration::from_millis(cc.time_period_ms)),
-                config.rt_priority,
+                &sync_thread,
                 facts,
                 shutdown.child_token(),
             );

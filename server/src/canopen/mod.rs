@@ -367,7 +367,7 @@ impl CanopenBus {
         sdo_timeout: Duration,
         sync: sync_thread::SyncSettings,
         time_period: Option<Duration>,
-        rt_priority: u8,
+        sync_thread: &sync_thread::SyncThread,
         configured: BTreeMap<NodeId, NodeFacts>,
         cancel: CancellationToken,
     ) -> (CanopenBus, tokio::task::JoinHandle<()>) {
@@ -400,23 +400,25 @@ impl CanopenBus {
             .filter_map(|(id, f)| f.boot.clone().map(|b| (*id, b)))
             .collect();
         let facts = Arc::new(RwLock::new(configured));
-        // The SYNC thread runs on every master, stopped without a period,
+        // The SYNC thread serves every master, stopped without a period,
         // so that the SYNC can be started at run time.
         let mut sync_cob_id = None;
-        let sync_control = Arc::new(sync_thread::SyncControl::new(sync));
-        match sync_thread::spawn(
+        let sync_control = match sync_thread.add(
             bus.clone(),
-            sync_control.clone(),
-            rt_priority,
+            sync,
             sync_counts.clone(),
             sync_riders.clone(),
             cancel.clone(),
         ) {
-            Ok(_) => sync_cob_id = Some(cangate_canopen::ids::cob::SYNC),
-            Err(e) => {
-                tracing::error!(bus = %bus.name(), error = %e, "cannot start the SYNC producer thread")
+            Ok(control) => {
+                sync_cob_id = Some(cangate_canopen::ids::cob::SYNC);
+                control
             }
-        }
+            Err(e) => {
+                tracing::error!(bus = %bus.name(), error = %e, "cannot start the SYNC producer thread");
+                Arc::new(sync_thread::SyncControl::new(sync))
+            }
+        };
         let (time_period, time_rx) = tokio::sync::watch::channel(time_period);
         let time_period = Arc::new(time_period);
         tokio::spawn(time_producer::run(bus.clone(), time_rx, cancel.clone()));

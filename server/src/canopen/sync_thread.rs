@@ -1,12 +1,17 @@
-//! The SYNC producer of a CANopen bus on its own thread.
+//! The SYNC producers of a gateway's CANopen buses, on one thread.
 //!
 //! tokio's timers have a resolution of 1 ms, so a SYNC of 1 ms produced
 //! from a task comes out late and periods get skipped. This thread sleeps
 //! with the OS's high-resolution timer to each absolute deadline of the
-//! sans-IO [`SyncProducer`] (no drift: deadline k is origin + k × period)
-//! and sends the frame; periods it cannot make in time are counted by the
+//! sans-IO [`SyncProducer`]s (no drift: deadline k is origin + k × period)
+//! and sends the frames; periods it cannot make in time are counted by the
 //! producer and logged, never silently lost. No busy waiting: the thread
 //! costs nothing between SYNCs.
+//!
+//! One thread serves every bus of the gateway: producers start on a grid
+//! common to their period, so buses with the same period are due together
+//! and cost one wake-up per period between them, not one each (the
+//! wake-up, not the frames, is most of a SYNC's cost).
 //!
 //! Each SYNC's batch also carries what the [`SyncRider`]s add: the cyclic
 //! set-points of CSP axes, sampled here at the SYNC's time
@@ -66,20 +71,46 @@ pub struct SyncSettings {
     pub counter_overflow: u8,
 }
 
-/// The shared settings of one SYNC thread and the condition variable that
-/// wakes a stopped thread when they change.
-#[derive(Debug)]
-pub struct SyncControl {
-    settings: Mutex<(SyncSettings, u64)>,
+/// Wakes the SYNC thread when something it serves changes (a bus added,
+/// settings set), so that a stopped SYNC starts at once.
+#[derive(Debug, Default)]
+struct Wake {
+    changes: Mutex<u64>,
     changed: Condvar,
 }
 
+impl Wake {
+    fn notify(&self) {
+        *self.changes.lock().expect("SYNC wake lock") += 1;
+        self.changed.notify_all();
+    }
+
+    fn changes(&self) -> u64 {
+        *self.changes.lock().expect("SYNC wake lock")
+    }
+
+    /// Blocks while nothing changed since `seen` was read, at most `max`.
+    fn wait(&self, seen: u64, max: Duration) {
+        let changes = self.changes.lock().expect("SYNC wake lock");
+        if *changes == seen {
+            let _ = self.changed.wait_timeout(changes, max);
+        }
+    }
+}
+
+/// The settings of one bus's SYNC, with a generation that counts changes.
+#[derive(Debug)]
+pub struct SyncControl {
+    settings: Mutex<(SyncSettings, u64)>,
+    wake: Arc<Wake>,
+}
+
 impl SyncControl {
-    /// Settings as given, generation 0.
+    /// Settings as given, generation 0, not served by a thread.
     pub fn new(settings: SyncSettings) -> SyncControl {
         SyncControl {
             settings: Mutex::new((settings, 0)),
-            changed: Condvar::new(),
+            wake: Arc::default(),
         }
     }
 
@@ -88,38 +119,32 @@ impl SyncControl {
         self.settings.lock().expect("SYNC settings lock").0
     }
 
-    /// Replaces the settings; the thread restarts its schedule (and the
-    /// counter at 1) with them.
+    /// Replaces the settings; the thread restarts this bus's schedule (and
+    /// the counter at 1) with them.
     pub fn set(&self, settings: SyncSettings) {
-        let mut s = self.settings.lock().expect("SYNC settings lock");
-        s.0 = settings;
-        s.1 += 1;
-        self.changed.notify_all();
+        {
+            let mut s = self.settings.lock().expect("SYNC settings lock");
+            s.0 = settings;
+            s.1 += 1;
+        }
+        self.wake.notify();
     }
 
     fn generation(&self) -> (SyncSettings, u64) {
         *self.settings.lock().expect("SYNC settings lock")
     }
-
-    /// Blocks while stopped and unchanged since `generation`, at most
-    /// `max`.
-    fn wait_while_stopped(&self, generation: u64, max: Duration) {
-        let s = self.settings.lock().expect("SYNC settings lock");
-        if s.1 == generation && !s.0.running {
-            let _ = self.changed.wait_timeout(s, max);
-        }
-    }
 }
 
-/// A producer for `settings`, started at `now`; `None` when stopped or
-/// invalid (the API checks settings before they get here).
+/// A producer for `settings`, started on its period's grid at or before
+/// `now` (so that buses of the same period are due together); `None` when
+/// stopped or invalid (the API checks settings before they get here).
 fn producer_for(settings: SyncSettings, now: Duration) -> Option<SyncProducer> {
     if !settings.running {
         return None;
     }
     match SyncProducer::new(settings.period, settings.counter_overflow) {
         Ok(mut p) => {
-            p.start(now);
+            p.start(on_grid(now, settings.period));
             Some(p)
         }
         Err(e) => {
@@ -129,95 +154,368 @@ fn producer_for(settings: SyncSettings, now: Duration) -> Option<SyncProducer> {
     }
 }
 
-/// Starts the thread; it ends when `cancel` fires. It produces while
-/// `control`'s settings say `running`, and waits without cost otherwise.
-pub fn spawn(
+/// The last multiple of `period` at or before `now`.
+fn on_grid(now: Duration, period: Duration) -> Duration {
+    let period = period.as_nanos().max(1);
+    let k = now.as_nanos() / period;
+    Duration::from_nanos(u64::try_from(k * period).unwrap_or(u64::MAX))
+}
+
+/// One bus served by the SYNC thread.
+struct Registration {
     bus: BusHandle,
     control: Arc<SyncControl>,
-    rt_priority: u8,
     counts: Arc<SyncCounts>,
     riders: SyncRiders,
+    /// The bus's master stopped: the thread drops it.
     cancel: CancellationToken,
-) -> std::io::Result<std::thread::JoinHandle<()>> {
-    let name = format!("sync-{}", bus.name());
-    std::thread::Builder::new().name(name).spawn(move || {
-        // The gateway's `rt_priority` (0: none), as for its bus thread: a
-        // SYNC is the bus's clock, and a late wake-up skips a period.
-        crate::realtime::enter(rt_priority, "sync");
-        // The frames go through the bus handle's async API; a tiny runtime
-        // of this thread drives those calls.
-        let rt = match tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .build()
+}
+
+/// The SYNC thread of a gateway: started with the first bus added, it
+/// produces the SYNC of every bus added until the gateway's `cancel`.
+#[derive(Clone)]
+pub struct SyncThread {
+    shared: Arc<ThreadShared>,
+}
+
+struct ThreadShared {
+    wake: Arc<Wake>,
+    /// Buses added since the thread last looked.
+    added: Mutex<Vec<Registration>>,
+    started: Mutex<bool>,
+    rt_priority: u8,
+    cancel: CancellationToken,
+}
+
+impl SyncThread {
+    /// The thread, not started yet; it will run with the gateway's
+    /// `rt_priority` (0: none), as its bus threads: a SYNC is the bus's
+    /// clock, and a late wake-up skips a period.
+    pub fn new(rt_priority: u8, cancel: CancellationToken) -> SyncThread {
+        SyncThread {
+            shared: Arc::new(ThreadShared {
+                wake: Arc::default(),
+                added: Mutex::default(),
+                started: Mutex::new(false),
+                rt_priority,
+                cancel,
+            }),
+        }
+    }
+
+    /// Produces `bus`'s SYNC from now on, while the returned control's
+    /// settings say `running` (stopped, it costs nothing), until `cancel`.
+    /// Fails only when the thread cannot be started.
+    pub fn add(
+        &self,
+        bus: BusHandle,
+        settings: SyncSettings,
+        counts: Arc<SyncCounts>,
+        riders: SyncRiders,
+        cancel: CancellationToken,
+    ) -> std::io::Result<Arc<SyncControl>> {
+        let control = Arc::new(SyncControl {
+            settings: Mutex::new((settings, 0)),
+            wake: self.shared.wake.clone(),
+        });
         {
-            Ok(rt) => rt,
-            Err(e) => {
-                tracing::error!(bus = %bus.name(), error = %e, "SYNC producer could not start");
-                return;
+            let mut started = self.shared.started.lock().expect("SYNC thread lock");
+            if !*started {
+                let shared = self.shared.clone();
+                std::thread::Builder::new()
+                    .name("sync-canopen".into())
+                    .spawn(move || run(&shared))?;
+                *started = true;
             }
+        }
+        self.shared
+            .added
+            .lock()
+            .expect("SYNC thread lock")
+            .push(Registration {
+                bus,
+                control: control.clone(),
+                counts,
+                riders,
+                cancel,
+            });
+        self.shared.wake.notify();
+        Ok(control)
+    }
+}
+
+/// A bus's SYNC as the thread runs it.
+struct Producing {
+    reg: Registration,
+    /// Generation of the settings the producer follows (`None`: not read).
+    generation: Option<u64>,
+    producer: Option<SyncProducer>,
+    /// Skips of producers replaced by a change of settings.
+    skipped_before: u64,
+    reported_skips: u64,
+    last_report: Instant,
+    /// Room for the riders' set-points without a reallocation.
+    frames_capacity: usize,
+}
+
+impl Producing {
+    fn new(reg: Registration) -> Producing {
+        Producing {
+            reg,
+            generation: None,
+            producer: None,
+            skipped_before: 0,
+            reported_skips: 0,
+            last_report: Instant::now(),
+            frames_capacity: 1,
+        }
+    }
+
+    /// Takes up changed settings: a new schedule from `now`.
+    fn follow_settings(&mut self, now: Duration) {
+        let (settings, generation) = self.reg.control.generation();
+        if self.generation != Some(generation) {
+            self.generation = Some(generation);
+            self.skipped_before += self.producer.as_ref().map_or(0, SyncProducer::skipped);
+            self.producer = producer_for(settings, now);
+        }
+    }
+
+    fn next_deadline(&self) -> Option<Duration> {
+        self.producer.as_ref()?.next_deadline()
+    }
+
+    /// Sends the SYNC, with the riders' frames, if one is due at `now`.
+    fn tick(&mut self, now: Duration, rt: &tokio::runtime::Runtime) {
+        let Some(producer) = self.producer.as_mut() else {
+            return;
         };
-        let origin = Instant::now();
-        let (settings, mut generation) = control.generation();
-        let mut producer = producer_for(settings, Duration::ZERO);
-        // Skips of producers replaced by a change of settings.
-        let mut skipped_before = 0;
-        let mut reported_skips = 0;
-        let mut frames_capacity = 1;
-        let mut last_report = Instant::now();
-        while !cancel.is_cancelled() {
-            let (settings, now_generation) = control.generation();
-            if now_generation != generation {
-                generation = now_generation;
-                skipped_before += producer.as_ref().map_or(0, SyncProducer::skipped);
-                producer = producer_for(settings, origin.elapsed());
-            }
-            let Some(producer) = producer.as_mut() else {
-                control.wait_while_stopped(generation, Duration::from_millis(100));
-                continue;
-            };
-            let Some(deadline) = producer.next_deadline() else {
-                continue;
-            };
-            let wait = (origin + deadline).saturating_duration_since(Instant::now());
-            // Wake at least every 100 ms to notice a shutdown.
-            std::thread::sleep(wait.min(Duration::from_millis(100)));
-            if let Some(frame) = producer.on_tick(origin.elapsed()) {
-                // Room for the riders' set-points without a reallocation.
-                let mut frames = Vec::with_capacity(frames_capacity);
-                frames.push(frame);
-                let at = Instant::now();
-                riders.lock().expect("SYNC riders lock").retain(|r| {
+        let bus = &self.reg.bus;
+        if let Some(frame) = producer.on_tick(now) {
+            let mut frames = Vec::with_capacity(self.frames_capacity);
+            frames.push(frame);
+            let at = Instant::now();
+            self.reg
+                .riders
+                .lock()
+                .expect("SYNC riders lock")
+                .retain(|r| {
                     let Some(r) = r.upgrade() else {
                         return false;
                     };
                     r.on_sync(at, &mut frames);
                     true
                 });
-                // Without entering the runtime unless the bus task's queue
-                // is full (a virtual bus is sent to right here).
-                frames_capacity = frames_capacity.max(frames.len());
-                let sent = match bus.try_submit(frames) {
-                    Ok(Some(frames)) => rt.block_on(bus.submit(frames)),
-                    Ok(None) => Ok(()),
-                    Err(e) => Err(e),
-                };
-                if let Err(e) = sent {
-                    tracing::warn!(bus = %bus.name(), error = %e, "SYNC not sent");
-                }
-                counts.sent.fetch_add(1, Ordering::Relaxed);
+            self.frames_capacity = self.frames_capacity.max(frames.len());
+            // Without entering the runtime unless the bus task's queue is
+            // full (a virtual bus is sent to right here).
+            let sent = match bus.try_submit(frames) {
+                Ok(Some(frames)) => rt.block_on(bus.submit(frames)),
+                Ok(None) => Ok(()),
+                Err(e) => Err(e),
+            };
+            if let Err(e) = sent {
+                tracing::warn!(bus = %bus.name(), error = %e, "SYNC not sent");
             }
-            let skipped = skipped_before + producer.skipped();
-            counts.skipped.store(skipped, Ordering::Relaxed);
-            if skipped != reported_skips && last_report.elapsed() >= Duration::from_secs(10) {
-                tracing::warn!(
-                    bus = %bus.name(),
-                    skipped = skipped - reported_skips,
-                    sent = counts.sent.load(Ordering::Relaxed),
-                    "SYNC periods skipped: the producer thread was not scheduled in time"
-                );
-                reported_skips = skipped;
-                last_report = Instant::now();
+            self.reg.counts.sent.fetch_add(1, Ordering::Relaxed);
+        }
+        let skipped = self.skipped_before + producer.skipped();
+        self.reg.counts.skipped.store(skipped, Ordering::Relaxed);
+        if skipped != self.reported_skips && self.last_report.elapsed() >= Duration::from_secs(10) {
+            tracing::warn!(
+                bus = %bus.name(),
+                skipped = skipped - self.reported_skips,
+                sent = self.reg.counts.sent.load(Ordering::Relaxed),
+                "SYNC periods skipped: the producer thread was not scheduled in time"
+            );
+            self.reported_skips = skipped;
+            self.last_report = Instant::now();
+        }
+    }
+}
+
+/// The thread: sleeps to the earliest deadline of its buses, sends what
+/// is due, takes up added buses and changed settings at each wake-up.
+fn run(shared: &ThreadShared) {
+    crate::realtime::enter(shared.rt_priority, "sync");
+    // The frames go through the bus handles' async API; a tiny runtime of
+    // this thread drives those calls.
+    let rt = match tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            tracing::error!(error = %e, "SYNC producer could not start");
+            return;
+        }
+    };
+    let origin = Instant::now();
+    let mut buses: Vec<Producing> = Vec::new();
+    while !shared.cancel.is_cancelled() {
+        let seen = shared.wake.changes();
+        buses.extend(
+            shared
+                .added
+                .lock()
+                .expect("SYNC thread lock")
+                .drain(..)
+                .map(Producing::new),
+        );
+        buses.retain(|b| !b.reg.cancel.is_cancelled());
+        let now = origin.elapsed();
+        for b in &mut buses {
+            b.follow_settings(now);
+        }
+        let Some(next) = buses.iter().filter_map(Producing::next_deadline).min() else {
+            // Nothing to produce: until a change (or a shutdown check).
+            shared.wake.wait(seen, Duration::from_millis(100));
+            continue;
+        };
+        let wait = (origin + next).saturating_duration_since(Instant::now());
+        // Wake at least every 100 ms to notice a shutdown.
+        std::thread::sleep(wait.min(Duration::from_millis(100)));
+        let now = origin.elapsed();
+        for b in &mut buses {
+            b.tick(now, &rt);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use cangate_can::{
+        Backend, BackendKind, BusInfo, PortEvent, Stuffing, VirtualBus, VirtualBusConfig,
+        VirtualPort,
+    };
+
+    #[test]
+    fn producers_start_on_their_periods_grid() {
+        let ms = Duration::from_millis;
+        assert_eq!(on_grid(Duration::from_micros(2_500), ms(1)), ms(2));
+        assert_eq!(on_grid(ms(3), ms(1)), ms(3));
+        assert_eq!(on_grid(ms(7), ms(10)), Duration::ZERO);
+        assert_eq!(on_grid(ms(7), Duration::ZERO), ms(7));
+        // Two buses of one period started apart are due at the same times.
+        let settings = SyncSettings {
+            running: true,
+            period: ms(1),
+            counter_overflow: 0,
+        };
+        let a = producer_for(settings, Duration::from_micros(100)).unwrap();
+        let b = producer_for(settings, Duration::from_micros(900)).unwrap();
+        assert_eq!(a.next_deadline(), Some(ms(1)));
+        assert_eq!(a.next_deadline(), b.next_deadline());
+        assert!(
+            producer_for(
+                SyncSettings {
+                    running: false,
+                    ..settings
+                },
+                ms(1)
+            )
+            .is_none()
+        );
+    }
+
+    fn bus(name: &str, cancel: &CancellationToken) -> (BusHandle, VirtualPort) {
+        let vbus = VirtualBus::new(name, VirtualBusConfig::default());
+        let info = BusInfo {
+            name: name.into(),
+            kind: BackendKind::Virtual,
+            interface: name.into(),
+            fd: false,
+            bitrate: None,
+            data_bitrate: None,
+            bit_timed: false,
+            stuffing: Stuffing::Exact,
+        };
+        let (h, _) = BusHandle::spawn(info, Backend::Virtual(vbus.connect(true)), cancel.clone());
+        (h, vbus.connect(false))
+    }
+
+    /// SYNCs seen on `port` within `d`.
+    async fn syncs(port: &mut VirtualPort, d: Duration) -> usize {
+        let mut n = 0;
+        let end = tokio::time::Instant::now() + d;
+        while let Ok(e) = tokio::time::timeout_at(end, port.recv()).await {
+            if matches!(e, PortEvent::Frame { frame, .. } if frame.raw_id() == 0x80) {
+                n += 1;
             }
         }
-    })
+        n
+    }
+
+    /// One thread serves several buses, each with its own settings: one
+    /// started at run time, one stopped while the other runs on, one
+    /// dropped when its master's token is cancelled.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn one_thread_serves_every_bus_with_its_own_settings() {
+        let gateway = CancellationToken::new();
+        let thread = SyncThread::new(0, gateway.clone());
+        let (a, mut port_a) = bus("a", &gateway);
+        let (b, mut port_b) = bus("b", &gateway);
+        let period = Duration::from_millis(5);
+        let running = SyncSettings {
+            running: true,
+            period,
+            counter_overflow: 0,
+        };
+        let stopped = SyncSettings {
+            running: false,
+            ..running
+        };
+        let counts_a = Arc::new(SyncCounts::default());
+        let master_b = gateway.child_token();
+        let ctl_a = thread
+            .add(
+                a,
+                running,
+                counts_a.clone(),
+                SyncRiders::default(),
+                gateway.child_token(),
+            )
+            .unwrap();
+        let ctl_b = thread
+            .add(
+                b,
+                stopped,
+                Arc::default(),
+                SyncRiders::default(),
+                master_b.clone(),
+            )
+            .unwrap();
+        let window = Duration::from_millis(300);
+        assert!(syncs(&mut port_a, window).await > 10, "a produces");
+        assert_eq!(
+            syncs(&mut port_b, Duration::from_millis(50)).await,
+            0,
+            "b is stopped"
+        );
+        ctl_b.set(running);
+        assert!(
+            syncs(&mut port_b, window).await > 10,
+            "b started at run time"
+        );
+        ctl_a.set(stopped);
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        while port_a.try_recv().is_some() {}
+        let sent = counts_a.sent.load(Ordering::Relaxed);
+        assert!(sent > 10);
+        let (quiet_a, busy_b) =
+            tokio::join!(syncs(&mut port_a, window), syncs(&mut port_b, window));
+        assert_eq!(quiet_a, 0, "a stopped");
+        assert!(busy_b > 10, "b runs on");
+        assert_eq!(counts_a.sent.load(Ordering::Relaxed), sent);
+        master_b.cancel();
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        while port_b.try_recv().is_some() {}
+        assert_eq!(
+            syncs(&mut port_b, Duration::from_millis(100)).await,
+            0,
+            "b dropped"
+        );
+        gateway.cancel();
+    }
 }
