@@ -151,7 +151,7 @@ fn describe() {
     );
     describe_counter!(
         "cangate_sync_skipped_total",
-        "SYNC periods skipped because the SYNC thread woke too late for them, by bus."
+        "SYNC periods without a SYNC, by bus: the SYNC thread woke too late for them, or the bus's queue was full."
     );
     describe_counter!(
         "cangate_cansmc_cycles_total",

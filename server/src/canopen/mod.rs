@@ -555,8 +555,9 @@ impl CanopenBus {
         self.handover.set_budget(budget);
     }
 
-    /// SYNCs sent so far, and SYNC periods skipped because the SYNC thread
-    /// was not scheduled in time (both 0 without a SYNC period).
+    /// SYNCs sent so far, and SYNC periods without a SYNC because the SYNC
+    /// thread was not scheduled in time or the bus's queue was full (both 0
+    /// without a SYNC period).
     pub fn sync_counts(&self) -> (u64, u64) {
         (
             self.sync_counts.sent.load(Ordering::Relaxed),

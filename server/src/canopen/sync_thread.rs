@@ -54,7 +54,9 @@ pub type SyncRiders = Arc<Mutex<Vec<Weak<dyn SyncRider>>>>;
 pub struct SyncCounts {
     /// SYNC frames handed to the bus.
     pub sent: AtomicU64,
-    /// Periods skipped because the thread woke too late for them.
+    /// Periods without a SYNC: the thread woke too late for them, or the
+    /// bus task's queue was full (the thread serves every bus, so it never
+    /// waits for one).
     pub skipped: AtomicU64,
 }
 
@@ -252,6 +254,8 @@ struct Producing {
     producer: Option<SyncProducer>,
     /// Skips of producers replaced by a change of settings.
     skipped_before: u64,
+    /// SYNCs not sent because the bus task's queue was full.
+    not_queued: u64,
     reported_skips: u64,
     last_report: Instant,
     /// Room for the riders' set-points without a reallocation.
@@ -265,6 +269,7 @@ impl Producing {
             generation: None,
             producer: None,
             skipped_before: 0,
+            not_queued: 0,
             reported_skips: 0,
             last_report: Instant::now(),
             frames_capacity: 1,
@@ -286,7 +291,7 @@ impl Producing {
     }
 
     /// Sends the SYNC, with the riders' frames, if one is due at `now`.
-    fn tick(&mut self, now: Duration, rt: &tokio::runtime::Runtime) {
+    fn tick(&mut self, now: Duration) {
         let Some(producer) = self.producer.as_mut() else {
             return;
         };
@@ -307,26 +312,28 @@ impl Producing {
                     true
                 });
             self.frames_capacity = self.frames_capacity.max(frames.len());
-            // Without entering the runtime unless the bus task's queue is
-            // full (a virtual bus is sent to right here).
-            let sent = match bus.try_submit(frames) {
-                Ok(Some(frames)) => rt.block_on(bus.submit(frames)),
-                Ok(None) => Ok(()),
-                Err(e) => Err(e),
-            };
-            if let Err(e) = sent {
-                tracing::warn!(bus = %bus.name(), error = %e, "SYNC not sent");
+            // Never waits: a bus whose task's queue is full (its interface
+            // stalled) must not hold up the other buses' SYNCs. A virtual
+            // bus is sent to right here.
+            match bus.try_submit(frames) {
+                Ok(None) => {
+                    self.reg.counts.sent.fetch_add(1, Ordering::Relaxed);
+                }
+                Ok(Some(_)) => self.not_queued += 1,
+                Err(e) => {
+                    tracing::warn!(bus = %bus.name(), error = %e, "SYNC not sent");
+                    self.reg.counts.sent.fetch_add(1, Ordering::Relaxed);
+                }
             }
-            self.reg.counts.sent.fetch_add(1, Ordering::Relaxed);
         }
-        let skipped = self.skipped_before + producer.skipped();
+        let skipped = self.skipped_before + producer.skipped() + self.not_queued;
         self.reg.counts.skipped.store(skipped, Ordering::Relaxed);
         if skipped != self.reported_skips && self.last_report.elapsed() >= Duration::from_secs(10) {
             tracing::warn!(
                 bus = %bus.name(),
                 skipped = skipped - self.reported_skips,
                 sent = self.reg.counts.sent.load(Ordering::Relaxed),
-                "SYNC periods skipped: the producer thread was not scheduled in time"
+                "SYNC periods skipped: the SYNC thread was not scheduled in time, or the bus's queue was full"
             );
             self.reported_skips = skipped;
             self.last_report = Instant::now();
@@ -338,18 +345,6 @@ impl Producing {
 /// is due, takes up added buses and changed settings at each wake-up.
 fn run(shared: &ThreadShared) {
     crate::realtime::enter(shared.rt_priority, "sync");
-    // The frames go through the bus handles' async API; a tiny runtime of
-    // this thread drives those calls.
-    let rt = match tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-    {
-        Ok(rt) => rt,
-        Err(e) => {
-            tracing::error!(error = %e, "SYNC producer could not start");
-            return;
-        }
-    };
     let origin = Instant::now();
     let mut buses: Vec<Producing> = Vec::new();
     while !shared.cancel.is_cancelled() {
@@ -377,7 +372,7 @@ fn run(shared: &ThreadShared) {
         std::thread::sleep(wait.min(Duration::from_millis(100)));
         let now = origin.elapsed();
         for b in &mut buses {
-            b.tick(now, &rt);
+            b.tick(now);
         }
     }
 }

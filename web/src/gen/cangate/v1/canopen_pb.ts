@@ -1838,7 +1838,8 @@ export type SyncStatus = Message<"cangate.v1.SyncStatus"> & {
   sent: bigint;
 
   /**
-   * SYNC periods skipped because the producer thread woke too late.
+   * SYNC periods without a SYNC: the producer thread woke too late for
+   * them, or the bus's transmit queue was full.
    *
    * @generated from field: uint64 skipped = 6;
    */
