@@ -1992,18 +1992,24 @@ mod tests {
         (vbus, h, cancel)
     }
 
+    /// [`start_bit_timed`] with client frames paced to 1 % of the bus.
+    fn start_client_share_1() -> (VirtualBus, BusHandle, CancellationToken) {
+        let (vbus, h, c) = start_bit_timed();
+        h.set_tx_shares(TxShares {
+            client_percent: 1,
+            bulk_percent: 50,
+        })
+        .unwrap();
+        (vbus, h, c)
+    }
+
     /// Client frames on the highest-priority identifier, paced to 1 % of
     /// the bus: the gateway's own frame, sent after them, reaches the other
     /// node long before the last of them, and the client's call lasts at
     /// least as long as its share allows.
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn client_frames_are_paced_behind_own_frames() {
-        let (vbus, h, _c) = start_bit_timed();
-        h.set_tx_shares(TxShares {
-            client_percent: 1,
-            bulk_percent: 50,
-        })
-        .unwrap();
+        let (vbus, h, _c) = start_client_share_1();
         let mut peer = vbus.connect(false);
         let flood: Vec<Frame> = (0..100u8)
             .map(|i| Frame::new(CanId::Standard(0x001), &[i; 8]).unwrap())
@@ -2062,12 +2068,7 @@ mod tests {
     /// not send reports why (and leaves no echo outstanding).
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn queued_client_frames_report_their_outcome_later() {
-        let (vbus, h, _c) = start_bit_timed();
-        h.set_tx_shares(TxShares {
-            client_percent: 1,
-            bulk_percent: 50,
-        })
-        .unwrap();
+        let (vbus, h, _c) = start_client_share_1();
         let mut peer = vbus.connect(false);
         let client = ClientId::next();
         let mut one = h.queue_as_client(client, vec![frame(0x123)]).await;
@@ -2108,12 +2109,7 @@ mod tests {
     /// refused batch is sent, and it is counted.
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn client_backlog_is_bounded() {
-        let (_vbus, h, _c) = start_bit_timed();
-        h.set_tx_shares(TxShares {
-            client_percent: 1,
-            bulk_percent: 50,
-        })
-        .unwrap();
+        let (_vbus, h, _c) = start_client_share_1();
         let batch = |n: usize| vec![frame(0x100); n];
         h.submit_as(TxClass::Client, batch(40_000)).await.unwrap();
         let err = h.send_as(TxClass::Client, batch(20_000)).await.unwrap_err();
