@@ -216,18 +216,12 @@ pub struct SendFailure {
 
 /// A client's batch queued by [`BusHandle::queue_as_client`], whose
 /// outcome is still to be learnt.
+#[derive(Debug)]
 pub struct PendingSend {
     state: Pending,
-    /// The bus, when its echo filter counts this batch (a virtual bus).
-    shared: Option<Arc<Shared>>,
-}
-
-impl std::fmt::Debug for PendingSend {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("PendingSend")
-            .field("state", &self.state)
-            .finish()
-    }
+    bus: BusHandle,
+    /// The bus's echo filter still counts this batch (a virtual bus).
+    echo_open: bool,
 }
 
 #[derive(Debug)]
@@ -249,7 +243,7 @@ impl PendingSend {
             Pending::Waiting { rx, total } => match rx.try_recv() {
                 Ok(r) => r,
                 Err(oneshot::error::TryRecvError::Empty) => return None,
-                Err(oneshot::error::TryRecvError::Closed) => Err(task_stopped(*total)),
+                Err(oneshot::error::TryRecvError::Closed) => Err(self.bus.down(*total)),
             },
         };
         self.state = Pending::Done(r.clone());
@@ -268,7 +262,7 @@ impl PendingSend {
             Pending::Done(r) => r.clone(),
             Pending::Waiting { rx, total } => {
                 let total = *total;
-                rx.await.unwrap_or_else(|_| Err(task_stopped(total)))
+                rx.await.unwrap_or_else(|_| Err(self.bus.down(total)))
             }
         };
         self.state = Pending::Done(r.clone());
@@ -278,19 +272,12 @@ impl PendingSend {
     /// Frames that were not sent have no echo to wait for (counted once,
     /// however often the outcome is asked for).
     fn settle(&mut self, r: Result<(), SendFailure>) -> Result<(), SendFailure> {
-        if let (Some(shared), Err(f)) = (self.shared.take(), &r) {
-            client_echo_end(&shared, (f.total - f.sent) as u64);
+        if std::mem::take(&mut self.echo_open)
+            && let Err(f) = &r
+        {
+            client_echo_end(&self.bus.shared, (f.total - f.sent) as u64);
         }
         r
-    }
-}
-
-/// A queued batch whose bus task went away before sending it.
-fn task_stopped(total: usize) -> SendFailure {
-    SendFailure {
-        sent: 0,
-        total,
-        error: SendError::Down("the bus task stopped".into()),
     }
 }
 
@@ -609,39 +596,11 @@ impl BusHandle {
     /// returns when the last of them went to the interface. A client batch
     /// is refused when [`MAX_BUDGET_QUEUED`] frames already wait.
     pub async fn send_as(&self, class: TxClass, frames: Vec<Frame>) -> Result<(), SendFailure> {
-        let Some(paced) = self.paced_sender(class) else {
-            return self.send(frames).await;
-        };
-        self.check(&frames)?;
         let total = frames.len();
-        if class == TxClass::Client {
-            self.admit_client(total)?;
+        match self.queue_as(class, frames).await? {
+            None => Ok(()),
+            Some(outcome) => outcome.await.unwrap_or_else(|_| Err(self.down(total))),
         }
-        let (reply, rx) = oneshot::channel();
-        let gone = || SendFailure {
-            sent: 0,
-            total,
-            error: SendError::Down(self.name().to_string()),
-        };
-        self.shared
-            .counters
-            .budget_queued
-            .fetch_add(total as u64, Ordering::Relaxed);
-        let request = PacedRequest {
-            class,
-            frames,
-            released: 0,
-            held: false,
-            reply: Some(reply),
-        };
-        if paced.send(request).await.is_err() {
-            self.shared
-                .counters
-                .budget_queued
-                .fetch_sub(total as u64, Ordering::Relaxed);
-            return Err(gone());
-        }
-        rx.await.map_err(|_| gone())?
     }
 
     /// Sends a client's frames as [`BusHandle::send_as`] does in the client
@@ -678,38 +637,38 @@ impl BusHandle {
             client_echo_begin(&self.shared, frames.len() as u64);
         }
         let total = frames.len();
-        let state = match self.queue_client_frames(frames).await {
+        let state = match self.queue_as(TxClass::Client, frames).await {
             Ok(Some(rx)) => Pending::Waiting { rx, total },
             Ok(None) => Pending::Done(Ok(())),
             Err(f) => Pending::Done(Err(f)),
         };
         PendingSend {
             state,
-            shared: echoed.then(|| self.shared.clone()),
+            bus: self.clone(),
+            echo_open: echoed,
         }
     }
 
-    /// [`BusHandle::queue_as_client`]'s queueing: the receiver of the
-    /// outcome, or `None` when the frames were sent at once (a virtual bus
-    /// not paced).
-    async fn queue_client_frames(
+    /// Queues a batch in its class after the checks of
+    /// [`BusHandle::send_as`]: the receiver of its outcome, or `None` when
+    /// it was sent at once (a virtual bus, not paced). Waits only while the
+    /// queue is full.
+    async fn queue_as(
         &self,
+        class: TxClass,
         frames: Vec<Frame>,
     ) -> Result<Option<oneshot::Receiver<Result<(), SendFailure>>>, SendFailure> {
         self.check(&frames)?;
         let total = frames.len();
-        let gone = || SendFailure {
-            sent: 0,
-            total,
-            error: SendError::Down(self.name().to_string()),
-        };
         let (reply, rx) = oneshot::channel();
-        if let Some(paced) = self.paced_sender(TxClass::Client) {
-            self.admit_client(total)?;
+        if let Some(paced) = self.paced_sender(class) {
+            if class == TxClass::Client {
+                self.admit_client(total)?;
+            }
             let c = &self.shared.counters;
             c.budget_queued.fetch_add(total as u64, Ordering::Relaxed);
             let request = PacedRequest {
-                class: TxClass::Client,
+                class,
                 frames,
                 released: 0,
                 held: false,
@@ -717,7 +676,7 @@ impl BusHandle {
             };
             if paced.send(request).await.is_err() {
                 c.budget_queued.fetch_sub(total as u64, Ordering::Relaxed);
-                return Err(gone());
+                return Err(self.down(total));
             }
             return Ok(Some(rx));
         }
@@ -728,8 +687,21 @@ impl BusHandle {
             frames,
             reply: Some(reply),
         };
-        self.shared.tx.send(request).await.map_err(|_| gone())?;
+        self.shared
+            .tx
+            .send(request)
+            .await
+            .map_err(|_| self.down(total))?;
         Ok(Some(rx))
+    }
+
+    /// A batch of `total` frames the bus task is no longer there to send.
+    fn down(&self, total: usize) -> SendFailure {
+        SendFailure {
+            sent: 0,
+            total,
+            error: SendError::Down(self.name().to_string()),
+        }
     }
 
     /// Queues a batch as [`BusHandle::submit`] does, in its class (see
@@ -815,26 +787,7 @@ impl BusHandle {
     /// batch that cannot be sent sends nothing; a failure part-way (the
     /// interface vanished) reports how many frames went out.
     pub async fn send(&self, frames: Vec<Frame>) -> Result<(), SendFailure> {
-        self.check(&frames)?;
-        if let Some(direct) = &self.shared.direct {
-            return self.send_direct(direct, &frames);
-        }
-        let total = frames.len();
-        let (reply, rx) = oneshot::channel();
-        let gone = || SendFailure {
-            sent: 0,
-            total,
-            error: SendError::Down(self.name().to_string()),
-        };
-        self.shared
-            .tx
-            .send(TxRequest {
-                frames,
-                reply: Some(reply),
-            })
-            .await
-            .map_err(|_| gone())?;
-        rx.await.map_err(|_| gone())?
+        self.send_as(TxClass::Control, frames).await
     }
 
     /// Queues a batch for sending without waiting for the bus task to send
