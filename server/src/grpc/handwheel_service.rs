@@ -97,7 +97,7 @@ impl HandwheelsRpc for HandwheelsService {
     ) -> Result<Response<Self::StreamFeedStream>, Status> {
         let r = req.into_inner();
         if r.coalesce_ms != 0 {
-            return Ok(Response::new(stream_of(self.feed(r)?)));
+            return Ok(Response::new(stream_of(self.windowed_feed(r)?)));
         }
         // One event per message: batches of one.
         let one = |mut events: Vec<pb::FeedEvent>| events.remove(0);
@@ -114,7 +114,7 @@ impl HandwheelsRpc for HandwheelsService {
         let batch = |events| pb::FeedEventBatch { events };
         if r.coalesce_ms != 0 {
             return Ok(Response::new(batches_of(
-                self.feed(r)?,
+                self.windowed_feed(r)?,
                 MAX_FEED_BATCH,
                 batch,
             )));
@@ -198,7 +198,7 @@ impl HandwheelsService {
     /// The feed events `r` asks for, summed per window of `coalesce_ms`
     /// (not 0: see [`Self::direct_feed`]) by a task of their own; the
     /// receiver ends when the client goes away or the gateway shuts down.
-    fn feed(
+    fn windowed_feed(
         &self,
         r: pb::StreamFeedRequest,
     ) -> Result<tokio::sync::mpsc::Receiver<Result<pb::FeedEvent, Status>>, Status> {
