@@ -114,6 +114,15 @@ pub struct MasterConfig {
     /// under host load) is not the slave's. A cycle's misses are counted
     /// this much later (rounded up to whole cycles, at most 14).
     pub handover_grace: Duration,
+    /// The latest time after a cycle's start at which its MDTs still go
+    /// out: a poll later than this could not have the slaves' DTs back
+    /// before the cycle ends, so the MDT slot passes unused and counts as
+    /// the master's (`mdt_slots_missed`), not as the slaves' misses. A
+    /// loaded host that wakes the master late in a cycle must not lose
+    /// slaves that did nothing wrong. [`MasterConfig::new`] sets the cycle
+    /// time (no bound); [`MasterConfig::mdt_deadline_for`] computes it
+    /// from the bus's bit rate.
+    pub mdt_deadline: Duration,
     /// The slaves, in any order (MDTs go out in address order).
     pub slaves: Vec<SlaveSpec>,
 }
@@ -131,8 +140,24 @@ impl MasterConfig {
             parameter_timeout: Duration::from_millis(100),
             lost_after: 3,
             handover_grace: Duration::from_millis(10),
+            mdt_deadline: cycle_time,
             slaves,
         }
+    }
+
+    /// The [`MasterConfig::mdt_deadline`] of this cycle at `bitrate`: the
+    /// cycle time less the worst-case time of every slave's MDT, one more
+    /// telegram for the last DT, and the slaves' response latency
+    /// ([`crate::feasibility`]); never before `T_int`.
+    pub fn mdt_deadline_for(&self, bitrate: u32) -> Duration {
+        let bitrate = u64::from(bitrate.max(1));
+        let telegram_bits = u64::from(crate::feasibility::frame_bits_worst_case(8));
+        let telegram_ns = (telegram_bits * 1_000_000_000).div_ceil(bitrate);
+        let slaves = self.slaves.len() as u64;
+        let answer = Duration::from_nanos(
+            (slaves + 1) * telegram_ns + u64::from(crate::feasibility::DEFAULT_RESPONSE_US) * 1_000,
+        );
+        self.cycle_time.saturating_sub(answer).max(self.t_int)
     }
 
     /// [`MasterConfig::handover_grace`] in whole cycles (the counter's 16
@@ -919,8 +944,9 @@ impl Master {
     fn run_cyclic(&mut self, now: Duration, out: &mut Poll) {
         let next = self.cycle_start(self.cycle + 1);
         if !self.mdts_sent {
-            if now < next {
-                if now >= self.cycle_start(self.cycle) + self.config.t_int {
+            let start = self.cycle_start(self.cycle);
+            if now < next && now <= start + self.config.mdt_deadline {
+                if now >= start + self.config.t_int {
                     self.send_mdts(now, out);
                 }
                 return;

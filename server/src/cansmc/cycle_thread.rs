@@ -53,6 +53,8 @@ const PUBLISH_PERIOD: Duration = Duration::from_millis(10);
 
 /// Everything the thread needs.
 pub(crate) struct Setup {
+    /// The bit rate of the command bus (for the MDT deadline).
+    pub bitrate: u32,
     pub config: CansmcConfig,
     pub command_bus: BusHandle,
     pub status_bus: BusHandle,
@@ -107,7 +109,7 @@ struct Thread {
 /// Starts the thread.
 pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String> {
     let name = format!("cansmc-{}", setup.config.name);
-    let master_config = master_config(&setup.config);
+    let master_config = master_config(&setup.config, setup.bitrate);
     let master =
         Master::new(master_config).map_err(|e| format!("cansmc {}: {e}", setup.config.name))?;
     let rt = tokio::runtime::Builder::new_current_thread()
@@ -180,7 +182,7 @@ pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String>
 
 /// The master configuration: axis slaves start with a position MDT, gear
 /// sources and `cyclic = "encoder"` slaves with an encoder request.
-fn master_config(cfg: &CansmcConfig) -> MasterConfig {
+fn master_config(cfg: &CansmcConfig, bitrate: u32) -> MasterConfig {
     let gear_sources: Vec<u8> = cfg.axes.iter().filter_map(|a| a.gear_source).collect();
     let velocity_jogs: Vec<u8> = cfg
         .axes
@@ -229,6 +231,7 @@ fn master_config(cfg: &CansmcConfig) -> MasterConfig {
     m.connect_attempts = cfg.connect_attempts;
     m.parameter_timeout = Duration::from_millis(cfg.parameter_timeout_ms);
     m.lost_after = cfg.lost_after;
+    m.mdt_deadline = m.mdt_deadline_for(bitrate);
     m
 }
 

@@ -136,6 +136,7 @@ impl CansmcMaster {
         }));
         let thread = cycle_thread::spawn(cycle_thread::Setup {
             config: config.clone(),
+            bitrate,
             command_bus,
             status_bus,
             requests: rx,

@@ -414,6 +414,46 @@ fn a_late_poll_skips_whole_cycles_and_keeps_mst_on_the_grid() {
 }
 
 #[test]
+fn polls_too_late_for_an_answer_send_no_mdt_and_do_not_lose_the_slaves() {
+    // lost_after 3; the MDT deadline 1.5 ms into a 2 ms cycle.
+    let mut c = config(&[1]);
+    c.mdt_deadline = us(1500);
+    let mut m = Master::new(c).unwrap();
+    m.start(Duration::ZERO);
+    m.on_frame(&dct(1), us(300));
+    m.poll(us(300));
+    // Five cycles whose MDT poll comes 1.8 ms after their MST (a loaded
+    // host): the DTs could not be back before the next MST.
+    for k in 0..5u64 {
+        let start = 300 + k * 2000;
+        if k > 0 {
+            m.poll(us(start));
+        }
+        let p = m.poll(us(start + 1800));
+        assert!(p.frames.is_empty(), "cycle {k}: no MDT after the deadline");
+    }
+    assert_eq!(m.counters().mdt_slots_missed, 5);
+    let s = m.slave(addr(1)).unwrap();
+    assert_eq!((s.counters.mdts, s.counters.missed), (0, 0));
+    assert_eq!(s.state, SlaveState::Operational);
+    // On time again: the MDT goes out.
+    m.poll(us(300 + 5 * 2000));
+    let p = m.poll(us(300 + 5 * 2000 + 1500));
+    assert_eq!(p.frames.len(), 1, "at the deadline the MDT still goes");
+}
+
+#[test]
+fn the_mdt_deadline_leaves_room_for_every_mdt_and_the_last_dt() {
+    // Four slaves at 1 Mbit/s, 4 ms: 5 worst-case 8-byte telegrams
+    // (135 bits, 135 µs each) and 20 µs response latency before the end.
+    let c = MasterConfig::new(ms(4), (1..=4).map(|a| SlaveSpec::new(addr(a))).collect());
+    assert_eq!(c.mdt_deadline_for(1_000_000), us(4000 - 5 * 135 - 20));
+    // A cycle too short for its slaves still sends at T_int.
+    assert_eq!(c.mdt_deadline_for(10_000), c.t_int);
+    assert_eq!(c.mdt_deadline, ms(4), "no bound unless asked");
+}
+
+#[test]
 fn malformed_and_foreign_frames_are_counted_not_used() {
     let mut m = cyclic(&[1]);
     m.poll(us(400));
