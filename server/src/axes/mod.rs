@@ -234,10 +234,11 @@ impl Axes {
         self.latest.read().expect("latest lock")[i].clone()
     }
 
-    /// Whether every axis of `idx` is known to be at rest: idle, standing
-    /// still, its node present. A stop may be throttled only then (a client
-    /// over its stop budget); a stop of an axis that moves, stops, homes,
-    /// follows a gear, or whose state is unknown, never is.
+    /// Whether every axis of `idx` is known to be at rest: standing still,
+    /// its node present, and running no motion command (idle, or a stop or
+    /// state change that found it still). A stop may be throttled only then
+    /// (a client over its stop budget); a stop of an axis that moves,
+    /// brakes, homes, follows a gear, or whose state is unknown, never is.
     pub fn all_at_rest(&self, idx: &[usize]) -> bool {
         let latest = self.latest.read().expect("latest lock");
         idx.iter().all(|&i| {
@@ -250,7 +251,11 @@ impl Axes {
             let still = 10.0
                 * c.in_position_window
                     .unwrap_or(10.0 / c.counts_per_unit.abs());
-            s.activity == Activity::Idle && s.node_lost.is_none() && s.velocity.abs() <= still
+            matches!(
+                s.activity,
+                Activity::Idle | Activity::Stopping | Activity::Switching
+            ) && s.node_lost.is_none()
+                && s.velocity.abs() <= still
         })
     }
 
