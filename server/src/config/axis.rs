@@ -364,3 +364,39 @@ impl AxisConfig {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::super::Config;
+
+    const BASE: &str = "listen = \"127.0.0.1:0\"\n[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\n\
+                        [[canopen]]\nbus = \"can0\"\n[[canopen.node]]\nid = 1\neds = \"builtin:drive\"\n\
+                        [[axis]]\nname = \"X\"\nbus = \"can0\"\nnode = 1\ncounts_per_unit = 1000.0\n\
+                        max_velocity = 10.0\nmax_acceleration = 100.0\n";
+
+    #[test]
+    fn stop_decelerations_default_to_the_maximum_and_must_be_positive() {
+        let c = Config::from_toml(BASE).unwrap();
+        let ctl = c.axes[0].controller();
+        assert_eq!(ctl.stop_deceleration, 100.0);
+        assert_eq!(ctl.quick_stop_deceleration, 100.0);
+        let c = Config::from_toml(&format!(
+            "{BASE}stop_deceleration = 250.0\nquick_stop_deceleration = 400.0\n"
+        ))
+        .unwrap();
+        let ctl = c.axes[0].controller();
+        assert_eq!(ctl.stop_deceleration, 250.0);
+        assert_eq!(ctl.quick_stop_deceleration, 400.0);
+        for bad in [
+            "stop_deceleration = 0.0",
+            "quick_stop_deceleration = -1.0",
+            "stop_deceleration = 1e308",
+        ] {
+            let e = Config::from_toml(&format!("{BASE}{bad}\n"))
+                .unwrap_err()
+                .to_string();
+            let key = bad.split(' ').next().unwrap();
+            assert!(e.contains(&format!("axis X: {key}")), "{bad}: {e}");
+        }
+    }
+}
