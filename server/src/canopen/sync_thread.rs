@@ -469,6 +469,26 @@ mod tests {
         );
     }
 
+    /// A SYNC is due on its grid whenever the thread gets to it; the
+    /// periods it skipped, and SYNCs built but not sent, are what its
+    /// riders hold back by.
+    #[test]
+    fn a_late_sync_is_due_on_its_grid_and_says_what_was_missed() {
+        let ms = Duration::from_millis;
+        let mut p = SyncProducer::new(ms(1), 0).unwrap();
+        p.start(Duration::ZERO);
+        assert!(due_sync(&mut p, Duration::from_micros(900), 0).is_none());
+        let (frame, due, missed) = due_sync(&mut p, Duration::from_micros(1_300), 0).unwrap();
+        assert_eq!(frame.raw_id(), 0x80);
+        assert_eq!((due, missed), (ms(1), Duration::ZERO));
+        // Woken 3.4 periods late: the SYNC of 5 ms, 2..=4 skipped.
+        let (_, due, missed) = due_sync(&mut p, Duration::from_micros(5_400), 0).unwrap();
+        assert_eq!((due, missed), (ms(5), ms(3)));
+        // On time again, after one SYNC that was not sent.
+        let (_, due, missed) = due_sync(&mut p, ms(6), 1).unwrap();
+        assert_eq!((due, missed), (ms(6), ms(1)));
+    }
+
     fn bus(name: &str, cancel: &CancellationToken) -> (BusHandle, VirtualPort) {
         let vbus = VirtualBus::new(name, VirtualBusConfig::default());
         let info = BusInfo {
