@@ -118,8 +118,8 @@ async fn at_rest(axes: &mut Axes, axis: &str) -> pb::AxisStatus {
 /// Issue 26, item 1: `axis stop` (StopAxes) of a cyclic and a profile axis
 /// in a gentle move (20 mm/s, 10 mm/s²) brakes at the axis's stop
 /// deceleration (its maximum acceleration): from the state the stop found
-/// to rest within v²/(2·a) plus a few SYNC periods' travel, where the
-/// move's own deceleration took 20 mm.
+/// to rest within v²/(2·a) plus 100 ms of travel, where the move's own
+/// deceleration took 20 mm.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_stop_brakes_at_the_stop_deceleration_not_the_moves() {
     let (_server, mut axes) = setup().await;
@@ -142,9 +142,11 @@ async fn a_stop_brakes_at_the_stop_deceleration_not_the_moves() {
         let rest = at_rest(&mut axes, axis).await;
         let d = (rest.position - found.position).abs();
         let v = found.velocity.abs();
-        // Five SYNC periods: the set-points already sent, the drive's
-        // interpolation, the feedback's age.
-        let bound = v * v / (2.0 * a_stop) + 5.0 * v * 0.010;
+        // Plus 100 ms of travel (ten SYNC periods): the set-points already
+        // sent, the drive's interpolation, the age of the feedback the stop
+        // found on a loaded host. Still a tenth of the 20 mm the move's
+        // own deceleration takes.
+        let bound = v * v / (2.0 * a_stop) + 0.1 * v;
         eprintln!("{axis}: stopped {d:.3} mm after the stop at {v:.2} mm/s (bound {bound:.3} mm)");
         assert!(
             d <= bound,

@@ -1533,9 +1533,10 @@ impl Cia402Axis {
     }
 
     /// A stop on the drive's own ramp (halt, quick stop) brakes at least at
-    /// `decel` (user units/s²): 0x6084 is raised to it (written first, right
-    /// after the controlword that stops; never lowered below the
-    /// deceleration of the interrupted motion).
+    /// `decel` (user units/s²): 0x6084 is raised to it (first of the
+    /// writes; never lowered below the deceleration of the interrupted
+    /// motion). The controlword that stops goes out as a PDO and does not
+    /// wait for them.
     fn want_stop_ramp(&mut self, decel: f64, out: &mut Vec<Output>) {
         let u = self.units();
         let base = self
