@@ -164,7 +164,8 @@ struct StopArgs {
     /// Every axis of the gateway.
     #[arg(long, conflicts_with = "axes")]
     all: bool,
-    /// CiA 402 quick stop instead of the profile deceleration.
+    /// Quick stop: at the axis's quick_stop_deceleration (a CiA 402 drive
+    /// leaves operation enabled) instead of its stop_deceleration.
     #[arg(long)]
     quick: bool,
     /// Return when all are at rest.

@@ -58,12 +58,18 @@ pub struct CansmcAxisConfig {
     pub max_position: Option<f64>,
     /// Velocity ceiling (units/s); also bounds a geared axis.
     pub max_velocity: f64,
-    /// Acceleration ceiling (units/s²); quick stops use it.
+    /// Acceleration ceiling (units/s²).
     pub max_acceleration: f64,
     /// Velocity of a move without one.
     pub default_velocity: f64,
-    /// Acceleration of a move without one; stops use it.
+    /// Acceleration of a move without one.
     pub default_acceleration: f64,
+    /// Every stop (Stop, the jog dead-man, a lost lease, shutdown) brakes at
+    /// least this hard (units/s²): the interrupted motion's own
+    /// deceleration when that is higher.
+    pub stop_deceleration: f64,
+    /// The deceleration of a quick stop (units/s²).
+    pub quick_stop_deceleration: f64,
     /// The master's cycle time (the set-point spacing).
     pub cycle_time: Duration,
     /// Bound of enable, disable and fault reset.
@@ -114,6 +120,8 @@ impl CansmcAxisConfig {
             max_acceleration: 2000.0,
             default_velocity: 50.0,
             default_acceleration: 500.0,
+            stop_deceleration: 2000.0,
+            quick_stop_deceleration: 2000.0,
             cycle_time,
             state_timeout: Duration::from_secs(1),
             homing_timeout: Duration::from_secs(30),
@@ -515,6 +523,17 @@ impl CansmcAxis {
         }
     }
 
+    /// The deceleration the running motion brakes with (0 at rest).
+    fn motion_deceleration(&self) -> f64 {
+        match &self.motion {
+            Motion::Profile { profile, ratio, .. } => {
+                profile.limits().deceleration() * ratio * ratio
+            }
+            Motion::Jog { acceleration, .. } => *acceleration,
+            _ => 0.0,
+        }
+    }
+
     fn limits(&self, velocity: f64, acceleration: f64) -> Result<Limits, CommandError> {
         Limits::symmetric(velocity, acceleration)
             .map_err(|e| CommandError::InvalidArgument(e.to_string()))
@@ -683,7 +702,11 @@ impl CansmcAxis {
                 velocity,
                 acceleration,
             } => {
-                let acceleration = acceleration.unwrap_or(self.cfg.default_acceleration);
+                let mut acceleration = acceleration.unwrap_or(self.cfg.default_acceleration);
+                if velocity == 0.0 {
+                    // A jog at 0 is a stop: at least the stop deceleration.
+                    acceleration = acceleration.max(self.cfg.stop_deceleration);
+                }
                 let deadman = Some(now + self.cfg.jog_deadman);
                 let motion = match self.cfg.jog_mode {
                     JogMode::Interpolated => Motion::Jog {
@@ -747,11 +770,13 @@ impl CansmcAxis {
         now: Duration,
         out: &mut Vec<AxisEvent>,
     ) -> OpId {
-        let decel = if quick {
-            self.cfg.max_acceleration
+        let wanted = if quick {
+            self.cfg.quick_stop_deceleration
         } else {
-            self.braking_within_limits(self.demand_velocity, self.cfg.default_acceleration)
+            self.cfg.stop_deceleration
         };
+        let decel = self
+            .braking_within_limits(self.demand_velocity, wanted.max(self.motion_deceleration()));
         if self.op.is_some() {
             self.finish(Outcome::Stopped, format!("stopped by {kind}"), out);
         }
@@ -1068,9 +1093,16 @@ impl CansmcAxis {
             Step::Jogging => {
                 let deadman_expired = op.deadman.is_some_and(|d| now >= d);
                 if deadman_expired {
+                    let stop_deceleration = self.cfg.stop_deceleration;
                     let braking = match &mut self.motion {
-                        Motion::Jog { target, .. } if *target != 0.0 => {
+                        Motion::Jog {
+                            target,
+                            acceleration,
+                        } if *target != 0.0 => {
+                            // The dead-man is a stop: at least the stop
+                            // deceleration.
                             *target = 0.0;
+                            *acceleration = acceleration.max(stop_deceleration);
                             true
                         }
                         Motion::SlaveVelocity { target, stage } if *target != 0.0 => {

@@ -16,9 +16,21 @@
 //! | enable / disable / reset fault | [`StateMachineDriver`] walk | the same; enable first sets mode 8 and target = actual position so the drive does not jump |
 //! | move | SDO 0x6081/0x6083/0x6084 when they changed; mode 1; target + new set-point (bit 4) with change immediately (bit 5); accepted on set-point acknowledge (bit 12), bit 4 cleared; done on target reached (bit 10) | a trapezoid from the current demand (position and velocity) to the target, sampled every SYNC; done when the profile ended and the actual position is within the in-position window |
 //! | jog | mode 3 (profile velocity), target velocity; the drive's soft limits (0x607D, written at boot) bound it | a trapezoid towards the soft limit at the jog speed |
-//! | stop | halt (bit 8) until the next motion command; done at standstill | a trapezoid to the stopping point |
-//! | quick stop | controlword quick stop; done when the drive left operation enabled and stands still | the same |
+//! | stop (also the jog dead-man) | halt (bit 8) until the next motion command, and 0x6084 raised to the stop deceleration by SDO right after it; done at standstill | a trapezoid to the stopping point at the stop deceleration |
+//! | quick stop | controlword quick stop, and 0x6084 raised to the quick stop deceleration; done when the drive left operation enabled and stands still | the same |
 //! | home | mode 6, homing start (bit 4); done on homing attained + target reached, failed on homing error; back to the position mode | the same, then demand = actual position, mode 8 |
+//!
+//! Stops brake at least at the configured stop deceleration, more when the
+//! interrupted motion brakes harder. A profile axis brakes on the drive's
+//! own ramp: CiA 402 halts on 0x6084 with the default halt option code
+//! (0x605D = 1); rather than re-configure 0x605D/0x6085 at boot (objects a
+//! drive may lack, and then one ramp for halt and quick stop), the halt
+//! goes out at once and 0x6084 follows by SDO: the drive brakes at the
+//! motion's deceleration for one SDO round trip, then at the stop's.
+//!
+//! A motion command (move, jog, home) ends at the first statusword that
+//! shows the drive out of operation enabled, naming the state; a motion
+//! command is refused while a disable runs.
 //!
 //! Completion checks look only at process data that left the drive after
 //! it saw the command: the first statusword after each new process image
@@ -71,6 +83,14 @@ pub struct Cia402Config {
     pub settle_timeout: Duration,
     /// Jog dead-man time.
     pub jog_deadman: Duration,
+    /// Every stop (Stop, the jog dead-man, a lost lease, shutdown)
+    /// decelerates at least this hard (units/s²): the interrupted motion's
+    /// own deceleration when that is higher.
+    pub stop_deceleration: f64,
+    /// The deceleration of a CiA 402 quick stop (units/s²), written to
+    /// 0x6084 with the quick stop (the drive brakes on its quick stop ramp
+    /// 0x6085 when it has one and its option code says so).
+    pub quick_stop_deceleration: f64,
 }
 
 impl Cia402Config {
@@ -92,6 +112,8 @@ impl Cia402Config {
             in_position_window: 0.01,
             settle_timeout: Duration::from_secs(2),
             jog_deadman: Duration::from_millis(500),
+            stop_deceleration: 2000.0,
+            quick_stop_deceleration: 2000.0,
         }
     }
 }
@@ -242,6 +264,10 @@ impl Op {
     }
 }
 
+/// Profile velocity, acceleration and deceleration in drive counts (0x6081,
+/// 0x6083, 0x6084).
+type ProfileCounts = (u32, u32, u32);
+
 /// Statuswords that must arrive after a step's deadline before the step
 /// times out: the drive's own word that it is late.
 const LATE_FEEDBACK: u32 = 3;
@@ -293,6 +319,12 @@ impl Trajectory {
     }
 }
 
+/// The deceleration of a stop of `trajectory`: `configured`, or the
+/// trajectory's own when that brakes harder.
+fn stop_deceleration(configured: f64, trajectory: Option<&Trajectory>) -> f64 {
+    trajectory.map_or(configured, |t| configured.max(t.deceleration()))
+}
+
 /// How long after a cyclic jog's dead-man deadline the axis stops the jog
 /// itself when no SYNC sample has stopped it (the SYNC is not running).
 /// Normally the first SYNC after the deadline stops it
@@ -317,6 +349,8 @@ pub struct CyclicPlan {
     /// sampled, so that a jog stops on time even when the thread that runs
     /// the axis is held up.
     deadman: Option<Duration>,
+    /// The axis's stop deceleration (the dead-man's stop ramp).
+    stop_deceleration: f64,
 }
 
 /// The set-point a [`CyclicPlan`] gave for one SYNC.
@@ -347,6 +381,7 @@ impl CyclicPlan {
             hold: position,
             units,
             deadman: None,
+            stop_deceleration: 0.0,
         }
     }
 
@@ -354,6 +389,31 @@ impl CyclicPlan {
     /// that starts its move).
     pub fn is_moving(&self) -> bool {
         self.trajectory.is_some()
+    }
+
+    /// Periods passed without a SYNC (a late or stalled sender skipped
+    /// them): the trajectory is held back by `missed`, so that the next
+    /// sample continues from the last one sent by one period, never by
+    /// the skipped ones too. A drive in CSP takes each set-point as the
+    /// position one SYNC period after the previous one: sampled at the wall
+    /// clock, a skipped period would reach it as a double step (twice the
+    /// velocity for a cycle). The motion ends `missed` later instead.
+    pub fn hold_back(&mut self, missed: Duration) {
+        if let Some(start) = self.trajectory.as_mut().and_then(|t| t.start.as_mut()) {
+            *start += missed;
+        }
+    }
+
+    /// Whether `other` is this plan as published before some of its
+    /// samples (the same motion, held back or started differently): a
+    /// sampler keeps its own copy then.
+    pub fn same_motion(&self, other: &CyclicPlan) -> bool {
+        let motion = |t: &Trajectory| (t.profile.clone(), t.ratio);
+        self.trajectory.as_ref().map(motion) == other.trajectory.as_ref().map(motion)
+            && self.hold == other.hold
+            && self.units == other.units
+            && self.deadman == other.deadman
+            && self.stop_deceleration == other.stop_deceleration
     }
 
     /// The set-point of a SYNC sent at `at`; the first sample of a
@@ -368,7 +428,8 @@ impl CyclicPlan {
                 let start = traj.start.unwrap_or(at);
                 let (p, v) = traj.sample(at.saturating_sub(start).as_secs_f64());
                 self.hold = p;
-                self.trajectory = Trajectory::stop_ramp(p, v, traj.deceleration(), Some(at));
+                let decel = stop_deceleration(self.stop_deceleration, Some(traj));
+                self.trajectory = Trajectory::stop_ramp(p, v, decel, Some(at));
                 deadman_stop = true;
             }
         }
@@ -426,10 +487,14 @@ pub struct Cia402Axis {
     jog_deadline: Option<Duration>,
     /// Latest target of a profile move (user units).
     last_target: f64,
-    /// Profile velocity / acceleration (counts) the drive holds.
-    profile_written: Option<(u32, u32)>,
+    /// Profile velocity, acceleration and deceleration (0x6081, 0x6083,
+    /// 0x6084, counts) the drive holds.
+    profile_written: Option<ProfileCounts>,
     /// SDO writes in flight and what they write.
-    sdo_in_flight: Option<(u32, u32)>,
+    sdo_in_flight: Option<ProfileCounts>,
+    /// The profile wanted last: written when the writes in flight end (a
+    /// stop's ramp asked for while a move's parameters were being written).
+    profile_wanted: Option<ProfileCounts>,
     homed: bool,
     /// The image requests a mode the drive has not shown since.
     mode_pending: bool,
@@ -469,6 +534,7 @@ impl Cia402Axis {
             last_target: 0.0,
             profile_written: None,
             sdo_in_flight: None,
+            profile_wanted: None,
             homed: false,
             mode_pending: false,
             node_lost: None,
@@ -531,10 +597,11 @@ impl Cia402Axis {
     }
 
     /// At rest: the drive's velocity would not carry it past the
-    /// in-position window within 100 ms (and at least one count/s).
+    /// in-position window within 100 ms (and at least one count/s). Strictly
+    /// below: the velocity comes rounded to whole counts/s.
     fn at_rest(&self) -> bool {
         let v = self.units().from_counts(f64::from(self.velocity)).abs();
-        self.velocity == 0 || v <= self.cfg.in_position_window * 10.0
+        self.velocity == 0 || v < self.cfg.in_position_window * 10.0
     }
 
     /// At rest within the in-position window of `target`.
@@ -679,7 +746,41 @@ impl Cia402Axis {
             self.drop_trajectory();
             self.jog_deadline = None;
         }
+        self.check_still_enabled(out);
         self.advance(now, out);
+    }
+
+    /// A motion command needs the drive in operation enabled all along: a
+    /// drive that left it (a controlword written by someone else, a quick
+    /// stop from its own input, an internal disable) ends the command at
+    /// once, saying so; it does not wait for its deadline. Faults are
+    /// reported as such (see on_feedback); a stop in progress ends when the
+    /// drive stands still.
+    fn check_still_enabled(&mut self, out: &mut Vec<Output>) {
+        let Some(state) = self.state() else {
+            return;
+        };
+        let Some(op) = &self.op else {
+            return;
+        };
+        if state == DriveState::OperationEnabled
+            || self.is_fault()
+            || !matches!(
+                op.kind,
+                CommandKind::Move | CommandKind::Jog | CommandKind::Home
+            )
+            || matches!(op.step, Step::Stopping)
+        {
+            return;
+        }
+        self.drop_trajectory();
+        self.jog_deadline = None;
+        self.release_handshake(out);
+        self.finish(
+            Outcome::Fault,
+            format!("the drive left operation enabled (now {state})"),
+            out,
+        );
     }
 
     /// Handles an EMCY of this drive (`code` 0 = error reset).
@@ -736,6 +837,7 @@ impl Cia402Axis {
             self.homed = false;
             self.statusword = None;
             self.profile_written = None;
+            self.profile_wanted = None;
             self.image.controlword = 0;
             // The rebooted drive's first statusword says afresh whether it
             // is faulted.
@@ -753,9 +855,17 @@ impl Cia402Axis {
     ) {
         let written = self.sdo_in_flight.take();
         match result {
-            Ok(()) => self.profile_written = written,
+            Ok(()) => {
+                self.profile_written = written;
+                if let Some(want) = self.profile_wanted
+                    && written != Some(want)
+                {
+                    self.want_profile_counts(want, out);
+                }
+            }
             Err(e) => {
                 self.profile_written = None;
+                self.profile_wanted = None;
                 if matches!(self.op.as_ref().map(|o| &o.step), Some(Step::AwaitSdo)) {
                     self.finish(
                         Outcome::Fault,
@@ -801,6 +911,7 @@ impl Cia402Axis {
             },
             units: self.units(),
             deadman: self.trajectory.as_ref().and(self.jog_deadline),
+            stop_deceleration: self.cfg.stop_deceleration,
         })
     }
 
@@ -832,10 +943,7 @@ impl Cia402Axis {
             // The jog's dead-man stopped it at this SYNC: the same stop
             // ramp as the sampler's, from the same state.
             self.jog_deadline = None;
-            let decel = self
-                .trajectory
-                .as_ref()
-                .map_or(self.cfg.default_acceleration, Trajectory::deceleration);
+            let decel = self.stop_deceleration();
             self.trajectory = Trajectory::stop_ramp(s.demand, s.velocity, decel, Some(s.at));
             if let Some(op) = &mut self.op
                 && op.kind == CommandKind::Jog
@@ -848,7 +956,9 @@ impl Cia402Axis {
             }
         }
         if let Some(traj) = &mut self.trajectory {
-            if traj.start.is_none() {
+            // The first sample fixes the start; later ones may hold it back
+            // (SYNC periods skipped, see CyclicPlan::hold_back).
+            if s.start.is_some() {
                 traj.start = s.start;
             }
             if s.finished {
@@ -1006,7 +1116,7 @@ impl Cia402Axis {
             }
             AxisCommand::Home => {
                 if self.moving() {
-                    self.settle_for(ModeOfOperation::Homing, now, &mut op);
+                    self.settle_for(ModeOfOperation::Homing, now, &mut op, out);
                     self.send_image(out);
                 } else {
                     self.begin_mode(ModeOfOperation::Homing, now, &mut op, out);
@@ -1021,7 +1131,12 @@ impl Cia402Axis {
                     self.plan_move(&mut op, now, out)?;
                 }
                 PositionMode::Cyclic => {
-                    self.settle_for(ModeOfOperation::CyclicSynchronousPosition, now, &mut op);
+                    self.settle_for(
+                        ModeOfOperation::CyclicSynchronousPosition,
+                        now,
+                        &mut op,
+                        out,
+                    );
                     self.send_image(out);
                 }
                 PositionMode::Profile => {
@@ -1040,7 +1155,12 @@ impl Cia402Axis {
             } => {
                 self.jog_deadline = Some(now + self.cfg.jog_deadman);
                 if self.cfg.position_mode == PositionMode::Cyclic && !self.in_cyclic_mode() {
-                    self.settle_for(ModeOfOperation::CyclicSynchronousPosition, now, &mut op);
+                    self.settle_for(
+                        ModeOfOperation::CyclicSynchronousPosition,
+                        now,
+                        &mut op,
+                        out,
+                    );
                     self.send_image(out);
                 } else {
                     self.op = Some(op);
@@ -1053,7 +1173,7 @@ impl Cia402Axis {
                 op.step = Step::Stopping;
                 op.accepted = true;
                 out.push(Output::Event(AxisEvent::Accepted { op: id }));
-                self.start_stop(now, &mut op);
+                self.start_stop(now, &mut op, out);
                 self.send_image(out);
             }
             AxisCommand::QuickStop => {
@@ -1061,6 +1181,9 @@ impl Cia402Axis {
                 op.accepted = true;
                 out.push(Output::Event(AxisEvent::Accepted { op: id }));
                 self.drop_trajectory();
+                // The drive brakes on its quick stop ramp: 0x6085, or 0x6084
+                // (quick stop option codes 1 and 5, drives without 0x6085).
+                self.want_stop_ramp(self.cfg.quick_stop_deceleration, out);
                 self.image.controlword = Controlword(self.image.controlword)
                     .with_command(Controlword::QUICK_STOP)
                     .0;
@@ -1087,9 +1210,15 @@ impl Cia402Axis {
 
     /// `op` first brings the drive to rest in its current mode, then
     /// switches to `mode` ([`Step::SettleFor`]).
-    fn settle_for(&mut self, mode: ModeOfOperation, now: Duration, op: &mut Op) {
+    fn settle_for(
+        &mut self,
+        mode: ModeOfOperation,
+        now: Duration,
+        op: &mut Op,
+        out: &mut Vec<Output>,
+    ) {
         op.step = Step::SettleFor(mode);
-        self.start_stop(now, op);
+        self.start_stop(now, op, out);
     }
 
     /// Switches the drive to `mode` (at rest) for `op`: the halt is
@@ -1337,6 +1466,16 @@ impl Cia402Axis {
                 "the axis is not enabled (drive state: {state}): call Enable first"
             )));
         }
+        if needs_enabled
+            && self
+                .op
+                .as_ref()
+                .is_some_and(|o| o.kind == CommandKind::Disable)
+        {
+            return Err(CommandError::FailedPrecondition(
+                "the axis is being disabled: wait for the disable to end, then enable it".into(),
+            ));
+        }
         Ok(())
     }
 
@@ -1389,21 +1528,45 @@ impl Cia402Axis {
     /// drive holds them already.
     fn want_profile(&mut self, v: f64, a: f64, out: &mut Vec<Output>) {
         let u = self.units();
-        let want = (u.to_counts_unsigned(v), u.to_counts_unsigned(a));
+        let a = u.to_counts_unsigned(a);
+        self.want_profile_counts((u.to_counts_unsigned(v), a, a), out);
+    }
+
+    /// A stop on the drive's own ramp (halt, quick stop) brakes at least at
+    /// `decel` (user units/s²): 0x6084 is raised to it (first of the
+    /// writes; never lowered below the deceleration of the interrupted
+    /// motion). The controlword that stops goes out as a PDO and does not
+    /// wait for them.
+    fn want_stop_ramp(&mut self, decel: f64, out: &mut Vec<Output>) {
+        let u = self.units();
+        let base = self
+            .profile_wanted
+            .or(self.profile_written)
+            .unwrap_or_else(|| {
+                let a = u.to_counts_unsigned(self.cfg.default_acceleration);
+                (u.to_counts_unsigned(self.cfg.default_velocity), a, a)
+            });
+        let d = u.to_counts_unsigned(decel).max(base.2);
+        self.want_profile_counts((base.0, base.1, d), out);
+    }
+
+    fn want_profile_counts(&mut self, want: ProfileCounts, out: &mut Vec<Output>) {
+        self.profile_wanted = Some(want);
         if self.profile_written == Some(want) || self.sdo_in_flight == Some(want) {
             return;
         }
         if self.sdo_in_flight.is_some() {
             // The writes in flight are for an older command; this one
-            // writes after them (see advance).
+            // writes after them (see on_sdo_done).
             self.profile_written = None;
             return;
         }
         self.sdo_in_flight = Some(want);
+        // The deceleration first: a stop's ramp takes effect soonest.
         out.push(Output::SdoWrites(vec![
+            (obj::PROFILE_DECELERATION, want.2.to_le_bytes().to_vec()),
             (obj::PROFILE_VELOCITY, want.0.to_le_bytes().to_vec()),
             (obj::PROFILE_ACCELERATION, want.1.to_le_bytes().to_vec()),
-            (obj::PROFILE_DECELERATION, want.1.to_le_bytes().to_vec()),
         ]));
     }
 
@@ -1470,15 +1633,18 @@ impl Cia402Axis {
         Ok(())
     }
 
-    fn start_stop(&mut self, now: Duration, op: &mut Op) {
+    /// The deceleration of a stop: the configured stop deceleration, or the
+    /// running trajectory's when that brakes harder.
+    fn stop_deceleration(&self) -> f64 {
+        stop_deceleration(self.cfg.stop_deceleration, self.trajectory.as_ref())
+    }
+
+    fn start_stop(&mut self, now: Duration, op: &mut Op, out: &mut Vec<Output>) {
         match self.cfg.position_mode {
             PositionMode::Cyclic
                 if self.image.mode == ModeOfOperation::CyclicSynchronousPosition.code() =>
             {
-                let decel = self
-                    .trajectory
-                    .as_ref()
-                    .map_or(self.cfg.default_acceleration, Trajectory::deceleration);
+                let decel = self.stop_deceleration();
                 self.trajectory =
                     Trajectory::stop_ramp(self.demand, self.demand_velocity, decel, self.demand_at);
                 let t = self.trajectory.as_ref().map_or(0.0, Trajectory::duration);
@@ -1490,6 +1656,10 @@ impl Cia402Axis {
                 self.image.controlword |= Controlword::HALT_BIT;
                 self.image.target_velocity = 0;
                 op.arm(Some(now + self.cfg.state_timeout + self.cfg.settle_timeout));
+                // The halt brakes on 0x6084 (halt option code 0x605D = 1,
+                // the default): raised to the stop deceleration. The halt
+                // itself does not wait for the write.
+                self.want_stop_ramp(self.cfg.stop_deceleration, out);
             }
         }
     }
@@ -1539,7 +1709,7 @@ impl Cia402Axis {
             {
                 let mut op = self.op.take().expect("op");
                 op.step = Step::Stopping;
-                self.start_stop(now, &mut op);
+                self.start_stop(now, &mut op, out);
                 self.op = Some(op);
                 if self.cfg.position_mode == PositionMode::Profile {
                     self.send_image(out);
@@ -1673,7 +1843,8 @@ impl Cia402Axis {
                 Step::AwaitSdo => {
                     let (v, a) = self.wanted_profile(op);
                     let u = self.units();
-                    let want = (u.to_counts_unsigned(v), u.to_counts_unsigned(a));
+                    let a_counts = u.to_counts_unsigned(a);
+                    let want = (u.to_counts_unsigned(v), a_counts, a_counts);
                     if self.profile_written == Some(want) {
                         let mode = match op.kind {
                             CommandKind::Jog => ModeOfOperation::ProfileVelocity,

@@ -58,6 +58,8 @@ fn axis_config(velocity_jog: bool) -> CansmcAxisConfig {
         max_acceleration: 200.0,
         default_velocity: 5.0,
         default_acceleration: 50.0,
+        stop_deceleration: 200.0,
+        quick_stop_deceleration: 200.0,
         cycle_time: CYCLE,
         state_timeout: Duration::from_secs(1),
         homing_timeout: Duration::from_secs(30),

@@ -196,6 +196,8 @@ fn cfg(mode: PositionMode) -> Cia402Config {
     c.max_acceleration = amax;
     c.default_velocity = vmax / 4.0;
     c.default_acceleration = amax / 4.0;
+    c.stop_deceleration = amax;
+    c.quick_stop_deceleration = amax;
     c.in_position_window = 10.0 / SCALE;
     c
 }

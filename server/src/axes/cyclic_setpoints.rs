@@ -15,12 +15,17 @@
 //! now also leaves in the same batch as its SYNC, whatever the load on the
 //! gateway's bus thread.
 //!
+//! Set-points are sampled on the SYNC's nominal grid (k·T, not when the
+//! thread got to send it), and periods the thread skipped hold each plan
+//! back ([`CyclicPlan::hold_back`]): the plan advances one period per SYNC
+//! actually sent, so a late or stalled SYNC never becomes a double step.
+//!
 //! Only the RPDO that maps the target position (0x607A) is sent here; the
 //! other RPDOs (the controlword) still go out from the axis task the moment
 //! they change. Where a custom mapping puts the controlword into the
 //! target-position RPDO, a controlword change rides with the next SYNC.
 
-use crate::canopen::sync_thread::SyncRider;
+use crate::canopen::sync_thread::{SyncRider, SyncTick};
 use cangate_axis::cia402::{CyclicPlan, CyclicSample};
 use cangate_can::{CanId, Frame};
 use cangate_canopen::cia402::objects::TARGET_POSITION;
@@ -111,7 +116,10 @@ impl CyclicSetpoints {
     /// Replaces the plans of several axes at once, so that a multi-axis
     /// command starts in one SYNC: (axis, plan or `None` to stop sending,
     /// COB-ID and current payload of its set-point RPDO, target offset).
-    /// Drops the samples of the replaced plans.
+    /// Drops the samples of the replaced plans. A plan that is the one
+    /// sampled here as published earlier (the axis took up a sample's
+    /// start) keeps the copy sampled here, which may have been held back
+    /// since.
     pub fn publish(
         &self,
         plans: impl IntoIterator<Item = (usize, Option<CyclicPlan>, u16, Vec<u8>, usize)>,
@@ -122,6 +130,11 @@ impl CyclicSetpoints {
                 continue;
             };
             e.rpdo = plan.is_some().then_some((cob, payload, offset));
+            if let (Some(old), Some(new)) = (&e.plan, &plan)
+                && old.same_motion(new)
+            {
+                continue;
+            }
             e.plan = plan;
             e.sample = None;
         }
@@ -164,13 +177,14 @@ impl SyncRider for CyclicSetpoints {
         })
     }
 
-    fn on_sync(&self, at: Instant, frames: &mut Vec<Frame>) {
-        let t = at.saturating_duration_since(self.origin);
+    fn on_sync(&self, tick: SyncTick, frames: &mut Vec<Frame>) {
+        let t = tick.at.saturating_duration_since(self.origin);
         let mut entries = self.entries.lock().expect("set-point table lock");
         for e in entries.iter_mut() {
             let (Some(plan), Some((cob, payload, offset))) = (&mut e.plan, &mut e.rpdo) else {
                 continue;
             };
+            plan.hold_back(tick.missed);
             let sample = plan.sample(t);
             if let Some(target) = payload.get_mut(*offset..*offset + 4) {
                 target.copy_from_slice(&sample.counts.to_le_bytes());
@@ -220,7 +234,7 @@ mod tests {
         )]);
         let mut frames = vec![Frame::new(CanId::Standard(0x080), &[]).unwrap()];
         let at = origin + std::time::Duration::from_millis(3);
-        table.on_sync(at, &mut frames);
+        table.on_sync(SyncTick::on_time(at), &mut frames);
         assert_eq!(frames.len(), 2, "the SYNC first, then the set-point");
         assert_eq!(frames[1].raw_id(), 0x302);
         assert_eq!(frames[1].data(), &[0xDC, 0x05, 0, 0, 9, 8, 7, 6]);
@@ -237,23 +251,123 @@ mod tests {
         // A new payload rides with the next SYNC.
         table.set_payload(1, vec![0, 0, 0, 0, 1, 1, 1, 1]);
         let mut frames = Vec::new();
-        table.on_sync(at, &mut frames);
+        table.on_sync(SyncTick::on_time(at), &mut frames);
         assert_eq!(frames[0].data(), &[0xDC, 0x05, 0, 0, 1, 1, 1, 1]);
         // Withdrawn: nothing is sent, and the pending sample of the old
         // plan is dropped.
         table.publish([(1, None, 0x302, Vec::new(), 0)]);
         let mut frames = Vec::new();
-        table.on_sync(at, &mut frames);
+        table.on_sync(SyncTick::on_time(at), &mut frames);
         assert!(frames.is_empty());
         table.take_samples(&mut samples);
         assert!(samples.is_empty());
+    }
+
+    /// Issue 26, item 4: a SYNC thread that stalls (5.5 periods without a
+    /// SYNC), or wakes late (0.4 periods), or finds the bus queue full
+    /// (a SYNC built, not sent) never sends a set-point further than one
+    /// period's travel at the maximum velocity from the previous one sent:
+    /// the plan is sampled on the SYNC grid and held back by the periods
+    /// without a SYNC. The move still ends at its target.
+    #[test]
+    fn a_stalled_sync_thread_never_sends_a_double_step() {
+        use crate::canopen::sync_thread::due_sync;
+        use cangate_axis::cia402::{Cia402Axis, Cia402Config, Feedback};
+        use cangate_axis::{AxisCommand, PositionMode};
+        use cangate_canopen::sync::SyncProducer;
+        use std::time::Duration;
+
+        let period = Duration::from_millis(1);
+        let cfg = Cia402Config::example(1000.0, PositionMode::Cyclic);
+        let max_step = cfg.max_velocity * period.as_secs_f64() * 1000.0 + 1.0;
+        let mut axis = Cia402Axis::new(cfg.clone());
+        let mut out = Vec::new();
+        let enabled = Feedback {
+            statusword: Some(0x0237),
+            position: Some(0),
+            velocity: Some(0),
+            mode_display: Some(8),
+            following_error: None,
+        };
+        axis.on_feedback(enabled, Duration::ZERO, &mut out);
+        axis.command(
+            AxisCommand::Move {
+                target: 300.0,
+                relative: false,
+                velocity: Some(cfg.max_velocity),
+                acceleration: Some(cfg.max_acceleration),
+            },
+            Duration::ZERO,
+            &mut out,
+        )
+        .expect("move");
+        let origin = Instant::now();
+        let table = CyclicSetpoints::new(origin, ["x".to_string()]);
+        let mut published = None;
+        let mut producer = SyncProducer::new(period, 0).expect("period");
+        producer.start(Duration::ZERO);
+        let mut sent: Vec<i32> = Vec::new();
+        let mut samples = Vec::new();
+        let mut unsent = 0;
+        let mut now = Duration::ZERO;
+        for k in 1..=3000u32 {
+            now = period * k;
+            match k % 200 {
+                // Stalled for 5.5 periods.
+                100..=104 => continue,
+                105 => now += period / 2,
+                // Late by 0.4 periods.
+                150 => now += period * 2 / 5,
+                _ => {}
+            }
+            // The axis task: samples back to the axis, its plan published
+            // when it changed.
+            table.take_samples(&mut samples);
+            for (_, s) in samples.drain(..) {
+                axis.on_cyclic_sample(&s, now, &mut out);
+            }
+            let plan = axis.cyclic_plan();
+            if plan != published {
+                table.publish([(0, plan.clone(), 0x301, vec![0; 8], 0)]);
+                published = plan;
+            }
+            // The SYNC thread.
+            let Some((sync, due, missed)) = due_sync(&mut producer, now, unsent) else {
+                continue;
+            };
+            let mut frames = vec![sync];
+            table.on_sync(
+                SyncTick {
+                    at: origin + due,
+                    missed,
+                },
+                &mut frames,
+            );
+            if k % 200 == 170 {
+                // The bus's queue was full: built, not sent.
+                unsent += 1;
+                continue;
+            }
+            unsent = 0;
+            let counts = i32::from_le_bytes(frames[1].data()[..4].try_into().unwrap());
+            if let Some(&last) = sent.last() {
+                let step = f64::from(counts - last).abs();
+                assert!(
+                    step <= max_step,
+                    "SYNC {k} at {now:?}: a step of {step} counts (at most {max_step})"
+                );
+            }
+            sent.push(counts);
+        }
+        assert_eq!(sent.last(), Some(&300_000), "the move ends at its target");
+        assert!(now > Duration::from_secs(2));
     }
 
     #[test]
     fn a_sync_without_plans_adds_nothing_and_leaves_no_sample() {
         let table = CyclicSetpoints::new(Instant::now(), ["a", "b"].map(String::from));
         let mut frames = Vec::new();
-        table.on_sync(Instant::now(), &mut frames);
+        table.on_sync(SyncTick::on_time(Instant::now()), &mut frames);
         assert!(frames.is_empty());
         let mut samples = Vec::new();
         table.take_samples(&mut samples);

@@ -234,6 +234,31 @@ impl Axes {
         self.latest.read().expect("latest lock")[i].clone()
     }
 
+    /// Whether every axis of `idx` is known to be at rest: standing still,
+    /// its node present, and running no motion command (idle, or a stop or
+    /// state change that found it still). A stop may be throttled only then
+    /// (a client over its stop budget); a stop of an axis that moves,
+    /// brakes, homes, follows a gear, or whose state is unknown, never is.
+    pub fn all_at_rest(&self, idx: &[usize]) -> bool {
+        let latest = self.latest.read().expect("latest lock");
+        idx.iter().all(|&i| {
+            let Some((s, _)) = latest.get(i).and_then(Option::as_ref) else {
+                return false;
+            };
+            let c = &self.axes[i].info.config;
+            // The controllers' own "at rest": slower than the in-position
+            // window per 100 ms.
+            let still = 10.0
+                * c.in_position_window
+                    .unwrap_or(10.0 / c.counts_per_unit.abs());
+            matches!(
+                s.activity,
+                Activity::Idle | Activity::Stopping | Activity::Switching
+            ) && s.node_lost.is_none()
+                && s.velocity.abs() <= still
+        })
+    }
+
     /// Who controls axis `i` and for how much longer.
     pub fn control(&self, i: usize) -> Option<(String, Duration)> {
         let now = self.now();

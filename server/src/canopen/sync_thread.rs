@@ -14,8 +14,9 @@
 //! wake-up, not the frames, is most of a SYNC's cost).
 //!
 //! Each SYNC's batch also carries what the [`SyncRider`]s add: the cyclic
-//! set-points of CSP axes, sampled here at the SYNC's time
-//! ([`crate::axes::cyclic_setpoints`]).
+//! set-points of CSP axes, sampled here ([`crate::axes::cyclic_setpoints`])
+//! on the SYNC's nominal grid, told how many periods went without a SYNC
+//! ([`SyncTick`]) so that a skipped period is never a double step.
 
 use cangate_can::{BusHandle, Frame};
 use cangate_canopen::sync::SyncProducer;
@@ -33,14 +34,56 @@ use tokio_util::sync::CancellationToken;
 /// dominated the gateway's CPU at a 1 ms SYNC. Sampling a trajectory here
 /// costs well under a microsecond per axis.
 pub trait SyncRider: Send + Sync {
-    /// Appends this rider's frames for the SYNC sent at `at`.
-    fn on_sync(&self, at: Instant, frames: &mut Vec<Frame>);
+    /// Appends this rider's frames for the SYNC of `tick`.
+    fn on_sync(&self, tick: SyncTick, frames: &mut Vec<Frame>);
 
     /// Why the SYNC may not stop or change its period now (a cyclic axis
     /// that is moving would lose its set-points mid-move), or `None`.
     fn sync_change_veto(&self) -> Option<String> {
         None
     }
+}
+
+/// One SYNC as its riders see it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SyncTick {
+    /// When the SYNC was due: its place on the period grid, not when the
+    /// thread got to send it (a set-point is for its SYNC).
+    pub at: Instant,
+    /// The periods that went without a SYNC since the previous SYNC sent
+    /// (the thread woke too late for them, or the bus's queue was full),
+    /// as time: what a cyclic plan holds back by, so that it advances one
+    /// period per SYNC sent.
+    pub missed: Duration,
+}
+
+impl SyncTick {
+    /// A SYNC at `at` right one period after the previous one.
+    pub fn on_time(at: Instant) -> SyncTick {
+        SyncTick {
+            at,
+            missed: Duration::ZERO,
+        }
+    }
+}
+
+/// The SYNC `producer` sends at `now`, if one is due: the frame, the
+/// SYNC's due time on the grid, and the periods skipped before it (with
+/// `unsent` periods whose SYNC was built but not sent).
+pub(crate) fn due_sync(
+    producer: &mut SyncProducer,
+    now: Duration,
+    unsent: u64,
+) -> Option<(Frame, Duration, Duration)> {
+    let skipped_before = producer.skipped();
+    let frame = producer.on_tick(now)?;
+    let skipped = producer.skipped() - skipped_before + unsent;
+    let period = producer.period();
+    let due = producer
+        .next_deadline()
+        .map_or(now, |next| next.saturating_sub(period));
+    let missed = period.saturating_mul(u32::try_from(skipped).unwrap_or(u32::MAX));
+    Some((frame, due, missed))
 }
 
 /// The riders of one SYNC producer. Held weakly: a rider whose owner ended
@@ -256,6 +299,9 @@ struct Producing {
     skipped_before: u64,
     /// SYNCs not sent because the bus task's queue was full.
     not_queued: u64,
+    /// Of those, the ones since the latest SYNC sent: the riders hold back
+    /// by them at the next.
+    unsent: u64,
     reported_skips: u64,
     last_report: Instant,
     /// Room for the riders' set-points without a reallocation.
@@ -270,6 +316,7 @@ impl Producing {
             producer: None,
             skipped_before: 0,
             not_queued: 0,
+            unsent: 0,
             reported_skips: 0,
             last_report: Instant::now(),
             frames_capacity: 1,
@@ -291,15 +338,18 @@ impl Producing {
     }
 
     /// Sends the SYNC, with the riders' frames, if one is due at `now`.
-    fn tick(&mut self, now: Duration) {
+    fn tick(&mut self, origin: Instant, now: Duration) {
         let Some(producer) = self.producer.as_mut() else {
             return;
         };
         let bus = &self.reg.bus;
-        if let Some(frame) = producer.on_tick(now) {
+        if let Some((frame, due, missed)) = due_sync(producer, now, self.unsent) {
             let mut frames = Vec::with_capacity(self.frames_capacity);
             frames.push(frame);
-            let at = Instant::now();
+            let tick = SyncTick {
+                at: origin + due,
+                missed,
+            };
             self.reg
                 .riders
                 .lock()
@@ -308,7 +358,7 @@ impl Producing {
                     let Some(r) = r.upgrade() else {
                         return false;
                     };
-                    r.on_sync(at, &mut frames);
+                    r.on_sync(tick, &mut frames);
                     true
                 });
             self.frames_capacity = self.frames_capacity.max(frames.len());
@@ -317,11 +367,16 @@ impl Producing {
             // bus is sent to right here.
             match bus.try_submit(frames) {
                 Ok(None) => {
+                    self.unsent = 0;
                     self.reg.counts.sent.fetch_add(1, Ordering::Relaxed);
                 }
-                Ok(Some(_)) => self.not_queued += 1,
+                Ok(Some(_)) => {
+                    self.not_queued += 1;
+                    self.unsent += 1;
+                }
                 Err(e) => {
                     tracing::warn!(bus = %bus.name(), error = %e, "SYNC not sent");
+                    self.unsent = 0;
                     self.reg.counts.sent.fetch_add(1, Ordering::Relaxed);
                 }
             }
@@ -372,7 +427,7 @@ fn run(shared: &ThreadShared) {
         std::thread::sleep(wait.min(Duration::from_millis(100)));
         let now = origin.elapsed();
         for b in &mut buses {
-            b.tick(now);
+            b.tick(origin, now);
         }
     }
 }
@@ -412,6 +467,26 @@ mod tests {
             )
             .is_none()
         );
+    }
+
+    /// A SYNC is due on its grid whenever the thread gets to it; the
+    /// periods it skipped, and SYNCs built but not sent, are what its
+    /// riders hold back by.
+    #[test]
+    fn a_late_sync_is_due_on_its_grid_and_says_what_was_missed() {
+        let ms = Duration::from_millis;
+        let mut p = SyncProducer::new(ms(1), 0).unwrap();
+        p.start(Duration::ZERO);
+        assert!(due_sync(&mut p, Duration::from_micros(900), 0).is_none());
+        let (frame, due, missed) = due_sync(&mut p, Duration::from_micros(1_300), 0).unwrap();
+        assert_eq!(frame.raw_id(), 0x80);
+        assert_eq!((due, missed), (ms(1), Duration::ZERO));
+        // Woken 3.4 periods late: the SYNC of 5 ms, 2..=4 skipped.
+        let (_, due, missed) = due_sync(&mut p, Duration::from_micros(5_400), 0).unwrap();
+        assert_eq!((due, missed), (ms(5), ms(3)));
+        // On time again, after one SYNC that was not sent.
+        let (_, due, missed) = due_sync(&mut p, ms(6), 1).unwrap();
+        assert_eq!((due, missed), (ms(6), ms(1)));
     }
 
     fn bus(name: &str, cancel: &CancellationToken) -> (BusHandle, VirtualPort) {

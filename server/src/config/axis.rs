@@ -76,6 +76,16 @@ pub struct AxisConfig {
     /// maximum).
     #[serde(default)]
     pub default_acceleration: Option<f64>,
+    /// Deceleration of every stop (Stop, StopAxes, the jog dead-man, a lost
+    /// lease, shutdown), units/s²; a stop brakes harder when the
+    /// interrupted motion's own deceleration is higher (default: the
+    /// maximum acceleration).
+    #[serde(default)]
+    pub stop_deceleration: Option<f64>,
+    /// Deceleration of a CiA 402 quick stop, units/s² (default: the maximum
+    /// acceleration).
+    #[serde(default)]
+    pub quick_stop_deceleration: Option<f64>,
     /// Homing method written to 0x6098 at boot (CiA 402; e.g. 35 = current
     /// position is home, 17..=30 = move to a switch).
     #[serde(default = "default_homing_method")]
@@ -151,6 +161,28 @@ pub fn motion_bounds(
     Ok(())
 }
 
+/// The stop decelerations of an axis, for both drive families: positive,
+/// and within what a drive takes as UNSIGNED32 counts/s² (0x6084).
+pub fn stop_decelerations(
+    axis: &str,
+    counts_per_unit: f64,
+    values: [(&str, Option<f64>); 2],
+) -> Result<(), String> {
+    for (what, value) in values {
+        let Some(value) = value else { continue };
+        if !(value.is_finite() && value > 0.0) {
+            return Err(format!("axis {axis}: {what} must be positive, got {value}"));
+        }
+        if value * counts_per_unit.abs() > f64::from(u32::MAX) {
+            return Err(format!(
+                "axis {axis}: {what} = {value:e} is more than a drive takes (4294967295 \
+                 counts/s² at counts_per_unit = {counts_per_unit})"
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Longest jog dead-man time accepted, ms.
 pub const MAX_JOG_DEADMAN_MS: u64 = 10_000;
 /// Longest CiA 402 state timeout accepted, ms.
@@ -206,6 +238,10 @@ impl AxisConfig {
                 .unwrap_or(10.0 / self.counts_per_unit.abs()),
             settle_timeout: std::time::Duration::from_secs(2),
             jog_deadman: std::time::Duration::from_millis(u64::from(self.jog_deadman_ms)),
+            stop_deceleration: self.stop_deceleration.unwrap_or(self.max_acceleration),
+            quick_stop_deceleration: self
+                .quick_stop_deceleration
+                .unwrap_or(self.max_acceleration),
         }
     }
 
@@ -274,6 +310,14 @@ impl AxisConfig {
         if let Some(w) = self.in_position_window {
             positive("in_position_window", w)?;
         }
+        stop_decelerations(
+            &self.name,
+            self.counts_per_unit,
+            [
+                ("stop_deceleration", self.stop_deceleration),
+                ("quick_stop_deceleration", self.quick_stop_deceleration),
+            ],
+        )?;
         match (self.min_position, self.max_position) {
             (Some(a), Some(b)) if !(a.is_finite() && b.is_finite() && a < b) => Err(format!(
                 "axis {}: min_position {a} must be below max_position {b}",
@@ -318,5 +362,41 @@ impl AxisConfig {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::Config;
+
+    const BASE: &str = "listen = \"127.0.0.1:0\"\n[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\n\
+                        [[canopen]]\nbus = \"can0\"\n[[canopen.node]]\nid = 1\neds = \"builtin:drive\"\n\
+                        [[axis]]\nname = \"X\"\nbus = \"can0\"\nnode = 1\ncounts_per_unit = 1000.0\n\
+                        max_velocity = 10.0\nmax_acceleration = 100.0\n";
+
+    #[test]
+    fn stop_decelerations_default_to_the_maximum_and_must_be_positive() {
+        let c = Config::from_toml(BASE).unwrap();
+        let ctl = c.axes[0].controller();
+        assert_eq!(ctl.stop_deceleration, 100.0);
+        assert_eq!(ctl.quick_stop_deceleration, 100.0);
+        let c = Config::from_toml(&format!(
+            "{BASE}stop_deceleration = 250.0\nquick_stop_deceleration = 400.0\n"
+        ))
+        .unwrap();
+        let ctl = c.axes[0].controller();
+        assert_eq!(ctl.stop_deceleration, 250.0);
+        assert_eq!(ctl.quick_stop_deceleration, 400.0);
+        for bad in [
+            "stop_deceleration = 0.0",
+            "quick_stop_deceleration = -1.0",
+            "stop_deceleration = 1e308",
+        ] {
+            let e = Config::from_toml(&format!("{BASE}{bad}\n"))
+                .unwrap_err()
+                .to_string();
+            let key = bad.split(' ').next().unwrap();
+            assert!(e.contains(&format!("axis X: {key}")), "{bad}: {e}");
+        }
     }
 }

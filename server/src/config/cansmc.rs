@@ -185,15 +185,25 @@ pub struct CansmcAxisEntry {
     pub max_position: Option<f64>,
     /// Velocity ceiling, units/s.
     pub max_velocity: f64,
-    /// Acceleration ceiling, units/s² (quick stops use it).
+    /// Acceleration ceiling, units/s².
     pub max_acceleration: f64,
     /// Velocity of moves that give none (default: a quarter of the maximum).
     #[serde(default)]
     pub default_velocity: Option<f64>,
-    /// Acceleration of moves that give none and of stops (default: a
-    /// quarter of the maximum).
+    /// Acceleration of moves that give none (default: a quarter of the
+    /// maximum).
     #[serde(default)]
     pub default_acceleration: Option<f64>,
+    /// Deceleration of every stop (Stop, StopAxes, the jog dead-man, a lost
+    /// lease, shutdown), units/s²; a stop brakes harder when the
+    /// interrupted motion's own deceleration is higher (default: the
+    /// maximum acceleration).
+    #[serde(default)]
+    pub stop_deceleration: Option<f64>,
+    /// Deceleration of a quick stop, units/s² (default: the maximum
+    /// acceleration).
+    #[serde(default)]
+    pub quick_stop_deceleration: Option<f64>,
     /// Homing method byte of the homing MDT (default 1).
     #[serde(default = "default_homing_method")]
     pub homing_method: u8,
@@ -279,6 +289,10 @@ impl CansmcAxisEntry {
             default_acceleration: self
                 .default_acceleration
                 .unwrap_or(self.max_acceleration / 4.0),
+            stop_deceleration: self.stop_deceleration.unwrap_or(self.max_acceleration),
+            quick_stop_deceleration: self
+                .quick_stop_deceleration
+                .unwrap_or(self.max_acceleration),
             cycle_time,
             state_timeout: Duration::from_millis(self.state_timeout_ms),
             homing_timeout: Duration::from_millis(self.homing_timeout_ms),
@@ -316,6 +330,8 @@ impl CansmcAxisEntry {
             max_acceleration: self.max_acceleration,
             default_velocity: self.default_velocity,
             default_acceleration: self.default_acceleration,
+            stop_deceleration: self.stop_deceleration,
+            quick_stop_deceleration: self.quick_stop_deceleration,
             homing_method: 0,
             stop_on_loss: self.stop_on_loss,
             jog_deadman_ms: self.jog_deadman_ms,
@@ -494,6 +510,14 @@ impl CansmcConfig {
                 }
                 _ => {}
             }
+            super::stop_decelerations(
+                an,
+                a.counts_per_unit,
+                [
+                    ("stop_deceleration", a.stop_deceleration),
+                    ("quick_stop_deceleration", a.quick_stop_deceleration),
+                ],
+            )?;
             if a.counts_per_rev == 0 {
                 return Err(format!("axis {an}: counts_per_rev must be positive"));
             }

@@ -8,6 +8,7 @@ use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_
 use crate::axes::{Axes, AxisUpdate, CommandResult};
 use crate::config::{PositionModeChoice, ProcessDataChoice, StopChoice};
 use crate::gateway::Gateway;
+use crate::security::StopOverBudget;
 use cangate_axis::cia402::AxisSnapshot;
 use cangate_axis::{AxisCommand, Outcome};
 use cangate_can::Timestamp;
@@ -178,6 +179,16 @@ impl AxesService {
 }
 
 impl AxesService {
+    /// A stop of a client over its stop budget ([`StopOverBudget`]) is
+    /// refused only when every axis it names is at rest: a stop of an axis
+    /// in motion always goes through.
+    fn check_stop_budget<T>(&self, req: &Request<T>, idx: &[usize]) -> Result<(), ApiError> {
+        let Some(over) = req.extensions().get::<StopOverBudget>() else {
+            return Ok(());
+        };
+        refuse_resting_stop(self.axes(), over, idx)
+    }
+
     /// A command without parameters (Enable, Stop, …) on the request's axis.
     async fn simple(
         &self,
@@ -208,6 +219,24 @@ fn check_outcome(axis: &str, r: &CommandResult) -> Result<(), ApiError> {
             r.detail
         ))),
     }
+}
+
+/// The refusal of a stop over its client's budget when all its axes are at
+/// rest (see [`AxesService::check_stop_budget`]).
+fn refuse_resting_stop(m: &Axes, over: &StopOverBudget, idx: &[usize]) -> Result<(), ApiError> {
+    if !m.all_at_rest(idx) {
+        return Ok(());
+    }
+    Err(ApiError::refused(
+        tonic::Code::ResourceExhausted,
+        "STOP_BUDGET_EXHAUSTED",
+        format!(
+            "{}; refused because every axis named is at rest (a stop of a moving axis is \
+             never refused)",
+            over.0
+        ),
+        Vec::new(),
+    ))
 }
 
 fn audit(peer: &str, holder: &str, axis: &str, cmd: &AxisCommand, result: &str) {
@@ -442,6 +471,8 @@ impl AxesRpc for AxesService {
         &self,
         req: Request<pb::AxisCommandRequest>,
     ) -> Result<Response<pb::AxisCommandResponse>, Status> {
+        let i = self.axes().index(&req.get_ref().axis)?;
+        self.check_stop_budget(&req, &[i])?;
         self.simple(req, AxisCommand::Stop).await
     }
 
@@ -449,6 +480,8 @@ impl AxesRpc for AxesService {
         &self,
         req: Request<pb::AxisCommandRequest>,
     ) -> Result<Response<pb::AxisCommandResponse>, Status> {
+        let i = self.axes().index(&req.get_ref().axis)?;
+        self.check_stop_budget(&req, &[i])?;
         self.simple(req, AxisCommand::QuickStop).await
     }
 
@@ -464,6 +497,7 @@ impl AxesRpc for AxesService {
         req: Request<pb::StopAxesRequest>,
     ) -> Result<Response<pb::MultiAxisResponse>, Status> {
         let peer = peer(&req);
+        let over_budget = req.extensions().get::<StopOverBudget>().cloned();
         let r = req.into_inner();
         let m = self.axes();
         if r.axes.is_empty() {
@@ -482,6 +516,9 @@ impl AxesRpc for AxesService {
                 ))
                 .into());
             }
+        }
+        if let Some(over) = &over_budget {
+            refuse_resting_stop(m, over, &idx)?;
         }
         tracing::info!(target: "cangate::audit", %peer, axes = ?r.axes, quick = r.quick, "stop axes");
         let results = m.stop_many(&idx, r.quick, r.wait).await?;

@@ -652,6 +652,7 @@ where
                 stream,
                 queue_budget,
                 frame_budget,
+                stop_over_budget,
             },
         ) = match decision {
             Ok(d) => d,
@@ -685,6 +686,9 @@ where
             start,
         });
         req.extensions_mut().insert(identity);
+        if let Some(b) = stop_over_budget {
+            req.extensions_mut().insert(b);
+        }
         if let Some(b) = queue_budget {
             req.extensions_mut().insert(b);
         }

@@ -9,6 +9,11 @@
 //! (rate, burst and calls in progress): other calls never use it up, so a
 //! client polling at its rate limit, or holding its every concurrency slot,
 //! can still stop its machine. Stops do not use the general budget either.
+//! And a stop is never refused here: a client over its stop budget gets
+//! its stop admitted with a [`StopOverBudget`], and the axes service
+//! refuses it only when every axis it names is at rest. A stop of a moving
+//! axis always goes through, however many stops the same client (or, on a
+//! gateway without tokens, another process on the same host) made.
 
 use crate::config::LimitsConfig;
 use std::collections::HashMap;
@@ -126,7 +131,16 @@ pub struct Admission {
     /// The client's raw frame budget (every admission but a stop's; the
     /// security layer hands it to the RPCs that send raw frames).
     pub frame_budget: Option<FrameBudget>,
+    /// A stop admitted over its client's stop budget.
+    pub stop_over_budget: Option<StopOverBudget>,
 }
+
+/// A stop admitted although its client spent its stop budget (rate or
+/// stops in progress), with the limit as a message: the stop may be
+/// refused with it (RESOURCE_EXHAUSTED) only when every axis it names is
+/// at rest. Put into the request's extensions by the security layer.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct StopOverBudget(pub String);
 
 impl Limits {
     /// Limits as configured (0 turns one off).
@@ -187,25 +201,28 @@ impl Limits {
         }
         c.refilled = now;
         if kind == CallKind::Stop {
-            if cfg.max_concurrent_stops_per_client > 0
+            // Never refused here (see the module documentation): over the
+            // budget, the stop carries the limit it exceeds.
+            let over = if cfg.max_concurrent_stops_per_client > 0
                 && c.stops_in_flight >= cfg.max_concurrent_stops_per_client
             {
-                return Err(LimitExceeded(format!(
+                Some(format!(
                     "stop concurrency limit: {} stops in progress for {client} \
                      (max_concurrent_stops_per_client = {})",
                     c.stops_in_flight, cfg.max_concurrent_stops_per_client
-                )));
-            }
-            if stop_rate > 0.0 {
-                if c.stop_tokens < 1.0 {
-                    return Err(LimitExceeded(format!(
-                        "stop rate limit: {client} exceeds stop_requests_per_second_per_client \
-                         = {} (stop_burst = {})",
-                        cfg.stop_requests_per_second_per_client, cfg.stop_burst
-                    )));
+                ))
+            } else if stop_rate > 0.0 && c.stop_tokens < 1.0 {
+                Some(format!(
+                    "stop rate limit: {client} exceeds stop_requests_per_second_per_client \
+                     = {} (stop_burst = {})",
+                    cfg.stop_requests_per_second_per_client, cfg.stop_burst
+                ))
+            } else {
+                if stop_rate > 0.0 {
+                    c.stop_tokens -= 1.0;
                 }
-                c.stop_tokens -= 1.0;
-            }
+                None
+            };
             c.stops_in_flight += 1;
             return Ok(Admission {
                 in_flight: Some(Permit {
@@ -216,6 +233,7 @@ impl Limits {
                 stream: None,
                 queue_budget: None,
                 frame_budget: None,
+                stop_over_budget: over.map(StopOverBudget),
             });
         }
         if cfg.max_concurrent_requests_per_client > 0
@@ -272,6 +290,7 @@ impl Limits {
             stream,
             queue_budget,
             frame_budget,
+            stop_over_budget: None,
         })
     }
 }
@@ -548,17 +567,24 @@ mod tests {
         }
         drop(held);
         l.admit_at("a", UNARY, t0 + Duration::from_secs(1)).unwrap();
-        // The stop budget is bounded too, by its own numbers.
+        // The stop budget is bounded too, by its own numbers; a stop over it
+        // is still admitted (never refused here), marked with the limit.
         let l = Limits::new(LimitsConfig {
             stop_requests_per_second_per_client: 1,
             stop_burst: 2,
             max_concurrent_stops_per_client: 8,
             ..LimitsConfig::default()
         });
-        l.admit_at("a", CallKind::Stop, t0).unwrap();
-        l.admit_at("a", CallKind::Stop, t0).unwrap();
-        let e = l.admit_at("a", CallKind::Stop, t0).unwrap_err();
-        assert!(e.0.starts_with("stop rate limit"), "{e}");
+        for _ in 0..2 {
+            let a = l.admit_at("a", CallKind::Stop, t0).unwrap();
+            assert_eq!(a.stop_over_budget, None);
+        }
+        let over = l.admit_at("a", CallKind::Stop, t0).unwrap();
+        let e = over.stop_over_budget.expect("over the budget");
+        assert!(e.0.starts_with("stop rate limit"), "{e:?}");
+        // Another client's budget is its own.
+        let b = l.admit_at("b", CallKind::Stop, t0).unwrap();
+        assert_eq!(b.stop_over_budget, None);
         // ...and the general budget is untouched by them.
         l.admit_at("a", UNARY, t0).unwrap();
     }

@@ -495,3 +495,61 @@ fn a_velocity_mode_jog_runs_in_the_slave_and_resumes_position_control_where_it_s
     assert_eq!(rig.until_done(id, 500).0, Outcome::Completed);
     assert_eq!(rig.servo.position, at + 1000);
 }
+
+/// Issue 26, item 1: a stop brakes at the axis's stop deceleration (the
+/// maximum acceleration by default), not at the interrupted motion's: a
+/// gentle move (20 mm/s, 10 mm/s²) stopped after 3 s comes to rest within
+/// v²/(2·a_stop) plus one cycle's travel, for Stop, QuickStop and a jog's
+/// dead-man. At the motion's own 10 mm/s² it would be 20 mm.
+#[test]
+fn every_stop_brakes_at_least_at_the_stop_deceleration() {
+    let cycles_of = |d: Duration| (d.as_micros() / CYCLE.as_micros()) as usize;
+    for by in ["stop", "quick stop", "dead-man"] {
+        let cfg = cfg();
+        let a_stop = if by == "quick stop" {
+            cfg.quick_stop_deceleration
+        } else {
+            cfg.stop_deceleration
+        };
+        let mut rig = Rig::enabled(cfg);
+        let op = if by == "dead-man" {
+            let jog = AxisCommand::Jog {
+                velocity: 20.0,
+                acceleration: Some(10.0),
+            };
+            let mut op = rig.command(jog).unwrap();
+            for _ in 0..15 {
+                rig.cycles(cycles_of(Duration::from_millis(200)));
+                op = rig.command(jog).unwrap();
+            }
+            rig.cycles(cycles_of(Duration::from_millis(500)));
+            op
+        } else {
+            rig.command(AxisCommand::Move {
+                target: 500.0,
+                relative: false,
+                velocity: Some(20.0),
+                acceleration: Some(10.0),
+            })
+            .unwrap();
+            rig.cycles(cycles_of(Duration::from_secs(3)));
+            rig.command(if by == "stop" {
+                AxisCommand::Stop
+            } else {
+                AxisCommand::QuickStop
+            })
+            .unwrap()
+        };
+        let p0 = f64::from(rig.servo.position) / 1000.0;
+        let v = rig.axis.snapshot().velocity;
+        assert!((v - 20.0).abs() < 0.5, "{by}: at speed ({v})");
+        rig.until_done(op, 2000);
+        rig.cycles(10);
+        let d = (f64::from(rig.servo.position) / 1000.0 - p0).abs();
+        let bound = v * v / (2.0 * a_stop) + v * CYCLE.as_secs_f64() + 0.01;
+        assert!(
+            d <= bound,
+            "{by}: stopped in {d:.3} mm, more than {bound:.3} mm"
+        );
+    }
+}

@@ -898,6 +898,8 @@ fn demo_config(mode: PositionMode) -> Cia402Config {
     cfg.max_acceleration = amax;
     cfg.default_velocity = vmax / 4.0;
     cfg.default_acceleration = amax / 4.0;
+    cfg.stop_deceleration = amax;
+    cfg.quick_stop_deceleration = amax;
     cfg
 }
 
@@ -989,4 +991,172 @@ fn home_while_jogging_does_not_run_a_cyclic_axis_away() {
     let at = rig.drive.position();
     rig.run(200 * MS);
     assert!((rig.drive.position() - at).abs() <= 10.0);
+}
+
+/// How a gentle motion is stopped in [`stopping_distance`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum StopBy {
+    Stop,
+    QuickStop,
+    /// The jog's dead-man (no renewal).
+    DeadMan,
+}
+
+/// A gentle motion (20 mm/s, 10 mm/s²) at full speed after 3 s, then
+/// stopped `by`: the distance the drive travels from the stop on (mm), and
+/// its velocity then (mm/s).
+fn stopping_distance(mode: PositionMode, split: bool, by: StopBy) -> (f64, f64) {
+    let mut rig = Rig::with_config(demo_config(mode), 35);
+    if split {
+        rig.split = Some((None, None));
+    }
+    rig.enable();
+    let gentle = Some(10.0);
+    let op = if by == StopBy::DeadMan {
+        let jog = AxisCommand::Jog {
+            velocity: 20.0,
+            acceleration: gentle,
+        };
+        let op = rig.command(jog).unwrap();
+        for _ in 0..15 {
+            rig.run(200 * MS);
+            rig.command(jog).unwrap();
+        }
+        // The dead-man expires 500 ms after the last renewal.
+        rig.run(500 * MS);
+        op
+    } else {
+        rig.command(AxisCommand::Move {
+            target: 90.0,
+            relative: false,
+            velocity: Some(20.0),
+            acceleration: gentle,
+        })
+        .unwrap();
+        rig.run(Duration::from_secs(3));
+        let cmd = if by == StopBy::Stop {
+            AxisCommand::Stop
+        } else {
+            AxisCommand::QuickStop
+        };
+        rig.command(cmd).unwrap()
+    };
+    let (p0, v0) = (rig.drive.position() / 1000.0, rig.drive.velocity() / 1000.0);
+    rig.run_until_done(op, Duration::from_secs(5));
+    rig.run(200 * MS);
+    assert!(rig.drive.velocity().abs() < 1.0, "{mode:?} {by:?}: at rest");
+    ((rig.drive.position() / 1000.0 - p0).abs(), v0)
+}
+
+/// Issue 26, item 1: a stop brakes at the axis's stop deceleration (the
+/// maximum acceleration by default), not at the interrupted motion's: the
+/// stopping distance of a gentle motion is within v²/(2·a_stop) plus the
+/// travel of the set-points already sent, for Stop, QuickStop and the jog's dead-man, on
+/// cyclic (the gateway's ramp, sampled by the axis or as the SYNC thread
+/// does) and profile axes (the drive's halt ramp, 0x6084). At the motion's
+/// own 10 mm/s² it would be 20 mm.
+#[test]
+fn every_stop_brakes_at_least_at_the_stop_deceleration() {
+    for (mode, split) in [
+        (PositionMode::Cyclic, false),
+        (PositionMode::Cyclic, true),
+        (PositionMode::Profile, false),
+    ] {
+        for by in [StopBy::Stop, StopBy::QuickStop, StopBy::DeadMan] {
+            let cfg = demo_config(mode);
+            let a_stop = if by == StopBy::QuickStop {
+                cfg.quick_stop_deceleration
+            } else {
+                cfg.stop_deceleration
+            };
+            let (d, v) = stopping_distance(mode, split, by);
+            assert!((v - 20.0).abs() < 0.5, "{mode:?} {by:?}: at speed ({v})");
+            // The set-points already sent, and for a cyclic axis the
+            // drive's one SYNC period of interpolation behind them: a
+            // cycle's travel each.
+            let cycles = if mode == PositionMode::Cyclic {
+                2.0
+            } else {
+                1.0
+            };
+            let bound = v * v / (2.0 * a_stop) + cycles * v * 0.010 + 0.01;
+            assert!(
+                d <= bound,
+                "{mode:?} split {split} {by:?}: stopped in {d:.3} mm, more than {bound:.3} mm"
+            );
+        }
+    }
+}
+
+/// Issue 26, item 5: a drive taken out of operation enabled behind the
+/// axis's back (here 0 written to its controlword by SDO) ends the move
+/// running on it at the first statusword that shows it, saying why, not
+/// at the move's deadline; the axis takes commands again.
+#[test]
+fn a_drive_that_leaves_operation_enabled_ends_the_move_at_once() {
+    for mode in [PositionMode::Cyclic, PositionMode::Profile] {
+        let mut rig = Rig::with_config(demo_config(mode), 35);
+        rig.enable();
+        let op = rig
+            .command(AxisCommand::Move {
+                target: 90.0,
+                relative: false,
+                velocity: Some(20.0),
+                acceleration: Some(100.0),
+            })
+            .unwrap();
+        rig.run(Duration::from_secs(1));
+        assert!(rig.done(op).is_none(), "{mode:?}: still moving");
+        rig.sdo_write(obj::CONTROLWORD, &[0, 0]);
+        let at = rig.now;
+        let (outcome, detail) = rig.run_until_done(op, Duration::from_secs(5));
+        assert!(
+            rig.now - at <= 3 * rig.sync_period,
+            "{mode:?}: ended {:?} after the drive left",
+            rig.now - at
+        );
+        assert_eq!(outcome, Outcome::Fault, "{mode:?}: {detail}");
+        assert!(
+            detail.contains("left operation enabled (now switch on disabled)"),
+            "{mode:?}: {detail}"
+        );
+        rig.enable();
+        let op = rig.mv(0.0);
+        let (outcome, detail) = rig.run_until_done(op, Duration::from_secs(10));
+        assert_eq!(outcome, Outcome::Completed, "{mode:?}: {detail}");
+    }
+}
+
+/// Issue 26, item 5: a motion command while a disable is under way is
+/// refused (it would race the drive's way out of operation enabled and
+/// time out); the disable goes on.
+#[test]
+fn a_move_is_refused_while_a_disable_is_under_way() {
+    for mode in [PositionMode::Cyclic, PositionMode::Profile] {
+        let mut rig = Rig::with_config(demo_config(mode), 35);
+        rig.enable();
+        let disable = rig.command(AxisCommand::Disable).unwrap();
+        for cmd in [
+            AxisCommand::Move {
+                target: 5.0,
+                relative: false,
+                velocity: None,
+                acceleration: None,
+            },
+            AxisCommand::Jog {
+                velocity: 5.0,
+                acceleration: None,
+            },
+            AxisCommand::Home,
+        ] {
+            match rig.command(cmd) {
+                Err(CommandError::FailedPrecondition(m)) => {
+                    assert!(m.contains("being disabled"), "{mode:?}: {m}")
+                }
+                other => panic!("{mode:?} {cmd:?}: {other:?}"),
+            }
+        }
+        let (outcome, detail) = rig.run_until_done(disable, Duration::from_secs(2));
+        assert_eq!(outcome, Outcome::Completed, "{mode:?}: {detail}");
+    }
 }
