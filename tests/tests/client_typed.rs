@@ -640,3 +640,82 @@ async fn an_attachment_confirms_its_batches_and_returns_refusals() {
     assert_eq!(seen, want);
     server.shutdown();
 }
+
+/// One status per SYNC cycle: the drive sends two TPDOs per SYNC, which
+/// the gateway may read in two batches; it publishes the axis's status
+/// once both are in, so `axis watch` prints one line per cycle. Counted
+/// over 100 SYNC periods by the bus timestamps of the SYNCs and of the
+/// statuses' process data.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cyclic_axis_sends_one_status_per_sync() {
+    const PERIODS: usize = 100;
+    let server = start_server(CONFIG).await;
+    let c = typed_client(&server).await;
+    wait_ready(&c).await;
+    let mut statuses = c.watch_axes(&["X"], false).await.unwrap();
+    let mut syncs = c
+        .clone()
+        .stream_frames(pb::StreamFramesRequest {
+            bus: "can0".into(),
+            filters: vec![cangate_client::filter_to_pb(&can::Filter::exact_standard(
+                0x080,
+            ))],
+            include_transmitted: true,
+            low_latency: true,
+            queue_length: 65_536,
+            ..Default::default()
+        })
+        .await
+        .unwrap();
+    let mut sync_batch: Vec<pb::StreamEvent> = Vec::new();
+    let mut sync_ns: Vec<u64> = Vec::new();
+    let mut status_ns: Vec<u64> = Vec::new();
+    // A few periods in, so that both streams are surely running.
+    let first = 10;
+    let done = |sync_ns: &Vec<u64>, status_ns: &Vec<u64>| {
+        sync_ns.len() > first + PERIODS
+            && status_ns
+                .last()
+                .is_some_and(|&t| t > sync_ns[first + PERIODS])
+    };
+    let deadline = tokio::time::Instant::now() + WAIT * 3;
+    while !done(&sync_ns, &status_ns) {
+        tokio::select! {
+            _ = tokio::time::sleep_until(deadline) => {
+                panic!("{} SYNCs, {} statuses in time", sync_ns.len(), status_ns.len())
+            }
+            s = statuses.next() => {
+                if let Some(Ok(AxisUpdate::Status(s))) = s {
+                    if s.timestamp_us > 0 {
+                        status_ns.push(s.timestamp_us * 1000);
+                    }
+                }
+            }
+            m = syncs.message() => {
+                sync_batch.extend(m.expect("SYNC stream").expect("SYNC stream on").events);
+                for e in sync_batch.drain(..) {
+                    match e.event {
+                        Some(pb::stream_event::Event::Frame(f)) => sync_ns.push(f.timestamp_ns),
+                        Some(pb::stream_event::Event::Lost(l)) => {
+                            panic!("{} SYNCs lost to the test's stream", l.count)
+                        }
+                        _ => {}
+                    }
+                }
+            }
+        }
+    }
+    // Microseconds of the statuses against nanoseconds of the SYNCs.
+    let (from, to) = (
+        sync_ns[first] / 1000 * 1000,
+        sync_ns[first + PERIODS] / 1000 * 1000,
+    );
+    let within = status_ns.iter().filter(|&&t| t > from && t <= to).count();
+    // One per period; a cycle whose process data comes late may shift
+    // one across either end of the window.
+    assert!(
+        (PERIODS - 2..=PERIODS + 2).contains(&within),
+        "{within} statuses of X in {PERIODS} SYNC periods"
+    );
+    server.shutdown();
+}
