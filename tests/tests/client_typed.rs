@@ -685,10 +685,10 @@ async fn a_cyclic_axis_sends_one_status_per_sync() {
                 panic!("{} SYNCs, {} statuses in time", sync_ns.len(), status_ns.len())
             }
             s = statuses.next() => {
-                if let Some(Ok(AxisUpdate::Status(s))) = s {
-                    if s.timestamp_us > 0 {
-                        status_ns.push(s.timestamp_us * 1000);
-                    }
+                if let Some(Ok(AxisUpdate::Status(s))) = s
+                    && s.timestamp_us > 0
+                {
+                    status_ns.push(s.timestamp_us * 1000);
                 }
             }
             m = syncs.message() => {
