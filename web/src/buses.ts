@@ -8,7 +8,7 @@ import { backoff, bus, el, keepStreaming, showConnected, showError } from "./api
 import { TimeChart } from "./chart";
 
 /** Bound of each poll of the buses, the page's heartbeat. */
-const POLL_TIMEOUT_MS = 1000;
+const POLL_TIMEOUT_MS = 1500;
 
 const MAX_LINES = 500;
 let lines: string[] = [];
@@ -173,7 +173,7 @@ export function startBuses(signal: AbortSignal): void {
   (document.getElementById("frame-bus") as HTMLSelectElement).replaceChildren();
   // Also the page's heartbeat (see "the link" in api.ts): each call is
   // bounded, so a gateway that stops answering is lost within about two
-  // seconds; failing, the poll backs off.
+  // seconds and a half; failing, the poll backs off.
   let failures = 0;
   const poll = async () => {
     if (signal.aborted) return;
