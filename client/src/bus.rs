@@ -164,7 +164,9 @@ impl AttachEvent {
 /// keeps the answers for the sender and passes the events on. While
 /// `events` is held but not read, the answers wait behind the unread
 /// events (and the gateway drops frames for this client as for any slow
-/// reader); a program that only sends drops `events`.
+/// reader); a program that only sends drops `events`. Dropping both ends
+/// the call at once, batches still queued with it: call
+/// [`AttachSender::flush`] first to know that everything sent went out.
 pub struct Attachment {
     /// Sends frames (cloneable; dropping every clone ends this client's
     /// sending, receiving goes on).
