@@ -145,6 +145,9 @@ class _Attachment:
         # number up to `answered` is done or refused.
         self.answered = 0
         self.last_sent = 0
+        # Sequence numbers whose send() waits for the answer: their
+        # refusals are theirs to raise, not the next send's.
+        self.waiting: set = set()
         self.answers = threading.Condition()
         self.ended = False
         self.lost = 0
@@ -276,8 +279,9 @@ class _Attachment:
         removed; None when there is none."""
         with self.answers:
             if sequence is None:
-                refused = list(self.refusals)
-                self.refusals.clear()
+                refused = [r for r in self.refusals if r.sequence not in self.waiting]
+                for r in refused:
+                    self.refusals.remove(r)
             else:
                 refused = [r for r in self.refusals if r.sequence == sequence]
                 for r in refused:
@@ -515,16 +519,25 @@ class CangateBus(can.BusABC):
             request = bus_pb2.AttachRequest(
                 send=bus_pb2.AttachSend(frames=[frame], sequence=sequence)
             )
+            if self._confirm:
+                with a.answers:
+                    a.waiting.add(sequence)
             try:
                 a.requests.put(request, timeout=timeout)
             except queue.Full:
+                with a.answers:
+                    a.waiting.discard(sequence)
                 raise can.CanOperationError(
                     f"cangate: send buffer full for {timeout} s (the bus is slower than the sender)"
                 ) from None
             a.last_sent = sequence
         if not self._confirm:
             return
-        answered = a.wait_answered(sequence, timeout)
+        try:
+            answered = a.wait_answered(sequence, timeout)
+        finally:
+            with a.answers:
+                a.waiting.discard(sequence)
         self._raise_refusal(a.take_refusal(sequence))
         if not answered:
             if a.error is not None:
