@@ -5,10 +5,10 @@ use crate::error::Error;
 use crate::streams::{self, EventStream};
 use crate::{Client, can, frame_to_pb, pb};
 use futures::StreamExt;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
-use tokio::sync::mpsc;
+use tokio::sync::{Notify, mpsc};
 
 /// What to stream from a bus ([`Client::frames`]).
 #[derive(Debug, Clone, Default)]
@@ -128,6 +128,8 @@ pub enum AttachEvent {
     /// A batch this client sent was refused, or failed part-way: the
     /// sequence number [`AttachSender::send`] returned for it, the frames
     /// sent, and the code, reason and metadata of the richer error model.
+    /// (The call that waited for the batch, [`AttachSender::send_confirmed`]
+    /// or [`AttachSender::flush`], also returns it as an error.)
     Refused(pb::SendRefused),
 }
 
@@ -144,7 +146,9 @@ impl AttachEvent {
             Event::Lost(l) => AttachEvent::Lost(l.count),
             Event::State(s) => AttachEvent::State(s),
             Event::Refused(r) => AttachEvent::Refused(r),
-            Event::Opened(_) => return None,
+            // Acknowledgements are the sender's business (see
+            // AttachSender::send_confirmed), not events.
+            Event::Opened(_) | Event::Done(_) => return None,
         })
     }
 }
@@ -153,6 +157,16 @@ impl AttachEvent {
 /// it sends with [`Attachment::sender`] reaches the wire, the gateway's own
 /// protocol stacks and the other clients' streams; [`Attachment::events`]
 /// delivers what the bus carries. Dropping both ends the attachment.
+///
+/// The gateway answers every batch sent with an acknowledgement once its
+/// frames went out, or a refusal (`SendDone`, `SendRefused` in bus.proto),
+/// in the same stream as the events: a task of the attachment reads it,
+/// keeps the answers for the sender and passes the events on. While
+/// `events` is held but not read, the answers wait behind the unread
+/// events (and the gateway drops frames for this client as for any slow
+/// reader); a program that only sends drops `events`. Dropping both ends
+/// the call at once, batches still queued with it: call
+/// [`AttachSender::flush`] first to know that everything sent went out.
 pub struct Attachment {
     /// Sends frames (cloneable; dropping every clone ends this client's
     /// sending, receiving goes on).
@@ -181,9 +195,134 @@ impl std::fmt::Debug for Attachment {
 /// The sending half of an [`Attachment`].
 #[derive(Debug, Clone)]
 pub struct AttachSender {
+    shared: Arc<SenderShared>,
+    /// Held by every clone: the reader task learns from its channel
+    /// closing that nobody can send any more.
+    _alive: mpsc::Sender<()>,
+}
+
+#[derive(Debug)]
+struct SenderShared {
     tx: mpsc::Sender<pb::AttachRequest>,
-    next: Arc<AtomicU64>,
+    /// The next sequence number; taken under this lock together with the
+    /// queueing of its message, so that messages leave in sequence order
+    /// (the gateway answers them in the order sent).
+    next: tokio::sync::Mutex<u64>,
     timeout: Option<Duration>,
+    /// Shared with the stream's reader task (which must not hold `tx`:
+    /// the last sender dropped ends the client's messages).
+    answers: Arc<Answers>,
+}
+
+/// Most refusals of batches nobody waits for that are kept for
+/// [`AttachSender::flush`]; older ones are only counted.
+const KEPT_REFUSALS: usize = 1000;
+
+/// The gateway's answers to this attachment's batches.
+#[derive(Debug, Default)]
+struct Answers {
+    state: Mutex<AnswerState>,
+    changed: Notify,
+}
+
+#[derive(Debug, Default)]
+struct AnswerState {
+    /// Every batch up to this sequence number was answered (done or
+    /// refused): the gateway answers in order.
+    answered: u64,
+    /// Refusals no call has returned yet, by sequence number.
+    refused: BTreeMap<u64, pb::SendRefused>,
+    /// Refusals dropped from `refused` beyond [`KEPT_REFUSALS`].
+    refusals_dropped: u64,
+    /// Why the stream ended, once it did: no more answers come.
+    ended: Option<String>,
+}
+
+impl Answers {
+    fn lock(&self) -> std::sync::MutexGuard<'_, AnswerState> {
+        self.state.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    fn done(&self, sequence: u64) {
+        let mut s = self.lock();
+        s.answered = s.answered.max(sequence);
+        drop(s);
+        self.changed.notify_waiters();
+    }
+
+    fn refused(&self, r: &pb::SendRefused) {
+        let mut s = self.lock();
+        s.answered = s.answered.max(r.sequence);
+        s.refused.insert(r.sequence, r.clone());
+        while s.refused.len() > KEPT_REFUSALS {
+            s.refused.pop_first();
+            s.refusals_dropped += 1;
+        }
+        drop(s);
+        self.changed.notify_waiters();
+    }
+
+    fn ended(&self, why: String) {
+        self.lock().ended.get_or_insert(why);
+        self.changed.notify_waiters();
+    }
+
+    /// Waits until every batch up to `sequence` is answered; `only`: the
+    /// refusal of that batch alone counts, else the first refusal kept.
+    async fn wait(&self, sequence: u64, only: bool) -> Result<(), Error> {
+        loop {
+            let changed = self.changed.notified();
+            {
+                let mut s = self.lock();
+                let refusal = if only {
+                    s.refused.remove(&sequence)
+                } else {
+                    s.refused.pop_first().map(|(_, r)| r)
+                };
+                if let Some(r) = refusal {
+                    let more = std::mem::take(&mut s.refusals_dropped) as usize
+                        + if only {
+                            0
+                        } else {
+                            std::mem::take(&mut s.refused).len()
+                        };
+                    return Err(refusal_error(&r, more));
+                }
+                if s.answered >= sequence {
+                    return Ok(());
+                }
+                if let Some(why) = &s.ended {
+                    return Err(Error::Transport {
+                        message: format!(
+                            "the attachment's stream ended before batch {sequence} was \
+                             acknowledged: {why}"
+                        ),
+                    });
+                }
+            }
+            changed.await;
+        }
+    }
+}
+
+/// A refusal as the error of the call that waited for it: the gateway's
+/// code, reason, message and metadata, as if the call had been refused
+/// (`more`: other refusals reported with it).
+fn refusal_error(r: &pb::SendRefused, more: usize) -> Error {
+    use tonic_types::{ErrorDetails, StatusExt};
+    let mut message = format!(
+        "batch {} refused ({} of {} frames sent): {}",
+        r.sequence, r.sent, r.total, r.message
+    );
+    if more > 0 {
+        message.push_str(&format!(" (and {more} more batches refused)"));
+    }
+    let status = tonic::Status::with_error_details(
+        tonic::Code::from_i32(r.code),
+        message,
+        ErrorDetails::with_error_info(r.reason.clone(), crate::ERROR_DOMAIN, r.metadata.clone()),
+    );
+    Error::from(status)
 }
 
 impl AttachSender {
@@ -191,9 +330,11 @@ impl AttachSender {
     /// batch is on its way, with the sequence number a refusal of it will
     /// carry ([`AttachEvent::Refused`]): the gateway reports refusals (a
     /// malformed frame, the raw frame budget spent, bus-off) in the event
-    /// stream, not here. Waits while the gateway holds earlier batches back
-    /// (its pacing of client frames reaches here as flow control), at most
-    /// the client's request timeout.
+    /// stream, and [`AttachSender::flush`] returns them. Waits while the
+    /// gateway holds earlier batches back (its pacing of client frames
+    /// reaches here as flow control), at most the client's request
+    /// timeout. [`AttachSender::send_confirmed`] waits until the frames
+    /// are out.
     pub async fn send(&self, frames: &[can::Frame]) -> Result<u64, Error> {
         self.send_pb(frames.iter().map(frame_to_pb).collect()).await
     }
@@ -201,25 +342,126 @@ impl AttachSender {
     /// [`AttachSender::send`] with protobuf frames as given (no local
     /// validation).
     pub async fn send_pb(&self, frames: Vec<pb::Frame>) -> Result<u64, Error> {
-        let sequence = self.next.fetch_add(1, Ordering::Relaxed);
-        let msg = pb::AttachRequest {
-            message: Some(pb::attach_request::Message::Send(pb::AttachSend {
-                frames,
-                sequence,
-            })),
-        };
-        let gone = || Error::Transport {
-            message: "the attachment's stream has ended".into(),
-        };
-        match self.timeout {
-            Some(limit) => tokio::time::timeout(limit, self.tx.send(msg))
+        let queue = async {
+            let mut next = self.shared.next.lock().await;
+            let sequence = *next;
+            let msg = pb::AttachRequest {
+                message: Some(pb::attach_request::Message::Send(pb::AttachSend {
+                    frames,
+                    sequence,
+                })),
+            };
+            self.shared
+                .tx
+                .send(msg)
                 .await
-                .map_err(|_| Error::client_timeout("Attach send", limit))?
-                .map_err(|_| gone())?,
-            None => self.tx.send(msg).await.map_err(|_| gone())?,
+                .map_err(|_| Error::Transport {
+                    message: "the attachment's stream has ended".into(),
+                })?;
+            *next += 1;
+            Ok(sequence)
+        };
+        match self.shared.timeout {
+            Some(limit) => tokio::time::timeout(limit, queue)
+                .await
+                .map_err(|_| Error::client_timeout("Attach send", limit))?,
+            None => queue.await,
         }
+    }
+
+    /// Sends frames and waits until the gateway acknowledged that they all
+    /// went out (handed to the interface, as `SendFrames` returns), at most
+    /// the client's request timeout. A refusal of this batch is its error,
+    /// with the gateway's code, reason and metadata (see
+    /// [`Error::reason`]); the batch's sequence number otherwise.
+    pub async fn send_confirmed(&self, frames: &[can::Frame]) -> Result<u64, Error> {
+        self.send_pb_confirmed(frames.iter().map(frame_to_pb).collect())
+            .await
+    }
+
+    /// [`AttachSender::send_confirmed`] with protobuf frames as given (no
+    /// local validation).
+    pub async fn send_pb_confirmed(&self, frames: Vec<pb::Frame>) -> Result<u64, Error> {
+        let sequence = self.send_pb(frames).await?;
+        self.wait(sequence, true).await?;
         Ok(sequence)
     }
+
+    /// Waits until every batch sent so far (by any clone) was answered by
+    /// the gateway, at most the client's request timeout. Returns the
+    /// first refusal that no call returned yet (of a batch sent with
+    /// [`AttachSender::send`]; the error says how many more there were),
+    /// once: a program that sends without waiting and flushes at the end
+    /// learns that something was not sent.
+    pub async fn flush(&self) -> Result<(), Error> {
+        let last = *self.shared.next.lock().await - 1;
+        self.wait(last, false).await
+    }
+
+    async fn wait(&self, sequence: u64, only: bool) -> Result<(), Error> {
+        let waiting = self.shared.answers.wait(sequence, only);
+        match self.shared.timeout {
+            Some(limit) => tokio::time::timeout(limit, waiting)
+                .await
+                .map_err(|_| Error::client_timeout("Attach acknowledgement", limit))?,
+            None => waiting.await,
+        }
+    }
+}
+
+/// Reads an Attach stream: answers to the sender, the rest to `events`
+/// (while anyone holds it; when nobody does, they are dropped). Ends when
+/// the stream does, or when nobody can send and nobody receives (which
+/// ends the call).
+async fn read_attach_stream(
+    mut stream: tonic::Streaming<pb::AttachResponse>,
+    answers: Arc<Answers>,
+    events: mpsc::Sender<Vec<Result<AttachEvent, Error>>>,
+    mut alive: mpsc::Receiver<()>,
+) {
+    use pb::attach_event::Event;
+    let mut senders_gone = false;
+    loop {
+        let message = tokio::select! {
+            m = stream.message() => m,
+            _ = alive.recv(), if !senders_gone => {
+                senders_gone = true;
+                if events.is_closed() { break }
+                continue;
+            }
+            _ = events.closed(), if senders_gone => break,
+        };
+        let batch = match message {
+            Ok(Some(m)) => m,
+            Ok(None) => {
+                answers.ended("the gateway ended the stream".into());
+                break;
+            }
+            Err(status) => {
+                let e = Error::from(status);
+                answers.ended(e.to_string());
+                let _ = events.send(vec![Err(e)]).await;
+                break;
+            }
+        };
+        let mut items = Vec::with_capacity(batch.events.len());
+        for e in batch.events {
+            match &e.event {
+                Some(Event::Done(d)) => answers.done(d.sequence),
+                Some(Event::Refused(r)) => answers.refused(r),
+                _ => {}
+            }
+            if let Some(item) = AttachEvent::from_pb(e) {
+                items.push(Ok(item));
+            }
+        }
+        if !items.is_empty() && !events.is_closed() {
+            // Waits while the events are not read (flow control reaches
+            // the gateway); fails once nobody holds them.
+            let _ = events.send(items).await;
+        }
+    }
+    answers.ended("the attachment was closed".into());
 }
 
 impl Client {
@@ -281,18 +523,28 @@ impl Client {
         };
         let rest: Vec<Result<AttachEvent, Error>> =
             events.filter_map(AttachEvent::from_pb).map(Ok).collect();
-        let later = streams::flat_map(stream, |batch: pb::AttachResponse| {
-            batch
-                .events
-                .into_iter()
-                .filter_map(AttachEvent::from_pb)
-                .collect::<Vec<_>>()
+        let answers = Arc::new(Answers::default());
+        let shared = Arc::new(SenderShared {
+            tx,
+            next: tokio::sync::Mutex::new(1),
+            timeout: self.request_timeout(),
+            answers: answers.clone(),
         });
+        // As many batches of events as the gateway's own forwarding holds:
+        // a reader that pauses is felt by the gateway at once.
+        let (events_tx, events_rx) = mpsc::channel(4);
+        let (alive, alive_rx) = mpsc::channel(1);
+        tokio::spawn(read_attach_stream(stream, answers, events_tx, alive_rx));
+        let later = futures::stream::unfold(events_rx, |mut rx| async move {
+            rx.recv()
+                .await
+                .map(|batch| (futures::stream::iter(batch), rx))
+        })
+        .flatten();
         Ok(Attachment {
             sender: AttachSender {
-                tx,
-                next: Arc::new(AtomicU64::new(1)),
-                timeout: self.request_timeout(),
+                shared,
+                _alive: alive,
             },
             events: futures::stream::iter(rest).chain(later).boxed(),
             bus: opened.bus.unwrap_or_default(),

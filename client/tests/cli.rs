@@ -420,3 +420,56 @@ fn a_reader_that_stops_reading_ends_a_stream_quietly() {
     assert_eq!(status.code(), Some(0), "{err}");
     assert!(err.is_empty(), "{err}");
 }
+
+#[test]
+fn completions_to_a_reader_that_closes_early_end_quietly() {
+    // `cangate completions bash | head -1`, the reader gone before the
+    // script is written: the write fails (broken pipe) and the command ends
+    // with status 0 and nothing on standard error.
+    let mut child = command()
+        .args(["completions", "bash"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("cangate runs");
+    drop(child.stdout.take());
+    let out = child.wait_with_output().expect("cangate ends");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{err}");
+    assert!(err.is_empty(), "{err}");
+}
+
+#[test]
+fn sdo_write_options_may_follow_the_type() {
+    // The README's order: TYPE, then --file and --block.
+    let dir = std::env::temp_dir().join(format!("cangate-cli-sdo-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("name.bin");
+    std::fs::write(&file, b"cli order").unwrap();
+    // 0x2100 of the built-in drive: the firmware image, a DOMAIN.
+    let o = cangate(&[
+        "sdo",
+        "write",
+        "can0",
+        "1",
+        "0x2100",
+        "domain",
+        "--file",
+        file.to_str().unwrap(),
+        "--block",
+    ]);
+    assert_status(&o, 0);
+    let back = dir.join("back.bin");
+    let o = cangate(&[
+        "sdo",
+        "read",
+        "can0",
+        "1",
+        "0x2100",
+        "--output",
+        back.to_str().unwrap(),
+    ]);
+    assert_status(&o, 0);
+    assert_eq!(std::fs::read(&back).unwrap(), b"cli order");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -5,7 +5,8 @@
 //! - `dump --log` writes candump's log format for several buses at once;
 //!   `-t` timestamp modes; `any`;
 //! - `replay` plays a log with its timing, renamed, repeated, fast; a
-//!   malformed log is refused with its line number;
+//!   malformed log is refused with its line number; CAN FD frames of the
+//!   log are skipped (and counted) on a classic bus, the rest sent;
 //! - `gen` sends what it is asked to, and the gateway's raw frame budget
 //!   shows up as counted refusals and exit 1, never as silence;
 //! - `dump --pcap` writes pcapng that `tshark` (Wireshark's command line)
@@ -323,6 +324,31 @@ fn replay_plays_a_log_with_its_timing_renamed() {
     assert_status(&o, 0);
     assert!(stderr(&o).contains("12 frames sent"), "{}", stderr(&o));
     assert_eq!(dump.lines().len(), 12);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn replay_onto_a_classic_bus_skips_the_fd_frames_and_sends_the_rest() {
+    let server = gateway();
+    let dir = temp_dir("replay-fd");
+    let log = dir.join("fd.log");
+    std::fs::write(
+        &log,
+        "(1.000000) can0 610#01\n(1.001000) can0 611##1AABB\n(1.002000) can0 612#0303\n",
+    )
+    .unwrap();
+    // (Identifiers no other test of this gateway uses.)
+    let dump = Dump::start(&server, &["can1", "--log", "-n", "2", "-f", "610:7F0"], 1);
+    let o = cangate(&["replay", "--fast", log.to_str().unwrap(), "can1=can0"]);
+    assert_status(&o, 0);
+    let err = stderr(&o);
+    assert!(err.contains("replay on can1: 2 frames sent"), "{err}");
+    assert!(
+        err.contains("replay on can1: 1 CAN FD frames of the log skipped"),
+        "{err}"
+    );
+    let frames: Vec<String> = dump.lines().iter().map(|l| split_log_line(l).2).collect();
+    assert_eq!(frames, ["610#01", "612#0303"]);
     std::fs::remove_dir_all(&dir).ok();
 }
 

@@ -1,5 +1,6 @@
 //! The `cangate-server` binary itself: `--print-config`, configuration
-//! errors with exit code 2, start-up errors, and a real SIGTERM.
+//! errors with exit code 2, start-up errors, and a real SIGTERM (with a
+//! plain-text log when standard error is not a terminal).
 
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
@@ -75,6 +76,7 @@ fn sigterm_shuts_down_gracefully() {
     let mut child = Command::new(BIN)
         .args(["--listen", "127.0.0.1:0"])
         .env("RUST_LOG", "info")
+        .env_remove("NO_COLOR")
         .stderr(Stdio::piped())
         .stdout(Stdio::null())
         .spawn()
@@ -88,15 +90,23 @@ fn sigterm_shuts_down_gracefully() {
         }
     });
     let started = Instant::now();
+    let mut first = Vec::new();
     loop {
         let line = rx
             .recv_timeout(Duration::from_secs(20))
             .expect("server logs that it listens");
-        if line.contains("listening") {
+        first.push(line);
+        if first.last().is_some_and(|l| l.contains("listening")) {
             break;
         }
         assert!(started.elapsed() < Duration::from_secs(20));
     }
+    // Standard error is a pipe, not a terminal: no colour codes.
+    let coloured = first.iter().find(|l| l.contains('\x1b'));
+    assert!(
+        coloured.is_none(),
+        "ANSI escapes in a redirected log: {coloured:?}"
+    );
     let pid = child.id().to_string();
     assert!(
         Command::new("kill")

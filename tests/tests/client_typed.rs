@@ -543,3 +543,179 @@ async fn addresses_with_and_without_scheme_reach_the_server() {
     assert_eq!(e.to_string().matches("transport error").count(), 1, "{e}");
     server.shutdown();
 }
+
+/// The gateway answers every batch an attachment sends (SendDone or
+/// SendRefused): `send_confirmed` returns once the frames went out, a
+/// refusal is the error of the call that sent the batch (with the
+/// gateway's code, reason and metadata), and `flush` waits for batches
+/// sent without waiting and returns their refusal. A program that only
+/// sends (it dropped the events) gets its answers too, and every frame it
+/// sent before closing is on the bus.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_attachment_confirms_its_batches_and_returns_refusals() {
+    let server = start_server(CONFIG).await;
+    let c = typed_client(&server).await;
+    let mut watch = c
+        .frames(
+            "can0",
+            &FrameStreamOptions {
+                // 0x7A0..=0x7BF: no node of CONFIG uses them.
+                filters: vec![can::Filter {
+                    id: 0x7A0,
+                    mask: 0x7E0,
+                    extended: Some(false),
+                    inverted: false,
+                }],
+                low_latency: true,
+                ..Default::default()
+            },
+        )
+        .await
+        .unwrap();
+    let first = tokio::time::timeout(WAIT, watch.next()).await.unwrap();
+    assert!(matches!(first, Some(Ok(FrameEvent::State(_)))), "{first:?}");
+
+    let node = c
+        .attach("can0", &cangate_client::AttachOptions::default())
+        .await
+        .unwrap();
+    let sender = node.sender.clone();
+    // Only sending: the events are not read (dropped).
+    drop(node);
+    let frame = |i: u8| -> can::Frame {
+        format!("{:03X}#{i:02X}5A", 0x7A0 + u32::from(i))
+            .parse()
+            .unwrap()
+    };
+    for i in 0..15u8 {
+        let confirmed = tokio::time::timeout(WAIT, sender.send_confirmed(&[frame(i)]))
+            .await
+            .expect("answered in time");
+        assert_eq!(confirmed.unwrap(), u64::from(i) + 1, "sequence numbers");
+    }
+    // Refused: a CAN FD frame on an attachment without fd.
+    let fd: can::Frame = "7BF##1AABB".parse().unwrap();
+    let e = tokio::time::timeout(WAIT, sender.send_confirmed(&[frame(15), fd]))
+        .await
+        .expect("answered in time")
+        .unwrap_err();
+    assert_eq!(e.code(), Some(Code::InvalidArgument), "{e}");
+    assert_eq!(e.reason().as_deref(), Some("INVALID_FRAME"), "{e}");
+    assert_eq!(
+        cangate_client::error_metadata(&e)
+            .get("frame")
+            .map(String::as_str),
+        Some("1"),
+        "{e}"
+    );
+    // Sent without waiting, then flushed: the frames go out, a refused
+    // batch among them is the flush's error, once.
+    for i in 16..20u8 {
+        sender.send(&[frame(i)]).await.unwrap();
+    }
+    sender.send(&[fd]).await.unwrap();
+    sender.send(&[frame(20)]).await.unwrap();
+    let e = tokio::time::timeout(WAIT, sender.flush())
+        .await
+        .expect("answered in time")
+        .unwrap_err();
+    assert_eq!(e.reason().as_deref(), Some("INVALID_FRAME"), "{e}");
+    tokio::time::timeout(WAIT, sender.flush())
+        .await
+        .expect("answered in time")
+        .expect("the refusal was returned once");
+    drop(sender);
+
+    // Every frame confirmed is on the bus, in order; nothing of the
+    // refused batches.
+    let mut seen = Vec::new();
+    while seen.len() < 20 {
+        match tokio::time::timeout(WAIT, watch.next()).await {
+            Ok(Some(Ok(FrameEvent::Frame { frame, .. }))) => seen.push(frame.raw_id()),
+            Ok(Some(Ok(_))) => {}
+            other => panic!("after {seen:x?}: {other:?}"),
+        }
+    }
+    let want: Vec<u32> = (0..15).chain(16..21).map(|i| 0x7A0 + i).collect();
+    assert_eq!(seen, want);
+    server.shutdown();
+}
+
+/// One status per SYNC cycle: the drive sends two TPDOs per SYNC, which
+/// the gateway may read in two batches; it publishes the axis's status
+/// once both are in, so `axis watch` prints one line per cycle. Counted
+/// over 100 SYNC periods by the bus timestamps of the SYNCs and of the
+/// statuses' process data.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cyclic_axis_sends_one_status_per_sync() {
+    const PERIODS: usize = 100;
+    let server = start_server(CONFIG).await;
+    let c = typed_client(&server).await;
+    wait_ready(&c).await;
+    let mut statuses = c.watch_axes(&["X"], false).await.unwrap();
+    let mut syncs = c
+        .clone()
+        .stream_frames(pb::StreamFramesRequest {
+            bus: "can0".into(),
+            filters: vec![cangate_client::filter_to_pb(&can::Filter::exact_standard(
+                0x080,
+            ))],
+            include_transmitted: true,
+            low_latency: true,
+            queue_length: 65_536,
+            ..Default::default()
+        })
+        .await
+        .unwrap();
+    let mut sync_batch: Vec<pb::StreamEvent> = Vec::new();
+    let mut sync_ns: Vec<u64> = Vec::new();
+    let mut status_ns: Vec<u64> = Vec::new();
+    // A few periods in, so that both streams are surely running.
+    let first = 10;
+    let done = |sync_ns: &Vec<u64>, status_ns: &Vec<u64>| {
+        sync_ns.len() > first + PERIODS
+            && status_ns
+                .last()
+                .is_some_and(|&t| t > sync_ns[first + PERIODS])
+    };
+    let deadline = tokio::time::Instant::now() + WAIT * 3;
+    while !done(&sync_ns, &status_ns) {
+        tokio::select! {
+            _ = tokio::time::sleep_until(deadline) => {
+                panic!("{} SYNCs, {} statuses in time", sync_ns.len(), status_ns.len())
+            }
+            s = statuses.next() => {
+                if let Some(Ok(AxisUpdate::Status(s))) = s
+                    && s.timestamp_us > 0
+                {
+                    status_ns.push(s.timestamp_us * 1000);
+                }
+            }
+            m = syncs.message() => {
+                sync_batch.extend(m.expect("SYNC stream").expect("SYNC stream on").events);
+                for e in sync_batch.drain(..) {
+                    match e.event {
+                        Some(pb::stream_event::Event::Frame(f)) => sync_ns.push(f.timestamp_ns),
+                        Some(pb::stream_event::Event::Lost(l)) => {
+                            panic!("{} SYNCs lost to the test's stream", l.count)
+                        }
+                        _ => {}
+                    }
+                }
+            }
+        }
+    }
+    // Microseconds of the statuses against nanoseconds of the SYNCs.
+    let (from, to) = (
+        sync_ns[first] / 1000 * 1000,
+        sync_ns[first + PERIODS] / 1000 * 1000,
+    );
+    let within = status_ns.iter().filter(|&&t| t > from && t <= to).count();
+    // One per period; a cycle whose process data comes late may shift
+    // one across either end of the window.
+    assert!(
+        (PERIODS - 2..=PERIODS + 2).contains(&within),
+        "{within} statuses of X in {PERIODS} SYNC periods"
+    );
+    server.shutdown();
+}

@@ -691,6 +691,59 @@ async fn a_gateway_with_tokens_asks_for_one_and_honours_the_role() {
     server.shutdown();
 }
 
+/// The page when the gateway goes away, and the Control column: the
+/// handwheel taking X (manual mode) and releasing it shows in X's Control
+/// cell; QUICK STOP ALL stops every axis; then the gateway shuts down
+/// while the page is open: the connection line turns (driven by the
+/// streams' errors, not a timer), every axis row is marked stale with its
+/// age, and a STOP ALL click that fails stays shown until the operator
+/// acknowledges it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_shows_a_gateway_that_went_away_and_a_failed_stop() {
+    if !can_run("the_page_shows_a_gateway_that_went_away_and_a_failed_stop") {
+        return;
+    }
+    let server = demo_server().await;
+    let url = format!("http://{}/", server.addr);
+    let server = &server;
+    let steps = drive(
+        &["gone".into(), url, screenshots().display().to_string()],
+        |need| async move {
+            assert_eq!(need, "shutdown", "unexpected request {need}");
+            server.shutdown();
+            "done".to_string()
+        },
+    )
+    .await;
+    let step = |name: &str| -> String {
+        steps
+            .iter()
+            .find_map(|s| s.strip_prefix(name).map(|r| r.trim().to_string()))
+            .unwrap_or_else(|| panic!("no step {name} in {steps:?}"))
+    };
+    assert!(step("control-taken").contains("handwheel hw1"), "{steps:?}");
+    step("control-released");
+    step("quick-stop-all");
+    // Turned at once (the streams end with the gateway's shutdown); the
+    // bound is generous for a loaded machine.
+    let lost = step("link-lost");
+    let ms: u64 = lost
+        .strip_prefix("ms=")
+        .and_then(|r| r.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{lost}"));
+    assert!(
+        ms < 5_000,
+        "the connection line turned after {ms} ms: {lost}"
+    );
+    assert!(lost.contains("gateway lost"), "{lost}");
+    assert!(step("rows-stale").starts_with("stale "), "{steps:?}");
+    step("stop-failed-shown");
+    step("stop-failed-acknowledged");
+    assert_eq!(steps.last().map(String::as_str), Some("no-console-errors"));
+    assert!(screenshots().join("gone.png").exists());
+}
+
 /// The dashboard over HTTPS: the demo gateway with `[security.tls]` (a
 /// throwaway self-signed certificate for 127.0.0.1, made here with rcgen),
 /// Chromium trusting exactly that certificate's public key

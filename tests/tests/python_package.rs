@@ -11,9 +11,12 @@
 //!   sends (classic, extended, remote, CAN FD with BRS) seen by a Rust
 //!   StreamFrames client, frames the Rust client sends received by it, the
 //!   gateway applying its filters, timestamps, own frames only when asked,
-//!   a refused message raised by the next send, a slow reader's lost frames
+//!   a refused message raised by its send, a slow reader's lost frames
 //!   counted exactly, errors for an unknown bus, a bad token and FD on a
 //!   classic bus, and the gateway's shutdown raised by recv;
+//! - `python_can_with_block_sends_every_frame`: the 15 messages a
+//!   `with can.Bus(interface="cangate", ...)` block sends all reach the bus
+//!   (`tests/python/python_can_with.py`), and refusals are raised;
 //! - `python_canopen_local_node_through_attach`: a python-canopen
 //!   `LocalNode` (`tests/python/local_node.py --interface cangate`, object
 //!   dictionary `tests/python/all_types.eds`) attached through the python-can
@@ -261,6 +264,64 @@ async fn python_can_scenario(python: PathBuf) -> Result<()> {
         .await
         .map_err(|e| anyhow!("shutdown: {e}"))?;
     Ok(())
+}
+
+/// The program: `with can.Bus(interface="cangate", ...) as bus:
+/// bus.send(msg)` 15 times. Every frame reaches the bus before the block
+/// ends (`tests/python/python_can_with.py`), with `send` waiting for the
+/// gateway's confirmation and with it only queueing (the end of the block
+/// sends them); a refusal is raised by its `send`, or at the end of the
+/// block.
+#[test]
+fn python_can_with_block_sends_every_frame() {
+    let Some(python) = python_or_skip("python_can_with_block_sends_every_frame", MODULES) else {
+        return;
+    };
+    run("python_can_with_block_sends_every_frame", async {
+        let server = cangate_tests::start_server(&python_can_config()).await;
+        let mut c = cangate_client::connect_with(
+            &format!("http://{}", server.addr),
+            &cangate_client::ConnectOptions {
+                token: Some(TOKEN.into()),
+                ..Default::default()
+            },
+        )
+        .await?;
+        let (mut watch, mut pending) =
+            cangate_tests::open_stream(&mut c, cangate_tests::stream_request("can0", vec![])).await;
+        let mut p = Peer::spawn(
+            &python,
+            &script("python_can_with.py"),
+            &[] as &[&str],
+            &[
+                ("CANGATE_SERVER", format!("http://{}", server.addr)),
+                ("CANGATE_TOKEN", TOKEN.into()),
+            ],
+        )?;
+        p.expect_line("READY", READY_WAIT).await?;
+        for first in [0x200u32, 0x300] {
+            p.expect_line("SENT 15", WAIT).await?;
+            let seen = cangate_tests::read_frames(&mut watch, &mut pending, 15).await;
+            let got: Vec<(u32, Vec<u8>)> = seen.iter().map(|f| (f.id, f.data.clone())).collect();
+            let want: Vec<(u32, Vec<u8>)> = (0..15u8)
+                .map(|i| (first + u32::from(i), vec![i, 0x5A]))
+                .collect();
+            ensure!(got == want, "the block's frames on can0: {got:x?}");
+        }
+        for _ in 0..2 {
+            let refused = p
+                .expect("REFUSED", WAIT, |l| l.starts_with("REFUSED "))
+                .await?;
+            ensure!(refused.contains("INVALID_FRAME"), "{refused}");
+        }
+        p.finish(WAIT).await?;
+        drop((watch, c));
+        server.shutdown();
+        server
+            .wait(Duration::from_secs(5))
+            .await
+            .map_err(|e| anyhow!("shutdown: {e}"))
+    });
 }
 
 // ------------------------------------------------------------ python-canopen

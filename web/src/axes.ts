@@ -3,10 +3,26 @@
 // move (target, and velocity and acceleration: empty or 0 for the axis's
 // maxima),
 // hold-to-jog (a repeated Jog while the button is held; released, left,
-// window blurred or tab hidden: Stop), stop, and the always-visible
-// stop-all (StopAxes, which needs no lease).
-import { AxisActivity, DriveState, type Axis, type AxisStatus } from "./gen/cangate/v1/axes_pb";
-import { axes, axesOnExit, clearNotice, el, keepStreaming, showError } from "./api";
+// window blurred or tab hidden: Stop), stop and quick stop, and the
+// always-visible stop-all and quick-stop-all (StopAxes, which needs no
+// lease). A stop that fails stays on the page until acknowledged; rows
+// not confirmed by a live stream are marked stale with their age.
+import { AxisActivity, DriveState, Outcome, type Axis, type AxisStatus } from "./gen/cangate/v1/axes_pb";
+import { Code, ConnectError } from "@connectrpc/connect";
+import {
+  ageText,
+  axes,
+  backoff,
+  axesOnExit,
+  clearNotice,
+  el,
+  errorText,
+  keepStreaming,
+  lostSince,
+  retryAfter,
+  showError,
+  showStopFailed,
+} from "./api";
 import { applyRoles, guard, type Rpc } from "./roles";
 import { TimeChart } from "./chart";
 
@@ -16,7 +32,14 @@ interface Row {
   cells: Record<string, HTMLTableCellElement>;
   acquire: HTMLButtonElement;
   target: HTMLInputElement;
+  /** "stale N s" while the row's values are not confirmed live. */
+  age: HTMLSpanElement;
+  /** Since when the values are not confirmed (ms since the epoch); 0: live. */
+  staleSince: number;
 }
+
+/** Stops bounded in time: a gateway that does not answer is a failed stop, shown. */
+const STOP_TIMEOUT_MS = 3000;
 
 const rows = new Map<string, Row>();
 /** Leases this page holds, by axis. */
@@ -87,12 +110,26 @@ async function toggleControl(name: string): Promise<void> {
   });
 }
 
+/** A stop of one axis (quick: CiA 402 quick stop); a failure stays shown. */
+async function stopAxis(axis: string, quick: boolean): Promise<void> {
+  const what = `${quick ? "Quick stop" : "Stop"} of ${axis}`;
+  try {
+    const req = { axis };
+    const opts = { timeoutMs: STOP_TIMEOUT_MS };
+    await (quick ? axes.quickStop(req, opts) : axes.stop(req, opts));
+    clearNotice();
+  } catch (e) {
+    showError(what, e);
+    showStopFailed(what, errorText(e));
+  }
+}
+
 function stopJog(): void {
   if (!jog) return;
   const { axis, timer } = jog;
   jog = null;
   clearInterval(timer);
-  void run(`stop ${axis}`, () => axes.stop({ axis }));
+  void stopAxis(axis, false);
 }
 
 function startJog(row: Row, sign: number): void {
@@ -184,12 +221,16 @@ function buildRow(axis: Axis): Row {
   );
   const jogMinus = jogButton(getRow, "◀ Jog", -1, lease);
   const jogPlus = jogButton(getRow, "Jog ▶", 1, lease);
-  const stop = button("Stop", "stop", "Stop", () => run(`stop ${name}`, () => axes.stop({ axis: name })));
+  const stop = button("Stop", "stop", "Stop", () => void stopAxis(name, false));
+  const quickStop = button("Quick stop", "quick-stop", "QuickStop", () => void stopAxis(name, true));
+  quickStop.title = "CiA 402 quick stop (the drive's quick stop deceleration); needs no lease";
   const acquire = button("Acquire", "acquire", "AcquireControl", () => void toggleControl(name));
+  const age = el("span", { className: "stale-age" });
+  age.hidden = true;
   const tr = el(
     "tr",
     {},
-    el("td", {}, `${name} (${axis.unit})`),
+    el("td", { className: "name" }, `${name} (${axis.unit})`, age),
     cells.state,
     cells.activity,
     cells.position,
@@ -197,10 +238,37 @@ function buildRow(axis: Axis): Row {
     cells.ferr,
     cells.control,
     cells.fault,
-    el("td", { className: "cmds" }, acquire, enable, disable, home, target, velocity, accel, move, jogMinus, jogPlus, stop),
+    el("td", { className: "cmds" }, acquire, enable, disable, home, target, velocity, accel, move, jogMinus, jogPlus, stop, quickStop),
   );
   tr.dataset.axis = name;
-  return { axis, tr, cells, acquire, target };
+  return { axis, tr, cells, acquire, target, age, staleSince: 0 };
+}
+
+/** The rows' values are no longer confirmed by a live stream. */
+function markStale(): void {
+  const since = lostSince() || Date.now();
+  for (const row of rows.values()) {
+    if (row.staleSince === 0) row.staleSince = since;
+  }
+  showAges();
+}
+
+/** The stale rows' ages (display only, every second). */
+function showAges(): void {
+  for (const row of rows.values()) {
+    const stale = row.staleSince !== 0;
+    row.tr.classList.toggle("stale", stale);
+    if (stale) row.tr.dataset.stale = "true";
+    else delete row.tr.dataset.stale;
+    row.age.hidden = !stale;
+    if (stale) row.age.textContent = `stale ${ageText(row.staleSince)}`;
+  }
+}
+
+/** Who controls an axis, as the Control column shows it. */
+function showControl(row: Row, holder: string): void {
+  row.cells.control.textContent = leases.has(row.axis.name) ? "this page" : holder || "—";
+  row.cells.control.title = row.cells.control.textContent;
 }
 
 function update(s: AxisStatus): void {
@@ -212,33 +280,58 @@ function update(s: AxisStatus): void {
   row.cells.position.textContent = s.position.toFixed(3);
   row.cells.velocity.textContent = s.velocity.toFixed(3);
   row.cells.ferr.textContent = s.followingError.toFixed(4);
-  row.cells.control.textContent = leases.has(s.axis) ? "this page" : s.controlledBy || "—";
+  showControl(row, s.controlledBy);
   row.cells.fault.textContent = s.faultText;
   // The full text where a fixed column cuts it.
   row.cells.fault.title = s.faultText;
-  row.cells.control.title = row.cells.control.textContent;
+  if (row.staleSince !== 0) {
+    row.staleSince = 0;
+    showAges();
+  }
   row.tr.dataset.state = enumName(DriveState, s.state);
   row.tr.dataset.activity = enumName(AxisActivity, s.activity);
   row.tr.dataset.homed = String(s.homed);
   row.cells.state.title = s.homed ? "homed" : "not homed";
 }
 
-/** Stops every axis (no lease needed). */
-export async function stopAll(): Promise<void> {
+/** Stops every axis (no lease needed; quick: CiA 402 quick stop). A stop
+ * that fails, or that an axis refuses, stays shown until acknowledged. */
+export async function stopAll(quick = false): Promise<void> {
+  const what = quick ? "QUICK STOP ALL" : "STOP ALL";
   stopJog();
-  if (names.length === 0) return;
-  await run("stop all", () => axes.stopAxes({ axes: names, quick: false, wait: false }));
+  if (names.length === 0) {
+    showStopFailed(what, "the page does not know the axes (the gateway was not reached)");
+    return;
+  }
+  try {
+    const r = await axes.stopAxes({ axes: names, quick, wait: false }, { timeoutMs: STOP_TIMEOUT_MS });
+    const refused = r.results
+      .map((x, i) => ({ axis: names[i], x }))
+      .filter(({ x }) => x.outcome === Outcome.UNSPECIFIED)
+      .map(({ axis, x }) => `${axis}: ${x.detail || "refused"}`);
+    if (refused.length > 0) showStopFailed(what, `not stopped: ${refused.join("; ")}`);
+    else clearNotice();
+  } catch (e) {
+    showError(what.toLowerCase(), e);
+    showStopFailed(what, errorText(e));
+  }
 }
 
 /** Lists the axes and streams their state until `signal` aborts. */
 export async function startAxes(signal: AbortSignal): Promise<void> {
   for (const name of [...leases.keys()]) dropLease(name);
-  let list: Axis[];
-  try {
-    list = (await axes.listAxes({}, { signal })).axes;
-  } catch (e) {
-    showError("axes", e);
-    return;
+  let list: Axis[] = [];
+  // Until the gateway answers (it may not be up yet), with back-off.
+  for (let failures = 1; ; failures++) {
+    try {
+      list = (await axes.listAxes({}, { signal })).axes;
+      break;
+    } catch (e) {
+      if (signal.aborted) return;
+      showError("axes", e);
+      if (ConnectError.from(e).code === Code.Unauthenticated) return;
+      await retryAfter(backoff(failures), signal);
+    }
   }
   rows.clear();
   names = list.map((a) => a.name);
@@ -262,7 +355,14 @@ export async function startAxes(signal: AbortSignal): Promise<void> {
     (sig) => axes.streamAxisState({ axes: [], changesOnly: true }, { signal: sig }),
     (u) => {
       if (u.update.case === "status") update(u.update.value);
+      else if (u.update.case === "event" && u.update.value.kind.case === "control") {
+        // Control changes hands without a new status (an axis at rest
+        // sends none with changesOnly): the handwheel taking an axis.
+        const row = rows.get(u.update.value.axis);
+        if (row) showControl(row, u.update.value.kind.value.holder);
+      }
     },
+    markStale,
   );
 }
 
@@ -284,6 +384,7 @@ export function initAxes(): void {
     traced = select.value;
     trace?.setSeries([`${traced} position`]);
   });
+  setInterval(showAges, 1000);
   // Sampled at 20 Hz from the latest state (the stream sends changes
   // only, so an axis at rest sends nothing).
   setInterval(() => {

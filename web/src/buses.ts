@@ -4,8 +4,11 @@
 // the rate, can pause, and shows frames the gateway reports lost.
 import { create } from "@bufbuild/protobuf";
 import { BusState, FrameFilterSchema, IdFormat, type BusInfo, type Frame, type FrameFilter } from "./gen/cangate/v1/bus_pb";
-import { bus, el, keepStreaming, showConnected, showError } from "./api";
+import { backoff, bus, el, keepStreaming, showConnected, showError } from "./api";
 import { TimeChart } from "./chart";
+
+/** Bound of each poll of the buses, the page's heartbeat. */
+const POLL_TIMEOUT_MS = 1500;
 
 const MAX_LINES = 500;
 let lines: string[] = [];
@@ -168,17 +171,23 @@ export function enterBuses(signal: AbortSignal): void {
 export function startBuses(signal: AbortSignal): void {
   selected = "";
   (document.getElementById("frame-bus") as HTMLSelectElement).replaceChildren();
+  // Also the page's heartbeat (see "the link" in api.ts): each call is
+  // bounded, so a gateway that stops answering is lost within about two
+  // seconds and a half; failing, the poll backs off.
+  let failures = 0;
   const poll = async () => {
     if (signal.aborted) return;
     try {
-      const r = await bus.listBuses({}, { signal });
+      const r = await bus.listBuses({}, { signal, timeoutMs: POLL_TIMEOUT_MS });
       showConnected();
+      failures = 0;
       renderTable(r.buses);
     } catch (e) {
       if (signal.aborted) return;
+      failures += 1;
       showError("buses", e);
     }
-    setTimeout(poll, 1000);
+    setTimeout(poll, failures === 0 ? 1000 : Math.min(backoff(failures + 1), 4000));
   };
   void poll();
 }

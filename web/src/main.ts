@@ -3,7 +3,7 @@
 // stop-all need it) and at most one more for the page shown (a bus's
 // frames, node events, ...), opened when its tab is shown and closed when
 // it is left. Three at most (data-streams-max on <body>).
-import { session as sessionApi, setToken } from "./api";
+import { initStopBanner, session as sessionApi, setToken } from "./api";
 import { initAxes, startAxes, stopAll } from "./axes";
 import { enterBuses, initBuses, startBuses } from "./buses";
 import { enterCanopen, initCanopen } from "./canopen";
@@ -78,6 +78,10 @@ document.addEventListener("DOMContentLoaded", () => {
   const stopAllButton = document.getElementById("stop-all") as HTMLButtonElement;
   stopAllButton.addEventListener("click", () => void stopAll());
   guard(stopAllButton, "StopAxes");
+  const quickStopAllButton = document.getElementById("quick-stop-all") as HTMLButtonElement;
+  quickStopAllButton.addEventListener("click", () => void stopAll(true));
+  guard(quickStopAllButton, "StopAxes");
+  initStopBanner();
   initAxes();
   initBuses();
   initCanopen();

@@ -22,6 +22,7 @@ export const NEEDS = {
   Move: "operator",
   Jog: "operator",
   Stop: "operator",
+  QuickStop: "operator",
   StopAxes: "operator",
   SetMode: "operator",
   SendNmt: "engineer",

@@ -5,6 +5,10 @@
 //   node web/tests/dashboard.mjs demo URL SCREENSHOT_DIR
 //   node web/tests/dashboard.mjs tokens URL SCREENSHOT_DIR VIEWER_TOKEN OPERATOR_TOKEN
 //   node web/tests/dashboard.mjs tls https://127.0.0.1:PORT/ SCREENSHOT_DIR CERT_PEM
+//   node web/tests/dashboard.mjs gone URL SCREENSHOT_DIR
+//
+// (gone: the test shuts the gateway down when asked, "need shutdown"; the
+// page's failed requests after that are expected, not errors.)
 //
 // (tls: Chromium trusts the gateway's self-signed certificate CERT_PEM by
 // its public key, --ignore-certificate-errors-spki-list, and no other.)
@@ -36,17 +40,19 @@ const browser = await puppeteer.launch({
 });
 const errors = [];
 let currentPage = null;
+/** Set once the gateway is gone on purpose: its refused requests are expected. */
+let gatewayGone = false;
 try {
   const page = await browser.newPage();
   currentPage = page;
   await page.setViewport({ width: 1400, height: 800 });
   page.on("console", (m) => {
-    if (m.type() === "error") errors.push(`console: ${m.text()}`);
+    if (m.type() === "error" && !gatewayGone) errors.push(`console: ${m.text()}`);
   });
   page.on("pageerror", (e) => errors.push(`page error: ${e.message}`));
   page.on("requestfailed", (r) => {
     // Streams the page ends itself (a new token restarts them) are aborted.
-    if (r.failure()?.errorText !== "net::ERR_ABORTED") {
+    if (r.failure()?.errorText !== "net::ERR_ABORTED" && !gatewayGone) {
       errors.push(`request failed: ${r.url()} ${r.failure()?.errorText}`);
     }
   });
@@ -54,6 +60,7 @@ try {
   if (mode === "demo") await demo(page);
   else if (mode === "tokens") await tokens(page);
   else if (mode === "tls") await tls(page);
+  else if (mode === "gone") await gone(page);
   else throw new Error(`unknown mode ${mode}`);
   if (errors.length > 0) throw new Error(`the page reported errors:\n${errors.join("\n")}`);
   say("step no-console-errors");
@@ -597,4 +604,60 @@ async function tls(page) {
   ]);
   say(`step tls-axes ${JSON.stringify(axes)} protocol=${hops.join(",")}`);
   await page.screenshot({ path: `${shots}/tls.png` });
+}
+
+// The Control column follows the handwheel taking and releasing X; quick
+// stop of every axis; then the gateway goes away: the connection line
+// turns, the rows are marked stale with their age, and a STOP ALL that
+// fails stays on the page until acknowledged.
+async function gone(page) {
+  await until("axes X, Y, Z listed", () => axesListed(page));
+  await until("connected", async () => (await page.$eval("#conn", (c) => c.textContent)) === "connected");
+  const control = () => cell(page, "X", "control");
+  await press(page, `button[data-page="handwheel"]`);
+  await until("hw1 shown", () => page.$(`section[data-handwheel="hw1"] tr[data-key="frames"]`));
+  await press(page, `section[data-handwheel="hw1"] button[data-cmd="mode-manual"]`);
+  await until("X's control shows the handwheel", async () => (await control()).includes("handwheel hw1"));
+  say(`step control-taken ${await control()}`);
+  await press(page, `section[data-handwheel="hw1"] button[data-cmd="mode-automatic"]`);
+  await until("X's control free again", async () => (await control()) === "—");
+  say("step control-released");
+  await press(page, `button[data-page="axes"]`);
+
+  // Quick stop of every axis (at rest: nothing to do, nothing refused).
+  await press(page, "#quick-stop-all");
+  await sleep(500);
+  const banner = await page.$eval("#stop-failed", (b) => (b.hidden ? "" : b.textContent));
+  if (banner) throw new Error(`quick stop all failed: ${banner}`);
+  say("step quick-stop-all");
+
+  say("need shutdown");
+  await stdin.next();
+  gatewayGone = true;
+  const t0 = Date.now();
+  await until("the connection line turns", async () =>
+    (await page.$eval("body", (b) => b.dataset.conn)) === "lost");
+  say(`step link-lost ms=${Date.now() - t0} ${await page.$eval("#conn", (c) => c.textContent)}`);
+  await until("every axis row marked stale with its age", async () => {
+    const rows = await page.$$eval("#axes tbody tr", (rs) =>
+      rs.map((r) => [r.dataset.stale, r.querySelector(".stale-age")?.textContent ?? ""]));
+    return rows.length > 0 && rows.every(([stale, age]) => stale === "true" && /^stale \d+ s$/.test(age));
+  });
+  // The age counts up.
+  await until("the age counts up", async () =>
+    (await page.$eval('tr[data-axis="X"] .stale-age', (a) => a.textContent)) !== "stale 0 s");
+  say(`step rows-stale ${await page.$eval('tr[data-axis="X"] .stale-age', (a) => a.textContent)}`);
+  await page.screenshot({ path: `${shots}/gone.png` });
+
+  await press(page, "#stop-all");
+  const failed = () => page.$eval("#stop-failed", (b) => (b.hidden ? "" : b.textContent));
+  await until("the failed STOP ALL shown", async () => (await failed()).includes("STOP ALL FAILED"));
+  // Still there after other messages came and went.
+  await until("the notice changed since", async () => (await text(page, "#notice")) !== "");
+  await sleep(1500);
+  if (!(await failed()).includes("STOP ALL FAILED")) throw new Error("the failed stop was not kept");
+  say("step stop-failed-shown");
+  await press(page, "#stop-failed-ack");
+  await until("the failed stop acknowledged", async () => (await failed()) === "");
+  say("step stop-failed-acknowledged");
 }

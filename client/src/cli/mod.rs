@@ -563,7 +563,7 @@ impl Drop for AbortOnDrop {
 
 /// Parses the command line, runs the verb, reports a failure once.
 pub(crate) async fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = Cli::parse_from(sdo::hoist_write_options(std::env::args_os().collect()));
     match run(cli).await {
         Ok(()) => ExitCode::from(exit::OK),
         Err(f) if f.is_broken_pipe() => ExitCode::from(exit::OK),
@@ -580,7 +580,13 @@ async fn run(cli: Cli) -> Result<()> {
         Command::HashToken { token } => return hash_token(token.clone()),
         Command::Completions { shell } => {
             let mut cmd = Cli::command();
-            clap_complete::generate(*shell, &mut cmd, "cangate", &mut std::io::stdout());
+            // Made whole first, then written: a reader that closes early
+            // (`| head -1`) is a broken pipe, which ends us quietly.
+            let mut script = Vec::new();
+            clap_complete::generate(*shell, &mut cmd, "cangate", &mut script);
+            let mut out = std::io::stdout().lock();
+            out.write_all(&script)?;
+            out.flush()?;
             return Ok(());
         }
         // Input clap cannot check alone, refused before connecting.

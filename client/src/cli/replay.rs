@@ -108,13 +108,22 @@ struct Writers<'a> {
     app: &'a App,
     open: BTreeMap<String, BusWriter>,
     pending: BTreeMap<String, Vec<cangate_client::can::Frame>>,
+    /// CAN FD frames of the log left out, by classic bus: the gateway
+    /// would refuse the whole batch they are in.
+    skipped_fd: BTreeMap<String, u64>,
 }
 
 impl Writers<'_> {
     async fn queue(&mut self, bus: String, record: LogRecord) -> Result<()> {
-        if !self.open.contains_key(&bus) {
-            let writer = BusWriter::open(self.app, &bus).await?;
-            self.open.insert(bus.clone(), writer);
+        let writer = match self.open.entry(bus.clone()) {
+            std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::btree_map::Entry::Vacant(e) => {
+                e.insert(BusWriter::open(self.app, &bus).await?)
+            }
+        };
+        if record.frame.is_fd() && !writer.fd() {
+            *self.skipped_fd.entry(bus).or_default() += 1;
+            return Ok(());
         }
         let batch = self.pending.entry(bus.clone()).or_default();
         batch.push(record.frame);
@@ -157,6 +166,7 @@ pub(crate) async fn replay(app: &App, a: ReplayArgs) -> Result<()> {
         app,
         open: BTreeMap::new(),
         pending: BTreeMap::new(),
+        skipped_fd: BTreeMap::new(),
     };
     let mut skipped_errors = 0u64;
     let played = tokio::select! {
@@ -165,9 +175,15 @@ pub(crate) async fn replay(app: &App, a: ReplayArgs) -> Result<()> {
     };
     // Whatever happened, what was queued goes and is accounted for.
     let flushed = writers.flush().await;
+    let skipped_fd = std::mem::take(&mut writers.skipped_fd);
     let tallies = writers.finish().await;
     for (bus, t) in &tallies {
         eprintln!("cangate: replay on {bus}: {}", t.summary());
+    }
+    for (bus, n) in &skipped_fd {
+        eprintln!(
+            "cangate: replay on {bus}: {n} CAN FD frames of the log skipped (the bus is classic CAN)"
+        );
     }
     if skipped_errors > 0 {
         eprintln!(

@@ -88,6 +88,73 @@ impl SdoArgs {
     }
 }
 
+/// The command line with the options of an `sdo write` that follow its
+/// `[TYPE] VALUE` words moved before them (`sdo write can0 1 0x2100 domain
+/// --file fw.bin --block` as `sdo write --file fw.bin --block can0 1 0x2100
+/// domain`): the words take values that start with a dash (`-5000`,
+/// `-x-`), so clap would take an option after them for a value. Only the
+/// long options `sdo write` knows (its own and the global ones) move;
+/// nothing after `--`.
+pub(crate) fn hoist_write_options(args: Vec<std::ffi::OsString>) -> Vec<std::ffi::OsString> {
+    use clap::CommandFactory;
+    let Some(at) = args
+        .windows(2)
+        .position(|w| w[0] == "sdo" && w[1] == "write")
+    else {
+        return args;
+    };
+    let mut cli = super::Cli::command();
+    cli.build();
+    let globals = cli.get_arguments().filter(|a| a.is_global_set());
+    let Some(write) = cli
+        .find_subcommand("sdo")
+        .and_then(|c| c.find_subcommand("write"))
+    else {
+        return args;
+    };
+    // Long option name -> whether it takes a value.
+    let options: std::collections::HashMap<String, bool> = write
+        .get_arguments()
+        .chain(globals)
+        .filter_map(|a| Some((a.get_long()?.to_string(), a.get_action().takes_values())))
+        .chain([("help".to_string(), false)])
+        .collect();
+    let start = at + 2;
+    let (mut hoisted, mut rest) = (Vec::new(), Vec::new());
+    let mut tail = args[start..].iter();
+    while let Some(arg) = tail.next() {
+        if arg == "--" {
+            rest.push(arg.clone());
+            rest.extend(tail.by_ref().cloned());
+            break;
+        }
+        let option = arg
+            .to_str()
+            .and_then(|a| a.strip_prefix("--"))
+            .map(|a| {
+                a.split_once('=')
+                    .map_or((a, false), |(name, _)| (name, true))
+            })
+            .and_then(|(name, inline)| Some((*options.get(name)?, inline)));
+        match option {
+            Some((takes_value, inline)) => {
+                hoisted.push(arg.clone());
+                if takes_value
+                    && !inline
+                    && let Some(value) = tail.next()
+                {
+                    hoisted.push(value.clone());
+                }
+            }
+            None => rest.push(arg.clone()),
+        }
+    }
+    let mut out = args[..start].to_vec();
+    out.extend(hoisted);
+    out.extend(rest);
+    out
+}
+
 /// The `[TYPE] VALUE` words of `sdo write` (only `[TYPE]` with a file).
 /// A lone word is the value, unless it names a type: that is more likely
 /// a forgotten value than a text to write (write it as `vs u8`).
@@ -490,6 +557,65 @@ mod tests {
         };
         let (ty, value) = type_and_value(&words, file.is_some()).unwrap();
         (object, ty, value)
+    }
+
+    #[test]
+    fn options_may_follow_the_type_and_value() {
+        let hoist = |argv: &[&str]| -> Vec<String> {
+            hoist_write_options(argv.iter().map(Into::into).collect())
+                .into_iter()
+                .map(|a| a.into_string().unwrap())
+                .collect()
+        };
+        // The README's order.
+        let argv = hoist(&[
+            "cangate", "sdo", "write", "can0", "1", "0x2100", "domain", "--file", "fw.bin",
+            "--block",
+        ]);
+        let all: Vec<&str> = argv.iter().map(String::as_str).collect();
+        let SdoVerb::Write {
+            words,
+            file,
+            transfer,
+            ..
+        } = sdo(&all[2..])
+        else {
+            panic!()
+        };
+        assert_eq!(words, ["domain"]);
+        assert_eq!(file, Some(PathBuf::from("fw.bin")));
+        assert!(transfer.block);
+        // Global options and inline values too; a value after `--` stays.
+        let argv = hoist(&[
+            "cangate",
+            "sdo",
+            "write",
+            "can0",
+            "1",
+            "0x2000",
+            "vs",
+            "--json",
+            "--sdo-timeout-ms=900",
+            "--",
+            "--block",
+        ]);
+        assert_eq!(
+            argv[3..],
+            [
+                "--json",
+                "--sdo-timeout-ms=900",
+                "can0",
+                "1",
+                "0x2000",
+                "vs",
+                "--",
+                "--block"
+            ]
+        );
+        // Other commands are left alone.
+        let argv = hoist(&["cangate", "sdo", "read", "can0", "1", "0x1008", "--block"]);
+        assert_eq!(argv[2], "read");
+        assert_eq!(argv[6], "--block");
     }
 
     #[test]

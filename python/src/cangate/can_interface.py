@@ -22,12 +22,22 @@ How it maps onto Attach (proto/cangate/v1/bus.proto):
 - ``receive_own_messages`` is AttachOpen.receive_own;
 - CAN FD (``fd``, default: what the gateway's bus is), BRS, ESI, remote and
   extended frames, error frames with ``error_frames=True``;
-- the gateway processes sent messages in order and reports a refused one
-  (raw frame budget spent, bus off, malformed frame) in the stream, after
-  ``send`` returned: the refusal is logged at once and raised by the next
-  ``send`` as ``can.CanOperationError``;
-- frames the gateway dropped because this program read too slowly are
-  counted in ``frames_lost`` and logged as warnings;
+- the gateway processes sent messages in order and answers each: done
+  once its frame went out (AttachEvent.done), or refused (raw frame budget
+  spent, bus off, malformed frame: AttachEvent.refused). ``send`` waits
+  for the answer (at most its ``timeout``) and raises a refusal as
+  ``can.CanOperationError`` with the gateway's reason; with
+  ``confirm_send=False`` it returns once the message is queued, and a
+  refusal is raised by the next ``send``;
+- ``shutdown`` (the end of a ``with`` block) sends what ``send`` queued
+  and waits for the gateway's answers, at most ``shutdown_timeout``
+  seconds, before it closes; what was refused or not confirmed in that
+  time is raised as ``can.CanOperationError`` (after the bus was closed);
+- frames the gateway dropped because this program read too slowly, and
+  frames dropped here when ``receive_buffer`` is full (as a socket's
+  receive buffer drops them), are counted in ``frames_lost`` and logged as
+  warnings: the stream is always read, so the answers to ``send`` never
+  wait behind unread frames;
 - the stream ending with an error (gateway shutdown, a protocol error) is
   raised by the next ``recv``/``send`` as ``can.CanOperationError`` with the
   server's message, once the frames received before it were read.
@@ -115,8 +125,8 @@ def frame_to_message(frame: bus_pb2.Frame, channel: str) -> can.Message:
 class _Attachment:
     """One Attach stream: requests go through a bounded queue that gRPC's
     sending thread drains; a reader thread puts received messages into a
-    bounded queue (when it is full the reader waits, flow control reaches
-    the gateway, and the gateway drops and counts frames for this client)."""
+    bounded queue (when it is full, frames are dropped and counted) and
+    records the gateway's answers to the messages sent."""
 
     def __init__(
         self,
@@ -131,6 +141,15 @@ class _Attachment:
         self.requests: queue.Queue = queue.Queue(maxsize=send_buffer)
         self.received: queue.Queue = queue.Queue(maxsize=receive_buffer)
         self.refusals: collections.deque = collections.deque(maxlen=100)
+        # The gateway answers messages in the order sent: every sequence
+        # number up to `answered` is done or refused.
+        self.answered = 0
+        self.last_sent = 0
+        # Sequence numbers whose send() waits for the answer: their
+        # refusals are theirs to raise, not the next send's.
+        self.waiting: set = set()
+        self.answers = threading.Condition()
+        self.ended = False
         self.lost = 0
         self.state: Optional[bus_pb2.BusStatus] = None
         self.opened: Optional[bus_pb2.AttachOpened] = None
@@ -189,17 +208,31 @@ class _Attachment:
                     self.received.put_nowait(_END)
                 except queue.Full:
                     pass  # the reader of the full queue finds the error after it
+            with self.answers:
+                self.ended = True
+                self.answers.notify_all()
 
     def _on_event(self, ev: bus_pb2.AttachEvent) -> None:
         kind = ev.WhichOneof("event")
         if kind == "frame":
             msg = frame_to_message(ev.frame, self.bus)
-            while not self._closing.is_set():
-                try:
-                    self.received.put(msg, timeout=0.1)
-                    return
-                except queue.Full:
-                    continue
+            try:
+                self.received.put_nowait(msg)
+            except queue.Full:
+                # Not read in time: dropped here, like the gateway does for
+                # a slow stream, so that the answers behind it still come.
+                self.lost += 1
+                if self.lost & (self.lost - 1) == 0:  # 1, 2, 4, 8, ...
+                    log.warning(
+                        "cangate %s: receive buffer full, frames dropped (read too slowly); "
+                        "%d in all",
+                        self.bus,
+                        self.lost,
+                    )
+        elif kind == "done":
+            with self.answers:
+                self.answered = max(self.answered, ev.done.sequence)
+                self.answers.notify_all()
         elif kind == "lost":
             self.lost += ev.lost.count
             log.warning(
@@ -213,7 +246,10 @@ class _Attachment:
             self.state = ev.state
             log.info("cangate %s: bus state %s", self.bus, bus_pb2.BusState.Name(ev.state.state))
         elif kind == "refused":
-            self.refusals.append(ev.refused)
+            with self.answers:
+                self.refusals.append(ev.refused)
+                self.answered = max(self.answered, ev.refused.sequence)
+                self.answers.notify_all()
             r = ev.refused
             log.warning(
                 "cangate %s: message %d refused (%d of %d frames sent): %s %s",
@@ -228,11 +264,58 @@ class _Attachment:
             self.opened = ev.opened
             self._open_done.set()
 
-    def close(self) -> None:
-        """Ends the stream: no more messages, then cancels the call."""
+    def wait_answered(self, sequence: int, timeout: Optional[float]) -> bool:
+        """Waits until the gateway answered every message up to `sequence`
+        (None: as long as the stream lasts); False when it did not in time
+        or the stream ended first."""
+        with self.answers:
+            return self.answers.wait_for(
+                lambda: self.answered >= sequence or self.ended,
+                timeout,
+            ) and self.answered >= sequence
+
+    def take_refusal(self, sequence: Optional[int] = None) -> Optional[list]:
+        """The refusals not raised yet (only that of `sequence` when given),
+        removed; None when there is none."""
+        with self.answers:
+            if sequence is None:
+                refused = [r for r in self.refusals if r.sequence not in self.waiting]
+                for r in refused:
+                    self.refusals.remove(r)
+            else:
+                refused = [r for r in self.refusals if r.sequence == sequence]
+                for r in refused:
+                    self.refusals.remove(r)
+        return refused or None
+
+    def close(self, flush_timeout: float = 0.0) -> Optional[str]:
+        """Ends the stream: no more messages; waits up to `flush_timeout`
+        seconds for the gateway's answers to the messages queued, then
+        cancels the call. Returns what was not sent, for people, or None."""
+        unsent = None
+        if not self.ended and flush_timeout > 0:
+            try:
+                # The end of the messages, after those queued (half-close).
+                self.requests.put(None, timeout=flush_timeout)
+            except queue.Full:
+                pass
+        if not self.wait_answered(self.last_sent, flush_timeout):
+            with self.answers:
+                missing = self.last_sent - self.answered
+            unsent = f"{missing} of the messages sent were not confirmed by the gateway"
+            unsent += f": {self.error}" if self.error else f" within {flush_timeout} s"
         self._closing.set()
         self._call.cancel()
         self._reader.join(timeout=2.0)
+        refused = self.take_refusal()
+        if refused:
+            r = refused[-1]
+            text = (
+                f"{len(refused)} messages refused by the gateway, the last ({r.sequence}): "
+                f"{r.reason}: {r.message}"
+            )
+            unsent = f"{text}; {unsent}" if unsent else text
+        return unsent
 
 
 class CangateBus(can.BusABC):
@@ -253,6 +336,12 @@ class CangateBus(can.BusABC):
     :param receive_buffer: received frames held here before the reader
         waits (and the gateway starts dropping, counted in ``frames_lost``).
     :param send_buffer: messages waiting to be sent before ``send`` blocks.
+    :param confirm_send: ``send`` returns once the gateway confirmed the
+        frame went out, and raises its refusal (default); False: once the
+        message is queued, a refusal raised by the next ``send``.
+    :param shutdown_timeout: seconds ``shutdown`` waits for the messages
+        sent to go out before it closes (and raises for those that did
+        not).
     :param connect_timeout: seconds to wait for the gateway when opening.
     :param ca: PEM file of the CA to trust (enables TLS).
     :param cert: PEM client certificate (mTLS), with ``key``.
@@ -272,6 +361,8 @@ class CangateBus(can.BusABC):
         queue_length: int = 0,
         receive_buffer: int = 10_000,
         send_buffer: int = 1_000,
+        confirm_send: bool = True,
+        shutdown_timeout: float = 5.0,
         connect_timeout: float = 5.0,
         ca: Optional[str] = None,
         cert: Optional[str] = None,
@@ -286,7 +377,12 @@ class CangateBus(can.BusABC):
         self._queue_length = int(queue_length)
         self._buffers = (int(receive_buffer), int(send_buffer))
         self._timeout = float(connect_timeout)
-        self._sequence = itertools.count(1)  # next() is atomic under the GIL
+        self._confirm = bool(confirm_send)
+        self._shutdown_timeout = float(shutdown_timeout)
+        self._sequence = itertools.count(1)
+        # Sequence numbers are taken and queued together: the gateway
+        # answers in the order of the messages.
+        self._send_lock = threading.Lock()
         self._lost_before = 0
         self._attachment: Optional[_Attachment] = None
         self._grpc = open_channel(self._server, token, ca=ca, cert=cert, key=key)
@@ -374,8 +470,10 @@ class CangateBus(can.BusABC):
         # the new ones (frames in between are not received).
         log.info("cangate %s: new filters, attaching again", self.channel)
         old = self._attachment
+        unsent = old.close(self._shutdown_timeout)
         self._lost_before += old.lost
-        old.close()
+        if unsent:
+            log.error("cangate %s: attaching again: %s", self.channel, unsent)
         self._server_filters = pb
         self._attachment = self._attach(pb or [])
 
@@ -399,37 +497,67 @@ class CangateBus(can.BusABC):
     # ------------------------------------------------------------ send
 
     def send(self, msg: can.Message, timeout: Optional[float] = None) -> None:
-        """Queues `msg` for the gateway. Raises ``can.CanOperationError``
-        when the stream has ended, when the send buffer stays full for
-        `timeout` seconds, or for a message the gateway refused since the
-        previous call (a refusal arrives after the call that queued it)."""
+        """Sends `msg` and waits (at most `timeout` seconds; None: as long
+        as the stream lasts) until the gateway confirmed it went out.
+        Raises ``can.CanOperationError`` when the gateway refused it (its
+        reason in the message, the ``SendRefused`` in ``refusals``), when
+        the stream has ended, when the send buffer stays full or no answer
+        comes within `timeout`, or for an earlier message the gateway
+        refused after its ``send`` returned. With ``confirm_send=False`` it
+        returns once the message is queued."""
         a = self._attachment
         if a is None:
             raise can.CanOperationError("cangate: the bus is shut down")
         if a.error is not None:
             raise a.error
-        if a.refusals:
-            refused = list(a.refusals)
-            a.refusals.clear()
-            r = refused[-1]
-            more = f" ({len(refused)} messages refused)" if len(refused) > 1 else ""
-            err = can.CanOperationError(
-                f"cangate: message {r.sequence} was refused by the gateway{more}: "
-                f"{r.reason}: {r.message}"
-            )
-            err.refusals = refused  # type: ignore[attr-defined]
-            raise err
+        self._raise_refusal(a.take_refusal())
         if msg.is_fd and not self._fd:
             raise can.CanOperationError("cangate: CAN FD frame on a bus opened without fd")
-        request = bus_pb2.AttachRequest(
-            send=bus_pb2.AttachSend(frames=[message_to_frame(msg)], sequence=next(self._sequence))
-        )
+        frame = message_to_frame(msg)
+        with self._send_lock:
+            sequence = next(self._sequence)
+            request = bus_pb2.AttachRequest(
+                send=bus_pb2.AttachSend(frames=[frame], sequence=sequence)
+            )
+            if self._confirm:
+                with a.answers:
+                    a.waiting.add(sequence)
+            try:
+                a.requests.put(request, timeout=timeout)
+            except queue.Full:
+                with a.answers:
+                    a.waiting.discard(sequence)
+                raise can.CanOperationError(
+                    f"cangate: send buffer full for {timeout} s (the bus is slower than the sender)"
+                ) from None
+            a.last_sent = sequence
+        if not self._confirm:
+            return
         try:
-            a.requests.put(request, timeout=timeout)
-        except queue.Full:
+            answered = a.wait_answered(sequence, timeout)
+        finally:
+            with a.answers:
+                a.waiting.discard(sequence)
+        self._raise_refusal(a.take_refusal(sequence))
+        if not answered:
+            if a.error is not None:
+                raise a.error
             raise can.CanOperationError(
-                f"cangate: send buffer full for {timeout} s (the bus is slower than the sender)"
-            ) from None
+                f"cangate: message {sequence} not confirmed by the gateway within {timeout} s"
+            )
+
+    @staticmethod
+    def _raise_refusal(refused: Optional[list]) -> None:
+        if not refused:
+            return
+        r = refused[-1]
+        more = f" ({len(refused)} messages refused)" if len(refused) > 1 else ""
+        err = can.CanOperationError(
+            f"cangate: message {r.sequence} was refused by the gateway{more}: "
+            f"{r.reason}: {r.message}"
+        )
+        err.refusals = refused  # type: ignore[attr-defined]
+        raise err
 
     def flush_tx_buffer(self) -> None:
         """Drops the messages not yet handed to gRPC."""
@@ -443,15 +571,23 @@ class CangateBus(can.BusABC):
     # ------------------------------------------------------------ lifecycle
 
     def shutdown(self) -> None:
-        """Ends the Attach stream and closes the connection."""
+        """Sends what ``send`` queued and waits for the gateway's answers
+        (at most ``shutdown_timeout`` seconds), ends the Attach stream and
+        closes the connection. Then raises ``can.CanOperationError`` when a
+        message was refused or not confirmed in that time (it may not have
+        reached the bus)."""
         if self._is_shutdown:
             return
         super().shutdown()
         a, self._attachment = self._attachment, None
+        unsent = None
         if a is not None:
+            unsent = a.close(self._shutdown_timeout)
             self._lost_before += a.lost
-            a.close()
         self._grpc.close()
+        if unsent:
+            log.error("cangate %s: at shutdown: %s", self.channel, unsent)
+            raise can.CanOperationError(f"cangate {self.channel}: at shutdown: {unsent}")
 
     @staticmethod
     def _detect_available_configs() -> list:

@@ -102,6 +102,16 @@ struct Task {
     samples: Vec<(usize, CyclicSample)>,
     /// Slots with feedback not yet published.
     dirty: Vec<bool>,
+    /// Each TPDO's bit among its drive's TPDOs (see `round`).
+    tpdo_bit: HashMap<u16, u32>,
+    /// Per slot: the bits of all its drive's TPDOs, and of those received
+    /// since its status was last published. A status is published once
+    /// the drive's TPDOs of one SYNC are all in (they may come in two
+    /// batches of the subscription), so that one cycle makes one status;
+    /// a TPDO that comes again before the others closes the round with
+    /// what came (one was lost, or is sent on change only).
+    round_full: Vec<u32>,
+    round: Vec<u32>,
     /// Reused for the controllers' outputs.
     scratch: Vec<Output>,
     updates: broadcast::Sender<AxisUpdate>,
@@ -217,9 +227,21 @@ pub fn spawn(
             tracing::error!(bus = %master.bus(), "cyclic axes without a SYNC: they get no set-points");
         }
     }
+    let mut tpdo_bit = HashMap::new();
+    let mut round_full = vec![0u32; slots.len()];
+    let mut cobs: Vec<(u16, usize)> = tpdos.iter().map(|(&c, &(i, _))| (c, i)).collect();
+    cobs.sort_unstable();
+    for (cob, i) in cobs {
+        let bit = 1u32 << round_full[i].count_ones().min(31);
+        round_full[i] |= bit;
+        tpdo_bit.insert(cob, bit);
+    }
     let t = Task {
         master,
         dirty: vec![false; slots.len()],
+        tpdo_bit,
+        round: vec![0; round_full.len()],
+        round_full,
         slots,
         by_node,
         tpdos,
@@ -355,10 +377,21 @@ impl Task {
             }
             BusItem::State(_) => return,
         };
-        let Some((i, cfg)) = self.tpdos.get(&(frame.raw_id() as u16)) else {
+        let cob = frame.raw_id() as u16;
+        let Some(&(i, _)) = self.tpdos.get(&cob) else {
             return;
         };
-        let i = *i;
+        let bit = self.tpdo_bit.get(&cob).copied().unwrap_or(0);
+        if self.round[i] & bit != 0 {
+            self.round[i] = 0;
+            if std::mem::take(&mut self.dirty[i]) {
+                self.publish_status(i);
+            }
+        }
+        self.round[i] |= bit;
+        let Some((_, cfg)) = self.tpdos.get(&cob) else {
+            return;
+        };
         self.master.relay_tpdo(&frame);
         match feedback_from_pdo(cfg, frame.data()) {
             Ok(fb) => {
@@ -368,8 +401,8 @@ impl Task {
                 self.slots[i].axis.on_feedback(fb, now, &mut out);
                 self.handle_with(i, &mut out);
                 self.scratch = out;
-                // Published once per batch: a drive's TPDOs of one SYNC
-                // usually arrive together.
+                // Published once the drive's TPDOs of this SYNC are all
+                // in (see `round`).
                 self.dirty[i] = true;
             }
             Err(e) => {
@@ -467,10 +500,12 @@ impl Task {
     }
 
     /// Publishes the status of every axis that had feedback since the last
-    /// call.
+    /// call and has its drive's TPDOs of the cycle all in.
     fn publish_dirty(&mut self) {
         for i in 0..self.slots.len() {
-            if std::mem::take(&mut self.dirty[i]) {
+            if self.dirty[i] && self.round[i] & self.round_full[i] == self.round_full[i] {
+                self.dirty[i] = false;
+                self.round[i] = 0;
                 self.publish_status(i);
             }
         }

@@ -403,8 +403,8 @@ fn attach_protocol(message: impl Into<String>) -> Status {
     ApiError::refused(Code::InvalidArgument, "ATTACH_PROTOCOL", message, vec![]).into()
 }
 
-/// The sending half of an Attach stream: each AttachSend in order, its
-/// refusal reported in the stream; ends when the client goes away, breaks
+/// The sending half of an Attach stream: each AttachSend in order,
+/// answered in the stream with its SendDone or SendRefused; ends when the client goes away, breaks
 /// the protocol or the gateway shuts down. After the client's half-close
 /// it only holds the sender's name until the stream ends.
 #[allow(clippy::too_many_arguments)]
@@ -465,15 +465,22 @@ async fn attach_sends(
             _ = tx.closed() => return,
             r = sending => r,
         };
-        if let Err(r) = result {
-            let event = send_refused_to_pb(send.sequence, r.sent, r.total, &r.error);
-            let message = pb::AttachResponse {
-                events: vec![event],
-            };
-            tokio::select! {
-                _ = cancel.cancelled() => return,
-                r = tx.send(Ok(message)) => if r.is_err() { return },
-            }
+        // Every message is answered: done, or refused with the reason.
+        let event = match result {
+            Ok(()) => pb::AttachEvent {
+                event: Some(pb::attach_event::Event::Done(pb::SendDone {
+                    sequence: send.sequence,
+                    sent: send.frames.len() as u32,
+                })),
+            },
+            Err(r) => send_refused_to_pb(send.sequence, r.sent, r.total, &r.error),
+        };
+        let message = pb::AttachResponse {
+            events: vec![event],
+        };
+        tokio::select! {
+            _ = cancel.cancelled() => return,
+            r = tx.send(Ok(message)) => if r.is_err() { return },
         }
     }
 }

@@ -285,18 +285,20 @@ class AttachResponse(_message.Message):
     def __init__(self, events: _Optional[_Iterable[_Union[AttachEvent, _Mapping]]] = ...) -> None: ...
 
 class AttachEvent(_message.Message):
-    __slots__ = ("opened", "frame", "lost", "state", "refused")
+    __slots__ = ("opened", "frame", "lost", "state", "refused", "done")
     OPENED_FIELD_NUMBER: _ClassVar[int]
     FRAME_FIELD_NUMBER: _ClassVar[int]
     LOST_FIELD_NUMBER: _ClassVar[int]
     STATE_FIELD_NUMBER: _ClassVar[int]
     REFUSED_FIELD_NUMBER: _ClassVar[int]
+    DONE_FIELD_NUMBER: _ClassVar[int]
     opened: AttachOpened
     frame: Frame
     lost: FramesLost
     state: BusStatus
     refused: SendRefused
-    def __init__(self, opened: _Optional[_Union[AttachOpened, _Mapping]] = ..., frame: _Optional[_Union[Frame, _Mapping]] = ..., lost: _Optional[_Union[FramesLost, _Mapping]] = ..., state: _Optional[_Union[BusStatus, _Mapping]] = ..., refused: _Optional[_Union[SendRefused, _Mapping]] = ...) -> None: ...
+    done: SendDone
+    def __init__(self, opened: _Optional[_Union[AttachOpened, _Mapping]] = ..., frame: _Optional[_Union[Frame, _Mapping]] = ..., lost: _Optional[_Union[FramesLost, _Mapping]] = ..., state: _Optional[_Union[BusStatus, _Mapping]] = ..., refused: _Optional[_Union[SendRefused, _Mapping]] = ..., done: _Optional[_Union[SendDone, _Mapping]] = ...) -> None: ...
 
 class AttachOpened(_message.Message):
     __slots__ = ("bus", "sender_id", "client", "queue_length")
@@ -334,3 +336,11 @@ class SendRefused(_message.Message):
     reason: str
     metadata: _containers.ScalarMap[str, str]
     def __init__(self, sequence: _Optional[int] = ..., sent: _Optional[int] = ..., total: _Optional[int] = ..., code: _Optional[int] = ..., message: _Optional[str] = ..., reason: _Optional[str] = ..., metadata: _Optional[_Mapping[str, str]] = ...) -> None: ...
+
+class SendDone(_message.Message):
+    __slots__ = ("sequence", "sent")
+    SEQUENCE_FIELD_NUMBER: _ClassVar[int]
+    SENT_FIELD_NUMBER: _ClassVar[int]
+    sequence: int
+    sent: int
+    def __init__(self, sequence: _Optional[int] = ..., sent: _Optional[int] = ...) -> None: ...

@@ -129,7 +129,13 @@ class BusServicer:
         sent (a malformed frame, the raw frame budget spent, the bus off, too
         many client frames waiting) is refused as a whole, as SendFrames would
         refuse it, and reported in the stream as a SendRefused naming the
-        message's `sequence`; the stream goes on.
+        message's `sequence`; the stream goes on. A message whose frames all
+        went out is acknowledged with a SendDone naming its `sequence`. Every
+        AttachSend is answered by exactly one SendDone or SendRefused, in the
+        order the messages were sent (a message still waiting or being sent
+        when the stream ends gets neither), so a client can wait until what
+        it sent is on the bus (before it closes, say) and tell which message
+        a refusal belongs to.
 
         The gateway streams to the client every frame on the bus that passes its
         filters: frames of other nodes on the wire (FRAME_ORIGIN_BUS), of the
