@@ -61,6 +61,8 @@ struct Slot {
     /// The set-point RPDO's payload as last handed to the SYNC thread, the
     /// target position masked.
     setpoint_payload: Vec<u8>,
+    /// Tells the CANopen operations whether this axis is active.
+    drive_guard: crate::canopen::drive_guard::DriveRegistration,
 }
 
 /// The axis task's side of an SDO fallback worker.
@@ -165,7 +167,11 @@ pub fn spawn(
             if info.config.position_mode == PositionModeChoice::Cyclic && setpoint.is_none() {
                 tracing::error!(axis = %info.config.name, "cyclic axis without an RPDO mapping the target position (0x607A, 32 bits): it gets no set-points");
             }
+            let drive_guard = master
+                .drive_guard()
+                .register(info.node, &info.config.name);
             Slot {
+                drive_guard,
                 global,
                 axis: Cia402Axis::new(info.config.controller()),
                 info,
@@ -645,6 +651,10 @@ impl Task {
     fn publish_status(&mut self, i: usize) {
         let slot = &self.slots[i];
         let snapshot = Arc::new(slot.axis.snapshot());
+        slot.drive_guard.publish(
+            snapshot.state,
+            snapshot.activity == cangate_axis::Activity::Idle,
+        );
         self.latest.write().expect("latest lock")[slot.global] = Some((snapshot.clone(), slot.at));
         let _ = self.updates.send(AxisUpdate::Status {
             axis: slot.global,

@@ -22,7 +22,9 @@ use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio_util::sync::CancellationToken;
 
 pub mod dcf_export;
+pub mod drive_guard;
 pub mod handover;
+pub mod heard;
 pub mod lss;
 pub mod master_heartbeat;
 pub mod pdo_config;
@@ -253,6 +255,22 @@ pub enum CanopenError {
         /// What the scan found, for the message.
         found: String,
     },
+    /// LSS would give a device a node-ID another device uses.
+    #[error(
+        "bus {bus}: node-ID {node} is in use: {why}; a second device with it would take \
+         over its messages (give another id, or force it)"
+    )]
+    LssNodeIdInUse {
+        /// The bus.
+        bus: String,
+        /// The node-ID asked for.
+        node: u8,
+        /// Who uses it.
+        why: String,
+    },
+    /// The operation would disturb an enabled or moving axis.
+    #[error(transparent)]
+    AxisActive(#[from] drive_guard::AxisActive),
     /// The caller already has as many SDO requests queued or running with
     /// this node as one caller may.
     #[error(
@@ -327,6 +345,10 @@ pub struct CanopenBus {
     programs: program::Downloads,
     /// How requests and answers cross to the bus thread and back.
     handover: handover::Handover,
+    /// The axes' drives on this bus and whether their axes are active.
+    drive_guard: Arc<drive_guard::DriveGuard>,
+    /// When each node-ID was last heard.
+    heard: Arc<heard::HeardNodes>,
 }
 
 /// One API caller's SDO request counted against
@@ -395,6 +417,13 @@ impl CanopenBus {
         // Subscribe before returning, so that nothing the nodes send after
         // this point (their boot-up, typically) is missed.
         let sub = bus.subscribe(master_selector(&configured), 65_536);
+        let axis_drives = configured
+            .iter()
+            .filter(|(_, f)| f.tpdos_read_by_axis)
+            .map(|(id, _)| id.get())
+            .collect();
+        let (heard, heard_task) = heard::spawn(&bus, &axis_drives, cancel.clone());
+        drop(heard_task);
         let boots: Vec<(NodeId, Arc<BootPlan>)> = configured
             .iter()
             .filter_map(|(id, f)| f.boot.clone().map(|b| (*id, b)))
@@ -441,6 +470,8 @@ impl CanopenBus {
             lss_operation: Arc::default(),
             programs: program::Downloads::default(),
             handover: handover::Handover::off(),
+            drive_guard: Arc::default(),
+            heard,
         };
         tokio::spawn(handle.handover.clone().keep_awake(cancel.clone()));
         let mut master = Master::new(sdo_timeout);
