@@ -629,6 +629,11 @@ impl Task {
     fn on_axis_event(&mut self, i: usize, e: AxisEvent) {
         let slot = &mut self.slots[i];
         let axis = &slot.axis;
+        // The drive guard knows the axis's state before the command's
+        // caller does.
+        let now = axis.snapshot();
+        slot.drive_guard
+            .publish(now.state, now.activity == cangate_axis::Activity::Idle);
         slot.waiters.dispatch(
             e,
             &slot.info.config.name,

@@ -142,15 +142,15 @@ impl CanopenBus {
     /// axis.
     fn check_node_id_unused(&self, node: NodeId) -> Result<(), CanopenError> {
         let in_use = |why| self.node_id_in_use(node, why);
+        if let Some(axis) = self.drive_guard.axis_of(node) {
+            return Err(in_use(format!(
+                "it is configured as the drive of axis {axis}"
+            )));
+        }
         if let Some(ago) = self.heard.in_use(node) {
             return Err(in_use(format!(
                 "node {node} sent a frame {:.1} s ago",
                 ago.as_secs_f64()
-            )));
-        }
-        if let Some(axis) = self.drive_guard.axis_of(node) {
-            return Err(in_use(format!(
-                "it is configured as the drive of axis {axis}"
             )));
         }
         Ok(())
