@@ -405,12 +405,15 @@ fn a_slave_refuses_bad_ids_and_bit_timings() {
     assert_eq!(a.unwrap().data(), &h("5B 78 56 34 12 00 00 00")[..]);
 }
 
+/// Frames as (COB-ID, bytes).
+type Wire = Vec<(u32, Vec<u8>)>;
+
 /// Like [`run`], also returning every frame sent.
 fn run_wire(
     m: &mut LssMaster,
     slaves: &mut [LssSlave],
     command: LssCommand,
-) -> (Result<LssOutcome, LssError>, Vec<(u32, Vec<u8>)>) {
+) -> (Result<LssOutcome, LssError>, Wire) {
     let mut now = Duration::ZERO;
     let mut step = m.start(command, 100 * MS, now);
     let mut sent = Vec::new();
