@@ -4,10 +4,15 @@
 //! giving a device a node-ID, so that no device gets an id another device
 //! uses ([`crate::canopen::lss`]).
 //!
-//! One task per bus listens to those COB-IDs, except the TPDOs of axis
-//! drives: those run at the SYNC rate, their nodes are configured (which
-//! LSS refuses anyway), and leaving them out keeps this task from waking
-//! with every SYNC.
+//! The master task notes what it receives anyway (EMCY, SDO answers and
+//! heartbeats of every node, the TPDOs of the configured nodes but the axis
+//! drives'); a listener of its own takes only the default TPDO COB-IDs of
+//! the node-IDs no node is configured at, which carry no traffic on a bus
+//! that runs as configured. The axis drives' TPDOs, which run at the SYNC
+//! rate, are left out: their ids are configured, which LSS refuses anyway.
+//! A frame counts for the node-ID its COB-ID is the default of, so a PDO
+//! moved to another node's default COB-ID marks that id in use too: LSS
+//! then refuses it, which errs on the side of the running machine.
 
 use cangate_can::{BusHandle, BusItem, Filter, FrameSelector};
 use cangate_canopen::NodeId;
@@ -81,20 +86,14 @@ impl super::CanopenBus {
     }
 }
 
-/// What the listener takes: every node's own COB-IDs except the TPDOs of
-/// `axis_drives`.
-fn selector(axis_drives: &BTreeSet<u8>) -> FrameSelector {
-    let mut filters = Filter::standard_range(cob::EMCY + 1, cob::EMCY + 0x7F);
-    filters.extend(Filter::standard_range(cob::SDO_TX + 1, cob::SDO_TX + 0x7F));
-    filters.extend(Filter::standard_range(
-        cob::HEARTBEAT + 1,
-        cob::HEARTBEAT + 0x7F,
-    ));
-    // The runs of node-IDs between axis drives.
+/// What the listener takes: the default TPDO COB-IDs of every node-ID not
+/// in `configured`; `None` when every id is configured.
+fn selector(configured: &BTreeSet<u8>) -> Option<FrameSelector> {
+    // The runs of node-IDs between configured ones.
     let mut runs = Vec::new();
     let mut start = None;
     for id in 1..=128u16 {
-        let skip = id == 128 || axis_drives.contains(&(id as u8));
+        let skip = id == 128 || configured.contains(&(id as u8));
         match (skip, start) {
             (false, None) => start = Some(id),
             (true, Some(s)) => {
@@ -104,29 +103,34 @@ fn selector(axis_drives: &BTreeSet<u8>) -> FrameSelector {
             _ => {}
         }
     }
+    let mut filters = Vec::new();
     for base in cob::TPDO {
         for (first, last) in &runs {
             filters.extend(Filter::standard_range(base + first, base + last));
         }
     }
-    FrameSelector {
+    // No filter would pass every frame.
+    (!filters.is_empty()).then_some(FrameSelector {
         filters,
         error_frames: false,
         transmitted: false,
-    }
+    })
 }
 
-/// Starts the listener of `bus`; `axis_drives` are the node-IDs of its
-/// axis drives.
+/// The register of `bus`, with the listener for the node-IDs not in
+/// `configured` (the master task feeds it the rest).
 pub fn spawn(
     bus: &BusHandle,
-    axis_drives: &BTreeSet<u8>,
+    configured: &BTreeSet<u8>,
     cancel: CancellationToken,
-) -> (Arc<HeardNodes>, tokio::task::JoinHandle<()>) {
+) -> Arc<HeardNodes> {
     let heard = Arc::new(HeardNodes::default());
-    let mut sub = bus.subscribe(selector(axis_drives), 4096);
+    let Some(selector) = selector(configured) else {
+        return heard;
+    };
+    let mut sub = bus.subscribe(selector, 4096);
     let h = heard.clone();
-    let task = tokio::spawn(async move {
+    tokio::spawn(async move {
         let mut items = Vec::with_capacity(256);
         loop {
             let n = tokio::select! {
@@ -143,7 +147,7 @@ pub fn spawn(
             }
         }
     });
-    (heard, task)
+    heard
 }
 
 #[cfg(test)]
@@ -176,17 +180,20 @@ mod tests {
     }
 
     #[test]
-    fn the_listener_leaves_out_the_axis_drives_tpdos() {
-        let sel = selector(&[3u8, 4].into_iter().collect());
+    fn the_listener_takes_the_tpdos_of_unconfigured_ids_only() {
+        let sel = selector(&[3u8, 4].into_iter().collect()).unwrap();
         let passes = |id: u16| {
             let f = cangate_can::Frame::new(cangate_can::CanId::Standard(id), &[0]).unwrap();
             sel.filters.iter().any(|x| x.matches(&f))
         };
-        for id in [0x181, 0x182, 0x185, 0x1FF, 0x485, 0x703, 0x583, 0x083] {
+        for id in [0x181, 0x182, 0x185, 0x1FF, 0x485] {
             assert!(passes(id), "{id:03X}");
         }
-        for id in [0x183, 0x184, 0x283, 0x484, 0x080, 0x100, 0x203, 0x7E5] {
+        for id in [
+            0x183, 0x184, 0x283, 0x484, 0x080, 0x100, 0x203, 0x703, 0x583, 0x7E5,
+        ] {
             assert!(!passes(id), "{id:03X}");
         }
+        assert!(selector(&(1..=127).collect()).is_none());
     }
 }

@@ -417,13 +417,8 @@ impl CanopenBus {
         // Subscribe before returning, so that nothing the nodes send after
         // this point (their boot-up, typically) is missed.
         let sub = bus.subscribe(master_selector(&configured), 65_536);
-        let axis_drives = configured
-            .iter()
-            .filter(|(_, f)| f.tpdos_read_by_axis)
-            .map(|(id, _)| id.get())
-            .collect();
-        let (heard, heard_task) = heard::spawn(&bus, &axis_drives, cancel.clone());
-        drop(heard_task);
+        let known = configured.keys().map(|id| id.get()).collect();
+        let heard = heard::spawn(&bus, &known, cancel.clone());
         let boots: Vec<(NodeId, Arc<BootPlan>)> = configured
             .iter()
             .filter_map(|(id, f)| f.boot.clone().map(|b| (*id, b)))
@@ -494,6 +489,7 @@ impl CanopenBus {
             pdos,
             facts,
             handover: handle.handover.clone(),
+            heard: handle.heard.clone(),
             cancel: cancel.clone(),
         }));
         if !boots.is_empty() {
@@ -998,6 +994,8 @@ struct MasterTask {
     pdos: broadcast::Sender<PdoUpdate>,
     facts: Arc<RwLock<BTreeMap<NodeId, NodeFacts>>>,
     handover: handover::Handover,
+    /// Notes every node's frames (see [`heard`]).
+    heard: Arc<heard::HeardNodes>,
     cancel: CancellationToken,
 }
 
@@ -1042,6 +1040,7 @@ async fn run_master(task: MasterTask) {
         pdos,
         facts,
         handover,
+        heard,
         cancel,
     } = task;
     let origin = Instant::now();
@@ -1072,6 +1071,7 @@ async fn run_master(task: MasterTask) {
                 for item in items.drain(..) {
                     match item {
                         BusItem::Frame { frame, .. } => {
+                            heard.record(frame.raw_id(), frame.is_extended());
                             master.on_frame(&frame, now, &mut out);
                             relay_tpdo(&tpdos, &pdos, &frame);
                         }
