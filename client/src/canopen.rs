@@ -422,6 +422,7 @@ impl Canopen {
             data: Some(data),
             options: Some(options.to_pb()),
             object,
+            force: false,
         };
         let r = self
             .client

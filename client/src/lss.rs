@@ -95,12 +95,36 @@ impl Lss {
     }
 
     /// Gives a device node-ID `node`, storing it in the device when
-    /// `store`; the device then boots up with it.
+    /// `store`; the device then boots up with it. An id in use (heard on
+    /// the bus in the last minute, an axis's drive's, configured for
+    /// another device) is refused with [`Error::Refused`] reason
+    /// `NODE_ID_IN_USE`.
     pub async fn assign_node_id(
         &self,
         device: LssDevice,
         node: NodeId,
         store: bool,
+    ) -> Result<pb::AssignNodeIdResponse, Error> {
+        self.assign(device, node, store, false).await
+    }
+
+    /// [`Lss::assign_node_id`] even when the id is in use: the device then
+    /// shares it with another one, unless that one is gone.
+    pub async fn assign_node_id_forced(
+        &self,
+        device: LssDevice,
+        node: NodeId,
+        store: bool,
+    ) -> Result<pb::AssignNodeIdResponse, Error> {
+        self.assign(device, node, store, true).await
+    }
+
+    async fn assign(
+        &self,
+        device: LssDevice,
+        node: NodeId,
+        store: bool,
+        force: bool,
     ) -> Result<pb::AssignNodeIdResponse, Error> {
         let device = Some(match device {
             LssDevice::Identity(i) => pb::assign_node_id_request::Device::Identity(i),
@@ -112,6 +136,7 @@ impl Lss {
             node_id: node.into(),
             store,
             timeout_ms: 0,
+            force,
         };
         self.client
             .call(
@@ -162,6 +187,7 @@ impl Lss {
             bus: self.bus.clone(),
             node_id,
             timeout_ms: 0,
+            force: false,
         };
         self.client
             .call(

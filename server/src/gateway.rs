@@ -507,7 +507,7 @@ fn node_plan(
             ProcessDataChoice::Pdo => standard_pdos(node, trigger),
             ProcessDataChoice::Sdo => (Vec::new(), Vec::new()),
         };
-        let mut writes = dcf_writes(nc, node)?;
+        let mut writes = dcf_writes(nc, node, eds)?;
         if let Some(ms) = nc.heartbeat_producer_ms {
             writes.push((ObjectAddress::new(0x1017, 0), ms.to_le_bytes().to_vec()));
         }
@@ -558,7 +558,7 @@ fn node_plan(
     if !nc.boot {
         return Ok((tpdos, rpdos, None));
     }
-    let mut writes = dcf_writes(nc, node)?;
+    let mut writes = dcf_writes(nc, node, eds)?;
     if let Some(ms) = nc.heartbeat_producer_ms {
         writes.push((ObjectAddress::new(0x1017, 0), ms.to_le_bytes().to_vec()));
     }
@@ -616,12 +616,24 @@ fn life_guarding_writes(nc: &NodeConfig, eds: Option<&Eds>) -> Vec<(ObjectAddres
 /// The boot writes of the node's `dcf` (its `ParameterValue`s, see
 /// [`cangate_canopen::dcf::configuration_writes`]), first of the boot
 /// procedure so that the configuration's own writes win.
-fn dcf_writes(nc: &NodeConfig, node: NodeId) -> Result<Vec<(ObjectAddress, Vec<u8>)>, String> {
+fn dcf_writes(
+    nc: &NodeConfig,
+    node: NodeId,
+    eds: Option<&Eds>,
+) -> Result<Vec<(ObjectAddress, Vec<u8>)>, String> {
     let Some(dcf) = nc.load_dcf()? else {
         return Ok(Vec::new());
     };
-    cangate_canopen::dcf::configuration_writes(&dcf.od, node)
-        .map_err(|e| format!("dcf {:?}: {e}", nc.dcf.as_deref().unwrap_or_default()))
+    let path = nc.dcf.as_deref().unwrap_or_default();
+    // The node's own EDS says what is configuration (without one, the
+    // EDS was loaded from the DCF itself).
+    let eds = eds.filter(|_| nc.eds.is_some()).map(|e| &e.od);
+    let out = cangate_canopen::dcf::configuration_writes(&dcf.od, eds, node)
+        .map_err(|e| format!("dcf {path:?}: {e}"))?;
+    for (addr, why) in &out.skipped {
+        tracing::warn!(node = node.get(), dcf = %path, object = %addr, "DCF value not written at boot: {why}");
+    }
+    Ok(out.writes)
 }
 
 /// The boot write that makes an axis drive watch the master's heartbeat:

@@ -174,3 +174,88 @@ async fn a_silent_sdo_drive_faults_its_axis_until_it_is_back() {
     wait_status(&mut axes, "T", |s| !s.node_lost && s.state != 0).await;
     enable(&mut axes, "T", &lease).await;
 }
+
+/// The status's ErrorInfo reason and its metadata value `key`.
+fn reason_and(e: &tonic::Status, key: &str) -> (String, String) {
+    let info = cangate_client::error_info(e).expect("ErrorInfo");
+    let value = info.metadata.get(key).cloned().unwrap_or_default();
+    (info.reason, value)
+}
+
+fn write_u16(node: u32, index: u32, value: u16, force: bool) -> pb::WriteSdoRequest {
+    pb::WriteSdoRequest {
+        bus: "can0".into(),
+        node,
+        index,
+        subindex: 0,
+        data: Some(pb::write_sdo_request::Data::Raw(
+            value.to_le_bytes().to_vec(),
+        )),
+        options: None,
+        object: String::new(),
+        force,
+    }
+}
+
+/// A raw SDO write to the controlword, mode, targets or program control of
+/// an enabled axis's drive is refused (AXIS_ACTIVE, naming the axis) before
+/// anything reaches the drive; other objects are written; `force` writes;
+/// once the axis is disabled the same write goes through.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn raw_sdo_writes_to_an_enabled_axis_drive_are_refused_unless_forced() {
+    let server = start_server(CONFIG).await;
+    let c = client(&server).await;
+    let mut axes = c.axes_client();
+    let mut co = c.canopen_client();
+    wait_status(&mut axes, "S", |s| s.state != 0 && !s.node_lost).await;
+    let lease = acquire(&mut axes, &["S"], 10_000, "test").await;
+    enable(&mut axes, "S", &lease).await;
+
+    for (index, bytes) in [
+        (0x6040, 0u16),
+        (0x6060, 1),
+        (0x607A, 0),
+        (0x60FF, 0),
+        (0x6071, 0),
+        (0x1F51, 0),
+    ] {
+        let e = co
+            .write_sdo(write_u16(3, index, bytes, false))
+            .await
+            .unwrap_err();
+        assert_eq!(e.code(), Code::FailedPrecondition, "0x{index:04X}: {e:?}");
+        assert_eq!(
+            reason_and(&e, "axis"),
+            ("AXIS_ACTIVE".to_string(), "S".to_string()),
+            "0x{index:04X}"
+        );
+        assert!(e.message().contains("axis S"), "{}", e.message());
+    }
+    let s = wait_status(&mut axes, "S", |_| true).await;
+    assert_eq!(s.state, pb::DriveState::OperationEnabled as i32, "{s:?}");
+
+    // Another object of the drive: written.
+    co.write_sdo(pb::WriteSdoRequest {
+        data: Some(pb::write_sdo_request::Data::Raw(
+            500u32.to_le_bytes().to_vec(),
+        )),
+        ..write_u16(3, 0x6083, 0, false)
+    })
+    .await
+    .expect("profile acceleration");
+    // Forced (an engineer's decision): the controlword the axis holds.
+    co.write_sdo(write_u16(3, 0x6040, 0x000F, true))
+        .await
+        .expect("forced controlword");
+
+    // Disabled: the drive is free again.
+    let r = axes
+        .disable(cmd("S", &lease, true))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(r.outcome, pb::Outcome::Completed as i32, "{r:?}");
+    co.write_sdo(write_u16(3, 0x6040, 0x0006, false))
+        .await
+        .expect("the controlword of a disabled axis's drive");
+}

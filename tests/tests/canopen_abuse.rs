@@ -62,6 +62,7 @@ fn write_raw(node: u32, index: u32, data: Vec<u8>) -> pb::WriteSdoRequest {
         data: Some(pb::write_sdo_request::Data::Raw(data)),
         options: None,
         object: String::new(),
+        force: false,
     }
 }
 

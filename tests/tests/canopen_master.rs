@@ -68,6 +68,7 @@ fn write(
             block,
         }),
         object: String::new(),
+        force: false,
     }
 }
 

@@ -515,6 +515,7 @@ fn write(
             block,
         }),
         object: String::new(),
+        force: false,
     }
 }
 

@@ -474,6 +474,7 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
             })),
             options: None,
             object: String::new(),
+            force: false,
         })
         .await
         .expect_err("0x1000 is read-only");

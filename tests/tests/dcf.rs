@@ -155,3 +155,107 @@ fn a_dcf_needs_the_boot_procedure_and_a_readable_file() {
             .unwrap_err();
     assert!(e.to_string().contains("/nonexistent/x.dcf"), "{e}");
 }
+
+#[derive(Clone, Default)]
+struct Captured(std::sync::Arc<std::sync::Mutex<Vec<u8>>>);
+
+impl std::io::Write for Captured {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.0.lock().unwrap().extend_from_slice(buf);
+        Ok(buf.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+/// The drive's EDS with the controlword's section turned into what a
+/// hand-edited DCF says: `AccessType=rw`, `ParameterValue=0x000F`, and
+/// the profile velocity (a real configuration value) given too.
+fn dcf_writing_the_controlword() -> String {
+    let mut out = String::new();
+    let mut section = String::new();
+    for line in cangate_canopen::eds::SIM_DRIVE_EDS.lines() {
+        if line.starts_with('[') {
+            section = line.trim().to_string();
+        }
+        match (section.as_str(), line.split('=').next()) {
+            ("[6040]", Some("AccessType")) => {
+                out.push_str("AccessType=rw\nParameterValue=0x000F\n")
+            }
+            ("[6081]", Some("AccessType")) => out.push_str("AccessType=rw\nParameterValue=777\n"),
+            _ => {
+                out.push_str(line);
+                out.push('\n');
+            }
+        }
+    }
+    out
+}
+
+/// A DCF that calls the controlword `rw` and gives it 0x000F: the boot
+/// takes the access from the node's EDS and never writes the CiA 402
+/// command objects, so 0x6040 reads back unchanged, the real configuration
+/// value is written, and the skip is logged naming the object.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_dcf_never_writes_the_controlword() {
+    let captured = Captured::default();
+    let writer = captured.clone();
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::new("cangate_server=warn"))
+        .with_writer(move || writer.clone())
+        .with_ansi(false)
+        .init();
+    let dir = std::env::temp_dir().join(format!("cangate-dcf-cw-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("edited.dcf");
+    std::fs::write(&path, dcf_writing_the_controlword()).unwrap();
+    let config = format!(
+        r#"
+[[bus]]
+name = "can0"
+backend = "virtual"
+[[canopen]]
+bus = "can0"
+[[canopen.node]]
+id = 1
+eds = "builtin:drive"
+simulate = true
+boot = true
+dcf = "{}"
+"#,
+        path.display()
+    );
+    let server = start_server(Box::leak(config.into_boxed_str())).await;
+    let c = client(&server).await;
+    let co = c.canopen("can0");
+    tokio::time::timeout(WAIT, async {
+        while get_node(&c, 1).await.state != cangate_client::pb::NmtState::Operational as i32 {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("booted and started");
+    use cangate_client::DataType as T;
+    assert_eq!(
+        co.read(node(1), addr(0x6081, 0), T::Unsigned32)
+            .await
+            .unwrap(),
+        SdoValue::U32(777),
+        "the configuration value is written"
+    );
+    assert_eq!(
+        co.read(node(1), addr(0x6040, 0), T::Unsigned16)
+            .await
+            .unwrap(),
+        SdoValue::U16(0),
+        "the controlword is never written from a DCF"
+    );
+    let log = String::from_utf8(captured.0.lock().unwrap().clone()).unwrap();
+    let line = log
+        .lines()
+        .find(|l| l.contains("DCF value not written") && l.contains("0x6040"))
+        .unwrap_or_else(|| panic!("no log line for 0x6040 in:\n{log}"));
+    assert!(line.contains("CiA 402"), "{line}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -242,6 +242,7 @@ async fn silence_is_a_timeout_and_bad_requests_are_refused() {
                 bus: "can0".into(),
                 node_id,
                 timeout_ms: 0,
+                force: false,
             })
             .await
             .unwrap_err();
@@ -255,6 +256,7 @@ async fn silence_is_a_timeout_and_bad_requests_are_refused() {
                 node_id,
                 store: false,
                 timeout_ms: 0,
+                force: false,
             })
             .await
             .unwrap_err();
@@ -425,4 +427,270 @@ async fn single_commands_step_by_step_and_refusals() {
     })
     .await;
     server.shutdown();
+}
+
+/// Node 1: an I/O module that runs (boot-up, heartbeat). Node 30: a drive
+/// the configuration expects, not there. Node 3: axis X's drive. Two
+/// unconfigured I/O devices (0xCAFE, 0xBEEF) for the ids.
+const IN_USE: &str = r#"
+[[bus]]
+name = "can0"
+backend = "virtual"
+
+[[canopen]]
+bus = "can0"
+sdo_timeout_ms = 200
+
+[[canopen.node]]
+id = 1
+eds = "builtin:io"
+simulate = true
+
+[[canopen.node]]
+id = 3
+eds = "builtin:drive"
+simulate = true
+
+[[canopen.node]]
+id = 30
+eds = "builtin:drive"
+
+[[canopen.node]]
+id = 20
+eds = "builtin:io"
+simulate = true
+sim_lss = { serial = 0xCAFE }
+
+[[canopen.node]]
+id = 21
+eds = "builtin:io"
+simulate = true
+sim_lss = { serial = 0xBEEF }
+
+[[axis]]
+name = "X"
+bus = "can0"
+node = 3
+counts_per_unit = 1000.0
+max_velocity = 50.0
+max_acceleration = 500.0
+process_data = "sdo"
+sdo_poll_ms = 5
+"#;
+
+fn refusal(e: &Error) -> (&str, &str) {
+    match e {
+        Error::Refused {
+            code,
+            reason,
+            message,
+            ..
+        } => {
+            assert_eq!(*code, tonic::Code::FailedPrecondition, "{e:?}");
+            (reason, message)
+        }
+        other => panic!("not refused: {other:?}"),
+    }
+}
+
+/// `lss set-id --serial 0xCAFE 1` while node 1 runs made a second node 1.
+/// An id heard on the bus, an axis's drive's, or configured for a device
+/// of another identity is refused (NODE_ID_IN_USE, nothing configured);
+/// forced, it is given; a free id is given as before.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_node_id_in_use_is_refused_unless_forced() {
+    let server = start_server(IN_USE).await;
+    let c = client(&server).await;
+    let lss = c.lss("can0");
+    let id = |n| NodeId::new(n).unwrap();
+    // Node 1 has been heard (its boot-up and heartbeat).
+    let deadline = Instant::now() + WAIT;
+    while get_node(&c, 1).await.state != pb::NmtState::PreOperational as i32
+        && get_node(&c, 1).await.state != pb::NmtState::Operational as i32
+    {
+        assert!(Instant::now() < deadline, "node 1 never heard");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+
+    let e = lss
+        .assign_node_id(LssDevice::Serial(0xCAFE), id(1), false)
+        .await
+        .unwrap_err();
+    let (reason, message) = refusal(&e);
+    assert_eq!(reason, "NODE_ID_IN_USE");
+    assert!(message.contains("node 1 sent a frame"), "{message}");
+    let e = lss
+        .assign_node_id(LssDevice::Serial(0xCAFE), id(3), false)
+        .await
+        .unwrap_err();
+    let (reason, message) = refusal(&e);
+    assert_eq!(reason, "NODE_ID_IN_USE");
+    assert!(message.contains("axis X"), "{message}");
+    // Configured for a drive (product 0x402); this is an I/O module.
+    let e = lss
+        .assign_node_id(LssDevice::Serial(0xCAFE), id(30), false)
+        .await
+        .unwrap_err();
+    let (reason, message) = refusal(&e);
+    assert_eq!(reason, "NODE_ID_IN_USE");
+    assert!(message.contains("product 0x00000402"), "{message}");
+    // Nothing was given: both devices are still unconfigured, node 1 is
+    // still the I/O module it was.
+    let found = lss.fastscan(Some(Duration::from_millis(5))).await.unwrap();
+    assert_eq!(found.len(), 2, "{found:?}");
+    let serial = c
+        .canopen("can0")
+        .read(
+            id(1),
+            cangate_client::ObjectAddress::new(0x1018, 4),
+            cangate_client::DataType::Unsigned32,
+        )
+        .await
+        .unwrap();
+    assert_ne!(serial, cangate_client::SdoValue::U32(0xCAFE));
+
+    // The id it is configured for: given.
+    lss.assign_node_id(LssDevice::Serial(0xCAFE), id(20), false)
+        .await
+        .expect("node-ID 20");
+    // Forced: an engineer's decision.
+    let r = lss
+        .assign_node_id_forced(LssDevice::Serial(0xBEEF), id(30), false)
+        .await
+        .expect("forced node-ID 30");
+    assert_eq!(r.node_id, 30);
+}
+
+/// While axis X is enabled, LSS commands that reach every device (or
+/// whichever is in the configuration state) are refused with AXIS_ACTIVE
+/// naming the axis; fastscan and identify, which only reach unconfigured
+/// devices, run.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn lss_that_reaches_an_enabled_axis_drive_is_refused() {
+    use cangate_tests::axes::*;
+    let server = start_server(IN_USE).await;
+    let c = client(&server).await;
+    let mut axes = c.axes_client();
+    wait_status(&mut axes, "X", |s| s.state != 0 && !s.node_lost).await;
+    let lease = acquire(&mut axes, &["X"], 10_000, "test").await;
+    enable(&mut axes, "X", &lease).await;
+    let lss = c.lss("can0");
+
+    let e = lss
+        .switch_global(pb::LssMode::Configuration)
+        .await
+        .unwrap_err();
+    let (reason, message) = refusal(&e);
+    assert_eq!(reason, "AXIS_ACTIVE");
+    assert!(message.contains("axis X"), "{message}");
+    let e = lss.inquire(None).await.unwrap_err();
+    assert_eq!(refusal(&e).0, "AXIS_ACTIVE");
+    let e = lss.configure_node_id(40).await.unwrap_err();
+    assert_eq!(refusal(&e).0, "AXIS_ACTIVE");
+    assert!(lss.identify_non_configured().await.unwrap());
+    let found = lss.fastscan(Some(Duration::from_millis(5))).await.unwrap();
+    assert_eq!(found.len(), 2, "{found:?}");
+
+    let r = axes
+        .disable(cmd("X", &lease, true))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(r.outcome, pb::Outcome::Completed as i32, "{r:?}");
+    lss.switch_global(pb::LssMode::Configuration)
+        .await
+        .expect("no axis active");
+    lss.switch_global(pb::LssMode::Waiting).await.unwrap();
+}
+
+/// Two devices that answer fastscan until they have a node-ID, as
+/// CANopenNode's LSS slave does, and a bus with bit timing.
+const ANSWERING: &str = r#"
+[[bus]]
+name = "can0"
+backend = "virtual"
+
+[[bus]]
+name = "slow"
+backend = "virtual"
+bitrate = 125000
+bit_timing = true
+
+[[canopen]]
+bus = "can0"
+
+[[canopen.node]]
+id = 20
+eds = "builtin:io"
+simulate = true
+sim_lss = { serial = 0xCAFE, fastscan_until_configured = true }
+
+[[canopen.node]]
+id = 21
+eds = "builtin:io"
+simulate = true
+sim_lss = { serial = 0xBEEF, fastscan_until_configured = true }
+
+[[canopen]]
+bus = "slow"
+"#;
+
+/// A scan ends when it finds a device again, listing it once; the device
+/// it hides is found once the first has its id; set-id by serial gives
+/// each its id; a step the bus cannot answer in is refused.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn devices_answering_until_configured_are_scanned_and_given_ids() {
+    let server = start_server(ANSWERING).await;
+    let c = client(&server).await;
+    let lss = c.lss("can0");
+    let step = Some(Duration::from_millis(5));
+    let serials = |found: Vec<pb::LssIdentity>| found.iter().map(|i| i.serial).collect::<Vec<_>>();
+
+    // 0xBEEF, the lower, answers again and again: found once, the scan
+    // ends (bounded by WAIT here; without the fix it ran 32 searches).
+    let found = tokio::time::timeout(WAIT, lss.fastscan(step))
+        .await
+        .expect("the scan ends")
+        .unwrap();
+    assert_eq!(serials(found), vec![0xBEEF]);
+    // 0xCAFE is hidden behind it: not found, and the message says why.
+    let e = lss
+        .assign_node_id(LssDevice::Serial(0xCAFE), NodeId::new(20).unwrap(), false)
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Some(tonic::Code::NotFound), "{e:?}");
+    assert!(
+        format!("{e:?}").contains("keeps answering fastscan"),
+        "{e:?}"
+    );
+    let mut events = node_events(&c, vec![]).await;
+    for (serial, node) in [(0xBEEF, 21u32), (0xCAFE, 20)] {
+        let r = lss
+            .assign_node_id(LssDevice::Serial(serial), NodeId::new(node).unwrap(), false)
+            .await
+            .unwrap_or_else(|e| panic!("serial 0x{serial:X}: {e:?}"));
+        assert_eq!(r.node_id, node);
+        wait_event(&mut events, "the boot-up", |e| {
+            e.node == node && matches!(e.event, Some(Event::BootUp(_)))
+        })
+        .await;
+        if serial == 0xBEEF {
+            let found = lss.fastscan(step).await.unwrap();
+            assert_eq!(serials(found), vec![0xCAFE], "the hidden one");
+        }
+    }
+    assert!(lss.fastscan(step).await.unwrap().is_empty());
+
+    // 1 ms at 125 kbit/s: two frames alone take 2.2 ms.
+    let e = c
+        .lss("slow")
+        .fastscan(Some(Duration::from_millis(1)))
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Some(tonic::Code::InvalidArgument), "{e:?}");
+    assert!(e.to_string().contains("at least 5 ms"), "{e}");
+    c.lss("slow")
+        .fastscan(Some(Duration::from_millis(5)))
+        .await
+        .expect("5 ms is enough");
 }

@@ -528,3 +528,90 @@ async fn a_4_mib_image_passes_the_message_limit_and_is_downloaded() {
     assert_eq!(o.new_identification, crc32(&img));
     assert_eq!(seen.last().unwrap().bytes_done, img.len() as u64);
 }
+
+/// Node 3 drives axis X.
+const AXIS_CONFIG: &str = r#"
+[[bus]]
+name = "can0"
+backend = "virtual"
+
+[[canopen]]
+bus = "can0"
+sdo_timeout_ms = 200
+
+[[canopen.node]]
+id = 3
+eds = "builtin:drive"
+simulate = true
+
+[[axis]]
+name = "X"
+bus = "can0"
+node = 3
+counts_per_unit = 1000.0
+max_velocity = 50.0
+max_acceleration = 500.0
+process_data = "sdo"
+sdo_poll_ms = 5
+"#;
+
+/// A program download to the drive of an enabled axis is refused before
+/// anything is sent (FAILED_PRECONDITION, AXIS_ACTIVE, naming the axis),
+/// and so is program control by SDO (stop, start, clear: 0x1F51); once
+/// the axis is disabled the download runs.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_download_to_an_enabled_axis_drive_is_refused() {
+    use cangate_tests::axes::*;
+    let server = start_server(AXIS_CONFIG).await;
+    let c = client(&server).await;
+    let mut axes = c.axes_client();
+    wait_status(&mut axes, "X", |s| s.state != 0 && !s.node_lost).await;
+    let lease = acquire(&mut axes, &["X"], 10_000, "test").await;
+    enable(&mut axes, "X", &lease).await;
+    let mut control = c.canopen_client();
+
+    let img = test_image(4_000, 1);
+    let (r, seen) = download(&c, "can0", 3, img.clone(), &ProgramOptions::default()).await;
+    match r {
+        Err(Error::Refused {
+            code,
+            reason,
+            message,
+            ..
+        }) => {
+            assert_eq!(code, Code::FailedPrecondition);
+            assert_eq!(reason, "AXIS_ACTIVE");
+            assert!(message.contains("axis X"), "{message}");
+        }
+        other => panic!("not refused: {other:?}"),
+    }
+    assert!(seen.is_empty(), "{seen:?}");
+    for control_value in [0u8, 1, 3] {
+        let e = control
+            .write_sdo(pb::WriteSdoRequest {
+                bus: "can0".into(),
+                node: 3,
+                index: 0x1F51,
+                subindex: 1,
+                data: Some(pb::write_sdo_request::Data::Raw(vec![control_value])),
+                ..Default::default()
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(e.code(), Code::FailedPrecondition, "{e:?}");
+        assert!(e.message().contains("axis X"), "{}", e.message());
+    }
+    // The drive's program still runs.
+    assert_eq!(read_u32(&c, "can0", 3, 0x1F51).await, 1);
+    let s = wait_status(&mut axes, "X", |_| true).await;
+    assert_eq!(s.state, pb::DriveState::OperationEnabled as i32, "{s:?}");
+
+    let r = axes
+        .disable(cmd("X", &lease, true))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(r.outcome, pb::Outcome::Completed as i32, "{r:?}");
+    let (r, _) = download(&c, "can0", 3, img, &ProgramOptions::default()).await;
+    r.expect("a disabled axis's drive takes a program");
+}

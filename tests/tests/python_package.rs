@@ -606,6 +606,7 @@ async fn local_node_scenario(python: &Path, server: &cangate_server::RunningServ
         data: Some(pb::write_sdo_request::Data::Value(v)),
         options: None,
         object: String::new(),
+        force: false,
     };
     let mut canopen = c.canopen_client();
 

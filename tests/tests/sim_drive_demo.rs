@@ -26,6 +26,7 @@ fn raw(index: u32, sub: u32, data: Vec<u8>) -> pb::WriteSdoRequest {
         data: Some(pb::write_sdo_request::Data::Raw(data)),
         options: None,
         object: String::new(),
+        force: false,
     }
 }
 

@@ -347,6 +347,7 @@ async fn congestion() -> Result<()> {
                 block: true,
             }),
             object: String::new(),
+            force: false,
         })
         .await
         .context("the SDO block download under congestion")?;

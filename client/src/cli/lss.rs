@@ -51,6 +51,10 @@ enum LssVerb {
         /// or power cycle).
         #[arg(long)]
         no_store: bool,
+        /// Give the id even when it is in use (heard on the bus in the last
+        /// minute, an axis's drive's, or configured for another device).
+        #[arg(long)]
+        force: bool,
     },
     /// Identity and node-ID of the only device on the bus (or of the one
     /// with --vendor/--product/--revision/--serial).
@@ -120,6 +124,7 @@ pub(crate) async fn run(app: &App, a: LssArgs) -> Result<()> {
             revision,
             node,
             no_store,
+            force,
         } => {
             let device = match (vendor, product, revision) {
                 (Some(vendor_id), Some(product_code), Some(revision)) => {
@@ -132,12 +137,13 @@ pub(crate) async fn run(app: &App, a: LssArgs) -> Result<()> {
                 }
                 _ => LssDevice::Serial(serial),
             };
-            let r = app
-                .client
-                .lss(&bus)
-                .assign_node_id(device, node, !no_store)
-                .await
-                .ctx(format!("LSS: giving node-ID {node} on {bus}"))?;
+            let lss = app.client.lss(&bus);
+            let assigned = if force {
+                lss.assign_node_id_forced(device, node, !no_store).await
+            } else {
+                lss.assign_node_id(device, node, !no_store).await
+            };
+            let r = assigned.ctx(format!("LSS: giving node-ID {node} on {bus}"))?;
             if app.json {
                 return print_json(&r);
             }
@@ -218,15 +224,22 @@ mod tests {
             vendor,
             node,
             no_store,
+            force,
             ..
         } = parse(&["set-id", "can0", "--serial", "0xCAFE", "20"])
         else {
             panic!()
         };
         assert_eq!(
-            (serial, vendor, node.get(), no_store),
-            (0xCAFE, None, 20, false)
+            (serial, vendor, node.get(), no_store, force),
+            (0xCAFE, None, 20, false, false)
         );
+        let LssVerb::SetId { force, .. } =
+            parse(&["set-id", "can0", "--serial", "0xCAFE", "1", "--force"])
+        else {
+            panic!()
+        };
+        assert!(force);
         let LssVerb::SetId {
             vendor,
             product,

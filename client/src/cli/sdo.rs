@@ -65,6 +65,11 @@ enum SdoVerb {
         file: Option<PathBuf>,
         #[command(flatten)]
         transfer: Transfer,
+        /// Write even to the controlword, mode, targets or program objects
+        /// of an enabled axis's drive (refused otherwise: the axis commands
+        /// its drive).
+        #[arg(long)]
+        force: bool,
     },
 }
 
@@ -477,6 +482,7 @@ pub(crate) async fn run(app: &App, args: SdoArgs) -> Result<()> {
             words,
             file,
             transfer,
+            force,
         } => {
             let what = format!("sdo write on {bus}");
             let usage = |e| Failure::usage(what.clone(), e);
@@ -507,6 +513,7 @@ pub(crate) async fn run(app: &App, args: SdoArgs) -> Result<()> {
                 data: Some(data),
                 options: Some(transfer.to_pb()),
                 object,
+                force,
             };
             let mut client = transfer.client(&app.client, file.is_some());
             let started = Instant::now();

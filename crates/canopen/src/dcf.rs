@@ -16,7 +16,13 @@
 //! - **Apply** writes the `ParameterValue`s of `rw` objects only: `rww`
 //!   and `rwr` objects are process data (a controlword written at boot
 //!   could enable a drive), `ro`/`const` cannot be written, and `wo`
-//!   objects are commands. Store/restore (0x1010, 0x1011) and program
+//!   objects are commands. The access is the node's EDS's, not the DCF's
+//!   own (a DCF is a file anyone edits: `AccessType=rw` on the
+//!   controlword must not make it a configuration value); an object the
+//!   EDS lacks is not written. Without an EDS the DCF's access is all
+//!   there is. The CiA 402 objects that command motion
+//!   ([`CIA402_COMMAND_OBJECTS`]) are never written, whatever any file
+//!   says. Store/restore (0x1010, 0x1011) and program
 //!   download (0x1F50..=0x1F57) are left out: writing their values back
 //!   would trigger them. PDO parameters (0x1400..=0x1BFF) are written as
 //!   whole PDOs with the CiA 301 sequence ([`PdoConfig::sdo_writes`]), in
@@ -32,9 +38,26 @@ use crate::od::{AccessType, ObjectDictionary};
 use crate::pdo::{PdoConfig, PdoError, PdoKind};
 use crate::value::Value;
 
+/// The CiA 402 objects through which a master commands a drive's motion:
+/// controlword, modes of operation, target position, target velocity,
+/// target torque.
+pub const CIA402_COMMAND_OBJECTS: [u16; 5] = [0x6040, 0x6060, 0x607A, 0x60FF, 0x6071];
+
 /// Objects whose values are never written back from a DCF.
 fn never_applied(index: u16) -> bool {
     matches!(index, 0x1010 | 0x1011 | 0x1F50..=0x1F57)
+}
+
+/// The boot writes of a DCF, and the values it carries that are not
+/// written for a reason worth telling.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ConfigurationWrites {
+    /// The SDO writes, in order.
+    pub writes: Vec<(ObjectAddress, Vec<u8>)>,
+    /// Values left out against what the DCF says of them (a CiA 402
+    /// command object, or an object the DCF calls `rw` that the node's EDS
+    /// does not), with the reason.
+    pub skipped: Vec<(ObjectAddress, String)>,
 }
 
 /// The PDO an object belongs to, for the PDO parameter ranges.
@@ -48,13 +71,17 @@ fn pdo_of(index: u16) -> Option<(PdoKind, u16)> {
     }
 }
 
-/// The SDO writes that apply `od`'s `ParameterValue`s to node `node`
-/// (see the [module documentation](self) for which and in what order).
+/// The SDO writes that apply `od`'s `ParameterValue`s to node `node`,
+/// with the access of each object taken from the node's EDS `eds` when
+/// there is one (see the [module documentation](self) for which and in
+/// what order).
 pub fn configuration_writes(
     od: &ObjectDictionary,
+    eds: Option<&ObjectDictionary>,
     node: NodeId,
-) -> Result<Vec<(ObjectAddress, Vec<u8>)>, PdoError> {
+) -> Result<ConfigurationWrites, PdoError> {
     let mut writes = Vec::new();
+    let mut skipped = Vec::new();
     let mut pdos = BTreeSet::new();
     for var in od.variables() {
         let Some(value) = var.parameter_value.as_ref().map(|p| p.resolve(node)) else {
@@ -65,7 +92,33 @@ pub fn configuration_writes(
             pdos.insert(pdo);
             continue;
         }
-        if var.access != AccessType::Rw || never_applied(index) {
+        if CIA402_COMMAND_OBJECTS.contains(&index) {
+            skipped.push((
+                var.address,
+                "a CiA 402 object that commands motion: never written from a DCF".to_string(),
+            ));
+            continue;
+        }
+        let access = match eds {
+            Some(eds) => match eds.get(var.address) {
+                Some(e) => e.access,
+                None => {
+                    skipped.push((var.address, "not in the node's EDS".to_string()));
+                    continue;
+                }
+            },
+            None => var.access,
+        };
+        if access != AccessType::Rw || never_applied(index) {
+            if var.access == AccessType::Rw && access != AccessType::Rw {
+                skipped.push((
+                    var.address,
+                    format!(
+                        "the DCF says rw, the node's EDS says {}: not a configuration value",
+                        access.as_str()
+                    ),
+                ));
+            }
             continue;
         }
         writes.push((var.address, value.encode()));
@@ -86,7 +139,7 @@ pub fn configuration_writes(
             }
         }
     }
-    Ok(writes)
+    Ok(ConfigurationWrites { writes, skipped })
 }
 
 /// A value as a DCF writes it; `None` for values a DCF does not carry.
@@ -390,7 +443,7 @@ mod tests {
         set(&mut eds, 0x6040, 0, Value::Unsigned16(0x0F));
         // TPDO1: event timer 25 ms.
         set(&mut eds, 0x1800, 5, Value::Unsigned16(25));
-        let writes = configuration_writes(&eds.od, n).unwrap();
+        let writes = configuration_writes(&eds.od, None, n).unwrap().writes;
         assert_eq!(writes[0], (ObjectAddress::new(0x1017, 0), vec![77, 0]));
         assert!(!writes.iter().any(|(a, _)| a.index == 0x6040), "{writes:?}");
         let tpdo1 = PdoConfig::from_od(&eds.od, PdoKind::Tpdo, 1, n).unwrap();
@@ -398,7 +451,66 @@ mod tests {
         assert_eq!(&writes[1..], &tpdo1.sdo_writes().unwrap()[..]);
         // Nothing set, nothing written.
         let plain = Eds::parse(SIM_DRIVE_EDS).unwrap();
-        assert!(configuration_writes(&plain.od, n).unwrap().is_empty());
+        assert_eq!(
+            configuration_writes(&plain.od, Some(&plain.od), n).unwrap(),
+            ConfigurationWrites::default()
+        );
+    }
+
+    /// A DCF that calls the controlword and a status object `rw`: the
+    /// node's EDS decides, and the CiA 402 command objects are never
+    /// written; both are told.
+    #[test]
+    fn access_comes_from_the_eds_and_command_objects_are_never_written() {
+        let eds = Eds::parse(SIM_DRIVE_EDS).unwrap();
+        let mut dcf = Eds::parse(SIM_DRIVE_EDS).unwrap();
+        let n = node(5);
+        for (index, v) in [
+            (0x6040, Value::Unsigned16(0x000F)),
+            (0x6041, Value::Unsigned16(0x0237)),
+            (0x6081, Value::Unsigned32(1234)),
+        ] {
+            let var = dcf.od.get_mut(ObjectAddress::new(index, 0)).unwrap();
+            var.access = AccessType::Rw;
+            var.parameter_value = Some(crate::od::DefaultValue::fixed(v));
+        }
+        let out = configuration_writes(&dcf.od, Some(&eds.od), n).unwrap();
+        assert_eq!(
+            out.writes,
+            vec![(
+                ObjectAddress::new(0x6081, 0),
+                1234u32.to_le_bytes().to_vec()
+            )]
+        );
+        let skipped: Vec<(u16, &str)> = out
+            .skipped
+            .iter()
+            .map(|(a, why)| (a.index, why.as_str()))
+            .collect();
+        assert_eq!(skipped.len(), 2, "{skipped:?}");
+        assert_eq!(skipped[0].0, 0x6040);
+        assert!(skipped[0].1.contains("CiA 402"), "{skipped:?}");
+        assert_eq!(skipped[1].0, 0x6041);
+        assert!(skipped[1].1.contains("EDS says ro"), "{skipped:?}");
+        // Without the EDS the DCF's access is all there is, and still the
+        // controlword is not written.
+        let out = configuration_writes(&dcf.od, None, n).unwrap();
+        assert!(
+            !out.writes.iter().any(|(a, _)| a.index == 0x6040),
+            "{:?}",
+            out.writes
+        );
+        // An object the EDS lacks (an I/O module's EDS has no 0x6081).
+        let small = Eds::parse(SIM_IO_EDS).unwrap();
+        let out = configuration_writes(&dcf.od, Some(&small.od), n).unwrap();
+        assert!(out.writes.iter().all(|(a, _)| small.od.get(*a).is_some()));
+        assert!(
+            out.skipped
+                .iter()
+                .any(|(a, why)| a.index == 0x6081 && why.contains("not in the node's EDS")),
+            "{:?}",
+            out.skipped
+        );
     }
 
     #[test]

@@ -67,6 +67,18 @@
 //!   no longer answers, so the next reset query finds the next, until
 //!   silence. The scan leaves every found slave in the configuration
 //!   state; the caller switches them back (0x04 mode 0) when done.
+//! - **A slave found twice ends the scan.** CANopenNode's LSS slave
+//!   answers fastscan in any LSS state while it has no node-ID, so the
+//!   reset query after its find finds it again, for ever. An identity
+//!   found a second time is not counted again: the scan ends there with
+//!   the identities found once (a slave behind such a one, higher in
+//!   identity, is then only found after the first has been given an id:
+//!   [`LssCommand::Fastscan`] with `max_nodes` 1, configure, repeat). The
+//!   scan is bounded: at most `max_nodes` finds, each with at most
+//!   [`FASTSCAN_RESTARTS`] restarts, and one more search at most.
+//! - **The step time** must let a request and its answer cross the bus and
+//!   the slave turn round ([`min_fastscan_step`]): a shorter step hears
+//!   nothing and reports "no slave" while one is there.
 //! - Known identity parts (CiA 305 lets a master skip them) are not used:
 //!   every scan searches all 128 bits.
 
@@ -141,6 +153,25 @@ pub const FASTSCAN_RESTARTS: u8 = 3;
 
 /// Fastscan BitChecked value of the reset query.
 pub const FASTSCAN_RESET: u8 = 0x80;
+
+/// How long a slave may take to turn a fastscan query round into its
+/// answer, beyond the frames' own time on the bus: one wake-up of a device
+/// stack's task on a loaded host.
+pub const FASTSCAN_SLAVE_TURNAROUND: Duration = Duration::from_millis(2);
+
+/// The shortest fastscan step on a bus of `bitrate` bit/s (`None`: no bit
+/// timing, frames take no time): the request and the answer, each an
+/// 8-byte standard frame at its longest (135 bits with worst-case stuff
+/// bits and the interframe space), plus [`FASTSCAN_SLAVE_TURNAROUND`],
+/// rounded up to whole milliseconds.
+pub fn min_fastscan_step(bitrate: Option<u32>) -> Duration {
+    const FRAME_BITS: u64 = 135;
+    let frames_us = bitrate
+        .filter(|b| *b > 0)
+        .map_or(0, |b| (2 * FRAME_BITS * 1_000_000).div_ceil(u64::from(b)));
+    let us = frames_us + FASTSCAN_SLAVE_TURNAROUND.as_micros() as u64;
+    Duration::from_millis(us.div_ceil(1000))
+}
 
 /// A device's LSS address: the identity object 0x1018:01..=04.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Default)]
@@ -853,7 +884,12 @@ fn advance(scan: &mut Fastscan) -> Result<bool, String> {
                     bit: 31,
                 };
             } else {
-                scan.found.push(LssIdentity::from_parts(scan.id));
+                let identity = LssIdentity::from_parts(scan.id);
+                if scan.found.contains(&identity) {
+                    // A slave that answers until it has a node-ID.
+                    return Ok(false);
+                }
+                scan.found.push(identity);
                 if scan.found.len() >= scan.max_nodes {
                     return Ok(false);
                 }

@@ -14,7 +14,12 @@
 //!   (no answer).
 //! - "Non-configured" means no valid *pending* node-ID (255): only such a
 //!   slave answers identify non-configured (0x4C → 0x50) and fastscan, and
-//!   fastscan only in the waiting state. The reset query (BitChecked 0x80)
+//!   fastscan only in the waiting state, unless made to answer it like
+//!   CANopenNode's `CO_LSSslave.c` does
+//!   ([`LssSlave::answering_fastscan_until_configured`]): in any LSS state
+//!   while it has no node-ID, so that a device a fastscan found (and left
+//!   in the configuration state) is found again by the next reset query
+//!   until it is given an id. The reset query (BitChecked 0x80)
 //!   restarts the slave's LSSPos at 0. A query is answered when LSSSub is
 //!   its LSSPos and the bits from BitChecked up agree; a match with
 //!   BitChecked 0 moves LSSPos to LSSNext, and when LSSNext is below LSSSub
@@ -79,6 +84,8 @@ pub struct LssSlave {
     /// Fastscan LSSPos.
     lss_pos: u8,
     bit_timing: Option<(u8, u8)>,
+    /// Answers fastscan in the configuration state too (CANopenNode).
+    fastscan_in_any_state: bool,
 }
 
 impl LssSlave {
@@ -96,6 +103,7 @@ impl LssSlave {
             identify: 0,
             lss_pos: 0,
             bit_timing: None,
+            fastscan_in_any_state: false,
         };
         s.power_on();
         s
@@ -104,6 +112,14 @@ impl LssSlave {
     /// Makes store configuration fail with error 1 (not supported).
     pub fn without_store(mut self) -> Self {
         self.can_store = false;
+        self
+    }
+
+    /// Makes the slave answer fastscan in any LSS state while it has no
+    /// node-ID, as CANopenNode's LSS slave does (CiA 305 has a slave
+    /// answer only in the waiting state).
+    pub fn answering_fastscan_until_configured(mut self) -> Self {
+        self.fastscan_in_any_state = true;
         self
     }
 
@@ -268,7 +284,10 @@ impl LssSlave {
             cs::IDENTIFY_NON_CONFIGURED if self.non_configured() => {
                 Some(response_frame(cs::IDENTIFY_NON_CONFIGURED_SLAVE, &[]))
             }
-            cs::FASTSCAN if self.non_configured() && self.mode == LssMode::Waiting => {
+            cs::FASTSCAN
+                if self.non_configured()
+                    && (self.mode == LssMode::Waiting || self.fastscan_in_any_state) =>
+            {
                 self.fastscan(value, p[4], p[5], p[6], &mut events)
             }
             _ => None,

@@ -97,6 +97,10 @@ pub struct SimNodeOptions {
     /// With [`SimNodeOptions::lss`]: start without a node-ID (255), silent
     /// but for LSS, until one is configured.
     pub lss_unconfigured: bool,
+    /// With [`SimNodeOptions::lss`]: answer fastscan in any LSS state while
+    /// without a node-ID, as CANopenNode's LSS slave does
+    /// ([`LssSlave::answering_fastscan_until_configured`]).
+    pub lss_fastscan_until_configured: bool,
     /// The simulated flash of program download (CiA 302-3).
     pub program: ProgramOptions,
 }
@@ -114,6 +118,7 @@ impl Default for SimNodeOptions {
             max_events: 1024,
             lss: None,
             lss_unconfigured: false,
+            lss_fastscan_until_configured: false,
             program: ProgramOptions::default(),
         }
     }
@@ -320,7 +325,12 @@ impl SimNode {
             } else {
                 node.get()
             };
-            LssSlave::new(id, stored)
+            let slave = LssSlave::new(id, stored);
+            if options.lss_fastscan_until_configured {
+                slave.answering_fastscan_until_configured()
+            } else {
+                slave
+            }
         });
         let configured = lss.is_none() || !options.lss_unconfigured;
         let consumer = consumer_from(&store);

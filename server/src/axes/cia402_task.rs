@@ -61,6 +61,8 @@ struct Slot {
     /// The set-point RPDO's payload as last handed to the SYNC thread, the
     /// target position masked.
     setpoint_payload: Vec<u8>,
+    /// Tells the CANopen operations whether this axis is active.
+    drive_guard: crate::canopen::drive_guard::DriveRegistration,
 }
 
 /// The axis task's side of an SDO fallback worker.
@@ -175,7 +177,11 @@ pub fn spawn(
             if info.config.position_mode == PositionModeChoice::Cyclic && setpoint.is_none() {
                 tracing::error!(axis = %info.config.name, "cyclic axis without an RPDO mapping the target position (0x607A, 32 bits): it gets no set-points");
             }
+            let drive_guard = master
+                .drive_guard()
+                .register(info.node, &info.config.name);
             Slot {
+                drive_guard,
                 global,
                 axis: Cia402Axis::new(info.config.controller()),
                 info,
@@ -658,6 +664,11 @@ impl Task {
     fn on_axis_event(&mut self, i: usize, e: AxisEvent) {
         let slot = &mut self.slots[i];
         let axis = &slot.axis;
+        // The drive guard knows the axis's state before the command's
+        // caller does.
+        let now = axis.snapshot();
+        slot.drive_guard
+            .publish(now.state, now.activity == cangate_axis::Activity::Idle);
         slot.waiters.dispatch(
             e,
             &slot.info.config.name,
@@ -680,6 +691,10 @@ impl Task {
     fn publish_status(&mut self, i: usize) {
         let slot = &self.slots[i];
         let snapshot = Arc::new(slot.axis.snapshot());
+        slot.drive_guard.publish(
+            snapshot.state,
+            snapshot.activity == cangate_axis::Activity::Idle,
+        );
         self.latest.write().expect("latest lock")[slot.global] = Some((snapshot.clone(), slot.at));
         let _ = self.updates.send(AxisUpdate::Status {
             axis: slot.global,

@@ -9,13 +9,29 @@
 //! one while it lives fails at once with [`CanopenError::LssBusy`] rather
 //! than waiting (the devices' LSS state is what the other operation is
 //! changing).
+//!
+//! Two guards keep LSS off the running machine:
+//!
+//! - **A node-ID in use is not given to another device**
+//!   ([`CanopenBus::check_node_id_free`]): an id heard in the last minute
+//!   ([`super::heard`]), the id of an axis's drive, or an id configured for
+//!   a device of another identity (or of none the configuration can tell)
+//!   is refused unless the caller forces it. Two devices with one id take
+//!   each other's SDO answers, PDOs and controlwords.
+//! - **An enabled axis's drive is not reached** ([`CanopenBus::check_lss_reach`]):
+//!   switch global to the configuration state (every device, the drives
+//!   with LSS too), and the commands for whatever device is in that state,
+//!   are refused while an axis of the bus is enabled or moving; so is
+//!   addressing the identity of such a drive. Fastscan and the identify
+//!   commands only reach unconfigured devices or only ask, and pass.
 
+use super::drive_guard::AxisActive;
 use super::{CanopenBus, CanopenError, Command};
-use cangate_canopen::NodeId;
 use cangate_canopen::lss::{
     InquireWhat, LssCommand, LssError, LssIdentity, LssMode, LssOutcome, UNCONFIGURED_NODE_ID,
 };
 use cangate_canopen::nmt::NmtCommand;
+use cangate_canopen::{NodeId, ObjectAddress};
 use std::time::Duration;
 use tokio::sync::oneshot;
 
@@ -50,7 +66,137 @@ pub struct Assigned {
     pub stored: bool,
 }
 
+/// Which devices an LSS operation reaches (see [`CanopenBus::check_lss_reach`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LssReach {
+    /// Every device, or whichever devices are in the configuration state.
+    AllDevices,
+    /// The device with this identity.
+    Identity(LssIdentity),
+}
+
+/// The most fastscan searches one assignment by serial runs.
+const MAX_SEARCHES: usize = 127;
+
+/// The fastscan step of an assignment by serial number (bounded below by
+/// the bus, [`CanopenBus::min_fastscan_step`]).
+const ASSIGN_STEP: Duration = Duration::from_millis(20);
+
 impl CanopenBus {
+    /// The shortest fastscan step this bus can answer in
+    /// ([`cangate_canopen::lss::min_fastscan_step`] at its bitrate).
+    pub fn min_fastscan_step(&self) -> Duration {
+        cangate_canopen::lss::min_fastscan_step(self.handle.info().bitrate)
+    }
+
+    /// Refuses an LSS operation reaching `reach` while it could reach the
+    /// drive of an enabled or moving axis: every device while any axis of
+    /// the bus is active; a device by identity when it is an active axis's
+    /// drive, or when an active drive's identity is not known (it was not
+    /// read at its boot).
+    pub fn check_lss_reach(&self, reach: LssReach, operation: &str) -> Result<(), AxisActive> {
+        let active = self.drive_guard.active_drives();
+        let facts = self.facts.read().expect("facts lock");
+        for (node, axis) in active {
+            let hit = match reach {
+                LssReach::AllDevices => true,
+                LssReach::Identity(id) => facts
+                    .get(&node)
+                    .and_then(|f| f.identity)
+                    .is_none_or(|known| LssIdentity::from_parts(known) == id),
+            };
+            if hit {
+                return Err(AxisActive {
+                    bus: self.bus.clone(),
+                    node,
+                    axis,
+                    operation: format!("LSS {operation} (which reaches the drive)"),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Refuses node-ID `node` for a device (of `identity` when known) when
+    /// another device uses it: heard in the last minute, the drive of an
+    /// axis, or configured for a device of another identity (or of one the
+    /// configuration cannot tell).
+    pub fn check_node_id_free(
+        &self,
+        node: NodeId,
+        identity: Option<LssIdentity>,
+    ) -> Result<(), CanopenError> {
+        self.check_node_id_unused(node)?;
+        self.check_node_id_meant_for(node, identity)
+    }
+
+    fn node_id_in_use(&self, node: NodeId, why: String) -> CanopenError {
+        CanopenError::LssNodeIdInUse {
+            bus: self.bus.clone(),
+            node: node.get(),
+            why,
+        }
+    }
+
+    /// Refuses `node` when it was heard in the last minute or drives an
+    /// axis.
+    fn check_node_id_unused(&self, node: NodeId) -> Result<(), CanopenError> {
+        let in_use = |why| self.node_id_in_use(node, why);
+        if let Some(axis) = self.drive_guard.axis_of(node) {
+            return Err(in_use(format!(
+                "it is configured as the drive of axis {axis}"
+            )));
+        }
+        if let Some(ago) = self.heard.in_use(node) {
+            return Err(in_use(format!(
+                "node {node} sent a frame {:.1} s ago",
+                ago.as_secs_f64()
+            )));
+        }
+        Ok(())
+    }
+
+    /// Refuses `node` when it is configured for a device other than one of
+    /// `identity` (or when either cannot be told).
+    fn check_node_id_meant_for(
+        &self,
+        node: NodeId,
+        identity: Option<LssIdentity>,
+    ) -> Result<(), CanopenError> {
+        let in_use = |why| self.node_id_in_use(node, why);
+        let facts = self.facts.read().expect("facts lock");
+        let Some(f) = facts.get(&node).filter(|f| f.configured) else {
+            return Ok(());
+        };
+        let eds_u32 = |sub: u8| {
+            f.eds.as_ref().and_then(|e| {
+                e.od.get(ObjectAddress::new(0x1018, sub))
+                    .and_then(|v| v.default_for_node(node))
+                    .and_then(|v| v.as_u32())
+            })
+        };
+        let plan = f.boot.as_deref();
+        let vendor = plan.and_then(|p| p.vendor_id).or_else(|| eds_u32(1));
+        let product = plan.and_then(|p| p.product_code).or_else(|| eds_u32(2));
+        let name = if f.name.is_empty() {
+            String::new()
+        } else {
+            format!(" ({})", f.name)
+        };
+        match (identity, vendor, product) {
+            (Some(id), Some(v), Some(p)) if id.vendor_id == v && id.product_code == p => Ok(()),
+            (Some(id), Some(v), Some(p)) => Err(in_use(format!(
+                "it is configured{name} for vendor 0x{v:08X} product 0x{p:08X}, and this \
+                 device is vendor 0x{:08X} product 0x{:08X}",
+                id.vendor_id, id.product_code
+            ))),
+            _ => Err(in_use(format!(
+                "it is configured{name}, and the configuration has no vendor-ID and product \
+                 code (boot check or EDS) to tell this device is the one meant"
+            ))),
+        }
+    }
+
     /// Holds the bus for the LSS operation `operation` (a name for
     /// messages), or fails with [`CanopenError::LssBusy`] when another one
     /// runs.
@@ -187,37 +333,34 @@ impl LssSession {
     /// selective, inquire its node-ID, configure, store if asked, back to
     /// waiting (an unconfigured device takes the id at once), and an NMT
     /// reset communication to the device's old node-ID if it had one.
+    /// Refused when the id is in use ([`CanopenBus::check_node_id_free`])
+    /// unless `force`, and when the device is an active axis's drive.
     pub async fn assign_node_id(
         &self,
         target: LssTarget,
         node: NodeId,
         store: bool,
+        force: bool,
         timeout: Duration,
     ) -> Result<Assigned, CanopenError> {
+        if !force {
+            // What needs no identity is refused before anything is sent.
+            self.bus.check_node_id_unused(node)?;
+        }
         let identity = match target {
-            LssTarget::Identity(id) => id,
-            LssTarget::Serial(serial) => {
-                let found = self.fastscan(Duration::from_millis(20), 127).await?;
-                match found.iter().find(|id| id.serial == serial) {
-                    Some(id) => *id,
-                    None => {
-                        return Err(CanopenError::LssDeviceNotFound {
-                            bus: self.bus.bus.clone(),
-                            serial,
-                            found: if found.is_empty() {
-                                "no unconfigured device".into()
-                            } else {
-                                found
-                                    .iter()
-                                    .map(|i| format!("serial 0x{:08X}", i.serial))
-                                    .collect::<Vec<_>>()
-                                    .join(", ")
-                            },
-                        });
-                    }
-                }
+            LssTarget::Identity(id) => {
+                self.bus
+                    .check_lss_reach(LssReach::Identity(id), "assign node-ID")?;
+                id
             }
+            LssTarget::Serial(serial) => self.find_serial(serial).await?,
         };
+        if !force && let Err(e) = self.bus.check_node_id_meant_for(node, Some(identity)) {
+            // The scan may have left devices in the configuration state.
+            self.run(LssCommand::SwitchGlobal(LssMode::Waiting), timeout)
+                .await?;
+            return Err(e);
+        }
         let configured = self.configure(identity, node, store, timeout).await;
         // Whatever happened, the devices go back to waiting: that applies
         // the new id of a device that had none.
@@ -244,6 +387,69 @@ impl LssSession {
             identity,
             previous,
             stored: store,
+        })
+    }
+
+    /// The identity of the unconfigured device with `serial`, by fastscans
+    /// of one device each: a device found (and not the one) stays in the
+    /// configuration state and out of the next search, until a search
+    /// finds nothing more, or finds again a device found before (one that
+    /// answers fastscan until it has a node-ID, as CANopenNode's does,
+    /// hides the devices above it). The device found is left in the
+    /// configuration state; every device is back in waiting when it is not
+    /// found.
+    async fn find_serial(&self, serial: u32) -> Result<LssIdentity, CanopenError> {
+        let step = ASSIGN_STEP.max(self.bus.min_fastscan_step());
+        let mut found: Vec<LssIdentity> = Vec::new();
+        let mut repeated = None;
+        for _ in 0..MAX_SEARCHES {
+            let scan = LssCommand::Fastscan {
+                step_time: step,
+                max_nodes: 1,
+            };
+            let ids = match self.run(scan, step).await {
+                Ok(LssOutcome::Found(ids)) => ids,
+                Ok(other) => return Err(unexpected("fastscan", other)),
+                Err(e) => {
+                    self.run(LssCommand::SwitchGlobal(LssMode::Waiting), step)
+                        .await?;
+                    return Err(e);
+                }
+            };
+            let Some(id) = ids.first().copied() else {
+                break;
+            };
+            if id.serial == serial {
+                return Ok(id);
+            }
+            if found.contains(&id) {
+                repeated = Some(id);
+                break;
+            }
+            found.push(id);
+        }
+        self.run(LssCommand::SwitchGlobal(LssMode::Waiting), step)
+            .await?;
+        let mut text = if found.is_empty() {
+            "no unconfigured device".to_string()
+        } else {
+            found
+                .iter()
+                .map(|i| format!("serial 0x{:08X}", i.serial))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        if let Some(id) = repeated {
+            text.push_str(&format!(
+                "; serial 0x{:08X} keeps answering fastscan until it has a node-ID and hides \
+                 the devices above it: give it its id first",
+                id.serial
+            ));
+        }
+        Err(CanopenError::LssDeviceNotFound {
+            bus: self.bus.bus.clone(),
+            serial,
+            found: text,
         })
     }
 

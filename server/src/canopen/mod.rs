@@ -22,7 +22,9 @@ use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio_util::sync::CancellationToken;
 
 pub mod dcf_export;
+pub mod drive_guard;
 pub mod handover;
+pub mod heard;
 pub mod lss;
 pub mod master_heartbeat;
 pub mod pdo_config;
@@ -253,6 +255,22 @@ pub enum CanopenError {
         /// What the scan found, for the message.
         found: String,
     },
+    /// LSS would give a device a node-ID another device uses.
+    #[error(
+        "bus {bus}: node-ID {node} is in use: {why}; a second device with it would take \
+         over its messages (give another id, or force it)"
+    )]
+    LssNodeIdInUse {
+        /// The bus.
+        bus: String,
+        /// The node-ID asked for.
+        node: u8,
+        /// Who uses it.
+        why: String,
+    },
+    /// The operation would disturb an enabled or moving axis.
+    #[error(transparent)]
+    AxisActive(#[from] drive_guard::AxisActive),
     /// The caller already has as many SDO requests queued or running with
     /// this node as one caller may.
     #[error(
@@ -327,6 +345,10 @@ pub struct CanopenBus {
     programs: program::Downloads,
     /// How requests and answers cross to the bus thread and back.
     handover: handover::Handover,
+    /// The axes' drives on this bus and whether their axes are active.
+    drive_guard: Arc<drive_guard::DriveGuard>,
+    /// When each node-ID was last heard.
+    heard: Arc<heard::HeardNodes>,
 }
 
 /// One API caller's SDO request counted against
@@ -395,6 +417,8 @@ impl CanopenBus {
         // Subscribe before returning, so that nothing the nodes send after
         // this point (their boot-up, typically) is missed.
         let sub = bus.subscribe(master_selector(&configured), 65_536);
+        let known = configured.keys().map(|id| id.get()).collect();
+        let heard = heard::spawn(&bus, &known, cancel.clone());
         let boots: Vec<(NodeId, Arc<BootPlan>)> = configured
             .iter()
             .filter_map(|(id, f)| f.boot.clone().map(|b| (*id, b)))
@@ -441,6 +465,8 @@ impl CanopenBus {
             lss_operation: Arc::default(),
             programs: program::Downloads::default(),
             handover: handover::Handover::off(),
+            drive_guard: Arc::default(),
+            heard,
         };
         tokio::spawn(handle.handover.clone().keep_awake(cancel.clone()));
         let mut master = Master::new(sdo_timeout);
@@ -463,6 +489,7 @@ impl CanopenBus {
             pdos,
             facts,
             handover: handle.handover.clone(),
+            heard: handle.heard.clone(),
             cancel: cancel.clone(),
         }));
         if !boots.is_empty() {
@@ -967,6 +994,8 @@ struct MasterTask {
     pdos: broadcast::Sender<PdoUpdate>,
     facts: Arc<RwLock<BTreeMap<NodeId, NodeFacts>>>,
     handover: handover::Handover,
+    /// Notes every node's frames (see [`heard`]).
+    heard: Arc<heard::HeardNodes>,
     cancel: CancellationToken,
 }
 
@@ -1011,6 +1040,7 @@ async fn run_master(task: MasterTask) {
         pdos,
         facts,
         handover,
+        heard,
         cancel,
     } = task;
     let origin = Instant::now();
@@ -1041,6 +1071,7 @@ async fn run_master(task: MasterTask) {
                 for item in items.drain(..) {
                     match item {
                         BusItem::Frame { frame, .. } => {
+                            heard.record(frame.raw_id(), frame.is_extended());
                             master.on_frame(&frame, now, &mut out);
                             relay_tpdo(&tpdos, &pdos, &frame);
                         }

@@ -11,6 +11,7 @@
 //! runs a half-written image; a later download starts again from the
 //! beginning.
 
+use super::drive_guard::AxisActive;
 use super::{CanopenBus, CanopenError, NodeEventKind};
 use cangate_canopen::NodeId;
 use cangate_canopen::master::SdoRequest;
@@ -51,6 +52,10 @@ pub enum ProgramFailure {
     /// A step failed (SDO abort, flash status, no boot-up, identification).
     #[error(transparent)]
     Program(#[from] ProgramError),
+    /// The node's axis became active during the download; nothing more
+    /// was sent to the node.
+    #[error("{1}: {0}")]
+    AxisActive(AxisActive, ProgramStep),
     /// The gateway could not carry a transfer out (master stopped, ...).
     #[error("{step}: {error}")]
     Gateway {
@@ -74,6 +79,9 @@ pub enum ProgramStartError {
         /// The node.
         node: u8,
     },
+    /// The node drives an enabled or moving axis.
+    #[error(transparent)]
+    AxisActive(#[from] AxisActive),
 }
 
 /// Nodes with a download running.
@@ -106,6 +114,7 @@ impl CanopenBus {
         caller: &str,
     ) -> Result<mpsc::Receiver<ProgramEvent>, ProgramStartError> {
         let node = plan.node;
+        self.check_drive_idle(node, "a program download")?;
         {
             let mut running = self.programs.0.lock().expect("downloads lock");
             if !running.insert(node) {
@@ -170,6 +179,17 @@ async fn run_download(
                         .await;
                 }
                 ProgramAction::Sdo(req) => {
+                    // An axis enabled while the download runs: its drive's
+                    // program is not stopped, replaced or started under it.
+                    if let Err(e) = bus.check_drive_idle(node, "a program download") {
+                        tracing::warn!(bus = %bus.bus, node = node.get(), error = %e, "program download stopped");
+                        let _ = tx
+                            .send(ProgramEvent::Finished(Err(ProgramFailure::AxisActive(
+                                e, step,
+                            ))))
+                            .await;
+                        return;
+                    }
                     let b = bus.clone();
                     let c = caller.clone();
                     let r = req.clone();

@@ -204,6 +204,11 @@ pub struct SimLssConfig {
     /// without a node-ID.
     #[serde(default)]
     pub configured: bool,
+    /// Answer LSS fastscan in any LSS state while without a node-ID, as
+    /// CANopenNode's LSS slave does (a CiA 305 slave answers only in the
+    /// waiting state).
+    #[serde(default)]
+    pub fastscan_until_configured: bool,
 }
 
 /// An SDO write of the boot procedure.

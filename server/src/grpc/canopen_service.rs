@@ -9,8 +9,9 @@ use super::error::ApiError;
 use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_of};
 use super::runtime_errors::lookup_error;
 use crate::canopen::dcf_export::DcfExportError;
+use crate::canopen::drive_guard::AxisActive;
 use crate::canopen::pdo_config::PdoConfigError;
-use crate::canopen::program::{ProgramEvent, ProgramFailure};
+use crate::canopen::program::{ProgramEvent, ProgramFailure, ProgramStartError};
 use crate::canopen::{CanopenBus, CanopenError, NodeEventKind, SyncChangeError, TimeSendError};
 use crate::gateway::Gateway;
 use cangate_can::Timestamp;
@@ -157,6 +158,17 @@ fn node_filter(nodes: &[u32]) -> Result<Vec<u32>, ApiError> {
     Ok(nodes.to_vec())
 }
 
+/// An operation refused because the node drives an enabled axis
+/// (FAILED_PRECONDITION, reason AXIS_ACTIVE, metadata `axis` and `node`).
+pub(crate) fn axis_active(e: AxisActive) -> ApiError {
+    ApiError::refused(
+        tonic::Code::FailedPrecondition,
+        "AXIS_ACTIVE",
+        e.to_string(),
+        vec![("axis", e.axis.clone()), ("node", e.node.get().to_string())],
+    )
+}
+
 fn map_err(node: NodeId, e: CanopenError) -> ApiError {
     match e {
         CanopenError::Sdo(error) => ApiError::Sdo {
@@ -166,8 +178,10 @@ fn map_err(node: NodeId, e: CanopenError) -> ApiError {
         CanopenError::Send(f) => f.into(),
         CanopenError::Stopped => ApiError::ShuttingDown,
         e @ CanopenError::CallerQueueFull { .. } => ApiError::FailedPrecondition(e.to_string()),
+        CanopenError::AxisActive(e) => axis_active(e),
         e @ (CanopenError::Lss(_)
         | CanopenError::LssBusy { .. }
+        | CanopenError::LssNodeIdInUse { .. }
         | CanopenError::LssDeviceNotFound { .. }) => super::lss_service::lss_error(e),
     }
 }
@@ -245,13 +259,14 @@ impl Canopen for CanopenService {
         let node = known_node(m, req.node)?;
         let plan = program_plan(node, req)?;
         let total = plan.image.len() as u64;
-        let mut events = m.download_program(plan, &caller).map_err(|e| {
-            ApiError::refused(
+        let mut events = m.download_program(plan, &caller).map_err(|e| match e {
+            ProgramStartError::AxisActive(e) => axis_active(e),
+            e @ ProgramStartError::Busy { .. } => ApiError::refused(
                 tonic::Code::FailedPrecondition,
                 "PROGRAM_DOWNLOAD_RUNNING",
                 e.to_string(),
                 vec![("node", node.get().to_string())],
-            )
+            ),
         })?;
         let (tx, rx) = tokio::sync::mpsc::channel(64);
         let shutdown = self.gateway.shutdown_token();
@@ -421,6 +436,11 @@ impl Canopen for CanopenService {
         let m = self.master(&req.bus)?;
         let node = known_node(m, req.node)?;
         let addr = target(m, node, &req.object, req.index, req.subindex)?;
+        // Only an engineer reaches WriteSdo (security/roles.rs), so `force`
+        // is an engineer's decision.
+        if !req.force {
+            m.check_sdo_write(node, addr).map_err(axis_active)?;
+        }
         let opts = options(req.options.as_ref())?;
         let data = match req.data {
             Some(pb::write_sdo_request::Data::Raw(b)) => {
@@ -1032,6 +1052,7 @@ fn program_error(node: NodeId, f: ProgramFailure) -> ApiError {
             error,
         },
         ProgramFailure::Gateway { error, .. } => map_err(node, error),
+        ProgramFailure::AxisActive(e, _) => axis_active(e),
         ProgramFailure::Program(e) => {
             let message = format!("node {node}, {e}");
             match e {

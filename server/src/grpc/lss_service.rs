@@ -2,8 +2,9 @@
 //! buses' CANopen masters. Conversions and the LSS error mapping live here;
 //! the operations are the runtime's ([`crate::canopen::lss`]).
 
+use super::canopen_service::axis_active;
 use super::error::ApiError;
-use crate::canopen::lss::{LssSession, LssTarget};
+use crate::canopen::lss::{LssReach, LssSession, LssTarget};
 use crate::canopen::{CanopenBus, CanopenError};
 use crate::gateway::Gateway;
 use cangate_canopen::NodeId;
@@ -46,6 +47,14 @@ impl LssService {
 
     fn session(&self, bus: &str, operation: &'static str) -> Result<LssSession, ApiError> {
         self.master(bus)?.lss_session(operation).map_err(lss_error)
+    }
+
+    /// Refuses an operation that reaches `reach` while it could reach an
+    /// enabled axis's drive.
+    fn reach(&self, bus: &str, reach: LssReach, operation: &str) -> Result<(), ApiError> {
+        self.master(bus)?
+            .check_lss_reach(reach, operation)
+            .map_err(axis_active)
     }
 }
 
@@ -103,6 +112,13 @@ pub(crate) fn lss_error(e: CanopenError) -> ApiError {
             message,
             vec![("serial", format!("0x{serial:08X}"))],
         ),
+        CanopenError::LssNodeIdInUse { node, .. } => ApiError::refused(
+            Code::FailedPrecondition,
+            "NODE_ID_IN_USE",
+            message,
+            vec![("node", node.to_string())],
+        ),
+        CanopenError::AxisActive(e) => axis_active(e),
         CanopenError::Send(f) => f.into(),
         CanopenError::Stopped => ApiError::ShuttingDown,
         e @ (CanopenError::Sdo(_) | CanopenError::CallerQueueFull { .. }) => {
@@ -196,6 +212,17 @@ impl Lss for LssService {
         } else {
             r.step_time_ms
         }));
+        let min = self.master(&r.bus)?.min_fastscan_step();
+        if step < min {
+            return Err(ApiError::InvalidArgument(format!(
+                "step_time_ms {} is shorter than bus {} can answer a fastscan step in: at least \
+                 {} ms (a request and its answer at the bus's bitrate, and the device's turn-around)",
+                step.as_millis(),
+                r.bus,
+                min.as_millis()
+            ))
+            .into());
+        }
         let max = if r.max_devices == 0 {
             32
         } else {
@@ -217,6 +244,9 @@ impl Lss for LssService {
             pb::LssMode::Configuration => LssMode::Configuration,
         };
         let t = timeout(0)?;
+        if mode == LssMode::Configuration {
+            self.reach(&r.bus, LssReach::AllDevices, "switch global")?;
+        }
         Ok(ack(self
             .one(&r.bus, LssCommand::SwitchGlobal(mode), t)
             .await?))
@@ -233,6 +263,7 @@ impl Lss for LssService {
             .map(identity_from_pb)
             .ok_or_else(|| ApiError::InvalidArgument("identity is required".into()))?;
         let t = timeout(r.timeout_ms)?;
+        self.reach(&r.bus, LssReach::Identity(id), "switch selective")?;
         Ok(ack(self
             .one(&r.bus, LssCommand::SwitchSelective(id), t)
             .await?))
@@ -251,6 +282,15 @@ impl Lss for LssService {
             .into());
         }
         let t = timeout(r.timeout_ms)?;
+        self.reach(&r.bus, LssReach::AllDevices, "configure node-ID")?;
+        if !r.force
+            && let Ok(node) = NodeId::new(r.node_id)
+        {
+            // The device in the configuration state is not known here.
+            self.master(&r.bus)?
+                .check_node_id_free(node, None)
+                .map_err(lss_error)?;
+        }
         Ok(ack(self
             .one(&r.bus, LssCommand::ConfigureNodeId(r.node_id as u8), t)
             .await?))
@@ -266,6 +306,7 @@ impl Lss for LssService {
             index: byte("index", r.index)?,
         };
         let t = timeout(r.timeout_ms)?;
+        self.reach(&r.bus, LssReach::AllDevices, "configure bit timing")?;
         Ok(ack(self.one(&r.bus, cmd, t).await?))
     }
 
@@ -281,6 +322,7 @@ impl Lss for LssService {
             ))
         })?;
         let t = timeout(0)?;
+        self.reach(&r.bus, LssReach::AllDevices, "activate bit timing")?;
         Ok(ack(self
             .one(&r.bus, LssCommand::ActivateBitTiming { switch_delay_ms }, t)
             .await?))
@@ -292,6 +334,7 @@ impl Lss for LssService {
     ) -> Reply<pb::LssAck> {
         let r = req.into_inner();
         let t = timeout(r.timeout_ms)?;
+        self.reach(&r.bus, LssReach::AllDevices, "store configuration")?;
         Ok(ack(self
             .one(&r.bus, LssCommand::StoreConfiguration, t)
             .await?))
@@ -300,11 +343,14 @@ impl Lss for LssService {
     async fn inquire(&self, req: Request<pb::InquireRequest>) -> Reply<pb::InquireResponse> {
         let r = req.into_inner();
         let t = timeout(r.timeout_ms)?;
+        let identity = r.identity.as_ref().map(identity_from_pb);
+        self.reach(
+            &r.bus,
+            identity.map_or(LssReach::AllDevices, LssReach::Identity),
+            "inquire",
+        )?;
         let s = self.session(&r.bus, "inquire")?;
-        let (identity, node_id) = s
-            .inquire(r.identity.as_ref().map(identity_from_pb), t)
-            .await
-            .map_err(lss_error)?;
+        let (identity, node_id) = s.inquire(identity, t).await.map_err(lss_error)?;
         Ok(Response::new(pb::InquireResponse {
             identity: Some(identity_to_pb(identity)),
             node_id: u32::from(node_id),
@@ -364,7 +410,7 @@ impl Lss for LssService {
         let t = timeout(r.timeout_ms)?;
         let s = self.session(&r.bus, "assign node-ID")?;
         let done = s
-            .assign_node_id(target, node, r.store, t)
+            .assign_node_id(target, node, r.store, r.force, t)
             .await
             .map_err(lss_error)?;
         Ok(Response::new(pb::AssignNodeIdResponse {

@@ -55,6 +55,10 @@ pub fn canopen_device(
         heartbeat_ms: Some(heartbeat_ms),
         lss,
         lss_unconfigured: nc.sim_lss.as_ref().is_some_and(|l| !l.configured),
+        lss_fastscan_until_configured: nc
+            .sim_lss
+            .as_ref()
+            .is_some_and(|l| l.fastscan_until_configured),
         ..SimNodeOptions::default()
     };
     if nc.eds.as_deref() == Some("builtin:handwheel") {

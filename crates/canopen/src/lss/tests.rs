@@ -405,6 +405,134 @@ fn a_slave_refuses_bad_ids_and_bit_timings() {
     assert_eq!(a.unwrap().data(), &h("5B 78 56 34 12 00 00 00")[..]);
 }
 
+/// Frames as (COB-ID, bytes).
+type Wire = Vec<(u32, Vec<u8>)>;
+
+/// Like [`run`], also returning every frame sent.
+fn run_wire(
+    m: &mut LssMaster,
+    slaves: &mut [LssSlave],
+    command: LssCommand,
+) -> (Result<LssOutcome, LssError>, Wire) {
+    let mut now = Duration::ZERO;
+    let mut step = m.start(command, 100 * MS, now);
+    let mut sent = Vec::new();
+    loop {
+        let mut answers = Vec::new();
+        for f in &step.frames {
+            sent.push((f.raw_id(), f.data().to_vec()));
+            for s in slaves.iter_mut() {
+                answers.extend(s.on_frame(f).0);
+            }
+        }
+        if let Some(r) = step.completed {
+            return (r, sent);
+        }
+        let mut done = None;
+        for a in &answers {
+            done = done.or(m.on_frame(a, now).completed);
+        }
+        if let Some(r) = done {
+            return (r, sent);
+        }
+        now = m.next_deadline().unwrap();
+        step = m.on_tick(now);
+    }
+}
+
+/// A slave like CANopenNode's answers fastscan in the configuration state
+/// while it has no node-ID: the reset query after its find finds it again.
+/// The scan reports it once and ends after the second search instead of
+/// finding it `max_nodes` times (or for ever).
+#[test]
+fn a_slave_answering_until_configured_is_found_once() {
+    let mut m = LssMaster::new();
+    let mut slaves =
+        [LssSlave::new(ID, UNCONFIGURED_NODE_ID).answering_fastscan_until_configured()];
+    let (r, sent) = run_wire(&mut m, &mut slaves, fastscan_all());
+    assert_eq!(r, Ok(LssOutcome::Found(vec![ID])));
+    // Two whole searches: reset, 4 × (32 bits + confirmation), twice.
+    assert_eq!(sent.len(), 2 * (1 + 4 * 33));
+    let reset = (0x7E5, h("51 00 00 00 00 80 00 00"));
+    assert_eq!(sent[0], reset);
+    assert_eq!(sent[133], reset, "the second search");
+    // Each search ends with the serial's confirmation (LSSNext 0).
+    let confirm_serial = (0x7E5, h("51 EF BE AD DE 00 03 00"));
+    assert_eq!(sent[132], confirm_serial);
+    assert_eq!(sent[265], confirm_serial);
+    assert_eq!(slaves[0].mode(), LssMode::Configuration);
+    // A CiA 305 slave in the same place is found once, by one search and
+    // one silent reset query.
+    let mut m = LssMaster::new();
+    let mut slaves = [LssSlave::new(ID, UNCONFIGURED_NODE_ID)];
+    let (r, sent) = run_wire(&mut m, &mut slaves, fastscan_all());
+    assert_eq!(r, Ok(LssOutcome::Found(vec![ID])));
+    assert_eq!(sent.len(), 1 + 4 * 33 + 1);
+}
+
+/// Two such slaves: a scan for all finds only the lower (it hides the
+/// other); finding one at a time and giving each its id before the next
+/// search finds both. The frames between the finds: configure node-ID
+/// (the found slave is in the configuration state), switch global waiting
+/// (it takes the id and stops answering).
+#[test]
+fn slaves_answering_until_configured_are_found_one_at_a_time() {
+    let id2 = LssIdentity {
+        serial: ID.serial + 1,
+        ..ID
+    };
+    let mut slaves = [
+        LssSlave::new(id2, UNCONFIGURED_NODE_ID).answering_fastscan_until_configured(),
+        LssSlave::new(ID, UNCONFIGURED_NODE_ID).answering_fastscan_until_configured(),
+    ];
+    let mut m = LssMaster::new();
+    let (r, _) = run_wire(&mut m, &mut slaves, fastscan_all());
+    assert_eq!(r, Ok(LssOutcome::Found(vec![ID])));
+    run_wire(
+        &mut m,
+        &mut slaves,
+        LssCommand::SwitchGlobal(LssMode::Waiting),
+    )
+    .0
+    .unwrap();
+
+    let one = LssCommand::Fastscan {
+        step_time: 10 * MS,
+        max_nodes: 1,
+    };
+    for (want, node) in [(ID, 10u8), (id2, 11)] {
+        let (r, sent) = run_wire(&mut m, &mut slaves, one.clone());
+        assert_eq!(r, Ok(LssOutcome::Found(vec![want])));
+        assert_eq!(sent.len(), 1 + 4 * 33, "no reset query after the one find");
+        let (r, sent) = run_wire(&mut m, &mut slaves, LssCommand::ConfigureNodeId(node));
+        assert_eq!(r, Ok(LssOutcome::Confirmed));
+        let mut configure = h("11 00 00 00 00 00 00 00");
+        configure[1] = node;
+        assert_eq!(sent, vec![(0x7E5, configure)]);
+        let (_, sent) = run_wire(
+            &mut m,
+            &mut slaves,
+            LssCommand::SwitchGlobal(LssMode::Waiting),
+        );
+        assert_eq!(sent, vec![(0x7E5, h("04 00 00 00 00 00 00 00"))]);
+    }
+    assert_eq!(slaves[1].active_node_id(), 10);
+    assert_eq!(slaves[0].active_node_id(), 11);
+    let (r, sent) = run_wire(&mut m, &mut slaves, one);
+    assert_eq!(r, Ok(LssOutcome::Found(vec![])));
+    assert_eq!(sent.len(), 1);
+}
+
+#[test]
+fn the_shortest_fastscan_step_follows_the_bitrate() {
+    // Two 135-bit frames and 2 ms, rounded up to whole ms.
+    assert_eq!(min_fastscan_step(None), 2 * MS);
+    assert_eq!(min_fastscan_step(Some(1_000_000)), 3 * MS);
+    assert_eq!(min_fastscan_step(Some(500_000)), 3 * MS);
+    assert_eq!(min_fastscan_step(Some(125_000)), 5 * MS);
+    assert_eq!(min_fastscan_step(Some(10_000)), 29 * MS);
+}
+
 proptest! {
     /// Master against slaves: fastscan finds every non-configured slave,
     /// lowest identity first (the search takes the 0 branch whenever some
