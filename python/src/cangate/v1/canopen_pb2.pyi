@@ -283,7 +283,7 @@ class ReadSdoResponse(_message.Message):
     def __init__(self, raw: _Optional[bytes] = ..., value: _Optional[_Union[Value, _Mapping]] = ...) -> None: ...
 
 class WriteSdoRequest(_message.Message):
-    __slots__ = ("bus", "node", "index", "subindex", "value", "raw", "options", "object")
+    __slots__ = ("bus", "node", "index", "subindex", "value", "raw", "options", "object", "force")
     BUS_FIELD_NUMBER: _ClassVar[int]
     NODE_FIELD_NUMBER: _ClassVar[int]
     INDEX_FIELD_NUMBER: _ClassVar[int]
@@ -292,6 +292,7 @@ class WriteSdoRequest(_message.Message):
     RAW_FIELD_NUMBER: _ClassVar[int]
     OPTIONS_FIELD_NUMBER: _ClassVar[int]
     OBJECT_FIELD_NUMBER: _ClassVar[int]
+    FORCE_FIELD_NUMBER: _ClassVar[int]
     bus: str
     node: int
     index: int
@@ -300,7 +301,8 @@ class WriteSdoRequest(_message.Message):
     raw: bytes
     options: SdoOptions
     object: str
-    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., index: _Optional[int] = ..., subindex: _Optional[int] = ..., value: _Optional[_Union[Value, _Mapping]] = ..., raw: _Optional[bytes] = ..., options: _Optional[_Union[SdoOptions, _Mapping]] = ..., object: _Optional[str] = ...) -> None: ...
+    force: bool
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., index: _Optional[int] = ..., subindex: _Optional[int] = ..., value: _Optional[_Union[Value, _Mapping]] = ..., raw: _Optional[bytes] = ..., options: _Optional[_Union[SdoOptions, _Mapping]] = ..., object: _Optional[str] = ..., force: _Optional[bool] = ...) -> None: ...
 
 class WriteSdoResponse(_message.Message):
     __slots__ = ("bytes",)

@@ -162,7 +162,9 @@ class CanopenServicer:
         raise NotImplementedError('Method not implemented!')
 
     def WriteSdo(self, request, context):
-        """Writes an object over SDO.
+        """Writes an object over SDO. A write to the process or program objects
+        of an enabled axis's drive is refused unless forced (see
+        WriteSdoRequest.force).
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')
@@ -304,7 +306,11 @@ class CanopenServicer:
         max_message_bytes is smaller (larger images are INVALID_ARGUMENT).
 
         Errors end the stream: FAILED_PRECONDITION another download to the
-        node runs (reason PROGRAM_DOWNLOAD_RUNNING); NOT_FOUND unknown bus or
+        node runs (reason PROGRAM_DOWNLOAD_RUNNING), or the node is the drive
+        of an axis that is enabled or moving (reason AXIS_ACTIVE, metadata
+        "axis" and "node"; refused before anything is sent, and a download
+        stops before its next step when the axis is enabled while it runs);
+        NOT_FOUND unknown bus or
         node; an SDO failure of a step as for WriteSdo (reasons SDO_ABORT,
         SDO_TIMEOUT, ...; the message names the step and ErrorInfo metadata
         "step" has its ProgramStep name in lower case with dashes,

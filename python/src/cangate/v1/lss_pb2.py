@@ -24,15 +24,15 @@ _sym_db = _symbol_database.Default()
 
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x14\x63\x61ngate/v1/lss.proto\x12\ncangate.v1\"X\n\x0bLssIdentity\x12\x11\n\tvendor_id\x18\x01 \x01(\r\x12\x14\n\x0cproduct_code\x18\x02 \x01(\r\x12\x10\n\x08revision\x18\x03 \x01(\r\x12\x0e\n\x06serial\x18\x04 \x01(\r\"\x1b\n\x06LssAck\x12\x11\n\tconfirmed\x18\x01 \x01(\x08\"I\n\x0f\x46\x61stscanRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12\x14\n\x0cstep_time_ms\x18\x02 \x01(\r\x12\x13\n\x0bmax_devices\x18\x03 \x01(\r\"P\n\x10\x46\x61stscanResponse\x12(\n\x07\x64\x65vices\x18\x01 \x03(\x0b\x32\x17.cangate.v1.LssIdentity\x12\x12\n\nelapsed_ms\x18\x02 \x01(\x04\"E\n\x13SwitchGlobalRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12!\n\x04mode\x18\x02 \x01(\x0e\x32\x13.cangate.v1.LssMode\"d\n\x16SwitchSelectiveRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12)\n\x08identity\x18\x02 \x01(\x0b\x32\x17.cangate.v1.LssIdentity\x12\x12\n\ntimeout_ms\x18\x03 \x01(\r\"J\n\x16\x43onfigureNodeIdRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12\x0f\n\x07node_id\x18\x02 \x01(\r\x12\x12\n\ntimeout_ms\x18\x03 \x01(\r\"Z\n\x19\x43onfigureBitTimingRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12\r\n\x05table\x18\x02 \x01(\r\x12\r\n\x05index\x18\x03 \x01(\r\x12\x12\n\ntimeout_ms\x18\x04 \x01(\r\"@\n\x18\x41\x63tivateBitTimingRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12\x17\n\x0fswitch_delay_ms\x18\x02 \x01(\r\"<\n\x19StoreConfigurationRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12\x12\n\ntimeout_ms\x18\x02 \x01(\r\"\\\n\x0eInquireRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12)\n\x08identity\x18\x02 \x01(\x0b\x32\x17.cangate.v1.LssIdentity\x12\x12\n\ntimeout_ms\x18\x03 \x01(\r\"M\n\x0fInquireResponse\x12)\n\x08identity\x18\x01 \x01(\x0b\x32\x17.cangate.v1.LssIdentity\x12\x0f\n\x07node_id\x18\x02 \x01(\r\"\xb7\x01\n\x15IdentifyRemoteRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12\x11\n\tvendor_id\x18\x02 \x01(\r\x12\x14\n\x0cproduct_code\x18\x03 \x01(\r\x12\x14\n\x0crevision_low\x18\x04 \x01(\r\x12\x15\n\rrevision_high\x18\x05 \x01(\r\x12\x12\n\nserial_low\x18\x06 \x01(\r\x12\x13\n\x0bserial_high\x18\x07 \x01(\r\x12\x12\n\ntimeout_ms\x18\x08 \x01(\r\"?\n\x1cIdentifyNonConfiguredRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12\x12\n\ntimeout_ms\x18\x02 \x01(\r\"#\n\x10IdentifyResponse\x12\x0f\n\x07present\x18\x01 \x01(\x08\"\x9f\x01\n\x13\x41ssignNodeIdRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12+\n\x08identity\x18\x02 \x01(\x0b\x32\x17.cangate.v1.LssIdentityH\x00\x12\x10\n\x06serial\x18\x03 \x01(\rH\x00\x12\x0f\n\x07node_id\x18\x04 \x01(\r\x12\r\n\x05store\x18\x05 \x01(\x08\x12\x12\n\ntimeout_ms\x18\x06 \x01(\rB\x08\n\x06\x64\x65vice\"|\n\x14\x41ssignNodeIdResponse\x12)\n\x08identity\x18\x01 \x01(\x0b\x32\x17.cangate.v1.LssIdentity\x12\x18\n\x10previous_node_id\x18\x02 \x01(\r\x12\x0f\n\x07node_id\x18\x03 \x01(\r\x12\x0e\n\x06stored\x18\x04 \x01(\x08*;\n\x07LssMode\x12\x14\n\x10LSS_MODE_WAITING\x10\x00\x12\x1a\n\x16LSS_MODE_CONFIGURATION\x10\x01\x32\xe3\x06\n\x03Lss\x12\x45\n\x08\x46\x61stscan\x12\x1b.cangate.v1.FastscanRequest\x1a\x1c.cangate.v1.FastscanResponse\x12\x43\n\x0cSwitchGlobal\x12\x1f.cangate.v1.SwitchGlobalRequest\x1a\x12.cangate.v1.LssAck\x12I\n\x0fSwitchSelective\x12\".cangate.v1.SwitchSelectiveRequest\x1a\x12.cangate.v1.LssAck\x12I\n\x0f\x43onfigureNodeId\x12\".cangate.v1.ConfigureNodeIdRequest\x1a\x12.cangate.v1.LssAck\x12O\n\x12\x43onfigureBitTiming\x12%.cangate.v1.ConfigureBitTimingRequest\x1a\x12.cangate.v1.LssAck\x12M\n\x11\x41\x63tivateBitTiming\x12$.cangate.v1.ActivateBitTimingRequest\x1a\x12.cangate.v1.LssAck\x12O\n\x12StoreConfiguration\x12%.cangate.v1.StoreConfigurationRequest\x1a\x12.cangate.v1.LssAck\x12\x42\n\x07Inquire\x12\x1a.cangate.v1.InquireRequest\x1a\x1b.cangate.v1.InquireResponse\x12Q\n\x0eIdentifyRemote\x12!.cangate.v1.IdentifyRemoteRequest\x1a\x1c.cangate.v1.IdentifyResponse\x12_\n\x15IdentifyNonConfigured\x12(.cangate.v1.IdentifyNonConfiguredRequest\x1a\x1c.cangate.v1.IdentifyResponse\x12Q\n\x0c\x41ssignNodeId\x12\x1f.cangate.v1.AssignNodeIdRequest\x1a .cangate.v1.AssignNodeIdResponseb\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x14\x63\x61ngate/v1/lss.proto\x12\ncangate.v1\"X\n\x0bLssIdentity\x12\x11\n\tvendor_id\x18\x01 \x01(\r\x12\x14\n\x0cproduct_code\x18\x02 \x01(\r\x12\x10\n\x08revision\x18\x03 \x01(\r\x12\x0e\n\x06serial\x18\x04 \x01(\r\"\x1b\n\x06LssAck\x12\x11\n\tconfirmed\x18\x01 \x01(\x08\"I\n\x0f\x46\x61stscanRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12\x14\n\x0cstep_time_ms\x18\x02 \x01(\r\x12\x13\n\x0bmax_devices\x18\x03 \x01(\r\"P\n\x10\x46\x61stscanResponse\x12(\n\x07\x64\x65vices\x18\x01 \x03(\x0b\x32\x17.cangate.v1.LssIdentity\x12\x12\n\nelapsed_ms\x18\x02 \x01(\x04\"E\n\x13SwitchGlobalRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12!\n\x04mode\x18\x02 \x01(\x0e\x32\x13.cangate.v1.LssMode\"d\n\x16SwitchSelectiveRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12)\n\x08identity\x18\x02 \x01(\x0b\x32\x17.cangate.v1.LssIdentity\x12\x12\n\ntimeout_ms\x18\x03 \x01(\r\"Y\n\x16\x43onfigureNodeIdRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12\x0f\n\x07node_id\x18\x02 \x01(\r\x12\x12\n\ntimeout_ms\x18\x03 \x01(\r\x12\r\n\x05\x66orce\x18\x04 \x01(\x08\"Z\n\x19\x43onfigureBitTimingRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12\r\n\x05table\x18\x02 \x01(\r\x12\r\n\x05index\x18\x03 \x01(\r\x12\x12\n\ntimeout_ms\x18\x04 \x01(\r\"@\n\x18\x41\x63tivateBitTimingRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12\x17\n\x0fswitch_delay_ms\x18\x02 \x01(\r\"<\n\x19StoreConfigurationRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12\x12\n\ntimeout_ms\x18\x02 \x01(\r\"\\\n\x0eInquireRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12)\n\x08identity\x18\x02 \x01(\x0b\x32\x17.cangate.v1.LssIdentity\x12\x12\n\ntimeout_ms\x18\x03 \x01(\r\"M\n\x0fInquireResponse\x12)\n\x08identity\x18\x01 \x01(\x0b\x32\x17.cangate.v1.LssIdentity\x12\x0f\n\x07node_id\x18\x02 \x01(\r\"\xb7\x01\n\x15IdentifyRemoteRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12\x11\n\tvendor_id\x18\x02 \x01(\r\x12\x14\n\x0cproduct_code\x18\x03 \x01(\r\x12\x14\n\x0crevision_low\x18\x04 \x01(\r\x12\x15\n\rrevision_high\x18\x05 \x01(\r\x12\x12\n\nserial_low\x18\x06 \x01(\r\x12\x13\n\x0bserial_high\x18\x07 \x01(\r\x12\x12\n\ntimeout_ms\x18\x08 \x01(\r\"?\n\x1cIdentifyNonConfiguredRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12\x12\n\ntimeout_ms\x18\x02 \x01(\r\"#\n\x10IdentifyResponse\x12\x0f\n\x07present\x18\x01 \x01(\x08\"\xae\x01\n\x13\x41ssignNodeIdRequest\x12\x0b\n\x03\x62us\x18\x01 \x01(\t\x12+\n\x08identity\x18\x02 \x01(\x0b\x32\x17.cangate.v1.LssIdentityH\x00\x12\x10\n\x06serial\x18\x03 \x01(\rH\x00\x12\x0f\n\x07node_id\x18\x04 \x01(\r\x12\r\n\x05store\x18\x05 \x01(\x08\x12\x12\n\ntimeout_ms\x18\x06 \x01(\r\x12\r\n\x05\x66orce\x18\x07 \x01(\x08\x42\x08\n\x06\x64\x65vice\"|\n\x14\x41ssignNodeIdResponse\x12)\n\x08identity\x18\x01 \x01(\x0b\x32\x17.cangate.v1.LssIdentity\x12\x18\n\x10previous_node_id\x18\x02 \x01(\r\x12\x0f\n\x07node_id\x18\x03 \x01(\r\x12\x0e\n\x06stored\x18\x04 \x01(\x08*;\n\x07LssMode\x12\x14\n\x10LSS_MODE_WAITING\x10\x00\x12\x1a\n\x16LSS_MODE_CONFIGURATION\x10\x01\x32\xe3\x06\n\x03Lss\x12\x45\n\x08\x46\x61stscan\x12\x1b.cangate.v1.FastscanRequest\x1a\x1c.cangate.v1.FastscanResponse\x12\x43\n\x0cSwitchGlobal\x12\x1f.cangate.v1.SwitchGlobalRequest\x1a\x12.cangate.v1.LssAck\x12I\n\x0fSwitchSelective\x12\".cangate.v1.SwitchSelectiveRequest\x1a\x12.cangate.v1.LssAck\x12I\n\x0f\x43onfigureNodeId\x12\".cangate.v1.ConfigureNodeIdRequest\x1a\x12.cangate.v1.LssAck\x12O\n\x12\x43onfigureBitTiming\x12%.cangate.v1.ConfigureBitTimingRequest\x1a\x12.cangate.v1.LssAck\x12M\n\x11\x41\x63tivateBitTiming\x12$.cangate.v1.ActivateBitTimingRequest\x1a\x12.cangate.v1.LssAck\x12O\n\x12StoreConfiguration\x12%.cangate.v1.StoreConfigurationRequest\x1a\x12.cangate.v1.LssAck\x12\x42\n\x07Inquire\x12\x1a.cangate.v1.InquireRequest\x1a\x1b.cangate.v1.InquireResponse\x12Q\n\x0eIdentifyRemote\x12!.cangate.v1.IdentifyRemoteRequest\x1a\x1c.cangate.v1.IdentifyResponse\x12_\n\x15IdentifyNonConfigured\x12(.cangate.v1.IdentifyNonConfiguredRequest\x1a\x1c.cangate.v1.IdentifyResponse\x12Q\n\x0c\x41ssignNodeId\x12\x1f.cangate.v1.AssignNodeIdRequest\x1a .cangate.v1.AssignNodeIdResponseb\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
 _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'cangate.v1.lss_pb2', _globals)
 if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
-  _globals['_LSSMODE']._serialized_start=1530
-  _globals['_LSSMODE']._serialized_end=1589
+  _globals['_LSSMODE']._serialized_start=1560
+  _globals['_LSSMODE']._serialized_end=1619
   _globals['_LSSIDENTITY']._serialized_start=36
   _globals['_LSSIDENTITY']._serialized_end=124
   _globals['_LSSACK']._serialized_start=126
@@ -46,27 +46,27 @@ if not _descriptor._USE_C_DESCRIPTORS:
   _globals['_SWITCHSELECTIVEREQUEST']._serialized_start=383
   _globals['_SWITCHSELECTIVEREQUEST']._serialized_end=483
   _globals['_CONFIGURENODEIDREQUEST']._serialized_start=485
-  _globals['_CONFIGURENODEIDREQUEST']._serialized_end=559
-  _globals['_CONFIGUREBITTIMINGREQUEST']._serialized_start=561
-  _globals['_CONFIGUREBITTIMINGREQUEST']._serialized_end=651
-  _globals['_ACTIVATEBITTIMINGREQUEST']._serialized_start=653
-  _globals['_ACTIVATEBITTIMINGREQUEST']._serialized_end=717
-  _globals['_STORECONFIGURATIONREQUEST']._serialized_start=719
-  _globals['_STORECONFIGURATIONREQUEST']._serialized_end=779
-  _globals['_INQUIREREQUEST']._serialized_start=781
-  _globals['_INQUIREREQUEST']._serialized_end=873
-  _globals['_INQUIRERESPONSE']._serialized_start=875
-  _globals['_INQUIRERESPONSE']._serialized_end=952
-  _globals['_IDENTIFYREMOTEREQUEST']._serialized_start=955
-  _globals['_IDENTIFYREMOTEREQUEST']._serialized_end=1138
-  _globals['_IDENTIFYNONCONFIGUREDREQUEST']._serialized_start=1140
-  _globals['_IDENTIFYNONCONFIGUREDREQUEST']._serialized_end=1203
-  _globals['_IDENTIFYRESPONSE']._serialized_start=1205
-  _globals['_IDENTIFYRESPONSE']._serialized_end=1240
-  _globals['_ASSIGNNODEIDREQUEST']._serialized_start=1243
-  _globals['_ASSIGNNODEIDREQUEST']._serialized_end=1402
-  _globals['_ASSIGNNODEIDRESPONSE']._serialized_start=1404
-  _globals['_ASSIGNNODEIDRESPONSE']._serialized_end=1528
-  _globals['_LSS']._serialized_start=1592
-  _globals['_LSS']._serialized_end=2459
+  _globals['_CONFIGURENODEIDREQUEST']._serialized_end=574
+  _globals['_CONFIGUREBITTIMINGREQUEST']._serialized_start=576
+  _globals['_CONFIGUREBITTIMINGREQUEST']._serialized_end=666
+  _globals['_ACTIVATEBITTIMINGREQUEST']._serialized_start=668
+  _globals['_ACTIVATEBITTIMINGREQUEST']._serialized_end=732
+  _globals['_STORECONFIGURATIONREQUEST']._serialized_start=734
+  _globals['_STORECONFIGURATIONREQUEST']._serialized_end=794
+  _globals['_INQUIREREQUEST']._serialized_start=796
+  _globals['_INQUIREREQUEST']._serialized_end=888
+  _globals['_INQUIRERESPONSE']._serialized_start=890
+  _globals['_INQUIRERESPONSE']._serialized_end=967
+  _globals['_IDENTIFYREMOTEREQUEST']._serialized_start=970
+  _globals['_IDENTIFYREMOTEREQUEST']._serialized_end=1153
+  _globals['_IDENTIFYNONCONFIGUREDREQUEST']._serialized_start=1155
+  _globals['_IDENTIFYNONCONFIGUREDREQUEST']._serialized_end=1218
+  _globals['_IDENTIFYRESPONSE']._serialized_start=1220
+  _globals['_IDENTIFYRESPONSE']._serialized_end=1255
+  _globals['_ASSIGNNODEIDREQUEST']._serialized_start=1258
+  _globals['_ASSIGNNODEIDREQUEST']._serialized_end=1432
+  _globals['_ASSIGNNODEIDRESPONSE']._serialized_start=1434
+  _globals['_ASSIGNNODEIDRESPONSE']._serialized_end=1558
+  _globals['_LSS']._serialized_start=1622
+  _globals['_LSS']._serialized_end=2489
 # @@protoc_insertion_point(module_scope)

@@ -69,14 +69,16 @@ class SwitchSelectiveRequest(_message.Message):
     def __init__(self, bus: _Optional[str] = ..., identity: _Optional[_Union[LssIdentity, _Mapping]] = ..., timeout_ms: _Optional[int] = ...) -> None: ...
 
 class ConfigureNodeIdRequest(_message.Message):
-    __slots__ = ("bus", "node_id", "timeout_ms")
+    __slots__ = ("bus", "node_id", "timeout_ms", "force")
     BUS_FIELD_NUMBER: _ClassVar[int]
     NODE_ID_FIELD_NUMBER: _ClassVar[int]
     TIMEOUT_MS_FIELD_NUMBER: _ClassVar[int]
+    FORCE_FIELD_NUMBER: _ClassVar[int]
     bus: str
     node_id: int
     timeout_ms: int
-    def __init__(self, bus: _Optional[str] = ..., node_id: _Optional[int] = ..., timeout_ms: _Optional[int] = ...) -> None: ...
+    force: bool
+    def __init__(self, bus: _Optional[str] = ..., node_id: _Optional[int] = ..., timeout_ms: _Optional[int] = ..., force: _Optional[bool] = ...) -> None: ...
 
 class ConfigureBitTimingRequest(_message.Message):
     __slots__ = ("bus", "table", "index", "timeout_ms")
@@ -159,20 +161,22 @@ class IdentifyResponse(_message.Message):
     def __init__(self, present: _Optional[bool] = ...) -> None: ...
 
 class AssignNodeIdRequest(_message.Message):
-    __slots__ = ("bus", "identity", "serial", "node_id", "store", "timeout_ms")
+    __slots__ = ("bus", "identity", "serial", "node_id", "store", "timeout_ms", "force")
     BUS_FIELD_NUMBER: _ClassVar[int]
     IDENTITY_FIELD_NUMBER: _ClassVar[int]
     SERIAL_FIELD_NUMBER: _ClassVar[int]
     NODE_ID_FIELD_NUMBER: _ClassVar[int]
     STORE_FIELD_NUMBER: _ClassVar[int]
     TIMEOUT_MS_FIELD_NUMBER: _ClassVar[int]
+    FORCE_FIELD_NUMBER: _ClassVar[int]
     bus: str
     identity: LssIdentity
     serial: int
     node_id: int
     store: bool
     timeout_ms: int
-    def __init__(self, bus: _Optional[str] = ..., identity: _Optional[_Union[LssIdentity, _Mapping]] = ..., serial: _Optional[int] = ..., node_id: _Optional[int] = ..., store: _Optional[bool] = ..., timeout_ms: _Optional[int] = ...) -> None: ...
+    force: bool
+    def __init__(self, bus: _Optional[str] = ..., identity: _Optional[_Union[LssIdentity, _Mapping]] = ..., serial: _Optional[int] = ..., node_id: _Optional[int] = ..., store: _Optional[bool] = ..., timeout_ms: _Optional[int] = ..., force: _Optional[bool] = ...) -> None: ...
 
 class AssignNodeIdResponse(_message.Message):
     __slots__ = ("identity", "previous_node_id", "node_id", "stored")

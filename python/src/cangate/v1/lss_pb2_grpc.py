@@ -102,7 +102,11 @@ class LssServicer:
         identities; afterwards every device is switched back to the waiting
         state. Devices with a node-ID do not take part. Takes about
         133 × step_time_ms per device plus one step (measured on the virtual
-        bus: two devices in 5.7 s at 20 ms, 1.65 s at 5 ms).
+        bus: two devices in 5.7 s at 20 ms, 1.65 s at 5 ms). A device found a
+        second time ends the scan (CANopenNode's LSS slave answers fastscan in
+        any state until it has a node-ID): it is listed once, and devices of
+        higher identity behind it are only found once it has an id; such a
+        scan takes one more search.
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')
@@ -183,7 +187,9 @@ class LssServicer:
 
     def AssignNodeId(self, request, context):
         """Gives the device with `identity` (or the only unconfigured device with
-        `serial`, found by fastscan) node-ID `node_id`: switch selective,
+        `serial`, found by fastscans of one device each: devices found that
+        are not the one stay in the configuration state until a search finds
+        nothing more or a device a second time) node-ID `node_id`: switch selective,
         configure, optionally store, back to waiting; a device that had
         another node-ID gets an NMT reset communication to take the new one.
         The device then boots up as `node_id` and the CANopen master's boot
