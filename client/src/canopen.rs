@@ -103,6 +103,7 @@ impl Canopen {
             bus: self.bus.clone(),
             node,
             command: command as i32,
+            force: false,
         };
         self.client
             .call("SendNmt", None, self.client.canopen_client().send_nmt(req))

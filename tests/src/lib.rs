@@ -158,6 +158,7 @@ pub async fn send_nmt(c: &cangate_client::Client, node: u32, command: pb::NmtCom
             bus: "can0".into(),
             node,
             command: command as i32,
+            force: false,
         })
         .await
         .expect("NMT command accepted");

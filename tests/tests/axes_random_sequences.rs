@@ -9,7 +9,13 @@
 //! - a waited-for command on a healthy simulated drive never ends TIMEOUT;
 //! - the position never leaves the soft limits;
 //! - never wedged: after stop, reset fault and enable, a move to 0
-//!   completes there.
+//!   completes there;
+//! - commissioning by a second client (an engineer's connection without
+//!   the lease) interleaved with the motion never disturbs an enabled
+//!   axis: raw SDO writes to the drive's process objects, NMT commands,
+//!   program download and LSS switch-global that reach an enabled axis's
+//!   drive, and SYNC period changes under an enabled cyclic axis, are
+//!   refused and leave the axis enabled; at rest they may run.
 //!
 //! A failure names the seed and the actions up to it; the sequence is a
 //! function of the seed (`AXES_RANDOM_SEED=<n>` runs one seed).
@@ -29,6 +35,10 @@ struct Limits {
     min: f64,
     max: f64,
     max_velocity: f64,
+    /// The CANopen node of a CiA 402 axis's drive (commissioning target).
+    drive_node: Option<u32>,
+    /// A cyclic (CSP) axis: it rides the SYNC.
+    cyclic: bool,
 }
 
 /// SplitMix64: sequences reproducible from the seed alone.
@@ -77,6 +87,26 @@ enum Action {
     Pause {
         ms: u64,
     },
+    /// An engineer's operation on the axis's drive node, from a second
+    /// client (CiA 402 axes only).
+    Commission(Commissioning),
+}
+
+/// What a commissioning engineer does to the drive of a running machine.
+#[derive(Debug, Clone, Copy)]
+enum Commissioning {
+    /// A raw SDO write of 0 to one of the drive's process objects
+    /// (controlword: disable voltage; mode; targets).
+    SdoWrite { index: u16 },
+    /// An NMT command to the drive (START restores it afterwards).
+    Nmt(pb::NmtCommand),
+    /// A program download (the demo drives have no 0x1F50: at rest the
+    /// node aborts it).
+    ProgramDownload,
+    /// LSS switch-global to configuration (and back to waiting).
+    LssConfiguration,
+    /// The bus's SYNC period changed (and restored at once).
+    SyncPeriod,
 }
 
 fn action(rng: &mut Rng, l: &Limits) -> Action {
@@ -102,6 +132,23 @@ fn action(rng: &mut Rng, l: &Limits) -> Action {
         12..=13 => Action::Stop { wait: rng.bool() },
         14 => Action::QuickStop,
         15..=16 => Action::ResetFault,
+        17 if l.drive_node.is_some() => Action::Commission(match rng.u8(0..5) {
+            0 => Commissioning::SdoWrite {
+                index: [0x6040, 0x6060, 0x607A, 0x60FF][usize::from(rng.u8(0..4))],
+            },
+            // (RESET_COMMUNICATION reboots the drive through the boot
+            // procedure: its own tests cover it; here the node stays up.)
+            1 => Commissioning::Nmt(if rng.bool() {
+                pb::NmtCommand::EnterPreOperational
+            } else {
+                pb::NmtCommand::Stop
+            }),
+            2 => Commissioning::ProgramDownload,
+            // The SYNC period matters to the cyclic axes only.
+            3 if !l.cyclic => Commissioning::LssConfiguration,
+            3 | 4 if l.cyclic => Commissioning::SyncPeriod,
+            _ => Commissioning::LssConfiguration,
+        }),
         _ => Action::Pause {
             ms: rng.u64(0..300),
         },
@@ -149,6 +196,7 @@ fn ended(r: &Result<pb::AxisCommandResponse, tonic::Status>) -> String {
 
 async fn run_action(
     axes: &mut Axes,
+    engineer: &cangate_client::Client,
     axis: &str,
     lease: &str,
     a: Action,
@@ -156,6 +204,7 @@ async fn run_action(
 ) -> Result<String, String> {
     let what = format!("{a:?}");
     match a {
+        Action::Commission(op) => commission(axes, engineer, axis, op, l).await,
         Action::Enable => {
             let r = bounded(&what, axes.enable(cmd(axis, lease, true))).await?;
             check_outcome(&what, &r, true).map(|()| ended(&r))
@@ -216,6 +265,145 @@ async fn run_action(
     }
 }
 
+/// Runs `op` on the drive of `axis` from the engineer's client and checks
+/// the guard: refused (FAILED_PRECONDITION, AXIS_ACTIVE naming the axis)
+/// when the axis was enabled, and the axis still enabled afterwards.
+async fn commission(
+    axes: &mut Axes,
+    engineer: &cangate_client::Client,
+    axis: &str,
+    op: Commissioning,
+    l: &Limits,
+) -> Result<String, String> {
+    let Some(node) = l.drive_node else {
+        return Ok("no drive node".into());
+    };
+    let what = format!("{op:?} on axis {axis}'s drive (node {node})");
+    let enabled = |s: &pb::AxisStatus| s.state == pb::DriveState::OperationEnabled as i32;
+    let before = status(axes, axis).await?;
+    let mut co = engineer.canopen_client();
+    let outcome: Result<(), (Option<Code>, Option<String>, String)> = match op {
+        Commissioning::SdoWrite { index } => bounded(
+            &what,
+            co.write_sdo(pb::WriteSdoRequest {
+                bus: "can0".into(),
+                node,
+                index: u32::from(index),
+                subindex: 0,
+                data: Some(pb::write_sdo_request::Data::Raw(vec![0; 2])),
+                ..Default::default()
+            }),
+        )
+        .await?
+        .map(|_| ())
+        .map_err(status_parts),
+        Commissioning::Nmt(command) => {
+            let nmt = |command: pb::NmtCommand| pb::SendNmtRequest {
+                bus: "can0".into(),
+                node,
+                command: command as i32,
+                force: false,
+            };
+            let r = bounded(&what, co.send_nmt(nmt(command)))
+                .await?
+                .map(|_| ())
+                .map_err(status_parts);
+            if r.is_ok() {
+                // The engineer puts the node back where it was.
+                bounded("NMT START", co.send_nmt(nmt(pb::NmtCommand::Start)))
+                    .await?
+                    .map_err(|s| format!("NMT START refused: {s:?}"))?;
+            }
+            r
+        }
+        Commissioning::ProgramDownload => {
+            match tokio::time::timeout(
+                CALL_BOUND,
+                engineer.canopen("can0").download_program_with(
+                    cangate_client::NodeId::new(node as u8).expect("a node id"),
+                    vec![0x5A; 64],
+                    &Default::default(),
+                    |_| {},
+                ),
+            )
+            .await
+            {
+                Err(_) => return Err(format!("{what} did not return within {CALL_BOUND:?}")),
+                Ok(Ok(_)) => Ok(()),
+                Ok(Err(e)) => Err((e.code(), e.reason(), e.to_string())),
+            }
+        }
+        Commissioning::LssConfiguration => {
+            let mut lss = engineer.lss_client();
+            let switch = |mode: pb::LssMode| pb::SwitchGlobalRequest {
+                bus: "can0".into(),
+                mode: mode as i32,
+            };
+            let r = bounded(&what, lss.switch_global(switch(pb::LssMode::Configuration)))
+                .await?
+                .map(|_| ())
+                .map_err(status_parts);
+            // Back to waiting whatever the answer (waiting is harmless).
+            let _ = bounded("LSS waiting", lss.switch_global(switch(pb::LssMode::Waiting))).await?;
+            r
+        }
+        Commissioning::SyncPeriod => {
+            let period = |us: u32| pb::SetSyncRequest {
+                bus: "can0".into(),
+                period_us: Some(us),
+                ..Default::default()
+            };
+            let r = bounded(&what, co.set_sync(period(5_000)))
+                .await?
+                .map(|_| ())
+                .map_err(status_parts);
+            if r.is_ok() {
+                bounded("SYNC period back", co.set_sync(period(10_000)))
+                    .await?
+                    .map_err(|s| format!("restoring the SYNC period refused: {s:?}"))?;
+            }
+            r
+        }
+    };
+    let after = status(axes, axis).await?;
+    match (&outcome, enabled(&before)) {
+        (Ok(()), true) => Err(format!(
+            "{what} was accepted while the axis was enabled (state before {}, after {})",
+            before.state, after.state
+        )),
+        (Err((code, _, message)), true) => {
+            if *code != Some(Code::FailedPrecondition) {
+                return Err(format!(
+                    "{what} on an enabled axis ended {code:?}, not FAILED_PRECONDITION: {message}"
+                ));
+            }
+            if !enabled(&after) {
+                return Err(format!(
+                    "{what} was refused but the axis left operation enabled (state {}): {message}",
+                    after.state
+                ));
+            }
+            Ok("refused".into())
+        }
+        (Ok(()), false) => Ok("done at rest".into()),
+        (Err((code, _, _)), false) => Ok(format!("{code:?} at rest")),
+    }
+}
+
+fn status_parts(s: tonic::Status) -> (Option<Code>, Option<String>, String) {
+    (Some(s.code()), None, s.message().to_string())
+}
+
+async fn status(axes: &mut Axes, axis: &str) -> Result<pb::AxisStatus, String> {
+    let a = bounded(
+        "GetAxis",
+        axes.get_axis(pb::GetAxisRequest { axis: axis.into() }),
+    )
+    .await?
+    .map_err(|s| format!("GetAxis: {s:?}"))?;
+    a.status.ok_or_else(|| format!("axis {axis} has no status"))
+}
+
 async fn position(axes: &mut Axes, axis: &str) -> Result<f64, String> {
     let a = bounded(
         "GetAxis",
@@ -230,6 +418,7 @@ async fn position(axes: &mut Axes, axis: &str) -> Result<f64, String> {
 /// in the error.
 async fn sequence(
     client: &cangate_client::Client,
+    engineer: &cangate_client::Client,
     axes: &mut Axes,
     axis: &str,
     seed: u64,
@@ -252,7 +441,7 @@ async fn sequence(
     for _ in 0..ACTIONS {
         let a = action(&mut rng, l);
         done.push(a);
-        let how = run_action(axes, axis, &lease, a, l)
+        let how = run_action(axes, engineer, axis, &lease, a, l)
             .await
             .map_err(|e| fail(&done, e))?;
         let kind = format!("{a:?}");
@@ -274,7 +463,7 @@ async fn sequence(
     ];
     for a in recover {
         done.push(a);
-        run_action(axes, axis, &lease, a, l)
+        run_action(axes, engineer, axis, &lease, a, l)
             .await
             .map_err(|e| fail(&done, e))?;
     }
@@ -322,6 +511,8 @@ async fn random_command_sequences_leave_every_axis_commandable() {
     config.metrics_listen = None;
     let server = cangate_server::start(&config).await.expect("demo starts");
     let client = cangate_tests::client(&server).await;
+    // The commissioning engineer: a connection of its own.
+    let engineer = cangate_tests::client(&server).await;
     let mut axes = client.axes_client();
     // Each axis once its drive reports.
     let list = axes
@@ -334,7 +525,11 @@ async fn random_command_sequences_leave_every_axis_commandable() {
         Err(_) => (1..=SEEDS).collect(),
     };
     let mut tasks = Vec::new();
-    for name in ["X", "Z", "A"] {
+    for (name, drive_node, cyclic) in [
+        ("X", Some(1), true),
+        ("Z", Some(4), false),
+        ("A", None, false),
+    ] {
         let a = list
             .axes
             .iter()
@@ -345,15 +540,18 @@ async fn random_command_sequences_leave_every_axis_commandable() {
             min: a.min_position.unwrap_or(-100.0),
             max: a.max_position.unwrap_or(100.0),
             max_velocity: a.max_velocity,
+            drive_node,
+            cyclic,
         };
         let mut axes = client.axes_client();
         let seeds = seeds.clone();
         let client = client.clone();
+        let engineer = engineer.clone();
         tasks.push(tokio::spawn(async move {
             cangate_tests::axes::wait_status(&mut axes, name, |s| s.state != 0 && !s.node_lost)
                 .await;
             for seed in seeds {
-                sequence(&client, &mut axes, name, seed, &limits).await?;
+                sequence(&client, &engineer, &mut axes, name, seed, &limits).await?;
             }
             Ok::<(), String>(())
         }));

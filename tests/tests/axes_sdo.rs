@@ -259,3 +259,62 @@ async fn raw_sdo_writes_to_an_enabled_axis_drive_are_refused_unless_forced() {
         .await
         .expect("the controlword of a disabled axis's drive");
 }
+
+/// NMT commands that take a drive out of operational (it would stop
+/// receiving its set-points mid-move) are refused while its axis is
+/// enabled, to the drive and to all nodes; START is not; `force` sends
+/// them; a disabled axis's drive takes them.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn nmt_commands_that_stop_an_enabled_axis_drive_are_refused_unless_forced() {
+    let server = start_server(CONFIG).await;
+    let c = client(&server).await;
+    let mut axes = c.axes_client();
+    let mut co = c.canopen_client();
+    wait_status(&mut axes, "S", |s| s.state != 0 && !s.node_lost).await;
+    let lease = acquire(&mut axes, &["S"], 10_000, "test").await;
+    enable(&mut axes, "S", &lease).await;
+    let nmt = |node: u32, command: pb::NmtCommand, force: bool| pb::SendNmtRequest {
+        bus: "can0".into(),
+        node,
+        command: command as i32,
+        force,
+    };
+    for node in [3, 0] {
+        for command in [
+            pb::NmtCommand::Stop,
+            pb::NmtCommand::EnterPreOperational,
+            pb::NmtCommand::ResetNode,
+            pb::NmtCommand::ResetCommunication,
+        ] {
+            let e = co.send_nmt(nmt(node, command, false)).await.unwrap_err();
+            assert_eq!(
+                e.code(),
+                Code::FailedPrecondition,
+                "{command:?} to {node}: {e:?}"
+            );
+            assert_eq!(
+                reason_and(&e, "axis"),
+                ("AXIS_ACTIVE".to_string(), "S".to_string()),
+                "{command:?} to {node}"
+            );
+        }
+        co.send_nmt(nmt(node, pb::NmtCommand::Start, false))
+            .await
+            .expect("START is never refused");
+    }
+    let s = wait_status(&mut axes, "S", |_| true).await;
+    assert_eq!(s.state, pb::DriveState::OperationEnabled as i32, "{s:?}");
+    // Disabled: the drive takes them again.
+    let r = axes
+        .disable(cmd("S", &lease, true))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(r.outcome, pb::Outcome::Completed as i32, "{r:?}");
+    co.send_nmt(nmt(3, pb::NmtCommand::EnterPreOperational, false))
+        .await
+        .expect("pre-operational for a disabled axis's drive");
+    co.send_nmt(nmt(3, pb::NmtCommand::Start, false))
+        .await
+        .expect("start");
+}

@@ -393,6 +393,7 @@ async fn scenario(python: &Path) -> Result<()> {
                 bus: BUS.into(),
                 node,
                 command: command as i32,
+                force: false,
             })
             .await?;
         dev.expect(&format!("NMT {device_state}"), WAIT, |l| {

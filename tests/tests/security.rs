@@ -179,6 +179,7 @@ async fn tokens_give_roles_and_refusals_name_them() {
             bus: "can0".into(),
             node: 0,
             command: pb::NmtCommand::Start as i32,
+            force: false,
         })
         .await
         .unwrap_err();

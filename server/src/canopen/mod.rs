@@ -721,6 +721,29 @@ impl CanopenBus {
         Ok(r?)
     }
 
+    /// Sends an NMT command for a client: refused (unless `force`) when
+    /// it would take an active axis's drive out of operational — every
+    /// command but START, to the drive or to all nodes.
+    pub async fn client_nmt(
+        &self,
+        cmd: NmtCommand,
+        target: Option<NodeId>,
+        force: bool,
+    ) -> Result<(), CanopenError> {
+        if !force && cmd != NmtCommand::Start {
+            let operation = format!("NMT {cmd:?}");
+            match target {
+                Some(node) => self.check_drive_idle(node, &operation)?,
+                None => {
+                    if let Some((node, _)) = self.drive_guard.active_drives().first() {
+                        self.check_drive_idle(*node, &format!("{operation} to all nodes"))?;
+                    }
+                }
+            }
+        }
+        self.nmt(cmd, target).await
+    }
+
     /// Sends an NMT command.
     pub async fn nmt(&self, cmd: NmtCommand, target: Option<NodeId>) -> Result<(), CanopenError> {
         let (reply, rx) = oneshot::channel();

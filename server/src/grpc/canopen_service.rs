@@ -389,7 +389,7 @@ impl Canopen for CanopenService {
                 .into());
             }
         };
-        m.nmt(cmd, target)
+        m.client_nmt(cmd, target, req.force)
             .await
             .map_err(|e| map_err(target.unwrap_or(NodeId::new(1).expect("1 is valid")), e))?;
         Ok(Response::new(pb::SendNmtResponse {}))

@@ -235,14 +235,16 @@ class GetNodeRequest(_message.Message):
     def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ...) -> None: ...
 
 class SendNmtRequest(_message.Message):
-    __slots__ = ("bus", "node", "command")
+    __slots__ = ("bus", "node", "command", "force")
     BUS_FIELD_NUMBER: _ClassVar[int]
     NODE_FIELD_NUMBER: _ClassVar[int]
     COMMAND_FIELD_NUMBER: _ClassVar[int]
+    FORCE_FIELD_NUMBER: _ClassVar[int]
     bus: str
     node: int
     command: NmtCommand
-    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., command: _Optional[_Union[NmtCommand, str]] = ...) -> None: ...
+    force: bool
+    def __init__(self, bus: _Optional[str] = ..., node: _Optional[int] = ..., command: _Optional[_Union[NmtCommand, str]] = ..., force: _Optional[bool] = ...) -> None: ...
 
 class SendNmtResponse(_message.Message):
     __slots__ = ()
