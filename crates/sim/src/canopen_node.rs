@@ -9,7 +9,7 @@
 //! | service | behaviour |
 //! |---|---|
 //! | NMT | boot-up on [`SimNode::start`], then pre-operational (with [`SimNodeOptions::running_at_start`]: already in that state, no boot-up, as a device found running); start/stop/pre-operational (start ignored with [`SimNodeOptions::refuses_nmt_start`]); reset node restores every default, reset communication restores 0x1000..=0x1FFF; both boot up again |
-//! | heartbeat | every 0x1017 ms in every state after boot-up; writes to 0x1017 restart the producer at once |
+//! | heartbeat | every 0x1017 ms in every state after boot-up, and at once on every NMT state change (the period restarting from it); writes to 0x1017 restart the producer at once |
 //! | node guarding | (unless [`SimNodeOptions::node_guarding`] is off) a remote frame to 0x700+n is answered with `[toggle << 7 \| state]` in every state after boot-up; the toggle bit starts at 0 after every boot-up and alternates with each answer. Life guarding: with 0x100C (guard time, ms) and 0x100D (life time factor) set, from the first request on, no request within their product sends EMCY 0x8130 once and applies 0x1029:01 like a heartbeat loss; the next request sends the EMCY reset |
 //! | heartbeat consumer | every 0x1016 entry (node id in bits 16..=23, time in ms in bits 0..=15) monitors that node, starting with its first heartbeat; when none arrives within the time: [`SimEvent::HeartbeatLost`], EMCY 0x8130 (heartbeat error, error register generic + communication) and the 0x1029:01 communication error behaviour when the dictionary has it (0 pre-operational if operational, 2 stopped, else no change); without 0x1029 the device application reacts (a drive faults); [`SimEvent::HeartbeatRecovered`] on the next heartbeat; writes to 0x1016 and resets restart monitoring |
 //! | SDO | expedited, segmented and block (optional) on 0x600+n/0x580+n, in pre-operational and operational |
@@ -812,6 +812,13 @@ impl SimNode {
         match event {
             NmtSlaveEvent::StateChanged { from, to } => {
                 self.push_event(SimEvent::NmtStateChanged { from, to });
+                if self.nmt.heartbeat_period().is_some() {
+                    // The new state is told at once, the next heartbeat a
+                    // period later (as CANopenNode does): a master that
+                    // started the node need not wait a period to know.
+                    out.push(cangate_canopen::nmt::heartbeat_frame(self.node, to));
+                    self.nmt.set_heartbeat_ms(self.heartbeat_ms(), now);
+                }
                 if to == NmtState::Operational || from == NmtState::Operational {
                     self.reset_pdos(to == NmtState::Operational);
                 }
@@ -1691,12 +1698,13 @@ mod tests {
             .unwrap();
         sim.set(at(0x606C, 0), Value::Integer32(-2)).unwrap();
         sim.set(at(0x6077, 0), Value::Integer16(300)).unwrap();
-        // Entering operational sends the event-driven TPDOs at once.
+        // Entering operational tells it with a heartbeat and sends the
+        // event-driven TPDOs at once.
         let tpdo1 = (0x185, h("37 06 78 56 34 12"));
         let tpdo2 = (0x285, h("FE FF FF FF 2C 01"));
         assert_eq!(
             wire(&sim.on_frame(&frame(0x000, &[0x01, 0x05]), Duration::ZERO)),
-            [tpdo1.clone(), tpdo2.clone()]
+            [(0x705, vec![0x05]), tpdo1.clone(), tpdo2.clone()]
         );
         assert_eq!(
             sim.take_events(),
@@ -1730,17 +1738,18 @@ mod tests {
         let next = sim.on_tick(Duration::from_millis(1100));
         assert_eq!(wire(&next)[0], (0x185, h("37 06 FF FF FF FF")));
 
-        // Stopped: no TPDOs, heartbeat 0x04, SDO ignored.
-        assert!(
-            sim.on_frame(&frame(0x000, &[0x02, 0x05]), Duration::from_millis(1150))
-                .is_empty()
+        // Stopped: no TPDOs, heartbeat 0x04 at once and a period later, SDO
+        // ignored.
+        assert_eq!(
+            wire(&sim.on_frame(&frame(0x000, &[0x02, 0x05]), Duration::from_millis(1150))),
+            [(0x705, vec![0x04])]
         );
         assert_eq!(
-            wire(&sim.on_tick(Duration::from_secs(2))),
+            wire(&sim.on_tick(Duration::from_millis(2150))),
             [(0x705, vec![0x04])]
         );
         assert!(sdo(&mut sim, "40 00 10 00 00 00 00 00", Duration::from_secs(2)).is_empty());
-        assert_eq!(sim.next_deadline(), Some(Duration::from_secs(3)));
+        assert_eq!(sim.next_deadline(), Some(Duration::from_millis(3150)));
         // Commands for other nodes are ignored.
         assert!(
             sim.on_frame(&frame(0x000, &[0x01, 0x06]), Duration::from_secs(2))
@@ -2274,10 +2283,14 @@ mod tests {
             wire(&sim.on_tick(t + MS)),
             [(0x285, h("02 00 00 00 00 00"))]
         );
-        // Not operational: no events.
+        // Not operational: no events (the next heartbeat is a period after
+        // the one the state change sent).
         sim.on_frame(&frame(0x000, &[0x80, 0x05]), t + 2 * MS);
         sim.set(at(0x6064, 0), Value::Integer32(6)).unwrap();
-        assert_eq!(sim.next_deadline(), Some(Duration::from_secs(1)));
+        assert_eq!(
+            sim.next_deadline(),
+            Some(t + 2 * MS + Duration::from_secs(1))
+        );
     }
 
     #[test]

@@ -1321,6 +1321,7 @@ mod tests {
         assert_eq!(
             wire(&started),
             [
+                (0x705, vec![0x05]), // the new state at once
                 tpdo1(0x0240, 0),
                 (0x285, vec![0, 0, 0, 0, 0, 0]), // velocity + torque
             ]

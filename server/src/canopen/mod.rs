@@ -218,6 +218,9 @@ enum Command {
     },
     ConfirmState {
         node: NodeId,
+        /// Send NMT start first (the confirmation is in place before the
+        /// node can answer it).
+        start: bool,
         probe: bool,
         timeout: Duration,
         reply: oneshot::Sender<Option<NmtState>>,
@@ -739,13 +742,15 @@ impl CanopenBus {
         Ok(())
     }
 
-    /// The NMT state `node` reports within `timeout` (see
+    /// Sends NMT start to `node` (when `start`) and returns the NMT state
+    /// it reports from then on within `timeout` (see
     /// [`Master::confirm_state`]): operational as soon as it says so, else
     /// the last state it reported, `None` if nothing came. With `probe`,
     /// one node guarding request asks a node that sends no heartbeat.
     pub async fn confirm_state(
         &self,
         node: NodeId,
+        start: bool,
         probe: bool,
         timeout: Duration,
     ) -> Result<Option<NmtState>, CanopenError> {
@@ -753,6 +758,7 @@ impl CanopenBus {
         self.commands
             .send(Command::ConfirmState {
                 node,
+                start,
                 probe,
                 timeout,
                 reply,
@@ -1154,13 +1160,10 @@ async fn boot_node(
             (false, !life_guarding, m.sdo_timeout.max(slack))
         }
     };
-    m.nmt(NmtCommand::Start, Some(node))
+    let state = m
+        .confirm_state(node, true, probe, wait)
         .await
         .map_err(|e| format!("NMT start: {e}"))?;
-    let state = m
-        .confirm_state(node, probe, wait)
-        .await
-        .map_err(|e| e.to_string())?;
     if !reports {
         // No heartbeat, not guarded: GetNode shows what the probe found,
         // else what was commanded.
@@ -1300,10 +1303,16 @@ async fn run_master(task: MasterTask) {
                     Command::Snapshot { reply } => {
                         let _ = reply.send(snapshot(&master, &facts, origin_wall, now));
                     }
-                    Command::ConfirmState { node, probe, timeout, reply } => {
+                    Command::ConfirmState { node, start, probe, timeout, reply } => {
                         let id = next_id;
                         next_id += 1;
                         confirm_pending.insert(id, reply);
+                        if start {
+                            // Ahead of the probe, in one batch, the
+                            // confirmation already waiting: a node that
+                            // tells its new state at once is heard.
+                            out.frames.push(nmt_frame(NmtCommand::Start, Some(node)));
+                        }
                         master.confirm_state(id, node, probe, timeout, now, &mut out);
                     }
                     Command::Lss { command, timeout, reply } => {
