@@ -114,6 +114,24 @@ fn unsigned_and_string_values_keep_their_type_too() {
 }
 
 #[test]
+fn raw_reads_show_the_bytes_not_the_eds_type() {
+    // 0x1000 is UNSIGNED32 0x00020192 in the EDS; raw is its bytes.
+    let o = cangate(&["sdo", "read", "can0", "1", "0x1000", "--type", "raw"]);
+    assert_status(&o, 0);
+    assert_eq!(stdout(&o).trim(), "92 01 02 00");
+    let o = cangate(&[
+        "sdo", "read", "can0", "1", "0x1000", "--type", "raw", "--json",
+    ]);
+    assert_status(&o, 0);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON");
+    assert!(v.get("value").is_none(), "{v}");
+    assert_eq!(v["raw"], "kgECAA==", "{v}");
+    // Without a type the EDS's decodes it.
+    let o = cangate(&["sdo", "read", "can0", "1", "0x1000"]);
+    assert_eq!(stdout(&o).trim(), "131474 (0x20192)");
+}
+
+#[test]
 fn objects_by_name_from_the_eds() {
     // A read by ParameterName is the read by address.
     let o = cangate(&["sdo", "read", "can0", "1", "Manufacturer device name"]);

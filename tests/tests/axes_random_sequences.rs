@@ -320,7 +320,7 @@ async fn commission(
             match tokio::time::timeout(
                 CALL_BOUND,
                 engineer.canopen("can0").download_program_with(
-                    cangate_client::NodeId::new(node as u8).expect("a node id"),
+                    cangate_client::NodeId::new(node).expect("a node id"),
                     vec![0x5A; 64],
                     &Default::default(),
                     |_| {},
@@ -344,7 +344,11 @@ async fn commission(
                 .map(|_| ())
                 .map_err(status_parts);
             // Back to waiting whatever the answer (waiting is harmless).
-            let _ = bounded("LSS waiting", lss.switch_global(switch(pb::LssMode::Waiting))).await?;
+            let _ = bounded(
+                "LSS waiting",
+                lss.switch_global(switch(pb::LssMode::Waiting)),
+            )
+            .await?;
             r
         }
         Commissioning::SyncPeriod => {

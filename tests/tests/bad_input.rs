@@ -132,3 +132,69 @@ async fn bad_requests_are_refused_and_nothing_is_sent() {
     assert!(err.to_string().contains("bus-off"), "{err}");
     server.shutdown();
 }
+
+/// LSS requests that mean nothing on the bus (a SwitchGlobal mode other
+/// than waiting or configuration, an identify range whose low end is above
+/// its high end) are refused before any LSS frame goes out.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn meaningless_lss_requests_are_refused_before_the_bus() {
+    let server = start_server(
+        "[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\n[[canopen]]\nbus = \"can0\"\n\
+         master_heartbeat_ms = 0\n",
+    )
+    .await;
+    let stats = || server.gateway().bus("can0").unwrap().stats().tx_frames;
+    let before = stats();
+    let c = client(&server).await;
+    let mut lss = c.lss_client();
+    let s = lss
+        .switch_global(pb::SwitchGlobalRequest {
+            bus: "can0".into(),
+            mode: 99,
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(s.code(), Code::InvalidArgument, "{s:?}");
+    assert!(s.message().contains("LSS mode 99"), "{}", s.message());
+    let identify = |revision: (u32, u32), serial: (u32, u32)| pb::IdentifyRemoteRequest {
+        bus: "can0".into(),
+        vendor_id: 1,
+        product_code: 2,
+        revision_low: revision.0,
+        revision_high: revision.1,
+        serial_low: serial.0,
+        serial_high: serial.1,
+        timeout_ms: 0,
+    };
+    for (req, what) in [
+        (
+            identify((5, 1), (0, u32::MAX)),
+            "revision range is inverted",
+        ),
+        (identify((0, 1), (9, 2)), "serial number range is inverted"),
+    ] {
+        let s = lss.identify_remote(req).await.unwrap_err();
+        assert_eq!(s.code(), Code::InvalidArgument, "{s:?}");
+        assert!(s.message().contains(what), "{}", s.message());
+    }
+    assert_eq!(
+        stats(),
+        before,
+        "a refused LSS request must not reach the bus"
+    );
+    // The valid forms still go out.
+    lss.switch_global(pb::SwitchGlobalRequest {
+        bus: "can0".into(),
+        mode: 0,
+    })
+    .await
+    .unwrap();
+    tokio::time::timeout(WAIT, async {
+        while stats() == before {
+            tokio::time::sleep(std::time::Duration::from_millis(5)).await;
+        }
+    })
+    .await
+    .expect("a valid SwitchGlobal goes out");
+    server.shutdown();
+}

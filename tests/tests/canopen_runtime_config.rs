@@ -617,14 +617,14 @@ async fn time_of_day_is_sent_now_and_periodically() {
         sent.unix_ms
     );
 
-    // Every 50 ms, then off.
+    // Every 100 ms (the shortest period), then off.
     let r = co
-        .set_time(false, Some(Duration::from_millis(50)))
+        .set_time(false, Some(Duration::from_millis(100)))
         .await
         .unwrap();
     assert!(r.sent.is_none());
-    assert_eq!(r.time_period_ms, 50);
-    assert_eq!(co.sync_status().await.unwrap().time_period_ms, 50);
+    assert_eq!(r.time_period_ms, 100);
+    assert_eq!(co.sync_status().await.unwrap().time_period_ms, 100);
     let frames = read_frames(&mut times, &mut pending, 4).await;
     let unix_ms = |d: &[u8]| {
         let ms = u32::from_le_bytes(d[..4].try_into().unwrap()) & 0x0FFF_FFFF;
@@ -643,4 +643,15 @@ async fn time_of_day_is_sent_now_and_periodically() {
     assert_quiet(&mut times).await;
     let status = refusal(co.set_time(false, Some(Duration::from_secs(86_401))).await);
     assert_eq!(status.code(), tonic::Code::InvalidArgument);
+    // A 1 ms period would put 1,000 TIME frames a second on 0x100: refused,
+    // and the producer stays off.
+    let status = refusal(co.set_time(false, Some(Duration::from_millis(1))).await);
+    assert_eq!(status.code(), tonic::Code::InvalidArgument);
+    assert!(
+        status.message().contains("at least 100 ms"),
+        "{}",
+        status.message()
+    );
+    assert_eq!(co.sync_status().await.unwrap().time_period_ms, 0);
+    assert_quiet(&mut times).await;
 }

@@ -31,7 +31,7 @@ enum SdoVerb {
         #[arg(value_parser = object)]
         object: Object,
         /// Decode as this type (default: the node's EDS type when the
-        /// gateway knows it, else the bytes).
+        /// gateway knows it, else the bytes; `raw`: the bytes).
         #[arg(long = "type", short = 't')]
         ty: Option<TypeArg>,
         #[command(flatten)]
@@ -451,9 +451,14 @@ pub(crate) async fn run(app: &App, args: SdoArgs) -> Result<()> {
             };
             let mut client = transfer.client(&app.client, output.is_some());
             let started = Instant::now();
-            let r = with_progress(app, output.is_some(), &bus, node, client.read_sdo(req))
+            let mut r = with_progress(app, output.is_some(), &bus, node, client.read_sdo(req))
                 .await
                 .ctx(what.clone())?;
+            if ty == Some(TypeArg::Raw) {
+                // Raw asks for the bytes: the request has no type then, and
+                // the gateway decodes with the EDS's, which is not shown.
+                r.value = None;
+            }
             if let Some(path) = &output {
                 std::fs::write(path, &r.raw).ctx(format!("writing {}", path.display()))?;
                 eprintln!(

@@ -464,6 +464,18 @@ impl CyclicPlan {
     }
 }
 
+/// The controlword that holds a drive in `state`, for an axis that finds
+/// it there (`current`, with its mode bits, where no command holds it).
+fn adopted_controlword(state: Option<DriveState>, current: u16) -> u16 {
+    let hold = match state {
+        Some(DriveState::OperationEnabled) => Controlword::ENABLE_OPERATION,
+        Some(DriveState::SwitchedOn) => Controlword::SWITCH_ON,
+        Some(DriveState::ReadyToSwitchOn) => Controlword::SHUTDOWN,
+        _ => return current,
+    };
+    (current & !Controlword::COMMAND_MASK) | hold.bits()
+}
+
 /// One CiA 402 drive as an axis. See the [module documentation](self).
 #[derive(Debug)]
 pub struct Cia402Axis {
@@ -707,6 +719,9 @@ impl Cia402Axis {
             self.demand = self.actual();
             self.last_target = self.demand;
             self.image.target_position = self.position.unwrap_or_default();
+            // And in the state it is in: the next image keeps it there (a
+            // drive found enabled is not disabled by a controlword of 0).
+            self.image.controlword = adopted_controlword(self.state(), self.image.controlword);
         }
         if self.is_fault() {
             if !self.fault_reported {

@@ -128,6 +128,12 @@ pub struct Eds {
     pub commissioning: Option<Commissioning>,
     /// The objects.
     pub od: ObjectDictionary,
+    /// The basic types `[DummyUsage]` marks usable as gaps in a PDO
+    /// mapping (`Dummy0005=1`: an UNSIGNED8 gap, mapping entry
+    /// 0x00050008). They are data types, not objects: [`Eds::od`] does not
+    /// hold them (a device serves them as DEFTYPE entries, see
+    /// [`Eds::od_with_dummies`]).
+    pub dummy_usage: Vec<DataType>,
 }
 
 /// Why an EDS/DCF could not be loaded.
@@ -327,13 +333,20 @@ impl<'a> Section<'a> {
         self.get(key).ok_or_else(|| self.missing(key))
     }
 
-    fn number<T: TryFrom<u64>>(&self, key: &str) -> Result<Option<T>, EdsError> {
-        self.get(key).map(Entry::number).transpose()
+    /// An informative value of `[DeviceInfo]` or `[DeviceComissioning]`,
+    /// given with a value: an empty one (`VendorNumber=`, as CANopenNode's
+    /// reference EDS has) says nothing, like an absent one.
+    fn given(&self, key: &str) -> Option<&Entry<'a>> {
+        self.get(key).filter(|e| !e.value.trim().is_empty())
     }
 
-    /// A `0`/`1` flag; absent means false.
+    fn number<T: TryFrom<u64>>(&self, key: &str) -> Result<Option<T>, EdsError> {
+        self.given(key).map(Entry::number).transpose()
+    }
+
+    /// A `0`/`1` flag; absent or empty means false.
     fn flag(&self, key: &str) -> Result<bool, EdsError> {
-        match self.get(key) {
+        match self.given(key) {
             None => Ok(false),
             Some(e) => match e.number::<u64>()? {
                 0 => Ok(false),
@@ -664,7 +677,8 @@ impl Eds {
     ///
     /// Object sections are read whether or not the object lists name them;
     /// every listed object must have a section. `[DummyUsage]` entries set
-    /// to 1 add DEFTYPE objects (e.g. 0x0005 `UNSIGNED8`) for PDO gaps.
+    /// to 1 go to [`Eds::dummy_usage`]. Empty informative values (`[DeviceInfo]`
+    /// `VendorNumber=`) are taken as absent.
     pub fn parse(text: &str) -> Result<Eds, EdsError> {
         let sections = lex(text)?;
         let find = |name: &str| sections.iter().find(|s| s.name.eq_ignore_ascii_case(name));
@@ -716,7 +730,7 @@ impl Eds {
         let commissioning = match find("DeviceComissioning").or_else(|| find("DeviceCommissioning"))
         {
             Some(s) => Some(Commissioning {
-                node_id: match s.get("NodeID") {
+                node_id: match s.given("NodeID") {
                     Some(e) => {
                         Some(NodeId::new(e.number()?).map_err(|err| e.bad(err.to_string()))?)
                     }
@@ -772,6 +786,7 @@ impl Eds {
             }
         }
 
+        let mut dummy_usage = Vec::new();
         if let Some(s) = find("DummyUsage") {
             for e in &s.entries {
                 let ty = e
@@ -781,17 +796,8 @@ impl Eds {
                     .and_then(DataType::from_code);
                 match ty {
                     Some(ty) if e.key.len() == 9 && e.key[..5].eq_ignore_ascii_case("Dummy") => {
-                        if e.number::<u8>()? == 1 && od.object(ty.code()).is_none() {
-                            let mut v = Variable::new(
-                                ObjectAddress::new(ty.code(), 0),
-                                ty.name(),
-                                ty,
-                                AccessType::Rw,
-                            );
-                            v.pdo_mappable = true;
-                            let mut o = Object::var(v);
-                            o.object_type = ObjectType::DefType;
-                            od.insert(o);
+                        if s.flag(e.key)? && !dummy_usage.contains(&ty) {
+                            dummy_usage.push(ty);
                         }
                     }
                     _ => return Err(e.bad("expected Dummy0001 to Dummy001B for a basic type")),
@@ -804,6 +810,7 @@ impl Eds {
             device_info,
             commissioning,
             od,
+            dummy_usage,
         })
     }
 
@@ -823,6 +830,30 @@ impl Eds {
         })?;
         Ok(String::from_utf8(bytes)
             .unwrap_or_else(|e| e.into_bytes().iter().map(|&b| char::from(b)).collect()))
+    }
+
+    /// The dictionary as a device serves it: [`Eds::od`] plus a DEFTYPE
+    /// entry for each type of [`Eds::dummy_usage`], so that its PDO
+    /// mappings may use them as gaps (what a device simulated from the EDS
+    /// needs).
+    pub fn od_with_dummies(&self) -> ObjectDictionary {
+        let mut od = self.od.clone();
+        for &ty in &self.dummy_usage {
+            if od.object(ty.code()).is_some() {
+                continue;
+            }
+            let mut v = Variable::new(
+                ObjectAddress::new(ty.code(), 0),
+                ty.name(),
+                ty,
+                AccessType::Rw,
+            );
+            v.pdo_mappable = true;
+            let mut o = Object::var(v);
+            o.object_type = ObjectType::DefType;
+            od.insert(o);
+        }
+        od
     }
 
     /// The node id configured by a DCF's `[DeviceComissioning]`.
@@ -956,9 +987,14 @@ mod tests {
         );
         assert_eq!(od.object(0x2100).unwrap().object_type, ObjectType::Domain);
         assert_eq!(fw.default, None);
-        // [DummyUsage] adds DEFTYPE objects usable as PDO gaps.
-        assert_eq!(od.get(at(0x0005, 0)).unwrap().name, "UNSIGNED8");
-        assert!(od.object(0x0001).is_none());
+        // [DummyUsage] lists the types usable as PDO gaps; they are no
+        // objects of the dictionary.
+        assert!(eds.dummy_usage.contains(&DataType::Unsigned8));
+        assert!(od.object(0x0005).is_none());
+        assert_eq!(
+            eds.od_with_dummies().get(at(0x0005, 0)).unwrap().name,
+            "UNSIGNED8"
+        );
     }
 
     #[test]
@@ -1203,6 +1239,58 @@ mod tests {
             err.to_string(),
             "line 5: DefaultValue=\"300\": value 300 does not fit UNSIGNED8 (0..=255)"
         );
+    }
+
+    /// CANopenNode's reference EDS leaves the informative numbers of
+    /// `[DeviceInfo]` empty and lists every dummy type in `[DummyUsage]`.
+    #[test]
+    fn empty_informative_values_are_absent_and_dummies_are_no_objects() {
+        let text = "[DeviceInfo]\nVendorName=\nVendorNumber=\nProductName=\nProductNumber=\n\
+                    RevisionNumber=0\nOrderCode=\nBaudRate_250=1\nSimpleBootUpSlave=\n\
+                    Granularity=8\nNrOfRXPDO=\n\
+                    [DummyUsage]\nDummy0001=0\nDummy0002=1\nDummy0003=1\nDummy0004=1\n\
+                    Dummy0005=1\nDummy0006=1\nDummy0007=1\n"
+            .to_string()
+            + MINIMAL;
+        let eds = Eds::parse(&text).unwrap();
+        let info = &eds.device_info;
+        assert_eq!(info.vendor_number, None);
+        assert_eq!(info.product_number, None);
+        assert_eq!(info.revision_number, Some(0));
+        assert_eq!(info.nr_of_rx_pdo, 0);
+        assert!(!info.simple_boot_up_slave);
+        assert_eq!(info.baud_rates, [250]);
+        // The dummies are data types a PDO mapping may use as gaps, not
+        // objects of the dictionary: no listing, no DCF export reads them.
+        assert_eq!(
+            eds.dummy_usage,
+            [
+                DataType::Integer8,
+                DataType::Integer16,
+                DataType::Integer32,
+                DataType::Unsigned8,
+                DataType::Unsigned16,
+                DataType::Unsigned32,
+            ]
+        );
+        assert!(eds.od.object(0x0002).is_none());
+        assert!(eds.od.object(0x0007).is_none());
+        assert_eq!(
+            eds.od.variables().map(|v| v.address).collect::<Vec<_>>(),
+            [at(0x1000, 0)]
+        );
+        // A device simulated from the EDS serves them as DEFTYPE entries.
+        let served = eds.od_with_dummies();
+        let dummy = served.object(0x0005).unwrap();
+        assert_eq!(dummy.object_type, ObjectType::DefType);
+        assert!(served.object(0x0001).is_none());
+        // An empty flag is absent too; one that is neither 0 nor 1 is an
+        // error.
+        let eds = Eds::parse("[DummyUsage]\nDummy0005=\n").unwrap();
+        assert!(eds.dummy_usage.is_empty());
+        let (line, message) = fails("[DummyUsage]\nDummy0005=2\n");
+        assert_eq!(line, 2);
+        assert!(message.contains("expected 0 or 1"), "{message}");
     }
 
     #[test]

@@ -22,6 +22,7 @@ use crate::emcy::{EmcyConsumer, EmcyEvent};
 use crate::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
 use crate::ids::{CobFunction, NodeId, ObjectAddress};
 use crate::lss::{LSS_RESPONSE_COB_ID, LssCommand, LssError, LssMaster, LssOutcome, LssStep};
+use crate::nmt::NmtState;
 use crate::node_guarding::{GuardingEvent, NodeGuarding};
 use crate::sdo::{Progress, SdoClient, SdoError, StartError, TransferOptions, TransferOutcome};
 use crate::sync::SyncProducer;
@@ -94,6 +95,18 @@ pub enum MasterEvent {
         /// The node.
         node: NodeId,
     },
+    /// A state confirmation ([`Master::confirm_state`]) ended: the node
+    /// reported operational (at once), or its deadline came with the last
+    /// state it reported meanwhile (`None`: it reported nothing).
+    /// [`NmtState::Initialising`]: it booted up meanwhile.
+    StateConfirmed {
+        /// The request.
+        id: RequestId,
+        /// The node.
+        node: NodeId,
+        /// What it reported.
+        state: Option<NmtState>,
+    },
     /// An LSS command ended (or was refused at once: busy, invalid).
     LssCompleted {
         /// The request.
@@ -139,6 +152,20 @@ pub struct Master {
     lss: LssMaster,
     /// The request of the running LSS command.
     lss_request: Option<RequestId>,
+    /// State confirmations waiting for the node's next report.
+    confirms: BTreeMap<RequestId, Confirm>,
+}
+
+/// A [`Master::confirm_state`] in progress.
+#[derive(Debug, Clone, Copy)]
+struct Confirm {
+    node: NodeId,
+    deadline: Duration,
+    /// A guarding request went out whose answer is not yet in: the next
+    /// 0x700+n data frame is that answer (toggle bit in bit 7).
+    probe_outstanding: bool,
+    /// The latest state reported that was not operational.
+    last: Option<NmtState>,
 }
 
 impl Master {
@@ -153,7 +180,83 @@ impl Master {
             sync: None,
             lss: LssMaster::new(),
             lss_request: None,
+            confirms: BTreeMap::new(),
         }
+    }
+
+    /// Waits up to `timeout` for `node` to report its NMT state: the first
+    /// report of operational ends it at once; otherwise its deadline ends
+    /// it with the last state reported (a report that left the node before
+    /// it saw an NMT command just sent is not final). Reports are
+    /// heartbeats and node guarding answers; with `probe`, one node
+    /// guarding request (a remote frame to 0x700+n) asks a node that sends
+    /// no heartbeat and is not guarded, and its answer is taken here, not
+    /// by the heartbeat consumer. The end comes as
+    /// [`MasterEvent::StateConfirmed`] with `id`.
+    ///
+    /// A probe starts the node's life guarding when its guard time and
+    /// life time factor (0x100C, 0x100D) are both set: probe only nodes
+    /// where they are not.
+    pub fn confirm_state(
+        &mut self,
+        id: RequestId,
+        node: NodeId,
+        probe: bool,
+        timeout: Duration,
+        now: Duration,
+        out: &mut Output,
+    ) {
+        let probe = probe && !self.guarding.is_guarded(node);
+        if probe {
+            out.frames.push(NodeGuarding::request_frame(node));
+        }
+        self.confirms.insert(
+            id,
+            Confirm {
+                node,
+                deadline: now + timeout,
+                probe_outstanding: probe,
+                last: None,
+            },
+        );
+    }
+
+    /// Drops a state confirmation (its caller gave up).
+    pub fn confirm_cancel(&mut self, id: RequestId) {
+        self.confirms.remove(&id);
+    }
+
+    /// Feeds a 0x700+n data frame to the state confirmations of its node;
+    /// true when it was the answer to a probe (nobody else takes it).
+    fn on_state_report(&mut self, node: NodeId, frame: &Frame, out: &mut Output) -> bool {
+        let &[byte] = frame.data() else {
+            return false;
+        };
+        if frame.is_remote() {
+            return false;
+        }
+        let Some(state) = NmtState::from_byte(byte & 0x7F) else {
+            return false;
+        };
+        let mut probe_answer = false;
+        let mut done = Vec::new();
+        for (&id, c) in self.confirms.iter_mut().filter(|(_, c)| c.node == node) {
+            probe_answer |= std::mem::take(&mut c.probe_outstanding);
+            if matches!(state, NmtState::Operational | NmtState::Initialising) {
+                done.push((id, state));
+            } else {
+                c.last = Some(state);
+            }
+        }
+        for (id, state) in done {
+            self.confirms.remove(&id);
+            out.events.push(MasterEvent::StateConfirmed {
+                id,
+                node,
+                state: Some(state),
+            });
+        }
+        probe_answer && byte != 0
     }
 
     /// Monitors a node's heartbeat with a consumer timeout.
@@ -363,6 +466,7 @@ impl Master {
                     Self::finish_step(node, n, step, now, out);
                 }
             }
+            CobFunction::Heartbeat(node) if self.on_state_report(node, frame, out) => {}
             CobFunction::Heartbeat(node) if self.guarding.is_guarded(node) => {
                 out.events.extend(
                     self.guarding
@@ -439,6 +543,21 @@ impl Master {
             let step = self.lss.on_tick(now);
             self.lss_step(step, out);
         }
+        let due: Vec<RequestId> = self
+            .confirms
+            .iter()
+            .filter(|(_, c)| c.deadline <= now)
+            .map(|(&id, _)| id)
+            .collect();
+        for id in due {
+            if let Some(c) = self.confirms.remove(&id) {
+                out.events.push(MasterEvent::StateConfirmed {
+                    id,
+                    node: c.node,
+                    state: c.last,
+                });
+            }
+        }
     }
 
     /// When [`Master::on_tick`] next has something to do.
@@ -455,6 +574,7 @@ impl Master {
             .chain(self.guarding.next_deadline())
             .chain(self.sync.as_ref().and_then(|s| s.next_deadline()))
             .chain(self.lss.next_deadline())
+            .chain(self.confirms.values().map(|c| c.deadline))
             .min()
     }
 }
@@ -509,6 +629,91 @@ mod tests {
         // The queued request goes out right after.
         assert_eq!(out.frames.len(), 1);
         assert_eq!(out.frames[0].data()[..4], [0x40, 0x17, 0x10, 0x00]);
+    }
+
+    fn confirmed(out: &Output) -> Vec<(RequestId, Option<NmtState>)> {
+        out.events
+            .iter()
+            .filter_map(|e| match e {
+                MasterEvent::StateConfirmed { id, state, .. } => Some((*id, *state)),
+                _ => None,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn state_confirmation_by_heartbeat_waits_for_operational_until_its_deadline() {
+        let ms = Duration::from_millis;
+        let mut m = Master::new(ms(500));
+        let mut out = Output::default();
+        m.confirm_state(1, node(5), false, ms(300), ms(0), &mut out);
+        // No probe for a node that sends heartbeats.
+        assert!(out.frames.is_empty());
+        assert_eq!(m.next_deadline(), Some(ms(300)));
+        // A heartbeat that left before the node saw its NMT start is no
+        // verdict; operational ends it at once.
+        m.on_frame(&frame(0x705, &[0x7F]), ms(10), &mut out);
+        assert!(confirmed(&out).is_empty());
+        m.on_frame(&frame(0x705, &[0x05]), ms(110), &mut out);
+        assert_eq!(confirmed(&out), [(1, Some(NmtState::Operational))]);
+        // The heartbeat consumer saw both.
+        assert_eq!(m.heartbeat().state(node(5)), Some(NmtState::Operational));
+
+        // A node that stays pre-operational: the deadline tells.
+        let mut out = Output::default();
+        m.confirm_state(2, node(6), false, ms(300), ms(0), &mut out);
+        m.on_frame(&frame(0x706, &[0x7F]), ms(100), &mut out);
+        m.on_frame(&frame(0x706, &[0x7F]), ms(200), &mut out);
+        m.on_tick(ms(299), &mut out);
+        assert!(confirmed(&out).is_empty());
+        m.on_tick(ms(300), &mut out);
+        assert_eq!(confirmed(&out), [(2, Some(NmtState::PreOperational))]);
+        assert_eq!(m.next_deadline(), None);
+
+        // A silent node: nothing reported.
+        let mut out = Output::default();
+        m.confirm_state(3, node(7), false, ms(300), ms(0), &mut out);
+        m.on_tick(ms(300), &mut out);
+        assert_eq!(confirmed(&out), [(3, None)]);
+    }
+
+    #[test]
+    fn state_probe_asks_by_node_guarding_and_takes_the_answer() {
+        let ms = Duration::from_millis;
+        let mut m = Master::new(ms(500));
+        let mut out = Output::default();
+        m.confirm_state(1, node(5), true, ms(500), ms(0), &mut out);
+        assert_eq!(out.frames.len(), 1);
+        assert!(out.frames[0].is_remote());
+        assert_eq!(out.frames[0].raw_id(), 0x705);
+        // The answer (toggle bit 0, pre-operational) is the probe's: the
+        // heartbeat consumer does not take it for a heartbeat.
+        m.on_frame(&frame(0x705, &[0x7F]), ms(2), &mut out);
+        assert_eq!(m.heartbeat().state(node(5)), None);
+        m.on_tick(ms(500), &mut out);
+        assert_eq!(confirmed(&out), [(1, Some(NmtState::PreOperational))]);
+
+        // The next probe's answer carries the toggle bit: operational.
+        let mut out = Output::default();
+        m.confirm_state(2, node(5), true, ms(500), ms(600), &mut out);
+        m.on_frame(&frame(0x705, &[0x85]), ms(601), &mut out);
+        assert_eq!(confirmed(&out), [(2, Some(NmtState::Operational))]);
+        assert!(
+            out.events
+                .iter()
+                .all(|e| !matches!(e, MasterEvent::Heartbeat(_))),
+            "{:?}",
+            out.events
+        );
+
+        // A guarded node gets no extra request: its guarding answers tell.
+        let mut m = Master::new(ms(500));
+        m.guard_node(node(9), ms(100), 3);
+        let mut out = Output::default();
+        m.confirm_state(3, node(9), true, ms(500), ms(0), &mut out);
+        assert!(out.frames.is_empty());
+        m.on_frame(&frame(0x709, &[0x05]), ms(5), &mut out);
+        assert_eq!(confirmed(&out), [(3, Some(NmtState::Operational))]);
     }
 
     #[test]

@@ -8,9 +8,9 @@
 //!
 //! | service | behaviour |
 //! |---|---|
-//! | NMT | boot-up on [`SimNode::start`], then pre-operational; start/stop/pre-operational; reset node restores every default, reset communication restores 0x1000..=0x1FFF; both boot up again |
-//! | heartbeat | every 0x1017 ms in every state after boot-up; writes to 0x1017 restart the producer at once |
-//! | node guarding | a remote frame to 0x700+n is answered with `[toggle << 7 \| state]` in every state after boot-up; the toggle bit starts at 0 after every boot-up and alternates with each answer. Life guarding: with 0x100C (guard time, ms) and 0x100D (life time factor) set, from the first request on, no request within their product sends EMCY 0x8130 once and applies 0x1029:01 like a heartbeat loss; the next request sends the EMCY reset |
+//! | NMT | boot-up on [`SimNode::start`], then pre-operational (with [`SimNodeOptions::running_at_start`]: already in that state, no boot-up, as a device found running); start/stop/pre-operational (start ignored with [`SimNodeOptions::refuses_nmt_start`]); reset node restores every default, reset communication restores 0x1000..=0x1FFF; both boot up again |
+//! | heartbeat | every 0x1017 ms in every state after boot-up, and at once on every NMT state change (the period restarting from it); writes to 0x1017 restart the producer at once |
+//! | node guarding | (unless [`SimNodeOptions::node_guarding`] is off) a remote frame to 0x700+n is answered with `[toggle << 7 \| state]` in every state after boot-up; the toggle bit starts at 0 after every boot-up and alternates with each answer. Life guarding: with 0x100C (guard time, ms) and 0x100D (life time factor) set, from the first request on, no request within their product sends EMCY 0x8130 once and applies 0x1029:01 like a heartbeat loss; the next request sends the EMCY reset |
 //! | heartbeat consumer | every 0x1016 entry (node id in bits 16..=23, time in ms in bits 0..=15) monitors that node, starting with its first heartbeat; when none arrives within the time: [`SimEvent::HeartbeatLost`], EMCY 0x8130 (heartbeat error, error register generic + communication) and the 0x1029:01 communication error behaviour when the dictionary has it (0 pre-operational if operational, 2 stopped, else no change); without 0x1029 the device application reacts (a drive faults); [`SimEvent::HeartbeatRecovered`] on the next heartbeat; writes to 0x1016 and resets restart monitoring |
 //! | SDO | expedited, segmented and block (optional) on 0x600+n/0x580+n, in pre-operational and operational |
 //! | TPDO | operational only; parameters 0x1800+n and mapping 0x1A00+n read when needed; 0xFE/0xFF event-driven (sent on entering operational, on the event timer 0x180x:05, on [`SimNode::trigger_tpdo`] and optionally when a mapped value changes, respecting the inhibit time 0x180x:03), 1..=240 every n-th SYNC, 0 on the SYNC after an event, RTR answered when allowed |
@@ -103,6 +103,18 @@ pub struct SimNodeOptions {
     pub lss_fastscan_until_configured: bool,
     /// The simulated flash of program download (CiA 302-3).
     pub program: ProgramOptions,
+    /// The node was powered on before anyone listened: the first
+    /// [`SimNode::start`] enters this state (pre-operational, operational
+    /// or stopped) at once, heartbeat running, without a boot-up message,
+    /// as a device found running by a (re)started master. Resets and power
+    /// cycles boot as usual.
+    pub running_at_start: Option<NmtState>,
+    /// NMT start commands are ignored: the node stays where it is (a
+    /// device whose application refuses to go operational).
+    pub refuses_nmt_start: bool,
+    /// Answer node guarding requests (remote frames to 0x700+n); without,
+    /// they are ignored, as by stacks built without node guarding.
+    pub node_guarding: bool,
 }
 
 impl Default for SimNodeOptions {
@@ -120,6 +132,9 @@ impl Default for SimNodeOptions {
             lss_unconfigured: false,
             lss_fastscan_until_configured: false,
             program: ProgramOptions::default(),
+            running_at_start: None,
+            refuses_nmt_start: false,
+            node_guarding: true,
         }
     }
 }
@@ -283,7 +298,7 @@ impl SimNode {
     /// A node with the object dictionary of `eds` (defaults resolved for
     /// `node`), not yet started: call [`SimNode::start`].
     pub fn new(eds: &Eds, node: NodeId, options: SimNodeOptions) -> Self {
-        Self::from_od(eds.od.clone(), node, options)
+        Self::from_od(eds.od_with_dummies(), node, options)
     }
 
     /// A node from EDS/DCF text.
@@ -292,7 +307,11 @@ impl SimNode {
         node: NodeId,
         options: SimNodeOptions,
     ) -> Result<Self, SimError> {
-        Ok(Self::from_od(Eds::parse(text)?.od, node, options))
+        Ok(Self::from_od(
+            Eds::parse(text)?.od_with_dummies(),
+            node,
+            options,
+        ))
     }
 
     /// A node serving `od`.
@@ -505,6 +524,22 @@ impl SimNode {
             from: NmtState::Initialising,
             to: NmtState::PreOperational,
         });
+        let running = self.options.running_at_start.take();
+        let command = match running {
+            Some(NmtState::Operational) => Some(NmtCommand::Start),
+            Some(NmtState::Stopped) => Some(NmtCommand::Stop),
+            _ => None,
+        };
+        if let Some(cmd) = command {
+            let mut out = Vec::new();
+            if let Some(event) = self.nmt.on_command(cmd, now) {
+                self.on_nmt(NmtState::PreOperational, event, now, &mut out);
+            }
+        }
+        if running.is_some() {
+            // It booted long ago: its boot-up went unheard.
+            return Vec::new();
+        }
         vec![boot_up]
     }
 
@@ -591,6 +626,14 @@ impl SimNode {
             return frames;
         }
         let before = self.nmt.state();
+        if self.options.refuses_nmt_start
+            && matches!(
+                cangate_canopen::nmt::parse_nmt(frame),
+                Some((NmtCommand::Start, target)) if target.is_none_or(|n| n == self.node)
+            )
+        {
+            return out;
+        }
         if let Some(event) = self.nmt.on_frame(frame, now) {
             self.on_nmt(before, event, now, &mut out);
             self.service_tpdos(now, &mut out);
@@ -602,6 +645,9 @@ impl SimNode {
         }
         if let Some(node) = heartbeat_sender(frame) {
             if node == self.node && frame.is_remote() {
+                if !self.options.node_guarding {
+                    return out;
+                }
                 // Node guarding: answer with the toggle bit and the state.
                 let toggle = if self.guard_toggle { 0x80 } else { 0x00 };
                 self.guard_toggle = !self.guard_toggle;
@@ -776,6 +822,13 @@ impl SimNode {
         match event {
             NmtSlaveEvent::StateChanged { from, to } => {
                 self.push_event(SimEvent::NmtStateChanged { from, to });
+                if self.nmt.heartbeat_period().is_some() {
+                    // The new state is told at once, the next heartbeat a
+                    // period later (as CANopenNode does): a master that
+                    // started the node need not wait a period to know.
+                    out.push(cangate_canopen::nmt::heartbeat_frame(self.node, to));
+                    self.nmt.set_heartbeat_ms(self.heartbeat_ms(), now);
+                }
                 if to == NmtState::Operational || from == NmtState::Operational {
                     self.reset_pdos(to == NmtState::Operational);
                 }
@@ -1426,6 +1479,41 @@ mod tests {
         assert_eq!(wire(&sim.on_frame(&rtr, 60 * MS)), [(0x705, vec![0x7F])]);
     }
 
+    /// Stacks differ: a device found running (no boot-up heard), one with
+    /// heartbeat 0 and no node guarding, one refusing NMT start.
+    #[test]
+    fn found_running_silent_or_refusing_to_start() {
+        let mut sim = drive_with(SimNodeOptions {
+            running_at_start: Some(NmtState::Operational),
+            heartbeat_ms: Some(100),
+            ..SimNodeOptions::default()
+        });
+        assert!(sim.start(Duration::ZERO).is_empty(), "no boot-up");
+        assert_eq!(sim.nmt_state(), NmtState::Operational);
+        assert_eq!(wire(&sim.on_tick(100 * MS))[..1], [(0x705, vec![0x05])]);
+        // A reset boots as usual, and so would a power cycle.
+        assert_eq!(sim.options().running_at_start, None);
+        let out = sim.on_frame(&frame(0x000, &[0x81, 0x05]), 150 * MS);
+        assert_eq!(wire(&out), [(0x705, vec![0x00])]);
+
+        let mut sim = drive_with(SimNodeOptions {
+            heartbeat_ms: Some(0),
+            node_guarding: false,
+            refuses_nmt_start: true,
+            ..SimNodeOptions::default()
+        });
+        sim.start(Duration::ZERO);
+        assert_eq!(sim.next_deadline(), None);
+        let rtr = Frame::new_remote(CanId::Standard(0x705), 1).unwrap();
+        assert!(sim.on_frame(&rtr, 10 * MS).is_empty());
+        sim.on_frame(&frame(0x000, &[0x01, 0x05]), 20 * MS);
+        sim.on_frame(&frame(0x000, &[0x01, 0x00]), 30 * MS);
+        assert_eq!(sim.nmt_state(), NmtState::PreOperational);
+        // Other commands still apply; SDO still answers.
+        sim.on_frame(&frame(0x000, &[0x02, 0x05]), 40 * MS);
+        assert_eq!(sim.nmt_state(), NmtState::Stopped);
+    }
+
     #[test]
     fn life_guarding_reports_a_silent_master_once_and_its_return() {
         let mut sim = drive_with(SimNodeOptions {
@@ -1620,12 +1708,13 @@ mod tests {
             .unwrap();
         sim.set(at(0x606C, 0), Value::Integer32(-2)).unwrap();
         sim.set(at(0x6077, 0), Value::Integer16(300)).unwrap();
-        // Entering operational sends the event-driven TPDOs at once.
+        // Entering operational tells it with a heartbeat and sends the
+        // event-driven TPDOs at once.
         let tpdo1 = (0x185, h("37 06 78 56 34 12"));
         let tpdo2 = (0x285, h("FE FF FF FF 2C 01"));
         assert_eq!(
             wire(&sim.on_frame(&frame(0x000, &[0x01, 0x05]), Duration::ZERO)),
-            [tpdo1.clone(), tpdo2.clone()]
+            [(0x705, vec![0x05]), tpdo1.clone(), tpdo2.clone()]
         );
         assert_eq!(
             sim.take_events(),
@@ -1659,17 +1748,18 @@ mod tests {
         let next = sim.on_tick(Duration::from_millis(1100));
         assert_eq!(wire(&next)[0], (0x185, h("37 06 FF FF FF FF")));
 
-        // Stopped: no TPDOs, heartbeat 0x04, SDO ignored.
-        assert!(
-            sim.on_frame(&frame(0x000, &[0x02, 0x05]), Duration::from_millis(1150))
-                .is_empty()
+        // Stopped: no TPDOs, heartbeat 0x04 at once and a period later, SDO
+        // ignored.
+        assert_eq!(
+            wire(&sim.on_frame(&frame(0x000, &[0x02, 0x05]), Duration::from_millis(1150))),
+            [(0x705, vec![0x04])]
         );
         assert_eq!(
-            wire(&sim.on_tick(Duration::from_secs(2))),
+            wire(&sim.on_tick(Duration::from_millis(2150))),
             [(0x705, vec![0x04])]
         );
         assert!(sdo(&mut sim, "40 00 10 00 00 00 00 00", Duration::from_secs(2)).is_empty());
-        assert_eq!(sim.next_deadline(), Some(Duration::from_secs(3)));
+        assert_eq!(sim.next_deadline(), Some(Duration::from_millis(3150)));
         // Commands for other nodes are ignored.
         assert!(
             sim.on_frame(&frame(0x000, &[0x01, 0x06]), Duration::from_secs(2))
@@ -2203,10 +2293,14 @@ mod tests {
             wire(&sim.on_tick(t + MS)),
             [(0x285, h("02 00 00 00 00 00"))]
         );
-        // Not operational: no events.
+        // Not operational: no events (the next heartbeat is a period after
+        // the one the state change sent).
         sim.on_frame(&frame(0x000, &[0x80, 0x05]), t + 2 * MS);
         sim.set(at(0x6064, 0), Value::Integer32(6)).unwrap();
-        assert_eq!(sim.next_deadline(), Some(Duration::from_secs(1)));
+        assert_eq!(
+            sim.next_deadline(),
+            Some(t + 2 * MS + Duration::from_secs(1))
+        );
     }
 
     #[test]

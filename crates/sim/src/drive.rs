@@ -71,6 +71,12 @@ pub struct SimDriveOptions {
     /// no 0x6080 max motor speed (100 000 by default); every mode is
     /// limited to it.
     pub max_speed: u32,
+    /// The drive was enabled before anyone listened: the first
+    /// [`Device::start`] finds it in operation enabled, in this mode, at
+    /// this position (increments), controlword 0x000F, holding (with
+    /// [`SimNodeOptions::running_at_start`] for its NMT state). A power
+    /// cycle starts it as usual.
+    pub enabled_at_start: Option<(ModeOfOperation, i32)>,
 }
 
 impl Default for SimDriveOptions {
@@ -81,6 +87,7 @@ impl Default for SimDriveOptions {
             follow_time_constant: Duration::from_millis(5),
             tpdo_on_statusword_change: true,
             max_speed: 100_000,
+            enabled_at_start: None,
         }
     }
 }
@@ -216,7 +223,7 @@ impl SimDrive {
     /// A drive with the object dictionary of `eds` at `node`, not yet
     /// started.
     pub fn new(eds: &Eds, node: NodeId, options: SimDriveOptions) -> Self {
-        Self::from_od(eds.od.clone(), node, options)
+        Self::from_od(eds.od_with_dummies(), node, options)
     }
 
     /// A drive with the bundled `cangate-drive.eds`.
@@ -230,7 +237,11 @@ impl SimDrive {
         node: NodeId,
         options: SimDriveOptions,
     ) -> Result<Self, SimError> {
-        Ok(Self::from_od(Eds::parse(text)?.od, node, options))
+        Ok(Self::from_od(
+            Eds::parse(text)?.od_with_dummies(),
+            node,
+            options,
+        ))
     }
 
     /// A drive serving `od`, which should hold the CiA 402 objects the
@@ -950,6 +961,31 @@ impl SimDrive {
         }
     }
 
+    /// In operation enabled in `mode` at `position`, as if a master had
+    /// enabled it long ago: the controlword, the mode and the targets in
+    /// the dictionary say so, the motor holds.
+    fn enabled_since_before(&mut self, mode: ModeOfOperation, position: i32) {
+        let _ = self.node.set(
+            obj::CONTROLWORD,
+            Value::Unsigned16(Controlword::ENABLE_OPERATION.0),
+        );
+        let _ = self
+            .node
+            .set(obj::MODES_OF_OPERATION, Value::Integer8(mode.code()));
+        // Its last set-points: hold here.
+        let _ = self
+            .node
+            .set(obj::TARGET_POSITION, Value::Integer32(position));
+        let _ = self.node.set(obj::TARGET_VELOCITY, Value::Integer32(0));
+        self.pos = f64::from(position);
+        self.prev_cw = self.controlword();
+        self.set_mode(Some(mode), mode.code());
+        self.enter(DriveState::SwitchedOn);
+        self.enter(DriveState::OperationEnabled);
+        self.reset_generators();
+        self.write_outputs();
+    }
+
     /// Transitions 0 and 1: initialised, in switch on disabled, at the same
     /// physical position.
     fn power_on(&mut self) {
@@ -1036,8 +1072,14 @@ impl Device for SimDrive {
         self.now = now;
         self.model_time = now;
         let out = self.node.start(now);
+        // What the drive was doing before anyone listened applies to this
+        // start only (the options are what a power cycle starts from).
+        self.options.node.running_at_start = None;
         if !self.started {
             self.power_on();
+            if let Some((mode, position)) = self.options.enabled_at_start.take() {
+                self.enabled_since_before(mode, position);
+            }
         }
         self.drain_events();
         out
@@ -1279,6 +1321,7 @@ mod tests {
         assert_eq!(
             wire(&started),
             [
+                (0x705, vec![0x05]), // the new state at once
                 tpdo1(0x0240, 0),
                 (0x285, vec![0, 0, 0, 0, 0, 0]), // velocity + torque
             ]
@@ -1670,7 +1713,7 @@ mod tests {
     /// The drive EDS plus 0x6065 following error window (100) and 0x60F4
     /// following error actual value.
     fn with_following_error_objects() -> SimDrive {
-        let mut od = Eds::parse(SIM_DRIVE_EDS).unwrap().od;
+        let mut od = Eds::parse(SIM_DRIVE_EDS).unwrap().od_with_dummies();
         let mut window = Variable::new(
             obj::FOLLOWING_ERROR_WINDOW,
             "Following error window",

@@ -191,7 +191,7 @@ impl SimHandwheel {
     /// A handwheel with the object dictionary of `eds` at `node`, not yet
     /// started.
     pub fn new(eds: &Eds, node: NodeId, options: SimHandwheelOptions) -> Self {
-        Self::from_od(eds.od.clone(), node, options)
+        Self::from_od(eds.od_with_dummies(), node, options)
     }
 
     /// A handwheel with the bundled `cangate-handwheel.eds`.
@@ -206,7 +206,11 @@ impl SimHandwheel {
         node: NodeId,
         options: SimHandwheelOptions,
     ) -> Result<Self, SimError> {
-        Ok(Self::from_od(Eds::parse(text)?.od, node, options))
+        Ok(Self::from_od(
+            Eds::parse(text)?.od_with_dummies(),
+            node,
+            options,
+        ))
     }
 
     /// A handwheel serving `od`.
@@ -458,6 +462,8 @@ impl Device for SimHandwheel {
         self.now = now;
         self.next_slot = self.next_slot.max(now);
         let out = self.node.start(now);
+        // Only this start finds it running; a power cycle boots it.
+        self.options.node.running_at_start = None;
         self.drain_events();
         out
     }

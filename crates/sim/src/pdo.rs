@@ -323,7 +323,7 @@ mod tests {
 
     fn drive() -> SimStore {
         SimStore::new(
-            Eds::parse(SIM_DRIVE_EDS).unwrap().od,
+            Eds::parse(SIM_DRIVE_EDS).unwrap().od_with_dummies(),
             NodeId::new(5).unwrap(),
         )
     }

@@ -229,7 +229,10 @@ mod tests {
         [2003]\nParameterName=Flag\nDataType=0x0001\nAccessType=rw\nDefaultValue=0\n";
 
     fn store(text: &str, node: u32) -> SimStore {
-        SimStore::new(Eds::parse(text).unwrap().od, NodeId::new(node).unwrap())
+        SimStore::new(
+            Eds::parse(text).unwrap().od_with_dummies(),
+            NodeId::new(node).unwrap(),
+        )
     }
 
     #[test]

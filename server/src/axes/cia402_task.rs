@@ -63,6 +63,12 @@ struct Slot {
     setpoint_payload: Vec<u8>,
     /// Tells the CANopen operations whether this axis is active.
     drive_guard: crate::canopen::drive_guard::DriveRegistration,
+    /// A boot procedure of the drive completed since the gateway started
+    /// (or since its last boot-up). Until then its process data is not
+    /// used: a drive found running may still have PDOs mapped otherwise,
+    /// and a set-point sent into such a mapping could land on its
+    /// controlword.
+    booted: bool,
 }
 
 /// The axis task's side of an SDO fallback worker.
@@ -192,6 +198,7 @@ pub fn spawn(
                 setpoint,
                 published: None,
                 setpoint_payload: Vec::new(),
+                booted: false,
             }
         })
         .collect::<Vec<_>>();
@@ -399,6 +406,9 @@ impl Task {
             return;
         };
         self.master.relay_tpdo(&frame);
+        if !self.slots[i].booted {
+            return;
+        }
         match feedback_from_pdo(cfg, frame.data()) {
             Ok(fb) => {
                 let now = self.now();
@@ -426,6 +436,7 @@ impl Task {
         };
         let mut node_event = None;
         match report {
+            SdoReport::Feedback(_) if !slot.booted => return,
             SdoReport::Feedback(fb) => {
                 link.failures = 0;
                 if std::mem::take(&mut link.lost) && !link.booting {
@@ -547,6 +558,7 @@ impl Task {
                 (false, back.to_string())
             }
             NodeEventKind::BootUp => {
+                self.slots[i].booted = false;
                 if let Some(link) = &mut self.slots[i].sdo {
                     link.booting = true;
                 }
@@ -554,7 +566,8 @@ impl Task {
                 self.slots[i].axis.on_node_lost(&r, &mut out);
                 (true, r)
             }
-            NodeEventKind::BootCompleted => {
+            NodeEventKind::BootCompleted { adopted } => {
+                self.slots[i].booted = true;
                 if let Some(link) = &mut self.slots[i].sdo {
                     link.booting = false;
                     // Before any image the reboot leads to.
@@ -562,8 +575,15 @@ impl Task {
                         .forget
                         .store(true, std::sync::atomic::Ordering::Release);
                 }
-                self.slots[i].axis.on_node_back(true, &mut out);
-                (false, "boot procedure completed".to_string())
+                // An adopted drive kept its state: the axis takes it as it
+                // finds it (no reboot, nothing forgotten).
+                self.slots[i].axis.on_node_back(!adopted, &mut out);
+                let what = if adopted {
+                    "boot procedure completed (drive found running, adopted)"
+                } else {
+                    "boot procedure completed"
+                };
+                (false, what.to_string())
             }
             NodeEventKind::BootFailed { reason } => {
                 if let Some(link) = &mut self.slots[i].sdo {

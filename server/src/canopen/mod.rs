@@ -61,6 +61,12 @@ pub struct NodeFacts {
     pub rpdos: Vec<PdoConfig>,
     /// What to do when the node boots, if anything.
     pub boot: Option<Arc<BootPlan>>,
+    /// For a node that sends no heartbeat and is not guarded: the NMT
+    /// state its boot procedure found (the answer to a node guarding
+    /// request) or, when nothing answers that, left it in (pre-operational
+    /// when not started, operational after NMT start: commanded, not
+    /// confirmed). A heartbeat or guarding answer, once heard, wins.
+    pub boot_state: Option<NmtState>,
     /// An axis task reads this node's TPDOs straight from the bus (and
     /// counts and relays them with [`CanopenBus::relay_tpdo`]), so the
     /// master's own subscription leaves them out: at a 1 ms SYNC that takes
@@ -173,7 +179,12 @@ pub enum NodeEventKind {
     /// EMCY error or reset.
     Emcy(Emcy),
     /// The boot procedure checked, configured and started the node.
-    BootCompleted,
+    BootCompleted {
+        /// The node was found running when the gateway started (no boot-up
+        /// heard): it kept its state (a drive stays enabled), only what
+        /// differed from the configuration was written.
+        adopted: bool,
+    },
     /// The boot procedure failed; the node was not started.
     BootFailed {
         /// Why.
@@ -206,6 +217,15 @@ enum Command {
     },
     Transfers {
         reply: oneshot::Sender<Vec<(NodeId, cangate_canopen::sdo::Progress)>>,
+    },
+    ConfirmState {
+        node: NodeId,
+        /// Send NMT start first (the confirmation is in place before the
+        /// node can answer it).
+        start: bool,
+        probe: bool,
+        timeout: Duration,
+        reply: oneshot::Sender<Option<NmtState>>,
     },
     Lss {
         command: cangate_canopen::lss::LssCommand,
@@ -349,6 +369,8 @@ pub struct CanopenBus {
     drive_guard: Arc<drive_guard::DriveGuard>,
     /// When each node-ID was last heard.
     heard: Arc<heard::HeardNodes>,
+    /// The default SDO answer timeout.
+    sdo_timeout: Duration,
 }
 
 /// One API caller's SDO request counted against
@@ -467,6 +489,7 @@ impl CanopenBus {
             handover: handover::Handover::off(),
             drive_guard: Arc::default(),
             heard,
+            sdo_timeout,
         };
         tokio::spawn(handle.handover.clone().keep_awake(cancel.clone()));
         let mut master = Master::new(sdo_timeout);
@@ -744,14 +767,55 @@ impl CanopenBus {
         self.nmt(cmd, target).await
     }
 
-    /// Sends an NMT command.
+    /// Sends an NMT command. A node known only by what its boot procedure
+    /// left it in ([`NodeFacts::boot_state`]) is then in the state
+    /// commanded (after a reset: unknown until its boot-up).
     pub async fn nmt(&self, cmd: NmtCommand, target: Option<NodeId>) -> Result<(), CanopenError> {
         let (reply, rx) = oneshot::channel();
         self.commands
             .send(Command::Nmt { cmd, target, reply })
             .await
             .map_err(|_| CanopenError::Stopped)?;
-        Ok(rx.await.map_err(|_| CanopenError::Stopped)??)
+        rx.await.map_err(|_| CanopenError::Stopped)??;
+        let commanded = match cmd {
+            NmtCommand::Start => Some(NmtState::Operational),
+            NmtCommand::Stop => Some(NmtState::Stopped),
+            NmtCommand::EnterPreOperational => Some(NmtState::PreOperational),
+            NmtCommand::ResetNode | NmtCommand::ResetCommunication => None,
+        };
+        let mut facts = self.facts.write().expect("facts lock");
+        for (id, f) in facts.iter_mut() {
+            if f.boot_state.is_some() && target.is_none_or(|t| t == *id) {
+                f.boot_state = commanded;
+            }
+        }
+        Ok(())
+    }
+
+    /// Sends NMT start to `node` (when `start`) and returns the NMT state
+    /// it reports from then on within `timeout` (see
+    /// [`Master::confirm_state`]): operational as soon as it says so, else
+    /// the last state it reported, `None` if nothing came. With `probe`,
+    /// one node guarding request asks a node that sends no heartbeat.
+    pub async fn confirm_state(
+        &self,
+        node: NodeId,
+        start: bool,
+        probe: bool,
+        timeout: Duration,
+    ) -> Result<Option<NmtState>, CanopenError> {
+        let (reply, rx) = oneshot::channel();
+        self.commands
+            .send(Command::ConfirmState {
+                node,
+                start,
+                probe,
+                timeout,
+                reply,
+            })
+            .await
+            .map_err(|_| CanopenError::Stopped)?;
+        rx.await.map_err(|_| CanopenError::Stopped)
     }
 
     /// Every known node.
@@ -870,16 +934,58 @@ impl CanopenBus {
     }
 }
 
-/// Runs the boot procedure of configured nodes whenever they boot.
+/// Runs the boot procedure (CiA 302) of configured nodes: at the start of
+/// the master for every one of them, whether or not it sends a boot-up (a
+/// node running before the gateway started is adopted: checked, its
+/// configuration written where it differs, started, without a reset), and
+/// again whenever one boots up. One boot per node at a time: a boot-up
+/// during a boot starts it afresh (the node lost what was written).
 async fn run_boot_supervisor(
     master: CanopenBus,
     mut events: broadcast::Receiver<NodeEvent>,
     plans: Vec<(NodeId, Arc<BootPlan>)>,
     cancel: CancellationToken,
 ) {
+    let mut running: HashMap<NodeId, tokio::task::AbortHandle> = HashMap::new();
+    let start = |running: &mut HashMap<NodeId, tokio::task::AbortHandle>,
+                 node: NodeId,
+                 plan: Arc<BootPlan>,
+                 adopt: bool| {
+        if let Some(previous) = running.remove(&node) {
+            previous.abort();
+        }
+        let m = master.clone();
+        let task = tokio::spawn(async move {
+            match boot_node(&m, node, &plan, adopt).await {
+                Ok(BootResult::Started { confirmed }) => {
+                    match confirmed {
+                        Some(state) => {
+                            tracing::info!(bus = %m.bus, node = node.get(), adopt, %state, "node booted and started")
+                        }
+                        None => {
+                            tracing::warn!(bus = %m.bus, node = node.get(), adopt, "node booted and NMT start sent; it reported no state to confirm it started")
+                        }
+                    }
+                    m.emit(node, NodeEventKind::BootCompleted { adopted: adopt });
+                }
+                Ok(BootResult::Absent) => {
+                    tracing::info!(bus = %m.bus, node = node.get(), "node does not answer; it is booted when it boots up");
+                }
+                Ok(BootResult::Rebooted) => {}
+                Err(reason) => {
+                    tracing::warn!(bus = %m.bus, node = node.get(), %reason, "boot procedure failed");
+                    m.emit(node, NodeEventKind::BootFailed { reason });
+                }
+            }
+        });
+        running.insert(node, task.abort_handle());
+    };
+    for (node, plan) in &plans {
+        start(&mut running, *node, plan.clone(), true);
+    }
     loop {
         let ev = tokio::select! {
-            _ = cancel.cancelled() => return,
+            _ = cancel.cancelled() => break,
             ev = events.recv() => ev,
         };
         let ev = match ev {
@@ -891,7 +997,7 @@ async fn run_boot_supervisor(
                 tracing::warn!(bus = %master.bus(), missed = n, "boot supervisor missed node events; a node that booted meanwhile may need an NMT reset");
                 continue;
             }
-            Err(broadcast::error::RecvError::Closed) => return,
+            Err(broadcast::error::RecvError::Closed) => break,
         };
         if !matches!(ev.kind, NodeEventKind::BootUp) {
             continue;
@@ -899,35 +1005,81 @@ async fn run_boot_supervisor(
         let Some((node, plan)) = plans.iter().find(|(n, _)| *n == ev.node).cloned() else {
             continue;
         };
-        let m = master.clone();
-        tokio::spawn(async move {
-            match boot_node(&m, node, &plan).await {
-                Ok(()) => {
-                    tracing::info!(bus = %m.bus, node = node.get(), "node booted and started");
-                    m.emit(node, NodeEventKind::BootCompleted);
-                }
-                Err(reason) => {
-                    tracing::warn!(bus = %m.bus, node = node.get(), %reason, "boot procedure failed; node not started");
-                    m.emit(node, NodeEventKind::BootFailed { reason });
-                }
-            }
-        });
+        start(&mut running, node, plan, false);
+    }
+    for (_, task) in running {
+        task.abort();
     }
 }
 
-async fn boot_node(m: &CanopenBus, node: NodeId, plan: &BootPlan) -> Result<(), String> {
+/// How a boot procedure ended, when it did not fail.
+enum BootResult {
+    /// Checked, configured and NMT start sent; what the node reported
+    /// after (`None`: nothing; a refusal to start is a failure).
+    Started { confirmed: Option<NmtState> },
+    /// The node did not answer its first read: nothing there yet (it is
+    /// booted when it boots up).
+    Absent,
+    /// It booted up during the procedure (a fresh one runs).
+    Rebooted,
+}
+
+/// The consecutive boot writes of one PDO (its communication and mapping
+/// parameters), compared and written as a whole; every other write stands
+/// alone.
+fn write_groups(writes: &[(ObjectAddress, Vec<u8>)]) -> Vec<&[(ObjectAddress, Vec<u8>)]> {
+    // (direction, PDO number) of a PDO parameter index.
+    let pdo = |index: u16| match index {
+        0x1400..=0x15FF => Some((0, index - 0x1400)),
+        0x1600..=0x17FF => Some((0, index - 0x1600)),
+        0x1800..=0x19FF => Some((1, index - 0x1800)),
+        0x1A00..=0x1BFF => Some((1, index - 0x1A00)),
+        _ => None,
+    };
+    let mut groups = Vec::new();
+    let mut start = 0;
+    for i in 1..=writes.len() {
+        let same = i < writes.len()
+            && pdo(writes[i].0.index).is_some()
+            && pdo(writes[i].0.index) == pdo(writes[start].0.index);
+        if !same {
+            groups.push(&writes[start..i]);
+            start = i;
+        }
+    }
+    groups
+}
+
+/// The value a node answered equals the one to write: the same bytes, an
+/// expedited answer without a size padded with zeros.
+fn same_value(got: &[u8], want: &[u8]) -> bool {
+    got.len() >= want.len()
+        && got[..want.len()] == *want
+        && got[want.len()..].iter().all(|&b| b == 0)
+}
+
+async fn boot_node(
+    m: &CanopenBus,
+    node: NodeId,
+    plan: &BootPlan,
+    adopt: bool,
+) -> Result<BootResult, String> {
     let opts = cangate_canopen::sdo::TransferOptions::default();
-    let read_u32 = |index: u16, sub: u8| async move {
-        let addr = ObjectAddress::new(index, sub);
+    let read = |addr: ObjectAddress| async move {
         match m.sdo(node, SdoRequest::Upload { addr, opts }).await {
-            Ok(TransferOutcome::Uploaded(b)) if b.len() == 4 => {
-                Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-            }
-            Ok(_) => Err((false, format!("reading {addr}: not a 32-bit value"))),
+            Ok(TransferOutcome::Uploaded(b)) => Ok(b),
+            Ok(_) => Err((false, format!("reading {addr}: no data"))),
             Err(e) => {
                 let timeout = matches!(e, CanopenError::Sdo(SdoError::Timeout { .. }));
                 Err((timeout, format!("reading {addr}: {e}")))
             }
+        }
+    };
+    let read_u32 = |index: u16, sub: u8| async move {
+        let addr = ObjectAddress::new(index, sub);
+        match read(addr).await? {
+            b if b.len() == 4 => Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+            _ => Err((false, format!("reading {addr}: not a 32-bit value"))),
         }
     };
     let mismatch = |what: &str, index: u16, sub: u8, got: u32, want: u32| {
@@ -942,6 +1094,11 @@ async fn boot_node(m: &CanopenBus, node: NodeId, plan: &BootPlan) -> Result<(), 
         m.learn(node, |f| f.device_type = Some(v));
     }
     let silent = matches!(device_type, Err((true, _)));
+    if silent && adopt {
+        // Found nothing at the gateway's start: the node is off or still
+        // initialising; its boot-up brings it here again.
+        return Ok(BootResult::Absent);
+    }
     let mut identity = None;
     if !silent {
         let mut read = [0u32; 4];
@@ -983,21 +1140,94 @@ async fn boot_node(m: &CanopenBus, node: NodeId, plan: &BootPlan) -> Result<(), 
             }
         }
     }
-    for (addr, data) in &plan.writes {
-        m.sdo(
-            node,
-            SdoRequest::Download {
-                addr: *addr,
-                data: data.clone(),
-                opts,
-            },
-        )
-        .await
-        .map_err(|e| format!("writing {addr}: {e}"))?;
+    for group in write_groups(&plan.writes) {
+        if adopt {
+            // A running node is not reconfigured where it already holds the
+            // configuration (a PDO rewritten is invalid meanwhile): the
+            // final value of each object the group writes is compared.
+            let mut finals: Vec<(ObjectAddress, &[u8])> = Vec::new();
+            for (addr, data) in group {
+                finals.retain(|(a, _)| a != addr);
+                finals.push((*addr, data));
+            }
+            let mut holds = true;
+            for (addr, want) in finals {
+                holds = matches!(read(addr).await, Ok(got) if same_value(&got, want));
+                if !holds {
+                    break;
+                }
+            }
+            if holds {
+                continue;
+            }
+        }
+        for (addr, data) in group {
+            m.sdo(
+                node,
+                SdoRequest::Download {
+                    addr: *addr,
+                    data: data.clone(),
+                    opts,
+                },
+            )
+            .await
+            .map_err(|e| format!("writing {addr}: {e}"))?;
+        }
     }
-    m.nmt(NmtCommand::Start, Some(node))
+    // How the node's state after the start is learnt: its heartbeat, its
+    // guarding answers, else one node guarding request (unless that would
+    // start its life guarding).
+    let (guarded, monitored) = {
+        let facts = m.facts.read().expect("facts lock");
+        let f = facts.get(&node);
+        (
+            f.and_then(|f| f.guarding),
+            f.and_then(|f| f.heartbeat_timeout),
+        )
+    };
+    let slack = Duration::from_millis(200);
+    let period = match guarded {
+        Some(_) => 0,
+        None => match read(ObjectAddress::new(0x1017, 0)).await {
+            Ok(b) if b.len() >= 2 => u64::from(u16::from_le_bytes([b[0], b[1]])),
+            _ => 0,
+        },
+    };
+    // A report sent before the node saw the start may still show the old
+    // state: the wait spans two report periods.
+    let (reports, probe, wait) = match guarded {
+        Some((guard_time, _)) => (true, false, guard_time * 2 + slack),
+        None if period > 0 => {
+            let wait = Duration::from_millis(period) * 2 + slack;
+            (true, false, monitored.map_or(wait, |t| t.max(wait)))
+        }
+        None => {
+            let life_guarding = read_u32(0x100C, 0).await.is_ok_and(|v| v & 0xFFFF != 0)
+                && matches!(
+                    read(ObjectAddress::new(0x100D, 0)).await,
+                    Ok(b) if b.first().is_some_and(|&f| f != 0)
+                );
+            (false, !life_guarding, m.sdo_timeout.max(slack))
+        }
+    };
+    let state = m
+        .confirm_state(node, true, probe, wait)
         .await
-        .map_err(|e| format!("NMT start: {e}"))
+        .map_err(|e| format!("NMT start: {e}"))?;
+    if !reports {
+        // No heartbeat, not guarded: GetNode shows what the probe found,
+        // else what was commanded.
+        m.learn(node, |f| {
+            f.boot_state = Some(state.unwrap_or(NmtState::Operational));
+        });
+    }
+    match state {
+        Some(NmtState::Initialising) => Ok(BootResult::Rebooted),
+        Some(NmtState::Operational) | None => Ok(BootResult::Started { confirmed: state }),
+        Some(other) => Err(format!(
+            "NMT start sent, but the node still reports {other}: it did not start"
+        )),
+    }
 }
 
 struct Pending {
@@ -1070,6 +1300,7 @@ async fn run_master(task: MasterTask) {
     let origin_wall = Timestamp::now();
     let mut pending: HashMap<RequestId, Pending> = HashMap::new();
     let mut lss_pending: HashMap<RequestId, LssReply> = HashMap::new();
+    let mut confirm_pending: HashMap<RequestId, oneshot::Sender<Option<NmtState>>> = HashMap::new();
     let mut next_id: RequestId = 1;
     let mut items = Vec::with_capacity(256);
     let mut gc = tokio::time::interval(Duration::from_millis(100));
@@ -1126,6 +1357,18 @@ async fn run_master(task: MasterTask) {
                     Command::Snapshot { reply } => {
                         let _ = reply.send(snapshot(&master, &facts, origin_wall, now));
                     }
+                    Command::ConfirmState { node, start, probe, timeout, reply } => {
+                        let id = next_id;
+                        next_id += 1;
+                        confirm_pending.insert(id, reply);
+                        if start {
+                            // Ahead of the probe, in one batch, the
+                            // confirmation already waiting: a node that
+                            // tells its new state at once is heard.
+                            out.frames.push(nmt_frame(NmtCommand::Start, Some(node)));
+                        }
+                        master.confirm_state(id, node, probe, timeout, now, &mut out);
+                    }
                     Command::Lss { command, timeout, reply } => {
                         let id = next_id;
                         next_id += 1;
@@ -1156,6 +1399,13 @@ async fn run_master(task: MasterTask) {
                     }
                     open
                 });
+                confirm_pending.retain(|id, reply| {
+                    let open = !reply.is_closed();
+                    if !open {
+                        master.confirm_cancel(*id);
+                    }
+                    open
+                });
             }
         }
         if !out.frames.is_empty()
@@ -1168,6 +1418,12 @@ async fn run_master(task: MasterTask) {
             if let MasterEvent::LssCompleted { id, result } = ev {
                 if let Some(reply) = lss_pending.remove(&id) {
                     let _ = reply.send(result);
+                }
+                continue;
+            }
+            if let MasterEvent::StateConfirmed { id, state, .. } = ev {
+                if let Some(reply) = confirm_pending.remove(&id) {
+                    let _ = reply.send(state);
                 }
                 continue;
             }
@@ -1296,7 +1552,7 @@ fn handle_event(
             tracing::warn!(%error, "SDO request rejected");
             return;
         }
-        MasterEvent::LssCompleted { .. } => return,
+        MasterEvent::LssCompleted { .. } | MasterEvent::StateConfirmed { .. } => return,
         MasterEvent::SdoResponseIgnored { node } => {
             tracing::debug!(
                 node = node.get(),
@@ -1441,7 +1697,8 @@ fn snapshot(
                 state: match guard {
                     Some(g) => g.state,
                     None => hb.and_then(|s| s.state),
-                },
+                }
+                .or(f.boot_state),
                 heartbeat_age: match guard {
                     Some(g) => g.age(now),
                     None => hb.and_then(|s| s.age(now)),

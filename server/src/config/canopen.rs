@@ -21,8 +21,9 @@ pub struct CanopenConfig {
     /// run time with `Canopen.SetSync`.
     #[serde(default)]
     pub sync_counter_overflow: u8,
-    /// TIME producer period in ms (0 = TIME only on request): the master
-    /// sends the host's UTC time as a CiA 301 TIME_OF_DAY on 0x100.
+    /// TIME producer period in ms (0 = TIME only on request; else at least
+    /// 100): the master sends the host's UTC time as a CiA 301 TIME_OF_DAY
+    /// on 0x100.
     #[serde(default)]
     pub time_period_ms: u64,
     /// Known nodes.
@@ -45,6 +46,12 @@ pub struct CanopenConfig {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub drive_heartbeat_timeout_ms: Option<u16>,
 }
+
+/// The shortest period of periodic TIMEs, in ms: 10 frames a second on
+/// 0x100 are more than any consumer needs to keep its clock (the TIME is
+/// exact to the ms whenever it leaves), and a shorter period would take a
+/// share of a slow bus for nothing (1 ms: 1,000 frames a second).
+pub const MIN_TIME_PERIOD_MS: u64 = 100;
 
 fn default_sdo_timeout_ms() -> u64 {
     500
@@ -80,6 +87,12 @@ impl CanopenConfig {
             return Err(at(format!(
                 "sync_counter_overflow {} is reserved: use 0 (no counter) or 2..=240",
                 self.sync_counter_overflow
+            )));
+        }
+        if self.time_period_ms > 0 && self.time_period_ms < MIN_TIME_PERIOD_MS {
+            return Err(at(format!(
+                "time_period_ms = {} is too short: at least {} ms (0 = TIME only on request)",
+                self.time_period_ms, MIN_TIME_PERIOD_MS
             )));
         }
         if !(1..=127).contains(&self.master_node_id) {
@@ -156,6 +169,12 @@ pub struct NodeConfig {
     /// master expects it at.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sim_lss: Option<SimLssConfig>,
+    /// Simulation only (`simulate = true`): where the simulated device
+    /// behaves as some real stacks do rather than by default (already
+    /// running when the gateway starts, no heartbeat, no node guarding,
+    /// refusing NMT start).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sim: Option<SimDeviceConfig>,
     /// Run the boot procedure whenever the node boots: check the identity,
     /// write the configuration below, then NMT-start it.
     #[serde(default)]
@@ -209,6 +228,75 @@ pub struct SimLssConfig {
     /// waiting state).
     #[serde(default)]
     pub fastscan_until_configured: bool,
+}
+
+/// How a simulated device behaves (`sim = { start = "operational",
+/// heartbeat_ms = 0 }`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimDeviceConfig {
+    /// Its state when the gateway starts: `boot` (default: it boots with
+    /// the gateway and sends its boot-up), or it was running before and
+    /// the gateway hears no boot-up: `pre_operational`, `operational`, or
+    /// (a CiA 402 drive) `operation_enabled`: operational, and the drive
+    /// enabled in `mode` at `position`, holding.
+    #[serde(default)]
+    pub start: SimStart,
+    /// Heartbeat producer time in ms (0x1017; 0: none, as CANopenNode's
+    /// default). Default: a third of `heartbeat_timeout_ms`, else 100.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub heartbeat_ms: Option<u16>,
+    /// Answer node guarding requests (default true).
+    #[serde(default = "default_true")]
+    pub node_guarding: bool,
+    /// Ignore NMT start: the device stays pre-operational.
+    #[serde(default)]
+    pub refuses_nmt_start: bool,
+    /// `start = "operation_enabled"`: the CiA 402 mode of operation
+    /// (default 8, cyclic synchronous position).
+    #[serde(default = "default_sim_mode")]
+    pub mode: i8,
+    /// `start = "operation_enabled"`: the drive's position in increments.
+    #[serde(default)]
+    pub position: i32,
+}
+
+fn default_true() -> bool {
+    true
+}
+
+fn default_sim_mode() -> i8 {
+    8
+}
+
+/// The state of a simulated device when the gateway starts.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SimStart {
+    /// Boots with the gateway (boot-up message, pre-operational).
+    #[default]
+    Boot,
+    /// Already pre-operational.
+    PreOperational,
+    /// Already operational.
+    Operational,
+    /// Already operational, and the drive in operation enabled.
+    OperationEnabled,
+}
+
+impl SimDeviceConfig {
+    pub(super) fn check(&self, node: u32) -> Result<(), String> {
+        if self.start == SimStart::OperationEnabled
+            && cangate_canopen::cia402::ModeOfOperation::from_code(self.mode).is_none()
+        {
+            return Err(format!(
+                "node {node}: sim.mode {} is no CiA 402 mode of operation (1 profile position, \
+                 3 profile velocity, 6 homing, 8 cyclic synchronous position, ...)",
+                self.mode
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// An SDO write of the boot procedure.

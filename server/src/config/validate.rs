@@ -135,6 +135,16 @@ impl Config {
                         c.bus, n.id
                     )));
                 }
+                if let Some(sim) = &n.sim {
+                    if !n.simulate {
+                        return Err(ConfigError::Invalid(format!(
+                            "bus {:?}: node {}: sim describes a simulated device; add simulate = true",
+                            c.bus, n.id
+                        )));
+                    }
+                    sim.check(n.id)
+                        .map_err(|m| ConfigError::Invalid(format!("bus {:?}: {m}", c.bus)))?;
+                }
                 if n.simulate && n.eds.is_none() && n.dcf.is_none() {
                     return Err(ConfigError::Invalid(format!(
                         "bus {:?}: simulated node {} needs an eds",

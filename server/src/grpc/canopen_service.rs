@@ -829,6 +829,13 @@ impl Canopen for CanopenService {
                 ))
                 .into());
             }
+            if ms > 0 && u64::from(ms) < crate::config::MIN_TIME_PERIOD_MS {
+                return Err(ApiError::InvalidArgument(format!(
+                    "TIME period {ms} ms is too short: give at least {} ms (0 stops the periodic TIME)",
+                    crate::config::MIN_TIME_PERIOD_MS
+                ))
+                .into());
+            }
             m.set_time_period((ms > 0).then(|| Duration::from_millis(u64::from(ms))));
         }
         let sent = if req.send_now {
@@ -954,7 +961,9 @@ impl Canopen for CanopenService {
                             count: *count,
                         }),
                         NodeEventKind::Emcy(e) => E::Emcy(emcy_to_pb(e, ev.at)),
-                        NodeEventKind::BootCompleted => E::BootCompleted(pb::BootCompleted {}),
+                        NodeEventKind::BootCompleted { .. } => {
+                            E::BootCompleted(pb::BootCompleted {})
+                        }
                         NodeEventKind::BootFailed { reason } => E::BootFailed(pb::BootFailed {
                             reason: reason.clone(),
                         }),

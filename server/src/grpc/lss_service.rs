@@ -154,6 +154,41 @@ fn identity_from_pb(i: &pb::LssIdentity) -> LssIdentity {
     }
 }
 
+/// The mode of a SwitchGlobal: only waiting (0) and configuration (1)
+/// exist (CiA 305); another number is refused rather than read as 0.
+fn lss_mode(mode: i32) -> Result<LssMode, ApiError> {
+    match pb::LssMode::try_from(mode) {
+        Ok(pb::LssMode::Waiting) => Ok(LssMode::Waiting),
+        Ok(pb::LssMode::Configuration) => Ok(LssMode::Configuration),
+        Err(_) => Err(ApiError::InvalidArgument(format!(
+            "LSS mode {mode} does not exist: 0 (waiting) or 1 (configuration)"
+        ))),
+    }
+}
+
+/// The ranges of an IdentifyRemote; an inverted one (low above high)
+/// matches no device, so it is refused rather than sent.
+fn identify_range(r: &pb::IdentifyRemoteRequest) -> Result<IdentifyRange, ApiError> {
+    for (what, low, high) in [
+        ("revision", r.revision_low, r.revision_high),
+        ("serial number", r.serial_low, r.serial_high),
+    ] {
+        if low > high {
+            return Err(ApiError::InvalidArgument(format!(
+                "the {what} range is inverted: low 0x{low:08X} is above high 0x{high:08X}"
+            )));
+        }
+    }
+    Ok(IdentifyRange {
+        vendor_id: r.vendor_id,
+        product_code: r.product_code,
+        revision_low: r.revision_low,
+        revision_high: r.revision_high,
+        serial_low: r.serial_low,
+        serial_high: r.serial_high,
+    })
+}
+
 fn identity_to_pb(i: LssIdentity) -> pb::LssIdentity {
     pb::LssIdentity {
         vendor_id: i.vendor_id,
@@ -239,10 +274,7 @@ impl Lss for LssService {
 
     async fn switch_global(&self, req: Request<pb::SwitchGlobalRequest>) -> Reply<pb::LssAck> {
         let r = req.into_inner();
-        let mode = match r.mode() {
-            pb::LssMode::Waiting => LssMode::Waiting,
-            pb::LssMode::Configuration => LssMode::Configuration,
-        };
+        let mode = lss_mode(r.mode)?;
         let t = timeout(0)?;
         if mode == LssMode::Configuration {
             self.reach(&r.bus, LssReach::AllDevices, "switch global")?;
@@ -363,14 +395,7 @@ impl Lss for LssService {
     ) -> Reply<pb::IdentifyResponse> {
         let r = req.into_inner();
         let t = timeout(r.timeout_ms)?;
-        let range = IdentifyRange {
-            vendor_id: r.vendor_id,
-            product_code: r.product_code,
-            revision_low: r.revision_low,
-            revision_high: r.revision_high,
-            serial_low: r.serial_low,
-            serial_high: r.serial_high,
-        };
+        let range = identify_range(&r)?;
         Ok(present(
             self.one(&r.bus, LssCommand::IdentifyRemote(range), t)
                 .await?,

@@ -3,11 +3,15 @@
 //! each node gets, and where each runs.
 
 use super::SimulatedDevice;
-use crate::config::{BackendChoice, BusConfig, CansmcConfig, CounterChoice, NodeConfig};
+use crate::config::{
+    BackendChoice, BusConfig, CansmcConfig, CounterChoice, NodeConfig, SimDeviceConfig, SimStart,
+};
 use cangate_can::{VirtualBus, VirtualNetwork, VirtualPort};
+use cangate_canopen::cia402::ModeOfOperation;
 use cangate_canopen::eds::Eds;
 use cangate_canopen::handwheel::CounterLayout;
 use cangate_canopen::lss::LssIdentity;
+use cangate_canopen::nmt::NmtState;
 use cangate_canopen::{NodeId, ObjectAddress};
 use cangate_sim::cansmc_runner::CansmcSlaveHandle;
 use cangate_sim::{
@@ -32,8 +36,18 @@ pub fn canopen_device(
     // The device's heartbeat comes at a third of the consumer timeout
     // (100 ms when none is configured), so one late frame is not a loss. A
     // guarded node produces none: it answers the master's guarding
-    // requests instead (CiA 301: heartbeat or node guarding).
+    // requests instead (CiA 301: heartbeat or node guarding). `sim`
+    // overrides it.
+    let sim = nc.sim.clone().unwrap_or(SimDeviceConfig {
+        start: SimStart::Boot,
+        heartbeat_ms: None,
+        node_guarding: true,
+        refuses_nmt_start: false,
+        mode: 8,
+        position: 0,
+    });
     let heartbeat_ms = match nc.heartbeat_timeout_ms {
+        _ if sim.heartbeat_ms.is_some() => sim.heartbeat_ms.unwrap_or_default(),
         _ if nc.guarding().is_some() => 0,
         0 => 100,
         t => (t / 3).clamp(1, u16::MAX as u64) as u16,
@@ -59,6 +73,13 @@ pub fn canopen_device(
             .sim_lss
             .as_ref()
             .is_some_and(|l| l.fastscan_until_configured),
+        running_at_start: match sim.start {
+            SimStart::Boot => None,
+            SimStart::PreOperational => Some(NmtState::PreOperational),
+            SimStart::Operational | SimStart::OperationEnabled => Some(NmtState::Operational),
+        },
+        refuses_nmt_start: sim.refuses_nmt_start,
+        node_guarding: sim.node_guarding,
         ..SimNodeOptions::default()
     };
     if nc.eds.as_deref() == Some("builtin:handwheel") {
@@ -88,6 +109,10 @@ pub fn canopen_device(
             node,
             SimDriveOptions {
                 node: options,
+                enabled_at_start: (sim.start == SimStart::OperationEnabled)
+                    .then(|| ModeOfOperation::from_code(sim.mode))
+                    .flatten()
+                    .map(|mode| (mode, sim.position)),
                 ..SimDriveOptions::default()
             },
         )))

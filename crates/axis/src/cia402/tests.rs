@@ -1160,3 +1160,91 @@ fn a_move_is_refused_while_a_disable_is_under_way() {
         assert_eq!(outcome, Outcome::Completed, "{mode:?}: {detail}");
     }
 }
+
+impl Rig {
+    /// A rig whose drive was enabled before the axis existed (a gateway
+    /// restarted next to a running machine): operational, operation
+    /// enabled in `mode` at `position` counts, already configured.
+    fn adopting(position_mode: PositionMode, mode: ModeOfOperation, position: i32) -> Rig {
+        let node = NodeId::new(u32::from(NODE)).unwrap();
+        let mut options = SimDriveOptions {
+            enabled_at_start: Some((mode, position)),
+            ..SimDriveOptions::default()
+        };
+        options.node.running_at_start = Some(cangate_canopen::nmt::NmtState::Operational);
+        let mut drive = SimDrive::bundled(node, options);
+        assert!(drive.start(Duration::ZERO).is_empty(), "no boot-up");
+        assert_eq!(drive.state(), DriveState::OperationEnabled);
+        let (rpdos, tpdos) = standard_pdos(node, FeedbackTrigger::Sync);
+        let mut rig = Rig {
+            axis: Cia402Axis::new(Cia402Config::example(1000.0, position_mode)),
+            drive,
+            now: Duration::ZERO,
+            sync_period: 10 * MS,
+            rpdos,
+            tpdos,
+            sent: Vec::new(),
+            events: Vec::new(),
+            setpoints: Vec::new(),
+            split: None,
+            published: 0,
+        };
+        let mut writes = Vec::new();
+        for p in rig.rpdos.iter().chain(&rig.tpdos) {
+            writes.extend(p.sdo_writes().unwrap());
+        }
+        for (addr, data) in writes {
+            rig.sdo_write(addr, &data);
+        }
+        rig
+    }
+}
+
+/// A drive found in operation enabled is adopted as it is: the axis shows
+/// operation enabled at the drive's position, no RPDO it sends takes the
+/// drive out of operation enabled, the drive holds, and the axis moves it
+/// without an Enable.
+#[test]
+fn a_drive_found_enabled_keeps_its_state_and_position() {
+    for (position_mode, mode) in [
+        (
+            PositionMode::Cyclic,
+            ModeOfOperation::CyclicSynchronousPosition,
+        ),
+        (PositionMode::Profile, ModeOfOperation::ProfilePosition),
+    ] {
+        let mut rig = Rig::adopting(position_mode, mode, 12_345);
+        rig.run(100 * MS);
+        let s = rig.axis.snapshot();
+        assert_eq!(
+            s.state,
+            Some(DriveState::OperationEnabled),
+            "{position_mode:?}"
+        );
+        assert!((s.position - 12.345).abs() < 1e-9, "{s:?}");
+        assert!((s.demand_position - 12.345).abs() < 1e-9, "{s:?}");
+        assert_eq!(rig.drive.state(), DriveState::OperationEnabled);
+        assert!((rig.drive.position() - 12_345.0).abs() < 1.0);
+        let mv = rig
+            .command(AxisCommand::Move {
+                target: 13.0,
+                relative: false,
+                velocity: Some(10.0),
+                acceleration: Some(100.0),
+            })
+            .unwrap();
+        let (outcome, detail) = rig.run_until_done(mv, Duration::from_secs(3));
+        assert_eq!(outcome, Outcome::Completed, "{position_mode:?}: {detail}");
+        assert!((rig.drive.position() - 13_000.0).abs() <= 10.0);
+        assert_eq!(rig.drive.state(), DriveState::OperationEnabled);
+        let controlword = 0x200 + u16::from(NODE);
+        for (at, _, data) in rig.sent.iter().filter(|(_, c, _)| *c == controlword) {
+            let cw = u16::from_le_bytes([data[0], data[1]]);
+            assert_eq!(
+                cw & 0x0F,
+                0x0F,
+                "{position_mode:?}: controlword {cw:#06x} at {at:?}"
+            );
+        }
+    }
+}
