@@ -31,7 +31,7 @@ use crate::state::BusStatus;
 use crate::timing::{BitTiming, LoadMeter, Stuffing};
 use crate::virtual_bus::{PortEvent, SendError, VirtualPort};
 use std::collections::VecDeque;
-use std::sync::atomic::{AtomicU8, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::{mpsc, oneshot};
@@ -222,6 +222,28 @@ pub struct PendingSend {
     bus: BusHandle,
     /// The bus's echo filter still counts this batch (a virtual bus).
     echo_open: bool,
+    /// Set when this is dropped before the outcome is known: the bus task
+    /// then withdraws the frames of the batch it has not sent yet.
+    withdraw: Option<Arc<AtomicBool>>,
+}
+
+impl Drop for PendingSend {
+    /// A batch given up before its outcome (the client cancelled its call
+    /// or went away) is withdrawn: the frames still waiting for the share
+    /// are never sent, and counted ([`BusStats::client_frames_withdrawn`]).
+    fn drop(&mut self) {
+        if let Pending::Waiting { rx, .. } = &mut self.state {
+            if let Ok(r) = rx.try_recv() {
+                let _ = self.settle(r);
+                return;
+            }
+            if let Some(w) = &self.withdraw {
+                w.store(true, Ordering::Release);
+                // The bus task ends the echo count of what it withdraws.
+                self.echo_open = false;
+            }
+        }
+    }
 }
 
 #[derive(Debug)]
@@ -315,6 +337,9 @@ pub struct BusStats {
     /// Client raw frames refused because too many were already waiting for
     /// the client share ([`MAX_BUDGET_QUEUED`]).
     pub client_frames_refused: u64,
+    /// Client raw frames withdrawn before they went out: their sender gave
+    /// the batch up (a cancelled call, a closed stream).
+    pub client_frames_withdrawn: u64,
     /// Bulk frames (SDO block transfers) held back by the bus's bulk share.
     pub bulk_frames_delayed: u64,
     /// Client and bulk frames waiting right now for their share.
@@ -408,6 +433,7 @@ struct Counters {
     load_millipercent: AtomicU64,
     client_delayed: AtomicU64,
     client_refused: AtomicU64,
+    client_withdrawn: AtomicU64,
     bulk_delayed: AtomicU64,
     budget_queued: AtomicU64,
     /// Client frames sent on a virtual bus whose echo has not come back
@@ -452,6 +478,17 @@ struct PacedRequest {
     /// then count as delayed).
     held: bool,
     reply: Option<oneshot::Sender<Result<(), SendFailure>>>,
+    /// Set by the [`PendingSend`] given up before the outcome: the frames
+    /// not released yet are withdrawn.
+    withdraw: Option<Arc<AtomicBool>>,
+}
+
+impl PacedRequest {
+    fn withdrawn(&self) -> bool {
+        self.withdraw
+            .as_ref()
+            .is_some_and(|w| w.load(Ordering::Acquire))
+    }
 }
 
 /// Most client or bulk frames that may wait for their share at once; a
@@ -597,7 +634,7 @@ impl BusHandle {
     /// is refused when [`MAX_BUDGET_QUEUED`] frames already wait.
     pub async fn send_as(&self, class: TxClass, frames: Vec<Frame>) -> Result<(), SendFailure> {
         let total = frames.len();
-        match self.queue_as(class, frames).await? {
+        match self.queue_as(class, frames, None).await? {
             None => Ok(()),
             Some(outcome) => outcome.await.unwrap_or_else(|_| Err(self.down(total))),
         }
@@ -637,7 +674,11 @@ impl BusHandle {
             client_echo_begin(&self.shared, frames.len() as u64);
         }
         let total = frames.len();
-        let state = match self.queue_as(TxClass::Client, frames).await {
+        let withdraw = Arc::new(AtomicBool::new(false));
+        let state = match self
+            .queue_as(TxClass::Client, frames, Some(withdraw.clone()))
+            .await
+        {
             Ok(Some(rx)) => Pending::Waiting { rx, total },
             Ok(None) => Pending::Done(Ok(())),
             Err(f) => Pending::Done(Err(f)),
@@ -646,6 +687,7 @@ impl BusHandle {
             state,
             bus: self.clone(),
             echo_open: echoed,
+            withdraw: Some(withdraw),
         }
     }
 
@@ -657,6 +699,7 @@ impl BusHandle {
         &self,
         class: TxClass,
         frames: Vec<Frame>,
+        withdraw: Option<Arc<AtomicBool>>,
     ) -> Result<Option<oneshot::Receiver<Result<(), SendFailure>>>, SendFailure> {
         self.check(&frames)?;
         let total = frames.len();
@@ -673,6 +716,7 @@ impl BusHandle {
                 released: 0,
                 held: false,
                 reply: Some(reply),
+                withdraw,
             };
             if paced.send(request).await.is_err() {
                 c.budget_queued.fetch_sub(total as u64, Ordering::Relaxed);
@@ -725,6 +769,7 @@ impl BusHandle {
             released: 0,
             held: false,
             reply: None,
+            withdraw: None,
         };
         paced.send(request).await.map_err(|_| {
             self.shared
@@ -959,6 +1004,7 @@ impl BusHandle {
             subscriber_drops: c.subscriber_drops.load(Ordering::Relaxed),
             client_frames_delayed: c.client_delayed.load(Ordering::Relaxed),
             client_frames_refused: c.client_refused.load(Ordering::Relaxed),
+            client_frames_withdrawn: c.client_withdrawn.load(Ordering::Relaxed),
             bulk_frames_delayed: c.bulk_delayed.load(Ordering::Relaxed),
             budget_queued: c.budget_queued.load(Ordering::Relaxed),
             load_percent: c.load_millipercent.load(Ordering::Relaxed) as f64 / 1000.0,
@@ -1251,6 +1297,15 @@ impl Paced {
                 TxClass::Client => shared.client_percent.load(Ordering::Relaxed),
                 _ => shared.bulk_percent.load(Ordering::Relaxed),
             };
+            if self.queues[i].iter().any(PacedRequest::withdrawn) {
+                self.queues[i].retain(|req| {
+                    if !req.withdrawn() {
+                        return true;
+                    }
+                    withdraw(backend, shared, req);
+                    false
+                });
+            }
             while let Some(req) = self.queues[i].front_mut() {
                 let total = req.frames.len();
                 let mut end = req.released;
@@ -1287,12 +1342,19 @@ impl Paced {
                         // The rest of the request is not sent either.
                         c.tx_failed
                             .fetch_add((total - end) as u64, Ordering::Relaxed);
-                        if let Some(reply) = req.reply.take() {
-                            let _ = reply.send(Err(SendFailure {
+                        if let Some(reply) = req.reply.take()
+                            && let Err(Err(f)) = reply.send(Err(SendFailure {
                                 sent: start + f.sent,
                                 total,
                                 error: f.error,
-                            }));
+                            }))
+                            && class == TxClass::Client
+                            && matches!(backend, Backend::Virtual(_))
+                        {
+                            // Its sender gave it up: the echo count of the
+                            // frames not sent ends here, not in its
+                            // [`PendingSend`].
+                            client_echo_end(shared, (f.total - f.sent) as u64);
                         }
                         self.queues[i].pop_front();
                         continue;
@@ -1324,6 +1386,25 @@ impl Paced {
         }
         self.next = next_ns.map(|ns| self.origin + Duration::from_nanos(ns));
     }
+}
+
+/// Drops what a given-up request has not released yet: counted, its
+/// echo count ended (its [`PendingSend`] is gone and will not), logged.
+fn withdraw(backend: &Backend, shared: &Shared, req: &PacedRequest) {
+    let unsent = (req.frames.len() - req.released) as u64;
+    let c = &shared.counters;
+    c.budget_queued.fetch_sub(unsent, Ordering::Relaxed);
+    c.client_withdrawn.fetch_add(unsent, Ordering::Relaxed);
+    if matches!(backend, Backend::Virtual(_)) {
+        client_echo_end(shared, unsent);
+    }
+    tracing::info!(
+        bus = %shared.info.name,
+        sender = ?req.frames.first().and_then(Frame::sender),
+        withdrawn = unsent,
+        sent = req.released,
+        "client frames withdrawn: their sender gave the batch up"
+    );
 }
 
 /// A reply for the last chunk of a paced request, answered for the whole
@@ -2059,6 +2140,60 @@ mod tests {
             ));
         }
         assert_eq!(h.shared.counters.client_echo.load(Ordering::Relaxed), 0);
+    }
+
+    /// A client batch given up before its outcome (the [`PendingSend`]
+    /// dropped: a cancelled call, a closed stream) is withdrawn: what the
+    /// share had not let out yet is never sent, and counted; the frames
+    /// of the client's next batch follow the ones that did go out.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_dropped_client_batch_is_withdrawn() {
+        let (vbus, h, _c) = start_client_share_1();
+        let mut peer = vbus.connect(false);
+        let client = ClientId::next();
+        // About 11 s at 1 % of the bus.
+        let pending = h.queue_as_client(client, vec![frame(0x001); 1000]).await;
+        // The first frames go out, then the client goes away.
+        loop {
+            if let PortEvent::Frame { frame, .. } = peer.recv().await {
+                assert_eq!(frame.raw_id(), 0x001);
+                break;
+            }
+        }
+        drop(pending);
+        let t0 = std::time::Instant::now();
+        let withdrawn = loop {
+            let st = h.stats();
+            if st.client_frames_withdrawn > 0 {
+                break st.client_frames_withdrawn;
+            }
+            assert!(t0.elapsed() < Duration::from_secs(10), "{st:?}");
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        };
+        assert!(withdrawn >= 900, "{withdrawn} withdrawn");
+        let st = h.stats();
+        assert_eq!(st.budget_queued, 0, "{st:?}");
+        // A marker behind the sent ones in the client's FIFO: when it
+        // arrives, everything that went out before it has too.
+        h.send_as_client(client, vec![frame(0x7FE)]).await.unwrap();
+        let mut sent = 1u64;
+        loop {
+            match tokio::time::timeout(Duration::from_secs(10), peer.recv())
+                .await
+                .expect("the marker arrives")
+            {
+                PortEvent::Frame { frame, .. } if frame.raw_id() == 0x001 => sent += 1,
+                PortEvent::Frame { frame, .. } if frame.raw_id() == 0x7FE => break,
+                _ => {}
+            }
+        }
+        assert_eq!(sent + withdrawn, 1000, "{sent} sent, {withdrawn} withdrawn");
+        // The echo count is back to zero: nothing is waited for.
+        let t0 = std::time::Instant::now();
+        while h.shared.counters.client_echo.load(Ordering::Relaxed) != 0 {
+            assert!(t0.elapsed() < Duration::from_secs(10));
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        }
     }
 
     /// A client that keeps queueing while its share is used up is refused
