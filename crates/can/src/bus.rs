@@ -491,6 +491,13 @@ impl PacedRequest {
     }
 }
 
+/// Most bus time (at the bus's full rate) of one client batch queued at
+/// once for the client share: longer batches go a chunk at a time (see
+/// [`BusHandle::send_as_client`]). 20 ms: a few hundred frames, enough for
+/// the share's full rate at every wake-up of the bus task, and a bounded
+/// backlog, withdrawn at once when the client gives the batch up.
+pub const CLIENT_CHUNK_BUS_TIME_NS: u64 = 20_000_000;
+
 /// Most client or bulk frames that may wait for their share at once; a
 /// client batch beyond it is refused (the gateway's memory is bounded by
 /// configuration, not by callers).
@@ -646,12 +653,55 @@ impl BusHandle {
     /// and the client's own subscription, if it asked, as transmitted (see
     /// the module documentation). Returns when the last of them went to the
     /// interface, within the bus's client share.
+    ///
+    /// Where the client share paces frames, a batch longer than
+    /// [`CLIENT_CHUNK_BUS_TIME_NS`] of bus time is queued a chunk at a
+    /// time, the next once the last is on the bus: no client has more than
+    /// that waiting in front of the wire, and a batch given up (this
+    /// future dropped) stops within it (see [`PendingSend`]).
     pub async fn send_as_client(
         &self,
         client: ClientId,
         frames: Vec<Frame>,
     ) -> Result<(), SendFailure> {
-        self.queue_as_client(client, frames).await.outcome().await
+        let total = frames.len();
+        let mut sent = 0;
+        let mut rest = frames;
+        loop {
+            let n = self.client_chunk_len(&rest);
+            let tail = rest.split_off(n);
+            let chunk = std::mem::replace(&mut rest, tail);
+            let len = chunk.len();
+            if let Err(f) = self.queue_as_client(client, chunk).await.outcome().await {
+                return Err(SendFailure {
+                    sent: sent + f.sent,
+                    total,
+                    error: f.error,
+                });
+            }
+            sent += len;
+            if rest.is_empty() {
+                return Ok(());
+            }
+        }
+    }
+
+    /// How many of `frames` go in the next chunk of
+    /// [`BusHandle::send_as_client`]: all where client frames are not
+    /// paced, else those within [`CLIENT_CHUNK_BUS_TIME_NS`] (at least one).
+    fn client_chunk_len(&self, frames: &[Frame]) -> usize {
+        if self.paced_sender(TxClass::Client).is_none() {
+            return frames.len();
+        }
+        let timing = pacing_timing(&self.shared.info);
+        let mut busy = 0u64;
+        for (i, f) in frames.iter().enumerate() {
+            busy += timing.frame_duration_ns(f);
+            if busy > CLIENT_CHUNK_BUS_TIME_NS {
+                return i.max(1);
+            }
+        }
+        frames.len()
     }
 
     /// Queues a client's frames as [`BusHandle::send_as_client`] sends
@@ -1328,7 +1378,8 @@ impl Paced {
                         Backend::SocketCan(s) => {
                             // The answer comes with the last chunk's outcome.
                             let reply = if last { req.reply.take() } else { None };
-                            s.queue(
+                            s.queue_as(
+                                class,
                                 req.frames[start..end].to_vec(),
                                 reply.map(|r| offset_reply(r, start, total)),
                             );
@@ -2194,6 +2245,44 @@ mod tests {
             assert!(t0.elapsed() < Duration::from_secs(10));
             tokio::time::sleep(Duration::from_millis(1)).await;
         }
+    }
+
+    /// A long client batch waits in front of the wire a chunk of
+    /// [`CLIENT_CHUNK_BUS_TIME_NS`] at a time (back-pressure), never as a
+    /// whole: the client's backlog there is bounded in bus time.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_long_client_batch_waits_a_chunk_at_a_time() {
+        let (vbus, h, _c) = start_client_share_1();
+        let mut peer = vbus.connect(false);
+        let client = h.clone();
+        let batch = vec![frame(0x001); 1000];
+        let one = BitTiming::new(1_000_000).frame_duration_ns(&batch[0]);
+        let chunk = CLIENT_CHUNK_BUS_TIME_NS / one;
+        let sending =
+            tokio::spawn(async move { client.send_as_client(ClientId::next(), batch).await });
+        let mut most = 0;
+        let mut seen = 0;
+        while seen < 40 {
+            most = most.max(h.stats().budget_queued);
+            if let Ok(PortEvent::Frame { .. }) =
+                tokio::time::timeout(Duration::from_millis(1), peer.recv()).await
+            {
+                seen += 1;
+            }
+        }
+        assert!(most > 0 && most <= chunk, "{most} queued, chunk {chunk}");
+        // Given up: the rest of its chunk is withdrawn, the later chunks
+        // are never queued.
+        sending.abort();
+        let _ = sending.await;
+        let t0 = std::time::Instant::now();
+        while h.stats().client_frames_withdrawn == 0 {
+            assert!(t0.elapsed() < Duration::from_secs(10), "{:?}", h.stats());
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        }
+        let st = h.stats();
+        assert!(st.client_frames_withdrawn <= chunk, "{st:?}");
+        assert_eq!(st.budget_queued, 0, "{st:?}");
     }
 
     /// A client that keeps queueing while its share is used up is refused
