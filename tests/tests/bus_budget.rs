@@ -293,3 +293,118 @@ async fn classic_frames_with_fd_fields_are_refused() {
     assert_eq!(server.gateway().bus("can0").unwrap().stats().tx_frames, 0);
     server.shutdown();
 }
+
+/// An attached client floods the highest-priority identifier (1,000
+/// frames per message, as fast as the gateway takes them), then stops
+/// offering while what it queued drains: the SYNC keeps its period on the
+/// wire during the flood and after it, no heartbeat is lost, and the
+/// flood keeps to its share. Times are the bus's own timestamps.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_attach_flood_leaves_the_sync_going_during_and_after_it() {
+    use cangate_client::AttachOptions;
+    const FLOOD: Duration = Duration::from_secs(3);
+    const AFTER: Duration = Duration::from_secs(2);
+    let server = start_server(CONFIG).await;
+    let c = client(&server).await;
+    let mut events = node_events(&c, vec![1, 2]).await;
+    for node in [1, 2] {
+        let t0 = std::time::Instant::now();
+        while get_node(&c, node).await.heartbeat_age_ms.is_none() {
+            assert!(t0.elapsed() < WAIT, "node {node} never sent a heartbeat");
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+    let bus = server.gateway().bus("can0").unwrap().clone();
+    let mut wire = bus.subscribe(
+        FrameSelector {
+            filters: Vec::new(),
+            error_frames: false,
+            transmitted: true,
+        },
+        1 << 22,
+    );
+    let attached = c.attach("can0", &AttachOptions::default()).await.unwrap();
+    let flood = tokio::spawn(async move {
+        let batch: Vec<Frame> = (0..1000u64)
+            .map(|i| Frame::new(CanId::Standard(0x001), &i.to_le_bytes()).unwrap())
+            .collect();
+        let t0 = std::time::Instant::now();
+        while t0.elapsed() < FLOOD {
+            // Held back by the gateway's pacing: offered again.
+            if let Ok(r) =
+                tokio::time::timeout(Duration::from_millis(100), attached.sender.send(&batch)).await
+            {
+                r.expect("flood accepted");
+            }
+        }
+        (attached, cangate_can::Timestamp::now().as_nanos())
+    });
+    let mut syncs = Vec::new();
+    let mut flood_stamps = Vec::new();
+    let watch = async {
+        loop {
+            let frame = match wire.recv().await.expect("bus running") {
+                BusItem::Frame { frame, .. } => frame,
+                BusItem::Lost(n) => panic!("the watcher lost {n} frames"),
+                BusItem::State(_) => continue,
+            };
+            match frame.raw_id() {
+                0x080 => syncs.push(frame.timestamp().as_nanos()),
+                0x001 => flood_stamps.push(frame.timestamp().as_nanos()),
+                _ => {}
+            }
+        }
+    };
+    let _ = tokio::time::timeout(FLOOD + AFTER, watch).await;
+    let (attached, stopped) = flood.await.unwrap();
+    let longest = syncs
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .max()
+        .expect("SYNCs on the wire");
+    let last_flood = *flood_stamps.last().expect("flood frames on the wire");
+    let (_, skipped) = server.gateway().canopen("can0").unwrap().sync_counts();
+    println!(
+        "{} flood frames on the wire, the last {} ms after the client stopped offering; {} SYNCs, \
+         longest gap {} us ({skipped} periods skipped by the producer); {:?}",
+        flood_stamps.len(),
+        last_flood.saturating_sub(stopped) as i64 / 1_000_000,
+        syncs.len(),
+        longest / 1000,
+        bus.stats()
+    );
+    // The SYNC kept going: no gap of more than a quarter of a second (a
+    // generous bound for a loaded host; the flood's share of the bus
+    // delays a SYNC by well under a period).
+    assert!(
+        longest <= 250 * SYNC_PERIOD_NS,
+        "a SYNC gap of {} ms",
+        longest / 1_000_000
+    );
+    // SYNCs all along, after the client stopped too.
+    assert!(
+        *syncs.last().unwrap() > stopped + AFTER.as_nanos() as u64 / 2,
+        "no SYNC after the flood"
+    );
+    // The flood kept to its share (30 %: at most about 2,700 frames of
+    // 111 us a second) and never had more than a chunk in front of the
+    // wire.
+    let secs = (FLOOD + AFTER).as_secs_f64();
+    assert!(
+        (flood_stamps.len() as f64) <= 2_800.0 * secs,
+        "{} flood frames in {secs} s",
+        flood_stamps.len()
+    );
+    drop(attached);
+    while let Ok(ev) = tokio::time::timeout(Duration::from_millis(50), events.message()).await {
+        let ev = ev.unwrap().expect("event stream open");
+        assert!(
+            !matches!(ev.event, Some(pb::node_event::Event::HeartbeatLost(_))),
+            "heartbeat lost under the flood: {ev:?}"
+        );
+    }
+    for node in [1, 2] {
+        assert!(!get_node(&c, node).await.heartbeat_lost, "node {node}");
+    }
+    server.shutdown();
+}
