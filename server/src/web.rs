@@ -188,7 +188,7 @@ impl AllowedHosts {
         {
             return true;
         }
-        self.configured.iter().any(|c| *c == host)
+        self.configured.contains(&host)
     }
 }
 
