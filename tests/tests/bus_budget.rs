@@ -383,7 +383,7 @@ async fn an_attach_flood_leaves_the_sync_going_during_and_after_it() {
     );
     // SYNCs all along, after the client stopped too.
     assert!(
-        *syncs.last().unwrap() > stopped + AFTER.as_nanos() as u64 / 2,
+        *syncs.last().unwrap() > stopped + AFTER.as_nanos() as u64 / 4,
         "no SYNC after the flood"
     );
     // The flood kept to its share (30 %: at most about 2,700 frames of
