@@ -1368,6 +1368,23 @@ impl Paced {
                     false
                 });
             }
+            // Client frames take only time no one else needs: while other
+            // frames wait for the wire they are held, whatever their
+            // identifiers, so that a flood of them cannot build a backlog
+            // of the gateway's own frames and the devices' answers (which
+            // an overloaded bus carries for seconds after the flood).
+            if class == TxClass::Client && !self.queues[i].is_empty() && others_waiting(backend) {
+                if let Some(req) = self.queues[i].front_mut()
+                    && !req.held
+                {
+                    req.held = true;
+                    c.client_delayed
+                        .fetch_add((req.frames.len() - req.released) as u64, Ordering::Relaxed);
+                }
+                let retry = now_ns + CONGESTION_RETRY_NS;
+                next_ns = Some(next_ns.map_or(retry, |n| n.min(retry)));
+                continue;
+            }
             while let Some(req) = self.queues[i].front_mut() {
                 let total = req.frames.len();
                 let mut end = req.released;
@@ -1448,6 +1465,20 @@ impl Paced {
             }
         }
         self.next = next_ns.map(|ns| self.origin + Duration::from_nanos(ns));
+    }
+}
+
+/// How soon client frames held back for other frames waiting (see
+/// [`others_waiting`]) are looked at again.
+const CONGESTION_RETRY_NS: u64 = 500_000;
+
+/// Whether frames other than client frames wait for the wire: on a
+/// bit-timed virtual bus, any port's frames outside the client lane; on
+/// SocketCAN, frames held because the interface's queue was full.
+fn others_waiting(backend: &Backend) -> bool {
+    match backend {
+        Backend::Virtual(p) => p.bus().waiting_outside_lane(TxClass::Client.lane()) > 0,
+        Backend::SocketCan(s) => s.tx_counters().queued > 0,
     }
 }
 
