@@ -2290,6 +2290,35 @@ mod tests {
         }
     }
 
+    /// Client frames take only time nobody else needs: a client's frames
+    /// on the highest-priority identifier, queued while another node has
+    /// a backlog, go out after the whole backlog, although each of them
+    /// would have won its arbitration.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn client_frames_wait_while_other_frames_wait_for_the_wire() {
+        let (vbus, h, _c) = start_bit_timed();
+        let mut watcher = vbus.connect(false);
+        let device = vbus.connect(false);
+        // About 20 ms of the device's frames, queued at once.
+        device.send_batch(&vec![frame(0x701); 200]).unwrap();
+        h.send_as_client(ClientId::next(), vec![frame(0x001); 5])
+            .await
+            .unwrap();
+        let mut order = Vec::new();
+        while order.len() < 205 {
+            if let PortEvent::Frame { frame, .. } =
+                tokio::time::timeout(Duration::from_secs(10), watcher.recv())
+                    .await
+                    .expect("frames keep coming")
+            {
+                order.push(frame.raw_id());
+            }
+        }
+        let first_client = order.iter().position(|&id| id == 0x001).unwrap();
+        assert_eq!(first_client, 200, "a client frame overtook the backlog");
+        assert!(h.stats().client_frames_delayed >= 5);
+    }
+
     /// A long client batch waits in front of the wire a chunk of
     /// [`CLIENT_CHUNK_BUS_TIME_NS`] at a time (back-pressure), never as a
     /// whole: the client's backlog there is bounded in bus time.
