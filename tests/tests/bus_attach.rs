@@ -967,7 +967,8 @@ async fn a_cancelled_attachment_leaves_nothing_behind() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_cancelled_attachment_withdraws_the_frames_it_queued() {
     let server = start_server(
-        "[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\nbitrate = 1000000\n\
+        "metrics_listen = \"127.0.0.1:0\"\n\
+         [[bus]]\nname = \"can0\"\nbackend = \"virtual\"\nbitrate = 1000000\n\
          bit_timing = true\nclient_share_percent = 1\n",
     )
     .await;
@@ -1027,5 +1028,13 @@ async fn a_cancelled_attachment_withdraws_the_frames_it_queued() {
     }
     assert_eq!(sent + withdrawn, 1000, "{sent} sent, {withdrawn} withdrawn");
     assert_eq!(bus.stats().budget_queued, 0);
+    // Reported on the metrics endpoint.
+    let text = scrape_metrics(server.metrics_addr.expect("metrics listen")).await;
+    assert!(
+        text.contains(&format!(
+            "cangate_client_frames_withdrawn_total{{bus=\"can0\"}} {withdrawn}"
+        )),
+        "{text}"
+    );
     server.shutdown();
 }
