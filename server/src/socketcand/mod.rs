@@ -24,6 +24,11 @@
 //!   the client's raw frame budget and sent with
 //!   [`cangate_can::BusHandle::send_as_client`] within the bus's client
 //!   share, the budgets of gRPC clients with the same identity included.
+//! - **Slots.** At `max_connections`, or `max_connections_per_peer` for
+//!   one address, the oldest connection that has not opened a bus yet
+//!   gives its slot to the newcomer (told why, closed): idle connections
+//!   that never authenticate cannot lock out a client with a token. Only
+//!   when every counted connection has a bus open is a newcomer refused.
 //! - **A bus participant.** Each connection is one [`ClientId`]: other
 //!   clients see its frames as received, marked with its sender (named
 //!   `WHO via socketcand`); it does not receive its own frames (a
