@@ -73,6 +73,10 @@ fn describe() {
         "Client raw frames (SendFrames, Attach) not sent because their batch was refused, by bus and reason (FRAME_RATE_LIMIT, BUS_BUDGET_EXHAUSTED, INVALID_FRAME, BUS_OFF, ...)."
     );
     describe_counter!(
+        "cangate_client_frames_withdrawn_total",
+        "Client raw frames not sent because their sender gave the batch up first (a cancelled SendFrames, a closed Attach stream)."
+    );
+    describe_counter!(
         "cangate_bus_stream_drops_total",
         "Frames dropped for slow stream subscribers (each reported to them as lost)."
     );
@@ -265,6 +269,8 @@ fn refresh(gateway: &Gateway) {
         counter!("cangate_bus_tx_retries_total", "bus" => name.clone()).absolute(s.tx_retries);
         gauge!("cangate_bus_tx_queued", "bus" => name.clone()).set(s.tx_queued as f64);
         counter!("cangate_bus_rx_overflows_total", "bus" => name.clone()).absolute(s.rx_overflows);
+        counter!("cangate_client_frames_withdrawn_total", "bus" => name.clone())
+            .absolute(s.client_frames_withdrawn);
         gauge!("cangate_bus_load_percent", "bus" => name.clone()).set(s.load_percent);
         let up = matches!(
             bus.status().state,

@@ -447,6 +447,49 @@ async fn unauthenticated_peers_are_limited_and_idle_connections_closed() {
     server.shutdown();
 }
 
+/// A connection that sends only the HTTP/2 preface, or half an HTTP/1.1
+/// header, and then nothing, is closed after `handshake_timeout_s`, not
+/// after the (long) idle timeout: before its first request it is still
+/// in its handshake.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connections_without_a_first_request_are_closed_after_the_handshake_timeout() {
+    let server = start_server(&format!(
+        "{ONE_BUS}[security.limits]\nhandshake_timeout_s = 1\nidle_connection_timeout_s = 3600\n"
+    ))
+    .await;
+    let inputs: [&[u8]; 3] = [
+        b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n",
+        b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n\0\0\0\x04\0\0\0\0\0",
+        b"POST /cangate.v1.Bus/ListBuses HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: applic",
+    ];
+    for input in inputs {
+        let mut conn = tokio::net::TcpStream::connect(server.addr).await.unwrap();
+        conn.write_all(input).await.unwrap();
+        let mut buf = [0u8; 256];
+        let closed = tokio::time::timeout(WAIT, async {
+            loop {
+                match conn.read(&mut buf).await {
+                    Ok(0) | Err(_) => return,
+                    Ok(_) => {} // SETTINGS, its ack, a GOAWAY
+                }
+            }
+        })
+        .await;
+        assert!(
+            closed.is_ok(),
+            "a connection without a request stays open: {:?}",
+            String::from_utf8_lossy(input)
+        );
+    }
+    // A client that calls is served as before.
+    client(&server)
+        .await
+        .list_buses()
+        .await
+        .expect("a call goes through");
+    server.shutdown();
+}
+
 /// A codec that sends raw bytes, to put undecodable protobuf on the wire.
 #[derive(Default)]
 struct RawCodec;

@@ -959,3 +959,82 @@ async fn a_cancelled_attachment_leaves_nothing_behind() {
     }
     server.shutdown();
 }
+
+/// The batch of an Attach stream that is cancelled while the bus's client
+/// share holds it back is withdrawn: the frames not yet sent never reach
+/// the bus, and the bus counts them. (At 1 % of a bit-timed 1 Mbit/s bus,
+/// 1,000 frames would go on for about 11 s after the client left.)
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cancelled_attachment_withdraws_the_frames_it_queued() {
+    let server = start_server(
+        "metrics_listen = \"127.0.0.1:0\"\n\
+         [[bus]]\nname = \"can0\"\nbackend = \"virtual\"\nbitrate = 1000000\n\
+         bit_timing = true\nclient_share_percent = 1\n",
+    )
+    .await;
+    let c = client(&server).await;
+    let bus = server.gateway().bus("can0").unwrap().clone();
+    let mut device = server
+        .gateway()
+        .network()
+        .get("can0")
+        .unwrap()
+        .connect(false);
+    let a = c.attach("can0", &AttachOptions::default()).await.unwrap();
+    let batch: Vec<Frame> = (0..1000u16)
+        .map(|i| Frame::new(CanId::Standard(0x401), &i.to_le_bytes()).unwrap())
+        .collect();
+    a.sender.send(&batch).await.unwrap();
+    // The first frames are on the bus: the batch is being paced.
+    loop {
+        match tokio::time::timeout(WAIT, device.recv())
+            .await
+            .expect("a frame")
+        {
+            cangate_can::PortEvent::Frame { frame, .. } if frame.raw_id() == 0x401 => break,
+            _ => {}
+        }
+    }
+    drop(a);
+    // What it had queued and what it had not queued yet are counted.
+    let t0 = Instant::now();
+    let withdrawn = loop {
+        let n = bus.stats().client_frames_withdrawn;
+        if n >= 900 || t0.elapsed() > WAIT {
+            break n;
+        }
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    };
+    assert!(withdrawn >= 900, "{withdrawn} withdrawn");
+    // A marker queued now goes behind whatever the share had let out of
+    // the batch (client frames keep their order): when it arrives, every
+    // frame of the batch that will ever go out has.
+    let marker = c.attach("can0", &AttachOptions::default()).await.unwrap();
+    marker
+        .sender
+        .send(&[Frame::new(CanId::Standard(0x7FE), &[]).unwrap()])
+        .await
+        .unwrap();
+    let mut sent = 1u64;
+    loop {
+        match tokio::time::timeout(WAIT, device.recv())
+            .await
+            .expect("the marker")
+        {
+            cangate_can::PortEvent::Frame { frame, .. } if frame.raw_id() == 0x401 => sent += 1,
+            cangate_can::PortEvent::Frame { frame, .. } if frame.raw_id() == 0x7FE => break,
+            _ => {}
+        }
+    }
+    assert_eq!(sent + withdrawn, 1000, "{sent} sent, {withdrawn} withdrawn");
+    assert_eq!(bus.stats().budget_queued, 0);
+    // Reported on the metrics endpoint.
+    let text = scrape_metrics(server.metrics_addr.expect("metrics listen")).await;
+    assert!(
+        text.contains(&format!(
+            "cangate_client_frames_withdrawn_total{{bus=\"can0\"}} {withdrawn}"
+        )),
+        "{text}"
+    );
+    server.shutdown();
+}

@@ -82,10 +82,12 @@ async fn http(
     body: &[u8],
 ) -> Response {
     let mut s = TcpStream::connect(addr).await.expect("connects");
-    let mut head = format!(
-        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nContent-Length: {}\r\n",
-        body.len()
-    );
+    // The address as Host unless the test names another.
+    let mut head = format!("{method} {path} HTTP/1.1\r\n");
+    if !headers.iter().any(|(k, _)| k.eq_ignore_ascii_case("host")) {
+        head.push_str(&format!("Host: {addr}\r\n"));
+    }
+    head.push_str(&format!("Content-Length: {}\r\n", body.len()));
     for (k, v) in headers {
         head.push_str(&format!("{k}: {v}\r\n"));
     }
@@ -548,5 +550,109 @@ async fn the_dashboard_is_served_beside_the_api() {
     r.body().await;
     let (resp, frames) = unary(server.addr, LIST_BUSES, TEXT, &pb::ListBusesRequest {}, &[]).await;
     assert_eq!(grpc_status(&resp, &frames).0, 0);
+    server.shutdown();
+}
+
+/// DNS rebinding: a page of `attacker.test` whose name is re-pointed at
+/// the gateway's address calls it same-origin, but its requests name
+/// `attacker.test`. Refused (gRPC-Web: PERMISSION_DENIED naming the
+/// setting; the dashboard: 403) and nothing reaches the bus; loopback
+/// names and `[web] allowed_hosts` are served, and native gRPC (which no
+/// page can make) under any name.
+#[tokio::test]
+async fn browser_requests_for_a_foreign_host_are_refused() {
+    let server = start_server(&format!(
+        "[web]\nallowed_hosts = [\"gateway.example\"]\n{ONE_BUS}"
+    ))
+    .await;
+    let mut device = server
+        .gateway()
+        .network()
+        .get("can0")
+        .unwrap()
+        .connect(false);
+    let send = |id: u32| pb::SendFramesRequest {
+        bus: "can0".into(),
+        frames: vec![pb::Frame {
+            id,
+            data: vec![0x42],
+            ..Default::default()
+        }],
+    };
+    const SEND: &str = "/cangate.v1.Bus/SendFrames";
+    let port = server.addr.port();
+    for ct in [PROTO, TEXT] {
+        for host in ["attacker.test".to_string(), format!("attacker.test:{port}")] {
+            let origin = format!("http://{host}");
+            let (resp, frames) = unary(
+                server.addr,
+                SEND,
+                ct,
+                &send(0x1A2),
+                &[("Host", &host), ("Origin", &origin)],
+            )
+            .await;
+            let (code, message) = grpc_status(&resp, &frames);
+            assert_eq!(
+                code, 7,
+                "{ct} {host}: PERMISSION_DENIED, got {code} {message}"
+            );
+            assert!(message.contains("[web] allowed_hosts"), "{message}");
+        }
+    }
+    // Without Origin too (HTTP/1.1 is a browser's).
+    let (resp, frames) = unary(
+        server.addr,
+        SEND,
+        PROTO,
+        &send(0x1A2),
+        &[("Host", "attacker.test")],
+    )
+    .await;
+    assert_eq!(grpc_status(&resp, &frames).0, 7);
+    // The dashboard is not served under the foreign name either.
+    let mut r = http(server.addr, "GET", "/", &[("Host", "attacker.test")], &[]).await;
+    assert_eq!(r.status, 403);
+    let body = String::from_utf8(r.body().await).unwrap();
+    assert!(body.contains("allowed_hosts"), "{body}");
+    // Loopback names and the configured name are served.
+    for host in [
+        format!("localhost:{port}"),
+        format!("127.0.0.1:{port}"),
+        "localhost".to_string(),
+        format!("[::1]:{port}"),
+        format!("gateway.example:{port}"),
+    ] {
+        let (resp, frames) =
+            unary(server.addr, SEND, PROTO, &send(0x123), &[("Host", &host)]).await;
+        assert_eq!(grpc_status(&resp, &frames).0, 0, "{host}");
+    }
+    // Native gRPC names any host: no page can make such a call.
+    let channel = tonic::transport::Endpoint::from_shared(format!("http://{}", server.addr))
+        .unwrap()
+        .origin(format!("http://gateway.lan:{port}").parse().unwrap())
+        .connect()
+        .await
+        .unwrap();
+    pb::bus_client::BusClient::new(channel)
+        .send_frames(send(0x124))
+        .await
+        .expect("native gRPC under its host name");
+    // On the bus: the allowed ones only, none of the refused 0x1A2.
+    let mut ids = Vec::new();
+    while ids.len() < 6 {
+        match tokio::time::timeout(WAIT, device.recv())
+            .await
+            .expect("frames on the bus")
+        {
+            cangate_can::PortEvent::Frame { frame, .. } => ids.push(frame.raw_id()),
+            cangate_can::PortEvent::State(_) => {}
+        }
+    }
+    assert_eq!(ids, [0x123, 0x123, 0x123, 0x123, 0x123, 0x124]);
+    assert!(
+        device.try_recv().is_none(),
+        "a refused frame reached the bus"
+    );
     server.shutdown();
 }

@@ -458,6 +458,12 @@ async fn malformed_input_is_answered_and_the_endpoint_goes_on() {
             "< echo >",
         ]
     );
+    // One < … > per command: a nested send is refused, never executed
+    // (the stray closing brackets after it are dropped as junk).
+    r.send(b"< < < send 1A2 1 00 > > >< echo >").await;
+    let e = r.element().await.expect("an answer");
+    assert!(e.starts_with("< error malformed command"), "{e}");
+    assert_eq!(r.element().await.as_deref(), Some("< echo >"));
     // Raw mode: frames of others arrive as < frame … > lines.
     r.send(b"< rawmode >").await;
     assert_eq!(r.element().await.as_deref(), Some("< ok >"));
@@ -576,9 +582,12 @@ async fn frame_budget_and_connection_limit_apply_to_socketcand_clients() {
         );
     }
 
-    // A second connection fits, a third is told why and closed.
+    // A second connection fits, a third is told why and closed (both
+    // others have a bus open, so neither gives its slot up).
     let mut second = Raw::connect(addr).await;
     assert_eq!(second.element().await.as_deref(), Some("< hi >"));
+    second.send(b"< open can0 >").await;
+    assert_eq!(second.element().await.as_deref(), Some("< ok >"));
     let mut third = Raw::connect(addr).await;
     assert_eq!(
         third.element().await.as_deref(),
@@ -593,6 +602,78 @@ async fn frame_budget_and_connection_limit_apply_to_socketcand_clients() {
     r.send(b"< echo >").await;
     assert_eq!(r.element().await.as_deref(), Some("< echo >"));
     drop(second);
+    server.shutdown();
+}
+
+/// Idle connections that never open a bus cannot lock a client with a
+/// token out: with every slot taken by them, a newcomer takes the oldest
+/// one's slot (that one is told why and closed) and opens its bus; only
+/// connections with a bus open keep their slots. The same holds per
+/// address (`max_connections_per_peer`), and a peer whose connections
+/// all have a bus open is refused with the setting named.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn idle_connections_give_their_slots_to_clients_that_open_a_bus() {
+    use cangate_server::security::auth::hash_token;
+    let text = format!(
+        "listen = \"127.0.0.1:0\"\n{ONE_BUS}\
+         [socketcand]\nlisten = \"127.0.0.1:0\"\nmax_connections = 4\nmax_connections_per_peer = 3\n\
+         [[security.tokens]]\nname = \"eng-1\"\nrole = \"engineer\"\nsha256 = \"{}\"\n",
+        hash_token(ENGINEER)
+    );
+    let server = cangate_server::start(&Config::from_toml(&text).unwrap())
+        .await
+        .expect("server starts");
+    let addr = server.socketcand_addr.expect("socketcand listens");
+    // An attacker holds every slot with connections that never open a
+    // bus (all from 127.0.0.1: the per-peer limit evicts its own first).
+    let mut idle = Vec::new();
+    for _ in 0..6 {
+        let mut r = Raw::connect(addr).await;
+        assert_eq!(r.element().await.as_deref(), Some("< hi >"));
+        idle.push(r);
+    }
+    // Three per address: the first three were closed for the later ones.
+    for r in idle.iter_mut().take(3) {
+        let e = r.element().await.expect("told why");
+        assert!(
+            e.starts_with("< error closed before a bus was opened")
+                && e.contains("max_connections_per_peer"),
+            "{e}"
+        );
+        assert_eq!(r.element().await, None);
+    }
+    // The user with a token gets in at once and opens its bus.
+    let mut users = Vec::new();
+    for _ in 0..3 {
+        let mut u = Raw::connect(addr).await;
+        assert_eq!(u.element().await.as_deref(), Some("< hi >"));
+        u.send(format!("< open can0 {ENGINEER} >").as_bytes()).await;
+        assert_eq!(u.element().await.as_deref(), Some("< ok >"));
+        users.push(u);
+    }
+    // Each user took an idle connection's slot.
+    for r in idle.iter_mut().skip(3) {
+        assert!(
+            r.element()
+                .await
+                .expect("told why")
+                .starts_with("< error closed before")
+        );
+        assert_eq!(r.element().await, None);
+    }
+    // Three sessions with a bus open: the address is full, and nothing
+    // gives way.
+    let mut refused = Raw::connect(addr).await;
+    assert_eq!(
+        refused.element().await.as_deref(),
+        Some("< error too many connections from 127.0.0.1 (max_connections_per_peer = 3) >")
+    );
+    assert_eq!(refused.element().await, None);
+    // The users go on.
+    for u in &mut users {
+        u.send(b"< echo >").await;
+        assert_eq!(u.element().await.as_deref(), Some("< echo >"));
+    }
     server.shutdown();
 }
 

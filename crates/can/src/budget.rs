@@ -14,6 +14,9 @@
 //! [`Pacer`] to a configurable share of the bus's time ([`TxShares`]) and,
 //! on the virtual bus, queue in a transmit lane of their own that the own
 //! frames overtake (as a controller's separate transmit mailboxes would).
+//! Client frames are moreover held while other frames wait for the wire
+//! (see `others_waiting` in the bus module): a share is a ceiling, not a
+//! reservation, so a busy cycle plus a flood never overloads the bus.
 
 /// What a frame is sent for, which decides its place in the queues in
 /// front of the wire.

@@ -31,7 +31,7 @@ use crate::state::BusStatus;
 use crate::timing::{BitTiming, LoadMeter, Stuffing};
 use crate::virtual_bus::{PortEvent, SendError, VirtualPort};
 use std::collections::VecDeque;
-use std::sync::atomic::{AtomicU8, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::{mpsc, oneshot};
@@ -222,6 +222,28 @@ pub struct PendingSend {
     bus: BusHandle,
     /// The bus's echo filter still counts this batch (a virtual bus).
     echo_open: bool,
+    /// Set when this is dropped before the outcome is known: the bus task
+    /// then withdraws the frames of the batch it has not sent yet.
+    withdraw: Option<Arc<AtomicBool>>,
+}
+
+impl Drop for PendingSend {
+    /// A batch given up before its outcome (the client cancelled its call
+    /// or went away) is withdrawn: the frames still waiting for the share
+    /// are never sent, and counted ([`BusStats::client_frames_withdrawn`]).
+    fn drop(&mut self) {
+        if let Pending::Waiting { rx, .. } = &mut self.state {
+            if let Ok(r) = rx.try_recv() {
+                let _ = self.settle(r);
+                return;
+            }
+            if let Some(w) = &self.withdraw {
+                w.store(true, Ordering::Release);
+                // The bus task ends the echo count of what it withdraws.
+                self.echo_open = false;
+            }
+        }
+    }
 }
 
 #[derive(Debug)]
@@ -315,6 +337,9 @@ pub struct BusStats {
     /// Client raw frames refused because too many were already waiting for
     /// the client share ([`MAX_BUDGET_QUEUED`]).
     pub client_frames_refused: u64,
+    /// Client raw frames withdrawn before they went out: their sender gave
+    /// the batch up (a cancelled call, a closed stream).
+    pub client_frames_withdrawn: u64,
     /// Bulk frames (SDO block transfers) held back by the bus's bulk share.
     pub bulk_frames_delayed: u64,
     /// Client and bulk frames waiting right now for their share.
@@ -408,6 +433,7 @@ struct Counters {
     load_millipercent: AtomicU64,
     client_delayed: AtomicU64,
     client_refused: AtomicU64,
+    client_withdrawn: AtomicU64,
     bulk_delayed: AtomicU64,
     budget_queued: AtomicU64,
     /// Client frames sent on a virtual bus whose echo has not come back
@@ -452,7 +478,25 @@ struct PacedRequest {
     /// then count as delayed).
     held: bool,
     reply: Option<oneshot::Sender<Result<(), SendFailure>>>,
+    /// Set by the [`PendingSend`] given up before the outcome: the frames
+    /// not released yet are withdrawn.
+    withdraw: Option<Arc<AtomicBool>>,
 }
+
+impl PacedRequest {
+    fn withdrawn(&self) -> bool {
+        self.withdraw
+            .as_ref()
+            .is_some_and(|w| w.load(Ordering::Acquire))
+    }
+}
+
+/// Most bus time (at the bus's full rate) of one client batch queued at
+/// once for the client share: longer batches go a chunk at a time (see
+/// [`BusHandle::send_as_client`]). 20 ms: a few hundred frames, enough for
+/// the share's full rate at every wake-up of the bus task, and a bounded
+/// backlog, withdrawn at once when the client gives the batch up.
+pub const CLIENT_CHUNK_BUS_TIME_NS: u64 = 20_000_000;
 
 /// Most client or bulk frames that may wait for their share at once; a
 /// client batch beyond it is refused (the gateway's memory is bounded by
@@ -597,7 +641,7 @@ impl BusHandle {
     /// is refused when [`MAX_BUDGET_QUEUED`] frames already wait.
     pub async fn send_as(&self, class: TxClass, frames: Vec<Frame>) -> Result<(), SendFailure> {
         let total = frames.len();
-        match self.queue_as(class, frames).await? {
+        match self.queue_as(class, frames, None).await? {
             None => Ok(()),
             Some(outcome) => outcome.await.unwrap_or_else(|_| Err(self.down(total))),
         }
@@ -609,12 +653,67 @@ impl BusHandle {
     /// and the client's own subscription, if it asked, as transmitted (see
     /// the module documentation). Returns when the last of them went to the
     /// interface, within the bus's client share.
+    ///
+    /// Where the client share paces frames, a batch longer than
+    /// [`CLIENT_CHUNK_BUS_TIME_NS`] of bus time is queued a chunk at a
+    /// time, the next once the last is on the bus: no client has more than
+    /// that waiting in front of the wire, and a batch given up (this
+    /// future dropped) stops within it (see [`PendingSend`]).
     pub async fn send_as_client(
         &self,
         client: ClientId,
         frames: Vec<Frame>,
     ) -> Result<(), SendFailure> {
-        self.queue_as_client(client, frames).await.outcome().await
+        /// The frames of later chunks, counted as withdrawn when the
+        /// call is given up before it queued them.
+        struct Unqueued<'a>(&'a Shared, usize);
+        impl Drop for Unqueued<'_> {
+            fn drop(&mut self) {
+                (self.0.counters.client_withdrawn).fetch_add(self.1 as u64, Ordering::Relaxed);
+            }
+        }
+        let total = frames.len();
+        let mut sent = 0;
+        let mut rest = frames;
+        let mut unqueued = Unqueued(&self.shared, total);
+        loop {
+            let n = self.client_chunk_len(&rest);
+            let tail = rest.split_off(n);
+            let chunk = std::mem::replace(&mut rest, tail);
+            let len = chunk.len();
+            unqueued.1 = rest.len();
+            let outcome = self.queue_as_client(client, chunk).await.outcome().await;
+            unqueued.1 = 0;
+            if let Err(f) = outcome {
+                return Err(SendFailure {
+                    sent: sent + f.sent,
+                    total,
+                    error: f.error,
+                });
+            }
+            sent += len;
+            if rest.is_empty() {
+                return Ok(());
+            }
+        }
+    }
+
+    /// How many of `frames` go in the next chunk of
+    /// [`BusHandle::send_as_client`]: all where client frames are not
+    /// paced, else those within [`CLIENT_CHUNK_BUS_TIME_NS`] (at least one).
+    fn client_chunk_len(&self, frames: &[Frame]) -> usize {
+        if self.paced_sender(TxClass::Client).is_none() {
+            return frames.len();
+        }
+        let timing = pacing_timing(&self.shared.info);
+        let mut busy = 0u64;
+        for (i, f) in frames.iter().enumerate() {
+            busy += timing.frame_duration_ns(f);
+            if busy > CLIENT_CHUNK_BUS_TIME_NS {
+                return i.max(1);
+            }
+        }
+        frames.len()
     }
 
     /// Queues a client's frames as [`BusHandle::send_as_client`] sends
@@ -637,7 +736,11 @@ impl BusHandle {
             client_echo_begin(&self.shared, frames.len() as u64);
         }
         let total = frames.len();
-        let state = match self.queue_as(TxClass::Client, frames).await {
+        let withdraw = Arc::new(AtomicBool::new(false));
+        let state = match self
+            .queue_as(TxClass::Client, frames, Some(withdraw.clone()))
+            .await
+        {
             Ok(Some(rx)) => Pending::Waiting { rx, total },
             Ok(None) => Pending::Done(Ok(())),
             Err(f) => Pending::Done(Err(f)),
@@ -646,6 +749,7 @@ impl BusHandle {
             state,
             bus: self.clone(),
             echo_open: echoed,
+            withdraw: Some(withdraw),
         }
     }
 
@@ -657,6 +761,7 @@ impl BusHandle {
         &self,
         class: TxClass,
         frames: Vec<Frame>,
+        withdraw: Option<Arc<AtomicBool>>,
     ) -> Result<Option<oneshot::Receiver<Result<(), SendFailure>>>, SendFailure> {
         self.check(&frames)?;
         let total = frames.len();
@@ -673,6 +778,7 @@ impl BusHandle {
                 released: 0,
                 held: false,
                 reply: Some(reply),
+                withdraw,
             };
             if paced.send(request).await.is_err() {
                 c.budget_queued.fetch_sub(total as u64, Ordering::Relaxed);
@@ -725,6 +831,7 @@ impl BusHandle {
             released: 0,
             held: false,
             reply: None,
+            withdraw: None,
         };
         paced.send(request).await.map_err(|_| {
             self.shared
@@ -959,6 +1066,7 @@ impl BusHandle {
             subscriber_drops: c.subscriber_drops.load(Ordering::Relaxed),
             client_frames_delayed: c.client_delayed.load(Ordering::Relaxed),
             client_frames_refused: c.client_refused.load(Ordering::Relaxed),
+            client_frames_withdrawn: c.client_withdrawn.load(Ordering::Relaxed),
             bulk_frames_delayed: c.bulk_delayed.load(Ordering::Relaxed),
             budget_queued: c.budget_queued.load(Ordering::Relaxed),
             load_percent: c.load_millipercent.load(Ordering::Relaxed) as f64 / 1000.0,
@@ -1251,6 +1359,32 @@ impl Paced {
                 TxClass::Client => shared.client_percent.load(Ordering::Relaxed),
                 _ => shared.bulk_percent.load(Ordering::Relaxed),
             };
+            if self.queues[i].iter().any(PacedRequest::withdrawn) {
+                self.queues[i].retain(|req| {
+                    if !req.withdrawn() {
+                        return true;
+                    }
+                    withdraw(backend, shared, req);
+                    false
+                });
+            }
+            // Client frames take only time no one else needs: while other
+            // frames wait for the wire they are held, whatever their
+            // identifiers, so that a flood of them cannot build a backlog
+            // of the gateway's own frames and the devices' answers (which
+            // an overloaded bus carries for seconds after the flood).
+            if class == TxClass::Client && !self.queues[i].is_empty() && others_waiting(backend) {
+                if let Some(req) = self.queues[i].front_mut()
+                    && !req.held
+                {
+                    req.held = true;
+                    c.client_delayed
+                        .fetch_add((req.frames.len() - req.released) as u64, Ordering::Relaxed);
+                }
+                let retry = now_ns + CONGESTION_RETRY_NS;
+                next_ns = Some(next_ns.map_or(retry, |n| n.min(retry)));
+                continue;
+            }
             while let Some(req) = self.queues[i].front_mut() {
                 let total = req.frames.len();
                 let mut end = req.released;
@@ -1273,7 +1407,8 @@ impl Paced {
                         Backend::SocketCan(s) => {
                             // The answer comes with the last chunk's outcome.
                             let reply = if last { req.reply.take() } else { None };
-                            s.queue(
+                            s.queue_as(
+                                class,
                                 req.frames[start..end].to_vec(),
                                 reply.map(|r| offset_reply(r, start, total)),
                             );
@@ -1287,12 +1422,19 @@ impl Paced {
                         // The rest of the request is not sent either.
                         c.tx_failed
                             .fetch_add((total - end) as u64, Ordering::Relaxed);
-                        if let Some(reply) = req.reply.take() {
-                            let _ = reply.send(Err(SendFailure {
+                        if let Some(reply) = req.reply.take()
+                            && let Err(Err(f)) = reply.send(Err(SendFailure {
                                 sent: start + f.sent,
                                 total,
                                 error: f.error,
-                            }));
+                            }))
+                            && class == TxClass::Client
+                            && matches!(backend, Backend::Virtual(_))
+                        {
+                            // Its sender gave it up: the echo count of the
+                            // frames not sent ends here, not in its
+                            // [`PendingSend`].
+                            client_echo_end(shared, (f.total - f.sent) as u64);
                         }
                         self.queues[i].pop_front();
                         continue;
@@ -1324,6 +1466,39 @@ impl Paced {
         }
         self.next = next_ns.map(|ns| self.origin + Duration::from_nanos(ns));
     }
+}
+
+/// How soon client frames held back for other frames waiting (see
+/// [`others_waiting`]) are looked at again.
+const CONGESTION_RETRY_NS: u64 = 500_000;
+
+/// Whether frames other than client frames wait for the wire: on a
+/// bit-timed virtual bus, any port's frames outside the client lane; on
+/// SocketCAN, frames held because the interface's queue was full.
+fn others_waiting(backend: &Backend) -> bool {
+    match backend {
+        Backend::Virtual(p) => p.bus().waiting_outside_lane(TxClass::Client.lane()) > 0,
+        Backend::SocketCan(s) => s.tx_counters().queued > 0,
+    }
+}
+
+/// Drops what a given-up request has not released yet: counted, its
+/// echo count ended (its [`PendingSend`] is gone and will not), logged.
+fn withdraw(backend: &Backend, shared: &Shared, req: &PacedRequest) {
+    let unsent = (req.frames.len() - req.released) as u64;
+    let c = &shared.counters;
+    c.budget_queued.fetch_sub(unsent, Ordering::Relaxed);
+    c.client_withdrawn.fetch_add(unsent, Ordering::Relaxed);
+    if matches!(backend, Backend::Virtual(_)) {
+        client_echo_end(shared, unsent);
+    }
+    tracing::info!(
+        bus = %shared.info.name,
+        sender = ?req.frames.first().and_then(Frame::sender),
+        withdrawn = unsent,
+        sent = req.released,
+        "client frames withdrawn: their sender gave the batch up"
+    );
 }
 
 /// A reply for the last chunk of a paced request, answered for the whole
@@ -2059,6 +2234,131 @@ mod tests {
             ));
         }
         assert_eq!(h.shared.counters.client_echo.load(Ordering::Relaxed), 0);
+    }
+
+    /// A client batch given up before its outcome (the [`PendingSend`]
+    /// dropped: a cancelled call, a closed stream) is withdrawn: what the
+    /// share had not let out yet is never sent, and counted; the frames
+    /// of the client's next batch follow the ones that did go out.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_dropped_client_batch_is_withdrawn() {
+        let (vbus, h, _c) = start_client_share_1();
+        let mut peer = vbus.connect(false);
+        let client = ClientId::next();
+        // About 11 s at 1 % of the bus.
+        let pending = h.queue_as_client(client, vec![frame(0x001); 1000]).await;
+        // The first frames go out, then the client goes away.
+        loop {
+            if let PortEvent::Frame { frame, .. } = peer.recv().await {
+                assert_eq!(frame.raw_id(), 0x001);
+                break;
+            }
+        }
+        drop(pending);
+        let t0 = std::time::Instant::now();
+        let withdrawn = loop {
+            let st = h.stats();
+            if st.client_frames_withdrawn > 0 {
+                break st.client_frames_withdrawn;
+            }
+            assert!(t0.elapsed() < Duration::from_secs(10), "{st:?}");
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        };
+        assert!(withdrawn >= 900, "{withdrawn} withdrawn");
+        let st = h.stats();
+        assert_eq!(st.budget_queued, 0, "{st:?}");
+        // A marker behind the sent ones in the client's FIFO: when it
+        // arrives, everything that went out before it has too.
+        h.send_as_client(client, vec![frame(0x7FE)]).await.unwrap();
+        let mut sent = 1u64;
+        loop {
+            match tokio::time::timeout(Duration::from_secs(10), peer.recv())
+                .await
+                .expect("the marker arrives")
+            {
+                PortEvent::Frame { frame, .. } if frame.raw_id() == 0x001 => sent += 1,
+                PortEvent::Frame { frame, .. } if frame.raw_id() == 0x7FE => break,
+                _ => {}
+            }
+        }
+        assert_eq!(sent + withdrawn, 1000, "{sent} sent, {withdrawn} withdrawn");
+        // The echo count is back to zero: nothing is waited for.
+        let t0 = std::time::Instant::now();
+        while h.shared.counters.client_echo.load(Ordering::Relaxed) != 0 {
+            assert!(t0.elapsed() < Duration::from_secs(10));
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        }
+    }
+
+    /// Client frames take only time nobody else needs: a client's frames
+    /// on the highest-priority identifier, queued while another node has
+    /// a backlog, go out after the whole backlog, although each of them
+    /// would have won its arbitration.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn client_frames_wait_while_other_frames_wait_for_the_wire() {
+        let (vbus, h, _c) = start_bit_timed();
+        let mut watcher = vbus.connect(false);
+        let device = vbus.connect(false);
+        // About 20 ms of the device's frames, queued at once.
+        device.send_batch(&vec![frame(0x701); 200]).unwrap();
+        h.send_as_client(ClientId::next(), vec![frame(0x001); 5])
+            .await
+            .unwrap();
+        let mut order = Vec::new();
+        while order.len() < 205 {
+            if let PortEvent::Frame { frame, .. } =
+                tokio::time::timeout(Duration::from_secs(10), watcher.recv())
+                    .await
+                    .expect("frames keep coming")
+            {
+                order.push(frame.raw_id());
+            }
+        }
+        let first_client = order.iter().position(|&id| id == 0x001).unwrap();
+        assert_eq!(first_client, 200, "a client frame overtook the backlog");
+        assert!(h.stats().client_frames_delayed >= 5);
+    }
+
+    /// A long client batch waits in front of the wire a chunk of
+    /// [`CLIENT_CHUNK_BUS_TIME_NS`] at a time (back-pressure), never as a
+    /// whole: the client's backlog there is bounded in bus time.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_long_client_batch_waits_a_chunk_at_a_time() {
+        let (vbus, h, _c) = start_client_share_1();
+        let mut peer = vbus.connect(false);
+        let client = h.clone();
+        let batch = vec![frame(0x001); 1000];
+        let one = BitTiming::new(1_000_000).frame_duration_ns(&batch[0]);
+        let chunk = CLIENT_CHUNK_BUS_TIME_NS / one;
+        let sending =
+            tokio::spawn(async move { client.send_as_client(ClientId::next(), batch).await });
+        let mut most = 0;
+        let mut seen = 0;
+        while seen < 40 {
+            most = most.max(h.stats().budget_queued);
+            if let Ok(PortEvent::Frame { .. }) =
+                tokio::time::timeout(Duration::from_millis(1), peer.recv()).await
+            {
+                seen += 1;
+            }
+        }
+        assert!(most > 0 && most <= chunk, "{most} queued, chunk {chunk}");
+        // Given up: the rest of its chunk is withdrawn, the later chunks
+        // are never queued; all of them count as withdrawn.
+        sending.abort();
+        let _ = sending.await;
+        let t0 = std::time::Instant::now();
+        let st = loop {
+            let st = h.stats();
+            if st.client_frames_withdrawn + st.tx_frames == 1000 {
+                break st;
+            }
+            assert!(t0.elapsed() < Duration::from_secs(10), "{st:?}");
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        };
+        // About 40 sent at 1 %: nearly all the rest withdrawn.
+        assert!(st.client_frames_withdrawn >= 500, "{st:?}");
+        assert_eq!(st.budget_queued, 0, "{st:?}");
     }
 
     /// A client that keeps queueing while its share is used up is refused

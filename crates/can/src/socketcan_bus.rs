@@ -24,16 +24,20 @@
 //! When the interface's queue (its queueing discipline, `txqueuelen`) is
 //! full, the kernel refuses a frame with `ENOBUFS`, which no readiness event
 //! announces the end of. Frames are therefore held in a bounded transmit
-//! queue and offered again every [`TX_RETRY`], in CAN arbitration order
-//! (lowest identifier first, as the wire would send them; FIFO among equal
-//! identifiers), so the gateway's own SYNC (0x080), NMT (0x000) and
-//! set-points (RPDOs, 0x200-0x5FF) overtake SDO (0x580-0x67F) and client
-//! traffic while the interface is congested. While nothing is held, frames
+//! queue and offered again every [`TX_RETRY`]: the gateway's own frames
+//! before bulk data and client raw frames, whatever the identifiers (a
+//! client's flood on 0x001 must not hold back the SYNC), and in CAN
+//! arbitration order within each (lowest identifier first, as the wire
+//! would send them; FIFO among equal identifiers), so the gateway's own
+//! SYNC (0x080), NMT (0x000) and set-points (RPDOs, 0x200-0x5FF) overtake
+//! its SDO (0x580-0x67F) while the interface is congested (see
+//! [`held_key`]). While nothing is held, frames
 //! go straight to the socket in submission order. A frame held longer than
 //! [`SocketCanOptions::transmit_timeout`], or pushed out of a full queue by a
 //! more urgent one, is given up: counted ([`SocketCanEvent::Unsent`], the
 //! bus's `tx_failed`), logged, and reported to a waiting sender.
 
+use crate::budget::TxClass;
 use crate::bus::SendFailure;
 use crate::frame::{CanId, Frame, FrameKind, Timestamp};
 use crate::state::{BusState, BusStatus, status_from_error_frame};
@@ -147,11 +151,11 @@ struct Batch {
     error: Option<SendError>,
 }
 
-/// Frames held for retry, in arbitration order, and the batches waiting
+/// Frames held for retry, in [`held_key`] order, and the batches waiting
 /// for them.
 #[derive(Default)]
 struct TxQueue {
-    /// Keyed by (arbitration key, submission number).
+    /// Keyed by ([`held_key`], submission number).
     held: BTreeMap<(u64, u64), Held>,
     batches: HashMap<u64, Batch>,
     next_seq: u64,
@@ -444,6 +448,13 @@ impl SocketCanBus {
     /// [`SocketCanEvent::Unsent`]), followed by the batch's answer on
     /// `reply`: `Ok` when every frame was sent.
     pub fn queue(&mut self, frames: Vec<Frame>, reply: Option<SendReply>) {
+        self.queue_as(TxClass::Control, frames, reply);
+    }
+
+    /// [`SocketCanBus::queue`] for frames of `class`: while frames are
+    /// held, the gateway's own go first whatever the identifiers (see
+    /// [`held_key`]), and a full queue gives up client frames first.
+    pub fn queue_as(&mut self, class: TxClass, frames: Vec<Frame>, reply: Option<SendReply>) {
         let now = Instant::now();
         let batch = reply.map(|reply| {
             let id = self.tx.next_batch;
@@ -487,7 +498,7 @@ impl SocketCanBus {
                 );
                 continue;
             }
-            let key = (arbitration_key(&frame), self.tx.next_seq);
+            let key = (held_key(class, &frame), self.tx.next_seq);
             self.tx.next_seq += 1;
             if self.tx.held.len() >= self.options.transmit_queue.max(1) {
                 // Full: the least urgent frame makes room, or is this one.
@@ -739,6 +750,16 @@ fn parse_frame(buf: &[u8; CANFD_MTU], n: usize) -> Option<Frame> {
     }
 }
 
+/// The order in which held frames are offered to the interface: by class
+/// first (the gateway's own, then bulk data, then client raw frames), in
+/// arbitration order within a class. Why not arbitration order alone: a
+/// client flooding identifier 0x001 would then be written before the SYNC
+/// (0x080) and the set-points every time the interface had room, and its
+/// backlog would hold them back for as long as it lasted.
+pub fn held_key(class: TxClass, frame: &Frame) -> u64 {
+    (u64::from(class.lane()) << 40) | arbitration_key(frame)
+}
+
 /// The order in which CAN arbitration would send frames: the 11-bit base
 /// identifier first, then a standard frame before an extended one with the
 /// same base, then the extended bits, and a data frame before a remote
@@ -883,6 +904,24 @@ mod tests {
         let err = parse_frame(&buf, n).unwrap();
         assert!(err.is_error());
         assert_eq!(parse_frame(&[0; CANFD_MTU], 20), None, "unknown size");
+    }
+
+    /// Held frames: the gateway's own before bulk and client frames,
+    /// whatever their identifiers; arbitration order within a class.
+    #[test]
+    fn held_frames_put_the_gateways_own_first() {
+        let f = |s: &str| -> Frame { s.parse().unwrap() };
+        let order = [
+            held_key(TxClass::Control, &f("000#01")),
+            held_key(TxClass::Control, &f("080#")),
+            held_key(TxClass::Control, &f("1FFFFFFF#")),
+            held_key(TxClass::Bulk, &f("001#")),
+            held_key(TxClass::Bulk, &f("601#")),
+            held_key(TxClass::Client, &f("000#")),
+            held_key(TxClass::Client, &f("001#")),
+            held_key(TxClass::Client, &f("1FFFFFFF#R")),
+        ];
+        assert!(order.windows(2).all(|w| w[0] < w[1]), "{order:?}");
     }
 
     #[test]

@@ -436,6 +436,17 @@ impl<T: Copy + Eq + Hash> Arbiter<T> {
         self.queued
     }
 
+    /// Frames of the senders `which` selects waiting for the bus that
+    /// have arrived by `now_ns` (not counting the one on the wire).
+    /// O(senders with queued frames).
+    pub fn queued_by(&self, now_ns: u64, which: impl Fn(&T) -> bool) -> usize {
+        self.queues
+            .iter()
+            .filter(|(sender, _)| which(sender))
+            .map(|(_, q)| q.iter().take_while(|p| p.enqueued_ns <= now_ns).count())
+            .sum()
+    }
+
     /// Runs the model up to `now_ns` and returns the frames whose
     /// transmission completed by then, in bus order.
     pub fn advance(&mut self, now_ns: u64) -> Vec<Transmitted<T>> {

@@ -335,6 +335,23 @@ impl VirtualBus {
         )
     }
 
+    /// Frames of every port waiting for the bus now, except those in
+    /// transmit lane `lane` (0 without bit timing: nothing waits there).
+    /// The gateway holds its clients' frames (lane 2) back while others
+    /// wait: they take only time no one else needs.
+    pub fn waiting_outside_lane(&self, lane: u8) -> usize {
+        let Some(timed) = self.inner.timed.get() else {
+            return 0;
+        };
+        let now = self.model_now();
+        timed
+            .state
+            .lock()
+            .expect("timed state")
+            .arbiter
+            .queued_by(now, |(_, l)| *l != lane)
+    }
+
     /// Model time: nanoseconds since the bus was created.
     pub fn model_now(&self) -> u64 {
         self.inner.origin.elapsed().as_nanos() as u64

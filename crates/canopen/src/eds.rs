@@ -265,6 +265,16 @@ fn error(line: usize, kind: EdsErrorKind) -> EdsError {
     EdsError::Parse { line, kind }
 }
 
+/// At most 80 characters of a text from the file, for an error message:
+/// a line of a megabyte must not become a megabyte of log.
+fn excerpt(text: &str) -> String {
+    const MAX: usize = 80;
+    match text.char_indices().nth(MAX) {
+        Some((cut, _)) => format!("{}…", &text[..cut]),
+        None => text.to_owned(),
+    }
+}
+
 /// One `key=value` line.
 struct Entry<'a> {
     key: &'a str,
@@ -274,12 +284,20 @@ struct Entry<'a> {
 
 impl Entry<'_> {
     fn bad(&self, reason: impl Into<String>) -> EdsError {
-        let (key, text, reason) = (self.key.to_owned(), self.value.to_owned(), reason.into());
+        let (key, text, reason) = (excerpt(self.key), excerpt(self.value), reason.into());
         error(self.line, EdsErrorKind::BadValue { key, text, reason })
     }
 
     fn value_error(&self, source: ValueError) -> EdsError {
-        let (key, text) = (self.key.to_owned(), self.value.to_owned());
+        let (key, text) = (excerpt(self.key), excerpt(self.value));
+        let source = match source {
+            ValueError::Invalid { ty, text, reason } => ValueError::Invalid {
+                ty,
+                text: excerpt(&text),
+                reason,
+            },
+            other => other,
+        };
         error(self.line, EdsErrorKind::Value { key, text, source })
     }
 
@@ -371,10 +389,10 @@ fn lex(text: &str) -> Result<Vec<Section<'_>>, EdsError> {
                 .strip_suffix(']')
                 .map(str::trim)
                 .filter(|n| !n.is_empty() && !n.contains(['[', ']']));
-            let name = name.ok_or_else(|| error(line, EdsErrorKind::Syntax(trimmed.to_owned())))?;
+            let name = name.ok_or_else(|| error(line, EdsErrorKind::Syntax(excerpt(trimmed))))?;
             if let Some(first) = sections.iter().find(|s| s.name.eq_ignore_ascii_case(name)) {
                 let kind = EdsErrorKind::DuplicateSection {
-                    name: name.to_owned(),
+                    name: excerpt(name),
                     first: first.line,
                 };
                 return Err(error(line, kind));
@@ -391,18 +409,18 @@ fn lex(text: &str) -> Result<Vec<Section<'_>>, EdsError> {
             let (key, value) = (key.trim(), value.trim());
             let section = sections
                 .last_mut()
-                .ok_or_else(|| error(line, EdsErrorKind::KeyOutsideSection(key.to_owned())))?;
+                .ok_or_else(|| error(line, EdsErrorKind::KeyOutsideSection(excerpt(key))))?;
             if let Some(first) = section.get(key) {
                 let kind = EdsErrorKind::DuplicateKey {
-                    section: section.name.to_owned(),
-                    key: key.to_owned(),
+                    section: excerpt(section.name),
+                    key: excerpt(key),
                     first: first.line,
                 };
                 return Err(error(line, kind));
             }
             section.entries.push(Entry { key, value, line });
         } else {
-            return Err(error(line, EdsErrorKind::Syntax(trimmed.to_owned())));
+            return Err(error(line, EdsErrorKind::Syntax(excerpt(trimmed))));
         }
     }
     Ok(sections)
@@ -890,6 +908,31 @@ mod tests {
 
     const MINIMAL: &str =
         "[1000]\nParameterName=Device type\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x191\n";
+
+    /// A megabyte line is named by its first 80 characters, not echoed.
+    #[test]
+    fn errors_quote_at_most_80_characters_of_a_line() {
+        let long = "x".repeat(1_400_000);
+        let (_, msg) = fails(&format!("[1000]\n{long}\n"));
+        assert!(
+            msg.len() < 300 && msg.contains(&format!("{}…", &long[..80])),
+            "{}",
+            msg.chars().take(300).collect::<String>()
+        );
+        let (_, msg) = fails(&format!("{long}=1\n{MINIMAL}"));
+        assert!(
+            msg.len() < 300,
+            "{}",
+            msg.chars().take(300).collect::<String>()
+        );
+        let text = MINIMAL.replace("DefaultValue=0x191", &format!("DefaultValue=0x{long}"));
+        let (_, msg) = fails(&text);
+        assert!(
+            msg.len() < 400,
+            "{}",
+            msg.chars().take(400).collect::<String>()
+        );
+    }
 
     #[test]
     fn drive_eds() {

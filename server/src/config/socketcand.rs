@@ -13,10 +13,16 @@ pub struct SocketcandConfig {
     /// port); port 0 picks a free port. Without authentication it must be
     /// a loopback address.
     pub listen: SocketAddr,
-    /// Connections open at once; one more is answered with an error and
-    /// closed.
+    /// Connections open at once (see `max_connections_per_peer` for who
+    /// gives up a slot to a newcomer).
     #[serde(default = "default_max_connections")]
     pub max_connections: u32,
+    /// Connections open at once from one address. At either limit, the
+    /// oldest connection that has not opened a bus yet is closed to make
+    /// room (from that address, at this one); only when every one has a
+    /// bus open is the new one refused.
+    #[serde(default = "default_max_connections_per_peer")]
+    pub max_connections_per_peer: u32,
     /// The buses clients may open (empty: every bus).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub buses: Vec<String>,
@@ -46,6 +52,9 @@ pub struct SocketcandConfig {
 fn default_max_connections() -> u32 {
     16
 }
+fn default_max_connections_per_peer() -> u32 {
+    8
+}
 fn default_queue_length() -> u32 {
     8192
 }
@@ -68,6 +77,7 @@ impl SocketcandConfig {
         SocketcandConfig {
             listen,
             max_connections: default_max_connections(),
+            max_connections_per_peer: default_max_connections_per_peer(),
             buses: Vec::new(),
             queue_length: default_queue_length(),
             max_command_bytes: default_max_command_bytes(),
@@ -101,6 +111,11 @@ impl SocketcandConfig {
         }
         for (key, value, range) in [
             ("max_connections", u64::from(self.max_connections), 1..=4096),
+            (
+                "max_connections_per_peer",
+                u64::from(self.max_connections_per_peer),
+                1..=4096,
+            ),
             ("queue_length", u64::from(self.queue_length), 16..=1_000_000),
             (
                 "max_command_bytes",

@@ -20,6 +20,12 @@ pub struct WebConfig {
     /// own page, which is same-origin and needs no CORS.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub allowed_origins: Vec<String>,
+    /// Host names (or addresses) under which browsers may reach the
+    /// gateway besides loopback names and its own addresses, e.g.
+    /// `gateway.example.com`; a port is ignored. A browser request naming
+    /// any other host is refused (DNS rebinding).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub allowed_hosts: Vec<String>,
 }
 
 fn default_enabled() -> bool {
@@ -31,6 +37,7 @@ impl Default for WebConfig {
         WebConfig {
             enabled: default_enabled(),
             allowed_origins: Vec::new(),
+            allowed_hosts: Vec::new(),
         }
     }
 }
@@ -70,6 +77,29 @@ impl WebConfig {
                 return bad("has characters an origin cannot have");
             }
         }
+        for h in &self.allowed_hosts {
+            let bad = |why: &str| {
+                Err(format!(
+                    "[web] allowed_hosts: {h:?} {why} (expected a host name or address as \
+                     browsers send it in Host, e.g. \"gateway.example.com\" or \"192.168.1.20\")"
+                ))
+            };
+            if h.is_empty() {
+                return bad("is empty");
+            }
+            if h.contains("://") || h.contains('/') {
+                return bad("is a URL (give the host only)");
+            }
+            if h.contains('*') {
+                return bad("has a wildcard (name each host)");
+            }
+            if !h
+                .bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b"-.:[]_".contains(&b))
+            {
+                return bad("has characters a host cannot have");
+            }
+        }
         Ok(())
     }
 }
@@ -87,6 +117,7 @@ mod tests {
                 "http://192.168.1.20:8080".into(),
                 "http://[::1]:3000".into(),
             ],
+            allowed_hosts: vec!["gateway.example.com".into(), "[fd00::1]:50051".into()],
         };
         ok.validate().unwrap();
         for (bad, why) in [
@@ -100,9 +131,23 @@ mod tests {
             let c = WebConfig {
                 enabled: true,
                 allowed_origins: vec![bad.into()],
+                allowed_hosts: Vec::new(),
             };
             let e = c.validate().unwrap_err();
             assert!(e.contains(why), "{bad}: {e}");
+        }
+        for (bad, why) in [
+            ("http://gateway.example.com", "URL"),
+            ("*.example.com", "wildcard"),
+            ("", "empty"),
+            ("a b", "characters"),
+        ] {
+            let c = WebConfig {
+                allowed_hosts: vec![bad.into()],
+                ..WebConfig::default()
+            };
+            let e = c.validate().unwrap_err();
+            assert!(e.contains(why) && e.contains("allowed_hosts"), "{bad}: {e}");
         }
     }
 }

@@ -31,7 +31,9 @@ const PREFACE_LEN: usize = 24;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ConnTimeouts {
     /// From accept to the end of the TLS handshake, and again from then
-    /// to the complete HTTP/2 preface.
+    /// to the complete HTTP/2 preface and the first call: a connection
+    /// that sends only the preface, or half a request's header, is closed
+    /// this long after it came.
     pub handshake: Duration,
     /// With no call in progress for this long, the connection is closed
     /// (`None`: never).
@@ -54,6 +56,9 @@ impl ConnTimeouts {
 #[derive(Debug, Default)]
 pub struct ConnCalls {
     open: std::sync::atomic::AtomicU32,
+    /// A call has begun on the connection (its first request's header
+    /// arrived complete).
+    started: std::sync::atomic::AtomicBool,
     /// When the last call ended (or the connection was accepted).
     idle_since: std::sync::Mutex<Option<tokio::time::Instant>>,
 }
@@ -65,6 +70,8 @@ pub struct CallGuard(Arc<ConnCalls>);
 impl ConnCalls {
     /// A call begins; it lasts until the guard is dropped.
     pub fn begin(self: &Arc<Self>) -> CallGuard {
+        self.started
+            .store(true, std::sync::atomic::Ordering::SeqCst);
         self.open.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
         CallGuard(self.clone())
     }
@@ -287,6 +294,15 @@ impl Conn {
         if self.preface_seen < PREFACE_LEN {
             if now >= self.handshake_deadline {
                 return Err("no HTTP/2 preface within handshake_timeout_s");
+            }
+            return Ok(self.handshake_deadline);
+        }
+        // Until its first call a connection is still in its handshake: a
+        // preface alone, or half an HTTP/1.1 header, holds a socket no
+        // longer than the handshake timeout (not the idle timeout).
+        if !self.calls.started.load(std::sync::atomic::Ordering::SeqCst) {
+            if now >= self.handshake_deadline {
+                return Err("no request within handshake_timeout_s");
             }
             return Ok(self.handshake_deadline);
         }

@@ -24,6 +24,11 @@
 //!   the client's raw frame budget and sent with
 //!   [`cangate_can::BusHandle::send_as_client`] within the bus's client
 //!   share, the budgets of gRPC clients with the same identity included.
+//! - **Slots.** At `max_connections`, or `max_connections_per_peer` for
+//!   one address, the oldest connection that has not opened a bus yet
+//!   gives its slot to the newcomer (told why, closed): idle connections
+//!   that never authenticate cannot lock out a client with a token. Only
+//!   when every counted connection has a bus open is a newcomer refused.
 //! - **A bus participant.** Each connection is one [`ClientId`]: other
 //!   clients see its frames as received, marked with its sender (named
 //!   `WHO via socketcand`); it does not receive its own frames (a
@@ -107,9 +112,115 @@ pub async fn start(
     Ok((addr, task))
 }
 
+/// The connections that hold a slot of the endpoint, for the admission of
+/// new ones ([`Slots::admit`]).
+#[derive(Debug, Default)]
+struct Slots {
+    inner: std::sync::Mutex<SlotList>,
+}
+
+#[derive(Debug, Default)]
+struct SlotList {
+    next_id: u64,
+    /// Oldest first.
+    slots: Vec<Slot>,
+}
+
+#[derive(Debug)]
+struct Slot {
+    id: u64,
+    peer: std::net::IpAddr,
+    /// A bus was opened (the client authenticated): never given up for a
+    /// newcomer.
+    opened: bool,
+    /// Fired when the slot is given to a newcomer.
+    evict: CancellationToken,
+}
+
+/// A connection's slot; freed when dropped.
+#[derive(Debug)]
+struct SlotGuard {
+    slots: Arc<Slots>,
+    id: u64,
+    /// Fires when the connection gave its slot up (see [`Slots::admit`]).
+    evicted: CancellationToken,
+}
+
+impl SlotGuard {
+    /// The connection opened a bus: it keeps its slot.
+    fn opened(&self) {
+        let mut list = self.slots.lock();
+        if let Some(s) = list.slots.iter_mut().find(|s| s.id == self.id) {
+            s.opened = true;
+        }
+    }
+}
+
+impl Drop for SlotGuard {
+    fn drop(&mut self) {
+        self.slots.lock().slots.retain(|s| s.id != self.id);
+    }
+}
+
+impl Slots {
+    fn lock(&self) -> std::sync::MutexGuard<'_, SlotList> {
+        self.inner.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// A slot for a new connection from `peer`, within `max` connections
+    /// and `per_peer` from one address. When one of them is reached, the
+    /// oldest connection that has not opened a bus (from that address,
+    /// for `per_peer`) gives its slot up: idle connections that never
+    /// authenticate cannot lock out a client that does. Refused (with the
+    /// setting to name) when every counted connection has a bus open.
+    fn admit(
+        self: &Arc<Self>,
+        peer: std::net::IpAddr,
+        max: usize,
+        per_peer: usize,
+    ) -> Result<SlotGuard, String> {
+        let mut list = self.lock();
+        let evict_oldest = |list: &mut SlotList, from: Option<std::net::IpAddr>| {
+            let i = list
+                .slots
+                .iter()
+                .position(|s| !s.opened && from.is_none_or(|p| s.peer == p))?;
+            let victim = list.slots.remove(i);
+            victim.evict.cancel();
+            Some(())
+        };
+        if list.slots.iter().filter(|s| s.peer == peer).count() >= per_peer
+            && evict_oldest(&mut list, Some(peer)).is_none()
+        {
+            return Err(format!(
+                "too many connections from {peer} (max_connections_per_peer = {per_peer})"
+            ));
+        }
+        if list.slots.len() >= max && evict_oldest(&mut list, None).is_none() {
+            return Err(format!("too many connections (max_connections = {max})"));
+        }
+        list.next_id += 1;
+        let id = list.next_id;
+        let evicted = CancellationToken::new();
+        list.slots.push(Slot {
+            id,
+            peer,
+            opened: false,
+            evict: evicted.clone(),
+        });
+        Ok(SlotGuard {
+            slots: self.clone(),
+            id,
+            evicted,
+        })
+    }
+}
+
 async fn accept_loop(listener: TcpListener, shared: Arc<Shared>, shutdown: CancellationToken) {
     let mut connections = JoinSet::new();
     let max = shared.config.max_connections as usize;
+    let per_peer = shared.config.max_connections_per_peer as usize;
+    let slots = Arc::new(Slots::default());
     loop {
         while connections.try_join_next().is_some() {}
         let accepted = tokio::select! {
@@ -126,18 +237,27 @@ async fn accept_loop(listener: TcpListener, shared: Arc<Shared>, shutdown: Cance
                 continue;
             }
         };
-        if connections.len() >= max {
-            crate::metrics::socketcand_session("too_many_connections");
-            let write_timeout = Duration::from_millis(shared.config.write_timeout_ms);
-            connections.spawn(async move {
-                let mut stream = stream;
-                let line = format_error(&format!("too many connections (max_connections = {max})"));
-                let _ =
-                    tokio::time::timeout(write_timeout, stream.write_all(line.as_bytes())).await;
-            });
-            continue;
-        }
-        connections.spawn(connection(stream, peer, shared.clone(), shutdown.clone()));
+        let slot = match slots.admit(peer.ip(), max, per_peer) {
+            Ok(slot) => slot,
+            Err(message) => {
+                crate::metrics::socketcand_session("too_many_connections");
+                let write_timeout = Duration::from_millis(shared.config.write_timeout_ms);
+                connections.spawn(async move {
+                    let mut stream = stream;
+                    let line = format_error(&message);
+                    let _ = tokio::time::timeout(write_timeout, stream.write_all(line.as_bytes()))
+                        .await;
+                });
+                continue;
+            }
+        };
+        connections.spawn(connection(
+            stream,
+            peer,
+            shared.clone(),
+            shutdown.clone(),
+            slot,
+        ));
     }
     drop(listener);
     while connections.join_next().await.is_some() {}
@@ -206,6 +326,9 @@ impl Writer {
 /// What woke the connection's loop.
 enum Event {
     Shutdown,
+    /// Every slot is taken and this connection, which has not opened a
+    /// bus, gave its slot to a newcomer.
+    Evicted,
     Deadline,
     Read(std::io::Result<usize>),
     Items(usize),
@@ -234,6 +357,7 @@ async fn connection(
     peer: SocketAddr,
     shared: Arc<Shared>,
     shutdown: CancellationToken,
+    slot: SlotGuard,
 ) {
     let _open = Open::new();
     let _ = stream.set_nodelay(true);
@@ -249,6 +373,7 @@ async fn connection(
         peer,
         &shared,
         &shutdown,
+        &slot,
         &mut opened,
     )
     .await;
@@ -284,6 +409,7 @@ async fn serve(
     peer: SocketAddr,
     shared: &Shared,
     shutdown: &CancellationToken,
+    slot: &SlotGuard,
     opened: &mut Option<Opened>,
 ) -> End {
     let cfg = &shared.config;
@@ -327,6 +453,7 @@ async fn serve(
         let event = tokio::select! {
             biased;
             _ = shutdown.cancelled() => Event::Shutdown,
+            _ = slot.evicted.cancelled(), if opened.is_none() => Event::Evicted,
             _ = tokio::time::sleep_until(deadline.unwrap_or_else(Instant::now)),
                 if deadline.is_some() => Event::Deadline,
             r = reader.read(&mut buf) => Event::Read(r),
@@ -336,6 +463,13 @@ async fn serve(
         };
         match event {
             Event::Shutdown => return End::Shutdown,
+            Event::Evicted => {
+                crate::metrics::socketcand_session("evicted_before_open");
+                let what = "closed before a bus was opened: every connection slot is taken \
+                            (max_connections, max_connections_per_peer) and a new client needs one";
+                let _ = writer.write(format_error(what).as_bytes()).await;
+                return End::Closed;
+            }
             Event::FeedReady => {}
             Event::Sent(outcome) => {
                 in_flight = None;
@@ -436,6 +570,7 @@ async fn serve(
                             match open(shared, peer, &bus, token.as_deref()) {
                                 Ok(o) => {
                                     *opened = Some(o);
+                                    slot.opened();
                                     session.opened();
                                     if let Err(e) = writer.write(b"< ok >").await {
                                         return e;

@@ -10,8 +10,11 @@
 //! - **Framing.** A command is everything from a `<` to the next `>`;
 //!   bytes outside elements are dropped (as `receive_command` in
 //!   socketcand.c does), so `< a >< b >` and `< a >\n< b >` are two
-//!   commands; a `<` inside an element starts it anew (`< open ca< echo >`
-//!   is `< echo >`; socketcand would read `open ca< echo`). Words are separated by any run of ASCII whitespace
+//!   commands. One `<` … `>` per command: an element with a `<` inside
+//!   (`< < send 1A2 1 00 >`, `< open ca< echo >`) is malformed, answered
+//!   with `< error … >` and not executed (socketcand would read
+//!   `open ca< echo`), so that a command cut off or nested by a broken
+//!   client never acts. Words are separated by any run of ASCII whitespace
 //!   (socketcand's `sscanf` does the same). An element longer than the
 //!   limit is an error that ends the connection.
 //! - **`< open bus [token] >`.** socketcand reads the bus with `sscanf("%s")`
@@ -98,16 +101,12 @@ impl Deframer {
         }
         match self.buf.iter().position(|&b| b == b'>') {
             Some(end) => {
-                // A '<' inside starts the element anew: what came before
-                // it was cut off (socketcand would take it whole).
-                let start = self.buf[..end]
-                    .iter()
-                    .rposition(|&b| b == b'<')
-                    .unwrap_or(0);
-                if end - start >= self.max {
+                // A '<' inside stays in the element, which [`parse`] then
+                // refuses as malformed: one '<' … '>' per command.
+                if end >= self.max {
                     return Err(TooLong(self.max));
                 }
-                let element: Vec<u8> = self.buf.drain(..=end).skip(start).collect();
+                let element: Vec<u8> = self.buf.drain(..=end).collect();
                 Ok(Some(element))
             }
             None if self.buf.len() > self.max => Err(TooLong(self.max)),
@@ -179,6 +178,13 @@ pub fn parse(element: &[u8]) -> Result<Command, ParseError> {
         .strip_prefix('<')
         .and_then(|t| t.strip_suffix('>'))
         .ok_or(ParseError::Unknown)?;
+    if inner.contains('<') {
+        return Err(ParseError::Syntax(
+            "malformed command: a second opening bracket before the closing one \
+             (one bracket pair per command, nothing nested)"
+                .into(),
+        ));
+    }
     let words: Vec<&str> = inner.split_ascii_whitespace().collect();
     let Some((&name, args)) = words.split_first() else {
         return Err(ParseError::Unknown);
@@ -452,7 +458,12 @@ mod tests {
             elements(b"junk< echo >\r\n  < send 123 0 >trailing"),
             ["< echo >", "< send 123 0 >"]
         );
-        assert_eq!(elements(b"< open ca< echo >"), ["< echo >"]);
+        // A '<' inside stays in the element (parse refuses it).
+        assert_eq!(elements(b"< open ca< echo >"), ["< open ca< echo >"]);
+        assert_eq!(
+            elements(b"< < < send 1A2 1 00 > > >"),
+            ["< < < send 1A2 1 00 >"]
+        );
         // Split across reads.
         let mut d = Deframer::new(64);
         d.push(b"< sen");
@@ -538,6 +549,35 @@ mod tests {
             parse(b"< sendfd 123 9 1 2 3 4 5 6 7 8 9 >"),
             Err(ParseError::Syntax(m)) if m.contains("not a valid CAN FD length")
         ));
+    }
+
+    /// Nested or cut-off elements never act: a `send` inside another `<`
+    /// sends nothing.
+    #[test]
+    fn nested_elements_are_refused_and_never_executed() {
+        for input in [
+            &b"< < < send 1A2 1 00 > > >"[..],
+            b"< < send 1A2 1 00 >",
+            b"< open ca< send 1A2 1 00 >",
+            b"<< echo >",
+        ] {
+            let mut session = Session::new();
+            session.opened();
+            let mut d = Deframer::new(DEFAULT_MAX_ELEMENT);
+            d.push(input);
+            let mut actions = Vec::new();
+            while let Some(e) = d.next_element().unwrap() {
+                actions.push(session.on_element(&e));
+            }
+            assert_eq!(actions.len(), 1, "{}", String::from_utf8_lossy(input));
+            match &actions[0] {
+                Action::Reply(line) => assert!(
+                    line.starts_with("< error") && line.contains("one"),
+                    "{line}"
+                ),
+                other => panic!("{}: {other:?}", String::from_utf8_lossy(input)),
+            }
+        }
     }
 
     #[test]
