@@ -132,7 +132,7 @@ fn action(rng: &mut Rng, l: &Limits) -> Action {
         12..=13 => Action::Stop { wait: rng.bool() },
         14 => Action::QuickStop,
         15..=16 => Action::ResetFault,
-        17 if l.drive_node.is_some() => Action::Commission(match rng.u8(0..5) {
+        17..=18 if l.drive_node.is_some() => Action::Commission(match rng.u8(0..5) {
             0 => Commissioning::SdoWrite {
                 index: [0x6040, 0x6060, 0x607A, 0x60FF][usize::from(rng.u8(0..4))],
             },
@@ -369,7 +369,22 @@ async fn commission(
             r
         }
     };
-    let after = status(axes, axis).await?;
+    let mut after = status(axes, axis).await?;
+    if !enabled(&before) {
+        // At rest the operation may have run, and a program download
+        // boots the node again: the engineer waits for the drive to be
+        // back before the operator goes on.
+        let deadline = tokio::time::Instant::now() + CALL_BOUND;
+        while after.node_lost || after.state == 0 {
+            if tokio::time::Instant::now() > deadline {
+                return Err(format!(
+                    "after {what} the drive did not come back: {after:?}"
+                ));
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+            after = status(axes, axis).await?;
+        }
+    }
     match (&outcome, enabled(&before)) {
         (Ok(()), true) => Err(format!(
             "{what} was accepted while the axis was enabled (state before {}, after {})",

@@ -512,7 +512,7 @@ max_acceleration = 100.0
 "#;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_moving_cyclic_axis_vetoes_a_sync_stop_and_a_new_period() {
+async fn an_enabled_cyclic_axis_vetoes_a_sync_stop_and_a_new_period() {
     let server = start_server(CYCLIC_CONFIG).await;
     let c = client(&server).await;
     let co = c.canopen("can0");
@@ -542,9 +542,26 @@ async fn a_moving_cyclic_axis_vetoes_a_sync_stop_and_a_new_period() {
     co.set_sync(None, None, Some(10)).await.unwrap();
     assert!(co.sync_status().await.unwrap().running);
 
-    // Stopped, the axis no longer vetoes.
+    // Stopped but enabled, it still vetoes: its drive takes a set-point
+    // with every SYNC.
     axes.stop(cmd("X", &lease, true)).await.expect("stop");
     wait_status(&mut axes, "X", |a| a.velocity == 0.0).await;
+    let status = refusal(
+        co.set_sync(None, Some(Duration::from_millis(4)), None)
+            .await,
+    );
+    assert_eq!(status.code(), tonic::Code::FailedPrecondition);
+    assert!(
+        status.message().contains("cyclic axis X is enabled"),
+        "{status:?}"
+    );
+    // Disabled, it no longer vetoes.
+    let r = axes
+        .disable(cmd("X", &lease, true))
+        .await
+        .expect("disable")
+        .into_inner();
+    assert_eq!(r.outcome, pb::Outcome::Completed as i32, "{r:?}");
     let s = co
         .set_sync(None, Some(Duration::from_millis(4)), None)
         .await
@@ -553,17 +570,9 @@ async fn a_moving_cyclic_axis_vetoes_a_sync_stop_and_a_new_period() {
     let s = co.set_sync(Some(false), None, None).await.unwrap();
     assert!(!s.running);
 
-    // Without a SYNC the cyclic axis takes no move (it would wait for
+    // Without a SYNC the cyclic axis cannot be enabled (it would wait for
     // set-points for ever); a stop is never refused.
-    let refused = axes
-        .r#move(pb::MoveRequest {
-            axis: "X".into(),
-            target: 10.0,
-            options: opts(&lease, false),
-            ..Default::default()
-        })
-        .await
-        .unwrap_err();
+    let refused = axes.enable(cmd("X", &lease, true)).await.unwrap_err();
     assert_eq!(refused.code(), tonic::Code::FailedPrecondition);
     assert!(
         refused.message().contains("SYNC of bus can0 is stopped"),
@@ -572,8 +581,9 @@ async fn a_moving_cyclic_axis_vetoes_a_sync_stop_and_a_new_period() {
     axes.stop(cmd("X", &lease, false))
         .await
         .expect("a stop is taken");
-    // Started again: it moves.
+    // Started again: it is enabled and moves.
     co.set_sync(Some(true), None, None).await.unwrap();
+    enable(&mut axes, "X", &lease).await;
     let r = axes
         .r#move(pb::MoveRequest {
             axis: "X".into(),

@@ -162,17 +162,30 @@ impl CyclicSetpoints {
 
 impl SyncRider for CyclicSetpoints {
     fn sync_change_veto(&self) -> Option<String> {
+        // Every enabled cyclic axis, moving or not: its drive interpolates
+        // the set-points of each SYNC over the period it was enabled with
+        // and (on most drives) faults when the SYNC stops or its period
+        // changes under it.
         let entries = self.entries.lock().expect("set-point table lock");
-        let moving: Vec<&str> = entries
+        let enabled: Vec<&str> = entries
             .iter()
-            .filter(|e| e.plan.as_ref().is_some_and(CyclicPlan::is_moving))
+            .filter(|e| e.plan.is_some())
             .map(|e| e.name.as_str())
             .collect();
-        (!moving.is_empty()).then(|| {
+        let moving = entries
+            .iter()
+            .any(|e| e.plan.as_ref().is_some_and(CyclicPlan::is_moving));
+        (!enabled.is_empty()).then(|| {
             format!(
-                "cyclic axis {} is moving on this SYNC; stop it first (its set-points ride \
-                 every SYNC)",
-                moving.join(", ")
+                "cyclic axis {} is {} on this SYNC; {} it first (its drive takes a set-point \
+                 with every SYNC)",
+                enabled.join(", "),
+                if moving { "moving" } else { "enabled" },
+                if moving {
+                    "stop and disable"
+                } else {
+                    "disable"
+                },
             )
         })
     }
