@@ -357,7 +357,9 @@ export type Node = Message<"cangate.v1.Node"> & {
   name: string;
 
   /**
-   * Last NMT state reported by heartbeat / boot-up.
+   * Last NMT state reported by heartbeat / boot-up (a guarded node: by its
+   * guarding answers). A node with neither: the state its boot procedure
+   * found (a node guarding answer) or left it in (commanded).
    *
    * @generated from field: cangate.v1.NmtState state = 4;
    */
@@ -1914,7 +1916,7 @@ export type SetTimeRequest = Message<"cangate.v1.SetTimeRequest"> & {
 
   /**
    * New period of periodic TIMEs in ms (0 stops them; unset: unchanged),
-   * at most 86,400,000.
+   * 100 to 86,400,000.
    *
    * @generated from field: optional uint32 period_ms = 3;
    */

@@ -213,7 +213,8 @@ export type SwitchGlobalRequest = Message<"cangate.v1.SwitchGlobalRequest"> & {
   bus: string;
 
   /**
-   * The state to switch every device to.
+   * The state to switch every device to (another number:
+   * INVALID_ARGUMENT).
    *
    * @generated from field: cangate.v1.LssMode mode = 2;
    */
@@ -501,7 +502,7 @@ export type IdentifyRemoteRequest = Message<"cangate.v1.IdentifyRemoteRequest"> 
   productCode: number;
 
   /**
-   * Lowest revision number.
+   * Lowest revision number (above revision_high: INVALID_ARGUMENT).
    *
    * @generated from field: uint32 revision_low = 4;
    */
@@ -515,7 +516,7 @@ export type IdentifyRemoteRequest = Message<"cangate.v1.IdentifyRemoteRequest"> 
   revisionHigh: number;
 
   /**
-   * Lowest serial number.
+   * Lowest serial number (above serial_high: INVALID_ARGUMENT).
    *
    * @generated from field: uint32 serial_low = 6;
    */
