@@ -293,12 +293,11 @@ function text(page, sel) {
 async function canopenPage(page) {
   await press(page, `button[data-page="canopen"]`);
   // The demo's nodes, operational, with heartbeats and identities.
-  // (The boot procedure starts the drives and the handwheel; the I/O node
-  // stays pre-operational.)
-  await until("CANopen nodes 1, 2, 4 and 10 operational, 3 pre-operational", async () => {
+  // (The boot procedure starts the drives, the I/O node and the handwheel.)
+  await until("CANopen nodes 1, 2, 3, 4 and 10 operational", async () => {
     const nmt = await page.$$eval("#nodes tbody tr", (rows) =>
       Object.fromEntries(rows.filter((r) => r.dataset.bus === "can0").map((r) => [r.dataset.node, r.dataset.nmt])));
-    return ["1", "2", "4", "10"].every((n) => nmt[n] === "operational") && nmt["3"] === "pre operational";
+    return ["1", "2", "3", "4", "10"].every((n) => nmt[n] === "operational");
   });
   const hb = await nodeCell(page, 1, "hb");
   const age = Number(hb.replace(/ ms.*/, ""));
@@ -309,17 +308,17 @@ async function canopenPage(page) {
   }
   say(`step canopen-nodes identity=${JSON.stringify(identity)}`);
 
-  // NMT: start the I/O node (3), stop it, and put it back in
-  // pre-operational.
-  await press(page, `#nodes tr[data-node="3"] button[data-cmd="nmt-start"]`);
-  await until("node 3 operational", async () => (await nodeCell(page, 3, "nmt")) === "operational");
+  // NMT: put the I/O node (3) in pre-operational, stop it, and start it
+  // again.
+  await press(page, `#nodes tr[data-node="3"] button[data-cmd="nmt-enter_pre_operational"]`);
+  await until("node 3 pre-operational", async () => (await nodeCell(page, 3, "nmt")) === "pre operational");
   await press(page, `#nodes tr[data-node="3"] button[data-cmd="nmt-stop"]`);
   await until("node 3 stopped", async () => (await nodeCell(page, 3, "nmt")) === "stopped");
-  await press(page, `#nodes tr[data-node="3"] button[data-cmd="nmt-enter_pre_operational"]`);
-  await until("node 3 pre-operational again", async () => (await nodeCell(page, 3, "nmt")) === "pre operational");
+  await press(page, `#nodes tr[data-node="3"] button[data-cmd="nmt-start"]`);
+  await until("node 3 operational again", async () => (await nodeCell(page, 3, "nmt")) === "operational");
   await until("the NMT changes in the event log", async () => {
     const log = await text(page, "#node-events");
-    return ["pre operational → operational", "operational → stopped", "stopped → pre operational"].every((c) =>
+    return ["operational → pre operational", "pre operational → stopped", "stopped → operational"].every((c) =>
       log.includes(`can0 node 3: NMT ${c}`));
   });
   say("step nmt");
