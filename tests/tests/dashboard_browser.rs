@@ -484,8 +484,8 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
         step("sdo-abort"),
         format!("SDO abort 0x{:08X} {}", abort.code, abort.name)
     );
-    // Node 3 is pre-operational again after the page's NMT start, stop
-    // and pre-operational.
+    // Node 3 is operational again after the page's NMT pre-operational,
+    // stop and start.
     let node3 = co
         .get_node(pb::GetNodeRequest {
             bus: "can0".into(),
@@ -494,7 +494,7 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
         .await
         .expect("GetNode")
         .into_inner();
-    assert_eq!(node3.state, pb::NmtState::PreOperational as i32);
+    assert_eq!(node3.state, pb::NmtState::Operational as i32);
     // The handwheel: every gap the gateway counted is a line of the page's
     // feed, and the wheel is back in automatic mode.
     let hw = c
