@@ -1775,6 +1775,17 @@ impl Cia402Axis {
         if op.late_feedback < LATE_FEEDBACK && now < d + self.deadline_grace() {
             return None;
         }
+        if matches!(op.step, Step::CyclicMoving) && self.in_position(op.target) {
+            // The drive stands at the target although the trajectory's last
+            // sample never came back to this axis (a SYNC thread held back
+            // by skipped periods finished its copy of the plan, and a
+            // republished plan replaced the sample): the move is done.
+            self.drop_trajectory();
+            return Some((
+                Outcome::Completed,
+                format!("target reached at {:.3} {}", self.actual(), self.cfg.unit),
+            ));
+        }
         let unit = &self.cfg.unit;
         let what = match op.step {
             Step::AwaitSdo => "the profile parameters were not written in time".to_string(),
