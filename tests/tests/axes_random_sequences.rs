@@ -362,9 +362,14 @@ async fn commission(
                 .map(|_| ())
                 .map_err(status_parts);
             if r.is_ok() {
-                bounded("SYNC period back", co.set_sync(period(10_000)))
-                    .await?
-                    .map_err(|s| format!("restoring the SYNC period refused: {s:?}"))?;
+                // Refused only while a cyclic axis is enabled (its drive
+                // came up meanwhile): the guard at work; the period stays.
+                let back = bounded("SYNC period back", co.set_sync(period(10_000))).await?;
+                if let Err(s) = back
+                    && s.code() != Code::FailedPrecondition
+                {
+                    return Err(format!("restoring the SYNC period: {s:?}"));
+                }
             }
             r
         }
