@@ -682,13 +682,13 @@ impl Task {
     }
 
     fn on_axis_event(&mut self, i: usize, e: AxisEvent) {
+        // The drive guard, GetAxis and the status stream know the state
+        // that ended a command before the command's caller does: a client
+        // that reads the axis after its Disable completed must not see it
+        // enabled, nor be refused by the guard.
+        self.publish_status(i);
         let slot = &mut self.slots[i];
         let axis = &slot.axis;
-        // The drive guard knows the axis's state before the command's
-        // caller does.
-        let now = axis.snapshot();
-        slot.drive_guard
-            .publish(now.state, now.activity == cangate_axis::Activity::Idle);
         slot.waiters.dispatch(
             e,
             &slot.info.config.name,

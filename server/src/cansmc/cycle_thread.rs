@@ -420,11 +420,11 @@ impl Thread {
             let _ = self
                 .master
                 .set_command(self.slots[i].address, out.control, out.command);
-            let changed = !events.is_empty();
+            // Events publish the axis themselves (on_axis_events).
             self.on_axis_events(i, events);
             let activity = self.slots[i].axis.activity();
             let fault = self.slots[i].axis.has_fault();
-            if changed || self.slots[i].published != Some((activity, fault)) {
+            if self.slots[i].published != Some((activity, fault)) {
                 self.publish_axis(i);
             }
         }
@@ -655,6 +655,12 @@ impl Thread {
     }
 
     fn on_axis_events(&mut self, i: usize, events: Vec<AxisEvent>) {
+        if events.is_empty() {
+            return;
+        }
+        // GetAxis and the status stream show the state that ended a
+        // command before the command's caller hears of it.
+        self.publish_axis(i);
         let slot = &mut self.slots[i];
         let axis = &slot.axis;
         for e in events {
