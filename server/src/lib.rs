@@ -1,7 +1,8 @@
 //! cangate-server: owns the CAN buses and serves them over gRPC.
 //!
 //! Three layers; every arrow points down (`server/tests/import_graph.rs`
-//! fails on a module that names one above it or on a circle):
+//! fails on a module that names one above it, on an edge that names
+//! another edge, or on a circle):
 //!
 //! 1. **API edge**: [`serve`] starts the gRPC server (services, health,
 //!    reflection, the [`security`] and [`metrics`] layers, the Prometheus
@@ -11,6 +12,7 @@
 //!    [`socketcand`] is a second edge beside gRPC (the socketcand text
 //!    protocol for tools that speak it), under the same security; [`web`]
 //!    serves the embedded dashboard's static files on the gRPC listener.
+//!    The edges never name each other; only [`serve`] names them all.
 //! 2. **Runtime**: [`gateway`] is the registry that starts and holds the
 //!    buses and everything on them: the CANopen masters ([`canopen`]), the
 //!    axis layer ([`axes`]) and its runners (the CiA 402 task of each bus,
@@ -22,7 +24,9 @@
 //! 3. **Configuration**: [`config`], one file per section, validated before
 //!    anything starts; it names nothing else of the server.
 //!
-//! [`realtime`] (thread priorities) is used by the runtime's threads.
+//! [`realtime`] (thread priorities) is used by the runtime's threads;
+//! [`participants`] (who each client sender on a bus is) is the runtime's
+//! register that every edge letting clients send shares.
 
 #![deny(missing_docs, unreachable_pub)]
 
@@ -36,6 +40,7 @@ pub mod grpc;
 pub mod handwheel;
 pub mod metrics;
 pub mod not_found;
+pub mod participants;
 pub mod realtime;
 pub mod security;
 pub mod serve;

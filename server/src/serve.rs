@@ -220,7 +220,7 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
     };
     // One register of client senders for every edge that has them, so
     // that a stream names a socketcand client's frames too.
-    let senders = Arc::new(crate::grpc::bus_service::SenderNames::default());
+    let senders = Arc::new(crate::participants::SenderNames::default());
     let bus_service = cangate_proto::v1::bus_server::BusServer::new(BusService::with_senders(
         gateway.clone(),
         senders.clone(),

@@ -49,7 +49,7 @@ pub mod protocol;
 
 use crate::config::SocketcandConfig;
 use crate::gateway::Gateway;
-use crate::grpc::bus_service::{SenderGuard, SenderNames};
+use crate::participants::{SenderGuard, SenderNames};
 use crate::security::auth::AUDIT_TARGET;
 use crate::security::{FrameBudget, QueueReservation, Refusal, Role, SecurityLayer};
 use cangate_can::{
