@@ -26,10 +26,11 @@
 use crate::budget::{Pacer, TxClass, TxShares};
 use crate::filter::{Filter, FrameSelector};
 use crate::frame::{ClientId, Frame, Timestamp};
+use crate::send_error::{SendError, SendFailure};
 use crate::socketcan_bus::{SocketCanBus, SocketCanEvent};
 use crate::state::BusStatus;
 use crate::timing::{BitTiming, LoadMeter, Stuffing};
-use crate::virtual_bus::{PortEvent, SendError, VirtualPort};
+use crate::virtual_bus::{PortEvent, VirtualPort};
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -200,18 +201,6 @@ pub enum BusItem {
     Lost(u64),
     /// The bus state changed.
     State(BusStatus),
-}
-
-/// A frame batch could not be sent completely.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("{error} ({sent} of {total} frames sent)")]
-pub struct SendFailure {
-    /// Frames of the batch that were sent before the failure.
-    pub sent: usize,
-    /// Frames in the batch.
-    pub total: usize,
-    /// Why sending stopped.
-    pub error: SendError,
 }
 
 /// A client's batch queued by [`BusHandle::queue_as_client`], whose

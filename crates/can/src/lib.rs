@@ -6,6 +6,7 @@
 //! - [`timing`]: bit-exact frame durations, arbitration, bus load (pure).
 //! - [`virtual_bus`]: the in-process bus with bit timing and fault injection.
 //! - [`socketcan_bus`]: Linux SocketCAN with reconnection.
+//! - [`send_error`]: why frames were not sent (shared by backends and bus).
 //! - [`bus`]: one owner task per bus and the handle everyone else uses.
 //! - [`precise_wait`]: waiting for an instant with little CPU.
 
@@ -19,6 +20,8 @@ pub mod frame;
 #[cfg(feature = "runtime")]
 pub mod precise_wait;
 #[cfg(feature = "runtime")]
+pub mod send_error;
+#[cfg(feature = "runtime")]
 pub mod socketcan_bus;
 pub mod state;
 pub mod timing;
@@ -29,13 +32,15 @@ pub use budget::{TxClass, TxShares};
 #[cfg(feature = "runtime")]
 pub use bus::{
     AttachOptions, Backend, BackendKind, BusHandle, BusInfo, BusItem, BusStats, Direction,
-    PendingSend, SendFailure, Subscription, SubscriptionKey,
+    PendingSend, Subscription, SubscriptionKey,
 };
 pub use filter::{Filter, FrameSelector};
 pub use frame::{CanId, ClientId, Frame, FrameError, FrameKind, ParseFrameError, Timestamp};
+#[cfg(feature = "runtime")]
+pub use send_error::{SendError, SendFailure};
 pub use state::{BusState, BusStatus};
 pub use timing::{BitTiming, Stuffing};
 #[cfg(feature = "runtime")]
 pub use virtual_bus::{
-    PortEvent, SendError, VirtualBus, VirtualBusConfig, VirtualNetwork, VirtualPort, VirtualSender,
+    PortEvent, VirtualBus, VirtualBusConfig, VirtualNetwork, VirtualPort, VirtualSender,
 };

@@ -38,10 +38,9 @@
 //! bus's `tx_failed`), logged, and reported to a waiting sender.
 
 use crate::budget::TxClass;
-use crate::bus::SendFailure;
 use crate::frame::{CanId, Frame, FrameKind, Timestamp};
+use crate::send_error::{SendError, SendFailure};
 use crate::state::{BusState, BusStatus, status_from_error_frame};
-use crate::virtual_bus::SendError;
 use nix::sys::socket::{ControlMessageOwned, MsgFlags, recvmsg, setsockopt, sockopt};
 use socketcan::id::FdFlags;
 use socketcan::{

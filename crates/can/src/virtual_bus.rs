@@ -12,6 +12,7 @@
 
 use crate::filter::Filter;
 use crate::frame::{Frame, FrameKind, Timestamp};
+use crate::send_error::SendError;
 use crate::state::{BusState, BusStatus};
 use crate::timing::{Arbiter, BitTiming, LoadMeter};
 use std::collections::{HashMap, HashSet, VecDeque};
@@ -55,41 +56,6 @@ impl Default for VirtualBusConfig {
             rx_coalesce: Duration::ZERO,
         }
     }
-}
-
-/// Why a frame was not accepted for transmission.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum SendError {
-    /// The controller is bus-off.
-    #[error("bus {0} is bus-off")]
-    BusOff(String),
-    /// The interface is down.
-    #[error("bus {0} is down")]
-    Down(String),
-    /// A CAN FD frame on a bus that is not configured for CAN FD.
-    #[error("bus {0} is not configured for CAN FD")]
-    FdNotSupported(String),
-    /// Too many client frames already wait for the bus's client share
-    /// (see [`crate::budget`]).
-    #[error(
-        "bus {bus}: {queued} frames already wait for the client share of the bus ({percent} %); send more slowly, or raise the bus's client_share_percent"
-    )]
-    BudgetExhausted {
-        /// Bus name.
-        bus: String,
-        /// Client and bulk frames waiting when this batch came.
-        queued: u64,
-        /// The client share in percent.
-        percent: u8,
-    },
-    /// The operating system refused the frame.
-    #[error("bus {bus}: {message}")]
-    Io {
-        /// Bus name.
-        bus: String,
-        /// What went wrong.
-        message: String,
-    },
 }
 
 /// Something a port receives.
