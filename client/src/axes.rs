@@ -13,6 +13,26 @@ const DEFAULT_WAIT: Duration = Duration::from_secs(60);
 /// The gateway's bound of a coordinated move's wait.
 const MOVE_AXES_WAIT: Duration = Duration::from_secs(120);
 
+// The options of a lease live here, beside the options, so the lease
+// module needs nothing of the axes (the axes name the lease, not the
+// other way round).
+impl ControlLease {
+    /// Command options carrying this lease.
+    pub fn options(&self) -> CommandOptions {
+        CommandOptions::default().lease(self)
+    }
+
+    /// Move options carrying this lease.
+    pub fn move_options(&self) -> MoveOptions {
+        MoveOptions::default().lease(self)
+    }
+
+    /// Jog options carrying this lease.
+    pub fn jog_options(&self) -> JogOptions {
+        JogOptions::with_lease(self)
+    }
+}
+
 /// Lease and wait options of the commands without parameters (enable,
 /// disable, home, reset fault).
 #[derive(Debug, Clone, Default, PartialEq, Eq)]

@@ -1,6 +1,5 @@
 //! Control leases as a guard: renewed in the background, released on drop.
 
-use crate::axes::{CommandOptions, JogOptions, MoveOptions};
 use crate::error::Error;
 use crate::{Client, pb};
 use std::sync::Arc;
@@ -263,21 +262,6 @@ impl ControlLease {
             )
             .await?;
         Ok(())
-    }
-
-    /// Command options carrying this lease.
-    pub fn options(&self) -> CommandOptions {
-        CommandOptions::default().lease(self)
-    }
-
-    /// Move options carrying this lease.
-    pub fn move_options(&self) -> MoveOptions {
-        MoveOptions::default().lease(self)
-    }
-
-    /// Jog options carrying this lease.
-    pub fn jog_options(&self) -> JogOptions {
-        JogOptions::with_lease(self)
     }
 
     /// Stops renewing and keeps the lease: the gateway's lease as granted
