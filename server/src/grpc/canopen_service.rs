@@ -7,9 +7,8 @@ use super::convert::canopen::{
 };
 use super::error::ApiError;
 use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_of};
-use super::runtime_errors::lookup_error;
+use super::runtime_errors::{axis_active, lookup_error};
 use crate::canopen::dcf_export::DcfExportError;
-use crate::canopen::drive_guard::AxisActive;
 use crate::canopen::pdo_config::PdoConfigError;
 use crate::canopen::program::{ProgramEvent, ProgramFailure, ProgramStartError};
 use crate::canopen::{CanopenBus, CanopenError, NodeEventKind, SyncChangeError, TimeSendError};
@@ -156,17 +155,6 @@ fn node_filter(nodes: &[u32]) -> Result<Vec<u32>, ApiError> {
         node_id(n).map_err(|e| ApiError::InvalidArgument(format!("nodes: {e}")))?;
     }
     Ok(nodes.to_vec())
-}
-
-/// An operation refused because the node drives an enabled axis
-/// (FAILED_PRECONDITION, reason AXIS_ACTIVE, metadata `axis` and `node`).
-pub(crate) fn axis_active(e: AxisActive) -> ApiError {
-    ApiError::refused(
-        tonic::Code::FailedPrecondition,
-        "AXIS_ACTIVE",
-        e.to_string(),
-        vec![("axis", e.axis.clone()), ("node", e.node.get().to_string())],
-    )
 }
 
 fn map_err(node: NodeId, e: CanopenError) -> ApiError {

@@ -53,13 +53,6 @@ impl CansmcService {
     }
 }
 
-/// Now, µs since the Unix epoch.
-pub(crate) fn now_us() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_micros() as u64)
-}
-
 /// Names the master (and, for a refused write, the value) in the errors
 /// the slave or the cycle caused; argument errors are clear as they are.
 fn parameter_context(master: &str, write: Option<i32>, e: ApiError) -> ApiError {

@@ -2,8 +2,8 @@
 //! buses' CANopen masters. Conversions and the LSS error mapping live here;
 //! the operations are the runtime's ([`crate::canopen::lss`]).
 
-use super::canopen_service::axis_active;
 use super::error::ApiError;
+use super::runtime_errors::axis_active;
 use crate::canopen::lss::{LssReach, LssSession, LssTarget};
 use crate::canopen::{CanopenBus, CanopenError};
 use crate::gateway::Gateway;

@@ -3,6 +3,7 @@
 
 use super::error::ApiError;
 use crate::axes::AxisError;
+use crate::canopen::drive_guard::AxisActive;
 use crate::cansmc::CansmcError;
 use crate::handwheel::HandwheelError;
 use crate::not_found::NotFound;
@@ -10,6 +11,17 @@ use crate::not_found::quote_prefix;
 use cangate_canopen::NodeId;
 use cangate_canopen::od::{LookupError, ObjectDictionary};
 use cangate_cansmc::master::ParameterError;
+
+/// An operation refused because the node drives an enabled axis
+/// (FAILED_PRECONDITION, reason AXIS_ACTIVE, metadata `axis` and `node`).
+pub(crate) fn axis_active(e: AxisActive) -> ApiError {
+    ApiError::refused(
+        tonic::Code::FailedPrecondition,
+        "AXIS_ACTIVE",
+        e.to_string(),
+        vec![("axis", e.axis.clone()), ("node", e.node.get().to_string())],
+    )
+}
 
 impl From<NotFound> for ApiError {
     fn from(e: NotFound) -> Self {

@@ -1,7 +1,6 @@
 //! CANsmc phases, slaves, status and events as protobuf messages.
 
 use crate::cansmc::{CansmcEvent, CansmcMaster, CansmcStatus, SlaveView};
-use crate::grpc::cansmc_service::now_us;
 use cangate_cansmc::master::{Phase, SlaveState};
 use cangate_proto::v1 as pb;
 
@@ -127,6 +126,13 @@ pub(crate) fn event_pb(e: CansmcEvent) -> pb::CansmcEvent {
             }),
         }),
     }
+}
+
+/// Now, µs since the Unix epoch.
+fn now_us() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_micros() as u64)
 }
 
 #[cfg(test)]
