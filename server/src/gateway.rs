@@ -370,12 +370,20 @@ impl Gateway {
     }
 
     /// Waits for the CANsmc cycle threads to end (after the shutdown
-    /// token fired).
-    pub fn join_cansmc_threads(&self) {
+    /// token fired): each ends within one wake-up of the token, its last
+    /// frames submitted and its last status published. The threads are
+    /// joined off the async runtime.
+    pub async fn join_cansmc_threads(&self) {
         let threads = std::mem::take(&mut *self.cansmc_threads.lock().expect("threads lock"));
-        for t in threads {
-            let _ = t.join();
+        if threads.is_empty() {
+            return;
         }
+        let _ = tokio::task::spawn_blocking(move || {
+            for t in threads {
+                let _ = t.join();
+            }
+        })
+        .await;
     }
 
     /// The axes.

@@ -110,8 +110,11 @@ impl RunningServer {
     }
 
     /// Waits until the server has stopped (after [`RunningServer::shutdown`]
-    /// or a signal), at most `limit`; then aborts whatever is left.
+    /// or a signal), at most `limit`: the gRPC server, the socketcand
+    /// endpoint, the bus tasks and the CANsmc cycle threads (so no MDT
+    /// leaves after this returns); then aborts whatever is left.
     pub async fn wait(self, limit: Duration) -> Result<(), String> {
+        let gateway = self.gateway.clone();
         let all = async {
             let r = self.server.await;
             if let Some(t) = self.socketcand {
@@ -120,6 +123,7 @@ impl RunningServer {
             for t in self.bus_tasks {
                 let _ = t.await;
             }
+            gateway.join_cansmc_threads().await;
             r
         };
         match tokio::time::timeout(limit, all).await {

@@ -654,6 +654,41 @@ async fn cycle_stats_stream_bounds_updates_and_shutdown() {
     }
 }
 
+/// Shutdown waits for the CANsmc cycle threads: once it has returned, no
+/// cycle thread runs any more (so none sends an MDT after it), and each
+/// master's status is the one its thread published on the way out (idle).
+/// A long cycle keeps the thread asleep for up to 50 ms at a time, longer
+/// than the rest of the shutdown takes: without the wait it would still
+/// run when shutdown returns.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shutdown_waits_for_the_cycle_threads() {
+    let mut config = demo_smc_config();
+    config.cansmc[0].cycle_time_us = 100_000;
+    config.cansmc[0].lost_after = 3;
+    let mut bed = start(&config).await;
+    wait_status(&mut bed.smc, "smc", "P2", |s| {
+        s.phase == pb::CansmcPhase::P2 as i32
+    })
+    .await;
+    let gateway = bed.server.gateway().clone();
+    let master = gateway.cansmc("smc").expect("the demo master").clone();
+    assert!(master.cycle_thread_running(), "the cycle thread runs in P2");
+    bed.server.shutdown();
+    bed.server
+        .wait(Duration::from_secs(10))
+        .await
+        .expect("the server stops");
+    assert!(
+        !master.cycle_thread_running(),
+        "the cycle thread still runs after shutdown returned"
+    );
+    assert_eq!(
+        format!("{:?}", master.status().phase),
+        "Idle",
+        "the cycle thread's last status (idle) is published before shutdown returns"
+    );
+}
+
 /// A master with slave 1 simulated and slave 7 absent.
 fn missing_slave_config(required: bool) -> Config {
     let text = format!(

@@ -33,6 +33,7 @@ use cangate_cansmc::master::{
 };
 use cangate_cansmc::{Command, Feedback, SmcAddress};
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, oneshot};
@@ -63,6 +64,9 @@ pub(crate) struct Setup {
     pub status: Arc<Mutex<CansmcStatus>>,
     pub events: broadcast::Sender<CansmcEvent>,
     pub cancel: CancellationToken,
+    /// Cleared when the thread ends (see
+    /// [`super::CansmcMaster::cycle_thread_running`]).
+    pub running: Arc<AtomicBool>,
 }
 
 struct Slot {
@@ -174,10 +178,26 @@ pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String>
         rx_lost: 0,
     };
     let cancel = setup.cancel;
+    let running = setup.running;
     std::thread::Builder::new()
         .name(name)
-        .spawn(move || t.run(&cancel))
+        .spawn(move || {
+            // Cleared last, even if the thread panics: after the final
+            // status and with the thread's bus handles gone.
+            let _running = ClearOnExit(running);
+            t.run(&cancel);
+            drop(t);
+        })
         .map_err(|e| format!("cannot start the CANsmc cycle thread: {e}"))
+}
+
+/// Clears its flag when dropped.
+struct ClearOnExit(Arc<AtomicBool>);
+
+impl Drop for ClearOnExit {
+    fn drop(&mut self) {
+        self.0.store(false, Ordering::Release);
+    }
 }
 
 /// The master configuration: axis slaves start with a position MDT, gear

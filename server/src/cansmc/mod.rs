@@ -13,6 +13,7 @@ use crate::not_found::NotFound;
 use cangate_can::BusHandle;
 use cangate_cansmc::SmcAddress;
 use cangate_cansmc::master::{MasterCounters, Phase, SlaveCounters, SlaveState};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::{broadcast, oneshot};
@@ -97,6 +98,8 @@ struct Inner {
     requests: std::sync::mpsc::Sender<Request>,
     status: Arc<Mutex<CansmcStatus>>,
     events: broadcast::Sender<CansmcEvent>,
+    /// Whether the cycle thread still runs.
+    running: Arc<AtomicBool>,
 }
 
 /// A running CANsmc master. Cheap to clone.
@@ -134,6 +137,7 @@ impl CansmcMaster {
             start_error: None,
             starts: 0,
         }));
+        let running = Arc::new(AtomicBool::new(true));
         let thread = cycle_thread::spawn(cycle_thread::Setup {
             config: config.clone(),
             bitrate,
@@ -144,6 +148,7 @@ impl CansmcMaster {
             status: status.clone(),
             events: events.clone(),
             cancel,
+            running: running.clone(),
         })?;
         Ok((
             CansmcMaster {
@@ -153,10 +158,18 @@ impl CansmcMaster {
                     requests,
                     status,
                     events,
+                    running,
                 }),
             },
             thread,
         ))
+    }
+
+    /// Whether the master's cycle thread still runs: false once it has
+    /// ended (after the shutdown token fired), its last frames submitted
+    /// and its last status published.
+    pub fn cycle_thread_running(&self) -> bool {
+        self.inner.running.load(Ordering::Acquire)
     }
 
     /// The master's name.
