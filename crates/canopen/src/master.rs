@@ -1,9 +1,10 @@
 //! The CANopen master of one bus, as one sans-IO state machine: SDO clients
 //! for every node (one transfer at a time per node, queued; different nodes
 //! concurrently), the heartbeat consumer, node guarding (for nodes guarded
-//! instead of producing a heartbeat), the EMCY consumer and the SYNC
-//! producer, and the LSS master (CiA 305, see [`crate::lss`]): one LSS
-//! command at a time, its answers (0x7E4) taken here like SDO responses.
+//! instead of producing a heartbeat), the EMCY consumer and the LSS master
+//! (CiA 305, see [`crate::lss`]): one LSS command at a time, its answers
+//! (0x7E4) taken here like SDO responses. SYNC is produced elsewhere (by
+//! the runner, with [`crate::sync::SyncProducer`]), on its own clock.
 //!
 //! The runner feeds it every received frame and ticks it at
 //! [`Master::next_deadline`]; it answers with frames to send and events.
@@ -25,7 +26,6 @@ use crate::lss::{LSS_RESPONSE_COB_ID, LssCommand, LssError, LssMaster, LssOutcom
 use crate::nmt::NmtState;
 use crate::node_guarding::{GuardingEvent, NodeGuarding};
 use crate::sdo::{Progress, SdoClient, SdoError, StartError, TransferOptions, TransferOutcome};
-use crate::sync::SyncProducer;
 use cangate_can::Frame;
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
@@ -148,7 +148,6 @@ pub struct Master {
     heartbeat: HeartbeatConsumer,
     guarding: NodeGuarding,
     emcy: EmcyConsumer,
-    sync: Option<SyncProducer>,
     lss: LssMaster,
     /// The request of the running LSS command.
     lss_request: Option<RequestId>,
@@ -177,7 +176,6 @@ impl Master {
             heartbeat: HeartbeatConsumer::new(),
             guarding: NodeGuarding::new(),
             emcy: EmcyConsumer::default(),
-            sync: None,
             lss: LssMaster::new(),
             lss_request: None,
             confirms: BTreeMap::new(),
@@ -276,12 +274,6 @@ impl Master {
     /// Node guarding (states, toggle errors, losses).
     pub fn guarding(&self) -> &NodeGuarding {
         &self.guarding
-    }
-
-    /// Starts producing SYNC.
-    pub fn start_sync(&mut self, mut producer: SyncProducer, now: Duration) {
-        producer.start(now);
-        self.sync = Some(producer);
     }
 
     /// The heartbeat consumer (states, ages).
@@ -510,7 +502,7 @@ impl Master {
     }
 
     /// Advances time: SDO timeouts, heartbeat losses, guarding requests and
-    /// losses, SYNC.
+    /// losses, LSS timeouts.
     pub fn on_tick(&mut self, now: Duration, out: &mut Output) {
         for (&node, n) in self.sdo.iter_mut() {
             let settled = n.client.ready_at().is_some_and(|at| at <= now);
@@ -534,11 +526,6 @@ impl Master {
                 .into_iter()
                 .map(MasterEvent::Guarding),
         );
-        if let Some(sync) = self.sync.as_mut()
-            && let Some(f) = sync.on_tick(now)
-        {
-            out.frames.push(f);
-        }
         if self.lss.next_deadline().is_some_and(|d| d <= now) {
             let step = self.lss.on_tick(now);
             self.lss_step(step, out);
@@ -572,7 +559,6 @@ impl Master {
             })
             .chain(self.heartbeat.next_deadline())
             .chain(self.guarding.next_deadline())
-            .chain(self.sync.as_ref().and_then(|s| s.next_deadline()))
             .chain(self.lss.next_deadline())
             .chain(self.confirms.values().map(|c| c.deadline))
             .min()

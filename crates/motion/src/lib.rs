@@ -22,6 +22,9 @@
 //! "deceleration" limits slowing down (|v| shrinking); both are magnitudes.
 
 #![deny(missing_docs, unreachable_pub)]
+// A dependency nothing uses fails CI (clippy -D warnings). Test builds are
+// left out: their dev-dependencies serve the integration tests.
+#![cfg_attr(not(test), warn(unused_crate_dependencies))]
 
 mod interpolator;
 mod jog;

@@ -23,6 +23,9 @@
 //! drives them.
 
 #![deny(missing_docs, unreachable_pub)]
+// A dependency nothing uses fails CI (clippy -D warnings). Test builds are
+// left out: their dev-dependencies serve the integration tests.
+#![cfg_attr(not(test), warn(unused_crate_dependencies))]
 
 use std::time::Duration;
 

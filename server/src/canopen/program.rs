@@ -19,7 +19,7 @@ use cangate_canopen::program_download::{
     PROGRAM_DATA, ProgramAction, ProgramDownload, ProgramError, ProgramOutcome, ProgramPlan,
     ProgramStep,
 };
-use cangate_canopen::sdo::{SdoError, TransferOutcome};
+use cangate_canopen::sdo::TransferOutcome;
 use std::collections::HashSet;
 use std::future::Future;
 use std::pin::Pin;
@@ -263,17 +263,5 @@ async fn run_download(
                 }
             }
         }
-    }
-}
-
-/// An SDO failure inside a program step, for the edge.
-pub fn sdo_error_of(f: &ProgramFailure) -> Option<&SdoError> {
-    match f {
-        ProgramFailure::Program(ProgramError::Sdo { error, .. }) => Some(error),
-        ProgramFailure::Gateway {
-            error: CanopenError::Sdo(e),
-            ..
-        } => Some(e),
-        _ => None,
     }
 }
