@@ -26,10 +26,11 @@ use std::time::Duration;
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
-/// Why the gateway's runtime could not start.
+/// Why the gateway could not start, by what failed.
 #[derive(Debug, thiserror::Error)]
-pub enum StartError {
-    /// A bus could not be opened.
+pub enum BootError {
+    /// A bus could not be opened or set up (its backend, its client
+    /// share, its simulated faults).
     #[error("bus {bus:?}: {message}")]
     Bus {
         /// Bus name.
@@ -37,6 +38,41 @@ pub enum StartError {
         /// What went wrong.
         message: String,
     },
+    /// A CANopen node's description (EDS, DCF, PDOs, boot writes, its
+    /// simulation) cannot be used.
+    #[error("bus {bus:?}: node {node}: {message}")]
+    Node {
+        /// Bus name.
+        bus: String,
+        /// Node-ID as configured.
+        node: u32,
+        /// What went wrong.
+        message: String,
+    },
+    /// The master's own heartbeat producer cannot be set up.
+    #[error("bus {bus:?}: master_node_id: {message}")]
+    MasterHeartbeat {
+        /// Bus name.
+        bus: String,
+        /// What went wrong.
+        message: String,
+    },
+    /// The axis layer could not start.
+    #[error("axes: {0}")]
+    Axes(String),
+    /// A CANsmc master (or its simulated slaves) could not start.
+    #[error("bus {bus:?}: cansmc {master}: {message}")]
+    Cansmc {
+        /// Master name.
+        master: String,
+        /// Its command bus.
+        bus: String,
+        /// What went wrong.
+        message: String,
+    },
+    /// The handwheels could not start.
+    #[error("handwheels: {0}")]
+    Handwheels(String),
     /// The thread of the bus runtime could not be started.
     #[error("cannot start the bus runtime thread: {0}")]
     Runtime(std::io::Error),
@@ -66,13 +102,13 @@ impl BusRuntime {
     /// thread parks on a futex instead of in `epoll_wait`, a cheaper sleep
     /// and wake-up, and virtual buses need nothing else.
     /// `rt_priority`: `SCHED_FIFO` for the thread (0: the default policy).
-    fn start(io: bool, rt_priority: u8) -> Result<BusRuntime, StartError> {
+    fn start(io: bool, rt_priority: u8) -> Result<BusRuntime, BootError> {
         let mut builder = tokio::runtime::Builder::new_current_thread();
         builder.enable_time();
         if io {
             builder.enable_io();
         }
-        let rt = builder.build().map_err(StartError::Runtime)?;
+        let rt = builder.build().map_err(BootError::Runtime)?;
         let handle = rt.handle().clone();
         let stop = CancellationToken::new();
         let until = stop.clone();
@@ -82,7 +118,7 @@ impl BusRuntime {
                 crate::realtime::enter(rt_priority, "gateway-bus");
                 rt.block_on(until.cancelled())
             })
-            .map_err(StartError::Runtime)?;
+            .map_err(BootError::Runtime)?;
         Ok(BusRuntime { handle, stop })
     }
 }
@@ -122,7 +158,7 @@ impl Gateway {
     pub fn start(
         config: &Config,
         shutdown: CancellationToken,
-    ) -> Result<(Gateway, Vec<JoinHandle<()>>), StartError> {
+    ) -> Result<(Gateway, Vec<JoinHandle<()>>), BootError> {
         let bus_runtime = BusRuntime::start(
             config
                 .buses
@@ -144,7 +180,7 @@ impl Gateway {
             let (handle, task) = BusHandle::spawn(info, backend, shutdown.child_token());
             bc.tx_shares()
                 .and_then(|shares| handle.set_tx_shares(shares))
-                .map_err(|message| StartError::Bus {
+                .map_err(|message| BootError::Bus {
                     bus: bc.name.clone(),
                     message,
                 })?;
@@ -162,16 +198,17 @@ impl Gateway {
         let mut simulated = Vec::new();
         let mut sim_wheels = std::collections::HashMap::new();
         let mut simulation = crate::simulation::wiring::bus_faults(&config.buses, &network)
-            .map_err(|(bus, message)| StartError::Bus { bus, message })?;
+            .map_err(|(bus, message)| BootError::Bus { bus, message })?;
         let mut sim_smc = BTreeMap::new();
         let mut cansmc_threads = Vec::new();
         for cc in &config.canopen {
             let bus = buses[&cc.bus].clone();
             let mut facts = BTreeMap::new();
             for nc in &cc.nodes {
-                let err = |message: String| StartError::Bus {
+                let err = |message: String| BootError::Node {
                     bus: cc.bus.clone(),
-                    message: format!("node {}: {message}", nc.id),
+                    node: nc.id,
+                    message,
                 };
                 let node = NodeId::new(nc.id).map_err(|e| err(e.to_string()))?;
                 let (eds, eds_text) = match nc.load_eds().map_err(err)? {
@@ -234,9 +271,9 @@ impl Gateway {
             tasks.push(task);
             // The master's own heartbeat, which the axis drives consume.
             if let Some((id, ms)) = cc.master_heartbeat() {
-                let id = NodeId::new(u32::from(id)).map_err(|e| StartError::Bus {
+                let id = NodeId::new(u32::from(id)).map_err(|e| BootError::MasterHeartbeat {
                     bus: cc.bus.clone(),
-                    message: format!("master_node_id: {e}"),
+                    message: e.to_string(),
                 })?;
                 tasks.push(crate::canopen::master_heartbeat::spawn(
                     buses[&cc.bus].clone(),
@@ -252,16 +289,14 @@ impl Gateway {
             &config.cansmc,
             shutdown.child_token(),
         )
-        .map_err(|message| StartError::Bus {
-            bus: "axes".into(),
-            message,
-        })?;
+        .map_err(BootError::Axes)?;
         tasks.extend(axis_tasks);
         let mut cansmc = BTreeMap::new();
         for mc in &config.cansmc {
-            let err = |message: String| StartError::Bus {
+            let err = |message: String| BootError::Cansmc {
+                master: mc.name.clone(),
                 bus: mc.command_bus.clone(),
-                message: format!("cansmc {}: {message}", mc.name),
+                message,
             };
             // Simulated slaves attach to the virtual buses before the
             // master's first MCT.
@@ -302,10 +337,7 @@ impl Gateway {
                 shutdown.child_token(),
             )
         }
-        .map_err(|message| StartError::Bus {
-            bus: "handwheels".into(),
-            message,
-        })?;
+        .map_err(BootError::Handwheels)?;
         tasks.extend(wheel_tasks);
         for (port, device) in simulated {
             tasks.push(crate::simulation::wiring::spawn(
@@ -667,8 +699,8 @@ fn master_heartbeat_consumer(
     Some((addr, value.to_le_bytes().to_vec()))
 }
 
-fn open_bus(bc: &BusConfig, network: &VirtualNetwork) -> Result<(BusInfo, Backend), StartError> {
-    let err = |message: String| StartError::Bus {
+fn open_bus(bc: &BusConfig, network: &VirtualNetwork) -> Result<(BusInfo, Backend), BootError> {
+    let err = |message: String| BootError::Bus {
         bus: bc.name.clone(),
         message,
     };

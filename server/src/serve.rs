@@ -33,7 +33,7 @@ use tokio_util::sync::CancellationToken;
 pub enum StartError {
     /// The runtime (a bus, a master, an axis) could not start.
     #[error(transparent)]
-    Gateway(#[from] crate::gateway::StartError),
+    Gateway(#[from] crate::gateway::BootError),
     /// The listen address could not be bound.
     #[error("cannot listen on {addr}: {source}")]
     Listen {

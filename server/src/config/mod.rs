@@ -184,16 +184,109 @@ pub enum LogFormat {
     Json,
 }
 
-/// A configuration that cannot be used.
+/// A configuration that cannot be used, by what is wrong with it.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
     /// The file could not be read or parsed (includes unknown keys, with
     /// their name).
     #[error("configuration: {0}")]
     Load(#[from] config::ConfigError),
-    /// The values are inconsistent.
-    #[error("configuration: {0}")]
-    Invalid(String),
+    /// The gRPC listener is reachable from the network without
+    /// authentication, and nobody accepted the risk.
+    #[error(
+        "configuration: listen = {listen} is reachable from the network without authentication: \
+         anyone who reaches it can move the axes. Configure [[security.tokens]] or \
+         [[security.clients]], listen on 127.0.0.1 (and tunnel), or accept the risk with \
+         [security] insecure = true (env CANGATE_SECURITY__INSECURE=true)"
+    )]
+    Unauthenticated {
+        /// The configured address.
+        listen: SocketAddr,
+    },
+    /// Two sections of one kind have the same name.
+    #[error("configuration: {kind} {name:?} is configured twice")]
+    Duplicate {
+        /// What kind of section ("bus", "axis", …).
+        kind: &'static str,
+        /// The name.
+        name: String,
+    },
+    /// A section names a bus that is not configured.
+    #[error("configuration: {section} names bus {bus:?}, which is not configured")]
+    UnknownBus {
+        /// Where the name is (`[[canopen]]`, …).
+        section: &'static str,
+        /// The name.
+        bus: String,
+    },
+    /// A bus, or what uses it, is configured wrongly.
+    #[error("configuration: bus {bus:?}: {problem}")]
+    Bus {
+        /// Bus name.
+        bus: String,
+        /// What is wrong.
+        problem: String,
+    },
+    /// A CANopen node is configured wrongly.
+    #[error("configuration: bus {bus:?}: node {node}: {problem}")]
+    Node {
+        /// Bus name.
+        bus: String,
+        /// Node-ID as configured.
+        node: u32,
+        /// What is wrong.
+        problem: String,
+    },
+    /// A top-level value is out of its range.
+    #[error("configuration: {key} = {value} must be {range}")]
+    OutOfRange {
+        /// The key.
+        key: &'static str,
+        /// Its value.
+        value: u64,
+        /// What it must be.
+        range: &'static str,
+    },
+    /// A section's own checks failed; the message names the section and
+    /// the key.
+    #[error("configuration: {message}")]
+    Section {
+        /// The section.
+        section: Section,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// A kind of configuration section (see [`ConfigError::Section`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Section {
+    /// `[security]`.
+    Security,
+    /// `[web]`.
+    Web,
+    /// `[[bus]]`.
+    Bus,
+    /// `[[canopen]]`.
+    Canopen,
+    /// `[[handwheel]]`.
+    Handwheel,
+    /// `[[axis]]`.
+    Axis,
+    /// `[[cansmc]]`.
+    Cansmc,
+    /// `[socketcand]`.
+    Socketcand,
+}
+
+impl Section {
+    /// The error of this section's check that failed with `message`.
+    pub fn error(self, message: String) -> ConfigError {
+        ConfigError::Section {
+            section: self,
+            message,
+        }
+    }
 }
 
 impl Config {
@@ -491,6 +584,46 @@ eds = "builtin:drive"
             err.to_string().contains("\"a\" is configured twice"),
             "{err}"
         );
+    }
+
+    /// A start-up refusal says by its variant what went wrong, not only by
+    /// its message.
+    #[test]
+    fn refusals_are_typed_by_what_went_wrong() {
+        let bus = "[[bus]]\nname = \"a\"\nbackend = \"virtual\"\n";
+        assert!(matches!(
+            Config::from_toml(&format!("{bus}{bus}")),
+            Err(ConfigError::Duplicate { kind: "bus", ref name }) if name == "a"
+        ));
+        assert!(matches!(
+            Config::from_toml("listen = \"0.0.0.0:50051\"\n"),
+            Err(ConfigError::Unauthenticated { .. })
+        ));
+        assert!(matches!(
+            Config::from_toml("shutdown_timeout_ms = 0\n"),
+            Err(ConfigError::OutOfRange {
+                key: "shutdown_timeout_ms",
+                value: 0,
+                ..
+            })
+        ));
+        assert!(matches!(
+            Config::from_toml("[[canopen]]\nbus = \"nope\"\n"),
+            Err(ConfigError::UnknownBus { ref bus, .. }) if bus == "nope"
+        ));
+        assert!(matches!(
+            Config::from_toml(&format!(
+                "{bus}[[canopen]]\nbus = \"a\"\n[[canopen.node]]\nid = 200\n"
+            )),
+            Err(ConfigError::Node { node: 200, .. })
+        ));
+        assert!(matches!(
+            Config::from_toml(&format!("{bus}[web]\nallowed_origins = [\"*\"]\n")),
+            Err(ConfigError::Section {
+                section: Section::Web,
+                ..
+            })
+        ));
     }
 
     #[test]

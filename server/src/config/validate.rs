@@ -6,70 +6,66 @@ use super::*;
 impl Config {
     /// Checks what serde cannot: unique names, sensible values.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        self.security.validate().map_err(ConfigError::Invalid)?;
-        self.web.validate().map_err(ConfigError::Invalid)?;
+        self.security
+            .validate()
+            .map_err(|m| Section::Security.error(m))?;
+        self.web.validate().map_err(|m| Section::Web.error(m))?;
         // A gateway that moves axes must not be reachable from the network
         // without authentication unless someone said so explicitly.
         if !self.listen.ip().is_loopback()
             && !self.security.insecure
             && !self.security.authentication()
         {
-            return Err(ConfigError::Invalid(format!(
-                "listen = {} is reachable from the network without authentication: anyone \
-                 who reaches it can move the axes. Configure [[security.tokens]] or \
-                 [[security.clients]], listen on 127.0.0.1 (and tunnel), or accept the risk \
-                 with [security] insecure = true (env CANGATE_SECURITY__INSECURE=true)",
-                self.listen
-            )));
+            return Err(ConfigError::Unauthenticated {
+                listen: self.listen,
+            });
         }
         let mut names = HashSet::new();
         let mut interfaces = HashSet::new();
         for b in &self.buses {
             if b.name.is_empty() {
-                return Err(ConfigError::Invalid("a bus has an empty name".into()));
+                return Err(Section::Bus.error("a bus has an empty name".into()));
             }
             if !names.insert(b.name.as_str()) {
-                return Err(ConfigError::Invalid(format!(
-                    "bus {:?} is configured twice",
-                    b.name
-                )));
+                return Err(ConfigError::Duplicate {
+                    kind: "bus",
+                    name: b.name.clone(),
+                });
             }
             if b.backend == BackendChoice::Socketcan && !interfaces.insert(b.interface()) {
-                return Err(ConfigError::Invalid(format!(
-                    "SocketCAN interface {:?} is used by two buses",
-                    b.interface()
-                )));
+                return Err(bus_error(
+                    b,
+                    format!(
+                        "SocketCAN interface {:?} is already used by another bus",
+                        b.interface()
+                    ),
+                ));
             }
             if b.bitrate == Some(0) || b.data_bitrate == Some(0) {
-                return Err(ConfigError::Invalid(format!(
-                    "bus {:?}: bitrate must be positive",
-                    b.name
-                )));
+                return Err(bus_error(b, "bitrate must be positive".into()));
             }
             if b.bit_timing && b.bitrate.is_none() {
-                return Err(ConfigError::Invalid(format!(
-                    "bus {:?}: bit_timing needs a bitrate",
-                    b.name
-                )));
+                return Err(bus_error(b, "bit_timing needs a bitrate".into()));
             }
-            b.fault_check().map_err(ConfigError::Invalid)?;
-            b.tx_shares().map_err(ConfigError::Invalid)?;
+            b.fault_check().map_err(|m| Section::Bus.error(m))?;
+            b.tx_shares().map_err(|m| Section::Bus.error(m))?;
             if b.backend == BackendChoice::Socketcan && (b.bit_timing || b.queue.is_some()) {
-                return Err(ConfigError::Invalid(format!(
-                    "bus {:?}: bit_timing and queue apply to virtual buses only",
-                    b.name
-                )));
+                return Err(bus_error(
+                    b,
+                    "bit_timing and queue apply to virtual buses only".into(),
+                ));
             }
             if b.backend != BackendChoice::Socketcan
                 && (b.receive_buffer.is_some()
                     || b.transmit_queue.is_some()
                     || b.transmit_timeout_ms.is_some())
             {
-                return Err(ConfigError::Invalid(format!(
-                    "bus {:?}: receive_buffer, transmit_queue and transmit_timeout_ms apply to \
-                     SocketCAN buses only",
-                    b.name
-                )));
+                return Err(bus_error(
+                    b,
+                    "receive_buffer, transmit_queue and transmit_timeout_ms apply to SocketCAN \
+                     buses only"
+                        .into(),
+                ));
             }
             for (key, value, range) in [
                 ("receive_buffer", b.receive_buffer, 1024..=64 << 20),
@@ -83,77 +79,72 @@ impl Config {
                 if let Some(v) = value
                     && !range.contains(&v)
                 {
-                    return Err(ConfigError::Invalid(format!(
-                        "bus {:?}: {key} = {v} is out of range ({}..={})",
-                        b.name,
-                        range.start(),
-                        range.end()
-                    )));
+                    return Err(bus_error(
+                        b,
+                        format!(
+                            "{key} = {v} is out of range ({}..={})",
+                            range.start(),
+                            range.end()
+                        ),
+                    ));
                 }
             }
         }
         let mut masters = HashSet::new();
         for c in &self.canopen {
             let Some(bus) = self.buses.iter().find(|b| b.name == c.bus) else {
-                return Err(ConfigError::Invalid(format!(
-                    "[[canopen]] names bus {:?}, which is not configured",
-                    c.bus
-                )));
+                return Err(ConfigError::UnknownBus {
+                    section: "[[canopen]]",
+                    bus: c.bus.clone(),
+                });
             };
-            c.check().map_err(ConfigError::Invalid)?;
+            c.check().map_err(|m| Section::Canopen.error(m))?;
             if !masters.insert(c.bus.as_str()) {
-                return Err(ConfigError::Invalid(format!(
-                    "bus {:?} has two [[canopen]] sections",
-                    c.bus
-                )));
+                return Err(ConfigError::Bus {
+                    bus: c.bus.clone(),
+                    problem: "two [[canopen]] sections name it".into(),
+                });
             }
             let mut ids = HashSet::new();
             for n in &c.nodes {
+                let node_error = |problem: &str| ConfigError::Node {
+                    bus: c.bus.clone(),
+                    node: n.id,
+                    problem: problem.to_string(),
+                };
                 if !(1..=127).contains(&n.id) {
-                    return Err(ConfigError::Invalid(format!(
-                        "bus {:?}: node id {} is out of range (1..=127)",
-                        c.bus, n.id
-                    )));
+                    return Err(node_error("the node id is out of range (1..=127)"));
                 }
-                n.guarding_check()
-                    .map_err(|m| ConfigError::Invalid(format!("bus {:?}: {m}", c.bus)))?;
+                n.guarding_check().map_err(|problem| ConfigError::Bus {
+                    bus: c.bus.clone(),
+                    problem,
+                })?;
                 if !ids.insert(n.id) {
-                    return Err(ConfigError::Invalid(format!(
-                        "bus {:?}: node {} is configured twice",
-                        c.bus, n.id
-                    )));
+                    return Err(node_error("configured twice"));
                 }
                 if n.simulate && bus.backend != BackendChoice::Virtual {
-                    return Err(ConfigError::Invalid(format!(
-                        "bus {:?}: node {} can only be simulated on a virtual bus",
-                        c.bus, n.id
-                    )));
+                    return Err(node_error("can only be simulated on a virtual bus"));
                 }
                 if n.sim_lss.is_some() && !n.simulate {
-                    return Err(ConfigError::Invalid(format!(
-                        "bus {:?}: node {}: sim_lss describes a simulated device; add simulate = true",
-                        c.bus, n.id
-                    )));
+                    return Err(node_error(
+                        "sim_lss describes a simulated device; add simulate = true",
+                    ));
                 }
                 if let Some(sim) = &n.sim {
                     if !n.simulate {
-                        return Err(ConfigError::Invalid(format!(
-                            "bus {:?}: node {}: sim describes a simulated device; add simulate = true",
-                            c.bus, n.id
-                        )));
+                        return Err(node_error(
+                            "sim describes a simulated device; add simulate = true",
+                        ));
                     }
-                    sim.check(n.id)
-                        .map_err(|m| ConfigError::Invalid(format!("bus {:?}: {m}", c.bus)))?;
+                    sim.check(n.id).map_err(|problem| ConfigError::Bus {
+                        bus: c.bus.clone(),
+                        problem,
+                    })?;
                 }
                 if n.simulate && n.eds.is_none() && n.dcf.is_none() {
-                    return Err(ConfigError::Invalid(format!(
-                        "bus {:?}: simulated node {} needs an eds",
-                        c.bus, n.id
-                    )));
+                    return Err(node_error("a simulated node needs an eds"));
                 }
-                let invalid = |e: String| {
-                    ConfigError::Invalid(format!("bus {:?}: node {}: {e}", c.bus, n.id))
-                };
+                let invalid = |problem: String| node_error(&problem);
                 n.load_eds().map_err(invalid)?;
                 let backs_axis = self.axes.iter().any(|a| a.bus == c.bus && a.node == n.id);
                 if n.dcf.is_some() && !n.boot && !backs_axis {
@@ -184,66 +175,71 @@ impl Config {
         }
         let mut wheel_names = HashSet::new();
         for h in &self.handwheels {
-            h.validate(self).map_err(ConfigError::Invalid)?;
+            h.validate(self).map_err(|m| Section::Handwheel.error(m))?;
             if !wheel_names.insert(h.name.as_str()) {
-                return Err(ConfigError::Invalid(format!(
-                    "handwheel {:?} is configured twice",
-                    h.name
-                )));
+                return Err(ConfigError::Duplicate {
+                    kind: "handwheel",
+                    name: h.name.clone(),
+                });
             }
         }
         let mut axis_names = HashSet::new();
         let mut axis_nodes = HashSet::new();
         for a in &self.axes {
-            a.validate(self).map_err(ConfigError::Invalid)?;
+            a.validate(self).map_err(|m| Section::Axis.error(m))?;
             if !axis_names.insert(a.name.as_str()) {
-                return Err(ConfigError::Invalid(format!(
-                    "axis {:?} is configured twice",
-                    a.name
-                )));
+                return Err(ConfigError::Duplicate {
+                    kind: "axis",
+                    name: a.name.clone(),
+                });
             }
             if !axis_nodes.insert((a.bus.as_str(), a.node)) {
-                return Err(ConfigError::Invalid(format!(
+                return Err(Section::Axis.error(format!(
                     "axis {}: node {} on bus {:?} already backs another axis",
                     a.name, a.node, a.bus
                 )));
             }
         }
         if self.shutdown_timeout_ms == 0 || self.shutdown_timeout_ms > 600_000 {
-            return Err(ConfigError::Invalid(format!(
-                "shutdown_timeout_ms = {} must be between 1 and 600000",
-                self.shutdown_timeout_ms
-            )));
+            return Err(ConfigError::OutOfRange {
+                key: "shutdown_timeout_ms",
+                value: self.shutdown_timeout_ms,
+                range: "between 1 and 600000",
+            });
         }
         if self.handover_spin_us > 10_000 {
-            return Err(ConfigError::Invalid(format!(
-                "handover_spin_us = {} must be at most 10000 (0: off)",
-                self.handover_spin_us
-            )));
+            return Err(ConfigError::OutOfRange {
+                key: "handover_spin_us",
+                value: self.handover_spin_us,
+                range: "at most 10000 (0: off)",
+            });
         }
         for (key, v) in [
             ("rt_priority", self.rt_priority),
             ("grpc_rt_priority", self.grpc_rt_priority),
         ] {
             if v > 99 {
-                return Err(ConfigError::Invalid(format!(
-                    "{key} = {v} must be 0 (off) or 1..=99"
-                )));
+                return Err(ConfigError::OutOfRange {
+                    key,
+                    value: u64::from(v),
+                    range: "0 (off) or 1..=99",
+                });
             }
         }
         let mut smc_names = HashSet::new();
         let mut smc_buses = HashSet::new();
         for c in &self.cansmc {
-            c.validate(&self.buses).map_err(ConfigError::Invalid)?;
+            c.validate(&self.buses)
+                .map_err(|m| Section::Cansmc.error(m))?;
             if !smc_names.insert(c.name.as_str()) {
-                return Err(ConfigError::Invalid(format!(
-                    "cansmc {:?} is configured twice",
-                    c.name
-                )));
+                return Err(ConfigError::Duplicate {
+                    kind: "cansmc",
+                    name: c.name.clone(),
+                });
             }
             for bus in [&c.command_bus, &c.status_bus] {
                 if !smc_buses.insert(bus.as_str()) || masters.contains(bus.as_str()) {
-                    return Err(ConfigError::Invalid(format!(
+                    return Err(Section::Cansmc.error(format!(
                         "cansmc {}: bus {bus:?} is already used by another master",
                         c.name
                     )));
@@ -251,10 +247,10 @@ impl Config {
             }
             for a in &c.axes {
                 if !axis_names.insert(a.name.as_str()) {
-                    return Err(ConfigError::Invalid(format!(
-                        "axis {:?} is configured twice",
-                        a.name
-                    )));
+                    return Err(ConfigError::Duplicate {
+                        kind: "axis",
+                        name: a.name.clone(),
+                    });
                 }
             }
         }
@@ -263,10 +259,10 @@ impl Config {
                 self.security.authentication(),
                 !self.security.tokens.is_empty(),
             )
-            .map_err(ConfigError::Invalid)?;
+            .map_err(|m| Section::Socketcand.error(m))?;
             for b in &s.buses {
                 if !self.buses.iter().any(|c| &c.name == b) {
-                    return Err(ConfigError::Invalid(format!(
+                    return Err(Section::Socketcand.error(format!(
                         "[socketcand] buses names {b:?}, which is not configured"
                     )));
                 }
@@ -274,12 +270,20 @@ impl Config {
             if s.listen.port() != 0
                 && (s.listen == self.listen || self.metrics_listen == Some(s.listen))
             {
-                return Err(ConfigError::Invalid(format!(
+                return Err(Section::Socketcand.error(format!(
                     "[socketcand] listen = {} is already the address of another listener",
                     s.listen
                 )));
             }
         }
         Ok(())
+    }
+}
+
+/// A problem of bus `b`.
+fn bus_error(b: &BusConfig, problem: String) -> ConfigError {
+    ConfigError::Bus {
+        bus: b.name.clone(),
+        problem,
     }
 }
