@@ -85,12 +85,10 @@ pub enum BootError {
 /// `gateway-bus`. The gRPC services stay on the caller's runtime.
 ///
 /// Why: the process data path (a frame arrives, the bus task fans it out,
-/// the axis task steps and sends) is a chain of task wake-ups. On a
-/// multi-thread runtime every wake-up from outside (a frame from the bus)
-/// also wakes a second worker to look for work, which finds none and parks
-/// again; at a 1 ms SYNC those park/unpark pairs were the largest part of
-/// the gateway's CPU. On one thread the chain runs back to back, and the
-/// bus side's order of events no longer depends on work stealing.
+/// the axis task steps and sends) is a chain of task wake-ups, and
+/// wake-ups, not frames, cost the CPU ("Wake-ups cost more than frames" in
+/// docs/design.md). On one thread the chain runs back to back, and the bus
+/// side's order of events no longer depends on work stealing.
 struct BusRuntime {
     handle: tokio::runtime::Handle,
     /// Ends the thread (and drops whatever still runs on it).

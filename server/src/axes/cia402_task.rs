@@ -6,9 +6,9 @@
 //!
 //! The process data does not go through the CANopen master task: this task
 //! subscribes to its drives' TPDOs on the bus directly and decodes them
-//! from their mapping. At a 1 ms SYNC with several drives that saves a task
-//! hop and a decoded, allocated update per PDO; the task's CPU was
-//! dominated by exactly those cross-task wake-ups. The master still does
+//! from their mapping: a task hop and a decoded, allocated update less per
+//! PDO (why that matters: "Wake-ups cost more than frames" in
+//! docs/design.md). The master still does
 //! NMT, heartbeats, EMCY and SDO, and this task hands it each TPDO for the
 //! counters and the StreamPdo subscribers ([`CanopenBus::relay_tpdo`]).
 //!

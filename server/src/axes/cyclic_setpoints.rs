@@ -10,8 +10,8 @@
 //! wake-up (the drives' TPDOs answering that SYNC).
 //!
 //! Why: computed by the axis task, each set-point needed that task woken by
-//! every SYNC, a thread hand-over per period that dominated the gateway's
-//! CPU at a 1 ms SYNC (measured with `axis_bench`, README). The set-point
+//! every SYNC, a thread hand-over per period ("Wake-ups cost more than
+//! frames" in docs/design.md). The set-point
 //! now also leaves in the same batch as its SYNC, whatever the load on the
 //! gateway's bus thread.
 //!

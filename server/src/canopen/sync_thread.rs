@@ -10,8 +10,8 @@
 //!
 //! One thread serves every bus of the gateway: producers start on a grid
 //! common to their period, so buses with the same period are due together
-//! and cost one wake-up per period between them, not one each (the
-//! wake-up, not the frames, is most of a SYNC's cost).
+//! and cost one wake-up per period between them, not one each (see
+//! "Wake-ups cost more than frames" in docs/design.md).
 //!
 //! Each SYNC's batch also carries what the [`SyncRider`]s add: the cyclic
 //! set-points of CSP axes, sampled here ([`crate::axes::cyclic_setpoints`])
