@@ -152,7 +152,9 @@ pub struct Gateway {
 }
 
 impl Gateway {
-    /// Opens every configured bus and starts its owner task.
+    /// Opens every configured bus and starts its owner task, then what
+    /// runs on the buses: the CANopen masters (with their simulated
+    /// devices), the axis layer, the CANsmc masters and the handwheels.
     pub fn start(
         config: &Config,
         shutdown: CancellationToken,
@@ -171,116 +173,36 @@ impl Gateway {
         let bus_side = bus_runtime.handle.clone();
         let _bus_side_guard = bus_side.enter();
         let network = VirtualNetwork::new();
-        let mut buses = BTreeMap::new();
-        let mut tasks = Vec::new();
-        for bc in &config.buses {
-            let (info, backend) = open_bus(bc, &network)?;
-            let (handle, task) = BusHandle::spawn(info, backend, shutdown.child_token());
-            bc.tx_shares()
-                .and_then(|shares| handle.set_tx_shares(shares))
-                .map_err(|message| BootError::Bus {
-                    bus: bc.name.clone(),
-                    message,
-                })?;
-            buses.insert(bc.name.clone(), handle);
-            tasks.push(task);
-        }
-        let mut canopen = BTreeMap::new();
+        let (buses, mut tasks) = start_buses(config, &network, &shutdown)?;
+        let simulation = crate::simulation::wiring::bus_faults(&config.buses, &network)
+            .map_err(|(bus, message)| BootError::Bus { bus, message })?;
+        let mut booting = CanopenBoot {
+            simulation,
+            simulated: Vec::new(),
+            sim_wheels: std::collections::HashMap::new(),
+            canopen: BTreeMap::new(),
+        };
         // One SYNC thread for every CANopen bus (started with the first).
         let sync_thread = crate::canopen::sync_thread::SyncThread::new(
             config.rt_priority,
             shutdown.child_token(),
         );
-        // Simulated devices start after their master listens, so that the
-        // master sees their boot-up.
-        let mut simulated = Vec::new();
-        let mut sim_wheels = std::collections::HashMap::new();
-        let mut simulation = crate::simulation::wiring::bus_faults(&config.buses, &network)
-            .map_err(|(bus, message)| BootError::Bus { bus, message })?;
-        let mut sim_smc = BTreeMap::new();
-        let mut cansmc_threads = Vec::new();
         for cc in &config.canopen {
-            let bus = buses[&cc.bus].clone();
-            let mut facts = BTreeMap::new();
-            for nc in &cc.nodes {
-                let err = |message: String| BootError::Node {
-                    bus: cc.bus.clone(),
-                    node: nc.id,
-                    message,
-                };
-                let node = NodeId::new(nc.id).map_err(|e| err(e.to_string()))?;
-                let (eds, eds_text) = match nc.load_eds().map_err(err)? {
-                    Some((eds, text)) => (Some(Arc::new(eds)), Some(text)),
-                    None => (None, None),
-                };
-                if nc.simulate {
-                    let eds = eds
-                        .as_ref()
-                        .ok_or_else(|| err("a simulated node needs an eds".into()))?;
-                    let vbus = network
-                        .get(buses[&cc.bus].info().interface.as_str())
-                        .ok_or_else(|| err("simulated nodes need a virtual bus".into()))?;
-                    let wheel_counter = config
-                        .handwheels
-                        .iter()
-                        .find(|h| h.bus == cc.bus && h.node == nc.id)
-                        .map(|h| h.counter);
-                    let device = crate::simulation::wiring::canopen_device(
-                        nc,
-                        node,
-                        eds.clone(),
-                        wheel_counter,
-                    );
-                    if let SimulatedDevice::Handwheel(handle) = &device {
-                        sim_wheels.insert((cc.bus.clone(), nc.id), handle.clone());
-                    }
-                    simulation.add_device(&cc.bus, node, device.clone());
-                    simulated.push((vbus.connect(false), device));
-                }
-                facts.insert(
-                    node,
-                    node_facts(config, cc, nc, node, eds, eds_text).map_err(err)?,
-                );
-            }
-            let (master, task) = CanopenBus::spawn(
-                bus,
-                Duration::from_millis(cc.sdo_timeout_ms),
-                crate::canopen::sync_thread::SyncSettings {
-                    running: cc.sync_period_us > 0,
-                    // A stopped SYNC started at run time without a period
-                    // runs at 10 ms until one is given.
-                    period: Duration::from_micros(if cc.sync_period_us > 0 {
-                        cc.sync_period_us
-                    } else {
-                        10_000
-                    }),
-                    counter_overflow: cc.sync_counter_overflow,
-                },
-                (cc.time_period_ms > 0).then(|| Duration::from_millis(cc.time_period_ms)),
+            tasks.extend(booting.start_master(
+                config,
+                cc,
+                &buses,
+                &network,
                 &sync_thread,
-                facts,
-                shutdown.child_token(),
-            );
-            let master = master.with_client_sdo_limit(
-                config.security.limits.sdo_requests_per_client_and_node as usize,
-            );
-            master.set_handover_spin(Duration::from_micros(config.handover_spin_us));
-            canopen.insert(cc.bus.clone(), master);
-            tasks.push(task);
-            // The master's own heartbeat, which the axis drives consume.
-            if let Some((id, ms)) = cc.master_heartbeat() {
-                let id = NodeId::new(u32::from(id)).map_err(|e| BootError::MasterHeartbeat {
-                    bus: cc.bus.clone(),
-                    message: e.to_string(),
-                })?;
-                tasks.push(crate::canopen::master_heartbeat::spawn(
-                    buses[&cc.bus].clone(),
-                    id,
-                    Duration::from_millis(u64::from(ms)),
-                    shutdown.child_token(),
-                ));
-            }
+                &shutdown,
+            )?);
         }
+        let CanopenBoot {
+            simulation,
+            simulated,
+            sim_wheels,
+            canopen,
+        } = booting;
         let (axes, axis_tasks, mut axis_ports) = Axes::start(
             &config.axes,
             &canopen,
@@ -290,32 +212,20 @@ impl Gateway {
         .map_err(BootError::Axes)?;
         tasks.extend(axis_tasks);
         let mut cansmc = BTreeMap::new();
+        let mut sim_smc = BTreeMap::new();
+        let mut cansmc_threads = Vec::new();
         for mc in &config.cansmc {
-            let err = |message: String| BootError::Cansmc {
-                master: mc.name.clone(),
-                bus: mc.command_bus.clone(),
-                message,
-            };
-            // Simulated slaves attach to the virtual buses before the
-            // master's first MCT.
-            let sims = crate::simulation::wiring::start_cansmc_slaves(
+            let (master, thread, sims) = start_cansmc_master(
+                config,
                 mc,
-                |name| network.get(buses[name].info().interface.as_str()),
-                shutdown.child_token(),
-            )
-            .map_err(err)?;
+                &buses,
+                &network,
+                axis_ports.remove(&mc.name),
+                &shutdown,
+            )?;
             if !sims.is_empty() {
                 sim_smc.insert(mc.name.clone(), sims);
             }
-            let (master, thread) = CansmcMaster::start(
-                mc,
-                mc.effective_bitrate(&config.buses),
-                buses[&mc.command_bus].clone(),
-                buses[&mc.status_bus].clone(),
-                axis_ports.remove(&mc.name),
-                shutdown.child_token(),
-            )
-            .map_err(err)?;
             cansmc.insert(mc.name.clone(), master);
             cansmc_threads.push(thread);
         }
@@ -337,6 +247,8 @@ impl Gateway {
         }
         .map_err(BootError::Handwheels)?;
         tasks.extend(wheel_tasks);
+        // Simulated devices start after their master listens, so that the
+        // master sees their boot-up.
         for (port, device) in simulated {
             tasks.push(crate::simulation::wiring::spawn(
                 port,
@@ -466,6 +378,193 @@ impl Gateway {
 
 type NodePlan = (Vec<PdoConfig>, Vec<PdoConfig>, Option<Arc<BootPlan>>);
 
+/// Opens every configured bus and starts its owner task, with its client
+/// share.
+fn start_buses(
+    config: &Config,
+    network: &VirtualNetwork,
+    shutdown: &CancellationToken,
+) -> Result<(BTreeMap<String, BusHandle>, Vec<JoinHandle<()>>), BootError> {
+    let mut buses = BTreeMap::new();
+    let mut tasks = Vec::new();
+    for bc in &config.buses {
+        let (info, backend) = open_bus(bc, network)?;
+        let (handle, task) = BusHandle::spawn(info, backend, shutdown.child_token());
+        bc.tx_shares()
+            .and_then(|shares| handle.set_tx_shares(shares))
+            .map_err(|message| BootError::Bus {
+                bus: bc.name.clone(),
+                message,
+            })?;
+        buses.insert(bc.name.clone(), handle);
+        tasks.push(task);
+    }
+    Ok((buses, tasks))
+}
+
+/// The CANopen side while it starts: the masters so far, and the
+/// simulated devices that start once everything listens.
+struct CanopenBoot {
+    simulation: crate::simulation::Simulation,
+    /// Simulated devices with their ports, spawned last.
+    simulated: Vec<(cangate_can::VirtualPort, SimulatedDevice)>,
+    /// Simulated handwheels by bus and node, for the handwheel tasks.
+    sim_wheels: std::collections::HashMap<
+        (String, u32),
+        cangate_sim::DeviceHandle<cangate_sim::SimHandwheel>,
+    >,
+    canopen: BTreeMap<String, CanopenBus>,
+}
+
+impl CanopenBoot {
+    /// Starts the master of one `[[canopen]]` section: the facts of its
+    /// nodes (wiring up the simulated ones), the master task on the SYNC
+    /// thread, and the master's own heartbeat.
+    fn start_master(
+        &mut self,
+        config: &Config,
+        cc: &CanopenConfig,
+        buses: &BTreeMap<String, BusHandle>,
+        network: &VirtualNetwork,
+        sync_thread: &crate::canopen::sync_thread::SyncThread,
+        shutdown: &CancellationToken,
+    ) -> Result<Vec<JoinHandle<()>>, BootError> {
+        let bus = buses[&cc.bus].clone();
+        let mut facts = BTreeMap::new();
+        for nc in &cc.nodes {
+            let err = |message: String| BootError::Node {
+                bus: cc.bus.clone(),
+                node: nc.id,
+                message,
+            };
+            let node = NodeId::new(nc.id).map_err(|e| err(e.to_string()))?;
+            let (eds, eds_text) = match nc.load_eds().map_err(err)? {
+                Some((eds, text)) => (Some(Arc::new(eds)), Some(text)),
+                None => (None, None),
+            };
+            if nc.simulate {
+                let eds = eds
+                    .as_ref()
+                    .ok_or_else(|| err("a simulated node needs an eds".into()))?;
+                let vbus = network
+                    .get(bus.info().interface.as_str())
+                    .ok_or_else(|| err("simulated nodes need a virtual bus".into()))?;
+                self.simulate(config, cc, nc, node, eds.clone(), vbus);
+            }
+            facts.insert(
+                node,
+                node_facts(config, cc, nc, node, eds, eds_text).map_err(err)?,
+            );
+        }
+        let mut tasks = Vec::new();
+        let (master, task) = CanopenBus::spawn(
+            bus.clone(),
+            Duration::from_millis(cc.sdo_timeout_ms),
+            crate::canopen::sync_thread::SyncSettings {
+                running: cc.sync_period_us > 0,
+                // A stopped SYNC started at run time without a period runs
+                // at 10 ms until one is given.
+                period: Duration::from_micros(if cc.sync_period_us > 0 {
+                    cc.sync_period_us
+                } else {
+                    10_000
+                }),
+                counter_overflow: cc.sync_counter_overflow,
+            },
+            (cc.time_period_ms > 0).then(|| Duration::from_millis(cc.time_period_ms)),
+            sync_thread,
+            facts,
+            shutdown.child_token(),
+        );
+        let master = master.with_client_sdo_limit(
+            config.security.limits.sdo_requests_per_client_and_node as usize,
+        );
+        master.set_handover_spin(Duration::from_micros(config.handover_spin_us));
+        self.canopen.insert(cc.bus.clone(), master);
+        tasks.push(task);
+        // The master's own heartbeat, which the axis drives consume.
+        if let Some((id, ms)) = cc.master_heartbeat() {
+            let id = NodeId::new(u32::from(id)).map_err(|e| BootError::MasterHeartbeat {
+                bus: cc.bus.clone(),
+                message: e.to_string(),
+            })?;
+            tasks.push(crate::canopen::master_heartbeat::spawn(
+                bus,
+                id,
+                Duration::from_millis(u64::from(ms)),
+                shutdown.child_token(),
+            ));
+        }
+        Ok(tasks)
+    }
+
+    /// Wires up the simulated device of node `nc` on `vbus`; it starts
+    /// with the others, after every master listens.
+    fn simulate(
+        &mut self,
+        config: &Config,
+        cc: &CanopenConfig,
+        nc: &NodeConfig,
+        node: NodeId,
+        eds: Arc<Eds>,
+        vbus: cangate_can::VirtualBus,
+    ) {
+        let wheel_counter = config
+            .handwheels
+            .iter()
+            .find(|h| h.bus == cc.bus && h.node == nc.id)
+            .map(|h| h.counter);
+        let device = crate::simulation::wiring::canopen_device(nc, node, eds, wheel_counter);
+        if let SimulatedDevice::Handwheel(handle) = &device {
+            self.sim_wheels
+                .insert((cc.bus.clone(), nc.id), handle.clone());
+        }
+        self.simulation.add_device(&cc.bus, node, device.clone());
+        self.simulated.push((vbus.connect(false), device));
+    }
+}
+
+/// Starts one CANsmc master: its simulated slaves first (they attach to
+/// the virtual buses before the master's first MCT), then its cycle
+/// thread.
+fn start_cansmc_master(
+    config: &Config,
+    mc: &crate::config::CansmcConfig,
+    buses: &BTreeMap<String, BusHandle>,
+    network: &VirtualNetwork,
+    axis_port: Option<crate::axis_runner::AxisPort>,
+    shutdown: &CancellationToken,
+) -> Result<
+    (
+        CansmcMaster,
+        std::thread::JoinHandle<()>,
+        Vec<cangate_sim::cansmc_runner::CansmcSlaveHandle>,
+    ),
+    BootError,
+> {
+    let err = |message: String| BootError::Cansmc {
+        master: mc.name.clone(),
+        bus: mc.command_bus.clone(),
+        message,
+    };
+    let sims = crate::simulation::wiring::start_cansmc_slaves(
+        mc,
+        |name| network.get(buses[name].info().interface.as_str()),
+        shutdown.child_token(),
+    )
+    .map_err(err)?;
+    let (master, thread) = CansmcMaster::start(
+        mc,
+        mc.effective_bitrate(&config.buses),
+        buses[&mc.command_bus].clone(),
+        buses[&mc.status_bus].clone(),
+        axis_port,
+        shutdown.child_token(),
+    )
+    .map_err(err)?;
+    Ok((master, thread, sims))
+}
+
 /// What the master knows of configured node `nc` before it is heard of:
 /// its PDOs and boot procedure (from `node_plan`), EDS and heartbeat.
 fn node_facts(
@@ -526,74 +625,14 @@ fn node_plan(
     sync: bool,
     master_heartbeat: Option<(u8, u16)>,
 ) -> Result<NodePlan, String> {
-    if let Some(axis) = axis {
-        use cangate_axis::process_data::{FeedbackTrigger, standard_pdos};
-        if !nc.tpdo.is_empty() || !nc.rpdo.is_empty() {
-            return Err(format!(
-                "backs axis {}: its PDOs are set by the axis layer; remove the tpdo/rpdo entries",
-                axis.name
-            ));
-        }
-        let trigger = if sync {
-            FeedbackTrigger::Sync
-        } else {
-            FeedbackTrigger::Event { event_timer_ms: 10 }
-        };
-        // The SDO fallback maps no PDO: whatever the drive's own PDOs
-        // carry is left alone and not used.
-        let (rpdos, tpdos) = match axis.process_data {
-            ProcessDataChoice::Pdo => standard_pdos(node, trigger),
-            ProcessDataChoice::Sdo => (Vec::new(), Vec::new()),
-        };
-        let mut writes = dcf_writes(nc, node, eds)?;
-        if let Some(ms) = nc.heartbeat_producer_ms {
-            writes.push((ObjectAddress::new(0x1017, 0), ms.to_le_bytes().to_vec()));
-        }
-        writes.extend(life_guarding_writes(nc, eds));
-        writes.extend(master_heartbeat_consumer(eds, master_heartbeat, axis));
-        for p in tpdos.iter().chain(&rpdos) {
-            writes.extend(p.sdo_writes().map_err(|e| e.to_string())?);
-        }
-        writes.extend(cangate_axis::cia402::Cia402Axis::new(axis.controller()).boot_writes());
-        writes.push((
-            cangate_canopen::cia402::objects::HOMING_METHOD,
-            vec![axis.homing_method as u8],
-        ));
-        for w in &nc.writes {
-            let addr = parse_object(&w.object)?;
-            let ty: DataType =
-                w.ty.parse()
-                    .map_err(|e| format!("write {}: {e}", w.object))?;
-            let v = Value::parse(ty, &w.value).map_err(|e| format!("write {}: {e}", w.object))?;
-            writes.push((addr, v.encode()));
-        }
-        let plan = BootPlan {
-            device_type: nc.device_type,
-            vendor_id: nc.vendor_id,
-            product_code: nc.product_code,
-            writes,
-        };
-        return Ok((tpdos, rpdos, Some(Arc::new(plan))));
-    }
-    let layouts = |kind: PdoKind,
-                   entries: &[crate::config::PdoConfigEntry]|
-     -> Result<Vec<PdoConfig>, String> {
-        if entries.is_empty() {
-            // Not configured: the EDS defaults describe what the node sends.
-            return Ok(eds
-                .map(|e| {
-                    (1..=4)
-                        .filter_map(|n| PdoConfig::from_od(&e.od, kind, n, node))
-                        .filter(|p| !p.is_empty())
-                        .collect()
-                })
-                .unwrap_or_default());
-        }
-        entries.iter().map(|p| p.to_pdo(kind, node)).collect()
+    let (tpdos, rpdos) = match axis {
+        Some(axis) => axis_pdos(nc, node, axis, sync)?,
+        None => (
+            pdo_layouts(PdoKind::Tpdo, &nc.tpdo, eds, node)?,
+            pdo_layouts(PdoKind::Rpdo, &nc.rpdo, eds, node)?,
+        ),
     };
-    let tpdos = layouts(PdoKind::Tpdo, &nc.tpdo)?;
-    let rpdos = layouts(PdoKind::Rpdo, &nc.rpdo)?;
-    if !nc.boot {
+    if axis.is_none() && !nc.boot {
         return Ok((tpdos, rpdos, None));
     }
     let mut writes = dcf_writes(nc, node, eds)?;
@@ -601,23 +640,31 @@ fn node_plan(
         writes.push((ObjectAddress::new(0x1017, 0), ms.to_le_bytes().to_vec()));
     }
     writes.extend(life_guarding_writes(nc, eds));
-    // Only PDOs configured explicitly are written; EDS defaults are the
-    // node's own.
-    for (entries, list) in [(&nc.tpdo, &tpdos), (&nc.rpdo, &rpdos)] {
-        if !entries.is_empty() {
-            for p in list {
+    match axis {
+        Some(axis) => {
+            writes.extend(master_heartbeat_consumer(eds, master_heartbeat, axis));
+            for p in tpdos.iter().chain(&rpdos) {
                 writes.extend(p.sdo_writes().map_err(|e| e.to_string())?);
+            }
+            writes.extend(cangate_axis::cia402::Cia402Axis::new(axis.controller()).boot_writes());
+            writes.push((
+                cangate_canopen::cia402::objects::HOMING_METHOD,
+                vec![axis.homing_method as u8],
+            ));
+        }
+        None => {
+            // Only PDOs configured explicitly are written; EDS defaults are
+            // the node's own.
+            for (entries, list) in [(&nc.tpdo, &tpdos), (&nc.rpdo, &rpdos)] {
+                if !entries.is_empty() {
+                    for p in list {
+                        writes.extend(p.sdo_writes().map_err(|e| e.to_string())?);
+                    }
+                }
             }
         }
     }
-    for w in &nc.writes {
-        let addr = parse_object(&w.object)?;
-        let ty: DataType =
-            w.ty.parse()
-                .map_err(|e| format!("write {}: {e}", w.object))?;
-        let v = Value::parse(ty, &w.value).map_err(|e| format!("write {}: {e}", w.object))?;
-        writes.push((addr, v.encode()));
-    }
+    writes.extend(configured_writes(nc)?);
     let plan = BootPlan {
         device_type: nc.device_type,
         vendor_id: nc.vendor_id,
@@ -625,6 +672,71 @@ fn node_plan(
         writes,
     };
     Ok((tpdos, rpdos, Some(Arc::new(plan))))
+}
+
+/// The PDOs of a drive that backs `axis`: the axis layer's standard
+/// mapping (none for an axis whose process data goes by SDO).
+fn axis_pdos(
+    nc: &NodeConfig,
+    node: NodeId,
+    axis: &AxisConfig,
+    sync: bool,
+) -> Result<(Vec<PdoConfig>, Vec<PdoConfig>), String> {
+    use cangate_axis::process_data::{FeedbackTrigger, standard_pdos};
+    if !nc.tpdo.is_empty() || !nc.rpdo.is_empty() {
+        return Err(format!(
+            "backs axis {}: its PDOs are set by the axis layer; remove the tpdo/rpdo entries",
+            axis.name
+        ));
+    }
+    let trigger = if sync {
+        FeedbackTrigger::Sync
+    } else {
+        FeedbackTrigger::Event { event_timer_ms: 10 }
+    };
+    // The SDO fallback maps no PDO: whatever the drive's own PDOs carry is
+    // left alone and not used.
+    let (rpdos, tpdos) = match axis.process_data {
+        ProcessDataChoice::Pdo => standard_pdos(node, trigger),
+        ProcessDataChoice::Sdo => (Vec::new(), Vec::new()),
+    };
+    Ok((tpdos, rpdos))
+}
+
+/// The layouts of a node's PDOs of one kind: as configured, else (not
+/// configured) the EDS defaults, which describe what the node sends.
+fn pdo_layouts(
+    kind: PdoKind,
+    entries: &[crate::config::PdoConfigEntry],
+    eds: Option<&Eds>,
+    node: NodeId,
+) -> Result<Vec<PdoConfig>, String> {
+    if entries.is_empty() {
+        return Ok(eds
+            .map(|e| {
+                (1..=4)
+                    .filter_map(|n| PdoConfig::from_od(&e.od, kind, n, node))
+                    .filter(|p| !p.is_empty())
+                    .collect()
+            })
+            .unwrap_or_default());
+    }
+    entries.iter().map(|p| p.to_pdo(kind, node)).collect()
+}
+
+/// The node's configured boot writes (`[[canopen.node.write]]`), encoded.
+fn configured_writes(nc: &NodeConfig) -> Result<Vec<(ObjectAddress, Vec<u8>)>, String> {
+    nc.writes
+        .iter()
+        .map(|w| {
+            let addr = parse_object(&w.object)?;
+            let ty: DataType =
+                w.ty.parse()
+                    .map_err(|e| format!("write {}: {e}", w.object))?;
+            let v = Value::parse(ty, &w.value).map_err(|e| format!("write {}: {e}", w.object))?;
+            Ok((addr, v.encode()))
+        })
+        .collect()
 }
 
 /// The boot writes that let a guarded node watch the master's guarding
