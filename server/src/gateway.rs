@@ -215,7 +215,11 @@ impl Gateway {
         let mut sim_smc = BTreeMap::new();
         let mut cansmc_threads = Vec::new();
         for mc in &config.cansmc {
-            let (master, thread, sims) = start_cansmc_master(
+            let StartedCansmc {
+                master,
+                thread,
+                sims,
+            } = start_cansmc_master(
                 config,
                 mc,
                 &buses,
@@ -378,13 +382,16 @@ impl Gateway {
 
 type NodePlan = (Vec<PdoConfig>, Vec<PdoConfig>, Option<Arc<BootPlan>>);
 
+/// The buses by name.
+type Buses = BTreeMap<String, BusHandle>;
+
 /// Opens every configured bus and starts its owner task, with its client
 /// share.
 fn start_buses(
     config: &Config,
     network: &VirtualNetwork,
     shutdown: &CancellationToken,
-) -> Result<(BTreeMap<String, BusHandle>, Vec<JoinHandle<()>>), BootError> {
+) -> Result<(Buses, Vec<JoinHandle<()>>), BootError> {
     let mut buses = BTreeMap::new();
     let mut tasks = Vec::new();
     for bc in &config.buses {
@@ -534,14 +541,7 @@ fn start_cansmc_master(
     network: &VirtualNetwork,
     axis_port: Option<crate::axis_runner::AxisPort>,
     shutdown: &CancellationToken,
-) -> Result<
-    (
-        CansmcMaster,
-        std::thread::JoinHandle<()>,
-        Vec<cangate_sim::cansmc_runner::CansmcSlaveHandle>,
-    ),
-    BootError,
-> {
+) -> Result<StartedCansmc, BootError> {
     let err = |message: String| BootError::Cansmc {
         master: mc.name.clone(),
         bus: mc.command_bus.clone(),
@@ -562,7 +562,20 @@ fn start_cansmc_master(
         shutdown.child_token(),
     )
     .map_err(err)?;
-    Ok((master, thread, sims))
+    Ok(StartedCansmc {
+        master,
+        thread,
+        sims,
+    })
+}
+
+/// A started CANsmc master.
+struct StartedCansmc {
+    master: CansmcMaster,
+    /// Its cycle thread.
+    thread: std::thread::JoinHandle<()>,
+    /// Its simulated slaves.
+    sims: Vec<cangate_sim::cansmc_runner::CansmcSlaveHandle>,
 }
 
 /// What the master knows of configured node `nc` before it is heard of:
