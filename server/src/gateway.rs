@@ -886,3 +886,26 @@ fn open_bus(bc: &BusConfig, network: &VirtualNetwork) -> Result<(BusInfo, Backen
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A start-up failure says by its variant what failed: here a bus
+    /// whose interface does not exist.
+    #[test]
+    fn a_missing_interface_is_a_bus_boot_error() {
+        let config = Config::from_toml(
+            "[[bus]]\nname = \"can0\"\nbackend = \"socketcan\"\ninterface = \"nosuchcan7\"\n",
+        )
+        .expect("valid configuration");
+        let Err(e) = Gateway::start(&config, CancellationToken::new()) else {
+            panic!("a missing interface starts");
+        };
+        assert!(
+            matches!(&e, BootError::Bus { bus, .. } if bus == "can0"),
+            "{e:?}"
+        );
+        assert!(e.to_string().starts_with("bus \"can0\": "), "{e}");
+    }
+}
