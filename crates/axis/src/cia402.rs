@@ -372,6 +372,14 @@ pub struct CyclicSample {
     deadman_stop: bool,
 }
 
+impl CyclicSample {
+    /// Whether this sample ended the trajectory or started the dead-man's
+    /// stop ramp: the axis must see it, not only a later sample.
+    pub fn ends_a_motion(&self) -> bool {
+        self.finished || self.deadman_stop
+    }
+}
+
 impl CyclicPlan {
     /// A plan that holds `position` (user units): the set-point of an axis
     /// at rest.
