@@ -745,6 +745,31 @@ async fn the_page_shows_a_gateway_that_went_away_and_a_failed_stop() {
     assert!(screenshots().join("gone.png").exists());
 }
 
+/// Every page at a panel PC's 1024×768 and at 1920×1080: no command button
+/// outside the viewport, no sideways scrolling, no number cut, STOP ALL and
+/// QUICK STOP ALL in view; a screenshot of each in `target/web-screenshots/`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_page_fits_a_panel_pc_and_a_full_hd_screen() {
+    if !can_run("every_page_fits_a_panel_pc_and_a_full_hd_screen") {
+        return;
+    }
+    let server = demo_server().await;
+    let url = format!("http://{}/", server.addr);
+    let steps = drive(
+        &["layout".into(), url, screenshots().display().to_string()],
+        |need| async move { unexpected(need) },
+    )
+    .await;
+    for size in ["1024x768", "1920x1080"] {
+        for page in ["axes", "buses", "canopen", "handwheel", "cansmc"] {
+            let step = format!("layout {page} {size}");
+            assert!(steps.contains(&step), "no step {step:?} in {steps:?}");
+            assert!(screenshots().join(format!("{page}-{size}.png")).exists());
+        }
+    }
+    assert_eq!(steps.last().map(String::as_str), Some("no-console-errors"));
+}
+
 /// The dashboard over HTTPS: the demo gateway with `[security.tls]` (a
 /// throwaway self-signed certificate for 127.0.0.1, made here with rcgen),
 /// Chromium trusting exactly that certificate's public key

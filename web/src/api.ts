@@ -169,7 +169,7 @@ export function clearNotice(): void {
 export function showStopFailed(what: string, why: string): void {
   const box = document.getElementById("stop-failed")!;
   const text = document.getElementById("stop-failed-text")!;
-  const at = new Date().toLocaleTimeString();
+  const at = clock();
   text.textContent = `${what} FAILED at ${at}: ${why}. The axes may still be moving: use the machine's emergency stop if they are.`;
   box.dataset.count = String(Number(box.dataset.count ?? "0") + 1);
   box.hidden = false;
@@ -271,6 +271,13 @@ function countStream(delta: number): void {
   mostStreams = Math.max(mostStreams, openStreams);
   document.body.dataset.streams = String(openStreams);
   document.body.dataset.streamsMax = String(mostStreams);
+}
+
+/** A time of day as the page shows every time: 24-hour `HH:MM:SS`, local. */
+export function clock(at: Date | number = new Date()): string {
+  const d = typeof at === "number" ? new Date(at) : at;
+  const two = (n: number) => String(n).padStart(2, "0");
+  return `${two(d.getHours())}:${two(d.getMinutes())}:${two(d.getSeconds())}`;
 }
 
 export function el<K extends keyof HTMLElementTagNameMap>(

@@ -31,7 +31,7 @@ import {
   type ObjectInfo,
   type Value,
 } from "./gen/cangate/v1/canopen_pb";
-import { abortText, canopen, clearNotice, el, keepStreaming, sdoAbort, showConnected, showError } from "./api";
+import { abortText, canopen, clearNotice, clock, el, keepStreaming, sdoAbort, showConnected, showError } from "./api";
 import { applyRoles, guard } from "./roles";
 
 const enumName = (e: Record<number, string>, v: number) =>
@@ -56,7 +56,7 @@ const dictionaries = new Map<string, ObjectInfo[] | string>();
 const MAX_PICKS = 200;
 
 function time(ns: bigint): string {
-  return new Date(Number(ns / 1_000_000n)).toLocaleTimeString();
+  return clock(Number(ns / 1_000_000n));
 }
 
 function emcyText(e: Emcy): string {
@@ -156,7 +156,7 @@ async function nmt(bus: string, node: number, command: NmtCommand, label: string
   try {
     await canopen.sendNmt({ bus, node, command });
     clearNotice();
-    logEvent(`${new Date().toLocaleTimeString()}  ${bus} node ${node}: NMT ${label} sent`);
+    logEvent(`${clock()}  ${bus} node ${node}: NMT ${label} sent`);
   } catch (e) {
     showError(`NMT ${label} to ${bus} node ${node}`, e);
   }
@@ -305,8 +305,12 @@ function picked(): void {
   const dict = dictionaries.get(chosenNodeKey());
   const o = name && Array.isArray(dict) ? dict.find((x) => x.name === name) : undefined;
   if (!o) {
+    // Back to an address typed by hand: the gateway takes the type from
+    // the EDS again, not the one of the object picked before.
     info.textContent = "";
     delete info.dataset.object;
+    (document.getElementById("sdo-type") as HTMLSelectElement).value = "0";
+    edsOption(undefined);
     return;
   }
   (document.getElementById("sdo-index") as HTMLInputElement).value = o.index.toString(16).toUpperCase().padStart(4, "0");

@@ -3,7 +3,7 @@
 // stop-all need it) and at most one more for the page shown (a bus's
 // frames, node events, ...), opened when its tab is shown and closed when
 // it is left. Three at most (data-streams-max on <body>).
-import { initStopBanner, session as sessionApi, setToken } from "./api";
+import { clearNotice, initStopBanner, session as sessionApi, setToken } from "./api";
 import { initAxes, startAxes, stopAll } from "./axes";
 import { enterBuses, initBuses, startBuses } from "./buses";
 import { enterCanopen, initCanopen } from "./canopen";
@@ -50,6 +50,9 @@ function show(page: string): void {
     t.classList.toggle("active", t.dataset.page === page);
   }
   if (page !== current) {
+    // A message about the page left does not follow the operator to the
+    // next one (a failed stop keeps its own banner until acknowledged).
+    if (current) clearNotice();
     current = page;
     enter(page);
   }
