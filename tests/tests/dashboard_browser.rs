@@ -307,6 +307,7 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
             "canopen-nodes",
             "nmt",
             "emcy-shown",
+            "alarm-emcy",
             "sdo-read",
             "sdo-abort",
             "sdo-read-by-name",
@@ -761,7 +762,7 @@ async fn every_page_fits_a_panel_pc_and_a_full_hd_screen() {
     )
     .await;
     for size in ["1024x768", "1920x1080"] {
-        for page in ["axes", "buses", "canopen", "handwheel", "cansmc"] {
+        for page in ["axes", "buses", "canopen", "handwheel", "cansmc", "alarms"] {
             let step = format!("layout {page} {size}");
             assert!(steps.contains(&step), "no step {step:?} in {steps:?}");
             assert!(screenshots().join(format!("{page}-{size}.png")).exists());

@@ -233,7 +233,16 @@ export async function keepStreaming<T>(
     const unlisten = onLink((l) => {
       if (l === "lost") one.abort();
     });
+    // Counted open until it is aborted (the browser drops the connection
+    // then), or it ends: a page switch closes the old page's stream
+    // before it opens the next one's.
     countStream(+1);
+    let counted = true;
+    const uncount = () => {
+      if (counted) countStream(-1);
+      counted = false;
+    };
+    one.signal.addEventListener("abort", uncount, { once: true });
     try {
       for await (const m of open(one.signal)) {
         showConnected();
@@ -247,7 +256,7 @@ export async function keepStreaming<T>(
         if (ConnectError.from(e).code === Code.Unauthenticated) return;
       }
     } finally {
-      countStream(-1);
+      uncount();
       unlisten();
       signal.removeEventListener("abort", stopOne);
       if (!signal.aborted) onEnd();

@@ -7,7 +7,7 @@
 // always-visible stop-all and quick-stop-all (StopAxes, which needs no
 // lease). A stop that fails stays on the page until acknowledged; rows
 // not confirmed by a live stream are marked stale with their age.
-import { AxisActivity, DriveState, Outcome, type Axis, type AxisStatus } from "./gen/cangate/v1/axes_pb";
+import { AxisActivity, DriveState, Outcome, type Axis, type AxisEvent, type AxisStatus } from "./gen/cangate/v1/axes_pb";
 import { Code, ConnectError } from "@connectrpc/connect";
 import {
   ageText,
@@ -23,6 +23,7 @@ import {
   showError,
   showStopFailed,
 } from "./api";
+import { clear as clearAlarm, raise as raiseAlarm } from "./alarms";
 import { applyRoles, guard, type Rpc } from "./roles";
 import { TimeChart } from "./chart";
 
@@ -113,6 +114,7 @@ async function toggleControl(name: string): Promise<void> {
       } catch (e) {
         dropLease(name);
         showError(`lease of ${name}`, e);
+        raiseAlarm(`axis ${name}`, `control lease lost: ${errorText(e)}`);
       }
     }, 1000);
     leases.set(name, { lease: l.lease, timer });
@@ -378,6 +380,18 @@ function update(s: AxisStatus): void {
   if (homed) homed.title = s.homed ? "homed" : "not homed";
 }
 
+/** An axis's fault and its drive's node lost are alarms; the node back clears the latter. */
+function axisAlarm(ev: AxisEvent): void {
+  const source = `axis ${ev.axis}`;
+  const at = Number(ev.timestampUs / 1000n) || Date.now();
+  const k = ev.kind;
+  if (k.case === "fault" && k.value.text) raiseAlarm(source, `fault: ${k.value.text}`, at);
+  else if (k.case === "node") {
+    if (k.value.lost) raiseAlarm(source, `drive lost: ${k.value.reason}`, at);
+    else clearAlarm(source, (t) => t.startsWith("drive lost"));
+  }
+}
+
 /** Stops every axis (no lease needed; quick: CiA 402 quick stop). A stop
  * that fails, or that an axis refuses, stays shown until acknowledged. */
 export async function stopAll(quick = false): Promise<void> {
@@ -440,7 +454,8 @@ export async function startAxes(signal: AbortSignal): Promise<void> {
     (sig) => axes.streamAxisState({ axes: [], changesOnly: true }, { signal: sig }),
     (u) => {
       if (u.update.case === "status") update(u.update.value);
-      else if (u.update.case === "event" && u.update.value.kind.case === "control") {
+      else if (u.update.case === "event") axisAlarm(u.update.value);
+      if (u.update.case === "event" && u.update.value.kind.case === "control") {
         // Control changes hands without a new status (an axis at rest
         // sends none with changesOnly): the handwheel taking an axis.
         const row = rows.get(u.update.value.axis);

@@ -24,19 +24,16 @@ import {
   NmtCommand,
   NmtState,
   ValueSchema,
-  type Emcy,
   type Node,
-  type NodeEvent,
   ObjectAccess,
   type ObjectInfo,
   type Value,
 } from "./gen/cangate/v1/canopen_pb";
-import { abortText, canopen, clearNotice, clock, el, keepStreaming, sdoAbort, showConnected, showError } from "./api";
+import { abortText, canopen, clearNotice, clock, el, sdoAbort, showConnected, showError } from "./api";
+import { onNodeEvent } from "./alarms";
+import { emcyText, enumName, eventText, hex } from "./events";
 import { applyRoles, guard } from "./roles";
 
-const enumName = (e: Record<number, string>, v: number) =>
-  (e[v] ?? String(v)).toLowerCase().replace(/_/g, " ");
-const hex = (n: number | bigint, width: number) => `0x${n.toString(16).toUpperCase().padStart(width, "0")}`;
 
 /** NMT buttons: label, command. */
 const NMT: [string, NmtCommand][] = [
@@ -57,11 +54,6 @@ const MAX_PICKS = 200;
 
 function time(ns: bigint): string {
   return clock(Number(ns / 1_000_000n));
-}
-
-function emcyText(e: Emcy): string {
-  const bits = e.registerBits.length > 0 ? ` [${e.registerBits.join(", ")}]` : "";
-  return `${hex(e.code, 4)} ${e.codeName}, register ${hex(e.register, 2)}${bits}`;
 }
 
 function nodeKey(n: { bus: string; id: number }): string {
@@ -168,30 +160,6 @@ function logEvent(line: string): void {
   const pre = document.getElementById("node-events")!;
   pre.textContent = events.join("\n");
   pre.scrollTop = pre.scrollHeight;
-}
-
-function eventText(ev: NodeEvent): string {
-  const e = ev.event;
-  switch (e.case) {
-    case "bootUp":
-      return "boot-up";
-    case "stateChanged":
-      return `NMT ${enumName(NmtState, e.value.from)} → ${enumName(NmtState, e.value.to)}`;
-    case "heartbeatLost":
-      return `heartbeat lost (timeout ${e.value.timeoutMs} ms)`;
-    case "heartbeatRecovered":
-      return `heartbeat back after ${e.value.silentMs} ms (${enumName(NmtState, e.value.state)})`;
-    case "emcy":
-      return `EMCY ${emcyText(e.value)}`;
-    case "lost":
-      return `${e.value.count} events missed (read too slowly)`;
-    case "bootCompleted":
-      return "boot procedure completed";
-    case "bootFailed":
-      return `boot procedure failed: ${e.value.reason}`;
-    default:
-      return "unknown event";
-  }
 }
 
 // ---- SDO panel ----
@@ -576,10 +544,7 @@ export function enterCanopen(signal: AbortSignal): void {
     setTimeout(poll, 1000);
   };
   void poll();
-  void keepStreaming(
-    "node events",
-    signal,
-    (sig) => canopen.streamNodeEvents({ bus: "", nodes: [] }, { signal: sig }),
-    (ev) => logEvent(`${time(ev.timestampNs)}  ${ev.bus} node ${ev.node}: ${eventText(ev)}`),
-  );
+  // The page's share of the alarms' node-event stream (one stream for both).
+  const stop = onNodeEvent((ev) => logEvent(`${time(ev.timestampNs)}  ${ev.bus} node ${ev.node}: ${eventText(ev)}`));
+  signal.addEventListener("abort", stop, { once: true });
 }

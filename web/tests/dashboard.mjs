@@ -334,6 +334,24 @@ async function canopenPage(page) {
     (await text(page, "#node-events")).includes("can0 node 4: EMCY 0x2310"));
   say(`step emcy-shown ${JSON.stringify(await nodeCell(page, 4, "fault"))}`);
 
+  // The EMCY is an alarm: counted in the header on every page, listed with
+  // its source, kept until acknowledged.
+  const count = () => page.$eval("#alarm-count", (c) => (c.hidden ? 0 : Number(c.textContent)));
+  await until("the alarm counted in the header", async () => (await count()) >= 1);
+  await press(page, `button[data-page="alarms"]`);
+  const emcyAlarm = `#alarms tr[data-source="can0 node 4"]`;
+  await until("the EMCY alarm listed", async () =>
+    (await page.$$eval(emcyAlarm, (rows) =>
+      rows.some((r) => r.dataset.state === "active" && r.textContent.includes("EMCY 0x2310")))));
+  const before = await count();
+  await press(page, `${emcyAlarm}.active button[data-cmd="acknowledge"]`);
+  await until("the EMCY alarm acknowledged", async () =>
+    (await page.$$eval(emcyAlarm, (rows) => rows.every((r) => r.dataset.state.startsWith("acknowledged")))) &&
+    (await count()) === before - 1);
+  await page.screenshot({ path: `${shots}/alarms.png` });
+  say(`step alarm-emcy count-before=${before}`);
+  await press(page, `button[data-page="canopen"]`);
+
   // SDO read of 0x1008 (device name) of node 1, with the EDS type.
   await page.select("#sdo-node", "can0/1");
   await setInput(page, "#sdo-index", "1008");
@@ -671,12 +689,12 @@ async function layout(page) {
   await until("axes X, Y, Z listed", () => axesListed(page));
   for (const [width, height] of [[1024, 768], [1920, 1080]]) {
     await page.setViewport({ width, height });
-    for (const tab of ["axes", "buses", "canopen", "handwheel", "cansmc"]) {
+    for (const tab of ["axes", "buses", "canopen", "handwheel", "cansmc", "alarms"]) {
       await press(page, `button[data-page="${tab}"]`);
       // Its first data in: a row, a card, or a master's line.
       await until(`${tab} filled`, () =>
         page.$eval(`#page-${tab}`, (s) =>
-          s.querySelectorAll("tbody tr, .axis, .card, [data-phase]").length > 0));
+          s.querySelectorAll("tbody tr, .axis, .card, [data-phase], #alarms").length > 0));
       await sleep(300);
       const bad = await page.evaluate((tab) => {
         const problems = [];
