@@ -771,6 +771,39 @@ async fn every_page_fits_a_panel_pc_and_a_full_hd_screen() {
     assert_eq!(steps.last().map(String::as_str), Some("no-console-errors"));
 }
 
+/// Hold-to-run on a touch panel: the jog button jogs Y while a finger
+/// holds it (past the dead-man time) and stops Y when the finger lifts or
+/// the touch is cancelled; checked over gRPC that Y is at rest after.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_touch_jog_runs_while_held_and_stops_when_the_touch_ends_or_is_lost() {
+    if !can_run("a_touch_jog_runs_while_held_and_stops_when_the_touch_ends_or_is_lost") {
+        return;
+    }
+    let server = demo_server().await;
+    let url = format!("http://{}/", server.addr);
+    let steps = drive(
+        &["touch".into(), url, screenshots().display().to_string()],
+        |need| async move { unexpected(need) },
+    )
+    .await;
+    for end in ["touchEnd", "touchCancel"] {
+        let step = steps
+            .iter()
+            .find(|s| s.starts_with(&format!("touch {end} ")))
+            .unwrap_or_else(|| panic!("no touch step for {end} in {steps:?}"));
+        let moved: f64 = step
+            .split_whitespace()
+            .find_map(|w| w.strip_prefix("moved="))
+            .and_then(|v| v.parse().ok())
+            .unwrap_or_else(|| panic!("{step}"));
+        assert!(moved > 1.0, "{step}");
+    }
+    let c = client(&server).await;
+    let y = axis_status(&c, "Y").await;
+    assert_eq!(y.activity, pb::AxisActivity::Idle as i32, "{y:?}");
+    assert_eq!(steps.last().map(String::as_str), Some("no-console-errors"));
+}
+
 /// The dashboard over HTTPS: the demo gateway with `[security.tls]` (a
 /// throwaway self-signed certificate for 127.0.0.1, made here with rcgen),
 /// Chromium trusting exactly that certificate's public key

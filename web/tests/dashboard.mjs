@@ -7,6 +7,7 @@
 //   node web/tests/dashboard.mjs tls https://127.0.0.1:PORT/ SCREENSHOT_DIR CERT_PEM
 //   node web/tests/dashboard.mjs gone URL SCREENSHOT_DIR
 //   node web/tests/dashboard.mjs layout URL SCREENSHOT_DIR
+//   node web/tests/dashboard.mjs touch URL SCREENSHOT_DIR
 //
 // (gone: the test shuts the gateway down when asked, "need shutdown"; the
 // page's failed requests after that are expected, not errors.)
@@ -63,6 +64,7 @@ try {
   else if (mode === "tls") await tls(page);
   else if (mode === "gone") await gone(page);
   else if (mode === "layout") await layout(page);
+  else if (mode === "touch") await touch(page);
   else throw new Error(`unknown mode ${mode}`);
   if (errors.length > 0) throw new Error(`the page reported errors:\n${errors.join("\n")}`);
   say("step no-console-errors");
@@ -729,5 +731,40 @@ async function layout(page) {
       if (bad.length > 0) throw new Error(`${tab} at ${width}×${height}: ${bad.join("; ")}`);
       say(`step layout ${tab} ${width}x${height}`);
     }
+  }
+}
+
+// Hold-to-run with a finger on a touch panel: Y jogs while the jog button
+// is touched (longer than the dead-man time), stops when the finger lifts,
+// and stops when the touch is lost (touchcancel: the panel took the
+// gesture, the finger slid off the glass).
+async function touch(page) {
+  await page.setViewport({ width: 1024, height: 768, hasTouch: true });
+  await until("axes X, Y, Z listed", () => axesListed(page));
+  await acquireAndEnable(page, "Y");
+  const jog = await page.$(`.axis[data-axis="Y"] button[data-cmd="jog-plus"]`);
+  await jog.scrollIntoView();
+  const box = await jog.boundingBox();
+  const [x, y] = [box.x + box.width / 2, box.y + box.height / 2];
+  const cdp = await page.createCDPSession();
+  const finger = (type) =>
+    cdp.send("Input.dispatchTouchEvent", { type, touchPoints: type === "touchStart" ? [{ x, y }] : [] });
+  const jogging = async () => (await cell(page, "Y", "activity")) === "jogging";
+  const atRest = async () =>
+    (await cell(page, "Y", "activity")) === "idle" && Math.abs(await num(page, "Y", "velocity")) < 1e-6;
+
+  for (const end of ["touchEnd", "touchCancel"]) {
+    const y0 = await num(page, "Y", "position");
+    await finger("touchStart");
+    await until(`Y jogging under the finger (${end})`, jogging);
+    await sleep(1200);
+    const held = await num(page, "Y", "position");
+    if (!((await jogging()) && held > y0 + 1)) {
+      throw new Error(`Y stopped while touched (from ${y0} to ${held})`);
+    }
+    await finger(end);
+    const t0 = Date.now();
+    await until(`Y at rest after ${end}`, atRest);
+    say(`step touch ${end} moved=${(held - y0).toFixed(1)} stop_ms=${Date.now() - t0}`);
   }
 }
