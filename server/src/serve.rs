@@ -262,7 +262,10 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         .set_serving::<cangate_proto::v1::lss_server::LssServer<crate::grpc::lss_service::LssService>>()
         .await;
     let session_service = cangate_proto::v1::session_server::SessionServer::new(
-        crate::grpc::session_service::SessionService::new(config.security.authentication()),
+        crate::grpc::session_service::SessionService::new(
+            config.security.authentication(),
+            config.security.viewers_may_stop,
+        ),
     );
     health_reporter
         .set_serving::<cangate_proto::v1::cansmc_server::CansmcServer<CansmcService>>()
