@@ -246,16 +246,13 @@ impl Gateway {
                 ));
             }
         }
-        let (axes, axis_tasks, mut axis_ports) = Axes::start(
-            &config.axes,
-            &canopen,
-            &config.cansmc,
-            shutdown.child_token(),
-        )
-        .map_err(|message| StartError::Bus {
-            bus: "axes".into(),
-            message,
-        })?;
+        let (axes, axis_tasks, mut axis_ports) = config
+            .axis_specs()
+            .and_then(|specs| Axes::start(&specs, &canopen, shutdown.child_token()))
+            .map_err(|message| StartError::Bus {
+                bus: "axes".into(),
+                message,
+            })?;
         tasks.extend(axis_tasks);
         let mut cansmc = BTreeMap::new();
         for mc in &config.cansmc {

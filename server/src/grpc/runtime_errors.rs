@@ -7,6 +7,7 @@ use crate::cansmc::CansmcError;
 use crate::handwheel::HandwheelError;
 use crate::not_found::NotFound;
 use crate::not_found::quote_prefix;
+use cangate_axis::CommandError;
 use cangate_canopen::NodeId;
 use cangate_canopen::od::{LookupError, ObjectDictionary};
 use cangate_cansmc::master::ParameterError;
@@ -32,6 +33,26 @@ impl From<AxisError> for ApiError {
             AxisError::Unavailable(m) => ApiError::Unavailable(m),
             AxisError::NoAnswer(m) => ApiError::DeadlineExceeded(m),
             AxisError::ShuttingDown => ApiError::ShuttingDown,
+        }
+    }
+}
+
+/// A refused axis command: a malformed value is INVALID_ARGUMENT, a value
+/// beyond a configured limit OUT_OF_RANGE, and what the axis's state
+/// forbids FAILED_PRECONDITION.
+impl From<CommandError> for ApiError {
+    fn from(e: CommandError) -> Self {
+        use CommandError as E;
+        match e {
+            E::BadValue(m) => ApiError::InvalidArgument(m),
+            E::AboveMaximum(m) | E::BeyondSoftLimit(m) => ApiError::OutOfRange(m),
+            E::DriveUnavailable(m)
+            | E::InFault(m)
+            | E::NotEnabled(m)
+            | E::Busy(m)
+            | E::NotCyclic(m)
+            | E::SyncStopped(m)
+            | E::StateUnreachable(m) => ApiError::FailedPrecondition(m),
         }
     }
 }

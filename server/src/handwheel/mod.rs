@@ -556,7 +556,7 @@ fn execute(
         if axes.authorize(b.axis, token).is_err() {
             return Executed::NotControlled;
         }
-        let cfg = &axes.info(b.axis).config;
+        let cfg = &axes.spec(b.axis).motion;
         // The paced rate as the move's velocity, so consecutive small moves
         // blend into an even motion.
         let velocity = (state.config.max_units_per_s * b.distance_per_unit).min(cfg.max_velocity);
