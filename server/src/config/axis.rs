@@ -50,59 +50,154 @@ pub enum StopChoice {
 /// defaults of moves, the stops and the time bounds. Flattened into
 /// `[[axis]]` and `[[cansmc.axis]]` (which refuse unknown keys
 /// themselves); [`CommonAxisConfig::motion`] is the runtime's
-/// [`MotionSpec`].
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// [`MotionSpec`]. Deserialized by hand so that a value of the wrong type
+/// is reported with its key (serde's flattening would lose it).
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct CommonAxisConfig {
     /// User unit name, e.g. "mm" or "deg".
-    #[serde(default = "default_unit")]
     pub unit: String,
     /// Drive (or slave encoder) counts per user unit (negative inverts the
     /// direction).
     pub counts_per_unit: f64,
     /// Soft limits in user units (both or none); a CiA 402 drive also gets
     /// them in its 0x607D at boot.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub min_position: Option<f64>,
     /// Soft limits in user units.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub max_position: Option<f64>,
     /// Velocity ceiling, units/s.
     pub max_velocity: f64,
     /// Acceleration ceiling, units/s².
     pub max_acceleration: f64,
     /// Velocity of moves that give none (default: a quarter of the maximum).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub default_velocity: Option<f64>,
     /// Acceleration of moves that give none (default: a quarter of the
     /// maximum).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub default_acceleration: Option<f64>,
     /// Deceleration of every stop (Stop, StopAxes, the jog dead-man, a lost
     /// lease, shutdown), units/s²; a stop brakes harder when the
     /// interrupted motion's own deceleration is higher (default: the
     /// maximum acceleration).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub stop_deceleration: Option<f64>,
     /// Deceleration of a quick stop, units/s² (default: the maximum
     /// acceleration).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub quick_stop_deceleration: Option<f64>,
     /// How a lapsed lease or dead-man timeout stops the axis.
-    #[serde(default)]
     pub stop_on_loss: StopChoice,
     /// Jog dead-man time in ms.
-    #[serde(default = "default_jog_deadman_ms")]
     pub jog_deadman_ms: u32,
     /// Bound of each state change (and of a CiA 402 set-point acknowledge
     /// and mode switch), in ms.
-    #[serde(default = "default_state_timeout_ms")]
     pub state_timeout_ms: u64,
     /// Bound of a homing run in ms.
-    #[serde(default = "default_homing_timeout_ms")]
     pub homing_timeout_ms: u64,
     /// In-position window, user units (default: 10 counts).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub in_position_window: Option<f64>,
+}
+
+/// The keys of [`CommonAxisConfig`].
+const COMMON_AXIS_KEYS: &[&str] = &[
+    "unit",
+    "counts_per_unit",
+    "min_position",
+    "max_position",
+    "max_velocity",
+    "max_acceleration",
+    "default_velocity",
+    "default_acceleration",
+    "stop_deceleration",
+    "quick_stop_deceleration",
+    "stop_on_loss",
+    "jog_deadman_ms",
+    "state_timeout_ms",
+    "homing_timeout_ms",
+    "in_position_window",
+];
+
+impl<'de> Deserialize<'de> for CommonAxisConfig {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        // As a struct: a flattening parent then hands over these keys only
+        // and still refuses the ones nobody takes.
+        d.deserialize_struct("CommonAxisConfig", COMMON_AXIS_KEYS, CommonAxisVisitor)
+    }
+}
+
+struct CommonAxisVisitor;
+
+impl<'de> serde::de::Visitor<'de> for CommonAxisVisitor {
+    type Value = CommonAxisConfig;
+
+    fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("the keys of an axis")
+    }
+
+    fn visit_map<A: serde::de::MapAccess<'de>>(self, mut map: A) -> Result<Self::Value, A::Error> {
+        use serde::de::Error;
+        fn value<'de, T: Deserialize<'de>, A: serde::de::MapAccess<'de>>(
+            map: &mut A,
+            key: &str,
+        ) -> Result<T, A::Error> {
+            map.next_value()
+                .map_err(|e| A::Error::custom(format_args!("{key}: {e}")))
+        }
+        let mut c = CommonAxisConfig {
+            unit: default_unit(),
+            counts_per_unit: 0.0,
+            min_position: None,
+            max_position: None,
+            max_velocity: 0.0,
+            max_acceleration: 0.0,
+            default_velocity: None,
+            default_acceleration: None,
+            stop_deceleration: None,
+            quick_stop_deceleration: None,
+            stop_on_loss: StopChoice::default(),
+            jog_deadman_ms: default_jog_deadman_ms(),
+            state_timeout_ms: default_state_timeout_ms(),
+            homing_timeout_ms: default_homing_timeout_ms(),
+            in_position_window: None,
+        };
+        let mut required = [false; 3];
+        while let Some(key) = map.next_key::<String>()? {
+            let k = key.as_str();
+            match k {
+                "unit" => c.unit = value(&mut map, k)?,
+                "counts_per_unit" => (c.counts_per_unit, required[0]) = (value(&mut map, k)?, true),
+                "min_position" => c.min_position = value(&mut map, k)?,
+                "max_position" => c.max_position = value(&mut map, k)?,
+                "max_velocity" => (c.max_velocity, required[1]) = (value(&mut map, k)?, true),
+                "max_acceleration" => {
+                    (c.max_acceleration, required[2]) = (value(&mut map, k)?, true)
+                }
+                "default_velocity" => c.default_velocity = value(&mut map, k)?,
+                "default_acceleration" => c.default_acceleration = value(&mut map, k)?,
+                "stop_deceleration" => c.stop_deceleration = value(&mut map, k)?,
+                "quick_stop_deceleration" => c.quick_stop_deceleration = value(&mut map, k)?,
+                "stop_on_loss" => c.stop_on_loss = value(&mut map, k)?,
+                "jog_deadman_ms" => c.jog_deadman_ms = value(&mut map, k)?,
+                "state_timeout_ms" => c.state_timeout_ms = value(&mut map, k)?,
+                "homing_timeout_ms" => c.homing_timeout_ms = value(&mut map, k)?,
+                "in_position_window" => c.in_position_window = value(&mut map, k)?,
+                _ => return Err(A::Error::unknown_field(k, COMMON_AXIS_KEYS)),
+            }
+        }
+        for (given, key) in
+            required
+                .into_iter()
+                .zip(["counts_per_unit", "max_velocity", "max_acceleration"])
+        {
+            if !given {
+                return Err(A::Error::missing_field(key));
+            }
+        }
+        Ok(c)
+    }
 }
 
 /// How long a move or stop may take beyond its plan before it times out.
@@ -637,6 +732,25 @@ mod tests {
                     "{axis} {bad}: {e}"
                 );
             }
+        }
+    }
+
+    #[test]
+    fn a_shared_key_of_the_wrong_type_or_missing_is_named() {
+        for (axis, key) in [
+            ("X", "max_velocity = 40.0\n"),
+            ("A", "max_velocity = 10.0\n"),
+        ] {
+            let text = BOTH.replace(key, "max_velocity = \"fast\"\n");
+            let e = Config::from_toml(&text).unwrap_err().to_string();
+            assert!(
+                e.contains("max_velocity: invalid type: string \"fast\""),
+                "{axis}: {e}"
+            );
+            let e = Config::from_toml(&BOTH.replace(key, ""))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("max_velocity"), "{axis}: {e}");
         }
     }
 }
