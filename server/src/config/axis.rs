@@ -1,7 +1,6 @@
 //! `[[axis]]`: CiA 402 drives as axes: units, limits, modes, stops.
 
 use super::Config;
-use cangate_axis::cia402::Cia402Config;
 use cangate_axis::{
     AxisSpec, Cia402Drive, DriveSpec, MotionSpec, PositionMode, ProcessDataPath, StopKind, Units,
 };
@@ -477,14 +476,6 @@ impl TryFrom<&AxisConfig> for AxisSpec {
 }
 
 impl AxisConfig {
-    /// The controller configuration.
-    pub fn controller(&self) -> Cia402Config {
-        Cia402Config {
-            motion: self.common.motion(),
-            position_mode: self.position_mode.mode(),
-        }
-    }
-
     pub(super) fn validate(&self, cfg: &Config) -> Result<(), String> {
         if self.name.is_empty() || self.name.contains(char::is_whitespace) {
             return Err(format!(
@@ -543,16 +534,16 @@ mod tests {
     #[test]
     fn stop_decelerations_default_to_the_maximum_and_must_be_positive() {
         let c = Config::from_toml(BASE).unwrap();
-        let ctl = c.axes[0].controller();
-        assert_eq!(ctl.motion.stop_deceleration, 100.0);
-        assert_eq!(ctl.motion.quick_stop_deceleration, 100.0);
+        let ctl = c.axes[0].common.motion();
+        assert_eq!(ctl.stop_deceleration, 100.0);
+        assert_eq!(ctl.quick_stop_deceleration, 100.0);
         let c = Config::from_toml(&format!(
             "{BASE}stop_deceleration = 250.0\nquick_stop_deceleration = 400.0\n"
         ))
         .unwrap();
-        let ctl = c.axes[0].controller();
-        assert_eq!(ctl.motion.stop_deceleration, 250.0);
-        assert_eq!(ctl.motion.quick_stop_deceleration, 400.0);
+        let ctl = c.axes[0].common.motion();
+        assert_eq!(ctl.stop_deceleration, 250.0);
+        assert_eq!(ctl.quick_stop_deceleration, 400.0);
         for bad in [
             "stop_deceleration = 0.0",
             "quick_stop_deceleration = -1.0",
