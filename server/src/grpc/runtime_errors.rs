@@ -144,3 +144,31 @@ macro_rules! into_status {
     )*};
 }
 into_status!(NotFound, AxisError, CansmcError, HandwheelError);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tonic::Code;
+
+    #[test]
+    fn each_refusal_reason_gets_its_code_and_keeps_its_message() {
+        use CommandError as E;
+        for (e, code) in [
+            (E::BadValue("m".into()), Code::InvalidArgument),
+            (E::AboveMaximum("m".into()), Code::OutOfRange),
+            (E::BeyondSoftLimit("m".into()), Code::OutOfRange),
+            (E::DriveUnavailable("m".into()), Code::FailedPrecondition),
+            (E::InFault("m".into()), Code::FailedPrecondition),
+            (E::NotEnabled("m".into()), Code::FailedPrecondition),
+            (E::Busy("m".into()), Code::FailedPrecondition),
+            (E::NotCyclic("m".into()), Code::FailedPrecondition),
+            (E::SyncStopped("m".into()), Code::FailedPrecondition),
+            (E::StateUnreachable("m".into()), Code::FailedPrecondition),
+        ] {
+            let e = e.prefixed("axis X: ");
+            let status = tonic::Status::from(AxisError::Refused(e.clone()));
+            assert_eq!(status.code(), code, "{e:?}");
+            assert_eq!(status.message(), "axis X: m", "{e:?}");
+        }
+    }
+}
