@@ -6,12 +6,12 @@ use crate::axes::Axes;
 use crate::canopen::{BootPlan, CanopenBus, NodeFacts};
 use crate::cansmc::CansmcMaster;
 use crate::config::{
-    AxisConfig, BackendChoice, BusConfig, CanopenConfig, Config, NodeConfig, ProcessDataChoice,
-    StuffingChoice, parse_object,
+    BackendChoice, BusConfig, CanopenConfig, Config, NodeConfig, StuffingChoice, parse_object,
 };
 use crate::handwheel::Handwheels;
 use crate::not_found::NotFound;
 use crate::simulation::SimulatedDevice;
+use cangate_axis::{AxisSpec, DriveSpec, ProcessDataPath};
 use cangate_can::bus::{Backend, BackendKind, BusHandle, BusInfo};
 use cangate_can::socketcan_bus::SocketCanBus;
 use cangate_can::{BitTiming, Stuffing, VirtualBusConfig, VirtualNetwork};
@@ -246,16 +246,13 @@ impl Gateway {
                 ));
             }
         }
-        let (axes, axis_tasks, mut axis_ports) = Axes::start(
-            &config.axes,
-            &canopen,
-            &config.cansmc,
-            shutdown.child_token(),
-        )
-        .map_err(|message| StartError::Bus {
-            bus: "axes".into(),
-            message,
-        })?;
+        let (axes, axis_tasks, mut axis_ports) = config
+            .axis_specs()
+            .and_then(|specs| Axes::start(&specs, &canopen, shutdown.child_token()))
+            .map_err(|message| StartError::Bus {
+                bus: "axes".into(),
+                message,
+            })?;
         tasks.extend(axis_tasks);
         let mut cansmc = BTreeMap::new();
         for mc in &config.cansmc {
@@ -438,17 +435,23 @@ fn node_facts(
     eds: Option<Arc<Eds>>,
     eds_text: Option<Arc<str>>,
 ) -> Result<NodeFacts, String> {
-    let axis = config
-        .axes
-        .iter()
-        .find(|a| a.bus == cc.bus && a.node == nc.id);
+    let axis = (config.axes.iter())
+        .find(|a| a.bus == cc.bus && a.node == nc.id)
+        .map(AxisSpec::try_from)
+        .transpose()?;
     let sync = cc.sync_period_us > 0;
     let master_heartbeat = cc
         .master_heartbeat()
         .zip(cc.drive_heartbeat_timeout_ms())
         .map(|((id, _), timeout)| (id, timeout));
-    let (tpdos, rpdos, mut boot) =
-        node_plan(nc, node, eds.as_deref(), axis, sync, master_heartbeat)?;
+    let (tpdos, rpdos, mut boot) = node_plan(
+        nc,
+        node,
+        eds.as_deref(),
+        axis.as_ref(),
+        sync,
+        master_heartbeat,
+    )?;
     // A handwheel sends feed only when operational: it is started at every
     // boot-up like the configured nodes.
     if boot.is_none()
@@ -484,11 +487,13 @@ fn node_plan(
     nc: &NodeConfig,
     node: NodeId,
     eds: Option<&Eds>,
-    axis: Option<&AxisConfig>,
+    axis: Option<&AxisSpec>,
     sync: bool,
     master_heartbeat: Option<(u8, u16)>,
 ) -> Result<NodePlan, String> {
-    if let Some(axis) = axis {
+    if let Some(axis) = axis
+        && let DriveSpec::Cia402(drive) = &axis.drive
+    {
         use cangate_axis::process_data::{FeedbackTrigger, standard_pdos};
         if !nc.tpdo.is_empty() || !nc.rpdo.is_empty() {
             return Err(format!(
@@ -503,9 +508,9 @@ fn node_plan(
         };
         // The SDO fallback maps no PDO: whatever the drive's own PDOs
         // carry is left alone and not used.
-        let (rpdos, tpdos) = match axis.process_data {
-            ProcessDataChoice::Pdo => standard_pdos(node, trigger),
-            ProcessDataChoice::Sdo => (Vec::new(), Vec::new()),
+        let (rpdos, tpdos) = match drive.process_data {
+            ProcessDataPath::Pdo => standard_pdos(node, trigger),
+            ProcessDataPath::Sdo { .. } => (Vec::new(), Vec::new()),
         };
         let mut writes = dcf_writes(nc, node, eds)?;
         if let Some(ms) = nc.heartbeat_producer_ms {
@@ -516,10 +521,11 @@ fn node_plan(
         for p in tpdos.iter().chain(&rpdos) {
             writes.extend(p.sdo_writes().map_err(|e| e.to_string())?);
         }
-        writes.extend(cangate_axis::cia402::Cia402Axis::new(axis.controller()).boot_writes());
+        let controller = drive.controller(axis.motion.clone());
+        writes.extend(cangate_axis::cia402::Cia402Axis::new(controller).boot_writes());
         writes.push((
             cangate_canopen::cia402::objects::HOMING_METHOD,
-            vec![axis.homing_method as u8],
+            vec![drive.homing_method as u8],
         ));
         for w in &nc.writes {
             let addr = parse_object(&w.object)?;
@@ -643,7 +649,7 @@ fn dcf_writes(
 fn master_heartbeat_consumer(
     eds: Option<&Eds>,
     master: Option<(u8, u16)>,
-    axis: &AxisConfig,
+    axis: &AxisSpec,
 ) -> Option<(ObjectAddress, Vec<u8>)> {
     let (id, timeout_ms) = master?;
     let addr = ObjectAddress::new(0x1016, 1);

@@ -297,7 +297,7 @@ mod tests {
 
         let period = Duration::from_millis(1);
         let cfg = Cia402Config::example(1000.0, PositionMode::Cyclic);
-        let max_step = cfg.max_velocity * period.as_secs_f64() * 1000.0 + 1.0;
+        let max_step = cfg.motion.max_velocity * period.as_secs_f64() * 1000.0 + 1.0;
         let mut axis = Cia402Axis::new(cfg.clone());
         let mut out = Vec::new();
         let enabled = Feedback {
@@ -312,8 +312,8 @@ mod tests {
             AxisCommand::Move {
                 target: 300.0,
                 relative: false,
-                velocity: Some(cfg.max_velocity),
-                acceleration: Some(cfg.max_acceleration),
+                velocity: Some(cfg.motion.max_velocity),
+                acceleration: Some(cfg.motion.max_acceleration),
             },
             Duration::ZERO,
             &mut out,

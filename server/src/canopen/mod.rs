@@ -192,6 +192,11 @@ pub enum NodeEventKind {
     },
 }
 
+/// The shortest period of periodic TIMEs a bus takes, from the
+/// configuration's bound ([`crate::config::MIN_TIME_PERIOD_MS`]), for the
+/// API to refuse a shorter one the same way.
+pub const MIN_TIME_PERIOD: Duration = Duration::from_millis(crate::config::MIN_TIME_PERIOD_MS);
+
 /// SDO requests one API caller may have queued or running per node by
 /// default (`[security.limits] sdo_requests_per_client_and_node`): a
 /// caller cannot fill a node's SDO channel for everyone else.

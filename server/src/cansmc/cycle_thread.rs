@@ -23,9 +23,9 @@ use crate::axis_runner::{
     AxisEventKind, AxisRunner, AxisUpdate, BusRequest, CommandReply, CoordinatedTarget, Waiters,
     for_axis, prepare_coordinated,
 };
-use crate::config::{CansmcConfig, CyclicChoice, DEFAULT_FIFO_SPIN_US, JogModeChoice};
+use crate::config::{CansmcConfig, CyclicChoice, DEFAULT_FIFO_SPIN_US};
 use cangate_axis::cansmc::{CansmcAxis, CycleInput};
-use cangate_axis::{AxisCommand, AxisEvent, CommandError};
+use cangate_axis::{AxisCommand, AxisEvent, CansmcDrive, CommandError, JogMode};
 use cangate_can::precise_wait::SpinMargin;
 use cangate_can::{BusHandle, BusItem, Direction, Frame, FrameSelector, Subscription, Timestamp};
 use cangate_cansmc::master::{
@@ -109,7 +109,11 @@ struct Thread {
 /// Starts the thread.
 pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String> {
     let name = format!("cansmc-{}", setup.config.name);
-    let master_config = master_config(&setup.config, setup.bitrate);
+    let drives: Vec<&CansmcDrive> = (setup.axes.iter())
+        .flat_map(|port| &port.axes)
+        .map(|a| &a.controller.drive)
+        .collect();
+    let master_config = master_config(&setup.config, &drives, setup.bitrate);
     let master =
         Master::new(master_config).map_err(|e| format!("cansmc {}: {e}", setup.config.name))?;
     let rt = tokio::runtime::Builder::new_current_thread()
@@ -120,21 +124,20 @@ pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String>
     let subscription = setup
         .status_bus
         .subscribe(FrameSelector::all(), 4 * 64 + 1024);
-    let cycle = setup.config.cycle_time();
     let (mut slots, mut gear_source, mut axis_requests, mut updates, mut latest) =
         (Vec::new(), Vec::new(), None, None, None);
     if let Some(port) = setup.axes {
-        for ((global, info), entry) in port.axes.into_iter().zip(&setup.config.axes) {
-            let address = SmcAddress::new(entry.address).map_err(|e| e.to_string())?;
+        for a in port.axes {
+            let drive = &a.controller.drive;
+            gear_source.push(drive.gear.and_then(|g| SmcAddress::new(g.source).ok()));
             slots.push(Slot {
-                global,
-                name: info.config.name.clone(),
-                address,
-                axis: CansmcAxis::new(entry.controller(cycle)),
+                global: a.global,
+                name: a.name,
+                address: drive.address,
+                axis: CansmcAxis::new(a.controller),
                 waiters: Waiters::default(),
                 published: None,
             });
-            gear_source.push(entry.gear_source.and_then(|a| SmcAddress::new(a).ok()));
         }
         axis_requests = Some(port.requests);
         updates = Some(port.updates);
@@ -180,17 +183,19 @@ pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String>
         .map_err(|e| format!("cannot start the CANsmc cycle thread: {e}"))
 }
 
-/// The master configuration: axis slaves start with a position MDT, gear
-/// sources and `cyclic = "encoder"` slaves with an encoder request.
-fn master_config(cfg: &CansmcConfig, bitrate: u32) -> MasterConfig {
-    let gear_sources: Vec<u8> = cfg.axes.iter().filter_map(|a| a.gear_source).collect();
-    let velocity_jogs: Vec<u8> = cfg
-        .axes
+/// The master configuration: the slaves of `axes` start with a position
+/// MDT, gear sources and `cyclic = "encoder"` slaves with an encoder
+/// request.
+fn master_config(cfg: &CansmcConfig, axes: &[&CansmcDrive], bitrate: u32) -> MasterConfig {
+    let gear_sources: Vec<u8> = axes
         .iter()
-        .filter(|a| a.jog_mode == JogModeChoice::Velocity)
-        .map(|a| a.address)
+        .filter_map(|a| a.gear.map(|g| g.source))
         .collect();
-    let axis_slaves: Vec<u8> = cfg.axes.iter().map(|a| a.address).collect();
+    let velocity_jogs: Vec<u8> = (axes.iter())
+        .filter(|a| a.jog_mode == JogMode::SlaveVelocity)
+        .map(|a| a.address.get())
+        .collect();
+    let axis_slaves: Vec<u8> = axes.iter().map(|a| a.address.get()).collect();
     let slaves = cfg
         .slaves
         .iter()

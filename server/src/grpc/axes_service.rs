@@ -6,11 +6,10 @@ use super::convert::axes::{event_pb, outcome_pb, resolution, status_pb};
 use super::error::ApiError;
 use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_of};
 use crate::axes::{Axes, AxisUpdate, CommandResult};
-use crate::config::{PositionModeChoice, ProcessDataChoice, StopChoice};
 use crate::gateway::Gateway;
 use crate::security::StopOverBudget;
 use cangate_axis::cia402::AxisSnapshot;
-use cangate_axis::{AxisCommand, Outcome};
+use cangate_axis::{AxisCommand, DriveSpec, Outcome, PositionMode, ProcessDataPath, StopKind};
 use cangate_can::Timestamp;
 use cangate_proto::v1 as pb;
 use cangate_proto::v1::axes_server::Axes as AxesRpc;
@@ -52,43 +51,41 @@ impl AxesService {
 
     fn axis_pb(&self, i: usize) -> pb::Axis {
         let m = self.axes();
-        let info = m.info(i);
-        let c = &info.config;
+        let spec = m.spec(i);
+        let c = &spec.motion;
+        let (process_data, sdo_poll) = match &spec.drive {
+            DriveSpec::Cansmc(_) => (pb::ProcessDataPath::Unspecified, None),
+            DriveSpec::Cia402(d) => match d.process_data {
+                ProcessDataPath::Pdo => (pb::ProcessDataPath::Pdo, None),
+                ProcessDataPath::Sdo { poll } => (pb::ProcessDataPath::Sdo, Some(poll)),
+            },
+        };
         pb::Axis {
-            name: c.name.clone(),
-            backend: if info.cansmc.is_some() {
-                pb::AxisBackend::Cansmc
-            } else {
-                pb::AxisBackend::Cia402
+            name: spec.name.clone(),
+            backend: match spec.drive {
+                DriveSpec::Cansmc(_) => pb::AxisBackend::Cansmc,
+                DriveSpec::Cia402(_) => pb::AxisBackend::Cia402,
             } as i32,
-            bus: c.bus.clone(),
-            node: c.node,
+            bus: spec.bus().to_string(),
+            node: u32::from(spec.node()),
             unit: c.unit.clone(),
-            counts_per_unit: c.counts_per_unit,
+            counts_per_unit: c.units.counts_per_unit,
             min_position: c.min_position,
             max_position: c.max_position,
             max_velocity: c.max_velocity,
             max_acceleration: c.max_acceleration,
-            position_mode: match c.position_mode {
-                PositionModeChoice::Profile => pb::PositionMode::Profile,
-                PositionModeChoice::Cyclic => pb::PositionMode::Cyclic,
+            position_mode: match spec.position_mode() {
+                PositionMode::Profile => pb::PositionMode::Profile,
+                PositionMode::Cyclic => pb::PositionMode::Cyclic,
             } as i32,
-            stop_on_loss: match c.stop_on_loss {
-                StopChoice::Halt => pb::StopKind::Halt,
-                StopChoice::QuickStop => pb::StopKind::QuickStop,
+            stop_on_loss: match spec.stop_on_loss {
+                StopKind::Halt => pb::StopKind::Halt,
+                StopKind::QuickStop => pb::StopKind::QuickStop,
             } as i32,
-            jog_deadman_ms: c.jog_deadman_ms,
+            jog_deadman_ms: c.jog_deadman.as_millis() as u32,
             status: Some(self.status_pb(i, None)),
-            process_data: match (&info.cansmc, c.process_data) {
-                (Some(_), _) => pb::ProcessDataPath::Unspecified,
-                (None, ProcessDataChoice::Pdo) => pb::ProcessDataPath::Pdo,
-                (None, ProcessDataChoice::Sdo) => pb::ProcessDataPath::Sdo,
-            } as i32,
-            sdo_poll_ms: if info.cansmc.is_none() && c.process_data == ProcessDataChoice::Sdo {
-                c.sdo_poll_ms
-            } else {
-                0
-            },
+            process_data: process_data as i32,
+            sdo_poll_ms: sdo_poll.map_or(0, |p| p.as_millis() as u32),
         }
     }
 
@@ -422,20 +419,20 @@ impl AxesRpc for AxesService {
         let owner = owner(&req);
         let r = req.into_inner();
         let i = self.axes().index(&r.axis)?;
-        let c = &self.axes().info(i).config;
+        let c = &self.axes().spec(i).motion;
         let cmd = AxisCommand::Move {
             target: r.target,
             relative: r.relative,
             velocity: motion_value(
                 "velocity",
                 r.velocity,
-                c.counts_per_unit,
+                c.units.counts_per_unit,
                 &format!("{}/s", c.unit),
             )?,
             acceleration: motion_value(
                 "acceleration",
                 r.acceleration,
-                c.counts_per_unit,
+                c.units.counts_per_unit,
                 &format!("{}/s²", c.unit),
             )?,
         };
@@ -452,13 +449,13 @@ impl AxesRpc for AxesService {
         let owner = owner(&req);
         let r = req.into_inner();
         let i = self.axes().index(&r.axis)?;
-        let c = &self.axes().info(i).config;
+        let c = &self.axes().spec(i).motion;
         let cmd = AxisCommand::Jog {
             velocity: r.velocity,
             acceleration: motion_value(
                 "acceleration",
                 r.acceleration,
-                c.counts_per_unit,
+                c.units.counts_per_unit,
                 &format!("{}/s²", c.unit),
             )?,
         };
@@ -521,7 +518,12 @@ impl AxesRpc for AxesService {
             refuse_resting_stop(m, over, &idx)?;
         }
         tracing::info!(target: "cangate::audit", %peer, axes = ?r.axes, quick = r.quick, "stop axes");
-        let results = m.stop_many(&idx, r.quick, r.wait).await?;
+        let kind = if r.quick {
+            StopKind::QuickStop
+        } else {
+            StopKind::Halt
+        };
+        let results = m.stop_many(&idx, kind, r.wait).await?;
         let mut out = Vec::new();
         for (i, res) in idx.iter().zip(results) {
             out.push(match res {
@@ -562,20 +564,20 @@ impl AxesRpc for AxesService {
                 .into());
             }
             m.authorize(i, &r.lease)?;
-            let c = &m.info(i).config;
+            let c = &m.spec(i).motion;
             targets.push((
                 i,
                 t.target,
                 motion_value(
                     "velocity",
                     t.velocity,
-                    c.counts_per_unit,
+                    c.units.counts_per_unit,
                     &format!("{}/s", c.unit),
                 )?,
                 motion_value(
                     "acceleration",
                     t.acceleration,
-                    c.counts_per_unit,
+                    c.units.counts_per_unit,
                     &format!("{}/s²", c.unit),
                 )?,
             ));

@@ -829,10 +829,11 @@ impl Canopen for CanopenService {
                 ))
                 .into());
             }
-            if ms > 0 && u64::from(ms) < crate::config::MIN_TIME_PERIOD_MS {
+            let least = crate::canopen::MIN_TIME_PERIOD;
+            if ms > 0 && Duration::from_millis(u64::from(ms)) < least {
                 return Err(ApiError::InvalidArgument(format!(
                     "TIME period {ms} ms is too short: give at least {} ms (0 stops the periodic TIME)",
-                    crate::config::MIN_TIME_PERIOD_MS
+                    least.as_millis()
                 ))
                 .into());
             }

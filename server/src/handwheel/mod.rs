@@ -109,6 +109,8 @@ pub struct WheelState {
     pub config: HandwheelConfig,
     /// Node id.
     pub node: NodeId,
+    /// Where the feed counter sits in the feed byte.
+    pub layout: CounterLayout,
     /// Resolved bindings.
     pub bindings: Vec<Binding>,
     /// Mode last set or read.
@@ -183,9 +185,14 @@ impl Handwheels {
                 });
             }
             let (control, control_rx) = mpsc::channel(16);
+            let layout = match c.counter {
+                CounterChoice::Nibble => CounterLayout::Nibble,
+                CounterChoice::Bits67 => CounterLayout::Bits6_7,
+            };
             let state = Arc::new(WheelState {
                 config: c.clone(),
                 node,
+                layout,
                 bindings,
                 mode: Mutex::new(None),
                 node_lost: Mutex::new(false),
@@ -194,10 +201,6 @@ impl Handwheels {
                 sim: sims.get(&(c.bus.clone(), c.node)).cloned(),
                 control,
             });
-            let layout = match c.counter {
-                CounterChoice::Nibble => CounterLayout::Nibble,
-                CounterChoice::Bits67 => CounterLayout::Bits6_7,
-            };
             let decoder = FeedDecoder::new(node, layout);
             // Subscribe now, so the first frames after start-up are seen.
             let sub = bus.subscribe(
@@ -556,7 +559,7 @@ fn execute(
         if axes.authorize(b.axis, token).is_err() {
             return Executed::NotControlled;
         }
-        let cfg = &axes.info(b.axis).config;
+        let cfg = &axes.spec(b.axis).motion;
         // The paced rate as the move's velocity, so consecutive small moves
         // blend into an even motion.
         let velocity = (state.config.max_units_per_s * b.distance_per_unit).min(cfg.max_velocity);
