@@ -409,8 +409,8 @@ mod tests {
                     AxisCommand::Move {
                         target: 10.0,
                         relative: false,
-                        velocity: Some(cfg.max_velocity),
-                        acceleration: Some(cfg.max_acceleration),
+                        velocity: Some(cfg.motion.max_velocity),
+                        acceleration: Some(cfg.motion.max_acceleration),
                     },
                     Duration::ZERO,
                     &mut out,

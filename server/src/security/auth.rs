@@ -560,9 +560,8 @@ impl<S> SecurityService<S> {
                     })?;
                 // A stop needs an operator, or a viewer where the
                 // configuration lets viewers stop.
-                let stop_by_viewer = self.shared.viewers_may_stop
-                    && id.role == Role::Viewer
-                    && roles::is_stop(rule);
+                let stop_by_viewer =
+                    self.shared.viewers_may_stop && id.role == Role::Viewer && roles::is_stop(rule);
                 if id.role < needed && !stop_by_viewer {
                     let msg = format!(
                         "{} needs role {needed}; {} holds role {}",
