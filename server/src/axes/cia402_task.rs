@@ -702,7 +702,21 @@ impl Task {
         // that reads the axis after its Disable completed must not see it
         // enabled, nor be refused by the guard.
         self.publish_status(i);
+        // A cyclic axis that stopped sending set-points (disabled, lost)
+        // withdraws its plan now, not at the end of this turn: a client
+        // that changes the SYNC right after its Disable completed must not
+        // be vetoed by the plan of an axis that is no longer enabled.
+        // (Only a withdrawal: new plans of a multi-axis command still go
+        // out together, from publish_plans.)
         let slot = &mut self.slots[i];
+        if let Some(layout) = &slot.setpoint
+            && slot.published.is_some()
+            && slot.axis.cyclic_plan().is_none()
+        {
+            self.setpoints
+                .publish([(i, None, layout.rpdo.cob_id, Vec::new(), layout.offset)]);
+            slot.published = None;
+        }
         let axis = &slot.axis;
         slot.waiters.dispatch(
             e,
