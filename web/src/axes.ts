@@ -352,6 +352,32 @@ function showControl(row: Row, holder: string): void {
   row.cells.control.title = row.cells.control.textContent;
 }
 
+/** Statuses received since the last frame was drawn, the latest per axis. */
+const pending = new Map<string, AxisStatus>();
+let drawScheduled = false;
+
+/**
+ * Takes an axis's status; the cards are redrawn once per frame the
+ * browser draws, with each axis's latest status: moving axes send a
+ * status per SYNC, far more than a screen shows, and each DOM write
+ * costs layout. The position trace samples the latest position anyway.
+ */
+function receive(s: AxisStatus): void {
+  positions.set(s.axis, s.position);
+  pending.set(s.axis, s);
+  if (drawScheduled) return;
+  drawScheduled = true;
+  const draw = () => {
+    drawScheduled = false;
+    const batch = [...pending.values()];
+    pending.clear();
+    for (const st of batch) update(st);
+  };
+  // A hidden tab draws no frames: a timer keeps the cards current there.
+  if (document.hidden) setTimeout(draw, 250);
+  else requestAnimationFrame(draw);
+}
+
 function update(s: AxisStatus): void {
   const row = rows.get(s.axis);
   if (!row) return;
@@ -453,7 +479,7 @@ export async function startAxes(signal: AbortSignal): Promise<void> {
     signal,
     (sig) => axes.streamAxisState({ axes: [], changesOnly: true }, { signal: sig }),
     (u) => {
-      if (u.update.case === "status") update(u.update.value);
+      if (u.update.case === "status") receive(u.update.value);
       else if (u.update.case === "event") axisAlarm(u.update.value);
       if (u.update.case === "event" && u.update.value.kind.case === "control") {
         // Control changes hands without a new status (an axis at rest
