@@ -885,3 +885,16 @@ async fn the_dashboard_works_over_tls() {
     server.shutdown();
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The page stays light: one script and one style sheet, no framework, a
+/// bound on their size that a new dependency would break (today about
+/// 240 KB of script, 83 KB gzipped, most of it the protobuf runtime, the
+/// generated messages and uPlot).
+#[test]
+fn the_page_stays_light() {
+    let dist = repo().join("web/dist");
+    let size = |f: &str| std::fs::metadata(dist.join(f)).map(|m| m.len()).unwrap();
+    let (js, css) = (size("app.js"), size("app.css"));
+    assert!(js < 300_000, "web/dist/app.js is {js} bytes");
+    assert!(css < 20_000, "web/dist/app.css is {css} bytes");
+}
