@@ -25,6 +25,7 @@ mod checks;
 pub mod cia402;
 pub mod lease;
 pub mod process_data;
+pub mod setpoint_stream;
 pub mod spec;
 
 pub use spec::{
