@@ -7,7 +7,7 @@
 
 mod ledger;
 
-use crate::axes::Axes;
+use crate::axes::{Axes, AxisError, Caller};
 use crate::canopen::{CanopenBus, NodeEventKind};
 use crate::config::{CounterChoice, HandwheelConfig};
 use crate::not_found::NotFound;
@@ -400,7 +400,7 @@ async fn run_wheel(mut t: WheelTask) {
                     manual = mode == Mode::Manual;
                     ledger.clear();
                     if !manual {
-                        release(&mut ledger, &t.axes, &mut hold);
+                        release(&t.state, &mut ledger, &t.axes, &mut hold);
                     }
                     publish(&t.state, &ledger);
                 }
@@ -453,7 +453,7 @@ async fn run_wheel(mut t: WheelTask) {
                         *t.state.mode.lock().expect("lock") = None;
                         manual = false;
                         ledger.clear();
-                        release(&mut ledger, &t.axes, &mut hold);
+                        release(&t.state, &mut ledger, &t.axes, &mut hold);
                         publish(&t.state, &ledger);
                     }
                     _ => {}
@@ -476,7 +476,7 @@ async fn run_wheel(mut t: WheelTask) {
             }
         }
     }
-    release(&mut ledger, &t.axes, &mut hold);
+    release(&t.state, &mut ledger, &t.axes, &mut hold);
     publish(&t.state, &ledger);
 }
 
@@ -493,7 +493,7 @@ fn keep_hold(state: &WheelState, ledger: &mut BindingLedger, axes: &Axes, hold: 
             if now.duration_since(hold.renewed)
                 >= Duration::from_millis(u64::from(LEASE_TTL_MS / 3))
             {
-                if axes.renew(token).is_ok() {
+                if axes.renew(&wheel_caller(state, token)).is_ok() {
                     hold.renewed = now;
                 } else {
                     hold.lease = None;
@@ -505,11 +505,7 @@ fn keep_hold(state: &WheelState, ledger: &mut BindingLedger, axes: &Axes, hold: 
                 return;
             }
             let names: Vec<String> = state.bindings.iter().map(|b| b.axis_name.clone()).collect();
-            match axes.acquire(
-                &names,
-                LEASE_TTL_MS,
-                format!("handwheel {}", state.config.name),
-            ) {
+            match axes.acquire(&names, LEASE_TTL_MS, wheel_caller(state, "").name, None) {
                 Ok(l) => {
                     hold.lease = Some(l.token);
                     hold.renewed = now;
@@ -526,9 +522,9 @@ fn keep_hold(state: &WheelState, ledger: &mut BindingLedger, axes: &Axes, hold: 
 
 /// Gives the bound axes back (the wheel left manual mode, rebooted or
 /// stopped); a refusal to take them no longer applies either.
-fn release(ledger: &mut BindingLedger, axes: &Axes, hold: &mut Hold) {
+fn release(state: &WheelState, ledger: &mut BindingLedger, axes: &Axes, hold: &mut Hold) {
     if let Some(token) = hold.lease.take() {
-        let _ = axes.release(&token);
+        let _ = axes.release(&wheel_caller(state, &token));
     }
     hold.retry_at = Instant::now();
     ledger.set_blocked(String::new());
@@ -553,9 +549,6 @@ fn execute(
         if !enabled {
             return Executed::NotEnabled;
         }
-        if axes.authorize(b.axis, token).is_err() {
-            return Executed::NotControlled;
-        }
         let cfg = &axes.info(b.axis).config;
         // The paced rate as the move's velocity, so consecutive small moves
         // blend into an even motion.
@@ -566,11 +559,17 @@ fn execute(
             velocity: Some(velocity),
             acceleration: Some(cfg.max_acceleration),
         };
-        match axes.submit(b.axis, cmd) {
+        match axes.submit(b.axis, cmd, &wheel_caller(state, token)) {
             Ok(()) => Executed::Done,
+            Err(AxisError::Lease(_)) => Executed::NotControlled,
             Err(_) => Executed::Refused,
         }
     });
+}
+
+/// The wheel as the axes see it: named after it, presenting `token`.
+fn wheel_caller(state: &WheelState, token: &str) -> Caller {
+    Caller::new(format!("handwheel {}", state.config.name)).with_lease(token)
 }
 
 /// Why a handwheel request failed, by reason.
