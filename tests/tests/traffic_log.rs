@@ -1,6 +1,8 @@
-//! A bus's `decode = "decoded"` puts its CANopen traffic in the log in
-//! words: an SDO read of a simulated node shows as its request and its
-//! answer on the target `cangate::frames`.
+//! What the log says and where: a bus's `decode = "decoded"` puts its
+//! CANopen traffic in words (an SDO read of a simulated node shows as its
+//! request and its answer on the target `cangate::frames`, in the bus's
+//! span), and a line logged while serving a call is in the call's
+//! `request` span (method and peer).
 
 use cangate_client::pb;
 use cangate_tests::*;
@@ -20,6 +22,16 @@ bus = "can0"
 id = 1
 eds = "builtin:drive"
 simulate = true
+
+[[axis]]
+name = "X"
+bus = "can0"
+node = 1
+counts_per_unit = 1000.0
+min_position = -100.0
+max_position = 100.0
+max_velocity = 50.0
+max_acceleration = 500.0
 "#;
 
 /// Everything written to the log in this process.
@@ -51,7 +63,7 @@ async fn a_decoded_bus_logs_an_sdo_read_in_words() {
     let writer = captured.clone();
     tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::new(
-            "cangate_server=info,cangate::frames=info",
+            "cangate_server=info,cangate::frames=info,cangate::audit=info",
         ))
         .with_writer(move || writer.clone())
         .with_ansi(false)
@@ -94,6 +106,25 @@ async fn a_decoded_bus_logs_an_sdo_read_in_words() {
     assert!(
         request.contains("bus{bus=can0}") && request.contains("cangate::frames"),
         "{request}"
+    );
+
+    // The audit line of a call is in the call's span.
+    pb::axes_client::AxesClient::new(c.channel())
+        .acquire_control(pb::AcquireControlRequest {
+            axes: vec!["X".into()],
+            ttl_ms: 1000,
+            client_name: "log test".into(),
+        })
+        .await
+        .unwrap();
+    let text = captured.text();
+    let granted = text
+        .lines()
+        .find(|l| l.contains("acquire control"))
+        .unwrap_or_else(|| panic!("no audit line for AcquireControl in:\n{text}"));
+    assert!(
+        granted.contains("request{method=/cangate.v1.Axes/AcquireControl peer=127.0.0.1:"),
+        "{granted}"
     );
     server.shutdown();
 }
