@@ -6,7 +6,9 @@ use super::convert::canopen::{
     sdo_transfer_to_pb, value_from_pb, value_from_pb_as, value_to_pb,
 };
 use super::error::ApiError;
-use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_of};
+use super::forward::{
+    AtShutdown, Forward, MessageStream, Received, spawn_forward, spawn_forwarding, stream_of,
+};
 use super::runtime_errors::lookup_error;
 use crate::canopen::dcf_export::DcfExportError;
 use crate::canopen::drive_guard::AxisActive;
@@ -258,7 +260,7 @@ impl Canopen for CanopenService {
         let node = known_node(m, req.node)?;
         let plan = program_plan(node, req)?;
         let total = plan.image.len() as u64;
-        let mut events = m.download_program(plan, &caller).map_err(|e| match e {
+        let events = m.download_program(plan, &caller).map_err(|e| match e {
             ProgramStartError::AxisActive(e) => axis_active(e),
             e @ ProgramStartError::Busy { .. } => ApiError::refused(
                 tonic::Code::FailedPrecondition,
@@ -268,47 +270,42 @@ impl Canopen for CanopenService {
             ),
         })?;
         let (tx, rx) = tokio::sync::mpsc::channel(64);
-        let shutdown = self.gateway.shutdown_token();
-        tokio::spawn(async move {
-            let mut last = pb::DownloadProgramProgress {
-                bytes_total: total,
-                ..Default::default()
-            };
-            loop {
-                let ev = tokio::select! {
-                    biased;
-                    _ = shutdown.cancelled() => {
-                        let _ = tx.send(Err(ApiError::ShuttingDown.into())).await;
-                        return;
-                    }
-                    _ = tx.closed() => return,
-                    ev = events.recv() => ev,
-                };
-                let msg = match ev {
-                    None => Err(ApiError::ShuttingDown.into()),
-                    Some(ProgramEvent::Progress {
-                        step,
-                        bytes_done,
-                        total,
-                    }) => {
-                        last.step = program_step_to_pb(step) as i32;
-                        last.bytes_done = bytes_done as u64;
-                        last.bytes_total = total as u64;
-                        Ok(last)
-                    }
-                    Some(ProgramEvent::Finished(Ok(o))) => {
-                        last.bytes_done = o.bytes as u64;
-                        last.outcome = Some(program_outcome_to_pb(&o));
-                        Ok(last)
-                    }
-                    Some(ProgramEvent::Finished(Err(e))) => Err(program_error(node, e).into()),
-                };
-                let end = msg.is_err() || last.outcome.is_some();
-                if tx.send(msg).await.is_err() || end {
-                    return;
+        let mut last = pb::DownloadProgramProgress {
+            bytes_total: total,
+            ..Default::default()
+        };
+        spawn_forwarding(
+            events,
+            tx,
+            Vec::new(),
+            self.gateway.shutdown_token(),
+            AtShutdown::Unavailable,
+            move |ev| match ev {
+                Some(Received::Item(ProgramEvent::Progress {
+                    step,
+                    bytes_done,
+                    total,
+                })) => {
+                    last.step = program_step_to_pb(step) as i32;
+                    last.bytes_done = bytes_done as u64;
+                    last.bytes_total = total as u64;
+                    Forward::Send(last)
                 }
-            }
-        });
+                Some(Received::Item(ProgramEvent::Finished(Ok(o)))) => {
+                    last.bytes_done = o.bytes as u64;
+                    last.outcome = Some(program_outcome_to_pb(&o));
+                    Forward::Last(Ok(last))
+                }
+                Some(Received::Item(ProgramEvent::Finished(Err(e)))) => {
+                    Forward::Last(Err(program_error(node, e).into()))
+                }
+                // A queue loses nothing.
+                Some(Received::Lost(_)) => Forward::Skip,
+                // The download's task ended without a word: the gateway is
+                // going away.
+                None => Forward::Last(Err(ApiError::ShuttingDown.into())),
+            },
+        );
         Ok(Response::new(Box::pin(
             tokio_stream::wrappers::ReceiverStream::new(rx),
         )))
