@@ -383,80 +383,6 @@ pub(crate) fn pdo_from_pb(
     })
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use cangate_canopen::ObjectAddress;
-    use cangate_canopen::eds::{Eds, SIM_DRIVE_EDS};
-
-    fn untyped(value: pb::value::Value) -> pb::Value {
-        pb::Value {
-            r#type: 0,
-            value: Some(value),
-        }
-    }
-
-    #[test]
-    fn untyped_values_take_the_eds_type() {
-        use pb::value::Value as V;
-        let as_ = |v, ty| value_from_pb_as(&untyped(v), ty);
-        assert_eq!(
-            as_(V::UintValue(100), DataType::Unsigned16).unwrap(),
-            Value::Unsigned16(100)
-        );
-        assert_eq!(
-            as_(V::StringValue("0x64".into()), DataType::Unsigned16).unwrap(),
-            Value::Unsigned16(100)
-        );
-        assert_eq!(
-            as_(V::StringValue("-5".into()), DataType::Integer32).unwrap(),
-            Value::Integer32(-5)
-        );
-        assert_eq!(
-            as_(V::StringValue("0x64".into()), DataType::VisibleString).unwrap(),
-            Value::VisibleString("0x64".into())
-        );
-        assert_eq!(
-            as_(V::StringValue("true".into()), DataType::Boolean).unwrap(),
-            Value::Boolean(true)
-        );
-        assert!(as_(V::StringValue("70000".into()), DataType::Unsigned16).is_err());
-        assert!(as_(V::UintValue(70000), DataType::Unsigned16).is_err());
-        assert!(as_(V::RealValue(1.0), DataType::Unsigned16).is_err());
-    }
-
-    #[test]
-    fn object_infos_of_the_drive() {
-        let od = Eds::parse(SIM_DRIVE_EDS).unwrap().od;
-        let node = NodeId::new(5).unwrap();
-        let info = |index, sub| {
-            object_info_to_pb(&od, od.get(ObjectAddress::new(index, sub)).unwrap(), node)
-        };
-        let name = info(0x1008, 0);
-        assert_eq!(name.name, "Manufacturer device name");
-        assert_eq!(name.r#type, pb::DataType::VisibleString as i32);
-        assert_eq!(name.access, pb::ObjectAccess::Const as i32);
-        assert_eq!(name.object_type, "VAR");
-        let vendor = info(0x1018, 1);
-        assert_eq!(
-            (vendor.name.as_str(), vendor.object_name.as_str()),
-            ("Identity object.Vendor-ID", "Identity object")
-        );
-        assert_eq!(vendor.sub_name, "Vendor-ID");
-        let cw = info(0x6040, 0);
-        assert!(cw.pdo_mappable);
-        assert_eq!(cw.access, pb::ObjectAccess::Rww as i32);
-        assert_eq!(cw.type_code, 6);
-        // $NODEID defaults are resolved for the node; the text keeps them.
-        let cob = info(0x1800, 1);
-        assert!(cob.default_text.contains("$NODEID"), "{}", cob.default_text);
-        let Some(pb::value::Value::UintValue(v)) = cob.default_value.unwrap().value else {
-            panic!()
-        };
-        assert_eq!(v & 0x7FF, 0x185);
-    }
-}
-
 /// A node event of bus `bus` as its protobuf message.
 pub(crate) fn node_event_to_pb(bus: &str, ev: &NodeEvent) -> pb::NodeEvent {
     use pb::node_event::Event as E;
@@ -563,5 +489,79 @@ pub(crate) fn program_outcome_to_pb(o: &ProgramOutcome) -> pb::DownloadProgramOu
         } else {
             0.0
         },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use cangate_canopen::ObjectAddress;
+    use cangate_canopen::eds::{Eds, SIM_DRIVE_EDS};
+
+    fn untyped(value: pb::value::Value) -> pb::Value {
+        pb::Value {
+            r#type: 0,
+            value: Some(value),
+        }
+    }
+
+    #[test]
+    fn untyped_values_take_the_eds_type() {
+        use pb::value::Value as V;
+        let as_ = |v, ty| value_from_pb_as(&untyped(v), ty);
+        assert_eq!(
+            as_(V::UintValue(100), DataType::Unsigned16).unwrap(),
+            Value::Unsigned16(100)
+        );
+        assert_eq!(
+            as_(V::StringValue("0x64".into()), DataType::Unsigned16).unwrap(),
+            Value::Unsigned16(100)
+        );
+        assert_eq!(
+            as_(V::StringValue("-5".into()), DataType::Integer32).unwrap(),
+            Value::Integer32(-5)
+        );
+        assert_eq!(
+            as_(V::StringValue("0x64".into()), DataType::VisibleString).unwrap(),
+            Value::VisibleString("0x64".into())
+        );
+        assert_eq!(
+            as_(V::StringValue("true".into()), DataType::Boolean).unwrap(),
+            Value::Boolean(true)
+        );
+        assert!(as_(V::StringValue("70000".into()), DataType::Unsigned16).is_err());
+        assert!(as_(V::UintValue(70000), DataType::Unsigned16).is_err());
+        assert!(as_(V::RealValue(1.0), DataType::Unsigned16).is_err());
+    }
+
+    #[test]
+    fn object_infos_of_the_drive() {
+        let od = Eds::parse(SIM_DRIVE_EDS).unwrap().od;
+        let node = NodeId::new(5).unwrap();
+        let info = |index, sub| {
+            object_info_to_pb(&od, od.get(ObjectAddress::new(index, sub)).unwrap(), node)
+        };
+        let name = info(0x1008, 0);
+        assert_eq!(name.name, "Manufacturer device name");
+        assert_eq!(name.r#type, pb::DataType::VisibleString as i32);
+        assert_eq!(name.access, pb::ObjectAccess::Const as i32);
+        assert_eq!(name.object_type, "VAR");
+        let vendor = info(0x1018, 1);
+        assert_eq!(
+            (vendor.name.as_str(), vendor.object_name.as_str()),
+            ("Identity object.Vendor-ID", "Identity object")
+        );
+        assert_eq!(vendor.sub_name, "Vendor-ID");
+        let cw = info(0x6040, 0);
+        assert!(cw.pdo_mappable);
+        assert_eq!(cw.access, pb::ObjectAccess::Rww as i32);
+        assert_eq!(cw.type_code, 6);
+        // $NODEID defaults are resolved for the node; the text keeps them.
+        let cob = info(0x1800, 1);
+        assert!(cob.default_text.contains("$NODEID"), "{}", cob.default_text);
+        let Some(pb::value::Value::UintValue(v)) = cob.default_value.unwrap().value else {
+            panic!()
+        };
+        assert_eq!(v & 0x7FF, 0x185);
     }
 }
