@@ -316,6 +316,85 @@ mod tests {
     use super::*;
     use tokio_stream::StreamExt;
 
+    /// The map sees every item and the source's end; a last message ends
+    /// the stream (what follows in the source is not sent).
+    #[tokio::test]
+    async fn a_last_message_ends_the_stream_and_the_map_hears_of_the_end() {
+        let (items, source) = mpsc::channel(8);
+        for i in [1, 2, 3] {
+            items.send(i).await.unwrap();
+        }
+        let (tx, mut rx) = mpsc::channel(8);
+        spawn_forwarding(
+            source,
+            tx,
+            vec![0],
+            CancellationToken::new(),
+            AtShutdown::Unavailable,
+            |r| match r {
+                Some(Received::Item(2)) => Forward::Last(Ok(20)),
+                Some(Received::Item(i)) => Forward::Send(i * 10),
+                Some(Received::Lost(_)) => Forward::Skip,
+                None => Forward::Last(Err(Status::unavailable("ended"))),
+            },
+        );
+        let mut got = Vec::new();
+        while let Some(m) = rx.recv().await {
+            got.push(m.unwrap());
+        }
+        assert_eq!(got, vec![0, 10, 20]);
+
+        // The source's end, mapped.
+        let (items, source) = mpsc::channel::<i32>(8);
+        drop(items);
+        let (tx, mut rx) = mpsc::channel::<Result<i32, Status>>(8);
+        spawn_forwarding(
+            source,
+            tx,
+            Vec::new(),
+            CancellationToken::new(),
+            AtShutdown::Unavailable,
+            |r| match r {
+                Some(_) => Forward::Skip,
+                None => Forward::Last(Err(Status::unavailable("ended"))),
+            },
+        );
+        assert_eq!(rx.recv().await.unwrap().unwrap_err().message(), "ended");
+        assert!(rx.recv().await.is_none());
+    }
+
+    /// At shutdown a message still waiting for room in a stream whose
+    /// reader stopped is given up: the stream ends with UNAVAILABLE after
+    /// what the reader already had, nothing after it.
+    #[tokio::test]
+    async fn at_shutdown_a_message_waiting_for_room_is_given_up() {
+        let (items, source) = mpsc::channel(8);
+        items.send(2).await.unwrap();
+        let (tx, mut rx) = mpsc::channel(1);
+        let shutdown = CancellationToken::new();
+        spawn_forwarding(
+            source,
+            tx,
+            vec![1],
+            shutdown.clone(),
+            AtShutdown::Unavailable,
+            |r| match r {
+                Some(Received::Item(i)) => Forward::Send(i),
+                _ => Forward::Skip,
+            },
+        );
+        // One thread: the forwarding task runs at these yields until it
+        // waits for room for 2 (1 fills the stream).
+        for _ in 0..8 {
+            tokio::task::yield_now().await;
+        }
+        shutdown.cancel();
+        assert_eq!(rx.recv().await.unwrap().unwrap(), 1);
+        let e = rx.recv().await.unwrap().unwrap_err();
+        assert_eq!(e.code(), tonic::Code::Unavailable);
+        assert!(rx.recv().await.is_none(), "nothing after the shutdown");
+    }
+
     #[tokio::test]
     async fn batches_take_what_is_ready_in_order_and_end_at_an_error() {
         let (tx, rx) = mpsc::channel(16);
