@@ -208,17 +208,25 @@ impl Handwheels {
                 },
                 65_536,
             );
-            tasks.push(tokio::spawn(run_wheel(WheelTask {
-                index: i,
-                state: state.clone(),
-                decoder,
-                sub,
-                events: master.events(),
-                control: control_rx,
-                feed: feed.clone(),
-                axes: axes.clone(),
-                cancel: cancel.child_token(),
-            })));
+            // The wheel's task logs inside its bus's, node's and own spans.
+            let span = tracing::info_span!("bus", bus = %master.bus());
+            let span = tracing::info_span!(parent: &span, "node", node = node.get());
+            let span =
+                tracing::info_span!(parent: &span, "handwheel", handwheel = %state.config.name);
+            tasks.push(tokio::spawn(tracing::Instrument::instrument(
+                run_wheel(WheelTask {
+                    index: i,
+                    state: state.clone(),
+                    decoder,
+                    sub,
+                    events: master.events(),
+                    control: control_rx,
+                    feed: feed.clone(),
+                    axes: axes.clone(),
+                    cancel: cancel.child_token(),
+                }),
+                span,
+            )));
             wheels.push(state);
             wheel_masters.push(master);
         }
@@ -427,7 +435,7 @@ async fn run_wheel(mut t: WheelTask) {
                         BusItem::Lost(n) => {
                             // The gateway itself fell behind: the counter
                             // can no longer be trusted across the hole.
-                            tracing::warn!(handwheel = %t.state.config.name, lost = n, "handwheel task missed feed frames (overloaded)");
+                            tracing::warn!(lost = n, "handwheel task missed feed frames (overloaded)");
                             t.decoder.reset_baseline(BaselineReason::Other);
                         }
                         BusItem::State(_) => {}
@@ -462,7 +470,7 @@ async fn run_wheel(mut t: WheelTask) {
                 Err(broadcast::error::RecvError::Lagged(n)) => {
                     // A missed heartbeat loss or reboot would leave a stale
                     // counter baseline: start a new one.
-                    tracing::warn!(handwheel = %t.state.config.name, missed = n, "handwheel task missed node events (overloaded)");
+                    tracing::warn!(missed = n, "handwheel task missed node events (overloaded)");
                     t.decoder.reset_baseline(BaselineReason::Other);
                 }
                 Err(broadcast::error::RecvError::Closed) => break,
