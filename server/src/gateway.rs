@@ -148,6 +148,12 @@ impl Gateway {
                     bus: bc.name.clone(),
                     message,
                 })?;
+            tasks.extend(crate::traffic_log::spawn(
+                &bc.name,
+                &handle,
+                bc.decode,
+                shutdown.child_token(),
+            ));
             buses.insert(bc.name.clone(), handle);
             tasks.push(task);
         }

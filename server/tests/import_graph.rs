@@ -19,6 +19,7 @@ const LAYERS: &[(&str, u8)] = &[
     ("handwheel", 1),
     ("simulation", 1),
     ("gateway", 1),
+    ("traffic_log", 1),
     ("metrics", 2),
     ("security", 2),
     ("grpc", 2),

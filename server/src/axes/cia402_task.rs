@@ -43,6 +43,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc};
 use tokio_util::sync::CancellationToken;
+use tracing::Instrument as _;
 
 /// An axis of a bus task: its index among all axes, its name, its drive
 /// and its controller's configuration.
@@ -84,6 +85,8 @@ struct Slot {
     /// and a set-point sent into such a mapping could land on its
     /// controlword.
     booted: bool,
+    /// Where the axis's own log lines happen (inside the bus's span).
+    span: tracing::Span,
 }
 
 /// The axis task's side of an SDO fallback worker.
@@ -159,6 +162,9 @@ pub fn spawn(
     latest: LatestStates,
     cancel: CancellationToken,
 ) -> tokio::task::JoinHandle<()> {
+    // The task and its axes log inside the bus's span.
+    let bus_span = tracing::info_span!("bus", bus = %master.bus());
+    let _in_bus = bus_span.enter();
     let events = master.events();
     let (sdo_done, sdo_results) = mpsc::channel(64);
     let (sdo_reports_tx, sdo_reports) = mpsc::channel(64);
@@ -196,12 +202,13 @@ pub fn spawn(
                     booting: false,
                 }),
             };
+            let span = tracing::info_span!("axis", axis = %a.name);
             let cyclic = a.drive.position_mode == PositionMode::Cyclic;
             let setpoint = (cyclic && sdo.is_none())
                 .then(|| SetpointLayout::find(&rpdos))
                 .flatten();
             if cyclic && setpoint.is_none() {
-                tracing::error!(axis = %a.name, "cyclic axis without an RPDO mapping the target position (0x607A, 32 bits): it gets no set-points");
+                tracing::error!(parent: &span, "cyclic axis without an RPDO mapping the target position (0x607A, 32 bits): it gets no set-points");
             }
             let drive_guard = master.drive_guard().register(node, &a.name);
             Slot {
@@ -218,6 +225,7 @@ pub fn spawn(
                 published: None,
                 setpoint_payload: Vec::new(),
                 booted: false,
+                span,
             }
         })
         .collect::<Vec<_>>();
@@ -252,7 +260,7 @@ pub fn spawn(
         if !master.add_sync_rider(Arc::downgrade(&rider)) {
             // The configuration refuses cyclic axes without a SYNC period;
             // this is a SYNC thread that could not start (logged there).
-            tracing::error!(bus = %master.bus(), "cyclic axes without a SYNC: they get no set-points");
+            tracing::error!("cyclic axes without a SYNC: they get no set-points");
         }
     }
     let mut tpdo_bit = HashMap::new();
@@ -282,17 +290,20 @@ pub fn spawn(
         frames: Vec::new(),
         sdo_done,
     };
-    tokio::spawn(run(
-        t,
-        sub,
-        events,
-        requests,
-        SdoInbox {
-            results: sdo_results,
-            reports: sdo_reports,
-        },
-        cancel,
-    ))
+    tokio::spawn(
+        run(
+            t,
+            sub,
+            events,
+            requests,
+            SdoInbox {
+                results: sdo_results,
+                reports: sdo_reports,
+            },
+            cancel,
+        )
+        .instrument(bus_span.clone()),
+    )
 }
 
 async fn run(
@@ -355,7 +366,7 @@ async fn run(
                     }
                 }
                 Err(broadcast::error::RecvError::Lagged(n)) => {
-                    tracing::warn!(bus = %t.master.bus(), lost = n, "axis task missed node events");
+                    tracing::warn!(lost = n, "axis task missed node events");
                 }
                 Err(broadcast::error::RecvError::Closed) => break,
             },
@@ -400,7 +411,7 @@ impl Task {
                 frame
             }
             BusItem::Lost(n) => {
-                tracing::warn!(bus = %self.master.bus(), lost = n, "axis task missed process data (overloaded)");
+                tracing::warn!(lost = n, "axis task missed process data (overloaded)");
                 return;
             }
             BusItem::State(_) => return,
@@ -437,7 +448,7 @@ impl Task {
                 self.dirty[i] = true;
             }
             Err(e) => {
-                tracing::debug!(axis = %self.slots[i].name, cob_id = cob_hex(frame.raw_id()), error = %e, "undecodable TPDO")
+                tracing::debug!(parent: &self.slots[i].span, cob_id = cob_hex(frame.raw_id()), error = %e, "undecodable TPDO")
             }
         }
     }
@@ -446,6 +457,7 @@ impl Task {
     fn on_sdo_report(&mut self, i: usize, report: SdoReport) {
         let mut out = Vec::new();
         let slot = &mut self.slots[i];
+        let span = slot.span.clone();
         let Some(link) = slot.sdo.as_mut() else {
             return;
         };
@@ -464,7 +476,7 @@ impl Task {
             SdoReport::Failed(e) => {
                 link.failures += 1;
                 if link.failures == 1 {
-                    tracing::warn!(axis = %slot.name, error = %e, "SDO process data failed");
+                    tracing::warn!(parent: &span, error = %e, "SDO process data failed");
                 }
                 if link.failures >= SDO_FAILURES_LOST && !link.lost {
                     link.lost = true;
@@ -518,7 +530,7 @@ impl Task {
             {
                 Ok(mut frames) => frames.pop().map(|(_, d)| d).unwrap_or_default(),
                 Err(e) => {
-                    tracing::error!(axis = %slot.name, error = %e, "cannot encode the set-point RPDO");
+                    tracing::error!(parent: &slot.span, error = %e, "cannot encode the set-point RPDO");
                     continue;
                 }
             };
@@ -662,7 +674,7 @@ impl Task {
                         }
                     }
                     Err(e) => {
-                        tracing::error!(axis = %self.slots[i].name, error = %e, "cannot encode the axis RPDOs")
+                        tracing::error!(parent: &self.slots[i].span, error = %e, "cannot encode the axis RPDOs")
                     }
                 },
                 Output::SdoWrites(writes) => self.spawn_sdo(i, writes),
@@ -680,7 +692,7 @@ impl Task {
         };
         if let Err(mpsc::error::TrySendError::Full(_)) = link.worker.images.try_send(image) {
             tracing::error!(
-                axis = %self.slots[i].name,
+                parent: &self.slots[i].span,
                 "process image dropped: the drive's SDO queue is full (the drive does not answer)"
             );
         }
@@ -758,7 +770,7 @@ impl Task {
         }
         let frames = std::mem::take(&mut self.frames);
         if let Err(e) = self.master.send_frames(frames).await {
-            tracing::warn!(bus = %self.master.bus(), error = %e, "axis process data not sent");
+            tracing::warn!(error = %e, "axis process data not sent");
         }
     }
 }

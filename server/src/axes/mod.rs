@@ -4,9 +4,12 @@
 //! master's cycle thread ([`crate::cansmc`]), which serves the same
 //! [`crate::axis_runner::BusRequest`]s.
 //!
-//! The gRPC `Axes` service is a thin shell over [`Axes`].
+//! The control rules (leases, stops never refused, the audit log) are
+//! [`Axes`]'s own ([`control`]), so every caller gets them: the gRPC `Axes`
+//! service, the handwheel binding, an embedding program.
 
 pub mod cia402_task;
+pub mod control;
 pub mod cyclic_setpoints;
 pub mod sdo_process_data;
 
@@ -27,6 +30,7 @@ use tokio_util::sync::CancellationToken;
 pub use crate::axis_runner::{AxisEventKind, AxisUpdate, LatestStates};
 use crate::axis_runner::{AxisPort, BusRequest, CansmcPortAxis, CommandReply};
 use cia402_task::TaskAxis;
+pub use control::Caller;
 
 /// Lease TTL bounds (ms).
 pub const MIN_TTL_MS: u32 = 100;
@@ -390,12 +394,16 @@ impl Axes {
         })
     }
 
-    /// Grants control of `axes` (names) to `holder`.
+    /// Grants control of `axes` (names) to `holder`, bound to `identity`
+    /// when the caller has one (see [`LeaseTable::bind_owner`]): bound
+    /// before the token leaves the runtime, so no other identity can ever
+    /// have used it.
     pub fn acquire(
         &self,
         axes: &[String],
         ttl_ms: u32,
         holder: String,
+        identity: Option<String>,
     ) -> Result<Lease, AxisError> {
         if self.closing() {
             return Err(AxisError::ShuttingDown);
@@ -420,20 +428,28 @@ impl Axes {
             AxisError::Unavailable(format!("no OS randomness for a lease token: {e}"))
         })?;
         let token: String = raw.iter().map(|b| format!("{b:02x}")).collect();
-        let lease = self.leases.lock().expect("lease lock").acquire(
-            token,
-            holder.clone(),
-            axes.to_vec(),
-            Duration::from_millis(u64::from(ttl_ms)),
-            self.now(),
-        )?;
+        let lease = {
+            let mut leases = self.leases.lock().expect("lease lock");
+            let lease = leases.acquire(
+                token,
+                holder.clone(),
+                axes.to_vec(),
+                Duration::from_millis(u64::from(ttl_ms)),
+                self.now(),
+            )?;
+            if let Some(identity) = identity {
+                leases.bind_owner(&lease.token, identity)?;
+            }
+            lease
+        };
         self.leases_changed.notify_one();
         self.publish_control(&lease, &holder, "", "acquired");
         Ok(lease)
     }
 
-    /// Extends a lease.
-    pub fn renew(&self, token: &str) -> Result<Lease, AxisError> {
+    /// Extends a lease (the owner check is the caller's, see
+    /// [`Axes::renew`]).
+    fn renew_token(&self, token: &str) -> Result<Lease, AxisError> {
         let lease = self
             .leases
             .lock()
@@ -443,27 +459,18 @@ impl Axes {
         Ok(lease)
     }
 
-    /// Ends a lease.
-    pub fn release(&self, token: &str) -> Result<Lease, AxisError> {
+    /// Ends a lease (the owner check is the caller's, see
+    /// [`Axes::release`]).
+    fn release_token(&self, token: &str) -> Result<Lease, AxisError> {
         let lease = self.leases.lock().expect("lease lock").release(token)?;
         self.leases_changed.notify_one();
         self.publish_control(&lease, "", &lease.holder, "released");
         Ok(lease)
     }
 
-    /// Binds lease `token` to the identity `owner` that acquired it (see
-    /// [`LeaseTable::bind_owner`]).
-    pub fn bind_lease_owner(&self, token: &str, owner: String) -> Result<(), AxisError> {
-        Ok(self
-            .leases
-            .lock()
-            .expect("lease lock")
-            .bind_owner(token, owner)?)
-    }
-
     /// Checks that `caller` may present lease `token` (see
     /// [`LeaseTable::check_owner`]).
-    pub fn check_lease_owner(&self, token: &str, caller: Option<&str>) -> Result<(), AxisError> {
+    fn check_lease_owner(&self, token: &str, caller: Option<&str>) -> Result<(), AxisError> {
         Ok(self
             .leases
             .lock()
@@ -473,7 +480,7 @@ impl Axes {
 
     /// Checks that `token` controls axis `i` (renewing it); the holder's
     /// name for the audit log.
-    pub fn authorize(&self, i: usize, token: &str) -> Result<String, AxisError> {
+    fn authorize(&self, i: usize, token: &str) -> Result<String, AxisError> {
         let mut leases = self.leases.lock().expect("lease lock");
         let token = (!token.is_empty()).then_some(token);
         leases.authorize(self.name(i), token, self.now())?;
@@ -486,9 +493,10 @@ impl Axes {
         Ok(holder)
     }
 
-    /// Runs a command on axis `i`; returns when the drive accepted it, or
-    /// with `wait` when it ended (bounded by `wait_timeout`).
-    pub async fn command(
+    /// Runs a command on axis `i` without any control check (the callers
+    /// are [`Axes::command`] and shutdown); returns when the drive accepted
+    /// it, or with `wait` when it ended (bounded by `wait_timeout`).
+    async fn dispatch(
         &self,
         i: usize,
         cmd: AxisCommand,
@@ -514,13 +522,9 @@ impl Axes {
         self.await_reply(i, waiter, wait, wait_timeout).await
     }
 
-    /// Queues a command on axis `i` without waiting for its acceptance
-    /// (commands of one caller keep their order). For the handwheel
-    /// binding, which must never stall on a drive.
-    ///
-    /// # Errors
-    /// When the axis task's queue is full or closed.
-    pub fn submit(&self, i: usize, cmd: AxisCommand) -> Result<(), AxisError> {
+    /// Queues a command on axis `i` without waiting for its acceptance and
+    /// without any control check (see [`Axes::submit`]).
+    fn enqueue(&self, i: usize, cmd: AxisCommand) -> Result<(), AxisError> {
         if self.closing() {
             return Err(AxisError::ShuttingDown);
         }
@@ -567,8 +571,9 @@ impl Axes {
         }
     }
 
-    /// Stops several axes at once (per bus in one batch of frames).
-    pub async fn stop_many(
+    /// Stops several axes at once (per bus in one batch of frames); see
+    /// [`Axes::stop_many`].
+    async fn stop_batch(
         &self,
         axes: &[usize],
         kind: StopKind,
@@ -623,8 +628,9 @@ impl Axes {
     }
 
     /// Starts a coordinated cyclic move: (axis, target, velocity,
-    /// acceleration) per axis, all on one bus.
-    pub async fn move_coordinated(
+    /// acceleration) per axis, all on one bus, without any control check
+    /// (see [`Axes::move_coordinated`]).
+    async fn dispatch_coordinated(
         &self,
         targets: Vec<crate::axis_runner::CoordinatedTarget>,
         wait: bool,

@@ -20,6 +20,7 @@ use std::sync::{Arc, Mutex, RwLock};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio_util::sync::CancellationToken;
+use tracing::Instrument as _;
 
 pub mod dcf_export;
 pub mod drive_guard;
@@ -420,6 +421,9 @@ impl CanopenBus {
         configured: BTreeMap<NodeId, NodeFacts>,
         cancel: CancellationToken,
     ) -> (CanopenBus, tokio::task::JoinHandle<()>) {
+        // The master's tasks log inside the bus's span.
+        let span = tracing::info_span!("bus", bus = %bus.name());
+        let _in_bus = span.enter();
         let (commands, rx) = mpsc::channel(1024);
         let (events, _) = broadcast::channel(4096);
         let (pdos, _) = broadcast::channel(16_384);
@@ -466,13 +470,13 @@ impl CanopenBus {
                 control
             }
             Err(e) => {
-                tracing::error!(bus = %bus.name(), error = %e, "cannot start the SYNC producer thread");
+                tracing::error!(error = %e, "cannot start the SYNC producer thread");
                 Arc::new(sync_thread::SyncControl::new(sync))
             }
         };
         let (time_period, time_rx) = tokio::sync::watch::channel(time_period);
         let time_period = Arc::new(time_period);
-        tokio::spawn(time_producer::run(bus.clone(), time_rx, cancel.clone()));
+        tokio::spawn(time_producer::run(bus.clone(), time_rx, cancel.clone()).in_current_span());
         let handle = CanopenBus {
             bus: bus.name().to_string(),
             handle: bus.clone(),
@@ -507,26 +511,26 @@ impl CanopenBus {
             }
         }
         let boot_events = handle.events();
-        let task = tokio::spawn(run_master(MasterTask {
-            master,
-            bus,
-            sub,
-            commands: rx,
-            events,
-            tpdos: handle.tpdos.clone(),
-            pdos,
-            facts,
-            handover: handle.handover.clone(),
-            heard: handle.heard.clone(),
-            cancel: cancel.clone(),
-        }));
+        let task = tokio::spawn(
+            run_master(MasterTask {
+                master,
+                bus,
+                sub,
+                commands: rx,
+                events,
+                tpdos: handle.tpdos.clone(),
+                pdos,
+                facts,
+                handover: handle.handover.clone(),
+                heard: handle.heard.clone(),
+                cancel: cancel.clone(),
+            })
+            .in_current_span(),
+        );
         if !boots.is_empty() {
-            tokio::spawn(run_boot_supervisor(
-                handle.clone(),
-                boot_events,
-                boots,
-                cancel,
-            ));
+            tokio::spawn(
+                run_boot_supervisor(handle.clone(), boot_events, boots, cancel).in_current_span(),
+            );
         }
         (handle, task)
     }
@@ -960,29 +964,30 @@ async fn run_boot_supervisor(
             previous.abort();
         }
         let m = master.clone();
+        let span = tracing::info_span!("node", node = node.get());
         let task = tokio::spawn(async move {
             match boot_node(&m, node, &plan, adopt).await {
                 Ok(BootResult::Started { confirmed }) => {
                     match confirmed {
                         Some(state) => {
-                            tracing::info!(bus = %m.bus, node = node.get(), adopt, %state, "node booted and started")
+                            tracing::info!(adopt, %state, "node booted and started")
                         }
                         None => {
-                            tracing::warn!(bus = %m.bus, node = node.get(), adopt, "node booted and NMT start sent; it reported no state to confirm it started")
+                            tracing::warn!(adopt, "node booted and NMT start sent; it reported no state to confirm it started")
                         }
                     }
                     m.emit(node, NodeEventKind::BootCompleted { adopted: adopt });
                 }
                 Ok(BootResult::Absent) => {
-                    tracing::info!(bus = %m.bus, node = node.get(), "node does not answer; it is booted when it boots up");
+                    tracing::info!("node does not answer; it is booted when it boots up");
                 }
                 Ok(BootResult::Rebooted) => {}
                 Err(reason) => {
-                    tracing::warn!(bus = %m.bus, node = node.get(), %reason, "boot procedure failed");
+                    tracing::warn!(%reason, "boot procedure failed");
                     m.emit(node, NodeEventKind::BootFailed { reason });
                 }
             }
-        });
+        }.instrument(span));
         running.insert(node, task.abort_handle());
     };
     for (node, plan) in &plans {
@@ -999,7 +1004,10 @@ async fn run_boot_supervisor(
                 // A boot-up among them would leave its node unconfigured
                 // and not started: say so (an NMT reset of the node, or of
                 // all, runs the procedure again).
-                tracing::warn!(bus = %master.bus(), missed = n, "boot supervisor missed node events; a node that booted meanwhile may need an NMT reset");
+                tracing::warn!(
+                    missed = n,
+                    "boot supervisor missed node events; a node that booted meanwhile may need an NMT reset"
+                );
                 continue;
             }
             Err(broadcast::error::RecvError::Closed) => break,
@@ -1334,7 +1342,7 @@ async fn run_master(task: MasterTask) {
                             master.on_frame(&frame, now, &mut out);
                             relay_tpdo(&tpdos, &pdos, &frame);
                         }
-                        BusItem::Lost(n) => tracing::warn!(bus = %bus.name(), lost = n, "CANopen master missed frames (overloaded)"),
+                        BusItem::Lost(n) => tracing::warn!(lost = n, "CANopen master missed frames (overloaded)"),
                         BusItem::State(_) => {}
                     }
                 }
@@ -1416,7 +1424,7 @@ async fn run_master(task: MasterTask) {
         if !out.frames.is_empty()
             && let Err(e) = submit_master_frames(&bus, std::mem::take(&mut out.frames)).await
         {
-            tracing::warn!(bus = %bus.name(), error = %e, "CANopen master could not send");
+            tracing::warn!(error = %e, "CANopen master could not send");
         }
         for ev in out.events {
             count_event(bus.name(), &ev);
@@ -1435,7 +1443,7 @@ async fn run_master(task: MasterTask) {
             handle_event(ev, &master, &mut pending, &events, &facts);
         }
     }
-    tracing::info!(bus = %bus.name(), "CANopen master stopped");
+    tracing::info!("CANopen master stopped");
 }
 
 /// Sends the master's frames. Several SDO requests to one node in one

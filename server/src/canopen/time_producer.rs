@@ -49,10 +49,10 @@ pub(super) async fn run(
         match now() {
             Ok(t) => {
                 if let Err(e) = bus.submit(vec![t.frame()]).await {
-                    tracing::warn!(bus = %bus.name(), error = %e, "TIME not sent");
+                    tracing::warn!(error = %e, "TIME not sent");
                 }
             }
-            Err(e) => tracing::warn!(bus = %bus.name(), error = %e, "TIME not sent"),
+            Err(e) => tracing::warn!(error = %e, "TIME not sent"),
         }
     }
 }

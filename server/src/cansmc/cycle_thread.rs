@@ -177,9 +177,15 @@ pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String>
         rx_lost: 0,
     };
     let cancel = setup.cancel;
+    // Everything the thread logs is in its master's span (a CANsmc master
+    // has a command and a status bus).
+    let span = tracing::info_span!("cansmc", master = %t.cfg.name);
     std::thread::Builder::new()
         .name(name)
-        .spawn(move || t.run(&cancel))
+        .spawn(move || {
+            let _in_master = span.entered();
+            t.run(&cancel)
+        })
         .map_err(|e| format!("cannot start the CANsmc cycle thread: {e}"))
 }
 
@@ -251,10 +257,13 @@ impl Thread {
             match crate::realtime::set_fifo(self.cfg.rt_priority) {
                 Ok(()) => {
                     fifo = true;
-                    tracing::info!(master = %self.cfg.name, priority = self.cfg.rt_priority, "CANsmc cycle thread runs with SCHED_FIFO")
+                    tracing::info!(
+                        priority = self.cfg.rt_priority,
+                        "CANsmc cycle thread runs with SCHED_FIFO"
+                    )
                 }
                 Err(e) => {
-                    tracing::warn!(master = %self.cfg.name, priority = self.cfg.rt_priority, error = %e, "CANsmc cycle thread could not get real-time priority (needs root or CAP_SYS_NICE); MST timing depends on the host's load")
+                    tracing::warn!(priority = self.cfg.rt_priority, error = %e, "CANsmc cycle thread could not get real-time priority (needs root or CAP_SYS_NICE); MST timing depends on the host's load")
                 }
             }
         }
@@ -263,7 +272,10 @@ impl Thread {
             Duration::from_micros(spin_us.min(SPIN_FLOOR_US)),
             Duration::from_micros(spin_us),
         );
-        tracing::debug!(master = %self.cfg.name, spin_us, "CANsmc cycle thread: active wait before each MST at most this long");
+        tracing::debug!(
+            spin_us,
+            "CANsmc cycle thread: active wait before each MST at most this long"
+        );
         // Timed sleeps end within a µs of the deadline, not the default
         // 50 µs: the active wait before each MST then only covers the
         // wake-up latency.
@@ -361,7 +373,10 @@ impl Thread {
                 BusItem::Frame { .. } | BusItem::State(_) => {}
                 BusItem::Lost(n) => {
                     self.rx_lost += n;
-                    tracing::warn!(master = %self.cfg.name, lost = n, "CANsmc master lost channel-1 frames (queue overflow)");
+                    tracing::warn!(
+                        lost = n,
+                        "CANsmc master lost channel-1 frames (queue overflow)"
+                    );
                 }
             }
         }
@@ -376,7 +391,7 @@ impl Thread {
         if let Err(e) = self.rt.block_on(bus.submit(frames)) {
             self.send_errors += 1;
             if self.send_errors.is_power_of_two() {
-                tracing::warn!(master = %self.cfg.name, error = %e, failures = self.send_errors, "CANsmc telegrams not sent");
+                tracing::warn!(error = %e, failures = self.send_errors, "CANsmc telegrams not sent");
             }
         }
     }
@@ -458,7 +473,7 @@ impl Thread {
                     }
                 }
                 Request::Restart { reply } => {
-                    tracing::info!(master = %self.cfg.name, "CANsmc master restarts through P0/P1");
+                    tracing::info!("CANsmc master restarts through P0/P1");
                     for i in 0..self.slots.len() {
                         let mut ev = Vec::new();
                         self.slots[i]
@@ -490,7 +505,7 @@ impl Thread {
         for e in self.master.take_events() {
             match e {
                 MasterEvent::Phase(p) => {
-                    tracing::info!(master = %self.cfg.name, phase = %p, "CANsmc phase");
+                    tracing::info!(phase = %p, "CANsmc phase");
                     if p == Phase::Cyclic {
                         self.jitter.clear();
                         for i in 0..self.slots.len() {
@@ -510,7 +525,7 @@ impl Thread {
                     self.publish_status();
                 }
                 MasterEvent::StartFailed { reason } => {
-                    tracing::error!(master = %self.cfg.name, %reason, "CANsmc start-up failed");
+                    tracing::error!(%reason, "CANsmc start-up failed");
                     self.start_error = Some(reason);
                 }
                 MasterEvent::SlaveConnected {
@@ -518,7 +533,12 @@ impl Thread {
                     device_type,
                     firmware_version,
                 } => {
-                    tracing::info!(master = %self.cfg.name, slave = address.get(), device_type = format!("0x{device_type:04X}"), firmware = format!("0x{firmware_version:04X}"), "CANsmc slave connected");
+                    tracing::info!(
+                        slave = address.get(),
+                        device_type = format!("0x{device_type:04X}"),
+                        firmware = format!("0x{firmware_version:04X}"),
+                        "CANsmc slave connected"
+                    );
                     self.slave_event(
                         address,
                         format!(
@@ -531,7 +551,7 @@ impl Thread {
                     required,
                     reason,
                 } => {
-                    tracing::warn!(master = %self.cfg.name, slave = address.get(), required, %reason, "CANsmc slave missing");
+                    tracing::warn!(slave = address.get(), required, %reason, "CANsmc slave missing");
                     self.slave_event(address, format!("missing: {reason}"));
                     self.axis_lost(address, &format!("missing: {reason}"));
                 }
@@ -542,12 +562,22 @@ impl Thread {
                         .slave(address)
                         .map(|s| s.counters)
                         .unwrap_or_default();
-                    tracing::warn!(master = %self.cfg.name, slave = address.get(), misses, dts = c.dts, missed = c.missed, late = c.late, mismatch = c.counter_mismatch, overruns = self.master.counters().overruns, slots_missed = self.master.counters().mdt_slots_missed, "CANsmc slave lost");
+                    tracing::warn!(
+                        slave = address.get(),
+                        misses,
+                        dts = c.dts,
+                        missed = c.missed,
+                        late = c.late,
+                        mismatch = c.counter_mismatch,
+                        overruns = self.master.counters().overruns,
+                        slots_missed = self.master.counters().mdt_slots_missed,
+                        "CANsmc slave lost"
+                    );
                     self.slave_event(address, format!("lost: {reason}"));
                     self.axis_lost(address, &reason);
                 }
                 MasterEvent::SlaveRecovered { address } => {
-                    tracing::info!(master = %self.cfg.name, slave = address.get(), "CANsmc slave answers again");
+                    tracing::info!(slave = address.get(), "CANsmc slave answers again");
                     self.slave_event(address, "recovered".into());
                     if let Some(&i) = self.by_address.get(&address.get()) {
                         let mut ev = Vec::new();
@@ -565,7 +595,7 @@ impl Thread {
                     function,
                     reason,
                 } => {
-                    tracing::warn!(master = %self.cfg.name, slave = address.get(), %function, ?reason, "CANsmc slave rejected its command");
+                    tracing::warn!(slave = address.get(), %function, ?reason, "CANsmc slave rejected its command");
                     self.slave_event(address, format!("rejected {function}: {reason:?}"));
                 }
                 MasterEvent::ParameterDone { id, result, .. } => {

@@ -1,11 +1,12 @@
 //! The `cangate.v1.Axes` service: a thin shell over
-//! [`Axes`](crate::axes::Axes): validation of the request,
-//! control check, audit log, conversion to protobuf.
+//! [`Axes`](crate::axes::Axes): validation of the request, the caller's
+//! identity and lease as a [`Caller`], conversion to protobuf. The control
+//! rules and the audit of commands are the runtime's.
 
 use super::convert::axes::{event_pb, outcome_pb, resolution, status_pb};
 use super::error::ApiError;
 use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_of};
-use crate::axes::{Axes, AxisUpdate, CommandResult};
+use crate::axes::{Axes, AxisUpdate, Caller, CommandResult};
 use crate::gateway::Gateway;
 use crate::security::StopOverBudget;
 use cangate_axis::cia402::AxisSnapshot;
@@ -120,54 +121,14 @@ impl AxesService {
         let m = self.axes();
         let i = m.index(axis)?;
         let opts = options.unwrap_or_default();
-        // A lease serves the identity that acquired it only; a stop needs
-        // none, so another identity's lease on a stop is ignored (never
-        // renewed) and the stop goes ahead.
-        let lease_check = if opts.lease.is_empty() {
-            Ok(())
-        } else {
-            m.check_lease_owner(&opts.lease, owner.as_deref())
-        };
-        let lease_ok = lease_check.is_ok();
-        let holder = if cmd.needs_control() {
-            if let Err(e) = lease_check {
-                audit(&peer, "", axis, &cmd, &format!("refused: {e}"));
-                return Err(e.into());
-            }
-            match m.authorize(i, &opts.lease) {
-                Ok(h) => h,
-                Err(e) => {
-                    audit(&peer, "", axis, &cmd, &format!("refused: {e}"));
-                    return Err(e.into());
-                }
-            }
-        } else {
-            // Renew the lease if one came along.
-            if !opts.lease.is_empty() && lease_ok {
-                let _ = m.renew(&opts.lease);
-            }
-            String::new()
-        };
+        let caller = Caller::new(peer)
+            .with_identity(owner)
+            .with_lease(opts.lease);
         let wait_timeout = Duration::from_millis(match opts.wait_timeout_ms {
             0 => 60_000,
             t => u64::from(t),
         });
-        let r = m.command(i, cmd, opts.wait, wait_timeout).await;
-        match &r {
-            Ok(res) => audit(
-                &peer,
-                &holder,
-                axis,
-                &cmd,
-                &format!(
-                    "{}: {}",
-                    res.outcome.map_or("accepted", Outcome::name),
-                    res.detail
-                ),
-            ),
-            Err(e) => audit(&peer, &holder, axis, &cmd, &format!("refused: {e}")),
-        }
-        let res = r?;
+        let res = m.command(i, cmd, &caller, opts.wait, wait_timeout).await?;
         if opts.wait {
             check_outcome(axis, &res)?;
         }
@@ -234,18 +195,6 @@ fn refuse_resting_stop(m: &Axes, over: &StopOverBudget, idx: &[usize]) -> Result
         ),
         Vec::new(),
     ))
-}
-
-fn audit(peer: &str, holder: &str, axis: &str, cmd: &AxisCommand, result: &str) {
-    tracing::info!(
-        target: "cangate::audit",
-        %peer,
-        %holder,
-        %axis,
-        command = ?cmd,
-        %result,
-        "axis command"
-    );
 }
 
 fn peer<T>(req: &Request<T>) -> String {
@@ -342,13 +291,9 @@ impl AxesRpc for AxesService {
         } else {
             format!("{} ({peer})", r.client_name)
         };
-        let lease = self.axes().acquire(&r.axes, r.ttl_ms, holder.clone());
-        // Bound before the token leaves the gateway, so no other identity
-        // can ever have used it.
-        let lease = match (lease, owner) {
-            (Ok(l), Some(o)) => self.axes().bind_lease_owner(&l.token, o).map(|()| l),
-            (l, _) => l,
-        };
+        let lease = self
+            .axes()
+            .acquire(&r.axes, r.ttl_ms, holder.clone(), owner);
         tracing::info!(target: "cangate::audit", %peer, %holder, axes = ?r.axes, result = %lease.as_ref().map_or_else(|e| format!("refused: {e}"), |_| "granted".into()), "acquire control");
         let lease = lease?;
         Ok(Response::new(pb::ControlLease {
@@ -363,10 +308,10 @@ impl AxesRpc for AxesService {
         &self,
         req: Request<pb::RenewControlRequest>,
     ) -> Result<Response<pb::ControlLease>, Status> {
-        let owner = owner(&req);
-        let token = &req.get_ref().lease;
-        self.axes().check_lease_owner(token, owner.as_deref())?;
-        let lease = self.axes().renew(token)?;
+        let caller = Caller::new(peer(&req))
+            .with_identity(owner(&req))
+            .with_lease(req.into_inner().lease);
+        let lease = self.axes().renew(&caller)?;
         Ok(Response::new(pb::ControlLease {
             lease: lease.token,
             axes: lease.axes,
@@ -380,10 +325,10 @@ impl AxesRpc for AxesService {
         req: Request<pb::ReleaseControlRequest>,
     ) -> Result<Response<pb::ReleaseControlResponse>, Status> {
         let peer = peer(&req);
-        let owner = owner(&req);
-        let token = &req.get_ref().lease;
-        self.axes().check_lease_owner(token, owner.as_deref())?;
-        let lease = self.axes().release(token)?;
+        let caller = Caller::new(peer.clone())
+            .with_identity(owner(&req))
+            .with_lease(req.into_inner().lease);
+        let lease = self.axes().release(&caller)?;
         tracing::info!(target: "cangate::audit", %peer, holder = %lease.holder, axes = ?lease.axes, "release control");
         Ok(Response::new(pb::ReleaseControlResponse {
             axes: lease.axes,
@@ -517,13 +462,12 @@ impl AxesRpc for AxesService {
         if let Some(over) = &over_budget {
             refuse_resting_stop(m, over, &idx)?;
         }
-        tracing::info!(target: "cangate::audit", %peer, axes = ?r.axes, quick = r.quick, "stop axes");
         let kind = if r.quick {
             StopKind::QuickStop
         } else {
             StopKind::Halt
         };
-        let results = m.stop_many(&idx, kind, r.wait).await?;
+        let results = m.stop_many(&idx, kind, r.wait, &Caller::new(peer)).await?;
         let mut out = Vec::new();
         for (i, res) in idx.iter().zip(results) {
             out.push(match res {
@@ -546,7 +490,7 @@ impl AxesRpc for AxesService {
         let owner = owner(&req);
         let r = req.into_inner();
         let m = self.axes();
-        m.check_lease_owner(&r.lease, owner.as_deref())?;
+        let caller = Caller::new(peer).with_identity(owner).with_lease(r.lease);
         let mut targets = Vec::new();
         let mut seen = std::collections::HashSet::new();
         for t in &r.targets {
@@ -563,7 +507,6 @@ impl AxesRpc for AxesService {
                 ))
                 .into());
             }
-            m.authorize(i, &r.lease)?;
             let c = &m.spec(i).motion;
             targets.push((
                 i,
@@ -582,8 +525,7 @@ impl AxesRpc for AxesService {
                 )?,
             ));
         }
-        tracing::info!(target: "cangate::audit", %peer, targets = ?r.targets.iter().map(|t| (&t.axis, t.target)).collect::<Vec<_>>(), "coordinated move");
-        let results = m.move_coordinated(targets.clone(), r.wait).await?;
+        let results = m.move_coordinated(targets.clone(), &caller, r.wait).await?;
         let mut out = Vec::new();
         for ((i, ..), res) in targets.iter().zip(results) {
             let res = res?;

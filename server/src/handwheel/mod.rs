@@ -7,7 +7,7 @@
 
 mod ledger;
 
-use crate::axes::Axes;
+use crate::axes::{Axes, AxisError, Caller};
 use crate::canopen::{CanopenBus, NodeEventKind};
 use crate::config::{CounterChoice, HandwheelConfig};
 use crate::not_found::NotFound;
@@ -211,17 +211,25 @@ impl Handwheels {
                 },
                 65_536,
             );
-            tasks.push(tokio::spawn(run_wheel(WheelTask {
-                index: i,
-                state: state.clone(),
-                decoder,
-                sub,
-                events: master.events(),
-                control: control_rx,
-                feed: feed.clone(),
-                axes: axes.clone(),
-                cancel: cancel.child_token(),
-            })));
+            // The wheel's task logs inside its bus's, node's and own spans.
+            let span = tracing::info_span!("bus", bus = %master.bus());
+            let span = tracing::info_span!(parent: &span, "node", node = node.get());
+            let span =
+                tracing::info_span!(parent: &span, "handwheel", handwheel = %state.config.name);
+            tasks.push(tokio::spawn(tracing::Instrument::instrument(
+                run_wheel(WheelTask {
+                    index: i,
+                    state: state.clone(),
+                    decoder,
+                    sub,
+                    events: master.events(),
+                    control: control_rx,
+                    feed: feed.clone(),
+                    axes: axes.clone(),
+                    cancel: cancel.child_token(),
+                }),
+                span,
+            )));
             wheels.push(state);
             wheel_masters.push(master);
         }
@@ -403,7 +411,7 @@ async fn run_wheel(mut t: WheelTask) {
                     manual = mode == Mode::Manual;
                     ledger.clear();
                     if !manual {
-                        release(&mut ledger, &t.axes, &mut hold);
+                        release(&t.state, &mut ledger, &t.axes, &mut hold);
                     }
                     publish(&t.state, &ledger);
                 }
@@ -430,7 +438,7 @@ async fn run_wheel(mut t: WheelTask) {
                         BusItem::Lost(n) => {
                             // The gateway itself fell behind: the counter
                             // can no longer be trusted across the hole.
-                            tracing::warn!(handwheel = %t.state.config.name, lost = n, "handwheel task missed feed frames (overloaded)");
+                            tracing::warn!(lost = n, "handwheel task missed feed frames (overloaded)");
                             t.decoder.reset_baseline(BaselineReason::Other);
                         }
                         BusItem::State(_) => {}
@@ -456,7 +464,7 @@ async fn run_wheel(mut t: WheelTask) {
                         *t.state.mode.lock().expect("lock") = None;
                         manual = false;
                         ledger.clear();
-                        release(&mut ledger, &t.axes, &mut hold);
+                        release(&t.state, &mut ledger, &t.axes, &mut hold);
                         publish(&t.state, &ledger);
                     }
                     _ => {}
@@ -465,7 +473,7 @@ async fn run_wheel(mut t: WheelTask) {
                 Err(broadcast::error::RecvError::Lagged(n)) => {
                     // A missed heartbeat loss or reboot would leave a stale
                     // counter baseline: start a new one.
-                    tracing::warn!(handwheel = %t.state.config.name, missed = n, "handwheel task missed node events (overloaded)");
+                    tracing::warn!(missed = n, "handwheel task missed node events (overloaded)");
                     t.decoder.reset_baseline(BaselineReason::Other);
                 }
                 Err(broadcast::error::RecvError::Closed) => break,
@@ -479,7 +487,7 @@ async fn run_wheel(mut t: WheelTask) {
             }
         }
     }
-    release(&mut ledger, &t.axes, &mut hold);
+    release(&t.state, &mut ledger, &t.axes, &mut hold);
     publish(&t.state, &ledger);
 }
 
@@ -496,7 +504,7 @@ fn keep_hold(state: &WheelState, ledger: &mut BindingLedger, axes: &Axes, hold: 
             if now.duration_since(hold.renewed)
                 >= Duration::from_millis(u64::from(LEASE_TTL_MS / 3))
             {
-                if axes.renew(token).is_ok() {
+                if axes.renew(&wheel_caller(state, token)).is_ok() {
                     hold.renewed = now;
                 } else {
                     hold.lease = None;
@@ -508,11 +516,7 @@ fn keep_hold(state: &WheelState, ledger: &mut BindingLedger, axes: &Axes, hold: 
                 return;
             }
             let names: Vec<String> = state.bindings.iter().map(|b| b.axis_name.clone()).collect();
-            match axes.acquire(
-                &names,
-                LEASE_TTL_MS,
-                format!("handwheel {}", state.config.name),
-            ) {
+            match axes.acquire(&names, LEASE_TTL_MS, wheel_caller(state, "").name, None) {
                 Ok(l) => {
                     hold.lease = Some(l.token);
                     hold.renewed = now;
@@ -529,9 +533,9 @@ fn keep_hold(state: &WheelState, ledger: &mut BindingLedger, axes: &Axes, hold: 
 
 /// Gives the bound axes back (the wheel left manual mode, rebooted or
 /// stopped); a refusal to take them no longer applies either.
-fn release(ledger: &mut BindingLedger, axes: &Axes, hold: &mut Hold) {
+fn release(state: &WheelState, ledger: &mut BindingLedger, axes: &Axes, hold: &mut Hold) {
     if let Some(token) = hold.lease.take() {
-        let _ = axes.release(&token);
+        let _ = axes.release(&wheel_caller(state, &token));
     }
     hold.retry_at = Instant::now();
     ledger.set_blocked(String::new());
@@ -556,9 +560,6 @@ fn execute(
         if !enabled {
             return Executed::NotEnabled;
         }
-        if axes.authorize(b.axis, token).is_err() {
-            return Executed::NotControlled;
-        }
         let cfg = &axes.spec(b.axis).motion;
         // The paced rate as the move's velocity, so consecutive small moves
         // blend into an even motion.
@@ -569,11 +570,17 @@ fn execute(
             velocity: Some(velocity),
             acceleration: Some(cfg.max_acceleration),
         };
-        match axes.submit(b.axis, cmd) {
+        match axes.submit(b.axis, cmd, &wheel_caller(state, token)) {
             Ok(()) => Executed::Done,
+            Err(AxisError::Lease(_)) => Executed::NotControlled,
             Err(_) => Executed::Refused,
         }
     });
+}
+
+/// The wheel as the axes see it: named after it, presenting `token`.
+fn wheel_caller(state: &WheelState, token: &str) -> Caller {
+    Caller::new(format!("handwheel {}", state.config.name)).with_lease(token)
 }
 
 /// Why a handwheel request failed, by reason.
