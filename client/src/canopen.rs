@@ -88,22 +88,37 @@ impl Canopen {
             .await
     }
 
-    /// Sends an NMT command to one node.
+    /// Sends an NMT command to one node. A command that takes the drive
+    /// of an enabled axis out of operational is refused
+    /// (`FAILED_PRECONDITION`, reason `AXIS_ACTIVE`); see [`Self::nmt_forced`].
     pub async fn nmt(&self, node: NodeId, command: pb::NmtCommand) -> Result<(), Error> {
-        self.send_nmt(node.into(), command).await
+        self.send_nmt(node.into(), command, false).await
     }
 
-    /// Sends an NMT command to every node (broadcast, node 0).
+    /// Sends an NMT command to every node (broadcast, node 0); refused
+    /// like [`Self::nmt`] while an axis is enabled.
     pub async fn nmt_all(&self, command: pb::NmtCommand) -> Result<(), Error> {
-        self.send_nmt(0, command).await
+        self.send_nmt(0, command, false).await
     }
 
-    async fn send_nmt(&self, node: u32, command: pb::NmtCommand) -> Result<(), Error> {
+    /// Sends an NMT command to one node (`None`: every node) even when it
+    /// takes an enabled axis's drive out of operational: the axis faults.
+    /// Only a client with the engineer role may.
+    pub async fn nmt_forced(
+        &self,
+        node: Option<NodeId>,
+        command: pb::NmtCommand,
+    ) -> Result<(), Error> {
+        self.send_nmt(node.map_or(0, u32::from), command, true)
+            .await
+    }
+
+    async fn send_nmt(&self, node: u32, command: pb::NmtCommand, force: bool) -> Result<(), Error> {
         let req = pb::SendNmtRequest {
             bus: self.bus.clone(),
             node,
             command: command as i32,
-            force: false,
+            force,
         };
         self.client
             .call("SendNmt", None, self.client.canopen_client().send_nmt(req))

@@ -7,12 +7,10 @@
 //! planning, and the one dispatch of a request ([`AxisRunner::dispatch`]).
 //! Both runners depend on it; it depends on neither.
 
-use crate::config::AxisConfig;
-use cangate_axis::cansmc::CansmcAxis;
+use cangate_axis::cansmc::{CansmcAxis, CansmcAxisConfig};
 use cangate_axis::cia402::{AxisSnapshot, Cia402Axis};
-use cangate_axis::{AxisCommand, AxisEvent, CommandError, CommandKind, OpId, Outcome};
+use cangate_axis::{AxisCommand, AxisEvent, CommandError, CommandKind, MotionSpec, OpId, Outcome};
 use cangate_can::Timestamp;
-use cangate_canopen::NodeId;
 use cangate_motion::{AxisMove, Limits, SyncedMove, TrapezoidProfile};
 use std::collections::HashMap;
 use std::sync::{Arc, RwLock};
@@ -107,41 +105,37 @@ impl Waiters {
 /// What planning a coordinated move needs from an axis controller,
 /// whatever its drive family.
 pub(crate) trait CoordinatedMember {
-    /// Default velocity, default acceleration, maximum velocity, maximum
-    /// acceleration, in user units.
-    fn motion_limits(&self) -> [f64; 4];
+    /// The axis's defaults and maxima.
+    fn motion(&self) -> &MotionSpec;
     /// Where a move starts: the demand position.
     fn demand(&self) -> f64;
     /// Whether the axis can take part in a coordinated move to `target`.
     fn check_coordinated(&self, target: f64) -> Result<(), CommandError>;
 }
 
-/// Both controllers have the same configuration fields and methods for
-/// this; one implementation written once.
-macro_rules! coordinated_member {
-    ($axis:ty) => {
-        impl CoordinatedMember for $axis {
-            fn motion_limits(&self) -> [f64; 4] {
-                let c = self.config();
-                [
-                    c.default_velocity,
-                    c.default_acceleration,
-                    c.max_velocity,
-                    c.max_acceleration,
-                ]
-            }
-            fn demand(&self) -> f64 {
-                <$axis>::demand(self)
-            }
-            fn check_coordinated(&self, target: f64) -> Result<(), CommandError> {
-                <$axis>::check_coordinated(self, target)
-            }
-        }
-    };
+impl CoordinatedMember for Cia402Axis {
+    fn motion(&self) -> &MotionSpec {
+        &self.config().motion
+    }
+    fn demand(&self) -> f64 {
+        Cia402Axis::demand(self)
+    }
+    fn check_coordinated(&self, target: f64) -> Result<(), CommandError> {
+        Cia402Axis::check_coordinated(self, target)
+    }
 }
 
-coordinated_member!(Cia402Axis);
-coordinated_member!(CansmcAxis);
+impl CoordinatedMember for CansmcAxis {
+    fn motion(&self) -> &MotionSpec {
+        &self.config().motion
+    }
+    fn demand(&self) -> f64 {
+        CansmcAxis::demand(self)
+    }
+    fn check_coordinated(&self, target: f64) -> Result<(), CommandError> {
+        CansmcAxis::check_coordinated(self, target)
+    }
+}
 
 /// A coordinated move's target for one axis: the axis's index in its
 /// runtime, the target, and the requested velocity and acceleration
@@ -159,22 +153,17 @@ pub(crate) fn prepare_coordinated<'a, A: CoordinatedMember + 'a>(
         .iter()
         .map(|&(i, target, velocity, acceleration)| {
             let (name, a) = axis(i);
-            let [
-                default_velocity,
-                default_acceleration,
-                max_velocity,
-                max_acceleration,
-            ] = a.motion_limits();
+            let m = a.motion();
             CoordinatedAxis {
                 name,
                 from: a.demand(),
                 target,
                 velocity,
                 acceleration,
-                default_velocity,
-                default_acceleration,
-                max_velocity,
-                max_acceleration,
+                default_velocity: m.default_velocity,
+                default_acceleration: m.default_acceleration,
+                max_velocity: m.max_velocity,
+                max_acceleration: m.max_acceleration,
             }
         })
         .collect();
@@ -218,20 +207,20 @@ pub(crate) fn plan_coordinated(
         let v = a.velocity.unwrap_or(a.default_velocity);
         let acc = a.acceleration.unwrap_or(a.default_acceleration);
         if v > a.max_velocity || acc > a.max_acceleration {
-            return Err(CommandError::OutOfRange(format!(
+            return Err(CommandError::AboveMaximum(format!(
                 "axis {}: velocity {v} / acceleration {acc} exceed the maxima {} / {}",
                 a.name, a.max_velocity, a.max_acceleration
             )));
         }
         let limits = Limits::symmetric(v, acc)
-            .map_err(|e| CommandError::InvalidArgument(format!("axis {}: {e}", a.name)))?;
+            .map_err(|e| CommandError::BadValue(format!("axis {}: {e}", a.name)))?;
         moves.push(AxisMove::new(a.from, a.target, limits));
     }
-    let plan = SyncedMove::new(moves).map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+    let plan = SyncedMove::new(moves).map_err(|e| CommandError::BadValue(e.to_string()))?;
     (0..axes.len())
         .map(|k| {
             let profile = plan.profile(k).cloned().ok_or_else(|| {
-                CommandError::InvalidArgument("the coordinated plan lost an axis".into())
+                CommandError::BadValue("the coordinated plan lost an axis".into())
             })?;
             let ratio = plan
                 .time_scale(k)
@@ -243,15 +232,7 @@ pub(crate) fn plan_coordinated(
 
 /// `e` with the axis named in its message.
 pub(crate) fn for_axis(axis: &str, e: CommandError) -> CommandError {
-    match e {
-        CommandError::OutOfRange(m) => CommandError::OutOfRange(format!("axis {axis}: {m}")),
-        CommandError::InvalidArgument(m) => {
-            CommandError::InvalidArgument(format!("axis {axis}: {m}"))
-        }
-        CommandError::FailedPrecondition(m) => {
-            CommandError::FailedPrecondition(format!("axis {axis}: {m}"))
-        }
-    }
+    e.prefixed(&format!("axis {axis}: "))
 }
 
 /// How a command ended, for its caller.
@@ -361,27 +342,26 @@ pub enum AxisEventKind {
     },
 }
 
-/// Static facts of an axis.
-#[derive(Debug, Clone)]
-pub struct AxisInfo {
-    /// Its configuration (for a CANsmc axis: the equivalent description,
-    /// `bus` = the master's command bus, `node` = the slave address).
-    pub config: AxisConfig,
-    /// The node (CiA 402) or slave address (CANsmc).
-    pub node: NodeId,
-    /// The CANsmc master's name, for a CANsmc axis.
-    pub cansmc: Option<String>,
-}
-
 /// Latest state of every axis, by axis index.
 pub type LatestStates = Arc<RwLock<Vec<Option<(Arc<AxisSnapshot>, Timestamp)>>>>;
+
+/// A CANsmc axis as the axis layer hands it over: its index among all
+/// axes, its name, its controller's configuration.
+pub struct CansmcPortAxis {
+    /// Index among all axes of the gateway.
+    pub global: usize,
+    /// The axis's name.
+    pub name: String,
+    /// The controller's configuration (with its slave).
+    pub controller: CansmcAxisConfig,
+}
 
 /// The axes of one master, as the axis layer hands them over.
 pub struct AxisPort {
     /// Commands from the axis API.
     pub requests: mpsc::Receiver<BusRequest>,
-    /// (global index, facts) in configuration order of `[[cansmc.axis]]`.
-    pub axes: Vec<(usize, AxisInfo)>,
+    /// The master's axes in configuration order of `[[cansmc.axis]]`.
+    pub axes: Vec<CansmcPortAxis>,
     /// Where updates go.
     pub updates: broadcast::Sender<AxisUpdate>,
     /// Latest state of every axis.

@@ -6,12 +6,12 @@ use crate::axes::Axes;
 use crate::canopen::{BootPlan, CanopenBus, NodeFacts};
 use crate::cansmc::CansmcMaster;
 use crate::config::{
-    AxisConfig, BackendChoice, BusConfig, CanopenConfig, Config, NodeConfig, ProcessDataChoice,
-    StuffingChoice, parse_object,
+    BackendChoice, BusConfig, CanopenConfig, Config, NodeConfig, StuffingChoice, parse_object,
 };
 use crate::handwheel::Handwheels;
 use crate::not_found::NotFound;
 use crate::simulation::SimulatedDevice;
+use cangate_axis::{AxisSpec, DriveSpec, ProcessDataPath};
 use cangate_can::bus::{Backend, BackendKind, BusHandle, BusInfo};
 use cangate_can::socketcan_bus::SocketCanBus;
 use cangate_can::{BitTiming, Stuffing, VirtualBusConfig, VirtualNetwork};
@@ -203,13 +203,10 @@ impl Gateway {
             sim_wheels,
             canopen,
         } = booting;
-        let (axes, axis_tasks, mut axis_ports) = Axes::start(
-            &config.axes,
-            &canopen,
-            &config.cansmc,
-            shutdown.child_token(),
-        )
-        .map_err(BootError::Axes)?;
+        let (axes, axis_tasks, mut axis_ports) = config
+            .axis_specs()
+            .and_then(|specs| Axes::start(&specs, &canopen, shutdown.child_token()))
+            .map_err(BootError::Axes)?;
         tasks.extend(axis_tasks);
         let mut cansmc = BTreeMap::new();
         let mut sim_smc = BTreeMap::new();
@@ -403,6 +400,12 @@ fn start_buses(
                 bus: bc.name.clone(),
                 message,
             })?;
+        tasks.extend(crate::traffic_log::spawn(
+            &bc.name,
+            &handle,
+            bc.decode,
+            shutdown.child_token(),
+        ));
         buses.insert(bc.name.clone(), handle);
         tasks.push(task);
     }
@@ -588,17 +591,23 @@ fn node_facts(
     eds: Option<Arc<Eds>>,
     eds_text: Option<Arc<str>>,
 ) -> Result<NodeFacts, String> {
-    let axis = config
-        .axes
-        .iter()
-        .find(|a| a.bus == cc.bus && a.node == nc.id);
+    let axis = (config.axes.iter())
+        .find(|a| a.bus == cc.bus && a.node == nc.id)
+        .map(AxisSpec::try_from)
+        .transpose()?;
     let sync = cc.sync_period_us > 0;
     let master_heartbeat = cc
         .master_heartbeat()
         .zip(cc.drive_heartbeat_timeout_ms())
         .map(|((id, _), timeout)| (id, timeout));
-    let (tpdos, rpdos, mut boot) =
-        node_plan(nc, node, eds.as_deref(), axis, sync, master_heartbeat)?;
+    let (tpdos, rpdos, mut boot) = node_plan(
+        nc,
+        node,
+        eds.as_deref(),
+        axis.as_ref(),
+        sync,
+        master_heartbeat,
+    )?;
     // A handwheel sends feed only when operational: it is started at every
     // boot-up like the configured nodes.
     if boot.is_none()
@@ -634,18 +643,23 @@ fn node_plan(
     nc: &NodeConfig,
     node: NodeId,
     eds: Option<&Eds>,
-    axis: Option<&AxisConfig>,
+    axis: Option<&AxisSpec>,
     sync: bool,
     master_heartbeat: Option<(u8, u16)>,
 ) -> Result<NodePlan, String> {
-    let (tpdos, rpdos) = match axis {
-        Some(axis) => axis_pdos(nc, node, axis, sync)?,
+    // A CiA 402 axis's drive (a CANsmc axis is no CANopen node).
+    let drive = axis.and_then(|a| match &a.drive {
+        DriveSpec::Cia402(d) => Some((a, d)),
+        DriveSpec::Cansmc(_) => None,
+    });
+    let (tpdos, rpdos) = match drive {
+        Some((axis, d)) => axis_pdos(nc, node, axis, d, sync)?,
         None => (
             pdo_layouts(PdoKind::Tpdo, &nc.tpdo, eds, node)?,
             pdo_layouts(PdoKind::Rpdo, &nc.rpdo, eds, node)?,
         ),
     };
-    if axis.is_none() && !nc.boot {
+    if drive.is_none() && !nc.boot {
         return Ok((tpdos, rpdos, None));
     }
     let mut writes = dcf_writes(nc, node, eds)?;
@@ -653,16 +667,17 @@ fn node_plan(
         writes.push((ObjectAddress::new(0x1017, 0), ms.to_le_bytes().to_vec()));
     }
     writes.extend(life_guarding_writes(nc, eds));
-    match axis {
-        Some(axis) => {
+    match drive {
+        Some((axis, d)) => {
             writes.extend(master_heartbeat_consumer(eds, master_heartbeat, axis));
             for p in tpdos.iter().chain(&rpdos) {
                 writes.extend(p.sdo_writes().map_err(|e| e.to_string())?);
             }
-            writes.extend(cangate_axis::cia402::Cia402Axis::new(axis.controller()).boot_writes());
+            let controller = d.controller(axis.motion.clone());
+            writes.extend(cangate_axis::cia402::Cia402Axis::new(controller).boot_writes());
             writes.push((
                 cangate_canopen::cia402::objects::HOMING_METHOD,
-                vec![axis.homing_method as u8],
+                vec![d.homing_method as u8],
             ));
         }
         None => {
@@ -692,7 +707,8 @@ fn node_plan(
 fn axis_pdos(
     nc: &NodeConfig,
     node: NodeId,
-    axis: &AxisConfig,
+    axis: &AxisSpec,
+    drive: &cangate_axis::Cia402Drive,
     sync: bool,
 ) -> Result<(Vec<PdoConfig>, Vec<PdoConfig>), String> {
     use cangate_axis::process_data::{FeedbackTrigger, standard_pdos};
@@ -709,9 +725,9 @@ fn axis_pdos(
     };
     // The SDO fallback maps no PDO: whatever the drive's own PDOs carry is
     // left alone and not used.
-    let (rpdos, tpdos) = match axis.process_data {
-        ProcessDataChoice::Pdo => standard_pdos(node, trigger),
-        ProcessDataChoice::Sdo => (Vec::new(), Vec::new()),
+    let (rpdos, tpdos) = match drive.process_data {
+        ProcessDataPath::Pdo => standard_pdos(node, trigger),
+        ProcessDataPath::Sdo { .. } => (Vec::new(), Vec::new()),
     };
     Ok((tpdos, rpdos))
 }
@@ -806,7 +822,7 @@ fn dcf_writes(
 fn master_heartbeat_consumer(
     eds: Option<&Eds>,
     master: Option<(u8, u16)>,
-    axis: &AxisConfig,
+    axis: &AxisSpec,
 ) -> Option<(ObjectAddress, Vec<u8>)> {
     let (id, timeout_ms) = master?;
     let addr = ObjectAddress::new(0x1016, 1);

@@ -49,6 +49,7 @@ pub mod security;
 pub mod serve;
 pub mod simulation;
 pub mod socketcand;
+pub mod traffic_log;
 pub mod web;
 
 pub use config::Config;

@@ -266,7 +266,10 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         .set_serving::<cangate_proto::v1::lss_server::LssServer<crate::grpc::lss_service::LssService>>()
         .await;
     let session_service = cangate_proto::v1::session_server::SessionServer::new(
-        crate::grpc::session_service::SessionService::new(config.security.authentication()),
+        crate::grpc::session_service::SessionService::new(
+            config.security.authentication(),
+            config.security.viewers_may_stop,
+        ),
     );
     health_reporter
         .set_serving::<cangate_proto::v1::cansmc_server::CansmcServer<CansmcService>>()
@@ -301,6 +304,7 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
             // Browsers speak gRPC-Web over HTTP/1.1 (over TLS too, as
             // long as the certificate offers no h2 ALPN to them).
             .accept_http1(true)
+            .layer(RequestSpanLayer)
             .layer(crate::web::HostCheckLayer::new(
                 crate::web::AllowedHosts::new(addr.ip(), &config.web.allowed_hosts),
             ))
@@ -378,4 +382,50 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         socketcand,
         tls,
     })
+}
+
+/// Serves every call inside a `request` span with its method (the URI
+/// path) and the peer's address, so that each line logged on its behalf
+/// (by the edge or by the runtime it calls) says which call it belongs to.
+#[derive(Debug, Clone, Copy)]
+struct RequestSpanLayer;
+
+impl<S> tower::Layer<S> for RequestSpanLayer {
+    type Service = RequestSpan<S>;
+    fn layer(&self, inner: S) -> Self::Service {
+        RequestSpan { inner }
+    }
+}
+
+/// See [`RequestSpanLayer`].
+#[derive(Debug, Clone)]
+struct RequestSpan<S> {
+    inner: S,
+}
+
+impl<S, B> tower::Service<http::Request<B>> for RequestSpan<S>
+where
+    S: tower::Service<http::Request<B>>,
+{
+    type Response = S::Response;
+    type Error = S::Error;
+    type Future = tracing::instrument::Instrumented<S::Future>;
+
+    fn poll_ready(
+        &mut self,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Result<(), Self::Error>> {
+        self.inner.poll_ready(cx)
+    }
+
+    fn call(&mut self, req: http::Request<B>) -> Self::Future {
+        let peer = req
+            .extensions()
+            .get::<crate::security::tls::ConnInfo>()
+            .and_then(|c| c.remote_addr)
+            .map_or_else(|| "unknown".to_string(), |a| a.to_string());
+        let span = tracing::info_span!("request", method = %req.uri().path(), %peer);
+        let fut = span.in_scope(|| self.inner.call(req));
+        tracing::Instrument::instrument(fut, span)
+    }
 }

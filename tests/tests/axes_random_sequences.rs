@@ -136,13 +136,13 @@ fn action(rng: &mut Rng, l: &Limits) -> Action {
             0 => Commissioning::SdoWrite {
                 index: [0x6040, 0x6060, 0x607A, 0x60FF][usize::from(rng.u8(0..4))],
             },
-            // (RESET_COMMUNICATION reboots the drive through the boot
-            // procedure: its own tests cover it; here the node stays up.)
-            1 => Commissioning::Nmt(if rng.bool() {
-                pb::NmtCommand::EnterPreOperational
-            } else {
-                pb::NmtCommand::Stop
-            }),
+            1 => Commissioning::Nmt(
+                [
+                    pb::NmtCommand::EnterPreOperational,
+                    pb::NmtCommand::Stop,
+                    pb::NmtCommand::ResetCommunication,
+                ][usize::from(rng.u8(0..3))],
+            ),
             2 => Commissioning::ProgramDownload,
             // The SYNC period matters to the cyclic axes only.
             3 if !l.cyclic => Commissioning::LssConfiguration,
@@ -282,6 +282,7 @@ async fn commission(
     let enabled = |s: &pb::AxisStatus| s.state == pb::DriveState::OperationEnabled as i32;
     let before = status(axes, axis).await?;
     let mut co = engineer.canopen_client();
+    let boot_ups_before = boot_ups(&mut co, node).await?;
     let outcome: Result<(), (Option<Code>, Option<String>, String)> = match op {
         Commissioning::SdoWrite { index } => bounded(
             &what,
@@ -308,6 +309,16 @@ async fn commission(
                 .await?
                 .map(|_| ())
                 .map_err(status_parts);
+            if r.is_ok() && command == pb::NmtCommand::ResetCommunication {
+                // The node reboots: the engineer waits for its boot-up.
+                let deadline = tokio::time::Instant::now() + CALL_BOUND;
+                while boot_ups(&mut co, node).await? <= boot_ups_before {
+                    if tokio::time::Instant::now() > deadline {
+                        return Err(format!("after {what} node {node} sent no boot-up"));
+                    }
+                    tokio::time::sleep(Duration::from_millis(20)).await;
+                }
+            }
             if r.is_ok() {
                 // The engineer puts the node back where it was.
                 bounded("NMT START", co.send_nmt(nmt(pb::NmtCommand::Start)))
@@ -412,6 +423,23 @@ async fn commission(
         (Ok(()), false) => Ok("done at rest".into()),
         (Err((code, _, _)), false) => Ok(format!("{code:?} at rest")),
     }
+}
+
+/// How many boot-ups the gateway has seen from `node`.
+async fn boot_ups(
+    co: &mut cangate_client::pb::canopen_client::CanopenClient<cangate_client::Transport>,
+    node: u32,
+) -> Result<u64, String> {
+    let n = bounded(
+        "GetNode",
+        co.get_node(pb::GetNodeRequest {
+            bus: "can0".into(),
+            node,
+        }),
+    )
+    .await?
+    .map_err(|s| format!("GetNode: {s:?}"))?;
+    Ok(n.boot_ups)
 }
 
 fn status_parts(s: tonic::Status) -> (Option<Code>, Option<String>, String) {

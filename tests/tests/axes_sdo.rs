@@ -304,6 +304,26 @@ async fn nmt_commands_that_stop_an_enabled_axis_drive_are_refused_unless_forced(
     }
     let s = wait_status(&mut axes, "S", |_| true).await;
     assert_eq!(s.state, pb::DriveState::OperationEnabled as i32, "{s:?}");
+    // Forced (the typed client's and the CLI's `--force`): sent; the node
+    // goes pre-operational (this SDO-driven axis keeps its drive; an axis
+    // with PDOs loses its process data and faults).
+    let can0 = c.canopen("can0");
+    let drive = cangate_client::NodeId::new(3).unwrap();
+    can0.nmt_forced(Some(drive), pb::NmtCommand::EnterPreOperational)
+        .await
+        .expect("a forced pre-operational");
+    let t0 = std::time::Instant::now();
+    loop {
+        let n = can0.node(drive).await.expect("node 3");
+        if n.state == pb::NmtState::PreOperational as i32 {
+            break;
+        }
+        assert!(t0.elapsed() < WAIT, "node 3 stays {n:?}");
+        tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+    }
+    co.send_nmt(nmt(3, pb::NmtCommand::Start, false))
+        .await
+        .expect("start");
     // Disabled: the drive takes them again.
     let r = axes
         .disable(cmd("S", &lease, true))

@@ -307,6 +307,7 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
             "canopen-nodes",
             "nmt",
             "emcy-shown",
+            "alarm-emcy",
             "sdo-read",
             "sdo-abort",
             "sdo-read-by-name",
@@ -745,6 +746,64 @@ async fn the_page_shows_a_gateway_that_went_away_and_a_failed_stop() {
     assert!(screenshots().join("gone.png").exists());
 }
 
+/// Every page at a panel PC's 1024×768 and at 1920×1080: no command button
+/// outside the viewport, no sideways scrolling, no number cut, STOP ALL and
+/// QUICK STOP ALL in view; a screenshot of each in `target/web-screenshots/`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_page_fits_a_panel_pc_and_a_full_hd_screen() {
+    if !can_run("every_page_fits_a_panel_pc_and_a_full_hd_screen") {
+        return;
+    }
+    let server = demo_server().await;
+    let url = format!("http://{}/", server.addr);
+    let steps = drive(
+        &["layout".into(), url, screenshots().display().to_string()],
+        |need| async move { unexpected(need) },
+    )
+    .await;
+    for size in ["1024x768", "1920x1080"] {
+        for page in ["axes", "buses", "canopen", "handwheel", "cansmc", "alarms"] {
+            let step = format!("layout {page} {size}");
+            assert!(steps.contains(&step), "no step {step:?} in {steps:?}");
+            assert!(screenshots().join(format!("{page}-{size}.png")).exists());
+        }
+    }
+    assert_eq!(steps.last().map(String::as_str), Some("no-console-errors"));
+}
+
+/// Hold-to-run on a touch panel: the jog button jogs Y while a finger
+/// holds it (past the dead-man time) and stops Y when the finger lifts or
+/// the touch is cancelled; checked over gRPC that Y is at rest after.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_touch_jog_runs_while_held_and_stops_when_the_touch_ends_or_is_lost() {
+    if !can_run("a_touch_jog_runs_while_held_and_stops_when_the_touch_ends_or_is_lost") {
+        return;
+    }
+    let server = demo_server().await;
+    let url = format!("http://{}/", server.addr);
+    let steps = drive(
+        &["touch".into(), url, screenshots().display().to_string()],
+        |need| async move { unexpected(need) },
+    )
+    .await;
+    for end in ["touchEnd", "touchCancel"] {
+        let step = steps
+            .iter()
+            .find(|s| s.starts_with(&format!("touch {end} ")))
+            .unwrap_or_else(|| panic!("no touch step for {end} in {steps:?}"));
+        let moved: f64 = step
+            .split_whitespace()
+            .find_map(|w| w.strip_prefix("moved="))
+            .and_then(|v| v.parse().ok())
+            .unwrap_or_else(|| panic!("{step}"));
+        assert!(moved > 1.0, "{step}");
+    }
+    let c = client(&server).await;
+    let y = axis_status(&c, "Y").await;
+    assert_eq!(y.activity, pb::AxisActivity::Idle as i32, "{y:?}");
+    assert_eq!(steps.last().map(String::as_str), Some("no-console-errors"));
+}
+
 /// The dashboard over HTTPS: the demo gateway with `[security.tls]` (a
 /// throwaway self-signed certificate for 127.0.0.1, made here with rcgen),
 /// Chromium trusting exactly that certificate's public key
@@ -825,4 +884,17 @@ async fn the_dashboard_works_over_tls() {
     assert!(screenshots().join("tls.png").exists());
     server.shutdown();
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The page stays light: one script and one style sheet, no framework, a
+/// bound on their size that a new dependency would break (today about
+/// 240 KB of script, 83 KB gzipped, most of it the protobuf runtime, the
+/// generated messages and uPlot).
+#[test]
+fn the_page_stays_light() {
+    let dist = repo().join("web/dist");
+    let size = |f: &str| std::fs::metadata(dist.join(f)).map(|m| m.len()).unwrap();
+    let (js, css) = (size("app.js"), size("app.css"));
+    assert!(js < 300_000, "web/dist/app.js is {js} bytes");
+    assert!(css < 20_000, "web/dist/app.css is {css} bytes");
 }

@@ -563,3 +563,54 @@ max_acceleration = 100.0
         lease.holder
     );
 }
+
+/// A viewer token cannot stop axes, unless `[security] viewers_may_stop`
+/// is on (a wall-mounted status panel's STOP ALL); then it can stop, and
+/// only stop. GetCaller tells the page which.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn viewers_stop_axes_only_where_the_configuration_lets_them() {
+    let tokens = tokens_toml(&[("wall-panel", "viewer", "v"), ("hmi", "operator", "o")]);
+    for allowed in [false, true] {
+        let config = format!("{ONE_BUS}[security]\nviewers_may_stop = {allowed}\n{tokens}");
+        let server = start_server(&config).await;
+        let viewer = with_token(&server, "v").await;
+        let caller = viewer.caller().await.expect("GetCaller");
+        assert_eq!(caller.may_stop, allowed, "{caller:?}");
+        let operator = with_token(&server, "o").await;
+        assert!(operator.caller().await.expect("GetCaller").may_stop);
+        let mut axes = viewer.axes_client();
+        // No such axis here: past the security layer, a stop is NOT_FOUND.
+        let stop = axes
+            .stop_axes(pb::StopAxesRequest {
+                axes: vec!["X".into()],
+                ..Default::default()
+            })
+            .await
+            .unwrap_err();
+        let quick = axes
+            .quick_stop(pb::AxisCommandRequest {
+                axis: "X".into(),
+                ..Default::default()
+            })
+            .await
+            .unwrap_err();
+        for e in [&stop, &quick] {
+            if allowed {
+                assert_eq!(e.code(), Code::NotFound, "{e:?}");
+            } else {
+                assert_eq!(e.code(), Code::PermissionDenied, "{e:?}");
+                assert!(e.message().contains("needs role operator"), "{e:?}");
+            }
+        }
+        // Moving stays an operator's.
+        let e = axes
+            .r#move(pb::MoveRequest {
+                axis: "X".into(),
+                target: 1.0,
+                ..Default::default()
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(e.code(), Code::PermissionDenied, "{e:?}");
+    }
+}

@@ -169,7 +169,7 @@ export function clearNotice(): void {
 export function showStopFailed(what: string, why: string): void {
   const box = document.getElementById("stop-failed")!;
   const text = document.getElementById("stop-failed-text")!;
-  const at = new Date().toLocaleTimeString();
+  const at = clock();
   text.textContent = `${what} FAILED at ${at}: ${why}. The axes may still be moving: use the machine's emergency stop if they are.`;
   box.dataset.count = String(Number(box.dataset.count ?? "0") + 1);
   box.hidden = false;
@@ -233,7 +233,16 @@ export async function keepStreaming<T>(
     const unlisten = onLink((l) => {
       if (l === "lost") one.abort();
     });
+    // Counted open until it is aborted (the browser drops the connection
+    // then), or it ends: a page switch closes the old page's stream
+    // before it opens the next one's.
     countStream(+1);
+    let counted = true;
+    const uncount = () => {
+      if (counted) countStream(-1);
+      counted = false;
+    };
+    one.signal.addEventListener("abort", uncount, { once: true });
     try {
       for await (const m of open(one.signal)) {
         showConnected();
@@ -247,7 +256,7 @@ export async function keepStreaming<T>(
         if (ConnectError.from(e).code === Code.Unauthenticated) return;
       }
     } finally {
-      countStream(-1);
+      uncount();
       unlisten();
       signal.removeEventListener("abort", stopOne);
       if (!signal.aborted) onEnd();
@@ -271,6 +280,13 @@ function countStream(delta: number): void {
   mostStreams = Math.max(mostStreams, openStreams);
   document.body.dataset.streams = String(openStreams);
   document.body.dataset.streamsMax = String(mostStreams);
+}
+
+/** A time of day as the page shows every time: 24-hour `HH:MM:SS`, local. */
+export function clock(at: Date | number = new Date()): string {
+  const d = typeof at === "number" ? new Date(at) : at;
+  const two = (n: number) => String(n).padStart(2, "0");
+  return `${two(d.getHours())}:${two(d.getMinutes())}:${two(d.getSeconds())}`;
 }
 
 export function el<K extends keyof HTMLElementTagNameMap>(

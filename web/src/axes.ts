@@ -7,7 +7,7 @@
 // always-visible stop-all and quick-stop-all (StopAxes, which needs no
 // lease). A stop that fails stays on the page until acknowledged; rows
 // not confirmed by a live stream are marked stale with their age.
-import { AxisActivity, DriveState, Outcome, type Axis, type AxisStatus } from "./gen/cangate/v1/axes_pb";
+import { AxisActivity, DriveState, Outcome, type Axis, type AxisEvent, type AxisStatus } from "./gen/cangate/v1/axes_pb";
 import { Code, ConnectError } from "@connectrpc/connect";
 import {
   ageText,
@@ -23,13 +23,22 @@ import {
   showError,
   showStopFailed,
 } from "./api";
+import { clear as clearAlarm, raise as raiseAlarm } from "./alarms";
 import { applyRoles, guard, type Rpc } from "./roles";
 import { TimeChart } from "./chart";
 
 interface Row {
   axis: Axis;
-  tr: HTMLTableRowElement;
-  cells: Record<string, HTMLTableCellElement>;
+  /** The axis's card (data-axis, data-state, data-kind, ...). */
+  tr: HTMLElement;
+  cells: Record<string, HTMLElement>;
+  /** The state badge. */
+  badge: HTMLSpanElement;
+  /** The fault's one-line summary, and its full text on demand. */
+  faultSummary: HTMLSpanElement;
+  faultFull: HTMLDivElement;
+  /** Decimals of the position readout (the axis's resolution). */
+  decimals: number;
   acquire: HTMLButtonElement;
   target: HTMLInputElement;
   /** "stale N s" while the row's values are not confirmed live. */
@@ -49,6 +58,8 @@ let jog: { axis: string; timer: number } | null = null;
 /** The latest position of every axis, for the trace. */
 const positions = new Map<string, number>();
 let traced = "";
+/** Each axis's unit, for the trace's label. */
+let units = new Map<string, string>();
 let trace: TimeChart | null = null;
 
 const enumName = (e: Record<number, string>, v: number) =>
@@ -103,6 +114,7 @@ async function toggleControl(name: string): Promise<void> {
       } catch (e) {
         dropLease(name);
         showError(`lease of ${name}`, e);
+        raiseAlarm(`axis ${name}`, `control lease lost: ${errorText(e)}`);
       }
     }, 1000);
     leases.set(name, { lease: l.lease, timer });
@@ -173,17 +185,42 @@ function jogButton(row: () => Row, label: string, sign: number, lease: () => str
   return b;
 }
 
+/**
+ * Decimals that show one count of the axis (at most 4): 1000 counts per
+ * mm read to the µm, 3 decimals.
+ */
+export function decimalsOf(countsPerUnit: number): number {
+  if (!(countsPerUnit > 1)) return 0;
+  return Math.min(4, Math.ceil(Math.log10(countsPerUnit) - 1e-9));
+}
+
+/** How an axis's state reads at a glance: the badge's colour. */
+export function stateKind(s: AxisStatus): "lost" | "fault" | "moving" | "enabled" | "disabled" {
+  if (s.nodeLost) return "lost";
+  if (s.state === DriveState.FAULT || s.state === DriveState.FAULT_REACTION_ACTIVE || s.faultText) return "fault";
+  if (s.activity !== AxisActivity.IDLE && s.activity !== AxisActivity.UNSPECIFIED) return "moving";
+  if (s.state === DriveState.OPERATION_ENABLED) return "enabled";
+  return "disabled";
+}
+
+/** The first sentence of a fault text, for the one-line summary. */
+function faultSummary(text: string): string {
+  const cut = text.search(/[:;(]\s|\.\s/);
+  return cut > 0 && cut < 60 ? text.slice(0, cut) : text.length > 60 ? `${text.slice(0, 57)}…` : text;
+}
+
 function buildRow(axis: Axis): Row {
   const name = axis.name;
-  const cell = (cls: string) => el("td", { className: cls });
-  const cells: Record<string, HTMLTableCellElement> = {
-    state: cell("state"),
-    activity: cell("activity"),
-    position: cell("num position"),
-    velocity: cell("num velocity"),
-    ferr: cell("num ferr"),
-    control: cell("control"),
-    fault: cell("fault"),
+  const unit = axis.unit;
+  const field = (cls: string, tag: "span" | "dd" = "span") => el(tag, { className: cls });
+  const cells: Record<string, HTMLElement> = {
+    state: field("state"),
+    activity: field("activity", "dd"),
+    position: field("num position"),
+    velocity: field("num velocity", "dd"),
+    ferr: field("num ferr", "dd"),
+    control: field("control"),
+    fault: field("fault"),
   };
   const input = (field: string, label: string, value: string, placeholder = "") => {
     const i = el("input", { type: "number", step: "any", value, placeholder });
@@ -192,10 +229,11 @@ function buildRow(axis: Axis): Row {
     return i;
   };
   const target = input("target", "target", "0");
-  const velocity = input("velocity", "velocity", "", `v ≤ ${axis.maxVelocity}`);
-  velocity.title = `velocity in ${axis.unit}/s (empty: the axis's maximum, ${axis.maxVelocity})`;
-  const accel = input("acceleration", "acceleration", "", `a ≤ ${axis.maxAcceleration}`);
-  accel.title = `acceleration in ${axis.unit}/s² (empty: the axis's maximum, ${axis.maxAcceleration})`;
+  target.title = `target position in ${unit}`;
+  const velocity = input("velocity", "velocity", "", `v max ${axis.maxVelocity}`);
+  velocity.title = `velocity in ${unit}/s (empty: the axis's maximum, ${axis.maxVelocity} ${unit}/s)`;
+  const accel = input("acceleration", "acceleration", "", `a max ${axis.maxAcceleration}`);
+  accel.title = `acceleration in ${unit}/s² (empty: the axis's maximum, ${axis.maxAcceleration} ${unit}/s²)`;
   const getRow = () => rows.get(name)!;
   const opts = () => options(name);
   const lease = needsLease(name);
@@ -224,24 +262,67 @@ function buildRow(axis: Axis): Row {
   const stop = button("Stop", "stop", "Stop", () => void stopAxis(name, false));
   const quickStop = button("Quick stop", "quick-stop", "QuickStop", () => void stopAxis(name, true));
   quickStop.title = "CiA 402 quick stop (the drive's quick stop deceleration); needs no lease";
+  quickStop.classList.add("quick");
+  stop.classList.add("stop");
   const acquire = button("Acquire", "acquire", "AcquireControl", () => void toggleControl(name));
   const age = el("span", { className: "stale-age" });
   age.hidden = true;
-  const tr = el(
-    "tr",
-    {},
-    el("td", { className: "name" }, `${name} (${axis.unit})`, age),
-    cells.state,
-    cells.activity,
-    cells.position,
-    cells.velocity,
-    cells.ferr,
-    cells.control,
+  const badge = el("span", { className: "badge" }, cells.state);
+  const homed = el("span", { className: "homed", textContent: "⌂", title: "not homed" });
+  const faultFull = el("div", { className: "fault-full" });
+  faultFull.hidden = true;
+  const faultSummaryText = el("span", { className: "fault-summary" });
+  const more = el("button", { type: "button", className: "fault-more", textContent: "details" });
+  more.addEventListener("click", () => {
+    faultFull.hidden = !faultFull.hidden;
+    more.textContent = faultFull.hidden ? "details" : "less";
+  });
+  cells.fault.append(faultSummaryText, more, faultFull);
+  cells.fault.hidden = true;
+  const pair = (label: string, value: HTMLElement) => el("div", { className: "pair" }, el("dt", {}, label), value);
+  const card = el(
+    "article",
+    { className: "axis" },
+    el(
+      "header",
+      { className: "axis-head" },
+      el("span", { className: "name" }, name),
+      badge,
+      homed,
+      el("span", { className: "control-label" }, "control: ", cells.control),
+      age,
+    ),
+    el("div", { className: "dro" }, cells.position, el("span", { className: "dro-unit" }, unit)),
+    el(
+      "dl",
+      { className: "minor" },
+      pair(`velocity ${unit}/s`, cells.velocity),
+      pair(`following error ${unit}`, cells.ferr),
+      pair("activity", cells.activity),
+    ),
     cells.fault,
-    el("td", { className: "cmds" }, acquire, enable, disable, home, target, velocity, accel, move, jogMinus, jogPlus, stop, quickStop),
+    el(
+      "div",
+      { className: "cmds" },
+      el("div", { className: "cmd-row" }, acquire, enable, disable, home),
+      el("div", { className: "cmd-row" }, target, velocity, accel, move),
+      el("div", { className: "cmd-row jogs" }, jogMinus, jogPlus, stop, quickStop),
+    ),
   );
-  tr.dataset.axis = name;
-  return { axis, tr, cells, acquire, target, age, staleSince: 0 };
+  card.dataset.axis = name;
+  return {
+    axis,
+    tr: card,
+    cells,
+    badge,
+    faultSummary: faultSummaryText,
+    faultFull,
+    decimals: decimalsOf(axis.countsPerUnit),
+    acquire,
+    target,
+    age,
+    staleSince: 0,
+  };
 }
 
 /** The rows' values are no longer confirmed by a live stream. */
@@ -271,19 +352,49 @@ function showControl(row: Row, holder: string): void {
   row.cells.control.title = row.cells.control.textContent;
 }
 
+/** Statuses received since the last frame was drawn, the latest per axis. */
+const pending = new Map<string, AxisStatus>();
+let drawScheduled = false;
+
+/**
+ * Takes an axis's status; the cards are redrawn once per frame the
+ * browser draws, with each axis's latest status: moving axes send a
+ * status per SYNC, far more than a screen shows, and each DOM write
+ * costs layout. The position trace samples the latest position anyway.
+ */
+function receive(s: AxisStatus): void {
+  positions.set(s.axis, s.position);
+  pending.set(s.axis, s);
+  if (drawScheduled) return;
+  drawScheduled = true;
+  const draw = () => {
+    drawScheduled = false;
+    const batch = [...pending.values()];
+    pending.clear();
+    for (const st of batch) update(st);
+  };
+  // A hidden tab draws no frames: a timer keeps the cards current there.
+  if (document.hidden) setTimeout(draw, 250);
+  else requestAnimationFrame(draw);
+}
+
 function update(s: AxisStatus): void {
   const row = rows.get(s.axis);
   if (!row) return;
   positions.set(s.axis, s.position);
-  row.cells.state.textContent = enumName(DriveState, s.state);
+  row.cells.state.textContent = s.nodeLost ? "node lost" : enumName(DriveState, s.state);
   row.cells.activity.textContent = enumName(AxisActivity, s.activity);
-  row.cells.position.textContent = s.position.toFixed(3);
-  row.cells.velocity.textContent = s.velocity.toFixed(3);
-  row.cells.ferr.textContent = s.followingError.toFixed(4);
+  row.cells.position.textContent = s.position.toFixed(row.decimals);
+  row.cells.velocity.textContent = s.velocity.toFixed(row.decimals);
+  row.cells.ferr.textContent = s.followingError.toFixed(Math.min(4, row.decimals + 1));
   showControl(row, s.controlledBy);
-  row.cells.fault.textContent = s.faultText;
-  // The full text where a fixed column cuts it.
-  row.cells.fault.title = s.faultText;
+  row.cells.fault.hidden = !s.faultText;
+  row.faultSummary.textContent = faultSummary(s.faultText);
+  row.faultSummary.title = s.faultText;
+  row.faultFull.textContent = s.faultText;
+  const kind = stateKind(s);
+  row.badge.dataset.kind = kind;
+  row.tr.dataset.kind = kind;
   if (row.staleSince !== 0) {
     row.staleSince = 0;
     showAges();
@@ -291,7 +402,20 @@ function update(s: AxisStatus): void {
   row.tr.dataset.state = enumName(DriveState, s.state);
   row.tr.dataset.activity = enumName(AxisActivity, s.activity);
   row.tr.dataset.homed = String(s.homed);
-  row.cells.state.title = s.homed ? "homed" : "not homed";
+  const homed = row.tr.querySelector<HTMLElement>(".homed");
+  if (homed) homed.title = s.homed ? "homed" : "not homed";
+}
+
+/** An axis's fault and its drive's node lost are alarms; the node back clears the latter. */
+function axisAlarm(ev: AxisEvent): void {
+  const source = `axis ${ev.axis}`;
+  const at = Number(ev.timestampUs / 1000n) || Date.now();
+  const k = ev.kind;
+  if (k.case === "fault" && k.value.text) raiseAlarm(source, `fault: ${k.value.text}`, at);
+  else if (k.case === "node") {
+    if (k.value.lost) raiseAlarm(source, `drive lost: ${k.value.reason}`, at);
+    else clearAlarm(source, (t) => t.startsWith("drive lost"));
+  }
 }
 
 /** Stops every axis (no lease needed; quick: CiA 402 quick stop). A stop
@@ -337,10 +461,11 @@ export async function startAxes(signal: AbortSignal): Promise<void> {
   names = list.map((a) => a.name);
   const select = document.getElementById("trace-axis") as HTMLSelectElement;
   select.replaceChildren(...list.map((a) => el("option", { value: a.name }, `${a.name} (${a.unit})`)));
+  units = new Map(list.map((a) => [a.name, a.unit]));
   if (!names.includes(traced)) traced = names[0] ?? "";
   select.value = traced;
-  trace?.setSeries([`${traced} position`]);
-  const tbody = document.querySelector("#axes tbody")!;
+  trace?.setSeries([`${traced} position (${units.get(traced) ?? ""})`]);
+  const tbody = document.getElementById("axes")!;
   tbody.replaceChildren();
   for (const a of list) {
     const row = buildRow(a);
@@ -354,8 +479,9 @@ export async function startAxes(signal: AbortSignal): Promise<void> {
     signal,
     (sig) => axes.streamAxisState({ axes: [], changesOnly: true }, { signal: sig }),
     (u) => {
-      if (u.update.case === "status") update(u.update.value);
-      else if (u.update.case === "event" && u.update.value.kind.case === "control") {
+      if (u.update.case === "status") receive(u.update.value);
+      else if (u.update.case === "event") axisAlarm(u.update.value);
+      if (u.update.case === "event" && u.update.value.kind.case === "control") {
         // Control changes hands without a new status (an axis at rest
         // sends none with changesOnly): the handwheel taking an axis.
         const row = rows.get(u.update.value.axis);
@@ -382,7 +508,7 @@ export function initAxes(): void {
   const select = document.getElementById("trace-axis") as HTMLSelectElement;
   select.addEventListener("change", () => {
     traced = select.value;
-    trace?.setSeries([`${traced} position`]);
+    trace?.setSeries([`${traced} position (${units.get(traced) ?? ""})`]);
   });
   setInterval(showAges, 1000);
   // Sampled at 20 Hz from the latest state (the stream sends changes

@@ -24,19 +24,16 @@ import {
   NmtCommand,
   NmtState,
   ValueSchema,
-  type Emcy,
   type Node,
-  type NodeEvent,
   ObjectAccess,
   type ObjectInfo,
   type Value,
 } from "./gen/cangate/v1/canopen_pb";
-import { abortText, canopen, clearNotice, el, keepStreaming, sdoAbort, showConnected, showError } from "./api";
+import { abortText, canopen, clearNotice, clock, el, sdoAbort, showConnected, showError } from "./api";
+import { onNodeEvent } from "./alarms";
+import { emcyText, enumName, eventText, hex } from "./events";
 import { applyRoles, guard } from "./roles";
 
-const enumName = (e: Record<number, string>, v: number) =>
-  (e[v] ?? String(v)).toLowerCase().replace(/_/g, " ");
-const hex = (n: number | bigint, width: number) => `0x${n.toString(16).toUpperCase().padStart(width, "0")}`;
 
 /** NMT buttons: label, command. */
 const NMT: [string, NmtCommand][] = [
@@ -56,12 +53,7 @@ const dictionaries = new Map<string, ObjectInfo[] | string>();
 const MAX_PICKS = 200;
 
 function time(ns: bigint): string {
-  return new Date(Number(ns / 1_000_000n)).toLocaleTimeString();
-}
-
-function emcyText(e: Emcy): string {
-  const bits = e.registerBits.length > 0 ? ` [${e.registerBits.join(", ")}]` : "";
-  return `${hex(e.code, 4)} ${e.codeName}, register ${hex(e.register, 2)}${bits}`;
+  return clock(Number(ns / 1_000_000n));
 }
 
 function nodeKey(n: { bus: string; id: number }): string {
@@ -156,7 +148,7 @@ async function nmt(bus: string, node: number, command: NmtCommand, label: string
   try {
     await canopen.sendNmt({ bus, node, command });
     clearNotice();
-    logEvent(`${new Date().toLocaleTimeString()}  ${bus} node ${node}: NMT ${label} sent`);
+    logEvent(`${clock()}  ${bus} node ${node}: NMT ${label} sent`);
   } catch (e) {
     showError(`NMT ${label} to ${bus} node ${node}`, e);
   }
@@ -168,30 +160,6 @@ function logEvent(line: string): void {
   const pre = document.getElementById("node-events")!;
   pre.textContent = events.join("\n");
   pre.scrollTop = pre.scrollHeight;
-}
-
-function eventText(ev: NodeEvent): string {
-  const e = ev.event;
-  switch (e.case) {
-    case "bootUp":
-      return "boot-up";
-    case "stateChanged":
-      return `NMT ${enumName(NmtState, e.value.from)} → ${enumName(NmtState, e.value.to)}`;
-    case "heartbeatLost":
-      return `heartbeat lost (timeout ${e.value.timeoutMs} ms)`;
-    case "heartbeatRecovered":
-      return `heartbeat back after ${e.value.silentMs} ms (${enumName(NmtState, e.value.state)})`;
-    case "emcy":
-      return `EMCY ${emcyText(e.value)}`;
-    case "lost":
-      return `${e.value.count} events missed (read too slowly)`;
-    case "bootCompleted":
-      return "boot procedure completed";
-    case "bootFailed":
-      return `boot procedure failed: ${e.value.reason}`;
-    default:
-      return "unknown event";
-  }
 }
 
 // ---- SDO panel ----
@@ -305,8 +273,12 @@ function picked(): void {
   const dict = dictionaries.get(chosenNodeKey());
   const o = name && Array.isArray(dict) ? dict.find((x) => x.name === name) : undefined;
   if (!o) {
+    // Back to an address typed by hand: the gateway takes the type from
+    // the EDS again, not the one of the object picked before.
     info.textContent = "";
     delete info.dataset.object;
+    (document.getElementById("sdo-type") as HTMLSelectElement).value = "0";
+    edsOption(undefined);
     return;
   }
   (document.getElementById("sdo-index") as HTMLInputElement).value = o.index.toString(16).toUpperCase().padStart(4, "0");
@@ -572,10 +544,7 @@ export function enterCanopen(signal: AbortSignal): void {
     setTimeout(poll, 1000);
   };
   void poll();
-  void keepStreaming(
-    "node events",
-    signal,
-    (sig) => canopen.streamNodeEvents({ bus: "", nodes: [] }, { signal: sig }),
-    (ev) => logEvent(`${time(ev.timestampNs)}  ${ev.bus} node ${ev.node}: ${eventText(ev)}`),
-  );
+  // The page's share of the alarms' node-event stream (one stream for both).
+  const stop = onNodeEvent((ev) => logEvent(`${time(ev.timestampNs)}  ${ev.bus} node ${ev.node}: ${eventText(ev)}`));
+  signal.addEventListener("abort", stop, { once: true });
 }

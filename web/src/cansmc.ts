@@ -15,7 +15,7 @@
 // sum of the bars), data-bucket-us, data-buckets, data-drawn (bars drawn).
 import { CansmcPhase, CansmcSlaveState, type CansmcSlave, type CansmcStatus, type CansmcEvent } from "./gen/cangate/v1/cansmc_pb";
 import { Code, ConnectError } from "@connectrpc/connect";
-import { cansmc, clearNotice, el, keepStreaming, showConnected, showError } from "./api";
+import { cansmc, clearNotice, clock, el, keepStreaming, showConnected, showError } from "./api";
 import { guard } from "./roles";
 
 const enumName = (e: Record<number, string>, v: number) =>
@@ -62,7 +62,7 @@ function renderStatus(st: CansmcStatus): void {
   box.dataset.starts = String(st.starts);
   const k = st.counters;
   box.replaceChildren(
-    el("b", { className: "phase" }, `phase ${enumName(CansmcPhase, st.phase)}`),
+    el("b", { className: "phase" }, `phase ${enumName(CansmcPhase, st.phase).toUpperCase()}`),
     ` cycle ${st.cycle}, ${st.cycleTimeUs} µs, ${st.bitrate / 1000} kbit/s, started ${st.starts}×; `,
     `overruns ${k?.overruns ?? 0n}, MDT slots missed ${k?.mdtSlotsMissed ?? 0n}, foreign frames ${k?.foreignFrames ?? 0n}, stray parameter answers ${k?.strayParameterAnswers ?? 0n}`,
     st.startError ? el("span", { className: "fault" }, ` start failed: ${st.startError}`) : "",
@@ -177,10 +177,10 @@ function renderJitter(st: CansmcStatus): void {
 }
 
 function eventLine(e: CansmcEvent): string {
-  const t = new Date(Number(e.timestampUs / 1000n)).toLocaleTimeString();
+  const t = clock(Number(e.timestampUs / 1000n));
   switch (e.event.case) {
     case "phase":
-      return `${t}  phase ${enumName(CansmcPhase, e.event.value)}`;
+      return `${t}  phase ${enumName(CansmcPhase, e.event.value).toUpperCase()}`;
     case "slave":
       return `${t}  slave ${e.event.value.address}: ${e.event.value.what}`;
     default:
@@ -228,7 +228,7 @@ async function restart(button: HTMLButtonElement): Promise<void> {
   try {
     const r = await cansmc.restart({ master: selected });
     clearNotice();
-    logEvents([`${new Date().toLocaleTimeString()}  restart of ${r.master} requested`]);
+    logEvents([`${clock()}  restart of ${r.master} requested`]);
   } catch (e) {
     showError(`Restart of ${selected || "the master"}`, e);
   }

@@ -5,6 +5,7 @@
 // and tools: data-points, data-last (JSON, one value per series),
 // data-min/data-max (of the first series, over the window).
 import uPlot from "uplot";
+import { clock } from "./api";
 
 const COLOURS = ["#4c8df6", "#d0021b", "#2da44e", "#bf8700", "#8250df", "#57606a"];
 
@@ -42,7 +43,10 @@ export class TimeChart {
       {
         ...this.size(),
         scales: { x: { time: true } },
-        axes: [{}, { label: this.yLabel, size: 60 }],
+        // Times of day in 24 hours, as everywhere on the page (uPlot's
+        // default is 12-hour with a date line), with tenths when the
+        // ticks are less than a second apart.
+        axes: [{ space: 90, values: (_u: uPlot, ticks: number[]) => timeLabels(ticks) }, { label: this.yLabel, size: 60 }],
         series: [{}, ...labels.map((label, i) => ({ label, stroke: COLOURS[i % COLOURS.length], width: 1.5 }))],
         legend: { live: false },
         cursor: { show: false },
@@ -76,4 +80,14 @@ export class TimeChart {
       });
     }
   }
+}
+
+/** Tick labels for times (seconds since the epoch): `HH:MM:SS`, with
+ * tenths when the ticks are closer than a second. */
+export function timeLabels(ticks: number[]): string[] {
+  const step = ticks.length > 1 ? ticks[1] - ticks[0] : 1;
+  return ticks.map((t) => {
+    const ms = Math.round(t * 1000);
+    return step < 1 ? `${clock(ms)}.${Math.floor((ms % 1000) / 100)}` : clock(ms);
+  });
 }

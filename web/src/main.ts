@@ -1,9 +1,11 @@
 // The dashboard's entry: tabs, token entry, the role, stop-all, and the
 // page's long-lived streams: the axes' state (always: the axes page and
-// stop-all need it) and at most one more for the page shown (a bus's
-// frames, node events, ...), opened when its tab is shown and closed when
-// it is left. Three at most (data-streams-max on <body>).
-import { initStopBanner, session as sessionApi, setToken } from "./api";
+// stop-all need it), the nodes' events (always: the alarms need them) and
+// at most one more for the page shown (a bus's frames, a handwheel's
+// feed, ...), opened when its tab is shown and closed when it is left.
+// Three at most (data-streams-max on <body>).
+import { clearNotice, initStopBanner, session as sessionApi, setToken } from "./api";
+import { initAlarms, startAlarms } from "./alarms";
 import { initAxes, startAxes, stopAll } from "./axes";
 import { enterBuses, initBuses, startBuses } from "./buses";
 import { enterCanopen, initCanopen } from "./canopen";
@@ -17,6 +19,7 @@ const PAGES: Record<string, ((signal: AbortSignal) => void) | null> = {
   canopen: enterCanopen,
   handwheel: enterHandwheels,
   cansmc: enterCansmc,
+  alarms: null,
 };
 
 let session: AbortController | null = null;
@@ -29,6 +32,7 @@ function start(): void {
   const signal = session.signal;
   void loadRole(() => sessionApi.getCaller({}, { signal }));
   void startAxes(signal);
+  startAlarms(signal);
   startBuses(signal);
   enter(current);
 }
@@ -50,6 +54,9 @@ function show(page: string): void {
     t.classList.toggle("active", t.dataset.page === page);
   }
   if (page !== current) {
+    // A message about the page left does not follow the operator to the
+    // next one (a failed stop keeps its own banner until acknowledged).
+    if (current) clearNotice();
     current = page;
     enter(page);
   }
@@ -82,6 +89,7 @@ document.addEventListener("DOMContentLoaded", () => {
   quickStopAllButton.addEventListener("click", () => void stopAll(true));
   guard(quickStopAllButton, "StopAxes");
   initStopBanner();
+  initAlarms();
   initAxes();
   initBuses();
   initCanopen();

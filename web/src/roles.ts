@@ -37,6 +37,10 @@ export type Rpc = keyof typeof NEEDS;
 
 let role: Role | null = null;
 let who = "";
+/** The gateway lets this caller stop axes (Caller.may_stop): a viewer
+ * where `[security] viewers_may_stop` is on. */
+let mayStop = false;
+const STOPS: readonly Rpc[] = ["Stop", "QuickStop", "StopAxes"];
 interface Guarded {
   button: HTMLButtonElement;
   rpc: Rpc;
@@ -51,6 +55,7 @@ const guarded: Guarded[] = [];
 export function refusal(rpc: Rpc): string {
   const needed = NEEDS[rpc];
   if (role === null || RANK[role] >= RANK[needed]) return "";
+  if (mayStop && STOPS.includes(rpc)) return "";
   return `${rpc} needs role ${needed}; this token has role ${role}`;
 }
 
@@ -105,9 +110,11 @@ export function learnFromRefusal(e: unknown): void {
 export async function loadRole(getCaller: () => Promise<Caller>): Promise<void> {
   role = null;
   who = "";
+  mayStop = false;
   applyRoles();
   try {
     const c = await getCaller();
+    mayStop = c.mayStop;
     const r = ROLE_OF[c.role];
     if (r) setRole(r, c.method === "none" ? "" : c.name);
   } catch {

@@ -6,6 +6,8 @@
 //   node web/tests/dashboard.mjs tokens URL SCREENSHOT_DIR VIEWER_TOKEN OPERATOR_TOKEN
 //   node web/tests/dashboard.mjs tls https://127.0.0.1:PORT/ SCREENSHOT_DIR CERT_PEM
 //   node web/tests/dashboard.mjs gone URL SCREENSHOT_DIR
+//   node web/tests/dashboard.mjs layout URL SCREENSHOT_DIR
+//   node web/tests/dashboard.mjs touch URL SCREENSHOT_DIR
 //
 // (gone: the test shuts the gateway down when asked, "need shutdown"; the
 // page's failed requests after that are expected, not errors.)
@@ -61,6 +63,8 @@ try {
   else if (mode === "tokens") await tokens(page);
   else if (mode === "tls") await tls(page);
   else if (mode === "gone") await gone(page);
+  else if (mode === "layout") await layout(page);
+  else if (mode === "touch") await touch(page);
   else throw new Error(`unknown mode ${mode}`);
   if (errors.length > 0) throw new Error(`the page reported errors:\n${errors.join("\n")}`);
   say("step no-console-errors");
@@ -73,7 +77,7 @@ try {
 
 // Function declarations (hoisted): the top-level code above calls them.
 function cell(page, axis, cls) {
-  return page.$eval(`tr[data-axis="${axis}"] td.${cls}`, (td) => td.textContent ?? "");
+  return page.$eval(`.axis[data-axis="${axis}"] .${cls}`, (td) => td.textContent ?? "");
 }
 async function num(page, axis, cls) {
   return Number(await cell(page, axis, cls));
@@ -100,14 +104,14 @@ async function until(what, f, timeout = WAIT) {
 
 /** X, Y and Z (the demo's CiA 402 axes) are listed (its CANsmc axes too). */
 function axesListed(page) {
-  return page.$$eval("#axes tbody tr", (rows) => {
+  return page.$$eval("#axes .axis", (rows) => {
     const names = rows.map((r) => r.dataset.axis);
     return ["X", "Y", "Z"].every((n) => names.includes(n));
   });
 }
 
 async function click(page, axis, cmd) {
-  await press(page, `tr[data-axis="${axis}"] button[data-cmd="${cmd}"]`);
+  await press(page, `.axis[data-axis="${axis}"] button[data-cmd="${cmd}"]`);
 }
 
 // Clicks `sel` once it is visible, enabled and laid out where it stays
@@ -126,7 +130,7 @@ async function press(page, sel) {
 async function acquireAndEnable(page, axis) {
   await click(page, axis, "acquire");
   await until(`${axis} acquired`, async () =>
-    (await page.$eval(`tr[data-axis="${axis}"] button[data-cmd="acquire"]`, (b) => b.textContent)) === "Release");
+    (await page.$eval(`.axis[data-axis="${axis}"] button[data-cmd="acquire"]`, (b) => b.textContent)) === "Release");
   await click(page, axis, "enable");
   await until(`${axis} enabled`, async () => (await cell(page, axis, "state")) === "operation enabled");
 }
@@ -138,8 +142,8 @@ async function demo(page) {
 
   // Enable, then move X to 12.5.
   await acquireAndEnable(page, "X");
-  await page.$eval(`tr[data-axis="X"] input[data-field="target"]`, (i) => { i.value = ""; });
-  await page.type(`tr[data-axis="X"] input[data-field="target"]`, "12.5");
+  await page.$eval(`.axis[data-axis="X"] input[data-field="target"]`, (i) => { i.value = ""; });
+  await page.type(`.axis[data-axis="X"] input[data-field="target"]`, "12.5");
   await click(page, "X", "move");
   await until("X at 12.5 on the page", async () =>
     Math.abs((await num(page, "X", "position")) - 12.5) < 0.002 && (await cell(page, "X", "activity")) === "idle");
@@ -158,7 +162,7 @@ async function demo(page) {
   // Hold jog+ on Y: it moves while held and stops after release.
   await acquireAndEnable(page, "Y");
   const y0 = await num(page, "Y", "position");
-  const jog = await page.$(`tr[data-axis="Y"] button[data-cmd="jog-plus"]`);
+  const jog = await page.$(`.axis[data-axis="Y"] button[data-cmd="jog-plus"]`);
   const box = await jog.boundingBox();
   await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
   await page.mouse.down();
@@ -182,11 +186,11 @@ async function demo(page) {
   // velocity and acceleration given on the page.
   await click(page, "X", "home");
   await until("X homed", async () =>
-    (await page.$eval(`tr[data-axis="X"]`, (r) => r.dataset.homed)) === "true" && (await cell(page, "X", "activity")) === "idle");
+    (await page.$eval(`.axis[data-axis="X"]`, (r) => r.dataset.homed)) === "true" && (await cell(page, "X", "activity")) === "idle");
   const xHome = await num(page, "X", "position");
-  await setInput(page, `tr[data-axis="X"] input[data-field="target"]`, String(xHome + 10));
-  await setInput(page, `tr[data-axis="X"] input[data-field="velocity"]`, "20");
-  await setInput(page, `tr[data-axis="X"] input[data-field="acceleration"]`, "200");
+  await setInput(page, `.axis[data-axis="X"] input[data-field="target"]`, String(xHome + 10));
+  await setInput(page, `.axis[data-axis="X"] input[data-field="velocity"]`, "20");
+  await setInput(page, `.axis[data-axis="X"] input[data-field="acceleration"]`, "200");
   await click(page, "X", "move");
   await until("X moving", async () => (await cell(page, "X", "activity")) === "moving");
   let vmax = 0;
@@ -195,12 +199,12 @@ async function demo(page) {
     return (await cell(page, "X", "activity")) === "idle" && Math.abs((await num(page, "X", "position")) - xHome - 10) < 0.002;
   });
   say(`step home-move home=${xHome} vmax=${vmax}`);
-  await setInput(page, `tr[data-axis="X"] input[data-field="velocity"]`, "");
-  await setInput(page, `tr[data-axis="X"] input[data-field="acceleration"]`, "");
+  await setInput(page, `.axis[data-axis="X"] input[data-field="velocity"]`, "");
+  await setInput(page, `.axis[data-axis="X"] input[data-field="acceleration"]`, "");
 
   // STOP ALL stops a long move of X.
-  await page.$eval(`tr[data-axis="X"] input[data-field="target"]`, (i) => { i.value = ""; });
-  await page.type(`tr[data-axis="X"] input[data-field="target"]`, "-150");
+  await page.$eval(`.axis[data-axis="X"] input[data-field="target"]`, (i) => { i.value = ""; });
+  await page.type(`.axis[data-axis="X"] input[data-field="target"]`, "-150");
   await click(page, "X", "move");
   await until("X moving", async () => (await cell(page, "X", "activity")) === "moving");
   await sleep(200);
@@ -275,7 +279,7 @@ async function demo(page) {
 // instead of letting them lapse (3 s): the test checks over gRPC that X is
 // free well within that.
 async function leaveThePage(page) {
-  const held = await page.$eval('tr[data-axis="X"] td.control', (td) => td.textContent ?? "");
+  const held = await page.$eval('.axis[data-axis="X"] .control', (td) => td.textContent ?? "");
   if (held !== "this page") throw new Error(`X's control before leaving: ${held}`);
   await page.goto("about:blank");
   say("need lease-released");
@@ -331,6 +335,24 @@ async function canopenPage(page) {
     (await text(page, "#emcy-history")).includes("can0 node 4: 0x2310") &&
     (await text(page, "#node-events")).includes("can0 node 4: EMCY 0x2310"));
   say(`step emcy-shown ${JSON.stringify(await nodeCell(page, 4, "fault"))}`);
+
+  // The EMCY is an alarm: counted in the header on every page, listed with
+  // its source, kept until acknowledged.
+  const count = () => page.$eval("#alarm-count", (c) => (c.hidden ? 0 : Number(c.textContent)));
+  await until("the alarm counted in the header", async () => (await count()) >= 1);
+  await press(page, `button[data-page="alarms"]`);
+  const emcyAlarm = `#alarms tr[data-source="can0 node 4"]`;
+  await until("the EMCY alarm listed", async () =>
+    (await page.$$eval(emcyAlarm, (rows) =>
+      rows.some((r) => r.dataset.state === "active" && r.textContent.includes("EMCY 0x2310")))));
+  const before = await count();
+  await press(page, `${emcyAlarm}.active button[data-cmd="acknowledge"]`);
+  await until("the EMCY alarm acknowledged", async () =>
+    (await page.$$eval(emcyAlarm, (rows) => rows.every((r) => r.dataset.state.startsWith("acknowledged")))) &&
+    (await count()) === before - 1);
+  await page.screenshot({ path: `${shots}/alarms.png` });
+  say(`step alarm-emcy count-before=${before}`);
+  await press(page, `button[data-page="canopen"]`);
 
   // SDO read of 0x1008 (device name) of node 1, with the EDS type.
   await page.select("#sdo-node", "can0/1");
@@ -475,7 +497,7 @@ async function cansmcRestart(page) {
   });
   const log = await text(page, "#cansmc-events");
   const at = (p) => log.indexOf(`  phase ${p}`);
-  if (!(at("p0") >= 0 && at("p0") < at("p1") && at("p1") < log.lastIndexOf("  phase p2"))) {
+  if (!(at("P0") >= 0 && at("P0") < at("P1") && at("P1") < log.lastIndexOf("  phase P2"))) {
     throw new Error(`phases not P0, P1, P2 in the events:\n${log}`);
   }
   await until("the slaves operational again", async () => {
@@ -524,7 +546,7 @@ async function setInput(page, sel, value) {
 async function tokens(page) {
   await until("the page asks for a token", async () =>
     (await page.$eval("#conn", (c) => c.textContent)) === "token needed");
-  const rows = await page.$$eval("#axes tbody tr", (r) => r.length);
+  const rows = await page.$$eval("#axes .axis", (r) => r.length);
   if (rows !== 0) throw new Error("axes listed without a token");
   say("step refused-without-token");
   await page.screenshot({ path: `${shots}/token-needed.png` });
@@ -548,11 +570,11 @@ async function tokens(page) {
   say(`step role ${await text(page, "#role")}`);
   await click(page, "X", "acquire");
   await until("X acquired by the operator", async () =>
-    (await page.$eval(`tr[data-axis="X"] button[data-cmd="acquire"]`, (b) => b.textContent)) === "Release");
+    (await page.$eval(`.axis[data-axis="X"] button[data-cmd="acquire"]`, (b) => b.textContent)) === "Release");
   say(`step operator-buttons ${JSON.stringify(await buttonStates(page))}`);
   await click(page, "X", "acquire");
   await until("X released", async () =>
-    (await page.$eval(`tr[data-axis="X"] button[data-cmd="acquire"]`, (b) => b.textContent)) === "Acquire");
+    (await page.$eval(`.axis[data-axis="X"] button[data-cmd="acquire"]`, (b) => b.textContent)) === "Acquire");
   await page.screenshot({ path: `${shots}/token-operator.png` });
 }
 
@@ -562,8 +584,8 @@ async function buttonStates(page) {
   await until("nodes listed", () => page.$(`#nodes tr[data-node="1"]`));
   const state = (sel) => page.$eval(sel, (b) => (b.disabled ? b.title : "enabled"));
   const out = {
-    acquire: await state(`tr[data-axis="X"] button[data-cmd="acquire"]`),
-    enable: await state(`tr[data-axis="X"] button[data-cmd="enable"]`),
+    acquire: await state(`.axis[data-axis="X"] button[data-cmd="acquire"]`),
+    enable: await state(`.axis[data-axis="X"] button[data-cmd="enable"]`),
     stopAll: await state("#stop-all"),
     nmt: await state(`#nodes tr[data-node="1"] button[data-cmd="nmt-start"]`),
     sdoRead: await state("#sdo-read"),
@@ -591,7 +613,7 @@ async function tls(page) {
   if (protocol !== "https:") throw new Error(`loaded over ${protocol}`);
   await until("axes X, Y, Z listed over TLS", () => axesListed(page));
   await until("connected", async () => (await page.$eval("#conn", (c) => c.textContent)) === "connected");
-  const axes = await page.$$eval("#axes tbody tr", (rows) => rows.map((r) => r.dataset.axis));
+  const axes = await page.$$eval("#axes .axis", (rows) => rows.map((r) => r.dataset.axis));
   // How the gRPC-Web calls went: the resource timing's protocol.
   const hops = await page.evaluate(() => [
     ...new Set(
@@ -638,14 +660,14 @@ async function gone(page) {
     (await page.$eval("body", (b) => b.dataset.conn)) === "lost");
   say(`step link-lost ms=${Date.now() - t0} ${await page.$eval("#conn", (c) => c.textContent)}`);
   await until("every axis row marked stale with its age", async () => {
-    const rows = await page.$$eval("#axes tbody tr", (rs) =>
+    const rows = await page.$$eval("#axes .axis", (rs) =>
       rs.map((r) => [r.dataset.stale, r.querySelector(".stale-age")?.textContent ?? ""]));
     return rows.length > 0 && rows.every(([stale, age]) => stale === "true" && /^stale \d+ s$/.test(age));
   });
   // The age counts up.
   await until("the age counts up", async () =>
-    (await page.$eval('tr[data-axis="X"] .stale-age', (a) => a.textContent)) !== "stale 0 s");
-  say(`step rows-stale ${await page.$eval('tr[data-axis="X"] .stale-age', (a) => a.textContent)}`);
+    (await page.$eval('.axis[data-axis="X"] .stale-age', (a) => a.textContent)) !== "stale 0 s");
+  say(`step rows-stale ${await page.$eval('.axis[data-axis="X"] .stale-age', (a) => a.textContent)}`);
   await page.screenshot({ path: `${shots}/gone.png` });
 
   await press(page, "#stop-all");
@@ -659,4 +681,90 @@ async function gone(page) {
   await press(page, "#stop-failed-ack");
   await until("the failed stop acknowledged", async () => (await failed()) === "");
   say("step stop-failed-acknowledged");
+}
+
+// Every page at a panel PC's 1024×768 and at 1920×1080: no command button
+// lies outside the viewport's width, the page never scrolls sideways, and
+// no number is cut (its scrollWidth fits its clientWidth). Screenshots of
+// every page at both sizes.
+async function layout(page) {
+  await until("axes X, Y, Z listed", () => axesListed(page));
+  for (const [width, height] of [[1024, 768], [1920, 1080]]) {
+    await page.setViewport({ width, height });
+    for (const tab of ["axes", "buses", "canopen", "handwheel", "cansmc", "alarms"]) {
+      await press(page, `button[data-page="${tab}"]`);
+      // Its first data in: a row, a card, or a master's line.
+      await until(`${tab} filled`, () =>
+        page.$eval(`#page-${tab}`, (s) =>
+          s.querySelectorAll("tbody tr, .axis, .card, [data-phase], #alarms").length > 0));
+      await sleep(300);
+      const bad = await page.evaluate((tab) => {
+        const problems = [];
+        const w = document.documentElement.clientWidth;
+        if (document.documentElement.scrollWidth > w + 1) {
+          problems.push(`the page scrolls sideways (${document.documentElement.scrollWidth} > ${w})`);
+        }
+        const shown = (e) => e.offsetParent !== null && e.getClientRects().length > 0;
+        const scope = [document.querySelector("header"), document.getElementById(`page-${tab}`)];
+        for (const root of scope) {
+          for (const b of root.querySelectorAll("button")) {
+            if (!shown(b)) continue;
+            const r = b.getBoundingClientRect();
+            if (r.left < -1 || r.right > w + 1) {
+              problems.push(`button "${b.textContent}" at x ${Math.round(r.left)}..${Math.round(r.right)} (viewport ${w})`);
+            }
+          }
+          for (const n of root.querySelectorAll(".num, td.num")) {
+            if (!shown(n)) continue;
+            if (n.scrollWidth > n.clientWidth + 1) {
+              problems.push(`number "${n.textContent}" cut (${n.scrollWidth} > ${n.clientWidth})`);
+            }
+          }
+        }
+        for (const id of ["stop-all", "quick-stop-all"]) {
+          const r = document.getElementById(id).getBoundingClientRect();
+          if (r.top < 0 || r.bottom > window.innerHeight || r.right > w + 1) problems.push(`${id} not in view`);
+        }
+        return problems;
+      }, tab);
+      await page.screenshot({ path: `${shots}/${tab}-${width}x${height}.png` });
+      if (bad.length > 0) throw new Error(`${tab} at ${width}×${height}: ${bad.join("; ")}`);
+      say(`step layout ${tab} ${width}x${height}`);
+    }
+  }
+}
+
+// Hold-to-run with a finger on a touch panel: Y jogs while the jog button
+// is touched (longer than the dead-man time), stops when the finger lifts,
+// and stops when the touch is lost (touchcancel: the panel took the
+// gesture, the finger slid off the glass).
+async function touch(page) {
+  await page.setViewport({ width: 1024, height: 768, hasTouch: true });
+  await until("axes X, Y, Z listed", () => axesListed(page));
+  await acquireAndEnable(page, "Y");
+  const jog = await page.$(`.axis[data-axis="Y"] button[data-cmd="jog-plus"]`);
+  await jog.scrollIntoView();
+  const box = await jog.boundingBox();
+  const [x, y] = [box.x + box.width / 2, box.y + box.height / 2];
+  const cdp = await page.createCDPSession();
+  const finger = (type) =>
+    cdp.send("Input.dispatchTouchEvent", { type, touchPoints: type === "touchStart" ? [{ x, y }] : [] });
+  const jogging = async () => (await cell(page, "Y", "activity")) === "jogging";
+  const atRest = async () =>
+    (await cell(page, "Y", "activity")) === "idle" && Math.abs(await num(page, "Y", "velocity")) < 1e-6;
+
+  for (const end of ["touchEnd", "touchCancel"]) {
+    const y0 = await num(page, "Y", "position");
+    await finger("touchStart");
+    await until(`Y jogging under the finger (${end})`, jogging);
+    await sleep(1200);
+    const held = await num(page, "Y", "position");
+    if (!((await jogging()) && held > y0 + 1)) {
+      throw new Error(`Y stopped while touched (from ${y0} to ${held})`);
+    }
+    await finger(end);
+    const t0 = Date.now();
+    await until(`Y at rest after ${end}`, atRest);
+    say(`step touch ${end} moved=${(held - y0).toFixed(1)} stop_ms=${Date.now() - t0}`);
+  }
 }

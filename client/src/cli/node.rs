@@ -69,6 +69,10 @@ pub(crate) struct NmtArgs {
     /// Node id, or `all` (broadcast; also 0).
     #[arg(value_parser = nmt_target, value_name = "NODE|all")]
     node: Target,
+    /// Send it even to the drive of an enabled axis, which then faults
+    /// (refused otherwise; needs the engineer role).
+    #[arg(long)]
+    force: bool,
 }
 
 /// One node, or every node (`None`).
@@ -377,6 +381,7 @@ pub(crate) async fn nmt(app: &App, a: NmtArgs) -> Result<()> {
         a.bus
     );
     match a.node.0 {
+        _ if a.force => can.nmt_forced(a.node.0, command).await,
         Some(n) => can.nmt(n, command).await,
         None => can.nmt_all(command).await,
     }
@@ -489,21 +494,25 @@ mod tests {
             let mut all = vec!["cangate", "nmt"];
             all.extend_from_slice(argv);
             Cli::try_parse_from(&all).map(|c| match c.command {
-                Command::Nmt(a) => (a.command, a.node.0.map(NodeId::get)),
+                Command::Nmt(a) => (a.command, a.node.0.map(NodeId::get), a.force),
                 other => panic!("{other:?}"),
             })
         };
         assert_eq!(
             parse(&["can0", "start", "5"]).unwrap(),
-            (NmtArg::Start, Some(5))
+            (NmtArg::Start, Some(5), false)
         );
         assert_eq!(
             parse(&["can0", "reset-comm", "all"]).unwrap(),
-            (NmtArg::ResetComm, None)
+            (NmtArg::ResetComm, None, false)
         );
         assert_eq!(
             parse(&["can0", "preop", "0"]).unwrap(),
-            (NmtArg::Preop, None)
+            (NmtArg::Preop, None, false)
+        );
+        assert_eq!(
+            parse(&["can0", "stop", "3", "--force"]).unwrap(),
+            (NmtArg::Stop, Some(3), true)
         );
         assert!(parse(&["can0", "start", "128"]).is_err());
         assert!(parse(&["can0", "jump", "1"]).is_err());

@@ -28,110 +28,34 @@ use cangate_cansmc::telegram::{Command, ControlWord, StatusWord};
 use cangate_motion::{Limits, TrapezoidProfile};
 
 use crate::cia402::AxisSnapshot;
-use crate::{Activity, AxisCommand, AxisEvent, CommandError, CommandKind, OpId, Outcome, Units};
+use crate::{
+    Activity, AxisCommand, AxisEvent, CansmcDrive, CommandError, CommandKind, MotionSpec, OpId,
+    Outcome, Units,
+};
 
 /// CiA 402 mode numbers reported in snapshots, so HMIs show one vocabulary
 /// for both drive families: 8 = cyclic synchronous position, 6 = homing.
 const MODE_CYCLIC_POSITION: i8 = 8;
 const MODE_HOMING: i8 = 6;
 
-/// Electronic gearing: follow another slave's encoder count.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Gear {
-    /// Address of the slave whose encoder count (function 0x07) is
-    /// followed.
-    pub source: u8,
-    /// Follower counts per source count (negative reverses).
-    pub ratio: f64,
-}
+pub use crate::spec::{Gear, JogMode};
 
-/// The configuration of one CANsmc axis, in user units.
+/// The configuration of one CANsmc axis: what every axis has and its
+/// slave (see [`crate::CansmcDrive::controller`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CansmcAxisConfig {
-    /// Unit conversion (slave encoder counts per user unit).
-    pub units: Units,
-    /// Unit name for messages ("mm").
-    pub unit: String,
-    /// Soft limits.
-    pub min_position: Option<f64>,
-    /// Soft limits.
-    pub max_position: Option<f64>,
-    /// Velocity ceiling (units/s); also bounds a geared axis.
-    pub max_velocity: f64,
-    /// Acceleration ceiling (units/s²).
-    pub max_acceleration: f64,
-    /// Velocity of a move without one.
-    pub default_velocity: f64,
-    /// Acceleration of a move without one.
-    pub default_acceleration: f64,
-    /// Every stop (Stop, the jog dead-man, a lost lease, shutdown) brakes at
-    /// least this hard (units/s²): the interrupted motion's own
-    /// deceleration when that is higher.
-    pub stop_deceleration: f64,
-    /// The deceleration of a quick stop (units/s²).
-    pub quick_stop_deceleration: f64,
-    /// The master's cycle time (the set-point spacing).
-    pub cycle_time: Duration,
-    /// Bound of enable, disable and fault reset.
-    pub state_timeout: Duration,
-    /// Bound of a homing run.
-    pub homing_timeout: Duration,
-    /// Time allowed beyond the planned duration of a move or stop.
-    pub settle_timeout: Duration,
-    /// Jog dead-man time.
-    pub jog_deadman: Duration,
-    /// A move is done when the actual position is this close (units).
-    pub in_position_window: f64,
-    /// Homing method byte sent with function 0x04.
-    pub homing_method: u8,
-    /// Follow another slave's encoder.
-    pub gear: Option<Gear>,
-    /// How jogs run.
-    pub jog_mode: JogMode,
-    /// Slave encoder counts per motor revolution (parameter 3), to convert
-    /// velocities to the slave's unit for [`JogMode::SlaveVelocity`].
-    pub counts_per_rev: u32,
-}
-
-/// How a CANsmc axis jogs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum JogMode {
-    /// The gateway ramps the velocity and sends a position set-point every
-    /// cycle (position feedback all along).
-    #[default]
-    Interpolated,
-    /// The slave's velocity mode (function 0x03, unit 0.001 r/min: the
-    /// runtime writes parameter 2 = 1 in P1): the slave ramps with its own
-    /// acceleration; the position is estimated from the velocity feedback
-    /// while jogging and read back from the slave's encoder count
-    /// (function 0x07) at rest, before position control resumes.
-    SlaveVelocity,
+    /// Units, limits, defaults, stops, time bounds.
+    pub motion: MotionSpec,
+    /// The slave, its master's cycle, gearing and jog mode.
+    pub drive: CansmcDrive,
 }
 
 impl CansmcAxisConfig {
     /// A configuration suitable for the simulated slaves (tests, demo).
     pub fn example(counts_per_unit: f64, cycle_time: Duration) -> Self {
         CansmcAxisConfig {
-            units: Units { counts_per_unit },
-            unit: "mm".into(),
-            min_position: Some(-1000.0),
-            max_position: Some(1000.0),
-            max_velocity: 200.0,
-            max_acceleration: 2000.0,
-            default_velocity: 50.0,
-            default_acceleration: 500.0,
-            stop_deceleration: 2000.0,
-            quick_stop_deceleration: 2000.0,
-            cycle_time,
-            state_timeout: Duration::from_secs(1),
-            homing_timeout: Duration::from_secs(30),
-            settle_timeout: Duration::from_secs(2),
-            jog_deadman: Duration::from_millis(500),
-            in_position_window: 0.01,
-            homing_method: 1,
-            gear: None,
-            jog_mode: JogMode::Interpolated,
-            counts_per_rev: 10_000,
+            motion: MotionSpec::example(counts_per_unit, 1000.0),
+            drive: CansmcDrive::example(cycle_time),
         }
     }
 }
@@ -286,13 +210,13 @@ impl CansmcAxis {
     }
 
     fn units(&self) -> Units {
-        self.cfg.units
+        self.cfg.motion.units
     }
 
     /// User units/s to the slave's velocity unit (0.001 r/min).
     fn slave_velocity_of(&self, v: f64) -> i32 {
-        let rpm_milli = v * self.cfg.units.counts_per_unit
-            / f64::from(self.cfg.counts_per_rev.max(1))
+        let rpm_milli = v * self.cfg.motion.units.counts_per_unit
+            / f64::from(self.cfg.drive.counts_per_rev.max(1))
             * 60_000.0;
         rpm_milli
             .round()
@@ -302,7 +226,7 @@ impl CansmcAxis {
     /// The slave's velocity unit (0.001 r/min) to user units/s.
     fn user_velocity_of(&self, v: i32) -> f64 {
         self.units()
-            .from_counts(f64::from(v) * f64::from(self.cfg.counts_per_rev.max(1)) / 60_000.0)
+            .from_counts(f64::from(v) * f64::from(self.cfg.drive.counts_per_rev.max(1)) / 60_000.0)
     }
 
     fn actual(&self) -> f64 {
@@ -420,28 +344,28 @@ impl CansmcAxis {
         if let Some(reason) = &self.lost
             && !matches!(cmd, AxisCommand::Stop | AxisCommand::QuickStop)
         {
-            return Err(CommandError::FailedPrecondition(format!(
+            return Err(CommandError::DriveUnavailable(format!(
                 "the slave is lost ({reason}): commands are refused until it answers again"
             )));
         }
         let Some(status) = self.status else {
-            return Err(CommandError::FailedPrecondition(
+            return Err(CommandError::DriveUnavailable(
                 "no drive telegram from the slave yet (is the CANsmc master in P2?)".into(),
             ));
         };
         crate::checks::motion_arguments(
             cmd,
-            self.cfg.max_velocity,
-            self.cfg.max_acceleration,
-            &self.cfg.unit,
+            self.cfg.motion.max_velocity,
+            self.cfg.motion.max_acceleration,
+            &self.cfg.motion.unit,
         )?;
         let needs_enabled = |what: &str| {
             if status.fault {
-                Err(CommandError::FailedPrecondition(format!(
+                Err(CommandError::InFault(format!(
                     "the drive is in fault: reset it before {what}"
                 )))
             } else if !status.enabled || !self.enable {
-                Err(CommandError::FailedPrecondition(format!(
+                Err(CommandError::NotEnabled(format!(
                     "the axis is not enabled: enable it before {what}"
                 )))
             } else {
@@ -450,9 +374,9 @@ impl CansmcAxis {
         };
         let not_geared = |what: &str| {
             if self.is_geared() {
-                Err(CommandError::FailedPrecondition(format!(
+                Err(CommandError::Busy(format!(
                     "the axis follows slave {}'s encoder: stop it before {what}",
-                    self.cfg.gear.map(|g| g.source).unwrap_or_default()
+                    self.cfg.drive.gear.map(|g| g.source).unwrap_or_default()
                 )))
             } else {
                 Ok(())
@@ -468,7 +392,7 @@ impl CansmcAxis {
                 needs_enabled(what)?;
                 not_geared(what)?;
                 if self.op.as_ref().is_some_and(|o| o.step == Step::Homing) {
-                    return Err(CommandError::FailedPrecondition(
+                    return Err(CommandError::Busy(
                         "the axis is homing: stop it first".into(),
                     ));
                 }
@@ -479,7 +403,7 @@ impl CansmcAxis {
             }
             AxisCommand::Enable => {
                 if status.fault {
-                    return Err(CommandError::FailedPrecondition(
+                    return Err(CommandError::InFault(
                         "the drive is in fault: reset it before enabling".into(),
                     ));
                 }
@@ -495,9 +419,9 @@ impl CansmcAxis {
     fn check_limits(&self, target: f64) -> Result<(), CommandError> {
         crate::checks::soft_limits(
             target,
-            self.cfg.min_position,
-            self.cfg.max_position,
-            &self.cfg.unit,
+            self.cfg.motion.min_position,
+            self.cfg.motion.max_position,
+            &self.cfg.motion.unit,
         )
     }
 
@@ -508,13 +432,13 @@ impl CansmcAxis {
     /// gently). At most the maximum acceleration.
     fn braking_within_limits(&self, v: f64, a: f64) -> f64 {
         let room = if v > 0.0 {
-            self.cfg.max_position.map(|m| m - self.demand)
+            self.cfg.motion.max_position.map(|m| m - self.demand)
         } else if v < 0.0 {
-            self.cfg.min_position.map(|m| self.demand - m)
+            self.cfg.motion.min_position.map(|m| self.demand - m)
         } else {
             None
         };
-        let ceiling = self.cfg.max_acceleration.max(a);
+        let ceiling = self.cfg.motion.max_acceleration.max(a);
         match room {
             // 1 % margin: the cycle's discretisation.
             Some(d) if d > 0.0 => a.max(1.01 * v * v / (2.0 * d)).min(ceiling),
@@ -535,8 +459,7 @@ impl CansmcAxis {
     }
 
     fn limits(&self, velocity: f64, acceleration: f64) -> Result<Limits, CommandError> {
-        Limits::symmetric(velocity, acceleration)
-            .map_err(|e| CommandError::InvalidArgument(e.to_string()))
+        Limits::symmetric(velocity, acceleration).map_err(|e| CommandError::BadValue(e.to_string()))
     }
 
     fn finish(&mut self, outcome: Outcome, detail: String, out: &mut Vec<AxisEvent>) {
@@ -597,7 +520,7 @@ impl CansmcAxis {
                 text: String::new(),
             });
         }
-        let state_deadline = Some(now + self.cfg.state_timeout);
+        let state_deadline = Some(now + self.cfg.motion.state_timeout);
         match cmd {
             AxisCommand::Enable => {
                 self.demand = self.actual();
@@ -658,7 +581,7 @@ impl CansmcAxis {
                     CommandKind::Home,
                     Step::Homing,
                     0.0,
-                    Some(now + self.cfg.homing_timeout),
+                    Some(now + self.cfg.motion.homing_timeout),
                     out,
                 ))
             }
@@ -676,13 +599,15 @@ impl CansmcAxis {
                 self.check_limits(target)?;
                 let acceleration = self.braking_within_limits(
                     self.demand_velocity,
-                    acceleration.unwrap_or(self.cfg.default_acceleration),
+                    acceleration.unwrap_or(self.cfg.motion.default_acceleration),
                 );
-                let limits =
-                    self.limits(velocity.unwrap_or(self.cfg.default_velocity), acceleration)?;
+                let limits = self.limits(
+                    velocity.unwrap_or(self.cfg.motion.default_velocity),
+                    acceleration,
+                )?;
                 let profile =
                     TrapezoidProfile::new(self.demand, self.demand_velocity, target, limits)
-                        .map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+                        .map_err(|e| CommandError::BadValue(e.to_string()))?;
                 let total = Duration::from_secs_f64(profile.duration().min(1e6));
                 self.motion = Motion::Profile {
                     profile,
@@ -694,7 +619,7 @@ impl CansmcAxis {
                     CommandKind::Move,
                     Step::Moving,
                     target,
-                    Some(now + total + self.cfg.settle_timeout),
+                    Some(now + total + self.cfg.motion.settle_timeout),
                     out,
                 ))
             }
@@ -702,13 +627,13 @@ impl CansmcAxis {
                 velocity,
                 acceleration,
             } => {
-                let mut acceleration = acceleration.unwrap_or(self.cfg.default_acceleration);
+                let mut acceleration = acceleration.unwrap_or(self.cfg.motion.default_acceleration);
                 if velocity == 0.0 {
                     // A jog at 0 is a stop: at least the stop deceleration.
-                    acceleration = acceleration.max(self.cfg.stop_deceleration);
+                    acceleration = acceleration.max(self.cfg.motion.stop_deceleration);
                 }
-                let deadman = Some(now + self.cfg.jog_deadman);
-                let motion = match self.cfg.jog_mode {
+                let deadman = Some(now + self.cfg.motion.jog_deadman);
+                let motion = match self.cfg.drive.jog_mode {
                     JogMode::Interpolated => Motion::Jog {
                         target: velocity,
                         acceleration,
@@ -771,9 +696,9 @@ impl CansmcAxis {
         out: &mut Vec<AxisEvent>,
     ) -> OpId {
         let wanted = if quick {
-            self.cfg.quick_stop_deceleration
+            self.cfg.motion.quick_stop_deceleration
         } else {
-            self.cfg.stop_deceleration
+            self.cfg.motion.stop_deceleration
         };
         let decel = self
             .braking_within_limits(self.demand_velocity, wanted.max(self.motion_deceleration()));
@@ -801,7 +726,7 @@ impl CansmcAxis {
             _ => {
                 let v = self.demand_velocity;
                 let stop_at = self.demand + v * v.abs() / (2.0 * decel);
-                let profile = Limits::symmetric(self.cfg.max_velocity.max(v.abs()), decel)
+                let profile = Limits::symmetric(self.cfg.motion.max_velocity.max(v.abs()), decel)
                     .ok()
                     .and_then(|l| TrapezoidProfile::new(self.demand, v, stop_at, l).ok());
                 self.motion = match profile {
@@ -814,7 +739,7 @@ impl CansmcAxis {
                 };
             }
         }
-        let bound = self.cfg.settle_timeout
+        let bound = self.cfg.motion.settle_timeout
             + Duration::from_secs_f64((self.demand_velocity.abs() / decel).min(1e6));
         if let Some(op) = &mut self.op {
             op.deadline = Some(now + bound);
@@ -852,7 +777,7 @@ impl CansmcAxis {
             CommandKind::Move,
             Step::Moving,
             target,
-            Some(now + Duration::from_secs_f64(duration.min(1e6)) + self.cfg.settle_timeout),
+            Some(now + Duration::from_secs_f64(duration.min(1e6)) + self.cfg.motion.settle_timeout),
             out,
         ))
     }
@@ -870,7 +795,7 @@ impl CansmcAxis {
         })?;
         self.check_limits(target)?;
         if self.demand_velocity != 0.0 || self.op.is_some() {
-            return Err(CommandError::FailedPrecondition(
+            return Err(CommandError::Busy(
                 "the axis is moving: stop it before a coordinated move".into(),
             ));
         }
@@ -921,7 +846,7 @@ impl CansmcAxis {
         input: CycleInput,
         out: &mut Vec<AxisEvent>,
     ) -> CycleOutput {
-        let dt = self.cfg.cycle_time.as_secs_f64();
+        let dt = self.cfg.drive.cycle_time.as_secs_f64();
         if let Some(p) = input.position {
             if let Some(prev) = self.position {
                 self.velocity = self.units().from_counts(f64::from(p) - f64::from(prev)) / dt;
@@ -932,7 +857,7 @@ impl CansmcAxis {
             // Velocity mode: no position feedback; dead-reckon it.
             self.velocity = self.user_velocity_of(v);
             if let Some(p) = self.position {
-                let moved = (self.velocity * dt * self.cfg.units.counts_per_unit).round();
+                let moved = (self.velocity * dt * self.cfg.motion.units.counts_per_unit).round();
                 self.position = Some(
                     (f64::from(p) + moved).clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32,
                 );
@@ -976,7 +901,7 @@ impl CansmcAxis {
         };
         let command = match self.motion {
             Motion::Homing => Command::Homing {
-                method: self.cfg.homing_method,
+                method: self.cfg.drive.homing_method,
             },
             Motion::SlaveVelocity {
                 target,
@@ -1034,7 +959,8 @@ impl CansmcAxis {
     }
 
     fn at_rest(&self) -> bool {
-        self.demand_velocity == 0.0 && self.velocity.abs() <= self.cfg.in_position_window * 100.0
+        self.demand_velocity == 0.0
+            && self.velocity.abs() <= self.cfg.motion.in_position_window * 100.0
     }
 
     fn advance_op(&mut self, now: Duration, fresh: bool, out: &mut Vec<AxisEvent>) {
@@ -1056,7 +982,7 @@ impl CansmcAxis {
         match op.step {
             Step::Enabling if effective && s.enabled => {
                 self.finish(Outcome::Completed, "enabled".into(), out);
-                if self.cfg.gear.is_some() {
+                if self.cfg.drive.gear.is_some() {
                     self.engage_gear();
                 }
             }
@@ -1075,7 +1001,8 @@ impl CansmcAxis {
             }
             Step::Moving => {
                 let planned_done = !matches!(self.motion, Motion::Profile { .. });
-                if planned_done && (self.actual() - op.target).abs() <= self.cfg.in_position_window
+                if planned_done
+                    && (self.actual() - op.target).abs() <= self.cfg.motion.in_position_window
                 {
                     self.finish(Outcome::Completed, "target reached".into(), out);
                 } else if timed_out {
@@ -1084,7 +1011,7 @@ impl CansmcAxis {
                         format!(
                             "not in position: {:.4} {} from the target after the planned time",
                             op.target - self.actual(),
-                            self.cfg.unit
+                            self.cfg.motion.unit
                         ),
                         out,
                     );
@@ -1093,7 +1020,7 @@ impl CansmcAxis {
             Step::Jogging => {
                 let deadman_expired = op.deadman.is_some_and(|d| now >= d);
                 if deadman_expired {
-                    let stop_deceleration = self.cfg.stop_deceleration;
+                    let stop_deceleration = self.cfg.motion.stop_deceleration;
                     let braking = match &mut self.motion {
                         Motion::Jog {
                             target,
@@ -1113,13 +1040,13 @@ impl CansmcAxis {
                         _ => false,
                     };
                     if braking && let Some(op) = &mut self.op {
-                        op.deadline = Some(now + self.cfg.settle_timeout);
+                        op.deadline = Some(now + self.cfg.motion.settle_timeout);
                     }
                 }
                 let requested_zero =
                     matches!(self.motion, Motion::Jog { target, .. } if target == 0.0);
                 let slave_at_rest = matches!(self.motion, Motion::Hold)
-                    && self.cfg.jog_mode == JogMode::SlaveVelocity;
+                    && self.cfg.drive.jog_mode == JogMode::SlaveVelocity;
                 if (requested_zero && self.demand_velocity == 0.0) || slave_at_rest {
                     self.motion = Motion::Hold;
                     if deadman_expired {
@@ -1127,7 +1054,7 @@ impl CansmcAxis {
                             Outcome::Stopped,
                             format!(
                                 "dead-man: no jog command within {} ms",
-                                self.cfg.jog_deadman.as_millis()
+                                self.cfg.motion.jog_deadman.as_millis()
                             ),
                             out,
                         );
@@ -1171,8 +1098,8 @@ impl CansmcAxis {
                     self.demand = self.actual();
                 }
                 let bound = match op.step {
-                    Step::Homing => self.cfg.homing_timeout,
-                    _ => self.cfg.state_timeout,
+                    Step::Homing => self.cfg.motion.homing_timeout,
+                    _ => self.cfg.motion.state_timeout,
                 };
                 self.finish(
                     Outcome::Timeout,
@@ -1194,8 +1121,18 @@ impl CansmcAxis {
             v.abs()
         };
         let stopping = slave_stopping_distance(u, &self.cfg);
-        (v > 0.0 && self.cfg.max_position.is_some_and(|m| p + stopping >= m))
-            || (v < 0.0 && self.cfg.min_position.is_some_and(|m| p - stopping <= m))
+        (v > 0.0
+            && self
+                .cfg
+                .motion
+                .max_position
+                .is_some_and(|m| p + stopping >= m))
+            || (v < 0.0
+                && self
+                    .cfg
+                    .motion
+                    .min_position
+                    .is_some_and(|m| p - stopping <= m))
     }
 
     fn engage_gear(&mut self) {
@@ -1216,7 +1153,7 @@ impl CansmcAxis {
                 ratio,
                 elapsed,
             } => {
-                *elapsed += self.cfg.cycle_time;
+                *elapsed += self.cfg.drive.cycle_time;
                 let t = elapsed.as_secs_f64() * *ratio;
                 let (p, v, _) = profile.sample(t);
                 self.demand = p;
@@ -1239,11 +1176,13 @@ impl CansmcAxis {
                 if (v > 0.0
                     && self
                         .cfg
+                        .motion
                         .max_position
                         .is_some_and(|m| self.demand + stopping >= m))
                     || (v < 0.0
                         && self
                             .cfg
+                            .motion
                             .min_position
                             .is_some_and(|m| self.demand + stopping <= m))
                 {
@@ -1253,10 +1192,10 @@ impl CansmcAxis {
                 let v_new = v + dv;
                 self.demand += (v + v_new) / 2.0 * dt;
                 self.demand_velocity = if v_new.abs() < 1e-9 { 0.0 } else { v_new };
-                if let Some(max) = self.cfg.max_position {
+                if let Some(max) = self.cfg.motion.max_position {
                     self.demand = self.demand.min(max.max(previous));
                 }
-                if let Some(min) = self.cfg.min_position {
+                if let Some(min) = self.cfg.motion.min_position {
                     self.demand = self.demand.max(min.min(previous));
                 }
             }
@@ -1275,8 +1214,18 @@ impl CansmcAxis {
                         let v = self.velocity;
                         let stopping = slave_stopping_distance(v, &self.cfg);
                         let p = self.demand;
-                        if (v > 0.0 && self.cfg.max_position.is_some_and(|m| p + stopping >= m))
-                            || (v < 0.0 && self.cfg.min_position.is_some_and(|m| p + stopping <= m))
+                        if (v > 0.0
+                            && self
+                                .cfg
+                                .motion
+                                .max_position
+                                .is_some_and(|m| p + stopping >= m))
+                            || (v < 0.0
+                                && self
+                                    .cfg
+                                    .motion
+                                    .min_position
+                                    .is_some_and(|m| p + stopping <= m))
                         {
                             *target = 0.0;
                             *stage = VelocityStage::Braking;
@@ -1284,7 +1233,7 @@ impl CansmcAxis {
                     }
                     VelocityStage::Braking => {
                         if self.braking_dts > 2
-                            && self.velocity.abs() <= self.cfg.in_position_window
+                            && self.velocity.abs() <= self.cfg.motion.in_position_window
                         {
                             *stage = VelocityStage::ReadingPosition;
                         }
@@ -1296,14 +1245,15 @@ impl CansmcAxis {
                 let Some(count) = source else {
                     return;
                 };
-                let ratio = self.cfg.gear.map_or(1.0, |g| g.ratio);
-                let demand_counts = self.cfg.units.counts_per_unit * self.demand;
+                let ratio = self.cfg.drive.gear.map_or(1.0, |g| g.ratio);
+                let demand_counts = self.cfg.motion.units.counts_per_unit * self.demand;
                 let offset = *offset.get_or_insert(demand_counts - ratio * f64::from(count));
                 let wanted = self
                     .cfg
+                    .motion
                     .units
                     .from_counts(offset + ratio * f64::from(count));
-                let step = self.cfg.max_velocity * dt;
+                let step = self.cfg.motion.max_velocity * dt;
                 let clipped = (wanted - previous).clamp(-step, step);
                 if clipped != wanted - previous {
                     self.gear_clipped += 1;
@@ -1320,8 +1270,8 @@ impl CansmcAxis {
 /// brake command reaches the slave one cycle later and the velocity the
 /// axis knows is a cycle old.
 fn slave_stopping_distance(v: f64, cfg: &CansmcAxisConfig) -> f64 {
-    let lag = 3.0 * cfg.cycle_time.as_secs_f64();
-    v * v.abs() / (2.0 * cfg.default_acceleration) + v * lag
+    let lag = 3.0 * cfg.drive.cycle_time.as_secs_f64();
+    v * v.abs() / (2.0 * cfg.motion.default_acceleration) + v * lag
 }
 
 #[cfg(test)]

@@ -8,7 +8,7 @@ pub(crate) fn finite(name: &str, v: f64) -> Result<(), CommandError> {
     if v.is_finite() {
         Ok(())
     } else {
-        Err(CommandError::InvalidArgument(format!(
+        Err(CommandError::BadValue(format!(
             "{name} must be a finite number"
         )))
     }
@@ -19,12 +19,12 @@ fn optional_limit(name: &str, v: Option<f64>, max: f64) -> Result<(), CommandErr
     if let Some(v) = v {
         finite(name, v)?;
         if v <= 0.0 {
-            return Err(CommandError::InvalidArgument(format!(
+            return Err(CommandError::BadValue(format!(
                 "{name} must be positive (0 = the axis default), got {v}"
             )));
         }
         if v > max {
-            return Err(CommandError::OutOfRange(format!(
+            return Err(CommandError::AboveMaximum(format!(
                 "{name} {v} exceeds the axis maximum {max}"
             )));
         }
@@ -61,7 +61,7 @@ pub(crate) fn motion_arguments(
         } => {
             finite("velocity", velocity)?;
             if velocity.abs() > max_velocity {
-                return Err(CommandError::OutOfRange(format!(
+                return Err(CommandError::AboveMaximum(format!(
                     "jog velocity {velocity} {unit}/s exceeds the axis maximum {max_velocity}"
                 )));
             }
@@ -85,14 +85,14 @@ pub(crate) fn soft_limits(
     if let Some(max) = max
         && target > max
     {
-        return Err(CommandError::OutOfRange(format!(
+        return Err(CommandError::BeyondSoftLimit(format!(
             "target {target} {unit} is beyond the soft limit max_position = {max} {unit}"
         )));
     }
     if let Some(min) = min
         && target < min
     {
-        return Err(CommandError::OutOfRange(format!(
+        return Err(CommandError::BeyondSoftLimit(format!(
             "target {target} {unit} is beyond the soft limit min_position = {min} {unit}"
         )));
     }

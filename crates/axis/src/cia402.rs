@@ -46,51 +46,18 @@ use cangate_canopen::cia402::{
 use cangate_motion::{Limits, TrapezoidProfile};
 
 use crate::{
-    Activity, AxisCommand, AxisEvent, CommandError, CommandKind, OpId, Outcome, PositionMode, Units,
+    Activity, AxisCommand, AxisEvent, CommandError, CommandKind, MotionSpec, OpId, Outcome,
+    PositionMode, Units,
 };
 
-/// The configuration of one CiA 402 axis, in user units.
+/// The configuration of one CiA 402 axis: what every axis has and its
+/// position mode (see [`crate::Cia402Drive::controller`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Cia402Config {
-    /// Unit conversion.
-    pub units: Units,
-    /// Unit name for messages ("mm").
-    pub unit: String,
-    /// Soft limits.
-    pub min_position: Option<f64>,
-    /// Soft limits.
-    pub max_position: Option<f64>,
-    /// Velocity ceiling (units/s).
-    pub max_velocity: f64,
-    /// Acceleration ceiling (units/s²).
-    pub max_acceleration: f64,
-    /// Velocity of a move without one.
-    pub default_velocity: f64,
-    /// Acceleration of a move without one.
-    pub default_acceleration: f64,
+    /// Units, limits, defaults, stops, time bounds.
+    pub motion: MotionSpec,
     /// Profile or cyclic position.
     pub position_mode: PositionMode,
-    /// Bound of each state of an enable/disable walk, and of the set-point
-    /// acknowledge and mode switches.
-    pub state_timeout: Duration,
-    /// Bound of a homing run.
-    pub homing_timeout: Duration,
-    /// A cyclic move is done when the actual position is this close to
-    /// the target (units) and the drive moves slower than this per 10 ms.
-    pub in_position_window: f64,
-    /// Time allowed beyond the planned duration of a move (and of a stop)
-    /// before it times out.
-    pub settle_timeout: Duration,
-    /// Jog dead-man time.
-    pub jog_deadman: Duration,
-    /// Every stop (Stop, the jog dead-man, a lost lease, shutdown)
-    /// decelerates at least this hard (units/s²): the interrupted motion's
-    /// own deceleration when that is higher.
-    pub stop_deceleration: f64,
-    /// The deceleration of a CiA 402 quick stop (units/s²), written to
-    /// 0x6084 with the quick stop (the drive brakes on its quick stop ramp
-    /// 0x6085 when it has one and its option code says so).
-    pub quick_stop_deceleration: f64,
 }
 
 impl Cia402Config {
@@ -98,22 +65,8 @@ impl Cia402Config {
     /// simulated drives (tests, demo).
     pub fn example(counts_per_unit: f64, position_mode: PositionMode) -> Self {
         Cia402Config {
-            units: Units { counts_per_unit },
-            unit: "mm".into(),
-            min_position: Some(-500.0),
-            max_position: Some(500.0),
-            max_velocity: 200.0,
-            max_acceleration: 2000.0,
-            default_velocity: 50.0,
-            default_acceleration: 500.0,
+            motion: MotionSpec::example(counts_per_unit, 500.0),
             position_mode,
-            state_timeout: Duration::from_secs(1),
-            homing_timeout: Duration::from_secs(30),
-            in_position_window: 0.01,
-            settle_timeout: Duration::from_secs(2),
-            jog_deadman: Duration::from_millis(500),
-            stop_deceleration: 2000.0,
-            quick_stop_deceleration: 2000.0,
         }
     }
 }
@@ -372,6 +325,14 @@ pub struct CyclicSample {
     deadman_stop: bool,
 }
 
+impl CyclicSample {
+    /// Whether this sample ended the trajectory or started the dead-man's
+    /// stop ramp: the axis must see it, not only a later sample.
+    pub fn ends_a_motion(&self) -> bool {
+        self.finished || self.deadman_stop
+    }
+}
+
 impl CyclicPlan {
     /// A plan that holds `position` (user units): the set-point of an axis
     /// at rest.
@@ -572,8 +533,12 @@ impl Cia402Axis {
     /// (0x607D, when both are configured) and the default profile.
     pub fn boot_writes(&self) -> Vec<(ObjectAddress, Vec<u8>)> {
         let mut w = Vec::new();
-        if let (Some(min), Some(max)) = (self.cfg.min_position, self.cfg.max_position) {
-            let (a, b) = (self.cfg.units.to_counts(min), self.cfg.units.to_counts(max));
+        if let (Some(min), Some(max)) = (self.cfg.motion.min_position, self.cfg.motion.max_position)
+        {
+            let (a, b) = (
+                self.cfg.motion.units.to_counts(min),
+                self.cfg.motion.units.to_counts(max),
+            );
             let (lo, hi) = (a.min(b), a.max(b));
             w.push((obj::SOFTWARE_POSITION_LIMIT_MIN, lo.to_le_bytes().to_vec()));
             w.push((obj::SOFTWARE_POSITION_LIMIT_MAX, hi.to_le_bytes().to_vec()));
@@ -589,7 +554,7 @@ impl Cia402Axis {
     }
 
     fn units(&self) -> Units {
-        self.cfg.units
+        self.cfg.motion.units
     }
 
     fn actual(&self) -> f64 {
@@ -613,12 +578,12 @@ impl Cia402Axis {
     /// below: the velocity comes rounded to whole counts/s.
     fn at_rest(&self) -> bool {
         let v = self.units().from_counts(f64::from(self.velocity)).abs();
-        self.velocity == 0 || v < self.cfg.in_position_window * 10.0
+        self.velocity == 0 || v < self.cfg.motion.in_position_window * 10.0
     }
 
     /// At rest within the in-position window of `target`.
     fn in_position(&self, target: f64) -> bool {
-        (self.actual() - target).abs() <= self.cfg.in_position_window && self.at_rest()
+        (self.actual() - target).abs() <= self.cfg.motion.in_position_window && self.at_rest()
     }
 
     /// The live state.
@@ -926,7 +891,7 @@ impl Cia402Axis {
             },
             units: self.units(),
             deadman: self.trajectory.as_ref().and(self.jog_deadline),
-            stop_deceleration: self.cfg.stop_deceleration,
+            stop_deceleration: self.cfg.motion.stop_deceleration,
         })
     }
 
@@ -966,7 +931,7 @@ impl Cia402Axis {
                 op.step = Step::Stopping;
                 let t = self.trajectory.as_ref().map_or(0.0, Trajectory::duration);
                 op.arm(Some(
-                    now + Duration::from_secs_f64(t) + self.cfg.settle_timeout,
+                    now + Duration::from_secs_f64(t) + self.cfg.motion.settle_timeout,
                 ));
             }
         }
@@ -1043,7 +1008,7 @@ impl Cia402Axis {
             let (id, accepted) = (op.id, op.accepted);
             let preparing = matches!(op.step, Step::SettleFor(_))
                 || matches!(op.step, Step::AwaitMode(m) if m == ModeOfOperation::CyclicSynchronousPosition);
-            self.jog_deadline = Some(now + self.cfg.jog_deadman);
+            self.jog_deadline = Some(now + self.cfg.motion.jog_deadman);
             if preparing {
                 // The jog starts with the latest velocity once the drive
                 // is in its mode.
@@ -1092,8 +1057,8 @@ impl Cia402Axis {
                     _ => DriveState::SwitchOnDisabled,
                 };
                 driver = Some(
-                    StateMachineDriver::new(state, self.cfg.state_timeout, now)
-                        .map_err(|e| CommandError::FailedPrecondition(e.to_string()))?,
+                    StateMachineDriver::new(state, self.cfg.motion.state_timeout, now)
+                        .map_err(|e| CommandError::StateUnreachable(e.to_string()))?,
                 );
             }
             _ => {}
@@ -1157,9 +1122,9 @@ impl Cia402Axis {
                 PositionMode::Profile => {
                     self.last_target = op.target;
                     op.step = Step::AwaitSdo;
-                    op.arm(Some(now + self.cfg.state_timeout));
-                    let v = velocity.unwrap_or(self.cfg.default_velocity);
-                    let a = acceleration.unwrap_or(self.cfg.default_acceleration);
+                    op.arm(Some(now + self.cfg.motion.state_timeout));
+                    let v = velocity.unwrap_or(self.cfg.motion.default_velocity);
+                    let a = acceleration.unwrap_or(self.cfg.motion.default_acceleration);
                     self.want_profile(v, a, out);
                     self.set_mode(ModeOfOperation::ProfilePosition);
                 }
@@ -1168,7 +1133,7 @@ impl Cia402Axis {
                 velocity,
                 acceleration,
             } => {
-                self.jog_deadline = Some(now + self.cfg.jog_deadman);
+                self.jog_deadline = Some(now + self.cfg.motion.jog_deadman);
                 if self.cfg.position_mode == PositionMode::Cyclic && !self.in_cyclic_mode() {
                     self.settle_for(
                         ModeOfOperation::CyclicSynchronousPosition,
@@ -1198,11 +1163,13 @@ impl Cia402Axis {
                 self.drop_trajectory();
                 // The drive brakes on its quick stop ramp: 0x6085, or 0x6084
                 // (quick stop option codes 1 and 5, drives without 0x6085).
-                self.want_stop_ramp(self.cfg.quick_stop_deceleration, out);
+                self.want_stop_ramp(self.cfg.motion.quick_stop_deceleration, out);
                 self.image.controlword = Controlword(self.image.controlword)
                     .with_command(Controlword::QUICK_STOP)
                     .0;
-                op.arm(Some(now + self.cfg.state_timeout + self.cfg.settle_timeout));
+                op.arm(Some(
+                    now + self.cfg.motion.state_timeout + self.cfg.motion.settle_timeout,
+                ));
                 self.send_image(out);
             }
         }
@@ -1254,7 +1221,7 @@ impl Cia402Axis {
         self.set_mode(mode);
         self.image.controlword &= !(Controlword::HALT_BIT | Controlword::HOMING_START_BIT);
         op.step = Step::AwaitMode(mode);
-        op.arm(Some(now + self.cfg.state_timeout));
+        op.arm(Some(now + self.cfg.motion.state_timeout));
         self.send_image(out);
     }
 
@@ -1266,10 +1233,9 @@ impl Cia402Axis {
         out: &mut Vec<Output>,
     ) -> Result<(), CommandError> {
         let (v, a) = self.wanted_profile(op);
-        let limits =
-            Limits::symmetric(v, a).map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+        let limits = Limits::symmetric(v, a).map_err(|e| CommandError::BadValue(e.to_string()))?;
         let profile = TrapezoidProfile::new(self.demand, self.demand_velocity, op.target, limits)
-            .map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+            .map_err(|e| CommandError::BadValue(e.to_string()))?;
         let total = Duration::from_secs_f64(profile.duration().min(1e6));
         self.trajectory = Some(Trajectory {
             profile,
@@ -1277,7 +1243,7 @@ impl Cia402Axis {
             start: self.demand_at,
         });
         op.step = Step::CyclicMoving;
-        op.arm(Some(now + total + self.cfg.settle_timeout));
+        op.arm(Some(now + total + self.cfg.motion.settle_timeout));
         if !op.accepted {
             op.accepted = true;
             out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
@@ -1295,16 +1261,16 @@ impl Cia402Axis {
         else {
             return Ok(());
         };
-        let a = acceleration.unwrap_or(self.cfg.default_acceleration);
+        let a = acceleration.unwrap_or(self.cfg.motion.default_acceleration);
         let far = if velocity > 0.0 {
-            self.cfg.max_position.unwrap_or(self.demand + 1e6)
+            self.cfg.motion.max_position.unwrap_or(self.demand + 1e6)
         } else {
-            self.cfg.min_position.unwrap_or(self.demand - 1e6)
+            self.cfg.motion.min_position.unwrap_or(self.demand - 1e6)
         };
         let limits = Limits::symmetric(velocity.abs(), a)
-            .map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+            .map_err(|e| CommandError::BadValue(e.to_string()))?;
         let profile = TrapezoidProfile::new(self.demand, self.demand_velocity, far, limits)
-            .map_err(|e| CommandError::InvalidArgument(e.to_string()))?;
+            .map_err(|e| CommandError::BadValue(e.to_string()))?;
         self.trajectory = Some(Trajectory {
             profile,
             ratio: 1.0,
@@ -1340,20 +1306,20 @@ impl Cia402Axis {
             PositionMode::Cyclic => self.demand,
             PositionMode::Profile => self.actual(),
         };
-        let unit = &self.cfg.unit;
+        let unit = &self.cfg.motion.unit;
         if velocity > 0.0
-            && let Some(max) = self.cfg.max_position
+            && let Some(max) = self.cfg.motion.max_position
             && at >= max
         {
-            return Err(CommandError::OutOfRange(format!(
+            return Err(CommandError::BeyondSoftLimit(format!(
                 "the axis is at or beyond its soft limit max_position = {max} {unit} ({at:.3} {unit}): it can only jog back"
             )));
         }
         if velocity < 0.0
-            && let Some(min) = self.cfg.min_position
+            && let Some(min) = self.cfg.motion.min_position
             && at <= min
         {
-            return Err(CommandError::OutOfRange(format!(
+            return Err(CommandError::BeyondSoftLimit(format!(
                 "the axis is at or beyond its soft limit min_position = {min} {unit} ({at:.3} {unit}): it can only jog back"
             )));
         }
@@ -1401,7 +1367,7 @@ impl Cia402Axis {
             Step::CyclicMoving,
         );
         op.target = target;
-        op.arm(Some(now + total + self.cfg.settle_timeout));
+        op.arm(Some(now + total + self.cfg.motion.settle_timeout));
         op.accepted = true;
         self.op = Some(op);
         out.push(Output::Event(AxisEvent::Accepted { op: id }));
@@ -1421,19 +1387,19 @@ impl Cia402Axis {
             acceleration: None,
         })?;
         if self.cfg.position_mode != PositionMode::Cyclic {
-            return Err(CommandError::FailedPrecondition(
+            return Err(CommandError::NotCyclic(
                 "coordinated moves need cyclic (CSP) axes".into(),
             ));
         }
         self.check_limits(target)?;
         if !self.in_cyclic_mode() || self.activity() == Activity::Homing {
-            return Err(CommandError::FailedPrecondition(
+            return Err(CommandError::NotCyclic(
                 "the axis is homing or not in cyclic position mode: wait for the homing or stop it first"
                     .into(),
             ));
         }
         if self.demand_velocity != 0.0 || self.trajectory.is_some() {
-            return Err(CommandError::FailedPrecondition(
+            return Err(CommandError::Busy(
                 "the axis is moving: stop it before a coordinated move".into(),
             ));
         }
@@ -1451,20 +1417,20 @@ impl Cia402Axis {
 
     fn check(&self, cmd: &AxisCommand) -> Result<(), CommandError> {
         if let Some(reason) = &self.node_lost {
-            return Err(CommandError::FailedPrecondition(format!(
+            return Err(CommandError::DriveUnavailable(format!(
                 "the drive's node is lost ({reason}): commands are refused until it is back"
             )));
         }
         let Some(state) = self.state() else {
-            return Err(CommandError::FailedPrecondition(
+            return Err(CommandError::DriveUnavailable(
                 "no process data from the drive yet (is its node booted and operational?)".into(),
             ));
         };
         crate::checks::motion_arguments(
             cmd,
-            self.cfg.max_velocity,
-            self.cfg.max_acceleration,
-            &self.cfg.unit,
+            self.cfg.motion.max_velocity,
+            self.cfg.motion.max_acceleration,
+            &self.cfg.motion.unit,
         )?;
         let needs_enabled = matches!(
             cmd,
@@ -1472,12 +1438,12 @@ impl Cia402Axis {
         );
         if self.is_fault() && (needs_enabled || matches!(cmd, AxisCommand::Enable)) {
             let (code, text) = self.fault().unwrap_or_default();
-            return Err(CommandError::FailedPrecondition(format!(
+            return Err(CommandError::InFault(format!(
                 "the drive is in fault (0x{code:04X} {text}): call ResetFault first"
             )));
         }
         if needs_enabled && state != DriveState::OperationEnabled {
-            return Err(CommandError::FailedPrecondition(format!(
+            return Err(CommandError::NotEnabled(format!(
                 "the axis is not enabled (drive state: {state}): call Enable first"
             )));
         }
@@ -1487,7 +1453,7 @@ impl Cia402Axis {
                 .as_ref()
                 .is_some_and(|o| o.kind == CommandKind::Disable)
         {
-            return Err(CommandError::FailedPrecondition(
+            return Err(CommandError::Busy(
                 "the axis is being disabled: wait for the disable to end, then enable it".into(),
             ));
         }
@@ -1497,9 +1463,9 @@ impl Cia402Axis {
     fn check_limits(&self, target: f64) -> Result<(), CommandError> {
         crate::checks::soft_limits(
             target,
-            self.cfg.min_position,
-            self.cfg.max_position,
-            &self.cfg.unit,
+            self.cfg.motion.min_position,
+            self.cfg.motion.max_position,
+            &self.cfg.motion.unit,
         )
     }
 
@@ -1558,8 +1524,8 @@ impl Cia402Axis {
             .profile_wanted
             .or(self.profile_written)
             .unwrap_or_else(|| {
-                let a = u.to_counts_unsigned(self.cfg.default_acceleration);
-                (u.to_counts_unsigned(self.cfg.default_velocity), a, a)
+                let a = u.to_counts_unsigned(self.cfg.motion.default_acceleration);
+                (u.to_counts_unsigned(self.cfg.motion.default_velocity), a, a)
             });
         let d = u.to_counts_unsigned(decel).max(base.2);
         self.want_profile_counts((base.0, base.1, d), out);
@@ -1592,17 +1558,20 @@ impl Cia402Axis {
                 acceleration,
                 ..
             } => (
-                velocity.unwrap_or(self.cfg.default_velocity),
-                acceleration.unwrap_or(self.cfg.default_acceleration),
+                velocity.unwrap_or(self.cfg.motion.default_velocity),
+                acceleration.unwrap_or(self.cfg.motion.default_acceleration),
             ),
             AxisCommand::Jog {
                 velocity,
                 acceleration,
             } => (
                 velocity.abs(),
-                acceleration.unwrap_or(self.cfg.default_acceleration),
+                acceleration.unwrap_or(self.cfg.motion.default_acceleration),
             ),
-            _ => (self.cfg.default_velocity, self.cfg.default_acceleration),
+            _ => (
+                self.cfg.motion.default_velocity,
+                self.cfg.motion.default_acceleration,
+            ),
         }
     }
 
@@ -1613,7 +1582,7 @@ impl Cia402Axis {
         now: Duration,
         out: &mut Vec<Output>,
     ) -> Result<(), CommandError> {
-        let a = acceleration.unwrap_or(self.cfg.default_acceleration);
+        let a = acceleration.unwrap_or(self.cfg.motion.default_acceleration);
         if let Some(op) = &mut self.op {
             op.command = AxisCommand::Jog {
                 velocity,
@@ -1638,7 +1607,7 @@ impl Cia402Axis {
                     && !matches!(op.step, Step::Jogging)
                 {
                     op.step = Step::AwaitSdo;
-                    op.arm(Some(now + self.cfg.state_timeout));
+                    op.arm(Some(now + self.cfg.motion.state_timeout));
                 }
                 if matches!(self.op.as_ref().map(|o| &o.step), Some(Step::Jogging)) {
                     out.push(Output::Image(self.image));
@@ -1651,7 +1620,7 @@ impl Cia402Axis {
     /// The deceleration of a stop: the configured stop deceleration, or the
     /// running trajectory's when that brakes harder.
     fn stop_deceleration(&self) -> f64 {
-        stop_deceleration(self.cfg.stop_deceleration, self.trajectory.as_ref())
+        stop_deceleration(self.cfg.motion.stop_deceleration, self.trajectory.as_ref())
     }
 
     fn start_stop(&mut self, now: Duration, op: &mut Op, out: &mut Vec<Output>) {
@@ -1664,17 +1633,19 @@ impl Cia402Axis {
                     Trajectory::stop_ramp(self.demand, self.demand_velocity, decel, self.demand_at);
                 let t = self.trajectory.as_ref().map_or(0.0, Trajectory::duration);
                 op.arm(Some(
-                    now + Duration::from_secs_f64(t) + self.cfg.settle_timeout,
+                    now + Duration::from_secs_f64(t) + self.cfg.motion.settle_timeout,
                 ));
             }
             _ => {
                 self.image.controlword |= Controlword::HALT_BIT;
                 self.image.target_velocity = 0;
-                op.arm(Some(now + self.cfg.state_timeout + self.cfg.settle_timeout));
+                op.arm(Some(
+                    now + self.cfg.motion.state_timeout + self.cfg.motion.settle_timeout,
+                ));
                 // The halt brakes on 0x6084 (halt option code 0x605D = 1,
                 // the default): raised to the stop deceleration. The halt
                 // itself does not wait for the write.
-                self.want_stop_ramp(self.cfg.stop_deceleration, out);
+                self.want_stop_ramp(self.cfg.motion.stop_deceleration, out);
             }
         }
     }
@@ -1762,7 +1733,7 @@ impl Cia402Axis {
             // The trajectory ended (however late the host ran it): the
             // drive gets its settle time from here.
             op.settling = true;
-            op.arm(Some(now + self.cfg.settle_timeout));
+            op.arm(Some(now + self.cfg.motion.settle_timeout));
         }
         if let Some(r) = self.progress(op, now, out) {
             return Some(r);
@@ -1783,15 +1754,19 @@ impl Cia402Axis {
             self.drop_trajectory();
             return Some((
                 Outcome::Completed,
-                format!("target reached at {:.3} {}", self.actual(), self.cfg.unit),
+                format!(
+                    "target reached at {:.3} {}",
+                    self.actual(),
+                    self.cfg.motion.unit
+                ),
             ));
         }
-        let unit = &self.cfg.unit;
+        let unit = &self.cfg.motion.unit;
         let what = match op.step {
             Step::AwaitSdo => "the profile parameters were not written in time".to_string(),
             Step::AwaitMode(m) => format!(
                 "the drive did not switch to {m} mode within {} ms",
-                self.cfg.state_timeout.as_millis()
+                self.cfg.motion.state_timeout.as_millis()
             ),
             Step::AwaitAck => "the drive did not acknowledge the set-point".to_string(),
             Step::Homing => "homing did not complete in time".to_string(),
@@ -1819,7 +1794,7 @@ impl Cia402Axis {
     /// How long a deadline waits for the drive's feedback after it passed
     /// before it fails without any.
     fn deadline_grace(&self) -> Duration {
-        self.cfg.state_timeout + self.cfg.settle_timeout
+        self.cfg.motion.state_timeout + self.cfg.motion.settle_timeout
     }
 
     /// Moves `op` forward on the latest feedback; `Some` when it ended.
@@ -1829,7 +1804,7 @@ impl Cia402Axis {
         now: Duration,
         out: &mut Vec<Output>,
     ) -> Option<(Outcome, String)> {
-        let unit = self.cfg.unit.clone();
+        let unit = self.cfg.motion.unit.clone();
         let fresh = self.fresh >= 2;
         loop {
             match &mut op.step {
@@ -1904,7 +1879,7 @@ impl Cia402Axis {
                                 | Controlword::CHANGE_SET_IMMEDIATELY_BIT;
                             self.send_image(out);
                             op.step = Step::AwaitAck;
-                            op.arm(Some(now + self.cfg.state_timeout));
+                            op.arm(Some(now + self.cfg.motion.state_timeout));
                             return None;
                         }
                         ModeOfOperation::ProfileVelocity => {
@@ -1931,7 +1906,7 @@ impl Cia402Axis {
                             self.image.controlword |= Controlword::HOMING_START_BIT;
                             self.send_image(out);
                             op.step = Step::Homing;
-                            op.arm(Some(now + self.cfg.homing_timeout));
+                            op.arm(Some(now + self.cfg.motion.homing_timeout));
                             op.accepted = true;
                             out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
                             return None;
@@ -1956,7 +1931,8 @@ impl Cia402Axis {
                         .and_then(|l| TrapezoidProfile::rest_to_rest(0.0, dist, l).ok())
                         .map_or(0.0, |p| p.duration());
                     op.arm(Some(
-                        now + Duration::from_secs_f64(est.min(1e6)) + self.cfg.settle_timeout,
+                        now + Duration::from_secs_f64(est.min(1e6))
+                            + self.cfg.motion.settle_timeout,
                     ));
                     return None;
                 }
@@ -2006,7 +1982,7 @@ impl Cia402Axis {
                             self.set_mode(self.mode_for_position());
                             self.send_image(out);
                             op.step = Step::HomingReturn;
-                            op.arm(Some(now + self.cfg.state_timeout));
+                            op.arm(Some(now + self.cfg.motion.state_timeout));
                             return None;
                         }
                         HomingStatus::ErrorMoving | HomingStatus::ErrorStopped => {

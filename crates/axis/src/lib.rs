@@ -10,6 +10,8 @@
 //!   plans a trapezoid and sends a set-point every SYNC).
 //! - [`lease::LeaseTable`]: exclusive control with time-to-live leases.
 //! - [`Units`]: user units (mm, degrees) to drive counts.
+//! - [`AxisSpec`]: the one description of an axis: what every axis has
+//!   ([`MotionSpec`]) and its drive family's part ([`DriveSpec`]).
 //!
 //! - [`cansmc::CansmcAxis`]: one CANsmc servo slave as an axis, with the
 //!   same [`AxisCommand`]s and [`AxisEvent`]s: the gateway interpolates a
@@ -26,6 +28,12 @@ mod checks;
 pub mod cia402;
 pub mod lease;
 pub mod process_data;
+pub mod setpoint_stream;
+pub mod spec;
+
+pub use spec::{
+    AxisSpec, CansmcDrive, Cia402Drive, DriveSpec, Gear, JogMode, MotionSpec, ProcessDataPath,
+};
 
 use std::fmt;
 
@@ -227,18 +235,67 @@ pub enum AxisEvent {
     },
 }
 
-/// Why a command was refused before it reached the drive.
+/// Why a command was refused before it reached the drive; nothing
+/// changed. Each variant is a reason; the message says it to a person.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum CommandError {
-    /// A value outside a configured limit.
+    /// A value no motion can be made of: not a finite number, not
+    /// positive, or a profile that cannot be planned with it.
     #[error("{0}")]
-    OutOfRange(String),
-    /// A malformed value.
+    BadValue(String),
+    /// A velocity or acceleration above the axis's configured maximum.
     #[error("{0}")]
-    InvalidArgument(String),
-    /// The axis cannot take the command in its current state.
+    AboveMaximum(String),
+    /// A target beyond a soft limit, or a jog further into one.
     #[error("{0}")]
-    FailedPrecondition(String),
+    BeyondSoftLimit(String),
+    /// The drive cannot be reached: its node or slave is lost, or no
+    /// process data came from it yet.
+    #[error("{0}")]
+    DriveUnavailable(String),
+    /// The drive is in fault.
+    #[error("{0}")]
+    InFault(String),
+    /// The command needs an enabled axis.
+    #[error("{0}")]
+    NotEnabled(String),
+    /// The axis is busy with what the command cannot join or interrupt:
+    /// being disabled, homing, moving (before a coordinated move),
+    /// following a gear.
+    #[error("{0}")]
+    Busy(String),
+    /// The command needs cyclic position control the axis does not have
+    /// now: a profile position axis, a cyclic axis outside its mode.
+    #[error("{0}")]
+    NotCyclic(String),
+    /// A cyclic axis whose bus's SYNC is stopped: no set-point or feedback
+    /// would come.
+    #[error("{0}")]
+    SyncStopped(String),
+    /// The drive state machine has no way from the drive's state to the
+    /// state the command asks for.
+    #[error("{0}")]
+    StateUnreachable(String),
+}
+
+impl CommandError {
+    /// The same reason with `prefix` before its message (`axis X: `).
+    pub fn prefixed(self, prefix: &str) -> Self {
+        use CommandError as E;
+        let p = |m: String| format!("{prefix}{m}");
+        match self {
+            E::BadValue(m) => E::BadValue(p(m)),
+            E::AboveMaximum(m) => E::AboveMaximum(p(m)),
+            E::BeyondSoftLimit(m) => E::BeyondSoftLimit(p(m)),
+            E::DriveUnavailable(m) => E::DriveUnavailable(p(m)),
+            E::InFault(m) => E::InFault(p(m)),
+            E::NotEnabled(m) => E::NotEnabled(p(m)),
+            E::Busy(m) => E::Busy(p(m)),
+            E::NotCyclic(m) => E::NotCyclic(p(m)),
+            E::SyncStopped(m) => E::SyncStopped(p(m)),
+            E::StateUnreachable(m) => E::StateUnreachable(p(m)),
+        }
+    }
 }
 
 /// Conversion between user units and drive counts.

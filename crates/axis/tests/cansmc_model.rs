@@ -29,7 +29,9 @@ use std::fmt;
 use std::time::Duration;
 
 use cangate_axis::cansmc::{CansmcAxis, CansmcAxisConfig, CycleInput, JogMode};
-use cangate_axis::{Activity, AxisCommand, AxisEvent, CommandError, OpId, Outcome, Units};
+use cangate_axis::{
+    Activity, AxisCommand, AxisEvent, CansmcDrive, CommandError, MotionSpec, OpId, Outcome, Units,
+};
 use cangate_can::Frame;
 use cangate_cansmc::master::{Master, MasterConfig, MasterEvent, Phase, SlaveSpec, SlaveState};
 use cangate_cansmc::{Feedback, SmcAddress};
@@ -48,32 +50,33 @@ fn address() -> SmcAddress {
 /// The demo's axis A (or B with `velocity_jog`), as the server derives it.
 fn axis_config(velocity_jog: bool) -> CansmcAxisConfig {
     CansmcAxisConfig {
-        units: Units {
-            counts_per_unit: COUNTS_PER_UNIT,
+        motion: MotionSpec {
+            units: Units {
+                counts_per_unit: COUNTS_PER_UNIT,
+            },
+            unit: "mm".into(),
+            min_position: Some(-LIMIT),
+            max_position: Some(LIMIT),
+            max_velocity: 20.0,
+            max_acceleration: 200.0,
+            default_velocity: 5.0,
+            default_acceleration: 50.0,
+            stop_deceleration: 200.0,
+            quick_stop_deceleration: 200.0,
+            state_timeout: Duration::from_secs(1),
+            homing_timeout: Duration::from_secs(30),
+            settle_timeout: Duration::from_secs(2),
+            jog_deadman: Duration::from_millis(500),
+            in_position_window: 10.0 / COUNTS_PER_UNIT,
         },
-        unit: "mm".into(),
-        min_position: Some(-LIMIT),
-        max_position: Some(LIMIT),
-        max_velocity: 20.0,
-        max_acceleration: 200.0,
-        default_velocity: 5.0,
-        default_acceleration: 50.0,
-        stop_deceleration: 200.0,
-        quick_stop_deceleration: 200.0,
-        cycle_time: CYCLE,
-        state_timeout: Duration::from_secs(1),
-        homing_timeout: Duration::from_secs(30),
-        settle_timeout: Duration::from_secs(2),
-        jog_deadman: Duration::from_millis(500),
-        in_position_window: 10.0 / COUNTS_PER_UNIT,
-        homing_method: 1,
-        gear: None,
-        jog_mode: if velocity_jog {
-            JogMode::SlaveVelocity
-        } else {
-            JogMode::Interpolated
+        drive: CansmcDrive {
+            jog_mode: if velocity_jog {
+                JogMode::SlaveVelocity
+            } else {
+                JogMode::Interpolated
+            },
+            ..CansmcDrive::example(CYCLE)
         },
-        counts_per_rev: 10_000,
     }
 }
 
@@ -419,7 +422,7 @@ impl Rig {
                 self.slave.servo().mode()
             );
         }
-        let window = self.axis.config().in_position_window;
+        let window = self.axis.config().motion.in_position_window;
         if let Some((at, then, what)) = &self.at_rest
             && self.now >= *at + 3 * CYCLE
         {
@@ -469,7 +472,7 @@ impl Rig {
                 _ => {}
             }
         }
-        if let Err(CommandError::FailedPrecondition(why)) = &r
+        if let Err(CommandError::NotEnabled(why)) = &r
             && self.enabled_claim
             && why.contains("not enabled")
         {
@@ -506,29 +509,31 @@ impl Rig {
         let slack = Duration::from_secs(1);
         match cmd {
             AxisCommand::Enable | AxisCommand::Disable | AxisCommand::ResetFault => {
-                cfg.state_timeout + slack
+                cfg.motion.state_timeout + slack
             }
-            AxisCommand::Home => cfg.homing_timeout + slack,
+            AxisCommand::Home => cfg.motion.homing_timeout + slack,
             AxisCommand::Move {
                 target,
                 relative,
                 velocity,
                 acceleration,
             } => {
-                let v = velocity.unwrap_or(cfg.default_velocity);
-                let a = acceleration.unwrap_or(cfg.default_acceleration);
+                let v = velocity.unwrap_or(cfg.motion.default_velocity);
+                let a = acceleration.unwrap_or(cfg.motion.default_acceleration);
                 let from = self.axis.demand();
                 let d = if *relative {
                     target.abs() + 2.0 * LIMIT
                 } else {
                     (target - from).abs()
                 };
-                Duration::from_secs_f64(d / v + 2.0 * cfg.max_velocity / a + 2.0)
-                    + cfg.settle_timeout
+                Duration::from_secs_f64(d / v + 2.0 * cfg.motion.max_velocity / a + 2.0)
+                    + cfg.motion.settle_timeout
                     + slack
             }
-            AxisCommand::Jog { .. } => cfg.jog_deadman + cfg.settle_timeout + 3 * slack,
-            AxisCommand::Stop | AxisCommand::QuickStop => cfg.settle_timeout + 2 * slack,
+            AxisCommand::Jog { .. } => {
+                cfg.motion.jog_deadman + cfg.motion.settle_timeout + 3 * slack
+            }
+            AxisCommand::Stop | AxisCommand::QuickStop => cfg.motion.settle_timeout + 2 * slack,
         }
     }
 
@@ -677,7 +682,7 @@ impl Rig {
                             .push(format!("recovery move ended {outcome:?}: {detail}"));
                     }
                     let (p, _) = self.motor();
-                    if (p - target).abs() > self.axis.config().in_position_window * 1.5 {
+                    if (p - target).abs() > self.axis.config().motion.in_position_window * 1.5 {
                         self.violations.push(format!(
                             "recovery move completed at {p:.4}, target {target:.4}"
                         ));

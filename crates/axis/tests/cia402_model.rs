@@ -123,7 +123,7 @@ enum Action {
 
 fn generate(rng: &mut Rng, mode: PositionMode) -> Vec<Action> {
     let limit = limit(mode);
-    let vmax = cfg(mode).max_velocity;
+    let vmax = cfg(mode).motion.max_velocity;
     let n = 4 + rng.below(10);
     let mut actions = vec![Action::Enable {
         wait: rng.chance(70),
@@ -190,15 +190,15 @@ fn cfg(mode: PositionMode) -> Cia402Config {
         PositionMode::Cyclic => (100.0, 1000.0),
         PositionMode::Profile => (50.0, 500.0),
     };
-    c.min_position = Some(-limit(mode));
-    c.max_position = Some(limit(mode));
-    c.max_velocity = vmax;
-    c.max_acceleration = amax;
-    c.default_velocity = vmax / 4.0;
-    c.default_acceleration = amax / 4.0;
-    c.stop_deceleration = amax;
-    c.quick_stop_deceleration = amax;
-    c.in_position_window = 10.0 / SCALE;
+    c.motion.min_position = Some(-limit(mode));
+    c.motion.max_position = Some(limit(mode));
+    c.motion.max_velocity = vmax;
+    c.motion.max_acceleration = amax;
+    c.motion.default_velocity = vmax / 4.0;
+    c.motion.default_acceleration = amax / 4.0;
+    c.motion.stop_deceleration = amax;
+    c.motion.quick_stop_deceleration = amax;
+    c.motion.in_position_window = 10.0 / SCALE;
     c
 }
 
@@ -596,14 +596,16 @@ impl Rig {
 /// A generous bound for a waited command from where the axis stands.
 fn bound(rig: &Rig, cmd: &AxisCommand) -> Duration {
     let c = rig.axis.config();
-    let base = 3 * c.state_timeout + c.settle_timeout * 3;
+    let base = 3 * c.motion.state_timeout + c.motion.settle_timeout * 3;
     match *cmd {
         AxisCommand::Move { velocity, .. } => {
-            let v = velocity.unwrap_or(c.default_velocity);
+            let v = velocity.unwrap_or(c.motion.default_velocity);
             let dist = 2.0 * limit(rig.mode) + 20.0;
-            base + Duration::from_secs_f64(dist / v + 4.0 * c.max_velocity / c.default_acceleration)
+            base + Duration::from_secs_f64(
+                dist / v + 4.0 * c.motion.max_velocity / c.motion.default_acceleration,
+            )
         }
-        AxisCommand::Home => c.homing_timeout + base,
+        AxisCommand::Home => c.motion.homing_timeout + base,
         _ => base + Duration::from_secs(2),
     }
 }
@@ -651,7 +653,7 @@ fn issue(rig: &mut Rig, cmd: AxisCommand, wait: bool) {
                 }
             }
         }
-        Err(CommandError::FailedPrecondition(m))
+        Err(CommandError::NotEnabled(m))
             if m.contains("not enabled")
                 && before_state == Some(DriveState::OperationEnabled)
                 && !rig.link_down =>

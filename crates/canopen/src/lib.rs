@@ -16,6 +16,7 @@
 
 pub mod cia402;
 pub mod dcf;
+pub mod decode;
 pub mod eds;
 pub mod emcy;
 pub mod handwheel;

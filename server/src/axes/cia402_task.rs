@@ -26,14 +26,15 @@
 use super::cyclic_setpoints::{CyclicSetpoints, SetpointLayout};
 use super::sdo_process_data::{self, SdoReport, SdoWorker};
 use crate::axis_runner::{
-    AxisEventKind, AxisInfo, AxisRunner, AxisUpdate, BusRequest, CoordinatedTarget, LatestStates,
-    Waiter, Waiters, for_axis, prepare_coordinated,
+    AxisEventKind, AxisRunner, AxisUpdate, BusRequest, CoordinatedTarget, LatestStates, Waiter,
+    Waiters, for_axis, prepare_coordinated,
 };
 use crate::canopen::{CanopenBus, NodeEventKind};
-use crate::config::{PositionModeChoice, ProcessDataChoice};
-use cangate_axis::cia402::{Cia402Axis, CyclicPlan, CyclicSample, Output};
+use cangate_axis::cia402::{Cia402Axis, Cia402Config, CyclicPlan, CyclicSample, Output};
 use cangate_axis::process_data::{encode_image, feedback_from_pdo};
-use cangate_axis::{AxisCommand, AxisEvent, CommandError};
+use cangate_axis::{
+    AxisCommand, AxisEvent, Cia402Drive, CommandError, PositionMode, ProcessDataPath,
+};
 use cangate_can::{BusItem, CanId, Filter, Frame, FrameSelector, Subscription, Timestamp};
 use cangate_canopen::pdo::{PdoConfig, PdoKind};
 use cangate_canopen::{NodeId, ObjectAddress};
@@ -42,10 +43,25 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc};
 use tokio_util::sync::CancellationToken;
+use tracing::Instrument as _;
+
+/// An axis of a bus task: its index among all axes, its name, its drive
+/// and its controller's configuration.
+pub struct TaskAxis {
+    /// Index among all axes of the gateway.
+    pub global: usize,
+    /// The axis's name.
+    pub name: String,
+    /// The drive.
+    pub drive: Cia402Drive,
+    /// The controller's configuration.
+    pub controller: Cia402Config,
+}
 
 struct Slot {
     global: usize,
-    info: AxisInfo,
+    name: String,
+    node: NodeId,
     axis: Cia402Axis,
     rpdos: Vec<PdoConfig>,
     waiters: Waiters,
@@ -69,6 +85,8 @@ struct Slot {
     /// and a set-point sent into such a mapping could land on its
     /// controlword.
     booted: bool,
+    /// Where the axis's own log lines happen (inside the bus's span).
+    span: tracing::Span,
 }
 
 /// The axis task's side of an SDO fallback worker.
@@ -133,17 +151,20 @@ struct Task {
 /// dozen drives that is more than a second of process data.
 const PROCESS_DATA_QUEUE: usize = 16_384;
 
-/// Starts the task running the axes `list` (global index, info) of
+/// Starts the task running the axes `list` of
 /// `master`'s bus. Subscribes to the process data before returning, so
 /// nothing the drives send after this point is missed.
 pub fn spawn(
     master: CanopenBus,
-    list: Vec<(usize, AxisInfo)>,
+    list: Vec<TaskAxis>,
     requests: mpsc::Receiver<BusRequest>,
     updates: broadcast::Sender<AxisUpdate>,
     latest: LatestStates,
     cancel: CancellationToken,
 ) -> tokio::task::JoinHandle<()> {
+    // The task and its axes log inside the bus's span.
+    let bus_span = tracing::info_span!("bus", bus = %master.bus());
+    let _in_bus = bus_span.enter();
     let events = master.events();
     let (sdo_done, sdo_results) = mpsc::channel(64);
     let (sdo_reports_tx, sdo_reports) = mpsc::channel(64);
@@ -151,46 +172,51 @@ pub fn spawn(
     let slots = list
         .into_iter()
         .enumerate()
-        .map(|(i, (global, info))| {
+        .map(|(i, a)| {
+            let node = a.drive.node;
             let rpdos: Vec<PdoConfig> = master
-                .rpdos(info.node)
+                .rpdos(node)
                 .into_iter()
                 .filter(|p| p.kind == PdoKind::Rpdo)
                 .collect();
             for p in master
-                .tpdos(info.node)
+                .tpdos(node)
                 .into_iter()
                 .filter(|p| p.kind == PdoKind::Tpdo)
             {
                 tpdos.insert(p.cob_id, (i, p));
             }
-            let sdo = (info.config.process_data == ProcessDataChoice::Sdo).then(|| SdoLink {
-                worker: sdo_process_data::spawn(
-                    master.clone(),
-                    info.node,
-                    i,
-                    Duration::from_millis(u64::from(info.config.sdo_poll_ms)),
-                    sdo_reports_tx.clone(),
-                    cancel.clone(),
-                ),
-                failures: 0,
-                lost: false,
-                booting: false,
-            });
-            let setpoint = (info.config.position_mode == PositionModeChoice::Cyclic && sdo.is_none())
+            let sdo = match a.drive.process_data {
+                ProcessDataPath::Pdo => None,
+                ProcessDataPath::Sdo { poll } => Some(SdoLink {
+                    worker: sdo_process_data::spawn(
+                        master.clone(),
+                        node,
+                        i,
+                        poll,
+                        sdo_reports_tx.clone(),
+                        cancel.clone(),
+                    ),
+                    failures: 0,
+                    lost: false,
+                    booting: false,
+                }),
+            };
+            let span = tracing::info_span!("axis", axis = %a.name);
+            let cyclic = a.drive.position_mode == PositionMode::Cyclic;
+            let setpoint = (cyclic && sdo.is_none())
                 .then(|| SetpointLayout::find(&rpdos))
                 .flatten();
-            if info.config.position_mode == PositionModeChoice::Cyclic && setpoint.is_none() {
-                tracing::error!(axis = %info.config.name, "cyclic axis without an RPDO mapping the target position (0x607A, 32 bits): it gets no set-points");
+            if cyclic && setpoint.is_none() {
+                tracing::error!(parent: &span, "cyclic axis without an RPDO mapping the target position (0x607A, 32 bits): it gets no set-points");
             }
-            let drive_guard = master
-                .drive_guard()
-                .register(info.node, &info.config.name);
+            let drive_guard = master.drive_guard().register(node, &a.name);
             Slot {
                 drive_guard,
-                global,
-                axis: Cia402Axis::new(info.config.controller()),
-                info,
+                global: a.global,
+                axis: Cia402Axis::new(a.controller),
+                name: a.name,
+                node,
                 rpdos,
                 waiters: Waiters::default(),
                 at: Timestamp(0),
@@ -199,6 +225,7 @@ pub fn spawn(
                 published: None,
                 setpoint_payload: Vec::new(),
                 booted: false,
+                span,
             }
         })
         .collect::<Vec<_>>();
@@ -222,22 +249,18 @@ pub fn spawn(
         },
         PROCESS_DATA_QUEUE,
     );
-    let by_node = slots
-        .iter()
-        .enumerate()
-        .map(|(i, s)| (s.info.node, i))
-        .collect();
+    let by_node = slots.iter().enumerate().map(|(i, s)| (s.node, i)).collect();
     let origin = Instant::now();
     let setpoints = Arc::new(CyclicSetpoints::new(
         origin,
-        slots.iter().map(|s| s.info.config.name.clone()),
+        slots.iter().map(|s| s.name.clone()),
     ));
     if slots.iter().any(|s| s.setpoint.is_some()) {
         let rider: Arc<dyn crate::canopen::sync_thread::SyncRider> = setpoints.clone();
         if !master.add_sync_rider(Arc::downgrade(&rider)) {
             // The configuration refuses cyclic axes without a SYNC period;
             // this is a SYNC thread that could not start (logged there).
-            tracing::error!(bus = %master.bus(), "cyclic axes without a SYNC: they get no set-points");
+            tracing::error!("cyclic axes without a SYNC: they get no set-points");
         }
     }
     let mut tpdo_bit = HashMap::new();
@@ -267,17 +290,20 @@ pub fn spawn(
         frames: Vec::new(),
         sdo_done,
     };
-    tokio::spawn(run(
-        t,
-        sub,
-        events,
-        requests,
-        SdoInbox {
-            results: sdo_results,
-            reports: sdo_reports,
-        },
-        cancel,
-    ))
+    tokio::spawn(
+        run(
+            t,
+            sub,
+            events,
+            requests,
+            SdoInbox {
+                results: sdo_results,
+                reports: sdo_reports,
+            },
+            cancel,
+        )
+        .instrument(bus_span.clone()),
+    )
 }
 
 async fn run(
@@ -340,7 +366,7 @@ async fn run(
                     }
                 }
                 Err(broadcast::error::RecvError::Lagged(n)) => {
-                    tracing::warn!(bus = %t.master.bus(), lost = n, "axis task missed node events");
+                    tracing::warn!(lost = n, "axis task missed node events");
                 }
                 Err(broadcast::error::RecvError::Closed) => break,
             },
@@ -385,7 +411,7 @@ impl Task {
                 frame
             }
             BusItem::Lost(n) => {
-                tracing::warn!(bus = %self.master.bus(), lost = n, "axis task missed process data (overloaded)");
+                tracing::warn!(lost = n, "axis task missed process data (overloaded)");
                 return;
             }
             BusItem::State(_) => return,
@@ -422,7 +448,7 @@ impl Task {
                 self.dirty[i] = true;
             }
             Err(e) => {
-                tracing::debug!(axis = %self.slots[i].info.config.name, cob_id = cob_hex(frame.raw_id()), error = %e, "undecodable TPDO")
+                tracing::debug!(parent: &self.slots[i].span, cob_id = cob_hex(frame.raw_id()), error = %e, "undecodable TPDO")
             }
         }
     }
@@ -431,6 +457,7 @@ impl Task {
     fn on_sdo_report(&mut self, i: usize, report: SdoReport) {
         let mut out = Vec::new();
         let slot = &mut self.slots[i];
+        let span = slot.span.clone();
         let Some(link) = slot.sdo.as_mut() else {
             return;
         };
@@ -449,7 +476,7 @@ impl Task {
             SdoReport::Failed(e) => {
                 link.failures += 1;
                 if link.failures == 1 {
-                    tracing::warn!(axis = %slot.info.config.name, error = %e, "SDO process data failed");
+                    tracing::warn!(parent: &span, error = %e, "SDO process data failed");
                 }
                 if link.failures >= SDO_FAILURES_LOST && !link.lost {
                     link.lost = true;
@@ -503,7 +530,7 @@ impl Task {
             {
                 Ok(mut frames) => frames.pop().map(|(_, d)| d).unwrap_or_default(),
                 Err(e) => {
-                    tracing::error!(axis = %slot.info.config.name, error = %e, "cannot encode the set-point RPDO");
+                    tracing::error!(parent: &slot.span, error = %e, "cannot encode the set-point RPDO");
                     continue;
                 }
             };
@@ -647,7 +674,7 @@ impl Task {
                         }
                     }
                     Err(e) => {
-                        tracing::error!(axis = %self.slots[i].info.config.name, error = %e, "cannot encode the axis RPDOs")
+                        tracing::error!(parent: &self.slots[i].span, error = %e, "cannot encode the axis RPDOs")
                     }
                 },
                 Output::SdoWrites(writes) => self.spawn_sdo(i, writes),
@@ -665,7 +692,7 @@ impl Task {
         };
         if let Err(mpsc::error::TrySendError::Full(_)) = link.worker.images.try_send(image) {
             tracing::error!(
-                axis = %self.slots[i].info.config.name,
+                parent: &self.slots[i].span,
                 "process image dropped: the drive's SDO queue is full (the drive does not answer)"
             );
         }
@@ -673,7 +700,7 @@ impl Task {
 
     fn spawn_sdo(&self, i: usize, writes: Vec<(ObjectAddress, Vec<u8>)>) {
         let master = self.master.clone();
-        let node = self.slots[i].info.node;
+        let node = self.slots[i].node;
         let done = self.sdo_done.clone();
         tokio::spawn(async move {
             let result = sdo_process_data::download_all(&master, node, writes).await;
@@ -687,11 +714,25 @@ impl Task {
         // that reads the axis after its Disable completed must not see it
         // enabled, nor be refused by the guard.
         self.publish_status(i);
+        // A cyclic axis that stopped sending set-points (disabled, lost)
+        // withdraws its plan now, not at the end of this turn: a client
+        // that changes the SYNC right after its Disable completed must not
+        // be vetoed by the plan of an axis that is no longer enabled.
+        // (Only a withdrawal: new plans of a multi-axis command still go
+        // out together, from publish_plans.)
         let slot = &mut self.slots[i];
+        if let Some(layout) = &slot.setpoint
+            && slot.published.is_some()
+            && slot.axis.cyclic_plan().is_none()
+        {
+            self.setpoints
+                .publish([(i, None, layout.rpdo.cob_id, Vec::new(), layout.offset)]);
+            slot.published = None;
+        }
         let axis = &slot.axis;
         slot.waiters.dispatch(
             e,
-            &slot.info.config.name,
+            &slot.name,
             slot.global,
             || axis.snapshot(),
             Some(&self.updates),
@@ -729,7 +770,7 @@ impl Task {
         }
         let frames = std::mem::take(&mut self.frames);
         if let Err(e) = self.master.send_frames(frames).await {
-            tracing::warn!(bus = %self.master.bus(), error = %e, "axis process data not sent");
+            tracing::warn!(error = %e, "axis process data not sent");
         }
     }
 }
@@ -751,10 +792,10 @@ impl Task {
         if stopping || self.slots[i].setpoint.is_none() || self.master.sync_settings().running {
             return Ok(());
         }
-        Err(CommandError::FailedPrecondition(format!(
+        Err(CommandError::SyncStopped(format!(
             "axis {} is cyclic and the SYNC of bus {} is stopped (start it: `cangate sync {} \
              start`, SetSync)",
-            self.slots[i].info.config.name,
+            self.slots[i].name,
             self.master.bus(),
             self.master.bus()
         )))
@@ -788,16 +829,14 @@ impl AxisRunner for Task {
             self.check_sync(t.0, &AxisCommand::Enable)?;
         }
         let slots = &self.slots;
-        let plan = prepare_coordinated(&targets, |i| {
-            (slots[i].info.config.name.as_str(), &slots[i].axis)
-        })?;
+        let plan = prepare_coordinated(&targets, |i| (slots[i].name.as_str(), &slots[i].axis))?;
         let mut waiters = Vec::new();
         for ((profile, ratio), &(i, ..)) in plan.into_iter().zip(&targets) {
             let mut out = Vec::new();
             let op = self.slots[i]
                 .axis
                 .start_coordinated(profile, ratio, now, &mut out)
-                .map_err(|e| for_axis(&self.slots[i].info.config.name, e))?;
+                .map_err(|e| for_axis(&self.slots[i].name, e))?;
             waiters.push(self.slots[i].waiters.add(op, wait));
             self.handle(i, out);
             self.publish_status(i);

@@ -80,8 +80,10 @@ struct Entry {
     /// The set-point RPDO: COB-ID, payload (the target position is patched
     /// in at each SYNC), offset of the target position.
     rpdo: Option<(u16, Vec<u8>, usize)>,
-    /// The latest sample of `plan`, not yet taken by the axis task.
-    sample: Option<CyclicSample>,
+    /// Samples of `plan` not yet taken by the axis task: the latest, after
+    /// every sample that ended a trajectory or started a dead-man stop
+    /// (the axis must see those even when it wakes only every few SYNCs).
+    samples: Vec<CyclicSample>,
     /// The axis's name, for a veto's reason.
     name: String,
 }
@@ -136,7 +138,7 @@ impl CyclicSetpoints {
                 continue;
             }
             e.plan = plan;
-            e.sample = None;
+            e.samples.clear();
         }
     }
 
@@ -153,9 +155,7 @@ impl CyclicSetpoints {
     pub fn take_samples(&self, out: &mut Vec<(usize, CyclicSample)>) {
         let mut entries = self.entries.lock().expect("set-point table lock");
         for (i, e) in entries.iter_mut().enumerate() {
-            if let Some(s) = e.sample.take() {
-                out.push((i, s));
-            }
+            out.extend(e.samples.drain(..).map(|s| (i, s)));
         }
     }
 }
@@ -206,7 +206,12 @@ impl SyncRider for CyclicSetpoints {
                 Ok(f) => frames.push(f),
                 Err(e) => tracing::error!(cob_id = *cob, error = %e, "set-point RPDO not sent"),
             }
-            e.sample = Some(sample);
+            // A plain sample replaces the previous plain one: only the
+            // latest demand matters then.
+            if e.samples.last().is_some_and(|s| !s.ends_a_motion()) {
+                e.samples.pop();
+            }
+            e.samples.push(sample);
         }
     }
 }
@@ -292,7 +297,7 @@ mod tests {
 
         let period = Duration::from_millis(1);
         let cfg = Cia402Config::example(1000.0, PositionMode::Cyclic);
-        let max_step = cfg.max_velocity * period.as_secs_f64() * 1000.0 + 1.0;
+        let max_step = cfg.motion.max_velocity * period.as_secs_f64() * 1000.0 + 1.0;
         let mut axis = Cia402Axis::new(cfg.clone());
         let mut out = Vec::new();
         let enabled = Feedback {
@@ -307,8 +312,8 @@ mod tests {
             AxisCommand::Move {
                 target: 300.0,
                 relative: false,
-                velocity: Some(cfg.max_velocity),
-                acceleration: Some(cfg.max_acceleration),
+                velocity: Some(cfg.motion.max_velocity),
+                acceleration: Some(cfg.motion.max_acceleration),
             },
             Duration::ZERO,
             &mut out,
@@ -374,6 +379,83 @@ mod tests {
         }
         assert_eq!(sent.last(), Some(&300_000), "the move ends at its target");
         assert!(now > Duration::from_secs(2));
+    }
+
+    /// An axis task that wakes only every few SYNCs (a loaded host) still
+    /// hears of the sample that finished the trajectory, although later
+    /// SYNCs sampled the plan again: the move completes with the SYNC that
+    /// ends it, not at the axis's deadline.
+    #[test]
+    fn a_slow_axis_task_still_sees_the_sample_that_ends_the_move() {
+        use cangate_axis::cia402::{Cia402Axis, Cia402Config, Feedback};
+        use cangate_axis::{AxisCommand, PositionMode};
+        use std::time::Duration;
+
+        let period = Duration::from_millis(1);
+        for wake_every in 2..=5u32 {
+            for phase in 0..wake_every {
+                let cfg = Cia402Config::example(1000.0, PositionMode::Cyclic);
+                let mut axis = Cia402Axis::new(cfg.clone());
+                let mut out = Vec::new();
+                let enabled = Feedback {
+                    statusword: Some(0x0237),
+                    position: Some(0),
+                    velocity: Some(0),
+                    mode_display: Some(8),
+                    following_error: None,
+                };
+                axis.on_feedback(enabled, Duration::ZERO, &mut out);
+                axis.command(
+                    AxisCommand::Move {
+                        target: 10.0,
+                        relative: false,
+                        velocity: Some(cfg.motion.max_velocity),
+                        acceleration: Some(cfg.motion.max_acceleration),
+                    },
+                    Duration::ZERO,
+                    &mut out,
+                )
+                .expect("move");
+                let origin = Instant::now();
+                let table = CyclicSetpoints::new(origin, ["x".to_string()]);
+                let plan = axis.cyclic_plan();
+                table.publish([(0, plan.clone(), 0x301, vec![0; 8], 0)]);
+                let mut published = plan;
+                let mut samples = Vec::new();
+                let mut ended_at = None;
+                for k in 1..=5000u32 {
+                    let now = period * k;
+                    if k % wake_every == phase {
+                        table.take_samples(&mut samples);
+                        for (_, s) in samples.drain(..) {
+                            axis.on_cyclic_sample(&s, now, &mut out);
+                        }
+                        let plan = axis.cyclic_plan();
+                        if plan != published {
+                            table.publish([(0, plan.clone(), 0x301, vec![0; 8], 0)]);
+                            published = plan;
+                        }
+                        if let Some(end) = ended_at
+                            && k > end + wake_every
+                        {
+                            assert!(
+                                !axis.cyclic_plan().is_some_and(|p| p.is_moving()),
+                                "waking every {wake_every} SYNCs (phase {phase}): the trajectory \
+                                 ended at SYNC {end}, the axis still moves at {k}"
+                            );
+                            break;
+                        }
+                    }
+                    let mut frames = Vec::new();
+                    table.on_sync(SyncTick::on_time(origin + now), &mut frames);
+                    let counts = i32::from_le_bytes(frames[0].data()[..4].try_into().unwrap());
+                    if counts == 10_000 && ended_at.is_none() {
+                        ended_at = Some(k);
+                    }
+                }
+                assert!(ended_at.is_some(), "the move reached its target");
+            }
+        }
     }
 
     #[test]

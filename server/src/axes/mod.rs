@@ -4,31 +4,33 @@
 //! master's cycle thread ([`crate::cansmc`]), which serves the same
 //! [`crate::axis_runner::BusRequest`]s.
 //!
-//! The gRPC `Axes` service is a thin shell over [`Axes`].
+//! The control rules (leases, stops never refused, the audit log) are
+//! [`Axes`]'s own ([`control`]), so every caller gets them: the gRPC `Axes`
+//! service, the handwheel binding, an embedding program.
 
 pub mod cia402_task;
+pub mod control;
 pub mod cyclic_setpoints;
 pub mod sdo_process_data;
 
 use crate::canopen::CanopenBus;
-use crate::config::CansmcConfig;
-use crate::config::{AxisConfig, PositionModeChoice, StopChoice};
 use crate::not_found::NotFound;
 use cangate_axis::CommandError;
 use cangate_axis::cia402::AxisSnapshot;
 use cangate_axis::lease::LeaseError;
 use cangate_axis::lease::{Lease, LeaseTable};
-use cangate_axis::{Activity, AxisCommand, Outcome};
+use cangate_axis::{Activity, AxisCommand, AxisSpec, DriveSpec, Outcome, PositionMode, StopKind};
 use cangate_can::Timestamp;
-use cangate_canopen::NodeId;
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::sync::{Arc, Mutex, RwLock};
 use std::time::{Duration, Instant};
 use tokio::sync::{Notify, broadcast, mpsc, oneshot};
 use tokio_util::sync::CancellationToken;
 
-pub use crate::axis_runner::{AxisEventKind, AxisInfo, AxisUpdate, LatestStates};
-use crate::axis_runner::{AxisPort, BusRequest, CommandReply};
+pub use crate::axis_runner::{AxisEventKind, AxisUpdate, LatestStates};
+use crate::axis_runner::{AxisPort, BusRequest, CansmcPortAxis, CommandReply};
+use cia402_task::TaskAxis;
+pub use control::Caller;
 
 /// Lease TTL bounds (ms).
 pub const MIN_TTL_MS: u32 = 100;
@@ -38,7 +40,7 @@ pub const MAX_TTL_MS: u32 = 60_000;
 pub const DEFAULT_TTL_MS: u32 = 2_000;
 
 struct AxisEntry {
-    info: AxisInfo,
+    spec: AxisSpec,
     bus: mpsc::Sender<BusRequest>,
     /// Index within its bus task.
     local: usize,
@@ -93,52 +95,53 @@ const QUICK_STOP_GRACE: Duration = Duration::from_secs(1);
 
 impl Axes {
     /// Starts the axis tasks (one per CANopen bus with axes) and hands
-    /// over the CANsmc axes: one [`AxisPort`] per `[[cansmc]]` master with
-    /// axes (by master name), for its cycle thread to serve.
+    /// over the CANsmc axes: one [`AxisPort`] per CANsmc master with axes
+    /// (by master name), for its cycle thread to serve. An axis's index is
+    /// its position in `specs`.
     pub fn start(
-        configs: &[AxisConfig],
+        specs: &[AxisSpec],
         masters: &BTreeMap<String, CanopenBus>,
-        cansmc: &[CansmcConfig],
         cancel: CancellationToken,
     ) -> Result<Started, String> {
         let (updates, _) = broadcast::channel(8192);
-        let total = configs.len() + cansmc.iter().map(|c| c.axes.len()).sum::<usize>();
+        let total = specs.len();
         let latest: LatestStates = Arc::new(RwLock::new(vec![None; total]));
-        let mut per_bus: BTreeMap<&str, Vec<(usize, AxisInfo)>> = BTreeMap::new();
-        for (i, c) in configs.iter().enumerate() {
-            let node = NodeId::new(c.node).map_err(|e| format!("axis {}: {e}", c.name))?;
-            per_bus.entry(c.bus.as_str()).or_default().push((
-                i,
-                AxisInfo {
-                    config: c.clone(),
-                    node,
-                    cansmc: None,
-                },
-            ));
+        let mut per_bus: BTreeMap<&str, Vec<TaskAxis>> = BTreeMap::new();
+        let mut per_master: BTreeMap<&str, Vec<CansmcPortAxis>> = BTreeMap::new();
+        for (global, spec) in specs.iter().enumerate() {
+            let name = spec.name.clone();
+            match &spec.drive {
+                DriveSpec::Cia402(d) => per_bus.entry(d.bus.as_str()).or_default().push(TaskAxis {
+                    global,
+                    name,
+                    drive: d.clone(),
+                    controller: d.controller(spec.motion.clone()),
+                }),
+                DriveSpec::Cansmc(d) => {
+                    per_master
+                        .entry(d.master.as_str())
+                        .or_default()
+                        .push(CansmcPortAxis {
+                            global,
+                            name,
+                            controller: d.controller(spec.motion.clone()),
+                        })
+                }
+            }
         }
         let mut axes: Vec<Option<AxisEntry>> = (0..total).map(|_| None).collect();
         let mut ports = BTreeMap::new();
-        let mut next = configs.len();
-        for m in cansmc.iter().filter(|m| !m.axes.is_empty()) {
+        for (master, list) in per_master {
             let (tx, rx) = mpsc::channel(256);
-            let mut list = Vec::new();
-            for (local, a) in m.axes.iter().enumerate() {
-                let info = AxisInfo {
-                    config: a.as_axis_config(m),
-                    node: NodeId::new(u32::from(a.address))
-                        .map_err(|e| format!("axis {}: {e}", a.name))?,
-                    cansmc: Some(m.name.clone()),
-                };
-                axes[next] = Some(AxisEntry {
-                    info: info.clone(),
+            for (local, a) in list.iter().enumerate() {
+                axes[a.global] = Some(AxisEntry {
+                    spec: specs[a.global].clone(),
                     bus: tx.clone(),
                     local,
                 });
-                list.push((next, info));
-                next += 1;
             }
             ports.insert(
-                m.name.clone(),
+                master.to_string(),
                 AxisPort {
                     requests: rx,
                     axes: list,
@@ -154,9 +157,9 @@ impl Axes {
                 .ok_or_else(|| format!("bus {bus:?} has no CANopen master"))?
                 .clone();
             let (tx, rx) = mpsc::channel(256);
-            for (local, (global, info)) in list.iter().enumerate() {
-                axes[*global] = Some(AxisEntry {
-                    info: info.clone(),
+            for (local, a) in list.iter().enumerate() {
+                axes[a.global] = Some(AxisEntry {
+                    spec: specs[a.global].clone(),
                     bus: tx.clone(),
                     local,
                 });
@@ -177,7 +180,7 @@ impl Axes {
         let by_name = axes
             .iter()
             .enumerate()
-            .map(|(i, a)| (a.info.config.name.clone(), i))
+            .map(|(i, a)| (a.spec.name.clone(), i))
             .collect();
         let manager = Arc::new(Axes {
             axes,
@@ -214,19 +217,19 @@ impl Axes {
                 "axis",
                 "axes",
                 name,
-                self.axes.iter().map(|a| a.info.config.name.as_str()),
+                self.axes.iter().map(|a| a.spec.name.as_str()),
             ))
         })
     }
 
-    /// Static facts of axis `i`.
-    pub fn info(&self, i: usize) -> &AxisInfo {
-        &self.axes[i].info
+    /// The description of axis `i`.
+    pub fn spec(&self, i: usize) -> &AxisSpec {
+        &self.axes[i].spec
     }
 
     /// Name of axis `i`.
     pub fn name(&self, i: usize) -> &str {
-        &self.axes[i].info.config.name
+        &self.axes[i].spec.name
     }
 
     /// Latest state of axis `i` (`None` before its first process data).
@@ -245,12 +248,8 @@ impl Axes {
             let Some((s, _)) = latest.get(i).and_then(Option::as_ref) else {
                 return false;
             };
-            let c = &self.axes[i].info.config;
-            // The controllers' own "at rest": slower than the in-position
-            // window per 100 ms.
-            let still = 10.0
-                * c.in_position_window
-                    .unwrap_or(10.0 / c.counts_per_unit.abs());
+            // The controllers' own "at rest".
+            let still = self.axes[i].spec.motion.rest_speed();
             matches!(
                 s.activity,
                 Activity::Idle | Activity::Stopping | Activity::Switching
@@ -306,10 +305,7 @@ impl Axes {
         let mut stops = Vec::new();
         for i in 0..self.axes.len() {
             if self.in_motion(i) {
-                let cmd = match self.info(i).config.stop_on_loss {
-                    StopChoice::Halt => AxisCommand::Stop,
-                    StopChoice::QuickStop => AxisCommand::QuickStop,
-                };
+                let cmd = stop_command(self.spec(i).stop_on_loss);
                 stops.push((i, cmd));
             }
         }
@@ -398,12 +394,16 @@ impl Axes {
         })
     }
 
-    /// Grants control of `axes` (names) to `holder`.
+    /// Grants control of `axes` (names) to `holder`, bound to `identity`
+    /// when the caller has one (see [`LeaseTable::bind_owner`]): bound
+    /// before the token leaves the runtime, so no other identity can ever
+    /// have used it.
     pub fn acquire(
         &self,
         axes: &[String],
         ttl_ms: u32,
         holder: String,
+        identity: Option<String>,
     ) -> Result<Lease, AxisError> {
         if self.closing() {
             return Err(AxisError::ShuttingDown);
@@ -428,20 +428,28 @@ impl Axes {
             AxisError::Unavailable(format!("no OS randomness for a lease token: {e}"))
         })?;
         let token: String = raw.iter().map(|b| format!("{b:02x}")).collect();
-        let lease = self.leases.lock().expect("lease lock").acquire(
-            token,
-            holder.clone(),
-            axes.to_vec(),
-            Duration::from_millis(u64::from(ttl_ms)),
-            self.now(),
-        )?;
+        let lease = {
+            let mut leases = self.leases.lock().expect("lease lock");
+            let lease = leases.acquire(
+                token,
+                holder.clone(),
+                axes.to_vec(),
+                Duration::from_millis(u64::from(ttl_ms)),
+                self.now(),
+            )?;
+            if let Some(identity) = identity {
+                leases.bind_owner(&lease.token, identity)?;
+            }
+            lease
+        };
         self.leases_changed.notify_one();
         self.publish_control(&lease, &holder, "", "acquired");
         Ok(lease)
     }
 
-    /// Extends a lease.
-    pub fn renew(&self, token: &str) -> Result<Lease, AxisError> {
+    /// Extends a lease (the owner check is the caller's, see
+    /// [`Axes::renew`]).
+    fn renew_token(&self, token: &str) -> Result<Lease, AxisError> {
         let lease = self
             .leases
             .lock()
@@ -451,27 +459,18 @@ impl Axes {
         Ok(lease)
     }
 
-    /// Ends a lease.
-    pub fn release(&self, token: &str) -> Result<Lease, AxisError> {
+    /// Ends a lease (the owner check is the caller's, see
+    /// [`Axes::release`]).
+    fn release_token(&self, token: &str) -> Result<Lease, AxisError> {
         let lease = self.leases.lock().expect("lease lock").release(token)?;
         self.leases_changed.notify_one();
         self.publish_control(&lease, "", &lease.holder, "released");
         Ok(lease)
     }
 
-    /// Binds lease `token` to the identity `owner` that acquired it (see
-    /// [`LeaseTable::bind_owner`]).
-    pub fn bind_lease_owner(&self, token: &str, owner: String) -> Result<(), AxisError> {
-        Ok(self
-            .leases
-            .lock()
-            .expect("lease lock")
-            .bind_owner(token, owner)?)
-    }
-
     /// Checks that `caller` may present lease `token` (see
     /// [`LeaseTable::check_owner`]).
-    pub fn check_lease_owner(&self, token: &str, caller: Option<&str>) -> Result<(), AxisError> {
+    fn check_lease_owner(&self, token: &str, caller: Option<&str>) -> Result<(), AxisError> {
         Ok(self
             .leases
             .lock()
@@ -481,7 +480,7 @@ impl Axes {
 
     /// Checks that `token` controls axis `i` (renewing it); the holder's
     /// name for the audit log.
-    pub fn authorize(&self, i: usize, token: &str) -> Result<String, AxisError> {
+    fn authorize(&self, i: usize, token: &str) -> Result<String, AxisError> {
         let mut leases = self.leases.lock().expect("lease lock");
         let token = (!token.is_empty()).then_some(token);
         leases.authorize(self.name(i), token, self.now())?;
@@ -494,9 +493,10 @@ impl Axes {
         Ok(holder)
     }
 
-    /// Runs a command on axis `i`; returns when the drive accepted it, or
-    /// with `wait` when it ended (bounded by `wait_timeout`).
-    pub async fn command(
+    /// Runs a command on axis `i` without any control check (the callers
+    /// are [`Axes::command`] and shutdown); returns when the drive accepted
+    /// it, or with `wait` when it ended (bounded by `wait_timeout`).
+    async fn dispatch(
         &self,
         i: usize,
         cmd: AxisCommand,
@@ -522,13 +522,9 @@ impl Axes {
         self.await_reply(i, waiter, wait, wait_timeout).await
     }
 
-    /// Queues a command on axis `i` without waiting for its acceptance
-    /// (commands of one caller keep their order). For the handwheel
-    /// binding, which must never stall on a drive.
-    ///
-    /// # Errors
-    /// When the axis task's queue is full or closed.
-    pub fn submit(&self, i: usize, cmd: AxisCommand) -> Result<(), AxisError> {
+    /// Queues a command on axis `i` without waiting for its acceptance and
+    /// without any control check (see [`Axes::submit`]).
+    fn enqueue(&self, i: usize, cmd: AxisCommand) -> Result<(), AxisError> {
         if self.closing() {
             return Err(AxisError::ShuttingDown);
         }
@@ -557,7 +553,7 @@ impl Axes {
         let bound = if wait {
             wait_timeout
         } else {
-            Duration::from_millis(self.info(i).config.state_timeout_ms * 3 + 1000)
+            self.spec(i).motion.state_timeout * 3 + Duration::from_secs(1)
         };
         match tokio::time::timeout(bound, waiter).await {
             Ok(Ok(r)) => Ok(CommandResult {
@@ -575,18 +571,15 @@ impl Axes {
         }
     }
 
-    /// Stops several axes at once (per bus in one batch of frames).
-    pub async fn stop_many(
+    /// Stops several axes at once (per bus in one batch of frames); see
+    /// [`Axes::stop_many`].
+    async fn stop_batch(
         &self,
         axes: &[usize],
-        quick: bool,
+        kind: StopKind,
         wait: bool,
     ) -> Result<Vec<Result<CommandResult, AxisError>>, AxisError> {
-        let cmd = if quick {
-            AxisCommand::QuickStop
-        } else {
-            AxisCommand::Stop
-        };
+        let cmd = stop_command(kind);
         let items: Vec<(usize, AxisCommand)> = axes.iter().map(|&i| (i, cmd)).collect();
         self.many(items, wait).await
     }
@@ -635,8 +628,9 @@ impl Axes {
     }
 
     /// Starts a coordinated cyclic move: (axis, target, velocity,
-    /// acceleration) per axis, all on one bus.
-    pub async fn move_coordinated(
+    /// acceleration) per axis, all on one bus, without any control check
+    /// (see [`Axes::move_coordinated`]).
+    async fn dispatch_coordinated(
         &self,
         targets: Vec<crate::axis_runner::CoordinatedTarget>,
         wait: bool,
@@ -650,16 +644,16 @@ impl Axes {
             if !e.bus.same_channel(&first.bus) {
                 return Err(AxisError::NotCoordinable(format!(
                     "a coordinated move needs all axes on one bus: {} is on {}, {} on {}",
-                    first.info.config.name,
-                    first.info.config.bus,
-                    e.info.config.name,
-                    e.info.config.bus
+                    first.spec.name,
+                    first.spec.bus(),
+                    e.spec.name,
+                    e.spec.bus()
                 )));
             }
-            if e.info.config.position_mode != PositionModeChoice::Cyclic {
+            if e.spec.position_mode() != PositionMode::Cyclic {
                 return Err(AxisError::NotCoordinable(format!(
                     "a coordinated move needs cyclic (CSP) axes; {} is a profile position axis",
-                    e.info.config.name
+                    e.spec.name
                 )));
             }
         }
@@ -685,6 +679,14 @@ impl Axes {
             );
         }
         Ok(out)
+    }
+}
+
+/// The command of a stop of `kind`.
+fn stop_command(kind: StopKind) -> AxisCommand {
+    match kind {
+        StopKind::Halt => AxisCommand::Stop,
+        StopKind::QuickStop => AxisCommand::QuickStop,
     }
 }
 
@@ -718,10 +720,7 @@ async fn run_lease_expiry(m: Arc<Axes>, cancel: CancellationToken) {
                     )
                 });
                 if moving {
-                    let cmd = match m.info(i).config.stop_on_loss {
-                        StopChoice::Halt => AxisCommand::Stop,
-                        StopChoice::QuickStop => AxisCommand::QuickStop,
-                    };
+                    let cmd = stop_command(m.spec(i).stop_on_loss);
                     stops.push((i, cmd));
                 }
             }

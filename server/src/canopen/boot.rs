@@ -24,29 +24,31 @@ pub(super) async fn run_boot_supervisor(
             previous.abort();
         }
         let m = master.clone();
+        let span = tracing::info_span!("node", node = node.get());
         let task = tokio::spawn(async move {
             match boot_node(&m, node, &plan, adopt).await {
                 Ok(BootResult::Started { confirmed }) => {
                     match confirmed {
                         Some(state) => {
-                            tracing::info!(bus = %m.bus, node = node.get(), adopt, %state, "node booted and started")
+                            tracing::info!(adopt, %state, "node booted and started")
                         }
                         None => {
-                            tracing::warn!(bus = %m.bus, node = node.get(), adopt, "node booted and NMT start sent; it reported no state to confirm it started")
+                            tracing::warn!(adopt, "node booted and NMT start sent; it reported no state to confirm it started")
                         }
                     }
                     m.emit(node, NodeEventKind::BootCompleted { adopted: adopt });
                 }
                 Ok(BootResult::Absent) => {
-                    tracing::info!(bus = %m.bus, node = node.get(), "node does not answer; it is booted when it boots up");
+                    tracing::info!("node does not answer; it is booted when it boots up");
                 }
                 Ok(BootResult::Rebooted) => {}
                 Err(reason) => {
-                    tracing::warn!(bus = %m.bus, node = node.get(), %reason, "boot procedure failed");
+                    tracing::warn!(%reason, "boot procedure failed");
                     m.emit(node, NodeEventKind::BootFailed { reason });
                 }
             }
-        });
+        }
+        .instrument(span));
         running.insert(node, task.abort_handle());
     };
     for (node, plan) in &plans {
@@ -63,7 +65,10 @@ pub(super) async fn run_boot_supervisor(
                 // A boot-up among them would leave its node unconfigured
                 // and not started: say so (an NMT reset of the node, or of
                 // all, runs the procedure again).
-                tracing::warn!(bus = %master.bus(), missed = n, "boot supervisor missed node events; a node that booted meanwhile may need an NMT reset");
+                tracing::warn!(
+                    missed = n,
+                    "boot supervisor missed node events; a node that booted meanwhile may need an NMT reset"
+                );
                 continue;
             }
             Err(broadcast::error::RecvError::Closed) => break,

@@ -23,27 +23,31 @@ pub fn spawn(
     period: Duration,
     cancel: CancellationToken,
 ) -> tokio::task::JoinHandle<()> {
-    tokio::spawn(async move {
-        let origin = Instant::now();
-        let mut producer = HeartbeatProducer::new(node, period);
-        let mut failing = false;
-        loop {
-            if let Some(frame) = producer.on_tick(origin.elapsed()) {
-                match bus.send(vec![frame]).await {
-                    Ok(()) => failing = false,
-                    Err(e) if !failing => {
-                        failing = true;
-                        tracing::warn!(bus = %bus.info().name, node = node.get(), error = %e.error, "master heartbeat not sent");
+    let span = tracing::info_span!("bus", bus = %bus.info().name);
+    tokio::spawn(tracing::Instrument::instrument(
+        async move {
+            let origin = Instant::now();
+            let mut producer = HeartbeatProducer::new(node, period);
+            let mut failing = false;
+            loop {
+                if let Some(frame) = producer.on_tick(origin.elapsed()) {
+                    match bus.send(vec![frame]).await {
+                        Ok(()) => failing = false,
+                        Err(e) if !failing => {
+                            failing = true;
+                            tracing::warn!(node = node.get(), error = %e.error, "master heartbeat not sent");
+                        }
+                        Err(_) => {}
                     }
-                    Err(_) => {}
+                }
+                let next = producer.next_deadline().unwrap_or_default();
+                tokio::select! {
+                    biased;
+                    _ = cancel.cancelled() => break,
+                    _ = tokio::time::sleep_until(origin + next) => {}
                 }
             }
-            let next = producer.next_deadline().unwrap_or_default();
-            tokio::select! {
-                biased;
-                _ = cancel.cancelled() => break,
-                _ = tokio::time::sleep_until(origin + next) => {}
-            }
-        }
-    })
+        },
+        span,
+    ))
 }

@@ -104,7 +104,7 @@ pub(super) async fn run_master(task: MasterTask) {
                             master.on_frame(&frame, now, &mut out);
                             relay_tpdo(&tpdos, &pdos, &frame);
                         }
-                        BusItem::Lost(n) => tracing::warn!(bus = %bus.name(), lost = n, "CANopen master missed frames (overloaded)"),
+                        BusItem::Lost(n) => tracing::warn!(lost = n, "CANopen master missed frames (overloaded)"),
                         BusItem::State(_) => {}
                     }
                 }
@@ -186,7 +186,7 @@ pub(super) async fn run_master(task: MasterTask) {
         if !out.frames.is_empty()
             && let Err(e) = submit_master_frames(&bus, std::mem::take(&mut out.frames)).await
         {
-            tracing::warn!(bus = %bus.name(), error = %e, "CANopen master could not send");
+            tracing::warn!(error = %e, "CANopen master could not send");
         }
         for ev in out.events {
             count_event(bus.name(), &ev);
@@ -205,7 +205,7 @@ pub(super) async fn run_master(task: MasterTask) {
             handle_event(ev, &master, &mut pending, &events, &facts);
         }
     }
-    tracing::info!(bus = %bus.name(), "CANopen master stopped");
+    tracing::info!("CANopen master stopped");
 }
 
 /// Sends the master's frames. Several SDO requests to one node in one

@@ -24,6 +24,7 @@ use std::sync::{Arc, Mutex, RwLock};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio_util::sync::CancellationToken;
+use tracing::Instrument as _;
 
 mod boot;
 pub mod dcf_export;
@@ -200,6 +201,11 @@ pub enum NodeEventKind {
         reason: String,
     },
 }
+
+/// The shortest period of periodic TIMEs a bus takes, from the
+/// configuration's bound ([`crate::config::MIN_TIME_PERIOD_MS`]), for the
+/// API to refuse a shorter one the same way.
+pub const MIN_TIME_PERIOD: Duration = Duration::from_millis(crate::config::MIN_TIME_PERIOD_MS);
 
 /// SDO requests one API caller may have queued or running per node by
 /// default (`[security.limits] sdo_requests_per_client_and_node`): a
@@ -424,6 +430,9 @@ impl CanopenBus {
         configured: BTreeMap<NodeId, NodeFacts>,
         cancel: CancellationToken,
     ) -> (CanopenBus, tokio::task::JoinHandle<()>) {
+        // The master's tasks log inside the bus's span.
+        let span = tracing::info_span!("bus", bus = %bus.name());
+        let _in_bus = span.enter();
         let (commands, rx) = mpsc::channel(1024);
         let (events, _) = broadcast::channel(4096);
         let (pdos, _) = broadcast::channel(16_384);
@@ -470,13 +479,13 @@ impl CanopenBus {
                 control
             }
             Err(e) => {
-                tracing::error!(bus = %bus.name(), error = %e, "cannot start the SYNC producer thread");
+                tracing::error!(error = %e, "cannot start the SYNC producer thread");
                 Arc::new(sync_thread::SyncControl::new(sync))
             }
         };
         let (time_period, time_rx) = tokio::sync::watch::channel(time_period);
         let time_period = Arc::new(time_period);
-        tokio::spawn(time_producer::run(bus.clone(), time_rx, cancel.clone()));
+        tokio::spawn(time_producer::run(bus.clone(), time_rx, cancel.clone()).in_current_span());
         let handle = CanopenBus {
             bus: bus.name().to_string(),
             handle: bus.clone(),
@@ -511,26 +520,26 @@ impl CanopenBus {
             }
         }
         let boot_events = handle.events();
-        let task = tokio::spawn(run_master(MasterTask {
-            master,
-            bus,
-            sub,
-            commands: rx,
-            events,
-            tpdos: handle.tpdos.clone(),
-            pdos,
-            facts,
-            handover: handle.handover.clone(),
-            heard: handle.heard.clone(),
-            cancel: cancel.clone(),
-        }));
+        let task = tokio::spawn(
+            run_master(MasterTask {
+                master,
+                bus,
+                sub,
+                commands: rx,
+                events,
+                tpdos: handle.tpdos.clone(),
+                pdos,
+                facts,
+                handover: handle.handover.clone(),
+                heard: handle.heard.clone(),
+                cancel: cancel.clone(),
+            })
+            .in_current_span(),
+        );
         if !boots.is_empty() {
-            tokio::spawn(run_boot_supervisor(
-                handle.clone(),
-                boot_events,
-                boots,
-                cancel,
-            ));
+            tokio::spawn(
+                run_boot_supervisor(handle.clone(), boot_events, boots, cancel).in_current_span(),
+            );
         }
         (handle, task)
     }

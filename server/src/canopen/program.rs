@@ -26,6 +26,7 @@ use std::pin::Pin;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc};
+use tracing::Instrument as _;
 
 /// How often the bytes confirmed are looked up during the data download.
 const PROGRESS_PERIOD: Duration = Duration::from_millis(50);
@@ -131,15 +132,21 @@ impl CanopenBus {
         let (tx, rx) = mpsc::channel(64);
         // Subscribed before the start: the boot-up cannot be missed.
         let events = self.events();
-        tracing::info!(bus = %self.bus, node = node.get(), bytes = plan.image.len(), program = plan.program, %caller, "program download started");
-        tokio::spawn(run_download(
-            self.clone(),
-            ProgramDownload::new(plan),
-            events,
-            tx,
-            caller.to_string(),
-            claim,
-        ));
+        // The download logs inside its bus's and node's spans.
+        let bus_span = tracing::info_span!("bus", bus = %self.bus);
+        let span = tracing::info_span!(parent: &bus_span, "node", node = node.get());
+        tracing::info!(parent: &span, bytes = plan.image.len(), program = plan.program, %caller, "program download started");
+        tokio::spawn(
+            run_download(
+                self.clone(),
+                ProgramDownload::new(plan),
+                events,
+                tx,
+                caller.to_string(),
+                claim,
+            )
+            .instrument(span),
+        );
         Ok(rx)
     }
 }
@@ -182,7 +189,7 @@ async fn run_download(
                     // An axis enabled while the download runs: its drive's
                     // program is not stopped, replaced or started under it.
                     if let Err(e) = bus.check_drive_idle(node, "a program download") {
-                        tracing::warn!(bus = %bus.bus, node = node.get(), error = %e, "program download stopped");
+                        tracing::warn!(error = %e, "program download stopped");
                         let _ = tx
                             .send(ProgramEvent::Finished(Err(ProgramFailure::AxisActive(
                                 e, step,
@@ -199,10 +206,14 @@ async fn run_download(
                 ProgramAction::Finished(r) => {
                     match &r {
                         Ok(o) => {
-                            tracing::info!(bus = %bus.bus, node = node.get(), bytes = o.bytes, new = format!("0x{:08X}", o.new_identification), "program download done")
+                            tracing::info!(
+                                bytes = o.bytes,
+                                new = format!("0x{:08X}", o.new_identification),
+                                "program download done"
+                            )
                         }
                         Err(e) => {
-                            tracing::warn!(bus = %bus.bus, node = node.get(), error = %e, "program download failed")
+                            tracing::warn!(error = %e, "program download failed")
                         }
                     }
                     let _ = tx
@@ -219,7 +230,7 @@ async fn run_download(
         tokio::select! {
             biased;
             _ = tx.closed() => {
-                tracing::warn!(bus = %bus.bus, node = node.get(), step = step.name(), "program download cancelled by the client");
+                tracing::warn!(step = step.name(), "program download cancelled by the client");
                 // Dropping `sdo` makes the master abort the transfer.
                 return;
             }

@@ -1,7 +1,7 @@
 //! The TIME producer of a CANopen bus: sends the host's UTC time as a
 //! TIME_OF_DAY ([`cangate_canopen::time_of_day`]) every period, when a
 //! period is set (`time_period_ms`, `Canopen.SetTime`; at least
-//! [`crate::config::MIN_TIME_PERIOD_MS`]), and on request.
+//! [`super::MIN_TIME_PERIOD`]), and on request.
 //!
 //! A task rather than a thread like the SYNC's: a TIME frame tells the time
 //! to the millisecond whenever it leaves, so a late wake-up costs nothing.
@@ -49,10 +49,10 @@ pub(super) async fn run(
         match now() {
             Ok(t) => {
                 if let Err(e) = bus.submit(vec![t.frame()]).await {
-                    tracing::warn!(bus = %bus.name(), error = %e, "TIME not sent");
+                    tracing::warn!(error = %e, "TIME not sent");
                 }
             }
-            Err(e) => tracing::warn!(bus = %bus.name(), error = %e, "TIME not sent"),
+            Err(e) => tracing::warn!(error = %e, "TIME not sent"),
         }
     }
 }

@@ -23,9 +23,9 @@ use crate::axis_runner::{
     AxisEventKind, AxisRunner, AxisUpdate, BusRequest, CommandReply, CoordinatedTarget, Waiters,
     for_axis, prepare_coordinated,
 };
-use crate::config::{CansmcConfig, CyclicChoice, DEFAULT_FIFO_SPIN_US, JogModeChoice};
+use crate::config::{CansmcConfig, CyclicChoice, DEFAULT_FIFO_SPIN_US};
 use cangate_axis::cansmc::{CansmcAxis, CycleInput};
-use cangate_axis::{AxisCommand, AxisEvent, CommandError};
+use cangate_axis::{AxisCommand, AxisEvent, CansmcDrive, CommandError, JogMode};
 use cangate_can::precise_wait::SpinMargin;
 use cangate_can::{BusHandle, BusItem, Direction, Frame, FrameSelector, Subscription, Timestamp};
 use cangate_cansmc::master::{
@@ -113,7 +113,11 @@ struct Thread {
 /// Starts the thread.
 pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String> {
     let name = format!("cansmc-{}", setup.config.name);
-    let master_config = master_config(&setup.config, setup.bitrate);
+    let drives: Vec<&CansmcDrive> = (setup.axes.iter())
+        .flat_map(|port| &port.axes)
+        .map(|a| &a.controller.drive)
+        .collect();
+    let master_config = master_config(&setup.config, &drives, setup.bitrate);
     let master =
         Master::new(master_config).map_err(|e| format!("cansmc {}: {e}", setup.config.name))?;
     let rt = tokio::runtime::Builder::new_current_thread()
@@ -124,21 +128,20 @@ pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String>
     let subscription = setup
         .status_bus
         .subscribe(FrameSelector::all(), 4 * 64 + 1024);
-    let cycle = setup.config.cycle_time();
     let (mut slots, mut gear_source, mut axis_requests, mut updates, mut latest) =
         (Vec::new(), Vec::new(), None, None, None);
     if let Some(port) = setup.axes {
-        for ((global, info), entry) in port.axes.into_iter().zip(&setup.config.axes) {
-            let address = SmcAddress::new(entry.address).map_err(|e| e.to_string())?;
+        for a in port.axes {
+            let drive = &a.controller.drive;
+            gear_source.push(drive.gear.and_then(|g| SmcAddress::new(g.source).ok()));
             slots.push(Slot {
-                global,
-                name: info.config.name.clone(),
-                address,
-                axis: CansmcAxis::new(entry.controller(cycle)),
+                global: a.global,
+                name: a.name,
+                address: drive.address,
+                axis: CansmcAxis::new(a.controller),
                 waiters: Waiters::default(),
                 published: None,
             });
-            gear_source.push(entry.gear_source.and_then(|a| SmcAddress::new(a).ok()));
         }
         axis_requests = Some(port.requests);
         updates = Some(port.updates);
@@ -179,12 +182,16 @@ pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String>
     };
     let cancel = setup.cancel;
     let running = setup.running;
+    // Everything the thread logs is in its master's span (a CANsmc master
+    // has a command and a status bus).
+    let span = tracing::info_span!("cansmc", master = %t.cfg.name);
     std::thread::Builder::new()
         .name(name)
         .spawn(move || {
             // Cleared last, even if the thread panics: after the final
             // status and with the thread's bus handles gone.
             let _running = ClearOnExit(running);
+            let _in_master = span.entered();
             t.run(&cancel);
             drop(t);
         })
@@ -200,17 +207,19 @@ impl Drop for ClearOnExit {
     }
 }
 
-/// The master configuration: axis slaves start with a position MDT, gear
-/// sources and `cyclic = "encoder"` slaves with an encoder request.
-fn master_config(cfg: &CansmcConfig, bitrate: u32) -> MasterConfig {
-    let gear_sources: Vec<u8> = cfg.axes.iter().filter_map(|a| a.gear_source).collect();
-    let velocity_jogs: Vec<u8> = cfg
-        .axes
+/// The master configuration: the slaves of `axes` start with a position
+/// MDT, gear sources and `cyclic = "encoder"` slaves with an encoder
+/// request.
+fn master_config(cfg: &CansmcConfig, axes: &[&CansmcDrive], bitrate: u32) -> MasterConfig {
+    let gear_sources: Vec<u8> = axes
         .iter()
-        .filter(|a| a.jog_mode == JogModeChoice::Velocity)
-        .map(|a| a.address)
+        .filter_map(|a| a.gear.map(|g| g.source))
         .collect();
-    let axis_slaves: Vec<u8> = cfg.axes.iter().map(|a| a.address).collect();
+    let velocity_jogs: Vec<u8> = (axes.iter())
+        .filter(|a| a.jog_mode == JogMode::SlaveVelocity)
+        .map(|a| a.address.get())
+        .collect();
+    let axis_slaves: Vec<u8> = axes.iter().map(|a| a.address.get()).collect();
     let slaves = cfg
         .slaves
         .iter()
@@ -266,10 +275,13 @@ impl Thread {
             match crate::realtime::set_fifo(self.cfg.rt_priority) {
                 Ok(()) => {
                     fifo = true;
-                    tracing::info!(master = %self.cfg.name, priority = self.cfg.rt_priority, "CANsmc cycle thread runs with SCHED_FIFO")
+                    tracing::info!(
+                        priority = self.cfg.rt_priority,
+                        "CANsmc cycle thread runs with SCHED_FIFO"
+                    )
                 }
                 Err(e) => {
-                    tracing::warn!(master = %self.cfg.name, priority = self.cfg.rt_priority, error = %e, "CANsmc cycle thread could not get real-time priority (needs root or CAP_SYS_NICE); MST timing depends on the host's load")
+                    tracing::warn!(priority = self.cfg.rt_priority, error = %e, "CANsmc cycle thread could not get real-time priority (needs root or CAP_SYS_NICE); MST timing depends on the host's load")
                 }
             }
         }
@@ -278,7 +290,10 @@ impl Thread {
             Duration::from_micros(spin_us.min(SPIN_FLOOR_US)),
             Duration::from_micros(spin_us),
         );
-        tracing::debug!(master = %self.cfg.name, spin_us, "CANsmc cycle thread: active wait before each MST at most this long");
+        tracing::debug!(
+            spin_us,
+            "CANsmc cycle thread: active wait before each MST at most this long"
+        );
         // Timed sleeps end within a µs of the deadline, not the default
         // 50 µs: the active wait before each MST then only covers the
         // wake-up latency.
@@ -376,7 +391,10 @@ impl Thread {
                 BusItem::Frame { .. } | BusItem::State(_) => {}
                 BusItem::Lost(n) => {
                     self.rx_lost += n;
-                    tracing::warn!(master = %self.cfg.name, lost = n, "CANsmc master lost channel-1 frames (queue overflow)");
+                    tracing::warn!(
+                        lost = n,
+                        "CANsmc master lost channel-1 frames (queue overflow)"
+                    );
                 }
             }
         }
@@ -391,7 +409,7 @@ impl Thread {
         if let Err(e) = self.rt.block_on(bus.submit(frames)) {
             self.send_errors += 1;
             if self.send_errors.is_power_of_two() {
-                tracing::warn!(master = %self.cfg.name, error = %e, failures = self.send_errors, "CANsmc telegrams not sent");
+                tracing::warn!(error = %e, failures = self.send_errors, "CANsmc telegrams not sent");
             }
         }
     }
@@ -473,7 +491,7 @@ impl Thread {
                     }
                 }
                 Request::Restart { reply } => {
-                    tracing::info!(master = %self.cfg.name, "CANsmc master restarts through P0/P1");
+                    tracing::info!("CANsmc master restarts through P0/P1");
                     for i in 0..self.slots.len() {
                         let mut ev = Vec::new();
                         self.slots[i]
@@ -505,7 +523,7 @@ impl Thread {
         for e in self.master.take_events() {
             match e {
                 MasterEvent::Phase(p) => {
-                    tracing::info!(master = %self.cfg.name, phase = %p, "CANsmc phase");
+                    tracing::info!(phase = %p, "CANsmc phase");
                     if p == Phase::Cyclic {
                         self.jitter.clear();
                         for i in 0..self.slots.len() {
@@ -525,7 +543,7 @@ impl Thread {
                     self.publish_status();
                 }
                 MasterEvent::StartFailed { reason } => {
-                    tracing::error!(master = %self.cfg.name, %reason, "CANsmc start-up failed");
+                    tracing::error!(%reason, "CANsmc start-up failed");
                     self.start_error = Some(reason);
                 }
                 MasterEvent::SlaveConnected {
@@ -533,7 +551,12 @@ impl Thread {
                     device_type,
                     firmware_version,
                 } => {
-                    tracing::info!(master = %self.cfg.name, slave = address.get(), device_type = format!("0x{device_type:04X}"), firmware = format!("0x{firmware_version:04X}"), "CANsmc slave connected");
+                    tracing::info!(
+                        slave = address.get(),
+                        device_type = format!("0x{device_type:04X}"),
+                        firmware = format!("0x{firmware_version:04X}"),
+                        "CANsmc slave connected"
+                    );
                     self.slave_event(
                         address,
                         format!(
@@ -546,7 +569,7 @@ impl Thread {
                     required,
                     reason,
                 } => {
-                    tracing::warn!(master = %self.cfg.name, slave = address.get(), required, %reason, "CANsmc slave missing");
+                    tracing::warn!(slave = address.get(), required, %reason, "CANsmc slave missing");
                     self.slave_event(address, format!("missing: {reason}"));
                     self.axis_lost(address, &format!("missing: {reason}"));
                 }
@@ -557,12 +580,22 @@ impl Thread {
                         .slave(address)
                         .map(|s| s.counters)
                         .unwrap_or_default();
-                    tracing::warn!(master = %self.cfg.name, slave = address.get(), misses, dts = c.dts, missed = c.missed, late = c.late, mismatch = c.counter_mismatch, overruns = self.master.counters().overruns, slots_missed = self.master.counters().mdt_slots_missed, "CANsmc slave lost");
+                    tracing::warn!(
+                        slave = address.get(),
+                        misses,
+                        dts = c.dts,
+                        missed = c.missed,
+                        late = c.late,
+                        mismatch = c.counter_mismatch,
+                        overruns = self.master.counters().overruns,
+                        slots_missed = self.master.counters().mdt_slots_missed,
+                        "CANsmc slave lost"
+                    );
                     self.slave_event(address, format!("lost: {reason}"));
                     self.axis_lost(address, &reason);
                 }
                 MasterEvent::SlaveRecovered { address } => {
-                    tracing::info!(master = %self.cfg.name, slave = address.get(), "CANsmc slave answers again");
+                    tracing::info!(slave = address.get(), "CANsmc slave answers again");
                     self.slave_event(address, "recovered".into());
                     if let Some(&i) = self.by_address.get(&address.get()) {
                         let mut ev = Vec::new();
@@ -580,7 +613,7 @@ impl Thread {
                     function,
                     reason,
                 } => {
-                    tracing::warn!(master = %self.cfg.name, slave = address.get(), %function, ?reason, "CANsmc slave rejected its command");
+                    tracing::warn!(slave = address.get(), %function, ?reason, "CANsmc slave rejected its command");
                     self.slave_event(address, format!("rejected {function}: {reason:?}"));
                 }
                 MasterEvent::ParameterDone { id, result, .. } => {

@@ -1,7 +1,12 @@
 //! `[[axis]]`: CiA 402 drives as axes: units, limits, modes, stops.
 
 use super::Config;
+use cangate_axis::{
+    AxisSpec, Cia402Drive, DriveSpec, MotionSpec, PositionMode, ProcessDataPath, StopKind, Units,
+};
+use cangate_canopen::NodeId;
 use serde::{Deserialize, Serialize};
+use std::time::Duration;
 
 /// How an axis executes moves.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -40,6 +45,286 @@ pub enum StopChoice {
     QuickStop,
 }
 
+/// The keys every axis has, whatever drives it: units, limits, the
+/// defaults of moves, the stops and the time bounds. Flattened into
+/// `[[axis]]` and `[[cansmc.axis]]` (which refuse unknown keys
+/// themselves); [`CommonAxisConfig::motion`] is the runtime's
+/// [`MotionSpec`]. Deserialized by hand so that a value of the wrong type
+/// is reported with its key (serde's flattening would lose it).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CommonAxisConfig {
+    /// User unit name, e.g. "mm" or "deg".
+    pub unit: String,
+    /// Drive (or slave encoder) counts per user unit (negative inverts the
+    /// direction).
+    pub counts_per_unit: f64,
+    /// Soft limits in user units (both or none); a CiA 402 drive also gets
+    /// them in its 0x607D at boot.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub min_position: Option<f64>,
+    /// Soft limits in user units.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_position: Option<f64>,
+    /// Velocity ceiling, units/s.
+    pub max_velocity: f64,
+    /// Acceleration ceiling, units/s².
+    pub max_acceleration: f64,
+    /// Velocity of moves that give none (default: a quarter of the maximum).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub default_velocity: Option<f64>,
+    /// Acceleration of moves that give none (default: a quarter of the
+    /// maximum).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub default_acceleration: Option<f64>,
+    /// Deceleration of every stop (Stop, StopAxes, the jog dead-man, a lost
+    /// lease, shutdown), units/s²; a stop brakes harder when the
+    /// interrupted motion's own deceleration is higher (default: the
+    /// maximum acceleration).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stop_deceleration: Option<f64>,
+    /// Deceleration of a quick stop, units/s² (default: the maximum
+    /// acceleration).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub quick_stop_deceleration: Option<f64>,
+    /// How a lapsed lease or dead-man timeout stops the axis.
+    pub stop_on_loss: StopChoice,
+    /// Jog dead-man time in ms.
+    pub jog_deadman_ms: u32,
+    /// Bound of each state change (and of a CiA 402 set-point acknowledge
+    /// and mode switch), in ms.
+    pub state_timeout_ms: u64,
+    /// Bound of a homing run in ms.
+    pub homing_timeout_ms: u64,
+    /// In-position window, user units (default: 10 counts).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub in_position_window: Option<f64>,
+}
+
+/// The keys of [`CommonAxisConfig`].
+const COMMON_AXIS_KEYS: &[&str] = &[
+    "unit",
+    "counts_per_unit",
+    "min_position",
+    "max_position",
+    "max_velocity",
+    "max_acceleration",
+    "default_velocity",
+    "default_acceleration",
+    "stop_deceleration",
+    "quick_stop_deceleration",
+    "stop_on_loss",
+    "jog_deadman_ms",
+    "state_timeout_ms",
+    "homing_timeout_ms",
+    "in_position_window",
+];
+
+impl<'de> Deserialize<'de> for CommonAxisConfig {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        // As a struct: a flattening parent then hands over these keys only
+        // and still refuses the ones nobody takes.
+        d.deserialize_struct("CommonAxisConfig", COMMON_AXIS_KEYS, CommonAxisVisitor)
+    }
+}
+
+struct CommonAxisVisitor;
+
+impl<'de> serde::de::Visitor<'de> for CommonAxisVisitor {
+    type Value = CommonAxisConfig;
+
+    fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("the keys of an axis")
+    }
+
+    fn visit_map<A: serde::de::MapAccess<'de>>(self, mut map: A) -> Result<Self::Value, A::Error> {
+        use serde::de::Error;
+        fn value<'de, T: Deserialize<'de>, A: serde::de::MapAccess<'de>>(
+            map: &mut A,
+            key: &str,
+        ) -> Result<T, A::Error> {
+            map.next_value()
+                .map_err(|e| A::Error::custom(format_args!("{key}: {e}")))
+        }
+        let mut c = CommonAxisConfig {
+            unit: default_unit(),
+            counts_per_unit: 0.0,
+            min_position: None,
+            max_position: None,
+            max_velocity: 0.0,
+            max_acceleration: 0.0,
+            default_velocity: None,
+            default_acceleration: None,
+            stop_deceleration: None,
+            quick_stop_deceleration: None,
+            stop_on_loss: StopChoice::default(),
+            jog_deadman_ms: default_jog_deadman_ms(),
+            state_timeout_ms: default_state_timeout_ms(),
+            homing_timeout_ms: default_homing_timeout_ms(),
+            in_position_window: None,
+        };
+        let mut required = [false; 3];
+        while let Some(key) = map.next_key::<String>()? {
+            let k = key.as_str();
+            match k {
+                "unit" => c.unit = value(&mut map, k)?,
+                "counts_per_unit" => (c.counts_per_unit, required[0]) = (value(&mut map, k)?, true),
+                "min_position" => c.min_position = value(&mut map, k)?,
+                "max_position" => c.max_position = value(&mut map, k)?,
+                "max_velocity" => (c.max_velocity, required[1]) = (value(&mut map, k)?, true),
+                "max_acceleration" => {
+                    (c.max_acceleration, required[2]) = (value(&mut map, k)?, true)
+                }
+                "default_velocity" => c.default_velocity = value(&mut map, k)?,
+                "default_acceleration" => c.default_acceleration = value(&mut map, k)?,
+                "stop_deceleration" => c.stop_deceleration = value(&mut map, k)?,
+                "quick_stop_deceleration" => c.quick_stop_deceleration = value(&mut map, k)?,
+                "stop_on_loss" => c.stop_on_loss = value(&mut map, k)?,
+                "jog_deadman_ms" => c.jog_deadman_ms = value(&mut map, k)?,
+                "state_timeout_ms" => c.state_timeout_ms = value(&mut map, k)?,
+                "homing_timeout_ms" => c.homing_timeout_ms = value(&mut map, k)?,
+                "in_position_window" => c.in_position_window = value(&mut map, k)?,
+                _ => return Err(A::Error::unknown_field(k, COMMON_AXIS_KEYS)),
+            }
+        }
+        for (given, key) in
+            required
+                .into_iter()
+                .zip(["counts_per_unit", "max_velocity", "max_acceleration"])
+        {
+            if !given {
+                return Err(A::Error::missing_field(key));
+            }
+        }
+        Ok(c)
+    }
+}
+
+/// How long a move or stop may take beyond its plan before it times out.
+const SETTLE_TIMEOUT: Duration = Duration::from_secs(2);
+
+impl CommonAxisConfig {
+    /// The runtime's description of these keys, defaults applied.
+    pub fn motion(&self) -> MotionSpec {
+        MotionSpec {
+            units: Units {
+                counts_per_unit: self.counts_per_unit,
+            },
+            unit: self.unit.clone(),
+            min_position: self.min_position,
+            max_position: self.max_position,
+            max_velocity: self.max_velocity,
+            max_acceleration: self.max_acceleration,
+            default_velocity: self.default_velocity.unwrap_or(self.max_velocity / 4.0),
+            default_acceleration: self
+                .default_acceleration
+                .unwrap_or(self.max_acceleration / 4.0),
+            stop_deceleration: self.stop_deceleration.unwrap_or(self.max_acceleration),
+            quick_stop_deceleration: self
+                .quick_stop_deceleration
+                .unwrap_or(self.max_acceleration),
+            state_timeout: Duration::from_millis(self.state_timeout_ms),
+            homing_timeout: Duration::from_millis(self.homing_timeout_ms),
+            settle_timeout: SETTLE_TIMEOUT,
+            jog_deadman: Duration::from_millis(u64::from(self.jog_deadman_ms)),
+            in_position_window: self
+                .in_position_window
+                .unwrap_or(10.0 / self.counts_per_unit.abs()),
+        }
+    }
+
+    /// Checks what serde cannot, for axis `name` of either drive family.
+    pub(super) fn validate(&self, name: &str) -> Result<(), String> {
+        let positive = |what: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(format!("axis {name}: {what} must be positive, got {v}"))
+            }
+        };
+        if !self.counts_per_unit.is_finite() || self.counts_per_unit == 0.0 {
+            return Err(format!(
+                "axis {name}: counts_per_unit must be a non-zero number"
+            ));
+        }
+        positive("max_velocity", self.max_velocity)?;
+        positive("max_acceleration", self.max_acceleration)?;
+        if let Some(v) = self.default_velocity {
+            positive("default_velocity", v)?;
+            if v > self.max_velocity {
+                return Err(format!(
+                    "axis {name}: default_velocity {v} exceeds max_velocity {}",
+                    self.max_velocity
+                ));
+            }
+        }
+        if let Some(a) = self.default_acceleration {
+            positive("default_acceleration", a)?;
+            if a > self.max_acceleration {
+                return Err(format!(
+                    "axis {name}: default_acceleration {a} exceeds max_acceleration {}",
+                    self.max_acceleration
+                ));
+            }
+        }
+        if let Some(w) = self.in_position_window {
+            positive("in_position_window", w)?;
+        }
+        stop_decelerations(
+            name,
+            self.counts_per_unit,
+            [
+                ("stop_deceleration", self.stop_deceleration),
+                ("quick_stop_deceleration", self.quick_stop_deceleration),
+            ],
+        )?;
+        match (self.min_position, self.max_position) {
+            (Some(a), Some(b)) if !(a.is_finite() && b.is_finite() && a < b) => Err(format!(
+                "axis {name}: min_position {a} must be below max_position {b}"
+            )),
+            (Some(_), None) | (None, Some(_)) => Err(format!(
+                "axis {name}: give both min_position and max_position, or neither"
+            )),
+            _ => Ok(()),
+        }?;
+        if self.jog_deadman_ms == 0 || self.state_timeout_ms == 0 || self.homing_timeout_ms == 0 {
+            return Err(format!(
+                "axis {name}: jog_deadman_ms, state_timeout_ms and homing_timeout_ms must be positive"
+            ));
+        }
+        motion_bounds(
+            name,
+            self.counts_per_unit,
+            self.max_velocity,
+            self.max_acceleration,
+            [
+                ("jog_deadman_ms", u64::from(self.jog_deadman_ms)),
+                ("state_timeout_ms", self.state_timeout_ms),
+                ("homing_timeout_ms", self.homing_timeout_ms),
+            ],
+        )
+    }
+}
+
+impl StopChoice {
+    /// The runtime's stop kind.
+    pub fn kind(self) -> StopKind {
+        match self {
+            StopChoice::Halt => StopKind::Halt,
+            StopChoice::QuickStop => StopKind::QuickStop,
+        }
+    }
+}
+
+impl PositionModeChoice {
+    /// The runtime's position mode.
+    pub fn mode(self) -> PositionMode {
+        match self {
+            PositionModeChoice::Profile => PositionMode::Profile,
+            PositionModeChoice::Cyclic => PositionMode::Cyclic,
+        }
+    }
+}
+
 /// One axis: a CiA 402 drive (a configured CANopen node) in user units.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -50,62 +335,16 @@ pub struct AxisConfig {
     pub bus: String,
     /// The drive's node id (configured under that master).
     pub node: u32,
-    /// User unit name, e.g. "mm" or "deg".
-    #[serde(default = "default_unit")]
-    pub unit: String,
-    /// Drive counts per user unit (negative inverts the direction).
-    pub counts_per_unit: f64,
+    /// Units, limits, stops, time bounds.
+    #[serde(flatten)]
+    pub common: CommonAxisConfig,
     /// `profile` (default) or `cyclic`.
     #[serde(default)]
     pub position_mode: PositionModeChoice,
-    /// Soft limits in user units (both or none); also written to the
-    /// drive's 0x607D at boot.
-    #[serde(default)]
-    pub min_position: Option<f64>,
-    /// Soft limits in user units.
-    #[serde(default)]
-    pub max_position: Option<f64>,
-    /// Velocity ceiling, units/s.
-    pub max_velocity: f64,
-    /// Acceleration ceiling, units/s².
-    pub max_acceleration: f64,
-    /// Velocity of moves that give none (default: a quarter of the maximum).
-    #[serde(default)]
-    pub default_velocity: Option<f64>,
-    /// Acceleration of moves that give none (default: a quarter of the
-    /// maximum).
-    #[serde(default)]
-    pub default_acceleration: Option<f64>,
-    /// Deceleration of every stop (Stop, StopAxes, the jog dead-man, a lost
-    /// lease, shutdown), units/s²; a stop brakes harder when the
-    /// interrupted motion's own deceleration is higher (default: the
-    /// maximum acceleration).
-    #[serde(default)]
-    pub stop_deceleration: Option<f64>,
-    /// Deceleration of a CiA 402 quick stop, units/s² (default: the maximum
-    /// acceleration).
-    #[serde(default)]
-    pub quick_stop_deceleration: Option<f64>,
     /// Homing method written to 0x6098 at boot (CiA 402; e.g. 35 = current
     /// position is home, 17..=30 = move to a switch).
     #[serde(default = "default_homing_method")]
     pub homing_method: i8,
-    /// How a lapsed lease or dead-man timeout stops the axis.
-    #[serde(default)]
-    pub stop_on_loss: StopChoice,
-    /// Jog dead-man time in ms.
-    #[serde(default = "default_jog_deadman_ms")]
-    pub jog_deadman_ms: u32,
-    /// Bound of each CiA 402 state change, set-point acknowledge and mode
-    /// switch, in ms.
-    #[serde(default = "default_state_timeout_ms")]
-    pub state_timeout_ms: u64,
-    /// Bound of a homing run in ms.
-    #[serde(default = "default_homing_timeout_ms")]
-    pub homing_timeout_ms: u64,
-    /// In-position window of cyclic moves, user units (default: 10 counts).
-    #[serde(default)]
-    pub in_position_window: Option<f64>,
     /// `pdo` (default) or `sdo`: the fallback for drives without usable
     /// PDOs (profile position axes only).
     #[serde(default)]
@@ -127,7 +366,7 @@ pub struct AxisConfig {
 /// UNSIGNED32 counts per second (CiA 402 0x6081, 0x6083, 0x6084): a
 /// maximum beyond that cannot be carried out, and would let any command
 /// through unchecked.
-pub fn motion_bounds(
+fn motion_bounds(
     axis: &str,
     counts_per_unit: f64,
     max_velocity: f64,
@@ -163,7 +402,7 @@ pub fn motion_bounds(
 
 /// The stop decelerations of an axis, for both drive families: positive,
 /// and within what a drive takes as UNSIGNED32 counts/s² (0x6084).
-pub fn stop_decelerations(
+fn stop_decelerations(
     axis: &str,
     counts_per_unit: f64,
     values: [(&str, Option<f64>); 2],
@@ -210,41 +449,33 @@ fn default_homing_timeout_ms() -> u64 {
     30_000
 }
 
-impl AxisConfig {
-    /// The controller configuration.
-    pub fn controller(&self) -> cangate_axis::cia402::Cia402Config {
-        use cangate_axis::{PositionMode, Units};
-        cangate_axis::cia402::Cia402Config {
-            units: Units {
-                counts_per_unit: self.counts_per_unit,
-            },
-            unit: self.unit.clone(),
-            min_position: self.min_position,
-            max_position: self.max_position,
-            max_velocity: self.max_velocity,
-            max_acceleration: self.max_acceleration,
-            default_velocity: self.default_velocity.unwrap_or(self.max_velocity / 4.0),
-            default_acceleration: self
-                .default_acceleration
-                .unwrap_or(self.max_acceleration / 4.0),
-            position_mode: match self.position_mode {
-                PositionModeChoice::Profile => PositionMode::Profile,
-                PositionModeChoice::Cyclic => PositionMode::Cyclic,
-            },
-            state_timeout: std::time::Duration::from_millis(self.state_timeout_ms),
-            homing_timeout: std::time::Duration::from_millis(self.homing_timeout_ms),
-            in_position_window: self
-                .in_position_window
-                .unwrap_or(10.0 / self.counts_per_unit.abs()),
-            settle_timeout: std::time::Duration::from_secs(2),
-            jog_deadman: std::time::Duration::from_millis(u64::from(self.jog_deadman_ms)),
-            stop_deceleration: self.stop_deceleration.unwrap_or(self.max_acceleration),
-            quick_stop_deceleration: self
-                .quick_stop_deceleration
-                .unwrap_or(self.max_acceleration),
-        }
-    }
+impl TryFrom<&AxisConfig> for AxisSpec {
+    type Error = String;
 
+    /// The runtime's description of a `[[axis]]`.
+    fn try_from(c: &AxisConfig) -> Result<AxisSpec, String> {
+        let node = NodeId::new(c.node).map_err(|e| format!("axis {}: {e}", c.name))?;
+        Ok(AxisSpec {
+            name: c.name.clone(),
+            motion: c.common.motion(),
+            stop_on_loss: c.common.stop_on_loss.kind(),
+            drive: DriveSpec::Cia402(Cia402Drive {
+                bus: c.bus.clone(),
+                node,
+                position_mode: c.position_mode.mode(),
+                process_data: match c.process_data {
+                    ProcessDataChoice::Pdo => ProcessDataPath::Pdo,
+                    ProcessDataChoice::Sdo => ProcessDataPath::Sdo {
+                        poll: Duration::from_millis(u64::from(c.sdo_poll_ms)),
+                    },
+                },
+                homing_method: c.homing_method,
+            }),
+        })
+    }
+}
+
+impl AxisConfig {
     pub(super) fn validate(&self, cfg: &Config) -> Result<(), String> {
         if self.name.is_empty() || self.name.contains(char::is_whitespace) {
             return Err(format!(
@@ -271,81 +502,7 @@ impl AxisConfig {
                 self.name, self.bus
             ));
         }
-        let positive = |what: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(format!(
-                    "axis {}: {what} must be positive, got {v}",
-                    self.name
-                ))
-            }
-        };
-        if !self.counts_per_unit.is_finite() || self.counts_per_unit == 0.0 {
-            return Err(format!(
-                "axis {}: counts_per_unit must be a non-zero number",
-                self.name
-            ));
-        }
-        positive("max_velocity", self.max_velocity)?;
-        positive("max_acceleration", self.max_acceleration)?;
-        if let Some(v) = self.default_velocity {
-            positive("default_velocity", v)?;
-            if v > self.max_velocity {
-                return Err(format!(
-                    "axis {}: default_velocity {v} exceeds max_velocity {}",
-                    self.name, self.max_velocity
-                ));
-            }
-        }
-        if let Some(a) = self.default_acceleration {
-            positive("default_acceleration", a)?;
-            if a > self.max_acceleration {
-                return Err(format!(
-                    "axis {}: default_acceleration {a} exceeds max_acceleration {}",
-                    self.name, self.max_acceleration
-                ));
-            }
-        }
-        if let Some(w) = self.in_position_window {
-            positive("in_position_window", w)?;
-        }
-        stop_decelerations(
-            &self.name,
-            self.counts_per_unit,
-            [
-                ("stop_deceleration", self.stop_deceleration),
-                ("quick_stop_deceleration", self.quick_stop_deceleration),
-            ],
-        )?;
-        match (self.min_position, self.max_position) {
-            (Some(a), Some(b)) if !(a.is_finite() && b.is_finite() && a < b) => Err(format!(
-                "axis {}: min_position {a} must be below max_position {b}",
-                self.name
-            )),
-            (Some(_), None) | (None, Some(_)) => Err(format!(
-                "axis {}: give both min_position and max_position, or neither",
-                self.name
-            )),
-            _ => Ok(()),
-        }?;
-        if self.jog_deadman_ms == 0 || self.state_timeout_ms == 0 || self.homing_timeout_ms == 0 {
-            return Err(format!(
-                "axis {}: jog_deadman_ms, state_timeout_ms and homing_timeout_ms must be positive",
-                self.name
-            ));
-        }
-        motion_bounds(
-            &self.name,
-            self.counts_per_unit,
-            self.max_velocity,
-            self.max_acceleration,
-            [
-                ("jog_deadman_ms", u64::from(self.jog_deadman_ms)),
-                ("state_timeout_ms", self.state_timeout_ms),
-                ("homing_timeout_ms", self.homing_timeout_ms),
-            ],
-        )?;
+        self.common.validate(&self.name)?;
         if self.process_data == ProcessDataChoice::Sdo {
             if self.position_mode == PositionModeChoice::Cyclic {
                 return Err(format!(
@@ -377,14 +534,14 @@ mod tests {
     #[test]
     fn stop_decelerations_default_to_the_maximum_and_must_be_positive() {
         let c = Config::from_toml(BASE).unwrap();
-        let ctl = c.axes[0].controller();
+        let ctl = c.axes[0].common.motion();
         assert_eq!(ctl.stop_deceleration, 100.0);
         assert_eq!(ctl.quick_stop_deceleration, 100.0);
         let c = Config::from_toml(&format!(
             "{BASE}stop_deceleration = 250.0\nquick_stop_deceleration = 400.0\n"
         ))
         .unwrap();
-        let ctl = c.axes[0].controller();
+        let ctl = c.axes[0].common.motion();
         assert_eq!(ctl.stop_deceleration, 250.0);
         assert_eq!(ctl.quick_stop_deceleration, 400.0);
         for bad in [
@@ -397,6 +554,194 @@ mod tests {
                 .to_string();
             let key = bad.split(' ').next().unwrap();
             assert!(e.contains(&format!("axis X: {key}")), "{bad}: {e}");
+        }
+    }
+
+    const BOTH: &str = "[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\n\
+                        [[bus]]\nname = \"smc0\"\nbackend = \"virtual\"\n\
+                        [[bus]]\nname = \"smc1\"\nbackend = \"virtual\"\n\
+                        [[canopen]]\nbus = \"can0\"\nsync_period_us = 2000\n\
+                        [[canopen.node]]\nid = 3\neds = \"builtin:drive\"\n\
+                        [[axis]]\nname = \"X\"\nbus = \"can0\"\nnode = 3\nunit = \"deg\"\n\
+                        counts_per_unit = -200.0\nposition_mode = \"cyclic\"\n\
+                        min_position = -90.0\nmax_position = 90.0\nmax_velocity = 40.0\n\
+                        max_acceleration = 400.0\ndefault_velocity = 20.0\n\
+                        quick_stop_deceleration = 800.0\nstop_on_loss = \"quick_stop\"\n\
+                        jog_deadman_ms = 250\nstate_timeout_ms = 700\nhoming_timeout_ms = 9000\n\
+                        homing_method = 17\n\
+                        [[cansmc]]\nname = \"m\"\ncommand_bus = \"smc0\"\nstatus_bus = \"smc1\"\n\
+                        cycle_time_us = 4000\n\
+                        [[cansmc.slave]]\naddress = 1\n[[cansmc.slave]]\naddress = 2\n\
+                        [[cansmc.axis]]\nname = \"A\"\naddress = 2\ncounts_per_unit = 1000\n\
+                        max_velocity = 10.0\nmax_acceleration = 100.0\nin_position_window = 0.5\n\
+                        stop_deceleration = 150.0\ngear_source = 1\ngear_ratio = -2.0\n\
+                        jog_mode = \"velocity\"\ncounts_per_rev = 4096\nhoming_method = 3\n";
+
+    #[test]
+    fn both_axis_kinds_become_their_axis_spec() {
+        use cangate_axis::*;
+        use std::time::Duration;
+        let specs = Config::from_toml(BOTH).unwrap().axis_specs().unwrap();
+        let x = AxisSpec {
+            name: "X".into(),
+            motion: MotionSpec {
+                units: Units {
+                    counts_per_unit: -200.0,
+                },
+                unit: "deg".into(),
+                min_position: Some(-90.0),
+                max_position: Some(90.0),
+                max_velocity: 40.0,
+                max_acceleration: 400.0,
+                default_velocity: 20.0,
+                default_acceleration: 100.0,
+                stop_deceleration: 400.0,
+                quick_stop_deceleration: 800.0,
+                state_timeout: Duration::from_millis(700),
+                homing_timeout: Duration::from_millis(9000),
+                settle_timeout: Duration::from_secs(2),
+                jog_deadman: Duration::from_millis(250),
+                in_position_window: 0.05,
+            },
+            stop_on_loss: StopKind::QuickStop,
+            drive: DriveSpec::Cia402(Cia402Drive {
+                bus: "can0".into(),
+                node: cangate_canopen::NodeId::new(3).unwrap(),
+                position_mode: PositionMode::Cyclic,
+                process_data: ProcessDataPath::Pdo,
+                homing_method: 17,
+            }),
+        };
+        let a = AxisSpec {
+            name: "A".into(),
+            motion: MotionSpec {
+                units: Units {
+                    counts_per_unit: 1000.0,
+                },
+                unit: "mm".into(),
+                min_position: None,
+                max_position: None,
+                max_velocity: 10.0,
+                max_acceleration: 100.0,
+                default_velocity: 2.5,
+                default_acceleration: 25.0,
+                stop_deceleration: 150.0,
+                quick_stop_deceleration: 100.0,
+                state_timeout: Duration::from_millis(1000),
+                homing_timeout: Duration::from_millis(30_000),
+                settle_timeout: Duration::from_secs(2),
+                jog_deadman: Duration::from_millis(500),
+                in_position_window: 0.5,
+            },
+            stop_on_loss: StopKind::Halt,
+            drive: DriveSpec::Cansmc(CansmcDrive {
+                master: "m".into(),
+                command_bus: "smc0".into(),
+                address: cangate_cansmc::SmcAddress::new(2).unwrap(),
+                cycle_time: Duration::from_micros(4000),
+                homing_method: 3,
+                gear: Some(Gear {
+                    source: 1,
+                    ratio: -2.0,
+                }),
+                jog_mode: JogMode::SlaveVelocity,
+                counts_per_rev: 4096,
+            }),
+        };
+        assert_eq!(specs, [x, a]);
+        assert_eq!(specs[0].bus(), "can0");
+        assert_eq!((specs[1].bus(), specs[1].node()), ("smc0", 2));
+        assert_eq!(specs[1].position_mode(), PositionMode::Cyclic);
+        // The SDO fallback carries its poll period.
+        let sdo = BASE.to_string() + "process_data = \"sdo\"\nsdo_poll_ms = 25\n";
+        let spec = &Config::from_toml(&sdo).unwrap().axis_specs().unwrap()[0];
+        let DriveSpec::Cia402(d) = &spec.drive else {
+            panic!("{spec:?}")
+        };
+        assert_eq!(
+            d.process_data,
+            ProcessDataPath::Sdo {
+                poll: Duration::from_millis(25)
+            }
+        );
+    }
+
+    #[test]
+    fn unknown_keys_of_both_axis_kinds_are_refused_by_name() {
+        Config::from_toml(BOTH).unwrap();
+        for (after, key) in [
+            // A typo of a shared key, in each kind of axis.
+            ("homing_method = 17\n", "max_velocty = 1.0"),
+            ("homing_method = 3\n", "max_velocty = 1.0"),
+            // A key of the other drive family.
+            ("homing_method = 17\n", "gear_ratio = 2.0"),
+            ("homing_method = 3\n", "sdo_poll_ms = 20"),
+            ("homing_method = 3\n", "position_mode = \"cyclic\""),
+        ] {
+            let text = BOTH.replace(after, &format!("{after}{key}\n"));
+            assert_ne!(text, BOTH);
+            let e = Config::from_toml(&text).unwrap_err().to_string();
+            let name = key.split(' ').next().unwrap();
+            assert!(e.contains(&format!("unknown field `{name}`")), "{key}: {e}");
+        }
+    }
+
+    #[test]
+    fn both_axis_kinds_check_their_shared_keys_alike() {
+        for (axis, after) in [("X", "homing_method = 17\n"), ("A", "homing_method = 3\n")] {
+            for (bad, want) in [
+                (
+                    "default_acceleration = 1e6",
+                    "default_acceleration 1000000 exceeds max_acceleration",
+                ),
+                (
+                    "jog_deadman_ms = 0",
+                    "jog_deadman_ms, state_timeout_ms and homing_timeout_ms must be positive",
+                ),
+                (
+                    "state_timeout_ms = 60001",
+                    "state_timeout_ms = 60001 is above the maximum of 60000 ms",
+                ),
+                (
+                    "stop_deceleration = -1.0",
+                    "stop_deceleration must be positive",
+                ),
+                (
+                    "in_position_window = 0.0",
+                    "in_position_window must be positive",
+                ),
+            ] {
+                // Without the keys the cases set.
+                let text = BOTH
+                    .replace("stop_deceleration = 150.0\n", "")
+                    .replace("in_position_window = 0.5\n", "")
+                    .replace("jog_deadman_ms = 250\nstate_timeout_ms = 700\n", "")
+                    .replace(after, &format!("{after}{bad}\n"));
+                let e = Config::from_toml(&text).unwrap_err().to_string();
+                assert!(
+                    e.contains(&format!("axis {axis}: {want}")),
+                    "{axis} {bad}: {e}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_shared_key_of_the_wrong_type_or_missing_is_named() {
+        for (axis, key) in [
+            ("X", "max_velocity = 40.0\n"),
+            ("A", "max_velocity = 10.0\n"),
+        ] {
+            let text = BOTH.replace(key, "max_velocity = \"fast\"\n");
+            let e = Config::from_toml(&text).unwrap_err().to_string();
+            assert!(
+                e.contains("max_velocity: invalid type: string \"fast\""),
+                "{axis}: {e}"
+            );
+            let e = Config::from_toml(&BOTH.replace(key, ""))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("max_velocity"), "{axis}: {e}");
         }
     }
 }

@@ -24,6 +24,29 @@ pub enum StuffingChoice {
     WorstCase,
 }
 
+/// How much of each frame on a bus the log shows (target
+/// `cangate::frames`, level info).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DecodeLevel {
+    /// No line per frame.
+    #[default]
+    None,
+    /// One line per frame: direction, identifier, length, data bytes.
+    Summary,
+    /// The summary, and CANopen frames in words (NMT, SYNC, EMCY, TIME,
+    /// PDO, SDO, heartbeat, LSS).
+    Decoded,
+}
+
+impl DecodeLevel {
+    /// True for [`DecodeLevel::None`] (the default, left out of the
+    /// printed configuration).
+    pub fn is_none(&self) -> bool {
+        *self == DecodeLevel::None
+    }
+}
+
 /// One bus.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -91,6 +114,10 @@ pub struct BusConfig {
     /// given up and counted (1..=10000 ms, default 250).
     #[serde(default)]
     pub transmit_timeout_ms: Option<u32>,
+    /// How much of each frame the log shows: `none` (default), `summary`
+    /// or `decoded`.
+    #[serde(default, skip_serializing_if = "DecodeLevel::is_none")]
+    pub decode: DecodeLevel,
     // ---- fault injection, virtual only (see `fault_check`); also at run
     // time through the Simulator service ----
     /// Virtual only: drop each frame with this probability (0..=1) before

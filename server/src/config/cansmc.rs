@@ -25,9 +25,8 @@ use serde::{Deserialize, Serialize};
 use std::collections::HashSet;
 use std::time::Duration;
 
-use super::{BusConfig, StopChoice};
-use cangate_axis::Units;
-use cangate_axis::cansmc::{CansmcAxisConfig, Gear, JogMode};
+use super::{BusConfig, CommonAxisConfig};
+use cangate_axis::{AxisSpec, CansmcDrive, DriveSpec, Gear, JogMode};
 use cangate_cansmc::{CycleConfig, Infeasibility, SmcAddress};
 
 /// One CANsmc master.
@@ -172,56 +171,12 @@ pub struct CansmcAxisEntry {
     pub name: String,
     /// The slave (configured under the same master).
     pub address: u8,
-    /// User unit name.
-    #[serde(default = "default_unit")]
-    pub unit: String,
-    /// Slave encoder counts per user unit (negative inverts).
-    pub counts_per_unit: f64,
-    /// Soft limits in user units (both or none).
-    #[serde(default)]
-    pub min_position: Option<f64>,
-    /// Soft limits in user units.
-    #[serde(default)]
-    pub max_position: Option<f64>,
-    /// Velocity ceiling, units/s.
-    pub max_velocity: f64,
-    /// Acceleration ceiling, units/s².
-    pub max_acceleration: f64,
-    /// Velocity of moves that give none (default: a quarter of the maximum).
-    #[serde(default)]
-    pub default_velocity: Option<f64>,
-    /// Acceleration of moves that give none (default: a quarter of the
-    /// maximum).
-    #[serde(default)]
-    pub default_acceleration: Option<f64>,
-    /// Deceleration of every stop (Stop, StopAxes, the jog dead-man, a lost
-    /// lease, shutdown), units/s²; a stop brakes harder when the
-    /// interrupted motion's own deceleration is higher (default: the
-    /// maximum acceleration).
-    #[serde(default)]
-    pub stop_deceleration: Option<f64>,
-    /// Deceleration of a quick stop, units/s² (default: the maximum
-    /// acceleration).
-    #[serde(default)]
-    pub quick_stop_deceleration: Option<f64>,
+    /// Units, limits, stops, time bounds.
+    #[serde(flatten)]
+    pub common: CommonAxisConfig,
     /// Homing method byte of the homing MDT (default 1).
     #[serde(default = "default_homing_method")]
     pub homing_method: u8,
-    /// How a lapsed lease or dead-man timeout stops the axis.
-    #[serde(default)]
-    pub stop_on_loss: StopChoice,
-    /// Jog dead-man time, ms (default 500).
-    #[serde(default = "default_jog_deadman_ms")]
-    pub jog_deadman_ms: u32,
-    /// Bound of enable, disable and fault reset, ms (default 1000).
-    #[serde(default = "default_state_timeout_ms")]
-    pub state_timeout_ms: u64,
-    /// Bound of homing, ms (default 30000).
-    #[serde(default = "default_homing_timeout_ms")]
-    pub homing_timeout_ms: u64,
-    /// In-position window, user units (default: 10 counts).
-    #[serde(default)]
-    pub in_position_window: Option<f64>,
     /// Electronic gearing: follow this slave's encoder count while enabled.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub gear_source: Option<u8>,
@@ -254,93 +209,39 @@ fn default_counts_per_rev() -> u32 {
     10_000
 }
 
-fn default_unit() -> String {
-    "mm".into()
-}
 fn default_homing_method() -> u8 {
     1
-}
-fn default_jog_deadman_ms() -> u32 {
-    500
-}
-fn default_state_timeout_ms() -> u64 {
-    1000
-}
-fn default_homing_timeout_ms() -> u64 {
-    30_000
 }
 fn default_ratio() -> f64 {
     1.0
 }
 
 impl CansmcAxisEntry {
-    /// The controller configuration for a master with `cycle_time`.
-    pub fn controller(&self, cycle_time: Duration) -> CansmcAxisConfig {
-        CansmcAxisConfig {
-            units: Units {
-                counts_per_unit: self.counts_per_unit,
-            },
-            unit: self.unit.clone(),
-            min_position: self.min_position,
-            max_position: self.max_position,
-            max_velocity: self.max_velocity,
-            max_acceleration: self.max_acceleration,
-            default_velocity: self.default_velocity.unwrap_or(self.max_velocity / 4.0),
-            default_acceleration: self
-                .default_acceleration
-                .unwrap_or(self.max_acceleration / 4.0),
-            stop_deceleration: self.stop_deceleration.unwrap_or(self.max_acceleration),
-            quick_stop_deceleration: self
-                .quick_stop_deceleration
-                .unwrap_or(self.max_acceleration),
-            cycle_time,
-            state_timeout: Duration::from_millis(self.state_timeout_ms),
-            homing_timeout: Duration::from_millis(self.homing_timeout_ms),
-            settle_timeout: Duration::from_secs(2),
-            jog_deadman: Duration::from_millis(u64::from(self.jog_deadman_ms)),
-            in_position_window: self
-                .in_position_window
-                .unwrap_or(10.0 / self.counts_per_unit.abs()),
-            homing_method: self.homing_method,
-            gear: self.gear_source.map(|source| Gear {
-                source,
-                ratio: self.gear_ratio,
-            }),
-            jog_mode: match self.jog_mode {
-                JogModeChoice::Interpolated => JogMode::Interpolated,
-                JogModeChoice::Velocity => JogMode::SlaveVelocity,
-            },
-            counts_per_rev: self.counts_per_rev,
-        }
-    }
-
-    /// The equivalent generic axis description (for the axis API's
-    /// listing, soft limits and stop choice).
-    pub fn as_axis_config(&self, master: &CansmcConfig) -> super::AxisConfig {
-        super::AxisConfig {
+    /// The runtime's description of this axis of `master`.
+    pub fn spec(&self, master: &CansmcConfig) -> Result<AxisSpec, String> {
+        let address =
+            SmcAddress::new(self.address).map_err(|e| format!("axis {}: {e}", self.name))?;
+        Ok(AxisSpec {
             name: self.name.clone(),
-            bus: master.command_bus.clone(),
-            node: u32::from(self.address),
-            unit: self.unit.clone(),
-            counts_per_unit: self.counts_per_unit,
-            position_mode: super::PositionModeChoice::Cyclic,
-            min_position: self.min_position,
-            max_position: self.max_position,
-            max_velocity: self.max_velocity,
-            max_acceleration: self.max_acceleration,
-            default_velocity: self.default_velocity,
-            default_acceleration: self.default_acceleration,
-            stop_deceleration: self.stop_deceleration,
-            quick_stop_deceleration: self.quick_stop_deceleration,
-            homing_method: 0,
-            stop_on_loss: self.stop_on_loss,
-            jog_deadman_ms: self.jog_deadman_ms,
-            state_timeout_ms: self.state_timeout_ms,
-            homing_timeout_ms: self.homing_timeout_ms,
-            process_data: super::ProcessDataChoice::Pdo,
-            sdo_poll_ms: 10,
-            in_position_window: self.in_position_window,
-        }
+            motion: self.common.motion(),
+            stop_on_loss: self.common.stop_on_loss.kind(),
+            drive: DriveSpec::Cansmc(CansmcDrive {
+                master: master.name.clone(),
+                command_bus: master.command_bus.clone(),
+                address,
+                cycle_time: master.cycle_time(),
+                homing_method: self.homing_method,
+                gear: self.gear_source.map(|source| Gear {
+                    source,
+                    ratio: self.gear_ratio,
+                }),
+                jog_mode: match self.jog_mode {
+                    JogModeChoice::Interpolated => JogMode::Interpolated,
+                    JogModeChoice::Velocity => JogMode::SlaveVelocity,
+                },
+                counts_per_rev: self.counts_per_rev,
+            }),
+        })
     }
 }
 
@@ -471,72 +372,10 @@ impl CansmcConfig {
                     a.address
                 ));
             }
-            if !a.counts_per_unit.is_finite() || a.counts_per_unit == 0.0 {
-                return Err(format!(
-                    "axis {an}: counts_per_unit must be a non-zero number"
-                ));
-            }
-            for (what, v) in [
-                ("max_velocity", Some(a.max_velocity)),
-                ("max_acceleration", Some(a.max_acceleration)),
-                ("default_velocity", a.default_velocity),
-                ("default_acceleration", a.default_acceleration),
-                ("in_position_window", a.in_position_window),
-            ] {
-                if let Some(v) = v
-                    && !(v.is_finite() && v > 0.0)
-                {
-                    return Err(format!("axis {an}: {what} must be positive, got {v}"));
-                }
-            }
-            if a.default_velocity.is_some_and(|v| v > a.max_velocity)
-                || a.default_acceleration
-                    .is_some_and(|v| v > a.max_acceleration)
-            {
-                return Err(format!(
-                    "axis {an}: default velocity/acceleration exceed the maxima"
-                ));
-            }
-            match (a.min_position, a.max_position) {
-                (Some(lo), Some(hi)) if !(lo.is_finite() && hi.is_finite() && lo < hi) => {
-                    return Err(format!(
-                        "axis {an}: min_position {lo} must be below max_position {hi}"
-                    ));
-                }
-                (Some(_), None) | (None, Some(_)) => {
-                    return Err(format!(
-                        "axis {an}: give both min_position and max_position, or neither"
-                    ));
-                }
-                _ => {}
-            }
-            super::stop_decelerations(
-                an,
-                a.counts_per_unit,
-                [
-                    ("stop_deceleration", a.stop_deceleration),
-                    ("quick_stop_deceleration", a.quick_stop_deceleration),
-                ],
-            )?;
+            a.common.validate(an)?;
             if a.counts_per_rev == 0 {
                 return Err(format!("axis {an}: counts_per_rev must be positive"));
             }
-            if a.jog_deadman_ms == 0 || a.state_timeout_ms == 0 || a.homing_timeout_ms == 0 {
-                return Err(format!(
-                    "axis {an}: jog_deadman_ms, state_timeout_ms and homing_timeout_ms must be positive"
-                ));
-            }
-            super::motion_bounds(
-                an,
-                a.counts_per_unit,
-                a.max_velocity,
-                a.max_acceleration,
-                [
-                    ("jog_deadman_ms", u64::from(a.jog_deadman_ms)),
-                    ("state_timeout_ms", a.state_timeout_ms),
-                    ("homing_timeout_ms", a.homing_timeout_ms),
-                ],
-            )?;
             if let Some(src) = a.gear_source {
                 if !addresses.contains(&src) {
                     return Err(format!(

@@ -11,6 +11,7 @@
 //! One file per section; [`Config::validate`] (in `validate.rs`) holds the
 //! checks across sections. This module names nothing else of the server.
 
+use cangate_axis::AxisSpec;
 use serde::{Deserialize, Serialize};
 use std::collections::{HashMap, HashSet};
 use std::net::SocketAddr;
@@ -352,6 +353,15 @@ impl Config {
             .try_deserialize()?;
         cfg.validate()?;
         Ok(cfg)
+    }
+
+    /// Every axis as the runtime describes it ([`AxisSpec`]): the
+    /// `[[axis]]` entries in order, then each `[[cansmc]]` master's axes.
+    /// An axis's position here is its index at run time.
+    pub fn axis_specs(&self) -> Result<Vec<AxisSpec>, String> {
+        let cia402 = self.axes.iter().map(AxisSpec::try_from);
+        let cansmc = (self.cansmc.iter()).flat_map(|m| m.axes.iter().map(move |a| a.spec(m)));
+        cia402.chain(cansmc).collect()
     }
 
     /// The embedded demo.

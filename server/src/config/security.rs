@@ -27,6 +27,12 @@ pub struct SecurityConfig {
     /// Per-client limits (`[security.limits]`).
     #[serde(default)]
     pub limits: LimitsConfig,
+    /// Viewers may stop axes too (`Stop`, `QuickStop`, `StopAxes`): a
+    /// wall-mounted status panel with a viewer token then has a working
+    /// STOP ALL. Off by default: a viewer token is read-only. Nothing else
+    /// a viewer may call changes.
+    #[serde(default)]
+    pub viewers_may_stop: bool,
 }
 
 /// One bearer token: who it is, its role, and the SHA-256 of the token

@@ -1,16 +1,16 @@
 //! The `cangate.v1.Axes` service: a thin shell over
-//! [`Axes`](crate::axes::Axes): validation of the request,
-//! control check, audit log, conversion to protobuf.
+//! [`Axes`](crate::axes::Axes): validation of the request, the caller's
+//! identity and lease as a [`Caller`], conversion to protobuf. The control
+//! rules and the audit of commands are the runtime's.
 
 use super::convert::axes::{event_pb, outcome_pb, resolution, status_pb};
 use super::error::ApiError;
 use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_of};
-use crate::axes::{Axes, AxisUpdate, CommandResult};
-use crate::config::{PositionModeChoice, ProcessDataChoice, StopChoice};
+use crate::axes::{Axes, AxisUpdate, Caller, CommandResult};
 use crate::gateway::Gateway;
 use crate::security::StopOverBudget;
 use cangate_axis::cia402::AxisSnapshot;
-use cangate_axis::{AxisCommand, Outcome};
+use cangate_axis::{AxisCommand, DriveSpec, Outcome, PositionMode, ProcessDataPath, StopKind};
 use cangate_can::Timestamp;
 use cangate_proto::v1 as pb;
 use cangate_proto::v1::axes_server::Axes as AxesRpc;
@@ -52,43 +52,41 @@ impl AxesService {
 
     fn axis_pb(&self, i: usize) -> pb::Axis {
         let m = self.axes();
-        let info = m.info(i);
-        let c = &info.config;
+        let spec = m.spec(i);
+        let c = &spec.motion;
+        let (process_data, sdo_poll) = match &spec.drive {
+            DriveSpec::Cansmc(_) => (pb::ProcessDataPath::Unspecified, None),
+            DriveSpec::Cia402(d) => match d.process_data {
+                ProcessDataPath::Pdo => (pb::ProcessDataPath::Pdo, None),
+                ProcessDataPath::Sdo { poll } => (pb::ProcessDataPath::Sdo, Some(poll)),
+            },
+        };
         pb::Axis {
-            name: c.name.clone(),
-            backend: if info.cansmc.is_some() {
-                pb::AxisBackend::Cansmc
-            } else {
-                pb::AxisBackend::Cia402
+            name: spec.name.clone(),
+            backend: match spec.drive {
+                DriveSpec::Cansmc(_) => pb::AxisBackend::Cansmc,
+                DriveSpec::Cia402(_) => pb::AxisBackend::Cia402,
             } as i32,
-            bus: c.bus.clone(),
-            node: c.node,
+            bus: spec.bus().to_string(),
+            node: u32::from(spec.node()),
             unit: c.unit.clone(),
-            counts_per_unit: c.counts_per_unit,
+            counts_per_unit: c.units.counts_per_unit,
             min_position: c.min_position,
             max_position: c.max_position,
             max_velocity: c.max_velocity,
             max_acceleration: c.max_acceleration,
-            position_mode: match c.position_mode {
-                PositionModeChoice::Profile => pb::PositionMode::Profile,
-                PositionModeChoice::Cyclic => pb::PositionMode::Cyclic,
+            position_mode: match spec.position_mode() {
+                PositionMode::Profile => pb::PositionMode::Profile,
+                PositionMode::Cyclic => pb::PositionMode::Cyclic,
             } as i32,
-            stop_on_loss: match c.stop_on_loss {
-                StopChoice::Halt => pb::StopKind::Halt,
-                StopChoice::QuickStop => pb::StopKind::QuickStop,
+            stop_on_loss: match spec.stop_on_loss {
+                StopKind::Halt => pb::StopKind::Halt,
+                StopKind::QuickStop => pb::StopKind::QuickStop,
             } as i32,
-            jog_deadman_ms: c.jog_deadman_ms,
+            jog_deadman_ms: c.jog_deadman.as_millis() as u32,
             status: Some(self.status_pb(i, None)),
-            process_data: match (&info.cansmc, c.process_data) {
-                (Some(_), _) => pb::ProcessDataPath::Unspecified,
-                (None, ProcessDataChoice::Pdo) => pb::ProcessDataPath::Pdo,
-                (None, ProcessDataChoice::Sdo) => pb::ProcessDataPath::Sdo,
-            } as i32,
-            sdo_poll_ms: if info.cansmc.is_none() && c.process_data == ProcessDataChoice::Sdo {
-                c.sdo_poll_ms
-            } else {
-                0
-            },
+            process_data: process_data as i32,
+            sdo_poll_ms: sdo_poll.map_or(0, |p| p.as_millis() as u32),
         }
     }
 
@@ -123,54 +121,14 @@ impl AxesService {
         let m = self.axes();
         let i = m.index(axis)?;
         let opts = options.unwrap_or_default();
-        // A lease serves the identity that acquired it only; a stop needs
-        // none, so another identity's lease on a stop is ignored (never
-        // renewed) and the stop goes ahead.
-        let lease_check = if opts.lease.is_empty() {
-            Ok(())
-        } else {
-            m.check_lease_owner(&opts.lease, owner.as_deref())
-        };
-        let lease_ok = lease_check.is_ok();
-        let holder = if cmd.needs_control() {
-            if let Err(e) = lease_check {
-                audit(&peer, "", axis, &cmd, &format!("refused: {e}"));
-                return Err(e.into());
-            }
-            match m.authorize(i, &opts.lease) {
-                Ok(h) => h,
-                Err(e) => {
-                    audit(&peer, "", axis, &cmd, &format!("refused: {e}"));
-                    return Err(e.into());
-                }
-            }
-        } else {
-            // Renew the lease if one came along.
-            if !opts.lease.is_empty() && lease_ok {
-                let _ = m.renew(&opts.lease);
-            }
-            String::new()
-        };
+        let caller = Caller::new(peer)
+            .with_identity(owner)
+            .with_lease(opts.lease);
         let wait_timeout = Duration::from_millis(match opts.wait_timeout_ms {
             0 => 60_000,
             t => u64::from(t),
         });
-        let r = m.command(i, cmd, opts.wait, wait_timeout).await;
-        match &r {
-            Ok(res) => audit(
-                &peer,
-                &holder,
-                axis,
-                &cmd,
-                &format!(
-                    "{}: {}",
-                    res.outcome.map_or("accepted", Outcome::name),
-                    res.detail
-                ),
-            ),
-            Err(e) => audit(&peer, &holder, axis, &cmd, &format!("refused: {e}")),
-        }
-        let res = r?;
+        let res = m.command(i, cmd, &caller, opts.wait, wait_timeout).await?;
         if opts.wait {
             check_outcome(axis, &res)?;
         }
@@ -237,18 +195,6 @@ fn refuse_resting_stop(m: &Axes, over: &StopOverBudget, idx: &[usize]) -> Result
         ),
         Vec::new(),
     ))
-}
-
-fn audit(peer: &str, holder: &str, axis: &str, cmd: &AxisCommand, result: &str) {
-    tracing::info!(
-        target: "cangate::audit",
-        %peer,
-        %holder,
-        %axis,
-        command = ?cmd,
-        %result,
-        "axis command"
-    );
 }
 
 fn peer<T>(req: &Request<T>) -> String {
@@ -345,13 +291,9 @@ impl AxesRpc for AxesService {
         } else {
             format!("{} ({peer})", r.client_name)
         };
-        let lease = self.axes().acquire(&r.axes, r.ttl_ms, holder.clone());
-        // Bound before the token leaves the gateway, so no other identity
-        // can ever have used it.
-        let lease = match (lease, owner) {
-            (Ok(l), Some(o)) => self.axes().bind_lease_owner(&l.token, o).map(|()| l),
-            (l, _) => l,
-        };
+        let lease = self
+            .axes()
+            .acquire(&r.axes, r.ttl_ms, holder.clone(), owner);
         tracing::info!(target: "cangate::audit", %peer, %holder, axes = ?r.axes, result = %lease.as_ref().map_or_else(|e| format!("refused: {e}"), |_| "granted".into()), "acquire control");
         let lease = lease?;
         Ok(Response::new(pb::ControlLease {
@@ -366,10 +308,10 @@ impl AxesRpc for AxesService {
         &self,
         req: Request<pb::RenewControlRequest>,
     ) -> Result<Response<pb::ControlLease>, Status> {
-        let owner = owner(&req);
-        let token = &req.get_ref().lease;
-        self.axes().check_lease_owner(token, owner.as_deref())?;
-        let lease = self.axes().renew(token)?;
+        let caller = Caller::new(peer(&req))
+            .with_identity(owner(&req))
+            .with_lease(req.into_inner().lease);
+        let lease = self.axes().renew(&caller)?;
         Ok(Response::new(pb::ControlLease {
             lease: lease.token,
             axes: lease.axes,
@@ -383,10 +325,10 @@ impl AxesRpc for AxesService {
         req: Request<pb::ReleaseControlRequest>,
     ) -> Result<Response<pb::ReleaseControlResponse>, Status> {
         let peer = peer(&req);
-        let owner = owner(&req);
-        let token = &req.get_ref().lease;
-        self.axes().check_lease_owner(token, owner.as_deref())?;
-        let lease = self.axes().release(token)?;
+        let caller = Caller::new(peer.clone())
+            .with_identity(owner(&req))
+            .with_lease(req.into_inner().lease);
+        let lease = self.axes().release(&caller)?;
         tracing::info!(target: "cangate::audit", %peer, holder = %lease.holder, axes = ?lease.axes, "release control");
         Ok(Response::new(pb::ReleaseControlResponse {
             axes: lease.axes,
@@ -422,20 +364,20 @@ impl AxesRpc for AxesService {
         let owner = owner(&req);
         let r = req.into_inner();
         let i = self.axes().index(&r.axis)?;
-        let c = &self.axes().info(i).config;
+        let c = &self.axes().spec(i).motion;
         let cmd = AxisCommand::Move {
             target: r.target,
             relative: r.relative,
             velocity: motion_value(
                 "velocity",
                 r.velocity,
-                c.counts_per_unit,
+                c.units.counts_per_unit,
                 &format!("{}/s", c.unit),
             )?,
             acceleration: motion_value(
                 "acceleration",
                 r.acceleration,
-                c.counts_per_unit,
+                c.units.counts_per_unit,
                 &format!("{}/s²", c.unit),
             )?,
         };
@@ -452,13 +394,13 @@ impl AxesRpc for AxesService {
         let owner = owner(&req);
         let r = req.into_inner();
         let i = self.axes().index(&r.axis)?;
-        let c = &self.axes().info(i).config;
+        let c = &self.axes().spec(i).motion;
         let cmd = AxisCommand::Jog {
             velocity: r.velocity,
             acceleration: motion_value(
                 "acceleration",
                 r.acceleration,
-                c.counts_per_unit,
+                c.units.counts_per_unit,
                 &format!("{}/s²", c.unit),
             )?,
         };
@@ -520,8 +462,12 @@ impl AxesRpc for AxesService {
         if let Some(over) = &over_budget {
             refuse_resting_stop(m, over, &idx)?;
         }
-        tracing::info!(target: "cangate::audit", %peer, axes = ?r.axes, quick = r.quick, "stop axes");
-        let results = m.stop_many(&idx, r.quick, r.wait).await?;
+        let kind = if r.quick {
+            StopKind::QuickStop
+        } else {
+            StopKind::Halt
+        };
+        let results = m.stop_many(&idx, kind, r.wait, &Caller::new(peer)).await?;
         let mut out = Vec::new();
         for (i, res) in idx.iter().zip(results) {
             out.push(match res {
@@ -544,7 +490,7 @@ impl AxesRpc for AxesService {
         let owner = owner(&req);
         let r = req.into_inner();
         let m = self.axes();
-        m.check_lease_owner(&r.lease, owner.as_deref())?;
+        let caller = Caller::new(peer).with_identity(owner).with_lease(r.lease);
         let mut targets = Vec::new();
         let mut seen = std::collections::HashSet::new();
         for t in &r.targets {
@@ -561,27 +507,25 @@ impl AxesRpc for AxesService {
                 ))
                 .into());
             }
-            m.authorize(i, &r.lease)?;
-            let c = &m.info(i).config;
+            let c = &m.spec(i).motion;
             targets.push((
                 i,
                 t.target,
                 motion_value(
                     "velocity",
                     t.velocity,
-                    c.counts_per_unit,
+                    c.units.counts_per_unit,
                     &format!("{}/s", c.unit),
                 )?,
                 motion_value(
                     "acceleration",
                     t.acceleration,
-                    c.counts_per_unit,
+                    c.units.counts_per_unit,
                     &format!("{}/s²", c.unit),
                 )?,
             ));
         }
-        tracing::info!(target: "cangate::audit", %peer, targets = ?r.targets.iter().map(|t| (&t.axis, t.target)).collect::<Vec<_>>(), "coordinated move");
-        let results = m.move_coordinated(targets.clone(), r.wait).await?;
+        let results = m.move_coordinated(targets.clone(), &caller, r.wait).await?;
         let mut out = Vec::new();
         for ((i, ..), res) in targets.iter().zip(results) {
             let res = res?;

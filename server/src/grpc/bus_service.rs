@@ -7,6 +7,7 @@
 //! show its frames.
 
 use super::error::ApiError;
+use super::forward::{AtShutdown, Forward, Received, Source, spawn_forwarding};
 use crate::gateway::Gateway;
 use crate::grpc::convert::bus::{
     bus_info_to_pb, filter_from_pb, frame_from_pb, item_to_attach_pb, item_to_pb,
@@ -250,75 +251,79 @@ impl SmallMessagePacer {
 /// Forwards a subscription into a stream: `first` messages, then the items
 /// in batches as `batching` says, each batch made a message by
 /// `message`. Ends when the client goes away, the bus stops or the gateway
-/// shuts down (`at_shutdown`: a last message, e.g. a status).
+/// shuts down (`at_shutdown`). `hold` is kept as long as the stream runs.
 #[allow(clippy::too_many_arguments)]
 fn spawn_subscription_forward<M: Send + 'static>(
-    mut sub: Subscription,
+    sub: Subscription,
     bus: BusHandle,
     tx: mpsc::Sender<Result<M, Status>>,
     first: Vec<M>,
     batching: Batching,
     cancel: CancellationToken,
-    at_shutdown: Option<Status>,
+    at_shutdown: AtShutdown,
     mut message: impl FnMut(&[BusItem], u64) -> M + Send + 'static,
     hold: impl Send + 'static,
 ) {
-    tokio::spawn(async move {
-        let _hold = hold;
-        for m in first {
-            if tx.send(Ok(m)).await.is_err() {
-                return;
+    let source = BusBatches {
+        sub,
+        bus: bus.clone(),
+        batching,
+        pacer: SmallMessagePacer::new(batching.low_latency, tokio::time::Instant::now()),
+        cancel: cancel.clone(),
+        _hold: hold,
+    };
+    spawn_forwarding(source, tx, first, cancel, at_shutdown, move |received| {
+        match received {
+            Some(Received::Item(items)) => {
+                let since = bus.stats().status_since.as_nanos();
+                Forward::Send(message(&items, since))
             }
-        }
-        let Batching {
-            max_batch,
-            low_latency,
-        } = batching;
-        let mut items = Vec::with_capacity(max_batch);
-        let mut pacer = SmallMessagePacer::new(low_latency, tokio::time::Instant::now());
-        loop {
-            items.clear();
-            let n = tokio::select! {
-                _ = cancel.cancelled() => break,
-                _ = tx.closed() => return,
-                n = sub.recv_many(&mut items, max_batch) => n,
-            };
-            if n == 0 {
-                // The bus stopped: at shutdown (its task may end before
-                // this one sees the token), the stream still ends with the
-                // shutdown status, not as if it had completed.
-                if cancel.is_cancelled() {
-                    break;
-                }
-                return;
-            }
-            let enough = COALESCE_EVENTS.min(max_batch);
-            let now = tokio::time::Instant::now();
-            if let Some(linger) = pacer.linger(now, items.len(), enough) {
-                metrics::counter!("cangate_stream_messages_held_total", "bus" => bus.name().to_string())
-                    .increment(1);
-                let deadline = now + linger;
-                while items.len() < enough {
-                    let room = max_batch - items.len();
-                    tokio::select! {
-                        _ = cancel.cancelled() => break,
-                        _ = tokio::time::sleep_until(deadline) => break,
-                        n = sub.recv_many(&mut items, room) => if n == 0 { break },
-                    }
-                }
-            }
-            let since = bus.stats().status_since.as_nanos();
-            let m = message(&items, since);
-            tokio::select! {
-                _ = cancel.cancelled() => break,
-                r = tx.send(Ok(m)) => if r.is_err() { return },
-            }
-        }
-        // Shutting down.
-        if let Some(status) = at_shutdown {
-            let _ = tokio::time::timeout(Duration::from_secs(1), tx.send(Err(status))).await;
+            // A subscription's losses are items of their own.
+            Some(Received::Lost(_)) | None => Forward::Skip,
         }
     });
+}
+
+/// A bus subscription read in batches: at most `max_batch` items, and a
+/// small batch waits a little for more when the small-message budget is
+/// spent (see [`SmallMessagePacer`]).
+struct BusBatches<H> {
+    sub: Subscription,
+    bus: BusHandle,
+    batching: Batching,
+    pacer: SmallMessagePacer,
+    /// Ends a batch's wait at shutdown.
+    cancel: CancellationToken,
+    /// Held as long as the stream runs (a queue reservation).
+    _hold: H,
+}
+
+impl<H: Send + 'static> Source for BusBatches<H> {
+    type Item = Vec<BusItem>;
+
+    async fn next(&mut self) -> Option<Received<Vec<BusItem>>> {
+        let max_batch = self.batching.max_batch;
+        let mut items = Vec::new();
+        if self.sub.recv_many(&mut items, max_batch).await == 0 {
+            return None;
+        }
+        let enough = COALESCE_EVENTS.min(max_batch);
+        let now = tokio::time::Instant::now();
+        if let Some(linger) = self.pacer.linger(now, items.len(), enough) {
+            metrics::counter!("cangate_stream_messages_held_total", "bus" => self.bus.name().to_string())
+                .increment(1);
+            let deadline = now + linger;
+            while items.len() < enough {
+                let room = max_batch - items.len();
+                tokio::select! {
+                    _ = self.cancel.cancelled() => break,
+                    _ = tokio::time::sleep_until(deadline) => break,
+                    n = self.sub.recv_many(&mut items, room) => if n == 0 { break },
+                }
+            }
+        }
+        Some(Received::Item(items))
+    }
 }
 
 /// An Attach stream that broke its protocol.
@@ -497,7 +502,7 @@ impl Bus for BusService {
             vec![first],
             batching,
             cancel,
-            None,
+            AtShutdown::End,
             move |items, since| pb::StreamFramesResponse {
                 events: items
                     .iter()
@@ -616,7 +621,7 @@ impl Bus for BusService {
             vec![first],
             batching,
             cancel.clone(),
-            Some(ApiError::ShuttingDown.into()),
+            AtShutdown::Unavailable,
             move |items, since| pb::AttachResponse {
                 events: items
                     .iter()

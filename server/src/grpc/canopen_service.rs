@@ -1,19 +1,20 @@
 //! The `cangate.v1.Canopen` service: nodes, NMT, SDO, events.
 
 use super::convert::canopen::{
-    data_type_from_pb, emcy_to_pb, monitoring_to_pb, nmt_state_to_pb, node_to_pb,
-    object_info_to_pb, pdo_from_pb, pdo_kind_from_pb, pdo_to_pb, value_from_pb, value_from_pb_as,
-    value_to_pb,
+    data_type_from_pb, node_event_to_pb, node_events_lost_to_pb, node_to_pb, object_info_to_pb,
+    pdo_from_pb, pdo_kind_from_pb, pdo_to_pb, program_outcome_to_pb, program_step_to_pb,
+    sdo_transfer_to_pb, value_from_pb, value_from_pb_as, value_to_pb,
 };
 use super::error::ApiError;
-use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_of};
+use super::forward::{
+    AtShutdown, Forward, MessageStream, Received, spawn_forward, spawn_forwarding, stream_of,
+};
 use super::runtime_errors::{axis_active, lookup_error};
 use crate::canopen::dcf_export::DcfExportError;
 use crate::canopen::pdo_config::PdoConfigError;
 use crate::canopen::program::{ProgramEvent, ProgramFailure, ProgramStartError};
-use crate::canopen::{CanopenBus, CanopenError, NodeEventKind, SyncChangeError, TimeSendError};
+use crate::canopen::{CanopenBus, CanopenError, SyncChangeError, TimeSendError};
 use crate::gateway::Gateway;
-use cangate_can::Timestamp;
 use cangate_canopen::eds::Eds;
 use cangate_canopen::master::SdoRequest;
 use cangate_canopen::nmt::NmtCommand;
@@ -247,7 +248,7 @@ impl Canopen for CanopenService {
         let node = known_node(m, req.node)?;
         let plan = program_plan(node, req)?;
         let total = plan.image.len() as u64;
-        let mut events = m.download_program(plan, &caller).map_err(|e| match e {
+        let events = m.download_program(plan, &caller).map_err(|e| match e {
             ProgramStartError::AxisActive(e) => axis_active(e),
             e @ ProgramStartError::Busy { .. } => ApiError::refused(
                 tonic::Code::FailedPrecondition,
@@ -257,59 +258,42 @@ impl Canopen for CanopenService {
             ),
         })?;
         let (tx, rx) = tokio::sync::mpsc::channel(64);
-        let shutdown = self.gateway.shutdown_token();
-        tokio::spawn(async move {
-            let mut last = pb::DownloadProgramProgress {
-                bytes_total: total,
-                ..Default::default()
-            };
-            loop {
-                let ev = tokio::select! {
-                    biased;
-                    _ = shutdown.cancelled() => {
-                        let _ = tx.send(Err(ApiError::ShuttingDown.into())).await;
-                        return;
-                    }
-                    _ = tx.closed() => return,
-                    ev = events.recv() => ev,
-                };
-                let msg = match ev {
-                    None => Err(ApiError::ShuttingDown.into()),
-                    Some(ProgramEvent::Progress {
-                        step,
-                        bytes_done,
-                        total,
-                    }) => {
-                        last.step = program_step_to_pb(step) as i32;
-                        last.bytes_done = bytes_done as u64;
-                        last.bytes_total = total as u64;
-                        Ok(last)
-                    }
-                    Some(ProgramEvent::Finished(Ok(o))) => {
-                        let secs = o.download_duration.as_secs_f64();
-                        last.bytes_done = o.bytes as u64;
-                        last.outcome = Some(pb::DownloadProgramOutcome {
-                            old_identification: o.old_identification,
-                            new_identification: o.new_identification,
-                            bytes: o.bytes as u64,
-                            duration_ms: o.duration.as_millis() as u64,
-                            data_duration_ms: o.download_duration.as_millis() as u64,
-                            data_bytes_per_second: if secs > 0.0 {
-                                o.bytes as f64 / secs
-                            } else {
-                                0.0
-                            },
-                        });
-                        Ok(last)
-                    }
-                    Some(ProgramEvent::Finished(Err(e))) => Err(program_error(node, e).into()),
-                };
-                let end = msg.is_err() || last.outcome.is_some();
-                if tx.send(msg).await.is_err() || end {
-                    return;
+        let mut last = pb::DownloadProgramProgress {
+            bytes_total: total,
+            ..Default::default()
+        };
+        spawn_forwarding(
+            events,
+            tx,
+            Vec::new(),
+            self.gateway.shutdown_token(),
+            AtShutdown::Unavailable,
+            move |ev| match ev {
+                Some(Received::Item(ProgramEvent::Progress {
+                    step,
+                    bytes_done,
+                    total,
+                })) => {
+                    last.step = program_step_to_pb(step) as i32;
+                    last.bytes_done = bytes_done as u64;
+                    last.bytes_total = total as u64;
+                    Forward::Send(last)
                 }
-            }
-        });
+                Some(Received::Item(ProgramEvent::Finished(Ok(o)))) => {
+                    last.bytes_done = o.bytes as u64;
+                    last.outcome = Some(program_outcome_to_pb(&o));
+                    Forward::Last(Ok(last))
+                }
+                Some(Received::Item(ProgramEvent::Finished(Err(e)))) => {
+                    Forward::Last(Err(program_error(node, e).into()))
+                }
+                // A queue loses nothing.
+                Some(Received::Lost(_)) => Forward::Skip,
+                // The download's task ended without a word: the gateway is
+                // going away.
+                None => Forward::Last(Err(ApiError::ShuttingDown.into())),
+            },
+        );
         Ok(Response::new(Box::pin(
             tokio_stream::wrappers::ReceiverStream::new(rx),
         )))
@@ -510,26 +494,11 @@ impl Canopen for CanopenService {
         &self,
         req: Request<pb::ListSdoTransfersRequest>,
     ) -> Result<Response<pb::ListSdoTransfersResponse>, Status> {
-        use cangate_canopen::sdo::{Direction, Protocol};
         let m = self.master(&req.get_ref().bus)?;
         let list = m.transfers().await.map_err(|_| ApiError::ShuttingDown)?;
         let transfers = list
-            .into_iter()
-            .map(|(node, p)| pb::SdoTransfer {
-                node: node.get() as u32,
-                index: p.addr.index as u32,
-                subindex: p.addr.sub as u32,
-                upload: p.direction == Direction::Upload,
-                protocol: match p.protocol {
-                    Some(Protocol::Expedited) => "expedited",
-                    Some(Protocol::Segmented) => "segmented",
-                    Some(Protocol::Block) => "block",
-                    None => "",
-                }
-                .to_string(),
-                transferred: p.transferred as u64,
-                total: p.total.map(|t| t as u64),
-            })
+            .iter()
+            .map(|(node, p)| sdo_transfer_to_pb(*node, p))
             .collect();
         Ok(Response::new(pb::ListSdoTransfersResponse { transfers }))
     }
@@ -817,10 +786,11 @@ impl Canopen for CanopenService {
                 ))
                 .into());
             }
-            if ms > 0 && u64::from(ms) < crate::config::MIN_TIME_PERIOD_MS {
+            let least = crate::canopen::MIN_TIME_PERIOD;
+            if ms > 0 && Duration::from_millis(u64::from(ms)) < least {
                 return Err(ApiError::InvalidArgument(format!(
                     "TIME period {ms} ms is too short: give at least {} ms (0 stops the periodic TIME)",
-                    crate::config::MIN_TIME_PERIOD_MS
+                    least.as_millis()
                 ))
                 .into());
             }
@@ -900,68 +870,11 @@ impl Canopen for CanopenService {
                 Vec::new(),
                 cancel.clone(),
                 AtShutdown::End,
-                move |received| {
-                    use pb::node_event::Event as E;
-                    let ev = match received {
-                        Received::Item(ev) => ev,
-                        Received::Lost(n) => {
-                            return Some(pb::NodeEvent {
-                                bus: m.bus().to_string(),
-                                node: 0,
-                                timestamp_ns: Timestamp::now().as_nanos(),
-                                event: Some(E::Lost(pb::EventsLost { count: n })),
-                            });
-                        }
-                    };
-                    if !only.is_empty() && !only.contains(&(ev.node.get() as u32)) {
-                        return None;
-                    }
-                    let event = match &ev.kind {
-                        NodeEventKind::BootUp => E::BootUp(pb::BootUp {}),
-                        NodeEventKind::StateChanged { from, to } => {
-                            E::StateChanged(pb::StateChange {
-                                from: nmt_state_to_pb(*from) as i32,
-                                to: nmt_state_to_pb(Some(*to)) as i32,
-                            })
-                        }
-                        NodeEventKind::HeartbeatLost { timeout, guarding } => {
-                            E::HeartbeatLost(pb::HeartbeatLost {
-                                timeout_ms: timeout.as_millis() as u32,
-                                monitoring: monitoring_to_pb(*guarding) as i32,
-                            })
-                        }
-                        NodeEventKind::HeartbeatRecovered {
-                            state,
-                            after,
-                            guarding,
-                        } => E::HeartbeatRecovered(pb::HeartbeatRecovered {
-                            state: nmt_state_to_pb(Some(*state)) as i32,
-                            silent_ms: after.as_millis() as u64,
-                            monitoring: monitoring_to_pb(*guarding) as i32,
-                        }),
-                        NodeEventKind::GuardingToggleError {
-                            data,
-                            expected,
-                            count,
-                        } => E::GuardingToggleError(pb::GuardingToggleError {
-                            data: u32::from(*data),
-                            expected_toggle: *expected,
-                            count: *count,
-                        }),
-                        NodeEventKind::Emcy(e) => E::Emcy(emcy_to_pb(e, ev.at)),
-                        NodeEventKind::BootCompleted { .. } => {
-                            E::BootCompleted(pb::BootCompleted {})
-                        }
-                        NodeEventKind::BootFailed { reason } => E::BootFailed(pb::BootFailed {
-                            reason: reason.clone(),
-                        }),
-                    };
-                    Some(pb::NodeEvent {
-                        bus: m.bus().to_string(),
-                        node: ev.node.get() as u32,
-                        timestamp_ns: ev.at.as_nanos(),
-                        event: Some(event),
-                    })
+                move |received| match received {
+                    Received::Item(ev) => (only.is_empty()
+                        || only.contains(&(ev.node.get() as u32)))
+                    .then(|| node_event_to_pb(m.bus(), &ev)),
+                    Received::Lost(n) => Some(node_events_lost_to_pb(m.bus(), n)),
                 },
             );
         }
@@ -1018,19 +931,6 @@ fn program_plan(node: NodeId, req: pb::DownloadProgramRequest) -> Result<Program
         clear: req.clear,
         timeouts,
     })
-}
-
-fn program_step_to_pb(step: ProgramStep) -> pb::ProgramStep {
-    match step {
-        ProgramStep::ReadIdentificationBefore => pb::ProgramStep::ReadIdentificationBefore,
-        ProgramStep::StopProgram => pb::ProgramStep::StopProgram,
-        ProgramStep::ClearProgram => pb::ProgramStep::ClearProgram,
-        ProgramStep::DownloadData => pb::ProgramStep::DownloadData,
-        ProgramStep::WaitFlash => pb::ProgramStep::WaitFlash,
-        ProgramStep::StartProgram => pb::ProgramStep::StartProgram,
-        ProgramStep::WaitBootUp => pb::ProgramStep::WaitBootUp,
-        ProgramStep::ReadIdentificationAfter => pb::ProgramStep::ReadIdentificationAfter,
-    }
 }
 
 /// A failed program download as the API reports it (see DownloadProgram

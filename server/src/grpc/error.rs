@@ -308,17 +308,6 @@ impl From<SendFailure> for ApiError {
     }
 }
 
-impl From<cangate_axis::CommandError> for ApiError {
-    fn from(e: cangate_axis::CommandError) -> Self {
-        use cangate_axis::CommandError as E;
-        match e {
-            E::OutOfRange(m) => ApiError::OutOfRange(m),
-            E::InvalidArgument(m) => ApiError::InvalidArgument(m),
-            E::FailedPrecondition(m) => ApiError::FailedPrecondition(m),
-        }
-    }
-}
-
 impl From<cangate_axis::lease::LeaseError> for ApiError {
     fn from(e: cangate_axis::lease::LeaseError) -> Self {
         use cangate_axis::lease::LeaseError as E;

@@ -1,6 +1,8 @@
-//! Broadcasts of the runtime as gRPC server streams: the one forwarding
-//! loop (receive, count lag, map, send; end when the client goes away, the
-//! source closes or the gateway shuts down).
+//! Sources of the runtime as gRPC server streams: the one forwarding loop
+//! ([`spawn_forwarding`]: receive, map, send; end when the client goes
+//! away, the source ends, the map says so, or the gateway shuts down) over
+//! any [`Source`]: a broadcast with its lag counted ([`spawn_forward`]), a
+//! bus subscription in batches, a program download's progress.
 
 use std::pin::Pin;
 use tokio::sync::{broadcast, mpsc};
@@ -44,19 +46,69 @@ pub(crate) enum AtShutdown {
     End,
 }
 
-/// Spawns the loop that forwards `rx` into `tx`: `initial` first, then
-/// each received item or loss mapped by `map` (`None`: nothing to send).
-/// Several sources may share one `tx` (one stream over several buses).
-pub(crate) fn spawn_forward<T, M>(
+/// How long the shutdown status may wait for room in a stream whose
+/// client reads no more: the transport's graceful shutdown waits for the
+/// stream.
+const SHUTDOWN_SEND: std::time::Duration = std::time::Duration::from_secs(1);
+
+/// Where a forwarded stream's items come from.
+pub(crate) trait Source: Send + 'static {
+    /// What the source yields.
+    type Item: Send + 'static;
+    /// The next item, or how many were lost before it; `None` once the
+    /// source has ended.
+    fn next(&mut self) -> impl std::future::Future<Output = Option<Received<Self::Item>>> + Send;
+}
+
+/// A broadcast whose losses are counted in the metrics under the RPC's
+/// name (see [`recv_counted`]).
+pub(crate) struct Broadcast<T> {
     rpc: &'static str,
-    mut rx: broadcast::Receiver<T>,
+    rx: broadcast::Receiver<T>,
+}
+
+impl<T: Clone + Send + 'static> Source for Broadcast<T> {
+    type Item = T;
+    async fn next(&mut self) -> Option<Received<T>> {
+        recv_counted(self.rpc, &mut self.rx).await
+    }
+}
+
+/// A queue of one producer (it loses nothing).
+impl<T: Send + 'static> Source for mpsc::Receiver<T> {
+    type Item = T;
+    async fn next(&mut self) -> Option<Received<T>> {
+        self.recv().await.map(Received::Item)
+    }
+}
+
+/// What the forwarding loop does with what it received.
+pub(crate) enum Forward<M> {
+    /// Nothing to send.
+    Skip,
+    /// Send the message and go on.
+    Send(M),
+    /// Send the message (or end with the status) and end the stream.
+    Last(Result<M, Status>),
+}
+
+/// Spawns the loop that forwards `source` into `tx`: `initial` first, then
+/// each received item or loss mapped by `map`, which also hears of the
+/// source's end (`None`; the stream ends after it). The client going away
+/// ends the loop at once; the gateway's shutdown ends it with
+/// `at_shutdown`, also while a message waits for room, and so does the
+/// source's end during the shutdown (its task may end before this one
+/// sees the token). Several sources may share one `tx` (one stream over
+/// several buses).
+pub(crate) fn spawn_forwarding<S, M>(
+    mut source: S,
     tx: mpsc::Sender<Result<M, Status>>,
     initial: Vec<M>,
     shutdown: CancellationToken,
     at_shutdown: AtShutdown,
-    mut map: impl FnMut(Received<T>) -> Option<M> + Send + 'static,
+    mut map: impl FnMut(Option<Received<S::Item>>) -> Forward<M> + Send + 'static,
 ) where
-    T: Clone + Send + 'static,
+    S: Source,
     M: Send + 'static,
 {
     tokio::spawn(async move {
@@ -67,23 +119,60 @@ pub(crate) fn spawn_forward<T, M>(
         }
         loop {
             let received = tokio::select! {
-                _ = shutdown.cancelled() => {
-                    if let AtShutdown::Unavailable = at_shutdown {
-                        let _ = tx.send(Err(super::error::ApiError::ShuttingDown.into())).await;
-                    }
-                    return;
-                }
+                biased;
+                _ = shutdown.cancelled() => break,
                 _ = tx.closed() => return,
-                r = recv_counted(rpc, &mut rx) => r,
+                r = source.next() => r,
             };
-            let Some(received) = received else { return };
-            if let Some(m) = map(received)
-                && tx.send(Ok(m)).await.is_err()
-            {
-                return;
+            let ended = received.is_none();
+            if ended && shutdown.is_cancelled() {
+                break;
+            }
+            let (message, last) = match map(received) {
+                Forward::Skip if ended => return,
+                Forward::Skip => continue,
+                Forward::Send(m) => (Ok(m), ended),
+                Forward::Last(r) => (r, true),
+            };
+            tokio::select! {
+                biased;
+                _ = shutdown.cancelled() => break,
+                r = tx.send(message) => if r.is_err() || last { return },
             }
         }
+        if let AtShutdown::Unavailable = at_shutdown {
+            let status = super::error::ApiError::ShuttingDown.into();
+            let _ = tokio::time::timeout(SHUTDOWN_SEND, tx.send(Err(status))).await;
+        }
     });
+}
+
+/// [`spawn_forwarding`] of a broadcast: each received item or loss mapped
+/// by `map` (`None`: nothing to send); losses are counted in the metrics
+/// under `rpc`.
+pub(crate) fn spawn_forward<T, M>(
+    rpc: &'static str,
+    rx: broadcast::Receiver<T>,
+    tx: mpsc::Sender<Result<M, Status>>,
+    initial: Vec<M>,
+    shutdown: CancellationToken,
+    at_shutdown: AtShutdown,
+    mut map: impl FnMut(Received<T>) -> Option<M> + Send + 'static,
+) where
+    T: Clone + Send + 'static,
+    M: Send + 'static,
+{
+    spawn_forwarding(
+        Broadcast { rpc, rx },
+        tx,
+        initial,
+        shutdown,
+        at_shutdown,
+        move |received| match received.and_then(&mut map) {
+            Some(m) => Forward::Send(m),
+            None => Forward::Skip,
+        },
+    );
 }
 
 /// The receiving end of `tx` as a server stream of batches: each message
@@ -226,6 +315,85 @@ pub(crate) fn stream_of<M: Send + 'static>(
 mod tests {
     use super::*;
     use tokio_stream::StreamExt;
+
+    /// The map sees every item and the source's end; a last message ends
+    /// the stream (what follows in the source is not sent).
+    #[tokio::test]
+    async fn a_last_message_ends_the_stream_and_the_map_hears_of_the_end() {
+        let (items, source) = mpsc::channel(8);
+        for i in [1, 2, 3] {
+            items.send(i).await.unwrap();
+        }
+        let (tx, mut rx) = mpsc::channel(8);
+        spawn_forwarding(
+            source,
+            tx,
+            vec![0],
+            CancellationToken::new(),
+            AtShutdown::Unavailable,
+            |r| match r {
+                Some(Received::Item(2)) => Forward::Last(Ok(20)),
+                Some(Received::Item(i)) => Forward::Send(i * 10),
+                Some(Received::Lost(_)) => Forward::Skip,
+                None => Forward::Last(Err(Status::unavailable("ended"))),
+            },
+        );
+        let mut got = Vec::new();
+        while let Some(m) = rx.recv().await {
+            got.push(m.unwrap());
+        }
+        assert_eq!(got, vec![0, 10, 20]);
+
+        // The source's end, mapped.
+        let (items, source) = mpsc::channel::<i32>(8);
+        drop(items);
+        let (tx, mut rx) = mpsc::channel::<Result<i32, Status>>(8);
+        spawn_forwarding(
+            source,
+            tx,
+            Vec::new(),
+            CancellationToken::new(),
+            AtShutdown::Unavailable,
+            |r| match r {
+                Some(_) => Forward::Skip,
+                None => Forward::Last(Err(Status::unavailable("ended"))),
+            },
+        );
+        assert_eq!(rx.recv().await.unwrap().unwrap_err().message(), "ended");
+        assert!(rx.recv().await.is_none());
+    }
+
+    /// At shutdown a message still waiting for room in a stream whose
+    /// reader stopped is given up: the stream ends with UNAVAILABLE after
+    /// what the reader already had, nothing after it.
+    #[tokio::test]
+    async fn at_shutdown_a_message_waiting_for_room_is_given_up() {
+        let (items, source) = mpsc::channel(8);
+        items.send(2).await.unwrap();
+        let (tx, mut rx) = mpsc::channel(1);
+        let shutdown = CancellationToken::new();
+        spawn_forwarding(
+            source,
+            tx,
+            vec![1],
+            shutdown.clone(),
+            AtShutdown::Unavailable,
+            |r| match r {
+                Some(Received::Item(i)) => Forward::Send(i),
+                _ => Forward::Skip,
+            },
+        );
+        // One thread: the forwarding task runs at these yields until it
+        // waits for room for 2 (1 fills the stream).
+        for _ in 0..8 {
+            tokio::task::yield_now().await;
+        }
+        shutdown.cancel();
+        assert_eq!(rx.recv().await.unwrap().unwrap(), 1);
+        let e = rx.recv().await.unwrap().unwrap_err();
+        assert_eq!(e.code(), tonic::Code::Unavailable);
+        assert!(rx.recv().await.is_none(), "nothing after the shutdown");
+    }
 
     #[tokio::test]
     async fn batches_take_what_is_ready_in_order_and_end_at_an_error() {

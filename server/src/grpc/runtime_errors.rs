@@ -8,6 +8,7 @@ use crate::cansmc::CansmcError;
 use crate::handwheel::HandwheelError;
 use crate::not_found::NotFound;
 use crate::not_found::quote_prefix;
+use cangate_axis::CommandError;
 use cangate_canopen::NodeId;
 use cangate_canopen::od::{LookupError, ObjectDictionary};
 use cangate_cansmc::master::ParameterError;
@@ -44,6 +45,26 @@ impl From<AxisError> for ApiError {
             AxisError::Unavailable(m) => ApiError::Unavailable(m),
             AxisError::NoAnswer(m) => ApiError::DeadlineExceeded(m),
             AxisError::ShuttingDown => ApiError::ShuttingDown,
+        }
+    }
+}
+
+/// A refused axis command: a malformed value is INVALID_ARGUMENT, a value
+/// beyond a configured limit OUT_OF_RANGE, and what the axis's state
+/// forbids FAILED_PRECONDITION.
+impl From<CommandError> for ApiError {
+    fn from(e: CommandError) -> Self {
+        use CommandError as E;
+        match e {
+            E::BadValue(m) => ApiError::InvalidArgument(m),
+            E::AboveMaximum(m) | E::BeyondSoftLimit(m) => ApiError::OutOfRange(m),
+            E::DriveUnavailable(m)
+            | E::InFault(m)
+            | E::NotEnabled(m)
+            | E::Busy(m)
+            | E::NotCyclic(m)
+            | E::SyncStopped(m)
+            | E::StateUnreachable(m) => ApiError::FailedPrecondition(m),
         }
     }
 }
@@ -135,3 +156,31 @@ macro_rules! into_status {
     )*};
 }
 into_status!(NotFound, AxisError, CansmcError, HandwheelError);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tonic::Code;
+
+    #[test]
+    fn each_refusal_reason_gets_its_code_and_keeps_its_message() {
+        use CommandError as E;
+        for (e, code) in [
+            (E::BadValue("m".into()), Code::InvalidArgument),
+            (E::AboveMaximum("m".into()), Code::OutOfRange),
+            (E::BeyondSoftLimit("m".into()), Code::OutOfRange),
+            (E::DriveUnavailable("m".into()), Code::FailedPrecondition),
+            (E::InFault("m".into()), Code::FailedPrecondition),
+            (E::NotEnabled("m".into()), Code::FailedPrecondition),
+            (E::Busy("m".into()), Code::FailedPrecondition),
+            (E::NotCyclic("m".into()), Code::FailedPrecondition),
+            (E::SyncStopped("m".into()), Code::FailedPrecondition),
+            (E::StateUnreachable("m".into()), Code::FailedPrecondition),
+        ] {
+            let e = e.prefixed("axis X: ");
+            let status = tonic::Status::from(AxisError::Refused(e.clone()));
+            assert_eq!(status.code(), code, "{e:?}");
+            assert_eq!(status.message(), "axis X: m", "{e:?}");
+        }
+    }
+}

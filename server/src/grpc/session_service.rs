@@ -9,13 +9,17 @@ use tonic::{Request, Response, Status};
 #[derive(Debug, Clone)]
 pub struct SessionService {
     authentication: bool,
+    viewers_may_stop: bool,
 }
 
 impl SessionService {
     /// `authentication`: the gateway has tokens or client certificates
-    /// configured.
-    pub fn new(authentication: bool) -> Self {
-        SessionService { authentication }
+    /// configured; `viewers_may_stop`: `[security] viewers_may_stop`.
+    pub fn new(authentication: bool, viewers_may_stop: bool) -> Self {
+        SessionService {
+            authentication,
+            viewers_may_stop,
+        }
     }
 }
 
@@ -42,12 +46,14 @@ impl Session for SessionService {
                 role: role_to_pb(id.role) as i32,
                 method: id.method.to_string(),
                 authentication: self.authentication,
+                may_stop: id.role >= crate::security::Role::Operator || self.viewers_may_stop,
             },
             None => pb::Caller {
                 name: "anonymous".into(),
                 role: pb::CallerRole::Engineer as i32,
                 method: "none".into(),
                 authentication: self.authentication,
+                may_stop: true,
             },
         };
         Ok(Response::new(caller))

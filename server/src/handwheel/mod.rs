@@ -7,7 +7,7 @@
 
 mod ledger;
 
-use crate::axes::Axes;
+use crate::axes::{Axes, AxisError, Caller};
 use crate::canopen::{CanopenBus, NodeEventKind};
 use crate::config::{CounterChoice, HandwheelConfig};
 use crate::not_found::NotFound;
@@ -109,6 +109,8 @@ pub struct WheelState {
     pub config: HandwheelConfig,
     /// Node id.
     pub node: NodeId,
+    /// Where the feed counter sits in the feed byte.
+    pub layout: CounterLayout,
     /// Resolved bindings.
     pub bindings: Vec<Binding>,
     /// Mode last set or read.
@@ -183,9 +185,14 @@ impl Handwheels {
                 });
             }
             let (control, control_rx) = mpsc::channel(16);
+            let layout = match c.counter {
+                CounterChoice::Nibble => CounterLayout::Nibble,
+                CounterChoice::Bits67 => CounterLayout::Bits6_7,
+            };
             let state = Arc::new(WheelState {
                 config: c.clone(),
                 node,
+                layout,
                 bindings,
                 mode: Mutex::new(None),
                 node_lost: Mutex::new(false),
@@ -194,10 +201,6 @@ impl Handwheels {
                 sim: sims.get(&(c.bus.clone(), c.node)).cloned(),
                 control,
             });
-            let layout = match c.counter {
-                CounterChoice::Nibble => CounterLayout::Nibble,
-                CounterChoice::Bits67 => CounterLayout::Bits6_7,
-            };
             let decoder = FeedDecoder::new(node, layout);
             // Subscribe now, so the first frames after start-up are seen.
             let sub = bus.subscribe(
@@ -208,17 +211,25 @@ impl Handwheels {
                 },
                 65_536,
             );
-            tasks.push(tokio::spawn(run_wheel(WheelTask {
-                index: i,
-                state: state.clone(),
-                decoder,
-                sub,
-                events: master.events(),
-                control: control_rx,
-                feed: feed.clone(),
-                axes: axes.clone(),
-                cancel: cancel.child_token(),
-            })));
+            // The wheel's task logs inside its bus's, node's and own spans.
+            let span = tracing::info_span!("bus", bus = %master.bus());
+            let span = tracing::info_span!(parent: &span, "node", node = node.get());
+            let span =
+                tracing::info_span!(parent: &span, "handwheel", handwheel = %state.config.name);
+            tasks.push(tokio::spawn(tracing::Instrument::instrument(
+                run_wheel(WheelTask {
+                    index: i,
+                    state: state.clone(),
+                    decoder,
+                    sub,
+                    events: master.events(),
+                    control: control_rx,
+                    feed: feed.clone(),
+                    axes: axes.clone(),
+                    cancel: cancel.child_token(),
+                }),
+                span,
+            )));
             wheels.push(state);
             wheel_masters.push(master);
         }
@@ -400,7 +411,7 @@ async fn run_wheel(mut t: WheelTask) {
                     manual = mode == Mode::Manual;
                     ledger.clear();
                     if !manual {
-                        release(&mut ledger, &t.axes, &mut hold);
+                        release(&t.state, &mut ledger, &t.axes, &mut hold);
                     }
                     publish(&t.state, &ledger);
                 }
@@ -427,7 +438,7 @@ async fn run_wheel(mut t: WheelTask) {
                         BusItem::Lost(n) => {
                             // The gateway itself fell behind: the counter
                             // can no longer be trusted across the hole.
-                            tracing::warn!(handwheel = %t.state.config.name, lost = n, "handwheel task missed feed frames (overloaded)");
+                            tracing::warn!(lost = n, "handwheel task missed feed frames (overloaded)");
                             t.decoder.reset_baseline(BaselineReason::Other);
                         }
                         BusItem::State(_) => {}
@@ -453,7 +464,7 @@ async fn run_wheel(mut t: WheelTask) {
                         *t.state.mode.lock().expect("lock") = None;
                         manual = false;
                         ledger.clear();
-                        release(&mut ledger, &t.axes, &mut hold);
+                        release(&t.state, &mut ledger, &t.axes, &mut hold);
                         publish(&t.state, &ledger);
                     }
                     _ => {}
@@ -462,7 +473,7 @@ async fn run_wheel(mut t: WheelTask) {
                 Err(broadcast::error::RecvError::Lagged(n)) => {
                     // A missed heartbeat loss or reboot would leave a stale
                     // counter baseline: start a new one.
-                    tracing::warn!(handwheel = %t.state.config.name, missed = n, "handwheel task missed node events (overloaded)");
+                    tracing::warn!(missed = n, "handwheel task missed node events (overloaded)");
                     t.decoder.reset_baseline(BaselineReason::Other);
                 }
                 Err(broadcast::error::RecvError::Closed) => break,
@@ -476,7 +487,7 @@ async fn run_wheel(mut t: WheelTask) {
             }
         }
     }
-    release(&mut ledger, &t.axes, &mut hold);
+    release(&t.state, &mut ledger, &t.axes, &mut hold);
     publish(&t.state, &ledger);
 }
 
@@ -493,7 +504,7 @@ fn keep_hold(state: &WheelState, ledger: &mut BindingLedger, axes: &Axes, hold: 
             if now.duration_since(hold.renewed)
                 >= Duration::from_millis(u64::from(LEASE_TTL_MS / 3))
             {
-                if axes.renew(token).is_ok() {
+                if axes.renew(&wheel_caller(state, token)).is_ok() {
                     hold.renewed = now;
                 } else {
                     hold.lease = None;
@@ -505,11 +516,7 @@ fn keep_hold(state: &WheelState, ledger: &mut BindingLedger, axes: &Axes, hold: 
                 return;
             }
             let names: Vec<String> = state.bindings.iter().map(|b| b.axis_name.clone()).collect();
-            match axes.acquire(
-                &names,
-                LEASE_TTL_MS,
-                format!("handwheel {}", state.config.name),
-            ) {
+            match axes.acquire(&names, LEASE_TTL_MS, wheel_caller(state, "").name, None) {
                 Ok(l) => {
                     hold.lease = Some(l.token);
                     hold.renewed = now;
@@ -526,9 +533,9 @@ fn keep_hold(state: &WheelState, ledger: &mut BindingLedger, axes: &Axes, hold: 
 
 /// Gives the bound axes back (the wheel left manual mode, rebooted or
 /// stopped); a refusal to take them no longer applies either.
-fn release(ledger: &mut BindingLedger, axes: &Axes, hold: &mut Hold) {
+fn release(state: &WheelState, ledger: &mut BindingLedger, axes: &Axes, hold: &mut Hold) {
     if let Some(token) = hold.lease.take() {
-        let _ = axes.release(&token);
+        let _ = axes.release(&wheel_caller(state, &token));
     }
     hold.retry_at = Instant::now();
     ledger.set_blocked(String::new());
@@ -553,10 +560,7 @@ fn execute(
         if !enabled {
             return Executed::NotEnabled;
         }
-        if axes.authorize(b.axis, token).is_err() {
-            return Executed::NotControlled;
-        }
-        let cfg = &axes.info(b.axis).config;
+        let cfg = &axes.spec(b.axis).motion;
         // The paced rate as the move's velocity, so consecutive small moves
         // blend into an even motion.
         let velocity = (state.config.max_units_per_s * b.distance_per_unit).min(cfg.max_velocity);
@@ -566,11 +570,17 @@ fn execute(
             velocity: Some(velocity),
             acceleration: Some(cfg.max_acceleration),
         };
-        match axes.submit(b.axis, cmd) {
+        match axes.submit(b.axis, cmd, &wheel_caller(state, token)) {
             Ok(()) => Executed::Done,
+            Err(AxisError::Lease(_)) => Executed::NotControlled,
             Err(_) => Executed::Refused,
         }
     });
+}
+
+/// The wheel as the axes see it: named after it, presenting `token`.
+fn wheel_caller(state: &WheelState, token: &str) -> Caller {
+    Caller::new(format!("handwheel {}", state.config.name)).with_lease(token)
 }
 
 /// Why a handwheel request failed, by reason.

@@ -189,6 +189,8 @@ impl Authenticator {
 
 struct Shared {
     auth: Authenticator,
+    /// `[security] viewers_may_stop`.
+    viewers_may_stop: bool,
     limits: Limits,
     max_message_bytes: u32,
     refusals: PeerRefusals,
@@ -307,6 +309,7 @@ impl SecurityLayer {
         let l = &config.limits;
         let shared = Arc::new(Shared {
             auth: Authenticator::new(config),
+            viewers_may_stop: config.viewers_may_stop,
             limits: Limits::new(l.clone()),
             max_message_bytes: l.max_message_bytes,
             refusals: PeerRefusals::new(l.refusals_per_second_per_peer, l.refusal_burst),
@@ -555,7 +558,11 @@ impl<S> SecurityService<S> {
                             refusal,
                         }
                     })?;
-                if id.role < needed {
+                // A stop needs an operator, or a viewer where the
+                // configuration lets viewers stop.
+                let stop_by_viewer =
+                    self.shared.viewers_may_stop && id.role == Role::Viewer && roles::is_stop(rule);
+                if id.role < needed && !stop_by_viewer {
                     let msg = format!(
                         "{} needs role {needed}; {} holds role {}",
                         clipped(method),

@@ -180,7 +180,7 @@ fn commands_before_feedback_or_when_disabled_are_refused_clearly() {
     let mut rig = Rig::enabled(cfg());
     assert!(matches!(
         rig.command(mv(5000.0)),
-        Err(CommandError::OutOfRange(_))
+        Err(CommandError::BeyondSoftLimit(_))
     ));
     assert!(matches!(
         rig.command(AxisCommand::Move {
@@ -189,7 +189,7 @@ fn commands_before_feedback_or_when_disabled_are_refused_clearly() {
             velocity: Some(-1.0),
             acceleration: None
         }),
-        Err(CommandError::InvalidArgument(_))
+        Err(CommandError::BadValue(_))
     ));
 }
 
@@ -391,7 +391,7 @@ fn a_lost_slave_faults_the_axis_and_refuses_commands_until_back() {
 #[test]
 fn a_geared_axis_follows_its_source_with_one_cycle_of_lag() {
     let mut c = cfg();
-    c.gear = Some(Gear {
+    c.drive.gear = Some(Gear {
         source: 3,
         ratio: 0.5,
     });
@@ -429,7 +429,7 @@ fn a_geared_axis_follows_its_source_with_one_cycle_of_lag() {
 #[test]
 fn a_jog_stops_at_the_soft_limit() {
     let mut c = cfg();
-    c.max_position = Some(2.0);
+    c.motion.max_position = Some(2.0);
     let mut rig = Rig::enabled(c);
     rig.command(AxisCommand::Jog {
         velocity: 50.0,
@@ -451,7 +451,7 @@ fn a_jog_stops_at_the_soft_limit() {
 #[test]
 fn a_velocity_mode_jog_runs_in_the_slave_and_resumes_position_control_where_it_stopped() {
     let mut c = cfg();
-    c.jog_mode = JogMode::SlaveVelocity;
+    c.drive.jog_mode = JogMode::SlaveVelocity;
     let mut rig = Rig::enabled(c);
     let start = rig.servo.position;
     // 10 mm/s = 10 000 counts/s = 1 rev/s = 60 r/min = 60 000 × 0.001 r/min.
@@ -507,9 +507,9 @@ fn every_stop_brakes_at_least_at_the_stop_deceleration() {
     for by in ["stop", "quick stop", "dead-man"] {
         let cfg = cfg();
         let a_stop = if by == "quick stop" {
-            cfg.quick_stop_deceleration
+            cfg.motion.quick_stop_deceleration
         } else {
-            cfg.stop_deceleration
+            cfg.motion.stop_deceleration
         };
         let mut rig = Rig::enabled(cfg);
         let op = if by == "dead-man" {

@@ -263,8 +263,8 @@ impl Rig {
     fn mv(&mut self, target: f64) -> OpId {
         let cfg = self.axis.config();
         let (velocity, acceleration) = (
-            cfg.max_velocity.min(100.0),
-            cfg.max_acceleration.min(1000.0),
+            cfg.motion.max_velocity.min(100.0),
+            cfg.motion.max_acceleration.min(1000.0),
         );
         self.command(AxisCommand::Move {
             target,
@@ -282,7 +282,7 @@ fn commands_before_process_data_are_refused_clearly() {
     let err = axis
         .command(AxisCommand::Enable, Duration::ZERO, &mut Vec::new())
         .unwrap_err();
-    assert!(matches!(err, CommandError::FailedPrecondition(m) if m.contains("no process data")));
+    assert!(matches!(err, CommandError::DriveUnavailable(m) if m.contains("no process data")));
 }
 
 #[test]
@@ -297,7 +297,7 @@ fn enable_walks_the_state_machine_and_moves_need_it() {
         })
         .unwrap_err();
     assert!(
-        matches!(&refused, CommandError::FailedPrecondition(m)
+        matches!(&refused, CommandError::NotEnabled(m)
             if m.contains("not enabled") && m.contains("switch on disabled")),
         "{refused:?}"
     );
@@ -383,7 +383,7 @@ fn soft_limits_and_maxima_are_enforced_before_anything_is_sent() {
         })
         .unwrap_err();
     assert!(
-        matches!(&err, CommandError::OutOfRange(m) if m.contains("max_position = 500 mm")),
+        matches!(&err, CommandError::BeyondSoftLimit(m) if m.contains("max_position = 500 mm")),
         "{err:?}"
     );
     let err = rig
@@ -394,7 +394,7 @@ fn soft_limits_and_maxima_are_enforced_before_anything_is_sent() {
             acceleration: None,
         })
         .unwrap_err();
-    assert!(matches!(err, CommandError::OutOfRange(_)), "{err:?}");
+    assert!(matches!(err, CommandError::AboveMaximum(_)), "{err:?}");
     let err = rig
         .command(AxisCommand::Move {
             target: f64::NAN,
@@ -403,14 +403,14 @@ fn soft_limits_and_maxima_are_enforced_before_anything_is_sent() {
             acceleration: None,
         })
         .unwrap_err();
-    assert!(matches!(err, CommandError::InvalidArgument(_)), "{err:?}");
+    assert!(matches!(err, CommandError::BadValue(_)), "{err:?}");
     let err = rig
         .command(AxisCommand::Jog {
             velocity: -300.0,
             acceleration: None,
         })
         .unwrap_err();
-    assert!(matches!(err, CommandError::OutOfRange(_)), "{err:?}");
+    assert!(matches!(err, CommandError::AboveMaximum(_)), "{err:?}");
     assert!(rig.sent.is_empty());
 }
 
@@ -727,7 +727,7 @@ fn fault_ends_the_move_reports_the_emcy_and_reset_enable_recovers() {
     assert_eq!(s.fault, Some((0x2310, "continuous over-current".into())));
     let err = rig.command(AxisCommand::Enable).unwrap_err();
     assert!(
-        matches!(&err, CommandError::FailedPrecondition(m) if m.contains("ResetFault")),
+        matches!(&err, CommandError::InFault(m) if m.contains("ResetFault")),
         "{err:?}"
     );
     let reset = rig.command(AxisCommand::ResetFault).unwrap();
@@ -762,7 +762,7 @@ fn node_loss_ends_commands_and_refuses_new_ones_until_back() {
         "node lost: heartbeat timeout"
     );
     let err = rig.command(AxisCommand::Enable).unwrap_err();
-    assert!(matches!(&err, CommandError::FailedPrecondition(m) if m.contains("node is lost")));
+    assert!(matches!(&err, CommandError::DriveUnavailable(m) if m.contains("node is lost")));
     let mut out = Vec::new();
     rig.axis.on_node_back(false, &mut out);
     rig.handle(out);
@@ -892,14 +892,14 @@ fn demo_config(mode: PositionMode) -> Cia402Config {
         PositionMode::Cyclic => (200.0, 100.0, 1000.0),
         PositionMode::Profile => (100.0, 50.0, 500.0),
     };
-    cfg.min_position = Some(-limit);
-    cfg.max_position = Some(limit);
-    cfg.max_velocity = vmax;
-    cfg.max_acceleration = amax;
-    cfg.default_velocity = vmax / 4.0;
-    cfg.default_acceleration = amax / 4.0;
-    cfg.stop_deceleration = amax;
-    cfg.quick_stop_deceleration = amax;
+    cfg.motion.min_position = Some(-limit);
+    cfg.motion.max_position = Some(limit);
+    cfg.motion.max_velocity = vmax;
+    cfg.motion.max_acceleration = amax;
+    cfg.motion.default_velocity = vmax / 4.0;
+    cfg.motion.default_acceleration = amax / 4.0;
+    cfg.motion.stop_deceleration = amax;
+    cfg.motion.quick_stop_deceleration = amax;
     cfg
 }
 
@@ -1065,9 +1065,9 @@ fn every_stop_brakes_at_least_at_the_stop_deceleration() {
         for by in [StopBy::Stop, StopBy::QuickStop, StopBy::DeadMan] {
             let cfg = demo_config(mode);
             let a_stop = if by == StopBy::QuickStop {
-                cfg.quick_stop_deceleration
+                cfg.motion.quick_stop_deceleration
             } else {
-                cfg.stop_deceleration
+                cfg.motion.stop_deceleration
             };
             let (d, v) = stopping_distance(mode, split, by);
             assert!((v - 20.0).abs() < 0.5, "{mode:?} {by:?}: at speed ({v})");
@@ -1150,7 +1150,7 @@ fn a_move_is_refused_while_a_disable_is_under_way() {
             AxisCommand::Home,
         ] {
             match rig.command(cmd) {
-                Err(CommandError::FailedPrecondition(m)) => {
+                Err(CommandError::Busy(m)) => {
                     assert!(m.contains("being disabled"), "{mode:?}: {m}")
                 }
                 other => panic!("{mode:?} {cmd:?}: {other:?}"),

@@ -590,7 +590,12 @@ impl BusHandle {
             &shared,
             &shared.subscribers.lock().expect("subscriber lock"),
         );
-        let task = tokio::spawn(run_bus(backend, shared.clone(), rx, paced_rx, cancel));
+        // Everything the bus task logs is in the bus's span.
+        let span = tracing::info_span!("bus", bus = %shared.info.name);
+        let task = tokio::spawn(tracing::Instrument::instrument(
+            run_bus(backend, shared.clone(), rx, paced_rx, cancel),
+            span,
+        ));
         (BusHandle { shared }, task)
     }
 

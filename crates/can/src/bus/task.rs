@@ -12,7 +12,6 @@ pub(super) async fn run_bus(
     mut paced_rx: Option<mpsc::Receiver<PacedRequest>>,
     cancel: CancellationToken,
 ) {
-    let name = shared.info.name.clone();
     let timing = shared.info.bitrate.map(|bitrate| BitTiming {
         bitrate,
         data_bitrate: shared.info.data_bitrate.unwrap_or(bitrate),
@@ -27,7 +26,7 @@ pub(super) async fn run_bus(
     // counts them).
     let mut virtual_lost_told = 0u64;
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    tracing::info!(bus = %name, backend = ?shared.info.kind, interface = %shared.info.interface, "bus started");
+    tracing::info!(backend = ?shared.info.kind, interface = %shared.info.interface, "bus started");
     // One cancellation future for the whole loop: a fresh one per turn
     // registers with and unregisters from the token's waiter list at every
     // wake-up of this hot task.
@@ -55,7 +54,7 @@ pub(super) async fn run_bus(
                     }
                     None => {
                         if let Err(e) = result {
-                            tracing::warn!(bus = %name, error = %e, "submitted frames not sent");
+                            tracing::warn!(error = %e, "submitted frames not sent");
                         }
                     }
                 }
@@ -99,7 +98,7 @@ pub(super) async fn run_bus(
                             fanout_lost(&shared, n);
                         }
                         BackendEvent::State(status) => {
-                            tracing::info!(bus = %name, state = %status.state, tec = status.tx_errors, rec = status.rx_errors, "bus state changed");
+                            tracing::info!(state = %status.state, tec = status.tx_errors, rec = status.rx_errors, "bus state changed");
                             publish_state(&shared, status);
                         }
                     }
@@ -150,7 +149,7 @@ pub(super) async fn run_bus(
     }
     // Dropping the senders ends every subscription's stream.
     shared.subscribers.lock().expect("subscriber lock").clear();
-    tracing::info!(bus = %name, "bus stopped");
+    tracing::info!("bus stopped");
 }
 
 /// Sends a batch to a virtual bus (in the class's lane) and counts it;

@@ -24,19 +24,19 @@ _sym_db = _symbol_database.Default()
 
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x18\x63\x61ngate/v1/session.proto\x12\ncangate.v1\"\x12\n\x10GetCallerRequest\"d\n\x06\x43\x61ller\x12\x0c\n\x04name\x18\x01 \x01(\t\x12$\n\x04role\x18\x02 \x01(\x0e\x32\x16.cangate.v1.CallerRole\x12\x0e\n\x06method\x18\x03 \x01(\t\x12\x16\n\x0e\x61uthentication\x18\x04 \x01(\x08*u\n\nCallerRole\x12\x1b\n\x17\x43\x41LLER_ROLE_UNSPECIFIED\x10\x00\x12\x16\n\x12\x43\x41LLER_ROLE_VIEWER\x10\x01\x12\x18\n\x14\x43\x41LLER_ROLE_OPERATOR\x10\x02\x12\x18\n\x14\x43\x41LLER_ROLE_ENGINEER\x10\x03\x32H\n\x07Session\x12=\n\tGetCaller\x12\x1c.cangate.v1.GetCallerRequest\x1a\x12.cangate.v1.Callerb\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x18\x63\x61ngate/v1/session.proto\x12\ncangate.v1\"\x12\n\x10GetCallerRequest\"v\n\x06\x43\x61ller\x12\x0c\n\x04name\x18\x01 \x01(\t\x12$\n\x04role\x18\x02 \x01(\x0e\x32\x16.cangate.v1.CallerRole\x12\x0e\n\x06method\x18\x03 \x01(\t\x12\x16\n\x0e\x61uthentication\x18\x04 \x01(\x08\x12\x10\n\x08may_stop\x18\x05 \x01(\x08*u\n\nCallerRole\x12\x1b\n\x17\x43\x41LLER_ROLE_UNSPECIFIED\x10\x00\x12\x16\n\x12\x43\x41LLER_ROLE_VIEWER\x10\x01\x12\x18\n\x14\x43\x41LLER_ROLE_OPERATOR\x10\x02\x12\x18\n\x14\x43\x41LLER_ROLE_ENGINEER\x10\x03\x32H\n\x07Session\x12=\n\tGetCaller\x12\x1c.cangate.v1.GetCallerRequest\x1a\x12.cangate.v1.Callerb\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
 _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'cangate.v1.session_pb2', _globals)
 if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
-  _globals['_CALLERROLE']._serialized_start=162
-  _globals['_CALLERROLE']._serialized_end=279
+  _globals['_CALLERROLE']._serialized_start=180
+  _globals['_CALLERROLE']._serialized_end=297
   _globals['_GETCALLERREQUEST']._serialized_start=40
   _globals['_GETCALLERREQUEST']._serialized_end=58
   _globals['_CALLER']._serialized_start=60
-  _globals['_CALLER']._serialized_end=160
-  _globals['_SESSION']._serialized_start=281
-  _globals['_SESSION']._serialized_end=353
+  _globals['_CALLER']._serialized_end=178
+  _globals['_SESSION']._serialized_start=299
+  _globals['_SESSION']._serialized_end=371
 # @@protoc_insertion_point(module_scope)

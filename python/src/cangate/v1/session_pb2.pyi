@@ -21,13 +21,15 @@ class GetCallerRequest(_message.Message):
     def __init__(self) -> None: ...
 
 class Caller(_message.Message):
-    __slots__ = ("name", "role", "method", "authentication")
+    __slots__ = ("name", "role", "method", "authentication", "may_stop")
     NAME_FIELD_NUMBER: _ClassVar[int]
     ROLE_FIELD_NUMBER: _ClassVar[int]
     METHOD_FIELD_NUMBER: _ClassVar[int]
     AUTHENTICATION_FIELD_NUMBER: _ClassVar[int]
+    MAY_STOP_FIELD_NUMBER: _ClassVar[int]
     name: str
     role: CallerRole
     method: str
     authentication: bool
-    def __init__(self, name: _Optional[str] = ..., role: _Optional[_Union[CallerRole, str]] = ..., method: _Optional[str] = ..., authentication: _Optional[bool] = ...) -> None: ...
+    may_stop: bool
+    def __init__(self, name: _Optional[str] = ..., role: _Optional[_Union[CallerRole, str]] = ..., method: _Optional[str] = ..., authentication: _Optional[bool] = ..., may_stop: _Optional[bool] = ...) -> None: ...

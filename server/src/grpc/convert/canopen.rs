@@ -1,13 +1,15 @@
-//! CANopen values, data types, NMT states, EMCY, nodes and object
-//! dictionary entries as protobuf messages, and typed values from them.
+//! CANopen values, data types, NMT states, EMCY, nodes, node events, SDO
+//! transfers, program download steps and outcomes, and object dictionary
+//! entries as protobuf messages, and typed values from them.
 
-use crate::canopen::NodeSnapshot;
+use crate::canopen::{NodeEvent, NodeEventKind, NodeSnapshot};
 use crate::grpc::error::ApiError;
 use cangate_can::Timestamp;
 use cangate_canopen::NodeId;
 use cangate_canopen::emcy::Emcy;
 use cangate_canopen::nmt::NmtState;
 use cangate_canopen::od::{AccessType, ObjectDictionary, Variable};
+use cangate_canopen::program_download::{ProgramOutcome, ProgramStep};
 use cangate_canopen::value::{DataType, Value};
 use cangate_proto::v1 as pb;
 
@@ -379,6 +381,115 @@ pub(crate) fn pdo_from_pb(
         config,
         enabled: p.enabled,
     })
+}
+
+/// A node event of bus `bus` as its protobuf message.
+pub(crate) fn node_event_to_pb(bus: &str, ev: &NodeEvent) -> pb::NodeEvent {
+    use pb::node_event::Event as E;
+    let event = match &ev.kind {
+        NodeEventKind::BootUp => E::BootUp(pb::BootUp {}),
+        NodeEventKind::StateChanged { from, to } => E::StateChanged(pb::StateChange {
+            from: nmt_state_to_pb(*from) as i32,
+            to: nmt_state_to_pb(Some(*to)) as i32,
+        }),
+        NodeEventKind::HeartbeatLost { timeout, guarding } => E::HeartbeatLost(pb::HeartbeatLost {
+            timeout_ms: timeout.as_millis() as u32,
+            monitoring: monitoring_to_pb(*guarding) as i32,
+        }),
+        NodeEventKind::HeartbeatRecovered {
+            state,
+            after,
+            guarding,
+        } => E::HeartbeatRecovered(pb::HeartbeatRecovered {
+            state: nmt_state_to_pb(Some(*state)) as i32,
+            silent_ms: after.as_millis() as u64,
+            monitoring: monitoring_to_pb(*guarding) as i32,
+        }),
+        NodeEventKind::GuardingToggleError {
+            data,
+            expected,
+            count,
+        } => E::GuardingToggleError(pb::GuardingToggleError {
+            data: u32::from(*data),
+            expected_toggle: *expected,
+            count: *count,
+        }),
+        NodeEventKind::Emcy(e) => E::Emcy(emcy_to_pb(e, ev.at)),
+        NodeEventKind::BootCompleted { .. } => E::BootCompleted(pb::BootCompleted {}),
+        NodeEventKind::BootFailed { reason } => E::BootFailed(pb::BootFailed {
+            reason: reason.clone(),
+        }),
+    };
+    pb::NodeEvent {
+        bus: bus.to_string(),
+        node: ev.node.get() as u32,
+        timestamp_ns: ev.at.as_nanos(),
+        event: Some(event),
+    }
+}
+
+/// The node events of bus `bus` a subscriber missed, as a node event.
+pub(crate) fn node_events_lost_to_pb(bus: &str, count: u64) -> pb::NodeEvent {
+    pb::NodeEvent {
+        bus: bus.to_string(),
+        node: 0,
+        timestamp_ns: Timestamp::now().as_nanos(),
+        event: Some(pb::node_event::Event::Lost(pb::EventsLost { count })),
+    }
+}
+
+/// An SDO transfer in progress with `node`.
+pub(crate) fn sdo_transfer_to_pb(
+    node: NodeId,
+    p: &cangate_canopen::sdo::Progress,
+) -> pb::SdoTransfer {
+    use cangate_canopen::sdo::{Direction, Protocol};
+    pb::SdoTransfer {
+        node: node.get() as u32,
+        index: p.addr.index as u32,
+        subindex: p.addr.sub as u32,
+        upload: p.direction == Direction::Upload,
+        protocol: match p.protocol {
+            Some(Protocol::Expedited) => "expedited",
+            Some(Protocol::Segmented) => "segmented",
+            Some(Protocol::Block) => "block",
+            None => "",
+        }
+        .to_string(),
+        transferred: p.transferred as u64,
+        total: p.total.map(|t| t as u64),
+    }
+}
+
+/// A program download step.
+pub(crate) fn program_step_to_pb(step: ProgramStep) -> pb::ProgramStep {
+    match step {
+        ProgramStep::ReadIdentificationBefore => pb::ProgramStep::ReadIdentificationBefore,
+        ProgramStep::StopProgram => pb::ProgramStep::StopProgram,
+        ProgramStep::ClearProgram => pb::ProgramStep::ClearProgram,
+        ProgramStep::DownloadData => pb::ProgramStep::DownloadData,
+        ProgramStep::WaitFlash => pb::ProgramStep::WaitFlash,
+        ProgramStep::StartProgram => pb::ProgramStep::StartProgram,
+        ProgramStep::WaitBootUp => pb::ProgramStep::WaitBootUp,
+        ProgramStep::ReadIdentificationAfter => pb::ProgramStep::ReadIdentificationAfter,
+    }
+}
+
+/// A completed program download.
+pub(crate) fn program_outcome_to_pb(o: &ProgramOutcome) -> pb::DownloadProgramOutcome {
+    let secs = o.download_duration.as_secs_f64();
+    pb::DownloadProgramOutcome {
+        old_identification: o.old_identification,
+        new_identification: o.new_identification,
+        bytes: o.bytes as u64,
+        duration_ms: o.duration.as_millis() as u64,
+        data_duration_ms: o.download_duration.as_millis() as u64,
+        data_bytes_per_second: if secs > 0.0 {
+            o.bytes as f64 / secs
+        } else {
+            0.0
+        },
+    }
 }
 
 #[cfg(test)]

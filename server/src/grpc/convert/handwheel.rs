@@ -1,8 +1,9 @@
 //! Handwheels, feed events and their statistics as protobuf messages.
 
-use crate::config::CounterChoice;
 use crate::handwheel::{Handwheels, Mode, WheelFeed};
-use cangate_canopen::handwheel::{BaselineReason, Direction, FeedStats, HandwheelAxis};
+use cangate_canopen::handwheel::{
+    BaselineReason, CounterLayout, Direction, FeedStats, HandwheelAxis,
+};
 use cangate_proto::v1 as pb;
 
 pub(crate) fn axis_pb(a: HandwheelAxis) -> pb::WheelAxis {
@@ -51,9 +52,9 @@ pub(crate) fn wheel_pb(m: &Handwheels, i: usize) -> pb::Handwheel {
         name: c.name.clone(),
         bus: c.bus.clone(),
         node: c.node,
-        counter_layout: match c.counter {
-            CounterChoice::Nibble => pb::CounterLayout::Nibble,
-            CounterChoice::Bits67 => pb::CounterLayout::Bits67,
+        counter_layout: match w.layout {
+            CounterLayout::Nibble => pb::CounterLayout::Nibble,
+            CounterLayout::Bits6_7 => pb::CounterLayout::Bits67,
         } as i32,
         mode: mode_pb(*w.mode.lock().expect("mode lock")) as i32,
         node_lost: *w.node_lost.lock().expect("lock"),

@@ -20,7 +20,7 @@ import type { Message } from "@bufbuild/protobuf";
  * Describes the file cangate/v1/session.proto.
  */
 export const file_cangate_v1_session: GenFile = /*@__PURE__*/
-  fileDesc("ChhjYW5nYXRlL3YxL3Nlc3Npb24ucHJvdG8SCmNhbmdhdGUudjEiEgoQR2V0Q2FsbGVyUmVxdWVzdCJkCgZDYWxsZXISDAoEbmFtZRgBIAEoCRIkCgRyb2xlGAIgASgOMhYuY2FuZ2F0ZS52MS5DYWxsZXJSb2xlEg4KBm1ldGhvZBgDIAEoCRIWCg5hdXRoZW50aWNhdGlvbhgEIAEoCCp1CgpDYWxsZXJSb2xlEhsKF0NBTExFUl9ST0xFX1VOU1BFQ0lGSUVEEAASFgoSQ0FMTEVSX1JPTEVfVklFV0VSEAESGAoUQ0FMTEVSX1JPTEVfT1BFUkFUT1IQAhIYChRDQUxMRVJfUk9MRV9FTkdJTkVFUhADMkgKB1Nlc3Npb24SPQoJR2V0Q2FsbGVyEhwuY2FuZ2F0ZS52MS5HZXRDYWxsZXJSZXF1ZXN0GhIuY2FuZ2F0ZS52MS5DYWxsZXJiBnByb3RvMw");
+  fileDesc("ChhjYW5nYXRlL3YxL3Nlc3Npb24ucHJvdG8SCmNhbmdhdGUudjEiEgoQR2V0Q2FsbGVyUmVxdWVzdCJ2CgZDYWxsZXISDAoEbmFtZRgBIAEoCRIkCgRyb2xlGAIgASgOMhYuY2FuZ2F0ZS52MS5DYWxsZXJSb2xlEg4KBm1ldGhvZBgDIAEoCRIWCg5hdXRoZW50aWNhdGlvbhgEIAEoCBIQCghtYXlfc3RvcBgFIAEoCCp1CgpDYWxsZXJSb2xlEhsKF0NBTExFUl9ST0xFX1VOU1BFQ0lGSUVEEAASFgoSQ0FMTEVSX1JPTEVfVklFV0VSEAESGAoUQ0FMTEVSX1JPTEVfT1BFUkFUT1IQAhIYChRDQUxMRVJfUk9MRV9FTkdJTkVFUhADMkgKB1Nlc3Npb24SPQoJR2V0Q2FsbGVyEhwuY2FuZ2F0ZS52MS5HZXRDYWxsZXJSZXF1ZXN0GhIuY2FuZ2F0ZS52MS5DYWxsZXJiBnByb3RvMw");
 
 /**
  * GetCaller request (no fields).
@@ -73,6 +73,15 @@ export type Caller = Message<"cangate.v1.Caller"> & {
    * @generated from field: bool authentication = 4;
    */
   authentication: boolean;
+
+  /**
+   * The caller may stop axes (Stop, QuickStop, StopAxes): operators and
+   * engineers, and viewers where the gateway's `[security]
+   * viewers_may_stop` is on (a status panel's STOP ALL).
+   *
+   * @generated from field: bool may_stop = 5;
+   */
+  mayStop: boolean;
 };
 
 /**

@@ -1,0 +1,459 @@
+use super::*;
+
+const MS: Duration = Duration::from_millis(1);
+
+fn limits(max: Option<f64>) -> AxisLimits {
+    AxisLimits {
+        max_velocity: 100.0,
+        max_acceleration: 1000.0,
+        stop_deceleration: 1000.0,
+        min_position: max.map(|m| -m),
+        max_position: max,
+    }
+}
+
+fn player(axes: usize, depth_ms: u64) -> SetpointPlayer {
+    SetpointPlayer::new(
+        PlayerConfig::new(MS, Duration::from_millis(depth_ms)),
+        vec![limits(Some(500.0)); axes],
+        vec![0.0; axes],
+    )
+}
+
+/// A circle of radius `r` mm at `omega` rad/s on X/Y, starting at rest at
+/// the origin (the centre is at (-r, 0)): position at `t` s, with a
+/// smooth start (the angle's rate ramps up over the first second).
+fn circle(r: f64, omega: f64, t: f64) -> [f64; 2] {
+    let phase = if t < 1.0 {
+        omega * t * t / 2.0
+    } else {
+        omega * (t - 0.5)
+    };
+    [r * phase.cos() - r, r * phase.sin()]
+}
+
+#[test]
+fn a_circle_at_one_kilohertz_plays_every_point_after_the_buffer() {
+    let mut p = player(2, 20);
+    // The client's clock starts at 5 s; the network takes 3 ms.
+    let client0 = 5_000_000u64;
+    let mut played = Vec::new();
+    for k in 0..3000u64 {
+        let now = MS * (k as u32);
+        let t = k as f64 / 1000.0;
+        let pos = circle(10.0, 2.0, t);
+        if now >= 3 * MS {
+            let sent = k - 3;
+            let pos = circle(10.0, 2.0, sent as f64 / 1000.0);
+            p.push(
+                StreamPoint {
+                    t_us: client0 + sent * 1000,
+                    positions: pos.to_vec(),
+                },
+                now,
+            )
+            .expect("a point inside the limits");
+        }
+        let out = p.next(now);
+        played.push(out.positions.clone());
+        let _ = pos;
+    }
+    let c = p.counters();
+    assert_eq!(c.refused, 0);
+    assert_eq!(c.late, 0);
+    assert_eq!(c.underruns, 0);
+    assert_eq!(c.received, 2997);
+    // Played 23 ms behind the client (3 ms network, 20 ms buffer).
+    let k = 2500usize;
+    let expected = circle(10.0, 2.0, (k - 23) as f64 / 1000.0);
+    assert!(
+        (played[k][0] - expected[0]).abs() < 1e-6,
+        "{:?} {expected:?}",
+        played[k]
+    );
+    assert!((played[k][1] - expected[1]).abs() < 1e-6);
+    assert_eq!(p.clock_offset_us(), Some(3000 - 5_000_000));
+    assert!(
+        p.level(MS * 2999) >= Duration::from_millis(19),
+        "{:?}",
+        p.level(MS * 2999)
+    );
+}
+
+#[test]
+fn points_beyond_the_limits_are_refused_with_the_reason() {
+    let mut p = player(1, 10);
+    let at = |ms: u64| Duration::from_millis(ms);
+    let pt = |t_ms: u64, x: f64| StreamPoint {
+        t_us: t_ms * 1000,
+        positions: vec![x],
+    };
+    // Not where the axis stands (0).
+    assert!(matches!(
+        p.push(pt(0, 5.0), at(0)),
+        Err(PointRefused::NotWhereTheAxisStands { .. })
+    ));
+    p.push(pt(0, 0.0), at(0)).unwrap();
+    // 1 mm in 1 ms from rest: 1000 mm/s, beyond 100 mm/s.
+    assert!(matches!(
+        p.push(pt(1, 1.0), at(1)),
+        Err(PointRefused::TooFast { .. })
+    ));
+    // 0.05 mm in 1 ms from rest: 50 mm/s reached in 1 ms, 50000 mm/s².
+    assert!(matches!(
+        p.push(pt(1, 0.05), at(1)),
+        Err(PointRefused::TooHardAcceleration { .. })
+    ));
+    // 0.0005 mm in 1 ms: 0.5 mm/s, 500 mm/s²: fine.
+    p.push(pt(1, 0.0005), at(1)).unwrap();
+    // Same time again; backwards.
+    assert!(matches!(
+        p.push(pt(1, 0.001), at(2)),
+        Err(PointRefused::NotAfterPrevious { .. })
+    ));
+    assert!(matches!(
+        p.push(pt(0, 0.001), at(2)),
+        Err(PointRefused::NotAfterPrevious { .. })
+    ));
+    assert!(matches!(
+        p.push(
+            StreamPoint {
+                t_us: 2000,
+                positions: vec![f64::NAN]
+            },
+            at(2)
+        ),
+        Err(PointRefused::NotFinite { .. })
+    ));
+    assert!(matches!(
+        p.push(
+            StreamPoint {
+                t_us: 2000,
+                positions: vec![0.0, 0.0]
+            },
+            at(2)
+        ),
+        Err(PointRefused::Dimension { got: 2, want: 1 })
+    ));
+    let c = p.counters();
+    assert_eq!((c.received, c.accepted, c.refused), (9, 2, 7));
+}
+
+#[test]
+fn a_point_that_could_not_stop_inside_the_soft_limits_is_refused() {
+    // Soft limit at 500; at 100 mm/s the stop takes 5 mm (1000 mm/s²).
+    let mut p = SetpointPlayer::new(
+        PlayerConfig::new(MS, Duration::from_millis(10)),
+        vec![limits(Some(500.0))],
+        vec![490.0],
+    );
+    p.push(
+        StreamPoint {
+            t_us: 0,
+            positions: vec![490.0],
+        },
+        Duration::ZERO,
+    )
+    .unwrap();
+    // Accelerate at 1000 mm/s² (within the limit) towards the limit.
+    let mut x = 490.0;
+    let mut v = 0.0;
+    let mut refused = None;
+    for k in 1..200u64 {
+        v = f64::min(v + 1.0, 100.0);
+        x += v / 1000.0;
+        if let Err(e) = p.push(
+            StreamPoint {
+                t_us: k * 1000,
+                positions: vec![x],
+            },
+            MS * k as u32,
+        ) {
+            refused = Some((x, v, e));
+            break;
+        }
+    }
+    let (x, v, e) = refused.expect("refused before the limit");
+    assert!(matches!(e, PointRefused::BeyondSoftLimit { .. }), "{e}");
+    assert!(x < 500.0 && x + v * v / 2000.0 > 500.0, "{x} at {v}");
+}
+
+/// The client stops sending in the middle of the circle: the player goes
+/// on along the last segment for its extrapolation time, then brings both
+/// axes to rest together, each within its stop deceleration; a stream
+/// resumed where they stand plays again.
+#[test]
+fn an_underrun_ramps_both_axes_to_rest_together_and_the_stream_resumes() {
+    let mut p = player(2, 20);
+    let mut last = vec![0.0, 0.0];
+    let mut prev_v = [0.0f64; 2];
+    let mut events = Vec::new();
+    let mut stopped_at = None;
+    for k in 0..4000u64 {
+        let now = MS * (k as u32);
+        if k < 2000 {
+            let pos = circle(10.0, 2.0, k as f64 / 1000.0);
+            p.push(
+                StreamPoint {
+                    t_us: k * 1000,
+                    positions: pos.to_vec(),
+                },
+                now,
+            )
+            .unwrap();
+        }
+        let out = p.next(now);
+        for axis in 0..2 {
+            let v = (out.positions[axis] - last[axis]) * 1000.0;
+            assert!(
+                v.abs() <= 100.0 * 1.002,
+                "cycle {k}: axis {axis} at {v} mm/s"
+            );
+            let a = (v - prev_v[axis]) * 1000.0;
+            assert!(
+                a.abs() <= 1000.0 * 1.01 + 1e-6,
+                "cycle {k}: axis {axis} at {a} mm/s²"
+            );
+            prev_v[axis] = v;
+        }
+        last = out.positions.clone();
+        if let Some(e) = out.event {
+            events.push((k, e));
+            if e == PlayerEvent::AtRest {
+                stopped_at = Some((k, out.positions.clone()));
+            }
+        }
+    }
+    assert_eq!(
+        events.iter().map(|e| e.1).collect::<Vec<_>>(),
+        [PlayerEvent::Underrun, PlayerEvent::AtRest]
+    );
+    // The last point plays at 1999 + 20 ms; 20 ms of extrapolation; then
+    // the ramp: the circle's speed is 20 mm/s, 20 ms at 1000 mm/s².
+    let (underrun, _) = events[0];
+    assert!((2038..=2042).contains(&underrun), "underrun at {underrun}");
+    let (rest, standing) = stopped_at.unwrap();
+    assert!(
+        rest - underrun <= 22,
+        "at rest {rest} after the underrun at {underrun}"
+    );
+    assert_eq!(p.state(), PlayerState::Waiting);
+    assert_eq!(p.counters().underruns, 1);
+    // Resumed from where they stand.
+    let t0 = 10_000_000u64;
+    p.push(
+        StreamPoint {
+            t_us: t0,
+            positions: standing.clone(),
+        },
+        MS * 4000,
+    )
+    .unwrap();
+    let mut x = standing[0];
+    for k in 1..100u64 {
+        x += 0.0001 * k as f64 / 100.0;
+        p.push(
+            StreamPoint {
+                t_us: t0 + k * 1000,
+                positions: vec![x, standing[1]],
+            },
+            MS * (4000 + k as u32),
+        )
+        .unwrap();
+        p.next(MS * (4000 + k as u32));
+    }
+    assert_eq!(p.state(), PlayerState::Playing);
+}
+
+#[test]
+fn a_stop_brings_the_axes_to_rest_and_drops_what_is_buffered() {
+    let mut p = player(1, 20);
+    let mut x = 0.0;
+    let mut v: f64 = 0.0;
+    for k in 0..500u64 {
+        if k > 0 {
+            v = (v + 1.0).min(50.0);
+            x += v / 1000.0;
+        }
+        p.push(
+            StreamPoint {
+                t_us: k * 1000,
+                positions: vec![x],
+            },
+            MS * k as u32,
+        )
+        .unwrap();
+        p.next(MS * k as u32);
+    }
+    p.stop(MS * 500);
+    let mut k = 500;
+    let mut out;
+    loop {
+        k += 1;
+        out = p.next(MS * k);
+        if out.event == Some(PlayerEvent::AtRest) {
+            break;
+        }
+        assert!(k < 600, "not at rest");
+    }
+    // 50 mm/s at 1000 mm/s²: 50 ms.
+    assert!((548..=553).contains(&k), "at rest at {k}");
+    let c = p.counters();
+    assert_eq!(c.accepted, c.played + c.late + c.dropped);
+    assert!(c.dropped >= 19, "{c:?}");
+}
+
+/// Random streams: random client periods, network delays with jitter,
+/// stalls and bursts, paths that sometimes break the limits, stops.
+/// Whatever comes, no played step is faster than the maximum velocity,
+/// none accelerates beyond what the accepted points allow, no position
+/// leaves the soft limits, every underrun ends at rest, and the counters
+/// add up.
+#[test]
+fn random_streams_never_jump_nor_leave_the_limits() {
+    for seed in 1..=60u64 {
+        random_stream(seed);
+    }
+}
+
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+    fn f64(&mut self) -> f64 {
+        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn range(&mut self, lo: u64, hi: u64) -> u64 {
+        lo + self.next() % (hi - lo)
+    }
+}
+
+fn random_stream(seed: u64) {
+    let mut rng = Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
+    let cycle = MS;
+    let depth = Duration::from_millis(rng.range(2, 30));
+    let lim = AxisLimits {
+        max_velocity: 50.0,
+        max_acceleration: 500.0,
+        stop_deceleration: 800.0,
+        min_position: Some(-20.0),
+        max_position: Some(20.0),
+    };
+    let mut p = SetpointPlayer::new(PlayerConfig::new(cycle, depth), vec![lim; 2], vec![0.0; 2]);
+    let period_us = rng.range(500, 10_000);
+    // The client's path: a target velocity that changes now and then,
+    // followed within the acceleration limit (sometimes beyond it, or
+    // beyond the velocity limit, on purpose).
+    let mut pos = [0.0f64; 2];
+    let mut vel = [0.0f64; 2];
+    let mut target = [0.0f64; 2];
+    let mut client_t = rng.range(0, 1_000_000_000);
+    let mut next_send = Duration::ZERO;
+    // Points in flight: (arrival, point).
+    let mut flight: Vec<(Duration, StreamPoint)> = Vec::new();
+    let mut stalled_until = Duration::ZERO;
+    let mut last = vec![0.0; 2];
+    let mut prev_v = [0.0f64; 2];
+    let mut first = true;
+    let mut stopping_ms = None;
+    let end = 20_000u32;
+    for k in 0..end {
+        let now = cycle * k;
+        // The client.
+        while next_send <= now && stopping_ms.is_none() {
+            if rng.f64() < 0.01 {
+                target = [(rng.f64() - 0.5) * 80.0, (rng.f64() - 0.5) * 80.0];
+            }
+            let dt = period_us as f64 / 1e6;
+            let wild = rng.f64() < 0.002;
+            for a in 0..2 {
+                // Head back from the soft limits early enough.
+                if pos[a].abs() > 12.0 && vel[a] * pos[a] > 0.0 {
+                    target[a] = -pos[a].signum() * 10.0;
+                }
+                let dv = (target[a] - vel[a]).clamp(-450.0 * dt, 450.0 * dt);
+                vel[a] += if wild { dv * 20.0 } else { dv };
+                pos[a] += vel[a] * dt;
+            }
+            client_t += period_us;
+            // The network: 1-3 ms, jitter up to 25 ms now and then, and
+            // stalls of up to 200 ms that release a burst.
+            let mut delay = Duration::from_micros(rng.range(1000, 3000));
+            if rng.f64() < 0.05 {
+                delay += Duration::from_micros(rng.range(0, 25_000));
+            }
+            if rng.f64() < 0.001 {
+                stalled_until = now + Duration::from_millis(rng.range(10, 200));
+            }
+            let arrive = (now + delay).max(stalled_until);
+            flight.push((
+                arrive,
+                StreamPoint {
+                    t_us: client_t,
+                    positions: pos.to_vec(),
+                },
+            ));
+            next_send += Duration::from_micros(period_us);
+        }
+        // Deliveries in arrival order (a stall releases a burst in order).
+        flight.sort_by_key(|(at, _)| *at);
+        while flight.first().is_some_and(|(at, _)| *at <= now) {
+            let (_, pt) = flight.remove(0);
+            let r = p.push(pt.clone(), now);
+            if first {
+                if r.is_ok() {
+                    first = false;
+                }
+            } else if let Err(PointRefused::NotWhereTheAxisStands { .. }) = r {
+                // The client resumes where the player stands after an
+                // underrun: its path restarts from there, at rest.
+                pos = [p.position()[0], p.position()[1]];
+                vel = [0.0; 2];
+            }
+        }
+        if k == end - 2000 {
+            p.stop(now);
+            stopping_ms = Some(k);
+        }
+        let out = p.next(now);
+        for a in 0..2 {
+            let x = out.positions[a];
+            assert!(
+                (-20.0 - 1e-6..=20.0 + 1e-6).contains(&x),
+                "seed {seed} cycle {k}: axis {a} at {x}"
+            );
+            let v = (x - last[a]) / cycle.as_secs_f64();
+            assert!(
+                v.abs() <= 50.0 * 1.002 + 1e-6,
+                "seed {seed} cycle {k}: axis {a} at {v} mm/s"
+            );
+            // The velocity changes by at most the acceleration over a
+            // cycle (the stop deceleration on the ramp to rest).
+            let dv_max = 800.0 * cycle.as_secs_f64();
+            let dv = v - prev_v[a];
+            assert!(
+                dv.abs() <= dv_max * (1.0 + 1e-6) + 1e-9,
+                "seed {seed} cycle {k}: axis {a} velocity {} -> {v} (period {period_us} µs)",
+                prev_v[a]
+            );
+            prev_v[a] = v;
+        }
+        last = out.positions.clone();
+    }
+    assert_eq!(
+        p.state(),
+        PlayerState::Waiting,
+        "seed {seed}: at rest at the end"
+    );
+    let c = p.counters();
+    assert_eq!(c.received, c.accepted + c.refused, "seed {seed}: {c:?}");
+    assert_eq!(
+        c.accepted,
+        c.played + c.late + c.dropped,
+        "seed {seed}: {c:?}"
+    );
+}
