@@ -1798,259 +1798,342 @@ impl Cia402Axis {
     }
 
     /// Moves `op` forward on the latest feedback; `Some` when it ended.
+    /// Each step of a command has its own function below; a step that
+    /// hands over to the next one at once (`Flow::Again`) is run again.
     fn progress(
         &mut self,
         op: &mut Op,
         now: Duration,
         out: &mut Vec<Output>,
     ) -> Option<(Outcome, String)> {
-        let unit = self.cfg.motion.unit.clone();
-        let fresh = self.fresh >= 2;
         loop {
-            match &mut op.step {
-                Step::Switch(driver) => {
-                    if driver.target() == DriveState::OperationEnabled
-                        && self.state() != Some(DriveState::OperationEnabled)
-                        && self.cfg.position_mode == PositionMode::Cyclic
-                    {
-                        // Until the drive is enabled it may still move (a
-                        // quick stop's ramp): it holds where it stands
-                        // when enabled, not where it stood at the command.
-                        self.demand = self.actual();
-                        self.image.target_position = self.position.unwrap_or_default();
-                    }
-                    let step = match self.statusword {
-                        Some(sw) if self.fresh > 0 || driver.statusword().is_none() => {
-                            self.fresh = 0;
-                            driver.on_statusword(sw, now)
-                        }
-                        _ => driver.on_tick(now),
-                    };
-                    return match step {
-                        DriverStep::Send(cw) => {
-                            self.image.controlword =
-                                (self.image.controlword & !Controlword::COMMAND_MASK) | cw.bits();
-                            self.send_image(out);
-                            None
-                        }
-                        DriverStep::Wait => None,
-                        DriverStep::Done(Ok(())) => {
-                            let state = driver.target();
-                            Some((Outcome::Completed, format!("drive in {state}")))
-                        }
-                        DriverStep::Done(Err(e)) => Some((Outcome::Timeout, e.to_string())),
-                    };
-                }
-                Step::AwaitSdo => {
-                    let (v, a) = self.wanted_profile(op);
-                    let u = self.units();
-                    let a_counts = u.to_counts_unsigned(a);
-                    let want = (u.to_counts_unsigned(v), a_counts, a_counts);
-                    if self.profile_written == Some(want) {
-                        let mode = match op.kind {
-                            CommandKind::Jog => ModeOfOperation::ProfileVelocity,
-                            _ => ModeOfOperation::ProfilePosition,
-                        };
-                        op.step = Step::AwaitMode(mode);
-                        if !self.mode_is(mode) {
-                            // Switch modes first; the set-point follows
-                            // once the drive displays the new mode.
-                            self.send_image(out);
-                        }
-                        continue;
-                    }
-                    if self.sdo_in_flight.is_none() {
-                        self.want_profile(v, a, out);
-                    }
-                    return None;
-                }
+            let flow = match &op.step {
+                Step::Switch(_) => Flow::Done(self.switch_step(op, now, out)),
+                Step::AwaitSdo => self.await_profile_sdo(op, out),
                 Step::AwaitMode(mode) => {
                     let mode = *mode;
-                    if !self.mode_is(mode) {
-                        return None;
-                    }
-                    match mode {
-                        ModeOfOperation::ProfilePosition => {
-                            self.image.target_position = self.units().to_counts(op.target);
-                            self.image.controlword = (self.image.controlword
-                                & !Controlword::HALT_BIT
-                                & !Controlword::RELATIVE_BIT)
-                                | Controlword::NEW_SET_POINT_BIT
-                                | Controlword::CHANGE_SET_IMMEDIATELY_BIT;
-                            self.send_image(out);
-                            op.step = Step::AwaitAck;
-                            op.arm(Some(now + self.cfg.motion.state_timeout));
-                            return None;
-                        }
-                        ModeOfOperation::ProfileVelocity => {
-                            op.step = Step::Jogging;
-                            op.arm(None);
-                            self.send_image(out);
-                            if !op.accepted {
-                                op.accepted = true;
-                                out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
-                            }
-                            return None;
-                        }
-                        ModeOfOperation::CyclicSynchronousPosition => {
-                            let planned = match op.command {
-                                AxisCommand::Jog { .. } => self.plan_jog(op, out),
-                                _ => self.plan_move(op, now, out),
-                            };
-                            return match planned {
-                                Ok(()) => None,
-                                Err(e) => Some((Outcome::Fault, e.to_string())),
-                            };
-                        }
-                        ModeOfOperation::Homing => {
-                            self.image.controlword |= Controlword::HOMING_START_BIT;
-                            self.send_image(out);
-                            op.step = Step::Homing;
-                            op.arm(Some(now + self.cfg.motion.homing_timeout));
-                            op.accepted = true;
-                            out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
-                            return None;
-                        }
-                        _ => return None,
-                    }
+                    Flow::Done(self.mode_reached(op, mode, now, out))
                 }
-                Step::AwaitAck => {
-                    let sw = self.statusword?;
-                    if !sw.set_point_acknowledge() {
-                        return None;
-                    }
-                    self.image.controlword &= !Controlword::NEW_SET_POINT_BIT;
-                    self.send_image(out);
-                    op.accepted = true;
-                    out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
-                    op.step = Step::ProfileMoving;
-                    let dist = (op.target - self.actual()).abs();
-                    let (v, a) = self.wanted_profile(op);
-                    let est = Limits::symmetric(v, a)
-                        .ok()
-                        .and_then(|l| TrapezoidProfile::rest_to_rest(0.0, dist, l).ok())
-                        .map_or(0.0, |p| p.duration());
-                    op.arm(Some(
-                        now + Duration::from_secs_f64(est.min(1e6))
-                            + self.cfg.motion.settle_timeout,
-                    ));
-                    return None;
-                }
-                Step::ProfileMoving => {
-                    let sw = self.statusword?;
-                    if fresh && !sw.set_point_acknowledge() && sw.target_reached() {
-                        return Some((
-                            Outcome::Completed,
-                            format!("target reached at {:.3} {unit}", self.actual()),
-                        ));
-                    }
-                    return None;
-                }
+                Step::AwaitAck => Flow::Done(self.set_point_acknowledged(op, now, out)),
+                Step::ProfileMoving => Flow::Done(self.profile_target_reached()),
                 Step::SettleFor(mode) => {
                     let mode = *mode;
-                    if self.trajectory.is_some() || !fresh || !self.at_rest() {
-                        return None;
-                    }
-                    self.begin_mode(mode, now, op, out);
-                    continue;
+                    self.settled_for(op, mode, now, out)
                 }
-                Step::CyclicMoving => {
-                    if self.trajectory.is_none() && fresh && self.in_position(op.target) {
-                        return Some((
-                            Outcome::Completed,
-                            format!("target reached at {:.3} {unit}", self.actual()),
-                        ));
-                    }
-                    return None;
-                }
-                Step::Homing => {
-                    let sw = self.statusword?;
-                    if !fresh {
-                        return None;
-                    }
-                    match sw.homing_status() {
-                        HomingStatus::Completed => {
-                            self.homed = true;
-                            self.image.controlword &= !Controlword::HOMING_START_BIT;
-                            // Back to the position mode, holding the new
-                            // position.
-                            self.demand = self.actual();
-                            self.demand_velocity = 0.0;
-                            self.demand_at = None;
-                            self.last_target = self.demand;
-                            self.image.target_position = self.position.unwrap_or_default();
-                            self.set_mode(self.mode_for_position());
-                            self.send_image(out);
-                            op.step = Step::HomingReturn;
-                            op.arm(Some(now + self.cfg.motion.state_timeout));
-                            return None;
-                        }
-                        HomingStatus::ErrorMoving | HomingStatus::ErrorStopped => {
-                            self.image.controlword &= !Controlword::HOMING_START_BIT;
-                            self.send_image(out);
-                            return Some((
-                                Outcome::Fault,
-                                format!("homing error reported by the drive (statusword {sw})"),
-                            ));
-                        }
-                        _ => return None,
-                    }
-                }
-                Step::HomingReturn => {
-                    let mode = self.mode_for_position();
-                    if self.mode_is(mode) && fresh {
-                        return Some((
-                            Outcome::Completed,
-                            format!("homed at {:.3} {unit}", self.actual()),
-                        ));
-                    }
-                    return None;
-                }
-                Step::Jogging => return None,
-                Step::Stopping => {
-                    let done = match op.kind {
-                        // Out of operation enabled (quick stop active,
-                        // switch on disabled, a fault) and standing still.
-                        CommandKind::QuickStop => {
-                            fresh
-                                && self.state() != Some(DriveState::OperationEnabled)
-                                && self.at_rest()
-                        }
-                        _ => match self.cfg.position_mode {
-                            PositionMode::Cyclic if self.in_cyclic_mode() => {
-                                self.trajectory.is_none() && fresh && self.in_position(self.demand)
-                            }
-                            _ => fresh && self.at_rest(),
-                        },
-                    };
-                    // A drive that left operation enabled (fault
-                    // reaction, disabled) is done when it stands still.
-                    if done
-                        || self.state() != Some(DriveState::OperationEnabled)
-                            && fresh
-                            && self.at_rest()
-                            && op.kind != CommandKind::QuickStop
-                    {
-                        let outcome = if op.kind == CommandKind::Jog {
-                            Outcome::Stopped
-                        } else {
-                            Outcome::Completed
-                        };
-                        let detail = if op.kind == CommandKind::Jog {
-                            format!(
-                                "jog dead-man released; at rest at {:.3} {unit}",
-                                self.actual()
-                            )
-                        } else {
-                            format!("at rest at {:.3} {unit}", self.actual())
-                        };
-                        return Some((outcome, detail));
-                    }
-                    return None;
-                }
+                Step::CyclicMoving => Flow::Done(self.cyclic_target_reached(op)),
+                Step::Homing => Flow::Done(self.homing_step(op, now, out)),
+                Step::HomingReturn => Flow::Done(self.homing_returned()),
+                Step::Jogging => Flow::Done(None),
+                Step::Stopping => Flow::Done(self.stop_finished(op)),
+            };
+            match flow {
+                Flow::Again => {}
+                Flow::Done(ended) => return ended,
             }
         }
     }
+
+    /// Walking the drive's state machine (enable, disable, reset fault).
+    fn switch_step(
+        &mut self,
+        op: &mut Op,
+        now: Duration,
+        out: &mut Vec<Output>,
+    ) -> Option<(Outcome, String)> {
+        let Step::Switch(driver) = &mut op.step else {
+            return None;
+        };
+        if driver.target() == DriveState::OperationEnabled
+            && self.state() != Some(DriveState::OperationEnabled)
+            && self.cfg.position_mode == PositionMode::Cyclic
+        {
+            // Until the drive is enabled it may still move (a
+            // quick stop's ramp): it holds where it stands
+            // when enabled, not where it stood at the command.
+            self.demand = self.actual();
+            self.image.target_position = self.position.unwrap_or_default();
+        }
+        let step = match self.statusword {
+            Some(sw) if self.fresh > 0 || driver.statusword().is_none() => {
+                self.fresh = 0;
+                driver.on_statusword(sw, now)
+            }
+            _ => driver.on_tick(now),
+        };
+        match step {
+            DriverStep::Send(cw) => {
+                self.image.controlword =
+                    (self.image.controlword & !Controlword::COMMAND_MASK) | cw.bits();
+                self.send_image(out);
+                None
+            }
+            DriverStep::Wait => None,
+            DriverStep::Done(Ok(())) => {
+                let state = driver.target();
+                Some((Outcome::Completed, format!("drive in {state}")))
+            }
+            DriverStep::Done(Err(e)) => Some((Outcome::Timeout, e.to_string())),
+        }
+    }
+
+    /// A profile move or jog: the profile velocity and acceleration
+    /// written by SDO first, then the mode.
+    fn await_profile_sdo(&mut self, op: &mut Op, out: &mut Vec<Output>) -> Flow {
+        let (v, a) = self.wanted_profile(op);
+        let u = self.units();
+        let a_counts = u.to_counts_unsigned(a);
+        let want = (u.to_counts_unsigned(v), a_counts, a_counts);
+        if self.profile_written == Some(want) {
+            let mode = match op.kind {
+                CommandKind::Jog => ModeOfOperation::ProfileVelocity,
+                _ => ModeOfOperation::ProfilePosition,
+            };
+            op.step = Step::AwaitMode(mode);
+            if !self.mode_is(mode) {
+                // Switch modes first; the set-point follows
+                // once the drive displays the new mode.
+                self.send_image(out);
+            }
+            return Flow::Again;
+        }
+        if self.sdo_in_flight.is_none() {
+            self.want_profile(v, a, out);
+        }
+        Flow::Done(None)
+    }
+
+    /// The drive displays the mode the command needs: start it.
+    fn mode_reached(
+        &mut self,
+        op: &mut Op,
+        mode: ModeOfOperation,
+        now: Duration,
+        out: &mut Vec<Output>,
+    ) -> Option<(Outcome, String)> {
+        if !self.mode_is(mode) {
+            return None;
+        }
+        match mode {
+            ModeOfOperation::ProfilePosition => {
+                self.image.target_position = self.units().to_counts(op.target);
+                self.image.controlword =
+                    (self.image.controlword & !Controlword::HALT_BIT & !Controlword::RELATIVE_BIT)
+                        | Controlword::NEW_SET_POINT_BIT
+                        | Controlword::CHANGE_SET_IMMEDIATELY_BIT;
+                self.send_image(out);
+                op.step = Step::AwaitAck;
+                op.arm(Some(now + self.cfg.motion.state_timeout));
+                None
+            }
+            ModeOfOperation::ProfileVelocity => {
+                op.step = Step::Jogging;
+                op.arm(None);
+                self.send_image(out);
+                if !op.accepted {
+                    op.accepted = true;
+                    out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
+                }
+                None
+            }
+            ModeOfOperation::CyclicSynchronousPosition => {
+                let planned = match op.command {
+                    AxisCommand::Jog { .. } => self.plan_jog(op, out),
+                    _ => self.plan_move(op, now, out),
+                };
+                match planned {
+                    Ok(()) => None,
+                    Err(e) => Some((Outcome::Fault, e.to_string())),
+                }
+            }
+            ModeOfOperation::Homing => {
+                self.image.controlword |= Controlword::HOMING_START_BIT;
+                self.send_image(out);
+                op.step = Step::Homing;
+                op.arm(Some(now + self.cfg.motion.homing_timeout));
+                op.accepted = true;
+                out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
+                None
+            }
+            _ => None,
+        }
+    }
+
+    /// A profile move's new set-point acknowledged by the drive.
+    fn set_point_acknowledged(
+        &mut self,
+        op: &mut Op,
+        now: Duration,
+        out: &mut Vec<Output>,
+    ) -> Option<(Outcome, String)> {
+        let sw = self.statusword?;
+        if !sw.set_point_acknowledge() {
+            return None;
+        }
+        self.image.controlword &= !Controlword::NEW_SET_POINT_BIT;
+        self.send_image(out);
+        op.accepted = true;
+        out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
+        op.step = Step::ProfileMoving;
+        let dist = (op.target - self.actual()).abs();
+        let (v, a) = self.wanted_profile(op);
+        let est = Limits::symmetric(v, a)
+            .ok()
+            .and_then(|l| TrapezoidProfile::rest_to_rest(0.0, dist, l).ok())
+            .map_or(0.0, |p| p.duration());
+        op.arm(Some(
+            now + Duration::from_secs_f64(est.min(1e6)) + self.cfg.motion.settle_timeout,
+        ));
+        None
+    }
+
+    /// A profile move ends when the drive reports the target reached.
+    fn profile_target_reached(&self) -> Option<(Outcome, String)> {
+        let unit = &self.cfg.motion.unit;
+        let fresh = self.fresh >= 2;
+        let sw = self.statusword?;
+        if fresh && !sw.set_point_acknowledge() && sw.target_reached() {
+            return Some((
+                Outcome::Completed,
+                format!("target reached at {:.3} {unit}", self.actual()),
+            ));
+        }
+        None
+    }
+
+    /// Waiting for the axis to stand still before it changes mode.
+    fn settled_for(
+        &mut self,
+        op: &mut Op,
+        mode: ModeOfOperation,
+        now: Duration,
+        out: &mut Vec<Output>,
+    ) -> Flow {
+        let fresh = self.fresh >= 2;
+        if self.trajectory.is_some() || !fresh || !self.at_rest() {
+            return Flow::Done(None);
+        }
+        self.begin_mode(mode, now, op, out);
+        Flow::Again
+    }
+
+    /// A cyclic move ends when its trajectory ended and the drive is in
+    /// position.
+    fn cyclic_target_reached(&self, op: &Op) -> Option<(Outcome, String)> {
+        let unit = &self.cfg.motion.unit;
+        let fresh = self.fresh >= 2;
+        if self.trajectory.is_none() && fresh && self.in_position(op.target) {
+            return Some((
+                Outcome::Completed,
+                format!("target reached at {:.3} {unit}", self.actual()),
+            ));
+        }
+        None
+    }
+
+    /// The drive's homing method runs.
+    fn homing_step(
+        &mut self,
+        op: &mut Op,
+        now: Duration,
+        out: &mut Vec<Output>,
+    ) -> Option<(Outcome, String)> {
+        let fresh = self.fresh >= 2;
+        let sw = self.statusword?;
+        if !fresh {
+            return None;
+        }
+        match sw.homing_status() {
+            HomingStatus::Completed => {
+                self.homed = true;
+                self.image.controlword &= !Controlword::HOMING_START_BIT;
+                // Back to the position mode, holding the new
+                // position.
+                self.demand = self.actual();
+                self.demand_velocity = 0.0;
+                self.demand_at = None;
+                self.last_target = self.demand;
+                self.image.target_position = self.position.unwrap_or_default();
+                self.set_mode(self.mode_for_position());
+                self.send_image(out);
+                op.step = Step::HomingReturn;
+                op.arm(Some(now + self.cfg.motion.state_timeout));
+                None
+            }
+            HomingStatus::ErrorMoving | HomingStatus::ErrorStopped => {
+                self.image.controlword &= !Controlword::HOMING_START_BIT;
+                self.send_image(out);
+                Some((
+                    Outcome::Fault,
+                    format!("homing error reported by the drive (statusword {sw})"),
+                ))
+            }
+            _ => None,
+        }
+    }
+
+    /// Homed, and back in the position mode.
+    fn homing_returned(&self) -> Option<(Outcome, String)> {
+        let unit = &self.cfg.motion.unit;
+        let fresh = self.fresh >= 2;
+        let mode = self.mode_for_position();
+        if self.mode_is(mode) && fresh {
+            return Some((
+                Outcome::Completed,
+                format!("homed at {:.3} {unit}", self.actual()),
+            ));
+        }
+        None
+    }
+
+    /// A stop (or a jog's dead-man stop) ends with the axis at rest.
+    fn stop_finished(&self, op: &Op) -> Option<(Outcome, String)> {
+        let unit = &self.cfg.motion.unit;
+        let fresh = self.fresh >= 2;
+        let done = match op.kind {
+            // Out of operation enabled (quick stop active,
+            // switch on disabled, a fault) and standing still.
+            CommandKind::QuickStop => {
+                fresh && self.state() != Some(DriveState::OperationEnabled) && self.at_rest()
+            }
+            _ => match self.cfg.position_mode {
+                PositionMode::Cyclic if self.in_cyclic_mode() => {
+                    self.trajectory.is_none() && fresh && self.in_position(self.demand)
+                }
+                _ => fresh && self.at_rest(),
+            },
+        };
+        // A drive that left operation enabled (fault
+        // reaction, disabled) is done when it stands still.
+        if done
+            || self.state() != Some(DriveState::OperationEnabled)
+                && fresh
+                && self.at_rest()
+                && op.kind != CommandKind::QuickStop
+        {
+            let outcome = if op.kind == CommandKind::Jog {
+                Outcome::Stopped
+            } else {
+                Outcome::Completed
+            };
+            let detail = if op.kind == CommandKind::Jog {
+                format!(
+                    "jog dead-man released; at rest at {:.3} {unit}",
+                    self.actual()
+                )
+            } else {
+                format!("at rest at {:.3} {unit}", self.actual())
+            };
+            return Some((outcome, detail));
+        }
+        None
+    }
+}
+
+/// What a step of a command did: ended it (or not yet: `None`), or
+/// handed over to the next step, which runs at once.
+enum Flow {
+    Done(Option<(Outcome, String)>),
+    Again,
 }
 
 #[cfg(test)]
