@@ -87,7 +87,12 @@ async fn a_direct_caller_with_its_lease_commands_the_axis() {
     let axes = server.gateway().axes().clone();
     let x = axes.index("X").unwrap();
     let lease = axes
-        .acquire(&["X".to_string()], 60_000, "embedded".into(), None)
+        .acquire(
+            &["X".to_string()],
+            Some(std::time::Duration::from_secs(60)),
+            "embedded".into(),
+            None,
+        )
         .unwrap();
     let embedded = Caller::new("embedding program").with_lease(lease.token.clone());
     let enabled = axes

@@ -401,7 +401,7 @@ impl Axes {
     pub fn acquire(
         &self,
         axes: &[String],
-        ttl_ms: u32,
+        ttl: Option<Duration>,
         holder: String,
         identity: Option<String>,
     ) -> Result<Lease, AxisError> {
@@ -409,19 +409,21 @@ impl Axes {
             return Err(AxisError::ShuttingDown);
         }
         if axes.is_empty() {
-            return Err(AxisError::InvalidArgument("name at least one axis".into()));
+            return Err(AxisError::BadAxisList("name at least one axis".into()));
         }
         let mut seen = HashSet::new();
         for a in axes {
             self.index(a)?;
             if !seen.insert(a) {
-                return Err(AxisError::InvalidArgument(format!(
-                    "axis {a} is named twice"
-                )));
+                return Err(AxisError::BadAxisList(format!("axis {a} is named twice")));
             }
         }
-        let ttl_ms =
-            if ttl_ms == 0 { DEFAULT_TTL_MS } else { ttl_ms }.clamp(MIN_TTL_MS, MAX_TTL_MS);
+        let ttl = ttl
+            .unwrap_or(Duration::from_millis(u64::from(DEFAULT_TTL_MS)))
+            .clamp(
+                Duration::from_millis(u64::from(MIN_TTL_MS)),
+                Duration::from_millis(u64::from(MAX_TTL_MS)),
+            );
         // The token is the control: 128 bits from the OS, not guessable.
         let mut raw = [0u8; 16];
         getrandom::fill(&mut raw).map_err(|e| {
@@ -430,13 +432,7 @@ impl Axes {
         let token: String = raw.iter().map(|b| format!("{b:02x}")).collect();
         let lease = {
             let mut leases = self.leases.lock().expect("lease lock");
-            let lease = leases.acquire(
-                token,
-                holder.clone(),
-                axes.to_vec(),
-                Duration::from_millis(u64::from(ttl_ms)),
-                self.now(),
-            )?;
+            let lease = leases.acquire(token, holder.clone(), axes.to_vec(), ttl, self.now())?;
             if let Some(identity) = identity {
                 leases.bind_owner(&lease.token, identity)?;
             }
@@ -636,7 +632,7 @@ impl Axes {
         wait: bool,
     ) -> Result<Vec<Result<CommandResult, AxisError>>, AxisError> {
         if targets.is_empty() {
-            return Err(AxisError::InvalidArgument("name at least one axis".into()));
+            return Err(AxisError::BadAxisList("name at least one axis".into()));
         }
         let first = &self.axes[targets[0].0];
         for (i, ..) in &targets {
@@ -743,9 +739,10 @@ pub enum AxisError {
     /// No such axis.
     #[error(transparent)]
     NotFound(#[from] NotFound),
-    /// The request is malformed (no axis named, an axis named twice).
+    /// The axes named are no list the call can take: none, or one named
+    /// twice.
     #[error("{0}")]
-    InvalidArgument(String),
+    BadAxisList(String),
     /// The axis controller refused the command (out of range, invalid,
     /// not possible in the axis's state); nothing changed.
     #[error(transparent)]

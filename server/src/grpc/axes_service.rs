@@ -291,9 +291,13 @@ impl AxesRpc for AxesService {
         } else {
             format!("{} ({peer})", r.client_name)
         };
-        let lease = self
-            .axes()
-            .acquire(&r.axes, r.ttl_ms, holder.clone(), owner);
+        let lease = self.axes().acquire(
+            &r.axes,
+            // 0: the default.
+            (r.ttl_ms != 0).then(|| Duration::from_millis(u64::from(r.ttl_ms))),
+            holder.clone(),
+            owner,
+        );
         tracing::info!(target: "cangate::audit", %peer, %holder, axes = ?r.axes, result = %lease.as_ref().map_or_else(|e| format!("refused: {e}"), |_| "granted".into()), "acquire control");
         let lease = lease?;
         Ok(Response::new(pb::ControlLease {

@@ -38,7 +38,7 @@ impl From<AxisError> for ApiError {
     fn from(e: AxisError) -> Self {
         match e {
             AxisError::NotFound(e) => e.into(),
-            AxisError::InvalidArgument(m) => ApiError::InvalidArgument(m),
+            AxisError::BadAxisList(m) => ApiError::InvalidArgument(m),
             AxisError::Refused(e) => e.into(),
             AxisError::Lease(e) => e.into(),
             AxisError::NotCoordinable(m) => ApiError::FailedPrecondition(m),

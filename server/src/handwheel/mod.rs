@@ -516,7 +516,12 @@ fn keep_hold(state: &WheelState, ledger: &mut BindingLedger, axes: &Axes, hold: 
                 return;
             }
             let names: Vec<String> = state.bindings.iter().map(|b| b.axis_name.clone()).collect();
-            match axes.acquire(&names, LEASE_TTL_MS, wheel_caller(state, "").name, None) {
+            match axes.acquire(
+                &names,
+                Some(Duration::from_millis(u64::from(LEASE_TTL_MS))),
+                wheel_caller(state, "").name,
+                None,
+            ) {
                 Ok(l) => {
                     hold.lease = Some(l.token);
                     hold.renewed = now;
