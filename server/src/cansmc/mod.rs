@@ -197,13 +197,8 @@ impl CansmcMaster {
         self.inner.events.subscribe()
     }
 
-    fn address(&self, address: u32) -> Result<SmcAddress, CansmcError> {
-        let a = u8::try_from(address)
-            .ok()
-            .and_then(|a| SmcAddress::new(a).ok())
-            .ok_or_else(|| {
-                CansmcError::InvalidArgument(format!("slave address {address} is outside 1..=61"))
-            })?;
+    /// `a`, when it is one of this master's slaves.
+    fn configured(&self, a: SmcAddress) -> Result<SmcAddress, CansmcError> {
         if !self
             .inner
             .config
@@ -216,7 +211,7 @@ impl CansmcMaster {
                 .collect();
             return Err(CansmcError::NotFound(NotFound {
                 kind: "CANsmc slave",
-                name: address.to_string(),
+                name: a.get().to_string(),
                 hint: format!(" on master {} (slaves: {})", self.name(), slaves.join(", ")),
             }));
         }
@@ -227,14 +222,11 @@ impl CansmcMaster {
     /// the configured parameter timeout plus a cycle.
     pub async fn parameter(
         &self,
-        address: u32,
-        number: u32,
+        address: SmcAddress,
+        number: u16,
         write: Option<i32>,
     ) -> Result<i32, CansmcError> {
-        let address = self.address(address)?;
-        let number = u16::try_from(number).map_err(|_| {
-            CansmcError::InvalidArgument(format!("parameter number {number} exceeds 65535"))
-        })?;
+        let address = self.configured(address)?;
         let (reply, rx) = oneshot::channel();
         self.inner
             .requests
@@ -279,10 +271,6 @@ pub enum CansmcError {
     /// No such slave on this master.
     #[error(transparent)]
     NotFound(#[from] NotFound),
-    /// The request is malformed (an address outside 1..=61, a parameter
-    /// number beyond 16 bits).
-    #[error("{0}")]
-    InvalidArgument(String),
     /// The parameter service failed: refused, rejected, timed out, the
     /// slave missing or the master not running.
     #[error(transparent)]

@@ -7,6 +7,7 @@ use super::error::ApiError;
 use super::forward::{MessageStream, Received, recv_counted, stream_of};
 use crate::cansmc::CansmcMaster;
 use crate::gateway::Gateway;
+use cangate_cansmc::telegram::SmcAddress;
 use cangate_proto::v1 as pb;
 use cangate_proto::v1::cansmc_server::Cansmc;
 use std::sync::Arc;
@@ -55,6 +56,20 @@ impl CansmcService {
 
 /// Names the master (and, for a refused write, the value) in the errors
 /// the slave or the cycle caused; argument errors are clear as they are.
+/// A slave address and parameter number from the wire: 1..=61, 16 bits.
+fn parameter_target(address: u32, number: u32) -> Result<(SmcAddress, u16), ApiError> {
+    let a = u8::try_from(address)
+        .ok()
+        .and_then(|a| SmcAddress::new(a).ok())
+        .ok_or_else(|| {
+            ApiError::InvalidArgument(format!("slave address {address} is outside 1..=61"))
+        })?;
+    let n = u16::try_from(number).map_err(|_| {
+        ApiError::InvalidArgument(format!("parameter number {number} exceeds 65535"))
+    })?;
+    Ok((a, n))
+}
+
 fn parameter_context(master: &str, write: Option<i32>, e: ApiError) -> ApiError {
     let named = |m: String| format!("master {master}: {m}");
     match e {
@@ -100,8 +115,9 @@ impl Cansmc for CansmcService {
     ) -> Result<Response<pb::ParameterValue>, Status> {
         let r = req.into_inner();
         let m = self.master(&r.master)?;
+        let (address, number) = parameter_target(r.address, r.number)?;
         let value = m
-            .parameter(r.address, r.number, None)
+            .parameter(address, number, None)
             .await
             .map_err(|e| parameter_context(m.name(), None, e.into()))?;
         Ok(Response::new(pb::ParameterValue {
@@ -119,8 +135,9 @@ impl Cansmc for CansmcService {
         let peer = peer(&req);
         let r = req.into_inner();
         let m = self.master(&r.master)?;
+        let (address, number) = parameter_target(r.address, r.number)?;
         let res = m
-            .parameter(r.address, r.number, Some(r.value))
+            .parameter(address, number, Some(r.value))
             .await
             .map_err(|e| parameter_context(m.name(), Some(r.value), e.into()));
         tracing::info!(target: "cangate::audit", %peer, master = %m.name(), slave = r.address, parameter = r.number, value = r.value, result = %res.as_ref().map_or_else(|e| e.to_string(), |v| format!("ok ({v})")), "CANsmc parameter write");
@@ -228,5 +245,22 @@ mod tests {
         assert_eq!(e.to_string(), "master smc: late");
         let e = parameter_context("smc", None, ApiError::InvalidArgument("bad".into()));
         assert_eq!(e.to_string(), "bad");
+    }
+
+    #[test]
+    fn a_parameter_target_off_the_protocol_is_an_invalid_argument() {
+        let (a, n) = parameter_target(61, 65_535).unwrap();
+        assert_eq!((a.get(), n), (61, 65_535));
+        for (address, number, says) in [
+            (0, 1, "slave address 0 is outside 1..=61"),
+            (62, 1, "slave address 62 is outside 1..=61"),
+            (300, 1, "slave address 300 is outside 1..=61"),
+            (1, 70_000, "parameter number 70000 exceeds 65535"),
+        ] {
+            match parameter_target(address, number) {
+                Err(ApiError::InvalidArgument(m)) => assert_eq!(m, says),
+                other => panic!("{address}/{number}: {other:?}"),
+            }
+        }
     }
 }

@@ -73,7 +73,6 @@ impl From<CansmcError> for ApiError {
     fn from(e: CansmcError) -> Self {
         match e {
             CansmcError::NotFound(e) => e.into(),
-            CansmcError::InvalidArgument(m) => ApiError::InvalidArgument(m),
             CansmcError::Parameter(e) => match e {
                 ParameterError::UnknownSlave(a) => ApiError::NotFound {
                     kind: "CANsmc slave",
