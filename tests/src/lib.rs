@@ -8,7 +8,8 @@
 //!   and the CANopen calls most tests make on `can0` ([`node_events`],
 //!   [`send_nmt`], [`get_node`]);
 //! - [`axes`]: commands under a control lease, waiting for an axis status,
-//!   a simulated drive the test runs itself (to fault it or switch it off).
+//!   a simulated drive the test runs itself (to fault it or switch it off);
+//! - [`log`]: the process's log captured, for tests of what is logged.
 //!
 //! Every helper panics with a message on failure (these are tests), and
 //! every wait is bounded by [`WAIT`], so that a broken build fails instead
@@ -22,6 +23,7 @@
 #![cfg_attr(not(test), warn(unused_crate_dependencies))]
 
 pub mod axes;
+pub mod log;
 
 use cangate_client::pb;
 use cangate_client::pb::stream_event::Event;

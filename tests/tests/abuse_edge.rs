@@ -10,7 +10,6 @@ use cangate_tests::axes::{Axes, acquire, cmd, enable, wait_ready};
 use cangate_tests::*;
 use prost::Message;
 use prost::bytes::{Buf, BufMut};
-use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tonic::Code;
@@ -312,20 +311,6 @@ async fn caller_sizes_are_bounded_by_configuration() {
     server.shutdown();
 }
 
-/// Captured log output (for the audit lines).
-#[derive(Clone, Default)]
-struct Captured(Arc<Mutex<Vec<u8>>>);
-
-impl std::io::Write for Captured {
-    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        self.0.lock().unwrap().extend_from_slice(buf);
-        Ok(buf.len())
-    }
-    fn flush(&mut self) -> std::io::Result<()> {
-        Ok(())
-    }
-}
-
 /// Item 16: a peer sending bad tokens is refused cheaply after a few, its
 /// refusals reach the audit log as a bounded number of lines plus a
 /// summary, public RPCs stay open to it; connections that never speak
@@ -333,13 +318,7 @@ impl std::io::Write for Captured {
 /// stream stays.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn unauthenticated_peers_are_limited_and_idle_connections_closed() {
-    let captured = Captured::default();
-    let writer = captured.clone();
-    tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::new("cangate::audit=info"))
-        .with_writer(move || writer.clone())
-        .with_ansi(false)
-        .init();
+    let captured = cangate_tests::log::capture_log("cangate::audit=info");
     let config = format!(
         "{ONE_BUS}{}[security.limits]\nrefusals_per_second_per_peer = 5\nrefusal_burst = 10\n\
          audit_refusals_per_second = 5\naudit_summary_interval_s = 1\nhandshake_timeout_s = 1\n\
@@ -378,7 +357,7 @@ async fn unauthenticated_peers_are_limited_and_idle_connections_closed() {
     // Audit: a bounded number of refusal lines, then a summary.
     let t1 = std::time::Instant::now();
     let text = loop {
-        let text = String::from_utf8_lossy(&captured.0.lock().unwrap()).to_string();
+        let text = captured.text();
         if text.contains("refused calls not logged one by one") || t1.elapsed() > WAIT {
             break text;
         }

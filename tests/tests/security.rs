@@ -4,9 +4,7 @@
 
 use cangate_client::{ConnectOptions, pb};
 use cangate_tests::*;
-use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tonic::Code;
 
@@ -451,32 +449,9 @@ async fn stream_concurrency_and_message_size_limits() {
     server.shutdown();
 }
 
-/// Everything written to the `cangate::audit` target in this process.
-#[derive(Clone, Default)]
-struct Captured(Arc<Mutex<Vec<u8>>>);
-
-impl Write for Captured {
-    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        self.0
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .extend_from_slice(buf);
-        Ok(buf.len())
-    }
-    fn flush(&mut self) -> std::io::Result<()> {
-        Ok(())
-    }
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn state_changing_calls_and_refusals_are_audited() {
-    let captured = Captured::default();
-    let writer = captured.clone();
-    tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::new("cangate::audit=info"))
-        .with_writer(move || writer.clone())
-        .with_ansi(false)
-        .init();
+    let captured = cangate_tests::log::capture_log("cangate::audit=info");
     let config = format!(
         "{ONE_BUS}{}",
         tokens_toml(&[
@@ -490,7 +465,7 @@ async fn state_changing_calls_and_refusals_are_audited() {
     eng.send("can0", &one_frame()).await.unwrap();
     eng.list_buses().await.unwrap();
     viewer.send("can0", &one_frame()).await.unwrap_err();
-    let text = String::from_utf8_lossy(&captured.0.lock().unwrap()).to_string();
+    let text = captured.text();
     let lines: Vec<&str> = text.lines().collect();
     let sent = lines
         .iter()

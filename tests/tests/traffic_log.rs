@@ -6,8 +6,6 @@
 
 use cangate_client::pb;
 use cangate_tests::*;
-use std::io::Write;
-use std::sync::{Arc, Mutex};
 
 const CONFIG: &str = r#"
 [[bus]]
@@ -34,40 +32,11 @@ max_velocity = 50.0
 max_acceleration = 500.0
 "#;
 
-/// Everything written to the log in this process.
-#[derive(Clone, Default)]
-struct Captured(Arc<Mutex<Vec<u8>>>);
-
-impl Captured {
-    fn text(&self) -> String {
-        String::from_utf8_lossy(&self.0.lock().unwrap_or_else(|p| p.into_inner())).to_string()
-    }
-}
-
-impl Write for Captured {
-    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        self.0
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .extend_from_slice(buf);
-        Ok(buf.len())
-    }
-    fn flush(&mut self) -> std::io::Result<()> {
-        Ok(())
-    }
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_decoded_bus_logs_an_sdo_read_in_words() {
-    let captured = Captured::default();
-    let writer = captured.clone();
-    tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::new(
-            "cangate_server=info,cangate::frames=info,cangate::audit=info",
-        ))
-        .with_writer(move || writer.clone())
-        .with_ansi(false)
-        .init();
+    let captured = cangate_tests::log::capture_log(
+        "cangate_server=info,cangate::frames=info,cangate::audit=info",
+    );
     let server = start_server(CONFIG).await;
     let c = client(&server).await;
     c.canopen_client()

@@ -287,17 +287,20 @@ mod tests {
     /// period's travel at the maximum velocity from the previous one sent:
     /// the plan is sampled on the SYNC grid and held back by the periods
     /// without a SYNC. The move still ends at its target.
-    #[test]
-    fn a_stalled_sync_thread_never_sends_a_double_step() {
-        use crate::canopen::sync_thread::due_sync;
+    /// An enabled cyclic-position axis (1000 counts per unit) at 0,
+    /// commanded to move to `target` at its maximum velocity and
+    /// acceleration, at time 0.
+    fn moving_cyclic_axis(
+        target: f64,
+    ) -> (
+        cangate_axis::cia402::Cia402Axis,
+        cangate_axis::cia402::Cia402Config,
+    ) {
         use cangate_axis::cia402::{Cia402Axis, Cia402Config, Feedback};
         use cangate_axis::{AxisCommand, PositionMode};
-        use cangate_canopen::sync::SyncProducer;
         use std::time::Duration;
 
-        let period = Duration::from_millis(1);
         let cfg = Cia402Config::example(1000.0, PositionMode::Cyclic);
-        let max_step = cfg.motion.max_velocity * period.as_secs_f64() * 1000.0 + 1.0;
         let mut axis = Cia402Axis::new(cfg.clone());
         let mut out = Vec::new();
         let enabled = Feedback {
@@ -310,7 +313,7 @@ mod tests {
         axis.on_feedback(enabled, Duration::ZERO, &mut out);
         axis.command(
             AxisCommand::Move {
-                target: 300.0,
+                target,
                 relative: false,
                 velocity: Some(cfg.motion.max_velocity),
                 acceleration: Some(cfg.motion.max_acceleration),
@@ -319,6 +322,19 @@ mod tests {
             &mut out,
         )
         .expect("move");
+        (axis, cfg)
+    }
+
+    #[test]
+    fn a_stalled_sync_thread_never_sends_a_double_step() {
+        use crate::canopen::sync_thread::due_sync;
+        use cangate_canopen::sync::SyncProducer;
+        use std::time::Duration;
+
+        let period = Duration::from_millis(1);
+        let (mut axis, cfg) = moving_cyclic_axis(300.0);
+        let max_step = cfg.motion.max_velocity * period.as_secs_f64() * 1000.0 + 1.0;
+        let mut out = Vec::new();
         let origin = Instant::now();
         let table = CyclicSetpoints::new(origin, ["x".to_string()]);
         let mut published = None;
@@ -387,35 +403,13 @@ mod tests {
     /// ends it, not at the axis's deadline.
     #[test]
     fn a_slow_axis_task_still_sees_the_sample_that_ends_the_move() {
-        use cangate_axis::cia402::{Cia402Axis, Cia402Config, Feedback};
-        use cangate_axis::{AxisCommand, PositionMode};
         use std::time::Duration;
 
         let period = Duration::from_millis(1);
         for wake_every in 2..=5u32 {
             for phase in 0..wake_every {
-                let cfg = Cia402Config::example(1000.0, PositionMode::Cyclic);
-                let mut axis = Cia402Axis::new(cfg.clone());
+                let (mut axis, _) = moving_cyclic_axis(10.0);
                 let mut out = Vec::new();
-                let enabled = Feedback {
-                    statusword: Some(0x0237),
-                    position: Some(0),
-                    velocity: Some(0),
-                    mode_display: Some(8),
-                    following_error: None,
-                };
-                axis.on_feedback(enabled, Duration::ZERO, &mut out);
-                axis.command(
-                    AxisCommand::Move {
-                        target: 10.0,
-                        relative: false,
-                        velocity: Some(cfg.motion.max_velocity),
-                        acceleration: Some(cfg.motion.max_acceleration),
-                    },
-                    Duration::ZERO,
-                    &mut out,
-                )
-                .expect("move");
                 let origin = Instant::now();
                 let table = CyclicSetpoints::new(origin, ["x".to_string()]);
                 let plan = axis.cyclic_plan();
