@@ -746,9 +746,10 @@ async fn the_page_shows_a_gateway_that_went_away_and_a_failed_stop() {
     assert!(screenshots().join("gone.png").exists());
 }
 
-/// Every page at a panel PC's 1024×768 and at 1920×1080: no command button
-/// outside the viewport, no sideways scrolling, no number cut, STOP ALL and
-/// QUICK STOP ALL in view; a screenshot of each in `target/web-screenshots/`.
+/// Every page at a panel PC's 1024×768 and at 1920×1080, and the axes view
+/// on an upright tablet (768×1024): no command button outside the
+/// viewport, no sideways scrolling, no number cut, STOP ALL and QUICK STOP
+/// ALL in view; a screenshot of each in `target/web-screenshots/`.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_page_fits_a_panel_pc_and_a_full_hd_screen() {
     if !can_run("every_page_fits_a_panel_pc_and_a_full_hd_screen") {
@@ -761,8 +762,13 @@ async fn every_page_fits_a_panel_pc_and_a_full_hd_screen() {
         |need| async move { unexpected(need) },
     )
     .await;
-    for size in ["1024x768", "1920x1080"] {
-        for page in ["axes", "buses", "canopen", "handwheel", "cansmc", "alarms"] {
+    let pages = ["axes", "buses", "canopen", "handwheel", "cansmc", "alarms"];
+    for (size, pages) in [
+        ("1024x768", &pages[..]),
+        ("1920x1080", &pages[..]),
+        ("768x1024", &pages[..1]),
+    ] {
+        for page in pages {
             let step = format!("layout {page} {size}");
             assert!(steps.contains(&step), "no step {step:?} in {steps:?}");
             assert!(screenshots().join(format!("{page}-{size}.png")).exists());

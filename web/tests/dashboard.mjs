@@ -683,15 +683,23 @@ async function gone(page) {
   say("step stop-failed-acknowledged");
 }
 
-// Every page at a panel PC's 1024×768 and at 1920×1080: no command button
+// Every page at a panel PC's 1024×768 and at 1920×1080, and the axes view
+// on an upright tablet (768×1024): no command button
 // lies outside the viewport's width, the page never scrolls sideways, and
 // no number is cut (its scrollWidth fits its clientWidth). Screenshots of
 // every page at both sizes.
 async function layout(page) {
   await until("axes X, Y, Z listed", () => axesListed(page));
-  for (const [width, height] of [[1024, 768], [1920, 1080]]) {
+  // Every page on a panel PC and a full HD screen; the axes view also on
+  // a tablet held upright.
+  const sizes = [
+    [1024, 768, ["axes", "buses", "canopen", "handwheel", "cansmc", "alarms"]],
+    [1920, 1080, ["axes", "buses", "canopen", "handwheel", "cansmc", "alarms"]],
+    [768, 1024, ["axes"]],
+  ];
+  for (const [width, height, tabs] of sizes) {
     await page.setViewport({ width, height });
-    for (const tab of ["axes", "buses", "canopen", "handwheel", "cansmc", "alarms"]) {
+    for (const tab of tabs) {
       await press(page, `button[data-page="${tab}"]`);
       // Its first data in: a row, a card, or a master's line.
       await until(`${tab} filled`, () =>
