@@ -584,7 +584,7 @@ impl SetpointPlayer {
                     let tc_prev = prev
                         .zip(offset_before)
                         .map_or(tc, |(p, o)| self.client_time(p, o));
-                    self.rejoin(tc_prev, tc, ramp_start, &mut event);
+                    self.rejoin(tc_prev, tc, now, dt, ramp_start, &mut event);
                 } else {
                     self.play(tc, now, dt, ramp_start, &mut event);
                 }
@@ -703,10 +703,9 @@ impl SetpointPlayer {
         self.extrapolating_since = None;
         self.begin_ramp(ramp_start);
         self.ramp_on(now, event);
-        if self.state == PlayerState::Waiting {
-            // At rest within this very cycle: both happened.
-            *event = Some(PlayerEvent::Underrun);
-        }
+        // Already at rest (the axes stood still): the cycle reports the
+        // underrun; the state says the player waits.
+        *event = Some(PlayerEvent::Underrun);
     }
 
     /// Leaves the extrapolation for the next buffered point ahead of `tc`:
@@ -717,6 +716,8 @@ impl SetpointPlayer {
         &mut self,
         tc_prev: f64,
         tc: f64,
+        now: Duration,
+        dt: f64,
         ramp_start: Duration,
         event: &mut Option<PlayerEvent>,
     ) {
@@ -726,8 +727,6 @@ impl SetpointPlayer {
         }
         let Some(b) = self.buffer.front() else {
             // Everything that came is already behind: keep extrapolating.
-            let now = ramp_start + self.cfg.cycle;
-            let dt = self.cfg.cycle.as_secs_f64();
             self.play(tc, now, dt, ramp_start, event);
             return;
         };
@@ -746,7 +745,6 @@ impl SetpointPlayer {
                     && (needed - v).abs() <= l.max_acceleration * span.max(cycle)
             });
         if !fits {
-            let now = ramp_start + self.cfg.cycle;
             self.underrun(ramp_start, now, event);
             return;
         }
