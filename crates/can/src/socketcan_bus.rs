@@ -69,9 +69,11 @@ pub enum SocketCanEvent {
     /// One of our frames was accepted by the kernel for transmission, stamped
     /// with that moment.
     Sent(Frame),
-    /// This many of our frames could not be sent (transmit queue full, held
-    /// past the timeout, refused by the kernel, or the interface went away).
-    Unsent(u64),
+    /// One of our frames could not be sent (transmit queue full, held past
+    /// the timeout, refused by the kernel, or the interface went away): the
+    /// frame, so that the protocol that sent it can end what waits for an
+    /// answer to it.
+    Unsent(Frame),
 }
 
 /// Per-bus settings of the SocketCAN backend.
@@ -299,7 +301,7 @@ impl SocketCanBus {
         let error = SendError::Down(self.interface.clone());
         let held = std::mem::take(&mut self.tx.held);
         for (_, h) in held {
-            self.give_up(h.batch, error.clone());
+            self.give_up(h.frame, h.batch, error.clone());
         }
         self.retry_at = None;
         self.log_unsent(Instant::now(), true);
@@ -418,7 +420,7 @@ impl SocketCanBus {
     pub fn abandon(&mut self) -> Vec<SocketCanEvent> {
         let held = std::mem::take(&mut self.tx.held);
         for (_, h) in held {
-            self.give_up(h.batch, SendError::Down(self.interface.clone()));
+            self.give_up(h.frame, h.batch, SendError::Down(self.interface.clone()));
         }
         self.retry_at = None;
         self.log_unsent(Instant::now(), true);
@@ -484,11 +486,12 @@ impl SocketCanBus {
         };
         for frame in frames {
             if let Some(error) = &refused {
-                self.give_up(batch, error.clone());
+                self.give_up(frame, batch, error.clone());
                 continue;
             }
             if to_socketcan(&frame).is_none() {
                 self.give_up(
+                    frame,
                     batch,
                     SendError::Io {
                         bus: self.interface.clone(),
@@ -503,11 +506,11 @@ impl SocketCanBus {
                 // Full: the least urgent frame makes room, or is this one.
                 let last = *self.tx.held.keys().next_back().expect("queue is full");
                 if key.0 >= last.0 {
-                    self.give_up(batch, self.queue_full());
+                    self.give_up(frame, batch, self.queue_full());
                     continue;
                 }
                 let evicted = self.tx.held.remove(&last).expect("present");
-                self.give_up(evicted.batch, self.queue_full());
+                self.give_up(evicted.frame, evicted.batch, self.queue_full());
             }
             self.tx.held.insert(
                 key,
@@ -557,6 +560,7 @@ impl SocketCanBus {
             for key in expired {
                 let h = self.tx.held.remove(&key).expect("present");
                 self.give_up(
+                    h.frame,
                     h.batch,
                     SendError::Io {
                         bus: self.interface.clone(),
@@ -616,18 +620,18 @@ impl SocketCanBus {
                             message: e.to_string(),
                         }
                     };
-                    self.give_up(held.batch, error);
+                    self.give_up(held.frame, held.batch, error);
                 }
             }
         }
     }
 
     /// Counts a frame as not sent and records why in its batch.
-    fn give_up(&mut self, batch: Option<u64>, error: SendError) {
+    fn give_up(&mut self, frame: Frame, batch: Option<u64>, error: SendError) {
         self.tx_counters.unsent += 1;
         self.unsent_unlogged += 1;
         self.ready
-            .push_back(Ready::Event(SocketCanEvent::Unsent(1)));
+            .push_back(Ready::Event(SocketCanEvent::Unsent(frame)));
         if let Some(id) = batch
             && let Some(b) = self.tx.batches.get_mut(&id)
         {

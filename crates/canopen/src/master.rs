@@ -484,6 +484,24 @@ impl Master {
         }
     }
 
+    /// One of the master's own frames was given up by the interface (its
+    /// transmit queue stayed full past the backend's timeout). An SDO
+    /// request ends its transfer at once with [`crate::sdo::SdoError::NotSent`]
+    /// rather than after the SDO timeout: the caller learns why, and the
+    /// node's channel is free for the next request. Other frames change
+    /// nothing here (the bus counts them).
+    pub fn on_unsent(&mut self, frame: &Frame, now: Duration, out: &mut Output) {
+        if frame.is_extended() || frame.is_fd() || frame.is_error() {
+            return;
+        }
+        if let CobFunction::SdoRx(node) = CobFunction::classify(frame.raw_id() as u16)
+            && let Some(n) = self.sdo.get_mut(&node)
+        {
+            let step = n.client.on_request_unsent(frame.data(), now);
+            Self::finish_step(node, n, step, now, out);
+        }
+    }
+
     fn finish_step(
         node: NodeId,
         n: &mut NodeSdo,
@@ -576,6 +594,10 @@ mod tests {
 
     fn frame(id: u16, data: &[u8]) -> Frame {
         Frame::new(CanId::Standard(id), data).unwrap()
+    }
+
+    fn ms(n: u64) -> Duration {
+        Duration::from_millis(n)
     }
 
     fn upload(index: u16) -> SdoRequest {
@@ -732,6 +754,71 @@ mod tests {
                 ..
             }
         ));
+    }
+
+    #[test]
+    fn an_sdo_request_the_interface_gave_up_ends_its_transfer_at_once() {
+        let mut m = Master::new(Duration::from_millis(500));
+        let mut out = Output::default();
+        m.sdo_as(
+            7,
+            node(9),
+            SdoPriority::Client,
+            upload(0x1000),
+            ms(0),
+            &mut out,
+        );
+        m.sdo_as(
+            8,
+            node(9),
+            SdoPriority::Client,
+            upload(0x1017),
+            ms(0),
+            &mut out,
+        );
+        let request = out.frames[0];
+        assert_eq!(request.raw_id(), 0x609);
+        assert_eq!(request.data()[..4], [0x40, 0x00, 0x10, 0x00]);
+
+        // Another node's request, a heartbeat and a frame that is not the
+        // one in flight change nothing.
+        let mut out = Output::default();
+        m.on_unsent(&frame(0x60A, request.data()), ms(20), &mut out);
+        m.on_unsent(&frame(0x709, &[0x05]), ms(20), &mut out);
+        m.on_unsent(
+            &frame(0x609, &[0x40, 0x17, 0x10, 0, 0, 0, 0, 0]),
+            ms(20),
+            &mut out,
+        );
+        assert!(out.frames.is_empty() && out.events.is_empty(), "{out:?}");
+
+        // The initiate itself: the transfer ends now, not at 500 ms, with
+        // an abort 0x08000000 in case the server holds a transfer.
+        m.on_unsent(&request, ms(20), &mut out);
+        assert_eq!(
+            out.frames[0].data(),
+            &[0x80, 0x00, 0x10, 0x00, 0x00, 0x00, 0x00, 0x08]
+        );
+        assert!(
+            matches!(
+                &out.events[..],
+                [MasterEvent::SdoCompleted {
+                    id: 7,
+                    result: Err(SdoError::NotSent { .. }),
+                    ..
+                }]
+            ),
+            "{:?}",
+            out.events
+        );
+        // The next request gets the channel once it settled.
+        let mut out = Output::default();
+        m.on_tick(ms(20) + crate::sdo::DEFAULT_SETTLE_TIME, &mut out);
+        assert_eq!(out.frames[0].data()[..4], [0x40, 0x17, 0x10, 0x00]);
+        // The first request's frame reported again (late) does not touch it.
+        let mut out = Output::default();
+        m.on_unsent(&request, ms(200), &mut out);
+        assert!(out.events.is_empty(), "{:?}", out.events);
     }
 
     #[test]

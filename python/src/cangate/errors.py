@@ -37,9 +37,10 @@ class CangateError(Exception):
 
 class SdoAbortError(CangateError):
     """An SDO transfer was aborted (reasons SDO_ABORT, SDO_TIMEOUT,
-    SDO_PROTOCOL_ERROR, SDO_CANCELLED): the CiA 301 `abort_code` and its
-    `abort_name`, the object (`index`, `subindex`), and whether the node sent
-    the abort (`from_node`) or the gateway did (timeout, protocol error)."""
+    SDO_PROTOCOL_ERROR, SDO_CANCELLED, SDO_NOT_SENT): the CiA 301 `abort_code`
+    and its `abort_name`, the object (`index`, `subindex`), and whether the
+    node sent the abort (`from_node`) or the gateway did (timeout, protocol
+    error, a request the CAN interface could not send)."""
 
     def __init__(
         self,
@@ -66,7 +67,13 @@ class SdoAbortError(CangateError):
         self.node: Optional[int] = int(node) if node.isdigit() else None
 
 
-_SDO_REASONS = {"SDO_ABORT", "SDO_TIMEOUT", "SDO_PROTOCOL_ERROR", "SDO_CANCELLED"}
+_SDO_REASONS = {
+    "SDO_ABORT",
+    "SDO_TIMEOUT",
+    "SDO_PROTOCOL_ERROR",
+    "SDO_CANCELLED",
+    "SDO_NOT_SENT",
+}
 
 
 def from_rpc_error(err: grpc.RpcError) -> CangateError:

@@ -144,7 +144,10 @@ async fn boot_node(
             Ok(TransferOutcome::Uploaded(b)) => Ok(b),
             Ok(_) => Err((false, format!("reading {addr}: no data"))),
             Err(e) => {
-                let timeout = matches!(e, CanopenError::Sdo(SdoError::Timeout { .. }));
+                let timeout = matches!(
+                    e,
+                    CanopenError::Sdo(SdoError::Timeout { .. } | SdoError::NotSent { .. })
+                );
                 Err((timeout, format!("reading {addr}: {e}")))
             }
         }

@@ -86,6 +86,9 @@ pub(super) async fn run_master(task: MasterTask) {
     // wake-up of this hot task.
     let cancelled = cancel.cancelled();
     tokio::pin!(cancelled);
+    // Requests the interface gave up end their transfers at once (see
+    // `Master::on_unsent`).
+    let mut unsent = bus.subscribe_unsent();
     loop {
         let mut out = Output::default();
         let deadline = origin + master.next_deadline().unwrap_or(origin.elapsed() + far);
@@ -109,6 +112,15 @@ pub(super) async fn run_master(task: MasterTask) {
                     }
                 }
             }
+            given_up = unsent.recv() => match given_up {
+                Ok(frame) => master.on_unsent(&frame, origin.elapsed(), &mut out),
+                Err(broadcast::error::RecvError::Lagged(n)) => {
+                    // Those transfers end at their own timeouts instead.
+                    tracing::warn!(frames = n, "CANopen master missed notices of frames the interface gave up");
+                }
+                // Only with the bus, which `bus` holds.
+                Err(broadcast::error::RecvError::Closed) => break,
+            },
             cmd = commands.recv() => {
                 let Some(cmd) = cmd else { break };
                 let now = origin.elapsed();

@@ -751,6 +751,7 @@ impl CanopenBus {
         let result = match &r {
             Ok(_) => "ok",
             Err(SdoError::Timeout { .. }) => "timeout",
+            Err(SdoError::NotSent { .. }) => "not_sent",
             Err(SdoError::Aborted { .. }) => "aborted_by_node",
             Err(_) => "aborted",
         };

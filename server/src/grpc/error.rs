@@ -174,7 +174,7 @@ impl ApiError {
     /// The `ErrorInfo.reason`: `<KIND>_NOT_FOUND` (`AXIS_NOT_FOUND`,
     /// `BUS_NOT_FOUND`, `CANSMC_MASTER_NOT_FOUND`, ...), `SDO_ABORT`,
     /// `SDO_TIMEOUT`, `SDO_PROTOCOL_ERROR`, `SDO_CANCELLED`,
-    /// `SHUTTING_DOWN`, the reason of a [`ApiError::Refused`], else the
+    /// `SDO_NOT_SENT`, `SHUTTING_DOWN`, the reason of a [`ApiError::Refused`], else the
     /// code's name (`INVALID_ARGUMENT`, `FAILED_PRECONDITION`, ...).
     pub fn reason(&self) -> String {
         match self {
@@ -192,6 +192,7 @@ impl ApiError {
                 SdoError::Timeout { .. } => "SDO_TIMEOUT",
                 SdoError::Protocol { .. } => "SDO_PROTOCOL_ERROR",
                 SdoError::Cancelled { .. } => "SDO_CANCELLED",
+                SdoError::NotSent { .. } => "SDO_NOT_SENT",
             }
             .into(),
             ApiError::Refused { reason, .. } => (*reason).into(),
@@ -339,6 +340,8 @@ fn sdo_code(error: &SdoError) -> Code {
     let abort = error.abort_code().get();
     match error {
         SdoError::Timeout { .. } => Code::DeadlineExceeded,
+        // The bus could not carry the request now; the same call later may.
+        SdoError::NotSent { .. } => Code::Unavailable,
         SdoError::Protocol { .. } | SdoError::Cancelled { .. } => Code::Aborted,
         SdoError::Aborted { .. } => match abort {
             0x0602_0000 | 0x0609_0011 => Code::NotFound,
@@ -355,7 +358,8 @@ fn sdo_address(error: &SdoError) -> cangate_canopen::ObjectAddress {
         SdoError::Aborted { addr, .. }
         | SdoError::Protocol { addr, .. }
         | SdoError::Timeout { addr, .. }
-        | SdoError::Cancelled { addr, .. } => *addr,
+        | SdoError::Cancelled { addr, .. }
+        | SdoError::NotSent { addr } => *addr,
     }
 }
 
@@ -645,6 +649,14 @@ mod tests {
             code: AbortCode(0x0504_0001),
         });
         assert_eq!(rich(&s).1.reason, "SDO_CANCELLED");
+
+        // A request the interface gave up: worth retrying later.
+        let s = sdo_error(SdoError::NotSent { addr });
+        assert_eq!(s.code(), Code::Unavailable);
+        let (_, info, _) = rich(&s);
+        assert_eq!(info.reason, "SDO_NOT_SENT");
+        assert_eq!(info.metadata["aborted_by"], "gateway");
+        assert_eq!(info.metadata["abort_code"], "0x08000000");
     }
 
     #[test]

@@ -111,8 +111,8 @@ enum BackendEvent {
     /// An own frame accepted for transmission (SocketCAN; the virtual bus
     /// counts at send time and echoes).
     Sent(Frame),
-    /// Own frames given up (SocketCAN transmit queue).
-    Unsent(u64),
+    /// An own frame given up (SocketCAN transmit queue).
+    Unsent(Frame),
 }
 
 impl Backend {
@@ -127,7 +127,7 @@ impl Backend {
                 SocketCanEvent::State(st) => BackendEvent::State(st),
                 SocketCanEvent::Lost(n) => BackendEvent::Lost(n),
                 SocketCanEvent::Sent(frame) => BackendEvent::Sent(frame),
-                SocketCanEvent::Unsent(n) => BackendEvent::Unsent(n),
+                SocketCanEvent::Unsent(frame) => BackendEvent::Unsent(frame),
             }),
             Backend::Virtual(p) => {
                 p.recv_many(port_events, 256).await;
@@ -462,6 +462,9 @@ struct Shared {
     /// by the bus task at every release, so a change applies at once.
     client_percent: AtomicU8,
     bulk_percent: AtomicU8,
+    /// The gateway's own frames the interface gave up (see
+    /// [`BusHandle::subscribe_unsent`]).
+    unsent: tokio::sync::broadcast::Sender<Frame>,
 }
 
 /// Client or bulk frames waiting for their share of the bus.
@@ -536,6 +539,10 @@ struct TxRequest {
     reply: Option<oneshot::Sender<Result<(), SendFailure>>>,
 }
 
+/// Given-up frames kept for a [`BusHandle::subscribe_unsent`] receiver
+/// that has not taken them yet.
+const UNSENT_NOTICES: usize = 64;
+
 /// A cloneable handle to a running bus.
 #[derive(Clone)]
 pub struct BusHandle {
@@ -584,6 +591,7 @@ impl BusHandle {
             paced,
             client_percent: AtomicU8::new(shares.client_percent),
             bulk_percent: AtomicU8::new(shares.bulk_percent),
+            unsent: tokio::sync::broadcast::channel(UNSENT_NOTICES).0,
         });
         // No subscribers yet: no echo unless the load meter needs it.
         update_echo(
@@ -625,6 +633,18 @@ impl BusHandle {
             .store(shares.client_percent, Ordering::Relaxed);
         s.bulk_percent.store(shares.bulk_percent, Ordering::Relaxed);
         Ok(())
+    }
+
+    /// Every frame the interface gave up from now on (its transmit queue
+    /// stayed full past the backend's timeout, or the interface went
+    /// away), whoever sent it. A protocol stack that submits requests
+    /// without waiting for their outcome ([`BusHandle::submit`]) and waits
+    /// for an answer ends that wait at once instead of at its own timeout. Frames given up while the
+    /// receiver lags behind by more than a few dozen are skipped (the
+    /// receiver sees `Lagged`; they are still counted in `tx_failed`).
+    /// Virtual buses give nothing up.
+    pub fn subscribe_unsent(&self) -> tokio::sync::broadcast::Receiver<Frame> {
+        self.shared.unsent.subscribe()
     }
 
     /// The shares in force.

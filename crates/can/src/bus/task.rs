@@ -90,8 +90,11 @@ pub(super) async fn run_bus(
                             record_load(&mut load, timing, &frame);
                             fanout(&shared, &frame, Direction::Tx);
                         }
-                        BackendEvent::Unsent(n) => {
-                            shared.counters.tx_failed.fetch_add(n, Ordering::Relaxed);
+                        BackendEvent::Unsent(frame) => {
+                            shared.counters.tx_failed.fetch_add(1, Ordering::Relaxed);
+                            if shared.unsent.receiver_count() > 0 {
+                                let _ = shared.unsent.send(frame);
+                            }
                         }
                         BackendEvent::Lost(n) => {
                             shared.counters.rx_overflows.store(backend.overflows(), Ordering::Relaxed);
@@ -139,8 +142,8 @@ pub(super) async fn run_bus(
                     c.tx_bytes
                         .fetch_add(f.data().len() as u64, Ordering::Relaxed);
                 }
-                SocketCanEvent::Unsent(n) => {
-                    c.tx_failed.fetch_add(n, Ordering::Relaxed);
+                SocketCanEvent::Unsent(_) => {
+                    c.tx_failed.fetch_add(1, Ordering::Relaxed);
                 }
                 _ => {}
             }

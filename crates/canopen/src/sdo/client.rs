@@ -209,6 +209,18 @@ pub enum SdoError {
         /// The abort code sent.
         code: AbortCode,
     },
+    /// The interface gave up a request frame of the transfer (its transmit
+    /// queue stayed full past the backend's transmit timeout, or the
+    /// interface went away): no answer can come, so the transfer ends at
+    /// once instead of waiting out its timeout. The client sent abort
+    /// 0x08000000 in case the server holds a transfer in progress.
+    #[error(
+        "the interface could not send the SDO request for {addr} (transmit queue full past its timeout, or the interface went away); sent abort 0x08000000"
+    )]
+    NotSent {
+        /// The object.
+        addr: ObjectAddress,
+    },
 }
 
 impl SdoError {
@@ -219,6 +231,7 @@ impl SdoError {
             | SdoError::Protocol { code, .. }
             | SdoError::Cancelled { code, .. } => *code,
             SdoError::Timeout { .. } => AbortCode::TIMEOUT,
+            SdoError::NotSent { .. } => AbortCode::GENERAL_ERROR,
         }
     }
 }
@@ -280,6 +293,9 @@ struct Transfer {
     timeout: Duration,
     deadline: Duration,
     phase: Phase,
+    /// The request payloads of the last step, which the server has not
+    /// answered yet: the ones [`SdoClient::on_request_unsent`] matches.
+    in_flight: Vec<[u8; 8]>,
 }
 
 /// What the client waits for.
@@ -503,6 +519,7 @@ impl SdoClient {
             let code = AbortCode(u32_at(&p));
             if let Some(payload) = t.fall_back(code) {
                 t.deadline = now + t.timeout;
+                t.in_flight = vec![payload];
                 self.transfer = Some(t);
                 return Step {
                     frames: vec![self.frame(payload)],
@@ -522,6 +539,7 @@ impl SdoClient {
         match t.handle(&p) {
             Ok(Flow::Continue(out)) => {
                 t.deadline = now + t.timeout;
+                t.in_flight.clone_from(&out);
                 self.transfer = Some(t);
                 self.step(out, None)
             }
@@ -575,6 +593,26 @@ impl SdoClient {
                 self.step(vec![abort_payload(t.addr, code)], Some(Err(error)))
             }
             None => Step::default(),
+        }
+    }
+
+    /// The interface gave up the request frame with payload `data` (see
+    /// [`SdoError::NotSent`]). Ends the running transfer when `data` is
+    /// one of the requests it is waiting to have answered; anything else
+    /// (a frame of a transfer that already ended, another channel's) does
+    /// nothing.
+    pub fn on_request_unsent(&mut self, data: &[u8], now: Duration) -> Step {
+        match self.transfer.take() {
+            Some(t) if t.in_flight.iter().any(|p| p[..] == *data) => {
+                self.begin_settling(now);
+                let abort = abort_payload(t.addr, AbortCode::GENERAL_ERROR);
+                let error = SdoError::NotSent { addr: t.addr };
+                self.step(vec![abort], Some(Err(error)))
+            }
+            t => {
+                self.transfer = t;
+                Step::default()
+            }
         }
     }
 
@@ -665,6 +703,7 @@ impl SdoClient {
             timeout,
             deadline: now + timeout,
             phase,
+            in_flight: vec![payload],
         });
         vec![self.frame(payload)]
     }

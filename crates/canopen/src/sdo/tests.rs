@@ -1122,3 +1122,35 @@ fn block_upload_answered_plainly_is_accepted_with_fallback() {
     let err = upload(at(0x1000, 0), strict, &strict_trace).unwrap_err();
     assert!(matches!(err, SdoError::Protocol { .. }), "{err:?}");
 }
+
+#[test]
+fn a_segment_the_interface_gave_up_ends_the_download_with_not_sent() {
+    let mut c = SdoClient::new(node2());
+    let frames = c
+        .start_download(
+            at(0x2000, 1),
+            b"ABCDEFGHIJ".to_vec(),
+            opts(),
+            Duration::ZERO,
+        )
+        .unwrap();
+    // Segmented initiate with the size (10), answered by the server.
+    assert_eq!(frames[0].data(), &h("21 00 20 01 0a 00 00 00")[..]);
+    let step = c.on_frame(&frame(0x582, &h("60 00 20 01 00 00 00 00")), MS);
+    let segment = step.frames[0];
+    assert_eq!(segment.data(), &h("00 41 42 43 44 45 46 47")[..]);
+    // The initiate, sent long ago, is no longer in flight.
+    let late = c.on_request_unsent(frames[0].data(), 2 * MS);
+    assert_eq!(late, Step::default());
+    assert!(c.is_busy());
+    // The segment is: the transfer ends with an abort 0x08000000.
+    let step = c.on_request_unsent(segment.data(), 2 * MS);
+    assert_eq!(step.frames[0].data(), &h("80 00 20 01 00 00 00 08")[..]);
+    assert_eq!(
+        step.completed,
+        Some(Err(SdoError::NotSent {
+            addr: at(0x2000, 1)
+        }))
+    );
+    assert!(!c.is_busy());
+}
