@@ -238,3 +238,64 @@ async fn running_nodes_are_booted_and_a_running_drive_is_adopted() {
     }
     server.shutdown();
 }
+
+/// Two running I/O nodes the gateway cannot reach at its start (their
+/// answers are dropped, as on a disconnected segment): both are found
+/// absent. Reconnected, neither sends a boot-up; the one with a heartbeat
+/// is booted as soon as it is heard, the one without at the next retry.
+const UNREACHABLE_AT_START: &str = r#"
+[[bus]]
+name = "can0"
+backend = "virtual"
+drop_ids = [0x587, 0x588, 0x708]
+
+[[canopen]]
+bus = "can0"
+sdo_timeout_ms = 200
+
+[[canopen.node]]
+id = 7
+eds = "builtin:io"
+simulate = true
+boot = true
+sim = { start = "operational", heartbeat_ms = 0, node_guarding = false }
+
+[[canopen.node]]
+id = 8
+eds = "builtin:io"
+simulate = true
+boot = true
+heartbeat_timeout_ms = 1000
+sim = { start = "operational", heartbeat_ms = 100 }
+"#;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn nodes_absent_at_the_start_are_booted_when_heard_or_at_the_next_retry() {
+    let log = cangate_tests::log::capture_log("cangate_server::canopen::boot=info");
+    let server = start_server(UNREACHABLE_AT_START).await;
+    let vbus = server.gateway().network().get("can0").unwrap();
+    let c = client(&server).await;
+    // Both boots end with nothing found.
+    let t0 = std::time::Instant::now();
+    let absent = |node: u32| {
+        let text = log.text();
+        text.lines()
+            .any(|l| l.contains(&format!("node{{node={node}}}")) && l.contains("does not answer"))
+    };
+    while !(absent(7) && absent(8)) {
+        assert!(t0.elapsed() < WAIT, "{}", log.text());
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert!(get_node(&c, 7).await.identity.is_none());
+    assert!(get_node(&c, 8).await.identity.is_none());
+
+    // Reconnected: no boot-up, yet both are checked and adopted.
+    vbus.set_drop_ids([]);
+    for node in [7, 8] {
+        let n = wait_node(&c, node, |n| {
+            n.identity.is_some() && n.state == pb::NmtState::Operational as i32
+        })
+        .await;
+        assert_eq!(n.boot_ups, 0, "{n:?}");
+    }
+}

@@ -1,13 +1,24 @@
 //! The boot procedure (CiA 302) of a bus's configured nodes: checked,
-//! configured where they differ, started; again at every boot-up.
+//! configured where they differ, started; again at every boot-up, and for
+//! a node that was not there, when it is heard or at the next retry.
 
 use super::*;
+use std::collections::BTreeSet;
+
+/// How often a configured node that did not answer its first boot read is
+/// tried again (CiA 302 retries absent slaves): a node that is switched
+/// on or plugged in sends a boot-up and is booted at once, but one on a
+/// segment that was disconnected, or one that was already running and
+/// only now reachable, sends none. One SDO read per absent node and period.
+pub(super) const ABSENT_NODE_RETRY: Duration = Duration::from_secs(2);
 
 /// Runs the boot procedure (CiA 302) of configured nodes: at the start of
 /// the master for every one of them, whether or not it sends a boot-up (a
 /// node running before the gateway started is adopted: checked, its
 /// configuration written where it differs, started, without a reset), and
-/// again whenever one boots up. One boot per node at a time: a boot-up
+/// again whenever one boots up. A node that did not answer is adopted the
+/// same way as soon as it is heard (a heartbeat, a state), else tried again
+/// every [`ABSENT_NODE_RETRY`]. One boot per node at a time: a boot-up
 /// during a boot starts it afresh (the node lost what was written).
 pub(super) async fn run_boot_supervisor(
     master: CanopenBus,
@@ -16,6 +27,12 @@ pub(super) async fn run_boot_supervisor(
     cancel: CancellationToken,
 ) {
     let mut running: HashMap<NodeId, tokio::task::AbortHandle> = HashMap::new();
+    // Nodes whose last boot found nothing there, told by the boot tasks.
+    let mut absent: BTreeSet<NodeId> = BTreeSet::new();
+    let (absent_tx, mut absent_rx) = mpsc::unbounded_channel::<(NodeId, bool)>();
+    let mut retry = tokio::time::interval(ABSENT_NODE_RETRY);
+    retry.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    retry.reset();
     let start = |running: &mut HashMap<NodeId, tokio::task::AbortHandle>,
                  node: NodeId,
                  plan: Arc<BootPlan>,
@@ -24,9 +41,12 @@ pub(super) async fn run_boot_supervisor(
             previous.abort();
         }
         let m = master.clone();
+        let absent_tx = absent_tx.clone();
         let span = tracing::info_span!("node", node = node.get());
         let task = tokio::spawn(async move {
-            match boot_node(&m, node, &plan, adopt).await {
+            let result = boot_node(&m, node, &plan, adopt).await;
+            let _ = absent_tx.send((node, matches!(result, Ok(BootResult::Absent))));
+            match result {
                 Ok(BootResult::Started { confirmed }) => {
                     match confirmed {
                         Some(state) => {
@@ -39,7 +59,10 @@ pub(super) async fn run_boot_supervisor(
                     m.emit(node, NodeEventKind::BootCompleted { adopted: adopt });
                 }
                 Ok(BootResult::Absent) => {
-                    tracing::info!("node does not answer; it is booted when it boots up");
+                    tracing::info!(
+                        "node does not answer; it is booted when it boots up or is heard, and tried again every {} s",
+                        ABSENT_NODE_RETRY.as_secs()
+                    );
                 }
                 Ok(BootResult::Rebooted) => {}
                 Err(reason) => {
@@ -54,10 +77,32 @@ pub(super) async fn run_boot_supervisor(
     for (node, plan) in &plans {
         start(&mut running, *node, plan.clone(), true);
     }
+    let plan_of = |node: NodeId| {
+        plans
+            .iter()
+            .find(|(n, _)| *n == node)
+            .map(|(_, p)| p.clone())
+    };
     loop {
         let ev = tokio::select! {
             _ = cancel.cancelled() => break,
             ev = events.recv() => ev,
+            Some((node, is_absent)) = absent_rx.recv() => {
+                if is_absent {
+                    absent.insert(node);
+                } else {
+                    absent.remove(&node);
+                }
+                continue;
+            }
+            _ = retry.tick() => {
+                for node in std::mem::take(&mut absent) {
+                    if let Some(plan) = plan_of(node) {
+                        start(&mut running, node, plan, true);
+                    }
+                }
+                continue;
+            }
         };
         let ev = match ev {
             Ok(ev) => ev,
@@ -73,13 +118,20 @@ pub(super) async fn run_boot_supervisor(
             }
             Err(broadcast::error::RecvError::Closed) => break,
         };
-        if !matches!(ev.kind, NodeEventKind::BootUp) {
-            continue;
-        }
-        let Some((node, plan)) = plans.iter().find(|(n, _)| *n == ev.node).cloned() else {
+        let adopt = match ev.kind {
+            NodeEventKind::BootUp => false,
+            // Heard without a boot-up: it is there now, and running.
+            NodeEventKind::StateChanged { .. } | NodeEventKind::HeartbeatRecovered { .. }
+                if absent.remove(&ev.node) =>
+            {
+                true
+            }
+            _ => continue,
+        };
+        let Some(plan) = plan_of(ev.node) else {
             continue;
         };
-        start(&mut running, node, plan, false);
+        start(&mut running, ev.node, plan, adopt);
     }
     for (_, task) in running {
         task.abort();
