@@ -260,6 +260,7 @@ fn master_config(cfg: &CansmcConfig, axes: &[&CansmcDrive], bitrate: u32) -> Mas
     m.connect_attempts = cfg.connect_attempts;
     m.parameter_timeout = Duration::from_millis(cfg.parameter_timeout_ms);
     m.lost_after = cfg.lost_after;
+    m.handover_grace = Duration::from_millis(u64::from(cfg.handover_grace_ms));
     m.mdt_deadline = m.mdt_deadline_for(bitrate);
     m
 }
@@ -788,6 +789,14 @@ impl AxisRunner for Thread {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_configured_hand_over_grace_reaches_the_master() {
+        let config = crate::config::Config::from_toml(crate::config::DEMO_CONFIG).unwrap();
+        let m = master_config(&config.cansmc[0], &[], 1_000_000);
+        assert_eq!(m.handover_grace, Duration::from_millis(56));
+        assert_eq!(m.handover_grace_cycles(), 14);
+    }
 
     #[test]
     fn the_cycle_thread_spins_by_default_only_under_sched_fifo() {

@@ -60,6 +60,16 @@ pub struct CansmcConfig {
     /// fault (default 3).
     #[serde(default = "default_lost_after")]
     pub lost_after: u32,
+    /// How long after a cycle's end its DTs may still reach the master, ms
+    /// (default 10): a DT is judged by its arrival time on the bus, and
+    /// this covers the time between the wire and the cycle thread (a
+    /// receive thread, a bus task or a bus simulation held up by a loaded
+    /// host), so that the host's delay is not counted as the slave's miss.
+    /// At most 14 cycles (the cycle counter's 16 values must tell the
+    /// open cycles apart); a slave that stops answering is lost this much
+    /// later.
+    #[serde(default = "default_handover_grace_ms")]
+    pub handover_grace_ms: u32,
     /// The cycle thread sleeps until at most this long before each MST,
     /// then waits actively, trading CPU for start-time jitter, µs (0 =
     /// sleep only). Default: 200 when the thread runs `SCHED_FIFO`
@@ -104,6 +114,9 @@ fn default_parameter_timeout_ms() -> u64 {
 }
 fn default_lost_after() -> u32 {
     3
+}
+fn default_handover_grace_ms() -> u32 {
+    10
 }
 /// `spin_us` when not configured and the cycle thread runs `SCHED_FIFO`.
 pub const DEFAULT_FIFO_SPIN_US: u32 = 200;
@@ -316,6 +329,14 @@ impl CansmcConfig {
                  parameter_timeout_ms must be positive"
             ));
         }
+        if u64::from(self.handover_grace_ms) * 1000 > 14 * u64::from(self.cycle_time_us) {
+            return Err(format!(
+                "cansmc {name}: handover_grace_ms {} is longer than 14 cycles ({} ms): the cycle \
+                 counter's 16 values could no longer tell the open cycles apart",
+                self.handover_grace_ms,
+                14 * u64::from(self.cycle_time_us) / 1000
+            ));
+        }
         if self.rt_priority > 99 {
             return Err(format!(
                 "cansmc {name}: rt_priority {} must be 0 (off) or 1..=99",
@@ -462,5 +483,21 @@ mod tests {
             let e = Config::from_toml(&text).unwrap_err().to_string();
             assert!(e.contains(want), "{want:?} not in {e}");
         }
+    }
+
+    #[test]
+    fn the_hand_over_grace_is_at_most_fourteen_cycles() {
+        let with_grace = |ms: u32| {
+            config(4000, 1, "").replace(
+                "cycle_time_us = 4000\n",
+                &format!("cycle_time_us = 4000\nhandover_grace_ms = {ms}\n"),
+            )
+        };
+        let c = Config::from_toml(&with_grace(56)).unwrap();
+        assert_eq!(c.cansmc[0].handover_grace_ms, 56);
+        let e = Config::from_toml(&with_grace(57)).unwrap_err().to_string();
+        assert!(e.contains("longer than 14 cycles (56 ms)"), "{e}");
+        let c = Config::from_toml(&config(4000, 1, "")).unwrap();
+        assert_eq!(c.cansmc[0].handover_grace_ms, 10);
     }
 }
