@@ -810,6 +810,43 @@ async fn a_touch_jog_runs_while_held_and_stops_when_the_touch_ends_or_is_lost() 
     assert_eq!(steps.last().map(String::as_str), Some("no-console-errors"));
 }
 
+/// Alarms the page raises from polled states (not from events): a bus that
+/// went off and a CANsmc slave no axis reports for, both marked cleared
+/// when they come back.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_bus_off_and_a_lost_cansmc_slave_are_alarms_until_they_recover() {
+    if !can_run("a_bus_off_and_a_lost_cansmc_slave_are_alarms_until_they_recover") {
+        return;
+    }
+    let server = demo_server().await;
+    let smc1 = server
+        .gateway()
+        .network()
+        .get("smc1")
+        .expect("the demo's smc1");
+    let url = format!("http://{}/", server.addr);
+    let steps = drive(
+        &["health".into(), url, screenshots().display().to_string()],
+        |need| {
+            let smc1 = smc1.clone();
+            async move {
+                match need.as_str() {
+                    "smc1-bus-off" => smc1.force_bus_off(),
+                    "smc1-recover" => smc1.recover(),
+                    other => panic!("unexpected request {other}"),
+                }
+                "ok".to_string()
+            }
+        },
+    )
+    .await;
+    assert_eq!(
+        steps,
+        ["health-raised", "health-cleared", "no-console-errors"],
+        "{steps:?}"
+    );
+}
+
 /// The dashboard over HTTPS: the demo gateway with `[security.tls]` (a
 /// throwaway self-signed certificate for 127.0.0.1, made here with rcgen),
 /// Chromium trusting exactly that certificate's public key

@@ -12,9 +12,11 @@
 // An alarm whose condition went away (the heartbeat back, an EMCY reset,
 // the node back) is marked cleared but stays until acknowledged: the
 // operator sees that it happened.
-import { canopen, clock, el, keepStreaming } from "./api";
+import { bus, canopen, cansmc, clock, el, keepStreaming } from "./api";
 import { eventText } from "./events";
+import { BusState } from "./gen/cangate/v1/bus_pb";
 import type { NodeEvent } from "./gen/cangate/v1/canopen_pb";
+import { CansmcSlaveState } from "./gen/cangate/v1/cansmc_pb";
 
 export interface Alarm {
   id: number;
@@ -137,8 +139,72 @@ function nodeAlarm(ev: NodeEvent): void {
   }
 }
 
-/** Streams the node events until `signal` aborts. */
+/** How often the buses' and CANsmc masters' states are polled for alarms. */
+const HEALTH_POLL_MS = 2000;
+/** Bound of each poll's call: a gateway that is gone is the link's business. */
+const HEALTH_CALL_MS = 1500;
+
+/** What an alarm-worthy bus state says; "" for a healthy one. */
+function busAlarm(state: BusState): string {
+  switch (state) {
+    case BusState.ERROR_PASSIVE:
+      return "error-passive: an error counter passed 127 (wiring, termination, bit rate?)";
+    case BusState.BUS_OFF:
+      return "bus-off: the controller left the bus after too many transmit errors";
+    case BusState.DOWN:
+      return "interface down: the gateway reconnects when it comes back";
+    default:
+      return "";
+  }
+}
+
+/** Holds `source`'s alarm to a polled condition: `text` raised while it
+ * lasts (once: acknowledged, it is not raised again until it went away),
+ * its other alarms cleared; "" clears them all. */
+function holdAlarm(source: string, text: string): void {
+  clear(source, (t) => t !== text);
+  if (text && !alarms.some((a) => a.source === source && a.text === text && !a.cleared)) raise(source, text);
+}
+
+async function pollHealth(signal: AbortSignal): Promise<void> {
+  const opts = { signal, timeoutMs: HEALTH_CALL_MS };
+  try {
+    const r = await bus.listBuses({}, opts);
+    for (const b of r.buses) holdAlarm(`bus ${b.name}`, busAlarm(b.status?.state ?? BusState.UNSPECIFIED));
+  } catch {
+    // The link indicator tells a gateway that is gone.
+  }
+  try {
+    const masters = await cansmc.listMasters({}, opts);
+    for (const m of masters.masters) {
+      const st = await cansmc.getStatus({ master: m.name }, opts);
+      holdAlarm(`CANsmc ${m.name}`, st.startError ? `start failed: ${st.startError}` : "");
+      for (const s of st.slaves) {
+        const source = `CANsmc ${m.name} slave ${s.address}${s.name ? ` (${s.name})` : ""}`;
+        let text = "";
+        // A slave that backs an axis: the axis's own events say it.
+        if (!s.axis) {
+          if (s.state === CansmcSlaveState.LOST) text = `slave lost: ${s.consecutiveMisses} DTs missed in a row`;
+          else if (s.state === CansmcSlaveState.MISSING) text = "slave missing: it did not answer at the start";
+          else if (s.statusWord?.fault) text = `slave reports a fault (status word 0x${s.statusWord.raw.toString(16).padStart(4, "0")})`;
+        }
+        holdAlarm(source, text);
+      }
+    }
+  } catch {
+    // As above.
+  }
+}
+
+/** Streams the node events, and polls the buses' and CANsmc masters'
+ * states, until `signal` aborts. */
 export function startAlarms(signal: AbortSignal): void {
+  const poll = async () => {
+    if (signal.aborted) return;
+    await pollHealth(signal);
+    setTimeout(() => void poll(), HEALTH_POLL_MS);
+  };
+  void poll();
   void keepStreaming(
     "node events",
     signal,

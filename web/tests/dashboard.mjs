@@ -65,6 +65,7 @@ try {
   else if (mode === "gone") await gone(page);
   else if (mode === "layout") await layout(page);
   else if (mode === "touch") await touch(page);
+  else if (mode === "health") await health(page);
   else throw new Error(`unknown mode ${mode}`);
   if (errors.length > 0) throw new Error(`the page reported errors:\n${errors.join("\n")}`);
   say("step no-console-errors");
@@ -746,6 +747,34 @@ async function layout(page) {
 // is touched (longer than the dead-man time), stops when the finger lifts,
 // and stops when the touch is lost (touchcancel: the panel took the
 // gesture, the finger slid off the glass).
+/**
+ * Alarms from the polled states: the test takes smc1 off the bus (the
+ * CANsmc status channel), the page lists the bus-off and the loss of the
+ * spindle encoder (a slave no axis reports for), and marks both cleared
+ * once the bus is back.
+ */
+async function health(page) {
+  await press(page, `button[data-page="alarms"]`);
+  const rows = (source, f) => page.$$eval(`#alarms tr[data-source="${source}"]`, f);
+  const bus = "bus smc1";
+  const encoder = "CANsmc smc slave 3 (Spindle encoder)";
+  say("need smc1-bus-off");
+  await stdin.next();
+  await until("the bus-off alarm", () =>
+    rows(bus, (rs) => rs.some((r) => r.dataset.state === "active" && r.textContent.includes("bus-off"))));
+  await until("the spindle encoder's loss", () =>
+    rows(encoder, (rs) => rs.some((r) => r.dataset.state === "active" && r.textContent.includes("slave lost"))));
+  await page.screenshot({ path: `${shots}/alarms-bus-off.png` });
+  say("step health-raised");
+  say("need smc1-recover");
+  await stdin.next();
+  for (const source of [bus, encoder]) {
+    await until(`${source}'s alarm cleared`, () =>
+      rows(source, (rs) => rs.length > 0 && rs.every((r) => r.dataset.state === "cleared")));
+  }
+  say("step health-cleared");
+}
+
 async function touch(page) {
   await page.setViewport({ width: 1024, height: 768, hasTouch: true });
   await until("axes X, Y, Z listed", () => axesListed(page));

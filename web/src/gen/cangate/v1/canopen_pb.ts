@@ -63,7 +63,12 @@
 //                        sent the abort (ABORTED).
 //      SDO_CANCELLED     the gateway cancelled the transfer and sent the
 //                        abort (ABORTED).
-//                        Metadata of the four SDO reasons: "abort_code"
+//      SDO_NOT_SENT      the CAN interface gave up a request frame (its
+//                        transmit queue stayed full past the interface's
+//                        transmit timeout, or it went away): the transfer
+//                        ended at once; the gateway sent abort 0x08000000
+//                        (UNAVAILABLE: the same call later may succeed).
+//                        Metadata of the five SDO reasons: "abort_code"
 //                        (8 hex digits, "0x06070013"), "abort_name" (the
 //                        CiA 301 text, "unknown abort code" for others),
 //                        "node" (decimal node id, "5"), "index" (4 hex
@@ -2230,7 +2235,8 @@ export const EventsLostSchema: GenMessage<EventsLost> = /*@__PURE__*/
 
 /**
  * The SDO abort of an error caused by an SDO transfer (ErrorInfo reason
- * SDO_ABORT, SDO_TIMEOUT, SDO_PROTOCOL_ERROR or SDO_CANCELLED): packed as a
+ * SDO_ABORT, SDO_TIMEOUT, SDO_PROTOCOL_ERROR, SDO_CANCELLED or
+ * SDO_NOT_SENT): packed as a
  * google.protobuf.Any with type URL
  * "type.googleapis.com/cangate.v1.SdoAbortDetails" in the details of the
  * google.rpc.Status in "grpc-status-details-bin", after the ErrorInfo (see
