@@ -153,7 +153,9 @@ const PROCESS_DATA_QUEUE: usize = 16_384;
 
 /// Starts the task running the axes `list` of
 /// `master`'s bus. Subscribes to the process data before returning, so
-/// nothing the drives send after this point is missed.
+/// nothing the drives send after this point is missed. Returns the task
+/// and its cyclic set-point table (indexed like `list`), where set-point
+/// streams of its axes are opened.
 pub fn spawn(
     master: CanopenBus,
     list: Vec<TaskAxis>,
@@ -161,7 +163,7 @@ pub fn spawn(
     updates: broadcast::Sender<AxisUpdate>,
     latest: LatestStates,
     cancel: CancellationToken,
-) -> tokio::task::JoinHandle<()> {
+) -> (tokio::task::JoinHandle<()>, Arc<CyclicSetpoints>) {
     // The task and its axes log inside the bus's span.
     let bus_span = tracing::info_span!("bus", bus = %master.bus());
     let _in_bus = bus_span.enter();
@@ -290,7 +292,8 @@ pub fn spawn(
         frames: Vec::new(),
         sdo_done,
     };
-    tokio::spawn(
+    let table = t.setpoints.clone();
+    let task = tokio::spawn(
         run(
             t,
             sub,
@@ -303,7 +306,8 @@ pub fn spawn(
             cancel,
         )
         .instrument(bus_span.clone()),
-    )
+    );
+    (task, table)
 }
 
 async fn run(
@@ -780,6 +784,24 @@ fn cob_hex(id: u32) -> String {
 }
 
 impl Task {
+    /// An axis that plays a set-point stream takes no command but a stop,
+    /// which ends the stream.
+    fn check_streams(&self, i: usize, cmd: &AxisCommand) -> Result<(), CommandError> {
+        if matches!(cmd, AxisCommand::Stop | AxisCommand::QuickStop) {
+            // A stop wins over a set-point stream, at once: the stream's
+            // axes ramp to rest from the next SYNC on, whoever stops.
+            self.setpoints.stop_stream_of(i);
+            return Ok(());
+        }
+        if self.setpoints.in_stream(i) {
+            return Err(CommandError::Busy(format!(
+                "axis {} plays a set-point stream: end the stream or stop the axis first",
+                self.slots[i].name
+            )));
+        }
+        Ok(())
+    }
+
     /// A cyclic axis gets its set-points with every SYNC and its drive
     /// reports with every SYNC: with the bus's SYNC stopped (SetSync) it
     /// takes no command but a stop or a disable, which would otherwise
@@ -810,6 +832,7 @@ impl AxisRunner for Task {
         wait: bool,
         now: Duration,
     ) -> Result<Waiter, CommandError> {
+        self.check_streams(i, &cmd)?;
         self.check_sync(i, &cmd)?;
         let mut out = Vec::new();
         let op = self.slots[i].axis.command(cmd, now, &mut out)?;
@@ -826,6 +849,7 @@ impl AxisRunner for Task {
         now: Duration,
     ) -> Result<Vec<Waiter>, CommandError> {
         for t in &targets {
+            self.check_streams(t.0, &AxisCommand::Enable)?;
             self.check_sync(t.0, &AxisCommand::Enable)?;
         }
         let slots = &self.slots;

@@ -12,6 +12,7 @@ pub mod cia402_task;
 pub mod control;
 pub mod cyclic_setpoints;
 pub mod sdo_process_data;
+pub mod setpoint_streams;
 
 use crate::canopen::CanopenBus;
 use crate::not_found::NotFound;
@@ -44,6 +45,9 @@ struct AxisEntry {
     bus: mpsc::Sender<BusRequest>,
     /// Index within its bus task.
     local: usize,
+    /// A CiA 402 axis's bus master and its task's cyclic set-point table
+    /// (where set-point streams play).
+    cyclic: Option<(CanopenBus, Arc<cyclic_setpoints::CyclicSetpoints>)>,
 }
 
 /// What [`Axes::start`] returns: the manager, its tasks, and the
@@ -138,6 +142,7 @@ impl Axes {
                     spec: specs[a.global].clone(),
                     bus: tx.clone(),
                     local,
+                    cyclic: None,
                 });
             }
             ports.insert(
@@ -157,21 +162,24 @@ impl Axes {
                 .ok_or_else(|| format!("bus {bus:?} has no CANopen master"))?
                 .clone();
             let (tx, rx) = mpsc::channel(256);
-            for (local, a) in list.iter().enumerate() {
-                axes[a.global] = Some(AxisEntry {
-                    spec: specs[a.global].clone(),
-                    bus: tx.clone(),
-                    local,
-                });
-            }
-            tasks.push(cia402_task::spawn(
-                master,
+            let globals: Vec<usize> = list.iter().map(|a| a.global).collect();
+            let (task, table) = cia402_task::spawn(
+                master.clone(),
                 list,
                 rx,
                 updates.clone(),
                 latest.clone(),
                 cancel.child_token(),
-            ));
+            );
+            for (local, global) in globals.into_iter().enumerate() {
+                axes[global] = Some(AxisEntry {
+                    spec: specs[global].clone(),
+                    bus: tx.clone(),
+                    local,
+                    cyclic: Some((master.clone(), table.clone())),
+                });
+            }
+            tasks.push(task);
         }
         let axes: Vec<AxisEntry> = axes
             .into_iter()
@@ -755,6 +763,10 @@ pub enum AxisError {
     /// bus, a profile-position axis).
     #[error("{0}")]
     NotCoordinable(String),
+    /// A set-point stream over axes that cannot be streamed now (not
+    /// cyclic, not enabled, moving, in another stream, on another bus).
+    #[error("{0}")]
+    NotStreamable(String),
     /// The axis's runner cannot take the request (queue full, no OS
     /// randomness for a lease token).
     #[error("{0}")]
