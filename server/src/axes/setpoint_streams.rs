@@ -15,9 +15,9 @@
 
 use super::cyclic_setpoints::{CyclicSetpoints, StreamEnd, StreamReport};
 use super::{Axes, AxisError, Caller};
-use cangate_canopen::cia402::DriveState;
 use cangate_axis::setpoint_stream::{AxisLimits, PlayerConfig, PointRefused, StreamPoint};
 use cangate_axis::{Activity, CommandError, DriveSpec, PositionMode};
+use cangate_canopen::cia402::DriveState;
 use std::collections::HashSet;
 use std::sync::Arc;
 use std::time::Duration;
@@ -190,7 +190,9 @@ impl Axes {
                 )));
             }
             let Some((snap, _)) = self.latest(i) else {
-                return Err(not(format!("axis {name}: no process data from its drive yet")));
+                return Err(not(format!(
+                    "axis {name}: no process data from its drive yet"
+                )));
             };
             if snap.state != Some(DriveState::OperationEnabled) || snap.node_lost.is_some() {
                 return Err(not(format!(
@@ -198,9 +200,7 @@ impl Axes {
                      enabled)"
                 )));
             }
-            if snap.activity != Activity::Idle
-                || snap.velocity.abs() > e.spec.motion.rest_speed()
-            {
+            if snap.activity != Activity::Idle || snap.velocity.abs() > e.spec.motion.rest_speed() {
                 return Err(not(format!(
                     "axis {name} is moving or busy ({:?}): stop it or wait until it is at rest",
                     snap.activity
