@@ -733,6 +733,16 @@ impl Task {
                 .publish([(i, None, layout.rpdo.cob_id, Vec::new(), layout.offset)]);
             slot.published = None;
         }
+        // Likewise an axis that starts sending set-points at rest (its
+        // Enable completed) publishes its holding plan now: a client that
+        // opens a set-point stream right after must find the axis served.
+        if slot.setpoint.is_some()
+            && slot.published.is_none()
+            && slot.axis.cyclic_plan().is_some_and(|p| !p.is_moving())
+        {
+            self.publish_plans();
+        }
+        let slot = &mut self.slots[i];
         let axis = &slot.axis;
         slot.waiters.dispatch(
             e,
