@@ -223,6 +223,8 @@ async fn a_streamed_circle_arrives_on_the_circle_and_ends_at_rest() {
     let counters = last.counters.unwrap();
     assert_eq!(counters.received, 2001, "{counters:?}");
     assert_eq!(counters.refused, 0, "{counters:?}");
+    // Every point played to the end: none dropped by the ramp to rest.
+    assert_eq!(counters.dropped, 0, "{counters:?}");
     let mut moved = 0;
     for s in &seen {
         assert!(

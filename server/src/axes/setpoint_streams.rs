@@ -15,7 +15,9 @@
 
 use super::cyclic_setpoints::{CyclicSetpoints, StreamEnd, StreamReport};
 use super::{Axes, AxisError, Caller};
-use cangate_axis::setpoint_stream::{AxisLimits, PlayerConfig, PointRefused, StreamPoint};
+use cangate_axis::setpoint_stream::{
+    AxisLimits, PlayerConfig, PlayerState, PointRefused, StreamPoint,
+};
 use cangate_axis::{Activity, CommandError, DriveSpec, PositionMode};
 use cangate_canopen::cia402::DriveState;
 use std::collections::HashSet;
@@ -292,8 +294,15 @@ impl SetpointStream {
             let Some(report) = self.table.report(self.id) else {
                 return last_end.unwrap_or(StreamEnd::ClientGone);
             };
-            if ending && report.end.is_none() && report.level.is_zero() {
-                // Every point the client sent has played.
+            if ending
+                && report.end.is_none()
+                && report.level.is_zero()
+                && matches!(
+                    report.state,
+                    PlayerState::Extrapolating | PlayerState::Waiting
+                )
+            {
+                // The playout passed the client's last point.
                 self.table.stop_stream(self.id, StreamEnd::ClientEnded);
             }
             last_end.clone_from(&report.end);
