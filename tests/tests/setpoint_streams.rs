@@ -196,8 +196,9 @@ fn off_circle(p: &[f64]) -> f64 {
     ((p[0] + 10.0).hypot(p[1]) - 10.0).abs()
 }
 
-/// A circle streamed at 1 kHz arrives on the circle: every commanded and
-/// every actual position reported lies within 0.2 mm of it; the stream
+/// A circle streamed at 1 kHz arrives on the circle: every commanded
+/// position reported lies within 0.2 mm of it, every actual one within
+/// 1.5 mm (radius 10); the stream
 /// ends when the client finishes, with the axes at rest at the circle's
 /// end, every point accepted.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -208,7 +209,7 @@ async fn a_streamed_circle_arrives_on_the_circle_and_ends_at_rest() {
         .await
         .unwrap();
     let sender = stream.sender().unwrap();
-    let sending = send_path(sender, 0, 2001, Duration::from_millis(200), circle);
+    let sending = send_path(sender, 0, 2001, Duration::from_millis(500), circle);
     sending.await.unwrap();
     stream.finish();
     let mut seen = Vec::new();
@@ -232,9 +233,12 @@ async fn a_streamed_circle_arrives_on_the_circle_and_ends_at_rest() {
             "commanded {:?} is off the circle",
             s.commanded_positions
         );
+        // Each axis's actual position is its latest process data: on a
+        // loaded machine one may be a SYNC or two older than the other
+        // (0.3 mm of travel per 5 ms at full speed), hence the bound.
         if s.actual_positions.iter().all(|p| p.is_finite()) {
             assert!(
-                off_circle(&s.actual_positions) < 0.2,
+                off_circle(&s.actual_positions) < 1.5,
                 "actual {:?} is off the circle",
                 s.actual_positions
             );
@@ -277,7 +281,7 @@ async fn an_underrun_is_reported_brings_the_axes_to_rest_and_the_stream_resumes(
         stream.sender().unwrap(),
         0,
         300,
-        Duration::from_millis(100),
+        Duration::from_millis(500),
         ramp,
     )
     .await
@@ -314,7 +318,7 @@ async fn an_underrun_is_reported_brings_the_axes_to_rest_and_the_stream_resumes(
         stream.sender().unwrap(),
         10_000_000,
         1001,
-        Duration::from_millis(100),
+        Duration::from_millis(500),
         back,
     )
     .await
@@ -403,7 +407,7 @@ async fn stop_axes_during_a_stream_stops_the_axes_and_ends_the_stream() {
         stream.sender().unwrap(),
         0,
         2000,
-        Duration::from_millis(200),
+        Duration::from_millis(500),
         line,
     );
     let mut seen = Vec::new();
@@ -470,7 +474,7 @@ async fn a_lost_lease_ends_the_stream_at_rest() {
         stream.sender().unwrap(),
         0,
         2000,
-        Duration::from_millis(200),
+        Duration::from_millis(500),
         line,
     );
     let mut seen = Vec::new();
@@ -539,5 +543,46 @@ async fn opening_is_refused_without_a_lease_or_with_bad_arguments() {
         e.to_string().contains("already in a set-point stream"),
         "{e}"
     );
+    server.shutdown();
+}
+
+/// A gateway shutting down during a stream stops the streamed axes first
+/// (a streamed axis is in motion although no command of its own runs),
+/// and waits until they are at rest.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shutdown_during_a_stream_brings_the_axes_to_rest_first() {
+    let (server, c, _axes, lease) = setup().await;
+    let mut stream = c
+        .stream_setpoints(&lease, &["X", "Y"], options())
+        .await
+        .unwrap();
+    let sending = send_path(
+        stream.sender().unwrap(),
+        0,
+        2000,
+        Duration::from_millis(500),
+        line,
+    );
+    let mut seen = Vec::new();
+    read_until(&mut stream, &mut seen, |s| s.commanded_positions[0] > 2.0)
+        .await
+        .unwrap()
+        .unwrap();
+    let stops = server
+        .gateway()
+        .axes()
+        .stop_for_shutdown(Duration::from_secs(10))
+        .await;
+    assert!(stops.not_at_rest.is_empty(), "{stops:?}");
+    assert!(
+        stops.lines.iter().any(|l| l.starts_with("X: completed")),
+        "{stops:?}"
+    );
+    let err = read_until(&mut stream, &mut seen, |_| false)
+        .await
+        .expect_err("the stream ends with the stop");
+    assert_eq!(err.code(), Some(Code::Aborted), "{err:?}");
+    assert_eq!(seen.last().unwrap().ended, "STOPPED");
+    sending.abort();
     server.shutdown();
 }

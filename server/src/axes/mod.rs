@@ -392,14 +392,24 @@ impl Axes {
         report
     }
 
-    /// Whether axis `i` was last seen moving, homing, jogging or stopping.
+    /// Whether axis `i` was last seen moving, homing, jogging or stopping,
+    /// or plays a set-point stream (no command of its own runs then).
     fn in_motion(&self, i: usize) -> bool {
-        self.latest(i).is_some_and(|(s, _)| {
-            matches!(
-                s.activity,
-                Activity::Moving | Activity::Jogging | Activity::Homing | Activity::Stopping
-            )
-        })
+        self.in_stream(i)
+            || self.latest(i).is_some_and(|(s, _)| {
+                matches!(
+                    s.activity,
+                    Activity::Moving | Activity::Jogging | Activity::Homing | Activity::Stopping
+                )
+            })
+    }
+
+    /// Whether axis `i` plays a set-point stream.
+    pub fn in_stream(&self, i: usize) -> bool {
+        let e = &self.axes[i];
+        e.cyclic
+            .as_ref()
+            .is_some_and(|(_, table)| table.in_stream(e.local))
     }
 
     /// Grants control of `axes` (names) to `holder`, bound to `identity`
@@ -717,12 +727,15 @@ async fn run_lease_expiry(m: Arc<Axes>, cancel: CancellationToken) {
                 let Some(&i) = m.by_name.get(name) else {
                     continue;
                 };
-                let moving = m.latest(i).is_some_and(|(s, _)| {
-                    matches!(
-                        s.activity,
-                        Activity::Moving | Activity::Jogging | Activity::Homing
-                    )
-                });
+                // A set-point stream ends by itself on a lost lease; the
+                // stop also covers a session that is held up.
+                let moving = m.in_stream(i)
+                    || m.latest(i).is_some_and(|(s, _)| {
+                        matches!(
+                            s.activity,
+                            Activity::Moving | Activity::Jogging | Activity::Homing
+                        )
+                    });
                 if moving {
                     let cmd = stop_command(m.spec(i).stop_on_loss);
                     stops.push((i, cmd));
