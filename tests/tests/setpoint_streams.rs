@@ -415,6 +415,18 @@ async fn stop_axes_during_a_stream_stops_the_axes_and_ends_the_stream() {
         .await
         .unwrap()
         .unwrap();
+    let status = axes
+        .get_axis(pb::GetAxisRequest { axis: "X".into() })
+        .await
+        .unwrap()
+        .into_inner()
+        .status
+        .unwrap();
+    assert_eq!(
+        status.activity,
+        pb::AxisActivity::Moving as i32,
+        "a streamed axis shows as moving: {status:?}"
+    );
     let busy = axes
         .r#move(pb::MoveRequest {
             axis: "Y".into(),

@@ -765,7 +765,12 @@ impl Task {
 
     fn publish_status(&mut self, i: usize) {
         let slot = &self.slots[i];
-        let snapshot = Arc::new(slot.axis.snapshot());
+        let mut snapshot = slot.axis.snapshot();
+        // A streamed axis runs no command of its own, yet it moves.
+        if snapshot.activity == cangate_axis::Activity::Idle && self.setpoints.in_stream(i) {
+            snapshot.activity = cangate_axis::Activity::Moving;
+        }
+        let snapshot = Arc::new(snapshot);
         slot.drive_guard.publish(
             snapshot.state,
             snapshot.activity == cangate_axis::Activity::Idle,

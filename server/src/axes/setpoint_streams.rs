@@ -191,6 +191,9 @@ impl Axes {
                     e.spec.bus()
                 )));
             }
+            if table.in_stream(e.local) {
+                return Err(not(format!("axis {name} is already in a set-point stream")));
+            }
             let Some((snap, _)) = self.latest(i) else {
                 return Err(not(format!(
                     "axis {name}: no process data from its drive yet"
