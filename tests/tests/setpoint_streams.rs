@@ -598,3 +598,49 @@ async fn shutdown_during_a_stream_brings_the_axes_to_rest_first() {
     sending.abort();
     server.shutdown();
 }
+
+/// A client that cancels its stream mid-motion (drops it) leaves the axes
+/// at rest: they ramp down from where they are.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cancelled_stream_brings_the_axes_to_rest() {
+    let (server, c, mut axes, lease) = setup().await;
+    let mut stream = c
+        .stream_setpoints(&lease, &["X", "Y"], options())
+        .await
+        .unwrap();
+    let sending = send_path(
+        stream.sender().unwrap(),
+        0,
+        2000,
+        Duration::from_millis(500),
+        line,
+    );
+    let mut seen = Vec::new();
+    read_until(&mut stream, &mut seen, |s| s.commanded_positions[0] > 2.0)
+        .await
+        .unwrap()
+        .unwrap();
+    sending.abort();
+    drop(stream);
+    // 20 mm/s at the stop deceleration stops within a few mm.
+    let t0 = Instant::now();
+    loop {
+        let s = axes
+            .get_axis(pb::GetAxisRequest { axis: "X".into() })
+            .await
+            .unwrap()
+            .into_inner()
+            .status
+            .unwrap();
+        if s.activity == pb::AxisActivity::Idle as i32 && s.velocity.abs() < 0.01 {
+            assert!(s.position < 10.0, "stopped at {}", s.position);
+            break;
+        }
+        assert!(t0.elapsed() < LONG, "X still moving: {s:?}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    // At rest for good.
+    let (x, _) = actual(&mut axes, "X").await;
+    wait_standing(&mut axes, "X", x).await;
+    server.shutdown();
+}

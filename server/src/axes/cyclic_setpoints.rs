@@ -980,6 +980,59 @@ mod tests {
         );
     }
 
+    /// SYNCs the SYNC thread skipped hold a stream's clock back, as they
+    /// hold a plan back: the next set-point sent is one period's travel
+    /// from the previous one sent, never a double step.
+    #[test]
+    fn a_skipped_sync_holds_the_stream_back_instead_of_a_double_step() {
+        let origin = Instant::now();
+        let table = two_holding_axes(origin);
+        let id = open(&table);
+        // Up to 100 mm/s (the maximum) at 1000 mm/s², all points at once.
+        let x = |s: f64| {
+            if s < 0.1 {
+                500.0 * s * s
+            } else {
+                5.0 + 100.0 * (s - 0.1)
+            }
+        };
+        let points: Vec<StreamPoint> = (0..400u64)
+            .map(|k| StreamPoint {
+                t_us: k * 1000,
+                positions: vec![x(k as f64 / 1000.0), 0.0],
+            })
+            .collect();
+        assert!(table.push_points_at(id, points, Duration::ZERO).is_empty());
+        let mut previous: Option<i32> = None;
+        let mut at = Duration::ZERO;
+        let mut largest = 0;
+        for k in 1..300u64 {
+            let mut missed = Duration::ZERO;
+            if k % 50 == 0 {
+                // The thread stalled for 4 periods.
+                at += Duration::from_millis(4);
+                missed = Duration::from_millis(4);
+            }
+            at += Duration::from_millis(1);
+            let mut frames = Vec::new();
+            table.on_sync(
+                SyncTick {
+                    at: origin + at,
+                    missed,
+                },
+                &mut frames,
+            );
+            let counts = i32::from_le_bytes(frames[0].data()[..4].try_into().unwrap());
+            if let Some(p) = previous {
+                largest = largest.max((counts - p).abs());
+            }
+            previous = Some(counts);
+        }
+        // 100 mm/s over 1 ms: 100 counts (and a count of rounding).
+        assert!(largest <= 101, "a step of {largest} counts");
+        assert!(largest >= 99, "it reached full speed: {largest}");
+    }
+
     /// A stop that reaches an axis of a stream as its own stop ramp (the
     /// axis task's plan moves) takes the axis out of the stream at once;
     /// the stream's other axes ramp to rest and the stream ends. Opening is
