@@ -36,6 +36,9 @@ pub const DEFAULT_REPORT_PERIOD: Duration = Duration::from_millis(50);
 pub const MIN_REPORT_PERIOD: Duration = Duration::from_millis(10);
 /// Bounds of the report period.
 pub const MAX_REPORT_PERIOD: Duration = Duration::from_secs(1);
+/// How often a stream's batches renew its lease (the lease's TTL is at
+/// least 100 ms).
+pub const RENEW_PERIOD: Duration = Duration::from_millis(50);
 /// Refused points reported one by one per report; more are counted only.
 pub const MAX_REFUSALS_PER_REPORT: usize = 32;
 
@@ -265,6 +268,7 @@ impl SetpointStream {
         let mut ending = false;
         let mut refused: Vec<Refusal> = Vec::new();
         let mut last_end = None;
+        let mut renewed: Option<tokio::time::Instant> = None;
         loop {
             let mut report_now = false;
             tokio::select! {
@@ -274,7 +278,7 @@ impl SetpointStream {
                 m = inbound.recv(), if input_open => match m {
                     Some(StreamInput::Points(points)) => {
                         if last_end.is_none() {
-                            report_now = self.push(points, &mut refused);
+                            report_now = self.push(points, &mut refused, &mut renewed);
                         }
                     }
                     Some(StreamInput::End) => {
@@ -331,13 +335,26 @@ impl SetpointStream {
         }
     }
 
-    /// Pushes `points` (renewing the lease); true when some were refused.
-    fn push(&self, points: Vec<StreamPoint>, refused: &mut Vec<Refusal>) -> bool {
-        for &i in &self.idx {
-            if let Err(e) = self.axes.authorize(i, &self.caller.lease) {
-                self.table
-                    .stop_stream(self.id, StreamEnd::LeaseLost(e.to_string()));
-                return true;
+    /// Pushes `points`; true when some were refused (or the lease is gone).
+    /// Renews the lease at most every [`RENEW_PERIOD`] (`renewed`: when it
+    /// last did): each renewal wakes the lease expiry task, and a client
+    /// may send a batch every millisecond. Between renewals every turn of
+    /// the session checks that the lease still covers the axes.
+    fn push(
+        &self,
+        points: Vec<StreamPoint>,
+        refused: &mut Vec<Refusal>,
+        renewed: &mut Option<tokio::time::Instant>,
+    ) -> bool {
+        let now = tokio::time::Instant::now();
+        if renewed.is_none_or(|at| now.duration_since(at) >= RENEW_PERIOD) {
+            *renewed = Some(now);
+            for &i in &self.idx {
+                if let Err(e) = self.axes.authorize(i, &self.caller.lease) {
+                    self.table
+                        .stop_stream(self.id, StreamEnd::LeaseLost(e.to_string()));
+                    return true;
+                }
             }
         }
         let times: Vec<u64> = points.iter().map(|p| p.t_us).collect();
