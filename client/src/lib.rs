@@ -62,6 +62,7 @@ mod lease;
 mod lss;
 mod program;
 mod sdo;
+mod setpoints;
 mod streams;
 
 pub use axes::{AxisUpdate, CommandOptions, CommandResult, JogOptions, MoveOptions, StopOptions};
@@ -82,6 +83,7 @@ pub use lss::{Lss, LssDevice};
 pub use pb::{AxisActivity, DriveState, HandwheelMode, NmtCommand, Outcome};
 pub use program::ProgramOptions;
 pub use sdo::{DataType, NodeId, Object, ObjectAddress, SdoOptions, SdoValue};
+pub use setpoints::{SetpointSender, SetpointStream, SetpointStreamOptions, setpoint};
 pub use streams::EventStream;
 
 use std::future::Future;

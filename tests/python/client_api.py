@@ -118,6 +118,33 @@ def main():
         expect(st.position > -100.0 and st.controlled_by == "", st)
         print(f"ok exception in the lease block: X stopped at {st.position:.3f}, released")
 
+        # A set-point stream: X and Y out by 1 mm and back (cosine), a
+        # point per ms sent ahead of time; the stream ends at rest.
+        import math
+
+        def there_and_back():
+            for k0 in range(0, 1001, 50):
+                yield [
+                    (k * 1000, [0.5 - 0.5 * math.cos(2 * math.pi * k / 1000.0)] * 2)
+                    for k in range(k0, min(k0 + 50, 1001))
+                ]
+
+        with c.control("X", "Y", name="python client test") as ax:
+            ax.enable("X", wait=True)
+            ax.enable("Y", wait=True)
+            start = [c.axis(a).get().status.demand_position for a in ("X", "Y")]
+            statuses = list(ax.stream_setpoints(
+                ([(t, [p[0] + start[0], p[1] + start[1]]) for t, p in b] for b in there_and_back()),
+                depth_ms=100,
+                status_period_ms=20,
+            ))
+            last = statuses[-1]
+            expect(last.ended == "CLIENT_ENDED", last)
+            expect(last.counters.received == 1001 and last.counters.refused == 0, last.counters)
+            peak = max(s.commanded_positions[1] for s in statuses)
+            expect(peak > 0.5, peak)
+        print(f"ok set-point stream: {last.counters.played} points played, peak {peak:.3f}")
+
         # Node events: NMT state changes of the I/O node.
         flip = [False]
 

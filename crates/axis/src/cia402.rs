@@ -331,6 +331,28 @@ impl CyclicSample {
     pub fn ends_a_motion(&self) -> bool {
         self.finished || self.deadman_stop
     }
+
+    /// The set-point of a SYNC sent at `at` from a source other than the
+    /// axis's own plan (a set-point stream played by the sampler): demand
+    /// `position` moving at `velocity` (user units). The axis's demand
+    /// follows it, so a stop that interrupts the source ramps down from
+    /// there.
+    pub fn streamed(at: Duration, position: f64, velocity: f64, units: Units) -> CyclicSample {
+        CyclicSample {
+            at,
+            counts: units.to_counts(position),
+            demand: position,
+            velocity,
+            start: None,
+            finished: false,
+            deadman_stop: false,
+        }
+    }
+
+    /// The demand position of this set-point (user units).
+    pub fn demand(&self) -> f64 {
+        self.demand
+    }
 }
 
 impl CyclicPlan {

@@ -361,6 +361,12 @@ impl SetpointPlayer {
         &self.position
     }
 
+    /// The commanded velocity of each axis over the last cycle (user
+    /// units/s).
+    pub fn velocity(&self) -> &[f64] {
+        &self.velocity
+    }
+
     /// How much client time is buffered ahead of the playout at `now`.
     pub fn level(&self, now: Duration) -> Duration {
         let (Some(last), Some(offset)) = (self.last_accepted.as_ref(), self.offset_us) else {

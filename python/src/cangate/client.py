@@ -604,6 +604,48 @@ class Lease:
         )
         return self.client._call(self.client.axes_stub.Jog, request)
 
+    def stream_setpoints(
+        self,
+        batches: Iterable[Sequence[tuple[int, Sequence[float]]]],
+        axes: Optional[Sequence[str]] = None,
+        *,
+        depth_ms: int = 20,
+        extrapolate_ms: int = 0,
+        point_period_us: int = 0,
+        status_period_ms: int = 0,
+    ) -> Stream[axes_pb2.SetpointStreamStatus]:
+        """Streams time-stamped set-points into the gateway's jitter buffer
+        (``Axes.StreamSetpoints``), played on the SYNC grid of cyclic axes.
+
+        `batches` yields lists of points ``(t_us, positions)``: the client's
+        clock in µs (any origin, increasing) and one position per axis of
+        `axes` (default: the lease's axes), in user units. gRPC iterates it
+        in its own thread, so a generator may pace itself (sleep until its
+        points are due). When it ends, the gateway plays the buffered points,
+        ramps the axes to rest and ends the returned stream of
+        ``SetpointStreamStatus`` (buffer level, counters, clock offset,
+        positions, events: UNDERRUN, refused points with their reason). A
+        stop of one of the axes, a lost lease or a drive leaving operation
+        enabled ends it with :class:`CangateError` (ABORTED).
+        """
+        names = list(axes) if axes is not None else list(self.axes)
+        opening = axes_pb2.SetpointStreamOpen(
+            axes=names,
+            lease=self._options(False, 0).lease,
+            depth_ms=depth_ms,
+            extrapolate_ms=extrapolate_ms,
+            point_period_us=point_period_us,
+            status_period_ms=status_period_ms,
+        )
+
+        def requests() -> Iterator[axes_pb2.SetpointStreamRequest]:
+            yield axes_pb2.SetpointStreamRequest(open=opening)
+            for batch in batches:
+                points = [axes_pb2.Setpoint(t_us=t, positions=list(p)) for t, p in batch]
+                yield axes_pb2.SetpointStreamRequest(batch=axes_pb2.SetpointBatch(points=points))
+
+        return Stream(self.client.axes_stub.StreamSetpoints(requests()), _one)
+
     def move_axes(self, targets: dict, *, wait: bool = False) -> list[axes_pb2.AxisCommandResponse]:
         """A coordinated move of cyclic axes: {axis: target}."""
         request = axes_pb2.MoveAxesRequest(

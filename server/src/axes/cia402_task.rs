@@ -153,7 +153,9 @@ const PROCESS_DATA_QUEUE: usize = 16_384;
 
 /// Starts the task running the axes `list` of
 /// `master`'s bus. Subscribes to the process data before returning, so
-/// nothing the drives send after this point is missed.
+/// nothing the drives send after this point is missed. Returns the task
+/// and its cyclic set-point table (indexed like `list`), where set-point
+/// streams of its axes are opened.
 pub fn spawn(
     master: CanopenBus,
     list: Vec<TaskAxis>,
@@ -161,7 +163,7 @@ pub fn spawn(
     updates: broadcast::Sender<AxisUpdate>,
     latest: LatestStates,
     cancel: CancellationToken,
-) -> tokio::task::JoinHandle<()> {
+) -> (tokio::task::JoinHandle<()>, Arc<CyclicSetpoints>) {
     // The task and its axes log inside the bus's span.
     let bus_span = tracing::info_span!("bus", bus = %master.bus());
     let _in_bus = bus_span.enter();
@@ -290,7 +292,8 @@ pub fn spawn(
         frames: Vec::new(),
         sdo_done,
     };
-    tokio::spawn(
+    let table = t.setpoints.clone();
+    let task = tokio::spawn(
         run(
             t,
             sub,
@@ -303,7 +306,8 @@ pub fn spawn(
             cancel,
         )
         .instrument(bus_span.clone()),
-    )
+    );
+    (task, table)
 }
 
 async fn run(
@@ -729,6 +733,16 @@ impl Task {
                 .publish([(i, None, layout.rpdo.cob_id, Vec::new(), layout.offset)]);
             slot.published = None;
         }
+        // Likewise an axis that starts sending set-points at rest (its
+        // Enable completed) publishes its holding plan now: a client that
+        // opens a set-point stream right after must find the axis served.
+        if slot.setpoint.is_some()
+            && slot.published.is_none()
+            && slot.axis.cyclic_plan().is_some_and(|p| !p.is_moving())
+        {
+            self.publish_plans();
+        }
+        let slot = &mut self.slots[i];
         let axis = &slot.axis;
         slot.waiters.dispatch(
             e,
@@ -751,7 +765,12 @@ impl Task {
 
     fn publish_status(&mut self, i: usize) {
         let slot = &self.slots[i];
-        let snapshot = Arc::new(slot.axis.snapshot());
+        let mut snapshot = slot.axis.snapshot();
+        // A streamed axis runs no command of its own, yet it moves.
+        if snapshot.activity == cangate_axis::Activity::Idle && self.setpoints.in_stream(i) {
+            snapshot.activity = cangate_axis::Activity::Moving;
+        }
+        let snapshot = Arc::new(snapshot);
         slot.drive_guard.publish(
             snapshot.state,
             snapshot.activity == cangate_axis::Activity::Idle,
@@ -780,6 +799,24 @@ fn cob_hex(id: u32) -> String {
 }
 
 impl Task {
+    /// An axis that plays a set-point stream takes no command but a stop,
+    /// which ends the stream.
+    fn check_streams(&self, i: usize, cmd: &AxisCommand) -> Result<(), CommandError> {
+        if matches!(cmd, AxisCommand::Stop | AxisCommand::QuickStop) {
+            // A stop wins over a set-point stream, at once: the stream's
+            // axes ramp to rest from the next SYNC on, whoever stops.
+            self.setpoints.stop_stream_of(i);
+            return Ok(());
+        }
+        if self.setpoints.in_stream(i) {
+            return Err(CommandError::Busy(format!(
+                "axis {} plays a set-point stream: end the stream or stop the axis first",
+                self.slots[i].name
+            )));
+        }
+        Ok(())
+    }
+
     /// A cyclic axis gets its set-points with every SYNC and its drive
     /// reports with every SYNC: with the bus's SYNC stopped (SetSync) it
     /// takes no command but a stop or a disable, which would otherwise
@@ -810,6 +847,7 @@ impl AxisRunner for Task {
         wait: bool,
         now: Duration,
     ) -> Result<Waiter, CommandError> {
+        self.check_streams(i, &cmd)?;
         self.check_sync(i, &cmd)?;
         let mut out = Vec::new();
         let op = self.slots[i].axis.command(cmd, now, &mut out)?;
@@ -826,6 +864,7 @@ impl AxisRunner for Task {
         now: Duration,
     ) -> Result<Vec<Waiter>, CommandError> {
         for t in &targets {
+            self.check_streams(t.0, &AxisCommand::Enable)?;
             self.check_sync(t.0, &AxisCommand::Enable)?;
         }
         let slots = &self.slots;

@@ -26,12 +26,17 @@
 //! target-position RPDO, a controlword change rides with the next SYNC.
 
 use crate::canopen::sync_thread::{SyncRider, SyncTick};
+use cangate_axis::Units;
 use cangate_axis::cia402::{CyclicPlan, CyclicSample};
+use cangate_axis::setpoint_stream::{
+    AxisLimits, PlayerConfig, PlayerCounters, PlayerEvent, PlayerState, PointRefused,
+    SetpointPlayer, StreamPoint,
+};
 use cangate_can::{CanId, Frame};
 use cangate_canopen::cia402::objects::TARGET_POSITION;
 use cangate_canopen::pdo::PdoConfig;
 use std::sync::Mutex;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 /// Where the target position sits in an RPDO.
 #[derive(Debug, Clone)]
@@ -86,6 +91,127 @@ struct Entry {
     samples: Vec<CyclicSample>,
     /// The axis's name, for a veto's reason.
     name: String,
+    /// The set-point stream that drives this axis instead of `plan`.
+    stream: Option<u64>,
+    /// The holding plan a stream left the axis with: the axis's own plans
+    /// that hold elsewhere are from samples before the stream ended and
+    /// are ignored until the axis has caught up (one that moves, or none,
+    /// is taken at once).
+    settling: Option<CyclicPlan>,
+    /// This SYNC's sample from the axis's stream.
+    streamed: Option<CyclicSample>,
+}
+
+/// Why a set-point stream ended.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum StreamEnd {
+    /// The client ended it: the buffered points were played, then the
+    /// axes ramped to rest.
+    ClientEnded,
+    /// The client cancelled it or went away.
+    ClientGone,
+    /// A stop or quick stop of one of its axes (from anyone: a stop never
+    /// waits for the stream).
+    Stopped {
+        /// The axis stopped.
+        axis: String,
+    },
+    /// The control lease no longer covers its axes.
+    LeaseLost(String),
+    /// One of its axes left operation enabled in cyclic position mode
+    /// (disabled, fault, node lost).
+    AxisLeft {
+        /// The axis.
+        axis: String,
+    },
+    /// The gateway shuts down.
+    ShuttingDown,
+}
+
+impl std::fmt::Display for StreamEnd {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            StreamEnd::ClientEnded => write!(f, "the client ended the stream"),
+            StreamEnd::ClientGone => write!(f, "the client cancelled the stream or went away"),
+            StreamEnd::Stopped { axis } => write!(
+                f,
+                "axis {axis} was stopped: the stream ended and its axes ramped to rest"
+            ),
+            StreamEnd::LeaseLost(why) => write!(
+                f,
+                "the control lease no longer covers the stream's axes ({why}): they ramped to rest"
+            ),
+            StreamEnd::AxisLeft { axis } => write!(
+                f,
+                "axis {axis} left operation enabled in cyclic position mode (disabled, fault or \
+                 node lost): the stream ended"
+            ),
+            StreamEnd::ShuttingDown => write!(f, "the gateway shuts down"),
+        }
+    }
+}
+
+/// Where a set-point stream stands.
+#[derive(Debug, Clone)]
+pub struct StreamReport {
+    /// The player's state.
+    pub state: PlayerState,
+    /// The counters.
+    pub counters: PlayerCounters,
+    /// Client time buffered ahead of the playout.
+    pub level: Duration,
+    /// Gateway time minus client time of the fastest recent arrival, µs.
+    pub clock_offset_us: Option<i64>,
+    /// The commanded positions (user units, stream order).
+    pub positions: Vec<f64>,
+    /// What happened since the last report, in order.
+    pub events: Vec<PlayerEvent>,
+    /// Why it ended, once it did.
+    pub end: Option<StreamEnd>,
+    /// Ended and at rest: every axis is back on its own plan.
+    pub finished: bool,
+}
+
+/// One stream played by the SYNC thread.
+#[derive(Debug)]
+struct PlayedStream {
+    id: u64,
+    /// Table indices of its axes, in the stream's order.
+    axes: Vec<usize>,
+    units: Vec<Units>,
+    player: SetpointPlayer,
+    /// SYNC periods skipped since it started: its clock is held back by
+    /// them, as a plan is ([`CyclicPlan::hold_back`]), so a late SYNC never
+    /// carries a double step.
+    held_back: Duration,
+    end: Option<StreamEnd>,
+    events: Vec<PlayerEvent>,
+    finished: bool,
+    /// Its session is gone: dropped once finished.
+    orphaned: bool,
+}
+
+impl PlayedStream {
+    fn stop(&mut self, reason: StreamEnd, now: Duration) {
+        if self.end.is_none() {
+            self.end = Some(reason);
+        }
+        self.player.stop(now.saturating_sub(self.held_back));
+    }
+}
+
+/// The table's state, under one lock.
+#[derive(Debug, Default)]
+struct State {
+    entries: Vec<Entry>,
+    streams: Vec<PlayedStream>,
+    next_stream: u64,
+}
+
+impl State {
+    fn stream(&mut self, id: u64) -> Option<&mut PlayedStream> {
+        self.streams.iter_mut().find(|s| s.id == id)
+    }
 }
 
 /// The table shared by one bus's axis task and its master's SYNC thread,
@@ -94,7 +220,7 @@ struct Entry {
 pub struct CyclicSetpoints {
     /// The axis task's clock: samples are taken in its time.
     origin: Instant,
-    entries: Mutex<Vec<Entry>>,
+    state: Mutex<State>,
 }
 
 impl CyclicSetpoints {
@@ -103,15 +229,16 @@ impl CyclicSetpoints {
     pub fn new(origin: Instant, names: impl IntoIterator<Item = String>) -> CyclicSetpoints {
         CyclicSetpoints {
             origin,
-            entries: Mutex::new(
-                names
+            state: Mutex::new(State {
+                entries: names
                     .into_iter()
                     .map(|name| Entry {
                         name,
                         ..Entry::default()
                     })
                     .collect(),
-            ),
+                ..State::default()
+            }),
         }
     }
 
@@ -126,11 +253,49 @@ impl CyclicSetpoints {
         &self,
         plans: impl IntoIterator<Item = (usize, Option<CyclicPlan>, u16, Vec<u8>, usize)>,
     ) {
-        let mut entries = self.entries.lock().expect("set-point table lock");
+        let now = self.origin.elapsed();
+        let mut st = self.state.lock().expect("set-point table lock");
+        let State {
+            entries, streams, ..
+        } = &mut *st;
         for (i, plan, cob, payload, offset) in plans {
             let Some(e) = entries.get_mut(i) else {
                 continue;
             };
+            if let Some(id) = e.stream {
+                if plan.as_ref().is_some_and(|p| !p.is_moving()) {
+                    // The stream rules the set-point; the RPDO's other
+                    // values follow the axis.
+                    e.rpdo = Some((cob, payload, offset));
+                    continue;
+                }
+                // A stop ramp (a stop reached the axis), or the drive left
+                // operation enabled: the axis follows its own plan from
+                // now on, the stream's other axes ramp to rest.
+                e.stream = None;
+                let reason = if plan.is_some() {
+                    StreamEnd::Stopped {
+                        axis: e.name.clone(),
+                    }
+                } else {
+                    StreamEnd::AxisLeft {
+                        axis: e.name.clone(),
+                    }
+                };
+                if let Some(s) = streams.iter_mut().find(|s| s.id == id) {
+                    s.stop(reason, now);
+                }
+            }
+            if let Some(settled) = &e.settling {
+                if plan
+                    .as_ref()
+                    .is_some_and(|p| !p.is_moving() && !p.same_motion(settled))
+                {
+                    e.rpdo = Some((cob, payload, offset));
+                    continue;
+                }
+                e.settling = None;
+            }
             e.rpdo = plan.is_some().then_some((cob, payload, offset));
             if let (Some(old), Some(new)) = (&e.plan, &plan)
                 && old.same_motion(new)
@@ -145,18 +310,177 @@ impl CyclicSetpoints {
     /// The set-point RPDO's other values changed (a custom mapping with
     /// the controlword): the next SYNC carries `payload`.
     pub fn set_payload(&self, i: usize, payload: Vec<u8>) {
-        let mut entries = self.entries.lock().expect("set-point table lock");
-        if let Some((_, p, _)) = entries.get_mut(i).and_then(|e| e.rpdo.as_mut()) {
+        let mut st = self.state.lock().expect("set-point table lock");
+        if let Some((_, p, _)) = st.entries.get_mut(i).and_then(|e| e.rpdo.as_mut()) {
             *p = payload;
         }
     }
 
     /// Moves the samples taken since the last call into `out`.
     pub fn take_samples(&self, out: &mut Vec<(usize, CyclicSample)>) {
-        let mut entries = self.entries.lock().expect("set-point table lock");
-        for (i, e) in entries.iter_mut().enumerate() {
+        let mut st = self.state.lock().expect("set-point table lock");
+        for (i, e) in st.entries.iter_mut().enumerate() {
             out.extend(e.samples.drain(..).map(|s| (i, s)));
         }
+    }
+
+    /// Opens a set-point stream over the axes `axes` (table indices), each
+    /// with its limits and units: the SYNC thread plays it from the next
+    /// SYNC on. Each axis must be sent set-points (enabled in cyclic
+    /// position mode), at rest, and in no other stream.
+    ///
+    /// # Errors
+    /// Why an axis cannot be streamed, for a person.
+    pub fn open_stream(
+        &self,
+        axes: &[usize],
+        limits: Vec<AxisLimits>,
+        units: Vec<Units>,
+        cfg: PlayerConfig,
+    ) -> Result<u64, String> {
+        let now = self.origin.elapsed();
+        let mut st = self.state.lock().expect("set-point table lock");
+        let mut positions = Vec::with_capacity(axes.len());
+        for &i in axes {
+            let e = &st.entries[i];
+            if e.stream.is_some() {
+                return Err(format!("axis {} is already in a set-point stream", e.name));
+            }
+            let (Some(plan), Some(_)) = (&e.plan, &e.rpdo) else {
+                return Err(format!(
+                    "axis {} gets no set-points: it must be enabled in cyclic position mode (CSP) \
+                     with its bus's SYNC running",
+                    e.name
+                ));
+            };
+            if plan.is_moving() {
+                return Err(format!(
+                    "axis {} is moving: stop it or wait until it is at rest",
+                    e.name
+                ));
+            }
+            positions.push(plan.clone().sample(now).demand());
+        }
+        let id = st.next_stream;
+        st.next_stream += 1;
+        for &i in axes {
+            let e = &mut st.entries[i];
+            e.stream = Some(id);
+            e.settling = None;
+        }
+        st.streams.push(PlayedStream {
+            id,
+            axes: axes.to_vec(),
+            units,
+            player: SetpointPlayer::new(cfg, limits, positions),
+            held_back: Duration::ZERO,
+            end: None,
+            events: Vec::new(),
+            finished: false,
+            orphaned: false,
+        });
+        Ok(id)
+    }
+
+    /// Takes points of stream `id` that arrived now: the refused ones
+    /// with their position in `points` and the reason.
+    pub fn push_points(
+        &self,
+        id: u64,
+        points: impl IntoIterator<Item = StreamPoint>,
+    ) -> Vec<(usize, PointRefused)> {
+        self.push_points_at(id, points, self.origin.elapsed())
+    }
+
+    /// [`CyclicSetpoints::push_points`] for points that arrived at `now`
+    /// (this table's clock).
+    pub fn push_points_at(
+        &self,
+        id: u64,
+        points: impl IntoIterator<Item = StreamPoint>,
+        now: Duration,
+    ) -> Vec<(usize, PointRefused)> {
+        let mut st = self.state.lock().expect("set-point table lock");
+        let Some(s) = st.stream(id) else {
+            return Vec::new();
+        };
+        let arrived = now.saturating_sub(s.held_back);
+        points
+            .into_iter()
+            .enumerate()
+            .filter_map(|(k, p)| s.player.push(p, arrived).err().map(|e| (k, e)))
+            .collect()
+    }
+
+    /// Brings stream `id` to rest and ends it (its first reason stays).
+    pub fn stop_stream(&self, id: u64, reason: StreamEnd) {
+        let now = self.origin.elapsed();
+        let mut st = self.state.lock().expect("set-point table lock");
+        if let Some(s) = st.stream(id) {
+            s.stop(reason, now);
+        }
+    }
+
+    /// A stop reached axis `i` (table index): its stream, if any, ramps to
+    /// rest at once, all its axes together, and ends.
+    pub fn stop_stream_of(&self, i: usize) {
+        let now = self.origin.elapsed();
+        let mut st = self.state.lock().expect("set-point table lock");
+        let State {
+            entries, streams, ..
+        } = &mut *st;
+        let Some(e) = entries.get(i) else {
+            return;
+        };
+        if let Some(id) = e.stream
+            && let Some(s) = streams.iter_mut().find(|s| s.id == id)
+        {
+            s.stop(
+                StreamEnd::Stopped {
+                    axis: e.name.clone(),
+                },
+                now,
+            );
+        }
+    }
+
+    /// Whether axis `i` (table index) is driven by a set-point stream.
+    pub fn in_stream(&self, i: usize) -> bool {
+        let st = self.state.lock().expect("set-point table lock");
+        st.entries.get(i).is_some_and(|e| e.stream.is_some())
+    }
+
+    /// Where stream `id` stands; its events since the last report.
+    pub fn report(&self, id: u64) -> Option<StreamReport> {
+        let now = self.origin.elapsed();
+        let mut st = self.state.lock().expect("set-point table lock");
+        let s = st.stream(id)?;
+        Some(StreamReport {
+            state: s.player.state(),
+            counters: s.player.counters(),
+            level: s.player.level(now.saturating_sub(s.held_back)),
+            clock_offset_us: s.player.clock_offset_us(),
+            positions: s.player.position().to_vec(),
+            events: std::mem::take(&mut s.events),
+            end: s.end.clone(),
+            finished: s.finished,
+        })
+    }
+
+    /// The session of stream `id` is gone: a stream still playing ramps to
+    /// rest (ended by `reason` unless it had ended already) and is dropped
+    /// once at rest.
+    pub fn close_stream(&self, id: u64, reason: StreamEnd) {
+        let now = self.origin.elapsed();
+        let mut st = self.state.lock().expect("set-point table lock");
+        let Some(s) = st.stream(id) else {
+            return;
+        };
+        if !s.finished {
+            s.stop(reason, now);
+        }
+        s.orphaned = true;
+        st.streams.retain(|s| !(s.finished && s.orphaned));
     }
 }
 
@@ -166,7 +490,8 @@ impl SyncRider for CyclicSetpoints {
         // the set-points of each SYNC over the period it was enabled with
         // and (on most drives) faults when the SYNC stops or its period
         // changes under it.
-        let entries = self.entries.lock().expect("set-point table lock");
+        let st = self.state.lock().expect("set-point table lock");
+        let entries = &st.entries;
         let enabled: Vec<&str> = entries
             .iter()
             .filter(|e| e.plan.is_some())
@@ -174,7 +499,7 @@ impl SyncRider for CyclicSetpoints {
             .collect();
         let moving = entries
             .iter()
-            .any(|e| e.plan.as_ref().is_some_and(CyclicPlan::is_moving));
+            .any(|e| e.stream.is_some() || e.plan.as_ref().is_some_and(CyclicPlan::is_moving));
         (!enabled.is_empty()).then(|| {
             format!(
                 "cyclic axis {} is {} on this SYNC; {} it first (its drive takes a set-point \
@@ -192,13 +517,52 @@ impl SyncRider for CyclicSetpoints {
 
     fn on_sync(&self, tick: SyncTick, frames: &mut Vec<Frame>) {
         let t = tick.at.saturating_duration_since(self.origin);
-        let mut entries = self.entries.lock().expect("set-point table lock");
+        let mut st = self.state.lock().expect("set-point table lock");
+        let State {
+            entries, streams, ..
+        } = &mut *st;
+        for s in streams.iter_mut().filter(|s| !s.finished) {
+            s.held_back += tick.missed;
+            let cycle = s.player.next(t.saturating_sub(s.held_back));
+            if let Some(ev) = cycle.event {
+                s.events.push(ev);
+            }
+            // Ended and at rest: each axis holds where the stream left it.
+            let done = s.end.is_some() && cycle.state == PlayerState::Waiting;
+            for (k, &i) in s.axes.iter().enumerate() {
+                let e = &mut entries[i];
+                if e.stream != Some(s.id) {
+                    continue;
+                }
+                let (p, v) = (cycle.positions[k], s.player.velocity()[k]);
+                e.streamed = Some(CyclicSample::streamed(
+                    t,
+                    p,
+                    if done { 0.0 } else { v },
+                    s.units[k],
+                ));
+                if done {
+                    let hold = CyclicPlan::holding(p, s.units[k]);
+                    e.stream = None;
+                    e.plan = Some(hold.clone());
+                    e.settling = Some(hold);
+                }
+            }
+            s.finished = done;
+        }
+        streams.retain(|s| !(s.finished && s.orphaned));
         for e in entries.iter_mut() {
+            let streamed = e.streamed.take();
             let (Some(plan), Some((cob, payload, offset))) = (&mut e.plan, &mut e.rpdo) else {
                 continue;
             };
-            plan.hold_back(tick.missed);
-            let sample = plan.sample(t);
+            let sample = match streamed {
+                Some(sample) => sample,
+                None => {
+                    plan.hold_back(tick.missed);
+                    plan.sample(t)
+                }
+            };
             if let Some(target) = payload.get_mut(*offset..*offset + 4) {
                 target.copy_from_slice(&sample.counts.to_le_bytes());
             }
@@ -450,6 +814,277 @@ mod tests {
                 assert!(ended_at.is_some(), "the move reached its target");
             }
         }
+    }
+
+    /// A table of two cyclic axes holding at 0 (1000 counts per unit),
+    /// RPDOs 0x301 and 0x302.
+    fn two_holding_axes(origin: Instant) -> CyclicSetpoints {
+        let table = CyclicSetpoints::new(origin, ["x", "y"].map(String::from));
+        table.publish((0..2).map(|i| {
+            (
+                i,
+                Some(CyclicPlan::holding(0.0, UNITS)),
+                0x301 + i as u16,
+                vec![0; 8],
+                0,
+            )
+        }));
+        table
+    }
+
+    const UNITS: Units = Units {
+        counts_per_unit: 1000.0,
+    };
+
+    fn limits() -> AxisLimits {
+        AxisLimits {
+            max_velocity: 100.0,
+            max_acceleration: 1000.0,
+            stop_deceleration: 1000.0,
+            min_position: Some(-200.0),
+            max_position: Some(200.0),
+        }
+    }
+
+    /// Opens a stream over both axes of `table` (1 ms cycle, 5 ms buffer).
+    fn open(table: &CyclicSetpoints) -> u64 {
+        table
+            .open_stream(
+                &[0, 1],
+                vec![limits(); 2],
+                vec![UNITS; 2],
+                PlayerConfig::new(Duration::from_millis(1), Duration::from_millis(5)),
+            )
+            .expect("both axes hold at rest")
+    }
+
+    /// The target positions (counts) of the RPDOs one SYNC at `k` ms sends.
+    fn sync_counts(table: &CyclicSetpoints, origin: Instant, k: u64) -> Vec<i32> {
+        let mut frames = Vec::new();
+        table.on_sync(
+            SyncTick::on_time(origin + Duration::from_millis(k)),
+            &mut frames,
+        );
+        frames
+            .iter()
+            .map(|f| i32::from_le_bytes(f.data()[..4].try_into().unwrap()))
+            .collect()
+    }
+
+    /// A streamed line plays on the SYNC grid (after the buffer's depth),
+    /// each axis's sample carries the streamed demand to its axis task,
+    /// and a stop of one axis ramps both to rest together, ends the
+    /// stream, and hands each axis back to a plan holding where it stopped;
+    /// the axis task's plans from before the end do not move it back.
+    #[test]
+    fn a_stream_plays_on_the_sync_grid_and_a_stop_ends_it_at_rest() {
+        let origin = Instant::now();
+        let table = two_holding_axes(origin);
+        let id = open(&table);
+        assert!(table.in_stream(0) && table.in_stream(1));
+        // Up to 50 mm/s on x (at 500 mm/s²), half that backwards on y, a
+        // point per ms, sent as they come.
+        let x = |s: f64| {
+            if s < 0.1 {
+                250.0 * s * s
+            } else {
+                2.5 + 50.0 * (s - 0.1)
+            }
+        };
+        let mut sent = Vec::new();
+        let mut samples = Vec::new();
+        for k in 0..200u64 {
+            let t_us = k * 1000;
+            let s = k as f64 / 1000.0;
+            let refused = table.push_points_at(
+                id,
+                [StreamPoint {
+                    t_us,
+                    positions: vec![x(s), -x(s) / 2.0],
+                }],
+                Duration::from_millis(k),
+            );
+            assert!(refused.is_empty(), "{refused:?}");
+            sent.push(sync_counts(&table, origin, k));
+            table.take_samples(&mut samples);
+        }
+        // Played 5 ms behind the client: at 199 ms, client time 194 ms.
+        let last = sent.last().unwrap();
+        assert!((last[0] - 7_200).abs() <= 60, "{last:?}");
+        assert!((last[1] + 3_600).abs() <= 30, "{last:?}");
+        // No step beyond 100 mm/s over 1 ms.
+        for w in sent.windows(2) {
+            for a in 0..2 {
+                assert!((w[1][a] - w[0][a]).abs() <= 100, "{w:?}");
+            }
+        }
+        let (i, s) = samples.last().unwrap();
+        assert_eq!(*i, 1);
+        assert_eq!(s.counts, last[1]);
+        // The axis task publishes plans holding its (lagging) demand: ignored.
+        table.publish([(
+            0,
+            Some(CyclicPlan::holding(1.0, UNITS)),
+            0x301,
+            vec![0; 8],
+            0,
+        )]);
+        let moving = sync_counts(&table, origin, 200);
+        assert!(moving[0] > last[0], "{moving:?} after {last:?}");
+
+        table.stop_stream_of(1);
+        let mut k = 201;
+        let mut previous = moving;
+        let report = loop {
+            let now = sync_counts(&table, origin, k);
+            for a in 0..2 {
+                // 1000 mm/s² over 1 ms: a step changes by at most 1 count.
+                let v_before = previous[a];
+                assert!((now[a] - v_before).abs() <= 100, "{now:?} {previous:?}");
+            }
+            previous = now;
+            let r = table.report(id).unwrap();
+            if r.finished {
+                break r;
+            }
+            k += 1;
+            assert!(k < 400, "the ramp to rest ends within 50 ms");
+        };
+        assert_eq!(report.end, Some(StreamEnd::Stopped { axis: "y".into() }));
+        assert!(!table.in_stream(0));
+        // At rest: the next SYNCs hold, and a stale holding plan of the
+        // axis task does not move the axis back.
+        table.publish([(
+            0,
+            Some(CyclicPlan::holding(9.0, UNITS)),
+            0x301,
+            vec![0; 8],
+            0,
+        )]);
+        let held = sync_counts(&table, origin, k + 1);
+        assert_eq!(held, previous);
+        // The axis catches up: its plan holds where the stream stopped.
+        let x = f64::from(previous[0]) / 1000.0;
+        table.publish([(0, Some(CyclicPlan::holding(x, UNITS)), 0x301, vec![0; 8], 0)]);
+        assert_eq!(sync_counts(&table, origin, k + 2), previous);
+        // Another stream can open now.
+        assert!(
+            table
+                .open_stream(
+                    &[0],
+                    vec![limits()],
+                    vec![UNITS],
+                    PlayerConfig::new(Duration::from_millis(1), Duration::from_millis(5))
+                )
+                .is_ok()
+        );
+    }
+
+    /// SYNCs the SYNC thread skipped hold a stream's clock back, as they
+    /// hold a plan back: the next set-point sent is one period's travel
+    /// from the previous one sent, never a double step.
+    #[test]
+    fn a_skipped_sync_holds_the_stream_back_instead_of_a_double_step() {
+        let origin = Instant::now();
+        let table = two_holding_axes(origin);
+        let id = open(&table);
+        // Up to 100 mm/s (the maximum) at 1000 mm/s², all points at once.
+        let x = |s: f64| {
+            if s < 0.1 {
+                500.0 * s * s
+            } else {
+                5.0 + 100.0 * (s - 0.1)
+            }
+        };
+        let points: Vec<StreamPoint> = (0..400u64)
+            .map(|k| StreamPoint {
+                t_us: k * 1000,
+                positions: vec![x(k as f64 / 1000.0), 0.0],
+            })
+            .collect();
+        assert!(table.push_points_at(id, points, Duration::ZERO).is_empty());
+        let mut previous: Option<i32> = None;
+        let mut at = Duration::ZERO;
+        let mut largest = 0;
+        for k in 1..300u64 {
+            let mut missed = Duration::ZERO;
+            if k % 50 == 0 {
+                // The thread stalled for 4 periods.
+                at += Duration::from_millis(4);
+                missed = Duration::from_millis(4);
+            }
+            at += Duration::from_millis(1);
+            let mut frames = Vec::new();
+            table.on_sync(
+                SyncTick {
+                    at: origin + at,
+                    missed,
+                },
+                &mut frames,
+            );
+            let counts = i32::from_le_bytes(frames[0].data()[..4].try_into().unwrap());
+            if let Some(p) = previous {
+                largest = largest.max((counts - p).abs());
+            }
+            previous = Some(counts);
+        }
+        // 100 mm/s over 1 ms: 100 counts (and a count of rounding).
+        assert!(largest <= 101, "a step of {largest} counts");
+        assert!(largest >= 99, "it reached full speed: {largest}");
+    }
+
+    /// A stop that reaches an axis of a stream as its own stop ramp (the
+    /// axis task's plan moves) takes the axis out of the stream at once;
+    /// the stream's other axes ramp to rest and the stream ends. Opening is
+    /// refused for an axis already streamed, one that moves, and one that
+    /// gets no set-points.
+    #[test]
+    fn an_axis_plan_that_moves_takes_the_axis_out_of_its_stream() {
+        let origin = Instant::now();
+        let table = two_holding_axes(origin);
+        let id = open(&table);
+        let err = table
+            .open_stream(
+                &[1],
+                vec![limits()],
+                vec![UNITS],
+                PlayerConfig::new(Duration::from_millis(1), Duration::from_millis(5)),
+            )
+            .unwrap_err();
+        assert!(err.contains("already in a set-point stream"), "{err}");
+        // An axis leaving operation enabled (no plan) ends the stream too.
+        table.publish([(0, None, 0x301, Vec::new(), 0)]);
+        assert!(!table.in_stream(0));
+        let r = table.report(id).unwrap();
+        assert_eq!(r.end, Some(StreamEnd::AxisLeft { axis: "x".into() }));
+        sync_counts(&table, origin, 1);
+        assert!(table.report(id).unwrap().finished);
+        table.close_stream(id, StreamEnd::ClientGone);
+        assert!(
+            table.report(id).is_none(),
+            "a finished, closed stream is gone"
+        );
+        let err = table
+            .open_stream(
+                &[0],
+                vec![limits()],
+                vec![UNITS],
+                PlayerConfig::new(Duration::from_millis(1), Duration::from_millis(5)),
+            )
+            .unwrap_err();
+        assert!(err.contains("gets no set-points"), "{err}");
+        // A moving axis cannot be streamed.
+        let (axis, _) = moving_cyclic_axis(10.0);
+        table.publish([(1, axis.cyclic_plan(), 0x302, vec![0; 8], 0)]);
+        let err = table
+            .open_stream(
+                &[1],
+                vec![limits()],
+                vec![UNITS],
+                PlayerConfig::new(Duration::from_millis(1), Duration::from_millis(5)),
+            )
+            .unwrap_err();
+        assert!(err.contains("is moving"), "{err}");
     }
 
     #[test]

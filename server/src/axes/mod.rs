@@ -12,6 +12,7 @@ pub mod cia402_task;
 pub mod control;
 pub mod cyclic_setpoints;
 pub mod sdo_process_data;
+pub mod setpoint_streams;
 
 use crate::canopen::CanopenBus;
 use crate::not_found::NotFound;
@@ -44,6 +45,9 @@ struct AxisEntry {
     bus: mpsc::Sender<BusRequest>,
     /// Index within its bus task.
     local: usize,
+    /// A CiA 402 axis's bus master and its task's cyclic set-point table
+    /// (where set-point streams play).
+    cyclic: Option<(CanopenBus, Arc<cyclic_setpoints::CyclicSetpoints>)>,
 }
 
 /// What [`Axes::start`] returns: the manager, its tasks, and the
@@ -138,6 +142,7 @@ impl Axes {
                     spec: specs[a.global].clone(),
                     bus: tx.clone(),
                     local,
+                    cyclic: None,
                 });
             }
             ports.insert(
@@ -157,21 +162,24 @@ impl Axes {
                 .ok_or_else(|| format!("bus {bus:?} has no CANopen master"))?
                 .clone();
             let (tx, rx) = mpsc::channel(256);
-            for (local, a) in list.iter().enumerate() {
-                axes[a.global] = Some(AxisEntry {
-                    spec: specs[a.global].clone(),
-                    bus: tx.clone(),
-                    local,
-                });
-            }
-            tasks.push(cia402_task::spawn(
-                master,
+            let globals: Vec<usize> = list.iter().map(|a| a.global).collect();
+            let (task, table) = cia402_task::spawn(
+                master.clone(),
                 list,
                 rx,
                 updates.clone(),
                 latest.clone(),
                 cancel.child_token(),
-            ));
+            );
+            for (local, global) in globals.into_iter().enumerate() {
+                axes[global] = Some(AxisEntry {
+                    spec: specs[global].clone(),
+                    bus: tx.clone(),
+                    local,
+                    cyclic: Some((master.clone(), table.clone())),
+                });
+            }
+            tasks.push(task);
         }
         let axes: Vec<AxisEntry> = axes
             .into_iter()
@@ -384,14 +392,24 @@ impl Axes {
         report
     }
 
-    /// Whether axis `i` was last seen moving, homing, jogging or stopping.
+    /// Whether axis `i` was last seen moving, homing, jogging or stopping,
+    /// or plays a set-point stream (no command of its own runs then).
     fn in_motion(&self, i: usize) -> bool {
-        self.latest(i).is_some_and(|(s, _)| {
-            matches!(
-                s.activity,
-                Activity::Moving | Activity::Jogging | Activity::Homing | Activity::Stopping
-            )
-        })
+        self.in_stream(i)
+            || self.latest(i).is_some_and(|(s, _)| {
+                matches!(
+                    s.activity,
+                    Activity::Moving | Activity::Jogging | Activity::Homing | Activity::Stopping
+                )
+            })
+    }
+
+    /// Whether axis `i` plays a set-point stream.
+    pub fn in_stream(&self, i: usize) -> bool {
+        let e = &self.axes[i];
+        e.cyclic
+            .as_ref()
+            .is_some_and(|(_, table)| table.in_stream(e.local))
     }
 
     /// Grants control of `axes` (names) to `holder`, bound to `identity`
@@ -709,12 +727,15 @@ async fn run_lease_expiry(m: Arc<Axes>, cancel: CancellationToken) {
                 let Some(&i) = m.by_name.get(name) else {
                     continue;
                 };
-                let moving = m.latest(i).is_some_and(|(s, _)| {
-                    matches!(
-                        s.activity,
-                        Activity::Moving | Activity::Jogging | Activity::Homing
-                    )
-                });
+                // A set-point stream ends by itself on a lost lease; the
+                // stop also covers a session that is held up.
+                let moving = m.in_stream(i)
+                    || m.latest(i).is_some_and(|(s, _)| {
+                        matches!(
+                            s.activity,
+                            Activity::Moving | Activity::Jogging | Activity::Homing
+                        )
+                    });
                 if moving {
                     let cmd = stop_command(m.spec(i).stop_on_loss);
                     stops.push((i, cmd));
@@ -755,6 +776,10 @@ pub enum AxisError {
     /// bus, a profile-position axis).
     #[error("{0}")]
     NotCoordinable(String),
+    /// A set-point stream over axes that cannot be streamed now (not
+    /// cyclic, not enabled, moving, in another stream, on another bus).
+    #[error("{0}")]
+    NotStreamable(String),
     /// The axis's runner cannot take the request (queue full, no OS
     /// randomness for a lease token).
     #[error("{0}")]

@@ -541,6 +541,23 @@ impl AxesRpc for AxesService {
         Ok(Response::new(pb::MultiAxisResponse { results: out }))
     }
 
+    type StreamSetpointsStream = MessageStream<pb::SetpointStreamStatus>;
+
+    async fn stream_setpoints(
+        &self,
+        req: Request<tonic::Streaming<pb::SetpointStreamRequest>>,
+    ) -> Result<Response<Self::StreamSetpointsStream>, Status> {
+        let caller = Caller::new(peer(&req)).with_identity(owner(&req));
+        let stream = super::setpoint_streams::serve(
+            self.gateway.axes().clone(),
+            caller,
+            req.into_inner(),
+            self.gateway.shutdown_token(),
+        )
+        .await?;
+        Ok(Response::new(stream))
+    }
+
     type StreamAxisStateStream = UpdateStream;
 
     async fn stream_axis_state(

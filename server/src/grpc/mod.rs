@@ -11,6 +11,7 @@ pub mod handwheel_service;
 pub mod lss_service;
 mod runtime_errors;
 pub mod session_service;
+pub mod setpoint_streams;
 pub mod simulator_service;
 
 /// Who made a call, for audit lines and lease holders: the authenticated

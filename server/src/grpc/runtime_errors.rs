@@ -42,6 +42,7 @@ impl From<AxisError> for ApiError {
             AxisError::Refused(e) => e.into(),
             AxisError::Lease(e) => e.into(),
             AxisError::NotCoordinable(m) => ApiError::FailedPrecondition(m),
+            AxisError::NotStreamable(m) => ApiError::FailedPrecondition(m),
             AxisError::Unavailable(m) => ApiError::Unavailable(m),
             AxisError::NoAnswer(m) => ApiError::DeadlineExceeded(m),
             AxisError::ShuttingDown => ApiError::ShuttingDown,

@@ -88,6 +88,7 @@ pub const TABLE: &[Rule] = &[
     rule("/cangate.v1.Axes/StopAxes", O, false),
     rule("/cangate.v1.Axes/MoveAxes", O, false),
     rule("/cangate.v1.Axes/StreamAxisState", V, true),
+    rule("/cangate.v1.Axes/StreamSetpoints", O, true),
     // Handwheels: switching manual/automatic mode is operating.
     rule("/cangate.v1.Handwheels/ListHandwheels", V, false),
     rule("/cangate.v1.Handwheels/GetHandwheel", V, false),

@@ -62,6 +62,24 @@ class Outcome(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     OUTCOME_FAULT: _ClassVar[Outcome]
     OUTCOME_TIMEOUT: _ClassVar[Outcome]
     OUTCOME_STOPPED: _ClassVar[Outcome]
+
+class SetpointStreamState(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    SETPOINT_STREAM_STATE_UNSPECIFIED: _ClassVar[SetpointStreamState]
+    SETPOINT_STREAM_WAITING: _ClassVar[SetpointStreamState]
+    SETPOINT_STREAM_FILLING: _ClassVar[SetpointStreamState]
+    SETPOINT_STREAM_PLAYING: _ClassVar[SetpointStreamState]
+    SETPOINT_STREAM_EXTRAPOLATING: _ClassVar[SetpointStreamState]
+    SETPOINT_STREAM_STOPPING: _ClassVar[SetpointStreamState]
+    SETPOINT_STREAM_ENDED: _ClassVar[SetpointStreamState]
+
+class SetpointEventKind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    SETPOINT_EVENT_KIND_UNSPECIFIED: _ClassVar[SetpointEventKind]
+    SETPOINT_EVENT_UNDERRUN: _ClassVar[SetpointEventKind]
+    SETPOINT_EVENT_POINT_REFUSED: _ClassVar[SetpointEventKind]
+    SETPOINT_EVENT_AT_REST: _ClassVar[SetpointEventKind]
+    SETPOINT_EVENT_ENDED: _ClassVar[SetpointEventKind]
 DRIVE_STATE_UNSPECIFIED: DriveState
 DRIVE_STATE_NOT_READY_TO_SWITCH_ON: DriveState
 DRIVE_STATE_SWITCH_ON_DISABLED: DriveState
@@ -97,6 +115,18 @@ OUTCOME_SUPERSEDED: Outcome
 OUTCOME_FAULT: Outcome
 OUTCOME_TIMEOUT: Outcome
 OUTCOME_STOPPED: Outcome
+SETPOINT_STREAM_STATE_UNSPECIFIED: SetpointStreamState
+SETPOINT_STREAM_WAITING: SetpointStreamState
+SETPOINT_STREAM_FILLING: SetpointStreamState
+SETPOINT_STREAM_PLAYING: SetpointStreamState
+SETPOINT_STREAM_EXTRAPOLATING: SetpointStreamState
+SETPOINT_STREAM_STOPPING: SetpointStreamState
+SETPOINT_STREAM_ENDED: SetpointStreamState
+SETPOINT_EVENT_KIND_UNSPECIFIED: SetpointEventKind
+SETPOINT_EVENT_UNDERRUN: SetpointEventKind
+SETPOINT_EVENT_POINT_REFUSED: SetpointEventKind
+SETPOINT_EVENT_AT_REST: SetpointEventKind
+SETPOINT_EVENT_ENDED: SetpointEventKind
 
 class Axis(_message.Message):
     __slots__ = ("name", "backend", "bus", "node", "unit", "counts_per_unit", "min_position", "max_position", "max_velocity", "max_acceleration", "position_mode", "stop_on_loss", "jog_deadman_ms", "status", "process_data", "sdo_poll_ms")
@@ -391,3 +421,99 @@ class NodeLink(_message.Message):
     lost: bool
     reason: str
     def __init__(self, lost: _Optional[bool] = ..., reason: _Optional[str] = ...) -> None: ...
+
+class SetpointStreamRequest(_message.Message):
+    __slots__ = ("open", "batch")
+    OPEN_FIELD_NUMBER: _ClassVar[int]
+    BATCH_FIELD_NUMBER: _ClassVar[int]
+    open: SetpointStreamOpen
+    batch: SetpointBatch
+    def __init__(self, open: _Optional[_Union[SetpointStreamOpen, _Mapping]] = ..., batch: _Optional[_Union[SetpointBatch, _Mapping]] = ...) -> None: ...
+
+class SetpointStreamOpen(_message.Message):
+    __slots__ = ("axes", "lease", "depth_ms", "extrapolate_ms", "point_period_us", "status_period_ms")
+    AXES_FIELD_NUMBER: _ClassVar[int]
+    LEASE_FIELD_NUMBER: _ClassVar[int]
+    DEPTH_MS_FIELD_NUMBER: _ClassVar[int]
+    EXTRAPOLATE_MS_FIELD_NUMBER: _ClassVar[int]
+    POINT_PERIOD_US_FIELD_NUMBER: _ClassVar[int]
+    STATUS_PERIOD_MS_FIELD_NUMBER: _ClassVar[int]
+    axes: _containers.RepeatedScalarFieldContainer[str]
+    lease: str
+    depth_ms: int
+    extrapolate_ms: int
+    point_period_us: int
+    status_period_ms: int
+    def __init__(self, axes: _Optional[_Iterable[str]] = ..., lease: _Optional[str] = ..., depth_ms: _Optional[int] = ..., extrapolate_ms: _Optional[int] = ..., point_period_us: _Optional[int] = ..., status_period_ms: _Optional[int] = ...) -> None: ...
+
+class SetpointBatch(_message.Message):
+    __slots__ = ("points",)
+    POINTS_FIELD_NUMBER: _ClassVar[int]
+    points: _containers.RepeatedCompositeFieldContainer[Setpoint]
+    def __init__(self, points: _Optional[_Iterable[_Union[Setpoint, _Mapping]]] = ...) -> None: ...
+
+class Setpoint(_message.Message):
+    __slots__ = ("t_us", "positions", "velocities")
+    T_US_FIELD_NUMBER: _ClassVar[int]
+    POSITIONS_FIELD_NUMBER: _ClassVar[int]
+    VELOCITIES_FIELD_NUMBER: _ClassVar[int]
+    t_us: int
+    positions: _containers.RepeatedScalarFieldContainer[float]
+    velocities: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, t_us: _Optional[int] = ..., positions: _Optional[_Iterable[float]] = ..., velocities: _Optional[_Iterable[float]] = ...) -> None: ...
+
+class SetpointCounters(_message.Message):
+    __slots__ = ("received", "accepted", "refused", "played", "late", "dropped", "underruns", "limited")
+    RECEIVED_FIELD_NUMBER: _ClassVar[int]
+    ACCEPTED_FIELD_NUMBER: _ClassVar[int]
+    REFUSED_FIELD_NUMBER: _ClassVar[int]
+    PLAYED_FIELD_NUMBER: _ClassVar[int]
+    LATE_FIELD_NUMBER: _ClassVar[int]
+    DROPPED_FIELD_NUMBER: _ClassVar[int]
+    UNDERRUNS_FIELD_NUMBER: _ClassVar[int]
+    LIMITED_FIELD_NUMBER: _ClassVar[int]
+    received: int
+    accepted: int
+    refused: int
+    played: int
+    late: int
+    dropped: int
+    underruns: int
+    limited: int
+    def __init__(self, received: _Optional[int] = ..., accepted: _Optional[int] = ..., refused: _Optional[int] = ..., played: _Optional[int] = ..., late: _Optional[int] = ..., dropped: _Optional[int] = ..., underruns: _Optional[int] = ..., limited: _Optional[int] = ...) -> None: ...
+
+class SetpointStreamStatus(_message.Message):
+    __slots__ = ("state", "buffer_level_us", "counters", "clock_offset_us", "commanded_positions", "actual_positions", "events", "timestamp_us", "ended")
+    STATE_FIELD_NUMBER: _ClassVar[int]
+    BUFFER_LEVEL_US_FIELD_NUMBER: _ClassVar[int]
+    COUNTERS_FIELD_NUMBER: _ClassVar[int]
+    CLOCK_OFFSET_US_FIELD_NUMBER: _ClassVar[int]
+    COMMANDED_POSITIONS_FIELD_NUMBER: _ClassVar[int]
+    ACTUAL_POSITIONS_FIELD_NUMBER: _ClassVar[int]
+    EVENTS_FIELD_NUMBER: _ClassVar[int]
+    TIMESTAMP_US_FIELD_NUMBER: _ClassVar[int]
+    ENDED_FIELD_NUMBER: _ClassVar[int]
+    state: SetpointStreamState
+    buffer_level_us: int
+    counters: SetpointCounters
+    clock_offset_us: int
+    commanded_positions: _containers.RepeatedScalarFieldContainer[float]
+    actual_positions: _containers.RepeatedScalarFieldContainer[float]
+    events: _containers.RepeatedCompositeFieldContainer[SetpointStreamEvent]
+    timestamp_us: int
+    ended: str
+    def __init__(self, state: _Optional[_Union[SetpointStreamState, str]] = ..., buffer_level_us: _Optional[int] = ..., counters: _Optional[_Union[SetpointCounters, _Mapping]] = ..., clock_offset_us: _Optional[int] = ..., commanded_positions: _Optional[_Iterable[float]] = ..., actual_positions: _Optional[_Iterable[float]] = ..., events: _Optional[_Iterable[_Union[SetpointStreamEvent, _Mapping]]] = ..., timestamp_us: _Optional[int] = ..., ended: _Optional[str] = ...) -> None: ...
+
+class SetpointStreamEvent(_message.Message):
+    __slots__ = ("kind", "reason", "axis", "t_us", "detail")
+    KIND_FIELD_NUMBER: _ClassVar[int]
+    REASON_FIELD_NUMBER: _ClassVar[int]
+    AXIS_FIELD_NUMBER: _ClassVar[int]
+    T_US_FIELD_NUMBER: _ClassVar[int]
+    DETAIL_FIELD_NUMBER: _ClassVar[int]
+    kind: SetpointEventKind
+    reason: str
+    axis: str
+    t_us: int
+    detail: str
+    def __init__(self, kind: _Optional[_Union[SetpointEventKind, str]] = ..., reason: _Optional[str] = ..., axis: _Optional[str] = ..., t_us: _Optional[int] = ..., detail: _Optional[str] = ...) -> None: ...

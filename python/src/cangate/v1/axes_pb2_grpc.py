@@ -115,6 +115,11 @@ class AxesStub:
                 request_serializer=cangate_dot_v1_dot_axes__pb2.StreamAxisStateRequest.SerializeToString,
                 response_deserializer=cangate_dot_v1_dot_axes__pb2.AxisUpdate.FromString,
                 _registered_method=True)
+        self.StreamSetpoints = channel.stream_stream(
+                '/cangate.v1.Axes/StreamSetpoints',
+                request_serializer=cangate_dot_v1_dot_axes__pb2.SetpointStreamRequest.SerializeToString,
+                response_deserializer=cangate_dot_v1_dot_axes__pb2.SetpointStreamStatus.FromString,
+                _registered_method=True)
 
 
 class AxesServicer:
@@ -246,6 +251,36 @@ class AxesServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def StreamSetpoints(self, request_iterator, context):
+        """Streams time-stamped set-points into a jitter buffer, played on the
+        bus's SYNC grid (cyclic CiA 402 axes of one bus). The first message
+        opens the stream (SetpointStreamOpen) under a control lease covering
+        every axis; the following carry batches of points (each renews the
+        lease). Points carry the client's own clock: the gateway plays client
+        time t at t + offset + depth, offset being the fastest recent arrival
+        (estimated, reported), depth the buffer; positions are interpolated
+        onto the SYNC. Every point and every played step is checked against
+        the axes' maximum velocity, acceleration and soft limits: a point
+        that breaks one is refused and reported, never sent. When no point is
+        left the axes go on along the last segment for `extrapolate_ms`, then
+        ramp to rest together (UNDERRUN); the stream resumes with a point
+        where the axes stand. The client half-closing plays the buffered
+        points, then ramps to rest; the call ends OK. Cancelling, a lost
+        lease, a Stop/QuickStop/StopAxes of any of its axes (from anyone;
+        stops are never refused) or the drive leaving operation enabled ramp
+        the axes to rest and end the call with ABORTED (the last status says
+        why in `ended`). While an axis streams, other commands on it are
+        refused (FAILED_PRECONDITION). Opening: NOT_FOUND for an unknown axis;
+        INVALID_ARGUMENT for no axes, an axis named twice, a depth of 0 or
+        above 2000 ms, an extrapolation above 1000 ms, a point period above
+        the depth; FAILED_PRECONDITION without the lease, or for an axis that
+        is not a cyclic CiA 402 axis, not enabled, moving, already streamed,
+        or on another bus than the first.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
 
 def add_AxesServicer_to_server(servicer, server):
     rpc_method_handlers = {
@@ -328,6 +363,11 @@ def add_AxesServicer_to_server(servicer, server):
                     servicer.StreamAxisState,
                     request_deserializer=cangate_dot_v1_dot_axes__pb2.StreamAxisStateRequest.FromString,
                     response_serializer=cangate_dot_v1_dot_axes__pb2.AxisUpdate.SerializeToString,
+            ),
+            'StreamSetpoints': grpc.stream_stream_rpc_method_handler(
+                    servicer.StreamSetpoints,
+                    request_deserializer=cangate_dot_v1_dot_axes__pb2.SetpointStreamRequest.FromString,
+                    response_serializer=cangate_dot_v1_dot_axes__pb2.SetpointStreamStatus.SerializeToString,
             ),
     }
     generic_handler = grpc.method_handlers_generic_handler(
@@ -763,6 +803,33 @@ class Axes:
             '/cangate.v1.Axes/StreamAxisState',
             cangate_dot_v1_dot_axes__pb2.StreamAxisStateRequest.SerializeToString,
             cangate_dot_v1_dot_axes__pb2.AxisUpdate.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def StreamSetpoints(request_iterator,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.stream_stream(
+            request_iterator,
+            target,
+            '/cangate.v1.Axes/StreamSetpoints',
+            cangate_dot_v1_dot_axes__pb2.SetpointStreamRequest.SerializeToString,
+            cangate_dot_v1_dot_axes__pb2.SetpointStreamStatus.FromString,
             options,
             channel_credentials,
             insecure,

@@ -66,7 +66,7 @@ import type { Message } from "@bufbuild/protobuf";
  * Describes the file cangate/v1/axes.proto.
  */
 export const file_cangate_v1_axes: GenFile = /*@__PURE__*/
-  fileDesc("ChVjYW5nYXRlL3YxL2F4ZXMucHJvdG8SCmNhbmdhdGUudjEi7QMKBEF4aXMSDAoEbmFtZRgBIAEoCRIoCgdiYWNrZW5kGAIgASgOMhcuY2FuZ2F0ZS52MS5BeGlzQmFja2VuZBILCgNidXMYAyABKAkSDAoEbm9kZRgEIAEoDRIMCgR1bml0GAUgASgJEhcKD2NvdW50c19wZXJfdW5pdBgGIAEoARIZCgxtaW5fcG9zaXRpb24YByABKAFIAIgBARIZCgxtYXhfcG9zaXRpb24YCCABKAFIAYgBARIUCgxtYXhfdmVsb2NpdHkYCSABKAESGAoQbWF4X2FjY2VsZXJhdGlvbhgKIAEoARIvCg1wb3NpdGlvbl9tb2RlGAsgASgOMhguY2FuZ2F0ZS52MS5Qb3NpdGlvbk1vZGUSKgoMc3RvcF9vbl9sb3NzGAwgASgOMhQuY2FuZ2F0ZS52MS5TdG9wS2luZBIWCg5qb2dfZGVhZG1hbl9tcxgNIAEoDRImCgZzdGF0dXMYDiABKAsyFi5jYW5nYXRlLnYxLkF4aXNTdGF0dXMSMQoMcHJvY2Vzc19kYXRhGA8gASgOMhsuY2FuZ2F0ZS52MS5Qcm9jZXNzRGF0YVBhdGgSEwoLc2RvX3BvbGxfbXMYECABKA1CDwoNX21pbl9wb3NpdGlvbkIPCg1fbWF4X3Bvc2l0aW9uIvgCCgpBeGlzU3RhdHVzEgwKBGF4aXMYASABKAkSJQoFc3RhdGUYAiABKA4yFi5jYW5nYXRlLnYxLkRyaXZlU3RhdGUSEgoKc3RhdHVzd29yZBgDIAEoDRIMCgRtb2RlGAQgASgFEioKCGFjdGl2aXR5GAUgASgOMhguY2FuZ2F0ZS52MS5BeGlzQWN0aXZpdHkSEAoIcG9zaXRpb24YBiABKAESEAoIdmVsb2NpdHkYByABKAESFwoPZGVtYW5kX3Bvc2l0aW9uGAggASgBEhcKD2ZvbGxvd2luZ19lcnJvchgJIAEoARINCgVob21lZBgKIAEoCBIRCglub2RlX2xvc3QYCyABKAgSEgoKZmF1bHRfY29kZRgMIAEoDRISCgpmYXVsdF90ZXh0GA0gASgJEhUKDWNvbnRyb2xsZWRfYnkYDiABKAkSGgoSbGVhc2VfcmVtYWluaW5nX21zGA8gASgNEhQKDHRpbWVzdGFtcF91cxgQIAEoBCIRCg9MaXN0QXhlc1JlcXVlc3QiMgoQTGlzdEF4ZXNSZXNwb25zZRIeCgRheGVzGAEgAygLMhAuY2FuZ2F0ZS52MS5BeGlzIh4KDkdldEF4aXNSZXF1ZXN0EgwKBGF4aXMYASABKAkiSgoVQWNxdWlyZUNvbnRyb2xSZXF1ZXN0EgwKBGF4ZXMYASADKAkSDgoGdHRsX21zGAIgASgNEhMKC2NsaWVudF9uYW1lGAMgASgJIksKDENvbnRyb2xMZWFzZRINCgVsZWFzZRgBIAEoCRIMCgRheGVzGAIgAygJEg4KBmhvbGRlchgDIAEoCRIOCgZ0dGxfbXMYBCABKA0iJAoTUmVuZXdDb250cm9sUmVxdWVzdBINCgVsZWFzZRgBIAEoCSImChVSZWxlYXNlQ29udHJvbFJlcXVlc3QSDQoFbGVhc2UYASABKAkiJgoWUmVsZWFzZUNvbnRyb2xSZXNwb25zZRIMCgRheGVzGAEgAygJIkYKDkNvbW1hbmRPcHRpb25zEg0KBWxlYXNlGAEgASgJEgwKBHdhaXQYAiABKAgSFwoPd2FpdF90aW1lb3V0X21zGAMgASgNIk8KEkF4aXNDb21tYW5kUmVxdWVzdBIMCgRheGlzGAEgASgJEisKB29wdGlvbnMYAiABKAsyGi5jYW5nYXRlLnYxLkNvbW1hbmRPcHRpb25zInMKE0F4aXNDb21tYW5kUmVzcG9uc2USJAoHb3V0Y29tZRgBIAEoDjITLmNhbmdhdGUudjEuT3V0Y29tZRIOCgZkZXRhaWwYAiABKAkSJgoGc3RhdHVzGAMgASgLMhYuY2FuZ2F0ZS52MS5BeGlzU3RhdHVzIpIBCgtNb3ZlUmVxdWVzdBIMCgRheGlzGAEgASgJEg4KBnRhcmdldBgCIAEoARIQCghyZWxhdGl2ZRgDIAEoCBIQCgh2ZWxvY2l0eRgEIAEoARIUCgxhY2NlbGVyYXRpb24YBSABKAESKwoHb3B0aW9ucxgGIAEoCzIaLmNhbmdhdGUudjEuQ29tbWFuZE9wdGlvbnMibwoKSm9nUmVxdWVzdBIMCgRheGlzGAEgASgJEhAKCHZlbG9jaXR5GAIgASgBEhQKDGFjY2VsZXJhdGlvbhgDIAEoARIrCgdvcHRpb25zGAQgASgLMhouY2FuZ2F0ZS52MS5Db21tYW5kT3B0aW9ucyI8Cg9TdG9wQXhlc1JlcXVlc3QSDAoEYXhlcxgBIAMoCRINCgVxdWljaxgCIAEoCBIMCgR3YWl0GAMgASgIIkUKEU11bHRpQXhpc1Jlc3BvbnNlEjAKB3Jlc3VsdHMYASADKAsyHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2UiVwoPTW92ZUF4ZXNSZXF1ZXN0EicKB3RhcmdldHMYASADKAsyFi5jYW5nYXRlLnYxLkF4aXNUYXJnZXQSDQoFbGVhc2UYAiABKAkSDAoEd2FpdBgDIAEoCCJSCgpBeGlzVGFyZ2V0EgwKBGF4aXMYASABKAkSDgoGdGFyZ2V0GAIgASgBEhAKCHZlbG9jaXR5GAMgASgBEhQKDGFjY2VsZXJhdGlvbhgEIAEoASI8ChZTdHJlYW1BeGlzU3RhdGVSZXF1ZXN0EgwKBGF4ZXMYASADKAkSFAoMY2hhbmdlc19vbmx5GAIgASgIImgKCkF4aXNVcGRhdGUSKAoGc3RhdHVzGAEgASgLMhYuY2FuZ2F0ZS52MS5BeGlzU3RhdHVzSAASJgoFZXZlbnQYAiABKAsyFS5jYW5nYXRlLnYxLkF4aXNFdmVudEgAQggKBnVwZGF0ZSLuAQoJQXhpc0V2ZW50EgwKBGF4aXMYASABKAkSFAoMdGltZXN0YW1wX3VzGAIgASgEEi0KC21vdGlvbl9kb25lGAMgASgLMhYuY2FuZ2F0ZS52MS5Nb3Rpb25Eb25lSAASIgoFZmF1bHQYBCABKAsyES5jYW5nYXRlLnYxLkZhdWx0SAASLAoHY29udHJvbBgFIAEoCzIZLmNhbmdhdGUudjEuQ29udHJvbENoYW5nZUgAEiQKBG5vZGUYBiABKAsyFC5jYW5nYXRlLnYxLk5vZGVMaW5rSAASDgoEbG9zdBgHIAEoBEgAQgYKBGtpbmQiUwoKTW90aW9uRG9uZRIPCgdjb21tYW5kGAEgASgJEiQKB291dGNvbWUYAiABKA4yEy5jYW5nYXRlLnYxLk91dGNvbWUSDgoGZGV0YWlsGAMgASgJIjMKBUZhdWx0EgwKBGNvZGUYASABKA0SDAoEdGV4dBgCIAEoCRIOCgZhY3RpdmUYAyABKAgiQQoNQ29udHJvbENoYW5nZRIOCgZob2xkZXIYASABKAkSEAoIcHJldmlvdXMYAiABKAkSDgoGcmVhc29uGAMgASgJIigKCE5vZGVMaW5rEgwKBGxvc3QYASABKAgSDgoGcmVhc29uGAIgASgJKroCCgpEcml2ZVN0YXRlEhsKF0RSSVZFX1NUQVRFX1VOU1BFQ0lGSUVEEAASJgoiRFJJVkVfU1RBVEVfTk9UX1JFQURZX1RPX1NXSVRDSF9PThABEiIKHkRSSVZFX1NUQVRFX1NXSVRDSF9PTl9ESVNBQkxFRBACEiIKHkRSSVZFX1NUQVRFX1JFQURZX1RPX1NXSVRDSF9PThADEhsKF0RSSVZFX1NUQVRFX1NXSVRDSEVEX09OEAQSIQodRFJJVkVfU1RBVEVfT1BFUkFUSU9OX0VOQUJMRUQQBRIhCh1EUklWRV9TVEFURV9RVUlDS19TVE9QX0FDVElWRRAGEiUKIURSSVZFX1NUQVRFX0ZBVUxUX1JFQUNUSU9OX0FDVElWRRAHEhUKEURSSVZFX1NUQVRFX0ZBVUxUEAgqzQEKDEF4aXNBY3Rpdml0eRIdChlBWElTX0FDVElWSVRZX1VOU1BFQ0lGSUVEEAASFgoSQVhJU19BQ1RJVklUWV9JRExFEAESGwoXQVhJU19BQ1RJVklUWV9TV0lUQ0hJTkcQAhIYChRBWElTX0FDVElWSVRZX0hPTUlORxADEhgKFEFYSVNfQUNUSVZJVFlfTU9WSU5HEAQSGQoVQVhJU19BQ1RJVklUWV9KT0dHSU5HEAUSGgoWQVhJU19BQ1RJVklUWV9TVE9QUElORxAGKl0KC0F4aXNCYWNrZW5kEhwKGEFYSVNfQkFDS0VORF9VTlNQRUNJRklFRBAAEhcKE0FYSVNfQkFDS0VORF9DSUE0MDIQARIXChNBWElTX0JBQ0tFTkRfQ0FOU01DEAIqYgoMUG9zaXRpb25Nb2RlEh0KGVBPU0lUSU9OX01PREVfVU5TUEVDSUZJRUQQABIZChVQT1NJVElPTl9NT0RFX1BST0ZJTEUQARIYChRQT1NJVElPTl9NT0RFX0NZQ0xJQxACKmoKD1Byb2Nlc3NEYXRhUGF0aBIhCh1QUk9DRVNTX0RBVEFfUEFUSF9VTlNQRUNJRklFRBAAEhkKFVBST0NFU1NfREFUQV9QQVRIX1BETxABEhkKFVBST0NFU1NfREFUQV9QQVRIX1NETxACKlMKCFN0b3BLaW5kEhkKFVNUT1BfS0lORF9VTlNQRUNJRklFRBAAEhIKDlNUT1BfS0lORF9IQUxUEAESGAoUU1RPUF9LSU5EX1FVSUNLX1NUT1AQAiqkAQoHT3V0Y29tZRIXChNPVVRDT01FX1VOU1BFQ0lGSUVEEAASFAoQT1VUQ09NRV9BQ0NFUFRFRBABEhUKEU9VVENPTUVfQ09NUExFVEVEEAISFgoST1VUQ09NRV9TVVBFUlNFREVEEAMSEQoNT1VUQ09NRV9GQVVMVBAEEhMKD09VVENPTUVfVElNRU9VVBAFEhMKD09VVENPTUVfU1RPUFBFRBAGMqIJCgRBeGVzEkUKCExpc3RBeGVzEhsuY2FuZ2F0ZS52MS5MaXN0QXhlc1JlcXVlc3QaHC5jYW5nYXRlLnYxLkxpc3RBeGVzUmVzcG9uc2USNwoHR2V0QXhpcxIaLmNhbmdhdGUudjEuR2V0QXhpc1JlcXVlc3QaEC5jYW5nYXRlLnYxLkF4aXMSTQoOQWNxdWlyZUNvbnRyb2wSIS5jYW5nYXRlLnYxLkFjcXVpcmVDb250cm9sUmVxdWVzdBoYLmNhbmdhdGUudjEuQ29udHJvbExlYXNlEkkKDFJlbmV3Q29udHJvbBIfLmNhbmdhdGUudjEuUmVuZXdDb250cm9sUmVxdWVzdBoYLmNhbmdhdGUudjEuQ29udHJvbExlYXNlElcKDlJlbGVhc2VDb250cm9sEiEuY2FuZ2F0ZS52MS5SZWxlYXNlQ29udHJvbFJlcXVlc3QaIi5jYW5nYXRlLnYxLlJlbGVhc2VDb250cm9sUmVzcG9uc2USSQoGRW5hYmxlEh4uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USSgoHRGlzYWJsZRIeLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEkcKBEhvbWUSHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJACgRNb3ZlEhcuY2FuZ2F0ZS52MS5Nb3ZlUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRI+CgNKb2cSFi5jYW5nYXRlLnYxLkpvZ1JlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USRwoEU3RvcBIeLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEkwKCVF1aWNrU3RvcBIeLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEk0KClJlc2V0RmF1bHQSHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJGCghTdG9wQXhlcxIbLmNhbmdhdGUudjEuU3RvcEF4ZXNSZXF1ZXN0Gh0uY2FuZ2F0ZS52MS5NdWx0aUF4aXNSZXNwb25zZRJGCghNb3ZlQXhlcxIbLmNhbmdhdGUudjEuTW92ZUF4ZXNSZXF1ZXN0Gh0uY2FuZ2F0ZS52MS5NdWx0aUF4aXNSZXNwb25zZRJPCg9TdHJlYW1BeGlzU3RhdGUSIi5jYW5nYXRlLnYxLlN0cmVhbUF4aXNTdGF0ZVJlcXVlc3QaFi5jYW5nYXRlLnYxLkF4aXNVcGRhdGUwAWIGcHJvdG8z");
+  fileDesc("ChVjYW5nYXRlL3YxL2F4ZXMucHJvdG8SCmNhbmdhdGUudjEi7QMKBEF4aXMSDAoEbmFtZRgBIAEoCRIoCgdiYWNrZW5kGAIgASgOMhcuY2FuZ2F0ZS52MS5BeGlzQmFja2VuZBILCgNidXMYAyABKAkSDAoEbm9kZRgEIAEoDRIMCgR1bml0GAUgASgJEhcKD2NvdW50c19wZXJfdW5pdBgGIAEoARIZCgxtaW5fcG9zaXRpb24YByABKAFIAIgBARIZCgxtYXhfcG9zaXRpb24YCCABKAFIAYgBARIUCgxtYXhfdmVsb2NpdHkYCSABKAESGAoQbWF4X2FjY2VsZXJhdGlvbhgKIAEoARIvCg1wb3NpdGlvbl9tb2RlGAsgASgOMhguY2FuZ2F0ZS52MS5Qb3NpdGlvbk1vZGUSKgoMc3RvcF9vbl9sb3NzGAwgASgOMhQuY2FuZ2F0ZS52MS5TdG9wS2luZBIWCg5qb2dfZGVhZG1hbl9tcxgNIAEoDRImCgZzdGF0dXMYDiABKAsyFi5jYW5nYXRlLnYxLkF4aXNTdGF0dXMSMQoMcHJvY2Vzc19kYXRhGA8gASgOMhsuY2FuZ2F0ZS52MS5Qcm9jZXNzRGF0YVBhdGgSEwoLc2RvX3BvbGxfbXMYECABKA1CDwoNX21pbl9wb3NpdGlvbkIPCg1fbWF4X3Bvc2l0aW9uIvgCCgpBeGlzU3RhdHVzEgwKBGF4aXMYASABKAkSJQoFc3RhdGUYAiABKA4yFi5jYW5nYXRlLnYxLkRyaXZlU3RhdGUSEgoKc3RhdHVzd29yZBgDIAEoDRIMCgRtb2RlGAQgASgFEioKCGFjdGl2aXR5GAUgASgOMhguY2FuZ2F0ZS52MS5BeGlzQWN0aXZpdHkSEAoIcG9zaXRpb24YBiABKAESEAoIdmVsb2NpdHkYByABKAESFwoPZGVtYW5kX3Bvc2l0aW9uGAggASgBEhcKD2ZvbGxvd2luZ19lcnJvchgJIAEoARINCgVob21lZBgKIAEoCBIRCglub2RlX2xvc3QYCyABKAgSEgoKZmF1bHRfY29kZRgMIAEoDRISCgpmYXVsdF90ZXh0GA0gASgJEhUKDWNvbnRyb2xsZWRfYnkYDiABKAkSGgoSbGVhc2VfcmVtYWluaW5nX21zGA8gASgNEhQKDHRpbWVzdGFtcF91cxgQIAEoBCIRCg9MaXN0QXhlc1JlcXVlc3QiMgoQTGlzdEF4ZXNSZXNwb25zZRIeCgRheGVzGAEgAygLMhAuY2FuZ2F0ZS52MS5BeGlzIh4KDkdldEF4aXNSZXF1ZXN0EgwKBGF4aXMYASABKAkiSgoVQWNxdWlyZUNvbnRyb2xSZXF1ZXN0EgwKBGF4ZXMYASADKAkSDgoGdHRsX21zGAIgASgNEhMKC2NsaWVudF9uYW1lGAMgASgJIksKDENvbnRyb2xMZWFzZRINCgVsZWFzZRgBIAEoCRIMCgRheGVzGAIgAygJEg4KBmhvbGRlchgDIAEoCRIOCgZ0dGxfbXMYBCABKA0iJAoTUmVuZXdDb250cm9sUmVxdWVzdBINCgVsZWFzZRgBIAEoCSImChVSZWxlYXNlQ29udHJvbFJlcXVlc3QSDQoFbGVhc2UYASABKAkiJgoWUmVsZWFzZUNvbnRyb2xSZXNwb25zZRIMCgRheGVzGAEgAygJIkYKDkNvbW1hbmRPcHRpb25zEg0KBWxlYXNlGAEgASgJEgwKBHdhaXQYAiABKAgSFwoPd2FpdF90aW1lb3V0X21zGAMgASgNIk8KEkF4aXNDb21tYW5kUmVxdWVzdBIMCgRheGlzGAEgASgJEisKB29wdGlvbnMYAiABKAsyGi5jYW5nYXRlLnYxLkNvbW1hbmRPcHRpb25zInMKE0F4aXNDb21tYW5kUmVzcG9uc2USJAoHb3V0Y29tZRgBIAEoDjITLmNhbmdhdGUudjEuT3V0Y29tZRIOCgZkZXRhaWwYAiABKAkSJgoGc3RhdHVzGAMgASgLMhYuY2FuZ2F0ZS52MS5BeGlzU3RhdHVzIpIBCgtNb3ZlUmVxdWVzdBIMCgRheGlzGAEgASgJEg4KBnRhcmdldBgCIAEoARIQCghyZWxhdGl2ZRgDIAEoCBIQCgh2ZWxvY2l0eRgEIAEoARIUCgxhY2NlbGVyYXRpb24YBSABKAESKwoHb3B0aW9ucxgGIAEoCzIaLmNhbmdhdGUudjEuQ29tbWFuZE9wdGlvbnMibwoKSm9nUmVxdWVzdBIMCgRheGlzGAEgASgJEhAKCHZlbG9jaXR5GAIgASgBEhQKDGFjY2VsZXJhdGlvbhgDIAEoARIrCgdvcHRpb25zGAQgASgLMhouY2FuZ2F0ZS52MS5Db21tYW5kT3B0aW9ucyI8Cg9TdG9wQXhlc1JlcXVlc3QSDAoEYXhlcxgBIAMoCRINCgVxdWljaxgCIAEoCBIMCgR3YWl0GAMgASgIIkUKEU11bHRpQXhpc1Jlc3BvbnNlEjAKB3Jlc3VsdHMYASADKAsyHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2UiVwoPTW92ZUF4ZXNSZXF1ZXN0EicKB3RhcmdldHMYASADKAsyFi5jYW5nYXRlLnYxLkF4aXNUYXJnZXQSDQoFbGVhc2UYAiABKAkSDAoEd2FpdBgDIAEoCCJSCgpBeGlzVGFyZ2V0EgwKBGF4aXMYASABKAkSDgoGdGFyZ2V0GAIgASgBEhAKCHZlbG9jaXR5GAMgASgBEhQKDGFjY2VsZXJhdGlvbhgEIAEoASI8ChZTdHJlYW1BeGlzU3RhdGVSZXF1ZXN0EgwKBGF4ZXMYASADKAkSFAoMY2hhbmdlc19vbmx5GAIgASgIImgKCkF4aXNVcGRhdGUSKAoGc3RhdHVzGAEgASgLMhYuY2FuZ2F0ZS52MS5BeGlzU3RhdHVzSAASJgoFZXZlbnQYAiABKAsyFS5jYW5nYXRlLnYxLkF4aXNFdmVudEgAQggKBnVwZGF0ZSLuAQoJQXhpc0V2ZW50EgwKBGF4aXMYASABKAkSFAoMdGltZXN0YW1wX3VzGAIgASgEEi0KC21vdGlvbl9kb25lGAMgASgLMhYuY2FuZ2F0ZS52MS5Nb3Rpb25Eb25lSAASIgoFZmF1bHQYBCABKAsyES5jYW5nYXRlLnYxLkZhdWx0SAASLAoHY29udHJvbBgFIAEoCzIZLmNhbmdhdGUudjEuQ29udHJvbENoYW5nZUgAEiQKBG5vZGUYBiABKAsyFC5jYW5nYXRlLnYxLk5vZGVMaW5rSAASDgoEbG9zdBgHIAEoBEgAQgYKBGtpbmQiUwoKTW90aW9uRG9uZRIPCgdjb21tYW5kGAEgASgJEiQKB291dGNvbWUYAiABKA4yEy5jYW5nYXRlLnYxLk91dGNvbWUSDgoGZGV0YWlsGAMgASgJIjMKBUZhdWx0EgwKBGNvZGUYASABKA0SDAoEdGV4dBgCIAEoCRIOCgZhY3RpdmUYAyABKAgiQQoNQ29udHJvbENoYW5nZRIOCgZob2xkZXIYASABKAkSEAoIcHJldmlvdXMYAiABKAkSDgoGcmVhc29uGAMgASgJIigKCE5vZGVMaW5rEgwKBGxvc3QYASABKAgSDgoGcmVhc29uGAIgASgJIn4KFVNldHBvaW50U3RyZWFtUmVxdWVzdBIuCgRvcGVuGAEgASgLMh4uY2FuZ2F0ZS52MS5TZXRwb2ludFN0cmVhbU9wZW5IABIqCgViYXRjaBgCIAEoCzIZLmNhbmdhdGUudjEuU2V0cG9pbnRCYXRjaEgAQgkKB21lc3NhZ2UijgEKElNldHBvaW50U3RyZWFtT3BlbhIMCgRheGVzGAEgAygJEg0KBWxlYXNlGAIgASgJEhAKCGRlcHRoX21zGAMgASgNEhYKDmV4dHJhcG9sYXRlX21zGAQgASgNEhcKD3BvaW50X3BlcmlvZF91cxgFIAEoDRIYChBzdGF0dXNfcGVyaW9kX21zGAYgASgNIjUKDVNldHBvaW50QmF0Y2gSJAoGcG9pbnRzGAEgAygLMhQuY2FuZ2F0ZS52MS5TZXRwb2ludCI/CghTZXRwb2ludBIMCgR0X3VzGAEgASgEEhEKCXBvc2l0aW9ucxgCIAMoARISCgp2ZWxvY2l0aWVzGAMgAygBIpoBChBTZXRwb2ludENvdW50ZXJzEhAKCHJlY2VpdmVkGAEgASgEEhAKCGFjY2VwdGVkGAIgASgEEg8KB3JlZnVzZWQYAyABKAQSDgoGcGxheWVkGAQgASgEEgwKBGxhdGUYBSABKAQSDwoHZHJvcHBlZBgGIAEoBBIRCgl1bmRlcnJ1bnMYByABKAQSDwoHbGltaXRlZBgIIAEoBCK1AgoUU2V0cG9pbnRTdHJlYW1TdGF0dXMSLgoFc3RhdGUYASABKA4yHy5jYW5nYXRlLnYxLlNldHBvaW50U3RyZWFtU3RhdGUSFwoPYnVmZmVyX2xldmVsX3VzGAIgASgEEi4KCGNvdW50ZXJzGAMgASgLMhwuY2FuZ2F0ZS52MS5TZXRwb2ludENvdW50ZXJzEhcKD2Nsb2NrX29mZnNldF91cxgEIAEoAxIbChNjb21tYW5kZWRfcG9zaXRpb25zGAUgAygBEhgKEGFjdHVhbF9wb3NpdGlvbnMYBiADKAESLwoGZXZlbnRzGAcgAygLMh8uY2FuZ2F0ZS52MS5TZXRwb2ludFN0cmVhbUV2ZW50EhQKDHRpbWVzdGFtcF91cxgIIAEoBBINCgVlbmRlZBgJIAEoCSJ+ChNTZXRwb2ludFN0cmVhbUV2ZW50EisKBGtpbmQYASABKA4yHS5jYW5nYXRlLnYxLlNldHBvaW50RXZlbnRLaW5kEg4KBnJlYXNvbhgCIAEoCRIMCgRheGlzGAMgASgJEgwKBHRfdXMYBCABKAQSDgoGZGV0YWlsGAUgASgJKroCCgpEcml2ZVN0YXRlEhsKF0RSSVZFX1NUQVRFX1VOU1BFQ0lGSUVEEAASJgoiRFJJVkVfU1RBVEVfTk9UX1JFQURZX1RPX1NXSVRDSF9PThABEiIKHkRSSVZFX1NUQVRFX1NXSVRDSF9PTl9ESVNBQkxFRBACEiIKHkRSSVZFX1NUQVRFX1JFQURZX1RPX1NXSVRDSF9PThADEhsKF0RSSVZFX1NUQVRFX1NXSVRDSEVEX09OEAQSIQodRFJJVkVfU1RBVEVfT1BFUkFUSU9OX0VOQUJMRUQQBRIhCh1EUklWRV9TVEFURV9RVUlDS19TVE9QX0FDVElWRRAGEiUKIURSSVZFX1NUQVRFX0ZBVUxUX1JFQUNUSU9OX0FDVElWRRAHEhUKEURSSVZFX1NUQVRFX0ZBVUxUEAgqzQEKDEF4aXNBY3Rpdml0eRIdChlBWElTX0FDVElWSVRZX1VOU1BFQ0lGSUVEEAASFgoSQVhJU19BQ1RJVklUWV9JRExFEAESGwoXQVhJU19BQ1RJVklUWV9TV0lUQ0hJTkcQAhIYChRBWElTX0FDVElWSVRZX0hPTUlORxADEhgKFEFYSVNfQUNUSVZJVFlfTU9WSU5HEAQSGQoVQVhJU19BQ1RJVklUWV9KT0dHSU5HEAUSGgoWQVhJU19BQ1RJVklUWV9TVE9QUElORxAGKl0KC0F4aXNCYWNrZW5kEhwKGEFYSVNfQkFDS0VORF9VTlNQRUNJRklFRBAAEhcKE0FYSVNfQkFDS0VORF9DSUE0MDIQARIXChNBWElTX0JBQ0tFTkRfQ0FOU01DEAIqYgoMUG9zaXRpb25Nb2RlEh0KGVBPU0lUSU9OX01PREVfVU5TUEVDSUZJRUQQABIZChVQT1NJVElPTl9NT0RFX1BST0ZJTEUQARIYChRQT1NJVElPTl9NT0RFX0NZQ0xJQxACKmoKD1Byb2Nlc3NEYXRhUGF0aBIhCh1QUk9DRVNTX0RBVEFfUEFUSF9VTlNQRUNJRklFRBAAEhkKFVBST0NFU1NfREFUQV9QQVRIX1BETxABEhkKFVBST0NFU1NfREFUQV9QQVRIX1NETxACKlMKCFN0b3BLaW5kEhkKFVNUT1BfS0lORF9VTlNQRUNJRklFRBAAEhIKDlNUT1BfS0lORF9IQUxUEAESGAoUU1RPUF9LSU5EX1FVSUNLX1NUT1AQAiqkAQoHT3V0Y29tZRIXChNPVVRDT01FX1VOU1BFQ0lGSUVEEAASFAoQT1VUQ09NRV9BQ0NFUFRFRBABEhUKEU9VVENPTUVfQ09NUExFVEVEEAISFgoST1VUQ09NRV9TVVBFUlNFREVEEAMSEQoNT1VUQ09NRV9GQVVMVBAEEhMKD09VVENPTUVfVElNRU9VVBAFEhMKD09VVENPTUVfU1RPUFBFRBAGKu8BChNTZXRwb2ludFN0cmVhbVN0YXRlEiUKIVNFVFBPSU5UX1NUUkVBTV9TVEFURV9VTlNQRUNJRklFRBAAEhsKF1NFVFBPSU5UX1NUUkVBTV9XQUlUSU5HEAESGwoXU0VUUE9JTlRfU1RSRUFNX0ZJTExJTkcQAhIbChdTRVRQT0lOVF9TVFJFQU1fUExBWUlORxADEiEKHVNFVFBPSU5UX1NUUkVBTV9FWFRSQVBPTEFUSU5HEAQSHAoYU0VUUE9JTlRfU1RSRUFNX1NUT1BQSU5HEAUSGQoVU0VUUE9JTlRfU1RSRUFNX0VOREVEEAYqrQEKEVNldHBvaW50RXZlbnRLaW5kEiMKH1NFVFBPSU5UX0VWRU5UX0tJTkRfVU5TUEVDSUZJRUQQABIbChdTRVRQT0lOVF9FVkVOVF9VTkRFUlJVThABEiAKHFNFVFBPSU5UX0VWRU5UX1BPSU5UX1JFRlVTRUQQAhIaChZTRVRQT0lOVF9FVkVOVF9BVF9SRVNUEAMSGAoUU0VUUE9JTlRfRVZFTlRfRU5ERUQQBDL+CQoEQXhlcxJFCghMaXN0QXhlcxIbLmNhbmdhdGUudjEuTGlzdEF4ZXNSZXF1ZXN0GhwuY2FuZ2F0ZS52MS5MaXN0QXhlc1Jlc3BvbnNlEjcKB0dldEF4aXMSGi5jYW5nYXRlLnYxLkdldEF4aXNSZXF1ZXN0GhAuY2FuZ2F0ZS52MS5BeGlzEk0KDkFjcXVpcmVDb250cm9sEiEuY2FuZ2F0ZS52MS5BY3F1aXJlQ29udHJvbFJlcXVlc3QaGC5jYW5nYXRlLnYxLkNvbnRyb2xMZWFzZRJJCgxSZW5ld0NvbnRyb2wSHy5jYW5nYXRlLnYxLlJlbmV3Q29udHJvbFJlcXVlc3QaGC5jYW5nYXRlLnYxLkNvbnRyb2xMZWFzZRJXCg5SZWxlYXNlQ29udHJvbBIhLmNhbmdhdGUudjEuUmVsZWFzZUNvbnRyb2xSZXF1ZXN0GiIuY2FuZ2F0ZS52MS5SZWxlYXNlQ29udHJvbFJlc3BvbnNlEkkKBkVuYWJsZRIeLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEkoKB0Rpc2FibGUSHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJHCgRIb21lEh4uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USQAoETW92ZRIXLmNhbmdhdGUudjEuTW92ZVJlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USPgoDSm9nEhYuY2FuZ2F0ZS52MS5Kb2dSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEkcKBFN0b3ASHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJMCglRdWlja1N0b3ASHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJNCgpSZXNldEZhdWx0Eh4uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USRgoIU3RvcEF4ZXMSGy5jYW5nYXRlLnYxLlN0b3BBeGVzUmVxdWVzdBodLmNhbmdhdGUudjEuTXVsdGlBeGlzUmVzcG9uc2USRgoITW92ZUF4ZXMSGy5jYW5nYXRlLnYxLk1vdmVBeGVzUmVxdWVzdBodLmNhbmdhdGUudjEuTXVsdGlBeGlzUmVzcG9uc2USTwoPU3RyZWFtQXhpc1N0YXRlEiIuY2FuZ2F0ZS52MS5TdHJlYW1BeGlzU3RhdGVSZXF1ZXN0GhYuY2FuZ2F0ZS52MS5BeGlzVXBkYXRlMAESWgoPU3RyZWFtU2V0cG9pbnRzEiEuY2FuZ2F0ZS52MS5TZXRwb2ludFN0cmVhbVJlcXVlc3QaIC5jYW5nYXRlLnYxLlNldHBvaW50U3RyZWFtU3RhdHVzKAEwAWIGcHJvdG8z");
 
 /**
  * An axis: configuration and live state.
@@ -1205,6 +1205,377 @@ export const NodeLinkSchema: GenMessage<NodeLink> = /*@__PURE__*/
   messageDesc(file_cangate_v1_axes, 25);
 
 /**
+ * One client message of StreamSetpoints.
+ *
+ * @generated from message cangate.v1.SetpointStreamRequest
+ */
+export type SetpointStreamRequest = Message<"cangate.v1.SetpointStreamRequest"> & {
+  /**
+   * The first message opens, the following carry points.
+   *
+   * @generated from oneof cangate.v1.SetpointStreamRequest.message
+   */
+  message: {
+    /**
+     * Opens the stream (first message only).
+     *
+     * @generated from field: cangate.v1.SetpointStreamOpen open = 1;
+     */
+    value: SetpointStreamOpen;
+    case: "open";
+  } | {
+    /**
+     * Points (every message after the first).
+     *
+     * @generated from field: cangate.v1.SetpointBatch batch = 2;
+     */
+    value: SetpointBatch;
+    case: "batch";
+  } | { case: undefined; value?: undefined };
+};
+
+/**
+ * Describes the message cangate.v1.SetpointStreamRequest.
+ * Use `create(SetpointStreamRequestSchema)` to create a new message.
+ */
+export const SetpointStreamRequestSchema: GenMessage<SetpointStreamRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_axes, 26);
+
+/**
+ * Opens a set-point stream.
+ *
+ * @generated from message cangate.v1.SetpointStreamOpen
+ */
+export type SetpointStreamOpen = Message<"cangate.v1.SetpointStreamOpen"> & {
+  /**
+   * The axes, in the order of each point's positions: cyclic (CSP) axes
+   * of one bus, enabled and at rest.
+   *
+   * @generated from field: repeated string axes = 1;
+   */
+  axes: string[];
+
+  /**
+   * The control lease covering every axis.
+   *
+   * @generated from field: string lease = 2;
+   */
+  lease: string;
+
+  /**
+   * The jitter buffer, ms (1..=2000): how long after the fastest arrival
+   * a point is played. Larger absorbs more network jitter and adds that
+   * much latency. 20 ms suits a LAN.
+   *
+   * @generated from field: uint32 depth_ms = 3;
+   */
+  depthMs: number;
+
+  /**
+   * How long the axes go on along the last segment when no point is left
+   * before they ramp to rest, ms (0 = the depth; at most 1000).
+   *
+   * @generated from field: uint32 extrapolate_ms = 4;
+   */
+  extrapolateMs: number;
+
+  /**
+   * The client's point period, µs (0 = not given). Optional: any period
+   * works (points are interpolated onto the SYNC); given, it must not
+   * exceed the depth.
+   *
+   * @generated from field: uint32 point_period_us = 5;
+   */
+  pointPeriodUs: number;
+
+  /**
+   * How often the gateway reports, ms (0 = 50; clamped to 10..=1000).
+   *
+   * @generated from field: uint32 status_period_ms = 6;
+   */
+  statusPeriodMs: number;
+};
+
+/**
+ * Describes the message cangate.v1.SetpointStreamOpen.
+ * Use `create(SetpointStreamOpenSchema)` to create a new message.
+ */
+export const SetpointStreamOpenSchema: GenMessage<SetpointStreamOpen> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_axes, 27);
+
+/**
+ * A batch of points, in time order.
+ *
+ * @generated from message cangate.v1.SetpointBatch
+ */
+export type SetpointBatch = Message<"cangate.v1.SetpointBatch"> & {
+  /**
+   * The points.
+   *
+   * @generated from field: repeated cangate.v1.Setpoint points = 1;
+   */
+  points: Setpoint[];
+};
+
+/**
+ * Describes the message cangate.v1.SetpointBatch.
+ * Use `create(SetpointBatchSchema)` to create a new message.
+ */
+export const SetpointBatchSchema: GenMessage<SetpointBatch> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_axes, 28);
+
+/**
+ * One set-point for every axis of the stream.
+ *
+ * @generated from message cangate.v1.Setpoint
+ */
+export type Setpoint = Message<"cangate.v1.Setpoint"> & {
+  /**
+   * The client's clock, µs (any origin, increasing from point to point).
+   *
+   * @generated from field: uint64 t_us = 1;
+   */
+  tUs: bigint;
+
+  /**
+   * Position per axis (user units), in the stream's axis order.
+   *
+   * @generated from field: repeated double positions = 2;
+   */
+  positions: number[];
+
+  /**
+   * Velocity feed-forward per axis (user units/s), optional: empty, or
+   * one finite value per axis (else the call ends with INVALID_ARGUMENT
+   * and the axes ramp to rest). Accepted and checked, not yet sent to
+   * the drives: the CSP set-point RPDO carries the position only, the
+   * drive derives the velocity.
+   *
+   * @generated from field: repeated double velocities = 3;
+   */
+  velocities: number[];
+};
+
+/**
+ * Describes the message cangate.v1.Setpoint.
+ * Use `create(SetpointSchema)` to create a new message.
+ */
+export const SetpointSchema: GenMessage<Setpoint> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_axes, 29);
+
+/**
+ * The counters of a stream: received = accepted + refused; accepted =
+ * played + late + dropped + still buffered.
+ *
+ * @generated from message cangate.v1.SetpointCounters
+ */
+export type SetpointCounters = Message<"cangate.v1.SetpointCounters"> & {
+  /**
+   * Points received.
+   *
+   * @generated from field: uint64 received = 1;
+   */
+  received: bigint;
+
+  /**
+   * Points taken into the buffer.
+   *
+   * @generated from field: uint64 accepted = 2;
+   */
+  accepted: bigint;
+
+  /**
+   * Points refused (each reported in an event, up to 32 per status).
+   *
+   * @generated from field: uint64 refused = 3;
+   */
+  refused: bigint;
+
+  /**
+   * Points the playout passed.
+   *
+   * @generated from field: uint64 played = 4;
+   */
+  played: bigint;
+
+  /**
+   * Points that arrived after their playout time (skipped).
+   *
+   * @generated from field: uint64 late = 5;
+   */
+  late: bigint;
+
+  /**
+   * Points dropped while the axes were brought to rest.
+   *
+   * @generated from field: uint64 dropped = 6;
+   */
+  dropped: bigint;
+
+  /**
+   * Underruns.
+   *
+   * @generated from field: uint64 underruns = 7;
+   */
+  underruns: bigint;
+
+  /**
+   * SYNC cycles whose step the velocity or acceleration guard shortened
+   * (the axes lag the client's path for a few cycles then).
+   *
+   * @generated from field: uint64 limited = 8;
+   */
+  limited: bigint;
+};
+
+/**
+ * Describes the message cangate.v1.SetpointCounters.
+ * Use `create(SetpointCountersSchema)` to create a new message.
+ */
+export const SetpointCountersSchema: GenMessage<SetpointCounters> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_axes, 30);
+
+/**
+ * A status of a set-point stream: sent every `status_period_ms`, after a
+ * batch with refused points, and on events.
+ *
+ * @generated from message cangate.v1.SetpointStreamStatus
+ */
+export type SetpointStreamStatus = Message<"cangate.v1.SetpointStreamStatus"> & {
+  /**
+   * What the stream is doing.
+   *
+   * @generated from field: cangate.v1.SetpointStreamState state = 1;
+   */
+  state: SetpointStreamState;
+
+  /**
+   * Client time buffered ahead of the playout, µs.
+   *
+   * @generated from field: uint64 buffer_level_us = 2;
+   */
+  bufferLevelUs: bigint;
+
+  /**
+   * The counters.
+   *
+   * @generated from field: cangate.v1.SetpointCounters counters = 3;
+   */
+  counters?: SetpointCounters | undefined;
+
+  /**
+   * Gateway time minus client time of the fastest recent arrival, µs
+   * (network delay plus the difference of the clocks); 0 before the
+   * first point of a playout.
+   *
+   * @generated from field: int64 clock_offset_us = 4;
+   */
+  clockOffsetUs: bigint;
+
+  /**
+   * The positions commanded with the latest SYNC, per axis in stream
+   * order (user units): where a resumed stream must start.
+   *
+   * @generated from field: repeated double commanded_positions = 5;
+   */
+  commandedPositions: number[];
+
+  /**
+   * The drives' actual positions, per axis in stream order (user units;
+   * NaN where no process data came yet).
+   *
+   * @generated from field: repeated double actual_positions = 6;
+   */
+  actualPositions: number[];
+
+  /**
+   * What happened since the previous status, in order.
+   *
+   * @generated from field: repeated cangate.v1.SetpointStreamEvent events = 7;
+   */
+  events: SetpointStreamEvent[];
+
+  /**
+   * Wall-clock time of this status, µs since the Unix epoch.
+   *
+   * @generated from field: uint64 timestamp_us = 8;
+   */
+  timestampUs: bigint;
+
+  /**
+   * Why the stream ended (in the last status only): "CLIENT_ENDED",
+   * "CLIENT_GONE", "STOPPED" (a stop of one of its axes), "LEASE_LOST",
+   * "AXIS_LEFT" (disabled, fault, node lost), "SHUTTING_DOWN"; "" while
+   * it runs.
+   *
+   * @generated from field: string ended = 9;
+   */
+  ended: string;
+};
+
+/**
+ * Describes the message cangate.v1.SetpointStreamStatus.
+ * Use `create(SetpointStreamStatusSchema)` to create a new message.
+ */
+export const SetpointStreamStatusSchema: GenMessage<SetpointStreamStatus> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_axes, 31);
+
+/**
+ * Something that happened in a set-point stream.
+ *
+ * @generated from message cangate.v1.SetpointStreamEvent
+ */
+export type SetpointStreamEvent = Message<"cangate.v1.SetpointStreamEvent"> & {
+  /**
+   * What.
+   *
+   * @generated from field: cangate.v1.SetpointEventKind kind = 1;
+   */
+  kind: SetpointEventKind;
+
+  /**
+   * A stable reason: for a refused point "DIMENSION" (not one position
+   * per axis), "NOT_FINITE", "NOT_AFTER_PREVIOUS" (its time is not after
+   * the previous point's), "BEYOND_SOFT_LIMIT" (outside, or too fast to
+   * stop inside), "TOO_FAST" (above the maximum velocity),
+   * "TOO_HARD_ACCELERATION" (above the maximum acceleration),
+   * "NOT_WHERE_THE_AXIS_STANDS" (a resumed stream starts elsewhere);
+   * for ENDED the end's reason; "" otherwise.
+   *
+   * @generated from field: string reason = 2;
+   */
+  reason: string;
+
+  /**
+   * The axis concerned, if one is.
+   *
+   * @generated from field: string axis = 3;
+   */
+  axis: string;
+
+  /**
+   * The refused point's client time, µs.
+   *
+   * @generated from field: uint64 t_us = 4;
+   */
+  tUs: bigint;
+
+  /**
+   * For people.
+   *
+   * @generated from field: string detail = 5;
+   */
+  detail: string;
+};
+
+/**
+ * Describes the message cangate.v1.SetpointStreamEvent.
+ * Use `create(SetpointStreamEventSchema)` to create a new message.
+ */
+export const SetpointStreamEventSchema: GenMessage<SetpointStreamEvent> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_axes, 32);
+
+/**
  * The CiA 402 drive states (CANsmc axes map theirs onto these).
  *
  * @generated from enum cangate.v1.DriveState
@@ -1561,6 +1932,119 @@ export const OutcomeSchema: GenEnum<Outcome> = /*@__PURE__*/
   enumDesc(file_cangate_v1_axes, 6);
 
 /**
+ * What a set-point stream is doing.
+ *
+ * @generated from enum cangate.v1.SetpointStreamState
+ */
+export enum SetpointStreamState {
+  /**
+   * Not set.
+   *
+   * @generated from enum value: SETPOINT_STREAM_STATE_UNSPECIFIED = 0;
+   */
+  SETPOINT_STREAM_STATE_UNSPECIFIED = 0,
+
+  /**
+   * At rest, waiting for a first point (or, after an underrun, a point
+   * where the axes stand to resume).
+   *
+   * @generated from enum value: SETPOINT_STREAM_WAITING = 1;
+   */
+  SETPOINT_STREAM_WAITING = 1,
+
+  /**
+   * Buffering the first points; the axes hold.
+   *
+   * @generated from enum value: SETPOINT_STREAM_FILLING = 2;
+   */
+  SETPOINT_STREAM_FILLING = 2,
+
+  /**
+   * Playing the client's points.
+   *
+   * @generated from enum value: SETPOINT_STREAM_PLAYING = 3;
+   */
+  SETPOINT_STREAM_PLAYING = 3,
+
+  /**
+   * No point left: going on along the last segment (an underrun unless a
+   * point comes within `extrapolate_ms`).
+   *
+   * @generated from enum value: SETPOINT_STREAM_EXTRAPOLATING = 4;
+   */
+  SETPOINT_STREAM_EXTRAPOLATING = 4,
+
+  /**
+   * Ramping to rest (an underrun, or the stream is ending).
+   *
+   * @generated from enum value: SETPOINT_STREAM_STOPPING = 5;
+   */
+  SETPOINT_STREAM_STOPPING = 5,
+
+  /**
+   * Ended; the axes are at rest (the last status of the call).
+   *
+   * @generated from enum value: SETPOINT_STREAM_ENDED = 6;
+   */
+  SETPOINT_STREAM_ENDED = 6,
+}
+
+/**
+ * Describes the enum cangate.v1.SetpointStreamState.
+ */
+export const SetpointStreamStateSchema: GenEnum<SetpointStreamState> = /*@__PURE__*/
+  enumDesc(file_cangate_v1_axes, 7);
+
+/**
+ * The kind of a set-point stream event.
+ *
+ * @generated from enum cangate.v1.SetpointEventKind
+ */
+export enum SetpointEventKind {
+  /**
+   * Not set.
+   *
+   * @generated from enum value: SETPOINT_EVENT_KIND_UNSPECIFIED = 0;
+   */
+  SETPOINT_EVENT_KIND_UNSPECIFIED = 0,
+
+  /**
+   * No point came in time: the axes ramp to rest together. The stream
+   * stays open and resumes with a point where the axes stand.
+   *
+   * @generated from enum value: SETPOINT_EVENT_UNDERRUN = 1;
+   */
+  SETPOINT_EVENT_UNDERRUN = 1,
+
+  /**
+   * A point was refused and not played (`reason`, `axis`, `t_us`).
+   *
+   * @generated from enum value: SETPOINT_EVENT_POINT_REFUSED = 2;
+   */
+  SETPOINT_EVENT_POINT_REFUSED = 2,
+
+  /**
+   * The axes came to rest after an underrun or at the stream's end.
+   *
+   * @generated from enum value: SETPOINT_EVENT_AT_REST = 3;
+   */
+  SETPOINT_EVENT_AT_REST = 3,
+
+  /**
+   * The stream ended (`reason` as in SetpointStreamStatus.ended).
+   *
+   * @generated from enum value: SETPOINT_EVENT_ENDED = 4;
+   */
+  SETPOINT_EVENT_ENDED = 4,
+}
+
+/**
+ * Describes the enum cangate.v1.SetpointEventKind.
+ */
+export const SetpointEventKindSchema: GenEnum<SetpointEventKind> = /*@__PURE__*/
+  enumDesc(file_cangate_v1_axes, 8);
+
+/**
  * Axes: state, exclusive control, motion commands.
  *
  * @generated from service cangate.v1.Axes
@@ -1738,6 +2222,39 @@ export const Axes: GenService<{
     methodKind: "server_streaming";
     input: typeof StreamAxisStateRequestSchema;
     output: typeof AxisUpdateSchema;
+  },
+  /**
+   * Streams time-stamped set-points into a jitter buffer, played on the
+   * bus's SYNC grid (cyclic CiA 402 axes of one bus). The first message
+   * opens the stream (SetpointStreamOpen) under a control lease covering
+   * every axis; the following carry batches of points (each renews the
+   * lease). Points carry the client's own clock: the gateway plays client
+   * time t at t + offset + depth, offset being the fastest recent arrival
+   * (estimated, reported), depth the buffer; positions are interpolated
+   * onto the SYNC. Every point and every played step is checked against
+   * the axes' maximum velocity, acceleration and soft limits: a point
+   * that breaks one is refused and reported, never sent. When no point is
+   * left the axes go on along the last segment for `extrapolate_ms`, then
+   * ramp to rest together (UNDERRUN); the stream resumes with a point
+   * where the axes stand. The client half-closing plays the buffered
+   * points, then ramps to rest; the call ends OK. Cancelling, a lost
+   * lease, a Stop/QuickStop/StopAxes of any of its axes (from anyone;
+   * stops are never refused) or the drive leaving operation enabled ramp
+   * the axes to rest and end the call with ABORTED (the last status says
+   * why in `ended`). While an axis streams, other commands on it are
+   * refused (FAILED_PRECONDITION). Opening: NOT_FOUND for an unknown axis;
+   * INVALID_ARGUMENT for no axes, an axis named twice, a depth of 0 or
+   * above 2000 ms, an extrapolation above 1000 ms, a point period above
+   * the depth; FAILED_PRECONDITION without the lease, or for an axis that
+   * is not a cyclic CiA 402 axis, not enabled, moving, already streamed,
+   * or on another bus than the first.
+   *
+   * @generated from rpc cangate.v1.Axes.StreamSetpoints
+   */
+  streamSetpoints: {
+    methodKind: "bidi_streaming";
+    input: typeof SetpointStreamRequestSchema;
+    output: typeof SetpointStreamStatusSchema;
   },
 }> = /*@__PURE__*/
   serviceDesc(file_cangate_v1_axes, 0);

@@ -1,0 +1,410 @@
+//! Set-point streams as a client runs them: opened over cyclic (CSP) axes
+//! under the client's control lease, fed with batches of time-stamped
+//! points, reported on periodically and when something happens.
+//!
+//! The points are played by the bus's SYNC thread
+//! ([`super::cyclic_setpoints`], a [`SetpointPlayer`] per stream): no
+//! thread hand-over per cycle. This session only passes points in and
+//! reports out, at the client's batch rate and the report period, and
+//! watches the lease: each batch renews it; once it no longer covers the
+//! stream's axes (released, lapsed, taken over), the stream ramps to rest
+//! and ends. A stop of any of its axes (from anyone) ends it at once, in
+//! the axis task ([`super::cia402_task`]); the session reports why.
+//!
+//! [`SetpointPlayer`]: cangate_axis::setpoint_stream::SetpointPlayer
+
+use super::cyclic_setpoints::{CyclicSetpoints, StreamEnd, StreamReport};
+use super::{Axes, AxisError, Caller};
+use cangate_axis::setpoint_stream::{
+    AxisLimits, PlayerConfig, PlayerState, PointRefused, StreamPoint,
+};
+use cangate_axis::{Activity, CommandError, DriveSpec, PositionMode};
+use cangate_canopen::cia402::DriveState;
+use std::collections::HashSet;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::sync::mpsc;
+use tokio_util::sync::CancellationToken;
+
+/// The deepest jitter buffer a stream may ask for.
+pub const MAX_DEPTH: Duration = Duration::from_secs(2);
+/// The longest extrapolation on an underrun.
+pub const MAX_EXTRAPOLATE: Duration = Duration::from_secs(1);
+/// How often a stream reports when the client gives no period.
+pub const DEFAULT_REPORT_PERIOD: Duration = Duration::from_millis(50);
+/// Bounds of the report period.
+pub const MIN_REPORT_PERIOD: Duration = Duration::from_millis(10);
+/// Bounds of the report period.
+pub const MAX_REPORT_PERIOD: Duration = Duration::from_secs(1);
+/// How often a stream's batches renew its lease (the lease's TTL is at
+/// least 100 ms).
+pub const RENEW_PERIOD: Duration = Duration::from_millis(50);
+/// Refused points reported one by one per report; more are counted only.
+pub const MAX_REFUSALS_PER_REPORT: usize = 32;
+
+/// What a client asks for when it opens a stream.
+#[derive(Debug, Clone)]
+pub struct StreamRequest {
+    /// The axes, in the order of each point's positions.
+    pub axes: Vec<String>,
+    /// The jitter buffer: how long after the fastest arrival a point plays.
+    pub depth: Duration,
+    /// How long the axes go on along the last segment when no point is
+    /// left, before they ramp to rest; `None`: the depth.
+    pub extrapolate: Option<Duration>,
+    /// The client's point period, if it says: the buffer must hold at
+    /// least one.
+    pub point_period: Option<Duration>,
+    /// How often the stream reports; `None`: [`DEFAULT_REPORT_PERIOD`].
+    pub report_period: Option<Duration>,
+}
+
+/// What a client sends once the stream is open.
+#[derive(Debug, Clone)]
+pub enum StreamInput {
+    /// Points, in time order.
+    Points(Vec<StreamPoint>),
+    /// No more points: the buffered ones play, then the axes ramp to rest.
+    End,
+}
+
+/// A refused point: its client time and why.
+#[derive(Debug, Clone)]
+pub struct Refusal {
+    /// The point's client time, µs.
+    pub t_us: u64,
+    /// Why.
+    pub reason: PointRefused,
+}
+
+/// One report of a stream.
+#[derive(Debug, Clone)]
+pub struct StreamUpdate {
+    /// The player's side.
+    pub report: StreamReport,
+    /// The points refused since the last update (at most
+    /// [`MAX_REFUSALS_PER_REPORT`]; the counters have them all).
+    pub refused: Vec<Refusal>,
+    /// The drives' actual positions (user units, stream order; `NaN`
+    /// where none is known).
+    pub actual: Vec<f64>,
+}
+
+/// An open stream. Dropping it brings its axes to rest (the client went
+/// away).
+pub struct SetpointStream {
+    axes: Arc<Axes>,
+    table: Arc<CyclicSetpoints>,
+    id: u64,
+    idx: Vec<usize>,
+    caller: Caller,
+    report_period: Duration,
+}
+
+impl Axes {
+    /// Opens a set-point stream of `caller` over `req.axes`: each a cyclic
+    /// (CSP) axis on one bus, enabled, at rest, in no other stream, and
+    /// controlled by the caller's lease.
+    ///
+    /// # Errors
+    /// [`AxisError::NotFound`] for an unknown axis;
+    /// [`AxisError::BadAxisList`] and [`CommandError::BadValue`] for an
+    /// empty or repeated axis list, a depth or period out of range;
+    /// [`AxisError::Lease`] without control; [`AxisError::NotStreamable`]
+    /// for axes that cannot be streamed now.
+    pub fn open_setpoint_stream(
+        self: &Arc<Self>,
+        caller: &Caller,
+        req: StreamRequest,
+    ) -> Result<SetpointStream, AxisError> {
+        if self.closing() {
+            return Err(AxisError::ShuttingDown);
+        }
+        if req.axes.is_empty() {
+            return Err(AxisError::BadAxisList(
+                "name at least one axis to stream".into(),
+            ));
+        }
+        let mut seen = HashSet::new();
+        let mut idx = Vec::with_capacity(req.axes.len());
+        for a in &req.axes {
+            idx.push(self.index(a)?);
+            if !seen.insert(a) {
+                return Err(AxisError::BadAxisList(format!("axis {a} is named twice")));
+            }
+        }
+        let bad = |m: String| AxisError::Refused(CommandError::BadValue(m));
+        if req.depth.is_zero() || req.depth > MAX_DEPTH {
+            return Err(bad(format!(
+                "buffer depth {} ms: give 1 to {} ms",
+                req.depth.as_millis(),
+                MAX_DEPTH.as_millis()
+            )));
+        }
+        let extrapolate = req.extrapolate.unwrap_or(req.depth);
+        if extrapolate > MAX_EXTRAPOLATE {
+            return Err(bad(format!(
+                "extrapolation {} ms: give at most {} ms",
+                extrapolate.as_millis(),
+                MAX_EXTRAPOLATE.as_millis()
+            )));
+        }
+        if let Some(p) = req.point_period
+            && p > req.depth
+        {
+            return Err(bad(format!(
+                "a point every {} µs needs a buffer of at least that: the depth is {} µs",
+                p.as_micros(),
+                req.depth.as_micros()
+            )));
+        }
+        let report_period = req
+            .report_period
+            .unwrap_or(DEFAULT_REPORT_PERIOD)
+            .clamp(MIN_REPORT_PERIOD, MAX_REPORT_PERIOD);
+        self.check_lease_owner(&caller.lease, caller.identity.as_deref())?;
+        for &i in &idx {
+            self.authorize(i, &caller.lease)?;
+        }
+        let not = AxisError::NotStreamable;
+        let first = &self.axes[idx[0]];
+        let mut limits = Vec::with_capacity(idx.len());
+        let mut units = Vec::with_capacity(idx.len());
+        let mut locals = Vec::with_capacity(idx.len());
+        for &i in &idx {
+            let e = &self.axes[i];
+            let name = &e.spec.name;
+            let (DriveSpec::Cia402(_), Some((_, table))) = (&e.spec.drive, &e.cyclic) else {
+                return Err(not(format!(
+                    "axis {name} is a CANsmc axis: set-point streams play on cyclic (CSP) CiA 402 \
+                     axes"
+                )));
+            };
+            if e.spec.position_mode() != PositionMode::Cyclic {
+                return Err(not(format!(
+                    "axis {name} is a profile position axis: set-point streams play on cyclic \
+                     (CSP) axes"
+                )));
+            }
+            if !Arc::ptr_eq(table, &first.cyclic.as_ref().expect("checked above").1) {
+                return Err(not(format!(
+                    "a set-point stream plays on one bus's SYNC: {} is on {}, {name} on {}",
+                    first.spec.name,
+                    first.spec.bus(),
+                    e.spec.bus()
+                )));
+            }
+            if table.in_stream(e.local) {
+                return Err(not(format!("axis {name} is already in a set-point stream")));
+            }
+            let Some((snap, _)) = self.latest(i) else {
+                return Err(not(format!(
+                    "axis {name}: no process data from its drive yet"
+                )));
+            };
+            if snap.state != Some(DriveState::OperationEnabled) || snap.node_lost.is_some() {
+                return Err(not(format!(
+                    "axis {name} is not enabled (enable it first: a stream needs operation \
+                     enabled)"
+                )));
+            }
+            if snap.activity != Activity::Idle || snap.velocity.abs() > e.spec.motion.rest_speed() {
+                return Err(not(format!(
+                    "axis {name} is moving or busy ({:?}): stop it or wait until it is at rest",
+                    snap.activity
+                )));
+            }
+            let m = &e.spec.motion;
+            limits.push(AxisLimits {
+                max_velocity: m.max_velocity,
+                max_acceleration: m.max_acceleration,
+                stop_deceleration: m.stop_deceleration,
+                min_position: m.min_position,
+                max_position: m.max_position,
+            });
+            units.push(m.units);
+            locals.push(e.local);
+        }
+        let (master, table) = first.cyclic.clone().expect("checked above");
+        let sync = master.sync_settings();
+        if !sync.running || sync.period.is_zero() {
+            return Err(not(format!(
+                "the SYNC of bus {} is stopped: a stream plays on the SYNC",
+                first.spec.bus()
+            )));
+        }
+        let mut cfg = PlayerConfig::new(sync.period, req.depth);
+        cfg.extrapolate = extrapolate;
+        let id = table
+            .open_stream(&locals, limits, units, cfg)
+            .map_err(not)?;
+        let names: Vec<&str> = idx.iter().map(|&i| self.name(i)).collect();
+        tracing::info!(target: "cangate::audit", peer = %caller.name, axes = ?names, depth_ms = req.depth.as_millis() as u64, "set-point stream opened");
+        Ok(SetpointStream {
+            axes: self.clone(),
+            table,
+            id,
+            idx,
+            caller: caller.clone(),
+            report_period,
+        })
+    }
+}
+
+impl SetpointStream {
+    /// Runs the stream until it ends and its axes are at rest: `inbound`
+    /// are the client's messages (closed without [`StreamInput::End`]: the
+    /// client went away), `out` takes the reports (one per report period,
+    /// and one after a batch with refused points). Returns why it ended.
+    pub async fn run(
+        self,
+        mut inbound: mpsc::Receiver<StreamInput>,
+        out: mpsc::Sender<StreamUpdate>,
+        shutdown: CancellationToken,
+    ) -> StreamEnd {
+        let mut tick = tokio::time::interval(self.report_period);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        let mut input_open = true;
+        let mut ending = false;
+        let mut refused: Vec<Refusal> = Vec::new();
+        let mut last_end = None;
+        let mut renewed: Option<tokio::time::Instant> = None;
+        loop {
+            let mut report_now = false;
+            tokio::select! {
+                _ = shutdown.cancelled(), if last_end.is_none() => {
+                    self.table.stop_stream(self.id, StreamEnd::ShuttingDown);
+                }
+                m = inbound.recv(), if input_open => match m {
+                    Some(StreamInput::Points(points)) => {
+                        if last_end.is_none() {
+                            report_now = self.push(points, &mut refused, &mut renewed);
+                        }
+                    }
+                    Some(StreamInput::End) => {
+                        input_open = false;
+                        ending = true;
+                    }
+                    None => {
+                        input_open = false;
+                        self.table.stop_stream(self.id, StreamEnd::ClientGone);
+                    }
+                },
+                _ = tick.tick() => report_now = true,
+            }
+            if out.is_closed() {
+                self.table.stop_stream(self.id, StreamEnd::ClientGone);
+            }
+            if let Err(why) = self.lease_held() {
+                self.table.stop_stream(self.id, StreamEnd::LeaseLost(why));
+            }
+            let Some(report) = self.table.report(self.id) else {
+                return last_end.unwrap_or(StreamEnd::ClientGone);
+            };
+            if ending
+                && report.end.is_none()
+                && report.level.is_zero()
+                && matches!(
+                    report.state,
+                    PlayerState::Extrapolating | PlayerState::Waiting
+                )
+            {
+                // The playout passed the client's last point.
+                self.table.stop_stream(self.id, StreamEnd::ClientEnded);
+            }
+            last_end.clone_from(&report.end);
+            let finished = report.finished;
+            if report_now || !report.events.is_empty() || finished {
+                let update = StreamUpdate {
+                    actual: self.actual(),
+                    refused: std::mem::take(&mut refused),
+                    report,
+                };
+                // A client that does not read its reports holds the
+                // session up no longer than a report period.
+                if tokio::time::timeout(self.report_period, out.send(update))
+                    .await
+                    .is_err()
+                {
+                    tracing::warn!("set-point stream: the client does not read its reports");
+                }
+            }
+            if finished {
+                return last_end.unwrap_or(StreamEnd::ClientGone);
+            }
+        }
+    }
+
+    /// Pushes `points`; true when some were refused (or the lease is gone).
+    /// Renews the lease at most every [`RENEW_PERIOD`] (`renewed`: when it
+    /// last did): each renewal wakes the lease expiry task, and a client
+    /// may send a batch every millisecond. Between renewals every turn of
+    /// the session checks that the lease still covers the axes.
+    fn push(
+        &self,
+        points: Vec<StreamPoint>,
+        refused: &mut Vec<Refusal>,
+        renewed: &mut Option<tokio::time::Instant>,
+    ) -> bool {
+        let now = tokio::time::Instant::now();
+        if renewed.is_none_or(|at| now.duration_since(at) >= RENEW_PERIOD) {
+            *renewed = Some(now);
+            for &i in &self.idx {
+                if let Err(e) = self.axes.authorize(i, &self.caller.lease) {
+                    self.table
+                        .stop_stream(self.id, StreamEnd::LeaseLost(e.to_string()));
+                    return true;
+                }
+            }
+        }
+        let times: Vec<u64> = points.iter().map(|p| p.t_us).collect();
+        let r = self.table.push_points(self.id, points);
+        let any = !r.is_empty();
+        for (k, reason) in r {
+            if refused.len() < MAX_REFUSALS_PER_REPORT {
+                refused.push(Refusal {
+                    t_us: times[k],
+                    reason,
+                });
+            }
+        }
+        any
+    }
+
+    /// Whether the caller's lease still covers every axis (not renewing
+    /// it).
+    fn lease_held(&self) -> Result<(), String> {
+        let leases = self.axes.leases.lock().expect("lease lock");
+        for &i in &self.idx {
+            let name = self.axes.name(i);
+            match leases.holder_of(name) {
+                Some(l) if l.token == self.caller.lease => {}
+                Some(l) => return Err(format!("axis {name} is now controlled by {}", l.holder)),
+                None => {
+                    return Err(format!(
+                        "axis {name} is no longer controlled (lease released or lapsed)"
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn actual(&self) -> Vec<f64> {
+        self.idx
+            .iter()
+            .map(|&i| self.axes.latest(i).map_or(f64::NAN, |(s, _)| s.position))
+            .collect()
+    }
+
+    /// The stream's axes (global indices), in its order.
+    pub fn axes(&self) -> &[usize] {
+        &self.idx
+    }
+}
+
+impl Drop for SetpointStream {
+    fn drop(&mut self) {
+        self.table.close_stream(self.id, StreamEnd::ClientGone);
+    }
+}
