@@ -51,6 +51,7 @@ use crate::config::SocketcandConfig;
 use crate::gateway::Gateway;
 use crate::participants::{SenderGuard, SenderNames};
 use crate::security::auth::AUDIT_TARGET;
+use crate::security::slots::{SlotGuard, Slots};
 use crate::security::{FrameBudget, QueueReservation, Refusal, Role, SecurityLayer};
 use cangate_can::{
     AttachOptions, BusHandle, BusItem, ClientId, Frame, FrameSelector, PendingSend, SendError,
@@ -110,110 +111,6 @@ pub async fn start(
     });
     let task = tokio::spawn(accept_loop(listener, shared, shutdown));
     Ok((addr, task))
-}
-
-/// The connections that hold a slot of the endpoint, for the admission of
-/// new ones ([`Slots::admit`]).
-#[derive(Debug, Default)]
-struct Slots {
-    inner: std::sync::Mutex<SlotList>,
-}
-
-#[derive(Debug, Default)]
-struct SlotList {
-    next_id: u64,
-    /// Oldest first.
-    slots: Vec<Slot>,
-}
-
-#[derive(Debug)]
-struct Slot {
-    id: u64,
-    peer: std::net::IpAddr,
-    /// A bus was opened (the client authenticated): never given up for a
-    /// newcomer.
-    opened: bool,
-    /// Fired when the slot is given to a newcomer.
-    evict: CancellationToken,
-}
-
-/// A connection's slot; freed when dropped.
-#[derive(Debug)]
-struct SlotGuard {
-    slots: Arc<Slots>,
-    id: u64,
-    /// Fires when the connection gave its slot up (see [`Slots::admit`]).
-    evicted: CancellationToken,
-}
-
-impl SlotGuard {
-    /// The connection opened a bus: it keeps its slot.
-    fn opened(&self) {
-        let mut list = self.slots.lock();
-        if let Some(s) = list.slots.iter_mut().find(|s| s.id == self.id) {
-            s.opened = true;
-        }
-    }
-}
-
-impl Drop for SlotGuard {
-    fn drop(&mut self) {
-        self.slots.lock().slots.retain(|s| s.id != self.id);
-    }
-}
-
-impl Slots {
-    fn lock(&self) -> std::sync::MutexGuard<'_, SlotList> {
-        self.inner.lock().unwrap_or_else(|p| p.into_inner())
-    }
-
-    /// A slot for a new connection from `peer`, within `max` connections
-    /// and `per_peer` from one address. When one of them is reached, the
-    /// oldest connection that has not opened a bus (from that address,
-    /// for `per_peer`) gives its slot up: idle connections that never
-    /// authenticate cannot lock out a client that does. Refused (with the
-    /// setting to name) when every counted connection has a bus open.
-    fn admit(
-        self: &Arc<Self>,
-        peer: std::net::IpAddr,
-        max: usize,
-        per_peer: usize,
-    ) -> Result<SlotGuard, String> {
-        let mut list = self.lock();
-        let evict_oldest = |list: &mut SlotList, from: Option<std::net::IpAddr>| {
-            let i = list
-                .slots
-                .iter()
-                .position(|s| !s.opened && from.is_none_or(|p| s.peer == p))?;
-            let victim = list.slots.remove(i);
-            victim.evict.cancel();
-            Some(())
-        };
-        if list.slots.iter().filter(|s| s.peer == peer).count() >= per_peer
-            && evict_oldest(&mut list, Some(peer)).is_none()
-        {
-            return Err(format!(
-                "too many connections from {peer} (max_connections_per_peer = {per_peer})"
-            ));
-        }
-        if list.slots.len() >= max && evict_oldest(&mut list, None).is_none() {
-            return Err(format!("too many connections (max_connections = {max})"));
-        }
-        list.next_id += 1;
-        let id = list.next_id;
-        let evicted = CancellationToken::new();
-        list.slots.push(Slot {
-            id,
-            peer,
-            opened: false,
-            evict: evicted.clone(),
-        });
-        Ok(SlotGuard {
-            slots: self.clone(),
-            id,
-            evicted,
-        })
-    }
 }
 
 async fn accept_loop(listener: TcpListener, shared: Arc<Shared>, shutdown: CancellationToken) {
@@ -453,7 +350,7 @@ async fn serve(
         let event = tokio::select! {
             biased;
             _ = shutdown.cancelled() => Event::Shutdown,
-            _ = slot.evicted.cancelled(), if opened.is_none() => Event::Evicted,
+            _ = slot.evicted().cancelled(), if opened.is_none() => Event::Evicted,
             _ = tokio::time::sleep_until(deadline.unwrap_or_else(Instant::now)),
                 if deadline.is_some() => Event::Deadline,
             r = reader.read(&mut buf) => Event::Read(r),
