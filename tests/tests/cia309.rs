@@ -465,3 +465,55 @@ async fn an_enabled_axis_drive_is_guarded_as_for_grpc() {
     assert_eq!(r.outcome, pb::Outcome::Completed as i32, "{r:?}");
     assert_eq!(gw.ask("[7] 3 w 0x6040 0 u16 6").await, "[7] OK\r\n");
 }
+
+/// Skips event lines up to `want`, which must come.
+async fn event(gw: &mut Gw, want: &str) {
+    loop {
+        let l = gw.line().await;
+        assert!(!l.is_empty(), "the connection closed before {want:?}");
+        if l == want {
+            return;
+        }
+        assert!(
+            l.starts_with("1 ") && l.ends_with("\r\n"),
+            "an event line: {l:?}"
+        );
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_emcy_becomes_an_event_line() {
+    let server = server("").await;
+    let mut gw = Gw::connect(&server).await;
+    assert_eq!(gw.ask("[1] set events 1").await, "[1] OK\r\n");
+    client(&server)
+        .await
+        .simulator_client()
+        .send_emcy(pb::SendEmcyRequest {
+            bus: "can0".into(),
+            node: 7,
+            code: 0x2310,
+            error_register: 0x03,
+            manufacturer: vec![1, 2, 3, 4, 255],
+        })
+        .await
+        .expect("EMCY sent");
+    event(&mut gw, "1 7 EMCY 2310 03 1 2 3 4 255\r\n").await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_connection_that_does_not_log_in_is_closed() {
+    use cangate_server::security::auth::hash_token;
+    let server = server(&format!(
+        "handshake_timeout_ms = 200\n\
+         [[security.tokens]]\nname = \"eng-1\"\nrole = \"engineer\"\nsha256 = \"{}\"\n",
+        hash_token(ENGINEER)
+    ))
+    .await;
+    let mut gw = Gw::connect(&server).await;
+    assert_eq!(
+        gw.line().await,
+        "# closed: no login within 200 ms (handshake_timeout_ms)\r\n"
+    );
+    assert_eq!(gw.line().await, "", "closed");
+}
