@@ -517,3 +517,33 @@ async fn a_connection_that_does_not_log_in_is_closed() {
     );
     assert_eq!(gw.line().await, "", "closed");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn lss_commands_give_an_unconfigured_device_its_node_id() {
+    let c = Config::from_toml(&config("").replace(
+        "[cia309]",
+        "[[canopen.node]]\nid = 30\neds = \"builtin:io\"\nsimulate = true\n\
+         sim_lss = { serial = 0xCAFE }\n\n[cia309]",
+    ))
+    .expect("valid configuration");
+    let server = cangate_server::start(&c).await.expect("server starts");
+    let mut gw = Gw::connect(&server).await;
+    let mut events = Gw::connect(&server).await;
+    assert_eq!(events.ask("[1] set events 1").await, "[1] OK\r\n");
+    let found = gw.ask("[1] _lss_fastscan 20").await;
+    assert!(
+        found.starts_with("[1] 0x") && found.ends_with(" 0x0000CAFE\r\n"),
+        "{found}"
+    );
+    assert_eq!(gw.ask("[2] lss_get_node").await, "[2] 0xFF\r\n");
+    // Node 5 answers on the bus: its id is not given to another device.
+    let refused = gw.ask("[3] lss_set_node 5").await;
+    assert!(
+        refused.starts_with("[3] ERROR:102 #") && refused.contains("in use"),
+        "{refused}"
+    );
+    assert_eq!(gw.ask("[4] lss_set_node 31").await, "[4] OK\r\n");
+    assert_eq!(gw.ask("[5] lss_switch_glob 0").await, "[5] OK\r\n");
+    event(&mut events, "1 31 BOOT_UP\r\n").await;
+    assert_eq!(gw.ask("[6] 31 r 0x1018 4 x32").await, "[6] 0x0000CAFE\r\n");
+}
