@@ -130,6 +130,16 @@ impl Gw {
         line
     }
 
+    /// The next line within `limit` (for answers that take long).
+    async fn line_within(&mut self, limit: std::time::Duration) -> String {
+        let mut line = String::new();
+        tokio::time::timeout(limit, self.reader.read_line(&mut line))
+            .await
+            .expect("an answer in time")
+            .expect("read from the gateway");
+        line
+    }
+
     /// Sends one command line, returns its answer line.
     async fn ask(&mut self, command: &str) -> String {
         self.send(&format!("{command}\r\n")).await;
@@ -530,7 +540,9 @@ async fn lss_commands_give_an_unconfigured_device_its_node_id() {
     let mut gw = Gw::connect(&server).await;
     let mut events = Gw::connect(&server).await;
     assert_eq!(events.ask("[1] set events 1").await, "[1] OK\r\n");
-    let found = gw.ask("[1] _lss_fastscan 20").await;
+    gw.send("[1] _lss_fastscan 20\r\n").await;
+    // About 130 fastscan steps of 20 ms; on a loaded runner more.
+    let found = gw.line_within(6 * WAIT).await;
     assert!(
         found.starts_with("[1] 0x") && found.ends_with(" 0x0000CAFE\r\n"),
         "{found}"
@@ -546,4 +558,50 @@ async fn lss_commands_give_an_unconfigured_device_its_node_id() {
     assert_eq!(gw.ask("[5] lss_switch_glob 0").await, "[5] OK\r\n");
     event(&mut events, "1 31 BOOT_UP\r\n").await;
     assert_eq!(gw.ask("[6] 31 r 0x1018 4 x32").await, "[6] 0x0000CAFE\r\n");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn lss_allnodes_numbers_every_unconfigured_device() {
+    let c = Config::from_toml(&config("").replace(
+        "[cia309]",
+        "[[canopen.node]]\nid = 30\neds = \"builtin:io\"\nsimulate = true\n\
+         sim_lss = { serial = 0xCAFE }\n\n\
+         [[canopen.node]]\nid = 31\neds = \"builtin:io\"\nsimulate = true\n\
+         sim_lss = { serial = 0xBEEF }\n\n[cia309]",
+    ))
+    .expect("valid configuration");
+    let server = cangate_server::start(&c).await.expect("server starts");
+    let mut gw = Gw::connect(&server).await;
+    gw.send("[1] lss_allnodes 20 40 0\r\n").await;
+    let mut lines = Vec::new();
+    loop {
+        // Three fastscans of about 130 steps of 20 ms, on a loaded runner
+        // more: the answer comes whole at the end.
+        let l = gw.line_within(6 * WAIT).await;
+        assert!(!l.is_empty(), "closed after {lines:?}");
+        let last = l.starts_with("[1] ");
+        lines.push(l);
+        if last {
+            break;
+        }
+    }
+    assert_eq!(lines.len(), 4, "{lines:?}");
+    assert!(
+        lines[0].starts_with("# Node-ID 40 assigned to: 0x"),
+        "{lines:?}"
+    );
+    assert!(
+        lines[1].starts_with("# Node-ID 41 assigned to: 0x"),
+        "{lines:?}"
+    );
+    let serials: Vec<&str> = lines[..2]
+        .iter()
+        .map(|l| l.trim_end().rsplit(' ').next().unwrap())
+        .collect();
+    assert!(
+        serials.contains(&"0x0000CAFE") && serials.contains(&"0x0000BEEF"),
+        "{lines:?}"
+    );
+    assert_eq!(lines[2], "# Found 2 nodes, search finished.\n");
+    assert_eq!(lines[3], "[1] OK\r\n");
 }

@@ -451,6 +451,7 @@ impl Connection<'_> {
                 Lss::Store => "/cangate.v1.Lss/StoreConfiguration",
                 Lss::InquireAddress(_) | Lss::GetNode => "/cangate.v1.Lss/Inquire",
                 Lss::Fastscan(_) => "/cangate.v1.Lss/Fastscan",
+                Lss::AllNodes { .. } => "/cangate.v1.Lss/AssignNodeId",
             },
             Action::Reply(_) | Action::Login { .. } => return None,
         })
@@ -939,6 +940,76 @@ async fn lss(m: &CanopenBus, seq: u32, command: Lss) -> String {
                 Err(e) => fail(e),
             }
         }
+        Lss::AllNodes {
+            step_ms,
+            first,
+            store,
+        } => {
+            let step = step_ms
+                .filter(|&ms| ms > 0)
+                .map_or(FASTSCAN_STEP, |ms| Duration::from_millis(u64::from(ms)))
+                .max(m.min_fastscan_step());
+            all_nodes(m, seq, step, first, store).await
+        }
         _ => protocol::format_error(seq, ErrorCode::NOT_SUPPORTED, None),
     }
+}
+
+/// `lss_allnodes`: fastscan for one unconfigured device, give it the next
+/// node-ID (each through the runtime's guards: an id in use stops the
+/// scan), store it if asked, back to waiting (it takes the id); again
+/// until fastscan finds none, or node-ID 127 was given. Reported as
+/// canopend does: a `#` line per device, then the count, then `OK`.
+async fn all_nodes(m: &CanopenBus, seq: u32, step: Duration, first: u8, store: bool) -> String {
+    let mut lines = Vec::new();
+    let mut node = first;
+    let mut found = 0;
+    let run = |c: LssCommand| m.client_lss(c, LSS_TIMEOUT, false);
+    let fail = |lines: &[String], e: CanopenError| {
+        let mut out = String::new();
+        for l in lines {
+            out.push_str(&format!("# {l}\n"));
+        }
+        out.push_str(&error_answer(seq, e, Some(&Lss::SetNode(0))));
+        out
+    };
+    loop {
+        let id = match run(LssCommand::Fastscan {
+            step_time: step,
+            max_nodes: 1,
+        })
+        .await
+        {
+            Ok(LssOutcome::Found(ids)) => match ids.first() {
+                Some(id) => *id,
+                None => break,
+            },
+            Ok(_) => break,
+            Err(e) => return fail(&lines, e),
+        };
+        let mut steps = vec![LssCommand::ConfigureNodeId(node)];
+        if store {
+            steps.push(LssCommand::StoreConfiguration);
+        }
+        steps.push(LssCommand::SwitchGlobal(LssMode::Waiting));
+        for c in steps {
+            if let Err(e) = run(c).await {
+                // Leave no device in the configuration state.
+                let _ = run(LssCommand::SwitchGlobal(LssMode::Waiting)).await;
+                return fail(&lines, e);
+            }
+        }
+        found += 1;
+        lines.push(format!(
+            "Node-ID {node} assigned to: 0x{:08X} 0x{:08X} 0x{:08X} 0x{:08X}",
+            id.vendor_id, id.product_code, id.revision, id.serial
+        ));
+        if node == 127 {
+            lines.push("Not all nodes scanned!".into());
+            return protocol::format_comment_lines(seq, &lines);
+        }
+        node += 1;
+    }
+    lines.push(format!("Found {found} nodes, search finished."));
+    protocol::format_comment_lines(seq, &lines)
 }

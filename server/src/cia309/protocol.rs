@@ -296,7 +296,8 @@ const HELP_LSS: &str = "\n\
 [<net>] lss_store   store the configuration\n\
 [<net>] lss_inquire_addr [<0..3>]   vendor, product, revision, serial (all four without a number)\n\
 [<net>] lss_get_node   node-ID of the device in configuration\n\
-[<net>] _lss_fastscan [<step ms>]   find one unconfigured device (left in configuration)\r\n";
+[<net>] _lss_fastscan [<step ms>]   find one unconfigured device (left in configuration)\n\
+[<net>] lss_allnodes [<step ms> [<first node> <store 0|1>]]   number every unconfigured device\r\n";
 
 /// A CiA 309-3 data type.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -716,6 +717,16 @@ pub enum Lss {
     GetNode,
     /// `_lss_fastscan [<ms>]`.
     Fastscan(Option<u16>),
+    /// `lss_allnodes [<ms> [<first node> <store>]]`: every unconfigured
+    /// device found by fastscan gets the next node-ID.
+    AllNodes {
+        /// Fastscan step time (`None`: the default).
+        step_ms: Option<u16>,
+        /// The first node-ID given (canopend: 2).
+        first: u8,
+        /// Store each configuration (canopend: yes).
+        store: bool,
+    },
 }
 
 /// What the gateway has to do for a line.
@@ -1091,6 +1102,32 @@ impl Session {
                     } else {
                         Some(number(lx, 0xFFFF)? as u16)
                     }),
+                    "lss_allnodes" => {
+                        let step_ms = if lx.at_end() {
+                            None
+                        } else {
+                            Some(number(lx, 0xFFFF)? as u16)
+                        };
+                        let (first, store) = if lx.at_end() {
+                            (2, true)
+                        } else {
+                            let first = number(lx, 127)? as u8;
+                            let store = number(lx, 1)? == 1;
+                            if first == 0 {
+                                return Err(ErrorCode::SYNTAX.into());
+                            }
+                            (first, store)
+                        };
+                        if !lx.at_end() {
+                            // The scan-type and identity matches.
+                            return Err(ErrorCode::NOT_SUPPORTED.into());
+                        }
+                        Lss::AllNodes {
+                            step_ms,
+                            first,
+                            store,
+                        }
+                    }
                     _ => return Err(ErrorCode::NOT_SUPPORTED.into()),
                 };
                 end(lx)?;
@@ -1409,7 +1446,31 @@ mod tests {
             "[10] ERROR:101 #Syntax error.\r\n"
         );
         assert_eq!(
-            reply(&mut s, "[11] lss_allnodes"),
+            s.on_line("[11] lss_allnodes"),
+            Action::Lss {
+                seq: 11,
+                net: 2,
+                command: Lss::AllNodes {
+                    step_ms: None,
+                    first: 2,
+                    store: true
+                }
+            }
+        );
+        assert_eq!(
+            s.on_line("[11] lss_allnodes 50 10 0"),
+            Action::Lss {
+                seq: 11,
+                net: 2,
+                command: Lss::AllNodes {
+                    step_ms: Some(50),
+                    first: 10,
+                    store: false
+                }
+            }
+        );
+        assert_eq!(
+            reply(&mut s, "[11] lss_allnodes 50 10 0 0 0x360 1 0 1 0 1 0"),
             "[11] ERROR:100 #Request not supported.\r\n"
         );
         assert_eq!(
