@@ -9,8 +9,9 @@
 //!    endpoint) and stops it; [`grpc`] holds the services, every protobuf
 //!    conversion, the stream forwarding and the one mapping of errors to
 //!    gRPC statuses (`grpc::error::ApiError` exists only there);
-//!    [`socketcand`] is a second edge beside gRPC (the socketcand text
-//!    protocol for tools that speak it), under the same security; [`web`]
+//!    [`socketcand`] and [`cia309`] are edges beside gRPC (the socketcand
+//!    text protocol, CiA 309-3's ASCII gateway protocol, for tools that
+//!    speak them), under the same security; [`web`]
 //!    serves the embedded dashboard's static files on the gRPC listener.
 //!    The edges never name each other; only [`serve`] names them all.
 //! 2. **Runtime**: [`gateway`] is the registry that starts and holds the
@@ -37,6 +38,7 @@ pub mod axes;
 pub mod axis_runner;
 pub mod canopen;
 pub mod cansmc;
+pub mod cia309;
 pub mod config;
 pub mod gateway;
 pub mod grpc;

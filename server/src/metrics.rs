@@ -197,6 +197,22 @@ fn describe() {
         "cangate_socketcand_frames_lost_total",
         "Frames socketcand clients missed because they read too slowly, by bus."
     );
+    describe_gauge!(
+        "cangate_cia309_connections",
+        "Open connections of the CiA 309-3 ASCII gateway."
+    );
+    describe_counter!(
+        "cangate_cia309_sessions_total",
+        "CiA 309-3 connections by outcome (opened, refused_auth, refused_limit, too_many_connections, evicted_before_login, handshake_timeout)."
+    );
+    describe_counter!(
+        "cangate_cia309_commands_total",
+        "CiA 309-3 commands by command (read, write, nmt, lss, events, info, login, too_long) and result (ok, error, refused)."
+    );
+    describe_counter!(
+        "cangate_cia309_events_lost_total",
+        "Event lines CiA 309-3 clients missed because they read too slowly, by bus."
+    );
     describe_counter!(
         "cangate_socketcand_command_errors_total",
         "socketcand commands answered with an error, by kind (unknown, syntax, not_supported, too_long)."
@@ -244,6 +260,27 @@ pub fn socketcand_lost(bus: &str, n: u64) {
 /// A socketcand command answered with an error.
 pub fn socketcand_command_error(kind: &'static str) {
     metrics::counter!("cangate_socketcand_command_errors_total", "kind" => kind).increment(1);
+}
+
+/// One more (`+1`) or one fewer (`-1`) open CiA 309-3 connection.
+pub fn cia309_connections(delta: f64) {
+    metrics::gauge!("cangate_cia309_connections").increment(delta);
+}
+
+/// A CiA 309-3 connection's outcome (see the metric's description).
+pub fn cia309_session(result: &'static str) {
+    metrics::counter!("cangate_cia309_sessions_total", "result" => result).increment(1);
+}
+
+/// A CiA 309-3 command and its result (`ok`, `error`, `refused`).
+pub fn cia309_command(command: &'static str, result: &'static str) {
+    metrics::counter!("cangate_cia309_commands_total", "command" => command, "result" => result)
+        .increment(1);
+}
+
+/// `n` event lines a slow CiA 309-3 client missed.
+pub fn cia309_events_lost(bus: &str, n: u64) {
+    metrics::counter!("cangate_cia309_events_lost_total", "bus" => bus.to_string()).increment(n);
 }
 
 /// Counts `n` items a gRPC stream subscriber missed because it was too

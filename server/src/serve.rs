@@ -55,11 +55,14 @@ pub struct RunningServer {
     pub metrics_addr: Option<SocketAddr>,
     /// The socketcand endpoint's address, when configured.
     pub socketcand_addr: Option<SocketAddr>,
+    /// The CiA 309-3 gateway's address, when configured.
+    pub cia309_addr: Option<SocketAddr>,
     gateway: Arc<Gateway>,
     shutdown: CancellationToken,
     server: JoinHandle<Result<(), tonic::transport::Error>>,
     bus_tasks: Vec<JoinHandle<()>>,
     socketcand: Option<JoinHandle<()>>,
+    cia309: Option<JoinHandle<()>>,
     tls: Option<crate::security::TlsReloader>,
 }
 
@@ -118,6 +121,9 @@ impl RunningServer {
         let all = async {
             let r = self.server.await;
             if let Some(t) = self.socketcand {
+                let _ = t.await;
+            }
+            if let Some(t) = self.cia309 {
                 let _ = t.await;
             }
             for t in self.bus_tasks {
@@ -339,6 +345,34 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
     };
     // The socketcand endpoint shares the security layer (identities,
     // limits per client, refusal throttling) with gRPC.
+    let (cia309_addr, cia309) = match &config.cia309 {
+        Some(c) => {
+            // Network n is the n-th CANopen bus listed, else of the
+            // configuration.
+            let nets: Vec<String> = if c.buses.is_empty() {
+                config.canopen.iter().map(|m| m.bus.clone()).collect()
+            } else {
+                c.buses.clone()
+            };
+            let (a, task) = crate::cia309::start(
+                c,
+                gateway.clone(),
+                &nets,
+                security.clone(),
+                shutdown.clone(),
+            )
+            .await
+            .map_err(|source| {
+                shutdown.cancel();
+                StartError::Listen {
+                    addr: c.listen,
+                    source,
+                }
+            })?;
+            (Some(a), Some(task))
+        }
+        None => (None, None),
+    };
     let (socketcand_addr, socketcand) = match &config.socketcand {
         Some(s) => {
             let (a, task) =
@@ -366,6 +400,7 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         %addr,
         metrics = ?metrics_addr,
         socketcand = ?socketcand_addr,
+        cia309 = ?cia309_addr,
         buses = gateway.buses().count(),
         tls = tls.is_some(),
         authentication = config.security.authentication(),
@@ -375,11 +410,13 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         addr,
         metrics_addr,
         socketcand_addr,
+        cia309_addr,
         gateway,
         shutdown,
         server,
         bus_tasks,
         socketcand,
+        cia309,
         tls,
     })
 }

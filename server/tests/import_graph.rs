@@ -30,6 +30,7 @@ const LAYERS: &[(&str, u8)] = &[
     ("security", 2),
     ("grpc", EDGE),
     ("socketcand", EDGE),
+    ("cia309", EDGE),
     ("web", EDGE),
     ("serve", 4),
 ];

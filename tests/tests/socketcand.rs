@@ -435,7 +435,7 @@ async fn malformed_input_is_answered_and_the_endpoint_goes_on() {
     assert_eq!(r.element().await.as_deref(), Some("< ok >"));
     // In BCM mode every line is answered, in order; valid sends are silent.
     r.send(
-        b"< send 800 0 >< send 123 9 1 2 3 4 5 6 7 8 9 >< frobnicate >< subscribe 0 0 123 >\
+        b"< send 800 0 >< send 123 9 1 2 3 4 5 6 7 8 9 >< frobnicate >< muxfilter 0 0 123 2 FF >\
           < controlmode >< isotpmode >< send 123 1 zz >< \xff >< open can0 >< send 1 0 >< echo >",
     )
     .await;
@@ -449,9 +449,9 @@ async fn malformed_input_is_answered_and_the_endpoint_goes_on() {
             "< error send: identifier 0x800 does not fit in 11 bits (standard ids are 0x000..=0x7FF; use an extended id) >",
             "< error send: the length must be a decimal number 0..=8 (sendfd for CAN FD) >",
             "< error unknown command >",
-            "< error subscribe is not supported by cangate (it serves raw mode only) >",
-            "< error controlmode is not supported by cangate (it serves raw mode only) >",
-            "< error isotpmode is not supported by cangate (it serves raw mode only) >",
+            "< error muxfilter is not supported by cangate >",
+            "< error controlmode is not supported by cangate >",
+            "< error isotpmode is not supported by cangate >",
             "< error send: bad data byte zz >",
             "< error a command must be ASCII text >",
             "< error a bus is open already: one bus per connection >",
@@ -872,4 +872,130 @@ async fn every_socketcand_send_reaches_the_bus_or_is_answered_with_an_error() {
     );
     assert!(!errors.is_empty(), "the bus went off before all were sent");
     assert!(errors.iter().all(|e| e.contains("bus-off")), "{errors:?}");
+}
+
+/// BCM mode (socketcand's default after open): a cyclic job sends every
+/// interval as the session's client (a gRPC stream sees it), `update`
+/// changes its content without stopping it, `delete` ends it; `subscribe`
+/// reports one identifier's frames, `filter` only the content changes
+/// under its mask, in BCM mode's `< frame … >` layout; a viewer's cyclic
+/// job is refused; raw mode takes no BCM jobs.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bcm_mode_runs_cyclic_jobs_subscriptions_and_content_filters() {
+    let server = token_server().await;
+    let addr = server.socketcand_addr.expect("socketcand configured");
+    let mut c = client_with(&server, ENGINEER).await;
+    let (mut stream, mut pending) =
+        open_stream(&mut c, stream_request("can0", vec![exact(0x123, false)])).await;
+
+    let mut r = Raw::connect(addr).await;
+    assert_eq!(r.element().await.as_deref(), Some("< hi >"));
+    r.send(format!("< open can0 {ENGINEER} >").as_bytes()).await;
+    assert_eq!(r.element().await.as_deref(), Some("< ok >"));
+    r.send(b"< add 0 20000 123 2 11 22 >").await;
+    let frames = read_frames(&mut stream, &mut pending, 3).await;
+    assert!(
+        frames
+            .iter()
+            .all(|f| f.id == 0x123 && f.data == [0x11, 0x22]),
+        "{frames:?}"
+    );
+    r.send(b"< update 123 1 33 >").await;
+    // Frames already on their way may still carry the old content.
+    loop {
+        let f = read_frames(&mut stream, &mut pending, 1).await.remove(0);
+        if f.data == [0x33] {
+            break;
+        }
+        assert_eq!(f.data, [0x11, 0x22]);
+    }
+    r.send(b"< delete 123 >< delete 123 >").await;
+    assert_eq!(
+        r.element().await.as_deref(),
+        Some("< error delete: no cyclic job for 123 >"),
+        "the first delete ended the job"
+    );
+
+    // Receiving: one identifier, and content changes.
+    r.send(b"< subscribe 0 0 321 >< filter 0 0 456 1 FF >< echo >")
+        .await;
+    assert_eq!(r.element().await.as_deref(), Some("< echo >"));
+    c.bus_client()
+        .send_frames(pb::SendFramesRequest {
+            bus: "can0".into(),
+            frames: vec![
+                data_frame(0x322, false, &[0]),
+                data_frame(0x321, false, &[1]),
+                data_frame(0x456, false, &[1, 0]),
+                data_frame(0x456, false, &[1, 9]),
+                data_frame(0x456, false, &[2, 0]),
+            ],
+        })
+        .await
+        .expect("sent");
+    let mut lines = Vec::new();
+    for _ in 0..3 {
+        let e = r.element().await.expect("a frame");
+        // `< frame ID SECS.USECS DATA… >`: the timestamp left out.
+        let words: Vec<&str> = e.split(' ').collect();
+        assert_eq!((words[0], words[1]), ("<", "frame"), "{e}");
+        lines.push(format!("{} {}", words[2], words[4..].join(" ")));
+    }
+    assert_eq!(lines, ["321 01  >", "456 01 00  >", "456 02 00  >"]);
+    r.send(b"< unsubscribe 321 >< unsubscribe 321 >").await;
+    assert_eq!(
+        r.element().await.as_deref(),
+        Some("< error unsubscribe: no subscription or filter for 321 >")
+    );
+
+    // A viewer may receive but not send cyclically.
+    let mut v = Raw::connect(addr).await;
+    assert_eq!(v.element().await.as_deref(), Some("< hi >"));
+    v.send(format!("< open can0 {VIEWER} >").as_bytes()).await;
+    assert_eq!(v.element().await.as_deref(), Some("< ok >"));
+    v.send(b"< add 0 20000 124 0 >").await;
+    let e = v.element().await.expect("a refusal");
+    assert!(e.contains("cyclic transmission needs role engineer"), "{e}");
+    // Raw mode takes no BCM jobs.
+    r.send(b"< rawmode >< add 0 20000 125 0 >").await;
+    assert_eq!(r.element().await.as_deref(), Some("< ok >"));
+    let e = loop {
+        let e = r.element().await.expect("an answer");
+        if e.starts_with("< error") {
+            break e;
+        }
+    };
+    assert_eq!(
+        e,
+        "< error BCM jobs and subscriptions work in BCM mode (send bcmmode first) >"
+    );
+}
+
+/// Cyclic frames count in the client's raw frame budget: a job faster than
+/// the budget is stopped with an error line at its first refused frame.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cyclic_job_over_the_frame_budget_is_stopped() {
+    let text = format!(
+        "listen = \"127.0.0.1:0\"\n{ONE_BUS}\
+         [socketcand]\nlisten = \"127.0.0.1:0\"\n\
+         [security.limits]\nraw_frames_per_second_per_client = 5\nraw_frame_burst = 5\n"
+    );
+    let c = Config::from_toml(&text).expect("valid");
+    let server = cangate_server::start(&c).await.expect("server starts");
+    let mut r = Raw::connect(server.socketcand_addr.unwrap()).await;
+    assert_eq!(r.element().await.as_deref(), Some("< hi >"));
+    r.send(b"< open can0 >").await;
+    assert_eq!(r.element().await.as_deref(), Some("< ok >"));
+    r.send(b"< add 0 1000 123 1 AA >").await;
+    let e = r.element().await.expect("the job's refusal");
+    assert!(
+        e.starts_with("< error cyclic job 123 stopped: ") && e.contains("frame rate limit"),
+        "{e}"
+    );
+    r.send(b"< delete 123 >").await;
+    assert_eq!(
+        r.element().await.as_deref(),
+        Some("< error delete: no cyclic job for 123 >"),
+        "the job is gone"
+    );
 }

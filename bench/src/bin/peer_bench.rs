@@ -23,9 +23,11 @@
 //! 2. **SDO expedited read** of 0x1017 from node 5 (the same responder
 //!    thread plays the node): CANopenNode's `canopend` over its CiA 309-3
 //!    ASCII gateway on TCP (`[seq] 5 r 0x1017 0 u16`) against `ReadSdo`,
-//!    both from Rust clients in this process.
+//!    both from Rust clients in this process; and the same ASCII client
+//!    against cangate's own CiA 309-3 endpoint (`[cia309]`).
 //! 3. **a call that touches no bus**: `canopend`'s `set node 5` against
-//!    cangate's `GetBus`: the cost of the call itself.
+//!    cangate's `GetBus` (the cost of the call itself), and `set node 5`
+//!    against cangate's CiA 309-3 endpoint.
 //!
 //! For every path also the server's CPU per call: user plus system time of
 //! the server process (socketcand: with the process it forks per client)
@@ -548,7 +550,7 @@ fn start_cangate(
     dir: &Path,
     iface: &str,
     rt: &tokio::runtime::Runtime,
-) -> Result<(Server, Client, String, u16)> {
+) -> Result<(Server, Client, String, u16, u16)> {
     let exe = std::env::current_exe()?.with_file_name("cangate-server");
     if !exe.is_file() {
         bail!(
@@ -558,6 +560,7 @@ fn start_cangate(
     }
     let port = free_port()?;
     let socketcand_port = free_port()?;
+    let cia309_port = free_port()?;
     let config = dir.join("cangate.toml");
     std::fs::write(
         &config,
@@ -569,6 +572,9 @@ level = "error"
 
 [socketcand]
 listen = "127.0.0.1:{socketcand_port}"
+
+[cia309]
+listen = "127.0.0.1:{cia309_port}"
 
 [[bus]]
 name = "can0"
@@ -605,7 +611,7 @@ heartbeat_timeout_ms = 0
             Ok::<_, cangate_client::Error>(c)
         });
         match attempt {
-            Ok(client) => return Ok((server, client, url, socketcand_port)),
+            Ok(client) => return Ok((server, client, url, socketcand_port, cia309_port)),
             Err(_) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(100)),
             Err(e) => bail!("cangate-server did not answer on {url}: {e}"),
         }
@@ -935,13 +941,14 @@ fn run_in(args: &Args, dir: &Path) -> Result<(Vec<Comparison>, Idle)> {
         .enable_all()
         .build()?;
     let responder = Responder::start(&args.iface)?;
-    let (cangate, client, url, socketcand_port) = start_cangate(dir, &args.iface, &rt)?;
+    let (cangate, client, url, socketcand_port, cia309_port) =
+        start_cangate(dir, &args.iface, &rt)?;
     let mut idle = Idle::new();
     if let Some(p) = idle_percent(&cangate, args.idle_secs()) {
         idle.insert("cangate-server", p);
     }
     let mut out = vec![raw_round_trip(args, dir, &cangate, &url, socketcand_port)?];
-    let (sdo, no_bus) = canopen_paths(args, dir, &rt, &cangate, &client, &mut idle)?;
+    let (sdo, no_bus) = canopen_paths(args, dir, &rt, &cangate, &client, cia309_port, &mut idle)?;
     out.push(sdo);
     out.push(no_bus);
     for (name, p) in &idle {
@@ -1081,13 +1088,15 @@ fn four(m: Vec<Measured>) -> Result<[Measured; 4]> {
 }
 
 /// Paths 2 and 3: an SDO read and a call without bus, canopend against
-/// cangate.
+/// cangate (gRPC, and its CiA 309-3 endpoint on port `cia309_port` with
+/// canopend's client).
 fn canopen_paths(
     args: &Args,
     dir: &Path,
     rt: &tokio::runtime::Runtime,
     cangate: &Server,
     client: &Client,
+    cia309_port: u16,
     idle: &mut Idle,
 ) -> Result<(Comparison, Comparison)> {
     let (samples, blocks, warmup) = (args.samples(), args.blocks(), args.warmup());
@@ -1122,6 +1131,33 @@ fn canopen_paths(
                 Ok(())
             })
         }),
+        cpu: Box::new(|| cangate.cpu(false)),
+    };
+    // The same ASCII client against cangate's CiA 309-3 endpoint.
+    let mut ours = AsciiGateway::new(
+        TcpStream::connect(("127.0.0.1", cia309_port)).context("cangate's CiA 309-3 endpoint")?,
+    )?;
+    let ours = std::cell::RefCell::new(&mut ours);
+    let ascii_read = |gw: &mut AsciiGateway| -> Result<()> {
+        let v = gw.command(&format!("{NODE} r 0x1017 0 u16"))?;
+        if v != HEARTBEAT_VALUE.to_string() {
+            bail!("read 0x1017 as {v:?}");
+        }
+        Ok(())
+    };
+    let ascii_set_node = |gw: &mut AsciiGateway| -> Result<()> {
+        let v = gw.command(&format!("set node {NODE}"))?;
+        if v != "OK" {
+            bail!("set node answered {v:?}");
+        }
+        Ok(())
+    };
+    let ours_sdo = Side {
+        calls: Box::new(|n| timed(n, || ascii_read(&mut ours.borrow_mut()))),
+        cpu: Box::new(|| cangate.cpu(false)),
+    };
+    let ours_no_bus = Side {
+        calls: Box::new(|n| timed(n, || ascii_set_node(&mut ours.borrow_mut()))),
         cpu: Box::new(|| cangate.cpu(false)),
     };
     let sdo_path = "SDO expedited read 0x1017, Rust client";
@@ -1163,9 +1199,9 @@ fn canopen_paths(
                 }),
                 cpu: Box::new(|| canopend.cpu(false)),
             };
-            let mut sides = [peer_sdo, cangate_sdo];
-            let mut m = alternate(&mut sides, samples, blocks, warmup)?.into_iter();
-            let sdo = (m.next().context("peer")?, m.next().context("cangate")?);
+            let mut sides = [peer_sdo, cangate_sdo, ours_sdo];
+            let [p, c, o] = three(alternate(&mut sides, samples, blocks, warmup)?)?;
+            let sdo = (p, c, o);
             let peer_no_bus = Side {
                 calls: Box::new(|n| {
                     timed(n, || {
@@ -1178,16 +1214,24 @@ fn canopen_paths(
                 }),
                 cpu: Box::new(|| canopend.cpu(false)),
             };
-            let mut sides = [peer_no_bus, cangate_no_bus];
-            let mut m = alternate(&mut sides, samples, blocks, warmup)?.into_iter();
-            let no_bus = (m.next().context("peer")?, m.next().context("cangate")?);
-            ((Ok(sdo.0), sdo.1), (Ok(no_bus.0), no_bus.1))
+            let mut sides = [peer_no_bus, cangate_no_bus, ours_no_bus];
+            let [p, c, o] = three(alternate(&mut sides, samples, blocks, warmup)?)?;
+            ((Ok(sdo.0), sdo.1, sdo.2), (Ok(p), c, o))
         }
         Err(why) => {
             println!("  skipped: canopend: {why}");
-            let sdo = alternate(&mut [cangate_sdo], samples, blocks, warmup)?.remove(0);
-            let no_bus = alternate(&mut [cangate_no_bus], samples, blocks, warmup)?.remove(0);
-            ((Err(why.clone()), sdo), (Err(why), no_bus))
+            let [sdo, ours_sdo]: [Measured; 2] =
+                alternate(&mut [cangate_sdo, ours_sdo], samples, blocks, warmup)?
+                    .try_into()
+                    .map_err(|_| anyhow!("two sides"))?;
+            let [no_bus, ours_no_bus]: [Measured; 2] =
+                alternate(&mut [cangate_no_bus, ours_no_bus], samples, blocks, warmup)?
+                    .try_into()
+                    .map_err(|_| anyhow!("two sides"))?;
+            (
+                (Err(why.clone()), sdo, ours_sdo),
+                (Err(why), no_bus, ours_no_bus),
+            )
         }
     };
     Ok((
@@ -1198,7 +1242,7 @@ fn canopen_paths(
             peer_side: sdo.0,
             cangate: sdo.1,
             floor: None,
-            cangate_as_peer: None,
+            cangate_as_peer: Some(sdo.2),
         },
         Comparison {
             key: "no_bus_call",
@@ -1207,7 +1251,7 @@ fn canopen_paths(
             peer_side: no_bus.0,
             cangate: no_bus.1,
             floor: None,
-            cangate_as_peer: None,
+            cangate_as_peer: Some(no_bus.2),
         },
     ))
 }
@@ -1281,8 +1325,14 @@ fn print_table(comparisons: &[Comparison]) {
                 }
                 Err(_) => ("–".into(), "–".into()),
             };
+            // The peer's own protocol, served by cangate.
+            let endpoint = if c.key == "raw_round_trip" {
+                "socketcand"
+            } else {
+                "CiA 309-3"
+            };
             println!(
-                "| … the same client to cangate's socketcand endpoint | | | {} / {} µs | {ratio} |",
+                "| … the same client to cangate's {endpoint} endpoint | | | {} / {} µs | {ratio} |",
                 us(v.p50_us),
                 us(v.p99_us)
             );

@@ -63,6 +63,8 @@ pub const TARGETS: &[(&str, EntryFn)] = &[
     ("config", config),
     #[cfg(feature = "config")]
     ("socketcand", socketcand),
+    #[cfg(feature = "config")]
+    ("cia309", cia309),
 ];
 
 /// A cursor over the input; reads past the end yield zeros.
@@ -798,6 +800,67 @@ pub fn socketcand(data: &[u8]) {
                     one_element(&line);
                 }
                 Action::Feed(_) => {}
+                Action::Bcm(command) => {
+                    use cangate_server::socketcand::bcm::format_bcm_frame;
+                    use cangate_server::socketcand::protocol::BcmCommand;
+                    if let BcmCommand::Add { frame, .. } | BcmCommand::Update(frame) = command {
+                        assert!(!frame.is_fd() && !frame.is_remote());
+                        one_element(&format_bcm_frame(&frame));
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The CiA 309-3 gateway's reading of command lines: a chunk size, then
+/// the bytes a client sends. Every line within the limit; every answer the
+/// session gives itself ends with `\r\n` and holds no other line break
+/// but the `\n` of a help text; a write's data is never empty; a read's
+/// value printed as its type (and as every other) is one line.
+pub fn cia309(data: &[u8]) {
+    use cangate_server::cia309::protocol::{Action, DataType, LineBuffer, Session, format_value};
+    const MAX: usize = 256;
+    let (chunk, rest) = match data.split_first() {
+        Some((c, rest)) => (usize::from(*c % 32) + 1, rest),
+        None => return,
+    };
+    let mut lines = LineBuffer::new(MAX);
+    let mut session = Session::new(2, 500);
+    let types = [
+        "b", "i8", "i16", "i32", "i64", "u8", "u16", "u32", "u64", "x8", "x16", "x32", "x64",
+        "r32", "r64", "vs", "os", "us", "d", "hex",
+    ];
+    for piece in rest.chunks(chunk) {
+        lines.push(piece);
+        loop {
+            let line = match lines.next_line() {
+                Ok(Some(l)) => l,
+                Ok(None) => break,
+                Err(_) => return,
+            };
+            assert!(line.len() <= MAX, "{} bytes", line.len());
+            match session.on_line(&line) {
+                Action::Reply(text) => {
+                    assert!(text.ends_with("\r\n"), "{text:?}");
+                    if !text.starts_with('\n') {
+                        assert_eq!(text.matches('\n').count(), 1, "{text:?}");
+                    }
+                }
+                Action::Write { data, .. } => {
+                    assert!(!data.is_empty());
+                    for t in types {
+                        let ty = DataType::from_name(t).expect("a type");
+                        let text = format_value(1, Some(ty), &data);
+                        assert_eq!(text.matches('\n').count(), 1, "{t}: {text:?}");
+                    }
+                }
+                Action::Read { .. }
+                | Action::Nmt { .. }
+                | Action::Lss { .. }
+                | Action::Events { .. }
+                | Action::Login { .. }
+                | Action::Info { .. } => {}
             }
         }
     }

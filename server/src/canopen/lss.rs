@@ -197,6 +197,43 @@ impl CanopenBus {
         }
     }
 
+    /// Runs one LSS command for an API client, behind the guards that
+    /// keep LSS off the running machine: a command that reaches every
+    /// device (switch global to configuration, and the configuration
+    /// commands, which reach whichever device is in that state) or a
+    /// device by identity is refused while it could reach an active axis's
+    /// drive ([`CanopenBus::check_lss_reach`]); a node-ID another device
+    /// uses is refused ([`CanopenBus::check_node_id_free`]) unless `force`.
+    /// Fastscan, inquire and identify only ask, and pass.
+    pub async fn client_lss(
+        &self,
+        command: LssCommand,
+        timeout: Duration,
+        force: bool,
+    ) -> Result<LssOutcome, CanopenError> {
+        let reach = match &command {
+            LssCommand::SwitchGlobal(LssMode::Configuration)
+            | LssCommand::ConfigureNodeId(_)
+            | LssCommand::ConfigureBitTiming { .. }
+            | LssCommand::ActivateBitTiming { .. }
+            | LssCommand::StoreConfiguration => Some(LssReach::AllDevices),
+            LssCommand::SwitchSelective(id) => Some(LssReach::Identity(*id)),
+            _ => None,
+        };
+        if let Some(reach) = reach {
+            self.check_lss_reach(reach, command.name())?;
+        }
+        if !force
+            && let LssCommand::ConfigureNodeId(id) = command
+            && let Ok(node) = NodeId::new(u32::from(id))
+        {
+            // The device in the configuration state is not known here.
+            self.check_node_id_free(node, None)?;
+        }
+        let session = self.lss_session(command.name())?;
+        session.run(command, timeout).await
+    }
+
     /// Holds the bus for the LSS operation `operation` (a name for
     /// messages), or fails with [`CanopenError::LssBusy`] when another one
     /// runs.

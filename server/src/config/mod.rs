@@ -20,6 +20,7 @@ mod axis;
 mod bus;
 mod canopen;
 mod cansmc;
+mod cia309;
 mod handwheel;
 mod security;
 mod socketcand;
@@ -30,6 +31,7 @@ pub use axis::*;
 pub use bus::*;
 pub use canopen::*;
 pub use cansmc::*;
+pub use cia309::*;
 pub use handwheel::*;
 pub use security::*;
 pub use socketcand::*;
@@ -49,6 +51,7 @@ const ENV_KEYS: &[&str] = &[
     "CANGATE_HANDOVER_SPIN_US",
     "CANGATE_SECURITY__",
     "CANGATE_SOCKETCAND__",
+    "CANGATE_CIA309__",
     "CANGATE_WEB__",
     "CANGATE_LOG__",
 ];
@@ -106,6 +109,9 @@ pub struct Config {
     /// The socketcand listener (`[socketcand]`); absent: off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub socketcand: Option<SocketcandConfig>,
+    /// The CiA 309-3 ASCII gateway listener (`[cia309]`); absent: off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cia309: Option<Cia309Config>,
     /// Browser access: gRPC-Web CORS origins and the dashboard (`[web]`).
     #[serde(default)]
     pub web: WebConfig,
@@ -278,6 +284,8 @@ pub enum Section {
     Cansmc,
     /// `[socketcand]`.
     Socketcand,
+    /// `[cia309]`.
+    Cia309,
 }
 
 impl Section {

@@ -276,6 +276,30 @@ impl Config {
                 )));
             }
         }
+        if let Some(c) = &self.cia309 {
+            c.check(
+                self.security.authentication(),
+                !self.security.tokens.is_empty(),
+            )
+            .map_err(|m| Section::Cia309.error(m))?;
+            for b in &c.buses {
+                if !self.canopen.iter().any(|m| &m.bus == b) {
+                    return Err(Section::Cia309.error(format!(
+                        "[cia309] buses names {b:?}, which has no CANopen master ([[canopen]])"
+                    )));
+                }
+            }
+            let others = [Some(self.listen), self.metrics_listen]
+                .into_iter()
+                .flatten()
+                .chain(self.socketcand.as_ref().map(|s| s.listen));
+            if c.listen.port() != 0 && others.into_iter().any(|a| a == c.listen) {
+                return Err(Section::Cia309.error(format!(
+                    "[cia309] listen = {} is already the address of another listener",
+                    c.listen
+                )));
+            }
+        }
         Ok(())
     }
 }

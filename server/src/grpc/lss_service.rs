@@ -222,6 +222,22 @@ impl LssService {
         let s = self.session(bus, command.name())?;
         s.run(command, timeout).await.map_err(lss_error)
     }
+
+    /// One LSS command behind the runtime's guards
+    /// ([`CanopenBus::client_lss`]: an enabled axis's drive out of reach,
+    /// a node-ID in use refused unless `force`).
+    async fn guarded(
+        &self,
+        bus: &str,
+        command: LssCommand,
+        timeout: Duration,
+        force: bool,
+    ) -> Result<LssOutcome, ApiError> {
+        self.master(bus)?
+            .client_lss(command, timeout, force)
+            .await
+            .map_err(lss_error)
+    }
 }
 
 #[tonic::async_trait]
@@ -276,11 +292,8 @@ impl Lss for LssService {
         let r = req.into_inner();
         let mode = lss_mode(r.mode)?;
         let t = timeout(0)?;
-        if mode == LssMode::Configuration {
-            self.reach(&r.bus, LssReach::AllDevices, "switch global")?;
-        }
         Ok(ack(self
-            .one(&r.bus, LssCommand::SwitchGlobal(mode), t)
+            .guarded(&r.bus, LssCommand::SwitchGlobal(mode), t, false)
             .await?))
     }
 
@@ -295,9 +308,8 @@ impl Lss for LssService {
             .map(identity_from_pb)
             .ok_or_else(|| ApiError::InvalidArgument("identity is required".into()))?;
         let t = timeout(r.timeout_ms)?;
-        self.reach(&r.bus, LssReach::Identity(id), "switch selective")?;
         Ok(ack(self
-            .one(&r.bus, LssCommand::SwitchSelective(id), t)
+            .guarded(&r.bus, LssCommand::SwitchSelective(id), t, false)
             .await?))
     }
 
@@ -314,17 +326,13 @@ impl Lss for LssService {
             .into());
         }
         let t = timeout(r.timeout_ms)?;
-        self.reach(&r.bus, LssReach::AllDevices, "configure node-ID")?;
-        if !r.force
-            && let Ok(node) = NodeId::new(r.node_id)
-        {
-            // The device in the configuration state is not known here.
-            self.master(&r.bus)?
-                .check_node_id_free(node, None)
-                .map_err(lss_error)?;
-        }
         Ok(ack(self
-            .one(&r.bus, LssCommand::ConfigureNodeId(r.node_id as u8), t)
+            .guarded(
+                &r.bus,
+                LssCommand::ConfigureNodeId(r.node_id as u8),
+                t,
+                r.force,
+            )
             .await?))
     }
 
@@ -338,8 +346,7 @@ impl Lss for LssService {
             index: byte("index", r.index)?,
         };
         let t = timeout(r.timeout_ms)?;
-        self.reach(&r.bus, LssReach::AllDevices, "configure bit timing")?;
-        Ok(ack(self.one(&r.bus, cmd, t).await?))
+        Ok(ack(self.guarded(&r.bus, cmd, t, false).await?))
     }
 
     async fn activate_bit_timing(
@@ -354,9 +361,13 @@ impl Lss for LssService {
             ))
         })?;
         let t = timeout(0)?;
-        self.reach(&r.bus, LssReach::AllDevices, "activate bit timing")?;
         Ok(ack(self
-            .one(&r.bus, LssCommand::ActivateBitTiming { switch_delay_ms }, t)
+            .guarded(
+                &r.bus,
+                LssCommand::ActivateBitTiming { switch_delay_ms },
+                t,
+                false,
+            )
             .await?))
     }
 
@@ -366,9 +377,8 @@ impl Lss for LssService {
     ) -> Reply<pb::LssAck> {
         let r = req.into_inner();
         let t = timeout(r.timeout_ms)?;
-        self.reach(&r.bus, LssReach::AllDevices, "store configuration")?;
         Ok(ack(self
-            .one(&r.bus, LssCommand::StoreConfiguration, t)
+            .guarded(&r.bus, LssCommand::StoreConfiguration, t, false)
             .await?))
     }
 

@@ -5,6 +5,7 @@
 //! - [`auth`]: identities from bearer tokens or client certificates, the
 //!   role check, limits and the audit log (`cangate::audit`);
 //! - [`limits`]: per-client concurrency, rate and stream limits;
+//! - [`slots`]: connection slots of the text-protocol endpoints;
 //! - [`tls`]: TLS/mTLS with certificates reloaded on SIGHUP;
 //! - [`status`]: the final status of every response tidied in one place
 //!   (undecodable requests are INVALID_ARGUMENT, messages stay short).
@@ -12,6 +13,7 @@
 pub mod auth;
 pub mod limits;
 pub mod roles;
+pub mod slots;
 pub mod status;
 pub mod tls;
 

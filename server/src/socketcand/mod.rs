@@ -33,6 +33,12 @@
 //!   clients see its frames as received, marked with its sender (named
 //!   `WHO via socketcand`); it does not receive its own frames (a
 //!   SocketCAN raw socket's default).
+//! - **BCM mode** ([`bcm`]): cyclic jobs run in the connection's task, on
+//!   its timer; each frame goes out as a `send` does (engineer, the frame
+//!   budget, the bus's client share, one frame in flight), and a refused
+//!   one stops its job with an `< error … >` line. Subscriptions and
+//!   filters get a feed of their identifiers only. All of it ends with
+//!   the session.
 //! - **Slow readers.** Frames wait in the connection's queue; a client
 //!   that reads too slowly loses frames (counted in
 //!   `cangate_socketcand_frames_lost_total`; the protocol cannot tell it),
@@ -45,18 +51,21 @@
 //! - **Shutdown.** Every connection ends with the gateway's cancellation
 //!   token; the listener waits for them.
 
+pub mod bcm;
 pub mod protocol;
 
 use crate::config::SocketcandConfig;
 use crate::gateway::Gateway;
 use crate::participants::{SenderGuard, SenderNames};
 use crate::security::auth::AUDIT_TARGET;
+use crate::security::slots::{SlotGuard, Slots};
 use crate::security::{FrameBudget, QueueReservation, Refusal, Role, SecurityLayer};
+use bcm::{Bcm, format_bcm_frame};
 use cangate_can::{
     AttachOptions, BusHandle, BusItem, ClientId, Frame, FrameSelector, PendingSend, SendError,
     SendFailure, Subscription,
 };
-use protocol::{Action, Deframer, Session, format_error, format_frame};
+use protocol::{Action, BcmCommand, Deframer, Mode, Session, format_error, format_frame};
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
@@ -110,110 +119,6 @@ pub async fn start(
     });
     let task = tokio::spawn(accept_loop(listener, shared, shutdown));
     Ok((addr, task))
-}
-
-/// The connections that hold a slot of the endpoint, for the admission of
-/// new ones ([`Slots::admit`]).
-#[derive(Debug, Default)]
-struct Slots {
-    inner: std::sync::Mutex<SlotList>,
-}
-
-#[derive(Debug, Default)]
-struct SlotList {
-    next_id: u64,
-    /// Oldest first.
-    slots: Vec<Slot>,
-}
-
-#[derive(Debug)]
-struct Slot {
-    id: u64,
-    peer: std::net::IpAddr,
-    /// A bus was opened (the client authenticated): never given up for a
-    /// newcomer.
-    opened: bool,
-    /// Fired when the slot is given to a newcomer.
-    evict: CancellationToken,
-}
-
-/// A connection's slot; freed when dropped.
-#[derive(Debug)]
-struct SlotGuard {
-    slots: Arc<Slots>,
-    id: u64,
-    /// Fires when the connection gave its slot up (see [`Slots::admit`]).
-    evicted: CancellationToken,
-}
-
-impl SlotGuard {
-    /// The connection opened a bus: it keeps its slot.
-    fn opened(&self) {
-        let mut list = self.slots.lock();
-        if let Some(s) = list.slots.iter_mut().find(|s| s.id == self.id) {
-            s.opened = true;
-        }
-    }
-}
-
-impl Drop for SlotGuard {
-    fn drop(&mut self) {
-        self.slots.lock().slots.retain(|s| s.id != self.id);
-    }
-}
-
-impl Slots {
-    fn lock(&self) -> std::sync::MutexGuard<'_, SlotList> {
-        self.inner.lock().unwrap_or_else(|p| p.into_inner())
-    }
-
-    /// A slot for a new connection from `peer`, within `max` connections
-    /// and `per_peer` from one address. When one of them is reached, the
-    /// oldest connection that has not opened a bus (from that address,
-    /// for `per_peer`) gives its slot up: idle connections that never
-    /// authenticate cannot lock out a client that does. Refused (with the
-    /// setting to name) when every counted connection has a bus open.
-    fn admit(
-        self: &Arc<Self>,
-        peer: std::net::IpAddr,
-        max: usize,
-        per_peer: usize,
-    ) -> Result<SlotGuard, String> {
-        let mut list = self.lock();
-        let evict_oldest = |list: &mut SlotList, from: Option<std::net::IpAddr>| {
-            let i = list
-                .slots
-                .iter()
-                .position(|s| !s.opened && from.is_none_or(|p| s.peer == p))?;
-            let victim = list.slots.remove(i);
-            victim.evict.cancel();
-            Some(())
-        };
-        if list.slots.iter().filter(|s| s.peer == peer).count() >= per_peer
-            && evict_oldest(&mut list, Some(peer)).is_none()
-        {
-            return Err(format!(
-                "too many connections from {peer} (max_connections_per_peer = {per_peer})"
-            ));
-        }
-        if list.slots.len() >= max && evict_oldest(&mut list, None).is_none() {
-            return Err(format!("too many connections (max_connections = {max})"));
-        }
-        list.next_id += 1;
-        let id = list.next_id;
-        let evicted = CancellationToken::new();
-        list.slots.push(Slot {
-            id,
-            peer,
-            opened: false,
-            evict: evicted.clone(),
-        });
-        Ok(SlotGuard {
-            slots: self.clone(),
-            id,
-            evicted,
-        })
-    }
 }
 
 async fn accept_loop(listener: TcpListener, shared: Arc<Shared>, shutdown: CancellationToken) {
@@ -333,6 +238,8 @@ enum Event {
     Read(std::io::Result<usize>),
     Items(usize),
     FeedReady,
+    /// A cyclic frame or a throttled report of BCM mode is due.
+    BcmDue,
     Sent(Result<(), SendFailure>),
 }
 
@@ -432,6 +339,13 @@ async fn serve(
     // answer): the outcome is picked up at its next wake-up or before its
     // next send; the bus's failures (bus-off, down) reach the feed too.
     let mut in_flight: Option<PendingSend> = None;
+    // BCM mode's jobs and receive operations, on the session's clock.
+    let mut bcm = Bcm::default();
+    let started = Instant::now();
+    // The identifiers the BCM feed was built for.
+    let mut fed: Vec<cangate_can::CanId> = Vec::new();
+    // The feed is raw mode's (every frame).
+    let mut raw_feed = false;
     loop {
         if let (Some(o), Some(p)) = (opened.as_ref(), in_flight.as_mut())
             && let Some(outcome) = p.try_outcome()
@@ -443,22 +357,27 @@ async fn serve(
                 return e;
             }
         }
-        let deadline = match (&opened, feed.is_some()) {
+        // A session with a feed, cyclic jobs or subscriptions is busy, not
+        // idle.
+        let deadline = match (&opened, feed.is_some() || bcm.active()) {
             (None, _) => Some(handshake_deadline),
             (Some(_), false) => idle.map(|i| last_read + i),
             (Some(_), true) => None,
         };
+        let bcm_due = bcm.next_deadline().map(|d| started + d);
         let waiting_to_feed = feed.is_some() && Instant::now() < feed_from;
         let feeding = feed.is_some() && !waiting_to_feed;
         let event = tokio::select! {
             biased;
             _ = shutdown.cancelled() => Event::Shutdown,
-            _ = slot.evicted.cancelled(), if opened.is_none() => Event::Evicted,
+            _ = slot.evicted().cancelled(), if opened.is_none() => Event::Evicted,
             _ = tokio::time::sleep_until(deadline.unwrap_or_else(Instant::now)),
                 if deadline.is_some() => Event::Deadline,
             r = reader.read(&mut buf) => Event::Read(r),
             _ = tokio::time::sleep_until(feed_from), if waiting_to_feed => Event::FeedReady,
             n = next_items(&mut feed, &mut items), if feeding => Event::Items(n),
+            _ = tokio::time::sleep_until(bcm_due.unwrap_or_else(Instant::now)),
+                if bcm_due.is_some() => Event::BcmDue,
             r = outcome_of(&mut in_flight), if in_flight.is_some() && !feeding => Event::Sent(r),
         };
         match event {
@@ -471,6 +390,41 @@ async fn serve(
                 return End::Closed;
             }
             Event::FeedReady => {}
+            Event::BcmDue => {
+                let Some(o) = opened.as_mut() else {
+                    continue;
+                };
+                let (send, report) = bcm.due(started.elapsed());
+                out.clear();
+                for f in &report {
+                    out.push_str(&format_bcm_frame(f));
+                }
+                if !report.is_empty() {
+                    crate::metrics::socketcand_frames(o.bus.name(), "out", report.len() as u64);
+                    if let Err(e) = writer.write(out.as_bytes()).await {
+                        return e;
+                    }
+                }
+                for frame in send {
+                    let id = frame.id();
+                    let refused = match send_frame(o, frame, &mut in_flight, shutdown).await {
+                        Ok(r) => r,
+                        Err(e) => return e,
+                    };
+                    // A cyclic frame the gateway refused (role, budget,
+                    // bus) ends its job: it would be refused every period.
+                    for message in refused {
+                        bcm.stop(id);
+                        let line = format_error(&format!(
+                            "cyclic job {} stopped: {message}",
+                            bcm::id_text(id)
+                        ));
+                        if let Err(e) = writer.write(line.as_bytes()).await {
+                            return e;
+                        }
+                    }
+                }
+            }
             Event::Sent(outcome) => {
                 in_flight = None;
                 if let Some(o) = opened.as_ref()
@@ -507,11 +461,22 @@ async fn serve(
                 };
                 out.clear();
                 let mut frames = 0u64;
+                let raw = session.mode() == Mode::Raw;
+                let now = started.elapsed();
                 for item in items.drain(..) {
                     match item {
-                        BusItem::Frame { frame, .. } => {
+                        BusItem::Frame { frame, .. } if raw => {
                             if let Some(line) = format_frame(&frame) {
                                 out.push_str(&line);
+                                frames += 1;
+                            }
+                        }
+                        BusItem::Frame { frame, .. } => {
+                            if !frame.is_remote()
+                                && !frame.is_error()
+                                && let Some(f) = bcm.on_frame(&frame, now)
+                            {
+                                out.push_str(&format_bcm_frame(&f));
                                 frames += 1;
                             }
                         }
@@ -586,7 +551,8 @@ async fn serve(
                             let Some(o) = opened.as_ref() else {
                                 return End::Closed;
                             };
-                            if on && feed.is_none() {
+                            if on && !raw_feed {
+                                raw_feed = true;
                                 feed = Some(o.bus.attach(
                                     o.client,
                                     AttachOptions {
@@ -602,7 +568,11 @@ async fn serve(
                                 ));
                                 feed_from = Instant::now() + RAW_SETTLE;
                             } else if !on {
-                                feed = None;
+                                // BCM mode: only the subscribed frames.
+                                raw_feed = false;
+                                feed = bcm_feed(o, &bcm);
+                                fed = feed_ids(&bcm);
+                                feed_from = Instant::now();
                             }
                             if let Err(e) = writer.write(b"< ok >").await {
                                 return e;
@@ -612,35 +582,57 @@ async fn serve(
                             let Some(o) = opened.as_mut() else {
                                 return End::Closed;
                             };
-                            let mut refused = Vec::new();
-                            if let Some(p) = in_flight.take() {
-                                let outcome = tokio::select! {
-                                    biased;
-                                    _ = shutdown.cancelled() => return End::Shutdown,
-                                    r = p.outcome() => r,
-                                };
-                                refused.extend(sent(o, outcome).err());
-                            }
-                            let queued = tokio::select! {
-                                biased;
-                                _ = shutdown.cancelled() => return End::Shutdown,
-                                r = queue(o, frame) => r,
+                            let refused = match send_frame(o, frame, &mut in_flight, shutdown).await
+                            {
+                                Ok(r) => r,
+                                Err(e) => return e,
                             };
-                            match queued {
-                                // Known at once: refused before the queue,
-                                // or sent right away (an unpaced virtual bus).
-                                Ok(mut p) => match p.try_outcome() {
-                                    Some(outcome) => refused.extend(sent(o, outcome).err()),
-                                    None => in_flight = Some(p),
-                                },
-                                Err(message) => refused.push(message),
-                            }
                             for message in refused {
                                 if let Err(e) =
                                     writer.write(format_error(&message).as_bytes()).await
                                 {
                                     return e;
                                 }
+                            }
+                        }
+                        Action::Bcm(command) => {
+                            let Some(o) = opened.as_mut() else {
+                                return End::Closed;
+                            };
+                            let now = started.elapsed();
+                            let result = match command {
+                                BcmCommand::Add { .. } | BcmCommand::Update(_)
+                                    if o.role < Role::Engineer =>
+                                {
+                                    Err(format!(
+                                        "cyclic transmission needs role engineer; {} holds role {}",
+                                        o.who,
+                                        o.role.as_str()
+                                    ))
+                                }
+                                BcmCommand::Add { interval, frame } => {
+                                    bcm.add(frame, interval, now)
+                                }
+                                BcmCommand::Update(frame) => bcm.update(frame),
+                                BcmCommand::Delete(id) => bcm.delete(id),
+                                BcmCommand::Receive { id, mask, throttle } => {
+                                    bcm.receive(id, mask, throttle)
+                                }
+                                BcmCommand::Unsubscribe(id) => bcm.unsubscribe(id),
+                            };
+                            if session.mode() == Mode::Bcm {
+                                let ids = feed_ids(&bcm);
+                                if ids != fed {
+                                    feed = bcm_feed(o, &bcm);
+                                    feed_from = Instant::now();
+                                    fed = ids;
+                                }
+                            }
+                            if let Err(message) = result
+                                && let Err(e) =
+                                    writer.write(format_error(&message).as_bytes()).await
+                            {
+                                return e;
                             }
                         }
                     }
@@ -798,4 +790,75 @@ fn sent(o: &Opened, outcome: Result<(), SendFailure>) -> Result<(), String> {
             Err(f.error.to_string())
         }
     }
+}
+
+/// Sends one frame of the session (a `send`, or a cyclic job's frame) with
+/// one frame in flight: waits for the last one's outcome first. The
+/// refusals to report (of the last frame, of this one).
+async fn send_frame(
+    o: &mut Opened,
+    frame: Frame,
+    in_flight: &mut Option<PendingSend>,
+    shutdown: &CancellationToken,
+) -> Result<Vec<String>, End> {
+    let mut refused = Vec::new();
+    if let Some(p) = in_flight.take() {
+        let outcome = tokio::select! {
+            biased;
+            _ = shutdown.cancelled() => return Err(End::Shutdown),
+            r = p.outcome() => r,
+        };
+        refused.extend(sent(o, outcome).err());
+    }
+    let queued = tokio::select! {
+        biased;
+        _ = shutdown.cancelled() => return Err(End::Shutdown),
+        r = queue(o, frame) => r,
+    };
+    match queued {
+        // Known at once: refused before the queue, or sent right away (an
+        // unpaced virtual bus).
+        Ok(mut p) => match p.try_outcome() {
+            Some(outcome) => refused.extend(sent(o, outcome).err()),
+            None => *in_flight = Some(p),
+        },
+        Err(message) => refused.push(message),
+    }
+    Ok(refused)
+}
+
+/// The identifiers BCM mode receives.
+fn feed_ids(bcm: &Bcm) -> Vec<cangate_can::CanId> {
+    bcm.receive_ids()
+}
+
+/// BCM mode's feed: the frames of the subscribed identifiers (none
+/// without a subscription).
+fn bcm_feed(o: &Opened, bcm: &Bcm) -> Option<Subscription> {
+    let ids = bcm.receive_ids();
+    if ids.is_empty() {
+        return None;
+    }
+    let filters = ids
+        .into_iter()
+        .map(|id| cangate_can::Filter {
+            id: id.raw(),
+            mask: if id.is_extended() { 0x1FFF_FFFF } else { 0x7FF },
+            extended: Some(id.is_extended()),
+            inverted: false,
+        })
+        .collect();
+    Some(o.bus.attach(
+        o.client,
+        AttachOptions {
+            selector: FrameSelector {
+                filters,
+                error_frames: false,
+                transmitted: true,
+            },
+            receive_own: false,
+            fd: o.bus.info().fd,
+            queue: o.queue,
+        },
+    ))
 }

@@ -42,9 +42,12 @@
 //! - **Modes.** `< hi >` greets; after `open` the session is in BCM mode,
 //!   where `send` and `echo` work; `< rawmode >` starts the frame feed,
 //!   `< bcmmode >` stops it; both answer `< ok >` (also when already in
-//!   that mode, where socketcand says "unknown command"). The BCM jobs
-//!   (`add`, `update`, `delete`, `filter`, `muxfilter`, `subscribe`,
-//!   `unsubscribe`), `< controlmode >`, `< isotpmode >` and the bus
+//!   that mode, where socketcand says "unknown command"). In BCM mode the
+//!   jobs `add`, `update`, `delete`, `filter`, `subscribe` and
+//!   `unsubscribe` run as [`super::bcm`] describes (silent on success, as
+//!   socketcand; `< error … >` when malformed or refused); in raw mode
+//!   they are answered with `< error … >` naming `< bcmmode >`.
+//!   `muxfilter`, `< controlmode >`, `< isotpmode >` and the bus
 //!   configuration commands (`< can0 B … >`, `< can0 C … >`) are answered
 //!   with `< error … >` naming them as not supported. `< echo >` is
 //!   answered with itself in every mode.
@@ -138,9 +141,39 @@ pub enum Command {
     Echo,
     /// `< send … >` or `< sendfd … >`.
     Send(Frame),
-    /// A socketcand command the gateway does not implement (BCM jobs,
+    /// A BCM job or receive operation.
+    Bcm(BcmCommand),
+    /// A socketcand command the gateway does not implement (`muxfilter`,
     /// control and ISO-TP modes, bus configuration).
     NotSupported(&'static str),
+}
+
+/// A BCM mode command (see [`super::bcm`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum BcmCommand {
+    /// `< add secs usecs id dlc data… >`.
+    Add {
+        /// The interval.
+        interval: std::time::Duration,
+        /// The frame.
+        frame: Frame,
+    },
+    /// `< update id dlc data… >`.
+    Update(Frame),
+    /// `< delete id >`.
+    Delete(CanId),
+    /// `< subscribe secs usecs id >` (`mask` `None`) or
+    /// `< filter secs usecs id dlc mask… >`.
+    Receive {
+        /// The identifier.
+        id: CanId,
+        /// The content mask of a filter.
+        mask: Option<Vec<u8>>,
+        /// The throttle interval (zero: none).
+        throttle: std::time::Duration,
+    },
+    /// `< unsubscribe id >`.
+    Unsubscribe(CanId),
 }
 
 /// Why a command was not understood; the text goes into `< error … >`.
@@ -154,16 +187,8 @@ pub enum ParseError {
     Syntax(String),
 }
 
-/// The BCM mode jobs of socketcand.
-const BCM_COMMANDS: &[&str] = &[
-    "add",
-    "update",
-    "delete",
-    "filter",
-    "muxfilter",
-    "subscribe",
-    "unsubscribe",
-];
+/// The BCM mode commands of socketcand the gateway does not implement.
+const BCM_COMMANDS: &[&str] = &["muxfilter"];
 
 /// Reads one element (brackets included) as a command.
 ///
@@ -216,8 +241,46 @@ pub fn parse(element: &[u8]) -> Result<Command, ParseError> {
         "echo" => no_args(Command::Echo),
         "controlmode" => no_args(Command::NotSupported("controlmode")),
         "isotpmode" => no_args(Command::NotSupported("isotpmode")),
-        "send" => parse_send(args, false).map(Command::Send),
-        "sendfd" => parse_send(args, true).map(Command::Send),
+        "send" => parse_send("send", args, false).map(Command::Send),
+        "sendfd" => parse_send("sendfd", args, true).map(Command::Send),
+        "add" => match args {
+            [secs, usecs, frame @ ..] => Ok(Command::Bcm(BcmCommand::Add {
+                interval: interval("add", secs, usecs)?,
+                frame: parse_send("add", frame, false)?,
+            })),
+            _ => Err(syntax("add needs secs usecs id dlc data…")),
+        },
+        "update" => parse_send("update", args, false).map(|f| Command::Bcm(BcmCommand::Update(f))),
+        "delete" => match args {
+            [id] => Ok(Command::Bcm(BcmCommand::Delete(parse_id("delete", id)?))),
+            _ => Err(syntax("delete needs an id")),
+        },
+        "unsubscribe" => match args {
+            [id] => Ok(Command::Bcm(BcmCommand::Unsubscribe(parse_id(
+                "unsubscribe",
+                id,
+            )?))),
+            _ => Err(syntax("unsubscribe needs an id")),
+        },
+        "subscribe" => match args {
+            [secs, usecs, id] => Ok(Command::Bcm(BcmCommand::Receive {
+                id: parse_id("subscribe", id)?,
+                mask: None,
+                throttle: interval("subscribe", secs, usecs)?,
+            })),
+            _ => Err(syntax("subscribe needs secs usecs id")),
+        },
+        "filter" => match args {
+            [secs, usecs, frame @ ..] => {
+                let mask = parse_send("filter", frame, false)?;
+                Ok(Command::Bcm(BcmCommand::Receive {
+                    id: mask.id(),
+                    mask: Some(mask.data().to_vec()),
+                    throttle: interval("filter", secs, usecs)?,
+                }))
+            }
+            _ => Err(syntax("filter needs secs usecs id dlc mask…")),
+        },
         "statistics" => Ok(Command::NotSupported("statistics")),
         "isotpconf" => Ok(Command::NotSupported("isotpconf")),
         "sendpdu" => Ok(Command::NotSupported("sendpdu")),
@@ -239,18 +302,40 @@ fn syntax(message: impl Into<String>) -> ParseError {
     ParseError::Syntax(message.into())
 }
 
-/// `id len data…` of `send` (classic) or `sendfd` (CAN FD).
-fn parse_send(args: &[&str], fd: bool) -> Result<Frame, ParseError> {
-    let cmd = if fd { "sendfd" } else { "send" };
-    let [id, len, data @ ..] = args else {
-        return Err(syntax(format!("{cmd} needs an id and a length")));
+/// `secs usecs` of a BCM command (decimal, as socketcand's `%llu`).
+fn interval(cmd: &str, secs: &str, usecs: &str) -> Result<std::time::Duration, ParseError> {
+    let number = |w: &str| {
+        (!w.is_empty() && w.len() <= 12 && w.bytes().all(|b| b.is_ascii_digit()))
+            .then(|| w.parse::<u64>().ok())
+            .flatten()
     };
+    match (number(secs), number(usecs)) {
+        (Some(s), Some(u)) => {
+            Ok(std::time::Duration::from_secs(s) + std::time::Duration::from_micros(u))
+        }
+        _ => Err(syntax(format!(
+            "{cmd}: the interval must be decimal seconds and microseconds"
+        ))),
+    }
+}
+
+/// A hexadecimal identifier, extended when written with 8 digits (as
+/// socketcand reads it).
+fn parse_id(cmd: &str, id: &str) -> Result<CanId, ParseError> {
     if id.is_empty() || id.len() > 8 || !id.bytes().all(|b| b.is_ascii_hexdigit()) {
         return Err(syntax(format!("{cmd}: bad identifier {}", clip(id))));
     }
     let raw = u32::from_str_radix(id, 16).map_err(|_| syntax(format!("{cmd}: bad identifier")))?;
-    // socketcand: an id written with 8 digits is extended.
-    let can_id = CanId::new(raw, id.len() == 8).map_err(|e| syntax(format!("{cmd}: {e}")))?;
+    CanId::new(raw, id.len() == 8).map_err(|e| syntax(format!("{cmd}: {e}")))
+}
+
+/// `id len data…` of `send` (classic) or `sendfd` (CAN FD), and of the
+/// BCM commands that carry a frame (`cmd` names the command).
+fn parse_send(cmd: &str, args: &[&str], fd: bool) -> Result<Frame, ParseError> {
+    let [id, len, data @ ..] = args else {
+        return Err(syntax(format!("{cmd} needs an id and a length")));
+    };
+    let can_id = parse_id(cmd, id)?;
     let len: usize = if len.len() <= 2 && len.bytes().all(|b| b.is_ascii_digit()) {
         len.parse().unwrap_or(usize::MAX)
     } else {
@@ -360,6 +445,8 @@ pub enum Action {
     Send(Frame),
     /// Start (true) or stop the frame feed, then write `< ok >`.
     Feed(bool),
+    /// A BCM job or receive operation for the session's [`super::bcm::Bcm`].
+    Bcm(BcmCommand),
     /// Write this line and close the connection.
     Close(String),
 }
@@ -422,9 +509,13 @@ impl Session {
                 Action::Feed(false)
             }
             (_, Command::Send(frame)) => Action::Send(frame),
-            (_, Command::NotSupported(what)) => Action::Reply(format_error(&format!(
-                "{what} is not supported by cangate (it serves raw mode only)"
-            ))),
+            (Mode::Bcm, Command::Bcm(c)) => Action::Bcm(c),
+            (_, Command::Bcm(_)) => Action::Reply(format_error(
+                "BCM jobs and subscriptions work in BCM mode (send bcmmode first)",
+            )),
+            (_, Command::NotSupported(what)) => {
+                Action::Reply(format_error(&format!("{what} is not supported by cangate")))
+            }
         }
     }
 }
@@ -695,9 +786,50 @@ mod tests {
         );
         assert_eq!(
             s.on_element(b"< subscribe 0 0 123 >"),
+            Action::Bcm(BcmCommand::Receive {
+                id: id(0x123, false),
+                mask: None,
+                throttle: std::time::Duration::ZERO
+            })
+        );
+        assert_eq!(
+            s.on_element(b"< add 1 500000 12345678 2 11 22 >"),
+            Action::Bcm(BcmCommand::Add {
+                interval: std::time::Duration::from_millis(1500),
+                frame: Frame::new(id(0x1234_5678, true), &[0x11, 0x22]).unwrap()
+            })
+        );
+        assert_eq!(
+            s.on_element(b"< filter 0 20000 123 2 FF 00 >"),
+            Action::Bcm(BcmCommand::Receive {
+                id: id(0x123, false),
+                mask: Some(vec![0xFF, 0]),
+                throttle: std::time::Duration::from_millis(20)
+            })
+        );
+        assert_eq!(
+            s.on_element(b"< update 123 1 42 >"),
+            Action::Bcm(BcmCommand::Update(
+                Frame::new(id(0x123, false), &[0x42]).unwrap()
+            ))
+        );
+        assert_eq!(
+            s.on_element(b"< delete 123 >"),
+            Action::Bcm(BcmCommand::Delete(id(0x123, false)))
+        );
+        assert_eq!(
+            s.on_element(b"< unsubscribe 123 >"),
+            Action::Bcm(BcmCommand::Unsubscribe(id(0x123, false)))
+        );
+        assert_eq!(
+            s.on_element(b"< add 0 x 123 0 >"),
             Action::Reply(
-                "< error subscribe is not supported by cangate (it serves raw mode only) >".into()
+                "< error add: the interval must be decimal seconds and microseconds >".into()
             )
+        );
+        assert_eq!(
+            s.on_element(b"< muxfilter 0 0 123 2 FF >"),
+            Action::Reply("< error muxfilter is not supported by cangate >".into())
         );
         assert_eq!(s.on_element(b"< rawmode >"), Action::Feed(true));
         assert_eq!(s.mode(), Mode::Raw);

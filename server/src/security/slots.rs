@@ -1,0 +1,117 @@
+//! Connection slots of the text-protocol endpoints (socketcand, CiA 309-3):
+//! at most `max` connections and `per_peer` from one address, where idle
+//! connections that never authenticate give their slot to a newcomer, so
+//! they cannot lock out a client with a token.
+
+use std::sync::Arc;
+use tokio_util::sync::CancellationToken;
+
+/// The connections that hold a slot of an endpoint, for the admission of
+/// new ones ([`Slots::admit`]).
+#[derive(Debug, Default)]
+pub struct Slots {
+    inner: std::sync::Mutex<SlotList>,
+}
+
+#[derive(Debug, Default)]
+struct SlotList {
+    next_id: u64,
+    /// Oldest first.
+    slots: Vec<Slot>,
+}
+
+#[derive(Debug)]
+struct Slot {
+    id: u64,
+    peer: std::net::IpAddr,
+    /// The client authenticated (opened a bus, logged in): never given up
+    /// for a newcomer.
+    opened: bool,
+    /// Fired when the slot is given to a newcomer.
+    evict: CancellationToken,
+}
+
+/// A connection's slot; freed when dropped.
+#[derive(Debug)]
+pub struct SlotGuard {
+    slots: Arc<Slots>,
+    id: u64,
+    /// Fires when the connection gave its slot up (see [`Slots::admit`]).
+    evicted: CancellationToken,
+}
+
+impl SlotGuard {
+    /// Fires when the connection gave its slot up to a newcomer.
+    pub fn evicted(&self) -> &CancellationToken {
+        &self.evicted
+    }
+
+    /// The connection authenticated (opened a bus, logged in): it keeps
+    /// its slot.
+    pub fn opened(&self) {
+        let mut list = self.slots.lock();
+        if let Some(s) = list.slots.iter_mut().find(|s| s.id == self.id) {
+            s.opened = true;
+        }
+    }
+}
+
+impl Drop for SlotGuard {
+    fn drop(&mut self) {
+        self.slots.lock().slots.retain(|s| s.id != self.id);
+    }
+}
+
+impl Slots {
+    fn lock(&self) -> std::sync::MutexGuard<'_, SlotList> {
+        self.inner.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// A slot for a new connection from `peer`, within `max` connections
+    /// and `per_peer` from one address. When one of them is reached, the
+    /// oldest connection that has not opened a bus (from that address,
+    /// for `per_peer`) gives its slot up: idle connections that never
+    /// authenticate cannot lock out a client that does. Refused (with the
+    /// setting to name) when every counted connection has a bus open.
+    pub fn admit(
+        self: &Arc<Self>,
+        peer: std::net::IpAddr,
+        max: usize,
+        per_peer: usize,
+    ) -> Result<SlotGuard, String> {
+        let mut list = self.lock();
+        let evict_oldest = |list: &mut SlotList, from: Option<std::net::IpAddr>| {
+            let i = list
+                .slots
+                .iter()
+                .position(|s| !s.opened && from.is_none_or(|p| s.peer == p))?;
+            let victim = list.slots.remove(i);
+            victim.evict.cancel();
+            Some(())
+        };
+        if list.slots.iter().filter(|s| s.peer == peer).count() >= per_peer
+            && evict_oldest(&mut list, Some(peer)).is_none()
+        {
+            return Err(format!(
+                "too many connections from {peer} (max_connections_per_peer = {per_peer})"
+            ));
+        }
+        if list.slots.len() >= max && evict_oldest(&mut list, None).is_none() {
+            return Err(format!("too many connections (max_connections = {max})"));
+        }
+        list.next_id += 1;
+        let id = list.next_id;
+        let evicted = CancellationToken::new();
+        list.slots.push(Slot {
+            id,
+            peer,
+            opened: false,
+            evict: evicted.clone(),
+        });
+        Ok(SlotGuard {
+            slots: self.clone(),
+            id,
+            evicted,
+        })
+    }
+}
