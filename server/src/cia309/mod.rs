@@ -818,6 +818,9 @@ fn error_answer(seq: u32, e: CanopenError, lss: Option<&Lss>) -> String {
                 let code = AbortCode(0x0504_0000);
                 protocol::format_abort(seq, code.get(), code.name())
             }
+            // The interface gave the request up: the gateway could not
+            // carry the command out now.
+            e @ SdoError::NotSent { .. } => error(ErrorCode::INTERNAL_STATE, Some(e.to_string())),
         },
         CanopenError::Send(f) => match f.error {
             cangate_can::SendError::BusOff(_) => error(ErrorCode::BUS_OFF, Some(f.to_string())),
