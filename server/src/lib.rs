@@ -6,8 +6,7 @@
 //!
 //! 1. **API edge**: [`serve`] starts the gRPC server (services, health,
 //!    reflection, the [`security`] and [`metrics`] layers, the Prometheus
-//!    endpoint) and stops it; [`grpc`] holds the services, every protobuf
-//!    conversion, the stream forwarding and the one mapping of errors to
+//!    endpoint) and stops it; [`grpc`] holds the services, the stream forwarding and the one mapping of errors to
 //!    gRPC statuses (`grpc::error::ApiError` exists only there);
 //!    [`socketcand`] is a second edge beside gRPC (the socketcand text
 //!    protocol for tools that speak it), under the same security; [`web`]
@@ -24,6 +23,8 @@
 //! 3. **Configuration**: [`config`], one file per section, validated before
 //!    anything starts; it names nothing else of the server.
 //!
+//! [`convert`] (every conversion between the runtime's types and the
+//! protobuf messages) is shared by the edges that speak protobuf.
 //! [`realtime`] (thread priorities) is used by the runtime's threads;
 //! [`participants`] (who each client sender on a bus is) is the runtime's
 //! register that every edge letting clients send shares.
@@ -38,6 +39,7 @@ pub mod axis_runner;
 pub mod canopen;
 pub mod cansmc;
 pub mod config;
+pub mod convert;
 pub mod gateway;
 pub mod grpc;
 pub mod handwheel;

@@ -27,6 +27,7 @@ const LAYERS: &[(&str, u8)] = &[
     ("gateway", 1),
     ("traffic_log", 1),
     ("metrics", 2),
+    ("convert", 2),
     ("security", 2),
     ("grpc", EDGE),
     ("socketcand", EDGE),
