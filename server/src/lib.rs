@@ -10,7 +10,8 @@
 //!    gRPC statuses (`grpc::error::ApiError` exists only there);
 //!    [`socketcand`] is a second edge beside gRPC (the socketcand text
 //!    protocol for tools that speak it), under the same security; [`web`]
-//!    serves the embedded dashboard's static files on the gRPC listener.
+//!    serves the embedded dashboard's static files on the gRPC listener;
+//!    [`bridge`] publishes the gateway's streams to MQTT brokers.
 //!    The edges never name each other; only [`serve`] names them all.
 //! 2. **Runtime**: [`gateway`] is the registry that starts and holds the
 //!    buses and everything on them: the CANopen masters ([`canopen`]), the
@@ -36,6 +37,7 @@
 
 pub mod axes;
 pub mod axis_runner;
+pub mod bridge;
 pub mod canopen;
 pub mod cansmc;
 pub mod config;

@@ -31,6 +31,7 @@ const LAYERS: &[(&str, u8)] = &[
     ("security", 2),
     ("grpc", EDGE),
     ("socketcand", EDGE),
+    ("bridge", EDGE),
     ("web", EDGE),
     ("serve", 4),
 ];
