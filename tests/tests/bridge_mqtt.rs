@@ -602,3 +602,158 @@ async fn node_events_through_the_bridge_equal_the_grpc_stream() {
     );
     server.shutdown();
 }
+
+/// A simulated handwheel (node 10) and a drive as axis X (node 1).
+const WHEEL_AND_AXIS: &str = r#"
+[[canopen.node]]
+id = 10
+eds = "builtin:handwheel"
+simulate = true
+
+[[canopen.node]]
+id = 1
+eds = "builtin:drive"
+simulate = true
+
+[[handwheel]]
+name = "hw1"
+bus = "can0"
+node = 10
+counter = "nibble"
+
+[[axis]]
+name = "X"
+bus = "can0"
+node = 1
+counts_per_unit = 1000.0
+max_velocity = 100.0
+max_acceleration = 1000.0
+"#;
+
+/// `config` with the wheel and the axis (their sections after the bridge's
+/// own keys would belong to it, so they go before).
+fn config_with_wheel(url: &str, gateway: &str, extra: &str) -> String {
+    let base = config(url, gateway, extra);
+    let (head, bridge) = base.split_once("[[bridge]]").unwrap();
+    format!("{head}{WHEEL_AND_AXIS}\n[[bridge]]{bridge}")
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_handwheel_feed_through_the_bridge_equals_the_grpc_stream() {
+    if !can_run("the_handwheel_feed_through_the_bridge_equals_the_grpc_stream") {
+        return;
+    }
+    let broker = Broker::start("feed");
+    let mut rx = subscribe(
+        broker.port,
+        "feed-pb",
+        "cangate/v1/pb/m5/handwheel/hw1/feed",
+    );
+    wait_subscribed(broker.port, &mut rx, "cangate/v1/pb/m5/handwheel/hw1/feed").await;
+    let server = start(&config_with_wheel(
+        &broker.url(),
+        "m5",
+        "streams = [\"handwheel_feed\"]\nformats = [\"pb\"]",
+    ))
+    .await;
+    let c = client(&server).await;
+    let mut wheels = pb::handwheels_client::HandwheelsClient::new(c.channel());
+    // A wheel feeds in manual mode only.
+    wheels
+        .set_mode(pb::SetModeRequest {
+            handwheel: "hw1".into(),
+            mode: pb::HandwheelMode::Manual as i32,
+        })
+        .await
+        .unwrap();
+    let mut grpc = wheels
+        .stream_feed(pb::StreamFeedRequest {
+            handwheels: vec!["hw1".into()],
+            coalesce_ms: 0,
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    pb::simulator_client::SimulatorClient::new(c.channel())
+        .turn_handwheel(pb::TurnHandwheelRequest {
+            handwheel: "hw1".into(),
+            detents: 40,
+            axis: pb::WheelAxis::X as i32,
+            multiplier: 1,
+            loss: 0.0,
+            max_consecutive_loss: 0,
+        })
+        .await
+        .unwrap();
+    let units = |evs: &[pb::FeedEvent]| evs.iter().map(|e| e.units).sum::<u32>();
+    let mut from_grpc = Vec::new();
+    while units(&from_grpc) < 40 {
+        let ev = tokio::time::timeout(DEADLINE, grpc.message())
+            .await
+            .expect("a feed event in time")
+            .unwrap()
+            .expect("the stream goes on");
+        from_grpc.push(ev);
+    }
+    let mut from_bridge = Vec::new();
+    let mut seqs = Vec::new();
+    while from_bridge.len() < from_grpc.len() {
+        let (_, env) = next(&mut rx).await;
+        let Some(pb::bridge_envelope::Payload::Feed(ev)) = env.payload else {
+            continue;
+        };
+        seqs.push(env.seq);
+        if ev.timestamp_us >= from_grpc[0].timestamp_us {
+            from_bridge.push(ev);
+        }
+    }
+    assert_eq!(from_bridge, from_grpc);
+    assert_eq!(seqs, (1..=seqs.len() as u64).collect::<Vec<_>>());
+    server.shutdown();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_gateways_axes_are_seen_by_one_consumer() {
+    if !can_run("two_gateways_axes_are_seen_by_one_consumer") {
+        return;
+    }
+    let broker = Broker::start("fleet");
+    let extra = "streams = [\"axis_state\"]\naxis_state_interval_ms = 50";
+    let g1 = start(&config_with_wheel(&broker.url(), "g1", extra)).await;
+    let g2 = start(&config_with_wheel(&broker.url(), "g2", extra)).await;
+    // The retained state of each gateway's axis X, in JSON: mosquitto_sub
+    // gets the retained messages of both at once (waiting, by the
+    // protobuf tree, until both are there first).
+    let mut rx = subscribe(broker.port, "fleet-pb", "cangate/v1/pb/+/axis/+/state");
+    let mut seen = BTreeSet::new();
+    while seen.len() < 2 {
+        let (topic, env) = next(&mut rx).await;
+        if let Some(pb::bridge_envelope::Payload::AxisStatus(s)) = &env.payload {
+            assert_eq!(topic, format!("cangate/v1/pb/{}/axis/X/state", env.gateway));
+            assert_eq!(s.axis, "X");
+            seen.insert(env.gateway.clone());
+        }
+    }
+    let out = Command::new("mosquitto_sub")
+        .args(["-h", "127.0.0.1", "-p", &broker.port.to_string()])
+        .args(["-t", "cangate/v1/json/+/axis/+/state", "-C", "2", "-v"])
+        .output()
+        .expect("mosquitto_sub runs");
+    let text = String::from_utf8(out.stdout).unwrap();
+    let gateways: BTreeSet<String> = text
+        .lines()
+        .map(|l| {
+            let (topic, json) = l.split_once(' ').unwrap();
+            let v: serde_json::Value = serde_json::from_str(json).unwrap();
+            assert_eq!(v["axisStatus"]["axis"], "X", "{l}");
+            assert!(topic.ends_with("/axis/X/state"), "{topic}");
+            v["gateway"].as_str().unwrap().to_string()
+        })
+        .collect();
+    assert_eq!(
+        gateways,
+        BTreeSet::from(["g1".to_string(), "g2".to_string()])
+    );
+    g1.shutdown();
+    g2.shutdown();
+}

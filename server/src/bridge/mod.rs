@@ -13,6 +13,7 @@
 pub mod queue;
 mod tls;
 
+use crate::axis_runner::AxisUpdate;
 use crate::config::{BridgeConfig, BridgeFormat, BridgeStream};
 use crate::convert::bus::{bus_info_to_pb, item_to_pb};
 use crate::convert::canopen::node_event_to_pb;
@@ -53,6 +54,7 @@ enum Source {
     Message {
         stream: String,
         acked: bool,
+        retain: bool,
         timestamp_ns: u64,
         payload: Box<pb::bridge_envelope::Payload>,
     },
@@ -221,6 +223,20 @@ fn start_sources(
     shutdown: &CancellationToken,
 ) {
     let wanted = |bus: &str| b.buses.is_empty() || b.buses.iter().any(|n| n == bus);
+    let state = b.streams.contains(&BridgeStream::AxisState);
+    let events = b.streams.contains(&BridgeStream::AxisEvents);
+    if state || events {
+        let m = gateway.axes().clone();
+        let streams = AxisStreams {
+            wanted: (0..m.len())
+                .map(|i| b.axes.is_empty() || b.axes.iter().any(|a| a == m.name(i)))
+                .collect(),
+            state_every: state.then(|| Duration::from_millis(b.axis_state_interval_ms)),
+            events,
+        };
+        let rx = m.subscribe();
+        tokio::spawn(axes(m, rx, streams, tx.clone(), shutdown.clone()));
+    }
     for &stream in &b.streams {
         match stream {
             BridgeStream::NodeEvents => {
@@ -234,6 +250,23 @@ fn start_sources(
                 for h in gateway.buses().filter(|h| wanted(h.name())) {
                     let every = Duration::from_millis(b.stats_interval_ms);
                     tokio::spawn(bus_stats(h.clone(), every, tx.clone(), shutdown.clone()));
+                }
+            }
+            BridgeStream::AxisState | BridgeStream::AxisEvents => {}
+            BridgeStream::HandwheelFeed => {
+                let wheels = gateway.handwheels().clone();
+                let rx = wheels.subscribe();
+                tokio::spawn(handwheel_feed(wheels, rx, tx.clone(), shutdown.clone()));
+            }
+            BridgeStream::CansmcStatus => {
+                for m in gateway.cansmc_masters() {
+                    let every = Duration::from_millis(b.stats_interval_ms);
+                    tokio::spawn(cansmc_status(
+                        m.clone(),
+                        every,
+                        tx.clone(),
+                        shutdown.clone(),
+                    ));
                 }
             }
             BridgeStream::Frames => {
@@ -252,6 +285,181 @@ fn start_sources(
                     tokio::spawn(frames(bus, sub, batching, tx.clone(), shutdown.clone()));
                 }
             }
+        }
+    }
+}
+
+/// What of the axes a bridge publishes.
+struct AxisStreams {
+    /// Per axis index: published or not.
+    wanted: Vec<bool>,
+    /// Shortest time between two states of one axis.
+    state_every: Option<Duration>,
+    events: bool,
+}
+
+/// The axes' states (retained, at most one per `state_every` and axis,
+/// only when changed: the latest is published when the time comes) and
+/// events. A state that came too soon waits for the axis's next turn, so
+/// the last state of a move is always published.
+async fn axes(
+    axes: Arc<crate::axes::Axes>,
+    mut rx: tokio::sync::broadcast::Receiver<AxisUpdate>,
+    streams: AxisStreams,
+    tx: mpsc::Sender<Source>,
+    shutdown: CancellationToken,
+) {
+    use crate::convert::axes::{event_pb, status_pb};
+    use tokio::sync::broadcast::error::RecvError;
+    use tokio::time::Instant;
+    let n = axes.len();
+    let mut last_sent: Vec<Option<Arc<cangate_axis::cia402::AxisSnapshot>>> = vec![None; n];
+    let mut next_at: Vec<Instant> = vec![Instant::now(); n];
+    type Latest = Option<(
+        Arc<cangate_axis::cia402::AxisSnapshot>,
+        cangate_can::Timestamp,
+    )>;
+    // The current state first, so a consumer sees every axis at once (an
+    // axis at rest sends no new state).
+    let mut pending: Vec<Latest> = (0..n)
+        .map(|i| {
+            (streams.wanted[i] && streams.state_every.is_some())
+                .then(|| axes.latest(i))
+                .flatten()
+        })
+        .collect();
+    loop {
+        let due = (0..n)
+            .filter(|&i| pending[i].is_some())
+            .map(|i| next_at[i])
+            .min();
+        let received = tokio::select! {
+            biased;
+            _ = shutdown.cancelled() => return,
+            _ = async { tokio::time::sleep_until(due.unwrap()).await }, if due.is_some() => None,
+            r = rx.recv() => Some(r),
+        };
+        let mut out = Vec::new();
+        match received {
+            Some(Ok(AxisUpdate::Status { axis, snapshot, at }))
+                if streams.wanted[axis]
+                    && streams.state_every.is_some()
+                    && last_sent[axis].as_deref() != Some(snapshot.as_ref()) =>
+            {
+                pending[axis] = Some((snapshot, at));
+            }
+            Some(Ok(AxisUpdate::Event { axis, at, event }))
+                if streams.wanted[axis] && streams.events =>
+            {
+                let ev = event_pb(&axes, axis, at, event);
+                out.push(Source::Message {
+                    stream: format!("axis/{}/event", axes.name(axis)),
+                    acked: true,
+                    retain: false,
+                    timestamp_ns: at.0,
+                    payload: Box::new(pb::bridge_envelope::Payload::AxisEvent(ev)),
+                });
+            }
+            // Which axes the lost updates were of is unknown: states are
+            // superseded by the next, events are counted here.
+            Some(Err(RecvError::Lagged(k))) if streams.events => out.push(Source::Lost {
+                stream: "axis_events".into(),
+                n: k,
+            }),
+            Some(Err(RecvError::Closed)) => return,
+            _ => {}
+        }
+        let now = Instant::now();
+        if let Some(every) = streams.state_every {
+            for i in 0..n {
+                if next_at[i] <= now
+                    && let Some((snapshot, at)) = pending[i].take()
+                {
+                    let st = status_pb(&axes, i, Some(&snapshot), at);
+                    last_sent[i] = Some(snapshot);
+                    next_at[i] = now + every;
+                    out.push(Source::Message {
+                        stream: format!("axis/{}/state", axes.name(i)),
+                        acked: true,
+                        retain: true,
+                        timestamp_ns: at.0,
+                        payload: Box::new(pb::bridge_envelope::Payload::AxisStatus(st)),
+                    });
+                }
+            }
+        }
+        for source in out {
+            if tx.send(source).await.is_err() {
+                return;
+            }
+        }
+    }
+}
+
+/// The handwheels' feed events, one stream per wheel.
+async fn handwheel_feed(
+    wheels: Arc<crate::handwheel::Handwheels>,
+    mut rx: tokio::sync::broadcast::Receiver<crate::handwheel::WheelFeed>,
+    tx: mpsc::Sender<Source>,
+    shutdown: CancellationToken,
+) {
+    use crate::convert::handwheel::event_pb;
+    use tokio::sync::broadcast::error::RecvError;
+    loop {
+        let received = tokio::select! {
+            biased;
+            _ = shutdown.cancelled() => return,
+            r = rx.recv() => r,
+        };
+        let source = match received {
+            Ok(f) => {
+                let ev = event_pb(&wheels, &f);
+                Source::Message {
+                    stream: format!("handwheel/{}/feed", ev.handwheel),
+                    acked: true,
+                    retain: false,
+                    timestamp_ns: f.at.0,
+                    payload: Box::new(pb::bridge_envelope::Payload::Feed(ev)),
+                }
+            }
+            Err(RecvError::Lagged(n)) => Source::Lost {
+                stream: "handwheel_feed".into(),
+                n,
+            },
+            Err(RecvError::Closed) => return,
+        };
+        if tx.send(source).await.is_err() {
+            return;
+        }
+    }
+}
+
+/// The status of one CANsmc master, every `every`.
+async fn cansmc_status(
+    master: crate::cansmc::CansmcMaster,
+    every: Duration,
+    tx: mpsc::Sender<Source>,
+    shutdown: CancellationToken,
+) {
+    let stream = format!("cansmc/{}/status", master.name());
+    let mut tick = tokio::time::interval(every);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tokio::select! {
+            biased;
+            _ = shutdown.cancelled() => return,
+            _ = tick.tick() => {}
+        }
+        let status = crate::convert::cansmc::status_pb(&master, &master.status());
+        let source = Source::Message {
+            stream: stream.clone(),
+            acked: true,
+            retain: false,
+            timestamp_ns: now_ns(),
+            payload: Box::new(pb::bridge_envelope::Payload::CansmcStatus(status)),
+        };
+        if tx.send(source).await.is_err() {
+            return;
         }
     }
 }
@@ -276,6 +484,7 @@ async fn node_events(
                 Source::Message {
                     stream: format!("bus/{bus}/node/{}/event", ev.node.get()),
                     acked: true,
+                    retain: false,
                     timestamp_ns: msg.timestamp_ns,
                     payload: Box::new(pb::bridge_envelope::Payload::NodeEvent(msg)),
                 }
@@ -314,6 +523,7 @@ async fn bus_stats(
         let source = Source::Message {
             stream: stream.clone(),
             acked: true,
+            retain: false,
             timestamp_ns: now_ns(),
             payload: Box::new(pb::bridge_envelope::Payload::Bus(info)),
         };
@@ -415,6 +625,7 @@ async fn frames(
         let source = Source::Message {
             stream: stream.clone(),
             acked: false,
+            retain: false,
             timestamp_ns,
             payload: Box::new(pb::bridge_envelope::Payload::Frames(
                 pb::StreamFramesResponse { events: batch },
@@ -546,11 +757,12 @@ impl Publisher {
             Source::Message {
                 stream,
                 acked,
+                retain,
                 timestamp_ns,
                 payload,
             } => {
                 let (format, identity) = (self.format, &self.identity);
-                self.queue.push(&stream, acked, false, |seq| {
+                self.queue.push(&stream, acked, retain, |seq| {
                     encode(
                         format,
                         &identity.envelope(&stream, seq, timestamp_ns, *payload),

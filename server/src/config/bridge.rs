@@ -49,9 +49,17 @@ pub struct BridgeConfig {
     /// Longest time a frame waits for its batch, ms (default 100).
     #[serde(default = "default_frame_batch_ms")]
     pub frame_batch_ms: u64,
-    /// Period of the `stats` stream, ms (default 1000).
+    /// Period of the `bus_stats` and `cansmc_status` streams, ms (default
+    /// 1000).
     #[serde(default = "default_stats_interval_ms")]
     pub stats_interval_ms: u64,
+    /// Shortest time between two states of one axis on `axis_state`, ms
+    /// (default 100).
+    #[serde(default = "default_axis_state_interval_ms")]
+    pub axis_state_interval_ms: u64,
+    /// The axes whose state and events are published (empty: every axis).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub axes: Vec<String>,
     /// MQTT user name.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub username: Option<String>,
@@ -82,6 +90,16 @@ pub enum BridgeStream {
     Frames,
     /// The state and counters of each bus (`bus/<bus>/stats`).
     BusStats,
+    /// Each axis's live state (`axis/<name>/state`, retained; at most one
+    /// per `axis_state_interval_ms`, when it changed).
+    AxisState,
+    /// Each axis's events (`axis/<name>/event`).
+    AxisEvents,
+    /// Each handwheel's feed events (`handwheel/<name>/feed`).
+    HandwheelFeed,
+    /// Each CANsmc master's status (`cansmc/<master>/status`, every
+    /// `stats_interval_ms`).
+    CansmcStatus,
 }
 
 /// A payload format: its own topic tree.
@@ -121,6 +139,9 @@ fn default_frame_batch_ms() -> u64 {
 }
 fn default_stats_interval_ms() -> u64 {
     1000
+}
+fn default_axis_state_interval_ms() -> u64 {
+    100
 }
 
 /// The broker address of a bridge URL.
@@ -219,9 +240,13 @@ impl BridgeConfig {
                 "[[bridge]] {name:?}: queue_size must be at least 1"
             ));
         }
-        if self.frame_batch_ms == 0 || self.stats_interval_ms == 0 {
+        if self.frame_batch_ms == 0
+            || self.stats_interval_ms == 0
+            || self.axis_state_interval_ms == 0
+        {
             return Err(format!(
-                "[[bridge]] {name:?}: frame_batch_ms and stats_interval_ms must be at least 1"
+                "[[bridge]] {name:?}: frame_batch_ms, stats_interval_ms and \
+                 axis_state_interval_ms must be at least 1"
             ));
         }
         if self.cert.is_some() != self.key.is_some() {
@@ -296,6 +321,10 @@ mod tests {
                 "unknown variant",
             ),
             ("url = \"mqtt://h\"\nformats = []", "formats is empty"),
+            (
+                "url = \"mqtt://h\"\naxis_state_interval_ms = 0",
+                "at least 1",
+            ),
             ("url = \"mqtt://h\"\nqueue_size = 0", "queue_size"),
             (
                 "url = \"mqtt://h\"\nframe_filters = [\"12x\"]",

@@ -293,6 +293,15 @@ impl Config {
                     )));
                 }
             }
+            let axes = self.axis_specs().unwrap_or_default();
+            for a in &b.axes {
+                if !axes.iter().any(|s| &s.name == a) {
+                    return Err(Section::Bridge.error(format!(
+                        "[[bridge]] {:?}: axes names {a:?}, which is not configured",
+                        b.name
+                    )));
+                }
+            }
         }
         Ok(())
     }

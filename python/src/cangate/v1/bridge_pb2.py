@@ -22,23 +22,26 @@ _runtime_version.ValidateProtobufRuntimeVersion(
 _sym_db = _symbol_database.Default()
 
 
+from cangate.v1 import axes_pb2 as cangate_dot_v1_dot_axes__pb2
 from cangate.v1 import bus_pb2 as cangate_dot_v1_dot_bus__pb2
 from cangate.v1 import canopen_pb2 as cangate_dot_v1_dot_canopen__pb2
+from cangate.v1 import cansmc_pb2 as cangate_dot_v1_dot_cansmc__pb2
+from cangate.v1 import handwheel_pb2 as cangate_dot_v1_dot_handwheel__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x17\x63\x61ngate/v1/bridge.proto\x12\ncangate.v1\x1a\x14\x63\x61ngate/v1/bus.proto\x1a\x18\x63\x61ngate/v1/canopen.proto\"\xc6\x02\n\x0e\x42ridgeEnvelope\x12\x0f\n\x07gateway\x18\x01 \x01(\t\x12\r\n\x05\x65poch\x18\x02 \x01(\x04\x12\x0e\n\x06stream\x18\x03 \x01(\t\x12\x0b\n\x03seq\x18\x04 \x01(\x04\x12\x14\n\x0ctimestamp_ns\x18\x05 \x01(\x04\x12+\n\x06status\x18\n \x01(\x0b\x32\x19.cangate.v1.GatewayStatusH\x00\x12+\n\nnode_event\x18\x0b \x01(\x0b\x32\x15.cangate.v1.NodeEventH\x00\x12\x32\n\x06\x66rames\x18\x0c \x01(\x0b\x32 .cangate.v1.StreamFramesResponseH\x00\x12\"\n\x03\x62us\x18\r \x01(\x0b\x32\x13.cangate.v1.BusInfoH\x00\x12$\n\x03gap\x18\x0e \x01(\x0b\x32\x15.cangate.v1.BridgeGapH\x00\x42\t\n\x07payload\"r\n\rGatewayStatus\x12\x0e\n\x06online\x18\x01 \x01(\x08\x12\x0f\n\x07gateway\x18\x02 \x01(\t\x12\x0f\n\x07version\x18\x03 \x01(\t\x12\r\n\x05\x62uses\x18\x04 \x03(\t\x12\x0c\n\x04\x61xes\x18\x05 \x03(\t\x12\x12\n\nstarted_ns\x18\x06 \x01(\x04\"v\n\tBridgeGap\x12\x0e\n\x06stream\x18\x01 \x01(\t\x12\x11\n\tfirst_seq\x18\x02 \x01(\x04\x12\x10\n\x08last_seq\x18\x03 \x01(\x04\x12\r\n\x05\x63ount\x18\x04 \x01(\x04\x12%\n\x06reason\x18\x05 \x01(\x0e\x32\x15.cangate.v1.GapReason*`\n\tGapReason\x12\x1a\n\x16GAP_REASON_UNSPECIFIED\x10\x00\x12\x19\n\x15GAP_REASON_QUEUE_FULL\x10\x01\x12\x1c\n\x18GAP_REASON_SOURCE_LAGGED\x10\x02\x62\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x17\x63\x61ngate/v1/bridge.proto\x12\ncangate.v1\x1a\x15\x63\x61ngate/v1/axes.proto\x1a\x14\x63\x61ngate/v1/bus.proto\x1a\x18\x63\x61ngate/v1/canopen.proto\x1a\x17\x63\x61ngate/v1/cansmc.proto\x1a\x1a\x63\x61ngate/v1/handwheel.proto\"\xfc\x03\n\x0e\x42ridgeEnvelope\x12\x0f\n\x07gateway\x18\x01 \x01(\t\x12\r\n\x05\x65poch\x18\x02 \x01(\x04\x12\x0e\n\x06stream\x18\x03 \x01(\t\x12\x0b\n\x03seq\x18\x04 \x01(\x04\x12\x14\n\x0ctimestamp_ns\x18\x05 \x01(\x04\x12+\n\x06status\x18\n \x01(\x0b\x32\x19.cangate.v1.GatewayStatusH\x00\x12+\n\nnode_event\x18\x0b \x01(\x0b\x32\x15.cangate.v1.NodeEventH\x00\x12\x32\n\x06\x66rames\x18\x0c \x01(\x0b\x32 .cangate.v1.StreamFramesResponseH\x00\x12\"\n\x03\x62us\x18\r \x01(\x0b\x32\x13.cangate.v1.BusInfoH\x00\x12$\n\x03gap\x18\x0e \x01(\x0b\x32\x15.cangate.v1.BridgeGapH\x00\x12-\n\x0b\x61xis_status\x18\x0f \x01(\x0b\x32\x16.cangate.v1.AxisStatusH\x00\x12+\n\naxis_event\x18\x10 \x01(\x0b\x32\x15.cangate.v1.AxisEventH\x00\x12%\n\x04\x66\x65\x65\x64\x18\x11 \x01(\x0b\x32\x15.cangate.v1.FeedEventH\x00\x12\x31\n\rcansmc_status\x18\x12 \x01(\x0b\x32\x18.cangate.v1.CansmcStatusH\x00\x42\t\n\x07payload\"r\n\rGatewayStatus\x12\x0e\n\x06online\x18\x01 \x01(\x08\x12\x0f\n\x07gateway\x18\x02 \x01(\t\x12\x0f\n\x07version\x18\x03 \x01(\t\x12\r\n\x05\x62uses\x18\x04 \x03(\t\x12\x0c\n\x04\x61xes\x18\x05 \x03(\t\x12\x12\n\nstarted_ns\x18\x06 \x01(\x04\"v\n\tBridgeGap\x12\x0e\n\x06stream\x18\x01 \x01(\t\x12\x11\n\tfirst_seq\x18\x02 \x01(\x04\x12\x10\n\x08last_seq\x18\x03 \x01(\x04\x12\r\n\x05\x63ount\x18\x04 \x01(\x04\x12%\n\x06reason\x18\x05 \x01(\x0e\x32\x15.cangate.v1.GapReason*`\n\tGapReason\x12\x1a\n\x16GAP_REASON_UNSPECIFIED\x10\x00\x12\x19\n\x15GAP_REASON_QUEUE_FULL\x10\x01\x12\x1c\n\x18GAP_REASON_SOURCE_LAGGED\x10\x02\x62\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
 _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'cangate.v1.bridge_pb2', _globals)
 if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
-  _globals['_GAPREASON']._serialized_start=652
-  _globals['_GAPREASON']._serialized_end=748
-  _globals['_BRIDGEENVELOPE']._serialized_start=88
-  _globals['_BRIDGEENVELOPE']._serialized_end=414
-  _globals['_GATEWAYSTATUS']._serialized_start=416
-  _globals['_GATEWAYSTATUS']._serialized_end=530
-  _globals['_BRIDGEGAP']._serialized_start=532
-  _globals['_BRIDGEGAP']._serialized_end=650
+  _globals['_GAPREASON']._serialized_start=910
+  _globals['_GAPREASON']._serialized_end=1006
+  _globals['_BRIDGEENVELOPE']._serialized_start=164
+  _globals['_BRIDGEENVELOPE']._serialized_end=672
+  _globals['_GATEWAYSTATUS']._serialized_start=674
+  _globals['_GATEWAYSTATUS']._serialized_end=788
+  _globals['_BRIDGEGAP']._serialized_start=790
+  _globals['_BRIDGEGAP']._serialized_end=908
 # @@protoc_insertion_point(module_scope)

@@ -1,5 +1,8 @@
+from cangate.v1 import axes_pb2 as _axes_pb2
 from cangate.v1 import bus_pb2 as _bus_pb2
 from cangate.v1 import canopen_pb2 as _canopen_pb2
+from cangate.v1 import cansmc_pb2 as _cansmc_pb2
+from cangate.v1 import handwheel_pb2 as _handwheel_pb2
 from google.protobuf.internal import containers as _containers
 from google.protobuf.internal import enum_type_wrapper as _enum_type_wrapper
 from google.protobuf import descriptor as _descriptor
@@ -19,7 +22,7 @@ GAP_REASON_QUEUE_FULL: GapReason
 GAP_REASON_SOURCE_LAGGED: GapReason
 
 class BridgeEnvelope(_message.Message):
-    __slots__ = ("gateway", "epoch", "stream", "seq", "timestamp_ns", "status", "node_event", "frames", "bus", "gap")
+    __slots__ = ("gateway", "epoch", "stream", "seq", "timestamp_ns", "status", "node_event", "frames", "bus", "gap", "axis_status", "axis_event", "feed", "cansmc_status")
     GATEWAY_FIELD_NUMBER: _ClassVar[int]
     EPOCH_FIELD_NUMBER: _ClassVar[int]
     STREAM_FIELD_NUMBER: _ClassVar[int]
@@ -30,6 +33,10 @@ class BridgeEnvelope(_message.Message):
     FRAMES_FIELD_NUMBER: _ClassVar[int]
     BUS_FIELD_NUMBER: _ClassVar[int]
     GAP_FIELD_NUMBER: _ClassVar[int]
+    AXIS_STATUS_FIELD_NUMBER: _ClassVar[int]
+    AXIS_EVENT_FIELD_NUMBER: _ClassVar[int]
+    FEED_FIELD_NUMBER: _ClassVar[int]
+    CANSMC_STATUS_FIELD_NUMBER: _ClassVar[int]
     gateway: str
     epoch: int
     stream: str
@@ -40,7 +47,11 @@ class BridgeEnvelope(_message.Message):
     frames: _bus_pb2.StreamFramesResponse
     bus: _bus_pb2.BusInfo
     gap: BridgeGap
-    def __init__(self, gateway: _Optional[str] = ..., epoch: _Optional[int] = ..., stream: _Optional[str] = ..., seq: _Optional[int] = ..., timestamp_ns: _Optional[int] = ..., status: _Optional[_Union[GatewayStatus, _Mapping]] = ..., node_event: _Optional[_Union[_canopen_pb2.NodeEvent, _Mapping]] = ..., frames: _Optional[_Union[_bus_pb2.StreamFramesResponse, _Mapping]] = ..., bus: _Optional[_Union[_bus_pb2.BusInfo, _Mapping]] = ..., gap: _Optional[_Union[BridgeGap, _Mapping]] = ...) -> None: ...
+    axis_status: _axes_pb2.AxisStatus
+    axis_event: _axes_pb2.AxisEvent
+    feed: _handwheel_pb2.FeedEvent
+    cansmc_status: _cansmc_pb2.CansmcStatus
+    def __init__(self, gateway: _Optional[str] = ..., epoch: _Optional[int] = ..., stream: _Optional[str] = ..., seq: _Optional[int] = ..., timestamp_ns: _Optional[int] = ..., status: _Optional[_Union[GatewayStatus, _Mapping]] = ..., node_event: _Optional[_Union[_canopen_pb2.NodeEvent, _Mapping]] = ..., frames: _Optional[_Union[_bus_pb2.StreamFramesResponse, _Mapping]] = ..., bus: _Optional[_Union[_bus_pb2.BusInfo, _Mapping]] = ..., gap: _Optional[_Union[BridgeGap, _Mapping]] = ..., axis_status: _Optional[_Union[_axes_pb2.AxisStatus, _Mapping]] = ..., axis_event: _Optional[_Union[_axes_pb2.AxisEvent, _Mapping]] = ..., feed: _Optional[_Union[_handwheel_pb2.FeedEvent, _Mapping]] = ..., cansmc_status: _Optional[_Union[_cansmc_pb2.CansmcStatus, _Mapping]] = ...) -> None: ...
 
 class GatewayStatus(_message.Message):
     __slots__ = ("online", "gateway", "version", "buses", "axes", "started_ns")

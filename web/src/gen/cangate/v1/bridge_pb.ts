@@ -19,17 +19,23 @@
 
 import type { GenEnum, GenFile, GenMessage } from "@bufbuild/protobuf/codegenv2";
 import { enumDesc, fileDesc, messageDesc } from "@bufbuild/protobuf/codegenv2";
+import type { AxisEvent, AxisStatus } from "./axes_pb";
+import { file_cangate_v1_axes } from "./axes_pb";
 import type { BusInfo, StreamFramesResponse } from "./bus_pb";
 import { file_cangate_v1_bus } from "./bus_pb";
 import type { NodeEvent } from "./canopen_pb";
 import { file_cangate_v1_canopen } from "./canopen_pb";
+import type { CansmcStatus } from "./cansmc_pb";
+import { file_cangate_v1_cansmc } from "./cansmc_pb";
+import type { FeedEvent } from "./handwheel_pb";
+import { file_cangate_v1_handwheel } from "./handwheel_pb";
 import type { Message } from "@bufbuild/protobuf";
 
 /**
  * Describes the file cangate/v1/bridge.proto.
  */
 export const file_cangate_v1_bridge: GenFile = /*@__PURE__*/
-  fileDesc("ChdjYW5nYXRlL3YxL2JyaWRnZS5wcm90bxIKY2FuZ2F0ZS52MSLGAgoOQnJpZGdlRW52ZWxvcGUSDwoHZ2F0ZXdheRgBIAEoCRINCgVlcG9jaBgCIAEoBBIOCgZzdHJlYW0YAyABKAkSCwoDc2VxGAQgASgEEhQKDHRpbWVzdGFtcF9ucxgFIAEoBBIrCgZzdGF0dXMYCiABKAsyGS5jYW5nYXRlLnYxLkdhdGV3YXlTdGF0dXNIABIrCgpub2RlX2V2ZW50GAsgASgLMhUuY2FuZ2F0ZS52MS5Ob2RlRXZlbnRIABIyCgZmcmFtZXMYDCABKAsyIC5jYW5nYXRlLnYxLlN0cmVhbUZyYW1lc1Jlc3BvbnNlSAASIgoDYnVzGA0gASgLMhMuY2FuZ2F0ZS52MS5CdXNJbmZvSAASJAoDZ2FwGA4gASgLMhUuY2FuZ2F0ZS52MS5CcmlkZ2VHYXBIAEIJCgdwYXlsb2FkInIKDUdhdGV3YXlTdGF0dXMSDgoGb25saW5lGAEgASgIEg8KB2dhdGV3YXkYAiABKAkSDwoHdmVyc2lvbhgDIAEoCRINCgVidXNlcxgEIAMoCRIMCgRheGVzGAUgAygJEhIKCnN0YXJ0ZWRfbnMYBiABKAQidgoJQnJpZGdlR2FwEg4KBnN0cmVhbRgBIAEoCRIRCglmaXJzdF9zZXEYAiABKAQSEAoIbGFzdF9zZXEYAyABKAQSDQoFY291bnQYBCABKAQSJQoGcmVhc29uGAUgASgOMhUuY2FuZ2F0ZS52MS5HYXBSZWFzb24qYAoJR2FwUmVhc29uEhoKFkdBUF9SRUFTT05fVU5TUEVDSUZJRUQQABIZChVHQVBfUkVBU09OX1FVRVVFX0ZVTEwQARIcChhHQVBfUkVBU09OX1NPVVJDRV9MQUdHRUQQAmIGcHJvdG8z", [file_cangate_v1_bus, file_cangate_v1_canopen]);
+  fileDesc("ChdjYW5nYXRlL3YxL2JyaWRnZS5wcm90bxIKY2FuZ2F0ZS52MSL8AwoOQnJpZGdlRW52ZWxvcGUSDwoHZ2F0ZXdheRgBIAEoCRINCgVlcG9jaBgCIAEoBBIOCgZzdHJlYW0YAyABKAkSCwoDc2VxGAQgASgEEhQKDHRpbWVzdGFtcF9ucxgFIAEoBBIrCgZzdGF0dXMYCiABKAsyGS5jYW5nYXRlLnYxLkdhdGV3YXlTdGF0dXNIABIrCgpub2RlX2V2ZW50GAsgASgLMhUuY2FuZ2F0ZS52MS5Ob2RlRXZlbnRIABIyCgZmcmFtZXMYDCABKAsyIC5jYW5nYXRlLnYxLlN0cmVhbUZyYW1lc1Jlc3BvbnNlSAASIgoDYnVzGA0gASgLMhMuY2FuZ2F0ZS52MS5CdXNJbmZvSAASJAoDZ2FwGA4gASgLMhUuY2FuZ2F0ZS52MS5CcmlkZ2VHYXBIABItCgtheGlzX3N0YXR1cxgPIAEoCzIWLmNhbmdhdGUudjEuQXhpc1N0YXR1c0gAEisKCmF4aXNfZXZlbnQYECABKAsyFS5jYW5nYXRlLnYxLkF4aXNFdmVudEgAEiUKBGZlZWQYESABKAsyFS5jYW5nYXRlLnYxLkZlZWRFdmVudEgAEjEKDWNhbnNtY19zdGF0dXMYEiABKAsyGC5jYW5nYXRlLnYxLkNhbnNtY1N0YXR1c0gAQgkKB3BheWxvYWQicgoNR2F0ZXdheVN0YXR1cxIOCgZvbmxpbmUYASABKAgSDwoHZ2F0ZXdheRgCIAEoCRIPCgd2ZXJzaW9uGAMgASgJEg0KBWJ1c2VzGAQgAygJEgwKBGF4ZXMYBSADKAkSEgoKc3RhcnRlZF9ucxgGIAEoBCJ2CglCcmlkZ2VHYXASDgoGc3RyZWFtGAEgASgJEhEKCWZpcnN0X3NlcRgCIAEoBBIQCghsYXN0X3NlcRgDIAEoBBINCgVjb3VudBgEIAEoBBIlCgZyZWFzb24YBSABKA4yFS5jYW5nYXRlLnYxLkdhcFJlYXNvbipgCglHYXBSZWFzb24SGgoWR0FQX1JFQVNPTl9VTlNQRUNJRklFRBAAEhkKFUdBUF9SRUFTT05fUVVFVUVfRlVMTBABEhwKGEdBUF9SRUFTT05fU09VUkNFX0xBR0dFRBACYgZwcm90bzM", [file_cangate_v1_axes, file_cangate_v1_bus, file_cangate_v1_canopen, file_cangate_v1_cansmc, file_cangate_v1_handwheel]);
 
 /**
  * One message the bridge publishes.
@@ -56,7 +62,9 @@ export type BridgeEnvelope = Message<"cangate.v1.BridgeEnvelope"> & {
 
   /**
    * The stream: the topic below `<gateway>/` (`status`,
-   * `bus/can0/node/5/event`, `bus/can0/frames`, `bus/can0/stats`).
+   * `bus/can0/node/5/event`, `bus/can0/frames`, `bus/can0/stats`,
+   * `axis/X/state`, `axis/X/event`, `handwheel/hw1/feed`,
+   * `cansmc/smc/status`).
    *
    * @generated from field: string stream = 3;
    */
@@ -125,6 +133,41 @@ export type BridgeEnvelope = Message<"cangate.v1.BridgeEnvelope"> & {
      */
     value: BridgeGap;
     case: "gap";
+  } | {
+    /**
+     * An axis's live state (`…/axis/<name>/state`, retained; at most one
+     * per axis_state_interval_ms, and only when it changed).
+     *
+     * @generated from field: cangate.v1.AxisStatus axis_status = 15;
+     */
+    value: AxisStatus;
+    case: "axisStatus";
+  } | {
+    /**
+     * An axis event (`…/axis/<name>/event`).
+     *
+     * @generated from field: cangate.v1.AxisEvent axis_event = 16;
+     */
+    value: AxisEvent;
+    case: "axisEvent";
+  } | {
+    /**
+     * A handwheel feed event (`…/handwheel/<name>/feed`), as StreamFeed
+     * carries it.
+     *
+     * @generated from field: cangate.v1.FeedEvent feed = 17;
+     */
+    value: FeedEvent;
+    case: "feed";
+  } | {
+    /**
+     * A CANsmc master's status (`…/cansmc/<master>/status`, every
+     * stats_interval_ms).
+     *
+     * @generated from field: cangate.v1.CansmcStatus cansmc_status = 18;
+     */
+    value: CansmcStatus;
+    case: "cansmcStatus";
   } | { case: undefined; value?: undefined };
 };
 
