@@ -713,8 +713,8 @@ async fn the_handwheel_feed_through_the_bridge_equals_the_grpc_stream() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn two_gateways_axes_are_seen_by_one_consumer() {
-    if !can_run("two_gateways_axes_are_seen_by_one_consumer") {
+async fn two_gateways_are_listed_by_fleet_and_seen_by_one_consumer() {
+    if !can_run("two_gateways_are_listed_by_fleet_and_seen_by_one_consumer") {
         return;
     }
     let broker = Broker::start("fleet");

@@ -847,17 +847,32 @@ impl Publisher {
         {
             return;
         }
+        // The goodbye was handed last: its written report is the one that
+        // comes when the queue has none outstanding; the queue's own
+        // reports are still settled on the way.
         let acked = async {
+            let mut goodbye = None;
             while let Some(c) = conn_rx.recv().await {
                 match c {
-                    Connection::Event(g, Event::Incoming(Incoming::PubAck(_)))
-                        if g == generation => {}
+                    Connection::Event(g, Event::Outgoing(Outgoing::Publish(pkid)))
+                        if g == generation =>
+                    {
+                        if self.queue.handed() == 0 {
+                            goodbye = Some(pkid);
+                        } else {
+                            self.queue.on_written(pkid);
+                        }
+                    }
+                    Connection::Event(g, Event::Incoming(Incoming::PubAck(ack)))
+                        if g == generation =>
+                    {
+                        if goodbye == Some(ack.pkid) {
+                            return;
+                        }
+                        self.queue.on_acked(ack.pkid);
+                    }
                     Connection::Down(..) => return,
-                    _ => continue,
-                }
-                // Acknowledged in order: the goodbye was the last publish.
-                if self.queue.unsettled() == 0 {
-                    return;
+                    _ => {}
                 }
             }
         };

@@ -324,6 +324,11 @@ impl<T: Clone> Queue<T> {
         self.waiting.len()
     }
 
+    /// Publishes handed over and not yet reported written.
+    pub fn handed(&self) -> usize {
+        self.handed.len()
+    }
+
     /// Publishes handed over and not yet settled.
     pub fn unsettled(&self) -> usize {
         self.handed.len() + self.in_flight.len()
