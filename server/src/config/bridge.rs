@@ -309,6 +309,27 @@ mod tests {
     }
 
     #[test]
+    fn print_config_shows_the_password_file_never_a_password() {
+        let text = "[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\n\n[[bridge]]\n\
+                    name = \"plant\"\nurl = \"mqtt://h\"\ngateway = \"m1\"\n\
+                    username = \"m1\"\npassword_file = \"/run/secrets/mqtt\"\n";
+        let c = crate::config::Config::from_toml(text).unwrap();
+        let printed = c.to_toml();
+        assert!(
+            printed.contains("password_file = \"/run/secrets/mqtt\""),
+            "{printed}"
+        );
+        assert_eq!(crate::config::Config::from_toml(&printed).unwrap(), c);
+        let e = crate::config::Config::from_toml(&text.replace("password_file", "password"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("password"),
+            "a password in the file is refused: {e}"
+        );
+    }
+
+    #[test]
     fn unknown_keys_and_bad_values_are_refused() {
         let base = "name = \"p\"\ngateway = \"m1\"\n";
         for (extra, says) in [
