@@ -10,9 +10,19 @@
 //!   ones;
 //! - the gateway killed with SIGKILL: the last will marks it offline; the
 //!   next run has a new epoch and numbers from 1;
-//! - the node events through the bridge equal the gRPC stream's.
+//! - the node events and the handwheel feed through the bridge equal the
+//!   gRPC streams';
+//! - a Python consumer (paho-mqtt, `CANGATE_PYTHON` or `python3`) reads
+//!   the JSON tree in order;
+//! - two gateways into one broker: `cangate fleet` lists both, one
+//!   consumer sees both machines' axes.
 //!
 //! Every wait is for an event, bounded by a generous deadline.
+
+#[path = "common/python_peer.rs"]
+mod python_peer;
+#[path = "common/vcan.rs"]
+mod vcan;
 
 use cangate_client::pb;
 use cangate_tests::*;
@@ -756,4 +766,45 @@ async fn two_gateways_are_listed_by_fleet_and_seen_by_one_consumer() {
     );
     g1.shutdown();
     g2.shutdown();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_python_consumer_reads_the_json_tree_in_order() {
+    let test = "a_python_consumer_reads_the_json_tree_in_order";
+    if !can_run(test) {
+        return;
+    }
+    let Some(python) = python_peer::python_or_skip(test, &["paho.mqtt"]) else {
+        return;
+    };
+    let broker = Broker::start("python");
+    let port = broker.port.to_string();
+    let script = python_peer::script("mqtt_consumer.py");
+    let topic = "cangate/v1/json/m6/bus/can0/stats";
+    let mut consumer =
+        python_peer::Peer::spawn(&python, &script, &["127.0.0.1", &port, topic, "25"], &[])
+            .expect("python starts");
+    consumer
+        .expect_line("READY", DEADLINE)
+        .await
+        .expect("the consumer subscribed");
+    let server = start(&config(
+        &broker.url(),
+        "m6",
+        "streams = [\"bus_stats\"]\nformats = [\"json\"]\nstats_interval_ms = 20",
+    ))
+    .await;
+    let lines = consumer
+        .lines_until("DONE", DEADLINE)
+        .await
+        .expect("25 envelopes");
+    let seqs: Vec<u64> = lines
+        .iter()
+        .map(|l| {
+            let rest = l.strip_prefix("SEQ bus/can0/stats ").expect(l);
+            rest.parse().unwrap()
+        })
+        .collect();
+    assert_eq!(seqs, (1..=25).collect::<Vec<_>>());
+    server.shutdown();
 }
