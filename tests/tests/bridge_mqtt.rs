@@ -808,3 +808,85 @@ async fn a_python_consumer_reads_the_json_tree_in_order() {
     assert_eq!(seqs, (1..=25).collect::<Vec<_>>());
     server.shutdown();
 }
+
+/// A measurement, not a check: frames a second carried bus → bridge →
+/// mosquitto → subscriber (protobuf, batched at QoS 0), and whether any
+/// were lost. `cargo test -p cangate-tests --test bridge_mqtt
+/// measure_frames -- --ignored --nocapture`
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "a measurement; run by hand with --ignored --nocapture"]
+async fn measure_frames_through_the_bridge() {
+    if !can_run("measure_frames_through_the_bridge") {
+        return;
+    }
+    const FRAMES: usize = 200_000;
+    const BATCH: usize = 500;
+    let broker = Broker::start("measure");
+    let mut rx = subscribe(
+        broker.port,
+        "measure-pb",
+        "cangate/v1/pb/m7/bus/can0/frames",
+    );
+    wait_subscribed(broker.port, &mut rx, "cangate/v1/pb/m7/bus/can0/frames").await;
+    let server = start(&format!(
+        "[security.limits]\nraw_frames_per_second_per_client = 10000000\nraw_frame_burst = 1000000\n{}",
+        config(
+            &broker.url(),
+            "m7",
+            "streams = [\"frames\"]\nformats = [\"pb\"]\nframe_rate_limit = 0\nqueue_size = 100000",
+        )
+    ))
+    .await;
+    let c = client(&server).await;
+    let t0 = std::time::Instant::now();
+    let sender = tokio::spawn(async move {
+        let mut bus = c.bus_client();
+        for b in 0..FRAMES / BATCH {
+            let frames = (0..BATCH)
+                .map(|i| pb::Frame {
+                    id: 0x100 + ((b * BATCH + i) % 0x400) as u32,
+                    data: ((b * BATCH + i) as u64).to_le_bytes().to_vec(),
+                    ..Default::default()
+                })
+                .collect();
+            bus.send_frames(pb::SendFramesRequest {
+                bus: "can0".into(),
+                frames,
+            })
+            .await
+            .expect("frames sent");
+        }
+    });
+    let (mut frames, mut lost, mut messages, mut gaps) = (0u64, 0u64, 0u64, 0u64);
+    let mut seqs = Vec::new();
+    while frames + lost < FRAMES as u64 {
+        let (_, env) = match tokio::time::timeout(Duration::from_secs(10), rx.recv()).await {
+            Ok(Some(m)) => m,
+            _ => break,
+        };
+        match env.payload {
+            Some(pb::bridge_envelope::Payload::Frames(b)) => {
+                messages += 1;
+                seqs.push(env.seq);
+                for e in b.events {
+                    match e.event {
+                        Some(pb::stream_event::Event::Frame(_)) => frames += 1,
+                        Some(pb::stream_event::Event::Lost(l)) => lost += l.count,
+                        _ => {}
+                    }
+                }
+            }
+            Some(pb::bridge_envelope::Payload::Gap(g)) => gaps += g.count,
+            _ => {}
+        }
+    }
+    let secs = t0.elapsed().as_secs_f64();
+    sender.await.unwrap();
+    let missing_seqs = seqs.windows(2).filter(|w| w[1] != w[0] + 1).count();
+    println!(
+        "MEASURED {frames} frames in {messages} batches in {secs:.2} s: {:.0} frames/s, \
+         {lost} lost at the source, {gaps} batches in gap records, {missing_seqs} holes in seq",
+        frames as f64 / secs
+    );
+    server.shutdown();
+}
