@@ -19,6 +19,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "proto/cangate/v1/cansmc.proto",
         "proto/cangate/v1/session.proto",
         "proto/cangate/v1/lss.proto",
+        "proto/cangate/v1/bridge.proto",
     ];
     for f in &files {
         println!("cargo:rerun-if-changed={f}");

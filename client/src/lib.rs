@@ -57,6 +57,8 @@ mod canopen;
 mod cansmc;
 mod connect;
 mod error;
+#[cfg(feature = "fleet")]
+pub mod fleet;
 mod handwheel;
 mod lease;
 mod lss;

@@ -6,13 +6,13 @@
 //!
 //! 1. **API edge**: [`serve`] starts the gRPC server (services, health,
 //!    reflection, the [`security`] and [`metrics`] layers, the Prometheus
-//!    endpoint) and stops it; [`grpc`] holds the services, every protobuf
-//!    conversion, the stream forwarding and the one mapping of errors to
+//!    endpoint) and stops it; [`grpc`] holds the services, the stream forwarding and the one mapping of errors to
 //!    gRPC statuses (`grpc::error::ApiError` exists only there);
 //!    [`socketcand`] and [`cia309`] are edges beside gRPC (the socketcand
 //!    text protocol, CiA 309-3's ASCII gateway protocol, for tools that
 //!    speak them), under the same security; [`web`]
-//!    serves the embedded dashboard's static files on the gRPC listener.
+//!    serves the embedded dashboard's static files on the gRPC listener;
+//!    [`bridge`] publishes the gateway's streams to MQTT brokers.
 //!    The edges never name each other; only [`serve`] names them all.
 //! 2. **Runtime**: [`gateway`] is the registry that starts and holds the
 //!    buses and everything on them: the CANopen masters ([`canopen`]), the
@@ -25,6 +25,8 @@
 //! 3. **Configuration**: [`config`], one file per section, validated before
 //!    anything starts; it names nothing else of the server.
 //!
+//! [`convert`] (every conversion between the runtime's types and the
+//! protobuf messages) is shared by the edges that speak protobuf.
 //! [`realtime`] (thread priorities) is used by the runtime's threads;
 //! [`participants`] (who each client sender on a bus is) is the runtime's
 //! register that every edge letting clients send shares.
@@ -36,10 +38,12 @@
 
 pub mod axes;
 pub mod axis_runner;
+pub mod bridge;
 pub mod canopen;
 pub mod cansmc;
 pub mod cia309;
 pub mod config;
+pub mod convert;
 pub mod gateway;
 pub mod grpc;
 pub mod handwheel;

@@ -217,6 +217,26 @@ fn describe() {
         "cangate_socketcand_command_errors_total",
         "socketcand commands answered with an error, by kind (unknown, syntax, not_supported, too_long)."
     );
+    describe_counter!(
+        "cangate_bridge_published_total",
+        "Messages a bridge wrote to its broker, by bridge and format (QoS 0 when written, QoS 1 when acknowledged)."
+    );
+    describe_counter!(
+        "cangate_bridge_acknowledged_total",
+        "QoS 1 messages the broker acknowledged, by bridge and format."
+    );
+    describe_gauge!(
+        "cangate_bridge_queued",
+        "Messages a bridge holds (waiting, and sent but not yet acknowledged), by bridge and format."
+    );
+    describe_counter!(
+        "cangate_bridge_gap_messages_total",
+        "Messages a bridge did not publish (each covered by a gap record), by bridge, format and reason (queue_full, source_lagged)."
+    );
+    describe_gauge!(
+        "cangate_bridge_connected",
+        "1 while a bridge is connected to its broker, by bridge and format."
+    );
 }
 
 /// Counts `n` client raw frames of a refused (or part-sent) `SendFrames`
@@ -281,6 +301,46 @@ pub fn cia309_command(command: &'static str, result: &'static str) {
 /// `n` event lines a slow CiA 309-3 client missed.
 pub fn cia309_events_lost(bus: &str, n: u64) {
     metrics::counter!("cangate_cia309_events_lost_total", "bus" => bus.to_string()).increment(n);
+}
+
+/// The labels of one bridge connection (bridge name, format).
+fn bridge_labels(bridge: &str, format: &'static str) -> [(&'static str, String); 2] {
+    [
+        ("bridge", bridge.to_string()),
+        ("format", format.to_string()),
+    ]
+}
+
+/// `written` messages a bridge published at QoS 0 and `acknowledged` at
+/// QoS 1 that its broker acknowledged.
+pub fn bridge_settled(bridge: &str, format: &'static str, written: u64, acknowledged: u64) {
+    let labels = bridge_labels(bridge, format);
+    metrics::counter!("cangate_bridge_published_total", &labels).increment(written + acknowledged);
+    metrics::counter!("cangate_bridge_acknowledged_total", &labels).increment(acknowledged);
+}
+
+/// The messages a bridge holds now.
+pub fn bridge_queued(bridge: &str, format: &'static str, n: usize) {
+    metrics::gauge!("cangate_bridge_queued", &bridge_labels(bridge, format)).set(n as f64);
+}
+
+/// `n` messages a bridge did not publish, recorded in a gap.
+pub fn bridge_gap(bridge: &str, format: &'static str, reason: &'static str, n: u64) {
+    let [b, f] = bridge_labels(bridge, format);
+    metrics::counter!(
+        "cangate_bridge_gap_messages_total",
+        &[b, f, ("reason", reason.to_string())]
+    )
+    .increment(n);
+}
+
+/// Whether a bridge is connected to its broker.
+pub fn bridge_connected(bridge: &str, format: &'static str, up: bool) {
+    metrics::gauge!("cangate_bridge_connected", &bridge_labels(bridge, format)).set(if up {
+        1.0
+    } else {
+        0.0
+    });
 }
 
 /// Counts `n` items a gRPC stream subscriber missed because it was too

@@ -45,6 +45,9 @@ pub enum StartError {
     /// The TLS files could not be used.
     #[error("{0}")]
     Tls(#[from] crate::security::TlsError),
+    /// A broker bridge could not start.
+    #[error("{0}")]
+    Bridge(crate::bridge::BridgeError),
 }
 
 /// A started server.
@@ -63,6 +66,7 @@ pub struct RunningServer {
     bus_tasks: Vec<JoinHandle<()>>,
     socketcand: Option<JoinHandle<()>>,
     cia309: Option<JoinHandle<()>>,
+    bridges: Vec<JoinHandle<()>>,
     tls: Option<crate::security::TlsReloader>,
 }
 
@@ -124,6 +128,9 @@ impl RunningServer {
                 let _ = t.await;
             }
             if let Some(t) = self.cia309 {
+                let _ = t.await;
+            }
+            for t in self.bridges {
                 let _ = t.await;
             }
             for t in self.bus_tasks {
@@ -390,6 +397,14 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         }
         None => (None, None),
     };
+    // The broker bridges publish what the streams carry; a broker that is
+    // away is not a reason to refuse to start (they connect when it is
+    // there), a file they cannot read is.
+    let bridges = crate::bridge::start(&config.bridges, gateway.clone(), shutdown.clone())
+        .map_err(|e| {
+            shutdown.cancel();
+            StartError::Bridge(e)
+        })?;
     if config.security.authentication() && tls.is_none() && !addr.ip().is_loopback() {
         tracing::warn!(
             %addr,
@@ -417,6 +432,7 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         bus_tasks,
         socketcand,
         cia309,
+        bridges,
         tls,
     })
 }

@@ -27,10 +27,12 @@ const LAYERS: &[(&str, u8)] = &[
     ("gateway", 1),
     ("traffic_log", 1),
     ("metrics", 2),
+    ("convert", 2),
     ("security", 2),
     ("grpc", EDGE),
     ("socketcand", EDGE),
     ("cia309", EDGE),
+    ("bridge", EDGE),
     ("web", EDGE),
     ("serve", 4),
 ];

@@ -16,6 +16,7 @@ pub(crate) mod bus_writer;
 pub(crate) mod candump_log;
 pub(crate) mod dump;
 pub(crate) mod flash;
+pub(crate) mod fleet;
 pub(crate) mod generate;
 pub(crate) mod lease;
 pub(crate) mod lss;
@@ -192,6 +193,10 @@ pub(crate) enum Command {
     /// Layer setting services (CiA 305): find unconfigured devices
     /// (fastscan), give them node-IDs, inquire.
     Lss(lss::LssArgs),
+    /// The gateways an MQTT broker has seen (their plant bridges' retained
+    /// statuses): `cangate fleet --broker mqtt://broker:1883`. Needs no
+    /// gateway.
+    Fleet(fleet::FleetArgs),
     /// Buses: list, show.
     Bus(bus::BusArgs),
     /// Same as `bus list`.
@@ -576,6 +581,9 @@ pub(crate) async fn main() -> ExitCode {
 
 async fn run(cli: Cli) -> Result<()> {
     // Verbs that need no gateway.
+    if let Command::Fleet(a) = cli.command {
+        return fleet::run(a, cli.json).await;
+    }
     match &cli.command {
         Command::HashToken { token } => return hash_token(token.clone()),
         Command::Completions { shell } => {
@@ -622,7 +630,7 @@ async fn run(cli: Cli) -> Result<()> {
         Command::Sim(a) => sim::run(&app, a).await,
         Command::Smc(a) => smc::run(&app, a).await,
         Command::Whoami => whoami(&app).await,
-        Command::HashToken { .. } | Command::Completions { .. } => Ok(()),
+        Command::HashToken { .. } | Command::Completions { .. } | Command::Fleet(_) => Ok(()),
     }
 }
 

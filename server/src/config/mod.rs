@@ -17,6 +17,7 @@ use std::collections::{HashMap, HashSet};
 use std::net::SocketAddr;
 
 mod axis;
+mod bridge;
 mod bus;
 mod canopen;
 mod cansmc;
@@ -28,6 +29,7 @@ mod validate;
 mod web;
 
 pub use axis::*;
+pub use bridge::*;
 pub use bus::*;
 pub use canopen::*;
 pub use cansmc::*;
@@ -136,6 +138,10 @@ pub struct Config {
     /// CANsmc masters (dual-bus motion control), their slaves and axes.
     #[serde(default, rename = "cansmc", skip_serializing_if = "Vec::is_empty")]
     pub cansmc: Vec<CansmcConfig>,
+    /// Publishers of the gateway's streams to message brokers
+    /// (`[[bridge]]`, docs/bridge.md).
+    #[serde(default, rename = "bridge", skip_serializing_if = "Vec::is_empty")]
+    pub bridges: Vec<BridgeConfig>,
 }
 
 fn is_zero_u8(v: &u8) -> bool {
@@ -286,6 +292,8 @@ pub enum Section {
     Socketcand,
     /// `[cia309]`.
     Cia309,
+    /// `[[bridge]]`.
+    Bridge,
 }
 
 impl Section {

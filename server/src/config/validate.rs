@@ -300,6 +300,33 @@ impl Config {
                 )));
             }
         }
+        let mut bridges = HashSet::new();
+        for b in &self.bridges {
+            b.check().map_err(|m| Section::Bridge.error(m))?;
+            if !bridges.insert(b.name.as_str()) {
+                return Err(ConfigError::Duplicate {
+                    kind: "bridge",
+                    name: b.name.clone(),
+                });
+            }
+            for bus in &b.buses {
+                if !self.buses.iter().any(|c| &c.name == bus) {
+                    return Err(Section::Bridge.error(format!(
+                        "[[bridge]] {:?}: buses names {bus:?}, which is not configured",
+                        b.name
+                    )));
+                }
+            }
+            let axes = self.axis_specs().unwrap_or_default();
+            for a in &b.axes {
+                if !axes.iter().any(|s| &s.name == a) {
+                    return Err(Section::Bridge.error(format!(
+                        "[[bridge]] {:?}: axes names {a:?}, which is not configured",
+                        b.name
+                    )));
+                }
+            }
+        }
         Ok(())
     }
 }

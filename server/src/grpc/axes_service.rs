@@ -3,10 +3,10 @@
 //! identity and lease as a [`Caller`], conversion to protobuf. The control
 //! rules and the audit of commands are the runtime's.
 
-use super::convert::axes::{event_pb, outcome_pb, resolution, status_pb};
 use super::error::ApiError;
 use super::forward::{AtShutdown, MessageStream, Received, spawn_forward, stream_of};
 use crate::axes::{Axes, AxisUpdate, Caller, CommandResult};
+use crate::convert::axes::{event_pb, outcome_pb, resolution, status_pb};
 use crate::gateway::Gateway;
 use crate::security::StopOverBudget;
 use cangate_axis::cia402::AxisSnapshot;

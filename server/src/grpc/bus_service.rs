@@ -8,11 +8,10 @@
 
 use super::error::ApiError;
 use super::forward::{AtShutdown, Forward, Received, Source, spawn_forwarding};
-use crate::gateway::Gateway;
-use crate::grpc::convert::bus::{
-    bus_info_to_pb, filter_from_pb, frame_from_pb, item_to_attach_pb, item_to_pb,
-    send_refused_to_pb, status_to_pb,
+use crate::convert::bus::{
+    bus_info_to_pb, filter_from_pb, frame_from_pb, item_to_attach_pb, item_to_pb, status_to_pb,
 };
+use crate::gateway::Gateway;
 use crate::participants::{SenderGuard, SenderNames};
 use crate::security::{FrameBudget, StreamQueueBudget};
 use cangate_can::{
@@ -636,6 +635,31 @@ impl Bus for BusService {
         Ok(Response::new(Box::pin(
             tokio_stream::wrappers::ReceiverStream::new(rx),
         )))
+    }
+}
+
+/// A refused (or part-sent) AttachSend as its in-stream notice: the
+/// error's code, reason and metadata as the richer error model has them.
+fn send_refused_to_pb(
+    sequence: u64,
+    sent: usize,
+    total: usize,
+    error: &ApiError,
+) -> pb::AttachEvent {
+    pb::AttachEvent {
+        event: Some(pb::attach_event::Event::Refused(pb::SendRefused {
+            sequence,
+            sent: sent as u32,
+            total: total as u32,
+            code: error.code() as i32,
+            message: error.to_string(),
+            reason: error.reason(),
+            metadata: error
+                .metadata()
+                .into_iter()
+                .map(|(k, v)| (k.to_string(), v))
+                .collect(),
+        })),
     }
 }
 

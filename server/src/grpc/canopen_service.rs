@@ -1,10 +1,5 @@
 //! The `cangate.v1.Canopen` service: nodes, NMT, SDO, events.
 
-use super::convert::canopen::{
-    data_type_from_pb, node_event_to_pb, node_events_lost_to_pb, node_to_pb, object_info_to_pb,
-    pdo_from_pb, pdo_kind_from_pb, pdo_to_pb, program_outcome_to_pb, program_step_to_pb,
-    sdo_transfer_to_pb, value_from_pb, value_from_pb_as, value_to_pb,
-};
 use super::error::ApiError;
 use super::forward::{
     AtShutdown, Forward, MessageStream, Received, spawn_forward, spawn_forwarding, stream_of,
@@ -14,6 +9,11 @@ use crate::canopen::dcf_export::DcfExportError;
 use crate::canopen::pdo_config::PdoConfigError;
 use crate::canopen::program::{ProgramEvent, ProgramFailure, ProgramStartError};
 use crate::canopen::{CanopenBus, CanopenError, SyncChangeError, TimeSendError};
+use crate::convert::canopen::{
+    data_type_from_pb, node_event_to_pb, node_events_lost_to_pb, node_to_pb, object_info_to_pb,
+    pdo_from_pb, pdo_kind_from_pb, pdo_to_pb, program_outcome_to_pb, program_step_to_pb,
+    sdo_transfer_to_pb, value_from_pb, value_from_pb_as, value_to_pb,
+};
 use crate::gateway::Gateway;
 use cangate_canopen::eds::Eds;
 use cangate_canopen::master::SdoRequest;

@@ -2,10 +2,10 @@
 //! cycle timing and slaves, slave parameters, restarts
 //! (`proto/cangate/v1/cansmc.proto`).
 
-use super::convert::cansmc::{event_pb, master_info_pb, status_pb};
 use super::error::ApiError;
 use super::forward::{MessageStream, Received, recv_counted, stream_of};
 use crate::cansmc::CansmcMaster;
+use crate::convert::cansmc::{event_pb, master_info_pb, status_pb};
 use crate::gateway::Gateway;
 use cangate_cansmc::telegram::SmcAddress;
 use cangate_proto::v1 as pb;

@@ -259,6 +259,18 @@ fn upper_snake(kind: &str) -> String {
     out
 }
 
+impl From<crate::convert::InvalidArgument> for ApiError {
+    fn from(e: crate::convert::InvalidArgument) -> Self {
+        ApiError::InvalidArgument(e.0)
+    }
+}
+
+impl From<crate::convert::InvalidArgument> for Status {
+    fn from(e: crate::convert::InvalidArgument) -> Self {
+        ApiError::from(e).into()
+    }
+}
+
 impl From<FrameError> for ApiError {
     fn from(e: FrameError) -> Self {
         ApiError::refused(

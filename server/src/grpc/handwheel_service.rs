@@ -1,10 +1,10 @@
 //! The `cangate.v1.Handwheels` and `cangate.v1.Simulator` services.
 
-use super::convert::handwheel::{event_pb, merge, wheel_pb};
 use super::error::ApiError;
 use super::forward::{
     MessageStream, Received, batches_of, broadcast_batches, recv_counted, stream_of,
 };
+use crate::convert::handwheel::{event_pb, merge, wheel_pb};
 use crate::gateway::Gateway;
 use crate::handwheel::{Handwheels, Mode, WheelFeed};
 use cangate_canopen::handwheel::HandwheelAxis;

@@ -4,7 +4,6 @@ pub mod axes_service;
 pub mod bus_service;
 pub mod canopen_service;
 pub mod cansmc_service;
-pub mod convert;
 pub mod error;
 mod forward;
 pub mod handwheel_service;

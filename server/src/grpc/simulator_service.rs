@@ -3,8 +3,8 @@
 //! type (`SimulatorService`) lives with the handwheels, whose wheels it
 //! turns; its methods call these.
 
-use super::convert::simulation::{device_pb, faults_pb};
 use super::error::ApiError;
+use crate::convert::simulation::{device_pb, faults_pb};
 use crate::gateway::Gateway;
 use crate::simulation::{BusFaults, SimulationError};
 use cangate_proto::v1 as pb;

@@ -1,7 +1,7 @@
 //! Conversions between the protobuf messages and the domain types. Generated
 //! types stop here: nothing below the gRPC layer sees them.
 
-use crate::grpc::error::ApiError;
+use super::InvalidArgument;
 use cangate_can::bus::{BackendKind, BusItem, BusStats, Direction};
 use cangate_can::{BusInfo, BusState, BusStatus, ClientId, Filter, Frame};
 use cangate_proto::v1 as pb;
@@ -51,20 +51,20 @@ pub fn frame_to_pb(
 }
 
 /// A protobuf filter to a domain filter.
-pub fn filter_from_pb(f: &pb::FrameFilter) -> Result<Filter, ApiError> {
+pub fn filter_from_pb(f: &pb::FrameFilter) -> Result<Filter, InvalidArgument> {
     let extended = match pb::IdFormat::try_from(f.format) {
         Ok(pb::IdFormat::Any) => None,
         Ok(pb::IdFormat::Standard) => Some(false),
         Ok(pb::IdFormat::Extended) => Some(true),
         Err(_) => {
-            return Err(ApiError::InvalidArgument(format!(
+            return Err(InvalidArgument(format!(
                 "filter format {} is not a known IdFormat",
                 f.format
             )));
         }
     };
     if f.id > cangate_can::frame::MAX_EXTENDED_ID || f.mask > cangate_can::frame::MAX_EXTENDED_ID {
-        return Err(ApiError::InvalidArgument(format!(
+        return Err(InvalidArgument(format!(
             "filter {:X}:{:X} has bits above the 29-bit identifier range",
             f.id, f.mask
         )));
@@ -157,29 +157,4 @@ pub fn item_to_attach_pb(
         BusItem::State(s) => Event::State(status_to_pb(*s, since_ns)),
     };
     pb::AttachEvent { event: Some(event) }
-}
-
-/// A refused (or part-sent) AttachSend as its in-stream notice: the
-/// error's code, reason and metadata as the richer error model has them.
-pub fn send_refused_to_pb(
-    sequence: u64,
-    sent: usize,
-    total: usize,
-    error: &ApiError,
-) -> pb::AttachEvent {
-    pb::AttachEvent {
-        event: Some(pb::attach_event::Event::Refused(pb::SendRefused {
-            sequence,
-            sent: sent as u32,
-            total: total as u32,
-            code: error.code() as i32,
-            message: error.to_string(),
-            reason: error.reason(),
-            metadata: error
-                .metadata()
-                .into_iter()
-                .map(|(k, v)| (k.to_string(), v))
-                .collect(),
-        })),
-    }
 }

@@ -2,8 +2,8 @@
 //! transfers, program download steps and outcomes, and object dictionary
 //! entries as protobuf messages, and typed values from them.
 
+use super::InvalidArgument;
 use crate::canopen::{NodeEvent, NodeEventKind, NodeSnapshot};
-use crate::grpc::error::ApiError;
 use cangate_can::Timestamp;
 use cangate_canopen::NodeId;
 use cangate_canopen::emcy::Emcy;
@@ -18,7 +18,7 @@ pub(crate) fn data_type_to_pb(t: DataType) -> pb::DataType {
     pb::DataType::try_from(t.code() as i32).unwrap_or(pb::DataType::Unspecified)
 }
 
-pub(crate) fn data_type_from_pb(t: i32) -> Result<Option<DataType>, ApiError> {
+pub(crate) fn data_type_from_pb(t: i32) -> Result<Option<DataType>, InvalidArgument> {
     if t == 0 {
         return Ok(None);
     }
@@ -26,9 +26,7 @@ pub(crate) fn data_type_from_pb(t: i32) -> Result<Option<DataType>, ApiError> {
         .ok()
         .and_then(DataType::from_code)
         .map(Some)
-        .ok_or_else(|| {
-            ApiError::InvalidArgument(format!("data type {t} is not a CiA 301 type code"))
-        })
+        .ok_or_else(|| InvalidArgument(format!("data type {t} is not a CiA 301 type code")))
 }
 
 /// A CANopen value to protobuf.
@@ -60,25 +58,26 @@ pub(crate) fn value_to_pb(v: &Value) -> pb::Value {
 }
 
 /// A protobuf value to a CANopen value, range-checked against its type.
-pub(crate) fn value_from_pb(v: &pb::Value) -> Result<Value, ApiError> {
+pub(crate) fn value_from_pb(v: &pb::Value) -> Result<Value, InvalidArgument> {
     use pb::value::Value as V;
     let ty = data_type_from_pb(v.r#type)?
-        .ok_or_else(|| ApiError::InvalidArgument("the value has no data type".into()))?;
-    let bad = |what: &str| {
-        ApiError::InvalidArgument(format!("a {what} value does not fit the data type {ty}"))
-    };
+        .ok_or_else(|| InvalidArgument("the value has no data type".into()))?;
+    let bad =
+        |what: &str| InvalidArgument(format!("a {what} value does not fit the data type {ty}"));
     let value = match (v.value.as_ref(), ty) {
         (Some(V::BoolValue(b)), DataType::Boolean) => Value::Boolean(*b),
-        (Some(V::IntValue(i)), t) if t.is_integer() => Value::from_integer(t, *i as i128)
-            .map_err(|e| ApiError::InvalidArgument(e.to_string()))?,
-        (Some(V::UintValue(u)), t) if t.is_integer() => Value::from_integer(t, *u as i128)
-            .map_err(|e| ApiError::InvalidArgument(e.to_string()))?,
+        (Some(V::IntValue(i)), t) if t.is_integer() => {
+            Value::from_integer(t, *i as i128).map_err(|e| InvalidArgument(e.to_string()))?
+        }
+        (Some(V::UintValue(u)), t) if t.is_integer() => {
+            Value::from_integer(t, *u as i128).map_err(|e| InvalidArgument(e.to_string()))?
+        }
         (Some(V::RealValue(f)), DataType::Real32) => Value::Real32(*f as f32),
         (Some(V::RealValue(f)), DataType::Real64) => Value::Real64(*f),
         (Some(V::StringValue(s)), DataType::VisibleString) => {
             let v = Value::VisibleString(s.clone());
             Value::decode(DataType::VisibleString, &v.encode())
-                .map_err(|e| ApiError::InvalidArgument(e.to_string()))?;
+                .map_err(|e| InvalidArgument(e.to_string()))?;
             v
         }
         (Some(V::StringValue(s)), DataType::UnicodeString) => Value::UnicodeString(s.clone()),
@@ -89,7 +88,7 @@ pub(crate) fn value_from_pb(v: &pb::Value) -> Result<Value, ApiError> {
         (Some(V::RealValue(_)), _) => return Err(bad("real")),
         (Some(V::StringValue(_)), _) => return Err(bad("string")),
         (Some(V::BytesValue(_)), _) => return Err(bad("bytes")),
-        (None, _) => return Err(ApiError::InvalidArgument("the value is empty".into())),
+        (None, _) => return Err(InvalidArgument("the value is empty".into())),
     };
     Ok(value)
 }
@@ -168,13 +167,13 @@ pub(crate) fn node_to_pb(bus: &str, n: &NodeSnapshot) -> pb::Node {
 /// A value given without a type (`Value.type` unspecified) as the EDS type
 /// `ty`: numbers, booleans and bytes converted (range-checked), a string
 /// for a non-string type parsed as a person types it.
-pub(crate) fn value_from_pb_as(v: &pb::Value, ty: DataType) -> Result<Value, ApiError> {
+pub(crate) fn value_from_pb_as(v: &pb::Value, ty: DataType) -> Result<Value, InvalidArgument> {
     use pb::value::Value as V;
     let string_type = matches!(ty, DataType::VisibleString | DataType::UnicodeString);
     if let Some(V::StringValue(text)) = &v.value
         && !string_type
     {
-        return Value::parse(ty, text).map_err(|e| ApiError::InvalidArgument(e.to_string()));
+        return Value::parse(ty, text).map_err(|e| InvalidArgument(e.to_string()));
     }
     let typed = pb::Value {
         r#type: ty.code() as i32,
@@ -272,13 +271,13 @@ pub(crate) fn pdo_to_pb(
 /// The PDO kind of a request (UNSPECIFIED: `None`).
 pub(crate) fn pdo_kind_from_pb(
     kind: i32,
-) -> Result<Option<cangate_canopen::pdo::PdoKind>, ApiError> {
+) -> Result<Option<cangate_canopen::pdo::PdoKind>, InvalidArgument> {
     use cangate_canopen::pdo::PdoKind;
     match pb::PdoKind::try_from(kind) {
         Ok(pb::PdoKind::Unspecified) => Ok(None),
         Ok(pb::PdoKind::Rpdo) => Ok(Some(PdoKind::Rpdo)),
         Ok(pb::PdoKind::Tpdo) => Ok(Some(PdoKind::Tpdo)),
-        Err(_) => Err(ApiError::InvalidArgument(format!(
+        Err(_) => Err(InvalidArgument(format!(
             "PDO kind {kind} is not RPDO (1) or TPDO (2)"
         ))),
     }
@@ -292,10 +291,10 @@ pub(crate) fn pdo_from_pb(
     p: &pb::PdoConfiguration,
     node: NodeId,
     od: Option<&ObjectDictionary>,
-) -> Result<crate::canopen::pdo_config::NodePdo, ApiError> {
+) -> Result<crate::canopen::pdo_config::NodePdo, InvalidArgument> {
     use cangate_canopen::ObjectAddress;
     use cangate_canopen::pdo::{MappedObject, PdoConfig};
-    let bad = |m: String| ApiError::InvalidArgument(m);
+    let bad = |m: String| InvalidArgument(m);
     let kind =
         pdo_kind_from_pb(p.kind)?.ok_or_else(|| bad("pdo.kind: give RPDO or TPDO".into()))?;
     let num = u16::try_from(p.pdo)
