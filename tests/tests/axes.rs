@@ -70,6 +70,7 @@ name = "Z"
 bus = "can0"
 node = 4
 counts_per_unit = 1000.0
+display_decimals = 1
 position_mode = "profile"
 min_position = -100.0
 max_position = 100.0
@@ -193,6 +194,26 @@ async fn until<T>(
     })
     .await
     .expect("the awaited update arrives")
+}
+
+/// ListAxes tells an HMI how many decimals to show: Z's configured 1, the
+/// others one count of their 1000 per mm.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn each_axis_says_how_many_decimals_to_show() {
+    let (_server, mut axes) = setup().await;
+    let list = axes
+        .list_axes(pb::ListAxesRequest {})
+        .await
+        .unwrap()
+        .into_inner()
+        .axes;
+    let decimals: Vec<(String, u32)> = list
+        .iter()
+        .map(|a| (a.name.clone(), a.display_decimals))
+        .collect();
+    for (name, d) in &decimals {
+        assert_eq!(*d, if name == "Z" { 1 } else { 3 }, "{decimals:?}");
+    }
 }
 
 /// The lease outlives the waited homing and move however slow the host

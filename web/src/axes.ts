@@ -185,15 +185,6 @@ function jogButton(row: () => Row, label: string, sign: number, lease: () => str
   return b;
 }
 
-/**
- * Decimals that show one count of the axis (at most 4): 1000 counts per
- * mm read to the µm, 3 decimals.
- */
-export function decimalsOf(countsPerUnit: number): number {
-  if (!(countsPerUnit > 1)) return 0;
-  return Math.min(4, Math.ceil(Math.log10(countsPerUnit) - 1e-9));
-}
-
 /** How an axis's state reads at a glance: the badge's colour. */
 export function stateKind(s: AxisStatus): "lost" | "fault" | "moving" | "enabled" | "disabled" {
   if (s.nodeLost) return "lost";
@@ -317,7 +308,9 @@ function buildRow(axis: Axis): Row {
     badge,
     faultSummary: faultSummaryText,
     faultFull,
-    decimals: decimalsOf(axis.countsPerUnit),
+    // The axis's configured decimals, else one count visible (the gateway
+    // decides: Axis.display_decimals).
+    decimals: axis.displayDecimals,
     acquire,
     target,
     age,

@@ -33,6 +33,7 @@ pub mod spec;
 
 pub use spec::{
     AxisSpec, CansmcDrive, Cia402Drive, DriveSpec, Gear, JogMode, MotionSpec, ProcessDataPath,
+    display_decimals_for,
 };
 
 use std::fmt;

@@ -68,6 +68,20 @@ pub struct MotionSpec {
     /// A move is done when the actual position is this close to the
     /// target (units).
     pub in_position_window: f64,
+    /// Decimals an HMI shows positions with (the gateway computes in full
+    /// precision whatever this says); [`display_decimals_for`] by default.
+    pub display_decimals: u8,
+}
+
+/// The decimals that show one count of an axis with `counts_per_unit`
+/// (1000 counts per mm: 3, to the µm), at most 4: finer digits only
+/// flicker on a readout.
+pub fn display_decimals_for(counts_per_unit: f64) -> u8 {
+    let c = counts_per_unit.abs();
+    if !c.is_finite() || c <= 1.0 {
+        return 0;
+    }
+    (c.log10() - 1e-9).ceil().clamp(0.0, 4.0) as u8
 }
 
 impl MotionSpec {
@@ -90,6 +104,7 @@ impl MotionSpec {
             settle_timeout: Duration::from_secs(2),
             jog_deadman: Duration::from_millis(500),
             in_position_window: 0.01,
+            display_decimals: display_decimals_for(counts_per_unit),
         }
     }
 

@@ -68,6 +68,7 @@ fn axis_config(velocity_jog: bool) -> CansmcAxisConfig {
             settle_timeout: Duration::from_secs(2),
             jog_deadman: Duration::from_millis(500),
             in_position_window: 10.0 / COUNTS_PER_UNIT,
+            display_decimals: 3,
         },
         drive: CansmcDrive {
             jog_mode: if velocity_jog {

@@ -98,6 +98,10 @@ pub struct CommonAxisConfig {
     /// In-position window, user units (default: 10 counts).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub in_position_window: Option<f64>,
+    /// Decimals HMIs show positions with, 0..=6 (default: one count
+    /// visible, at most 4).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub display_decimals: Option<u8>,
 }
 
 /// The keys of [`CommonAxisConfig`].
@@ -117,6 +121,7 @@ const COMMON_AXIS_KEYS: &[&str] = &[
     "state_timeout_ms",
     "homing_timeout_ms",
     "in_position_window",
+    "display_decimals",
 ];
 
 impl<'de> Deserialize<'de> for CommonAxisConfig {
@@ -161,6 +166,7 @@ impl<'de> serde::de::Visitor<'de> for CommonAxisVisitor {
             state_timeout_ms: default_state_timeout_ms(),
             homing_timeout_ms: default_homing_timeout_ms(),
             in_position_window: None,
+            display_decimals: None,
         };
         let mut required = [false; 3];
         while let Some(key) = map.next_key::<String>()? {
@@ -183,6 +189,7 @@ impl<'de> serde::de::Visitor<'de> for CommonAxisVisitor {
                 "state_timeout_ms" => c.state_timeout_ms = value(&mut map, k)?,
                 "homing_timeout_ms" => c.homing_timeout_ms = value(&mut map, k)?,
                 "in_position_window" => c.in_position_window = value(&mut map, k)?,
+                "display_decimals" => c.display_decimals = value(&mut map, k)?,
                 _ => return Err(A::Error::unknown_field(k, COMMON_AXIS_KEYS)),
             }
         }
@@ -229,6 +236,9 @@ impl CommonAxisConfig {
             in_position_window: self
                 .in_position_window
                 .unwrap_or(10.0 / self.counts_per_unit.abs()),
+            display_decimals: self
+                .display_decimals
+                .unwrap_or_else(|| cangate_axis::display_decimals_for(self.counts_per_unit)),
         }
     }
 
@@ -268,6 +278,13 @@ impl CommonAxisConfig {
         }
         if let Some(w) = self.in_position_window {
             positive("in_position_window", w)?;
+        }
+        if let Some(d) = self.display_decimals
+            && d > 6
+        {
+            return Err(format!(
+                "axis {name}: display_decimals {d} is more than 6 (a µm of a metre)"
+            ));
         }
         stop_decelerations(
             name,
@@ -557,6 +574,35 @@ mod tests {
         }
     }
 
+    #[test]
+    fn display_decimals_show_one_count_unless_configured() {
+        let c = Config::from_toml(BASE).unwrap();
+        let counts = c.axes[0].common.counts_per_unit;
+        assert_eq!(
+            c.axes[0].common.motion().display_decimals,
+            cangate_axis::display_decimals_for(counts)
+        );
+        let c = Config::from_toml(&format!("{BASE}display_decimals = 1\n")).unwrap();
+        assert_eq!(c.axes[0].common.motion().display_decimals, 1);
+        let e = Config::from_toml(&format!("{BASE}display_decimals = 7\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("axis X: display_decimals 7 is more than 6"),
+            "{e}"
+        );
+        for (counts, want) in [
+            (1000.0, 3),
+            (-200.0, 3),
+            (10.0, 1),
+            (1.0, 0),
+            (1e7, 4),
+            (0.5, 0),
+        ] {
+            assert_eq!(cangate_axis::display_decimals_for(counts), want, "{counts}");
+        }
+    }
+
     const BOTH: &str = "[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\n\
                         [[bus]]\nname = \"smc0\"\nbackend = \"virtual\"\n\
                         [[bus]]\nname = \"smc1\"\nbackend = \"virtual\"\n\
@@ -602,6 +648,7 @@ mod tests {
                 settle_timeout: Duration::from_secs(2),
                 jog_deadman: Duration::from_millis(250),
                 in_position_window: 0.05,
+                display_decimals: 3,
             },
             stop_on_loss: StopKind::QuickStop,
             drive: DriveSpec::Cia402(Cia402Drive {
@@ -632,6 +679,7 @@ mod tests {
                 settle_timeout: Duration::from_secs(2),
                 jog_deadman: Duration::from_millis(500),
                 in_position_window: 0.5,
+                display_decimals: 3,
             },
             stop_on_loss: StopKind::Halt,
             drive: DriveSpec::Cansmc(CansmcDrive {

@@ -71,6 +71,7 @@ impl AxesService {
             node: u32::from(spec.node()),
             unit: c.unit.clone(),
             counts_per_unit: c.units.counts_per_unit,
+            display_decimals: u32::from(c.display_decimals),
             min_position: c.min_position,
             max_position: c.max_position,
             max_velocity: c.max_velocity,

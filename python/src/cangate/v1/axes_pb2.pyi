@@ -129,7 +129,7 @@ SETPOINT_EVENT_AT_REST: SetpointEventKind
 SETPOINT_EVENT_ENDED: SetpointEventKind
 
 class Axis(_message.Message):
-    __slots__ = ("name", "backend", "bus", "node", "unit", "counts_per_unit", "min_position", "max_position", "max_velocity", "max_acceleration", "position_mode", "stop_on_loss", "jog_deadman_ms", "status", "process_data", "sdo_poll_ms")
+    __slots__ = ("name", "backend", "bus", "node", "unit", "counts_per_unit", "min_position", "max_position", "max_velocity", "max_acceleration", "position_mode", "stop_on_loss", "jog_deadman_ms", "status", "process_data", "sdo_poll_ms", "display_decimals")
     NAME_FIELD_NUMBER: _ClassVar[int]
     BACKEND_FIELD_NUMBER: _ClassVar[int]
     BUS_FIELD_NUMBER: _ClassVar[int]
@@ -146,6 +146,7 @@ class Axis(_message.Message):
     STATUS_FIELD_NUMBER: _ClassVar[int]
     PROCESS_DATA_FIELD_NUMBER: _ClassVar[int]
     SDO_POLL_MS_FIELD_NUMBER: _ClassVar[int]
+    DISPLAY_DECIMALS_FIELD_NUMBER: _ClassVar[int]
     name: str
     backend: AxisBackend
     bus: str
@@ -162,7 +163,8 @@ class Axis(_message.Message):
     status: AxisStatus
     process_data: ProcessDataPath
     sdo_poll_ms: int
-    def __init__(self, name: _Optional[str] = ..., backend: _Optional[_Union[AxisBackend, str]] = ..., bus: _Optional[str] = ..., node: _Optional[int] = ..., unit: _Optional[str] = ..., counts_per_unit: _Optional[float] = ..., min_position: _Optional[float] = ..., max_position: _Optional[float] = ..., max_velocity: _Optional[float] = ..., max_acceleration: _Optional[float] = ..., position_mode: _Optional[_Union[PositionMode, str]] = ..., stop_on_loss: _Optional[_Union[StopKind, str]] = ..., jog_deadman_ms: _Optional[int] = ..., status: _Optional[_Union[AxisStatus, _Mapping]] = ..., process_data: _Optional[_Union[ProcessDataPath, str]] = ..., sdo_poll_ms: _Optional[int] = ...) -> None: ...
+    display_decimals: int
+    def __init__(self, name: _Optional[str] = ..., backend: _Optional[_Union[AxisBackend, str]] = ..., bus: _Optional[str] = ..., node: _Optional[int] = ..., unit: _Optional[str] = ..., counts_per_unit: _Optional[float] = ..., min_position: _Optional[float] = ..., max_position: _Optional[float] = ..., max_velocity: _Optional[float] = ..., max_acceleration: _Optional[float] = ..., position_mode: _Optional[_Union[PositionMode, str]] = ..., stop_on_loss: _Optional[_Union[StopKind, str]] = ..., jog_deadman_ms: _Optional[int] = ..., status: _Optional[_Union[AxisStatus, _Mapping]] = ..., process_data: _Optional[_Union[ProcessDataPath, str]] = ..., sdo_poll_ms: _Optional[int] = ..., display_decimals: _Optional[int] = ...) -> None: ...
 
 class AxisStatus(_message.Message):
     __slots__ = ("axis", "state", "statusword", "mode", "activity", "position", "velocity", "demand_position", "following_error", "homed", "node_lost", "fault_code", "fault_text", "controlled_by", "lease_remaining_ms", "timestamp_us")
