@@ -698,6 +698,7 @@ fn node_plan(
         vendor_id: nc.vendor_id,
         product_code: nc.product_code,
         writes,
+        identify_only: false,
     };
     Ok((tpdos, rpdos, Some(Arc::new(plan))))
 }

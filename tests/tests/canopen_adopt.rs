@@ -61,6 +61,14 @@ simulate = true
 boot = true
 sim = { heartbeat_ms = 0, refuses_nmt_start = true }
 
+# Watched only (no boot, no axis): identified, never started.
+[[canopen.node]]
+id = 9
+eds = "builtin:io"
+simulate = true
+heartbeat_timeout_ms = 1000
+sim = { start = "pre_operational" }
+
 # Running, no heartbeat, no node guarding: only SDO answers.
 [[canopen.node]]
 id = 6
@@ -171,6 +179,15 @@ async fn running_nodes_are_booted_and_a_running_drive_is_adopted() {
     // Node 6 (heartbeat 0, no node guarding): started, shown operational.
     let node6 = wait_node(&c, 6, |n| n.state == pb::NmtState::Operational as i32).await;
     assert!(node6.identity.is_some(), "{node6:?}");
+
+    // Node 9, watched only: its identity is shown, and it was left
+    // pre-operational (no NMT start).
+    let node9 = wait_node(&c, 9, |n| n.identity.is_some()).await;
+    assert_eq!(
+        node9.state,
+        pb::NmtState::PreOperational as i32,
+        "{node9:?}"
+    );
 
     // Nothing the gateway sent reset a node or took the drive out of
     // operation enabled (the move's controlwords included).

@@ -65,6 +65,7 @@ pub(super) async fn run_boot_supervisor(
                     );
                 }
                 Ok(BootResult::Rebooted) => {}
+                Ok(BootResult::Identified) => tracing::debug!("node identified"),
                 Err(reason) => {
                     tracing::warn!(%reason, "boot procedure failed");
                     m.emit(node, NodeEventKind::BootFailed { reason });
@@ -148,6 +149,8 @@ enum BootResult {
     Absent,
     /// It booted up during the procedure (a fresh one runs).
     Rebooted,
+    /// A node without a boot plan: its device type and identity read.
+    Identified,
 }
 
 /// The consecutive boot writes of one PDO (its communication and mapping
@@ -223,7 +226,7 @@ async fn boot_node(
         m.learn(node, |f| f.device_type = Some(v));
     }
     let silent = matches!(device_type, Err((true, _)));
-    if silent && adopt {
+    if silent && (adopt || plan.identify_only) {
         // Found nothing at the gateway's start: the node is off or still
         // initialising; its boot-up brings it here again.
         return Ok(BootResult::Absent);
@@ -246,6 +249,9 @@ async fn boot_node(
             identity = Some(read);
             m.learn(node, |f| f.identity = Some(read));
         }
+    }
+    if plan.identify_only {
+        return Ok(BootResult::Identified);
     }
     if let Some(want) = plan.device_type {
         let got = device_type.map_err(|(_, e)| e)?;

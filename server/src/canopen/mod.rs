@@ -96,6 +96,10 @@ pub struct BootPlan {
     pub product_code: Option<u32>,
     /// SDO writes in order (heartbeat producer, PDO configuration, extra).
     pub writes: Vec<(ObjectAddress, Vec<u8>)>,
+    /// A node the gateway only watches (no `boot`, no axis): its device
+    /// type and identity are read so that GetNode shows them, and nothing
+    /// is checked, written or started.
+    pub identify_only: bool,
 }
 
 /// A decoded PDO.
@@ -459,9 +463,14 @@ impl CanopenBus {
         let sub = bus.subscribe(master_selector(&configured), 65_536);
         let known = configured.keys().map(|id| id.get()).collect();
         let heard = heard::spawn(&bus, &known, cancel.clone());
+        // Nodes without a boot plan are identified, nothing more.
+        let identify_only = Arc::new(BootPlan {
+            identify_only: true,
+            ..BootPlan::default()
+        });
         let boots: Vec<(NodeId, Arc<BootPlan>)> = configured
             .iter()
-            .filter_map(|(id, f)| f.boot.clone().map(|b| (*id, b)))
+            .map(|(id, f)| (*id, f.boot.clone().unwrap_or_else(|| identify_only.clone())))
             .collect();
         let facts = Arc::new(RwLock::new(configured));
         // The SYNC thread serves every master, stopped without a period,
