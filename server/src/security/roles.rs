@@ -57,6 +57,9 @@ pub const TABLE: &[Rule] = &[
     rule("/cangate.v1.Canopen/SendNmt", E, false),
     rule("/cangate.v1.Canopen/ReadSdo", V, false),
     rule("/cangate.v1.Canopen/WriteSdo", E, false),
+    // Each request of a session needs the role of ReadSdo or WriteSdo (see
+    // [`session_request_role`]); opening one is viewing.
+    rule("/cangate.v1.Canopen/SdoSession", V, true),
     rule("/cangate.v1.Canopen/ListObjects", V, false),
     rule("/cangate.v1.Canopen/ListSdoTransfers", V, false),
     rule("/cangate.v1.Canopen/ScanNetwork", V, false),
@@ -150,6 +153,17 @@ pub const TABLE: &[Rule] = &[
 /// The entry of an RPC path, if it is classified.
 pub fn lookup(path: &str) -> Option<&'static Rule> {
     TABLE.iter().find(|r| r.path == path)
+}
+
+/// The role one request inside a session needs: that of the unary RPC at
+/// `path` it stands for (an SdoSession read needs ReadSdo's, a write
+/// WriteSdo's), so that a session grants nothing the unary calls do not.
+/// None for an unclassified path (refuse).
+pub fn session_request_role(path: &str) -> Option<Role> {
+    lookup(path).map(|r| match r.access {
+        Access::Public => Role::Viewer,
+        Access::Role(role) => role,
+    })
 }
 
 /// True for the stops, which the limits give a budget of their own (see

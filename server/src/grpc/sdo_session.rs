@@ -1,0 +1,211 @@
+//! `Canopen.SdoSession`: ReadSdo/WriteSdo requests and their answers on one
+//! bidirectional stream.
+//!
+//! This module is the session's flow; the Canopen service gives it the
+//! function that runs one request as ReadSdo/WriteSdo would (the same
+//! code), its error becoming an `SdoSessionError` answer instead of the end
+//! of the call. Requests of one (bus, node) run
+//! one after the other in the order received, each waiting for the one
+//! before it, so their answers keep that order; different nodes run
+//! concurrently. At most [`MAX_OUTSTANDING`] requests are outstanding: the
+//! reader waits for a free slot before it reads the next request, so a
+//! client that sends faster than the bus answers is held back by the
+//! transport's flow control. All transfers of a session are tasks of one
+//! set that is dropped when the client goes away: their `client_sdo`
+//! futures are dropped, and the master aborts what was on the bus.
+
+use super::error::ApiError;
+use super::forward::{MessageStream, stream_of};
+use crate::security::{Identity, Role, roles};
+use cangate_proto::v1 as pb;
+use std::collections::HashMap;
+use std::future::Future;
+use std::sync::Arc;
+use tokio::sync::{Semaphore, mpsc, oneshot};
+use tokio::task::JoinSet;
+use tokio_util::sync::CancellationToken;
+use tonic::{Status, Streaming};
+
+/// Requests of one session outstanding (read, not yet answered) at most.
+pub const MAX_OUTSTANDING: usize = 64;
+
+/// Who asks in a session, for each of its requests.
+pub(super) struct Caller {
+    /// For the master's per-caller bound (see `sdo_caller`).
+    pub(super) name: String,
+    /// The identity of the stream, for the role of each request and the
+    /// audit log; `None` when no security layer ran (then every role).
+    pub(super) identity: Option<Identity>,
+}
+
+/// Starts serving one session (`answer`: runs one request): the answers'
+/// stream.
+pub(super) fn serve<F, Fut>(
+    shutdown: CancellationToken,
+    inbound: Streaming<pb::SdoSessionRequest>,
+    answer: F,
+) -> MessageStream<pb::SdoSessionAnswer>
+where
+    F: Fn(pb::SdoSessionRequest) -> Fut + Send + Sync + 'static,
+    Fut: Future<Output = pb::SdoSessionAnswer> + Send + 'static,
+{
+    // Every outstanding request holds a slot until its answer is queued,
+    // so this channel never holds more than MAX_OUTSTANDING answers (+ a
+    // final error).
+    let (tx, rx) = mpsc::channel(MAX_OUTSTANDING + 1);
+    tokio::spawn(run(shutdown, Arc::new(answer), inbound, tx));
+    stream_of(rx)
+}
+
+/// The session's reader: reads requests while a slot is free, starts each
+/// after the one before it for the same node, and ends when the client
+/// has sent everything and every answer is out, or at once (cancelling
+/// what runs) when the client goes away or the gateway shuts down.
+async fn run<F, Fut>(
+    shutdown: CancellationToken,
+    answer: Arc<F>,
+    mut inbound: Streaming<pb::SdoSessionRequest>,
+    tx: mpsc::Sender<Result<pb::SdoSessionAnswer, Status>>,
+) where
+    F: Fn(pb::SdoSessionRequest) -> Fut + Send + Sync + 'static,
+    Fut: Future<Output = pb::SdoSessionAnswer> + Send + 'static,
+{
+    let slots = Arc::new(Semaphore::new(MAX_OUTSTANDING));
+    let mut tasks = JoinSet::new();
+    // The completion of the last request started per (bus, node): the
+    // next one for it waits for that. Closed entries are pruned.
+    let mut last: HashMap<(String, u32), oneshot::Receiver<()>> = HashMap::new();
+    let mut reading = true;
+    loop {
+        if !reading && tasks.is_empty() {
+            return;
+        }
+        tokio::select! {
+            biased;
+            () = shutdown.cancelled() => {
+                let _ = tx.send(Err(ApiError::ShuttingDown.into())).await;
+                return;
+            }
+            () = tx.closed() => return,
+            Some(_) = tasks.join_next(), if !tasks.is_empty() => {}
+            permit = slots.clone().acquire_owned(), if reading => {
+                let permit = permit.expect("the slots are never closed");
+                tokio::select! {
+                    biased;
+                    () = shutdown.cancelled() => {
+                        let _ = tx.send(Err(ApiError::ShuttingDown.into())).await;
+                        return;
+                    }
+                    () = tx.closed() => return,
+                    msg = inbound.message() => match msg {
+                        Ok(Some(request)) => {
+                            let key = node_key(&request);
+                            if last.len() >= MAX_OUTSTANDING {
+                                last.retain(|_, done| {
+                                    !matches!(
+                                        done.try_recv(),
+                                        Err(oneshot::error::TryRecvError::Closed)
+                                    )
+                                });
+                            }
+                            let (done, done_rx) = oneshot::channel::<()>();
+                            let before = last.insert(key, done_rx);
+                            let answer = answer.clone();
+                            let tx = tx.clone();
+                            tasks.spawn(async move {
+                                if let Some(before) = before {
+                                    // Closed when the one before is answered.
+                                    let _ = before.await;
+                                }
+                                let answer = answer(request).await;
+                                let _ = tx.send(Ok(answer)).await;
+                                drop(permit);
+                                drop(done);
+                            });
+                        }
+                        // The client sent everything: answer what is
+                        // outstanding, then end.
+                        Ok(None) => reading = false,
+                        // The client went away (cancelled, reset): drop
+                        // everything outstanding.
+                        Err(_) => return,
+                    },
+                }
+            }
+        }
+    }
+}
+
+/// The order key of a request: its bus and node as sent (a request that is
+/// neither read nor write has its own empty key).
+fn node_key(r: &pb::SdoSessionRequest) -> (String, u32) {
+    match &r.request {
+        Some(pb::sdo_session_request::Request::Read(q)) => (q.bus.clone(), q.node),
+        Some(pb::sdo_session_request::Request::Write(q)) => (q.bus.clone(), q.node),
+        None => (String::new(), 0),
+    }
+}
+
+/// The caller's role is enough for the unary RPC a request stands for.
+pub(super) fn check_role(caller: &Caller, rpc: &str) -> Result<(), ApiError> {
+    let Some(id) = &caller.identity else {
+        return Ok(());
+    };
+    let needed = roles::session_request_role(&format!("/cangate.v1.Canopen/{rpc}"))
+        .unwrap_or(Role::Engineer);
+    if id.role < needed {
+        return Err(ApiError::PermissionDenied(format!(
+            "an SdoSession {} needs role {needed} (as {rpc}); {} holds role {}",
+            if rpc == "WriteSdo" { "write" } else { "read" },
+            id.name,
+            id.role
+        )));
+    }
+    Ok(())
+}
+
+/// A write of a session changes a device as WriteSdo does: the audit log
+/// gets a line for it (the session itself, opened by a viewer's role, is
+/// not audited as a state-changing call).
+pub(super) fn audit_write(
+    caller: &Caller,
+    bus: &str,
+    node: u32,
+    index: u32,
+    sub: u32,
+    object: &str,
+    result: &Result<pb::WriteSdoResponse, ApiError>,
+) {
+    let who = caller
+        .identity
+        .as_ref()
+        .map_or(caller.name.as_str(), |i| i.name.as_str());
+    let object = crate::not_found::quote_prefix(object);
+    match result {
+        Ok(_) => tracing::info!(
+            target: crate::security::auth::AUDIT_TARGET,
+            who,
+            method = "/cangate.v1.Canopen/SdoSession write",
+            bus,
+            node,
+            index,
+            sub,
+            %object,
+            code = "OK",
+            "rpc"
+        ),
+        Err(e) => tracing::warn!(
+            target: crate::security::auth::AUDIT_TARGET,
+            who,
+            method = "/cangate.v1.Canopen/SdoSession write",
+            bus,
+            node,
+            index,
+            sub,
+            %object,
+            code = crate::metrics::code_name(e.code()),
+            message = %e,
+            "rpc"
+        ),
+    }
+}
