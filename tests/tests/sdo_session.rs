@@ -334,6 +334,8 @@ async fn with_token(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_viewer_reads_but_its_writes_are_refused_as_for_write_sdo() {
+    // The only test of this file that captures the log (once per process).
+    let log = cangate_tests::log::capture_log("cangate::audit=info");
     let tokens: String = [("wall", "viewer", "v-token"), ("pc", "engineer", "e-token")]
         .iter()
         .map(|(name, role, token)| {
@@ -358,6 +360,10 @@ async fn a_viewer_reads_but_its_writes_are_refused_as_for_write_sdo() {
         .await
         .unwrap();
     tx.send(read(2, 3, 0x1017)).await.unwrap();
+    // A second refused write: answered as the first, not audited again.
+    tx.send(write_raw(3, 3, 0x1017, vec![8, 0], false))
+        .await
+        .unwrap();
     let a = next(&mut answers).await;
     let e = error_of(&a);
     assert_eq!(
@@ -373,6 +379,11 @@ async fn a_viewer_reads_but_its_writes_are_refused_as_for_write_sdo() {
     let a = next(&mut answers).await;
     assert_eq!(a.id, 2);
     assert_ne!(read_u32(&a), 7);
+    let a = next(&mut answers).await;
+    assert_eq!(
+        (a.id, error_of(&a).reason.as_str()),
+        (3, "PERMISSION_DENIED")
+    );
 
     let engineer = with_token(&server, "e-token").await.unwrap();
     let s = engineer.canopen("can0").sdo_session().await.unwrap();
@@ -383,6 +394,25 @@ async fn a_viewer_reads_but_its_writes_are_refused_as_for_write_sdo() {
         2
     );
     drop(tx);
+    // Both writes are in the audit log, as WriteSdo calls would be (the
+    // session itself is a viewer's call, not audited as a change).
+    let text = log.text();
+    let line = |who: &str| {
+        text.lines()
+            .find(|l| l.contains(&format!("who={who}")) && l.contains("SdoSession write"))
+            .unwrap_or_else(|| panic!("no audit line of {who}'s session write in:\n{text}"))
+            .to_string()
+    };
+    let engineer_line = line("pc");
+    assert!(
+        engineer_line.contains("OK") && engineer_line.contains("node=3"),
+        "{engineer_line}"
+    );
+    assert!(
+        line("wall").contains("PERMISSION_DENIED"),
+        "{}",
+        line("wall")
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

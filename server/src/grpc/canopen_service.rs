@@ -404,6 +404,7 @@ impl Canopen for CanopenService {
         let caller = Arc::new(Caller {
             name: sdo_caller(&req),
             identity: req.extensions().get::<Identity>().cloned(),
+            refused_writes: Default::default(),
         });
         let gateway = self.gateway.clone();
         Ok(Response::new(sdo_session::serve(
@@ -1061,17 +1062,18 @@ async fn session_answer(
         }
         .await
         .map(A::Read),
-        Some(R::Write(q)) => async {
-            check_role(&caller, "WriteSdo")?;
-            let m = master_of(&gateway, &q.bus)?;
+        Some(R::Write(q)) => {
             let (bus, node, index, sub, object) =
                 (q.bus.clone(), q.node, q.index, q.subindex, q.object.clone());
-            let result = write_sdo(m, q, &caller.name).await;
+            let result = async {
+                check_role(&caller, "WriteSdo")?;
+                let m = master_of(&gateway, &q.bus)?;
+                write_sdo(m, q, &caller.name).await
+            }
+            .await;
             audit_write(&caller, &bus, node, index, sub, &object, &result);
-            result
+            result.map(A::Write)
         }
-        .await
-        .map(A::Write),
         None => Err(ApiError::InvalidArgument(
             "an SdoSession request needs read or write".into(),
         )),

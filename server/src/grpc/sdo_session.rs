@@ -21,6 +21,7 @@ use cangate_proto::v1 as pb;
 use std::collections::HashMap;
 use std::future::Future;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use tokio::sync::{Semaphore, mpsc, oneshot};
 use tokio::task::JoinSet;
 use tokio_util::sync::CancellationToken;
@@ -36,6 +37,10 @@ pub(super) struct Caller {
     /// The identity of the stream, for the role of each request and the
     /// audit log; `None` when no security layer ran (then every role).
     pub(super) identity: Option<Identity>,
+    /// Writes of this session refused for the role so far: only the first
+    /// gets an audit line (refusals cost the gateway nothing else, so a
+    /// session could otherwise fill the log as fast as it sends).
+    pub(super) refused_writes: AtomicU64,
 }
 
 /// Starts serving one session (`answer`: runs one request): the answers'
@@ -166,7 +171,8 @@ pub(super) fn check_role(caller: &Caller, rpc: &str) -> Result<(), ApiError> {
 
 /// A write of a session changes a device as WriteSdo does: the audit log
 /// gets a line for it (the session itself, opened by a viewer's role, is
-/// not audited as a state-changing call).
+/// not audited as a state-changing call); of the writes refused for the
+/// role, the session's first.
 pub(super) fn audit_write(
     caller: &Caller,
     bus: &str,
@@ -180,15 +186,20 @@ pub(super) fn audit_write(
         .identity
         .as_ref()
         .map_or(caller.name.as_str(), |i| i.name.as_str());
+    if matches!(result, Err(ApiError::PermissionDenied(_)))
+        && caller.refused_writes.fetch_add(1, Ordering::Relaxed) > 0
+    {
+        return;
+    }
     let object = crate::not_found::quote_prefix(object);
     match result {
         Ok(_) => tracing::info!(
             target: crate::security::auth::AUDIT_TARGET,
-            who,
+            %who,
             method = "/cangate.v1.Canopen/SdoSession write",
-            bus,
+            %bus,
             node,
-            index,
+            index = %format_args!("0x{index:04X}"),
             sub,
             %object,
             code = "OK",
@@ -196,11 +207,11 @@ pub(super) fn audit_write(
         ),
         Err(e) => tracing::warn!(
             target: crate::security::auth::AUDIT_TARGET,
-            who,
+            %who,
             method = "/cangate.v1.Canopen/SdoSession write",
-            bus,
+            %bus,
             node,
-            index,
+            index = %format_args!("0x{index:04X}"),
             sub,
             %object,
             code = crate::metrics::code_name(e.code()),
