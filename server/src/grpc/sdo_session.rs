@@ -24,8 +24,9 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use tokio::sync::{Semaphore, mpsc, oneshot};
 use tokio::task::JoinSet;
+use tokio_stream::{Stream, StreamExt};
 use tokio_util::sync::CancellationToken;
-use tonic::{Status, Streaming};
+use tonic::Status;
 
 /// Requests of one session outstanding (read, not yet answered) at most.
 pub const MAX_OUTSTANDING: usize = 64;
@@ -45,12 +46,13 @@ pub(super) struct Caller {
 
 /// Starts serving one session (`answer`: runs one request): the answers'
 /// stream.
-pub(super) fn serve<F, Fut>(
+pub(super) fn serve<S, F, Fut>(
     shutdown: CancellationToken,
-    inbound: Streaming<pb::SdoSessionRequest>,
+    inbound: S,
     answer: F,
 ) -> MessageStream<pb::SdoSessionAnswer>
 where
+    S: Stream<Item = Result<pb::SdoSessionRequest, Status>> + Send + Unpin + 'static,
     F: Fn(pb::SdoSessionRequest) -> Fut + Send + Sync + 'static,
     Fut: Future<Output = pb::SdoSessionAnswer> + Send + 'static,
 {
@@ -66,12 +68,13 @@ where
 /// after the one before it for the same node, and ends when the client
 /// has sent everything and every answer is out, or at once (cancelling
 /// what runs) when the client goes away or the gateway shuts down.
-async fn run<F, Fut>(
+async fn run<S, F, Fut>(
     shutdown: CancellationToken,
     answer: Arc<F>,
-    mut inbound: Streaming<pb::SdoSessionRequest>,
+    mut inbound: S,
     tx: mpsc::Sender<Result<pb::SdoSessionAnswer, Status>>,
 ) where
+    S: Stream<Item = Result<pb::SdoSessionRequest, Status>> + Send + Unpin + 'static,
     F: Fn(pb::SdoSessionRequest) -> Fut + Send + Sync + 'static,
     Fut: Future<Output = pb::SdoSessionAnswer> + Send + 'static,
 {
@@ -102,7 +105,7 @@ async fn run<F, Fut>(
                         return;
                     }
                     () = tx.closed() => return,
-                    msg = inbound.message() => match msg {
+                    msg = inbound.next() => match msg.transpose() {
                         Ok(Some(request)) => {
                             let key = node_key(&request);
                             if last.len() >= MAX_OUTSTANDING {
@@ -218,5 +221,140 @@ pub(super) fn audit_write(
             message = %e,
             "rpc"
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::atomic::AtomicUsize;
+    use tokio::sync::Notify;
+
+    /// A request to its own node (no order between them).
+    fn request(id: u64) -> Result<pb::SdoSessionRequest, Status> {
+        Ok(pb::SdoSessionRequest {
+            id,
+            request: Some(pb::sdo_session_request::Request::Read(pb::ReadSdoRequest {
+                bus: "b".into(),
+                node: id as u32,
+                ..Default::default()
+            })),
+        })
+    }
+
+    /// Lets every task of this single-threaded runtime run until all
+    /// wait: each yield runs every task that is ready once (far more
+    /// rounds than the session's few steps per request need; no clock).
+    async fn settle() {
+        for _ in 0..10_000 {
+            tokio::task::yield_now().await;
+        }
+    }
+
+    /// Beyond MAX_OUTSTANDING unanswered requests the session reads no
+    /// more; each answer lets one more in; answers carry their ids.
+    #[tokio::test]
+    async fn the_session_stops_reading_at_the_outstanding_bound() {
+        let (tx, rx) = mpsc::channel(200);
+        for id in 1..=100 {
+            tx.send(request(id)).await.unwrap();
+        }
+        let started = Arc::new(AtomicUsize::new(0));
+        let release = Arc::new(Notify::new());
+        let (s, r) = (started.clone(), release.clone());
+        let mut answers = serve(
+            CancellationToken::new(),
+            tokio_stream::wrappers::ReceiverStream::new(rx),
+            move |req: pb::SdoSessionRequest| {
+                let (s, r) = (s.clone(), r.clone());
+                async move {
+                    s.fetch_add(1, Ordering::SeqCst);
+                    r.notified().await;
+                    pb::SdoSessionAnswer {
+                        id: req.id,
+                        result: None,
+                    }
+                }
+            },
+        );
+        settle().await;
+        assert_eq!(started.load(Ordering::SeqCst), MAX_OUTSTANDING);
+        // The rest is still in the client's queue.
+        assert_eq!(tx.capacity(), 200 - (100 - MAX_OUTSTANDING));
+        release.notify_one();
+        let a = answers.next().await.unwrap().unwrap();
+        assert!((1..=64).contains(&a.id), "{a:?}");
+        settle().await;
+        assert_eq!(started.load(Ordering::SeqCst), MAX_OUTSTANDING + 1);
+    }
+
+    /// Counts its drops.
+    struct DropCount(Arc<AtomicUsize>);
+    impl Drop for DropCount {
+        fn drop(&mut self) {
+            self.0.fetch_add(1, Ordering::SeqCst);
+        }
+    }
+
+    /// A client that goes away (drops the answers) drops every
+    /// outstanding request's future: the transfers' callers are gone.
+    #[tokio::test]
+    async fn a_client_that_goes_away_drops_what_is_outstanding() {
+        let (tx, rx) = mpsc::channel(10);
+        for id in 1..=5 {
+            tx.send(request(id)).await.unwrap();
+        }
+        let dropped = Arc::new(AtomicUsize::new(0));
+        let d = dropped.clone();
+        let answers = serve(
+            CancellationToken::new(),
+            tokio_stream::wrappers::ReceiverStream::new(rx),
+            move |_req: pb::SdoSessionRequest| {
+                let guard = DropCount(d.clone());
+                async move {
+                    let _guard = guard;
+                    std::future::pending::<pb::SdoSessionAnswer>().await
+                }
+            },
+        );
+        settle().await;
+        assert_eq!(dropped.load(Ordering::SeqCst), 0);
+        drop(answers);
+        settle().await;
+        assert_eq!(dropped.load(Ordering::SeqCst), 5);
+    }
+
+    /// The client's end of sending: what is outstanding is answered, in
+    /// order per node, then the answers end.
+    #[tokio::test]
+    async fn the_end_of_requests_ends_the_answers_after_the_last() {
+        let (tx, rx) = mpsc::channel(10);
+        for id in 1..=6 {
+            let mut r = request(id).unwrap();
+            if let Some(pb::sdo_session_request::Request::Read(q)) = &mut r.request {
+                q.node = 7;
+            }
+            tx.send(Ok(r)).await.unwrap();
+        }
+        drop(tx);
+        let mut answers = serve(
+            CancellationToken::new(),
+            tokio_stream::wrappers::ReceiverStream::new(rx),
+            |req: pb::SdoSessionRequest| async move {
+                // Later requests finish sooner, if nothing kept the order.
+                for _ in 0..(10 - req.id) * 10 {
+                    tokio::task::yield_now().await;
+                }
+                pb::SdoSessionAnswer {
+                    id: req.id,
+                    result: None,
+                }
+            },
+        );
+        let mut ids = Vec::new();
+        while let Some(a) = answers.next().await {
+            ids.push(a.unwrap().id);
+        }
+        assert_eq!(ids, vec![1, 2, 3, 4, 5, 6]);
     }
 }
