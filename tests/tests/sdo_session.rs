@@ -505,3 +505,35 @@ async fn a_cancelled_session_aborts_its_transfer_and_the_node_stays_usable() {
         SdoValue::U32(DEVICE_TYPE)
     );
 }
+
+/// Each request of a session counts against the client's call rate
+/// (`requests_per_second_per_client`) as a unary call would: over it, the
+/// request is a RATE_LIMIT answer and the session goes on.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn session_requests_count_against_the_call_rate() {
+    // One call a second, five at once: opening the session takes one.
+    let limits = "[security.limits]\nrequests_per_second_per_client = 1\nburst = 5\n";
+    let server = start_server(&format!("{CONFIG}{limits}")).await;
+    let c = client(&server).await;
+    let (tx, mut answers) = open(&c).await;
+    // Requests to an unknown node: answered at once, without the bus.
+    for id in 1..=20 {
+        tx.send(read(id, 99, 0x1000)).await.unwrap();
+    }
+    let mut reasons = Vec::new();
+    for _ in 1..=20 {
+        let a = next(&mut answers).await;
+        let e = error_of(&a);
+        if e.reason == "RATE_LIMIT" {
+            assert_eq!(Code::from(e.code), Code::ResourceExhausted, "{e:?}");
+        }
+        reasons.push(e.reason.clone());
+    }
+    let limited = reasons.iter().filter(|r| *r == "RATE_LIMIT").count();
+    // At most 4 tokens were left, plus one a second meanwhile.
+    assert!(limited >= 10, "{reasons:?}");
+    assert!(
+        reasons.contains(&"NODE_NOT_FOUND".to_string()),
+        "{reasons:?}"
+    );
+}

@@ -16,7 +16,7 @@ use crate::convert::canopen::{
     sdo_transfer_to_pb, value_from_pb, value_from_pb_as, value_to_pb,
 };
 use crate::gateway::Gateway;
-use crate::security::Identity;
+use crate::security::{Identity, RequestBudget};
 use cangate_canopen::eds::Eds;
 use cangate_canopen::master::SdoRequest;
 use cangate_canopen::nmt::NmtCommand;
@@ -405,6 +405,7 @@ impl Canopen for CanopenService {
             name: sdo_caller(&req),
             identity: req.extensions().get::<Identity>().cloned(),
             refused_writes: Default::default(),
+            budget: req.extensions().get::<RequestBudget>().cloned(),
         });
         let gateway = self.gateway.clone();
         Ok(Response::new(sdo_session::serve(

@@ -16,7 +16,7 @@
 
 use super::error::ApiError;
 use super::forward::{MessageStream, stream_of};
-use crate::security::{Identity, Role, roles};
+use crate::security::{Identity, RequestBudget, Role, roles};
 use cangate_proto::v1 as pb;
 use std::collections::HashMap;
 use std::future::Future;
@@ -42,6 +42,9 @@ pub(super) struct Caller {
     /// gets an audit line (refusals cost the gateway nothing else, so a
     /// session could otherwise fill the log as fast as it sends).
     pub(super) refused_writes: AtomicU64,
+    /// The client's call rate, taken per request; `None` when no security
+    /// layer ran.
+    pub(super) budget: Option<RequestBudget>,
 }
 
 /// Starts serving one session (`answer`: runs one request): the answers'
@@ -154,8 +157,19 @@ fn node_key(r: &pb::SdoSessionRequest) -> (String, u32) {
     }
 }
 
-/// The caller's role is enough for the unary RPC a request stands for.
+/// The caller's role is enough for the unary RPC a request stands for,
+/// and its call rate has room for one more call.
 pub(super) fn check_role(caller: &Caller, rpc: &str) -> Result<(), ApiError> {
+    if let Some(budget) = &caller.budget {
+        budget.take().map_err(|e| {
+            ApiError::refused(
+                tonic::Code::ResourceExhausted,
+                crate::security::limit_reason(&e.0),
+                e.0,
+                Vec::new(),
+            )
+        })?;
+    }
     let Some(id) = &caller.identity else {
         return Ok(());
     };

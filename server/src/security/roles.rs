@@ -186,6 +186,13 @@ pub fn sends_raw_frames(rule: &Rule) -> bool {
     )
 }
 
+/// True for the RPCs whose stream carries requests that each count as a
+/// call against the client's call rate (see
+/// [`super::limits::RequestBudget`]).
+pub fn carries_requests(rule: &Rule) -> bool {
+    rule.path == "/cangate.v1.Canopen/SdoSession"
+}
+
 /// True for calls that change state (role operator or above): these are
 /// written to the audit log.
 pub fn state_changing(rule: &Rule) -> bool {

@@ -3233,7 +3233,9 @@ export const Canopen: GenService<{
    * stream until an answer is out (flow control of the transport holds the
    * client back). The role is checked per request: a read as ReadSdo
    * (viewer), a write as WriteSdo (engineer); a write refused for the role
-   * is a PERMISSION_DENIED answer. The same guards as WriteSdo apply
+   * is a PERMISSION_DENIED answer. Each read or write counts as a call
+   * against the client's call rate ([security.limits]; over it a
+   * RATE_LIMIT answer). The same guards as WriteSdo apply
    * (WriteSdoRequest.force). Ending or cancelling the stream cancels its
    * outstanding transfers (the gateway aborts those on the bus); the
    * client ends its half of the stream to have every answer and then the
