@@ -64,6 +64,7 @@ mod lease;
 mod lss;
 mod program;
 mod sdo;
+mod sdo_session;
 mod setpoints;
 mod streams;
 
@@ -85,6 +86,7 @@ pub use lss::{Lss, LssDevice};
 pub use pb::{AxisActivity, DriveState, HandwheelMode, NmtCommand, Outcome};
 pub use program::ProgramOptions;
 pub use sdo::{DataType, NodeId, Object, ObjectAddress, SdoOptions, SdoValue};
+pub use sdo_session::SdoSession;
 pub use setpoints::{SetpointSender, SetpointStream, SetpointStreamOptions, setpoint};
 pub use streams::EventStream;
 

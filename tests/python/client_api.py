@@ -85,6 +85,24 @@ def main():
             abort = e.abort_code
         print(f"ok sdo: {r.value!r}, heartbeat {hb.value} ms, abort 0x{abort:08X}")
 
+        # An SDO session: pipelined futures, answered per node in order;
+        # an abort fails its future only.
+        with c.sdo_session("can0") as s:
+            w = s.write(1, 0x1017, 0, hb.value, DataType.UNSIGNED16)
+            reads = [s.read(n, 0x1017, 0, DataType.UNSIGNED16) for n in (1, 2) for _ in range(20)]
+            bad = s.read(1, 0x5555)
+            after = s.read(1, 0x1008)
+            expect(w.result(timeout=10) == 2, "session wrote 2")
+            expect(reads[0].result(timeout=10).value == hb.value, "session read back")
+            expect(all(isinstance(f.result(timeout=10).value, int) for f in reads), "session reads")
+            try:
+                bad.result(timeout=10)
+                raise AssertionError("0x5555 was read in a session")
+            except SdoAbortError as e:
+                expect((e.reason, e.abort_code, e.node) == ("SDO_ABORT", 0x06020000, 1), vars(e))
+            expect(after.result(timeout=10).value == "cangate sim drive", "the session goes on")
+        print("ok sdo session")
+
         # Axes: a move under a lease, released on exit.
         names = [a.name for a in c.list_axes()]
         expect({"X", "Y", "Z"} <= set(names), names)

@@ -17,6 +17,7 @@ from cangate.client import (
     Frame,
     FramesLost,
     Lease,
+    SdoSession,
     SdoValue,
     Stream,
 )
@@ -33,6 +34,7 @@ __all__ = [
     "FramesLost",
     "Lease",
     "SdoAbortError",
+    "SdoSession",
     "SdoValue",
     "Stream",
 ]

@@ -17,7 +17,7 @@ from typing import Any, Generic, Iterable, Iterator, Optional, Sequence, TypeVar
 import grpc
 
 from cangate._channel import open_channel, resolve
-from cangate.errors import CangateError, from_rpc_error
+from cangate.errors import CangateError, from_rpc_error, from_session_error
 from cangate.v1 import (
     axes_pb2,
     axes_pb2_grpc,
@@ -367,6 +367,12 @@ class Client:
             request = canopen_pb2.WriteSdoRequest(value=_value_to_pb(value, type), **common)
         return self._call(self.canopen_stub.WriteSdo, request, self._sdo_timeout(timeout_ms)).bytes
 
+    def sdo_session(self, bus: str) -> "SdoSession":
+        """An SDO session on `bus` (Canopen.SdoSession): pipelined reads and
+        writes on one stream, answered as futures (see :class:`SdoSession`);
+        a context manager that closes it."""
+        return SdoSession(self, bus)
+
     def _sdo_timeout(self, timeout_ms: int) -> float:
         # A large transfer takes many answers of the node: the client's
         # timeout per call, and at least 10 answer timeouts.
@@ -434,6 +440,140 @@ class Client:
         # Batches: fewer messages when the gateway falls behind; the events
         # come out one by one all the same.
         return Stream(self.handwheels_stub.StreamFeedBatches(request), _batch_events)
+
+
+class SdoSession:
+    """Reads and writes over SDO on one stream (Canopen.SdoSession).
+
+    :meth:`read` and :meth:`write` send their request at once and return a
+    :class:`concurrent.futures.Future` of the answer, so many can be
+    outstanding: the gateway answers those of one node in the order they
+    were sent, different nodes concurrently (at most 64 outstanding; more
+    wait in the transport). A failed request's future raises what
+    :meth:`Client.read_sdo` / :meth:`Client.write_sdo` would
+    (:class:`SdoAbortError`, :class:`CangateError`); the session goes on.
+    :meth:`close` waits for every answer; :meth:`cancel` drops what is
+    outstanding (the gateway aborts those transfers)."""
+
+    _END = object()
+
+    def __init__(self, client: Client, bus: str) -> None:
+        import concurrent.futures
+        import queue
+
+        self._futures_mod = concurrent.futures
+        self.bus = bus
+        self._requests: "queue.Queue[Any]" = queue.Queue()
+        self._pending: dict[int, Any] = {}
+        self._lock = threading.Lock()
+        self._next_id = 1
+        self._closed = False
+        self._call = client.canopen_stub.SdoSession(iter(self._requests.get, self._END))
+        self._reader = threading.Thread(target=self._read_answers, daemon=True)
+        self._reader.start()
+
+    def _read_answers(self) -> None:
+        error: Optional[CangateError] = None
+        try:
+            for answer in self._call:
+                with self._lock:
+                    future = self._pending.pop(answer.id, None)
+                if future is None:
+                    continue
+                kind = answer.WhichOneof("result")
+                if kind == "error":
+                    future.set_exception(from_session_error(answer.error))
+                elif kind == "read":
+                    r = answer.read
+                    t, v = _value_from_pb(r.value) if r.HasField("value") else (None, None)
+                    future.set_result(SdoValue(raw=bytes(r.raw), type=t, value=v))
+                else:
+                    future.set_result(answer.write.bytes)
+        except grpc.RpcError as err:
+            error = from_rpc_error(err)
+        with self._lock:
+            self._closed = True
+            left, self._pending = self._pending, {}
+        for future in left.values():
+            future.set_exception(
+                error or CangateError(grpc.StatusCode.CANCELLED, "the SDO session ended", "CANCELLED", {})
+            )
+
+    def _send(self, build: Any) -> Any:
+        future = self._futures_mod.Future()
+        with self._lock:
+            if self._closed:
+                raise CangateError(grpc.StatusCode.CANCELLED, "the SDO session is closed", "CANCELLED", {})
+            request_id = self._next_id
+            self._next_id += 1
+            self._pending[request_id] = future
+            self._requests.put(build(request_id))
+        return future
+
+    def read(
+        self,
+        node: int,
+        index: int,
+        subindex: int = 0,
+        type: Optional[DataType] = None,
+        *,
+        block: bool = False,
+        timeout_ms: int = 0,
+    ) -> "Any":
+        """Sends a read (as :meth:`Client.read_sdo`); a future of its
+        :class:`SdoValue`."""
+        read = canopen_pb2.ReadSdoRequest(
+            bus=self.bus,
+            node=node,
+            index=index,
+            subindex=subindex,
+            type=int(type) if type is not None else 0,
+            options=canopen_pb2.SdoOptions(timeout_ms=timeout_ms, block=block),
+        )
+        return self._send(lambda i: canopen_pb2.SdoSessionRequest(id=i, read=read))
+
+    def write(
+        self,
+        node: int,
+        index: int,
+        subindex: int,
+        value: Scalar,
+        type: Optional[DataType] = None,
+        *,
+        block: bool = False,
+        timeout_ms: int = 0,
+    ) -> "Any":
+        """Sends a write (as :meth:`Client.write_sdo`); a future of the
+        bytes written."""
+        options = canopen_pb2.SdoOptions(timeout_ms=timeout_ms, block=block)
+        common = dict(bus=self.bus, node=node, index=index, subindex=subindex, options=options)
+        if type is None:
+            if not isinstance(value, (bytes, bytearray)):
+                raise TypeError("a value without a type must be bytes")
+            write = canopen_pb2.WriteSdoRequest(raw=bytes(value), **common)
+        else:
+            write = canopen_pb2.WriteSdoRequest(value=_value_to_pb(value, type), **common)
+        return self._send(lambda i: canopen_pb2.SdoSessionRequest(id=i, write=write))
+
+    def close(self) -> None:
+        """Ends the session after every outstanding request is answered."""
+        with self._lock:
+            if self._closed:
+                return
+            self._requests.put(self._END)
+        self._reader.join()
+
+    def cancel(self) -> None:
+        """Ends the session now: outstanding transfers are aborted, their
+        futures fail."""
+        self._call.cancel()
+        self._reader.join()
+
+    def __enter__(self) -> "SdoSession":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
 
 
 class AxisHandle:

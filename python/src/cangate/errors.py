@@ -97,3 +97,14 @@ def from_rpc_error(err: grpc.RpcError) -> CangateError:
     if reason in _SDO_REASONS:
         return SdoAbortError(code, message or "", reason, metadata, sdo)
     return CangateError(code, message or "", reason, metadata)
+
+
+def from_session_error(err: "canopen_pb2.SdoSessionError") -> CangateError:
+    """The python exception of a failed request of an SDO session: the
+    same as the unary call's (`err` carries its status's code, message,
+    ErrorInfo reason and metadata, and SDO abort)."""
+    code = next((c for c in grpc.StatusCode if c.value[0] == err.code), grpc.StatusCode.UNKNOWN)
+    sdo = err.abort if err.HasField("abort") else None
+    if err.reason in _SDO_REASONS:
+        return SdoAbortError(code, err.message, err.reason, dict(err.metadata), sdo)
+    return CangateError(code, err.message, err.reason, dict(err.metadata))

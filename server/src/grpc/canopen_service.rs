@@ -5,6 +5,7 @@ use super::forward::{
     AtShutdown, Forward, MessageStream, Received, spawn_forward, spawn_forwarding, stream_of,
 };
 use super::runtime_errors::{axis_active, lookup_error};
+use super::sdo_session::{self, Caller, audit_write, check_role};
 use crate::canopen::dcf_export::DcfExportError;
 use crate::canopen::pdo_config::PdoConfigError;
 use crate::canopen::program::{ProgramEvent, ProgramFailure, ProgramStartError};
@@ -15,6 +16,7 @@ use crate::convert::canopen::{
     sdo_transfer_to_pb, value_from_pb, value_from_pb_as, value_to_pb,
 };
 use crate::gateway::Gateway;
+use crate::security::{Identity, RequestBudget};
 use cangate_canopen::eds::Eds;
 use cangate_canopen::master::SdoRequest;
 use cangate_canopen::nmt::NmtCommand;
@@ -42,13 +44,19 @@ impl CanopenService {
     }
 
     fn master(&self, bus: &str) -> Result<&CanopenBus, ApiError> {
-        self.gateway.bus(bus)?;
-        self.gateway.canopen(bus).ok_or_else(|| {
-            ApiError::FailedPrecondition(format!(
-                "bus {bus:?} has no CANopen master (add a [[canopen]] section for it)"
-            ))
-        })
+        master_of(&self.gateway, bus)
     }
+}
+
+/// The CANopen master of a bus: NOT_FOUND for an unknown bus,
+/// FAILED_PRECONDITION for one without a master.
+fn master_of<'g>(gateway: &'g Gateway, bus: &str) -> Result<&'g CanopenBus, ApiError> {
+    gateway.bus(bus)?;
+    gateway.canopen(bus).ok_or_else(|| {
+        ApiError::FailedPrecondition(format!(
+            "bus {bus:?} has no CANopen master (add a [[canopen]] section for it)"
+        ))
+    })
 }
 
 fn node_id(n: u32) -> Result<NodeId, ApiError> {
@@ -372,31 +380,8 @@ impl Canopen for CanopenService {
         req: Request<pb::ReadSdoRequest>,
     ) -> Result<Response<pb::ReadSdoResponse>, Status> {
         let caller = sdo_caller(&req);
-        let req = req.into_inner();
-        let m = self.master(&req.bus)?;
-        let node = known_node(m, req.node)?;
-        let addr = target(m, node, &req.object, req.index, req.subindex)?;
-        let ty = match data_type_from_pb(req.r#type)? {
-            Some(t) => Some(t),
-            None => m
-                .eds(node)
-                .and_then(|e| e.od.get(addr).map(|v| v.data_type)),
-        };
-        let opts = options(req.options.as_ref())?;
-        let out = m
-            .client_sdo(node, SdoRequest::Upload { addr, opts }, &caller)
-            .await
-            .map_err(|e| map_err(node, e))?;
-        let TransferOutcome::Uploaded(raw) = out else {
-            return Err(ApiError::Unavailable("unexpected SDO outcome".into()).into());
-        };
-        let value = match ty {
-            Some(t) => Some(value_to_pb(&Value::decode(t, &raw).map_err(|e| {
-                ApiError::InvalidArgument(format!("{addr} read {} bytes but: {e}", raw.len()))
-            })?)),
-            None => None,
-        };
-        Ok(Response::new(pb::ReadSdoResponse { raw, value }))
+        let m = self.master(&req.get_ref().bus)?;
+        Ok(Response::new(read_sdo(m, req.into_inner(), &caller).await?))
     }
 
     async fn write_sdo(
@@ -404,74 +389,30 @@ impl Canopen for CanopenService {
         req: Request<pb::WriteSdoRequest>,
     ) -> Result<Response<pb::WriteSdoResponse>, Status> {
         let caller = sdo_caller(&req);
-        let req = req.into_inner();
-        let m = self.master(&req.bus)?;
-        let node = known_node(m, req.node)?;
-        let addr = target(m, node, &req.object, req.index, req.subindex)?;
-        // Only an engineer reaches WriteSdo (security/roles.rs), so `force`
-        // is an engineer's decision.
-        if !req.force {
-            m.check_sdo_write(node, addr).map_err(axis_active)?;
-        }
-        let opts = options(req.options.as_ref())?;
-        let data = match req.data {
-            Some(pb::write_sdo_request::Data::Raw(b)) => {
-                // Checked before anything is sent: a value larger than a
-                // fixed-size object would otherwise stream to the node until
-                // it aborts. Objects the EDS does not know, or of variable
-                // size (strings, domains), take any size.
-                if let Some(var) = m.eds(node).and_then(|e| e.od.get(addr).cloned())
-                    && let Some(size) = var.data_type.fixed_size()
-                    && b.len() > size
-                {
-                    return Err(ApiError::InvalidArgument(format!(
-                        "{addr} ({}) is {} of {size} bytes; {} bytes do not fit",
-                        var.name,
-                        var.data_type,
-                        b.len()
-                    ))
-                    .into());
-                }
-                b
-            }
-            Some(pb::write_sdo_request::Data::Value(v)) => {
-                let var = m.eds(node).and_then(|e| e.od.get(addr).cloned());
-                let value = match (data_type_from_pb(v.r#type)?, &var) {
-                    (Some(_), _) => value_from_pb(&v)?,
-                    // No type given: the EDS has it.
-                    (None, Some(var)) => value_from_pb_as(&v, var.data_type).map_err(|e| {
-                        ApiError::InvalidArgument(format!(
-                            "{addr} ({}, {}): {e}",
-                            var.name, var.data_type
-                        ))
-                    })?,
-                    (None, None) => {
-                        return Err(ApiError::InvalidArgument(format!(
-                            "the value has no data type, and the gateway has no EDS entry \
-                             for {addr} of node {node} to take it from: give the type"
-                        ))
-                        .into());
-                    }
-                };
-                if let Some(var) = var {
-                    var.check(&value).map_err(|e| {
-                        ApiError::InvalidArgument(format!("{addr} ({}): {e}", var.name))
-                    })?;
-                }
-                value.encode()
-            }
-            None => {
-                return Err(ApiError::InvalidArgument(
-                    "nothing to write: give value or raw".into(),
-                )
-                .into());
-            }
-        };
-        let n = data.len() as u32;
-        m.client_sdo(node, SdoRequest::Download { addr, data, opts }, &caller)
-            .await
-            .map_err(|e| map_err(node, e))?;
-        Ok(Response::new(pb::WriteSdoResponse { bytes: n }))
+        let m = self.master(&req.get_ref().bus)?;
+        Ok(Response::new(
+            write_sdo(m, req.into_inner(), &caller).await?,
+        ))
+    }
+
+    type SdoSessionStream = MessageStream<pb::SdoSessionAnswer>;
+
+    async fn sdo_session(
+        &self,
+        req: Request<tonic::Streaming<pb::SdoSessionRequest>>,
+    ) -> Result<Response<Self::SdoSessionStream>, Status> {
+        let caller = Arc::new(Caller {
+            name: sdo_caller(&req),
+            identity: req.extensions().get::<Identity>().cloned(),
+            refused_writes: Default::default(),
+            budget: req.extensions().get::<RequestBudget>().cloned(),
+        });
+        let gateway = self.gateway.clone();
+        Ok(Response::new(sdo_session::serve(
+            gateway.shutdown_token(),
+            req.into_inner(),
+            move |request| session_answer(gateway.clone(), caller.clone(), request),
+        )))
     }
 
     async fn list_objects(
@@ -998,5 +939,148 @@ fn program_error(node: NodeId, f: ProgramFailure) -> ApiError {
                 ProgramError::Sdo { .. } => unreachable!("matched above"),
             }
         }
+    }
+}
+
+/// ReadSdo, for the unary call and an SdoSession alike (`caller`: whose
+/// request, see [`sdo_caller`]).
+async fn read_sdo(
+    m: &CanopenBus,
+    req: pb::ReadSdoRequest,
+    caller: &str,
+) -> Result<pb::ReadSdoResponse, ApiError> {
+    let node = known_node(m, req.node)?;
+    let addr = target(m, node, &req.object, req.index, req.subindex)?;
+    let ty = match data_type_from_pb(req.r#type)? {
+        Some(t) => Some(t),
+        None => m
+            .eds(node)
+            .and_then(|e| e.od.get(addr).map(|v| v.data_type)),
+    };
+    let opts = options(req.options.as_ref())?;
+    let out = m
+        .client_sdo(node, SdoRequest::Upload { addr, opts }, caller)
+        .await
+        .map_err(|e| map_err(node, e))?;
+    let TransferOutcome::Uploaded(raw) = out else {
+        return Err(ApiError::Unavailable("unexpected SDO outcome".into()));
+    };
+    let value = match ty {
+        Some(t) => Some(value_to_pb(&Value::decode(t, &raw).map_err(|e| {
+            ApiError::InvalidArgument(format!("{addr} read {} bytes but: {e}", raw.len()))
+        })?)),
+        None => None,
+    };
+    Ok(pb::ReadSdoResponse { raw, value })
+}
+
+/// WriteSdo, for the unary call and an SdoSession alike. The caller's role
+/// is checked before (security/roles.rs): `force` is its decision.
+async fn write_sdo(
+    m: &CanopenBus,
+    req: pb::WriteSdoRequest,
+    caller: &str,
+) -> Result<pb::WriteSdoResponse, ApiError> {
+    let node = known_node(m, req.node)?;
+    let addr = target(m, node, &req.object, req.index, req.subindex)?;
+    // Only an engineer reaches here (WriteSdo's role in security/roles.rs,
+    // checked per request in an SdoSession), so `force` is an engineer's
+    // decision.
+    if !req.force {
+        m.check_sdo_write(node, addr).map_err(axis_active)?;
+    }
+    let opts = options(req.options.as_ref())?;
+    let data = match req.data {
+        Some(pb::write_sdo_request::Data::Raw(b)) => {
+            // Checked before anything is sent: a value larger than a
+            // fixed-size object would otherwise stream to the node until
+            // it aborts. Objects the EDS does not know, or of variable
+            // size (strings, domains), take any size.
+            if let Some(var) = m.eds(node).and_then(|e| e.od.get(addr).cloned())
+                && let Some(size) = var.data_type.fixed_size()
+                && b.len() > size
+            {
+                return Err(ApiError::InvalidArgument(format!(
+                    "{addr} ({}) is {} of {size} bytes; {} bytes do not fit",
+                    var.name,
+                    var.data_type,
+                    b.len()
+                )));
+            }
+            b
+        }
+        Some(pb::write_sdo_request::Data::Value(v)) => {
+            let var = m.eds(node).and_then(|e| e.od.get(addr).cloned());
+            let value = match (data_type_from_pb(v.r#type)?, &var) {
+                (Some(_), _) => value_from_pb(&v)?,
+                // No type given: the EDS has it.
+                (None, Some(var)) => value_from_pb_as(&v, var.data_type).map_err(|e| {
+                    ApiError::InvalidArgument(format!(
+                        "{addr} ({}, {}): {e}",
+                        var.name, var.data_type
+                    ))
+                })?,
+                (None, None) => {
+                    return Err(ApiError::InvalidArgument(format!(
+                        "the value has no data type, and the gateway has no EDS entry \
+                         for {addr} of node {node} to take it from: give the type"
+                    )));
+                }
+            };
+            if let Some(var) = var {
+                var.check(&value).map_err(|e| {
+                    ApiError::InvalidArgument(format!("{addr} ({}): {e}", var.name))
+                })?;
+            }
+            value.encode()
+        }
+        None => {
+            return Err(ApiError::InvalidArgument(
+                "nothing to write: give value or raw".into(),
+            ));
+        }
+    };
+    let n = data.len() as u32;
+    m.client_sdo(node, SdoRequest::Download { addr, data, opts }, caller)
+        .await
+        .map_err(|e| map_err(node, e))?;
+    Ok(pb::WriteSdoResponse { bytes: n })
+}
+
+/// Runs one request of an SdoSession as ReadSdo/WriteSdo: its answer.
+async fn session_answer(
+    gateway: Arc<Gateway>,
+    caller: Arc<Caller>,
+    request: pb::SdoSessionRequest,
+) -> pb::SdoSessionAnswer {
+    use pb::sdo_session_answer::Result as A;
+    use pb::sdo_session_request::Request as R;
+    let result = match request.request {
+        Some(R::Read(q)) => async {
+            check_role(&caller, "ReadSdo")?;
+            let m = master_of(&gateway, &q.bus)?;
+            read_sdo(m, q, &caller.name).await
+        }
+        .await
+        .map(A::Read),
+        Some(R::Write(q)) => {
+            let (bus, node, index, sub, object) =
+                (q.bus.clone(), q.node, q.index, q.subindex, q.object.clone());
+            let result = async {
+                check_role(&caller, "WriteSdo")?;
+                let m = master_of(&gateway, &q.bus)?;
+                write_sdo(m, q, &caller.name).await
+            }
+            .await;
+            audit_write(&caller, &bus, node, index, sub, &object, &result);
+            result.map(A::Write)
+        }
+        None => Err(ApiError::InvalidArgument(
+            "an SdoSession request needs read or write".into(),
+        )),
+    };
+    pb::SdoSessionAnswer {
+        id: request.id,
+        result: Some(result.unwrap_or_else(|e| A::Error(e.into()))),
     }
 }

@@ -443,6 +443,31 @@ impl From<ApiError> for Status {
     }
 }
 
+/// The answer of a failed SdoSession request: the same code, message,
+/// ErrorInfo reason and metadata, and SDO abort as the status the unary
+/// call would have returned.
+impl From<ApiError> for cangate_proto::v1::SdoSessionError {
+    fn from(e: ApiError) -> Self {
+        let abort = match &e {
+            ApiError::Sdo { error, .. } | ApiError::SdoInStep { error, .. } => {
+                Some(sdo_details(error))
+            }
+            _ => None,
+        };
+        cangate_proto::v1::SdoSessionError {
+            code: e.code() as i32,
+            message: cut(&e.to_string(), MAX_DETAILS_MESSAGE).to_string(),
+            reason: e.reason(),
+            metadata: e
+                .metadata()
+                .into_iter()
+                .map(|(k, v)| (k.to_string(), v))
+                .collect(),
+            abort,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -9,6 +9,7 @@ mod forward;
 pub mod handwheel_service;
 pub mod lss_service;
 mod runtime_errors;
+pub mod sdo_session;
 pub mod session_service;
 pub mod setpoint_streams;
 pub mod simulator_service;

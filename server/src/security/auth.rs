@@ -699,6 +699,11 @@ where
         if let Some(b) = queue_budget {
             req.extensions_mut().insert(b);
         }
+        if let Some(b) = &frame_budget
+            && rule.is_some_and(roles::carries_requests)
+        {
+            req.extensions_mut().insert(b.requests());
+        }
         if let Some(b) = frame_budget
             && rule.is_some_and(roles::sends_raw_frames)
         {

@@ -438,6 +438,63 @@ impl FrameBudget {
     }
 }
 
+impl FrameBudget {
+    /// The same client's call budget, for an RPC whose messages are calls
+    /// of their own (an SdoSession's requests).
+    pub fn requests(&self) -> RequestBudget {
+        RequestBudget {
+            limits: self.limits.clone(),
+            key: self.key.clone(),
+        }
+    }
+}
+
+/// A client's call rate (`requests_per_second_per_client`, `burst`) for
+/// the requests inside a stream: put into the request's extensions by the
+/// security layer for the RPCs that carry requests (an SdoSession), taken
+/// by the service per request, so a session costs what the same unary
+/// calls would.
+#[derive(Debug, Clone)]
+pub struct RequestBudget {
+    limits: Limits,
+    key: Arc<str>,
+}
+
+impl RequestBudget {
+    /// Takes one call's token, or says which limit it exceeds.
+    ///
+    /// # Errors
+    /// When the client's bucket is empty.
+    pub fn take(&self) -> Result<(), LimitExceeded> {
+        let now = Instant::now();
+        let cfg = &self.limits.inner.config;
+        let rate = f64::from(cfg.requests_per_second_per_client);
+        if rate <= 0.0 {
+            return Ok(());
+        }
+        let mut clients = self
+            .limits
+            .inner
+            .clients
+            .lock()
+            .unwrap_or_else(|p| p.into_inner());
+        let c = clients
+            .entry(self.key.clone())
+            .or_insert_with(|| ClientState::new(cfg, now));
+        let elapsed = now.saturating_duration_since(c.refilled).as_secs_f64();
+        c.tokens = (c.tokens + elapsed * rate).min(f64::from(cfg.burst));
+        c.refilled = now;
+        if c.tokens < 1.0 {
+            return Err(LimitExceeded(format!(
+                "rate limit: {} exceeds requests_per_second_per_client = {} (burst = {})",
+                self.key, cfg.requests_per_second_per_client, cfg.burst
+            )));
+        }
+        c.tokens -= 1.0;
+        Ok(())
+    }
+}
+
 /// Refused calls per peer address (bad or missing credentials): a token
 /// bucket per address. While an address's bucket is empty its calls are
 /// refused before their credentials are checked, so a peer guessing

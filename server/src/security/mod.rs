@@ -19,7 +19,7 @@ pub mod tls;
 
 pub use crate::config::{Role, SecurityConfig};
 pub use auth::{Refusal, SecurityLayer, SecurityService, SessionAdmission};
-pub use limits::{FrameBudget, QueueReservation, StopOverBudget, StreamQueueBudget};
+pub use limits::{FrameBudget, QueueReservation, RequestBudget, StopOverBudget, StreamQueueBudget};
 pub use tls::{ConnInfo, TlsError, TlsReloader};
 
 /// Who made a call; put into the request extensions by the security

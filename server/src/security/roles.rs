@@ -57,6 +57,9 @@ pub const TABLE: &[Rule] = &[
     rule("/cangate.v1.Canopen/SendNmt", E, false),
     rule("/cangate.v1.Canopen/ReadSdo", V, false),
     rule("/cangate.v1.Canopen/WriteSdo", E, false),
+    // Each request of a session needs the role of ReadSdo or WriteSdo (see
+    // [`session_request_role`]); opening one is viewing.
+    rule("/cangate.v1.Canopen/SdoSession", V, true),
     rule("/cangate.v1.Canopen/ListObjects", V, false),
     rule("/cangate.v1.Canopen/ListSdoTransfers", V, false),
     rule("/cangate.v1.Canopen/ScanNetwork", V, false),
@@ -152,6 +155,17 @@ pub fn lookup(path: &str) -> Option<&'static Rule> {
     TABLE.iter().find(|r| r.path == path)
 }
 
+/// The role one request inside a session needs: that of the unary RPC at
+/// `path` it stands for (an SdoSession read needs ReadSdo's, a write
+/// WriteSdo's), so that a session grants nothing the unary calls do not.
+/// None for an unclassified path (refuse).
+pub fn session_request_role(path: &str) -> Option<Role> {
+    lookup(path).map(|r| match r.access {
+        Access::Public => Role::Viewer,
+        Access::Role(role) => role,
+    })
+}
+
 /// True for the stops, which the limits give a budget of their own (see
 /// [`super::limits`]): a machine must be stoppable by a client that is at
 /// its limits for everything else.
@@ -170,6 +184,13 @@ pub fn sends_raw_frames(rule: &Rule) -> bool {
         rule.path,
         "/cangate.v1.Bus/SendFrames" | "/cangate.v1.Bus/Attach"
     )
+}
+
+/// True for the RPCs whose stream carries requests that each count as a
+/// call against the client's call rate (see
+/// [`super::limits::RequestBudget`]).
+pub fn carries_requests(rule: &Rule) -> bool {
+    rule.path == "/cangate.v1.Canopen/SdoSession"
 }
 
 /// True for calls that change state (role operator or above): these are

@@ -312,6 +312,49 @@ class WriteSdoResponse(_message.Message):
     bytes: int
     def __init__(self, bytes: _Optional[int] = ...) -> None: ...
 
+class SdoSessionRequest(_message.Message):
+    __slots__ = ("id", "read", "write")
+    ID_FIELD_NUMBER: _ClassVar[int]
+    READ_FIELD_NUMBER: _ClassVar[int]
+    WRITE_FIELD_NUMBER: _ClassVar[int]
+    id: int
+    read: ReadSdoRequest
+    write: WriteSdoRequest
+    def __init__(self, id: _Optional[int] = ..., read: _Optional[_Union[ReadSdoRequest, _Mapping]] = ..., write: _Optional[_Union[WriteSdoRequest, _Mapping]] = ...) -> None: ...
+
+class SdoSessionAnswer(_message.Message):
+    __slots__ = ("id", "read", "write", "error")
+    ID_FIELD_NUMBER: _ClassVar[int]
+    READ_FIELD_NUMBER: _ClassVar[int]
+    WRITE_FIELD_NUMBER: _ClassVar[int]
+    ERROR_FIELD_NUMBER: _ClassVar[int]
+    id: int
+    read: ReadSdoResponse
+    write: WriteSdoResponse
+    error: SdoSessionError
+    def __init__(self, id: _Optional[int] = ..., read: _Optional[_Union[ReadSdoResponse, _Mapping]] = ..., write: _Optional[_Union[WriteSdoResponse, _Mapping]] = ..., error: _Optional[_Union[SdoSessionError, _Mapping]] = ...) -> None: ...
+
+class SdoSessionError(_message.Message):
+    __slots__ = ("code", "message", "reason", "metadata", "abort")
+    class MetadataEntry(_message.Message):
+        __slots__ = ("key", "value")
+        KEY_FIELD_NUMBER: _ClassVar[int]
+        VALUE_FIELD_NUMBER: _ClassVar[int]
+        key: str
+        value: str
+        def __init__(self, key: _Optional[str] = ..., value: _Optional[str] = ...) -> None: ...
+    CODE_FIELD_NUMBER: _ClassVar[int]
+    MESSAGE_FIELD_NUMBER: _ClassVar[int]
+    REASON_FIELD_NUMBER: _ClassVar[int]
+    METADATA_FIELD_NUMBER: _ClassVar[int]
+    ABORT_FIELD_NUMBER: _ClassVar[int]
+    code: int
+    message: str
+    reason: str
+    metadata: _containers.ScalarMap[str, str]
+    abort: SdoAbortDetails
+    def __init__(self, code: _Optional[int] = ..., message: _Optional[str] = ..., reason: _Optional[str] = ..., metadata: _Optional[_Mapping[str, str]] = ..., abort: _Optional[_Union[SdoAbortDetails, _Mapping]] = ...) -> None: ...
+
 class ListObjectsRequest(_message.Message):
     __slots__ = ("bus", "node")
     BUS_FIELD_NUMBER: _ClassVar[int]

@@ -60,6 +60,11 @@ class CanopenStub:
                 request_serializer=cangate_dot_v1_dot_canopen__pb2.WriteSdoRequest.SerializeToString,
                 response_deserializer=cangate_dot_v1_dot_canopen__pb2.WriteSdoResponse.FromString,
                 _registered_method=True)
+        self.SdoSession = channel.stream_stream(
+                '/cangate.v1.Canopen/SdoSession',
+                request_serializer=cangate_dot_v1_dot_canopen__pb2.SdoSessionRequest.SerializeToString,
+                response_deserializer=cangate_dot_v1_dot_canopen__pb2.SdoSessionAnswer.FromString,
+                _registered_method=True)
         self.ListObjects = channel.unary_unary(
                 '/cangate.v1.Canopen/ListObjects',
                 request_serializer=cangate_dot_v1_dot_canopen__pb2.ListObjectsRequest.SerializeToString,
@@ -165,6 +170,30 @@ class CanopenServicer:
         """Writes an object over SDO. A write to the process or program objects
         of an enabled axis's drive is refused unless forced (see
         WriteSdoRequest.force).
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def SdoSession(self, request_iterator, context):
+        """SDO reads and writes as requests and answers on one stream, for loops
+        of SDO traffic without a call per transfer. Each request carries a
+        client-chosen id; its answer carries the same id and the result of
+        ReadSdo/WriteSdo, or their error as an SdoSessionError (the stream goes
+        on). Requests to one node are answered in the order they were sent;
+        those to different nodes run concurrently, so answers of different
+        nodes may interleave. At most 64 requests of a session are outstanding
+        (sent, not yet answered): beyond that the gateway stops reading the
+        stream until an answer is out (flow control of the transport holds the
+        client back). The role is checked per request: a read as ReadSdo
+        (viewer), a write as WriteSdo (engineer); a write refused for the role
+        is a PERMISSION_DENIED answer. Each read or write counts as a call
+        against the client's call rate ([security.limits]; over it a
+        RATE_LIMIT answer). The same guards as WriteSdo apply
+        (WriteSdoRequest.force). Ending or cancelling the stream cancels its
+        outstanding transfers (the gateway aborts those on the bus); the
+        client ends its half of the stream to have every answer and then the
+        end of the stream.
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')
@@ -355,6 +384,11 @@ def add_CanopenServicer_to_server(servicer, server):
                     servicer.WriteSdo,
                     request_deserializer=cangate_dot_v1_dot_canopen__pb2.WriteSdoRequest.FromString,
                     response_serializer=cangate_dot_v1_dot_canopen__pb2.WriteSdoResponse.SerializeToString,
+            ),
+            'SdoSession': grpc.stream_stream_rpc_method_handler(
+                    servicer.SdoSession,
+                    request_deserializer=cangate_dot_v1_dot_canopen__pb2.SdoSessionRequest.FromString,
+                    response_serializer=cangate_dot_v1_dot_canopen__pb2.SdoSessionAnswer.SerializeToString,
             ),
             'ListObjects': grpc.unary_unary_rpc_method_handler(
                     servicer.ListObjects,
@@ -558,6 +592,33 @@ class Canopen:
             '/cangate.v1.Canopen/WriteSdo',
             cangate_dot_v1_dot_canopen__pb2.WriteSdoRequest.SerializeToString,
             cangate_dot_v1_dot_canopen__pb2.WriteSdoResponse.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def SdoSession(request_iterator,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.stream_stream(
+            request_iterator,
+            target,
+            '/cangate.v1.Canopen/SdoSession',
+            cangate_dot_v1_dot_canopen__pb2.SdoSessionRequest.SerializeToString,
+            cangate_dot_v1_dot_canopen__pb2.SdoSessionAnswer.FromString,
             options,
             channel_credentials,
             insecure,

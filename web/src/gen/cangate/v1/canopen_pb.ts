@@ -150,7 +150,7 @@ import type { Message } from "@bufbuild/protobuf";
  * Describes the file cangate/v1/canopen.proto.
  */
 export const file_cangate_v1_canopen: GenFile = /*@__PURE__*/
-  fileDesc("ChhjYW5nYXRlL3YxL2Nhbm9wZW4ucHJvdG8SCmNhbmdhdGUudjEiugEKBVZhbHVlEiIKBHR5cGUYASABKA4yFC5jYW5nYXRlLnYxLkRhdGFUeXBlEhQKCmJvb2xfdmFsdWUYAiABKAhIABITCglpbnRfdmFsdWUYAyABKBJIABIUCgp1aW50X3ZhbHVlGAQgASgESAASFAoKcmVhbF92YWx1ZRgFIAEoAUgAEhYKDHN0cmluZ192YWx1ZRgGIAEoCUgAEhUKC2J5dGVzX3ZhbHVlGAcgASgMSABCBwoFdmFsdWUiVQoISWRlbnRpdHkSEQoJdmVuZG9yX2lkGAEgASgNEhQKDHByb2R1Y3RfY29kZRgCIAEoDRIQCghyZXZpc2lvbhgDIAEoDRIOCgZzZXJpYWwYBCABKA0iigEKBEVtY3kSDAoEbm9kZRgBIAEoDRIMCgRjb2RlGAIgASgNEhEKCWNvZGVfbmFtZRgDIAEoCRIQCghyZWdpc3RlchgEIAEoDRIVCg1yZWdpc3Rlcl9iaXRzGAUgAygJEhQKDG1hbnVmYWN0dXJlchgGIAEoDBIUCgx0aW1lc3RhbXBfbnMYByABKAQimgQKBE5vZGUSCwoDYnVzGAEgASgJEgoKAmlkGAIgASgNEgwKBG5hbWUYAyABKAkSIwoFc3RhdGUYBCABKA4yFC5jYW5nYXRlLnYxLk5tdFN0YXRlEh0KEGhlYXJ0YmVhdF9hZ2VfbXMYBSABKARIAIgBARIWCg5oZWFydGJlYXRfbG9zdBgGIAEoCBIcChRoZWFydGJlYXRfdGltZW91dF9tcxgHIAEoDRIYCgtkZXZpY2VfdHlwZRgIIAEoDUgBiAEBEhMKC2RldmljZV9uYW1lGAkgASgJEiYKCGlkZW50aXR5GAogASgLMhQuY2FuZ2F0ZS52MS5JZGVudGl0eRImCgxhY3RpdmVfZXJyb3IYCyABKAsyEC5jYW5nYXRlLnYxLkVtY3kSJgoMZW1jeV9oaXN0b3J5GAwgAygLMhAuY2FuZ2F0ZS52MS5FbWN5EhAKCGJvb3RfdXBzGA0gASgEEhIKCmNvbmZpZ3VyZWQYDiABKAgSLgoKbW9uaXRvcmluZxgPIAEoDjIaLmNhbmdhdGUudjEuTGlmZU1vbml0b3JpbmcSFQoNZ3VhcmRfdGltZV9tcxgQIAEoDRIYChBsaWZlX3RpbWVfZmFjdG9yGBEgASgNEh4KFmd1YXJkaW5nX3RvZ2dsZV9lcnJvcnMYEiABKARCEwoRX2hlYXJ0YmVhdF9hZ2VfbXNCDgoMX2RldmljZV90eXBlIh8KEExpc3ROb2Rlc1JlcXVlc3QSCwoDYnVzGAEgASgJIjQKEUxpc3ROb2Rlc1Jlc3BvbnNlEh8KBW5vZGVzGAEgAygLMhAuY2FuZ2F0ZS52MS5Ob2RlIisKDkdldE5vZGVSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNImMKDlNlbmRObXRSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEicKB2NvbW1hbmQYAyABKA4yFi5jYW5nYXRlLnYxLk5tdENvbW1hbmQSDQoFZm9yY2UYBCABKAgiEQoPU2VuZE5tdFJlc3BvbnNlIi8KClNkb09wdGlvbnMSEgoKdGltZW91dF9tcxgBIAEoDRINCgVibG9jaxgCIAEoCCKpAQoOUmVhZFNkb1JlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SDQoFaW5kZXgYAyABKA0SEAoIc3ViaW5kZXgYBCABKA0SIgoEdHlwZRgFIAEoDjIULmNhbmdhdGUudjEuRGF0YVR5cGUSJwoHb3B0aW9ucxgGIAEoCzIWLmNhbmdhdGUudjEuU2RvT3B0aW9ucxIOCgZvYmplY3QYByABKAkiQAoPUmVhZFNkb1Jlc3BvbnNlEgsKA3JhdxgBIAEoDBIgCgV2YWx1ZRgCIAEoCzIRLmNhbmdhdGUudjEuVmFsdWUi0AEKD1dyaXRlU2RvUmVxdWVzdBILCgNidXMYASABKAkSDAoEbm9kZRgCIAEoDRINCgVpbmRleBgDIAEoDRIQCghzdWJpbmRleBgEIAEoDRIiCgV2YWx1ZRgFIAEoCzIRLmNhbmdhdGUudjEuVmFsdWVIABINCgNyYXcYBiABKAxIABInCgdvcHRpb25zGAcgASgLMhYuY2FuZ2F0ZS52MS5TZG9PcHRpb25zEg4KBm9iamVjdBgIIAEoCRINCgVmb3JjZRgJIAEoCEIGCgRkYXRhIiEKEFdyaXRlU2RvUmVzcG9uc2USDQoFYnl0ZXMYASABKA0iLwoSTGlzdE9iamVjdHNSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNIvsCCgpPYmplY3RJbmZvEg0KBWluZGV4GAEgASgNEhAKCHN1YmluZGV4GAIgASgNEgwKBG5hbWUYAyABKAkSEwoLb2JqZWN0X25hbWUYBCABKAkSEAoIc3ViX25hbWUYBSABKAkSEwoLb2JqZWN0X3R5cGUYBiABKAkSIgoEdHlwZRgHIAEoDjIULmNhbmdhdGUudjEuRGF0YVR5cGUSEQoJdHlwZV9jb2RlGAggASgNEigKBmFjY2VzcxgJIAEoDjIYLmNhbmdhdGUudjEuT2JqZWN0QWNjZXNzEhQKDHBkb19tYXBwYWJsZRgKIAEoCBIoCg1kZWZhdWx0X3ZhbHVlGAsgASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZRIUCgxkZWZhdWx0X3RleHQYDCABKAkSJAoJbG93X2xpbWl0GA0gASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZRIlCgpoaWdoX2xpbWl0GA4gASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZSI+ChNMaXN0T2JqZWN0c1Jlc3BvbnNlEicKB29iamVjdHMYASADKAsyFi5jYW5nYXRlLnYxLk9iamVjdEluZm8iNQoSU2Nhbk5ldHdvcmtSZXF1ZXN0EgsKA2J1cxgBIAEoCRISCgp0aW1lb3V0X21zGAIgASgNIjYKE1NjYW5OZXR3b3JrUmVzcG9uc2USHwoFbm9kZXMYASADKAsyEC5jYW5nYXRlLnYxLk5vZGUiNQoXU3RyZWFtTm9kZUV2ZW50c1JlcXVlc3QSCwoDYnVzGAEgASgJEg0KBW5vZGVzGAIgAygNIoIECglOb2RlRXZlbnQSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SFAoMdGltZXN0YW1wX25zGAMgASgEEiUKB2Jvb3RfdXAYBCABKAsyEi5jYW5nYXRlLnYxLkJvb3RVcEgAEjAKDXN0YXRlX2NoYW5nZWQYBSABKAsyFy5jYW5nYXRlLnYxLlN0YXRlQ2hhbmdlSAASMwoOaGVhcnRiZWF0X2xvc3QYBiABKAsyGS5jYW5nYXRlLnYxLkhlYXJ0YmVhdExvc3RIABI9ChNoZWFydGJlYXRfcmVjb3ZlcmVkGAcgASgLMh4uY2FuZ2F0ZS52MS5IZWFydGJlYXRSZWNvdmVyZWRIABIgCgRlbWN5GAggASgLMhAuY2FuZ2F0ZS52MS5FbWN5SAASJgoEbG9zdBgJIAEoCzIWLmNhbmdhdGUudjEuRXZlbnRzTG9zdEgAEjMKDmJvb3RfY29tcGxldGVkGAogASgLMhkuY2FuZ2F0ZS52MS5Cb290Q29tcGxldGVkSAASLQoLYm9vdF9mYWlsZWQYCyABKAsyFi5jYW5nYXRlLnYxLkJvb3RGYWlsZWRIABJAChVndWFyZGluZ190b2dnbGVfZXJyb3IYDCABKAsyHy5jYW5nYXRlLnYxLkd1YXJkaW5nVG9nZ2xlRXJyb3JIAEIHCgVldmVudCJLChNHdWFyZGluZ1RvZ2dsZUVycm9yEgwKBGRhdGEYASABKA0SFwoPZXhwZWN0ZWRfdG9nZ2xlGAIgASgIEg0KBWNvdW50GAMgASgEIg8KDUJvb3RDb21wbGV0ZWQiHAoKQm9vdEZhaWxlZBIOCgZyZWFzb24YASABKAkiLgoQU3RyZWFtUGRvUmVxdWVzdBILCgNidXMYASABKAkSDQoFbm9kZXMYAiADKA0iWwoIUGRvVmFsdWUSDQoFaW5kZXgYASABKA0SEAoIc3ViaW5kZXgYAiABKA0SDAoEbmFtZRgDIAEoCRIgCgV2YWx1ZRgEIAEoCzIRLmNhbmdhdGUudjEuVmFsdWUilQEKClBkb01lc3NhZ2USCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SCwoDcGRvGAMgASgNEg4KBmNvYl9pZBgEIAEoDRIUCgx0aW1lc3RhbXBfbnMYBSABKAQSJAoGdmFsdWVzGAYgAygLMhQuY2FuZ2F0ZS52MS5QZG9WYWx1ZRITCgtsb3N0X2JlZm9yZRgHIAEoBCJfCg9Xcml0ZVBkb1JlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SCwoDcGRvGAMgASgNEiQKBnZhbHVlcxgEIAMoCzIULmNhbmdhdGUudjEuUGRvVmFsdWUiIAoQV3JpdGVQZG9SZXNwb25zZRIMCgRkYXRhGAEgASgMIl4KD1Bkb01hcHBlZE9iamVjdBINCgVpbmRleBgBIAEoDRIQCghzdWJpbmRleBgCIAEoDRIMCgRiaXRzGAMgASgNEgwKBG5hbWUYBCABKAkSDgoGb2JqZWN0GAUgASgJIuABChBQZG9Db25maWd1cmF0aW9uEiEKBGtpbmQYASABKA4yEy5jYW5nYXRlLnYxLlBkb0tpbmQSCwoDcGRvGAIgASgNEg4KBmNvYl9pZBgDIAEoDRIPCgdlbmFibGVkGAQgASgIEhkKEXRyYW5zbWlzc2lvbl90eXBlGAUgASgNEhoKEmluaGliaXRfdGltZV8xMDB1cxgGIAEoDRIWCg5ldmVudF90aW1lcl9tcxgHIAEoDRIsCgdtYXBwaW5nGAggAygLMhsuY2FuZ2F0ZS52MS5QZG9NYXBwZWRPYmplY3QiigEKFFJlYWRQZG9Db25maWdSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEiEKBGtpbmQYAyABKA4yEy5jYW5nYXRlLnYxLlBkb0tpbmQSCwoDcGRvGAQgASgNEicKB29wdGlvbnMYBSABKAsyFi5jYW5nYXRlLnYxLlNkb09wdGlvbnMiQwoVUmVhZFBkb0NvbmZpZ1Jlc3BvbnNlEioKBHBkb3MYASADKAsyHC5jYW5nYXRlLnYxLlBkb0NvbmZpZ3VyYXRpb24ihAEKE0NvbmZpZ3VyZVBkb1JlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SKQoDcGRvGAMgASgLMhwuY2FuZ2F0ZS52MS5QZG9Db25maWd1cmF0aW9uEicKB29wdGlvbnMYBCABKAsyFi5jYW5nYXRlLnYxLlNkb09wdGlvbnMiUQoUQ29uZmlndXJlUGRvUmVzcG9uc2USKQoDcGRvGAEgASgLMhwuY2FuZ2F0ZS52MS5QZG9Db25maWd1cmF0aW9uEg4KBndyaXRlcxgCIAMoCSIdCg5HZXRTeW5jUmVxdWVzdBILCgNidXMYASABKAkimQEKDlNldFN5bmNSZXF1ZXN0EgsKA2J1cxgBIAEoCRIUCgdydW5uaW5nGAIgASgISACIAQESFgoJcGVyaW9kX3VzGAMgASgNSAGIAQESHQoQY291bnRlcl9vdmVyZmxvdxgEIAEoDUgCiAEBQgoKCF9ydW5uaW5nQgwKCl9wZXJpb2RfdXNCEwoRX2NvdW50ZXJfb3ZlcmZsb3cijgEKClN5bmNTdGF0dXMSCwoDYnVzGAEgASgJEg8KB3J1bm5pbmcYAiABKAgSEQoJcGVyaW9kX3VzGAMgASgNEhgKEGNvdW50ZXJfb3ZlcmZsb3cYBCABKA0SDAoEc2VudBgFIAEoBBIPCgdza2lwcGVkGAYgASgEEhYKDnRpbWVfcGVyaW9kX21zGAcgASgNIlUKDlNldFRpbWVSZXF1ZXN0EgsKA2J1cxgBIAEoCRIQCghzZW5kX25vdxgCIAEoCBIWCglwZXJpb2RfbXMYAyABKA1IAIgBAUIMCgpfcGVyaW9kX21zIlAKCVRpbWVPZkRheRIZChFtc19hZnRlcl9taWRuaWdodBgBIAEoDRIXCg9kYXlzX3NpbmNlXzE5ODQYAiABKA0SDwoHdW5peF9tcxgDIAEoBCJOCg9TZXRUaW1lUmVzcG9uc2USIwoEc2VudBgBIAEoCzIVLmNhbmdhdGUudjEuVGltZU9mRGF5EhYKDnRpbWVfcGVyaW9kX21zGAIgASgNIlYKEEV4cG9ydERjZlJlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SJwoHb3B0aW9ucxgDIAEoCzIWLmNhbmdhdGUudjEuU2RvT3B0aW9ucyJACg1Ta2lwcGVkT2JqZWN0Eg0KBWluZGV4GAEgASgNEhAKCHN1YmluZGV4GAIgASgNEg4KBnJlYXNvbhgDIAEoCSJiChFFeHBvcnREY2ZSZXNwb25zZRILCgNkY2YYASABKAkSFAoMb2JqZWN0c19yZWFkGAIgASgNEioKB3NraXBwZWQYAyADKAsyGS5jYW5nYXRlLnYxLlNraXBwZWRPYmplY3QiCAoGQm9vdFVwIlMKC1N0YXRlQ2hhbmdlEiIKBGZyb20YASABKA4yFC5jYW5nYXRlLnYxLk5tdFN0YXRlEiAKAnRvGAIgASgOMhQuY2FuZ2F0ZS52MS5ObXRTdGF0ZSJTCg1IZWFydGJlYXRMb3N0EhIKCnRpbWVvdXRfbXMYASABKA0SLgoKbW9uaXRvcmluZxgCIAEoDjIaLmNhbmdhdGUudjEuTGlmZU1vbml0b3JpbmcifAoSSGVhcnRiZWF0UmVjb3ZlcmVkEiMKBXN0YXRlGAEgASgOMhQuY2FuZ2F0ZS52MS5ObXRTdGF0ZRIRCglzaWxlbnRfbXMYAiABKAQSLgoKbW9uaXRvcmluZxgDIAEoDjIaLmNhbmdhdGUudjEuTGlmZU1vbml0b3JpbmciGwoKRXZlbnRzTG9zdBINCgVjb3VudBgBIAEoBCJhCg9TZG9BYm9ydERldGFpbHMSDAoEY29kZRgBIAEoDRIMCgRuYW1lGAIgASgJEg0KBWluZGV4GAMgASgNEhAKCHN1YmluZGV4GAQgASgNEhEKCWZyb21fbm9kZRgFIAEoCCImChdMaXN0U2RvVHJhbnNmZXJzUmVxdWVzdBILCgNidXMYASABKAkikQEKC1Nkb1RyYW5zZmVyEgwKBG5vZGUYASABKA0SDQoFaW5kZXgYAiABKA0SEAoIc3ViaW5kZXgYAyABKA0SDgoGdXBsb2FkGAQgASgIEhAKCHByb3RvY29sGAUgASgJEhMKC3RyYW5zZmVycmVkGAYgASgEEhIKBXRvdGFsGAcgASgESACIAQFCCAoGX3RvdGFsIkYKGExpc3RTZG9UcmFuc2ZlcnNSZXNwb25zZRIqCgl0cmFuc2ZlcnMYASADKAsyFy5jYW5nYXRlLnYxLlNkb1RyYW5zZmVyItcBChZEb3dubG9hZFByb2dyYW1SZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEg0KBWltYWdlGAMgASgMEg8KB3Byb2dyYW0YBCABKA0SJAoXZXhwZWN0ZWRfaWRlbnRpZmljYXRpb24YBSABKA1IAIgBARINCgVjbGVhchgGIAEoCBIYChBmbGFzaF90aW1lb3V0X21zGAcgASgNEhcKD2Jvb3RfdGltZW91dF9tcxgIIAEoDUIaChhfZXhwZWN0ZWRfaWRlbnRpZmljYXRpb24ingEKF0Rvd25sb2FkUHJvZ3JhbVByb2dyZXNzEiUKBHN0ZXAYASABKA4yFy5jYW5nYXRlLnYxLlByb2dyYW1TdGVwEhIKCmJ5dGVzX2RvbmUYAiABKAQSEwoLYnl0ZXNfdG90YWwYAyABKAQSMwoHb3V0Y29tZRgEIAEoCzIiLmNhbmdhdGUudjEuRG93bmxvYWRQcm9ncmFtT3V0Y29tZSLJAQoWRG93bmxvYWRQcm9ncmFtT3V0Y29tZRIfChJvbGRfaWRlbnRpZmljYXRpb24YASABKA1IAIgBARIaChJuZXdfaWRlbnRpZmljYXRpb24YAiABKA0SDQoFYnl0ZXMYAyABKAQSEwoLZHVyYXRpb25fbXMYBCABKAQSGAoQZGF0YV9kdXJhdGlvbl9tcxgFIAEoBBIdChVkYXRhX2J5dGVzX3Blcl9zZWNvbmQYBiABKAFCFQoTX29sZF9pZGVudGlmaWNhdGlvbiqOAQoITm10U3RhdGUSFQoRTk1UX1NUQVRFX1VOS05PV04QABIaChZOTVRfU1RBVEVfSU5JVElBTElTSU5HEAESFQoRTk1UX1NUQVRFX1NUT1BQRUQQAhIZChVOTVRfU1RBVEVfT1BFUkFUSU9OQUwQAxIdChlOTVRfU1RBVEVfUFJFX09QRVJBVElPTkFMEAQqvgEKCk5tdENvbW1hbmQSGwoXTk1UX0NPTU1BTkRfVU5TUEVDSUZJRUQQABIVChFOTVRfQ09NTUFORF9TVEFSVBABEhQKEE5NVF9DT01NQU5EX1NUT1AQAhIlCiFOTVRfQ09NTUFORF9FTlRFUl9QUkVfT1BFUkFUSU9OQUwQAxIaChZOTVRfQ09NTUFORF9SRVNFVF9OT0RFEAQSIwofTk1UX0NPTU1BTkRfUkVTRVRfQ09NTVVOSUNBVElPThAFKqADCghEYXRhVHlwZRIZChVEQVRBX1RZUEVfVU5TUEVDSUZJRUQQABIVChFEQVRBX1RZUEVfQk9PTEVBThABEhYKEkRBVEFfVFlQRV9JTlRFR0VSOBACEhcKE0RBVEFfVFlQRV9JTlRFR0VSMTYQAxIXChNEQVRBX1RZUEVfSU5URUdFUjMyEAQSFwoTREFUQV9UWVBFX1VOU0lHTkVEOBAFEhgKFERBVEFfVFlQRV9VTlNJR05FRDE2EAYSGAoUREFUQV9UWVBFX1VOU0lHTkVEMzIQBxIUChBEQVRBX1RZUEVfUkVBTDMyEAgSHAoYREFUQV9UWVBFX1ZJU0lCTEVfU1RSSU5HEAkSGgoWREFUQV9UWVBFX09DVEVUX1NUUklORxAKEhwKGERBVEFfVFlQRV9VTklDT0RFX1NUUklORxALEhQKEERBVEFfVFlQRV9ET01BSU4QDxIUChBEQVRBX1RZUEVfUkVBTDY0EBESFwoTREFUQV9UWVBFX0lOVEVHRVI2NBAVEhgKFERBVEFfVFlQRV9VTlNJR05FRDY0EBsqbAoOTGlmZU1vbml0b3JpbmcSGAoUTElGRV9NT05JVE9SSU5HX05PTkUQABIdChlMSUZFX01PTklUT1JJTkdfSEVBUlRCRUFUEAESIQodTElGRV9NT05JVE9SSU5HX05PREVfR1VBUkRJTkcQAiq2AQoMT2JqZWN0QWNjZXNzEh0KGU9CSkVDVF9BQ0NFU1NfVU5TUEVDSUZJRUQQABIUChBPQkpFQ1RfQUNDRVNTX1JPEAESFAoQT0JKRUNUX0FDQ0VTU19XTxACEhQKEE9CSkVDVF9BQ0NFU1NfUlcQAxIVChFPQkpFQ1RfQUNDRVNTX1JXUhAEEhUKEU9CSkVDVF9BQ0NFU1NfUldXEAUSFwoTT0JKRUNUX0FDQ0VTU19DT05TVBAGKkkKB1Bkb0tpbmQSGAoUUERPX0tJTkRfVU5TUEVDSUZJRUQQABIRCg1QRE9fS0lORF9SUERPEAESEQoNUERPX0tJTkRfVFBETxACKr8CCgtQcm9ncmFtU3RlcBIcChhQUk9HUkFNX1NURVBfVU5TUEVDSUZJRUQQABIrCidQUk9HUkFNX1NURVBfUkVBRF9JREVOVElGSUNBVElPTl9CRUZPUkUQARIdChlQUk9HUkFNX1NURVBfU1RPUF9QUk9HUkFNEAISHgoaUFJPR1JBTV9TVEVQX0NMRUFSX1BST0dSQU0QAxIeChpQUk9HUkFNX1NURVBfRE9XTkxPQURfREFUQRAEEhsKF1BST0dSQU1fU1RFUF9XQUlUX0ZMQVNIEAUSHgoaUFJPR1JBTV9TVEVQX1NUQVJUX1BST0dSQU0QBhIdChlQUk9HUkFNX1NURVBfV0FJVF9CT09UX1VQEAcSKgomUFJPR1JBTV9TVEVQX1JFQURfSURFTlRJRklDQVRJT05fQUZURVIQCDLLCgoHQ2Fub3BlbhJICglMaXN0Tm9kZXMSHC5jYW5nYXRlLnYxLkxpc3ROb2Rlc1JlcXVlc3QaHS5jYW5nYXRlLnYxLkxpc3ROb2Rlc1Jlc3BvbnNlEjcKB0dldE5vZGUSGi5jYW5nYXRlLnYxLkdldE5vZGVSZXF1ZXN0GhAuY2FuZ2F0ZS52MS5Ob2RlEkIKB1NlbmRObXQSGi5jYW5nYXRlLnYxLlNlbmRObXRSZXF1ZXN0GhsuY2FuZ2F0ZS52MS5TZW5kTm10UmVzcG9uc2USQgoHUmVhZFNkbxIaLmNhbmdhdGUudjEuUmVhZFNkb1JlcXVlc3QaGy5jYW5nYXRlLnYxLlJlYWRTZG9SZXNwb25zZRJFCghXcml0ZVNkbxIbLmNhbmdhdGUudjEuV3JpdGVTZG9SZXF1ZXN0GhwuY2FuZ2F0ZS52MS5Xcml0ZVNkb1Jlc3BvbnNlEk4KC0xpc3RPYmplY3RzEh4uY2FuZ2F0ZS52MS5MaXN0T2JqZWN0c1JlcXVlc3QaHy5jYW5nYXRlLnYxLkxpc3RPYmplY3RzUmVzcG9uc2USXQoQTGlzdFNkb1RyYW5zZmVycxIjLmNhbmdhdGUudjEuTGlzdFNkb1RyYW5zZmVyc1JlcXVlc3QaJC5jYW5nYXRlLnYxLkxpc3RTZG9UcmFuc2ZlcnNSZXNwb25zZRJOCgtTY2FuTmV0d29yaxIeLmNhbmdhdGUudjEuU2Nhbk5ldHdvcmtSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5TY2FuTmV0d29ya1Jlc3BvbnNlElAKEFN0cmVhbU5vZGVFdmVudHMSIy5jYW5nYXRlLnYxLlN0cmVhbU5vZGVFdmVudHNSZXF1ZXN0GhUuY2FuZ2F0ZS52MS5Ob2RlRXZlbnQwARJDCglTdHJlYW1QZG8SHC5jYW5nYXRlLnYxLlN0cmVhbVBkb1JlcXVlc3QaFi5jYW5nYXRlLnYxLlBkb01lc3NhZ2UwARJFCghXcml0ZVBkbxIbLmNhbmdhdGUudjEuV3JpdGVQZG9SZXF1ZXN0GhwuY2FuZ2F0ZS52MS5Xcml0ZVBkb1Jlc3BvbnNlElQKDVJlYWRQZG9Db25maWcSIC5jYW5nYXRlLnYxLlJlYWRQZG9Db25maWdSZXF1ZXN0GiEuY2FuZ2F0ZS52MS5SZWFkUGRvQ29uZmlnUmVzcG9uc2USUQoMQ29uZmlndXJlUGRvEh8uY2FuZ2F0ZS52MS5Db25maWd1cmVQZG9SZXF1ZXN0GiAuY2FuZ2F0ZS52MS5Db25maWd1cmVQZG9SZXNwb25zZRI9CgdHZXRTeW5jEhouY2FuZ2F0ZS52MS5HZXRTeW5jUmVxdWVzdBoWLmNhbmdhdGUudjEuU3luY1N0YXR1cxI9CgdTZXRTeW5jEhouY2FuZ2F0ZS52MS5TZXRTeW5jUmVxdWVzdBoWLmNhbmdhdGUudjEuU3luY1N0YXR1cxJCCgdTZXRUaW1lEhouY2FuZ2F0ZS52MS5TZXRUaW1lUmVxdWVzdBobLmNhbmdhdGUudjEuU2V0VGltZVJlc3BvbnNlEkgKCUV4cG9ydERjZhIcLmNhbmdhdGUudjEuRXhwb3J0RGNmUmVxdWVzdBodLmNhbmdhdGUudjEuRXhwb3J0RGNmUmVzcG9uc2USXAoPRG93bmxvYWRQcm9ncmFtEiIuY2FuZ2F0ZS52MS5Eb3dubG9hZFByb2dyYW1SZXF1ZXN0GiMuY2FuZ2F0ZS52MS5Eb3dubG9hZFByb2dyYW1Qcm9ncmVzczABYgZwcm90bzM");
+  fileDesc("ChhjYW5nYXRlL3YxL2Nhbm9wZW4ucHJvdG8SCmNhbmdhdGUudjEiugEKBVZhbHVlEiIKBHR5cGUYASABKA4yFC5jYW5nYXRlLnYxLkRhdGFUeXBlEhQKCmJvb2xfdmFsdWUYAiABKAhIABITCglpbnRfdmFsdWUYAyABKBJIABIUCgp1aW50X3ZhbHVlGAQgASgESAASFAoKcmVhbF92YWx1ZRgFIAEoAUgAEhYKDHN0cmluZ192YWx1ZRgGIAEoCUgAEhUKC2J5dGVzX3ZhbHVlGAcgASgMSABCBwoFdmFsdWUiVQoISWRlbnRpdHkSEQoJdmVuZG9yX2lkGAEgASgNEhQKDHByb2R1Y3RfY29kZRgCIAEoDRIQCghyZXZpc2lvbhgDIAEoDRIOCgZzZXJpYWwYBCABKA0iigEKBEVtY3kSDAoEbm9kZRgBIAEoDRIMCgRjb2RlGAIgASgNEhEKCWNvZGVfbmFtZRgDIAEoCRIQCghyZWdpc3RlchgEIAEoDRIVCg1yZWdpc3Rlcl9iaXRzGAUgAygJEhQKDG1hbnVmYWN0dXJlchgGIAEoDBIUCgx0aW1lc3RhbXBfbnMYByABKAQimgQKBE5vZGUSCwoDYnVzGAEgASgJEgoKAmlkGAIgASgNEgwKBG5hbWUYAyABKAkSIwoFc3RhdGUYBCABKA4yFC5jYW5nYXRlLnYxLk5tdFN0YXRlEh0KEGhlYXJ0YmVhdF9hZ2VfbXMYBSABKARIAIgBARIWCg5oZWFydGJlYXRfbG9zdBgGIAEoCBIcChRoZWFydGJlYXRfdGltZW91dF9tcxgHIAEoDRIYCgtkZXZpY2VfdHlwZRgIIAEoDUgBiAEBEhMKC2RldmljZV9uYW1lGAkgASgJEiYKCGlkZW50aXR5GAogASgLMhQuY2FuZ2F0ZS52MS5JZGVudGl0eRImCgxhY3RpdmVfZXJyb3IYCyABKAsyEC5jYW5nYXRlLnYxLkVtY3kSJgoMZW1jeV9oaXN0b3J5GAwgAygLMhAuY2FuZ2F0ZS52MS5FbWN5EhAKCGJvb3RfdXBzGA0gASgEEhIKCmNvbmZpZ3VyZWQYDiABKAgSLgoKbW9uaXRvcmluZxgPIAEoDjIaLmNhbmdhdGUudjEuTGlmZU1vbml0b3JpbmcSFQoNZ3VhcmRfdGltZV9tcxgQIAEoDRIYChBsaWZlX3RpbWVfZmFjdG9yGBEgASgNEh4KFmd1YXJkaW5nX3RvZ2dsZV9lcnJvcnMYEiABKARCEwoRX2hlYXJ0YmVhdF9hZ2VfbXNCDgoMX2RldmljZV90eXBlIh8KEExpc3ROb2Rlc1JlcXVlc3QSCwoDYnVzGAEgASgJIjQKEUxpc3ROb2Rlc1Jlc3BvbnNlEh8KBW5vZGVzGAEgAygLMhAuY2FuZ2F0ZS52MS5Ob2RlIisKDkdldE5vZGVSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNImMKDlNlbmRObXRSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEicKB2NvbW1hbmQYAyABKA4yFi5jYW5nYXRlLnYxLk5tdENvbW1hbmQSDQoFZm9yY2UYBCABKAgiEQoPU2VuZE5tdFJlc3BvbnNlIi8KClNkb09wdGlvbnMSEgoKdGltZW91dF9tcxgBIAEoDRINCgVibG9jaxgCIAEoCCKpAQoOUmVhZFNkb1JlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SDQoFaW5kZXgYAyABKA0SEAoIc3ViaW5kZXgYBCABKA0SIgoEdHlwZRgFIAEoDjIULmNhbmdhdGUudjEuRGF0YVR5cGUSJwoHb3B0aW9ucxgGIAEoCzIWLmNhbmdhdGUudjEuU2RvT3B0aW9ucxIOCgZvYmplY3QYByABKAkiQAoPUmVhZFNkb1Jlc3BvbnNlEgsKA3JhdxgBIAEoDBIgCgV2YWx1ZRgCIAEoCzIRLmNhbmdhdGUudjEuVmFsdWUi0AEKD1dyaXRlU2RvUmVxdWVzdBILCgNidXMYASABKAkSDAoEbm9kZRgCIAEoDRINCgVpbmRleBgDIAEoDRIQCghzdWJpbmRleBgEIAEoDRIiCgV2YWx1ZRgFIAEoCzIRLmNhbmdhdGUudjEuVmFsdWVIABINCgNyYXcYBiABKAxIABInCgdvcHRpb25zGAcgASgLMhYuY2FuZ2F0ZS52MS5TZG9PcHRpb25zEg4KBm9iamVjdBgIIAEoCRINCgVmb3JjZRgJIAEoCEIGCgRkYXRhIiEKEFdyaXRlU2RvUmVzcG9uc2USDQoFYnl0ZXMYASABKA0ihAEKEVNkb1Nlc3Npb25SZXF1ZXN0EgoKAmlkGAEgASgEEioKBHJlYWQYAiABKAsyGi5jYW5nYXRlLnYxLlJlYWRTZG9SZXF1ZXN0SAASLAoFd3JpdGUYAyABKAsyGy5jYW5nYXRlLnYxLldyaXRlU2RvUmVxdWVzdEgAQgkKB3JlcXVlc3QisgEKEFNkb1Nlc3Npb25BbnN3ZXISCgoCaWQYASABKAQSKwoEcmVhZBgCIAEoCzIbLmNhbmdhdGUudjEuUmVhZFNkb1Jlc3BvbnNlSAASLQoFd3JpdGUYAyABKAsyHC5jYW5nYXRlLnYxLldyaXRlU2RvUmVzcG9uc2VIABIsCgVlcnJvchgEIAEoCzIbLmNhbmdhdGUudjEuU2RvU2Vzc2lvbkVycm9ySABCCAoGcmVzdWx0ItoBCg9TZG9TZXNzaW9uRXJyb3ISDAoEY29kZRgBIAEoBRIPCgdtZXNzYWdlGAIgASgJEg4KBnJlYXNvbhgDIAEoCRI7CghtZXRhZGF0YRgEIAMoCzIpLmNhbmdhdGUudjEuU2RvU2Vzc2lvbkVycm9yLk1ldGFkYXRhRW50cnkSKgoFYWJvcnQYBSABKAsyGy5jYW5nYXRlLnYxLlNkb0Fib3J0RGV0YWlscxovCg1NZXRhZGF0YUVudHJ5EgsKA2tleRgBIAEoCRINCgV2YWx1ZRgCIAEoCToCOAEiLwoSTGlzdE9iamVjdHNSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNIvsCCgpPYmplY3RJbmZvEg0KBWluZGV4GAEgASgNEhAKCHN1YmluZGV4GAIgASgNEgwKBG5hbWUYAyABKAkSEwoLb2JqZWN0X25hbWUYBCABKAkSEAoIc3ViX25hbWUYBSABKAkSEwoLb2JqZWN0X3R5cGUYBiABKAkSIgoEdHlwZRgHIAEoDjIULmNhbmdhdGUudjEuRGF0YVR5cGUSEQoJdHlwZV9jb2RlGAggASgNEigKBmFjY2VzcxgJIAEoDjIYLmNhbmdhdGUudjEuT2JqZWN0QWNjZXNzEhQKDHBkb19tYXBwYWJsZRgKIAEoCBIoCg1kZWZhdWx0X3ZhbHVlGAsgASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZRIUCgxkZWZhdWx0X3RleHQYDCABKAkSJAoJbG93X2xpbWl0GA0gASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZRIlCgpoaWdoX2xpbWl0GA4gASgLMhEuY2FuZ2F0ZS52MS5WYWx1ZSI+ChNMaXN0T2JqZWN0c1Jlc3BvbnNlEicKB29iamVjdHMYASADKAsyFi5jYW5nYXRlLnYxLk9iamVjdEluZm8iNQoSU2Nhbk5ldHdvcmtSZXF1ZXN0EgsKA2J1cxgBIAEoCRISCgp0aW1lb3V0X21zGAIgASgNIjYKE1NjYW5OZXR3b3JrUmVzcG9uc2USHwoFbm9kZXMYASADKAsyEC5jYW5nYXRlLnYxLk5vZGUiNQoXU3RyZWFtTm9kZUV2ZW50c1JlcXVlc3QSCwoDYnVzGAEgASgJEg0KBW5vZGVzGAIgAygNIoIECglOb2RlRXZlbnQSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SFAoMdGltZXN0YW1wX25zGAMgASgEEiUKB2Jvb3RfdXAYBCABKAsyEi5jYW5nYXRlLnYxLkJvb3RVcEgAEjAKDXN0YXRlX2NoYW5nZWQYBSABKAsyFy5jYW5nYXRlLnYxLlN0YXRlQ2hhbmdlSAASMwoOaGVhcnRiZWF0X2xvc3QYBiABKAsyGS5jYW5nYXRlLnYxLkhlYXJ0YmVhdExvc3RIABI9ChNoZWFydGJlYXRfcmVjb3ZlcmVkGAcgASgLMh4uY2FuZ2F0ZS52MS5IZWFydGJlYXRSZWNvdmVyZWRIABIgCgRlbWN5GAggASgLMhAuY2FuZ2F0ZS52MS5FbWN5SAASJgoEbG9zdBgJIAEoCzIWLmNhbmdhdGUudjEuRXZlbnRzTG9zdEgAEjMKDmJvb3RfY29tcGxldGVkGAogASgLMhkuY2FuZ2F0ZS52MS5Cb290Q29tcGxldGVkSAASLQoLYm9vdF9mYWlsZWQYCyABKAsyFi5jYW5nYXRlLnYxLkJvb3RGYWlsZWRIABJAChVndWFyZGluZ190b2dnbGVfZXJyb3IYDCABKAsyHy5jYW5nYXRlLnYxLkd1YXJkaW5nVG9nZ2xlRXJyb3JIAEIHCgVldmVudCJLChNHdWFyZGluZ1RvZ2dsZUVycm9yEgwKBGRhdGEYASABKA0SFwoPZXhwZWN0ZWRfdG9nZ2xlGAIgASgIEg0KBWNvdW50GAMgASgEIg8KDUJvb3RDb21wbGV0ZWQiHAoKQm9vdEZhaWxlZBIOCgZyZWFzb24YASABKAkiLgoQU3RyZWFtUGRvUmVxdWVzdBILCgNidXMYASABKAkSDQoFbm9kZXMYAiADKA0iWwoIUGRvVmFsdWUSDQoFaW5kZXgYASABKA0SEAoIc3ViaW5kZXgYAiABKA0SDAoEbmFtZRgDIAEoCRIgCgV2YWx1ZRgEIAEoCzIRLmNhbmdhdGUudjEuVmFsdWUilQEKClBkb01lc3NhZ2USCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SCwoDcGRvGAMgASgNEg4KBmNvYl9pZBgEIAEoDRIUCgx0aW1lc3RhbXBfbnMYBSABKAQSJAoGdmFsdWVzGAYgAygLMhQuY2FuZ2F0ZS52MS5QZG9WYWx1ZRITCgtsb3N0X2JlZm9yZRgHIAEoBCJfCg9Xcml0ZVBkb1JlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SCwoDcGRvGAMgASgNEiQKBnZhbHVlcxgEIAMoCzIULmNhbmdhdGUudjEuUGRvVmFsdWUiIAoQV3JpdGVQZG9SZXNwb25zZRIMCgRkYXRhGAEgASgMIl4KD1Bkb01hcHBlZE9iamVjdBINCgVpbmRleBgBIAEoDRIQCghzdWJpbmRleBgCIAEoDRIMCgRiaXRzGAMgASgNEgwKBG5hbWUYBCABKAkSDgoGb2JqZWN0GAUgASgJIuABChBQZG9Db25maWd1cmF0aW9uEiEKBGtpbmQYASABKA4yEy5jYW5nYXRlLnYxLlBkb0tpbmQSCwoDcGRvGAIgASgNEg4KBmNvYl9pZBgDIAEoDRIPCgdlbmFibGVkGAQgASgIEhkKEXRyYW5zbWlzc2lvbl90eXBlGAUgASgNEhoKEmluaGliaXRfdGltZV8xMDB1cxgGIAEoDRIWCg5ldmVudF90aW1lcl9tcxgHIAEoDRIsCgdtYXBwaW5nGAggAygLMhsuY2FuZ2F0ZS52MS5QZG9NYXBwZWRPYmplY3QiigEKFFJlYWRQZG9Db25maWdSZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEiEKBGtpbmQYAyABKA4yEy5jYW5nYXRlLnYxLlBkb0tpbmQSCwoDcGRvGAQgASgNEicKB29wdGlvbnMYBSABKAsyFi5jYW5nYXRlLnYxLlNkb09wdGlvbnMiQwoVUmVhZFBkb0NvbmZpZ1Jlc3BvbnNlEioKBHBkb3MYASADKAsyHC5jYW5nYXRlLnYxLlBkb0NvbmZpZ3VyYXRpb24ihAEKE0NvbmZpZ3VyZVBkb1JlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SKQoDcGRvGAMgASgLMhwuY2FuZ2F0ZS52MS5QZG9Db25maWd1cmF0aW9uEicKB29wdGlvbnMYBCABKAsyFi5jYW5nYXRlLnYxLlNkb09wdGlvbnMiUQoUQ29uZmlndXJlUGRvUmVzcG9uc2USKQoDcGRvGAEgASgLMhwuY2FuZ2F0ZS52MS5QZG9Db25maWd1cmF0aW9uEg4KBndyaXRlcxgCIAMoCSIdCg5HZXRTeW5jUmVxdWVzdBILCgNidXMYASABKAkimQEKDlNldFN5bmNSZXF1ZXN0EgsKA2J1cxgBIAEoCRIUCgdydW5uaW5nGAIgASgISACIAQESFgoJcGVyaW9kX3VzGAMgASgNSAGIAQESHQoQY291bnRlcl9vdmVyZmxvdxgEIAEoDUgCiAEBQgoKCF9ydW5uaW5nQgwKCl9wZXJpb2RfdXNCEwoRX2NvdW50ZXJfb3ZlcmZsb3cijgEKClN5bmNTdGF0dXMSCwoDYnVzGAEgASgJEg8KB3J1bm5pbmcYAiABKAgSEQoJcGVyaW9kX3VzGAMgASgNEhgKEGNvdW50ZXJfb3ZlcmZsb3cYBCABKA0SDAoEc2VudBgFIAEoBBIPCgdza2lwcGVkGAYgASgEEhYKDnRpbWVfcGVyaW9kX21zGAcgASgNIlUKDlNldFRpbWVSZXF1ZXN0EgsKA2J1cxgBIAEoCRIQCghzZW5kX25vdxgCIAEoCBIWCglwZXJpb2RfbXMYAyABKA1IAIgBAUIMCgpfcGVyaW9kX21zIlAKCVRpbWVPZkRheRIZChFtc19hZnRlcl9taWRuaWdodBgBIAEoDRIXCg9kYXlzX3NpbmNlXzE5ODQYAiABKA0SDwoHdW5peF9tcxgDIAEoBCJOCg9TZXRUaW1lUmVzcG9uc2USIwoEc2VudBgBIAEoCzIVLmNhbmdhdGUudjEuVGltZU9mRGF5EhYKDnRpbWVfcGVyaW9kX21zGAIgASgNIlYKEEV4cG9ydERjZlJlcXVlc3QSCwoDYnVzGAEgASgJEgwKBG5vZGUYAiABKA0SJwoHb3B0aW9ucxgDIAEoCzIWLmNhbmdhdGUudjEuU2RvT3B0aW9ucyJACg1Ta2lwcGVkT2JqZWN0Eg0KBWluZGV4GAEgASgNEhAKCHN1YmluZGV4GAIgASgNEg4KBnJlYXNvbhgDIAEoCSJiChFFeHBvcnREY2ZSZXNwb25zZRILCgNkY2YYASABKAkSFAoMb2JqZWN0c19yZWFkGAIgASgNEioKB3NraXBwZWQYAyADKAsyGS5jYW5nYXRlLnYxLlNraXBwZWRPYmplY3QiCAoGQm9vdFVwIlMKC1N0YXRlQ2hhbmdlEiIKBGZyb20YASABKA4yFC5jYW5nYXRlLnYxLk5tdFN0YXRlEiAKAnRvGAIgASgOMhQuY2FuZ2F0ZS52MS5ObXRTdGF0ZSJTCg1IZWFydGJlYXRMb3N0EhIKCnRpbWVvdXRfbXMYASABKA0SLgoKbW9uaXRvcmluZxgCIAEoDjIaLmNhbmdhdGUudjEuTGlmZU1vbml0b3JpbmcifAoSSGVhcnRiZWF0UmVjb3ZlcmVkEiMKBXN0YXRlGAEgASgOMhQuY2FuZ2F0ZS52MS5ObXRTdGF0ZRIRCglzaWxlbnRfbXMYAiABKAQSLgoKbW9uaXRvcmluZxgDIAEoDjIaLmNhbmdhdGUudjEuTGlmZU1vbml0b3JpbmciGwoKRXZlbnRzTG9zdBINCgVjb3VudBgBIAEoBCJhCg9TZG9BYm9ydERldGFpbHMSDAoEY29kZRgBIAEoDRIMCgRuYW1lGAIgASgJEg0KBWluZGV4GAMgASgNEhAKCHN1YmluZGV4GAQgASgNEhEKCWZyb21fbm9kZRgFIAEoCCImChdMaXN0U2RvVHJhbnNmZXJzUmVxdWVzdBILCgNidXMYASABKAkikQEKC1Nkb1RyYW5zZmVyEgwKBG5vZGUYASABKA0SDQoFaW5kZXgYAiABKA0SEAoIc3ViaW5kZXgYAyABKA0SDgoGdXBsb2FkGAQgASgIEhAKCHByb3RvY29sGAUgASgJEhMKC3RyYW5zZmVycmVkGAYgASgEEhIKBXRvdGFsGAcgASgESACIAQFCCAoGX3RvdGFsIkYKGExpc3RTZG9UcmFuc2ZlcnNSZXNwb25zZRIqCgl0cmFuc2ZlcnMYASADKAsyFy5jYW5nYXRlLnYxLlNkb1RyYW5zZmVyItcBChZEb3dubG9hZFByb2dyYW1SZXF1ZXN0EgsKA2J1cxgBIAEoCRIMCgRub2RlGAIgASgNEg0KBWltYWdlGAMgASgMEg8KB3Byb2dyYW0YBCABKA0SJAoXZXhwZWN0ZWRfaWRlbnRpZmljYXRpb24YBSABKA1IAIgBARINCgVjbGVhchgGIAEoCBIYChBmbGFzaF90aW1lb3V0X21zGAcgASgNEhcKD2Jvb3RfdGltZW91dF9tcxgIIAEoDUIaChhfZXhwZWN0ZWRfaWRlbnRpZmljYXRpb24ingEKF0Rvd25sb2FkUHJvZ3JhbVByb2dyZXNzEiUKBHN0ZXAYASABKA4yFy5jYW5nYXRlLnYxLlByb2dyYW1TdGVwEhIKCmJ5dGVzX2RvbmUYAiABKAQSEwoLYnl0ZXNfdG90YWwYAyABKAQSMwoHb3V0Y29tZRgEIAEoCzIiLmNhbmdhdGUudjEuRG93bmxvYWRQcm9ncmFtT3V0Y29tZSLJAQoWRG93bmxvYWRQcm9ncmFtT3V0Y29tZRIfChJvbGRfaWRlbnRpZmljYXRpb24YASABKA1IAIgBARIaChJuZXdfaWRlbnRpZmljYXRpb24YAiABKA0SDQoFYnl0ZXMYAyABKAQSEwoLZHVyYXRpb25fbXMYBCABKAQSGAoQZGF0YV9kdXJhdGlvbl9tcxgFIAEoBBIdChVkYXRhX2J5dGVzX3Blcl9zZWNvbmQYBiABKAFCFQoTX29sZF9pZGVudGlmaWNhdGlvbiqOAQoITm10U3RhdGUSFQoRTk1UX1NUQVRFX1VOS05PV04QABIaChZOTVRfU1RBVEVfSU5JVElBTElTSU5HEAESFQoRTk1UX1NUQVRFX1NUT1BQRUQQAhIZChVOTVRfU1RBVEVfT1BFUkFUSU9OQUwQAxIdChlOTVRfU1RBVEVfUFJFX09QRVJBVElPTkFMEAQqvgEKCk5tdENvbW1hbmQSGwoXTk1UX0NPTU1BTkRfVU5TUEVDSUZJRUQQABIVChFOTVRfQ09NTUFORF9TVEFSVBABEhQKEE5NVF9DT01NQU5EX1NUT1AQAhIlCiFOTVRfQ09NTUFORF9FTlRFUl9QUkVfT1BFUkFUSU9OQUwQAxIaChZOTVRfQ09NTUFORF9SRVNFVF9OT0RFEAQSIwofTk1UX0NPTU1BTkRfUkVTRVRfQ09NTVVOSUNBVElPThAFKqADCghEYXRhVHlwZRIZChVEQVRBX1RZUEVfVU5TUEVDSUZJRUQQABIVChFEQVRBX1RZUEVfQk9PTEVBThABEhYKEkRBVEFfVFlQRV9JTlRFR0VSOBACEhcKE0RBVEFfVFlQRV9JTlRFR0VSMTYQAxIXChNEQVRBX1RZUEVfSU5URUdFUjMyEAQSFwoTREFUQV9UWVBFX1VOU0lHTkVEOBAFEhgKFERBVEFfVFlQRV9VTlNJR05FRDE2EAYSGAoUREFUQV9UWVBFX1VOU0lHTkVEMzIQBxIUChBEQVRBX1RZUEVfUkVBTDMyEAgSHAoYREFUQV9UWVBFX1ZJU0lCTEVfU1RSSU5HEAkSGgoWREFUQV9UWVBFX09DVEVUX1NUUklORxAKEhwKGERBVEFfVFlQRV9VTklDT0RFX1NUUklORxALEhQKEERBVEFfVFlQRV9ET01BSU4QDxIUChBEQVRBX1RZUEVfUkVBTDY0EBESFwoTREFUQV9UWVBFX0lOVEVHRVI2NBAVEhgKFERBVEFfVFlQRV9VTlNJR05FRDY0EBsqbAoOTGlmZU1vbml0b3JpbmcSGAoUTElGRV9NT05JVE9SSU5HX05PTkUQABIdChlMSUZFX01PTklUT1JJTkdfSEVBUlRCRUFUEAESIQodTElGRV9NT05JVE9SSU5HX05PREVfR1VBUkRJTkcQAiq2AQoMT2JqZWN0QWNjZXNzEh0KGU9CSkVDVF9BQ0NFU1NfVU5TUEVDSUZJRUQQABIUChBPQkpFQ1RfQUNDRVNTX1JPEAESFAoQT0JKRUNUX0FDQ0VTU19XTxACEhQKEE9CSkVDVF9BQ0NFU1NfUlcQAxIVChFPQkpFQ1RfQUNDRVNTX1JXUhAEEhUKEU9CSkVDVF9BQ0NFU1NfUldXEAUSFwoTT0JKRUNUX0FDQ0VTU19DT05TVBAGKkkKB1Bkb0tpbmQSGAoUUERPX0tJTkRfVU5TUEVDSUZJRUQQABIRCg1QRE9fS0lORF9SUERPEAESEQoNUERPX0tJTkRfVFBETxACKr8CCgtQcm9ncmFtU3RlcBIcChhQUk9HUkFNX1NURVBfVU5TUEVDSUZJRUQQABIrCidQUk9HUkFNX1NURVBfUkVBRF9JREVOVElGSUNBVElPTl9CRUZPUkUQARIdChlQUk9HUkFNX1NURVBfU1RPUF9QUk9HUkFNEAISHgoaUFJPR1JBTV9TVEVQX0NMRUFSX1BST0dSQU0QAxIeChpQUk9HUkFNX1NURVBfRE9XTkxPQURfREFUQRAEEhsKF1BST0dSQU1fU1RFUF9XQUlUX0ZMQVNIEAUSHgoaUFJPR1JBTV9TVEVQX1NUQVJUX1BST0dSQU0QBhIdChlQUk9HUkFNX1NURVBfV0FJVF9CT09UX1VQEAcSKgomUFJPR1JBTV9TVEVQX1JFQURfSURFTlRJRklDQVRJT05fQUZURVIQCDKaCwoHQ2Fub3BlbhJICglMaXN0Tm9kZXMSHC5jYW5nYXRlLnYxLkxpc3ROb2Rlc1JlcXVlc3QaHS5jYW5nYXRlLnYxLkxpc3ROb2Rlc1Jlc3BvbnNlEjcKB0dldE5vZGUSGi5jYW5nYXRlLnYxLkdldE5vZGVSZXF1ZXN0GhAuY2FuZ2F0ZS52MS5Ob2RlEkIKB1NlbmRObXQSGi5jYW5nYXRlLnYxLlNlbmRObXRSZXF1ZXN0GhsuY2FuZ2F0ZS52MS5TZW5kTm10UmVzcG9uc2USQgoHUmVhZFNkbxIaLmNhbmdhdGUudjEuUmVhZFNkb1JlcXVlc3QaGy5jYW5nYXRlLnYxLlJlYWRTZG9SZXNwb25zZRJFCghXcml0ZVNkbxIbLmNhbmdhdGUudjEuV3JpdGVTZG9SZXF1ZXN0GhwuY2FuZ2F0ZS52MS5Xcml0ZVNkb1Jlc3BvbnNlEk0KClNkb1Nlc3Npb24SHS5jYW5nYXRlLnYxLlNkb1Nlc3Npb25SZXF1ZXN0GhwuY2FuZ2F0ZS52MS5TZG9TZXNzaW9uQW5zd2VyKAEwARJOCgtMaXN0T2JqZWN0cxIeLmNhbmdhdGUudjEuTGlzdE9iamVjdHNSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5MaXN0T2JqZWN0c1Jlc3BvbnNlEl0KEExpc3RTZG9UcmFuc2ZlcnMSIy5jYW5nYXRlLnYxLkxpc3RTZG9UcmFuc2ZlcnNSZXF1ZXN0GiQuY2FuZ2F0ZS52MS5MaXN0U2RvVHJhbnNmZXJzUmVzcG9uc2USTgoLU2Nhbk5ldHdvcmsSHi5jYW5nYXRlLnYxLlNjYW5OZXR3b3JrUmVxdWVzdBofLmNhbmdhdGUudjEuU2Nhbk5ldHdvcmtSZXNwb25zZRJQChBTdHJlYW1Ob2RlRXZlbnRzEiMuY2FuZ2F0ZS52MS5TdHJlYW1Ob2RlRXZlbnRzUmVxdWVzdBoVLmNhbmdhdGUudjEuTm9kZUV2ZW50MAESQwoJU3RyZWFtUGRvEhwuY2FuZ2F0ZS52MS5TdHJlYW1QZG9SZXF1ZXN0GhYuY2FuZ2F0ZS52MS5QZG9NZXNzYWdlMAESRQoIV3JpdGVQZG8SGy5jYW5nYXRlLnYxLldyaXRlUGRvUmVxdWVzdBocLmNhbmdhdGUudjEuV3JpdGVQZG9SZXNwb25zZRJUCg1SZWFkUGRvQ29uZmlnEiAuY2FuZ2F0ZS52MS5SZWFkUGRvQ29uZmlnUmVxdWVzdBohLmNhbmdhdGUudjEuUmVhZFBkb0NvbmZpZ1Jlc3BvbnNlElEKDENvbmZpZ3VyZVBkbxIfLmNhbmdhdGUudjEuQ29uZmlndXJlUGRvUmVxdWVzdBogLmNhbmdhdGUudjEuQ29uZmlndXJlUGRvUmVzcG9uc2USPQoHR2V0U3luYxIaLmNhbmdhdGUudjEuR2V0U3luY1JlcXVlc3QaFi5jYW5nYXRlLnYxLlN5bmNTdGF0dXMSPQoHU2V0U3luYxIaLmNhbmdhdGUudjEuU2V0U3luY1JlcXVlc3QaFi5jYW5nYXRlLnYxLlN5bmNTdGF0dXMSQgoHU2V0VGltZRIaLmNhbmdhdGUudjEuU2V0VGltZVJlcXVlc3QaGy5jYW5nYXRlLnYxLlNldFRpbWVSZXNwb25zZRJICglFeHBvcnREY2YSHC5jYW5nYXRlLnYxLkV4cG9ydERjZlJlcXVlc3QaHS5jYW5nYXRlLnYxLkV4cG9ydERjZlJlc3BvbnNlElwKD0Rvd25sb2FkUHJvZ3JhbRIiLmNhbmdhdGUudjEuRG93bmxvYWRQcm9ncmFtUmVxdWVzdBojLmNhbmdhdGUudjEuRG93bmxvYWRQcm9ncmFtUHJvZ3Jlc3MwAWIGcHJvdG8z");
 
 /**
  * A typed value. Integers of every width travel as int64/uint64; the
@@ -872,6 +872,159 @@ export const WriteSdoResponseSchema: GenMessage<WriteSdoResponse> = /*@__PURE__*
   messageDesc(file_cangate_v1_canopen, 13);
 
 /**
+ * One request of an SdoSession.
+ *
+ * @generated from message cangate.v1.SdoSessionRequest
+ */
+export type SdoSessionRequest = Message<"cangate.v1.SdoSessionRequest"> & {
+  /**
+   * Chosen by the client, returned in the answer (the gateway does not
+   * check that ids are unique).
+   *
+   * @generated from field: uint64 id = 1;
+   */
+  id: bigint;
+
+  /**
+   * The transfer.
+   *
+   * @generated from oneof cangate.v1.SdoSessionRequest.request
+   */
+  request: {
+    /**
+     * A read, as ReadSdo.
+     *
+     * @generated from field: cangate.v1.ReadSdoRequest read = 2;
+     */
+    value: ReadSdoRequest;
+    case: "read";
+  } | {
+    /**
+     * A write, as WriteSdo.
+     *
+     * @generated from field: cangate.v1.WriteSdoRequest write = 3;
+     */
+    value: WriteSdoRequest;
+    case: "write";
+  } | { case: undefined; value?: undefined };
+};
+
+/**
+ * Describes the message cangate.v1.SdoSessionRequest.
+ * Use `create(SdoSessionRequestSchema)` to create a new message.
+ */
+export const SdoSessionRequestSchema: GenMessage<SdoSessionRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 14);
+
+/**
+ * One answer of an SdoSession.
+ *
+ * @generated from message cangate.v1.SdoSessionAnswer
+ */
+export type SdoSessionAnswer = Message<"cangate.v1.SdoSessionAnswer"> & {
+  /**
+   * The id of the request answered.
+   *
+   * @generated from field: uint64 id = 1;
+   */
+  id: bigint;
+
+  /**
+   * The result.
+   *
+   * @generated from oneof cangate.v1.SdoSessionAnswer.result
+   */
+  result: {
+    /**
+     * A read's result, as ReadSdo's response.
+     *
+     * @generated from field: cangate.v1.ReadSdoResponse read = 2;
+     */
+    value: ReadSdoResponse;
+    case: "read";
+  } | {
+    /**
+     * A write's result, as WriteSdo's response.
+     *
+     * @generated from field: cangate.v1.WriteSdoResponse write = 3;
+     */
+    value: WriteSdoResponse;
+    case: "write";
+  } | {
+    /**
+     * The request failed: the error ReadSdo/WriteSdo would have ended
+     * with. A request that is neither read nor write is INVALID_ARGUMENT.
+     *
+     * @generated from field: cangate.v1.SdoSessionError error = 4;
+     */
+    value: SdoSessionError;
+    case: "error";
+  } | { case: undefined; value?: undefined };
+};
+
+/**
+ * Describes the message cangate.v1.SdoSessionAnswer.
+ * Use `create(SdoSessionAnswerSchema)` to create a new message.
+ */
+export const SdoSessionAnswerSchema: GenMessage<SdoSessionAnswer> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 15);
+
+/**
+ * The error of one request of an SdoSession: the status ReadSdo/WriteSdo
+ * would have returned, with its ErrorInfo and SdoAbortDetails (see "The
+ * error model" at the top of this file).
+ *
+ * @generated from message cangate.v1.SdoSessionError
+ */
+export type SdoSessionError = Message<"cangate.v1.SdoSessionError"> & {
+  /**
+   * The gRPC status code (google.rpc.Code: 5 NOT_FOUND, 9
+   * FAILED_PRECONDITION, ...).
+   *
+   * @generated from field: int32 code = 1;
+   */
+  code: number;
+
+  /**
+   * For people.
+   *
+   * @generated from field: string message = 2;
+   */
+  message: string;
+
+  /**
+   * The ErrorInfo reason (SDO_ABORT, NODE_NOT_FOUND, AXIS_ACTIVE,
+   * PERMISSION_DENIED, ...).
+   *
+   * @generated from field: string reason = 3;
+   */
+  reason: string;
+
+  /**
+   * The ErrorInfo metadata, as listed per reason at the top of this file.
+   *
+   * @generated from field: map<string, string> metadata = 4;
+   */
+  metadata: { [key: string]: string };
+
+  /**
+   * The abort of an error caused by an SDO transfer (reasons SDO_ABORT,
+   * SDO_TIMEOUT, SDO_PROTOCOL_ERROR, SDO_CANCELLED, SDO_NOT_SENT); unset
+   * for the others.
+   *
+   * @generated from field: cangate.v1.SdoAbortDetails abort = 5;
+   */
+  abort?: SdoAbortDetails | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.SdoSessionError.
+ * Use `create(SdoSessionErrorSchema)` to create a new message.
+ */
+export const SdoSessionErrorSchema: GenMessage<SdoSessionError> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_canopen, 16);
+
+/**
  * ListObjects request.
  *
  * @generated from message cangate.v1.ListObjectsRequest
@@ -897,7 +1050,7 @@ export type ListObjectsRequest = Message<"cangate.v1.ListObjectsRequest"> & {
  * Use `create(ListObjectsRequestSchema)` to create a new message.
  */
 export const ListObjectsRequestSchema: GenMessage<ListObjectsRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 14);
+  messageDesc(file_cangate_v1_canopen, 17);
 
 /**
  * One sub-object of a node's object dictionary (from its EDS/DCF).
@@ -1018,7 +1171,7 @@ export type ObjectInfo = Message<"cangate.v1.ObjectInfo"> & {
  * Use `create(ObjectInfoSchema)` to create a new message.
  */
 export const ObjectInfoSchema: GenMessage<ObjectInfo> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 15);
+  messageDesc(file_cangate_v1_canopen, 18);
 
 /**
  * ListObjects response.
@@ -1039,7 +1192,7 @@ export type ListObjectsResponse = Message<"cangate.v1.ListObjectsResponse"> & {
  * Use `create(ListObjectsResponseSchema)` to create a new message.
  */
 export const ListObjectsResponseSchema: GenMessage<ListObjectsResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 16);
+  messageDesc(file_cangate_v1_canopen, 19);
 
 /**
  * ScanNetwork request.
@@ -1068,7 +1221,7 @@ export type ScanNetworkRequest = Message<"cangate.v1.ScanNetworkRequest"> & {
  * Use `create(ScanNetworkRequestSchema)` to create a new message.
  */
 export const ScanNetworkRequestSchema: GenMessage<ScanNetworkRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 17);
+  messageDesc(file_cangate_v1_canopen, 20);
 
 /**
  * ScanNetwork response.
@@ -1089,7 +1242,7 @@ export type ScanNetworkResponse = Message<"cangate.v1.ScanNetworkResponse"> & {
  * Use `create(ScanNetworkResponseSchema)` to create a new message.
  */
 export const ScanNetworkResponseSchema: GenMessage<ScanNetworkResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 18);
+  messageDesc(file_cangate_v1_canopen, 21);
 
 /**
  * StreamNodeEvents request.
@@ -1117,7 +1270,7 @@ export type StreamNodeEventsRequest = Message<"cangate.v1.StreamNodeEventsReques
  * Use `create(StreamNodeEventsRequestSchema)` to create a new message.
  */
 export const StreamNodeEventsRequestSchema: GenMessage<StreamNodeEventsRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 19);
+  messageDesc(file_cangate_v1_canopen, 22);
 
 /**
  * Something that happened to a node.
@@ -1233,7 +1386,7 @@ export type NodeEvent = Message<"cangate.v1.NodeEvent"> & {
  * Use `create(NodeEventSchema)` to create a new message.
  */
 export const NodeEventSchema: GenMessage<NodeEvent> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 20);
+  messageDesc(file_cangate_v1_canopen, 23);
 
 /**
  * A node guarding answer whose toggle bit was not the expected one.
@@ -1268,7 +1421,7 @@ export type GuardingToggleError = Message<"cangate.v1.GuardingToggleError"> & {
  * Use `create(GuardingToggleErrorSchema)` to create a new message.
  */
 export const GuardingToggleErrorSchema: GenMessage<GuardingToggleError> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 21);
+  messageDesc(file_cangate_v1_canopen, 24);
 
 /**
  * Boot procedure succeeded.
@@ -1283,7 +1436,7 @@ export type BootCompleted = Message<"cangate.v1.BootCompleted"> & {
  * Use `create(BootCompletedSchema)` to create a new message.
  */
 export const BootCompletedSchema: GenMessage<BootCompleted> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 22);
+  messageDesc(file_cangate_v1_canopen, 25);
 
 /**
  * Boot procedure failed.
@@ -1305,7 +1458,7 @@ export type BootFailed = Message<"cangate.v1.BootFailed"> & {
  * Use `create(BootFailedSchema)` to create a new message.
  */
 export const BootFailedSchema: GenMessage<BootFailed> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 23);
+  messageDesc(file_cangate_v1_canopen, 26);
 
 /**
  * StreamPdo request.
@@ -1333,7 +1486,7 @@ export type StreamPdoRequest = Message<"cangate.v1.StreamPdoRequest"> & {
  * Use `create(StreamPdoRequestSchema)` to create a new message.
  */
 export const StreamPdoRequestSchema: GenMessage<StreamPdoRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 24);
+  messageDesc(file_cangate_v1_canopen, 27);
 
 /**
  * One mapped object of a PDO.
@@ -1375,7 +1528,7 @@ export type PdoValue = Message<"cangate.v1.PdoValue"> & {
  * Use `create(PdoValueSchema)` to create a new message.
  */
 export const PdoValueSchema: GenMessage<PdoValue> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 25);
+  messageDesc(file_cangate_v1_canopen, 28);
 
 /**
  * A decoded PDO, or a notice of missed PDOs.
@@ -1438,7 +1591,7 @@ export type PdoMessage = Message<"cangate.v1.PdoMessage"> & {
  * Use `create(PdoMessageSchema)` to create a new message.
  */
 export const PdoMessageSchema: GenMessage<PdoMessage> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 26);
+  messageDesc(file_cangate_v1_canopen, 29);
 
 /**
  * WritePdo request.
@@ -1482,7 +1635,7 @@ export type WritePdoRequest = Message<"cangate.v1.WritePdoRequest"> & {
  * Use `create(WritePdoRequestSchema)` to create a new message.
  */
 export const WritePdoRequestSchema: GenMessage<WritePdoRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 27);
+  messageDesc(file_cangate_v1_canopen, 30);
 
 /**
  * WritePdo response.
@@ -1503,7 +1656,7 @@ export type WritePdoResponse = Message<"cangate.v1.WritePdoResponse"> & {
  * Use `create(WritePdoResponseSchema)` to create a new message.
  */
 export const WritePdoResponseSchema: GenMessage<WritePdoResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 28);
+  messageDesc(file_cangate_v1_canopen, 31);
 
 /**
  * One mapped object of a PDO.
@@ -1555,7 +1708,7 @@ export type PdoMappedObject = Message<"cangate.v1.PdoMappedObject"> & {
  * Use `create(PdoMappedObjectSchema)` to create a new message.
  */
 export const PdoMappedObjectSchema: GenMessage<PdoMappedObject> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 29);
+  messageDesc(file_cangate_v1_canopen, 32);
 
 /**
  * One PDO's communication and mapping parameters.
@@ -1627,7 +1780,7 @@ export type PdoConfiguration = Message<"cangate.v1.PdoConfiguration"> & {
  * Use `create(PdoConfigurationSchema)` to create a new message.
  */
 export const PdoConfigurationSchema: GenMessage<PdoConfiguration> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 30);
+  messageDesc(file_cangate_v1_canopen, 33);
 
 /**
  * ReadPdoConfig request.
@@ -1676,7 +1829,7 @@ export type ReadPdoConfigRequest = Message<"cangate.v1.ReadPdoConfigRequest"> & 
  * Use `create(ReadPdoConfigRequestSchema)` to create a new message.
  */
 export const ReadPdoConfigRequestSchema: GenMessage<ReadPdoConfigRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 31);
+  messageDesc(file_cangate_v1_canopen, 34);
 
 /**
  * ReadPdoConfig response.
@@ -1697,7 +1850,7 @@ export type ReadPdoConfigResponse = Message<"cangate.v1.ReadPdoConfigResponse"> 
  * Use `create(ReadPdoConfigResponseSchema)` to create a new message.
  */
 export const ReadPdoConfigResponseSchema: GenMessage<ReadPdoConfigResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 32);
+  messageDesc(file_cangate_v1_canopen, 35);
 
 /**
  * ConfigurePdo request.
@@ -1739,7 +1892,7 @@ export type ConfigurePdoRequest = Message<"cangate.v1.ConfigurePdoRequest"> & {
  * Use `create(ConfigurePdoRequestSchema)` to create a new message.
  */
 export const ConfigurePdoRequestSchema: GenMessage<ConfigurePdoRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 33);
+  messageDesc(file_cangate_v1_canopen, 36);
 
 /**
  * ConfigurePdo response.
@@ -1768,7 +1921,7 @@ export type ConfigurePdoResponse = Message<"cangate.v1.ConfigurePdoResponse"> & 
  * Use `create(ConfigurePdoResponseSchema)` to create a new message.
  */
 export const ConfigurePdoResponseSchema: GenMessage<ConfigurePdoResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 34);
+  messageDesc(file_cangate_v1_canopen, 37);
 
 /**
  * GetSync request.
@@ -1789,7 +1942,7 @@ export type GetSyncRequest = Message<"cangate.v1.GetSyncRequest"> & {
  * Use `create(GetSyncRequestSchema)` to create a new message.
  */
 export const GetSyncRequestSchema: GenMessage<GetSyncRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 35);
+  messageDesc(file_cangate_v1_canopen, 38);
 
 /**
  * SetSync request. Unset fields keep their current value.
@@ -1832,7 +1985,7 @@ export type SetSyncRequest = Message<"cangate.v1.SetSyncRequest"> & {
  * Use `create(SetSyncRequestSchema)` to create a new message.
  */
 export const SetSyncRequestSchema: GenMessage<SetSyncRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 36);
+  messageDesc(file_cangate_v1_canopen, 39);
 
 /**
  * The SYNC and TIME producers of a bus.
@@ -1897,7 +2050,7 @@ export type SyncStatus = Message<"cangate.v1.SyncStatus"> & {
  * Use `create(SyncStatusSchema)` to create a new message.
  */
 export const SyncStatusSchema: GenMessage<SyncStatus> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 37);
+  messageDesc(file_cangate_v1_canopen, 40);
 
 /**
  * SetTime request.
@@ -1933,7 +2086,7 @@ export type SetTimeRequest = Message<"cangate.v1.SetTimeRequest"> & {
  * Use `create(SetTimeRequestSchema)` to create a new message.
  */
 export const SetTimeRequestSchema: GenMessage<SetTimeRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 38);
+  messageDesc(file_cangate_v1_canopen, 41);
 
 /**
  * A CiA 301 TIME_OF_DAY.
@@ -1968,7 +2121,7 @@ export type TimeOfDay = Message<"cangate.v1.TimeOfDay"> & {
  * Use `create(TimeOfDaySchema)` to create a new message.
  */
 export const TimeOfDaySchema: GenMessage<TimeOfDay> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 39);
+  messageDesc(file_cangate_v1_canopen, 42);
 
 /**
  * SetTime response.
@@ -1996,7 +2149,7 @@ export type SetTimeResponse = Message<"cangate.v1.SetTimeResponse"> & {
  * Use `create(SetTimeResponseSchema)` to create a new message.
  */
 export const SetTimeResponseSchema: GenMessage<SetTimeResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 40);
+  messageDesc(file_cangate_v1_canopen, 43);
 
 /**
  * ExportDcf request.
@@ -2031,7 +2184,7 @@ export type ExportDcfRequest = Message<"cangate.v1.ExportDcfRequest"> & {
  * Use `create(ExportDcfRequestSchema)` to create a new message.
  */
 export const ExportDcfRequestSchema: GenMessage<ExportDcfRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 41);
+  messageDesc(file_cangate_v1_canopen, 44);
 
 /**
  * An object a DCF export left out.
@@ -2066,7 +2219,7 @@ export type SkippedObject = Message<"cangate.v1.SkippedObject"> & {
  * Use `create(SkippedObjectSchema)` to create a new message.
  */
 export const SkippedObjectSchema: GenMessage<SkippedObject> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 42);
+  messageDesc(file_cangate_v1_canopen, 45);
 
 /**
  * ExportDcf response.
@@ -2101,7 +2254,7 @@ export type ExportDcfResponse = Message<"cangate.v1.ExportDcfResponse"> & {
  * Use `create(ExportDcfResponseSchema)` to create a new message.
  */
 export const ExportDcfResponseSchema: GenMessage<ExportDcfResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 43);
+  messageDesc(file_cangate_v1_canopen, 46);
 
 /**
  * Boot-up message received.
@@ -2116,7 +2269,7 @@ export type BootUp = Message<"cangate.v1.BootUp"> & {
  * Use `create(BootUpSchema)` to create a new message.
  */
 export const BootUpSchema: GenMessage<BootUp> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 44);
+  messageDesc(file_cangate_v1_canopen, 47);
 
 /**
  * NMT state change.
@@ -2144,7 +2297,7 @@ export type StateChange = Message<"cangate.v1.StateChange"> & {
  * Use `create(StateChangeSchema)` to create a new message.
  */
 export const StateChangeSchema: GenMessage<StateChange> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 45);
+  messageDesc(file_cangate_v1_canopen, 48);
 
 /**
  * Heartbeat overdue, or node guarding lost.
@@ -2173,7 +2326,7 @@ export type HeartbeatLost = Message<"cangate.v1.HeartbeatLost"> & {
  * Use `create(HeartbeatLostSchema)` to create a new message.
  */
 export const HeartbeatLostSchema: GenMessage<HeartbeatLost> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 46);
+  messageDesc(file_cangate_v1_canopen, 49);
 
 /**
  * Heartbeat back after a loss, or the first valid guarding answer after
@@ -2210,7 +2363,7 @@ export type HeartbeatRecovered = Message<"cangate.v1.HeartbeatRecovered"> & {
  * Use `create(HeartbeatRecoveredSchema)` to create a new message.
  */
 export const HeartbeatRecoveredSchema: GenMessage<HeartbeatRecovered> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 47);
+  messageDesc(file_cangate_v1_canopen, 50);
 
 /**
  * Events this client missed.
@@ -2231,7 +2384,7 @@ export type EventsLost = Message<"cangate.v1.EventsLost"> & {
  * Use `create(EventsLostSchema)` to create a new message.
  */
 export const EventsLostSchema: GenMessage<EventsLost> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 48);
+  messageDesc(file_cangate_v1_canopen, 51);
 
 /**
  * The SDO abort of an error caused by an SDO transfer (ErrorInfo reason
@@ -2291,7 +2444,7 @@ export type SdoAbortDetails = Message<"cangate.v1.SdoAbortDetails"> & {
  * Use `create(SdoAbortDetailsSchema)` to create a new message.
  */
 export const SdoAbortDetailsSchema: GenMessage<SdoAbortDetails> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 49);
+  messageDesc(file_cangate_v1_canopen, 52);
 
 /**
  * ListSdoTransfers request.
@@ -2312,7 +2465,7 @@ export type ListSdoTransfersRequest = Message<"cangate.v1.ListSdoTransfersReques
  * Use `create(ListSdoTransfersRequestSchema)` to create a new message.
  */
 export const ListSdoTransfersRequestSchema: GenMessage<ListSdoTransfersRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 50);
+  messageDesc(file_cangate_v1_canopen, 53);
 
 /**
  * One running SDO transfer.
@@ -2375,7 +2528,7 @@ export type SdoTransfer = Message<"cangate.v1.SdoTransfer"> & {
  * Use `create(SdoTransferSchema)` to create a new message.
  */
 export const SdoTransferSchema: GenMessage<SdoTransfer> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 51);
+  messageDesc(file_cangate_v1_canopen, 54);
 
 /**
  * ListSdoTransfers response.
@@ -2396,7 +2549,7 @@ export type ListSdoTransfersResponse = Message<"cangate.v1.ListSdoTransfersRespo
  * Use `create(ListSdoTransfersResponseSchema)` to create a new message.
  */
 export const ListSdoTransfersResponseSchema: GenMessage<ListSdoTransfersResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 52);
+  messageDesc(file_cangate_v1_canopen, 55);
 
 /**
  * DownloadProgram request.
@@ -2471,7 +2624,7 @@ export type DownloadProgramRequest = Message<"cangate.v1.DownloadProgramRequest"
  * Use `create(DownloadProgramRequestSchema)` to create a new message.
  */
 export const DownloadProgramRequestSchema: GenMessage<DownloadProgramRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 53);
+  messageDesc(file_cangate_v1_canopen, 56);
 
 /**
  * One message of the DownloadProgram stream.
@@ -2514,7 +2667,7 @@ export type DownloadProgramProgress = Message<"cangate.v1.DownloadProgramProgres
  * Use `create(DownloadProgramProgressSchema)` to create a new message.
  */
 export const DownloadProgramProgressSchema: GenMessage<DownloadProgramProgress> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 54);
+  messageDesc(file_cangate_v1_canopen, 57);
 
 /**
  * How a successful program download ended.
@@ -2570,7 +2723,7 @@ export type DownloadProgramOutcome = Message<"cangate.v1.DownloadProgramOutcome"
  * Use `create(DownloadProgramOutcomeSchema)` to create a new message.
  */
 export const DownloadProgramOutcomeSchema: GenMessage<DownloadProgramOutcome> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_canopen, 55);
+  messageDesc(file_cangate_v1_canopen, 58);
 
 /**
  * NMT states (CiA 301).
@@ -3067,6 +3220,33 @@ export const Canopen: GenService<{
     methodKind: "unary";
     input: typeof WriteSdoRequestSchema;
     output: typeof WriteSdoResponseSchema;
+  },
+  /**
+   * SDO reads and writes as requests and answers on one stream, for loops
+   * of SDO traffic without a call per transfer. Each request carries a
+   * client-chosen id; its answer carries the same id and the result of
+   * ReadSdo/WriteSdo, or their error as an SdoSessionError (the stream goes
+   * on). Requests to one node are answered in the order they were sent;
+   * those to different nodes run concurrently, so answers of different
+   * nodes may interleave. At most 64 requests of a session are outstanding
+   * (sent, not yet answered): beyond that the gateway stops reading the
+   * stream until an answer is out (flow control of the transport holds the
+   * client back). The role is checked per request: a read as ReadSdo
+   * (viewer), a write as WriteSdo (engineer); a write refused for the role
+   * is a PERMISSION_DENIED answer. Each read or write counts as a call
+   * against the client's call rate ([security.limits]; over it a
+   * RATE_LIMIT answer). The same guards as WriteSdo apply
+   * (WriteSdoRequest.force). Ending or cancelling the stream cancels its
+   * outstanding transfers (the gateway aborts those on the bus); the
+   * client ends its half of the stream to have every answer and then the
+   * end of the stream.
+   *
+   * @generated from rpc cangate.v1.Canopen.SdoSession
+   */
+  sdoSession: {
+    methodKind: "bidi_streaming";
+    input: typeof SdoSessionRequestSchema;
+    output: typeof SdoSessionAnswerSchema;
   },
   /**
    * A node's object dictionary as its EDS describes it (no SDO transfer):
