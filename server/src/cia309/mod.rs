@@ -54,7 +54,7 @@ use crate::config::Cia309Config;
 use crate::gateway::Gateway;
 use crate::security::auth::AUDIT_TARGET;
 use crate::security::roles::{Access, lookup};
-use crate::security::slots::{SlotGuard, Slots};
+use crate::security::slots::{AcceptPolicy, SlotGuard, accept_connections};
 use crate::security::{Refusal, Role, SecurityLayer};
 use cangate_canopen::lss::{InquireWhat, LssCommand, LssError, LssMode, LssOutcome};
 use cangate_canopen::master::SdoRequest;
@@ -69,7 +69,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::tcp::OwnedWriteHalf;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{broadcast, mpsc};
-use tokio::task::{JoinHandle, JoinSet};
+use tokio::task::JoinHandle;
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
@@ -121,50 +121,19 @@ pub async fn start(
 }
 
 async fn accept_loop(listener: TcpListener, shared: Arc<Shared>, shutdown: CancellationToken) {
-    let mut connections = JoinSet::new();
-    let max = shared.config.max_connections as usize;
-    let per_peer = shared.config.max_connections_per_peer as usize;
-    let slots = Arc::new(Slots::default());
-    loop {
-        while connections.try_join_next().is_some() {}
-        let accepted = tokio::select! {
-            biased;
-            _ = shutdown.cancelled() => break,
-            a = listener.accept() => a,
-        };
-        let (stream, peer) = match accepted {
-            Ok(a) => a,
-            Err(e) => {
-                // Out of descriptors and the like: try again shortly.
-                tracing::warn!("CiA 309-3 accept: {e}");
-                tokio::time::sleep(Duration::from_millis(100)).await;
-                continue;
-            }
-        };
-        let slot = match slots.admit(peer.ip(), max, per_peer) {
-            Ok(slot) => slot,
-            Err(message) => {
-                crate::metrics::cia309_session("too_many_connections");
-                let write_timeout = Duration::from_millis(shared.config.write_timeout_ms);
-                connections.spawn(async move {
-                    let mut stream = stream;
-                    let line = format!("# closed: {message}\r\n");
-                    let _ = tokio::time::timeout(write_timeout, stream.write_all(line.as_bytes()))
-                        .await;
-                });
-                continue;
-            }
-        };
-        connections.spawn(connection(
-            stream,
-            peer,
-            shared.clone(),
-            shutdown.clone(),
-            slot,
-        ));
-    }
-    drop(listener);
-    while connections.join_next().await.is_some() {}
+    let policy = AcceptPolicy {
+        name: "CiA 309-3",
+        max: shared.config.max_connections as usize,
+        per_peer: shared.config.max_connections_per_peer as usize,
+        write_timeout: Duration::from_millis(shared.config.write_timeout_ms),
+        refusal: |message| format!("# closed: {message}\r\n"),
+        on_refused: || crate::metrics::cia309_session("too_many_connections"),
+    };
+    let stop = shutdown.clone();
+    accept_connections(listener, policy, shutdown, move |stream, peer, slot| {
+        connection(stream, peer, shared.clone(), stop.clone(), slot)
+    })
+    .await;
 }
 
 /// Counts an open connection while it lives.

@@ -115,3 +115,70 @@ impl Slots {
         })
     }
 }
+
+/// How a text-protocol endpoint's [`accept_connections`] admits clients.
+pub struct AcceptPolicy {
+    /// The endpoint's name in log lines ("socketcand", "CiA 309-3").
+    pub name: &'static str,
+    /// `max_connections`.
+    pub max: usize,
+    /// `max_connections_per_peer`.
+    pub per_peer: usize,
+    /// Bound of the refusal line's write to a client turned away.
+    pub write_timeout: std::time::Duration,
+    /// The line (with its end) that tells a client turned away why, in the
+    /// endpoint's own protocol.
+    pub refusal: fn(&str) -> String,
+    /// Counts a client turned away.
+    pub on_refused: fn(),
+}
+
+/// Accepts connections on `listener` until `shutdown`, each within a slot
+/// of [`Slots`] (a client turned away gets the policy's refusal line), and
+/// runs `serve` for each as a task; waits for them all at the end. Accept
+/// errors (out of descriptors and the like) are retried shortly.
+pub async fn accept_connections<F, Fut>(
+    listener: tokio::net::TcpListener,
+    policy: AcceptPolicy,
+    shutdown: CancellationToken,
+    mut serve: F,
+) where
+    F: FnMut(tokio::net::TcpStream, std::net::SocketAddr, SlotGuard) -> Fut,
+    Fut: std::future::Future<Output = ()> + Send + 'static,
+{
+    use tokio::io::AsyncWriteExt;
+    let mut connections = tokio::task::JoinSet::new();
+    let slots = Arc::new(Slots::default());
+    loop {
+        while connections.try_join_next().is_some() {}
+        let accepted = tokio::select! {
+            biased;
+            _ = shutdown.cancelled() => break,
+            a = listener.accept() => a,
+        };
+        let (mut stream, peer) = match accepted {
+            Ok(a) => a,
+            Err(e) => {
+                tracing::warn!("{} accept: {e}", policy.name);
+                tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+                continue;
+            }
+        };
+        match slots.admit(peer.ip(), policy.max, policy.per_peer) {
+            Ok(slot) => {
+                connections.spawn(serve(stream, peer, slot));
+            }
+            Err(message) => {
+                (policy.on_refused)();
+                let line = (policy.refusal)(&message);
+                let write_timeout = policy.write_timeout;
+                connections.spawn(async move {
+                    let _ = tokio::time::timeout(write_timeout, stream.write_all(line.as_bytes()))
+                        .await;
+                });
+            }
+        }
+    }
+    drop(listener);
+    while connections.join_next().await.is_some() {}
+}

@@ -58,7 +58,7 @@ use crate::config::SocketcandConfig;
 use crate::gateway::Gateway;
 use crate::participants::{SenderGuard, SenderNames};
 use crate::security::auth::AUDIT_TARGET;
-use crate::security::slots::{SlotGuard, Slots};
+use crate::security::slots::{AcceptPolicy, SlotGuard, accept_connections};
 use crate::security::{FrameBudget, QueueReservation, Refusal, Role, SecurityLayer};
 use bcm::{Bcm, format_bcm_frame};
 use cangate_can::{
@@ -72,7 +72,7 @@ use std::time::Duration;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::tcp::OwnedWriteHalf;
 use tokio::net::{TcpListener, TcpStream};
-use tokio::task::{JoinHandle, JoinSet};
+use tokio::task::JoinHandle;
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
@@ -122,50 +122,19 @@ pub async fn start(
 }
 
 async fn accept_loop(listener: TcpListener, shared: Arc<Shared>, shutdown: CancellationToken) {
-    let mut connections = JoinSet::new();
-    let max = shared.config.max_connections as usize;
-    let per_peer = shared.config.max_connections_per_peer as usize;
-    let slots = Arc::new(Slots::default());
-    loop {
-        while connections.try_join_next().is_some() {}
-        let accepted = tokio::select! {
-            biased;
-            _ = shutdown.cancelled() => break,
-            a = listener.accept() => a,
-        };
-        let (stream, peer) = match accepted {
-            Ok(a) => a,
-            Err(e) => {
-                // Out of descriptors and the like: try again shortly.
-                tracing::warn!("socketcand accept: {e}");
-                tokio::time::sleep(Duration::from_millis(100)).await;
-                continue;
-            }
-        };
-        let slot = match slots.admit(peer.ip(), max, per_peer) {
-            Ok(slot) => slot,
-            Err(message) => {
-                crate::metrics::socketcand_session("too_many_connections");
-                let write_timeout = Duration::from_millis(shared.config.write_timeout_ms);
-                connections.spawn(async move {
-                    let mut stream = stream;
-                    let line = format_error(&message);
-                    let _ = tokio::time::timeout(write_timeout, stream.write_all(line.as_bytes()))
-                        .await;
-                });
-                continue;
-            }
-        };
-        connections.spawn(connection(
-            stream,
-            peer,
-            shared.clone(),
-            shutdown.clone(),
-            slot,
-        ));
-    }
-    drop(listener);
-    while connections.join_next().await.is_some() {}
+    let policy = AcceptPolicy {
+        name: "socketcand",
+        max: shared.config.max_connections as usize,
+        per_peer: shared.config.max_connections_per_peer as usize,
+        write_timeout: Duration::from_millis(shared.config.write_timeout_ms),
+        refusal: format_error,
+        on_refused: || crate::metrics::socketcand_session("too_many_connections"),
+    };
+    let stop = shutdown.clone();
+    accept_connections(listener, policy, shutdown, move |stream, peer, slot| {
+        connection(stream, peer, shared.clone(), stop.clone(), slot)
+    })
+    .await;
 }
 
 /// Counts an open connection while it lives.
