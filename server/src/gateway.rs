@@ -96,7 +96,8 @@ struct BusRuntime {
 }
 
 impl BusRuntime {
-    /// `io`: a backend needs the I/O driver (SocketCAN). Without it the
+    /// `io`: a backend (SocketCAN) or an endpoint served on the bus thread
+    /// (socketcand, CiA 309-3) needs the I/O driver. Without it the
     /// thread parks on a futex instead of in `epoll_wait`, a cheaper sleep
     /// and wake-up, and virtual buses need nothing else.
     /// `rt_priority`: `SCHED_FIFO` for the thread (0: the default policy).
@@ -163,7 +164,11 @@ impl Gateway {
             config
                 .buses
                 .iter()
-                .any(|b| b.backend == crate::config::BackendChoice::Socketcan),
+                .any(|b| b.backend == crate::config::BackendChoice::Socketcan)
+                // The text-protocol endpoints serve their connections on
+                // the bus thread (`security::slots::listen_on_bus_thread`).
+                || config.socketcand.is_some()
+                || config.cia309.is_some(),
             config.rt_priority,
         )?;
         // Everything spawned from here on (tokio::spawn in the bus, master,

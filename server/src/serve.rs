@@ -368,7 +368,6 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
                 security.clone(),
                 shutdown.clone(),
             )
-            .await
             .map_err(|source| {
                 shutdown.cancel();
                 StartError::Listen {
@@ -384,15 +383,14 @@ pub async fn start(config: &Config) -> Result<RunningServer, StartError> {
         Some(s) => {
             let (a, task) =
                 crate::socketcand::start(s, gateway.clone(), security, senders, shutdown.clone())
-                    .await
                     .map_err(|source| {
-                        // Nothing of this start-up may stay running.
-                        shutdown.cancel();
-                        StartError::Listen {
-                            addr: s.listen,
-                            source,
-                        }
-                    })?;
+                    // Nothing of this start-up may stay running.
+                    shutdown.cancel();
+                    StartError::Listen {
+                        addr: s.listen,
+                        source,
+                    }
+                })?;
             (Some(a), Some(task))
         }
         None => (None, None),

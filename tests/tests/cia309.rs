@@ -605,3 +605,69 @@ async fn lss_allnodes_numbers_every_unconfigured_device() {
     assert_eq!(lines[2], "# Found 2 nodes, search finished.\n");
     assert_eq!(lines[3], "[1] OK\r\n");
 }
+
+/// The connections are served on the bus thread (that is what makes a
+/// command cheap): a flood of pipelined commands from several clients at
+/// once must not hold up the bus side. Node 7's heartbeat (100 ms, consumed
+/// with a 500 ms timeout on that same thread) is never lost, every command
+/// is answered in order, and a gRPC read meanwhile is answered too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_flood_of_commands_does_not_hold_up_the_bus_side() {
+    const CLIENTS: usize = 4;
+    const COMMANDS: usize = 400;
+    let server = server("").await;
+    let c = client(&server).await;
+    let mut events = node_events(&c, vec![7]).await;
+    let addr = server.cia309_addr.expect("cia309 configured");
+    let floods: Vec<_> = (0..CLIENTS)
+        .map(|k| {
+            tokio::spawn(async move {
+                let stream = TcpStream::connect(addr).await.expect("connects");
+                let (r, w) = stream.into_split();
+                let mut gw = Gw {
+                    reader: BufReader::new(r),
+                    writer: w,
+                };
+                // Every command in one write: the gateway reads them back
+                // to back. Reads of the node and commands that touch no
+                // bus, alternating.
+                let command = |i: usize| {
+                    if (i + k) % 2 == 0 {
+                        (format!("[{i}] 7 r 0x1018 0 u8\r\n"), format!("[{i}] 4\r\n"))
+                    } else {
+                        (format!("[{i}] set node 7\r\n"), format!("[{i}] OK\r\n"))
+                    }
+                };
+                let lines: String = (0..COMMANDS).map(|i| command(i).0).collect();
+                gw.send(&lines).await;
+                for i in 0..COMMANDS {
+                    assert_eq!(gw.line().await, command(i).1, "client {k}, command {i}");
+                }
+            })
+        })
+        .collect();
+    // A gRPC client reads meanwhile.
+    let identity = c
+        .canopen("can0")
+        .read_bytes(
+            cangate_client::NodeId::new(7).expect("node id"),
+            cangate_client::ObjectAddress::new(0x1018, 1),
+            Default::default(),
+        )
+        .await
+        .expect("a gRPC read during the flood");
+    assert_eq!(identity.len(), 4);
+    for f in floods {
+        f.await.expect("a flooding client");
+    }
+    while let Ok(ev) =
+        tokio::time::timeout(std::time::Duration::from_millis(50), events.message()).await
+    {
+        let ev = ev.expect("event stream").expect("event stream open");
+        assert!(
+            !matches!(ev.event, Some(pb::node_event::Event::HeartbeatLost(_))),
+            "heartbeat lost under the flood: {ev:?}"
+        );
+    }
+    assert!(!get_node(&c, 7).await.heartbeat_lost);
+}

@@ -16,7 +16,8 @@
 // text replaced, after the page's rendering) minus that. Protocol on
 // stdout/stdin, a line each: "ready" once the view streams; then on stdin
 // "report" -> one JSON line {"delays_us": [...], "rate_text": "...",
-// "lost_text": "..."}; on "quit" it exits.
+// "lost_text": "..."}; "show PAGE" -> the dashboard's page PAGE (axes,
+// canopen, ...) is shown, then "shown PAGE"; on "quit" it exits.
 import puppeteer from "puppeteer-core";
 import { createInterface } from "node:readline";
 
@@ -77,6 +78,21 @@ try {
           : (document.getElementById("frames-lost")?.textContent ?? ""),
       }));
       say(JSON.stringify({ ...r, profile_top: top }));
+    } else if (line.startsWith("show ")) {
+      // Another page of the dashboard, for its CPU at demo traffic; said
+      // back once the page is shown and has had a second to open its
+      // streams and draw.
+      const shown = line.slice(5);
+      await page.evaluate((p) => {
+        location.hash = p;
+      }, shown);
+      await page.waitForFunction(
+        (p) => document.getElementById(`page-${p}`)?.hidden === false,
+        { timeout: 30_000 },
+        shown,
+      );
+      await new Promise((r) => setTimeout(r, 1000));
+      say(`shown ${shown}`);
     } else if (line === "quit") {
       break;
     }

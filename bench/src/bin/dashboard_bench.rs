@@ -17,7 +17,8 @@
 //! first on the screen.
 //!
 //! Reports, for an idle phase and a loaded one of `--seconds` each: the
-//! browser's CPU (every Chromium process, from /proc, in % of one core),
+//! browser's CPU (every Chromium process, from /proc, in % of one core;
+//! in the idle phase for every page of the dashboard in turn),
 //! and under load the delay from the marker entering the bus queue to its
 //! line on the screen (p50/p99; it includes the bus's arbitration under
 //! full load, the gateway, gRPC-Web, the page's coalescing to animation
@@ -62,6 +63,9 @@ const MARKER_ID: u16 = 0x010;
 /// Load frames queued per millisecond: a little more than 1 Mbit/s carries
 /// (8-byte frames are ~125 bit times), so the bus stays saturated.
 const LOAD_PER_MS: usize = 9;
+/// The dashboard's pages measured at demo traffic besides the buses page
+/// (the frame view, measured first and under load).
+const OTHER_PAGES: [&str; 5] = ["axes", "canopen", "cansmc", "handwheel", "alarms"];
 
 fn main() -> ExitCode {
     let args = Args::parse();
@@ -99,6 +103,18 @@ fn run(args: &Args) -> Result<()> {
     // Idle: the demo's own traffic only.
     let idle = browser_cpu_over(page.pid(), seconds)?;
     println!("idle page: browser {:.1} % of one core", idle * 100.0);
+
+    // The other pages at demo traffic: what a panel PC showing one of them
+    // all shift spends on the browser.
+    let mut pages = serde_json::Map::new();
+    pages.insert("buses".into(), json!(idle));
+    for name in OTHER_PAGES {
+        page.show(name)?;
+        let cpu = browser_cpu_over(page.pid(), seconds)?;
+        println!("{name} page: browser {:.1} % of one core", cpu * 100.0);
+        pages.insert(name.into(), json!(cpu));
+    }
+    page.show("buses")?;
 
     // Loaded: the bench saturates can0 and sends markers.
     // Two nodes: the load's transmit queue stays full (a node sends its
@@ -199,6 +215,7 @@ fn run(args: &Args) -> Result<()> {
         json!({
             "bench": "dashboard",
             "idle_browser_cpu": idle,
+            "page_browser_cpu": pages,
             "loaded_browser_cpu": loaded,
             "delay_ms_p50": p50,
             "delay_ms_p99": p99,
@@ -370,6 +387,13 @@ impl Page {
     fn say(&mut self, line: &str) -> Result<()> {
         let stdin = self.stdin.as_mut().context("stdin closed")?;
         writeln!(stdin, "{line}")?;
+        Ok(())
+    }
+
+    /// Shows the dashboard's page `name` and waits until it is drawn.
+    fn show(&mut self, name: &str) -> Result<()> {
+        self.say(&format!("show {name}"))?;
+        self.wait_for(&format!("shown {name}"), Duration::from_secs(60))?;
         Ok(())
     }
 

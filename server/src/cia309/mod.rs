@@ -54,7 +54,7 @@ use crate::config::Cia309Config;
 use crate::gateway::Gateway;
 use crate::security::auth::AUDIT_TARGET;
 use crate::security::roles::{Access, lookup};
-use crate::security::slots::{AcceptPolicy, SlotGuard, accept_connections};
+use crate::security::slots::{AcceptPolicy, SlotGuard, accept_connections, listen_on_bus_thread};
 use crate::security::{Refusal, Role, SecurityLayer};
 use cangate_canopen::lss::{InquireWhat, LssCommand, LssError, LssMode, LssOutcome};
 use cangate_canopen::master::SdoRequest;
@@ -86,24 +86,23 @@ struct Shared {
     nets: Vec<CanopenBus>,
 }
 
-/// Binds `[cia309] listen` and serves until `shutdown`; `nets` are the
-/// CANopen buses in network order. Returns the bound address and the
-/// listener's task (it ends once every connection has).
+/// Binds `[cia309] listen` and serves until `shutdown`, on the bus thread
+/// ([`listen_on_bus_thread`] says why); `nets` are the CANopen buses in
+/// network order. Returns the bound address and the listener's task (it
+/// ends once every connection has).
 ///
 /// # Errors
 /// The address cannot be bound.
-pub async fn start(
+pub fn start(
     config: &Cia309Config,
     gateway: Arc<Gateway>,
     nets: &[String],
     security: SecurityLayer,
     shutdown: CancellationToken,
 ) -> std::io::Result<(SocketAddr, JoinHandle<()>)> {
-    let listener = TcpListener::bind(config.listen).await?;
-    let addr = listener.local_addr()?;
-    if security.authentication() && !addr.ip().is_loopback() {
+    if security.authentication() && !config.listen.ip().is_loopback() {
         tracing::warn!(
-            %addr,
+            addr = %config.listen,
             "the CiA 309-3 gateway listens on the network: its tokens cross it in clear text"
         );
     }
@@ -116,8 +115,9 @@ pub async fn start(
         security,
         nets,
     });
-    let task = tokio::spawn(accept_loop(listener, shared, shutdown));
-    Ok((addr, task))
+    listen_on_bus_thread(gateway.bus_runtime(), config.listen, move |listener| {
+        accept_loop(listener, shared, shutdown)
+    })
 }
 
 async fn accept_loop(listener: TcpListener, shared: Arc<Shared>, shutdown: CancellationToken) {

@@ -1,7 +1,8 @@
 //! Connection slots of the text-protocol endpoints (socketcand, CiA 309-3):
 //! at most `max` connections and `per_peer` from one address, where idle
 //! connections that never authenticate give their slot to a newcomer, so
-//! they cannot lock out a client with a token.
+//! they cannot lock out a client with a token; and where they run: on the
+//! bus thread ([`listen_on_bus_thread`]).
 
 use std::sync::Arc;
 use tokio_util::sync::CancellationToken;
@@ -181,4 +182,100 @@ pub async fn accept_connections<F, Fut>(
     }
     drop(listener);
     while connections.join_next().await.is_some() {}
+}
+
+/// Binds `addr` and runs `serve` on the listener as a task of `bus_side`,
+/// the runtime of the bus thread (`gateway-bus`), so that every connection
+/// of the endpoint is served there. Returns the bound address and the
+/// task.
+///
+/// Why: a text-protocol command is a short exchange with the bus side (an
+/// SDO read, a frame out and one back). Served on the gRPC side's runtime,
+/// each exchange crossed threads twice, a sleep and a wake-up each way,
+/// and those, not the protocol's work, were most of its latency and CPU
+/// ("Wake-ups cost more than frames" in docs/design.md). On the bus
+/// thread the request reaches the CANopen master or the bus task, and
+/// the answer the connection, as a task wake-up on the same thread, as in
+/// the single-threaded peers (canopend, socketcand). What a connection may
+/// cost that thread is bounded: one command at a time, lines of at most
+/// `max_line_bytes`, `max_connections`, and tokio's cooperative budget on
+/// every socket operation.
+///
+/// # Errors
+/// The address cannot be bound.
+pub fn listen_on_bus_thread<F, Fut>(
+    bus_side: &tokio::runtime::Handle,
+    addr: std::net::SocketAddr,
+    serve: F,
+) -> std::io::Result<(std::net::SocketAddr, tokio::task::JoinHandle<()>)>
+where
+    F: FnOnce(tokio::net::TcpListener) -> Fut + Send + 'static,
+    Fut: std::future::Future<Output = ()> + Send + 'static,
+{
+    let listener = std::net::TcpListener::bind(addr)?;
+    listener.set_nonblocking(true)?;
+    let bound = listener.local_addr()?;
+    // Registered with the bus runtime's reactor, from a task on it: its
+    // connections' sockets are then polled by the bus thread.
+    let task = bus_side.spawn(async move {
+        match tokio::net::TcpListener::from_std(listener) {
+            Ok(l) => serve(l).await,
+            Err(e) => tracing::error!(%bound, "cannot listen on the bus thread: {e}"),
+        }
+    });
+    Ok((bound, task))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+    /// A current-thread runtime on a thread of its own, as the gateway's
+    /// bus runtime is.
+    fn bus_like_runtime(name: &str) -> (tokio::runtime::Handle, CancellationToken) {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .expect("runtime");
+        let handle = rt.handle().clone();
+        let stop = CancellationToken::new();
+        let until = stop.clone();
+        std::thread::Builder::new()
+            .name(name.into())
+            .spawn(move || rt.block_on(until.cancelled()))
+            .expect("thread");
+        (handle, stop)
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn connections_are_served_on_the_bus_thread() {
+        let (bus_side, stop) = bus_like_runtime("test-bus-thread");
+        let (addr, task) = listen_on_bus_thread(
+            &bus_side,
+            "127.0.0.1:0".parse().expect("address"),
+            |listener| async move {
+                let (mut stream, _) = listener.accept().await.expect("accept");
+                let name = std::thread::current().name().unwrap_or("").to_owned();
+                stream.write_all(name.as_bytes()).await.expect("write");
+            },
+        )
+        .expect("bind");
+        let mut client = tokio::net::TcpStream::connect(addr).await.expect("connect");
+        let mut served_on = String::new();
+        client.read_to_string(&mut served_on).await.expect("read");
+        assert_eq!(served_on, "test-bus-thread");
+        task.await.expect("the listener's task");
+        stop.cancel();
+    }
+
+    #[test]
+    fn an_address_in_use_is_an_error_not_a_task() {
+        let (bus_side, stop) = bus_like_runtime("test-bus-thread-2");
+        let taken = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+        let addr = taken.local_addr().expect("address");
+        let r = listen_on_bus_thread(&bus_side, addr, |_| async {});
+        assert!(r.is_err(), "a second listener on {addr}");
+        stop.cancel();
+    }
 }

@@ -58,7 +58,7 @@ use crate::config::SocketcandConfig;
 use crate::gateway::Gateway;
 use crate::participants::{SenderGuard, SenderNames};
 use crate::security::auth::AUDIT_TARGET;
-use crate::security::slots::{AcceptPolicy, SlotGuard, accept_connections};
+use crate::security::slots::{AcceptPolicy, SlotGuard, accept_connections, listen_on_bus_thread};
 use crate::security::{FrameBudget, QueueReservation, Refusal, Role, SecurityLayer};
 use bcm::{Bcm, format_bcm_frame};
 use cangate_can::{
@@ -90,35 +90,35 @@ struct Shared {
     senders: Arc<SenderNames>,
 }
 
-/// Binds `[socketcand] listen` and serves until `shutdown`; returns the
-/// bound address and the listener's task (it ends once every connection
-/// has).
+/// Binds `[socketcand] listen` and serves until `shutdown`, on the bus
+/// thread ([`listen_on_bus_thread`] says why); returns the bound address
+/// and the listener's task (it ends once every connection has).
 ///
 /// # Errors
 /// The address cannot be bound.
-pub async fn start(
+pub fn start(
     config: &SocketcandConfig,
     gateway: Arc<Gateway>,
     security: SecurityLayer,
     senders: Arc<SenderNames>,
     shutdown: CancellationToken,
 ) -> std::io::Result<(SocketAddr, JoinHandle<()>)> {
-    let listener = TcpListener::bind(config.listen).await?;
-    let addr = listener.local_addr()?;
-    if security.authentication() && !addr.ip().is_loopback() {
+    if security.authentication() && !config.listen.ip().is_loopback() {
         tracing::warn!(
-            %addr,
+            addr = %config.listen,
             "socketcand listens on the network: its tokens cross it in clear text (socketcand has no TLS)"
         );
     }
+    let bus_side = gateway.bus_runtime().clone();
     let shared = Arc::new(Shared {
         config: config.clone(),
         gateway,
         security,
         senders,
     });
-    let task = tokio::spawn(accept_loop(listener, shared, shutdown));
-    Ok((addr, task))
+    listen_on_bus_thread(&bus_side, config.listen, move |listener| {
+        accept_loop(listener, shared, shutdown)
+    })
 }
 
 async fn accept_loop(listener: TcpListener, shared: Arc<Shared>, shutdown: CancellationToken) {
