@@ -1,0 +1,695 @@
+//! The plant bridge against a real NATS server with JetStream
+//! (`nats-server`): each test starts its own server on a free loopback
+//! port with its own store directory and stops it by its PID. Outside CI
+//! a missing `nats-server` skips the test, saying why; under `CI` it
+//! fails.
+//!
+//! - every message of a stream is in the gateway's JetStream stream in
+//!   order with consecutive sequence numbers and its `Nats-Msg-Id`, read
+//!   in protobuf by the Rust client and in JSON by a Python consumer
+//!   (nats-py);
+//! - the server killed mid-stream and started again on the same store:
+//!   every sequence number is in the stream once, or covered by exactly
+//!   one gap record;
+//! - a publish repeated with the same `Nats-Msg-Id` after a reconnect is
+//!   dropped by the server;
+//! - the services API (`$SRV.PING`, `INFO`, `STATS`) answers for the
+//!   gateway;
+//! - two gateways on one server: `fleet` lists both; a clean stop marks
+//!   one offline;
+//! - the bridge authenticates with a token, a user and password, or an
+//!   NKey, each read from a file.
+//!
+//! Every wait is for an event, bounded by a generous deadline.
+
+#[path = "common/python_peer.rs"]
+mod python_peer;
+#[path = "common/vcan.rs"]
+mod vcan;
+
+use async_nats::jetstream;
+use cangate_client::pb;
+use futures::StreamExt;
+use prost::Message;
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+/// Deadline of every wait here (a busy 2-core machine builds beside us).
+const DEADLINE: Duration = Duration::from_secs(60);
+
+/// The server binary: on PATH, or where Debian puts it.
+fn nats_server() -> Option<PathBuf> {
+    for dir in std::env::var("PATH").unwrap_or_default().split(':').chain([
+        "/usr/sbin",
+        "/usr/local/sbin",
+        "/usr/bin",
+    ]) {
+        let p = Path::new(dir).join("nats-server");
+        if p.is_file() {
+            return Some(p);
+        }
+    }
+    None
+}
+
+/// Skips (outside CI) or fails (under CI) when the server is missing.
+fn can_run(test: &str) -> bool {
+    match nats_server() {
+        Some(_) => true,
+        None => {
+            vcan::skip_or_fail(test, "nats-server not found (apt-get install nats-server)");
+            false
+        }
+    }
+}
+
+/// A nats-server of this test with JetStream, its store in its own
+/// directory (kept across a restart).
+struct Server {
+    port: u16,
+    dir: PathBuf,
+    child: Option<Child>,
+}
+
+impl Server {
+    /// A server whose configuration file has `extra` (authorization) added.
+    fn start(name: &str, extra: &str) -> Server {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let dir = std::env::temp_dir().join(format!("cangate-nats-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(
+            dir.join("nats.conf"),
+            format!(
+                "listen: \"127.0.0.1:{port}\"\njetstream {{ store_dir: \"{}\" }}\n{extra}\n",
+                dir.join("js").display()
+            ),
+        )
+        .unwrap();
+        let mut s = Server {
+            port,
+            dir,
+            child: None,
+        };
+        s.run();
+        s
+    }
+
+    fn run(&mut self) {
+        let child = Command::new(nats_server().unwrap())
+            .arg("-c")
+            .arg(self.dir.join("nats.conf"))
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("nats-server starts");
+        self.child = Some(child);
+        let deadline = std::time::Instant::now() + DEADLINE;
+        while std::net::TcpStream::connect(("127.0.0.1", self.port)).is_err() {
+            assert!(std::time::Instant::now() < deadline, "nats-server listens");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// Kills the server (SIGKILL by PID: no goodbye to its clients) and
+    /// waits for it to exit.
+    fn kill(&mut self) {
+        if let Some(mut c) = self.child.take() {
+            let _ = Command::new("kill")
+                .args(["-KILL", &c.id().to_string()])
+                .status();
+            let _ = c.wait();
+        }
+    }
+
+    fn url(&self) -> String {
+        format!("nats://127.0.0.1:{}", self.port)
+    }
+
+    async fn client(&self) -> async_nats::Client {
+        self.client_with(async_nats::ConnectOptions::new()).await
+    }
+
+    async fn client_with(&self, options: async_nats::ConnectOptions) -> async_nats::Client {
+        options
+            .retry_on_initial_connect()
+            .connect(self.url())
+            .await
+            .expect("the test connects")
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        if let Some(mut c) = self.child.take() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+/// One bus with a simulated CANopen node, and a bridge to `url`.
+fn config(url: &str, gateway: &str, extra: &str) -> String {
+    format!(
+        r#"
+[[bus]]
+name = "can0"
+backend = "virtual"
+
+[[canopen]]
+bus = "can0"
+
+[[canopen.node]]
+id = 5
+eds = "builtin:io"
+simulate = true
+
+[[bridge]]
+name = "{gateway}"
+url = "{url}"
+gateway = "{gateway}"
+{extra}
+"#
+    )
+}
+
+async fn start(toml: &str) -> cangate_server::RunningServer {
+    let text = format!("listen = \"127.0.0.1:0\"\n{toml}");
+    let config = cangate_server::Config::from_toml(&text).expect("test configuration is valid");
+    cangate_server::start(&config).await.expect("server starts")
+}
+
+/// A stream of `js`, once the bridge has made it.
+async fn stream_of(js: &jetstream::Context, name: &str) -> jetstream::stream::Stream {
+    tokio::time::timeout(DEADLINE, async {
+        loop {
+            if let Ok(s) = js.get_stream(name).await {
+                return s;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    })
+    .await
+    .unwrap_or_else(|_| panic!("the bridge makes stream {name}"))
+}
+
+/// A reader of the messages of `filter` (empty: all) in stream `name`,
+/// from its first.
+struct Reader {
+    messages: jetstream::consumer::pull::Ordered,
+}
+
+/// One message read: subject, `Nats-Msg-Id`, envelope.
+struct Read {
+    subject: String,
+    msg_id: Option<String>,
+    env: pb::BridgeEnvelope,
+}
+
+impl Reader {
+    async fn new(js: &jetstream::Context, name: &str, filter: &str) -> Reader {
+        let stream = stream_of(js, name).await;
+        let consumer = stream
+            .create_consumer(jetstream::consumer::pull::OrderedConfig {
+                filter_subject: filter.to_string(),
+                ..Default::default()
+            })
+            .await
+            .expect("an ordered consumer");
+        Reader {
+            messages: consumer.messages().await.expect("its messages"),
+        }
+    }
+
+    async fn next(&mut self) -> Read {
+        let m = tokio::time::timeout(DEADLINE, self.messages.next())
+            .await
+            .expect("a message in time")
+            .expect("the consumer goes on")
+            .expect("a message");
+        Read {
+            subject: m.subject.to_string(),
+            msg_id: (m.headers.as_ref())
+                .and_then(|h| h.get("Nats-Msg-Id"))
+                .map(|v| v.to_string()),
+            env: pb::BridgeEnvelope::decode(m.payload.as_ref())
+                .expect("a pb subject carries a BridgeEnvelope"),
+        }
+    }
+}
+
+/// The sequence numbers of `stream` read, and its gap records' ranges.
+#[derive(Default)]
+struct Ledger {
+    seqs: Vec<u64>,
+    gaps: Vec<(u64, u64)>,
+}
+
+impl Ledger {
+    fn take(&mut self, stream: &str, env: &pb::BridgeEnvelope) {
+        match &env.payload {
+            Some(pb::bridge_envelope::Payload::Gap(g)) if g.stream == stream => {
+                assert_eq!(g.count, g.last_seq - g.first_seq + 1);
+                self.gaps.push((g.first_seq, g.last_seq));
+            }
+            _ if env.stream == stream => self.seqs.push(env.seq),
+            _ => {}
+        }
+    }
+
+    /// Every number up to `last` read once or in one gap, and none both.
+    fn check_complete(&self, last: u64) {
+        let mut got = BTreeSet::new();
+        for &s in &self.seqs {
+            assert!(got.insert(s), "seq {s} twice in the stream");
+        }
+        let mut gapped = BTreeSet::new();
+        for &(a, b) in &self.gaps {
+            for s in a..=b {
+                assert!(gapped.insert(s), "seq {s} in two gap records");
+                assert!(!got.contains(&s), "seq {s} received and in a gap");
+            }
+        }
+        for s in 1..=last {
+            assert!(
+                got.contains(&s) || gapped.contains(&s),
+                "seq {s} neither received nor in a gap (gaps {:?})",
+                self.gaps
+            );
+        }
+    }
+}
+
+/// The sum of a bridge's gap counter.
+fn gap_messages(bridge: &str) -> f64 {
+    cangate_server::metrics::handle()
+        .render()
+        .lines()
+        .filter(|l| {
+            l.starts_with("cangate_bridge_gap_messages_total{")
+                && l.contains(&format!("bridge=\"{bridge}\""))
+        })
+        .filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok())
+        .sum()
+}
+
+/// The last status of `gateway` in `format` in the status stream.
+async fn last_status(js: &jetstream::Context, gateway: &str) -> pb::GatewayStatus {
+    let stream = stream_of(js, "CANGATE_STATUS").await;
+    let m = stream
+        .get_last_raw_message_by_subject(&format!("cangate.v1.pb.{gateway}.status"))
+        .await
+        .expect("a status");
+    let env = pb::BridgeEnvelope::decode(m.payload.as_ref()).unwrap();
+    assert_eq!(env.stream, "status");
+    match env.payload {
+        Some(pb::bridge_envelope::Payload::Status(s)) => s,
+        other => panic!("not a status: {other:?}"),
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stream_messages_are_kept_in_order_with_their_msg_ids() {
+    if !can_run("stream_messages_are_kept_in_order_with_their_msg_ids") {
+        return;
+    }
+    let nats = Server::start("order", "");
+    let gateway = start(&config(
+        &nats.url(),
+        "m1",
+        "streams = [\"bus_stats\", \"node_events\"]\nstats_interval_ms = 20",
+    ))
+    .await;
+    let js = jetstream::new(nats.client().await);
+    let mut reader = Reader::new(&js, "CANGATE_m1_PB", "cangate.v1.pb.m1.bus.can0.stats").await;
+    let mut ledger = Ledger::default();
+    let mut epoch = None;
+    while ledger.seqs.len() < 40 {
+        let r = reader.next().await;
+        assert_eq!(r.env.gateway, "m1");
+        assert_eq!(r.subject, "cangate.v1.pb.m1.bus.can0.stats");
+        let epoch = *epoch.get_or_insert(r.env.epoch);
+        assert_eq!(r.env.epoch, epoch, "one epoch");
+        assert_eq!(
+            r.msg_id.as_deref(),
+            Some(format!("m1/{epoch}/bus/can0/stats/{}", r.env.seq).as_str()),
+            "Nats-Msg-Id = gateway/epoch/stream/seq"
+        );
+        assert!(
+            matches!(r.env.payload, Some(pb::bridge_envelope::Payload::Bus(_))),
+            "{:?}",
+            r.env.payload
+        );
+        ledger.take("bus/can0/stats", &r.env);
+    }
+    assert_eq!(
+        ledger.seqs,
+        (1..=40).collect::<Vec<_>>(),
+        "in order, from 1"
+    );
+    // The same in the JSON tree, its own stream.
+    let json = stream_of(&js, "CANGATE_m1_JSON").await;
+    let first = json
+        .get_raw_message(1)
+        .await
+        .expect("the JSON stream's first message");
+    let v: serde_json::Value = serde_json::from_slice(&first.payload).unwrap();
+    assert_eq!(v["gateway"], "m1");
+    assert_eq!(
+        v["seq"], "1",
+        "proto3 JSON writes 64-bit integers as strings"
+    );
+    // The status: online, with the gateway's buses.
+    let status = last_status(&js, "m1").await;
+    assert!(status.online);
+    assert_eq!(status.buses, ["can0"]);
+    assert_eq!(status.started_ns, epoch.unwrap());
+    gateway.shutdown();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_python_consumer_reads_the_json_tree_in_order() {
+    let test = "a_python_consumer_reads_the_json_tree_in_order";
+    if !can_run(test) {
+        return;
+    }
+    let Some(python) = python_peer::python_or_skip(test, &["nats"]) else {
+        return;
+    };
+    let nats = Server::start("python", "");
+    let gateway = start(&config(
+        &nats.url(),
+        "m6",
+        "streams = [\"bus_stats\"]\nformats = [\"json\"]\nstats_interval_ms = 20",
+    ))
+    .await;
+    // The consumer looks its stream up by subject: the stream is there
+    // first.
+    let js = jetstream::new(nats.client().await);
+    stream_of(&js, "CANGATE_m6_JSON").await;
+    let port = nats.port.to_string();
+    let script = python_peer::script("nats_consumer.py");
+    let subject = "cangate.v1.json.m6.bus.can0.stats";
+    let mut consumer =
+        python_peer::Peer::spawn(&python, &script, &["127.0.0.1", &port, subject, "25"], &[])
+            .expect("python starts");
+    let lines = consumer
+        .lines_until("DONE", DEADLINE)
+        .await
+        .expect("25 envelopes");
+    let seqs: Vec<u64> = lines
+        .iter()
+        .map(|l| {
+            let rest = l.strip_prefix("SEQ bus/can0/stats ").expect(l);
+            rest.parse().unwrap()
+        })
+        .collect();
+    assert_eq!(seqs, (1..=25).collect::<Vec<_>>());
+    gateway.shutdown();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_server_restart_loses_nothing_without_a_gap_record() {
+    if !can_run("a_server_restart_loses_nothing_without_a_gap_record") {
+        return;
+    }
+    let mut nats = Server::start("restart", "");
+    // A small queue: while the server is away it overflows.
+    let gateway = start(&config(
+        &nats.url(),
+        "m2",
+        "streams = [\"bus_stats\"]\nformats = [\"pb\"]\nstats_interval_ms = 10\nqueue_size = 5",
+    ))
+    .await;
+    let stream = "bus/can0/stats";
+    // Ten messages in before the kill (the queue may have overflowed
+    // while the bridge connected: that gap is counted below too).
+    let before_kill = {
+        let js = jetstream::new(nats.client().await);
+        let mut reader = Reader::new(&js, "CANGATE_m2_PB", "").await;
+        let mut ledger = Ledger::default();
+        while ledger.seqs.len() < 10 {
+            ledger.take(stream, &reader.next().await.env);
+        }
+        *ledger.seqs.last().unwrap()
+    };
+    nats.kill();
+    // Away until the queue has overflowed (a gap is recorded).
+    tokio::time::timeout(DEADLINE, async {
+        while gap_messages("m2") == 0.0 {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    })
+    .await
+    .expect("the queue overflows while the server is away");
+    nats.run();
+    // The stream from its start (statistics and gap records: all it
+    // holds), up to well after the restart: every number once or in a
+    // gap.
+    let js = jetstream::new(nats.client().await);
+    let mut reader = Reader::new(&js, "CANGATE_m2_PB", "").await;
+    let mut ledger = Ledger::default();
+    let mut last = 0;
+    let outage_gap = |l: &Ledger| {
+        l.gaps
+            .iter()
+            .map(|g| g.1)
+            .filter(|&e| e > before_kill)
+            .max()
+    };
+    while outage_gap(&ledger).is_none_or(|e| last < e + 20) {
+        let r = reader.next().await;
+        ledger.take(stream, &r.env);
+        if r.env.stream == stream {
+            last = last.max(r.env.seq);
+        }
+    }
+    ledger.check_complete(last);
+    assert!(
+        ledger.gaps.iter().any(|g| g.0 > before_kill),
+        "the outage's gap: {:?}",
+        ledger.gaps
+    );
+    gateway.shutdown();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_repeated_publish_after_a_reconnect_is_dropped_by_the_server() {
+    if !can_run("a_repeated_publish_after_a_reconnect_is_dropped_by_the_server") {
+        return;
+    }
+    let mut nats = Server::start("dedup", "");
+    let gateway = start(&config(
+        &nats.url(),
+        "m3",
+        "streams = [\"bus_stats\"]\nformats = [\"pb\"]\nstats_interval_ms = 20",
+    ))
+    .await;
+    let subject = "cangate.v1.pb.m3.bus.can0.stats";
+    let second = {
+        let js = jetstream::new(nats.client().await);
+        let mut reader = Reader::new(&js, "CANGATE_m3_PB", subject).await;
+        reader.next().await;
+        let second = reader.next().await;
+        assert_eq!(second.env.seq, 2);
+        second
+    };
+    nats.kill();
+    nats.run();
+    // The gateway is back: messages after the restart are in the stream.
+    let client = nats.client().await;
+    let js = jetstream::new(client.clone());
+    let stream = stream_of(&js, "CANGATE_m3_PB").await;
+    let before = tokio::time::timeout(DEADLINE, async {
+        loop {
+            let mut s = stream.clone();
+            let n = s.info().await.map(|i| i.state.messages).unwrap_or(0);
+            if n > 5 {
+                return n;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("the bridge publishes again after the restart");
+    assert!(before > 5);
+    // Message 2 published again, as the bridge would after a reconnect:
+    // same subject, same Nats-Msg-Id.
+    let mut headers = async_nats::HeaderMap::new();
+    headers.insert("Nats-Msg-Id", second.msg_id.clone().unwrap().as_str());
+    let ack = js
+        .publish_with_headers(subject, headers, second.env.encode_to_vec().into())
+        .await
+        .expect("published")
+        .await
+        .expect("acknowledged");
+    assert!(ack.duplicate, "the server knows the Nats-Msg-Id");
+    // The stream holds message 2 once.
+    let mut reader = Reader::new(&js, "CANGATE_m3_PB", subject).await;
+    let mut twos = 0;
+    loop {
+        let r = reader.next().await;
+        if r.env.seq == 2 {
+            twos += 1;
+        }
+        if r.env.seq > 10 {
+            break;
+        }
+    }
+    assert_eq!(twos, 1);
+    gateway.shutdown();
+}
+
+/// A request to the services API, answered once the gateway's service is
+/// subscribed (no responders before).
+async fn srv(client: &async_nats::Client, subject: &str) -> serde_json::Value {
+    tokio::time::timeout(DEADLINE, async {
+        loop {
+            if let Ok(m) = client.request(subject.to_string(), "".into()).await {
+                return serde_json::from_slice(&m.payload).expect("a JSON answer");
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    })
+    .await
+    .unwrap_or_else(|_| panic!("{subject} answered"))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_services_api_answers_ping_info_and_stats() {
+    if !can_run("the_services_api_answers_ping_info_and_stats") {
+        return;
+    }
+    let nats = Server::start("srv", "");
+    let gateway = start(&config(
+        &nats.url(),
+        "m4",
+        "streams = [\"bus_stats\"]\nformats = [\"pb\", \"json\"]",
+    ))
+    .await;
+    let client = nats.client().await;
+    let ping = srv(&client, "$SRV.PING").await;
+    assert_eq!(ping["type"], "io.nats.micro.v1.ping_response");
+    assert_eq!(ping["name"], "cangate");
+    assert_eq!(ping["metadata"]["gateway"], "m4");
+    let id = ping["id"].as_str().unwrap().to_string();
+    let by_name = srv(&client, "$SRV.PING.cangate").await;
+    assert_eq!(by_name["id"], id.as_str());
+    let info = srv(&client, &format!("$SRV.INFO.cangate.{id}")).await;
+    assert_eq!(info["type"], "io.nats.micro.v1.info_response");
+    assert_eq!(info["metadata"]["buses"], "can0");
+    assert_eq!(info["version"], ping["version"]);
+    let stats = srv(&client, "$SRV.STATS.cangate").await;
+    assert_eq!(stats["type"], "io.nats.micro.v1.stats_response");
+    assert_eq!(stats["id"], id.as_str());
+    assert!(stats["started"].is_string(), "{stats}");
+    gateway.shutdown();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn fleet_lists_two_gateways_and_a_clean_stop_marks_one_offline() {
+    if !can_run("fleet_lists_two_gateways_and_a_clean_stop_marks_one_offline") {
+        return;
+    }
+    let nats = Server::start("fleet", "");
+    let extra = "streams = [\"bus_stats\"]\nformats = [\"pb\"]";
+    let g1 = start(&config(&nats.url(), "g1", extra)).await;
+    let g2 = start(&config(&nats.url(), "g2", extra)).await;
+    let url = nats.url();
+    let fleet = || cangate_client::fleet::gateways(&url, DEADLINE);
+    let both = tokio::time::timeout(DEADLINE, async {
+        loop {
+            let found = fleet().await.expect("fleet reads the server");
+            if found.len() == 2 {
+                return found;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    })
+    .await
+    .expect("both gateways' statuses in time");
+    assert_eq!(both.keys().collect::<Vec<_>>(), ["g1", "g2"]);
+    assert!(both.values().all(|s| s.online && s.buses == ["can0"]));
+    g1.shutdown();
+    g1.wait(DEADLINE).await.expect("g1 stops");
+    let after = fleet().await.unwrap();
+    assert!(
+        !after["g1"].online,
+        "a clean stop marks the gateway offline"
+    );
+    assert!(after["g2"].online);
+    assert_eq!(after["g1"].started_ns, both["g1"].started_ns);
+    g2.shutdown();
+}
+
+/// The bridge's status reached a server that requires `auth` of its
+/// clients, for a bridge with `bridge_keys`; the test reads with `reader`.
+async fn authenticates(
+    name: &str,
+    auth: &str,
+    bridge_keys: &str,
+    reader: async_nats::ConnectOptions,
+) {
+    let nats = Server::start(name, auth);
+    let gateway = start(&config(
+        &nats.url(),
+        name,
+        &format!("streams = [\"bus_stats\"]\nformats = [\"pb\"]\n{bridge_keys}"),
+    ))
+    .await;
+    let js = jetstream::new(nats.client_with(reader).await);
+    assert!(last_status(&js, name).await.online);
+    gateway.shutdown();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_bridge_authenticates_with_a_token_a_password_or_an_nkey() {
+    if !can_run("the_bridge_authenticates_with_a_token_a_password_or_an_nkey") {
+        return;
+    }
+    let secrets = std::env::temp_dir().join(format!("cangate-nats-secrets-{}", std::process::id()));
+    std::fs::create_dir_all(&secrets).unwrap();
+    let file = |name: &str, text: &str| {
+        let p = secrets.join(name);
+        std::fs::write(&p, format!("{text}\n")).unwrap();
+        p.display().to_string()
+    };
+    let token = file("token", "t0ken-s3cret");
+    authenticates(
+        "a1",
+        "authorization { token: \"t0ken-s3cret\" }",
+        &format!("token_file = \"{token}\""),
+        async_nats::ConnectOptions::with_token("t0ken-s3cret".into()),
+    )
+    .await;
+    let password = file("password", "pa55-s3cret");
+    authenticates(
+        "a2",
+        "authorization { users = [ { user: \"a2\", password: \"pa55-s3cret\" } ] }",
+        &format!("username = \"a2\"\npassword_file = \"{password}\""),
+        async_nats::ConnectOptions::with_user_and_password("a2".into(), "pa55-s3cret".into()),
+    )
+    .await;
+    let key = nkeys::KeyPair::new_user();
+    let seed = key.seed().unwrap();
+    let seed_file = file("nkey", &seed);
+    authenticates(
+        "a3",
+        &format!(
+            "authorization {{ users = [ {{ nkey: \"{}\" }} ] }}",
+            key.public_key()
+        ),
+        &format!("nkey_file = \"{seed_file}\""),
+        async_nats::ConnectOptions::with_nkey(seed.clone()),
+    )
+    .await;
+    let _ = std::fs::remove_dir_all(&secrets);
+}
