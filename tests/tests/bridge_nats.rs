@@ -107,15 +107,20 @@ impl Server {
             .arg(self.dir.join("nats.conf"))
             .stdin(Stdio::null())
             .stdout(Stdio::null())
-            .stderr(Stdio::null())
+            .stderr(std::fs::File::create(self.log()).unwrap())
             .spawn()
             .expect("nats-server starts");
-        self.child = Some(child);
         let deadline = std::time::Instant::now() + DEADLINE;
+        let mut child = child;
         while std::net::TcpStream::connect(("127.0.0.1", self.port)).is_err() {
+            if let Ok(Some(status)) = child.try_wait() {
+                let log = std::fs::read_to_string(self.log()).unwrap_or_default();
+                panic!("nats-server exited ({status}): {log}");
+            }
             assert!(std::time::Instant::now() < deadline, "nats-server listens");
             std::thread::sleep(Duration::from_millis(20));
         }
+        self.child = Some(child);
     }
 
     /// Kills the server (SIGKILL by PID: no goodbye to its clients) and
@@ -127,6 +132,11 @@ impl Server {
                 .status();
             let _ = c.wait();
         }
+    }
+
+    /// The server's log (its standard error) of its last run.
+    fn log(&self) -> PathBuf {
+        self.dir.join("nats-server.log")
     }
 
     fn url(&self) -> String {
@@ -692,4 +702,98 @@ async fn the_bridge_authenticates_with_a_token_a_password_or_an_nkey() {
     )
     .await;
     let _ = std::fs::remove_dir_all(&secrets);
+}
+
+/// A test CA and a certificate it signed for `cn` (a server certificate
+/// for `localhost` when `server`): (CA PEM, certificate PEM, key PEM).
+fn issue(
+    ca: &(rcgen::CertificateParams, rcgen::KeyPair),
+    cn: &str,
+    server: bool,
+) -> (String, String) {
+    let key = rcgen::KeyPair::generate().unwrap();
+    let sans = if server {
+        vec!["localhost".to_string()]
+    } else {
+        vec![]
+    };
+    let mut params = rcgen::CertificateParams::new(sans).unwrap();
+    params
+        .distinguished_name
+        .push(rcgen::DnType::CommonName, cn);
+    params.extended_key_usages = vec![if server {
+        rcgen::ExtendedKeyUsagePurpose::ServerAuth
+    } else {
+        rcgen::ExtendedKeyUsagePurpose::ClientAuth
+    }];
+    let issuer = rcgen::Issuer::from_params(&ca.0, &ca.1);
+    let cert = params.signed_by(&key, &issuer).unwrap();
+    (cert.pem(), key.serialize_pem())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_bridge_speaks_tls_with_a_client_certificate() {
+    if !can_run("the_bridge_speaks_tls_with_a_client_certificate") {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("cangate-nats-certs-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let ca_key = rcgen::KeyPair::generate().unwrap();
+    let mut ca_params = rcgen::CertificateParams::new(Vec::<String>::new()).unwrap();
+    ca_params.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained);
+    ca_params
+        .distinguished_name
+        .push(rcgen::DnType::CommonName, "nats test CA");
+    ca_params.key_usages = vec![
+        rcgen::KeyUsagePurpose::KeyCertSign,
+        rcgen::KeyUsagePurpose::DigitalSignature,
+    ];
+    let ca_pem = ca_params.self_signed(&ca_key).unwrap().pem();
+    let ca = (ca_params, ca_key);
+    let path = |name: &str, text: &str| {
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        p.display().to_string()
+    };
+    let ca_file = path("ca.pem", &ca_pem);
+    let (server_cert, server_key) = issue(&ca, "localhost", true);
+    let (client_cert, client_key) = issue(&ca, "t1", false);
+    let (server_cert, server_key) = (
+        path("server.pem", &server_cert),
+        path("server.key", &server_key),
+    );
+    let (client_cert, client_key) = (
+        path("client.pem", &client_cert),
+        path("client.key", &client_key),
+    );
+    // The server requires TLS and a client certificate from the CA.
+    let nats = Server::start(
+        "tls",
+        &format!(
+            "tls {{ cert_file: \"{server_cert}\"\nkey_file: \"{server_key}\"\n\
+             ca_file: \"{ca_file}\"\nverify: true }}"
+        ),
+    );
+    let url = format!("tls://localhost:{}", nats.port);
+    let gateway = start(&config(
+        &url,
+        "t1",
+        &format!(
+            "streams = [\"bus_stats\"]\nformats = [\"pb\"]\nca = \"{ca_file}\"\n\
+             cert = \"{client_cert}\"\nkey = \"{client_key}\""
+        ),
+    ))
+    .await;
+    let client = async_nats::ConnectOptions::new()
+        .add_root_certificates(PathBuf::from(&ca_file))
+        .add_client_certificate(PathBuf::from(&client_cert), PathBuf::from(&client_key))
+        .require_tls(true)
+        .retry_on_initial_connect()
+        .connect(url.as_str())
+        .await
+        .expect("the test connects with TLS");
+    let js = jetstream::new(client);
+    assert!(last_status(&js, "t1").await.online);
+    gateway.shutdown();
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -398,6 +398,32 @@ mod tests {
     }
 
     #[test]
+    fn print_config_shows_the_nats_secret_files_never_a_secret() {
+        for key in ["token_file", "nkey_file", "credentials_file"] {
+            let text = format!(
+                "[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\n\n[[bridge]]\n\
+                 name = \"plant\"\nurl = \"nats://h\"\ngateway = \"m1\"\n\
+                 {key} = \"/run/secrets/nats\"\n"
+            );
+            let c = crate::config::Config::from_toml(&text).unwrap();
+            let printed = c.to_toml();
+            assert!(
+                printed.contains(&format!("{key} = \"/run/secrets/nats\"")),
+                "{printed}"
+            );
+            assert_eq!(crate::config::Config::from_toml(&printed).unwrap(), c);
+        }
+        for key in ["token", "nkey", "credentials"] {
+            let text = format!("name = \"p\"\nurl = \"nats://h\"\n{key} = \"s3cret\"\n");
+            let e = bridge(&text).unwrap_err();
+            assert!(
+                e.contains("unknown field"),
+                "a secret in the file is refused: {e}"
+            );
+        }
+    }
+
+    #[test]
     fn unknown_keys_and_bad_values_are_refused() {
         let base = "name = \"p\"\ngateway = \"m1\"\n";
         for (extra, says) in [
