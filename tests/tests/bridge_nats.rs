@@ -17,8 +17,12 @@
 //!   gateway;
 //! - two gateways on one server: `fleet` lists both; a clean stop marks
 //!   one offline;
+//! - a gateway killed with SIGKILL: its status goes stale and `fleet`
+//!   reports it offline; the next run has a new epoch and numbers from 1;
+//! - the node events through the bridge equal the gRPC stream's;
 //! - the bridge authenticates with a token, a user and password, or an
-//!   NKey, each read from a file.
+//!   NKey, each read from a file, and speaks TLS (`tls://`) with a client
+//!   certificate.
 //!
 //! Every wait is for an event, bounded by a generous deadline.
 
@@ -796,4 +800,194 @@ async fn the_bridge_speaks_tls_with_a_client_certificate() {
     assert!(last_status(&js, "t1").await.online);
     gateway.shutdown();
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn node_events_through_the_bridge_equal_the_grpc_stream() {
+    if !can_run("node_events_through_the_bridge_equal_the_grpc_stream") {
+        return;
+    }
+    let nats = Server::start("events", "");
+    let gateway = start(&config(
+        &nats.url(),
+        "m7",
+        "streams = [\"node_events\"]\nformats = [\"pb\"]",
+    ))
+    .await;
+    let c = cangate_tests::client(&gateway).await;
+    let mut grpc = cangate_tests::node_events(&c, vec![5]).await;
+    // A reset: the node goes through its boot again (state changes and a
+    // boot-up), seen by both.
+    cangate_tests::send_nmt(&c, 5, pb::NmtCommand::ResetNode).await;
+    let mut from_grpc = Vec::new();
+    while !(from_grpc.last())
+        .is_some_and(|e: &pb::NodeEvent| matches!(e.event, Some(pb::node_event::Event::BootUp(_))))
+    {
+        let ev = tokio::time::timeout(DEADLINE, grpc.message())
+            .await
+            .expect("a node event in time")
+            .unwrap()
+            .expect("the stream goes on");
+        from_grpc.push(ev);
+    }
+    // The stream from its start: the events before the reset too, then
+    // the same events as the gRPC stream's, numbered from 1.
+    let js = jetstream::new(nats.client().await);
+    let mut reader = Reader::new(
+        &js,
+        "CANGATE_m7_PB",
+        "cangate.v1.pb.m7.bus.can0.node.5.event",
+    )
+    .await;
+    let t0 = from_grpc[0].timestamp_ns;
+    let mut from_bridge = Vec::new();
+    let mut seqs = Vec::new();
+    while from_bridge.len() < from_grpc.len() {
+        let r = reader.next().await;
+        let Some(pb::bridge_envelope::Payload::NodeEvent(ev)) = r.env.payload else {
+            panic!("a node event subject carries node events");
+        };
+        seqs.push(r.env.seq);
+        if ev.timestamp_ns >= t0 {
+            from_bridge.push(ev);
+        }
+    }
+    assert_eq!(from_bridge, from_grpc);
+    assert_eq!(
+        seqs,
+        (1..=seqs.len() as u64).collect::<Vec<_>>(),
+        "consecutive from 1"
+    );
+    gateway.shutdown();
+}
+
+/// The environment variable that makes the child test run a gateway.
+const CHILD_ENV: &str = "CANGATE_NATS_BRIDGE_CHILD";
+const CHILD_TEST: &str = "nats_gateway_child";
+
+/// Run by [`a_killed_gateway_goes_stale_and_the_next_run_starts_a_new_epoch`]
+/// as a separate process: a gateway bridged to the server in
+/// [`CHILD_ENV`], until it is killed.
+#[test]
+#[ignore = "run by a_killed_gateway_goes_stale_and_the_next_run_starts_a_new_epoch"]
+fn nats_gateway_child() {
+    let Ok(url) = std::env::var(CHILD_ENV) else {
+        return;
+    };
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(async {
+        let _server = start(&config(
+            &url,
+            "k1",
+            "streams = [\"bus_stats\"]\nformats = [\"pb\"]\nstats_interval_ms = 50",
+        ))
+        .await;
+        std::future::pending::<()>().await;
+    });
+}
+
+struct ChildGuard(Child);
+
+impl Drop for ChildGuard {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn gateway_process(url: &str) -> ChildGuard {
+    ChildGuard(
+        Command::new(std::env::current_exe().unwrap())
+            .args(["--exact", CHILD_TEST, "--ignored", "--nocapture"])
+            .env(CHILD_ENV, url)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("the gateway process starts"),
+    )
+}
+
+/// The first statistics message of the run of `epoch`.
+async fn first_stats_of(js: &jetstream::Context, epoch: u64) -> pb::BridgeEnvelope {
+    let mut reader = Reader::new(js, "CANGATE_k1_PB", "cangate.v1.pb.k1.bus.can0.stats").await;
+    loop {
+        let r = reader.next().await;
+        if r.env.epoch == epoch {
+            return r.env;
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_killed_gateway_goes_stale_and_the_next_run_starts_a_new_epoch() {
+    if !can_run("a_killed_gateway_goes_stale_and_the_next_run_starts_a_new_epoch") {
+        return;
+    }
+    let nats = Server::start("kill", "");
+    let url = nats.url();
+    let js = jetstream::new(nats.client().await);
+    let mut first = gateway_process(&url);
+    let one = first_stats_of(&js, {
+        let s = tokio::time::timeout(DEADLINE, async {
+            loop {
+                if let Ok(stream) = js.get_stream("CANGATE_STATUS").await
+                    && let Ok(m) = stream
+                        .get_last_raw_message_by_subject("cangate.v1.pb.k1.status")
+                        .await
+                {
+                    return pb::BridgeEnvelope::decode(m.payload.as_ref()).unwrap();
+                }
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+        })
+        .await
+        .expect("the first run's status");
+        s.epoch
+    })
+    .await;
+    assert_eq!(one.seq, 1);
+    // SIGKILL: no goodbye. The last status still says online; fleet
+    // reports it offline once it is three heartbeats old.
+    let _ = Command::new("kill")
+        .args(["-KILL", &first.0.id().to_string()])
+        .status();
+    let _ = first.0.wait();
+    let stale = tokio::time::timeout(DEADLINE, async {
+        loop {
+            let found = cangate_client::fleet::gateways(&url, DEADLINE)
+                .await
+                .expect("fleet reads the server");
+            if let Some(s) = found.get("k1")
+                && !s.online
+            {
+                return s.clone();
+            }
+            tokio::time::sleep(Duration::from_millis(500)).await;
+        }
+    })
+    .await
+    .expect("the killed gateway's status goes stale");
+    assert_eq!(
+        stale.started_ns, one.epoch,
+        "the status of the run that died"
+    );
+    let last = last_status(&js, "k1").await;
+    assert!(last.online, "nobody marked it offline: it went stale");
+
+    let _second = gateway_process(&url);
+    let status = tokio::time::timeout(DEADLINE, async {
+        loop {
+            let s = last_status(&js, "k1").await;
+            if s.started_ns != one.epoch {
+                return s;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    })
+    .await
+    .expect("the second run's status");
+    assert!(status.online);
+    let stats = first_stats_of(&js, status.started_ns).await;
+    assert_eq!(stats.seq, 1, "numbers start again from 1");
 }
