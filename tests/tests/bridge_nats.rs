@@ -315,13 +315,20 @@ fn gap_messages(bridge: &str) -> f64 {
         .sum()
 }
 
-/// The last status of `gateway` in `format` in the status stream.
+/// The last status of `gateway` in the status stream (once there is one).
 async fn last_status(js: &jetstream::Context, gateway: &str) -> pb::GatewayStatus {
     let stream = stream_of(js, "CANGATE_STATUS").await;
-    let m = stream
-        .get_last_raw_message_by_subject(&format!("cangate.v1.pb.{gateway}.status"))
-        .await
-        .expect("a status");
+    let subject = format!("cangate.v1.pb.{gateway}.status");
+    let m = tokio::time::timeout(DEADLINE, async {
+        loop {
+            if let Ok(m) = stream.get_last_raw_message_by_subject(&subject).await {
+                return m;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    })
+    .await
+    .expect("a status in time");
     let env = pb::BridgeEnvelope::decode(m.payload.as_ref()).unwrap();
     assert_eq!(env.stream, "status");
     match env.payload {
@@ -455,10 +462,11 @@ async fn a_server_restart_loses_nothing_without_a_gap_record() {
         }
         *ledger.seqs.last().unwrap()
     };
+    let gaps_before = gap_messages("m2");
     nats.kill();
     // Away until the queue has overflowed (a gap is recorded).
     tokio::time::timeout(DEADLINE, async {
-        while gap_messages("m2") == 0.0 {
+        while gap_messages("m2") == gaps_before {
             tokio::time::sleep(Duration::from_millis(10)).await;
         }
     })
