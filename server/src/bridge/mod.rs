@@ -1,7 +1,7 @@
 //! The plant bridge: an edge that publishes the gateway's streams to an
-//! MQTT broker or NATS JetStream (`[[bridge]]`, docs/bridge.md). Read-only: it publishes,
-//! it takes no commands (commands stay on gRPC with their roles, leases
-//! and dead-man).
+//! MQTT broker or to NATS JetStream ([`nats`]) (`[[bridge]]`,
+//! docs/bridge.md). Read-only: it publishes, it takes no commands
+//! (commands stay on gRPC with their roles, leases and dead-man).
 //!
 //! Each bridge and format (`pb`, `json`: each its own topic tree) is one
 //! broker connection with its own [`queue::Queue`] and its own last will.
