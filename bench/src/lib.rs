@@ -34,6 +34,6 @@ pub mod suite;
 
 // Dependencies of the bench binaries only.
 use {
-    cangate_canopen as _, cangate_cansmc as _, clap as _, futures as _, socketcan as _,
-    tokio_stream as _, tokio_util as _,
+    async_nats as _, cangate_canopen as _, cangate_cansmc as _, clap as _, futures as _,
+    prost as _, rumqttc as _, socketcan as _, tokio_stream as _, tokio_util as _,
 };

@@ -1,5 +1,7 @@
 //! The gateways a broker has seen: the retained statuses their plant
-//! bridges publish (`cangate/v1/pb/<gateway>/status`, see docs/bridge.md).
+//! bridges publish (`cangate/v1/pb/<gateway>/status`, see docs/bridge.md);
+//! on NATS, the last status of each gateway in the JetStream stream
+//! `CANGATE_STATUS`.
 
 use crate::pb;
 use prost::Message;
@@ -46,6 +48,14 @@ pub async fn gateways(
     url: &str,
     timeout: Duration,
 ) -> Result<BTreeMap<String, pb::GatewayStatus>, FleetError> {
+    if url.starts_with("nats://") || url.starts_with("tls://") {
+        return match tokio::time::timeout(timeout, nats_gateways(url)).await {
+            Ok(r) => r,
+            Err(_) => Err(FleetError(format!(
+                "broker {url}: no answer within {timeout:?}"
+            ))),
+        };
+    }
     let (host, port) = broker(url)?;
     let nonce = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -105,4 +115,86 @@ pub async fn gateways(
     }
     let _ = client.try_disconnect();
     Ok(found)
+}
+
+/// The stream where every gateway's bridge keeps its last status (the
+/// gateway's `bridge::nats::STATUS_STREAM`).
+const NATS_STATUS_STREAM: &str = "CANGATE_STATUS";
+/// A bridge publishes its status again this often while it is connected
+/// (the gateway's `bridge::nats::HEARTBEAT`).
+const NATS_HEARTBEAT_NS: u64 = 5_000_000_000;
+
+/// Whether an online status published at `published_ns` is stale at
+/// `now_ns`: three heartbeats missed, so the gateway was killed, lost
+/// power or its network (NATS has no last will to say so).
+pub fn stale(published_ns: u64, now_ns: u64) -> bool {
+    now_ns.saturating_sub(published_ns) > 3 * NATS_HEARTBEAT_NS
+}
+
+/// The last status of each gateway in the NATS server's status stream;
+/// an online status that is [`stale`] is reported offline.
+async fn nats_gateways(url: &str) -> Result<BTreeMap<String, pb::GatewayStatus>, FleetError> {
+    use async_nats::jetstream::context::GetStreamErrorKind;
+    use futures::StreamExt;
+    let fail = |e: &dyn std::fmt::Display| FleetError(format!("broker {url}: {e}"));
+    let client = async_nats::ConnectOptions::new()
+        .name("cangate-fleet")
+        .connect(url)
+        .await
+        .map_err(|e| fail(&e))?;
+    let js = async_nats::jetstream::new(client.clone());
+    let stream = match js.get_stream(NATS_STATUS_STREAM).await {
+        Ok(s) => s,
+        Err(e) => {
+            if let GetStreamErrorKind::JetStream(j) = e.kind()
+                && j.error_code() == async_nats::jetstream::ErrorCode::STREAM_NOT_FOUND
+            {
+                return Ok(BTreeMap::new());
+            }
+            return Err(fail(&e));
+        }
+    };
+    // Each subject with its message count.
+    let mut subjects = Vec::new();
+    let mut listed = stream
+        .info_with_subjects("cangate.v1.pb.*.status")
+        .await
+        .map_err(|e| fail(&e))?;
+    while let Some(s) = listed.next().await {
+        subjects.push(s.map_err(|e| fail(&e))?);
+    }
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0);
+    let mut found = BTreeMap::new();
+    for subject in subjects {
+        let m = stream
+            .get_last_raw_message_by_subject(&subject.0)
+            .await
+            .map_err(|e| fail(&e))?;
+        if let Ok(env) = pb::BridgeEnvelope::decode(m.payload.as_ref())
+            && let Some(pb::bridge_envelope::Payload::Status(mut s)) = env.payload
+        {
+            if s.online && stale(env.timestamp_ns, now) {
+                s.online = false;
+            }
+            found.insert(s.gateway.clone(), s);
+        }
+    }
+    Ok(found)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_status_three_heartbeats_old_is_stale() {
+        let t = 1_000 * NATS_HEARTBEAT_NS;
+        assert!(!stale(t, t));
+        assert!(!stale(t, t + 3 * NATS_HEARTBEAT_NS));
+        assert!(stale(t, t + 3 * NATS_HEARTBEAT_NS + 1));
+        assert!(!stale(t, t - 1), "a clock a little behind is not stale");
+    }
 }

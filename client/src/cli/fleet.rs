@@ -1,5 +1,6 @@
-//! `cangate fleet --broker URL`: the gateways an MQTT broker has seen,
-//! from the retained statuses of their plant bridges. Needs no gateway.
+//! `cangate fleet --broker URL`: the gateways an MQTT broker or a NATS
+//! server has seen, from the statuses of their plant bridges. Needs no
+//! gateway.
 
 use super::{Failure, Result, print_json_line};
 use clap::Args;
@@ -8,7 +9,8 @@ use std::time::Duration;
 /// `cangate fleet`
 #[derive(Args, Debug)]
 pub(crate) struct FleetArgs {
-    /// The broker: mqtt://host[:port].
+    /// The broker: mqtt://host[:port], nats://host[:port] or
+    /// tls://host[:port].
     #[arg(long, value_name = "URL")]
     broker: String,
     /// How long to wait for the broker, ms.

@@ -193,9 +193,9 @@ pub(crate) enum Command {
     /// Layer setting services (CiA 305): find unconfigured devices
     /// (fastscan), give them node-IDs, inquire.
     Lss(lss::LssArgs),
-    /// The gateways an MQTT broker has seen (their plant bridges' retained
-    /// statuses): `cangate fleet --broker mqtt://broker:1883`. Needs no
-    /// gateway.
+    /// The gateways an MQTT broker or NATS server has seen (their plant
+    /// bridges' statuses): `cangate fleet --broker mqtt://broker:1883` or
+    /// `nats://broker:4222`. Needs no gateway.
     Fleet(fleet::FleetArgs),
     /// Buses: list, show.
     Bus(bus::BusArgs),

@@ -1,7 +1,7 @@
 //! The plant bridge: an edge that publishes the gateway's streams to an
-//! MQTT broker (`[[bridge]]`, docs/bridge.md). Read-only: it publishes,
-//! it takes no commands (commands stay on gRPC with their roles, leases
-//! and dead-man).
+//! MQTT broker or to NATS JetStream ([`nats`]) (`[[bridge]]`,
+//! docs/bridge.md). Read-only: it publishes, it takes no commands
+//! (commands stay on gRPC with their roles, leases and dead-man).
 //!
 //! Each bridge and format (`pb`, `json`: each its own topic tree) is one
 //! broker connection with its own [`queue::Queue`] and its own last will.
@@ -10,11 +10,12 @@
 //! publisher task numbers them per stream, holds them while the broker is
 //! away and turns what it cannot hold into gap records.
 
+pub mod nats;
 pub mod queue;
 mod tls;
 
 use crate::axis_runner::AxisUpdate;
-use crate::config::{BridgeConfig, BridgeFormat, BridgeStream};
+use crate::config::{BridgeConfig, BridgeFormat, BridgeStream, BrokerProtocol};
 use crate::convert::bus::{bus_info_to_pb, item_to_pb};
 use crate::convert::canopen::node_event_to_pb;
 use crate::gateway::Gateway;
@@ -135,17 +136,12 @@ pub fn start(
         let broker = b.broker().map_err(err)?;
         let gateway_id = b.gateway_id().map_err(err)?;
         let password = match &b.password_file {
-            Some(p) => Some(
-                std::fs::read_to_string(p)
-                    .map_err(|e| err(format!("password_file {}: {e}", p.display())))?
-                    .lines()
-                    .next()
-                    .unwrap_or("")
-                    .to_string(),
-            ),
-            None => None,
+            Some(p) if broker.protocol == BrokerProtocol::Mqtt => {
+                Some(first_line(p).map_err(|e| err(format!("password_file {e}")))?)
+            }
+            _ => None,
         };
-        let tls = if broker.tls {
+        let tls = if broker.tls && broker.protocol == BrokerProtocol::Mqtt {
             Some(tls::client_config(b).map_err(err)?)
         } else {
             None
@@ -161,6 +157,31 @@ pub fn start(
                 .map(|i| gateway.axes().name(i).to_string())
                 .collect(),
         };
+        if broker.protocol == BrokerProtocol::Nats {
+            for (i, &format) in b.formats.iter().enumerate() {
+                let client_name =
+                    format!("cangate-{}-{}-{}", identity.gateway, b.name, format.level());
+                let options = nats::options(b, client_name, broker.tls).map_err(err)?;
+                let (tx, rx) = mpsc::channel(SOURCE_QUEUE);
+                start_sources(b, &gateway, &tx, &shutdown);
+                drop(tx);
+                let publisher = nats::NatsPublisher {
+                    bridge: b.name.clone(),
+                    format,
+                    identity: identity.clone(),
+                    queue: Queue::new(b.queue_size as usize, WINDOW),
+                    service: i == 0,
+                };
+                let url = format!("nats://{}:{}", broker.host, broker.port);
+                tasks.push(tokio::spawn(publisher.run(
+                    url,
+                    options,
+                    rx,
+                    shutdown.clone(),
+                )));
+            }
+            continue;
+        }
         for &format in &b.formats {
             let mut options = MqttOptions::new(
                 format!("cangate-{}-{}-{}", identity.gateway, b.name, format.level()),
@@ -208,6 +229,13 @@ pub fn start(
         }
     }
     Ok(tasks)
+}
+
+/// The first line of a secret's file (the secret itself never in the
+/// message).
+fn first_line(path: &std::path::Path) -> Result<String, String> {
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(text.lines().next().unwrap_or("").to_string())
 }
 
 /// The topic of `stream` in `format`'s tree.
@@ -753,32 +781,13 @@ impl Publisher {
     }
 
     fn on_source(&mut self, s: Source) {
-        match s {
-            Source::Message {
-                stream,
-                acked,
-                retain,
-                timestamp_ns,
-                payload,
-            } => {
-                let (format, identity) = (self.format, &self.identity);
-                self.queue.push(&stream, acked, retain, |seq| {
-                    encode(
-                        format,
-                        &identity.envelope(&stream, seq, timestamp_ns, *payload),
-                    )
-                });
-            }
-            Source::Lost { stream, n } => self.queue.lost(&stream, n),
-        }
-        let (full, lagged) = self.queue.take_new_gaps();
-        let format = self.format_label();
-        if full > 0 {
-            crate::metrics::bridge_gap(&self.bridge, format, "queue_full", full);
-        }
-        if lagged > 0 {
-            crate::metrics::bridge_gap(&self.bridge, format, "source_lagged", lagged);
-        }
+        queue_source(
+            &mut self.queue,
+            &self.bridge,
+            self.format,
+            &self.identity,
+            s,
+        );
     }
 
     /// Hands the client what the queue and the window allow.
@@ -788,28 +797,13 @@ impl Publisher {
             return;
         };
         while let Some(item) = self.queue.next_to_send() {
-            let body = match item.payload {
-                Payload::Message(bytes) => bytes,
-                Payload::Gap(g) => {
-                    let gap = pb::BridgeGap {
-                        stream: g.stream,
-                        first_seq: g.first,
-                        last_seq: g.last,
-                        count: g.last - g.first + 1,
-                        reason: match g.reason {
-                            GapReason::QueueFull => pb::GapReason::QueueFull,
-                            GapReason::SourceLagged => pb::GapReason::SourceLagged,
-                        } as i32,
-                    };
-                    let env = self.identity.envelope(
-                        &item.stream,
-                        item.seq,
-                        now_ns(),
-                        pb::bridge_envelope::Payload::Gap(gap),
-                    );
-                    encode(self.format, &env)
-                }
-            };
+            let body = body_of(
+                &self.identity,
+                self.format,
+                &item.stream,
+                item.seq,
+                item.payload,
+            );
             let qos = if item.acked {
                 QoS::AtLeastOnce
             } else {
@@ -878,6 +872,74 @@ impl Publisher {
         };
         let _ = tokio::time::timeout(Duration::from_secs(2), acked).await;
         let _ = client.try_disconnect();
+    }
+}
+
+/// Numbers and queues what a source handed over, and counts the gaps it
+/// made.
+fn queue_source(
+    queue: &mut Queue<Vec<u8>>,
+    bridge: &str,
+    format: BridgeFormat,
+    identity: &Identity,
+    s: Source,
+) {
+    match s {
+        Source::Message {
+            stream,
+            acked,
+            retain,
+            timestamp_ns,
+            payload,
+        } => {
+            queue.push(&stream, acked, retain, |seq| {
+                encode(
+                    format,
+                    &identity.envelope(&stream, seq, timestamp_ns, *payload),
+                )
+            });
+        }
+        Source::Lost { stream, n } => queue.lost(&stream, n),
+    }
+    let (full, lagged) = queue.take_new_gaps();
+    if full > 0 {
+        crate::metrics::bridge_gap(bridge, format.level(), "queue_full", full);
+    }
+    if lagged > 0 {
+        crate::metrics::bridge_gap(bridge, format.level(), "source_lagged", lagged);
+    }
+}
+
+/// The bytes of a queue item: a message as queued, a gap record encoded
+/// now.
+fn body_of(
+    identity: &Identity,
+    format: BridgeFormat,
+    stream: &str,
+    seq: u64,
+    payload: Payload<Vec<u8>>,
+) -> Vec<u8> {
+    match payload {
+        Payload::Message(bytes) => bytes,
+        Payload::Gap(g) => {
+            let gap = pb::BridgeGap {
+                stream: g.stream,
+                first_seq: g.first,
+                last_seq: g.last,
+                count: g.last - g.first + 1,
+                reason: match g.reason {
+                    GapReason::QueueFull => pb::GapReason::QueueFull,
+                    GapReason::SourceLagged => pb::GapReason::SourceLagged,
+                } as i32,
+            };
+            let env = identity.envelope(
+                stream,
+                seq,
+                now_ns(),
+                pb::bridge_envelope::Payload::Gap(gap),
+            );
+            encode(format, &env)
+        }
     }
 }
 

@@ -15,8 +15,10 @@ use std::path::PathBuf;
 pub struct BridgeConfig {
     /// The bridge's name (in the log and the metrics' `bridge` label).
     pub name: String,
-    /// The broker: `mqtt://host:port` (default port 1883) or
-    /// `mqtts://host:port` (TLS, default port 8883).
+    /// The broker: `mqtt://host:port` (default port 1883),
+    /// `mqtts://host:port` (TLS, default port 8883), `nats://host:port`
+    /// (NATS with JetStream, default port 4222) or `tls://host:port`
+    /// (NATS over TLS, default port 4222).
     pub url: String,
     /// The gateway's id in the topic tree (`cangate/v1/<format>/<gateway>/…`);
     /// default: the host name. Letters, digits, `-` and `_` only.
@@ -60,14 +62,23 @@ pub struct BridgeConfig {
     /// The axes whose state and events are published (empty: every axis).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub axes: Vec<String>,
-    /// MQTT user name.
+    /// User name (MQTT, NATS).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub username: Option<String>,
-    /// A file holding the MQTT password (its first line).
+    /// A file holding the password of `username` (its first line).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub password_file: Option<PathBuf>,
-    /// PEM CA certificate(s) to verify the broker with (`mqtts://`;
-    /// default: the system's roots).
+    /// A file holding a NATS token (its first line).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub token_file: Option<PathBuf>,
+    /// A file holding a NATS NKey seed (`SU…`, its first line).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nkey_file: Option<PathBuf>,
+    /// A NATS credentials file (user JWT and NKey seed, `.creds`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub credentials_file: Option<PathBuf>,
+    /// PEM CA certificate(s) to verify the broker with (`mqtts://`,
+    /// `tls://`; default: the system's roots).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ca: Option<PathBuf>,
     /// PEM client certificate for TLS client authentication (with `key`).
@@ -144,27 +155,43 @@ fn default_axis_state_interval_ms() -> u64 {
     100
 }
 
+/// The broker's protocol.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BrokerProtocol {
+    /// MQTT 3.1.1.
+    Mqtt,
+    /// NATS with JetStream.
+    Nats,
+}
+
 /// The broker address of a bridge URL.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct BrokerAddress {
+    /// The protocol.
+    pub protocol: BrokerProtocol,
     /// Host name or address.
     pub host: String,
     /// TCP port.
     pub port: u16,
-    /// TLS (`mqtts://`).
+    /// TLS (`mqtts://`, `tls://`).
     pub tls: bool,
 }
 
 impl BridgeConfig {
     /// The broker's host, port and whether it speaks TLS.
     pub fn broker(&self) -> Result<BrokerAddress, String> {
-        let (tls, rest) = if let Some(r) = self.url.strip_prefix("mqtt://") {
-            (false, r)
+        let (protocol, tls, rest) = if let Some(r) = self.url.strip_prefix("mqtt://") {
+            (BrokerProtocol::Mqtt, false, r)
         } else if let Some(r) = self.url.strip_prefix("mqtts://") {
-            (true, r)
+            (BrokerProtocol::Mqtt, true, r)
+        } else if let Some(r) = self.url.strip_prefix("nats://") {
+            (BrokerProtocol::Nats, false, r)
+        } else if let Some(r) = self.url.strip_prefix("tls://") {
+            (BrokerProtocol::Nats, true, r)
         } else {
             return Err(format!(
-                "[[bridge]] {:?}: url {:?} is not mqtt://host:port or mqtts://host:port",
+                "[[bridge]] {:?}: url {:?} is not mqtt://host:port, mqtts://host:port, \
+                 nats://host:port or tls://host:port",
                 self.name, self.url
             ));
         };
@@ -176,7 +203,14 @@ impl BridgeConfig {
                 })?;
                 (h, port)
             }
-            _ => (rest, if tls { 8883 } else { 1883 }),
+            _ => (
+                rest,
+                match (protocol, tls) {
+                    (BrokerProtocol::Nats, _) => 4222,
+                    (BrokerProtocol::Mqtt, true) => 8883,
+                    (BrokerProtocol::Mqtt, false) => 1883,
+                },
+            ),
         };
         let host = host.trim_start_matches('[').trim_end_matches(']');
         if host.is_empty() || host.contains('/') || host.contains('@') {
@@ -187,6 +221,7 @@ impl BridgeConfig {
             ));
         }
         Ok(BrokerAddress {
+            protocol,
             host: host.to_string(),
             port,
             tls,
@@ -252,9 +287,27 @@ impl BridgeConfig {
         if self.cert.is_some() != self.key.is_some() {
             return Err(format!("[[bridge]] {name:?}: give cert and key together"));
         }
+        let nats_auth = [
+            self.token_file.is_some(),
+            self.nkey_file.is_some(),
+            self.credentials_file.is_some(),
+        ];
+        if broker.protocol == BrokerProtocol::Mqtt && nats_auth.contains(&true) {
+            return Err(format!(
+                "[[bridge]] {name:?}: token_file, nkey_file and credentials_file are for \
+                 nats:// and tls://"
+            ));
+        }
+        let ways = nats_auth.iter().filter(|&&w| w).count() + usize::from(self.username.is_some());
+        if ways > 1 {
+            return Err(format!(
+                "[[bridge]] {name:?}: give one of username, token_file, nkey_file and \
+                 credentials_file"
+            ));
+        }
         if !broker.tls && (self.ca.is_some() || self.cert.is_some()) {
             return Err(format!(
-                "[[bridge]] {name:?}: ca, cert and key need an mqtts:// url"
+                "[[bridge]] {name:?}: ca, cert and key need an mqtts:// or tls:// url"
             ));
         }
         if self.password_file.is_some() && self.username.is_none() {
@@ -293,6 +346,7 @@ mod tests {
         assert_eq!(
             b.broker().unwrap(),
             BrokerAddress {
+                protocol: BrokerProtocol::Mqtt,
                 host: "127.0.0.1".into(),
                 port: 1884,
                 tls: false
@@ -306,6 +360,20 @@ mod tests {
         assert_eq!(b.queue_size, 10_000);
         let tls = bridge("name = \"p\"\nurl = \"mqtts://broker.plant\"\ngateway = \"m1\"").unwrap();
         assert_eq!(tls.broker().unwrap().port, 8883);
+        let nats = bridge("name = \"p\"\nurl = \"nats://broker.plant\"\ngateway = \"m1\"").unwrap();
+        assert_eq!(
+            nats.broker().unwrap(),
+            BrokerAddress {
+                protocol: BrokerProtocol::Nats,
+                host: "broker.plant".into(),
+                port: 4222,
+                tls: false
+            }
+        );
+        let nats_tls =
+            bridge("name = \"p\"\nurl = \"tls://broker.plant:4443\"\ngateway = \"m1\"").unwrap();
+        assert_eq!(nats_tls.broker().unwrap().port, 4443);
+        assert!(nats_tls.broker().unwrap().tls);
     }
 
     #[test]
@@ -327,6 +395,32 @@ mod tests {
             e.contains("password"),
             "a password in the file is refused: {e}"
         );
+    }
+
+    #[test]
+    fn print_config_shows_the_nats_secret_files_never_a_secret() {
+        for key in ["token_file", "nkey_file", "credentials_file"] {
+            let text = format!(
+                "[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\n\n[[bridge]]\n\
+                 name = \"plant\"\nurl = \"nats://h\"\ngateway = \"m1\"\n\
+                 {key} = \"/run/secrets/nats\"\n"
+            );
+            let c = crate::config::Config::from_toml(&text).unwrap();
+            let printed = c.to_toml();
+            assert!(
+                printed.contains(&format!("{key} = \"/run/secrets/nats\"")),
+                "{printed}"
+            );
+            assert_eq!(crate::config::Config::from_toml(&printed).unwrap(), c);
+        }
+        for key in ["token", "nkey", "credentials"] {
+            let text = format!("name = \"p\"\nurl = \"nats://h\"\n{key} = \"s3cret\"\n");
+            let e = bridge(&text).unwrap_err();
+            assert!(
+                e.contains("unknown field"),
+                "a secret in the file is refused: {e}"
+            );
+        }
     }
 
     #[test]
@@ -352,6 +446,12 @@ mod tests {
                 "is not <id>:<mask>",
             ),
             ("url = \"mqtt://h\"\nca = \"/ca.pem\"", "need an mqtts://"),
+            ("url = \"nats://h\"\nca = \"/ca.pem\"", "or tls://"),
+            ("url = \"mqtt://h\"\ntoken_file = \"/t\"", "are for nats://"),
+            (
+                "url = \"nats://h\"\ntoken_file = \"/t\"\nnkey_file = \"/n\"",
+                "give one of",
+            ),
             (
                 "url = \"mqtts://h\"\ncert = \"/c.pem\"",
                 "cert and key together",
