@@ -19,11 +19,14 @@
 //!
 //! Every wait is for an event, bounded by a generous deadline.
 
+#[path = "common/broker.rs"]
+mod broker;
 #[path = "common/python_peer.rs"]
 mod python_peer;
 #[path = "common/vcan.rs"]
 mod vcan;
 
+use broker::{BrokerProcess, bridge_config, start_gateway};
 use cangate_client::pb;
 use cangate_tests::*;
 use prost::Message;
@@ -80,113 +83,60 @@ fn can_run(test: &str) -> bool {
 
 /// A mosquitto broker of this test, with persistence (so a consumer's
 /// session and its queued messages survive a restart).
-struct Broker {
-    port: u16,
-    dir: PathBuf,
-    child: Option<Child>,
+/// A mosquitto of the test's own.
+struct Broker(BrokerProcess);
+
+impl std::ops::Deref for Broker {
+    type Target = BrokerProcess;
+    fn deref(&self) -> &BrokerProcess {
+        &self.0
+    }
+}
+
+impl std::ops::DerefMut for Broker {
+    fn deref_mut(&mut self) -> &mut BrokerProcess {
+        &mut self.0
+    }
 }
 
 impl Broker {
     fn start(name: &str) -> Broker {
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port();
-        let dir =
-            std::env::temp_dir().join(format!("cangate-bridge-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
+        let p = BrokerProcess::prepare("bridge", name);
         std::fs::write(
-            dir.join("mosquitto.conf"),
+            p.dir.join("mosquitto.conf"),
             format!(
-                "listener {port} 127.0.0.1\nallow_anonymous true\npersistence true\n\
+                "listener {} 127.0.0.1\nallow_anonymous true\npersistence true\n\
                  persistence_location {}/\nmax_queued_messages 100000\n",
-                dir.display()
+                p.port,
+                p.dir.display()
             ),
         )
         .unwrap();
-        let mut b = Broker {
-            port,
-            dir,
-            child: None,
-        };
+        let mut b = Broker(p);
         b.run();
         b
     }
 
     fn run(&mut self) {
-        let child = Command::new(mosquitto().unwrap())
+        let mut command = Command::new(mosquitto().unwrap());
+        command
             .arg("-c")
             .arg(self.dir.join("mosquitto.conf"))
             .stdin(Stdio::null())
             .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("mosquitto starts");
-        self.child = Some(child);
-        let deadline = std::time::Instant::now() + DEADLINE;
-        while std::net::TcpStream::connect(("127.0.0.1", self.port)).is_err() {
-            assert!(std::time::Instant::now() < deadline, "mosquitto listens");
-            std::thread::sleep(Duration::from_millis(20));
-        }
+            .stderr(Stdio::null());
+        self.0.run(command, DEADLINE, || "mosquitto".into());
     }
 
     /// Stops the broker (SIGTERM by PID: it saves its sessions) and waits
     /// for it to exit.
     fn stop(&mut self) {
-        if let Some(mut c) = self.child.take() {
-            let _ = Command::new("kill")
-                .args(["-TERM", &c.id().to_string()])
-                .status();
-            let _ = c.wait();
-        }
+        self.signal("-TERM");
     }
 
     fn url(&self) -> String {
         format!("mqtt://127.0.0.1:{}", self.port)
     }
-}
-
-impl Drop for Broker {
-    fn drop(&mut self) {
-        if let Some(mut c) = self.child.take() {
-            let _ = c.kill();
-            let _ = c.wait();
-        }
-        let _ = std::fs::remove_dir_all(&self.dir);
-    }
-}
-
-/// One bus with two simulated CANopen nodes, and a bridge to `url`.
-fn config(url: &str, gateway: &str, extra: &str) -> String {
-    format!(
-        r#"
-[[bus]]
-name = "can0"
-backend = "virtual"
-
-[[canopen]]
-bus = "can0"
-
-[[canopen.node]]
-id = 5
-eds = "builtin:io"
-simulate = true
-
-[[bridge]]
-name = "{gateway}"
-url = "{url}"
-gateway = "{gateway}"
-{extra}
-"#
-    )
-}
-
-async fn start(toml: &str) -> cangate_server::RunningServer {
-    let text = format!("listen = \"127.0.0.1:0\"\n{toml}");
-    let config = cangate_server::Config::from_toml(&text).expect("test configuration is valid");
-    cangate_server::start(&config).await.expect("server starts")
 }
 
 /// A message a subscriber received: topic and envelope.
@@ -305,7 +255,7 @@ async fn stream_messages_arrive_in_order_in_pb_and_json() {
     let probe = wait_subscribed(broker.port, &mut pb_rx, "cangate/v1/pb/m1/probe").await;
     assert_eq!(probe, "cangate/v1/pb/m1/probe");
 
-    let server = start(&config(
+    let server = start_gateway(&bridge_config(
         &broker.url(),
         "m1",
         "streams = [\"bus_stats\", \"node_events\"]\nstats_interval_ms = 20",
@@ -401,7 +351,7 @@ async fn a_broker_restart_loses_nothing_without_a_gap_record() {
     let mut rx = subscribe(broker.port, "restart-pb", "cangate/v1/pb/m2/#");
     wait_subscribed(broker.port, &mut rx, "cangate/v1/pb/m2/probe").await;
     // A small queue: while the broker is away it overflows.
-    let server = start(&config(
+    let server = start_gateway(&bridge_config(
         &broker.url(),
         "m2",
         "streams = [\"bus_stats\"]\nformats = [\"pb\"]\nstats_interval_ms = 10\nqueue_size = 5",
@@ -462,7 +412,7 @@ fn bridge_gateway_child() {
     };
     let rt = tokio::runtime::Runtime::new().unwrap();
     rt.block_on(async {
-        let _server = start(&config(
+        let _server = start_gateway(&bridge_config(
             &url,
             "m3",
             "streams = [\"bus_stats\"]\nformats = [\"pb\"]\nstats_interval_ms = 50",
@@ -568,7 +518,7 @@ async fn node_events_through_the_bridge_equal_the_grpc_stream() {
         "cangate/v1/pb/m4/bus/can0/node/5/event",
     )
     .await;
-    let server = start(&config(
+    let server = start_gateway(&bridge_config(
         &broker.url(),
         "m4",
         "streams = [\"node_events\"]\nformats = [\"pb\"]",
@@ -643,7 +593,7 @@ max_acceleration = 1000.0
 /// `config` with the wheel and the axis (their sections after the bridge's
 /// own keys would belong to it, so they go before).
 fn config_with_wheel(url: &str, gateway: &str, extra: &str) -> String {
-    let base = config(url, gateway, extra);
+    let base = bridge_config(url, gateway, extra);
     let (head, bridge) = base.split_once("[[bridge]]").unwrap();
     format!("{head}{WHEEL_AND_AXIS}\n[[bridge]]{bridge}")
 }
@@ -660,7 +610,7 @@ async fn the_handwheel_feed_through_the_bridge_equals_the_grpc_stream() {
         "cangate/v1/pb/m5/handwheel/hw1/feed",
     );
     wait_subscribed(broker.port, &mut rx, "cangate/v1/pb/m5/handwheel/hw1/feed").await;
-    let server = start(&config_with_wheel(
+    let server = start_gateway(&config_with_wheel(
         &broker.url(),
         "m5",
         "streams = [\"handwheel_feed\"]\nformats = [\"pb\"]",
@@ -729,8 +679,8 @@ async fn two_gateways_are_listed_by_fleet_and_seen_by_one_consumer() {
     }
     let broker = Broker::start("fleet");
     let extra = "streams = [\"axis_state\"]\naxis_state_interval_ms = 50";
-    let g1 = start(&config_with_wheel(&broker.url(), "g1", extra)).await;
-    let g2 = start(&config_with_wheel(&broker.url(), "g2", extra)).await;
+    let g1 = start_gateway(&config_with_wheel(&broker.url(), "g1", extra)).await;
+    let g2 = start_gateway(&config_with_wheel(&broker.url(), "g2", extra)).await;
     // The retained state of each gateway's axis X, in JSON: mosquitto_sub
     // gets the retained messages of both at once (waiting, by the
     // protobuf tree, until both are there first).
@@ -788,7 +738,7 @@ async fn a_python_consumer_reads_the_json_tree_in_order() {
         .expect_line("READY", DEADLINE)
         .await
         .expect("the consumer subscribed");
-    let server = start(&config(
+    let server = start_gateway(&bridge_config(
         &broker.url(),
         "m6",
         "streams = [\"bus_stats\"]\nformats = [\"json\"]\nstats_interval_ms = 20",
@@ -828,9 +778,9 @@ async fn measure_frames_through_the_bridge() {
         "cangate/v1/pb/m7/bus/can0/frames",
     );
     wait_subscribed(broker.port, &mut rx, "cangate/v1/pb/m7/bus/can0/frames").await;
-    let server = start(&format!(
+    let server = start_gateway(&format!(
         "[security.limits]\nraw_frames_per_second_per_client = 10000000\nraw_frame_burst = 1000000\n{}",
-        config(
+        bridge_config(
             &broker.url(),
             "m7",
             "streams = [\"frames\"]\nformats = [\"pb\"]\nframe_rate_limit = 0\nqueue_size = 100000",

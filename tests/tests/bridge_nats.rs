@@ -26,12 +26,15 @@
 //!
 //! Every wait is for an event, bounded by a generous deadline.
 
+#[path = "common/broker.rs"]
+mod broker;
 #[path = "common/python_peer.rs"]
 mod python_peer;
 #[path = "common/vcan.rs"]
 mod vcan;
 
 use async_nats::jetstream;
+use broker::{BrokerProcess, bridge_config, start_gateway};
 use cangate_client::pb;
 use futures::StreamExt;
 use prost::Message;
@@ -71,71 +74,58 @@ fn can_run(test: &str) -> bool {
 
 /// A nats-server of this test with JetStream, its store in its own
 /// directory (kept across a restart).
-struct Server {
-    port: u16,
-    dir: PathBuf,
-    child: Option<Child>,
+/// A nats-server (JetStream) of the test's own.
+struct Server(BrokerProcess);
+
+impl std::ops::Deref for Server {
+    type Target = BrokerProcess;
+    fn deref(&self) -> &BrokerProcess {
+        &self.0
+    }
+}
+
+impl std::ops::DerefMut for Server {
+    fn deref_mut(&mut self) -> &mut BrokerProcess {
+        &mut self.0
+    }
 }
 
 impl Server {
     /// A server whose configuration file has `extra` (authorization) added.
     fn start(name: &str, extra: &str) -> Server {
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port();
-        let dir = std::env::temp_dir().join(format!("cangate-nats-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
+        let p = BrokerProcess::prepare("nats", name);
         std::fs::write(
-            dir.join("nats.conf"),
+            p.dir.join("nats.conf"),
             format!(
-                "listen: \"127.0.0.1:{port}\"\njetstream {{ store_dir: \"{}\" }}\n{extra}\n",
-                dir.join("js").display()
+                "listen: \"127.0.0.1:{}\"\njetstream {{ store_dir: \"{}\" }}\n{extra}\n",
+                p.port,
+                p.dir.join("js").display()
             ),
         )
         .unwrap();
-        let mut s = Server {
-            port,
-            dir,
-            child: None,
-        };
+        let mut s = Server(p);
         s.run();
         s
     }
 
     fn run(&mut self) {
-        let child = Command::new(nats_server().unwrap())
+        let log = self.log();
+        let mut command = Command::new(nats_server().unwrap());
+        command
             .arg("-c")
             .arg(self.dir.join("nats.conf"))
             .stdin(Stdio::null())
             .stdout(Stdio::null())
-            .stderr(std::fs::File::create(self.log()).unwrap())
-            .spawn()
-            .expect("nats-server starts");
-        let deadline = std::time::Instant::now() + DEADLINE;
-        let mut child = child;
-        while std::net::TcpStream::connect(("127.0.0.1", self.port)).is_err() {
-            if let Ok(Some(status)) = child.try_wait() {
-                let log = std::fs::read_to_string(self.log()).unwrap_or_default();
-                panic!("nats-server exited ({status}): {log}");
-            }
-            assert!(std::time::Instant::now() < deadline, "nats-server listens");
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        self.child = Some(child);
+            .stderr(std::fs::File::create(&log).unwrap());
+        self.0.run(command, DEADLINE, || {
+            std::fs::read_to_string(&log).unwrap_or_default()
+        });
     }
 
     /// Kills the server (SIGKILL by PID: no goodbye to its clients) and
     /// waits for it to exit.
     fn kill(&mut self) {
-        if let Some(mut c) = self.child.take() {
-            let _ = Command::new("kill")
-                .args(["-KILL", &c.id().to_string()])
-                .status();
-            let _ = c.wait();
-        }
+        self.signal("-KILL");
     }
 
     /// The server's log (its standard error) of its last run.
@@ -158,47 +148,6 @@ impl Server {
             .await
             .expect("the test connects")
     }
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        if let Some(mut c) = self.child.take() {
-            let _ = c.kill();
-            let _ = c.wait();
-        }
-        let _ = std::fs::remove_dir_all(&self.dir);
-    }
-}
-
-/// One bus with a simulated CANopen node, and a bridge to `url`.
-fn config(url: &str, gateway: &str, extra: &str) -> String {
-    format!(
-        r#"
-[[bus]]
-name = "can0"
-backend = "virtual"
-
-[[canopen]]
-bus = "can0"
-
-[[canopen.node]]
-id = 5
-eds = "builtin:io"
-simulate = true
-
-[[bridge]]
-name = "{gateway}"
-url = "{url}"
-gateway = "{gateway}"
-{extra}
-"#
-    )
-}
-
-async fn start(toml: &str) -> cangate_server::RunningServer {
-    let text = format!("listen = \"127.0.0.1:0\"\n{toml}");
-    let config = cangate_server::Config::from_toml(&text).expect("test configuration is valid");
-    cangate_server::start(&config).await.expect("server starts")
 }
 
 /// A stream of `js`, once the bridge has made it.
@@ -343,7 +292,7 @@ async fn stream_messages_are_kept_in_order_with_their_msg_ids() {
         return;
     }
     let nats = Server::start("order", "");
-    let gateway = start(&config(
+    let gateway = start_gateway(&bridge_config(
         &nats.url(),
         "m1",
         "streams = [\"bus_stats\", \"node_events\"]\nstats_interval_ms = 20",
@@ -406,7 +355,7 @@ async fn a_python_consumer_reads_the_json_tree_in_order() {
         return;
     };
     let nats = Server::start("python", "");
-    let gateway = start(&config(
+    let gateway = start_gateway(&bridge_config(
         &nats.url(),
         "m6",
         "streams = [\"bus_stats\"]\nformats = [\"json\"]\nstats_interval_ms = 20",
@@ -444,7 +393,7 @@ async fn a_server_restart_loses_nothing_without_a_gap_record() {
     }
     let mut nats = Server::start("restart", "");
     // A small queue: while the server is away it overflows.
-    let gateway = start(&config(
+    let gateway = start_gateway(&bridge_config(
         &nats.url(),
         "m2",
         "streams = [\"bus_stats\"]\nformats = [\"pb\"]\nstats_interval_ms = 10\nqueue_size = 5",
@@ -509,7 +458,7 @@ async fn a_repeated_publish_after_a_reconnect_is_dropped_by_the_server() {
         return;
     }
     let mut nats = Server::start("dedup", "");
-    let gateway = start(&config(
+    let gateway = start_gateway(&bridge_config(
         &nats.url(),
         "m3",
         "streams = [\"bus_stats\"]\nformats = [\"pb\"]\nstats_interval_ms = 20",
@@ -591,7 +540,7 @@ async fn the_services_api_answers_ping_info_and_stats() {
         return;
     }
     let nats = Server::start("srv", "");
-    let gateway = start(&config(
+    let gateway = start_gateway(&bridge_config(
         &nats.url(),
         "m4",
         "streams = [\"bus_stats\"]\nformats = [\"pb\", \"json\"]",
@@ -623,8 +572,8 @@ async fn fleet_lists_two_gateways_and_a_clean_stop_marks_one_offline() {
     }
     let nats = Server::start("fleet", "");
     let extra = "streams = [\"bus_stats\"]\nformats = [\"pb\"]";
-    let g1 = start(&config(&nats.url(), "g1", extra)).await;
-    let g2 = start(&config(&nats.url(), "g2", extra)).await;
+    let g1 = start_gateway(&bridge_config(&nats.url(), "g1", extra)).await;
+    let g2 = start_gateway(&bridge_config(&nats.url(), "g2", extra)).await;
     let url = nats.url();
     let fleet = || cangate_client::fleet::gateways(&url, DEADLINE);
     let both = tokio::time::timeout(DEADLINE, async {
@@ -661,7 +610,7 @@ async fn authenticates(
     reader: async_nats::ConnectOptions,
 ) {
     let nats = Server::start(name, auth);
-    let gateway = start(&config(
+    let gateway = start_gateway(&bridge_config(
         &nats.url(),
         name,
         &format!("streams = [\"bus_stats\"]\nformats = [\"pb\"]\n{bridge_keys}"),
@@ -787,7 +736,7 @@ async fn the_bridge_speaks_tls_with_a_client_certificate() {
         ),
     );
     let url = format!("tls://localhost:{}", nats.port);
-    let gateway = start(&config(
+    let gateway = start_gateway(&bridge_config(
         &url,
         "t1",
         &format!(
@@ -816,7 +765,7 @@ async fn node_events_through_the_bridge_equal_the_grpc_stream() {
         return;
     }
     let nats = Server::start("events", "");
-    let gateway = start(&config(
+    let gateway = start_gateway(&bridge_config(
         &nats.url(),
         "m7",
         "streams = [\"node_events\"]\nformats = [\"pb\"]",
@@ -884,7 +833,7 @@ fn nats_gateway_child() {
     };
     let rt = tokio::runtime::Runtime::new().unwrap();
     rt.block_on(async {
-        let _server = start(&config(
+        let _server = start_gateway(&bridge_config(
             &url,
             "k1",
             "streams = [\"bus_stats\"]\nformats = [\"pb\"]\nstats_interval_ms = 50",

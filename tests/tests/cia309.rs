@@ -632,7 +632,7 @@ async fn a_flood_of_commands_does_not_hold_up_the_bus_side() {
                 // to back. Reads of the node and commands that touch no
                 // bus, alternating.
                 let command = |i: usize| {
-                    if (i + k) % 2 == 0 {
+                    if (i + k).is_multiple_of(2) {
                         (format!("[{i}] 7 r 0x1018 0 u8\r\n"), format!("[{i}] 4\r\n"))
                     } else {
                         (format!("[{i}] set node 7\r\n"), format!("[{i}] OK\r\n"))
