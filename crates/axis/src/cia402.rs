@@ -98,6 +98,16 @@ pub struct Feedback {
     pub mode_display: Option<i8>,
     /// 0x60F4 (counts).
     pub following_error: Option<i32>,
+    /// 0x6077 (per mille of rated torque).
+    pub torque: Option<i16>,
+    /// 0x60FD.
+    pub digital_inputs: Option<u32>,
+    /// 0x60B9.
+    pub touch_probe_status: Option<u16>,
+    /// 0x60BA (counts).
+    pub touch_probe_positive: Option<i32>,
+    /// 0x60BB (counts).
+    pub touch_probe_negative: Option<i32>,
 }
 
 /// What the axis asks its runtime to do.

@@ -672,7 +672,7 @@ mod tests {
             position: Some(0),
             velocity: Some(0),
             mode_display: Some(8),
-            following_error: None,
+            ..Default::default()
         };
         axis.on_feedback(enabled, Duration::ZERO, &mut out);
         axis.command(
