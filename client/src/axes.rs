@@ -235,6 +235,15 @@ pub enum AxisUpdate {
         /// Why, for people.
         reason: String,
     },
+    /// Touch probe 1 latched a position.
+    TouchProbe {
+        /// Axis name.
+        axis: String,
+        /// RISING or FALLING.
+        edge: pb::TouchProbeEdge,
+        /// The latched position, user units.
+        position: f64,
+    },
     /// This stream was too slow: this many updates were dropped here.
     Lost(u64),
 }
@@ -273,6 +282,12 @@ impl AxisUpdate {
                         reason: n.reason,
                     },
                     Kind::Lost(n) => AxisUpdate::Lost(n),
+                    Kind::TouchProbe(t) => AxisUpdate::TouchProbe {
+                        axis,
+                        edge: pb::TouchProbeEdge::try_from(t.edge)
+                            .unwrap_or(pb::TouchProbeEdge::Unspecified),
+                        position: t.position,
+                    },
                 }
             }
         })

@@ -653,7 +653,7 @@ fn node_plan(
         DriveSpec::Cansmc(_) => None,
     });
     let (tpdos, rpdos) = match drive {
-        Some((axis, d)) => axis_pdos(nc, node, axis, d, sync)?,
+        Some((axis, d)) => axis_pdos(nc, node, axis, d, sync, eds)?,
         None => (
             pdo_layouts(PdoKind::Tpdo, &nc.tpdo, eds, node)?,
             pdo_layouts(PdoKind::Rpdo, &nc.rpdo, eds, node)?,
@@ -711,6 +711,7 @@ fn axis_pdos(
     axis: &AxisSpec,
     drive: &cangate_axis::Cia402Drive,
     sync: bool,
+    eds: Option<&Eds>,
 ) -> Result<(Vec<PdoConfig>, Vec<PdoConfig>), String> {
     use cangate_axis::process_data::{FeedbackTrigger, standard_pdos};
     if !nc.tpdo.is_empty() || !nc.rpdo.is_empty() {
@@ -726,10 +727,27 @@ fn axis_pdos(
     };
     // The SDO fallback maps no PDO: whatever the drive's own PDOs carry is
     // left alone and not used.
-    let (rpdos, tpdos) = match drive.process_data {
+    let (rpdos, mut tpdos) = match drive.process_data {
         ProcessDataPath::Pdo => standard_pdos(node, trigger),
         ProcessDataPath::Sdo { .. } => (Vec::new(), Vec::new()),
     };
+    // The signals (torque, following error, switches, touch probe) where
+    // the drive's EDS says it has them and PDOs to carry them: a mapping
+    // write the drive aborts would fail its boot, so without an EDS there
+    // are none.
+    if let (ProcessDataPath::Pdo, Some(eds)) = (drive.process_data, eds) {
+        cangate_axis::process_data::with_signal_tpdos(
+            &mut tpdos,
+            node,
+            trigger,
+            |addr| eds.od.get(addr).is_some_and(|v| v.pdo_mappable),
+            |n| {
+                let k = n - 1;
+                eds.od.get(ObjectAddress::new(0x1800 + k, 1)).is_some()
+                    && eds.od.get(ObjectAddress::new(0x1A00 + k, 0)).is_some()
+            },
+        );
+    }
     Ok((tpdos, rpdos))
 }
 

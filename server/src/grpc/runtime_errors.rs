@@ -46,6 +46,7 @@ impl From<AxisError> for ApiError {
             AxisError::Unavailable(m) => ApiError::Unavailable(m),
             AxisError::NoAnswer(m) => ApiError::DeadlineExceeded(m),
             AxisError::ShuttingDown => ApiError::ShuttingDown,
+            AxisError::Sdo { node, error } => super::canopen_service::map_err(node, error),
         }
     }
 }
