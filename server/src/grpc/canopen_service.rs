@@ -166,7 +166,7 @@ fn node_filter(nodes: &[u32]) -> Result<Vec<u32>, ApiError> {
     Ok(nodes.to_vec())
 }
 
-pub(crate) fn map_err(node: NodeId, e: CanopenError) -> ApiError {
+fn map_err(node: NodeId, e: CanopenError) -> ApiError {
     match e {
         CanopenError::Sdo(error) => ApiError::Sdo {
             node: node.get(),
