@@ -379,6 +379,33 @@ impl Client {
         Ok(CommandResult::from_pb(r))
     }
 
+    /// Arms touch probe 1 of a CiA 402 axis on `edge` (RISING, FALLING,
+    /// BOTH; UNSPECIFIED switches it off), latching the first edge only
+    /// or, `continuous`, every one; returns once the drive confirmed it.
+    /// Each latch comes as [`AxisUpdate::TouchProbe`]. Needs the lease.
+    pub async fn arm_touch_probe(
+        &self,
+        axis: &str,
+        edge: pb::TouchProbeEdge,
+        continuous: bool,
+        options: &CommandOptions,
+    ) -> Result<CommandResult, Error> {
+        let req = pb::ArmTouchProbeRequest {
+            axis: axis.to_string(),
+            edge: edge as i32,
+            continuous,
+            options: Some(options.to_pb()),
+        };
+        let r = self
+            .call(
+                "ArmTouchProbe",
+                options.extra(),
+                self.axes_client().arm_touch_probe(req),
+            )
+            .await?;
+        Ok(CommandResult::from_pb(r))
+    }
+
     /// Moves to an absolute position (user units). Needs the lease.
     pub async fn move_to(
         &self,

@@ -895,6 +895,12 @@ impl Cia402Axis {
             // is faulted.
             self.fault_reported = false;
             self.emcy = None;
+            // Its signals, probe and switches too.
+            self.signals = DriveSignals::default();
+            self.probe = TouchProbeTracker::default();
+            self.limit_reported = None;
+            self.limit_stop = None;
+            self.following_error_peak = 0.0;
         }
     }
 
