@@ -139,6 +139,10 @@ pub struct Cia402Drive {
     pub homing_method: i8,
     /// Following error window and time-out, max torque, written at boot.
     pub supervision: crate::signals::Supervision,
+    /// Map the drive's signals (torque, following error, digital inputs,
+    /// touch probe) into its TPDOs where it has them
+    /// ([`crate::process_data::with_signal_tpdos`]).
+    pub signal_pdos: bool,
 }
 
 /// How a CiA 402 axis's process data (controlword, targets, statusword,

@@ -383,6 +383,15 @@ pub struct AxisConfig {
     /// boot; absent: the drive's own.
     #[serde(default)]
     pub max_torque: Option<u16>,
+    /// Map the drive's signals (torque, following error, digital inputs,
+    /// touch probe) into TPDO2..4 where its EDS has them (default true):
+    /// up to two more frames per SYNC from the drive.
+    #[serde(default = "default_true")]
+    pub signal_pdos: bool,
+}
+
+fn default_true() -> bool {
+    true
 }
 
 /// The upper bounds of an axis's motion settings, for both drive
@@ -506,6 +515,7 @@ impl TryFrom<&AxisConfig> for AxisSpec {
                         .map(|ms| Duration::from_millis(u64::from(ms))),
                     max_torque: c.max_torque,
                 },
+                signal_pdos: c.signal_pdos,
             }),
         })
     }
@@ -688,6 +698,7 @@ mod tests {
                 process_data: ProcessDataPath::Pdo,
                 homing_method: 17,
                 supervision: Default::default(),
+                signal_pdos: true,
             }),
         };
         let a = AxisSpec {
