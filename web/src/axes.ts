@@ -265,7 +265,7 @@ function buildRow(axis: Axis): Row {
     "span",
     { className: "switches", hidden: true },
     el("span", { className: "switch limit", textContent: "⇤", title: "negative limit switch" }),
-    el("span", { className: "switch home", textContent: "⌖", title: "home switch" }),
+    el("span", { className: "switch home", textContent: "●", title: "home switch" }),
     el("span", { className: "switch limit", textContent: "⇥", title: "positive limit switch" }),
   );
   switches.children[0].setAttribute("data-switch", "negative-limit");
