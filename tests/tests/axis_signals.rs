@@ -236,7 +236,7 @@ async fn a_touch_probe_latch_comes_as_an_event_with_the_position() {
         Update::Event(pb::AxisEvent {
             kind: Some(pb::axis_event::Kind::TouchProbe(t)),
             ..
-        }) => Some(t.clone()),
+        }) => Some(*t),
         _ => None,
     })
     .await;
