@@ -13,7 +13,8 @@ use tonic::Code;
 
 /// X: cyclic, switches at -50 mm (negative limit), 0 mm (home), 50 mm
 /// (positive limit), touch probe input at 20 mm. Y: cyclic with a tight
-/// following error window. SYNC every 5 ms.
+/// following error window. Z: profile, its signals not mapped. SYNC every
+/// 5 ms.
 const CONFIG: &str = r#"
 [[bus]]
 name = "can0"
@@ -34,6 +35,11 @@ sim = { negative_limit_switch = -50000, positive_limit_switch = 50000, home_swit
 
 [[canopen.node]]
 id = 2
+eds = "builtin:drive"
+simulate = true
+
+[[canopen.node]]
+id = 3
 eds = "builtin:drive"
 simulate = true
 
@@ -61,6 +67,15 @@ max_velocity = 100.0
 max_acceleration = 1000.0
 following_error_window = 0.05
 following_error_timeout_ms = 20
+
+[[axis]]
+name = "Z"
+bus = "can0"
+node = 3
+counts_per_unit = 1000.0
+max_velocity = 100.0
+max_acceleration = 1000.0
+signal_pdos = false
 "#;
 
 async fn setup() -> (cangate_server::RunningServer, Axes, String) {
@@ -217,6 +232,26 @@ async fn a_touch_probe_latch_comes_as_an_event_with_the_position() {
     };
     let e = axes.arm_touch_probe(arm("")).await.unwrap_err();
     assert_eq!(e.code(), Code::FailedPrecondition, "{e:?}");
+    // A drive whose process data does not carry the probe's status: a
+    // latch would never be seen.
+    wait_ready(&mut axes, &["Z"]).await;
+    let z_lease = acquire(&mut axes, &["Z"], 10_000, "no probe").await;
+    let e = axes
+        .arm_touch_probe(pb::ArmTouchProbeRequest {
+            axis: "Z".into(),
+            ..arm(&z_lease)
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::FailedPrecondition, "{e:?}");
+    assert!(e.message().contains("0x60B9"), "{e:?}");
+    let z = status(&mut axes, "Z").await;
+    assert!(
+        z.digital_inputs.is_none()
+            && z.torque_actual.is_none()
+            && z.following_error_actual.is_none(),
+        "not carried, absent: {z:?}"
+    );
     let r = axes
         .arm_touch_probe(arm(&lease))
         .await
