@@ -778,6 +778,15 @@ impl Cia402Axis {
                 code: 0,
                 text: String::new(),
             }));
+            // A limit switch still active is what the axis reports again.
+            if let Some(sw) = self.limit_reported
+                && self.node_lost.is_none()
+            {
+                out.push(Output::Event(AxisEvent::Fault {
+                    code: 0,
+                    text: sw.reached(),
+                }));
+            }
         }
         if matches!(
             self.state(),

@@ -1464,3 +1464,22 @@ fn following_error_fault_names_the_error_and_the_window() {
     );
     assert_eq!(faults(&rig).last(), Some(&(0x8611, text)));
 }
+
+/// A drive fault on the limit switch, then reset: the events end on the
+/// limit switch the status still shows, not on "cleared".
+#[test]
+fn a_fault_cleared_on_an_active_limit_switch_reports_the_switch_again() {
+    let mut rig = switch_rig(PositionMode::Cyclic);
+    let op = rig.mv(100.0);
+    rig.run_until_done(op, Duration::from_secs(3));
+    rig.run(300 * MS);
+    let frames = rig.drive.inject_fault(0x2310);
+    rig.deliver(frames);
+    rig.run(100 * MS);
+    assert_eq!(rig.axis.snapshot().fault.map(|f| f.0), Some(0x2310));
+    let reset = rig.command(AxisCommand::ResetFault).unwrap();
+    rig.run_until_done(reset, Duration::from_secs(2));
+    let reached = (0, "positive limit switch reached".to_string());
+    assert_eq!(rig.axis.snapshot().fault, Some(reached.clone()));
+    assert_eq!(faults(&rig).last(), Some(&reached), "{:?}", faults(&rig));
+}
