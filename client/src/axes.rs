@@ -235,6 +235,15 @@ pub enum AxisUpdate {
         /// Why, for people.
         reason: String,
     },
+    /// Touch probe 1 latched a position.
+    TouchProbe {
+        /// Axis name.
+        axis: String,
+        /// RISING or FALLING.
+        edge: pb::TouchProbeEdge,
+        /// The latched position, user units.
+        position: f64,
+    },
     /// This stream was too slow: this many updates were dropped here.
     Lost(u64),
 }
@@ -273,6 +282,12 @@ impl AxisUpdate {
                         reason: n.reason,
                     },
                     Kind::Lost(n) => AxisUpdate::Lost(n),
+                    Kind::TouchProbe(t) => AxisUpdate::TouchProbe {
+                        axis,
+                        edge: pb::TouchProbeEdge::try_from(t.edge)
+                            .unwrap_or(pb::TouchProbeEdge::Unspecified),
+                        position: t.position,
+                    },
                 }
             }
         })
@@ -359,6 +374,33 @@ impl Client {
                 "ResetFault",
                 options.extra(),
                 self.axes_client().reset_fault(req),
+            )
+            .await?;
+        Ok(CommandResult::from_pb(r))
+    }
+
+    /// Arms touch probe 1 of a CiA 402 axis on `edge` (RISING, FALLING,
+    /// BOTH; UNSPECIFIED switches it off), latching the first edge only
+    /// or, `continuous`, every one; returns once the drive confirmed it.
+    /// Each latch comes as [`AxisUpdate::TouchProbe`]. Needs the lease.
+    pub async fn arm_touch_probe(
+        &self,
+        axis: &str,
+        edge: pb::TouchProbeEdge,
+        continuous: bool,
+        options: &CommandOptions,
+    ) -> Result<CommandResult, Error> {
+        let req = pb::ArmTouchProbeRequest {
+            axis: axis.to_string(),
+            edge: edge as i32,
+            continuous,
+            options: Some(options.to_pb()),
+        };
+        let r = self
+            .call(
+                "ArmTouchProbe",
+                options.extra(),
+                self.axes_client().arm_touch_probe(req),
             )
             .await?;
         Ok(CommandResult::from_pb(r))

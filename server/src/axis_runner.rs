@@ -98,6 +98,9 @@ impl Waiters {
                 }
                 publish(AxisEventKind::Fault { code, text });
             }
+            AxisEvent::TouchProbe { rising, position } => {
+                publish(AxisEventKind::TouchProbe { rising, position });
+            }
         }
     }
 }
@@ -323,6 +326,13 @@ pub enum AxisEventKind {
         code: u16,
         /// Its name.
         text: String,
+    },
+    /// Touch probe 1 latched a position.
+    TouchProbe {
+        /// At the rising edge (else the falling one).
+        rising: bool,
+        /// User units.
+        position: f64,
     },
     /// Control changed hands.
     Control {

@@ -658,7 +658,7 @@ fn node_plan(
         DriveSpec::Cansmc(_) => None,
     });
     let (tpdos, rpdos) = match drive {
-        Some((axis, d)) => axis_pdos(nc, node, axis, d, sync)?,
+        Some((axis, d)) => axis_pdos(nc, node, axis, d, sync, eds)?,
         None => (
             pdo_layouts(PdoKind::Tpdo, &nc.tpdo, eds, node)?,
             pdo_layouts(PdoKind::Rpdo, &nc.rpdo, eds, node)?,
@@ -716,6 +716,7 @@ fn axis_pdos(
     axis: &AxisSpec,
     drive: &cangate_axis::Cia402Drive,
     sync: bool,
+    eds: Option<&Eds>,
 ) -> Result<(Vec<PdoConfig>, Vec<PdoConfig>), String> {
     use cangate_axis::process_data::{FeedbackTrigger, standard_pdos};
     if !nc.tpdo.is_empty() || !nc.rpdo.is_empty() {
@@ -731,10 +732,27 @@ fn axis_pdos(
     };
     // The SDO fallback maps no PDO: whatever the drive's own PDOs carry is
     // left alone and not used.
-    let (rpdos, tpdos) = match drive.process_data {
+    let (rpdos, mut tpdos) = match drive.process_data {
         ProcessDataPath::Pdo => standard_pdos(node, trigger),
         ProcessDataPath::Sdo { .. } => (Vec::new(), Vec::new()),
     };
+    // The signals (torque, following error, switches, touch probe) where
+    // the drive's EDS says it has them and PDOs to carry them: a mapping
+    // write the drive aborts would fail its boot, so without an EDS there
+    // are none.
+    if let (ProcessDataPath::Pdo, Some(eds), true) = (drive.process_data, eds, drive.signal_pdos) {
+        cangate_axis::process_data::with_signal_tpdos(
+            &mut tpdos,
+            node,
+            trigger,
+            |addr| eds.od.get(addr).is_some_and(|v| v.pdo_mappable),
+            |n| {
+                let k = n - 1;
+                eds.od.get(ObjectAddress::new(0x1800 + k, 1)).is_some()
+                    && eds.od.get(ObjectAddress::new(0x1A00 + k, 0)).is_some()
+            },
+        );
+    }
     Ok((tpdos, rpdos))
 }
 
@@ -929,5 +947,57 @@ mod tests {
             "{e:?}"
         );
         assert!(e.to_string().starts_with("bus \"can0\": "), "{e}");
+    }
+
+    /// The boot plan of an axis's drive: the signal TPDOs where the EDS
+    /// has them (unless switched off), the supervision objects with their
+    /// exact bytes.
+    #[test]
+    fn axis_drive_boot_plan_maps_the_signals_and_writes_the_supervision() {
+        let plan = |axis_extra: &str, eds: bool| {
+            let text = format!(
+                "[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\n[[canopen]]\nbus = \"can0\"\n\
+                 sync_period_us = 10000\n[[canopen.node]]\nid = 1\n{}\
+                 [[axis]]\nname = \"X\"\nbus = \"can0\"\nnode = 1\ncounts_per_unit = 1000.0\n\
+                 max_velocity = 100.0\nmax_acceleration = 1000.0\n{axis_extra}",
+                if eds {
+                    "eds = \"builtin:drive\"\nsimulate = true\n"
+                } else {
+                    ""
+                }
+            );
+            let config = Config::from_toml(&text).expect("valid configuration");
+            let cc = &config.canopen[0];
+            let nc = &cc.nodes[0];
+            let eds = eds.then(|| {
+                cangate_canopen::eds::Eds::parse(cangate_canopen::eds::SIM_DRIVE_EDS).unwrap()
+            });
+            let axis = AxisSpec::try_from(&config.axes[0]).unwrap();
+            let node = NodeId::new(1).unwrap();
+            node_plan(nc, node, eds.as_ref(), Some(&axis), true, None).unwrap()
+        };
+        let (tpdos, _, boot) = plan(
+            "following_error_window = 0.5\nfollowing_error_timeout_ms = 20\nmax_torque = 1500\n",
+            true,
+        );
+        let cobs: Vec<u16> = tpdos.iter().map(|p| p.cob_id).collect();
+        assert_eq!(cobs, [0x181, 0x281, 0x381, 0x481]);
+        let writes = &boot.expect("a boot plan").writes;
+        for (addr, bytes) in [
+            (ObjectAddress::new(0x6065, 0), vec![0xF4, 0x01, 0x00, 0x00]),
+            (ObjectAddress::new(0x6066, 0), vec![0x14, 0x00]),
+            (ObjectAddress::new(0x6072, 0), vec![0xDC, 0x05]),
+            (ObjectAddress::new(0x1A02, 2), vec![0x20, 0x00, 0xFD, 0x60]),
+        ] {
+            assert!(
+                writes.contains(&(addr, bytes.clone())),
+                "{addr} {bytes:02X?} in {writes:?}"
+            );
+        }
+        let (tpdos, _, _) = plan("signal_pdos = false\n", true);
+        assert_eq!(tpdos.len(), 2);
+        assert_eq!(tpdos[1].mapping.len(), 1);
+        let (tpdos, _, _) = plan("", false);
+        assert_eq!(tpdos.len(), 2, "no EDS: no signals");
     }
 }

@@ -110,6 +110,10 @@ def main():
         with x.control(name="python client test", ttl_ms=500) as ax:
             expect("python client test" in ax.holder, ax.holder)
             ax.enable(wait=True)
+            # The drive's signals and touch probe (X: the demo's drive maps them).
+            r = ax.arm_touch_probe("rising")
+            expect(r.outcome == axes_pb2.OUTCOME_COMPLETED and "0x60B8 = 0x0011" in r.detail, r)
+            expect(x.get().status.HasField("digital_inputs"), "0x60FD carried")
             # Longer than the TTL: the lease stays alive by the renewals.
             r = ax.move(2.0, velocity=2.0, wait=True)
             expect(r.outcome == axes_pb2.OUTCOME_COMPLETED, r)

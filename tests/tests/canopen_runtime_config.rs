@@ -140,7 +140,10 @@ async fn pdos_are_remapped_at_run_time_and_decoded_at_once() {
             (pb::PdoKind::Rpdo as i32, 1),
             (pb::PdoKind::Rpdo as i32, 2),
             (pb::PdoKind::Tpdo as i32, 1),
-            (pb::PdoKind::Tpdo as i32, 2)
+            (pb::PdoKind::Tpdo as i32, 2),
+            // Free for the drive's signals (not valid by default).
+            (pb::PdoKind::Tpdo as i32, 3),
+            (pb::PdoKind::Tpdo as i32, 4)
         ]
     );
 

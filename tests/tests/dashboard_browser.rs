@@ -296,6 +296,7 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
         names,
         [
             "axes-listed",
+            "switches",
             "x-moved",
             "x-traced",
             "y-jog",
@@ -330,6 +331,11 @@ async fn the_dashboard_moves_jogs_stops_and_shows_frames() {
             .unwrap_or_else(|| panic!("step {name}"))
             .to_string()
     };
+    assert_eq!(
+        step("switches"),
+        "home=true positive=false negative=false",
+        "the demo's Y switch icons"
+    );
     // What the page did, seen over gRPC: Y came to rest after the jog,
     // and X was stopped by STOP ALL on its way from 12.5 to -150 (the move
     // to 12.5 was checked on the page; the stop moved X on since).

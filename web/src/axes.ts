@@ -260,6 +260,17 @@ function buildRow(axis: Axis): Row {
   age.hidden = true;
   const badge = el("span", { className: "badge" }, cells.state);
   const homed = el("span", { className: "homed", textContent: "⌂", title: "not homed" });
+  // The drive's switches (0x60FD), shown only when its process data carries them.
+  const switches = el(
+    "span",
+    { className: "switches", hidden: true },
+    el("span", { className: "switch limit", textContent: "⇤", title: "negative limit switch" }),
+    el("span", { className: "switch home", textContent: "●", title: "home switch" }),
+    el("span", { className: "switch limit", textContent: "⇥", title: "positive limit switch" }),
+  );
+  switches.children[0].setAttribute("data-switch", "negative-limit");
+  switches.children[1].setAttribute("data-switch", "home");
+  switches.children[2].setAttribute("data-switch", "positive-limit");
   const faultFull = el("div", { className: "fault-full" });
   faultFull.hidden = true;
   const faultSummaryText = el("span", { className: "fault-summary" });
@@ -280,6 +291,7 @@ function buildRow(axis: Axis): Row {
       el("span", { className: "name" }, name),
       badge,
       homed,
+      switches,
       el("span", { className: "control-label" }, "control: ", cells.control),
       age,
     ),
@@ -397,6 +409,27 @@ function update(s: AxisStatus): void {
   row.tr.dataset.homed = String(s.homed);
   const homed = row.tr.querySelector<HTMLElement>(".homed");
   if (homed) homed.title = s.homed ? "homed" : "not homed";
+  showSwitches(row.tr, s);
+}
+
+/** The limit and home switch icons: shown when the drive reports its digital inputs, lit while active. */
+function showSwitches(card: HTMLElement, s: AxisStatus): void {
+  const box = card.querySelector<HTMLElement>(".switches");
+  if (!box) return;
+  const di = s.digitalInputs;
+  box.hidden = !di;
+  if (!di) return;
+  const states: [string, boolean, string][] = [
+    ["negative-limit", di.negativeLimitSwitch, "negative limit switch"],
+    ["home", di.homeSwitch, "home switch"],
+    ["positive-limit", di.positiveLimitSwitch, "positive limit switch"],
+  ];
+  for (const [name, on, label] of states) {
+    const icon = box.querySelector<HTMLElement>(`[data-switch="${name}"]`);
+    if (!icon) continue;
+    icon.dataset.active = String(on);
+    icon.title = `${label}: ${on ? "active" : "not active"}`;
+  }
 }
 
 /** An axis's fault and its drive's node lost are alarms; the node back clears the latter. */

@@ -141,6 +141,18 @@ async function demo(page) {
   say("step axes-listed");
   await page.screenshot({ path: `${shots}/axes.png` });
 
+  // The demo's Y drive has a home switch at 0 (where it starts) and a
+  // positive limit switch at 180 mm: their icons show, the home switch lit.
+  const switches = async () =>
+    page.$$eval(`.axis[data-axis="Y"] .switches`, (boxes) => {
+      const box = boxes[0];
+      if (!box || box.hidden) return null;
+      const on = (name) => box.querySelector(`[data-switch="${name}"]`)?.dataset.active;
+      return `home=${on("home")} positive=${on("positive-limit")} negative=${on("negative-limit")}`;
+    });
+  await until("Y's switch icons", async () => (await switches()) === "home=true positive=false negative=false");
+  say(`step switches ${await switches()}`);
+
   // Enable, then move X to 12.5.
   await acquireAndEnable(page, "X");
   await page.$eval(`.axis[data-axis="X"] input[data-field="target"]`, (i) => { i.value = ""; });

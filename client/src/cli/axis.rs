@@ -778,6 +778,15 @@ fn event_line(e: &pb::AxisEvent) -> Option<String> {
         Kind::Node(n) if n.lost => format!("NODE LOST: {}", n.reason),
         Kind::Node(n) => format!("node back: {}", n.reason),
         Kind::Lost(n) => format!("{n} updates lost (this client read too slowly)"),
+        Kind::TouchProbe(t) => format!(
+            "touch probe {} latched at {} ({} edge)",
+            t.probe,
+            t.position,
+            match pb::TouchProbeEdge::try_from(t.edge) {
+                Ok(pb::TouchProbeEdge::Falling) => "falling",
+                _ => "rising",
+            }
+        ),
     };
     Some(format!(
         "{}  {:<8} {what}",

@@ -316,6 +316,7 @@ impl CansmcAxis {
     pub fn snapshot(&self) -> AxisSnapshot {
         let position = self.actual();
         AxisSnapshot {
+            signals: Default::default(),
             state: self.state(),
             statusword: self.status.map(StatusWord::to_bits).unwrap_or_default(),
             mode: if matches!(self.motion, Motion::Homing) {

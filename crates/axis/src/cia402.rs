@@ -45,6 +45,7 @@ use cangate_canopen::cia402::{
 };
 use cangate_motion::{Limits, TrapezoidProfile};
 
+use crate::signals::{DriveSignals, LimitSwitch, Supervision, TouchProbeTracker};
 use crate::{
     Activity, AxisCommand, AxisEvent, CommandError, CommandKind, MotionSpec, OpId, Outcome,
     PositionMode, Units,
@@ -58,6 +59,8 @@ pub struct Cia402Config {
     pub motion: MotionSpec,
     /// Profile or cyclic position.
     pub position_mode: PositionMode,
+    /// Following error window and time-out, max torque (boot writes).
+    pub supervision: Supervision,
 }
 
 impl Cia402Config {
@@ -67,6 +70,7 @@ impl Cia402Config {
         Cia402Config {
             motion: MotionSpec::example(counts_per_unit, 500.0),
             position_mode,
+            supervision: Supervision::default(),
         }
     }
 }
@@ -98,6 +102,16 @@ pub struct Feedback {
     pub mode_display: Option<i8>,
     /// 0x60F4 (counts).
     pub following_error: Option<i32>,
+    /// 0x6077 (per mille of rated torque).
+    pub torque: Option<i16>,
+    /// 0x60FD.
+    pub digital_inputs: Option<u32>,
+    /// 0x60B9.
+    pub touch_probe_status: Option<u16>,
+    /// 0x60BA (counts).
+    pub touch_probe_positive: Option<i32>,
+    /// 0x60BB (counts).
+    pub touch_probe_negative: Option<i32>,
 }
 
 /// What the axis asks its runtime to do.
@@ -138,6 +152,9 @@ pub struct AxisSnapshot {
     pub node_lost: Option<String>,
     /// Active fault.
     pub fault: Option<(u16, String)>,
+    /// Torque, following error, digital inputs, touch probe status, as the
+    /// drive's process data carries them.
+    pub signals: DriveSignals,
 }
 
 /// Where a command stands.
@@ -498,6 +515,20 @@ pub struct Cia402Axis {
     fault_reported: bool,
     op: Option<Op>,
     next_id: OpId,
+    /// Torque, digital inputs, touch probe status from the process data.
+    signals: DriveSignals,
+    probe: TouchProbeTracker,
+    /// The limit switch reported as the axis's fault (active).
+    limit_reported: Option<LimitSwitch>,
+    /// A limit switch stopped the axis: a cyclic axis's demand is set to
+    /// where the drive stands once its stop ramp ended (the drive did not
+    /// follow into the switch); a profile axis holds its halt until the
+    /// next command.
+    limit_stop: Option<LimitSwitch>,
+    /// The largest following error (user units, absolute) reported or
+    /// computed since the axis was last enabled: what a following error
+    /// fault names.
+    following_error_peak: f64,
 }
 
 impl Cia402Axis {
@@ -537,6 +568,11 @@ impl Cia402Axis {
             fault_reported: false,
             op: None,
             next_id: 1,
+            signals: DriveSignals::default(),
+            probe: TouchProbeTracker::default(),
+            limit_reported: None,
+            limit_stop: None,
+            following_error_peak: 0.0,
         }
     }
 
@@ -565,6 +601,7 @@ impl Cia402Axis {
             w.push((obj::SOFTWARE_POSITION_LIMIT_MIN, lo.to_le_bytes().to_vec()));
             w.push((obj::SOFTWARE_POSITION_LIMIT_MAX, hi.to_le_bytes().to_vec()));
         }
+        w.extend(self.cfg.supervision.boot_writes(self.units()));
         w
     }
 
@@ -633,6 +670,12 @@ impl Cia402Axis {
             homed: self.homed,
             node_lost: self.node_lost.clone(),
             fault: self.fault(),
+            signals: DriveSignals {
+                following_error: self
+                    .drive_following_error
+                    .map(|fe| u.from_counts(f64::from(fe))),
+                ..self.signals
+            },
         }
     }
 
@@ -647,7 +690,7 @@ impl Cia402Axis {
                     .unwrap_or((0, "drive fault (no EMCY received)".into())),
             );
         }
-        None
+        self.limit_reported.map(|sw| (0, sw.reached()))
     }
 
     /// What the axis is doing.
@@ -686,6 +729,7 @@ impl Cia402Axis {
         if let Some(fe) = fb.following_error {
             self.drive_following_error = Some(fe);
         }
+        self.on_signals(&fb, out);
         let Some(sw) = fb.statusword else {
             self.advance(now, out);
             return;
@@ -734,6 +778,15 @@ impl Cia402Axis {
                 code: 0,
                 text: String::new(),
             }));
+            // A limit switch still active is what the axis reports again.
+            if let Some(sw) = self.limit_reported
+                && self.node_lost.is_none()
+            {
+                out.push(Output::Event(AxisEvent::Fault {
+                    code: 0,
+                    text: sw.reached(),
+                }));
+            }
         }
         if matches!(
             self.state(),
@@ -791,6 +844,12 @@ impl Cia402Axis {
             self.emcy = None;
             return;
         }
+        let text = if code == FOLLOWING_ERROR_CODE {
+            self.following_error_text()
+        } else {
+            text.to_string()
+        };
+        let text = text.as_str();
         self.emcy = Some((code, text.to_string()));
         if self.fault_reported {
             out.push(Output::Event(AxisEvent::Fault {
@@ -845,6 +904,12 @@ impl Cia402Axis {
             // is faulted.
             self.fault_reported = false;
             self.emcy = None;
+            // Its signals, probe and switches too.
+            self.signals = DriveSignals::default();
+            self.probe = TouchProbeTracker::default();
+            self.limit_reported = None;
+            self.limit_stop = None;
+            self.following_error_peak = 0.0;
         }
     }
 
@@ -1070,6 +1135,11 @@ impl Cia402Axis {
                 };
                 target = if relative { base + t } else { t };
                 self.check_limits(target)?;
+                let from = match self.cfg.position_mode {
+                    PositionMode::Cyclic => self.demand,
+                    PositionMode::Profile => self.actual(),
+                };
+                self.check_not_into_limit_switch(target - from)?;
             }
             AxisCommand::Jog { velocity, .. } => self.check_jog(velocity)?,
             AxisCommand::Enable | AxisCommand::Disable | AxisCommand::ResetFault => {
@@ -1088,6 +1158,13 @@ impl Cia402Axis {
         let id = self.next_id;
         self.next_id += 1;
         let kind = cmd.kind();
+        if self.cfg.position_mode == PositionMode::Profile {
+            // The limit switch's halt ends with the next command.
+            self.limit_stop = None;
+        }
+        if matches!(kind, CommandKind::Enable | CommandKind::ResetFault) {
+            self.following_error_peak = 0.0;
+        }
         let previous = if matches!(kind, CommandKind::Stop | CommandKind::QuickStop) {
             Outcome::Stopped
         } else {
@@ -1324,6 +1401,7 @@ impl Cia402Axis {
 
     /// A jog at `velocity` must not head further out of the soft limits.
     fn check_jog(&self, velocity: f64) -> Result<(), CommandError> {
+        self.check_not_into_limit_switch(velocity)?;
         let at = match self.cfg.position_mode {
             PositionMode::Cyclic => self.demand,
             PositionMode::Profile => self.actual(),
@@ -1414,6 +1492,7 @@ impl Cia402Axis {
             ));
         }
         self.check_limits(target)?;
+        self.check_not_into_limit_switch(target - self.demand)?;
         if !self.in_cyclic_mode() || self.activity() == Activity::Homing {
             return Err(CommandError::NotCyclic(
                 "the axis is homing or not in cyclic position mode: wait for the homing or stop it first"
@@ -2148,6 +2227,218 @@ impl Cia402Axis {
             return Some((outcome, detail));
         }
         None
+    }
+}
+
+/// EMCY code of a following error (CiA 402).
+const FOLLOWING_ERROR_CODE: u16 = 0x8611;
+
+/// The signals beyond position and velocity: torque, digital inputs (limit
+/// switches), touch probe, following error (see [`crate::signals`]).
+impl Cia402Axis {
+    /// Takes the signals of one process data update: latches of the touch
+    /// probe become events, the limit switches are watched.
+    fn on_signals(&mut self, fb: &Feedback, out: &mut Vec<Output>) {
+        if let Some(t) = fb.torque {
+            self.signals.torque = Some(t);
+        }
+        if let Some(d) = fb.digital_inputs {
+            self.signals.digital_inputs = Some(d);
+        }
+        if let Some(st) = fb.touch_probe_status {
+            self.signals.touch_probe_status = Some(st);
+        }
+        let u = self.units();
+        for (rising, counts) in self.probe.on_feedback(
+            fb.touch_probe_status,
+            fb.touch_probe_positive,
+            fb.touch_probe_negative,
+        ) {
+            out.push(Output::Event(AxisEvent::TouchProbe {
+                rising,
+                position: u.from_counts(f64::from(counts)),
+            }));
+        }
+        if let Some(fe) = self.current_following_error()
+            && fe.abs() > self.following_error_peak
+        {
+            self.following_error_peak = fe.abs();
+            // The drive faults between two process data updates: the error
+            // it reports after the fault says by how much; the fault says
+            // it again with that.
+            if let Some((FOLLOWING_ERROR_CODE, text)) = &self.emcy {
+                let now_text = self.following_error_text();
+                if *text != now_text {
+                    self.emcy = Some((FOLLOWING_ERROR_CODE, now_text.clone()));
+                    if self.fault_reported {
+                        out.push(Output::Event(AxisEvent::Fault {
+                            code: FOLLOWING_ERROR_CODE,
+                            text: now_text,
+                        }));
+                    }
+                }
+            }
+        }
+        if fb.digital_inputs.is_some() {
+            self.on_limit_switches(out);
+        }
+        self.rebase_after_limit_stop();
+    }
+
+    /// The following error: the drive's 0x60F4, else demand − actual of a
+    /// cyclic axis.
+    fn current_following_error(&self) -> Option<f64> {
+        match (self.drive_following_error, self.cfg.position_mode) {
+            (Some(fe), _) => Some(self.units().from_counts(f64::from(fe))),
+            (None, PositionMode::Cyclic) if self.position.is_some() => {
+                Some(self.demand - self.actual())
+            }
+            _ => None,
+        }
+    }
+
+    /// What a following error fault (EMCY 0x8611) says.
+    fn following_error_text(&self) -> String {
+        let unit = &self.cfg.motion.unit;
+        let peak = self.following_error_peak;
+        match self.cfg.supervision.following_error_window {
+            Some(w) if peak > w => {
+                format!("following error beyond the window ({peak:.3} {unit} > {w:.3} {unit})")
+            }
+            Some(w) => format!(
+                "following error beyond the window of {w:.3} {unit} (largest reported {peak:.3} {unit})"
+            ),
+            None => format!(
+                "following error beyond the drive's window (largest reported {peak:.3} {unit})"
+            ),
+        }
+    }
+
+    /// A limit switch became active or inactive (reported as the axis's
+    /// fault while active), or the axis moves into an active one: it stops
+    /// at the quick stop deceleration.
+    fn on_limit_switches(&mut self, out: &mut Vec<Output>) {
+        let active = self.signals.limit_switch();
+        if active != self.limit_reported {
+            self.limit_reported = active;
+            // A drive fault or a lost node stays what the axis reports.
+            if self.node_lost.is_none() && !self.is_fault() {
+                out.push(Output::Event(AxisEvent::Fault {
+                    code: 0,
+                    text: active.map(LimitSwitch::reached).unwrap_or_default(),
+                }));
+            }
+        }
+        let Some(sw) = active else {
+            return;
+        };
+        if self.limit_stop == Some(sw)
+            || self.state() != Some(DriveState::OperationEnabled)
+            || self.node_lost.is_some()
+        {
+            return;
+        }
+        // Homing methods use the limit switches as their reference; the
+        // other state changes do not move the axis.
+        if self.op.as_ref().is_some_and(|o| {
+            matches!(
+                o.kind,
+                CommandKind::Home
+                    | CommandKind::Enable
+                    | CommandKind::Disable
+                    | CommandKind::ResetFault
+                    | CommandKind::QuickStop
+            )
+        }) {
+            return;
+        }
+        if self.moving_into(sw) {
+            self.stop_at_limit_switch(sw, out);
+        }
+    }
+
+    /// Whether the drive, the demand or the command in progress heads into
+    /// limit switch `sw`.
+    fn moving_into(&self, sw: LimitSwitch) -> bool {
+        let u = self.units();
+        let drive = !self.at_rest() && sw.is_into(u.from_counts(f64::from(self.velocity)), u);
+        let demand = sw.is_into(self.demand_velocity, u)
+            || self
+                .trajectory
+                .as_ref()
+                .is_some_and(|t| sw.is_into(t.profile.target() - self.demand, u));
+        let command = self.op.as_ref().is_some_and(|o| match o.command {
+            AxisCommand::Move { .. } if self.cfg.position_mode == PositionMode::Profile => {
+                sw.is_into(o.target - self.actual(), u)
+            }
+            AxisCommand::Jog { velocity, .. } => sw.is_into(velocity, u),
+            _ => false,
+        });
+        drive || demand || command
+    }
+
+    /// Stops the axis at its quick stop deceleration, the drive staying
+    /// enabled (so that it can be moved off the switch): a move or jog ends
+    /// with outcome FAULT saying so; a stop in progress goes on.
+    fn stop_at_limit_switch(&mut self, sw: LimitSwitch, out: &mut Vec<Output>) {
+        self.limit_stop = Some(sw);
+        self.jog_deadline = None;
+        let unit = &self.cfg.motion.unit;
+        let detail = format!("{} at {:.3} {unit}", sw.reached(), self.actual());
+        if self
+            .op
+            .as_ref()
+            .is_some_and(|o| matches!(o.kind, CommandKind::Move | CommandKind::Jog))
+        {
+            self.finish(Outcome::Fault, detail, out);
+        }
+        let decel = self.cfg.motion.quick_stop_deceleration;
+        if self.cfg.position_mode == PositionMode::Cyclic && self.in_cyclic_mode() {
+            let decel = stop_deceleration(decel, self.trajectory.as_ref());
+            self.trajectory =
+                Trajectory::stop_ramp(self.demand, self.demand_velocity, decel, self.demand_at);
+        } else {
+            self.image.controlword |= Controlword::HALT_BIT;
+            self.image.target_velocity = 0;
+            self.want_stop_ramp(decel, out);
+            self.send_image(out);
+        }
+    }
+
+    /// A cyclic axis stopped by a limit switch: once its ramp ended and the
+    /// drive stands, the demand is where the drive stands (the drive did
+    /// not follow the set-points into the switch).
+    fn rebase_after_limit_stop(&mut self) {
+        if self.limit_stop.is_none()
+            || self.cfg.position_mode != PositionMode::Cyclic
+            || !self.in_cyclic_mode()
+            || self.trajectory.is_some()
+            || !self.at_rest()
+        {
+            return;
+        }
+        self.limit_stop = None;
+        self.demand = self.actual();
+        self.demand_velocity = 0.0;
+        self.last_target = self.demand;
+        self.image.target_position = self.position.unwrap_or_default();
+    }
+
+    /// A motion by `delta` (user units, its sign the direction) must not
+    /// head into an active limit switch.
+    fn check_not_into_limit_switch(&self, delta: f64) -> Result<(), CommandError> {
+        let u = self.units();
+        for sw in [LimitSwitch::Negative, LimitSwitch::Positive] {
+            if self.signals.is_active(sw) && sw.is_into(delta, u) {
+                let unit = &self.cfg.motion.unit;
+                return Err(CommandError::BeyondSoftLimit(format!(
+                    "the {} limit switch is active (the axis is at {:.3} {unit}): it can only move away from it",
+                    sw.name(),
+                    self.actual()
+                )));
+            }
+        }
+        Ok(())
     }
 }
 

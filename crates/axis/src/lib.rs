@@ -29,6 +29,7 @@ pub mod cia402;
 pub mod lease;
 pub mod process_data;
 pub mod setpoint_stream;
+pub mod signals;
 pub mod spec;
 
 pub use spec::{
@@ -233,6 +234,13 @@ pub enum AxisEvent {
         code: u16,
         /// Its name.
         text: String,
+    },
+    /// Touch probe 1 latched the position at an edge of its input.
+    TouchProbe {
+        /// The rising (positive) edge; false: the falling edge.
+        rising: bool,
+        /// The latched position (user units).
+        position: f64,
     },
 }
 

@@ -111,6 +111,85 @@ pub fn standard_pdos(node: NodeId, trigger: FeedbackTrigger) -> (Vec<PdoConfig>,
     (rpdos, tpdos)
 }
 
+/// The signal objects a drive's TPDOs may carry beyond the standard
+/// layout (CiA 402-2): torque actual, digital inputs, touch probe status
+/// and probe 1's latched positions. Following error actual (0x60F4) is
+/// decoded too (see [`with_signal_tpdos`]).
+pub const SIGNAL_OBJECTS: [ObjectAddress; 5] = [
+    obj::TORQUE_ACTUAL,
+    obj::DIGITAL_INPUTS,
+    obj::TOUCH_PROBE_STATUS,
+    obj::TOUCH_PROBE_1_POSITIVE,
+    obj::TOUCH_PROBE_1_NEGATIVE,
+];
+
+/// Adds the signals to the standard layout's TPDOs (`tpdos`, from
+/// [`standard_pdos`]), as far as the drive has them: `mappable` says
+/// whether the drive has an object and lets it be mapped into a PDO,
+/// `has_tpdo(n)` whether it has TPDO `n` (its communication and mapping
+/// parameters). Each PDO stays within 8 bytes:
+///
+/// | PDO | COB-ID | objects added |
+/// |---|---|---|
+/// | TPDO2 | 0x280 + node | following error actual 0x60F4 (32), after the velocity |
+/// | TPDO3 | 0x380 + node | torque actual 0x6077 (16), digital inputs 0x60FD (32), touch probe status 0x60B9 (16) |
+/// | TPDO4 | 0x480 + node | touch probe 1 positive edge 0x60BA (32), negative edge 0x60BB (32) |
+///
+/// Transmitted like the others (every SYNC, or event-driven with the same
+/// timer): one SYNC's TPDOs make one axis status. An object the drive
+/// lacks is left out (the signal stays absent); a TPDO left with nothing
+/// is not configured.
+pub fn with_signal_tpdos(
+    tpdos: &mut Vec<PdoConfig>,
+    node: NodeId,
+    trigger: FeedbackTrigger,
+    mappable: impl Fn(ObjectAddress) -> bool,
+    has_tpdo: impl Fn(u16) -> bool,
+) {
+    let (ty, timer) = match trigger {
+        FeedbackTrigger::Sync => (1, 0),
+        FeedbackTrigger::Event { event_timer_ms } => (255, event_timer_ms),
+    };
+    if mappable(obj::FOLLOWING_ERROR_ACTUAL)
+        && let Some(tpdo2) = tpdos
+            .iter_mut()
+            .find(|p| p.num == 2 && p.kind == PdoKind::Tpdo)
+        && tpdo2.len() + 4 <= 8
+    {
+        tpdo2.mapping.push(MappedObject {
+            addr: obj::FOLLOWING_ERROR_ACTUAL,
+            bits: 32,
+        });
+    }
+    let layouts: [(u16, &[(ObjectAddress, u8)]); 2] = [
+        (
+            3,
+            &[
+                (obj::TORQUE_ACTUAL, 16),
+                (obj::DIGITAL_INPUTS, 32),
+                (obj::TOUCH_PROBE_STATUS, 16),
+            ],
+        ),
+        (
+            4,
+            &[
+                (obj::TOUCH_PROBE_1_POSITIVE, 32),
+                (obj::TOUCH_PROBE_1_NEGATIVE, 32),
+            ],
+        ),
+    ];
+    for (num, map) in layouts {
+        if !has_tpdo(num) || tpdos.iter().any(|p| p.num == num) {
+            continue;
+        }
+        let present: Vec<(ObjectAddress, u8)> =
+            map.iter().copied().filter(|(a, _)| mappable(*a)).collect();
+        if !present.is_empty() {
+            tpdos.push(pdo(PdoKind::Tpdo, num, node, ty, timer, &present));
+        }
+    }
+}
+
 /// The RPDO frames (COB-ID, payload) carrying `image`, for every RPDO that
 /// maps at least one image object, those without the controlword first.
 ///
@@ -161,6 +240,11 @@ pub fn feedback_from_values<'a>(
             a if a == obj::VELOCITY_ACTUAL => fb.velocity = i.map(|x| x as i32),
             a if a == obj::MODES_OF_OPERATION_DISPLAY => fb.mode_display = i.map(|x| x as i8),
             a if a == obj::FOLLOWING_ERROR_ACTUAL => fb.following_error = i.map(|x| x as i32),
+            a if a == obj::TORQUE_ACTUAL => fb.torque = i.map(|x| x as i16),
+            a if a == obj::DIGITAL_INPUTS => fb.digital_inputs = i.map(|x| x as u32),
+            a if a == obj::TOUCH_PROBE_STATUS => fb.touch_probe_status = i.map(|x| x as u16),
+            a if a == obj::TOUCH_PROBE_1_POSITIVE => fb.touch_probe_positive = i.map(|x| x as i32),
+            a if a == obj::TOUCH_PROBE_1_NEGATIVE => fb.touch_probe_negative = i.map(|x| x as i32),
             _ => {}
         }
     }
@@ -196,7 +280,8 @@ pub fn feedback_from_pdo(cfg: &PdoConfig, data: &[u8]) -> Result<Feedback, PdoEr
             || a == obj::POSITION_ACTUAL
             || a == obj::VELOCITY_ACTUAL
             || a == obj::MODES_OF_OPERATION_DISPLAY
-            || a == obj::FOLLOWING_ERROR_ACTUAL;
+            || a == obj::FOLLOWING_ERROR_ACTUAL
+            || SIGNAL_OBJECTS.contains(&a);
         if !known {
             continue;
         }
@@ -215,6 +300,11 @@ pub fn feedback_from_pdo(cfg: &PdoConfig, data: &[u8]) -> Result<Feedback, PdoEr
             a if a == obj::POSITION_ACTUAL => fb.position = Some(signed as i32),
             a if a == obj::VELOCITY_ACTUAL => fb.velocity = Some(signed as i32),
             a if a == obj::MODES_OF_OPERATION_DISPLAY => fb.mode_display = Some(signed as i8),
+            a if a == obj::TORQUE_ACTUAL => fb.torque = Some(signed as i16),
+            a if a == obj::DIGITAL_INPUTS => fb.digital_inputs = Some(unsigned as u32),
+            a if a == obj::TOUCH_PROBE_STATUS => fb.touch_probe_status = Some(unsigned as u16),
+            a if a == obj::TOUCH_PROBE_1_POSITIVE => fb.touch_probe_positive = Some(signed as i32),
+            a if a == obj::TOUCH_PROBE_1_NEGATIVE => fb.touch_probe_negative = Some(signed as i32),
             _ => fb.following_error = Some(signed as i32),
         }
     }
@@ -275,7 +365,7 @@ pub fn feedback_from_sdo(uploads: &[Vec<u8>; 4]) -> Result<Feedback, SdoFeedback
         position: Some(i32::from_le_bytes(exact(pos, &uploads[1])?)),
         velocity: Some(i32::from_le_bytes(exact(vel, &uploads[2])?)),
         mode_display: Some(i8::from_le_bytes(exact(mode, &uploads[3])?)),
-        following_error: None,
+        ..Feedback::default()
     })
 }
 
@@ -354,7 +444,7 @@ mod tests {
                 position: Some(-5),
                 velocity: None,
                 mode_display: Some(8),
-                following_error: None
+                ..Feedback::default()
             }
         );
     }
@@ -362,15 +452,17 @@ mod tests {
     #[test]
     fn feedback_from_pdo_matches_the_generic_decode() {
         let node = NodeId::new(3).unwrap();
-        let (_, tpdos) = standard_pdos(node, FeedbackTrigger::Sync);
+        let (_, mut tpdos) = standard_pdos(node, FeedbackTrigger::Sync);
+        with_signal_tpdos(&mut tpdos, node, FeedbackTrigger::Sync, |_| true, |_| true);
         let eds = cangate_canopen::eds::Eds::parse(cangate_canopen::eds::SIM_DRIVE_EDS)
             .expect("bundled drive EDS");
         let od = &eds.od;
-        let payloads: [&[u8]; 4] = [
+        let payloads: [&[u8]; 5] = [
             &[0x37, 0x12, 0xFB, 0xFF, 0xFF, 0xFF, 0x08],
             &[0x27, 0x06, 0x10, 0x27, 0x00, 0x00, 0xFF],
             &[0x00, 0x80, 0x00, 0x00, 0x00, 0x80, 0x01],
             &[0x7F, 0x00, 0x00, 0xFF],
+            &[0x9C, 0xFF, 0x05, 0, 0, 0x80, 0x03, 0x00],
         ];
         for p in &tpdos {
             for data in payloads {
@@ -386,6 +478,107 @@ mod tests {
             }
         }
     }
+    #[test]
+    fn signal_tpdos_with_exact_mapping_writes() {
+        let node = NodeId::new(5).unwrap();
+        let (_, mut tpdos) = standard_pdos(node, FeedbackTrigger::Sync);
+        with_signal_tpdos(&mut tpdos, node, FeedbackTrigger::Sync, |_| true, |_| true);
+        let writes: Vec<Vec<(ObjectAddress, Vec<u8>)>> =
+            tpdos.iter().map(|p| p.sdo_writes().unwrap()).collect();
+        let w = |i: u16, s: u8, d: &[u8]| (ObjectAddress::new(i, s), d.to_vec());
+        // TPDO2: velocity, then following error actual.
+        assert_eq!(
+            writes[1],
+            vec![
+                w(0x1801, 1, &[0x85, 0x02, 0x00, 0x80]),
+                w(0x1801, 2, &[0x01]),
+                w(0x1801, 3, &[0x00, 0x00]),
+                w(0x1801, 5, &[0x00, 0x00]),
+                w(0x1A01, 0, &[0x00]),
+                w(0x1A01, 1, &[0x20, 0x00, 0x6C, 0x60]),
+                w(0x1A01, 2, &[0x20, 0x00, 0xF4, 0x60]),
+                w(0x1A01, 0, &[0x02]),
+                w(0x1801, 1, &[0x85, 0x02, 0x00, 0x00]),
+            ]
+        );
+        // TPDO3: torque, digital inputs, probe status (8 bytes).
+        assert_eq!(
+            writes[2],
+            vec![
+                w(0x1802, 1, &[0x85, 0x03, 0x00, 0x80]),
+                w(0x1802, 2, &[0x01]),
+                w(0x1802, 3, &[0x00, 0x00]),
+                w(0x1802, 5, &[0x00, 0x00]),
+                w(0x1A02, 0, &[0x00]),
+                w(0x1A02, 1, &[0x10, 0x00, 0x77, 0x60]),
+                w(0x1A02, 2, &[0x20, 0x00, 0xFD, 0x60]),
+                w(0x1A02, 3, &[0x10, 0x00, 0xB9, 0x60]),
+                w(0x1A02, 0, &[0x03]),
+                w(0x1802, 1, &[0x85, 0x03, 0x00, 0x00]),
+            ]
+        );
+        // TPDO4: probe 1's latched positions.
+        assert_eq!(
+            writes[3],
+            vec![
+                w(0x1803, 1, &[0x85, 0x04, 0x00, 0x80]),
+                w(0x1803, 2, &[0x01]),
+                w(0x1803, 3, &[0x00, 0x00]),
+                w(0x1803, 5, &[0x00, 0x00]),
+                w(0x1A03, 0, &[0x00]),
+                w(0x1A03, 1, &[0x20, 0x00, 0xBA, 0x60]),
+                w(0x1A03, 2, &[0x20, 0x00, 0xBB, 0x60]),
+                w(0x1A03, 0, &[0x02]),
+                w(0x1803, 1, &[0x85, 0x04, 0x00, 0x00]),
+            ]
+        );
+        // The decode: TPDO3 and TPDO4 payloads.
+        let fb = feedback_from_pdo(&tpdos[2], &[0x9C, 0xFF, 0x05, 0, 0, 0, 0x03, 0x00]).unwrap();
+        assert_eq!(
+            fb,
+            Feedback {
+                torque: Some(-100),
+                digital_inputs: Some(5),
+                touch_probe_status: Some(3),
+                ..Feedback::default()
+            }
+        );
+        let fb = feedback_from_pdo(&tpdos[3], &[0xDC, 0x05, 0, 0, 0xFF, 0xFF, 0xFF, 0xFF]).unwrap();
+        assert_eq!(
+            (fb.touch_probe_positive, fb.touch_probe_negative),
+            (Some(1500), Some(-1))
+        );
+    }
+
+    #[test]
+    fn signal_tpdos_only_what_the_drive_has() {
+        let node = NodeId::new(5).unwrap();
+        let standard = standard_pdos(node, FeedbackTrigger::Sync).1;
+        // A drive without any of them (or without TPDO3/4): the standard
+        // layout unchanged.
+        let mut tpdos = standard.clone();
+        with_signal_tpdos(&mut tpdos, node, FeedbackTrigger::Sync, |_| false, |_| true);
+        assert_eq!(tpdos, standard);
+        let mut tpdos = standard.clone();
+        with_signal_tpdos(
+            &mut tpdos,
+            node,
+            FeedbackTrigger::Sync,
+            |a| a == obj::DIGITAL_INPUTS || a == obj::TOUCH_PROBE_1_POSITIVE,
+            |n| n == 3,
+        );
+        assert_eq!(tpdos.len(), 3);
+        assert_eq!(tpdos[1], standard[1]);
+        assert_eq!(tpdos[2].cob_id, 0x385);
+        assert_eq!(
+            tpdos[2].mapping,
+            vec![MappedObject {
+                addr: obj::DIGITAL_INPUTS,
+                bits: 32
+            }]
+        );
+    }
+
     #[test]
     fn sdo_image_writes_only_what_changed_controlword_last() {
         let image = ProcessImage {
@@ -441,7 +634,7 @@ mod tests {
                 position: Some(-5),
                 velocity: Some(10_000),
                 mode_display: Some(-6),
-                following_error: None,
+                ..Feedback::default()
             }
         );
         // Expedited without size indication: 4 bytes, the value first.

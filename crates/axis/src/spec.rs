@@ -137,6 +137,12 @@ pub struct Cia402Drive {
     pub process_data: ProcessDataPath,
     /// Homing method written to 0x6098 at boot.
     pub homing_method: i8,
+    /// Following error window and time-out, max torque, written at boot.
+    pub supervision: crate::signals::Supervision,
+    /// Map the drive's signals (torque, following error, digital inputs,
+    /// touch probe) into its TPDOs where it has them
+    /// ([`crate::process_data::with_signal_tpdos`]).
+    pub signal_pdos: bool,
 }
 
 /// How a CiA 402 axis's process data (controlword, targets, statusword,
@@ -251,6 +257,7 @@ impl Cia402Drive {
         crate::cia402::Cia402Config {
             motion,
             position_mode: self.position_mode,
+            supervision: self.supervision,
         }
     }
 }

@@ -394,6 +394,10 @@ impl Rig {
                         self.enabled_claim = false;
                     }
                 }
+                AxisEvent::TouchProbe { .. } => {
+                    self.violations
+                        .push("a CANsmc axis has no touch probe".to_string());
+                }
             }
             self.events.push((self.now, e));
         }

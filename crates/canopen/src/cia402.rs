@@ -117,6 +117,25 @@ pub mod objects {
     pub const TARGET_VELOCITY: ObjectAddress = ObjectAddress::new(0x60FF, 0);
     /// 0x6502 supported drive modes (UNSIGNED32, one bit per mode).
     pub const SUPPORTED_DRIVE_MODES: ObjectAddress = ObjectAddress::new(0x6502, 0);
+
+    // The signals of an axis beyond its position: limit and home switches,
+    // touch probe, torque limit (CiA 402-2, IEC 61800-7-201).
+
+    /// 0x6072 max torque (UNSIGNED16, per mille of rated torque).
+    pub const MAX_TORQUE: ObjectAddress = ObjectAddress::new(0x6072, 0);
+    /// 0x60B8 touch probe function (UNSIGNED16).
+    pub const TOUCH_PROBE_FUNCTION: ObjectAddress = ObjectAddress::new(0x60B8, 0);
+    /// 0x60B9 touch probe status (UNSIGNED16).
+    pub const TOUCH_PROBE_STATUS: ObjectAddress = ObjectAddress::new(0x60B9, 0);
+    /// 0x60BA touch probe 1 position latched at the positive edge
+    /// (INTEGER32).
+    pub const TOUCH_PROBE_1_POSITIVE: ObjectAddress = ObjectAddress::new(0x60BA, 0);
+    /// 0x60BB touch probe 1 position latched at the negative edge
+    /// (INTEGER32).
+    pub const TOUCH_PROBE_1_NEGATIVE: ObjectAddress = ObjectAddress::new(0x60BB, 0);
+    /// 0x60FD digital inputs (UNSIGNED32; bit 0 negative limit switch,
+    /// bit 1 positive limit switch, bit 2 home switch).
+    pub const DIGITAL_INPUTS: ObjectAddress = ObjectAddress::new(0x60FD, 0);
 }
 
 /// A state of the CiA 402 power drive system state machine, as decoded from

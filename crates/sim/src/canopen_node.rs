@@ -1846,7 +1846,7 @@ mod tests {
         sim.on_frame(&sync, 7 * MS); // the reconfiguration counts as an event
         assert!(sim.on_frame(&sync, 8 * MS).is_empty());
         assert!(sim.trigger_tpdo(1));
-        assert!(!sim.trigger_tpdo(3));
+        assert!(!sim.trigger_tpdo(5));
         assert!(!sim.trigger_tpdo(0));
         assert_eq!(wire(&sim.on_frame(&frame(0x080, &[7]), 9 * MS)), [tpdo1]);
         assert!(sim.on_frame(&sync, 10 * MS).is_empty());

@@ -17,7 +17,9 @@
 //! | heartbeat loss | a node monitored by 0x1016 falls silent (the master, when it configured its heartbeat there): the node sends EMCY 0x8130, and the drive enters fault reaction active (stops with the quick stop deceleration), then fault, with 0x603F = 0x8130 |
 //! | faults | [`SimDrive::inject_fault`]: fault reaction active (stops with the quick stop deceleration), then fault; 0x603F and 0x1001 set and an EMCY sent; fault reset (rising edge of bit 7) clears them and sends the EMCY "error reset" |
 //! | limits | software position limits 0x607D (when min < max) bound every mode but homing: profile position clamps the target, the others stop at the limit; bit 11 internal limit |
-//! | process values | 0x6064 position, 0x606C velocity and 0x6077 torque (per mille, proportional to the acceleration) updated every step; TPDOs go out per their configuration (event timer, SYNC) |
+//! | process values | 0x6064 position, 0x606C velocity and 0x6077 torque (per mille, proportional to the acceleration, bounded by 0x6072 max torque when present) updated every step; TPDOs go out per their configuration (event timer, SYNC) |
+//! | switches | [`SimDriveInputs`]: limit and home switches at physical positions set 0x60FD bits 0 (negative limit), 1 (positive limit), 2 (home); in every mode but homing a limit switch stops motion into it at the quick stop deceleration (the drive stays in operation enabled, bit 11 internal limit set) and motion away from it runs; a cyclic position set-point into it is not followed and counts no following error |
+//! | touch probe 1 | 0x60B8 bit 0 enables it, bit 1 continuous (else the first edge only), bit 4/5 latch at the rising/falling edge; the input is the physical position crossing [`SimDriveInputs::touch_probe`] (rising upwards), latched exactly at the crossing into 0x60BA/0x60BB; 0x60B9 bit 0 enabled, bit 1/2 positive/negative edge stored; a changed 0x60B8 re-arms (clears bits 1 and 2) |
 //!
 //! Units are increments, increments/s and increments/s². An NMT reset node
 //! restores the object dictionary and restarts the drive in switch on
@@ -53,6 +55,28 @@ const MAX_SYNC_PERIOD: Duration = Duration::from_millis(100);
 /// EMCY code of a following error.
 const FOLLOWING_ERROR_CODE: u16 = 0x8611;
 
+/// Switches and the touch probe input of a [`SimDrive`], at physical
+/// positions in increments (where the motor is before any homing shift).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SimDriveInputs {
+    /// The negative limit switch is active at and below this position.
+    pub negative_limit_switch: Option<i32>,
+    /// The positive limit switch is active at and above this position.
+    pub positive_limit_switch: Option<i32>,
+    /// The home switch is active at and above this position.
+    pub home_switch: Option<i32>,
+    /// The touch probe 1 input is active at and above this position: moving
+    /// up across it is its rising edge, down its falling edge.
+    pub touch_probe: Option<i32>,
+}
+
+/// 0x60FD bit of the negative limit switch (CiA 402-2).
+pub const INPUT_NEGATIVE_LIMIT: u32 = 1 << 0;
+/// 0x60FD bit of the positive limit switch.
+pub const INPUT_POSITIVE_LIMIT: u32 = 1 << 1;
+/// 0x60FD bit of the home switch.
+pub const INPUT_HOME_SWITCH: u32 = 1 << 2;
+
 /// How a [`SimDrive`] behaves beyond what its EDS says.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SimDriveOptions {
@@ -77,6 +101,8 @@ pub struct SimDriveOptions {
     /// [`SimNodeOptions::running_at_start`] for its NMT state). A power
     /// cycle starts it as usual.
     pub enabled_at_start: Option<(ModeOfOperation, i32)>,
+    /// Limit and home switches, touch probe input (none by default).
+    pub inputs: SimDriveInputs,
 }
 
 impl Default for SimDriveOptions {
@@ -88,6 +114,7 @@ impl Default for SimDriveOptions {
             tpdo_on_statusword_change: true,
             max_speed: 100_000,
             enabled_at_start: None,
+            inputs: SimDriveInputs::default(),
         }
     }
 }
@@ -199,6 +226,15 @@ pub struct SimDrive {
     homing: Homing,
     /// A software limit stopped the motor in the latest step.
     limit_hit: bool,
+    /// A limit switch held the motor back in the latest step.
+    switch_blocked: bool,
+    /// Touch probe 1: the function (0x60B8) last seen, the input's level,
+    /// the status (0x60B9) and the latched positions (0x60BA, 0x60BB).
+    probe_function: u16,
+    probe_input: Option<bool>,
+    probe_status: u16,
+    probe_positive: i32,
+    probe_negative: i32,
     /// Command minus actual position in cyclic synchronous position mode.
     follow_error: f64,
     /// The interpolated command of cyclic synchronous position.
@@ -269,6 +305,12 @@ impl SimDrive {
             pp: ProfilePosition::idle(0.0),
             homing: Homing::Idle,
             limit_hit: false,
+            switch_blocked: false,
+            probe_function: 0,
+            probe_input: None,
+            probe_status: 0,
+            probe_positive: 0,
+            probe_negative: 0,
             follow_error: 0.0,
             csp: Interpolation::holding(0.0),
             last_sync: None,
@@ -652,9 +694,12 @@ impl SimDrive {
             _ => self.vel = 0.0,
         }
         let accel = (self.vel - v0) / dt;
+        let max_torque = self.int(obj::MAX_TORQUE).map_or(f64::from(i16::MAX), |m| {
+            m.clamp(0, i128::from(i16::MAX)) as f64
+        });
         self.torque = (accel * TORQUE_PER_ACCEL)
             .round()
-            .clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16;
+            .clamp(-max_torque, max_torque) as i16;
         self.write_outputs();
     }
 
@@ -672,6 +717,7 @@ impl SimDrive {
     }
 
     fn step_enabled(&mut self, dt: f64) {
+        let (pos0, v0) = (self.pos, self.vel);
         let cw = self.prev_cw;
         let dec = self.rate(obj::PROFILE_DECELERATION);
         match self.mode {
@@ -760,7 +806,100 @@ impl SimDrive {
             }
             _ => self.stop(dec, dt),
         }
+        self.apply_limit_switches(pos0, v0, dt);
         self.apply_limits();
+    }
+
+    /// The physical position (before any homing shift).
+    fn physical(&self, pos: f64) -> f64 {
+        pos - self.shift
+    }
+
+    /// The limit switches active at the reported position `pos`:
+    /// (negative, positive).
+    fn limit_switches_at(&self, pos: f64) -> (bool, bool) {
+        let phys = self.physical(pos);
+        let inputs = self.options.inputs;
+        (
+            inputs
+                .negative_limit_switch
+                .is_some_and(|n| phys <= f64::from(n)),
+            inputs
+                .positive_limit_switch
+                .is_some_and(|p| phys >= f64::from(p)),
+        )
+    }
+
+    /// A limit switch active where the step started holds back motion
+    /// into it: from the velocity the step started with, the motor brakes
+    /// at the quick stop deceleration and does not go on into the switch;
+    /// motion away from it runs as the mode commands.
+    fn apply_limit_switches(&mut self, pos0: f64, v0: f64, dt: f64) {
+        let (negative, positive) = self.limit_switches_at(pos0);
+        let into = (positive && self.vel > 0.0) || (negative && self.vel < 0.0);
+        self.switch_blocked = into;
+        if !into {
+            return;
+        }
+        let dec = self.quick_stop_deceleration();
+        let v = ramp(v0, 0.0, dec, dec, dt);
+        let v = if positive { v.max(0.0) } else { v.min(0.0) };
+        self.vel = v;
+        self.pos = pos0 + v * dt;
+        self.limit_hit = true;
+    }
+
+    /// 0x60FD from the switches at the current position.
+    fn digital_inputs(&self) -> u32 {
+        let (negative, positive) = self.limit_switches_at(self.pos);
+        let home = self
+            .options
+            .inputs
+            .home_switch
+            .is_some_and(|h| self.physical(self.pos) >= f64::from(h));
+        let mut bits = 0;
+        if negative {
+            bits |= INPUT_NEGATIVE_LIMIT;
+        }
+        if positive {
+            bits |= INPUT_POSITIVE_LIMIT;
+        }
+        if home {
+            bits |= INPUT_HOME_SWITCH;
+        }
+        bits
+    }
+
+    /// Touch probe 1: follows 0x60B8 and latches the edges of the input.
+    fn update_touch_probe(&mut self) {
+        let function = self.int(obj::TOUCH_PROBE_FUNCTION).unwrap_or(0) as u16;
+        if function != self.probe_function {
+            // A new function re-arms: nothing stored yet.
+            self.probe_function = function;
+            self.probe_status = function & 1;
+        }
+        let Some(at) = self.options.inputs.touch_probe else {
+            return;
+        };
+        let level = self.physical(self.pos) >= f64::from(at);
+        let Some(previous) = self.probe_input.replace(level) else {
+            return;
+        };
+        if function & 1 == 0 || level == previous {
+            return;
+        }
+        // The input switches exactly at its position: latched there, not
+        // where the model step ended.
+        let latched = (f64::from(at) + self.shift).round() as i32;
+        let continuous = function & 2 != 0;
+        if level && function & 0x10 != 0 && (continuous || self.probe_status & 2 == 0) {
+            self.probe_positive = latched;
+            self.probe_status |= 2;
+        }
+        if !level && function & 0x20 != 0 && (continuous || self.probe_status & 4 == 0) {
+            self.probe_negative = latched;
+            self.probe_status |= 4;
+        }
     }
 
     /// The fraction of the remaining error a first-order lag closes in `dt`.
@@ -787,7 +926,7 @@ impl SimDrive {
     }
 
     fn check_following_error(&mut self) {
-        if !self.following_error_exceeded() {
+        if !self.following_error_exceeded() || self.switch_blocked {
             self.follow_over_since = None;
             return;
         }
@@ -910,6 +1049,25 @@ impl SimDrive {
             obj::FOLLOWING_ERROR_ACTUAL,
             Value::Integer32(self.follow_error.round() as i32),
         );
+        if self.started {
+            self.put(
+                obj::DIGITAL_INPUTS,
+                Value::Unsigned32(self.digital_inputs()),
+            );
+            self.update_touch_probe();
+            self.put(
+                obj::TOUCH_PROBE_STATUS,
+                Value::Unsigned16(self.probe_status),
+            );
+            self.put(
+                obj::TOUCH_PROBE_1_POSITIVE,
+                Value::Integer32(self.probe_positive),
+            );
+            self.put(
+                obj::TOUCH_PROBE_1_NEGATIVE,
+                Value::Integer32(self.probe_negative),
+            );
+        }
     }
 
     /// Marks every TPDO that maps the statusword for transmission.
@@ -1001,6 +1159,12 @@ impl SimDrive {
         self.prev_cw = self.controlword();
         self.error_code = 0;
         self.limit_hit = false;
+        self.switch_blocked = false;
+        self.probe_function = 0;
+        self.probe_input = None;
+        self.probe_status = 0;
+        self.probe_positive = 0;
+        self.probe_negative = 0;
         self.reset_generators();
         self.write_outputs();
     }
@@ -1830,6 +1994,198 @@ mod tests {
                 kind: NmtReset::Node
             }
         )));
+    }
+
+    /// The bundled drive at node 5 with switches and a touch probe input,
+    /// operational since t = 0.
+    fn with_inputs(inputs: SimDriveInputs) -> SimDrive {
+        let options = SimDriveOptions {
+            inputs,
+            ..SimDriveOptions::default()
+        };
+        let mut d = SimDrive::bundled(NodeId::new(5).unwrap(), options);
+        d.start(Duration::ZERO);
+        d.on_frame(&frame(0x000, &[0x01, 0x05]), Duration::ZERO);
+        d
+    }
+
+    #[test]
+    fn limit_switch_stops_motion_into_it_and_lets_it_back_off() {
+        let mut d = with_inputs(SimDriveInputs {
+            negative_limit_switch: Some(-3000),
+            positive_limit_switch: Some(2000),
+            home_switch: Some(500),
+            touch_probe: None,
+        });
+        // Quick stop deceleration (0x6084 here: the EDS has no 0x6085).
+        sdo_write(
+            &mut d,
+            obj::PROFILE_DECELERATION,
+            &100_000u32.to_le_bytes(),
+            MS,
+        );
+        assert_eq!(sdo_read(&mut d, obj::DIGITAL_INPUTS, MS), [0, 0, 0, 0]);
+        enable(&mut d, ModeOfOperation::ProfileVelocity, 10 * MS);
+        d.on_frame(&rpdo2(0x000F, 10_000), 20 * MS);
+        let mut max_pos = 0.0f64;
+        run(&mut d, 1000 * MS, |d, _| {
+            max_pos = max_pos.max(d.position())
+        });
+        // Braked from 10 000 inc/s at 100 000 inc/s²: 500 inc beyond the
+        // switch at most (plus the step on which it engaged).
+        assert!(
+            (2000.0..=2000.0 + 500.0 + 10.0).contains(&max_pos),
+            "{max_pos}"
+        );
+        assert_eq!(d.velocity(), 0.0);
+        // Bits 1 (positive limit) and 2 (home) of 0x60FD.
+        assert_eq!(
+            sdo_read(&mut d, obj::DIGITAL_INPUTS, 1000 * MS),
+            [0x06, 0, 0, 0]
+        );
+        assert!(d.statusword().internal_limit());
+        assert_eq!(d.state(), DriveState::OperationEnabled);
+        // Still commanded into it: it stays.
+        run(&mut d, 1100 * MS, |_, _| {});
+        assert_eq!(d.position(), max_pos);
+        // Away from it: runs, and the bits clear.
+        d.on_frame(&rpdo2(0x000F, -5000), 1100 * MS);
+        run(&mut d, 1800 * MS, |_, _| {});
+        assert!(d.position() < 0.0, "{}", d.position());
+        assert_eq!(
+            sdo_read(&mut d, obj::DIGITAL_INPUTS, 1800 * MS),
+            [0, 0, 0, 0]
+        );
+        // On to the negative switch: bit 0.
+        run(&mut d, 4000 * MS, |_, _| {});
+        let p = d.position();
+        assert!((-3000.0 - 135.0..=-3000.0).contains(&p), "{p}");
+        assert_eq!(d.velocity(), 0.0);
+        assert_eq!(
+            sdo_read(&mut d, obj::DIGITAL_INPUTS, 4000 * MS),
+            [0x01, 0, 0, 0]
+        );
+    }
+
+    #[test]
+    fn touch_probe_latches_the_crossing_single_and_continuous() {
+        let mut d = with_inputs(SimDriveInputs {
+            touch_probe: Some(1500),
+            ..SimDriveInputs::default()
+        });
+        // 0x60B8 = 0x0031: probe 1 on, first edge only, both edges.
+        let out = d.on_frame(
+            &frame(0x605, &[0x2B, 0xB8, 0x60, 0x00, 0x31, 0x00, 0, 0]),
+            MS,
+        );
+        assert_eq!(
+            wire(&out),
+            [(0x585, vec![0x60, 0xB8, 0x60, 0x00, 0, 0, 0, 0])]
+        );
+        assert_eq!(sdo_read(&mut d, obj::TOUCH_PROBE_STATUS, MS), [0x01, 0x00]);
+        enable(&mut d, ModeOfOperation::ProfileVelocity, 10 * MS);
+        d.on_frame(&rpdo2(0x000F, 7000), 20 * MS);
+        run(&mut d, 500 * MS, |_, _| {});
+        assert!(d.position() > 1500.0);
+        // Positive edge stored, at the probe's position exactly.
+        assert_eq!(
+            sdo_read(&mut d, obj::TOUCH_PROBE_STATUS, 500 * MS),
+            [0x03, 0x00]
+        );
+        assert_eq!(
+            sdo_read(&mut d, obj::TOUCH_PROBE_1_POSITIVE, 500 * MS),
+            1500i32.to_le_bytes()
+        );
+        // Back down across it: the negative edge.
+        d.on_frame(&rpdo2(0x000F, -7000), 500 * MS);
+        run(&mut d, 1000 * MS, |_, _| {});
+        assert!(d.position() < 1500.0);
+        assert_eq!(
+            sdo_read(&mut d, obj::TOUCH_PROBE_STATUS, 1000 * MS),
+            [0x07, 0x00]
+        );
+        assert_eq!(
+            sdo_read(&mut d, obj::TOUCH_PROBE_1_NEGATIVE, 1000 * MS),
+            1500i32.to_le_bytes()
+        );
+        // Homed with an offset: the latch is in reported positions. Up
+        // again: first-edge mode latches nothing new.
+        d.on_frame(&rpdo2(0x000F, 7000), 1000 * MS);
+        run(&mut d, 2000 * MS, |_, _| {});
+        assert_eq!(
+            sdo_read(&mut d, obj::TOUCH_PROBE_STATUS, 2000 * MS),
+            [0x07, 0x00]
+        );
+        // Re-armed continuous, rising only (0x0013): every rising edge.
+        sdo_write(&mut d, obj::TOUCH_PROBE_FUNCTION, &[0x13, 0x00], 2000 * MS);
+        assert_eq!(
+            sdo_read(&mut d, obj::TOUCH_PROBE_STATUS, 2000 * MS),
+            [0x01, 0x00]
+        );
+        d.on_frame(&rpdo2(0x000F, -7000), 2000 * MS);
+        run(&mut d, 3500 * MS, |_, _| {});
+        assert_eq!(
+            sdo_read(&mut d, obj::TOUCH_PROBE_STATUS, 3500 * MS),
+            [0x01, 0x00]
+        );
+        d.on_frame(&rpdo2(0x000F, 7000), 3500 * MS);
+        run(&mut d, 5000 * MS, |_, _| {});
+        assert_eq!(
+            sdo_read(&mut d, obj::TOUCH_PROBE_STATUS, 5000 * MS),
+            [0x03, 0x00]
+        );
+    }
+
+    /// TPDO3 mapped by SDO with torque, digital inputs and probe status
+    /// goes out at every SYNC with them.
+    #[test]
+    fn signals_tpdo_on_sync_with_exact_bytes() {
+        let mut d = with_inputs(SimDriveInputs {
+            positive_limit_switch: Some(0),
+            ..SimDriveInputs::default()
+        });
+        let comm = 0x1802;
+        let map = 0x1A02;
+        sdo_write(
+            &mut d,
+            ObjectAddress::new(comm, 1),
+            &0x8000_0385u32.to_le_bytes(),
+            MS,
+        );
+        sdo_write(&mut d, ObjectAddress::new(comm, 2), &[1], MS);
+        sdo_write(&mut d, ObjectAddress::new(map, 0), &[0], MS);
+        sdo_write(
+            &mut d,
+            ObjectAddress::new(map, 1),
+            &0x6077_0010u32.to_le_bytes(),
+            MS,
+        );
+        sdo_write(
+            &mut d,
+            ObjectAddress::new(map, 2),
+            &0x60FD_0020u32.to_le_bytes(),
+            MS,
+        );
+        sdo_write(
+            &mut d,
+            ObjectAddress::new(map, 3),
+            &0x60B9_0010u32.to_le_bytes(),
+            MS,
+        );
+        sdo_write(&mut d, ObjectAddress::new(map, 0), &[3], MS);
+        sdo_write(
+            &mut d,
+            ObjectAddress::new(comm, 1),
+            &0x0000_0385u32.to_le_bytes(),
+            MS,
+        );
+        sdo_write(&mut d, obj::TOUCH_PROBE_FUNCTION, &[0x11, 0x00], MS);
+        let out = d.on_frame(&frame(0x080, &[]), 2 * MS);
+        assert!(
+            wire(&out).contains(&(0x385, vec![0, 0, 0x02, 0, 0, 0, 0x01, 0x00])),
+            "{:02X?}",
+            wire(&out)
+        );
     }
 
     /// The state machine driver of the CiA 402 core enables the simulated

@@ -705,6 +705,27 @@ class Lease:
         """Resets a drive fault (then enable again)."""
         return self._simple(self.client.axes_stub.ResetFault, axis, wait, wait_timeout_ms)
 
+    def arm_touch_probe(
+        self, edge: str = "rising", axis: Optional[str] = None, *, continuous: bool = False
+    ) -> axes_pb2.AxisCommandResponse:
+        """Arms touch probe 1 of a CiA 402 axis on its "rising", "falling" or
+        "both" edges (the first event only, or every one with
+        ``continuous=True``); "off" switches it off. Returns once the drive
+        confirmed it; each latch comes as a ``touch_probe`` event in
+        ``states()``, with the position in user units."""
+        edges = {
+            "off": axes_pb2.TOUCH_PROBE_EDGE_UNSPECIFIED,
+            "rising": axes_pb2.TOUCH_PROBE_EDGE_RISING,
+            "falling": axes_pb2.TOUCH_PROBE_EDGE_FALLING,
+            "both": axes_pb2.TOUCH_PROBE_EDGE_BOTH,
+        }
+        if edge not in edges:
+            raise ValueError(f"edge must be one of {sorted(edges)}, not {edge!r}")
+        request = axes_pb2.ArmTouchProbeRequest(
+            axis=self._axis(axis), edge=edges[edge], continuous=continuous, options=self._options(False, 0)
+        )
+        return self.client._call(self.client.axes_stub.ArmTouchProbe, request)
+
     def stop(self, axis: Optional[str] = None, *, quick: bool = False, wait: bool = False) -> axes_pb2.AxisCommandResponse:
         """Stops the axis (the lease is not needed for this)."""
         method = self.client.axes_stub.QuickStop if quick else self.client.axes_stub.Stop

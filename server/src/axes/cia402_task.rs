@@ -539,6 +539,21 @@ impl Task {
                 }
             };
             slot.setpoint_payload = layout.masked(&payload);
+            if plan.as_ref().is_some_and(CyclicPlan::is_moving)
+                && slot.axis.current_op().is_none()
+                && let Some(sw) = slot.axis.snapshot().signals.limit_switch()
+            {
+                // A ramp without a command, on a limit switch: the
+                // switch's stop. A stream the axis plays in ends saying so
+                // (else the ramp ends it as stopped).
+                self.setpoints.end_stream_of(
+                    i,
+                    super::cyclic_setpoints::StreamEnd::LimitSwitch {
+                        axis: slot.name.clone(),
+                        switch: sw.name(),
+                    },
+                );
+            }
             changed.push((i, plan.clone(), layout.rpdo.cob_id, payload, layout.offset));
             slot.published = plan;
         }

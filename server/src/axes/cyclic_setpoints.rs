@@ -124,6 +124,14 @@ pub enum StreamEnd {
         /// The axis.
         axis: String,
     },
+    /// One of its axes ran into an active limit switch: the axis stopped
+    /// at its quick stop deceleration, the others ramped to rest.
+    LimitSwitch {
+        /// The axis.
+        axis: String,
+        /// "negative" or "positive".
+        switch: &'static str,
+    },
     /// The gateway shuts down.
     ShuttingDown,
 }
@@ -140,6 +148,11 @@ impl std::fmt::Display for StreamEnd {
             StreamEnd::LeaseLost(why) => write!(
                 f,
                 "the control lease no longer covers the stream's axes ({why}): they ramped to rest"
+            ),
+            StreamEnd::LimitSwitch { axis, switch } => write!(
+                f,
+                "axis {axis} ran into its {switch} limit switch and stopped: the stream ended and \
+                 its other axes ramped to rest"
             ),
             StreamEnd::AxisLeft { axis } => write!(
                 f,
@@ -412,6 +425,19 @@ impl CyclicSetpoints {
             .collect()
     }
 
+    /// Ends the stream axis `i` (table index) plays in, if any, for
+    /// `reason`, before its next plan is published (which would end it as
+    /// stopped).
+    pub fn end_stream_of(&self, i: usize, reason: StreamEnd) {
+        let id = {
+            let st = self.state.lock().expect("set-point table lock");
+            st.entries.get(i).and_then(|e| e.stream)
+        };
+        if let Some(id) = id {
+            self.stop_stream(id, reason);
+        }
+    }
+
     /// Brings stream `id` to rest and ends it (its first reason stays).
     pub fn stop_stream(&self, id: u64, reason: StreamEnd) {
         let now = self.origin.elapsed();
@@ -672,7 +698,7 @@ mod tests {
             position: Some(0),
             velocity: Some(0),
             mode_display: Some(8),
-            following_error: None,
+            ..Default::default()
         };
         axis.on_feedback(enabled, Duration::ZERO, &mut out);
         axis.command(

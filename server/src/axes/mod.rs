@@ -13,6 +13,7 @@ pub mod control;
 pub mod cyclic_setpoints;
 pub mod sdo_process_data;
 pub mod setpoint_streams;
+mod touch_probe;
 
 use crate::canopen::CanopenBus;
 use crate::not_found::NotFound;
@@ -791,4 +792,12 @@ pub enum AxisError {
     /// The gateway is shutting down.
     #[error("the gateway is shutting down")]
     ShuttingDown,
+    /// An SDO transfer the request needed failed.
+    #[error("{error}")]
+    Sdo {
+        /// The drive's node.
+        node: cangate_canopen::NodeId,
+        /// The failure.
+        error: crate::canopen::CanopenError,
+    },
 }

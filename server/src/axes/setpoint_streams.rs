@@ -88,6 +88,9 @@ pub struct StreamUpdate {
     /// The drives' actual positions (user units, stream order; `NaN`
     /// where none is known).
     pub actual: Vec<f64>,
+    /// The axes' latest states (stream order; `None` before the first),
+    /// for their signals.
+    pub latest: Vec<Option<Arc<cangate_axis::cia402::AxisSnapshot>>>,
 }
 
 /// An open stream. Dropping it brings its axes to rest (the client went
@@ -317,6 +320,11 @@ impl SetpointStream {
             if report_now || !report.events.is_empty() || finished {
                 let update = StreamUpdate {
                     actual: self.actual(),
+                    latest: self
+                        .idx
+                        .iter()
+                        .map(|&i| self.axes.latest(i).map(|(s, _)| s))
+                        .collect(),
                     refused: std::mem::take(&mut refused),
                     report,
                 };

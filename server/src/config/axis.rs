@@ -371,6 +371,27 @@ pub struct AxisConfig {
     /// time).
     #[serde(default = "default_sdo_poll_ms")]
     pub sdo_poll_ms: u32,
+    /// Following error window in user units, written to 0x6065 at boot
+    /// (in counts); absent: the drive's own.
+    #[serde(default)]
+    pub following_error_window: Option<f64>,
+    /// Following error time out in ms, written to 0x6066 at boot; absent:
+    /// the drive's own.
+    #[serde(default)]
+    pub following_error_timeout_ms: Option<u16>,
+    /// Max torque in per mille of the rated torque, written to 0x6072 at
+    /// boot; absent: the drive's own.
+    #[serde(default)]
+    pub max_torque: Option<u16>,
+    /// Map the drive's signals (torque, following error, digital inputs,
+    /// touch probe) into TPDO2..4 where its EDS has them (default true):
+    /// up to two more frames per SYNC from the drive.
+    #[serde(default = "default_true")]
+    pub signal_pdos: bool,
+}
+
+fn default_true() -> bool {
+    true
 }
 
 /// The upper bounds of an axis's motion settings, for both drive
@@ -487,6 +508,14 @@ impl TryFrom<&AxisConfig> for AxisSpec {
                     },
                 },
                 homing_method: c.homing_method,
+                supervision: cangate_axis::signals::Supervision {
+                    following_error_window: c.following_error_window,
+                    following_error_timeout: c
+                        .following_error_timeout_ms
+                        .map(|ms| Duration::from_millis(u64::from(ms))),
+                    max_torque: c.max_torque,
+                },
+                signal_pdos: c.signal_pdos,
             }),
         })
     }
@@ -532,6 +561,17 @@ impl AxisConfig {
                 return Err(format!(
                     "axis {}: sdo_poll_ms must be 1..=10000, got {}",
                     self.name, self.sdo_poll_ms
+                ));
+            }
+        }
+        if let Some(w) = self.following_error_window {
+            let counts = w * self.common.counts_per_unit.abs();
+            // 0xFFFFFFFF switches the drive's supervision off (CiA 402).
+            if !(w.is_finite() && w > 0.0) || counts >= f64::from(u32::MAX) {
+                return Err(format!(
+                    "axis {}: following_error_window must be positive and below 4294967295 \
+                     counts, got {w}",
+                    self.name
                 ));
             }
         }
@@ -657,6 +697,8 @@ mod tests {
                 position_mode: PositionMode::Cyclic,
                 process_data: ProcessDataPath::Pdo,
                 homing_method: 17,
+                supervision: Default::default(),
+                signal_pdos: true,
             }),
         };
         let a = AxisSpec {

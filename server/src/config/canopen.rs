@@ -259,6 +259,20 @@ pub struct SimDeviceConfig {
     /// `start = "operation_enabled"`: the drive's position in increments.
     #[serde(default)]
     pub position: i32,
+    /// A drive's negative limit switch (0x60FD bit 0): active at and below
+    /// this physical position, increments.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub negative_limit_switch: Option<i32>,
+    /// A drive's positive limit switch (0x60FD bit 1): active at and above.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub positive_limit_switch: Option<i32>,
+    /// A drive's home switch (0x60FD bit 2): active at and above.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub home_switch: Option<i32>,
+    /// A drive's touch probe 1 input: active at and above (crossing it
+    /// upwards is the rising edge).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub touch_probe: Option<i32>,
 }
 
 fn default_true() -> bool {

@@ -82,11 +82,40 @@ pub(crate) fn status_pb(
             st.fault_code = u32::from(*code);
             st.fault_text = text.clone();
         }
+        st.torque_actual = s.signals.torque.map(i32::from);
+        st.following_error_actual = s.signals.following_error;
+        st.digital_inputs = s.signals.digital_inputs.map(digital_inputs_pb);
+        st.touch_probe_status = s.signals.touch_probe_status.map(u32::from);
     } else {
         st.node_lost = true;
         st.fault_text = "no process data from the drive yet".into();
     }
     st
+}
+
+/// 0x60FD as named booleans (CiA 402-2 bit layout, see
+/// [`cangate_axis::signals`]).
+pub(crate) fn digital_inputs_pb(raw: u32) -> pb::DigitalInputs {
+    use cangate_axis::signals::{HOME_SWITCH, NEGATIVE_LIMIT_SWITCH, POSITIVE_LIMIT_SWITCH};
+    pb::DigitalInputs {
+        negative_limit_switch: raw & NEGATIVE_LIMIT_SWITCH != 0,
+        positive_limit_switch: raw & POSITIVE_LIMIT_SWITCH != 0,
+        home_switch: raw & HOME_SWITCH != 0,
+        raw,
+    }
+}
+
+/// The signals of one axis of a set-point stream.
+pub(crate) fn stream_signals_pb(s: Option<&AxisSnapshot>) -> pb::StreamAxisSignals {
+    let Some(s) = s else {
+        return pb::StreamAxisSignals::default();
+    };
+    pb::StreamAxisSignals {
+        torque_actual: s.signals.torque.map(i32::from),
+        velocity_actual: s.state.is_some().then_some(s.velocity),
+        following_error_actual: s.signals.following_error,
+        digital_inputs: s.signals.digital_inputs.map(digital_inputs_pb),
+    }
 }
 
 pub(crate) fn event_pb(m: &Axes, axis: usize, at: Timestamp, e: AxisEventKind) -> pb::AxisEvent {
@@ -118,6 +147,15 @@ pub(crate) fn event_pb(m: &Axes, axis: usize, at: Timestamp, e: AxisEventKind) -
             reason,
         }),
         AxisEventKind::Node { lost, reason } => Kind::Node(pb::NodeLink { lost, reason }),
+        AxisEventKind::TouchProbe { rising, position } => Kind::TouchProbe(pb::TouchProbeLatch {
+            probe: 1,
+            edge: if rising {
+                pb::TouchProbeEdge::Rising
+            } else {
+                pb::TouchProbeEdge::Falling
+            } as i32,
+            position,
+        }),
     };
     pb::AxisEvent {
         axis: m.name(axis).to_string(),

@@ -439,6 +439,39 @@ impl AxesRpc for AxesService {
         self.simple(req, AxisCommand::ResetFault).await
     }
 
+    async fn arm_touch_probe(
+        &self,
+        req: Request<pb::ArmTouchProbeRequest>,
+    ) -> Result<Response<pb::AxisCommandResponse>, Status> {
+        use cangate_axis::signals::ProbeEdges;
+        let peer = peer(&req);
+        let owner = owner(&req);
+        let r = req.into_inner();
+        let m = self.axes();
+        let i = m.index(&r.axis)?;
+        let edges = match pb::TouchProbeEdge::try_from(r.edge) {
+            Ok(pb::TouchProbeEdge::Unspecified) => ProbeEdges::Off,
+            Ok(pb::TouchProbeEdge::Rising) => ProbeEdges::Rising,
+            Ok(pb::TouchProbeEdge::Falling) => ProbeEdges::Falling,
+            Ok(pb::TouchProbeEdge::Both) => ProbeEdges::Both,
+            Err(_) => {
+                return Err(ApiError::InvalidArgument(format!(
+                    "edge {} is no TouchProbeEdge",
+                    r.edge
+                ))
+                .into());
+            }
+        };
+        let caller = Caller::new(peer)
+            .with_identity(owner)
+            .with_lease(r.options.unwrap_or_default().lease);
+        let res = m
+            .arm_touch_probe(i, edges, r.continuous, &caller)
+            .await
+            .map_err(ApiError::from)?;
+        Ok(Response::new(self.result_pb(i, res)))
+    }
+
     async fn stop_axes(
         &self,
         req: Request<pb::StopAxesRequest>,

@@ -46,6 +46,15 @@ impl From<AxisError> for ApiError {
             AxisError::Unavailable(m) => ApiError::Unavailable(m),
             AxisError::NoAnswer(m) => ApiError::DeadlineExceeded(m),
             AxisError::ShuttingDown => ApiError::ShuttingDown,
+            AxisError::Sdo { node, error } => match error {
+                crate::canopen::CanopenError::Sdo(error) => ApiError::Sdo {
+                    node: node.get(),
+                    error,
+                },
+                crate::canopen::CanopenError::Stopped => ApiError::ShuttingDown,
+                e @ crate::canopen::CanopenError::Send(_) => ApiError::Unavailable(e.to_string()),
+                e => ApiError::FailedPrecondition(e.to_string()),
+            },
         }
     }
 }

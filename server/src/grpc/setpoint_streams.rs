@@ -173,13 +173,16 @@ fn end_reason(e: &StreamEnd) -> &'static str {
         StreamEnd::Stopped { .. } => "STOPPED",
         StreamEnd::LeaseLost(_) => "LEASE_LOST",
         StreamEnd::AxisLeft { .. } => "AXIS_LEFT",
+        StreamEnd::LimitSwitch { .. } => "LIMIT_SWITCH",
         StreamEnd::ShuttingDown => "SHUTTING_DOWN",
     }
 }
 
 fn end_axis(e: &StreamEnd) -> &str {
     match e {
-        StreamEnd::Stopped { axis } | StreamEnd::AxisLeft { axis } => axis,
+        StreamEnd::Stopped { axis }
+        | StreamEnd::AxisLeft { axis }
+        | StreamEnd::LimitSwitch { axis, .. } => axis,
         _ => "",
     }
 }
@@ -275,6 +278,11 @@ fn status_pb(names: &[String], u: StreamUpdate) -> pb::SetpointStreamStatus {
         clock_offset_us: r.clock_offset_us.unwrap_or(0),
         commanded_positions: r.positions.clone(),
         actual_positions: u.actual,
+        signals: u
+            .latest
+            .iter()
+            .map(|s| crate::convert::axes::stream_signals_pb(s.as_deref()))
+            .collect(),
         events,
         timestamp_us: Timestamp::now().0 / 1000,
         ended,

@@ -88,6 +88,7 @@ pub const TABLE: &[Rule] = &[
     rule("/cangate.v1.Axes/Stop", O, false),
     rule("/cangate.v1.Axes/QuickStop", O, false),
     rule("/cangate.v1.Axes/ResetFault", O, false),
+    rule("/cangate.v1.Axes/ArmTouchProbe", O, false),
     rule("/cangate.v1.Axes/StopAxes", O, false),
     rule("/cangate.v1.Axes/MoveAxes", O, false),
     rule("/cangate.v1.Axes/StreamAxisState", V, true),

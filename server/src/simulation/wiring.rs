@@ -45,6 +45,10 @@ pub fn canopen_device(
         refuses_nmt_start: false,
         mode: 8,
         position: 0,
+        negative_limit_switch: None,
+        positive_limit_switch: None,
+        home_switch: None,
+        touch_probe: None,
     });
     let heartbeat_ms = match nc.heartbeat_timeout_ms {
         _ if sim.heartbeat_ms.is_some() => sim.heartbeat_ms.unwrap_or_default(),
@@ -113,6 +117,12 @@ pub fn canopen_device(
                     .then(|| ModeOfOperation::from_code(sim.mode))
                     .flatten()
                     .map(|mode| (mode, sim.position)),
+                inputs: cangate_sim::SimDriveInputs {
+                    negative_limit_switch: sim.negative_limit_switch,
+                    positive_limit_switch: sim.positive_limit_switch,
+                    home_switch: sim.home_switch,
+                    touch_probe: sim.touch_probe,
+                },
                 ..SimDriveOptions::default()
             },
         )))

@@ -9,7 +9,7 @@ use cangate_canopen::NodeId;
 use cangate_canopen::pdo::PdoConfig;
 use cangate_canopen::value::Value;
 use cangate_sim::Device;
-use cangate_sim::drive::{SimDrive, SimDriveOptions};
+use cangate_sim::drive::{SimDrive, SimDriveInputs, SimDriveOptions};
 
 const MS: Duration = Duration::from_millis(1);
 const NODE: u8 = 1;
@@ -46,10 +46,34 @@ impl Rig {
     /// A rig whose axis has `cfg` (1000 counts per mm) and whose drive
     /// homes with `homing_method`.
     fn with_config(cfg: Cia402Config, homing_method: u8) -> Rig {
+        Rig::build(cfg, homing_method, None)
+    }
+
+    /// A rig whose drive has switches and a touch probe input at `inputs`
+    /// and whose TPDOs carry the signals ([`with_signal_tpdos`]); EMCYs go
+    /// to the axis.
+    fn with_inputs(cfg: Cia402Config, inputs: SimDriveInputs) -> Rig {
+        Rig::build(cfg, 35, Some(inputs))
+    }
+
+    fn build(cfg: Cia402Config, homing_method: u8, inputs: Option<SimDriveInputs>) -> Rig {
         let node = NodeId::new(u32::from(NODE)).unwrap();
-        let mut drive = SimDrive::bundled(node, SimDriveOptions::default());
+        let options = SimDriveOptions {
+            inputs: inputs.unwrap_or_default(),
+            ..SimDriveOptions::default()
+        };
+        let mut drive = SimDrive::bundled(node, options);
         drive.start(Duration::ZERO);
-        let (rpdos, tpdos) = standard_pdos(node, FeedbackTrigger::Sync);
+        let (rpdos, mut tpdos) = standard_pdos(node, FeedbackTrigger::Sync);
+        if inputs.is_some() {
+            crate::process_data::with_signal_tpdos(
+                &mut tpdos,
+                node,
+                FeedbackTrigger::Sync,
+                |_| true,
+                |_| true,
+            );
+        }
         let axis = Cia402Axis::new(cfg);
         let mut rig = Rig {
             axis,
@@ -108,6 +132,10 @@ impl Rig {
                 let values = p.decode(None, f.data()).unwrap();
                 let fb = feedback_from_values(values.iter().map(|(m, v)| (m.addr, v)));
                 self.axis.on_feedback(fb, self.now, &mut out);
+            }
+            if id == 0x80 + u16::from(NODE) && f.data().len() == 8 {
+                let code = u16::from_le_bytes([f.data()[0], f.data()[1]]);
+                self.axis.on_emcy(code, "EMCY", &mut out);
             }
         }
         self.handle(out);
@@ -1247,4 +1275,211 @@ fn a_drive_found_enabled_keeps_its_state_and_position() {
             );
         }
     }
+}
+
+/// The demo's cyclic axis X with a positive limit switch at 50 mm.
+fn switch_rig(mode: PositionMode) -> Rig {
+    let mut rig = Rig::with_inputs(
+        demo_config(mode),
+        SimDriveInputs {
+            negative_limit_switch: Some(-50_000),
+            positive_limit_switch: Some(50_000),
+            home_switch: Some(0),
+            touch_probe: Some(20_000),
+        },
+    );
+    rig.enable();
+    rig
+}
+
+fn faults(rig: &Rig) -> Vec<(u16, String)> {
+    rig.events
+        .iter()
+        .filter_map(|e| match e {
+            AxisEvent::Fault { code, text } => Some((*code, text.clone())),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn signals_come_with_the_process_data() {
+    let mut rig = switch_rig(PositionMode::Cyclic);
+    let s = rig.axis.snapshot();
+    // At 0: on the home switch (physical 0 and above), no limit switch.
+    assert_eq!(s.signals.digital_inputs, Some(0x4));
+    assert_eq!(s.signals.torque, Some(0));
+    assert_eq!(s.signals.following_error, Some(0.0));
+    assert_eq!(s.signals.touch_probe_status, Some(0));
+    assert_eq!(s.fault, None);
+    let op = rig.mv(-10.0);
+    let mut torque_seen = false;
+    for _ in 0..50 {
+        rig.step();
+        torque_seen |= rig.axis.snapshot().signals.torque.is_some_and(|t| t != 0);
+    }
+    assert!(torque_seen, "torque while accelerating");
+    rig.run_until_done(op, Duration::from_secs(2));
+    assert_eq!(rig.axis.snapshot().signals.digital_inputs, Some(0));
+    // Without the signal TPDOs they stay absent.
+    let plain = Rig::new(PositionMode::Cyclic);
+    assert_eq!(plain.axis.snapshot().signals, DriveSignals::default());
+}
+
+#[test]
+fn limit_switch_stops_a_cyclic_move_says_why_and_lets_the_axis_back_off() {
+    let mut rig = switch_rig(PositionMode::Cyclic);
+    let op = rig.mv(100.0);
+    let (outcome, detail) = rig.run_until_done(op, Duration::from_secs(3));
+    assert_eq!(outcome, Outcome::Fault);
+    assert!(
+        detail.starts_with("positive limit switch reached at 5"),
+        "{detail}"
+    );
+    rig.run(500 * MS);
+    let s = rig.axis.snapshot();
+    // Braked by the drive at its quick stop deceleration (0x6084 of the
+    // simulated drive: 100 mm/s²) as far as the gateway's ramp went on.
+    assert!(
+        (50.0..56.0).contains(&s.position),
+        "stopped at the switch: {s:?}"
+    );
+    assert_eq!(s.fault, Some((0, "positive limit switch reached".into())));
+    assert_eq!(s.signals.digital_inputs, Some(0x6));
+    assert_eq!(s.state, Some(DriveState::OperationEnabled));
+    // The demand is where the drive stands: no jump, no following error.
+    assert!((s.demand_position - s.position).abs() < 0.01, "{s:?}");
+    assert_eq!(
+        faults(&rig),
+        [(0, "positive limit switch reached".to_string())]
+    );
+    // Further into it: refused. Away: runs, and the fault clears.
+    let e = rig
+        .command(AxisCommand::Move {
+            target: 60.0,
+            relative: false,
+            velocity: None,
+            acceleration: None,
+        })
+        .unwrap_err();
+    assert!(
+        e.to_string()
+            .starts_with("the positive limit switch is active"),
+        "{e}"
+    );
+    let e = rig
+        .command(AxisCommand::Jog {
+            velocity: 5.0,
+            acceleration: None,
+        })
+        .unwrap_err();
+    assert!(matches!(e, CommandError::BeyondSoftLimit(_)), "{e}");
+    let back = rig.mv(10.0);
+    let (outcome, detail) = rig.run_until_done(back, Duration::from_secs(3));
+    assert_eq!(outcome, Outcome::Completed, "{detail}");
+    assert_eq!(rig.axis.snapshot().fault, None);
+    assert_eq!(faults(&rig).last(), Some(&(0, String::new())));
+}
+
+#[test]
+fn limit_switch_halts_a_profile_jog_and_lets_it_back_off() {
+    let mut rig = switch_rig(PositionMode::Profile);
+    let jog = rig
+        .command(AxisCommand::Jog {
+            velocity: -20.0,
+            acceleration: None,
+        })
+        .unwrap();
+    // The dead-man: repeated.
+    let mut outcome = None;
+    for _ in 0..40 {
+        rig.run(100 * MS);
+        if let Some(r) = rig.done(jog) {
+            outcome = Some(r);
+            break;
+        }
+        rig.command(AxisCommand::Jog {
+            velocity: -20.0,
+            acceleration: None,
+        })
+        .unwrap();
+    }
+    let (outcome, detail) = outcome.expect("the jog ended");
+    assert_eq!(outcome, Outcome::Fault);
+    assert!(
+        detail.starts_with("negative limit switch reached"),
+        "{detail}"
+    );
+    rig.run(300 * MS);
+    let s = rig.axis.snapshot();
+    assert!((-51.0..=-50.0).contains(&s.position), "{s:?}");
+    assert_eq!(s.fault, Some((0, "negative limit switch reached".into())));
+    let back = rig.mv(-40.0);
+    let (outcome, detail) = rig.run_until_done(back, Duration::from_secs(3));
+    assert_eq!(outcome, Outcome::Completed, "{detail}");
+    assert_eq!(rig.axis.snapshot().fault, None);
+}
+
+#[test]
+fn touch_probe_latch_is_an_event_in_user_units() {
+    let mut rig = switch_rig(PositionMode::Cyclic);
+    rig.sdo_write(
+        obj::TOUCH_PROBE_FUNCTION,
+        &crate::signals::touch_probe_function(crate::signals::ProbeEdges::Both, false)
+            .to_le_bytes(),
+    );
+    let op = rig.mv(30.0);
+    rig.run_until_done(op, Duration::from_secs(3));
+    let op = rig.mv(0.0);
+    rig.run_until_done(op, Duration::from_secs(3));
+    let latches: Vec<_> = rig
+        .events
+        .iter()
+        .filter_map(|e| match e {
+            AxisEvent::TouchProbe { rising, position } => Some((*rising, *position)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(latches, [(true, 20.0), (false, 20.0)]);
+    assert_eq!(rig.axis.snapshot().signals.touch_probe_status, Some(0x7));
+}
+
+#[test]
+fn following_error_fault_names_the_error_and_the_window() {
+    let mut cfg = demo_config(PositionMode::Cyclic);
+    cfg.supervision.following_error_window = Some(0.1);
+    cfg.supervision.following_error_timeout = Some(20 * MS);
+    let mut rig = Rig::with_inputs(cfg, SimDriveInputs::default());
+    rig.enable();
+    let op = rig.mv(50.0);
+    let (outcome, detail) = rig.run_until_done(op, Duration::from_secs(3));
+    assert_eq!(outcome, Outcome::Fault, "{detail}");
+    rig.run(300 * MS);
+    let (code, text) = rig.axis.snapshot().fault.expect("in fault");
+    assert_eq!(code, 0x8611);
+    assert!(
+        text.starts_with("following error beyond the window (")
+            && text.ends_with(" mm > 0.100 mm)"),
+        "{text}"
+    );
+    assert_eq!(faults(&rig).last(), Some(&(0x8611, text)));
+}
+
+/// A drive fault on the limit switch, then reset: the events end on the
+/// limit switch the status still shows, not on "cleared".
+#[test]
+fn a_fault_cleared_on_an_active_limit_switch_reports_the_switch_again() {
+    let mut rig = switch_rig(PositionMode::Cyclic);
+    let op = rig.mv(100.0);
+    rig.run_until_done(op, Duration::from_secs(3));
+    rig.run(300 * MS);
+    let frames = rig.drive.inject_fault(0x2310);
+    rig.deliver(frames);
+    rig.run(100 * MS);
+    assert_eq!(rig.axis.snapshot().fault.map(|f| f.0), Some(0x2310));
+    let reset = rig.command(AxisCommand::ResetFault).unwrap();
+    rig.run_until_done(reset, Duration::from_secs(2));
+    let reached = (0, "positive limit switch reached".to_string());
+    assert_eq!(rig.axis.snapshot().fault, Some(reached.clone()));
+    assert_eq!(faults(&rig).last(), Some(&reached), "{:?}", faults(&rig));
 }

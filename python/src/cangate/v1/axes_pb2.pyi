@@ -63,6 +63,13 @@ class Outcome(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     OUTCOME_TIMEOUT: _ClassVar[Outcome]
     OUTCOME_STOPPED: _ClassVar[Outcome]
 
+class TouchProbeEdge(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    TOUCH_PROBE_EDGE_UNSPECIFIED: _ClassVar[TouchProbeEdge]
+    TOUCH_PROBE_EDGE_RISING: _ClassVar[TouchProbeEdge]
+    TOUCH_PROBE_EDGE_FALLING: _ClassVar[TouchProbeEdge]
+    TOUCH_PROBE_EDGE_BOTH: _ClassVar[TouchProbeEdge]
+
 class SetpointStreamState(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     __slots__ = ()
     SETPOINT_STREAM_STATE_UNSPECIFIED: _ClassVar[SetpointStreamState]
@@ -115,6 +122,10 @@ OUTCOME_SUPERSEDED: Outcome
 OUTCOME_FAULT: Outcome
 OUTCOME_TIMEOUT: Outcome
 OUTCOME_STOPPED: Outcome
+TOUCH_PROBE_EDGE_UNSPECIFIED: TouchProbeEdge
+TOUCH_PROBE_EDGE_RISING: TouchProbeEdge
+TOUCH_PROBE_EDGE_FALLING: TouchProbeEdge
+TOUCH_PROBE_EDGE_BOTH: TouchProbeEdge
 SETPOINT_STREAM_STATE_UNSPECIFIED: SetpointStreamState
 SETPOINT_STREAM_WAITING: SetpointStreamState
 SETPOINT_STREAM_FILLING: SetpointStreamState
@@ -167,7 +178,7 @@ class Axis(_message.Message):
     def __init__(self, name: _Optional[str] = ..., backend: _Optional[_Union[AxisBackend, str]] = ..., bus: _Optional[str] = ..., node: _Optional[int] = ..., unit: _Optional[str] = ..., counts_per_unit: _Optional[float] = ..., min_position: _Optional[float] = ..., max_position: _Optional[float] = ..., max_velocity: _Optional[float] = ..., max_acceleration: _Optional[float] = ..., position_mode: _Optional[_Union[PositionMode, str]] = ..., stop_on_loss: _Optional[_Union[StopKind, str]] = ..., jog_deadman_ms: _Optional[int] = ..., status: _Optional[_Union[AxisStatus, _Mapping]] = ..., process_data: _Optional[_Union[ProcessDataPath, str]] = ..., sdo_poll_ms: _Optional[int] = ..., display_decimals: _Optional[int] = ...) -> None: ...
 
 class AxisStatus(_message.Message):
-    __slots__ = ("axis", "state", "statusword", "mode", "activity", "position", "velocity", "demand_position", "following_error", "homed", "node_lost", "fault_code", "fault_text", "controlled_by", "lease_remaining_ms", "timestamp_us")
+    __slots__ = ("axis", "state", "statusword", "mode", "activity", "position", "velocity", "demand_position", "following_error", "homed", "node_lost", "fault_code", "fault_text", "controlled_by", "lease_remaining_ms", "timestamp_us", "torque_actual", "following_error_actual", "digital_inputs", "touch_probe_status")
     AXIS_FIELD_NUMBER: _ClassVar[int]
     STATE_FIELD_NUMBER: _ClassVar[int]
     STATUSWORD_FIELD_NUMBER: _ClassVar[int]
@@ -184,6 +195,10 @@ class AxisStatus(_message.Message):
     CONTROLLED_BY_FIELD_NUMBER: _ClassVar[int]
     LEASE_REMAINING_MS_FIELD_NUMBER: _ClassVar[int]
     TIMESTAMP_US_FIELD_NUMBER: _ClassVar[int]
+    TORQUE_ACTUAL_FIELD_NUMBER: _ClassVar[int]
+    FOLLOWING_ERROR_ACTUAL_FIELD_NUMBER: _ClassVar[int]
+    DIGITAL_INPUTS_FIELD_NUMBER: _ClassVar[int]
+    TOUCH_PROBE_STATUS_FIELD_NUMBER: _ClassVar[int]
     axis: str
     state: DriveState
     statusword: int
@@ -200,7 +215,23 @@ class AxisStatus(_message.Message):
     controlled_by: str
     lease_remaining_ms: int
     timestamp_us: int
-    def __init__(self, axis: _Optional[str] = ..., state: _Optional[_Union[DriveState, str]] = ..., statusword: _Optional[int] = ..., mode: _Optional[int] = ..., activity: _Optional[_Union[AxisActivity, str]] = ..., position: _Optional[float] = ..., velocity: _Optional[float] = ..., demand_position: _Optional[float] = ..., following_error: _Optional[float] = ..., homed: _Optional[bool] = ..., node_lost: _Optional[bool] = ..., fault_code: _Optional[int] = ..., fault_text: _Optional[str] = ..., controlled_by: _Optional[str] = ..., lease_remaining_ms: _Optional[int] = ..., timestamp_us: _Optional[int] = ...) -> None: ...
+    torque_actual: int
+    following_error_actual: float
+    digital_inputs: DigitalInputs
+    touch_probe_status: int
+    def __init__(self, axis: _Optional[str] = ..., state: _Optional[_Union[DriveState, str]] = ..., statusword: _Optional[int] = ..., mode: _Optional[int] = ..., activity: _Optional[_Union[AxisActivity, str]] = ..., position: _Optional[float] = ..., velocity: _Optional[float] = ..., demand_position: _Optional[float] = ..., following_error: _Optional[float] = ..., homed: _Optional[bool] = ..., node_lost: _Optional[bool] = ..., fault_code: _Optional[int] = ..., fault_text: _Optional[str] = ..., controlled_by: _Optional[str] = ..., lease_remaining_ms: _Optional[int] = ..., timestamp_us: _Optional[int] = ..., torque_actual: _Optional[int] = ..., following_error_actual: _Optional[float] = ..., digital_inputs: _Optional[_Union[DigitalInputs, _Mapping]] = ..., touch_probe_status: _Optional[int] = ...) -> None: ...
+
+class DigitalInputs(_message.Message):
+    __slots__ = ("negative_limit_switch", "positive_limit_switch", "home_switch", "raw")
+    NEGATIVE_LIMIT_SWITCH_FIELD_NUMBER: _ClassVar[int]
+    POSITIVE_LIMIT_SWITCH_FIELD_NUMBER: _ClassVar[int]
+    HOME_SWITCH_FIELD_NUMBER: _ClassVar[int]
+    RAW_FIELD_NUMBER: _ClassVar[int]
+    negative_limit_switch: bool
+    positive_limit_switch: bool
+    home_switch: bool
+    raw: int
+    def __init__(self, negative_limit_switch: _Optional[bool] = ..., positive_limit_switch: _Optional[bool] = ..., home_switch: _Optional[bool] = ..., raw: _Optional[int] = ...) -> None: ...
 
 class ListAxesRequest(_message.Message):
     __slots__ = ()
@@ -369,7 +400,7 @@ class AxisUpdate(_message.Message):
     def __init__(self, status: _Optional[_Union[AxisStatus, _Mapping]] = ..., event: _Optional[_Union[AxisEvent, _Mapping]] = ...) -> None: ...
 
 class AxisEvent(_message.Message):
-    __slots__ = ("axis", "timestamp_us", "motion_done", "fault", "control", "node", "lost")
+    __slots__ = ("axis", "timestamp_us", "motion_done", "fault", "control", "node", "lost", "touch_probe")
     AXIS_FIELD_NUMBER: _ClassVar[int]
     TIMESTAMP_US_FIELD_NUMBER: _ClassVar[int]
     MOTION_DONE_FIELD_NUMBER: _ClassVar[int]
@@ -377,6 +408,7 @@ class AxisEvent(_message.Message):
     CONTROL_FIELD_NUMBER: _ClassVar[int]
     NODE_FIELD_NUMBER: _ClassVar[int]
     LOST_FIELD_NUMBER: _ClassVar[int]
+    TOUCH_PROBE_FIELD_NUMBER: _ClassVar[int]
     axis: str
     timestamp_us: int
     motion_done: MotionDone
@@ -384,7 +416,30 @@ class AxisEvent(_message.Message):
     control: ControlChange
     node: NodeLink
     lost: int
-    def __init__(self, axis: _Optional[str] = ..., timestamp_us: _Optional[int] = ..., motion_done: _Optional[_Union[MotionDone, _Mapping]] = ..., fault: _Optional[_Union[Fault, _Mapping]] = ..., control: _Optional[_Union[ControlChange, _Mapping]] = ..., node: _Optional[_Union[NodeLink, _Mapping]] = ..., lost: _Optional[int] = ...) -> None: ...
+    touch_probe: TouchProbeLatch
+    def __init__(self, axis: _Optional[str] = ..., timestamp_us: _Optional[int] = ..., motion_done: _Optional[_Union[MotionDone, _Mapping]] = ..., fault: _Optional[_Union[Fault, _Mapping]] = ..., control: _Optional[_Union[ControlChange, _Mapping]] = ..., node: _Optional[_Union[NodeLink, _Mapping]] = ..., lost: _Optional[int] = ..., touch_probe: _Optional[_Union[TouchProbeLatch, _Mapping]] = ...) -> None: ...
+
+class ArmTouchProbeRequest(_message.Message):
+    __slots__ = ("axis", "edge", "continuous", "options")
+    AXIS_FIELD_NUMBER: _ClassVar[int]
+    EDGE_FIELD_NUMBER: _ClassVar[int]
+    CONTINUOUS_FIELD_NUMBER: _ClassVar[int]
+    OPTIONS_FIELD_NUMBER: _ClassVar[int]
+    axis: str
+    edge: TouchProbeEdge
+    continuous: bool
+    options: CommandOptions
+    def __init__(self, axis: _Optional[str] = ..., edge: _Optional[_Union[TouchProbeEdge, str]] = ..., continuous: _Optional[bool] = ..., options: _Optional[_Union[CommandOptions, _Mapping]] = ...) -> None: ...
+
+class TouchProbeLatch(_message.Message):
+    __slots__ = ("probe", "edge", "position")
+    PROBE_FIELD_NUMBER: _ClassVar[int]
+    EDGE_FIELD_NUMBER: _ClassVar[int]
+    POSITION_FIELD_NUMBER: _ClassVar[int]
+    probe: int
+    edge: TouchProbeEdge
+    position: float
+    def __init__(self, probe: _Optional[int] = ..., edge: _Optional[_Union[TouchProbeEdge, str]] = ..., position: _Optional[float] = ...) -> None: ...
 
 class MotionDone(_message.Message):
     __slots__ = ("command", "outcome", "detail")
@@ -485,7 +540,7 @@ class SetpointCounters(_message.Message):
     def __init__(self, received: _Optional[int] = ..., accepted: _Optional[int] = ..., refused: _Optional[int] = ..., played: _Optional[int] = ..., late: _Optional[int] = ..., dropped: _Optional[int] = ..., underruns: _Optional[int] = ..., limited: _Optional[int] = ...) -> None: ...
 
 class SetpointStreamStatus(_message.Message):
-    __slots__ = ("state", "buffer_level_us", "counters", "clock_offset_us", "commanded_positions", "actual_positions", "events", "timestamp_us", "ended")
+    __slots__ = ("state", "buffer_level_us", "counters", "clock_offset_us", "commanded_positions", "actual_positions", "events", "timestamp_us", "ended", "signals")
     STATE_FIELD_NUMBER: _ClassVar[int]
     BUFFER_LEVEL_US_FIELD_NUMBER: _ClassVar[int]
     COUNTERS_FIELD_NUMBER: _ClassVar[int]
@@ -495,6 +550,7 @@ class SetpointStreamStatus(_message.Message):
     EVENTS_FIELD_NUMBER: _ClassVar[int]
     TIMESTAMP_US_FIELD_NUMBER: _ClassVar[int]
     ENDED_FIELD_NUMBER: _ClassVar[int]
+    SIGNALS_FIELD_NUMBER: _ClassVar[int]
     state: SetpointStreamState
     buffer_level_us: int
     counters: SetpointCounters
@@ -504,7 +560,20 @@ class SetpointStreamStatus(_message.Message):
     events: _containers.RepeatedCompositeFieldContainer[SetpointStreamEvent]
     timestamp_us: int
     ended: str
-    def __init__(self, state: _Optional[_Union[SetpointStreamState, str]] = ..., buffer_level_us: _Optional[int] = ..., counters: _Optional[_Union[SetpointCounters, _Mapping]] = ..., clock_offset_us: _Optional[int] = ..., commanded_positions: _Optional[_Iterable[float]] = ..., actual_positions: _Optional[_Iterable[float]] = ..., events: _Optional[_Iterable[_Union[SetpointStreamEvent, _Mapping]]] = ..., timestamp_us: _Optional[int] = ..., ended: _Optional[str] = ...) -> None: ...
+    signals: _containers.RepeatedCompositeFieldContainer[StreamAxisSignals]
+    def __init__(self, state: _Optional[_Union[SetpointStreamState, str]] = ..., buffer_level_us: _Optional[int] = ..., counters: _Optional[_Union[SetpointCounters, _Mapping]] = ..., clock_offset_us: _Optional[int] = ..., commanded_positions: _Optional[_Iterable[float]] = ..., actual_positions: _Optional[_Iterable[float]] = ..., events: _Optional[_Iterable[_Union[SetpointStreamEvent, _Mapping]]] = ..., timestamp_us: _Optional[int] = ..., ended: _Optional[str] = ..., signals: _Optional[_Iterable[_Union[StreamAxisSignals, _Mapping]]] = ...) -> None: ...
+
+class StreamAxisSignals(_message.Message):
+    __slots__ = ("torque_actual", "velocity_actual", "following_error_actual", "digital_inputs")
+    TORQUE_ACTUAL_FIELD_NUMBER: _ClassVar[int]
+    VELOCITY_ACTUAL_FIELD_NUMBER: _ClassVar[int]
+    FOLLOWING_ERROR_ACTUAL_FIELD_NUMBER: _ClassVar[int]
+    DIGITAL_INPUTS_FIELD_NUMBER: _ClassVar[int]
+    torque_actual: int
+    velocity_actual: float
+    following_error_actual: float
+    digital_inputs: DigitalInputs
+    def __init__(self, torque_actual: _Optional[int] = ..., velocity_actual: _Optional[float] = ..., following_error_actual: _Optional[float] = ..., digital_inputs: _Optional[_Union[DigitalInputs, _Mapping]] = ...) -> None: ...
 
 class SetpointStreamEvent(_message.Message):
     __slots__ = ("kind", "reason", "axis", "t_us", "detail")

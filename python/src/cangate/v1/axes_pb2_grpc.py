@@ -120,6 +120,11 @@ class AxesStub:
                 request_serializer=cangate_dot_v1_dot_axes__pb2.SetpointStreamRequest.SerializeToString,
                 response_deserializer=cangate_dot_v1_dot_axes__pb2.SetpointStreamStatus.FromString,
                 _registered_method=True)
+        self.ArmTouchProbe = channel.unary_unary(
+                '/cangate.v1.Axes/ArmTouchProbe',
+                request_serializer=cangate_dot_v1_dot_axes__pb2.ArmTouchProbeRequest.SerializeToString,
+                response_deserializer=cangate_dot_v1_dot_axes__pb2.AxisCommandResponse.FromString,
+                _registered_method=True)
 
 
 class AxesServicer:
@@ -281,6 +286,22 @@ class AxesServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def ArmTouchProbe(self, request, context):
+        """Arms (or switches off) touch probe 1 of a CiA 402 axis: writes the
+        touch probe function (0x60B8) by SDO and answers COMPLETED once the
+        drive confirmed it. Each latch then comes as an AxisEvent
+        `touch_probe` in StreamAxisState with the latched position; the
+        drive's probe status (0x60B9) and latched positions (0x60BA, 0x60BB)
+        come by TPDO. Needs the lease. Errors: NOT_FOUND for an unknown axis;
+        FAILED_PRECONDITION without the lease, for a CANsmc axis, for a drive
+        whose process data carries no touch probe status (no TPDO maps
+        0x60B9: the drive's EDS lacks it, or process data by SDO), or a node
+        that is lost; the SDO reasons when the write failed.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
 
 def add_AxesServicer_to_server(servicer, server):
     rpc_method_handlers = {
@@ -368,6 +389,11 @@ def add_AxesServicer_to_server(servicer, server):
                     servicer.StreamSetpoints,
                     request_deserializer=cangate_dot_v1_dot_axes__pb2.SetpointStreamRequest.FromString,
                     response_serializer=cangate_dot_v1_dot_axes__pb2.SetpointStreamStatus.SerializeToString,
+            ),
+            'ArmTouchProbe': grpc.unary_unary_rpc_method_handler(
+                    servicer.ArmTouchProbe,
+                    request_deserializer=cangate_dot_v1_dot_axes__pb2.ArmTouchProbeRequest.FromString,
+                    response_serializer=cangate_dot_v1_dot_axes__pb2.AxisCommandResponse.SerializeToString,
             ),
     }
     generic_handler = grpc.method_handlers_generic_handler(
@@ -830,6 +856,33 @@ class Axes:
             '/cangate.v1.Axes/StreamSetpoints',
             cangate_dot_v1_dot_axes__pb2.SetpointStreamRequest.SerializeToString,
             cangate_dot_v1_dot_axes__pb2.SetpointStreamStatus.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def ArmTouchProbe(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/cangate.v1.Axes/ArmTouchProbe',
+            cangate_dot_v1_dot_axes__pb2.ArmTouchProbeRequest.SerializeToString,
+            cangate_dot_v1_dot_axes__pb2.AxisCommandResponse.FromString,
             options,
             channel_credentials,
             insecure,

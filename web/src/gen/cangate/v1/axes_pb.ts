@@ -66,7 +66,7 @@ import type { Message } from "@bufbuild/protobuf";
  * Describes the file cangate/v1/axes.proto.
  */
 export const file_cangate_v1_axes: GenFile = /*@__PURE__*/
-  fileDesc("ChVjYW5nYXRlL3YxL2F4ZXMucHJvdG8SCmNhbmdhdGUudjEihwQKBEF4aXMSDAoEbmFtZRgBIAEoCRIoCgdiYWNrZW5kGAIgASgOMhcuY2FuZ2F0ZS52MS5BeGlzQmFja2VuZBILCgNidXMYAyABKAkSDAoEbm9kZRgEIAEoDRIMCgR1bml0GAUgASgJEhcKD2NvdW50c19wZXJfdW5pdBgGIAEoARIZCgxtaW5fcG9zaXRpb24YByABKAFIAIgBARIZCgxtYXhfcG9zaXRpb24YCCABKAFIAYgBARIUCgxtYXhfdmVsb2NpdHkYCSABKAESGAoQbWF4X2FjY2VsZXJhdGlvbhgKIAEoARIvCg1wb3NpdGlvbl9tb2RlGAsgASgOMhguY2FuZ2F0ZS52MS5Qb3NpdGlvbk1vZGUSKgoMc3RvcF9vbl9sb3NzGAwgASgOMhQuY2FuZ2F0ZS52MS5TdG9wS2luZBIWCg5qb2dfZGVhZG1hbl9tcxgNIAEoDRImCgZzdGF0dXMYDiABKAsyFi5jYW5nYXRlLnYxLkF4aXNTdGF0dXMSMQoMcHJvY2Vzc19kYXRhGA8gASgOMhsuY2FuZ2F0ZS52MS5Qcm9jZXNzRGF0YVBhdGgSEwoLc2RvX3BvbGxfbXMYECABKA0SGAoQZGlzcGxheV9kZWNpbWFscxgRIAEoDUIPCg1fbWluX3Bvc2l0aW9uQg8KDV9tYXhfcG9zaXRpb24i+AIKCkF4aXNTdGF0dXMSDAoEYXhpcxgBIAEoCRIlCgVzdGF0ZRgCIAEoDjIWLmNhbmdhdGUudjEuRHJpdmVTdGF0ZRISCgpzdGF0dXN3b3JkGAMgASgNEgwKBG1vZGUYBCABKAUSKgoIYWN0aXZpdHkYBSABKA4yGC5jYW5nYXRlLnYxLkF4aXNBY3Rpdml0eRIQCghwb3NpdGlvbhgGIAEoARIQCgh2ZWxvY2l0eRgHIAEoARIXCg9kZW1hbmRfcG9zaXRpb24YCCABKAESFwoPZm9sbG93aW5nX2Vycm9yGAkgASgBEg0KBWhvbWVkGAogASgIEhEKCW5vZGVfbG9zdBgLIAEoCBISCgpmYXVsdF9jb2RlGAwgASgNEhIKCmZhdWx0X3RleHQYDSABKAkSFQoNY29udHJvbGxlZF9ieRgOIAEoCRIaChJsZWFzZV9yZW1haW5pbmdfbXMYDyABKA0SFAoMdGltZXN0YW1wX3VzGBAgASgEIhEKD0xpc3RBeGVzUmVxdWVzdCIyChBMaXN0QXhlc1Jlc3BvbnNlEh4KBGF4ZXMYASADKAsyEC5jYW5nYXRlLnYxLkF4aXMiHgoOR2V0QXhpc1JlcXVlc3QSDAoEYXhpcxgBIAEoCSJKChVBY3F1aXJlQ29udHJvbFJlcXVlc3QSDAoEYXhlcxgBIAMoCRIOCgZ0dGxfbXMYAiABKA0SEwoLY2xpZW50X25hbWUYAyABKAkiSwoMQ29udHJvbExlYXNlEg0KBWxlYXNlGAEgASgJEgwKBGF4ZXMYAiADKAkSDgoGaG9sZGVyGAMgASgJEg4KBnR0bF9tcxgEIAEoDSIkChNSZW5ld0NvbnRyb2xSZXF1ZXN0Eg0KBWxlYXNlGAEgASgJIiYKFVJlbGVhc2VDb250cm9sUmVxdWVzdBINCgVsZWFzZRgBIAEoCSImChZSZWxlYXNlQ29udHJvbFJlc3BvbnNlEgwKBGF4ZXMYASADKAkiRgoOQ29tbWFuZE9wdGlvbnMSDQoFbGVhc2UYASABKAkSDAoEd2FpdBgCIAEoCBIXCg93YWl0X3RpbWVvdXRfbXMYAyABKA0iTwoSQXhpc0NvbW1hbmRSZXF1ZXN0EgwKBGF4aXMYASABKAkSKwoHb3B0aW9ucxgCIAEoCzIaLmNhbmdhdGUudjEuQ29tbWFuZE9wdGlvbnMicwoTQXhpc0NvbW1hbmRSZXNwb25zZRIkCgdvdXRjb21lGAEgASgOMhMuY2FuZ2F0ZS52MS5PdXRjb21lEg4KBmRldGFpbBgCIAEoCRImCgZzdGF0dXMYAyABKAsyFi5jYW5nYXRlLnYxLkF4aXNTdGF0dXMikgEKC01vdmVSZXF1ZXN0EgwKBGF4aXMYASABKAkSDgoGdGFyZ2V0GAIgASgBEhAKCHJlbGF0aXZlGAMgASgIEhAKCHZlbG9jaXR5GAQgASgBEhQKDGFjY2VsZXJhdGlvbhgFIAEoARIrCgdvcHRpb25zGAYgASgLMhouY2FuZ2F0ZS52MS5Db21tYW5kT3B0aW9ucyJvCgpKb2dSZXF1ZXN0EgwKBGF4aXMYASABKAkSEAoIdmVsb2NpdHkYAiABKAESFAoMYWNjZWxlcmF0aW9uGAMgASgBEisKB29wdGlvbnMYBCABKAsyGi5jYW5nYXRlLnYxLkNvbW1hbmRPcHRpb25zIjwKD1N0b3BBeGVzUmVxdWVzdBIMCgRheGVzGAEgAygJEg0KBXF1aWNrGAIgASgIEgwKBHdhaXQYAyABKAgiRQoRTXVsdGlBeGlzUmVzcG9uc2USMAoHcmVzdWx0cxgBIAMoCzIfLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZSJXCg9Nb3ZlQXhlc1JlcXVlc3QSJwoHdGFyZ2V0cxgBIAMoCzIWLmNhbmdhdGUudjEuQXhpc1RhcmdldBINCgVsZWFzZRgCIAEoCRIMCgR3YWl0GAMgASgIIlIKCkF4aXNUYXJnZXQSDAoEYXhpcxgBIAEoCRIOCgZ0YXJnZXQYAiABKAESEAoIdmVsb2NpdHkYAyABKAESFAoMYWNjZWxlcmF0aW9uGAQgASgBIjwKFlN0cmVhbUF4aXNTdGF0ZVJlcXVlc3QSDAoEYXhlcxgBIAMoCRIUCgxjaGFuZ2VzX29ubHkYAiABKAgiaAoKQXhpc1VwZGF0ZRIoCgZzdGF0dXMYASABKAsyFi5jYW5nYXRlLnYxLkF4aXNTdGF0dXNIABImCgVldmVudBgCIAEoCzIVLmNhbmdhdGUudjEuQXhpc0V2ZW50SABCCAoGdXBkYXRlIu4BCglBeGlzRXZlbnQSDAoEYXhpcxgBIAEoCRIUCgx0aW1lc3RhbXBfdXMYAiABKAQSLQoLbW90aW9uX2RvbmUYAyABKAsyFi5jYW5nYXRlLnYxLk1vdGlvbkRvbmVIABIiCgVmYXVsdBgEIAEoCzIRLmNhbmdhdGUudjEuRmF1bHRIABIsCgdjb250cm9sGAUgASgLMhkuY2FuZ2F0ZS52MS5Db250cm9sQ2hhbmdlSAASJAoEbm9kZRgGIAEoCzIULmNhbmdhdGUudjEuTm9kZUxpbmtIABIOCgRsb3N0GAcgASgESABCBgoEa2luZCJTCgpNb3Rpb25Eb25lEg8KB2NvbW1hbmQYASABKAkSJAoHb3V0Y29tZRgCIAEoDjITLmNhbmdhdGUudjEuT3V0Y29tZRIOCgZkZXRhaWwYAyABKAkiMwoFRmF1bHQSDAoEY29kZRgBIAEoDRIMCgR0ZXh0GAIgASgJEg4KBmFjdGl2ZRgDIAEoCCJBCg1Db250cm9sQ2hhbmdlEg4KBmhvbGRlchgBIAEoCRIQCghwcmV2aW91cxgCIAEoCRIOCgZyZWFzb24YAyABKAkiKAoITm9kZUxpbmsSDAoEbG9zdBgBIAEoCBIOCgZyZWFzb24YAiABKAkifgoVU2V0cG9pbnRTdHJlYW1SZXF1ZXN0Ei4KBG9wZW4YASABKAsyHi5jYW5nYXRlLnYxLlNldHBvaW50U3RyZWFtT3BlbkgAEioKBWJhdGNoGAIgASgLMhkuY2FuZ2F0ZS52MS5TZXRwb2ludEJhdGNoSABCCQoHbWVzc2FnZSKOAQoSU2V0cG9pbnRTdHJlYW1PcGVuEgwKBGF4ZXMYASADKAkSDQoFbGVhc2UYAiABKAkSEAoIZGVwdGhfbXMYAyABKA0SFgoOZXh0cmFwb2xhdGVfbXMYBCABKA0SFwoPcG9pbnRfcGVyaW9kX3VzGAUgASgNEhgKEHN0YXR1c19wZXJpb2RfbXMYBiABKA0iNQoNU2V0cG9pbnRCYXRjaBIkCgZwb2ludHMYASADKAsyFC5jYW5nYXRlLnYxLlNldHBvaW50Ij8KCFNldHBvaW50EgwKBHRfdXMYASABKAQSEQoJcG9zaXRpb25zGAIgAygBEhIKCnZlbG9jaXRpZXMYAyADKAEimgEKEFNldHBvaW50Q291bnRlcnMSEAoIcmVjZWl2ZWQYASABKAQSEAoIYWNjZXB0ZWQYAiABKAQSDwoHcmVmdXNlZBgDIAEoBBIOCgZwbGF5ZWQYBCABKAQSDAoEbGF0ZRgFIAEoBBIPCgdkcm9wcGVkGAYgASgEEhEKCXVuZGVycnVucxgHIAEoBBIPCgdsaW1pdGVkGAggASgEIrUCChRTZXRwb2ludFN0cmVhbVN0YXR1cxIuCgVzdGF0ZRgBIAEoDjIfLmNhbmdhdGUudjEuU2V0cG9pbnRTdHJlYW1TdGF0ZRIXCg9idWZmZXJfbGV2ZWxfdXMYAiABKAQSLgoIY291bnRlcnMYAyABKAsyHC5jYW5nYXRlLnYxLlNldHBvaW50Q291bnRlcnMSFwoPY2xvY2tfb2Zmc2V0X3VzGAQgASgDEhsKE2NvbW1hbmRlZF9wb3NpdGlvbnMYBSADKAESGAoQYWN0dWFsX3Bvc2l0aW9ucxgGIAMoARIvCgZldmVudHMYByADKAsyHy5jYW5nYXRlLnYxLlNldHBvaW50U3RyZWFtRXZlbnQSFAoMdGltZXN0YW1wX3VzGAggASgEEg0KBWVuZGVkGAkgASgJIn4KE1NldHBvaW50U3RyZWFtRXZlbnQSKwoEa2luZBgBIAEoDjIdLmNhbmdhdGUudjEuU2V0cG9pbnRFdmVudEtpbmQSDgoGcmVhc29uGAIgASgJEgwKBGF4aXMYAyABKAkSDAoEdF91cxgEIAEoBBIOCgZkZXRhaWwYBSABKAkqugIKCkRyaXZlU3RhdGUSGwoXRFJJVkVfU1RBVEVfVU5TUEVDSUZJRUQQABImCiJEUklWRV9TVEFURV9OT1RfUkVBRFlfVE9fU1dJVENIX09OEAESIgoeRFJJVkVfU1RBVEVfU1dJVENIX09OX0RJU0FCTEVEEAISIgoeRFJJVkVfU1RBVEVfUkVBRFlfVE9fU1dJVENIX09OEAMSGwoXRFJJVkVfU1RBVEVfU1dJVENIRURfT04QBBIhCh1EUklWRV9TVEFURV9PUEVSQVRJT05fRU5BQkxFRBAFEiEKHURSSVZFX1NUQVRFX1FVSUNLX1NUT1BfQUNUSVZFEAYSJQohRFJJVkVfU1RBVEVfRkFVTFRfUkVBQ1RJT05fQUNUSVZFEAcSFQoRRFJJVkVfU1RBVEVfRkFVTFQQCCrNAQoMQXhpc0FjdGl2aXR5Eh0KGUFYSVNfQUNUSVZJVFlfVU5TUEVDSUZJRUQQABIWChJBWElTX0FDVElWSVRZX0lETEUQARIbChdBWElTX0FDVElWSVRZX1NXSVRDSElORxACEhgKFEFYSVNfQUNUSVZJVFlfSE9NSU5HEAMSGAoUQVhJU19BQ1RJVklUWV9NT1ZJTkcQBBIZChVBWElTX0FDVElWSVRZX0pPR0dJTkcQBRIaChZBWElTX0FDVElWSVRZX1NUT1BQSU5HEAYqXQoLQXhpc0JhY2tlbmQSHAoYQVhJU19CQUNLRU5EX1VOU1BFQ0lGSUVEEAASFwoTQVhJU19CQUNLRU5EX0NJQTQwMhABEhcKE0FYSVNfQkFDS0VORF9DQU5TTUMQAipiCgxQb3NpdGlvbk1vZGUSHQoZUE9TSVRJT05fTU9ERV9VTlNQRUNJRklFRBAAEhkKFVBPU0lUSU9OX01PREVfUFJPRklMRRABEhgKFFBPU0lUSU9OX01PREVfQ1lDTElDEAIqagoPUHJvY2Vzc0RhdGFQYXRoEiEKHVBST0NFU1NfREFUQV9QQVRIX1VOU1BFQ0lGSUVEEAASGQoVUFJPQ0VTU19EQVRBX1BBVEhfUERPEAESGQoVUFJPQ0VTU19EQVRBX1BBVEhfU0RPEAIqUwoIU3RvcEtpbmQSGQoVU1RPUF9LSU5EX1VOU1BFQ0lGSUVEEAASEgoOU1RPUF9LSU5EX0hBTFQQARIYChRTVE9QX0tJTkRfUVVJQ0tfU1RPUBACKqQBCgdPdXRjb21lEhcKE09VVENPTUVfVU5TUEVDSUZJRUQQABIUChBPVVRDT01FX0FDQ0VQVEVEEAESFQoRT1VUQ09NRV9DT01QTEVURUQQAhIWChJPVVRDT01FX1NVUEVSU0VERUQQAxIRCg1PVVRDT01FX0ZBVUxUEAQSEwoPT1VUQ09NRV9USU1FT1VUEAUSEwoPT1VUQ09NRV9TVE9QUEVEEAYq7wEKE1NldHBvaW50U3RyZWFtU3RhdGUSJQohU0VUUE9JTlRfU1RSRUFNX1NUQVRFX1VOU1BFQ0lGSUVEEAASGwoXU0VUUE9JTlRfU1RSRUFNX1dBSVRJTkcQARIbChdTRVRQT0lOVF9TVFJFQU1fRklMTElORxACEhsKF1NFVFBPSU5UX1NUUkVBTV9QTEFZSU5HEAMSIQodU0VUUE9JTlRfU1RSRUFNX0VYVFJBUE9MQVRJTkcQBBIcChhTRVRQT0lOVF9TVFJFQU1fU1RPUFBJTkcQBRIZChVTRVRQT0lOVF9TVFJFQU1fRU5ERUQQBiqtAQoRU2V0cG9pbnRFdmVudEtpbmQSIwofU0VUUE9JTlRfRVZFTlRfS0lORF9VTlNQRUNJRklFRBAAEhsKF1NFVFBPSU5UX0VWRU5UX1VOREVSUlVOEAESIAocU0VUUE9JTlRfRVZFTlRfUE9JTlRfUkVGVVNFRBACEhoKFlNFVFBPSU5UX0VWRU5UX0FUX1JFU1QQAxIYChRTRVRQT0lOVF9FVkVOVF9FTkRFRBAEMv4JCgRBeGVzEkUKCExpc3RBeGVzEhsuY2FuZ2F0ZS52MS5MaXN0QXhlc1JlcXVlc3QaHC5jYW5nYXRlLnYxLkxpc3RBeGVzUmVzcG9uc2USNwoHR2V0QXhpcxIaLmNhbmdhdGUudjEuR2V0QXhpc1JlcXVlc3QaEC5jYW5nYXRlLnYxLkF4aXMSTQoOQWNxdWlyZUNvbnRyb2wSIS5jYW5nYXRlLnYxLkFjcXVpcmVDb250cm9sUmVxdWVzdBoYLmNhbmdhdGUudjEuQ29udHJvbExlYXNlEkkKDFJlbmV3Q29udHJvbBIfLmNhbmdhdGUudjEuUmVuZXdDb250cm9sUmVxdWVzdBoYLmNhbmdhdGUudjEuQ29udHJvbExlYXNlElcKDlJlbGVhc2VDb250cm9sEiEuY2FuZ2F0ZS52MS5SZWxlYXNlQ29udHJvbFJlcXVlc3QaIi5jYW5nYXRlLnYxLlJlbGVhc2VDb250cm9sUmVzcG9uc2USSQoGRW5hYmxlEh4uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USSgoHRGlzYWJsZRIeLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEkcKBEhvbWUSHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJACgRNb3ZlEhcuY2FuZ2F0ZS52MS5Nb3ZlUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRI+CgNKb2cSFi5jYW5nYXRlLnYxLkpvZ1JlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USRwoEU3RvcBIeLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEkwKCVF1aWNrU3RvcBIeLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEk0KClJlc2V0RmF1bHQSHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJGCghTdG9wQXhlcxIbLmNhbmdhdGUudjEuU3RvcEF4ZXNSZXF1ZXN0Gh0uY2FuZ2F0ZS52MS5NdWx0aUF4aXNSZXNwb25zZRJGCghNb3ZlQXhlcxIbLmNhbmdhdGUudjEuTW92ZUF4ZXNSZXF1ZXN0Gh0uY2FuZ2F0ZS52MS5NdWx0aUF4aXNSZXNwb25zZRJPCg9TdHJlYW1BeGlzU3RhdGUSIi5jYW5nYXRlLnYxLlN0cmVhbUF4aXNTdGF0ZVJlcXVlc3QaFi5jYW5nYXRlLnYxLkF4aXNVcGRhdGUwARJaCg9TdHJlYW1TZXRwb2ludHMSIS5jYW5nYXRlLnYxLlNldHBvaW50U3RyZWFtUmVxdWVzdBogLmNhbmdhdGUudjEuU2V0cG9pbnRTdHJlYW1TdGF0dXMoATABYgZwcm90bzM");
+  fileDesc("ChVjYW5nYXRlL3YxL2F4ZXMucHJvdG8SCmNhbmdhdGUudjEihwQKBEF4aXMSDAoEbmFtZRgBIAEoCRIoCgdiYWNrZW5kGAIgASgOMhcuY2FuZ2F0ZS52MS5BeGlzQmFja2VuZBILCgNidXMYAyABKAkSDAoEbm9kZRgEIAEoDRIMCgR1bml0GAUgASgJEhcKD2NvdW50c19wZXJfdW5pdBgGIAEoARIZCgxtaW5fcG9zaXRpb24YByABKAFIAIgBARIZCgxtYXhfcG9zaXRpb24YCCABKAFIAYgBARIUCgxtYXhfdmVsb2NpdHkYCSABKAESGAoQbWF4X2FjY2VsZXJhdGlvbhgKIAEoARIvCg1wb3NpdGlvbl9tb2RlGAsgASgOMhguY2FuZ2F0ZS52MS5Qb3NpdGlvbk1vZGUSKgoMc3RvcF9vbl9sb3NzGAwgASgOMhQuY2FuZ2F0ZS52MS5TdG9wS2luZBIWCg5qb2dfZGVhZG1hbl9tcxgNIAEoDRImCgZzdGF0dXMYDiABKAsyFi5jYW5nYXRlLnYxLkF4aXNTdGF0dXMSMQoMcHJvY2Vzc19kYXRhGA8gASgOMhsuY2FuZ2F0ZS52MS5Qcm9jZXNzRGF0YVBhdGgSEwoLc2RvX3BvbGxfbXMYECABKA0SGAoQZGlzcGxheV9kZWNpbWFscxgRIAEoDUIPCg1fbWluX3Bvc2l0aW9uQg8KDV9tYXhfcG9zaXRpb24i0QQKCkF4aXNTdGF0dXMSDAoEYXhpcxgBIAEoCRIlCgVzdGF0ZRgCIAEoDjIWLmNhbmdhdGUudjEuRHJpdmVTdGF0ZRISCgpzdGF0dXN3b3JkGAMgASgNEgwKBG1vZGUYBCABKAUSKgoIYWN0aXZpdHkYBSABKA4yGC5jYW5nYXRlLnYxLkF4aXNBY3Rpdml0eRIQCghwb3NpdGlvbhgGIAEoARIQCgh2ZWxvY2l0eRgHIAEoARIXCg9kZW1hbmRfcG9zaXRpb24YCCABKAESFwoPZm9sbG93aW5nX2Vycm9yGAkgASgBEg0KBWhvbWVkGAogASgIEhEKCW5vZGVfbG9zdBgLIAEoCBISCgpmYXVsdF9jb2RlGAwgASgNEhIKCmZhdWx0X3RleHQYDSABKAkSFQoNY29udHJvbGxlZF9ieRgOIAEoCRIaChJsZWFzZV9yZW1haW5pbmdfbXMYDyABKA0SFAoMdGltZXN0YW1wX3VzGBAgASgEEhoKDXRvcnF1ZV9hY3R1YWwYESABKAVIAIgBARIjChZmb2xsb3dpbmdfZXJyb3JfYWN0dWFsGBIgASgBSAGIAQESMQoOZGlnaXRhbF9pbnB1dHMYEyABKAsyGS5jYW5nYXRlLnYxLkRpZ2l0YWxJbnB1dHMSHwoSdG91Y2hfcHJvYmVfc3RhdHVzGBQgASgNSAKIAQFCEAoOX3RvcnF1ZV9hY3R1YWxCGQoXX2ZvbGxvd2luZ19lcnJvcl9hY3R1YWxCFQoTX3RvdWNoX3Byb2JlX3N0YXR1cyJvCg1EaWdpdGFsSW5wdXRzEh0KFW5lZ2F0aXZlX2xpbWl0X3N3aXRjaBgBIAEoCBIdChVwb3NpdGl2ZV9saW1pdF9zd2l0Y2gYAiABKAgSEwoLaG9tZV9zd2l0Y2gYAyABKAgSCwoDcmF3GAQgASgNIhEKD0xpc3RBeGVzUmVxdWVzdCIyChBMaXN0QXhlc1Jlc3BvbnNlEh4KBGF4ZXMYASADKAsyEC5jYW5nYXRlLnYxLkF4aXMiHgoOR2V0QXhpc1JlcXVlc3QSDAoEYXhpcxgBIAEoCSJKChVBY3F1aXJlQ29udHJvbFJlcXVlc3QSDAoEYXhlcxgBIAMoCRIOCgZ0dGxfbXMYAiABKA0SEwoLY2xpZW50X25hbWUYAyABKAkiSwoMQ29udHJvbExlYXNlEg0KBWxlYXNlGAEgASgJEgwKBGF4ZXMYAiADKAkSDgoGaG9sZGVyGAMgASgJEg4KBnR0bF9tcxgEIAEoDSIkChNSZW5ld0NvbnRyb2xSZXF1ZXN0Eg0KBWxlYXNlGAEgASgJIiYKFVJlbGVhc2VDb250cm9sUmVxdWVzdBINCgVsZWFzZRgBIAEoCSImChZSZWxlYXNlQ29udHJvbFJlc3BvbnNlEgwKBGF4ZXMYASADKAkiRgoOQ29tbWFuZE9wdGlvbnMSDQoFbGVhc2UYASABKAkSDAoEd2FpdBgCIAEoCBIXCg93YWl0X3RpbWVvdXRfbXMYAyABKA0iTwoSQXhpc0NvbW1hbmRSZXF1ZXN0EgwKBGF4aXMYASABKAkSKwoHb3B0aW9ucxgCIAEoCzIaLmNhbmdhdGUudjEuQ29tbWFuZE9wdGlvbnMicwoTQXhpc0NvbW1hbmRSZXNwb25zZRIkCgdvdXRjb21lGAEgASgOMhMuY2FuZ2F0ZS52MS5PdXRjb21lEg4KBmRldGFpbBgCIAEoCRImCgZzdGF0dXMYAyABKAsyFi5jYW5nYXRlLnYxLkF4aXNTdGF0dXMikgEKC01vdmVSZXF1ZXN0EgwKBGF4aXMYASABKAkSDgoGdGFyZ2V0GAIgASgBEhAKCHJlbGF0aXZlGAMgASgIEhAKCHZlbG9jaXR5GAQgASgBEhQKDGFjY2VsZXJhdGlvbhgFIAEoARIrCgdvcHRpb25zGAYgASgLMhouY2FuZ2F0ZS52MS5Db21tYW5kT3B0aW9ucyJvCgpKb2dSZXF1ZXN0EgwKBGF4aXMYASABKAkSEAoIdmVsb2NpdHkYAiABKAESFAoMYWNjZWxlcmF0aW9uGAMgASgBEisKB29wdGlvbnMYBCABKAsyGi5jYW5nYXRlLnYxLkNvbW1hbmRPcHRpb25zIjwKD1N0b3BBeGVzUmVxdWVzdBIMCgRheGVzGAEgAygJEg0KBXF1aWNrGAIgASgIEgwKBHdhaXQYAyABKAgiRQoRTXVsdGlBeGlzUmVzcG9uc2USMAoHcmVzdWx0cxgBIAMoCzIfLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZSJXCg9Nb3ZlQXhlc1JlcXVlc3QSJwoHdGFyZ2V0cxgBIAMoCzIWLmNhbmdhdGUudjEuQXhpc1RhcmdldBINCgVsZWFzZRgCIAEoCRIMCgR3YWl0GAMgASgIIlIKCkF4aXNUYXJnZXQSDAoEYXhpcxgBIAEoCRIOCgZ0YXJnZXQYAiABKAESEAoIdmVsb2NpdHkYAyABKAESFAoMYWNjZWxlcmF0aW9uGAQgASgBIjwKFlN0cmVhbUF4aXNTdGF0ZVJlcXVlc3QSDAoEYXhlcxgBIAMoCRIUCgxjaGFuZ2VzX29ubHkYAiABKAgiaAoKQXhpc1VwZGF0ZRIoCgZzdGF0dXMYASABKAsyFi5jYW5nYXRlLnYxLkF4aXNTdGF0dXNIABImCgVldmVudBgCIAEoCzIVLmNhbmdhdGUudjEuQXhpc0V2ZW50SABCCAoGdXBkYXRlIqICCglBeGlzRXZlbnQSDAoEYXhpcxgBIAEoCRIUCgx0aW1lc3RhbXBfdXMYAiABKAQSLQoLbW90aW9uX2RvbmUYAyABKAsyFi5jYW5nYXRlLnYxLk1vdGlvbkRvbmVIABIiCgVmYXVsdBgEIAEoCzIRLmNhbmdhdGUudjEuRmF1bHRIABIsCgdjb250cm9sGAUgASgLMhkuY2FuZ2F0ZS52MS5Db250cm9sQ2hhbmdlSAASJAoEbm9kZRgGIAEoCzIULmNhbmdhdGUudjEuTm9kZUxpbmtIABIOCgRsb3N0GAcgASgESAASMgoLdG91Y2hfcHJvYmUYCCABKAsyGy5jYW5nYXRlLnYxLlRvdWNoUHJvYmVMYXRjaEgAQgYKBGtpbmQijwEKFEFybVRvdWNoUHJvYmVSZXF1ZXN0EgwKBGF4aXMYASABKAkSKAoEZWRnZRgCIAEoDjIaLmNhbmdhdGUudjEuVG91Y2hQcm9iZUVkZ2USEgoKY29udGludW91cxgDIAEoCBIrCgdvcHRpb25zGAQgASgLMhouY2FuZ2F0ZS52MS5Db21tYW5kT3B0aW9ucyJcCg9Ub3VjaFByb2JlTGF0Y2gSDQoFcHJvYmUYASABKA0SKAoEZWRnZRgCIAEoDjIaLmNhbmdhdGUudjEuVG91Y2hQcm9iZUVkZ2USEAoIcG9zaXRpb24YAyABKAEiUwoKTW90aW9uRG9uZRIPCgdjb21tYW5kGAEgASgJEiQKB291dGNvbWUYAiABKA4yEy5jYW5nYXRlLnYxLk91dGNvbWUSDgoGZGV0YWlsGAMgASgJIjMKBUZhdWx0EgwKBGNvZGUYASABKA0SDAoEdGV4dBgCIAEoCRIOCgZhY3RpdmUYAyABKAgiQQoNQ29udHJvbENoYW5nZRIOCgZob2xkZXIYASABKAkSEAoIcHJldmlvdXMYAiABKAkSDgoGcmVhc29uGAMgASgJIigKCE5vZGVMaW5rEgwKBGxvc3QYASABKAgSDgoGcmVhc29uGAIgASgJIn4KFVNldHBvaW50U3RyZWFtUmVxdWVzdBIuCgRvcGVuGAEgASgLMh4uY2FuZ2F0ZS52MS5TZXRwb2ludFN0cmVhbU9wZW5IABIqCgViYXRjaBgCIAEoCzIZLmNhbmdhdGUudjEuU2V0cG9pbnRCYXRjaEgAQgkKB21lc3NhZ2UijgEKElNldHBvaW50U3RyZWFtT3BlbhIMCgRheGVzGAEgAygJEg0KBWxlYXNlGAIgASgJEhAKCGRlcHRoX21zGAMgASgNEhYKDmV4dHJhcG9sYXRlX21zGAQgASgNEhcKD3BvaW50X3BlcmlvZF91cxgFIAEoDRIYChBzdGF0dXNfcGVyaW9kX21zGAYgASgNIjUKDVNldHBvaW50QmF0Y2gSJAoGcG9pbnRzGAEgAygLMhQuY2FuZ2F0ZS52MS5TZXRwb2ludCI/CghTZXRwb2ludBIMCgR0X3VzGAEgASgEEhEKCXBvc2l0aW9ucxgCIAMoARISCgp2ZWxvY2l0aWVzGAMgAygBIpoBChBTZXRwb2ludENvdW50ZXJzEhAKCHJlY2VpdmVkGAEgASgEEhAKCGFjY2VwdGVkGAIgASgEEg8KB3JlZnVzZWQYAyABKAQSDgoGcGxheWVkGAQgASgEEgwKBGxhdGUYBSABKAQSDwoHZHJvcHBlZBgGIAEoBBIRCgl1bmRlcnJ1bnMYByABKAQSDwoHbGltaXRlZBgIIAEoBCLlAgoUU2V0cG9pbnRTdHJlYW1TdGF0dXMSLgoFc3RhdGUYASABKA4yHy5jYW5nYXRlLnYxLlNldHBvaW50U3RyZWFtU3RhdGUSFwoPYnVmZmVyX2xldmVsX3VzGAIgASgEEi4KCGNvdW50ZXJzGAMgASgLMhwuY2FuZ2F0ZS52MS5TZXRwb2ludENvdW50ZXJzEhcKD2Nsb2NrX29mZnNldF91cxgEIAEoAxIbChNjb21tYW5kZWRfcG9zaXRpb25zGAUgAygBEhgKEGFjdHVhbF9wb3NpdGlvbnMYBiADKAESLwoGZXZlbnRzGAcgAygLMh8uY2FuZ2F0ZS52MS5TZXRwb2ludFN0cmVhbUV2ZW50EhQKDHRpbWVzdGFtcF91cxgIIAEoBBINCgVlbmRlZBgJIAEoCRIuCgdzaWduYWxzGAogAygLMh0uY2FuZ2F0ZS52MS5TdHJlYW1BeGlzU2lnbmFscyLmAQoRU3RyZWFtQXhpc1NpZ25hbHMSGgoNdG9ycXVlX2FjdHVhbBgBIAEoBUgAiAEBEhwKD3ZlbG9jaXR5X2FjdHVhbBgCIAEoAUgBiAEBEiMKFmZvbGxvd2luZ19lcnJvcl9hY3R1YWwYAyABKAFIAogBARIxCg5kaWdpdGFsX2lucHV0cxgEIAEoCzIZLmNhbmdhdGUudjEuRGlnaXRhbElucHV0c0IQCg5fdG9ycXVlX2FjdHVhbEISChBfdmVsb2NpdHlfYWN0dWFsQhkKF19mb2xsb3dpbmdfZXJyb3JfYWN0dWFsIn4KE1NldHBvaW50U3RyZWFtRXZlbnQSKwoEa2luZBgBIAEoDjIdLmNhbmdhdGUudjEuU2V0cG9pbnRFdmVudEtpbmQSDgoGcmVhc29uGAIgASgJEgwKBGF4aXMYAyABKAkSDAoEdF91cxgEIAEoBBIOCgZkZXRhaWwYBSABKAkqugIKCkRyaXZlU3RhdGUSGwoXRFJJVkVfU1RBVEVfVU5TUEVDSUZJRUQQABImCiJEUklWRV9TVEFURV9OT1RfUkVBRFlfVE9fU1dJVENIX09OEAESIgoeRFJJVkVfU1RBVEVfU1dJVENIX09OX0RJU0FCTEVEEAISIgoeRFJJVkVfU1RBVEVfUkVBRFlfVE9fU1dJVENIX09OEAMSGwoXRFJJVkVfU1RBVEVfU1dJVENIRURfT04QBBIhCh1EUklWRV9TVEFURV9PUEVSQVRJT05fRU5BQkxFRBAFEiEKHURSSVZFX1NUQVRFX1FVSUNLX1NUT1BfQUNUSVZFEAYSJQohRFJJVkVfU1RBVEVfRkFVTFRfUkVBQ1RJT05fQUNUSVZFEAcSFQoRRFJJVkVfU1RBVEVfRkFVTFQQCCrNAQoMQXhpc0FjdGl2aXR5Eh0KGUFYSVNfQUNUSVZJVFlfVU5TUEVDSUZJRUQQABIWChJBWElTX0FDVElWSVRZX0lETEUQARIbChdBWElTX0FDVElWSVRZX1NXSVRDSElORxACEhgKFEFYSVNfQUNUSVZJVFlfSE9NSU5HEAMSGAoUQVhJU19BQ1RJVklUWV9NT1ZJTkcQBBIZChVBWElTX0FDVElWSVRZX0pPR0dJTkcQBRIaChZBWElTX0FDVElWSVRZX1NUT1BQSU5HEAYqXQoLQXhpc0JhY2tlbmQSHAoYQVhJU19CQUNLRU5EX1VOU1BFQ0lGSUVEEAASFwoTQVhJU19CQUNLRU5EX0NJQTQwMhABEhcKE0FYSVNfQkFDS0VORF9DQU5TTUMQAipiCgxQb3NpdGlvbk1vZGUSHQoZUE9TSVRJT05fTU9ERV9VTlNQRUNJRklFRBAAEhkKFVBPU0lUSU9OX01PREVfUFJPRklMRRABEhgKFFBPU0lUSU9OX01PREVfQ1lDTElDEAIqagoPUHJvY2Vzc0RhdGFQYXRoEiEKHVBST0NFU1NfREFUQV9QQVRIX1VOU1BFQ0lGSUVEEAASGQoVUFJPQ0VTU19EQVRBX1BBVEhfUERPEAESGQoVUFJPQ0VTU19EQVRBX1BBVEhfU0RPEAIqUwoIU3RvcEtpbmQSGQoVU1RPUF9LSU5EX1VOU1BFQ0lGSUVEEAASEgoOU1RPUF9LSU5EX0hBTFQQARIYChRTVE9QX0tJTkRfUVVJQ0tfU1RPUBACKqQBCgdPdXRjb21lEhcKE09VVENPTUVfVU5TUEVDSUZJRUQQABIUChBPVVRDT01FX0FDQ0VQVEVEEAESFQoRT1VUQ09NRV9DT01QTEVURUQQAhIWChJPVVRDT01FX1NVUEVSU0VERUQQAxIRCg1PVVRDT01FX0ZBVUxUEAQSEwoPT1VUQ09NRV9USU1FT1VUEAUSEwoPT1VUQ09NRV9TVE9QUEVEEAYqiAEKDlRvdWNoUHJvYmVFZGdlEiAKHFRPVUNIX1BST0JFX0VER0VfVU5TUEVDSUZJRUQQABIbChdUT1VDSF9QUk9CRV9FREdFX1JJU0lORxABEhwKGFRPVUNIX1BST0JFX0VER0VfRkFMTElORxACEhkKFVRPVUNIX1BST0JFX0VER0VfQk9USBADKu8BChNTZXRwb2ludFN0cmVhbVN0YXRlEiUKIVNFVFBPSU5UX1NUUkVBTV9TVEFURV9VTlNQRUNJRklFRBAAEhsKF1NFVFBPSU5UX1NUUkVBTV9XQUlUSU5HEAESGwoXU0VUUE9JTlRfU1RSRUFNX0ZJTExJTkcQAhIbChdTRVRQT0lOVF9TVFJFQU1fUExBWUlORxADEiEKHVNFVFBPSU5UX1NUUkVBTV9FWFRSQVBPTEFUSU5HEAQSHAoYU0VUUE9JTlRfU1RSRUFNX1NUT1BQSU5HEAUSGQoVU0VUUE9JTlRfU1RSRUFNX0VOREVEEAYqrQEKEVNldHBvaW50RXZlbnRLaW5kEiMKH1NFVFBPSU5UX0VWRU5UX0tJTkRfVU5TUEVDSUZJRUQQABIbChdTRVRQT0lOVF9FVkVOVF9VTkRFUlJVThABEiAKHFNFVFBPSU5UX0VWRU5UX1BPSU5UX1JFRlVTRUQQAhIaChZTRVRQT0lOVF9FVkVOVF9BVF9SRVNUEAMSGAoUU0VUUE9JTlRfRVZFTlRfRU5ERUQQBDLSCgoEQXhlcxJFCghMaXN0QXhlcxIbLmNhbmdhdGUudjEuTGlzdEF4ZXNSZXF1ZXN0GhwuY2FuZ2F0ZS52MS5MaXN0QXhlc1Jlc3BvbnNlEjcKB0dldEF4aXMSGi5jYW5nYXRlLnYxLkdldEF4aXNSZXF1ZXN0GhAuY2FuZ2F0ZS52MS5BeGlzEk0KDkFjcXVpcmVDb250cm9sEiEuY2FuZ2F0ZS52MS5BY3F1aXJlQ29udHJvbFJlcXVlc3QaGC5jYW5nYXRlLnYxLkNvbnRyb2xMZWFzZRJJCgxSZW5ld0NvbnRyb2wSHy5jYW5nYXRlLnYxLlJlbmV3Q29udHJvbFJlcXVlc3QaGC5jYW5nYXRlLnYxLkNvbnRyb2xMZWFzZRJXCg5SZWxlYXNlQ29udHJvbBIhLmNhbmdhdGUudjEuUmVsZWFzZUNvbnRyb2xSZXF1ZXN0GiIuY2FuZ2F0ZS52MS5SZWxlYXNlQ29udHJvbFJlc3BvbnNlEkkKBkVuYWJsZRIeLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEkoKB0Rpc2FibGUSHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJHCgRIb21lEh4uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USQAoETW92ZRIXLmNhbmdhdGUudjEuTW92ZVJlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USPgoDSm9nEhYuY2FuZ2F0ZS52MS5Kb2dSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEkcKBFN0b3ASHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJMCglRdWlja1N0b3ASHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJNCgpSZXNldEZhdWx0Eh4uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USRgoIU3RvcEF4ZXMSGy5jYW5nYXRlLnYxLlN0b3BBeGVzUmVxdWVzdBodLmNhbmdhdGUudjEuTXVsdGlBeGlzUmVzcG9uc2USRgoITW92ZUF4ZXMSGy5jYW5nYXRlLnYxLk1vdmVBeGVzUmVxdWVzdBodLmNhbmdhdGUudjEuTXVsdGlBeGlzUmVzcG9uc2USTwoPU3RyZWFtQXhpc1N0YXRlEiIuY2FuZ2F0ZS52MS5TdHJlYW1BeGlzU3RhdGVSZXF1ZXN0GhYuY2FuZ2F0ZS52MS5BeGlzVXBkYXRlMAESWgoPU3RyZWFtU2V0cG9pbnRzEiEuY2FuZ2F0ZS52MS5TZXRwb2ludFN0cmVhbVJlcXVlc3QaIC5jYW5nYXRlLnYxLlNldHBvaW50U3RyZWFtU3RhdHVzKAEwARJSCg1Bcm1Ub3VjaFByb2JlEiAuY2FuZ2F0ZS52MS5Bcm1Ub3VjaFByb2JlUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZWIGcHJvdG8z");
 
 /**
  * An axis: configuration and live state.
@@ -269,8 +269,8 @@ export type AxisStatus = Message<"cangate.v1.AxisStatus"> & {
 
   /**
    * Actual velocity in user units/s, signed (0 before the drive reported
-   * one). CANsmc axes: computed by the gateway from the position change
-   * per cycle.
+   * one): CiA 402 velocity actual (0x606C). CANsmc axes: computed by the
+   * gateway from the position change per cycle.
    *
    * @generated from field: double velocity = 7;
    */
@@ -357,6 +357,43 @@ export type AxisStatus = Message<"cangate.v1.AxisStatus"> & {
    * @generated from field: uint64 timestamp_us = 16;
    */
   timestampUs: bigint;
+
+  /**
+   * Torque actual (0x6077) in per mille of the drive's rated torque,
+   * signed. Absent when the drive's process data does not carry it: the
+   * gateway maps it into TPDO3 at boot only where the drive's EDS has it
+   * and a TPDO3 (not for process data by SDO, nor for CANsmc axes), and
+   * before the first.
+   *
+   * @generated from field: optional int32 torque_actual = 17;
+   */
+  torqueActual?: number | undefined;
+
+  /**
+   * Following error actual (0x60F4) as the drive reports it, user units
+   * (`following_error` is this when present). Absent when not carried
+   * (see `torque_actual`; mapped after the velocity in TPDO2).
+   *
+   * @generated from field: optional double following_error_actual = 18;
+   */
+  followingErrorActual?: number | undefined;
+
+  /**
+   * The drive's digital inputs (0x60FD, in TPDO3); absent when not
+   * carried (see `torque_actual`).
+   *
+   * @generated from field: cangate.v1.DigitalInputs digital_inputs = 19;
+   */
+  digitalInputs?: DigitalInputs | undefined;
+
+  /**
+   * Touch probe status (0x60B9, in TPDO3), raw: bit 0 probe 1 enabled,
+   * bit 1 positive edge position stored, bit 2 negative edge position
+   * stored (CiA 402-2). Absent when not carried.
+   *
+   * @generated from field: optional uint32 touch_probe_status = 20;
+   */
+  touchProbeStatus?: number | undefined;
 };
 
 /**
@@ -365,6 +402,58 @@ export type AxisStatus = Message<"cangate.v1.AxisStatus"> & {
  */
 export const AxisStatusSchema: GenMessage<AxisStatus> = /*@__PURE__*/
   messageDesc(file_cangate_v1_axes, 1);
+
+/**
+ * A CiA 402 drive's digital inputs (0x60FD). Bit layout per CiA 402-2
+ * (IEC 61800-7-201): bit 0 negative limit switch, bit 1 positive limit
+ * switch, bit 2 home switch, bit 3 interlock, bits 16..31
+ * manufacturer-specific. The limit switches are named by the drive's
+ * direction (a negative `counts_per_unit` turns the user's). A limit
+ * switch that is active stops any motion into it at the axis's quick
+ * stop deceleration (the move or jog ends with outcome FAULT, "positive
+ * limit switch reached at …"), refuses commands further into it
+ * (OUT_OF_RANGE) and is the axis's `fault_text` ("positive limit switch
+ * reached", code 0) while active; the drive stays enabled, and motion
+ * away from the switch runs.
+ *
+ * @generated from message cangate.v1.DigitalInputs
+ */
+export type DigitalInputs = Message<"cangate.v1.DigitalInputs"> & {
+  /**
+   * Bit 0: the negative limit switch is active.
+   *
+   * @generated from field: bool negative_limit_switch = 1;
+   */
+  negativeLimitSwitch: boolean;
+
+  /**
+   * Bit 1: the positive limit switch is active.
+   *
+   * @generated from field: bool positive_limit_switch = 2;
+   */
+  positiveLimitSwitch: boolean;
+
+  /**
+   * Bit 2: the home switch is active.
+   *
+   * @generated from field: bool home_switch = 3;
+   */
+  homeSwitch: boolean;
+
+  /**
+   * The raw 32-bit value.
+   *
+   * @generated from field: uint32 raw = 4;
+   */
+  raw: number;
+};
+
+/**
+ * Describes the message cangate.v1.DigitalInputs.
+ * Use `create(DigitalInputsSchema)` to create a new message.
+ */
+export const DigitalInputsSchema: GenMessage<DigitalInputs> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_axes, 2);
 
 /**
  * ListAxes request (no parameters).
@@ -379,7 +468,7 @@ export type ListAxesRequest = Message<"cangate.v1.ListAxesRequest"> & {
  * Use `create(ListAxesRequestSchema)` to create a new message.
  */
 export const ListAxesRequestSchema: GenMessage<ListAxesRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 2);
+  messageDesc(file_cangate_v1_axes, 3);
 
 /**
  * ListAxes response.
@@ -401,7 +490,7 @@ export type ListAxesResponse = Message<"cangate.v1.ListAxesResponse"> & {
  * Use `create(ListAxesResponseSchema)` to create a new message.
  */
 export const ListAxesResponseSchema: GenMessage<ListAxesResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 3);
+  messageDesc(file_cangate_v1_axes, 4);
 
 /**
  * GetAxis request.
@@ -422,7 +511,7 @@ export type GetAxisRequest = Message<"cangate.v1.GetAxisRequest"> & {
  * Use `create(GetAxisRequestSchema)` to create a new message.
  */
 export const GetAxisRequestSchema: GenMessage<GetAxisRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 4);
+  messageDesc(file_cangate_v1_axes, 5);
 
 /**
  * AcquireControl request.
@@ -462,7 +551,7 @@ export type AcquireControlRequest = Message<"cangate.v1.AcquireControlRequest"> 
  * Use `create(AcquireControlRequestSchema)` to create a new message.
  */
 export const AcquireControlRequestSchema: GenMessage<AcquireControlRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 5);
+  messageDesc(file_cangate_v1_axes, 6);
 
 /**
  * A control lease.
@@ -505,7 +594,7 @@ export type ControlLease = Message<"cangate.v1.ControlLease"> & {
  * Use `create(ControlLeaseSchema)` to create a new message.
  */
 export const ControlLeaseSchema: GenMessage<ControlLease> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 6);
+  messageDesc(file_cangate_v1_axes, 7);
 
 /**
  * RenewControl request.
@@ -527,7 +616,7 @@ export type RenewControlRequest = Message<"cangate.v1.RenewControlRequest"> & {
  * Use `create(RenewControlRequestSchema)` to create a new message.
  */
 export const RenewControlRequestSchema: GenMessage<RenewControlRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 7);
+  messageDesc(file_cangate_v1_axes, 8);
 
 /**
  * ReleaseControl request.
@@ -549,7 +638,7 @@ export type ReleaseControlRequest = Message<"cangate.v1.ReleaseControlRequest"> 
  * Use `create(ReleaseControlRequestSchema)` to create a new message.
  */
 export const ReleaseControlRequestSchema: GenMessage<ReleaseControlRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 8);
+  messageDesc(file_cangate_v1_axes, 9);
 
 /**
  * ReleaseControl response.
@@ -570,7 +659,7 @@ export type ReleaseControlResponse = Message<"cangate.v1.ReleaseControlResponse"
  * Use `create(ReleaseControlResponseSchema)` to create a new message.
  */
 export const ReleaseControlResponseSchema: GenMessage<ReleaseControlResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 9);
+  messageDesc(file_cangate_v1_axes, 10);
 
 /**
  * Options shared by all axis commands.
@@ -607,7 +696,7 @@ export type CommandOptions = Message<"cangate.v1.CommandOptions"> & {
  * Use `create(CommandOptionsSchema)` to create a new message.
  */
 export const CommandOptionsSchema: GenMessage<CommandOptions> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 10);
+  messageDesc(file_cangate_v1_axes, 11);
 
 /**
  * Request of the commands without parameters (Enable, Disable, Home,
@@ -636,7 +725,7 @@ export type AxisCommandRequest = Message<"cangate.v1.AxisCommandRequest"> & {
  * Use `create(AxisCommandRequestSchema)` to create a new message.
  */
 export const AxisCommandRequestSchema: GenMessage<AxisCommandRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 11);
+  messageDesc(file_cangate_v1_axes, 12);
 
 /**
  * Result of an axis command.
@@ -674,7 +763,7 @@ export type AxisCommandResponse = Message<"cangate.v1.AxisCommandResponse"> & {
  * Use `create(AxisCommandResponseSchema)` to create a new message.
  */
 export const AxisCommandResponseSchema: GenMessage<AxisCommandResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 12);
+  messageDesc(file_cangate_v1_axes, 13);
 
 /**
  * Move request.
@@ -736,7 +825,7 @@ export type MoveRequest = Message<"cangate.v1.MoveRequest"> & {
  * Use `create(MoveRequestSchema)` to create a new message.
  */
 export const MoveRequestSchema: GenMessage<MoveRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 13);
+  messageDesc(file_cangate_v1_axes, 14);
 
 /**
  * Jog request.
@@ -778,7 +867,7 @@ export type JogRequest = Message<"cangate.v1.JogRequest"> & {
  * Use `create(JogRequestSchema)` to create a new message.
  */
 export const JogRequestSchema: GenMessage<JogRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 14);
+  messageDesc(file_cangate_v1_axes, 15);
 
 /**
  * StopAxes request. No lease needed.
@@ -814,7 +903,7 @@ export type StopAxesRequest = Message<"cangate.v1.StopAxesRequest"> & {
  * Use `create(StopAxesRequestSchema)` to create a new message.
  */
 export const StopAxesRequestSchema: GenMessage<StopAxesRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 15);
+  messageDesc(file_cangate_v1_axes, 16);
 
 /**
  * Result of StopAxes and MoveAxes.
@@ -835,7 +924,7 @@ export type MultiAxisResponse = Message<"cangate.v1.MultiAxisResponse"> & {
  * Use `create(MultiAxisResponseSchema)` to create a new message.
  */
 export const MultiAxisResponseSchema: GenMessage<MultiAxisResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 16);
+  messageDesc(file_cangate_v1_axes, 17);
 
 /**
  * MoveAxes request.
@@ -870,7 +959,7 @@ export type MoveAxesRequest = Message<"cangate.v1.MoveAxesRequest"> & {
  * Use `create(MoveAxesRequestSchema)` to create a new message.
  */
 export const MoveAxesRequestSchema: GenMessage<MoveAxesRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 17);
+  messageDesc(file_cangate_v1_axes, 18);
 
 /**
  * One axis of a coordinated move.
@@ -912,7 +1001,7 @@ export type AxisTarget = Message<"cangate.v1.AxisTarget"> & {
  * Use `create(AxisTargetSchema)` to create a new message.
  */
 export const AxisTargetSchema: GenMessage<AxisTarget> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 18);
+  messageDesc(file_cangate_v1_axes, 19);
 
 /**
  * StreamAxisState request.
@@ -941,7 +1030,7 @@ export type StreamAxisStateRequest = Message<"cangate.v1.StreamAxisStateRequest"
  * Use `create(StreamAxisStateRequestSchema)` to create a new message.
  */
 export const StreamAxisStateRequestSchema: GenMessage<StreamAxisStateRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 19);
+  messageDesc(file_cangate_v1_axes, 20);
 
 /**
  * One item of StreamAxisState.
@@ -981,7 +1070,7 @@ export type AxisUpdate = Message<"cangate.v1.AxisUpdate"> & {
  * Use `create(AxisUpdateSchema)` to create a new message.
  */
 export const AxisUpdateSchema: GenMessage<AxisUpdate> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 20);
+  messageDesc(file_cangate_v1_axes, 21);
 
 /**
  * Something that happened to an axis.
@@ -1049,6 +1138,14 @@ export type AxisEvent = Message<"cangate.v1.AxisEvent"> & {
      */
     value: bigint;
     case: "lost";
+  } | {
+    /**
+     * Touch probe 1 latched a position (see ArmTouchProbe).
+     *
+     * @generated from field: cangate.v1.TouchProbeLatch touch_probe = 8;
+     */
+    value: TouchProbeLatch;
+    case: "touchProbe";
   } | { case: undefined; value?: undefined };
 };
 
@@ -1057,7 +1154,86 @@ export type AxisEvent = Message<"cangate.v1.AxisEvent"> & {
  * Use `create(AxisEventSchema)` to create a new message.
  */
 export const AxisEventSchema: GenMessage<AxisEvent> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 21);
+  messageDesc(file_cangate_v1_axes, 22);
+
+/**
+ * ArmTouchProbe request.
+ *
+ * @generated from message cangate.v1.ArmTouchProbeRequest
+ */
+export type ArmTouchProbeRequest = Message<"cangate.v1.ArmTouchProbeRequest"> & {
+  /**
+   * Axis name (a CiA 402 axis).
+   *
+   * @generated from field: string axis = 1;
+   */
+  axis: string;
+
+  /**
+   * The edges to latch at; UNSPECIFIED switches the probe off.
+   *
+   * @generated from field: cangate.v1.TouchProbeEdge edge = 2;
+   */
+  edge: TouchProbeEdge;
+
+  /**
+   * Latch every edge (CiA 402 continuous mode), not only the first one
+   * after arming. Arming again re-arms a probe that latched.
+   *
+   * @generated from field: bool continuous = 3;
+   */
+  continuous: boolean;
+
+  /**
+   * Lease (required); `wait` changes nothing (the call returns once the
+   * drive confirmed the write).
+   *
+   * @generated from field: cangate.v1.CommandOptions options = 4;
+   */
+  options?: CommandOptions | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.ArmTouchProbeRequest.
+ * Use `create(ArmTouchProbeRequestSchema)` to create a new message.
+ */
+export const ArmTouchProbeRequestSchema: GenMessage<ArmTouchProbeRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_axes, 23);
+
+/**
+ * A touch probe latch.
+ *
+ * @generated from message cangate.v1.TouchProbeLatch
+ */
+export type TouchProbeLatch = Message<"cangate.v1.TouchProbeLatch"> & {
+  /**
+   * Touch probe 1.
+   *
+   * @generated from field: uint32 probe = 1;
+   */
+  probe: number;
+
+  /**
+   * The edge: RISING (0x60BA) or FALLING (0x60BB).
+   *
+   * @generated from field: cangate.v1.TouchProbeEdge edge = 2;
+   */
+  edge: TouchProbeEdge;
+
+  /**
+   * The latched position, user units.
+   *
+   * @generated from field: double position = 3;
+   */
+  position: number;
+};
+
+/**
+ * Describes the message cangate.v1.TouchProbeLatch.
+ * Use `create(TouchProbeLatchSchema)` to create a new message.
+ */
+export const TouchProbeLatchSchema: GenMessage<TouchProbeLatch> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_axes, 24);
 
 /**
  * A command finished.
@@ -1093,7 +1269,7 @@ export type MotionDone = Message<"cangate.v1.MotionDone"> & {
  * Use `create(MotionDoneSchema)` to create a new message.
  */
 export const MotionDoneSchema: GenMessage<MotionDone> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 22);
+  messageDesc(file_cangate_v1_axes, 25);
 
 /**
  * The axis entered a fault (the drive's, or its node was lost), or the
@@ -1140,7 +1316,7 @@ export type Fault = Message<"cangate.v1.Fault"> & {
  * Use `create(FaultSchema)` to create a new message.
  */
 export const FaultSchema: GenMessage<Fault> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 23);
+  messageDesc(file_cangate_v1_axes, 26);
 
 /**
  * Control of the axis changed hands.
@@ -1175,7 +1351,7 @@ export type ControlChange = Message<"cangate.v1.ControlChange"> & {
  * Use `create(ControlChangeSchema)` to create a new message.
  */
 export const ControlChangeSchema: GenMessage<ControlChange> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 24);
+  messageDesc(file_cangate_v1_axes, 27);
 
 /**
  * The drive's node was lost or came back. A loss also comes as a Fault
@@ -1211,7 +1387,7 @@ export type NodeLink = Message<"cangate.v1.NodeLink"> & {
  * Use `create(NodeLinkSchema)` to create a new message.
  */
 export const NodeLinkSchema: GenMessage<NodeLink> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 25);
+  messageDesc(file_cangate_v1_axes, 28);
 
 /**
  * One client message of StreamSetpoints.
@@ -1248,7 +1424,7 @@ export type SetpointStreamRequest = Message<"cangate.v1.SetpointStreamRequest"> 
  * Use `create(SetpointStreamRequestSchema)` to create a new message.
  */
 export const SetpointStreamRequestSchema: GenMessage<SetpointStreamRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 26);
+  messageDesc(file_cangate_v1_axes, 29);
 
 /**
  * Opens a set-point stream.
@@ -1310,7 +1486,7 @@ export type SetpointStreamOpen = Message<"cangate.v1.SetpointStreamOpen"> & {
  * Use `create(SetpointStreamOpenSchema)` to create a new message.
  */
 export const SetpointStreamOpenSchema: GenMessage<SetpointStreamOpen> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 27);
+  messageDesc(file_cangate_v1_axes, 30);
 
 /**
  * A batch of points, in time order.
@@ -1331,7 +1507,7 @@ export type SetpointBatch = Message<"cangate.v1.SetpointBatch"> & {
  * Use `create(SetpointBatchSchema)` to create a new message.
  */
 export const SetpointBatchSchema: GenMessage<SetpointBatch> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 28);
+  messageDesc(file_cangate_v1_axes, 31);
 
 /**
  * One set-point for every axis of the stream.
@@ -1370,7 +1546,7 @@ export type Setpoint = Message<"cangate.v1.Setpoint"> & {
  * Use `create(SetpointSchema)` to create a new message.
  */
 export const SetpointSchema: GenMessage<Setpoint> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 29);
+  messageDesc(file_cangate_v1_axes, 32);
 
 /**
  * The counters of a stream: received = accepted + refused; accepted =
@@ -1442,7 +1618,7 @@ export type SetpointCounters = Message<"cangate.v1.SetpointCounters"> & {
  * Use `create(SetpointCountersSchema)` to create a new message.
  */
 export const SetpointCountersSchema: GenMessage<SetpointCounters> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 30);
+  messageDesc(file_cangate_v1_axes, 33);
 
 /**
  * A status of a set-point stream: sent every `status_period_ms`, after a
@@ -1514,12 +1690,21 @@ export type SetpointStreamStatus = Message<"cangate.v1.SetpointStreamStatus"> & 
   /**
    * Why the stream ended (in the last status only): "CLIENT_ENDED",
    * "CLIENT_GONE", "STOPPED" (a stop of one of its axes), "LEASE_LOST",
-   * "AXIS_LEFT" (disabled, fault, node lost), "SHUTTING_DOWN"; "" while
-   * it runs.
+   * "AXIS_LEFT" (disabled, fault such as a following error beyond the
+   * window, node lost), "LIMIT_SWITCH" (an axis ran into an active limit
+   * switch; the ENDED event names it), "SHUTTING_DOWN"; "" while it runs.
    *
    * @generated from field: string ended = 9;
    */
   ended: string;
+
+  /**
+   * The drives' signals per axis, in stream order (each field absent
+   * where the drive's process data does not carry it).
+   *
+   * @generated from field: repeated cangate.v1.StreamAxisSignals signals = 10;
+   */
+  signals: StreamAxisSignals[];
 };
 
 /**
@@ -1527,7 +1712,49 @@ export type SetpointStreamStatus = Message<"cangate.v1.SetpointStreamStatus"> & 
  * Use `create(SetpointStreamStatusSchema)` to create a new message.
  */
 export const SetpointStreamStatusSchema: GenMessage<SetpointStreamStatus> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 31);
+  messageDesc(file_cangate_v1_axes, 34);
+
+/**
+ * The signals of one axis of a set-point stream (see AxisStatus).
+ *
+ * @generated from message cangate.v1.StreamAxisSignals
+ */
+export type StreamAxisSignals = Message<"cangate.v1.StreamAxisSignals"> & {
+  /**
+   * Torque actual (0x6077), per mille of rated torque.
+   *
+   * @generated from field: optional int32 torque_actual = 1;
+   */
+  torqueActual?: number | undefined;
+
+  /**
+   * Velocity actual (0x606C), user units/s.
+   *
+   * @generated from field: optional double velocity_actual = 2;
+   */
+  velocityActual?: number | undefined;
+
+  /**
+   * Following error actual (0x60F4), user units.
+   *
+   * @generated from field: optional double following_error_actual = 3;
+   */
+  followingErrorActual?: number | undefined;
+
+  /**
+   * Digital inputs (0x60FD).
+   *
+   * @generated from field: cangate.v1.DigitalInputs digital_inputs = 4;
+   */
+  digitalInputs?: DigitalInputs | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.StreamAxisSignals.
+ * Use `create(StreamAxisSignalsSchema)` to create a new message.
+ */
+export const StreamAxisSignalsSchema: GenMessage<StreamAxisSignals> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_axes, 35);
 
 /**
  * Something that happened in a set-point stream.
@@ -1582,7 +1809,7 @@ export type SetpointStreamEvent = Message<"cangate.v1.SetpointStreamEvent"> & {
  * Use `create(SetpointStreamEventSchema)` to create a new message.
  */
 export const SetpointStreamEventSchema: GenMessage<SetpointStreamEvent> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 32);
+  messageDesc(file_cangate_v1_axes, 36);
 
 /**
  * The CiA 402 drive states (CANsmc axes map theirs onto these).
@@ -1913,7 +2140,8 @@ export enum Outcome {
   SUPERSEDED = 3,
 
   /**
-   * Ended by a drive fault or a lost node.
+   * Ended by a drive fault, a lost node, or a limit switch in the
+   * direction of motion.
    *
    * @generated from enum value: OUTCOME_FAULT = 4;
    */
@@ -1939,6 +2167,47 @@ export enum Outcome {
  */
 export const OutcomeSchema: GenEnum<Outcome> = /*@__PURE__*/
   enumDesc(file_cangate_v1_axes, 6);
+
+/**
+ * The edges touch probe 1 latches at.
+ *
+ * @generated from enum cangate.v1.TouchProbeEdge
+ */
+export enum TouchProbeEdge {
+  /**
+   * None: in ArmTouchProbe, switches the probe off (0x60B8 = 0).
+   *
+   * @generated from enum value: TOUCH_PROBE_EDGE_UNSPECIFIED = 0;
+   */
+  UNSPECIFIED = 0,
+
+  /**
+   * The rising (positive) edge of the probe input.
+   *
+   * @generated from enum value: TOUCH_PROBE_EDGE_RISING = 1;
+   */
+  RISING = 1,
+
+  /**
+   * The falling (negative) edge.
+   *
+   * @generated from enum value: TOUCH_PROBE_EDGE_FALLING = 2;
+   */
+  FALLING = 2,
+
+  /**
+   * Both edges (ArmTouchProbe only).
+   *
+   * @generated from enum value: TOUCH_PROBE_EDGE_BOTH = 3;
+   */
+  BOTH = 3,
+}
+
+/**
+ * Describes the enum cangate.v1.TouchProbeEdge.
+ */
+export const TouchProbeEdgeSchema: GenEnum<TouchProbeEdge> = /*@__PURE__*/
+  enumDesc(file_cangate_v1_axes, 7);
 
 /**
  * What a set-point stream is doing.
@@ -2002,7 +2271,7 @@ export enum SetpointStreamState {
  * Describes the enum cangate.v1.SetpointStreamState.
  */
 export const SetpointStreamStateSchema: GenEnum<SetpointStreamState> = /*@__PURE__*/
-  enumDesc(file_cangate_v1_axes, 7);
+  enumDesc(file_cangate_v1_axes, 8);
 
 /**
  * The kind of a set-point stream event.
@@ -2051,7 +2320,7 @@ export enum SetpointEventKind {
  * Describes the enum cangate.v1.SetpointEventKind.
  */
 export const SetpointEventKindSchema: GenEnum<SetpointEventKind> = /*@__PURE__*/
-  enumDesc(file_cangate_v1_axes, 8);
+  enumDesc(file_cangate_v1_axes, 9);
 
 /**
  * Axes: state, exclusive control, motion commands.
@@ -2264,6 +2533,25 @@ export const Axes: GenService<{
     methodKind: "bidi_streaming";
     input: typeof SetpointStreamRequestSchema;
     output: typeof SetpointStreamStatusSchema;
+  },
+  /**
+   * Arms (or switches off) touch probe 1 of a CiA 402 axis: writes the
+   * touch probe function (0x60B8) by SDO and answers COMPLETED once the
+   * drive confirmed it. Each latch then comes as an AxisEvent
+   * `touch_probe` in StreamAxisState with the latched position; the
+   * drive's probe status (0x60B9) and latched positions (0x60BA, 0x60BB)
+   * come by TPDO. Needs the lease. Errors: NOT_FOUND for an unknown axis;
+   * FAILED_PRECONDITION without the lease, for a CANsmc axis, for a drive
+   * whose process data carries no touch probe status (no TPDO maps
+   * 0x60B9: the drive's EDS lacks it, or process data by SDO), or a node
+   * that is lost; the SDO reasons when the write failed.
+   *
+   * @generated from rpc cangate.v1.Axes.ArmTouchProbe
+   */
+  armTouchProbe: {
+    methodKind: "unary";
+    input: typeof ArmTouchProbeRequestSchema;
+    output: typeof AxisCommandResponseSchema;
   },
 }> = /*@__PURE__*/
   serviceDesc(file_cangate_v1_axes, 0);
