@@ -977,7 +977,8 @@ mod tests {
             node_plan(nc, node, eds.as_ref(), Some(&axis), true, None).unwrap()
         };
         let (tpdos, _, boot) = plan(
-            "following_error_window = 0.5\nfollowing_error_timeout_ms = 20\nmax_torque = 1500\n",
+            "following_error_window = 0.5\nfollowing_error_timeout_ms = 20\nmax_torque = 1500\n\
+             signal_pdos = true\n",
             true,
         );
         let cobs: Vec<u16> = tpdos.iter().map(|p| p.cob_id).collect();
@@ -994,10 +995,12 @@ mod tests {
                 "{addr} {bytes:02X?} in {writes:?}"
             );
         }
-        let (tpdos, _, _) = plan("signal_pdos = false\n", true);
-        assert_eq!(tpdos.len(), 2);
-        assert_eq!(tpdos[1].mapping.len(), 1);
-        let (tpdos, _, _) = plan("", false);
+        for off in ["signal_pdos = false\n", ""] {
+            let (tpdos, _, _) = plan(off, true);
+            assert_eq!(tpdos.len(), 2, "{off:?}: no signals (off by default)");
+            assert_eq!(tpdos[1].mapping.len(), 1);
+        }
+        let (tpdos, _, _) = plan("signal_pdos = true\n", false);
         assert_eq!(tpdos.len(), 2, "no EDS: no signals");
     }
 }

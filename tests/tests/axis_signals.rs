@@ -54,6 +54,7 @@ max_position = 200.0
 max_velocity = 100.0
 max_acceleration = 1000.0
 max_torque = 2000
+signal_pdos = true
 
 [[axis]]
 name = "Y"
@@ -67,6 +68,7 @@ max_velocity = 100.0
 max_acceleration = 1000.0
 following_error_window = 0.05
 following_error_timeout_ms = 20
+signal_pdos = true
 
 [[axis]]
 name = "Z"
@@ -75,7 +77,6 @@ node = 3
 counts_per_unit = 1000.0
 max_velocity = 100.0
 max_acceleration = 1000.0
-signal_pdos = false
 "#;
 
 async fn setup() -> (cangate_server::RunningServer, Axes, String) {

@@ -384,14 +384,12 @@ pub struct AxisConfig {
     #[serde(default)]
     pub max_torque: Option<u16>,
     /// Map the drive's signals (torque, following error, digital inputs,
-    /// touch probe) into TPDO2..4 where its EDS has them (default true):
-    /// up to two more frames per SYNC from the drive.
-    #[serde(default = "default_true")]
+    /// touch probe) into TPDO2..4 where its EDS has them. Off by default:
+    /// up to two more frames per SYNC from each drive, bus time a fast
+    /// SYNC with several drives may not have, so the integrator turns it
+    /// on where the bus has room.
+    #[serde(default)]
     pub signal_pdos: bool,
-}
-
-fn default_true() -> bool {
-    true
 }
 
 /// The upper bounds of an axis's motion settings, for both drive
@@ -698,7 +696,7 @@ mod tests {
                 process_data: ProcessDataPath::Pdo,
                 homing_method: 17,
                 supervision: Default::default(),
-                signal_pdos: true,
+                signal_pdos: false,
             }),
         };
         let a = AxisSpec {
