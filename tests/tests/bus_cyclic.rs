@@ -20,12 +20,51 @@ fn frame(text: &str) -> Frame {
     text.parse().expect("valid frame text")
 }
 
-/// The next frame of `id` on a watcher's stream.
-async fn next_on(
-    watch: &mut tonic::Streaming<pb::StreamFramesResponse>,
-    pending: &mut Vec<pb::StreamEvent>,
-) -> pb::Frame {
-    read_frames(watch, pending, 1).await.remove(0)
+/// A watcher's stream of one identifier's frames, one at a time.
+struct Watch {
+    stream: tonic::Streaming<pb::StreamFramesResponse>,
+    pending: Vec<pb::StreamEvent>,
+    frames: std::collections::VecDeque<pb::Frame>,
+}
+
+impl Watch {
+    async fn open(c: &mut cangate_client::Client, id: u32) -> Watch {
+        let (stream, pending) = open_stream(c, frames_on("can0", id)).await;
+        Watch {
+            stream,
+            pending,
+            frames: Default::default(),
+        }
+    }
+
+    async fn next(&mut self) -> pb::Frame {
+        if self.frames.is_empty() {
+            let got = read_frames(&mut self.stream, &mut self.pending, 1).await;
+            self.frames.extend(got);
+        }
+        self.frames.pop_front().expect("a frame")
+    }
+
+    /// Waits until no frame comes for `quiet`, at most [`WAIT`] (a job
+    /// still running would keep it busy past that); the frames that came.
+    async fn until_quiet(&mut self, quiet: Duration) -> usize {
+        let deadline = Instant::now() + WAIT;
+        let mut frames = self.frames.drain(..).count();
+        loop {
+            match tokio::time::timeout(quiet, self.stream.message()).await {
+                Err(_) => return frames,
+                Ok(m) => {
+                    let m = m.expect("stream ok").expect("stream not ended");
+                    frames += m.events.len();
+                    assert!(
+                        Instant::now() < deadline,
+                        "frames still coming {} s on",
+                        WAIT.as_secs()
+                    );
+                }
+            }
+        }
+    }
 }
 
 /// The next notice of a cyclic job of an attachment (frames, states and
@@ -46,35 +85,11 @@ async fn next_notice(a: &mut Attachment) -> AttachEvent {
     .expect("a notice in time")
 }
 
-/// Waits until the watcher sees no frame for `quiet`, at most [`WAIT`]
-/// (a job still running would keep it busy past that).
-async fn until_quiet(
-    watch: &mut tonic::Streaming<pb::StreamFramesResponse>,
-    quiet: Duration,
-) -> usize {
-    let deadline = Instant::now() + WAIT;
-    let mut frames = 0;
-    loop {
-        match tokio::time::timeout(quiet, watch.message()).await {
-            Err(_) => return frames,
-            Ok(m) => {
-                let m = m.expect("stream ok").expect("stream not ended");
-                frames += m.events.len();
-                assert!(
-                    Instant::now() < deadline,
-                    "frames still coming {} s on",
-                    WAIT.as_secs()
-                );
-            }
-        }
-    }
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_cyclic_job_sends_at_its_period_changes_its_data_and_stops() {
     let server = start_server(ONE_BUS).await;
     let mut look = client(&server).await;
-    let (mut watch, mut pending) = open_stream(&mut look, frames_on("can0", 0x321)).await;
+    let mut watch = Watch::open(&mut look, 0x321).await;
     let c = client(&server).await;
     let a = c.attach("can0", &AttachOptions::default()).await.unwrap();
 
@@ -86,7 +101,7 @@ async fn a_cyclic_job_sends_at_its_period_changes_its_data_and_stops() {
         .unwrap();
     let mut first = None;
     for _ in 0..10 {
-        let f = next_on(&mut watch, &mut pending).await;
+        let f = watch.next().await;
         assert_eq!(f.data, [1]);
         assert_eq!(f.origin(), pb::FrameOrigin::Client);
         assert_eq!(
@@ -103,12 +118,12 @@ async fn a_cyclic_job_sends_at_its_period_changes_its_data_and_stops() {
     // New data, same job: the frames change, the job goes on.
     a.sender.modify_cyclic(1, &[frame("321#02")]).await.unwrap();
     loop {
-        if next_on(&mut watch, &mut pending).await.data == [2] {
+        if watch.next().await.data == [2] {
             break;
         }
     }
     for _ in 0..3 {
-        assert_eq!(next_on(&mut watch, &mut pending).await.data, [2]);
+        assert_eq!(watch.next().await.data, [2]);
     }
 
     // Stopped: after the stop is answered nothing of the job is sent. The
@@ -117,11 +132,11 @@ async fn a_cyclic_job_sends_at_its_period_changes_its_data_and_stops() {
     a.sender.stop_cyclic(1).await.unwrap();
     a.sender.send_confirmed(&[frame("321#FF")]).await.unwrap();
     loop {
-        if next_on(&mut watch, &mut pending).await.data == [0xFF] {
+        if watch.next().await.data == [0xFF] {
             break;
         }
     }
-    assert_eq!(until_quiet(&mut watch, Duration::from_millis(300)).await, 0);
+    assert_eq!(watch.until_quiet(Duration::from_millis(300)).await, 0);
     // Stopping it again is no error.
     a.sender.stop_cyclic(1).await.unwrap();
     server.shutdown();
@@ -131,7 +146,7 @@ async fn a_cyclic_job_sends_at_its_period_changes_its_data_and_stops() {
 async fn a_client_that_goes_away_takes_its_cyclic_jobs_along() {
     let server = start_server(ONE_BUS).await;
     let mut look = client(&server).await;
-    let (mut watch, mut pending) = open_stream(&mut look, frames_on("can0", 0x322)).await;
+    let mut watch = Watch::open(&mut look, 0x322).await;
     let c = client(&server).await;
     let a = c.attach("can0", &AttachOptions::default()).await.unwrap();
     a.sender
@@ -146,12 +161,12 @@ async fn a_client_that_goes_away_takes_its_cyclic_jobs_along() {
     // Two frames in turn.
     let mut seen = Vec::new();
     for _ in 0..4 {
-        seen.push(next_on(&mut watch, &mut pending).await.data[0]);
+        seen.push(watch.next().await.data[0]);
     }
     assert!(seen.windows(2).all(|w| w[0] != w[1]), "{seen:?}");
     drop(a);
     drop(c);
-    until_quiet(&mut watch, Duration::from_millis(500)).await;
+    watch.until_quiet(Duration::from_millis(500)).await;
     server.shutdown();
 }
 
