@@ -15,7 +15,8 @@
 //!   reads but may not write or send NMT, an engineer may;
 //! - the runtime's guards: a write to an enabled axis's controlword, NMT
 //!   that stops its drive, LSS that reaches it, an RPDO that maps its
-//!   controlword: refused, the axis stays enabled;
+//!   controlword (here and through gRPC's WritePdo): refused, the axis
+//!   stays enabled;
 //! - lely's PDO commands: `write pdo` sends the I/O module's RPDO (its
 //!   outputs change), `read pdo` answers the last TPDO received.
 
@@ -536,7 +537,8 @@ async fn pdo_commands_write_an_rpdo_and_read_the_last_tpdo() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_rpdo_that_commands_an_enabled_axis_drive_is_refused() {
-    // Axis S on PDOs: node 3's RPDO 1 (PDO 9) carries its controlword.
+    // Axis S on PDOs: node 3's RPDO 1 (PDO 9) carries its controlword and
+    // mode of operation.
     let text = config("").replace("process_data = \"sdo\"\nsdo_poll_ms = 5\n", "");
     let c = Config::from_toml(&text).expect("valid configuration");
     let server = cangate_server::start(&c).await.expect("server starts");
@@ -553,6 +555,39 @@ async fn an_rpdo_that_commands_an_enabled_axis_drive_is_refused() {
             && refused.contains("0x6040"),
         "{refused}"
     );
+    // gRPC's WritePdo keeps the same rule.
+    let value = |index: u32, ty: pb::DataType, v: pb::value::Value| pb::PdoValue {
+        index,
+        subindex: 0,
+        name: String::new(),
+        value: Some(pb::Value {
+            r#type: ty as i32,
+            value: Some(v),
+        }),
+    };
+    let e = c
+        .canopen_client()
+        .write_pdo(pb::WritePdoRequest {
+            bus: "can0".into(),
+            node: 3,
+            pdo: 1,
+            values: vec![
+                value(
+                    0x6040,
+                    pb::DataType::Unsigned16,
+                    pb::value::Value::UintValue(0),
+                ),
+                value(
+                    0x6060,
+                    pb::DataType::Integer8,
+                    pb::value::Value::IntValue(0),
+                ),
+            ],
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), tonic::Code::FailedPrecondition, "{e:?}");
+    assert!(e.message().contains("axis S"), "{e:?}");
     let s = wait_status(&mut axes, "S", |_| true).await;
     assert_eq!(s.state, pb::DriveState::OperationEnabled as i32, "{s:?}");
     server.shutdown();
