@@ -8,7 +8,8 @@ can0 (CANGATE_SERVER, CANGATE_TOKEN), which watches can0 with its own
 client. The script prints a line after each step and waits for the test's
 go-ahead on stdin:
 
-- ``READY``; then ``STARTED``: a job on 0x3A0 with data 01, every 20 ms;
+- ``READY``, ``OPEN`` (the bus is open); on ``GO``, ``STARTED``: a job on
+  0x3A0 with data 01, every 20 ms;
 - on ``MODIFY``: new data 02, ``MODIFIED``;
 - on ``STOP``: the task stopped, then one frame 0x3A0 FF sent (it comes
   after every frame of the job), ``STOPPED``;
@@ -45,6 +46,8 @@ def main():
     except can.CanOperationError as e:
         assert "INVALID_ARGUMENT" in str(e), str(e)
     msg = can.Message(arbitration_id=0x3A0, is_extended_id=False, data=b"\x01")
+    say("OPEN")
+    wait_for("GO")
     task = bus.send_periodic(msg, 0.02)
     assert isinstance(task, ModifiableCyclicTaskABC), type(task)
     assert isinstance(task, RestartableCyclicTaskABC), type(task)

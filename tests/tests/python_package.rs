@@ -363,14 +363,18 @@ fn python_can_send_periodic_runs_in_the_gateway() {
             ],
         )?;
         p.expect_line("READY", READY_WAIT).await?;
-        p.expect_line("STARTED", WAIT).await?;
+        p.expect_line("OPEN", WAIT).await?;
+        // The job starts after this: ten frames, the first one period
+        // after its start, cannot all come before ten periods from here.
         let started = Instant::now();
+        p.say("GO")?;
+        p.expect_line("STARTED", WAIT).await?;
         let mut seen = Vec::new();
         while seen.len() < 10 {
             seen.extend(cangate_tests::read_frames(&mut watch, &mut pending, 1).await);
         }
         ensure!(
-            started.elapsed() >= Duration::from_millis(9 * 20),
+            started.elapsed() >= Duration::from_millis(10 * 20),
             "ten frames of a 20 ms job within {:?}",
             started.elapsed()
         );
