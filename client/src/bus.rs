@@ -131,6 +131,10 @@ pub enum AttachEvent {
     /// (The call that waited for the batch, [`AttachSender::send_confirmed`]
     /// or [`AttachSender::flush`], also returns it as an error.)
     Refused(pb::SendRefused),
+    /// A cyclic job of this client ([`AttachSender::start_cyclic`]) ended
+    /// by itself: its duration passed (code 0), or one of its frames was
+    /// refused (the code and reason of the refusal).
+    CyclicStopped(pb::CyclicStopped),
 }
 
 impl AttachEvent {
@@ -146,6 +150,7 @@ impl AttachEvent {
             Event::Lost(l) => AttachEvent::Lost(l.count),
             Event::State(s) => AttachEvent::State(s),
             Event::Refused(r) => AttachEvent::Refused(r),
+            Event::CyclicStopped(c) => AttachEvent::CyclicStopped(c),
             // Acknowledgements are the sender's business (see
             // AttachSender::send_confirmed), not events.
             Event::Opened(_) | Event::Done(_) => return None,
@@ -396,6 +401,89 @@ impl AttachSender {
     pub async fn flush(&self) -> Result<(), Error> {
         let last = *self.shared.next.lock().await - 1;
         self.wait(last, false).await
+    }
+
+    /// Starts (or restarts, replacing it) the cyclic job `job`, which the
+    /// gateway runs for this client: `frames` in turn, one every
+    /// `interval`, the first one interval from now, until `duration` has
+    /// passed (None: until stopped) or the attachment ends (see
+    /// `AttachCyclic` in bus.proto). Waits until the gateway took it, at
+    /// most the client's request timeout; its refusal is the error.
+    pub async fn start_cyclic(
+        &self,
+        job: u32,
+        frames: &[can::Frame],
+        interval: Duration,
+        duration: Option<Duration>,
+    ) -> Result<(), Error> {
+        let cyclic = pb::AttachCyclic {
+            job,
+            frames: frames.iter().map(frame_to_pb).collect(),
+            interval_ns: interval.as_nanos().max(1) as u64,
+            duration_ns: duration.map_or(0, |d| d.as_nanos().max(1) as u64),
+            sequence: 0,
+        };
+        self.request_confirmed(pb::attach_request::Message::Cyclic(cyclic))
+            .await
+    }
+
+    /// Changes the frames of the running cyclic job `job`, its timer going
+    /// on; waits as [`AttachSender::start_cyclic`] does.
+    pub async fn modify_cyclic(&self, job: u32, frames: &[can::Frame]) -> Result<(), Error> {
+        let cyclic = pb::AttachCyclic {
+            job,
+            frames: frames.iter().map(frame_to_pb).collect(),
+            interval_ns: 0,
+            duration_ns: 0,
+            sequence: 0,
+        };
+        self.request_confirmed(pb::attach_request::Message::Cyclic(cyclic))
+            .await
+    }
+
+    /// Stops the cyclic job `job` (one that does not run is no error);
+    /// once this returns, none of its frames is sent any more.
+    pub async fn stop_cyclic(&self, job: u32) -> Result<(), Error> {
+        let stop = pb::AttachCyclicStop { job, sequence: 0 };
+        self.request_confirmed(pb::attach_request::Message::CyclicStop(stop))
+            .await
+    }
+
+    /// Queues a message with the next sequence number and waits for its
+    /// answer.
+    async fn request_confirmed(
+        &self,
+        mut message: pb::attach_request::Message,
+    ) -> Result<(), Error> {
+        let queue = async {
+            let mut next = self.shared.next.lock().await;
+            let sequence = *next;
+            match &mut message {
+                pb::attach_request::Message::Cyclic(c) => c.sequence = sequence,
+                pb::attach_request::Message::CyclicStop(c) => c.sequence = sequence,
+                pb::attach_request::Message::Send(s) => s.sequence = sequence,
+                pb::attach_request::Message::Open(_) => {}
+            }
+            let msg = pb::AttachRequest {
+                message: Some(message),
+            };
+            self.shared
+                .tx
+                .send(msg)
+                .await
+                .map_err(|_| Error::Transport {
+                    message: "the attachment's stream has ended".into(),
+                })?;
+            *next += 1;
+            Ok::<u64, Error>(sequence)
+        };
+        let sequence = match self.shared.timeout {
+            Some(limit) => tokio::time::timeout(limit, queue)
+                .await
+                .map_err(|_| Error::client_timeout("Attach send", limit))?,
+            None => queue.await,
+        }?;
+        self.wait(sequence, true).await
     }
 
     async fn wait(&self, sequence: u64, only: bool) -> Result<(), Error> {

@@ -29,7 +29,9 @@
 //! protobuf messages) is shared by the edges that speak protobuf.
 //! [`realtime`] (thread priorities) is used by the runtime's threads;
 //! [`participants`] (who each client sender on a bus is) is the runtime's
-//! register that every edge letting clients send shares.
+//! register that every edge letting clients send shares; [`cyclic`] runs
+//! the cyclic transmission jobs of those clients (socketcand's BCM mode,
+//! Attach's `AttachCyclic`).
 
 #![deny(missing_docs, unreachable_pub)]
 // A dependency nothing uses fails CI (clippy -D warnings). Test builds are
@@ -44,6 +46,7 @@ pub mod cansmc;
 pub mod cia309;
 pub mod config;
 pub mod convert;
+pub mod cyclic;
 pub mod gateway;
 pub mod grpc;
 pub mod handwheel;

@@ -18,6 +18,7 @@ const LAYERS: &[(&str, u8)] = &[
     ("realtime", 1),
     ("not_found", 1),
     ("participants", 1),
+    ("cyclic", 1),
     ("axis_runner", 1),
     ("canopen", 1),
     ("axes", 1),

@@ -14,8 +14,11 @@
 //! - tokens and roles: login first, an unknown token closes, a viewer
 //!   reads but may not write or send NMT, an engineer may;
 //! - the runtime's guards: a write to an enabled axis's controlword, NMT
-//!   that stops its drive, LSS that reaches it: refused, the axis stays
-//!   enabled.
+//!   that stops its drive, LSS that reaches it, an RPDO that maps its
+//!   controlword (here and through gRPC's WritePdo): refused, the axis
+//!   stays enabled;
+//! - lely's PDO commands: `write pdo` sends the I/O module's RPDO (its
+//!   outputs change), `read pdo` answers the last TPDO received.
 
 use cangate_client::pb;
 use cangate_server::{Config, RunningServer};
@@ -412,6 +415,12 @@ async fn tokens_and_roles_as_for_grpc() {
             .await
             .contains("needs role engineer")
     );
+    assert!(
+        viewer
+            .ask("[7] write pdo 25 2 1 1")
+            .await
+            .contains("write_pdo needs role engineer")
+    );
     assert_eq!(
         viewer.ask("[8] 5 r 0x2105 0 u8").await,
         "[8] 200\r\n",
@@ -474,6 +483,114 @@ async fn an_enabled_axis_drive_is_guarded_as_for_grpc() {
         .into_inner();
     assert_eq!(r.outcome, pb::Outcome::Completed as i32, "{r:?}");
     assert_eq!(gw.ask("[7] 3 w 0x6040 0 u16 6").await, "[7] OK\r\n");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn pdo_commands_write_an_rpdo_and_read_the_last_tpdo() {
+    let server = server("").await;
+    let mut gw = Gw::connect(&server).await;
+    // RPDOs count in operational.
+    assert_eq!(gw.ask("[0] 7 start").await, "[0] OK\r\n");
+    // Node 7's RPDO 1 (PDO 25) maps its two output bytes 0x6200:01, :02.
+    assert_eq!(gw.ask("[1] write pdo 25 2 0xA5 0x5A").await, "[1] OK\r\n");
+    assert_eq!(gw.ask("[2] 7 r 0x6200 1 u8").await, "[2] 165\r\n");
+    assert_eq!(gw.ask("[3] 7 r 0x6200 2 x8").await, "[3] 0x5A\r\n");
+    for (command, code) in [
+        // One value short; a value too large for its 8 bits.
+        ("[4] write pdo 25 1 0xA5", "101"),
+        ("[4] write pdo 25 2 0x100 0", "101"),
+        // Node 7 has no RPDO 4; node 1 is not configured.
+        ("[4] write pdo 28 0", "102"),
+        ("[4] read pdo 1", "102"),
+    ] {
+        let a = gw.ask(command).await;
+        assert!(
+            a.starts_with(&format!("[4] ERROR:{code} #")),
+            "{command}: {a}"
+        );
+    }
+
+    // Node 7's TPDO 1 (PDO 25): 0x6000:01, :02 (8 bits), 0x6401:01, :02
+    // (16 bits), as the node sent it last. The simulated module sends
+    // its own once when it starts: the frame is put on the bus until the
+    // gateway answers with it.
+    let vbus = server.gateway().network().get("can0").unwrap();
+    let node = vbus.connect(false);
+    let tpdo: cangate_client::can::Frame = "187#112233445566FF".parse().unwrap();
+    let want = "[5] 1 pdo 4 0x11 0x22 0x4433 0x6655\r\n";
+    let deadline = tokio::time::Instant::now() + WAIT;
+    loop {
+        node.send(&tpdo).unwrap();
+        let a = gw.ask("[5] read pdo 25").await;
+        if a == want {
+            break;
+        }
+        assert!(
+            a.starts_with("[5] 1 pdo 4 ") || a.contains("received yet"),
+            "{a}"
+        );
+        assert!(tokio::time::Instant::now() < deadline, "last answer {a}");
+        tokio::task::yield_now().await;
+    }
+    server.shutdown();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_rpdo_that_commands_an_enabled_axis_drive_is_refused() {
+    // Axis S on PDOs: node 3's RPDO 1 (PDO 9) carries its controlword and
+    // mode of operation.
+    let text = config("").replace("process_data = \"sdo\"\nsdo_poll_ms = 5\n", "");
+    let c = Config::from_toml(&text).expect("valid configuration");
+    let server = cangate_server::start(&c).await.expect("server starts");
+    let c = client(&server).await;
+    let mut axes = c.axes_client();
+    wait_status(&mut axes, "S", |s| s.state != 0 && !s.node_lost).await;
+    let lease = acquire(&mut axes, &["S"], 10_000, "test").await;
+    enable(&mut axes, "S", &lease).await;
+    let mut gw = Gw::connect(&server).await;
+    let refused = gw.ask("[1] write pdo 9 2 0 0").await;
+    assert!(
+        refused.starts_with("[1] ERROR:102 #Request not processed due to internal state. ")
+            && refused.contains("axis S")
+            && refused.contains("0x6040"),
+        "{refused}"
+    );
+    // gRPC's WritePdo keeps the same rule.
+    let value = |index: u32, ty: pb::DataType, v: pb::value::Value| pb::PdoValue {
+        index,
+        subindex: 0,
+        name: String::new(),
+        value: Some(pb::Value {
+            r#type: ty as i32,
+            value: Some(v),
+        }),
+    };
+    let e = c
+        .canopen_client()
+        .write_pdo(pb::WritePdoRequest {
+            bus: "can0".into(),
+            node: 3,
+            pdo: 1,
+            values: vec![
+                value(
+                    0x6040,
+                    pb::DataType::Unsigned16,
+                    pb::value::Value::UintValue(0),
+                ),
+                value(
+                    0x6060,
+                    pb::DataType::Integer8,
+                    pb::value::Value::IntValue(0),
+                ),
+            ],
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), tonic::Code::FailedPrecondition, "{e:?}");
+    assert!(e.message().contains("axis S"), "{e:?}");
+    let s = wait_status(&mut axes, "S", |_| true).await;
+    assert_eq!(s.state, pb::DriveState::OperationEnabled as i32, "{s:?}");
+    server.shutdown();
 }
 
 /// Skips event lines up to `want`, which must come.

@@ -324,6 +324,106 @@ fn python_can_with_block_sends_every_frame() {
     });
 }
 
+/// python-can's own `bus.send_periodic()` on the cangate interface
+/// (`tests/python/python_can_periodic.py`): the job runs in the gateway at
+/// its period (ten frames take at least ten periods), `modify_data`
+/// changes its data, `stop` ends it (nothing of it follows the frame sent
+/// after the stop), and a program that dies without stopping its task
+/// takes the job along.
+#[test]
+fn python_can_send_periodic_runs_in_the_gateway() {
+    let Some(python) = python_or_skip("python_can_send_periodic_runs_in_the_gateway", MODULES)
+    else {
+        return;
+    };
+    run("python_can_send_periodic_runs_in_the_gateway", async {
+        let server = cangate_tests::start_server(&python_can_config()).await;
+        let mut c = cangate_client::connect_with(
+            &format!("http://{}", server.addr),
+            &cangate_client::ConnectOptions {
+                token: Some(TOKEN.into()),
+                ..Default::default()
+            },
+        )
+        .await?;
+        let on = |id| cangate_tests::stream_request("can0", vec![cangate_tests::standard_id(id)]);
+        let (mut watch, mut pending) = cangate_tests::open_stream(&mut c, on(0x3A0)).await;
+        let mut p = Peer::spawn(
+            &python,
+            &script("python_can_periodic.py"),
+            &[] as &[&str],
+            &[
+                ("CANGATE_SERVER", format!("http://{}", server.addr)),
+                ("CANGATE_TOKEN", TOKEN.into()),
+                // This checkout's package, whatever the interpreter has.
+                (
+                    "PYTHONPATH",
+                    repo().join("python/src").display().to_string(),
+                ),
+            ],
+        )?;
+        p.expect_line("READY", READY_WAIT).await?;
+        p.expect_line("OPEN", WAIT).await?;
+        // The job starts after this: ten frames, the first one period
+        // after its start, cannot all come before ten periods from here.
+        let started = Instant::now();
+        p.say("GO")?;
+        p.expect_line("STARTED", WAIT).await?;
+        let mut seen = Vec::new();
+        while seen.len() < 10 {
+            seen.extend(cangate_tests::read_frames(&mut watch, &mut pending, 1).await);
+        }
+        ensure!(
+            started.elapsed() >= Duration::from_millis(10 * 20),
+            "ten frames of a 20 ms job within {:?}",
+            started.elapsed()
+        );
+        ensure!(seen.iter().all(|f| f.data == [1]), "{seen:?}");
+        p.say("MODIFY")?;
+        p.expect_line("MODIFIED", WAIT).await?;
+        let mut data = Vec::new();
+        while !data.contains(&vec![2u8]) {
+            let frames = cangate_tests::read_frames(&mut watch, &mut pending, 1).await;
+            data.extend(frames.into_iter().map(|f| f.data));
+        }
+        p.say("STOP")?;
+        p.expect_line("STOPPED", WAIT).await?;
+        // The frame sent after the stop comes after every frame of the job.
+        let mut data = Vec::new();
+        while !data.contains(&vec![0xFFu8]) {
+            let frames = cangate_tests::read_frames(&mut watch, &mut pending, 1).await;
+            data.extend(frames.into_iter().map(|f| f.data));
+        }
+        ensure!(
+            data.last() == Some(&vec![0xFF]),
+            "frames after the stop: {data:?}"
+        );
+        cangate_tests::assert_quiet(&mut watch).await;
+
+        // A program that dies takes its job along.
+        let (mut watch, mut pending) = cangate_tests::open_stream(&mut c, on(0x3A1)).await;
+        p.say("DIE")?;
+        p.expect_line("DYING", WAIT).await?;
+        cangate_tests::read_frames(&mut watch, &mut pending, 1).await;
+        p.say("EXIT")?;
+        p.finish(WAIT).await?;
+        let deadline = Instant::now() + WAIT;
+        while let Ok(m) = tokio::time::timeout(Duration::from_millis(500), watch.message()).await {
+            m?.context("the stream ended")?;
+            ensure!(
+                Instant::now() < deadline,
+                "the dead program's job still runs"
+            );
+        }
+        drop((watch, c));
+        server.shutdown();
+        server
+            .wait(Duration::from_secs(5))
+            .await
+            .map_err(|e| anyhow!("shutdown: {e}"))
+    });
+}
+
 // ------------------------------------------------------------ python-canopen
 
 /// The demo configuration on an ephemeral port, its CANopen part on can0

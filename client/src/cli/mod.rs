@@ -6,7 +6,7 @@
 //!
 //! One module per command: [`axis`], [`lease`], [`sdo`], [`node`] (node,
 //! nmt, scan, events, pdo), [`lss`] (LSS scan, set-id, inquire), [`flash`], [`bus`] (bus, send), [`dump`], [`replay`],
-//! [`generate`] (gen), [`wheel`], [`sim`], [`smc`]; [`candump_log`] and
+//! [`generate`] (gen), [`mount`], [`wheel`], [`sim`], [`smc`]; [`candump_log`] and
 //! [`pcapng`] are the file formats of dump and replay, [`bus_writer`] the
 //! Attach stream replay and gen send through.
 
@@ -20,6 +20,7 @@ pub(crate) mod fleet;
 pub(crate) mod generate;
 pub(crate) mod lease;
 pub(crate) mod lss;
+pub(crate) mod mount;
 pub(crate) mod node;
 pub(crate) mod pcapng;
 pub(crate) mod pdo;
@@ -208,6 +209,9 @@ pub(crate) enum Command {
     /// Send frames in cansend syntax: 123#DEADBEEF 1F334455#11 123#R
     /// 123##1AABB (CAN FD: flags nibble after ##).
     Send(bus::SendArgs),
+    /// A bus of the gateway as a local SocketCAN interface, both ways,
+    /// until Ctrl-C: `cangate mount can0 vcan5` (creates vcan5 when it may).
+    Mount(mount::MountArgs),
     /// Play a candump log onto buses, like canplayer: timing kept (or
     /// --fast), buses renamed with TARGET=SOURCE.
     Replay(replay::ReplayArgs),
@@ -625,6 +629,7 @@ async fn run(cli: Cli) -> Result<()> {
         Command::Dump(a) => dump::dump(&app, a).await,
         Command::Send(a) => bus::send(&app, a).await,
         Command::Replay(a) => replay::replay(&app, a).await,
+        Command::Mount(a) => mount::mount(&app, a).await,
         Command::Gen(a) => generate::generate(&app, a).await,
         Command::Wheel(a) => wheel::run(&app, a).await,
         Command::Sim(a) => sim::run(&app, a).await,

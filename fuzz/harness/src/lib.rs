@@ -855,6 +855,17 @@ pub fn cia309(data: &[u8]) {
                         assert_eq!(text.matches('\n').count(), 1, "{t}: {text:?}");
                     }
                 }
+                Action::WritePdo {
+                    node, pdo, values, ..
+                } => {
+                    assert!((1..=127).contains(&node) && (1..=4).contains(&pdo));
+                    assert!(values.len() <= 64);
+                    let text = cangate_server::cia309::protocol::format_pdo(1, 1, &values);
+                    assert_eq!(text.matches('\n').count(), 1, "{text:?}");
+                }
+                Action::ReadPdo { node, pdo, .. } => {
+                    assert!((1..=127).contains(&node) && (1..=4).contains(&pdo));
+                }
                 Action::Read { .. }
                 | Action::Nmt { .. }
                 | Action::Lss { .. }

@@ -40,7 +40,18 @@ How it maps onto Attach (proto/cangate/v1/bus.proto):
   wait behind unread frames;
 - the stream ending with an error (gateway shutdown, a protocol error) is
   raised by the next ``recv``/``send`` as ``can.CanOperationError`` with the
-  server's message, once the frames received before it were read.
+  server's message, once the frames received before it were read;
+- ``send_periodic`` runs the job in the gateway (AttachCyclic): its frames
+  go out at the period whatever this program does, as this bus's frames,
+  in its frame budget; the task's ``stop()``, ``modify_data()`` (new data,
+  the timer going on) and ``start()`` (again, after a stop) are answered
+  by the gateway, and a refusal (a period below 1 ms, the job limit) is
+  raised as ``can.CanOperationError``. The job ends with the task's
+  ``stop()``, its ``duration``, ``shutdown``, or the stream (this program
+  gone): nothing keeps sending for a dead client. A job the gateway ended
+  (its frames refused: the frame budget, bus-off) is logged and
+  ``task.stopped_by_gateway`` says why. With a ``modifier_callback``
+  (Python code per frame) python-can's own thread sends instead.
 """
 
 from __future__ import annotations
@@ -55,6 +66,11 @@ from typing import Any, Optional
 import can
 import grpc
 from can import CanProtocol
+from can.broadcastmanager import (
+    LimitedDurationCyclicSendTaskABC,
+    ModifiableCyclicTaskABC,
+    RestartableCyclicTaskABC,
+)
 
 from cangate._channel import open_channel, resolve
 from cangate.errors import from_rpc_error
@@ -155,6 +171,8 @@ class _Attachment:
         self.opened: Optional[bus_pb2.AttachOpened] = None
         self.error: Optional[can.CanOperationError] = None
         self._status: Optional[Exception] = None
+        # Called with each CyclicStopped (a job the gateway ended).
+        self.on_cyclic_stopped = None
         self._closing = threading.Event()
         self._open_done = threading.Event()
         self.requests.put(bus_pb2.AttachRequest(open=open_msg))
@@ -263,6 +281,10 @@ class _Attachment:
         elif kind == "opened":
             self.opened = ev.opened
             self._open_done.set()
+        elif kind == "cyclic_stopped":
+            callback = self.on_cyclic_stopped
+            if callback is not None:
+                callback(ev.cyclic_stopped)
 
     def wait_answered(self, sequence: int, timeout: Optional[float]) -> bool:
         """Waits until the gateway answered every message up to `sequence`
@@ -316,6 +338,45 @@ class _Attachment:
             )
             unsent = f"{text}; {unsent}" if unsent else text
         return unsent
+
+
+class CangateCyclicTask(
+    LimitedDurationCyclicSendTaskABC, ModifiableCyclicTaskABC, RestartableCyclicTaskABC
+):
+    """A cyclic transmission job run by the gateway (``send_periodic``):
+    ``stop()``, ``start()`` again, ``modify_data()`` with new data for the
+    same identifier and number of messages, the timer going on."""
+
+    def __init__(
+        self,
+        bus: "CangateBus",
+        job: int,
+        messages: Any,
+        period: float,
+        duration: Optional[float],
+    ) -> None:
+        super().__init__(messages, period, duration)
+        self._bus = bus
+        self.job = job
+        self.running = False
+        #: Why the gateway ended the job (its frames refused), if it did.
+        self.stopped_by_gateway: Optional[str] = None
+
+    def start(self) -> None:
+        """Starts the job (again, after a stop), its timer from now."""
+        self._bus._cyclic_start(self)
+
+    def stop(self) -> None:
+        """Stops the job: once this returns, none of its frames is sent."""
+        self._bus._cyclic_stop(self)
+
+    def modify_data(self, messages: Any) -> None:
+        """New data for the job's messages (the same identifier, as many
+        messages), sent from the next period on."""
+        messages = self._check_and_convert_messages(messages)
+        self._check_modified_messages(messages)
+        self._bus._cyclic_modify(self, messages)
+        self.messages = messages
 
 
 class CangateBus(can.BusABC):
@@ -384,6 +445,9 @@ class CangateBus(can.BusABC):
         # answers in the order of the messages.
         self._send_lock = threading.Lock()
         self._lost_before = 0
+        self._jobs = itertools.count(1)
+        # The cyclic tasks running in the gateway, by job number.
+        self._cyclic: dict = {}
         self._attachment: Optional[_Attachment] = None
         self._grpc = open_channel(self._server, token, ca=ca, cert=cert, key=key)
         self._stub = bus_pb2_grpc.BusStub(self._grpc)
@@ -420,13 +484,15 @@ class CangateBus(can.BusABC):
             # messages this makes (see AttachOpen.low_latency).
             low_latency=True,
         )
-        return _Attachment(
+        attachment = _Attachment(
             self._stub,
             open_msg,
             receive_buffer=self._buffers[0],
             send_buffer=self._buffers[1],
             timeout=self._timeout,
         )
+        attachment.on_cyclic_stopped = self._on_cyclic_stopped
+        return attachment
 
     # ------------------------------------------------------------ state
 
@@ -476,6 +542,9 @@ class CangateBus(can.BusABC):
             log.error("cangate %s: attaching again: %s", self.channel, unsent)
         self._server_filters = pb
         self._attachment = self._attach(pb or [])
+        # The cyclic jobs ended with the old stream: start them again.
+        for task in list(self._cyclic.values()):
+            self._cyclic_start(task)
 
     # ------------------------------------------------------------ receive
 
@@ -514,12 +583,24 @@ class CangateBus(can.BusABC):
         if msg.is_fd and not self._fd:
             raise can.CanOperationError("cangate: CAN FD frame on a bus opened without fd")
         frame = message_to_frame(msg)
+        self._request(
+            lambda sequence: bus_pb2.AttachRequest(
+                send=bus_pb2.AttachSend(frames=[frame], sequence=sequence)
+            ),
+            timeout,
+            self._confirm,
+        )
+
+    def _request(self, build: Any, timeout: Optional[float], confirm: bool) -> None:
+        """Queues the request `build(sequence)` makes and, with `confirm`,
+        waits for the gateway's answer (raising its refusal)."""
+        a = self._attachment
+        if a is None:
+            raise can.CanOperationError("cangate: the bus is shut down")
         with self._send_lock:
             sequence = next(self._sequence)
-            request = bus_pb2.AttachRequest(
-                send=bus_pb2.AttachSend(frames=[frame], sequence=sequence)
-            )
-            if self._confirm:
+            request = build(sequence)
+            if confirm:
                 with a.answers:
                     a.waiting.add(sequence)
             try:
@@ -531,7 +612,7 @@ class CangateBus(can.BusABC):
                     f"cangate: send buffer full for {timeout} s (the bus is slower than the sender)"
                 ) from None
             a.last_sent = sequence
-        if not self._confirm:
+        if not confirm:
             return
         try:
             answered = a.wait_answered(sequence, timeout)
@@ -544,6 +625,97 @@ class CangateBus(can.BusABC):
                 raise a.error
             raise can.CanOperationError(
                 f"cangate: message {sequence} not confirmed by the gateway within {timeout} s"
+            )
+
+    # ------------------------------------------------------------ cyclic
+
+    def _send_periodic_internal(
+        self,
+        msgs: Any,
+        period: float,
+        duration: Optional[float] = None,
+        autostart: bool = True,
+        modifier_callback: Optional[Any] = None,
+    ) -> can.broadcastmanager.CyclicSendTaskABC:
+        """``send_periodic``: a job in the gateway (see the module
+        documentation); with a ``modifier_callback``, python-can's thread."""
+        if modifier_callback is not None:
+            return super()._send_periodic_internal(
+                msgs, period, duration, autostart, modifier_callback
+            )
+        task = CangateCyclicTask(self, next(self._jobs), msgs, period, duration)
+        for m in task.messages:
+            if m.is_fd and not self._fd:
+                raise can.CanOperationError("cangate: CAN FD frame on a bus opened without fd")
+        if autostart:
+            task.start()
+        return task
+
+    def _cyclic_start(self, task: CangateCyclicTask) -> None:
+        frames = [message_to_frame(m) for m in task.messages]
+        interval = max(1, round(task.period * 1e9))
+        duration = round(task.duration * 1e9) if task.duration else 0
+        self._request(
+            lambda sequence: bus_pb2.AttachRequest(
+                cyclic=bus_pb2.AttachCyclic(
+                    job=task.job,
+                    frames=frames,
+                    interval_ns=interval,
+                    duration_ns=max(duration, 0),
+                    sequence=sequence,
+                )
+            ),
+            self._timeout,
+            True,
+        )
+        task.running = True
+        task.stopped_by_gateway = None
+        self._cyclic[task.job] = task
+
+    def _cyclic_modify(self, task: CangateCyclicTask, messages: tuple) -> None:
+        frames = [message_to_frame(m) for m in messages]
+        if not task.running:
+            return
+        self._request(
+            lambda sequence: bus_pb2.AttachRequest(
+                cyclic=bus_pb2.AttachCyclic(job=task.job, frames=frames, sequence=sequence)
+            ),
+            self._timeout,
+            True,
+        )
+
+    def _cyclic_stop(self, task: CangateCyclicTask) -> None:
+        # A stop always stops: when the stream is gone, so is the job.
+        self._cyclic.pop(task.job, None)
+        was_running, task.running = task.running, False
+        a = self._attachment
+        if not was_running or a is None or a.error is not None:
+            return
+        try:
+            self._request(
+                lambda sequence: bus_pb2.AttachRequest(
+                    cyclic_stop=bus_pb2.AttachCyclicStop(job=task.job, sequence=sequence)
+                ),
+                self._timeout,
+                True,
+            )
+        except can.CanOperationError as err:
+            log.warning("cangate %s: stopping cyclic job %d: %s", self.channel, task.job, err)
+
+    def _on_cyclic_stopped(self, stopped: Any) -> None:
+        # Called by the attachment's reader thread.
+        task = self._cyclic.pop(stopped.job, None)
+        if task is None:
+            return
+        task.running = False
+        if stopped.code != 0:
+            task.stopped_by_gateway = f"{stopped.reason}: {stopped.message}"
+            log.warning(
+                "cangate %s: the gateway stopped cyclic job %d (id 0x%X): %s",
+                self.channel,
+                stopped.job,
+                task.arbitration_id,
+                task.stopped_by_gateway,
             )
 
     @staticmethod
@@ -610,4 +782,4 @@ class CangateBus(can.BusABC):
         ]
 
 
-__all__ = ["CangateBus", "frame_to_message", "message_to_frame"]
+__all__ = ["CangateBus", "CangateCyclicTask", "frame_to_message", "message_to_frame"]

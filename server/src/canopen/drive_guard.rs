@@ -158,6 +158,23 @@ impl CanopenBus {
         }
         self.check_drive_idle(node, &format!("writing {addr}"))
     }
+
+    /// Refuses sending an RPDO of `node` that maps an object which
+    /// commands the drive ([`commands_the_drive`]) while the node drives
+    /// an active axis: the same rule as a raw SDO write of that object.
+    pub fn check_rpdo_write(
+        &self,
+        node: NodeId,
+        cfg: &cangate_canopen::pdo::PdoConfig,
+    ) -> Result<(), AxisActive> {
+        match cfg.mapping.iter().find(|m| commands_the_drive(m.addr)) {
+            Some(m) => self.check_drive_idle(
+                node,
+                &format!("sending RPDO {} (it maps {})", cfg.num, m.addr),
+            ),
+            None => Ok(()),
+        }
+    }
 }
 
 #[cfg(test)]

@@ -260,6 +260,7 @@ pub(super) fn relay_tpdo(
         return;
     };
     route.count.fetch_add(1, Ordering::Relaxed);
+    *route.last.lock().unwrap_or_else(|p| p.into_inner()) = Some(*frame);
     if pdos.receiver_count() > 0 {
         publish_pdo(pdos, route.node, &route.cfg, route.eds.as_deref(), frame);
     }

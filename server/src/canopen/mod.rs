@@ -421,6 +421,8 @@ struct TpdoRoute {
     cfg: PdoConfig,
     eds: Option<Arc<Eds>>,
     count: AtomicU64,
+    /// The last one received ([`CanopenBus::last_tpdo`]).
+    last: Mutex<Option<cangate_can::Frame>>,
 }
 
 impl CanopenBus {
@@ -453,6 +455,7 @@ impl CanopenBus {
                             cfg: p.clone(),
                             eds: f.eds.clone(),
                             count: AtomicU64::new(0),
+                            last: Mutex::new(None),
                         },
                     )
                 })
@@ -894,6 +897,25 @@ impl CanopenBus {
     /// update allocates, so nothing is built without a listener.
     pub fn relay_tpdo(&self, frame: &cangate_can::Frame) {
         relay_tpdo(&self.tpdos, &self.pdos, frame);
+    }
+
+    /// The last TPDO `num` received from `node` (counted and relayed as
+    /// [`CanopenBus::relay_tpdo`] says), with its configuration; `None`
+    /// when the node has no such TPDO configured, `Some((cfg, None))` when
+    /// none was received yet.
+    pub fn last_tpdo(
+        &self,
+        node: NodeId,
+        num: u16,
+    ) -> Option<(PdoConfig, Option<cangate_can::Frame>)> {
+        let routes = self.tpdos.read().expect("TPDO routes lock");
+        routes
+            .values()
+            .find(|r| r.node == node && r.cfg.num == num)
+            .map(|r| {
+                let last = *r.last.lock().unwrap_or_else(|p| p.into_inner());
+                (r.cfg.clone(), last)
+            })
     }
 
     /// Subscribes to decoded TPDOs.

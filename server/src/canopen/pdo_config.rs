@@ -225,6 +225,7 @@ impl CanopenBus {
                         cfg: cfg.clone(),
                         eds,
                         count: AtomicU64::new(0),
+                        last: std::sync::Mutex::new(None),
                     },
                 );
             }

@@ -411,6 +411,8 @@ impl Connection<'_> {
             Action::Nmt { .. } => "/cangate.v1.Canopen/SendNmt",
             Action::Events { .. } => "/cangate.v1.Canopen/StreamNodeEvents",
             Action::Info { .. } => "/cangate.v1.Session/GetCaller",
+            Action::ReadPdo { .. } => "/cangate.v1.Canopen/StreamPdo",
+            Action::WritePdo { .. } => "/cangate.v1.Canopen/WritePdo",
             Action::Lss { command, .. } => match command {
                 Lss::SwitchGlobal(_) => "/cangate.v1.Lss/SwitchGlobal",
                 Lss::SwitchSelective(_) => "/cangate.v1.Lss/SwitchSelective",
@@ -651,6 +653,63 @@ impl Connection<'_> {
                 ));
                 protocol::format_comment_lines(seq, &lines)
             }
+            Action::ReadPdo {
+                seq,
+                net,
+                node,
+                pdo,
+            } => {
+                let (m, node) = match self.target(seq, net, node) {
+                    Ok(t) => t,
+                    Err(e) => return e,
+                };
+                read_pdo(&m, seq, net, node, pdo)
+            }
+            Action::WritePdo {
+                seq,
+                net,
+                node,
+                pdo,
+                values,
+            } => {
+                let (m, node) = match self.target(seq, net, node) {
+                    Ok(t) => t,
+                    Err(e) => return e,
+                };
+                let Some(cfg) = m.rpdo(node, pdo) else {
+                    return protocol::format_error(
+                        seq,
+                        ErrorCode::INTERNAL_STATE,
+                        Some(&format!(
+                            "node {node} has no RPDO {pdo} (configure it under \
+                             [[canopen.node.rpdo]] or give the node an EDS)"
+                        )),
+                    );
+                };
+                // The guard first: whatever the values, an RPDO that
+                // commands an active axis's drive is not the client's.
+                if let Err(e) = m.check_rpdo_write(node, &cfg) {
+                    return self.refused(seq, "write pdo", CanopenError::AxisActive(e));
+                }
+                let data = match rpdo_payload(&cfg, seq, node, &values) {
+                    Ok(d) => d,
+                    Err(answer) => return answer,
+                };
+                tracing::info!(
+                    target: AUDIT_TARGET,
+                    who = %client.who,
+                    method = "cia309 write pdo",
+                    bus = m.bus(),
+                    node = node.get(),
+                    pdo,
+                    cob_id = cfg.cob_id,
+                    "CiA 309-3 PDO write"
+                );
+                match m.send_pdo(cfg.cob_id, &data).await {
+                    Ok(()) => protocol::format_ok(seq),
+                    Err(e) => error_answer(seq, e, None),
+                }
+            }
             Action::Reply(text) => text,
             Action::Login { seq, .. } => protocol::format_ok(seq),
         }
@@ -730,7 +789,9 @@ fn seq_of(action: &Action) -> u32 {
         | Action::Lss { seq, .. }
         | Action::Events { seq, .. }
         | Action::Login { seq, .. }
-        | Action::Info { seq } => *seq,
+        | Action::Info { seq }
+        | Action::ReadPdo { seq, .. }
+        | Action::WritePdo { seq, .. } => *seq,
     }
 }
 
@@ -769,6 +830,73 @@ fn event_line(net: u16, ev: &NodeEvent) -> Option<String> {
         _ => return None,
     };
     Some(protocol::format_event(net, ev.node.get(), &event))
+}
+
+/// `read pdo`: the mapped values of the last TPDO `pdo` of `node`, as
+/// unsigned numbers of their bits.
+fn read_pdo(m: &CanopenBus, seq: u32, net: u16, node: NodeId, pdo: u16) -> String {
+    let refuse = |why: String| protocol::format_error(seq, ErrorCode::INTERNAL_STATE, Some(&why));
+    let (cfg, last) = match m.last_tpdo(node, pdo) {
+        None => {
+            return refuse(format!(
+                "node {node} has no TPDO {pdo} (configure it under [[canopen.node.tpdo]] or \
+                 give the node an EDS)"
+            ));
+        }
+        Some((_, None)) => return refuse(format!("no TPDO {pdo} of node {node} received yet")),
+        Some((cfg, Some(frame))) => (cfg, frame),
+    };
+    let data = last.data();
+    let mut values = Vec::with_capacity(cfg.mapping.len());
+    let mut at = 0;
+    for mo in &cfg.mapping {
+        let len = usize::from(mo.bits / 8);
+        let Some(bytes) = data.get(at..at + len) else {
+            return refuse(format!(
+                "TPDO {pdo} of node {node} came with {} bytes; its mapping needs more",
+                data.len()
+            ));
+        };
+        values.push(
+            bytes
+                .iter()
+                .rev()
+                .fold(0u64, |v, b| (v << 8) | u64::from(*b)),
+        );
+        at += len;
+    }
+    protocol::format_pdo(seq, net, &values)
+}
+
+/// `write pdo`: the payload of `values` for the RPDO `cfg`, or the answer
+/// refusing them.
+fn rpdo_payload(
+    cfg: &cangate_canopen::pdo::PdoConfig,
+    seq: u32,
+    node: NodeId,
+    values: &[u64],
+) -> Result<Vec<u8>, String> {
+    let pdo = cfg.num;
+    let syntax = |why: String| protocol::format_error(seq, ErrorCode::SYNTAX, Some(&why));
+    if values.len() != cfg.mapping.len() {
+        return Err(syntax(format!(
+            "RPDO {pdo} of node {node} maps {} objects; {} values given",
+            cfg.mapping.len(),
+            values.len()
+        )));
+    }
+    let mut data = Vec::with_capacity(8);
+    for (mo, v) in cfg.mapping.iter().zip(values) {
+        let bits = u32::from(mo.bits);
+        if bits < 64 && v >> bits != 0 {
+            return Err(syntax(format!(
+                "{v:#x} does not fit the {bits} bits of {}",
+                mo.addr
+            )));
+        }
+        data.extend_from_slice(&v.to_le_bytes()[..usize::from(mo.bits / 8)]);
+    }
+    Ok(data)
 }
 
 /// The answer of a failed runtime call. `lss` names the LSS command for

@@ -43,6 +43,16 @@
 //!   `<net> <node> ERROR <code> (<text>)` for a heartbeat (203) or node
 //!   guarding (200) loss and a heartbeat back (202), as lely-core's
 //!   `gw_txt.c` prints them.
+//! - **PDO data** (lely-core's `coctl`, `gw_txt.c`; canopend has none):
+//!   `[<net>] r[ead] p[do] <n>` and `[<net>] w[rite] p[do] <n> <count>
+//!   <value>…`, network commands (a single number before them is the
+//!   network). The values are those of the PDO's mapped objects in
+//!   mapping order, as unsigned numbers of their bits; read answers
+//!   `[seq] <net> pdo <count> 0x<value>…` (`%x`, as lely prints them).
+//!   Lely numbers the gateway's own PDOs; cangate has the nodes' PDOs, so
+//!   PDO *n* (1..=512) is PDO `(n-1) % 4 + 1` of node `(n-1) / 4 + 1`
+//!   ([`pdo_target`]): `read pdo` reads that TPDO of the node (the last
+//!   one received), `write pdo` sends that RPDO of the node.
 
 use std::fmt::Write as _;
 
@@ -263,6 +273,8 @@ const HELP_COMMANDS: &str = "\n\
 cangate CiA 309-3 ASCII gateway. Every command starts with [<sequence>].\n\
 [[<net>] <node>] r[ead] <index> <subindex> [<datatype>]   SDO upload\n\
 [[<net>] <node>] w[rite] <index> <subindex> <datatype> <value>   SDO download\n\
+[<net>] r[ead] p[do] <n>   the last TPDO (n-1)%4+1 received from node (n-1)/4+1\n\
+[<net>] w[rite] p[do] <n> <count> <value>...   send RPDO (n-1)%4+1 of node (n-1)/4+1\n\
 [[<net>] <node>] start | stop | preop[erational]   NMT (node 0: every node)\n\
 [[<net>] <node>] reset node | reset comm[unication]   NMT reset\n\
 [<net>] set network <net>   default network (1: the first CANopen bus)\n\
@@ -803,6 +815,51 @@ pub enum Action {
         /// Sequence.
         seq: u32,
     },
+    /// `read pdo <n>`: the last TPDO received (see [`pdo_target`]).
+    ReadPdo {
+        /// Sequence.
+        seq: u32,
+        /// Network.
+        net: u16,
+        /// Node.
+        node: u8,
+        /// The node's TPDO number.
+        pdo: u16,
+    },
+    /// `write pdo <n> <count> <value>…`: an RPDO sent (see
+    /// [`pdo_target`]).
+    WritePdo {
+        /// Sequence.
+        seq: u32,
+        /// Network.
+        net: u16,
+        /// Node.
+        node: u8,
+        /// The node's RPDO number.
+        pdo: u16,
+        /// The mapped objects' values, in mapping order.
+        values: Vec<u64>,
+    },
+}
+
+/// The node and its PDO number that the gateway's PDO `n` (1..=512) of
+/// `read pdo`/`write pdo` stands for: four per node, as the predefined
+/// connection set has (PDO 1 is node 1's first, 9 node 3's first); `None`
+/// beyond node 127.
+pub fn pdo_target(n: u16) -> Option<(u8, u16)> {
+    let node = (n.checked_sub(1)? / 4 + 1) as u8;
+    (node <= 127).then_some((node, (n - 1) % 4 + 1))
+}
+
+/// `[seq] <net> pdo <count> 0x<value>…`: a PDO's mapped values as lely's
+/// `gw_txt.c` prints a read.
+pub fn format_pdo(seq: u32, net: u16, values: &[u64]) -> String {
+    let mut line = format!("[{seq}] {net} pdo {}", values.len());
+    for v in values {
+        let _ = write!(line, " 0x{v:x}");
+    }
+    line.push_str("\r\n");
+    line
 }
 
 impl Action {
@@ -817,6 +874,8 @@ impl Action {
             Action::Events { .. } => "events",
             Action::Login { .. } => "login",
             Action::Info { .. } => "info",
+            Action::ReadPdo { .. } => "read_pdo",
+            Action::WritePdo { .. } => "write_pdo",
         }
     }
 }
@@ -905,7 +964,18 @@ impl Session {
             }
             numbers.push(parse_c_unsigned(w).ok_or(ErrorCode::SYNTAX)?);
         };
+        // `r[ead] p[do]`, `w[rite] p[do]`: network commands.
+        let pdo = matches!(name.as_str(), "r" | "read" | "w" | "write") && {
+            let save = lx.pos;
+            let next = lx.word().map(str::to_ascii_lowercase);
+            let pdo = matches!(next.as_deref(), Some("p" | "pdo"));
+            if !pdo {
+                lx.pos = save;
+            }
+            pdo
+        };
         let level = match name.as_str() {
+            _ if pdo => Level::Network,
             "r" | "read" | "w" | "write" | "start" | "stop" | "preop" | "preoperational"
             | "reset" => Level::Node,
             "set" => Level::Network,
@@ -942,6 +1012,38 @@ impl Session {
             }
         };
         let action = match name.as_str() {
+            _ if pdo => {
+                let net = self.network(net)?;
+                let n = number(lx, 512)? as u16;
+                if n == 0 {
+                    return Err(ErrorCode::SYNTAX.into());
+                }
+                let (node, pdo) = pdo_target(n).ok_or(ErrorCode::UNSUPPORTED_NODE)?;
+                if name.starts_with('r') {
+                    end(lx)?;
+                    Action::ReadPdo {
+                        seq,
+                        net,
+                        node,
+                        pdo,
+                    }
+                } else {
+                    // A classic PDO maps at most 64 objects (of one bit);
+                    // the gateway maps whole bytes, at most 8.
+                    let count = number(lx, 0x40)?;
+                    let values = (0..count)
+                        .map(|_| number(lx, u64::MAX))
+                        .collect::<Result<Vec<_>, _>>()?;
+                    end(lx)?;
+                    Action::WritePdo {
+                        seq,
+                        net,
+                        node,
+                        pdo,
+                        values,
+                    }
+                }
+            }
             "r" | "read" => {
                 let (net, node) = self.target(net, node, 1)?;
                 let index = number(lx, 0xFFFF)? as u16;
@@ -1229,6 +1331,86 @@ mod tests {
             Action::Reply(r) => r,
             other => panic!("{line:?}: {other:?}"),
         }
+    }
+
+    #[test]
+    fn pdo_commands_are_lelys_network_commands() {
+        let mut s = session();
+        // PDO n is PDO (n-1)%4+1 of node (n-1)/4+1.
+        assert_eq!(pdo_target(1), Some((1, 1)));
+        assert_eq!(pdo_target(9), Some((3, 1)));
+        assert_eq!(pdo_target(12), Some((3, 4)));
+        assert_eq!(pdo_target(508), Some((127, 4)));
+        assert_eq!(pdo_target(509), None);
+        assert_eq!(pdo_target(0), None);
+        assert_eq!(
+            s.on_line("[1] read pdo 9"),
+            Action::ReadPdo {
+                seq: 1,
+                net: 1,
+                node: 3,
+                pdo: 1
+            }
+        );
+        // A single number before it is the network; short forms.
+        assert_eq!(
+            s.on_line("[2] 2 r p 0x0A"),
+            Action::ReadPdo {
+                seq: 2,
+                net: 2,
+                node: 3,
+                pdo: 2
+            }
+        );
+        assert_eq!(
+            s.on_line("[3] w pdo 9 2 0x5A 300"),
+            Action::WritePdo {
+                seq: 3,
+                net: 1,
+                node: 3,
+                pdo: 1,
+                values: vec![0x5A, 300]
+            }
+        );
+        assert_eq!(
+            s.on_line("[4] 1 write PDO 12 0"),
+            Action::WritePdo {
+                seq: 4,
+                net: 1,
+                node: 3,
+                pdo: 4,
+                values: vec![]
+            }
+        );
+        // A node before a network command, a missing or extra value, a
+        // number out of range, a network that does not exist.
+        for (line, code) in [
+            ("[5] 1 3 read pdo 9", "101"),
+            ("[5] write pdo 9 2 1", "101"),
+            ("[5] write pdo 9 1 1 2", "101"),
+            ("[5] write pdo 9 65", "101"),
+            ("[5] read pdo 0", "101"),
+            ("[5] read pdo 513", "101"),
+            ("[5] read pdo 9 1", "101"),
+            ("[5] read pdo 509", "107"),
+            ("[5] 3 read pdo 9", "106"),
+        ] {
+            assert!(
+                reply(&mut s, line).starts_with(&format!("[5] ERROR:{code} #")),
+                "{line}: {}",
+                reply(&mut s, line)
+            );
+        }
+        // An SDO read is still one.
+        assert!(matches!(
+            s.on_line("[6] 3 read 0x1000 0 u32"),
+            Action::Read { node: 3, .. }
+        ));
+        assert_eq!(format_pdo(7, 1, &[]), "[7] 1 pdo 0\r\n");
+        assert_eq!(
+            format_pdo(7, 1, &[0x5A, 0x12C, u64::MAX]),
+            "[7] 1 pdo 3 0x5a 0x12c 0xffffffffffffffff\r\n"
+        );
     }
 
     #[test]

@@ -11,6 +11,7 @@ use super::forward::{AtShutdown, Forward, Received, Source, spawn_forwarding};
 use crate::convert::bus::{
     bus_info_to_pb, filter_from_pb, frame_from_pb, item_to_attach_pb, item_to_pb, status_to_pb,
 };
+use crate::cyclic::{CyclicError, CyclicEvent, CyclicPolicy, CyclicSender};
 use crate::gateway::Gateway;
 use crate::participants::{SenderGuard, SenderNames};
 use crate::security::{FrameBudget, StreamQueueBudget};
@@ -159,7 +160,17 @@ async fn try_send_client_frames(
             ))
         })?;
     }
-    let frames = frames
+    let frames = client_frames_from_pb(frames, fd).map_err(refuse)?;
+    // Within the bus's client share, behind the gateway's own frames.
+    bus.send_as_client(client, frames)
+        .await
+        .map_err(Refusal::from)
+}
+
+/// A client's frames, validated as a whole (`fd` false: FD frames are
+/// refused).
+fn client_frames_from_pb(frames: &[pb::Frame], fd: bool) -> Result<Vec<Frame>, ApiError> {
+    frames
         .iter()
         .enumerate()
         .map(|(i, f)| match frame_from_pb(f) {
@@ -170,12 +181,122 @@ async fn try_send_client_frames(
             Ok(frame) => Ok(frame),
             Err(e) => Err(ApiError::bad_frame(i, e)),
         })
-        .collect::<Result<Vec<Frame>, _>>()
-        .map_err(refuse)?;
-    // Within the bus's client share, behind the gateway's own frames.
-    bus.send_as_client(client, frames)
-        .await
-        .map_err(Refusal::from)
+        .collect()
+}
+
+/// What an attached client's cyclic frames go through (its frames were
+/// validated when the job started): its raw frame budget, then the bus,
+/// each refusal counted as a refused AttachSend is.
+struct AttachCyclicPolicy {
+    bus: String,
+    budget: Option<FrameBudget>,
+}
+
+impl CyclicPolicy for AttachCyclicPolicy {
+    type Refusal = ApiError;
+
+    fn admit(&mut self, _frame: &Frame) -> Result<(), ApiError> {
+        let Some(b) = &self.budget else {
+            return Ok(());
+        };
+        b.take(1).map_err(|e| {
+            crate::metrics::client_frames_refused(&self.bus, "FRAME_RATE_LIMIT".into(), 1);
+            ApiError::refused(
+                Code::ResourceExhausted,
+                "FRAME_RATE_LIMIT",
+                e.0,
+                vec![("frames", "1".to_string())],
+            )
+        })
+    }
+
+    fn sent(&mut self, outcome: Result<(), SendFailure>) -> Result<(), ApiError> {
+        outcome.map_err(|f| {
+            let e = ApiError::from(f);
+            crate::metrics::client_frames_refused(&self.bus, e.reason(), 1);
+            e
+        })
+    }
+}
+
+/// An attached client's cyclic jobs.
+type AttachCyclicJobs = CyclicSender<u32, ApiError>;
+
+/// The next event of an attached client's cyclic jobs (never returns
+/// without them).
+async fn next_cyclic_event(jobs: &mut Option<AttachCyclicJobs>) -> CyclicEvent<u32, ApiError> {
+    match jobs {
+        Some(j) => j.next_event().await,
+        None => std::future::pending().await,
+    }
+}
+
+/// Starts or changes a job as an AttachCyclic asks.
+fn attach_cyclic(
+    jobs: &mut Option<AttachCyclicJobs>,
+    msg: &pb::AttachCyclic,
+    bus: &BusHandle,
+    client: ClientId,
+    fd: bool,
+    budget: Option<&FrameBudget>,
+    cancel: &CancellationToken,
+) -> Result<(), ApiError> {
+    let frames = client_frames_from_pb(&msg.frames, fd)?;
+    let result = if msg.interval_ns == 0 {
+        match jobs {
+            Some(j) => j.update(msg.job, frames),
+            None => Err(CyclicError::NoSuchJob),
+        }
+    } else {
+        let duration = (msg.duration_ns > 0).then(|| Duration::from_nanos(msg.duration_ns));
+        jobs.get_or_insert_with(|| {
+            let policy = AttachCyclicPolicy {
+                bus: bus.name().to_string(),
+                budget: budget.cloned(),
+            };
+            CyclicSender::spawn(bus.clone(), client, policy, cancel)
+        })
+        .start(
+            msg.job,
+            frames,
+            Duration::from_nanos(msg.interval_ns),
+            duration,
+        )
+    };
+    result.map_err(|e| match e {
+        CyclicError::TooManyJobs => ApiError::refused(
+            Code::ResourceExhausted,
+            "CYCLIC_JOB_LIMIT",
+            e.to_string(),
+            vec![("job", msg.job.to_string())],
+        ),
+        CyclicError::NoSuchJob => ApiError::InvalidArgument(format!(
+            "cyclic job {} does not run: start it with an interval first",
+            msg.job
+        )),
+        e => ApiError::InvalidArgument(format!("cyclic job {}: {e}", msg.job)),
+    })
+}
+
+/// A job that ended by itself, as its in-stream notice.
+fn cyclic_stopped_to_pb(event: CyclicEvent<u32, ApiError>) -> pb::AttachEvent {
+    let stopped = match event {
+        CyclicEvent::Finished { key } => pb::CyclicStopped {
+            job: key,
+            code: 0,
+            message: "its duration has passed".into(),
+            reason: String::new(),
+        },
+        CyclicEvent::Refused { key, refusal } => pb::CyclicStopped {
+            job: key,
+            code: refusal.code() as i32,
+            message: format!("a frame of it was refused: {refusal}"),
+            reason: refusal.reason(),
+        },
+    };
+    pb::AttachEvent {
+        event: Some(pb::attach_event::Event::CyclicStopped(stopped)),
+    }
 }
 
 /// How a stream batches its events into messages.
@@ -330,10 +451,13 @@ fn attach_protocol(message: impl Into<String>) -> Status {
     ApiError::refused(Code::InvalidArgument, "ATTACH_PROTOCOL", message, vec![]).into()
 }
 
-/// The sending half of an Attach stream: each AttachSend in order,
-/// answered in the stream with its SendDone or SendRefused; ends when the client goes away, breaks
-/// the protocol or the gateway shuts down. After the client's half-close
-/// it only holds the sender's name until the stream ends.
+/// The sending half of an Attach stream: each AttachSend, AttachCyclic
+/// and AttachCyclicStop in order, answered in the stream with its SendDone
+/// or SendRefused, and the notices of cyclic jobs that ended by
+/// themselves; ends when the client goes away, breaks the protocol or the
+/// gateway shuts down, and its cyclic jobs with it. After the client's
+/// half-close it holds the sender's name and runs the cyclic jobs until
+/// the stream ends.
 #[allow(clippy::too_many_arguments)]
 async fn attach_sends(
     mut inbound: tonic::Streaming<pb::AttachRequest>,
@@ -346,17 +470,62 @@ async fn attach_sends(
     _name: SenderGuard,
 ) {
     use pb::attach_request::Message;
+    let mut cyclic: Option<AttachCyclicJobs> = None;
+    let mut half_closed = false;
     loop {
         let msg = tokio::select! {
             biased;
             _ = cancel.cancelled() => return,
             _ = tx.closed() => return,
-            m = inbound.message() => m,
+            e = next_cyclic_event(&mut cyclic) => {
+                let message = pb::AttachResponse {
+                    events: vec![cyclic_stopped_to_pb(e)],
+                };
+                tokio::select! {
+                    _ = cancel.cancelled() => return,
+                    r = tx.send(Ok(message)) => if r.is_err() { return },
+                }
+                continue;
+            }
+            m = inbound.message(), if !half_closed => m,
         };
-        let send = match msg {
+        let (sequence, answer) = match msg {
             Ok(Some(pb::AttachRequest {
                 message: Some(Message::Send(send)),
-            })) => send,
+            })) => {
+                let sending = send_client_frames(&bus, client, &send.frames, fd, budget.as_ref());
+                let result = tokio::select! {
+                    _ = cancel.cancelled() => return,
+                    _ = tx.closed() => return,
+                    r = sending => r,
+                };
+                (
+                    send.sequence,
+                    result
+                        .map(|()| send.frames.len())
+                        .map_err(|r| (r.sent, r.total, r.error)),
+                )
+            }
+            Ok(Some(pb::AttachRequest {
+                message: Some(Message::Cyclic(c)),
+            })) => {
+                let result =
+                    attach_cyclic(&mut cyclic, &c, &bus, client, fd, budget.as_ref(), &cancel);
+                (
+                    c.sequence,
+                    result.map(|()| 0).map_err(|e| (0, c.frames.len(), e)),
+                )
+            }
+            Ok(Some(pb::AttachRequest {
+                message: Some(Message::CyclicStop(stop)),
+            })) => {
+                // Stopping a job that does not run is no error: it does not
+                // run afterwards either way.
+                if let Some(j) = &cyclic {
+                    let _ = j.stop(stop.job);
+                }
+                (stop.sequence, Ok(0))
+            }
             Ok(Some(pb::AttachRequest { message })) => {
                 let what = if message.is_some() {
                     "a second AttachOpen: the stream is open already"
@@ -371,12 +540,10 @@ async fn attach_sends(
                 return;
             }
             Ok(None) => {
-                // Half-closed: nothing more to send; receiving goes on.
-                tokio::select! {
-                    _ = cancel.cancelled() => {}
-                    _ = tx.closed() => {}
-                }
-                return;
+                // Half-closed: nothing more to send; receiving and the
+                // cyclic jobs go on.
+                half_closed = true;
+                continue;
             }
             // The client went away (cancelled, reset: nobody to tell), or
             // its messages failed (too large, undecodable): the stream ends
@@ -386,21 +553,15 @@ async fn attach_sends(
                 return;
             }
         };
-        let sending = send_client_frames(&bus, client, &send.frames, fd, budget.as_ref());
-        let result = tokio::select! {
-            _ = cancel.cancelled() => return,
-            _ = tx.closed() => return,
-            r = sending => r,
-        };
         // Every message is answered: done, or refused with the reason.
-        let event = match result {
-            Ok(()) => pb::AttachEvent {
+        let event = match answer {
+            Ok(sent) => pb::AttachEvent {
                 event: Some(pb::attach_event::Event::Done(pb::SendDone {
-                    sequence: send.sequence,
-                    sent: send.frames.len() as u32,
+                    sequence,
+                    sent: sent as u32,
                 })),
             },
-            Err(r) => send_refused_to_pb(send.sequence, r.sent, r.total, &r.error),
+            Err((sent, total, error)) => send_refused_to_pb(sequence, sent, total, &error),
         };
         let message = pb::AttachResponse {
             events: vec![event],

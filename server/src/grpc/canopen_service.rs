@@ -547,6 +547,10 @@ impl Canopen for CanopenService {
             name: format!("{} of node {}", req.pdo, req.node),
             hint: " (configure it under [[canopen.node.rpdo]] or give the node an EDS)".into(),
         })?;
+        // An RPDO that commands an enabled or moving axis's drive is the
+        // axis's, as a raw SDO write of those objects is.
+        m.check_rpdo_write(node, &cfg)
+            .map_err(|e| map_err(node, CanopenError::AxisActive(e)))?;
         let values =
             req.values
                 .iter()

@@ -1,6 +1,7 @@
-//! socketcand's BCM mode without I/O: a session's cyclic transmission jobs
-//! (`add`, `update`, `delete`) and its receive operations (`subscribe`,
-//! `filter`, `unsubscribe`), driven by frames and time.
+//! socketcand's BCM mode without I/O: a session's receive operations
+//! (`subscribe`, `filter`, `unsubscribe`), driven by frames and time; its
+//! cyclic transmission jobs (`add`, `update`, `delete`) run in the
+//! runtime's [`crate::cyclic`], as those of every client do.
 //!
 //! Source of truth: `doc/protocol.md` of linux-can/socketcand and
 //! `src/state_bcm.c` (commit 6dd5d33), which hands each command to the
@@ -12,8 +13,9 @@
 //!   STARTTIMER`: the frame goes out every interval, the first one interval
 //!   after the command (no `TX_ANNOUNCE`). One job per identifier: a second
 //!   `add` replaces the job and restarts its timer. The gateway refuses an
-//!   interval below [`MIN_INTERVAL`] (the kernel's floor is the timer's) and
-//!   more than [`MAX_JOBS`] jobs per session.
+//!   interval below [`crate::cyclic::MIN_INTERVAL`] (the kernel's floor is
+//!   the timer's) and more than [`crate::cyclic::MAX_JOBS`] jobs per
+//!   session.
 //! - **`update id dlc data…`**: `TX_SETUP` without timer flags: the job's
 //!   frame is replaced, its timer goes on. The gateway refuses an update of
 //!   a job that does not exist (the kernel would create one without a
@@ -38,19 +40,8 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::time::Duration;
 
-/// The shortest cyclic interval the gateway runs.
-pub const MIN_INTERVAL: Duration = Duration::from_millis(1);
-/// Cyclic jobs one session may have.
-pub const MAX_JOBS: usize = 64;
 /// Receive operations one session may have.
 pub const MAX_RX_OPS: usize = 256;
-
-#[derive(Debug, Clone)]
-struct TxJob {
-    frame: Frame,
-    interval: Duration,
-    next: Duration,
-}
 
 #[derive(Debug, Clone)]
 struct RxOp {
@@ -65,73 +56,13 @@ struct RxOp {
     held: Option<Frame>,
 }
 
-/// A session's BCM jobs and receive operations.
+/// A session's BCM receive operations.
 #[derive(Debug, Default)]
 pub struct Bcm {
-    tx: BTreeMap<CanId, TxJob>,
     rx: BTreeMap<CanId, RxOp>,
 }
 
 impl Bcm {
-    /// `add`: a cyclic job for `frame` every `interval`, the first at
-    /// `now + interval`; replaces a job of the same identifier.
-    ///
-    /// # Errors
-    /// An interval below [`MIN_INTERVAL`], or [`MAX_JOBS`] jobs already.
-    pub fn add(&mut self, frame: Frame, interval: Duration, now: Duration) -> Result<(), String> {
-        if interval < MIN_INTERVAL {
-            return Err(format!(
-                "add: the interval must be at least {} ms (send sends a frame once)",
-                MIN_INTERVAL.as_millis()
-            ));
-        }
-        if !self.tx.contains_key(&frame.id()) && self.tx.len() >= MAX_JOBS {
-            return Err(format!("add: at most {MAX_JOBS} cyclic jobs per session"));
-        }
-        self.tx.insert(
-            frame.id(),
-            TxJob {
-                frame,
-                interval,
-                next: now + interval,
-            },
-        );
-        Ok(())
-    }
-
-    /// `update`: the job's frame replaced, its timer kept.
-    ///
-    /// # Errors
-    /// No job for the identifier.
-    pub fn update(&mut self, frame: Frame) -> Result<(), String> {
-        match self.tx.get_mut(&frame.id()) {
-            Some(job) => {
-                job.frame = frame;
-                Ok(())
-            }
-            None => Err(format!(
-                "update: no cyclic job for {} (add one first)",
-                id_text(frame.id())
-            )),
-        }
-    }
-
-    /// `delete`.
-    ///
-    /// # Errors
-    /// No job for the identifier.
-    pub fn delete(&mut self, id: CanId) -> Result<(), String> {
-        self.tx
-            .remove(&id)
-            .map(|_| ())
-            .ok_or_else(|| format!("delete: no cyclic job for {}", id_text(id)))
-    }
-
-    /// Removes the job of `id` (the bus refused its frame).
-    pub fn stop(&mut self, id: CanId) {
-        self.tx.remove(&id);
-    }
-
     /// `subscribe` (`mask` `None`) or `filter`: replaces an operation of
     /// the same identifier.
     ///
@@ -177,37 +108,22 @@ impl Bcm {
         self.rx.keys().copied().collect()
     }
 
-    /// Whether anything runs (jobs or receive operations).
+    /// Whether any receive operation runs.
     pub fn active(&self) -> bool {
-        !self.tx.is_empty() || !self.rx.is_empty()
+        !self.rx.is_empty()
     }
 
-    /// The next time something is due ([`Bcm::due`]).
+    /// The next time a held frame is due ([`Bcm::due`]).
     pub fn next_deadline(&self) -> Option<Duration> {
-        let tx = self.tx.values().map(|j| j.next);
-        let rx = self
-            .rx
+        self.rx
             .values()
             .filter(|op| op.held.is_some())
-            .filter_map(|op| op.reported.map(|r| r + op.throttle));
-        tx.chain(rx).min()
+            .filter_map(|op| op.reported.map(|r| r + op.throttle))
+            .min()
     }
 
-    /// What is due at `now`: the frames to send (each job once, its next
-    /// time one interval on, or `now` when it fell behind by more) and the
-    /// held frames to report.
-    pub fn due(&mut self, now: Duration) -> (Vec<Frame>, Vec<Frame>) {
-        let mut send = Vec::new();
-        for job in self.tx.values_mut() {
-            if job.next <= now {
-                send.push(job.frame);
-                job.next += job.interval;
-                if job.next <= now {
-                    // Behind (a stalled task): no burst to catch up.
-                    job.next = now + job.interval;
-                }
-            }
-        }
+    /// The held frames to report at `now`.
+    pub fn due(&mut self, now: Duration) -> Vec<Frame> {
         let mut report = Vec::new();
         for op in self.rx.values_mut() {
             if let (Some(r), true) = (op.reported, op.held.is_some())
@@ -217,7 +133,7 @@ impl Bcm {
                 op.reported = Some(now);
             }
         }
-        (send, report)
+        report
     }
 
     /// A received frame: `Some` when it is reported now.
@@ -288,43 +204,6 @@ mod tests {
     }
 
     #[test]
-    fn a_job_sends_every_interval_from_one_interval_on() {
-        let mut b = Bcm::default();
-        b.add(frame(0x123, &[0x11, 0x22]), ms(100), ms(0)).unwrap();
-        assert_eq!(b.next_deadline(), Some(ms(100)));
-        assert!(b.due(ms(99)).0.is_empty());
-        assert_eq!(b.due(ms(100)).0, vec![frame(0x123, &[0x11, 0x22])]);
-        assert_eq!(b.next_deadline(), Some(ms(200)));
-        // Update: new content, same timer.
-        b.update(frame(0x123, &[0x33])).unwrap();
-        assert_eq!(b.next_deadline(), Some(ms(200)));
-        assert_eq!(b.due(ms(200)).0, vec![frame(0x123, &[0x33])]);
-        // Behind by several periods: one frame, no burst.
-        assert_eq!(b.due(ms(750)).0.len(), 1);
-        assert_eq!(b.next_deadline(), Some(ms(850)));
-        b.delete(CanId::Standard(0x123)).unwrap();
-        assert_eq!(b.next_deadline(), None);
-        assert!(!b.active());
-        assert!(b.update(frame(0x123, &[1])).is_err());
-        assert!(b.delete(CanId::Standard(0x123)).is_err());
-        assert!(
-            b.add(frame(0x1, &[]), Duration::from_micros(10), ms(0))
-                .is_err()
-        );
-    }
-
-    #[test]
-    fn jobs_are_bounded_per_session() {
-        let mut b = Bcm::default();
-        for i in 0..MAX_JOBS as u16 {
-            b.add(frame(i, &[]), ms(10), ms(0)).unwrap();
-        }
-        assert!(b.add(frame(0x700, &[]), ms(10), ms(0)).is_err());
-        // Replacing an existing job is fine.
-        b.add(frame(0, &[1]), ms(20), ms(5)).unwrap();
-    }
-
-    #[test]
     fn a_filter_reports_content_changes_under_its_mask() {
         // `< filter 0 0 123 1 FF >`: changes in the first byte.
         let mut b = Bcm::default();
@@ -349,9 +228,7 @@ mod tests {
         assert!(b.on_frame(&frame(0x80, &[2]), ms(10)).is_none());
         assert!(b.on_frame(&frame(0x80, &[3]), ms(20)).is_none());
         assert_eq!(b.next_deadline(), Some(ms(100)));
-        let (send, report) = b.due(ms(100));
-        assert!(send.is_empty());
-        assert_eq!(report, vec![frame(0x80, &[3])]);
+        assert_eq!(b.due(ms(100)), vec![frame(0x80, &[3])]);
         assert_eq!(b.next_deadline(), None);
         assert!(b.on_frame(&frame(0x80, &[4]), ms(150)).is_none());
         assert!(b.on_frame(&frame(0x80, &[5]), ms(250)).is_some());

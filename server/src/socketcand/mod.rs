@@ -33,12 +33,13 @@
 //!   clients see its frames as received, marked with its sender (named
 //!   `WHO via socketcand`); it does not receive its own frames (a
 //!   SocketCAN raw socket's default).
-//! - **BCM mode** ([`bcm`]): cyclic jobs run in the connection's task, on
-//!   its timer; each frame goes out as a `send` does (engineer, the frame
-//!   budget, the bus's client share, one frame in flight), and a refused
-//!   one stops its job with an `< error … >` line. Subscriptions and
-//!   filters get a feed of their identifiers only. All of it ends with
-//!   the session.
+//! - **BCM mode** ([`bcm`]): cyclic jobs run in the runtime's
+//!   [`crate::cyclic`] sender of the session (as an Attach stream's do),
+//!   on the session's [`ClientId`]; `add` and `update` need engineer, each
+//!   frame is charged to the frame budget and sent within the bus's
+//!   client share, one frame in flight, and a refused one stops its job
+//!   with an `< error … >` line. Subscriptions and filters get a feed of
+//!   their identifiers only. All of it ends with the session.
 //! - **Slow readers.** Frames wait in the connection's queue; a client
 //!   that reads too slowly loses frames (counted in
 //!   `cangate_socketcand_frames_lost_total`; the protocol cannot tell it),
@@ -55,15 +56,16 @@ pub mod bcm;
 pub mod protocol;
 
 use crate::config::SocketcandConfig;
+use crate::cyclic::{CyclicError, CyclicEvent, CyclicPolicy, CyclicSender};
 use crate::gateway::Gateway;
 use crate::participants::{SenderGuard, SenderNames};
 use crate::security::auth::AUDIT_TARGET;
 use crate::security::slots::{AcceptPolicy, SlotGuard, accept_connections, listen_on_bus_thread};
 use crate::security::{FrameBudget, QueueReservation, Refusal, Role, SecurityLayer};
-use bcm::{Bcm, format_bcm_frame};
+use bcm::{Bcm, format_bcm_frame, id_text};
 use cangate_can::{
-    AttachOptions, BusHandle, BusItem, ClientId, Frame, FrameSelector, PendingSend, SendError,
-    SendFailure, Subscription,
+    AttachOptions, BusHandle, BusItem, CanId, ClientId, Frame, FrameSelector, PendingSend,
+    SendError, SendFailure, Subscription,
 };
 use protocol::{Action, BcmCommand, Deframer, Mode, Session, format_error, format_frame};
 use std::net::SocketAddr;
@@ -207,8 +209,10 @@ enum Event {
     Read(std::io::Result<usize>),
     Items(usize),
     FeedReady,
-    /// A cyclic frame or a throttled report of BCM mode is due.
+    /// A throttled report of BCM mode is due.
     BcmDue,
+    /// A cyclic job ended by itself (a frame of it was refused).
+    Cyclic(CyclicEvent<CanId, String>),
     Sent(Result<(), SendFailure>),
 }
 
@@ -308,8 +312,10 @@ async fn serve(
     // answer): the outcome is picked up at its next wake-up or before its
     // next send; the bus's failures (bus-off, down) reach the feed too.
     let mut in_flight: Option<PendingSend> = None;
-    // BCM mode's jobs and receive operations, on the session's clock.
+    // BCM mode's receive operations, on the session's clock, and its
+    // cyclic jobs (started with the first `add`).
     let mut bcm = Bcm::default();
+    let mut cyclic: Option<CyclicSender<CanId, String>> = None;
     let started = Instant::now();
     // The identifiers the BCM feed was built for.
     let mut fed: Vec<cangate_can::CanId> = Vec::new();
@@ -328,7 +334,8 @@ async fn serve(
         }
         // A session with a feed, cyclic jobs or subscriptions is busy, not
         // idle.
-        let deadline = match (&opened, feed.is_some() || bcm.active()) {
+        let busy = feed.is_some() || bcm.active() || cyclic.as_ref().is_some_and(|c| c.active());
+        let deadline = match (&opened, busy) {
             (None, _) => Some(handshake_deadline),
             (Some(_), false) => idle.map(|i| last_read + i),
             (Some(_), true) => None,
@@ -348,6 +355,7 @@ async fn serve(
             _ = tokio::time::sleep_until(bcm_due.unwrap_or_else(Instant::now)),
                 if bcm_due.is_some() => Event::BcmDue,
             r = outcome_of(&mut in_flight), if in_flight.is_some() && !feeding => Event::Sent(r),
+            e = next_cyclic_event(&mut cyclic) => Event::Cyclic(e),
         };
         match event {
             Event::Shutdown => return End::Shutdown,
@@ -363,7 +371,7 @@ async fn serve(
                 let Some(o) = opened.as_mut() else {
                     continue;
                 };
-                let (send, report) = bcm.due(started.elapsed());
+                let report = bcm.due(started.elapsed());
                 out.clear();
                 for f in &report {
                     out.push_str(&format_bcm_frame(f));
@@ -374,23 +382,15 @@ async fn serve(
                         return e;
                     }
                 }
-                for frame in send {
-                    let id = frame.id();
-                    let refused = match send_frame(o, frame, &mut in_flight, shutdown).await {
-                        Ok(r) => r,
-                        Err(e) => return e,
-                    };
-                    // A cyclic frame the gateway refused (role, budget,
-                    // bus) ends its job: it would be refused every period.
-                    for message in refused {
-                        bcm.stop(id);
-                        let line = format_error(&format!(
-                            "cyclic job {} stopped: {message}",
-                            bcm::id_text(id)
-                        ));
-                        if let Err(e) = writer.write(line.as_bytes()).await {
-                            return e;
-                        }
+            }
+            Event::Cyclic(event) => {
+                // A cyclic frame the gateway refused (budget, bus) ended its
+                // job: it would be refused every period.
+                if let CyclicEvent::Refused { key, refusal } = event {
+                    let line =
+                        format_error(&format!("cyclic job {} stopped: {refusal}", id_text(key)));
+                    if let Err(e) = writer.write(line.as_bytes()).await {
+                        return e;
                     }
                 }
             }
@@ -568,7 +568,6 @@ async fn serve(
                             let Some(o) = opened.as_mut() else {
                                 return End::Closed;
                             };
-                            let now = started.elapsed();
                             let result = match command {
                                 BcmCommand::Add { .. } | BcmCommand::Update(_)
                                     if o.role < Role::Engineer =>
@@ -579,11 +578,36 @@ async fn serve(
                                         o.role.as_str()
                                     ))
                                 }
-                                BcmCommand::Add { interval, frame } => {
-                                    bcm.add(frame, interval, now)
-                                }
-                                BcmCommand::Update(frame) => bcm.update(frame),
-                                BcmCommand::Delete(id) => bcm.delete(id),
+                                BcmCommand::Add { interval, frame } => cyclic
+                                    .get_or_insert_with(|| cyclic_sender(o, shutdown))
+                                    .start(frame.id(), vec![frame], interval, None)
+                                    .map_err(|e| match e {
+                                        CyclicError::IntervalTooShort => {
+                                            format!("add: {e} (send sends a frame once)")
+                                        }
+                                        CyclicError::TooManyJobs => format!(
+                                            "add: at most {} cyclic jobs per session",
+                                            crate::cyclic::MAX_JOBS
+                                        ),
+                                        e => format!("add: {e}"),
+                                    }),
+                                BcmCommand::Update(frame) => cyclic
+                                    .as_ref()
+                                    .ok_or(CyclicError::NoSuchJob)
+                                    .and_then(|c| c.update(frame.id(), vec![frame]))
+                                    .map_err(|_| {
+                                        format!(
+                                            "update: no cyclic job for {} (add one first)",
+                                            id_text(frame.id())
+                                        )
+                                    }),
+                                BcmCommand::Delete(id) => cyclic
+                                    .as_ref()
+                                    .ok_or(CyclicError::NoSuchJob)
+                                    .and_then(|c| c.stop(id))
+                                    .map_err(|_| {
+                                        format!("delete: no cyclic job for {}", id_text(id))
+                                    }),
                                 BcmCommand::Receive { id, mask, throttle } => {
                                     bcm.receive(id, mask, throttle)
                                 }
@@ -741,7 +765,11 @@ async fn queue(o: &mut Opened, frame: Frame) -> Result<PendingSend, String> {
 /// Counts a queued frame's outcome; a failure becomes the error line's
 /// message.
 fn sent(o: &Opened, outcome: Result<(), SendFailure>) -> Result<(), String> {
-    let bus = o.bus.name();
+    count_outcome(o.bus.name(), outcome)
+}
+
+/// [`sent`] for a bus by name.
+fn count_outcome(bus: &str, outcome: Result<(), SendFailure>) -> Result<(), String> {
     match outcome {
         Ok(()) => {
             crate::metrics::socketcand_frames(bus, "in", 1);
@@ -794,6 +822,60 @@ async fn send_frame(
         Err(message) => refused.push(message),
     }
     Ok(refused)
+}
+
+/// The next event of the session's cyclic jobs (never returns without
+/// them).
+async fn next_cyclic_event(
+    cyclic: &mut Option<CyclicSender<CanId, String>>,
+) -> CyclicEvent<CanId, String> {
+    match cyclic {
+        Some(c) => c.next_event().await,
+        None => std::future::pending().await,
+    }
+}
+
+/// What the session's cyclic frames go through: the checks of a `send`
+/// (the role was checked by `add`), counted as its frames are.
+struct SessionCyclic {
+    bus: String,
+    fd: bool,
+    budget: Option<FrameBudget>,
+}
+
+impl CyclicPolicy for SessionCyclic {
+    type Refusal = String;
+
+    fn admit(&mut self, frame: &Frame) -> Result<(), String> {
+        let refuse = |reason: &str, message: String| {
+            crate::metrics::client_frames_refused(&self.bus, reason.to_string(), 1);
+            message
+        };
+        if frame.is_fd() && !self.fd {
+            return Err(refuse(
+                "CAN_FD_NOT_SUPPORTED",
+                format!("bus {} is not configured for CAN FD", self.bus),
+            ));
+        }
+        if let Some(b) = &self.budget {
+            b.take(1).map_err(|e| refuse("FRAME_RATE_LIMIT", e.0))?;
+        }
+        Ok(())
+    }
+
+    fn sent(&mut self, outcome: Result<(), SendFailure>) -> Result<(), String> {
+        count_outcome(&self.bus, outcome)
+    }
+}
+
+/// The session's cyclic sender, on its client.
+fn cyclic_sender(o: &Opened, shutdown: &CancellationToken) -> CyclicSender<CanId, String> {
+    let policy = SessionCyclic {
+        bus: o.bus.name().to_string(),
+        fd: o.bus.info().fd,
+        budget: o.budget.clone(),
+    };
+    CyclicSender::spawn(o.bus.clone(), o.client, policy, shutdown)
 }
 
 /// The identifiers BCM mode receives.

@@ -243,12 +243,16 @@ class StreamFramesResponse(_message.Message):
     def __init__(self, events: _Optional[_Iterable[_Union[StreamEvent, _Mapping]]] = ...) -> None: ...
 
 class AttachRequest(_message.Message):
-    __slots__ = ("open", "send")
+    __slots__ = ("open", "send", "cyclic", "cyclic_stop")
     OPEN_FIELD_NUMBER: _ClassVar[int]
     SEND_FIELD_NUMBER: _ClassVar[int]
+    CYCLIC_FIELD_NUMBER: _ClassVar[int]
+    CYCLIC_STOP_FIELD_NUMBER: _ClassVar[int]
     open: AttachOpen
     send: AttachSend
-    def __init__(self, open: _Optional[_Union[AttachOpen, _Mapping]] = ..., send: _Optional[_Union[AttachSend, _Mapping]] = ...) -> None: ...
+    cyclic: AttachCyclic
+    cyclic_stop: AttachCyclicStop
+    def __init__(self, open: _Optional[_Union[AttachOpen, _Mapping]] = ..., send: _Optional[_Union[AttachSend, _Mapping]] = ..., cyclic: _Optional[_Union[AttachCyclic, _Mapping]] = ..., cyclic_stop: _Optional[_Union[AttachCyclicStop, _Mapping]] = ...) -> None: ...
 
 class AttachOpen(_message.Message):
     __slots__ = ("bus", "filters", "receive_own", "fd", "include_error_frames", "max_batch", "queue_length", "low_latency")
@@ -278,6 +282,40 @@ class AttachSend(_message.Message):
     sequence: int
     def __init__(self, frames: _Optional[_Iterable[_Union[Frame, _Mapping]]] = ..., sequence: _Optional[int] = ...) -> None: ...
 
+class AttachCyclic(_message.Message):
+    __slots__ = ("job", "frames", "interval_ns", "duration_ns", "sequence")
+    JOB_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_FIELD_NUMBER: _ClassVar[int]
+    INTERVAL_NS_FIELD_NUMBER: _ClassVar[int]
+    DURATION_NS_FIELD_NUMBER: _ClassVar[int]
+    SEQUENCE_FIELD_NUMBER: _ClassVar[int]
+    job: int
+    frames: _containers.RepeatedCompositeFieldContainer[Frame]
+    interval_ns: int
+    duration_ns: int
+    sequence: int
+    def __init__(self, job: _Optional[int] = ..., frames: _Optional[_Iterable[_Union[Frame, _Mapping]]] = ..., interval_ns: _Optional[int] = ..., duration_ns: _Optional[int] = ..., sequence: _Optional[int] = ...) -> None: ...
+
+class AttachCyclicStop(_message.Message):
+    __slots__ = ("job", "sequence")
+    JOB_FIELD_NUMBER: _ClassVar[int]
+    SEQUENCE_FIELD_NUMBER: _ClassVar[int]
+    job: int
+    sequence: int
+    def __init__(self, job: _Optional[int] = ..., sequence: _Optional[int] = ...) -> None: ...
+
+class CyclicStopped(_message.Message):
+    __slots__ = ("job", "code", "message", "reason")
+    JOB_FIELD_NUMBER: _ClassVar[int]
+    CODE_FIELD_NUMBER: _ClassVar[int]
+    MESSAGE_FIELD_NUMBER: _ClassVar[int]
+    REASON_FIELD_NUMBER: _ClassVar[int]
+    job: int
+    code: int
+    message: str
+    reason: str
+    def __init__(self, job: _Optional[int] = ..., code: _Optional[int] = ..., message: _Optional[str] = ..., reason: _Optional[str] = ...) -> None: ...
+
 class AttachResponse(_message.Message):
     __slots__ = ("events",)
     EVENTS_FIELD_NUMBER: _ClassVar[int]
@@ -285,20 +323,22 @@ class AttachResponse(_message.Message):
     def __init__(self, events: _Optional[_Iterable[_Union[AttachEvent, _Mapping]]] = ...) -> None: ...
 
 class AttachEvent(_message.Message):
-    __slots__ = ("opened", "frame", "lost", "state", "refused", "done")
+    __slots__ = ("opened", "frame", "lost", "state", "refused", "done", "cyclic_stopped")
     OPENED_FIELD_NUMBER: _ClassVar[int]
     FRAME_FIELD_NUMBER: _ClassVar[int]
     LOST_FIELD_NUMBER: _ClassVar[int]
     STATE_FIELD_NUMBER: _ClassVar[int]
     REFUSED_FIELD_NUMBER: _ClassVar[int]
     DONE_FIELD_NUMBER: _ClassVar[int]
+    CYCLIC_STOPPED_FIELD_NUMBER: _ClassVar[int]
     opened: AttachOpened
     frame: Frame
     lost: FramesLost
     state: BusStatus
     refused: SendRefused
     done: SendDone
-    def __init__(self, opened: _Optional[_Union[AttachOpened, _Mapping]] = ..., frame: _Optional[_Union[Frame, _Mapping]] = ..., lost: _Optional[_Union[FramesLost, _Mapping]] = ..., state: _Optional[_Union[BusStatus, _Mapping]] = ..., refused: _Optional[_Union[SendRefused, _Mapping]] = ..., done: _Optional[_Union[SendDone, _Mapping]] = ...) -> None: ...
+    cyclic_stopped: CyclicStopped
+    def __init__(self, opened: _Optional[_Union[AttachOpened, _Mapping]] = ..., frame: _Optional[_Union[Frame, _Mapping]] = ..., lost: _Optional[_Union[FramesLost, _Mapping]] = ..., state: _Optional[_Union[BusStatus, _Mapping]] = ..., refused: _Optional[_Union[SendRefused, _Mapping]] = ..., done: _Optional[_Union[SendDone, _Mapping]] = ..., cyclic_stopped: _Optional[_Union[CyclicStopped, _Mapping]] = ...) -> None: ...
 
 class AttachOpened(_message.Message):
     __slots__ = ("bus", "sender_id", "client", "queue_length")

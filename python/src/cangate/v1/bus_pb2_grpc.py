@@ -158,6 +158,24 @@ class BusServicer:
         when the client cancels it (the gateway then drops the attachment: no
         subscription stays behind) or when the server shuts down (UNAVAILABLE,
         SHUTTING_DOWN). Needs the role that SendFrames needs.
+
+        Cyclic transmission (python-can's send_periodic, the Linux broadcast
+        manager's TX_SETUP): an AttachCyclic starts a job the gateway runs for
+        this client, sending its frames in turn, one every interval, the first
+        one interval after it started, as this client's frames (the same
+        sender, the same raw frame budget, the same client share of the bus,
+        one frame in flight); an AttachCyclic with the job's number and no
+        interval changes its frames without touching its timer; an
+        AttachCyclicStop ends it. A job that falls behind (a busy bus) skips
+        the periods it missed, never sending a burst. Each is answered in
+        order with the sends, SendDone when it took effect, SendRefused when
+        not (INVALID_ARGUMENT: an interval below 1 ms, no frames or more than
+        256, a malformed frame, changing a job that does not run;
+        RESOURCE_EXHAUSTED, CYCLIC_JOB_LIMIT: 64 jobs run already). A job ends
+        when it is stopped, when its duration has passed, when one of its
+        frames is refused (the raw frame budget spent, bus-off, down: told in
+        the stream as CyclicStopped), and with the stream: when the client
+        cancels it or goes away, and at shutdown. No job outlives its stream.
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')

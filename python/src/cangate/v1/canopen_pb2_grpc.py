@@ -246,7 +246,10 @@ class CanopenServicer:
 
     def WritePdo(self, request, context):
         """Sends an RPDO built from named values (every mapped object must be
-        given; values are range-checked against the mapping's types).
+        given; values are range-checked against the mapping's types). An RPDO
+        that maps an object commanding the drive of an enabled or moving axis
+        (controlword, mode of operation, targets, program objects) is refused
+        with FAILED_PRECONDITION, AXIS_ACTIVE, as a raw SDO write of it is.
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')

@@ -62,7 +62,7 @@ import type { Message } from "@bufbuild/protobuf";
  * Describes the file cangate/v1/bus.proto.
  */
 export const file_cangate_v1_bus: GenFile = /*@__PURE__*/
-  fileDesc("ChRjYW5nYXRlL3YxL2J1cy5wcm90bxIKY2FuZ2F0ZS52MSIpCgtGcmFtZVNlbmRlchIKCgJpZBgBIAEoBBIOCgZjbGllbnQYAiABKAkingIKBUZyYW1lEgoKAmlkGAEgASgNEhAKCGV4dGVuZGVkGAIgASgIEg4KBnJlbW90ZRgDIAEoCBIKCgJmZBgEIAEoCBILCgNicnMYBSABKAgSCwoDZXNpGAYgASgIEgwKBGRhdGEYByABKAwSEgoKcmVtb3RlX2RsYxgIIAEoDRINCgVlcnJvchgJIAEoCBIUCgx0aW1lc3RhbXBfbnMYCiABKAQSKAoJZGlyZWN0aW9uGAsgASgOMhUuY2FuZ2F0ZS52MS5EaXJlY3Rpb24SJwoGb3JpZ2luGAwgASgOMhcuY2FuZ2F0ZS52MS5GcmFtZU9yaWdpbhInCgZzZW5kZXIYDSABKAsyFy5jYW5nYXRlLnYxLkZyYW1lU2VuZGVyIl0KC0ZyYW1lRmlsdGVyEgoKAmlkGAEgASgNEgwKBG1hc2sYAiABKA0SJAoGZm9ybWF0GAMgASgOMhQuY2FuZ2F0ZS52MS5JZEZvcm1hdBIOCgZpbnZlcnQYBCABKAgiaAoJQnVzU3RhdHVzEiMKBXN0YXRlGAEgASgOMhQuY2FuZ2F0ZS52MS5CdXNTdGF0ZRIRCgl0eF9lcnJvcnMYAiABKA0SEQoJcnhfZXJyb3JzGAMgASgNEhAKCHNpbmNlX25zGAQgASgEIoQCCg1CdXNTdGF0aXN0aWNzEhEKCXJ4X2ZyYW1lcxgBIAEoBBIRCgl0eF9mcmFtZXMYAiABKAQSEAoIcnhfYnl0ZXMYAyABKAQSEAoIdHhfYnl0ZXMYBCABKAQSFAoMZXJyb3JfZnJhbWVzGAUgASgEEhEKCXR4X2ZhaWxlZBgGIAEoBBIUCgxyeF9vdmVyZmxvd3MYByABKAQSGAoQc3Vic2NyaWJlcl9kcm9wcxgIIAEoBBIUCgxsb2FkX3BlcmNlbnQYCSABKAESEwoLc3Vic2NyaWJlcnMYCiABKA0SEgoKdHhfcmV0cmllcxgLIAEoBBIRCgl0eF9xdWV1ZWQYDCABKAQi8AEKB0J1c0luZm8SDAoEbmFtZRgBIAEoCRIoCgdiYWNrZW5kGAIgASgOMhcuY2FuZ2F0ZS52MS5CYWNrZW5kS2luZBIRCglpbnRlcmZhY2UYAyABKAkSCgoCZmQYBCABKAgSDwoHYml0cmF0ZRgFIAEoDRIUCgxkYXRhX2JpdHJhdGUYBiABKA0SEQoJYml0X3RpbWVkGAcgASgIEiUKBnN0YXR1cxgIIAEoCzIVLmNhbmdhdGUudjEuQnVzU3RhdHVzEi0KCnN0YXRpc3RpY3MYCSABKAsyGS5jYW5nYXRlLnYxLkJ1c1N0YXRpc3RpY3MiEgoQTGlzdEJ1c2VzUmVxdWVzdCI3ChFMaXN0QnVzZXNSZXNwb25zZRIiCgVidXNlcxgBIAMoCzITLmNhbmdhdGUudjEuQnVzSW5mbyIcCg1HZXRCdXNSZXF1ZXN0EgsKA2J1cxgBIAEoCSJDChFTZW5kRnJhbWVzUmVxdWVzdBILCgNidXMYASABKAkSIQoGZnJhbWVzGAIgAygLMhEuY2FuZ2F0ZS52MS5GcmFtZSIiChJTZW5kRnJhbWVzUmVzcG9uc2USDAoEc2VudBgBIAEoDSLFAQoTU3RyZWFtRnJhbWVzUmVxdWVzdBILCgNidXMYASABKAkSKAoHZmlsdGVycxgCIAMoCzIXLmNhbmdhdGUudjEuRnJhbWVGaWx0ZXISGwoTaW5jbHVkZV90cmFuc21pdHRlZBgDIAEoCBIcChRpbmNsdWRlX2Vycm9yX2ZyYW1lcxgEIAEoCBIRCgltYXhfYmF0Y2gYBSABKA0SFAoMcXVldWVfbGVuZ3RoGAYgASgNEhMKC2xvd19sYXRlbmN5GAcgASgIIhsKCkZyYW1lc0xvc3QSDQoFY291bnQYASABKAQiigEKC1N0cmVhbUV2ZW50EiIKBWZyYW1lGAEgASgLMhEuY2FuZ2F0ZS52MS5GcmFtZUgAEiYKBGxvc3QYAiABKAsyFi5jYW5nYXRlLnYxLkZyYW1lc0xvc3RIABImCgVzdGF0ZRgDIAEoCzIVLmNhbmdhdGUudjEuQnVzU3RhdHVzSABCBwoFZXZlbnQiPwoUU3RyZWFtRnJhbWVzUmVzcG9uc2USJwoGZXZlbnRzGAEgAygLMhcuY2FuZ2F0ZS52MS5TdHJlYW1FdmVudCJqCg1BdHRhY2hSZXF1ZXN0EiYKBG9wZW4YASABKAsyFi5jYW5nYXRlLnYxLkF0dGFjaE9wZW5IABImCgRzZW5kGAIgASgLMhYuY2FuZ2F0ZS52MS5BdHRhY2hTZW5kSABCCQoHbWVzc2FnZSLAAQoKQXR0YWNoT3BlbhILCgNidXMYASABKAkSKAoHZmlsdGVycxgCIAMoCzIXLmNhbmdhdGUudjEuRnJhbWVGaWx0ZXISEwoLcmVjZWl2ZV9vd24YAyABKAgSCgoCZmQYBCABKAgSHAoUaW5jbHVkZV9lcnJvcl9mcmFtZXMYBSABKAgSEQoJbWF4X2JhdGNoGAYgASgNEhQKDHF1ZXVlX2xlbmd0aBgHIAEoDRITCgtsb3dfbGF0ZW5jeRgIIAEoCCJBCgpBdHRhY2hTZW5kEiEKBmZyYW1lcxgBIAMoCzIRLmNhbmdhdGUudjEuRnJhbWUSEAoIc2VxdWVuY2UYAiABKAQiOQoOQXR0YWNoUmVzcG9uc2USJwoGZXZlbnRzGAEgAygLMhcuY2FuZ2F0ZS52MS5BdHRhY2hFdmVudCKIAgoLQXR0YWNoRXZlbnQSKgoGb3BlbmVkGAEgASgLMhguY2FuZ2F0ZS52MS5BdHRhY2hPcGVuZWRIABIiCgVmcmFtZRgCIAEoCzIRLmNhbmdhdGUudjEuRnJhbWVIABImCgRsb3N0GAMgASgLMhYuY2FuZ2F0ZS52MS5GcmFtZXNMb3N0SAASJgoFc3RhdGUYBCABKAsyFS5jYW5nYXRlLnYxLkJ1c1N0YXR1c0gAEioKB3JlZnVzZWQYBSABKAsyFy5jYW5nYXRlLnYxLlNlbmRSZWZ1c2VkSAASJAoEZG9uZRgGIAEoCzIULmNhbmdhdGUudjEuU2VuZERvbmVIAEIHCgVldmVudCJpCgxBdHRhY2hPcGVuZWQSIAoDYnVzGAEgASgLMhMuY2FuZ2F0ZS52MS5CdXNJbmZvEhEKCXNlbmRlcl9pZBgCIAEoBBIOCgZjbGllbnQYAyABKAkSFAoMcXVldWVfbGVuZ3RoGAQgASgNItUBCgtTZW5kUmVmdXNlZBIQCghzZXF1ZW5jZRgBIAEoBBIMCgRzZW50GAIgASgNEg0KBXRvdGFsGAMgASgNEgwKBGNvZGUYBCABKAUSDwoHbWVzc2FnZRgFIAEoCRIOCgZyZWFzb24YBiABKAkSNwoIbWV0YWRhdGEYByADKAsyJS5jYW5nYXRlLnYxLlNlbmRSZWZ1c2VkLk1ldGFkYXRhRW50cnkaLwoNTWV0YWRhdGFFbnRyeRILCgNrZXkYASABKAkSDQoFdmFsdWUYAiABKAk6AjgBIioKCFNlbmREb25lEhAKCHNlcXVlbmNlGAEgASgEEgwKBHNlbnQYAiABKA0qYQoLQmFja2VuZEtpbmQSHAoYQkFDS0VORF9LSU5EX1VOU1BFQ0lGSUVEEAASGgoWQkFDS0VORF9LSU5EX1NPQ0tFVENBThABEhgKFEJBQ0tFTkRfS0lORF9WSVJUVUFMEAIqnAEKCEJ1c1N0YXRlEhkKFUJVU19TVEFURV9VTlNQRUNJRklFRBAAEhAKDEJVU19TVEFURV9VUBABEhsKF0JVU19TVEFURV9FUlJPUl9XQVJOSU5HEAISGwoXQlVTX1NUQVRFX0VSUk9SX1BBU1NJVkUQAxIVChFCVVNfU1RBVEVfQlVTX09GRhAEEhIKDkJVU19TVEFURV9ET1dOEAUqSgoJRGlyZWN0aW9uEhkKFURJUkVDVElPTl9VTlNQRUNJRklFRBAAEhAKDERJUkVDVElPTl9SWBABEhAKDERJUkVDVElPTl9UWBACKnQKC0ZyYW1lT3JpZ2luEhwKGEZSQU1FX09SSUdJTl9VTlNQRUNJRklFRBAAEhQKEEZSQU1FX09SSUdJTl9CVVMQARIYChRGUkFNRV9PUklHSU5fR0FURVdBWRACEhcKE0ZSQU1FX09SSUdJTl9DTElFTlQQAypNCghJZEZvcm1hdBIRCg1JRF9GT1JNQVRfQU5ZEAASFgoSSURfRk9STUFUX1NUQU5EQVJEEAESFgoSSURfRk9STUFUX0VYVEVOREVEEAIy8AIKA0J1cxJICglMaXN0QnVzZXMSHC5jYW5nYXRlLnYxLkxpc3RCdXNlc1JlcXVlc3QaHS5jYW5nYXRlLnYxLkxpc3RCdXNlc1Jlc3BvbnNlEjgKBkdldEJ1cxIZLmNhbmdhdGUudjEuR2V0QnVzUmVxdWVzdBoTLmNhbmdhdGUudjEuQnVzSW5mbxJLCgpTZW5kRnJhbWVzEh0uY2FuZ2F0ZS52MS5TZW5kRnJhbWVzUmVxdWVzdBoeLmNhbmdhdGUudjEuU2VuZEZyYW1lc1Jlc3BvbnNlElMKDFN0cmVhbUZyYW1lcxIfLmNhbmdhdGUudjEuU3RyZWFtRnJhbWVzUmVxdWVzdBogLmNhbmdhdGUudjEuU3RyZWFtRnJhbWVzUmVzcG9uc2UwARJDCgZBdHRhY2gSGS5jYW5nYXRlLnYxLkF0dGFjaFJlcXVlc3QaGi5jYW5nYXRlLnYxLkF0dGFjaFJlc3BvbnNlKAEwAWIGcHJvdG8z");
+  fileDesc("ChRjYW5nYXRlL3YxL2J1cy5wcm90bxIKY2FuZ2F0ZS52MSIpCgtGcmFtZVNlbmRlchIKCgJpZBgBIAEoBBIOCgZjbGllbnQYAiABKAkingIKBUZyYW1lEgoKAmlkGAEgASgNEhAKCGV4dGVuZGVkGAIgASgIEg4KBnJlbW90ZRgDIAEoCBIKCgJmZBgEIAEoCBILCgNicnMYBSABKAgSCwoDZXNpGAYgASgIEgwKBGRhdGEYByABKAwSEgoKcmVtb3RlX2RsYxgIIAEoDRINCgVlcnJvchgJIAEoCBIUCgx0aW1lc3RhbXBfbnMYCiABKAQSKAoJZGlyZWN0aW9uGAsgASgOMhUuY2FuZ2F0ZS52MS5EaXJlY3Rpb24SJwoGb3JpZ2luGAwgASgOMhcuY2FuZ2F0ZS52MS5GcmFtZU9yaWdpbhInCgZzZW5kZXIYDSABKAsyFy5jYW5nYXRlLnYxLkZyYW1lU2VuZGVyIl0KC0ZyYW1lRmlsdGVyEgoKAmlkGAEgASgNEgwKBG1hc2sYAiABKA0SJAoGZm9ybWF0GAMgASgOMhQuY2FuZ2F0ZS52MS5JZEZvcm1hdBIOCgZpbnZlcnQYBCABKAgiaAoJQnVzU3RhdHVzEiMKBXN0YXRlGAEgASgOMhQuY2FuZ2F0ZS52MS5CdXNTdGF0ZRIRCgl0eF9lcnJvcnMYAiABKA0SEQoJcnhfZXJyb3JzGAMgASgNEhAKCHNpbmNlX25zGAQgASgEIoQCCg1CdXNTdGF0aXN0aWNzEhEKCXJ4X2ZyYW1lcxgBIAEoBBIRCgl0eF9mcmFtZXMYAiABKAQSEAoIcnhfYnl0ZXMYAyABKAQSEAoIdHhfYnl0ZXMYBCABKAQSFAoMZXJyb3JfZnJhbWVzGAUgASgEEhEKCXR4X2ZhaWxlZBgGIAEoBBIUCgxyeF9vdmVyZmxvd3MYByABKAQSGAoQc3Vic2NyaWJlcl9kcm9wcxgIIAEoBBIUCgxsb2FkX3BlcmNlbnQYCSABKAESEwoLc3Vic2NyaWJlcnMYCiABKA0SEgoKdHhfcmV0cmllcxgLIAEoBBIRCgl0eF9xdWV1ZWQYDCABKAQi8AEKB0J1c0luZm8SDAoEbmFtZRgBIAEoCRIoCgdiYWNrZW5kGAIgASgOMhcuY2FuZ2F0ZS52MS5CYWNrZW5kS2luZBIRCglpbnRlcmZhY2UYAyABKAkSCgoCZmQYBCABKAgSDwoHYml0cmF0ZRgFIAEoDRIUCgxkYXRhX2JpdHJhdGUYBiABKA0SEQoJYml0X3RpbWVkGAcgASgIEiUKBnN0YXR1cxgIIAEoCzIVLmNhbmdhdGUudjEuQnVzU3RhdHVzEi0KCnN0YXRpc3RpY3MYCSABKAsyGS5jYW5nYXRlLnYxLkJ1c1N0YXRpc3RpY3MiEgoQTGlzdEJ1c2VzUmVxdWVzdCI3ChFMaXN0QnVzZXNSZXNwb25zZRIiCgVidXNlcxgBIAMoCzITLmNhbmdhdGUudjEuQnVzSW5mbyIcCg1HZXRCdXNSZXF1ZXN0EgsKA2J1cxgBIAEoCSJDChFTZW5kRnJhbWVzUmVxdWVzdBILCgNidXMYASABKAkSIQoGZnJhbWVzGAIgAygLMhEuY2FuZ2F0ZS52MS5GcmFtZSIiChJTZW5kRnJhbWVzUmVzcG9uc2USDAoEc2VudBgBIAEoDSLFAQoTU3RyZWFtRnJhbWVzUmVxdWVzdBILCgNidXMYASABKAkSKAoHZmlsdGVycxgCIAMoCzIXLmNhbmdhdGUudjEuRnJhbWVGaWx0ZXISGwoTaW5jbHVkZV90cmFuc21pdHRlZBgDIAEoCBIcChRpbmNsdWRlX2Vycm9yX2ZyYW1lcxgEIAEoCBIRCgltYXhfYmF0Y2gYBSABKA0SFAoMcXVldWVfbGVuZ3RoGAYgASgNEhMKC2xvd19sYXRlbmN5GAcgASgIIhsKCkZyYW1lc0xvc3QSDQoFY291bnQYASABKAQiigEKC1N0cmVhbUV2ZW50EiIKBWZyYW1lGAEgASgLMhEuY2FuZ2F0ZS52MS5GcmFtZUgAEiYKBGxvc3QYAiABKAsyFi5jYW5nYXRlLnYxLkZyYW1lc0xvc3RIABImCgVzdGF0ZRgDIAEoCzIVLmNhbmdhdGUudjEuQnVzU3RhdHVzSABCBwoFZXZlbnQiPwoUU3RyZWFtRnJhbWVzUmVzcG9uc2USJwoGZXZlbnRzGAEgAygLMhcuY2FuZ2F0ZS52MS5TdHJlYW1FdmVudCLLAQoNQXR0YWNoUmVxdWVzdBImCgRvcGVuGAEgASgLMhYuY2FuZ2F0ZS52MS5BdHRhY2hPcGVuSAASJgoEc2VuZBgCIAEoCzIWLmNhbmdhdGUudjEuQXR0YWNoU2VuZEgAEioKBmN5Y2xpYxgDIAEoCzIYLmNhbmdhdGUudjEuQXR0YWNoQ3ljbGljSAASMwoLY3ljbGljX3N0b3AYBCABKAsyHC5jYW5nYXRlLnYxLkF0dGFjaEN5Y2xpY1N0b3BIAEIJCgdtZXNzYWdlIsABCgpBdHRhY2hPcGVuEgsKA2J1cxgBIAEoCRIoCgdmaWx0ZXJzGAIgAygLMhcuY2FuZ2F0ZS52MS5GcmFtZUZpbHRlchITCgtyZWNlaXZlX293bhgDIAEoCBIKCgJmZBgEIAEoCBIcChRpbmNsdWRlX2Vycm9yX2ZyYW1lcxgFIAEoCBIRCgltYXhfYmF0Y2gYBiABKA0SFAoMcXVldWVfbGVuZ3RoGAcgASgNEhMKC2xvd19sYXRlbmN5GAggASgIIkEKCkF0dGFjaFNlbmQSIQoGZnJhbWVzGAEgAygLMhEuY2FuZ2F0ZS52MS5GcmFtZRIQCghzZXF1ZW5jZRgCIAEoBCJ6CgxBdHRhY2hDeWNsaWMSCwoDam9iGAEgASgNEiEKBmZyYW1lcxgCIAMoCzIRLmNhbmdhdGUudjEuRnJhbWUSEwoLaW50ZXJ2YWxfbnMYAyABKAQSEwoLZHVyYXRpb25fbnMYBCABKAQSEAoIc2VxdWVuY2UYBSABKAQiMQoQQXR0YWNoQ3ljbGljU3RvcBILCgNqb2IYASABKA0SEAoIc2VxdWVuY2UYAiABKAQiSwoNQ3ljbGljU3RvcHBlZBILCgNqb2IYASABKA0SDAoEY29kZRgCIAEoBRIPCgdtZXNzYWdlGAMgASgJEg4KBnJlYXNvbhgEIAEoCSI5Cg5BdHRhY2hSZXNwb25zZRInCgZldmVudHMYASADKAsyFy5jYW5nYXRlLnYxLkF0dGFjaEV2ZW50Ir0CCgtBdHRhY2hFdmVudBIqCgZvcGVuZWQYASABKAsyGC5jYW5nYXRlLnYxLkF0dGFjaE9wZW5lZEgAEiIKBWZyYW1lGAIgASgLMhEuY2FuZ2F0ZS52MS5GcmFtZUgAEiYKBGxvc3QYAyABKAsyFi5jYW5nYXRlLnYxLkZyYW1lc0xvc3RIABImCgVzdGF0ZRgEIAEoCzIVLmNhbmdhdGUudjEuQnVzU3RhdHVzSAASKgoHcmVmdXNlZBgFIAEoCzIXLmNhbmdhdGUudjEuU2VuZFJlZnVzZWRIABIkCgRkb25lGAYgASgLMhQuY2FuZ2F0ZS52MS5TZW5kRG9uZUgAEjMKDmN5Y2xpY19zdG9wcGVkGAcgASgLMhkuY2FuZ2F0ZS52MS5DeWNsaWNTdG9wcGVkSABCBwoFZXZlbnQiaQoMQXR0YWNoT3BlbmVkEiAKA2J1cxgBIAEoCzITLmNhbmdhdGUudjEuQnVzSW5mbxIRCglzZW5kZXJfaWQYAiABKAQSDgoGY2xpZW50GAMgASgJEhQKDHF1ZXVlX2xlbmd0aBgEIAEoDSLVAQoLU2VuZFJlZnVzZWQSEAoIc2VxdWVuY2UYASABKAQSDAoEc2VudBgCIAEoDRINCgV0b3RhbBgDIAEoDRIMCgRjb2RlGAQgASgFEg8KB21lc3NhZ2UYBSABKAkSDgoGcmVhc29uGAYgASgJEjcKCG1ldGFkYXRhGAcgAygLMiUuY2FuZ2F0ZS52MS5TZW5kUmVmdXNlZC5NZXRhZGF0YUVudHJ5Gi8KDU1ldGFkYXRhRW50cnkSCwoDa2V5GAEgASgJEg0KBXZhbHVlGAIgASgJOgI4ASIqCghTZW5kRG9uZRIQCghzZXF1ZW5jZRgBIAEoBBIMCgRzZW50GAIgASgNKmEKC0JhY2tlbmRLaW5kEhwKGEJBQ0tFTkRfS0lORF9VTlNQRUNJRklFRBAAEhoKFkJBQ0tFTkRfS0lORF9TT0NLRVRDQU4QARIYChRCQUNLRU5EX0tJTkRfVklSVFVBTBACKpwBCghCdXNTdGF0ZRIZChVCVVNfU1RBVEVfVU5TUEVDSUZJRUQQABIQCgxCVVNfU1RBVEVfVVAQARIbChdCVVNfU1RBVEVfRVJST1JfV0FSTklORxACEhsKF0JVU19TVEFURV9FUlJPUl9QQVNTSVZFEAMSFQoRQlVTX1NUQVRFX0JVU19PRkYQBBISCg5CVVNfU1RBVEVfRE9XThAFKkoKCURpcmVjdGlvbhIZChVESVJFQ1RJT05fVU5TUEVDSUZJRUQQABIQCgxESVJFQ1RJT05fUlgQARIQCgxESVJFQ1RJT05fVFgQAip0CgtGcmFtZU9yaWdpbhIcChhGUkFNRV9PUklHSU5fVU5TUEVDSUZJRUQQABIUChBGUkFNRV9PUklHSU5fQlVTEAESGAoURlJBTUVfT1JJR0lOX0dBVEVXQVkQAhIXChNGUkFNRV9PUklHSU5fQ0xJRU5UEAMqTQoISWRGb3JtYXQSEQoNSURfRk9STUFUX0FOWRAAEhYKEklEX0ZPUk1BVF9TVEFOREFSRBABEhYKEklEX0ZPUk1BVF9FWFRFTkRFRBACMvACCgNCdXMSSAoJTGlzdEJ1c2VzEhwuY2FuZ2F0ZS52MS5MaXN0QnVzZXNSZXF1ZXN0Gh0uY2FuZ2F0ZS52MS5MaXN0QnVzZXNSZXNwb25zZRI4CgZHZXRCdXMSGS5jYW5nYXRlLnYxLkdldEJ1c1JlcXVlc3QaEy5jYW5nYXRlLnYxLkJ1c0luZm8SSwoKU2VuZEZyYW1lcxIdLmNhbmdhdGUudjEuU2VuZEZyYW1lc1JlcXVlc3QaHi5jYW5nYXRlLnYxLlNlbmRGcmFtZXNSZXNwb25zZRJTCgxTdHJlYW1GcmFtZXMSHy5jYW5nYXRlLnYxLlN0cmVhbUZyYW1lc1JlcXVlc3QaIC5jYW5nYXRlLnYxLlN0cmVhbUZyYW1lc1Jlc3BvbnNlMAESQwoGQXR0YWNoEhkuY2FuZ2F0ZS52MS5BdHRhY2hSZXF1ZXN0GhouY2FuZ2F0ZS52MS5BdHRhY2hSZXNwb25zZSgBMAFiBnByb3RvMw");
 
 /**
  * The client call that sent a frame.
@@ -791,6 +791,23 @@ export type AttachRequest = Message<"cangate.v1.AttachRequest"> & {
      */
     value: AttachSend;
     case: "send";
+  } | {
+    /**
+     * Starts, restarts or changes a cyclic transmission job; only after
+     * the open.
+     *
+     * @generated from field: cangate.v1.AttachCyclic cyclic = 3;
+     */
+    value: AttachCyclic;
+    case: "cyclic";
+  } | {
+    /**
+     * Ends a cyclic transmission job; only after the open.
+     *
+     * @generated from field: cangate.v1.AttachCyclicStop cyclic_stop = 4;
+     */
+    value: AttachCyclicStop;
+    case: "cyclicStop";
   } | { case: undefined; value?: undefined };
 };
 
@@ -914,6 +931,139 @@ export const AttachSendSchema: GenMessage<AttachSend> = /*@__PURE__*/
   messageDesc(file_cangate_v1_bus, 17);
 
 /**
+ * A cyclic transmission job the gateway runs for an attached client (see
+ * Attach): with an interval, starts the job `job` (replacing a job of that
+ * number, its timer restarted); without, changes the frames of the running
+ * job `job`, its timer going on. Answered by a SendDone (sent 0) or a
+ * SendRefused naming `sequence`.
+ *
+ * @generated from message cangate.v1.AttachCyclic
+ */
+export type AttachCyclic = Message<"cangate.v1.AttachCyclic"> & {
+  /**
+   * The job's number, chosen by the client.
+   *
+   * @generated from field: uint32 job = 1;
+   */
+  job: number;
+
+  /**
+   * The frames the job sends, one per interval, in turn (1 to 256; as in
+   * AttachSend: CAN FD frames only on a stream attached with fd).
+   *
+   * @generated from field: repeated cangate.v1.Frame frames = 2;
+   */
+  frames: Frame[];
+
+  /**
+   * Nanoseconds between two frames, at least 1,000,000 (1 ms); 0: change
+   * the frames of the running job only.
+   *
+   * @generated from field: uint64 interval_ns = 3;
+   */
+  intervalNs: bigint;
+
+  /**
+   * Nanoseconds after which the job ends by itself (told with a
+   * CyclicStopped with code 0); 0: until stopped. Ignored when changing
+   * the frames.
+   *
+   * @generated from field: uint64 duration_ns = 4;
+   */
+  durationNs: bigint;
+
+  /**
+   * Chosen by the client, as AttachSend.sequence: its SendDone or
+   * SendRefused names it.
+   *
+   * @generated from field: uint64 sequence = 5;
+   */
+  sequence: bigint;
+};
+
+/**
+ * Describes the message cangate.v1.AttachCyclic.
+ * Use `create(AttachCyclicSchema)` to create a new message.
+ */
+export const AttachCyclicSchema: GenMessage<AttachCyclic> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_bus, 18);
+
+/**
+ * Ends a cyclic transmission job (see AttachCyclic): none of its frames is
+ * sent once this is answered (a frame handed to the bus before may still go
+ * out). A job that does not run (never started, stopped already, ended by
+ * itself) is no error: the answer is a SendDone all the same.
+ *
+ * @generated from message cangate.v1.AttachCyclicStop
+ */
+export type AttachCyclicStop = Message<"cangate.v1.AttachCyclicStop"> & {
+  /**
+   * The job's number.
+   *
+   * @generated from field: uint32 job = 1;
+   */
+  job: number;
+
+  /**
+   * Chosen by the client, as AttachSend.sequence: its SendDone names it.
+   *
+   * @generated from field: uint64 sequence = 2;
+   */
+  sequence: bigint;
+};
+
+/**
+ * Describes the message cangate.v1.AttachCyclicStop.
+ * Use `create(AttachCyclicStopSchema)` to create a new message.
+ */
+export const AttachCyclicStopSchema: GenMessage<AttachCyclicStop> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_bus, 19);
+
+/**
+ * A cyclic transmission job of this client ended by itself.
+ *
+ * @generated from message cangate.v1.CyclicStopped
+ */
+export type CyclicStopped = Message<"cangate.v1.CyclicStopped"> & {
+  /**
+   * The job's number (AttachCyclic.job).
+   *
+   * @generated from field: uint32 job = 1;
+   */
+  job: number;
+
+  /**
+   * 0 (OK): its duration has passed. Else the google.rpc.Code of the
+   * refusal of one of its frames, as SendRefused.code.
+   *
+   * @generated from field: int32 code = 2;
+   */
+  code: number;
+
+  /**
+   * What happened, for people.
+   *
+   * @generated from field: string message = 3;
+   */
+  message: string;
+
+  /**
+   * The ErrorInfo.reason of the refusal (FRAME_RATE_LIMIT, BUS_OFF,
+   * BUS_DOWN, BUS_BUDGET_EXHAUSTED, SEND_FAILED, ...); empty with code 0.
+   *
+   * @generated from field: string reason = 4;
+   */
+  reason: string;
+};
+
+/**
+ * Describes the message cangate.v1.CyclicStopped.
+ * Use `create(CyclicStoppedSchema)` to create a new message.
+ */
+export const CyclicStoppedSchema: GenMessage<CyclicStopped> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_bus, 20);
+
+/**
  * A batch of events of an attached client's stream, in bus order.
  *
  * @generated from message cangate.v1.AttachResponse
@@ -932,7 +1082,7 @@ export type AttachResponse = Message<"cangate.v1.AttachResponse"> & {
  * Use `create(AttachResponseSchema)` to create a new message.
  */
 export const AttachResponseSchema: GenMessage<AttachResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_bus, 18);
+  messageDesc(file_cangate_v1_bus, 21);
 
 /**
  * One event of an Attach stream.
@@ -991,12 +1141,21 @@ export type AttachEvent = Message<"cangate.v1.AttachEvent"> & {
     case: "refused";
   } | {
     /**
-     * Every frame of a message of this client went out.
+     * Every frame of a message of this client went out (or an
+     * AttachCyclic, AttachCyclicStop took effect).
      *
      * @generated from field: cangate.v1.SendDone done = 6;
      */
     value: SendDone;
     case: "done";
+  } | {
+    /**
+     * A cyclic transmission job of this client ended by itself.
+     *
+     * @generated from field: cangate.v1.CyclicStopped cyclic_stopped = 7;
+     */
+    value: CyclicStopped;
+    case: "cyclicStopped";
   } | { case: undefined; value?: undefined };
 };
 
@@ -1005,7 +1164,7 @@ export type AttachEvent = Message<"cangate.v1.AttachEvent"> & {
  * Use `create(AttachEventSchema)` to create a new message.
  */
 export const AttachEventSchema: GenMessage<AttachEvent> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_bus, 19);
+  messageDesc(file_cangate_v1_bus, 22);
 
 /**
  * The first event of an Attach stream.
@@ -1048,7 +1207,7 @@ export type AttachOpened = Message<"cangate.v1.AttachOpened"> & {
  * Use `create(AttachOpenedSchema)` to create a new message.
  */
 export const AttachOpenedSchema: GenMessage<AttachOpened> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_bus, 20);
+  messageDesc(file_cangate_v1_bus, 23);
 
 /**
  * An AttachSend that was refused, or failed part-way; the stream goes on.
@@ -1059,7 +1218,7 @@ export const AttachOpenedSchema: GenMessage<AttachOpened> = /*@__PURE__*/
  */
 export type SendRefused = Message<"cangate.v1.SendRefused"> & {
   /**
-   * The AttachSend.sequence of the message.
+   * The AttachSend.sequence (AttachCyclic.sequence) of the message.
    *
    * @generated from field: uint64 sequence = 1;
    */
@@ -1119,7 +1278,7 @@ export type SendRefused = Message<"cangate.v1.SendRefused"> & {
  * Use `create(SendRefusedSchema)` to create a new message.
  */
 export const SendRefusedSchema: GenMessage<SendRefused> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_bus, 21);
+  messageDesc(file_cangate_v1_bus, 24);
 
 /**
  * An AttachSend whose frames all went out, in order: handed to the
@@ -1133,14 +1292,16 @@ export const SendRefusedSchema: GenMessage<SendRefused> = /*@__PURE__*/
  */
 export type SendDone = Message<"cangate.v1.SendDone"> & {
   /**
-   * The AttachSend.sequence of the message.
+   * The AttachSend.sequence (AttachCyclic.sequence,
+   * AttachCyclicStop.sequence) of the message.
    *
    * @generated from field: uint64 sequence = 1;
    */
   sequence: bigint;
 
   /**
-   * Frames in the message (all of them went out).
+   * Frames in the message (all of them went out); 0 for an AttachCyclic or
+   * AttachCyclicStop.
    *
    * @generated from field: uint32 sent = 2;
    */
@@ -1152,7 +1313,7 @@ export type SendDone = Message<"cangate.v1.SendDone"> & {
  * Use `create(SendDoneSchema)` to create a new message.
  */
 export const SendDoneSchema: GenMessage<SendDone> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_bus, 22);
+  messageDesc(file_cangate_v1_bus, 25);
 
 /**
  * Which backend runs a bus.
@@ -1472,6 +1633,24 @@ export const Bus: GenService<{
    * when the client cancels it (the gateway then drops the attachment: no
    * subscription stays behind) or when the server shuts down (UNAVAILABLE,
    * SHUTTING_DOWN). Needs the role that SendFrames needs.
+   *
+   * Cyclic transmission (python-can's send_periodic, the Linux broadcast
+   * manager's TX_SETUP): an AttachCyclic starts a job the gateway runs for
+   * this client, sending its frames in turn, one every interval, the first
+   * one interval after it started, as this client's frames (the same
+   * sender, the same raw frame budget, the same client share of the bus,
+   * one frame in flight); an AttachCyclic with the job's number and no
+   * interval changes its frames without touching its timer; an
+   * AttachCyclicStop ends it. A job that falls behind (a busy bus) skips
+   * the periods it missed, never sending a burst. Each is answered in
+   * order with the sends, SendDone when it took effect, SendRefused when
+   * not (INVALID_ARGUMENT: an interval below 1 ms, no frames or more than
+   * 256, a malformed frame, changing a job that does not run;
+   * RESOURCE_EXHAUSTED, CYCLIC_JOB_LIMIT: 64 jobs run already). A job ends
+   * when it is stopped, when its duration has passed, when one of its
+   * frames is refused (the raw frame budget spent, bus-off, down: told in
+   * the stream as CyclicStopped), and with the stream: when the client
+   * cancels it or goes away, and at shutdown. No job outlives its stream.
    *
    * @generated from rpc cangate.v1.Bus.Attach
    */

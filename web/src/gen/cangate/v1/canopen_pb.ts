@@ -3310,7 +3310,10 @@ export const Canopen: GenService<{
   },
   /**
    * Sends an RPDO built from named values (every mapped object must be
-   * given; values are range-checked against the mapping's types).
+   * given; values are range-checked against the mapping's types). An RPDO
+   * that maps an object commanding the drive of an enabled or moving axis
+   * (controlword, mode of operation, targets, program objects) is refused
+   * with FAILED_PRECONDITION, AXIS_ACTIVE, as a raw SDO write of it is.
    *
    * @generated from rpc cangate.v1.Canopen.WritePdo
    */
