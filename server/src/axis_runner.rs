@@ -376,6 +376,19 @@ pub struct AxisPort {
     pub updates: broadcast::Sender<AxisUpdate>,
     /// Latest state of every axis.
     pub latest: LatestStates,
+    /// The set-point streams over these axes, played by the cycle thread.
+    pub streams: Arc<dyn CycleStreams>,
+}
+
+/// The set-point streams over a CANsmc master's axes, as its cycle thread
+/// plays them: at every cycle, before the axes compute their set-points,
+/// so the streams need no thread hand-over per cycle.
+pub trait CycleStreams: Send + Sync {
+    /// Plays the cycle scheduled at `at`; `missed`: the cycles the thread
+    /// skipped since the previous one, as time (the playout holds back by
+    /// them: a late cycle never carries a double step). `axes`: the
+    /// master's axes in [`AxisPort::axes`] order.
+    fn play(&self, at: std::time::Instant, missed: Duration, axes: &mut [&mut CansmcAxis]);
 }
 
 /// A runner of axis controllers, as the axis layer drives it. Axes are

@@ -17,6 +17,14 @@
 //! is taken at that instant) and disengages on a stop, a disable or a
 //! fault.
 //!
+//! **Set-point streams**: a streamed axis takes its demand from a stream's
+//! player ([`crate::setpoint_stream::SetpointPlayer`]), one set-point per
+//! cycle ([`CansmcAxis::stream_setpoint`]), through the same soft limits.
+//! It takes no command but a stop meanwhile; a stop (or a fault, a
+//! disable, a lost slave) ends the streamed motion at once — the axis
+//! ramps down on its own stop ramp — and the runtime sees it in
+//! [`CansmcAxis::is_streamed`].
+//!
 //! The runtime calls [`CansmcAxis::on_cycle`] once per cycle, right after
 //! the master started it, with the slave's latest DT (and the gear
 //! source's count), and sends what it returns.
@@ -107,6 +115,10 @@ enum Motion {
     /// The slave's velocity mode: jogging at `target` (units/s), braking to
     /// 0, or reading the position back before holding it.
     SlaveVelocity { target: f64, stage: VelocityStage },
+    /// A set-point stream's player sets the demand: the position and
+    /// velocity of this cycle ([`CansmcAxis::stream_setpoint`]), taken by
+    /// the next cycle.
+    Streamed { next: Option<(f64, f64)> },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -245,6 +257,81 @@ impl CansmcAxis {
         matches!(self.motion, Motion::Geared { .. })
     }
 
+    /// Whether a set-point stream drives the axis.
+    pub fn is_streamed(&self) -> bool {
+        matches!(self.motion, Motion::Streamed { .. })
+    }
+
+    /// Hands the axis to a set-point stream whose player starts at `from`
+    /// (user units): the axis must be enabled, at rest, running no
+    /// command, and hold `from` (within a count: the player starts where
+    /// the axis stands, so the stream never jumps).
+    ///
+    /// # Errors
+    /// Why the axis cannot be streamed now.
+    pub fn start_stream(&mut self, from: f64) -> Result<(), CommandError> {
+        if self.is_streamed() {
+            return Err(CommandError::Busy(
+                "the axis is already in a set-point stream".into(),
+            ));
+        }
+        self.check(&AxisCommand::Move {
+            target: self.demand,
+            relative: false,
+            velocity: None,
+            acceleration: None,
+        })?;
+        if self.op.is_some() || self.demand_velocity != 0.0 || self.motion != Motion::Hold {
+            return Err(CommandError::Busy(
+                "the axis is moving or busy: stop it or wait until it is at rest".into(),
+            ));
+        }
+        let counts = |x: f64| i64::from(self.units().to_counts(x));
+        if (counts(from) - counts(self.demand)).abs() > 1 {
+            return Err(CommandError::Busy(format!(
+                "the axis moved since the stream opened (it holds {:.4} {}, the stream starts at \
+                 {from:.4})",
+                self.demand, self.cfg.motion.unit
+            )));
+        }
+        self.motion = Motion::Streamed { next: None };
+        Ok(())
+    }
+
+    /// The stream's set-point for the coming cycle (user units, units/s):
+    /// [`CansmcAxis::on_cycle`] sends it, inside the soft limits. Ignored
+    /// unless the axis is streamed.
+    pub fn stream_setpoint(&mut self, position: f64, velocity: f64) {
+        if let Motion::Streamed { next } = &mut self.motion {
+            *next = Some((position, velocity));
+        }
+    }
+
+    /// The stream ended with the axis at rest: it holds the stream's last
+    /// set-point (one given since the last cycle), else its demand.
+    pub fn end_stream(&mut self) {
+        if let Motion::Streamed { next } = self.motion {
+            if let Some((p, _)) = next {
+                self.demand = self.within_soft_limits(p, self.demand);
+            }
+            self.motion = Motion::Hold;
+            self.demand_velocity = 0.0;
+        }
+    }
+
+    /// `p` kept inside the soft limits, unless `previous` is already
+    /// outside (then not further out).
+    fn within_soft_limits(&self, p: f64, previous: f64) -> f64 {
+        let mut p = p;
+        if let Some(max) = self.cfg.motion.max_position {
+            p = p.min(max.max(previous));
+        }
+        if let Some(min) = self.cfg.motion.min_position {
+            p = p.max(min.min(previous));
+        }
+        p
+    }
+
     /// The demand position in user units.
     pub fn demand(&self) -> f64 {
         self.demand
@@ -271,7 +358,7 @@ impl CansmcAxis {
             Some(Step::Moving) => Activity::Moving,
             Some(Step::Jogging) => Activity::Jogging,
             Some(Step::Stopping) => Activity::Stopping,
-            None if self.is_geared() => Activity::Moving,
+            None if self.is_geared() || self.is_streamed() => Activity::Moving,
             None => Activity::Idle,
         }
     }
@@ -354,6 +441,16 @@ impl CansmcAxis {
                 "no drive telegram from the slave yet (is the CANsmc master in P2?)".into(),
             ));
         };
+        if self.is_streamed()
+            && !matches!(
+                cmd,
+                AxisCommand::Stop | AxisCommand::QuickStop | AxisCommand::ResetFault
+            )
+        {
+            return Err(CommandError::Busy(
+                "the axis plays a set-point stream: end the stream or stop the axis first".into(),
+            ));
+        }
         crate::checks::motion_arguments(
             cmd,
             self.cfg.motion.max_velocity,
@@ -1241,6 +1338,15 @@ impl CansmcAxis {
                     }
                     VelocityStage::ReadingPosition => {}
                 }
+            }
+            Motion::Streamed { next } => {
+                let Some((p, v)) = next.take() else {
+                    // No set-point this cycle: hold.
+                    self.demand_velocity = 0.0;
+                    return;
+                };
+                self.demand = self.within_soft_limits(p, previous);
+                self.demand_velocity = v;
             }
             Motion::Geared { offset } => {
                 let Some(count) = source else {

@@ -8,6 +8,7 @@
 //! [`Axes`]'s own ([`control`]), so every caller gets them: the gRPC `Axes`
 //! service, the handwheel binding, an embedding program.
 
+pub mod cansmc_setpoints;
 pub mod cia402_task;
 pub mod control;
 pub mod cyclic_setpoints;
@@ -49,6 +50,9 @@ struct AxisEntry {
     /// A CiA 402 axis's bus master and its task's cyclic set-point table
     /// (where set-point streams play).
     cyclic: Option<(CanopenBus, Arc<cyclic_setpoints::CyclicSetpoints>)>,
+    /// A CANsmc axis's master's set-point streams (played by its cycle
+    /// thread).
+    cansmc: Option<Arc<cansmc_setpoints::CansmcSetpoints>>,
 }
 
 /// What [`Axes::start`] returns: the manager, its tasks, and the
@@ -138,12 +142,16 @@ impl Axes {
         let mut ports = BTreeMap::new();
         for (master, list) in per_master {
             let (tx, rx) = mpsc::channel(256);
+            let streams = Arc::new(cansmc_setpoints::CansmcSetpoints::new(
+                list.iter().map(|a| a.name.clone()),
+            ));
             for (local, a) in list.iter().enumerate() {
                 axes[a.global] = Some(AxisEntry {
                     spec: specs[a.global].clone(),
                     bus: tx.clone(),
                     local,
                     cyclic: None,
+                    cansmc: Some(streams.clone()),
                 });
             }
             ports.insert(
@@ -153,6 +161,7 @@ impl Axes {
                     axes: list,
                     updates: updates.clone(),
                     latest: latest.clone(),
+                    streams,
                 },
             );
         }
@@ -178,6 +187,7 @@ impl Axes {
                     bus: tx.clone(),
                     local,
                     cyclic: Some((master.clone(), table.clone())),
+                    cansmc: None,
                 });
             }
             tasks.push(task);
@@ -411,6 +421,9 @@ impl Axes {
         e.cyclic
             .as_ref()
             .is_some_and(|(_, table)| table.in_stream(e.local))
+            || e.cansmc
+                .as_ref()
+                .is_some_and(|table| table.in_stream(e.local))
     }
 
     /// Grants control of `axes` (names) to `holder`, bound to `identity`

@@ -1,9 +1,11 @@
-//! Set-point streams as a client runs them: opened over cyclic (CSP) axes
-//! under the client's control lease, fed with batches of time-stamped
-//! points, reported on periodically and when something happens.
+//! Set-point streams as a client runs them: opened over cyclic (CSP)
+//! CiA 402 axes of one bus or the axes of one CANsmc master, under the
+//! client's control lease, fed with batches of time-stamped points,
+//! reported on periodically and when something happens.
 //!
 //! The points are played by the bus's SYNC thread
-//! ([`super::cyclic_setpoints`], a [`SetpointPlayer`] per stream): no
+//! ([`super::cyclic_setpoints`]) or the CANsmc master's cycle thread
+//! ([`super::cansmc_setpoints`]), a [`SetpointPlayer`] per stream: no
 //! thread hand-over per cycle. This session only passes points in and
 //! reports out, at the client's batch rate and the report period, and
 //! watches the lease: each batch renews it; once it no longer covers the
@@ -13,8 +15,9 @@
 //!
 //! [`SetpointPlayer`]: cangate_axis::setpoint_stream::SetpointPlayer
 
+use super::cansmc_setpoints::CansmcSetpoints;
 use super::cyclic_setpoints::{CyclicSetpoints, StreamEnd, StreamReport};
-use super::{Axes, AxisError, Caller};
+use super::{Axes, AxisEntry, AxisError, Caller};
 use cangate_axis::setpoint_stream::{
     AxisLimits, PlayerConfig, PlayerState, PointRefused, StreamPoint,
 };
@@ -93,11 +96,49 @@ pub struct StreamUpdate {
     pub latest: Vec<Option<Arc<cangate_axis::cia402::AxisSnapshot>>>,
 }
 
+/// Where a stream plays: a bus's SYNC thread or a CANsmc master's cycle
+/// thread.
+#[derive(Clone)]
+enum StreamTable {
+    Sync(Arc<CyclicSetpoints>),
+    Cansmc(Arc<CansmcSetpoints>),
+}
+
+impl StreamTable {
+    fn push_points(&self, id: u64, points: Vec<StreamPoint>) -> Vec<(usize, PointRefused)> {
+        match self {
+            StreamTable::Sync(t) => t.push_points(id, points),
+            StreamTable::Cansmc(t) => t.push_points(id, points),
+        }
+    }
+
+    fn stop_stream(&self, id: u64, reason: StreamEnd) {
+        match self {
+            StreamTable::Sync(t) => t.stop_stream(id, reason),
+            StreamTable::Cansmc(t) => t.stop_stream(id, reason),
+        }
+    }
+
+    fn report(&self, id: u64) -> Option<StreamReport> {
+        match self {
+            StreamTable::Sync(t) => t.report(id),
+            StreamTable::Cansmc(t) => t.report(id),
+        }
+    }
+
+    fn close_stream(&self, id: u64, reason: StreamEnd) {
+        match self {
+            StreamTable::Sync(t) => t.close_stream(id, reason),
+            StreamTable::Cansmc(t) => t.close_stream(id, reason),
+        }
+    }
+}
+
 /// An open stream. Dropping it brings its axes to rest (the client went
 /// away).
 pub struct SetpointStream {
     axes: Arc<Axes>,
-    table: Arc<CyclicSetpoints>,
+    table: StreamTable,
     id: u64,
     idx: Vec<usize>,
     caller: Caller,
@@ -105,9 +146,10 @@ pub struct SetpointStream {
 }
 
 impl Axes {
-    /// Opens a set-point stream of `caller` over `req.axes`: each a cyclic
-    /// (CSP) axis on one bus, enabled, at rest, in no other stream, and
-    /// controlled by the caller's lease.
+    /// Opens a set-point stream of `caller` over `req.axes`: cyclic (CSP)
+    /// CiA 402 axes of one bus, or CANsmc axes of one master; each
+    /// enabled, at rest, in no other stream, and controlled by the
+    /// caller's lease.
     ///
     /// # Errors
     /// [`AxisError::NotFound`] for an unknown axis;
@@ -171,35 +213,70 @@ impl Axes {
         }
         let not = AxisError::NotStreamable;
         let first = &self.axes[idx[0]];
+        let family = |e: &AxisEntry| match &e.spec.drive {
+            DriveSpec::Cia402(_) => format!("a CiA 402 axis on bus {}", e.spec.bus()),
+            DriveSpec::Cansmc(d) => format!("a CANsmc axis of master {}", d.master),
+        };
         let mut limits = Vec::with_capacity(idx.len());
         let mut units = Vec::with_capacity(idx.len());
         let mut locals = Vec::with_capacity(idx.len());
+        let mut positions = Vec::with_capacity(idx.len());
         for &i in &idx {
             let e = &self.axes[i];
             let name = &e.spec.name;
-            let (DriveSpec::Cia402(_), Some((_, table))) = (&e.spec.drive, &e.cyclic) else {
-                return Err(not(format!(
-                    "axis {name} is a CANsmc axis: set-point streams play on cyclic (CSP) CiA 402 \
-                     axes"
-                )));
-            };
-            if e.spec.position_mode() != PositionMode::Cyclic {
-                return Err(not(format!(
-                    "axis {name} is a profile position axis: set-point streams play on cyclic \
-                     (CSP) axes"
-                )));
+            match (&first.cansmc, &e.cansmc, &e.cyclic) {
+                (Some(smc0), Some(smc), _) => {
+                    if !Arc::ptr_eq(smc0, smc) {
+                        return Err(not(format!(
+                            "a set-point stream plays on one CANsmc master's cycle: {} is {}, \
+                             {name} {}",
+                            first.spec.name,
+                            family(first),
+                            family(e)
+                        )));
+                    }
+                    if smc.in_stream(e.local) {
+                        return Err(not(format!("axis {name} is already in a set-point stream")));
+                    }
+                }
+                (None, None, Some((_, table))) => {
+                    if e.spec.position_mode() != PositionMode::Cyclic {
+                        return Err(not(format!(
+                            "axis {name} is a profile position axis: set-point streams play on \
+                             cyclic (CSP) CiA 402 axes and CANsmc axes"
+                        )));
+                    }
+                    let Some((_, table0)) = &first.cyclic else {
+                        return Err(not(format!("axis {} cannot be streamed", first.spec.name)));
+                    };
+                    if !Arc::ptr_eq(table, table0) {
+                        return Err(not(format!(
+                            "a set-point stream plays on one bus's SYNC: {} is on {}, {name} on {}",
+                            first.spec.name,
+                            first.spec.bus(),
+                            e.spec.bus()
+                        )));
+                    }
+                    if table.in_stream(e.local) {
+                        return Err(not(format!("axis {name} is already in a set-point stream")));
+                    }
+                }
+                _ => {
+                    return Err(not(format!(
+                        "a set-point stream plays on one bus's cycle: {} is {}, {name} {}; \
+                         stream them separately",
+                        first.spec.name,
+                        family(first),
+                        family(e)
+                    )));
+                }
             }
-            if !Arc::ptr_eq(table, &first.cyclic.as_ref().expect("checked above").1) {
-                return Err(not(format!(
-                    "a set-point stream plays on one bus's SYNC: {} is on {}, {name} on {}",
-                    first.spec.name,
-                    first.spec.bus(),
-                    e.spec.bus()
-                )));
-            }
-            if table.in_stream(e.local) {
-                return Err(not(format!("axis {name} is already in a set-point stream")));
-            }
+        }
+        // The state of each axis once all are of one bus: a mixed list
+        // hears of the mix first.
+        for &i in &idx {
+            let e = &self.axes[i];
+            let name = &e.spec.name;
             let Some((snap, _)) = self.latest(i) else {
                 return Err(not(format!(
                     "axis {name}: no process data from its drive yet"
@@ -227,20 +304,36 @@ impl Axes {
             });
             units.push(m.units);
             locals.push(e.local);
+            positions.push(snap.demand_position);
         }
-        let (master, table) = first.cyclic.clone().expect("checked above");
-        let sync = master.sync_settings();
-        if !sync.running || sync.period.is_zero() {
-            return Err(not(format!(
-                "the SYNC of bus {} is stopped: a stream plays on the SYNC",
-                first.spec.bus()
-            )));
-        }
-        let mut cfg = PlayerConfig::new(sync.period, req.depth);
-        cfg.extrapolate = extrapolate;
-        let id = table
-            .open_stream(&locals, limits, units, cfg)
-            .map_err(not)?;
+        let (table, id) = match (&first.spec.drive, &first.cansmc, &first.cyclic) {
+            (DriveSpec::Cansmc(d), Some(smc), _) => {
+                let mut cfg = PlayerConfig::new(d.cycle_time, req.depth);
+                cfg.extrapolate = extrapolate;
+                let id = smc
+                    .open_stream(&locals, limits, positions, cfg)
+                    .map_err(not)?;
+                (StreamTable::Cansmc(smc.clone()), id)
+            }
+            (_, _, Some((master, table))) => {
+                let sync = master.sync_settings();
+                if !sync.running || sync.period.is_zero() {
+                    return Err(not(format!(
+                        "the SYNC of bus {} is stopped: a stream plays on the SYNC",
+                        first.spec.bus()
+                    )));
+                }
+                let mut cfg = PlayerConfig::new(sync.period, req.depth);
+                cfg.extrapolate = extrapolate;
+                let id = table
+                    .open_stream(&locals, limits, units, cfg)
+                    .map_err(not)?;
+                (StreamTable::Sync(table.clone()), id)
+            }
+            _ => {
+                return Err(not(format!("axis {} cannot be streamed", first.spec.name)));
+            }
+        };
         let names: Vec<&str> = idx.iter().map(|&i| self.name(i)).collect();
         tracing::info!(target: "cangate::audit", peer = %caller.name, axes = ?names, depth_ms = req.depth.as_millis() as u64, "set-point stream opened");
         Ok(SetpointStream {

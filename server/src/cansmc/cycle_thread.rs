@@ -20,8 +20,8 @@ use super::CansmcError;
 use super::jitter::JitterHistogram;
 use super::{AxisPort, CansmcEvent, CansmcStatus, Request, SlaveView};
 use crate::axis_runner::{
-    AxisEventKind, AxisRunner, AxisUpdate, BusRequest, CommandReply, CoordinatedTarget, Waiters,
-    for_axis, prepare_coordinated,
+    AxisEventKind, AxisRunner, AxisUpdate, BusRequest, CommandReply, CoordinatedTarget,
+    CycleStreams, Waiters, for_axis, prepare_coordinated,
 };
 use crate::config::{CansmcConfig, CyclicChoice, DEFAULT_FIFO_SPIN_US};
 use cangate_axis::cansmc::{CansmcAxis, CycleInput};
@@ -94,6 +94,10 @@ struct Thread {
     axis_requests: Option<tokio::sync::mpsc::Receiver<BusRequest>>,
     updates: Option<broadcast::Sender<AxisUpdate>>,
     latest: Option<crate::axis_runner::LatestStates>,
+    /// The set-point streams over the axes, played at each cycle start.
+    streams: Option<Arc<dyn CycleStreams>>,
+    /// The cycle the streams played last (a gap: cycles skipped).
+    streams_cycle: Option<u64>,
     requests: std::sync::mpsc::Receiver<Request>,
     parameter_waiters: HashMap<RequestId, oneshot::Sender<Result<i32, CansmcError>>>,
     status: Arc<Mutex<CansmcStatus>>,
@@ -128,8 +132,8 @@ pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String>
     let subscription = setup
         .status_bus
         .subscribe(FrameSelector::all(), 4 * 64 + 1024);
-    let (mut slots, mut gear_source, mut axis_requests, mut updates, mut latest) =
-        (Vec::new(), Vec::new(), None, None, None);
+    let (mut slots, mut gear_source, mut axis_requests, mut updates, mut latest, mut streams) =
+        (Vec::new(), Vec::new(), None, None, None, None);
     if let Some(port) = setup.axes {
         for a in port.axes {
             let drive = &a.controller.drive;
@@ -146,6 +150,7 @@ pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String>
         axis_requests = Some(port.requests);
         updates = Some(port.updates);
         latest = Some(port.latest);
+        streams = Some(port.streams);
     }
     let by_address = slots
         .iter()
@@ -168,6 +173,8 @@ pub(crate) fn spawn(setup: Setup) -> Result<std::thread::JoinHandle<()>, String>
         axis_requests,
         updates,
         latest,
+        streams,
+        streams_cycle: None,
         requests: setup.requests,
         parameter_waiters: HashMap::new(),
         status: setup.status,
@@ -358,6 +365,7 @@ impl Thread {
             }
             // MST first, then the axes compute this cycle's set-points.
             self.send(std::mem::take(&mut frames));
+            self.play_streams(k, scheduled);
             self.run_axes(now, k);
         }
         self.send(frames);
@@ -413,6 +421,24 @@ impl Thread {
                 tracing::warn!(error = %e, failures = self.send_errors, "CANsmc telegrams not sent");
             }
         }
+    }
+
+    /// Plays the set-point streams for cycle `k`, scheduled at `scheduled`
+    /// (on the nominal grid): each streamed axis gets this cycle's
+    /// set-point before it runs.
+    fn play_streams(&mut self, k: u64, scheduled: Duration) {
+        let Some(streams) = &self.streams else {
+            return;
+        };
+        let skipped = self
+            .streams_cycle
+            .filter(|&last| k > last)
+            .map_or(0, |last| k - last - 1);
+        self.streams_cycle = Some(k);
+        let cycle = self.cfg.cycle_time();
+        let missed = cycle.saturating_mul(u32::try_from(skipped).unwrap_or(u32::MAX));
+        let mut axes: Vec<&mut CansmcAxis> = self.slots.iter_mut().map(|s| &mut s.axis).collect();
+        streams.play(self.origin + scheduled, missed, &mut axes);
     }
 
     /// Feeds every axis its slave's latest answer; sets the MDT content.

@@ -553,3 +553,191 @@ fn every_stop_brakes_at_least_at_the_stop_deceleration() {
         );
     }
 }
+
+// ------------------------------------------------------ set-point streams
+
+use crate::setpoint_stream::{AxisLimits, PlayerConfig, PlayerState, SetpointPlayer, StreamPoint};
+
+fn player_for(rig: &Rig) -> SetpointPlayer {
+    let m = &rig.axis.config().motion;
+    let limits = AxisLimits {
+        max_velocity: m.max_velocity,
+        max_acceleration: m.max_acceleration,
+        stop_deceleration: m.stop_deceleration,
+        min_position: m.min_position,
+        max_position: m.max_position,
+    };
+    let mut cfg = PlayerConfig::new(CYCLE, Duration::from_millis(10));
+    cfg.extrapolate = Duration::from_millis(10);
+    SetpointPlayer::new(cfg, vec![limits], vec![rig.axis.demand()])
+}
+
+/// One cycle of a streamed axis: the player's set-point, then the cycle.
+fn stream_cycle(rig: &mut Rig, player: &mut SetpointPlayer) -> PlayerState {
+    let c = player.next(rig.now);
+    rig.axis
+        .stream_setpoint(c.positions[0], player.velocity()[0]);
+    rig.cycles(1);
+    c.state
+}
+
+/// Pushes the points of `path` every 1 ms of client time up to `until_ms`,
+/// each arrived on time (client time 0 at `start`).
+fn feed(player: &mut SetpointPlayer, start: Duration, until_ms: u64) {
+    for k in 0..=until_ms {
+        player
+            .push(
+                StreamPoint {
+                    t_us: k * 1000,
+                    positions: vec![path(k as f64 / 1000.0)],
+                },
+                start + Duration::from_millis(k),
+            )
+            .unwrap();
+    }
+}
+
+/// A smooth path from 0: 5 mm along a cosine blend over 1 s.
+fn path(t: f64) -> f64 {
+    let s = t.clamp(0.0, 1.0);
+    2.5 * (1.0 - (std::f64::consts::PI * s).cos())
+}
+
+#[test]
+fn a_streamed_axis_follows_the_players_set_points_and_takes_no_other_command() {
+    let mut rig = Rig::enabled(cfg());
+    let mut player = player_for(&rig);
+    rig.axis.start_stream(rig.axis.demand()).unwrap();
+    assert!(rig.axis.is_streamed());
+    assert_eq!(rig.axis.activity(), Activity::Moving);
+    let e = rig.command(mv(1.0)).unwrap_err();
+    assert!(e.to_string().contains("set-point stream"), "{e}");
+    for refused in [
+        AxisCommand::Jog {
+            velocity: 1.0,
+            acceleration: None,
+        },
+        AxisCommand::Home,
+        AxisCommand::Enable,
+        AxisCommand::Disable,
+    ] {
+        assert!(matches!(rig.command(refused), Err(CommandError::Busy(_))));
+    }
+    feed(&mut player, rig.now, 1000);
+    let mut max_error: f64 = 0.0;
+    for _ in 0..700 {
+        stream_cycle(&mut rig, &mut player);
+        // The axis sends the player's set-point of the cycle.
+        max_error = max_error.max((rig.axis.demand() - player.position()[0]).abs());
+    }
+    assert!(max_error < 1e-3, "demand off the player: {max_error}");
+    let played = player.position()[0];
+    assert!(played > 1.0, "the path advanced: {played}");
+    // The servo follows a cycle behind.
+    let actual = f64::from(rig.servo.position) / 1000.0;
+    assert!((actual - played).abs() < 0.1, "{actual} vs {played}");
+}
+
+#[test]
+fn a_stop_ends_the_streamed_motion_at_once_and_ramps_to_rest() {
+    let mut rig = Rig::enabled(cfg());
+    let mut player = player_for(&rig);
+    rig.axis.start_stream(rig.axis.demand()).unwrap();
+    feed(&mut player, rig.now, 400);
+    for _ in 0..200 {
+        stream_cycle(&mut rig, &mut player);
+    }
+    let v = rig.axis.snapshot().velocity;
+    assert!(v > 1.0, "moving: {v}");
+    let id = rig.command(AxisCommand::Stop).unwrap();
+    assert!(!rig.axis.is_streamed(), "a stop ends the streamed motion");
+    // Set-points from a stream that has not heard of it yet are ignored.
+    let dt = CYCLE.as_secs_f64();
+    let decel = rig.axis.config().motion.stop_deceleration;
+    let mut previous = rig.axis.demand();
+    let mut previous_v = player.velocity()[0];
+    let mut worst_dv: f64 = 0.0;
+    for _ in 0..100 {
+        rig.axis.stream_setpoint(100.0, 0.0);
+        rig.cycles(1);
+        let d = rig.axis.demand();
+        let step = (d - previous) / dt;
+        worst_dv = worst_dv.max((step - previous_v).abs() / dt);
+        previous_v = step;
+        previous = d;
+    }
+    assert_eq!(rig.until_done(id, 100).0, Outcome::Completed);
+    assert!(
+        rig.axis.demand() < 10.0,
+        "never jumped to the stale set-point"
+    );
+    assert!(
+        worst_dv <= decel * 1.05,
+        "braking at {worst_dv} over the stop deceleration {decel}"
+    );
+    assert_eq!(rig.axis.activity(), Activity::Idle);
+}
+
+#[test]
+fn an_underrun_ramps_the_streamed_axis_to_rest_within_the_stop_deceleration() {
+    let mut rig = Rig::enabled(cfg());
+    let mut player = player_for(&rig);
+    rig.axis.start_stream(rig.axis.demand()).unwrap();
+    // Points for 0.3 s only: then the player runs dry.
+    feed(&mut player, rig.now, 300);
+    let decel = rig.axis.config().motion.stop_deceleration;
+    let dt = CYCLE.as_secs_f64();
+    let mut previous = rig.axis.demand();
+    let mut previous_v = 0.0;
+    let mut worst_dv: f64 = 0.0;
+    let mut underrun = false;
+    let mut at_rest = false;
+    for _ in 0..600 {
+        let c = player.next(rig.now);
+        underrun |= c.event == Some(crate::setpoint_stream::PlayerEvent::Underrun);
+        at_rest |= c.event == Some(crate::setpoint_stream::PlayerEvent::AtRest);
+        rig.axis
+            .stream_setpoint(c.positions[0], player.velocity()[0]);
+        rig.cycles(1);
+        let d = rig.axis.demand();
+        let v = (d - previous) / dt;
+        if underrun {
+            worst_dv = worst_dv.max((v - previous_v).abs() / dt);
+        }
+        previous_v = v;
+        previous = d;
+    }
+    assert!(
+        underrun && at_rest,
+        "underrun {underrun}, at rest {at_rest}"
+    );
+    assert!(
+        worst_dv <= decel * 1.05,
+        "braking at {worst_dv} over the stop deceleration {decel}"
+    );
+    assert_eq!(previous_v, 0.0, "at rest");
+    rig.axis.end_stream();
+    assert!(!rig.axis.is_streamed());
+    assert_eq!(rig.axis.activity(), Activity::Idle);
+    // Commands are taken again.
+    let id = rig.command(mv(0.0)).unwrap();
+    assert_eq!(rig.until_done(id, 2000).0, Outcome::Completed);
+}
+
+#[test]
+fn a_fault_or_a_lost_slave_ends_the_streamed_motion() {
+    let mut rig = Rig::enabled(cfg());
+    rig.axis.start_stream(rig.axis.demand()).unwrap();
+    rig.servo.fault = true;
+    rig.cycles(2);
+    assert!(!rig.axis.is_streamed());
+    let mut rig = Rig::enabled(cfg());
+    rig.axis.start_stream(rig.axis.demand()).unwrap();
+    let mut ev = Vec::new();
+    rig.axis.on_slave_lost("test", &mut ev);
+    assert!(!rig.axis.is_streamed());
+    // A stream starts only where the axis stands.
+    let mut rig = Rig::enabled(cfg());
+    let e = rig.axis.start_stream(rig.axis.demand() + 1.0).unwrap_err();
+    assert!(e.to_string().contains("moved since"), "{e}");
+}

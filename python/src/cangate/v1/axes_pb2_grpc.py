@@ -258,13 +258,14 @@ class AxesServicer:
 
     def StreamSetpoints(self, request_iterator, context):
         """Streams time-stamped set-points into a jitter buffer, played on the
-        bus's SYNC grid (cyclic CiA 402 axes of one bus). The first message
+        bus's SYNC grid (cyclic CiA 402 axes of one bus) or a CANsmc master's
+        cycle (CANsmc axes of one master). The first message
         opens the stream (SetpointStreamOpen) under a control lease covering
         every axis; the following carry batches of points (each renews the
         lease). Points carry the client's own clock: the gateway plays client
         time t at t + offset + depth, offset being the fastest recent arrival
         (estimated, reported), depth the buffer; positions are interpolated
-        onto the SYNC. Every point and every played step is checked against
+        onto the SYNC (or cycle). Every point and every played step is checked against
         the axes' maximum velocity, acceleration and soft limits: a point
         that breaks one is refused and reported, never sent. When no point is
         left the axes go on along the last segment for `extrapolate_ms`, then
@@ -279,8 +280,9 @@ class AxesServicer:
         INVALID_ARGUMENT for no axes, an axis named twice, a depth of 0 or
         above 2000 ms, an extrapolation above 1000 ms, a point period above
         the depth; FAILED_PRECONDITION without the lease, or for an axis that
-        is not a cyclic CiA 402 axis, not enabled, moving, already streamed,
-        or on another bus than the first.
+        is neither a cyclic CiA 402 axis nor a CANsmc axis, not enabled,
+        moving, already streamed, or on another bus or CANsmc master than the
+        first.
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')

@@ -1433,8 +1433,9 @@ export const SetpointStreamRequestSchema: GenMessage<SetpointStreamRequest> = /*
  */
 export type SetpointStreamOpen = Message<"cangate.v1.SetpointStreamOpen"> & {
   /**
-   * The axes, in the order of each point's positions: cyclic (CSP) axes
-   * of one bus, enabled and at rest.
+   * The axes, in the order of each point's positions: cyclic (CSP)
+   * CiA 402 axes of one bus, or CANsmc axes of one master (played on its
+   * cycle); enabled and at rest.
    *
    * @generated from field: repeated string axes = 1;
    */
@@ -2503,13 +2504,14 @@ export const Axes: GenService<{
   },
   /**
    * Streams time-stamped set-points into a jitter buffer, played on the
-   * bus's SYNC grid (cyclic CiA 402 axes of one bus). The first message
+   * bus's SYNC grid (cyclic CiA 402 axes of one bus) or a CANsmc master's
+   * cycle (CANsmc axes of one master). The first message
    * opens the stream (SetpointStreamOpen) under a control lease covering
    * every axis; the following carry batches of points (each renews the
    * lease). Points carry the client's own clock: the gateway plays client
    * time t at t + offset + depth, offset being the fastest recent arrival
    * (estimated, reported), depth the buffer; positions are interpolated
-   * onto the SYNC. Every point and every played step is checked against
+   * onto the SYNC (or cycle). Every point and every played step is checked against
    * the axes' maximum velocity, acceleration and soft limits: a point
    * that breaks one is refused and reported, never sent. When no point is
    * left the axes go on along the last segment for `extrapolate_ms`, then
@@ -2524,8 +2526,9 @@ export const Axes: GenService<{
    * INVALID_ARGUMENT for no axes, an axis named twice, a depth of 0 or
    * above 2000 ms, an extrapolation above 1000 ms, a point period above
    * the depth; FAILED_PRECONDITION without the lease, or for an axis that
-   * is not a cyclic CiA 402 axis, not enabled, moving, already streamed,
-   * or on another bus than the first.
+   * is neither a cyclic CiA 402 axis nor a CANsmc axis, not enabled,
+   * moving, already streamed, or on another bus or CANsmc master than the
+   * first.
    *
    * @generated from rpc cangate.v1.Axes.StreamSetpoints
    */
