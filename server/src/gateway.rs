@@ -699,6 +699,7 @@ fn node_plan(
         product_code: nc.product_code,
         writes,
         identify_only: false,
+        required_modes: drive.map_or(0, |(_, d)| d.mode.operation().supported_mask()),
     };
     Ok((tpdos, rpdos, Some(Arc::new(plan))))
 }
@@ -727,7 +728,14 @@ fn axis_pdos(
     // The SDO fallback maps no PDO: whatever the drive's own PDOs carry is
     // left alone and not used.
     let (rpdos, tpdos) = match drive.process_data {
-        ProcessDataPath::Pdo => standard_pdos(node, trigger),
+        ProcessDataPath::Pdo => {
+            let (mut rpdos, tpdos) = standard_pdos(node, trigger);
+            if drive.torque.in_process_data {
+                // A torque axis: the target torque in RPDO3.
+                rpdos.push(cangate_axis::process_data::torque_rpdo(node));
+            }
+            (rpdos, tpdos)
+        }
         ProcessDataPath::Sdo { .. } => (Vec::new(), Vec::new()),
     };
     Ok((tpdos, rpdos))

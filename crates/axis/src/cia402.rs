@@ -20,6 +20,15 @@
 //! | quick stop | controlword quick stop, and 0x6084 raised to the quick stop deceleration; done when the drive left operation enabled and stands still | the same |
 //! | home | mode 6, homing start (bit 4); done on homing attained + target reached, failed on homing error; back to the position mode | the same, then demand = actual position, mode 8 |
 //!
+//! The other modes ([`DriveMode`]): cyclic synchronous velocity runs jogs
+//! and stops as CSP does, the trajectory's velocity sent in 0x60FF every
+//! SYNC (its stop ramps the velocity to 0 at the stop deceleration);
+//! the torque modes (CST, profile torque) take [`AxisCommand::SetTorque`]
+//! in 0x6071 (profile torque ramps it at 0x6087, written at boot), stop by
+//! halt on 0x6084 as profile position does, and stop themselves when the
+//! velocity exceeds the axis's maximum. [`AxisCommand::SetMode`] changes
+//! the mode at rest only.
+//!
 //! Stops brake at least at the configured stop deceleration, more when the
 //! interrupted motion brakes harder. A profile axis brakes on the drive's
 //! own ramp: CiA 402 halts on 0x6084 with the default halt option code
@@ -46,8 +55,8 @@ use cangate_canopen::cia402::{
 use cangate_motion::{Limits, TrapezoidProfile};
 
 use crate::{
-    Activity, AxisCommand, AxisEvent, CommandError, CommandKind, MotionSpec, OpId, Outcome,
-    PositionMode, Units,
+    Activity, AxisCommand, AxisEvent, CommandError, CommandKind, DriveMode, MotionSpec, OpId,
+    Outcome, PositionMode, TorqueSpec, Units,
 };
 
 /// The configuration of one CiA 402 axis: what every axis has and its
@@ -56,8 +65,10 @@ use crate::{
 pub struct Cia402Config {
     /// Units, limits, defaults, stops, time bounds.
     pub motion: MotionSpec,
-    /// Profile or cyclic position.
-    pub position_mode: PositionMode,
+    /// The mode of operation the axis starts in.
+    pub mode: DriveMode,
+    /// Torque bounds (the torque modes).
+    pub torque: TorqueSpec,
 }
 
 impl Cia402Config {
@@ -66,8 +77,27 @@ impl Cia402Config {
     pub fn example(counts_per_unit: f64, position_mode: PositionMode) -> Self {
         Cia402Config {
             motion: MotionSpec::example(counts_per_unit, 500.0),
-            position_mode,
+            mode: DriveMode::of_position_mode(position_mode),
+            torque: TorqueSpec::default(),
         }
+    }
+
+    /// As [`Cia402Config::example`], in `mode`, with the target torque in
+    /// the process data.
+    pub fn example_in(counts_per_unit: f64, mode: DriveMode) -> Self {
+        Cia402Config {
+            motion: MotionSpec::example(counts_per_unit, 500.0),
+            mode,
+            torque: TorqueSpec {
+                in_process_data: true,
+                ..TorqueSpec::default()
+            },
+        }
+    }
+
+    /// How moves run in the mode the axis starts in.
+    pub fn position_mode(&self) -> PositionMode {
+        self.mode.position_mode()
     }
 }
 
@@ -83,6 +113,8 @@ pub struct ProcessImage {
     pub target_position: i32,
     /// 0x60FF (counts/s).
     pub target_velocity: i32,
+    /// 0x6071 (per mille of the rated torque).
+    pub target_torque: i16,
 }
 
 /// Process data from the drive; `None` fields were not in this update.
@@ -168,6 +200,8 @@ enum Step {
     Jogging,
     /// Decelerating (halt, quick stop, cyclic stop ramp).
     Stopping,
+    /// A torque command runs (the velocity guarded).
+    Torque,
 }
 
 #[derive(Debug)]
@@ -191,6 +225,9 @@ struct Op {
     settling: bool,
     /// Accepted has been reported.
     accepted: bool,
+    /// Why a guard stopped the command (the torque command's velocity
+    /// guard).
+    guard: Option<String>,
 }
 
 impl Op {
@@ -206,6 +243,7 @@ impl Op {
             overdue: false,
             settling: false,
             accepted: false,
+            guard: None,
         }
     }
 
@@ -304,6 +342,19 @@ pub struct CyclicPlan {
     deadman: Option<Duration>,
     /// The axis's stop deceleration (the dead-man's stop ramp).
     stop_deceleration: f64,
+    /// The object each sample is sent in.
+    setpoint: SetpointObject,
+}
+
+/// The object a cyclic axis's set-point goes to with every SYNC.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum SetpointObject {
+    /// 0x607A target position (CSP): [`CyclicSample::counts`].
+    TargetPosition,
+    /// 0x60FF target velocity (CSV): [`CyclicSample::velocity_counts`].
+    TargetVelocity,
+    /// 0x60C1:01 interpolation data record (IP): [`CyclicSample::counts`].
+    InterpolationData,
 }
 
 /// The set-point a [`CyclicPlan`] gave for one SYNC.
@@ -313,6 +364,9 @@ pub struct CyclicSample {
     pub at: Duration,
     /// The set-point in drive counts: the RPDO's target position.
     pub counts: i32,
+    /// The demand velocity in drive counts/s: the target velocity of a
+    /// CSV axis.
+    pub velocity_counts: i32,
     /// Demand position and velocity (user units).
     demand: f64,
     velocity: f64,
@@ -341,6 +395,7 @@ impl CyclicSample {
         CyclicSample {
             at,
             counts: units.to_counts(position),
+            velocity_counts: units.to_counts(velocity),
             demand: position,
             velocity,
             start: None,
@@ -365,7 +420,19 @@ impl CyclicPlan {
             units,
             deadman: None,
             stop_deceleration: 0.0,
+            setpoint: SetpointObject::TargetPosition,
         }
+    }
+
+    /// The object the samples go to.
+    pub fn setpoint_object(&self) -> SetpointObject {
+        self.setpoint
+    }
+
+    /// The same plan, its samples sent to `setpoint`.
+    pub fn sent_to(mut self, setpoint: SetpointObject) -> CyclicPlan {
+        self.setpoint = setpoint;
+        self
     }
 
     /// True while a trajectory runs (the axis moves, or waits for the SYNC
@@ -397,6 +464,7 @@ impl CyclicPlan {
             && self.units == other.units
             && self.deadman == other.deadman
             && self.stop_deceleration == other.stop_deceleration
+            && self.setpoint == other.setpoint
     }
 
     /// The set-point of a SYNC sent at `at`; the first sample of a
@@ -420,6 +488,7 @@ impl CyclicPlan {
             return CyclicSample {
                 at,
                 counts: self.units.to_counts(self.hold),
+                velocity_counts: 0,
                 demand: self.hold,
                 velocity: 0.0,
                 start: None,
@@ -435,11 +504,13 @@ impl CyclicPlan {
             self.trajectory = None;
             self.hold = p;
         }
+        let velocity = if finished { 0.0 } else { v };
         CyclicSample {
             at,
             counts: self.units.to_counts(p),
+            velocity_counts: self.units.to_counts(velocity),
             demand: p,
-            velocity: if finished { 0.0 } else { v },
+            velocity,
             start: Some(start),
             finished,
             deadman_stop,
@@ -498,15 +569,19 @@ pub struct Cia402Axis {
     fault_reported: bool,
     op: Option<Op>,
     next_id: OpId,
+    /// The mode of operation the axis runs in now (the configured one
+    /// until [`AxisCommand::SetMode`] changes it).
+    mode: DriveMode,
+    /// The modes the drive supports (0x6502, read at its boot); `None`
+    /// while unknown.
+    supported_modes: Option<u32>,
 }
 
 impl Cia402Axis {
     /// An axis; nothing is sent until the first statusword arrives.
     pub fn new(cfg: Cia402Config) -> Self {
-        let mode = match cfg.position_mode {
-            PositionMode::Profile => ModeOfOperation::ProfilePosition,
-            PositionMode::Cyclic => ModeOfOperation::CyclicSynchronousPosition,
-        };
+        let mode = cfg.mode.operation();
+        let cfg_mode = cfg.mode;
         Cia402Axis {
             cfg,
             statusword: None,
@@ -520,6 +595,7 @@ impl Cia402Axis {
                 mode: mode.code(),
                 target_position: 0,
                 target_velocity: 0,
+                target_torque: 0,
             },
             demand: 0.0,
             demand_velocity: 0.0,
@@ -537,6 +613,8 @@ impl Cia402Axis {
             fault_reported: false,
             op: None,
             next_id: 1,
+            mode: cfg_mode,
+            supported_modes: None,
         }
     }
 
@@ -565,14 +643,27 @@ impl Cia402Axis {
             w.push((obj::SOFTWARE_POSITION_LIMIT_MIN, lo.to_le_bytes().to_vec()));
             w.push((obj::SOFTWARE_POSITION_LIMIT_MAX, hi.to_le_bytes().to_vec()));
         }
+        if self.cfg.torque.in_process_data {
+            // Profile torque's ramp: written for every torque axis, so a
+            // mode change to profile torque needs no SDO at run time.
+            let slope = self
+                .cfg
+                .torque
+                .torque_slope
+                .round()
+                .clamp(0.0, f64::from(u32::MAX)) as u32;
+            w.push((obj::TORQUE_SLOPE, slope.to_le_bytes().to_vec()));
+        }
         w
     }
 
     fn mode_for_position(&self) -> ModeOfOperation {
-        match self.cfg.position_mode {
-            PositionMode::Profile => ModeOfOperation::ProfilePosition,
-            PositionMode::Cyclic => ModeOfOperation::CyclicSynchronousPosition,
-        }
+        self.mode.operation()
+    }
+
+    /// How moves run in the axis's current mode.
+    fn position_mode(&self) -> PositionMode {
+        self.mode.position_mode()
     }
 
     fn units(&self) -> Units {
@@ -612,11 +703,11 @@ impl Cia402Axis {
     pub fn snapshot(&self) -> AxisSnapshot {
         let u = self.units();
         let position = self.actual();
-        let demand = match self.cfg.position_mode {
+        let demand = match self.position_mode() {
             PositionMode::Cyclic => self.demand,
             PositionMode::Profile => self.last_target,
         };
-        let following_error = match (self.drive_following_error, self.cfg.position_mode) {
+        let following_error = match (self.drive_following_error, self.position_mode()) {
             (Some(fe), _) => u.from_counts(f64::from(fe)),
             (None, PositionMode::Cyclic) if self.position.is_some() => self.demand - position,
             _ => 0.0,
@@ -662,6 +753,8 @@ impl Cia402Axis {
             Some((CommandKind::Jog, _)) => Activity::Jogging,
             Some((CommandKind::Move, _)) => Activity::Moving,
             Some((CommandKind::Stop | CommandKind::QuickStop, _)) => Activity::Stopping,
+            Some((CommandKind::Torque, _)) => Activity::Moving,
+            Some((CommandKind::SetMode, _)) => Activity::Switching,
         }
     }
 
@@ -769,7 +862,7 @@ impl Cia402Axis {
             || self.is_fault()
             || !matches!(
                 op.kind,
-                CommandKind::Move | CommandKind::Jog | CommandKind::Home
+                CommandKind::Move | CommandKind::Jog | CommandKind::Home | CommandKind::Torque
             )
             || matches!(op.step, Step::Stopping)
         {
@@ -914,6 +1007,7 @@ impl Cia402Axis {
             units: self.units(),
             deadman: self.trajectory.as_ref().and(self.jog_deadline),
             stop_deceleration: self.cfg.motion.stop_deceleration,
+            setpoint: self.setpoint_object(),
         })
     }
 
@@ -934,8 +1028,8 @@ impl Cia402Axis {
 
     /// Whether this axis sends set-points with every SYNC now.
     fn cyclic_plan_active(&self) -> bool {
-        self.cfg.position_mode == PositionMode::Cyclic
-            && self.image.mode == ModeOfOperation::CyclicSynchronousPosition.code()
+        self.position_mode() == PositionMode::Cyclic
+            && self.in_cyclic_mode()
             && self.state() == Some(DriveState::OperationEnabled)
             && self.node_lost.is_none()
     }
@@ -970,7 +1064,20 @@ impl Cia402Axis {
         self.demand = s.demand;
         self.demand_velocity = s.velocity;
         self.demand_at = Some(s.at);
-        self.image.target_position = s.counts;
+        if self.mode == DriveMode::CyclicVelocity {
+            self.image.target_velocity = s.velocity_counts;
+        } else {
+            self.image.target_position = s.counts;
+        }
+    }
+
+    /// The object the cyclic set-points of the current mode go to.
+    fn setpoint_object(&self) -> SetpointObject {
+        match self.mode {
+            DriveMode::CyclicVelocity => SetpointObject::TargetVelocity,
+            DriveMode::InterpolatedPosition => SetpointObject::InterpolationData,
+            _ => SetpointObject::TargetPosition,
+        }
     }
 
     /// Handles time passing.
@@ -1029,7 +1136,7 @@ impl Cia402Axis {
             self.check_jog(velocity)?;
             let (id, accepted) = (op.id, op.accepted);
             let preparing = matches!(op.step, Step::SettleFor(_))
-                || matches!(op.step, Step::AwaitMode(m) if m == ModeOfOperation::CyclicSynchronousPosition);
+                || matches!(op.step, Step::AwaitMode(m) if m == self.mode.operation() && self.position_mode() == PositionMode::Cyclic);
             self.jog_deadline = Some(now + self.cfg.motion.jog_deadman);
             if preparing {
                 // The jog starts with the latest velocity once the drive
@@ -1061,7 +1168,7 @@ impl Cia402Axis {
                 // Relative to where the axis is going: the running
                 // trajectory's end (so consecutive relative moves add up
                 // exactly), else the demand; profile axes: the latest target.
-                let base = match self.cfg.position_mode {
+                let base = match self.position_mode() {
                     PositionMode::Cyclic => self
                         .trajectory
                         .as_ref()
@@ -1128,17 +1235,12 @@ impl Cia402Axis {
                 velocity,
                 acceleration,
                 ..
-            } => match self.cfg.position_mode {
+            } => match self.position_mode() {
                 PositionMode::Cyclic if self.in_cyclic_mode() => {
                     self.plan_move(&mut op, now, out)?;
                 }
                 PositionMode::Cyclic => {
-                    self.settle_for(
-                        ModeOfOperation::CyclicSynchronousPosition,
-                        now,
-                        &mut op,
-                        out,
-                    );
+                    self.settle_for(self.mode.operation(), now, &mut op, out);
                     self.send_image(out);
                 }
                 PositionMode::Profile => {
@@ -1156,13 +1258,8 @@ impl Cia402Axis {
                 acceleration,
             } => {
                 self.jog_deadline = Some(now + self.cfg.motion.jog_deadman);
-                if self.cfg.position_mode == PositionMode::Cyclic && !self.in_cyclic_mode() {
-                    self.settle_for(
-                        ModeOfOperation::CyclicSynchronousPosition,
-                        now,
-                        &mut op,
-                        out,
-                    );
+                if self.position_mode() == PositionMode::Cyclic && !self.in_cyclic_mode() {
+                    self.settle_for(self.mode.operation(), now, &mut op, out);
                     self.send_image(out);
                 } else {
                     self.op = Some(op);
@@ -1177,6 +1274,27 @@ impl Cia402Axis {
                 out.push(Output::Event(AxisEvent::Accepted { op: id }));
                 self.start_stop(now, &mut op, out);
                 self.send_image(out);
+            }
+            AxisCommand::SetTorque { per_mille } => {
+                let mode = self.mode.operation();
+                if self.mode_is(mode) {
+                    self.start_torque(&mut op, per_mille, out);
+                } else {
+                    // Back from homing (or a drive that changed mode
+                    // itself): the torque starts in the axis's mode.
+                    self.image.target_torque = 0;
+                    self.begin_mode(mode, now, &mut op, out);
+                }
+            }
+            AxisCommand::SetMode { mode } => {
+                // At rest (checked): the new mode starts from where the
+                // drive stands, with no torque and no velocity.
+                self.mode = mode;
+                self.image.target_torque = 0;
+                self.last_target = self.actual();
+                op.accepted = true;
+                out.push(Output::Event(AxisEvent::Accepted { op: id }));
+                self.begin_mode(mode.operation(), now, &mut op, out);
             }
             AxisCommand::QuickStop => {
                 op.step = Step::Stopping;
@@ -1207,9 +1325,11 @@ impl Cia402Axis {
         self.trajectory.is_some() || self.demand_velocity != 0.0 || !self.at_rest()
     }
 
-    /// Whether the image commands cyclic synchronous position.
+    /// Whether the image commands the axis's cyclic mode (CSP, IP, CSV):
+    /// the gateway's trajectories run.
     fn in_cyclic_mode(&self) -> bool {
-        self.image.mode == ModeOfOperation::CyclicSynchronousPosition.code()
+        self.position_mode() == PositionMode::Cyclic
+            && self.image.mode == self.mode.operation().code()
     }
 
     /// `op` first brings the drive to rest in its current mode, then
@@ -1235,10 +1355,16 @@ impl Cia402Axis {
         out: &mut Vec<Output>,
     ) {
         self.drop_trajectory();
-        if mode == ModeOfOperation::CyclicSynchronousPosition {
+        if matches!(
+            mode,
+            ModeOfOperation::CyclicSynchronousPosition
+                | ModeOfOperation::CyclicSynchronousVelocity
+                | ModeOfOperation::InterpolatedPosition
+        ) {
             self.demand = self.actual();
             self.demand_at = None;
             self.image.target_position = self.position.unwrap_or_default();
+            self.image.target_velocity = 0;
         }
         self.set_mode(mode);
         self.image.controlword &= !(Controlword::HALT_BIT | Controlword::HOMING_START_BIT);
@@ -1284,6 +1410,15 @@ impl Cia402Axis {
             return Ok(());
         };
         let a = acceleration.unwrap_or(self.cfg.motion.default_acceleration);
+        if self.mode == DriveMode::CyclicVelocity
+            && self.trajectory.is_none()
+            && self.demand_velocity == 0.0
+        {
+            // The drive integrates the velocity set-points itself: a jog
+            // from rest plans from where it stands, so roundings of
+            // earlier jogs do not add up against the soft limits.
+            self.demand = self.actual();
+        }
         let far = if velocity > 0.0 {
             self.cfg.motion.max_position.unwrap_or(self.demand + 1e6)
         } else {
@@ -1324,7 +1459,7 @@ impl Cia402Axis {
 
     /// A jog at `velocity` must not head further out of the soft limits.
     fn check_jog(&self, velocity: f64) -> Result<(), CommandError> {
-        let at = match self.cfg.position_mode {
+        let at = match self.position_mode() {
             PositionMode::Cyclic => self.demand,
             PositionMode::Profile => self.actual(),
         };
@@ -1408,7 +1543,7 @@ impl Cia402Axis {
             velocity: None,
             acceleration: None,
         })?;
-        if self.cfg.position_mode != PositionMode::Cyclic {
+        if self.position_mode() != PositionMode::Cyclic {
             return Err(CommandError::NotCyclic(
                 "coordinated moves need cyclic (CSP) axes".into(),
             ));
@@ -1431,7 +1566,7 @@ impl Cia402Axis {
     /// The current demand position (cyclic) or latest target (profile), in
     /// user units.
     pub fn demand(&self) -> f64 {
-        match self.cfg.position_mode {
+        match self.position_mode() {
             PositionMode::Cyclic => self.demand,
             PositionMode::Profile => self.last_target,
         }
@@ -1454,9 +1589,13 @@ impl Cia402Axis {
             self.cfg.motion.max_acceleration,
             &self.cfg.motion.unit,
         )?;
+        self.check_mode(cmd)?;
         let needs_enabled = matches!(
             cmd,
-            AxisCommand::Move { .. } | AxisCommand::Jog { .. } | AxisCommand::Home
+            AxisCommand::Move { .. }
+                | AxisCommand::Jog { .. }
+                | AxisCommand::Home
+                | AxisCommand::SetTorque { .. }
         );
         if self.is_fault() && (needs_enabled || matches!(cmd, AxisCommand::Enable)) {
             let (code, text) = self.fault().unwrap_or_default();
@@ -1482,6 +1621,129 @@ impl Cia402Axis {
         Ok(())
     }
 
+    /// Whether the axis's mode has `cmd` (see [`DriveMode`]), and a mode
+    /// change or torque command is possible now.
+    fn check_mode(&self, cmd: &AxisCommand) -> Result<(), CommandError> {
+        let mode = self.mode;
+        let change = "change the mode at rest with SetMode first";
+        match *cmd {
+            AxisCommand::Move { .. }
+                if !matches!(
+                    mode,
+                    DriveMode::ProfilePosition
+                        | DriveMode::CyclicPosition
+                        | DriveMode::InterpolatedPosition
+                ) =>
+            {
+                Err(CommandError::WrongMode(format!(
+                    "the axis runs in {mode} mode, which has no moves (profile_position, csp and \
+                     ip have): {change}"
+                )))
+            }
+            AxisCommand::Jog { .. } if mode.is_torque() => Err(CommandError::WrongMode(format!(
+                "the axis runs in {mode} mode, which has no jog (a torque mode takes SetTorque): \
+                 {change}"
+            ))),
+            AxisCommand::SetTorque { per_mille } => {
+                if !mode.is_torque() {
+                    return Err(CommandError::WrongMode(format!(
+                        "the axis runs in {mode} mode: a torque command needs cst or \
+                         profile_torque; {change}"
+                    )));
+                }
+                crate::checks::finite("torque (per mille)", per_mille)?;
+                let max = self.cfg.torque.max_torque;
+                if per_mille.abs() > max {
+                    return Err(CommandError::AboveMaximum(format!(
+                        "torque {per_mille} per mille exceeds the axis maximum {max} per mille"
+                    )));
+                }
+                Ok(())
+            }
+            AxisCommand::SetMode { mode: to } => self.check_mode_change(to),
+            _ => Ok(()),
+        }
+    }
+
+    /// A mode change to `to`: supported by the drive, its set-point in the
+    /// process data, and the axis at rest.
+    fn check_mode_change(&self, to: DriveMode) -> Result<(), CommandError> {
+        if let Some(mask) = self.supported_modes
+            && mask & to.operation().supported_mask() == 0
+        {
+            return Err(CommandError::WrongMode(format!(
+                "the drive does not support {to} mode ({}; its 0x6502 supported drive modes \
+                 are 0x{mask:08X})",
+                to.operation()
+            )));
+        }
+        if to.is_torque() && !self.cfg.torque.in_process_data {
+            return Err(CommandError::WrongMode(format!(
+                "the axis's process data has no target torque (0x6071): configure it with \
+                 mode = \"cst\" or \"profile_torque\" (the gateway maps 0x6071 then) to use {to}"
+            )));
+        }
+        if let Some(op) = &self.op {
+            return Err(CommandError::Busy(format!(
+                "the axis is busy ({}): the mode changes only at rest; stop it and wait for the \
+                 stop to end",
+                op.kind
+            )));
+        }
+        if self.moving() {
+            let unit = &self.cfg.motion.unit;
+            return Err(CommandError::Busy(format!(
+                "the axis is moving ({:.3} {unit}/s): the mode changes only at rest; stop it first",
+                self.units().from_counts(f64::from(self.velocity))
+            )));
+        }
+        Ok(())
+    }
+
+    /// The modes the drive supports (0x6502, read at its boot): a mode
+    /// change to another one is refused.
+    pub fn set_supported_modes(&mut self, mask: u32) {
+        self.supported_modes = Some(mask);
+    }
+
+    /// The mode the axis runs in now.
+    pub fn mode(&self) -> DriveMode {
+        self.mode
+    }
+
+    /// Starts (or changes) the torque of a torque command: the halt is
+    /// released and 0x6071 sent.
+    fn start_torque(&mut self, op: &mut Op, per_mille: f64, out: &mut Vec<Output>) {
+        self.image.target_torque = per_mille.round().clamp(-32768.0, 32767.0) as i16;
+        self.image.controlword &= !Controlword::HALT_BIT;
+        op.step = Step::Torque;
+        op.arm(None);
+        self.send_image(out);
+        if !op.accepted {
+            op.accepted = true;
+            out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
+        }
+    }
+
+    /// A torque command runs until the velocity exceeds the axis's maximum
+    /// velocity: then the axis stops (halt on its stop deceleration), so
+    /// that an unloaded axis under torque cannot run away.
+    fn torque_guard(&mut self, op: &mut Op, now: Duration, out: &mut Vec<Output>) {
+        let v = self.units().from_counts(f64::from(self.velocity));
+        let max = self.cfg.motion.max_velocity;
+        if v.abs() <= max {
+            return;
+        }
+        let unit = &self.cfg.motion.unit;
+        op.guard = Some(format!(
+            "the velocity {v:.3} {unit}/s exceeded max_velocity {max} {unit}/s under torque: \
+             stopped"
+        ));
+        op.step = Step::Stopping;
+        self.start_stop(now, op, out);
+        self.send_image(out);
+    }
+
     fn check_limits(&self, target: f64) -> Result<(), CommandError> {
         crate::checks::soft_limits(
             target,
@@ -1503,6 +1765,7 @@ impl Cia402Axis {
         self.last_target = self.demand;
         self.image.target_position = self.position.unwrap_or_default();
         self.image.target_velocity = 0;
+        self.image.target_torque = 0;
     }
 
     fn set_mode(&mut self, mode: ModeOfOperation) {
@@ -1611,7 +1874,7 @@ impl Cia402Axis {
                 acceleration,
             };
         }
-        match self.cfg.position_mode {
+        match self.position_mode() {
             PositionMode::Cyclic => {
                 let Some(mut op) = self.op.take() else {
                     return Ok(());
@@ -1646,10 +1909,8 @@ impl Cia402Axis {
     }
 
     fn start_stop(&mut self, now: Duration, op: &mut Op, out: &mut Vec<Output>) {
-        match self.cfg.position_mode {
-            PositionMode::Cyclic
-                if self.image.mode == ModeOfOperation::CyclicSynchronousPosition.code() =>
-            {
+        match self.position_mode() {
+            PositionMode::Cyclic if self.in_cyclic_mode() => {
                 let decel = self.stop_deceleration();
                 self.trajectory =
                     Trajectory::stop_ramp(self.demand, self.demand_velocity, decel, self.demand_at);
@@ -1659,8 +1920,14 @@ impl Cia402Axis {
                 ));
             }
             _ => {
+                // In the torque modes too: the drive brakes on its halt
+                // ramp with its own velocity loop (the gateway has none
+                // there), and stays in operation enabled. The torque
+                // set-point drops to 0 so that releasing the halt later
+                // does not start the axis again.
                 self.image.controlword |= Controlword::HALT_BIT;
                 self.image.target_velocity = 0;
+                self.image.target_torque = 0;
                 op.arm(Some(
                     now + self.cfg.motion.state_timeout + self.cfg.motion.settle_timeout,
                 ));
@@ -1719,7 +1986,7 @@ impl Cia402Axis {
                 op.step = Step::Stopping;
                 self.start_stop(now, &mut op, out);
                 self.op = Some(op);
-                if self.cfg.position_mode == PositionMode::Profile {
+                if self.position_mode() == PositionMode::Profile {
                     self.send_image(out);
                 }
             }
@@ -1846,6 +2113,14 @@ impl Cia402Axis {
                 Step::Homing => Flow::Done(self.homing_step(op, now, out)),
                 Step::HomingReturn => Flow::Done(self.homing_returned()),
                 Step::Jogging => Flow::Done(None),
+                Step::Torque => {
+                    self.torque_guard(op, now, out);
+                    if matches!(op.step, Step::Stopping) {
+                        Flow::Again
+                    } else {
+                        Flow::Done(None)
+                    }
+                }
                 Step::Stopping => Flow::Done(self.stop_finished(op)),
             };
             match flow {
@@ -1867,7 +2142,7 @@ impl Cia402Axis {
         };
         if driver.target() == DriveState::OperationEnabled
             && self.state() != Some(DriveState::OperationEnabled)
-            && self.cfg.position_mode == PositionMode::Cyclic
+            && self.position_mode() == PositionMode::Cyclic
         {
             // Until the drive is enabled it may still move (a
             // quick stop's ramp): it holds where it stands
@@ -1935,6 +2210,13 @@ impl Cia402Axis {
         if !self.mode_is(mode) {
             return None;
         }
+        if let AxisCommand::SetMode { .. } = op.command {
+            // A mode change ends when the drive shows the new mode.
+            return Some((
+                Outcome::Completed,
+                format!("drive in {} mode ({mode})", self.mode),
+            ));
+        }
         match mode {
             ModeOfOperation::ProfilePosition => {
                 self.image.target_position = self.units().to_counts(op.target);
@@ -1957,7 +2239,9 @@ impl Cia402Axis {
                 }
                 None
             }
-            ModeOfOperation::CyclicSynchronousPosition => {
+            ModeOfOperation::CyclicSynchronousPosition
+            | ModeOfOperation::CyclicSynchronousVelocity
+            | ModeOfOperation::InterpolatedPosition => {
                 let planned = match op.command {
                     AxisCommand::Jog { .. } => self.plan_jog(op, out),
                     _ => self.plan_move(op, now, out),
@@ -1966,6 +2250,12 @@ impl Cia402Axis {
                     Ok(()) => None,
                     Err(e) => Some((Outcome::Fault, e.to_string())),
                 }
+            }
+            ModeOfOperation::CyclicSynchronousTorque | ModeOfOperation::ProfileTorque => {
+                if let AxisCommand::SetTorque { per_mille } = op.command {
+                    self.start_torque(op, per_mille, out);
+                }
+                None
             }
             ModeOfOperation::Homing => {
                 self.image.controlword |= Controlword::HOMING_START_BIT;
@@ -1976,7 +2266,6 @@ impl Cia402Axis {
                 out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
                 None
             }
-            _ => None,
         }
     }
 
@@ -2117,7 +2406,15 @@ impl Cia402Axis {
             CommandKind::QuickStop => {
                 fresh && self.state() != Some(DriveState::OperationEnabled) && self.at_rest()
             }
-            _ => match self.cfg.position_mode {
+            _ => match self.position_mode() {
+                // In CSV the drive integrates the velocity itself: its
+                // position may differ from the gateway's demand by a
+                // rounding; at rest after the ramp is the end.
+                PositionMode::Cyclic
+                    if self.in_cyclic_mode() && self.mode == DriveMode::CyclicVelocity =>
+                {
+                    self.trajectory.is_none() && fresh && self.at_rest()
+                }
                 PositionMode::Cyclic if self.in_cyclic_mode() => {
                     self.trajectory.is_none() && fresh && self.in_position(self.demand)
                 }
@@ -2132,12 +2429,14 @@ impl Cia402Axis {
                 && self.at_rest()
                 && op.kind != CommandKind::QuickStop
         {
-            let outcome = if op.kind == CommandKind::Jog {
+            let outcome = if matches!(op.kind, CommandKind::Jog | CommandKind::Torque) {
                 Outcome::Stopped
             } else {
                 Outcome::Completed
             };
-            let detail = if op.kind == CommandKind::Jog {
+            let detail = if let Some(guard) = &op.guard {
+                format!("{guard}; at rest at {:.3} {unit}", self.actual())
+            } else if op.kind == CommandKind::Jog {
                 format!(
                     "jog dead-man released; at rest at {:.3} {unit}",
                     self.actual()

@@ -111,6 +111,14 @@ pub fn standard_pdos(node: NodeId, trigger: FeedbackTrigger) -> (Vec<PdoConfig>,
     (rpdos, tpdos)
 }
 
+/// RPDO3 of an axis in a torque mode: target torque 0x6071 (16 bits),
+/// event-driven (255): the drive applies a torque set-point on receipt and
+/// holds it. Mapped besides the standard layout for an axis configured in
+/// a torque mode (`mode = "cst"` or `"profile_torque"`).
+pub fn torque_rpdo(node: NodeId) -> PdoConfig {
+    pdo(PdoKind::Rpdo, 3, node, 255, 0, &[(obj::TARGET_TORQUE, 16)])
+}
+
 /// The RPDO frames (COB-ID, payload) carrying `image`, for every RPDO that
 /// maps at least one image object, those without the controlword first.
 ///
@@ -131,6 +139,7 @@ pub fn encode_image(
             obj::TARGET_VELOCITY,
             Value::Integer32(image.target_velocity),
         ),
+        (obj::TARGET_TORQUE, Value::Integer16(image.target_torque)),
     ];
     let mut frames: Vec<(bool, u16, Vec<u8>)> = Vec::new();
     for p in rpdos {
@@ -302,6 +311,14 @@ pub fn sdo_image_writes(
             image.target_velocity.to_le_bytes().to_vec(),
         ));
     }
+    // Only a torque set-point other than 0 is ever written: a drive
+    // without 0x6071 (every axis but a torque mode's) never sees one.
+    if last.map_or(0, |l| l.target_torque) != image.target_torque {
+        writes.push((
+            obj::TARGET_TORQUE,
+            image.target_torque.to_le_bytes().to_vec(),
+        ));
+    }
     if changed(|i| i64::from(i.mode)) {
         writes.push((obj::MODES_OF_OPERATION, image.mode.to_le_bytes().to_vec()));
     }
@@ -327,6 +344,7 @@ mod tests {
             mode: 1,
             target_position: 10_000,
             target_velocity: -2,
+            target_torque: 0,
         };
         let frames = encode_image(&image, &rpdos).unwrap();
         assert_eq!(
@@ -393,6 +411,7 @@ mod tests {
             mode: 1,
             target_position: 10_000,
             target_velocity: -2,
+            target_torque: 0,
         };
         // Nothing known: everything, targets and mode before the controlword.
         assert_eq!(

@@ -12,6 +12,9 @@
 //! | profile position (1) | new set-point handshake (bit 4 rising edge accepts 0x607A, bit 12 set-point acknowledge until bit 4 falls), one buffered set-point, change set immediately (bit 5), relative (bit 6, to the previous target), halt (bit 8), trapezoidal profile with 0x6081/0x6083/0x6084, target reached (bit 10) |
 //! | profile velocity (3) | ramps to 0x60FF with 0x6083 (faster) / 0x6084 (slower); bit 10 at the target velocity, bit 12 at speed 0; halt ramps to 0 |
 //! | homing (6) | bit 4 rising edge starts 0x6098: 35/37 set the position to 0x607C home offset at once; 17..=30 move at 0x6099:01 with 0x609A to a virtual switch at the physical position 0, then set the position to the home offset; any other method ends in homing error (bit 13); bit 4 falling or halt interrupts |
+//! | cyclic synchronous torque (10) / profile torque (4) | the torque model: the motor torque (0x6071 at once in CST; ramped towards it at 0x6087 per mille/s in profile torque) minus viscous and Coulomb friction accelerates the inertia ([`TorqueModel`]), integrated at the model step (torque → acceleration → velocity → position), at most 0x6072 max torque when present; halt (bit 8) brakes on 0x6084 with the drive's own velocity loop and holds; 0x6077 is the motor torque; bit 12 (CST: target torque followed) / bit 10 (profile torque: torque reached) |
+//! | interpolated position (7) | with controlword bit 4 (enable ip mode) set, each new 0x60C1:01 is reached by linear interpolation over the interpolation time period 0x60C2 (value · 10^index s), then followed with the first-order lag; bit 12 ip mode active |
+//! | supported modes | 0x6502 as the EDS says (PP, PV, PT, HM, IP, CSP, CSV, CST for the bundled one), or [`SimDriveOptions::supported_modes`]: a mode not in it is not taken (0x6061 keeps the mode in effect) |
 //! | cyclic synchronous position (8) / velocity (9) | follow 0x607A / 0x60FF (as written by RPDO, at once or at SYNC per the RPDO's transmission type) with a first-order lag; in position mode each new set-point is reached by linear interpolation over the SYNC period (the interval between the latest two SYNCs), as drives interpolate between cyclic set-points, so the motion and 0x606C are smooth, not a step per SYNC; bit 12 set; following error 0x60F4 written when present; with 0x6065 present a following error beyond the window for longer than 0x6066 ms faults with EMCY 0x8611 |
 //! | quick stop | decelerates with 0x6085 (0x6084 when absent, or for option codes 1 and 5), then goes to switch on disabled for quick stop option codes 0..=4 (0x605A, default 2) or stays in quick stop active for 5..=8 |
 //! | heartbeat loss | a node monitored by 0x1016 falls silent (the master, when it configured its heartbeat there): the node sends EMCY 0x8130, and the drive enters fault reaction active (stops with the quick stop deceleration), then fault, with 0x603F = 0x8130 |
@@ -52,6 +55,58 @@ const TORQUE_PER_ACCEL: f64 = 1.0 / 1000.0;
 const MAX_SYNC_PERIOD: Duration = Duration::from_millis(100);
 /// EMCY code of a following error.
 const FOLLOWING_ERROR_CODE: u16 = 0x8611;
+/// 0x6072 max torque (per mille), when the dictionary has it.
+const MAX_TORQUE: ObjectAddress = ObjectAddress::new(0x6072, 0);
+
+/// The mechanics the torque modes drive: an inertia with viscous and
+/// Coulomb friction. Integers, so that the options stay comparable.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TorqueModel {
+    /// Increments/s² one per mille of net torque gives the inertia (1000
+    /// by default: the same scale as 0x6077 in the other modes).
+    pub accel_per_permille: u32,
+    /// Viscous friction in per mille per 1000 increments/s (1 by
+    /// default).
+    pub viscous_per_kilo_speed: u32,
+    /// Coulomb (dry) friction in per mille (10 by default): a torque below
+    /// it does not start the motor at rest.
+    pub coulomb: u32,
+}
+
+impl Default for TorqueModel {
+    fn default() -> Self {
+        TorqueModel {
+            accel_per_permille: 1000,
+            viscous_per_kilo_speed: 1,
+            coulomb: 10,
+        }
+    }
+}
+
+impl TorqueModel {
+    /// The velocity after `dt` s of motor `torque` (per mille) from `vel`
+    /// (increments/s): friction opposes the motion, and at rest holds
+    /// the motor until the torque overcomes it; it never reverses the
+    /// motion by itself.
+    pub fn step(&self, vel: f64, torque: f64, dt: f64) -> f64 {
+        let k = f64::from(self.accel_per_permille);
+        let coulomb = f64::from(self.coulomb);
+        let viscous = f64::from(self.viscous_per_kilo_speed) / 1000.0;
+        if vel == 0.0 {
+            if torque.abs() <= coulomb {
+                return 0.0;
+            }
+            return (torque - coulomb * torque.signum()) * k * dt;
+        }
+        let friction = viscous * vel + coulomb * vel.signum();
+        let next = vel + (torque - friction) * k * dt;
+        if next.signum() != vel.signum() && torque.abs() <= coulomb {
+            // Friction brought it to rest within the step.
+            return 0.0;
+        }
+        next
+    }
+}
 
 /// How a [`SimDrive`] behaves beyond what its EDS says.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -77,6 +132,11 @@ pub struct SimDriveOptions {
     /// [`SimNodeOptions::running_at_start`] for its NMT state). A power
     /// cycle starts it as usual.
     pub enabled_at_start: Option<(ModeOfOperation, i32)>,
+    /// 0x6502 supported drive modes at power on instead of the EDS's
+    /// value (a drive without CSP that needs interpolated position, say).
+    pub supported_modes: Option<u32>,
+    /// The mechanics of the torque modes.
+    pub torque_model: TorqueModel,
 }
 
 impl Default for SimDriveOptions {
@@ -88,6 +148,8 @@ impl Default for SimDriveOptions {
             tpdo_on_statusword_change: true,
             max_speed: 100_000,
             enabled_at_start: None,
+            supported_modes: None,
+            torque_model: TorqueModel::default(),
         }
     }
 }
@@ -201,8 +263,12 @@ pub struct SimDrive {
     limit_hit: bool,
     /// Command minus actual position in cyclic synchronous position mode.
     follow_error: f64,
-    /// The interpolated command of cyclic synchronous position.
+    /// The interpolated command of cyclic synchronous position (and of
+    /// interpolated position).
     csp: Interpolation,
+    /// The motor torque of the torque modes (per mille), ramped towards
+    /// 0x6071 in profile torque.
+    torque_demand: f64,
     /// The latest SYNC received and the interval to the one before.
     last_sync: Option<Duration>,
     sync_period: Option<Duration>,
@@ -271,6 +337,7 @@ impl SimDrive {
             limit_hit: false,
             follow_error: 0.0,
             csp: Interpolation::holding(0.0),
+            torque_demand: 0.0,
             last_sync: None,
             sync_period: None,
             follow_over_since: None,
@@ -450,6 +517,7 @@ impl SimDrive {
     fn reset_generators(&mut self) {
         self.pp = ProfilePosition::idle(self.pos);
         self.csp = Interpolation::holding(self.pos);
+        self.torque_demand = 0.0;
         self.homing = Homing::Idle;
         self.follow_error = 0.0;
         self.follow_over_since = None;
@@ -652,7 +720,12 @@ impl SimDrive {
             _ => self.vel = 0.0,
         }
         let accel = (self.vel - v0) / dt;
-        self.torque = (accel * TORQUE_PER_ACCEL)
+        let torque = if self.in_torque_mode() {
+            self.torque_demand
+        } else {
+            accel * TORQUE_PER_ACCEL
+        };
+        self.torque = torque
             .round()
             .clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16;
         self.write_outputs();
@@ -748,6 +821,10 @@ impl SimDrive {
                 self.follow_error = command - self.pos;
                 self.check_following_error();
             }
+            Some(ModeOfOperation::CyclicSynchronousTorque | ModeOfOperation::ProfileTorque) => {
+                self.step_torque(dt, cw.halt(), dec);
+            }
+            Some(ModeOfOperation::InterpolatedPosition) => self.step_interpolated(dt, cw),
             Some(ModeOfOperation::CyclicSynchronousVelocity) => {
                 let vmax = self.max_speed();
                 let command = self.param(obj::TARGET_VELOCITY).clamp(-vmax, vmax);
@@ -761,6 +838,85 @@ impl SimDrive {
             _ => self.stop(dec, dt),
         }
         self.apply_limits();
+    }
+
+    fn in_torque_mode(&self) -> bool {
+        self.state == DriveState::OperationEnabled
+            && matches!(
+                self.mode,
+                Some(ModeOfOperation::CyclicSynchronousTorque | ModeOfOperation::ProfileTorque)
+            )
+    }
+
+    /// The torque set-point (0x6071), bounded by 0x6072 max torque.
+    fn target_torque(&self) -> f64 {
+        let t = self.param(obj::TARGET_TORQUE);
+        match self.int(MAX_TORQUE) {
+            Some(m) if m > 0 => t.clamp(-(m as f64), m as f64),
+            _ => t,
+        }
+    }
+
+    /// One step of a torque mode: the motor torque (at once in CST,
+    /// ramped at 0x6087 in profile torque) through the torque model;
+    /// halted, the drive's velocity loop brakes at `dec` instead.
+    fn step_torque(&mut self, dt: f64, halt: bool, dec: f64) {
+        if halt {
+            self.torque_demand = 0.0;
+            self.stop(dec, dt);
+            return;
+        }
+        let target = self.target_torque();
+        self.torque_demand = if self.mode == Some(ModeOfOperation::ProfileTorque) {
+            let slope = self.rate(obj::TORQUE_SLOPE);
+            ramp(self.torque_demand, target, slope, slope, dt)
+        } else {
+            target
+        };
+        let vmax = self.max_speed();
+        self.vel = self
+            .options
+            .torque_model
+            .step(self.vel, self.torque_demand, dt)
+            .clamp(-vmax, vmax);
+        self.pos += self.vel * dt;
+    }
+
+    /// The interpolation time period 0x60C2 (value · 10^index s).
+    fn interpolation_period(&self) -> Duration {
+        let value = self.int(obj::INTERPOLATION_PERIOD_VALUE).unwrap_or(1) as f64;
+        let index = self.int(obj::INTERPOLATION_PERIOD_INDEX).unwrap_or(-3) as i32;
+        Duration::from_secs_f64((value * 10f64.powi(index)).clamp(0.0, 1.0))
+    }
+
+    /// One step of interpolated position: with ip mode enabled (bit 4),
+    /// each new 0x60C1:01 is reached over the interpolation period.
+    fn step_interpolated(&mut self, dt: f64, cw: Controlword) {
+        if cw.new_set_point() {
+            let mut set_point = self.param(obj::INTERPOLATION_DATA);
+            if let Some((min, max)) = self.limits() {
+                set_point = set_point.clamp(min, max);
+            }
+            if set_point != self.csp.to {
+                let arrived = self.model_time.saturating_sub(self.options.step);
+                self.csp = Interpolation {
+                    from: self.csp.at(arrived),
+                    to: set_point,
+                    start: arrived,
+                    period: self.interpolation_period(),
+                };
+            }
+        }
+        let command = self.csp.at(self.model_time);
+        let mut next = self.pos + (command - self.pos) * self.follow_gain(dt);
+        if (command - next).abs() < 1e-3 {
+            next = command;
+        }
+        let reach = self.max_speed() * dt;
+        next = next.clamp(self.pos - reach, self.pos + reach);
+        self.vel = (next - self.pos) / dt;
+        self.pos = next;
+        self.follow_error = command - self.pos;
     }
 
     /// The fraction of the remaining error a first-order lag closes in `dt`.
@@ -872,6 +1028,18 @@ impl SimDrive {
                 .with(Statusword::OMS_12, true)
                 .with(Statusword::OMS_13, self.following_error_exceeded()),
             Some(ModeOfOperation::CyclicSynchronousVelocity) => sw.with(Statusword::OMS_12, true),
+            Some(ModeOfOperation::CyclicSynchronousTorque) => sw.with(Statusword::OMS_12, !halt),
+            Some(ModeOfOperation::ProfileTorque) => {
+                let reached = if halt {
+                    stopped
+                } else {
+                    self.torque_demand == self.target_torque()
+                };
+                sw.with(Statusword::TARGET_REACHED, reached)
+            }
+            Some(ModeOfOperation::InterpolatedPosition) => {
+                sw.with(Statusword::OMS_12, self.prev_cw.new_set_point())
+            }
             _ => sw,
         }
     }
@@ -1002,6 +1170,11 @@ impl SimDrive {
         self.error_code = 0;
         self.limit_hit = false;
         self.reset_generators();
+        if let Some(mask) = self.options.supported_modes {
+            let _ = self
+                .node
+                .set(obj::SUPPORTED_DRIVE_MODES, Value::Unsigned32(mask));
+        }
         self.write_outputs();
     }
 }

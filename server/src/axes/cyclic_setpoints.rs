@@ -27,13 +27,13 @@
 
 use crate::canopen::sync_thread::{SyncRider, SyncTick};
 use cangate_axis::Units;
-use cangate_axis::cia402::{CyclicPlan, CyclicSample};
+use cangate_axis::cia402::{CyclicPlan, CyclicSample, SetpointObject};
 use cangate_axis::setpoint_stream::{
     AxisLimits, PlayerConfig, PlayerCounters, PlayerEvent, PlayerState, PointRefused,
     SetpointPlayer, StreamPoint,
 };
 use cangate_can::{CanId, Frame};
-use cangate_canopen::cia402::objects::TARGET_POSITION;
+use cangate_canopen::cia402::objects::{TARGET_POSITION, TARGET_VELOCITY};
 use cangate_canopen::pdo::PdoConfig;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
@@ -45,6 +45,9 @@ pub struct SetpointLayout {
     pub rpdo: PdoConfig,
     /// Byte offset of the 32-bit target position in its payload.
     pub offset: usize,
+    /// Byte offset of the 32-bit target velocity in the same payload, if
+    /// mapped there: a CSV axis's set-point.
+    pub velocity_offset: Option<usize>,
 }
 
 impl SetpointLayout {
@@ -53,14 +56,23 @@ impl SetpointLayout {
     pub fn find(rpdos: &[PdoConfig]) -> Option<SetpointLayout> {
         for p in rpdos {
             let mut offset = 0;
+            let mut position = None;
+            let mut velocity = None;
             for m in &p.mapping {
                 if m.addr == TARGET_POSITION && m.bits == 32 {
-                    return Some(SetpointLayout {
-                        rpdo: p.clone(),
-                        offset,
-                    });
+                    position = Some(offset);
+                }
+                if m.addr == TARGET_VELOCITY && m.bits == 32 {
+                    velocity = Some(offset);
                 }
                 offset += usize::from(m.bits) / 8;
+            }
+            if let Some(offset) = position {
+                return Some(SetpointLayout {
+                    rpdo: p.clone(),
+                    offset,
+                    velocity_offset: velocity,
+                });
             }
         }
         None
@@ -70,8 +82,10 @@ impl SetpointLayout {
     /// of the RPDO's other values is compared on.
     pub fn masked(&self, payload: &[u8]) -> Vec<u8> {
         let mut p = payload.to_vec();
-        if let Some(target) = p.get_mut(self.offset..self.offset + 4) {
-            target.fill(0);
+        for at in std::iter::once(self.offset).chain(self.velocity_offset) {
+            if let Some(target) = p.get_mut(at..at + 4) {
+                target.fill(0);
+            }
         }
         p
     }
@@ -100,6 +114,8 @@ struct Entry {
     settling: Option<CyclicPlan>,
     /// This SYNC's sample from the axis's stream.
     streamed: Option<CyclicSample>,
+    /// Byte offset of the target velocity in the set-point RPDO (CSV).
+    velocity_offset: Option<usize>,
 }
 
 /// Why a set-point stream ended.
@@ -313,6 +329,15 @@ impl CyclicSetpoints {
         let mut st = self.state.lock().expect("set-point table lock");
         if let Some((_, p, _)) = st.entries.get_mut(i).and_then(|e| e.rpdo.as_mut()) {
             *p = payload;
+        }
+    }
+
+    /// Where axis `i`'s set-point RPDO carries the target velocity: a
+    /// CSV plan's samples go there.
+    pub fn set_velocity_offset(&self, i: usize, offset: Option<usize>) {
+        let mut st = self.state.lock().expect("set-point table lock");
+        if let Some(e) = st.entries.get_mut(i) {
+            e.velocity_offset = offset;
         }
     }
 
@@ -542,7 +567,11 @@ impl SyncRider for CyclicSetpoints {
                     s.units[k],
                 ));
                 if done {
-                    let hold = CyclicPlan::holding(p, s.units[k]);
+                    let object = e
+                        .plan
+                        .as_ref()
+                        .map_or(SetpointObject::TargetPosition, CyclicPlan::setpoint_object);
+                    let hold = CyclicPlan::holding(p, s.units[k]).sent_to(object);
                     e.stream = None;
                     e.plan = Some(hold.clone());
                     e.settling = Some(hold);
@@ -563,8 +592,12 @@ impl SyncRider for CyclicSetpoints {
                     plan.sample(t)
                 }
             };
-            if let Some(target) = payload.get_mut(*offset..*offset + 4) {
-                target.copy_from_slice(&sample.counts.to_le_bytes());
+            let (at, value) = match (plan.setpoint_object(), e.velocity_offset) {
+                (SetpointObject::TargetVelocity, Some(v)) => (v, sample.velocity_counts),
+                _ => (*offset, sample.counts),
+            };
+            if let Some(target) = payload.get_mut(at..at + 4) {
+                target.copy_from_slice(&value.to_le_bytes());
             }
             match Frame::new(CanId::Standard(*cob), payload) {
                 Ok(f) => frames.push(f),

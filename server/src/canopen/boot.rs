@@ -187,6 +187,41 @@ fn same_value(got: &[u8], want: &[u8]) -> bool {
         && got[want.len()..].iter().all(|&b| b == 0)
 }
 
+/// The drive supports the modes its axis is configured in (`required`,
+/// bits of 0x6502): a drive that says it lacks one fails its boot, naming
+/// the mode and what it has. A drive that cannot tell (no 0x6502) is taken
+/// at its word that the configuration fits; a mode it lacks then shows as
+/// a mode switch that times out.
+fn check_supported_modes(
+    node: NodeId,
+    required: u32,
+    read: Result<u32, (bool, String)>,
+) -> Result<(), String> {
+    use cangate_canopen::cia402::ModeOfOperation;
+    let got = match read {
+        Ok(v) => v,
+        Err((_, e)) => {
+            tracing::warn!(node = node.get(), error = %e, "0x6502 supported drive modes not readable: the axis's mode is not checked");
+            return Ok(());
+        }
+    };
+    if got & required == required {
+        return Ok(());
+    }
+    let names = |mask: u32| {
+        ModeOfOperation::supported(mask)
+            .map(|m| m.to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    Err(format!(
+        "the drive does not support the axis's mode {} (0x6502 supported drive modes is \
+         0x{got:08X}: {}); configure its axis with a mode it has",
+        names(required & !got),
+        names(got)
+    ))
+}
+
 async fn boot_node(
     m: &CanopenBus,
     node: NodeId,
@@ -274,6 +309,9 @@ async fn boot_node(
                 return Err(mismatch(what, 0x1018, sub, got, want));
             }
         }
+    }
+    if plan.required_modes != 0 {
+        check_supported_modes(node, plan.required_modes, read_u32(0x6502, 0).await)?;
     }
     for group in write_groups(&plan.writes) {
         if adopt {

@@ -100,6 +100,9 @@ pub struct BootPlan {
     /// type and identity are read so that GetNode shows them, and nothing
     /// is checked, written or started.
     pub identify_only: bool,
+    /// Bits of 0x6502 supported drive modes the node must have (the mode
+    /// its axis is configured in); 0 checks nothing.
+    pub required_modes: u32,
 }
 
 /// A decoded PDO.

@@ -2,7 +2,8 @@
 
 use super::Config;
 use cangate_axis::{
-    AxisSpec, Cia402Drive, DriveSpec, MotionSpec, PositionMode, ProcessDataPath, StopKind, Units,
+    AxisSpec, Cia402Drive, DriveMode, DriveSpec, MotionSpec, PositionMode, ProcessDataPath,
+    StopKind, TorqueSpec, Units,
 };
 use cangate_canopen::NodeId;
 use serde::{Deserialize, Serialize};
@@ -18,6 +19,39 @@ pub enum PositionModeChoice {
     /// Cyclic synchronous position: the gateway plans, a set-point per SYNC
     /// (needs `sync_period_us` on the bus's `[[canopen]]`).
     Cyclic,
+}
+
+/// The CiA 402 mode of operation an axis runs in (`mode`); see
+/// [`DriveMode`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ModeChoice {
+    /// Profile position (1).
+    ProfilePosition,
+    /// Cyclic synchronous position (8).
+    Csp,
+    /// Interpolated position (7), for drives without CSP.
+    Ip,
+    /// Cyclic synchronous velocity (9).
+    Csv,
+    /// Cyclic synchronous torque (10).
+    Cst,
+    /// Profile torque (4).
+    ProfileTorque,
+}
+
+impl ModeChoice {
+    /// The runtime's mode.
+    pub fn mode(self) -> DriveMode {
+        match self {
+            ModeChoice::ProfilePosition => DriveMode::ProfilePosition,
+            ModeChoice::Csp => DriveMode::CyclicPosition,
+            ModeChoice::Ip => DriveMode::InterpolatedPosition,
+            ModeChoice::Csv => DriveMode::CyclicVelocity,
+            ModeChoice::Cst => DriveMode::CyclicTorque,
+            ModeChoice::ProfileTorque => DriveMode::ProfileTorque,
+        }
+    }
 }
 
 /// How an axis's process data (controlword, targets, statusword, actual
@@ -358,6 +392,19 @@ pub struct AxisConfig {
     /// `profile` (default) or `cyclic`.
     #[serde(default)]
     pub position_mode: PositionModeChoice,
+    /// The CiA 402 mode the axis starts in: `profile_position`, `csp`,
+    /// `ip`, `csv`, `cst` or `profile_torque`; by default the one of
+    /// `position_mode` (profile: `profile_position`, cyclic: `csp`).
+    #[serde(default)]
+    pub mode: Option<ModeChoice>,
+    /// The largest torque a torque command may ask for, per mille of the
+    /// drive's rated torque (default 1000).
+    #[serde(default)]
+    pub max_torque: Option<f64>,
+    /// Profile torque's ramp (0x6087, written at boot for a torque axis),
+    /// per mille per second (default 10000).
+    #[serde(default)]
+    pub torque_slope: Option<f64>,
     /// Homing method written to 0x6098 at boot (CiA 402; e.g. 35 = current
     /// position is home, 17..=30 = move to a switch).
     #[serde(default = "default_homing_method")]
@@ -479,7 +526,8 @@ impl TryFrom<&AxisConfig> for AxisSpec {
             drive: DriveSpec::Cia402(Cia402Drive {
                 bus: c.bus.clone(),
                 node,
-                position_mode: c.position_mode.mode(),
+                mode: c.drive_mode(),
+                torque: c.torque(),
                 process_data: match c.process_data {
                     ProcessDataChoice::Pdo => ProcessDataPath::Pdo,
                     ProcessDataChoice::Sdo => ProcessDataPath::Sdo {
@@ -493,6 +541,73 @@ impl TryFrom<&AxisConfig> for AxisSpec {
 }
 
 impl AxisConfig {
+    /// The mode the axis starts in: `mode`, else `position_mode`'s.
+    pub fn drive_mode(&self) -> DriveMode {
+        self.mode.map_or_else(
+            || DriveMode::of_position_mode(self.position_mode.mode()),
+            ModeChoice::mode,
+        )
+    }
+
+    /// The torque bounds; the target torque is in the process data of an
+    /// axis configured in a torque mode.
+    pub fn torque(&self) -> TorqueSpec {
+        let d = TorqueSpec::default();
+        TorqueSpec {
+            max_torque: self.max_torque.unwrap_or(d.max_torque),
+            torque_slope: self.torque_slope.unwrap_or(d.torque_slope),
+            in_process_data: self.drive_mode().is_torque()
+                && self.process_data == ProcessDataChoice::Pdo,
+        }
+    }
+
+    /// Whether the axis runs on the SYNC: configured cyclic, or in a mode
+    /// that takes a set-point every SYNC.
+    pub fn is_cyclic(&self) -> bool {
+        self.drive_mode().position_mode() == PositionMode::Cyclic
+    }
+
+    fn validate_mode(&self) -> Result<(), String> {
+        let name = &self.name;
+        if let Some(m) = self.mode {
+            let m = m.mode();
+            let from_position = DriveMode::of_position_mode(self.position_mode.mode());
+            if self.position_mode != PositionModeChoice::default()
+                && m.position_mode() != self.position_mode.mode()
+            {
+                return Err(format!(
+                    "axis {name}: mode = \"{m}\" contradicts position_mode = \"{}\" (leave \
+                     position_mode out: mode says it; {from_position} is position_mode's mode)",
+                    match self.position_mode {
+                        PositionModeChoice::Profile => "profile",
+                        PositionModeChoice::Cyclic => "cyclic",
+                    }
+                ));
+            }
+        }
+        for (what, value, max) in [
+            ("max_torque", self.max_torque, 32_767.0),
+            ("torque_slope", self.torque_slope, f64::from(u32::MAX)),
+        ] {
+            if let Some(v) = value
+                && !(v.is_finite() && v > 0.0 && v <= max)
+            {
+                return Err(format!(
+                    "axis {name}: {what} must be positive and at most {max} (per mille), got {v}"
+                ));
+            }
+        }
+        if self.process_data == ProcessDataChoice::Sdo
+            && self.drive_mode() != DriveMode::ProfilePosition
+        {
+            return Err(format!(
+                "axis {name}: process_data = \"sdo\" needs mode = \"profile_position\": the \
+                 other modes take set-points in the process data",
+            ));
+        }
+        Ok(())
+    }
+
     pub(super) fn validate(&self, cfg: &Config) -> Result<(), String> {
         if self.name.is_empty() || self.name.contains(char::is_whitespace) {
             return Err(format!(
@@ -519,6 +634,15 @@ impl AxisConfig {
                 self.name, self.bus
             ));
         }
+        if self.is_cyclic() && master.sync_period_us == 0 {
+            return Err(format!(
+                "axis {}: mode = \"{}\" needs a SYNC: set sync_period_us on [[canopen]] bus {:?}",
+                self.name,
+                self.drive_mode(),
+                self.bus
+            ));
+        }
+        self.validate_mode()?;
         self.common.validate(&self.name)?;
         if self.process_data == ProcessDataChoice::Sdo {
             if self.position_mode == PositionModeChoice::Cyclic {
@@ -654,7 +778,8 @@ mod tests {
             drive: DriveSpec::Cia402(Cia402Drive {
                 bus: "can0".into(),
                 node: cangate_canopen::NodeId::new(3).unwrap(),
-                position_mode: PositionMode::Cyclic,
+                mode: cangate_axis::DriveMode::CyclicPosition,
+                torque: cangate_axis::TorqueSpec::default(),
                 process_data: ProcessDataPath::Pdo,
                 homing_method: 17,
             }),

@@ -163,7 +163,7 @@ impl Rig {
             }
             let mut out = Vec::new();
             self.axis.on_sync(self.now, &mut out);
-            if self.axis.config().position_mode == PositionMode::Cyclic
+            if self.axis.config().position_mode() == PositionMode::Cyclic
                 && out.iter().any(|o| matches!(o, Output::Image(_)))
             {
                 self.setpoints
@@ -1248,3 +1248,5 @@ fn a_drive_found_enabled_keeps_its_state_and_position() {
         }
     }
 }
+
+mod modes;
