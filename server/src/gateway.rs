@@ -595,7 +595,7 @@ fn node_facts(
         .find(|a| a.bus == cc.bus && a.node == nc.id)
         .map(AxisSpec::try_from)
         .transpose()?;
-    let sync = cc.sync_period_us > 0;
+    let sync = (cc.sync_period_us > 0).then(|| Duration::from_micros(cc.sync_period_us));
     let master_heartbeat = cc
         .master_heartbeat()
         .zip(cc.drive_heartbeat_timeout_ms())
@@ -644,7 +644,7 @@ fn node_plan(
     node: NodeId,
     eds: Option<&Eds>,
     axis: Option<&AxisSpec>,
-    sync: bool,
+    sync: Option<Duration>,
     master_heartbeat: Option<(u8, u16)>,
 ) -> Result<NodePlan, String> {
     // A CiA 402 axis's drive (a CANsmc axis is no CANopen node).
@@ -653,7 +653,7 @@ fn node_plan(
         DriveSpec::Cansmc(_) => None,
     });
     let (tpdos, rpdos) = match drive {
-        Some((axis, d)) => axis_pdos(nc, node, axis, d, sync)?,
+        Some((axis, d)) => axis_pdos(nc, node, axis, d, sync.is_some())?,
         None => (
             pdo_layouts(PdoKind::Tpdo, &nc.tpdo, eds, node)?,
             pdo_layouts(PdoKind::Rpdo, &nc.rpdo, eds, node)?,
@@ -675,6 +675,17 @@ fn node_plan(
             }
             let controller = d.controller(axis.motion.clone());
             writes.extend(cangate_axis::cia402::Cia402Axis::new(controller).boot_writes());
+            if let (cangate_axis::DriveMode::InterpolatedPosition, Some(period)) = (d.mode, sync) {
+                // The drive interpolates each 0x60C1 set-point over one
+                // SYNC period.
+                use cangate_canopen::cia402::objects as obj;
+                let (value, index) = cangate_axis::process_data::interpolation_period(period);
+                writes.push((obj::INTERPOLATION_PERIOD_VALUE, vec![value]));
+                writes.push((
+                    obj::INTERPOLATION_PERIOD_INDEX,
+                    index.to_le_bytes().to_vec(),
+                ));
+            }
             writes.push((
                 cangate_canopen::cia402::objects::HOMING_METHOD,
                 vec![d.homing_method as u8],
@@ -730,6 +741,10 @@ fn axis_pdos(
     let (rpdos, tpdos) = match drive.process_data {
         ProcessDataPath::Pdo => {
             let (mut rpdos, tpdos) = standard_pdos(node, trigger);
+            if drive.mode == cangate_axis::DriveMode::InterpolatedPosition {
+                // A drive without CSP: the position set-point in 0x60C1:01.
+                rpdos[1] = cangate_axis::process_data::interpolated_rpdo(node);
+            }
             if drive.torque.in_process_data {
                 // A torque axis: the target torque in RPDO3.
                 rpdos.push(cangate_axis::process_data::torque_rpdo(node));

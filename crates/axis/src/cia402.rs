@@ -895,7 +895,17 @@ impl Cia402Axis {
 
     /// The drive's node was lost (heartbeat timeout, boot failure).
     pub fn on_node_lost(&mut self, reason: &str, out: &mut Vec<Output>) {
-        if self.node_lost.is_some() {
+        if let Some(lost) = &mut self.node_lost {
+            // Lost already (rebooted, waiting for its boot procedure): a
+            // later reason (the boot procedure failed, and why) replaces
+            // the earlier one, so the status says what to fix.
+            if lost != reason {
+                *lost = reason.to_string();
+                out.push(Output::Event(AxisEvent::Fault {
+                    code: 0,
+                    text: format!("node lost: {reason}"),
+                }));
+            }
             return;
         }
         self.node_lost = Some(reason.to_string());
@@ -1216,6 +1226,7 @@ impl Cia402Axis {
                     self.prepare_enable();
                 }
                 self.image.controlword &= !(Controlword::HALT_BIT | Controlword::NEW_SET_POINT_BIT);
+                self.keep_ip_enabled();
                 let driver = driver
                     .expect("made above")
                     .with_previous(Controlword(self.image.controlword));
@@ -1368,6 +1379,7 @@ impl Cia402Axis {
         }
         self.set_mode(mode);
         self.image.controlword &= !(Controlword::HALT_BIT | Controlword::HOMING_START_BIT);
+        self.keep_ip_enabled();
         op.step = Step::AwaitMode(mode);
         op.arm(Some(now + self.cfg.motion.state_timeout));
         self.send_image(out);
@@ -1451,6 +1463,10 @@ impl Cia402Axis {
     /// Clears controlword bit 4 (new set-point, homing start) and sends
     /// the image when it was set.
     fn release_handshake(&mut self, out: &mut Vec<Output>) {
+        if self.image.mode == ModeOfOperation::InterpolatedPosition.code() {
+            // Bit 4 is "enable ip mode" there: it stays set.
+            return;
+        }
         if self.image.controlword & Controlword::NEW_SET_POINT_BIT != 0 {
             self.image.controlword &= !Controlword::NEW_SET_POINT_BIT;
             self.send_image(out);
@@ -1677,6 +1693,28 @@ impl Cia402Axis {
                 to.operation()
             )));
         }
+        // An interpolated position axis's process data carries 0x60C1:01
+        // where the others carry 0x607A.
+        let ip = DriveMode::InterpolatedPosition;
+        if (to == ip) != (self.cfg.mode == ip)
+            && matches!(
+                to,
+                DriveMode::ProfilePosition
+                    | DriveMode::CyclicPosition
+                    | DriveMode::InterpolatedPosition
+            )
+        {
+            return Err(CommandError::WrongMode(format!(
+                "the axis's process data carries the position in {}: {to} needs {}; configure \
+                 the axis with mode = \"{to}\" for it",
+                if self.cfg.mode == ip {
+                    "0x60C1:01 (interpolated position)"
+                } else {
+                    "0x607A (target position)"
+                },
+                if to == ip { "0x60C1:01" } else { "0x607A" }
+            )));
+        }
         if to.is_torque() && !self.cfg.torque.in_process_data {
             return Err(CommandError::WrongMode(format!(
                 "the axis's process data has no target torque (0x6071): configure it with \
@@ -1768,8 +1806,24 @@ impl Cia402Axis {
         self.image.target_torque = 0;
     }
 
+    /// In interpolated position controlword bit 4 (enable ip mode) stays
+    /// set whatever clears the set-point bit of the other modes.
+    fn keep_ip_enabled(&mut self) {
+        if self.image.mode == ModeOfOperation::InterpolatedPosition.code() {
+            self.image.controlword |= Controlword::NEW_SET_POINT_BIT;
+        }
+    }
+
     fn set_mode(&mut self, mode: ModeOfOperation) {
         if self.image.mode != mode.code() {
+            // Interpolated position runs while controlword bit 4 (enable
+            // ip mode) is set: set entering it, cleared leaving it.
+            let ip = ModeOfOperation::InterpolatedPosition;
+            if mode == ip {
+                self.image.controlword |= Controlword::NEW_SET_POINT_BIT;
+            } else if self.image.mode == ip.code() {
+                self.image.controlword &= !Controlword::NEW_SET_POINT_BIT;
+            }
             self.image.mode = mode.code();
             self.mode_pending = true;
             self.image_changed();

@@ -119,6 +119,34 @@ pub fn torque_rpdo(node: NodeId) -> PdoConfig {
     pdo(PdoKind::Rpdo, 3, node, 255, 0, &[(obj::TARGET_TORQUE, 16)])
 }
 
+/// RPDO2 of an interpolated position axis (a drive without CSP):
+/// interpolation data record 0x60C1:01 (32) where the standard layout has
+/// the target position, and the target velocity 0x60FF (32); event-driven
+/// (255).
+pub fn interpolated_rpdo(node: NodeId) -> PdoConfig {
+    pdo(
+        PdoKind::Rpdo,
+        2,
+        node,
+        255,
+        0,
+        &[(obj::INTERPOLATION_DATA, 32), (obj::TARGET_VELOCITY, 32)],
+    )
+}
+
+/// The interpolation time period 0x60C2 (value 0x60C2:01, index
+/// 0x60C2:02: value · 10^index s) of a SYNC period, as exact as an
+/// 8-bit value allows.
+pub fn interpolation_period(period: std::time::Duration) -> (u8, i8) {
+    let us = period.as_micros();
+    for (div, index) in [(1000, -3), (100, -4), (10, -5), (1, -6)] {
+        if us.is_multiple_of(div) && us / div <= 255 {
+            return ((us / div) as u8, index);
+        }
+    }
+    ((us / 1000).min(255) as u8, -3)
+}
+
 /// The RPDO frames (COB-ID, payload) carrying `image`, for every RPDO that
 /// maps at least one image object, those without the controlword first.
 ///
@@ -140,6 +168,11 @@ pub fn encode_image(
             Value::Integer32(image.target_velocity),
         ),
         (obj::TARGET_TORQUE, Value::Integer16(image.target_torque)),
+        // An interpolated position axis: the position set-point.
+        (
+            obj::INTERPOLATION_DATA,
+            Value::Integer32(image.target_position),
+        ),
     ];
     let mut frames: Vec<(bool, u16, Vec<u8>)> = Vec::new();
     for p in rpdos {

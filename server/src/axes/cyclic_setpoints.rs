@@ -33,7 +33,7 @@ use cangate_axis::setpoint_stream::{
     SetpointPlayer, StreamPoint,
 };
 use cangate_can::{CanId, Frame};
-use cangate_canopen::cia402::objects::{TARGET_POSITION, TARGET_VELOCITY};
+use cangate_canopen::cia402::objects::{INTERPOLATION_DATA, TARGET_POSITION, TARGET_VELOCITY};
 use cangate_canopen::pdo::PdoConfig;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
@@ -59,7 +59,8 @@ impl SetpointLayout {
             let mut position = None;
             let mut velocity = None;
             for m in &p.mapping {
-                if m.addr == TARGET_POSITION && m.bits == 32 {
+                // Interpolated position: 0x60C1:01 takes the position.
+                if (m.addr == TARGET_POSITION || m.addr == INTERPOLATION_DATA) && m.bits == 32 {
                     position = Some(offset);
                 }
                 if m.addr == TARGET_VELOCITY && m.bits == 32 {
@@ -625,11 +626,38 @@ mod tests {
         let l = SetpointLayout::find(&rpdos).expect("target position mapped");
         assert_eq!(l.rpdo.cob_id, 0x305);
         assert_eq!(l.offset, 0);
-        assert_eq!(
-            l.masked(&[1, 2, 3, 4, 5, 6, 7, 8]),
-            vec![0, 0, 0, 0, 5, 6, 7, 8]
-        );
+        assert_eq!(l.velocity_offset, Some(4));
+        // Both set-points (CSP: position, CSV: velocity) are the SYNC
+        // thread's.
+        assert_eq!(l.masked(&[1, 2, 3, 4, 5, 6, 7, 8]), vec![0; 8]);
         assert!(SetpointLayout::find(&rpdos[..1]).is_none());
+        // Interpolated position: 0x60C1:01 takes the position's place.
+        let ip = cangate_axis::process_data::interpolated_rpdo(NodeId::new(5).unwrap());
+        let l = SetpointLayout::find(&[ip]).expect("interpolation data mapped");
+        assert_eq!((l.offset, l.velocity_offset), (0, Some(4)));
+    }
+
+    #[test]
+    fn a_csv_plan_sends_its_velocity_in_the_target_velocity() {
+        let origin = Instant::now();
+        let table = CyclicSetpoints::new(origin, ["v"].map(String::from));
+        table.set_velocity_offset(0, Some(4));
+        let units = cangate_axis::Units {
+            counts_per_unit: 1000.0,
+        };
+        // A CSV axis's stream-free plan: the demand velocity of each SYNC
+        // goes to bytes 4..8, the position bytes stay as the image has
+        // them.
+        let plan = CyclicPlan::holding(1.5, units).sent_to(SetpointObject::TargetVelocity);
+        table.publish([(0, Some(plan), 0x301, vec![7, 7, 7, 7, 1, 1, 1, 1], 0)]);
+        let mut frames = Vec::new();
+        let at = origin + std::time::Duration::from_millis(3);
+        table.on_sync(SyncTick::on_time(at), &mut frames);
+        assert_eq!(frames[0].data(), &[7, 7, 7, 7, 0, 0, 0, 0]);
+        // A streamed sample carries its velocity (12.5 mm/s) for a CSV
+        // axis in a stream.
+        let s = CyclicSample::streamed(std::time::Duration::ZERO, 1.5, 12.5, units);
+        assert_eq!(s.velocity_counts, 12_500);
     }
 
     #[test]

@@ -208,6 +208,15 @@ impl Axes {
                      enabled)"
                 )));
             }
+            // CSP, IP (a position every SYNC) and CSV (the stream's
+            // velocity every SYNC); the torque and profile modes take none.
+            if !matches!(snap.mode, 7..=9) {
+                return Err(not(format!(
+                    "axis {name} runs in mode {} (0x6061): set-point streams play on axes in \
+                     csp, ip or csv",
+                    snap.mode
+                )));
+            }
             if snap.activity != Activity::Idle || snap.velocity.abs() > e.spec.motion.rest_speed() {
                 return Err(not(format!(
                     "axis {name} is moving or busy ({:?}): stop it or wait until it is at rest",

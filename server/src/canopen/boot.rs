@@ -402,3 +402,24 @@ async fn boot_node(
         )),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_drive_without_the_configured_mode_fails_its_boot_saying_why() {
+        let node = NodeId::new(5).unwrap();
+        let csp = 1 << 7;
+        // PP, PV, HM, IP, CSV: no CSP.
+        let e = check_supported_modes(node, csp, Ok(0x165)).unwrap_err();
+        assert!(
+            e.contains("does not support the axis's mode cyclic synchronous position")
+                && e.contains("0x00000165"),
+            "{e}"
+        );
+        assert!(check_supported_modes(node, csp, Ok(0x3ED)).is_ok());
+        // A drive that cannot tell is taken at its word.
+        assert!(check_supported_modes(node, csp, Err((false, "abort".into()))).is_ok());
+    }
+}

@@ -598,6 +598,7 @@ impl AxisConfig {
             }
         }
         if self.process_data == ProcessDataChoice::Sdo
+            && self.mode.is_some()
             && self.drive_mode() != DriveMode::ProfilePosition
         {
             return Err(format!(
@@ -696,6 +697,47 @@ mod tests {
             let key = bad.split(' ').next().unwrap();
             assert!(e.contains(&format!("axis X: {key}")), "{bad}: {e}");
         }
+    }
+
+    #[test]
+    fn the_mode_is_named_validated_and_needs_what_it_uses() {
+        let c = Config::from_toml(BASE).unwrap();
+        assert_eq!(
+            c.axes[0].drive_mode(),
+            cangate_axis::DriveMode::ProfilePosition
+        );
+        let c = Config::from_toml(&format!("{BASE}mode = \"cst\"\nmax_torque = 300.0\n")).unwrap();
+        let torque = c.axes[0].torque();
+        assert_eq!(
+            c.axes[0].drive_mode(),
+            cangate_axis::DriveMode::CyclicTorque
+        );
+        assert_eq!((torque.max_torque, torque.in_process_data), (300.0, true));
+        let err = |extra: &str| {
+            Config::from_toml(&format!("{BASE}{extra}"))
+                .unwrap_err()
+                .to_string()
+        };
+        // The cyclic modes take a set-point every SYNC.
+        let e = err("mode = \"csv\"\n");
+        assert!(e.contains("mode = \"csv\" needs a SYNC"), "{e}");
+        let e = err("mode = \"servo\"\n");
+        assert!(e.contains("servo"), "{e}");
+        let synced = BASE.replace(
+            "bus = \"can0\"\n[[canopen.node]]",
+            "bus = \"can0\"\nsync_period_us = 1000\n[[canopen.node]]",
+        );
+        Config::from_toml(&format!("{synced}mode = \"csv\"\n")).unwrap();
+        let e = Config::from_toml(&format!(
+            "{synced}position_mode = \"cyclic\"\nmode = \"profile_position\"\n"
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("contradicts"), "{e}");
+        let e = err("mode = \"cst\"\nmax_torque = 0.0\n");
+        assert!(e.contains("axis X: max_torque must be positive"), "{e}");
+        let e = err("mode = \"profile_torque\"\nprocess_data = \"sdo\"\n");
+        assert!(e.contains("needs mode = \"profile_position\""), "{e}");
     }
 
     #[test]

@@ -403,3 +403,72 @@ fn the_torque_model_has_inertia_and_friction() {
     }
     assert_eq!(v, 0.0);
 }
+
+/// A drive without CSP (PP, PV, HM, IP, CSV: 0x6502 = 0x165) and its axis
+/// in interpolated position: RPDO2 carries 0x60C1:01 and 0x60FF, the
+/// interpolation period is the SYNC period.
+fn ip_rig() -> Rig {
+    let options = SimDriveOptions {
+        supported_modes: Some(0x165),
+        ..SimDriveOptions::default()
+    };
+    let mut rig = rig_in(DriveMode::InterpolatedPosition, options, |_| {});
+    let node = NodeId::new(u32::from(NODE)).unwrap();
+    rig.rpdos[1] = crate::process_data::interpolated_rpdo(node);
+    let mut writes = rig.rpdos[1].sdo_writes().unwrap();
+    let (value, index) = crate::process_data::interpolation_period(rig.sync_period);
+    assert_eq!((value, index), (10, -3));
+    writes.push((obj::INTERPOLATION_PERIOD_VALUE, vec![value]));
+    writes.push((obj::INTERPOLATION_PERIOD_INDEX, vec![index as u8]));
+    for (addr, data) in writes {
+        rig.sdo_write(addr, &data);
+    }
+    rig
+}
+
+#[test]
+fn interpolated_position_moves_a_drive_without_csp() {
+    let mut rig = ip_rig();
+    // CSP is refused by this drive: it keeps the mode in effect.
+    rig.axis.set_supported_modes(0x165);
+    let e = rig.command(AxisCommand::SetMode {
+        mode: DriveMode::CyclicPosition,
+    });
+    assert!(matches!(e, Err(CommandError::WrongMode(_))), "{e:?}");
+    rig.enable();
+    // Enabled in mode 7 with bit 4 (enable ip mode): controlword 0x001F.
+    assert!(
+        rig.sent_on(RPDO1, 0)
+            .iter()
+            .any(|(_, d)| d == &[0x1F, 0x00, 0x07]),
+        "{:?}",
+        rig.sent_on(RPDO1, 0)
+    );
+    assert_eq!(
+        rig.drive.mode(),
+        Some(ModeOfOperation::InterpolatedPosition)
+    );
+    let from = rig.mark();
+    let op = rig.mv(20.0);
+    let (outcome, detail) = rig.run_until_done(op, Duration::from_secs(3));
+    assert_eq!(outcome, Outcome::Completed, "{detail}");
+    assert!((rig.axis.snapshot().position - 20.0).abs() <= 0.01);
+    // The set-points went to 0x60C1:01 (bytes 0..4 of RPDO2), one per
+    // SYNC, never a step beyond 100 mm/s over 10 ms (1000 counts).
+    let sent = rig.sent_on(RPDO2, from);
+    let mut previous = 0;
+    for (t, d) in &sent {
+        let p = i32::from_le_bytes(d[..4].try_into().unwrap());
+        assert!((p - previous).abs() <= 1001, "{t:?}: {previous} -> {p}");
+        previous = p;
+    }
+    assert_eq!(&sent.last().unwrap().1[..4], &20_000i32.to_le_bytes());
+    // A stop mid-move ramps down as in CSP, bit 4 kept.
+    let op = rig.mv(-20.0);
+    rig.run(200 * MS);
+    let stop = rig.command(AxisCommand::Stop).unwrap();
+    assert_eq!(rig.done(op).unwrap().0, Outcome::Stopped);
+    let (outcome, detail) = rig.run_until_done(stop, Duration::from_secs(2));
+    assert_eq!(outcome, Outcome::Completed, "{detail}");
+    assert_eq!(rig.axis.image().controlword & 0x0010, 0x0010);
+}
