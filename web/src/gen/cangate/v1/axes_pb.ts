@@ -66,7 +66,7 @@ import type { Message } from "@bufbuild/protobuf";
  * Describes the file cangate/v1/axes.proto.
  */
 export const file_cangate_v1_axes: GenFile = /*@__PURE__*/
-  fileDesc("ChVjYW5nYXRlL3YxL2F4ZXMucHJvdG8SCmNhbmdhdGUudjEihwQKBEF4aXMSDAoEbmFtZRgBIAEoCRIoCgdiYWNrZW5kGAIgASgOMhcuY2FuZ2F0ZS52MS5BeGlzQmFja2VuZBILCgNidXMYAyABKAkSDAoEbm9kZRgEIAEoDRIMCgR1bml0GAUgASgJEhcKD2NvdW50c19wZXJfdW5pdBgGIAEoARIZCgxtaW5fcG9zaXRpb24YByABKAFIAIgBARIZCgxtYXhfcG9zaXRpb24YCCABKAFIAYgBARIUCgxtYXhfdmVsb2NpdHkYCSABKAESGAoQbWF4X2FjY2VsZXJhdGlvbhgKIAEoARIvCg1wb3NpdGlvbl9tb2RlGAsgASgOMhguY2FuZ2F0ZS52MS5Qb3NpdGlvbk1vZGUSKgoMc3RvcF9vbl9sb3NzGAwgASgOMhQuY2FuZ2F0ZS52MS5TdG9wS2luZBIWCg5qb2dfZGVhZG1hbl9tcxgNIAEoDRImCgZzdGF0dXMYDiABKAsyFi5jYW5nYXRlLnYxLkF4aXNTdGF0dXMSMQoMcHJvY2Vzc19kYXRhGA8gASgOMhsuY2FuZ2F0ZS52MS5Qcm9jZXNzRGF0YVBhdGgSEwoLc2RvX3BvbGxfbXMYECABKA0SGAoQZGlzcGxheV9kZWNpbWFscxgRIAEoDUIPCg1fbWluX3Bvc2l0aW9uQg8KDV9tYXhfcG9zaXRpb24i+AIKCkF4aXNTdGF0dXMSDAoEYXhpcxgBIAEoCRIlCgVzdGF0ZRgCIAEoDjIWLmNhbmdhdGUudjEuRHJpdmVTdGF0ZRISCgpzdGF0dXN3b3JkGAMgASgNEgwKBG1vZGUYBCABKAUSKgoIYWN0aXZpdHkYBSABKA4yGC5jYW5nYXRlLnYxLkF4aXNBY3Rpdml0eRIQCghwb3NpdGlvbhgGIAEoARIQCgh2ZWxvY2l0eRgHIAEoARIXCg9kZW1hbmRfcG9zaXRpb24YCCABKAESFwoPZm9sbG93aW5nX2Vycm9yGAkgASgBEg0KBWhvbWVkGAogASgIEhEKCW5vZGVfbG9zdBgLIAEoCBISCgpmYXVsdF9jb2RlGAwgASgNEhIKCmZhdWx0X3RleHQYDSABKAkSFQoNY29udHJvbGxlZF9ieRgOIAEoCRIaChJsZWFzZV9yZW1haW5pbmdfbXMYDyABKA0SFAoMdGltZXN0YW1wX3VzGBAgASgEIhEKD0xpc3RBeGVzUmVxdWVzdCIyChBMaXN0QXhlc1Jlc3BvbnNlEh4KBGF4ZXMYASADKAsyEC5jYW5nYXRlLnYxLkF4aXMiHgoOR2V0QXhpc1JlcXVlc3QSDAoEYXhpcxgBIAEoCSJKChVBY3F1aXJlQ29udHJvbFJlcXVlc3QSDAoEYXhlcxgBIAMoCRIOCgZ0dGxfbXMYAiABKA0SEwoLY2xpZW50X25hbWUYAyABKAkiSwoMQ29udHJvbExlYXNlEg0KBWxlYXNlGAEgASgJEgwKBGF4ZXMYAiADKAkSDgoGaG9sZGVyGAMgASgJEg4KBnR0bF9tcxgEIAEoDSIkChNSZW5ld0NvbnRyb2xSZXF1ZXN0Eg0KBWxlYXNlGAEgASgJIiYKFVJlbGVhc2VDb250cm9sUmVxdWVzdBINCgVsZWFzZRgBIAEoCSImChZSZWxlYXNlQ29udHJvbFJlc3BvbnNlEgwKBGF4ZXMYASADKAkiRgoOQ29tbWFuZE9wdGlvbnMSDQoFbGVhc2UYASABKAkSDAoEd2FpdBgCIAEoCBIXCg93YWl0X3RpbWVvdXRfbXMYAyABKA0iTwoSQXhpc0NvbW1hbmRSZXF1ZXN0EgwKBGF4aXMYASABKAkSKwoHb3B0aW9ucxgCIAEoCzIaLmNhbmdhdGUudjEuQ29tbWFuZE9wdGlvbnMicwoTQXhpc0NvbW1hbmRSZXNwb25zZRIkCgdvdXRjb21lGAEgASgOMhMuY2FuZ2F0ZS52MS5PdXRjb21lEg4KBmRldGFpbBgCIAEoCRImCgZzdGF0dXMYAyABKAsyFi5jYW5nYXRlLnYxLkF4aXNTdGF0dXMikgEKC01vdmVSZXF1ZXN0EgwKBGF4aXMYASABKAkSDgoGdGFyZ2V0GAIgASgBEhAKCHJlbGF0aXZlGAMgASgIEhAKCHZlbG9jaXR5GAQgASgBEhQKDGFjY2VsZXJhdGlvbhgFIAEoARIrCgdvcHRpb25zGAYgASgLMhouY2FuZ2F0ZS52MS5Db21tYW5kT3B0aW9ucyJvCgpKb2dSZXF1ZXN0EgwKBGF4aXMYASABKAkSEAoIdmVsb2NpdHkYAiABKAESFAoMYWNjZWxlcmF0aW9uGAMgASgBEisKB29wdGlvbnMYBCABKAsyGi5jYW5nYXRlLnYxLkNvbW1hbmRPcHRpb25zIjwKD1N0b3BBeGVzUmVxdWVzdBIMCgRheGVzGAEgAygJEg0KBXF1aWNrGAIgASgIEgwKBHdhaXQYAyABKAgiRQoRTXVsdGlBeGlzUmVzcG9uc2USMAoHcmVzdWx0cxgBIAMoCzIfLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZSJXCg9Nb3ZlQXhlc1JlcXVlc3QSJwoHdGFyZ2V0cxgBIAMoCzIWLmNhbmdhdGUudjEuQXhpc1RhcmdldBINCgVsZWFzZRgCIAEoCRIMCgR3YWl0GAMgASgIIlIKCkF4aXNUYXJnZXQSDAoEYXhpcxgBIAEoCRIOCgZ0YXJnZXQYAiABKAESEAoIdmVsb2NpdHkYAyABKAESFAoMYWNjZWxlcmF0aW9uGAQgASgBIjwKFlN0cmVhbUF4aXNTdGF0ZVJlcXVlc3QSDAoEYXhlcxgBIAMoCRIUCgxjaGFuZ2VzX29ubHkYAiABKAgiaAoKQXhpc1VwZGF0ZRIoCgZzdGF0dXMYASABKAsyFi5jYW5nYXRlLnYxLkF4aXNTdGF0dXNIABImCgVldmVudBgCIAEoCzIVLmNhbmdhdGUudjEuQXhpc0V2ZW50SABCCAoGdXBkYXRlIu4BCglBeGlzRXZlbnQSDAoEYXhpcxgBIAEoCRIUCgx0aW1lc3RhbXBfdXMYAiABKAQSLQoLbW90aW9uX2RvbmUYAyABKAsyFi5jYW5nYXRlLnYxLk1vdGlvbkRvbmVIABIiCgVmYXVsdBgEIAEoCzIRLmNhbmdhdGUudjEuRmF1bHRIABIsCgdjb250cm9sGAUgASgLMhkuY2FuZ2F0ZS52MS5Db250cm9sQ2hhbmdlSAASJAoEbm9kZRgGIAEoCzIULmNhbmdhdGUudjEuTm9kZUxpbmtIABIOCgRsb3N0GAcgASgESABCBgoEa2luZCJTCgpNb3Rpb25Eb25lEg8KB2NvbW1hbmQYASABKAkSJAoHb3V0Y29tZRgCIAEoDjITLmNhbmdhdGUudjEuT3V0Y29tZRIOCgZkZXRhaWwYAyABKAkiMwoFRmF1bHQSDAoEY29kZRgBIAEoDRIMCgR0ZXh0GAIgASgJEg4KBmFjdGl2ZRgDIAEoCCJBCg1Db250cm9sQ2hhbmdlEg4KBmhvbGRlchgBIAEoCRIQCghwcmV2aW91cxgCIAEoCRIOCgZyZWFzb24YAyABKAkiKAoITm9kZUxpbmsSDAoEbG9zdBgBIAEoCBIOCgZyZWFzb24YAiABKAkifgoVU2V0cG9pbnRTdHJlYW1SZXF1ZXN0Ei4KBG9wZW4YASABKAsyHi5jYW5nYXRlLnYxLlNldHBvaW50U3RyZWFtT3BlbkgAEioKBWJhdGNoGAIgASgLMhkuY2FuZ2F0ZS52MS5TZXRwb2ludEJhdGNoSABCCQoHbWVzc2FnZSKOAQoSU2V0cG9pbnRTdHJlYW1PcGVuEgwKBGF4ZXMYASADKAkSDQoFbGVhc2UYAiABKAkSEAoIZGVwdGhfbXMYAyABKA0SFgoOZXh0cmFwb2xhdGVfbXMYBCABKA0SFwoPcG9pbnRfcGVyaW9kX3VzGAUgASgNEhgKEHN0YXR1c19wZXJpb2RfbXMYBiABKA0iNQoNU2V0cG9pbnRCYXRjaBIkCgZwb2ludHMYASADKAsyFC5jYW5nYXRlLnYxLlNldHBvaW50Ij8KCFNldHBvaW50EgwKBHRfdXMYASABKAQSEQoJcG9zaXRpb25zGAIgAygBEhIKCnZlbG9jaXRpZXMYAyADKAEimgEKEFNldHBvaW50Q291bnRlcnMSEAoIcmVjZWl2ZWQYASABKAQSEAoIYWNjZXB0ZWQYAiABKAQSDwoHcmVmdXNlZBgDIAEoBBIOCgZwbGF5ZWQYBCABKAQSDAoEbGF0ZRgFIAEoBBIPCgdkcm9wcGVkGAYgASgEEhEKCXVuZGVycnVucxgHIAEoBBIPCgdsaW1pdGVkGAggASgEIrUCChRTZXRwb2ludFN0cmVhbVN0YXR1cxIuCgVzdGF0ZRgBIAEoDjIfLmNhbmdhdGUudjEuU2V0cG9pbnRTdHJlYW1TdGF0ZRIXCg9idWZmZXJfbGV2ZWxfdXMYAiABKAQSLgoIY291bnRlcnMYAyABKAsyHC5jYW5nYXRlLnYxLlNldHBvaW50Q291bnRlcnMSFwoPY2xvY2tfb2Zmc2V0X3VzGAQgASgDEhsKE2NvbW1hbmRlZF9wb3NpdGlvbnMYBSADKAESGAoQYWN0dWFsX3Bvc2l0aW9ucxgGIAMoARIvCgZldmVudHMYByADKAsyHy5jYW5nYXRlLnYxLlNldHBvaW50U3RyZWFtRXZlbnQSFAoMdGltZXN0YW1wX3VzGAggASgEEg0KBWVuZGVkGAkgASgJIn4KE1NldHBvaW50U3RyZWFtRXZlbnQSKwoEa2luZBgBIAEoDjIdLmNhbmdhdGUudjEuU2V0cG9pbnRFdmVudEtpbmQSDgoGcmVhc29uGAIgASgJEgwKBGF4aXMYAyABKAkSDAoEdF91cxgEIAEoBBIOCgZkZXRhaWwYBSABKAkqugIKCkRyaXZlU3RhdGUSGwoXRFJJVkVfU1RBVEVfVU5TUEVDSUZJRUQQABImCiJEUklWRV9TVEFURV9OT1RfUkVBRFlfVE9fU1dJVENIX09OEAESIgoeRFJJVkVfU1RBVEVfU1dJVENIX09OX0RJU0FCTEVEEAISIgoeRFJJVkVfU1RBVEVfUkVBRFlfVE9fU1dJVENIX09OEAMSGwoXRFJJVkVfU1RBVEVfU1dJVENIRURfT04QBBIhCh1EUklWRV9TVEFURV9PUEVSQVRJT05fRU5BQkxFRBAFEiEKHURSSVZFX1NUQVRFX1FVSUNLX1NUT1BfQUNUSVZFEAYSJQohRFJJVkVfU1RBVEVfRkFVTFRfUkVBQ1RJT05fQUNUSVZFEAcSFQoRRFJJVkVfU1RBVEVfRkFVTFQQCCrNAQoMQXhpc0FjdGl2aXR5Eh0KGUFYSVNfQUNUSVZJVFlfVU5TUEVDSUZJRUQQABIWChJBWElTX0FDVElWSVRZX0lETEUQARIbChdBWElTX0FDVElWSVRZX1NXSVRDSElORxACEhgKFEFYSVNfQUNUSVZJVFlfSE9NSU5HEAMSGAoUQVhJU19BQ1RJVklUWV9NT1ZJTkcQBBIZChVBWElTX0FDVElWSVRZX0pPR0dJTkcQBRIaChZBWElTX0FDVElWSVRZX1NUT1BQSU5HEAYqXQoLQXhpc0JhY2tlbmQSHAoYQVhJU19CQUNLRU5EX1VOU1BFQ0lGSUVEEAASFwoTQVhJU19CQUNLRU5EX0NJQTQwMhABEhcKE0FYSVNfQkFDS0VORF9DQU5TTUMQAipiCgxQb3NpdGlvbk1vZGUSHQoZUE9TSVRJT05fTU9ERV9VTlNQRUNJRklFRBAAEhkKFVBPU0lUSU9OX01PREVfUFJPRklMRRABEhgKFFBPU0lUSU9OX01PREVfQ1lDTElDEAIqagoPUHJvY2Vzc0RhdGFQYXRoEiEKHVBST0NFU1NfREFUQV9QQVRIX1VOU1BFQ0lGSUVEEAASGQoVUFJPQ0VTU19EQVRBX1BBVEhfUERPEAESGQoVUFJPQ0VTU19EQVRBX1BBVEhfU0RPEAIqUwoIU3RvcEtpbmQSGQoVU1RPUF9LSU5EX1VOU1BFQ0lGSUVEEAASEgoOU1RPUF9LSU5EX0hBTFQQARIYChRTVE9QX0tJTkRfUVVJQ0tfU1RPUBACKqQBCgdPdXRjb21lEhcKE09VVENPTUVfVU5TUEVDSUZJRUQQABIUChBPVVRDT01FX0FDQ0VQVEVEEAESFQoRT1VUQ09NRV9DT01QTEVURUQQAhIWChJPVVRDT01FX1NVUEVSU0VERUQQAxIRCg1PVVRDT01FX0ZBVUxUEAQSEwoPT1VUQ09NRV9USU1FT1VUEAUSEwoPT1VUQ09NRV9TVE9QUEVEEAYq7wEKE1NldHBvaW50U3RyZWFtU3RhdGUSJQohU0VUUE9JTlRfU1RSRUFNX1NUQVRFX1VOU1BFQ0lGSUVEEAASGwoXU0VUUE9JTlRfU1RSRUFNX1dBSVRJTkcQARIbChdTRVRQT0lOVF9TVFJFQU1fRklMTElORxACEhsKF1NFVFBPSU5UX1NUUkVBTV9QTEFZSU5HEAMSIQodU0VUUE9JTlRfU1RSRUFNX0VYVFJBUE9MQVRJTkcQBBIcChhTRVRQT0lOVF9TVFJFQU1fU1RPUFBJTkcQBRIZChVTRVRQT0lOVF9TVFJFQU1fRU5ERUQQBiqtAQoRU2V0cG9pbnRFdmVudEtpbmQSIwofU0VUUE9JTlRfRVZFTlRfS0lORF9VTlNQRUNJRklFRBAAEhsKF1NFVFBPSU5UX0VWRU5UX1VOREVSUlVOEAESIAocU0VUUE9JTlRfRVZFTlRfUE9JTlRfUkVGVVNFRBACEhoKFlNFVFBPSU5UX0VWRU5UX0FUX1JFU1QQAxIYChRTRVRQT0lOVF9FVkVOVF9FTkRFRBAEMv4JCgRBeGVzEkUKCExpc3RBeGVzEhsuY2FuZ2F0ZS52MS5MaXN0QXhlc1JlcXVlc3QaHC5jYW5nYXRlLnYxLkxpc3RBeGVzUmVzcG9uc2USNwoHR2V0QXhpcxIaLmNhbmdhdGUudjEuR2V0QXhpc1JlcXVlc3QaEC5jYW5nYXRlLnYxLkF4aXMSTQoOQWNxdWlyZUNvbnRyb2wSIS5jYW5nYXRlLnYxLkFjcXVpcmVDb250cm9sUmVxdWVzdBoYLmNhbmdhdGUudjEuQ29udHJvbExlYXNlEkkKDFJlbmV3Q29udHJvbBIfLmNhbmdhdGUudjEuUmVuZXdDb250cm9sUmVxdWVzdBoYLmNhbmdhdGUudjEuQ29udHJvbExlYXNlElcKDlJlbGVhc2VDb250cm9sEiEuY2FuZ2F0ZS52MS5SZWxlYXNlQ29udHJvbFJlcXVlc3QaIi5jYW5nYXRlLnYxLlJlbGVhc2VDb250cm9sUmVzcG9uc2USSQoGRW5hYmxlEh4uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USSgoHRGlzYWJsZRIeLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEkcKBEhvbWUSHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJACgRNb3ZlEhcuY2FuZ2F0ZS52MS5Nb3ZlUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRI+CgNKb2cSFi5jYW5nYXRlLnYxLkpvZ1JlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USRwoEU3RvcBIeLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEkwKCVF1aWNrU3RvcBIeLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEk0KClJlc2V0RmF1bHQSHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJGCghTdG9wQXhlcxIbLmNhbmdhdGUudjEuU3RvcEF4ZXNSZXF1ZXN0Gh0uY2FuZ2F0ZS52MS5NdWx0aUF4aXNSZXNwb25zZRJGCghNb3ZlQXhlcxIbLmNhbmdhdGUudjEuTW92ZUF4ZXNSZXF1ZXN0Gh0uY2FuZ2F0ZS52MS5NdWx0aUF4aXNSZXNwb25zZRJPCg9TdHJlYW1BeGlzU3RhdGUSIi5jYW5nYXRlLnYxLlN0cmVhbUF4aXNTdGF0ZVJlcXVlc3QaFi5jYW5nYXRlLnYxLkF4aXNVcGRhdGUwARJaCg9TdHJlYW1TZXRwb2ludHMSIS5jYW5nYXRlLnYxLlNldHBvaW50U3RyZWFtUmVxdWVzdBogLmNhbmdhdGUudjEuU2V0cG9pbnRTdHJlYW1TdGF0dXMoATABYgZwcm90bzM");
+  fileDesc("ChVjYW5nYXRlL3YxL2F4ZXMucHJvdG8SCmNhbmdhdGUudjEiwAQKBEF4aXMSDAoEbmFtZRgBIAEoCRIoCgdiYWNrZW5kGAIgASgOMhcuY2FuZ2F0ZS52MS5BeGlzQmFja2VuZBILCgNidXMYAyABKAkSDAoEbm9kZRgEIAEoDRIMCgR1bml0GAUgASgJEhcKD2NvdW50c19wZXJfdW5pdBgGIAEoARIZCgxtaW5fcG9zaXRpb24YByABKAFIAIgBARIZCgxtYXhfcG9zaXRpb24YCCABKAFIAYgBARIUCgxtYXhfdmVsb2NpdHkYCSABKAESGAoQbWF4X2FjY2VsZXJhdGlvbhgKIAEoARIvCg1wb3NpdGlvbl9tb2RlGAsgASgOMhguY2FuZ2F0ZS52MS5Qb3NpdGlvbk1vZGUSKgoMc3RvcF9vbl9sb3NzGAwgASgOMhQuY2FuZ2F0ZS52MS5TdG9wS2luZBIWCg5qb2dfZGVhZG1hbl9tcxgNIAEoDRImCgZzdGF0dXMYDiABKAsyFi5jYW5nYXRlLnYxLkF4aXNTdGF0dXMSMQoMcHJvY2Vzc19kYXRhGA8gASgOMhsuY2FuZ2F0ZS52MS5Qcm9jZXNzRGF0YVBhdGgSEwoLc2RvX3BvbGxfbXMYECABKA0SGAoQZGlzcGxheV9kZWNpbWFscxgRIAEoDRIjCgRtb2RlGBIgASgOMhUuY2FuZ2F0ZS52MS5Ecml2ZU1vZGUSEgoKbWF4X3RvcnF1ZRgTIAEoAUIPCg1fbWluX3Bvc2l0aW9uQg8KDV9tYXhfcG9zaXRpb24i+AIKCkF4aXNTdGF0dXMSDAoEYXhpcxgBIAEoCRIlCgVzdGF0ZRgCIAEoDjIWLmNhbmdhdGUudjEuRHJpdmVTdGF0ZRISCgpzdGF0dXN3b3JkGAMgASgNEgwKBG1vZGUYBCABKAUSKgoIYWN0aXZpdHkYBSABKA4yGC5jYW5nYXRlLnYxLkF4aXNBY3Rpdml0eRIQCghwb3NpdGlvbhgGIAEoARIQCgh2ZWxvY2l0eRgHIAEoARIXCg9kZW1hbmRfcG9zaXRpb24YCCABKAESFwoPZm9sbG93aW5nX2Vycm9yGAkgASgBEg0KBWhvbWVkGAogASgIEhEKCW5vZGVfbG9zdBgLIAEoCBISCgpmYXVsdF9jb2RlGAwgASgNEhIKCmZhdWx0X3RleHQYDSABKAkSFQoNY29udHJvbGxlZF9ieRgOIAEoCRIaChJsZWFzZV9yZW1haW5pbmdfbXMYDyABKA0SFAoMdGltZXN0YW1wX3VzGBAgASgEIhEKD0xpc3RBeGVzUmVxdWVzdCIyChBMaXN0QXhlc1Jlc3BvbnNlEh4KBGF4ZXMYASADKAsyEC5jYW5nYXRlLnYxLkF4aXMiHgoOR2V0QXhpc1JlcXVlc3QSDAoEYXhpcxgBIAEoCSJKChVBY3F1aXJlQ29udHJvbFJlcXVlc3QSDAoEYXhlcxgBIAMoCRIOCgZ0dGxfbXMYAiABKA0SEwoLY2xpZW50X25hbWUYAyABKAkiSwoMQ29udHJvbExlYXNlEg0KBWxlYXNlGAEgASgJEgwKBGF4ZXMYAiADKAkSDgoGaG9sZGVyGAMgASgJEg4KBnR0bF9tcxgEIAEoDSIkChNSZW5ld0NvbnRyb2xSZXF1ZXN0Eg0KBWxlYXNlGAEgASgJIiYKFVJlbGVhc2VDb250cm9sUmVxdWVzdBINCgVsZWFzZRgBIAEoCSImChZSZWxlYXNlQ29udHJvbFJlc3BvbnNlEgwKBGF4ZXMYASADKAkiRgoOQ29tbWFuZE9wdGlvbnMSDQoFbGVhc2UYASABKAkSDAoEd2FpdBgCIAEoCBIXCg93YWl0X3RpbWVvdXRfbXMYAyABKA0iTwoSQXhpc0NvbW1hbmRSZXF1ZXN0EgwKBGF4aXMYASABKAkSKwoHb3B0aW9ucxgCIAEoCzIaLmNhbmdhdGUudjEuQ29tbWFuZE9wdGlvbnMicwoTQXhpc0NvbW1hbmRSZXNwb25zZRIkCgdvdXRjb21lGAEgASgOMhMuY2FuZ2F0ZS52MS5PdXRjb21lEg4KBmRldGFpbBgCIAEoCRImCgZzdGF0dXMYAyABKAsyFi5jYW5nYXRlLnYxLkF4aXNTdGF0dXMikgEKC01vdmVSZXF1ZXN0EgwKBGF4aXMYASABKAkSDgoGdGFyZ2V0GAIgASgBEhAKCHJlbGF0aXZlGAMgASgIEhAKCHZlbG9jaXR5GAQgASgBEhQKDGFjY2VsZXJhdGlvbhgFIAEoARIrCgdvcHRpb25zGAYgASgLMhouY2FuZ2F0ZS52MS5Db21tYW5kT3B0aW9ucyJvCgpKb2dSZXF1ZXN0EgwKBGF4aXMYASABKAkSEAoIdmVsb2NpdHkYAiABKAESFAoMYWNjZWxlcmF0aW9uGAMgASgBEisKB29wdGlvbnMYBCABKAsyGi5jYW5nYXRlLnYxLkNvbW1hbmRPcHRpb25zImcKEFNldFRvcnF1ZVJlcXVlc3QSDAoEYXhpcxgBIAEoCRIYChB0b3JxdWVfcGVyX21pbGxlGAIgASgBEisKB29wdGlvbnMYAyABKAsyGi5jYW5nYXRlLnYxLkNvbW1hbmRPcHRpb25zInQKElNldEF4aXNNb2RlUmVxdWVzdBIMCgRheGlzGAEgASgJEiMKBG1vZGUYAiABKA4yFS5jYW5nYXRlLnYxLkRyaXZlTW9kZRIrCgdvcHRpb25zGAMgASgLMhouY2FuZ2F0ZS52MS5Db21tYW5kT3B0aW9ucyI8Cg9TdG9wQXhlc1JlcXVlc3QSDAoEYXhlcxgBIAMoCRINCgVxdWljaxgCIAEoCBIMCgR3YWl0GAMgASgIIkUKEU11bHRpQXhpc1Jlc3BvbnNlEjAKB3Jlc3VsdHMYASADKAsyHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2UiVwoPTW92ZUF4ZXNSZXF1ZXN0EicKB3RhcmdldHMYASADKAsyFi5jYW5nYXRlLnYxLkF4aXNUYXJnZXQSDQoFbGVhc2UYAiABKAkSDAoEd2FpdBgDIAEoCCJSCgpBeGlzVGFyZ2V0EgwKBGF4aXMYASABKAkSDgoGdGFyZ2V0GAIgASgBEhAKCHZlbG9jaXR5GAMgASgBEhQKDGFjY2VsZXJhdGlvbhgEIAEoASI8ChZTdHJlYW1BeGlzU3RhdGVSZXF1ZXN0EgwKBGF4ZXMYASADKAkSFAoMY2hhbmdlc19vbmx5GAIgASgIImgKCkF4aXNVcGRhdGUSKAoGc3RhdHVzGAEgASgLMhYuY2FuZ2F0ZS52MS5BeGlzU3RhdHVzSAASJgoFZXZlbnQYAiABKAsyFS5jYW5nYXRlLnYxLkF4aXNFdmVudEgAQggKBnVwZGF0ZSLuAQoJQXhpc0V2ZW50EgwKBGF4aXMYASABKAkSFAoMdGltZXN0YW1wX3VzGAIgASgEEi0KC21vdGlvbl9kb25lGAMgASgLMhYuY2FuZ2F0ZS52MS5Nb3Rpb25Eb25lSAASIgoFZmF1bHQYBCABKAsyES5jYW5nYXRlLnYxLkZhdWx0SAASLAoHY29udHJvbBgFIAEoCzIZLmNhbmdhdGUudjEuQ29udHJvbENoYW5nZUgAEiQKBG5vZGUYBiABKAsyFC5jYW5nYXRlLnYxLk5vZGVMaW5rSAASDgoEbG9zdBgHIAEoBEgAQgYKBGtpbmQiUwoKTW90aW9uRG9uZRIPCgdjb21tYW5kGAEgASgJEiQKB291dGNvbWUYAiABKA4yEy5jYW5nYXRlLnYxLk91dGNvbWUSDgoGZGV0YWlsGAMgASgJIjMKBUZhdWx0EgwKBGNvZGUYASABKA0SDAoEdGV4dBgCIAEoCRIOCgZhY3RpdmUYAyABKAgiQQoNQ29udHJvbENoYW5nZRIOCgZob2xkZXIYASABKAkSEAoIcHJldmlvdXMYAiABKAkSDgoGcmVhc29uGAMgASgJIigKCE5vZGVMaW5rEgwKBGxvc3QYASABKAgSDgoGcmVhc29uGAIgASgJIn4KFVNldHBvaW50U3RyZWFtUmVxdWVzdBIuCgRvcGVuGAEgASgLMh4uY2FuZ2F0ZS52MS5TZXRwb2ludFN0cmVhbU9wZW5IABIqCgViYXRjaBgCIAEoCzIZLmNhbmdhdGUudjEuU2V0cG9pbnRCYXRjaEgAQgkKB21lc3NhZ2UijgEKElNldHBvaW50U3RyZWFtT3BlbhIMCgRheGVzGAEgAygJEg0KBWxlYXNlGAIgASgJEhAKCGRlcHRoX21zGAMgASgNEhYKDmV4dHJhcG9sYXRlX21zGAQgASgNEhcKD3BvaW50X3BlcmlvZF91cxgFIAEoDRIYChBzdGF0dXNfcGVyaW9kX21zGAYgASgNIjUKDVNldHBvaW50QmF0Y2gSJAoGcG9pbnRzGAEgAygLMhQuY2FuZ2F0ZS52MS5TZXRwb2ludCI/CghTZXRwb2ludBIMCgR0X3VzGAEgASgEEhEKCXBvc2l0aW9ucxgCIAMoARISCgp2ZWxvY2l0aWVzGAMgAygBIpoBChBTZXRwb2ludENvdW50ZXJzEhAKCHJlY2VpdmVkGAEgASgEEhAKCGFjY2VwdGVkGAIgASgEEg8KB3JlZnVzZWQYAyABKAQSDgoGcGxheWVkGAQgASgEEgwKBGxhdGUYBSABKAQSDwoHZHJvcHBlZBgGIAEoBBIRCgl1bmRlcnJ1bnMYByABKAQSDwoHbGltaXRlZBgIIAEoBCK1AgoUU2V0cG9pbnRTdHJlYW1TdGF0dXMSLgoFc3RhdGUYASABKA4yHy5jYW5nYXRlLnYxLlNldHBvaW50U3RyZWFtU3RhdGUSFwoPYnVmZmVyX2xldmVsX3VzGAIgASgEEi4KCGNvdW50ZXJzGAMgASgLMhwuY2FuZ2F0ZS52MS5TZXRwb2ludENvdW50ZXJzEhcKD2Nsb2NrX29mZnNldF91cxgEIAEoAxIbChNjb21tYW5kZWRfcG9zaXRpb25zGAUgAygBEhgKEGFjdHVhbF9wb3NpdGlvbnMYBiADKAESLwoGZXZlbnRzGAcgAygLMh8uY2FuZ2F0ZS52MS5TZXRwb2ludFN0cmVhbUV2ZW50EhQKDHRpbWVzdGFtcF91cxgIIAEoBBINCgVlbmRlZBgJIAEoCSJ+ChNTZXRwb2ludFN0cmVhbUV2ZW50EisKBGtpbmQYASABKA4yHS5jYW5nYXRlLnYxLlNldHBvaW50RXZlbnRLaW5kEg4KBnJlYXNvbhgCIAEoCRIMCgRheGlzGAMgASgJEgwKBHRfdXMYBCABKAQSDgoGZGV0YWlsGAUgASgJKroCCgpEcml2ZVN0YXRlEhsKF0RSSVZFX1NUQVRFX1VOU1BFQ0lGSUVEEAASJgoiRFJJVkVfU1RBVEVfTk9UX1JFQURZX1RPX1NXSVRDSF9PThABEiIKHkRSSVZFX1NUQVRFX1NXSVRDSF9PTl9ESVNBQkxFRBACEiIKHkRSSVZFX1NUQVRFX1JFQURZX1RPX1NXSVRDSF9PThADEhsKF0RSSVZFX1NUQVRFX1NXSVRDSEVEX09OEAQSIQodRFJJVkVfU1RBVEVfT1BFUkFUSU9OX0VOQUJMRUQQBRIhCh1EUklWRV9TVEFURV9RVUlDS19TVE9QX0FDVElWRRAGEiUKIURSSVZFX1NUQVRFX0ZBVUxUX1JFQUNUSU9OX0FDVElWRRAHEhUKEURSSVZFX1NUQVRFX0ZBVUxUEAgqzQEKDEF4aXNBY3Rpdml0eRIdChlBWElTX0FDVElWSVRZX1VOU1BFQ0lGSUVEEAASFgoSQVhJU19BQ1RJVklUWV9JRExFEAESGwoXQVhJU19BQ1RJVklUWV9TV0lUQ0hJTkcQAhIYChRBWElTX0FDVElWSVRZX0hPTUlORxADEhgKFEFYSVNfQUNUSVZJVFlfTU9WSU5HEAQSGQoVQVhJU19BQ1RJVklUWV9KT0dHSU5HEAUSGgoWQVhJU19BQ1RJVklUWV9TVE9QUElORxAGKl0KC0F4aXNCYWNrZW5kEhwKGEFYSVNfQkFDS0VORF9VTlNQRUNJRklFRBAAEhcKE0FYSVNfQkFDS0VORF9DSUE0MDIQARIXChNBWElTX0JBQ0tFTkRfQ0FOU01DEAIqYgoMUG9zaXRpb25Nb2RlEh0KGVBPU0lUSU9OX01PREVfVU5TUEVDSUZJRUQQABIZChVQT1NJVElPTl9NT0RFX1BST0ZJTEUQARIYChRQT1NJVElPTl9NT0RFX0NZQ0xJQxACKrYBCglEcml2ZU1vZGUSGgoWRFJJVkVfTU9ERV9VTlNQRUNJRklFRBAAEh8KG0RSSVZFX01PREVfUFJPRklMRV9QT1NJVElPThABEhIKDkRSSVZFX01PREVfQ1NQEAISEQoNRFJJVkVfTU9ERV9JUBADEhIKDkRSSVZFX01PREVfQ1NWEAQSEgoORFJJVkVfTU9ERV9DU1QQBRIdChlEUklWRV9NT0RFX1BST0ZJTEVfVE9SUVVFEAYqagoPUHJvY2Vzc0RhdGFQYXRoEiEKHVBST0NFU1NfREFUQV9QQVRIX1VOU1BFQ0lGSUVEEAASGQoVUFJPQ0VTU19EQVRBX1BBVEhfUERPEAESGQoVUFJPQ0VTU19EQVRBX1BBVEhfU0RPEAIqUwoIU3RvcEtpbmQSGQoVU1RPUF9LSU5EX1VOU1BFQ0lGSUVEEAASEgoOU1RPUF9LSU5EX0hBTFQQARIYChRTVE9QX0tJTkRfUVVJQ0tfU1RPUBACKqQBCgdPdXRjb21lEhcKE09VVENPTUVfVU5TUEVDSUZJRUQQABIUChBPVVRDT01FX0FDQ0VQVEVEEAESFQoRT1VUQ09NRV9DT01QTEVURUQQAhIWChJPVVRDT01FX1NVUEVSU0VERUQQAxIRCg1PVVRDT01FX0ZBVUxUEAQSEwoPT1VUQ09NRV9USU1FT1VUEAUSEwoPT1VUQ09NRV9TVE9QUEVEEAYq7wEKE1NldHBvaW50U3RyZWFtU3RhdGUSJQohU0VUUE9JTlRfU1RSRUFNX1NUQVRFX1VOU1BFQ0lGSUVEEAASGwoXU0VUUE9JTlRfU1RSRUFNX1dBSVRJTkcQARIbChdTRVRQT0lOVF9TVFJFQU1fRklMTElORxACEhsKF1NFVFBPSU5UX1NUUkVBTV9QTEFZSU5HEAMSIQodU0VUUE9JTlRfU1RSRUFNX0VYVFJBUE9MQVRJTkcQBBIcChhTRVRQT0lOVF9TVFJFQU1fU1RPUFBJTkcQBRIZChVTRVRQT0lOVF9TVFJFQU1fRU5ERUQQBiqtAQoRU2V0cG9pbnRFdmVudEtpbmQSIwofU0VUUE9JTlRfRVZFTlRfS0lORF9VTlNQRUNJRklFRBAAEhsKF1NFVFBPSU5UX0VWRU5UX1VOREVSUlVOEAESIAocU0VUUE9JTlRfRVZFTlRfUE9JTlRfUkVGVVNFRBACEhoKFlNFVFBPSU5UX0VWRU5UX0FUX1JFU1QQAxIYChRTRVRQT0lOVF9FVkVOVF9FTkRFRBAEMpYLCgRBeGVzEkUKCExpc3RBeGVzEhsuY2FuZ2F0ZS52MS5MaXN0QXhlc1JlcXVlc3QaHC5jYW5nYXRlLnYxLkxpc3RBeGVzUmVzcG9uc2USNwoHR2V0QXhpcxIaLmNhbmdhdGUudjEuR2V0QXhpc1JlcXVlc3QaEC5jYW5nYXRlLnYxLkF4aXMSTQoOQWNxdWlyZUNvbnRyb2wSIS5jYW5nYXRlLnYxLkFjcXVpcmVDb250cm9sUmVxdWVzdBoYLmNhbmdhdGUudjEuQ29udHJvbExlYXNlEkkKDFJlbmV3Q29udHJvbBIfLmNhbmdhdGUudjEuUmVuZXdDb250cm9sUmVxdWVzdBoYLmNhbmdhdGUudjEuQ29udHJvbExlYXNlElcKDlJlbGVhc2VDb250cm9sEiEuY2FuZ2F0ZS52MS5SZWxlYXNlQ29udHJvbFJlcXVlc3QaIi5jYW5nYXRlLnYxLlJlbGVhc2VDb250cm9sUmVzcG9uc2USSQoGRW5hYmxlEh4uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USSgoHRGlzYWJsZRIeLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEkcKBEhvbWUSHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJACgRNb3ZlEhcuY2FuZ2F0ZS52MS5Nb3ZlUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRI+CgNKb2cSFi5jYW5nYXRlLnYxLkpvZ1JlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USRwoEU3RvcBIeLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEkwKCVF1aWNrU3RvcBIeLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEk0KClJlc2V0RmF1bHQSHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJKCglTZXRUb3JxdWUSHC5jYW5nYXRlLnYxLlNldFRvcnF1ZVJlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USSgoHU2V0TW9kZRIeLmNhbmdhdGUudjEuU2V0QXhpc01vZGVSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEkYKCFN0b3BBeGVzEhsuY2FuZ2F0ZS52MS5TdG9wQXhlc1JlcXVlc3QaHS5jYW5nYXRlLnYxLk11bHRpQXhpc1Jlc3BvbnNlEkYKCE1vdmVBeGVzEhsuY2FuZ2F0ZS52MS5Nb3ZlQXhlc1JlcXVlc3QaHS5jYW5nYXRlLnYxLk11bHRpQXhpc1Jlc3BvbnNlEk8KD1N0cmVhbUF4aXNTdGF0ZRIiLmNhbmdhdGUudjEuU3RyZWFtQXhpc1N0YXRlUmVxdWVzdBoWLmNhbmdhdGUudjEuQXhpc1VwZGF0ZTABEloKD1N0cmVhbVNldHBvaW50cxIhLmNhbmdhdGUudjEuU2V0cG9pbnRTdHJlYW1SZXF1ZXN0GiAuY2FuZ2F0ZS52MS5TZXRwb2ludFN0cmVhbVN0YXR1cygBMAFiBnByb3RvMw");
 
 /**
  * An axis: configuration and live state.
@@ -206,6 +206,22 @@ export type Axis = Message<"cangate.v1.Axis"> & {
    * @generated from field: uint32 display_decimals = 17;
    */
   displayDecimals: number;
+
+  /**
+   * The mode of operation the axis is configured to start in (the one it
+   * runs in now is `AxisStatus.mode`); UNSPECIFIED for CANsmc axes.
+   *
+   * @generated from field: cangate.v1.DriveMode mode = 18;
+   */
+  mode: DriveMode;
+
+  /**
+   * The largest torque SetTorque takes, per mille of the drive's rated
+   * torque (CiA 402 axes; 0 for CANsmc axes).
+   *
+   * @generated from field: double max_torque = 19;
+   */
+  maxTorque: number;
 };
 
 /**
@@ -245,9 +261,10 @@ export type AxisStatus = Message<"cangate.v1.AxisStatus"> & {
 
   /**
    * Mode of operation displayed by the drive (0x6061), e.g. 1 = profile
-   * position, 3 = profile velocity (jog), 6 = homing, 8 = cyclic
-   * synchronous position; 0 unknown (not reported yet). CANsmc axes: 6
-   * while homing, else 8.
+   * position, 3 = profile velocity (jog), 4 = profile torque, 6 =
+   * homing, 7 = interpolated position, 8 = cyclic synchronous position,
+   * 9 = cyclic synchronous velocity, 10 = cyclic synchronous torque; 0
+   * unknown (not reported yet). CANsmc axes: 6 while homing, else 8.
    *
    * @generated from field: int32 mode = 4;
    */
@@ -781,6 +798,78 @@ export const JogRequestSchema: GenMessage<JogRequest> = /*@__PURE__*/
   messageDesc(file_cangate_v1_axes, 14);
 
 /**
+ * SetTorque request.
+ *
+ * @generated from message cangate.v1.SetTorqueRequest
+ */
+export type SetTorqueRequest = Message<"cangate.v1.SetTorqueRequest"> & {
+  /**
+   * Axis name.
+   *
+   * @generated from field: string axis = 1;
+   */
+  axis: string;
+
+  /**
+   * Signed torque, per mille of the drive's rated torque (0x6071), at most
+   * `Axis.max_torque` in magnitude.
+   *
+   * @generated from field: double torque_per_mille = 2;
+   */
+  torquePerMille: number;
+
+  /**
+   * Lease (required) and wait options (a torque command is completed
+   * only when stopped: wait with a timeout, or not at all).
+   *
+   * @generated from field: cangate.v1.CommandOptions options = 3;
+   */
+  options?: CommandOptions | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.SetTorqueRequest.
+ * Use `create(SetTorqueRequestSchema)` to create a new message.
+ */
+export const SetTorqueRequestSchema: GenMessage<SetTorqueRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_axes, 15);
+
+/**
+ * SetMode request (Axes).
+ *
+ * @generated from message cangate.v1.SetAxisModeRequest
+ */
+export type SetAxisModeRequest = Message<"cangate.v1.SetAxisModeRequest"> & {
+  /**
+   * Axis name.
+   *
+   * @generated from field: string axis = 1;
+   */
+  axis: string;
+
+  /**
+   * The new mode (not UNSPECIFIED).
+   *
+   * @generated from field: cangate.v1.DriveMode mode = 2;
+   */
+  mode: DriveMode;
+
+  /**
+   * Lease (required) and wait options.
+   *
+   * @generated from field: cangate.v1.CommandOptions options = 3;
+   */
+  options?: CommandOptions | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.SetAxisModeRequest.
+ * Use `create(SetAxisModeRequestSchema)` to create a new message.
+ */
+export const SetAxisModeRequestSchema: GenMessage<SetAxisModeRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_axes, 16);
+
+/**
  * StopAxes request. No lease needed.
  *
  * @generated from message cangate.v1.StopAxesRequest
@@ -814,7 +903,7 @@ export type StopAxesRequest = Message<"cangate.v1.StopAxesRequest"> & {
  * Use `create(StopAxesRequestSchema)` to create a new message.
  */
 export const StopAxesRequestSchema: GenMessage<StopAxesRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 15);
+  messageDesc(file_cangate_v1_axes, 17);
 
 /**
  * Result of StopAxes and MoveAxes.
@@ -835,7 +924,7 @@ export type MultiAxisResponse = Message<"cangate.v1.MultiAxisResponse"> & {
  * Use `create(MultiAxisResponseSchema)` to create a new message.
  */
 export const MultiAxisResponseSchema: GenMessage<MultiAxisResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 16);
+  messageDesc(file_cangate_v1_axes, 18);
 
 /**
  * MoveAxes request.
@@ -870,7 +959,7 @@ export type MoveAxesRequest = Message<"cangate.v1.MoveAxesRequest"> & {
  * Use `create(MoveAxesRequestSchema)` to create a new message.
  */
 export const MoveAxesRequestSchema: GenMessage<MoveAxesRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 17);
+  messageDesc(file_cangate_v1_axes, 19);
 
 /**
  * One axis of a coordinated move.
@@ -912,7 +1001,7 @@ export type AxisTarget = Message<"cangate.v1.AxisTarget"> & {
  * Use `create(AxisTargetSchema)` to create a new message.
  */
 export const AxisTargetSchema: GenMessage<AxisTarget> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 18);
+  messageDesc(file_cangate_v1_axes, 20);
 
 /**
  * StreamAxisState request.
@@ -941,7 +1030,7 @@ export type StreamAxisStateRequest = Message<"cangate.v1.StreamAxisStateRequest"
  * Use `create(StreamAxisStateRequestSchema)` to create a new message.
  */
 export const StreamAxisStateRequestSchema: GenMessage<StreamAxisStateRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 19);
+  messageDesc(file_cangate_v1_axes, 21);
 
 /**
  * One item of StreamAxisState.
@@ -981,7 +1070,7 @@ export type AxisUpdate = Message<"cangate.v1.AxisUpdate"> & {
  * Use `create(AxisUpdateSchema)` to create a new message.
  */
 export const AxisUpdateSchema: GenMessage<AxisUpdate> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 20);
+  messageDesc(file_cangate_v1_axes, 22);
 
 /**
  * Something that happened to an axis.
@@ -1057,7 +1146,7 @@ export type AxisEvent = Message<"cangate.v1.AxisEvent"> & {
  * Use `create(AxisEventSchema)` to create a new message.
  */
 export const AxisEventSchema: GenMessage<AxisEvent> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 21);
+  messageDesc(file_cangate_v1_axes, 23);
 
 /**
  * A command finished.
@@ -1093,7 +1182,7 @@ export type MotionDone = Message<"cangate.v1.MotionDone"> & {
  * Use `create(MotionDoneSchema)` to create a new message.
  */
 export const MotionDoneSchema: GenMessage<MotionDone> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 22);
+  messageDesc(file_cangate_v1_axes, 24);
 
 /**
  * The axis entered a fault (the drive's, or its node was lost), or the
@@ -1140,7 +1229,7 @@ export type Fault = Message<"cangate.v1.Fault"> & {
  * Use `create(FaultSchema)` to create a new message.
  */
 export const FaultSchema: GenMessage<Fault> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 23);
+  messageDesc(file_cangate_v1_axes, 25);
 
 /**
  * Control of the axis changed hands.
@@ -1175,7 +1264,7 @@ export type ControlChange = Message<"cangate.v1.ControlChange"> & {
  * Use `create(ControlChangeSchema)` to create a new message.
  */
 export const ControlChangeSchema: GenMessage<ControlChange> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 24);
+  messageDesc(file_cangate_v1_axes, 26);
 
 /**
  * The drive's node was lost or came back. A loss also comes as a Fault
@@ -1211,7 +1300,7 @@ export type NodeLink = Message<"cangate.v1.NodeLink"> & {
  * Use `create(NodeLinkSchema)` to create a new message.
  */
 export const NodeLinkSchema: GenMessage<NodeLink> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 25);
+  messageDesc(file_cangate_v1_axes, 27);
 
 /**
  * One client message of StreamSetpoints.
@@ -1248,7 +1337,7 @@ export type SetpointStreamRequest = Message<"cangate.v1.SetpointStreamRequest"> 
  * Use `create(SetpointStreamRequestSchema)` to create a new message.
  */
 export const SetpointStreamRequestSchema: GenMessage<SetpointStreamRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 26);
+  messageDesc(file_cangate_v1_axes, 28);
 
 /**
  * Opens a set-point stream.
@@ -1310,7 +1399,7 @@ export type SetpointStreamOpen = Message<"cangate.v1.SetpointStreamOpen"> & {
  * Use `create(SetpointStreamOpenSchema)` to create a new message.
  */
 export const SetpointStreamOpenSchema: GenMessage<SetpointStreamOpen> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 27);
+  messageDesc(file_cangate_v1_axes, 29);
 
 /**
  * A batch of points, in time order.
@@ -1331,7 +1420,7 @@ export type SetpointBatch = Message<"cangate.v1.SetpointBatch"> & {
  * Use `create(SetpointBatchSchema)` to create a new message.
  */
 export const SetpointBatchSchema: GenMessage<SetpointBatch> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 28);
+  messageDesc(file_cangate_v1_axes, 30);
 
 /**
  * One set-point for every axis of the stream.
@@ -1370,7 +1459,7 @@ export type Setpoint = Message<"cangate.v1.Setpoint"> & {
  * Use `create(SetpointSchema)` to create a new message.
  */
 export const SetpointSchema: GenMessage<Setpoint> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 29);
+  messageDesc(file_cangate_v1_axes, 31);
 
 /**
  * The counters of a stream: received = accepted + refused; accepted =
@@ -1442,7 +1531,7 @@ export type SetpointCounters = Message<"cangate.v1.SetpointCounters"> & {
  * Use `create(SetpointCountersSchema)` to create a new message.
  */
 export const SetpointCountersSchema: GenMessage<SetpointCounters> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 30);
+  messageDesc(file_cangate_v1_axes, 32);
 
 /**
  * A status of a set-point stream: sent every `status_period_ms`, after a
@@ -1527,7 +1616,7 @@ export type SetpointStreamStatus = Message<"cangate.v1.SetpointStreamStatus"> & 
  * Use `create(SetpointStreamStatusSchema)` to create a new message.
  */
 export const SetpointStreamStatusSchema: GenMessage<SetpointStreamStatus> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 31);
+  messageDesc(file_cangate_v1_axes, 33);
 
 /**
  * Something that happened in a set-point stream.
@@ -1582,7 +1671,7 @@ export type SetpointStreamEvent = Message<"cangate.v1.SetpointStreamEvent"> & {
  * Use `create(SetpointStreamEventSchema)` to create a new message.
  */
 export const SetpointStreamEventSchema: GenMessage<SetpointStreamEvent> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 32);
+  messageDesc(file_cangate_v1_axes, 34);
 
 /**
  * The CiA 402 drive states (CANsmc axes map theirs onto these).
@@ -1806,6 +1895,73 @@ export const PositionModeSchema: GenEnum<PositionMode> = /*@__PURE__*/
   enumDesc(file_cangate_v1_axes, 3);
 
 /**
+ * The CiA 402 mode of operation an axis runs in (0x6060).
+ *
+ * @generated from enum cangate.v1.DriveMode
+ */
+export enum DriveMode {
+  /**
+   * CANsmc axes (no modes), and never asked for.
+   *
+   * @generated from enum value: DRIVE_MODE_UNSPECIFIED = 0;
+   */
+  UNSPECIFIED = 0,
+
+  /**
+   * Profile position (1): the drive plans each Move; Jog in profile
+   * velocity.
+   *
+   * @generated from enum value: DRIVE_MODE_PROFILE_POSITION = 1;
+   */
+  PROFILE_POSITION = 1,
+
+  /**
+   * Cyclic synchronous position (8): the gateway's trajectory, a position
+   * every SYNC; Move, Jog, MoveAxes, StreamSetpoints.
+   *
+   * @generated from enum value: DRIVE_MODE_CSP = 2;
+   */
+  CSP = 2,
+
+  /**
+   * Interpolated position (7), for drives without CSP: as CSP, the
+   * position in 0x60C1:01.
+   *
+   * @generated from enum value: DRIVE_MODE_IP = 3;
+   */
+  IP = 3,
+
+  /**
+   * Cyclic synchronous velocity (9): Jog and StreamSetpoints send a
+   * velocity every SYNC (0x60FF); no Move.
+   *
+   * @generated from enum value: DRIVE_MODE_CSV = 4;
+   */
+  CSV = 4,
+
+  /**
+   * Cyclic synchronous torque (10): SetTorque (0x6071).
+   *
+   * @generated from enum value: DRIVE_MODE_CST = 5;
+   */
+  CST = 5,
+
+  /**
+   * Profile torque (4): SetTorque, ramped by the drive at the axis's
+   * torque slope (0x6087).
+   *
+   * @generated from enum value: DRIVE_MODE_PROFILE_TORQUE = 6;
+   */
+  PROFILE_TORQUE = 6,
+}
+
+/**
+ * Describes the enum cangate.v1.DriveMode.
+ */
+export const DriveModeSchema: GenEnum<DriveMode> = /*@__PURE__*/
+  enumDesc(file_cangate_v1_axes, 4);
+
+/**
  * How a CiA 402 axis's process data (controlword, targets, statusword,
  * actual position and velocity) travels.
  *
@@ -1841,7 +1997,7 @@ export enum ProcessDataPath {
  * Describes the enum cangate.v1.ProcessDataPath.
  */
 export const ProcessDataPathSchema: GenEnum<ProcessDataPath> = /*@__PURE__*/
-  enumDesc(file_cangate_v1_axes, 4);
+  enumDesc(file_cangate_v1_axes, 5);
 
 /**
  * How a stop decelerates.
@@ -1875,7 +2031,7 @@ export enum StopKind {
  * Describes the enum cangate.v1.StopKind.
  */
 export const StopKindSchema: GenEnum<StopKind> = /*@__PURE__*/
-  enumDesc(file_cangate_v1_axes, 5);
+  enumDesc(file_cangate_v1_axes, 6);
 
 /**
  * How a command ended.
@@ -1938,7 +2094,7 @@ export enum Outcome {
  * Describes the enum cangate.v1.Outcome.
  */
 export const OutcomeSchema: GenEnum<Outcome> = /*@__PURE__*/
-  enumDesc(file_cangate_v1_axes, 6);
+  enumDesc(file_cangate_v1_axes, 7);
 
 /**
  * What a set-point stream is doing.
@@ -2002,7 +2158,7 @@ export enum SetpointStreamState {
  * Describes the enum cangate.v1.SetpointStreamState.
  */
 export const SetpointStreamStateSchema: GenEnum<SetpointStreamState> = /*@__PURE__*/
-  enumDesc(file_cangate_v1_axes, 7);
+  enumDesc(file_cangate_v1_axes, 8);
 
 /**
  * The kind of a set-point stream event.
@@ -2051,7 +2207,7 @@ export enum SetpointEventKind {
  * Describes the enum cangate.v1.SetpointEventKind.
  */
 export const SetpointEventKindSchema: GenEnum<SetpointEventKind> = /*@__PURE__*/
-  enumDesc(file_cangate_v1_axes, 8);
+  enumDesc(file_cangate_v1_axes, 9);
 
 /**
  * Axes: state, exclusive control, motion commands.
@@ -2194,6 +2350,34 @@ export const Axes: GenService<{
   resetFault: {
     methodKind: "unary";
     input: typeof AxisCommandRequestSchema;
+    output: typeof AxisCommandResponseSchema;
+  },
+  /**
+   * Drives a CiA 402 axis in a torque mode (CST, profile torque) with a
+   * torque, per mille of the drive's rated torque, until Stop or another
+   * command; the axis stops by itself (outcome STOPPED) when its velocity
+   * exceeds `Axis.max_velocity`. FAILED_PRECONDITION in the other modes;
+   * OUT_OF_RANGE above `Axis.max_torque`.
+   *
+   * @generated from rpc cangate.v1.Axes.SetTorque
+   */
+  setTorque: {
+    methodKind: "unary";
+    input: typeof SetTorqueRequestSchema;
+    output: typeof AxisCommandResponseSchema;
+  },
+  /**
+   * Changes a CiA 402 axis's mode of operation, at rest only:
+   * FAILED_PRECONDITION while it moves or a command runs, for a mode its
+   * drive lacks (0x6502), a torque mode without the target torque in its
+   * process data, or a cyclic mode without a running SYNC. Completed when
+   * the drive shows the new mode.
+   *
+   * @generated from rpc cangate.v1.Axes.SetMode
+   */
+  setMode: {
+    methodKind: "unary";
+    input: typeof SetAxisModeRequestSchema;
     output: typeof AxisCommandResponseSchema;
   },
   /**
