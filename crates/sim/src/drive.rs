@@ -2043,4 +2043,115 @@ mod tests {
         assert_eq!(sent, [0x0080, 0x0006, 0x0007, 0x000F]);
         assert_eq!(d.statusword(), Statusword(0x0237));
     }
+
+    const SEC: Duration = Duration::from_secs(1);
+
+    /// A drive at node 5 with `options`, operational since t = 0.
+    fn operational_with(options: SimDriveOptions) -> SimDrive {
+        let mut d = SimDrive::bundled(NodeId::new(5).unwrap(), options);
+        d.start(Duration::ZERO);
+        d.on_frame(&frame(0x000, &[0x01, 0x05]), Duration::ZERO);
+        d
+    }
+
+    #[test]
+    fn cyclic_synchronous_torque_drives_the_torque_model_and_halts() {
+        let mut d = operational();
+        enable(&mut d, ModeOfOperation::CyclicSynchronousTorque, 10 * MS);
+        // 0x6071 = 30 per mille (expedited download of 2 bytes).
+        let reply = d.on_frame(
+            &frame(0x605, &[0x2B, 0x71, 0x60, 0x00, 0x1E, 0x00, 0x00, 0x00]),
+            20 * MS,
+        );
+        assert!(
+            wire(&reply).contains(&(0x585, vec![0x60, 0x71, 0x60, 0x00, 0, 0, 0, 0])),
+            "{reply:?}"
+        );
+        // 30 - 10 (Coulomb) per mille against 1 per mille per 1000
+        // counts/s: 20 000 counts/s at the end, with a time constant of
+        // 1 s (inertia 1000 counts/s² per per mille over the viscous
+        // friction).
+        run(&mut d, Duration::from_millis(1020), |_, _| {});
+        let v1 = d.velocity();
+        assert!(
+            (v1 - 20_000.0 * (1.0 - (-1.0f64).exp())).abs() < 300.0,
+            "{v1}"
+        );
+        run(&mut d, Duration::from_secs(6), |_, _| {});
+        assert!((d.velocity() - 20_000.0).abs() < 100.0, "{}", d.velocity());
+        assert_eq!(
+            sdo_read(&mut d, obj::TORQUE_ACTUAL, 6 * SEC),
+            vec![0x1E, 0x00]
+        );
+        // Halt (0x010F): the velocity loop brakes at 0x6084 (100 000
+        // counts/s²) within 0.2 s, and holds; bit 12 drops.
+        let target = d.position().round() as i32;
+        d.on_frame(&rpdo1(0x010F, target), 6 * SEC);
+        run(&mut d, 6 * SEC + Duration::from_millis(210), |_, _| {});
+        assert_eq!(d.velocity(), 0.0);
+        assert_eq!(d.statusword().bits() & Statusword::OMS_12, 0);
+        let at = d.position();
+        run(&mut d, 7 * SEC, |_, _| {});
+        assert_eq!(d.position(), at, "the halt holds against the torque");
+    }
+
+    #[test]
+    fn interpolated_position_reaches_0x60c1_over_the_interpolation_period() {
+        let mut d = operational_with(SimDriveOptions {
+            follow_time_constant: Duration::ZERO,
+            ..SimDriveOptions::default()
+        });
+        // 0x60C2 = 10 x 10^-3 s.
+        sdo_write(&mut d, obj::INTERPOLATION_PERIOD_VALUE, &[10], 5 * MS);
+        enable(&mut d, ModeOfOperation::InterpolatedPosition, 10 * MS);
+        // Without bit 4 (enable ip mode) a set-point is not taken.
+        sdo_write(
+            &mut d,
+            obj::INTERPOLATION_DATA,
+            &1000i32.to_le_bytes(),
+            20 * MS,
+        );
+        run(&mut d, 40 * MS, |_, _| {});
+        assert_eq!(d.position(), 0.0);
+        assert_eq!(d.statusword().bits() & Statusword::OMS_12, 0);
+        // Bit 4 set (controlword 0x001F): from 0 to 1000 over 10 ms.
+        d.on_frame(&rpdo1(0x001F, 0), 40 * MS);
+        let mut seen = Vec::new();
+        run(&mut d, 52 * MS, |d, t| seen.push((t, d.position())));
+        assert_ne!(
+            d.statusword().bits() & Statusword::OMS_12,
+            0,
+            "ip mode active"
+        );
+        let at = |ms: u64| {
+            seen.iter()
+                .find(|(t, _)| *t == Duration::from_millis(ms))
+                .map(|(_, p)| *p)
+        };
+        let near = |got: Option<f64>, want: f64| got.is_some_and(|p| (p - want).abs() < 1e-6);
+        assert!(near(at(45), 500.0), "{seen:?}");
+        assert!(near(at(50), 1000.0), "{seen:?}");
+        assert!((d.position() - 1000.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn a_mode_outside_the_configured_supported_modes_is_not_taken() {
+        // PP, PV, HM, IP, CSV: no CSP.
+        let mut d = operational_with(SimDriveOptions {
+            supported_modes: Some(0x165),
+            ..SimDriveOptions::default()
+        });
+        assert_eq!(
+            sdo_read(&mut d, obj::SUPPORTED_DRIVE_MODES, MS),
+            vec![0x65, 0x01, 0x00, 0x00]
+        );
+        sdo_write(&mut d, obj::MODES_OF_OPERATION, &[0x08], 2 * MS);
+        assert_eq!(d.mode(), None);
+        assert_eq!(
+            sdo_read(&mut d, obj::MODES_OF_OPERATION_DISPLAY, 3 * MS),
+            vec![0x00]
+        );
+        sdo_write(&mut d, obj::MODES_OF_OPERATION, &[0x07], 4 * MS);
+        assert_eq!(d.mode(), Some(ModeOfOperation::InterpolatedPosition));
+    }
 }
