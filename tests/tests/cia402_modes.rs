@@ -103,8 +103,9 @@ max_velocity = 100.0
 max_acceleration = 1000.0
 "#;
 
-/// PP, PV, HM, IP, CSV: a drive without CSP (and without torque modes).
-const NO_CSP: u32 = 0x165;
+/// PP, PV, HM, IP: a drive without CSP (and without CSV or torque
+/// modes).
+const NO_CSP: u32 = 0x65;
 
 /// Runs a simulated drive without CSP at `node` on the server's `can0`.
 fn drive_without_csp(
@@ -333,12 +334,19 @@ async fn interpolated_position_moves_a_drive_without_csp() {
     let s = r.status.unwrap();
     assert_eq!(s.mode, 7);
     assert!((s.position - 10.0).abs() <= 0.01, "{s:?}");
-    // The drive has no CSP.
-    let e = axes
-        .set_mode(set_mode("I", pb::DriveMode::Csp, &lease))
-        .await
-        .unwrap_err();
-    assert_eq!(e.code(), Code::FailedPrecondition, "{e:?}");
+    // The drive has no CSP, nor CSV (its 0x6502, read at its boot).
+    for (mode, name) in [(pb::DriveMode::Csp, "csp"), (pb::DriveMode::Csv, "csv")] {
+        let e = axes
+            .set_mode(set_mode("I", mode, &lease))
+            .await
+            .unwrap_err();
+        assert_eq!(e.code(), Code::FailedPrecondition, "{e:?}");
+        assert!(
+            e.message().contains(&format!("does not support {name}")),
+            "{}",
+            e.message()
+        );
+    }
     // A stop mid-move in IP ends at rest.
     axes.r#move(pb::MoveRequest {
         axis: "I".into(),

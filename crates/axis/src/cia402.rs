@@ -1998,6 +1998,12 @@ impl Cia402Axis {
             if matches!(op.kind, CommandKind::Jog) {
                 self.jog_deadline = None;
             }
+            if op.kind == CommandKind::Torque && self.image.target_torque != 0 {
+                // No torque outlives its command (superseded by a homing
+                // at rest, say, it would come back with the torque mode).
+                self.image.target_torque = 0;
+                self.send_image(out);
+            }
             // An interrupted homing says what it leaves behind.
             let detail = if op.kind == CommandKind::Home && outcome != Outcome::Completed {
                 let homing = match op.step {

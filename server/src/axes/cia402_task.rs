@@ -612,6 +612,9 @@ impl Task {
             }
             NodeEventKind::BootCompleted { adopted } => {
                 self.slots[i].booted = true;
+                if let Some(mask) = self.master.supported_drive_modes(self.slots[i].node) {
+                    self.slots[i].axis.set_supported_modes(mask);
+                }
                 if let Some(link) = &mut self.slots[i].sdo {
                     link.booting = false;
                     // Before any image the reboot leads to.

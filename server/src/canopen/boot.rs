@@ -311,7 +311,12 @@ async fn boot_node(
         }
     }
     if plan.required_modes != 0 {
-        check_supported_modes(node, plan.required_modes, read_u32(0x6502, 0).await)?;
+        let supported = read_u32(0x6502, 0).await;
+        if let Ok(v) = supported {
+            // The axis refuses a run-time change to a mode not in it.
+            m.learn(node, |f| f.supported_drive_modes = Some(v));
+        }
+        check_supported_modes(node, plan.required_modes, supported)?;
     }
     for group in write_groups(&plan.writes) {
         if adopt {

@@ -82,6 +82,9 @@ pub struct NodeFacts {
     /// master's own subscription leaves them out: at a 1 ms SYNC that takes
     /// a task wake-up per PDO batch off the master.
     pub tpdos_read_by_axis: bool,
+    /// 0x6502 supported drive modes as the boot procedure of a drive
+    /// read it (axis drives only).
+    pub supported_drive_modes: Option<u32>,
 }
 
 /// The boot procedure of a node (in the spirit of CiA 302): check, write
@@ -921,6 +924,16 @@ impl CanopenBus {
             .expect("facts lock")
             .get(&node)
             .and_then(|f| f.rpdos.iter().find(|p| p.num == num).cloned())
+    }
+
+    /// 0x6502 supported drive modes of an axis drive, as its latest boot
+    /// procedure read it.
+    pub fn supported_drive_modes(&self, node: NodeId) -> Option<u32> {
+        self.facts
+            .read()
+            .expect("facts lock")
+            .get(&node)
+            .and_then(|f| f.supported_drive_modes)
     }
 
     /// The RPDO configurations of a node.

@@ -472,3 +472,33 @@ fn interpolated_position_moves_a_drive_without_csp() {
     assert_eq!(outcome, Outcome::Completed, "{detail}");
     assert_eq!(rig.axis.image().controlword & 0x0010, 0x0010);
 }
+
+#[test]
+fn no_torque_outlives_its_command() {
+    let mut rig = cst_rig();
+    rig.enable();
+    // 5 per mille: within the Coulomb friction, the axis stays at rest.
+    let op = rig
+        .command(AxisCommand::SetTorque { per_mille: 5.0 })
+        .unwrap();
+    rig.run(100 * MS);
+    assert_eq!(rig.drive_velocity(), 0.0);
+    // A homing at rest supersedes it: the torque set-point goes to 0 at
+    // once, and the axis comes back to CST without it.
+    let from = rig.mark();
+    let home = rig.command(AxisCommand::Home).unwrap();
+    assert_eq!(rig.done(op).unwrap().0, Outcome::Superseded);
+    assert_eq!(rig.sent_on(RPDO3, from)[0].1, vec![0x00, 0x00]);
+    let (outcome, detail) = rig.run_until_done(home, Duration::from_secs(2));
+    assert_eq!(outcome, Outcome::Completed, "{detail}");
+    assert_eq!(
+        rig.drive.mode(),
+        Some(ModeOfOperation::CyclicSynchronousTorque)
+    );
+    assert_eq!(rig.axis.image().target_torque, 0);
+    assert!(
+        rig.sent_on(RPDO3, from)
+            .iter()
+            .all(|(_, d)| d == &[0x00, 0x00])
+    );
+}
