@@ -1769,14 +1769,31 @@ impl Cia402Axis {
     fn torque_guard(&mut self, op: &mut Op, now: Duration, out: &mut Vec<Output>) {
         let v = self.units().from_counts(f64::from(self.velocity));
         let max = self.cfg.motion.max_velocity;
-        if v.abs() <= max {
-            return;
-        }
         let unit = &self.cfg.motion.unit;
-        op.guard = Some(format!(
-            "the velocity {v:.3} {unit}/s exceeded max_velocity {max} {unit}/s under torque: \
-             stopped"
-        ));
+        // Where a stop from here would end, braking at the stop
+        // deceleration, plus a feedback period's travel at this velocity
+        // (10 ms: the SYNC period of the slowest usual bus).
+        let at = self.actual();
+        let decel = self.cfg.motion.stop_deceleration.max(f64::MIN_POSITIVE);
+        let reach = at + v * v.abs() / (2.0 * decel) + v * 0.01;
+        let beyond = match (self.cfg.motion.min_position, self.cfg.motion.max_position) {
+            (_, Some(hi)) if v > 0.0 && reach >= hi => Some(("max_position", hi)),
+            (Some(lo), _) if v < 0.0 && reach <= lo => Some(("min_position", lo)),
+            _ => None,
+        };
+        op.guard = if v.abs() > max {
+            Some(format!(
+                "the velocity {v:.3} {unit}/s exceeded max_velocity {max} {unit}/s under \
+                 torque: stopped"
+            ))
+        } else if let Some((name, limit)) = beyond {
+            Some(format!(
+                "under torque at {at:.3} {unit} and {v:.3} {unit}/s the axis would pass its \
+                 soft limit {name} = {limit} {unit}: stopped"
+            ))
+        } else {
+            return;
+        };
         op.step = Step::Stopping;
         self.start_stop(now, op, out);
         self.send_image(out);

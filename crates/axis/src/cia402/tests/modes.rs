@@ -502,3 +502,30 @@ fn no_torque_outlives_its_command() {
             .all(|(_, d)| d == &[0x00, 0x00])
     );
 }
+
+#[test]
+fn a_torque_stops_before_the_soft_limit() {
+    let mut rig = rig_in(DriveMode::CyclicTorque, SimDriveOptions::default(), |c| {
+        c.motion.min_position = Some(-20.0);
+        c.motion.max_position = Some(20.0);
+        c.motion.max_velocity = 100.0;
+    });
+    rig.enable();
+    // 60 per mille: 50 000 counts/s² at first, towards +20 mm.
+    let op = rig
+        .command(AxisCommand::SetTorque { per_mille: 60.0 })
+        .unwrap();
+    let mut furthest: f64 = 0.0;
+    let end = rig.now + Duration::from_secs(3);
+    while rig.now < end {
+        rig.step();
+        furthest = furthest.max(rig.drive.position());
+    }
+    let (outcome, detail) = rig.done(op).expect("the guard ended the torque command");
+    assert_eq!(outcome, Outcome::Stopped, "{detail}");
+    assert!(detail.contains("soft limit max_position = 20"), "{detail}");
+    // Stopped by the gateway inside the limit, not clamped there by the
+    // drive's own 0x607D.
+    assert!(furthest < 20_000.0, "{furthest}");
+    assert_eq!(rig.drive_velocity(), 0.0);
+}
