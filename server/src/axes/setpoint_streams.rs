@@ -208,12 +208,12 @@ impl Axes {
                      enabled)"
                 )));
             }
-            // CSP, IP (a position every SYNC) and CSV (the stream's
-            // velocity every SYNC); the torque and profile modes take none.
-            if !matches!(snap.mode, 7..=9) {
+            // Cyclic synchronous position only: an axis changed to another
+            // mode at run time (SetMode) takes no stream.
+            if snap.mode != 8 {
                 return Err(not(format!(
                     "axis {name} runs in mode {} (0x6061): set-point streams play on axes in \
-                     csp, ip or csv",
+                     csp",
                     snap.mode
                 )));
             }

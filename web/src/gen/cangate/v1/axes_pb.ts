@@ -1932,8 +1932,8 @@ export enum DriveMode {
   IP = 3,
 
   /**
-   * Cyclic synchronous velocity (9): Jog and StreamSetpoints send a
-   * velocity every SYNC (0x60FF); no Move.
+   * Cyclic synchronous velocity (9): Jog sends a velocity every SYNC
+   * (0x60FF); no Move, no StreamSetpoints.
    *
    * @generated from enum value: DRIVE_MODE_CSV = 4;
    */
