@@ -406,6 +406,50 @@ impl Client {
         Ok(CommandResult::from_pb(r))
     }
 
+    /// Drives an axis in a torque mode (CST, profile torque) with a torque
+    /// in per mille of its drive's rated torque, until a stop or another
+    /// command; the gateway stops it when its velocity exceeds its
+    /// maximum. Needs the lease.
+    pub async fn set_torque(
+        &self,
+        axis: &str,
+        per_mille: f64,
+        options: &CommandOptions,
+    ) -> Result<CommandResult, Error> {
+        let req = pb::SetTorqueRequest {
+            axis: axis.to_string(),
+            torque_per_mille: per_mille,
+            options: Some(options.to_pb()),
+        };
+        let r = self
+            .call(
+                "SetTorque",
+                options.extra(),
+                self.axes_client().set_torque(req),
+            )
+            .await?;
+        Ok(CommandResult::from_pb(r))
+    }
+
+    /// Changes an axis's CiA 402 mode of operation, at rest only. Needs
+    /// the lease.
+    pub async fn set_mode(
+        &self,
+        axis: &str,
+        mode: pb::DriveMode,
+        options: &CommandOptions,
+    ) -> Result<CommandResult, Error> {
+        let req = pb::SetAxisModeRequest {
+            axis: axis.to_string(),
+            mode: mode as i32,
+            options: Some(options.to_pb()),
+        };
+        let r = self
+            .call("SetMode", options.extra(), self.axes_client().set_mode(req))
+            .await?;
+        Ok(CommandResult::from_pb(r))
+    }
+
     /// Moves to an absolute position (user units). Needs the lease.
     pub async fn move_to(
         &self,

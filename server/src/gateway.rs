@@ -600,7 +600,7 @@ fn node_facts(
         .find(|a| a.bus == cc.bus && a.node == nc.id)
         .map(AxisSpec::try_from)
         .transpose()?;
-    let sync = cc.sync_period_us > 0;
+    let sync = (cc.sync_period_us > 0).then(|| Duration::from_micros(cc.sync_period_us));
     let master_heartbeat = cc
         .master_heartbeat()
         .zip(cc.drive_heartbeat_timeout_ms())
@@ -649,7 +649,7 @@ fn node_plan(
     node: NodeId,
     eds: Option<&Eds>,
     axis: Option<&AxisSpec>,
-    sync: bool,
+    sync: Option<Duration>,
     master_heartbeat: Option<(u8, u16)>,
 ) -> Result<NodePlan, String> {
     // A CiA 402 axis's drive (a CANsmc axis is no CANopen node).
@@ -658,7 +658,7 @@ fn node_plan(
         DriveSpec::Cansmc(_) => None,
     });
     let (tpdos, rpdos) = match drive {
-        Some((axis, d)) => axis_pdos(nc, node, axis, d, sync, eds)?,
+        Some((axis, d)) => axis_pdos(nc, node, axis, d, sync.is_some(), eds)?,
         None => (
             pdo_layouts(PdoKind::Tpdo, &nc.tpdo, eds, node)?,
             pdo_layouts(PdoKind::Rpdo, &nc.rpdo, eds, node)?,
@@ -680,6 +680,17 @@ fn node_plan(
             }
             let controller = d.controller(axis.motion.clone());
             writes.extend(cangate_axis::cia402::Cia402Axis::new(controller).boot_writes());
+            if let (cangate_axis::DriveMode::InterpolatedPosition, Some(period)) = (d.mode, sync) {
+                // The drive interpolates each 0x60C1 set-point over one
+                // SYNC period.
+                use cangate_canopen::cia402::objects as obj;
+                let (value, index) = cangate_axis::process_data::interpolation_period(period);
+                writes.push((obj::INTERPOLATION_PERIOD_VALUE, vec![value]));
+                writes.push((
+                    obj::INTERPOLATION_PERIOD_INDEX,
+                    index.to_le_bytes().to_vec(),
+                ));
+            }
             writes.push((
                 cangate_canopen::cia402::objects::HOMING_METHOD,
                 vec![d.homing_method as u8],
@@ -704,6 +715,7 @@ fn node_plan(
         product_code: nc.product_code,
         writes,
         identify_only: false,
+        required_modes: drive.map_or(0, |(_, d)| d.mode.operation().supported_mask()),
     };
     Ok((tpdos, rpdos, Some(Arc::new(plan))))
 }
@@ -733,7 +745,18 @@ fn axis_pdos(
     // The SDO fallback maps no PDO: whatever the drive's own PDOs carry is
     // left alone and not used.
     let (rpdos, mut tpdos) = match drive.process_data {
-        ProcessDataPath::Pdo => standard_pdos(node, trigger),
+        ProcessDataPath::Pdo => {
+            let (mut rpdos, tpdos) = standard_pdos(node, trigger);
+            if drive.mode == cangate_axis::DriveMode::InterpolatedPosition {
+                // A drive without CSP: the position set-point in 0x60C1:01.
+                rpdos[1] = cangate_axis::process_data::interpolated_rpdo(node);
+            }
+            if drive.torque.in_process_data {
+                // A torque axis: the target torque in RPDO3.
+                rpdos.push(cangate_axis::process_data::torque_rpdo(node));
+            }
+            (rpdos, tpdos)
+        }
         ProcessDataPath::Sdo { .. } => (Vec::new(), Vec::new()),
     };
     // The signals (torque, following error, switches, touch probe) where
@@ -974,7 +997,15 @@ mod tests {
             });
             let axis = AxisSpec::try_from(&config.axes[0]).unwrap();
             let node = NodeId::new(1).unwrap();
-            node_plan(nc, node, eds.as_ref(), Some(&axis), true, None).unwrap()
+            node_plan(
+                nc,
+                node,
+                eds.as_ref(),
+                Some(&axis),
+                Some(std::time::Duration::from_millis(10)),
+                None,
+            )
+            .unwrap()
         };
         let (tpdos, _, boot) = plan(
             "following_error_window = 0.5\nfollowing_error_timeout_ms = 20\nmax_torque = 1500\n\

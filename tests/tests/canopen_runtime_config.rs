@@ -139,6 +139,8 @@ async fn pdos_are_remapped_at_run_time_and_decoded_at_once() {
         vec![
             (pb::PdoKind::Rpdo as i32, 1),
             (pb::PdoKind::Rpdo as i32, 2),
+            // The target torque's, not valid until a torque axis maps it.
+            (pb::PdoKind::Rpdo as i32, 3),
             (pb::PdoKind::Tpdo as i32, 1),
             (pb::PdoKind::Tpdo as i32, 2),
             // Free for the drive's signals (not valid by default).

@@ -80,6 +80,55 @@ enum AxisVerb {
     /// Coordinated move of cyclic axes to absolute targets (start and
     /// arrive together): `cangate axis move-all X=10 Y=-5 --wait`.
     MoveAll(MoveAllArgs),
+    /// Change an axis's CiA 402 mode, at rest:
+    /// `cangate axis mode S csv --wait`.
+    Mode(ModeArgs),
+    /// Drive an axis in a torque mode (cst, profile_torque) with a torque
+    /// in per mille of the rated torque while the command runs: Ctrl-C or
+    /// --for stops it: `cangate axis torque T 50 --for 2`.
+    Torque(TorqueArgs),
+}
+
+/// `mode AXIS MODE`
+#[derive(Args, Debug)]
+struct ModeArgs {
+    /// The axis.
+    axis: String,
+    /// profile_position, csp, ip, csv, cst or profile_torque.
+    #[arg(value_parser = parse_mode)]
+    mode: pb::DriveMode,
+    #[command(flatten)]
+    wait: WaitArgs,
+}
+
+/// `torque AXIS PERMILLE …`
+#[derive(Args, Debug)]
+struct TorqueArgs {
+    /// The axis.
+    axis: String,
+    /// Signed torque, per mille of the drive's rated torque.
+    #[arg(allow_negative_numbers = true, value_name = "PERMILLE", value_parser = finite)]
+    torque: f64,
+    /// Stop by itself after this many seconds.
+    #[arg(long = "for", value_name = "SECONDS", value_parser = positive)]
+    for_secs: Option<f64>,
+}
+
+/// A mode's name as in the configuration.
+fn parse_mode(text: &str) -> std::result::Result<pb::DriveMode, String> {
+    Ok(match text {
+        "profile_position" => pb::DriveMode::ProfilePosition,
+        "csp" => pb::DriveMode::Csp,
+        "ip" => pb::DriveMode::Ip,
+        "csv" => pb::DriveMode::Csv,
+        "cst" => pb::DriveMode::Cst,
+        "profile_torque" => pb::DriveMode::ProfileTorque,
+        _ => {
+            return Err(format!(
+                "{text:?} is not a mode: profile_position, csp, ip, csv, cst or profile_torque"
+            ));
+        }
+    })
 }
 
 /// enable, disable, home, reset-fault.
@@ -394,6 +443,8 @@ pub(crate) async fn run(app: &App, args: AxisArgs) -> Result<()> {
         AxisVerb::Stop(s) => stop(app, s).await,
         AxisVerb::Watch(w) => watch(app, w).await,
         AxisVerb::MoveAll(m) => move_all(app, &lease, m).await,
+        AxisVerb::Mode(m) => set_mode(app, &lease, m).await,
+        AxisVerb::Torque(t) => torque(app, &lease, t).await,
     }
 }
 
@@ -595,6 +646,85 @@ fn jog_period(deadman_ms: u32) -> Duration {
 
 /// `jog AXIS VELOCITY`: Jog repeated within the dead-man time until
 /// Ctrl-C, `--for` or the gateway ending it; then a waited stop.
+/// `mode AXIS MODE`
+async fn set_mode(app: &App, given: &Option<String>, m: ModeArgs) -> Result<()> {
+    let axis = m.axis.as_str();
+    let held = Held::take(app, given, &[axis]).await?;
+    let options = CommandOptions {
+        lease: held.token(),
+        ..m.wait.command()
+    };
+    let result = app
+        .client
+        .set_mode(axis, m.mode, &options)
+        .await
+        .ctx(format!("{axis}: mode"));
+    held.finish().await;
+    report(app, &[axis], "mode", &[result?], m.wait.wait, false)
+}
+
+/// `torque AXIS PERMILLE`: the torque runs until Ctrl-C, --for, or the
+/// gateway ends it (a stop, its velocity guard); then the axis is stopped.
+async fn torque(app: &App, given: &Option<String>, t: TorqueArgs) -> Result<()> {
+    let axis = t.axis.as_str();
+    let held = Held::take(app, given, &[axis]).await?;
+    let mut updates = app.client.watch_axes(&[axis], true).await.ok();
+    let options = CommandOptions {
+        lease: held.token(),
+        ..CommandOptions::default()
+    };
+    let started = app
+        .client
+        .set_torque(axis, t.torque, &options)
+        .await
+        .ctx(format!("{axis}: torque"));
+    if let Err(e) = started {
+        held.finish().await;
+        return Err(e);
+    }
+    if !app.json {
+        eprintln!("{axis}: torque {:+.1} per mille — Ctrl-C to stop", t.torque);
+    }
+    let ended: Option<(pb::Outcome, String)> = {
+        let interrupt = ctrl_c();
+        tokio::pin!(interrupt);
+        let time_up = sleep_opt(t.for_secs);
+        tokio::pin!(time_up);
+        loop {
+            tokio::select! {
+                _ = &mut interrupt => break None,
+                _ = &mut time_up => break None,
+                u = async {
+                    match updates.as_mut() {
+                        Some(s) => s.next().await,
+                        None => std::future::pending().await,
+                    }
+                } => match u {
+                    Some(Ok(AxisUpdate::MotionDone { command, outcome, detail, .. })) if command == "torque" => {
+                        break Some((outcome, detail));
+                    }
+                    Some(Ok(_)) => {}
+                    Some(Err(_)) | None => updates = None,
+                },
+            }
+        }
+    };
+    let result = match ended {
+        Some((outcome, detail)) => Err(Failure::failed(
+            "",
+            format!("{axis}: {}", outcome_text("torque", outcome, &detail)),
+        )),
+        None => app
+            .client
+            .stop(axis, true)
+            .await
+            .ctx(format!("{axis}: stopping the torque"))
+            .and_then(|r| report(app, &[axis], "stop", &[r], true, true)),
+    };
+    held.finish().await;
+    result
+}
+
 async fn jog(app: &App, given: &Option<String>, j: JogArgs) -> Result<()> {
     let axis = j.axis.as_str();
     let info = app.client.axis(axis).await.ctx(format!("{axis}: jog"))?;

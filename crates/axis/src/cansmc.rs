@@ -510,6 +510,12 @@ impl CansmcAxis {
             | AxisCommand::Stop
             | AxisCommand::QuickStop
             | AxisCommand::ResetFault => {}
+            AxisCommand::SetTorque { .. } | AxisCommand::SetMode { .. } => {
+                return Err(CommandError::WrongMode(
+                    "a CANsmc axis has no modes of operation: it runs position set-points only"
+                        .into(),
+                ));
+            }
         }
         Ok(())
     }
@@ -782,6 +788,9 @@ impl CansmcAxis {
                 let id = self.stop(quick, kind, now, out);
                 Ok(id)
             }
+            AxisCommand::SetTorque { .. } | AxisCommand::SetMode { .. } => Err(
+                CommandError::WrongMode("a CANsmc axis has no modes of operation".into()),
+            ),
         }
     }
 

@@ -20,6 +20,15 @@
 //! | quick stop | controlword quick stop, and 0x6084 raised to the quick stop deceleration; done when the drive left operation enabled and stands still | the same |
 //! | home | mode 6, homing start (bit 4); done on homing attained + target reached, failed on homing error; back to the position mode | the same, then demand = actual position, mode 8 |
 //!
+//! The other modes ([`DriveMode`]): cyclic synchronous velocity runs jogs
+//! and stops as CSP does, the trajectory's velocity sent in 0x60FF every
+//! SYNC (its stop ramps the velocity to 0 at the stop deceleration);
+//! the torque modes (CST, profile torque) take [`AxisCommand::SetTorque`]
+//! in 0x6071 (profile torque ramps it at 0x6087, written at boot), stop by
+//! halt on 0x6084 as profile position does, and stop themselves when the
+//! velocity exceeds the axis's maximum. [`AxisCommand::SetMode`] changes
+//! the mode at rest only.
+//!
 //! Stops brake at least at the configured stop deceleration, more when the
 //! interrupted motion brakes harder. A profile axis brakes on the drive's
 //! own ramp: CiA 402 halts on 0x6084 with the default halt option code
@@ -47,8 +56,8 @@ use cangate_motion::{Limits, TrapezoidProfile};
 
 use crate::signals::{DriveSignals, LimitSwitch, Supervision, TouchProbeTracker};
 use crate::{
-    Activity, AxisCommand, AxisEvent, CommandError, CommandKind, MotionSpec, OpId, Outcome,
-    PositionMode, Units,
+    Activity, AxisCommand, AxisEvent, CommandError, CommandKind, DriveMode, MotionSpec, OpId,
+    Outcome, PositionMode, TorqueSpec, Units,
 };
 
 /// The configuration of one CiA 402 axis: what every axis has and its
@@ -57,8 +66,10 @@ use crate::{
 pub struct Cia402Config {
     /// Units, limits, defaults, stops, time bounds.
     pub motion: MotionSpec,
-    /// Profile or cyclic position.
-    pub position_mode: PositionMode,
+    /// The mode of operation the axis starts in.
+    pub mode: DriveMode,
+    /// Torque bounds (the torque modes).
+    pub torque: TorqueSpec,
     /// Following error window and time-out, max torque (boot writes).
     pub supervision: Supervision,
 }
@@ -69,9 +80,29 @@ impl Cia402Config {
     pub fn example(counts_per_unit: f64, position_mode: PositionMode) -> Self {
         Cia402Config {
             motion: MotionSpec::example(counts_per_unit, 500.0),
-            position_mode,
+            mode: DriveMode::of_position_mode(position_mode),
+            torque: TorqueSpec::default(),
             supervision: Supervision::default(),
         }
+    }
+
+    /// As [`Cia402Config::example`], in `mode`, with the target torque in
+    /// the process data.
+    pub fn example_in(counts_per_unit: f64, mode: DriveMode) -> Self {
+        Cia402Config {
+            motion: MotionSpec::example(counts_per_unit, 500.0),
+            mode,
+            torque: TorqueSpec {
+                in_process_data: true,
+                ..TorqueSpec::default()
+            },
+            supervision: Supervision::default(),
+        }
+    }
+
+    /// How moves run in the mode the axis starts in.
+    pub fn position_mode(&self) -> PositionMode {
+        self.mode.position_mode()
     }
 }
 
@@ -87,6 +118,8 @@ pub struct ProcessImage {
     pub target_position: i32,
     /// 0x60FF (counts/s).
     pub target_velocity: i32,
+    /// 0x6071 (per mille of the rated torque).
+    pub target_torque: i16,
 }
 
 /// Process data from the drive; `None` fields were not in this update.
@@ -185,6 +218,8 @@ enum Step {
     Jogging,
     /// Decelerating (halt, quick stop, cyclic stop ramp).
     Stopping,
+    /// A torque command runs (the velocity guarded).
+    Torque,
 }
 
 #[derive(Debug)]
@@ -208,6 +243,9 @@ struct Op {
     settling: bool,
     /// Accepted has been reported.
     accepted: bool,
+    /// Why a guard stopped the command (the torque command's velocity
+    /// guard).
+    guard: Option<String>,
 }
 
 impl Op {
@@ -223,6 +261,7 @@ impl Op {
             overdue: false,
             settling: false,
             accepted: false,
+            guard: None,
         }
     }
 
@@ -321,6 +360,19 @@ pub struct CyclicPlan {
     deadman: Option<Duration>,
     /// The axis's stop deceleration (the dead-man's stop ramp).
     stop_deceleration: f64,
+    /// The object each sample is sent in.
+    setpoint: SetpointObject,
+}
+
+/// The object a cyclic axis's set-point goes to with every SYNC.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum SetpointObject {
+    /// 0x607A target position (CSP): [`CyclicSample::counts`].
+    TargetPosition,
+    /// 0x60FF target velocity (CSV): [`CyclicSample::velocity_counts`].
+    TargetVelocity,
+    /// 0x60C1:01 interpolation data record (IP): [`CyclicSample::counts`].
+    InterpolationData,
 }
 
 /// The set-point a [`CyclicPlan`] gave for one SYNC.
@@ -330,6 +382,9 @@ pub struct CyclicSample {
     pub at: Duration,
     /// The set-point in drive counts: the RPDO's target position.
     pub counts: i32,
+    /// The demand velocity in drive counts/s: the target velocity of a
+    /// CSV axis.
+    pub velocity_counts: i32,
     /// Demand position and velocity (user units).
     demand: f64,
     velocity: f64,
@@ -358,6 +413,7 @@ impl CyclicSample {
         CyclicSample {
             at,
             counts: units.to_counts(position),
+            velocity_counts: units.to_counts(velocity),
             demand: position,
             velocity,
             start: None,
@@ -382,7 +438,19 @@ impl CyclicPlan {
             units,
             deadman: None,
             stop_deceleration: 0.0,
+            setpoint: SetpointObject::TargetPosition,
         }
+    }
+
+    /// The object the samples go to.
+    pub fn setpoint_object(&self) -> SetpointObject {
+        self.setpoint
+    }
+
+    /// The same plan, its samples sent to `setpoint`.
+    pub fn sent_to(mut self, setpoint: SetpointObject) -> CyclicPlan {
+        self.setpoint = setpoint;
+        self
     }
 
     /// True while a trajectory runs (the axis moves, or waits for the SYNC
@@ -414,6 +482,7 @@ impl CyclicPlan {
             && self.units == other.units
             && self.deadman == other.deadman
             && self.stop_deceleration == other.stop_deceleration
+            && self.setpoint == other.setpoint
     }
 
     /// The set-point of a SYNC sent at `at`; the first sample of a
@@ -437,6 +506,7 @@ impl CyclicPlan {
             return CyclicSample {
                 at,
                 counts: self.units.to_counts(self.hold),
+                velocity_counts: 0,
                 demand: self.hold,
                 velocity: 0.0,
                 start: None,
@@ -452,11 +522,13 @@ impl CyclicPlan {
             self.trajectory = None;
             self.hold = p;
         }
+        let velocity = if finished { 0.0 } else { v };
         CyclicSample {
             at,
             counts: self.units.to_counts(p),
+            velocity_counts: self.units.to_counts(velocity),
             demand: p,
-            velocity: if finished { 0.0 } else { v },
+            velocity,
             start: Some(start),
             finished,
             deadman_stop,
@@ -529,15 +601,19 @@ pub struct Cia402Axis {
     /// computed since the axis was last enabled: what a following error
     /// fault names.
     following_error_peak: f64,
+    /// The mode of operation the axis runs in now (the configured one
+    /// until [`AxisCommand::SetMode`] changes it).
+    mode: DriveMode,
+    /// The modes the drive supports (0x6502, read at its boot); `None`
+    /// while unknown.
+    supported_modes: Option<u32>,
 }
 
 impl Cia402Axis {
     /// An axis; nothing is sent until the first statusword arrives.
     pub fn new(cfg: Cia402Config) -> Self {
-        let mode = match cfg.position_mode {
-            PositionMode::Profile => ModeOfOperation::ProfilePosition,
-            PositionMode::Cyclic => ModeOfOperation::CyclicSynchronousPosition,
-        };
+        let mode = cfg.mode.operation();
+        let cfg_mode = cfg.mode;
         Cia402Axis {
             cfg,
             statusword: None,
@@ -551,6 +627,7 @@ impl Cia402Axis {
                 mode: mode.code(),
                 target_position: 0,
                 target_velocity: 0,
+                target_torque: 0,
             },
             demand: 0.0,
             demand_velocity: 0.0,
@@ -573,6 +650,8 @@ impl Cia402Axis {
             limit_reported: None,
             limit_stop: None,
             following_error_peak: 0.0,
+            mode: cfg_mode,
+            supported_modes: None,
         }
     }
 
@@ -602,14 +681,27 @@ impl Cia402Axis {
             w.push((obj::SOFTWARE_POSITION_LIMIT_MAX, hi.to_le_bytes().to_vec()));
         }
         w.extend(self.cfg.supervision.boot_writes(self.units()));
+        if self.cfg.torque.in_process_data {
+            // Profile torque's ramp: written for every torque axis, so a
+            // mode change to profile torque needs no SDO at run time.
+            let slope = self
+                .cfg
+                .torque
+                .torque_slope
+                .round()
+                .clamp(0.0, f64::from(u32::MAX)) as u32;
+            w.push((obj::TORQUE_SLOPE, slope.to_le_bytes().to_vec()));
+        }
         w
     }
 
     fn mode_for_position(&self) -> ModeOfOperation {
-        match self.cfg.position_mode {
-            PositionMode::Profile => ModeOfOperation::ProfilePosition,
-            PositionMode::Cyclic => ModeOfOperation::CyclicSynchronousPosition,
-        }
+        self.mode.operation()
+    }
+
+    /// How moves run in the axis's current mode.
+    fn position_mode(&self) -> PositionMode {
+        self.mode.position_mode()
     }
 
     fn units(&self) -> Units {
@@ -649,11 +741,11 @@ impl Cia402Axis {
     pub fn snapshot(&self) -> AxisSnapshot {
         let u = self.units();
         let position = self.actual();
-        let demand = match self.cfg.position_mode {
+        let demand = match self.position_mode() {
             PositionMode::Cyclic => self.demand,
             PositionMode::Profile => self.last_target,
         };
-        let following_error = match (self.drive_following_error, self.cfg.position_mode) {
+        let following_error = match (self.drive_following_error, self.position_mode()) {
             (Some(fe), _) => u.from_counts(f64::from(fe)),
             (None, PositionMode::Cyclic) if self.position.is_some() => self.demand - position,
             _ => 0.0,
@@ -705,6 +797,8 @@ impl Cia402Axis {
             Some((CommandKind::Jog, _)) => Activity::Jogging,
             Some((CommandKind::Move, _)) => Activity::Moving,
             Some((CommandKind::Stop | CommandKind::QuickStop, _)) => Activity::Stopping,
+            Some((CommandKind::Torque, _)) => Activity::Moving,
+            Some((CommandKind::SetMode, _)) => Activity::Switching,
         }
     }
 
@@ -822,7 +916,7 @@ impl Cia402Axis {
             || self.is_fault()
             || !matches!(
                 op.kind,
-                CommandKind::Move | CommandKind::Jog | CommandKind::Home
+                CommandKind::Move | CommandKind::Jog | CommandKind::Home | CommandKind::Torque
             )
             || matches!(op.step, Step::Stopping)
         {
@@ -861,7 +955,17 @@ impl Cia402Axis {
 
     /// The drive's node was lost (heartbeat timeout, boot failure).
     pub fn on_node_lost(&mut self, reason: &str, out: &mut Vec<Output>) {
-        if self.node_lost.is_some() {
+        if let Some(lost) = &mut self.node_lost {
+            // Lost already (rebooted, waiting for its boot procedure): a
+            // later reason (the boot procedure failed, and why) replaces
+            // the earlier one, so the status says what to fix.
+            if lost != reason {
+                *lost = reason.to_string();
+                out.push(Output::Event(AxisEvent::Fault {
+                    code: 0,
+                    text: format!("node lost: {reason}"),
+                }));
+            }
             return;
         }
         self.node_lost = Some(reason.to_string());
@@ -979,6 +1083,7 @@ impl Cia402Axis {
             units: self.units(),
             deadman: self.trajectory.as_ref().and(self.jog_deadline),
             stop_deceleration: self.cfg.motion.stop_deceleration,
+            setpoint: self.setpoint_object(),
         })
     }
 
@@ -999,8 +1104,8 @@ impl Cia402Axis {
 
     /// Whether this axis sends set-points with every SYNC now.
     fn cyclic_plan_active(&self) -> bool {
-        self.cfg.position_mode == PositionMode::Cyclic
-            && self.image.mode == ModeOfOperation::CyclicSynchronousPosition.code()
+        self.position_mode() == PositionMode::Cyclic
+            && self.in_cyclic_mode()
             && self.state() == Some(DriveState::OperationEnabled)
             && self.node_lost.is_none()
     }
@@ -1035,7 +1140,20 @@ impl Cia402Axis {
         self.demand = s.demand;
         self.demand_velocity = s.velocity;
         self.demand_at = Some(s.at);
-        self.image.target_position = s.counts;
+        if self.mode == DriveMode::CyclicVelocity {
+            self.image.target_velocity = s.velocity_counts;
+        } else {
+            self.image.target_position = s.counts;
+        }
+    }
+
+    /// The object the cyclic set-points of the current mode go to.
+    fn setpoint_object(&self) -> SetpointObject {
+        match self.mode {
+            DriveMode::CyclicVelocity => SetpointObject::TargetVelocity,
+            DriveMode::InterpolatedPosition => SetpointObject::InterpolationData,
+            _ => SetpointObject::TargetPosition,
+        }
     }
 
     /// Handles time passing.
@@ -1094,7 +1212,7 @@ impl Cia402Axis {
             self.check_jog(velocity)?;
             let (id, accepted) = (op.id, op.accepted);
             let preparing = matches!(op.step, Step::SettleFor(_))
-                || matches!(op.step, Step::AwaitMode(m) if m == ModeOfOperation::CyclicSynchronousPosition);
+                || matches!(op.step, Step::AwaitMode(m) if m == self.mode.operation() && self.position_mode() == PositionMode::Cyclic);
             self.jog_deadline = Some(now + self.cfg.motion.jog_deadman);
             if preparing {
                 // The jog starts with the latest velocity once the drive
@@ -1126,7 +1244,7 @@ impl Cia402Axis {
                 // Relative to where the axis is going: the running
                 // trajectory's end (so consecutive relative moves add up
                 // exactly), else the demand; profile axes: the latest target.
-                let base = match self.cfg.position_mode {
+                let base = match self.position_mode() {
                     PositionMode::Cyclic => self
                         .trajectory
                         .as_ref()
@@ -1135,7 +1253,7 @@ impl Cia402Axis {
                 };
                 target = if relative { base + t } else { t };
                 self.check_limits(target)?;
-                let from = match self.cfg.position_mode {
+                let from = match self.position_mode() {
                     PositionMode::Cyclic => self.demand,
                     PositionMode::Profile => self.actual(),
                 };
@@ -1158,7 +1276,7 @@ impl Cia402Axis {
         let id = self.next_id;
         self.next_id += 1;
         let kind = cmd.kind();
-        if self.cfg.position_mode == PositionMode::Profile {
+        if self.position_mode() == PositionMode::Profile {
             // The limit switch's halt ends with the next command.
             self.limit_stop = None;
         }
@@ -1186,6 +1304,7 @@ impl Cia402Axis {
                     self.prepare_enable();
                 }
                 self.image.controlword &= !(Controlword::HALT_BIT | Controlword::NEW_SET_POINT_BIT);
+                self.keep_ip_enabled();
                 let driver = driver
                     .expect("made above")
                     .with_previous(Controlword(self.image.controlword));
@@ -1205,17 +1324,12 @@ impl Cia402Axis {
                 velocity,
                 acceleration,
                 ..
-            } => match self.cfg.position_mode {
+            } => match self.position_mode() {
                 PositionMode::Cyclic if self.in_cyclic_mode() => {
                     self.plan_move(&mut op, now, out)?;
                 }
                 PositionMode::Cyclic => {
-                    self.settle_for(
-                        ModeOfOperation::CyclicSynchronousPosition,
-                        now,
-                        &mut op,
-                        out,
-                    );
+                    self.settle_for(self.mode.operation(), now, &mut op, out);
                     self.send_image(out);
                 }
                 PositionMode::Profile => {
@@ -1233,13 +1347,8 @@ impl Cia402Axis {
                 acceleration,
             } => {
                 self.jog_deadline = Some(now + self.cfg.motion.jog_deadman);
-                if self.cfg.position_mode == PositionMode::Cyclic && !self.in_cyclic_mode() {
-                    self.settle_for(
-                        ModeOfOperation::CyclicSynchronousPosition,
-                        now,
-                        &mut op,
-                        out,
-                    );
+                if self.position_mode() == PositionMode::Cyclic && !self.in_cyclic_mode() {
+                    self.settle_for(self.mode.operation(), now, &mut op, out);
                     self.send_image(out);
                 } else {
                     self.op = Some(op);
@@ -1254,6 +1363,27 @@ impl Cia402Axis {
                 out.push(Output::Event(AxisEvent::Accepted { op: id }));
                 self.start_stop(now, &mut op, out);
                 self.send_image(out);
+            }
+            AxisCommand::SetTorque { per_mille } => {
+                let mode = self.mode.operation();
+                if self.mode_is(mode) {
+                    self.start_torque(&mut op, per_mille, out);
+                } else {
+                    // Back from homing (or a drive that changed mode
+                    // itself): the torque starts in the axis's mode.
+                    self.image.target_torque = 0;
+                    self.begin_mode(mode, now, &mut op, out);
+                }
+            }
+            AxisCommand::SetMode { mode } => {
+                // At rest (checked): the new mode starts from where the
+                // drive stands, with no torque and no velocity.
+                self.mode = mode;
+                self.image.target_torque = 0;
+                self.last_target = self.actual();
+                op.accepted = true;
+                out.push(Output::Event(AxisEvent::Accepted { op: id }));
+                self.begin_mode(mode.operation(), now, &mut op, out);
             }
             AxisCommand::QuickStop => {
                 op.step = Step::Stopping;
@@ -1284,9 +1414,11 @@ impl Cia402Axis {
         self.trajectory.is_some() || self.demand_velocity != 0.0 || !self.at_rest()
     }
 
-    /// Whether the image commands cyclic synchronous position.
+    /// Whether the image commands the axis's cyclic mode (CSP, IP, CSV):
+    /// the gateway's trajectories run.
     fn in_cyclic_mode(&self) -> bool {
-        self.image.mode == ModeOfOperation::CyclicSynchronousPosition.code()
+        self.position_mode() == PositionMode::Cyclic
+            && self.image.mode == self.mode.operation().code()
     }
 
     /// `op` first brings the drive to rest in its current mode, then
@@ -1312,13 +1444,20 @@ impl Cia402Axis {
         out: &mut Vec<Output>,
     ) {
         self.drop_trajectory();
-        if mode == ModeOfOperation::CyclicSynchronousPosition {
+        if matches!(
+            mode,
+            ModeOfOperation::CyclicSynchronousPosition
+                | ModeOfOperation::CyclicSynchronousVelocity
+                | ModeOfOperation::InterpolatedPosition
+        ) {
             self.demand = self.actual();
             self.demand_at = None;
             self.image.target_position = self.position.unwrap_or_default();
+            self.image.target_velocity = 0;
         }
         self.set_mode(mode);
         self.image.controlword &= !(Controlword::HALT_BIT | Controlword::HOMING_START_BIT);
+        self.keep_ip_enabled();
         op.step = Step::AwaitMode(mode);
         op.arm(Some(now + self.cfg.motion.state_timeout));
         self.send_image(out);
@@ -1361,6 +1500,15 @@ impl Cia402Axis {
             return Ok(());
         };
         let a = acceleration.unwrap_or(self.cfg.motion.default_acceleration);
+        if self.mode == DriveMode::CyclicVelocity
+            && self.trajectory.is_none()
+            && self.demand_velocity == 0.0
+        {
+            // The drive integrates the velocity set-points itself: a jog
+            // from rest plans from where it stands, so roundings of
+            // earlier jogs do not add up against the soft limits.
+            self.demand = self.actual();
+        }
         let far = if velocity > 0.0 {
             self.cfg.motion.max_position.unwrap_or(self.demand + 1e6)
         } else {
@@ -1393,6 +1541,10 @@ impl Cia402Axis {
     /// Clears controlword bit 4 (new set-point, homing start) and sends
     /// the image when it was set.
     fn release_handshake(&mut self, out: &mut Vec<Output>) {
+        if self.image.mode == ModeOfOperation::InterpolatedPosition.code() {
+            // Bit 4 is "enable ip mode" there: it stays set.
+            return;
+        }
         if self.image.controlword & Controlword::NEW_SET_POINT_BIT != 0 {
             self.image.controlword &= !Controlword::NEW_SET_POINT_BIT;
             self.send_image(out);
@@ -1402,7 +1554,7 @@ impl Cia402Axis {
     /// A jog at `velocity` must not head further out of the soft limits.
     fn check_jog(&self, velocity: f64) -> Result<(), CommandError> {
         self.check_not_into_limit_switch(velocity)?;
-        let at = match self.cfg.position_mode {
+        let at = match self.position_mode() {
             PositionMode::Cyclic => self.demand,
             PositionMode::Profile => self.actual(),
         };
@@ -1486,7 +1638,7 @@ impl Cia402Axis {
             velocity: None,
             acceleration: None,
         })?;
-        if self.cfg.position_mode != PositionMode::Cyclic {
+        if self.position_mode() != PositionMode::Cyclic {
             return Err(CommandError::NotCyclic(
                 "coordinated moves need cyclic (CSP) axes".into(),
             ));
@@ -1510,7 +1662,7 @@ impl Cia402Axis {
     /// The current demand position (cyclic) or latest target (profile), in
     /// user units.
     pub fn demand(&self) -> f64 {
-        match self.cfg.position_mode {
+        match self.position_mode() {
             PositionMode::Cyclic => self.demand,
             PositionMode::Profile => self.last_target,
         }
@@ -1533,9 +1685,13 @@ impl Cia402Axis {
             self.cfg.motion.max_acceleration,
             &self.cfg.motion.unit,
         )?;
+        self.check_mode(cmd)?;
         let needs_enabled = matches!(
             cmd,
-            AxisCommand::Move { .. } | AxisCommand::Jog { .. } | AxisCommand::Home
+            AxisCommand::Move { .. }
+                | AxisCommand::Jog { .. }
+                | AxisCommand::Home
+                | AxisCommand::SetTorque { .. }
         );
         if self.is_fault() && (needs_enabled || matches!(cmd, AxisCommand::Enable)) {
             let (code, text) = self.fault().unwrap_or_default();
@@ -1561,6 +1717,168 @@ impl Cia402Axis {
         Ok(())
     }
 
+    /// Whether the axis's mode has `cmd` (see [`DriveMode`]), and a mode
+    /// change or torque command is possible now.
+    fn check_mode(&self, cmd: &AxisCommand) -> Result<(), CommandError> {
+        let mode = self.mode;
+        let change = "change the mode at rest with SetMode first";
+        match *cmd {
+            AxisCommand::Move { .. }
+                if !matches!(
+                    mode,
+                    DriveMode::ProfilePosition
+                        | DriveMode::CyclicPosition
+                        | DriveMode::InterpolatedPosition
+                ) =>
+            {
+                Err(CommandError::WrongMode(format!(
+                    "the axis runs in {mode} mode, which has no moves (profile_position, csp and \
+                     ip have): {change}"
+                )))
+            }
+            AxisCommand::Jog { .. } if mode.is_torque() => Err(CommandError::WrongMode(format!(
+                "the axis runs in {mode} mode, which has no jog (a torque mode takes SetTorque): \
+                 {change}"
+            ))),
+            AxisCommand::SetTorque { per_mille } => {
+                if !mode.is_torque() {
+                    return Err(CommandError::WrongMode(format!(
+                        "the axis runs in {mode} mode: a torque command needs cst or \
+                         profile_torque; {change}"
+                    )));
+                }
+                crate::checks::finite("torque (per mille)", per_mille)?;
+                let max = self.cfg.torque.max_torque;
+                if per_mille.abs() > max {
+                    return Err(CommandError::AboveMaximum(format!(
+                        "torque {per_mille} per mille exceeds the axis maximum {max} per mille"
+                    )));
+                }
+                Ok(())
+            }
+            AxisCommand::SetMode { mode: to } => self.check_mode_change(to),
+            _ => Ok(()),
+        }
+    }
+
+    /// A mode change to `to`: supported by the drive, its set-point in the
+    /// process data, and the axis at rest.
+    fn check_mode_change(&self, to: DriveMode) -> Result<(), CommandError> {
+        if let Some(mask) = self.supported_modes
+            && mask & to.operation().supported_mask() == 0
+        {
+            return Err(CommandError::WrongMode(format!(
+                "the drive does not support {to} mode ({}; its 0x6502 supported drive modes \
+                 are 0x{mask:08X})",
+                to.operation()
+            )));
+        }
+        // An interpolated position axis's process data carries 0x60C1:01
+        // where the others carry 0x607A.
+        let ip = DriveMode::InterpolatedPosition;
+        if (to == ip) != (self.cfg.mode == ip)
+            && matches!(
+                to,
+                DriveMode::ProfilePosition
+                    | DriveMode::CyclicPosition
+                    | DriveMode::InterpolatedPosition
+            )
+        {
+            return Err(CommandError::WrongMode(format!(
+                "the axis's process data carries the position in {}: {to} needs {}; configure \
+                 the axis with mode = \"{to}\" for it",
+                if self.cfg.mode == ip {
+                    "0x60C1:01 (interpolated position)"
+                } else {
+                    "0x607A (target position)"
+                },
+                if to == ip { "0x60C1:01" } else { "0x607A" }
+            )));
+        }
+        if to.is_torque() && !self.cfg.torque.in_process_data {
+            return Err(CommandError::WrongMode(format!(
+                "the axis's process data has no target torque (0x6071): configure it with \
+                 mode = \"cst\" or \"profile_torque\" (the gateway maps 0x6071 then) to use {to}"
+            )));
+        }
+        if let Some(op) = &self.op {
+            return Err(CommandError::Busy(format!(
+                "the axis is busy ({}): the mode changes only at rest; stop it and wait for the \
+                 stop to end",
+                op.kind
+            )));
+        }
+        if self.moving() {
+            let unit = &self.cfg.motion.unit;
+            return Err(CommandError::Busy(format!(
+                "the axis is moving ({:.3} {unit}/s): the mode changes only at rest; stop it first",
+                self.units().from_counts(f64::from(self.velocity))
+            )));
+        }
+        Ok(())
+    }
+
+    /// The modes the drive supports (0x6502, read at its boot): a mode
+    /// change to another one is refused.
+    pub fn set_supported_modes(&mut self, mask: u32) {
+        self.supported_modes = Some(mask);
+    }
+
+    /// The mode the axis runs in now.
+    pub fn mode(&self) -> DriveMode {
+        self.mode
+    }
+
+    /// Starts (or changes) the torque of a torque command: the halt is
+    /// released and 0x6071 sent.
+    fn start_torque(&mut self, op: &mut Op, per_mille: f64, out: &mut Vec<Output>) {
+        self.image.target_torque = per_mille.round().clamp(-32768.0, 32767.0) as i16;
+        self.image.controlword &= !Controlword::HALT_BIT;
+        op.step = Step::Torque;
+        op.arm(None);
+        self.send_image(out);
+        if !op.accepted {
+            op.accepted = true;
+            out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
+        }
+    }
+
+    /// A torque command runs until the velocity exceeds the axis's maximum
+    /// velocity: then the axis stops (halt on its stop deceleration), so
+    /// that an unloaded axis under torque cannot run away.
+    fn torque_guard(&mut self, op: &mut Op, now: Duration, out: &mut Vec<Output>) {
+        let v = self.units().from_counts(f64::from(self.velocity));
+        let max = self.cfg.motion.max_velocity;
+        let unit = &self.cfg.motion.unit;
+        // Where a stop from here would end, braking at the stop
+        // deceleration, plus a feedback period's travel at this velocity
+        // (10 ms: the SYNC period of the slowest usual bus).
+        let at = self.actual();
+        let decel = self.cfg.motion.stop_deceleration.max(f64::MIN_POSITIVE);
+        let reach = at + v * v.abs() / (2.0 * decel) + v * 0.01;
+        let beyond = match (self.cfg.motion.min_position, self.cfg.motion.max_position) {
+            (_, Some(hi)) if v > 0.0 && reach >= hi => Some(("max_position", hi)),
+            (Some(lo), _) if v < 0.0 && reach <= lo => Some(("min_position", lo)),
+            _ => None,
+        };
+        op.guard = if v.abs() > max {
+            Some(format!(
+                "the velocity {v:.3} {unit}/s exceeded max_velocity {max} {unit}/s under \
+                 torque: stopped"
+            ))
+        } else if let Some((name, limit)) = beyond {
+            Some(format!(
+                "under torque at {at:.3} {unit} and {v:.3} {unit}/s the axis would pass its \
+                 soft limit {name} = {limit} {unit}: stopped"
+            ))
+        } else {
+            return;
+        };
+        op.step = Step::Stopping;
+        self.start_stop(now, op, out);
+        self.send_image(out);
+    }
+
     fn check_limits(&self, target: f64) -> Result<(), CommandError> {
         crate::checks::soft_limits(
             target,
@@ -1582,10 +1900,27 @@ impl Cia402Axis {
         self.last_target = self.demand;
         self.image.target_position = self.position.unwrap_or_default();
         self.image.target_velocity = 0;
+        self.image.target_torque = 0;
+    }
+
+    /// In interpolated position controlword bit 4 (enable ip mode) stays
+    /// set whatever clears the set-point bit of the other modes.
+    fn keep_ip_enabled(&mut self) {
+        if self.image.mode == ModeOfOperation::InterpolatedPosition.code() {
+            self.image.controlword |= Controlword::NEW_SET_POINT_BIT;
+        }
     }
 
     fn set_mode(&mut self, mode: ModeOfOperation) {
         if self.image.mode != mode.code() {
+            // Interpolated position runs while controlword bit 4 (enable
+            // ip mode) is set: set entering it, cleared leaving it.
+            let ip = ModeOfOperation::InterpolatedPosition;
+            if mode == ip {
+                self.image.controlword |= Controlword::NEW_SET_POINT_BIT;
+            } else if self.image.mode == ip.code() {
+                self.image.controlword &= !Controlword::NEW_SET_POINT_BIT;
+            }
             self.image.mode = mode.code();
             self.mode_pending = true;
             self.image_changed();
@@ -1690,7 +2025,7 @@ impl Cia402Axis {
                 acceleration,
             };
         }
-        match self.cfg.position_mode {
+        match self.position_mode() {
             PositionMode::Cyclic => {
                 let Some(mut op) = self.op.take() else {
                     return Ok(());
@@ -1725,10 +2060,8 @@ impl Cia402Axis {
     }
 
     fn start_stop(&mut self, now: Duration, op: &mut Op, out: &mut Vec<Output>) {
-        match self.cfg.position_mode {
-            PositionMode::Cyclic
-                if self.image.mode == ModeOfOperation::CyclicSynchronousPosition.code() =>
-            {
+        match self.position_mode() {
+            PositionMode::Cyclic if self.in_cyclic_mode() => {
                 let decel = self.stop_deceleration();
                 self.trajectory =
                     Trajectory::stop_ramp(self.demand, self.demand_velocity, decel, self.demand_at);
@@ -1738,8 +2071,14 @@ impl Cia402Axis {
                 ));
             }
             _ => {
+                // In the torque modes too: the drive brakes on its halt
+                // ramp with its own velocity loop (the gateway has none
+                // there), and stays in operation enabled. The torque
+                // set-point drops to 0 so that releasing the halt later
+                // does not start the axis again.
                 self.image.controlword |= Controlword::HALT_BIT;
                 self.image.target_velocity = 0;
+                self.image.target_torque = 0;
                 op.arm(Some(
                     now + self.cfg.motion.state_timeout + self.cfg.motion.settle_timeout,
                 ));
@@ -1755,6 +2094,12 @@ impl Cia402Axis {
         if let Some(op) = self.op.take() {
             if matches!(op.kind, CommandKind::Jog) {
                 self.jog_deadline = None;
+            }
+            if op.kind == CommandKind::Torque && self.image.target_torque != 0 {
+                // No torque outlives its command (superseded by a homing
+                // at rest, say, it would come back with the torque mode).
+                self.image.target_torque = 0;
+                self.send_image(out);
             }
             // An interrupted homing says what it leaves behind.
             let detail = if op.kind == CommandKind::Home && outcome != Outcome::Completed {
@@ -1798,7 +2143,7 @@ impl Cia402Axis {
                 op.step = Step::Stopping;
                 self.start_stop(now, &mut op, out);
                 self.op = Some(op);
-                if self.cfg.position_mode == PositionMode::Profile {
+                if self.position_mode() == PositionMode::Profile {
                     self.send_image(out);
                 }
             }
@@ -1925,6 +2270,14 @@ impl Cia402Axis {
                 Step::Homing => Flow::Done(self.homing_step(op, now, out)),
                 Step::HomingReturn => Flow::Done(self.homing_returned()),
                 Step::Jogging => Flow::Done(None),
+                Step::Torque => {
+                    self.torque_guard(op, now, out);
+                    if matches!(op.step, Step::Stopping) {
+                        Flow::Again
+                    } else {
+                        Flow::Done(None)
+                    }
+                }
                 Step::Stopping => Flow::Done(self.stop_finished(op)),
             };
             match flow {
@@ -1946,7 +2299,7 @@ impl Cia402Axis {
         };
         if driver.target() == DriveState::OperationEnabled
             && self.state() != Some(DriveState::OperationEnabled)
-            && self.cfg.position_mode == PositionMode::Cyclic
+            && self.position_mode() == PositionMode::Cyclic
         {
             // Until the drive is enabled it may still move (a
             // quick stop's ramp): it holds where it stands
@@ -2014,6 +2367,13 @@ impl Cia402Axis {
         if !self.mode_is(mode) {
             return None;
         }
+        if let AxisCommand::SetMode { .. } = op.command {
+            // A mode change ends when the drive shows the new mode.
+            return Some((
+                Outcome::Completed,
+                format!("drive in {} mode ({mode})", self.mode),
+            ));
+        }
         match mode {
             ModeOfOperation::ProfilePosition => {
                 self.image.target_position = self.units().to_counts(op.target);
@@ -2036,7 +2396,9 @@ impl Cia402Axis {
                 }
                 None
             }
-            ModeOfOperation::CyclicSynchronousPosition => {
+            ModeOfOperation::CyclicSynchronousPosition
+            | ModeOfOperation::CyclicSynchronousVelocity
+            | ModeOfOperation::InterpolatedPosition => {
                 let planned = match op.command {
                     AxisCommand::Jog { .. } => self.plan_jog(op, out),
                     _ => self.plan_move(op, now, out),
@@ -2045,6 +2407,12 @@ impl Cia402Axis {
                     Ok(()) => None,
                     Err(e) => Some((Outcome::Fault, e.to_string())),
                 }
+            }
+            ModeOfOperation::CyclicSynchronousTorque | ModeOfOperation::ProfileTorque => {
+                if let AxisCommand::SetTorque { per_mille } = op.command {
+                    self.start_torque(op, per_mille, out);
+                }
+                None
             }
             ModeOfOperation::Homing => {
                 self.image.controlword |= Controlword::HOMING_START_BIT;
@@ -2055,7 +2423,6 @@ impl Cia402Axis {
                 out.push(Output::Event(AxisEvent::Accepted { op: op.id }));
                 None
             }
-            _ => None,
         }
     }
 
@@ -2196,7 +2563,15 @@ impl Cia402Axis {
             CommandKind::QuickStop => {
                 fresh && self.state() != Some(DriveState::OperationEnabled) && self.at_rest()
             }
-            _ => match self.cfg.position_mode {
+            _ => match self.position_mode() {
+                // In CSV the drive integrates the velocity itself: its
+                // position may differ from the gateway's demand by a
+                // rounding; at rest after the ramp is the end.
+                PositionMode::Cyclic
+                    if self.in_cyclic_mode() && self.mode == DriveMode::CyclicVelocity =>
+                {
+                    self.trajectory.is_none() && fresh && self.at_rest()
+                }
                 PositionMode::Cyclic if self.in_cyclic_mode() => {
                     self.trajectory.is_none() && fresh && self.in_position(self.demand)
                 }
@@ -2211,12 +2586,14 @@ impl Cia402Axis {
                 && self.at_rest()
                 && op.kind != CommandKind::QuickStop
         {
-            let outcome = if op.kind == CommandKind::Jog {
+            let outcome = if matches!(op.kind, CommandKind::Jog | CommandKind::Torque) {
                 Outcome::Stopped
             } else {
                 Outcome::Completed
             };
-            let detail = if op.kind == CommandKind::Jog {
+            let detail = if let Some(guard) = &op.guard {
+                format!("{guard}; at rest at {:.3} {unit}", self.actual())
+            } else if op.kind == CommandKind::Jog {
                 format!(
                     "jog dead-man released; at rest at {:.3} {unit}",
                     self.actual()
@@ -2288,7 +2665,7 @@ impl Cia402Axis {
     /// The following error: the drive's 0x60F4, else demand − actual of a
     /// cyclic axis.
     fn current_following_error(&self) -> Option<f64> {
-        match (self.drive_following_error, self.cfg.position_mode) {
+        match (self.drive_following_error, self.position_mode()) {
             (Some(fe), _) => Some(self.units().from_counts(f64::from(fe))),
             (None, PositionMode::Cyclic) if self.position.is_some() => {
                 Some(self.demand - self.actual())
@@ -2368,7 +2745,7 @@ impl Cia402Axis {
                 .as_ref()
                 .is_some_and(|t| sw.is_into(t.profile.target() - self.demand, u));
         let command = self.op.as_ref().is_some_and(|o| match o.command {
-            AxisCommand::Move { .. } if self.cfg.position_mode == PositionMode::Profile => {
+            AxisCommand::Move { .. } if self.position_mode() == PositionMode::Profile => {
                 sw.is_into(o.target - self.actual(), u)
             }
             AxisCommand::Jog { velocity, .. } => sw.is_into(velocity, u),
@@ -2393,7 +2770,7 @@ impl Cia402Axis {
             self.finish(Outcome::Fault, detail, out);
         }
         let decel = self.cfg.motion.quick_stop_deceleration;
-        if self.cfg.position_mode == PositionMode::Cyclic && self.in_cyclic_mode() {
+        if self.position_mode() == PositionMode::Cyclic && self.in_cyclic_mode() {
             let decel = stop_deceleration(decel, self.trajectory.as_ref());
             self.trajectory =
                 Trajectory::stop_ramp(self.demand, self.demand_velocity, decel, self.demand_at);
@@ -2410,7 +2787,7 @@ impl Cia402Axis {
     /// not follow the set-points into the switch).
     fn rebase_after_limit_stop(&mut self) {
         if self.limit_stop.is_none()
-            || self.cfg.position_mode != PositionMode::Cyclic
+            || self.position_mode() != PositionMode::Cyclic
             || !self.in_cyclic_mode()
             || self.trajectory.is_some()
             || !self.at_rest()

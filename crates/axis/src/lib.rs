@@ -34,8 +34,10 @@ pub mod spec;
 
 pub use spec::{
     AxisSpec, CansmcDrive, Cia402Drive, DriveSpec, Gear, JogMode, MotionSpec, ProcessDataPath,
-    display_decimals_for,
+    TorqueSpec, display_decimals_for,
 };
+
+use cangate_canopen::cia402::ModeOfOperation;
 
 use std::fmt;
 
@@ -47,6 +49,117 @@ pub enum PositionMode {
     /// Cyclic synchronous position: the gateway plans and sends a set-point
     /// every SYNC period.
     Cyclic,
+}
+
+/// The CiA 402 mode of operation a drive runs an axis in (0x6060): set
+/// per axis in the configuration, changed at run time at rest
+/// ([`AxisCommand::SetMode`]). Homing (6) is not one: it runs from any of
+/// them and returns to it.
+///
+/// What each command means per mode:
+///
+/// | mode | move | jog | torque | stop |
+/// |---|---|---|---|---|
+/// | profile position (1) | the drive plans | profile velocity (3) | refused | halt on 0x6084 |
+/// | cyclic synchronous position (8) | the gateway's trapezoid, a position every SYNC | a trapezoid towards the soft limit | refused | the gateway's ramp |
+/// | interpolated position (7) | as CSP, the position in 0x60C1:01 | as CSP | refused | the gateway's ramp |
+/// | cyclic synchronous velocity (9) | refused | velocity set-points every SYNC, ramped within the acceleration | refused | the gateway ramps the velocity to 0 |
+/// | cyclic synchronous torque (10) | refused | refused | 0x6071, velocity guarded | halt on 0x6084 |
+/// | profile torque (4) | refused | refused | 0x6071 ramped by the drive at 0x6087, velocity guarded | halt on 0x6084 |
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum DriveMode {
+    /// Profile position (1): the drive plans each move.
+    ProfilePosition,
+    /// Cyclic synchronous position (8).
+    CyclicPosition,
+    /// Interpolated position (7), for drives without CSP.
+    InterpolatedPosition,
+    /// Cyclic synchronous velocity (9).
+    CyclicVelocity,
+    /// Cyclic synchronous torque (10).
+    CyclicTorque,
+    /// Profile torque (4).
+    ProfileTorque,
+}
+
+impl DriveMode {
+    /// Every mode.
+    pub const ALL: [DriveMode; 6] = [
+        DriveMode::ProfilePosition,
+        DriveMode::CyclicPosition,
+        DriveMode::InterpolatedPosition,
+        DriveMode::CyclicVelocity,
+        DriveMode::CyclicTorque,
+        DriveMode::ProfileTorque,
+    ];
+
+    /// Its name in the configuration and the API: `profile_position`,
+    /// `csp`, `ip`, `csv`, `cst`, `profile_torque`.
+    pub const fn name(self) -> &'static str {
+        match self {
+            DriveMode::ProfilePosition => "profile_position",
+            DriveMode::CyclicPosition => "csp",
+            DriveMode::InterpolatedPosition => "ip",
+            DriveMode::CyclicVelocity => "csv",
+            DriveMode::CyclicTorque => "cst",
+            DriveMode::ProfileTorque => "profile_torque",
+        }
+    }
+
+    /// The mode of a [`DriveMode::name`].
+    pub fn from_name(name: &str) -> Option<DriveMode> {
+        DriveMode::ALL.into_iter().find(|m| m.name() == name)
+    }
+
+    /// The CiA 402 mode of operation.
+    pub const fn operation(self) -> ModeOfOperation {
+        match self {
+            DriveMode::ProfilePosition => ModeOfOperation::ProfilePosition,
+            DriveMode::CyclicPosition => ModeOfOperation::CyclicSynchronousPosition,
+            DriveMode::InterpolatedPosition => ModeOfOperation::InterpolatedPosition,
+            DriveMode::CyclicVelocity => ModeOfOperation::CyclicSynchronousVelocity,
+            DriveMode::CyclicTorque => ModeOfOperation::CyclicSynchronousTorque,
+            DriveMode::ProfileTorque => ModeOfOperation::ProfileTorque,
+        }
+    }
+
+    /// The mode of a CiA 402 mode of operation, `None` for the modes an
+    /// axis is not configured in (profile velocity, homing).
+    pub fn from_operation(m: ModeOfOperation) -> Option<DriveMode> {
+        DriveMode::ALL.into_iter().find(|d| d.operation() == m)
+    }
+
+    /// How moves run: cyclic for the modes that take a set-point with every
+    /// SYNC from the gateway's plan (CSP, IP, CSV), profile for the others
+    /// (the drive plans or follows a held command).
+    pub const fn position_mode(self) -> PositionMode {
+        match self {
+            DriveMode::CyclicPosition
+            | DriveMode::InterpolatedPosition
+            | DriveMode::CyclicVelocity => PositionMode::Cyclic,
+            _ => PositionMode::Profile,
+        }
+    }
+
+    /// The torque modes (CST, profile torque): commanded by
+    /// [`AxisCommand::SetTorque`].
+    pub const fn is_torque(self) -> bool {
+        matches!(self, DriveMode::CyclicTorque | DriveMode::ProfileTorque)
+    }
+
+    /// The mode an axis configured only by its position mode runs in.
+    pub const fn of_position_mode(p: PositionMode) -> DriveMode {
+        match p {
+            PositionMode::Profile => DriveMode::ProfilePosition,
+            PositionMode::Cyclic => DriveMode::CyclicPosition,
+        }
+    }
+}
+
+impl fmt::Display for DriveMode {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
 }
 
 /// How a stop decelerates.
@@ -109,6 +222,19 @@ pub enum AxisCommand {
     QuickStop,
     /// Reset a drive fault.
     ResetFault,
+    /// Drive with this torque (per mille of the rated torque, signed) in a
+    /// torque mode (CST, profile torque), until a stop or another command;
+    /// the axis stops when its velocity exceeds its maximum velocity.
+    SetTorque {
+        /// Per mille of the rated torque (0x6071), at most the axis's
+        /// maximum torque.
+        per_mille: f64,
+    },
+    /// Switch the drive to `mode`, at rest only.
+    SetMode {
+        /// The new mode.
+        mode: DriveMode,
+    },
 }
 
 impl AxisCommand {
@@ -123,6 +249,8 @@ impl AxisCommand {
             AxisCommand::Stop => CommandKind::Stop,
             AxisCommand::QuickStop => CommandKind::QuickStop,
             AxisCommand::ResetFault => CommandKind::ResetFault,
+            AxisCommand::SetTorque { .. } => CommandKind::Torque,
+            AxisCommand::SetMode { .. } => CommandKind::SetMode,
         }
     }
 
@@ -152,6 +280,10 @@ pub enum CommandKind {
     QuickStop,
     /// [`AxisCommand::ResetFault`].
     ResetFault,
+    /// [`AxisCommand::SetTorque`].
+    Torque,
+    /// [`AxisCommand::SetMode`].
+    SetMode,
 }
 
 impl CommandKind {
@@ -166,6 +298,8 @@ impl CommandKind {
             CommandKind::Stop => "stop",
             CommandKind::QuickStop => "quick stop",
             CommandKind::ResetFault => "reset fault",
+            CommandKind::Torque => "torque",
+            CommandKind::SetMode => "set mode",
         }
     }
 }
@@ -285,6 +419,10 @@ pub enum CommandError {
     /// state the command asks for.
     #[error("{0}")]
     StateUnreachable(String),
+    /// The axis's mode of operation has no such command (a move in CSV, a
+    /// torque in CSP), or the drive does not support the mode asked for.
+    #[error("{0}")]
+    WrongMode(String),
 }
 
 impl CommandError {
@@ -303,6 +441,7 @@ impl CommandError {
             E::NotCyclic(m) => E::NotCyclic(p(m)),
             E::SyncStopped(m) => E::SyncStopped(p(m)),
             E::StateUnreachable(m) => E::StateUnreachable(p(m)),
+            E::WrongMode(m) => E::WrongMode(p(m)),
         }
     }
 }

@@ -190,6 +190,42 @@ pub fn with_signal_tpdos(
     }
 }
 
+/// RPDO3 of an axis in a torque mode: target torque 0x6071 (16 bits),
+/// event-driven (255): the drive applies a torque set-point on receipt and
+/// holds it. Mapped besides the standard layout for an axis configured in
+/// a torque mode (`mode = "cst"` or `"profile_torque"`).
+pub fn torque_rpdo(node: NodeId) -> PdoConfig {
+    pdo(PdoKind::Rpdo, 3, node, 255, 0, &[(obj::TARGET_TORQUE, 16)])
+}
+
+/// RPDO2 of an interpolated position axis (a drive without CSP):
+/// interpolation data record 0x60C1:01 (32) where the standard layout has
+/// the target position, and the target velocity 0x60FF (32); event-driven
+/// (255).
+pub fn interpolated_rpdo(node: NodeId) -> PdoConfig {
+    pdo(
+        PdoKind::Rpdo,
+        2,
+        node,
+        255,
+        0,
+        &[(obj::INTERPOLATION_DATA, 32), (obj::TARGET_VELOCITY, 32)],
+    )
+}
+
+/// The interpolation time period 0x60C2 (value 0x60C2:01, index
+/// 0x60C2:02: value · 10^index s) of a SYNC period, as exact as an
+/// 8-bit value allows.
+pub fn interpolation_period(period: std::time::Duration) -> (u8, i8) {
+    let us = period.as_micros();
+    for (div, index) in [(1000, -3), (100, -4), (10, -5), (1, -6)] {
+        if us.is_multiple_of(div) && us / div <= 255 {
+            return ((us / div) as u8, index);
+        }
+    }
+    ((us / 1000).min(255) as u8, -3)
+}
+
 /// The RPDO frames (COB-ID, payload) carrying `image`, for every RPDO that
 /// maps at least one image object, those without the controlword first.
 ///
@@ -209,6 +245,12 @@ pub fn encode_image(
         (
             obj::TARGET_VELOCITY,
             Value::Integer32(image.target_velocity),
+        ),
+        (obj::TARGET_TORQUE, Value::Integer16(image.target_torque)),
+        // An interpolated position axis: the position set-point.
+        (
+            obj::INTERPOLATION_DATA,
+            Value::Integer32(image.target_position),
         ),
     ];
     let mut frames: Vec<(bool, u16, Vec<u8>)> = Vec::new();
@@ -392,6 +434,14 @@ pub fn sdo_image_writes(
             image.target_velocity.to_le_bytes().to_vec(),
         ));
     }
+    // Only a torque set-point other than 0 is ever written: a drive
+    // without 0x6071 (every axis but a torque mode's) never sees one.
+    if last.map_or(0, |l| l.target_torque) != image.target_torque {
+        writes.push((
+            obj::TARGET_TORQUE,
+            image.target_torque.to_le_bytes().to_vec(),
+        ));
+    }
     if changed(|i| i64::from(i.mode)) {
         writes.push((obj::MODES_OF_OPERATION, image.mode.to_le_bytes().to_vec()));
     }
@@ -417,6 +467,7 @@ mod tests {
             mode: 1,
             target_position: 10_000,
             target_velocity: -2,
+            target_torque: 0,
         };
         let frames = encode_image(&image, &rpdos).unwrap();
         assert_eq!(
@@ -586,6 +637,7 @@ mod tests {
             mode: 1,
             target_position: 10_000,
             target_velocity: -2,
+            target_torque: 0,
         };
         // Nothing known: everything, targets and mode before the controlword.
         assert_eq!(

@@ -12,7 +12,7 @@ use std::time::Duration;
 use cangate_canopen::NodeId;
 use cangate_cansmc::SmcAddress;
 
-use crate::{PositionMode, StopKind, Units};
+use crate::{DriveMode, PositionMode, StopKind, Units};
 
 /// One axis: its name, what every axis has, how it stops when its
 /// controller goes away, and its drive.
@@ -131,8 +131,10 @@ pub struct Cia402Drive {
     pub bus: String,
     /// The drive's node.
     pub node: NodeId,
-    /// Profile or cyclic position.
-    pub position_mode: PositionMode,
+    /// The mode of operation it starts in (see [`DriveMode`]).
+    pub mode: DriveMode,
+    /// Torque bounds (the torque modes).
+    pub torque: TorqueSpec,
     /// How the process data travels.
     pub process_data: ProcessDataPath,
     /// Homing method written to 0x6098 at boot.
@@ -143,6 +145,31 @@ pub struct Cia402Drive {
     /// touch probe) into its TPDOs where it has them
     /// ([`crate::process_data::with_signal_tpdos`]).
     pub signal_pdos: bool,
+}
+
+/// The torque bounds of a CiA 402 axis, per mille of the drive's rated
+/// torque.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TorqueSpec {
+    /// The largest torque a torque command may ask for.
+    pub max_torque: f64,
+    /// Profile torque's ramp (0x6087, per mille per second), written when
+    /// the axis enters profile torque.
+    pub torque_slope: f64,
+    /// The process data carries the target torque (0x6071): the gateway
+    /// maps it for an axis configured in a torque mode. Without it the
+    /// torque modes are refused.
+    pub in_process_data: bool,
+}
+
+impl Default for TorqueSpec {
+    fn default() -> Self {
+        TorqueSpec {
+            max_torque: 1000.0,
+            torque_slope: 10_000.0,
+            in_process_data: false,
+        }
+    }
 }
 
 /// How a CiA 402 axis's process data (controlword, targets, statusword,
@@ -227,7 +254,7 @@ impl AxisSpec {
     /// gateway interpolates every cycle).
     pub fn position_mode(&self) -> PositionMode {
         match &self.drive {
-            DriveSpec::Cia402(d) => d.position_mode,
+            DriveSpec::Cia402(d) => d.mode.position_mode(),
             DriveSpec::Cansmc(_) => PositionMode::Cyclic,
         }
     }
@@ -256,7 +283,8 @@ impl Cia402Drive {
     pub fn controller(&self, motion: MotionSpec) -> crate::cia402::Cia402Config {
         crate::cia402::Cia402Config {
             motion,
-            position_mode: self.position_mode,
+            mode: self.mode,
+            torque: self.torque,
             supervision: self.supervision,
         }
     }

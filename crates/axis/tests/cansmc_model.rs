@@ -513,9 +513,11 @@ impl Rig {
         let cfg = self.axis.config();
         let slack = Duration::from_secs(1);
         match cmd {
-            AxisCommand::Enable | AxisCommand::Disable | AxisCommand::ResetFault => {
-                cfg.motion.state_timeout + slack
-            }
+            AxisCommand::Enable
+            | AxisCommand::Disable
+            | AxisCommand::ResetFault
+            | AxisCommand::SetTorque { .. }
+            | AxisCommand::SetMode { .. } => cfg.motion.state_timeout + slack,
             AxisCommand::Home => cfg.motion.homing_timeout + slack,
             AxisCommand::Move {
                 target,

@@ -136,6 +136,20 @@ pub mod objects {
     /// 0x60FD digital inputs (UNSIGNED32; bit 0 negative limit switch,
     /// bit 1 positive limit switch, bit 2 home switch).
     pub const DIGITAL_INPUTS: ObjectAddress = ObjectAddress::new(0x60FD, 0);
+    /// 0x6071 target torque (INTEGER16, per mille of the rated torque):
+    /// the set-point of the torque modes.
+    pub const TARGET_TORQUE: ObjectAddress = ObjectAddress::new(0x6071, 0);
+    /// 0x6087 torque slope (UNSIGNED32, per mille per second): the ramp of
+    /// profile torque.
+    pub const TORQUE_SLOPE: ObjectAddress = ObjectAddress::new(0x6087, 0);
+    /// 0x60C1:01 interpolation data record, the position set-point of
+    /// interpolated position (INTEGER32).
+    pub const INTERPOLATION_DATA: ObjectAddress = ObjectAddress::new(0x60C1, 1);
+    /// 0x60C2:01 interpolation time period value (UNSIGNED8).
+    pub const INTERPOLATION_PERIOD_VALUE: ObjectAddress = ObjectAddress::new(0x60C2, 1);
+    /// 0x60C2:02 interpolation time index (INTEGER8): the period is
+    /// value · 10^index s.
+    pub const INTERPOLATION_PERIOD_INDEX: ObjectAddress = ObjectAddress::new(0x60C2, 2);
 }
 
 /// A state of the CiA 402 power drive system state machine, as decoded from

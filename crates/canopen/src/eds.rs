@@ -1018,7 +1018,7 @@ mod tests {
         assert_eq!(default(at(0x607D, 1)), Value::Integer32(i32::MIN)); // written 0x80000000
         assert_eq!(default(at(0x607D, 2)), Value::Integer32(i32::MAX));
         assert_eq!(od.object(0x6099).unwrap().subs.len(), 3);
-        assert_eq!(default(at(0x6502, 0)), Value::Unsigned32(0x1A5));
+        assert_eq!(default(at(0x6502, 0)), Value::Unsigned32(0x3ED));
         let velocity = od.get(at(0x6081, 0)).unwrap();
         assert!(velocity.check(&Value::Unsigned32(2_000_000)).is_err());
         assert!(velocity.check(&Value::Unsigned32(5_000)).is_ok());

@@ -12,6 +12,9 @@
 //! | profile position (1) | new set-point handshake (bit 4 rising edge accepts 0x607A, bit 12 set-point acknowledge until bit 4 falls), one buffered set-point, change set immediately (bit 5), relative (bit 6, to the previous target), halt (bit 8), trapezoidal profile with 0x6081/0x6083/0x6084, target reached (bit 10) |
 //! | profile velocity (3) | ramps to 0x60FF with 0x6083 (faster) / 0x6084 (slower); bit 10 at the target velocity, bit 12 at speed 0; halt ramps to 0 |
 //! | homing (6) | bit 4 rising edge starts 0x6098: 35/37 set the position to 0x607C home offset at once; 17..=30 move at 0x6099:01 with 0x609A to a virtual switch at the physical position 0, then set the position to the home offset; any other method ends in homing error (bit 13); bit 4 falling or halt interrupts |
+//! | cyclic synchronous torque (10) / profile torque (4) | the torque model: the motor torque (0x6071 at once in CST; ramped towards it at 0x6087 per mille/s in profile torque) minus viscous and Coulomb friction accelerates the inertia ([`TorqueModel`]), integrated at the model step (torque → acceleration → velocity → position), at most 0x6072 max torque when present; halt (bit 8) brakes on 0x6084 with the drive's own velocity loop and holds; 0x6077 is the motor torque; bit 12 (CST: target torque followed) / bit 10 (profile torque: torque reached) |
+//! | interpolated position (7) | with controlword bit 4 (enable ip mode) set, each new 0x60C1:01 is reached by linear interpolation over the interpolation time period 0x60C2 (value · 10^index s), then followed with the first-order lag; bit 12 ip mode active |
+//! | supported modes | 0x6502 as the EDS says (PP, PV, PT, HM, IP, CSP, CSV, CST for the bundled one), or [`SimDriveOptions::supported_modes`]: a mode not in it is not taken (0x6061 keeps the mode in effect) |
 //! | cyclic synchronous position (8) / velocity (9) | follow 0x607A / 0x60FF (as written by RPDO, at once or at SYNC per the RPDO's transmission type) with a first-order lag; in position mode each new set-point is reached by linear interpolation over the SYNC period (the interval between the latest two SYNCs), as drives interpolate between cyclic set-points, so the motion and 0x606C are smooth, not a step per SYNC; bit 12 set; following error 0x60F4 written when present; with 0x6065 present a following error beyond the window for longer than 0x6066 ms faults with EMCY 0x8611 |
 //! | quick stop | decelerates with 0x6085 (0x6084 when absent, or for option codes 1 and 5), then goes to switch on disabled for quick stop option codes 0..=4 (0x605A, default 2) or stays in quick stop active for 5..=8 |
 //! | heartbeat loss | a node monitored by 0x1016 falls silent (the master, when it configured its heartbeat there): the node sends EMCY 0x8130, and the drive enters fault reaction active (stops with the quick stop deceleration), then fault, with 0x603F = 0x8130 |
@@ -54,6 +57,56 @@ const TORQUE_PER_ACCEL: f64 = 1.0 / 1000.0;
 const MAX_SYNC_PERIOD: Duration = Duration::from_millis(100);
 /// EMCY code of a following error.
 const FOLLOWING_ERROR_CODE: u16 = 0x8611;
+
+/// The mechanics the torque modes drive: an inertia with viscous and
+/// Coulomb friction. Integers, so that the options stay comparable.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TorqueModel {
+    /// Increments/s² one per mille of net torque gives the inertia (1000
+    /// by default: the same scale as 0x6077 in the other modes).
+    pub accel_per_permille: u32,
+    /// Viscous friction in per mille per 1000 increments/s (1 by
+    /// default).
+    pub viscous_per_kilo_speed: u32,
+    /// Coulomb (dry) friction in per mille (10 by default): a torque below
+    /// it does not start the motor at rest.
+    pub coulomb: u32,
+}
+
+impl Default for TorqueModel {
+    fn default() -> Self {
+        TorqueModel {
+            accel_per_permille: 1000,
+            viscous_per_kilo_speed: 1,
+            coulomb: 10,
+        }
+    }
+}
+
+impl TorqueModel {
+    /// The velocity after `dt` s of motor `torque` (per mille) from `vel`
+    /// (increments/s): friction opposes the motion, and at rest holds
+    /// the motor until the torque overcomes it; it never reverses the
+    /// motion by itself.
+    pub fn step(&self, vel: f64, torque: f64, dt: f64) -> f64 {
+        let k = f64::from(self.accel_per_permille);
+        let coulomb = f64::from(self.coulomb);
+        let viscous = f64::from(self.viscous_per_kilo_speed) / 1000.0;
+        if vel == 0.0 {
+            if torque.abs() <= coulomb {
+                return 0.0;
+            }
+            return (torque - coulomb * torque.signum()) * k * dt;
+        }
+        let friction = viscous * vel + coulomb * vel.signum();
+        let next = vel + (torque - friction) * k * dt;
+        if next.signum() != vel.signum() && torque.abs() <= coulomb {
+            // Friction brought it to rest within the step.
+            return 0.0;
+        }
+        next
+    }
+}
 
 /// Switches and the touch probe input of a [`SimDrive`], at physical
 /// positions in increments (where the motor is before any homing shift).
@@ -103,6 +156,11 @@ pub struct SimDriveOptions {
     pub enabled_at_start: Option<(ModeOfOperation, i32)>,
     /// Limit and home switches, touch probe input (none by default).
     pub inputs: SimDriveInputs,
+    /// 0x6502 supported drive modes at power on instead of the EDS's
+    /// value (a drive without CSP that needs interpolated position, say).
+    pub supported_modes: Option<u32>,
+    /// The mechanics of the torque modes.
+    pub torque_model: TorqueModel,
 }
 
 impl Default for SimDriveOptions {
@@ -115,6 +173,8 @@ impl Default for SimDriveOptions {
             max_speed: 100_000,
             enabled_at_start: None,
             inputs: SimDriveInputs::default(),
+            supported_modes: None,
+            torque_model: TorqueModel::default(),
         }
     }
 }
@@ -237,8 +297,12 @@ pub struct SimDrive {
     probe_negative: i32,
     /// Command minus actual position in cyclic synchronous position mode.
     follow_error: f64,
-    /// The interpolated command of cyclic synchronous position.
+    /// The interpolated command of cyclic synchronous position (and of
+    /// interpolated position).
     csp: Interpolation,
+    /// The motor torque of the torque modes (per mille), ramped towards
+    /// 0x6071 in profile torque.
+    torque_demand: f64,
     /// The latest SYNC received and the interval to the one before.
     last_sync: Option<Duration>,
     sync_period: Option<Duration>,
@@ -313,6 +377,7 @@ impl SimDrive {
             probe_negative: 0,
             follow_error: 0.0,
             csp: Interpolation::holding(0.0),
+            torque_demand: 0.0,
             last_sync: None,
             sync_period: None,
             follow_over_since: None,
@@ -492,6 +557,7 @@ impl SimDrive {
     fn reset_generators(&mut self) {
         self.pp = ProfilePosition::idle(self.pos);
         self.csp = Interpolation::holding(self.pos);
+        self.torque_demand = 0.0;
         self.homing = Homing::Idle;
         self.follow_error = 0.0;
         self.follow_over_since = None;
@@ -697,9 +763,12 @@ impl SimDrive {
         let max_torque = self.int(obj::MAX_TORQUE).map_or(f64::from(i16::MAX), |m| {
             m.clamp(0, i128::from(i16::MAX)) as f64
         });
-        self.torque = (accel * TORQUE_PER_ACCEL)
-            .round()
-            .clamp(-max_torque, max_torque) as i16;
+        let torque = if self.in_torque_mode() {
+            self.torque_demand
+        } else {
+            accel * TORQUE_PER_ACCEL
+        };
+        self.torque = torque.round().clamp(-max_torque, max_torque) as i16;
         self.write_outputs();
     }
 
@@ -794,6 +863,10 @@ impl SimDrive {
                 self.follow_error = command - self.pos;
                 self.check_following_error();
             }
+            Some(ModeOfOperation::CyclicSynchronousTorque | ModeOfOperation::ProfileTorque) => {
+                self.step_torque(dt, cw.halt(), dec);
+            }
+            Some(ModeOfOperation::InterpolatedPosition) => self.step_interpolated(dt, cw),
             Some(ModeOfOperation::CyclicSynchronousVelocity) => {
                 let vmax = self.max_speed();
                 let command = self.param(obj::TARGET_VELOCITY).clamp(-vmax, vmax);
@@ -900,6 +973,85 @@ impl SimDrive {
             self.probe_negative = latched;
             self.probe_status |= 4;
         }
+    }
+
+    fn in_torque_mode(&self) -> bool {
+        self.state == DriveState::OperationEnabled
+            && matches!(
+                self.mode,
+                Some(ModeOfOperation::CyclicSynchronousTorque | ModeOfOperation::ProfileTorque)
+            )
+    }
+
+    /// The torque set-point (0x6071), bounded by 0x6072 max torque.
+    fn target_torque(&self) -> f64 {
+        let t = self.param(obj::TARGET_TORQUE);
+        match self.int(obj::MAX_TORQUE) {
+            Some(m) if m > 0 => t.clamp(-(m as f64), m as f64),
+            _ => t,
+        }
+    }
+
+    /// One step of a torque mode: the motor torque (at once in CST,
+    /// ramped at 0x6087 in profile torque) through the torque model;
+    /// halted, the drive's velocity loop brakes at `dec` instead.
+    fn step_torque(&mut self, dt: f64, halt: bool, dec: f64) {
+        if halt {
+            self.torque_demand = 0.0;
+            self.stop(dec, dt);
+            return;
+        }
+        let target = self.target_torque();
+        self.torque_demand = if self.mode == Some(ModeOfOperation::ProfileTorque) {
+            let slope = self.rate(obj::TORQUE_SLOPE);
+            ramp(self.torque_demand, target, slope, slope, dt)
+        } else {
+            target
+        };
+        let vmax = self.max_speed();
+        self.vel = self
+            .options
+            .torque_model
+            .step(self.vel, self.torque_demand, dt)
+            .clamp(-vmax, vmax);
+        self.pos += self.vel * dt;
+    }
+
+    /// The interpolation time period 0x60C2 (value · 10^index s).
+    fn interpolation_period(&self) -> Duration {
+        let value = self.int(obj::INTERPOLATION_PERIOD_VALUE).unwrap_or(1) as f64;
+        let index = self.int(obj::INTERPOLATION_PERIOD_INDEX).unwrap_or(-3) as i32;
+        Duration::from_secs_f64((value * 10f64.powi(index)).clamp(0.0, 1.0))
+    }
+
+    /// One step of interpolated position: with ip mode enabled (bit 4),
+    /// each new 0x60C1:01 is reached over the interpolation period.
+    fn step_interpolated(&mut self, dt: f64, cw: Controlword) {
+        if cw.new_set_point() {
+            let mut set_point = self.param(obj::INTERPOLATION_DATA);
+            if let Some((min, max)) = self.limits() {
+                set_point = set_point.clamp(min, max);
+            }
+            if set_point != self.csp.to {
+                let arrived = self.model_time.saturating_sub(self.options.step);
+                self.csp = Interpolation {
+                    from: self.csp.at(arrived),
+                    to: set_point,
+                    start: arrived,
+                    period: self.interpolation_period(),
+                };
+            }
+        }
+        let command = self.csp.at(self.model_time);
+        let mut next = self.pos + (command - self.pos) * self.follow_gain(dt);
+        if (command - next).abs() < 1e-3 {
+            next = command;
+        }
+        let reach = self.max_speed() * dt;
+        next = next.clamp(self.pos - reach, self.pos + reach);
+        self.vel = (next - self.pos) / dt;
+        self.pos = next;
+        self.follow_error = command - self.pos;
     }
 
     /// The fraction of the remaining error a first-order lag closes in `dt`.
@@ -1011,6 +1163,18 @@ impl SimDrive {
                 .with(Statusword::OMS_12, true)
                 .with(Statusword::OMS_13, self.following_error_exceeded()),
             Some(ModeOfOperation::CyclicSynchronousVelocity) => sw.with(Statusword::OMS_12, true),
+            Some(ModeOfOperation::CyclicSynchronousTorque) => sw.with(Statusword::OMS_12, !halt),
+            Some(ModeOfOperation::ProfileTorque) => {
+                let reached = if halt {
+                    stopped
+                } else {
+                    self.torque_demand == self.target_torque()
+                };
+                sw.with(Statusword::TARGET_REACHED, reached)
+            }
+            Some(ModeOfOperation::InterpolatedPosition) => {
+                sw.with(Statusword::OMS_12, self.prev_cw.new_set_point())
+            }
             _ => sw,
         }
     }
@@ -1166,6 +1330,11 @@ impl SimDrive {
         self.probe_positive = 0;
         self.probe_negative = 0;
         self.reset_generators();
+        if let Some(mask) = self.options.supported_modes {
+            let _ = self
+                .node
+                .set(obj::SUPPORTED_DRIVE_MODES, Value::Unsigned32(mask));
+        }
         self.write_outputs();
     }
 }
@@ -2225,5 +2394,116 @@ mod tests {
         assert_eq!(result, Ok(()));
         assert_eq!(sent, [0x0080, 0x0006, 0x0007, 0x000F]);
         assert_eq!(d.statusword(), Statusword(0x0237));
+    }
+
+    const SEC: Duration = Duration::from_secs(1);
+
+    /// A drive at node 5 with `options`, operational since t = 0.
+    fn operational_with(options: SimDriveOptions) -> SimDrive {
+        let mut d = SimDrive::bundled(NodeId::new(5).unwrap(), options);
+        d.start(Duration::ZERO);
+        d.on_frame(&frame(0x000, &[0x01, 0x05]), Duration::ZERO);
+        d
+    }
+
+    #[test]
+    fn cyclic_synchronous_torque_drives_the_torque_model_and_halts() {
+        let mut d = operational();
+        enable(&mut d, ModeOfOperation::CyclicSynchronousTorque, 10 * MS);
+        // 0x6071 = 30 per mille (expedited download of 2 bytes).
+        let reply = d.on_frame(
+            &frame(0x605, &[0x2B, 0x71, 0x60, 0x00, 0x1E, 0x00, 0x00, 0x00]),
+            20 * MS,
+        );
+        assert!(
+            wire(&reply).contains(&(0x585, vec![0x60, 0x71, 0x60, 0x00, 0, 0, 0, 0])),
+            "{reply:?}"
+        );
+        // 30 - 10 (Coulomb) per mille against 1 per mille per 1000
+        // counts/s: 20 000 counts/s at the end, with a time constant of
+        // 1 s (inertia 1000 counts/s² per per mille over the viscous
+        // friction).
+        run(&mut d, Duration::from_millis(1020), |_, _| {});
+        let v1 = d.velocity();
+        assert!(
+            (v1 - 20_000.0 * (1.0 - (-1.0f64).exp())).abs() < 300.0,
+            "{v1}"
+        );
+        run(&mut d, Duration::from_secs(6), |_, _| {});
+        assert!((d.velocity() - 20_000.0).abs() < 100.0, "{}", d.velocity());
+        assert_eq!(
+            sdo_read(&mut d, obj::TORQUE_ACTUAL, 6 * SEC),
+            vec![0x1E, 0x00]
+        );
+        // Halt (0x010F): the velocity loop brakes at 0x6084 (100 000
+        // counts/s²) within 0.2 s, and holds; bit 12 drops.
+        let target = d.position().round() as i32;
+        d.on_frame(&rpdo1(0x010F, target), 6 * SEC);
+        run(&mut d, 6 * SEC + Duration::from_millis(210), |_, _| {});
+        assert_eq!(d.velocity(), 0.0);
+        assert_eq!(d.statusword().bits() & Statusword::OMS_12, 0);
+        let at = d.position();
+        run(&mut d, 7 * SEC, |_, _| {});
+        assert_eq!(d.position(), at, "the halt holds against the torque");
+    }
+
+    #[test]
+    fn interpolated_position_reaches_0x60c1_over_the_interpolation_period() {
+        let mut d = operational_with(SimDriveOptions {
+            follow_time_constant: Duration::ZERO,
+            ..SimDriveOptions::default()
+        });
+        // 0x60C2 = 10 x 10^-3 s.
+        sdo_write(&mut d, obj::INTERPOLATION_PERIOD_VALUE, &[10], 5 * MS);
+        enable(&mut d, ModeOfOperation::InterpolatedPosition, 10 * MS);
+        // Without bit 4 (enable ip mode) a set-point is not taken.
+        sdo_write(
+            &mut d,
+            obj::INTERPOLATION_DATA,
+            &1000i32.to_le_bytes(),
+            20 * MS,
+        );
+        run(&mut d, 40 * MS, |_, _| {});
+        assert_eq!(d.position(), 0.0);
+        assert_eq!(d.statusword().bits() & Statusword::OMS_12, 0);
+        // Bit 4 set (controlword 0x001F): from 0 to 1000 over 10 ms.
+        d.on_frame(&rpdo1(0x001F, 0), 40 * MS);
+        let mut seen = Vec::new();
+        run(&mut d, 52 * MS, |d, t| seen.push((t, d.position())));
+        assert_ne!(
+            d.statusword().bits() & Statusword::OMS_12,
+            0,
+            "ip mode active"
+        );
+        let at = |ms: u64| {
+            seen.iter()
+                .find(|(t, _)| *t == Duration::from_millis(ms))
+                .map(|(_, p)| *p)
+        };
+        let near = |got: Option<f64>, want: f64| got.is_some_and(|p| (p - want).abs() < 1e-6);
+        assert!(near(at(45), 500.0), "{seen:?}");
+        assert!(near(at(50), 1000.0), "{seen:?}");
+        assert!((d.position() - 1000.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn a_mode_outside_the_configured_supported_modes_is_not_taken() {
+        // PP, PV, HM, IP, CSV: no CSP.
+        let mut d = operational_with(SimDriveOptions {
+            supported_modes: Some(0x165),
+            ..SimDriveOptions::default()
+        });
+        assert_eq!(
+            sdo_read(&mut d, obj::SUPPORTED_DRIVE_MODES, MS),
+            vec![0x65, 0x01, 0x00, 0x00]
+        );
+        sdo_write(&mut d, obj::MODES_OF_OPERATION, &[0x08], 2 * MS);
+        assert_eq!(d.mode(), None);
+        assert_eq!(
+            sdo_read(&mut d, obj::MODES_OF_OPERATION_DISPLAY, 3 * MS),
+            vec![0x00]
+        );
+        sdo_write(&mut d, obj::MODES_OF_OPERATION, &[0x07], 4 * MS);
+        assert_eq!(d.mode(), Some(ModeOfOperation::InterpolatedPosition));
     }
 }

@@ -53,7 +53,7 @@ pub use cansmc_slave::{
     SimCansmcCounters, SimCansmcFault, SimCansmcMode, SimCansmcReply, SimCansmcServo,
     SimCansmcSlave, SimCansmcSlaveOptions,
 };
-pub use drive::{SimDrive, SimDriveInputs, SimDriveOptions};
+pub use drive::{SimDrive, SimDriveInputs, SimDriveOptions, TorqueModel};
 pub use handwheel::{FrameLoss, Multiplier, SimHandwheel, SimHandwheelOptions};
 #[cfg(feature = "runtime")]
 pub use runner::{DeviceHandle, spawn_device, spawn_device_on_bus, spawn_node};

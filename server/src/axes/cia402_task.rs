@@ -171,6 +171,10 @@ pub fn spawn(
     let (sdo_done, sdo_results) = mpsc::channel(64);
     let (sdo_reports_tx, sdo_reports) = mpsc::channel(64);
     let mut tpdos = HashMap::new();
+    let axes_cyclic: Vec<bool> = list
+        .iter()
+        .map(|a| a.drive.mode.position_mode() == PositionMode::Cyclic)
+        .collect();
     let slots = list
         .into_iter()
         .enumerate()
@@ -205,8 +209,11 @@ pub fn spawn(
                 }),
             };
             let span = tracing::info_span!("axis", axis = %a.name);
-            let cyclic = a.drive.position_mode == PositionMode::Cyclic;
-            let setpoint = (cyclic && sdo.is_none())
+            let cyclic = a.drive.mode.position_mode() == PositionMode::Cyclic;
+            // Every PDO axis: one configured in a profile mode may change
+            // to a cyclic one at run time (SetMode).
+            let setpoint = sdo
+                .is_none()
                 .then(|| SetpointLayout::find(&rpdos))
                 .flatten();
             if cyclic && setpoint.is_none() {
@@ -257,7 +264,13 @@ pub fn spawn(
         origin,
         slots.iter().map(|s| s.name.clone()),
     ));
-    if slots.iter().any(|s| s.setpoint.is_some()) {
+    for (i, s) in slots.iter().enumerate() {
+        setpoints.set_velocity_offset(i, s.setpoint.as_ref().and_then(|l| l.velocity_offset));
+    }
+    let configured_cyclic = axes_cyclic.iter().any(|&c| c);
+    if slots.iter().any(|s| s.setpoint.is_some())
+        && (configured_cyclic || !master.sync_settings().period.is_zero())
+    {
         let rider: Arc<dyn crate::canopen::sync_thread::SyncRider> = setpoints.clone();
         if !master.add_sync_rider(Arc::downgrade(&rider)) {
             // The configuration refuses cyclic axes without a SYNC period;
@@ -614,6 +627,9 @@ impl Task {
             }
             NodeEventKind::BootCompleted { adopted } => {
                 self.slots[i].booted = true;
+                if let Some(mask) = self.master.supported_drive_modes(self.slots[i].node) {
+                    self.slots[i].axis.set_supported_modes(mask);
+                }
                 if let Some(link) = &mut self.slots[i].sdo {
                     link.booting = false;
                     // Before any image the reboot leads to.
@@ -841,7 +857,24 @@ impl Task {
             cmd,
             AxisCommand::Stop | AxisCommand::QuickStop | AxisCommand::Disable
         );
-        if stopping || self.slots[i].setpoint.is_none() || self.master.sync_settings().running {
+        let axis = &self.slots[i].axis;
+        if let AxisCommand::SetMode { mode } = cmd
+            && mode.position_mode() == PositionMode::Cyclic
+            && !self.master.sync_settings().running
+        {
+            return Err(CommandError::SyncStopped(format!(
+                "mode {mode} takes a set-point with every SYNC and the SYNC of bus {} is not \
+                 running (configure sync_period_us, or start it: `cangate sync {} start`, SetSync)",
+                self.master.bus(),
+                self.master.bus()
+            )));
+        }
+        let cyclic = axis.mode().position_mode() == PositionMode::Cyclic;
+        if stopping
+            || !cyclic
+            || self.slots[i].setpoint.is_none()
+            || self.master.sync_settings().running
+        {
             return Ok(());
         }
         Err(CommandError::SyncStopped(format!(

@@ -27,13 +27,13 @@
 
 use crate::canopen::sync_thread::{SyncRider, SyncTick};
 use cangate_axis::Units;
-use cangate_axis::cia402::{CyclicPlan, CyclicSample};
+use cangate_axis::cia402::{CyclicPlan, CyclicSample, SetpointObject};
 use cangate_axis::setpoint_stream::{
     AxisLimits, PlayerConfig, PlayerCounters, PlayerEvent, PlayerState, PointRefused,
     SetpointPlayer, StreamPoint,
 };
 use cangate_can::{CanId, Frame};
-use cangate_canopen::cia402::objects::TARGET_POSITION;
+use cangate_canopen::cia402::objects::{INTERPOLATION_DATA, TARGET_POSITION, TARGET_VELOCITY};
 use cangate_canopen::pdo::PdoConfig;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
@@ -45,6 +45,9 @@ pub struct SetpointLayout {
     pub rpdo: PdoConfig,
     /// Byte offset of the 32-bit target position in its payload.
     pub offset: usize,
+    /// Byte offset of the 32-bit target velocity in the same payload, if
+    /// mapped there: a CSV axis's set-point.
+    pub velocity_offset: Option<usize>,
 }
 
 impl SetpointLayout {
@@ -53,14 +56,24 @@ impl SetpointLayout {
     pub fn find(rpdos: &[PdoConfig]) -> Option<SetpointLayout> {
         for p in rpdos {
             let mut offset = 0;
+            let mut position = None;
+            let mut velocity = None;
             for m in &p.mapping {
-                if m.addr == TARGET_POSITION && m.bits == 32 {
-                    return Some(SetpointLayout {
-                        rpdo: p.clone(),
-                        offset,
-                    });
+                // Interpolated position: 0x60C1:01 takes the position.
+                if (m.addr == TARGET_POSITION || m.addr == INTERPOLATION_DATA) && m.bits == 32 {
+                    position = Some(offset);
+                }
+                if m.addr == TARGET_VELOCITY && m.bits == 32 {
+                    velocity = Some(offset);
                 }
                 offset += usize::from(m.bits) / 8;
+            }
+            if let Some(offset) = position {
+                return Some(SetpointLayout {
+                    rpdo: p.clone(),
+                    offset,
+                    velocity_offset: velocity,
+                });
             }
         }
         None
@@ -70,8 +83,10 @@ impl SetpointLayout {
     /// of the RPDO's other values is compared on.
     pub fn masked(&self, payload: &[u8]) -> Vec<u8> {
         let mut p = payload.to_vec();
-        if let Some(target) = p.get_mut(self.offset..self.offset + 4) {
-            target.fill(0);
+        for at in std::iter::once(self.offset).chain(self.velocity_offset) {
+            if let Some(target) = p.get_mut(at..at + 4) {
+                target.fill(0);
+            }
         }
         p
     }
@@ -100,6 +115,8 @@ struct Entry {
     settling: Option<CyclicPlan>,
     /// This SYNC's sample from the axis's stream.
     streamed: Option<CyclicSample>,
+    /// Byte offset of the target velocity in the set-point RPDO (CSV).
+    velocity_offset: Option<usize>,
 }
 
 /// Why a set-point stream ended.
@@ -326,6 +343,15 @@ impl CyclicSetpoints {
         let mut st = self.state.lock().expect("set-point table lock");
         if let Some((_, p, _)) = st.entries.get_mut(i).and_then(|e| e.rpdo.as_mut()) {
             *p = payload;
+        }
+    }
+
+    /// Where axis `i`'s set-point RPDO carries the target velocity: a
+    /// CSV plan's samples go there.
+    pub fn set_velocity_offset(&self, i: usize, offset: Option<usize>) {
+        let mut st = self.state.lock().expect("set-point table lock");
+        if let Some(e) = st.entries.get_mut(i) {
+            e.velocity_offset = offset;
         }
     }
 
@@ -568,7 +594,11 @@ impl SyncRider for CyclicSetpoints {
                     s.units[k],
                 ));
                 if done {
-                    let hold = CyclicPlan::holding(p, s.units[k]);
+                    let object = e
+                        .plan
+                        .as_ref()
+                        .map_or(SetpointObject::TargetPosition, CyclicPlan::setpoint_object);
+                    let hold = CyclicPlan::holding(p, s.units[k]).sent_to(object);
                     e.stream = None;
                     e.plan = Some(hold.clone());
                     e.settling = Some(hold);
@@ -589,8 +619,12 @@ impl SyncRider for CyclicSetpoints {
                     plan.sample(t)
                 }
             };
-            if let Some(target) = payload.get_mut(*offset..*offset + 4) {
-                target.copy_from_slice(&sample.counts.to_le_bytes());
+            let (at, value) = match (plan.setpoint_object(), e.velocity_offset) {
+                (SetpointObject::TargetVelocity, Some(v)) => (v, sample.velocity_counts),
+                _ => (*offset, sample.counts),
+            };
+            if let Some(target) = payload.get_mut(at..at + 4) {
+                target.copy_from_slice(&value.to_le_bytes());
             }
             match Frame::new(CanId::Standard(*cob), payload) {
                 Ok(f) => frames.push(f),
@@ -618,11 +652,38 @@ mod tests {
         let l = SetpointLayout::find(&rpdos).expect("target position mapped");
         assert_eq!(l.rpdo.cob_id, 0x305);
         assert_eq!(l.offset, 0);
-        assert_eq!(
-            l.masked(&[1, 2, 3, 4, 5, 6, 7, 8]),
-            vec![0, 0, 0, 0, 5, 6, 7, 8]
-        );
+        assert_eq!(l.velocity_offset, Some(4));
+        // Both set-points (CSP: position, CSV: velocity) are the SYNC
+        // thread's.
+        assert_eq!(l.masked(&[1, 2, 3, 4, 5, 6, 7, 8]), vec![0; 8]);
         assert!(SetpointLayout::find(&rpdos[..1]).is_none());
+        // Interpolated position: 0x60C1:01 takes the position's place.
+        let ip = cangate_axis::process_data::interpolated_rpdo(NodeId::new(5).unwrap());
+        let l = SetpointLayout::find(&[ip]).expect("interpolation data mapped");
+        assert_eq!((l.offset, l.velocity_offset), (0, Some(4)));
+    }
+
+    #[test]
+    fn a_csv_plan_sends_its_velocity_in_the_target_velocity() {
+        let origin = Instant::now();
+        let table = CyclicSetpoints::new(origin, ["v"].map(String::from));
+        table.set_velocity_offset(0, Some(4));
+        let units = cangate_axis::Units {
+            counts_per_unit: 1000.0,
+        };
+        // A CSV axis's stream-free plan: the demand velocity of each SYNC
+        // goes to bytes 4..8, the position bytes stay as the image has
+        // them.
+        let plan = CyclicPlan::holding(1.5, units).sent_to(SetpointObject::TargetVelocity);
+        table.publish([(0, Some(plan), 0x301, vec![7, 7, 7, 7, 1, 1, 1, 1], 0)]);
+        let mut frames = Vec::new();
+        let at = origin + std::time::Duration::from_millis(3);
+        table.on_sync(SyncTick::on_time(at), &mut frames);
+        assert_eq!(frames[0].data(), &[7, 7, 7, 7, 0, 0, 0, 0]);
+        // A streamed sample carries its velocity (12.5 mm/s) for a CSV
+        // axis in a stream.
+        let s = CyclicSample::streamed(std::time::Duration::ZERO, 1.5, 12.5, units);
+        assert_eq!(s.velocity_counts, 12_500);
     }
 
     #[test]

@@ -288,6 +288,15 @@ impl Axes {
                      enabled)"
                 )));
             }
+            // Cyclic synchronous position only: an axis changed to another
+            // mode at run time (SetMode) takes no stream.
+            if snap.mode != 8 {
+                return Err(not(format!(
+                    "axis {name} runs in mode {} (0x6061): set-point streams play on axes in \
+                     csp",
+                    snap.mode
+                )));
+            }
             if snap.activity != Activity::Idle || snap.velocity.abs() > e.spec.motion.rest_speed() {
                 return Err(not(format!(
                     "axis {name} is moving or busy ({:?}): stop it or wait until it is at rest",

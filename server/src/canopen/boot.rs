@@ -187,6 +187,41 @@ fn same_value(got: &[u8], want: &[u8]) -> bool {
         && got[want.len()..].iter().all(|&b| b == 0)
 }
 
+/// The drive supports the modes its axis is configured in (`required`,
+/// bits of 0x6502): a drive that says it lacks one fails its boot, naming
+/// the mode and what it has. A drive that cannot tell (no 0x6502) is taken
+/// at its word that the configuration fits; a mode it lacks then shows as
+/// a mode switch that times out.
+fn check_supported_modes(
+    node: NodeId,
+    required: u32,
+    read: Result<u32, (bool, String)>,
+) -> Result<(), String> {
+    use cangate_canopen::cia402::ModeOfOperation;
+    let got = match read {
+        Ok(v) => v,
+        Err((_, e)) => {
+            tracing::warn!(node = node.get(), error = %e, "0x6502 supported drive modes not readable: the axis's mode is not checked");
+            return Ok(());
+        }
+    };
+    if got & required == required {
+        return Ok(());
+    }
+    let names = |mask: u32| {
+        ModeOfOperation::supported(mask)
+            .map(|m| m.to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    Err(format!(
+        "the drive does not support the axis's mode {} (0x6502 supported drive modes is \
+         0x{got:08X}: {}); configure its axis with a mode it has",
+        names(required & !got),
+        names(got)
+    ))
+}
+
 async fn boot_node(
     m: &CanopenBus,
     node: NodeId,
@@ -275,6 +310,14 @@ async fn boot_node(
             }
         }
     }
+    if plan.required_modes != 0 {
+        let supported = read_u32(0x6502, 0).await;
+        if let Ok(v) = supported {
+            // The axis refuses a run-time change to a mode not in it.
+            m.learn(node, |f| f.supported_drive_modes = Some(v));
+        }
+        check_supported_modes(node, plan.required_modes, supported)?;
+    }
     for group in write_groups(&plan.writes) {
         if adopt {
             // A running node is not reconfigured where it already holds the
@@ -362,5 +405,26 @@ async fn boot_node(
         Some(other) => Err(format!(
             "NMT start sent, but the node still reports {other}: it did not start"
         )),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_drive_without_the_configured_mode_fails_its_boot_saying_why() {
+        let node = NodeId::new(5).unwrap();
+        let csp = 1 << 7;
+        // PP, PV, HM, IP, CSV: no CSP.
+        let e = check_supported_modes(node, csp, Ok(0x165)).unwrap_err();
+        assert!(
+            e.contains("does not support the axis's mode cyclic synchronous position")
+                && e.contains("0x00000165"),
+            "{e}"
+        );
+        assert!(check_supported_modes(node, csp, Ok(0x3ED)).is_ok());
+        // A drive that cannot tell is taken at its word.
+        assert!(check_supported_modes(node, csp, Err((false, "abort".into()))).is_ok());
     }
 }

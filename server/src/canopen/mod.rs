@@ -82,6 +82,9 @@ pub struct NodeFacts {
     /// master's own subscription leaves them out: at a 1 ms SYNC that takes
     /// a task wake-up per PDO batch off the master.
     pub tpdos_read_by_axis: bool,
+    /// 0x6502 supported drive modes as the boot procedure of a drive
+    /// read it (axis drives only).
+    pub supported_drive_modes: Option<u32>,
 }
 
 /// The boot procedure of a node (in the spirit of CiA 302): check, write
@@ -100,6 +103,9 @@ pub struct BootPlan {
     /// type and identity are read so that GetNode shows them, and nothing
     /// is checked, written or started.
     pub identify_only: bool,
+    /// Bits of 0x6502 supported drive modes the node must have (the mode
+    /// its axis is configured in); 0 checks nothing.
+    pub required_modes: u32,
 }
 
 /// A decoded PDO.
@@ -940,6 +946,16 @@ impl CanopenBus {
             .expect("facts lock")
             .get(&node)
             .and_then(|f| f.rpdos.iter().find(|p| p.num == num).cloned())
+    }
+
+    /// 0x6502 supported drive modes of an axis drive, as its latest boot
+    /// procedure read it.
+    pub fn supported_drive_modes(&self, node: NodeId) -> Option<u32> {
+        self.facts
+            .read()
+            .expect("facts lock")
+            .get(&node)
+            .and_then(|f| f.supported_drive_modes)
     }
 
     /// The RPDO configurations of a node.

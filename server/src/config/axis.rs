@@ -2,7 +2,8 @@
 
 use super::Config;
 use cangate_axis::{
-    AxisSpec, Cia402Drive, DriveSpec, MotionSpec, PositionMode, ProcessDataPath, StopKind, Units,
+    AxisSpec, Cia402Drive, DriveMode, DriveSpec, MotionSpec, PositionMode, ProcessDataPath,
+    StopKind, TorqueSpec, Units,
 };
 use cangate_canopen::NodeId;
 use serde::{Deserialize, Serialize};
@@ -18,6 +19,39 @@ pub enum PositionModeChoice {
     /// Cyclic synchronous position: the gateway plans, a set-point per SYNC
     /// (needs `sync_period_us` on the bus's `[[canopen]]`).
     Cyclic,
+}
+
+/// The CiA 402 mode of operation an axis runs in (`mode`); see
+/// [`DriveMode`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ModeChoice {
+    /// Profile position (1).
+    ProfilePosition,
+    /// Cyclic synchronous position (8).
+    Csp,
+    /// Interpolated position (7), for drives without CSP.
+    Ip,
+    /// Cyclic synchronous velocity (9).
+    Csv,
+    /// Cyclic synchronous torque (10).
+    Cst,
+    /// Profile torque (4).
+    ProfileTorque,
+}
+
+impl ModeChoice {
+    /// The runtime's mode.
+    pub fn mode(self) -> DriveMode {
+        match self {
+            ModeChoice::ProfilePosition => DriveMode::ProfilePosition,
+            ModeChoice::Csp => DriveMode::CyclicPosition,
+            ModeChoice::Ip => DriveMode::InterpolatedPosition,
+            ModeChoice::Csv => DriveMode::CyclicVelocity,
+            ModeChoice::Cst => DriveMode::CyclicTorque,
+            ModeChoice::ProfileTorque => DriveMode::ProfileTorque,
+        }
+    }
 }
 
 /// How an axis's process data (controlword, targets, statusword, actual
@@ -358,6 +392,21 @@ pub struct AxisConfig {
     /// `profile` (default) or `cyclic`.
     #[serde(default)]
     pub position_mode: PositionModeChoice,
+    /// The CiA 402 mode the axis starts in: `profile_position`, `csp`,
+    /// `ip`, `csv`, `cst` or `profile_torque`; by default the one of
+    /// `position_mode` (profile: `profile_position`, cyclic: `csp`).
+    #[serde(default)]
+    pub mode: Option<ModeChoice>,
+    /// Max torque in per mille of the drive's rated torque: written to
+    /// 0x6072 at boot (the drive's own limit), and the largest torque a
+    /// torque command may ask for; absent: the drive keeps its own 0x6072
+    /// and commands are bounded by 1000.
+    #[serde(default)]
+    pub max_torque: Option<f64>,
+    /// Profile torque's ramp (0x6087, written at boot for a torque axis),
+    /// per mille per second (default 10000).
+    #[serde(default)]
+    pub torque_slope: Option<f64>,
     /// Homing method written to 0x6098 at boot (CiA 402; e.g. 35 = current
     /// position is home, 17..=30 = move to a switch).
     #[serde(default = "default_homing_method")]
@@ -379,10 +428,6 @@ pub struct AxisConfig {
     /// the drive's own.
     #[serde(default)]
     pub following_error_timeout_ms: Option<u16>,
-    /// Max torque in per mille of the rated torque, written to 0x6072 at
-    /// boot; absent: the drive's own.
-    #[serde(default)]
-    pub max_torque: Option<u16>,
     /// Map the drive's signals (torque, following error, digital inputs,
     /// touch probe) into TPDO2..4 where its EDS has them. Off by default:
     /// up to two more frames per SYNC from each drive, bus time a fast
@@ -498,7 +543,8 @@ impl TryFrom<&AxisConfig> for AxisSpec {
             drive: DriveSpec::Cia402(Cia402Drive {
                 bus: c.bus.clone(),
                 node,
-                position_mode: c.position_mode.mode(),
+                mode: c.drive_mode(),
+                torque: c.torque(),
                 process_data: match c.process_data {
                     ProcessDataChoice::Pdo => ProcessDataPath::Pdo,
                     ProcessDataChoice::Sdo => ProcessDataPath::Sdo {
@@ -511,7 +557,8 @@ impl TryFrom<&AxisConfig> for AxisSpec {
                     following_error_timeout: c
                         .following_error_timeout_ms
                         .map(|ms| Duration::from_millis(u64::from(ms))),
-                    max_torque: c.max_torque,
+                    // Checked to be within 0x6072's range.
+                    max_torque: c.max_torque.map(|t| t.round() as u16),
                 },
                 signal_pdos: c.signal_pdos,
             }),
@@ -520,6 +567,74 @@ impl TryFrom<&AxisConfig> for AxisSpec {
 }
 
 impl AxisConfig {
+    /// The mode the axis starts in: `mode`, else `position_mode`'s.
+    pub fn drive_mode(&self) -> DriveMode {
+        self.mode.map_or_else(
+            || DriveMode::of_position_mode(self.position_mode.mode()),
+            ModeChoice::mode,
+        )
+    }
+
+    /// The torque bounds; the target torque is in the process data of an
+    /// axis configured in a torque mode.
+    pub fn torque(&self) -> TorqueSpec {
+        let d = TorqueSpec::default();
+        TorqueSpec {
+            max_torque: self.max_torque.unwrap_or(d.max_torque),
+            torque_slope: self.torque_slope.unwrap_or(d.torque_slope),
+            in_process_data: self.drive_mode().is_torque()
+                && self.process_data == ProcessDataChoice::Pdo,
+        }
+    }
+
+    /// Whether the axis runs on the SYNC: configured cyclic, or in a mode
+    /// that takes a set-point every SYNC.
+    pub fn is_cyclic(&self) -> bool {
+        self.drive_mode().position_mode() == PositionMode::Cyclic
+    }
+
+    fn validate_mode(&self) -> Result<(), String> {
+        let name = &self.name;
+        if let Some(m) = self.mode {
+            let m = m.mode();
+            let from_position = DriveMode::of_position_mode(self.position_mode.mode());
+            if self.position_mode != PositionModeChoice::default()
+                && m.position_mode() != self.position_mode.mode()
+            {
+                return Err(format!(
+                    "axis {name}: mode = \"{m}\" contradicts position_mode = \"{}\" (leave \
+                     position_mode out: mode says it; {from_position} is position_mode's mode)",
+                    match self.position_mode {
+                        PositionModeChoice::Profile => "profile",
+                        PositionModeChoice::Cyclic => "cyclic",
+                    }
+                ));
+            }
+        }
+        for (what, value, max) in [
+            ("max_torque", self.max_torque, 32_767.0),
+            ("torque_slope", self.torque_slope, f64::from(u32::MAX)),
+        ] {
+            if let Some(v) = value
+                && !(v.is_finite() && v > 0.0 && v <= max)
+            {
+                return Err(format!(
+                    "axis {name}: {what} must be positive and at most {max} (per mille), got {v}"
+                ));
+            }
+        }
+        if self.process_data == ProcessDataChoice::Sdo
+            && self.mode.is_some()
+            && self.drive_mode() != DriveMode::ProfilePosition
+        {
+            return Err(format!(
+                "axis {name}: process_data = \"sdo\" needs mode = \"profile_position\": the \
+                 other modes take set-points in the process data",
+            ));
+        }
+        Ok(())
+    }
+
     pub(super) fn validate(&self, cfg: &Config) -> Result<(), String> {
         if self.name.is_empty() || self.name.contains(char::is_whitespace) {
             return Err(format!(
@@ -546,6 +661,15 @@ impl AxisConfig {
                 self.name, self.bus
             ));
         }
+        if self.is_cyclic() && master.sync_period_us == 0 {
+            return Err(format!(
+                "axis {}: mode = \"{}\" needs a SYNC: set sync_period_us on [[canopen]] bus {:?}",
+                self.name,
+                self.drive_mode(),
+                self.bus
+            ));
+        }
+        self.validate_mode()?;
         self.common.validate(&self.name)?;
         if self.process_data == ProcessDataChoice::Sdo {
             if self.position_mode == PositionModeChoice::Cyclic {
@@ -610,6 +734,47 @@ mod tests {
             let key = bad.split(' ').next().unwrap();
             assert!(e.contains(&format!("axis X: {key}")), "{bad}: {e}");
         }
+    }
+
+    #[test]
+    fn the_mode_is_named_validated_and_needs_what_it_uses() {
+        let c = Config::from_toml(BASE).unwrap();
+        assert_eq!(
+            c.axes[0].drive_mode(),
+            cangate_axis::DriveMode::ProfilePosition
+        );
+        let c = Config::from_toml(&format!("{BASE}mode = \"cst\"\nmax_torque = 300.0\n")).unwrap();
+        let torque = c.axes[0].torque();
+        assert_eq!(
+            c.axes[0].drive_mode(),
+            cangate_axis::DriveMode::CyclicTorque
+        );
+        assert_eq!((torque.max_torque, torque.in_process_data), (300.0, true));
+        let err = |extra: &str| {
+            Config::from_toml(&format!("{BASE}{extra}"))
+                .unwrap_err()
+                .to_string()
+        };
+        // The cyclic modes take a set-point every SYNC.
+        let e = err("mode = \"csv\"\n");
+        assert!(e.contains("mode = \"csv\" needs a SYNC"), "{e}");
+        let e = err("mode = \"servo\"\n");
+        assert!(e.contains("servo"), "{e}");
+        let synced = BASE.replace(
+            "bus = \"can0\"\n[[canopen.node]]",
+            "bus = \"can0\"\nsync_period_us = 1000\n[[canopen.node]]",
+        );
+        Config::from_toml(&format!("{synced}mode = \"csv\"\n")).unwrap();
+        let e = Config::from_toml(&format!(
+            "{synced}position_mode = \"cyclic\"\nmode = \"profile_position\"\n"
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("contradicts"), "{e}");
+        let e = err("mode = \"cst\"\nmax_torque = 0.0\n");
+        assert!(e.contains("axis X: max_torque must be positive"), "{e}");
+        let e = err("mode = \"profile_torque\"\nprocess_data = \"sdo\"\n");
+        assert!(e.contains("needs mode = \"profile_position\""), "{e}");
     }
 
     #[test]
@@ -692,7 +857,8 @@ mod tests {
             drive: DriveSpec::Cia402(Cia402Drive {
                 bus: "can0".into(),
                 node: cangate_canopen::NodeId::new(3).unwrap(),
-                position_mode: PositionMode::Cyclic,
+                mode: cangate_axis::DriveMode::CyclicPosition,
+                torque: cangate_axis::TorqueSpec::default(),
                 process_data: ProcessDataPath::Pdo,
                 homing_method: 17,
                 supervision: Default::default(),

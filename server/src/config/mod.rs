@@ -401,11 +401,15 @@ mod tests {
         let names: Vec<_> = c.buses.iter().map(|b| b.name.as_str()).collect();
         assert_eq!(names, ["can0", "smc0", "smc1"]);
         let nodes: Vec<_> = c.canopen[0].nodes.iter().map(|n| n.id).collect();
-        assert_eq!(nodes, [1, 2, 3, 4, 10, 20]);
+        assert_eq!(nodes, [1, 2, 3, 4, 5, 10, 20]);
         assert_eq!(c.handwheels[0].name, "hw1");
         assert_eq!(c.listen, default_listen());
         let axes: Vec<_> = c.axes.iter().map(|a| (a.name.as_str(), a.node)).collect();
-        assert_eq!(axes, [("X", 1), ("Y", 2), ("Z", 4)]);
+        assert_eq!(axes, [("X", 1), ("Y", 2), ("Z", 4), ("S", 5)]);
+        assert_eq!(
+            c.axes[3].drive_mode(),
+            cangate_axis::DriveMode::CyclicVelocity
+        );
         assert_eq!(c.canopen[0].sync_period_us, 10_000);
     }
 

@@ -10,7 +10,9 @@ use crate::convert::axes::{event_pb, outcome_pb, resolution, status_pb};
 use crate::gateway::Gateway;
 use crate::security::StopOverBudget;
 use cangate_axis::cia402::AxisSnapshot;
-use cangate_axis::{AxisCommand, DriveSpec, Outcome, PositionMode, ProcessDataPath, StopKind};
+use cangate_axis::{
+    AxisCommand, DriveMode, DriveSpec, Outcome, PositionMode, ProcessDataPath, StopKind,
+};
 use cangate_can::Timestamp;
 use cangate_proto::v1 as pb;
 use cangate_proto::v1::axes_server::Axes as AxesRpc;
@@ -88,6 +90,14 @@ impl AxesService {
             status: Some(self.status_pb(i, None)),
             process_data: process_data as i32,
             sdo_poll_ms: sdo_poll.map_or(0, |p| p.as_millis() as u32),
+            mode: match &spec.drive {
+                DriveSpec::Cia402(d) => drive_mode_pb(d.mode),
+                DriveSpec::Cansmc(_) => pb::DriveMode::Unspecified,
+            } as i32,
+            max_torque: match &spec.drive {
+                DriveSpec::Cia402(d) => d.torque.max_torque,
+                DriveSpec::Cansmc(_) => 0.0,
+            },
         }
     }
 
@@ -472,6 +482,44 @@ impl AxesRpc for AxesService {
         Ok(Response::new(self.result_pb(i, res)))
     }
 
+    async fn set_torque(
+        &self,
+        req: Request<pb::SetTorqueRequest>,
+    ) -> Result<Response<pb::AxisCommandResponse>, Status> {
+        let peer = peer(&req);
+        let owner = owner(&req);
+        let r = req.into_inner();
+        let cmd = AxisCommand::SetTorque {
+            per_mille: r.torque_per_mille,
+        };
+        Ok(Response::new(
+            self.run(peer, owner, &r.axis, cmd, r.options).await?,
+        ))
+    }
+
+    async fn set_mode(
+        &self,
+        req: Request<pb::SetAxisModeRequest>,
+    ) -> Result<Response<pb::AxisCommandResponse>, Status> {
+        let peer = peer(&req);
+        let owner = owner(&req);
+        let r = req.into_inner();
+        let mode = pb::DriveMode::try_from(r.mode)
+            .ok()
+            .and_then(drive_mode_from_pb)
+            .ok_or_else(|| {
+                ApiError::InvalidArgument(format!(
+                    "mode {} is not a mode of operation: give one of DRIVE_MODE_PROFILE_POSITION, \
+                     _CSP, _IP, _CSV, _CST, _PROFILE_TORQUE",
+                    r.mode
+                ))
+            })?;
+        let cmd = AxisCommand::SetMode { mode };
+        Ok(Response::new(
+            self.run(peer, owner, &r.axis, cmd, r.options).await?,
+        ))
+    }
+
     async fn stop_axes(
         &self,
         req: Request<pb::StopAxesRequest>,
@@ -668,4 +716,29 @@ impl AxesRpc for AxesService {
         );
         Ok(Response::new(stream_of(out)))
     }
+}
+
+/// The API's name of a mode of operation.
+fn drive_mode_pb(m: DriveMode) -> pb::DriveMode {
+    match m {
+        DriveMode::ProfilePosition => pb::DriveMode::ProfilePosition,
+        DriveMode::CyclicPosition => pb::DriveMode::Csp,
+        DriveMode::InterpolatedPosition => pb::DriveMode::Ip,
+        DriveMode::CyclicVelocity => pb::DriveMode::Csv,
+        DriveMode::CyclicTorque => pb::DriveMode::Cst,
+        DriveMode::ProfileTorque => pb::DriveMode::ProfileTorque,
+    }
+}
+
+/// The mode of operation an API value names (`None`: UNSPECIFIED).
+fn drive_mode_from_pb(m: pb::DriveMode) -> Option<DriveMode> {
+    Some(match m {
+        pb::DriveMode::Unspecified => return None,
+        pb::DriveMode::ProfilePosition => DriveMode::ProfilePosition,
+        pb::DriveMode::Csp => DriveMode::CyclicPosition,
+        pb::DriveMode::Ip => DriveMode::InterpolatedPosition,
+        pb::DriveMode::Csv => DriveMode::CyclicVelocity,
+        pb::DriveMode::Cst => DriveMode::CyclicTorque,
+        pb::DriveMode::ProfileTorque => DriveMode::ProfileTorque,
+    })
 }

@@ -74,7 +74,8 @@ impl From<CommandError> for ApiError {
             | E::Busy(m)
             | E::NotCyclic(m)
             | E::SyncStopped(m)
-            | E::StateUnreachable(m) => ApiError::FailedPrecondition(m),
+            | E::StateUnreachable(m)
+            | E::WrongMode(m) => ApiError::FailedPrecondition(m),
         }
     }
 }
@@ -185,6 +186,7 @@ mod tests {
             (E::NotCyclic("m".into()), Code::FailedPrecondition),
             (E::SyncStopped("m".into()), Code::FailedPrecondition),
             (E::StateUnreachable("m".into()), Code::FailedPrecondition),
+            (E::WrongMode("m".into()), Code::FailedPrecondition),
         ] {
             let e = e.prefixed("axis X: ");
             let status = tonic::Status::from(AxisError::Refused(e.clone()));

@@ -89,6 +89,8 @@ pub const TABLE: &[Rule] = &[
     rule("/cangate.v1.Axes/QuickStop", O, false),
     rule("/cangate.v1.Axes/ResetFault", O, false),
     rule("/cangate.v1.Axes/ArmTouchProbe", O, false),
+    rule("/cangate.v1.Axes/SetTorque", O, false),
+    rule("/cangate.v1.Axes/SetMode", O, false),
     rule("/cangate.v1.Axes/StopAxes", O, false),
     rule("/cangate.v1.Axes/MoveAxes", O, false),
     rule("/cangate.v1.Axes/StreamAxisState", V, true),

@@ -191,7 +191,7 @@ impl Rig {
             }
             let mut out = Vec::new();
             self.axis.on_sync(self.now, &mut out);
-            if self.axis.config().position_mode == PositionMode::Cyclic
+            if self.axis.config().position_mode() == PositionMode::Cyclic
                 && out.iter().any(|o| matches!(o, Output::Image(_)))
             {
                 self.setpoints
@@ -1483,3 +1483,4 @@ fn a_fault_cleared_on_an_active_limit_switch_reports_the_switch_again() {
     assert_eq!(rig.axis.snapshot().fault, Some(reached.clone()));
     assert_eq!(faults(&rig).last(), Some(&reached), "{:?}", faults(&rig));
 }
+mod modes;

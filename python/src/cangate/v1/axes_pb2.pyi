@@ -41,6 +41,16 @@ class PositionMode(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     POSITION_MODE_PROFILE: _ClassVar[PositionMode]
     POSITION_MODE_CYCLIC: _ClassVar[PositionMode]
 
+class DriveMode(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    DRIVE_MODE_UNSPECIFIED: _ClassVar[DriveMode]
+    DRIVE_MODE_PROFILE_POSITION: _ClassVar[DriveMode]
+    DRIVE_MODE_CSP: _ClassVar[DriveMode]
+    DRIVE_MODE_IP: _ClassVar[DriveMode]
+    DRIVE_MODE_CSV: _ClassVar[DriveMode]
+    DRIVE_MODE_CST: _ClassVar[DriveMode]
+    DRIVE_MODE_PROFILE_TORQUE: _ClassVar[DriveMode]
+
 class ProcessDataPath(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     __slots__ = ()
     PROCESS_DATA_PATH_UNSPECIFIED: _ClassVar[ProcessDataPath]
@@ -109,6 +119,13 @@ AXIS_BACKEND_CANSMC: AxisBackend
 POSITION_MODE_UNSPECIFIED: PositionMode
 POSITION_MODE_PROFILE: PositionMode
 POSITION_MODE_CYCLIC: PositionMode
+DRIVE_MODE_UNSPECIFIED: DriveMode
+DRIVE_MODE_PROFILE_POSITION: DriveMode
+DRIVE_MODE_CSP: DriveMode
+DRIVE_MODE_IP: DriveMode
+DRIVE_MODE_CSV: DriveMode
+DRIVE_MODE_CST: DriveMode
+DRIVE_MODE_PROFILE_TORQUE: DriveMode
 PROCESS_DATA_PATH_UNSPECIFIED: ProcessDataPath
 PROCESS_DATA_PATH_PDO: ProcessDataPath
 PROCESS_DATA_PATH_SDO: ProcessDataPath
@@ -140,7 +157,7 @@ SETPOINT_EVENT_AT_REST: SetpointEventKind
 SETPOINT_EVENT_ENDED: SetpointEventKind
 
 class Axis(_message.Message):
-    __slots__ = ("name", "backend", "bus", "node", "unit", "counts_per_unit", "min_position", "max_position", "max_velocity", "max_acceleration", "position_mode", "stop_on_loss", "jog_deadman_ms", "status", "process_data", "sdo_poll_ms", "display_decimals")
+    __slots__ = ("name", "backend", "bus", "node", "unit", "counts_per_unit", "min_position", "max_position", "max_velocity", "max_acceleration", "position_mode", "stop_on_loss", "jog_deadman_ms", "status", "process_data", "sdo_poll_ms", "display_decimals", "mode", "max_torque")
     NAME_FIELD_NUMBER: _ClassVar[int]
     BACKEND_FIELD_NUMBER: _ClassVar[int]
     BUS_FIELD_NUMBER: _ClassVar[int]
@@ -158,6 +175,8 @@ class Axis(_message.Message):
     PROCESS_DATA_FIELD_NUMBER: _ClassVar[int]
     SDO_POLL_MS_FIELD_NUMBER: _ClassVar[int]
     DISPLAY_DECIMALS_FIELD_NUMBER: _ClassVar[int]
+    MODE_FIELD_NUMBER: _ClassVar[int]
+    MAX_TORQUE_FIELD_NUMBER: _ClassVar[int]
     name: str
     backend: AxisBackend
     bus: str
@@ -175,7 +194,9 @@ class Axis(_message.Message):
     process_data: ProcessDataPath
     sdo_poll_ms: int
     display_decimals: int
-    def __init__(self, name: _Optional[str] = ..., backend: _Optional[_Union[AxisBackend, str]] = ..., bus: _Optional[str] = ..., node: _Optional[int] = ..., unit: _Optional[str] = ..., counts_per_unit: _Optional[float] = ..., min_position: _Optional[float] = ..., max_position: _Optional[float] = ..., max_velocity: _Optional[float] = ..., max_acceleration: _Optional[float] = ..., position_mode: _Optional[_Union[PositionMode, str]] = ..., stop_on_loss: _Optional[_Union[StopKind, str]] = ..., jog_deadman_ms: _Optional[int] = ..., status: _Optional[_Union[AxisStatus, _Mapping]] = ..., process_data: _Optional[_Union[ProcessDataPath, str]] = ..., sdo_poll_ms: _Optional[int] = ..., display_decimals: _Optional[int] = ...) -> None: ...
+    mode: DriveMode
+    max_torque: float
+    def __init__(self, name: _Optional[str] = ..., backend: _Optional[_Union[AxisBackend, str]] = ..., bus: _Optional[str] = ..., node: _Optional[int] = ..., unit: _Optional[str] = ..., counts_per_unit: _Optional[float] = ..., min_position: _Optional[float] = ..., max_position: _Optional[float] = ..., max_velocity: _Optional[float] = ..., max_acceleration: _Optional[float] = ..., position_mode: _Optional[_Union[PositionMode, str]] = ..., stop_on_loss: _Optional[_Union[StopKind, str]] = ..., jog_deadman_ms: _Optional[int] = ..., status: _Optional[_Union[AxisStatus, _Mapping]] = ..., process_data: _Optional[_Union[ProcessDataPath, str]] = ..., sdo_poll_ms: _Optional[int] = ..., display_decimals: _Optional[int] = ..., mode: _Optional[_Union[DriveMode, str]] = ..., max_torque: _Optional[float] = ...) -> None: ...
 
 class AxisStatus(_message.Message):
     __slots__ = ("axis", "state", "statusword", "mode", "activity", "position", "velocity", "demand_position", "following_error", "homed", "node_lost", "fault_code", "fault_text", "controlled_by", "lease_remaining_ms", "timestamp_us", "torque_actual", "following_error_actual", "digital_inputs", "touch_probe_status")
@@ -344,6 +365,26 @@ class JogRequest(_message.Message):
     acceleration: float
     options: CommandOptions
     def __init__(self, axis: _Optional[str] = ..., velocity: _Optional[float] = ..., acceleration: _Optional[float] = ..., options: _Optional[_Union[CommandOptions, _Mapping]] = ...) -> None: ...
+
+class SetTorqueRequest(_message.Message):
+    __slots__ = ("axis", "torque_per_mille", "options")
+    AXIS_FIELD_NUMBER: _ClassVar[int]
+    TORQUE_PER_MILLE_FIELD_NUMBER: _ClassVar[int]
+    OPTIONS_FIELD_NUMBER: _ClassVar[int]
+    axis: str
+    torque_per_mille: float
+    options: CommandOptions
+    def __init__(self, axis: _Optional[str] = ..., torque_per_mille: _Optional[float] = ..., options: _Optional[_Union[CommandOptions, _Mapping]] = ...) -> None: ...
+
+class SetAxisModeRequest(_message.Message):
+    __slots__ = ("axis", "mode", "options")
+    AXIS_FIELD_NUMBER: _ClassVar[int]
+    MODE_FIELD_NUMBER: _ClassVar[int]
+    OPTIONS_FIELD_NUMBER: _ClassVar[int]
+    axis: str
+    mode: DriveMode
+    options: CommandOptions
+    def __init__(self, axis: _Optional[str] = ..., mode: _Optional[_Union[DriveMode, str]] = ..., options: _Optional[_Union[CommandOptions, _Mapping]] = ...) -> None: ...
 
 class StopAxesRequest(_message.Message):
     __slots__ = ("axes", "quick", "wait")

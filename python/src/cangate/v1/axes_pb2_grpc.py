@@ -100,6 +100,16 @@ class AxesStub:
                 request_serializer=cangate_dot_v1_dot_axes__pb2.AxisCommandRequest.SerializeToString,
                 response_deserializer=cangate_dot_v1_dot_axes__pb2.AxisCommandResponse.FromString,
                 _registered_method=True)
+        self.SetTorque = channel.unary_unary(
+                '/cangate.v1.Axes/SetTorque',
+                request_serializer=cangate_dot_v1_dot_axes__pb2.SetTorqueRequest.SerializeToString,
+                response_deserializer=cangate_dot_v1_dot_axes__pb2.AxisCommandResponse.FromString,
+                _registered_method=True)
+        self.SetMode = channel.unary_unary(
+                '/cangate.v1.Axes/SetMode',
+                request_serializer=cangate_dot_v1_dot_axes__pb2.SetAxisModeRequest.SerializeToString,
+                response_deserializer=cangate_dot_v1_dot_axes__pb2.AxisCommandResponse.FromString,
+                _registered_method=True)
         self.StopAxes = channel.unary_unary(
                 '/cangate.v1.Axes/StopAxes',
                 request_serializer=cangate_dot_v1_dot_axes__pb2.StopAxesRequest.SerializeToString,
@@ -224,6 +234,28 @@ class AxesServicer:
     def ResetFault(self, request, context):
         """Resets a drive fault (rising edge of controlword bit 7); the axis ends
         in "switch on disabled" and needs Enable again.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def SetTorque(self, request, context):
+        """Drives a CiA 402 axis in a torque mode (CST, profile torque) with a
+        torque, per mille of the drive's rated torque, until Stop or another
+        command; the axis stops by itself (outcome STOPPED) when its velocity
+        exceeds `Axis.max_velocity`. FAILED_PRECONDITION in the other modes;
+        OUT_OF_RANGE above `Axis.max_torque`.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
+    def SetMode(self, request, context):
+        """Changes a CiA 402 axis's mode of operation, at rest only:
+        FAILED_PRECONDITION while it moves or a command runs, for a mode its
+        drive lacks (0x6502), a torque mode without the target torque in its
+        process data, or a cyclic mode without a running SYNC. Completed when
+        the drive shows the new mode.
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')
@@ -370,6 +402,16 @@ def add_AxesServicer_to_server(servicer, server):
             'ResetFault': grpc.unary_unary_rpc_method_handler(
                     servicer.ResetFault,
                     request_deserializer=cangate_dot_v1_dot_axes__pb2.AxisCommandRequest.FromString,
+                    response_serializer=cangate_dot_v1_dot_axes__pb2.AxisCommandResponse.SerializeToString,
+            ),
+            'SetTorque': grpc.unary_unary_rpc_method_handler(
+                    servicer.SetTorque,
+                    request_deserializer=cangate_dot_v1_dot_axes__pb2.SetTorqueRequest.FromString,
+                    response_serializer=cangate_dot_v1_dot_axes__pb2.AxisCommandResponse.SerializeToString,
+            ),
+            'SetMode': grpc.unary_unary_rpc_method_handler(
+                    servicer.SetMode,
+                    request_deserializer=cangate_dot_v1_dot_axes__pb2.SetAxisModeRequest.FromString,
                     response_serializer=cangate_dot_v1_dot_axes__pb2.AxisCommandResponse.SerializeToString,
             ),
             'StopAxes': grpc.unary_unary_rpc_method_handler(
@@ -749,6 +791,60 @@ class Axes:
             target,
             '/cangate.v1.Axes/ResetFault',
             cangate_dot_v1_dot_axes__pb2.AxisCommandRequest.SerializeToString,
+            cangate_dot_v1_dot_axes__pb2.AxisCommandResponse.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def SetTorque(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/cangate.v1.Axes/SetTorque',
+            cangate_dot_v1_dot_axes__pb2.SetTorqueRequest.SerializeToString,
+            cangate_dot_v1_dot_axes__pb2.AxisCommandResponse.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def SetMode(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/cangate.v1.Axes/SetMode',
+            cangate_dot_v1_dot_axes__pb2.SetAxisModeRequest.SerializeToString,
             cangate_dot_v1_dot_axes__pb2.AxisCommandResponse.FromString,
             options,
             channel_credentials,

@@ -66,7 +66,7 @@ import type { Message } from "@bufbuild/protobuf";
  * Describes the file cangate/v1/axes.proto.
  */
 export const file_cangate_v1_axes: GenFile = /*@__PURE__*/
-  fileDesc("ChVjYW5nYXRlL3YxL2F4ZXMucHJvdG8SCmNhbmdhdGUudjEihwQKBEF4aXMSDAoEbmFtZRgBIAEoCRIoCgdiYWNrZW5kGAIgASgOMhcuY2FuZ2F0ZS52MS5BeGlzQmFja2VuZBILCgNidXMYAyABKAkSDAoEbm9kZRgEIAEoDRIMCgR1bml0GAUgASgJEhcKD2NvdW50c19wZXJfdW5pdBgGIAEoARIZCgxtaW5fcG9zaXRpb24YByABKAFIAIgBARIZCgxtYXhfcG9zaXRpb24YCCABKAFIAYgBARIUCgxtYXhfdmVsb2NpdHkYCSABKAESGAoQbWF4X2FjY2VsZXJhdGlvbhgKIAEoARIvCg1wb3NpdGlvbl9tb2RlGAsgASgOMhguY2FuZ2F0ZS52MS5Qb3NpdGlvbk1vZGUSKgoMc3RvcF9vbl9sb3NzGAwgASgOMhQuY2FuZ2F0ZS52MS5TdG9wS2luZBIWCg5qb2dfZGVhZG1hbl9tcxgNIAEoDRImCgZzdGF0dXMYDiABKAsyFi5jYW5nYXRlLnYxLkF4aXNTdGF0dXMSMQoMcHJvY2Vzc19kYXRhGA8gASgOMhsuY2FuZ2F0ZS52MS5Qcm9jZXNzRGF0YVBhdGgSEwoLc2RvX3BvbGxfbXMYECABKA0SGAoQZGlzcGxheV9kZWNpbWFscxgRIAEoDUIPCg1fbWluX3Bvc2l0aW9uQg8KDV9tYXhfcG9zaXRpb24i0QQKCkF4aXNTdGF0dXMSDAoEYXhpcxgBIAEoCRIlCgVzdGF0ZRgCIAEoDjIWLmNhbmdhdGUudjEuRHJpdmVTdGF0ZRISCgpzdGF0dXN3b3JkGAMgASgNEgwKBG1vZGUYBCABKAUSKgoIYWN0aXZpdHkYBSABKA4yGC5jYW5nYXRlLnYxLkF4aXNBY3Rpdml0eRIQCghwb3NpdGlvbhgGIAEoARIQCgh2ZWxvY2l0eRgHIAEoARIXCg9kZW1hbmRfcG9zaXRpb24YCCABKAESFwoPZm9sbG93aW5nX2Vycm9yGAkgASgBEg0KBWhvbWVkGAogASgIEhEKCW5vZGVfbG9zdBgLIAEoCBISCgpmYXVsdF9jb2RlGAwgASgNEhIKCmZhdWx0X3RleHQYDSABKAkSFQoNY29udHJvbGxlZF9ieRgOIAEoCRIaChJsZWFzZV9yZW1haW5pbmdfbXMYDyABKA0SFAoMdGltZXN0YW1wX3VzGBAgASgEEhoKDXRvcnF1ZV9hY3R1YWwYESABKAVIAIgBARIjChZmb2xsb3dpbmdfZXJyb3JfYWN0dWFsGBIgASgBSAGIAQESMQoOZGlnaXRhbF9pbnB1dHMYEyABKAsyGS5jYW5nYXRlLnYxLkRpZ2l0YWxJbnB1dHMSHwoSdG91Y2hfcHJvYmVfc3RhdHVzGBQgASgNSAKIAQFCEAoOX3RvcnF1ZV9hY3R1YWxCGQoXX2ZvbGxvd2luZ19lcnJvcl9hY3R1YWxCFQoTX3RvdWNoX3Byb2JlX3N0YXR1cyJvCg1EaWdpdGFsSW5wdXRzEh0KFW5lZ2F0aXZlX2xpbWl0X3N3aXRjaBgBIAEoCBIdChVwb3NpdGl2ZV9saW1pdF9zd2l0Y2gYAiABKAgSEwoLaG9tZV9zd2l0Y2gYAyABKAgSCwoDcmF3GAQgASgNIhEKD0xpc3RBeGVzUmVxdWVzdCIyChBMaXN0QXhlc1Jlc3BvbnNlEh4KBGF4ZXMYASADKAsyEC5jYW5nYXRlLnYxLkF4aXMiHgoOR2V0QXhpc1JlcXVlc3QSDAoEYXhpcxgBIAEoCSJKChVBY3F1aXJlQ29udHJvbFJlcXVlc3QSDAoEYXhlcxgBIAMoCRIOCgZ0dGxfbXMYAiABKA0SEwoLY2xpZW50X25hbWUYAyABKAkiSwoMQ29udHJvbExlYXNlEg0KBWxlYXNlGAEgASgJEgwKBGF4ZXMYAiADKAkSDgoGaG9sZGVyGAMgASgJEg4KBnR0bF9tcxgEIAEoDSIkChNSZW5ld0NvbnRyb2xSZXF1ZXN0Eg0KBWxlYXNlGAEgASgJIiYKFVJlbGVhc2VDb250cm9sUmVxdWVzdBINCgVsZWFzZRgBIAEoCSImChZSZWxlYXNlQ29udHJvbFJlc3BvbnNlEgwKBGF4ZXMYASADKAkiRgoOQ29tbWFuZE9wdGlvbnMSDQoFbGVhc2UYASABKAkSDAoEd2FpdBgCIAEoCBIXCg93YWl0X3RpbWVvdXRfbXMYAyABKA0iTwoSQXhpc0NvbW1hbmRSZXF1ZXN0EgwKBGF4aXMYASABKAkSKwoHb3B0aW9ucxgCIAEoCzIaLmNhbmdhdGUudjEuQ29tbWFuZE9wdGlvbnMicwoTQXhpc0NvbW1hbmRSZXNwb25zZRIkCgdvdXRjb21lGAEgASgOMhMuY2FuZ2F0ZS52MS5PdXRjb21lEg4KBmRldGFpbBgCIAEoCRImCgZzdGF0dXMYAyABKAsyFi5jYW5nYXRlLnYxLkF4aXNTdGF0dXMikgEKC01vdmVSZXF1ZXN0EgwKBGF4aXMYASABKAkSDgoGdGFyZ2V0GAIgASgBEhAKCHJlbGF0aXZlGAMgASgIEhAKCHZlbG9jaXR5GAQgASgBEhQKDGFjY2VsZXJhdGlvbhgFIAEoARIrCgdvcHRpb25zGAYgASgLMhouY2FuZ2F0ZS52MS5Db21tYW5kT3B0aW9ucyJvCgpKb2dSZXF1ZXN0EgwKBGF4aXMYASABKAkSEAoIdmVsb2NpdHkYAiABKAESFAoMYWNjZWxlcmF0aW9uGAMgASgBEisKB29wdGlvbnMYBCABKAsyGi5jYW5nYXRlLnYxLkNvbW1hbmRPcHRpb25zIjwKD1N0b3BBeGVzUmVxdWVzdBIMCgRheGVzGAEgAygJEg0KBXF1aWNrGAIgASgIEgwKBHdhaXQYAyABKAgiRQoRTXVsdGlBeGlzUmVzcG9uc2USMAoHcmVzdWx0cxgBIAMoCzIfLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZSJXCg9Nb3ZlQXhlc1JlcXVlc3QSJwoHdGFyZ2V0cxgBIAMoCzIWLmNhbmdhdGUudjEuQXhpc1RhcmdldBINCgVsZWFzZRgCIAEoCRIMCgR3YWl0GAMgASgIIlIKCkF4aXNUYXJnZXQSDAoEYXhpcxgBIAEoCRIOCgZ0YXJnZXQYAiABKAESEAoIdmVsb2NpdHkYAyABKAESFAoMYWNjZWxlcmF0aW9uGAQgASgBIjwKFlN0cmVhbUF4aXNTdGF0ZVJlcXVlc3QSDAoEYXhlcxgBIAMoCRIUCgxjaGFuZ2VzX29ubHkYAiABKAgiaAoKQXhpc1VwZGF0ZRIoCgZzdGF0dXMYASABKAsyFi5jYW5nYXRlLnYxLkF4aXNTdGF0dXNIABImCgVldmVudBgCIAEoCzIVLmNhbmdhdGUudjEuQXhpc0V2ZW50SABCCAoGdXBkYXRlIqICCglBeGlzRXZlbnQSDAoEYXhpcxgBIAEoCRIUCgx0aW1lc3RhbXBfdXMYAiABKAQSLQoLbW90aW9uX2RvbmUYAyABKAsyFi5jYW5nYXRlLnYxLk1vdGlvbkRvbmVIABIiCgVmYXVsdBgEIAEoCzIRLmNhbmdhdGUudjEuRmF1bHRIABIsCgdjb250cm9sGAUgASgLMhkuY2FuZ2F0ZS52MS5Db250cm9sQ2hhbmdlSAASJAoEbm9kZRgGIAEoCzIULmNhbmdhdGUudjEuTm9kZUxpbmtIABIOCgRsb3N0GAcgASgESAASMgoLdG91Y2hfcHJvYmUYCCABKAsyGy5jYW5nYXRlLnYxLlRvdWNoUHJvYmVMYXRjaEgAQgYKBGtpbmQijwEKFEFybVRvdWNoUHJvYmVSZXF1ZXN0EgwKBGF4aXMYASABKAkSKAoEZWRnZRgCIAEoDjIaLmNhbmdhdGUudjEuVG91Y2hQcm9iZUVkZ2USEgoKY29udGludW91cxgDIAEoCBIrCgdvcHRpb25zGAQgASgLMhouY2FuZ2F0ZS52MS5Db21tYW5kT3B0aW9ucyJcCg9Ub3VjaFByb2JlTGF0Y2gSDQoFcHJvYmUYASABKA0SKAoEZWRnZRgCIAEoDjIaLmNhbmdhdGUudjEuVG91Y2hQcm9iZUVkZ2USEAoIcG9zaXRpb24YAyABKAEiUwoKTW90aW9uRG9uZRIPCgdjb21tYW5kGAEgASgJEiQKB291dGNvbWUYAiABKA4yEy5jYW5nYXRlLnYxLk91dGNvbWUSDgoGZGV0YWlsGAMgASgJIjMKBUZhdWx0EgwKBGNvZGUYASABKA0SDAoEdGV4dBgCIAEoCRIOCgZhY3RpdmUYAyABKAgiQQoNQ29udHJvbENoYW5nZRIOCgZob2xkZXIYASABKAkSEAoIcHJldmlvdXMYAiABKAkSDgoGcmVhc29uGAMgASgJIigKCE5vZGVMaW5rEgwKBGxvc3QYASABKAgSDgoGcmVhc29uGAIgASgJIn4KFVNldHBvaW50U3RyZWFtUmVxdWVzdBIuCgRvcGVuGAEgASgLMh4uY2FuZ2F0ZS52MS5TZXRwb2ludFN0cmVhbU9wZW5IABIqCgViYXRjaBgCIAEoCzIZLmNhbmdhdGUudjEuU2V0cG9pbnRCYXRjaEgAQgkKB21lc3NhZ2UijgEKElNldHBvaW50U3RyZWFtT3BlbhIMCgRheGVzGAEgAygJEg0KBWxlYXNlGAIgASgJEhAKCGRlcHRoX21zGAMgASgNEhYKDmV4dHJhcG9sYXRlX21zGAQgASgNEhcKD3BvaW50X3BlcmlvZF91cxgFIAEoDRIYChBzdGF0dXNfcGVyaW9kX21zGAYgASgNIjUKDVNldHBvaW50QmF0Y2gSJAoGcG9pbnRzGAEgAygLMhQuY2FuZ2F0ZS52MS5TZXRwb2ludCI/CghTZXRwb2ludBIMCgR0X3VzGAEgASgEEhEKCXBvc2l0aW9ucxgCIAMoARISCgp2ZWxvY2l0aWVzGAMgAygBIpoBChBTZXRwb2ludENvdW50ZXJzEhAKCHJlY2VpdmVkGAEgASgEEhAKCGFjY2VwdGVkGAIgASgEEg8KB3JlZnVzZWQYAyABKAQSDgoGcGxheWVkGAQgASgEEgwKBGxhdGUYBSABKAQSDwoHZHJvcHBlZBgGIAEoBBIRCgl1bmRlcnJ1bnMYByABKAQSDwoHbGltaXRlZBgIIAEoBCLlAgoUU2V0cG9pbnRTdHJlYW1TdGF0dXMSLgoFc3RhdGUYASABKA4yHy5jYW5nYXRlLnYxLlNldHBvaW50U3RyZWFtU3RhdGUSFwoPYnVmZmVyX2xldmVsX3VzGAIgASgEEi4KCGNvdW50ZXJzGAMgASgLMhwuY2FuZ2F0ZS52MS5TZXRwb2ludENvdW50ZXJzEhcKD2Nsb2NrX29mZnNldF91cxgEIAEoAxIbChNjb21tYW5kZWRfcG9zaXRpb25zGAUgAygBEhgKEGFjdHVhbF9wb3NpdGlvbnMYBiADKAESLwoGZXZlbnRzGAcgAygLMh8uY2FuZ2F0ZS52MS5TZXRwb2ludFN0cmVhbUV2ZW50EhQKDHRpbWVzdGFtcF91cxgIIAEoBBINCgVlbmRlZBgJIAEoCRIuCgdzaWduYWxzGAogAygLMh0uY2FuZ2F0ZS52MS5TdHJlYW1BeGlzU2lnbmFscyLmAQoRU3RyZWFtQXhpc1NpZ25hbHMSGgoNdG9ycXVlX2FjdHVhbBgBIAEoBUgAiAEBEhwKD3ZlbG9jaXR5X2FjdHVhbBgCIAEoAUgBiAEBEiMKFmZvbGxvd2luZ19lcnJvcl9hY3R1YWwYAyABKAFIAogBARIxCg5kaWdpdGFsX2lucHV0cxgEIAEoCzIZLmNhbmdhdGUudjEuRGlnaXRhbElucHV0c0IQCg5fdG9ycXVlX2FjdHVhbEISChBfdmVsb2NpdHlfYWN0dWFsQhkKF19mb2xsb3dpbmdfZXJyb3JfYWN0dWFsIn4KE1NldHBvaW50U3RyZWFtRXZlbnQSKwoEa2luZBgBIAEoDjIdLmNhbmdhdGUudjEuU2V0cG9pbnRFdmVudEtpbmQSDgoGcmVhc29uGAIgASgJEgwKBGF4aXMYAyABKAkSDAoEdF91cxgEIAEoBBIOCgZkZXRhaWwYBSABKAkqugIKCkRyaXZlU3RhdGUSGwoXRFJJVkVfU1RBVEVfVU5TUEVDSUZJRUQQABImCiJEUklWRV9TVEFURV9OT1RfUkVBRFlfVE9fU1dJVENIX09OEAESIgoeRFJJVkVfU1RBVEVfU1dJVENIX09OX0RJU0FCTEVEEAISIgoeRFJJVkVfU1RBVEVfUkVBRFlfVE9fU1dJVENIX09OEAMSGwoXRFJJVkVfU1RBVEVfU1dJVENIRURfT04QBBIhCh1EUklWRV9TVEFURV9PUEVSQVRJT05fRU5BQkxFRBAFEiEKHURSSVZFX1NUQVRFX1FVSUNLX1NUT1BfQUNUSVZFEAYSJQohRFJJVkVfU1RBVEVfRkFVTFRfUkVBQ1RJT05fQUNUSVZFEAcSFQoRRFJJVkVfU1RBVEVfRkFVTFQQCCrNAQoMQXhpc0FjdGl2aXR5Eh0KGUFYSVNfQUNUSVZJVFlfVU5TUEVDSUZJRUQQABIWChJBWElTX0FDVElWSVRZX0lETEUQARIbChdBWElTX0FDVElWSVRZX1NXSVRDSElORxACEhgKFEFYSVNfQUNUSVZJVFlfSE9NSU5HEAMSGAoUQVhJU19BQ1RJVklUWV9NT1ZJTkcQBBIZChVBWElTX0FDVElWSVRZX0pPR0dJTkcQBRIaChZBWElTX0FDVElWSVRZX1NUT1BQSU5HEAYqXQoLQXhpc0JhY2tlbmQSHAoYQVhJU19CQUNLRU5EX1VOU1BFQ0lGSUVEEAASFwoTQVhJU19CQUNLRU5EX0NJQTQwMhABEhcKE0FYSVNfQkFDS0VORF9DQU5TTUMQAipiCgxQb3NpdGlvbk1vZGUSHQoZUE9TSVRJT05fTU9ERV9VTlNQRUNJRklFRBAAEhkKFVBPU0lUSU9OX01PREVfUFJPRklMRRABEhgKFFBPU0lUSU9OX01PREVfQ1lDTElDEAIqagoPUHJvY2Vzc0RhdGFQYXRoEiEKHVBST0NFU1NfREFUQV9QQVRIX1VOU1BFQ0lGSUVEEAASGQoVUFJPQ0VTU19EQVRBX1BBVEhfUERPEAESGQoVUFJPQ0VTU19EQVRBX1BBVEhfU0RPEAIqUwoIU3RvcEtpbmQSGQoVU1RPUF9LSU5EX1VOU1BFQ0lGSUVEEAASEgoOU1RPUF9LSU5EX0hBTFQQARIYChRTVE9QX0tJTkRfUVVJQ0tfU1RPUBACKqQBCgdPdXRjb21lEhcKE09VVENPTUVfVU5TUEVDSUZJRUQQABIUChBPVVRDT01FX0FDQ0VQVEVEEAESFQoRT1VUQ09NRV9DT01QTEVURUQQAhIWChJPVVRDT01FX1NVUEVSU0VERUQQAxIRCg1PVVRDT01FX0ZBVUxUEAQSEwoPT1VUQ09NRV9USU1FT1VUEAUSEwoPT1VUQ09NRV9TVE9QUEVEEAYqiAEKDlRvdWNoUHJvYmVFZGdlEiAKHFRPVUNIX1BST0JFX0VER0VfVU5TUEVDSUZJRUQQABIbChdUT1VDSF9QUk9CRV9FREdFX1JJU0lORxABEhwKGFRPVUNIX1BST0JFX0VER0VfRkFMTElORxACEhkKFVRPVUNIX1BST0JFX0VER0VfQk9USBADKu8BChNTZXRwb2ludFN0cmVhbVN0YXRlEiUKIVNFVFBPSU5UX1NUUkVBTV9TVEFURV9VTlNQRUNJRklFRBAAEhsKF1NFVFBPSU5UX1NUUkVBTV9XQUlUSU5HEAESGwoXU0VUUE9JTlRfU1RSRUFNX0ZJTExJTkcQAhIbChdTRVRQT0lOVF9TVFJFQU1fUExBWUlORxADEiEKHVNFVFBPSU5UX1NUUkVBTV9FWFRSQVBPTEFUSU5HEAQSHAoYU0VUUE9JTlRfU1RSRUFNX1NUT1BQSU5HEAUSGQoVU0VUUE9JTlRfU1RSRUFNX0VOREVEEAYqrQEKEVNldHBvaW50RXZlbnRLaW5kEiMKH1NFVFBPSU5UX0VWRU5UX0tJTkRfVU5TUEVDSUZJRUQQABIbChdTRVRQT0lOVF9FVkVOVF9VTkRFUlJVThABEiAKHFNFVFBPSU5UX0VWRU5UX1BPSU5UX1JFRlVTRUQQAhIaChZTRVRQT0lOVF9FVkVOVF9BVF9SRVNUEAMSGAoUU0VUUE9JTlRfRVZFTlRfRU5ERUQQBDLSCgoEQXhlcxJFCghMaXN0QXhlcxIbLmNhbmdhdGUudjEuTGlzdEF4ZXNSZXF1ZXN0GhwuY2FuZ2F0ZS52MS5MaXN0QXhlc1Jlc3BvbnNlEjcKB0dldEF4aXMSGi5jYW5nYXRlLnYxLkdldEF4aXNSZXF1ZXN0GhAuY2FuZ2F0ZS52MS5BeGlzEk0KDkFjcXVpcmVDb250cm9sEiEuY2FuZ2F0ZS52MS5BY3F1aXJlQ29udHJvbFJlcXVlc3QaGC5jYW5nYXRlLnYxLkNvbnRyb2xMZWFzZRJJCgxSZW5ld0NvbnRyb2wSHy5jYW5nYXRlLnYxLlJlbmV3Q29udHJvbFJlcXVlc3QaGC5jYW5nYXRlLnYxLkNvbnRyb2xMZWFzZRJXCg5SZWxlYXNlQ29udHJvbBIhLmNhbmdhdGUudjEuUmVsZWFzZUNvbnRyb2xSZXF1ZXN0GiIuY2FuZ2F0ZS52MS5SZWxlYXNlQ29udHJvbFJlc3BvbnNlEkkKBkVuYWJsZRIeLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEkoKB0Rpc2FibGUSHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJHCgRIb21lEh4uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USQAoETW92ZRIXLmNhbmdhdGUudjEuTW92ZVJlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USPgoDSm9nEhYuY2FuZ2F0ZS52MS5Kb2dSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEkcKBFN0b3ASHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJMCglRdWlja1N0b3ASHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJNCgpSZXNldEZhdWx0Eh4uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USRgoIU3RvcEF4ZXMSGy5jYW5nYXRlLnYxLlN0b3BBeGVzUmVxdWVzdBodLmNhbmdhdGUudjEuTXVsdGlBeGlzUmVzcG9uc2USRgoITW92ZUF4ZXMSGy5jYW5nYXRlLnYxLk1vdmVBeGVzUmVxdWVzdBodLmNhbmdhdGUudjEuTXVsdGlBeGlzUmVzcG9uc2USTwoPU3RyZWFtQXhpc1N0YXRlEiIuY2FuZ2F0ZS52MS5TdHJlYW1BeGlzU3RhdGVSZXF1ZXN0GhYuY2FuZ2F0ZS52MS5BeGlzVXBkYXRlMAESWgoPU3RyZWFtU2V0cG9pbnRzEiEuY2FuZ2F0ZS52MS5TZXRwb2ludFN0cmVhbVJlcXVlc3QaIC5jYW5nYXRlLnYxLlNldHBvaW50U3RyZWFtU3RhdHVzKAEwARJSCg1Bcm1Ub3VjaFByb2JlEiAuY2FuZ2F0ZS52MS5Bcm1Ub3VjaFByb2JlUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZWIGcHJvdG8z");
+  fileDesc("ChVjYW5nYXRlL3YxL2F4ZXMucHJvdG8SCmNhbmdhdGUudjEiwAQKBEF4aXMSDAoEbmFtZRgBIAEoCRIoCgdiYWNrZW5kGAIgASgOMhcuY2FuZ2F0ZS52MS5BeGlzQmFja2VuZBILCgNidXMYAyABKAkSDAoEbm9kZRgEIAEoDRIMCgR1bml0GAUgASgJEhcKD2NvdW50c19wZXJfdW5pdBgGIAEoARIZCgxtaW5fcG9zaXRpb24YByABKAFIAIgBARIZCgxtYXhfcG9zaXRpb24YCCABKAFIAYgBARIUCgxtYXhfdmVsb2NpdHkYCSABKAESGAoQbWF4X2FjY2VsZXJhdGlvbhgKIAEoARIvCg1wb3NpdGlvbl9tb2RlGAsgASgOMhguY2FuZ2F0ZS52MS5Qb3NpdGlvbk1vZGUSKgoMc3RvcF9vbl9sb3NzGAwgASgOMhQuY2FuZ2F0ZS52MS5TdG9wS2luZBIWCg5qb2dfZGVhZG1hbl9tcxgNIAEoDRImCgZzdGF0dXMYDiABKAsyFi5jYW5nYXRlLnYxLkF4aXNTdGF0dXMSMQoMcHJvY2Vzc19kYXRhGA8gASgOMhsuY2FuZ2F0ZS52MS5Qcm9jZXNzRGF0YVBhdGgSEwoLc2RvX3BvbGxfbXMYECABKA0SGAoQZGlzcGxheV9kZWNpbWFscxgRIAEoDRIjCgRtb2RlGBIgASgOMhUuY2FuZ2F0ZS52MS5Ecml2ZU1vZGUSEgoKbWF4X3RvcnF1ZRgTIAEoAUIPCg1fbWluX3Bvc2l0aW9uQg8KDV9tYXhfcG9zaXRpb24i0QQKCkF4aXNTdGF0dXMSDAoEYXhpcxgBIAEoCRIlCgVzdGF0ZRgCIAEoDjIWLmNhbmdhdGUudjEuRHJpdmVTdGF0ZRISCgpzdGF0dXN3b3JkGAMgASgNEgwKBG1vZGUYBCABKAUSKgoIYWN0aXZpdHkYBSABKA4yGC5jYW5nYXRlLnYxLkF4aXNBY3Rpdml0eRIQCghwb3NpdGlvbhgGIAEoARIQCgh2ZWxvY2l0eRgHIAEoARIXCg9kZW1hbmRfcG9zaXRpb24YCCABKAESFwoPZm9sbG93aW5nX2Vycm9yGAkgASgBEg0KBWhvbWVkGAogASgIEhEKCW5vZGVfbG9zdBgLIAEoCBISCgpmYXVsdF9jb2RlGAwgASgNEhIKCmZhdWx0X3RleHQYDSABKAkSFQoNY29udHJvbGxlZF9ieRgOIAEoCRIaChJsZWFzZV9yZW1haW5pbmdfbXMYDyABKA0SFAoMdGltZXN0YW1wX3VzGBAgASgEEhoKDXRvcnF1ZV9hY3R1YWwYESABKAVIAIgBARIjChZmb2xsb3dpbmdfZXJyb3JfYWN0dWFsGBIgASgBSAGIAQESMQoOZGlnaXRhbF9pbnB1dHMYEyABKAsyGS5jYW5nYXRlLnYxLkRpZ2l0YWxJbnB1dHMSHwoSdG91Y2hfcHJvYmVfc3RhdHVzGBQgASgNSAKIAQFCEAoOX3RvcnF1ZV9hY3R1YWxCGQoXX2ZvbGxvd2luZ19lcnJvcl9hY3R1YWxCFQoTX3RvdWNoX3Byb2JlX3N0YXR1cyJvCg1EaWdpdGFsSW5wdXRzEh0KFW5lZ2F0aXZlX2xpbWl0X3N3aXRjaBgBIAEoCBIdChVwb3NpdGl2ZV9saW1pdF9zd2l0Y2gYAiABKAgSEwoLaG9tZV9zd2l0Y2gYAyABKAgSCwoDcmF3GAQgASgNIhEKD0xpc3RBeGVzUmVxdWVzdCIyChBMaXN0QXhlc1Jlc3BvbnNlEh4KBGF4ZXMYASADKAsyEC5jYW5nYXRlLnYxLkF4aXMiHgoOR2V0QXhpc1JlcXVlc3QSDAoEYXhpcxgBIAEoCSJKChVBY3F1aXJlQ29udHJvbFJlcXVlc3QSDAoEYXhlcxgBIAMoCRIOCgZ0dGxfbXMYAiABKA0SEwoLY2xpZW50X25hbWUYAyABKAkiSwoMQ29udHJvbExlYXNlEg0KBWxlYXNlGAEgASgJEgwKBGF4ZXMYAiADKAkSDgoGaG9sZGVyGAMgASgJEg4KBnR0bF9tcxgEIAEoDSIkChNSZW5ld0NvbnRyb2xSZXF1ZXN0Eg0KBWxlYXNlGAEgASgJIiYKFVJlbGVhc2VDb250cm9sUmVxdWVzdBINCgVsZWFzZRgBIAEoCSImChZSZWxlYXNlQ29udHJvbFJlc3BvbnNlEgwKBGF4ZXMYASADKAkiRgoOQ29tbWFuZE9wdGlvbnMSDQoFbGVhc2UYASABKAkSDAoEd2FpdBgCIAEoCBIXCg93YWl0X3RpbWVvdXRfbXMYAyABKA0iTwoSQXhpc0NvbW1hbmRSZXF1ZXN0EgwKBGF4aXMYASABKAkSKwoHb3B0aW9ucxgCIAEoCzIaLmNhbmdhdGUudjEuQ29tbWFuZE9wdGlvbnMicwoTQXhpc0NvbW1hbmRSZXNwb25zZRIkCgdvdXRjb21lGAEgASgOMhMuY2FuZ2F0ZS52MS5PdXRjb21lEg4KBmRldGFpbBgCIAEoCRImCgZzdGF0dXMYAyABKAsyFi5jYW5nYXRlLnYxLkF4aXNTdGF0dXMikgEKC01vdmVSZXF1ZXN0EgwKBGF4aXMYASABKAkSDgoGdGFyZ2V0GAIgASgBEhAKCHJlbGF0aXZlGAMgASgIEhAKCHZlbG9jaXR5GAQgASgBEhQKDGFjY2VsZXJhdGlvbhgFIAEoARIrCgdvcHRpb25zGAYgASgLMhouY2FuZ2F0ZS52MS5Db21tYW5kT3B0aW9ucyJvCgpKb2dSZXF1ZXN0EgwKBGF4aXMYASABKAkSEAoIdmVsb2NpdHkYAiABKAESFAoMYWNjZWxlcmF0aW9uGAMgASgBEisKB29wdGlvbnMYBCABKAsyGi5jYW5nYXRlLnYxLkNvbW1hbmRPcHRpb25zImcKEFNldFRvcnF1ZVJlcXVlc3QSDAoEYXhpcxgBIAEoCRIYChB0b3JxdWVfcGVyX21pbGxlGAIgASgBEisKB29wdGlvbnMYAyABKAsyGi5jYW5nYXRlLnYxLkNvbW1hbmRPcHRpb25zInQKElNldEF4aXNNb2RlUmVxdWVzdBIMCgRheGlzGAEgASgJEiMKBG1vZGUYAiABKA4yFS5jYW5nYXRlLnYxLkRyaXZlTW9kZRIrCgdvcHRpb25zGAMgASgLMhouY2FuZ2F0ZS52MS5Db21tYW5kT3B0aW9ucyI8Cg9TdG9wQXhlc1JlcXVlc3QSDAoEYXhlcxgBIAMoCRINCgVxdWljaxgCIAEoCBIMCgR3YWl0GAMgASgIIkUKEU11bHRpQXhpc1Jlc3BvbnNlEjAKB3Jlc3VsdHMYASADKAsyHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2UiVwoPTW92ZUF4ZXNSZXF1ZXN0EicKB3RhcmdldHMYASADKAsyFi5jYW5nYXRlLnYxLkF4aXNUYXJnZXQSDQoFbGVhc2UYAiABKAkSDAoEd2FpdBgDIAEoCCJSCgpBeGlzVGFyZ2V0EgwKBGF4aXMYASABKAkSDgoGdGFyZ2V0GAIgASgBEhAKCHZlbG9jaXR5GAMgASgBEhQKDGFjY2VsZXJhdGlvbhgEIAEoASI8ChZTdHJlYW1BeGlzU3RhdGVSZXF1ZXN0EgwKBGF4ZXMYASADKAkSFAoMY2hhbmdlc19vbmx5GAIgASgIImgKCkF4aXNVcGRhdGUSKAoGc3RhdHVzGAEgASgLMhYuY2FuZ2F0ZS52MS5BeGlzU3RhdHVzSAASJgoFZXZlbnQYAiABKAsyFS5jYW5nYXRlLnYxLkF4aXNFdmVudEgAQggKBnVwZGF0ZSKiAgoJQXhpc0V2ZW50EgwKBGF4aXMYASABKAkSFAoMdGltZXN0YW1wX3VzGAIgASgEEi0KC21vdGlvbl9kb25lGAMgASgLMhYuY2FuZ2F0ZS52MS5Nb3Rpb25Eb25lSAASIgoFZmF1bHQYBCABKAsyES5jYW5nYXRlLnYxLkZhdWx0SAASLAoHY29udHJvbBgFIAEoCzIZLmNhbmdhdGUudjEuQ29udHJvbENoYW5nZUgAEiQKBG5vZGUYBiABKAsyFC5jYW5nYXRlLnYxLk5vZGVMaW5rSAASDgoEbG9zdBgHIAEoBEgAEjIKC3RvdWNoX3Byb2JlGAggASgLMhsuY2FuZ2F0ZS52MS5Ub3VjaFByb2JlTGF0Y2hIAEIGCgRraW5kIo8BChRBcm1Ub3VjaFByb2JlUmVxdWVzdBIMCgRheGlzGAEgASgJEigKBGVkZ2UYAiABKA4yGi5jYW5nYXRlLnYxLlRvdWNoUHJvYmVFZGdlEhIKCmNvbnRpbnVvdXMYAyABKAgSKwoHb3B0aW9ucxgEIAEoCzIaLmNhbmdhdGUudjEuQ29tbWFuZE9wdGlvbnMiXAoPVG91Y2hQcm9iZUxhdGNoEg0KBXByb2JlGAEgASgNEigKBGVkZ2UYAiABKA4yGi5jYW5nYXRlLnYxLlRvdWNoUHJvYmVFZGdlEhAKCHBvc2l0aW9uGAMgASgBIlMKCk1vdGlvbkRvbmUSDwoHY29tbWFuZBgBIAEoCRIkCgdvdXRjb21lGAIgASgOMhMuY2FuZ2F0ZS52MS5PdXRjb21lEg4KBmRldGFpbBgDIAEoCSIzCgVGYXVsdBIMCgRjb2RlGAEgASgNEgwKBHRleHQYAiABKAkSDgoGYWN0aXZlGAMgASgIIkEKDUNvbnRyb2xDaGFuZ2USDgoGaG9sZGVyGAEgASgJEhAKCHByZXZpb3VzGAIgASgJEg4KBnJlYXNvbhgDIAEoCSIoCghOb2RlTGluaxIMCgRsb3N0GAEgASgIEg4KBnJlYXNvbhgCIAEoCSJ+ChVTZXRwb2ludFN0cmVhbVJlcXVlc3QSLgoEb3BlbhgBIAEoCzIeLmNhbmdhdGUudjEuU2V0cG9pbnRTdHJlYW1PcGVuSAASKgoFYmF0Y2gYAiABKAsyGS5jYW5nYXRlLnYxLlNldHBvaW50QmF0Y2hIAEIJCgdtZXNzYWdlIo4BChJTZXRwb2ludFN0cmVhbU9wZW4SDAoEYXhlcxgBIAMoCRINCgVsZWFzZRgCIAEoCRIQCghkZXB0aF9tcxgDIAEoDRIWCg5leHRyYXBvbGF0ZV9tcxgEIAEoDRIXCg9wb2ludF9wZXJpb2RfdXMYBSABKA0SGAoQc3RhdHVzX3BlcmlvZF9tcxgGIAEoDSI1Cg1TZXRwb2ludEJhdGNoEiQKBnBvaW50cxgBIAMoCzIULmNhbmdhdGUudjEuU2V0cG9pbnQiPwoIU2V0cG9pbnQSDAoEdF91cxgBIAEoBBIRCglwb3NpdGlvbnMYAiADKAESEgoKdmVsb2NpdGllcxgDIAMoASKaAQoQU2V0cG9pbnRDb3VudGVycxIQCghyZWNlaXZlZBgBIAEoBBIQCghhY2NlcHRlZBgCIAEoBBIPCgdyZWZ1c2VkGAMgASgEEg4KBnBsYXllZBgEIAEoBBIMCgRsYXRlGAUgASgEEg8KB2Ryb3BwZWQYBiABKAQSEQoJdW5kZXJydW5zGAcgASgEEg8KB2xpbWl0ZWQYCCABKAQi5QIKFFNldHBvaW50U3RyZWFtU3RhdHVzEi4KBXN0YXRlGAEgASgOMh8uY2FuZ2F0ZS52MS5TZXRwb2ludFN0cmVhbVN0YXRlEhcKD2J1ZmZlcl9sZXZlbF91cxgCIAEoBBIuCghjb3VudGVycxgDIAEoCzIcLmNhbmdhdGUudjEuU2V0cG9pbnRDb3VudGVycxIXCg9jbG9ja19vZmZzZXRfdXMYBCABKAMSGwoTY29tbWFuZGVkX3Bvc2l0aW9ucxgFIAMoARIYChBhY3R1YWxfcG9zaXRpb25zGAYgAygBEi8KBmV2ZW50cxgHIAMoCzIfLmNhbmdhdGUudjEuU2V0cG9pbnRTdHJlYW1FdmVudBIUCgx0aW1lc3RhbXBfdXMYCCABKAQSDQoFZW5kZWQYCSABKAkSLgoHc2lnbmFscxgKIAMoCzIdLmNhbmdhdGUudjEuU3RyZWFtQXhpc1NpZ25hbHMi5gEKEVN0cmVhbUF4aXNTaWduYWxzEhoKDXRvcnF1ZV9hY3R1YWwYASABKAVIAIgBARIcCg92ZWxvY2l0eV9hY3R1YWwYAiABKAFIAYgBARIjChZmb2xsb3dpbmdfZXJyb3JfYWN0dWFsGAMgASgBSAKIAQESMQoOZGlnaXRhbF9pbnB1dHMYBCABKAsyGS5jYW5nYXRlLnYxLkRpZ2l0YWxJbnB1dHNCEAoOX3RvcnF1ZV9hY3R1YWxCEgoQX3ZlbG9jaXR5X2FjdHVhbEIZChdfZm9sbG93aW5nX2Vycm9yX2FjdHVhbCJ+ChNTZXRwb2ludFN0cmVhbUV2ZW50EisKBGtpbmQYASABKA4yHS5jYW5nYXRlLnYxLlNldHBvaW50RXZlbnRLaW5kEg4KBnJlYXNvbhgCIAEoCRIMCgRheGlzGAMgASgJEgwKBHRfdXMYBCABKAQSDgoGZGV0YWlsGAUgASgJKroCCgpEcml2ZVN0YXRlEhsKF0RSSVZFX1NUQVRFX1VOU1BFQ0lGSUVEEAASJgoiRFJJVkVfU1RBVEVfTk9UX1JFQURZX1RPX1NXSVRDSF9PThABEiIKHkRSSVZFX1NUQVRFX1NXSVRDSF9PTl9ESVNBQkxFRBACEiIKHkRSSVZFX1NUQVRFX1JFQURZX1RPX1NXSVRDSF9PThADEhsKF0RSSVZFX1NUQVRFX1NXSVRDSEVEX09OEAQSIQodRFJJVkVfU1RBVEVfT1BFUkFUSU9OX0VOQUJMRUQQBRIhCh1EUklWRV9TVEFURV9RVUlDS19TVE9QX0FDVElWRRAGEiUKIURSSVZFX1NUQVRFX0ZBVUxUX1JFQUNUSU9OX0FDVElWRRAHEhUKEURSSVZFX1NUQVRFX0ZBVUxUEAgqzQEKDEF4aXNBY3Rpdml0eRIdChlBWElTX0FDVElWSVRZX1VOU1BFQ0lGSUVEEAASFgoSQVhJU19BQ1RJVklUWV9JRExFEAESGwoXQVhJU19BQ1RJVklUWV9TV0lUQ0hJTkcQAhIYChRBWElTX0FDVElWSVRZX0hPTUlORxADEhgKFEFYSVNfQUNUSVZJVFlfTU9WSU5HEAQSGQoVQVhJU19BQ1RJVklUWV9KT0dHSU5HEAUSGgoWQVhJU19BQ1RJVklUWV9TVE9QUElORxAGKl0KC0F4aXNCYWNrZW5kEhwKGEFYSVNfQkFDS0VORF9VTlNQRUNJRklFRBAAEhcKE0FYSVNfQkFDS0VORF9DSUE0MDIQARIXChNBWElTX0JBQ0tFTkRfQ0FOU01DEAIqYgoMUG9zaXRpb25Nb2RlEh0KGVBPU0lUSU9OX01PREVfVU5TUEVDSUZJRUQQABIZChVQT1NJVElPTl9NT0RFX1BST0ZJTEUQARIYChRQT1NJVElPTl9NT0RFX0NZQ0xJQxACKrYBCglEcml2ZU1vZGUSGgoWRFJJVkVfTU9ERV9VTlNQRUNJRklFRBAAEh8KG0RSSVZFX01PREVfUFJPRklMRV9QT1NJVElPThABEhIKDkRSSVZFX01PREVfQ1NQEAISEQoNRFJJVkVfTU9ERV9JUBADEhIKDkRSSVZFX01PREVfQ1NWEAQSEgoORFJJVkVfTU9ERV9DU1QQBRIdChlEUklWRV9NT0RFX1BST0ZJTEVfVE9SUVVFEAYqagoPUHJvY2Vzc0RhdGFQYXRoEiEKHVBST0NFU1NfREFUQV9QQVRIX1VOU1BFQ0lGSUVEEAASGQoVUFJPQ0VTU19EQVRBX1BBVEhfUERPEAESGQoVUFJPQ0VTU19EQVRBX1BBVEhfU0RPEAIqUwoIU3RvcEtpbmQSGQoVU1RPUF9LSU5EX1VOU1BFQ0lGSUVEEAASEgoOU1RPUF9LSU5EX0hBTFQQARIYChRTVE9QX0tJTkRfUVVJQ0tfU1RPUBACKqQBCgdPdXRjb21lEhcKE09VVENPTUVfVU5TUEVDSUZJRUQQABIUChBPVVRDT01FX0FDQ0VQVEVEEAESFQoRT1VUQ09NRV9DT01QTEVURUQQAhIWChJPVVRDT01FX1NVUEVSU0VERUQQAxIRCg1PVVRDT01FX0ZBVUxUEAQSEwoPT1VUQ09NRV9USU1FT1VUEAUSEwoPT1VUQ09NRV9TVE9QUEVEEAYqiAEKDlRvdWNoUHJvYmVFZGdlEiAKHFRPVUNIX1BST0JFX0VER0VfVU5TUEVDSUZJRUQQABIbChdUT1VDSF9QUk9CRV9FREdFX1JJU0lORxABEhwKGFRPVUNIX1BST0JFX0VER0VfRkFMTElORxACEhkKFVRPVUNIX1BST0JFX0VER0VfQk9USBADKu8BChNTZXRwb2ludFN0cmVhbVN0YXRlEiUKIVNFVFBPSU5UX1NUUkVBTV9TVEFURV9VTlNQRUNJRklFRBAAEhsKF1NFVFBPSU5UX1NUUkVBTV9XQUlUSU5HEAESGwoXU0VUUE9JTlRfU1RSRUFNX0ZJTExJTkcQAhIbChdTRVRQT0lOVF9TVFJFQU1fUExBWUlORxADEiEKHVNFVFBPSU5UX1NUUkVBTV9FWFRSQVBPTEFUSU5HEAQSHAoYU0VUUE9JTlRfU1RSRUFNX1NUT1BQSU5HEAUSGQoVU0VUUE9JTlRfU1RSRUFNX0VOREVEEAYqrQEKEVNldHBvaW50RXZlbnRLaW5kEiMKH1NFVFBPSU5UX0VWRU5UX0tJTkRfVU5TUEVDSUZJRUQQABIbChdTRVRQT0lOVF9FVkVOVF9VTkRFUlJVThABEiAKHFNFVFBPSU5UX0VWRU5UX1BPSU5UX1JFRlVTRUQQAhIaChZTRVRQT0lOVF9FVkVOVF9BVF9SRVNUEAMSGAoUU0VUUE9JTlRfRVZFTlRfRU5ERUQQBDLqCwoEQXhlcxJFCghMaXN0QXhlcxIbLmNhbmdhdGUudjEuTGlzdEF4ZXNSZXF1ZXN0GhwuY2FuZ2F0ZS52MS5MaXN0QXhlc1Jlc3BvbnNlEjcKB0dldEF4aXMSGi5jYW5nYXRlLnYxLkdldEF4aXNSZXF1ZXN0GhAuY2FuZ2F0ZS52MS5BeGlzEk0KDkFjcXVpcmVDb250cm9sEiEuY2FuZ2F0ZS52MS5BY3F1aXJlQ29udHJvbFJlcXVlc3QaGC5jYW5nYXRlLnYxLkNvbnRyb2xMZWFzZRJJCgxSZW5ld0NvbnRyb2wSHy5jYW5nYXRlLnYxLlJlbmV3Q29udHJvbFJlcXVlc3QaGC5jYW5nYXRlLnYxLkNvbnRyb2xMZWFzZRJXCg5SZWxlYXNlQ29udHJvbBIhLmNhbmdhdGUudjEuUmVsZWFzZUNvbnRyb2xSZXF1ZXN0GiIuY2FuZ2F0ZS52MS5SZWxlYXNlQ29udHJvbFJlc3BvbnNlEkkKBkVuYWJsZRIeLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEkoKB0Rpc2FibGUSHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJHCgRIb21lEh4uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USQAoETW92ZRIXLmNhbmdhdGUudjEuTW92ZVJlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USPgoDSm9nEhYuY2FuZ2F0ZS52MS5Kb2dSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEkcKBFN0b3ASHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJMCglRdWlja1N0b3ASHi5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJNCgpSZXNldEZhdWx0Eh4uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlcXVlc3QaHy5jYW5nYXRlLnYxLkF4aXNDb21tYW5kUmVzcG9uc2USSgoJU2V0VG9ycXVlEhwuY2FuZ2F0ZS52MS5TZXRUb3JxdWVSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlEkoKB1NldE1vZGUSHi5jYW5nYXRlLnYxLlNldEF4aXNNb2RlUmVxdWVzdBofLmNhbmdhdGUudjEuQXhpc0NvbW1hbmRSZXNwb25zZRJGCghTdG9wQXhlcxIbLmNhbmdhdGUudjEuU3RvcEF4ZXNSZXF1ZXN0Gh0uY2FuZ2F0ZS52MS5NdWx0aUF4aXNSZXNwb25zZRJGCghNb3ZlQXhlcxIbLmNhbmdhdGUudjEuTW92ZUF4ZXNSZXF1ZXN0Gh0uY2FuZ2F0ZS52MS5NdWx0aUF4aXNSZXNwb25zZRJPCg9TdHJlYW1BeGlzU3RhdGUSIi5jYW5nYXRlLnYxLlN0cmVhbUF4aXNTdGF0ZVJlcXVlc3QaFi5jYW5nYXRlLnYxLkF4aXNVcGRhdGUwARJaCg9TdHJlYW1TZXRwb2ludHMSIS5jYW5nYXRlLnYxLlNldHBvaW50U3RyZWFtUmVxdWVzdBogLmNhbmdhdGUudjEuU2V0cG9pbnRTdHJlYW1TdGF0dXMoATABElIKDUFybVRvdWNoUHJvYmUSIC5jYW5nYXRlLnYxLkFybVRvdWNoUHJvYmVSZXF1ZXN0Gh8uY2FuZ2F0ZS52MS5BeGlzQ29tbWFuZFJlc3BvbnNlYgZwcm90bzM");
 
 /**
  * An axis: configuration and live state.
@@ -206,6 +206,22 @@ export type Axis = Message<"cangate.v1.Axis"> & {
    * @generated from field: uint32 display_decimals = 17;
    */
   displayDecimals: number;
+
+  /**
+   * The mode of operation the axis is configured to start in (the one it
+   * runs in now is `AxisStatus.mode`); UNSPECIFIED for CANsmc axes.
+   *
+   * @generated from field: cangate.v1.DriveMode mode = 18;
+   */
+  mode: DriveMode;
+
+  /**
+   * The largest torque SetTorque takes, per mille of the drive's rated
+   * torque (CiA 402 axes; 0 for CANsmc axes).
+   *
+   * @generated from field: double max_torque = 19;
+   */
+  maxTorque: number;
 };
 
 /**
@@ -245,9 +261,10 @@ export type AxisStatus = Message<"cangate.v1.AxisStatus"> & {
 
   /**
    * Mode of operation displayed by the drive (0x6061), e.g. 1 = profile
-   * position, 3 = profile velocity (jog), 6 = homing, 8 = cyclic
-   * synchronous position; 0 unknown (not reported yet). CANsmc axes: 6
-   * while homing, else 8.
+   * position, 3 = profile velocity (jog), 4 = profile torque, 6 =
+   * homing, 7 = interpolated position, 8 = cyclic synchronous position,
+   * 9 = cyclic synchronous velocity, 10 = cyclic synchronous torque; 0
+   * unknown (not reported yet). CANsmc axes: 6 while homing, else 8.
    *
    * @generated from field: int32 mode = 4;
    */
@@ -870,6 +887,78 @@ export const JogRequestSchema: GenMessage<JogRequest> = /*@__PURE__*/
   messageDesc(file_cangate_v1_axes, 15);
 
 /**
+ * SetTorque request.
+ *
+ * @generated from message cangate.v1.SetTorqueRequest
+ */
+export type SetTorqueRequest = Message<"cangate.v1.SetTorqueRequest"> & {
+  /**
+   * Axis name.
+   *
+   * @generated from field: string axis = 1;
+   */
+  axis: string;
+
+  /**
+   * Signed torque, per mille of the drive's rated torque (0x6071), at most
+   * `Axis.max_torque` in magnitude.
+   *
+   * @generated from field: double torque_per_mille = 2;
+   */
+  torquePerMille: number;
+
+  /**
+   * Lease (required) and wait options (a torque command is completed
+   * only when stopped: wait with a timeout, or not at all).
+   *
+   * @generated from field: cangate.v1.CommandOptions options = 3;
+   */
+  options?: CommandOptions | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.SetTorqueRequest.
+ * Use `create(SetTorqueRequestSchema)` to create a new message.
+ */
+export const SetTorqueRequestSchema: GenMessage<SetTorqueRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_axes, 16);
+
+/**
+ * SetMode request (Axes).
+ *
+ * @generated from message cangate.v1.SetAxisModeRequest
+ */
+export type SetAxisModeRequest = Message<"cangate.v1.SetAxisModeRequest"> & {
+  /**
+   * Axis name.
+   *
+   * @generated from field: string axis = 1;
+   */
+  axis: string;
+
+  /**
+   * The new mode (not UNSPECIFIED).
+   *
+   * @generated from field: cangate.v1.DriveMode mode = 2;
+   */
+  mode: DriveMode;
+
+  /**
+   * Lease (required) and wait options.
+   *
+   * @generated from field: cangate.v1.CommandOptions options = 3;
+   */
+  options?: CommandOptions | undefined;
+};
+
+/**
+ * Describes the message cangate.v1.SetAxisModeRequest.
+ * Use `create(SetAxisModeRequestSchema)` to create a new message.
+ */
+export const SetAxisModeRequestSchema: GenMessage<SetAxisModeRequest> = /*@__PURE__*/
+  messageDesc(file_cangate_v1_axes, 17);
+
+/**
  * StopAxes request. No lease needed.
  *
  * @generated from message cangate.v1.StopAxesRequest
@@ -903,7 +992,7 @@ export type StopAxesRequest = Message<"cangate.v1.StopAxesRequest"> & {
  * Use `create(StopAxesRequestSchema)` to create a new message.
  */
 export const StopAxesRequestSchema: GenMessage<StopAxesRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 16);
+  messageDesc(file_cangate_v1_axes, 18);
 
 /**
  * Result of StopAxes and MoveAxes.
@@ -924,7 +1013,7 @@ export type MultiAxisResponse = Message<"cangate.v1.MultiAxisResponse"> & {
  * Use `create(MultiAxisResponseSchema)` to create a new message.
  */
 export const MultiAxisResponseSchema: GenMessage<MultiAxisResponse> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 17);
+  messageDesc(file_cangate_v1_axes, 19);
 
 /**
  * MoveAxes request.
@@ -959,7 +1048,7 @@ export type MoveAxesRequest = Message<"cangate.v1.MoveAxesRequest"> & {
  * Use `create(MoveAxesRequestSchema)` to create a new message.
  */
 export const MoveAxesRequestSchema: GenMessage<MoveAxesRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 18);
+  messageDesc(file_cangate_v1_axes, 20);
 
 /**
  * One axis of a coordinated move.
@@ -1001,7 +1090,7 @@ export type AxisTarget = Message<"cangate.v1.AxisTarget"> & {
  * Use `create(AxisTargetSchema)` to create a new message.
  */
 export const AxisTargetSchema: GenMessage<AxisTarget> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 19);
+  messageDesc(file_cangate_v1_axes, 21);
 
 /**
  * StreamAxisState request.
@@ -1030,7 +1119,7 @@ export type StreamAxisStateRequest = Message<"cangate.v1.StreamAxisStateRequest"
  * Use `create(StreamAxisStateRequestSchema)` to create a new message.
  */
 export const StreamAxisStateRequestSchema: GenMessage<StreamAxisStateRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 20);
+  messageDesc(file_cangate_v1_axes, 22);
 
 /**
  * One item of StreamAxisState.
@@ -1070,7 +1159,7 @@ export type AxisUpdate = Message<"cangate.v1.AxisUpdate"> & {
  * Use `create(AxisUpdateSchema)` to create a new message.
  */
 export const AxisUpdateSchema: GenMessage<AxisUpdate> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 21);
+  messageDesc(file_cangate_v1_axes, 23);
 
 /**
  * Something that happened to an axis.
@@ -1154,7 +1243,7 @@ export type AxisEvent = Message<"cangate.v1.AxisEvent"> & {
  * Use `create(AxisEventSchema)` to create a new message.
  */
 export const AxisEventSchema: GenMessage<AxisEvent> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 22);
+  messageDesc(file_cangate_v1_axes, 24);
 
 /**
  * ArmTouchProbe request.
@@ -1198,7 +1287,7 @@ export type ArmTouchProbeRequest = Message<"cangate.v1.ArmTouchProbeRequest"> & 
  * Use `create(ArmTouchProbeRequestSchema)` to create a new message.
  */
 export const ArmTouchProbeRequestSchema: GenMessage<ArmTouchProbeRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 23);
+  messageDesc(file_cangate_v1_axes, 25);
 
 /**
  * A touch probe latch.
@@ -1233,7 +1322,7 @@ export type TouchProbeLatch = Message<"cangate.v1.TouchProbeLatch"> & {
  * Use `create(TouchProbeLatchSchema)` to create a new message.
  */
 export const TouchProbeLatchSchema: GenMessage<TouchProbeLatch> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 24);
+  messageDesc(file_cangate_v1_axes, 26);
 
 /**
  * A command finished.
@@ -1269,7 +1358,7 @@ export type MotionDone = Message<"cangate.v1.MotionDone"> & {
  * Use `create(MotionDoneSchema)` to create a new message.
  */
 export const MotionDoneSchema: GenMessage<MotionDone> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 25);
+  messageDesc(file_cangate_v1_axes, 27);
 
 /**
  * The axis entered a fault (the drive's, or its node was lost), or the
@@ -1316,7 +1405,7 @@ export type Fault = Message<"cangate.v1.Fault"> & {
  * Use `create(FaultSchema)` to create a new message.
  */
 export const FaultSchema: GenMessage<Fault> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 26);
+  messageDesc(file_cangate_v1_axes, 28);
 
 /**
  * Control of the axis changed hands.
@@ -1351,7 +1440,7 @@ export type ControlChange = Message<"cangate.v1.ControlChange"> & {
  * Use `create(ControlChangeSchema)` to create a new message.
  */
 export const ControlChangeSchema: GenMessage<ControlChange> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 27);
+  messageDesc(file_cangate_v1_axes, 29);
 
 /**
  * The drive's node was lost or came back. A loss also comes as a Fault
@@ -1387,7 +1476,7 @@ export type NodeLink = Message<"cangate.v1.NodeLink"> & {
  * Use `create(NodeLinkSchema)` to create a new message.
  */
 export const NodeLinkSchema: GenMessage<NodeLink> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 28);
+  messageDesc(file_cangate_v1_axes, 30);
 
 /**
  * One client message of StreamSetpoints.
@@ -1424,7 +1513,7 @@ export type SetpointStreamRequest = Message<"cangate.v1.SetpointStreamRequest"> 
  * Use `create(SetpointStreamRequestSchema)` to create a new message.
  */
 export const SetpointStreamRequestSchema: GenMessage<SetpointStreamRequest> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 29);
+  messageDesc(file_cangate_v1_axes, 31);
 
 /**
  * Opens a set-point stream.
@@ -1487,7 +1576,7 @@ export type SetpointStreamOpen = Message<"cangate.v1.SetpointStreamOpen"> & {
  * Use `create(SetpointStreamOpenSchema)` to create a new message.
  */
 export const SetpointStreamOpenSchema: GenMessage<SetpointStreamOpen> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 30);
+  messageDesc(file_cangate_v1_axes, 32);
 
 /**
  * A batch of points, in time order.
@@ -1508,7 +1597,7 @@ export type SetpointBatch = Message<"cangate.v1.SetpointBatch"> & {
  * Use `create(SetpointBatchSchema)` to create a new message.
  */
 export const SetpointBatchSchema: GenMessage<SetpointBatch> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 31);
+  messageDesc(file_cangate_v1_axes, 33);
 
 /**
  * One set-point for every axis of the stream.
@@ -1547,7 +1636,7 @@ export type Setpoint = Message<"cangate.v1.Setpoint"> & {
  * Use `create(SetpointSchema)` to create a new message.
  */
 export const SetpointSchema: GenMessage<Setpoint> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 32);
+  messageDesc(file_cangate_v1_axes, 34);
 
 /**
  * The counters of a stream: received = accepted + refused; accepted =
@@ -1619,7 +1708,7 @@ export type SetpointCounters = Message<"cangate.v1.SetpointCounters"> & {
  * Use `create(SetpointCountersSchema)` to create a new message.
  */
 export const SetpointCountersSchema: GenMessage<SetpointCounters> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 33);
+  messageDesc(file_cangate_v1_axes, 35);
 
 /**
  * A status of a set-point stream: sent every `status_period_ms`, after a
@@ -1713,7 +1802,7 @@ export type SetpointStreamStatus = Message<"cangate.v1.SetpointStreamStatus"> & 
  * Use `create(SetpointStreamStatusSchema)` to create a new message.
  */
 export const SetpointStreamStatusSchema: GenMessage<SetpointStreamStatus> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 34);
+  messageDesc(file_cangate_v1_axes, 36);
 
 /**
  * The signals of one axis of a set-point stream (see AxisStatus).
@@ -1755,7 +1844,7 @@ export type StreamAxisSignals = Message<"cangate.v1.StreamAxisSignals"> & {
  * Use `create(StreamAxisSignalsSchema)` to create a new message.
  */
 export const StreamAxisSignalsSchema: GenMessage<StreamAxisSignals> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 35);
+  messageDesc(file_cangate_v1_axes, 37);
 
 /**
  * Something that happened in a set-point stream.
@@ -1810,7 +1899,7 @@ export type SetpointStreamEvent = Message<"cangate.v1.SetpointStreamEvent"> & {
  * Use `create(SetpointStreamEventSchema)` to create a new message.
  */
 export const SetpointStreamEventSchema: GenMessage<SetpointStreamEvent> = /*@__PURE__*/
-  messageDesc(file_cangate_v1_axes, 36);
+  messageDesc(file_cangate_v1_axes, 38);
 
 /**
  * The CiA 402 drive states (CANsmc axes map theirs onto these).
@@ -2034,6 +2123,73 @@ export const PositionModeSchema: GenEnum<PositionMode> = /*@__PURE__*/
   enumDesc(file_cangate_v1_axes, 3);
 
 /**
+ * The CiA 402 mode of operation an axis runs in (0x6060).
+ *
+ * @generated from enum cangate.v1.DriveMode
+ */
+export enum DriveMode {
+  /**
+   * CANsmc axes (no modes), and never asked for.
+   *
+   * @generated from enum value: DRIVE_MODE_UNSPECIFIED = 0;
+   */
+  UNSPECIFIED = 0,
+
+  /**
+   * Profile position (1): the drive plans each Move; Jog in profile
+   * velocity.
+   *
+   * @generated from enum value: DRIVE_MODE_PROFILE_POSITION = 1;
+   */
+  PROFILE_POSITION = 1,
+
+  /**
+   * Cyclic synchronous position (8): the gateway's trajectory, a position
+   * every SYNC; Move, Jog, MoveAxes, StreamSetpoints.
+   *
+   * @generated from enum value: DRIVE_MODE_CSP = 2;
+   */
+  CSP = 2,
+
+  /**
+   * Interpolated position (7), for drives without CSP: as CSP, the
+   * position in 0x60C1:01.
+   *
+   * @generated from enum value: DRIVE_MODE_IP = 3;
+   */
+  IP = 3,
+
+  /**
+   * Cyclic synchronous velocity (9): Jog sends a velocity every SYNC
+   * (0x60FF); no Move, no StreamSetpoints.
+   *
+   * @generated from enum value: DRIVE_MODE_CSV = 4;
+   */
+  CSV = 4,
+
+  /**
+   * Cyclic synchronous torque (10): SetTorque (0x6071).
+   *
+   * @generated from enum value: DRIVE_MODE_CST = 5;
+   */
+  CST = 5,
+
+  /**
+   * Profile torque (4): SetTorque, ramped by the drive at the axis's
+   * torque slope (0x6087).
+   *
+   * @generated from enum value: DRIVE_MODE_PROFILE_TORQUE = 6;
+   */
+  PROFILE_TORQUE = 6,
+}
+
+/**
+ * Describes the enum cangate.v1.DriveMode.
+ */
+export const DriveModeSchema: GenEnum<DriveMode> = /*@__PURE__*/
+  enumDesc(file_cangate_v1_axes, 4);
+
+/**
  * How a CiA 402 axis's process data (controlword, targets, statusword,
  * actual position and velocity) travels.
  *
@@ -2069,7 +2225,7 @@ export enum ProcessDataPath {
  * Describes the enum cangate.v1.ProcessDataPath.
  */
 export const ProcessDataPathSchema: GenEnum<ProcessDataPath> = /*@__PURE__*/
-  enumDesc(file_cangate_v1_axes, 4);
+  enumDesc(file_cangate_v1_axes, 5);
 
 /**
  * How a stop decelerates.
@@ -2103,7 +2259,7 @@ export enum StopKind {
  * Describes the enum cangate.v1.StopKind.
  */
 export const StopKindSchema: GenEnum<StopKind> = /*@__PURE__*/
-  enumDesc(file_cangate_v1_axes, 5);
+  enumDesc(file_cangate_v1_axes, 6);
 
 /**
  * How a command ended.
@@ -2167,7 +2323,7 @@ export enum Outcome {
  * Describes the enum cangate.v1.Outcome.
  */
 export const OutcomeSchema: GenEnum<Outcome> = /*@__PURE__*/
-  enumDesc(file_cangate_v1_axes, 6);
+  enumDesc(file_cangate_v1_axes, 7);
 
 /**
  * The edges touch probe 1 latches at.
@@ -2208,7 +2364,7 @@ export enum TouchProbeEdge {
  * Describes the enum cangate.v1.TouchProbeEdge.
  */
 export const TouchProbeEdgeSchema: GenEnum<TouchProbeEdge> = /*@__PURE__*/
-  enumDesc(file_cangate_v1_axes, 7);
+  enumDesc(file_cangate_v1_axes, 8);
 
 /**
  * What a set-point stream is doing.
@@ -2272,7 +2428,7 @@ export enum SetpointStreamState {
  * Describes the enum cangate.v1.SetpointStreamState.
  */
 export const SetpointStreamStateSchema: GenEnum<SetpointStreamState> = /*@__PURE__*/
-  enumDesc(file_cangate_v1_axes, 8);
+  enumDesc(file_cangate_v1_axes, 9);
 
 /**
  * The kind of a set-point stream event.
@@ -2321,7 +2477,7 @@ export enum SetpointEventKind {
  * Describes the enum cangate.v1.SetpointEventKind.
  */
 export const SetpointEventKindSchema: GenEnum<SetpointEventKind> = /*@__PURE__*/
-  enumDesc(file_cangate_v1_axes, 9);
+  enumDesc(file_cangate_v1_axes, 10);
 
 /**
  * Axes: state, exclusive control, motion commands.
@@ -2464,6 +2620,34 @@ export const Axes: GenService<{
   resetFault: {
     methodKind: "unary";
     input: typeof AxisCommandRequestSchema;
+    output: typeof AxisCommandResponseSchema;
+  },
+  /**
+   * Drives a CiA 402 axis in a torque mode (CST, profile torque) with a
+   * torque, per mille of the drive's rated torque, until Stop or another
+   * command; the axis stops by itself (outcome STOPPED) when its velocity
+   * exceeds `Axis.max_velocity`. FAILED_PRECONDITION in the other modes;
+   * OUT_OF_RANGE above `Axis.max_torque`.
+   *
+   * @generated from rpc cangate.v1.Axes.SetTorque
+   */
+  setTorque: {
+    methodKind: "unary";
+    input: typeof SetTorqueRequestSchema;
+    output: typeof AxisCommandResponseSchema;
+  },
+  /**
+   * Changes a CiA 402 axis's mode of operation, at rest only:
+   * FAILED_PRECONDITION while it moves or a command runs, for a mode its
+   * drive lacks (0x6502), a torque mode without the target torque in its
+   * process data, or a cyclic mode without a running SYNC. Completed when
+   * the drive shows the new mode.
+   *
+   * @generated from rpc cangate.v1.Axes.SetMode
+   */
+  setMode: {
+    methodKind: "unary";
+    input: typeof SetAxisModeRequestSchema;
     output: typeof AxisCommandResponseSchema;
   },
   /**
