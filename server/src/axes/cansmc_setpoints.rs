@@ -14,53 +14,30 @@
 //! ramp); at the next cycle this table sees the axis left the stream, ends
 //! the stream and ramps its other axes to rest together.
 
-use super::cyclic_setpoints::{StreamEnd, StreamReport};
+use super::cyclic_setpoints::{PlayedStream, StreamEnd, StreamReport, close_stream};
 use crate::axis_runner::CycleStreams;
 use cangate_axis::Activity;
 use cangate_axis::cansmc::CansmcAxis;
 use cangate_axis::setpoint_stream::{
-    AxisLimits, PlayerConfig, PlayerEvent, PlayerState, PointRefused, SetpointPlayer, StreamPoint,
+    AxisLimits, PlayerConfig, PlayerState, PointRefused, SetpointPlayer, StreamPoint,
 };
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-/// One stream played by the cycle thread.
-#[derive(Debug)]
-struct PlayedStream {
-    id: u64,
-    /// The master's indices of its axes, in the stream's order.
-    axes: Vec<usize>,
-    player: SetpointPlayer,
-    /// Whether the cycle thread handed the axes to the stream.
-    started: bool,
-    /// Cycles skipped since it started, as time.
-    held_back: Duration,
-    end: Option<StreamEnd>,
-    events: Vec<PlayerEvent>,
-    finished: bool,
-    /// Its session is gone: dropped once finished.
-    orphaned: bool,
-}
-
-impl PlayedStream {
-    fn stop(&mut self, reason: StreamEnd, now: Duration) {
-        if self.end.is_none() {
-            self.end = Some(reason);
-        }
-        self.player.stop(now.saturating_sub(self.held_back));
-    }
-}
+/// A stream of the cycle thread: `extra` is whether the thread handed
+/// the axes to it.
+type CycleStream = PlayedStream<bool>;
 
 #[derive(Debug, Default)]
 struct State {
     /// Per axis of the master: its name and the stream that drives it.
     axes: Vec<(String, Option<u64>)>,
-    streams: Vec<PlayedStream>,
+    streams: Vec<CycleStream>,
     next_stream: u64,
 }
 
 impl State {
-    fn stream(&mut self, id: u64) -> Option<&mut PlayedStream> {
+    fn stream(&mut self, id: u64) -> Option<&mut CycleStream> {
         self.streams.iter_mut().find(|s| s.id == id)
     }
 }
@@ -112,17 +89,12 @@ impl CansmcSetpoints {
         for &i in axes {
             st.axes[i].1 = Some(id);
         }
-        st.streams.push(PlayedStream {
+        st.streams.push(PlayedStream::new(
             id,
-            axes: axes.to_vec(),
-            player: SetpointPlayer::new(cfg, limits, positions),
-            started: false,
-            held_back: Duration::ZERO,
-            end: None,
-            events: Vec::new(),
-            finished: false,
-            orphaned: false,
-        });
+            axes,
+            SetpointPlayer::new(cfg, limits, positions),
+            false,
+        ));
         Ok(id)
     }
 
@@ -165,17 +137,7 @@ impl CansmcSetpoints {
     pub fn report(&self, id: u64) -> Option<StreamReport> {
         let now = self.origin.elapsed();
         let mut st = self.state.lock().expect("stream table lock");
-        let s = st.stream(id)?;
-        Some(StreamReport {
-            state: s.player.state(),
-            counters: s.player.counters(),
-            level: s.player.level(now.saturating_sub(s.held_back)),
-            clock_offset_us: s.player.clock_offset_us(),
-            positions: s.player.position().to_vec(),
-            events: std::mem::take(&mut s.events),
-            end: s.end.clone(),
-            finished: s.finished,
-        })
+        Some(st.stream(id)?.report(now))
     }
 
     /// The session of stream `id` is gone: a stream still playing ramps to
@@ -184,14 +146,7 @@ impl CansmcSetpoints {
     pub fn close_stream(&self, id: u64, reason: StreamEnd) {
         let now = self.origin.elapsed();
         let mut st = self.state.lock().expect("stream table lock");
-        let Some(s) = st.stream(id) else {
-            return;
-        };
-        if !s.finished {
-            s.stop(reason, now);
-        }
-        s.orphaned = true;
-        st.streams.retain(|s| !(s.finished && s.orphaned));
+        close_stream(&mut st.streams, id, reason, now);
     }
 }
 
@@ -216,8 +171,8 @@ impl CycleStreams for CansmcSetpoints {
             ..
         } = &mut *st;
         for s in streams.iter_mut().filter(|s| !s.finished) {
-            if !s.started {
-                s.started = true;
+            if !s.extra {
+                s.extra = true;
                 let from = s.player.position().to_vec();
                 for (k, &i) in s.axes.iter().enumerate() {
                     if let Err(e) = axes[i].start_stream(from[k]) {

@@ -202,44 +202,97 @@ pub struct StreamReport {
     pub finished: bool,
 }
 
-/// One stream played by the SYNC thread.
+/// One stream as the thread that plays it holds it (the SYNC thread
+/// here, a CANsmc master's cycle thread in [`super::cansmc_setpoints`]).
 #[derive(Debug)]
-struct PlayedStream {
-    id: u64,
+pub(super) struct PlayedStream<X> {
+    pub(super) id: u64,
     /// Table indices of its axes, in the stream's order.
-    axes: Vec<usize>,
-    units: Vec<Units>,
-    player: SetpointPlayer,
-    /// SYNC periods skipped since it started: its clock is held back by
-    /// them, as a plan is ([`CyclicPlan::hold_back`]), so a late SYNC never
-    /// carries a double step.
-    held_back: Duration,
-    end: Option<StreamEnd>,
-    events: Vec<PlayerEvent>,
-    finished: bool,
+    pub(super) axes: Vec<usize>,
+    pub(super) player: SetpointPlayer,
+    /// Periods skipped since it started: its clock is held back by them,
+    /// as a plan is ([`CyclicPlan::hold_back`]), so a late SYNC or cycle
+    /// never carries a double step.
+    pub(super) held_back: Duration,
+    pub(super) end: Option<StreamEnd>,
+    pub(super) events: Vec<PlayerEvent>,
+    pub(super) finished: bool,
     /// Its session is gone: dropped once finished.
-    orphaned: bool,
+    pub(super) orphaned: bool,
+    /// What only its thread keeps (here the axes' units; a CANsmc master:
+    /// whether the axes were handed to the stream).
+    pub(super) extra: X,
 }
 
-impl PlayedStream {
-    fn stop(&mut self, reason: StreamEnd, now: Duration) {
+impl<X> PlayedStream<X> {
+    pub(super) fn new(id: u64, axes: &[usize], player: SetpointPlayer, extra: X) -> Self {
+        PlayedStream {
+            id,
+            axes: axes.to_vec(),
+            player,
+            held_back: Duration::ZERO,
+            end: None,
+            events: Vec::new(),
+            finished: false,
+            orphaned: false,
+            extra,
+        }
+    }
+
+    pub(super) fn stop(&mut self, reason: StreamEnd, now: Duration) {
         if self.end.is_none() {
             self.end = Some(reason);
         }
         self.player.stop(now.saturating_sub(self.held_back));
     }
+
+    /// Where it stands at `now`; the events since the last report.
+    pub(super) fn report(&mut self, now: Duration) -> StreamReport {
+        StreamReport {
+            state: self.player.state(),
+            counters: self.player.counters(),
+            level: self.player.level(now.saturating_sub(self.held_back)),
+            clock_offset_us: self.player.clock_offset_us(),
+            positions: self.player.position().to_vec(),
+            events: std::mem::take(&mut self.events),
+            end: self.end.clone(),
+            finished: self.finished,
+        }
+    }
 }
+
+/// The session of stream `id` in `streams` is gone: a stream still
+/// playing ramps to rest (ended by `reason` unless it had ended already)
+/// and is dropped once at rest.
+pub(super) fn close_stream<X>(
+    streams: &mut Vec<PlayedStream<X>>,
+    id: u64,
+    reason: StreamEnd,
+    now: Duration,
+) {
+    let Some(s) = streams.iter_mut().find(|s| s.id == id) else {
+        return;
+    };
+    if !s.finished {
+        s.stop(reason, now);
+    }
+    s.orphaned = true;
+    streams.retain(|s| !(s.finished && s.orphaned));
+}
+
+/// A stream of the SYNC thread: `extra` are its axes' units.
+type SyncStream = PlayedStream<Vec<Units>>;
 
 /// The table's state, under one lock.
 #[derive(Debug, Default)]
 struct State {
     entries: Vec<Entry>,
-    streams: Vec<PlayedStream>,
+    streams: Vec<SyncStream>,
     next_stream: u64,
 }
 
 impl State {
-    fn stream(&mut self, id: u64) -> Option<&mut PlayedStream> {
+    fn stream(&mut self, id: u64) -> Option<&mut SyncStream> {
         self.streams.iter_mut().find(|s| s.id == id)
     }
 }
@@ -407,17 +460,12 @@ impl CyclicSetpoints {
             e.stream = Some(id);
             e.settling = None;
         }
-        st.streams.push(PlayedStream {
+        st.streams.push(PlayedStream::new(
             id,
-            axes: axes.to_vec(),
+            axes,
+            SetpointPlayer::new(cfg, limits, positions),
             units,
-            player: SetpointPlayer::new(cfg, limits, positions),
-            held_back: Duration::ZERO,
-            end: None,
-            events: Vec::new(),
-            finished: false,
-            orphaned: false,
-        });
+        ));
         Ok(id)
     }
 
@@ -506,17 +554,7 @@ impl CyclicSetpoints {
     pub fn report(&self, id: u64) -> Option<StreamReport> {
         let now = self.origin.elapsed();
         let mut st = self.state.lock().expect("set-point table lock");
-        let s = st.stream(id)?;
-        Some(StreamReport {
-            state: s.player.state(),
-            counters: s.player.counters(),
-            level: s.player.level(now.saturating_sub(s.held_back)),
-            clock_offset_us: s.player.clock_offset_us(),
-            positions: s.player.position().to_vec(),
-            events: std::mem::take(&mut s.events),
-            end: s.end.clone(),
-            finished: s.finished,
-        })
+        Some(st.stream(id)?.report(now))
     }
 
     /// The session of stream `id` is gone: a stream still playing ramps to
@@ -525,14 +563,7 @@ impl CyclicSetpoints {
     pub fn close_stream(&self, id: u64, reason: StreamEnd) {
         let now = self.origin.elapsed();
         let mut st = self.state.lock().expect("set-point table lock");
-        let Some(s) = st.stream(id) else {
-            return;
-        };
-        if !s.finished {
-            s.stop(reason, now);
-        }
-        s.orphaned = true;
-        st.streams.retain(|s| !(s.finished && s.orphaned));
+        close_stream(&mut st.streams, id, reason, now);
     }
 }
 
@@ -591,14 +622,14 @@ impl SyncRider for CyclicSetpoints {
                     t,
                     p,
                     if done { 0.0 } else { v },
-                    s.units[k],
+                    s.extra[k],
                 ));
                 if done {
                     let object = e
                         .plan
                         .as_ref()
                         .map_or(SetpointObject::TargetPosition, CyclicPlan::setpoint_object);
-                    let hold = CyclicPlan::holding(p, s.units[k]).sent_to(object);
+                    let hold = CyclicPlan::holding(p, s.extra[k]).sent_to(object);
                     e.stream = None;
                     e.plan = Some(hold.clone());
                     e.settling = Some(hold);
