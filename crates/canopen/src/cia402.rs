@@ -59,6 +59,8 @@ use std::fmt;
 use std::str::FromStr;
 use std::time::Duration;
 
+use crate::ids::ObjectAddress;
+
 /// Object dictionary addresses of the CiA 402 objects used here.
 pub mod objects {
     use crate::ids::ObjectAddress;
@@ -150,6 +152,65 @@ pub mod objects {
     /// 0x60C2:02 interpolation time index (INTEGER8): the period is
     /// value · 10^index s.
     pub const INTERPOLATION_PERIOD_INDEX: ObjectAddress = ObjectAddress::new(0x60C2, 2);
+}
+
+/// The objects of axis `n` of a multi-axis drive are those of the first
+/// axis at index + `n` × 0x800 (CiA 402, IEC 61800-7-201: each further
+/// logical device of the profile area 0x6000..=0x9FFF): 0x6040 of axis 1
+/// is 0x6840.
+pub const AXIS_INDEX_OFFSET: u16 = 0x800;
+
+/// Axes one drive node can have: the profile area 0x6000..=0x9FFF holds
+/// eight times 0x800 objects.
+pub const MAX_DRIVE_AXES: u8 = 8;
+
+/// The first index of the profile area.
+const PROFILE_AREA: u16 = 0x6000;
+
+/// The index of profile object `base` (an index of the first axis,
+/// 0x6000..=0x67FF) on axis `drive_axis` (0..=7) of its drive: `base` +
+/// `drive_axis` × 0x800. Indexes outside the first axis's range (the
+/// communication area, a vendor's objects) are the node's and stay as
+/// they are.
+///
+/// # Panics
+/// When `drive_axis` is 8 or more (the configuration refuses it).
+pub const fn profile_index(base: u16, drive_axis: u8) -> u16 {
+    assert!(drive_axis < MAX_DRIVE_AXES, "a drive has at most 8 axes");
+    if base >= PROFILE_AREA && base < PROFILE_AREA + AXIS_INDEX_OFFSET {
+        base + AXIS_INDEX_OFFSET * drive_axis as u16
+    } else {
+        base
+    }
+}
+
+/// `addr` of the first axis as the same object of axis `drive_axis`
+/// ([`profile_index`]).
+pub const fn on_axis(addr: ObjectAddress, drive_axis: u8) -> ObjectAddress {
+    ObjectAddress::new(profile_index(addr.index, drive_axis), addr.sub)
+}
+
+/// Which axis a profile object belongs to, and the same object of the
+/// first axis: `(1, 0x6040:00)` for 0x6840:00. `None` outside the profile
+/// area 0x6000..=0x9FFF.
+pub const fn axis_of(addr: ObjectAddress) -> Option<(u8, ObjectAddress)> {
+    if addr.index < PROFILE_AREA || addr.index > 0x9FFF {
+        return None;
+    }
+    let rel = addr.index - PROFILE_AREA;
+    Some((
+        (rel / AXIS_INDEX_OFFSET) as u8,
+        ObjectAddress::new(PROFILE_AREA + rel % AXIS_INDEX_OFFSET, addr.sub),
+    ))
+}
+
+/// `addr` as the same object of the first axis (what [`objects`] names):
+/// 0x6840:00 → 0x6040:00; other addresses unchanged.
+pub const fn first_axis(addr: ObjectAddress) -> ObjectAddress {
+    match axis_of(addr) {
+        Some((_, base)) => base,
+        None => addr,
+    }
 }
 
 /// A state of the CiA 402 power drive system state machine, as decoded from
@@ -1222,6 +1283,38 @@ mod tests {
     use DriveState as S;
 
     const MS: Duration = Duration::from_millis(1);
+
+    #[test]
+    fn profile_objects_of_further_axes_are_0x800_apart() {
+        assert_eq!(profile_index(0x6040, 0), 0x6040);
+        assert_eq!(profile_index(0x6040, 1), 0x6840);
+        assert_eq!(profile_index(0x6041, 1), 0x6841);
+        assert_eq!(profile_index(0x607A, 1), 0x687A);
+        assert_eq!(profile_index(0x6502, 1), 0x6D02);
+        assert_eq!(profile_index(0x60FF, 7), 0x98FF);
+        // The node's own objects are the same for every axis.
+        assert_eq!(profile_index(0x1017, 3), 0x1017);
+        assert_eq!(profile_index(0x2100, 1), 0x2100);
+        assert_eq!(
+            on_axis(objects::SOFTWARE_POSITION_LIMIT_MAX, 2),
+            ObjectAddress::new(0x707D, 2)
+        );
+        assert_eq!(
+            axis_of(ObjectAddress::new(0x6D02, 0)),
+            Some((1, objects::SUPPORTED_DRIVE_MODES))
+        );
+        assert_eq!(axis_of(ObjectAddress::new(0x9FFF, 0)).map(|a| a.0), Some(7));
+        assert_eq!(axis_of(ObjectAddress::new(0x1A00, 1)), None);
+        assert_eq!(axis_of(ObjectAddress::new(0xA000, 0)), None);
+        assert_eq!(
+            first_axis(ObjectAddress::new(0x6841, 0)),
+            objects::STATUSWORD
+        );
+        assert_eq!(
+            first_axis(ObjectAddress::new(0x1018, 1)),
+            ObjectAddress::new(0x1018, 1)
+        );
+    }
 
     #[test]
     fn statusword_decodes_every_state() {

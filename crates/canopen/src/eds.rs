@@ -38,6 +38,136 @@ pub const SIM_IO_EDS: &str = include_str!("../eds/cangate-io.eds");
 /// `cangate-handwheel.eds`: a simulated handwheel sending a feed byte.
 pub const SIM_HANDWHEEL_EDS: &str = include_str!("../eds/cangate-handwheel.eds");
 
+/// `SIM_DRIVE_EDS` as a CiA 402 drive with `axes` axes (1..=8) on one
+/// node: every profile object 0x6000..=0x67FF again for axis n at index +
+/// n × 0x800, and PDOs 4n + 1 ..= 4n + 4 (their communication and mapping
+/// parameters) for it, the copies' default mappings naming that axis's
+/// objects and their COB-IDs invalid until a master sets them (the
+/// predefined connection set gives a node PDOs 1..=4 only).
+///
+/// # Panics
+/// When `axes` is 0 or more than 8.
+pub fn sim_drive_eds_with_axes(axes: u8) -> String {
+    assert!(
+        (1..=crate::cia402::MAX_DRIVE_AXES).contains(&axes),
+        "a drive has 1..=8 axes"
+    );
+    // Sections: (header, body lines); the text before the first header
+    // (comments) is kept as it is.
+    let mut head = String::new();
+    let mut sections: Vec<(String, Vec<String>)> = Vec::new();
+    for line in SIM_DRIVE_EDS.lines() {
+        if line.starts_with('[') {
+            sections.push((line.to_string(), Vec::new()));
+        } else if let Some((_, body)) = sections.last_mut() {
+            body.push(line.to_string());
+        } else {
+            head.push_str(line);
+            head.push('\n');
+        }
+    }
+    // The index a section copied to axis n gets, if it is copied.
+    let moved = |index: u16, n: u16| -> Option<u16> {
+        let pdo = |first: u16| (first..first + 4).contains(&index).then_some(index + 4 * n);
+        if (0x6000..0x6800).contains(&index) {
+            Some(index + 0x800 * n)
+        } else {
+            pdo(0x1400)
+                .or_else(|| pdo(0x1600))
+                .or_else(|| pdo(0x1800))
+                .or_else(|| pdo(0x1A00))
+        }
+    };
+    let section_index = |header: &str| -> Option<(u16, String)> {
+        let name = header.trim_start_matches('[').trim_end_matches(']');
+        let (hex, rest) = name.split_at(name.len().min(4));
+        let index = u16::from_str_radix(hex, 16).ok()?;
+        (rest.is_empty() || rest.starts_with("sub")).then(|| (index, rest.to_string()))
+    };
+    let mut added: Vec<u16> = Vec::new();
+    let mut copies: Vec<(String, Vec<String>)> = Vec::new();
+    for n in 1..u16::from(axes) {
+        for (header, body) in &sections {
+            let Some((index, rest)) = section_index(header) else {
+                continue;
+            };
+            let Some(to) = moved(index, n) else { continue };
+            if rest.is_empty() {
+                added.push(to);
+            }
+            let mapping = (0x1600..0x1800).contains(&to) || (0x1A00..0x1C00).contains(&to);
+            let communication = (0x1400..0x1600).contains(&to) || (0x1800..0x1A00).contains(&to);
+            let body = body
+                .iter()
+                .map(|line| {
+                    if let Some(name) = line.strip_prefix("ParameterName=") {
+                        return format!("ParameterName={name} (axis {})", n + 1);
+                    }
+                    let Some(value) = line.strip_prefix("DefaultValue=") else {
+                        return line.clone();
+                    };
+                    if communication && rest == "sub1" {
+                        return "DefaultValue=0x80000000".to_string();
+                    }
+                    match u32::from_str_radix(value.trim_start_matches("0x"), 16) {
+                        Ok(entry) if mapping && rest != "sub0" && entry >> 16 != 0 => {
+                            let object = (entry >> 16) as u16;
+                            format!(
+                                "DefaultValue=0x{:04X}{:04X}",
+                                crate::cia402::profile_index(object, n as u8),
+                                entry & 0xFFFF
+                            )
+                        }
+                        _ => line.clone(),
+                    }
+                })
+                .collect();
+            copies.push((format!("[{to:04X}{rest}]"), body));
+        }
+    }
+    let mut out = head;
+    for (header, body) in sections.iter().chain(&copies) {
+        out.push_str(header);
+        out.push('\n');
+        if header == "[OptionalObjects]" {
+            let mut count = 0;
+            for line in body {
+                match line.split_once('=') {
+                    Some(("SupportedObjects", v)) => count = v.trim().parse::<usize>().unwrap_or(0),
+                    _ => {}
+                }
+            }
+            for line in body {
+                if line.starts_with("SupportedObjects=") {
+                    out.push_str(&format!("SupportedObjects={}\n", count + added.len()));
+                } else if !line.trim().is_empty() {
+                    out.push_str(line);
+                    out.push('\n');
+                }
+            }
+            for (i, index) in added.iter().enumerate() {
+                out.push_str(&format!("{}=0x{index:04X}\n", count + i + 1));
+            }
+            out.push('\n');
+            continue;
+        }
+        for line in body {
+            let line = match line.split_once('=') {
+                Some(("FileName", _)) if header == "[FileInfo]" => {
+                    format!("FileName=cangate-drive-{axes}axis.eds")
+                }
+                Some(("Description", d)) if header == "[FileInfo]" => {
+                    format!("Description={d}, {axes} axes")
+                }
+                _ => line.clone(),
+            };
+            out.push_str(&line);
+            out.push('\n');
+        }
+    }
+    out
+}
+
 /// The `[FileInfo]` section: free-text facts about the file itself.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct FileInfo {
@@ -904,6 +1034,34 @@ mod tests {
     fn fails(text: &str) -> (usize, String) {
         let err = Eds::parse(text).unwrap_err();
         (err.line().unwrap(), err.kind().unwrap().to_string())
+    }
+
+    #[test]
+    fn the_two_axis_drive_has_each_profile_object_and_four_pdos_again_0x800_on() {
+        let eds = Eds::parse(&sim_drive_eds_with_axes(2)).unwrap();
+        let od = &eds.od;
+        for index in [0x6840, 0x6841, 0x687A, 0x68FF, 0x6D02, 0x6860, 0x68B8] {
+            assert!(od.get(at(index, 0)).is_some(), "{index:04X}");
+        }
+        assert!(od.get(at(0x687D, 2)).is_some());
+        assert!(od.get(at(0x7041, 0)).is_none(), "two axes only");
+        // PDOs 5.. of the second axis: invalid COB-IDs, mappings of its
+        // objects.
+        let default = |a| {
+            od.get(a)
+                .and_then(|v| v.default_for_node(node(3)))
+                .and_then(|v| v.as_u32())
+        };
+        assert_eq!(default(at(0x1804, 1)), Some(0x8000_0000));
+        assert_eq!(default(at(0x1404, 1)), Some(0x8000_0000));
+        assert_eq!(default(at(0x1A04, 1)), Some(0x6841_0010));
+        assert_eq!(default(at(0x1A00, 1)), Some(0x6041_0010));
+        assert!(od.get(at(0x1A07, 0)).is_some());
+        assert!(od.get(at(0x1406, 0)).is_some());
+        // One axis: the bundled drive as it is.
+        let one = Eds::parse(&sim_drive_eds_with_axes(1)).unwrap();
+        assert!(one.od.get(at(0x6841, 0)).is_none());
+        assert!(one.od.get(at(0x6041, 0)).is_some());
     }
 
     const MINIMAL: &str =
