@@ -18,6 +18,7 @@
 //! | cyclic synchronous position (8) / velocity (9) | follow 0x607A / 0x60FF (as written by RPDO, at once or at SYNC per the RPDO's transmission type) with a first-order lag; in position mode each new set-point is reached by linear interpolation over the SYNC period (the interval between the latest two SYNCs), as drives interpolate between cyclic set-points, so the motion and 0x606C are smooth, not a step per SYNC; bit 12 set; following error 0x60F4 written when present; with 0x6065 present a following error beyond the window for longer than 0x6066 ms faults with EMCY 0x8611 |
 //! | quick stop | decelerates with 0x6085 (0x6084 when absent, or for option codes 1 and 5), then goes to switch on disabled for quick stop option codes 0..=4 (0x605A, default 2) or stays in quick stop active for 5..=8 |
 //! | heartbeat loss | a node monitored by 0x1016 falls silent (the master, when it configured its heartbeat there): the node sends EMCY 0x8130, and the drive enters fault reaction active (stops with the quick stop deceleration), then fault, with 0x603F = 0x8130 |
+//! | several axes | a CiA 402 multi-axis drive (e.g. `sim_drive_eds_with_axes(2)`): as many axes as the object dictionary has statuswords at 0x6041 + n × 0x800, each with its own state machine and model on its own objects (index + n × 0x800); an NMT reset node and a heartbeat loss act on every axis, [`SimDrive::inject_axis_fault`] on one; the accessors without an axis ([`SimDrive::state`], [`SimDrive::position`], …) are the first axis's |
 //! | faults | [`SimDrive::inject_fault`]: fault reaction active (stops with the quick stop deceleration), then fault; 0x603F and 0x1001 set and an EMCY sent; fault reset (rising edge of bit 7) clears them and sends the EMCY "error reset" |
 //! | limits | software position limits 0x607D (when min < max) bound every mode but homing: profile position clamps the target, the others stop at the limit; bit 11 internal limit |
 //! | process values | 0x6064 position, 0x606C velocity and 0x6077 torque (per mille, proportional to the acceleration, bounded by 0x6072 max torque when present) updated every step; TPDOs go out per their configuration (event timer, SYNC) |
@@ -34,7 +35,8 @@ use std::time::Duration;
 
 use cangate_can::Frame;
 use cangate_canopen::cia402::{
-    Controlword, DriveState, ModeOfOperation, Statusword, objects as obj,
+    Controlword, DriveState, MAX_DRIVE_AXES, ModeOfOperation, Statusword, objects as obj, on_axis,
+    profile_index,
 };
 use cangate_canopen::eds::{Eds, SIM_DRIVE_EDS};
 use cangate_canopen::emcy::ErrorRegister;
@@ -262,12 +264,78 @@ struct Snapshot {
     follow_error: f64,
 }
 
+impl AxisModel {
+    /// Moving, or with the motor under control: the model steps.
+    fn active(&self) -> bool {
+        self.vel != 0.0
+            || matches!(
+                self.state,
+                DriveState::OperationEnabled
+                    | DriveState::QuickStopActive
+                    | DriveState::FaultReactionActive
+            )
+    }
+
+    fn new(axis: u8) -> Self {
+        AxisModel {
+            axis,
+            state: DriveState::NotReadyToSwitchOn,
+            powered: false,
+            mode: None,
+            mode_code: 0,
+            prev_cw: Controlword(0),
+            pos: 0.0,
+            vel: 0.0,
+            shift: 0.0,
+            torque: 0,
+            pp: ProfilePosition::idle(0.0),
+            homing: Homing::Idle,
+            limit_hit: false,
+            switch_blocked: false,
+            probe_function: 0,
+            probe_input: None,
+            probe_status: 0,
+            probe_positive: 0,
+            probe_negative: 0,
+            follow_error: 0.0,
+            csp: Interpolation::holding(0.0),
+            torque_demand: 0.0,
+            follow_over_since: None,
+            error_code: 0,
+            model_time: Duration::ZERO,
+        }
+    }
+}
+
 /// A simulated CiA 402 servo drive. See the [module documentation](self).
 #[derive(Debug)]
 pub struct SimDrive {
     node: SimNode,
     options: SimDriveOptions,
     started: bool,
+    /// The latest SYNC received and the interval to the one before.
+    last_sync: Option<Duration>,
+    sync_period: Option<Duration>,
+    /// The latest time seen.
+    now: Duration,
+    /// 0-based numbers of the TPDOs present (0x1A00 + n).
+    tpdos: Vec<u16>,
+    outbox: Vec<Frame>,
+    events: VecDeque<SimEvent>,
+    /// The model of the axis being stepped (the first axis outside of
+    /// [`SimDrive::each_axis`]).
+    m: AxisModel,
+    /// The models of the drive's further axes (CiA 402 multi-axis drive:
+    /// axis n's objects at index + 0x800 × n), while not being stepped.
+    others: Vec<AxisModel>,
+}
+
+/// The state of one axis of a [`SimDrive`]: its state machine and motion
+/// model.
+#[derive(Debug)]
+struct AxisModel {
+    /// Which axis of the drive (0..=7).
+    axis: u8,
     state: DriveState,
     /// The power stage is on (statusword bit 4).
     powered: bool,
@@ -303,20 +371,11 @@ pub struct SimDrive {
     /// The motor torque of the torque modes (per mille), ramped towards
     /// 0x6071 in profile torque.
     torque_demand: f64,
-    /// The latest SYNC received and the interval to the one before.
-    last_sync: Option<Duration>,
-    sync_period: Option<Duration>,
     /// Since when the following error has been beyond the window.
     follow_over_since: Option<Duration>,
     error_code: u16,
     /// The time of the latest model step.
     model_time: Duration,
-    /// The latest time seen.
-    now: Duration,
-    /// 0-based numbers of the TPDOs present (0x1A00 + n).
-    tpdos: Vec<u16>,
-    outbox: Vec<Frame>,
-    events: VecDeque<SimEvent>,
 }
 
 impl SimDrive {
@@ -353,41 +412,102 @@ impl SimDrive {
         let tpdos = (0..MAX_TPDOS)
             .filter(|n| od.object(TPDO_MAP + n).is_some())
             .collect();
+        // Axis n of a multi-axis drive: its statusword at 0x6041 + n × 0x800.
+        let axes = (0..MAX_DRIVE_AXES)
+            .take_while(|&n| od.object(profile_index(obj::STATUSWORD.index, n)).is_some())
+            .count()
+            .max(1) as u8;
         SimDrive {
             node: SimNode::from_od(od, node, options.node.clone()),
             options,
             started: false,
-            state: DriveState::NotReadyToSwitchOn,
-            powered: false,
-            mode: None,
-            mode_code: 0,
-            prev_cw: Controlword(0),
-            pos: 0.0,
-            vel: 0.0,
-            shift: 0.0,
-            torque: 0,
-            pp: ProfilePosition::idle(0.0),
-            homing: Homing::Idle,
-            limit_hit: false,
-            switch_blocked: false,
-            probe_function: 0,
-            probe_input: None,
-            probe_status: 0,
-            probe_positive: 0,
-            probe_negative: 0,
-            follow_error: 0.0,
-            csp: Interpolation::holding(0.0),
-            torque_demand: 0.0,
             last_sync: None,
             sync_period: None,
-            follow_over_since: None,
-            error_code: 0,
-            model_time: Duration::ZERO,
             now: Duration::ZERO,
             tpdos,
             outbox: Vec::new(),
             events: VecDeque::new(),
+            m: AxisModel::new(0),
+            others: (1..axes).map(AxisModel::new).collect(),
         }
+    }
+
+    /// Runs `f` for every axis of the drive, each as the one being stepped
+    /// (`self.m`), the first axis first.
+    fn each_axis(&mut self, mut f: impl FnMut(&mut Self)) {
+        f(self);
+        for k in 0..self.others.len() {
+            std::mem::swap(&mut self.m, &mut self.others[k]);
+            f(self);
+            std::mem::swap(&mut self.m, &mut self.others[k]);
+        }
+    }
+
+    /// Runs `f` with axis `axis` (0: the first) as the one being stepped.
+    fn on_drive_axis<T>(&mut self, axis: u8, f: impl FnOnce(&mut Self) -> T) -> T {
+        if axis == 0 {
+            return f(self);
+        }
+        let k = usize::from(axis) - 1;
+        std::mem::swap(&mut self.m, &mut self.others[k]);
+        let r = f(self);
+        std::mem::swap(&mut self.m, &mut self.others[k]);
+        r
+    }
+
+    fn axis_model(&self, axis: u8) -> &AxisModel {
+        match axis {
+            0 => &self.m,
+            n => &self.others[usize::from(n) - 1],
+        }
+    }
+
+    /// How many axes the drive has: one, or as many as its object
+    /// dictionary has statuswords at 0x6041 + n × 0x800 (a CiA 402
+    /// multi-axis drive).
+    pub fn axes(&self) -> u8 {
+        1 + self.others.len() as u8
+    }
+
+    /// The state machine state of axis `axis` (0..[`SimDrive::axes`]).
+    ///
+    /// # Panics
+    /// When the drive has no such axis.
+    pub fn axis_state(&self, axis: u8) -> DriveState {
+        self.axis_model(axis).state
+    }
+
+    /// The position of axis `axis` in increments.
+    ///
+    /// # Panics
+    /// When the drive has no such axis.
+    pub fn axis_position(&self, axis: u8) -> f64 {
+        self.axis_model(axis).pos
+    }
+
+    /// The velocity of axis `axis` in increments/s.
+    ///
+    /// # Panics
+    /// When the drive has no such axis.
+    pub fn axis_velocity(&self, axis: u8) -> f64 {
+        self.axis_model(axis).vel
+    }
+
+    /// As [`SimDrive::inject_fault`], on axis `axis` only.
+    ///
+    /// # Panics
+    /// When the drive has no such axis.
+    pub fn inject_axis_fault(&mut self, axis: u8, code: u16) -> Vec<Frame> {
+        if !self.started {
+            return Vec::new();
+        }
+        self.on_drive_axis(axis, |d| {
+            d.fault(code);
+            d.write_outputs();
+        });
+        let mut out = std::mem::take(&mut self.outbox);
+        out.extend(self.node.on_tick(self.now));
+        out
     }
 
     /// The CANopen node underneath.
@@ -410,7 +530,7 @@ impl SimDrive {
 
     /// The state machine state.
     pub fn state(&self) -> DriveState {
-        self.state
+        self.m.state
     }
 
     /// The statusword the drive reports.
@@ -420,27 +540,27 @@ impl SimDrive {
 
     /// The mode of operation in effect (0x6061), `None` for no mode.
     pub fn mode(&self) -> Option<ModeOfOperation> {
-        self.mode
+        self.m.mode
     }
 
     /// The position in increments (0x6064 is this, rounded).
     pub fn position(&self) -> f64 {
-        self.pos
+        self.m.pos
     }
 
     /// The velocity in increments/s (0x606C is this, rounded).
     pub fn velocity(&self) -> f64 {
-        self.vel
+        self.m.vel
     }
 
     /// The error code of the latest fault (0x603F), 0 when none.
     pub fn error_code(&self) -> u16 {
-        self.error_code
+        self.m.error_code
     }
 
     /// The following error in cyclic synchronous position mode.
     pub fn following_error(&self) -> f64 {
-        self.follow_error
+        self.m.follow_error
     }
 
     /// Takes the node events that happened since the last call, oldest
@@ -469,8 +589,15 @@ impl SimDrive {
 
     // ---- inputs and the state machine ----
 
+    /// The value of profile object `addr` (as the first axis names it) of
+    /// the axis being stepped; other objects are the node's.
     fn int(&self, addr: ObjectAddress) -> Option<i128> {
-        self.node.get(addr).and_then(Value::as_i128)
+        self.node.get(self.here(addr)).and_then(Value::as_i128)
+    }
+
+    /// `addr` (an object of the first axis) on the axis being stepped.
+    fn here(&self, addr: ObjectAddress) -> ObjectAddress {
+        on_axis(addr, self.m.axis)
     }
 
     fn param(&self, addr: ObjectAddress) -> f64 {
@@ -514,7 +641,7 @@ impl SimDrive {
             return;
         }
         let requested = self.int(obj::MODES_OF_OPERATION).unwrap_or(0) as i8;
-        if requested != self.mode_code {
+        if requested != self.m.mode_code {
             let supported = self
                 .int(obj::SUPPORTED_DRIVE_MODES)
                 .map_or(u32::MAX, |m| m as u32);
@@ -525,59 +652,59 @@ impl SimDrive {
             }
         }
         let cw = self.controlword();
-        let prev = std::mem::replace(&mut self.prev_cw, cw);
+        let prev = std::mem::replace(&mut self.m.prev_cw, cw);
         if let Some(command) = cw.command_after(prev) {
             // "Switch on + enable operation" takes two transitions.
             for _ in 0..2 {
-                let Some(t) = self.state.on_command(command) else {
+                let Some(t) = self.m.state.on_command(command) else {
                     break;
                 };
                 if t.number == 16 && !(5..=8).contains(&self.quick_stop_option()) {
                     break;
                 }
                 if t.number == 15 {
-                    self.error_code = 0;
-                    self.follow_over_since = None;
+                    self.m.error_code = 0;
+                    self.m.follow_over_since = None;
                     self.outbox.extend(self.node.clear_emcy());
                 }
                 self.enter(t.to);
             }
         }
-        if self.state == DriveState::OperationEnabled {
+        if self.m.state == DriveState::OperationEnabled {
             self.mode_edges(prev, cw);
         }
     }
 
     fn set_mode(&mut self, mode: Option<ModeOfOperation>, code: i8) {
-        self.mode = mode;
-        self.mode_code = code;
+        self.m.mode = mode;
+        self.m.mode_code = code;
         self.reset_generators();
     }
 
     fn reset_generators(&mut self) {
-        self.pp = ProfilePosition::idle(self.pos);
-        self.csp = Interpolation::holding(self.pos);
-        self.torque_demand = 0.0;
-        self.homing = Homing::Idle;
-        self.follow_error = 0.0;
-        self.follow_over_since = None;
+        self.m.pp = ProfilePosition::idle(self.m.pos);
+        self.m.csp = Interpolation::holding(self.m.pos);
+        self.m.torque_demand = 0.0;
+        self.m.homing = Homing::Idle;
+        self.m.follow_error = 0.0;
+        self.m.follow_over_since = None;
     }
 
     fn enter(&mut self, to: DriveState) {
         use DriveState as S;
-        let from = self.state;
-        self.state = to;
+        let from = self.m.state;
+        self.m.state = to;
         match to {
             S::NotReadyToSwitchOn | S::SwitchOnDisabled | S::ReadyToSwitchOn | S::Fault => {
-                self.powered = false;
-                self.vel = 0.0;
+                self.m.powered = false;
+                self.m.vel = 0.0;
             }
             S::SwitchedOn => {
-                self.powered = true;
-                self.vel = 0.0;
+                self.m.powered = true;
+                self.m.vel = 0.0;
             }
             S::OperationEnabled => {
-                self.powered = true;
+                self.m.powered = true;
                 if from != S::OperationEnabled {
                     self.reset_generators();
                 }
@@ -596,20 +723,20 @@ impl SimDrive {
     fn mode_edges(&mut self, prev: Controlword, cw: Controlword) {
         let rising = cw.new_set_point() && !prev.new_set_point();
         let falling = !cw.new_set_point() && prev.new_set_point();
-        match self.mode {
+        match self.m.mode {
             Some(ModeOfOperation::ProfilePosition) => {
                 if rising {
                     self.accept_set_point(cw);
                 }
                 if falling {
-                    self.pp.ack = false;
+                    self.m.pp.ack = false;
                 }
             }
             Some(ModeOfOperation::Homing) => {
                 if rising {
                     self.start_homing();
-                } else if falling && self.homing == Homing::Running {
-                    self.homing = Homing::Idle;
+                } else if falling && self.m.homing == Homing::Running {
+                    self.m.homing = Homing::Idle;
                 }
             }
             _ => {}
@@ -617,13 +744,13 @@ impl SimDrive {
     }
 
     fn accept_set_point(&mut self, cw: Controlword) {
-        let busy = self.pp.active.is_some();
-        if busy && !cw.change_set_immediately() && self.pp.queued.is_some() {
+        let busy = self.m.pp.active.is_some();
+        if busy && !cw.change_set_immediately() && self.m.pp.queued.is_some() {
             return; // the buffer is full: not acknowledged
         }
         let raw = self.param(obj::TARGET_POSITION);
         let wanted = if cw.relative() {
-            self.pp.last_target + raw
+            self.m.pp.last_target + raw
         } else {
             raw
         };
@@ -634,24 +761,24 @@ impl SimDrive {
             }
             None => (wanted, false),
         };
-        self.pp.last_target = target;
-        self.pp.limited = limited;
+        self.m.pp.last_target = target;
+        self.m.pp.limited = limited;
         if !busy || cw.change_set_immediately() {
-            self.pp.active = Some(target);
-            self.pp.queued = None;
+            self.m.pp.active = Some(target);
+            self.m.pp.queued = None;
         } else {
-            self.pp.queued = Some(target);
+            self.m.pp.queued = Some(target);
         }
-        self.pp.ack = true;
+        self.m.pp.ack = true;
     }
 
     fn start_homing(&mut self) {
         let method = self.int(obj::HOMING_METHOD).unwrap_or(0);
         let offset = self.param(obj::HOME_OFFSET);
-        self.homing = match method {
+        self.m.homing = match method {
             35 | 37 => {
-                self.shift += offset - self.pos;
-                self.pos = offset;
+                self.m.shift += offset - self.m.pos;
+                self.m.pos = offset;
                 Homing::Attained
             }
             17..=30 => Homing::Running,
@@ -660,9 +787,9 @@ impl SimDrive {
     }
 
     fn fault(&mut self, code: u16) {
-        self.error_code = code;
+        self.m.error_code = code;
         if !matches!(
-            self.state,
+            self.m.state,
             DriveState::Fault | DriveState::FaultReactionActive
         ) {
             self.enter(DriveState::FaultReactionActive);
@@ -674,9 +801,9 @@ impl SimDrive {
     /// The fault reaction to a lost heartbeat: as [`SimDrive::inject_fault`]
     /// with code 0x8130, except that the node has sent the EMCY already.
     fn heartbeat_lost(&mut self) {
-        self.error_code = crate::canopen_node::HEARTBEAT_ERROR_CODE;
+        self.m.error_code = crate::canopen_node::HEARTBEAT_ERROR_CODE;
         if !matches!(
-            self.state,
+            self.m.state,
             DriveState::Fault | DriveState::FaultReactionActive
         ) {
             self.enter(DriveState::FaultReactionActive);
@@ -687,47 +814,52 @@ impl SimDrive {
     // ---- the model ----
 
     fn active(&self) -> bool {
-        self.started
-            && (self.vel != 0.0
-                || matches!(
-                    self.state,
-                    DriveState::OperationEnabled
-                        | DriveState::QuickStopActive
-                        | DriveState::FaultReactionActive
-                ))
+        self.started && self.m.active()
+    }
+
+    /// Every axis's state (the first axis first).
+    fn states(&self) -> [DriveState; MAX_DRIVE_AXES as usize] {
+        let mut states = [DriveState::Unknown; MAX_DRIVE_AXES as usize];
+        for (s, m) in states
+            .iter_mut()
+            .zip(std::iter::once(&self.m).chain(&self.others))
+        {
+            *s = m.state;
+        }
+        states
     }
 
     fn snapshot(&self) -> Snapshot {
         Snapshot {
-            state: self.state,
-            pos: self.pos,
-            vel: self.vel,
-            torque: self.torque,
+            state: self.m.state,
+            pos: self.m.pos,
+            vel: self.m.vel,
+            torque: self.m.torque,
             statusword: self.compose_statusword(),
-            follow_error: self.follow_error,
+            follow_error: self.m.follow_error,
         }
     }
 
     /// Runs the model steps due up to `now`.
     fn advance(&mut self, now: Duration) {
         if !self.active() {
-            self.model_time = self.model_time.max(now);
+            self.m.model_time = self.m.model_time.max(now);
             return;
         }
         let step = self.options.step;
-        while self.model_time + step <= now {
-            self.model_time += step;
+        while self.m.model_time + step <= now {
+            self.m.model_time += step;
             let before = self.snapshot();
             self.step_model();
             if !self.active() {
-                self.model_time = now;
+                self.m.model_time = now;
                 break;
             }
             if self.snapshot() == before {
                 // At rest: nothing changes until an input does.
-                let behind = (now - self.model_time).as_nanos();
+                let behind = (now - self.m.model_time).as_nanos();
                 let skip = behind - behind % step.as_nanos();
-                self.model_time += Duration::from_nanos(u64::try_from(skip).unwrap_or(u64::MAX));
+                self.m.model_time += Duration::from_nanos(u64::try_from(skip).unwrap_or(u64::MAX));
                 break;
             }
         }
@@ -736,9 +868,9 @@ impl SimDrive {
     fn step_model(&mut self) {
         self.apply_inputs();
         let dt = self.options.step.as_secs_f64();
-        let v0 = self.vel;
-        self.limit_hit = false;
-        match self.state {
+        let v0 = self.m.vel;
+        self.m.limit_hit = false;
+        match self.m.state {
             DriveState::OperationEnabled => self.step_enabled(dt),
             DriveState::QuickStopActive => {
                 let dec = match self.quick_stop_option() {
@@ -746,34 +878,38 @@ impl SimDrive {
                     _ => self.quick_stop_deceleration(),
                 };
                 self.stop(dec, dt);
-                if self.vel == 0.0 && (0..=4).contains(&self.quick_stop_option()) {
+                if self.m.vel == 0.0 && (0..=4).contains(&self.quick_stop_option()) {
                     self.enter(DriveState::SwitchOnDisabled); // transition 12
                 }
             }
             DriveState::FaultReactionActive => {
                 let dec = self.quick_stop_deceleration();
                 self.stop(dec, dt);
-                if self.vel == 0.0 {
+                if self.m.vel == 0.0 {
                     self.enter(DriveState::Fault); // transition 14
                 }
             }
-            _ => self.vel = 0.0,
+            _ => self.m.vel = 0.0,
         }
-        let accel = (self.vel - v0) / dt;
+        let accel = (self.m.vel - v0) / dt;
         let max_torque = self.int(obj::MAX_TORQUE).map_or(f64::from(i16::MAX), |m| {
             m.clamp(0, i128::from(i16::MAX)) as f64
         });
         let torque = if self.in_torque_mode() {
-            self.torque_demand
+            self.m.torque_demand
         } else {
             accel * TORQUE_PER_ACCEL
         };
-        self.torque = torque.round().clamp(-max_torque, max_torque) as i16;
+        self.m.torque = torque.round().clamp(-max_torque, max_torque) as i16;
         self.write_outputs();
     }
 
     fn quick_stop_deceleration(&self) -> f64 {
-        if self.node.get(obj::QUICK_STOP_DECELERATION).is_some() {
+        if self
+            .node
+            .get(self.here(obj::QUICK_STOP_DECELERATION))
+            .is_some()
+        {
             self.rate(obj::QUICK_STOP_DECELERATION)
         } else {
             self.rate(obj::PROFILE_DECELERATION)
@@ -781,23 +917,23 @@ impl SimDrive {
     }
 
     fn stop(&mut self, dec: f64, dt: f64) {
-        self.vel = ramp(self.vel, 0.0, dec, dec, dt);
-        self.pos += self.vel * dt;
+        self.m.vel = ramp(self.m.vel, 0.0, dec, dec, dt);
+        self.m.pos += self.m.vel * dt;
     }
 
     fn step_enabled(&mut self, dt: f64) {
-        let (pos0, v0) = (self.pos, self.vel);
-        let cw = self.prev_cw;
+        let (pos0, v0) = (self.m.pos, self.m.vel);
+        let cw = self.m.prev_cw;
         let dec = self.rate(obj::PROFILE_DECELERATION);
-        match self.mode {
-            Some(ModeOfOperation::ProfilePosition) => match self.pp.active {
+        match self.m.mode {
+            Some(ModeOfOperation::ProfilePosition) => match self.m.pp.active {
                 Some(target) if !cw.halt() => {
                     let vmax = self.param(obj::PROFILE_VELOCITY).min(self.max_speed());
                     let acc = self.rate(obj::PROFILE_ACCELERATION);
-                    (self.pos, self.vel) =
-                        profile_step(self.pos, self.vel, target, vmax, acc, dec, dt);
-                    if self.pos == target && self.vel == 0.0 {
-                        self.pp.active = self.pp.queued.take();
+                    (self.m.pos, self.m.vel) =
+                        profile_step(self.m.pos, self.m.vel, target, vmax, acc, dec, dt);
+                    if self.m.pos == target && self.m.vel == 0.0 {
+                        self.m.pp.active = self.m.pp.queued.take();
                     }
                 }
                 _ => self.stop(dec, dt),
@@ -810,25 +946,25 @@ impl SimDrive {
                     self.param(obj::TARGET_VELOCITY).clamp(-vmax, vmax)
                 };
                 let acc = self.rate(obj::PROFILE_ACCELERATION);
-                self.vel = ramp(self.vel, target, acc, dec, dt);
-                self.pos += self.vel * dt;
+                self.m.vel = ramp(self.m.vel, target, acc, dec, dt);
+                self.m.pos += self.m.vel * dt;
             }
             Some(ModeOfOperation::Homing) => {
                 let acc = self.rate(obj::HOMING_ACCELERATION);
-                if self.homing == Homing::Running && cw.halt() {
-                    self.homing = Homing::Idle;
+                if self.m.homing == Homing::Running && cw.halt() {
+                    self.m.homing = Homing::Idle;
                 }
-                if self.homing == Homing::Running {
+                if self.m.homing == Homing::Running {
                     // The virtual switch is at the physical position 0.
-                    let switch = self.shift;
+                    let switch = self.m.shift;
                     let speed = self.param(obj::HOMING_SPEED_SWITCH).min(self.max_speed());
-                    (self.pos, self.vel) =
-                        profile_step(self.pos, self.vel, switch, speed, acc, acc, dt);
-                    if self.pos == switch && self.vel == 0.0 {
+                    (self.m.pos, self.m.vel) =
+                        profile_step(self.m.pos, self.m.vel, switch, speed, acc, acc, dt);
+                    if self.m.pos == switch && self.m.vel == 0.0 {
                         let offset = self.param(obj::HOME_OFFSET);
-                        self.shift = offset;
-                        self.pos = offset;
-                        self.homing = Homing::Attained;
+                        self.m.shift = offset;
+                        self.m.pos = offset;
+                        self.m.homing = Homing::Attained;
                     }
                 } else {
                     self.stop(acc, dt);
@@ -840,27 +976,27 @@ impl SimDrive {
                 if let Some((min, max)) = self.limits() {
                     set_point = set_point.clamp(min, max);
                 }
-                if set_point != self.csp.to {
+                if set_point != self.m.csp.to {
                     // A new set-point (it arrived during the step that
                     // just ended): reach it over one SYNC period.
-                    let arrived = self.model_time.saturating_sub(self.options.step);
-                    self.csp = Interpolation {
-                        from: self.csp.at(arrived),
+                    let arrived = self.m.model_time.saturating_sub(self.options.step);
+                    self.m.csp = Interpolation {
+                        from: self.m.csp.at(arrived),
                         to: set_point,
                         start: arrived,
                         period: self.sync_period.unwrap_or(Duration::ZERO),
                     };
                 }
-                let command = self.csp.at(self.model_time);
-                let mut next = self.pos + (command - self.pos) * self.follow_gain(dt);
+                let command = self.m.csp.at(self.m.model_time);
+                let mut next = self.m.pos + (command - self.m.pos) * self.follow_gain(dt);
                 if (command - next).abs() < 1e-3 {
                     next = command;
                 }
                 let reach = self.max_speed() * dt;
-                next = next.clamp(self.pos - reach, self.pos + reach);
-                self.vel = (next - self.pos) / dt;
-                self.pos = next;
-                self.follow_error = command - self.pos;
+                next = next.clamp(self.m.pos - reach, self.m.pos + reach);
+                self.m.vel = (next - self.m.pos) / dt;
+                self.m.pos = next;
+                self.m.follow_error = command - self.m.pos;
                 self.check_following_error();
             }
             Some(ModeOfOperation::CyclicSynchronousTorque | ModeOfOperation::ProfileTorque) => {
@@ -870,12 +1006,12 @@ impl SimDrive {
             Some(ModeOfOperation::CyclicSynchronousVelocity) => {
                 let vmax = self.max_speed();
                 let command = self.param(obj::TARGET_VELOCITY).clamp(-vmax, vmax);
-                let mut next = self.vel + (command - self.vel) * self.follow_gain(dt);
+                let mut next = self.m.vel + (command - self.m.vel) * self.follow_gain(dt);
                 if (command - next).abs() < 1e-3 {
                     next = command;
                 }
-                self.vel = next;
-                self.pos += self.vel * dt;
+                self.m.vel = next;
+                self.m.pos += self.m.vel * dt;
             }
             _ => self.stop(dec, dt),
         }
@@ -885,7 +1021,7 @@ impl SimDrive {
 
     /// The physical position (before any homing shift).
     fn physical(&self, pos: f64) -> f64 {
-        pos - self.shift
+        pos - self.m.shift
     }
 
     /// The limit switches active at the reported position `pos`:
@@ -909,27 +1045,27 @@ impl SimDrive {
     /// motion away from it runs as the mode commands.
     fn apply_limit_switches(&mut self, pos0: f64, v0: f64, dt: f64) {
         let (negative, positive) = self.limit_switches_at(pos0);
-        let into = (positive && self.vel > 0.0) || (negative && self.vel < 0.0);
-        self.switch_blocked = into;
+        let into = (positive && self.m.vel > 0.0) || (negative && self.m.vel < 0.0);
+        self.m.switch_blocked = into;
         if !into {
             return;
         }
         let dec = self.quick_stop_deceleration();
         let v = ramp(v0, 0.0, dec, dec, dt);
         let v = if positive { v.max(0.0) } else { v.min(0.0) };
-        self.vel = v;
-        self.pos = pos0 + v * dt;
-        self.limit_hit = true;
+        self.m.vel = v;
+        self.m.pos = pos0 + v * dt;
+        self.m.limit_hit = true;
     }
 
     /// 0x60FD from the switches at the current position.
     fn digital_inputs(&self) -> u32 {
-        let (negative, positive) = self.limit_switches_at(self.pos);
+        let (negative, positive) = self.limit_switches_at(self.m.pos);
         let home = self
             .options
             .inputs
             .home_switch
-            .is_some_and(|h| self.physical(self.pos) >= f64::from(h));
+            .is_some_and(|h| self.physical(self.m.pos) >= f64::from(h));
         let mut bits = 0;
         if negative {
             bits |= INPUT_NEGATIVE_LIMIT;
@@ -946,16 +1082,16 @@ impl SimDrive {
     /// Touch probe 1: follows 0x60B8 and latches the edges of the input.
     fn update_touch_probe(&mut self) {
         let function = self.int(obj::TOUCH_PROBE_FUNCTION).unwrap_or(0) as u16;
-        if function != self.probe_function {
+        if function != self.m.probe_function {
             // A new function re-arms: nothing stored yet.
-            self.probe_function = function;
-            self.probe_status = function & 1;
+            self.m.probe_function = function;
+            self.m.probe_status = function & 1;
         }
         let Some(at) = self.options.inputs.touch_probe else {
             return;
         };
-        let level = self.physical(self.pos) >= f64::from(at);
-        let Some(previous) = self.probe_input.replace(level) else {
+        let level = self.physical(self.m.pos) >= f64::from(at);
+        let Some(previous) = self.m.probe_input.replace(level) else {
             return;
         };
         if function & 1 == 0 || level == previous {
@@ -963,22 +1099,22 @@ impl SimDrive {
         }
         // The input switches exactly at its position: latched there, not
         // where the model step ended.
-        let latched = (f64::from(at) + self.shift).round() as i32;
+        let latched = (f64::from(at) + self.m.shift).round() as i32;
         let continuous = function & 2 != 0;
-        if level && function & 0x10 != 0 && (continuous || self.probe_status & 2 == 0) {
-            self.probe_positive = latched;
-            self.probe_status |= 2;
+        if level && function & 0x10 != 0 && (continuous || self.m.probe_status & 2 == 0) {
+            self.m.probe_positive = latched;
+            self.m.probe_status |= 2;
         }
-        if !level && function & 0x20 != 0 && (continuous || self.probe_status & 4 == 0) {
-            self.probe_negative = latched;
-            self.probe_status |= 4;
+        if !level && function & 0x20 != 0 && (continuous || self.m.probe_status & 4 == 0) {
+            self.m.probe_negative = latched;
+            self.m.probe_status |= 4;
         }
     }
 
     fn in_torque_mode(&self) -> bool {
-        self.state == DriveState::OperationEnabled
+        self.m.state == DriveState::OperationEnabled
             && matches!(
-                self.mode,
+                self.m.mode,
                 Some(ModeOfOperation::CyclicSynchronousTorque | ModeOfOperation::ProfileTorque)
             )
     }
@@ -997,24 +1133,24 @@ impl SimDrive {
     /// halted, the drive's velocity loop brakes at `dec` instead.
     fn step_torque(&mut self, dt: f64, halt: bool, dec: f64) {
         if halt {
-            self.torque_demand = 0.0;
+            self.m.torque_demand = 0.0;
             self.stop(dec, dt);
             return;
         }
         let target = self.target_torque();
-        self.torque_demand = if self.mode == Some(ModeOfOperation::ProfileTorque) {
+        self.m.torque_demand = if self.m.mode == Some(ModeOfOperation::ProfileTorque) {
             let slope = self.rate(obj::TORQUE_SLOPE);
-            ramp(self.torque_demand, target, slope, slope, dt)
+            ramp(self.m.torque_demand, target, slope, slope, dt)
         } else {
             target
         };
         let vmax = self.max_speed();
-        self.vel = self
+        self.m.vel = self
             .options
             .torque_model
-            .step(self.vel, self.torque_demand, dt)
+            .step(self.m.vel, self.m.torque_demand, dt)
             .clamp(-vmax, vmax);
-        self.pos += self.vel * dt;
+        self.m.pos += self.m.vel * dt;
     }
 
     /// The interpolation time period 0x60C2 (value · 10^index s).
@@ -1032,26 +1168,26 @@ impl SimDrive {
             if let Some((min, max)) = self.limits() {
                 set_point = set_point.clamp(min, max);
             }
-            if set_point != self.csp.to {
-                let arrived = self.model_time.saturating_sub(self.options.step);
-                self.csp = Interpolation {
-                    from: self.csp.at(arrived),
+            if set_point != self.m.csp.to {
+                let arrived = self.m.model_time.saturating_sub(self.options.step);
+                self.m.csp = Interpolation {
+                    from: self.m.csp.at(arrived),
                     to: set_point,
                     start: arrived,
                     period: self.interpolation_period(),
                 };
             }
         }
-        let command = self.csp.at(self.model_time);
-        let mut next = self.pos + (command - self.pos) * self.follow_gain(dt);
+        let command = self.m.csp.at(self.m.model_time);
+        let mut next = self.m.pos + (command - self.m.pos) * self.follow_gain(dt);
         if (command - next).abs() < 1e-3 {
             next = command;
         }
         let reach = self.max_speed() * dt;
-        next = next.clamp(self.pos - reach, self.pos + reach);
-        self.vel = (next - self.pos) / dt;
-        self.pos = next;
-        self.follow_error = command - self.pos;
+        next = next.clamp(self.m.pos - reach, self.m.pos + reach);
+        self.m.vel = (next - self.m.pos) / dt;
+        self.m.pos = next;
+        self.m.follow_error = command - self.m.pos;
     }
 
     /// The fraction of the remaining error a first-order lag closes in `dt`.
@@ -1074,20 +1210,20 @@ impl SimDrive {
 
     fn following_error_exceeded(&self) -> bool {
         self.following_window()
-            .is_some_and(|w| self.follow_error.abs() > w)
+            .is_some_and(|w| self.m.follow_error.abs() > w)
     }
 
     fn check_following_error(&mut self) {
-        if !self.following_error_exceeded() || self.switch_blocked {
-            self.follow_over_since = None;
+        if !self.following_error_exceeded() || self.m.switch_blocked {
+            self.m.follow_over_since = None;
             return;
         }
-        let since = *self.follow_over_since.get_or_insert(self.model_time);
+        let since = *self.m.follow_over_since.get_or_insert(self.m.model_time);
         let timeout = Duration::from_millis(
             self.int(obj::FOLLOWING_ERROR_TIMEOUT)
                 .map_or(0, |t| t.clamp(0, i128::from(u64::MAX)) as u64),
         );
-        if self.model_time - since >= timeout {
+        if self.m.model_time - since >= timeout {
             self.fault(FOLLOWING_ERROR_CODE);
         }
     }
@@ -1096,14 +1232,14 @@ impl SimDrive {
         let Some((min, max)) = self.limits() else {
             return;
         };
-        if self.pos > max {
-            self.pos = max;
-            self.vel = self.vel.min(0.0);
-            self.limit_hit = true;
-        } else if self.pos < min {
-            self.pos = min;
-            self.vel = self.vel.max(0.0);
-            self.limit_hit = true;
+        if self.m.pos > max {
+            self.m.pos = max;
+            self.m.vel = self.m.vel.min(0.0);
+            self.m.limit_hit = true;
+        } else if self.m.pos < min {
+            self.m.pos = min;
+            self.m.vel = self.m.vel.max(0.0);
+            self.m.limit_hit = true;
         }
     }
 
@@ -1113,11 +1249,11 @@ impl SimDrive {
         if !self.started {
             return 0;
         }
-        let mut sw = Statusword::from_state(self.state)
+        let mut sw = Statusword::from_state(self.m.state)
             .with(Statusword::REMOTE, true)
-            .with(Statusword::VOLTAGE_ENABLED, self.powered);
-        let stopped = self.vel == 0.0;
-        match self.state {
+            .with(Statusword::VOLTAGE_ENABLED, self.m.powered);
+        let stopped = self.m.vel == 0.0;
+        match self.m.state {
             DriveState::OperationEnabled => sw = self.mode_bits(sw),
             DriveState::QuickStopActive => sw = sw.with(Statusword::TARGET_REACHED, stopped),
             _ => {}
@@ -1126,17 +1262,17 @@ impl SimDrive {
     }
 
     fn mode_bits(&self, sw: Statusword) -> Statusword {
-        let stopped = self.vel == 0.0;
-        let halt = self.prev_cw.halt();
-        let sw = sw.with(Statusword::INTERNAL_LIMIT, self.limit_hit);
-        match self.mode {
+        let stopped = self.m.vel == 0.0;
+        let halt = self.m.prev_cw.halt();
+        let sw = sw.with(Statusword::INTERNAL_LIMIT, self.m.limit_hit);
+        match self.m.mode {
             Some(ModeOfOperation::ProfilePosition) => {
-                let reached = stopped && (self.pp.active.is_none() || halt);
+                let reached = stopped && (self.m.pp.active.is_none() || halt);
                 sw.with(Statusword::TARGET_REACHED, reached)
-                    .with(Statusword::OMS_12, self.pp.ack)
+                    .with(Statusword::OMS_12, self.m.pp.ack)
                     .with(
                         Statusword::INTERNAL_LIMIT,
-                        self.limit_hit || self.pp.limited,
+                        self.m.limit_hit || self.m.pp.limited,
                     )
             }
             Some(ModeOfOperation::ProfileVelocity) => {
@@ -1146,10 +1282,10 @@ impl SimDrive {
                 } else {
                     self.param(obj::TARGET_VELOCITY).clamp(-vmax, vmax)
                 };
-                sw.with(Statusword::TARGET_REACHED, self.vel == target)
+                sw.with(Statusword::TARGET_REACHED, self.m.vel == target)
                     .with(Statusword::OMS_12, stopped)
             }
-            Some(ModeOfOperation::Homing) => match self.homing {
+            Some(ModeOfOperation::Homing) => match self.m.homing {
                 Homing::Idle => sw.with(Statusword::TARGET_REACHED, stopped),
                 Homing::Running => sw,
                 Homing::Attained => sw
@@ -1168,12 +1304,12 @@ impl SimDrive {
                 let reached = if halt {
                     stopped
                 } else {
-                    self.torque_demand == self.target_torque()
+                    self.m.torque_demand == self.target_torque()
                 };
                 sw.with(Statusword::TARGET_REACHED, reached)
             }
             Some(ModeOfOperation::InterpolatedPosition) => {
-                sw.with(Statusword::OMS_12, self.prev_cw.new_set_point())
+                sw.with(Statusword::OMS_12, self.m.prev_cw.new_set_point())
             }
             _ => sw,
         }
@@ -1181,6 +1317,7 @@ impl SimDrive {
 
     /// Sets an object when it exists and its value differs.
     fn put(&mut self, addr: ObjectAddress, value: Value) -> bool {
+        let addr = self.here(addr);
         match self.node.get(addr) {
             Some(current) if *current != value => self.node.set(addr, value).is_ok(),
             _ => false,
@@ -1197,21 +1334,21 @@ impl SimDrive {
         }
         self.put(
             obj::MODES_OF_OPERATION_DISPLAY,
-            Value::Integer8(self.mode_code),
+            Value::Integer8(self.m.mode_code),
         );
         self.put(
             obj::POSITION_ACTUAL,
-            Value::Integer32(self.pos.round() as i32),
+            Value::Integer32(self.m.pos.round() as i32),
         );
         self.put(
             obj::VELOCITY_ACTUAL,
-            Value::Integer32(self.vel.round() as i32),
+            Value::Integer32(self.m.vel.round() as i32),
         );
-        self.put(obj::TORQUE_ACTUAL, Value::Integer16(self.torque));
-        self.put(obj::ERROR_CODE, Value::Unsigned16(self.error_code));
+        self.put(obj::TORQUE_ACTUAL, Value::Integer16(self.m.torque));
+        self.put(obj::ERROR_CODE, Value::Unsigned16(self.m.error_code));
         self.put(
             obj::FOLLOWING_ERROR_ACTUAL,
-            Value::Integer32(self.follow_error.round() as i32),
+            Value::Integer32(self.m.follow_error.round() as i32),
         );
         if self.started {
             self.put(
@@ -1221,21 +1358,22 @@ impl SimDrive {
             self.update_touch_probe();
             self.put(
                 obj::TOUCH_PROBE_STATUS,
-                Value::Unsigned16(self.probe_status),
+                Value::Unsigned16(self.m.probe_status),
             );
             self.put(
                 obj::TOUCH_PROBE_1_POSITIVE,
-                Value::Integer32(self.probe_positive),
+                Value::Integer32(self.m.probe_positive),
             );
             self.put(
                 obj::TOUCH_PROBE_1_NEGATIVE,
-                Value::Integer32(self.probe_negative),
+                Value::Integer32(self.m.probe_negative),
             );
         }
     }
 
     /// Marks every TPDO that maps the statusword for transmission.
     fn trigger_statusword_tpdos(&mut self) {
+        let statusword = self.here(obj::STATUSWORD);
         let mapping = |n: u16| {
             let index = TPDO_MAP + n;
             let count = self
@@ -1244,7 +1382,7 @@ impl SimDrive {
                 .clamp(0, 64) as u8;
             (1..=count).any(|sub| {
                 self.int(ObjectAddress::new(index, sub))
-                    .is_some_and(|e| (e as u32) >> 8 == u32::from(obj::STATUSWORD.index) << 8)
+                    .is_some_and(|e| (e as u32) >> 8 == u32::from(statusword.index) << 8)
             })
         };
         let maps: Vec<u16> = self.tpdos.iter().copied().filter(|&n| mapping(n)).collect();
@@ -1269,10 +1407,11 @@ impl SimDrive {
                 kind: NmtReset::Node,
             } = event
             {
-                self.power_on();
+                // The node's reset restarts every axis.
+                self.each_axis(Self::power_on);
             }
             if let SimEvent::HeartbeatLost { .. } = event {
-                self.heartbeat_lost();
+                self.each_axis(Self::heartbeat_lost);
             }
             if self.options.node.max_events > 0 {
                 while self.events.len() >= self.options.node.max_events {
@@ -1288,19 +1427,22 @@ impl SimDrive {
     /// the dictionary say so, the motor holds.
     fn enabled_since_before(&mut self, mode: ModeOfOperation, position: i32) {
         let _ = self.node.set(
-            obj::CONTROLWORD,
+            self.here(obj::CONTROLWORD),
             Value::Unsigned16(Controlword::ENABLE_OPERATION.0),
         );
-        let _ = self
-            .node
-            .set(obj::MODES_OF_OPERATION, Value::Integer8(mode.code()));
+        let _ = self.node.set(
+            self.here(obj::MODES_OF_OPERATION),
+            Value::Integer8(mode.code()),
+        );
         // Its last set-points: hold here.
         let _ = self
             .node
-            .set(obj::TARGET_POSITION, Value::Integer32(position));
-        let _ = self.node.set(obj::TARGET_VELOCITY, Value::Integer32(0));
-        self.pos = f64::from(position);
-        self.prev_cw = self.controlword();
+            .set(self.here(obj::TARGET_POSITION), Value::Integer32(position));
+        let _ = self
+            .node
+            .set(self.here(obj::TARGET_VELOCITY), Value::Integer32(0));
+        self.m.pos = f64::from(position);
+        self.m.prev_cw = self.controlword();
         self.set_mode(Some(mode), mode.code());
         self.enter(DriveState::SwitchedOn);
         self.enter(DriveState::OperationEnabled);
@@ -1312,28 +1454,29 @@ impl SimDrive {
     /// physical position.
     fn power_on(&mut self) {
         self.started = true;
-        self.state = DriveState::SwitchOnDisabled;
-        self.powered = false;
-        self.pos -= self.shift;
-        self.shift = 0.0;
-        self.vel = 0.0;
-        self.torque = 0;
-        self.mode = None;
-        self.mode_code = 0;
-        self.prev_cw = self.controlword();
-        self.error_code = 0;
-        self.limit_hit = false;
-        self.switch_blocked = false;
-        self.probe_function = 0;
-        self.probe_input = None;
-        self.probe_status = 0;
-        self.probe_positive = 0;
-        self.probe_negative = 0;
+        self.m.state = DriveState::SwitchOnDisabled;
+        self.m.powered = false;
+        self.m.pos -= self.m.shift;
+        self.m.shift = 0.0;
+        self.m.vel = 0.0;
+        self.m.torque = 0;
+        self.m.mode = None;
+        self.m.mode_code = 0;
+        self.m.prev_cw = self.controlword();
+        self.m.error_code = 0;
+        self.m.limit_hit = false;
+        self.m.switch_blocked = false;
+        self.m.probe_function = 0;
+        self.m.probe_input = None;
+        self.m.probe_status = 0;
+        self.m.probe_positive = 0;
+        self.m.probe_negative = 0;
         self.reset_generators();
         if let Some(mask) = self.options.supported_modes {
-            let _ = self
-                .node
-                .set(obj::SUPPORTED_DRIVE_MODES, Value::Unsigned32(mask));
+            let _ = self.node.set(
+                self.here(obj::SUPPORTED_DRIVE_MODES),
+                Value::Unsigned32(mask),
+            );
         }
         self.write_outputs();
     }
@@ -1403,13 +1546,13 @@ fn profile_step(
 impl Device for SimDrive {
     fn start(&mut self, now: Duration) -> Vec<Frame> {
         self.now = now;
-        self.model_time = now;
+        self.each_axis(|d| d.m.model_time = now);
         let out = self.node.start(now);
         // What the drive was doing before anyone listened applies to this
         // start only (the options are what a power cycle starts from).
         self.options.node.running_at_start = None;
         if !self.started {
-            self.power_on();
+            self.each_axis(Self::power_on);
             if let Some((mode, position)) = self.options.enabled_at_start.take() {
                 self.enabled_since_before(mode, position);
             }
@@ -1420,7 +1563,7 @@ impl Device for SimDrive {
 
     fn on_frame(&mut self, frame: &Frame, now: Duration) -> Vec<Frame> {
         self.now = now;
-        self.advance(now);
+        self.each_axis(|d| d.advance(now));
         if self.is_sync(frame) {
             if let Some(last) = self.last_sync
                 && now > last
@@ -1432,8 +1575,10 @@ impl Device for SimDrive {
         }
         let mut out = self.node.on_frame(frame, now);
         self.drain_events();
-        self.apply_inputs();
-        self.write_outputs();
+        self.each_axis(|d| {
+            d.apply_inputs();
+            d.write_outputs();
+        });
         out.append(&mut self.outbox);
         out.extend(self.node.on_tick(now));
         out
@@ -1441,13 +1586,13 @@ impl Device for SimDrive {
 
     fn on_tick(&mut self, now: Duration) -> Vec<Frame> {
         self.now = now;
-        self.advance(now);
+        self.each_axis(|d| d.advance(now));
         let mut out = std::mem::take(&mut self.outbox);
         out.extend(self.node.on_tick(now));
         // A heartbeat consumer timeout shows up in a tick.
-        let before = self.state;
+        let before = self.states();
         self.drain_events();
-        if !self.outbox.is_empty() || self.state != before {
+        if !self.outbox.is_empty() || self.states() != before {
             out.append(&mut self.outbox);
             out.extend(self.node.on_tick(now));
         }
@@ -1463,7 +1608,12 @@ impl Device for SimDrive {
     }
 
     fn next_deadline(&self) -> Option<Duration> {
-        let model = self.active().then(|| self.model_time + self.options.step);
+        let step = self.options.step;
+        let model = std::iter::once(&self.m)
+            .chain(&self.others)
+            .filter(|m| self.started && m.active())
+            .map(|m| m.model_time + step)
+            .min();
         [model, self.node.next_deadline()]
             .into_iter()
             .flatten()
@@ -1607,6 +1757,90 @@ mod tests {
         }
         assert_eq!(d.state(), DriveState::OperationEnabled);
         assert_eq!(d.mode(), Some(mode));
+    }
+
+    /// A drive with two axes (the bundled EDS with each profile object
+    /// again at + 0x800): each axis has its own state machine and model,
+    /// commanded through its own objects; a node reset restarts both.
+    #[test]
+    fn a_two_axis_drive_runs_each_axis_on_its_own_objects() {
+        let text = cangate_canopen::eds::sim_drive_eds_with_axes(2);
+        let mut d =
+            SimDrive::from_eds_text(&text, NodeId::new(5).unwrap(), SimDriveOptions::default())
+                .unwrap();
+        assert_eq!(d.axes(), 2);
+        d.start(Duration::ZERO);
+        d.on_frame(&frame(0x000, &[0x01, 0x05]), Duration::ZERO);
+        let second = |a: ObjectAddress| on_axis(a, 1);
+        // Axis 1 in profile velocity at 5000 inc/s, by SDO on 0x68xx.
+        sdo_write(&mut d, second(obj::MODES_OF_OPERATION), &[3], MS);
+        sdo_write(
+            &mut d,
+            second(obj::TARGET_VELOCITY),
+            &5000i32.to_le_bytes(),
+            MS,
+        );
+        for (k, cw) in [0x0006u16, 0x0007, 0x000F].into_iter().enumerate() {
+            sdo_write(
+                &mut d,
+                second(obj::CONTROLWORD),
+                &cw.to_le_bytes(),
+                MS * (2 + k as u32),
+            );
+        }
+        assert_eq!(d.axis_state(1), DriveState::OperationEnabled);
+        assert_eq!(d.axis_state(0), DriveState::SwitchOnDisabled);
+        assert_eq!(
+            read_u16(&mut d, second(obj::STATUSWORD), 5 * MS) & 0x6F,
+            0x27
+        );
+        assert_eq!(read_u16(&mut d, obj::STATUSWORD, 5 * MS) & 0x6F, 0x40);
+        run(&mut d, 200 * MS, |_, _| {});
+        assert_eq!(d.axis_velocity(1), 5000.0);
+        assert!(d.axis_position(1) > 0.0);
+        assert_eq!(
+            read_i32(&mut d, second(obj::VELOCITY_ACTUAL), 200 * MS),
+            5000
+        );
+        // The first axis has not moved, and its objects say so.
+        assert_eq!((d.axis_position(0), d.axis_velocity(0)), (0.0, 0.0));
+        assert_eq!(read_i32(&mut d, obj::VELOCITY_ACTUAL, 200 * MS), 0);
+        // Axis 0 enabled and halted while axis 1 keeps running.
+        sdo_write(&mut d, obj::MODES_OF_OPERATION, &[3], 201 * MS);
+        for (k, cw) in [0x0006u16, 0x0007, 0x000F].into_iter().enumerate() {
+            sdo_write(
+                &mut d,
+                obj::CONTROLWORD,
+                &cw.to_le_bytes(),
+                MS * (202 + k as u32),
+            );
+        }
+        assert_eq!(d.axis_state(0), DriveState::OperationEnabled);
+        sdo_write(&mut d, obj::CONTROLWORD, &0x0002u16.to_le_bytes(), 210 * MS);
+        run(&mut d, 300 * MS, |_, _| {});
+        assert_eq!(d.axis_state(0), DriveState::SwitchOnDisabled);
+        assert_eq!(d.axis_state(1), DriveState::OperationEnabled);
+        assert_eq!(d.axis_velocity(1), 5000.0);
+        // A fault on axis 1 alone.
+        d.inject_axis_fault(1, 0x2310);
+        run(&mut d, 400 * MS, |_, _| {});
+        assert_eq!(d.axis_state(1), DriveState::Fault);
+        assert_eq!(read_u16(&mut d, second(obj::ERROR_CODE), 400 * MS), 0x2310);
+        assert_eq!(read_u16(&mut d, obj::ERROR_CODE, 400 * MS), 0);
+        // NMT reset node: both axes restart in switch on disabled.
+        sdo_write(&mut d, obj::MODES_OF_OPERATION, &[3], 401 * MS);
+        for (k, cw) in [0x0006u16, 0x0007, 0x000F].into_iter().enumerate() {
+            sdo_write(
+                &mut d,
+                obj::CONTROLWORD,
+                &cw.to_le_bytes(),
+                MS * (402 + k as u32),
+            );
+        }
+        assert_eq!(d.axis_state(0), DriveState::OperationEnabled);
+        d.on_frame(&frame(0x000, &[0x81, 0x05]), 410 * MS);
+        assert_eq!(d.axis_state(0), DriveState::SwitchOnDisabled);
+        assert_eq!(d.axis_state(1), DriveState::SwitchOnDisabled);
     }
 
     #[test]
