@@ -50,7 +50,7 @@ use std::time::Duration;
 use cangate_canopen::ObjectAddress;
 use cangate_canopen::cia402::{
     Controlword, DriveState, DriverStep, HomingStatus, ModeOfOperation, StateMachineDriver,
-    Statusword, objects as obj,
+    Statusword, objects as obj, on_axis,
 };
 use cangate_motion::{Limits, TrapezoidProfile};
 
@@ -72,6 +72,10 @@ pub struct Cia402Config {
     pub torque: TorqueSpec,
     /// Following error window and time-out, max torque (boot writes).
     pub supervision: Supervision,
+    /// Which axis of its drive node this is (0..=7): every profile object
+    /// the axis writes by SDO is that axis's, index + 0x800 × `drive_axis`
+    /// ([`cangate_canopen::cia402::profile_index`]).
+    pub drive_axis: u8,
 }
 
 impl Cia402Config {
@@ -83,6 +87,7 @@ impl Cia402Config {
             mode: DriveMode::of_position_mode(position_mode),
             torque: TorqueSpec::default(),
             supervision: Supervision::default(),
+            drive_axis: 0,
         }
     }
 
@@ -97,6 +102,7 @@ impl Cia402Config {
                 ..TorqueSpec::default()
             },
             supervision: Supervision::default(),
+            drive_axis: 0,
         }
     }
 
@@ -667,8 +673,17 @@ impl Cia402Axis {
 
     /// The SDO writes the gateway makes at boot for this axis: homing is
     /// configured by the node's own writes; here the soft limits in counts
-    /// (0x607D, when both are configured) and the default profile.
+    /// (0x607D, when both are configured) and the default profile; the
+    /// objects of the axis's own drive axis.
     pub fn boot_writes(&self) -> Vec<(ObjectAddress, Vec<u8>)> {
+        let mut w = self.first_axis_boot_writes();
+        for (addr, _) in &mut w {
+            *addr = on_axis(*addr, self.cfg.drive_axis);
+        }
+        w
+    }
+
+    fn first_axis_boot_writes(&self) -> Vec<(ObjectAddress, Vec<u8>)> {
         let mut w = Vec::new();
         if let (Some(min), Some(max)) = (self.cfg.motion.min_position, self.cfg.motion.max_position)
         {
@@ -1980,10 +1995,20 @@ impl Cia402Axis {
         }
         self.sdo_in_flight = Some(want);
         // The deceleration first: a stop's ramp takes effect soonest.
+        let axis = self.cfg.drive_axis;
         out.push(Output::SdoWrites(vec![
-            (obj::PROFILE_DECELERATION, want.2.to_le_bytes().to_vec()),
-            (obj::PROFILE_VELOCITY, want.0.to_le_bytes().to_vec()),
-            (obj::PROFILE_ACCELERATION, want.1.to_le_bytes().to_vec()),
+            (
+                on_axis(obj::PROFILE_DECELERATION, axis),
+                want.2.to_le_bytes().to_vec(),
+            ),
+            (
+                on_axis(obj::PROFILE_VELOCITY, axis),
+                want.0.to_le_bytes().to_vec(),
+            ),
+            (
+                on_axis(obj::PROFILE_ACCELERATION, axis),
+                want.1.to_le_bytes().to_vec(),
+            ),
         ]));
     }
 

@@ -20,7 +20,7 @@
 
 use cangate_canopen::NodeId;
 use cangate_canopen::ObjectAddress;
-use cangate_canopen::cia402::objects as obj;
+use cangate_canopen::cia402::{MAX_DRIVE_AXES, axis_of, first_axis, objects as obj, on_axis};
 use cangate_canopen::pdo::{MappedObject, PdoConfig, PdoError, PdoKind};
 use cangate_canopen::value::Value;
 
@@ -226,6 +226,62 @@ pub fn interpolation_period(period: std::time::Duration) -> (u8, i8) {
     ((us / 1000).min(255) as u8, -3)
 }
 
+/// PDO numbers one axis of a multi-axis drive takes: axis `n` has PDOs
+/// 4n + 1 ..= 4n + 4 (RPDO and TPDO each), the first axis the standard
+/// layout's 1..=4.
+pub const PDOS_PER_AXIS: u16 = 4;
+
+/// The first COB-ID of the PDOs of further axes (axis 1..=7 of a drive
+/// node): the predefined connection set (CiA 301) gives each node-ID only
+/// PDOs 1..=4, so these take blocks of eight from the range CiA 301 leaves
+/// free for PDOs, 0x680..=0x6DF: RPDO n of a block at block + n − 1, TPDO
+/// n at block + 4 + n − 1.
+pub const FURTHER_AXIS_COB_BASE: u16 = 0x680;
+
+/// Blocks of eight COB-IDs in 0x680..=0x6DF: further axes one bus can
+/// have.
+pub const FURTHER_AXIS_BLOCKS: u16 = 12;
+
+/// The COB-ID of PDO `num` (1..=4 within its axis) of kind `kind` in
+/// further-axis block `block` (0..12, see [`FURTHER_AXIS_COB_BASE`]).
+pub fn further_axis_cob_id(kind: PdoKind, num: u16, block: u16) -> u16 {
+    let base = FURTHER_AXIS_COB_BASE + 8 * block;
+    match kind {
+        PdoKind::Rpdo => base + num - 1,
+        PdoKind::Tpdo => base + 4 + num - 1,
+    }
+}
+
+/// Moves a layout of the first axis (from [`standard_pdos`] and friends)
+/// to axis `drive_axis` of the drive: PDO `n` becomes `n` + 4 ×
+/// `drive_axis`, every mapped profile object the same object of that axis
+/// (index + 0x800 × `drive_axis`), and the COB-IDs those of further-axis
+/// block `block` ([`further_axis_cob_id`]). Axis 0 stays as it is.
+pub fn relocate_to_axis(pdos: &mut [PdoConfig], drive_axis: u8, block: u16) {
+    if drive_axis == 0 {
+        return;
+    }
+    for p in pdos {
+        let num = p.num;
+        p.cob_id = further_axis_cob_id(p.kind, num, block);
+        p.num = num + PDOS_PER_AXIS * u16::from(drive_axis);
+        for m in &mut p.mapping {
+            m.addr = on_axis(m.addr, drive_axis);
+        }
+    }
+}
+
+/// The drive axis whose objects PDO `p` maps: that of its first profile
+/// object (a PDO of the axis layout maps one axis's objects only); `None`
+/// when it maps none.
+pub fn pdo_drive_axis(p: &PdoConfig) -> Option<u8> {
+    p.mapping
+        .iter()
+        .find_map(|m| axis_of(m.addr))
+        .map(|(axis, _)| axis)
+        .filter(|a| *a < MAX_DRIVE_AXES)
+}
+
 /// The RPDO frames (COB-ID, payload) carrying `image`, for every RPDO that
 /// maps at least one image object, those without the controlword first.
 ///
@@ -258,12 +314,18 @@ pub fn encode_image(
         let relevant = p
             .mapping
             .iter()
-            .any(|m| values.iter().any(|(a, _)| *a == m.addr));
+            .any(|m| values.iter().any(|(a, _)| *a == first_axis(m.addr)));
         if !relevant {
             continue;
         }
-        let has_cw = p.mapping.iter().any(|m| m.addr == obj::CONTROLWORD);
-        frames.push((has_cw, p.cob_id, p.encode(&values)?));
+        let has_cw = p
+            .mapping
+            .iter()
+            .any(|m| first_axis(m.addr) == obj::CONTROLWORD);
+        // The objects of the drive axis the PDO maps.
+        let axis = pdo_drive_axis(p).unwrap_or(0);
+        let on_its_axis = values.clone().map(|(a, v)| (on_axis(a, axis), v));
+        frames.push((has_cw, p.cob_id, p.encode(&on_its_axis)?));
     }
     frames.sort_by_key(|(cw, _, _)| *cw);
     Ok(frames.into_iter().map(|(_, c, d)| (c, d)).collect())
@@ -276,7 +338,7 @@ pub fn feedback_from_values<'a>(
     let mut fb = Feedback::default();
     for (addr, v) in values {
         let i = v.as_i128();
-        match addr {
+        match first_axis(addr) {
             a if a == obj::STATUSWORD => fb.statusword = i.map(|x| x as u16),
             a if a == obj::POSITION_ACTUAL => fb.position = i.map(|x| x as i32),
             a if a == obj::VELOCITY_ACTUAL => fb.velocity = i.map(|x| x as i32),
@@ -317,7 +379,7 @@ pub fn feedback_from_pdo(cfg: &PdoConfig, data: &[u8]) -> Result<Feedback, PdoEr
         let n = m.bits as usize / 8;
         let bytes = &data[at..at + n];
         at += n;
-        let a = m.addr;
+        let a = first_axis(m.addr);
         let known = a == obj::STATUSWORD
             || a == obj::POSITION_ACTUAL
             || a == obj::VELOCITY_ACTUAL
@@ -362,6 +424,11 @@ pub const SDO_FEEDBACK_OBJECTS: [ObjectAddress; 4] = [
     obj::VELOCITY_ACTUAL,
     obj::MODES_OF_OPERATION_DISPLAY,
 ];
+
+/// [`SDO_FEEDBACK_OBJECTS`] of axis `drive_axis` of the drive.
+pub fn sdo_feedback_objects(drive_axis: u8) -> [ObjectAddress; 4] {
+    SDO_FEEDBACK_OBJECTS.map(|a| on_axis(a, drive_axis))
+}
 
 /// An SDO upload of a feedback object that does not hold a value of the
 /// object's CiA 402 type.
@@ -416,7 +483,22 @@ pub fn feedback_from_sdo(uploads: &[Vec<u8>; 4]) -> Result<Feedback, SdoFeedback
 /// changed, the targets and the mode before the controlword, so a
 /// new-set-point or enable edge never acts on a stale target or mode (the
 /// same order [`encode_image`] gives the RPDOs).
+///
+/// The objects are those of axis `drive_axis` of the drive
+/// ([`cangate_canopen::cia402::profile_index`]).
 pub fn sdo_image_writes(
+    drive_axis: u8,
+    last: Option<&ProcessImage>,
+    image: &ProcessImage,
+) -> Vec<(ObjectAddress, Vec<u8>)> {
+    let mut writes = first_axis_image_writes(last, image);
+    for (addr, _) in &mut writes {
+        *addr = on_axis(*addr, drive_axis);
+    }
+    writes
+}
+
+fn first_axis_image_writes(
     last: Option<&ProcessImage>,
     image: &ProcessImage,
 ) -> Vec<(ObjectAddress, Vec<u8>)> {
@@ -454,6 +536,73 @@ pub fn sdo_image_writes(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Axis 1 of a two-axis drive at node 5: PDOs 5.., COB-IDs of the
+    /// first further-axis block (0x680..), its objects at + 0x800.
+    #[test]
+    fn a_second_drive_axis_gets_its_own_pdos_objects_and_exact_bytes() {
+        let node = NodeId::new(5).unwrap();
+        let (mut rpdos, mut tpdos) = standard_pdos(node, FeedbackTrigger::Sync);
+        relocate_to_axis(&mut rpdos, 1, 0);
+        relocate_to_axis(&mut tpdos, 1, 0);
+        let nums: Vec<(u16, u16)> = rpdos
+            .iter()
+            .chain(&tpdos)
+            .map(|p| (p.num, p.cob_id))
+            .collect();
+        assert_eq!(nums, [(5, 0x680), (6, 0x681), (5, 0x684), (6, 0x685)]);
+        assert_eq!(pdo_drive_axis(&rpdos[0]), Some(1));
+        // RPDO5's mapping as written at boot: 0x1604:01 = 0x68400010.
+        let writes = rpdos[0].sdo_writes().unwrap();
+        assert!(
+            writes.contains(&(ObjectAddress::new(0x1604, 1), vec![0x10, 0x00, 0x40, 0x68])),
+            "{writes:?}"
+        );
+        assert!(
+            writes.contains(&(ObjectAddress::new(0x1604, 2), vec![0x08, 0x00, 0x60, 0x68])),
+            "{writes:?}"
+        );
+        let image = ProcessImage {
+            controlword: 0x000F,
+            mode: 8,
+            target_position: 1000,
+            target_velocity: 0,
+            target_torque: 0,
+        };
+        assert_eq!(
+            encode_image(&image, &rpdos).unwrap(),
+            vec![
+                (0x681, vec![0xE8, 0x03, 0, 0, 0, 0, 0, 0]),
+                (0x680, vec![0x0F, 0x00, 0x08]),
+            ]
+        );
+        // TPDO5: statusword 0x6841, position 0x6864, mode display 0x6861.
+        let fb = feedback_from_pdo(&tpdos[0], &[0x37, 0x02, 0x10, 0x27, 0, 0, 8]).unwrap();
+        assert_eq!(
+            (fb.statusword, fb.position, fb.mode_display),
+            (Some(0x0237), Some(10_000), Some(8))
+        );
+        // The SDO fallback writes the controlword to 0x6840: an expedited
+        // download of 2 bytes, 2B 40 68 00 0F 00 00 00 on 0x605.
+        let writes = sdo_image_writes(1, None, &image);
+        let (addr, data) = writes.last().unwrap().clone();
+        assert_eq!(addr, ObjectAddress::new(0x6840, 0));
+        let mut client = cangate_canopen::sdo::SdoClient::new(node);
+        let frames = client
+            .start_download(
+                addr,
+                data,
+                cangate_canopen::sdo::TransferOptions::default(),
+                std::time::Duration::ZERO,
+            )
+            .unwrap();
+        assert_eq!(frames[0].raw_id(), 0x605);
+        assert_eq!(
+            frames[0].data(),
+            [0x2B, 0x40, 0x68, 0x00, 0x0F, 0x00, 0x00, 0x00]
+        );
+        assert_eq!(sdo_feedback_objects(1)[0], ObjectAddress::new(0x6841, 0));
+    }
 
     #[test]
     fn image_goes_out_target_first_with_exact_bytes() {
@@ -641,7 +790,7 @@ mod tests {
         };
         // Nothing known: everything, targets and mode before the controlword.
         assert_eq!(
-            sdo_image_writes(None, &image),
+            sdo_image_writes(0, None, &image),
             vec![
                 (obj::TARGET_POSITION, vec![0x10, 0x27, 0x00, 0x00]),
                 (obj::TARGET_VELOCITY, vec![0xFE, 0xFF, 0xFF, 0xFF]),
@@ -649,7 +798,7 @@ mod tests {
                 (obj::CONTROLWORD, vec![0x1F, 0x00]),
             ]
         );
-        assert!(sdo_image_writes(Some(&image), &image).is_empty());
+        assert!(sdo_image_writes(0, Some(&image), &image).is_empty());
         // A new set-point: the target, then the controlword edge.
         let next = ProcessImage {
             controlword: 0x003F,
@@ -657,7 +806,7 @@ mod tests {
             ..image
         };
         assert_eq!(
-            sdo_image_writes(Some(&image), &next),
+            sdo_image_writes(0, Some(&image), &next),
             vec![
                 (obj::TARGET_POSITION, vec![0xFF, 0xFF, 0xFF, 0xFF]),
                 (obj::CONTROLWORD, vec![0x3F, 0x00]),
@@ -666,7 +815,7 @@ mod tests {
         // Homing: the mode alone.
         let homing = ProcessImage { mode: 6, ..image };
         assert_eq!(
-            sdo_image_writes(Some(&image), &homing),
+            sdo_image_writes(0, Some(&image), &homing),
             vec![(obj::MODES_OF_OPERATION, vec![0x06])]
         );
     }

@@ -145,6 +145,9 @@ pub struct Cia402Drive {
     /// touch probe) into its TPDOs where it has them
     /// ([`crate::process_data::with_signal_tpdos`]).
     pub signal_pdos: bool,
+    /// Which axis of the drive node this is (CiA 402 multi-axis drives,
+    /// 0..=7): its objects are at index + 0x800 × `drive_axis`.
+    pub drive_axis: u8,
 }
 
 /// The torque bounds of a CiA 402 axis, per mille of the drive's rated
@@ -286,6 +289,7 @@ impl Cia402Drive {
             mode: self.mode,
             torque: self.torque,
             supervision: self.supervision,
+            drive_axis: self.drive_axis,
         }
     }
 }

@@ -62,9 +62,17 @@ impl Rig {
             inputs: inputs.unwrap_or_default(),
             ..SimDriveOptions::default()
         };
-        let mut drive = SimDrive::bundled(node, options);
+        let drive_axis = cfg.drive_axis;
+        // An axis other than the first: a drive with that many axes, the
+        // layout moved to the axis (PDOs 4n + 1.., COB-IDs from 0x680).
+        let mut drive = if drive_axis == 0 {
+            SimDrive::bundled(node, options)
+        } else {
+            let text = cangate_canopen::eds::sim_drive_eds_with_axes(drive_axis + 1);
+            SimDrive::from_eds_text(&text, node, options).unwrap()
+        };
         drive.start(Duration::ZERO);
-        let (rpdos, mut tpdos) = standard_pdos(node, FeedbackTrigger::Sync);
+        let (mut rpdos, mut tpdos) = standard_pdos(node, FeedbackTrigger::Sync);
         if inputs.is_some() {
             crate::process_data::with_signal_tpdos(
                 &mut tpdos,
@@ -74,6 +82,8 @@ impl Rig {
                 |_| true,
             );
         }
+        crate::process_data::relocate_to_axis(&mut rpdos, drive_axis, 0);
+        crate::process_data::relocate_to_axis(&mut tpdos, drive_axis, 0);
         let axis = Cia402Axis::new(cfg);
         let mut rig = Rig {
             axis,
@@ -93,7 +103,10 @@ impl Rig {
             writes.extend(p.sdo_writes().unwrap());
         }
         writes.extend(rig.axis.boot_writes());
-        writes.push((obj::HOMING_METHOD, vec![homing_method]));
+        writes.push((
+            cangate_canopen::cia402::on_axis(obj::HOMING_METHOD, drive_axis),
+            vec![homing_method],
+        ));
         for (addr, data) in writes {
             rig.sdo_write(addr, &data);
         }
@@ -284,7 +297,11 @@ impl Rig {
         let op = self.command(AxisCommand::Enable).unwrap();
         let (outcome, detail) = self.run_until_done(op, Duration::from_secs(2));
         assert_eq!(outcome, Outcome::Completed, "{detail}");
-        assert_eq!(self.drive.state(), DriveState::OperationEnabled);
+        let drive_axis = self.axis.config().drive_axis;
+        assert_eq!(
+            self.drive.axis_state(drive_axis),
+            DriveState::OperationEnabled
+        );
     }
 
     /// A move at 100 mm/s and 1000 mm/s², or the axis's maxima when lower.
@@ -374,6 +391,73 @@ fn profile_move_handshake_frames_are_exact() {
             .and_then(Value::as_u32),
         Some(100_000)
     );
+}
+
+/// The second axis of a two-axis drive (objects at index + 0x800): the
+/// profile move's RPDOs are its own (RPDO6 and RPDO5 on COB-IDs 0x681 and
+/// 0x680, mapping 0x687A and 0x6840), its profile parameters go to
+/// 0x6881..0x6884 by SDO, and the drive's first axis is not touched.
+#[test]
+fn a_second_drive_axis_moves_on_its_own_objects_and_pdos() {
+    let mut cfg = Cia402Config::example(1000.0, PositionMode::Profile);
+    cfg.drive_axis = 1;
+    cfg.motion.min_position = Some(-100.0);
+    cfg.motion.max_position = Some(100.0);
+    let mut rig = Rig::with_config(cfg, 35);
+    assert_eq!(
+        (
+            rig.rpdos[0].num,
+            rig.rpdos[0].cob_id,
+            rig.rpdos[0].mapping[0].addr
+        ),
+        (5, 0x680, ObjectAddress::new(0x6840, 0))
+    );
+    rig.enable();
+    rig.sent.clear();
+    let op = rig.mv(12.5);
+    let (outcome, detail) = rig.run_until_done(op, Duration::from_secs(3));
+    assert_eq!(outcome, Outcome::Completed, "{detail}");
+    assert_eq!(rig.drive.axis_position(1), 12_500.0);
+    let frames: Vec<(u16, Vec<u8>)> = rig.sent.iter().map(|(_, c, d)| (*c, d.clone())).collect();
+    assert_eq!(
+        frames,
+        vec![
+            (0x681, vec![0xD4, 0x30, 0, 0, 0, 0, 0, 0]),
+            (0x680, vec![0x3F, 0x00, 0x01]),
+            (0x681, vec![0xD4, 0x30, 0, 0, 0, 0, 0, 0]),
+            (0x680, vec![0x2F, 0x00, 0x01]),
+        ]
+    );
+    let value = |index| {
+        rig.drive
+            .node()
+            .get(ObjectAddress::new(index, 0))
+            .and_then(Value::as_u32)
+    };
+    assert_eq!(value(0x6881), Some(100_000), "profile velocity of axis 1");
+    assert_ne!(value(0x6081), Some(100_000), "axis 0's is not written");
+    // The soft limits went to 0x687D at boot.
+    let boot = rig.axis.boot_writes();
+    assert_eq!(
+        boot[..2],
+        [
+            (
+                ObjectAddress::new(0x687D, 1),
+                (-100_000i32).to_le_bytes().to_vec()
+            ),
+            (
+                ObjectAddress::new(0x687D, 2),
+                100_000i32.to_le_bytes().to_vec()
+            ),
+        ]
+    );
+    assert!(
+        boot.iter()
+            .all(|(a, _)| a.index >= 0x6800 && a.index < 0x7000),
+        "{boot:?}"
+    );
+    assert_eq!(rig.drive.axis_state(0), DriveState::SwitchOnDisabled);
+    assert_eq!(rig.drive.axis_position(0), 0.0);
 }
 
 #[test]
