@@ -596,23 +596,17 @@ fn node_facts(
     eds: Option<Arc<Eds>>,
     eds_text: Option<Arc<str>>,
 ) -> Result<NodeFacts, String> {
-    let axis = (config.axes.iter())
-        .find(|a| a.bus == cc.bus && a.node == nc.id)
-        .map(AxisSpec::try_from)
-        .transpose()?;
+    let axes = (config.axes.iter())
+        .filter(|a| a.bus == cc.bus && a.node == nc.id)
+        .map(|a| Ok((AxisSpec::try_from(a)?, further_axis_block(config, cc, a))))
+        .collect::<Result<Vec<_>, String>>()?;
     let sync = (cc.sync_period_us > 0).then(|| Duration::from_micros(cc.sync_period_us));
     let master_heartbeat = cc
         .master_heartbeat()
         .zip(cc.drive_heartbeat_timeout_ms())
         .map(|((id, _), timeout)| (id, timeout));
-    let (tpdos, rpdos, mut boot) = node_plan(
-        nc,
-        node,
-        eds.as_deref(),
-        axis.as_ref(),
-        sync,
-        master_heartbeat,
-    )?;
+    let (tpdos, rpdos, mut boot) =
+        node_plan(nc, node, eds.as_deref(), &axes, sync, master_heartbeat)?;
     // A handwheel sends feed only when operational: it is started at every
     // boot-up like the configured nodes.
     if boot.is_none()
@@ -636,35 +630,64 @@ fn node_facts(
         guarding: nc.guarding(),
         // The CiA 402 axis task of the bus reads its drive's TPDOs from
         // the bus itself.
-        tpdos_read_by_axis: axis.is_some(),
+        tpdos_read_by_axis: !axes.is_empty(),
         ..Default::default()
     })
 }
 
+/// The further-axis block (COB-IDs 0x680 + 8 × block, see
+/// [`cangate_axis::process_data::FURTHER_AXIS_COB_BASE`]) of axis `a` on
+/// `cc`'s bus: its place among the bus's axes with a `drive_axis` above 0,
+/// by node and drive axis (0 for a first axis, which has the predefined
+/// COB-IDs).
+fn further_axis_block(config: &Config, cc: &CanopenConfig, a: &crate::config::AxisConfig) -> u16 {
+    if a.drive_axis == 0 {
+        return 0;
+    }
+    config
+        .axes
+        .iter()
+        .filter(|b| {
+            b.bus == cc.bus && b.drive_axis > 0 && (b.node, b.drive_axis) < (a.node, a.drive_axis)
+        })
+        .count() as u16
+}
+
 /// The PDO layouts the master uses for a node, and its boot procedure. A
-/// node that backs an axis gets the axis process data layout
+/// node that backs axes (one, or several of a multi-axis drive, each with
+/// its further-axis block) gets the axis process data layout of each
 /// ([`cangate_axis::process_data`]) and always a boot procedure.
 fn node_plan(
     nc: &NodeConfig,
     node: NodeId,
     eds: Option<&Eds>,
-    axis: Option<&AxisSpec>,
+    axes: &[(AxisSpec, u16)],
     sync: Option<Duration>,
     master_heartbeat: Option<(u8, u16)>,
 ) -> Result<NodePlan, String> {
-    // A CiA 402 axis's drive (a CANsmc axis is no CANopen node).
-    let drive = axis.and_then(|a| match &a.drive {
-        DriveSpec::Cia402(d) => Some((a, d)),
-        DriveSpec::Cansmc(_) => None,
-    });
-    let (tpdos, rpdos) = match drive {
-        Some((axis, d)) => axis_pdos(nc, node, axis, d, sync.is_some(), eds)?,
-        None => (
+    // The CiA 402 axes of the drive (a CANsmc axis is no CANopen node).
+    let drives: Vec<(&AxisSpec, &cangate_axis::Cia402Drive, u16)> = axes
+        .iter()
+        .filter_map(|(a, block)| match &a.drive {
+            DriveSpec::Cia402(d) => Some((a, d, *block)),
+            DriveSpec::Cansmc(_) => None,
+        })
+        .collect();
+    let (tpdos, rpdos) = if drives.is_empty() {
+        (
             pdo_layouts(PdoKind::Tpdo, &nc.tpdo, eds, node)?,
             pdo_layouts(PdoKind::Rpdo, &nc.rpdo, eds, node)?,
-        ),
+        )
+    } else {
+        let (mut tpdos, mut rpdos) = (Vec::new(), Vec::new());
+        for &(axis, d, block) in &drives {
+            let (t, r) = axis_pdos(nc, node, axis, d, sync.is_some(), eds, block)?;
+            tpdos.extend(t);
+            rpdos.extend(r);
+        }
+        (tpdos, rpdos)
     };
-    if drive.is_none() && !nc.boot {
+    if drives.is_empty() && !nc.boot {
         return Ok((tpdos, rpdos, None));
     }
     let mut writes = dcf_writes(nc, node, eds)?;
@@ -672,38 +695,41 @@ fn node_plan(
         writes.push((ObjectAddress::new(0x1017, 0), ms.to_le_bytes().to_vec()));
     }
     writes.extend(life_guarding_writes(nc, eds));
-    match drive {
-        Some((axis, d)) => {
-            writes.extend(master_heartbeat_consumer(eds, master_heartbeat, axis));
-            for p in tpdos.iter().chain(&rpdos) {
-                writes.extend(p.sdo_writes().map_err(|e| e.to_string())?);
-            }
+    if let Some(&(first, _, _)) = drives.first() {
+        // The node watches the master's heartbeat once, for all its axes.
+        writes.extend(master_heartbeat_consumer(eds, master_heartbeat, first));
+        for p in tpdos.iter().chain(&rpdos) {
+            writes.extend(p.sdo_writes().map_err(|e| e.to_string())?);
+        }
+        for &(axis, d, _) in &drives {
+            use cangate_canopen::cia402::{objects as obj, on_axis};
             let controller = d.controller(axis.motion.clone());
             writes.extend(cangate_axis::cia402::Cia402Axis::new(controller).boot_writes());
             if let (cangate_axis::DriveMode::InterpolatedPosition, Some(period)) = (d.mode, sync) {
                 // The drive interpolates each 0x60C1 set-point over one
                 // SYNC period.
-                use cangate_canopen::cia402::objects as obj;
                 let (value, index) = cangate_axis::process_data::interpolation_period(period);
-                writes.push((obj::INTERPOLATION_PERIOD_VALUE, vec![value]));
                 writes.push((
-                    obj::INTERPOLATION_PERIOD_INDEX,
+                    on_axis(obj::INTERPOLATION_PERIOD_VALUE, d.drive_axis),
+                    vec![value],
+                ));
+                writes.push((
+                    on_axis(obj::INTERPOLATION_PERIOD_INDEX, d.drive_axis),
                     index.to_le_bytes().to_vec(),
                 ));
             }
             writes.push((
-                cangate_canopen::cia402::objects::HOMING_METHOD,
+                on_axis(obj::HOMING_METHOD, d.drive_axis),
                 vec![d.homing_method as u8],
             ));
         }
-        None => {
-            // Only PDOs configured explicitly are written; EDS defaults are
-            // the node's own.
-            for (entries, list) in [(&nc.tpdo, &tpdos), (&nc.rpdo, &rpdos)] {
-                if !entries.is_empty() {
-                    for p in list {
-                        writes.extend(p.sdo_writes().map_err(|e| e.to_string())?);
-                    }
+    } else {
+        // Only PDOs configured explicitly are written; EDS defaults are
+        // the node's own.
+        for (entries, list) in [(&nc.tpdo, &tpdos), (&nc.rpdo, &rpdos)] {
+            if !entries.is_empty() {
+                for p in list {
+                    writes.extend(p.sdo_writes().map_err(|e| e.to_string())?);
                 }
             }
         }
@@ -715,7 +741,10 @@ fn node_plan(
         product_code: nc.product_code,
         writes,
         identify_only: false,
-        required_modes: drive.map_or(0, |(_, d)| d.mode.operation().supported_mask()),
+        required_modes: drives
+            .iter()
+            .map(|(_, d, _)| (d.drive_axis, d.mode.operation().supported_mask()))
+            .collect(),
     };
     Ok((tpdos, rpdos, Some(Arc::new(plan))))
 }
@@ -729,8 +758,10 @@ fn axis_pdos(
     drive: &cangate_axis::Cia402Drive,
     sync: bool,
     eds: Option<&Eds>,
+    block: u16,
 ) -> Result<(Vec<PdoConfig>, Vec<PdoConfig>), String> {
-    use cangate_axis::process_data::{FeedbackTrigger, standard_pdos};
+    use cangate_axis::process_data::{FeedbackTrigger, PDOS_PER_AXIS, standard_pdos};
+    use cangate_canopen::cia402::on_axis;
     if !nc.tpdo.is_empty() || !nc.rpdo.is_empty() {
         return Err(format!(
             "backs axis {}: its PDOs are set by the axis layer; remove the tpdo/rpdo entries",
@@ -744,7 +775,7 @@ fn axis_pdos(
     };
     // The SDO fallback maps no PDO: whatever the drive's own PDOs carry is
     // left alone and not used.
-    let (rpdos, mut tpdos) = match drive.process_data {
+    let (mut rpdos, mut tpdos) = match drive.process_data {
         ProcessDataPath::Pdo => {
             let (mut rpdos, tpdos) = standard_pdos(node, trigger);
             if drive.mode == cangate_axis::DriveMode::InterpolatedPosition {
@@ -768,14 +799,23 @@ fn axis_pdos(
             &mut tpdos,
             node,
             trigger,
-            |addr| eds.od.get(addr).is_some_and(|v| v.pdo_mappable),
+            |addr| {
+                eds.od
+                    .get(on_axis(addr, drive.drive_axis))
+                    .is_some_and(|v| v.pdo_mappable)
+            },
             |n| {
-                let k = n - 1;
+                // PDO n of the axis: 4 × drive_axis + n of the drive.
+                let k = n - 1 + PDOS_PER_AXIS * u16::from(drive.drive_axis);
                 eds.od.get(ObjectAddress::new(0x1800 + k, 1)).is_some()
                     && eds.od.get(ObjectAddress::new(0x1A00 + k, 0)).is_some()
             },
         );
     }
+    // A further axis of a multi-axis drive: its own PDO numbers, objects
+    // and COB-IDs.
+    cangate_axis::process_data::relocate_to_axis(&mut tpdos, drive.drive_axis, block);
+    cangate_axis::process_data::relocate_to_axis(&mut rpdos, drive.drive_axis, block);
     Ok((tpdos, rpdos))
 }
 
@@ -1001,7 +1041,7 @@ mod tests {
                 nc,
                 node,
                 eds.as_ref(),
-                Some(&axis),
+                &[(axis, 0)],
                 Some(std::time::Duration::from_millis(10)),
                 None,
             )
@@ -1033,5 +1073,90 @@ mod tests {
         }
         let (tpdos, _, _) = plan("signal_pdos = true\n", false);
         assert_eq!(tpdos.len(), 2, "no EDS: no signals");
+    }
+
+    /// Two axes of one drive node (CiA 402 multi-axis): the first keeps
+    /// PDOs 1..=4 on the predefined COB-IDs, the second gets PDOs 5..=8
+    /// on the first further-axis block (0x680..0x687) mapping its objects
+    /// at + 0x800; its boot writes and its mode check are its own.
+    #[test]
+    fn a_two_axis_drive_gets_distinct_pdos_and_objects_per_axis() {
+        let text = "[[bus]]\nname = \"can0\"\nbackend = \"virtual\"\n[[canopen]]\nbus = \"can0\"\n\
+             sync_period_us = 10000\n[[canopen.node]]\nid = 3\neds = \"builtin:drive2\"\n\
+             simulate = true\n\
+             [[axis]]\nname = \"A\"\nbus = \"can0\"\nnode = 3\ncounts_per_unit = 1000.0\n\
+             max_velocity = 100.0\nmax_acceleration = 1000.0\nsignal_pdos = true\n\
+             [[axis]]\nname = \"B\"\nbus = \"can0\"\nnode = 3\ndrive_axis = 1\n\
+             counts_per_unit = 1000.0\nmax_velocity = 100.0\nmax_acceleration = 1000.0\n\
+             min_position = -10.0\nmax_position = 10.0\nsignal_pdos = true\nmode = \"csp\"\n";
+        let config = Config::from_toml(text).expect("valid configuration");
+        let cc = &config.canopen[0];
+        let nc = &cc.nodes[0];
+        let (eds, _) = nc.load_eds().unwrap().unwrap();
+        let axes: Vec<(AxisSpec, u16)> = config
+            .axes
+            .iter()
+            .map(|a| {
+                (
+                    AxisSpec::try_from(a).unwrap(),
+                    further_axis_block(&config, cc, a),
+                )
+            })
+            .collect();
+        assert_eq!(axes[1].1, 0, "the bus's first further axis");
+        let node = NodeId::new(3).unwrap();
+        let (tpdos, rpdos, boot) = node_plan(
+            nc,
+            node,
+            Some(&eds),
+            &axes,
+            Some(std::time::Duration::from_millis(10)),
+            None,
+        )
+        .unwrap();
+        let ids = |l: &[PdoConfig]| l.iter().map(|p| (p.num, p.cob_id)).collect::<Vec<_>>();
+        assert_eq!(
+            ids(&tpdos),
+            [
+                (1, 0x183),
+                (2, 0x283),
+                (3, 0x383),
+                (4, 0x483),
+                (5, 0x684),
+                (6, 0x685),
+                (7, 0x686),
+                (8, 0x687)
+            ]
+        );
+        assert_eq!(
+            ids(&rpdos),
+            [(1, 0x203), (2, 0x303), (5, 0x680), (6, 0x681)]
+        );
+        let boot = boot.expect("a boot plan");
+        for (addr, bytes) in [
+            // RPDO5 maps axis 1's controlword, TPDO7 its digital inputs.
+            (ObjectAddress::new(0x1604, 1), vec![0x10, 0x00, 0x40, 0x68]),
+            (ObjectAddress::new(0x1A06, 2), vec![0x20, 0x00, 0xFD, 0x68]),
+            (ObjectAddress::new(0x1804, 1), vec![0x84, 0x06, 0x00, 0x00]),
+            // Its soft limits and homing method.
+            (
+                ObjectAddress::new(0x687D, 2),
+                10_000i32.to_le_bytes().to_vec(),
+            ),
+            (ObjectAddress::new(0x6898, 0), vec![35]),
+            (ObjectAddress::new(0x6098, 0), vec![35]),
+        ] {
+            assert!(
+                boot.writes.contains(&(addr, bytes.clone())),
+                "{addr} {bytes:02X?} in {:?}",
+                boot.writes
+            );
+        }
+        assert!(
+            !boot.writes.iter().any(|(a, _)| a.index == 0x607D),
+            "axis A has no soft limits: only B's went out"
+        );
+        assert_eq!(boot.required_modes.len(), 2);
+        assert_eq!(boot.required_modes[1].0, 1);
     }
 }

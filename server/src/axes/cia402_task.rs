@@ -31,7 +31,7 @@ use crate::axis_runner::{
 };
 use crate::canopen::{CanopenBus, NodeEventKind};
 use cangate_axis::cia402::{Cia402Axis, Cia402Config, CyclicPlan, CyclicSample, Output};
-use cangate_axis::process_data::{encode_image, feedback_from_pdo};
+use cangate_axis::process_data::{encode_image, feedback_from_pdo, pdo_drive_axis};
 use cangate_axis::{
     AxisCommand, AxisEvent, Cia402Drive, CommandError, PositionMode, ProcessDataPath,
 };
@@ -119,7 +119,9 @@ const SDO_FAILURES_LOST: u32 = 3;
 struct Task {
     master: CanopenBus,
     slots: Vec<Slot>,
-    by_node: HashMap<NodeId, usize>,
+    /// The slots of each node: one per axis of a multi-axis drive. Its
+    /// node events (NMT, heartbeat, boot) reach every one.
+    by_node: HashMap<NodeId, Vec<usize>>,
     /// The drives' TPDOs by COB-ID: (slot, mapping).
     tpdos: HashMap<u16, (usize, PdoConfig)>,
     /// The cyclic axes' set-points, shared with the master's SYNC thread.
@@ -180,15 +182,18 @@ pub fn spawn(
         .enumerate()
         .map(|(i, a)| {
             let node = a.drive.node;
+            // A multi-axis drive's PDOs: those mapping this axis's objects.
+            let drive_axis = a.drive.drive_axis;
+            let ours = |p: &PdoConfig| pdo_drive_axis(p).unwrap_or(0) == drive_axis;
             let rpdos: Vec<PdoConfig> = master
                 .rpdos(node)
                 .into_iter()
-                .filter(|p| p.kind == PdoKind::Rpdo)
+                .filter(|p| p.kind == PdoKind::Rpdo && ours(p))
                 .collect();
             for p in master
                 .tpdos(node)
                 .into_iter()
-                .filter(|p| p.kind == PdoKind::Tpdo)
+                .filter(|p| p.kind == PdoKind::Tpdo && ours(p))
             {
                 tpdos.insert(p.cob_id, (i, p));
             }
@@ -198,6 +203,7 @@ pub fn spawn(
                     worker: sdo_process_data::spawn(
                         master.clone(),
                         node,
+                        drive_axis,
                         i,
                         poll,
                         sdo_reports_tx.clone(),
@@ -258,7 +264,10 @@ pub fn spawn(
         },
         PROCESS_DATA_QUEUE,
     );
-    let by_node = slots.iter().enumerate().map(|(i, s)| (s.node, i)).collect();
+    let mut by_node: HashMap<NodeId, Vec<usize>> = HashMap::new();
+    for (i, s) in slots.iter().enumerate() {
+        by_node.entry(s.node).or_default().push(i);
+    }
     let origin = Instant::now();
     let setpoints = Arc::new(CyclicSetpoints::new(
         origin,
@@ -378,8 +387,9 @@ async fn run(
             }
             e = events.recv() => match e {
                 Ok(e) => {
-                    if let Some(&i) = t.by_node.get(&e.node) {
-                        t.on_node_event(i, e.kind);
+                    let slots = t.by_node.get(&e.node).cloned().unwrap_or_default();
+                    for i in slots {
+                        t.on_node_event(i, e.kind.clone());
                     }
                 }
                 Err(broadcast::error::RecvError::Lagged(n)) => {
@@ -627,7 +637,11 @@ impl Task {
             }
             NodeEventKind::BootCompleted { adopted } => {
                 self.slots[i].booted = true;
-                if let Some(mask) = self.master.supported_drive_modes(self.slots[i].node) {
+                let drive_axis = self.slots[i].axis.config().drive_axis;
+                if let Some(mask) = self
+                    .master
+                    .supported_drive_modes(self.slots[i].node, drive_axis)
+                {
                     self.slots[i].axis.set_supported_modes(mask);
                 }
                 if let Some(link) = &mut self.slots[i].sdo {

@@ -33,6 +33,7 @@ use cangate_axis::setpoint_stream::{
     SetpointPlayer, StreamPoint,
 };
 use cangate_can::{CanId, Frame};
+use cangate_canopen::cia402::first_axis;
 use cangate_canopen::cia402::objects::{INTERPOLATION_DATA, TARGET_POSITION, TARGET_VELOCITY};
 use cangate_canopen::pdo::PdoConfig;
 use std::sync::Mutex;
@@ -59,11 +60,13 @@ impl SetpointLayout {
             let mut position = None;
             let mut velocity = None;
             for m in &p.mapping {
+                // Any axis of a multi-axis drive (the RPDOs are the axis's).
+                let addr = first_axis(m.addr);
                 // Interpolated position: 0x60C1:01 takes the position.
-                if (m.addr == TARGET_POSITION || m.addr == INTERPOLATION_DATA) && m.bits == 32 {
+                if (addr == TARGET_POSITION || addr == INTERPOLATION_DATA) && m.bits == 32 {
                     position = Some(offset);
                 }
-                if m.addr == TARGET_VELOCITY && m.bits == 32 {
+                if addr == TARGET_VELOCITY && m.bits == 32 {
                     velocity = Some(offset);
                 }
                 offset += usize::from(m.bits) / 8;

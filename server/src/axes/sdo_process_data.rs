@@ -3,7 +3,7 @@
 //! for them.
 //!
 //! One task per such axis, beside the bus's axis task: it reads the
-//! feedback objects ([`SDO_FEEDBACK_OBJECTS`]) every poll period and writes
+//! feedback objects ([`sdo_feedback_objects`]) every poll period and writes
 //! each process image the axis asks for, only the objects that changed,
 //! the controlword last ([`sdo_image_writes`]). Images are written in the
 //! order they were produced and before the next poll, so a handshake edge
@@ -17,7 +17,7 @@
 
 use crate::canopen::CanopenBus;
 use cangate_axis::cia402::{Feedback, ProcessImage};
-use cangate_axis::process_data::{SDO_FEEDBACK_OBJECTS, feedback_from_sdo, sdo_image_writes};
+use cangate_axis::process_data::{feedback_from_sdo, sdo_feedback_objects, sdo_image_writes};
 use cangate_canopen::master::SdoRequest;
 use cangate_canopen::sdo::{TransferOptions, TransferOutcome};
 use cangate_canopen::{NodeId, ObjectAddress};
@@ -52,11 +52,13 @@ pub enum SdoReport {
 const IMAGE_QUEUE: usize = 64;
 
 /// Starts the worker of the axis in slot `slot` of its bus task (node
-/// `node`), polling every `poll`. Reports go to `reports`, tagged with
-/// `slot`. Ends when the returned sender is dropped or `cancel` fires.
+/// `node`, the objects of its axis `drive_axis`), polling every `poll`.
+/// Reports go to `reports`, tagged with `slot`. Ends when the returned
+/// sender is dropped or `cancel` fires.
 pub fn spawn(
     master: CanopenBus,
     node: NodeId,
+    drive_axis: u8,
     slot: usize,
     poll: Duration,
     reports: mpsc::Sender<(usize, SdoReport)>,
@@ -68,6 +70,7 @@ pub fn spawn(
         Link {
             master,
             node,
+            drive_axis,
             slot,
             forget: forget.clone(),
         },
@@ -83,6 +86,7 @@ pub fn spawn(
 struct Link {
     master: CanopenBus,
     node: NodeId,
+    drive_axis: u8,
     slot: usize,
     forget: Arc<AtomicBool>,
 }
@@ -97,6 +101,7 @@ async fn run(
     let Link {
         master,
         node,
+        drive_axis,
         slot,
         forget,
     } = link;
@@ -115,7 +120,7 @@ async fn run(
                     if forget.swap(false, Ordering::AcqRel) {
                         written = None;
                     }
-                    match write_image(&master, node, written.as_ref(), &image).await {
+                    match download_all(&master, node, sdo_image_writes(drive_axis, written.as_ref(), &image)).await {
                         Ok(()) => {
                             written = Some(image);
                             continue;
@@ -129,7 +134,7 @@ async fn run(
                     }
                 }
             },
-            _ = ticks.tick() => match read_feedback(&master, node).await {
+            _ = ticks.tick() => match read_feedback(&master, node, drive_axis).await {
                 Ok(fb) => SdoReport::Feedback(fb),
                 Err(e) => SdoReport::Failed(e),
             },
@@ -138,15 +143,6 @@ async fn run(
             break;
         }
     }
-}
-
-async fn write_image(
-    master: &CanopenBus,
-    node: NodeId,
-    written: Option<&ProcessImage>,
-    image: &ProcessImage,
-) -> Result<(), String> {
-    download_all(master, node, sdo_image_writes(written, image)).await
 }
 
 /// Writes `writes` to `node` by SDO one after the other; the first failure
@@ -172,9 +168,16 @@ pub(super) async fn download_all(
     Ok(())
 }
 
-async fn read_feedback(master: &CanopenBus, node: NodeId) -> Result<Feedback, String> {
+async fn read_feedback(
+    master: &CanopenBus,
+    node: NodeId,
+    drive_axis: u8,
+) -> Result<Feedback, String> {
     let mut uploads: [Vec<u8>; 4] = Default::default();
-    for (addr, slot) in SDO_FEEDBACK_OBJECTS.iter().zip(uploads.iter_mut()) {
+    for (addr, slot) in sdo_feedback_objects(drive_axis)
+        .iter()
+        .zip(uploads.iter_mut())
+    {
         let r = master
             .sdo(
                 node,

@@ -9,7 +9,7 @@
 use super::{Axes, AxisError, Caller, CommandResult};
 use cangate_axis::signals::{ProbeEdges, touch_probe_function};
 use cangate_axis::{CommandError, DriveSpec, Outcome};
-use cangate_canopen::cia402::objects as obj;
+use cangate_canopen::cia402::{objects as obj, on_axis};
 use cangate_canopen::master::SdoRequest;
 use cangate_canopen::sdo::TransferOptions;
 
@@ -46,10 +46,11 @@ impl Axes {
             ))
             .into());
         };
-        let carried = master
-            .tpdos(drive.node)
-            .iter()
-            .any(|p| p.mapping.iter().any(|m| m.addr == obj::TOUCH_PROBE_STATUS));
+        let carried = master.tpdos(drive.node).iter().any(|p| {
+            p.mapping
+                .iter()
+                .any(|m| m.addr == on_axis(obj::TOUCH_PROBE_STATUS, drive.drive_axis))
+        });
         if !carried {
             return Err(CommandError::DriveUnavailable(format!(
                 "axis {name}: the drive's process data carries no touch probe status (0x60B9): \
@@ -72,7 +73,7 @@ impl Axes {
         }
         let function = touch_probe_function(edges, continuous);
         let req = SdoRequest::Download {
-            addr: obj::TOUCH_PROBE_FUNCTION,
+            addr: on_axis(obj::TOUCH_PROBE_FUNCTION, drive.drive_axis),
             data: function.to_le_bytes().to_vec(),
             opts: TransferOptions::default(),
         };

@@ -310,13 +310,16 @@ async fn boot_node(
             }
         }
     }
-    if plan.required_modes != 0 {
-        let supported = read_u32(0x6502, 0).await;
+    for &(drive_axis, required) in &plan.required_modes {
+        let index = cangate_canopen::cia402::profile_index(0x6502, drive_axis);
+        let supported = read_u32(index, 0).await;
         if let Ok(v) = supported {
             // The axis refuses a run-time change to a mode not in it.
-            m.learn(node, |f| f.supported_drive_modes = Some(v));
+            m.learn(node, |f| {
+                f.supported_drive_modes[usize::from(drive_axis)] = Some(v);
+            });
         }
-        check_supported_modes(node, plan.required_modes, supported)?;
+        check_supported_modes(node, required, supported)?;
     }
     for group in write_groups(&plan.writes) {
         if adopt {

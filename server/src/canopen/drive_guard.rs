@@ -27,9 +27,11 @@ pub const DRIVE_PROCESS_OBJECTS: [u16; 5] = [0x6040, 0x6060, 0x607A, 0x60FF, 0x6
 pub const PROGRAM_OBJECTS: [u16; 2] = [0x1F50, 0x1F51];
 
 /// Whether a raw SDO write to `addr` of an axis's drive would command the
-/// drive behind the axis's back.
+/// drive behind the axis's back: a process object of any axis of the
+/// drive (each further axis's at + 0x800), or a program object.
 pub fn commands_the_drive(addr: ObjectAddress) -> bool {
-    DRIVE_PROCESS_OBJECTS.contains(&addr.index) || PROGRAM_OBJECTS.contains(&addr.index)
+    let first = cangate_canopen::cia402::first_axis(addr);
+    DRIVE_PROCESS_OBJECTS.contains(&first.index) || PROGRAM_OBJECTS.contains(&addr.index)
 }
 
 #[derive(Debug)]
@@ -38,10 +40,12 @@ struct Drive {
     active: AtomicBool,
 }
 
-/// The axes' drives of one bus, by node.
+/// The axes' drives of one bus, by node: every axis of a multi-axis
+/// drive (they share the node, and what is done to the node is done to
+/// all of them).
 #[derive(Debug, Default)]
 pub struct DriveGuard {
-    drives: RwLock<BTreeMap<NodeId, Arc<Drive>>>,
+    drives: RwLock<BTreeMap<NodeId, Vec<Arc<Drive>>>>,
 }
 
 /// One axis's entry in the [`DriveGuard`]; the axis publishes its state
@@ -69,36 +73,46 @@ impl DriveRegistration {
 
 impl DriveGuard {
     /// Registers node `node` as the drive of `axis` (inactive until the
-    /// axis publishes otherwise).
+    /// axis publishes otherwise); a multi-axis drive's node is registered
+    /// once per axis.
     pub fn register(&self, node: NodeId, axis: &str) -> DriveRegistration {
         let drive = Arc::new(Drive {
             axis: axis.to_string(),
             active: AtomicBool::new(false),
         });
-        self.drives
-            .write()
-            .expect("drive guard lock")
-            .insert(node, drive.clone());
+        let mut drives = self.drives.write().expect("drive guard lock");
+        let axes = drives.entry(node).or_default();
+        // A re-registration of the same axis (its task restarted) replaces
+        // the old entry.
+        axes.retain(|d| d.axis != axis);
+        axes.push(drive.clone());
         DriveRegistration(drive)
     }
 
-    /// The axis `node` drives, if it drives one.
+    /// The axes `node` drives (one, or each axis of a multi-axis drive),
+    /// joined with ", "; `None` when it drives none.
     pub fn axis_of(&self, node: NodeId) -> Option<String> {
-        self.drives
-            .read()
-            .expect("drive guard lock")
-            .get(&node)
-            .map(|d| d.axis.clone())
+        let drives = self.drives.read().expect("drive guard lock");
+        let axes = drives.get(&node).filter(|a| !a.is_empty())?;
+        Some(
+            axes.iter()
+                .map(|d| d.axis.as_str())
+                .collect::<Vec<_>>()
+                .join(", "),
+        )
     }
 
-    /// The axis `node` drives, when that axis is active now.
+    /// The active axes `node` drives, joined with ", ", when any is
+    /// active now.
     pub fn active_axis(&self, node: NodeId) -> Option<String> {
-        self.drives
-            .read()
-            .expect("drive guard lock")
-            .get(&node)
+        let drives = self.drives.read().expect("drive guard lock");
+        let active: Vec<&str> = drives
+            .get(&node)?
+            .iter()
             .filter(|d| d.active.load(Ordering::Acquire))
-            .map(|d| d.axis.clone())
+            .map(|d| d.axis.as_str())
+            .collect();
+        (!active.is_empty()).then(|| active.join(", "))
     }
 
     /// Every active axis's drive: (node, axis).
@@ -107,8 +121,9 @@ impl DriveGuard {
             .read()
             .expect("drive guard lock")
             .iter()
+            .flat_map(|(n, axes)| axes.iter().map(move |d| (*n, d)))
             .filter(|(_, d)| d.active.load(Ordering::Acquire))
-            .map(|(n, d)| (*n, d.axis.clone()))
+            .map(|(n, d)| (n, d.axis.clone()))
             .collect()
     }
 }
@@ -202,8 +217,37 @@ mod tests {
         assert_eq!(g.active_axis(NodeId::new(4).unwrap()), None);
     }
 
+    /// The axes of a multi-axis drive share its node: an operation on
+    /// the node is refused while any of them is active, whichever was
+    /// registered last.
+    #[test]
+    fn a_node_with_any_active_axis_is_active() {
+        let n = NodeId::new(3).unwrap();
+        for active_first in [true, false] {
+            let g = DriveGuard::default();
+            let a = g.register(n, "A");
+            let b = g.register(n, "B");
+            let (on, off, name) = if active_first {
+                (&a, &b, "A")
+            } else {
+                (&b, &a, "B")
+            };
+            on.publish(Some(DriveState::OperationEnabled), true);
+            off.publish(Some(DriveState::SwitchOnDisabled), true);
+            assert_eq!(g.active_axis(n).as_deref(), Some(name));
+            assert_eq!(g.active_drives(), vec![(n, name.to_string())]);
+            on.publish(Some(DriveState::SwitchedOn), true);
+            assert_eq!(g.active_axis(n), None);
+        }
+    }
+
     #[test]
     fn process_and_program_objects_command_the_drive() {
+        // Those of every axis of a multi-axis drive (+ 0x800 each).
+        for i in [0x6840, 0x6860, 0x687A, 0x68FF, 0x6871, 0x7040, 0x9871] {
+            assert!(commands_the_drive(ObjectAddress::new(i, 0)), "{i:04X}");
+        }
+        assert!(!commands_the_drive(ObjectAddress::new(0x6841, 0)));
         for i in [0x6040, 0x6060, 0x607A, 0x60FF, 0x6071, 0x1F50, 0x1F51] {
             assert!(commands_the_drive(ObjectAddress::new(i, 0)), "{i:04X}");
         }

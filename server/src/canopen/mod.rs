@@ -83,8 +83,9 @@ pub struct NodeFacts {
     /// a task wake-up per PDO batch off the master.
     pub tpdos_read_by_axis: bool,
     /// 0x6502 supported drive modes as the boot procedure of a drive
-    /// read it (axis drives only).
-    pub supported_drive_modes: Option<u32>,
+    /// read it (axis drives only), per axis of the drive (0x6502 + n ×
+    /// 0x800 for axis n of a multi-axis drive).
+    pub supported_drive_modes: [Option<u32>; cangate_canopen::cia402::MAX_DRIVE_AXES as usize],
 }
 
 /// The boot procedure of a node (in the spirit of CiA 302): check, write
@@ -104,8 +105,9 @@ pub struct BootPlan {
     /// is checked, written or started.
     pub identify_only: bool,
     /// Bits of 0x6502 supported drive modes the node must have (the mode
-    /// its axis is configured in); 0 checks nothing.
-    pub required_modes: u32,
+    /// its axis is configured in), per axis of the drive: (axis, bits),
+    /// read at 0x6502 + axis × 0x800; empty checks nothing.
+    pub required_modes: Vec<(u8, u32)>,
 }
 
 /// A decoded PDO.
@@ -948,14 +950,19 @@ impl CanopenBus {
             .and_then(|f| f.rpdos.iter().find(|p| p.num == num).cloned())
     }
 
-    /// 0x6502 supported drive modes of an axis drive, as its latest boot
-    /// procedure read it.
-    pub fn supported_drive_modes(&self, node: NodeId) -> Option<u32> {
+    /// 0x6502 supported drive modes of axis `drive_axis` of an axis
+    /// drive, as its latest boot procedure read it.
+    pub fn supported_drive_modes(&self, node: NodeId, drive_axis: u8) -> Option<u32> {
         self.facts
             .read()
             .expect("facts lock")
             .get(&node)
-            .and_then(|f| f.supported_drive_modes)
+            .and_then(|f| {
+                f.supported_drive_modes
+                    .get(usize::from(drive_axis))
+                    .copied()
+                    .flatten()
+            })
     }
 
     /// The RPDO configurations of a node.

@@ -386,6 +386,11 @@ pub struct AxisConfig {
     pub bus: String,
     /// The drive's node id (configured under that master).
     pub node: u32,
+    /// Which axis of a multi-axis drive node this is, 0..=7 (default 0):
+    /// its CiA 402 objects are at index + 0x800 × `drive_axis` (0x6840
+    /// is the controlword of axis 1). Every axis of one node has its own.
+    #[serde(default)]
+    pub drive_axis: u8,
     /// Units, limits, stops, time bounds.
     #[serde(flatten)]
     pub common: CommonAxisConfig,
@@ -561,6 +566,7 @@ impl TryFrom<&AxisConfig> for AxisSpec {
                     max_torque: c.max_torque.map(|t| t.round() as u16),
                 },
                 signal_pdos: c.signal_pdos,
+                drive_axis: c.drive_axis,
             }),
         })
     }
@@ -653,6 +659,30 @@ impl AxisConfig {
                 "axis {}: node {} is not configured under [[canopen]] bus {:?}",
                 self.name, self.node, self.bus
             ));
+        }
+        if self.drive_axis >= cangate_canopen::cia402::MAX_DRIVE_AXES {
+            return Err(format!(
+                "axis {}: drive_axis {} is more than a drive node has (0..=7: CiA 402 puts \
+                 axis n's objects at index + n × 0x800, up to 0x9FFF)",
+                self.name, self.drive_axis
+            ));
+        }
+        if self.drive_axis > 0
+            && let Some(node) = master.nodes.iter().find(|n| n.id == self.node)
+            && let Ok(Some((eds, _))) = node.load_eds()
+        {
+            let statusword = cangate_canopen::cia402::profile_index(0x6041, self.drive_axis);
+            if eds
+                .od
+                .get(cangate_canopen::ObjectAddress::new(statusword, 0))
+                .is_none()
+            {
+                return Err(format!(
+                    "axis {}: drive_axis = {} but node {}'s EDS has no such axis (no \
+                     statusword 0x{statusword:04X})",
+                    self.name, self.drive_axis, self.node
+                ));
+            }
         }
         if self.position_mode == PositionModeChoice::Cyclic && master.sync_period_us == 0 {
             return Err(format!(
@@ -863,6 +893,7 @@ mod tests {
                 homing_method: 17,
                 supervision: Default::default(),
                 signal_pdos: false,
+                drive_axis: 0,
             }),
         };
         let a = AxisSpec {

@@ -138,7 +138,8 @@ pub struct NodeConfig {
     #[serde(default)]
     pub name: String,
     /// Object dictionary: an EDS/DCF file path, or one of the built-in
-    /// device descriptions `builtin:drive`, `builtin:io`, `builtin:handwheel`.
+    /// device descriptions `builtin:drive`, `builtin:drive2` (the same
+    /// drive with two axes), `builtin:io`, `builtin:handwheel`.
     #[serde(default)]
     pub eds: Option<String>,
     /// A DCF (CiA 306) whose `ParameterValue`s the boot procedure writes
@@ -472,11 +473,13 @@ impl NodeConfig {
         };
         let text = match src {
             "builtin:drive" => Ok(SIM_DRIVE_EDS.to_string()),
+            "builtin:drive2" => Ok(cangate_canopen::eds::sim_drive_eds_with_axes(2)),
             "builtin:io" => Ok(SIM_IO_EDS.to_string()),
             "builtin:handwheel" => Ok(SIM_HANDWHEEL_EDS.to_string()),
             path if path.starts_with("builtin:") => {
                 return Err(format!(
-                    "unknown built-in EDS {path:?} (builtin:drive, builtin:io, builtin:handwheel)"
+                    "unknown built-in EDS {path:?} (builtin:drive, builtin:drive2, builtin:io, \
+                     builtin:handwheel)"
                 ));
             }
             path => Eds::read_text(path),

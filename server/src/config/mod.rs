@@ -487,7 +487,60 @@ eds = "builtin:drive"
             ok.replace("\"X\"", "\"Y\"")
         );
         let e = Config::from_toml(&two).unwrap_err().to_string();
-        assert!(e.contains("already backs another axis"), "{e}");
+        assert!(
+            e.contains("drive_axis 0 of node 1 on bus \"can0\" already backs axis X"),
+            "{e}"
+        );
+        assert!(e.contains("its own drive_axis"), "{e}");
+    }
+
+    /// The axes of a multi-axis drive: each its own drive_axis (0..=7),
+    /// one the drive's EDS has.
+    #[test]
+    fn axes_of_one_drive_node_need_distinct_drive_axes_it_has() {
+        let base = AXIS_BASE.replace("builtin:drive", "builtin:drive2");
+        let axis = |name: &str, extra: &str| {
+            format!(
+                "[[axis]]\nname = \"{name}\"\nbus = \"can0\"\nnode = 1\ncounts_per_unit = 1000.0\n\
+                 max_velocity = 10.0\nmax_acceleration = 100.0\n{extra}"
+            )
+        };
+        let c = Config::from_toml(&format!(
+            "{base}{}{}",
+            axis("A", ""),
+            axis("B", "drive_axis = 1\n")
+        ))
+        .unwrap();
+        assert_eq!(
+            c.axes.iter().map(|a| a.drive_axis).collect::<Vec<_>>(),
+            [0, 1]
+        );
+        let e = Config::from_toml(&format!(
+            "{base}{}{}",
+            axis("A", "drive_axis = 1\n"),
+            axis("B", "drive_axis = 1\n")
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("axis B: drive_axis 1 of node 1 on bus \"can0\" already backs axis A"),
+            "{e}"
+        );
+        let e = Config::from_toml(&format!("{base}{}", axis("A", "drive_axis = 8\n")))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("drive_axis 8 is more than a drive node has (0..=7"),
+            "{e}"
+        );
+        // The one-axis drive has no second axis.
+        let e = Config::from_toml(&format!("{AXIS_BASE}{}", axis("A", "drive_axis = 1\n")))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("node 1's EDS has no such axis (no statusword 0x6841)"),
+            "{e}"
+        );
     }
 
     #[test]

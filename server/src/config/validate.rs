@@ -184,7 +184,7 @@ impl Config {
             }
         }
         let mut axis_names = HashSet::new();
-        let mut axis_nodes = HashSet::new();
+        let mut axis_nodes = std::collections::HashMap::new();
         for a in &self.axes {
             a.validate(self).map_err(|m| Section::Axis.error(m))?;
             if !axis_names.insert(a.name.as_str()) {
@@ -193,10 +193,29 @@ impl Config {
                     name: a.name.clone(),
                 });
             }
-            if !axis_nodes.insert((a.bus.as_str(), a.node)) {
+            if let Some(other) = axis_nodes.insert((a.bus.as_str(), a.node, a.drive_axis), &a.name)
+            {
                 return Err(Section::Axis.error(format!(
-                    "axis {}: node {} on bus {:?} already backs another axis",
-                    a.name, a.node, a.bus
+                    "axis {}: drive_axis {} of node {} on bus {:?} already backs axis {other}; \
+                     give each axis of a multi-axis drive its own drive_axis (0..=7)",
+                    a.name, a.drive_axis, a.node, a.bus
+                )));
+            }
+        }
+        // The further axes of multi-axis drives take blocks of eight
+        // COB-IDs from 0x680..=0x6DF (the predefined connection set has
+        // none for them).
+        let mut further: std::collections::HashMap<&str, u16> = Default::default();
+        for a in self.axes.iter().filter(|a| a.drive_axis > 0) {
+            let n = further.entry(a.bus.as_str()).or_default();
+            *n += 1;
+            if *n > cangate_axis::process_data::FURTHER_AXIS_BLOCKS {
+                return Err(Section::Axis.error(format!(
+                    "axis {}: more than {} axes with drive_axis above 0 on bus {:?}: their PDOs \
+                     take eight COB-IDs each from 0x680..=0x6DF, and that range is full",
+                    a.name,
+                    cangate_axis::process_data::FURTHER_AXIS_BLOCKS,
+                    a.bus
                 )));
             }
         }
