@@ -132,9 +132,8 @@ pub fn sim_drive_eds_with_axes(axes: u8) -> String {
         if header == "[OptionalObjects]" {
             let mut count = 0;
             for line in body {
-                match line.split_once('=') {
-                    Some(("SupportedObjects", v)) => count = v.trim().parse::<usize>().unwrap_or(0),
-                    _ => {}
+                if let Some(("SupportedObjects", v)) = line.split_once('=') {
+                    count = v.trim().parse::<usize>().unwrap_or(0);
                 }
             }
             for line in body {
