@@ -313,6 +313,7 @@ impl Held {
 async fn cleanup<T>(what: &str, f: impl Future<Output = T>) -> Option<T> {
     let again = async {
         tokio::time::sleep(Duration::from_millis(500)).await;
+        super::forget_ctrl_c();
         ctrl_c().await;
     };
     tokio::select! {

@@ -457,10 +457,40 @@ where
 
 // --------------------------------------------------------------- helpers
 
-/// Ctrl-C; never resolves if the handler cannot be installed.
+/// Ctrl-C presses (SIGINT) not yet taken by [`ctrl_c`], one permit each.
+static INTERRUPTS: tokio::sync::Semaphore = tokio::sync::Semaphore::const_new(0);
+static LISTENING: std::sync::Once = std::sync::Once::new();
+
+/// The next Ctrl-C (SIGINT); never resolves if the handler cannot be
+/// installed. The first call installs the handler, which then counts
+/// every press: a press that comes while the caller is busy elsewhere (a
+/// loop between two `select!`s) is kept for the next call, not lost, as
+/// `tokio::signal::ctrl_c` (which only sees presses after its own first
+/// poll) would lose it - a scripted SIGINT to `cangate mount` did.
 pub(crate) async fn ctrl_c() {
-    if tokio::signal::ctrl_c().await.is_err() {
-        std::future::pending::<()>().await;
+    LISTENING.call_once(|| {
+        // Registered here, synchronously: a press right after this call
+        // is already counted.
+        if let Ok(mut sigint) =
+            tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())
+        {
+            tokio::spawn(async move {
+                while sigint.recv().await.is_some() {
+                    INTERRUPTS.add_permits(1);
+                }
+            });
+        }
+    });
+    match INTERRUPTS.acquire().await {
+        Ok(press) => press.forget(),
+        Err(_) => std::future::pending::<()>().await,
+    }
+}
+
+/// Forgets the Ctrl-C presses [`ctrl_c`] has not taken yet.
+pub(crate) fn forget_ctrl_c() {
+    while let Ok(press) = INTERRUPTS.try_acquire() {
+        press.forget();
     }
 }
 

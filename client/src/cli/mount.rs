@@ -23,11 +23,16 @@
 
 use super::{App, Context, Failure, Result, ctrl_c};
 use cangate_can::socketcan_bus::{SocketCanBus, SocketCanEvent, interface_is_up};
+use cangate_client::can::Filter;
 use cangate_client::{AttachEvent, AttachOptions};
 use clap::Args;
-use futures::StreamExt;
+use futures::{FutureExt, StreamExt};
 use std::process::Command;
 use std::time::Duration;
+
+/// At most this many frames of the gateway go to the interface in one
+/// write.
+const WRITE_BATCH: usize = 256;
 
 /// `CANFD_MTU`: an interface with this MTU carries CAN FD frames.
 const CANFD_MTU: u32 = 72;
@@ -44,6 +49,13 @@ pub(crate) struct MountArgs {
     /// and on SIGUSR1 anyway).
     #[arg(long, value_name = "SECONDS")]
     stats_every: Option<f64>,
+    /// Only the gateway's frames that pass these filters go to the
+    /// interface, in candump syntax: <id>:<mask> (match) or <id>~<mask>
+    /// (inverted); repeatable, a frame passing any filter goes. The gateway
+    /// applies them, so what is filtered out never crosses the network.
+    /// Frames of the interface all go to the gateway.
+    #[arg(long = "filter", short = 'f')]
+    filters: Vec<Filter>,
 }
 
 /// Frames each way, and the ones lost.
@@ -64,6 +76,13 @@ struct Counters {
 }
 
 impl Counters {
+    /// The frames of a send the gateway refused: not sent after all.
+    fn refused(&mut self, r: &cangate_client::pb::SendRefused) {
+        let refused = u64::from(r.total.saturating_sub(r.sent));
+        self.refused_by_gateway += refused;
+        self.to_gateway = self.to_gateway.saturating_sub(refused);
+    }
+
     fn line(&self, bus: &str, ifname: &str) -> String {
         format!(
             "cangate mount {bus} {ifname}: {} frames to {ifname}, {} to {bus}; lost: {} dropped by \
@@ -180,6 +199,7 @@ pub(crate) async fn mount(app: &App, a: MountArgs) -> Result<()> {
     let mut local = SocketCanBus::open(&a.ifname)
         .map_err(|e| Failure::failed(format!("opening {}", a.ifname), e.to_string()))?;
     let options = AttachOptions {
+        filters: a.filters.clone(),
         fd,
         low_latency: true,
         ..AttachOptions::default()
@@ -215,19 +235,40 @@ pub(crate) async fn mount(app: &App, a: MountArgs) -> Result<()> {
             _ = async { match &mut tick { Some(t) => { t.tick().await; } None => std::future::pending().await } } => {
                 eprintln!("{}", n.line(&a.bus, &a.ifname));
             }
-            event = events.next() => match event {
-                Some(Ok(AttachEvent::Frame { frame, own: false, .. })) => {
-                    local.queue(vec![frame], None);
+            event = events.next() => {
+                // The events that arrived with it are handled in the same
+                // turn, and their frames go to the interface in one write:
+                // one wake-up and one queue entry per batch, not per frame,
+                // so the mount keeps up with a busy bus.
+                let mut frames = Vec::new();
+                let mut next = Some(event);
+                let mut end = None;
+                while let Some(event) = next.take() {
+                    match event {
+                        Some(Ok(AttachEvent::Frame { frame, own: false, .. })) => frames.push(frame),
+                        Some(Ok(AttachEvent::Lost(k))) => n.lost_gateway_queue += k,
+                        Some(Ok(AttachEvent::Refused(r))) => n.refused(&r),
+                        Some(Ok(_)) => {}
+                        Some(Err(e)) => {
+                            end = Some(Err::<(), _>(e).ctx(format!("the attachment to {}", a.bus)));
+                            break;
+                        }
+                        None => {
+                            end = Some(Err(Failure::failed(format!("the attachment to {}", a.bus), "the gateway ended it")));
+                            break;
+                        }
+                    }
+                    if frames.len() < WRITE_BATCH {
+                        next = events.next().now_or_never();
+                    }
                 }
-                Some(Ok(AttachEvent::Lost(k))) => n.lost_gateway_queue += k,
-                Some(Ok(AttachEvent::Refused(r))) => {
-                    n.refused_by_gateway += u64::from(r.total.saturating_sub(r.sent));
-                    n.to_gateway = n.to_gateway.saturating_sub(u64::from(r.total.saturating_sub(r.sent)));
+                if !frames.is_empty() {
+                    local.queue(frames, None);
                 }
-                Some(Ok(_)) => {}
-                Some(Err(e)) => break Err::<(), _>(e).ctx(format!("the attachment to {}", a.bus)),
-                None => break Err(Failure::failed(format!("the attachment to {}", a.bus), "the gateway ended it")),
-            },
+                if let Some(end) = end {
+                    break end;
+                }
+            }
             event = local.recv() => match event {
                 // Error frames stay here: a SocketCAN error frame is not a
                 // frame of the gateway's bus.
