@@ -17,7 +17,8 @@
 //!   stopping it, the handles a benchmark takes from it;
 //! - [`axes`]: waiting for axes and holding a control lease to command them;
 //! - [`host`]: this process's threads' CPU time and memory, and the exit
-//!   status of a benchmark.
+//!   status of a benchmark;
+//! - [`child`]: the server binary as a child process.
 
 #![deny(missing_docs, unreachable_pub)]
 // A dependency nothing uses fails CI (clippy -D warnings). Test builds are
@@ -25,6 +26,7 @@
 #![cfg_attr(not(test), warn(unused_crate_dependencies))]
 
 pub mod axes;
+pub mod child;
 pub mod gateway;
 pub mod host;
 pub mod report;

@@ -9,12 +9,12 @@
 //! the CANsmc cycle and the simulated devices answering them), per thread
 //! from `/proc/<pid>/task`, and stops it with SIGTERM.
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
+use cangate_bench::child::{ServerChild, default_server_binary};
 use cangate_bench::host::{process_thread_cpu, status_kib};
 use cangate_bench::report::{Measure, Outcome, Target};
 use serde_json::json;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 /// Target: RSS below this many MiB.
@@ -34,55 +34,6 @@ pub const IDLE_TARGET_PERCENT: f64 = 10.0;
 pub const IDLE_WINDOW: Duration = Duration::from_secs(10);
 /// The idle window with `--quick`.
 pub const QUICK_IDLE_WINDOW: Duration = Duration::from_millis(500);
-
-/// The server binary next to this executable.
-pub fn default_server_binary() -> Result<PathBuf> {
-    let exe = std::env::current_exe().context("locating this executable")?;
-    let dir = exe
-        .parent()
-        .context("this executable has no parent directory")?;
-    Ok(dir.join(format!("cangate-server{}", std::env::consts::EXE_SUFFIX)))
-}
-
-/// Stops the child on every path out of the benchmark.
-struct Guard(Child);
-
-impl Guard {
-    /// SIGTERM (graceful shutdown), then SIGKILL if it does not exit.
-    fn terminate(&mut self) -> Result<Option<std::process::ExitStatus>> {
-        if let Some(status) = self.0.try_wait()? {
-            return Ok(Some(status));
-        }
-        let _ = Command::new("kill")
-            .args(["-TERM", &self.0.id().to_string()])
-            .stderr(Stdio::null())
-            .status();
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while Instant::now() < deadline {
-            if let Some(status) = self.0.try_wait()? {
-                return Ok(Some(status));
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        self.0.kill()?;
-        self.0.wait()?;
-        Ok(None)
-    }
-}
-
-impl Drop for Guard {
-    fn drop(&mut self) {
-        if let Ok(None) = self.0.try_wait() {
-            let _ = self.0.kill();
-            let _ = self.0.wait();
-        }
-    }
-}
-
-fn free_port() -> Result<u16> {
-    let l = std::net::TcpListener::bind("127.0.0.1:0").context("finding a free port")?;
-    Ok(l.local_addr()?.port())
-}
 
 /// Runs the benchmark with `binary` (or the default one).
 pub async fn run(
@@ -134,40 +85,14 @@ pub async fn run(
 }
 
 async fn measure(binary: &Path, settle: Duration, idle: Duration) -> Result<Vec<Measure>> {
-    let port = free_port()?;
-    let addr = format!("127.0.0.1:{port}");
     println!(
-        "memory: {} --listen {addr} (embedded demo), RSS {} ms after the first ListBuses answer",
+        "memory: {} --listen 127.0.0.1:<free port> (embedded demo), RSS {} ms after the first ListBuses answer",
         binary.display(),
         settle.as_millis()
     );
-    let child = Command::new(binary)
-        .args(["--listen", &addr])
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .with_context(|| format!("starting {}", binary.display()))?;
-    let mut guard = Guard(child);
-    let pid = guard.0.id();
-
-    let url = format!("http://{addr}");
-    let started = Instant::now();
-    let buses = loop {
-        if let Some(status) = guard.0.try_wait()? {
-            bail!("the server exited before answering: {status}");
-        }
-        if started.elapsed() > READY_TIMEOUT {
-            bail!("the server did not answer ListBuses within {READY_TIMEOUT:?}");
-        }
-        if let Ok(mut client) = cangate_client::connect(&url).await
-            && let Ok(buses) = client.list_buses().await
-        {
-            break buses.len();
-        }
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    };
-    let ready = started.elapsed();
+    let mut server = ServerChild::start(binary, &[], READY_TIMEOUT).await?;
+    let pid = server.pid();
+    let (ready, buses) = (server.ready_after, server.buses);
     tokio::time::sleep(settle).await;
 
     let status = std::fs::read_to_string(format!("/proc/{pid}/status"))
@@ -198,7 +123,7 @@ async fn measure(binary: &Path, settle: Duration, idle: Duration) -> Result<Vec<
     per_thread.sort_by(|a, b| b.1.total_cmp(&a.1));
     let idle_percent: f64 = per_thread.iter().map(|(_, p)| p).sum();
 
-    let exit = guard.terminate()?;
+    let exit = server.terminate()?;
     let graceful = exit.is_some_and(|s| s.success());
 
     let mib = rss_kib as f64 / 1024.0;

@@ -21,9 +21,9 @@
 //! an earlier one: TCP keeps the order), and sent with the points that are
 //! due with it.
 
-use cangate_client::{ConnectOptions, SetpointStreamOptions, pb, setpoint};
-use std::f64::consts::PI;
-use std::time::{Duration, Instant};
+use cangate_client::setpoint_trial::{Circle, ErrorStats, InjectedDelay, send_paced};
+use cangate_client::{ConnectOptions, SetpointStreamOptions, pb};
+use std::time::Duration;
 
 #[tokio::main]
 async fn main() {
@@ -31,42 +31,6 @@ async fn main() {
         eprintln!("stream_circle: {e}");
         std::process::exit(1);
     }
-}
-
-/// A small PRNG (xorshift64*): reproducible delays without a dependency.
-struct Rng(u64);
-
-impl Rng {
-    fn unit(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        let x = self.0.wrapping_mul(0x2545_F491_4F6C_DD1D);
-        (x >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
-
-/// The circle's angle at `s` seconds: ramps up over `period/2` to a turn
-/// per `period`, holds, ramps down over `period/2`; `turns` turns in all.
-fn angle(s: f64, turns: f64, period: f64) -> f64 {
-    let w = 2.0 * PI / period;
-    let ramp = period / 2.0;
-    let cruise = (turns * period) - ramp;
-    if s < ramp {
-        w * s * s / (2.0 * ramp)
-    } else if s < ramp + cruise {
-        w * ramp / 2.0 + w * (s - ramp)
-    } else {
-        let r = (2.0 * ramp + cruise - s).max(0.0);
-        w * (ramp / 2.0 + cruise + ramp / 2.0) - w * r * r / (2.0 * ramp)
-    }
-}
-
-/// (max, RMS) of `errors`.
-fn stats(errors: &[f64]) -> (f64, f64) {
-    let max = errors.iter().copied().fold(0.0, f64::max);
-    let rms = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len().max(1) as f64).sqrt();
-    (max, rms)
 }
 
 async fn run() -> Result<(), Box<dyn std::error::Error>> {
@@ -112,14 +76,13 @@ async fn run() -> Result<(), Box<dyn std::error::Error>> {
                 .map_or(0.0, |s| s.demand_position),
         );
     }
-    // The circle's centre: `radius` to the right of where the axes stand.
-    let centre = [start[0] + radius, start[1]];
-    let point = move |s: f64| {
-        let a = angle(s, turns, period);
-        vec![centre[0] - radius * a.cos(), centre[1] + radius * a.sin()]
-    };
-    let off = move |p: &[f64]| ((p[0] - centre[0]).hypot(p[1] - centre[1]) - radius).abs();
-    let total_ms = ((turns + 0.5) * period * 1000.0).ceil() as u64;
+    let circle = Circle::starting_at(
+        [start[0], start[1]],
+        radius,
+        turns,
+        Duration::from_secs_f64(period),
+    );
+    let points = circle.duration().as_millis() as u64 + 1;
 
     let mut stream = client
         .stream_setpoints(
@@ -134,42 +97,17 @@ async fn run() -> Result<(), Box<dyn std::error::Error>> {
         )
         .await?;
     let sender = stream.sender().ok_or("no sender")?;
-    // Exponential delays with the given p99: mean = p99 / ln(100).
-    let mean_us = jitter_ms * 1000.0 / 100f64.ln();
+    let delay = if jitter_ms > 0.0 {
+        InjectedDelay::exponential(Duration::from_secs_f64(jitter_ms / 1000.0), seed)
+    } else {
+        InjectedDelay::none()
+    };
     let sending = tokio::spawn(async move {
-        let mut rng = Rng(seed.max(1));
-        let t0 = Instant::now();
-        let mut pending: Vec<(Duration, pb::Setpoint)> = Vec::new();
-        let mut release = Duration::ZERO;
-        let mut k = 0u64;
-        let mut tick = tokio::time::interval(Duration::from_millis(1));
-        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Burst);
-        loop {
-            tick.tick().await;
-            let now = t0.elapsed();
-            // Every point whose time has come is generated now.
-            while k <= total_ms && Duration::from_millis(k) <= now {
-                let delay = if mean_us > 0.0 {
-                    -mean_us * (1.0 - rng.unit()).ln()
-                } else {
-                    0.0
-                };
-                release =
-                    release.max(Duration::from_millis(k) + Duration::from_micros(delay as u64));
-                pending.push((release, setpoint(k * 1000, point(k as f64 / 1000.0))));
-                k += 1;
-            }
-            let due = pending.iter().take_while(|(r, _)| *r <= now).count();
-            if due > 0 {
-                let batch = pending.drain(..due).map(|(_, p)| p).collect();
-                if sender.send(batch).await.is_err() {
-                    return;
-                }
-            }
-            if k > total_ms && pending.is_empty() {
-                return;
-            }
-        }
+        // A failed send means the call ended: the statuses say why.
+        let _ = send_paced(&sender, Duration::from_millis(1), points, delay, |t| {
+            circle.point(t.as_secs_f64()).to_vec()
+        })
+        .await;
     });
     let mut commanded = Vec::new();
     let mut actual = Vec::new();
@@ -187,9 +125,9 @@ async fn run() -> Result<(), Box<dyn std::error::Error>> {
             }
         };
         let Some(s) = status else { break };
-        commanded.push(off(&s.commanded_positions));
+        commanded.push(circle.radial_error(plane(&s.commanded_positions)));
         if s.actual_positions.iter().all(|p| p.is_finite()) {
-            actual.push(off(&s.actual_positions));
+            actual.push(circle.radial_error(plane(&s.actual_positions)));
         }
         for e in &s.events {
             if e.kind != pb::SetpointEventKind::SetpointEventAtRest as i32 {
@@ -200,18 +138,30 @@ async fn run() -> Result<(), Box<dyn std::error::Error>> {
     }
     let last = last.ok_or("no status")?;
     let c = last.counters.unwrap_or_default();
-    let (cmax, crms) = stats(&commanded);
-    let (amax, arms) = stats(&actual);
+    let c_err = ErrorStats::of(commanded.iter().copied());
+    let a_err = ErrorStats::of(actual.iter().copied());
     println!(
         "circle r={radius} {turns} turns, depth {depth_ms} ms, jitter p99 {jitter_ms} ms: \
          received {} played {} refused {} late {} dropped {} underruns {} limited {}",
         c.received, c.played, c.refused, c.late, c.dropped, c.underruns, c.limited
     );
     println!(
-        "contour error (radial, {} statuses): commanded max {cmax:.4} rms {crms:.4}; \
-         actual max {amax:.4} rms {arms:.4}",
-        commanded.len()
+        "contour error (radial, {} statuses): commanded max {:.4} rms {:.4}; \
+         actual max {:.4} rms {:.4}",
+        commanded.len(),
+        c_err.max,
+        c_err.rms,
+        a_err.max,
+        a_err.rms
     );
     lease.release().await?;
     Ok(())
+}
+
+/// The first two positions of a status.
+fn plane(p: &[f64]) -> [f64; 2] {
+    [
+        p.first().copied().unwrap_or(f64::NAN),
+        p.get(1).copied().unwrap_or(f64::NAN),
+    ]
 }

@@ -65,6 +65,7 @@ mod lss;
 mod program;
 mod sdo;
 mod sdo_session;
+pub mod setpoint_trial;
 mod setpoints;
 mod streams;
 

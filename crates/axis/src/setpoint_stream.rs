@@ -686,12 +686,21 @@ impl SetpointPlayer {
                 self.extrapolating_since = None;
             }
             (Some(a), None) => {
+                let first = self.extrapolating_since.is_none();
                 let since = *self.extrapolating_since.get_or_insert(now);
                 self.state = PlayerState::Extrapolating;
                 if now.saturating_sub(since) >= self.cfg.extrapolate
                     || self.extrapolation_leaves_the_limits(dt)
                 {
                     self.underrun(ramp_start, now, event);
+                } else if first {
+                    // The path up to the last point is played, then on
+                    // along its last segment: from the previous cycle's
+                    // position the rest of the path would be cut short.
+                    let past = (tc - a.t_us as f64) / 1e6;
+                    self.position = (a.positions.iter().zip(&a.velocity))
+                        .map(|(p, v)| p + v * past)
+                        .collect();
                 } else {
                     let v = a.velocity.clone();
                     for (p, v) in self.position.iter_mut().zip(&v) {

@@ -21,7 +21,7 @@ use super::{Axes, AxisEntry, AxisError, Caller};
 use cangate_axis::setpoint_stream::{
     AxisLimits, PlayerConfig, PlayerState, PointRefused, StreamPoint,
 };
-use cangate_axis::{Activity, CommandError, DriveSpec, PositionMode};
+use cangate_axis::{Activity, CommandError, DriveSpec};
 use cangate_canopen::cia402::DriveState;
 use std::collections::HashSet;
 use std::sync::Arc;
@@ -239,13 +239,9 @@ impl Axes {
                         return Err(not(format!("axis {name} is already in a set-point stream")));
                     }
                 }
+                // The mode the axis runs in now is checked below: one
+                // configured in profile position may run in CSP (SetMode).
                 (None, None, Some((_, table))) => {
-                    if e.spec.position_mode() != PositionMode::Cyclic {
-                        return Err(not(format!(
-                            "axis {name} is a profile position axis: set-point streams play on \
-                             cyclic (CSP) CiA 402 axes and CANsmc axes"
-                        )));
-                    }
                     let Some((_, table0)) = &first.cyclic else {
                         return Err(not(format!("axis {} cannot be streamed", first.spec.name)));
                     };

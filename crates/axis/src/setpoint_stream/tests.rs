@@ -303,6 +303,46 @@ fn a_stop_brings_the_axes_to_rest_and_drops_what_is_buffered() {
     assert!(c.dropped >= 19, "{c:?}");
 }
 
+/// A client path whose last point falls between two cycles: the first
+/// cycle past it plays the path to that point (and on along its last
+/// segment), not on from where the previous cycle was along the last
+/// segment's velocity, which would cut short the rest of the path.
+#[test]
+fn the_first_cycle_past_the_last_point_plays_the_path_to_it() {
+    let cycle = 10 * MS;
+    let mut p = SetpointPlayer::new(
+        PlayerConfig::new(cycle, 20 * MS),
+        vec![limits(Some(500.0))],
+        vec![0.0],
+    );
+    // 1 mm in 100 ms at rising then falling speed, a point per ms, each
+    // sent at its time; cycles at 3, 13, 23, … ms.
+    let path = |k: u64| 0.5 - 0.5 * (std::f64::consts::PI * k as f64 / 100.0).cos();
+    let mut last = Vec::new();
+    for ms in 0..=130u64 {
+        if ms <= 100 {
+            p.push(
+                StreamPoint {
+                    t_us: ms * 1000,
+                    positions: vec![path(ms)],
+                },
+                MS * ms as u32,
+            )
+            .unwrap();
+        }
+        if ms % 10 == 3 {
+            last.push(p.next(MS * ms as u32).positions[0]);
+        }
+    }
+    // The playout is 20 ms behind the client: the cycle at 113 ms plays
+    // client time 93 ms, the one at 123 ms is 3 ms past the last point.
+    let at_93 = last[last.len() - 2];
+    assert!((at_93 - path(93)).abs() < 1e-9, "{at_93}");
+    let past = last[last.len() - 1];
+    assert!((past - 1.0).abs() < 1e-3, "{past}: the path ends at 1");
+    assert_eq!(p.counters().played, 101);
+}
+
 /// Random streams: random client periods, network delays with jitter,
 /// stalls and bursts, paths that sometimes break the limits, stops.
 /// Whatever comes, no played step is faster than the maximum velocity,
