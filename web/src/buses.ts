@@ -75,10 +75,11 @@ export function candump(name: string, f: Frame): string {
 
 /** Lines drawn at most while the view follows the bus: more than a full
  * 1 Mbit/s bus brings between two animation frames (~140 at 8,000
- * frames/s). Laying out all MAX_LINES at every animation frame cost the
+ * frames/s), twice over, for an animation frame that comes late on a
+ * busy host. Laying out all MAX_LINES at every animation frame cost the
  * page half a core of this machine's CPU; paused, the view draws them all,
  * for scrolling back. */
-const LIVE_LINES = 150;
+const LIVE_LINES = 300;
 
 /**
  * Draws the view. Following the bus it draws the lines its box shows, or
