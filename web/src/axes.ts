@@ -344,7 +344,8 @@ function markStale(): void {
   for (const row of rows.values()) {
     if (row.staleSince === 0) row.staleSince = since;
   }
-  showAges();
+  // A hidden page shows its ages when it is shown (enterAxes).
+  if (shown) showAges();
 }
 
 /** The stale rows' ages (display only, every second). */
