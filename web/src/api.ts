@@ -25,6 +25,7 @@ const auth: Interceptor = (next) => async (req) => {
   return next(req);
 };
 
+// Binary only: the bundle leaves protobuf's JSON codec out (build.mjs).
 const transport = createGrpcWebTransport({
   baseUrl: location.origin,
   useBinaryFormat: true,

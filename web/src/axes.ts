@@ -34,6 +34,10 @@ interface Row {
   cells: Record<string, HTMLElement>;
   /** The state badge. */
   badge: HTMLSpanElement;
+  /** The homed icon, and the limit and home switch icons (negative, home, positive). */
+  homed: HTMLSpanElement;
+  switches: HTMLSpanElement;
+  switchIcons: HTMLSpanElement[];
   /** The fault's one-line summary, and its full text on demand. */
   faultSummary: HTMLSpanElement;
   faultFull: HTMLDivElement;
@@ -85,6 +89,7 @@ function setLeaseState(name: string): void {
   const row = rows.get(name);
   if (!row) return;
   row.acquire.textContent = leases.has(name) ? "Release" : "Acquire";
+  showControl(row);
   applyRoles();
 }
 
@@ -318,6 +323,9 @@ function buildRow(axis: Axis): Row {
     tr: card,
     cells,
     badge,
+    homed,
+    switches,
+    switchIcons: [...switches.children] as HTMLSpanElement[],
     faultSummary: faultSummaryText,
     faultFull,
     // The axis's configured decimals, else one count visible (the gateway
@@ -336,7 +344,8 @@ function markStale(): void {
   for (const row of rows.values()) {
     if (row.staleSince === 0) row.staleSince = since;
   }
-  showAges();
+  // A hidden page shows its ages when it is shown (enterAxes).
+  if (shown) showAges();
 }
 
 /** The stale rows' ages (display only, every second). */
@@ -344,92 +353,127 @@ function showAges(): void {
   for (const row of rows.values()) {
     const stale = row.staleSince !== 0;
     row.tr.classList.toggle("stale", stale);
-    if (stale) row.tr.dataset.stale = "true";
-    else delete row.tr.dataset.stale;
-    row.age.hidden = !stale;
-    if (stale) row.age.textContent = `stale ${ageText(row.staleSince)}`;
+    if (stale) setData(row.tr, "stale", "true");
+    else if (row.tr.dataset.stale !== undefined) delete row.tr.dataset.stale;
+    setHidden(row.age, !stale);
+    if (stale) setText(row.age, `stale ${ageText(row.staleSince)}`);
   }
 }
 
-/** Who controls an axis, as the Control column shows it. */
-function showControl(row: Row, holder: string): void {
-  row.cells.control.textContent = leases.has(row.axis.name) ? "this page" : holder || "—";
-  row.cells.control.title = row.cells.control.textContent;
+/** Writes the text only when it differs: an unchanged value costs no layout. */
+function setText(e: HTMLElement, text: string): void {
+  if (e.textContent !== text) e.textContent = text;
 }
 
-/** Statuses received since the last frame was drawn, the latest per axis. */
+function setData(e: HTMLElement, key: string, value: string): void {
+  if (e.dataset[key] !== value) e.dataset[key] = value;
+}
+
+function setTitle(e: HTMLElement, title: string): void {
+  if (e.title !== title) e.title = title;
+}
+
+function setHidden(e: HTMLElement, hidden: boolean): void {
+  if (e.hidden !== hidden) e.hidden = hidden;
+}
+
+/** Who controls each axis, as its latest status or control event said. */
+const holders = new Map<string, string>();
+
+/** Who controls an axis, as the Control column shows it. */
+function showControl(row: Row): void {
+  const text = leases.has(row.axis.name) ? "this page" : holders.get(row.axis.name) || "—";
+  setText(row.cells.control, text);
+  setTitle(row.cells.control, text);
+}
+
+/** Statuses received since the cards were last drawn, the latest per axis. */
 const pending = new Map<string, AxisStatus>();
 let drawScheduled = false;
+let lastDraw = 0;
+/** The axes page is shown: its cards are drawn (a hidden page's are not). */
+let shown = false;
+/** Least time between two drawings of the cards: 20 a second is what an
+ * eye reads of a readout, and far less than the stream brings. */
+const DRAW_PERIOD_MS = 50;
 
 /**
- * Takes an axis's status; the cards are redrawn once per frame the
- * browser draws, with each axis's latest status: moving axes send a
- * status per SYNC, far more than a screen shows, and each DOM write
- * costs layout. The position trace samples the latest position anyway.
+ * Takes an axis's status. The cards show each axis's latest status, drawn
+ * at most 20 times a second and only while the axes page is shown: moving
+ * axes send a status per SYNC, far more than a screen shows, and each DOM
+ * write costs layout. The position trace samples the latest position.
  */
 function receive(s: AxisStatus): void {
   positions.set(s.axis, s.position);
+  holders.set(s.axis, s.controlledBy);
   pending.set(s.axis, s);
-  if (drawScheduled) return;
+  scheduleDraw();
+}
+
+function scheduleDraw(): void {
+  if (drawScheduled || !shown || pending.size === 0) return;
   drawScheduled = true;
-  const draw = () => {
-    drawScheduled = false;
-    const batch = [...pending.values()];
-    pending.clear();
-    for (const st of batch) update(st);
-  };
-  // A hidden tab draws no frames: a timer keeps the cards current there.
-  if (document.hidden) setTimeout(draw, 250);
-  else requestAnimationFrame(draw);
+  const wait = Math.max(0, lastDraw + DRAW_PERIOD_MS - performance.now());
+  setTimeout(() => {
+    // A hidden tab draws no frames: the timer draws there.
+    if (document.hidden) drawPending();
+    else requestAnimationFrame(drawPending);
+  }, wait);
+}
+
+function drawPending(): void {
+  drawScheduled = false;
+  lastDraw = performance.now();
+  if (!shown) return;
+  const batch = [...pending.values()];
+  pending.clear();
+  for (const st of batch) update(st);
 }
 
 function update(s: AxisStatus): void {
   const row = rows.get(s.axis);
   if (!row) return;
-  positions.set(s.axis, s.position);
-  row.cells.state.textContent = s.nodeLost ? "node lost" : enumName(DriveState, s.state);
-  row.cells.activity.textContent = enumName(AxisActivity, s.activity);
-  row.cells.position.textContent = s.position.toFixed(row.decimals);
-  row.cells.velocity.textContent = s.velocity.toFixed(row.decimals);
-  row.cells.ferr.textContent = s.followingError.toFixed(Math.min(4, row.decimals + 1));
-  showControl(row, s.controlledBy);
-  row.cells.fault.hidden = !s.faultText;
-  row.faultSummary.textContent = faultSummary(s.faultText);
-  row.faultSummary.title = s.faultText;
-  row.faultFull.textContent = s.faultText;
+  const state = enumName(DriveState, s.state);
+  const activity = enumName(AxisActivity, s.activity);
+  setText(row.cells.state, s.nodeLost ? "node lost" : state);
+  setText(row.cells.activity, activity);
+  setText(row.cells.position, s.position.toFixed(row.decimals));
+  setText(row.cells.velocity, s.velocity.toFixed(row.decimals));
+  setText(row.cells.ferr, s.followingError.toFixed(Math.min(4, row.decimals + 1)));
+  showControl(row);
+  setHidden(row.cells.fault, !s.faultText);
+  setText(row.faultSummary, faultSummary(s.faultText));
+  setTitle(row.faultSummary, s.faultText);
+  setText(row.faultFull, s.faultText);
   const kind = stateKind(s);
-  row.badge.dataset.kind = kind;
-  row.tr.dataset.kind = kind;
+  setData(row.badge, "kind", kind);
+  setData(row.tr, "kind", kind);
   if (row.staleSince !== 0) {
     row.staleSince = 0;
     showAges();
   }
-  row.tr.dataset.state = enumName(DriveState, s.state);
-  row.tr.dataset.activity = enumName(AxisActivity, s.activity);
-  row.tr.dataset.homed = String(s.homed);
-  const homed = row.tr.querySelector<HTMLElement>(".homed");
-  if (homed) homed.title = s.homed ? "homed" : "not homed";
-  showSwitches(row.tr, s);
+  setData(row.tr, "state", state);
+  setData(row.tr, "activity", activity);
+  setData(row.tr, "homed", String(s.homed));
+  setTitle(row.homed, s.homed ? "homed" : "not homed");
+  showSwitches(row, s);
 }
 
 /** The limit and home switch icons: shown when the drive reports its digital inputs, lit while active. */
-function showSwitches(card: HTMLElement, s: AxisStatus): void {
-  const box = card.querySelector<HTMLElement>(".switches");
-  if (!box) return;
+function showSwitches(row: Row, s: AxisStatus): void {
   const di = s.digitalInputs;
-  box.hidden = !di;
+  setHidden(row.switches, !di);
   if (!di) return;
-  const states: [string, boolean, string][] = [
-    ["negative-limit", di.negativeLimitSwitch, "negative limit switch"],
-    ["home", di.homeSwitch, "home switch"],
-    ["positive-limit", di.positiveLimitSwitch, "positive limit switch"],
+  const states: [boolean, string][] = [
+    [di.negativeLimitSwitch, "negative limit switch"],
+    [di.homeSwitch, "home switch"],
+    [di.positiveLimitSwitch, "positive limit switch"],
   ];
-  for (const [name, on, label] of states) {
-    const icon = box.querySelector<HTMLElement>(`[data-switch="${name}"]`);
-    if (!icon) continue;
-    icon.dataset.active = String(on);
-    icon.title = `${label}: ${on ? "active" : "not active"}`;
-  }
+  states.forEach(([on, label], i) => {
+    const icon = row.switchIcons[i];
+    setData(icon, "active", String(on));
+    setTitle(icon, `${label}: ${on ? "active" : "not active"}`);
+  });
 }
 
 /** An axis's fault and its drive's node lost are alarms; the node back clears the latter. */
@@ -498,7 +542,11 @@ export async function startAxes(signal: AbortSignal): Promise<void> {
     rows.set(a.name, row);
     tbody.append(row.tr);
     setLeaseState(a.name);
-    if (a.status) update(a.status);
+    if (a.status) {
+      holders.set(a.name, a.status.controlledBy);
+      positions.set(a.name, a.status.position);
+      update(a.status);
+    }
   }
   void keepStreaming(
     "axis stream",
@@ -510,11 +558,26 @@ export async function startAxes(signal: AbortSignal): Promise<void> {
       if (u.update.case === "event" && u.update.value.kind.case === "control") {
         // Control changes hands without a new status (an axis at rest
         // sends none with changesOnly): the handwheel taking an axis.
+        holders.set(u.update.value.axis, u.update.value.kind.value.holder);
         const row = rows.get(u.update.value.axis);
-        if (row) showControl(row, u.update.value.kind.value.holder);
+        if (row) showControl(row);
       }
     },
     markStale,
+  );
+}
+
+/** The axes page is shown until `signal` aborts: its cards are drawn. */
+export function enterAxes(signal: AbortSignal): void {
+  shown = true;
+  showAges();
+  scheduleDraw();
+  signal.addEventListener(
+    "abort",
+    () => {
+      shown = false;
+    },
+    { once: true },
   );
 }
 
@@ -536,9 +599,11 @@ export function initAxes(): void {
     traced = select.value;
     trace?.setSeries([`${traced} position (${units.get(traced) ?? ""})`]);
   });
-  setInterval(showAges, 1000);
+  setInterval(() => {
+    if (shown) showAges();
+  }, 1000);
   // Sampled at 20 Hz from the latest state (the stream sends changes
-  // only, so an axis at rest sends nothing).
+  // only, so an axis at rest sends nothing); drawn while shown.
   setInterval(() => {
     const p = positions.get(traced);
     if (p !== undefined) trace?.push(Date.now() / 1000, [p]);

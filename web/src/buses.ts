@@ -21,6 +21,14 @@ let streamAbort: AbortController | null = null;
 let parent: AbortSignal | null = null;
 let loadChart: TimeChart | null = null;
 let filters: FrameFilter[] = [];
+/** The buses page is shown: its table and view are drawn. */
+let shown = false;
+/** The latest poll's buses, drawn when the page is shown. */
+let latest: BusInfo[] = [];
+/** Lines received since the view was last drawn. */
+let fresh = 0;
+/** Lines the view's box shows (from its height and line height). */
+let visibleLines = 30;
 
 /**
  * candump-style filters, comma or space separated: `ID:MASK` passes a
@@ -65,22 +73,31 @@ export function candump(name: string, f: Frame): string {
   return `${name}  ${id}   ${len}  ${data}`;
 }
 
-/** Lines drawn while the view follows the bus: more than it shows, and
- * more than a full 1 Mbit/s bus brings between two animation frames (~140
- * at 8,000 frames/s), so no frame skips the screen. Laying out all
- * MAX_LINES at every animation frame cost the page half a core of this
- * machine's CPU; paused, the view draws them all, for scrolling back. */
-const LIVE_LINES = 150;
+/** Lines drawn at most while the view follows the bus: more than a full
+ * 1 Mbit/s bus brings between two animation frames (~140 at 8,000
+ * frames/s), twice over, for an animation frame that comes late on a
+ * busy host. Laying out all MAX_LINES at every animation frame cost the
+ * page half a core of this machine's CPU; paused, the view draws them all,
+ * for scrolling back. */
+const LIVE_LINES = 300;
 
+/**
+ * Draws the view. Following the bus it draws the lines its box shows, or
+ * more when more came since the last drawing, so that no frame skips the
+ * screen: at demo traffic a few dozen lines are laid out per animation
+ * frame instead of LIVE_LINES.
+ */
 function render(): void {
   renderPending = false;
   const pre = document.getElementById("frames")!;
-  pre.textContent = (paused ? lines : lines.slice(-LIVE_LINES)).join("\n");
+  const live = Math.min(LIVE_LINES, Math.max(visibleLines, fresh));
+  fresh = 0;
+  pre.textContent = (paused ? lines : lines.slice(-live)).join("\n");
   pre.scrollTop = pre.scrollHeight;
 }
 
 function scheduleRender(): void {
-  if (renderPending || paused) return;
+  if (renderPending || paused || !shown) return;
   renderPending = true;
   requestAnimationFrame(render);
 }
@@ -106,6 +123,7 @@ function openFrames(): void {
           received++;
           if (!paused) {
             lines.push(candump(name, ev.event.value));
+            fresh++;
           }
         } else if (ev.event.case === "lost") {
           lost += ev.event.value.count;
@@ -128,6 +146,21 @@ function stateName(b: BusInfo): string {
 function renderTable(list: BusInfo[]): void {
   loadChart?.setSeries(list.map((b) => b.name));
   loadChart?.push(Date.now() / 1000, list.map((b) => b.statistics?.loadPercent ?? 0));
+  latest = list;
+  if (shown) drawTable(list);
+  const select = document.getElementById("frame-bus") as HTMLSelectElement;
+  if (select.options.length !== list.length) {
+    select.replaceChildren(...list.map((b) => el("option", { value: b.name }, b.name)));
+    if (!selected && list.length > 0) {
+      selected = list[0].name;
+      select.value = selected;
+      openFrames();
+    }
+  }
+}
+
+/** The buses' table (while the page is shown). */
+function drawTable(list: BusInfo[]): void {
   const tbody = document.querySelector("#buses tbody")!;
   tbody.replaceChildren(
     ...list.map((b) => {
@@ -150,20 +183,20 @@ function renderTable(list: BusInfo[]): void {
       return row;
     }),
   );
-  const select = document.getElementById("frame-bus") as HTMLSelectElement;
-  if (select.options.length !== list.length) {
-    select.replaceChildren(...list.map((b) => el("option", { value: b.name }, b.name)));
-    if (!selected && list.length > 0) {
-      selected = list[0].name;
-      select.value = selected;
-      openFrames();
-    }
-  }
 }
 
-/** Streams the selected bus's frames while the page is shown. */
+/** Streams the selected bus's frames, and draws the page, while it is shown. */
 export function enterBuses(signal: AbortSignal): void {
   parent = signal;
+  shown = true;
+  signal.addEventListener(
+    "abort",
+    () => {
+      shown = false;
+    },
+    { once: true },
+  );
+  drawTable(latest);
   openFrames();
 }
 
@@ -218,9 +251,15 @@ export function initBuses(): void {
     if (paused) render();
     else scheduleRender();
   });
+  // The view's height in lines, after each layout that changed it.
+  const pre = document.getElementById("frames")!;
+  new ResizeObserver(() => {
+    const lineHeight = Number.parseFloat(getComputedStyle(pre).lineHeight) || 15;
+    if (pre.clientHeight > 0) visibleLines = Math.ceil(pre.clientHeight / lineHeight) + 1;
+  }).observe(pre);
   let last = 0;
   setInterval(() => {
-    document.getElementById("frames-rate")!.textContent = `${received - last} frames/s`;
+    if (shown) document.getElementById("frames-rate")!.textContent = `${received - last} frames/s`;
     last = received;
   }, 1000);
 }

@@ -6,7 +6,7 @@
 // Three at most (data-streams-max on <body>).
 import { clearNotice, initStopBanner, session as sessionApi, setToken } from "./api";
 import { initAlarms, startAlarms } from "./alarms";
-import { initAxes, startAxes, stopAll } from "./axes";
+import { enterAxes, initAxes, startAxes, stopAll } from "./axes";
 import { enterBuses, initBuses, startBuses } from "./buses";
 import { enterCanopen, initCanopen } from "./canopen";
 import { enterCansmc, initCansmc } from "./cansmc";
@@ -15,7 +15,7 @@ import { guard, loadRole } from "./roles";
 
 const PAGES: Record<string, ((signal: AbortSignal) => void) | null> = {
   buses: enterBuses,
-  axes: null,
+  axes: enterAxes,
   canopen: enterCanopen,
   handwheel: enterHandwheels,
   cansmc: enterCansmc,

@@ -365,6 +365,27 @@ async function canopenPage(page) {
     (await count()) === before - 1);
   await page.screenshot({ path: `${shots}/alarms.png` });
   say(`step alarm-emcy count-before=${before}`);
+
+  // The pages not shown are not drawn: the axes' statuses (the demo's
+  // CANsmc axes send one per cycle) and the buses' poll (every second) keep
+  // coming, yet nothing in the axes or buses page changes while the alarms
+  // page is shown. (Watched for 2.5 s: the page drew them within one poll.)
+  const hiddenChanges = await page.evaluate(async () => {
+    const seen = [];
+    const watch = new MutationObserver((records) => {
+      for (const r of records) seen.push(`${r.type} ${r.target.nodeName}${r.attributeName ? ` ${r.attributeName}` : ""}`);
+    });
+    for (const id of ["page-axes", "page-buses"]) {
+      watch.observe(document.getElementById(id), { subtree: true, childList: true, attributes: true, characterData: true });
+    }
+    await new Promise((r) => setTimeout(r, 2500));
+    watch.disconnect();
+    return seen;
+  });
+  if (hiddenChanges.length > 0) {
+    throw new Error(`hidden pages drawn ${hiddenChanges.length} times: ${[...new Set(hiddenChanges)].slice(0, 5).join("; ")}`);
+  }
+  say("step hidden-pages-still");
   await press(page, `button[data-page="canopen"]`);
 
   // SDO read of 0x1008 (device name) of node 1, with the EDS type.

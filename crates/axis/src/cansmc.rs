@@ -32,7 +32,7 @@
 use std::time::Duration;
 
 use cangate_canopen::cia402::DriveState;
-use cangate_cansmc::telegram::{Command, ControlWord, StatusWord};
+use cangate_cansmc::telegram::{Command, ControlWord, CycleCounter, StatusWord};
 use cangate_motion::{Limits, TrapezoidProfile};
 
 use crate::cia402::AxisSnapshot;
@@ -405,7 +405,19 @@ impl CansmcAxis {
         AxisSnapshot {
             signals: Default::default(),
             state: self.state(),
-            statusword: self.status.map(StatusWord::to_bits).unwrap_or_default(),
+            // Without the cycle counter echo (bits 12-15): it changes with
+            // every DT and says the telegram is fresh, not how the drive
+            // is; with it every axis would change every cycle, at rest too.
+            statusword: self
+                .status
+                .map(|s| {
+                    StatusWord {
+                        counter_echo: CycleCounter::new(0),
+                        ..s
+                    }
+                    .to_bits()
+                })
+                .unwrap_or_default(),
             mode: if matches!(self.motion, Motion::Homing) {
                 MODE_HOMING
             } else {

@@ -27,6 +27,9 @@ struct Servo {
     /// The function of the command applied last: the DT carries its
     /// feedback.
     last: Option<Command>,
+    /// The MDTCW cycle counter of the command applied last, echoed in
+    /// the DTSW's bits 12-15.
+    counter: u8,
 }
 
 impl Servo {
@@ -34,6 +37,7 @@ impl Servo {
     fn mst(&mut self) {
         if let Some(cmd) = self.pending.take() {
             let c = cmd.control;
+            self.counter = self.counter.wrapping_add(1);
             if c.fault_reset && !self.last_reset {
                 self.fault = false;
                 self.following_error = false;
@@ -84,6 +88,7 @@ impl Servo {
                 target_reached: true,
                 homed: self.homed,
                 following_error: self.following_error,
+                counter_echo: CycleCounter::new(self.counter),
                 ..StatusWord::default()
             }),
             position,
@@ -740,4 +745,24 @@ fn a_fault_or_a_lost_slave_ends_the_streamed_motion() {
     let mut rig = Rig::enabled(cfg());
     let e = rig.axis.start_stream(rig.axis.demand() + 1.0).unwrap_err();
     assert!(e.to_string().contains("moved since"), "{e}");
+}
+
+/// An axis at rest has the same state in every cycle although each DT
+/// echoes a new cycle counter (DTSW bits 12-15): the echo says the
+/// telegram is fresh, not how the drive is, so a watcher of changes
+/// (StreamAxisState with changes_only) hears nothing from an axis at rest.
+#[test]
+fn an_axis_at_rest_has_the_same_state_in_every_cycle_whatever_the_counter_echo() {
+    let mut rig = Rig::enabled(cfg());
+    rig.cycles(3);
+    let first = rig.axis.snapshot();
+    assert_eq!(
+        first.statusword & 0x000F,
+        0b1011,
+        "ready, enabled, in position"
+    );
+    for _ in 0..20 {
+        rig.cycles(1);
+        assert_eq!(rig.axis.snapshot(), first);
+    }
 }

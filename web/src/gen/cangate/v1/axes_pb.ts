@@ -253,7 +253,9 @@ export type AxisStatus = Message<"cangate.v1.AxisStatus"> & {
   state: DriveState;
 
   /**
-   * Raw statusword, 16 bits (CANsmc: the DTSW); 0 before the first.
+   * Raw statusword, 16 bits (CANsmc: the DTSW without its cycle counter
+   * echo, bits 12-15 zero: the echo changes with every telegram); 0
+   * before the first.
    *
    * @generated from field: uint32 statusword = 3;
    */
