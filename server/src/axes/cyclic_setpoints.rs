@@ -1018,7 +1018,7 @@ mod tests {
                 id,
                 [StreamPoint {
                     t_us,
-                    positions: vec![x(s), -x(s) / 2.0],
+                    values: vec![x(s), -x(s) / 2.0],
                 }],
                 Duration::from_millis(k),
             );
@@ -1117,7 +1117,7 @@ mod tests {
         let points: Vec<StreamPoint> = (0..400u64)
             .map(|k| StreamPoint {
                 t_us: k * 1000,
-                positions: vec![x(k as f64 / 1000.0), 0.0],
+                values: vec![x(k as f64 / 1000.0), 0.0],
             })
             .collect();
         assert!(table.push_points_at(id, points, Duration::ZERO).is_empty());
