@@ -685,6 +685,30 @@ impl SetpointPlayer {
         Ok(())
     }
 
+    /// Cycles were skipped for `missed` (a stalled sender), and the
+    /// player's clock is held back by them. In a velocity stream the drive
+    /// went on at the last velocity meanwhile (it integrates the set-point
+    /// it has over real time): the prediction moves on by that travel, so
+    /// the soft-limit guards judge where the drive is; while the client's
+    /// path plays, the next cycles' velocities make up for it (within the
+    /// acceleration). A position stream needs nothing: the drive holds
+    /// the last position.
+    pub fn skipped(&mut self, missed: Duration) {
+        if self.cfg.kind != SetpointKind::Velocity || missed.is_zero() {
+            return;
+        }
+        let s = missed.as_secs_f64();
+        for (p, v) in self.position.iter_mut().zip(&self.velocity) {
+            *p += v * s;
+        }
+        if let Some(r) = self.ramp.as_mut() {
+            // The ramp goes on from there, at the velocity it had.
+            for (p, v) in r.from.iter_mut().zip(&self.velocity) {
+                *p += v * s;
+            }
+        }
+    }
+
     /// Brings the axes to rest from where they are (the stream ended, was
     /// cancelled, or lost its lease).
     pub fn stop(&mut self, now: Duration) {

@@ -1761,8 +1761,9 @@ export type SetpointStreamStatus = Message<"cangate.v1.SetpointStreamStatus"> & 
    * The positions commanded with the latest SYNC, per axis in stream
    * order (user units): where a resumed stream must start. In a stream of
    * csv axes the positions the velocities sent predict (the drive
-   * integrates them itself: a SYNC the gateway skips holds its velocity
-   * twice as long, so its actual position may run ahead).
+   * integrates them itself, covering each SYNC's step in the next
+   * period; a SYNC the gateway skipped moves the prediction on by the
+   * drive's travel at its last velocity).
    *
    * @generated from field: repeated double commanded_positions = 5;
    */
