@@ -209,15 +209,14 @@ async fn velocities_stream_to_the_csv_spindle_and_it_ends_at_rest() {
     assert_eq!(c.received, c.accepted + c.refused, "{c:?}");
     assert_eq!(c.accepted, c.played + c.late + c.dropped, "{c:?}");
     assert_eq!(c.played + c.late, 1100, "{c:?}");
-    // 15 rev predicted (where no point came late); the drive integrated
-    // the same velocities.
+    // 15 rev predicted (where no point came late; a SYNC the loaded host
+    // skipped moves the prediction on by the drive's travel meanwhile),
+    // and the drive integrated the same velocities.
     let p = last.commanded_positions[0];
-    assert!(c.late > 0 || (p - 15.0).abs() < 0.05, "{p}");
+    assert!(c.late > 0 || p > 14.95, "{p}");
     assert_within_limits(&seen);
-    // A SYNC the loaded host skips holds the drive's velocity for two
-    // periods: its position may run ahead of the prediction.
     let s = wait_at_rest(&mut axes, false).await;
-    assert!((s.position - 15.0).abs() < 3.0, "{s:?}");
+    assert!((s.position - p).abs() < 1.0, "{s:?} predicted {p}");
     server.shutdown();
 }
 

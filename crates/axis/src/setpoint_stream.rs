@@ -688,24 +688,33 @@ impl SetpointPlayer {
     /// Cycles were skipped for `missed` (a stalled sender), and the
     /// player's clock is held back by them. In a velocity stream the drive
     /// went on at the last velocity meanwhile (it integrates the set-point
-    /// it has over real time): the prediction moves on by that travel, so
-    /// the soft-limit guards judge where the drive is; while the client's
-    /// path plays, the next cycles' velocities make up for it (within the
-    /// acceleration). A position stream needs nothing: the drive holds
-    /// the last position.
+    /// it has over real time): the prediction, and the path still to play,
+    /// move on by that travel, so the soft-limit guards judge where the
+    /// drive is and the client's velocities play on from there. A position
+    /// stream needs nothing: the drive holds the last position.
     pub fn skipped(&mut self, missed: Duration) {
         if self.cfg.kind != SetpointKind::Velocity || missed.is_zero() {
             return;
         }
         let s = missed.as_secs_f64();
-        for (p, v) in self.position.iter_mut().zip(&self.velocity) {
-            *p += v * s;
-        }
-        if let Some(r) = self.ramp.as_mut() {
-            // The ramp goes on from there, at the velocity it had.
-            for (p, v) in r.from.iter_mut().zip(&self.velocity) {
-                *p += v * s;
+        let travel: Vec<f64> = self.velocity.iter().map(|v| v * s).collect();
+        let shift = |xs: &mut Vec<f64>| {
+            for (x, d) in xs.iter_mut().zip(&travel) {
+                *x += d;
             }
+        };
+        shift(&mut self.position);
+        if let Some(r) = self.ramp.as_mut() {
+            shift(&mut r.from);
+        }
+        for b in (self.buffer.iter_mut())
+            .chain(self.last_played.as_mut())
+            .chain(self.last_accepted.as_mut())
+        {
+            shift(&mut b.positions);
+        }
+        if let Some(c) = self.chain.as_mut() {
+            shift(&mut c.position);
         }
     }
 
