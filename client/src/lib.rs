@@ -88,7 +88,9 @@ pub use pb::{AxisActivity, DriveState, HandwheelMode, NmtCommand, Outcome};
 pub use program::ProgramOptions;
 pub use sdo::{DataType, NodeId, Object, ObjectAddress, SdoOptions, SdoValue};
 pub use sdo_session::SdoSession;
-pub use setpoints::{SetpointSender, SetpointStream, SetpointStreamOptions, setpoint};
+pub use setpoints::{
+    SetpointSender, SetpointStream, SetpointStreamOptions, setpoint, velocity_setpoint,
+};
 pub use streams::EventStream;
 
 use std::future::Future;

@@ -46,19 +46,26 @@ pub struct SetpointSender {
 
 impl SetpointSender {
     /// Sends a batch of points (time order; each with one position per
-    /// axis, in the order the stream was opened with).
+    /// axis ([`setpoint`]) for axes in csp or CANsmc axes, or one velocity
+    /// per axis and no position ([`velocity_setpoint`]) for axes in csv, in
+    /// the order the stream was opened with).
     ///
     /// # Errors
-    /// [`Error::InvalidInput`] for a point without one position per axis;
-    /// [`Error::Transport`] once the call has ended (read the statuses for
-    /// why).
+    /// [`Error::InvalidInput`] for a point with neither one position nor
+    /// (without positions) one velocity per axis; [`Error::Transport`] once
+    /// the call has ended (read the statuses for why).
     pub async fn send(&self, points: Vec<pb::Setpoint>) -> Result<(), Error> {
-        if let Some(p) = points.iter().find(|p| p.positions.len() != self.axes) {
+        let fits = |p: &pb::Setpoint| {
+            p.positions.len() == self.axes
+                || (p.positions.is_empty() && p.velocities.len() == self.axes)
+        };
+        if let Some(p) = points.iter().find(|p| !fits(p)) {
             return Err(Error::InvalidInput {
                 message: format!(
-                    "point at {} µs has {} positions for a stream of {} axes",
+                    "point at {} µs has {} positions and {} velocities for a stream of {} axes",
                     p.t_us,
                     p.positions.len(),
+                    p.velocities.len(),
                     self.axes
                 ),
             });
@@ -142,9 +149,21 @@ pub fn setpoint(t_us: u64, positions: Vec<f64>) -> pb::Setpoint {
     }
 }
 
+/// A point of a velocity stream (axes in cyclic synchronous velocity):
+/// client time `t_us` and one velocity per axis (user units/s).
+pub fn velocity_setpoint(t_us: u64, velocities: Vec<f64>) -> pb::Setpoint {
+    pb::Setpoint {
+        t_us,
+        positions: Vec::new(),
+        velocities,
+    }
+}
+
 impl Client {
-    /// Opens a set-point stream over `axes` (cyclic axes of one bus,
-    /// enabled, at rest) under `lease`, which must cover them all.
+    /// Opens a set-point stream over `axes` (cyclic axes of one bus, all
+    /// in csp (positions) or all in csv (velocities), or CANsmc axes of
+    /// one master; enabled, at rest) under `lease`, which must cover them
+    /// all.
     ///
     /// ```no_run
     /// # async fn demo(client: cangate_client::Client) -> Result<(), cangate_client::Error> {

@@ -167,6 +167,26 @@ def main():
             expect(peak > 0.5, peak)
         print(f"ok set-point stream: {last.counters.played} points played, peak {peak:.3f}")
 
+        # A stream of velocities to the spindle S (csv): up to 10 rev/s at
+        # 50 rev/s² and back to rest, one point per ms.
+        def spin():
+            for k0 in range(0, 501, 50):
+                yield [
+                    (k * 1000, [min(50.0 * k / 1000.0, 10.0, 50.0 * (500 - k) / 1000.0)])
+                    for k in range(k0, min(k0 + 50, 501))
+                ]
+
+        with c.control("S", name="python client test") as ax:
+            ax.enable("S", wait=True)
+            start = c.axis("S").get().status.demand_position
+            statuses = list(ax.stream_setpoints(spin(), depth_ms=100, status_period_ms=20, velocities=True))
+            last = statuses[-1]
+            expect(last.ended == "CLIENT_ENDED", last)
+            expect(last.counters.received == 501 and last.counters.refused == 0, last.counters)
+            turns = last.commanded_positions[0] - start
+            expect(abs(turns - 3.0) < 0.05, turns)
+        print(f"ok velocity stream: {turns:.3f} rev")
+
         # Node events: NMT state changes of the I/O node.
         flip = [False]
 

@@ -75,9 +75,28 @@ pub struct AxisLimits {
     pub max_position: Option<f64>,
 }
 
+/// What the points of a stream carry.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum SetpointKind {
+    /// A position per axis (cyclic synchronous position, interpolated
+    /// position, CANsmc): played as the path.
+    #[default]
+    Position,
+    /// A velocity per axis (cyclic synchronous velocity): the player
+    /// integrates the velocities into the path they predict (trapezoidal
+    /// between points, from where the axes stand when a playout starts),
+    /// checks each point's velocity, its change against the acceleration
+    /// and the predicted position against the soft limits, and plays that
+    /// path; each cycle's velocity ([`SetpointPlayer::velocity`]) is the
+    /// drive's set-point. A playout starts and resumes from rest.
+    Velocity,
+}
+
 /// How a stream is played.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PlayerConfig {
+    /// What the points carry.
+    pub kind: SetpointKind,
     /// The bus's cycle: the SYNC period, or the CANsmc cycle.
     pub cycle: Duration,
     /// The jitter buffer: how long after the fastest arrival a point is
@@ -100,6 +119,7 @@ impl PlayerConfig {
     /// most 0.1 %.
     pub fn new(cycle: Duration, depth: Duration) -> Self {
         PlayerConfig {
+            kind: SetpointKind::Position,
             cycle,
             depth,
             extrapolate: depth,
@@ -109,14 +129,15 @@ impl PlayerConfig {
     }
 }
 
-/// One streamed point: the client's time and a position per axis of the
+/// One streamed point: the client's time and a value per axis of the
 /// stream, in the stream's axis order.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StreamPoint {
     /// The client's clock, µs.
     pub t_us: u64,
-    /// Positions (user units), one per axis.
-    pub positions: Vec<f64>,
+    /// One value per axis: a position (user units) in a position stream,
+    /// a velocity (user units/s) in a velocity stream ([`SetpointKind`]).
+    pub values: Vec<f64>,
 }
 
 /// Why a point was refused.
@@ -180,6 +201,20 @@ pub enum PointRefused {
         acceleration: f64,
         /// The maximum.
         max: f64,
+    },
+    /// The first velocity of a playout is not (nearly) 0: a velocity
+    /// stream starts and resumes from rest.
+    #[error(
+        "axis {axis}: a velocity stream starts from rest: the first velocity must be within \
+         {tolerance} units/s of 0, not {velocity}"
+    )]
+    NotFromRest {
+        /// Index of the axis in the stream.
+        axis: usize,
+        /// The point's velocity.
+        velocity: f64,
+        /// The velocity reachable from rest in one cycle.
+        tolerance: f64,
     },
     /// The first point after a rest is not where the axes stand.
     #[error("axis {axis}: a stream resumes where the axis stands ({standing}), not at {position}")]
@@ -314,6 +349,17 @@ pub struct SetpointPlayer {
     extrapolating_since: Option<Duration>,
     ramp: Option<Ramp>,
     counters: PlayerCounters,
+    /// A velocity stream's last accepted point: its time, velocities and
+    /// the position they predict (`None` at the start of a playout).
+    chain: Option<Chain>,
+}
+
+/// The last accepted point of a velocity stream, integrated.
+#[derive(Debug, Clone)]
+struct Chain {
+    t_us: u64,
+    velocity: Vec<f64>,
+    position: Vec<f64>,
 }
 
 impl SetpointPlayer {
@@ -336,6 +382,7 @@ impl SetpointPlayer {
             extrapolating_since: None,
             ramp: None,
             counters: PlayerCounters::default(),
+            chain: None,
         }
     }
 
@@ -383,24 +430,138 @@ impl SetpointPlayer {
     /// Takes a point that arrived at `arrived` (the gateway's clock).
     pub fn push(&mut self, point: StreamPoint, arrived: Duration) -> Result<(), PointRefused> {
         self.counters.received += 1;
-        let r = self.accept(point, arrived);
+        let r = match self.cfg.kind {
+            SetpointKind::Position => self.accept(point, arrived),
+            SetpointKind::Velocity => self.accept_velocity(point, arrived),
+        };
         if r.is_err() {
             self.counters.refused += 1;
         }
         r
     }
 
-    fn accept(&mut self, p: StreamPoint, arrived: Duration) -> Result<(), PointRefused> {
+    /// One finite value per axis.
+    fn check_values(&self, p: &StreamPoint) -> Result<(), PointRefused> {
         let n = self.limits.len();
-        if p.positions.len() != n {
+        if p.values.len() != n {
             return Err(PointRefused::Dimension {
-                got: p.positions.len(),
+                got: p.values.len(),
                 want: n,
             });
         }
-        if let Some((axis, &value)) = p.positions.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+        if let Some((axis, &value)) = p.values.iter().enumerate().find(|(_, v)| !v.is_finite()) {
             return Err(PointRefused::NotFinite { axis, value });
         }
+        Ok(())
+    }
+
+    /// A point of a velocity stream: its velocities checked, integrated
+    /// into the position they predict, and that point taken as in a
+    /// position stream.
+    fn accept_velocity(&mut self, p: StreamPoint, arrived: Duration) -> Result<(), PointRefused> {
+        self.check_values(&p)?;
+        if self.state == PlayerState::Waiting {
+            // A new playout, from rest.
+            self.chain = None;
+        }
+        for (axis, (&v, l)) in p.values.iter().zip(&self.limits).enumerate() {
+            if v.abs() > l.max_velocity * (1.0 + 1e-9) {
+                return Err(PointRefused::TooFast {
+                    axis,
+                    velocity: v,
+                    max: l.max_velocity,
+                });
+            }
+        }
+        let position = match &self.chain {
+            None => {
+                let cycle = self.cfg.cycle.as_secs_f64();
+                for (axis, (&v, l)) in p.values.iter().zip(&self.limits).enumerate() {
+                    let tolerance = l.max_acceleration * cycle;
+                    if v.abs() > tolerance + 1e-9 {
+                        return Err(PointRefused::NotFromRest {
+                            axis,
+                            velocity: v,
+                            tolerance,
+                        });
+                    }
+                }
+                self.position.clone()
+            }
+            Some(c) => {
+                if p.t_us <= c.t_us {
+                    return Err(PointRefused::NotAfterPrevious {
+                        t_us: p.t_us,
+                        previous_us: c.t_us,
+                    });
+                }
+                let dt = (p.t_us - c.t_us) as f64 / 1e6;
+                for (axis, ((&v, &v0), l)) in
+                    (p.values.iter().zip(&c.velocity).zip(&self.limits)).enumerate()
+                {
+                    let a = (v - v0) / dt;
+                    if a.abs() > l.max_acceleration * (1.0 + 1e-9) {
+                        return Err(PointRefused::TooHardAcceleration {
+                            axis,
+                            acceleration: a,
+                            max: l.max_acceleration,
+                        });
+                    }
+                }
+                (c.position.iter().zip(&c.velocity).zip(&p.values))
+                    .map(|((x, v0), v)| x + (v0 + v) / 2.0 * dt)
+                    .collect()
+            }
+        };
+        for (axis, ((&x, &v), l)) in position.iter().zip(&p.values).zip(&self.limits).enumerate() {
+            let stop_at = x + v * v.abs() / (2.0 * l.stop_deceleration.max(1e-12));
+            let inside = |y: f64| {
+                l.min_position.is_none_or(|m| y >= m - 1e-9)
+                    && l.max_position.is_none_or(|m| y <= m + 1e-9)
+            };
+            if !inside(x) || !inside(stop_at) {
+                return Err(PointRefused::BeyondSoftLimit {
+                    axis,
+                    position: x,
+                    velocity: v,
+                    stop_at,
+                });
+            }
+        }
+        let t_us = p.t_us;
+        let velocity = p.values;
+        self.accept(
+            StreamPoint {
+                t_us,
+                values: position.clone(),
+            },
+            arrived,
+        )?;
+        // The point's own velocity, not the segment's mean: extrapolation
+        // holds it.
+        for b in [
+            self.buffer.back_mut(),
+            self.last_accepted.as_mut(),
+            self.last_played.as_mut(),
+        ]
+        .into_iter()
+        .flatten()
+        {
+            if b.t_us == t_us {
+                b.velocity.clone_from(&velocity);
+            }
+        }
+        self.chain = Some(Chain {
+            t_us,
+            velocity,
+            position,
+        });
+        Ok(())
+    }
+
+    fn accept(&mut self, p: StreamPoint, arrived: Duration) -> Result<(), PointRefused> {
+        let n = self.limits.len();
+        self.check_values(&p)?;
         if self.state == PlayerState::Stopping {
             // Counted as accepted and dropped: the client sent it in good
             // faith; the axes are on their way to rest.
@@ -419,7 +580,7 @@ impl SetpointPlayer {
                     });
                 }
                 let dt = (p.t_us - prev.t_us) as f64 / 1e6;
-                let v: Vec<f64> = (p.positions.iter().zip(&prev.positions))
+                let v: Vec<f64> = (p.values.iter().zip(&prev.positions))
                     .map(|(a, b)| (a - b) / dt)
                     .collect();
                 for (axis, (&vel, l)) in v.iter().zip(&self.limits).enumerate() {
@@ -431,7 +592,9 @@ impl SetpointPlayer {
                         });
                     }
                     let a = (vel - prev.velocity[axis]) / dt;
-                    if a.abs() > l.max_acceleration * (1.0 + 1e-9) {
+                    if self.cfg.kind == SetpointKind::Position
+                        && a.abs() > l.max_acceleration * (1.0 + 1e-9)
+                    {
                         return Err(PointRefused::TooHardAcceleration {
                             axis,
                             acceleration: a,
@@ -443,7 +606,7 @@ impl SetpointPlayer {
             }
             _ => {
                 // A new epoch starts where the axes stand.
-                for (axis, (&pos, l)) in p.positions.iter().zip(&self.limits).enumerate() {
+                for (axis, (&pos, l)) in p.values.iter().zip(&self.limits).enumerate() {
                     let tolerance = l.max_velocity * self.cfg.cycle.as_secs_f64() + 1e-9;
                     if (pos - self.position[axis]).abs() > tolerance {
                         return Err(PointRefused::NotWhereTheAxisStands {
@@ -456,12 +619,8 @@ impl SetpointPlayer {
                 vec![0.0; n]
             }
         };
-        for (axis, ((&pos, &vel), l)) in p
-            .positions
-            .iter()
-            .zip(&velocity)
-            .zip(&self.limits)
-            .enumerate()
+        for (axis, ((&pos, &vel), l)) in
+            p.values.iter().zip(&velocity).zip(&self.limits).enumerate()
         {
             let stop_at = pos + vel * vel.abs() / (2.0 * l.stop_deceleration.max(1e-12));
             let inside = |x: f64| {
@@ -495,7 +654,7 @@ impl SetpointPlayer {
             .fold(f64::INFINITY, f64::min);
         let b = Buffered {
             t_us: p.t_us,
-            positions: p.positions,
+            positions: p.values,
             velocity,
         };
         if new_epoch {
@@ -524,6 +683,39 @@ impl SetpointPlayer {
         self.last_accepted = Some(b.clone());
         self.buffer.push_back(b);
         Ok(())
+    }
+
+    /// Cycles were skipped for `missed` (a stalled sender), and the
+    /// player's clock is held back by them. In a velocity stream the drive
+    /// went on at the last velocity meanwhile (it integrates the set-point
+    /// it has over real time): the prediction, and the path still to play,
+    /// move on by that travel, so the soft-limit guards judge where the
+    /// drive is and the client's velocities play on from there. A position
+    /// stream needs nothing: the drive holds the last position.
+    pub fn skipped(&mut self, missed: Duration) {
+        if self.cfg.kind != SetpointKind::Velocity || missed.is_zero() {
+            return;
+        }
+        let s = missed.as_secs_f64();
+        let travel: Vec<f64> = self.velocity.iter().map(|v| v * s).collect();
+        let shift = |xs: &mut Vec<f64>| {
+            for (x, d) in xs.iter_mut().zip(&travel) {
+                *x += d;
+            }
+        };
+        shift(&mut self.position);
+        if let Some(r) = self.ramp.as_mut() {
+            shift(&mut r.from);
+        }
+        for b in (self.buffer.iter_mut())
+            .chain(self.last_played.as_mut())
+            .chain(self.last_accepted.as_mut())
+        {
+            shift(&mut b.positions);
+        }
+        if let Some(c) = self.chain.as_mut() {
+            shift(&mut c.position);
+        }
     }
 
     /// Brings the axes to rest from where they are (the stream ended, was
@@ -625,9 +817,15 @@ impl SetpointPlayer {
                 l.max_acceleration
             };
             let previous = self.velocity[a];
-            let v = wanted
+            let mut v = wanted
                 .clamp(previous - accel * dt, previous + accel * dt)
                 .clamp(-l.max_velocity, l.max_velocity);
+            if self.cfg.kind == SetpointKind::Velocity {
+                // A velocity stream's path is its drive's integral, which
+                // no point pins: whatever late points and rejoins made of
+                // it, the axis can always stop inside its soft limits.
+                v = within_stopping_reach(v, before[a], dt, l);
+            }
             if (v - wanted).abs() > 1e-9 * l.max_velocity.max(1.0) {
                 limited = true;
             }
@@ -787,6 +985,28 @@ impl SetpointPlayer {
                 || l.max_position.is_some_and(|m| stop_at > m)
         })
     }
+}
+
+/// `v`, reduced where needed so that an axis at `x` that moves at it for
+/// `dt` can still stop inside its soft limits at its stop deceleration.
+fn within_stopping_reach(v: f64, x: f64, dt: f64, l: &AxisLimits) -> f64 {
+    let d = l.stop_deceleration.max(1e-12);
+    // v·dt + v²/(2d) <= room
+    let reach = |room: f64| {
+        if room <= 0.0 {
+            0.0
+        } else {
+            -d * dt + ((d * dt).powi(2) + 2.0 * d * room).sqrt()
+        }
+    };
+    let mut v = v;
+    if let Some(m) = l.max_position {
+        v = v.min(reach(m - x));
+    }
+    if let Some(m) = l.min_position {
+        v = v.max(-reach(x - m));
+    }
+    v
 }
 
 #[cfg(test)]

@@ -774,13 +774,17 @@ class Lease:
         extrapolate_ms: int = 0,
         point_period_us: int = 0,
         status_period_ms: int = 0,
+        velocities: bool = False,
     ) -> Stream[axes_pb2.SetpointStreamStatus]:
         """Streams time-stamped set-points into the gateway's jitter buffer
         (``Axes.StreamSetpoints``), played on the SYNC grid of cyclic axes.
 
         `batches` yields lists of points ``(t_us, positions)``: the client's
         clock in µs (any origin, increasing) and one position per axis of
-        `axes` (default: the lease's axes), in user units. gRPC iterates it
+        `axes` (default: the lease's axes), in user units. With
+        ``velocities=True`` (axes in csv) the points are ``(t_us,
+        velocities)``: one velocity per axis in user units/s, starting from
+        rest; the gateway sends each SYNC's velocity in 0x60FF. gRPC iterates it
         in its own thread, so a generator may pace itself (sleep until its
         points are due). When it ends, the gateway plays the buffered points,
         ramps the axes to rest and ends the returned stream of
@@ -802,7 +806,10 @@ class Lease:
         def requests() -> Iterator[axes_pb2.SetpointStreamRequest]:
             yield axes_pb2.SetpointStreamRequest(open=opening)
             for batch in batches:
-                points = [axes_pb2.Setpoint(t_us=t, positions=list(p)) for t, p in batch]
+                if velocities:
+                    points = [axes_pb2.Setpoint(t_us=t, velocities=list(v)) for t, v in batch]
+                else:
+                    points = [axes_pb2.Setpoint(t_us=t, positions=list(p)) for t, p in batch]
                 yield axes_pb2.SetpointStreamRequest(batch=axes_pb2.SetpointBatch(points=points))
 
         return Stream(self.client.axes_stub.StreamSetpoints(requests()), _one)

@@ -609,6 +609,7 @@ impl SyncRider for CyclicSetpoints {
         } = &mut *st;
         for s in streams.iter_mut().filter(|s| !s.finished) {
             s.held_back += tick.missed;
+            s.player.skipped(tick.missed);
             let cycle = s.player.next(t.saturating_sub(s.held_back));
             if let Some(ev) = cycle.event {
                 s.events.push(ev);
@@ -1021,7 +1022,7 @@ mod tests {
                 id,
                 [StreamPoint {
                     t_us,
-                    positions: vec![x(s), -x(s) / 2.0],
+                    values: vec![x(s), -x(s) / 2.0],
                 }],
                 Duration::from_millis(k),
             );
@@ -1120,7 +1121,7 @@ mod tests {
         let points: Vec<StreamPoint> = (0..400u64)
             .map(|k| StreamPoint {
                 t_us: k * 1000,
-                positions: vec![x(k as f64 / 1000.0), 0.0],
+                values: vec![x(k as f64 / 1000.0), 0.0],
             })
             .collect();
         assert!(table.push_points_at(id, points, Duration::ZERO).is_empty());
@@ -1152,6 +1153,74 @@ mod tests {
         // 100 mm/s over 1 ms: 100 counts (and a count of rounding).
         assert!(largest <= 101, "a step of {largest} counts");
         assert!(largest >= 99, "it reached full speed: {largest}");
+    }
+
+    /// A velocity stream on a CSV axis sends each SYNC's velocity in the
+    /// target velocity, and a SYNC the thread skipped (the drive held the
+    /// last velocity for the skipped periods too) moves the prediction on
+    /// by that travel: the drive's integral of the velocities sent over
+    /// real time stays the stream's predicted position, so the soft-limit
+    /// guards judge where the drive is. The velocity never changes by more
+    /// than the acceleration allows over a period.
+    #[test]
+    fn a_skipped_sync_moves_a_velocity_stream_on_with_the_drive() {
+        let origin = Instant::now();
+        let table = CyclicSetpoints::new(origin, ["s"].map(String::from));
+        table.set_velocity_offset(0, Some(4));
+        let plan = CyclicPlan::holding(0.0, UNITS).sent_to(SetpointObject::TargetVelocity);
+        table.publish([(0, Some(plan), 0x301, vec![0; 8], 0)]);
+        let mut cfg = PlayerConfig::new(Duration::from_millis(1), Duration::from_millis(5));
+        cfg.kind = cangate_axis::setpoint_stream::SetpointKind::Velocity;
+        let id = table
+            .open_stream(&[0], vec![limits()], vec![UNITS], cfg)
+            .unwrap();
+        // Up to 50 mm/s at 500 mm/s², held: all points at once.
+        let points: Vec<StreamPoint> = (0..400u64)
+            .map(|k| StreamPoint {
+                t_us: k * 1000,
+                values: vec![(0.5 * k as f64).min(50.0)],
+            })
+            .collect();
+        assert!(table.push_points_at(id, points, Duration::ZERO).is_empty());
+        let mut drive = 0.0;
+        let mut held = 0.0;
+        let mut at = Duration::ZERO;
+        for k in 1..300u64 {
+            let mut missed = Duration::ZERO;
+            let before = at;
+            if k % 50 == 0 {
+                // The thread stalled for 4 periods.
+                at += Duration::from_millis(4);
+                missed = Duration::from_millis(4);
+            }
+            at += Duration::from_millis(1);
+            // The drive integrates the velocity it holds over real time.
+            drive += held * (at - before).as_secs_f64();
+            let mut frames = Vec::new();
+            table.on_sync(
+                SyncTick {
+                    at: origin + at,
+                    missed,
+                },
+                &mut frames,
+            );
+            let counts = i32::from_le_bytes(frames[0].data()[4..8].try_into().unwrap());
+            let v = f64::from(counts) / 1000.0;
+            assert!(
+                (v - held).abs() <= 1.0 + 1e-3,
+                "SYNC {k}: {held} -> {v} mm/s"
+            );
+            held = v;
+        }
+        // A SYNC's velocity is the step to its predicted position, which
+        // the drive covers over the next period.
+        let predicted = table.report(id).unwrap().positions[0];
+        assert!(held > 40.0, "it reached speed: {held}");
+        drive += held * 0.001;
+        assert!(
+            (drive - predicted).abs() < 0.01,
+            "the drive at {drive}, the prediction at {predicted}"
+        );
     }
 
     /// A stop that reaches an axis of a stream as its own stop ramp (the

@@ -69,6 +69,9 @@ pub struct Axes {
     by_name: HashMap<String, usize>,
     leases: Mutex<LeaseTable>,
     leases_changed: Notify,
+    /// Leases released since the expiry task last looked: it takes the
+    /// torque off their axes, as for a lapsed lease.
+    released: Mutex<Vec<Lease>>,
     origin: Instant,
     updates: broadcast::Sender<AxisUpdate>,
     latest: LatestStates,
@@ -206,6 +209,7 @@ impl Axes {
             by_name,
             leases: Mutex::new(LeaseTable::new()),
             leases_changed: Notify::new(),
+            released: Mutex::new(Vec::new()),
             origin: Instant::now(),
             updates,
             latest,
@@ -491,6 +495,12 @@ impl Axes {
     /// [`Axes::release`]).
     fn release_token(&self, token: &str) -> Result<Lease, AxisError> {
         let lease = self.leases.lock().expect("lease lock").release(token)?;
+        // A torque command never ends by itself: it must not outlive the
+        // control that set it (the expiry task stops it).
+        self.released
+            .lock()
+            .expect("released leases lock")
+            .push(lease.clone());
         self.leases_changed.notify_one();
         self.publish_control(&lease, "", &lease.holder, "released");
         Ok(lease)
@@ -718,7 +728,14 @@ fn stop_command(kind: StopKind) -> AxisCommand {
     }
 }
 
-/// Stops the moving axes of leases that lapse, at their expiry.
+/// Whether a torque command runs on the axis: it moves (or pushes) in a
+/// torque mode (profile torque 4, cyclic synchronous torque 10).
+fn under_torque(s: &AxisSnapshot) -> bool {
+    s.activity == Activity::Moving && matches!(s.mode, 4 | 10)
+}
+
+/// Stops the moving axes of leases that lapse, at their expiry, and the
+/// torque of leases released.
 async fn run_lease_expiry(m: Arc<Axes>, cancel: CancellationToken) {
     loop {
         let next = m.leases.lock().expect("lease lock").next_expiry();
@@ -728,28 +745,42 @@ async fn run_lease_expiry(m: Arc<Axes>, cancel: CancellationToken) {
         };
         tokio::select! {
             _ = cancel.cancelled() => return,
-            _ = m.leases_changed.notified() => continue,
+            // A change may be a release to act on (or a renewal: nothing
+            // lapses then).
+            _ = m.leases_changed.notified() => {}
             _ = tokio::time::sleep(sleep) => {}
         }
+        let released = std::mem::take(&mut *m.released.lock().expect("released leases lock"));
         let lapsed = m.leases.lock().expect("lease lock").expire(m.now());
-        for lease in lapsed {
-            let reason = format!("lapsed: not renewed within {} ms", lease.ttl.as_millis());
-            tracing::warn!(target: "cangate::audit", holder = %lease.holder, axes = ?lease.axes, "control lease lapsed; stopping its moving axes");
-            m.publish_control(&lease, "", &lease.holder, &reason);
+        for (lease, lapsed) in
+            (released.into_iter().map(|l| (l, false))).chain(lapsed.into_iter().map(|l| (l, true)))
+        {
+            if lapsed {
+                let reason = format!("lapsed: not renewed within {} ms", lease.ttl.as_millis());
+                tracing::warn!(target: "cangate::audit", holder = %lease.holder, axes = ?lease.axes, "control lease lapsed; stopping its moving axes");
+                m.publish_control(&lease, "", &lease.holder, &reason);
+            }
             let mut stops = Vec::new();
             for name in &lease.axes {
                 let Some(&i) = m.by_name.get(name) else {
                     continue;
                 };
                 // A set-point stream ends by itself on a lost lease; the
-                // stop also covers a session that is held up.
-                let moving = m.in_stream(i)
-                    || m.latest(i).is_some_and(|(s, _)| {
-                        matches!(
-                            s.activity,
-                            Activity::Moving | Activity::Jogging | Activity::Homing
-                        )
-                    });
+                // stop also covers a session that is held up. A released
+                // lease leaves its moves and jogs to end by themselves
+                // (a jog at its dead-man), but not a torque: that only a
+                // stop ends.
+                let moving = if lapsed {
+                    m.in_stream(i)
+                        || m.latest(i).is_some_and(|(s, _)| {
+                            matches!(
+                                s.activity,
+                                Activity::Moving | Activity::Jogging | Activity::Homing
+                            )
+                        })
+                } else {
+                    !m.in_stream(i) && m.latest(i).is_some_and(|(s, _)| under_torque(&s))
+                };
                 if moving {
                     let cmd = stop_command(m.spec(i).stop_on_loss);
                     stops.push((i, cmd));
@@ -759,7 +790,7 @@ async fn run_lease_expiry(m: Arc<Axes>, cancel: CancellationToken) {
                 let m2 = m.clone();
                 tokio::spawn(async move {
                     if let Err(e) = m2.many(stops, false).await {
-                        tracing::error!(error = %e, "could not stop the axes of a lapsed lease");
+                        tracing::error!(error = %e, "could not stop the axes of a lost lease");
                     }
                 });
             }

@@ -19,7 +19,7 @@ use super::cansmc_setpoints::CansmcSetpoints;
 use super::cyclic_setpoints::{CyclicSetpoints, StreamEnd, StreamReport};
 use super::{Axes, AxisEntry, AxisError, Caller};
 use cangate_axis::setpoint_stream::{
-    AxisLimits, PlayerConfig, PlayerState, PointRefused, StreamPoint,
+    AxisLimits, PlayerConfig, PlayerState, PointRefused, SetpointKind, StreamPoint,
 };
 use cangate_axis::{Activity, CommandError, DriveSpec};
 use cangate_canopen::cia402::DriveState;
@@ -143,6 +143,15 @@ pub struct SetpointStream {
     idx: Vec<usize>,
     caller: Caller,
     report_period: Duration,
+    kind: SetpointKind,
+}
+
+/// The mode a stream of `kind` plays in, for messages.
+fn mode_name(kind: SetpointKind) -> &'static str {
+    match kind {
+        SetpointKind::Position => "csp",
+        SetpointKind::Velocity => "csv",
+    }
 }
 
 impl Axes {
@@ -221,6 +230,7 @@ impl Axes {
         let mut units = Vec::with_capacity(idx.len());
         let mut locals = Vec::with_capacity(idx.len());
         let mut positions = Vec::with_capacity(idx.len());
+        let mut kind = None;
         for &i in &idx {
             let e = &self.axes[i];
             let name = &e.spec.name;
@@ -284,14 +294,31 @@ impl Axes {
                      enabled)"
                 )));
             }
-            // Cyclic synchronous position only: an axis changed to another
-            // mode at run time (SetMode) takes no stream.
-            if snap.mode != 8 {
-                return Err(not(format!(
-                    "axis {name} runs in mode {} (0x6061): set-point streams play on axes in \
-                     csp",
-                    snap.mode
-                )));
+            // The mode now (SetMode may have changed it at run time) says
+            // what the points carry: positions in cyclic synchronous
+            // position, velocities in cyclic synchronous velocity.
+            let axis_kind = match snap.mode {
+                8 => SetpointKind::Position,
+                9 => SetpointKind::Velocity,
+                m => {
+                    return Err(not(format!(
+                        "axis {name} runs in mode {m} (0x6061): set-point streams play on axes \
+                         in csp (positions) or csv (velocities)"
+                    )));
+                }
+            };
+            match kind {
+                None => kind = Some(axis_kind),
+                Some(k) if k != axis_kind => {
+                    return Err(not(format!(
+                        "axis {name} runs in {}, {} in {}: a stream carries positions (csp) or \
+                         velocities (csv), not both; stream them separately",
+                        mode_name(axis_kind),
+                        first.spec.name,
+                        mode_name(k)
+                    )));
+                }
+                Some(_) => {}
             }
             if snap.activity != Activity::Idle || snap.velocity.abs() > e.spec.motion.rest_speed() {
                 return Err(not(format!(
@@ -311,6 +338,7 @@ impl Axes {
             locals.push(e.local);
             positions.push(snap.demand_position);
         }
+        let kind = kind.unwrap_or_default();
         let (table, id) = match (&first.spec.drive, &first.cansmc, &first.cyclic) {
             (DriveSpec::Cansmc(d), Some(smc), _) => {
                 let mut cfg = PlayerConfig::new(d.cycle_time, req.depth);
@@ -330,6 +358,7 @@ impl Axes {
                 }
                 let mut cfg = PlayerConfig::new(sync.period, req.depth);
                 cfg.extrapolate = extrapolate;
+                cfg.kind = kind;
                 let id = table
                     .open_stream(&locals, limits, units, cfg)
                     .map_err(not)?;
@@ -348,6 +377,7 @@ impl Axes {
             idx,
             caller: caller.clone(),
             report_period,
+            kind,
         })
     }
 }
@@ -501,6 +531,12 @@ impl SetpointStream {
             .iter()
             .map(|&i| self.axes.latest(i).map_or(f64::NAN, |(s, _)| s.position))
             .collect()
+    }
+
+    /// What the stream's points carry: positions (csp and CANsmc axes) or
+    /// velocities (csv axes).
+    pub fn kind(&self) -> SetpointKind {
+        self.kind
     }
 
     /// The stream's axes (global indices), in its order.

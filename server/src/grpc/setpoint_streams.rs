@@ -8,7 +8,9 @@ use super::forward::{MessageStream, stream_of};
 use crate::axes::cyclic_setpoints::StreamEnd;
 use crate::axes::setpoint_streams::{StreamInput, StreamRequest, StreamUpdate};
 use crate::axes::{Axes, Caller};
-use cangate_axis::setpoint_stream::{PlayerEvent, PlayerState, PointRefused, StreamPoint};
+use cangate_axis::setpoint_stream::{
+    PlayerEvent, PlayerState, PointRefused, SetpointKind, StreamPoint,
+};
 use cangate_can::Timestamp;
 use cangate_proto::v1 as pb;
 use std::sync::Arc;
@@ -74,6 +76,7 @@ pub async fn serve(
     let stream = axes
         .open_setpoint_stream(&caller, request)
         .map_err(ApiError::from)?;
+    let kind = stream.kind();
     let (in_tx, in_rx) = mpsc::channel(64);
     let (up_tx, mut up_rx) = mpsc::channel(16);
     let (tx, rx) = mpsc::channel(16);
@@ -99,7 +102,7 @@ pub async fn serve(
                 // The client went away: dropping `in_tx` says so.
                 Err(_) => return,
             };
-            match points(batch, n) {
+            match points(batch, n, kind) {
                 Ok(p) => {
                     if in_tx.send(StreamInput::Points(p)).await.is_err() {
                         return;
@@ -143,12 +146,30 @@ pub async fn serve(
     Ok(stream_of(rx))
 }
 
-/// The points of a batch, with their feed-forward checked.
-fn points(batch: pb::SetpointBatch, axes: usize) -> Result<Vec<StreamPoint>, String> {
+/// The points of a batch: positions (their feed-forward checked) for a
+/// position stream, velocities for a velocity stream.
+fn points(
+    batch: pb::SetpointBatch,
+    axes: usize,
+    kind: SetpointKind,
+) -> Result<Vec<StreamPoint>, String> {
     batch
         .points
         .into_iter()
         .map(|p| {
+            if kind == SetpointKind::Velocity {
+                if !p.positions.is_empty() {
+                    return Err(format!(
+                        "point at {} µs: the stream's axes run in csv: a point carries one \
+                         velocity per axis in `velocities`, no positions",
+                        p.t_us
+                    ));
+                }
+                return Ok(StreamPoint {
+                    t_us: p.t_us,
+                    values: p.velocities,
+                });
+            }
             if !p.velocities.is_empty()
                 && (p.velocities.len() != axes || p.velocities.iter().any(|v| !v.is_finite()))
             {
@@ -160,7 +181,7 @@ fn points(batch: pb::SetpointBatch, axes: usize) -> Result<Vec<StreamPoint>, Str
             }
             Ok(StreamPoint {
                 t_us: p.t_us,
-                positions: p.positions,
+                values: p.positions,
             })
         })
         .collect()
@@ -196,6 +217,7 @@ fn refusal_reason(r: &PointRefused) -> (&'static str, Option<usize>) {
         PointRefused::BeyondSoftLimit { axis, .. } => ("BEYOND_SOFT_LIMIT", Some(*axis)),
         PointRefused::TooFast { axis, .. } => ("TOO_FAST", Some(*axis)),
         PointRefused::TooHardAcceleration { axis, .. } => ("TOO_HARD_ACCELERATION", Some(*axis)),
+        PointRefused::NotFromRest { axis, .. } => ("NOT_FROM_REST", Some(*axis)),
         PointRefused::NotWhereTheAxisStands { axis, .. } => {
             ("NOT_WHERE_THE_AXIS_STANDS", Some(*axis))
         }

@@ -594,7 +594,7 @@ fn feed(player: &mut SetpointPlayer, start: Duration, until_ms: u64) {
             .push(
                 StreamPoint {
                     t_us: k * 1000,
-                    positions: vec![path(k as f64 / 1000.0)],
+                    values: vec![path(k as f64 / 1000.0)],
                 },
                 start + Duration::from_millis(k),
             )

@@ -48,7 +48,7 @@ fn a_circle_at_one_kilohertz_plays_every_point_after_the_buffer() {
             p.push(
                 StreamPoint {
                     t_us: client0 + sent * 1000,
-                    positions: pos.to_vec(),
+                    values: pos.to_vec(),
                 },
                 now,
             )
@@ -86,7 +86,7 @@ fn points_beyond_the_limits_are_refused_with_the_reason() {
     let at = |ms: u64| Duration::from_millis(ms);
     let pt = |t_ms: u64, x: f64| StreamPoint {
         t_us: t_ms * 1000,
-        positions: vec![x],
+        values: vec![x],
     };
     // Not where the axis stands (0).
     assert!(matches!(
@@ -119,7 +119,7 @@ fn points_beyond_the_limits_are_refused_with_the_reason() {
         p.push(
             StreamPoint {
                 t_us: 2000,
-                positions: vec![f64::NAN]
+                values: vec![f64::NAN]
             },
             at(2)
         ),
@@ -129,7 +129,7 @@ fn points_beyond_the_limits_are_refused_with_the_reason() {
         p.push(
             StreamPoint {
                 t_us: 2000,
-                positions: vec![0.0, 0.0]
+                values: vec![0.0, 0.0]
             },
             at(2)
         ),
@@ -150,7 +150,7 @@ fn a_point_that_could_not_stop_inside_the_soft_limits_is_refused() {
     p.push(
         StreamPoint {
             t_us: 0,
-            positions: vec![490.0],
+            values: vec![490.0],
         },
         Duration::ZERO,
     )
@@ -165,7 +165,7 @@ fn a_point_that_could_not_stop_inside_the_soft_limits_is_refused() {
         if let Err(e) = p.push(
             StreamPoint {
                 t_us: k * 1000,
-                positions: vec![x],
+                values: vec![x],
             },
             MS * k as u32,
         ) {
@@ -196,7 +196,7 @@ fn an_underrun_ramps_both_axes_to_rest_together_and_the_stream_resumes() {
             p.push(
                 StreamPoint {
                     t_us: k * 1000,
-                    positions: pos.to_vec(),
+                    values: pos.to_vec(),
                 },
                 now,
             )
@@ -244,7 +244,7 @@ fn an_underrun_ramps_both_axes_to_rest_together_and_the_stream_resumes() {
     p.push(
         StreamPoint {
             t_us: t0,
-            positions: standing.clone(),
+            values: standing.clone(),
         },
         MS * 4000,
     )
@@ -255,7 +255,7 @@ fn an_underrun_ramps_both_axes_to_rest_together_and_the_stream_resumes() {
         p.push(
             StreamPoint {
                 t_us: t0 + k * 1000,
-                positions: vec![x, standing[1]],
+                values: vec![x, standing[1]],
             },
             MS * (4000 + k as u32),
         )
@@ -278,7 +278,7 @@ fn a_stop_brings_the_axes_to_rest_and_drops_what_is_buffered() {
         p.push(
             StreamPoint {
                 t_us: k * 1000,
-                positions: vec![x],
+                values: vec![x],
             },
             MS * k as u32,
         )
@@ -434,7 +434,7 @@ fn random_stream(seed: u64) {
                 arrive,
                 StreamPoint {
                     t_us: client_t,
-                    positions: pos.to_vec(),
+                    values: pos.to_vec(),
                 },
             ));
             next_send += Duration::from_micros(period_us);
@@ -495,5 +495,335 @@ fn random_stream(seed: u64) {
         c.accepted,
         c.played + c.late + c.dropped,
         "seed {seed}: {c:?}"
+    );
+}
+
+/// A velocity player (cyclic synchronous velocity) of `axes` axes with
+/// [`limits`], standing at 0.
+fn velocity_player(axes: usize, depth_ms: u64) -> SetpointPlayer {
+    let mut cfg = PlayerConfig::new(MS, Duration::from_millis(depth_ms));
+    cfg.kind = SetpointKind::Velocity;
+    SetpointPlayer::new(cfg, vec![limits(Some(500.0)); axes], vec![0.0; axes])
+}
+
+fn velocity_point(t_us: u64, v: f64) -> StreamPoint {
+    StreamPoint {
+        t_us,
+        values: vec![v],
+    }
+}
+
+/// Velocities played: each cycle's velocity is the client's (after the
+/// buffer), the path is their integral, and the end of the points holds
+/// the last velocity for the extrapolation, then ramps it to 0 at the
+/// stop deceleration.
+#[test]
+fn a_velocity_stream_plays_the_velocities_and_ramps_them_to_zero() {
+    let mut p = velocity_player(1, 10);
+    // 0 -> 50 mm/s at 500 mm/s² (0.1 s), then held to 0.3 s.
+    let v = |s: f64| (500.0 * s).min(50.0);
+    for k in 0..=300u64 {
+        p.push(
+            velocity_point(k * 1000, v(k as f64 / 1000.0)),
+            MS * k as u32,
+        )
+        .unwrap();
+        p.next(MS * k as u32);
+    }
+    // Played 10 ms behind: client time 0.29 s, 50 mm/s.
+    assert!((p.velocity()[0] - 50.0).abs() < 1e-6, "{:?}", p.velocity());
+    // Its integral: 2.5 mm over the ramp, 50 mm/s for 0.19 s.
+    let x = p.position()[0];
+    assert!((x - 12.0).abs() < 0.01, "{x}");
+    let mut underrun = None;
+    let mut rest = None;
+    let mut last_v = p.velocity()[0];
+    for k in 301..500u32 {
+        let out = p.next(MS * k);
+        let dv = p.velocity()[0] - last_v;
+        assert!((-1.0 - 1e-9..=1e-9).contains(&dv), "cycle {k}: {dv}");
+        last_v = p.velocity()[0];
+        match out.event {
+            Some(PlayerEvent::Underrun) => underrun = Some(k),
+            Some(PlayerEvent::AtRest) => rest = Some(k),
+            None => {}
+        }
+    }
+    // The last point plays at 310 ms; 10 ms of extrapolation at 50 mm/s;
+    // then 50 ms of ramp at 1000 mm/s².
+    let (u, r) = (underrun.unwrap(), rest.unwrap());
+    assert!((319..=322).contains(&u), "underrun at {u}");
+    assert!((r - u) <= 51, "at rest {r} after the underrun at {u}");
+    assert_eq!(p.velocity()[0], 0.0);
+    assert_eq!(p.counters().underruns, 1);
+}
+
+/// A velocity point is refused when not from rest at the start, above
+/// the maximum velocity, changing faster than the acceleration, or
+/// predicting a position the axis could not stop before its soft limit.
+#[test]
+fn velocity_points_beyond_the_limits_are_refused() {
+    let mut p = velocity_player(1, 10);
+    assert!(matches!(
+        p.push(velocity_point(0, 5.0), Duration::ZERO),
+        Err(PointRefused::NotFromRest { axis: 0, .. })
+    ));
+    p.push(velocity_point(0, 0.0), Duration::ZERO).unwrap();
+    assert!(matches!(
+        p.push(velocity_point(1000, 101.0), MS),
+        Err(PointRefused::TooFast { .. })
+    ));
+    // 1000 mm/s² allows 1 mm/s per ms.
+    assert!(matches!(
+        p.push(velocity_point(1000, 1.5), MS),
+        Err(PointRefused::TooHardAcceleration { .. })
+    ));
+    p.push(velocity_point(1000, 1.0), MS).unwrap();
+    assert_eq!(p.counters().refused, 3);
+    // Accelerate at the limit towards +500 mm: at 100 mm/s the stop takes
+    // 5 mm; cruise to where that still fits, then one more point too far.
+    let mut t = 1000u64;
+    let mut v = 1.0;
+    let mut x = 0.0005;
+    loop {
+        t += 1000;
+        let next_v = (v + 1.0f64).min(100.0);
+        let next_x = x + (v + next_v) / 2.0 * 0.001;
+        let r = p.push(velocity_point(t, next_v), MS * (t / 1000) as u32);
+        if next_x + next_v * next_v / 2000.0 > 500.0 + 1e-6 {
+            assert!(
+                matches!(r, Err(PointRefused::BeyondSoftLimit { .. })),
+                "{r:?} at {next_x}"
+            );
+            break;
+        }
+        r.unwrap();
+        v = next_v;
+        x = next_x;
+    }
+}
+
+/// Random velocity streams (cyclic synchronous velocity): random client
+/// periods and bus cycles, network delays with jitter, stalls and bursts,
+/// velocity profiles that sometimes break the limits, cycles the sender
+/// skips, stops. Whatever comes, no cycle's velocity exceeds the maximum,
+/// none changes by more than the acceleration (the stop deceleration on
+/// the ramp to rest) allows but to brake harder after skipped cycles, no
+/// position leaves the soft limits but by the travel of skipped cycles,
+/// the position is the integral of the velocities sent, every underrun
+/// ends at rest within the ramp's bound, and the counters add up:
+/// received = played + late + refused + dropped.
+#[test]
+fn random_velocity_streams_never_jump_nor_leave_the_limits() {
+    for seed in 1..=60u64 {
+        random_velocity_stream(seed);
+    }
+}
+
+fn random_velocity_stream(seed: u64) {
+    let mut rng = Rng(seed.wrapping_mul(0xD1B5_4A32_D192_ED03) | 1);
+    let cycle = Duration::from_micros([1000, 2000, 4000, 10_000][rng.range(0, 4) as usize]);
+    let depth = Duration::from_millis(rng.range(5, 60));
+    let lim = AxisLimits {
+        max_velocity: 50.0,
+        max_acceleration: 500.0,
+        stop_deceleration: 800.0,
+        min_position: Some(-20.0),
+        max_position: Some(20.0),
+    };
+    let mut cfg = PlayerConfig::new(cycle, depth);
+    cfg.kind = SetpointKind::Velocity;
+    cfg.extrapolate = Duration::from_millis(rng.range(0, 50));
+    let mut p = SetpointPlayer::new(cfg, vec![lim; 2], vec![0.0; 2]);
+    let period_us = rng.range(500, 20_000);
+    let c = cycle.as_secs_f64();
+    // The client: a velocity that follows a target now and then changed,
+    // within the acceleration (sometimes beyond it, or beyond the maximum
+    // velocity, on purpose), heading back from the soft limits by its own
+    // integral.
+    let mut pos = [0.0f64; 2];
+    let mut vel = [0.0f64; 2];
+    let mut target = [0.0f64; 2];
+    let mut client_t = rng.range(0, 1_000_000_000);
+    let mut next_send = Duration::ZERO;
+    let mut flight: Vec<(Duration, StreamPoint)> = Vec::new();
+    let mut stalled_until = Duration::ZERO;
+    let mut last = vec![0.0; 2];
+    let mut prev_v = [0.0f64; 2];
+    let mut stopping = false;
+    let mut underrun_at: Option<u32> = None;
+    let mut sent = 0u64;
+    // Where the client turns back from the soft limits: some press hard
+    // into them (and are told off).
+    let turn = 10.0 + rng.f64() * 10.0;
+    let mut accepted_vel = [0.0f64; 2];
+    let steps = (20.0 / c) as u32;
+    // The longest ramp to rest: the maximum velocity at the stop
+    // deceleration, plus a cycle of rounding.
+    let ramp_cycles = (50.0 / 800.0 / c).ceil() as u32 + 1;
+    // Cycles the sender skips now and then (a stalled host): the player's
+    // clock is held back by them, and the drive went on at its velocity.
+    let mut held_back = Duration::ZERO;
+    let mut skipping = 0u32;
+    let mut missed = Duration::ZERO;
+    // Player cycles played (the ramp's bound counts those).
+    let mut played = 0u32;
+    let mut since_stall = u32::MAX;
+    for k in 0..steps {
+        let wall = cycle * k;
+        let now = wall.saturating_sub(held_back);
+        while next_send <= now && !stopping {
+            if rng.f64() < 0.01 {
+                target = [(rng.f64() - 0.5) * 104.0, (rng.f64() - 0.5) * 104.0];
+            }
+            let dt = period_us as f64 / 1e6;
+            let wild = rng.f64() < 0.002;
+            for a in 0..2 {
+                if pos[a].abs() > turn && vel[a] * pos[a] > 0.0 {
+                    target[a] = -pos[a].signum() * 10.0;
+                }
+                let dv = (target[a] - vel[a]).clamp(-450.0 * dt, 450.0 * dt);
+                let v0 = vel[a];
+                vel[a] += if wild { dv * 20.0 } else { dv };
+                pos[a] += (v0 + vel[a]) / 2.0 * dt;
+            }
+            client_t += period_us;
+            let mut delay = Duration::from_micros(rng.range(1000, 3000));
+            if rng.f64() < 0.05 {
+                delay += Duration::from_micros(rng.range(0, 40_000));
+            }
+            if rng.f64() < 0.001 {
+                stalled_until = now + Duration::from_millis(rng.range(10, 300));
+            }
+            let arrive = (now + delay).max(stalled_until);
+            flight.push((
+                arrive,
+                StreamPoint {
+                    t_us: client_t,
+                    values: vel.to_vec(),
+                },
+            ));
+            sent += 1;
+            next_send += Duration::from_micros(period_us);
+        }
+        flight.sort_by_key(|(at, _)| *at);
+        while flight.first().is_some_and(|(at, _)| *at <= now) {
+            let (_, pt) = flight.remove(0);
+            let v = [pt.values[0], pt.values[1]];
+            match p.push(pt, now) {
+                Ok(()) => accepted_vel = v,
+                Err(PointRefused::TooFast { .. } | PointRefused::TooHardAcceleration { .. }) => {
+                    // Told off: it goes on from its last accepted
+                    // velocity.
+                    vel = accepted_vel;
+                }
+                Err(PointRefused::NotFromRest { .. }) => {
+                    // The client restarts from rest, from where the
+                    // gateway says the axes stand.
+                    pos = [p.position()[0], p.position()[1]];
+                    vel = [0.0; 2];
+                    accepted_vel = vel;
+                }
+                Err(PointRefused::BeyondSoftLimit { .. }) => {
+                    // Told off: it brakes.
+                    target = [0.0; 2];
+                }
+                _ => {}
+            }
+        }
+        if k == steps - (2.0 / c) as u32 {
+            p.stop(now);
+            stopping = true;
+        }
+        if skipping == 0 && rng.f64() < 0.002 {
+            skipping = rng.range(1, 6) as u32;
+        }
+        if skipping > 0 {
+            skipping -= 1;
+            missed += cycle;
+            continue;
+        }
+        held_back += missed;
+        let now = wall.saturating_sub(held_back);
+        p.skipped(missed);
+        let skipped_s = missed.as_secs_f64();
+        since_stall = if missed.is_zero() {
+            since_stall.saturating_add(1)
+        } else {
+            0
+        };
+        missed = Duration::ZERO;
+        played += 1;
+        let out = p.next(now);
+        match out.event {
+            Some(PlayerEvent::Underrun) => {
+                assert!(underrun_at.is_none(), "seed {seed}: underrun during a ramp");
+                underrun_at = Some(played);
+            }
+            Some(PlayerEvent::AtRest) => underrun_at = None,
+            None => {}
+        }
+        if out.state == PlayerState::Waiting {
+            // At rest (an underrun of axes that stood still is at rest at
+            // once, without an AtRest of its own).
+            underrun_at = None;
+        }
+        if let Some(u) = underrun_at {
+            assert!(
+                played - u <= ramp_cycles,
+                "seed {seed} cycle {k}: the underrun at {u} is not at rest after {ramp_cycles} \
+                 cycles"
+            );
+        }
+        for a in 0..2 {
+            let x = out.positions[a];
+            // Inside the soft limits but for the travel of skipped cycles
+            // (nothing the gateway sends holds a drive that it cannot
+            // reach).
+            let beyond = 50.0 * skipped_s;
+            assert!(
+                (-20.0 - beyond - 1e-6..=20.0 + beyond + 1e-6).contains(&x),
+                "seed {seed} cycle {k}: axis {a} at {x}"
+            );
+            // The drive's set-point: the cycle's velocity, whose integral
+            // the position is.
+            let v = p.velocity()[a];
+            let coasted = prev_v[a] * skipped_s;
+            assert!(
+                ((x - last[a] - coasted) / c - v).abs() < 1e-6 * 50.0,
+                "seed {seed} cycle {k}: axis {a} position and velocity disagree"
+            );
+            assert!(
+                v.abs() <= 50.0 * (1.0 + 1e-9),
+                "seed {seed} cycle {k}: axis {a} at {v} mm/s"
+            );
+            let dv_max = 800.0 * c;
+            let dv = v - prev_v[a];
+            // A stall that carried the drive closer to a soft limit than
+            // its braking curve allows is braked harder (never sped up).
+            let braking_after_a_stall = since_stall < ramp_cycles && v.abs() < prev_v[a].abs();
+            assert!(
+                braking_after_a_stall || dv.abs() <= dv_max * (1.0 + 1e-6) + 1e-9,
+                "seed {seed} cycle {k}: axis {a} velocity {} -> {v} (cycle {cycle:?}, period \
+                 {period_us} µs)",
+                prev_v[a]
+            );
+            prev_v[a] = v;
+        }
+        last = out.positions.clone();
+    }
+    assert_eq!(
+        p.state(),
+        PlayerState::Waiting,
+        "seed {seed}: at rest at the end"
+    );
+    assert_eq!(p.velocity(), [0.0, 0.0], "seed {seed}");
+    let n = p.counters();
+    assert_eq!(n.received + flight.len() as u64, sent, "seed {seed}: {n:?}");
+    assert_eq!(n.received, n.accepted + n.refused, "seed {seed}: {n:?}");
+    assert_eq!(
+        n.received,
+        n.played + n.late + n.refused + n.dropped,
+        "seed {seed}: {n:?}"
     );
 }

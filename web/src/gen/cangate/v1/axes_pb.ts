@@ -1524,9 +1524,10 @@ export const SetpointStreamRequestSchema: GenMessage<SetpointStreamRequest> = /*
  */
 export type SetpointStreamOpen = Message<"cangate.v1.SetpointStreamOpen"> & {
   /**
-   * The axes, in the order of each point's positions: cyclic (CSP)
-   * CiA 402 axes of one bus, or CANsmc axes of one master (played on its
-   * cycle); enabled and at rest.
+   * The axes, in the order of each point's values: CiA 402 axes of one
+   * bus, all in csp (the points carry positions) or all in csv (the
+   * points carry velocities), or CANsmc axes of one master (positions,
+   * played on its cycle); enabled and at rest.
    *
    * @generated from field: repeated string axes = 1;
    */
@@ -1615,18 +1616,27 @@ export type Setpoint = Message<"cangate.v1.Setpoint"> & {
   tUs: bigint;
 
   /**
-   * Position per axis (user units), in the stream's axis order.
+   * Position per axis (user units), in the stream's axis order: the
+   * set-point of a stream of csp or CANsmc axes. Empty in a stream of csv
+   * axes (else the call ends with INVALID_ARGUMENT and the axes ramp to
+   * rest).
    *
    * @generated from field: repeated double positions = 2;
    */
   positions: number[];
 
   /**
-   * Velocity feed-forward per axis (user units/s), optional: empty, or
-   * one finite value per axis (else the call ends with INVALID_ARGUMENT
-   * and the axes ramp to rest). Accepted and checked, not yet sent to
-   * the drives: the CSP set-point RPDO carries the position only, the
-   * drive derives the velocity.
+   * Velocity per axis (user units/s), in the stream's axis order. In a
+   * stream of csv axes the set-point itself: one per axis (a wrong count
+   * or a value that is not finite is refused as DIMENSION or
+   * NOT_FINITE); the gateway integrates the velocities into the path
+   * they predict (trapezoidal between points, from where the axes stand)
+   * to check the soft limits, and sends each SYNC's velocity of that
+   * path in 0x60FF. In a position stream the velocity feed-forward,
+   * optional: empty, or one finite value per axis (else the call ends
+   * with INVALID_ARGUMENT and the axes ramp to rest); accepted and
+   * checked, not yet sent to the drives (the CSP set-point RPDO carries
+   * the position only, the drive derives the velocity).
    *
    * @generated from field: repeated double velocities = 3;
    */
@@ -1751,7 +1761,11 @@ export type SetpointStreamStatus = Message<"cangate.v1.SetpointStreamStatus"> & 
 
   /**
    * The positions commanded with the latest SYNC, per axis in stream
-   * order (user units): where a resumed stream must start.
+   * order (user units): where a resumed stream must start. In a stream of
+   * csv axes the positions the velocities sent predict (the drive
+   * integrates them itself, covering each SYNC's step in the next
+   * period; a SYNC the gateway skipped moves the prediction on by the
+   * drive's travel at its last velocity).
    *
    * @generated from field: repeated double commanded_positions = 5;
    */
@@ -1867,7 +1881,9 @@ export type SetpointStreamEvent = Message<"cangate.v1.SetpointStreamEvent"> & {
    * the previous point's), "BEYOND_SOFT_LIMIT" (outside, or too fast to
    * stop inside), "TOO_FAST" (above the maximum velocity),
    * "TOO_HARD_ACCELERATION" (above the maximum acceleration),
-   * "NOT_WHERE_THE_AXIS_STANDS" (a resumed stream starts elsewhere);
+   * "NOT_WHERE_THE_AXIS_STANDS" (a resumed stream starts elsewhere),
+   * "NOT_FROM_REST" (a velocity stream starts or resumes with a velocity
+   * farther from 0 than one cycle's acceleration);
    * for ENDED the end's reason; "" otherwise.
    *
    * @generated from field: string reason = 2;
@@ -2162,8 +2178,8 @@ export enum DriveMode {
   IP = 3,
 
   /**
-   * Cyclic synchronous velocity (9): Jog sends a velocity every SYNC
-   * (0x60FF); no Move, no StreamSetpoints.
+   * Cyclic synchronous velocity (9): Jog and StreamSetpoints (a stream of
+   * velocities) send a velocity every SYNC (0x60FF); no Move.
    *
    * @generated from enum value: DRIVE_MODE_CSV = 4;
    */
@@ -2404,8 +2420,9 @@ export enum SetpointStreamState {
   SETPOINT_STREAM_PLAYING = 3,
 
   /**
-   * No point left: going on along the last segment (an underrun unless a
-   * point comes within `extrapolate_ms`).
+   * No point left: going on along the last segment (a velocity stream:
+   * at the last point's velocity), an underrun unless a point comes
+   * within `extrapolate_ms`.
    *
    * @generated from enum value: SETPOINT_STREAM_EXTRAPOLATING = 4;
    */
@@ -2690,8 +2707,9 @@ export const Axes: GenService<{
   },
   /**
    * Streams time-stamped set-points into a jitter buffer, played on the
-   * bus's SYNC grid (cyclic CiA 402 axes of one bus) or a CANsmc master's
-   * cycle (CANsmc axes of one master). The first message
+   * bus's SYNC grid (cyclic CiA 402 axes of one bus: positions for axes in
+   * csp, velocities for axes in csv) or a CANsmc master's cycle (CANsmc
+   * axes of one master). The first message
    * opens the stream (SetpointStreamOpen) under a control lease covering
    * every axis; the following carry batches of points (each renews the
    * lease). Points carry the client's own clock: the gateway plays client
@@ -2712,9 +2730,9 @@ export const Axes: GenService<{
    * INVALID_ARGUMENT for no axes, an axis named twice, a depth of 0 or
    * above 2000 ms, an extrapolation above 1000 ms, a point period above
    * the depth; FAILED_PRECONDITION without the lease, or for an axis that
-   * is neither a cyclic CiA 402 axis nor a CANsmc axis, not enabled,
-   * moving, already streamed, or on another bus or CANsmc master than the
-   * first.
+   * is neither a cyclic CiA 402 axis in csp or csv nor a CANsmc axis, not
+   * enabled, moving, already streamed, on another bus or CANsmc master
+   * than the first, or in csp where the first is in csv (or the reverse).
    *
    * @generated from rpc cangate.v1.Axes.StreamSetpoints
    */
