@@ -324,7 +324,7 @@ fn the_first_cycle_past_the_last_point_plays_the_path_to_it() {
             p.push(
                 StreamPoint {
                     t_us: ms * 1000,
-                    positions: vec![path(ms)],
+                    values: vec![path(ms)],
                 },
                 MS * ms as u32,
             )
