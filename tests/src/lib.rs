@@ -24,6 +24,7 @@
 
 pub mod axes;
 pub mod log;
+pub mod streams;
 
 use cangate_client::pb;
 use cangate_client::pb::stream_event::Event;

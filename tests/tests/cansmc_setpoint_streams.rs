@@ -6,8 +6,9 @@
 //! look-ahead), so a loaded machine does not starve the buffer.
 
 use cangate_client::pb;
-use cangate_client::{Client, SetpointSender, SetpointStream, SetpointStreamOptions, setpoint};
+use cangate_client::{Client, SetpointStreamOptions};
 use cangate_tests::axes::*;
+use cangate_tests::streams::{read_until, send_path};
 use cangate_tests::*;
 use std::time::{Duration, Instant};
 use tonic::Code;
@@ -126,56 +127,6 @@ async fn setup() -> (
     (server, c, axes, lease)
 }
 
-/// Sends `path` sampled every ms for client times 0..`points` ms, in
-/// batches of 10, never more than `lead` ahead of real time.
-fn send_path(
-    sender: SetpointSender,
-    points: u64,
-    lead: Duration,
-    path: impl Fn(f64) -> Vec<f64> + Send + 'static,
-) -> tokio::task::JoinHandle<()> {
-    tokio::spawn(async move {
-        let start = Instant::now();
-        for batch in (0..points).collect::<Vec<_>>().chunks(10) {
-            let last = *batch.last().unwrap();
-            let due = Duration::from_millis(last);
-            if let Some(wait) = due.checked_sub(start.elapsed() + lead) {
-                tokio::time::sleep(wait).await;
-            }
-            let pts = batch
-                .iter()
-                .map(|&k| setpoint(k * 1000, path(k as f64 / 1000.0)))
-                .collect();
-            if sender.send(pts).await.is_err() {
-                return;
-            }
-        }
-    })
-}
-
-/// Reads statuses until `done` says so (or the call ends: `None`).
-async fn read_until(
-    stream: &mut SetpointStream,
-    seen: &mut Vec<pb::SetpointStreamStatus>,
-    mut done: impl FnMut(&pb::SetpointStreamStatus) -> bool,
-) -> Result<Option<pb::SetpointStreamStatus>, cangate_client::Error> {
-    tokio::time::timeout(LONG, async {
-        loop {
-            match stream.status().await? {
-                Some(s) => {
-                    seen.push(s.clone());
-                    if done(&s) {
-                        return Ok(Some(s));
-                    }
-                }
-                None => return Ok(None),
-            }
-        }
-    })
-    .await
-    .expect("the stream answers")
-}
-
 /// The actual position, velocity and activity of `axis`.
 async fn state(axes: &mut Axes, axis: &str) -> (f64, f64, i32) {
     let s = axes
@@ -251,6 +202,7 @@ async fn a_streamed_circle_on_cansmc_axes_arrives_on_the_circle_and_ends_at_rest
         .unwrap();
     let sending = send_path(
         stream.sender().unwrap(),
+        0,
         2001,
         Duration::from_millis(500),
         circle,
@@ -310,6 +262,7 @@ async fn stop_axes_during_a_cansmc_stream_stops_the_axes_and_ends_the_stream() {
         .unwrap();
     let sending = send_path(
         stream.sender().unwrap(),
+        0,
         2000,
         Duration::from_millis(500),
         line,
@@ -393,6 +346,7 @@ async fn a_cancelled_cansmc_stream_brings_the_axes_to_rest() {
         .unwrap();
     let sending = send_path(
         stream.sender().unwrap(),
+        0,
         2000,
         Duration::from_millis(500),
         line,

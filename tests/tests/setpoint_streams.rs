@@ -5,8 +5,9 @@
 //! not starve the buffer.
 
 use cangate_client::pb;
-use cangate_client::{Client, SetpointSender, SetpointStream, SetpointStreamOptions, setpoint};
+use cangate_client::{Client, SetpointStreamOptions, setpoint};
 use cangate_tests::axes::*;
+use cangate_tests::streams::{events, read_until, send_path};
 use cangate_tests::*;
 use std::time::{Duration, Instant};
 use tonic::Code;
@@ -86,62 +87,6 @@ async fn setup() -> (
         axes.enable(cmd(a, lease.token(), true)).await.unwrap();
     }
     (server, c, axes, lease)
-}
-
-/// Sends `path` sampled every ms for client times 0..`points` ms (client
-/// time `t0_us` on), in batches of 10, never more than `lead` ahead of
-/// real time.
-fn send_path(
-    sender: SetpointSender,
-    t0_us: u64,
-    points: u64,
-    lead: Duration,
-    path: impl Fn(f64) -> Vec<f64> + Send + 'static,
-) -> tokio::task::JoinHandle<()> {
-    tokio::spawn(async move {
-        let start = Instant::now();
-        for batch in (0..points).collect::<Vec<_>>().chunks(10) {
-            let last = *batch.last().unwrap();
-            let due = Duration::from_millis(last);
-            if let Some(wait) = due.checked_sub(start.elapsed() + lead) {
-                tokio::time::sleep(wait).await;
-            }
-            let pts = batch
-                .iter()
-                .map(|&k| setpoint(t0_us + k * 1000, path(k as f64 / 1000.0)))
-                .collect();
-            if sender.send(pts).await.is_err() {
-                return;
-            }
-        }
-    })
-}
-
-/// Reads statuses until `done` says so (or the call ends: `None`).
-async fn read_until(
-    stream: &mut SetpointStream,
-    seen: &mut Vec<pb::SetpointStreamStatus>,
-    mut done: impl FnMut(&pb::SetpointStreamStatus) -> bool,
-) -> Result<Option<pb::SetpointStreamStatus>, cangate_client::Error> {
-    tokio::time::timeout(LONG, async {
-        loop {
-            match stream.status().await? {
-                Some(s) => {
-                    seen.push(s.clone());
-                    if done(&s) {
-                        return Ok(Some(s));
-                    }
-                }
-                None => return Ok(None),
-            }
-        }
-    })
-    .await
-    .expect("the stream answers")
-}
-
-fn events(seen: &[pb::SetpointStreamStatus]) -> Vec<pb::SetpointStreamEvent> {
-    seen.iter().flat_map(|s| s.events.clone()).collect()
 }
 
 fn has_event(seen: &[pb::SetpointStreamStatus], kind: pb::SetpointEventKind) -> bool {

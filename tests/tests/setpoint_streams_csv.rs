@@ -6,10 +6,9 @@
 //! the buffer.
 
 use cangate_client::pb;
-use cangate_client::{
-    SetpointSender, SetpointStream, SetpointStreamOptions, setpoint, velocity_setpoint,
-};
+use cangate_client::{SetpointSender, SetpointStreamOptions, setpoint, velocity_setpoint};
 use cangate_tests::axes::*;
+use cangate_tests::streams::{events, read_until};
 use cangate_tests::*;
 use std::time::{Duration, Instant};
 use tonic::Code;
@@ -78,33 +77,6 @@ fn send_velocities(
             }
         }
     })
-}
-
-/// Reads statuses until `done` says so (or the call ends: `None`).
-async fn read_until(
-    stream: &mut SetpointStream,
-    seen: &mut Vec<pb::SetpointStreamStatus>,
-    mut done: impl FnMut(&pb::SetpointStreamStatus) -> bool,
-) -> Result<Option<pb::SetpointStreamStatus>, cangate_client::Error> {
-    tokio::time::timeout(LONG, async {
-        loop {
-            match stream.status().await? {
-                Some(s) => {
-                    seen.push(s.clone());
-                    if done(&s) {
-                        return Ok(Some(s));
-                    }
-                }
-                None => return Ok(None),
-            }
-        }
-    })
-    .await
-    .expect("the stream answers")
-}
-
-fn events(seen: &[pb::SetpointStreamStatus]) -> Vec<pb::SetpointStreamEvent> {
-    seen.iter().flat_map(|s| s.events.clone()).collect()
 }
 
 fn refusals(seen: &[pb::SetpointStreamStatus]) -> Vec<String> {
