@@ -9,12 +9,14 @@
 //! - [`send_error`]: why frames were not sent (shared by backends and bus).
 //! - [`bus`]: one owner task per bus and the handle everyone else uses.
 //! - [`precise_wait`]: waiting for an instant with little CPU.
+//! - [`arrival`]: the time a core is given for a frame that waited.
 
 #![deny(missing_docs, unreachable_pub)]
 // A dependency nothing uses fails CI (clippy -D warnings). Test builds are
 // left out: their dev-dependencies serve the integration tests.
 #![cfg_attr(not(test), warn(unused_crate_dependencies))]
 
+pub mod arrival;
 pub mod budget;
 #[cfg(feature = "runtime")]
 pub mod bus;
@@ -31,6 +33,7 @@ pub mod timing;
 #[cfg(feature = "runtime")]
 pub mod virtual_bus;
 
+pub use arrival::ArrivalClock;
 pub use budget::{TxClass, TxShares};
 #[cfg(feature = "runtime")]
 pub use bus::{

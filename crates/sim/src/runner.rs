@@ -34,7 +34,10 @@ use std::future::pending;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
-use cangate_can::{BusHandle, BusItem, Direction, Frame, FrameSelector, PortEvent, VirtualPort};
+use cangate_can::{
+    ArrivalClock, BusHandle, BusItem, Direction, Frame, FrameSelector, PortEvent, Timestamp,
+    VirtualPort,
+};
 use tokio::sync::Notify;
 use tokio::task::JoinHandle;
 use tokio::time::{Instant, sleep_until};
@@ -183,6 +186,7 @@ pub fn spawn_device_on_bus<D: Device + Send + 'static>(
         let started = device.lock().device.start(origin.elapsed());
         let _ = bus.send(started).await;
         let mut items = Vec::with_capacity(BATCH);
+        let mut clock = ArrivalClock::default();
         loop {
             let (queued, deadline) = {
                 let mut s = device.lock();
@@ -206,17 +210,31 @@ pub fn spawn_device_on_bus<D: Device + Send + 'static>(
                     if n == 0 {
                         break;
                     }
-                    let now = origin.elapsed();
-                    let mut s = device.lock();
-                    for item in items.drain(..) {
-                        if let BusItem::Frame { frame, direction: Direction::Rx } = item {
-                            out.extend(s.device.on_frame(&frame, now));
-                        }
-                    }
                 }
                 _ = timer => {}
             }
-            out.extend(device.lock().device.on_tick(origin.elapsed()));
+            // As in `run`: what arrived first, at its arrival time.
+            while items.len() < BATCH {
+                match sub.try_recv() {
+                    Some(item) => items.push(item),
+                    None => break,
+                }
+            }
+            let now = origin.elapsed();
+            {
+                let mut s = device.lock();
+                for item in items.drain(..) {
+                    if let BusItem::Frame {
+                        frame,
+                        direction: Direction::Rx,
+                    } = item
+                    {
+                        let at = clock.frame_time(now, &frame, Timestamp::now());
+                        out.extend(s.device.on_frame(&frame, at));
+                    }
+                }
+            }
+            out.extend(device.lock().device.on_tick(clock.time(origin.elapsed())));
             if !out.is_empty() {
                 let _ = bus.send(out).await;
             }
@@ -237,6 +255,7 @@ async fn run<D: Device>(mut port: VirtualPort, handle: DeviceHandle<D>, cancel: 
     filters.refresh(&port, &handle);
     send_all(&port, &handle, &started);
     let mut events = Vec::with_capacity(BATCH);
+    let mut clock = ArrivalClock::default();
     loop {
         let (queued, deadline, off) = {
             let mut s = handle.lock();
@@ -274,31 +293,39 @@ async fn run<D: Device>(mut port: VirtualPort, handle: DeviceHandle<D>, cancel: 
             biased;
             _ = cancel.cancelled() => break,
             _ = handle.wake.notified() => {}
-            _ = port.recv_many(&mut events, BATCH) => {
-                let now = origin.elapsed();
-                let mut out = Vec::new();
-                if off {
-                    events.clear();
-                    continue;
-                }
-                {
-                    let mut s = handle.lock();
-                    for event in events.drain(..) {
-                        if let PortEvent::Frame { frame, own: false } = event {
-                            out.extend(s.device.on_frame(&frame, now));
-                        }
-                    }
-                }
-                // Before the answers: one may confirm a new PDO COB-ID.
-                filters.refresh(&port, &handle);
-                send_all(&port, &handle, &out);
-            }
+            _ = port.recv_many(&mut events, BATCH) => {}
             _ = timer => {}
         }
         if off {
+            events.clear();
             continue;
         }
-        let due = handle.lock().device.on_tick(origin.elapsed());
+        // Whatever woke the runner, the frames that arrived meanwhile are
+        // the device's before its timers: a runner held up by a loaded
+        // host must not judge a heartbeat lost that waits in its port.
+        while events.len() < BATCH {
+            match port.try_recv() {
+                Some(event) => events.push(event),
+                None => break,
+            }
+        }
+        if !events.is_empty() {
+            let now = origin.elapsed();
+            let mut out = Vec::new();
+            {
+                let mut s = handle.lock();
+                for event in events.drain(..) {
+                    if let PortEvent::Frame { frame, own: false } = event {
+                        let at = clock.frame_time(now, &frame, Timestamp::now());
+                        out.extend(s.device.on_frame(&frame, at));
+                    }
+                }
+            }
+            // Before the answers: one may confirm a new PDO COB-ID.
+            filters.refresh(&port, &handle);
+            send_all(&port, &handle, &out);
+        }
+        let due = handle.lock().device.on_tick(clock.time(origin.elapsed()));
         send_all(&port, &handle, &due);
     }
 }
@@ -391,6 +418,70 @@ mod tests {
         timeout(Duration::from_secs(5), wait)
             .await
             .unwrap_or_else(|_| panic!("no frame {id:03X}"))
+    }
+
+    /// One try of the held-up runner below: `Some(error register)` after
+    /// the runner's thread was blocked for 500 ms while a producer kept
+    /// sending its heartbeat every 10 ms, or `None` when the producer's own
+    /// thread was held up for 150 ms or more (a host too loaded for the
+    /// premise).
+    async fn heartbeats_through_a_held_up_runner() -> Option<Value> {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        let bus = VirtualBus::new("sim-late", VirtualBusConfig::default());
+        let mut tester = bus.connect(false);
+        let cancel = CancellationToken::new();
+        let handle = DeviceHandle::new(drive(SimNodeOptions::default()));
+        let task = spawn_device(bus.connect(false), handle.clone(), cancel.clone());
+        next_with_id(&mut tester, 0x705).await;
+        // 0x1016:01 = node 0x7F, 300 ms.
+        tester
+            .send(&frame(
+                0x605,
+                &[0x23, 0x16, 0x10, 0x01, 0x2C, 0x01, 0x7F, 0x00],
+            ))
+            .unwrap();
+        assert_eq!(next_with_id(&mut tester, 0x585).await.data()[0], 0x60);
+        let stop = Arc::new(AtomicBool::new(false));
+        let producer = {
+            let port = bus.connect(false);
+            let stop = stop.clone();
+            std::thread::spawn(move || {
+                let mut longest = Duration::ZERO;
+                let mut last = std::time::Instant::now();
+                while !stop.load(Ordering::Relaxed) {
+                    port.send(&frame(0x77F, &[0x05])).unwrap();
+                    longest = longest.max(last.elapsed());
+                    last = std::time::Instant::now();
+                    std::thread::sleep(Duration::from_millis(10));
+                }
+                longest
+            })
+        };
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        // The runner shares this thread: it cannot run while it sleeps.
+        std::thread::sleep(Duration::from_millis(500));
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        stop.store(true, Ordering::Relaxed);
+        let longest = producer.join().unwrap();
+        let register = handle.with(|n| n.get(ObjectAddress::new(0x1001, 0)).cloned());
+        cancel.cancel();
+        task.await.unwrap();
+        (longest < Duration::from_millis(150)).then(|| register.unwrap())
+    }
+
+    /// A device held up (a loaded host) while the heartbeats it consumes
+    /// waited in its port judges each by the time it arrived, as a
+    /// device's receive interrupt would: its own lateness is no loss of the
+    /// producer.
+    #[tokio::test]
+    async fn a_held_up_runner_judges_heartbeats_by_their_arrival() {
+        for _ in 0..3 {
+            if let Some(register) = heartbeats_through_a_held_up_runner().await {
+                assert_eq!(register, Value::Unsigned8(0), "heartbeat judged lost");
+                return;
+            }
+        }
+        panic!("the heartbeat producer's thread was held up in every try");
     }
 
     #[tokio::test]

@@ -4,6 +4,7 @@
 //! PDOs.
 
 use super::*;
+use cangate_can::ArrivalClock;
 
 struct Pending {
     reply: oneshot::Sender<Result<TransferOutcome, SdoError>>,
@@ -73,6 +74,7 @@ pub(super) async fn run_master(task: MasterTask) {
     } = task;
     let origin = Instant::now();
     let origin_wall = Timestamp::now();
+    let mut clock = ArrivalClock::default();
     let mut pending: HashMap<RequestId, Pending> = HashMap::new();
     let mut lss_pending: HashMap<RequestId, LssReply> = HashMap::new();
     let mut confirm_pending: HashMap<RequestId, oneshot::Sender<Option<NmtState>>> = HashMap::new();
@@ -100,11 +102,16 @@ pub(super) async fn run_master(task: MasterTask) {
                     break;
                 }
                 let now = origin.elapsed();
+                let wall_now = Timestamp::now();
                 for item in items.drain(..) {
                     match item {
                         BusItem::Frame { frame, .. } => {
                             heard.record(frame.raw_id(), frame.is_extended());
-                            master.on_frame(&frame, now, &mut out);
+                            // When it arrived, not when this task got to it:
+                            // a held-up gateway must not judge a node's
+                            // heartbeat late for its own delay.
+                            let at = clock.frame_time(now, &frame, wall_now);
+                            master.on_frame(&frame, at, &mut out);
                             relay_tpdo(&tpdos, &pdos, &frame);
                         }
                         BusItem::Lost(n) => tracing::warn!(lost = n, "CANopen master missed frames (overloaded)"),
@@ -113,7 +120,7 @@ pub(super) async fn run_master(task: MasterTask) {
                 }
             }
             given_up = unsent.recv() => match given_up {
-                Ok(frame) => master.on_unsent(&frame, origin.elapsed(), &mut out),
+                Ok(frame) => master.on_unsent(&frame, clock.time(origin.elapsed()), &mut out),
                 Err(broadcast::error::RecvError::Lagged(n)) => {
                     // Those transfers end at their own timeouts instead.
                     tracing::warn!(frames = n, "CANopen master missed notices of frames the interface gave up");
@@ -123,7 +130,7 @@ pub(super) async fn run_master(task: MasterTask) {
             },
             cmd = commands.recv() => {
                 let Some(cmd) = cmd else { break };
-                let now = origin.elapsed();
+                let now = clock.time(origin.elapsed());
                 match cmd {
                     Command::Sdo { node, priority, req, reply, spins } => {
                         if spins {
@@ -165,7 +172,7 @@ pub(super) async fn run_master(task: MasterTask) {
                 }
             }
             _ = tokio::time::sleep_until(deadline.into()) => {
-                master.on_tick(origin.elapsed(), &mut out);
+                master.on_tick(clock.time(origin.elapsed()), &mut out);
             }
             _ = gc.tick() => {
                 // Callers that gave up (client cancelled, deadline) free
@@ -177,7 +184,7 @@ pub(super) async fn run_master(task: MasterTask) {
                     .collect();
                 for id in gone {
                     pending.remove(&id);
-                    master.cancel(id, origin.elapsed(), &mut out);
+                    master.cancel(id, clock.time(origin.elapsed()), &mut out);
                 }
                 lss_pending.retain(|id, reply| {
                     let open = !reply.is_closed();
