@@ -55,6 +55,21 @@
 //! stand (within one cycle's travel at the maximum velocity).
 //! [`SetpointPlayer::stop`] (the stream ended, was cancelled, its client
 //! died, its lease was lost) brings the axes to rest the same way.
+//!
+//! # Torque streams
+//!
+//! A stream of [`SetpointKind::Torque`] carries one torque per axis (per
+//! mille of the rated torque). The player plays the torques as it plays
+//! positions (the jitter buffer, interpolation, late points, rejoin), with
+//! the limits of [`AxisLimits::torque`]: no torque above the axis's
+//! maximum, no change faster than its torque slope (between points and
+//! every cycle). A playout starts from 0 torque; with no point left the
+//! last torque is held (not extrapolated along its slope) for
+//! [`PlayerConfig::extrapolate`], then every torque ramps to 0 at its
+//! slope, all axes reaching 0 together; a stop does the same. The motion
+//! a torque makes is the drive's and its load's: the runtime guards the
+//! actual velocity and position and halts the drive (see
+//! `server/src/axes/setpoint_streams.rs`).
 
 use std::collections::VecDeque;
 use std::time::Duration;
@@ -75,6 +90,29 @@ pub struct AxisLimits {
     pub max_position: Option<f64>,
 }
 
+impl AxisLimits {
+    /// The limits of an axis in a torque stream ([`SetpointKind::Torque`]),
+    /// whose values are torques (per mille of the rated torque): a torque
+    /// within ±`max_torque`, changing at most at `torque_slope` (per mille
+    /// per second) and ramped to 0 at that slope. The player's position
+    /// is then the torque: the bound of its rate (`max_velocity`) is the
+    /// slope, its range (the soft limits) ±`max_torque`; its acceleration
+    /// is not bounded (the slope bounds each step).
+    pub fn torque(max_torque: f64, torque_slope: f64) -> AxisLimits {
+        AxisLimits {
+            max_velocity: torque_slope,
+            max_acceleration: UNBOUNDED,
+            stop_deceleration: UNBOUNDED,
+            min_position: Some(-max_torque),
+            max_position: Some(max_torque),
+        }
+    }
+}
+
+/// A rate of change of a torque's slope no check reaches (a torque
+/// stream bounds the slope, not its change).
+const UNBOUNDED: f64 = 1e300;
+
 /// What the points of a stream carry.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum SetpointKind {
@@ -90,6 +128,12 @@ pub enum SetpointKind {
     /// path; each cycle's velocity ([`SetpointPlayer::velocity`]) is the
     /// drive's set-point. A playout starts and resumes from rest.
     Velocity,
+    /// A torque per axis (cyclic synchronous torque), per mille of the
+    /// rated torque, with the limits of [`AxisLimits::torque`]: played
+    /// like positions, each cycle's value ([`SetpointPlayer::position`])
+    /// is the drive's torque set-point. A playout starts from 0 torque,
+    /// holds the last torque when no point is left, and ramps to 0.
+    Torque,
 }
 
 /// How a stream is played.
@@ -136,7 +180,8 @@ pub struct StreamPoint {
     /// The client's clock, µs.
     pub t_us: u64,
     /// One value per axis: a position (user units) in a position stream,
-    /// a velocity (user units/s) in a velocity stream ([`SetpointKind`]).
+    /// a velocity (user units/s) in a velocity stream, a torque (per mille
+    /// of the rated torque) in a torque stream ([`SetpointKind`]).
     pub values: Vec<f64>,
 }
 
@@ -214,6 +259,41 @@ pub enum PointRefused {
         /// The point's velocity.
         velocity: f64,
         /// The velocity reachable from rest in one cycle.
+        tolerance: f64,
+    },
+    /// A torque above the axis's maximum torque.
+    #[error("axis {axis}: torque {torque} per mille exceeds the maximum {max} per mille")]
+    TorqueAboveMax {
+        /// Index of the axis in the stream.
+        axis: usize,
+        /// The point's torque.
+        torque: f64,
+        /// The axis's maximum torque.
+        max: f64,
+    },
+    /// The torque changes from the previous point faster than the axis's
+    /// torque slope.
+    #[error("axis {axis}: the torque changes at {slope:.3} per mille/s, above the slope {max}")]
+    TorqueTooSteep {
+        /// Index of the axis in the stream.
+        axis: usize,
+        /// The change from the previous point, per mille per second.
+        slope: f64,
+        /// The axis's torque slope.
+        max: f64,
+    },
+    /// The first torque of a playout is not (nearly) 0: a torque stream
+    /// starts and resumes from 0 torque.
+    #[error(
+        "axis {axis}: a torque stream starts from 0 torque: the first torque must be within \
+         {tolerance} per mille of 0, not {torque}"
+    )]
+    TorqueNotFromZero {
+        /// Index of the axis in the stream.
+        axis: usize,
+        /// The point's torque.
+        torque: f64,
+        /// The change the torque slope allows in one cycle.
         tolerance: f64,
     },
     /// The first point after a rest is not where the axes stand.
@@ -296,13 +376,15 @@ struct Buffered {
 }
 
 /// The ramp to rest: from `from` at `velocity`, decelerating over
-/// `duration` (all axes together).
+/// `duration` (all axes together); or, `to_zero` (a torque stream), from
+/// `from` straight to 0 over `duration`.
 #[derive(Debug, Clone)]
 struct Ramp {
     start: Duration,
     from: Vec<f64>,
     velocity: Vec<f64>,
     duration: f64,
+    to_zero: bool,
 }
 
 impl Ramp {
@@ -312,6 +394,10 @@ impl Ramp {
             .as_secs_f64()
             .min(self.duration);
         let done = s >= self.duration;
+        if self.to_zero {
+            let left = if done { 0.0 } else { 1.0 - s / self.duration };
+            return (self.from.iter().map(|t| t * left).collect(), done);
+        }
         let k = if self.duration > 0.0 {
             s - s * s / (2.0 * self.duration)
         } else {
@@ -433,6 +519,7 @@ impl SetpointPlayer {
         let r = match self.cfg.kind {
             SetpointKind::Position => self.accept(point, arrived),
             SetpointKind::Velocity => self.accept_velocity(point, arrived),
+            SetpointKind::Torque => self.accept_torque(point, arrived),
         };
         if r.is_err() {
             self.counters.refused += 1;
@@ -453,6 +540,55 @@ impl SetpointPlayer {
             return Err(PointRefused::NotFinite { axis, value });
         }
         Ok(())
+    }
+
+    /// A point of a torque stream: each torque within the axis's maximum,
+    /// from 0 at the start of a playout, and changing from the previous
+    /// point at most at the torque slope; then taken as a position.
+    fn accept_torque(&mut self, p: StreamPoint, arrived: Duration) -> Result<(), PointRefused> {
+        self.check_values(&p)?;
+        for (axis, (&torque, l)) in p.values.iter().zip(&self.limits).enumerate() {
+            let max = l.max_position.unwrap_or(f64::INFINITY);
+            if torque.abs() > max * (1.0 + 1e-9) {
+                return Err(PointRefused::TorqueAboveMax { axis, torque, max });
+            }
+        }
+        match (&self.last_accepted, self.state) {
+            (_, PlayerState::Stopping) => {}
+            (Some(prev), s) if s != PlayerState::Waiting => {
+                if p.t_us > prev.t_us {
+                    let dt = (p.t_us - prev.t_us) as f64 / 1e6;
+                    for (axis, ((&t, &t0), l)) in
+                        (p.values.iter().zip(&prev.positions).zip(&self.limits)).enumerate()
+                    {
+                        let slope = (t - t0) / dt;
+                        if slope.abs() > l.max_velocity * (1.0 + 1e-9) {
+                            return Err(PointRefused::TorqueTooSteep {
+                                axis,
+                                slope,
+                                max: l.max_velocity,
+                            });
+                        }
+                    }
+                }
+            }
+            _ => {
+                let cycle = self.cfg.cycle.as_secs_f64();
+                for (axis, ((&torque, &now), l)) in
+                    (p.values.iter().zip(&self.position).zip(&self.limits)).enumerate()
+                {
+                    let tolerance = l.max_velocity * cycle;
+                    if (torque - now).abs() > tolerance + 1e-9 {
+                        return Err(PointRefused::TorqueNotFromZero {
+                            axis,
+                            torque,
+                            tolerance,
+                        });
+                    }
+                }
+            }
+        }
+        self.accept(p, arrived)
     }
 
     /// A point of a velocity stream: its velocities checked, integrated
@@ -733,6 +869,21 @@ impl SetpointPlayer {
     fn begin_ramp(&mut self, start: Duration) {
         self.counters.dropped += self.buffer.len() as u64;
         self.buffer.clear();
+        if self.cfg.kind == SetpointKind::Torque {
+            // Every torque to 0 at its slope, all reaching 0 together.
+            let duration = (self.position.iter().zip(&self.limits))
+                .map(|(t, l)| t.abs() / l.max_velocity.max(1e-12))
+                .fold(0.0, f64::max);
+            self.ramp = Some(Ramp {
+                start,
+                from: self.position.clone(),
+                velocity: self.velocity.clone(),
+                duration,
+                to_zero: true,
+            });
+            self.state = PlayerState::Stopping;
+            return;
+        }
         // All axes stop together: the longest stop time, each axis's
         // deceleration then within its own.
         let duration = (self.velocity.iter().zip(&self.limits))
@@ -743,6 +894,7 @@ impl SetpointPlayer {
             from: self.position.clone(),
             velocity: self.velocity.clone(),
             duration,
+            to_zero: false,
         });
         self.state = PlayerState::Stopping;
     }
@@ -790,6 +942,12 @@ impl SetpointPlayer {
         }
         if dt > 0.0 {
             self.limit(&before, dt);
+        }
+        if self.cfg.kind == SetpointKind::Torque && self.state == PlayerState::Waiting {
+            // At rest a torque stream commands no torque: exactly 0, not
+            // the rounding of the ramp's last step.
+            self.position.iter_mut().for_each(|t| *t = 0.0);
+            self.velocity.iter_mut().for_each(|v| *v = 0.0);
         }
         CycleSetpoints {
             positions: self.position.clone(),
@@ -891,6 +1049,9 @@ impl SetpointPlayer {
                     || self.extrapolation_leaves_the_limits(dt)
                 {
                     self.underrun(ramp_start, now, event);
+                } else if self.cfg.kind == SetpointKind::Torque {
+                    // A torque is held, not extrapolated along its slope.
+                    self.position.clone_from(&a.positions);
                 } else if first {
                     // The path up to the last point is played, then on
                     // along its last segment: from the previous cycle's
@@ -978,6 +1139,10 @@ impl SetpointPlayer {
     /// Whether one more cycle along the last segment would leave a point
     /// from which an axis cannot stop inside its soft limits.
     fn extrapolation_leaves_the_limits(&self, dt: f64) -> bool {
+        if self.cfg.kind == SetpointKind::Torque {
+            // A held torque stays where it was accepted.
+            return false;
+        }
         (self.position.iter().zip(&self.velocity).zip(&self.limits)).any(|((p, v), l)| {
             let next = p + v * dt;
             let stop_at = next + v * v.abs() / (2.0 * l.stop_deceleration.max(1e-12));

@@ -827,3 +827,283 @@ fn random_velocity_stream(seed: u64) {
         "seed {seed}: {n:?}"
     );
 }
+
+/// A torque stream over `axes` axes of at most 500 per mille changing at
+/// most 10 000 per mille/s, 1 ms cycle.
+fn torque_player(axes: usize, depth_ms: u64) -> SetpointPlayer {
+    let mut cfg = PlayerConfig::new(MS, Duration::from_millis(depth_ms));
+    cfg.kind = SetpointKind::Torque;
+    SetpointPlayer::new(
+        cfg,
+        vec![AxisLimits::torque(500.0, 10_000.0); axes],
+        vec![0.0; axes],
+    )
+}
+
+fn torque_point(t_us: u64, t: f64) -> StreamPoint {
+    StreamPoint {
+        t_us,
+        values: vec![t],
+    }
+}
+
+/// The torques play interpolated after the buffer, the last one is held
+/// for the extrapolation time, then the torque ramps to exactly 0 at the
+/// slope (an underrun), and the next playout starts from 0 again.
+#[test]
+fn a_torque_stream_plays_holds_and_ramps_the_torque_to_zero() {
+    let mut p = torque_player(1, 15);
+    // Each point arrives at its own time (no delay).
+    let mut played = Vec::new();
+    for k in 0..=70u32 {
+        if k % 10 == 0 && k <= 20 {
+            let t_us = u64::from(k) * 1000;
+            p.push(torque_point(t_us, 5.0 * f64::from(k)), MS * k)
+                .unwrap();
+        }
+        played.push(p.next(MS * k).positions[0]);
+    }
+    // Client time is 15 ms behind: 0 up to 15 ms, then 5 per mille per
+    // ms up to 100 at 35 ms.
+    assert_eq!(played[15], 0.0);
+    for (k, want) in [(20, 25.0), (25, 50.0), (35, 100.0)] {
+        assert!((played[k] - want).abs() < 1e-9, "{k}: {played:?}");
+    }
+    // Held at 100 for the extrapolation (15 ms, the depth).
+    assert!(played[35..50].iter().all(|&t| t == 100.0), "{played:?}");
+    // Then an underrun: 100 per mille to 0 at 10 000 per mille/s, 10 ms.
+    for (k, want) in [(50, 90.0), (54, 50.0), (58, 10.0)] {
+        assert!((played[k] - want).abs() < 1e-9, "{k}: {played:?}");
+    }
+    assert!(played[59..].iter().all(|&t| t == 0.0), "{played:?}");
+    assert_eq!(p.state(), PlayerState::Waiting);
+    let c = p.counters();
+    assert_eq!((c.received, c.played, c.underruns), (3, 3, 1), "{c:?}");
+    // A new playout starts from 0 torque.
+    assert!(matches!(
+        p.push(torque_point(100_000, 50.0), MS * 71),
+        Err(PointRefused::TorqueNotFromZero { axis: 0, .. })
+    ));
+    p.push(torque_point(100_000, 5.0), MS * 71).unwrap();
+}
+
+/// Torques beyond the maximum, changes beyond the slope, a start away
+/// from 0, a wrong count and a value that is not finite are refused.
+#[test]
+fn torque_points_beyond_the_limits_are_refused() {
+    let mut p = torque_player(1, 5);
+    assert_eq!(
+        p.push(torque_point(0, 20.0), Duration::ZERO),
+        Err(PointRefused::TorqueNotFromZero {
+            axis: 0,
+            torque: 20.0,
+            tolerance: 10.0,
+        })
+    );
+    p.push(torque_point(0, 10.0), Duration::ZERO).unwrap();
+    assert_eq!(
+        p.push(torque_point(1000, 600.0), Duration::ZERO),
+        Err(PointRefused::TorqueAboveMax {
+            axis: 0,
+            torque: 600.0,
+            max: 500.0,
+        })
+    );
+    // 10 -> 30 in 1 ms: 20 000 per mille/s.
+    assert_eq!(
+        p.push(torque_point(1000, 30.0), Duration::ZERO),
+        Err(PointRefused::TorqueTooSteep {
+            axis: 0,
+            slope: 20_000.0,
+            max: 10_000.0,
+        })
+    );
+    assert!(matches!(
+        p.push(torque_point(1000, f64::NAN), Duration::ZERO),
+        Err(PointRefused::NotFinite { axis: 0, .. })
+    ));
+    assert!(matches!(
+        p.push(
+            StreamPoint {
+                t_us: 1000,
+                values: vec![1.0, 2.0]
+            },
+            Duration::ZERO
+        ),
+        Err(PointRefused::Dimension { got: 2, want: 1 })
+    ));
+    p.push(torque_point(1000, 20.0), Duration::ZERO).unwrap();
+    let c = p.counters();
+    assert_eq!((c.received, c.accepted, c.refused), (7, 2, 5), "{c:?}");
+}
+
+/// A stop ramps every torque to 0 together (each within its slope) and
+/// drops the buffered points.
+#[test]
+fn a_stop_ramps_the_torques_to_zero_together() {
+    let mut p = torque_player(2, 1);
+    for k in 0..=21u32 {
+        let t = f64::from(k);
+        let pt = StreamPoint {
+            t_us: u64::from(k) * 1000,
+            values: vec![5.0 * t, -2.5 * t],
+        };
+        p.push(pt, MS * k).unwrap();
+        p.next(MS * k);
+    }
+    // Client time 20 ms: 100 and -50.
+    assert_eq!(p.position(), [100.0, -50.0]);
+    p.stop(MS * 21);
+    let mut k = 22;
+    let mut last = p.position().to_vec();
+    loop {
+        let out = p.next(MS * k);
+        for a in 0..2 {
+            assert!((out.positions[a] - last[a]).abs() <= 10.0 + 1e-9, "{out:?}");
+        }
+        last = out.positions.clone();
+        if out.event == Some(PlayerEvent::AtRest) {
+            break;
+        }
+        k += 1;
+    }
+    // 100 per mille at 10 000 per mille/s: 10 ms; y reaches 0 with x.
+    assert_eq!(k, 31);
+    assert_eq!(last, [0.0, 0.0]);
+    let c = p.counters();
+    assert_eq!(c.received, c.played + c.dropped, "{c:?}");
+}
+
+#[test]
+fn random_torque_streams_never_exceed_the_maximum_nor_the_slope() {
+    for seed in 1..=60u64 {
+        random_torque_stream(seed);
+    }
+}
+
+/// Random torque profiles (some beyond the maximum or the slope on
+/// purpose) with random network delay, stalls, stalled senders and a
+/// stop at the end, in virtual time: no torque beyond the maximum, no
+/// change beyond the slope, every underrun and stop ends at exactly 0
+/// within the slope's ramp, the counters add up.
+fn random_torque_stream(seed: u64) {
+    let mut rng = Rng(seed.wrapping_mul(0xA24B_AED4_963E_E407) | 1);
+    let cycle = Duration::from_micros([1000, 2000, 4000, 10_000][rng.range(0, 4) as usize]);
+    let depth = Duration::from_millis(rng.range(5, 60));
+    let (max, slope) = (400.0, 2000.0);
+    let mut cfg = PlayerConfig::new(cycle, depth);
+    cfg.kind = SetpointKind::Torque;
+    cfg.extrapolate = Duration::from_millis(rng.range(0, 50));
+    let mut p = SetpointPlayer::new(cfg, vec![AxisLimits::torque(max, slope); 2], vec![0.0; 2]);
+    let period_us = rng.range(500, 20_000);
+    let c = cycle.as_secs_f64();
+    let mut torque = [0.0f64; 2];
+    let mut accepted = [0.0f64; 2];
+    let mut target = [0.0f64; 2];
+    let mut client_t = rng.range(0, 1_000_000_000);
+    let mut next_send = Duration::ZERO;
+    let mut flight: Vec<(Duration, StreamPoint)> = Vec::new();
+    let mut stalled_until = Duration::ZERO;
+    let mut last = [0.0f64; 2];
+    let mut stopping = false;
+    let mut stop_at: Option<u32> = None;
+    let mut sent = 0u64;
+    let steps = (20.0 / c) as u32;
+    // The longest ramp to 0: the maximum at the slope, plus a cycle.
+    let ramp_cycles = (max / slope / c).ceil() as u32 + 1;
+    for k in 0..steps {
+        let now = cycle * k;
+        while next_send <= now && !stopping {
+            if rng.f64() < 0.01 {
+                target = [(rng.f64() - 0.5) * 900.0, (rng.f64() - 0.5) * 900.0];
+            }
+            let dt = period_us as f64 / 1e6;
+            let wild = rng.f64() < 0.002;
+            for a in 0..2 {
+                let dt_max = 0.9 * slope * dt;
+                let d = (target[a] - torque[a]).clamp(-dt_max, dt_max);
+                torque[a] += if wild { d * 20.0 } else { d };
+            }
+            client_t += period_us;
+            let mut delay = Duration::from_micros(rng.range(1000, 3000));
+            if rng.f64() < 0.05 {
+                delay += Duration::from_micros(rng.range(0, 40_000));
+            }
+            if rng.f64() < 0.001 {
+                stalled_until = now + Duration::from_millis(rng.range(10, 300));
+            }
+            flight.push((
+                (now + delay).max(stalled_until),
+                StreamPoint {
+                    t_us: client_t,
+                    values: torque.to_vec(),
+                },
+            ));
+            sent += 1;
+            next_send += Duration::from_micros(period_us);
+        }
+        flight.sort_by_key(|(at, _)| *at);
+        while flight.first().is_some_and(|(at, _)| *at <= now) {
+            let (_, pt) = flight.remove(0);
+            let t = [pt.values[0], pt.values[1]];
+            match p.push(pt, now) {
+                Ok(()) => accepted = t,
+                Err(PointRefused::TorqueTooSteep { .. } | PointRefused::TorqueAboveMax { .. }) => {
+                    torque = accepted;
+                }
+                Err(PointRefused::TorqueNotFromZero { .. }) => {
+                    torque = [0.0; 2];
+                    accepted = torque;
+                }
+                Err(_) => {}
+            }
+        }
+        if k == steps - (2.0 / c) as u32 {
+            p.stop(now);
+            stopping = true;
+        }
+        let out = p.next(now);
+        match out.event {
+            Some(PlayerEvent::Underrun) if stop_at.is_none() => stop_at = Some(k),
+            _ => {}
+        }
+        if stopping && stop_at.is_none() {
+            stop_at = Some(k);
+        }
+        if out.state == PlayerState::Waiting {
+            // Every ramp ends at exactly 0.
+            assert_eq!(out.positions, [0.0, 0.0], "seed {seed} cycle {k}");
+            if !stopping {
+                stop_at = None;
+            }
+        }
+        if let Some(s) = stop_at
+            && out.state != PlayerState::Waiting
+        {
+            assert!(
+                k - s <= ramp_cycles,
+                "seed {seed} cycle {k}: the ramp from {s} is not at 0 after {ramp_cycles} cycles"
+            );
+        }
+        for a in 0..2 {
+            let t = out.positions[a];
+            assert!(t.abs() <= max + 1e-9, "seed {seed} cycle {k}: {t}");
+            assert!(
+                (t - last[a]).abs() <= slope * c * (1.0 + 1e-9) + 1e-9,
+                "seed {seed} cycle {k}: axis {a} {} -> {t}",
+                last[a]
+            );
+            last[a] = t;
+        }
+    }
+    assert_eq!(p.state(), PlayerState::Waiting, "seed {seed}");
+    assert_eq!(p.position(), [0.0, 0.0], "seed {seed}");
+    let n = p.counters();
+    assert_eq!(n.received + flight.len() as u64, sent, "seed {seed}: {n:?}");
+    assert_eq!(n.received, n.accepted + n.refused, "seed {seed}: {n:?}");
+    assert_eq!(
+        n.received,
+        n.played + n.late + n.refused + n.dropped,
+        "seed {seed}: {n:?}"
+    );
+}
