@@ -958,8 +958,8 @@ fn a_stop_ramps_the_torques_to_zero_together() {
     let mut last = p.position().to_vec();
     loop {
         let out = p.next(MS * k);
-        for a in 0..2 {
-            assert!((out.positions[a] - last[a]).abs() <= 10.0 + 1e-9, "{out:?}");
+        for (t, t0) in out.positions.iter().zip(&last) {
+            assert!((t - t0).abs() <= 10.0 + 1e-9, "{out:?}");
         }
         last = out.positions.clone();
         if out.event == Some(PlayerEvent::AtRest) {
@@ -1085,15 +1085,13 @@ fn random_torque_stream(seed: u64) {
                 "seed {seed} cycle {k}: the ramp from {s} is not at 0 after {ramp_cycles} cycles"
             );
         }
-        for a in 0..2 {
-            let t = out.positions[a];
+        for (a, (&t, t0)) in out.positions.iter().zip(last.iter_mut()).enumerate() {
             assert!(t.abs() <= max + 1e-9, "seed {seed} cycle {k}: {t}");
             assert!(
-                (t - last[a]).abs() <= slope * c * (1.0 + 1e-9) + 1e-9,
-                "seed {seed} cycle {k}: axis {a} {} -> {t}",
-                last[a]
+                (t - *t0).abs() <= slope * c * (1.0 + 1e-9) + 1e-9,
+                "seed {seed} cycle {k}: axis {a} {t0} -> {t}"
             );
-            last[a] = t;
+            *t0 = t;
         }
     }
     assert_eq!(p.state(), PlayerState::Waiting, "seed {seed}");
