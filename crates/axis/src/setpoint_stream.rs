@@ -472,6 +472,11 @@ impl SetpointPlayer {
         }
     }
 
+    /// What the points carry.
+    pub fn kind(&self) -> SetpointKind {
+        self.cfg.kind
+    }
+
     /// The player's state.
     pub fn state(&self) -> PlayerState {
         self.state

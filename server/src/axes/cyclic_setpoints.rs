@@ -29,12 +29,14 @@ use crate::canopen::sync_thread::{SyncRider, SyncTick};
 use cangate_axis::Units;
 use cangate_axis::cia402::{CyclicPlan, CyclicSample, SetpointObject};
 use cangate_axis::setpoint_stream::{
-    AxisLimits, PlayerConfig, PlayerCounters, PlayerEvent, PlayerState, PointRefused,
+    AxisLimits, PlayerConfig, PlayerCounters, PlayerEvent, PlayerState, PointRefused, SetpointKind,
     SetpointPlayer, StreamPoint,
 };
 use cangate_can::{CanId, Frame};
 use cangate_canopen::cia402::first_axis;
-use cangate_canopen::cia402::objects::{INTERPOLATION_DATA, TARGET_POSITION, TARGET_VELOCITY};
+use cangate_canopen::cia402::objects::{
+    INTERPOLATION_DATA, TARGET_POSITION, TARGET_TORQUE, TARGET_VELOCITY,
+};
 use cangate_canopen::pdo::PdoConfig;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
@@ -95,6 +97,34 @@ impl SetpointLayout {
     }
 }
 
+/// The RPDO a torque stream sends each SYNC's torque in: one that maps
+/// the target torque (0x6071, 16 bits) and nothing else (the gateway's
+/// torque RPDO, [`cangate_axis::process_data::torque_rpdo`]), so the
+/// SYNC thread owns its whole payload.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TorqueLayout {
+    /// Its COB-ID.
+    pub cob_id: u16,
+}
+
+impl TorqueLayout {
+    /// The first RPDO in `rpdos` that maps the target torque alone.
+    pub fn find(rpdos: &[PdoConfig]) -> Option<TorqueLayout> {
+        rpdos.iter().find_map(|p| {
+            matches!(p.mapping.as_slice(), [m] if first_axis(m.addr) == TARGET_TORQUE && m.bits == 16)
+                .then(|| TorqueLayout {
+                    cob_id: p.cob_id,
+                })
+        })
+    }
+
+    /// The RPDO frame commanding `per_mille` (rounded, within i16).
+    pub fn frame(&self, per_mille: f64) -> Option<Frame> {
+        let t = per_mille.round().clamp(-32768.0, 32767.0) as i16;
+        Frame::new(CanId::Standard(self.cob_id), &t.to_le_bytes()).ok()
+    }
+}
+
 /// One axis's entry.
 #[derive(Debug, Default)]
 struct Entry {
@@ -120,6 +150,10 @@ struct Entry {
     streamed: Option<CyclicSample>,
     /// Byte offset of the target velocity in the set-point RPDO (CSV).
     velocity_offset: Option<usize>,
+    /// The torque RPDO (CST), if the axis has one a stream may send.
+    torque: Option<TorqueLayout>,
+    /// This SYNC's torque from the axis's torque stream (per mille).
+    streamed_torque: Option<f64>,
 }
 
 /// Why a set-point stream ended.
@@ -152,6 +186,19 @@ pub enum StreamEnd {
         /// "negative" or "positive".
         switch: &'static str,
     },
+    /// A torque stream's guard stopped one of its axes (its velocity
+    /// above the maximum, or a stop from where it is would pass a soft
+    /// limit): every torque ramped to 0 and the drives halted.
+    TorqueGuard {
+        /// The axis.
+        axis: String,
+        /// What the guard saw.
+        why: String,
+    },
+    /// A torque stream ran out of points: the torques ramped to 0 and the
+    /// drives halted (a halted drive takes no torque: a torque stream
+    /// does not resume after an underrun).
+    Underrun,
     /// The gateway shuts down.
     ShuttingDown,
 }
@@ -178,6 +225,16 @@ impl std::fmt::Display for StreamEnd {
                 f,
                 "axis {axis} left operation enabled in cyclic position mode (disabled, fault or \
                  node lost): the stream ended"
+            ),
+            StreamEnd::TorqueGuard { axis, why } => write!(
+                f,
+                "axis {axis}: {why}; the stream ended, its torques ramped to 0 and its drives \
+                 halted"
+            ),
+            StreamEnd::Underrun => write!(
+                f,
+                "no point came in time: the torques ramped to 0 and the drives halted (a torque \
+                 stream ends on an underrun)"
             ),
             StreamEnd::ShuttingDown => write!(f, "the gateway shuts down"),
         }
@@ -411,6 +468,32 @@ impl CyclicSetpoints {
         }
     }
 
+    /// The torque RPDO of axis `i`, which a torque stream sends each
+    /// SYNC's torque in (`None`: the axis takes no torque stream).
+    pub fn set_torque_rpdo(&self, i: usize, layout: Option<TorqueLayout>) {
+        let mut st = self.state.lock().expect("set-point table lock");
+        if let Some(e) = st.entries.get_mut(i) {
+            e.torque = layout;
+        }
+    }
+
+    /// Whether axis `i` (table index) plays in a torque stream.
+    pub fn in_torque_stream(&self, i: usize) -> bool {
+        self.torque_stream_cob(i).is_some()
+    }
+
+    /// The COB-ID of axis `i`'s torque RPDO while the axis plays in a
+    /// torque stream (which sends it with every SYNC).
+    pub fn torque_stream_cob(&self, i: usize) -> Option<u16> {
+        let st = self.state.lock().expect("set-point table lock");
+        let e = st.entries.get(i)?;
+        let id = e.stream?;
+        st.streams
+            .iter()
+            .any(|s| s.id == id && s.player.kind() == SetpointKind::Torque)
+            .then_some(e.torque?.cob_id)
+    }
+
     /// Moves the samples taken since the last call into `out`.
     pub fn take_samples(&self, out: &mut Vec<(usize, CyclicSample)>) {
         let mut st = self.state.lock().expect("set-point table lock");
@@ -440,6 +523,20 @@ impl CyclicSetpoints {
             let e = &st.entries[i];
             if e.stream.is_some() {
                 return Err(format!("axis {} is already in a set-point stream", e.name));
+            }
+            if cfg.kind == SetpointKind::Torque {
+                // A torque stream starts from 0 torque; the axis's own
+                // command (a torque of 0) holds the drive meanwhile.
+                if e.torque.is_none() {
+                    return Err(format!(
+                        "axis {} has no RPDO that maps the target torque (0x6071) alone: a \
+                         torque stream needs the gateway's torque RPDO (PDO process data, mode \
+                         = \"cst\")",
+                        e.name
+                    ));
+                }
+                positions.push(0.0);
+                continue;
             }
             let (Some(plan), Some(_)) = (&e.plan, &e.rpdo) else {
                 return Err(format!(
@@ -621,6 +718,15 @@ impl SyncRider for CyclicSetpoints {
                 if e.stream != Some(s.id) {
                     continue;
                 }
+                if s.player.kind() == SetpointKind::Torque {
+                    // The torque itself; the axis keeps no plan (its own
+                    // torque command holds the drive).
+                    e.streamed_torque = Some(if done { 0.0 } else { cycle.positions[k] });
+                    if done {
+                        e.stream = None;
+                    }
+                    continue;
+                }
                 let (p, v) = (cycle.positions[k], s.player.velocity()[k]);
                 e.streamed = Some(CyclicSample::streamed(
                     t,
@@ -643,6 +749,12 @@ impl SyncRider for CyclicSetpoints {
         }
         streams.retain(|s| !(s.finished && s.orphaned));
         for e in entries.iter_mut() {
+            if let (Some(t), Some(layout)) = (e.streamed_torque.take(), &e.torque) {
+                match layout.frame(t) {
+                    Some(f) => frames.push(f),
+                    None => tracing::error!(cob_id = layout.cob_id, "torque RPDO not sent"),
+                }
+            }
             let streamed = e.streamed.take();
             let (Some(plan), Some((cob, payload, offset))) = (&mut e.plan, &mut e.rpdo) else {
                 continue;

@@ -75,6 +75,7 @@ pub async fn serve(
     let caller = caller.with_lease(open.lease);
     let stream = axes
         .open_setpoint_stream(&caller, request)
+        .await
         .map_err(ApiError::from)?;
     let kind = stream.kind();
     let (in_tx, in_rx) = mpsc::channel(64);
@@ -122,7 +123,7 @@ pub async fn serve(
         while let Some(u) = up_rx.recv().await {
             let end = u.report.end.clone();
             let finished = u.report.finished;
-            if tx.send(Ok(status_pb(&names, u))).await.is_err() {
+            if tx.send(Ok(status_pb(&names, kind, u))).await.is_err() {
                 return;
             }
             if finished {
@@ -147,7 +148,8 @@ pub async fn serve(
 }
 
 /// The points of a batch: positions (their feed-forward checked) for a
-/// position stream, velocities for a velocity stream.
+/// position stream, velocities for a velocity stream, torques for a
+/// torque stream.
 fn points(
     batch: pb::SetpointBatch,
     axes: usize,
@@ -157,6 +159,31 @@ fn points(
         .points
         .into_iter()
         .map(|p| {
+            if kind == SetpointKind::Torque {
+                if !p.positions.is_empty() || !p.velocities.is_empty() {
+                    return Err(format!(
+                        "point at {} µs: the stream's axes run in cst: a point carries one \
+                         torque per axis in `torques`, no positions nor velocities",
+                        p.t_us
+                    ));
+                }
+                return Ok(StreamPoint {
+                    t_us: p.t_us,
+                    values: p.torques,
+                });
+            }
+            if !p.torques.is_empty() {
+                return Err(format!(
+                    "point at {} µs: torques are the set-points of a stream of cst axes; this \
+                     stream's axes run in {}",
+                    p.t_us,
+                    if kind == SetpointKind::Velocity {
+                        "csv"
+                    } else {
+                        "csp (torque feed-forward is not sent)"
+                    }
+                ));
+            }
             if kind == SetpointKind::Velocity {
                 if !p.positions.is_empty() {
                     return Err(format!(
@@ -195,6 +222,8 @@ fn end_reason(e: &StreamEnd) -> &'static str {
         StreamEnd::LeaseLost(_) => "LEASE_LOST",
         StreamEnd::AxisLeft { .. } => "AXIS_LEFT",
         StreamEnd::LimitSwitch { .. } => "LIMIT_SWITCH",
+        StreamEnd::TorqueGuard { .. } => "TORQUE_GUARD",
+        StreamEnd::Underrun => "UNDERRUN",
         StreamEnd::ShuttingDown => "SHUTTING_DOWN",
     }
 }
@@ -203,7 +232,8 @@ fn end_axis(e: &StreamEnd) -> &str {
     match e {
         StreamEnd::Stopped { axis }
         | StreamEnd::AxisLeft { axis }
-        | StreamEnd::LimitSwitch { axis, .. } => axis,
+        | StreamEnd::LimitSwitch { axis, .. }
+        | StreamEnd::TorqueGuard { axis, .. } => axis,
         _ => "",
     }
 }
@@ -217,14 +247,18 @@ fn refusal_reason(r: &PointRefused) -> (&'static str, Option<usize>) {
         PointRefused::BeyondSoftLimit { axis, .. } => ("BEYOND_SOFT_LIMIT", Some(*axis)),
         PointRefused::TooFast { axis, .. } => ("TOO_FAST", Some(*axis)),
         PointRefused::TooHardAcceleration { axis, .. } => ("TOO_HARD_ACCELERATION", Some(*axis)),
-        PointRefused::NotFromRest { axis, .. } => ("NOT_FROM_REST", Some(*axis)),
+        PointRefused::NotFromRest { axis, .. } | PointRefused::TorqueNotFromZero { axis, .. } => {
+            ("NOT_FROM_REST", Some(*axis))
+        }
+        PointRefused::TorqueAboveMax { axis, .. } => ("TORQUE_ABOVE_MAX", Some(*axis)),
+        PointRefused::TorqueTooSteep { axis, .. } => ("TORQUE_TOO_STEEP", Some(*axis)),
         PointRefused::NotWhereTheAxisStands { axis, .. } => {
             ("NOT_WHERE_THE_AXIS_STANDS", Some(*axis))
         }
     }
 }
 
-fn status_pb(names: &[String], u: StreamUpdate) -> pb::SetpointStreamStatus {
+fn status_pb(names: &[String], kind: SetpointKind, u: StreamUpdate) -> pb::SetpointStreamStatus {
     use pb::SetpointEventKind as K;
     let r = &u.report;
     let state = if r.finished {
@@ -298,7 +332,16 @@ fn status_pb(names: &[String], u: StreamUpdate) -> pb::SetpointStreamStatus {
             limited: c.limited,
         }),
         clock_offset_us: r.clock_offset_us.unwrap_or(0),
-        commanded_positions: r.positions.clone(),
+        commanded_positions: if kind == SetpointKind::Torque {
+            Vec::new()
+        } else {
+            r.positions.clone()
+        },
+        commanded_torques: if kind == SetpointKind::Torque {
+            r.positions.clone()
+        } else {
+            Vec::new()
+        },
         actual_positions: u.actual,
         signals: u
             .latest
