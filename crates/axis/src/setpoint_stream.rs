@@ -183,6 +183,39 @@ pub struct StreamPoint {
     /// a velocity (user units/s) in a velocity stream, a torque (per mille
     /// of the rated torque) in a torque stream ([`SetpointKind`]).
     pub values: Vec<f64>,
+    /// A position stream's feed-forward, if the client gives one.
+    pub feed_forward: Option<FeedForward>,
+}
+
+/// The feed-forward of a point of a position stream: the velocity (and
+/// optionally the torque) the client's path has there, per axis. Checked
+/// with the point (finite, the velocity within the maximum velocity, the
+/// torque within the maximum torque where the player knows it) and
+/// interpolated between points like the position
+/// ([`SetpointPlayer::feed_forward`]).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct FeedForward {
+    /// One velocity per axis (user units/s).
+    pub velocities: Vec<f64>,
+    /// One torque per axis (per mille of the rated torque), or none.
+    pub torques: Vec<f64>,
+}
+
+impl FeedForward {
+    /// `self` and `other` mixed at `f` (0: `self`, 1: `other`); torques
+    /// only where both have them.
+    fn lerp(&self, other: &FeedForward, f: f64) -> FeedForward {
+        let mix = |a: &[f64], b: &[f64]| -> Vec<f64> {
+            if a.len() != b.len() {
+                return Vec::new();
+            }
+            a.iter().zip(b).map(|(x, y)| x + (y - x) * f).collect()
+        };
+        FeedForward {
+            velocities: mix(&self.velocities, &other.velocities),
+            torques: mix(&self.torques, &other.torques),
+        }
+    }
 }
 
 /// Why a point was refused.
@@ -373,6 +406,8 @@ struct Buffered {
     t_us: u64,
     positions: Vec<f64>,
     velocity: Vec<f64>,
+    /// The client's feed-forward at the point.
+    feed_forward: Option<FeedForward>,
 }
 
 /// The ramp to rest: from `from` at `velocity`, decelerating over
@@ -438,6 +473,11 @@ pub struct SetpointPlayer {
     /// A velocity stream's last accepted point: its time, velocities and
     /// the position they predict (`None` at the start of a playout).
     chain: Option<Chain>,
+    /// The client's feed-forward interpolated for the last cycle, if the
+    /// points around it had one.
+    cycle_feed_forward: Option<FeedForward>,
+    /// The largest feed-forward torque per axis, where known.
+    max_feed_forward_torque: Option<Vec<f64>>,
 }
 
 /// The last accepted point of a velocity stream, integrated.
@@ -469,6 +509,30 @@ impl SetpointPlayer {
             ramp: None,
             counters: PlayerCounters::default(),
             chain: None,
+            cycle_feed_forward: None,
+            max_feed_forward_torque: None,
+        }
+    }
+
+    /// The same player, refusing a point whose feed-forward torque exceeds
+    /// `max` (per axis, per mille; [`PointRefused::TorqueAboveMax`]).
+    pub fn with_feed_forward_torque_limits(mut self, max: Vec<f64>) -> Self {
+        self.max_feed_forward_torque = Some(max);
+        self
+    }
+
+    /// The feed-forward of the last cycle, per axis: the client's,
+    /// interpolated between the points around the cycle where both have
+    /// one; else (no feed-forward given, extrapolating, ramping to rest)
+    /// the commanded velocity of the cycle and no torque. Velocities in
+    /// user units/s, torques in per mille (empty: none).
+    pub fn feed_forward(&self) -> FeedForward {
+        match &self.cycle_feed_forward {
+            Some(ff) if ff.velocities.len() == self.velocity.len() => ff.clone(),
+            _ => FeedForward {
+                velocities: self.velocity.clone(),
+                torques: Vec::new(),
+            },
         }
     }
 
@@ -530,6 +594,44 @@ impl SetpointPlayer {
             self.counters.refused += 1;
         }
         r
+    }
+
+    /// A feed-forward: one finite velocity per axis within its maximum
+    /// velocity, no torque or one finite torque per axis within its
+    /// maximum.
+    fn check_feed_forward(&self, ff: &FeedForward) -> Result<(), PointRefused> {
+        let n = self.limits.len();
+        let torques_fit = ff.torques.is_empty() || ff.torques.len() == n;
+        if ff.velocities.len() != n || !torques_fit {
+            let got = if torques_fit {
+                ff.velocities.len()
+            } else {
+                ff.torques.len()
+            };
+            return Err(PointRefused::Dimension { got, want: n });
+        }
+        for values in [&ff.velocities, &ff.torques] {
+            if let Some((axis, &value)) = values.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+                return Err(PointRefused::NotFinite { axis, value });
+            }
+        }
+        for (axis, (&v, l)) in ff.velocities.iter().zip(&self.limits).enumerate() {
+            if v.abs() > l.max_velocity * (1.0 + 1e-9) {
+                return Err(PointRefused::TooFast {
+                    axis,
+                    velocity: v,
+                    max: l.max_velocity,
+                });
+            }
+        }
+        if let Some(max) = &self.max_feed_forward_torque {
+            for (axis, (&torque, &max)) in ff.torques.iter().zip(max).enumerate() {
+                if torque.abs() > max * (1.0 + 1e-9) {
+                    return Err(PointRefused::TorqueAboveMax { axis, torque, max });
+                }
+            }
+        }
+        Ok(())
     }
 
     /// One finite value per axis.
@@ -673,6 +775,7 @@ impl SetpointPlayer {
         let velocity = p.values;
         self.accept(
             StreamPoint {
+                feed_forward: None,
                 t_us,
                 values: position.clone(),
             },
@@ -703,6 +806,9 @@ impl SetpointPlayer {
     fn accept(&mut self, p: StreamPoint, arrived: Duration) -> Result<(), PointRefused> {
         let n = self.limits.len();
         self.check_values(&p)?;
+        if let Some(ff) = &p.feed_forward {
+            self.check_feed_forward(ff)?;
+        }
         if self.state == PlayerState::Stopping {
             // Counted as accepted and dropped: the client sent it in good
             // faith; the axes are on their way to rest.
@@ -797,6 +903,7 @@ impl SetpointPlayer {
             t_us: p.t_us,
             positions: p.values,
             velocity,
+            feed_forward: p.feed_forward,
         };
         if new_epoch {
             self.offset_us = Some(delay);
@@ -918,6 +1025,7 @@ impl SetpointPlayer {
         let mut event = None;
         let before = self.position.clone();
         let offset_before = self.offset_us;
+        self.cycle_feed_forward = None;
         // Slew the offset towards its estimate, bounded.
         if let Some(o) = self.offset_us.as_mut() {
             let max = self.cfg.max_slew * dt * 1e6;
@@ -1044,6 +1152,10 @@ impl SetpointPlayer {
                 self.position = (a.positions.iter().zip(&b.positions))
                     .map(|(x, y)| x + (y - x) * f)
                     .collect();
+                self.cycle_feed_forward = match (&a.feed_forward, &b.feed_forward) {
+                    (Some(x), Some(y)) => Some(x.lerp(y, f)),
+                    _ => None,
+                };
                 self.extrapolating_since = None;
             }
             (Some(a), None) => {
@@ -1131,6 +1243,7 @@ impl SetpointPlayer {
             t_us: tc_prev.max(0.0) as u64,
             positions: self.position.clone(),
             velocity: self.velocity.clone(),
+            feed_forward: None,
         };
         self.last_played = Some(from);
         self.extrapolating_since = None;

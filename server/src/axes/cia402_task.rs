@@ -278,6 +278,10 @@ pub fn spawn(
         setpoints.set_velocity_offset(i, s.setpoint.as_ref().and_then(|l| l.velocity_offset));
         if s.sdo.is_none() {
             setpoints.set_torque_rpdo(i, super::cyclic_setpoints::TorqueLayout::find(&s.rpdos));
+            setpoints.set_feed_forward_rpdo(
+                i,
+                super::cyclic_setpoints::FeedForwardLayout::find(&s.rpdos),
+            );
         }
     }
     let configured_cyclic = axes_cyclic.iter().any(|&c| c);

@@ -146,6 +146,9 @@ pub struct SetpointStream {
     kind: SetpointKind,
     /// Why it ended, once the session saw it end.
     end: Option<StreamEnd>,
+    /// Per axis: whether a position stream's velocity and torque
+    /// feed-forward reach the drive.
+    feed_forward_sent: Vec<(bool, bool)>,
 }
 
 /// The mode a stream of `kind` plays in, for messages.
@@ -361,6 +364,7 @@ impl Axes {
             positions.push(snap.demand_position);
         }
         let kind = kind.unwrap_or_default();
+        let mut feed_forward_sent = vec![(false, false); idx.len()];
         let (table, id) = match (&first.spec.drive, &first.cansmc, &first.cyclic) {
             (DriveSpec::Cansmc(d), Some(smc), _) => {
                 let mut cfg = PlayerConfig::new(d.cycle_time, req.depth);
@@ -396,6 +400,18 @@ impl Axes {
                         return Err(not(e));
                     }
                 };
+                if kind == SetpointKind::Position {
+                    let max_torque = idx
+                        .iter()
+                        .map(|&i| match &self.axes[i].spec.drive {
+                            DriveSpec::Cia402(d) => d.torque.max_torque,
+                            DriveSpec::Cansmc(_) => 0.0,
+                        })
+                        .collect();
+                    table.set_feed_forward_torque_limits(id, max_torque);
+                    feed_forward_sent =
+                        locals.iter().map(|&l| table.feed_forward_sent(l)).collect();
+                }
                 (StreamTable::Sync(table.clone()), id)
             }
             _ => {
@@ -413,6 +429,7 @@ impl Axes {
             report_period,
             kind,
             end: None,
+            feed_forward_sent,
         })
     }
 
@@ -610,6 +627,13 @@ impl SetpointStream {
     /// velocities (csv axes).
     pub fn kind(&self) -> SetpointKind {
         self.kind
+    }
+
+    /// Per axis of the stream: whether the feed-forward of a position
+    /// stream reaches the drive, (velocity in 0x60B1, torque in 0x60B2).
+    /// Feed-forward that does not is checked and not sent.
+    pub fn feed_forward_sent(&self) -> &[(bool, bool)] {
+        &self.feed_forward_sent
     }
 
     /// The stream's axes (global indices), in its order.

@@ -9,7 +9,7 @@ use crate::axes::cyclic_setpoints::StreamEnd;
 use crate::axes::setpoint_streams::{StreamInput, StreamRequest, StreamUpdate};
 use crate::axes::{Axes, Caller};
 use cangate_axis::setpoint_stream::{
-    PlayerEvent, PlayerState, PointRefused, SetpointKind, StreamPoint,
+    FeedForward, PlayerEvent, PlayerState, PointRefused, SetpointKind, StreamPoint,
 };
 use cangate_can::Timestamp;
 use cangate_proto::v1 as pb;
@@ -78,6 +78,7 @@ pub async fn serve(
         .await
         .map_err(ApiError::from)?;
     let kind = stream.kind();
+    let feed_forward_sent = stream.feed_forward_sent().to_vec();
     let (in_tx, in_rx) = mpsc::channel(64);
     let (up_tx, mut up_rx) = mpsc::channel(16);
     let (tx, rx) = mpsc::channel(16);
@@ -123,7 +124,10 @@ pub async fn serve(
         while let Some(u) = up_rx.recv().await {
             let end = u.report.end.clone();
             let finished = u.report.finished;
-            if tx.send(Ok(status_pb(&names, kind, u))).await.is_err() {
+            let mut status = status_pb(&names, kind, u);
+            status.velocity_feed_forward_sent = feed_forward_sent.iter().map(|f| f.0).collect();
+            status.torque_feed_forward_sent = feed_forward_sent.iter().map(|f| f.1).collect();
+            if tx.send(Ok(status)).await.is_err() {
                 return;
             }
             if finished {
@@ -168,23 +172,19 @@ fn points(
                     ));
                 }
                 return Ok(StreamPoint {
+                    feed_forward: None,
                     t_us: p.t_us,
                     values: p.torques,
                 });
             }
-            if !p.torques.is_empty() {
-                return Err(format!(
-                    "point at {} µs: torques are the set-points of a stream of cst axes; this \
-                     stream's axes run in {}",
-                    p.t_us,
-                    if kind == SetpointKind::Velocity {
-                        "csv"
-                    } else {
-                        "csp (torque feed-forward is not sent)"
-                    }
-                ));
-            }
             if kind == SetpointKind::Velocity {
+                if !p.torques.is_empty() {
+                    return Err(format!(
+                        "point at {} µs: the stream's axes run in csv: a point carries one \
+                         velocity per axis in `velocities`, no torques",
+                        p.t_us
+                    ));
+                }
                 if !p.positions.is_empty() {
                     return Err(format!(
                         "point at {} µs: the stream's axes run in csv: a point carries one \
@@ -193,6 +193,7 @@ fn points(
                     ));
                 }
                 return Ok(StreamPoint {
+                    feed_forward: None,
                     t_us: p.t_us,
                     values: p.velocities,
                 });
@@ -206,7 +207,22 @@ fn points(
                     p.t_us, p.velocities
                 ));
             }
+            if !p.torques.is_empty()
+                && (p.velocities.is_empty()
+                    || p.torques.len() != axes
+                    || p.torques.iter().any(|v| !v.is_finite()))
+            {
+                return Err(format!(
+                    "point at {} µs: torque feed-forward must be empty or one finite value per \
+                     axis ({axes}), with the velocity feed-forward, got {:?}",
+                    p.t_us, p.torques
+                ));
+            }
             Ok(StreamPoint {
+                feed_forward: (!p.velocities.is_empty()).then_some(FeedForward {
+                    velocities: p.velocities,
+                    torques: p.torques,
+                }),
                 t_us: p.t_us,
                 values: p.positions,
             })
@@ -342,6 +358,8 @@ fn status_pb(names: &[String], kind: SetpointKind, u: StreamUpdate) -> pb::Setpo
         } else {
             Vec::new()
         },
+        velocity_feed_forward_sent: Vec::new(),
+        torque_feed_forward_sent: Vec::new(),
         actual_positions: u.actual,
         signals: u
             .latest

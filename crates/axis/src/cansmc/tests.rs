@@ -593,6 +593,7 @@ fn feed(player: &mut SetpointPlayer, start: Duration, until_ms: u64) {
         player
             .push(
                 StreamPoint {
+                    feed_forward: None,
                     t_us: k * 1000,
                     values: vec![path(k as f64 / 1000.0)],
                 },

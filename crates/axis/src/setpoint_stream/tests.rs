@@ -47,6 +47,7 @@ fn a_circle_at_one_kilohertz_plays_every_point_after_the_buffer() {
             let pos = circle(10.0, 2.0, sent as f64 / 1000.0);
             p.push(
                 StreamPoint {
+                    feed_forward: None,
                     t_us: client0 + sent * 1000,
                     values: pos.to_vec(),
                 },
@@ -85,6 +86,7 @@ fn points_beyond_the_limits_are_refused_with_the_reason() {
     let mut p = player(1, 10);
     let at = |ms: u64| Duration::from_millis(ms);
     let pt = |t_ms: u64, x: f64| StreamPoint {
+        feed_forward: None,
         t_us: t_ms * 1000,
         values: vec![x],
     };
@@ -118,6 +120,7 @@ fn points_beyond_the_limits_are_refused_with_the_reason() {
     assert!(matches!(
         p.push(
             StreamPoint {
+                feed_forward: None,
                 t_us: 2000,
                 values: vec![f64::NAN]
             },
@@ -128,6 +131,7 @@ fn points_beyond_the_limits_are_refused_with_the_reason() {
     assert!(matches!(
         p.push(
             StreamPoint {
+                feed_forward: None,
                 t_us: 2000,
                 values: vec![0.0, 0.0]
             },
@@ -149,6 +153,7 @@ fn a_point_that_could_not_stop_inside_the_soft_limits_is_refused() {
     );
     p.push(
         StreamPoint {
+            feed_forward: None,
             t_us: 0,
             values: vec![490.0],
         },
@@ -164,6 +169,7 @@ fn a_point_that_could_not_stop_inside_the_soft_limits_is_refused() {
         x += v / 1000.0;
         if let Err(e) = p.push(
             StreamPoint {
+                feed_forward: None,
                 t_us: k * 1000,
                 values: vec![x],
             },
@@ -195,6 +201,7 @@ fn an_underrun_ramps_both_axes_to_rest_together_and_the_stream_resumes() {
             let pos = circle(10.0, 2.0, k as f64 / 1000.0);
             p.push(
                 StreamPoint {
+                    feed_forward: None,
                     t_us: k * 1000,
                     values: pos.to_vec(),
                 },
@@ -243,6 +250,7 @@ fn an_underrun_ramps_both_axes_to_rest_together_and_the_stream_resumes() {
     let t0 = 10_000_000u64;
     p.push(
         StreamPoint {
+            feed_forward: None,
             t_us: t0,
             values: standing.clone(),
         },
@@ -254,6 +262,7 @@ fn an_underrun_ramps_both_axes_to_rest_together_and_the_stream_resumes() {
         x += 0.0001 * k as f64 / 100.0;
         p.push(
             StreamPoint {
+                feed_forward: None,
                 t_us: t0 + k * 1000,
                 values: vec![x, standing[1]],
             },
@@ -277,6 +286,7 @@ fn a_stop_brings_the_axes_to_rest_and_drops_what_is_buffered() {
         }
         p.push(
             StreamPoint {
+                feed_forward: None,
                 t_us: k * 1000,
                 values: vec![x],
             },
@@ -323,6 +333,7 @@ fn the_first_cycle_past_the_last_point_plays_the_path_to_it() {
         if ms <= 100 {
             p.push(
                 StreamPoint {
+                    feed_forward: None,
                     t_us: ms * 1000,
                     values: vec![path(ms)],
                 },
@@ -433,6 +444,7 @@ fn random_stream(seed: u64) {
             flight.push((
                 arrive,
                 StreamPoint {
+                    feed_forward: None,
                     t_us: client_t,
                     values: pos.to_vec(),
                 },
@@ -508,6 +520,7 @@ fn velocity_player(axes: usize, depth_ms: u64) -> SetpointPlayer {
 
 fn velocity_point(t_us: u64, v: f64) -> StreamPoint {
     StreamPoint {
+        feed_forward: None,
         t_us,
         values: vec![v],
     }
@@ -699,6 +712,7 @@ fn random_velocity_stream(seed: u64) {
             flight.push((
                 arrive,
                 StreamPoint {
+                    feed_forward: None,
                     t_us: client_t,
                     values: vel.to_vec(),
                 },
@@ -842,6 +856,7 @@ fn torque_player(axes: usize, depth_ms: u64) -> SetpointPlayer {
 
 fn torque_point(t_us: u64, t: f64) -> StreamPoint {
     StreamPoint {
+        feed_forward: None,
         t_us,
         values: vec![t],
     }
@@ -925,6 +940,7 @@ fn torque_points_beyond_the_limits_are_refused() {
     assert!(matches!(
         p.push(
             StreamPoint {
+                feed_forward: None,
                 t_us: 1000,
                 values: vec![1.0, 2.0]
             },
@@ -945,6 +961,7 @@ fn a_stop_ramps_the_torques_to_zero_together() {
     for k in 0..=21u32 {
         let t = f64::from(k);
         let pt = StreamPoint {
+            feed_forward: None,
             t_us: u64::from(k) * 1000,
             values: vec![5.0 * t, -2.5 * t],
         };
@@ -1035,6 +1052,7 @@ fn random_torque_stream(seed: u64) {
             flight.push((
                 (now + delay).max(stalled_until),
                 StreamPoint {
+                    feed_forward: None,
                     t_us: client_t,
                     values: torque.to_vec(),
                 },
@@ -1104,4 +1122,65 @@ fn random_torque_stream(seed: u64) {
         n.played + n.late + n.refused + n.dropped,
         "seed {seed}: {n:?}"
     );
+}
+
+/// A position stream's feed-forward plays interpolated between points like
+/// the position; without one (or once the points run out) the
+/// feed-forward is the commanded velocity. A feed-forward beyond the
+/// limits refuses its point.
+#[test]
+fn the_feed_forward_of_a_position_stream_is_interpolated_and_checked() {
+    let mut p = player(1, 15).with_feed_forward_torque_limits(vec![300.0]);
+    let point = |k: u32, x: f64, v: f64, t: f64| StreamPoint {
+        t_us: u64::from(k) * 1000,
+        values: vec![x],
+        feed_forward: Some(FeedForward {
+            velocities: vec![v],
+            torques: vec![t],
+        }),
+    };
+    let mut ff = Vec::new();
+    for k in 0..=35u32 {
+        if k % 10 == 0 && k <= 20 {
+            // 0 to 0.1 to 0.3 mm: 10 then 20 mm/s, torque 0, 40, 80.
+            let (x, v, t) =
+                [(0.0, 0.0, 0.0), (0.1, 10.0, 40.0), (0.3, 20.0, 80.0)][k as usize / 10];
+            p.push(point(k, x, v, t), MS * k).unwrap();
+        }
+        p.next(MS * k);
+        ff.push(p.feed_forward());
+    }
+    // Client time 15 ms behind: at 20 ms half way to the second point.
+    assert_eq!(ff[20].velocities, [5.0]);
+    assert_eq!(ff[20].torques, [20.0]);
+    assert_eq!(ff[25].velocities, [10.0]);
+    assert!((ff[30].velocities[0] - 15.0).abs() < 1e-9, "{:?}", ff[30]);
+    assert!((ff[30].torques[0] - 60.0).abs() < 1e-9, "{:?}", ff[30]);
+    // Beyond the maximum velocity, the maximum torque, not finite, the
+    // wrong count: refused.
+    assert!(matches!(
+        p.push(point(36, 0.31, 150.0, 0.0), MS * 36),
+        Err(PointRefused::TooFast { axis: 0, .. })
+    ));
+    assert!(matches!(
+        p.push(point(36, 0.31, 10.0, 400.0), MS * 36),
+        Err(PointRefused::TorqueAboveMax { axis: 0, .. })
+    ));
+    assert!(matches!(
+        p.push(point(36, 0.31, f64::NAN, 0.0), MS * 36),
+        Err(PointRefused::NotFinite { axis: 0, .. })
+    ));
+    let mut two = point(36, 0.31, 10.0, 0.0);
+    two.feed_forward.as_mut().unwrap().torques = vec![1.0, 2.0];
+    assert!(matches!(
+        p.push(two, MS * 36),
+        Err(PointRefused::Dimension { got: 2, want: 1 })
+    ));
+    // No point ahead: the commanded velocity, no torque.
+    for k in 36..=40u32 {
+        p.next(MS * k);
+    }
+    let f = p.feed_forward();
+    assert!(f.torques.is_empty(), "{f:?}");
+    assert_eq!(f.velocities, p.velocity());
 }

@@ -583,7 +583,7 @@ class SetpointCounters(_message.Message):
     def __init__(self, received: _Optional[int] = ..., accepted: _Optional[int] = ..., refused: _Optional[int] = ..., played: _Optional[int] = ..., late: _Optional[int] = ..., dropped: _Optional[int] = ..., underruns: _Optional[int] = ..., limited: _Optional[int] = ...) -> None: ...
 
 class SetpointStreamStatus(_message.Message):
-    __slots__ = ("state", "buffer_level_us", "counters", "clock_offset_us", "commanded_positions", "actual_positions", "events", "timestamp_us", "ended", "signals", "commanded_torques")
+    __slots__ = ("state", "buffer_level_us", "counters", "clock_offset_us", "commanded_positions", "actual_positions", "events", "timestamp_us", "ended", "signals", "commanded_torques", "velocity_feed_forward_sent", "torque_feed_forward_sent")
     STATE_FIELD_NUMBER: _ClassVar[int]
     BUFFER_LEVEL_US_FIELD_NUMBER: _ClassVar[int]
     COUNTERS_FIELD_NUMBER: _ClassVar[int]
@@ -595,6 +595,8 @@ class SetpointStreamStatus(_message.Message):
     ENDED_FIELD_NUMBER: _ClassVar[int]
     SIGNALS_FIELD_NUMBER: _ClassVar[int]
     COMMANDED_TORQUES_FIELD_NUMBER: _ClassVar[int]
+    VELOCITY_FEED_FORWARD_SENT_FIELD_NUMBER: _ClassVar[int]
+    TORQUE_FEED_FORWARD_SENT_FIELD_NUMBER: _ClassVar[int]
     state: SetpointStreamState
     buffer_level_us: int
     counters: SetpointCounters
@@ -606,7 +608,9 @@ class SetpointStreamStatus(_message.Message):
     ended: str
     signals: _containers.RepeatedCompositeFieldContainer[StreamAxisSignals]
     commanded_torques: _containers.RepeatedScalarFieldContainer[float]
-    def __init__(self, state: _Optional[_Union[SetpointStreamState, str]] = ..., buffer_level_us: _Optional[int] = ..., counters: _Optional[_Union[SetpointCounters, _Mapping]] = ..., clock_offset_us: _Optional[int] = ..., commanded_positions: _Optional[_Iterable[float]] = ..., actual_positions: _Optional[_Iterable[float]] = ..., events: _Optional[_Iterable[_Union[SetpointStreamEvent, _Mapping]]] = ..., timestamp_us: _Optional[int] = ..., ended: _Optional[str] = ..., signals: _Optional[_Iterable[_Union[StreamAxisSignals, _Mapping]]] = ..., commanded_torques: _Optional[_Iterable[float]] = ...) -> None: ...
+    velocity_feed_forward_sent: _containers.RepeatedScalarFieldContainer[bool]
+    torque_feed_forward_sent: _containers.RepeatedScalarFieldContainer[bool]
+    def __init__(self, state: _Optional[_Union[SetpointStreamState, str]] = ..., buffer_level_us: _Optional[int] = ..., counters: _Optional[_Union[SetpointCounters, _Mapping]] = ..., clock_offset_us: _Optional[int] = ..., commanded_positions: _Optional[_Iterable[float]] = ..., actual_positions: _Optional[_Iterable[float]] = ..., events: _Optional[_Iterable[_Union[SetpointStreamEvent, _Mapping]]] = ..., timestamp_us: _Optional[int] = ..., ended: _Optional[str] = ..., signals: _Optional[_Iterable[_Union[StreamAxisSignals, _Mapping]]] = ..., commanded_torques: _Optional[_Iterable[float]] = ..., velocity_feed_forward_sent: _Optional[_Iterable[bool]] = ..., torque_feed_forward_sent: _Optional[_Iterable[bool]] = ...) -> None: ...
 
 class StreamAxisSignals(_message.Message):
     __slots__ = ("torque_actual", "velocity_actual", "following_error_actual", "digital_inputs")
