@@ -88,6 +88,10 @@ pub struct AxisLimits {
     pub min_position: Option<f64>,
     /// Soft limits.
     pub max_position: Option<f64>,
+    /// Maximum jerk of the client's path, units/s³ (`None`: not bounded):
+    /// a point whose acceleration (over its segment) changes from the
+    /// previous segment's faster than this over the segment is refused.
+    pub max_jerk: Option<f64>,
 }
 
 impl AxisLimits {
@@ -100,6 +104,7 @@ impl AxisLimits {
     /// is not bounded (the slope bounds each step).
     pub fn torque(max_torque: f64, torque_slope: f64) -> AxisLimits {
         AxisLimits {
+            max_jerk: None,
             max_velocity: torque_slope,
             max_acceleration: UNBOUNDED,
             stop_deceleration: UNBOUNDED,
@@ -280,6 +285,16 @@ pub enum PointRefused {
         /// The maximum.
         max: f64,
     },
+    /// The acceleration changes faster than the axis's maximum jerk.
+    #[error("axis {axis}: {jerk:.6} units/s³ exceeds the maximum jerk {max}")]
+    TooHardJerk {
+        /// Index of the axis in the stream.
+        axis: usize,
+        /// The change of acceleration between the segments, per second.
+        jerk: f64,
+        /// The maximum.
+        max: f64,
+    },
     /// The first velocity of a playout is not (nearly) 0: a velocity
     /// stream starts and resumes from rest.
     #[error(
@@ -406,6 +421,9 @@ struct Buffered {
     t_us: u64,
     positions: Vec<f64>,
     velocity: Vec<f64>,
+    /// The acceleration of the segment that ends in it (units/s² per
+    /// axis): the reference of the next point's jerk.
+    acceleration: Vec<f64>,
     /// The client's feed-forward at the point.
     feed_forward: Option<FeedForward>,
 }
@@ -818,6 +836,7 @@ impl SetpointPlayer {
         }
         let arrived_us = arrived.as_micros() as f64;
         let new_epoch = self.state == PlayerState::Waiting;
+        let mut acceleration = vec![0.0; n];
         let velocity = match (&self.last_accepted, new_epoch) {
             (Some(prev), false) => {
                 if p.t_us <= prev.t_us {
@@ -848,6 +867,14 @@ impl SetpointPlayer {
                             max: l.max_acceleration,
                         });
                     }
+                    let jerk = (a - prev.acceleration[axis]) / dt;
+                    if self.cfg.kind == SetpointKind::Position
+                        && let Some(max) = l.max_jerk
+                        && jerk.abs() > max * (1.0 + 1e-9)
+                    {
+                        return Err(PointRefused::TooHardJerk { axis, jerk, max });
+                    }
+                    acceleration[axis] = a;
                 }
                 v
             }
@@ -903,6 +930,7 @@ impl SetpointPlayer {
             t_us: p.t_us,
             positions: p.values,
             velocity,
+            acceleration,
             feed_forward: p.feed_forward,
         };
         if new_epoch {
@@ -1243,6 +1271,7 @@ impl SetpointPlayer {
             t_us: tc_prev.max(0.0) as u64,
             positions: self.position.clone(),
             velocity: self.velocity.clone(),
+            acceleration: vec![0.0; self.limits.len()],
             feed_forward: None,
         };
         self.last_played = Some(from);

@@ -1180,6 +1180,7 @@ mod tests {
 
     fn limits() -> AxisLimits {
         AxisLimits {
+            max_jerk: None,
             max_velocity: 100.0,
             max_acceleration: 1000.0,
             stop_deceleration: 1000.0,

@@ -352,6 +352,7 @@ impl Axes {
                     AxisLimits::torque(d.torque.max_torque, d.torque.torque_slope)
                 }
                 _ => AxisLimits {
+                    max_jerk: m.max_jerk,
                     max_velocity: m.max_velocity,
                     max_acceleration: m.max_acceleration,
                     stop_deceleration: m.stop_deceleration,

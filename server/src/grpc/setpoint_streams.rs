@@ -263,6 +263,7 @@ fn refusal_reason(r: &PointRefused) -> (&'static str, Option<usize>) {
         PointRefused::BeyondSoftLimit { axis, .. } => ("BEYOND_SOFT_LIMIT", Some(*axis)),
         PointRefused::TooFast { axis, .. } => ("TOO_FAST", Some(*axis)),
         PointRefused::TooHardAcceleration { axis, .. } => ("TOO_HARD_ACCELERATION", Some(*axis)),
+        PointRefused::TooHardJerk { axis, .. } => ("TOO_HARD_JERK", Some(*axis)),
         PointRefused::NotFromRest { axis, .. } | PointRefused::TorqueNotFromZero { axis, .. } => {
             ("NOT_FROM_REST", Some(*axis))
         }

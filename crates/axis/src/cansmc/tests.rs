@@ -566,6 +566,7 @@ use crate::setpoint_stream::{AxisLimits, PlayerConfig, PlayerState, SetpointPlay
 fn player_for(rig: &Rig) -> SetpointPlayer {
     let m = &rig.axis.config().motion;
     let limits = AxisLimits {
+        max_jerk: None,
         max_velocity: m.max_velocity,
         max_acceleration: m.max_acceleration,
         stop_deceleration: m.stop_deceleration,

@@ -4,6 +4,7 @@ const MS: Duration = Duration::from_millis(1);
 
 fn limits(max: Option<f64>) -> AxisLimits {
     AxisLimits {
+        max_jerk: None,
         max_velocity: 100.0,
         max_acceleration: 1000.0,
         stop_deceleration: 1000.0,
@@ -388,6 +389,7 @@ fn random_stream(seed: u64) {
     let cycle = MS;
     let depth = Duration::from_millis(rng.range(2, 30));
     let lim = AxisLimits {
+        max_jerk: None,
         max_velocity: 50.0,
         max_acceleration: 500.0,
         stop_deceleration: 800.0,
@@ -638,6 +640,7 @@ fn random_velocity_stream(seed: u64) {
     let cycle = Duration::from_micros([1000, 2000, 4000, 10_000][rng.range(0, 4) as usize]);
     let depth = Duration::from_millis(rng.range(5, 60));
     let lim = AxisLimits {
+        max_jerk: None,
         max_velocity: 50.0,
         max_acceleration: 500.0,
         stop_deceleration: 800.0,
@@ -1183,4 +1186,47 @@ fn the_feed_forward_of_a_position_stream_is_interpolated_and_checked() {
     let f = p.feed_forward();
     assert!(f.torques.is_empty(), "{f:?}");
     assert_eq!(f.velocities, p.velocity());
+}
+
+/// With a maximum jerk, a point whose segment's acceleration changes from
+/// the previous one's faster than the jerk allows over the segment is
+/// refused (exactly at the bound it is taken); without one nothing is
+/// checked.
+#[test]
+fn a_point_beyond_the_maximum_jerk_is_refused() {
+    let lim = AxisLimits {
+        max_jerk: Some(10_000.0),
+        ..limits(Some(500.0))
+    };
+    let mut p = SetpointPlayer::new(PlayerConfig::new(MS, MS * 5), vec![lim], vec![0.0]);
+    let at = |t_ms: u64, x: f64| StreamPoint {
+        feed_forward: None,
+        t_us: t_ms * 1000,
+        values: vec![x],
+    };
+    p.push(at(0, 0.0), Duration::ZERO).unwrap();
+    // Segments of 10 ms: 0.05 mm is 5 mm/s, 500 mm/s² from rest: a
+    // change of 500 mm/s² in 10 ms, 50 000 mm/s³.
+    assert_eq!(
+        p.push(at(10, 0.05), Duration::ZERO),
+        Err(PointRefused::TooHardJerk {
+            axis: 0,
+            jerk: 50_000.0,
+            max: 10_000.0,
+        })
+    );
+    // 0.01 mm: 1 mm/s, 100 mm/s², 10 000 mm/s³: at the bound.
+    p.push(at(10, 0.01), Duration::ZERO).unwrap();
+    // Then 0.03 mm (2 mm/s, 100 mm/s² again): no change of acceleration.
+    p.push(at(20, 0.03), Duration::ZERO).unwrap();
+    // Then a stop of the acceleration to -100 mm/s²: 20 000 mm/s³.
+    assert!(matches!(
+        p.push(at(30, 0.04), Duration::ZERO),
+        Err(PointRefused::TooHardJerk { axis: 0, .. })
+    ));
+    // Without a maximum jerk the same points pass.
+    let mut p = player(1, 5);
+    for (t, x) in [(0, 0.0), (10, 0.05), (20, 0.15)] {
+        p.push(at(t, x), Duration::ZERO).unwrap();
+    }
 }

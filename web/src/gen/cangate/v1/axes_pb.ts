@@ -1943,6 +1943,8 @@ export type SetpointStreamEvent = Message<"cangate.v1.SetpointStreamEvent"> & {
    * the previous point's), "BEYOND_SOFT_LIMIT" (outside, or too fast to
    * stop inside), "TOO_FAST" (above the maximum velocity),
    * "TOO_HARD_ACCELERATION" (above the maximum acceleration),
+   * "TOO_HARD_JERK" (a position stream: the acceleration changes from the
+   * previous segment's faster than the axis's max_jerk, where configured),
    * "NOT_WHERE_THE_AXIS_STANDS" (a resumed stream starts elsewhere),
    * "NOT_FROM_REST" (a velocity stream starts or resumes with a velocity
    * farther from 0 than one cycle's acceleration, a torque stream starts
