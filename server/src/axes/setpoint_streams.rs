@@ -665,8 +665,12 @@ impl Drop for SetpointStream {
                 } else {
                     super::stop_command(self.axes.spec(i).stop_on_loss)
                 };
-                if let Err(e) = self.axes.enqueue(i, cmd) {
-                    tracing::error!(axis = %self.axes.name(i), error = %e, "torque stream ended: the drive could not be halted");
+                match self.axes.enqueue(i, cmd) {
+                    // The shutdown stops every axis itself.
+                    Ok(()) | Err(AxisError::ShuttingDown) => {}
+                    Err(e) => {
+                        tracing::error!(axis = %self.axes.name(i), error = %e, "torque stream ended: the drive could not be halted");
+                    }
                 }
             }
         }
