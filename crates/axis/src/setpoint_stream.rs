@@ -496,6 +496,8 @@ pub struct SetpointPlayer {
     cycle_feed_forward: Option<FeedForward>,
     /// The largest feed-forward torque per axis, where known.
     max_feed_forward_torque: Option<Vec<f64>>,
+    /// The client gave a feed-forward with a point.
+    given_feed_forward: bool,
 }
 
 /// The last accepted point of a velocity stream, integrated.
@@ -529,6 +531,7 @@ impl SetpointPlayer {
             chain: None,
             cycle_feed_forward: None,
             max_feed_forward_torque: None,
+            given_feed_forward: false,
         }
     }
 
@@ -541,14 +544,20 @@ impl SetpointPlayer {
 
     /// The feed-forward of the last cycle, per axis: the client's,
     /// interpolated between the points around the cycle where both have
-    /// one; else (no feed-forward given, extrapolating, ramping to rest)
-    /// the commanded velocity of the cycle and no torque. Velocities in
-    /// user units/s, torques in per mille (empty: none).
+    /// one; else, once the client gave one (extrapolating, ramping to
+    /// rest, a point without), the commanded velocity of the cycle and no
+    /// torque; 0 in a stream whose client never gave one (the drive's own
+    /// feed-forward, if it has one, is not doubled). Velocities in user
+    /// units/s, torques in per mille (empty: none).
     pub fn feed_forward(&self) -> FeedForward {
         match &self.cycle_feed_forward {
             Some(ff) if ff.velocities.len() == self.velocity.len() => ff.clone(),
             _ => FeedForward {
-                velocities: self.velocity.clone(),
+                velocities: if self.given_feed_forward {
+                    self.velocity.clone()
+                } else {
+                    vec![0.0; self.velocity.len()]
+                },
                 torques: Vec::new(),
             },
         }
@@ -826,6 +835,7 @@ impl SetpointPlayer {
         self.check_values(&p)?;
         if let Some(ff) = &p.feed_forward {
             self.check_feed_forward(ff)?;
+            self.given_feed_forward = true;
         }
         if self.state == PlayerState::Stopping {
             // Counted as accepted and dropped: the client sent it in good

@@ -1186,6 +1186,20 @@ fn the_feed_forward_of_a_position_stream_is_interpolated_and_checked() {
     let f = p.feed_forward();
     assert!(f.torques.is_empty(), "{f:?}");
     assert_eq!(f.velocities, p.velocity());
+    // A stream whose client gives none: 0 (a drive that derives its own
+    // feed-forward does not get it twice).
+    let mut p = player(1, 5);
+    for k in 0..=10u32 {
+        let pt = StreamPoint {
+            feed_forward: None,
+            t_us: u64::from(k) * 1000,
+            values: vec![0.0005 * f64::from(k * k)],
+        };
+        p.push(pt, MS * k).unwrap();
+        p.next(MS * k);
+    }
+    assert!(p.velocity()[0] > 0.0);
+    assert_eq!(p.feed_forward().velocities, [0.0]);
 }
 
 /// With a maximum jerk, a point whose segment's acceleration changes from

@@ -1640,9 +1640,10 @@ export type Setpoint = Message<"cangate.v1.Setpoint"> & {
    * the position and sent with every SYNC in the drive's velocity offset
    * (0x60B1, counts/s) where its EDS has 0x60B1: the gateway then maps
    * it in RPDO3 (`velocity_feed_forward_sent` in the status says which
-   * axes); elsewhere checked and not sent. While no feed-forward is
-   * given (or none is left: extrapolating, ramping to rest) the velocity
-   * offset is the commanded velocity; 0 once the stream is over.
+   * axes); elsewhere checked and not sent. Once the client gave one,
+   * where a point has none or none is left (extrapolating, ramping to
+   * rest) the velocity offset is the commanded velocity; a stream without
+   * any sends 0; 0 once the stream is over.
    *
    * @generated from field: repeated double velocities = 3;
    */
