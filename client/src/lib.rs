@@ -89,7 +89,8 @@ pub use program::ProgramOptions;
 pub use sdo::{DataType, NodeId, Object, ObjectAddress, SdoOptions, SdoValue};
 pub use sdo_session::SdoSession;
 pub use setpoints::{
-    SetpointSender, SetpointStream, SetpointStreamOptions, setpoint, velocity_setpoint,
+    SetpointSender, SetpointStream, SetpointStreamOptions, setpoint, torque_setpoint,
+    velocity_setpoint,
 };
 pub use streams::EventStream;
 

@@ -46,26 +46,33 @@ pub struct SetpointSender {
 
 impl SetpointSender {
     /// Sends a batch of points (time order; each with one position per
-    /// axis ([`setpoint`]) for axes in csp or CANsmc axes, or one velocity
-    /// per axis and no position ([`velocity_setpoint`]) for axes in csv, in
-    /// the order the stream was opened with).
+    /// axis ([`setpoint`]) for axes in csp or CANsmc axes, one velocity
+    /// per axis and no position ([`velocity_setpoint`]) for axes in csv, or
+    /// one torque per axis and nothing else ([`torque_setpoint`]) for axes
+    /// in cst, in the order the stream was opened with).
     ///
     /// # Errors
-    /// [`Error::InvalidInput`] for a point with neither one position nor
-    /// (without positions) one velocity per axis; [`Error::Transport`] once
-    /// the call has ended (read the statuses for why).
+    /// [`Error::InvalidInput`] for a point with neither one position, nor
+    /// (without positions) one velocity, nor (without either) one torque
+    /// per axis; [`Error::Transport`] once the call has ended (read the
+    /// statuses for why).
     pub async fn send(&self, points: Vec<pb::Setpoint>) -> Result<(), Error> {
         let fits = |p: &pb::Setpoint| {
             p.positions.len() == self.axes
                 || (p.positions.is_empty() && p.velocities.len() == self.axes)
+                || (p.positions.is_empty()
+                    && p.velocities.is_empty()
+                    && p.torques.len() == self.axes)
         };
         if let Some(p) = points.iter().find(|p| !fits(p)) {
             return Err(Error::InvalidInput {
                 message: format!(
-                    "point at {} µs has {} positions and {} velocities for a stream of {} axes",
+                    "point at {} µs has {} positions, {} velocities and {} torques for a stream \
+                     of {} axes",
                     p.t_us,
                     p.positions.len(),
                     p.velocities.len(),
+                    p.torques.len(),
                     self.axes
                 ),
             });
@@ -146,6 +153,7 @@ pub fn setpoint(t_us: u64, positions: Vec<f64>) -> pb::Setpoint {
         t_us,
         positions,
         velocities: Vec::new(),
+        torques: Vec::new(),
     }
 }
 
@@ -156,14 +164,27 @@ pub fn velocity_setpoint(t_us: u64, velocities: Vec<f64>) -> pb::Setpoint {
         t_us,
         positions: Vec::new(),
         velocities,
+        torques: Vec::new(),
+    }
+}
+
+/// A point of a torque stream (axes in cyclic synchronous torque): client
+/// time `t_us` and one torque per axis (per mille of the drive's rated
+/// torque).
+pub fn torque_setpoint(t_us: u64, torques: Vec<f64>) -> pb::Setpoint {
+    pb::Setpoint {
+        t_us,
+        positions: Vec::new(),
+        velocities: Vec::new(),
+        torques,
     }
 }
 
 impl Client {
     /// Opens a set-point stream over `axes` (cyclic axes of one bus, all
-    /// in csp (positions) or all in csv (velocities), or CANsmc axes of
-    /// one master; enabled, at rest) under `lease`, which must cover them
-    /// all.
+    /// in csp (positions), all in csv (velocities) or all in cst
+    /// (torques), or CANsmc axes of one master; enabled, at rest) under
+    /// `lease`, which must cover them all.
     ///
     /// ```no_run
     /// # async fn demo(client: cangate_client::Client) -> Result<(), cangate_client::Error> {

@@ -785,6 +785,24 @@ fn axis_pdos(
             if drive.torque.in_process_data {
                 // A torque axis: the target torque in RPDO3.
                 rpdos.push(cangate_axis::process_data::torque_rpdo(node));
+            } else if let Some(eds) = eds {
+                // A position stream's feed-forward in RPDO3, where the
+                // drive has a velocity offset (and the torque offset with
+                // it, where it has one) and a third RPDO.
+                let mappable = |addr| {
+                    eds.od
+                        .get(on_axis(addr, drive.drive_axis))
+                        .is_some_and(|v| v.pdo_mappable)
+                };
+                let k = 2 + PDOS_PER_AXIS * u16::from(drive.drive_axis);
+                let has_rpdo3 = eds.od.get(ObjectAddress::new(0x1400 + k, 1)).is_some()
+                    && eds.od.get(ObjectAddress::new(0x1600 + k, 0)).is_some();
+                if has_rpdo3 && mappable(cangate_canopen::cia402::objects::VELOCITY_OFFSET) {
+                    rpdos.push(cangate_axis::process_data::feed_forward_rpdo(
+                        node,
+                        mappable(cangate_canopen::cia402::objects::TORQUE_OFFSET),
+                    ));
+                }
             }
             (rpdos, tpdos)
         }

@@ -478,6 +478,63 @@ fn python_client_api() {
     });
 }
 
+/// A simulated drive in cyclic synchronous torque (T) on can0, for the
+/// torque stream of `torque_stream.py`.
+const TORQUE_CONFIG: &str = r#"
+listen = "127.0.0.1:0"
+
+[[bus]]
+name = "can0"
+backend = "virtual"
+
+[[canopen]]
+bus = "can0"
+sync_period_us = 5000
+
+[[canopen.node]]
+id = 2
+eds = "builtin:drive"
+simulate = true
+
+[[axis]]
+name = "T"
+bus = "can0"
+node = 2
+counts_per_unit = 1000.0
+mode = "cst"
+min_position = -5000.0
+max_position = 5000.0
+max_velocity = 30.0
+max_acceleration = 1000.0
+max_torque = 300.0
+torque_slope = 2000.0
+"#;
+
+#[test]
+fn python_torque_stream() {
+    let Some(python) = python_or_skip("python_torque_stream", MODULES) else {
+        return;
+    };
+    run("python_torque_stream", async {
+        let config = Config::from_toml(TORQUE_CONFIG)?;
+        let server = cangate_server::start(&config).await?;
+        let mut p = Peer::spawn(
+            &python,
+            &script("torque_stream.py"),
+            &[] as &[&str],
+            &[("CANGATE_SERVER", format!("http://{}", server.addr))],
+        )?;
+        p.expect_line("torque stream: all checks passed", READY_WAIT)
+            .await?;
+        p.finish(WAIT).await?;
+        server.shutdown();
+        server
+            .wait(Duration::from_secs(5))
+            .await
+            .map_err(|e| anyhow!("shutdown: {e}"))
+    });
+}
+
 /// Must equal the function name below: the VM re-runs exactly this test.
 const VCAN_TEST: &str = "python_canopen_local_node_through_attach_on_vcan";
 

@@ -817,6 +817,12 @@ impl Cia402Axis {
         }
     }
 
+    /// Why a guard stopped the command in progress (a torque command's
+    /// velocity or soft-limit guard), if one did.
+    pub fn guard(&self) -> Option<&str> {
+        self.op.as_ref().and_then(|o| o.guard.as_deref())
+    }
+
     /// The id of the command in progress, if any.
     pub fn current_op(&self) -> Option<OpId> {
         self.op.as_ref().map(|o| o.id)

@@ -190,6 +190,20 @@ pub fn with_signal_tpdos(
     }
 }
 
+/// RPDO3 of an axis not in a torque mode whose drive has a velocity
+/// offset: the feed-forward of a position stream, velocity offset 0x60B1
+/// (32 bits) and, with `torque`, torque offset 0x60B2 (16 bits): 6 bytes at
+/// most, beside the CSP set-point RPDO (RPDO2, whose 8 bytes the target
+/// position and velocity fill). Event-driven (255), as the set-point
+/// RPDOs: sent with every SYNC of a stream.
+pub fn feed_forward_rpdo(node: NodeId, torque: bool) -> PdoConfig {
+    let mut map = vec![(obj::VELOCITY_OFFSET, 32)];
+    if torque {
+        map.push((obj::TORQUE_OFFSET, 16));
+    }
+    pdo(PdoKind::Rpdo, 3, node, 255, 0, &map)
+}
+
 /// RPDO3 of an axis in a torque mode: target torque 0x6071 (16 bits),
 /// event-driven (255): the drive applies a torque set-point on receipt and
 /// holds it. Mapped besides the standard layout for an axis configured in
@@ -855,5 +869,32 @@ mod tests {
             }
         );
         assert!(e.to_string().contains("0x6064"), "{e}");
+    }
+
+    /// The feed-forward RPDO3 as written at boot (node 5): invalid, event
+    /// driven, velocity offset 0x60B1 (32 bits) then torque offset 0x60B2
+    /// (16 bits), valid at 0x405; 6 bytes. Never part of the image (the
+    /// SYNC thread sends it).
+    #[test]
+    fn the_feed_forward_rpdo_maps_the_velocity_and_torque_offsets() {
+        let node = NodeId::new(5).unwrap();
+        let p = feed_forward_rpdo(node, true);
+        assert_eq!(p.cob_id, 0x405);
+        let w = |i: u16, s: u8, d: &[u8]| (ObjectAddress::new(i, s), d.to_vec());
+        assert_eq!(
+            p.sdo_writes().unwrap(),
+            vec![
+                w(0x1402, 1, &[0x05, 0x04, 0x00, 0x80]),
+                w(0x1402, 2, &[0xFF]),
+                w(0x1602, 0, &[0]),
+                w(0x1602, 1, &[0x20, 0x00, 0xB1, 0x60]),
+                w(0x1602, 2, &[0x10, 0x00, 0xB2, 0x60]),
+                w(0x1602, 0, &[2]),
+                w(0x1402, 1, &[0x05, 0x04, 0x00, 0x00]),
+            ]
+        );
+        assert_eq!(feed_forward_rpdo(node, false).mapping.len(), 1);
+        let image = ProcessImage::default();
+        assert!(encode_image(&image, &[p]).unwrap().is_empty());
     }
 }

@@ -55,6 +55,21 @@
 //! stand (within one cycle's travel at the maximum velocity).
 //! [`SetpointPlayer::stop`] (the stream ended, was cancelled, its client
 //! died, its lease was lost) brings the axes to rest the same way.
+//!
+//! # Torque streams
+//!
+//! A stream of [`SetpointKind::Torque`] carries one torque per axis (per
+//! mille of the rated torque). The player plays the torques as it plays
+//! positions (the jitter buffer, interpolation, late points, rejoin), with
+//! the limits of [`AxisLimits::torque`]: no torque above the axis's
+//! maximum, no change faster than its torque slope (between points and
+//! every cycle). A playout starts from 0 torque; with no point left the
+//! last torque is held (not extrapolated along its slope) for
+//! [`PlayerConfig::extrapolate`], then every torque ramps to 0 at its
+//! slope, all axes reaching 0 together; a stop does the same. The motion
+//! a torque makes is the drive's and its load's: the runtime guards the
+//! actual velocity and position and halts the drive (see
+//! `server/src/axes/setpoint_streams.rs`).
 
 use std::collections::VecDeque;
 use std::time::Duration;
@@ -73,7 +88,35 @@ pub struct AxisLimits {
     pub min_position: Option<f64>,
     /// Soft limits.
     pub max_position: Option<f64>,
+    /// Maximum jerk of the client's path, units/s³ (`None`: not bounded):
+    /// a point whose acceleration (over its segment) changes from the
+    /// previous segment's faster than this over the segment is refused.
+    pub max_jerk: Option<f64>,
 }
+
+impl AxisLimits {
+    /// The limits of an axis in a torque stream ([`SetpointKind::Torque`]),
+    /// whose values are torques (per mille of the rated torque): a torque
+    /// within ±`max_torque`, changing at most at `torque_slope` (per mille
+    /// per second) and ramped to 0 at that slope. The player's position
+    /// is then the torque: the bound of its rate (`max_velocity`) is the
+    /// slope, its range (the soft limits) ±`max_torque`; its acceleration
+    /// is not bounded (the slope bounds each step).
+    pub fn torque(max_torque: f64, torque_slope: f64) -> AxisLimits {
+        AxisLimits {
+            max_jerk: None,
+            max_velocity: torque_slope,
+            max_acceleration: UNBOUNDED,
+            stop_deceleration: UNBOUNDED,
+            min_position: Some(-max_torque),
+            max_position: Some(max_torque),
+        }
+    }
+}
+
+/// A rate of change of a torque's slope no check reaches (a torque
+/// stream bounds the slope, not its change).
+const UNBOUNDED: f64 = 1e300;
 
 /// What the points of a stream carry.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -90,6 +133,12 @@ pub enum SetpointKind {
     /// path; each cycle's velocity ([`SetpointPlayer::velocity`]) is the
     /// drive's set-point. A playout starts and resumes from rest.
     Velocity,
+    /// A torque per axis (cyclic synchronous torque), per mille of the
+    /// rated torque, with the limits of [`AxisLimits::torque`]: played
+    /// like positions, each cycle's value ([`SetpointPlayer::position`])
+    /// is the drive's torque set-point. A playout starts from 0 torque,
+    /// holds the last torque when no point is left, and ramps to 0.
+    Torque,
 }
 
 /// How a stream is played.
@@ -136,8 +185,42 @@ pub struct StreamPoint {
     /// The client's clock, µs.
     pub t_us: u64,
     /// One value per axis: a position (user units) in a position stream,
-    /// a velocity (user units/s) in a velocity stream ([`SetpointKind`]).
+    /// a velocity (user units/s) in a velocity stream, a torque (per mille
+    /// of the rated torque) in a torque stream ([`SetpointKind`]).
     pub values: Vec<f64>,
+    /// A position stream's feed-forward, if the client gives one.
+    pub feed_forward: Option<FeedForward>,
+}
+
+/// The feed-forward of a point of a position stream: the velocity (and
+/// optionally the torque) the client's path has there, per axis. Checked
+/// with the point (finite, the velocity within the maximum velocity, the
+/// torque within the maximum torque where the player knows it) and
+/// interpolated between points like the position
+/// ([`SetpointPlayer::feed_forward`]).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct FeedForward {
+    /// One velocity per axis (user units/s).
+    pub velocities: Vec<f64>,
+    /// One torque per axis (per mille of the rated torque), or none.
+    pub torques: Vec<f64>,
+}
+
+impl FeedForward {
+    /// `self` and `other` mixed at `f` (0: `self`, 1: `other`); torques
+    /// only where both have them.
+    fn lerp(&self, other: &FeedForward, f: f64) -> FeedForward {
+        let mix = |a: &[f64], b: &[f64]| -> Vec<f64> {
+            if a.len() != b.len() {
+                return Vec::new();
+            }
+            a.iter().zip(b).map(|(x, y)| x + (y - x) * f).collect()
+        };
+        FeedForward {
+            velocities: mix(&self.velocities, &other.velocities),
+            torques: mix(&self.torques, &other.torques),
+        }
+    }
 }
 
 /// Why a point was refused.
@@ -202,6 +285,16 @@ pub enum PointRefused {
         /// The maximum.
         max: f64,
     },
+    /// The acceleration changes faster than the axis's maximum jerk.
+    #[error("axis {axis}: {jerk:.6} units/s³ exceeds the maximum jerk {max}")]
+    TooHardJerk {
+        /// Index of the axis in the stream.
+        axis: usize,
+        /// The change of acceleration between the segments, per second.
+        jerk: f64,
+        /// The maximum.
+        max: f64,
+    },
     /// The first velocity of a playout is not (nearly) 0: a velocity
     /// stream starts and resumes from rest.
     #[error(
@@ -214,6 +307,41 @@ pub enum PointRefused {
         /// The point's velocity.
         velocity: f64,
         /// The velocity reachable from rest in one cycle.
+        tolerance: f64,
+    },
+    /// A torque above the axis's maximum torque.
+    #[error("axis {axis}: torque {torque} per mille exceeds the maximum {max} per mille")]
+    TorqueAboveMax {
+        /// Index of the axis in the stream.
+        axis: usize,
+        /// The point's torque.
+        torque: f64,
+        /// The axis's maximum torque.
+        max: f64,
+    },
+    /// The torque changes from the previous point faster than the axis's
+    /// torque slope.
+    #[error("axis {axis}: the torque changes at {slope:.3} per mille/s, above the slope {max}")]
+    TorqueTooSteep {
+        /// Index of the axis in the stream.
+        axis: usize,
+        /// The change from the previous point, per mille per second.
+        slope: f64,
+        /// The axis's torque slope.
+        max: f64,
+    },
+    /// The first torque of a playout is not (nearly) 0: a torque stream
+    /// starts and resumes from 0 torque.
+    #[error(
+        "axis {axis}: a torque stream starts from 0 torque: the first torque must be within \
+         {tolerance} per mille of 0, not {torque}"
+    )]
+    TorqueNotFromZero {
+        /// Index of the axis in the stream.
+        axis: usize,
+        /// The point's torque.
+        torque: f64,
+        /// The change the torque slope allows in one cycle.
         tolerance: f64,
     },
     /// The first point after a rest is not where the axes stand.
@@ -293,16 +421,23 @@ struct Buffered {
     t_us: u64,
     positions: Vec<f64>,
     velocity: Vec<f64>,
+    /// The acceleration of the segment that ends in it (units/s² per
+    /// axis): the reference of the next point's jerk.
+    acceleration: Vec<f64>,
+    /// The client's feed-forward at the point.
+    feed_forward: Option<FeedForward>,
 }
 
 /// The ramp to rest: from `from` at `velocity`, decelerating over
-/// `duration` (all axes together).
+/// `duration` (all axes together); or, `to_zero` (a torque stream), from
+/// `from` straight to 0 over `duration`.
 #[derive(Debug, Clone)]
 struct Ramp {
     start: Duration,
     from: Vec<f64>,
     velocity: Vec<f64>,
     duration: f64,
+    to_zero: bool,
 }
 
 impl Ramp {
@@ -312,6 +447,10 @@ impl Ramp {
             .as_secs_f64()
             .min(self.duration);
         let done = s >= self.duration;
+        if self.to_zero {
+            let left = if done { 0.0 } else { 1.0 - s / self.duration };
+            return (self.from.iter().map(|t| t * left).collect(), done);
+        }
         let k = if self.duration > 0.0 {
             s - s * s / (2.0 * self.duration)
         } else {
@@ -352,6 +491,13 @@ pub struct SetpointPlayer {
     /// A velocity stream's last accepted point: its time, velocities and
     /// the position they predict (`None` at the start of a playout).
     chain: Option<Chain>,
+    /// The client's feed-forward interpolated for the last cycle, if the
+    /// points around it had one.
+    cycle_feed_forward: Option<FeedForward>,
+    /// The largest feed-forward torque per axis, where known.
+    max_feed_forward_torque: Option<Vec<f64>>,
+    /// The client gave a feed-forward with a point.
+    given_feed_forward: bool,
 }
 
 /// The last accepted point of a velocity stream, integrated.
@@ -383,7 +529,43 @@ impl SetpointPlayer {
             ramp: None,
             counters: PlayerCounters::default(),
             chain: None,
+            cycle_feed_forward: None,
+            max_feed_forward_torque: None,
+            given_feed_forward: false,
         }
+    }
+
+    /// The same player, refusing a point whose feed-forward torque exceeds
+    /// `max` (per axis, per mille; [`PointRefused::TorqueAboveMax`]).
+    pub fn with_feed_forward_torque_limits(mut self, max: Vec<f64>) -> Self {
+        self.max_feed_forward_torque = Some(max);
+        self
+    }
+
+    /// The feed-forward of the last cycle, per axis: the client's,
+    /// interpolated between the points around the cycle where both have
+    /// one; else, once the client gave one (extrapolating, ramping to
+    /// rest, a point without), the commanded velocity of the cycle and no
+    /// torque; 0 in a stream whose client never gave one (the drive's own
+    /// feed-forward, if it has one, is not doubled). Velocities in user
+    /// units/s, torques in per mille (empty: none).
+    pub fn feed_forward(&self) -> FeedForward {
+        match &self.cycle_feed_forward {
+            Some(ff) if ff.velocities.len() == self.velocity.len() => ff.clone(),
+            _ => FeedForward {
+                velocities: if self.given_feed_forward {
+                    self.velocity.clone()
+                } else {
+                    vec![0.0; self.velocity.len()]
+                },
+                torques: Vec::new(),
+            },
+        }
+    }
+
+    /// What the points carry.
+    pub fn kind(&self) -> SetpointKind {
+        self.cfg.kind
     }
 
     /// The player's state.
@@ -433,11 +615,50 @@ impl SetpointPlayer {
         let r = match self.cfg.kind {
             SetpointKind::Position => self.accept(point, arrived),
             SetpointKind::Velocity => self.accept_velocity(point, arrived),
+            SetpointKind::Torque => self.accept_torque(point, arrived),
         };
         if r.is_err() {
             self.counters.refused += 1;
         }
         r
+    }
+
+    /// A feed-forward: one finite velocity per axis within its maximum
+    /// velocity, no torque or one finite torque per axis within its
+    /// maximum.
+    fn check_feed_forward(&self, ff: &FeedForward) -> Result<(), PointRefused> {
+        let n = self.limits.len();
+        let torques_fit = ff.torques.is_empty() || ff.torques.len() == n;
+        if ff.velocities.len() != n || !torques_fit {
+            let got = if torques_fit {
+                ff.velocities.len()
+            } else {
+                ff.torques.len()
+            };
+            return Err(PointRefused::Dimension { got, want: n });
+        }
+        for values in [&ff.velocities, &ff.torques] {
+            if let Some((axis, &value)) = values.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+                return Err(PointRefused::NotFinite { axis, value });
+            }
+        }
+        for (axis, (&v, l)) in ff.velocities.iter().zip(&self.limits).enumerate() {
+            if v.abs() > l.max_velocity * (1.0 + 1e-9) {
+                return Err(PointRefused::TooFast {
+                    axis,
+                    velocity: v,
+                    max: l.max_velocity,
+                });
+            }
+        }
+        if let Some(max) = &self.max_feed_forward_torque {
+            for (axis, (&torque, &max)) in ff.torques.iter().zip(max).enumerate() {
+                if torque.abs() > max * (1.0 + 1e-9) {
+                    return Err(PointRefused::TorqueAboveMax { axis, torque, max });
+                }
+            }
+        }
+        Ok(())
     }
 
     /// One finite value per axis.
@@ -453,6 +674,55 @@ impl SetpointPlayer {
             return Err(PointRefused::NotFinite { axis, value });
         }
         Ok(())
+    }
+
+    /// A point of a torque stream: each torque within the axis's maximum,
+    /// from 0 at the start of a playout, and changing from the previous
+    /// point at most at the torque slope; then taken as a position.
+    fn accept_torque(&mut self, p: StreamPoint, arrived: Duration) -> Result<(), PointRefused> {
+        self.check_values(&p)?;
+        for (axis, (&torque, l)) in p.values.iter().zip(&self.limits).enumerate() {
+            let max = l.max_position.unwrap_or(f64::INFINITY);
+            if torque.abs() > max * (1.0 + 1e-9) {
+                return Err(PointRefused::TorqueAboveMax { axis, torque, max });
+            }
+        }
+        match (&self.last_accepted, self.state) {
+            (_, PlayerState::Stopping) => {}
+            (Some(prev), s) if s != PlayerState::Waiting => {
+                if p.t_us > prev.t_us {
+                    let dt = (p.t_us - prev.t_us) as f64 / 1e6;
+                    for (axis, ((&t, &t0), l)) in
+                        (p.values.iter().zip(&prev.positions).zip(&self.limits)).enumerate()
+                    {
+                        let slope = (t - t0) / dt;
+                        if slope.abs() > l.max_velocity * (1.0 + 1e-9) {
+                            return Err(PointRefused::TorqueTooSteep {
+                                axis,
+                                slope,
+                                max: l.max_velocity,
+                            });
+                        }
+                    }
+                }
+            }
+            _ => {
+                let cycle = self.cfg.cycle.as_secs_f64();
+                for (axis, ((&torque, &now), l)) in
+                    (p.values.iter().zip(&self.position).zip(&self.limits)).enumerate()
+                {
+                    let tolerance = l.max_velocity * cycle;
+                    if (torque - now).abs() > tolerance + 1e-9 {
+                        return Err(PointRefused::TorqueNotFromZero {
+                            axis,
+                            torque,
+                            tolerance,
+                        });
+                    }
+                }
+            }
+        }
+        self.accept(p, arrived)
     }
 
     /// A point of a velocity stream: its velocities checked, integrated
@@ -532,6 +802,7 @@ impl SetpointPlayer {
         let velocity = p.values;
         self.accept(
             StreamPoint {
+                feed_forward: None,
                 t_us,
                 values: position.clone(),
             },
@@ -562,6 +833,10 @@ impl SetpointPlayer {
     fn accept(&mut self, p: StreamPoint, arrived: Duration) -> Result<(), PointRefused> {
         let n = self.limits.len();
         self.check_values(&p)?;
+        if let Some(ff) = &p.feed_forward {
+            self.check_feed_forward(ff)?;
+            self.given_feed_forward = true;
+        }
         if self.state == PlayerState::Stopping {
             // Counted as accepted and dropped: the client sent it in good
             // faith; the axes are on their way to rest.
@@ -571,6 +846,7 @@ impl SetpointPlayer {
         }
         let arrived_us = arrived.as_micros() as f64;
         let new_epoch = self.state == PlayerState::Waiting;
+        let mut acceleration = vec![0.0; n];
         let velocity = match (&self.last_accepted, new_epoch) {
             (Some(prev), false) => {
                 if p.t_us <= prev.t_us {
@@ -601,6 +877,14 @@ impl SetpointPlayer {
                             max: l.max_acceleration,
                         });
                     }
+                    let jerk = (a - prev.acceleration[axis]) / dt;
+                    if self.cfg.kind == SetpointKind::Position
+                        && let Some(max) = l.max_jerk
+                        && jerk.abs() > max * (1.0 + 1e-9)
+                    {
+                        return Err(PointRefused::TooHardJerk { axis, jerk, max });
+                    }
+                    acceleration[axis] = a;
                 }
                 v
             }
@@ -656,6 +940,8 @@ impl SetpointPlayer {
             t_us: p.t_us,
             positions: p.values,
             velocity,
+            acceleration,
+            feed_forward: p.feed_forward,
         };
         if new_epoch {
             self.offset_us = Some(delay);
@@ -733,6 +1019,21 @@ impl SetpointPlayer {
     fn begin_ramp(&mut self, start: Duration) {
         self.counters.dropped += self.buffer.len() as u64;
         self.buffer.clear();
+        if self.cfg.kind == SetpointKind::Torque {
+            // Every torque to 0 at its slope, all reaching 0 together.
+            let duration = (self.position.iter().zip(&self.limits))
+                .map(|(t, l)| t.abs() / l.max_velocity.max(1e-12))
+                .fold(0.0, f64::max);
+            self.ramp = Some(Ramp {
+                start,
+                from: self.position.clone(),
+                velocity: self.velocity.clone(),
+                duration,
+                to_zero: true,
+            });
+            self.state = PlayerState::Stopping;
+            return;
+        }
         // All axes stop together: the longest stop time, each axis's
         // deceleration then within its own.
         let duration = (self.velocity.iter().zip(&self.limits))
@@ -743,6 +1044,7 @@ impl SetpointPlayer {
             from: self.position.clone(),
             velocity: self.velocity.clone(),
             duration,
+            to_zero: false,
         });
         self.state = PlayerState::Stopping;
     }
@@ -761,6 +1063,7 @@ impl SetpointPlayer {
         let mut event = None;
         let before = self.position.clone();
         let offset_before = self.offset_us;
+        self.cycle_feed_forward = None;
         // Slew the offset towards its estimate, bounded.
         if let Some(o) = self.offset_us.as_mut() {
             let max = self.cfg.max_slew * dt * 1e6;
@@ -790,6 +1093,12 @@ impl SetpointPlayer {
         }
         if dt > 0.0 {
             self.limit(&before, dt);
+        }
+        if self.cfg.kind == SetpointKind::Torque && self.state == PlayerState::Waiting {
+            // At rest a torque stream commands no torque: exactly 0, not
+            // the rounding of the ramp's last step.
+            self.position.iter_mut().for_each(|t| *t = 0.0);
+            self.velocity.iter_mut().for_each(|v| *v = 0.0);
         }
         CycleSetpoints {
             positions: self.position.clone(),
@@ -881,6 +1190,10 @@ impl SetpointPlayer {
                 self.position = (a.positions.iter().zip(&b.positions))
                     .map(|(x, y)| x + (y - x) * f)
                     .collect();
+                self.cycle_feed_forward = match (&a.feed_forward, &b.feed_forward) {
+                    (Some(x), Some(y)) => Some(x.lerp(y, f)),
+                    _ => None,
+                };
                 self.extrapolating_since = None;
             }
             (Some(a), None) => {
@@ -891,6 +1204,9 @@ impl SetpointPlayer {
                     || self.extrapolation_leaves_the_limits(dt)
                 {
                     self.underrun(ramp_start, now, event);
+                } else if self.cfg.kind == SetpointKind::Torque {
+                    // A torque is held, not extrapolated along its slope.
+                    self.position.clone_from(&a.positions);
                 } else if first {
                     // The path up to the last point is played, then on
                     // along its last segment: from the previous cycle's
@@ -965,6 +1281,8 @@ impl SetpointPlayer {
             t_us: tc_prev.max(0.0) as u64,
             positions: self.position.clone(),
             velocity: self.velocity.clone(),
+            acceleration: vec![0.0; self.limits.len()],
+            feed_forward: None,
         };
         self.last_played = Some(from);
         self.extrapolating_since = None;
@@ -978,6 +1296,10 @@ impl SetpointPlayer {
     /// Whether one more cycle along the last segment would leave a point
     /// from which an axis cannot stop inside its soft limits.
     fn extrapolation_leaves_the_limits(&self, dt: f64) -> bool {
+        if self.cfg.kind == SetpointKind::Torque {
+            // A held torque stays where it was accepted.
+            return false;
+        }
         (self.position.iter().zip(&self.velocity).zip(&self.limits)).any(|((p, v), l)| {
             let next = p + v * dt;
             let stop_at = next + v * v.abs() / (2.0 * l.stop_deceleration.max(1e-12));

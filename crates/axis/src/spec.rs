@@ -55,6 +55,10 @@ pub struct MotionSpec {
     /// in 0x6084 with the quick stop (it brakes on its quick stop ramp
     /// 0x6085 when it has one and its option code says so).
     pub quick_stop_deceleration: f64,
+    /// The largest jerk of a streamed path, units/s³ (`None`: not
+    /// bounded): a streamed point whose change of acceleration exceeds it
+    /// is refused.
+    pub max_jerk: Option<f64>,
     /// Bound of each state change (enable, disable, fault reset), and of a
     /// CiA 402 set-point acknowledge and mode switch.
     pub state_timeout: Duration,
@@ -99,6 +103,7 @@ impl MotionSpec {
             default_acceleration: 500.0,
             stop_deceleration: 2000.0,
             quick_stop_deceleration: 2000.0,
+            max_jerk: None,
             state_timeout: Duration::from_secs(1),
             homing_timeout: Duration::from_secs(30),
             settle_timeout: Duration::from_secs(2),

@@ -63,6 +63,7 @@ fn axis_config(velocity_jog: bool) -> CansmcAxisConfig {
             default_acceleration: 50.0,
             stop_deceleration: 200.0,
             quick_stop_deceleration: 200.0,
+            max_jerk: None,
             state_timeout: Duration::from_secs(1),
             homing_timeout: Duration::from_secs(30),
             settle_timeout: Duration::from_secs(2),

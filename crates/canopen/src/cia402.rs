@@ -125,6 +125,12 @@ pub mod objects {
 
     /// 0x6072 max torque (UNSIGNED16, per mille of rated torque).
     pub const MAX_TORQUE: ObjectAddress = ObjectAddress::new(0x6072, 0);
+    /// 0x60B1 velocity offset (INTEGER32, counts/s): a CSP drive's
+    /// velocity feed-forward.
+    pub const VELOCITY_OFFSET: ObjectAddress = ObjectAddress::new(0x60B1, 0);
+    /// 0x60B2 torque offset (INTEGER16, per mille of rated torque): a CSP
+    /// drive's torque feed-forward.
+    pub const TORQUE_OFFSET: ObjectAddress = ObjectAddress::new(0x60B2, 0);
     /// 0x60B8 touch probe function (UNSIGNED16).
     pub const TOUCH_PROBE_FUNCTION: ObjectAddress = ObjectAddress::new(0x60B8, 0);
     /// 0x60B9 touch probe status (UNSIGNED16).

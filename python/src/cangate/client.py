@@ -775,6 +775,7 @@ class Lease:
         point_period_us: int = 0,
         status_period_ms: int = 0,
         velocities: bool = False,
+        torques: bool = False,
     ) -> Stream[axes_pb2.SetpointStreamStatus]:
         """Streams time-stamped set-points into the gateway's jitter buffer
         (``Axes.StreamSetpoints``), played on the SYNC grid of cyclic axes.
@@ -784,7 +785,11 @@ class Lease:
         `axes` (default: the lease's axes), in user units. With
         ``velocities=True`` (axes in csv) the points are ``(t_us,
         velocities)``: one velocity per axis in user units/s, starting from
-        rest; the gateway sends each SYNC's velocity in 0x60FF. gRPC iterates it
+        rest; the gateway sends each SYNC's velocity in 0x60FF. With
+        ``torques=True`` (axes in cst) the points are ``(t_us, torques)``:
+        one torque per axis in per mille of the rated torque, starting from
+        0; the gateway sends each SYNC's torque in 0x6071 and, whenever the
+        stream ends, ramps the torques to 0 and halts the drives. gRPC iterates it
         in its own thread, so a generator may pace itself (sleep until its
         points are due). When it ends, the gateway plays the buffered points,
         ramps the axes to rest and ends the returned stream of
@@ -806,7 +811,9 @@ class Lease:
         def requests() -> Iterator[axes_pb2.SetpointStreamRequest]:
             yield axes_pb2.SetpointStreamRequest(open=opening)
             for batch in batches:
-                if velocities:
+                if torques:
+                    points = [axes_pb2.Setpoint(t_us=t, torques=list(v)) for t, v in batch]
+                elif velocities:
                     points = [axes_pb2.Setpoint(t_us=t, velocities=list(v)) for t, v in batch]
                 else:
                     points = [axes_pb2.Setpoint(t_us=t, positions=list(p)) for t, p in batch]

@@ -23,7 +23,7 @@
 //! go to, and its feedback comes from, a worker polling by SDO
 //! ([`super::sdo_process_data`]).
 
-use super::cyclic_setpoints::{CyclicSetpoints, SetpointLayout};
+use super::cyclic_setpoints::{CyclicSetpoints, SetpointLayout, StreamEnd};
 use super::sdo_process_data::{self, SdoReport, SdoWorker};
 use crate::axis_runner::{
     AxisEventKind, AxisRunner, AxisUpdate, BusRequest, CoordinatedTarget, LatestStates, Waiter,
@@ -36,6 +36,7 @@ use cangate_axis::{
     AxisCommand, AxisEvent, Cia402Drive, CommandError, PositionMode, ProcessDataPath,
 };
 use cangate_can::{BusItem, CanId, Filter, Frame, FrameSelector, Subscription, Timestamp};
+use cangate_canopen::cia402::DriveState;
 use cangate_canopen::pdo::{PdoConfig, PdoKind};
 use cangate_canopen::{NodeId, ObjectAddress};
 use std::collections::HashMap;
@@ -275,6 +276,13 @@ pub fn spawn(
     ));
     for (i, s) in slots.iter().enumerate() {
         setpoints.set_velocity_offset(i, s.setpoint.as_ref().and_then(|l| l.velocity_offset));
+        if s.sdo.is_none() {
+            setpoints.set_torque_rpdo(i, super::cyclic_setpoints::TorqueLayout::find(&s.rpdos));
+            setpoints.set_feed_forward_rpdo(
+                i,
+                super::cyclic_setpoints::FeedForwardLayout::find(&s.rpdos),
+            );
+        }
     }
     let configured_cyclic = axes_cyclic.iter().any(|&c| c);
     if slots.iter().any(|s| s.setpoint.is_some())
@@ -704,8 +712,15 @@ impl Task {
                 }
                 Output::Image(image) => match encode_image(&image, &self.slots[i].rpdos) {
                     Ok(frames) => {
+                        // A torque stream's torque RPDO is the SYNC
+                        // thread's: the axis's own (a torque of 0) would
+                        // cut into the stream's ramp.
+                        let streamed_torque = self.setpoints.torque_stream_cob(i);
                         let slot = &mut self.slots[i];
                         for (cob, data) in frames {
+                            if streamed_torque == Some(cob) {
+                                continue;
+                            }
                             if let Some(layout) = &slot.setpoint
                                 && slot.published.is_some()
                                 && layout.rpdo.cob_id == cob
@@ -811,6 +826,25 @@ impl Task {
     fn publish_status(&mut self, i: usize) {
         let slot = &self.slots[i];
         let mut snapshot = slot.axis.snapshot();
+        if snapshot.activity != cangate_axis::Activity::Moving && self.setpoints.in_torque_stream(i)
+        {
+            // The torque command that holds a torque stream's drive ended:
+            // its guard stopped it (the velocity, or a stop from here past
+            // a soft limit), a stop reached it, or the drive left
+            // operation enabled. The stream's torques ramp to 0.
+            let axis = slot.name.clone();
+            let reason = match slot.axis.guard() {
+                _ if snapshot.state != Some(DriveState::OperationEnabled) => {
+                    StreamEnd::AxisLeft { axis }
+                }
+                Some(why) => StreamEnd::TorqueGuard {
+                    axis,
+                    why: why.to_string(),
+                },
+                None => StreamEnd::Stopped { axis },
+            };
+            self.setpoints.end_stream_of(i, reason);
+        }
         // A streamed axis runs no command of its own, yet it moves.
         if snapshot.activity == cangate_axis::Activity::Idle && self.setpoints.in_stream(i) {
             snapshot.activity = cangate_axis::Activity::Moving;

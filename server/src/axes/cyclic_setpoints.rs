@@ -29,12 +29,15 @@ use crate::canopen::sync_thread::{SyncRider, SyncTick};
 use cangate_axis::Units;
 use cangate_axis::cia402::{CyclicPlan, CyclicSample, SetpointObject};
 use cangate_axis::setpoint_stream::{
-    AxisLimits, PlayerConfig, PlayerCounters, PlayerEvent, PlayerState, PointRefused,
+    AxisLimits, PlayerConfig, PlayerCounters, PlayerEvent, PlayerState, PointRefused, SetpointKind,
     SetpointPlayer, StreamPoint,
 };
 use cangate_can::{CanId, Frame};
 use cangate_canopen::cia402::first_axis;
-use cangate_canopen::cia402::objects::{INTERPOLATION_DATA, TARGET_POSITION, TARGET_VELOCITY};
+use cangate_canopen::cia402::objects::{
+    INTERPOLATION_DATA, TARGET_POSITION, TARGET_TORQUE, TARGET_VELOCITY, TORQUE_OFFSET,
+    VELOCITY_OFFSET,
+};
 use cangate_canopen::pdo::PdoConfig;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
@@ -95,6 +98,81 @@ impl SetpointLayout {
     }
 }
 
+/// The RPDO a torque stream sends each SYNC's torque in: one that maps
+/// the target torque (0x6071, 16 bits) and nothing else (the gateway's
+/// torque RPDO, [`cangate_axis::process_data::torque_rpdo`]), so the
+/// SYNC thread owns its whole payload.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TorqueLayout {
+    /// Its COB-ID.
+    pub cob_id: u16,
+}
+
+impl TorqueLayout {
+    /// The first RPDO in `rpdos` that maps the target torque alone.
+    pub fn find(rpdos: &[PdoConfig]) -> Option<TorqueLayout> {
+        rpdos.iter().find_map(|p| {
+            matches!(p.mapping.as_slice(), [m] if first_axis(m.addr) == TARGET_TORQUE && m.bits == 16)
+                .then(|| TorqueLayout {
+                    cob_id: p.cob_id,
+                })
+        })
+    }
+
+    /// The RPDO frame commanding `per_mille` (rounded, within i16).
+    pub fn frame(&self, per_mille: f64) -> Option<Frame> {
+        let t = per_mille.round().clamp(-32768.0, 32767.0) as i16;
+        Frame::new(CanId::Standard(self.cob_id), &t.to_le_bytes()).ok()
+    }
+}
+
+/// The RPDO a position stream sends each SYNC's feed-forward in: velocity
+/// offset 0x60B1 (32 bits) first and, where mapped, torque offset 0x60B2
+/// (16 bits) after it, and nothing else
+/// ([`cangate_axis::process_data::feed_forward_rpdo`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FeedForwardLayout {
+    /// Its COB-ID.
+    pub cob_id: u16,
+    /// It carries the torque offset too.
+    pub torque: bool,
+}
+
+impl FeedForwardLayout {
+    /// The first RPDO in `rpdos` that maps the velocity offset (and
+    /// perhaps the torque offset) as above.
+    pub fn find(rpdos: &[PdoConfig]) -> Option<FeedForwardLayout> {
+        rpdos.iter().find_map(|p| {
+            let objects: Vec<_> = p
+                .mapping
+                .iter()
+                .map(|m| (first_axis(m.addr), m.bits))
+                .collect();
+            let torque = match objects.as_slice() {
+                [(VELOCITY_OFFSET, 32)] => false,
+                [(VELOCITY_OFFSET, 32), (TORQUE_OFFSET, 16)] => true,
+                _ => return None,
+            };
+            Some(FeedForwardLayout {
+                cob_id: p.cob_id,
+                torque,
+            })
+        })
+    }
+
+    /// The RPDO frame with velocity offset `velocity_counts` (counts/s)
+    /// and torque offset `torque` (per mille, rounded within i16; sent
+    /// where mapped).
+    pub fn frame(&self, velocity_counts: i32, torque: f64) -> Option<Frame> {
+        let mut data = velocity_counts.to_le_bytes().to_vec();
+        if self.torque {
+            let t = torque.round().clamp(-32768.0, 32767.0) as i16;
+            data.extend_from_slice(&t.to_le_bytes());
+        }
+        Frame::new(CanId::Standard(self.cob_id), &data).ok()
+    }
+}
+
 /// One axis's entry.
 #[derive(Debug, Default)]
 struct Entry {
@@ -120,6 +198,15 @@ struct Entry {
     streamed: Option<CyclicSample>,
     /// Byte offset of the target velocity in the set-point RPDO (CSV).
     velocity_offset: Option<usize>,
+    /// The torque RPDO (CST), if the axis has one a stream may send.
+    torque: Option<TorqueLayout>,
+    /// This SYNC's torque from the axis's torque stream (per mille).
+    streamed_torque: Option<f64>,
+    /// The feed-forward RPDO (0x60B1, 0x60B2), if the drive has one.
+    feed_forward: Option<FeedForwardLayout>,
+    /// This SYNC's feed-forward from the axis's position stream: velocity
+    /// offset (counts/s) and torque offset (per mille).
+    streamed_feed_forward: Option<(i32, f64)>,
 }
 
 /// Why a set-point stream ended.
@@ -152,6 +239,19 @@ pub enum StreamEnd {
         /// "negative" or "positive".
         switch: &'static str,
     },
+    /// A torque stream's guard stopped one of its axes (its velocity
+    /// above the maximum, or a stop from where it is would pass a soft
+    /// limit): every torque ramped to 0 and the drives halted.
+    TorqueGuard {
+        /// The axis.
+        axis: String,
+        /// What the guard saw.
+        why: String,
+    },
+    /// A torque stream ran out of points: the torques ramped to 0 and the
+    /// drives halted (a halted drive takes no torque: a torque stream
+    /// does not resume after an underrun).
+    Underrun,
     /// The gateway shuts down.
     ShuttingDown,
 }
@@ -178,6 +278,16 @@ impl std::fmt::Display for StreamEnd {
                 f,
                 "axis {axis} left operation enabled in cyclic position mode (disabled, fault or \
                  node lost): the stream ended"
+            ),
+            StreamEnd::TorqueGuard { axis, why } => write!(
+                f,
+                "axis {axis}: {why}; the stream ended, its torques ramped to 0 and its drives \
+                 halted"
+            ),
+            StreamEnd::Underrun => write!(
+                f,
+                "no point came in time: the torques ramped to 0 and the drives halted (a torque \
+                 stream ends on an underrun)"
             ),
             StreamEnd::ShuttingDown => write!(f, "the gateway shuts down"),
         }
@@ -357,8 +467,12 @@ impl CyclicSetpoints {
                 }
                 // A stop ramp (a stop reached the axis), or the drive left
                 // operation enabled: the axis follows its own plan from
-                // now on, the stream's other axes ramp to rest.
+                // now on, the stream's other axes ramp to rest. Its plan
+                // has no feed-forward: the drive's goes to 0.
                 e.stream = None;
+                if e.feed_forward.is_some() {
+                    e.streamed_feed_forward = Some((0, 0.0));
+                }
                 let reason = if plan.is_some() {
                     StreamEnd::Stopped {
                         axis: e.name.clone(),
@@ -411,6 +525,61 @@ impl CyclicSetpoints {
         }
     }
 
+    /// The torque RPDO of axis `i`, which a torque stream sends each
+    /// SYNC's torque in (`None`: the axis takes no torque stream).
+    pub fn set_torque_rpdo(&self, i: usize, layout: Option<TorqueLayout>) {
+        let mut st = self.state.lock().expect("set-point table lock");
+        if let Some(e) = st.entries.get_mut(i) {
+            e.torque = layout;
+        }
+    }
+
+    /// The feed-forward RPDO of axis `i`, which a position stream sends
+    /// each SYNC's feed-forward in (`None`: feed-forward is not sent).
+    pub fn set_feed_forward_rpdo(&self, i: usize, layout: Option<FeedForwardLayout>) {
+        let mut st = self.state.lock().expect("set-point table lock");
+        if let Some(e) = st.entries.get_mut(i) {
+            e.feed_forward = layout;
+        }
+    }
+
+    /// What of a position stream's feed-forward reaches axis `i`'s drive:
+    /// (the velocity, the torque).
+    pub fn feed_forward_sent(&self, i: usize) -> (bool, bool) {
+        let st = self.state.lock().expect("set-point table lock");
+        st.entries
+            .get(i)
+            .and_then(|e| e.feed_forward)
+            .map_or((false, false), |l| (true, l.torque))
+    }
+
+    /// Bounds the feed-forward torques of stream `id` (per axis, per
+    /// mille): a point beyond is refused.
+    pub fn set_feed_forward_torque_limits(&self, id: u64, max: Vec<f64>) {
+        let mut st = self.state.lock().expect("set-point table lock");
+        if let Some(s) = st.stream(id) {
+            let player = s.player.clone().with_feed_forward_torque_limits(max);
+            s.player = player;
+        }
+    }
+
+    /// Whether axis `i` (table index) plays in a torque stream.
+    pub fn in_torque_stream(&self, i: usize) -> bool {
+        self.torque_stream_cob(i).is_some()
+    }
+
+    /// The COB-ID of axis `i`'s torque RPDO while the axis plays in a
+    /// torque stream (which sends it with every SYNC).
+    pub fn torque_stream_cob(&self, i: usize) -> Option<u16> {
+        let st = self.state.lock().expect("set-point table lock");
+        let e = st.entries.get(i)?;
+        let id = e.stream?;
+        st.streams
+            .iter()
+            .any(|s| s.id == id && s.player.kind() == SetpointKind::Torque)
+            .then_some(e.torque?.cob_id)
+    }
+
     /// Moves the samples taken since the last call into `out`.
     pub fn take_samples(&self, out: &mut Vec<(usize, CyclicSample)>) {
         let mut st = self.state.lock().expect("set-point table lock");
@@ -440,6 +609,20 @@ impl CyclicSetpoints {
             let e = &st.entries[i];
             if e.stream.is_some() {
                 return Err(format!("axis {} is already in a set-point stream", e.name));
+            }
+            if cfg.kind == SetpointKind::Torque {
+                // A torque stream starts from 0 torque; the axis's own
+                // command (a torque of 0) holds the drive meanwhile.
+                if e.torque.is_none() {
+                    return Err(format!(
+                        "axis {} has no RPDO that maps the target torque (0x6071) alone: a \
+                         torque stream needs the gateway's torque RPDO (PDO process data, mode \
+                         = \"cst\")",
+                        e.name
+                    ));
+                }
+                positions.push(0.0);
+                continue;
             }
             let (Some(plan), Some(_)) = (&e.plan, &e.rpdo) else {
                 return Err(format!(
@@ -621,7 +804,31 @@ impl SyncRider for CyclicSetpoints {
                 if e.stream != Some(s.id) {
                     continue;
                 }
+                if s.player.kind() == SetpointKind::Torque {
+                    // The torque itself; the axis keeps no plan (its own
+                    // torque command holds the drive).
+                    e.streamed_torque = Some(if done { 0.0 } else { cycle.positions[k] });
+                    if done {
+                        e.stream = None;
+                    }
+                    continue;
+                }
                 let (p, v) = (cycle.positions[k], s.player.velocity()[k]);
+                if e.feed_forward.is_some() && s.player.kind() == SetpointKind::Position {
+                    // Each SYNC's feed-forward with its position; 0 once
+                    // the stream is at rest and over. (In CSV the drive
+                    // adds 0x60B1 to the velocity set-point: a velocity
+                    // stream sends none.)
+                    let ff = s.player.feed_forward();
+                    e.streamed_feed_forward = Some(if done {
+                        (0, 0.0)
+                    } else {
+                        (
+                            s.extra[k].to_counts(ff.velocities[k]),
+                            ff.torques.get(k).copied().unwrap_or(0.0),
+                        )
+                    });
+                }
                 e.streamed = Some(CyclicSample::streamed(
                     t,
                     p,
@@ -643,6 +850,19 @@ impl SyncRider for CyclicSetpoints {
         }
         streams.retain(|s| !(s.finished && s.orphaned));
         for e in entries.iter_mut() {
+            if let (Some((v, t)), Some(layout)) = (e.streamed_feed_forward.take(), &e.feed_forward)
+            {
+                match layout.frame(v, t) {
+                    Some(f) => frames.push(f),
+                    None => tracing::error!(cob_id = layout.cob_id, "feed-forward RPDO not sent"),
+                }
+            }
+            if let (Some(t), Some(layout)) = (e.streamed_torque.take(), &e.torque) {
+                match layout.frame(t) {
+                    Some(f) => frames.push(f),
+                    None => tracing::error!(cob_id = layout.cob_id, "torque RPDO not sent"),
+                }
+            }
             let streamed = e.streamed.take();
             let (Some(plan), Some((cob, payload, offset))) = (&mut e.plan, &mut e.rpdo) else {
                 continue;
@@ -960,6 +1180,7 @@ mod tests {
 
     fn limits() -> AxisLimits {
         AxisLimits {
+            max_jerk: None,
             max_velocity: 100.0,
             max_acceleration: 1000.0,
             stop_deceleration: 1000.0,
@@ -1021,6 +1242,7 @@ mod tests {
             let refused = table.push_points_at(
                 id,
                 [StreamPoint {
+                    feed_forward: None,
                     t_us,
                     values: vec![x(s), -x(s) / 2.0],
                 }],
@@ -1120,6 +1342,7 @@ mod tests {
         };
         let points: Vec<StreamPoint> = (0..400u64)
             .map(|k| StreamPoint {
+                feed_forward: None,
                 t_us: k * 1000,
                 values: vec![x(k as f64 / 1000.0), 0.0],
             })
@@ -1177,6 +1400,7 @@ mod tests {
         // Up to 50 mm/s at 500 mm/s², held: all points at once.
         let points: Vec<StreamPoint> = (0..400u64)
             .map(|k| StreamPoint {
+                feed_forward: None,
                 t_us: k * 1000,
                 values: vec![(0.5 * k as f64).min(50.0)],
             })
@@ -1286,5 +1510,141 @@ mod tests {
         let mut samples = Vec::new();
         table.take_samples(&mut samples);
         assert!(samples.is_empty());
+    }
+
+    /// A position stream's feed-forward leaves with every SYNC in the
+    /// feed-forward RPDO (0x60B1 counts/s, then 0x60B2 per mille), next to
+    /// the position; once the stream is over the offsets go to 0. A torque
+    /// stream's torque leaves in the torque RPDO (0x6071 alone).
+    #[test]
+    fn the_feed_forward_and_a_torque_leave_with_the_sync_in_exact_bytes() {
+        use cangate_axis::setpoint_stream::FeedForward;
+        let origin = Instant::now();
+        let table = two_holding_axes(origin);
+        table.set_feed_forward_rpdo(
+            0,
+            Some(FeedForwardLayout {
+                cob_id: 0x401,
+                torque: true,
+            }),
+        );
+        assert_eq!(table.feed_forward_sent(0), (true, true));
+        assert_eq!(table.feed_forward_sent(1), (false, false));
+        let id = open(&table);
+        // 10 mm/s on x from rest at 1000 mm/s² (10 ms), then on at 10 mm/s,
+        // its feed-forward 10 mm/s and 40 per mille throughout.
+        let x = |s: f64| {
+            if s < 0.01 {
+                500.0 * s * s
+            } else {
+                0.05 + 10.0 * (s - 0.01)
+            }
+        };
+        let points: Vec<StreamPoint> = (0..100u64)
+            .map(|k| StreamPoint {
+                feed_forward: Some(FeedForward {
+                    velocities: vec![10.0, 0.0],
+                    torques: vec![40.0, 0.0],
+                }),
+                t_us: k * 1000,
+                values: vec![x(k as f64 / 1000.0), 0.0],
+            })
+            .collect();
+        let mut frames = Vec::new();
+        for k in 0..60u64 {
+            if k == 0 {
+                assert!(
+                    table
+                        .push_points_at(id, points.clone(), Duration::ZERO)
+                        .is_empty()
+                );
+            }
+            frames.clear();
+            table.on_sync(
+                SyncTick::on_time(origin + Duration::from_millis(k)),
+                &mut frames,
+            );
+        }
+        let ff: Vec<&Frame> = frames
+            .iter()
+            .filter(|f| f.id() == CanId::Standard(0x401))
+            .collect();
+        assert_eq!(ff.len(), 1, "{frames:?}");
+        assert_eq!(ff[0].data(), [0x10, 0x27, 0, 0, 0x28, 0]);
+        table.stop_stream(id, StreamEnd::ClientGone);
+        let mut last = Vec::new();
+        for k in 60..200u64 {
+            frames.clear();
+            table.on_sync(
+                SyncTick::on_time(origin + Duration::from_millis(k)),
+                &mut frames,
+            );
+            last.extend(
+                frames
+                    .iter()
+                    .filter(|f| f.id() == CanId::Standard(0x401))
+                    .map(|f| f.data().to_vec()),
+            );
+            if table.report(id).unwrap().finished {
+                break;
+            }
+        }
+        assert_eq!(last.last().unwrap(), &vec![0u8; 6]);
+
+        // A torque stream on an axis with the torque RPDO.
+        let table = CyclicSetpoints::new(origin, ["t"].map(String::from));
+        let (rpdos, _) = cangate_axis::process_data::standard_pdos(
+            NodeId::new(2).unwrap(),
+            FeedbackTrigger::Sync,
+        );
+        assert_eq!(TorqueLayout::find(&rpdos), None);
+        let torque = cangate_axis::process_data::torque_rpdo(NodeId::new(2).unwrap());
+        let layout = TorqueLayout::find(&[torque]).unwrap();
+        assert_eq!(layout.cob_id, 0x402);
+        table.set_torque_rpdo(0, Some(layout));
+        let mut cfg = PlayerConfig::new(Duration::from_millis(1), Duration::from_millis(5));
+        cfg.kind = SetpointKind::Torque;
+        let id = table
+            .open_stream(
+                &[0],
+                vec![AxisLimits::torque(300.0, 10_000.0)],
+                vec![UNITS],
+                cfg,
+            )
+            .unwrap();
+        assert!(table.in_torque_stream(0));
+        assert_eq!(table.torque_stream_cob(0), Some(0x402));
+        let points: Vec<StreamPoint> = (0..=20u64)
+            .map(|k| StreamPoint {
+                feed_forward: None,
+                t_us: k * 1000,
+                values: vec![5.0 * k as f64],
+            })
+            .collect();
+        let mut sent = Vec::new();
+        for k in 0..=25u64 {
+            if k == 0 {
+                assert!(
+                    table
+                        .push_points_at(id, points.clone(), Duration::ZERO)
+                        .is_empty()
+                );
+            }
+            frames.clear();
+            table.on_sync(
+                SyncTick::on_time(origin + Duration::from_millis(k)),
+                &mut frames,
+            );
+            sent.extend(frames.iter().map(|f| (f.id(), f.data().to_vec())));
+        }
+        // 100 per mille (0x0064) reached, in the torque RPDO alone.
+        assert!(
+            sent.iter()
+                .all(|(id, d)| *id == CanId::Standard(0x402) && d.len() == 2)
+        );
+        assert!(
+            sent.contains(&(CanId::Standard(0x402), vec![0x64, 0x00])),
+            "{sent:?}"
+        );
     }
 }

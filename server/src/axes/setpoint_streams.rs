@@ -19,9 +19,9 @@ use super::cansmc_setpoints::CansmcSetpoints;
 use super::cyclic_setpoints::{CyclicSetpoints, StreamEnd, StreamReport};
 use super::{Axes, AxisEntry, AxisError, Caller};
 use cangate_axis::setpoint_stream::{
-    AxisLimits, PlayerConfig, PlayerState, PointRefused, SetpointKind, StreamPoint,
+    AxisLimits, PlayerConfig, PlayerEvent, PlayerState, PointRefused, SetpointKind, StreamPoint,
 };
-use cangate_axis::{Activity, CommandError, DriveSpec};
+use cangate_axis::{Activity, AxisCommand, CommandError, DriveSpec};
 use cangate_canopen::cia402::DriveState;
 use std::collections::HashSet;
 use std::sync::Arc;
@@ -144,6 +144,11 @@ pub struct SetpointStream {
     caller: Caller,
     report_period: Duration,
     kind: SetpointKind,
+    /// Why it ended, once the session saw it end.
+    end: Option<StreamEnd>,
+    /// Per axis: whether a position stream's velocity and torque
+    /// feed-forward reach the drive.
+    feed_forward_sent: Vec<(bool, bool)>,
 }
 
 /// The mode a stream of `kind` plays in, for messages.
@@ -151,6 +156,7 @@ fn mode_name(kind: SetpointKind) -> &'static str {
     match kind {
         SetpointKind::Position => "csp",
         SetpointKind::Velocity => "csv",
+        SetpointKind::Torque => "cst",
     }
 }
 
@@ -166,7 +172,14 @@ impl Axes {
     /// empty or repeated axis list, a depth or period out of range;
     /// [`AxisError::Lease`] without control; [`AxisError::NotStreamable`]
     /// for axes that cannot be streamed now.
-    pub fn open_setpoint_stream(
+    ///
+    /// A torque stream (axes in cst) first gives each axis a torque
+    /// command of 0: it releases the drive's halt and guards the axis
+    /// while the stream plays (its velocity against `max_velocity`, a stop
+    /// from where it is against the soft limits), as a SetTorque does;
+    /// when that guard or a stop ends the command, the stream ends and its
+    /// torques ramp to 0. Every end of a torque stream halts its drives.
+    pub async fn open_setpoint_stream(
         self: &Arc<Self>,
         caller: &Caller,
         req: StreamRequest,
@@ -300,10 +313,11 @@ impl Axes {
             let axis_kind = match snap.mode {
                 8 => SetpointKind::Position,
                 9 => SetpointKind::Velocity,
+                10 => SetpointKind::Torque,
                 m => {
                     return Err(not(format!(
                         "axis {name} runs in mode {m} (0x6061): set-point streams play on axes \
-                         in csp (positions) or csv (velocities)"
+                         in csp (positions), csv (velocities) or cst (torques)"
                     )));
                 }
             };
@@ -311,8 +325,8 @@ impl Axes {
                 None => kind = Some(axis_kind),
                 Some(k) if k != axis_kind => {
                     return Err(not(format!(
-                        "axis {name} runs in {}, {} in {}: a stream carries positions (csp) or \
-                         velocities (csv), not both; stream them separately",
+                        "axis {name} runs in {}, {} in {}: a stream carries positions (csp), \
+                         velocities (csv) or torques (cst), not both; stream them separately",
                         mode_name(axis_kind),
                         first.spec.name,
                         mode_name(k)
@@ -327,18 +341,31 @@ impl Axes {
                 )));
             }
             let m = &e.spec.motion;
-            limits.push(AxisLimits {
-                max_velocity: m.max_velocity,
-                max_acceleration: m.max_acceleration,
-                stop_deceleration: m.stop_deceleration,
-                min_position: m.min_position,
-                max_position: m.max_position,
+            limits.push(match (axis_kind, &e.spec.drive) {
+                (SetpointKind::Torque, DriveSpec::Cia402(d)) => {
+                    if !d.torque.in_process_data {
+                        return Err(not(format!(
+                            "axis {name}: its process data has no target torque (0x6071): \
+                             configure it with mode = \"cst\" to stream torques"
+                        )));
+                    }
+                    AxisLimits::torque(d.torque.max_torque, d.torque.torque_slope)
+                }
+                _ => AxisLimits {
+                    max_jerk: m.max_jerk,
+                    max_velocity: m.max_velocity,
+                    max_acceleration: m.max_acceleration,
+                    stop_deceleration: m.stop_deceleration,
+                    min_position: m.min_position,
+                    max_position: m.max_position,
+                },
             });
             units.push(m.units);
             locals.push(e.local);
             positions.push(snap.demand_position);
         }
         let kind = kind.unwrap_or_default();
+        let mut feed_forward_sent = vec![(false, false); idx.len()];
         let (table, id) = match (&first.spec.drive, &first.cansmc, &first.cyclic) {
             (DriveSpec::Cansmc(d), Some(smc), _) => {
                 let mut cfg = PlayerConfig::new(d.cycle_time, req.depth);
@@ -359,9 +386,33 @@ impl Axes {
                 let mut cfg = PlayerConfig::new(sync.period, req.depth);
                 cfg.extrapolate = extrapolate;
                 cfg.kind = kind;
-                let id = table
-                    .open_stream(&locals, limits, units, cfg)
-                    .map_err(not)?;
+                if kind == SetpointKind::Torque {
+                    self.hold_torque_axes(&idx).await?;
+                }
+                let opened = table.open_stream(&locals, limits, units, cfg);
+                let id = match opened {
+                    Ok(id) => id,
+                    Err(e) => {
+                        if kind == SetpointKind::Torque {
+                            for &i in &idx {
+                                let _ = self.enqueue(i, AxisCommand::Stop);
+                            }
+                        }
+                        return Err(not(e));
+                    }
+                };
+                if kind == SetpointKind::Position {
+                    let max_torque = idx
+                        .iter()
+                        .map(|&i| match &self.axes[i].spec.drive {
+                            DriveSpec::Cia402(d) => d.torque.max_torque,
+                            DriveSpec::Cansmc(_) => 0.0,
+                        })
+                        .collect();
+                    table.set_feed_forward_torque_limits(id, max_torque);
+                    feed_forward_sent =
+                        locals.iter().map(|&l| table.feed_forward_sent(l)).collect();
+                }
                 (StreamTable::Sync(table.clone()), id)
             }
             _ => {
@@ -378,7 +429,36 @@ impl Axes {
             caller: caller.clone(),
             report_period,
             kind,
+            end: None,
+            feed_forward_sent,
         })
+    }
+
+    /// Gives each axis of a torque stream a torque command of 0 (halt
+    /// released, guarded; see [`Axes::open_setpoint_stream`]); halts them
+    /// again when one refuses.
+    async fn hold_torque_axes(&self, idx: &[usize]) -> Result<(), AxisError> {
+        let items = idx
+            .iter()
+            .map(|&i| (i, AxisCommand::SetTorque { per_mille: 0.0 }))
+            .collect();
+        let results = self.many(items, false).await?;
+        let failed = results.into_iter().zip(idx).find_map(|(r, &i)| match r {
+            Ok(r) if r.outcome.is_none() => None,
+            Ok(r) => Some(AxisError::NotStreamable(format!(
+                "axis {}: its torque command ended at once: {}",
+                self.name(i),
+                r.detail
+            ))),
+            Err(e) => Some(e),
+        });
+        if let Some(e) = failed {
+            for &i in idx {
+                let _ = self.enqueue(i, AxisCommand::Stop);
+            }
+            return Err(e);
+        }
+        Ok(())
     }
 }
 
@@ -388,7 +468,7 @@ impl SetpointStream {
     /// client went away), `out` takes the reports (one per report period,
     /// and one after a batch with refused points). Returns why it ended.
     pub async fn run(
-        self,
+        mut self,
         mut inbound: mpsc::Receiver<StreamInput>,
         out: mpsc::Sender<StreamUpdate>,
         shutdown: CancellationToken,
@@ -430,8 +510,17 @@ impl SetpointStream {
                 self.table.stop_stream(self.id, StreamEnd::LeaseLost(why));
             }
             let Some(report) = self.table.report(self.id) else {
-                return last_end.unwrap_or(StreamEnd::ClientGone);
+                let end = last_end.unwrap_or(StreamEnd::ClientGone);
+                self.end = Some(end.clone());
+                return end;
             };
+            if self.kind == SetpointKind::Torque
+                && report.end.is_none()
+                && report.events.contains(&PlayerEvent::Underrun)
+            {
+                // A torque stream's drives halt on an underrun: it ends.
+                self.table.stop_stream(self.id, StreamEnd::Underrun);
+            }
             if ending
                 && report.end.is_none()
                 && report.level.is_zero()
@@ -466,7 +555,9 @@ impl SetpointStream {
                 }
             }
             if finished {
-                return last_end.unwrap_or(StreamEnd::ClientGone);
+                let end = last_end.unwrap_or(StreamEnd::ClientGone);
+                self.end = Some(end.clone());
+                return end;
             }
         }
     }
@@ -539,6 +630,13 @@ impl SetpointStream {
         self.kind
     }
 
+    /// Per axis of the stream: whether the feed-forward of a position
+    /// stream reaches the drive, (velocity in 0x60B1, torque in 0x60B2).
+    /// Feed-forward that does not is checked and not sent.
+    pub fn feed_forward_sent(&self) -> &[(bool, bool)] {
+        &self.feed_forward_sent
+    }
+
     /// The stream's axes (global indices), in its order.
     pub fn axes(&self) -> &[usize] {
         &self.idx
@@ -548,5 +646,33 @@ impl SetpointStream {
 impl Drop for SetpointStream {
     fn drop(&mut self) {
         self.table.close_stream(self.id, StreamEnd::ClientGone);
+        if self.kind == SetpointKind::Torque {
+            // Every end of a torque stream halts its drives (their torque
+            // is ramped to 0 by the stream meanwhile): with a halt when
+            // the stream ended in order, else as the axis stops on a loss.
+            let orderly = matches!(
+                self.end,
+                Some(
+                    StreamEnd::ClientEnded
+                        | StreamEnd::Underrun
+                        | StreamEnd::TorqueGuard { .. }
+                        | StreamEnd::Stopped { .. }
+                )
+            );
+            for &i in &self.idx {
+                let cmd = if orderly {
+                    AxisCommand::Stop
+                } else {
+                    super::stop_command(self.axes.spec(i).stop_on_loss)
+                };
+                match self.axes.enqueue(i, cmd) {
+                    // The shutdown stops every axis itself.
+                    Ok(()) | Err(AxisError::ShuttingDown) => {}
+                    Err(e) => {
+                        tracing::error!(axis = %self.axes.name(i), error = %e, "torque stream ended: the drive could not be halted");
+                    }
+                }
+            }
+        }
     }
 }

@@ -120,6 +120,11 @@ pub struct CommonAxisConfig {
     /// acceleration).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub quick_stop_deceleration: Option<f64>,
+    /// The largest jerk of a streamed path, units/s³ (default: not
+    /// bounded): a set-point stream refuses a point whose change of
+    /// acceleration from the previous segment exceeds it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_jerk: Option<f64>,
     /// How a lapsed lease or dead-man timeout stops the axis.
     pub stop_on_loss: StopChoice,
     /// Jog dead-man time in ms.
@@ -150,6 +155,7 @@ const COMMON_AXIS_KEYS: &[&str] = &[
     "default_acceleration",
     "stop_deceleration",
     "quick_stop_deceleration",
+    "max_jerk",
     "stop_on_loss",
     "jog_deadman_ms",
     "state_timeout_ms",
@@ -195,6 +201,7 @@ impl<'de> serde::de::Visitor<'de> for CommonAxisVisitor {
             default_acceleration: None,
             stop_deceleration: None,
             quick_stop_deceleration: None,
+            max_jerk: None,
             stop_on_loss: StopChoice::default(),
             jog_deadman_ms: default_jog_deadman_ms(),
             state_timeout_ms: default_state_timeout_ms(),
@@ -218,6 +225,7 @@ impl<'de> serde::de::Visitor<'de> for CommonAxisVisitor {
                 "default_acceleration" => c.default_acceleration = value(&mut map, k)?,
                 "stop_deceleration" => c.stop_deceleration = value(&mut map, k)?,
                 "quick_stop_deceleration" => c.quick_stop_deceleration = value(&mut map, k)?,
+                "max_jerk" => c.max_jerk = value(&mut map, k)?,
                 "stop_on_loss" => c.stop_on_loss = value(&mut map, k)?,
                 "jog_deadman_ms" => c.jog_deadman_ms = value(&mut map, k)?,
                 "state_timeout_ms" => c.state_timeout_ms = value(&mut map, k)?,
@@ -263,6 +271,7 @@ impl CommonAxisConfig {
             quick_stop_deceleration: self
                 .quick_stop_deceleration
                 .unwrap_or(self.max_acceleration),
+            max_jerk: self.max_jerk,
             state_timeout: Duration::from_millis(self.state_timeout_ms),
             homing_timeout: Duration::from_millis(self.homing_timeout_ms),
             settle_timeout: SETTLE_TIMEOUT,
@@ -319,6 +328,11 @@ impl CommonAxisConfig {
             return Err(format!(
                 "axis {name}: display_decimals {d} is more than 6 (a µm of a metre)"
             ));
+        }
+        if let Some(j) = self.max_jerk
+            && !(j.is_finite() && j > 0.0)
+        {
+            return Err(format!("axis {name}: max_jerk must be positive, got {j}"));
         }
         stop_decelerations(
             name,
@@ -767,6 +781,18 @@ mod tests {
     }
 
     #[test]
+    fn max_jerk_is_optional_and_must_be_positive() {
+        let c = Config::from_toml(BASE).unwrap();
+        assert_eq!(c.axes[0].common.motion().max_jerk, None);
+        let c = Config::from_toml(&format!("{BASE}max_jerk = 50000.0\n")).unwrap();
+        assert_eq!(c.axes[0].common.motion().max_jerk, Some(50_000.0));
+        let e = Config::from_toml(&format!("{BASE}max_jerk = 0.0\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("axis X: max_jerk must be positive"), "{e}");
+    }
+
+    #[test]
     fn the_mode_is_named_validated_and_needs_what_it_uses() {
         let c = Config::from_toml(BASE).unwrap();
         assert_eq!(
@@ -876,6 +902,7 @@ mod tests {
                 default_acceleration: 100.0,
                 stop_deceleration: 400.0,
                 quick_stop_deceleration: 800.0,
+                max_jerk: None,
                 state_timeout: Duration::from_millis(700),
                 homing_timeout: Duration::from_millis(9000),
                 settle_timeout: Duration::from_secs(2),
@@ -911,6 +938,7 @@ mod tests {
                 default_acceleration: 25.0,
                 stop_deceleration: 150.0,
                 quick_stop_deceleration: 100.0,
+                max_jerk: None,
                 state_timeout: Duration::from_millis(1000),
                 homing_timeout: Duration::from_millis(30_000),
                 settle_timeout: Duration::from_secs(2),

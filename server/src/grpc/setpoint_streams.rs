@@ -9,7 +9,7 @@ use crate::axes::cyclic_setpoints::StreamEnd;
 use crate::axes::setpoint_streams::{StreamInput, StreamRequest, StreamUpdate};
 use crate::axes::{Axes, Caller};
 use cangate_axis::setpoint_stream::{
-    PlayerEvent, PlayerState, PointRefused, SetpointKind, StreamPoint,
+    FeedForward, PlayerEvent, PlayerState, PointRefused, SetpointKind, StreamPoint,
 };
 use cangate_can::Timestamp;
 use cangate_proto::v1 as pb;
@@ -75,8 +75,10 @@ pub async fn serve(
     let caller = caller.with_lease(open.lease);
     let stream = axes
         .open_setpoint_stream(&caller, request)
+        .await
         .map_err(ApiError::from)?;
     let kind = stream.kind();
+    let feed_forward_sent = stream.feed_forward_sent().to_vec();
     let (in_tx, in_rx) = mpsc::channel(64);
     let (up_tx, mut up_rx) = mpsc::channel(16);
     let (tx, rx) = mpsc::channel(16);
@@ -122,7 +124,10 @@ pub async fn serve(
         while let Some(u) = up_rx.recv().await {
             let end = u.report.end.clone();
             let finished = u.report.finished;
-            if tx.send(Ok(status_pb(&names, u))).await.is_err() {
+            let mut status = status_pb(&names, kind, u);
+            status.velocity_feed_forward_sent = feed_forward_sent.iter().map(|f| f.0).collect();
+            status.torque_feed_forward_sent = feed_forward_sent.iter().map(|f| f.1).collect();
+            if tx.send(Ok(status)).await.is_err() {
                 return;
             }
             if finished {
@@ -147,7 +152,8 @@ pub async fn serve(
 }
 
 /// The points of a batch: positions (their feed-forward checked) for a
-/// position stream, velocities for a velocity stream.
+/// position stream, velocities for a velocity stream, torques for a
+/// torque stream.
 fn points(
     batch: pb::SetpointBatch,
     axes: usize,
@@ -157,7 +163,28 @@ fn points(
         .points
         .into_iter()
         .map(|p| {
+            if kind == SetpointKind::Torque {
+                if !p.positions.is_empty() || !p.velocities.is_empty() {
+                    return Err(format!(
+                        "point at {} µs: the stream's axes run in cst: a point carries one \
+                         torque per axis in `torques`, no positions nor velocities",
+                        p.t_us
+                    ));
+                }
+                return Ok(StreamPoint {
+                    feed_forward: None,
+                    t_us: p.t_us,
+                    values: p.torques,
+                });
+            }
             if kind == SetpointKind::Velocity {
+                if !p.torques.is_empty() {
+                    return Err(format!(
+                        "point at {} µs: the stream's axes run in csv: a point carries one \
+                         velocity per axis in `velocities`, no torques",
+                        p.t_us
+                    ));
+                }
                 if !p.positions.is_empty() {
                     return Err(format!(
                         "point at {} µs: the stream's axes run in csv: a point carries one \
@@ -166,6 +193,7 @@ fn points(
                     ));
                 }
                 return Ok(StreamPoint {
+                    feed_forward: None,
                     t_us: p.t_us,
                     values: p.velocities,
                 });
@@ -179,7 +207,22 @@ fn points(
                     p.t_us, p.velocities
                 ));
             }
+            if !p.torques.is_empty()
+                && (p.velocities.is_empty()
+                    || p.torques.len() != axes
+                    || p.torques.iter().any(|v| !v.is_finite()))
+            {
+                return Err(format!(
+                    "point at {} µs: torque feed-forward must be empty or one finite value per \
+                     axis ({axes}), with the velocity feed-forward, got {:?}",
+                    p.t_us, p.torques
+                ));
+            }
             Ok(StreamPoint {
+                feed_forward: (!p.velocities.is_empty()).then_some(FeedForward {
+                    velocities: p.velocities,
+                    torques: p.torques,
+                }),
                 t_us: p.t_us,
                 values: p.positions,
             })
@@ -195,6 +238,8 @@ fn end_reason(e: &StreamEnd) -> &'static str {
         StreamEnd::LeaseLost(_) => "LEASE_LOST",
         StreamEnd::AxisLeft { .. } => "AXIS_LEFT",
         StreamEnd::LimitSwitch { .. } => "LIMIT_SWITCH",
+        StreamEnd::TorqueGuard { .. } => "TORQUE_GUARD",
+        StreamEnd::Underrun => "UNDERRUN",
         StreamEnd::ShuttingDown => "SHUTTING_DOWN",
     }
 }
@@ -203,7 +248,8 @@ fn end_axis(e: &StreamEnd) -> &str {
     match e {
         StreamEnd::Stopped { axis }
         | StreamEnd::AxisLeft { axis }
-        | StreamEnd::LimitSwitch { axis, .. } => axis,
+        | StreamEnd::LimitSwitch { axis, .. }
+        | StreamEnd::TorqueGuard { axis, .. } => axis,
         _ => "",
     }
 }
@@ -217,14 +263,19 @@ fn refusal_reason(r: &PointRefused) -> (&'static str, Option<usize>) {
         PointRefused::BeyondSoftLimit { axis, .. } => ("BEYOND_SOFT_LIMIT", Some(*axis)),
         PointRefused::TooFast { axis, .. } => ("TOO_FAST", Some(*axis)),
         PointRefused::TooHardAcceleration { axis, .. } => ("TOO_HARD_ACCELERATION", Some(*axis)),
-        PointRefused::NotFromRest { axis, .. } => ("NOT_FROM_REST", Some(*axis)),
+        PointRefused::TooHardJerk { axis, .. } => ("TOO_HARD_JERK", Some(*axis)),
+        PointRefused::NotFromRest { axis, .. } | PointRefused::TorqueNotFromZero { axis, .. } => {
+            ("NOT_FROM_REST", Some(*axis))
+        }
+        PointRefused::TorqueAboveMax { axis, .. } => ("TORQUE_ABOVE_MAX", Some(*axis)),
+        PointRefused::TorqueTooSteep { axis, .. } => ("TORQUE_TOO_STEEP", Some(*axis)),
         PointRefused::NotWhereTheAxisStands { axis, .. } => {
             ("NOT_WHERE_THE_AXIS_STANDS", Some(*axis))
         }
     }
 }
 
-fn status_pb(names: &[String], u: StreamUpdate) -> pb::SetpointStreamStatus {
+fn status_pb(names: &[String], kind: SetpointKind, u: StreamUpdate) -> pb::SetpointStreamStatus {
     use pb::SetpointEventKind as K;
     let r = &u.report;
     let state = if r.finished {
@@ -298,7 +349,18 @@ fn status_pb(names: &[String], u: StreamUpdate) -> pb::SetpointStreamStatus {
             limited: c.limited,
         }),
         clock_offset_us: r.clock_offset_us.unwrap_or(0),
-        commanded_positions: r.positions.clone(),
+        commanded_positions: if kind == SetpointKind::Torque {
+            Vec::new()
+        } else {
+            r.positions.clone()
+        },
+        commanded_torques: if kind == SetpointKind::Torque {
+            r.positions.clone()
+        } else {
+            Vec::new()
+        },
+        velocity_feed_forward_sent: Vec::new(),
+        torque_feed_forward_sent: Vec::new(),
         actual_positions: u.actual,
         signals: u
             .latest

@@ -566,6 +566,7 @@ use crate::setpoint_stream::{AxisLimits, PlayerConfig, PlayerState, SetpointPlay
 fn player_for(rig: &Rig) -> SetpointPlayer {
     let m = &rig.axis.config().motion;
     let limits = AxisLimits {
+        max_jerk: None,
         max_velocity: m.max_velocity,
         max_acceleration: m.max_acceleration,
         stop_deceleration: m.stop_deceleration,
@@ -593,6 +594,7 @@ fn feed(player: &mut SetpointPlayer, start: Duration, until_ms: u64) {
         player
             .push(
                 StreamPoint {
+                    feed_forward: None,
                     t_us: k * 1000,
                     values: vec![path(k as f64 / 1000.0)],
                 },

@@ -4,6 +4,7 @@ const MS: Duration = Duration::from_millis(1);
 
 fn limits(max: Option<f64>) -> AxisLimits {
     AxisLimits {
+        max_jerk: None,
         max_velocity: 100.0,
         max_acceleration: 1000.0,
         stop_deceleration: 1000.0,
@@ -47,6 +48,7 @@ fn a_circle_at_one_kilohertz_plays_every_point_after_the_buffer() {
             let pos = circle(10.0, 2.0, sent as f64 / 1000.0);
             p.push(
                 StreamPoint {
+                    feed_forward: None,
                     t_us: client0 + sent * 1000,
                     values: pos.to_vec(),
                 },
@@ -85,6 +87,7 @@ fn points_beyond_the_limits_are_refused_with_the_reason() {
     let mut p = player(1, 10);
     let at = |ms: u64| Duration::from_millis(ms);
     let pt = |t_ms: u64, x: f64| StreamPoint {
+        feed_forward: None,
         t_us: t_ms * 1000,
         values: vec![x],
     };
@@ -118,6 +121,7 @@ fn points_beyond_the_limits_are_refused_with_the_reason() {
     assert!(matches!(
         p.push(
             StreamPoint {
+                feed_forward: None,
                 t_us: 2000,
                 values: vec![f64::NAN]
             },
@@ -128,6 +132,7 @@ fn points_beyond_the_limits_are_refused_with_the_reason() {
     assert!(matches!(
         p.push(
             StreamPoint {
+                feed_forward: None,
                 t_us: 2000,
                 values: vec![0.0, 0.0]
             },
@@ -149,6 +154,7 @@ fn a_point_that_could_not_stop_inside_the_soft_limits_is_refused() {
     );
     p.push(
         StreamPoint {
+            feed_forward: None,
             t_us: 0,
             values: vec![490.0],
         },
@@ -164,6 +170,7 @@ fn a_point_that_could_not_stop_inside_the_soft_limits_is_refused() {
         x += v / 1000.0;
         if let Err(e) = p.push(
             StreamPoint {
+                feed_forward: None,
                 t_us: k * 1000,
                 values: vec![x],
             },
@@ -195,6 +202,7 @@ fn an_underrun_ramps_both_axes_to_rest_together_and_the_stream_resumes() {
             let pos = circle(10.0, 2.0, k as f64 / 1000.0);
             p.push(
                 StreamPoint {
+                    feed_forward: None,
                     t_us: k * 1000,
                     values: pos.to_vec(),
                 },
@@ -243,6 +251,7 @@ fn an_underrun_ramps_both_axes_to_rest_together_and_the_stream_resumes() {
     let t0 = 10_000_000u64;
     p.push(
         StreamPoint {
+            feed_forward: None,
             t_us: t0,
             values: standing.clone(),
         },
@@ -254,6 +263,7 @@ fn an_underrun_ramps_both_axes_to_rest_together_and_the_stream_resumes() {
         x += 0.0001 * k as f64 / 100.0;
         p.push(
             StreamPoint {
+                feed_forward: None,
                 t_us: t0 + k * 1000,
                 values: vec![x, standing[1]],
             },
@@ -277,6 +287,7 @@ fn a_stop_brings_the_axes_to_rest_and_drops_what_is_buffered() {
         }
         p.push(
             StreamPoint {
+                feed_forward: None,
                 t_us: k * 1000,
                 values: vec![x],
             },
@@ -323,6 +334,7 @@ fn the_first_cycle_past_the_last_point_plays_the_path_to_it() {
         if ms <= 100 {
             p.push(
                 StreamPoint {
+                    feed_forward: None,
                     t_us: ms * 1000,
                     values: vec![path(ms)],
                 },
@@ -377,6 +389,7 @@ fn random_stream(seed: u64) {
     let cycle = MS;
     let depth = Duration::from_millis(rng.range(2, 30));
     let lim = AxisLimits {
+        max_jerk: None,
         max_velocity: 50.0,
         max_acceleration: 500.0,
         stop_deceleration: 800.0,
@@ -433,6 +446,7 @@ fn random_stream(seed: u64) {
             flight.push((
                 arrive,
                 StreamPoint {
+                    feed_forward: None,
                     t_us: client_t,
                     values: pos.to_vec(),
                 },
@@ -508,6 +522,7 @@ fn velocity_player(axes: usize, depth_ms: u64) -> SetpointPlayer {
 
 fn velocity_point(t_us: u64, v: f64) -> StreamPoint {
     StreamPoint {
+        feed_forward: None,
         t_us,
         values: vec![v],
     }
@@ -625,6 +640,7 @@ fn random_velocity_stream(seed: u64) {
     let cycle = Duration::from_micros([1000, 2000, 4000, 10_000][rng.range(0, 4) as usize]);
     let depth = Duration::from_millis(rng.range(5, 60));
     let lim = AxisLimits {
+        max_jerk: None,
         max_velocity: 50.0,
         max_acceleration: 500.0,
         stop_deceleration: 800.0,
@@ -699,6 +715,7 @@ fn random_velocity_stream(seed: u64) {
             flight.push((
                 arrive,
                 StreamPoint {
+                    feed_forward: None,
                     t_us: client_t,
                     values: vel.to_vec(),
                 },
@@ -826,4 +843,404 @@ fn random_velocity_stream(seed: u64) {
         n.played + n.late + n.refused + n.dropped,
         "seed {seed}: {n:?}"
     );
+}
+
+/// A torque stream over `axes` axes of at most 500 per mille changing at
+/// most 10 000 per mille/s, 1 ms cycle.
+fn torque_player(axes: usize, depth_ms: u64) -> SetpointPlayer {
+    let mut cfg = PlayerConfig::new(MS, Duration::from_millis(depth_ms));
+    cfg.kind = SetpointKind::Torque;
+    SetpointPlayer::new(
+        cfg,
+        vec![AxisLimits::torque(500.0, 10_000.0); axes],
+        vec![0.0; axes],
+    )
+}
+
+fn torque_point(t_us: u64, t: f64) -> StreamPoint {
+    StreamPoint {
+        feed_forward: None,
+        t_us,
+        values: vec![t],
+    }
+}
+
+/// The torques play interpolated after the buffer, the last one is held
+/// for the extrapolation time, then the torque ramps to exactly 0 at the
+/// slope (an underrun), and the next playout starts from 0 again.
+#[test]
+fn a_torque_stream_plays_holds_and_ramps_the_torque_to_zero() {
+    let mut p = torque_player(1, 15);
+    // Each point arrives at its own time (no delay).
+    let mut played = Vec::new();
+    for k in 0..=70u32 {
+        if k % 10 == 0 && k <= 20 {
+            let t_us = u64::from(k) * 1000;
+            p.push(torque_point(t_us, 5.0 * f64::from(k)), MS * k)
+                .unwrap();
+        }
+        played.push(p.next(MS * k).positions[0]);
+    }
+    // Client time is 15 ms behind: 0 up to 15 ms, then 5 per mille per
+    // ms up to 100 at 35 ms.
+    assert_eq!(played[15], 0.0);
+    for (k, want) in [(20, 25.0), (25, 50.0), (35, 100.0)] {
+        assert!((played[k] - want).abs() < 1e-9, "{k}: {played:?}");
+    }
+    // Held at 100 for the extrapolation (15 ms, the depth).
+    assert!(played[35..50].iter().all(|&t| t == 100.0), "{played:?}");
+    // Then an underrun: 100 per mille to 0 at 10 000 per mille/s, 10 ms.
+    for (k, want) in [(50, 90.0), (54, 50.0), (58, 10.0)] {
+        assert!((played[k] - want).abs() < 1e-9, "{k}: {played:?}");
+    }
+    assert!(played[59..].iter().all(|&t| t == 0.0), "{played:?}");
+    assert_eq!(p.state(), PlayerState::Waiting);
+    let c = p.counters();
+    assert_eq!((c.received, c.played, c.underruns), (3, 3, 1), "{c:?}");
+    // A new playout starts from 0 torque.
+    assert!(matches!(
+        p.push(torque_point(100_000, 50.0), MS * 71),
+        Err(PointRefused::TorqueNotFromZero { axis: 0, .. })
+    ));
+    p.push(torque_point(100_000, 5.0), MS * 71).unwrap();
+}
+
+/// Torques beyond the maximum, changes beyond the slope, a start away
+/// from 0, a wrong count and a value that is not finite are refused.
+#[test]
+fn torque_points_beyond_the_limits_are_refused() {
+    let mut p = torque_player(1, 5);
+    assert_eq!(
+        p.push(torque_point(0, 20.0), Duration::ZERO),
+        Err(PointRefused::TorqueNotFromZero {
+            axis: 0,
+            torque: 20.0,
+            tolerance: 10.0,
+        })
+    );
+    p.push(torque_point(0, 10.0), Duration::ZERO).unwrap();
+    assert_eq!(
+        p.push(torque_point(1000, 600.0), Duration::ZERO),
+        Err(PointRefused::TorqueAboveMax {
+            axis: 0,
+            torque: 600.0,
+            max: 500.0,
+        })
+    );
+    // 10 -> 30 in 1 ms: 20 000 per mille/s.
+    assert_eq!(
+        p.push(torque_point(1000, 30.0), Duration::ZERO),
+        Err(PointRefused::TorqueTooSteep {
+            axis: 0,
+            slope: 20_000.0,
+            max: 10_000.0,
+        })
+    );
+    assert!(matches!(
+        p.push(torque_point(1000, f64::NAN), Duration::ZERO),
+        Err(PointRefused::NotFinite { axis: 0, .. })
+    ));
+    assert!(matches!(
+        p.push(
+            StreamPoint {
+                feed_forward: None,
+                t_us: 1000,
+                values: vec![1.0, 2.0]
+            },
+            Duration::ZERO
+        ),
+        Err(PointRefused::Dimension { got: 2, want: 1 })
+    ));
+    p.push(torque_point(1000, 20.0), Duration::ZERO).unwrap();
+    let c = p.counters();
+    assert_eq!((c.received, c.accepted, c.refused), (7, 2, 5), "{c:?}");
+}
+
+/// A stop ramps every torque to 0 together (each within its slope) and
+/// drops the buffered points.
+#[test]
+fn a_stop_ramps_the_torques_to_zero_together() {
+    let mut p = torque_player(2, 1);
+    for k in 0..=21u32 {
+        let t = f64::from(k);
+        let pt = StreamPoint {
+            feed_forward: None,
+            t_us: u64::from(k) * 1000,
+            values: vec![5.0 * t, -2.5 * t],
+        };
+        p.push(pt, MS * k).unwrap();
+        p.next(MS * k);
+    }
+    // Client time 20 ms: 100 and -50.
+    assert_eq!(p.position(), [100.0, -50.0]);
+    p.stop(MS * 21);
+    let mut k = 22;
+    let mut last = p.position().to_vec();
+    loop {
+        let out = p.next(MS * k);
+        for (t, t0) in out.positions.iter().zip(&last) {
+            assert!((t - t0).abs() <= 10.0 + 1e-9, "{out:?}");
+        }
+        last = out.positions.clone();
+        if out.event == Some(PlayerEvent::AtRest) {
+            break;
+        }
+        k += 1;
+    }
+    // 100 per mille at 10 000 per mille/s: 10 ms; y reaches 0 with x.
+    assert_eq!(k, 31);
+    assert_eq!(last, [0.0, 0.0]);
+    let c = p.counters();
+    assert_eq!(c.received, c.played + c.dropped, "{c:?}");
+}
+
+#[test]
+fn random_torque_streams_never_exceed_the_maximum_nor_the_slope() {
+    for seed in 1..=60u64 {
+        random_torque_stream(seed);
+    }
+}
+
+/// Random torque profiles (some beyond the maximum or the slope on
+/// purpose) with random network delay, stalls, stalled senders and a
+/// stop at the end, in virtual time: no torque beyond the maximum, no
+/// change beyond the slope, every underrun and stop ends at exactly 0
+/// within the slope's ramp, the counters add up.
+fn random_torque_stream(seed: u64) {
+    let mut rng = Rng(seed.wrapping_mul(0xA24B_AED4_963E_E407) | 1);
+    let cycle = Duration::from_micros([1000, 2000, 4000, 10_000][rng.range(0, 4) as usize]);
+    let depth = Duration::from_millis(rng.range(5, 60));
+    let (max, slope) = (400.0, 2000.0);
+    let mut cfg = PlayerConfig::new(cycle, depth);
+    cfg.kind = SetpointKind::Torque;
+    cfg.extrapolate = Duration::from_millis(rng.range(0, 50));
+    let mut p = SetpointPlayer::new(cfg, vec![AxisLimits::torque(max, slope); 2], vec![0.0; 2]);
+    let period_us = rng.range(500, 20_000);
+    let c = cycle.as_secs_f64();
+    let mut torque = [0.0f64; 2];
+    let mut accepted = [0.0f64; 2];
+    let mut target = [0.0f64; 2];
+    let mut client_t = rng.range(0, 1_000_000_000);
+    let mut next_send = Duration::ZERO;
+    let mut flight: Vec<(Duration, StreamPoint)> = Vec::new();
+    let mut stalled_until = Duration::ZERO;
+    let mut last = [0.0f64; 2];
+    let mut stopping = false;
+    let mut stop_at: Option<u32> = None;
+    let mut sent = 0u64;
+    let steps = (20.0 / c) as u32;
+    // The longest ramp to 0: the maximum at the slope, plus a cycle.
+    let ramp_cycles = (max / slope / c).ceil() as u32 + 1;
+    for k in 0..steps {
+        let now = cycle * k;
+        while next_send <= now && !stopping {
+            if rng.f64() < 0.01 {
+                target = [(rng.f64() - 0.5) * 900.0, (rng.f64() - 0.5) * 900.0];
+            }
+            let dt = period_us as f64 / 1e6;
+            let wild = rng.f64() < 0.002;
+            for a in 0..2 {
+                let dt_max = 0.9 * slope * dt;
+                let d = (target[a] - torque[a]).clamp(-dt_max, dt_max);
+                torque[a] += if wild { d * 20.0 } else { d };
+            }
+            client_t += period_us;
+            let mut delay = Duration::from_micros(rng.range(1000, 3000));
+            if rng.f64() < 0.05 {
+                delay += Duration::from_micros(rng.range(0, 40_000));
+            }
+            if rng.f64() < 0.001 {
+                stalled_until = now + Duration::from_millis(rng.range(10, 300));
+            }
+            flight.push((
+                (now + delay).max(stalled_until),
+                StreamPoint {
+                    feed_forward: None,
+                    t_us: client_t,
+                    values: torque.to_vec(),
+                },
+            ));
+            sent += 1;
+            next_send += Duration::from_micros(period_us);
+        }
+        flight.sort_by_key(|(at, _)| *at);
+        while flight.first().is_some_and(|(at, _)| *at <= now) {
+            let (_, pt) = flight.remove(0);
+            let t = [pt.values[0], pt.values[1]];
+            match p.push(pt, now) {
+                Ok(()) => accepted = t,
+                Err(PointRefused::TorqueTooSteep { .. } | PointRefused::TorqueAboveMax { .. }) => {
+                    torque = accepted;
+                }
+                Err(PointRefused::TorqueNotFromZero { .. }) => {
+                    torque = [0.0; 2];
+                    accepted = torque;
+                }
+                Err(_) => {}
+            }
+        }
+        if k == steps - (2.0 / c) as u32 {
+            p.stop(now);
+            stopping = true;
+        }
+        let out = p.next(now);
+        match out.event {
+            Some(PlayerEvent::Underrun) if stop_at.is_none() => stop_at = Some(k),
+            _ => {}
+        }
+        if stopping && stop_at.is_none() {
+            stop_at = Some(k);
+        }
+        if out.state == PlayerState::Waiting {
+            // Every ramp ends at exactly 0.
+            assert_eq!(out.positions, [0.0, 0.0], "seed {seed} cycle {k}");
+            if !stopping {
+                stop_at = None;
+            }
+        }
+        if let Some(s) = stop_at
+            && out.state != PlayerState::Waiting
+        {
+            assert!(
+                k - s <= ramp_cycles,
+                "seed {seed} cycle {k}: the ramp from {s} is not at 0 after {ramp_cycles} cycles"
+            );
+        }
+        for (a, (&t, t0)) in out.positions.iter().zip(last.iter_mut()).enumerate() {
+            assert!(t.abs() <= max + 1e-9, "seed {seed} cycle {k}: {t}");
+            assert!(
+                (t - *t0).abs() <= slope * c * (1.0 + 1e-9) + 1e-9,
+                "seed {seed} cycle {k}: axis {a} {t0} -> {t}"
+            );
+            *t0 = t;
+        }
+    }
+    assert_eq!(p.state(), PlayerState::Waiting, "seed {seed}");
+    assert_eq!(p.position(), [0.0, 0.0], "seed {seed}");
+    let n = p.counters();
+    assert_eq!(n.received + flight.len() as u64, sent, "seed {seed}: {n:?}");
+    assert_eq!(n.received, n.accepted + n.refused, "seed {seed}: {n:?}");
+    assert_eq!(
+        n.received,
+        n.played + n.late + n.refused + n.dropped,
+        "seed {seed}: {n:?}"
+    );
+}
+
+/// A position stream's feed-forward plays interpolated between points like
+/// the position; without one (or once the points run out) the
+/// feed-forward is the commanded velocity. A feed-forward beyond the
+/// limits refuses its point.
+#[test]
+fn the_feed_forward_of_a_position_stream_is_interpolated_and_checked() {
+    let mut p = player(1, 15).with_feed_forward_torque_limits(vec![300.0]);
+    let point = |k: u32, x: f64, v: f64, t: f64| StreamPoint {
+        t_us: u64::from(k) * 1000,
+        values: vec![x],
+        feed_forward: Some(FeedForward {
+            velocities: vec![v],
+            torques: vec![t],
+        }),
+    };
+    let mut ff = Vec::new();
+    for k in 0..=35u32 {
+        if k % 10 == 0 && k <= 20 {
+            // 0 to 0.1 to 0.3 mm: 10 then 20 mm/s, torque 0, 40, 80.
+            let (x, v, t) =
+                [(0.0, 0.0, 0.0), (0.1, 10.0, 40.0), (0.3, 20.0, 80.0)][k as usize / 10];
+            p.push(point(k, x, v, t), MS * k).unwrap();
+        }
+        p.next(MS * k);
+        ff.push(p.feed_forward());
+    }
+    // Client time 15 ms behind: at 20 ms half way to the second point.
+    assert_eq!(ff[20].velocities, [5.0]);
+    assert_eq!(ff[20].torques, [20.0]);
+    assert_eq!(ff[25].velocities, [10.0]);
+    assert!((ff[30].velocities[0] - 15.0).abs() < 1e-9, "{:?}", ff[30]);
+    assert!((ff[30].torques[0] - 60.0).abs() < 1e-9, "{:?}", ff[30]);
+    // Beyond the maximum velocity, the maximum torque, not finite, the
+    // wrong count: refused.
+    assert!(matches!(
+        p.push(point(36, 0.31, 150.0, 0.0), MS * 36),
+        Err(PointRefused::TooFast { axis: 0, .. })
+    ));
+    assert!(matches!(
+        p.push(point(36, 0.31, 10.0, 400.0), MS * 36),
+        Err(PointRefused::TorqueAboveMax { axis: 0, .. })
+    ));
+    assert!(matches!(
+        p.push(point(36, 0.31, f64::NAN, 0.0), MS * 36),
+        Err(PointRefused::NotFinite { axis: 0, .. })
+    ));
+    let mut two = point(36, 0.31, 10.0, 0.0);
+    two.feed_forward.as_mut().unwrap().torques = vec![1.0, 2.0];
+    assert!(matches!(
+        p.push(two, MS * 36),
+        Err(PointRefused::Dimension { got: 2, want: 1 })
+    ));
+    // No point ahead: the commanded velocity, no torque.
+    for k in 36..=40u32 {
+        p.next(MS * k);
+    }
+    let f = p.feed_forward();
+    assert!(f.torques.is_empty(), "{f:?}");
+    assert_eq!(f.velocities, p.velocity());
+    // A stream whose client gives none: 0 (a drive that derives its own
+    // feed-forward does not get it twice).
+    let mut p = player(1, 5);
+    for k in 0..=10u32 {
+        let pt = StreamPoint {
+            feed_forward: None,
+            t_us: u64::from(k) * 1000,
+            values: vec![0.0005 * f64::from(k * k)],
+        };
+        p.push(pt, MS * k).unwrap();
+        p.next(MS * k);
+    }
+    assert!(p.velocity()[0] > 0.0);
+    assert_eq!(p.feed_forward().velocities, [0.0]);
+}
+
+/// With a maximum jerk, a point whose segment's acceleration changes from
+/// the previous one's faster than the jerk allows over the segment is
+/// refused (exactly at the bound it is taken); without one nothing is
+/// checked.
+#[test]
+fn a_point_beyond_the_maximum_jerk_is_refused() {
+    let lim = AxisLimits {
+        max_jerk: Some(10_000.0),
+        ..limits(Some(500.0))
+    };
+    let mut p = SetpointPlayer::new(PlayerConfig::new(MS, MS * 5), vec![lim], vec![0.0]);
+    let at = |t_ms: u64, x: f64| StreamPoint {
+        feed_forward: None,
+        t_us: t_ms * 1000,
+        values: vec![x],
+    };
+    p.push(at(0, 0.0), Duration::ZERO).unwrap();
+    // Segments of 10 ms: 0.05 mm is 5 mm/s, 500 mm/s² from rest: a
+    // change of 500 mm/s² in 10 ms, 50 000 mm/s³.
+    assert_eq!(
+        p.push(at(10, 0.05), Duration::ZERO),
+        Err(PointRefused::TooHardJerk {
+            axis: 0,
+            jerk: 50_000.0,
+            max: 10_000.0,
+        })
+    );
+    // 0.01 mm: 1 mm/s, 100 mm/s², 10 000 mm/s³: at the bound.
+    p.push(at(10, 0.01), Duration::ZERO).unwrap();
+    // Then 0.03 mm (2 mm/s, 100 mm/s² again): no change of acceleration.
+    p.push(at(20, 0.03), Duration::ZERO).unwrap();
+    // Then a stop of the acceleration to -100 mm/s²: 20 000 mm/s³.
+    assert!(matches!(
+        p.push(at(30, 0.04), Duration::ZERO),
+        Err(PointRefused::TooHardJerk { axis: 0, .. })
+    ));
+    // Without a maximum jerk the same points pass.
+    let mut p = player(1, 5);
+    for (t, x) in [(0, 0.0), (10, 0.05), (20, 0.15)] {
+        p.push(at(t, x), Duration::ZERO).unwrap();
+    }
 }

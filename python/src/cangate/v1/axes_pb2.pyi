@@ -551,14 +551,16 @@ class SetpointBatch(_message.Message):
     def __init__(self, points: _Optional[_Iterable[_Union[Setpoint, _Mapping]]] = ...) -> None: ...
 
 class Setpoint(_message.Message):
-    __slots__ = ("t_us", "positions", "velocities")
+    __slots__ = ("t_us", "positions", "velocities", "torques")
     T_US_FIELD_NUMBER: _ClassVar[int]
     POSITIONS_FIELD_NUMBER: _ClassVar[int]
     VELOCITIES_FIELD_NUMBER: _ClassVar[int]
+    TORQUES_FIELD_NUMBER: _ClassVar[int]
     t_us: int
     positions: _containers.RepeatedScalarFieldContainer[float]
     velocities: _containers.RepeatedScalarFieldContainer[float]
-    def __init__(self, t_us: _Optional[int] = ..., positions: _Optional[_Iterable[float]] = ..., velocities: _Optional[_Iterable[float]] = ...) -> None: ...
+    torques: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, t_us: _Optional[int] = ..., positions: _Optional[_Iterable[float]] = ..., velocities: _Optional[_Iterable[float]] = ..., torques: _Optional[_Iterable[float]] = ...) -> None: ...
 
 class SetpointCounters(_message.Message):
     __slots__ = ("received", "accepted", "refused", "played", "late", "dropped", "underruns", "limited")
@@ -581,7 +583,7 @@ class SetpointCounters(_message.Message):
     def __init__(self, received: _Optional[int] = ..., accepted: _Optional[int] = ..., refused: _Optional[int] = ..., played: _Optional[int] = ..., late: _Optional[int] = ..., dropped: _Optional[int] = ..., underruns: _Optional[int] = ..., limited: _Optional[int] = ...) -> None: ...
 
 class SetpointStreamStatus(_message.Message):
-    __slots__ = ("state", "buffer_level_us", "counters", "clock_offset_us", "commanded_positions", "actual_positions", "events", "timestamp_us", "ended", "signals")
+    __slots__ = ("state", "buffer_level_us", "counters", "clock_offset_us", "commanded_positions", "actual_positions", "events", "timestamp_us", "ended", "signals", "commanded_torques", "velocity_feed_forward_sent", "torque_feed_forward_sent")
     STATE_FIELD_NUMBER: _ClassVar[int]
     BUFFER_LEVEL_US_FIELD_NUMBER: _ClassVar[int]
     COUNTERS_FIELD_NUMBER: _ClassVar[int]
@@ -592,6 +594,9 @@ class SetpointStreamStatus(_message.Message):
     TIMESTAMP_US_FIELD_NUMBER: _ClassVar[int]
     ENDED_FIELD_NUMBER: _ClassVar[int]
     SIGNALS_FIELD_NUMBER: _ClassVar[int]
+    COMMANDED_TORQUES_FIELD_NUMBER: _ClassVar[int]
+    VELOCITY_FEED_FORWARD_SENT_FIELD_NUMBER: _ClassVar[int]
+    TORQUE_FEED_FORWARD_SENT_FIELD_NUMBER: _ClassVar[int]
     state: SetpointStreamState
     buffer_level_us: int
     counters: SetpointCounters
@@ -602,7 +607,10 @@ class SetpointStreamStatus(_message.Message):
     timestamp_us: int
     ended: str
     signals: _containers.RepeatedCompositeFieldContainer[StreamAxisSignals]
-    def __init__(self, state: _Optional[_Union[SetpointStreamState, str]] = ..., buffer_level_us: _Optional[int] = ..., counters: _Optional[_Union[SetpointCounters, _Mapping]] = ..., clock_offset_us: _Optional[int] = ..., commanded_positions: _Optional[_Iterable[float]] = ..., actual_positions: _Optional[_Iterable[float]] = ..., events: _Optional[_Iterable[_Union[SetpointStreamEvent, _Mapping]]] = ..., timestamp_us: _Optional[int] = ..., ended: _Optional[str] = ..., signals: _Optional[_Iterable[_Union[StreamAxisSignals, _Mapping]]] = ...) -> None: ...
+    commanded_torques: _containers.RepeatedScalarFieldContainer[float]
+    velocity_feed_forward_sent: _containers.RepeatedScalarFieldContainer[bool]
+    torque_feed_forward_sent: _containers.RepeatedScalarFieldContainer[bool]
+    def __init__(self, state: _Optional[_Union[SetpointStreamState, str]] = ..., buffer_level_us: _Optional[int] = ..., counters: _Optional[_Union[SetpointCounters, _Mapping]] = ..., clock_offset_us: _Optional[int] = ..., commanded_positions: _Optional[_Iterable[float]] = ..., actual_positions: _Optional[_Iterable[float]] = ..., events: _Optional[_Iterable[_Union[SetpointStreamEvent, _Mapping]]] = ..., timestamp_us: _Optional[int] = ..., ended: _Optional[str] = ..., signals: _Optional[_Iterable[_Union[StreamAxisSignals, _Mapping]]] = ..., commanded_torques: _Optional[_Iterable[float]] = ..., velocity_feed_forward_sent: _Optional[_Iterable[bool]] = ..., torque_feed_forward_sent: _Optional[_Iterable[bool]] = ...) -> None: ...
 
 class StreamAxisSignals(_message.Message):
     __slots__ = ("torque_actual", "velocity_actual", "following_error_actual", "digital_inputs")

@@ -291,8 +291,8 @@ class AxesServicer:
     def StreamSetpoints(self, request_iterator, context):
         """Streams time-stamped set-points into a jitter buffer, played on the
         bus's SYNC grid (cyclic CiA 402 axes of one bus: positions for axes in
-        csp, velocities for axes in csv) or a CANsmc master's cycle (CANsmc
-        axes of one master). The first message
+        csp, velocities for axes in csv, torques for axes in cst) or a CANsmc
+        master's cycle (CANsmc axes of one master). The first message
         opens the stream (SetpointStreamOpen) under a control lease covering
         every axis; the following carry batches of points (each renews the
         lease). Points carry the client's own clock: the gateway plays client
@@ -313,9 +313,15 @@ class AxesServicer:
         INVALID_ARGUMENT for no axes, an axis named twice, a depth of 0 or
         above 2000 ms, an extrapolation above 1000 ms, a point period above
         the depth; FAILED_PRECONDITION without the lease, or for an axis that
-        is neither a cyclic CiA 402 axis in csp or csv nor a CANsmc axis, not
-        enabled, moving, already streamed, on another bus or CANsmc master
-        than the first, or in csp where the first is in csv (or the reverse).
+        is neither a cyclic CiA 402 axis in csp, csv or cst nor a CANsmc axis,
+        not enabled, moving, already streamed, on another bus or CANsmc master
+        than the first, or in another of csp, csv and cst than the first. A
+        stream of cst axes gives each axis a torque command of 0 first (the
+        drive's halt released, the axis guarded as under SetTorque: its
+        velocity against max_velocity, a stop from where it is against the
+        soft limits; a guard that trips ends the stream TORQUE_GUARD); every
+        end of it (an underrun too, which ends it: UNDERRUN) ramps the
+        torques to 0 at the torque slope and halts the drives.
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')
