@@ -93,7 +93,12 @@ pub(super) async fn run_master(task: MasterTask) {
     let mut unsent = bus.subscribe_unsent();
     loop {
         let mut out = Output::default();
-        let deadline = origin + master.next_deadline().unwrap_or(origin.elapsed() + far);
+        // The clock only when nothing is due (a clock read is a system
+        // call on some hosts, and this runs at every wake-up).
+        let deadline = origin
+            + master
+                .next_deadline()
+                .unwrap_or_else(|| origin.elapsed() + far);
         tokio::select! {
             biased;
             _ = &mut cancelled => break,
@@ -333,7 +338,6 @@ fn handle_event(
     events: &broadcast::Sender<NodeEvent>,
     facts: &RwLock<BTreeMap<NodeId, NodeFacts>>,
 ) {
-    let at = Timestamp::now();
     let (node, kind) = match ev {
         MasterEvent::SdoCompleted { id, result, .. } => {
             if let Some(p) = pending.remove(&id) {
@@ -456,6 +460,9 @@ fn handle_event(
         },
     };
     facts.write().expect("facts lock").entry(node).or_default();
+    // Stamped here, not for every event: an SDO answer (most events)
+    // needs no wall-clock read.
+    let at = Timestamp::now();
     let _ = events.send(NodeEvent { node, at, kind });
 }
 

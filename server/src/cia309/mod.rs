@@ -180,8 +180,18 @@ struct Writer {
 }
 
 impl Writer {
+    /// Writes all of `bytes`, failing when the peer does not take them
+    /// within the timeout. What the socket's buffer takes at once is
+    /// written without arming the timeout: nearly every answer, and the
+    /// timer (a clock read, a timer-wheel entry) is then not needed.
     async fn write(&mut self, bytes: &[u8]) -> Result<(), End> {
-        match tokio::time::timeout(self.timeout, self.half.write_all(bytes)).await {
+        let rest = match self.half.try_write(bytes) {
+            Ok(n) if n == bytes.len() => return Ok(()),
+            Ok(n) => &bytes[n..],
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => bytes,
+            Err(_) => return Err(End::Gone),
+        };
+        match tokio::time::timeout(self.timeout, self.half.write_all(rest)).await {
             Ok(Ok(())) => Ok(()),
             _ => Err(End::Gone),
         }

@@ -191,8 +191,18 @@ struct Writer {
 }
 
 impl Writer {
+    /// Writes all of `bytes`, failing when the peer does not take them
+    /// within the timeout. What the socket's buffer takes at once is
+    /// written without arming the timeout: nearly every answer, and the
+    /// timer (a clock read, a timer-wheel entry) is then not needed.
     async fn write(&mut self, bytes: &[u8]) -> Result<(), End> {
-        match tokio::time::timeout(self.timeout, self.half.write_all(bytes)).await {
+        let rest = match self.half.try_write(bytes) {
+            Ok(n) if n == bytes.len() => return Ok(()),
+            Ok(n) => &bytes[n..],
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => bytes,
+            Err(_) => return Err(End::WriteFailed),
+        };
+        match tokio::time::timeout(self.timeout, self.half.write_all(rest)).await {
             Ok(Ok(())) => Ok(()),
             _ => Err(End::WriteFailed),
         }
@@ -302,7 +312,9 @@ async fn serve(
     let idle = (cfg.idle_timeout_s > 0).then(|| Duration::from_secs(cfg.idle_timeout_s));
     let mut last_read = Instant::now();
     let mut feed: Option<Subscription> = None;
-    let mut feed_from = Instant::now();
+    // When a new feed's frames may start to go out (`None`: now). Compared
+    // with the clock only while set, not at every wake-up.
+    let mut feed_from: Option<Instant> = None;
     let mut buf = vec![0u8; 4096];
     let mut items: Vec<BusItem> = Vec::with_capacity(FEED_BATCH);
     let mut out = String::new();
@@ -341,7 +353,10 @@ async fn serve(
             (Some(_), true) => None,
         };
         let bcm_due = bcm.next_deadline().map(|d| started + d);
-        let waiting_to_feed = feed.is_some() && Instant::now() < feed_from;
+        if feed_from.is_some_and(|t| Instant::now() >= t) {
+            feed_from = None;
+        }
+        let waiting_to_feed = feed.is_some() && feed_from.is_some();
         let feeding = feed.is_some() && !waiting_to_feed;
         let event = tokio::select! {
             biased;
@@ -350,7 +365,7 @@ async fn serve(
             _ = tokio::time::sleep_until(deadline.unwrap_or_else(Instant::now)),
                 if deadline.is_some() => Event::Deadline,
             r = reader.read(&mut buf) => Event::Read(r),
-            _ = tokio::time::sleep_until(feed_from), if waiting_to_feed => Event::FeedReady,
+            _ = tokio::time::sleep_until(feed_from.unwrap_or(started)), if waiting_to_feed => Event::FeedReady,
             n = next_items(&mut feed, &mut items), if feeding => Event::Items(n),
             _ = tokio::time::sleep_until(bcm_due.unwrap_or_else(Instant::now)),
                 if bcm_due.is_some() => Event::BcmDue,
@@ -535,13 +550,13 @@ async fn serve(
                                         queue: o.queue,
                                     },
                                 ));
-                                feed_from = Instant::now() + RAW_SETTLE;
+                                feed_from = Some(Instant::now() + RAW_SETTLE);
                             } else if !on {
                                 // BCM mode: only the subscribed frames.
                                 raw_feed = false;
                                 feed = bcm_feed(o, &bcm);
                                 fed = feed_ids(&bcm);
-                                feed_from = Instant::now();
+                                feed_from = None;
                             }
                             if let Err(e) = writer.write(b"< ok >").await {
                                 return e;
@@ -617,7 +632,7 @@ async fn serve(
                                 let ids = feed_ids(&bcm);
                                 if ids != fed {
                                     feed = bcm_feed(o, &bcm);
-                                    feed_from = Instant::now();
+                                    feed_from = None;
                                     fed = ids;
                                 }
                             }
