@@ -478,6 +478,45 @@ fn python_client_api() {
     });
 }
 
+/// The package's example `python/examples/stream_circle.py`: half a turn of
+/// the circle streamed at 1 kHz on the demo's X and Y through 5 ms of
+/// injected jitter, none refused, the stream ended by the client (the
+/// example's exit status says so). The buffer is deep (500 ms) so that a
+/// loaded host does not make it underrun: the figures are the benchmark's.
+#[test]
+fn python_stream_circle_example() {
+    let Some(python) = python_or_skip("python_stream_circle_example", MODULES) else {
+        return;
+    };
+    run("python_stream_circle_example", async {
+        let server = cangate_server::start(&demo_can0()).await?;
+        let example =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../python/examples/stream_circle.py");
+        let mut p = Peer::spawn(
+            &python,
+            &example,
+            &["--turns", "0.5", "--jitter-ms", "5", "--depth-ms", "500"],
+            &[("CANGATE_SERVER", format!("http://{}", server.addr))],
+        )?;
+        let ended = p
+            .expect("the stream's end", READY_WAIT, |l| {
+                l.starts_with("circle r=")
+            })
+            .await?;
+        ensure!(ended.ends_with("ended CLIENT_ENDED"), "{ended}");
+        let counts = p
+            .expect("the counters", WAIT, |l| l.starts_with("points received"))
+            .await?;
+        ensure!(counts.contains(", refused 0,"), "{counts}");
+        p.finish(WAIT).await?;
+        server.shutdown();
+        server
+            .wait(Duration::from_secs(5))
+            .await
+            .map_err(|e| anyhow!("shutdown: {e}"))
+    });
+}
+
 /// A simulated drive in cyclic synchronous torque (T) on can0, for the
 /// torque stream of `torque_stream.py`.
 const TORQUE_CONFIG: &str = r#"
