@@ -1146,14 +1146,25 @@ mod tests {
                 (8, 0x687)
             ]
         );
+        // RPDO3 and RPDO7 carry each axis's feed-forward (0x60B1/0x60B2
+        // and 0x68B1/0x68B2): the drive's EDS has them.
         assert_eq!(
             ids(&rpdos),
-            [(1, 0x203), (2, 0x303), (5, 0x680), (6, 0x681)]
+            [
+                (1, 0x203),
+                (2, 0x303),
+                (3, 0x403),
+                (5, 0x680),
+                (6, 0x681),
+                (7, 0x682)
+            ]
         );
         let boot = boot.expect("a boot plan");
         for (addr, bytes) in [
             // RPDO5 maps axis 1's controlword, TPDO7 its digital inputs.
             (ObjectAddress::new(0x1604, 1), vec![0x10, 0x00, 0x40, 0x68]),
+            // RPDO7 maps axis 1's velocity offset first.
+            (ObjectAddress::new(0x1606, 1), vec![0x20, 0x00, 0xB1, 0x68]),
             (ObjectAddress::new(0x1A06, 2), vec![0x20, 0x00, 0xFD, 0x68]),
             (ObjectAddress::new(0x1804, 1), vec![0x84, 0x06, 0x00, 0x00]),
             // Its soft limits and homing method.
