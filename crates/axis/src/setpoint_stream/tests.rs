@@ -363,9 +363,20 @@ fn the_first_cycle_past_the_last_point_plays_the_path_to_it() {
 /// add up.
 #[test]
 fn random_streams_never_jump_nor_leave_the_limits() {
-    for seed in 1..=60u64 {
+    for seed in 1..=random_cases() {
         random_stream(seed);
     }
+}
+
+/// Runs of each random stream test: `SETPOINT_STREAM_CASES`, else 60 (a
+/// debug build plays about ten runs a second; thousands are a release
+/// build's or a night's run, e.g. `SETPOINT_STREAM_CASES=3000 cargo test
+/// --release -p cangate-axis --lib random_`).
+fn random_cases() -> u64 {
+    std::env::var("SETPOINT_STREAM_CASES")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(60)
 }
 
 struct Rng(u64);
@@ -630,7 +641,7 @@ fn velocity_points_beyond_the_limits_are_refused() {
 /// received = played + late + refused + dropped.
 #[test]
 fn random_velocity_streams_never_jump_nor_leave_the_limits() {
-    for seed in 1..=60u64 {
+    for seed in 1..=random_cases() {
         random_velocity_stream(seed);
     }
 }
@@ -996,7 +1007,7 @@ fn a_stop_ramps_the_torques_to_zero_together() {
 
 #[test]
 fn random_torque_streams_never_exceed_the_maximum_nor_the_slope() {
-    for seed in 1..=60u64 {
+    for seed in 1..=random_cases() {
         random_torque_stream(seed);
     }
 }
