@@ -646,6 +646,17 @@ fn random_velocity_streams_never_jump_nor_leave_the_limits() {
     }
 }
 
+/// The first seed of the random velocity streams above 60 that breaks the
+/// acceleration bound: axis 0 goes from 7.64 to -11.63 mm/s in one 10 ms
+/// cycle (at most 8 mm/s allowed), at cycle 1324, client period 5523 µs.
+/// Found by `SETPOINT_STREAM_CASES=1000`; kept here until the player is
+/// fixed (docs/safety.md, "Open").
+#[test]
+#[ignore = "open defect: a velocity stream steps beyond the acceleration bound (seed 375)"]
+fn random_velocity_stream_seed_375_never_jumps() {
+    random_velocity_stream(375);
+}
+
 fn random_velocity_stream(seed: u64) {
     let mut rng = Rng(seed.wrapping_mul(0xD1B5_4A32_D192_ED03) | 1);
     let cycle = Duration::from_micros([1000, 2000, 4000, 10_000][rng.range(0, 4) as usize]);
