@@ -5,10 +5,10 @@
 //! the client sends its points ahead of real time (a planner with a
 //! look-ahead), so a loaded machine does not starve the buffer.
 
+use cangate_client::Client;
 use cangate_client::pb;
-use cangate_client::{Client, SetpointStreamOptions};
 use cangate_tests::axes::*;
-use cangate_tests::streams::{read_until, send_path};
+use cangate_tests::streams::{read_until, send_path, stream_options};
 use cangate_tests::*;
 use std::time::{Duration, Instant};
 use tonic::Code;
@@ -95,16 +95,6 @@ max_acceleration = 1000.0
 
 /// Bound of everything a test waits for.
 const LONG: Duration = Duration::from_secs(60);
-
-/// Statuses every 10 ms, a 50 ms buffer.
-fn options() -> SetpointStreamOptions {
-    SetpointStreamOptions {
-        depth: Duration::from_millis(50),
-        extrapolate: Some(Duration::from_millis(50)),
-        point_period: Some(Duration::from_millis(1)),
-        status_period: Some(Duration::from_millis(10)),
-    }
-}
 
 /// The server, a client, A and B enabled under the client's lease.
 async fn setup() -> (
@@ -197,7 +187,7 @@ fn line(s: f64) -> Vec<f64> {
 async fn a_streamed_circle_on_cansmc_axes_arrives_on_the_circle_and_ends_at_rest() {
     let (server, c, mut axes, lease) = setup().await;
     let mut stream = c
-        .stream_setpoints(&lease, &["A", "B"], options())
+        .stream_setpoints(&lease, &["A", "B"], stream_options())
         .await
         .unwrap();
     let sending = send_path(
@@ -257,7 +247,7 @@ async fn a_streamed_circle_on_cansmc_axes_arrives_on_the_circle_and_ends_at_rest
 async fn stop_axes_during_a_cansmc_stream_stops_the_axes_and_ends_the_stream() {
     let (server, c, mut axes, lease) = setup().await;
     let mut stream = c
-        .stream_setpoints(&lease, &["A", "B"], options())
+        .stream_setpoints(&lease, &["A", "B"], stream_options())
         .await
         .unwrap();
     let sending = send_path(
@@ -341,7 +331,7 @@ async fn stop_axes_during_a_cansmc_stream_stops_the_axes_and_ends_the_stream() {
 async fn a_cancelled_cansmc_stream_brings_the_axes_to_rest() {
     let (server, c, mut axes, lease) = setup().await;
     let mut stream = c
-        .stream_setpoints(&lease, &["A", "B"], options())
+        .stream_setpoints(&lease, &["A", "B"], stream_options())
         .await
         .unwrap();
     let sending = send_path(
@@ -376,7 +366,7 @@ async fn a_stream_mixing_cansmc_and_cia402_axes_is_refused() {
         .await
         .unwrap();
     let e = c
-        .stream_setpoints(&lease, &["A", "X"], options())
+        .stream_setpoints(&lease, &["A", "X"], stream_options())
         .await
         .err()
         .expect("refused");

@@ -5,9 +5,9 @@
 //! not starve the buffer.
 
 use cangate_client::pb;
-use cangate_client::{Client, SetpointStreamOptions, setpoint};
+use cangate_client::{Client, setpoint};
 use cangate_tests::axes::*;
-use cangate_tests::streams::{events, read_until, send_path};
+use cangate_tests::streams::{events, read_until, send_path, stream_options};
 use cangate_tests::*;
 use std::time::{Duration, Instant};
 use tonic::Code;
@@ -57,16 +57,6 @@ max_acceleration = 1000.0
 
 /// Bound of everything a test waits for.
 const LONG: Duration = Duration::from_secs(60);
-
-/// Statuses every 10 ms, a 50 ms buffer.
-fn options() -> SetpointStreamOptions {
-    SetpointStreamOptions {
-        depth: Duration::from_millis(50),
-        extrapolate: Some(Duration::from_millis(50)),
-        point_period: Some(Duration::from_millis(1)),
-        status_period: Some(Duration::from_millis(10)),
-    }
-}
 
 /// The server, a client, X and Y enabled under the client's lease.
 async fn setup() -> (
@@ -150,7 +140,7 @@ fn off_circle(p: &[f64]) -> f64 {
 async fn a_streamed_circle_arrives_on_the_circle_and_ends_at_rest() {
     let (server, c, mut axes, lease) = setup().await;
     let mut stream = c
-        .stream_setpoints(&lease, &["X", "Y"], options())
+        .stream_setpoints(&lease, &["X", "Y"], stream_options())
         .await
         .unwrap();
     let sender = stream.sender().unwrap();
@@ -210,7 +200,7 @@ async fn a_streamed_circle_arrives_on_the_circle_and_ends_at_rest() {
 async fn an_underrun_is_reported_brings_the_axes_to_rest_and_the_stream_resumes() {
     let (server, c, mut axes, lease) = setup().await;
     let mut stream = c
-        .stream_setpoints(&lease, &["X", "Y"], options())
+        .stream_setpoints(&lease, &["X", "Y"], stream_options())
         .await
         .unwrap();
     // Up to 20 mm/s on X at 200 mm/s², then nothing more.
@@ -284,7 +274,7 @@ async fn an_underrun_is_reported_brings_the_axes_to_rest_and_the_stream_resumes(
 async fn a_point_beyond_the_limits_is_refused_and_not_sent() {
     let (server, c, mut axes, lease) = setup().await;
     let mut stream = c
-        .stream_setpoints(&lease, &["X", "Y"], options())
+        .stream_setpoints(&lease, &["X", "Y"], stream_options())
         .await
         .unwrap();
     stream
@@ -345,7 +335,7 @@ fn line(s: f64) -> Vec<f64> {
 async fn stop_axes_during_a_stream_stops_the_axes_and_ends_the_stream() {
     let (server, c, mut axes, lease) = setup().await;
     let mut stream = c
-        .stream_setpoints(&lease, &["X", "Y"], options())
+        .stream_setpoints(&lease, &["X", "Y"], stream_options())
         .await
         .unwrap();
     let sending = send_path(
@@ -424,7 +414,7 @@ async fn stop_axes_during_a_stream_stops_the_axes_and_ends_the_stream() {
 async fn a_lost_lease_ends_the_stream_at_rest() {
     let (server, c, mut axes, lease) = setup().await;
     let mut stream = c
-        .stream_setpoints(&lease, &["X", "Y"], options())
+        .stream_setpoints(&lease, &["X", "Y"], stream_options())
         .await
         .unwrap();
     let sending = send_path(
@@ -470,31 +460,34 @@ async fn opening_is_refused_without_a_lease_or_with_bad_arguments() {
                 .expect("refused")
         }
     };
-    let e = open("", &["X"], options()).await;
+    let e = open("", &["X"], stream_options()).await;
     assert_eq!(e.code(), Some(Code::FailedPrecondition), "{e:?}");
     assert_eq!(e.reason().as_deref(), Some("LEASE_REQUIRED"), "{e:?}");
-    let e = open("", &["W"], options()).await;
+    let e = open("", &["W"], stream_options()).await;
     assert_eq!(e.code(), Some(Code::NotFound), "{e:?}");
-    let e = open("", &[], options()).await;
+    let e = open("", &[], stream_options()).await;
     assert_eq!(e.code(), Some(Code::InvalidArgument), "{e:?}");
     let lease = c
         .acquire_control(&["X", "Y"], Duration::from_secs(5))
         .await
         .unwrap();
-    let mut zero = options();
+    let mut zero = stream_options();
     zero.depth = Duration::ZERO;
     let e = open(lease.token(), &["X"], zero).await;
     assert_eq!(e.code(), Some(Code::InvalidArgument), "{e:?}");
-    let e = open(lease.token(), &["X", "X"], options()).await;
+    let e = open(lease.token(), &["X", "X"], stream_options()).await;
     assert_eq!(e.code(), Some(Code::InvalidArgument), "{e:?}");
     // Not enabled yet.
-    let e = open(lease.token(), &["X"], options()).await;
+    let e = open(lease.token(), &["X"], stream_options()).await;
     assert_eq!(e.code(), Some(Code::FailedPrecondition), "{e:?}");
     assert!(e.to_string().contains("not enabled"), "{e}");
     // Already in another stream.
     axes.enable(cmd("X", lease.token(), true)).await.unwrap();
-    let _first = c.stream_setpoints(&lease, &["X"], options()).await.unwrap();
-    let e = open(lease.token(), &["X"], options()).await;
+    let _first = c
+        .stream_setpoints(&lease, &["X"], stream_options())
+        .await
+        .unwrap();
+    let e = open(lease.token(), &["X"], stream_options()).await;
     assert_eq!(e.code(), Some(Code::FailedPrecondition), "{e:?}");
     assert!(
         e.to_string().contains("already in a set-point stream"),
@@ -510,7 +503,7 @@ async fn opening_is_refused_without_a_lease_or_with_bad_arguments() {
 async fn shutdown_during_a_stream_brings_the_axes_to_rest_first() {
     let (server, c, _axes, lease) = setup().await;
     let mut stream = c
-        .stream_setpoints(&lease, &["X", "Y"], options())
+        .stream_setpoints(&lease, &["X", "Y"], stream_options())
         .await
         .unwrap();
     let sending = send_path(
@@ -550,7 +543,7 @@ async fn shutdown_during_a_stream_brings_the_axes_to_rest_first() {
 async fn a_cancelled_stream_brings_the_axes_to_rest() {
     let (server, c, mut axes, lease) = setup().await;
     let mut stream = c
-        .stream_setpoints(&lease, &["X", "Y"], options())
+        .stream_setpoints(&lease, &["X", "Y"], stream_options())
         .await
         .unwrap();
     let sending = send_path(

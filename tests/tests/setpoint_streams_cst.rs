@@ -8,12 +8,12 @@
 
 use cangate_can::virtual_bus::PortEvent;
 use cangate_client::pb;
-use cangate_client::{SetpointSender, SetpointStreamOptions, setpoint, torque_setpoint};
+use cangate_client::{SetpointSender, setpoint, torque_setpoint};
 use cangate_tests::axes::*;
-use cangate_tests::streams::{events, read_until};
+use cangate_tests::streams::{events, read_until, refusals, send_points, stream_options};
 use cangate_tests::*;
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 use tonic::Code;
 
 /// T: CST, at most 300 per mille changing at most 2000 per mille/s, its
@@ -138,15 +138,6 @@ async fn setup() -> (
     (server, c, axes, lease, spy)
 }
 
-fn options() -> SetpointStreamOptions {
-    SetpointStreamOptions {
-        depth: Duration::from_millis(50),
-        extrapolate: Some(Duration::from_millis(50)),
-        point_period: Some(Duration::from_millis(1)),
-        status_period: Some(Duration::from_millis(10)),
-    }
-}
-
 /// T's torque profile (per mille) at `s` seconds: up at 1000 per mille/s
 /// to 30, held, down from 0.47 s: 0 from 0.5 s on.
 fn push(s: f64) -> f64 {
@@ -160,31 +151,9 @@ fn send_torques(
     points: u64,
     torque: impl Fn(f64) -> f64 + Send + 'static,
 ) -> tokio::task::JoinHandle<()> {
-    tokio::spawn(async move {
-        let start = Instant::now();
-        for batch in (0..points).collect::<Vec<_>>().chunks(10) {
-            let last = *batch.last().unwrap();
-            let due = Duration::from_millis(last);
-            if let Some(wait) = due.checked_sub(start.elapsed() + Duration::from_millis(300)) {
-                tokio::time::sleep(wait).await;
-            }
-            let pts = batch
-                .iter()
-                .map(|&k| torque_setpoint(k * 1000, vec![torque(k as f64 / 1000.0)]))
-                .collect();
-            if sender.send(pts).await.is_err() {
-                return;
-            }
-        }
+    send_points(sender, points, Duration::from_millis(300), move |k| {
+        torque_setpoint(k * 1000, vec![torque(k as f64 / 1000.0)])
     })
-}
-
-fn refusals(seen: &[pb::SetpointStreamStatus]) -> Vec<String> {
-    events(seen)
-        .iter()
-        .filter(|e| e.kind == pb::SetpointEventKind::SetpointEventPointRefused as i32)
-        .map(|e| e.reason.clone())
-        .collect()
 }
 
 /// The torque RPDO's payloads: 0x6071 alone, i16 little endian; every
@@ -223,7 +192,10 @@ async fn wait_halted(axes: &mut Axes) -> pb::AxisStatus {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn torques_stream_to_the_cst_axis_and_its_end_halts_the_drive() {
     let (server, c, mut axes, lease, spy) = setup().await;
-    let mut stream = c.stream_setpoints(&lease, &["T"], options()).await.unwrap();
+    let mut stream = c
+        .stream_setpoints(&lease, &["T"], stream_options())
+        .await
+        .unwrap();
     // Not from 0, above the maximum, too steep: refused.
     stream
         .send(vec![torque_setpoint(0, vec![50.0])])
@@ -284,7 +256,10 @@ async fn torques_stream_to_the_cst_axis_and_its_end_halts_the_drive() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_velocity_guard_ends_a_torque_stream_and_halts_the_drive() {
     let (server, c, mut axes, lease, spy) = setup().await;
-    let mut stream = c.stream_setpoints(&lease, &["T"], options()).await.unwrap();
+    let mut stream = c
+        .stream_setpoints(&lease, &["T"], stream_options())
+        .await
+        .unwrap();
     let sending = send_torques(stream.sender().unwrap(), 5000, |s| (1000.0 * s).min(200.0));
     let mut seen = Vec::new();
     let e = read_until(&mut stream, &mut seen, |_| false)
@@ -315,7 +290,10 @@ async fn the_velocity_guard_ends_a_torque_stream_and_halts_the_drive() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_underrun_or_a_lost_lease_halts_the_drive_and_kinds_do_not_mix() {
     let (server, c, mut axes, lease, spy) = setup().await;
-    let mut stream = c.stream_setpoints(&lease, &["T"], options()).await.unwrap();
+    let mut stream = c
+        .stream_setpoints(&lease, &["T"], stream_options())
+        .await
+        .unwrap();
     // Up to 30 per mille and no further point.
     let sending = send_torques(stream.sender().unwrap(), 100, |s| (1000.0 * s).min(30.0));
     let mut seen = Vec::new();
@@ -339,13 +317,16 @@ async fn an_underrun_or_a_lost_lease_halts_the_drive_and_kinds_do_not_mix() {
     // Kinds do not mix; positions are no torques.
     enable(&mut axes, "P", lease.token()).await;
     let e = c
-        .stream_setpoints(&lease, &["P", "T"], options())
+        .stream_setpoints(&lease, &["P", "T"], stream_options())
         .await
         .err()
         .expect("refused");
     assert_eq!(e.code(), Some(Code::FailedPrecondition), "{e:?}");
     assert!(e.to_string().contains("not both"), "{e}");
-    let mut stream = c.stream_setpoints(&lease, &["T"], options()).await.unwrap();
+    let mut stream = c
+        .stream_setpoints(&lease, &["T"], stream_options())
+        .await
+        .unwrap();
     stream.send(vec![setpoint(0, vec![0.0])]).await.unwrap();
     let e = read_until(&mut stream, &mut seen, |_| false)
         .await
@@ -355,7 +336,10 @@ async fn an_underrun_or_a_lost_lease_halts_the_drive_and_kinds_do_not_mix() {
 
     // A released lease.
     spy.clear();
-    let mut stream = c.stream_setpoints(&lease, &["T"], options()).await.unwrap();
+    let mut stream = c
+        .stream_setpoints(&lease, &["T"], stream_options())
+        .await
+        .unwrap();
     let sending = send_torques(stream.sender().unwrap(), 5000, |s| (1000.0 * s).min(30.0));
     read_until(&mut stream, &mut seen, |s| {
         s.signals[0].velocity_actual.is_some_and(|v| v > 5.0)

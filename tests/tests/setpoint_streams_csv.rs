@@ -6,9 +6,9 @@
 //! the buffer.
 
 use cangate_client::pb;
-use cangate_client::{SetpointSender, SetpointStreamOptions, setpoint, velocity_setpoint};
+use cangate_client::{SetpointSender, setpoint, velocity_setpoint};
 use cangate_tests::axes::*;
-use cangate_tests::streams::{events, read_until};
+use cangate_tests::streams::{events, read_until, refusals, send_points, stream_options};
 use cangate_tests::*;
 use std::time::{Duration, Instant};
 use tonic::Code;
@@ -37,15 +37,6 @@ async fn demo() -> (
     (server, c, axes, lease)
 }
 
-fn options() -> SetpointStreamOptions {
-    SetpointStreamOptions {
-        depth: Duration::from_millis(50),
-        extrapolate: Some(Duration::from_millis(50)),
-        point_period: Some(Duration::from_millis(1)),
-        status_period: Some(Duration::from_millis(10)),
-    }
-}
-
 /// S's velocity profile (rev/s) at `s` seconds: up at 80 rev/s² to 20
 /// rev/s, held, down at 80 rev/s² from 0.75 s: at rest from 1 s on (15
 /// rev in all).
@@ -60,31 +51,9 @@ fn send_velocities(
     points: u64,
     velocity: impl Fn(f64) -> f64 + Send + 'static,
 ) -> tokio::task::JoinHandle<()> {
-    tokio::spawn(async move {
-        let start = Instant::now();
-        for batch in (0..points).collect::<Vec<_>>().chunks(10) {
-            let last = *batch.last().unwrap();
-            let due = Duration::from_millis(last);
-            if let Some(wait) = due.checked_sub(start.elapsed() + Duration::from_millis(300)) {
-                tokio::time::sleep(wait).await;
-            }
-            let pts = batch
-                .iter()
-                .map(|&k| velocity_setpoint(k * 1000, vec![velocity(k as f64 / 1000.0)]))
-                .collect();
-            if sender.send(pts).await.is_err() {
-                return;
-            }
-        }
+    send_points(sender, points, Duration::from_millis(300), move |k| {
+        velocity_setpoint(k * 1000, vec![velocity(k as f64 / 1000.0)])
     })
-}
-
-fn refusals(seen: &[pb::SetpointStreamStatus]) -> Vec<String> {
-    events(seen)
-        .iter()
-        .filter(|e| e.kind == pb::SetpointEventKind::SetpointEventPointRefused as i32)
-        .map(|e| e.reason.clone())
-        .collect()
 }
 
 /// The drive's velocity never went beyond the streamed profile's 20
@@ -123,7 +92,10 @@ async fn wait_at_rest(axes: &mut Axes, streaming: bool) -> pb::AxisStatus {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn velocities_stream_to_the_csv_spindle_and_it_ends_at_rest() {
     let (server, c, mut axes, lease) = demo().await;
-    let mut stream = c.stream_setpoints(&lease, &["S"], options()).await.unwrap();
+    let mut stream = c
+        .stream_setpoints(&lease, &["S"], stream_options())
+        .await
+        .unwrap();
     // Not from rest, then a position (no csv point), refused / caught.
     stream
         .send(vec![velocity_setpoint(0, vec![10.0])])
@@ -198,7 +170,10 @@ async fn velocities_stream_to_the_csv_spindle_and_it_ends_at_rest() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_underrun_at_speed_ramps_the_spindle_to_rest_and_the_stream_resumes() {
     let (server, c, mut axes, lease) = demo().await;
-    let mut stream = c.stream_setpoints(&lease, &["S"], options()).await.unwrap();
+    let mut stream = c
+        .stream_setpoints(&lease, &["S"], stream_options())
+        .await
+        .unwrap();
     // Up to 20 rev/s and no further point.
     let sending = send_velocities(stream.sender().unwrap(), 500, spin);
     let mut seen = Vec::new();
@@ -249,7 +224,10 @@ async fn an_underrun_at_speed_ramps_the_spindle_to_rest_and_the_stream_resumes()
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_lost_lease_ramps_the_spindle_to_rest_and_modes_do_not_mix() {
     let (server, c, mut axes, lease) = demo().await;
-    let mut stream = c.stream_setpoints(&lease, &["S"], options()).await.unwrap();
+    let mut stream = c
+        .stream_setpoints(&lease, &["S"], stream_options())
+        .await
+        .unwrap();
     let sending = send_velocities(stream.sender().unwrap(), 3000, |s| (80.0 * s).min(20.0));
     let mut seen = Vec::new();
     read_until(&mut stream, &mut seen, |s| {
@@ -275,14 +253,17 @@ async fn a_lost_lease_ramps_the_spindle_to_rest_and_modes_do_not_mix() {
     wait_ready(&mut axes, &["X"]).await;
     enable(&mut axes, "X", lease.token()).await;
     let e = c
-        .stream_setpoints(&lease, &["X", "S"], options())
+        .stream_setpoints(&lease, &["X", "S"], stream_options())
         .await
         .err()
         .expect("refused");
     assert_eq!(e.code(), Some(Code::FailedPrecondition), "{e:?}");
     assert!(e.to_string().contains("not both"), "{e}");
     // A position point on a velocity stream is a protocol error.
-    let mut stream = c.stream_setpoints(&lease, &["S"], options()).await.unwrap();
+    let mut stream = c
+        .stream_setpoints(&lease, &["S"], stream_options())
+        .await
+        .unwrap();
     stream.send(vec![setpoint(0, vec![0.0])]).await.unwrap();
     let e = read_until(&mut stream, &mut seen, |_| false)
         .await
